@@ -1,0 +1,66 @@
+"""McKibben muscle statics: Tondu-Lopez force and volume (400 mm muscle, Table 1).
+
+The braid geometry gives, with contraction ratio ``eps = l / L0`` and initial braid angle ``alpha0``,
+
+.. math::  F = p\\,\\pi r_0^2\\,[a (1-\\varepsilon)^2 - b], \\quad a = 3/\\tan^2\\alpha_0,\\; b = 1/\\sin^2\\alpha_0
+
+(Tondu & Lopez, IEEE Control Systems 2000). By virtual work, ``F = p dV/dl``, so the factor
+``pi r0^2 [a (1-eps)^2 - b]`` is also the muscle's volume change per unit contraction [m^2]: the
+"piston area" the water flow works against. The muscle cannot push: beyond the maximal contraction
+``eps_max = 1 - 1/(sqrt(3) cos alpha0)`` both vanish.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .parameters import MuscleParams
+
+__all__ = ["MuscleGeometry"]
+
+
+@dataclass(frozen=True)
+class MuscleGeometry:
+    """Constants of the Tondu-Lopez model derived once from :class:`MuscleParams` (SI units)."""
+
+    rest_length_m: float
+    area0_m2: float
+    a: float
+    b: float
+    max_contraction_m: float
+    radius0_m: float
+    cos_alpha0: float
+    sin_alpha0: float
+
+    @classmethod
+    def from_params(cls, p: MuscleParams) -> "MuscleGeometry":
+        alpha0 = math.radians(p.braid_angle_deg)
+        r0 = p.radius_mm * 1e-3
+        length = p.rest_length_mm * 1e-3
+        return cls(
+            rest_length_m=length,
+            area0_m2=math.pi * r0 * r0,
+            a=3.0 / math.tan(alpha0) ** 2,
+            b=1.0 / math.sin(alpha0) ** 2,
+            max_contraction_m=length * (1.0 - 1.0 / (math.sqrt(3.0) * math.cos(alpha0))),
+            radius0_m=r0,
+            cos_alpha0=math.cos(alpha0),
+            sin_alpha0=math.sin(alpha0),
+        )
+
+    def piston_area_m2(self, l_m: float) -> float:
+        """``dV/dl = F/p`` [m^2] at contraction ``l_m`` [m]; zero beyond the maximal contraction."""
+        s = 1.0 - l_m / self.rest_length_m
+        g = self.a * s * s - self.b
+        return self.area0_m2 * g if g > 0.0 else 0.0
+
+    def contact_factor(self, l_m: float) -> float:
+        """Braid-bladder contact area relative to rest, ``(r/r0)(L/L0)`` [-].
+
+        With inextensible braid threads the radius grows as ``r/r0 = sin(alpha)/sin(alpha0)`` and
+        ``cos(alpha) = cos(alpha0) (1 - eps)``; friction scales with this area (see friction.py).
+        """
+        s = 1.0 - l_m / self.rest_length_m
+        c = self.cos_alpha0 * s
+        return math.sqrt(max(1.0 - c * c, 0.0)) / self.sin_alpha0 * s

@@ -1,0 +1,74 @@
+"""Open-loop runs of the plant with a command signal (the data behind a recording).
+
+Sampling convention (used by every recording): row ``k`` holds the time ``t_k = k Ts``, the sensor
+readings taken at ``t_k`` and the command ``u_k`` applied (zero-order hold) over ``[t_k, t_{k+1})``.
+So ``l(k)`` depends on ``u(k-1)``, as in the paper's Eq. (1).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+
+from .plant import Plant
+
+__all__ = ["run_open_loop"]
+
+
+def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s: float, ts_s: float,
+                  load_n: Callable[[float], float] | float | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Run ``plant`` from its current state with ``u = signal(t)`` sampled every ``ts_s``.
+
+    Parameters
+    ----------
+    plant : Plant
+        Advanced in place (call ``plant.reset()`` first for a fresh run).
+    signal : callable
+        Command [V] as a function of time [s].
+    duration_s, ts_s : float
+        Length of the run and sampling period [s]; ``round(duration_s / ts_s) + 1`` rows.
+    load_n : float or callable, optional
+        Hanging load [N], constant or as a function of time (load steps during a run).
+    progress : callable, optional
+        Called as ``progress(done, total)`` about every 1% of the run.
+
+    Returns
+    -------
+    dict of ndarray
+        ``t_s, u_v, l_mm, p_mpa, load_n`` (one row per sample, see module docstring).
+
+    Raises
+    ------
+    ValueError
+        If the duration or period is not positive and finite, or the signal returns a non-finite
+        command (the message gives the time).
+    """
+    for name, value in (("duration_s", duration_s), ("ts_s", ts_s)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    n = int(round(duration_s / ts_s)) + 1
+    out = {k: np.empty(n) for k in ("t_s", "u_v", "l_mm", "p_mpa", "load_n")}
+    load_fn = load_n if callable(load_n) else None
+    if load_n is not None and not callable(load_n):
+        plant.update(load_n=load_n)
+    t0 = plant.t_s
+    l_now, p_now = plant.measurement.l_mm, plant.measurement.p_mpa
+    every = max(1, n // 100)
+    for k in range(n):
+        t = t0 + k * ts_s
+        if load_fn is not None:
+            plant.update(load_n=load_fn(t))
+        u = float(signal(t))
+        if not math.isfinite(u):
+            raise ValueError(f"input signal gave a non-finite command {u!r} at t = {t:g} s")
+        out["t_s"][k], out["u_v"][k], out["l_mm"][k], out["p_mpa"][k] = t, u, l_now, p_now
+        out["load_n"][k] = plant.load_n
+        if k + 1 < n:
+            meas = plant.step(u, ts_s)
+            l_now, p_now = meas.l_mm, meas.p_mpa
+        if progress is not None and (k % every == 0 or k + 1 == n):
+            progress(k + 1, n)
+    return out

@@ -1,0 +1,216 @@
+"""Physical parameters of the tap-water muscle rig (paper section 2.4, Table 1).
+
+Every field carries its unit in its name or docstring. Values marked *datasheet* come from the
+components of Table 1, *paper* from the text, and *calibration* were chosen so that the simulated rig
+reproduces what the paper measured (the identified poles of Table 3, the ranges of Figs. 3-5,
+the load dependence of section 4); see ``docs/plant.md`` for the calibration targets and how they are
+checked (``benchmarks/plant_calibration.py``).
+
+All dataclasses are frozen and validated on construction: an invalid value raises ``ValueError``
+naming the field and the value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+__all__ = [
+    "ValveParams",
+    "SupplyParams",
+    "MuscleParams",
+    "LoadParams",
+    "FrictionParams",
+    "SensorParams",
+    "SolverParams",
+    "PlantParams",
+    "GRAVITY_M_S2",
+    "CV_TO_SI_WATER",
+]
+
+#: Standard gravity [m/s^2], converts the hanging load's weight to its mass.
+GRAVITY_M_S2 = 9.80665
+
+#: Flow coefficient conversion for water (specific gravity 1): Q [m^3/s] = Cv * CV_TO_SI_WATER * sqrt(dp [Pa]).
+#: (1 US gal/min at 1 psi: 6.309e-5 m^3/s / sqrt(6894.76 Pa)).
+CV_TO_SI_WATER = 6.30902e-5 / math.sqrt(6894.757)
+
+
+def _check(name: str, value: float, *, lo: float | None = None, hi: float | None = None,
+           lo_open: bool = False) -> None:
+    """Raise ``ValueError`` naming ``name`` when ``value`` is not finite or out of range."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    if lo is not None and (value <= lo if lo_open else value < lo):
+        raise ValueError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ValueError(f"{name} must be <= {hi}, got {value!r}")
+
+
+class _Validated:
+    """Mixin: check every numeric field is finite and within the bounds in its metadata."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            if "lo" in f.metadata or "hi" in f.metadata:
+                _check(f"{type(self).__name__}.{f.name}", getattr(self, f.name),
+                       lo=f.metadata.get("lo"), hi=f.metadata.get("hi"),
+                       lo_open=f.metadata.get("lo_open", False))
+
+
+def _f(default: float, doc: str, lo: float | None = None, hi: float | None = None,
+       lo_open: bool = False) -> Any:
+    meta: dict[str, Any] = {"doc": doc, "lo_open": lo_open}
+    if lo is not None:
+        meta["lo"] = lo
+    if hi is not None:
+        meta["hi"] = hi
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ValveParams(_Validated):
+    """Two proportional valves (Koganei KFPV300, Table 1) in a bleed (meter-in/meter-out) circuit.
+
+    The supply valve opens with the command, ``x_in = u/10``; the drain valve is driven with the
+    complementary command, ``x_out = 1 - u/10``. At steady state the muscle pressure is set by the
+    ratio of the two openings, which gives the finite DC gain the paper identifies (Table 3:
+    ``a1 + a2 < 1``). The paper shows "proportional valves" (plural) but not their wiring; this is our
+    decision, documented in ``docs/plant.md``.
+    """
+
+    cv_max: float = _f(0.6, "Effective flow coefficient of each valve at full command [US gpm/psi^0.5]; calibration to the paper's slow dominant pole (Table 3), bounded by the datasheet rating 1.6 (Table 1).", lo=0.0, lo_open=True, hi=1.6)
+    u_min_v: float = _f(0.0, "Lowest valve command [V]; datasheet (Table 1).")
+    u_max_v: float = _f(10.0, "Highest valve command [V]; datasheet (Table 1).")
+    spool_time_constant_s: float = _f(0.03, "First-order spool response time constant [s]; calibration (typical of proportional valves).", lo=0.0, lo_open=True)
+    leak_fraction: float = _f(0.01, "Opening of a closed valve as a fraction of full opening (spool underlap/leak) [-]; calibration.", lo=0.0, hi=1.0)
+    laminar_dp_mpa: float = _f(0.002, "Pressure drop below which orifice flow is regularised to laminar [MPa]; numerical.", lo=0.0, lo_open=True)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.u_max_v <= self.u_min_v:
+            raise ValueError(f"ValveParams.u_max_v ({self.u_max_v}) must exceed u_min_v ({self.u_min_v})")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SupplyParams(_Validated):
+    """Tap-water supply and drain (section 2.4, Table 1)."""
+
+    supply_pressure_mpa: float = _f(0.25, "Gauge pressure of the tap-water supply [MPa(G)]; paper (Table 1, average).", lo=0.0, hi=1.0)
+    drain_pressure_mpa: float = _f(0.0, "Gauge pressure of the drain (atmosphere) [MPa(G)]; paper.", lo=0.0, hi=1.0)
+    compliance_m3_per_mpa: float = _f(1.0e-5, "Hydraulic compliance of hose, fittings and bladder dV/dp [m^3/MPa]; calibration (water itself is nearly incompressible).", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class MuscleParams(_Validated):
+    """McKibben muscle, Tondu-Lopez static force model with a rubber bladder.
+
+    Force ``F = p * A0 * (a (1 - eps)^2 - b)``, ``a = 3/tan^2(alpha0)``, ``b = 1/sin^2(alpha0)``,
+    ``eps = l / L0`` the contraction ratio. By virtual work the same factor is the volume change per
+    unit contraction, ``dV/dl = A0 (a (1 - eps)^2 - b)``.
+    """
+
+    rest_length_mm: float = _f(400.0, "Active length L0 at zero contraction [mm]; paper (Table 1).", lo=0.0, lo_open=True)
+    radius_mm: float = _f(7.0, "Initial bladder radius r0 [mm]; calibration (in-house muscle, not given).", lo=0.0, lo_open=True)
+    braid_angle_deg: float = _f(23.0, "Initial braid angle alpha0 [deg]; calibration (sets the 149 mm maximal contraction).", lo=1.0, hi=54.0)
+    rubber_stiffness_n_per_mm: float = _f(0.8, "Axial stiffness of the rubber bladder against contraction [N/mm]; calibration.", lo=0.0)
+    threshold_pressure_mpa: float = _f(0.01, "Pressure the bladder needs before the braid is loaded [MPa]; calibration.", lo=0.0)
+    damping_n_s_per_mm: float = _f(0.08, "Viscous damping of muscle and load [N s/mm]; calibration.", lo=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class LoadParams(_Validated):
+    """Hanging load (section 4.1: 44 N and 68 N). Its mass is ``load_n / g`` plus the moving parts."""
+
+    load_n: float = _f(44.0, "Weight of the hanging load [N]; paper (section 4.1).", lo=0.0, hi=500.0)
+    moving_mass_kg: float = _f(0.3, "Mass of the muscle end plate, cable and encoder slider [kg]; calibration.", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrictionParams(_Validated):
+    """Braid-bladder friction: the source of the muscle's hysteresis.
+
+    A Dahl-type (first-order, rate-independent shape) friction whose level grows with the contact
+    pressure (so it is load dependent), differs between contraction and extension (asymmetric), and
+    grows with the sliding speed (rate dependent, paper section 4.4 / Fig. 20). Level while moving at
+    speed ``|v|`` in direction ``s``::
+
+        F_s = (f0 + mu * p) * (1 + s * asym) * (1 + rate * (|v| / v_ref)^rate_exponent)
+    """
+
+    base_n: float = _f(2.0, "Pressure-independent friction level f0 [N]; calibration.", lo=0.0)
+    per_mpa_n: float = _f(40.0, "Growth of friction with muscle pressure mu [N/MPa]; calibration.", lo=0.0)
+    asymmetry: float = _f(0.35, "Contraction friction (1+asym) vs extension friction (1-asym) [-]; calibration.", lo=-0.95, hi=0.95)
+    presliding_mm: float = _f(1.5, "Presliding displacement over which friction builds up (Dahl) [mm]; calibration.", lo=0.0, lo_open=True)
+    rate_gain: float = _f(0.8, "Rate dependence of the friction level at v_ref (0 switches it off) [-]; calibration to section 4.4.", lo=0.0)
+    rate_ref_mm_s: float = _f(20.0, "Reference sliding speed v_ref for the rate dependence [mm/s]; calibration.", lo=0.0, lo_open=True)
+    rate_exponent: float = _f(1.0, "Exponent of the rate dependence [-]; calibration.", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorParams(_Validated):
+    """Linear encoder (MUTOH DX-025, 0.01 mm) and pressure sensor (Yokogawa FP101, 0-1 MPa), Table 1."""
+
+    encoder_resolution_mm: float = _f(0.01, "Encoder quantisation step [mm]; datasheet (Table 1). 0 disables quantisation.", lo=0.0)
+    encoder_noise_std_mm: float = _f(0.01, "Standard deviation of white encoder noise before quantisation [mm]; calibration. 0 disables it.", lo=0.0)
+    pressure_range_mpa: float = _f(1.0, "Full scale of the pressure sensor [MPa]; datasheet (Table 1).", lo=0.0, lo_open=True)
+    pressure_resolution_mpa: float = _f(1.0 / 4096.0, "Pressure quantisation (12-bit ADC over the range) [MPa]. 0 disables it.", lo=0.0)
+    pressure_noise_std_mpa: float = _f(0.001, "Standard deviation of white pressure-sensor noise [MPa]. 0 disables it.", lo=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SolverParams(_Validated):
+    """Fixed-step integration of the continuous-time model."""
+
+    max_substep_s: float = _f(0.002, "Largest internal integration step [s]; a communication step is split into equal sub-steps no longer than this.", lo=1e-6, hi=0.01)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlantParams:
+    """All parameters of the simulated rig. Build variants with :func:`dataclasses.replace` or
+    :meth:`with_values`."""
+
+    valve: ValveParams = field(default_factory=ValveParams)
+    supply: SupplyParams = field(default_factory=SupplyParams)
+    muscle: MuscleParams = field(default_factory=MuscleParams)
+    load: LoadParams = field(default_factory=LoadParams)
+    friction: FrictionParams = field(default_factory=FrictionParams)
+    sensor: SensorParams = field(default_factory=SensorParams)
+    solver: SolverParams = field(default_factory=SolverParams)
+
+    def with_values(self, **dotted: float) -> "PlantParams":
+        """Return a copy with fields replaced by dotted name, e.g. ``with_values(**{"load.load_n": 68})``.
+
+        Raises ``ValueError`` naming an unknown group or field.
+        """
+        groups: dict[str, dict[str, float]] = {}
+        for key, value in dotted.items():
+            group, _, name = key.partition(".")
+            if not name or group not in {f.name for f in fields(self)}:
+                raise ValueError(f"unknown plant parameter {key!r} (expected 'group.field', groups: "
+                                 f"{', '.join(f.name for f in fields(self))})")
+            sub = getattr(self, group)
+            if name not in {f.name for f in fields(sub)}:
+                raise ValueError(f"unknown plant parameter {key!r}; {group} has: "
+                                 f"{', '.join(f.name for f in fields(sub))}")
+            groups.setdefault(group, {})[name] = value
+        return replace(self, **{g: replace(getattr(self, g), **kv) for g, kv in groups.items()})
+
+    def to_dict(self) -> dict[str, dict[str, float]]:
+        """Nested plain dict ``{group: {field: value}}`` (JSON-serialisable)."""
+        return {f.name: {g.name: getattr(getattr(self, f.name), g.name) for g in fields(getattr(self, f.name))}
+                for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, dict[str, float]]) -> "PlantParams":
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
+        if not isinstance(data, dict):
+            raise ValueError(f"plant parameters must be a mapping of groups, got {type(data).__name__}")
+        flat = {}
+        for group, values in data.items():
+            if not isinstance(values, dict):
+                raise ValueError(f"plant parameter group {group!r} must be a mapping, got {values!r}")
+            for name, value in values.items():
+                flat[f"{group}.{name}"] = value
+        return cls().with_values(**flat)

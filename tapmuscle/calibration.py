@@ -1,0 +1,139 @@
+"""Figures that check the simulated rig against the paper (issue 2's calibration targets).
+
+Every function takes plain arrays from a recording (``t_s``, ``u_v``, ``l_mm``), so the same
+measurements apply to a simulated recording and to one from a real rig.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["LoopBranches", "loop_branches", "LoopFigures", "loop_figures", "settling_time_s"]
+
+
+@dataclass(frozen=True)
+class LoopBranches:
+    """Rising and falling branches of a hysteresis loop, averaged over cycles, on a command grid."""
+
+    u_v: np.ndarray
+    """Command grid [V]."""
+    rising_mm: np.ndarray
+    """Mean displacement on the rising-command branch at each grid point [mm] (NaN if not covered)."""
+    falling_mm: np.ndarray
+    """Mean displacement on the falling-command branch [mm] (NaN if not covered)."""
+    monotonic: bool
+    """Each branch is monotonic (non-decreasing in ``u``) over the grid, within the tolerance."""
+    worst_reversal_mm: float
+    """Largest decrease of displacement with increasing command found on either branch [mm]."""
+
+
+def _segments(u: np.ndarray) -> list[tuple[int, int, int]]:
+    """Runs of strictly rising (+1) or falling (-1) command: (start, stop, direction)."""
+    du = np.sign(np.diff(u))
+    out, start = [], 0
+    for k in range(1, len(du) + 1):
+        if k == len(du) or du[k] != du[start]:
+            if du[start] != 0 and k - start >= 3:
+                out.append((start, k + 1, int(du[start])))
+            start = k
+    return out
+
+
+def loop_branches(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, *, settle_s: float = 30.0,
+                  grid_v: np.ndarray | None = None, trim_fraction: float = 0.1,
+                  bin_v: float = 0.05, tol_mm: float = 0.05) -> LoopBranches:
+    """Split a periodic-input recording into rising/falling branches and average each.
+
+    Parameters
+    ----------
+    t_s, u_v, l_mm : ndarray
+        Time [s], command [V], displacement [mm].
+    settle_s : float
+        Samples before this time are left out (start-up transient).
+    grid_v : ndarray, optional
+        Command grid; default 0.05 V steps over the inner ``1 - 2 trim_fraction`` of the input range.
+    trim_fraction : float
+        Fraction of the input range left out at each end, where the branches reverse.
+    bin_v, tol_mm : float
+        Monotonicity is judged on bin means of width ``bin_v``; a drop larger than ``tol_mm``
+        (noise and quantisation are ~0.01 mm) counts as non-monotonic.
+    """
+    t_s, u_v, l_mm = (np.asarray(a, dtype=float) for a in (t_s, u_v, l_mm))
+    keep = t_s >= settle_s
+    u, l = u_v[keep], l_mm[keep]
+    lo, hi = float(u.min()), float(u.max())
+    span = hi - lo
+    if grid_v is None:
+        grid_v = np.arange(lo + trim_fraction * span, hi - trim_fraction * span + 1e-9, bin_v)
+    curves: dict[int, list[np.ndarray]] = {1: [], -1: []}
+    worst = 0.0
+    for a, b, d in _segments(u):
+        us, ls = u[a:b][::d], l[a:b][::d]  # ascending command
+        # The displacement at a command is read where the command passes it (the row's command
+        # acts on the next samples, so pair u(k) with l(k+1)).
+        if b < len(l):
+            ls = l[a + 1:b + 1][::d]
+        curves[d].append(np.interp(grid_v, us, ls, left=np.nan, right=np.nan))
+        inner = (us >= lo + trim_fraction * span) & (us <= hi - trim_fraction * span)
+        if inner.sum() > 4:
+            edges = np.arange(us[inner].min(), us[inner].max() + bin_v, bin_v)
+            idx = np.digitize(us[inner], edges)
+            means = np.array([ls[inner][idx == i].mean() for i in np.unique(idx)])
+            if len(means) > 1:
+                worst = max(worst, float(np.max(-np.diff(means), initial=0.0)))
+    rising = np.nanmean(np.array(curves[1]), axis=0) if curves[1] else np.full_like(grid_v, np.nan)
+    falling = np.nanmean(np.array(curves[-1]), axis=0) if curves[-1] else np.full_like(grid_v, np.nan)
+    return LoopBranches(grid_v, rising, falling, worst <= tol_mm, worst)
+
+
+@dataclass(frozen=True)
+class LoopFigures:
+    """The quasi-static loop figures of the calibration targets (docs/plant.md)."""
+
+    swing_mm: float
+    """Peak-to-peak displacement after settling [mm]."""
+    min_mm: float
+    max_mm: float
+    max_width_mm: float
+    """Widest |rising - falling| at equal command [mm]."""
+    width_at_mm: dict[float, float]
+    """Width at selected commands [mm]."""
+    mean_at_mm: dict[float, float]
+    """Mean of both branches at selected commands [mm]."""
+    monotonic: bool
+    worst_reversal_mm: float
+
+
+def loop_figures(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, *, settle_s: float = 30.0,
+                 at_v: tuple[float, ...] = (3.5, 5.0, 6.5)) -> LoopFigures:
+    """Swing, widths and branch means of a hysteresis-loop recording (see :func:`loop_branches`)."""
+    br = loop_branches(t_s, u_v, l_mm, settle_s=settle_s)
+    keep = np.asarray(t_s) >= settle_s
+    l = np.asarray(l_mm)[keep]
+    width = np.abs(br.rising_mm - br.falling_mm)
+    width_at = {a: float(np.interp(a, br.u_v, width)) for a in at_v}
+    mean_at = {a: float(np.interp(a, br.u_v, 0.5 * (br.rising_mm + br.falling_mm))) for a in at_v}
+    return LoopFigures(float(l.max() - l.min()), float(l.min()), float(l.max()),
+                       float(np.nanmax(width)), width_at, mean_at, br.monotonic, br.worst_reversal_mm)
+
+
+def settling_time_s(t_s: np.ndarray, l_mm: np.ndarray, *, t_step_s: float, band: float = 0.02,
+                    final_window_s: float = 10.0) -> float:
+    """Time after ``t_step_s`` until the response stays within ``band`` of the step size [s].
+
+    The final value is the mean over the last ``final_window_s`` seconds of the record, the
+    initial value the mean over the second before the step.
+    """
+    t_s, l_mm = np.asarray(t_s, dtype=float), np.asarray(l_mm, dtype=float)
+    before = l_mm[(t_s >= t_step_s - 1.0) & (t_s < t_step_s)]
+    final = float(l_mm[t_s >= t_s[-1] - final_window_s].mean())
+    initial = float(before.mean()) if before.size else float(l_mm[0])
+    tol = band * abs(final - initial)
+    after = t_s >= t_step_s
+    outside = np.nonzero(after & (np.abs(l_mm - final) > tol))[0]
+    if outside.size == 0:
+        return 0.0
+    last = int(outside[-1])
+    return float(t_s[min(last + 1, len(t_s) - 1)] - t_step_s)
