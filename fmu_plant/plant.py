@@ -234,6 +234,22 @@ class Plant:
             w = e.load(t_s, w)
         return u, ps, w
 
+    def _valve_flows(self, x: float, p_mpa: float, ps_mpa: float) -> tuple[float, float]:
+        """Flows through the supply and drain valves [m^3/s] at spool opening ``x``."""
+        vp = self.params.valve
+        xc = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
+        leak = vp.leak_fraction
+        k_in = self._k_valve * (leak + (1.0 - leak) * xc)
+        k_out = self._k_valve * (leak + (1.0 - leak) * (1.0 - xc))
+        return (orifice_flow(k_in, (ps_mpa - p_mpa) * 1e6, self._laminar_pa),
+                orifice_flow(k_out, (p_mpa - self.params.supply.drain_pressure_mpa) * 1e6, self._laminar_pa))
+
+    def flows_l_min(self) -> tuple[float, float]:
+        """Current flows through the supply and drain valves [L/min] (positive into / out of the muscle)."""
+        _, ps, _ = self._ports(self.t_s)
+        q_in, q_out = self._valve_flows(self.state[0], self.state[1], ps)
+        return q_in * 6e4, q_out * 6e4
+
     def derivatives(self, s: Iterable[float], u_v: float, ps_mpa: float, load_n: float) -> list[float]:
         """Right-hand side ``ds/dt`` of the state equations for fixed port signals.
 
@@ -251,12 +267,7 @@ class Plant:
 
         # Valves: spool lag, then the supply and drain orifices.
         dx = (valve_opening(u_v, vp.u_min_v, vp.u_max_v) - x) / vp.spool_time_constant_s
-        xc = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
-        leak = vp.leak_fraction
-        k_in = self._k_valve * (leak + (1.0 - leak) * xc)
-        k_out = self._k_valve * (leak + (1.0 - leak) * (1.0 - xc))
-        q_in = orifice_flow(k_in, (ps_mpa - p) * 1e6, self._laminar_pa)
-        q_out = orifice_flow(k_out, (p - prm.supply.drain_pressure_mpa) * 1e6, self._laminar_pa)
+        q_in, q_out = self._valve_flows(x, p, ps_mpa)
 
         # Muscle: the flow not stored in the hose/bladder compliance moves the braid.
         l_m = l * 1e-3

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LoopBranches", "loop_branches", "LoopFigures", "loop_figures", "settling_time_s"]
+__all__ = ["LoopBranches", "loop_branches", "LoopFigures", "loop_figures", "settling_time_s",
+           "TARGET_RECORDINGS", "TargetCheck", "check_targets"]
 
 
 @dataclass(frozen=True)
@@ -137,3 +138,65 @@ def settling_time_s(t_s: np.ndarray, l_mm: np.ndarray, *, t_step_s: float, band:
         return 0.0
     last = int(outside[-1])
     return float(t_s[min(last + 1, len(t_s) - 1)] - t_step_s)
+
+
+#: The recordings the calibration targets are measured on: name -> (load [N], input spec, duration [s]).
+#: All at Ts = 0.1 s, seed 0, noise on (issue 2).
+TARGET_RECORDINGS: dict[str, tuple[float, str, float]] = {
+    "ident_44": (44.0, "sine:bias=5,amp=3,freq=0.1", 240.0),
+    "quasi_static_44": (44.0, "sine:bias=5,amp=3,freq=0.01", 240.0),
+    "quasi_static_68": (68.0, "sine:bias=5,amp=3,freq=0.01", 240.0),
+    "full_range_68": (68.0, "sine:bias=5,amp=5,freq=0.01", 240.0),
+    "step_44": (44.0, "step:initial=4,final=6,at=60", 120.0),
+    "max_command_44": (44.0, "const:value=10", 60.0),
+    "min_command_68": (68.0, "const:value=0", 60.0),
+}
+
+
+@dataclass(frozen=True)
+class TargetCheck:
+    """One calibration target: its measured value against its bound."""
+
+    name: str
+    value: float
+    bound: str
+    ok: bool
+
+
+def check_targets(recordings: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+                  settle_s: float = 30.0) -> list[TargetCheck]:
+    """Measure issue 2's calibration targets on ``{name: (t_s, u_v, l_mm)}`` for
+    :data:`TARGET_RECORDINGS` and compare them with their bounds."""
+    out: list[TargetCheck] = []
+
+    def add(name: str, value: float, bound: str, ok: bool) -> None:
+        out.append(TargetCheck(name, float(value), bound, bool(ok)))
+
+    t, u, l = recordings["ident_44"]
+    keep = t >= settle_s
+    add("0.1 Hz, 44 N: min l [mm]", l[keep].min(), "<= 5", l[keep].min() <= 5.0)
+    add("0.1 Hz, 44 N: max l [mm]", l[keep].max(), ">= 65", l[keep].max() >= 65.0)
+    t, u, l = recordings["full_range_68"]
+    keep = t >= settle_s
+    add("0..10 V, 68 N: min l [mm]", l[keep].min(), "<= 5", l[keep].min() <= 5.0)
+    add("0..10 V, 68 N: max l [mm]", l[keep].max(), ">= 65", l[keep].max() >= 65.0)
+    extremes = [recordings[k][2] for k in ("max_command_44", "min_command_68", "full_range_68", "ident_44")]
+    lo, hi = min(e.min() for e in extremes), max(e.max() for e in extremes)
+    # The encoder's noise (0.01 mm std) may read a few hundredths below the stop at l = 0.
+    add("any command: min l [mm]", lo, ">= -0.06 (0 within 6 sigma of encoder noise)", lo >= -0.06)
+    add("any command: max l [mm]", hi, "<= 150", hi <= 150.0)
+    f44 = loop_figures(*recordings["quasi_static_44"], settle_s=settle_s)
+    f68 = loop_figures(*recordings["quasi_static_68"], settle_s=settle_s)
+    add("quasi-static 44 N: widest width / swing [%]", 100 * f44.max_width_mm / f44.swing_mm, ">= 5",
+        f44.max_width_mm >= 0.05 * f44.swing_mm)
+    w35, w65 = f44.width_at_mm[3.5], f44.width_at_mm[6.5]
+    asym = abs(w35 - w65) / max(w35, w65)
+    add("quasi-static 44 N: |w(3.5 V) - w(6.5 V)| / max [%]", 100 * asym, ">= 30", asym >= 0.30)
+    shift = f44.mean_at_mm[5.0] - f68.mean_at_mm[5.0]
+    add("quasi-static: mean l(5 V) at 44 N - at 68 N [mm]", shift, ">= 5", shift >= 5.0)
+    add("quasi-static 44 N: worst branch reversal [mm]", f44.worst_reversal_mm, "<= 0.05 (monotonic)", f44.monotonic)
+    add("quasi-static 68 N: worst branch reversal [mm]", f68.worst_reversal_mm, "<= 0.05 (monotonic)", f68.monotonic)
+    t, u, l = recordings["step_44"]
+    ts = settling_time_s(t, l, t_step_s=60.0)
+    add("step 4 -> 6 V, 44 N: 2% settling time [s]", ts, "1..10", 1.0 <= ts <= 10.0)
+    return out

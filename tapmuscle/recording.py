@@ -142,6 +142,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
         seen.add(name)
 
     data: list[list[float]] = []
+    linenos: list[int] = []
     for lineno, row in enumerate(csv.reader(lines[i + 1:]), start=header_line + 1):
         if not row or (len(row) == 1 and not row[0].strip()):
             continue
@@ -157,6 +158,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
                 raise RecordingError(f"{path}, line {lineno}, column {col!r}: {cell.strip()!r} is not finite")
             values.append(v)
         data.append(values)
+        linenos.append(lineno)
     if not data:
         raise RecordingError(f"{path}: header but no data rows")
     arr = np.array(data, dtype=float)
@@ -164,8 +166,8 @@ def read_recording(path: str | os.PathLike) -> Recording:
     bad = np.nonzero(np.diff(t) <= 0)[0]
     if bad.size:
         k = int(bad[0]) + 1
-        raise RecordingError(f"{path}, line {header_line + 1 + k}, column 't_s': time {t[k]!r} does not "
-                             f"increase (previous row {t[k - 1]!r})")
+        raise RecordingError(f"{path}, line {linenos[k]}, column 't_s': time {float(t[k])!r} does not "
+                             f"increase (previous row {float(t[k - 1])!r})")
     return Recording({name: arr[:, j].copy() for j, name in enumerate(header)}, metadata)
 
 
@@ -207,7 +209,7 @@ def write_recording(path: str | os.PathLike, rec: Recording) -> None:
         bad = np.nonzero(~np.isfinite(rec.columns[name]))[0]
         if bad.size:
             raise RecordingError(f"cannot write {path}: column {name!r} row {int(bad[0]) + 1} is "
-                                 f"{rec.columns[name][bad[0]]!r}")
+                                 f"{float(rec.columns[name][bad[0]])!r}")
     buf = io.StringIO()
     buf.write(f"# {MAGIC}\n")
     for key, value in rec.metadata.items():

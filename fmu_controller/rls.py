@@ -1,0 +1,573 @@
+"""Recursive least squares, Eq. (4), with the box projection of Algorithm 1.
+
+The estimator is generic in the regressor but is set up with a
+:class:`~fmu_controller.hysteresis_model.ModelStructure` so that constraint
+boxes can be given by parameter name (Table 2 bounds ``a1, a2, b1``).
+
+Units follow the data: with ``l`` in mm and ``u`` in V, ``b1`` is in mm/V and
+the Table 2 box applies as is.  If the data are rescaled, rescale the box too
+(see :func:`fmu_controller.prediction.theta_scale_factors`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Literal, Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from .hysteresis_model import ModelStructure
+
+__all__ = [
+    "TABLE2_LOWER",
+    "TABLE2_UPPER",
+    "RLSSettings",
+    "ConstrainedRLS",
+    "project_onto_box",
+]
+
+#: Table 2: constrained region of the linear model (a1, a2 [-], b1 [mm/V]).
+TABLE2_LOWER: Mapping[str, float] = MappingProxyType({"a1": 1.208, "a2": -0.334, "b1": 0.607})
+TABLE2_UPPER: Mapping[str, float] = MappingProxyType({"a1": 1.260, "a2": -0.278, "b1": 1.184})
+
+# Above this many boxed coordinates the exact enumeration (3^m candidates)
+# gets expensive; fall back to scipy's BVLS active-set solver.
+_MAX_ENUMERATED = 4
+
+
+# ---------------------------------------------------------------------------
+# Settings
+# ---------------------------------------------------------------------------
+BoundSpec = Mapping[str, float] | Sequence[float] | np.ndarray
+
+
+def _freeze_vector(name: str, value, *, allow_inf: bool) -> tuple[float, ...]:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must be a non-empty 1-D sequence, got shape {arr.shape}")
+    bad = np.isnan(arr) if allow_inf else ~np.isfinite(arr)
+    if bad.any():
+        raise ValueError(f"{name} must be {'non-NaN' if allow_inf else 'finite'}, got {arr.tolist()}")
+    return tuple(float(x) for x in arr)
+
+
+def _freeze_bound(name: str, value) -> Mapping[str, float] | tuple[float, ...]:
+    if isinstance(value, Mapping):
+        out = {}
+        for key, x in value.items():
+            if not isinstance(key, str):
+                raise ValueError(f"{name} keys must be parameter names, got {key!r}")
+            x = float(x)
+            if math.isnan(x):
+                raise ValueError(f"{name}[{key!r}] must not be NaN")
+            out[key] = x
+        return MappingProxyType(out)
+    return _freeze_vector(name, value, allow_inf=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RLSSettings:
+    """Settings of the (constrained) RLS estimator, Eq. (4) and Algorithm 1.
+
+    Parameters
+    ----------
+    p0 : float or sequence of float
+        Initial covariance ``P(-1)``: scalar (times identity) or diagonal.
+        Paper: ``1e3`` for identification (section 2.4); Tables 5 and 8 give
+        diagonals for the AMPC.  Must be finite and > 0.
+    theta0 : sequence of float, optional
+        Initial estimate ``theta(0)``; default zeros (section 2.4).
+    forgetting : float
+        Exponential forgetting factor ``lambda`` in (0, 1]; 1.0 (default)
+        is the paper's Eq. (4).
+    box_lower, box_upper : mapping name -> float, or sequence of float
+        Constraint region ``C`` of Algorithm 1 (a box).  Mappings give bounds
+        by parameter name (others unbounded); sequences give all entries
+        (use +/-inf for unbounded).  Default: Table 2 on ``a1, a2, b1``.
+    constraint_start_s : float
+        Time in s from which the projection is applied (section 2.4: the
+        constrained RLS "runs after 120 s").  0 = always, ``inf`` = never.
+    ts_s : float
+        Sampling period in s (0.1 s in the paper).
+    on_covariance_loss : {"reset", "raise"}
+        What to do if ``P`` loses positive definiteness (non-finite entry or
+        a diagonal <= 0) or ``theta`` becomes non-finite after an update:
+        ``"reset"`` discards that update, keeps ``theta(k-1)`` and resets
+        ``P`` to ``P(-1)``; ``"raise"`` raises ``FloatingPointError``.
+    """
+
+    p0: float | Sequence[float] = 1e3
+    theta0: Sequence[float] | None = None
+    forgetting: float = 1.0
+    box_lower: BoundSpec = field(default_factory=lambda: dict(TABLE2_LOWER))
+    box_upper: BoundSpec = field(default_factory=lambda: dict(TABLE2_UPPER))
+    constraint_start_s: float = 120.0
+    ts_s: float = 0.1
+    on_covariance_loss: Literal["reset", "raise"] = "reset"
+
+    def __post_init__(self) -> None:
+        # p0
+        if np.ndim(self.p0) == 0:
+            p0 = float(self.p0)
+            if not (math.isfinite(p0) and p0 > 0):
+                raise ValueError(f"p0 must be finite and > 0, got {self.p0!r}")
+        else:
+            p0 = _freeze_vector("p0", self.p0, allow_inf=False)
+            if min(p0) <= 0:
+                raise ValueError(f"p0 must be > 0 elementwise, got {list(p0)}")
+        object.__setattr__(self, "p0", p0)
+        # theta0
+        if self.theta0 is not None:
+            object.__setattr__(self, "theta0", _freeze_vector("theta0", self.theta0, allow_inf=False))
+        # scalars
+        lam = float(self.forgetting)
+        if not (0.0 < lam <= 1.0):
+            raise ValueError(f"forgetting must be in (0, 1], got {self.forgetting!r}")
+        object.__setattr__(self, "forgetting", lam)
+        ts = float(self.ts_s)
+        if not (math.isfinite(ts) and ts > 0):
+            raise ValueError(f"ts_s must be finite and > 0, got {self.ts_s!r}")
+        object.__setattr__(self, "ts_s", ts)
+        start = float(self.constraint_start_s)
+        if math.isnan(start) or start < 0:
+            raise ValueError(f"constraint_start_s must be >= 0 (inf = never), got {self.constraint_start_s!r}")
+        object.__setattr__(self, "constraint_start_s", start)
+        if self.on_covariance_loss not in ("reset", "raise"):
+            raise ValueError(
+                f"on_covariance_loss must be 'reset' or 'raise', got {self.on_covariance_loss!r}"
+            )
+        # box
+        lower = _freeze_bound("box_lower", self.box_lower)
+        upper = _freeze_bound("box_upper", self.box_upper)
+        object.__setattr__(self, "box_lower", lower)
+        object.__setattr__(self, "box_upper", upper)
+        if isinstance(lower, Mapping) != isinstance(upper, Mapping):
+            raise ValueError("box_lower and box_upper must both be mappings or both be sequences")
+        if isinstance(lower, Mapping):
+            for key in set(lower) & set(upper):
+                if lower[key] > upper[key]:
+                    raise ValueError(
+                        f"box_lower[{key!r}]={lower[key]} > box_upper[{key!r}]={upper[key]}"
+                    )
+        else:
+            if len(lower) != len(upper):
+                raise ValueError(
+                    f"box_lower and box_upper lengths differ: {len(lower)} != {len(upper)}"
+                )
+            for i, (lo, hi) in enumerate(zip(lower, upper)):
+                if lo > hi:
+                    raise ValueError(f"box_lower[{i}]={lo} > box_upper[{i}]={hi}")
+        # lengths of all vector-valued settings must agree with each other
+        lengths = {
+            name: len(val)
+            for name, val in (("p0", p0), ("theta0", self.theta0), ("box_lower", lower))
+            if isinstance(val, tuple)
+        }
+        if len(set(lengths.values())) > 1:
+            raise ValueError(f"inconsistent vector lengths in settings: {lengths}")
+
+    @property
+    def constraint_start_index(self) -> float:
+        """First sample index ``k`` (``t = k Ts >= constraint_start_s``) with projection.
+
+        ``inf`` if the constraint never starts.
+        """
+        if math.isinf(self.constraint_start_s):
+            return math.inf
+        # tolerate float noise like 120 / 0.1 = 1200.0000000000002
+        return float(math.ceil(self.constraint_start_s / self.ts_s - 1e-9))
+
+    def resolve(self, structure: ModelStructure) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Concrete ``(P0, theta0, lower, upper)`` arrays for ``structure``."""
+        n = structure.n_params
+        if isinstance(self.p0, tuple):
+            if len(self.p0) != n:
+                raise ValueError(f"p0 has {len(self.p0)} entries, expected {n} for the {structure.kind} model")
+            P0 = np.diag(np.array(self.p0))
+        else:
+            P0 = self.p0 * np.eye(n)
+        if self.theta0 is None:
+            theta0 = np.zeros(n)
+        else:
+            if len(self.theta0) != n:
+                raise ValueError(f"theta0 has {len(self.theta0)} entries, expected {n}")
+            theta0 = np.array(self.theta0)
+        lower = self._resolve_bound("box_lower", self.box_lower, structure, -np.inf)
+        upper = self._resolve_bound("box_upper", self.box_upper, structure, np.inf)
+        return P0, theta0, lower, upper
+
+    @staticmethod
+    def _resolve_bound(name, bound, structure, fill) -> np.ndarray:
+        n = structure.n_params
+        if isinstance(bound, Mapping):
+            arr = np.full(n, fill)
+            for key, x in bound.items():
+                if key not in structure.names:
+                    raise ValueError(f"{name} names unknown parameter {key!r} for the {structure.kind} model")
+                arr[structure.index(key)] = x
+            return arr
+        if len(bound) != n:
+            raise ValueError(f"{name} has {len(bound)} entries, expected {n}")
+        return np.array(bound)
+
+
+# ---------------------------------------------------------------------------
+# Projection (Algorithm 1)
+# ---------------------------------------------------------------------------
+class _BoxProjector:
+    """Exact P^{-1}-metric projection onto a fixed box (precomputed plan).
+
+    Minimise ``(theta - th)^T P^{-1} (theta - th)`` s.t. ``lower <= theta <= upper``.
+    Let ``c`` be the boxed coordinates.  For fixed ``theta_c`` the free part is
+    optimal at ``theta_f - th_f = P_fc P_cc^{-1} d_c`` and the reduced cost is
+    ``d_c^T P_cc^{-1} d_c`` (Schur complement), so only ``P_cc`` matters.
+    The reduced box QP is solved by enumerating active sets: for each subset
+    ``S`` of ``c`` pinned to a bound, the rest of ``c`` is again optimal at
+    ``P_FS P_SS^{-1} d_S`` with cost ``d_S^T P_SS^{-1} d_S``.  The optimum is
+    one of these candidates and every feasible candidate is an upper bound,
+    so the cheapest feasible candidate is the exact minimiser.
+
+    All ``3^m - 1`` candidates are solved in one batched call: candidate ``j``
+    uses the padded system ``[[P_SS, 0], [0, I]] w = [d_S, 0]``, whose solution
+    is ``w = [P_SS^{-1} d_S, 0]``; then ``d_c = P_cc w`` and cost ``= w . d``.
+    """
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray) -> None:
+        self.lower = lower
+        self.upper = upper
+        self.c = np.flatnonzero(np.isfinite(lower) | np.isfinite(upper))
+        m = self.c.size
+        self.lower_c = lower[self.c]
+        self.upper_c = upper[self.c]
+        self.enumerate = 0 < m <= _MAX_ENUMERATED
+        if self.enumerate:
+            # state per boxed coordinate: 0 free, 1 at lower, 2 at upper; a
+            # one-sided bound appears twice (harmless duplicate candidate)
+            lo = np.where(np.isfinite(self.lower_c), self.lower_c, self.upper_c)
+            hi = np.where(np.isfinite(self.upper_c), self.upper_c, self.lower_c)
+            states = np.array(list(itertools.product((0, 1, 2), repeat=m))[1:])
+            pinned = states > 0                                     # (J, m)
+            self.pinned = pinned
+            self.values = np.where(states == 1, lo, np.where(states == 2, hi, 0.0))
+            self.mask_ss = pinned[:, :, None] & pinned[:, None, :]  # (J, m, m)
+            free = ~pinned
+            self.eye_ff = (free[:, :, None] & free[:, None, :]) * np.eye(m)
+
+    def inside(self, theta: np.ndarray) -> bool:
+        tc = theta[self.c]
+        return bool((tc >= self.lower_c).all() and (tc <= self.upper_c).all())
+
+    def __call__(self, theta_hat: np.ndarray, P: np.ndarray) -> np.ndarray:
+        if self.c.size == 0 or self.inside(theta_hat):
+            return theta_hat.copy()
+        c = self.c
+        Pcc = P[np.ix_(c, c)]
+        if not self.enumerate:
+            return self._bvls(theta_hat, P, Pcc)
+        th_c = theta_hat[c]
+        d = np.where(self.pinned, self.values - th_c, 0.0)          # (J, m)
+        A = Pcc * self.mask_ss + self.eye_ff                        # (J, m, m)
+        w = np.linalg.solve(A, d[:, :, None])[:, :, 0]              # (J, m)
+        cost = np.einsum("jm,jm->j", w, d)
+        theta_c = th_c + w @ Pcc                                    # Pcc symmetric
+        tol = 1e-12 * (1.0 + np.abs(theta_c))
+        ok = ((theta_c >= self.lower_c - tol) & (theta_c <= self.upper_c + tol)).all(axis=1)
+        j = int(np.argmin(np.where(ok, cost, np.inf)))
+        # theta = th + P[:, c] P_cc^{-1} d_c  with  P_cc^{-1} d_c = w_j
+        theta = theta_hat + P[:, c] @ w[j]
+        theta[c] = np.clip(theta[c], self.lower_c, self.upper_c)  # remove 1e-16 residue
+        return theta
+
+    def _bvls(self, theta_hat: np.ndarray, P: np.ndarray, Pcc: np.ndarray) -> np.ndarray:
+        c = self.c
+        L = np.linalg.cholesky(Pcc)
+        Linv = np.linalg.solve(L, np.eye(c.size))          # |L^{-1} d|^2 = d^T Pcc^{-1} d
+        res = lsq_linear(Linv, Linv @ theta_hat[c], bounds=(self.lower_c, self.upper_c),
+                         method="bvls", tol=1e-14)
+        d_c = res.x - theta_hat[c]
+        theta = theta_hat + P[:, c] @ np.linalg.solve(Pcc, d_c)
+        theta[c] = np.clip(res.x, self.lower_c, self.upper_c)
+        return theta
+
+
+def _check_box(lower, upper, n) -> tuple[np.ndarray, np.ndarray]:
+    lower = np.asarray(lower, dtype=float)
+    upper = np.asarray(upper, dtype=float)
+    for name, arr in (("lower", lower), ("upper", upper)):
+        if arr.shape != (n,):
+            raise ValueError(f"{name} must have shape ({n},), got {arr.shape}")
+        if np.isnan(arr).any():
+            raise ValueError(f"{name} must not contain NaN")
+    bad = np.flatnonzero(lower > upper)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"lower[{i}]={lower[i]} > upper[{i}]={upper[i]}")
+    return lower, upper
+
+
+def project_onto_box(
+    theta_hat: Sequence[float] | np.ndarray,
+    P: np.ndarray,
+    lower: Sequence[float] | np.ndarray,
+    upper: Sequence[float] | np.ndarray,
+) -> np.ndarray:
+    """Projection of Algorithm 1: nearest point of the box ``C`` in the ``P^{-1}`` metric.
+
+    Solves ``min (theta - theta_hat)^T P^{-1} (theta - theta_hat)`` subject to
+    ``lower <= theta <= upper``, i.e. the orthogonal projection of
+    ``rho = P^{-1/2} theta_hat`` onto the image of ``C`` (Algorithm 1).  This is
+    *not* an element-wise clip: unboxed parameters move too, along the
+    correlations in ``P``.  By Remark 1 (Eqs. (6)-(10)) the Lyapunov-like
+    distance to any ``theta0 in C`` does not increase.
+
+    Exact: active-set enumeration over the (<= 4) boxed coordinates, BVLS
+    (``scipy.optimize.lsq_linear``) beyond that.  Never forms ``P^{-1}``.
+
+    Parameters
+    ----------
+    theta_hat : array_like, shape (n,)
+        Unconstrained estimate from Eq. (4).
+    P : ndarray, shape (n, n)
+        Symmetric positive definite covariance ``P(k-1)`` (the updated one).
+    lower, upper : array_like, shape (n,)
+        Box bounds; +/-inf for unbounded entries.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Projected estimate (a copy; ``theta_hat`` itself if already in ``C``).
+    """
+    theta_hat = np.asarray(theta_hat, dtype=float)
+    if theta_hat.ndim != 1:
+        raise ValueError(f"theta_hat must be 1-D, got shape {theta_hat.shape}")
+    n = theta_hat.size
+    if not np.all(np.isfinite(theta_hat)):
+        raise ValueError("theta_hat must be finite")
+    P = np.asarray(P, dtype=float)
+    if P.shape != (n, n):
+        raise ValueError(f"P must have shape ({n}, {n}), got {P.shape}")
+    if not np.all(np.isfinite(P)):
+        raise ValueError("P must be finite")
+    lower, upper = _check_box(lower, upper, n)
+    return _BoxProjector(lower, upper)(theta_hat, P)
+
+
+# ---------------------------------------------------------------------------
+# Estimator
+# ---------------------------------------------------------------------------
+class ConstrainedRLS:
+    """Constrained RLS of Algorithm 1 around the Eq. (4) update.
+
+    Lifecycle (as osqp): ``rls = ConstrainedRLS(); rls.setup(structure,
+    settings)`` (or pass both to the constructor), then ``update(phi, y)``
+    once per sample.
+
+    Step ``k`` (``y = l(k)``, ``phi = phi(k-1)``), Goodwin & Sin form [15]::
+
+        s        = phi^T P(k-2) phi
+        theta(k) = theta(k-1) + P(k-2) phi / (lambda + s) * (y - phi^T theta(k-1))
+        P(k-1)   = [P(k-2) - P(k-2) phi phi^T P(k-2) / (lambda + s)] / lambda
+
+    With ``lambda = 1`` this is Eq. (4) and the gain equals ``P(k-1) phi``.
+    Note: the printed Eq. (4) has ``P(k-1)`` in *both* numerator and
+    denominator of the gain; read literally that is ``P(k-2) phi / (1 + 2 s)``,
+    which is not the least-squares gain, so it is taken as a typo for the
+    standard form above (``P(k-1) phi = P(k-2) phi / (1 + s)``).
+
+    Then, if ``k Ts >= constraint_start_s`` and ``theta(k)`` is outside the box
+    ``C``, ``theta(k)`` is replaced by :func:`project_onto_box` with the updated
+    ``P(k-1)`` (Algorithm 1).  ``P`` is not modified by the projection.
+
+    Parameters
+    ----------
+    structure : ModelStructure, optional
+        Model variant (names for the box, dimension).
+    settings : RLSSettings, optional
+        Defaults to ``RLSSettings()`` (paper values).
+    k0 : int
+        Sample index of the measurement preceding the first update
+        (Algorithm 1 Step 1: ``k = 0``); sets the clock for
+        ``constraint_start_s``.
+    """
+
+    def __init__(
+        self,
+        structure: ModelStructure | None = None,
+        settings: RLSSettings | None = None,
+        *,
+        k0: int = 0,
+    ) -> None:
+        self._ready = False
+        if structure is not None:
+            self.setup(structure, settings, k0=k0)
+
+    def setup(
+        self,
+        structure: ModelStructure,
+        settings: RLSSettings | None = None,
+        *,
+        k0: int = 0,
+    ) -> None:
+        """(Re)initialise: ``theta = theta(0)``, ``P = P(-1)``, step ``k = k0``."""
+        if not isinstance(structure, ModelStructure):
+            raise ValueError(f"structure must be a ModelStructure, got {structure!r}")
+        if settings is None:
+            settings = RLSSettings()
+        if not isinstance(settings, RLSSettings):
+            raise ValueError(f"settings must be RLSSettings, got {settings!r}")
+        if int(k0) != k0:
+            raise ValueError(f"k0 must be an integer, got {k0!r}")
+        self.structure = structure
+        self.settings = settings
+        self._n = structure.n_params
+        self._P0, self._theta0, lower, upper = settings.resolve(structure)
+        self._lower, self._upper = lower, upper
+        self._projector = _BoxProjector(lower, upper)
+        self._lam = settings.forgetting
+        self._start = settings.constraint_start_index
+        self._theta = self._theta0.copy()
+        self._P = self._P0.copy()
+        self._k = int(k0)
+        self._n_projections = 0
+        self._n_resets = 0
+        self._ready = True
+
+    # -- properties ------------------------------------------------------
+    @property
+    def theta(self) -> np.ndarray:
+        """Current estimate ``theta(k)`` (copy)."""
+        self._check_ready()
+        return self._theta.copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        """Current covariance ``P(k-1)`` (copy)."""
+        self._check_ready()
+        return self._P.copy()
+
+    @property
+    def step(self) -> int:
+        """Sample index ``k`` of the latest measurement used."""
+        self._check_ready()
+        return self._k
+
+    @property
+    def lower(self) -> np.ndarray:
+        """Lower bounds of ``C`` (copy; -inf = unbounded)."""
+        return self._lower.copy()
+
+    @property
+    def upper(self) -> np.ndarray:
+        """Upper bounds of ``C`` (copy; +inf = unbounded)."""
+        return self._upper.copy()
+
+    @property
+    def n_projections(self) -> int:
+        """Number of updates where the projection changed ``theta``."""
+        return self._n_projections
+
+    @property
+    def n_resets(self) -> int:
+        """Number of covariance resets (``on_covariance_loss="reset"``)."""
+        return self._n_resets
+
+    def constraint_active(self, k: int | None = None) -> bool:
+        """Whether the projection applies at sample ``k`` (default: next update)."""
+        self._check_ready()
+        k = self._k + 1 if k is None else k
+        return k >= self._start
+
+    # -- update ----------------------------------------------------------
+    def update(self, phi: Sequence[float] | np.ndarray, y: float) -> np.ndarray:
+        """One step of Eq. (4) and, if active, the projection of Algorithm 1.
+
+        Parameters
+        ----------
+        phi : array_like, shape (n_params,)
+            Regressor ``phi(k-1)`` (section 2.3).
+        y : float
+            Measurement ``l(k)`` in mm.
+
+        Returns
+        -------
+        ndarray
+            ``theta(k)`` (copy).
+        """
+        self._check_ready()
+        phi = np.asarray(phi, dtype=float)
+        if phi.shape != (self._n,):
+            raise ValueError(f"phi must have shape ({self._n},), got {phi.shape}")
+        if not np.isfinite(phi).all():
+            raise ValueError(f"phi must be finite, got non-finite entries at {np.flatnonzero(~np.isfinite(phi)).tolist()}")
+        y = float(y)
+        if not math.isfinite(y):
+            raise ValueError(f"y must be finite, got {y}")
+
+        P = self._P
+        lam = self._lam
+        Pphi = P @ phi
+        denom = lam + phi @ Pphi
+        err = y - phi @ self._theta
+        theta = self._theta + Pphi * (err / denom)
+        # outer(Pphi, Pphi)/denom is bit-symmetric, so P stays symmetric
+        P_new = P - np.outer(Pphi, Pphi) / denom
+        if lam != 1.0:
+            P_new /= lam
+        P_new = 0.5 * (P_new + P_new.T)  # idempotent here; guards set_state input
+        self._k += 1
+
+        diag = np.diagonal(P_new)
+        if not (np.all(diag > 0) and np.isfinite(P_new).all() and np.isfinite(theta).all()):
+            if self.settings.on_covariance_loss == "raise":
+                raise FloatingPointError(
+                    f"RLS covariance lost positive definiteness at step k={self._k} "
+                    f"(min diag {diag.min()!r}); reduce regressor scale or p0"
+                )
+            # documented rule: drop this update, restart P from P(-1)
+            self._P = self._P0.copy()
+            self._n_resets += 1
+            return self._theta.copy()
+
+        if self._k >= self._start and not self._projector.inside(theta):
+            theta = self._projector(theta, P_new)
+            self._n_projections += 1
+        self._theta = theta
+        self._P = P_new
+        return theta.copy()
+
+    # -- state -----------------------------------------------------------
+    def get_state(self) -> dict:
+        """Plain-dict snapshot (copies) for FMU state save/rewind."""
+        self._check_ready()
+        return {
+            "theta": self._theta.copy(),
+            "P": self._P.copy(),
+            "k": self._k,
+            "n_projections": self._n_projections,
+            "n_resets": self._n_resets,
+        }
+
+    def set_state(self, state: Mapping) -> None:
+        """Restore a :meth:`get_state` snapshot; continued updates are bit-identical."""
+        self._check_ready()
+        theta = np.array(state["theta"], dtype=float)
+        P = np.array(state["P"], dtype=float)
+        if theta.shape != (self._n,):
+            raise ValueError(f"state['theta'] must have shape ({self._n},), got {theta.shape}")
+        if P.shape != (self._n, self._n):
+            raise ValueError(f"state['P'] must have shape ({self._n}, {self._n}), got {P.shape}")
+        if not (np.isfinite(theta).all() and np.isfinite(P).all()):
+            raise ValueError("state['theta'] and state['P'] must be finite")
+        self._theta = theta
+        self._P = P
+        self._k = int(state["k"])
+        self._n_projections = int(state.get("n_projections", 0))
+        self._n_resets = int(state.get("n_resets", 0))
+
+    def _check_ready(self) -> None:
+        if not self._ready:
+            raise RuntimeError("ConstrainedRLS.setup(structure, settings) has not been called")

@@ -1,0 +1,65 @@
+"""`tapmuscle record`: outputs, plots, and errors that name the bad value and write nothing."""
+
+import subprocess
+import sys
+
+import pytest
+
+from tapmuscle.cli import main
+from tapmuscle.recording import read_recording
+
+
+def test_record_writes_csv_and_png(tmp_path):
+    out = tmp_path / "sub" / "rec.csv"
+    assert main(["record", "--load", "68", "--input", "chirp:f0=0.02,f1=0.3,duration=20", "--duration", "20",
+                 "--ts", "0.05", "--seed", "2", "--out", str(out), "--plot", "--quiet"]) == 0
+    rec = read_recording(out)
+    assert len(rec) == 401 and rec.ts_s == 0.05 and rec.metadata["load_n"] == "68"
+    assert set(rec.columns) >= {"t_s", "u_v", "l_mm", "p_mpa", "load_n"}
+    png = out.with_suffix(".png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
+def test_parameter_overrides_change_the_rig(tmp_path):
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    common = ["--input", "const:value=6", "--duration", "20", "--quiet", "--no-noise"]
+    assert main(["record", *common, "--out", str(a)]) == 0
+    assert main(["record", *common, "--out", str(b), "--set", "supply.supply_pressure_mpa=0.2"]) == 0
+    assert read_recording(a).l_mm[-1] - read_recording(b).l_mm[-1] > 2.0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--load", "-5"], "--load must be within"),
+    (["--load", "nan"], "--load must be within"),
+    (["--load", "1000"], "--load must be within"),
+    (["--duration", "0"], "--duration must be within"),
+    (["--duration", "inf"], "--duration must be within"),
+    (["--ts", "0"], "--ts must be within"),
+    (["--ts", "50", "--duration", "10"], "--ts must be within"),
+    (["--ts", "5", "--duration", "1"], "must not exceed --duration"),
+    (["--input", "sine:amp=x"], "amp='x' is not a number"),
+    (["--input", "triangle:amp=1"], "unknown kind 'triangle'"),
+    (["--input", "csv:/nonexistent/u.csv"], "no such recording file"),
+    (["--seed", "-1"], "--seed must be >= 0"),
+    (["--set", "valve.cv_max=-2"], "cv_max"),
+    (["--set", "valve.bogus=1"], "bogus"),
+])
+def test_bad_input_names_the_value_and_writes_nothing(tmp_path, args, message):
+    out = tmp_path / "rec.csv"
+    base = {"--input": "sine:bias=5,amp=3,freq=0.1", "--duration": "10", "--out": str(out)}
+    argv = ["record", "--quiet"]
+    for key, value in base.items():
+        if key not in args:
+            argv += [key, value]
+    proc = subprocess.run([sys.executable, "-m", "tapmuscle.cli", *argv, *args], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert message in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_output_survives_a_failed_run(tmp_path):
+    out = tmp_path / "rec.csv"
+    out.write_text("precious")
+    rc = main(["record", "--input", "sine:amp=oops", "--duration", "10", "--out", str(out), "--quiet"])
+    assert rc == 2 and out.read_text() == "precious"

@@ -1,0 +1,155 @@
+"""The physical plant: determinism, sub-stepping, physical bounds, lifecycle, effects, errors."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fmu_plant import Effect, Plant, PlantParams
+from fmu_plant.parameters import CV_TO_SI_WATER
+
+
+def _run(plant, u, n, dt=0.1):
+    return np.array([plant.step(u(k * dt) if callable(u) else u, dt).l_mm for k in range(n)])
+
+
+def sine(t):
+    return 5 + 3 * math.sin(2 * math.pi * 0.1 * t)
+
+
+def test_same_seed_is_bit_identical_and_other_seed_differs():
+    a = _run(Plant(seed=3), sine, 300)
+    b = _run(Plant(seed=3), sine, 300)
+    c = _run(Plant(seed=4), sine, 300)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert np.max(np.abs(a - c)) < 0.2  # only the noise differs
+
+
+def test_reset_restarts_the_same_run():
+    p = Plant(seed=1)
+    a = _run(p, sine, 200)
+    p.reset()
+    assert p.t_s == 0.0 and p.l_mm == 0.0
+    assert np.array_equal(a, _run(p, sine, 200))
+
+
+@pytest.mark.parametrize("dt", [0.001, 0.01, 0.1, 0.5, 1.0])
+def test_any_communication_step_gives_the_same_trajectory(dt):
+    """Stable and consistent for communication steps from 1 ms to 1 s (true state, no noise)."""
+    quiet = PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.0})
+    ref = Plant(quiet)
+    fine = {}
+    for k in range(int(round(30 / 0.001))):
+        ref.step(6.0 if k * 0.001 < 10 else 3.0, 0.001)
+        fine[round((k + 1) * 0.001, 6)] = ref.l_mm
+    p = Plant(quiet)
+    worst = 0.0
+    for k in range(int(round(30 / dt))):
+        p.step(6.0 if k * dt < 10 else 3.0, dt)
+        assert math.isfinite(p.l_mm) and 0.0 <= p.l_mm < 150.0
+        worst = max(worst, abs(p.l_mm - fine[round((k + 1) * dt, 6)]))
+    assert worst < 0.05, worst
+
+
+def test_pressure_and_flow_stay_physical():
+    p = Plant(seed=0)
+    ps = p.params.supply.supply_pressure_mpa
+    q_limit = 1.6 * CV_TO_SI_WATER * math.sqrt(ps * 1e6) * 6e4  # Cv 1.6 at the full supply drop [L/min]
+    rng = np.random.default_rng(0)
+    for _ in range(600):
+        p.step(float(rng.uniform(0, 10)), 0.1)
+        assert -1e-6 <= p.p_mpa <= ps + 1e-6
+        q_in, q_out = p.flows_l_min()
+        assert abs(q_in) <= q_limit and abs(q_out) <= q_limit
+        assert 0.0 <= p.l_mm < 150.0
+
+
+def test_heavier_load_lowers_the_muscle_and_load_may_change_during_a_run():
+    light, heavy = Plant(seed=0), Plant(seed=0)
+    heavy.update(load_n=68.0)
+    _run(light, 5.0, 300), _run(heavy, 5.0, 300)
+    assert light.l_mm - heavy.l_mm > 5.0
+    # A load step during a run: friction holds part of it (the step moves down the falling branch).
+    before = light.l_mm
+    light.update(load_n=68.0)
+    _run(light, 5.0, 300)
+    assert before - light.l_mm > 1.0
+    assert light.load_n == 68.0
+
+
+def test_lower_supply_pressure_lowers_the_muscle():
+    a, b = Plant(seed=0), Plant(seed=0)
+    b.update(supply_pressure_mpa=0.2)
+    _run(a, 6.0, 300), _run(b, 6.0, 300)
+    assert a.l_mm - b.l_mm > 2.0
+
+
+def test_get_set_state_replays_bit_identically():
+    p = Plant(seed=7)
+    _run(p, sine, 100)
+    saved = p.get_state()
+    a = _run(p, sine, 100)
+    p.set_state(saved)
+    assert np.array_equal(a, _run(p, sine, 100))
+
+
+class _Offset(Effect):
+    name = "command_offset"
+
+    def valve_command(self, t_s, u_v):
+        return u_v + 1.0
+
+
+def test_identity_effect_changes_nothing_and_an_effect_plugs_into_a_port():
+    base = _run(Plant(seed=0), 4.0, 200)
+    assert np.array_equal(base, _run(Plant(seed=0, effects=[Effect()]), 4.0, 200))
+    shifted = _run(Plant(seed=0, effects=[_Offset()]), 4.0, 200)
+    reference = _run(Plant(seed=0), 5.0, 200)
+    assert np.array_equal(shifted, reference)
+
+
+def test_rate_dependence_widens_the_fast_loop_and_can_be_switched_off():
+    def width(rate_gain):
+        prm = PlantParams().with_values(**{"friction.rate_gain": rate_gain, "sensor.encoder_noise_std_mm": 0.0})
+        p = Plant(prm)
+        t = np.arange(600) * 0.1
+        l = _run(p, lambda tt: 5 + 2 * math.sin(2 * math.pi * 0.2 * tt), 600)
+        u = 5 + 2 * np.sin(2 * math.pi * 0.2 * t)
+        keep = t > 20
+        return np.ptp(l[keep])
+    # faster friction growth resists motion: smaller swing at 0.2 Hz with rate dependence on
+    assert width(0.0) - width(1.5) > 1.0
+
+
+@pytest.mark.parametrize("u, dt, match", [(math.nan, 0.1, "u_v"), (math.inf, 0.1, "u_v"),
+                                          (5.0, 0.0, "dt_s"), (5.0, -1.0, "dt_s"),
+                                          (5.0, math.nan, "dt_s"), (5.0, 1e6, "dt_s"), ("x", 0.1, "u_v")])
+def test_bad_step_arguments_raise_and_leave_the_state_alone(u, dt, match):
+    p = Plant(seed=0)
+    _run(p, 6.0, 10)
+    before = p.get_state()
+    with pytest.raises(ValueError, match=match):
+        p.step(u, dt)
+    assert p.get_state() == before
+
+
+@pytest.mark.parametrize("kw, match", [({"load_n": -1.0}, "load_n"), ({"load_n": math.nan}, "load_n"),
+                                       ({"supply_pressure_mpa": 2.0}, "supply_pressure_mpa")])
+def test_bad_updates_raise(kw, match):
+    with pytest.raises(ValueError, match=match):
+        Plant().update(**kw)
+
+
+def test_bad_parameters_name_the_field():
+    with pytest.raises(ValueError, match="cv_max"):
+        PlantParams().with_values(**{"valve.cv_max": -1.0})
+    with pytest.raises(ValueError, match="nonsense"):
+        PlantParams().with_values(**{"valve.nonsense": 1.0})
+    with pytest.raises(ValueError, match="braid_angle_deg"):
+        PlantParams().with_values(**{"muscle.braid_angle_deg": math.inf})
+
+
+def test_parameters_round_trip_through_a_dict():
+    p = PlantParams().with_values(**{"load.load_n": 68.0, "friction.rate_gain": 0.0})
+    assert PlantParams.from_dict(p.to_dict()) == p
