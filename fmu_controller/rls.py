@@ -170,6 +170,14 @@ class RLSSettings:
         if len(set(lengths.values())) > 1:
             raise ValueError(f"inconsistent vector lengths in settings: {lengths}")
 
+    def __hash__(self) -> int:
+        # mapping-valued bounds are unhashable as stored; hash their items
+        def key(b):
+            return tuple(sorted(b.items())) if isinstance(b, Mapping) else b
+        return hash((self.p0, self.theta0, self.forgetting, key(self.box_lower),
+                     key(self.box_upper), self.constraint_start_s, self.ts_s,
+                     self.on_covariance_loss))
+
     @property
     def constraint_start_index(self) -> float:
         """First sample index ``k`` (``t = k Ts >= constraint_start_s``) with projection.
@@ -243,6 +251,11 @@ class _BoxProjector:
         m = self.c.size
         self.lower_c = lower[self.c]
         self.upper_c = upper[self.c]
+        # rounding slack for the candidate feasibility test (then clipped)
+        self.lower_tol = self.lower_c - 1e-12 * (1.0 + np.abs(self.lower_c))
+        self.upper_tol = self.upper_c + 1e-12 * (1.0 + np.abs(self.upper_c))
+        n = lower.size
+        self.flat_cc = (self.c[:, None] * n + self.c[None, :]).ravel()
         self.enumerate = 0 < m <= _MAX_ENUMERATED
         if self.enumerate:
             # state per boxed coordinate: 0 free, 1 at lower, 2 at upper; a
@@ -265,7 +278,8 @@ class _BoxProjector:
         if self.c.size == 0 or self.inside(theta_hat):
             return theta_hat.copy()
         c = self.c
-        Pcc = P[np.ix_(c, c)]
+        m = c.size
+        Pcc = np.ascontiguousarray(P).take(self.flat_cc).reshape(m, m)
         if not self.enumerate:
             return self._bvls(theta_hat, P, Pcc)
         th_c = theta_hat[c]
@@ -274,8 +288,7 @@ class _BoxProjector:
         w = np.linalg.solve(A, d[:, :, None])[:, :, 0]              # (J, m)
         cost = np.einsum("jm,jm->j", w, d)
         theta_c = th_c + w @ Pcc                                    # Pcc symmetric
-        tol = 1e-12 * (1.0 + np.abs(theta_c))
-        ok = ((theta_c >= self.lower_c - tol) & (theta_c <= self.upper_c + tol)).all(axis=1)
+        ok = ((theta_c >= self.lower_tol) & (theta_c <= self.upper_tol)).all(axis=1)
         j = int(np.argmin(np.where(ok, cost, np.inf)))
         # theta = th + P[:, c] P_cc^{-1} d_c  with  P_cc^{-1} d_c = w_j
         theta = theta_hat + P[:, c] @ w[j]
@@ -286,7 +299,10 @@ class _BoxProjector:
         c = self.c
         L = np.linalg.cholesky(Pcc)
         Linv = np.linalg.solve(L, np.eye(c.size))          # |L^{-1} d|^2 = d^T Pcc^{-1} d
-        res = lsq_linear(Linv, Linv @ theta_hat[c], bounds=(self.lower_c, self.upper_c),
+        # lsq_linear needs lb < ub strictly; a pinned parameter gets a 1-ulp box
+        ub = np.where(self.upper_c > self.lower_c, self.upper_c,
+                      np.nextafter(self.lower_c, np.inf))
+        res = lsq_linear(Linv, Linv @ theta_hat[c], bounds=(self.lower_c, ub),
                          method="bvls", tol=1e-14)
         d_c = res.x - theta_hat[c]
         theta = theta_hat + P[:, c] @ np.linalg.solve(Pcc, d_c)
@@ -339,7 +355,8 @@ def project_onto_box(
     Returns
     -------
     ndarray, shape (n,)
-        Projected estimate (a copy; ``theta_hat`` itself if already in ``C``).
+        Projected estimate, always a new array (equal to ``theta_hat`` if it
+        is already in ``C``).
     """
     theta_hat = np.asarray(theta_hat, dtype=float)
     if theta_hat.ndim != 1:
@@ -520,12 +537,12 @@ class ConstrainedRLS:
         P_new = 0.5 * (P_new + P_new.T)  # idempotent here; guards set_state input
         self._k += 1
 
-        diag = np.diagonal(P_new)
-        if not (np.all(diag > 0) and np.isfinite(P_new).all() and np.isfinite(theta).all()):
+        # one reduction catches any inf/NaN entry (inf - inf -> NaN as well)
+        if not (math.isfinite(P_new.sum() + theta.sum()) and (P_new.diagonal() > 0).all()):
             if self.settings.on_covariance_loss == "raise":
                 raise FloatingPointError(
                     f"RLS covariance lost positive definiteness at step k={self._k} "
-                    f"(min diag {diag.min()!r}); reduce regressor scale or p0"
+                    f"(min diag {P_new.diagonal().min()!r}); rescale the data or reduce p0"
                 )
             # documented rule: drop this update, restart P from P(-1)
             self._P = self._P0.copy()
