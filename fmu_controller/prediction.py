@@ -404,7 +404,12 @@ def theta_scale_factors(structure: ModelStructure, l_scale: float, u_scale: floa
     For data scaled as ``l / l_scale``, ``u / u_scale`` (``v`` scales like
     ``l``): ``a, A, c`` unchanged; ``b1`` times ``l_scale / u_scale``;
     ``beta, gamma, xi2`` times ``1 / l_scale``; ``xi3`` times ``1 / l_scale^2``.
-    A covariance transforms as ``diag(f) P diag(f)`` and a box as ``f * bound``.
+
+    A box transforms as ``f * bound``.  The RLS covariance transforms as
+    ``diag(f) P diag(f) / l_scale^2``: the ``1`` in the Eq. (4) denominator is
+    the output-error weight, which is in the units of ``l^2``.  With ``P(-1)``
+    and the box transformed this way, RLS on scaled data is exactly
+    equivalent to RLS on raw data (up to rounding).
     """
     for name, s in (("l_scale", l_scale), ("u_scale", u_scale)):
         if not (math.isfinite(float(s)) and float(s) > 0):

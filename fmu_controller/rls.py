@@ -145,6 +145,11 @@ class RLSSettings:
         upper = _freeze_bound("box_upper", self.box_upper)
         object.__setattr__(self, "box_lower", lower)
         object.__setattr__(self, "box_upper", upper)
+        for name, bound, bad in (("box_lower", lower, math.inf), ("box_upper", upper, -math.inf)):
+            items = bound.items() if isinstance(bound, Mapping) else enumerate(bound)
+            for key, x in items:
+                if x == bad:
+                    raise ValueError(f"{name}[{key!r}] = {x} leaves no feasible value")
         if isinstance(lower, Mapping) != isinstance(upper, Mapping):
             raise ValueError("box_lower and box_upper must both be mappings or both be sequences")
         if isinstance(lower, Mapping):
@@ -535,20 +540,21 @@ class ConstrainedRLS:
         if lam != 1.0:
             P_new /= lam
         P_new = 0.5 * (P_new + P_new.T)  # idempotent here; guards set_state input
-        self._k += 1
 
         # one reduction catches any inf/NaN entry (inf - inf -> NaN as well)
         if not (math.isfinite(P_new.sum() + theta.sum()) and (P_new.diagonal() > 0).all()):
             if self.settings.on_covariance_loss == "raise":
                 raise FloatingPointError(
-                    f"RLS covariance lost positive definiteness at step k={self._k} "
+                    f"RLS covariance lost positive definiteness at step k={self._k + 1} "
                     f"(min diag {P_new.diagonal().min()!r}); rescale the data or reduce p0"
                 )
             # documented rule: drop this update, restart P from P(-1)
+            self._k += 1
             self._P = self._P0.copy()
             self._n_resets += 1
             return self._theta.copy()
 
+        self._k += 1
         if self._k >= self._start and not self._projector.inside(theta):
             theta = self._projector(theta, P_new)
             self._n_projections += 1

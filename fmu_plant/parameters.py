@@ -80,10 +80,11 @@ class ValveParams(_Validated):
     decision, documented in ``docs/plant.md``.
     """
 
-    cv_max: float = _f(0.6, "Effective flow coefficient of each valve at full command [US gpm/psi^0.5]; calibration to the paper's slow dominant pole (Table 3), bounded by the datasheet rating 1.6 (Table 1).", lo=0.0, lo_open=True, hi=1.6)
+    cv_max: float = _f(1.5, "Effective flow coefficient of each valve at full command [US gpm/psi^0.5]; calibration (2 % settling of a few seconds, the paper's slow dominant pole, Table 3), bounded by the datasheet rating 1.6 (Table 1).", lo=0.0, lo_open=True, hi=1.6)
     u_min_v: float = _f(0.0, "Lowest valve command [V]; datasheet (Table 1).")
     u_max_v: float = _f(10.0, "Highest valve command [V]; datasheet (Table 1).")
     spool_time_constant_s: float = _f(0.03, "First-order spool response time constant [s]; calibration (typical of proportional valves).", lo=0.0, lo_open=True)
+    characteristic_exponent: float = _f(0.5, "Flow characteristic: flow coefficient proportional to opening^n (1 linear, 0.5 quick-opening) [-]; calibration: 0.5 makes the bleed circuit's steady pressure proportional to the command.", lo=0.1, hi=3.0)
     leak_fraction: float = _f(0.01, "Opening of a closed valve as a fraction of full opening (spool underlap/leak) [-]; calibration.", lo=0.0, hi=1.0)
     laminar_dp_mpa: float = _f(0.002, "Pressure drop below which orifice flow is regularised to laminar [MPa]; numerical.", lo=0.0, lo_open=True)
 
@@ -112,10 +113,13 @@ class MuscleParams(_Validated):
     """
 
     rest_length_mm: float = _f(400.0, "Active length L0 at zero contraction [mm]; paper (Table 1).", lo=0.0, lo_open=True)
-    radius_mm: float = _f(7.0, "Initial bladder radius r0 [mm]; calibration (in-house muscle, not given).", lo=0.0, lo_open=True)
+    radius_mm: float = _f(10.0, "Initial bladder radius r0 [mm]; calibration (in-house muscle, not given).", lo=0.0, lo_open=True)
     braid_angle_deg: float = _f(23.0, "Initial braid angle alpha0 [deg]; calibration (sets the 149 mm maximal contraction).", lo=1.0, hi=54.0)
-    rubber_stiffness_n_per_mm: float = _f(0.8, "Axial stiffness of the rubber bladder against contraction [N/mm]; calibration.", lo=0.0)
-    threshold_pressure_mpa: float = _f(0.01, "Pressure the bladder needs before the braid is loaded [MPa]; calibration.", lo=0.0)
+    rubber_stiffness_n_per_mm: float = _f(1.2, "Axial stiffness of the rubber bladder against contraction [N/mm]; calibration.", lo=0.0)
+    threshold_pressure_mpa: float = _f(0.04, "Pressure the bladder needs before the braid is loaded [MPa]; calibration.", lo=0.0)
+    threshold_width_mpa: float = _f(0.01, "Width over which the bladder threshold is passed (smooth onset of the braid force) [MPa]; calibration.", lo=0.0, lo_open=True)
+    braid_lock_force_n: float = _f(40.0, "Passive force of the braid near full extension at l = 0, decaying as exp(-l/lock_length) (braid lock); 0 disables it [N]; calibration.", lo=0.0)
+    braid_lock_length_mm: float = _f(20.0, "Decay length of the braid-lock force [mm]; calibration.", lo=0.0, lo_open=True)
     damping_n_s_per_mm: float = _f(0.08, "Viscous damping of muscle and load [N s/mm]; calibration.", lo=0.0)
 
 
@@ -139,8 +143,8 @@ class FrictionParams(_Validated):
         F_s = (f0 + mu * p) * (1 + s * asym) * (1 + rate * (|v| / v_ref)^rate_exponent)
     """
 
-    base_n: float = _f(2.0, "Pressure-independent friction level f0 [N]; calibration.", lo=0.0)
-    per_mpa_n: float = _f(40.0, "Growth of friction with muscle pressure mu [N/MPa]; calibration.", lo=0.0)
+    base_n: float = _f(8.0, "Pressure-independent friction level f0 [N]; calibration.", lo=0.0)
+    per_mpa_n: float = _f(30.0, "Growth of friction with muscle pressure mu [N/MPa]; calibration.", lo=0.0)
     asymmetry: float = _f(0.35, "Contraction friction (1+asym) vs extension friction (1-asym) [-]; calibration.", lo=-0.95, hi=0.95)
     presliding_mm: float = _f(1.5, "Presliding displacement over which friction builds up (Dahl) [mm]; calibration.", lo=0.0, lo_open=True)
     rate_gain: float = _f(0.8, "Rate dependence of the friction level at v_ref (0 switches it off) [-]; calibration to section 4.4.", lo=0.0)

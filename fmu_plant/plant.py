@@ -239,8 +239,9 @@ class Plant:
         vp = self.params.valve
         xc = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
         leak = vp.leak_fraction
-        k_in = self._k_valve * (leak + (1.0 - leak) * xc)
-        k_out = self._k_valve * (leak + (1.0 - leak) * (1.0 - xc))
+        n = vp.characteristic_exponent
+        k_in = self._k_valve * (leak + (1.0 - leak) * xc ** n)
+        k_out = self._k_valve * (leak + (1.0 - leak) * (1.0 - xc) ** n)
         return (orifice_flow(k_in, (ps_mpa - p_mpa) * 1e6, self._laminar_pa),
                 orifice_flow(k_out, (p_mpa - self.params.supply.drain_pressure_mpa) * 1e6, self._laminar_pa))
 
@@ -273,8 +274,13 @@ class Plant:
         l_m = l * 1e-3
         area = geo.piston_area_m2(l_m)
         dp = (q_in - q_out - area * v * 1e-3) / prm.supply.compliance_m3_per_mpa
-        p_eff = p - mp.threshold_pressure_mpa
-        f_muscle = p_eff * 1e6 * area if p_eff > 0.0 else 0.0
+        # Smooth bladder threshold (softplus): no kink where the braid starts to carry load.
+        w = mp.threshold_width_mpa
+        arg = (p - mp.threshold_pressure_mpa) / w
+        p_eff = w * (arg + math.log1p(math.exp(-arg)) if arg > 0.0 else math.log1p(math.exp(arg)))
+        f_muscle = p_eff * 1e6 * area
+        # Braid lock: the braid stiffens progressively towards full extension and carries the load there.
+        f_lock = mp.braid_lock_force_n * math.exp(-l / mp.braid_lock_length_mm) if mp.braid_lock_force_n else 0.0
 
         # Friction (Dahl) with pressure, contact-area, direction and rate dependence.
         if v != 0.0:
@@ -286,7 +292,7 @@ class Plant:
             dz = 0.0
 
         mass = load_n / GRAVITY_M_S2 + prm.load.moving_mass_kg
-        force = f_muscle - mp.rubber_stiffness_n_per_mm * l - load_n - mp.damping_n_s_per_mm * v - z
+        force = f_muscle + f_lock - mp.rubber_stiffness_n_per_mm * l - load_n - mp.damping_n_s_per_mm * v - z
         dv = force / mass * 1e3  # N/kg = m/s^2 -> mm/s^2
         if l <= 0.0 and v <= 0.0 and force <= 0.0:
             # Resting on the braid's full-extension stop: the stop carries the net force.

@@ -1,0 +1,397 @@
+"""Tests for fmu_controller.rls (Eq. (4), Algorithm 1, Remark 1)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear, minimize
+
+from fmu_controller.hysteresis_model import (
+    ASYMMETRIC,
+    STANDARD,
+    ModelState,
+    identifiable_combinations,
+    null_direction,
+    regressor,
+    virtual_hysteresis_sequence,
+)
+from fmu_controller.rls import (
+    TABLE2_LOWER,
+    TABLE2_UPPER,
+    ConstrainedRLS,
+    RLSSettings,
+    project_onto_box,
+)
+
+TABLE3 = dict(
+    a1=1.260, a2=-0.288, b1=0.607, A1=0.174, A2=0.145,
+    beta1=-0.023, beta2=-0.027, gamma1=-0.152, gamma2=0.169,
+    c1=0.082, c2=0.049, xi21=0.003, xi22=-0.003, xi31=-6.413e-5, xi32=-5.568e-5,
+)
+NO_BOX = dict(box_lower={}, box_upper={}, constraint_start_s=math.inf)
+
+
+def _input(n, seed=1):
+    # 5 V bias + 3 V, 0.1 Hz sine (section 2.4) + random 1 s steps for persistent excitation
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.1
+    return 5 + 3 * np.sin(2 * np.pi * 0.1 * t) + np.repeat(rng.uniform(-1.5, 1.5, n // 10 + 1), 10)[:n]
+
+
+def _generate(theta, structure, u, l0=20.0):
+    """Data from the regression form itself: l(k) = phi(k-1)^T theta, v with the true theta."""
+    l = np.full(u.size, l0)
+    v = virtual_hysteresis_sequence(theta, l[:4], u[:4])
+    state = ModelState(structure, l_init=l[1:4], v_init=v[1:4], u_init=u[3])
+    for k in range(4, u.size):
+        l[k] = state.phi() @ theta
+        state.update(l[k], u[k], theta)
+    return l
+
+
+def _true_regressors(theta, structure, u, l):
+    v = virtual_hysteresis_sequence(theta, l, u)
+    phi = regressor(l[3:-1], l[2:-2], l[1:-3], u[3:-1], v[2:-2], v[1:-3], structure)
+    return phi, l[4:]
+
+
+def _random_spd(rng, n, log_cond=4.0):
+    q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    return (q * 10.0 ** rng.uniform(-log_cond / 2, log_cond / 2, n)) @ q.T
+
+
+# ---------------------------------------------------------------------------
+# Eq. (4)
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("structure", [ASYMMETRIC, STANDARD])
+def test_rls_recovers_identifiable_parameters(structure):
+    theta_true = ASYMMETRIC.from_dict(TABLE3)[: structure.n_params]
+    u = _input(3000)
+    l = _generate(theta_true, structure, u)
+    assert np.all(np.isfinite(l)) and 0 < l.min() and l.max() < 250  # bounded, mm-scale
+    phi, y = _true_regressors(theta_true, structure, u, l)
+    assert np.max(np.abs(phi @ theta_true - y)) < 1e-10  # data follow the regression form exactly
+    rls = ConstrainedRLS(structure, RLSSettings(p0=1e6, **NO_BOX))
+    for p, yy in zip(phi, y):
+        rls.update(p, yy)
+    est = identifiable_combinations(rls.theta, structure)
+    true = identifiable_combinations(theta_true, structure)
+    for key in true:
+        assert est[key] == pytest.approx(true[key], rel=1e-4), key
+    # the unidentifiable direction keeps its prior value (theta0 = 0)
+    assert abs(null_direction(structure) @ rls.theta) < 1e-8
+
+
+def test_rls_equals_regularised_batch_least_squares():
+    rng = np.random.default_rng(2)
+    n, N = 15, 400
+    phi = rng.normal(size=(N, n))
+    y = phi @ rng.normal(size=n) + 0.1 * rng.normal(size=N)
+    p0 = rng.uniform(0.5, 50.0, n)
+    theta0 = rng.normal(size=n)
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=p0, theta0=theta0, **NO_BOX))
+    for p, yy in zip(phi, y):
+        rls.update(p, yy)
+    info = np.diag(1 / p0) + phi.T @ phi
+    theta_batch = np.linalg.solve(info, theta0 / p0 + phi.T @ y)
+    np.testing.assert_allclose(rls.theta, theta_batch, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(rls.P, np.linalg.inv(info), rtol=0, atol=1e-12)
+    assert np.array_equal(rls.P, rls.P.T)  # kept exactly symmetric
+
+
+def test_gain_is_goodwin_sin_not_literal_printed_eq4():
+    rng = np.random.default_rng(3)
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=rng.uniform(1, 10, 15), **NO_BOX))
+    for _ in range(5):
+        rls.update(rng.normal(size=15), rng.normal())
+    phi, y = rng.normal(size=15), rng.normal()
+    theta_prev, P_prev = rls.theta, rls.P
+    err = y - phi @ theta_prev
+    theta = rls.update(phi, y)
+    P_new = rls.P
+    # G&S: gain = P(k-2) phi / (1 + phi^T P(k-2) phi) = P(k-1) phi
+    np.testing.assert_allclose(theta - theta_prev, P_new @ phi * err, rtol=1e-10)
+    np.testing.assert_allclose(theta - theta_prev, P_prev @ phi / (1 + phi @ P_prev @ phi) * err, rtol=1e-10)
+    # the printed Eq. (4) read literally (P(k-1) in numerator and denominator) differs
+    literal = P_new @ phi / (1 + phi @ P_new @ phi) * err
+    assert np.max(np.abs(literal - (theta - theta_prev))) > 1e-3 * np.max(np.abs(theta - theta_prev))
+
+
+def test_forgetting_tracks_parameter_jump_faster():
+    rng = np.random.default_rng(4)
+    n, N, jump = 15, 1400, 1000
+    theta_a, theta_b = rng.normal(size=n), rng.normal(size=n)
+    phi = rng.normal(size=(N, n))
+    y = np.where(np.arange(N) < jump, phi @ theta_a, phi @ theta_b) + 0.01 * rng.normal(size=N)
+    errors = {}
+    for lam in (1.0, 0.98):
+        rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(forgetting=lam, **NO_BOX))
+        for p, yy in zip(phi[: jump + 200], y[: jump + 200]):
+            rls.update(p, yy)
+        errors[lam] = np.linalg.norm(rls.theta - theta_b)
+    assert errors[0.98] < 0.05 * errors[1.0]
+    assert errors[0.98] < 0.05 * np.linalg.norm(theta_b - theta_a)
+
+
+@pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
+def test_covariance_loss_reset_and_raise():
+    phi = np.full(15, 1e160)  # finite, but phi^T P phi overflows
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=2.0, **NO_BOX))
+    rls.update(np.ones(15), 1.0)
+    theta_before = rls.theta
+    out = rls.update(phi, 1.0)
+    assert rls.n_resets == 1
+    assert np.array_equal(out, theta_before)  # update discarded
+    assert np.array_equal(rls.P, 2.0 * np.eye(15))  # P reset to P(-1)
+    strict = ConstrainedRLS(ASYMMETRIC, RLSSettings(on_covariance_loss="raise", **NO_BOX))
+    with pytest.raises(FloatingPointError, match="positive definiteness"):
+        strict.update(phi, 1.0)
+
+
+def test_get_set_state_round_trip_is_bit_identical():
+    theta_true = ASYMMETRIC.from_dict(TABLE3)
+    u = _input(1000, seed=5)
+    l = _generate(theta_true, ASYMMETRIC, u)
+    phi, y = _true_regressors(theta_true, ASYMMETRIC, u, l)
+    # constraint active from sample 300 so projections happen in the replayed part
+    settings = RLSSettings(constraint_start_s=30.0, forgetting=0.995)
+    rls = ConstrainedRLS(ASYMMETRIC, settings)
+    for p, yy in zip(phi[:400], y[:400]):
+        rls.update(p, yy)
+    snap = rls.get_state()
+    snap_copy = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in snap.items()}
+    first = []
+    for p, yy in zip(phi[400:700], y[400:700]):
+        first.append((rls.update(p, yy), rls.P))
+    assert rls.n_projections > 0
+    for key, value in snap.items():  # snapshot was a copy, untouched by later updates
+        assert np.array_equal(value, snap_copy[key])
+    other = ConstrainedRLS(ASYMMETRIC, settings)
+    other.set_state(snap)
+    for (theta_a, P_a), p, yy in zip(first, phi[400:700], y[400:700]):
+        theta_b = other.update(p, yy)
+        assert np.array_equal(theta_a, theta_b) and np.array_equal(P_a, other.P)
+    assert other.get_state()["k"] == rls.step
+
+
+def test_update_returns_copies():
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(**NO_BOX))
+    out = rls.update(np.ones(15), 1.0)
+    out[:] = 99.0
+    assert np.all(rls.theta != 99.0)
+    P = rls.P
+    P[:] = 0.0
+    assert np.all(np.diag(rls.P) > 0)
+
+
+# ---------------------------------------------------------------------------
+# Algorithm 1: projection
+# ---------------------------------------------------------------------------
+def _metric(P, a, b):
+    d = a - b
+    return float(d @ np.linalg.solve(P, d))
+
+
+def _reference_projection(theta_hat, P, lower, upper):
+    """Brute force: BVLS on the full problem min |L^{-1}(theta - theta_hat)|^2."""
+    L = np.linalg.cholesky(P)
+    Linv = np.linalg.inv(L)
+    res = lsq_linear(Linv, Linv @ theta_hat, bounds=(lower, upper), method="bvls", tol=1e-15)
+    return res.x
+
+
+def _random_case(rng, n_boxed_max=4):
+    n = int(rng.integers(2, 16))
+    P = _random_spd(rng, n, log_cond=rng.uniform(0, 6))
+    theta_hat = rng.normal(scale=3.0, size=n)
+    m = int(rng.integers(1, min(n_boxed_max, n) + 1))
+    boxed = rng.choice(n, size=m, replace=False)
+    lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+    centre = theta_hat[boxed] + rng.normal(scale=2.0, size=m)
+    half = rng.uniform(0.05, 2.0, m)
+    lower[boxed], upper[boxed] = centre - half, centre + half
+    one_sided = rng.random(m) < 0.25
+    lower[boxed[one_sided & (rng.random(m) < 0.5)]] = -np.inf
+    upper[boxed[one_sided]] = np.where(np.isinf(lower[boxed[one_sided]]), upper[boxed[one_sided]], np.inf)
+    theta0 = theta_hat + rng.normal(size=n)  # some point of C for Remark 1
+    theta0 = np.clip(theta0, np.where(np.isinf(lower), -1e9, lower), np.where(np.isinf(upper), 1e9, upper))
+    return theta_hat, P, lower, upper, theta0
+
+
+@pytest.mark.parametrize("n_boxed_max", [4, 7])  # 7 exercises the BVLS fallback
+def test_projection_properties_random(n_boxed_max):
+    rng = np.random.default_rng(10 + n_boxed_max)
+    n_projected = 0
+    for _ in range(200):
+        theta_hat, P, lower, upper, theta0 = _random_case(rng, n_boxed_max)
+        theta = project_onto_box(theta_hat, P, lower, upper)
+        # inside C
+        assert np.all(theta >= lower - 1e-9) and np.all(theta <= upper + 1e-9)
+        inside = np.all(theta_hat >= lower) and np.all(theta_hat <= upper)
+        if inside:
+            assert np.array_equal(theta, theta_hat)
+            continue
+        n_projected += 1
+        # Remark 1, Eq. (10): distance to theta0 in C is not increased
+        assert _metric(P, theta, theta0) <= _metric(P, theta_hat, theta0) * (1 + 1e-9) + 1e-12
+        # minimiser: no worse than brute-force BVLS on the full problem, and the same point
+        ref = _reference_projection(theta_hat, P, lower, upper)
+        f, f_ref = _metric(P, theta, theta_hat), _metric(P, ref, theta_hat)
+        assert f <= f_ref * (1 + 1e-8) + 1e-12
+        L = np.linalg.cholesky(P)
+        assert np.linalg.norm(np.linalg.solve(L, theta - ref)) <= 1e-6 * (1 + math.sqrt(f_ref))
+    assert n_projected > 150
+
+
+def test_projection_is_minimiser_vs_scipy_minimize():
+    rng = np.random.default_rng(20)
+    for _ in range(20):
+        theta_hat, P, lower, upper, _ = _random_case(rng)
+        if np.all(theta_hat >= lower) and np.all(theta_hat <= upper):
+            continue
+        W = np.linalg.inv(P)
+        res = minimize(
+            lambda t: (t - theta_hat) @ W @ (t - theta_hat),
+            x0=np.clip(theta_hat, lower, upper),
+            jac=lambda t: 2 * W @ (t - theta_hat),
+            bounds=list(zip(np.where(np.isinf(lower), None, lower), np.where(np.isinf(upper), None, upper))),
+            method="L-BFGS-B",
+            options=dict(ftol=1e-15, gtol=1e-12, maxiter=20000),
+        )
+        ours = project_onto_box(theta_hat, P, lower, upper)
+        assert _metric(P, ours, theta_hat) <= res.fun * (1 + 1e-7) + 1e-10
+
+
+def test_projection_is_not_elementwise_clip():
+    P = np.array([[1.0, 0.9], [0.9, 1.0]])
+    theta_hat = np.array([2.0, 0.0])
+    lower, upper = np.array([-np.inf, -np.inf]), np.array([1.0, np.inf])
+    theta = project_onto_box(theta_hat, P, lower, upper)
+    # theta_1 follows the correlation: 0 + 0.9 * (1 - 2)
+    np.testing.assert_allclose(theta, [1.0, -0.9], atol=1e-14)
+    clipped = np.clip(theta_hat, lower, upper)
+    assert _metric(P, theta, theta_hat) == pytest.approx(1.0)
+    assert _metric(P, clipped, theta_hat) == pytest.approx(1 / 0.19)
+    # both coordinates boxed: the clip corner is not the optimum either
+    P2 = np.array([[1.0, -0.8], [-0.8, 1.0]])
+    th2 = np.array([3.0, 0.5])
+    lo2, hi2 = np.array([0.0, 0.0]), np.array([1.0, 1.0])
+    proj = project_onto_box(th2, P2, lo2, hi2)
+    ref = _reference_projection(th2, P2, lo2, hi2)
+    np.testing.assert_allclose(proj, ref, atol=1e-10)
+    assert not np.allclose(proj, np.clip(th2, lo2, hi2))
+
+
+def test_projection_input_validation():
+    P = np.eye(3)
+    with pytest.raises(ValueError, match="lower"):
+        project_onto_box(np.zeros(3), P, [0, 0, 2], [1, 1, 1])
+    with pytest.raises(ValueError, match="P must have shape"):
+        project_onto_box(np.zeros(3), np.eye(2), [0] * 3, [1] * 3)
+    with pytest.raises(ValueError, match="theta_hat"):
+        project_onto_box([0, np.nan, 0], P, [0] * 3, [1] * 3)
+    with pytest.raises(ValueError, match="upper"):
+        project_onto_box(np.zeros(3), P, [0] * 3, [1, np.nan, 1])
+
+
+def test_constraint_starts_at_120_s_and_keeps_table2_box():
+    settings = RLSSettings()
+    assert settings.constraint_start_index == 1200
+    rng = np.random.default_rng(30)
+    rls = ConstrainedRLS(ASYMMETRIC, settings)
+    lower, upper = rls.lower, rls.upper
+    assert lower[:3].tolist() == [1.208, -0.334, 0.607] and upper[:3].tolist() == [1.260, -0.278, 1.184]
+    assert np.all(np.isinf(lower[3:])) and np.all(np.isinf(upper[3:]))
+    outside_before = 0
+    for k in range(1, 1400):
+        theta = rls.update(rng.normal(size=15), rng.normal() * 5)  # theta ~ 0: outside the box
+        assert rls.step == k
+        if k < 1200:
+            outside_before += not (np.all(theta >= lower) and np.all(theta <= upper))
+        else:
+            assert np.all(theta >= lower) and np.all(theta <= upper)
+    assert outside_before == 1199
+    # projected at 1200; afterwards only when an update leaves C again
+    assert 0 < rls.n_projections <= 200
+
+
+# ---------------------------------------------------------------------------
+# validation
+# ---------------------------------------------------------------------------
+def test_settings_validation_names_offending_value():
+    with pytest.raises(ValueError, match="p0"):
+        RLSSettings(p0=0.0)
+    with pytest.raises(ValueError, match="p0"):
+        RLSSettings(p0=[1.0] * 14 + [-1.0])
+    with pytest.raises(ValueError, match="p0"):
+        RLSSettings(p0=math.inf)
+    with pytest.raises(ValueError, match="forgetting"):
+        RLSSettings(forgetting=0.0)
+    with pytest.raises(ValueError, match="forgetting"):
+        RLSSettings(forgetting=1.01)
+    with pytest.raises(ValueError, match=r"box_lower\['a1'\]"):
+        RLSSettings(box_lower={"a1": 2.0}, box_upper={"a1": 1.0})
+    with pytest.raises(ValueError, match=r"box_lower\[1\]"):
+        RLSSettings(box_lower=[0.0, 2.0], box_upper=[1.0, 1.0])
+    with pytest.raises(ValueError, match="box_upper"):
+        RLSSettings(box_upper={"b1": math.nan})
+    with pytest.raises(ValueError, match=r"box_lower\['a1'\] = inf"):
+        RLSSettings(box_lower={"a1": math.inf}, box_upper={})
+    with pytest.raises(ValueError, match="theta0"):
+        RLSSettings(theta0=[0.0, math.nan])
+    with pytest.raises(ValueError, match="ts_s"):
+        RLSSettings(ts_s=0.0)
+    with pytest.raises(ValueError, match="constraint_start_s"):
+        RLSSettings(constraint_start_s=-1.0)
+    with pytest.raises(ValueError, match="on_covariance_loss"):
+        RLSSettings(on_covariance_loss="ignore")
+    with pytest.raises(ValueError, match="inconsistent vector lengths"):
+        RLSSettings(p0=[1.0] * 15, theta0=[0.0] * 11)
+    with pytest.raises(TypeError):
+        RLSSettings(1e3)  # keyword-only
+    # defaults are Table 2 and the frozen settings are hashable
+    s = RLSSettings()
+    assert dict(s.box_lower) == dict(TABLE2_LOWER) and dict(s.box_upper) == dict(TABLE2_UPPER)
+    assert hash(s) == hash(RLSSettings()) and s == RLSSettings()
+
+
+def test_setup_validation_against_structure():
+    with pytest.raises(ValueError, match="'xi21'"):
+        ConstrainedRLS(STANDARD, RLSSettings(box_lower={"xi21": 0.0}, box_upper={}))
+    with pytest.raises(ValueError, match="theta0"):
+        ConstrainedRLS(STANDARD, RLSSettings(theta0=[0.0] * 15))
+    with pytest.raises(ValueError, match="p0"):
+        ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=[1.0] * 11))
+    with pytest.raises(RuntimeError, match="setup"):
+        ConstrainedRLS().update(np.zeros(15), 0.0)
+
+
+def test_update_input_validation():
+    rls = ConstrainedRLS(ASYMMETRIC)
+    phi = np.ones(15)
+    phi[4] = np.nan
+    with pytest.raises(ValueError, match=r"phi must be finite.*\[4\]"):
+        rls.update(phi, 1.0)
+    with pytest.raises(ValueError, match=r"phi must have shape \(15,\)"):
+        rls.update(np.ones(11), 1.0)
+    with pytest.raises(ValueError, match="y must be finite"):
+        rls.update(np.ones(15), math.inf)
+    with pytest.raises(ValueError, match="state\\['P'\\]"):
+        rls.set_state({"theta": np.zeros(15), "P": np.eye(11), "k": 0})
+    assert rls.step == 0  # rejected updates leave the estimator untouched
+
+
+def test_update_projects_with_updated_covariance():
+    # Algorithm 1: theta(k) = projection of the Eq. (4) estimate in the P(k-1) metric
+    rng = np.random.default_rng(31)
+    constrained = ConstrainedRLS(ASYMMETRIC, RLSSettings(constraint_start_s=0.0))
+    free = ConstrainedRLS(ASYMMETRIC, RLSSettings(**NO_BOX))
+    for _ in range(40):
+        phi, y = rng.normal(size=15), 5 * rng.normal()
+        free.set_state(constrained.get_state())
+        theta_free = free.update(phi, y)
+        theta = constrained.update(phi, y)
+        assert np.array_equal(constrained.P, free.P)  # projection leaves P alone
+        expected = project_onto_box(theta_free, free.P, constrained.lower, constrained.upper)
+        np.testing.assert_allclose(theta, expected, rtol=0, atol=1e-12)
+    assert constrained.n_projections > 0
