@@ -153,3 +153,16 @@ def test_bad_parameters_name_the_field():
 def test_parameters_round_trip_through_a_dict():
     p = PlantParams().with_values(**{"load.load_n": 68.0, "friction.rate_gain": 0.0})
     assert PlantParams.from_dict(p.to_dict()) == p
+
+
+def test_docs_list_every_parameter_with_its_value():
+    """docs/plant.md's parameter table is the dataclasses' defaults (regenerate it when tuning)."""
+    from dataclasses import fields
+    from pathlib import Path
+
+    text = Path(__file__).resolve().parents[1].joinpath("docs", "plant.md").read_text()
+    p = PlantParams()
+    for group in fields(p):
+        sub = getattr(p, group.name)
+        for f in fields(sub):
+            assert f"| `{group.name}.{f.name}` | {getattr(sub, f.name):g} |" in text, f"{group.name}.{f.name}"
