@@ -105,6 +105,86 @@ def _cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------- identify
+def _parse_box(text: str):
+    if text in ("auto", "none"):
+        return None if text == "none" else "auto"
+    box = {}
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        name, eq, rng = item.partition("=")
+        lo, colon, hi = rng.partition(":")
+        if not eq or not colon:
+            raise UsageError(f"--box: expected name=lower:upper, got {item!r} (e.g. a1=1.208:1.26,b1=0.6:1.2)")
+        try:
+            box[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise UsageError(f"--box: bounds of {name.strip()!r} must be numbers, got {rng!r}") from None
+    return box
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from fmu_controller.identification import identify_record, score_model
+
+    from .figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
+    from .recording import atomic_write_text, read_recording
+
+    rec = read_recording(args.recording)
+    val = read_recording(args.validate) if args.validate else None
+    try:
+        report = identify_record(rec.u_v, rec.l_mm, ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box),
+                                 constraint_start_s=args.constraint_start, forgetting=args.forgetting)
+    except ValueError as exc:
+        raise UsageError(f"{args.recording}: {exc}") from None
+    out = {
+        "model": report.model, "ts_s": report.ts_s, "n_samples": report.n_samples,
+        "theta": report.theta_dict, "fit_percent": report.fit.percent,
+        "free_run_diverged": report.fit.free_run_diverged,
+        "identifiable_combinations": report.identifiable,
+        "constraint": {"lower": report.box_lower, "upper": report.box_upper, "start_s": report.constraint_start_s,
+                       "n_projections": report.n_projections},
+        "scaling": {"l_scale": report.l_scale, "u_scale": report.u_scale},
+        "notes": list(report.notes), "recording": str(args.recording),
+    }
+    val_fit = None
+    if val is not None:
+        if abs(val.ts_s - rec.ts_s) > 1e-9 * rec.ts_s:
+            raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
+                             f"identification record's {rec.ts_s:g} s")
+        val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm)
+        out["validation_fit_percent"] = val_fit.percent
+        out["validation_free_run_diverged"] = val_fit.free_run_diverged
+        out["validation_recording"] = str(args.validate)
+    atomic_write_text(args.json, json.dumps(out, indent=2) + "\n")
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
+    fits = report.fit.percent
+    print(f"{report.model} model, {report.n_samples} samples at Ts {report.ts_s:g} s -> {args.json}")
+    print("fit [%]      1-step  3-step  5-step  free run")
+    print(f"identif.    {fits['1']:7.1f} {fits['3']:7.1f} {fits['5']:7.1f} {fits['sim']:9.1f}"
+          + ("  (diverged)" if report.fit.free_run_diverged else ""))
+    if val_fit is not None:
+        v = val_fit.percent
+        print(f"validation  {v['1']:7.1f} {v['3']:7.1f} {v['5']:7.1f} {v['sim']:9.1f}"
+              + ("  (diverged)" if val_fit.free_run_diverged else ""))
+    if args.plot:
+        folder = Path(args.plot)
+        t = rec.t_s
+        plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / "convergence.png",
+                                   constraint_start_s=report.constraint_start_s if report.box_lower else None,
+                                   title=f"{report.model} model: parameter convergence ({Path(args.recording).name})")
+        shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
+        label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
+        plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
+                               folder / "model_vs_measured.png",
+                               title=f"free run against {'validation' if val is not None else 'identification'} "
+                                     f"record (cf. Fig. 4)")
+        skip = int(len(shown.t_s) // 4)
+        plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
+                             skip=skip)
+        print(f"wrote {folder}/convergence.png, model_vs_measured.png, hysteresis_loop.png")
+    return 0
+
+
 # --------------------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tapmuscle", description=__doc__.splitlines()[0])
@@ -130,6 +210,24 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override one plant parameter, e.g. --set friction.rate_gain=0 (repeatable)")
     rec.add_argument("--quiet", action="store_true", help="no progress output")
     rec.set_defaults(func=_cmd_record)
+
+    idf = sub.add_parser("identify", help="identify the paper's Eq. (1) model on a recording by (constrained) RLS",
+                         description="Identify Eq. (1) (linear ARX + discretised Bouc-Wen) on a recording with the "
+                                     "RLS of Eq. (4) and the constrained RLS of Algorithm 1; report Table-4 fits.")
+    idf.add_argument("recording", help="recording CSV (docs/recordings.md)")
+    idf.add_argument("--model", choices=("asymmetric", "standard"), default="asymmetric",
+                     help="asymmetric Bouc-Wen (with g(l), 15 parameters) or standard (11)")
+    idf.add_argument("--validate", help="a second recording to score the identified model on")
+    idf.add_argument("--json", required=True, help="output JSON path")
+    idf.add_argument("--plot", metavar="DIR", help="write convergence, model-vs-measured and loop PNGs into DIR")
+    idf.add_argument("--box", default="auto",
+                     help="constraint region: auto (Table 2 for mm, V, Ts 0.1 s), none, or name=lo:hi,... "
+                          "in the recording's units")
+    idf.add_argument("--constraint-start", type=_positive("--constraint-start", 0.0, math.inf), default=120.0,
+                     help="time from which the constraint applies [s] (paper: 120)")
+    idf.add_argument("--forgetting", type=_positive("--forgetting", 1e-6, 1.0), default=1.0,
+                     help="forgetting factor lambda in (0, 1] (1 = off, the paper)")
+    idf.set_defaults(func=_cmd_identify)
     return parser
 
 

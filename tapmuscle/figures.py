@@ -16,7 +16,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["save_figure", "plot_recording"]
+__all__ = ["save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
+           "plot_loop_comparison"]
 
 
 def save_figure(fig: "plt.Figure", path: str | os.PathLike, *, dpi: int = 120) -> Path:
@@ -71,4 +72,68 @@ def plot_recording(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, path: str
     ax_h.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tuple[str, ...],
+                               path: str | os.PathLike, *, constraint_start_s: float | None = None,
+                               title: str = "") -> Path:
+    """Estimated parameters over time, one panel each (parameter convergence, section 2.4)."""
+    n = len(names)
+    cols = 5 if n > 12 else 4
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.1 * rows), sharex=True, squeeze=False)
+    for i, ax in enumerate(axes.flat):
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        ax.plot(t_s, history[:, i], lw=1)
+        # Scale to the settled part: the first seconds of RLS swing wildly and would hide the rest.
+        settled = history[len(t_s) // 20:, i]
+        lo, hi = float(np.min(settled)), float(np.max(settled))
+        pad = 0.15 * (hi - lo) + 1e-12 + 0.02 * max(abs(lo), abs(hi))
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_title(names[i], fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+        if constraint_start_s is not None and constraint_start_s < t_s[-1]:
+            ax.axvline(constraint_start_s, color="grey", ls="--", lw=0.8)
+        if i >= n - cols:
+            ax.set_xlabel("t [s]", fontsize=8)
+    fig.suptitle(title or "parameter convergence (dashed: constraint starts)")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
+                           path: str | os.PathLike, *, title: str = "") -> Path:
+    """Measured displacement against free-run model outputs (paper Fig. 4) and their errors."""
+    fig, (ax, ax_e) = plt.subplots(2, 1, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": (2, 1)})
+    ax.plot(t_s, l_mm, color="black", lw=1.2, label="measured")
+    for (label, y), color in zip(models.items(), ("tab:red", "tab:blue", "tab:green")):
+        ax.plot(t_s, y, color=color, lw=1, ls="--", label=label)
+        ax_e.plot(t_s, l_mm - y, color=color, lw=0.8, label=label)
+    ax.set_ylabel("displacement l [mm]")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax_e.set_ylabel("measured - model [mm]")
+    ax_e.set_xlabel("time t [s]")
+    ax_e.grid(alpha=0.3)
+    fig.suptitle(title or "free-run model output against measurement (cf. paper Fig. 4)")
+    return save_figure(fig, path)
+
+
+def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
+                         path: str | os.PathLike, *, skip: int = 0, title: str = "") -> Path:
+    """Hysteresis loops (u, l) of the measurement and of models (paper Fig. 5)."""
+    fig, ax = plt.subplots(figsize=(7, 6))
+    u = np.asarray(u_v)[skip:-1]
+    ax.plot(u, np.asarray(l_mm)[skip + 1:], color="black", lw=1.2, label="measured")
+    for (label, y), color in zip(models.items(), ("tab:red", "tab:blue", "tab:green")):
+        ax.plot(u, np.asarray(y)[skip + 1:], color=color, lw=1, ls="--", label=label)
+    ax.set_xlabel("valve input u(k) [V]")
+    ax.set_ylabel("displacement l(k+1) [mm]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title or "hysteresis loop: model against measurement (cf. paper Fig. 5)", fontsize=10)
     return save_figure(fig, path)

@@ -1,0 +1,226 @@
+"""Identify Eq. (1) on a whole record and score it like the paper's Table 4.
+
+This is the pipeline behind ``tapmuscle identify``: validate the data, normalise units, run the
+(constrained) RLS of Eq. (4) / Algorithm 1 (:func:`fmu_controller.prediction.identify`), convert the
+estimate back to the record's units, and compute the 1-, 3-, 5-step-ahead and free-run fits.
+
+Units and scaling
+-----------------
+The paper's settings (``P(-1) = 1e3 I``, Table 2's box on ``b1`` in mm/V) are tied to its units, and
+the cubic term ``l^3`` of ``g(l)`` spans fifteen orders of magnitude if ``l`` is in micrometres.
+So the record is normalised by powers of ten, ``l / l_scale`` and ``u / u_scale``, chosen so that
+the normalised data have the paper's magnitudes (displacement of tens, command of units):
+millimetres and volts are left alone (scale 1, exactly the paper's algorithm), micrometres are
+divided by 1000, metres multiplied by 1000. ``P(-1)`` applies in the normalised units, so the result
+does not depend on the unit the rig reports in; ``theta`` is converted back with
+:func:`fmu_controller.prediction.rescale_theta`.
+
+Constraint region
+-----------------
+``box="auto"`` uses Table 2 (``a1, a2, b1``) when the record is in the paper's units and sampling
+period (scales 1, ``Ts = 0.1 s``): the box is an identification result of the paper's rig at that
+period, meaningless at another. Otherwise no constraint, and :attr:`IdentificationReport.notes`
+says so. An explicit box is given in the record's units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
+from .prediction import (IdentificationResult, fit_percent, identify, predict_ahead, rescale_theta,
+                         simulate, theta_scale_factors)
+from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
+
+__all__ = ["MODELS", "FitReport", "IdentificationReport", "identify_record", "score_model",
+           "decade_scale", "PAPER_TS_S", "MIN_SAMPLES"]
+
+#: Model variants by name (Eq. (1) with and without ``g(l)``).
+MODELS: dict[str, ModelStructure] = {"asymmetric": ASYMMETRIC, "standard": STANDARD}
+
+#: Sampling period of the paper's identification [s] (section 2.4).
+PAPER_TS_S = 0.1
+
+#: Fewest samples accepted: ten per parameter of the asymmetric model.
+MIN_SAMPLES = 150
+
+HORIZONS = (1, 3, 5)
+
+
+def decade_scale(x: np.ndarray, typical: float) -> float:
+    """Power of ten that brings ``max |x|`` closest to ``typical`` (1 when already within 3x)."""
+    peak = float(np.max(np.abs(x)))
+    if peak == 0.0:
+        return 1.0
+    return 10.0 ** round(math.log10(peak / typical))
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """Fit percentages of Table 4 on one record (MATLAB ``compare``: NRMSE fit).
+
+    ``fit = 100 (1 - ||y - yhat|| / ||y - mean(y)||)`` over the samples where the prediction exists
+    (the first 4 samples are initial conditions; an h-step prediction starts at sample 3 + h). The
+    free run starts from the first 4 measured samples and uses only its own outputs after that.
+    """
+
+    percent: dict[str, float]
+    """Keys ``"1"``, ``"3"``, ``"5"`` (steps ahead) and ``"sim"`` (free run) [%]."""
+    free_run_diverged: bool
+    """The free run left ten times the data's span and was clamped (fit then meaningless)."""
+    simulated_mm: np.ndarray = field(repr=False)
+    """The free-run output (record units)."""
+
+
+def score_model(theta: np.ndarray, structure: ModelStructure, u: np.ndarray, l: np.ndarray) -> FitReport:
+    """1-, 3-, 5-step-ahead and free-run fits of ``theta`` on ``(u, l)`` (Table 4)."""
+    u, l = np.asarray(u, dtype=float), np.asarray(l, dtype=float)
+    rng = (float(l.min()), float(l.max()))
+    percent: dict[str, float] = {}
+    for h in HORIZONS:
+        pred = predict_ahead(theta, structure, u, l, h, output_range=rng)
+        percent[str(h)] = float(fit_percent(l, pred.l_hat, start=pred.start))
+    sim = simulate(theta, structure, u, l[:4], output_range=rng)
+    percent["sim"] = float(fit_percent(l, sim.l_hat, start=sim.start))
+    return FitReport(percent, bool(sim.diverged), sim.l_hat)
+
+
+@dataclass(frozen=True)
+class IdentificationReport:
+    """Result of :func:`identify_record` (all in the record's units)."""
+
+    model: str
+    structure: ModelStructure
+    ts_s: float
+    n_samples: int
+    theta: np.ndarray
+    """Final estimate, record units (``theta[structure.index(name)]``)."""
+    theta_history: np.ndarray
+    """Estimate at every sample, shape ``(n_samples, n_params)``, record units."""
+    fit: FitReport
+    """Fits on the identification record itself."""
+    l_scale: float
+    u_scale: float
+    box_lower: dict[str, float]
+    box_upper: dict[str, float]
+    constraint_start_s: float
+    n_projections: int
+    n_resets: int
+    notes: tuple[str, ...]
+
+    @property
+    def theta_dict(self) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.structure.names, self.theta)}
+
+    @property
+    def identifiable(self) -> dict[str, float]:
+        """The identifiable combinations (``a1+A1``, ``a2-A1`` and the rest), see hysteresis_model."""
+        return {k: float(v) for k, v in identifiable_combinations(self.theta, self.structure).items()}
+
+
+def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
+    if u.shape != l.shape or u.ndim != 1:
+        raise ValueError(f"u and l must be 1-D arrays of equal length, got shapes {u.shape} and {l.shape}")
+    if not (math.isfinite(ts_s) and ts_s > 0):
+        raise ValueError(f"sampling period ts_s must be finite and > 0, got {ts_s!r}")
+    for name, x in (("u_v", u), ("l_mm", l)):
+        bad = np.nonzero(~np.isfinite(x))[0]
+        if bad.size:
+            raise ValueError(f"column {name} row {int(bad[0]) + 1} is {float(x[bad[0]])!r}; data must be finite")
+    if len(l) < MIN_SAMPLES:
+        raise ValueError(f"too short to identify the 15-parameter model: {len(l)} samples, need at least "
+                         f"{MIN_SAMPLES} (ten per parameter)")
+    if np.ptp(u) <= 1e-9 * max(1.0, float(np.max(np.abs(u)))):
+        raise ValueError(f"the input u_v is constant ({float(u[0]):g}) over the whole record: it cannot excite "
+                         "the model (b1 and the hysteresis terms are not identifiable)")
+    if np.ptp(l) <= 1e-9 * max(1.0, float(np.max(np.abs(l)))):
+        raise ValueError(f"the output l_mm is constant ({float(l[0]):g}): the record shows no motion to identify")
+
+
+def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: str = "asymmetric",
+                    box: str | Mapping[str, tuple[float, float]] | None = "auto",
+                    constraint_start_s: float = 120.0, p0: float = 1e3, forgetting: float = 1.0,
+                    theta0: Mapping[str, float] | None = None) -> IdentificationReport:
+    """Identify Eq. (1) on a record by (constrained) RLS and score it (section 2.3, Table 4).
+
+    Parameters
+    ----------
+    u_v, l_mm : ndarray
+        Command and displacement, one sample per period (any units, see module docstring).
+    ts_s : float
+        Sampling period [s].
+    model : {"asymmetric", "standard"}
+        Eq. (1) with the polynomial ``g(l)`` (15 parameters) or without it (11).
+    box : "auto", None, or mapping name -> (lower, upper)
+        Constraint region C of Algorithm 1, in the record's units (module docstring).
+    constraint_start_s : float
+        Time from which the projection is applied (paper: 120 s).
+    p0 : float
+        ``P(-1) = p0 I`` in normalised units (paper: 1e3).
+    forgetting : float
+        Forgetting factor (1 = off, the paper's Eq. (4)).
+    theta0 : mapping, optional
+        Initial estimate by name, record units (default zeros, section 2.4).
+
+    Raises
+    ------
+    ValueError
+        Unknown model; data that cannot support identification (constant input or output, fewer
+        than ``MIN_SAMPLES`` samples, non-finite values); a bad box.
+    """
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
+    structure = MODELS[model]
+    u = np.asarray(u_v, dtype=float)
+    l = np.asarray(l_mm, dtype=float)
+    _check_record(u, l, float(ts_s))
+    l_scale, u_scale = decade_scale(l, 60.0), decade_scale(u, 6.0)
+    f = theta_scale_factors(structure, l_scale, u_scale)
+    notes: list[str] = []
+
+    if isinstance(box, str):
+        if box != "auto":
+            raise ValueError(f"box must be 'auto', None or a mapping name -> (lower, upper), got {box!r}")
+        if l_scale == 1.0 and u_scale == 1.0 and abs(ts_s - PAPER_TS_S) < 1e-9:
+            lower, upper = dict(TABLE2_LOWER), dict(TABLE2_UPPER)
+        else:
+            lower, upper = {}, {}
+            notes.append(f"no constraint region: Table 2's box is for mm, V and Ts = 0.1 s, this record has "
+                         f"Ts = {ts_s:g} s and unit scales l/{l_scale:g}, u/{u_scale:g}; pass a box explicitly")
+    elif box is None:
+        lower, upper = {}, {}
+    else:
+        lower, upper = {}, {}
+        for name, bounds in box.items():
+            if name not in structure.names:
+                raise ValueError(f"box: unknown parameter {name!r} for the {model} model")
+            lo, hi = (float(b) for b in bounds)
+            if not lo <= hi:
+                raise ValueError(f"box: {name} lower bound {lo} exceeds upper bound {hi}")
+            lower[name], upper[name] = lo, hi
+    # Box and initial estimate into normalised units: theta_scaled = theta_physical / f.
+    idx = {n: i for i, n in enumerate(structure.names)}
+    s_lower = {n: v / f[idx[n]] for n, v in lower.items()}
+    s_upper = {n: v / f[idx[n]] for n, v in upper.items()}
+    th0 = None
+    if theta0 is not None:
+        th0 = np.zeros(structure.n_params)
+        for n, v in theta0.items():
+            if n not in idx:
+                raise ValueError(f"theta0: unknown parameter {n!r} for the {model} model")
+            th0[idx[n]] = float(v) / f[idx[n]]
+    settings = RLSSettings(p0=p0, theta0=None if th0 is None else tuple(th0), forgetting=forgetting,
+                           box_lower=s_lower, box_upper=s_upper,
+                           constraint_start_s=constraint_start_s, ts_s=float(ts_s))
+    result: IdentificationResult = identify(structure, u / u_scale, l / l_scale, settings)
+    theta = rescale_theta(result.theta, structure, l_scale, u_scale)
+    history = result.theta_history * f
+    return IdentificationReport(
+        model=model, structure=structure, ts_s=float(ts_s), n_samples=len(l), theta=theta,
+        theta_history=history, fit=score_model(theta, structure, u, l), l_scale=l_scale, u_scale=u_scale,
+        box_lower=lower, box_upper=upper, constraint_start_s=float(constraint_start_s),
+        n_projections=result.n_projections, n_resets=result.n_resets, notes=tuple(notes))
