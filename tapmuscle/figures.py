@@ -37,6 +37,16 @@ def save_figure(fig: "plt.Figure", path: str | os.PathLike, *, dpi: int = 120) -
     return path
 
 
+def _until_divergence(y: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, int | None]:
+    """``y`` with everything after it first leaves ``[lo, hi]`` blanked (NaN), and that index."""
+    y = np.asarray(y, dtype=float).copy()
+    out = np.nonzero((y < lo) | (y > hi))[0]
+    if out.size == 0:
+        return y, None
+    y[out[0] + 1:] = np.nan
+    return y, int(out[0])
+
+
 def plot_recording(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, path: str | os.PathLike, *,
                    p_mpa: np.ndarray | None = None, title: str = "", settle_s: float = 0.0) -> Path:
     """Time traces of command, displacement (and pressure) and the (u, l) hysteresis loop.
@@ -110,9 +120,18 @@ def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, m
     """Measured displacement against free-run model outputs (paper Fig. 4) and their errors."""
     fig, (ax, ax_e) = plt.subplots(2, 1, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": (2, 1)})
     ax.plot(t_s, l_mm, color="black", lw=1.2, label="measured")
+    lo, hi = float(np.min(l_mm)), float(np.max(l_mm))
+    pad = 0.25 * (hi - lo) + 1e-9
     for (label, y), color in zip(models.items(), ("tab:red", "tab:blue", "tab:green")):
+        # A diverged model is drawn until it leaves the chart, then marked, so it cannot hide the data.
+        y, gone = _until_divergence(y, lo - pad, hi + pad)
+        if gone is not None:
+            label = f"{label}, leaves the chart at t = {t_s[gone]:.1f} s"
+            ax.axvline(t_s[gone], color=color, lw=0.8, ls=":")
         ax.plot(t_s, y, color=color, lw=1, ls="--", label=label)
         ax_e.plot(t_s, l_mm - y, color=color, lw=0.8, label=label)
+    ax.set_ylim(lo - pad, hi + pad)
+    ax_e.set_ylim(-pad, pad)
     ax.set_ylabel("displacement l [mm]")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
@@ -129,8 +148,14 @@ def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np
     fig, ax = plt.subplots(figsize=(7, 6))
     u = np.asarray(u_v)[skip:-1]
     ax.plot(u, np.asarray(l_mm)[skip + 1:], color="black", lw=1.2, label="measured")
+    lo, hi = float(np.min(l_mm[skip:])), float(np.max(l_mm[skip:]))
+    pad = 0.25 * (hi - lo) + 1e-9
     for (label, y), color in zip(models.items(), ("tab:red", "tab:blue", "tab:green")):
-        ax.plot(u, np.asarray(y)[skip + 1:], color=color, lw=1, ls="--", label=label)
+        y, gone = _until_divergence(np.asarray(y)[skip + 1:], lo - pad, hi + pad)
+        if gone is not None:
+            label = f"{label} (leaves the chart)"
+        ax.plot(u, y, color=color, lw=1, ls="--", label=label)
+    ax.set_ylim(lo - pad, hi + pad)
     ax.set_xlabel("valve input u(k) [V]")
     ax.set_ylabel("displacement l(k+1) [mm]")
     ax.grid(alpha=0.3)
