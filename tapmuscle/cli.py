@@ -185,6 +185,18 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------- paper
+def _cmd_paper(args: argparse.Namespace) -> int:
+    from .paper import PAPER_RUNS, run_paper
+    from .progress import Progress
+
+    out = Path(args.out)
+    print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {out}/")
+    run_paper(out, seed=args.seed, progress=Progress("paper", enabled=not args.quiet, min_total=1))
+    print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
+    return 0
+
+
 # --------------------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tapmuscle", description=__doc__.splitlines()[0])
@@ -228,6 +240,15 @@ def build_parser() -> argparse.ArgumentParser:
     idf.add_argument("--forgetting", type=_positive("--forgetting", 1e-6, 1.0), default=1.0,
                      help="forgetting factor lambda in (0, 1] (1 = off, the paper)")
     idf.set_defaults(func=_cmd_identify)
+
+    pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",
+                         description="Identify the fixed predictor at 44 N, then run the four controllers at 44 and "
+                                     "68 N (0.1 Hz) and the servo controllers at 0.2 Hz; write paper.json, run CSVs "
+                                     "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
+    pap.add_argument("--out", default="out/paper", help="output folder (default out/paper)")
+    pap.add_argument("--seed", type=int, default=0, help="noise seed of every run (>= 0)")
+    pap.add_argument("--quiet", action="store_true", help="no progress bar")
+    pap.set_defaults(func=_cmd_paper)
     return parser
 
 

@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 __all__ = ["save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
-           "plot_loop_comparison"]
+           "plot_loop_comparison", "plot_tracking", "plot_prediction_errors"]
 
 
 def save_figure(fig: "plt.Figure", path: str | os.PathLike, *, dpi: int = 120) -> Path:
@@ -161,4 +161,62 @@ def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title or "hysteresis loop: model against measurement (cf. paper Fig. 5)", fontsize=10)
+    return save_figure(fig, path)
+
+
+_METHOD_STYLE = {"mpc_ucp": ("tab:blue", "MPC, unique coincidence point"),
+                 "ampc_ucp": ("tab:blue", "AMPC, unique coincidence point"),
+                 "mpc_servo": ("tab:red", "MPC with servo mechanism"),
+                 "ampc_servo": ("tab:red", "AMPC with servo mechanism")}
+
+
+def _style(method: str, index: int) -> tuple[str, str]:
+    color, label = _METHOD_STYLE.get(method, (f"C{index}", method))
+    if method == "mpc_servo" and index > 0:  # MPC vs AMPC, both servo (Figs. 16-19)
+        color = "tab:blue"
+    return color, label
+
+
+def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
+                  window_s: tuple[float, float] = (10.0, 40.0)) -> Path:
+    """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18)."""
+    fig, (ax, ax_e, ax_u) = plt.subplots(3, 1, figsize=(11, 8), sharex=True,
+                                         gridspec_kw={"height_ratios": (2.2, 1, 1)})
+    first = next(iter(runs.values()))
+    ax.plot(first["t_s"], first["r_mm"], color="black", lw=1.2, ls="--", label="reference r")
+    for i, (method, cols) in enumerate(runs.items()):
+        color, label = _style(method, i)
+        ax.plot(cols["t_s"], cols["l_mm"], color=color, lw=1, label=label)
+        ax_e.plot(cols["t_s"], cols["r_mm"] - cols["l_mm"], color=color, lw=0.9, label=label)
+        ax_u.plot(cols["t_s"], cols["u_v"], color=color, lw=0.9, label=label)
+    for a in (ax, ax_e, ax_u):
+        a.axvspan(*window_s, color="grey", alpha=0.07)
+        a.grid(alpha=0.3)
+    keep = (first["t_s"] >= window_s[0]) & (first["t_s"] <= window_s[1])
+    emax = max(float(np.max(np.abs(c["r_mm"][keep] - c["l_mm"][keep]))) for c in runs.values())
+    ax_e.set_ylim(-1.2 * emax, 1.2 * emax)  # the start-up transient would hide the steady state
+    ax.set_ylabel("displacement l [mm]")
+    ax_e.set_ylabel("error r - l [mm]")
+    ax_u.set_ylabel("valve input u [V]")
+    ax_u.set_xlabel("time t [s] (shaded: Eq. (21) window)")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *,
+                           title: str = "", window_s: tuple[float, float] = (10.0, 40.0)) -> Path:
+    """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over 10-40 s (Figs. 9-19)."""
+    fig, ax = plt.subplots(figsize=(11, 4))
+    for i, (method, cols) in enumerate(runs.items()):
+        keep = (cols["t_s"] >= window_s[0]) & (cols["t_s"] <= window_s[1])
+        color, label = _style(method, i)
+        err = cols["pred_error_mm"][keep]
+        ax.plot(cols["t_s"][keep], err, color=color, lw=0.9,
+                label=f"{label} (mean |e| {np.mean(np.abs(err)):.3f} mm)")
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("prediction error l(k) - l(k|k-1) [mm]")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.suptitle(title)
     return save_figure(fig, path)

@@ -1,0 +1,241 @@
+"""The paper's four displacement controllers (sections 3-4, Figs. 6-7, Tables 5 and 8).
+
+=============  ==========================  ==========================================================
+method         predictor                   control law
+=============  ==========================  ==========================================================
+``mpc_ucp``    Eq. (1), fixed theta        unique coincidence point, Eq. (11)-(14) (ucp_mpc.py)
+``mpc_servo``  Eq. (2), fixed theta        servo QP, Eq. (15)-(20), with hysteresis cancellation Eq. (5)
+``ampc_ucp``   Eq. (1), constrained RLS    as ``mpc_ucp``, theta from Algorithm 1 every step (Fig. 7)
+``ampc_servo`` Eq. (2), constrained RLS    as ``mpc_servo``, a1, a2, b1 and H(k) from Algorithm 1 (Fig. 6)
+=============  ==========================  ==========================================================
+
+The fixed predictors use ``theta0``, the paper's preliminary identification at 44 N (section 4.2).
+The adaptive ones start from ``theta0`` with ``P(0)`` from Table 5 (Table 8 for 0.2 Hz) and keep
+``(a1, a2, b1)`` in the Table 2 box from the first step.
+
+Per sample ``k`` (:meth:`DisplacementController.step`)::
+
+    phi(k-1) from the history                              (u(k-1) is what the valve received)
+    AMPC: theta(k) = constrained RLS update with l(k)        Eq. (4), Algorithm 1
+    v(k) = l(k) - [a1 l(k-1) + a2 l(k-2) + b1 u(k-1)]        section 2.3
+    UCP:   u(k) = u(k-1) + (r(k+Hp) - l_f) / S(Hp)          Eq. (13)-(14), clipped to 0-10 V
+    servo: H(k) = theta_h^T phi_h(k)                         "y_hy(k) + y_hy(k-1)" of Eq. (5)
+           u_c(k) = QP(l(k), l(k-1), u_c(k-1), x_s(k), r(k..k+Hp), H/b1)   Eq. (15)-(20)
+           u(k) = u_c(k) - H(k)/b1                           Eq. (5)
+           x_s(k+1) = x_s(k) + r(k) - l(k)                   Eq. (18)
+
+Lifecycle as osqp's: construct (setup), :meth:`reset` with the first measurement, :meth:`step` every
+sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .hysteresis_model import ASYMMETRIC, ModelState, hysteresis_term
+from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
+from .servo_mpc import ServoMPC, ServoMPCSettings
+from .ucp_mpc import UCPSettings, ucp_move
+
+__all__ = ["METHODS", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep", "DisplacementController"]
+
+METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
+
+#: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
+P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
+#: ``P(0)`` of the AMPC for the 0.2 Hz experiments (Table 8).
+P0_TABLE8 = (1000.0, 1000.0, 1000.0) + (250.0,) * 8 + (150.0,) * 4
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControllerSettings:
+    """Settings of a :class:`DisplacementController`."""
+
+    method: str = "ampc_servo"
+    """One of ``mpc_ucp``, ``mpc_servo``, ``ampc_ucp``, ``ampc_servo``."""
+    ts_s: float = 0.1
+    """Sampling period [s] (paper: 0.1)."""
+    ucp: UCPSettings = field(default_factory=UCPSettings)
+    """Unique-coincidence-point settings (Table 5: Hp = 2)."""
+    servo: ServoMPCSettings = field(default_factory=ServoMPCSettings)
+    """Servo-MPC settings (Table 5: Hp = Hu = 5, Q = 5, Qs = 2, R = 15)."""
+    p0: tuple[float, ...] = P0_TABLE5
+    """Diagonal of the AMPC's initial covariance ``P(0)`` (Table 5; Table 8 for 0.2 Hz)."""
+    box_lower: Mapping[str, float] = field(default_factory=lambda: dict(TABLE2_LOWER))
+    """Lower bounds of the constraint region C by parameter name (Table 2)."""
+    box_upper: Mapping[str, float] = field(default_factory=lambda: dict(TABLE2_UPPER))
+    """Upper bounds of C (Table 2)."""
+    forgetting: float = 1.0
+    """RLS forgetting factor (1 = off, as the paper)."""
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"ControllerSettings.method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if not (isinstance(self.ts_s, (int, float)) and math.isfinite(self.ts_s) and self.ts_s > 0):
+            raise ValueError(f"ControllerSettings.ts_s must be a positive finite number, got {self.ts_s!r}")
+        if len(self.p0) != ASYMMETRIC.n_params or not all(math.isfinite(p) and p > 0 for p in self.p0):
+            raise ValueError(f"ControllerSettings.p0 must be {ASYMMETRIC.n_params} positive finite numbers, "
+                             f"got {self.p0!r}")
+
+    @property
+    def adaptive(self) -> bool:
+        return self.method.startswith("ampc")
+
+    @property
+    def servo_mechanism(self) -> bool:
+        return self.method.endswith("servo")
+
+    @property
+    def preview_samples(self) -> int:
+        """How many future reference samples the method needs (``Hp``)."""
+        return self.servo.hp if self.servo_mechanism else self.ucp.hp
+
+
+@dataclass(frozen=True)
+class ControlStep:
+    """What the controller did at one sample (diagnostics for plots and the FMU)."""
+
+    u_v: float
+    """Valve command ``u(k)`` [V], within 0-10 V."""
+    predicted_next_mm: float
+    """The predictor's one-step prediction ``l(k+1|k)`` [mm] (servo: linear model Eq. (2) with
+    ``u_c``; UCP: Eq. (1) with ``u``)."""
+    prediction_error_mm: float
+    """``l(k) - l(k|k-1)`` [mm] (0 at the first step)."""
+    uc_v: float
+    """Servo: ``u_c(k)`` [V]; UCP: equal to ``u(k)``."""
+    hysteresis_mm: float
+    """``H(k)`` [mm], the cancelled hysteresis term (0 for UCP)."""
+    xs_mm: float
+    """Integrator state ``x_s(k+1)`` [mm s/s] (Eq. 18; 0 for UCP)."""
+    theta: np.ndarray
+    """Predictor parameters used at this step."""
+    saturated: bool
+    """An input limit was active."""
+
+
+class DisplacementController:
+    """One of the paper's four controllers (see module docstring).
+
+    Parameters
+    ----------
+    settings : ControllerSettings
+    theta0 : sequence of 15 float
+        Eq. (1) parameters from the preliminary identification (asymmetric model order).
+    """
+
+    def __init__(self, settings: ControllerSettings, theta0: Sequence[float]) -> None:
+        if not isinstance(settings, ControllerSettings):
+            raise ValueError(f"settings must be ControllerSettings, got {type(settings).__name__}")
+        theta0 = np.asarray(theta0, dtype=float)
+        if theta0.shape != (ASYMMETRIC.n_params,) or not np.all(np.isfinite(theta0)):
+            raise ValueError(f"theta0 must be {ASYMMETRIC.n_params} finite numbers, got shape {theta0.shape}")
+        if abs(theta0[2]) < 1e-6:
+            raise ValueError(f"theta0's b1 must not be ~0 (it divides the hysteresis cancellation, Eq. 5), got {theta0[2]!r}")
+        self.settings = settings
+        self.theta0 = theta0.copy()
+        self._rls: ConstrainedRLS | None = None
+        if settings.adaptive:
+            self._rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(
+                p0=settings.p0, theta0=tuple(theta0), forgetting=settings.forgetting,
+                box_lower=dict(settings.box_lower), box_upper=dict(settings.box_upper),
+                constraint_start_s=0.0, ts_s=settings.ts_s))
+        self._servo = ServoMPC(settings.servo, a1=theta0[0], a2=theta0[1], b1=theta0[2]) \
+            if settings.servo_mechanism else None
+        self.reset(0.0)
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, l0_mm: float) -> None:
+        """Start over with the muscle at ``l0_mm`` [mm] and the valve at 0 V."""
+        l0 = float(l0_mm)
+        if not math.isfinite(l0):
+            raise ValueError(f"l0_mm must be finite, got {l0_mm!r}")
+        self.theta = self.theta0.copy()
+        if self._rls is not None:
+            self._rls.setup(ASYMMETRIC, self._rls.settings)
+        if self._servo is not None:
+            self._servo.update_model(*self.theta[:3])
+        self._state = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
+        self._k = 0
+        self._u_prev = 0.0
+        self._uc_prev = 0.0
+        self._xs = 0.0
+        self._predicted = math.nan
+
+    def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
+        """One control sample: measured ``l(k)`` [mm] and ``r(k), ..., r(k+Hp)`` [mm] -> ``u(k)``.
+
+        Raises
+        ------
+        ValueError
+            Non-finite ``l_mm`` or reference, or a preview shorter than ``Hp + 1`` samples. The
+            controller's state is unchanged then.
+        """
+        s = self.settings
+        l = float(l_mm)
+        if not math.isfinite(l):
+            raise ValueError(f"measured l_mm must be finite, got {l_mm!r}")
+        r = np.asarray(r_preview_mm, dtype=float)
+        need = s.preview_samples + 1
+        if r.ndim != 1 or len(r) < need:
+            raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}) ({need} samples), got {r.shape}")
+        if not np.all(np.isfinite(r[:need])):
+            raise ValueError(f"reference preview must be finite, got {r[:need]}")
+        error = 0.0 if math.isnan(self._predicted) else l - self._predicted
+
+        if self._rls is not None and self._k > 0:
+            # Algorithm 1 with phi(k-1) built from the history and the new l(k).
+            self.theta = self._rls.update(self._state.phi(), l)
+            if self._servo is not None:
+                self._servo.update_model(*self.theta[:3])
+        theta = self.theta
+        self._state.observe(l, theta)
+
+        if self._servo is None:
+            res = ucp_move(s.ucp, self._state, theta, u_prev_v=self._u_prev, r_target_mm=float(r[s.ucp.hp]))
+            u, uc, h, xs_next, predicted, saturated = res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
+        else:
+            h = hysteresis_term(theta, self._state)
+            offset = h / theta[2]
+            l_prev = self._state.l[1]
+            res = self._servo.solve(l_mm=l, l_prev_mm=l_prev, uc_prev_v=self._uc_prev, xs=self._xs,
+                                    r_future_mm=r[:need], offset_v=offset)
+            uc = float(res.uc_v)
+            u_raw = uc - offset  # Eq. (5)
+            u = min(max(u_raw, s.servo.u_min_v), s.servo.u_max_v)
+            saturated = bool(res.constrained) or u != u_raw
+            predicted = float(res.predicted_l_mm[0])
+            xs_next = self._xs + float(r[0]) - l  # Eq. (18)
+            self._xs = xs_next
+            self._uc_prev = uc
+        self._state.apply(u)
+        self._u_prev = u
+        self._predicted = predicted
+        self._k += 1
+        return ControlStep(u, predicted, error, uc, h, xs_next, theta.copy(), saturated)
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> dict[str, Any]:
+        """Everything needed to continue bit-identically, as plain data."""
+        return {
+            "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
+            "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
+            "rls": None if self._rls is None else self._rls.get_state(),
+            "servo": None if self._servo is None else self._servo.get_state(),
+        }
+
+    def set_state(self, state: Mapping[str, Any]) -> None:
+        """Restore what :meth:`get_state` returned."""
+        self.theta = np.asarray(state["theta"], dtype=float)
+        self._state.set_state(state["model"])
+        self._k = int(state["k"])
+        self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
+        self._predicted = float(state["predicted"])
+        if self._rls is not None:
+            self._rls.set_state(state["rls"])
+        if self._servo is not None:
+            self._servo.set_state(state["servo"])

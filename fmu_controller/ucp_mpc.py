@@ -1,0 +1,130 @@
+"""MPC with a unique coincidence point (section 3.1, Eq. 11-14).
+
+The controller makes the model's prediction meet the reference at the single coincidence point
+``k + Hp``, assuming the input changes only now and is then held:
+
+.. math::
+    \\hat l(k+H_p|k) = \\hat l_f(k+H_p|k) + S(H_p)\\,\\Delta u(k), \\qquad
+    \\Delta u(k) = \\frac{r(k+H_p|k) - \\hat l_f(k+H_p|k)}{S(H_p)}, \\qquad u(k) = u(k-1) + \\Delta u(k)
+
+The predictor is the nonlinear Eq. (1) model itself (no linearisation), so the free response
+``l_f`` (input held at ``u(k-1)``) and the step response ``S(Hp)`` are obtained by simulating the
+model from its current state. For a nonlinear model the "unit step response at Hp" depends on the
+state; we take it as the model's response to ``u(k-1) + 1 V`` minus the free response, from the
+current state (a secant sensitivity, exact for the linear part).
+
+Decisions the paper leaves open:
+
+* **Input limits.** ``u(k)`` is clipped to the valve's 0-10 V. The clipped value is what ``u(k-1)``
+  means at the next step (it is what the valve got), so there is no wind-up.
+* **Small step response.** If the model's ``|S(Hp)|`` falls below ``min_step_response_mm`` (a
+  degenerate estimate), the linear part's ``b1 (1 + a1 + ...)`` step response is used instead, so
+  Eq. (13) never divides by ~0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .hysteresis_model import ModelState
+
+__all__ = ["UCPSettings", "UCPResult", "predict_held_input", "ucp_move"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class UCPSettings:
+    """Settings of the unique-coincidence-point MPC (Table 5)."""
+
+    hp: int = 2
+    """Prediction horizon ``Hp`` = the coincidence point [samples] (Table 5: 2)."""
+    u_min_v: float = 0.0
+    """Lowest valve command [V]."""
+    u_max_v: float = 10.0
+    """Highest valve command [V]."""
+    min_step_response_mm: float = 1e-3
+    """Smallest ``|S(Hp)|`` [mm/V] accepted from the nonlinear model before falling back to the
+    linear part's step response."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.hp, int) or isinstance(self.hp, bool) or not 1 <= self.hp <= 50:
+            raise ValueError(f"UCPSettings.hp must be an integer in 1..50, got {self.hp!r}")
+        for name in ("u_min_v", "u_max_v", "min_step_response_mm"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"UCPSettings.{name} must be finite, got {v!r}")
+        if self.u_max_v <= self.u_min_v:
+            raise ValueError(f"UCPSettings.u_max_v ({self.u_max_v}) must exceed u_min_v ({self.u_min_v})")
+        if self.min_step_response_mm <= 0:
+            raise ValueError(f"UCPSettings.min_step_response_mm must be > 0, got {self.min_step_response_mm!r}")
+
+
+@dataclass(frozen=True)
+class UCPResult:
+    """One move of the UCP controller."""
+
+    u_v: float
+    """Valve command ``u(k)`` [V] after the 0-10 V limit."""
+    free_response_mm: float
+    """``l_f(k+Hp|k)`` [mm]."""
+    step_response_mm_per_v: float
+    """``S(Hp)`` used in Eq. (13) [mm/V]."""
+    predicted_mm: np.ndarray
+    """Model prediction ``l(k+1..k+Hp|k)`` under the chosen (clipped) input [mm]."""
+    saturated: bool
+    """The 0-10 V limit was active."""
+
+
+def predict_held_input(state: ModelState, theta: np.ndarray, u_v: float, steps: int) -> np.ndarray:
+    """Simulate the Eq. (1) model ``steps`` samples ahead from ``state`` with the input held at ``u_v``.
+
+    ``state`` must hold ``l(k)`` observed (not yet ``u(k)``); it is not modified.
+    """
+    l2, l1, l0 = state.l
+    v2, v1, v0 = state.v
+    sim = ModelState(state.structure, l_init=(l2, l1, l0), v_init=(v2, v1, v0), u_init=u_v)
+    out = np.empty(steps)
+    for i in range(steps):
+        nxt = float(sim.phi() @ theta)
+        sim.observe(nxt, theta)
+        sim.apply(u_v)
+        out[i] = nxt
+    return out
+
+
+def ucp_move(settings: UCPSettings, state: ModelState, theta: np.ndarray, *, u_prev_v: float,
+             r_target_mm: float) -> UCPResult:
+    """Eq. (11)-(14): the input ``u(k)`` that puts the prediction on ``r(k+Hp)``.
+
+    Parameters
+    ----------
+    settings : UCPSettings
+    state : ModelState
+        Model history after observing ``l(k)`` (``u(k)`` not applied yet).
+    theta : ndarray
+        Model parameters (fixed for MPC, the RLS estimate for AMPC).
+    u_prev_v : float
+        ``u(k-1)`` [V], the command the valve received last.
+    r_target_mm : float
+        ``r(k+Hp|k)`` [mm].
+    """
+    hp = settings.hp
+    free = predict_held_input(state, theta, u_prev_v, hp)
+    stepped = predict_held_input(state, theta, u_prev_v + 1.0, hp)
+    s = float(stepped[-1] - free[-1])
+    if not math.isfinite(s) or abs(s) < settings.min_step_response_mm:
+        # Linear part's unit step response at Hp: sum of its impulse response.
+        a1, a2, b1 = float(theta[0]), float(theta[1]), float(theta[2])
+        y1, y0, s = 0.0, 0.0, 0.0
+        for _ in range(hp):
+            y1, y0 = a1 * y1 + a2 * y0 + b1, y1
+        s = y1 if abs(y1) >= settings.min_step_response_mm else math.copysign(settings.min_step_response_mm, y1 or 1.0)
+    du = (r_target_mm - float(free[-1])) / s
+    u = u_prev_v + du
+    clipped = min(max(u, settings.u_min_v), settings.u_max_v)
+    if not math.isfinite(clipped):
+        clipped = u_prev_v if math.isfinite(u_prev_v) else settings.u_min_v
+    pred = predict_held_input(state, theta, clipped, hp)
+    return UCPResult(clipped, float(free[-1]), s, pred, clipped != u)

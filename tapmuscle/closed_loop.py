@@ -1,0 +1,76 @@
+"""Direct closed loop of the plant and a controller (no FMU), and the paper's error measure Eq. (21).
+
+Timing (one sample ``k``, ``t_k = k Ts``): the encoder reading ``l(k)`` is taken at ``t_k``; the
+controller computes ``u(k)`` from ``l(k)`` and the preview ``r(k..k+Hp)``; the valve holds ``u(k)``
+(zero-order hold) until ``t_{k+1}``. No extra sample of delay: ``u(k)`` acts on ``l(k+1)``, as in
+Eq. (1). Row ``k`` of the result holds ``t_k, r(k), l(k), u(k)``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from fmu_controller.displacement_control import DisplacementController
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.reference import SineReference
+from fmu_plant import Plant
+
+__all__ = ["run_closed_loop", "eq21_error_mm", "EQ21_WINDOW"]
+
+#: Samples of Eq. (21): k = 101..401 (10 s to 40 s at Ts = 0.1 s).
+EQ21_WINDOW = (101, 401)
+
+
+def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = EQ21_WINDOW) -> float:
+    """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] (inclusive window)."""
+    k0, k1 = window
+    if len(r_mm) <= k1:
+        raise ValueError(f"Eq. (21) needs samples up to k = {k1}, the run has {len(r_mm)}")
+    return float(np.mean(np.abs(np.asarray(r_mm)[k0:k1 + 1] - np.asarray(l_mm)[k0:k1 + 1])))
+
+
+def run_closed_loop(plant: Plant, controller: DisplacementController, reference: SineReference, *,
+                    duration_s: float, load_n: Callable[[float], float] | float | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Run the loop for ``duration_s`` from the plant's and controller's current state.
+
+    Returns
+    -------
+    dict of ndarray
+        ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
+        ``pred_error_mm``, ``uc_v``, ``h_mm``, ``xs_mm`` and ``theta_<name>`` for the 15 parameters.
+    """
+    ts = reference.ts_s
+    n = int(round(duration_s / ts)) + 1
+    names = ASYMMETRIC.names
+    cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "u_v", "p_mpa", "load_n", "l_pred_mm",
+                                      "pred_error_mm", "uc_v", "h_mm", "xs_mm")}
+    theta_hist = np.empty((n, len(names)))
+    hp = controller.settings.preview_samples
+    load_fn = load_n if callable(load_n) else None
+    if load_n is not None and load_fn is None:
+        plant.update(load_n=load_n)
+    meas = plant.measurement
+    controller.reset(meas.l_mm)
+    pred_prev = meas.l_mm
+    every = max(1, n // 100)
+    for k in range(n):
+        t = k * ts
+        if load_fn is not None:
+            plant.update(load_n=load_fn(t))
+        step = controller.step(meas.l_mm, reference.preview(k, hp))
+        cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, step.u_v
+        cols["p_mpa"][k], cols["load_n"][k] = meas.p_mpa, plant.load_n
+        cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
+        cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
+        theta_hist[k] = step.theta
+        pred_prev = step.predicted_next_mm
+        if k + 1 < n:
+            meas = plant.step(step.u_v, ts)
+        if progress is not None and (k % every == 0 or k + 1 == n):
+            progress(k + 1, n)
+    for i, name in enumerate(names):
+        cols[f"theta_{name}"] = theta_hist[:, i]
+    return cols
