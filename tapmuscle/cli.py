@@ -192,7 +192,13 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {out}/")
-    run_paper(out, seed=args.seed, progress=Progress("paper", enabled=not args.quiet, min_total=1))
+    try:
+        seeds = tuple(int(x) for x in args.seeds.split(","))
+    except ValueError:
+        raise UsageError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise UsageError(f"--seeds must be non-negative integers, got {args.seeds!r}")
+    run_paper(out, seeds=seeds, progress=Progress("paper", enabled=not args.quiet, min_total=1))
     print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
     return 0
 
@@ -246,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "68 N (0.1 Hz) and the servo controllers at 0.2 Hz; write paper.json, run CSVs "
                                      "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
     pap.add_argument("--out", default="out/paper", help="output folder (default out/paper)")
-    pap.add_argument("--seed", type=int, default=0, help="noise seed of every run (>= 0)")
+    pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
     return parser

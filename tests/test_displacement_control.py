@@ -1,0 +1,116 @@
+"""The four controllers in closed loop: limits, constraint region, linearisation, state, errors."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
+from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
+from fmu_controller.reference import SineReference
+from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
+from fmu_plant import Plant
+from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
+
+from tapmuscle.paper import preliminary_theta
+
+THETA0 = preliminary_theta(0)  # section 4.2's fixed predictor, identified on the simulated rig
+
+
+def _same(a, b):
+    """Deep equality of plain-data states that may hold numpy arrays."""
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple, np.ndarray)):
+        return np.array_equal(np.asarray(a, dtype=object), np.asarray(b, dtype=object))
+    return a == b or (a != a and b != b)
+
+
+@pytest.fixture(scope="module", params=METHODS)
+def run(request):
+    c = DisplacementController(ControllerSettings(method=request.param), THETA0)
+    return request.param, run_closed_loop(Plant(seed=0), c, SineReference(), duration_s=45.0)
+
+
+def test_input_within_limits_and_everything_finite(run):
+    method, cols = run
+    assert cols["u_v"].min() >= 0.0 and cols["u_v"].max() <= 10.0, method
+    for name, col in cols.items():
+        assert np.all(np.isfinite(col)), (method, name)
+
+
+def test_tracks_the_reference(run):
+    method, cols = run
+    bound = 0.5 if method.endswith("servo") else 2.0
+    assert eq21_error_mm(cols["r_mm"], cols["l_mm"]) < bound
+
+
+def test_adaptive_estimate_stays_in_the_table2_box(run):
+    method, cols = run
+    for name in ("a1", "a2", "b1"):
+        values = cols[f"theta_{name}"]
+        if method.startswith("ampc"):
+            assert values.min() >= TABLE2_LOWER[name] - 1e-9 and values.max() <= TABLE2_UPPER[name] + 1e-9
+            assert np.ptp(cols["theta_c2"]) > 0  # it does adapt
+        else:
+            assert np.ptp(values) == 0.0
+
+
+def _model_plant_loop(method, n=300):
+    """Closed loop on a 'plant' that is exactly the Eq. (1) model."""
+    c = DisplacementController(ControllerSettings(method=method), THETA0)
+    ref = SineReference()
+    plant = ModelState(ASYMMETRIC, l_init=(20.0, 20.0, 20.0), u_init=0.0)
+    l = 20.0
+    c.reset(l)
+    err = []
+    for k in range(n):
+        step = c.step(l, ref.preview(k, 5))
+        plant.apply(step.u_v)
+        l = float(plant.phi() @ THETA0)
+        plant.observe(l, THETA0)
+        err.append(ref.at(k + 1) - l)
+    return np.array(err)
+
+
+def test_hysteresis_cancellation_linearises_an_exact_model():
+    """Eq. (5) on a plant that is the model: the servo loop sees only Eq. (2) and tracks tightly."""
+    err = _model_plant_loop("mpc_servo")
+    assert np.mean(np.abs(err[100:])) < 0.15
+
+
+def test_get_set_state_replays_bit_identically():
+    for method in METHODS:
+        c = DisplacementController(ControllerSettings(method=method), THETA0)
+        ref = SineReference()
+        rng = np.random.default_rng(1)
+        l_seq = 35 + 20 * np.sin(np.arange(200) * 0.06) + rng.normal(0, 0.05, 200)
+        for k in range(100):
+            c.step(l_seq[k], ref.preview(k, 5))
+        saved = c.get_state()
+        a = [c.step(l_seq[k], ref.preview(k, 5)).u_v for k in range(100, 200)]
+        c.set_state(saved)
+        b = [c.step(l_seq[k], ref.preview(k, 5)).u_v for k in range(100, 200)]
+        assert a == b, method
+
+
+@pytest.mark.parametrize("l, preview, match", [(math.nan, [35.0] * 6, "l_mm"), (30.0, [35.0] * 3, "preview"),
+                                               (30.0, [35.0, math.inf] + [35.0] * 4, "finite")])
+def test_bad_measurements_raise_and_leave_state(l, preview, match):
+    c = DisplacementController(ControllerSettings(method="ampc_servo"), THETA0)
+    c.step(30.0, [35.0] * 6)
+    before = c.get_state()
+    with pytest.raises(ValueError, match=match):
+        c.step(l, preview)
+    assert _same(c.get_state(), before)
+
+
+def test_bad_settings_and_theta():
+    with pytest.raises(ValueError, match="method"):
+        ControllerSettings(method="pid")
+    with pytest.raises(ValueError, match="p0"):
+        ControllerSettings(p0=(1.0,) * 3)
+    bad = THETA0.copy()
+    bad[2] = 0.0
+    with pytest.raises(ValueError, match="b1"):
+        DisplacementController(ControllerSettings(), bad)

@@ -1,0 +1,71 @@
+"""Issue 4's acceptance: `tapmuscle paper` reproduces the paper's findings (Tables 6, 7, 9)."""
+
+import json
+
+import pytest
+
+from tapmuscle.cli import main
+from tapmuscle.paper import PAPER_RUNS
+from tapmuscle.recording import read_recording
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper")
+    assert main(["paper", "--out", str(out), "--quiet"]) == 0
+    return out, json.loads((out / "paper.json").read_text())
+
+
+def test_outputs(paper):
+    out, doc = paper
+    for run in PAPER_RUNS:
+        rec = read_recording(out / "runs" / f"{run.name}.csv")
+        assert {"t_s", "r_mm", "l_mm", "u_v", "l_pred_mm", "theta_b1"} <= set(rec.columns)
+        assert rec.u_v.min() >= 0.0 and rec.u_v.max() <= 10.0
+    assert set(doc["table6"]["44"]) == {"mpc_servo", "mpc_ucp"}
+    assert set(doc["table7"]["68"]) == {"ampc_servo", "ampc_ucp"}
+    assert set(doc["table9"]["44"]) == {"ampc_servo", "mpc_servo"}
+    assert len(list(out.glob("fig*_tracking_*.png"))) == 6 and len(list(out.glob("fig*_prediction_error_*.png"))) == 6
+
+
+@pytest.mark.parametrize("load", ["44", "68"])
+def test_servo_beats_unique_coincidence_point(paper, load):
+    _, d = paper
+    assert d["table6"][load]["mpc_servo"] < d["table6"][load]["mpc_ucp"]
+    assert d["table7"][load]["ampc_servo"] < d["table7"][load]["ampc_ucp"]
+
+
+def test_fixed_ucp_degrades_with_load(paper):
+    _, d = paper
+    assert d["table6"]["68"]["mpc_ucp"] > d["table6"]["44"]["mpc_ucp"] + 0.2
+
+
+def test_adaptive_ucp_beats_fixed_ucp_at_68n(paper):
+    _, d = paper
+    assert d["table7"]["68"]["ampc_ucp"] < d["table6"]["68"]["mpc_ucp"]
+
+
+@pytest.mark.xfail(strict=True, reason="does not reproduce: at 44 N the fixed predictor is already adapted to the "
+                                        "load, AMPC-UCP's estimator noise costs more than it gains (docs/control.md)")
+def test_adaptive_ucp_beats_fixed_ucp_at_44n(paper):
+    _, d = paper
+    assert d["table7"]["44"]["ampc_ucp"] < d["table6"]["44"]["mpc_ucp"]
+
+
+@pytest.mark.parametrize("load", ["44", "68"])
+def test_adaptive_servo_no_worse_at_01hz_and_better_at_02hz(paper, load):
+    _, d = paper
+    assert d["table7"][load]["ampc_servo"] <= d["table6"][load]["mpc_servo"]
+    assert d["table9"][load]["ampc_servo"] < d["table9"][load]["mpc_servo"]
+
+
+@pytest.mark.parametrize("load", ["44", "68"])
+def test_adaptive_servo_error_targets(paper, load):
+    _, d = paper
+    assert d["table7"][load]["ampc_servo"] <= 0.30
+    assert d["table9"][load]["ampc_servo"] <= 0.70
+
+
+def test_bad_seeds(tmp_path, capsys):
+    assert main(["paper", "--out", str(tmp_path / "p"), "--seeds", "a,b"]) == 2
+    assert "--seeds" in capsys.readouterr().err

@@ -1,0 +1,56 @@
+"""Unique-coincidence-point MPC (Eq. 11-14)."""
+
+import numpy as np
+import pytest
+
+from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
+from fmu_controller.ucp_mpc import UCPSettings, predict_held_input, ucp_move
+
+THETA = np.array([1.21, -0.285, 0.7, 0.05, 0.04, 0.01, -0.01, -0.005, 0.004, 0.05, 0.02,
+                  0.002, -0.002, -2e-5, 2e-5])
+
+
+def _state(l=30.0, u=5.0):
+    s = ModelState(ASYMMETRIC, l_init=(l - 1, l - 0.5, l - 0.2), u_init=u)
+    s.observe(l, THETA)
+    return s
+
+
+def test_move_puts_the_model_on_the_reference_at_hp():
+    s = _state()
+    res = ucp_move(UCPSettings(hp=2), s, THETA, u_prev_v=5.0, r_target_mm=32.0)
+    assert not res.saturated
+    assert predict_held_input(s, THETA, res.u_v, 2)[-1] == pytest.approx(32.0, abs=0.05)
+    assert res.predicted_mm[-1] == pytest.approx(32.0, abs=0.05)
+
+
+def test_linear_model_is_exact():
+    theta = np.zeros(15)
+    theta[:3] = (1.2, -0.3, 0.6)
+    s = ModelState(ASYMMETRIC, l_init=(10, 10, 10), u_init=1.0)
+    s.observe(10.0, theta)
+    res = ucp_move(UCPSettings(hp=3), s, theta, u_prev_v=1.0, r_target_mm=12.0)
+    assert predict_held_input(s, theta, res.u_v, 3)[-1] == pytest.approx(12.0, abs=1e-9)
+
+
+def test_input_limits_hold():
+    s = _state()
+    hi = ucp_move(UCPSettings(), s, THETA, u_prev_v=5.0, r_target_mm=500.0)
+    lo = ucp_move(UCPSettings(), s, THETA, u_prev_v=5.0, r_target_mm=-500.0)
+    assert hi.u_v == 10.0 and lo.u_v == 0.0 and hi.saturated and lo.saturated
+
+
+def test_degenerate_step_response_falls_back_to_linear_part():
+    theta = THETA.copy()
+    theta[2] = 0.0  # the model says the input does nothing
+    s = _state()
+    res = ucp_move(UCPSettings(), s, theta, u_prev_v=5.0, r_target_mm=31.0)
+    assert np.isfinite(res.u_v) and 0.0 <= res.u_v <= 10.0
+    assert abs(res.step_response_mm_per_v) >= 1e-3
+
+
+@pytest.mark.parametrize("kw, match", [({"hp": 0}, "hp"), ({"u_min_v": 5, "u_max_v": 1}, "u_max_v"),
+                                       ({"min_step_response_mm": -1.0}, "min_step_response_mm")])
+def test_bad_settings(kw, match):
+    with pytest.raises(ValueError, match=match):
+        UCPSettings(**kw)
