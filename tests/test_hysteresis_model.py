@@ -19,19 +19,7 @@ from fmu_controller.hysteresis_model import (
     virtual_hysteresis,
     virtual_hysteresis_sequence,
 )
-
-# Table 3, proposed model, read as regression coefficients (mm, V).
-TABLE3 = dict(
-    a1=1.260, a2=-0.288, b1=0.607, A1=0.174, A2=0.145,
-    beta1=-0.023, beta2=-0.027, gamma1=-0.152, gamma2=0.169,
-    c1=0.082, c2=0.049, xi21=0.003, xi22=-0.003, xi31=-6.413e-5, xi32=-5.568e-5,
-)
-
-
-def _input(n, seed=0):
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.1
-    return 5 + 3 * np.sin(2 * np.pi * 0.1 * t) + np.repeat(rng.uniform(-1.5, 1.5, n // 10 + 1), 10)[:n]
+from synthetic import TABLE3, excitation
 
 
 # ---------------------------------------------------------------------------
@@ -122,7 +110,7 @@ def test_virtual_hysteresis_sequence_matches_scalar():
 def test_within_model_v_equals_previous_hysteresis_term(structure):
     # index subtlety: inside the regression model v(k+1) = H(k), not y_hy(k+1) of Eq. (1)
     theta = ASYMMETRIC.from_dict(TABLE3)[: structure.n_params]
-    u = _input(200)
+    u = excitation(200, seed=0)
     state = ModelState(structure, l_init=(20.0, 20.0, 20.0), u_init=u[0])
     for k in range(1, 200):
         h = hysteresis_term(theta, state)
@@ -199,7 +187,7 @@ def test_model_state_lifecycle_errors_and_validation():
 
 def test_model_state_get_set_state_round_trip():
     theta = ASYMMETRIC.from_dict(TABLE3)
-    u = _input(60, seed=7)
+    u = excitation(60, seed=7)
     a = ModelState(ASYMMETRIC, l_init=(20.0, 20.5, 21.0), u_init=u[0])
     for k in range(1, 30):
         a.update(float(a.phi() @ theta), u[k], theta)

@@ -1,6 +1,5 @@
 """Tests for fmu_controller.prediction (simulation, k-step prediction, fit, identification)."""
 
-import math
 
 import numpy as np
 import pytest
@@ -22,31 +21,9 @@ from fmu_controller.prediction import (
     theta_scale_factors,
 )
 from fmu_controller.rls import RLSSettings
+from synthetic import TABLE3, NO_BOX, excitation, generate
 
-TABLE3 = dict(
-    a1=1.260, a2=-0.288, b1=0.607, A1=0.174, A2=0.145,
-    beta1=-0.023, beta2=-0.027, gamma1=-0.152, gamma2=0.169,
-    c1=0.082, c2=0.049, xi21=0.003, xi22=-0.003, xi31=-6.413e-5, xi32=-5.568e-5,
-)
 THETA = ASYMMETRIC.from_dict(TABLE3)
-NO_BOX = dict(box_lower={}, box_upper={}, constraint_start_s=math.inf)
-
-
-def _input(n, seed=1):
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.1
-    return 5 + 3 * np.sin(2 * np.pi * 0.1 * t) + np.repeat(rng.uniform(-1.5, 1.5, n // 10 + 1), 10)[:n]
-
-
-def _generate(theta, structure, u, l0=20.0):
-    """Independent generator (ModelState loop): l(k) = phi(k-1)^T theta from l(0..3) = l0."""
-    l = np.full(u.size, l0)
-    v = virtual_hysteresis_sequence(theta, l[:4], u[:4])
-    state = ModelState(structure, l_init=l[1:4], v_init=v[1:4], u_init=u[3])
-    for k in range(4, u.size):
-        l[k] = state.phi() @ theta
-        state.update(l[k], u[k], theta)
-    return l
 
 
 def _predict_loop(theta, structure, u, l, h):
@@ -64,8 +41,8 @@ def _predict_loop(theta, structure, u, l, h):
 
 @pytest.fixture(scope="module")
 def record():
-    u = _input(3000)
-    return u, _generate(THETA, ASYMMETRIC, u)
+    u = excitation(3000)
+    return u, generate(THETA, ASYMMETRIC, u)
 
 
 # ---------------------------------------------------------------------------
@@ -106,8 +83,8 @@ def test_fit_percent_validation():
 @pytest.mark.parametrize("structure", [ASYMMETRIC, STANDARD])
 def test_simulate_reproduces_the_model(structure):
     theta = THETA[: structure.n_params]
-    u = _input(800, seed=2)
-    l = _generate(theta, structure, u)
+    u = excitation(800, seed=2)
+    l = generate(theta, structure, u)
     res = simulate(theta, structure, u, l[:4], output_range=(l.min(), l.max()))
     assert res.start == 4 and res.horizon is None and not res.diverged
     np.testing.assert_allclose(res.l_hat, l, rtol=1e-10, atol=1e-10)
@@ -149,7 +126,7 @@ def test_prediction_fits_on_model_data(record):
 
 
 def test_simulate_divergence_guard():
-    u = _input(500, seed=5)
+    u = excitation(500, seed=5)
     unstable = ASYMMETRIC.from_dict({"a1": 2.5, "a2": -0.2, "b1": 1.0, "xi31": 1e-2})
     res = simulate(unstable, ASYMMETRIC, u, [20.0, 20.0, 20.0, 20.0], output_range=(0.0, 70.0))
     assert res.diverged

@@ -9,7 +9,6 @@ from scipy.optimize import lsq_linear, minimize
 from fmu_controller.hysteresis_model import (
     ASYMMETRIC,
     STANDARD,
-    ModelState,
     identifiable_combinations,
     null_direction,
     regressor,
@@ -22,31 +21,7 @@ from fmu_controller.rls import (
     RLSSettings,
     project_onto_box,
 )
-
-TABLE3 = dict(
-    a1=1.260, a2=-0.288, b1=0.607, A1=0.174, A2=0.145,
-    beta1=-0.023, beta2=-0.027, gamma1=-0.152, gamma2=0.169,
-    c1=0.082, c2=0.049, xi21=0.003, xi22=-0.003, xi31=-6.413e-5, xi32=-5.568e-5,
-)
-NO_BOX = dict(box_lower={}, box_upper={}, constraint_start_s=math.inf)
-
-
-def _input(n, seed=1):
-    # 5 V bias + 3 V, 0.1 Hz sine (section 2.4) + random 1 s steps for persistent excitation
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * 0.1
-    return 5 + 3 * np.sin(2 * np.pi * 0.1 * t) + np.repeat(rng.uniform(-1.5, 1.5, n // 10 + 1), 10)[:n]
-
-
-def _generate(theta, structure, u, l0=20.0):
-    """Data from the regression form itself: l(k) = phi(k-1)^T theta, v with the true theta."""
-    l = np.full(u.size, l0)
-    v = virtual_hysteresis_sequence(theta, l[:4], u[:4])
-    state = ModelState(structure, l_init=l[1:4], v_init=v[1:4], u_init=u[3])
-    for k in range(4, u.size):
-        l[k] = state.phi() @ theta
-        state.update(l[k], u[k], theta)
-    return l
+from synthetic import TABLE3, NO_BOX, excitation, generate
 
 
 def _true_regressors(theta, structure, u, l):
@@ -66,8 +41,8 @@ def _random_spd(rng, n, log_cond=4.0):
 @pytest.mark.parametrize("structure", [ASYMMETRIC, STANDARD])
 def test_rls_recovers_identifiable_parameters(structure):
     theta_true = ASYMMETRIC.from_dict(TABLE3)[: structure.n_params]
-    u = _input(3000)
-    l = _generate(theta_true, structure, u)
+    u = excitation(3000)
+    l = generate(theta_true, structure, u)
     assert np.all(np.isfinite(l)) and 0 < l.min() and l.max() < 250  # bounded, mm-scale
     phi, y = _true_regressors(theta_true, structure, u, l)
     assert np.max(np.abs(phi @ theta_true - y)) < 1e-10  # data follow the regression form exactly
@@ -150,8 +125,8 @@ def test_covariance_loss_reset_and_raise():
 
 def test_get_set_state_round_trip_is_bit_identical():
     theta_true = ASYMMETRIC.from_dict(TABLE3)
-    u = _input(1000, seed=5)
-    l = _generate(theta_true, ASYMMETRIC, u)
+    u = excitation(1000, seed=5)
+    l = generate(theta_true, ASYMMETRIC, u)
     phi, y = _true_regressors(theta_true, ASYMMETRIC, u, l)
     # constraint active from sample 300 so projections happen in the replayed part
     settings = RLSSettings(constraint_start_s=30.0, forgetting=0.995)
