@@ -34,8 +34,14 @@ __all__ = [
 TABLE2_LOWER: Mapping[str, float] = MappingProxyType({"a1": 1.208, "a2": -0.334, "b1": 0.607})
 TABLE2_UPPER: Mapping[str, float] = MappingProxyType({"a1": 1.260, "a2": -0.278, "b1": 1.184})
 
-# Above this many boxed coordinates the exact enumeration (3^m candidates)
-# gets expensive; fall back to scipy's BVLS active-set solver.
+# bound once: the per-sample update is dominated by call overhead
+_dot = np.dot
+_multiply_outer = np.multiply.outer
+_subtract = np.subtract
+
+# Up to this many boxed coordinates the projection uses the exact small-box
+# solvers (active-set iterations, enumeration of 3^m candidates as fallback);
+# beyond, scipy's BVLS active-set solver.
 _MAX_ENUMERATED = 4
 
 
@@ -231,6 +237,38 @@ class RLSSettings:
 # ---------------------------------------------------------------------------
 # Projection (Algorithm 1)
 # ---------------------------------------------------------------------------
+def _solve_spd_small(A: list[list[float]], b: list[float]) -> list[float] | None:
+    """Solve ``A x = b`` for a tiny s.p.d. ``A`` (nested lists) in plain floats.
+
+    Gaussian elimination without pivoting (= LDL^T, backward stable for s.p.d.
+    matrices).  Returns ``None`` if a pivot is not > 0, i.e. ``A`` is not
+    numerically positive definite; the caller then falls back to LAPACK.
+    For k <= 4 this is several times cheaper than ``np.linalg.solve``.
+    """
+    k = len(b)
+    A = [row[:] for row in A]
+    b = b[:]
+    for j in range(k):
+        piv = A[j][j]
+        if not piv > 0.0:
+            return None
+        Aj = A[j]
+        for i in range(j + 1, k):
+            f = A[i][j] / piv
+            Ai = A[i]
+            for col in range(j + 1, k):
+                Ai[col] -= f * Aj[col]
+            b[i] -= f * b[j]
+    x = [0.0] * k
+    for i in range(k - 1, -1, -1):
+        s = b[i]
+        Ai = A[i]
+        for col in range(i + 1, k):
+            s -= Ai[col] * x[col]
+        x[i] = s / Ai[i]
+    return x
+
+
 class _BoxProjector:
     """Exact P^{-1}-metric projection onto a fixed box (precomputed plan).
 
@@ -238,16 +276,35 @@ class _BoxProjector:
     Let ``c`` be the boxed coordinates.  For fixed ``theta_c`` the free part is
     optimal at ``theta_f - th_f = P_fc P_cc^{-1} d_c`` and the reduced cost is
     ``d_c^T P_cc^{-1} d_c`` (Schur complement), so only ``P_cc`` matters.
-    The reduced box QP is solved by enumerating active sets: for each subset
-    ``S`` of ``c`` pinned to a bound, the rest of ``c`` is again optimal at
-    ``P_FS P_SS^{-1} d_S`` with cost ``d_S^T P_SS^{-1} d_S``.  The optimum is
-    one of these candidates and every feasible candidate is an upper bound,
-    so the cheapest feasible candidate is the exact minimiser.
+    For an active set ``S`` of ``c`` pinned to bounds ``v_S``, the rest of ``c``
+    is again optimal at ``d_F = P_FS w_S`` with ``w_S = P_SS^{-1} d_S``,
+    ``d_S = v_S - th_S`` (``w_F = 0``), and the full step is
+    ``theta = th + P[:, c] w``.
 
-    All ``3^m - 1`` candidates are solved in one batched call: candidate ``j``
-    uses the padded system ``[[P_SS, 0], [0, I]] w = [d_S, 0]``, whose solution
-    is ``w = [P_SS^{-1} d_S, 0]``; then ``d_c = P_cc w`` and cost ``= w . d``.
+    Two exact solvers of the reduced box QP (``m = |c|`` unknowns):
+
+    * :meth:`_active_set` (used first, ``m <= 4``): primal-dual active-set
+      iterations in plain floats, starting from the coordinates that ``th``
+      violates.  The gradient of the reduced cost at the candidate is
+      ``P_cc^{-1} d_c = w``, so the KKT conditions are cheap to check: ``w_i
+      >= 0`` for ``i`` pinned at its lower bound, ``w_i <= 0`` at its upper
+      bound (any sign if ``lower_i == upper_i``), and the free coordinates
+      inside the box.  The problem is strictly convex, so a KKT point is *the*
+      minimiser.  Usually the first candidate passes; otherwise wrongly
+      pinned coordinates are released and violated ones pinned, for at most
+      :attr:`max_iterations` candidates without repeating one.
+    * :meth:`_enumerate` (fallback if the iterations do not verify a KKT point,
+      and the reference in the tests): all ``3^m - 1`` active sets in one
+      batched ``np.linalg.solve``; every feasible candidate is an upper bound
+      of the optimum, so the cheapest feasible one is the exact minimiser.
+      Candidate ``j`` uses the padded system ``[[P_SS, 0], [0, I]] w = [d_S,
+      0]``; then ``d_c = P_cc w`` and cost ``= w . d``.
+
+    Beyond ``m = 4`` BVLS (``scipy.optimize.lsq_linear``) is used instead.
     """
+
+    #: candidates tried by the active-set iterations before falling back
+    max_iterations = 8
 
     def __init__(self, lower: np.ndarray, upper: np.ndarray) -> None:
         self.lower = lower
@@ -261,43 +318,132 @@ class _BoxProjector:
         self.upper_tol = self.upper_c + 1e-12 * (1.0 + np.abs(self.upper_c))
         n = lower.size
         self.flat_cc = (self.c[:, None] * n + self.c[None, :]).ravel()
-        self.enumerate = 0 < m <= _MAX_ENUMERATED
-        if self.enumerate:
+        self.small = 0 < m <= _MAX_ENUMERATED  # else BVLS
+        # plain-float copies for the scalar hot path
+        self._cl = self.c.tolist()
+        self._lo = self.lower_c.tolist()
+        self._hi = self.upper_c.tolist()
+        self._lo_tol = self.lower_tol.tolist()
+        self._hi_tol = self.upper_tol.tolist()
+        self._fixed = [lo == hi for lo, hi in zip(self._lo, self._hi)]
+        # rows P[c, :] (= columns, P symmetric) as a cheap view if c is a range
+        contiguous = m > 0 and self._cl == list(range(self._cl[0], self._cl[0] + m))
+        self._rows = slice(self._cl[0], self._cl[0] + m) if contiguous else self.c
+        self._tables = None  # enumeration tables, built on first fallback
+
+    def inside(self, th: list[float]) -> bool:
+        """``theta`` (given as ``theta.tolist()``) is in the box (exact, no slack)."""
+        for i, lo, hi in zip(self._cl, self._lo, self._hi):
+            if not lo <= th[i] <= hi:
+                return False
+        return True
+
+    def __call__(self, theta_hat: np.ndarray, P: np.ndarray) -> np.ndarray:
+        th = theta_hat.tolist()
+        if self.c.size == 0 or self.inside(th):
+            return theta_hat.copy()
+        return self.project(theta_hat, P, th)
+
+    def project(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float]) -> np.ndarray:
+        """Projection of ``theta_hat`` (outside the box; ``th = theta_hat.tolist()``)."""
+        if not self.small:
+            m = self.c.size
+            return self._bvls(theta_hat, P, np.ascontiguousarray(P).take(self.flat_cc).reshape(m, m))
+        theta = self._active_set(theta_hat, P, th)
+        return self._enumerate(theta_hat, P) if theta is None else theta
+
+    def _active_set(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float]) -> np.ndarray | None:
+        """Exact projection by KKT-verified active-set iterations; ``None`` if unverified.
+
+        Plain-float code: for ``m <= 4`` this beats any numpy formulation.
+        """
+        cl, lo, hi, fixed = self._cl, self._lo, self._hi, self._fixed
+        lo_tol, hi_tol = self._lo_tol, self._hi_tol
+        m = len(cl)
+        all_m = range(m)
+        th_c = [th[i] for i in cl]
+        Pcc = P.take(self.flat_cc).tolist()  # row-major m x m: Pcc[i * m + j]
+        # state: 0 free, -1 at lower, +1 at upper; start from what th violates
+        state = [-1 if t < l else (1 if t > h else 0) for t, l, h in zip(th_c, lo, hi)]
+        seen = []
+        for _ in range(self.max_iterations):
+            S = [i for i in all_m if state[i]]
+            v = [lo[i] if state[i] < 0 else hi[i] for i in S]
+            d = [vi - th_c[i] for vi, i in zip(v, S)]
+            if len(S) == 1:  # the common case
+                p = Pcc[S[0] * (m + 1)]
+                wS = [d[0] / p] if p > 0.0 else None
+            else:
+                wS = _solve_spd_small([[Pcc[i * m + j] for j in S] for i in S], d)
+            if wS is None:
+                return None
+            # KKT: multiplier signs of the pinned, bounds of the free ones
+            new = state[:]
+            x = th_c[:]
+            w = [0.0] * m
+            for i, vi, wi in zip(S, v, wS):
+                x[i] = vi  # exactly on the bound
+                w[i] = wi
+                if state[i] * wi > 0.0 and not fixed[i]:
+                    new[i] = 0
+            for i in all_m:
+                if not state[i]:
+                    xi = th_c[i]
+                    for j, wj in zip(S, wS):
+                        xi += Pcc[i * m + j] * wj
+                    x[i] = xi
+                    if xi < lo_tol[i]:
+                        new[i] = -1
+                    elif xi > hi_tol[i]:
+                        new[i] = 1
+            if new == state:  # KKT point = the minimiser
+                # theta = th + P[:, c] w  (P symmetric: rows of P instead of columns)
+                theta = _dot(np.array(w), P[self._rows])
+                theta += theta_hat
+                for i, ci in enumerate(cl):  # free ones: clip the rounding residue
+                    theta[ci] = min(max(x[i], lo[i]), hi[i])
+                return theta
+            seen.append(state)
+            if new in seen:
+                return None
+            state = new
+        return None
+
+    def _enumerate(self, theta_hat: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Exact projection by enumerating all ``3^m - 1`` active sets (batched)."""
+        if self._tables is None:
             # state per boxed coordinate: 0 free, 1 at lower, 2 at upper; a
             # one-sided bound appears twice (harmless duplicate candidate)
+            m = self.c.size
             lo = np.where(np.isfinite(self.lower_c), self.lower_c, self.upper_c)
             hi = np.where(np.isfinite(self.upper_c), self.upper_c, self.lower_c)
             states = np.array(list(itertools.product((0, 1, 2), repeat=m))[1:])
             pinned = states > 0                                     # (J, m)
-            self.pinned = pinned
-            self.values = np.where(states == 1, lo, np.where(states == 2, hi, 0.0))
-            self.mask_ss = pinned[:, :, None] & pinned[:, None, :]  # (J, m, m)
+            values = np.where(states == 1, lo, np.where(states == 2, hi, 0.0))
+            mask_ss = pinned[:, :, None] & pinned[:, None, :]       # (J, m, m)
             free = ~pinned
-            self.eye_ff = (free[:, :, None] & free[:, None, :]) * np.eye(m)
-
-    def inside(self, theta: np.ndarray) -> bool:
-        tc = theta[self.c]
-        return bool((tc >= self.lower_c).all() and (tc <= self.upper_c).all())
-
-    def __call__(self, theta_hat: np.ndarray, P: np.ndarray) -> np.ndarray:
-        if self.c.size == 0 or self.inside(theta_hat):
-            return theta_hat.copy()
+            eye_ff = (free[:, :, None] & free[:, None, :]) * np.eye(m)
+            self._tables = (pinned, values, mask_ss, eye_ff)
+        pinned, values, mask_ss, eye_ff = self._tables
         c = self.c
         m = c.size
         Pcc = np.ascontiguousarray(P).take(self.flat_cc).reshape(m, m)
-        if not self.enumerate:
-            return self._bvls(theta_hat, P, Pcc)
         th_c = theta_hat[c]
-        d = np.where(self.pinned, self.values - th_c, 0.0)          # (J, m)
-        A = Pcc * self.mask_ss + self.eye_ff                        # (J, m, m)
+        d = np.where(pinned, values - th_c, 0.0)                    # (J, m)
+        A = Pcc * mask_ss + eye_ff                                  # (J, m, m)
         w = np.linalg.solve(A, d[:, :, None])[:, :, 0]              # (J, m)
         cost = np.einsum("jm,jm->j", w, d)
         theta_c = th_c + w @ Pcc                                    # Pcc symmetric
-        ok = ((theta_c >= self.lower_tol) & (theta_c <= self.upper_tol)).all(axis=1)
+        # pinned coordinates are on their bound by construction; testing their
+        # recomputed value (off by rounding ~ cond(P_cc) eps |w|) could wrongly
+        # reject the optimum, so only the free ones are tested
+        in_box = (theta_c >= self.lower_tol) & (theta_c <= self.upper_tol)
+        ok = (pinned | in_box).all(axis=1)
         j = int(np.argmin(np.where(ok, cost, np.inf)))
         # theta = th + P[:, c] P_cc^{-1} d_c  with  P_cc^{-1} d_c = w_j
         theta = theta_hat + P[:, c] @ w[j]
-        theta[c] = np.clip(theta[c], self.lower_c, self.upper_c)  # remove 1e-16 residue
+        # pinned: exactly the bound; free: clip the rounding residue
+        theta[c] = np.where(pinned[j], values[j], np.clip(theta[c], self.lower_c, self.upper_c))
         return theta
 
     def _bvls(self, theta_hat: np.ndarray, P: np.ndarray, Pcc: np.ndarray) -> np.ndarray:
@@ -345,8 +491,10 @@ def project_onto_box(
     correlations in ``P``.  By Remark 1 (Eqs. (6)-(10)) the Lyapunov-like
     distance to any ``theta0 in C`` does not increase.
 
-    Exact: active-set enumeration over the (<= 4) boxed coordinates, BVLS
-    (``scipy.optimize.lsq_linear``) beyond that.  Never forms ``P^{-1}``.
+    Exact: for up to 4 boxed coordinates, KKT-verified active-set iterations
+    on the boxed block of ``P`` (enumeration of all active sets if those do
+    not verify); BVLS (``scipy.optimize.lsq_linear``) beyond that.  Never
+    forms ``P^{-1}``.
 
     Parameters
     ----------
@@ -449,6 +597,10 @@ class ConstrainedRLS:
         self._P0, self._theta0, lower, upper = settings.resolve(structure)
         self._lower, self._upper = lower, upper
         self._projector = _BoxProjector(lower, upper)
+        self._boxed = self._projector.c.size > 0
+        self._phi_shape = (self._n,)
+        self._ones_n = np.ones(self._n)
+        self._ones_nn = np.ones(self._n * self._n)
         self._lam = settings.forgetting
         self._start = settings.constraint_start_index
         self._theta = self._theta0.copy()
@@ -518,12 +670,21 @@ class ConstrainedRLS:
         -------
         ndarray
             ``theta(k)`` (copy).
+
+        Notes
+        -----
+        This runs every sample, so it is written for few numpy calls on the
+        tiny arrays (their per-call overhead dominates): scalar checks where
+        they are exact, and the rank-1 covariance update in place.
         """
-        self._check_ready()
+        if not self._ready:
+            self._check_ready()
         phi = np.asarray(phi, dtype=float)
-        if phi.shape != (self._n,):
+        if phi.shape != self._phi_shape:
             raise ValueError(f"phi must have shape ({self._n},), got {phi.shape}")
-        if not np.isfinite(phi).all():
+        # phi.phi is a sum of squares: finite iff every entry is finite, unless
+        # it overflows; only then pay for the element-wise test
+        if not math.isfinite(_dot(phi, phi)) and not np.isfinite(phi).all():
             raise ValueError(f"phi must be finite, got non-finite entries at {np.flatnonzero(~np.isfinite(phi)).tolist()}")
         y = float(y)
         if not math.isfinite(y):
@@ -531,18 +692,24 @@ class ConstrainedRLS:
 
         P = self._P
         lam = self._lam
-        Pphi = P @ phi
-        denom = lam + phi @ Pphi
-        err = y - phi @ self._theta
+        Pphi = _dot(P, phi)
+        denom = lam + _dot(phi, Pphi)
+        err = y - _dot(phi, self._theta)
         theta = self._theta + Pphi * (err / denom)
-        # outer(Pphi, Pphi)/denom is bit-symmetric, so P stays symmetric
-        P_new = P - np.outer(Pphi, Pphi) / denom
+        # P_new = (P - Pphi Pphi^T / denom) / lam, in place on a fresh array;
+        # (Pphi_i Pphi_j) / denom is bit-symmetric, so P stays exactly
+        # symmetric (set_state symmetrises its input once)
+        P_new = _multiply_outer(Pphi, Pphi)
+        P_new /= denom
+        _subtract(P, P_new, out=P_new)
         if lam != 1.0:
             P_new /= lam
-        P_new = 0.5 * (P_new + P_new.T)  # idempotent here; guards set_state input
 
-        # one reduction catches any inf/NaN entry (inf - inf -> NaN as well)
-        if not (math.isfinite(P_new.sum() + theta.sum()) and (P_new.diagonal() > 0).all()):
+        # one sum catches any inf/NaN entry (inf - inf -> NaN as well); done as
+        # BLAS dots with ones, cheaper than .sum() on these tiny arrays.  Then
+        # all diagonal entries are finite and a plain min() is exact
+        total = _dot(P_new.reshape(-1), self._ones_nn) + _dot(theta, self._ones_n)
+        if not (math.isfinite(total) and min(P_new.diagonal().tolist()) > 0.0):
             if self.settings.on_covariance_loss == "raise":
                 raise FloatingPointError(
                     f"RLS covariance lost positive definiteness at step k={self._k + 1} "
@@ -555,9 +722,11 @@ class ConstrainedRLS:
             return self._theta.copy()
 
         self._k += 1
-        if self._k >= self._start and not self._projector.inside(theta):
-            theta = self._projector(theta, P_new)
-            self._n_projections += 1
+        if self._k >= self._start and self._boxed:
+            th = theta.tolist()
+            if not self._projector.inside(th):
+                theta = self._projector.project(theta, P_new, th)
+                self._n_projections += 1
         self._theta = theta
         self._P = P_new
         return theta.copy()
@@ -585,6 +754,10 @@ class ConstrainedRLS:
             raise ValueError(f"state['P'] must have shape ({self._n}, {self._n}), got {P.shape}")
         if not (np.isfinite(theta).all() and np.isfinite(P).all()):
             raise ValueError("state['theta'] and state['P'] must be finite")
+        # update() keeps P exactly symmetric given a symmetric start; a
+        # get_state() snapshot is, so its round trip stays bit-identical
+        if not np.array_equal(P, P.T):
+            P = 0.5 * (P + P.T)
         self._theta = theta
         self._P = P
         self._k = int(state["k"])

@@ -19,6 +19,7 @@ from fmu_controller.rls import (
     TABLE2_UPPER,
     ConstrainedRLS,
     RLSSettings,
+    _BoxProjector,
     project_onto_box,
 )
 from synthetic import TABLE3, NO_BOX, excitation, generate
@@ -255,6 +256,64 @@ def test_projection_is_not_elementwise_clip():
     ref = _reference_projection(th2, P2, lo2, hi2)
     np.testing.assert_allclose(proj, ref, atol=1e-10)
     assert not np.allclose(proj, np.clip(th2, lo2, hi2))
+
+
+def test_active_set_fast_path_equals_full_enumeration():
+    # the KKT-verified active-set iterations (hot path) against the batched
+    # enumeration of all 3^m - 1 active sets (fallback), on 1-3 boxed coordinates
+    rng = np.random.default_rng(40)
+    n_outside = n_fast = 0
+    for case in range(500):
+        n = int(rng.integers(3, 16))
+        m = int(rng.integers(1, 4))
+        P = _random_spd(rng, n, log_cond=rng.uniform(0, 5))
+        P = 0.5 * (P + P.T)
+        theta_hat = rng.normal(scale=3.0, size=n)
+        # as in the controller (a1, a2, b1 = leading block) or scattered
+        boxed = np.arange(m) if case % 2 else rng.choice(n, size=m, replace=False)
+        lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+        centre = theta_hat[boxed] + rng.normal(scale=2.0, size=m) * (rng.random() < 0.8)
+        half = rng.uniform(0.05, 2.0, m) * (rng.random(m) > 0.1)  # some lower == upper
+        lower[boxed], upper[boxed] = centre - half, centre + half
+        one_sided = rng.random(m) < 0.2
+        lower[boxed[one_sided & (rng.random(m) < 0.5)]] = -np.inf
+        upper[boxed[one_sided & np.isfinite(lower[boxed])]] = np.inf
+        proj = _BoxProjector(lower, upper)
+        th = theta_hat.tolist()
+        if proj.inside(th):
+            assert np.array_equal(proj(theta_hat, P), theta_hat)
+            continue
+        n_outside += 1
+        full = proj._enumerate(theta_hat, P)
+        forced = _BoxProjector(lower, upper)
+        forced.max_iterations = 0  # no active-set candidate: the fallback path
+        assert np.array_equal(forced(theta_hat, P), full)
+        fast = proj._active_set(theta_hat, P, th)
+        if fast is None:  # unverified: the public path falls back to the enumeration
+            assert np.array_equal(proj(theta_hat, P), full)
+            continue
+        n_fast += 1
+        assert np.array_equal(proj(theta_hat, P), fast)
+        # same active set (coordinates exactly on a bound), same point
+        for out in (fast, full):
+            assert np.all(out >= lower) and np.all(out <= upper)
+        assert np.array_equal((fast == lower) | (fast == upper), (full == lower) | (full == upper))
+        np.testing.assert_allclose(fast, full, rtol=1e-12, atol=1e-12)
+    assert n_outside > 250
+    assert n_fast >= n_outside - 5  # the fast path settles (nearly) all cases itself
+
+
+def test_projection_ill_conditioned_all_pinned():
+    # cond(P) = 2e6: the optimum pins both coordinates with |P^-1 d| ~ 1e6, so
+    # recomputing its pinned coordinates is off by ~1e-10; that must not reject it
+    P = np.array([[1.0, 1 - 1e-6], [1 - 1e-6, 1.0]])
+    theta_hat = np.zeros(2)
+    lower, upper = np.array([1.0, -2.0]), np.array([2.0, -1.0])
+    ref = _reference_projection(theta_hat, P, lower, upper)
+    proj = _BoxProjector(lower, upper)
+    for theta in (project_onto_box(theta_hat, P, lower, upper), proj._enumerate(theta_hat, P)):
+        assert theta.tolist() == [1.0, -1.0] == ref.tolist()
+        assert _metric(P, theta, theta_hat) == pytest.approx(_metric(P, ref, theta_hat), rel=1e-9)
 
 
 def test_projection_input_validation():
