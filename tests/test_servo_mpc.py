@@ -116,6 +116,7 @@ def test_defaults_are_table5():
     (dict(u_min_v=10.0), "u_max_v"), (dict(u_max_v=math.inf), "u_max_v"),
     (dict(eps_abs=-1e-3), "eps_abs"), (dict(eps_abs=0.0, eps_rel=0.0), "eps_abs"),
     (dict(max_iter=0), "max_iter"), (dict(warm_start=1), "warm_start"), (dict(refine=None), "refine"),
+    (dict(always_osqp=1), "always_osqp"),
 ])
 def test_settings_validation_names_field(kwargs, name):
     with pytest.raises(ValueError, match=name):
@@ -305,9 +306,9 @@ def test_integrator_removes_steady_state_error_under_mismatch(gain):
 # ---------------------------------------------------------------------------
 # state, robustness, output hygiene
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("refine", [True, False])
-def test_get_set_state_bit_identical(refine):
-    settings = ServoMPCSettings(refine=refine)
+@pytest.mark.parametrize("refine, always_osqp", [(True, False), (False, False), (True, True)])
+def test_get_set_state_bit_identical(refine, always_osqp):
+    settings = ServoMPCSettings(refine=refine, always_osqp=always_osqp)
     rng = np.random.default_rng(99)
     steps = []
     for j in range(40):
@@ -422,3 +423,132 @@ def test_bad_model_names_it(kwargs, name):
 def test_settings_type_checked():
     with pytest.raises(ValueError, match="settings"):
         ServoMPC({"hp": 5}, a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+
+
+# ---------------------------------------------------------------------------
+# solution strategy: closed-form shortcut, OSQP only when a bound is violated
+# ---------------------------------------------------------------------------
+def mixed_case(rng, hp):
+    """Interior and constrained cases: small and large reference jumps, offsets beyond the range."""
+    case = random_case(rng, hp, big=bool(rng.random() < 0.5))
+    if rng.random() < 0.25:
+        case["offset_v"] = rng.choice([-1.0, 1.0]) * rng.uniform(3.0, 15.0)
+    return case
+
+
+@pytest.mark.parametrize("settings", [
+    dict(), dict(refine=False), dict(warm_start=False),
+    dict(hp=7, hu=3, q=(1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0), qs=0.5, r=(4.0, 9.0, 20.0)),
+], ids=["table5", "no-refine", "cold", "hp7-hu3-per-step"])
+def test_shortcut_matches_osqp_reference(settings):
+    # the same sequence of model updates and data through the default controller and
+    # through the reference path that sends every sample to OSQP
+    fast_settings = ServoMPCSettings(**settings)
+    ref_settings = ServoMPCSettings(**settings, always_osqp=True)
+    hp = fast_settings.hp
+    rng = np.random.default_rng(20)
+    fast = ServoMPC(fast_settings, a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    ref = ServoMPC(ref_settings, a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    n_interior = n_constrained = 0
+    # with refinement both paths return the exact optimum (to rounding); refine=False
+    # leaves OSQP's answer at eps accuracy, the shortcut is exact either way
+    atol = 1e-9 if fast_settings.refine else 1e-5
+    for _ in range(100):
+        model = (rng.uniform(1.208, 1.260), rng.uniform(-0.334, -0.278), rng.uniform(0.607, 1.184))
+        fast.update_model(*model)
+        ref.update_model(*model)
+        case = mixed_case(rng, hp)
+        n_calls = fast.osqp_solves
+        got, want = fast.solve(**case), ref.solve(**case)
+        assert ref.osqp_solves > 0 and want.iterations > 0
+        assert got.status == want.status == "solved"
+        np.testing.assert_allclose(got.delta_uc_v, want.delta_uc_v, atol=atol, rtol=0)
+        np.testing.assert_allclose(got.uc_plan_v, want.uc_plan_v, atol=atol, rtol=0)
+        np.testing.assert_allclose(got.predicted_l_mm, want.predicted_l_mm, atol=10 * atol, rtol=0)
+        np.testing.assert_allclose(got.predicted_xs, want.predicted_xs, atol=10 * atol, rtol=0)
+        assert got.cost == pytest.approx(want.cost, rel=1e-7, abs=1e-9)
+        assert got.cost <= want.cost * (1 + 1e-12) + 1e-12  # never worse than the reference
+        assert got.constrained == want.constrained
+        u = got.uc_plan_v - case["offset_v"]
+        assert u.min() >= -1e-9 and u.max() <= 10 + 1e-9
+        if got.iterations == 0:
+            # shortcut: exactly the closed-form unconstrained minimiser, OSQP not called
+            assert fast.osqp_solves == n_calls
+            unc = fast.unconstrained_solution(**case)
+            np.testing.assert_array_equal(got.delta_uc_v, unc.delta_uc_v)
+            n_interior += 1
+        else:
+            assert fast.osqp_solves == n_calls + 1
+            n_constrained += 1
+    # both paths are exercised, with active bounds on the OSQP path
+    assert n_interior >= 25 and n_constrained >= 25
+
+
+def test_osqp_path_taken_only_when_a_bound_is_violated():
+    mpc = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    case = dict(l_mm=30.0, l_prev_mm=30.0, uc_prev_v=4.0, xs=0.0, r_future_mm=[30.0] * 6)
+    interior = mpc.solve(**case, offset_v=0.0)
+    assert mpc.osqp_solves == 0
+    assert (interior.status, interior.iterations, interior.constrained) == ("solved", 0, False)
+    assert mpc.get_state()["y_warm"] == [0.0] * 5  # interior optimum: zero multipliers
+    # u_c >= 6 V although ~3.46 V would hold 30 mm: the closed form violates Eq. (19)
+    unc = mpc.unconstrained_solution(**case, offset_v=6.0)
+    assert unc.uc_plan_v.min() < 6.0
+    pushed = mpc.solve(**case, offset_v=6.0)
+    assert mpc.osqp_solves == 1
+    assert pushed.status == "solved" and pushed.iterations > 0 and pushed.constrained
+    assert pushed.uc_v == pytest.approx(6.0, abs=1e-9)
+    assert min(mpc.get_state()["y_warm"]) < 0  # OSQP's multiplier of the active lower bound
+    ref = ServoMPC(ServoMPCSettings(always_osqp=True), a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    want = ref.solve(**case, offset_v=6.0)
+    np.testing.assert_allclose(pushed.uc_plan_v, want.uc_plan_v, atol=1e-9, rtol=0)
+    # back inside the bounds: no OSQP again
+    assert mpc.solve(**case, offset_v=0.0).iterations == 0 and mpc.osqp_solves == 1
+
+
+def test_model_reaches_osqp_lazily(monkeypatch):
+    mpc = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    pushes = []
+    real_update = mpc._prob.update
+
+    def counting_update(**kw):
+        if "Px" in kw:
+            pushes.append(kw["Px"].copy())
+        return real_update(**kw)
+
+    monkeypatch.setattr(mpc._prob, "update", counting_update)
+    interior = dict(l_mm=30.0, l_prev_mm=30.0, uc_prev_v=4.0, xs=0.0, r_future_mm=[30.0] * 6)
+    bound = dict(interior, offset_v=6.0)
+    models = [(1.22, -0.30, 0.70), (1.24, -0.29, 0.90)]
+    for model in models * 3:          # model changes with interior solves only
+        mpc.update_model(*model)
+        assert mpc.solve(**interior).iterations == 0
+    assert pushes == []               # OSQP was not needed, so never updated
+    got = mpc.solve(**bound)          # first OSQP solve: the current model is pushed once
+    assert len(pushes) == 1 and got.iterations > 0
+    mpc.update_model(*models[1])      # unchanged model: nothing to do
+    mpc.solve(**bound)
+    assert len(pushes) == 1
+    mpc.update_model(*models[0])      # A -> B -> A between OSQP solves: OSQP holds the right model
+    mpc.update_model(*models[1])
+    mpc.solve(**bound)
+    assert len(pushes) == 1
+    mpc.update_model(*models[0])
+    again = mpc.solve(**bound)
+    assert len(pushes) == 2
+    fresh = ServoMPC(a1=models[0][0], a2=models[0][1], b1=models[0][2])
+    want = fresh.solve(**bound)
+    np.testing.assert_allclose(again.uc_plan_v, want.uc_plan_v, atol=1e-9, rtol=0)
+    assert again.cost == pytest.approx(want.cost, rel=1e-12)
+
+
+def test_result_arrays_read_only_and_warm_start_unaffected():
+    mpc = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    case = dict(l_mm=30.0, l_prev_mm=30.0, uc_prev_v=4.0, xs=0.0, r_future_mm=[30.0] * 6)
+    for offset in (0.0, 6.0):  # shortcut and OSQP path
+        res = mpc.solve(**case, offset_v=offset)
+        for a in (res.delta_uc_v, res.uc_plan_v, res.predicted_l_mm, res.predicted_xs):
+            with pytest.raises(ValueError):
+                a[0] = 1.0
+        assert res.delta_uc_v.shape == (5,) and res.uc_plan_v.shape == (5,)
+        assert res.predicted_l_mm.shape == (5,) and res.predicted_xs.shape == (5,)
