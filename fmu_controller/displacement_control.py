@@ -179,11 +179,11 @@ class DisplacementController:
         l = float(l_mm)
         if not math.isfinite(l):
             raise ValueError(f"measured l_mm must be finite, got {l_mm!r}")
-        r = np.asarray(r_preview_mm, dtype=float)
+        r = r_preview_mm if isinstance(r_preview_mm, np.ndarray) else np.asarray(r_preview_mm, dtype=float)
         need = s.preview_samples + 1
         if r.ndim != 1 or len(r) < need:
             raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}) ({need} samples), got {r.shape}")
-        if not np.all(np.isfinite(r[:need])):
+        if not math.isfinite(float(r[:need].sum())):  # a sum is finite only if every term is
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
         error = 0.0 if math.isnan(self._predicted) else l - self._predicted
 
@@ -216,7 +216,8 @@ class DisplacementController:
         self._u_prev = u
         self._predicted = predicted
         self._k += 1
-        return ControlStep(u, predicted, error, uc, h, xs_next, theta.copy(), saturated)
+        # theta is never modified in place (the RLS returns a new array), so it can be shared.
+        return ControlStep(u, predicted, error, uc, h, xs_next, theta, saturated)
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
