@@ -203,6 +203,15 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------- build
+def _cmd_build(args: argparse.Namespace) -> int:
+    from build_scripts.build_fmus import build_fmus
+
+    for path in build_fmus(args.out):
+        print(f"wrote {path}")
+    return 0
+
+
 # --------------------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tapmuscle", description=__doc__.splitlines()[0])
@@ -255,6 +264,11 @@ def build_parser() -> argparse.ArgumentParser:
     pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
+
+    bld = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMUs",
+                         description="Build MusclePlant.fmu with pythonfmu (docs/fmu.md).")
+    bld.add_argument("--out", default="out/fmu", help="output folder (default out/fmu)")
+    bld.set_defaults(func=_cmd_build)
     return parser
 
 

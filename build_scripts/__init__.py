@@ -1,0 +1,1 @@
+"""Building the FMI 2.0 co-simulation FMUs (``tapmuscle build``)."""

@@ -1,0 +1,98 @@
+"""``MusclePlant``: the simulated rig (fmu_plant.Plant) as an FMI 2.0 co-simulation slave.
+
+Inputs ``u`` [V], ``load`` [N], ``supply_pressure`` [MPa(G)]; outputs ``l`` [mm] (encoder) and ``p``
+[MPa(G)] (pressure sensor); every physical parameter of docs/plant.md as a fixed parameter named
+``group.field`` (e.g. ``friction.rate_gain``), plus ``seed``. A thin shell: the numerics are
+:class:`fmu_plant.Plant`; the FMI behaviour (errors, state) is :class:`fmi_slave.SafeSlave`'s.
+
+Bad input (NaN, inf, a command outside -1..11 V, a load outside 0..500 N, a supply pressure outside
+0..1 MPa, a step size <= 0) is refused with fmi2Discard and a logged message naming it; the plant and
+its outputs are unchanged. A command within -1..11 V saturates in the valve amplifier at 0..10 V as
+on the rig.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
+
+from fmi_slave import SafeSlave
+from fmi_slave.base import SlaveInputError
+from fmu_plant import Plant, PlantParams
+
+__all__ = ["MusclePlant", "parameter_table"]
+
+
+def parameter_table() -> list[tuple[str, float, str, str]]:
+    """``(name, default, unit, description)`` of every plant parameter, from the dataclasses."""
+    rows = []
+    defaults = PlantParams()
+    for group in fields(defaults):
+        sub = getattr(defaults, group.name)
+        for f in fields(sub):
+            doc = f.metadata.get("doc", "")
+            unit = doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
+            rows.append((f"{group.name}.{f.name}", float(getattr(sub, f.name)), unit, doc))
+    return rows
+
+
+class MusclePlant(SafeSlave):
+    """Tap-water McKibben muscle rig (paper section 2.4, Table 1)."""
+
+    author = "tapmuscle"
+    description = "Tap-water-driven McKibben muscle rig: proportional valves, 0.25 MPa supply, 400 mm muscle, load, encoder"
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.u = 0.0
+        self.load = 44.0
+        self.supply_pressure = 0.25
+        self.l = 0.0
+        self.p = 0.0
+        self.register_variable(Real("u", causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
+                                    description="valve command [V], 0..10 (saturates)"))
+        self.register_variable(Real("load", causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
+                                    description="hanging load [N], 0..500"))
+        self.register_variable(Real("supply_pressure", causality=Fmi2Causality.input,
+                                    variability=Fmi2Variability.continuous,
+                                    description="tap-water supply gauge pressure [MPa], 0..1"))
+        # initial="exact" with a start value: the outputs are known before the first step (the rig at
+        # rest), which also gives hosts a correct InitialUnknowns list (PythonFMU#193).
+        self.register_variable(Real("l", causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
+                                    initial=Fmi2Initial.exact, start=0.0,
+                                    description="encoder reading of the contraction [mm]"))
+        self.register_variable(Real("p", causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
+                                    initial=Fmi2Initial.exact, start=0.0,
+                                    description="pressure-sensor reading [MPa(G)]"))
+        self.add_real_parameters(parameter_table())
+        self.add_integer_parameter("seed", 0, "seed of the sensor-noise generator")
+        self._plant: Plant | None = None
+
+    def initialize_numerics(self) -> None:
+        try:
+            params = PlantParams().with_values(**self._par)
+        except ValueError as exc:
+            raise SlaveInputError(f"bad parameter: {exc}") from None
+        seed = self._int_par["seed"]
+        if seed < 0:
+            raise SlaveInputError(f"seed = {seed} must be >= 0")
+        self._plant = Plant(params, seed=seed)
+        self._plant.update(load_n=self.finite("load", self.load, 0.0, 500.0),
+                           supply_pressure_mpa=self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0))
+        self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
+
+    def step_numerics(self, t_s: float, dt_s: float) -> None:
+        u = self.finite("u", self.u, -1.0, 11.0)
+        load = self.finite("load", self.load, 0.0, 500.0)
+        ps = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
+        self._plant.update(load_n=load, supply_pressure_mpa=ps)
+        m = self._plant.step(u, dt_s)
+        self.l, self.p = m.l_mm, m.p_mpa
+
+    def numerics_state(self):
+        return None if self._plant is None else self._plant.get_state()
+
+    def restore_numerics_state(self, state) -> None:
+        if state is not None:
+            self._plant.set_state(state)

@@ -1,0 +1,139 @@
+"""The MusclePlant FMU in fmpy: same numbers as the direct plant, FMI errors not crashes, exact state."""
+
+import math
+
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+from fmpy.validation import validate_fmu
+
+from build_scripts.build_fmus import build_fmus
+from fmu_plant import Plant, PlantParams
+
+
+@pytest.fixture(scope="module")
+def fmu(tmp_path_factory):
+    (path,) = build_fmus(tmp_path_factory.mktemp("fmu"), ("MusclePlant",))
+    md = read_model_description(str(path))
+    return path, md, extract(str(path)), {v.name: v.valueReference for v in md.modelVariables}
+
+
+def _instance(fmu, name="i", reals=None, ints=None):
+    path, md, folder, vr = fmu
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    for key, value in (reals or {}).items():
+        f.setReal([vr[key]], [value])
+    for key, value in (ints or {}).items():
+        f.setInteger([vr[key]], [value])
+    f.exitInitializationMode()
+    return f
+
+
+def _sine(k):
+    return 5 + 3 * math.sin(2 * math.pi * 0.1 * k * 0.1)
+
+
+def test_fmpy_validation_reports_no_problems(fmu):
+    assert validate_fmu(str(fmu[0])) == []
+
+
+def test_fmu_equals_the_direct_plant_bit_for_bit(fmu):
+    vr = fmu[3]
+    f = _instance(fmu, reals={"load": 68.0, "friction.rate_gain": 0.3}, ints={"seed": 5})
+    direct = Plant(PlantParams().with_values(**{"friction.rate_gain": 0.3}), seed=5)
+    direct.update(load_n=68.0)
+    for k in range(200):
+        f.setReal([vr["u"], vr["load"]], [_sine(k), 68.0])
+        f.doStep(k * 0.1, 0.1)
+        m = direct.step(_sine(k), 0.1)
+        assert f.getReal([vr["l"], vr["p"]]) == [m.l_mm, m.p_mpa]
+    f.terminate()
+    f.freeInstance()
+
+
+def test_state_rewind_and_serialisation_are_bit_identical(fmu):
+    vr = fmu[3]
+    f = _instance(fmu)
+
+    def run(k0):
+        out = []
+        for k in range(k0, k0 + 30):
+            f.setReal([vr["u"]], [_sine(k)])
+            f.doStep(k * 0.1, 0.1)
+            out.append(f.getReal([vr["l"], vr["p"]]))
+        return out
+
+    run(0)
+    state = f.getFMUstate()
+    a = run(30)
+    f.setFMUstate(state)
+    assert run(30) == a
+    f.setFMUstate(f.deSerializeFMUstate(f.serializeFMUstate(state)))
+    assert run(30) == a
+    f.terminate()
+    f.freeInstance()
+
+
+@pytest.mark.parametrize("name, value, message", [("u", math.nan, "u = nan is not finite"),
+                                                  ("u", math.inf, "u = inf is not finite"),
+                                                  ("u", 50.0, "u = 50.0 is outside"),
+                                                  ("load", -3.0, "load = -3.0 is outside"),
+                                                  ("supply_pressure", 7.0, "supply_pressure = 7.0 is outside")])
+def test_bad_input_is_discarded_with_a_message_and_outputs_stay(fmu, capfd, name, value, message):
+    vr = fmu[3]
+    f = _instance(fmu)
+    f.setReal([vr["u"]], [6.0])
+    f.doStep(0.0, 0.5)
+    before = f.getReal([vr["l"], vr["p"]])
+    f.setReal([vr[name]], [value])
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.5, 0.1)
+    assert message in capfd.readouterr().out
+    assert f.getReal([vr["l"], vr["p"]]) == before and all(math.isfinite(x) for x in before)
+    f.setReal([vr["u"], vr["load"], vr["supply_pressure"]], [6.0, 44.0, 0.25])
+    f.doStep(0.5, 0.1)  # recovers
+    f.terminate()
+    f.freeInstance()
+
+
+def test_bad_step_size_and_bad_parameter(fmu, capfd):
+    vr = fmu[3]
+    f = _instance(fmu)
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.0, -0.1)
+    assert "step size = -0.1" in capfd.readouterr().out
+    f.terminate()
+    f.freeInstance()
+    g = _instance(fmu, reals={"valve.cv_max": -1.0})
+    assert "cv_max" in capfd.readouterr().out
+    with pytest.raises(FMICallException, match="discard"):
+        g.doStep(0.0, 0.1)
+    g.terminate()
+    g.freeInstance()
+
+
+def test_several_instances_and_reinstantiation(fmu):
+    vr = fmu[3]
+    a, b = _instance(fmu, "a"), _instance(fmu, "b", reals={"load": 68.0})
+    for k in range(100):
+        a.setReal([vr["u"]], [6.0])
+        b.setReal([vr["u"]], [6.0])
+        a.doStep(k * 0.1, 0.1)
+        b.doStep(k * 0.1, 0.1)
+    la, lb = a.getReal([vr["l"]])[0], b.getReal([vr["l"]])[0]
+    assert la - lb > 3.0  # the heavier load hangs lower: the instances do not share state
+    for f in (a, b):
+        f.terminate()
+        f.freeInstance()
+    c = _instance(fmu, "c")
+    c.setReal([vr["u"]], [6.0])
+    for k in range(100):
+        c.doStep(k * 0.1, 0.1)
+    assert c.getReal([vr["l"]])[0] == pytest.approx(la, abs=0.1)
+    c.terminate()
+    c.freeInstance()
