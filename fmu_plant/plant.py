@@ -135,6 +135,7 @@ class Plant:
         self.load_n = self.params.load.load_n
         self.supply_pressure_mpa = self.params.supply.supply_pressure_mpa
         self.update(load_n=load_n, supply_pressure_mpa=supply_pressure_mpa)
+        self._last_supply_mpa = self.supply_pressure_mpa
         for e in self.effects:
             e.reset(0.0, self.u_v, 0.0)
         self.measurement = self._measure()
@@ -200,6 +201,7 @@ class Plant:
             "rng": self._rng.bit_generator.state,
             "effects": [e.get_state() for e in self.effects],
             "measurement": (self.measurement.t_s, self.measurement.l_mm, self.measurement.p_mpa),
+            "last_supply_mpa": self._last_supply_mpa,
         }
 
     def set_state(self, s: dict[str, Any]) -> None:
@@ -215,6 +217,7 @@ class Plant:
         for e, es in zip(self.effects, s["effects"]):
             e.set_state(es)
         self.measurement = Measurement(*s["measurement"])
+        self._last_supply_mpa = float(s["last_supply_mpa"])
 
     def _measure(self) -> Measurement:
         sp = self.params.sensor
@@ -246,9 +249,10 @@ class Plant:
                 orifice_flow(k_out, (p_mpa - self.params.supply.drain_pressure_mpa) * 1e6, self._laminar_pa))
 
     def flows_l_min(self) -> tuple[float, float]:
-        """Current flows through the supply and drain valves [L/min] (positive into / out of the muscle)."""
-        _, ps, _ = self._ports(self.t_s)
-        q_in, q_out = self._valve_flows(self.state[0], self.state[1], ps)
+        """Flows through the supply and drain valves [L/min] (positive into / out of the muscle), at the
+        supply pressure of the last integration sub-step (a query never calls the effect hooks, which
+        may have memory)."""
+        q_in, q_out = self._valve_flows(self.state[0], self.state[1], self._last_supply_mpa)
         return q_in * 6e4, q_out * 6e4
 
     def derivatives(self, s: Iterable[float], u_v: float, ps_mpa: float, load_n: float) -> list[float]:
@@ -301,6 +305,7 @@ class Plant:
 
     def _rk4(self, t_s: float, h: float) -> None:
         u, ps, w = self._ports(t_s)
+        self._last_supply_mpa = ps
         s = self.state
         f = self.derivatives
         k1 = f(s, u, ps, w)

@@ -33,6 +33,16 @@ def _positive(name: str, lo: float, hi: float):
     return parse
 
 
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seed must be an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"--seed must be >= 0, got {v}")
+    return v
+
+
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
     from fmu_plant import PlantParams
 
@@ -228,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--duration", type=_positive("--duration", 1e-3, 86400.0), required=True,
                      help="length [s]")
     rec.add_argument("--ts", type=_positive("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
-    rec.add_argument("--seed", type=int, default=0, help="noise seed (>= 0)")
+    rec.add_argument("--seed", type=_seed, default=0, help="noise seed (>= 0)")
     rec.add_argument("--out", required=True, help="output CSV path")
     rec.add_argument("--plot", action="store_true", help="also write OUT.png: time traces and hysteresis loop")
     rec.add_argument("--no-noise", action="store_true", help="switch sensor noise off (quantisation stays)")
@@ -278,8 +288,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = argv
-    if getattr(args, "seed", 0) is not None and getattr(args, "seed", 0) < 0:
-        parser.error(f"--seed must be >= 0, got {args.seed}")
     try:
         return int(args.func(args) or 0)
     except UsageError as exc:

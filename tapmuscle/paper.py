@@ -20,6 +20,7 @@ from typing import Callable, TextIO
 import numpy as np
 
 from fmu_controller.displacement_control import P0_TABLE5, P0_TABLE8, ControllerSettings, DisplacementController
+from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import identify_record
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
@@ -85,9 +86,7 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
     refine = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5), stage1)
     cols = run_closed_loop(Plant(PlantParams(), seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz),
                            duration_s=120.0)
-    names = ("a1", "a2", "b1", "A1", "A2", "beta1", "beta2", "gamma1", "gamma2", "c1", "c2", "xi21", "xi22",
-             "xi31", "xi32")
-    return np.array([cols[f"theta_{n}"][-1] for n in names])
+    return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
 
 
 def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), refine_hz: float = 0.05,
@@ -142,8 +141,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), refine_hz: float
             plot_prediction_errors(runs, out / f"fig{fig_p:02d}_prediction_error_{load}N_{freq:g}Hz.png",
                                    title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]})")
     document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "paper": PAPER_TABLES,
-                "theta0": dict(zip(("a1", "a2", "b1", "A1", "A2", "beta1", "beta2", "gamma1", "gamma2", "c1", "c2",
-                                    "xi21", "xi22", "xi31", "xi32"), map(float, theta0))),
+                "theta0": ASYMMETRIC.to_dict(theta0),
                 "eq21_window_s": [10.0, 40.0]}
     atomic_write_text(out / "paper.json", json.dumps(document, indent=2) + "\n")
     print_tables(tables, stream)

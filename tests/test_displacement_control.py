@@ -14,7 +14,12 @@ from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 
 from tapmuscle.paper import preliminary_theta
 
-THETA0 = preliminary_theta(0)  # section 4.2's fixed predictor, identified on the simulated rig
+
+
+@pytest.fixture(scope="module")
+def theta0():
+    """Section 4.2's fixed predictor, identified on the simulated rig."""
+    return preliminary_theta(0)
 
 
 def _same(a, b):
@@ -27,8 +32,8 @@ def _same(a, b):
 
 
 @pytest.fixture(scope="module", params=METHODS)
-def run(request):
-    c = DisplacementController(ControllerSettings(method=request.param), THETA0)
+def run(request, theta0):
+    c = DisplacementController(ControllerSettings(method=request.param), theta0)
     return request.param, run_closed_loop(Plant(seed=0), c, SineReference(), duration_s=45.0)
 
 
@@ -56,9 +61,9 @@ def test_adaptive_estimate_stays_in_the_table2_box(run):
             assert np.ptp(values) == 0.0
 
 
-def _model_plant_loop(method, n=300):
+def _model_plant_loop(theta0, method, n=300):
     """Closed loop on a 'plant' that is exactly the Eq. (1) model."""
-    c = DisplacementController(ControllerSettings(method=method), THETA0)
+    c = DisplacementController(ControllerSettings(method=method), theta0)
     ref = SineReference()
     plant = ModelState(ASYMMETRIC, l_init=(20.0, 20.0, 20.0), u_init=0.0)
     l = 20.0
@@ -67,21 +72,21 @@ def _model_plant_loop(method, n=300):
     for k in range(n):
         step = c.step(l, ref.preview(k, 5))
         plant.apply(step.u_v)
-        l = float(plant.phi() @ THETA0)
-        plant.observe(l, THETA0)
+        l = float(plant.phi() @ theta0)
+        plant.observe(l, theta0)
         err.append(ref.at(k + 1) - l)
     return np.array(err)
 
 
-def test_hysteresis_cancellation_linearises_an_exact_model():
+def test_hysteresis_cancellation_linearises_an_exact_model(theta0):
     """Eq. (5) on a plant that is the model: the servo loop sees only Eq. (2) and tracks tightly."""
-    err = _model_plant_loop("mpc_servo")
+    err = _model_plant_loop(theta0, "mpc_servo")
     assert np.mean(np.abs(err[100:])) < 0.15
 
 
-def test_get_set_state_replays_bit_identically():
+def test_get_set_state_replays_bit_identically(theta0):
     for method in METHODS:
-        c = DisplacementController(ControllerSettings(method=method), THETA0)
+        c = DisplacementController(ControllerSettings(method=method), theta0)
         ref = SineReference()
         rng = np.random.default_rng(1)
         l_seq = 35 + 20 * np.sin(np.arange(200) * 0.06) + rng.normal(0, 0.05, 200)
@@ -96,8 +101,8 @@ def test_get_set_state_replays_bit_identically():
 
 @pytest.mark.parametrize("l, preview, match", [(math.nan, [35.0] * 6, "l_mm"), (30.0, [35.0] * 3, "preview"),
                                                (30.0, [35.0, math.inf] + [35.0] * 4, "finite")])
-def test_bad_measurements_raise_and_leave_state(l, preview, match):
-    c = DisplacementController(ControllerSettings(method="ampc_servo"), THETA0)
+def test_bad_measurements_raise_and_leave_state(theta0, l, preview, match):
+    c = DisplacementController(ControllerSettings(method="ampc_servo"), theta0)
     c.step(30.0, [35.0] * 6)
     before = c.get_state()
     with pytest.raises(ValueError, match=match):
@@ -105,12 +110,12 @@ def test_bad_measurements_raise_and_leave_state(l, preview, match):
     assert _same(c.get_state(), before)
 
 
-def test_bad_settings_and_theta():
+def test_bad_settings_and_theta(theta0):
     with pytest.raises(ValueError, match="method"):
         ControllerSettings(method="pid")
     with pytest.raises(ValueError, match="p0"):
         ControllerSettings(p0=(1.0,) * 3)
-    bad = THETA0.copy()
+    bad = theta0.copy()
     bad[2] = 0.0
     with pytest.raises(ValueError, match="b1"):
         DisplacementController(ControllerSettings(), bad)

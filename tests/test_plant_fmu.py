@@ -102,7 +102,6 @@ def test_bad_input_is_discarded_with_a_message_and_outputs_stay(fmu, capfd, name
 
 
 def test_bad_step_size_and_bad_parameter(fmu, capfd):
-    vr = fmu[3]
     f = _instance(fmu)
     with pytest.raises(FMICallException, match="discard"):
         f.doStep(0.0, -0.1)
