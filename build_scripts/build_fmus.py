@@ -1,46 +1,121 @@
-"""Build ``MusclePlant.fmu`` (and, when present, ``AMPCController.fmu``) with pythonfmu.
+"""Build ``MusclePlant.fmu`` and ``AMPCController.fmu`` with pythonfmu, then finish them.
 
 Each FMU carries its slave script, the numerics package it wraps and the shared ``fmi_slave`` shell
 in ``resources/``: the project's code travels inside the FMU; the host needs a Python with numpy
 (and scipy, osqp for the controller) and pythonfmu's runtime, which pythonfmu also packs.
+
+After pythonfmu, the build (one FMU at a time, in a temporary folder; the finished file is moved into
+place whole, so a failed build leaves no partial file):
+
+1. completes modelDescription.xml (:mod:`build_scripts.model_description`: units, ranges,
+   enumerations, output dependencies, state capabilities, content-derived GUID, no time stamp);
+2. prepares the binary and resources for non-Python FMI hosts (:mod:`build_scripts.native_host`);
+3. zips the tree deterministically (sorted entries, fixed time stamps and permissions), so the same
+   sources and build environment give byte-identical FMUs.
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
 import shutil
+import sys
 import tempfile
+import zipfile
 from pathlib import Path
+from typing import Any
 
-__all__ = ["FMUS", "build_fmus"]
+from .model_description import content_guid, finish_model_description
+
+__all__ = ["FMUS", "build_fmus", "slave_metadata"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: FMU name -> (slave script, packages shipped in resources)
+#: FMU name (= slave class) -> (slave script, packages shipped in resources)
 FMUS: dict[str, tuple[str, tuple[str, ...]]] = {
     "MusclePlant": ("fmu_plant/plant_slave.py", ("fmu_plant", "fmi_slave")),
+    "AMPCController": ("fmu_controller/controller_slave.py", ("fmu_controller", "fmi_slave")),
 }
+
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 
 
 def _clean_copy(src: Path, dst: Path) -> None:
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
 
 
+def slave_metadata(name: str) -> dict[str, dict[str, Any]]:
+    """``variable_meta`` of FMU ``name``'s slave class (instantiated once, outside any FMU)."""
+    script = ROOT / FMUS[name][0]
+    spec = importlib.util.spec_from_file_location(f"_tapmuscle_build_{script.stem}", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return getattr(module, name)(instance_name="build").variable_meta
+
+
+def _files(tree: Path) -> list[Path]:
+    return sorted((f for f in tree.rglob("*") if f.is_file() and "__pycache__" not in f.parts),
+                  key=lambda f: f.relative_to(tree).as_posix())
+
+
+def _digest(tree: Path) -> bytes:
+    h = hashlib.sha256()
+    for f in _files(tree):
+        h.update(f.relative_to(tree).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.digest()
+
+
+def _zip(tree: Path, target: Path) -> None:
+    with zipfile.ZipFile(target, "w", compression=zipfile.ZIP_DEFLATED) as z:
+        for f in _files(tree):
+            info = zipfile.ZipInfo(f.relative_to(tree).as_posix(), date_time=_ZIP_DATE)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = (0o755 if f.suffix in (".so", ".dll") else 0o644) << 16
+            z.writestr(info, f.read_bytes())
+
+
+def _prepare_native_hosts(tree: Path) -> None:
+    try:
+        from .native_host import prepare_for_native_hosts
+    except ImportError:  # pragma: no cover - the module is part of the project; kept optional for bisecting
+        return
+    prepare_for_native_hosts(tree)
+
+
 def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Path]:
-    """Build the FMUs into ``out``; returns their paths. Each FMU is built in a temporary folder and
-    moved into place whole, so a failed build leaves no partial file."""
+    """Build the FMUs ``names`` (default: all of :data:`FMUS`) into ``out``; returns their paths."""
     from pythonfmu.builder import FmuBuilder
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    unknown = [n for n in names or () if n not in FMUS]
+    if unknown:
+        raise ValueError(f"unknown FMU {unknown[0]!r}; known: {', '.join(FMUS)}")
     built = []
     for name in names or tuple(FMUS):
         script, packages = FMUS[name]
+        meta = slave_metadata(name)
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
             for pkg in packages:
                 _clean_copy(ROOT / pkg, tmp / "src" / pkg)
-            fmu = FmuBuilder.build_FMU(ROOT / script, dest=tmp, project_files=[tmp / "src" / p for p in packages])
+            path = sys.path[:]
+            try:
+                fmu = FmuBuilder.build_FMU(ROOT / script, dest=tmp / "pythonfmu",
+                                           project_files=[tmp / "src" / p for p in packages])
+            finally:
+                sys.path[:] = path  # pythonfmu puts the script's folder first on sys.path
+            tree = tmp / "tree"
+            with zipfile.ZipFile(fmu) as z:
+                z.extractall(tree)
+            _prepare_native_hosts(tree)
+            md = tree / "modelDescription.xml"
+            raw = md.read_text(encoding="utf-8")
+            md.write_text(finish_model_description(raw, meta, guid="{pending}"), encoding="utf-8")
+            md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree))), encoding="utf-8")
+            staged = tmp / f"{name}.fmu"
+            _zip(tree, staged)
             target = out / f"{name}.fmu"
-            shutil.move(str(fmu), str(target))
+            shutil.move(str(staged), str(target))
             built.append(target)
     return built

@@ -7,7 +7,9 @@ offending variable and value, the outputs keep their last valid values, and ``do
 False, which pythonfmu reports as fmi2Discard. The host can fix the input and step again.
 
 Parameters are kept in one table (``self._par``) registered from a list of
-``(name, start, unit, description)``; full dynamic state is saved and restored through
+``(name, start, unit, description[, min, max])``. Units, ranges and nominal values of every variable
+are collected in :attr:`SafeSlave.variable_meta`; the build (``build_scripts``) writes them into
+modelDescription.xml, which pythonfmu cannot do itself. Full dynamic state is saved and restored through
 :meth:`SafeSlave.numerics_state` / :meth:`SafeSlave.restore_numerics_state`, so FMI
 get/set/serialize FMU state restores everything, not just the registered variables.
 """
@@ -18,10 +20,15 @@ import math
 import traceback
 from typing import Any, Iterable
 
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
-__all__ = ["SafeSlave", "SlaveInputError"]
+__all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
+
+#: Per variable: ``unit`` (a key of fmi_slave.units.UNITS or ""), ``min``, ``max``, ``nominal`` (None =
+#: not declared), ``depends_on`` (outputs only: names of inputs with direct feedthrough; () = none),
+#: ``enumeration`` (Integer variables shown as an enumeration: the type name).
+VariableMeta = dict[str, Any]
 
 
 class SlaveInputError(ValueError):
@@ -36,24 +43,60 @@ class SafeSlave(Fmi2Slave):
         self._par: dict[str, float] = {}
         self._int_par: dict[str, int] = {}
         self._failed = False
+        self.variable_meta: dict[str, VariableMeta] = {}
 
     # ------------------------------------------------------------------ registration
-    def add_real_parameters(self, table: Iterable[tuple[str, float, str, str]]) -> None:
-        """Register fixed Real parameters ``(name, start, unit, description)``."""
-        for name, start, _unit, description in table:
+    def _meta(self, name: str, unit: str = "", lo: float | None = None, hi: float | None = None,
+              nominal: float | None = None, **extra: Any) -> None:
+        self.variable_meta[name] = {"unit": unit, "min": lo, "max": hi, "nominal": nominal, **extra}
+
+    def add_real_parameters(self, table: Iterable[tuple]) -> None:
+        """Register fixed Real parameters ``(name, start, unit, description[, min, max])``."""
+        for name, start, unit, description, *bounds in table:
+            lo, hi = (bounds + [None, None])[:2]
             self._par[name] = float(start)
             self.register_variable(Real(
                 name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                 description=description,
                 getter=lambda n=name: self._par[n],
                 setter=lambda v, n=name: self._par.__setitem__(n, float(v))), nested=False)
+            self._meta(name, unit, lo, hi)
 
-    def add_integer_parameter(self, name: str, start: int, description: str) -> None:
+    def add_integer_parameter(self, name: str, start: int, description: str, *, lo: int | None = None,
+                              hi: int | None = None, enumeration: tuple[str, dict[int, str]] | None = None) -> None:
+        """Register a fixed Integer parameter; ``enumeration = (type name, {value: item name})`` makes
+        the build declare it as an FMI Enumeration (hosts show the names; set with fmi2SetInteger)."""
         self._int_par[name] = int(start)
         self.register_variable(Integer(
             name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed, description=description,
             getter=lambda: self._int_par[name],
             setter=lambda v: self._int_par.__setitem__(name, int(v))), nested=False)
+        self._meta(name, "", lo, hi, enumeration=enumeration)
+
+    def add_input(self, name: str, start: float, unit: str, description: str, *, lo: float, hi: float,
+                  nominal: float | None = None) -> None:
+        """Register a continuous Real input (attribute ``name``, checked against ``lo..hi`` by
+        :meth:`finite` in the step)."""
+        setattr(self, name, float(start))
+        self.register_variable(Real(name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
+                                    start=float(start), description=description), nested=False)
+        self._meta(name, unit, lo, hi, nominal)
+
+    def add_output(self, name: str, start: float | bool | int, unit: str, description: str, *,
+                   lo: float | None = None, hi: float | None = None, nominal: float | None = None,
+                   depends_on: tuple[str, ...] = (), kind: type = Real,
+                   variability: Fmi2Variability = Fmi2Variability.continuous, getter=None) -> None:
+        """Register an output (attribute ``name`` unless a ``getter`` is given) with an exact start
+        value: the outputs are defined before the first step, which also gives hosts a correct
+        InitialUnknowns list (PythonFMU#193). ``depends_on`` lists the inputs the output depends on
+        directly at a communication point (none for ours, so hosts see no algebraic loop, PythonFMU#258)."""
+        if getter is None:
+            setattr(self, name, start)
+        kwargs = {"getter": getter} if getter is not None else {}
+        self.register_variable(kind(name, causality=Fmi2Causality.output, variability=variability,
+                                    initial=Fmi2Initial.exact, start=start, description=description, **kwargs),
+                               nested=False)
+        self._meta(name, unit, lo, hi, nominal, depends_on=tuple(depends_on))
 
     # ------------------------------------------------------------------ guards
     @staticmethod

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
-
 from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from fmu_plant import Plant, PlantParams
@@ -24,8 +22,8 @@ from fmu_plant import Plant, PlantParams
 __all__ = ["MusclePlant", "parameter_table"]
 
 
-def parameter_table() -> list[tuple[str, float, str, str]]:
-    """``(name, default, unit, description)`` of every plant parameter, from the dataclasses."""
+def parameter_table() -> list[tuple[str, float, str, str, float | None, float | None]]:
+    """``(name, default, unit, description, min, max)`` of every plant parameter, from the dataclasses."""
     rows = []
     defaults = PlantParams()
     for group in fields(defaults):
@@ -33,7 +31,8 @@ def parameter_table() -> list[tuple[str, float, str, str]]:
         for f in fields(sub):
             doc = f.metadata.get("doc", "")
             unit = doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
-            rows.append((f"{group.name}.{f.name}", float(getattr(sub, f.name)), unit, doc))
+            rows.append((f"{group.name}.{f.name}", float(getattr(sub, f.name)), unit, doc,
+                         f.metadata.get("lo"), f.metadata.get("hi")))
     return rows
 
 
@@ -45,26 +44,14 @@ class MusclePlant(SafeSlave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.u = 0.0
-        self.load = 44.0
-        self.supply_pressure = 0.25
-        self.l = 0.0
-        self.p = 0.0
-        self.register_variable(Real("u", causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
-                                    description="valve command [V], 0..10 (saturates)"))
-        self.register_variable(Real("load", causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
-                                    description="hanging load [N], 0..500"))
-        self.register_variable(Real("supply_pressure", causality=Fmi2Causality.input,
-                                    variability=Fmi2Variability.continuous,
-                                    description="tap-water supply gauge pressure [MPa], 0..1"))
-        # initial="exact" with a start value: the outputs are known before the first step (the rig at
-        # rest), which also gives hosts a correct InitialUnknowns list (PythonFMU#193).
-        self.register_variable(Real("l", causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
-                                    initial=Fmi2Initial.exact, start=0.0,
-                                    description="encoder reading of the contraction [mm]"))
-        self.register_variable(Real("p", causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
-                                    initial=Fmi2Initial.exact, start=0.0,
-                                    description="pressure-sensor reading [MPa(G)]"))
+        self.add_input("u", 0.0, "V", "valve command [V], 0..10 (saturates in the amplifier)", lo=-1.0, hi=11.0,
+                       nominal=5.0)
+        self.add_input("load", 44.0, "N", "hanging load [N]", lo=0.0, hi=500.0, nominal=50.0)
+        self.add_input("supply_pressure", 0.25, "MPa", "tap-water supply gauge pressure [MPa]", lo=0.0, hi=1.0,
+                       nominal=0.25)
+        # l and p are read from the state (encoder, sensor): no direct feedthrough from any input.
+        self.add_output("l", 0.0, "mm", "encoder reading of the contraction [mm]", lo=-1.0, hi=400.0, nominal=50.0)
+        self.add_output("p", 0.0, "MPa", "pressure-sensor reading [MPa(G)]", lo=0.0, hi=1.0, nominal=0.25)
         self.add_real_parameters(parameter_table())
         self.add_integer_parameter("seed", 0, "seed of the sensor-noise generator")
         self._plant: Plant | None = None

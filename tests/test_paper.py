@@ -4,6 +4,8 @@ import json
 
 import pytest
 
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.preliminary_model import THETA0_44N
 from tapmuscle.cli import main
 from tapmuscle.paper import PAPER_RUNS
 from tapmuscle.recording import read_recording
@@ -69,3 +71,10 @@ def test_adaptive_servo_error_targets(paper, load):
 def test_bad_seeds(tmp_path, capsys):
     assert main(["paper", "--out", str(tmp_path / "p"), "--seeds", "a,b"]) == 2
     assert "--seeds" in capsys.readouterr().err
+
+
+def test_fmu_default_theta0_is_this_plants_preliminary_identification(paper):
+    """THETA0_44N (the controller FMU's default theta0) must be regenerated when the plant changes."""
+    _, d = paper
+    got = [d["theta0"][n] for n in ASYMMETRIC.names]
+    assert got == pytest.approx(list(THETA0_44N), rel=1e-9, abs=1e-12)

@@ -1,0 +1,151 @@
+"""Complete pythonfmu's modelDescription.xml: units, ranges, enumerations, dependencies, a stable GUID.
+
+pythonfmu 0.7 writes variables with name, causality, variability, description and start only, lists
+every output in ``ModelStructure/Outputs`` without ``dependencies`` (which FMI 2.0 reads as "depends
+on every input": hosts then report an algebraic loop between two FMUs that have none, PythonFMU#258),
+and stamps a fresh GUID (``uuid1``) and the current time on every build. :func:`finish_model_description`
+fixes all of that from the slave's :attr:`fmi_slave.SafeSlave.variable_meta`:
+
+* ``UnitDefinitions`` with SI base-unit exponents for each unit used, ``unit``/``min``/``max``/
+  ``nominal`` on Real variables, ``min``/``max`` on Integers;
+* Integer parameters with an enumeration meta become ``Enumeration`` variables of a declared type
+  (``TypeDefinitions``); hosts show the item names and set them with ``fmi2SetInteger``;
+* ``Outputs`` and ``InitialUnknowns`` with explicit ``dependencies`` (ours: none);
+* ``canGetAndSetFMUstate``/``canSerializeFMUstate`` true (the slaves keep all dynamic state);
+* no ``generationDateAndTime``, and a GUID derived from a hash of the FMU's content, so the same
+  sources give the same FMU byte for byte.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+import xml.etree.ElementTree as ET
+from typing import Any, Mapping
+
+__all__ = ["UNITS", "UNIT_ALIASES", "finish_model_description", "content_guid"]
+
+#: Unit name -> (SI base-unit exponents, factor): value in base units = factor * value.
+UNITS: dict[str, tuple[dict[str, int], float]] = {
+    "mm": ({"m": 1}, 1e-3),
+    "V": ({"kg": 1, "m": 2, "s": -3, "A": -1}, 1.0),
+    "N": ({"kg": 1, "m": 1, "s": -2}, 1.0),
+    "MPa": ({"kg": 1, "m": -1, "s": -2}, 1e6),
+    "s": ({"s": 1}, 1.0),
+    "Hz": ({"s": -1}, 1.0),
+    "kg": ({"kg": 1}, 1.0),
+    "deg": ({"rad": 1}, math.pi / 180.0),
+    "N/mm": ({"kg": 1, "s": -2}, 1e3),
+    "N.s/mm": ({"kg": 1, "s": -1}, 1e3),
+    "N/MPa": ({"m": 2}, 1e-6),
+    "mm/s": ({"m": 1, "s": -1}, 1e-3),
+    "m3/MPa": ({"kg": -1, "m": 4, "s": 2}, 1e-6),
+    # The valve's flow coefficient Cv (US gal/min at 1 psi drop): not an SI quantity, declared without
+    # a base unit as FMI allows.
+    "USgpm/psi0.5": ({}, 1.0),
+}
+
+#: How the plant's parameter docs write units -> the FMI unit name ("" = dimensionless, no unit).
+UNIT_ALIASES: dict[str, str] = {"MPa(G)": "MPa", "N s/mm": "N.s/mm", "m^3/MPa": "m3/MPa",
+                                "US gpm/psi^0.5": "USgpm/psi0.5", "-": "", "": ""}
+
+
+def _unit(name: str) -> str:
+    unit = UNIT_ALIASES.get(name, name)
+    if unit and unit not in UNITS:
+        raise ValueError(f"unit {name!r} has no entry in build_scripts.model_description.UNITS")
+    return unit
+
+
+def content_guid(digest: bytes) -> str:
+    """A GUID (UUID version 5 form) from a content hash."""
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, "tapmuscle:" + digest.hex()))
+
+
+def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]], *, guid: str) -> str:
+    """Return the completed modelDescription.xml (see module docstring).
+
+    Parameters
+    ----------
+    xml_text : str
+        pythonfmu's modelDescription.xml.
+    meta : mapping
+        ``SafeSlave.variable_meta`` of the slave: name -> unit, min, max, nominal, depends_on, enumeration.
+    guid : str
+        The GUID to write.
+    """
+    root = ET.fromstring(xml_text)
+    root.set("guid", guid)
+    root.attrib.pop("generationDateAndTime", None)
+    cs = root.find("CoSimulation")
+    cs.set("canGetAndSetFMUstate", "true")
+    cs.set("canSerializeFMUstate", "true")
+
+    variables = root.find("ModelVariables")
+    index: dict[str, int] = {}
+    units_used: list[str] = []
+    enum_types: dict[str, Mapping[int, str]] = {}
+    for i, sv in enumerate(variables.findall("ScalarVariable"), start=1):
+        name = sv.get("name")
+        index[name] = i
+        m = meta.get(name)
+        if m is None:
+            raise ValueError(f"variable {name!r} has no metadata (register it through SafeSlave)")
+        typed = sv[0]
+        if m.get("enumeration"):
+            type_name, items = m["enumeration"]
+            enum_types[type_name] = items
+            typed.tag = "Enumeration"
+            typed.set("declaredType", type_name)
+        unit = _unit(m.get("unit", ""))
+        if unit and typed.tag == "Real":
+            typed.set("unit", unit)
+            if unit not in units_used:
+                units_used.append(unit)
+        for key in ("min", "max", "nominal"):
+            value = m.get(key)
+            if value is None or (key == "nominal" and typed.tag != "Real"):
+                continue
+            if typed.tag in ("Integer", "Enumeration"):
+                typed.set(key, str(int(value)))
+            else:
+                typed.set(key, repr(float(value)))
+
+    if enum_types:
+        types = ET.Element("TypeDefinitions")
+        for type_name, items in enum_types.items():
+            simple = ET.SubElement(types, "SimpleType", name=type_name)
+            enum = ET.SubElement(simple, "Enumeration")
+            for value, item in sorted(items.items()):
+                ET.SubElement(enum, "Item", name=item, value=str(int(value)))
+        # FMI 2.0 order: UnitDefinitions, TypeDefinitions, LogCategories, DefaultExperiment, ...
+        root.insert(list(root).index(cs) + 1, types)
+    if units_used:
+        defs = ET.Element("UnitDefinitions")
+        for unit in units_used:
+            u = ET.SubElement(defs, "Unit", name=unit)
+            exponents, factor = UNITS[unit]
+            if exponents:
+                attrs = {k: str(v) for k, v in exponents.items()}
+                if factor != 1.0:
+                    attrs["factor"] = repr(factor)
+                ET.SubElement(u, "BaseUnit", attrs)
+        root.insert(list(root).index(cs) + 1, defs)
+
+    structure = root.find("ModelStructure")
+    for child in list(structure):
+        structure.remove(child)
+    outputs = [sv for sv in variables.findall("ScalarVariable") if sv.get("causality") == "output"]
+    if outputs:
+        node = ET.SubElement(structure, "Outputs")
+        initial = ET.Element("InitialUnknowns")
+        for sv in outputs:
+            name = sv.get("name")
+            deps = " ".join(str(index[d]) for d in meta[name].get("depends_on", ()))
+            ET.SubElement(node, "Unknown", index=str(index[name]), dependencies=deps)
+            if sv.get("initial") in ("approx", "calculated"):
+                ET.SubElement(initial, "Unknown", index=str(index[name]), dependencies=deps)
+        if len(initial):
+            structure.append(initial)
+    ET.indent(root, space="\t")
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

@@ -1,0 +1,232 @@
+"""``AMPCController``: the paper's displacement controllers as an FMI 2.0 co-simulation slave.
+
+A thin shell around :class:`fmu_controller.displacement_control.DisplacementController`; FMI
+behaviour (errors, state) is :class:`fmi_slave.SafeSlave`'s. docs/fmu.md lists every variable.
+
+Sampling and timing
+-------------------
+The controller samples at ``t_k = k Ts``. A ``doStep(t, h)`` whose start ``t`` is a sample time reads
+the inputs ``l`` (and ``r``) as set for ``t``, computes ``u(k)`` and sets the outputs to it: the
+output after that step is the command to hold over ``[t_k, t_k + Ts)``. Stepping the controller
+before the plant in each macro step (the master of :mod:`scenarios.master`) therefore applies
+``u(k)`` over the same interval as the direct loop, with no extra sample of delay. Steps shorter than
+``Ts`` are allowed (the outputs hold between samples); a step longer than ``Ts`` would skip samples
+and is refused with fmi2Discard, as is a step that starts past a missed sample time.
+
+Reference and preview (``reference_source``)
+--------------------------------------------
+1. ``builtin_sine`` (default): ``r(t) = sine.offset + sine.amplitude sin(2 pi sine.frequency t)``,
+   known ahead, so ``r(k..k+Hp)`` is exact as in the paper; the input ``r`` is ignored.
+2. ``external_held``: the input ``r`` is ``r(k)``; with no knowledge of the future the controller
+   assumes ``r(k+i|k) = r(k)``, which costs tracking lag on a moving reference.
+3. ``external_advanced``: the host feeds ``r(t + Hp Ts)`` (the reference ``Hp`` samples ahead; ``Hp``
+   of the chosen method); the controller keeps the last ``Hp + 1`` values, which are exactly
+   ``r(k..k+Hp)``. Before ``Hp`` samples have arrived the missing past is filled with the first value.
+
+The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) in any mode.
+"""
+
+from __future__ import annotations
+
+import math
+
+import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts
+from fmi_slave import SafeSlave
+from fmi_slave.base import SlaveInputError
+from pythonfmu import Boolean, Fmi2Variability, Integer
+
+from fmu_controller.displacement_control import (METHODS, P0_TABLE5, ControllerSettings, ControlStep,
+                                                 DisplacementController)
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.reference import SineReference
+from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
+from fmu_controller.servo_mpc import ServoMPCSettings
+from fmu_controller.ucp_mpc import UCPSettings
+
+__all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
+
+#: FMI value of the ``method`` parameter -> method name (an Enumeration in modelDescription.xml).
+METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
+#: FMI value of the ``reference_source`` parameter -> name (module docstring).
+REFERENCE_SOURCES: dict[int, str] = {1: "builtin_sine", 2: "external_held", 3: "external_advanced"}
+
+_L_RANGE_MM = (-100.0, 500.0)
+
+
+class AMPCController(SafeSlave):
+    """MPC / AMPC with unique coincidence point or servo mechanism (paper sections 3-4)."""
+
+    author = "tapmuscle"
+    description = ("Displacement controller of a tap-water McKibben muscle: MPC/AMPC with unique coincidence "
+                   "point or servo mechanism, constrained RLS (Algorithm 1), hysteresis cancellation (Eq. 5)")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.add_input("r", 35.0, "mm", "reference r [mm] (used unless reference_source = builtin_sine)",
+                       lo=_L_RANGE_MM[0], hi=_L_RANGE_MM[1], nominal=35.0)
+        self.add_input("l", 0.0, "mm", "measured contraction l(k) [mm] (encoder)",
+                       lo=_L_RANGE_MM[0], hi=_L_RANGE_MM[1], nominal=35.0)
+        # Outputs change only at samples, from the inputs read at the start of the step: no direct
+        # feedthrough at a communication point (depends_on=()), hence no algebraic loop with the plant.
+        self.add_output("u", 0.0, "V", "valve command u(k) [V], held over [t_k, t_k + Ts)", lo=0.0, hi=10.0,
+                        nominal=5.0)
+        self.add_output("uc", 0.0, "V", "servo: QP input u_c(k) before hysteresis cancellation (Eq. 5) [V]; "
+                        "UCP: equal to u", nominal=5.0)
+        self.add_output("l_pred", 0.0, "mm", "one-step prediction l(k+1|k) [mm]", nominal=35.0)
+        self.add_output("pred_error", 0.0, "mm", "prediction error l(k) - l(k|k-1) [mm]", nominal=1.0)
+        self.add_output("H", 0.0, "mm", "cancelled hysteresis term H(k) of Eq. (5) [mm] (0 for UCP)", nominal=1.0)
+        self.add_output("xs", 0.0, "mm", "servo integrator state x_s(k+1), Eq. (18) [mm] (0 for UCP)", nominal=10.0)
+        self.add_output("r_k", 0.0, "mm", "reference r(k) used at the last sample [mm]", nominal=35.0)
+        self.add_output("saturated", False, "", "an input limit (0-10 V or Eq. 19) was active at the last sample",
+                        kind=Boolean, variability=Fmi2Variability.discrete)
+        self.add_output("samples", 0, "", "number of samples taken so far", kind=Integer,
+                        variability=Fmi2Variability.discrete)
+        self._theta = [float(v) for v in THETA0_44N]
+        for i, name in enumerate(ASYMMETRIC.names):
+            self.add_output(f"theta.{name}", float(THETA0_44N[i]), "",
+                            f"predictor parameter {name} of Eq. (1) in use (theta-hat for AMPC)",
+                            getter=lambda i=i: self._theta[i])
+
+        self.add_integer_parameter("method", 4, "controller: 1 mpc_ucp, 2 mpc_servo, 3 ampc_ucp, 4 ampc_servo",
+                                   lo=1, hi=4, enumeration=("Method", METHOD_CODES))
+        self.add_integer_parameter("reference_source", 1, "1 builtin_sine, 2 external_held (r(k+i|k) = r(k)), "
+                                   "3 external_advanced (input r is r(t + Hp Ts))", lo=1, hi=3,
+                                   enumeration=("ReferenceSource", REFERENCE_SOURCES))
+        self.add_integer_parameter("servo.Hp", 5, "servo MPC prediction horizon Hp [samples] (Table 5)", lo=1, hi=50)
+        self.add_integer_parameter("servo.Hu", 5, "servo MPC control horizon Hu <= Hp [samples] (Table 5)",
+                                   lo=1, hi=50)
+        self.add_integer_parameter("ucp.Hp", 2, "unique coincidence point Hp [samples] (Table 5)", lo=1, hi=50)
+        table = [
+            ("Ts", 0.1, "s", "sampling period Ts [s] (paper: 0.1)", 1e-4, 60.0),
+            ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
+            ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
+            ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5)", 0.0, None),
+            ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", None, None),
+            ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", None, None),
+            ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", 0.5, 1.0),
+            ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35)", None, None),
+            ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", None, None),
+            ("sine.frequency", 0.1, "Hz", "built-in reference frequency [Hz] (paper: 0.1, 0.2)", 0.0, None),
+        ]
+        table += [(f"P0.{n}", P0_TABLE5[i], "", f"diagonal of P(0) for {n} (Table 5; Table 8 for 0.2 Hz)",
+                   0.0, None) for i, n in enumerate(ASYMMETRIC.names)]
+        table += [(f"theta0.{n}", float(THETA0_44N[i]), "", f"initial/fixed Eq. (1) parameter {n} "
+                   "(default: preliminary identification at 44 N, fmu_controller.preliminary_model)", None, None)
+                  for i, n in enumerate(ASYMMETRIC.names)]
+        table += [(f"box_lower.{n}", TABLE2_LOWER[n], "", f"lower bound of {n} in C (Table 2)", None, None)
+                  for n in TABLE2_LOWER]
+        table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2)", None, None)
+                  for n in TABLE2_UPPER]
+        self.add_real_parameters(table)
+        self._controller: DisplacementController | None = None
+        self._reference: SineReference | None = None
+        self._hp = 0
+        self._k = 0
+        self._buffer: list[float] = []
+
+    # ------------------------------------------------------------------ numerics
+    def _settings(self) -> ControllerSettings:
+        """ControllerSettings from the parameters; a bad one raises SlaveInputError naming it."""
+        p, ip = self._par, self._int_par
+        for name in ("method", "reference_source"):
+            codes = METHOD_CODES if name == "method" else REFERENCE_SOURCES
+            if ip[name] not in codes:
+                raise SlaveInputError(f"parameter {name} = {ip[name]} must be one of "
+                                      + ", ".join(f"{k} ({v})" for k, v in codes.items()))
+        for name, (lo, hi) in {"Ts": (1e-4, 60.0), "forgetting": (0.5, 1.0)}.items():
+            self.finite(f"parameter {name}", p[name], lo, hi)
+        for name, value in p.items():
+            self.finite(f"parameter {name}", value)
+            if name.startswith("P0.") and value <= 0:
+                raise SlaveInputError(f"parameter {name} = {value!r} must be > 0")
+        if abs(p["theta0.b1"]) < 1e-6:
+            raise SlaveInputError(f"parameter theta0.b1 = {p['theta0.b1']!r} must not be ~0 (it divides Eq. 5)")
+        try:
+            servo = ServoMPCSettings(hp=ip["servo.Hp"], hu=ip["servo.Hu"], q=p["servo.Q"], qs=p["servo.Qs"],
+                                     r=p["servo.R"], u_min_v=p["u_min"], u_max_v=p["u_max"])
+        except ValueError as exc:
+            raise SlaveInputError(f"servo parameters (servo.Hp, servo.Hu, servo.Q, servo.Qs, servo.R, u_min, "
+                                  f"u_max): {exc}") from None
+        try:
+            ucp = UCPSettings(hp=ip["ucp.Hp"], u_min_v=p["u_min"], u_max_v=p["u_max"])
+        except ValueError as exc:
+            raise SlaveInputError(f"ucp parameters (ucp.Hp, u_min, u_max): {exc}") from None
+        for n in TABLE2_LOWER:
+            if not p[f"box_lower.{n}"] <= p[f"box_upper.{n}"]:
+                raise SlaveInputError(f"parameter box_lower.{n} = {p[f'box_lower.{n}']!r} exceeds "
+                                      f"box_upper.{n} = {p[f'box_upper.{n}']!r}")
+        return ControllerSettings(
+            method=METHOD_CODES[ip["method"]], ts_s=p["Ts"], ucp=ucp, servo=servo,
+            p0=tuple(p[f"P0.{n}"] for n in ASYMMETRIC.names),
+            box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
+            box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"])
+
+    def initialize_numerics(self) -> None:
+        settings = self._settings()
+        theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
+        try:
+            self._controller = DisplacementController(settings, theta0)
+            self._reference = SineReference(offset_mm=self._par["sine.offset"],
+                                            amplitude_mm=self._par["sine.amplitude"],
+                                            frequency_hz=self._par["sine.frequency"], ts_s=settings.ts_s)
+        except ValueError as exc:
+            raise SlaveInputError(f"bad parameter: {exc}") from None
+        self._hp = settings.preview_samples
+        self._k = 0
+        self._buffer = []
+        self._theta = [float(v) for v in theta0]
+        self.samples = 0
+
+    def _preview(self, k: int) -> list[float]:
+        """``r(k..k+Hp)`` [mm] for the chosen reference source (module docstring)."""
+        source = REFERENCE_SOURCES[self._int_par["reference_source"]]
+        if source == "builtin_sine":
+            return self._reference.preview(k, self._hp)
+        r = self.finite("r", self.r, *_L_RANGE_MM)
+        if source == "external_held":
+            return [r] * (self._hp + 1)
+        buf = self._buffer or [r] * (self._hp + 1)
+        return buf[1:] + [r] if self._buffer else buf
+
+    def step_numerics(self, t_s: float, dt_s: float) -> None:
+        ts = self._controller.settings.ts_s
+        tol = 1e-9 * max(1.0, abs(t_s) / ts) * ts
+        if dt_s > ts + tol:
+            raise SlaveInputError(f"step size {dt_s:g} s exceeds the sampling period Ts = {ts:g} s; the "
+                                  "controller would skip samples (use a communication step <= Ts)")
+        t_next = self._k * ts
+        if t_s < t_next - tol:
+            return  # between samples: the outputs hold
+        if t_s > t_next + tol:
+            raise SlaveInputError(f"the step starting at t = {t_s:g} s skips the sample time {t_next:g} s "
+                                  f"(k = {self._k}); step so that every k*Ts = k*{ts:g} s is a communication point")
+        l = self.finite("l", self.l, *_L_RANGE_MM)
+        preview = self._preview(self._k)  # validates r first: a refused step changes nothing
+        if self._k == 0:
+            self._controller.reset(l)
+        step: ControlStep = self._controller.step(l, preview)
+        if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
+            raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
+        if REFERENCE_SOURCES[self._int_par["reference_source"]] == "external_advanced":
+            self._buffer = list(preview)
+        self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
+        self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
+        self.r_k, self.saturated = float(preview[0]), bool(step.saturated)
+        self._theta = step.theta.tolist()
+        self._k += 1
+        self.samples = self._k
+
+    # ------------------------------------------------------------------ state
+    def numerics_state(self):
+        if self._controller is None:
+            return None
+        return {"controller": self._controller.get_state(), "k": self._k, "buffer": list(self._buffer),
+                "theta": list(self._theta)}
+
+    def restore_numerics_state(self, state) -> None:
+        if state is not None:
+            self._controller.set_state(state["controller"])
+            self._k = int(state["k"])
+            self._buffer = [float(v) for v in state["buffer"]]
+            self._theta = [float(v) for v in state["theta"]]
