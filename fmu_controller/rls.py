@@ -246,6 +246,18 @@ def _solve_spd_small(A: list[list[float]], b: list[float]) -> list[float] | None
     For k <= 4 this is several times cheaper than ``np.linalg.solve``.
     """
     k = len(b)
+    if k == 2:  # unrolled, the same operations in the same order as below
+        a00 = A[0][0]
+        if not a00 > 0.0:
+            return None
+        a01 = A[0][1]
+        f = A[1][0] / a00
+        a11 = A[1][1] - f * a01
+        if not a11 > 0.0:
+            return None
+        b0 = b[0]
+        x1 = (b[1] - f * b0) / a11
+        return [(b0 - a01 * x1) / a00, x1]
     A = [row[:] for row in A]
     b = b[:]
     for j in range(k):
@@ -328,7 +340,10 @@ class _BoxProjector:
         self._fixed = [lo == hi for lo, hi in zip(self._lo, self._hi)]
         # rows P[c, :] (= columns, P symmetric) as a cheap view if c is a range
         contiguous = m > 0 and self._cl == list(range(self._cl[0], self._cl[0] + m))
+        self._contiguous = contiguous
         self._rows = slice(self._cl[0], self._cl[0] + m) if contiguous else self.c
+        self._m = m
+        self._all_m = range(m)
         self._tables = None  # enumeration tables, built on first fallback
 
     def inside(self, th: list[float]) -> bool:
@@ -355,32 +370,41 @@ class _BoxProjector:
     def _active_set(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float]) -> np.ndarray | None:
         """Exact projection by KKT-verified active-set iterations; ``None`` if unverified.
 
-        Plain-float code: for ``m <= 4`` this beats any numpy formulation.
+        Plain-float code: for ``m <= 4`` this beats any numpy formulation.  The
+        arithmetic (order of every operation) is fixed: the tests compare it bit
+        for bit with the reference enumeration's active set.
         """
-        cl, lo, hi, fixed = self._cl, self._lo, self._hi, self._fixed
+        lo, hi, fixed = self._lo, self._hi, self._fixed
         lo_tol, hi_tol = self._lo_tol, self._hi_tol
-        m = len(cl)
-        all_m = range(m)
-        th_c = [th[i] for i in cl]
-        Pcc = P.take(self.flat_cc).tolist()  # row-major m x m: Pcc[i * m + j]
+        all_m = self._all_m
+        rows = self._rows
+        if self._contiguous:
+            th_c = th[rows]
+            Pcc = P[rows, rows].tolist()  # nested m x m: Pcc[i][j]
+        else:
+            th_c = [th[i] for i in self._cl]
+            Pcc = P.take(self.flat_cc).reshape(self._m, self._m).tolist()
         # state: 0 free, -1 at lower, +1 at upper; start from what th violates
         state = [-1 if t < l else (1 if t > h else 0) for t, l, h in zip(th_c, lo, hi)]
         seen = []
         for _ in range(self.max_iterations):
             S = [i for i in all_m if state[i]]
             v = [lo[i] if state[i] < 0 else hi[i] for i in S]
-            d = [vi - th_c[i] for vi, i in zip(v, S)]
             if len(S) == 1:  # the common case
-                p = Pcc[S[0] * (m + 1)]
-                wS = [d[0] / p] if p > 0.0 else None
+                i0 = S[0]
+                p = Pcc[i0][i0]
+                if not p > 0.0:
+                    return None
+                wS = [(v[0] - th_c[i0]) / p]
             else:
-                wS = _solve_spd_small([[Pcc[i * m + j] for j in S] for i in S], d)
-            if wS is None:
-                return None
+                wS = _solve_spd_small([[Pcc[i][j] for j in S] for i in S],
+                                      [vi - th_c[i] for vi, i in zip(v, S)])
+                if wS is None:
+                    return None
             # KKT: multiplier signs of the pinned, bounds of the free ones
             new = state[:]
             x = th_c[:]
-            w = [0.0] * m
+            w = [0.0] * len(all_m)
             for i, vi, wi in zip(S, v, wS):
                 x[i] = vi  # exactly on the bound
                 w[i] = wi
@@ -389,8 +413,9 @@ class _BoxProjector:
             for i in all_m:
                 if not state[i]:
                     xi = th_c[i]
+                    Pi = Pcc[i]
                     for j, wj in zip(S, wS):
-                        xi += Pcc[i * m + j] * wj
+                        xi += Pi[j] * wj
                     x[i] = xi
                     if xi < lo_tol[i]:
                         new[i] = -1
@@ -398,10 +423,14 @@ class _BoxProjector:
                         new[i] = 1
             if new == state:  # KKT point = the minimiser
                 # theta = th + P[:, c] w  (P symmetric: rows of P instead of columns)
-                theta = _dot(np.array(w), P[self._rows])
+                theta = _dot(np.array(w), P[rows])
                 theta += theta_hat
-                for i, ci in enumerate(cl):  # free ones: clip the rounding residue
-                    theta[ci] = min(max(x[i], lo[i]), hi[i])
+                # pinned ones exactly on the bound, free ones: clip the rounding residue
+                clipped = [min(max(xi, l), h) for xi, l, h in zip(x, lo, hi)]
+                if self._contiguous:
+                    theta[rows] = clipped
+                else:
+                    theta[self.c] = clipped
                 return theta
             seen.append(state)
             if new in seen:
@@ -670,12 +699,6 @@ class ConstrainedRLS:
         -------
         ndarray
             ``theta(k)`` (copy).
-
-        Notes
-        -----
-        This runs every sample, so it is written for few numpy calls on the
-        tiny arrays (their per-call overhead dominates): scalar checks where
-        they are exact, and the rank-1 covariance update in place.
         """
         if not self._ready:
             self._check_ready()
@@ -689,7 +712,17 @@ class ConstrainedRLS:
         y = float(y)
         if not math.isfinite(y):
             raise ValueError(f"y must be finite, got {y}")
+        return self._advance(phi, y).copy()
 
+    def _advance(self, phi: np.ndarray, y: float) -> np.ndarray:
+        """:meth:`update` for validated input: ``phi`` a finite float array of shape
+        ``(n_params,)``, ``y`` a finite float.  Returns the estimator's own ``theta(k)``
+        array (not a copy; the estimator never modifies it in place).
+
+        This runs every sample, so it is written for few numpy calls on the
+        tiny arrays (their per-call overhead dominates): scalar checks where
+        they are exact, and the rank-1 covariance update in place.
+        """
         P = self._P
         lam = self._lam
         Pphi = _dot(P, phi)
@@ -699,16 +732,17 @@ class ConstrainedRLS:
         # P_new = (P - Pphi Pphi^T / denom) / lam, in place on a fresh array;
         # (Pphi_i Pphi_j) / denom is bit-symmetric, so P stays exactly
         # symmetric (set_state symmetrises its input once)
-        P_new = _multiply_outer(Pphi, Pphi)
+        P_new = Pphi[:, None] * Pphi  # = np.multiply.outer(Pphi, Pphi), cheaper
         P_new /= denom
         _subtract(P, P_new, out=P_new)
         if lam != 1.0:
             P_new /= lam
 
         # one sum catches any inf/NaN entry (inf - inf -> NaN as well); done as
-        # BLAS dots with ones, cheaper than .sum() on these tiny arrays.  Then
+        # a BLAS dot with ones, cheaper than .sum() on this tiny array.  Then
         # all diagonal entries are finite and a plain min() is exact
-        total = _dot(P_new.reshape(-1), self._ones_nn) + _dot(theta, self._ones_n)
+        th = theta.tolist()
+        total = _dot(P_new.reshape(-1), self._ones_nn) + sum(th)
         if not (math.isfinite(total) and min(P_new.diagonal().tolist()) > 0.0):
             if self.settings.on_covariance_loss == "raise":
                 raise FloatingPointError(
@@ -719,17 +753,15 @@ class ConstrainedRLS:
             self._k += 1
             self._P = self._P0.copy()
             self._n_resets += 1
-            return self._theta.copy()
+            return self._theta
 
         self._k += 1
-        if self._k >= self._start and self._boxed:
-            th = theta.tolist()
-            if not self._projector.inside(th):
-                theta = self._projector.project(theta, P_new, th)
-                self._n_projections += 1
+        if self._boxed and self._k >= self._start and not self._projector.inside(th):
+            theta = self._projector.project(theta, P_new, th)
+            self._n_projections += 1
         self._theta = theta
         self._P = P_new
-        return theta.copy()
+        return theta
 
     # -- state -----------------------------------------------------------
     def get_state(self) -> dict:
