@@ -146,6 +146,10 @@ class DisplacementController:
                 constraint_start_s=0.0, ts_s=settings.ts_s))
         self._servo = ServoMPC(settings.servo, a1=theta0[0], a2=theta0[1], b1=theta0[2]) \
             if settings.servo_mechanism else None
+        # per-step constants (the settings are frozen)
+        self._need = settings.preview_samples + 1
+        self._ucp_hp = settings.ucp.hp
+        self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
         self.reset(0.0)
 
     # ------------------------------------------------------------------ lifecycle
@@ -155,6 +159,7 @@ class DisplacementController:
         if not math.isfinite(l0):
             raise ValueError(f"l0_mm must be finite, got {l0_mm!r}")
         self.theta = self.theta0.copy()
+        self._theta_list = self.theta.tolist()
         if self._rls is not None:
             self._rls.setup(ASYMMETRIC, self._rls.settings)
         if self._servo is not None:
@@ -175,48 +180,56 @@ class DisplacementController:
             Non-finite ``l_mm`` or reference, or a preview shorter than ``Hp + 1`` samples. The
             controller's state is unchanged then.
         """
-        s = self.settings
+        # Per-sample hot path (docs/control.md, "Compute time per step"): python floats for
+        # the scalars, each numpy call on the small arrays only where it does the arithmetic.
         l = float(l_mm)
         if not math.isfinite(l):
             raise ValueError(f"measured l_mm must be finite, got {l_mm!r}")
         r = r_preview_mm if isinstance(r_preview_mm, np.ndarray) else np.asarray(r_preview_mm, dtype=float)
-        need = s.preview_samples + 1
+        need = self._need
         if r.ndim != 1 or len(r) < need:
             raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}) ({need} samples), got {r.shape}")
-        if not math.isfinite(float(r[:need].sum())):  # a sum is finite only if every term is
+        rl = (r if len(r) == need else r[:need]).tolist()
+        if r.dtype != np.float64:
+            rl = [float(x) for x in rl]
+        if not math.isfinite(sum(rl)):  # a sum is finite only if every term is
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
         error = 0.0 if math.isnan(self._predicted) else l - self._predicted
+        state = self._state
 
         if self._rls is not None and self._k > 0:
             # Algorithm 1 with phi(k-1) built from the history and the new l(k).
-            self.theta = self._rls.update(self._state.phi(), l)
+            phi = state._phi_list()
+            if not math.isfinite(sum(phi)) and not all(map(math.isfinite, phi)):
+                raise ValueError(f"phi must be finite, got {phi}")
+            self.theta = self._rls._advance(np.array(phi), l).copy()
+            t = self.theta.tolist()
             if self._servo is not None:
-                self._servo.update_model(*self.theta[:3])
+                self._servo._update_model_finite(t[0], t[1], t[2])
+        else:
+            t = self._theta_list
         theta = self.theta
-        self._state.observe(l, theta)
+        state._observe_finite(l, t[0], t[1], t[2])
 
         if self._servo is None:
-            res = ucp_move(s.ucp, self._state, theta, u_prev_v=self._u_prev, r_target_mm=float(r[s.ucp.hp]))
+            res = ucp_move(self.settings.ucp, state, theta, u_prev_v=self._u_prev, r_target_mm=rl[self._ucp_hp])
             u, uc, h, xs_next, predicted, saturated = res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
         else:
-            h = hysteresis_term(theta, self._state)
-            offset = h / theta[2]
-            l_prev = self._state.l[1]
-            res = self._servo.solve(l_mm=l, l_prev_mm=l_prev, uc_prev_v=self._uc_prev, xs=self._xs,
-                                    r_future_mm=r[:need], offset_v=offset)
-            uc = float(res.uc_v)
+            h = state._hysteresis(t)
+            offset = h / t[2]
+            xs = self._xs
+            uc, predicted, constrained = self._servo._solve_lean(l, state._l1, self._uc_prev, xs, rl, offset)
             u_raw = uc - offset  # Eq. (5)
-            u = min(max(u_raw, s.servo.u_min_v), s.servo.u_max_v)
-            saturated = bool(res.constrained) or u != u_raw
-            predicted = float(res.predicted_l_mm[0])
-            xs_next = self._xs + float(r[0]) - l  # Eq. (18)
+            u = min(max(u_raw, self._u_min), self._u_max)
+            saturated = constrained or u != u_raw
+            xs_next = xs + rl[0] - l  # Eq. (18)
             self._xs = xs_next
             self._uc_prev = uc
-        self._state.apply(u)
+        state.apply(u)
         self._u_prev = u
         self._predicted = predicted
         self._k += 1
-        # theta is never modified in place (the RLS returns a new array), so it can be shared.
+        # theta is never modified in place (a new array every adaptive step), so it can be shared.
         return ControlStep(u, predicted, error, uc, h, xs_next, theta, saturated)
 
     # ------------------------------------------------------------------ state
@@ -232,6 +245,7 @@ class DisplacementController:
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore what :meth:`get_state` returned."""
         self.theta = np.asarray(state["theta"], dtype=float)
+        self._theta_list = self.theta.tolist()
         self._state.set_state(state["model"])
         self._k = int(state["k"])
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])

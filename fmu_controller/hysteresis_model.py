@@ -360,19 +360,7 @@ def hysteresis_term(theta: Sequence[float] | np.ndarray, state: "ModelState") ->
         raise ValueError(
             f"theta must have length {state.structure.n_params}, got {len(t)}"
         )
-    l0, l1, l2 = state._l0, state._l1, state._l2
-    v1, v2 = state._v1, state._v2
-    d0 = l0 - l1
-    d1 = l1 - l2
-    h = (
-        t[3] * d0 + t[4] * d1
-        + t[5] * abs(d0) * v1 + t[6] * abs(d1) * v2
-        + t[7] * d0 * abs(v1) + t[8] * d1 * abs(v2)
-        + t[9] * v1 + t[10] * v2
-    )
-    if state.structure.asymmetric:
-        h += t[11] * l0 * l0 + t[12] * l1 * l1 + t[13] * l0 ** 3 + t[14] * l1 ** 3
-    return float(h)
+    return float(state._hysteresis(t))
 
 
 def _finite_triplet(name: str, values: Sequence[float]) -> tuple[float, float, float]:
@@ -415,7 +403,7 @@ class ModelState:
         :meth:`phi`.
     """
 
-    __slots__ = ("structure", "_l0", "_l1", "_l2", "_v0", "_v1", "_v2", "_u", "_has_u")
+    __slots__ = ("structure", "_n", "_l0", "_l1", "_l2", "_v0", "_v1", "_v2", "_u", "_has_u")
 
     def __init__(
         self,
@@ -428,6 +416,7 @@ class ModelState:
         if not isinstance(structure, ModelStructure):
             raise ValueError(f"structure must be a ModelStructure, got {structure!r}")
         self.structure = structure
+        self._n = structure.n_params
         self._l2, self._l1, self._l0 = _finite_triplet("l_init", l_init)
         self._v2, self._v1, self._v0 = _finite_triplet("v_init", v_init)
         self._u = 0.0
@@ -474,6 +463,38 @@ class ModelState:
         v = self.observe(l, theta)
         self.apply(u)
         return v
+
+    def _observe_finite(self, l: float, a1: float, a2: float, b1: float) -> float:
+        """:meth:`observe` for a finite python float ``l`` and the linear part of ``theta``
+        (the controller's hot path, ``u(k)`` known to be applied); same arithmetic."""
+        v = l - (a1 * self._l0 + a2 * self._l1 + b1 * self._u)
+        if not math.isfinite(v):
+            raise ValueError(f"theta gives a non-finite v: {v}")
+        self._l2, self._l1, self._l0 = self._l1, self._l0, l
+        self._v2, self._v1, self._v0 = self._v1, self._v0, v
+        self._has_u = False
+        return v
+
+    def _hysteresis(self, t: list[float]) -> float:
+        """:func:`hysteresis_term` for ``theta`` as a list of ``n_params`` python floats."""
+        l0, l1, l2 = self._l0, self._l1, self._l2
+        v1, v2 = self._v1, self._v2
+        d0 = l0 - l1
+        d1 = l1 - l2
+        h = (
+            t[3] * d0 + t[4] * d1
+            + t[5] * abs(d0) * v1 + t[6] * abs(d1) * v2
+            + t[7] * d0 * abs(v1) + t[8] * d1 * abs(v2)
+            + t[9] * v1 + t[10] * v2
+        )
+        if self._n == 15:  # asymmetric: g(l)
+            h += t[11] * l0 * l0 + t[12] * l1 * l1 + t[13] * l0 ** 3 + t[14] * l1 ** 3
+        return h
+
+    def _phi_list(self) -> list[float]:
+        """:meth:`phi` as a list of python floats (``u(k)`` known to be applied)."""
+        terms = _regressor_terms(self._l0, self._l1, self._l2, self._u, self._v1, self._v2)
+        return terms if self._n == 15 else terms[:self._n]
 
     # -- queries ---------------------------------------------------------
     def phi(self) -> np.ndarray:

@@ -361,6 +361,7 @@ class ServoMPC:
         self._ones_hu = np.ones(hu)
         self._zeros_hu = np.zeros(hu)
         self._zeros_hu.setflags(write=False)       # shared zero dual warm start
+        self._zeros_list = [0.0] * hu
 
         # The stacked matrix B maps v = [D; z] (Hu moves, then the nz data) to
         #   rows 0..Hp-1           sqrt(Q)  (l_hat(k+i|k) - r(k+i)),  i = 1..Hp
@@ -464,6 +465,15 @@ class ServoMPC:
         self._set_model(*new)
         self._a1, self._a2, self._b1 = new
 
+    def _update_model_finite(self, a1: float, a2: float, b1: float) -> None:
+        """:meth:`update_model` for python floats known to be finite (the controller's RLS output)."""
+        if a1 == self._a1 and a2 == self._a2 and b1 == self._b1:
+            return
+        if not abs(b1) >= _B1_MIN:
+            self._check_model(a1, a2, b1)  # raises the documented ValueError
+        self._set_model(a1, a2, b1)
+        self._a1, self._a2, self._b1 = a1, a2, b1
+
     @staticmethod
     def _check_model(a1: float, a2: float, b1: float) -> tuple[float, float, float]:
         a1 = _finite_float("a1", a1)
@@ -495,8 +505,17 @@ class ServoMPC:
             X = np.linalg.solve(H[:, :hu], H[:, hu:])
         self._K_unc = np.negative(X)
         self._B, self._H = B, H
-        self._Gall, self._W = Gall, B[:nres, hu:]
         self._P = self._K = None  # OSQP-path matrices, built on demand by _qp_matrices
+
+    @property
+    def _Gall(self) -> np.ndarray:
+        """Weighted residual rows of ``B``, move columns (OSQP path and :meth:`cost` only)."""
+        return self._B[:self._nres, :self._hu]
+
+    @property
+    def _W(self) -> np.ndarray:
+        """Weighted residual rows of ``B``, data columns."""
+        return self._B[:self._nres, self._hu:]
 
     def _qp_matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """``(P, K)`` of the module docstring for the current model (cached)."""
@@ -795,6 +814,35 @@ class ServoMPC:
                 self._y_ws = self._zeros_hu
                 return result
         return self._solve_osqp(v, uc_prev, offset, t0)
+
+    def _solve_lean(self, l_mm: float, l_prev_mm: float, uc_prev_v: float, xs: float,
+                    r_future: list[float], offset_v: float) -> tuple[float, float, bool]:
+        """:meth:`solve` for the controller's hot path: ``(uc_v, l_hat(k+1|k), constrained)``.
+
+        Arguments are python floats (``r_future`` a list of ``Hp + 1`` of them),
+        the measured ones already checked finite.  The same computation as
+        :meth:`solve`, bit for bit, without building a :class:`ServoMPCResult`
+        when the closed-form minimiser is feasible (the common case); otherwise,
+        or if a derived argument is not finite, :meth:`solve` itself runs.
+        """
+        if self._shortcut and math.isfinite(uc_prev_v + xs + offset_v) and len(r_future) == self._hp + 1:
+            hu = self._hu
+            v = np.array(self._zeros_list + [l_mm, l_prev_mm, uc_prev_v, xs] + r_future)
+            D = v[:hu]
+            self._K_unc.dot(v[hu:], out=D)  # D* = -P^{-1} K z
+            out = self._B.dot(v)            # predictions, input plan of D*
+            pl = out[-hu:].tolist()
+            p_min, p_max = min(pl), max(pl)
+            if p_min >= self._u_min + offset_v and p_max <= self._u_max + offset_v:
+                self._x_ws = D  # the KKT multipliers are 0
+                self._y_ws = self._zeros_hu
+                return pl[0], float(out[self._nres]), (p_min - offset_v <= self._u_min + _ACTIVE_TOL_V
+                                                       or p_max - offset_v >= self._u_max - _ACTIVE_TOL_V)
+            res = self._solve_osqp(v, uc_prev_v, offset_v, time.perf_counter())
+            return res.uc_v, float(res.predicted_l_mm[0]), res.constrained
+        res = self.solve(l_mm=l_mm, l_prev_mm=l_prev_mm, uc_prev_v=uc_prev_v, xs=xs,
+                         r_future_mm=np.array(r_future), offset_v=offset_v)
+        return res.uc_v, float(res.predicted_l_mm[0]), res.constrained
 
     # -- state -----------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
