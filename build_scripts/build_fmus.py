@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import os
 import shutil
 import sys
 import tempfile
@@ -27,7 +28,7 @@ from typing import Any
 
 from .model_description import content_guid, finish_model_description
 
-__all__ = ["FMUS", "build_fmus", "slave_metadata"]
+__all__ = ["FMUS", "build_fmus", "cached_fmus", "slave_metadata"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -113,9 +114,39 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
             raw = md.read_text(encoding="utf-8")
             md.write_text(finish_model_description(raw, meta, guid="{pending}"), encoding="utf-8")
             md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree))), encoding="utf-8")
-            staged = tmp / f"{name}.fmu"
-            _zip(tree, staged)
             target = out / f"{name}.fmu"
-            shutil.move(str(staged), str(target))
+            staged = out / f".{name}.fmu.partial-{os.getpid()}"
+            try:
+                _zip(tree, staged)
+                os.replace(staged, target)  # atomic: readers see the old or the new FMU, never half
+            finally:
+                staged.unlink(missing_ok=True)
             built.append(target)
     return built
+
+
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    files = {ROOT / script for script, _ in FMUS.values()} | {f for _, pkgs in FMUS.values() for p in pkgs
+                                                           for f in (ROOT / p).rglob("*.py")}
+    files |= set((ROOT / "build_scripts").glob("*.py"))
+    for f in sorted(files):
+        h.update(f.relative_to(ROOT).as_posix().encode() + b"\0" + f.read_bytes())
+    h.update(sys.executable.encode())  # the native-host preparation records this interpreter
+    return h.hexdigest()[:16]
+
+
+def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
+    """Both FMUs built from this checkout, reused while the sources are unchanged.
+
+    The cache lives in ``cache_root`` (default ``$XDG_CACHE_HOME/tapmuscle`` or ``~/.cache/tapmuscle``)
+    under a folder named by a digest of the sources and the interpreter.
+    """
+    if cache_root is None:
+        cache_root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tapmuscle"
+    folder = Path(cache_root) / f"fmu-{_source_digest()}"
+    paths = {name: folder / f"{name}.fmu" for name in FMUS}
+    missing = tuple(name for name, p in paths.items() if not p.is_file())
+    if missing:
+        build_fmus(folder, missing)
+    return paths

@@ -31,6 +31,16 @@ __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
 VariableMeta = dict[str, Any]
 
 
+def _plain(obj: Any) -> Any:
+    """``obj`` with numpy arrays/scalars replaced by lists/Python numbers, recursively."""
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    tolist = getattr(obj, "tolist", None)  # numpy array or scalar, without importing numpy here
+    return tolist() if callable(tolist) else obj
+
+
 class SlaveInputError(ValueError):
     """A bad input, parameter or step size; the message names it."""
 
@@ -141,7 +151,9 @@ class SafeSlave(Fmi2Slave):
 
     # ------------------------------------------------------------------ state
     def _get_fmu_state(self) -> dict[str, Any]:
-        return {"variables": super()._get_fmu_state(), "numerics": self.numerics_state(),
+        # pythonfmu serialises the state as JSON: numpy arrays and scalars become lists and floats
+        # (exact: JSON keeps the shortest repr, which round-trips every double).
+        return {"variables": super()._get_fmu_state(), "numerics": _plain(self.numerics_state()),
                 "failed": self._failed}
 
     def _set_fmu_state(self, state: dict[str, Any]) -> None:

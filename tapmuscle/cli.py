@@ -222,6 +222,37 @@ def _cmd_build(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------- run
+def _cmd_run(args: argparse.Namespace) -> int:
+    from build_scripts.build_fmus import FMUS, cached_fmus
+    from scenarios import ScenarioError, load_scenario, run_scenario
+
+    from .progress import Progress
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    if args.fmu_dir:
+        fmus = {name: Path(args.fmu_dir) / f"{name}.fmu" for name in FMUS}
+        for name, path in fmus.items():
+            if not path.is_file():
+                raise UsageError(f"--fmu-dir {args.fmu_dir}: {path.name} is missing (tapmuscle build --out DIR)")
+    else:
+        fmus = cached_fmus()
+    out = Path(args.out)
+    try:
+        summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet))
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"{scenario.name}: Eq. (21) error {summary['mae_mm']:.3f} mm over samples "
+          f"{summary['evaluation_samples'][0]}..{summary['evaluation_samples'][1]}, u in "
+          f"[{summary['u_min_v']:.2f}, {summary['u_max_v']:.2f}] V, real-time factor "
+          f"{summary['real_time_factor']:.0f}x")
+    print(f"wrote {out}/result.csv, {out}/summary.json and {out}/*.png")
+    return 0
+
+
 # --------------------------------------------------------------------------------------- main
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tapmuscle", description=__doc__.splitlines()[0])
@@ -274,6 +305,16 @@ def build_parser() -> argparse.ArgumentParser:
     pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
+
+    run = sub.add_parser("run", help="run a scenario file through the FMUs (fmpy co-simulation)",
+                         description="Co-simulate MusclePlant and AMPCController as a scenario file says "
+                                     "(scenarios/spec.py, docs/fmu.md); write result.csv, summary.json, PNGs.")
+    run.add_argument("scenario", help="scenario TOML file (e.g. scenarios/paper/ampc_servo_44N_0.1Hz.toml)")
+    run.add_argument("--out", required=True, help="output folder")
+    run.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
+                                       "(default: built from the sources, cached)")
+    run.add_argument("--quiet", action="store_true", help="no progress output")
+    run.set_defaults(func=_cmd_run)
 
     bld = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMUs",
                          description="Build MusclePlant.fmu with pythonfmu (docs/fmu.md).")

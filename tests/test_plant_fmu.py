@@ -8,13 +8,12 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
-from build_scripts.build_fmus import build_fmus
 from fmu_plant import Plant, PlantParams
 
 
 @pytest.fixture(scope="module")
-def fmu(tmp_path_factory):
-    (path,) = build_fmus(tmp_path_factory.mktemp("fmu"), ("MusclePlant",))
+def fmu(built_fmus):
+    path = built_fmus["MusclePlant"]
     md = read_model_description(str(path))
     return path, md, extract(str(path)), {v.name: v.valueReference for v in md.modelVariables}
 

@@ -1,0 +1,282 @@
+"""The co-simulation master: MusclePlant and AMPCController coupled at a fixed macro step in fmpy.
+
+Master algorithm (Gauss-Seidel, controller first), macro step ``h`` = the controller's ``Ts``;
+for ``k = 0 .. N-1``, ``t_k = k h``::
+
+    l(k), p(k)   <- plant outputs                    (the plant is at t_k)
+    controller.l <- l(k);  controller.r <- r(.)       (r only for an external reference)
+    controller.doStep(t_k, h)                         samples l(k), r(k..k+Hp): u(k)
+    u(k), diagnostics <- controller outputs
+    plant.u <- u(k);  plant.load <- load(t_k);  plant.supply_pressure <- supply(t_k)
+    plant.doStep(t_k, h)                              holds u(k) over [t_k, t_k + h): l(k+1)
+
+Timing diagram (one row of the result per ``k``)::
+
+    t_k                         t_{k+1}
+    |------ u(k) held ----------|------ u(k+1) held ---...
+    ^ l(k) read, u(k) computed  ^ l(k+1) read, u(k+1) computed
+
+``u(k)`` is computed from ``l(k)`` and acts on ``l(k+1)``: exactly the direct loop of
+:func:`tapmuscle.closed_loop.run_closed_loop` and Eq. (1), with no hidden extra sample of delay. A
+Jacobi master (all FMUs stepped with the outputs of the previous communication point) would add one
+sample of delay in the controller's path; docs/fmu.md explains how to avoid it in other tools.
+
+The last row (``k = N-1``) reads the plant and runs the controller but does not step the plant, as the
+direct loop. Any FMI call that fails raises :class:`~scenarios.spec.ScenarioError` with the FMU's
+logged message.
+"""
+
+from __future__ import annotations
+
+import atexit
+import shutil
+import tempfile
+import time
+from ctypes import byref
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from fmu_controller.hysteresis_model import ASYMMETRIC
+
+from .spec import Scenario, ScenarioError
+
+__all__ = ["FmuInstance", "Unpacked", "unpack", "co_simulate", "CONTROLLER_CODES"]
+
+#: The controller FMU's enumeration values (fmu_controller.controller_slave): method and reference source.
+CONTROLLER_CODES = {"method": {"mpc_ucp": 1, "mpc_servo": 2, "ampc_ucp": 3, "ampc_servo": 4},
+                    "reference_source": {"builtin_sine": 1, "external_held": 2, "external_advanced": 3}}
+
+_STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
+
+
+@dataclass(frozen=True)
+class Unpacked:
+    """An FMU extracted once per process: its model description and folder."""
+
+    path: Path
+    model_description: Any
+    folder: str
+    variables: Mapping[str, Any]
+
+
+_UNPACKED: dict[Path, Unpacked] = {}
+
+
+def _cleanup(folder: str) -> None:
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def unpack(path: str | Path) -> Unpacked:
+    """Extract ``path`` (cached per process; removed at exit)."""
+    from fmpy import extract, read_model_description
+
+    path = Path(path).resolve()
+    if path not in _UNPACKED:
+        if not path.is_file():
+            raise ScenarioError(f"{path}: FMU file does not exist")
+        try:
+            md = read_model_description(str(path))
+        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU file
+            raise ScenarioError(f"{path}: not a readable FMU: {exc}") from None
+        folder = extract(str(path), tempfile.mkdtemp(prefix=f"tapmuscle_{md.modelName}_"))
+        atexit.register(_cleanup, folder)
+        _UNPACKED[path] = Unpacked(path, md, folder, {v.name: v for v in md.modelVariables})
+    return _UNPACKED[path]
+
+
+class FmuInstance:
+    """An fmpy ``FMU2Slave`` with a logger that keeps the FMU's messages (to name them in errors).
+
+    Lifecycle as FMI's: construct (instantiate, setup experiment, enter initialization), set
+    parameters and initial inputs, :meth:`start` (exit initialization), then ``set``/``do_step``/
+    ``get``; :meth:`free` at the end.
+    """
+
+    def __init__(self, path: str | Path, instance_name: str, *, role: str) -> None:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+        self.unpacked = unpack(path)
+        self.role = role
+        self.messages: list[str] = []
+        md = self.unpacked.model_description
+
+        def logger(_env, _name, status, _category, message):
+            text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
+            self.messages.append(f"[{_STATUS[status] if 0 <= status < 6 else status}] {text}")
+
+        self._callbacks = fmi2CallbackFunctions()
+        self._callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(self._callbacks))
+        except Exception:  # noqa: BLE001 - the proxy only formats printf-style messages
+            pass
+        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=self.unpacked.folder,
+                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=instance_name)
+        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True))
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+
+    # ------------------------------------------------------------------ helpers
+    def vr(self, name: str) -> int:
+        return self.unpacked.variables[name].valueReference
+
+    def _call(self, what: str, fn: Callable[[], Any], t_s: float | None = None) -> Any:
+        try:
+            return fn()
+        except Exception as exc:  # noqa: BLE001 - fmpy raises FMICallException (and others on NULL)
+            at = "" if t_s is None else f" at t = {t_s:g} s"
+            log = "; ".join(self.messages[-3:]) or "no message logged"
+            raise ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {exc}: {log}") \
+                from None
+
+    def set_parameters(self, values: Mapping[str, Any], *, where: str) -> None:
+        """Set parameters by FMU variable name; ``where`` (e.g. ``file: key 'plant.parameters.'``)
+        prefixes the name in errors."""
+        for name, value in values.items():
+            var = self.unpacked.variables.get(name)
+            if var is None or var.causality not in ("parameter", "input"):
+                known = sorted(n for n, v in self.unpacked.variables.items() if v.causality == "parameter")
+                raise ScenarioError(f"{where}{name}': not a parameter of {self.unpacked.model_description.modelName} "
+                                    f"(known: {', '.join(known[:8])}, ...; docs/fmu.md lists all)")
+            if var.type == "Enumeration":
+                items = {item.name: item.value for item in var.declaredType.items}
+                if isinstance(value, str):
+                    if value not in items:
+                        raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
+                    value = items[value]
+                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [int(value)]))
+            elif var.type == "Integer":
+                if isinstance(value, str) or int(value) != value:
+                    raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
+                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [int(value)]))
+            elif var.type == "Real":
+                if isinstance(value, str):
+                    raise ScenarioError(f"{where}{name}': must be a number, got {value!r}")
+                self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [float(value)]))
+            else:
+                raise ScenarioError(f"{where}{name}': {var.type} parameters are not supported")
+
+    def start(self) -> None:
+        self._call("exitInitializationMode", self.fmu.exitInitializationMode)
+        if any(m.startswith(("[ERROR]", "[FATAL]")) for m in self.messages):
+            raise ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) rejected its parameters: "
+                                + "; ".join(m for m in self.messages if m.startswith(("[ERROR]", "[FATAL]"))))
+
+    def free(self) -> None:
+        try:
+            self.fmu.terminate()
+        finally:
+            self.fmu.freeInstance()
+
+
+def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: str = "all",
+                controller_parameters: Mapping[str, Any] | None = None,
+                progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Run ``scenario`` with the master algorithm of the module docstring.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    fmus : mapping
+        ``{"MusclePlant": path, "AMPCController": path}``; the scenario's own ``fmu`` keys win.
+    record : {"all", "minimal"}
+        ``all``: the columns of :func:`tapmuscle.closed_loop.run_closed_loop` (diagnostics and theta-hat
+        each step); ``minimal``: ``t_s, r_mm, l_mm, u_v`` only (fewer FMI calls, for timing).
+    controller_parameters : mapping, optional
+        Extra controller parameters (e.g. ``theta0.*``), applied after the scenario's.
+    progress : callable, optional
+        Called with ``(done, total)`` samples.
+
+    Returns
+    -------
+    dict of ndarray
+        One row per sample ``k`` (module docstring), plus ``wall_time_s`` (a 0-d array).
+    """
+    if record not in ("all", "minimal"):
+        raise ValueError(f"record must be 'all' or 'minimal', got {record!r}")
+    src = scenario.source
+    plant = FmuInstance(scenario.plant.path or fmus["MusclePlant"], f"{scenario.name}.plant", role="plant")
+    ctrl = None
+    try:
+        ctrl = FmuInstance(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
+                           role="controller")
+        plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
+        plant.set_parameters({"seed": scenario.seed}, where=f"{src}: key '")
+        h = scenario.step_s
+        ref = scenario.reference
+        plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
+                             where=f"{src}: key '[load]/[supply] ")
+        ctrl_params: dict[str, Any] = {"method": scenario.method, "Ts": h}
+        if ref.kind == "sine":
+            ctrl_params.update({"reference_source": "builtin_sine", "sine.offset": ref.offset_mm,
+                                "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
+        else:
+            ctrl_params["reference_source"] = "external_advanced" if ref.preview == "advanced" else "external_held"
+        ctrl_params.update(scenario.controller.parameters)
+        ctrl_params.update(controller_parameters or {})
+        ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
+        hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
+        hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
+        plant.start()
+        ctrl.start()
+        return _loop(scenario, plant, ctrl, hp, record, progress)
+    finally:
+        for inst in (ctrl, plant):
+            if inst is not None:
+                inst.free()
+
+
+def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, record: str,
+          progress: Callable[[int, int], None] | None) -> dict[str, np.ndarray]:
+    n, h, ref = scenario.n_samples, scenario.step_s, scenario.reference
+    external = ref.kind != "sine"
+    advance = hp * h if external and ref.preview == "advanced" else 0.0
+    full = record == "all"
+    diag = ["u", "r_k", "uc", "l_pred", "pred_error", "H", "xs"] + [f"theta.{n_}" for n_ in ASYMMETRIC.names]
+    ctrl_out = [ctrl.vr(v) for v in (diag if full else ["u", "r_k"])]
+    plant_out = [plant.vr("l"), plant.vr("p")] if full else [plant.vr("l")]
+    ctrl_in = [ctrl.vr("l"), ctrl.vr("r")] if external else [ctrl.vr("l")]
+    plant_in = [plant.vr("u"), plant.vr("load"), plant.vr("supply_pressure")]
+    rows_p = np.empty((n, len(plant_out)))
+    rows_c = np.empty((n, len(ctrl_out)))
+    loads = np.empty(n)
+    pf, cf = plant.fmu, ctrl.fmu
+    every = max(1, n // 100)
+    start = time.perf_counter()
+    for k in range(n):
+        t = k * h
+        y = pf.getReal(plant_out)
+        if external:
+            ctrl._call("setReal", lambda: cf.setReal(ctrl_in, [y[0], ref.at(t + advance)]), t)
+        else:
+            cf.setReal(ctrl_in, [y[0]])
+        ctrl._call("doStep", lambda: cf.doStep(t, h), t)
+        c = cf.getReal(ctrl_out)
+        load = scenario.load.at(t)
+        if k + 1 < n:
+            plant._call("setReal", lambda: pf.setReal(plant_in, [c[0], load, scenario.supply.at(t)]), t)
+            plant._call("doStep", lambda: pf.doStep(t, h), t)
+        rows_p[k], rows_c[k], loads[k] = y, c, load
+        if progress is not None and (k % every == 0 or k + 1 == n):
+            progress(k + 1, n)
+    wall = time.perf_counter() - start
+    cols = {"t_s": np.arange(n) * h, "r_mm": rows_c[:, 1].copy(), "l_mm": rows_p[:, 0].copy(),
+            "u_v": rows_c[:, 0].copy()}
+    if full:
+        pred_next = rows_c[:, 3]
+        cols.update({"p_mpa": rows_p[:, 1].copy(), "load_n": loads,
+                     "l_pred_mm": np.concatenate(([rows_p[0, 0]], pred_next[:-1])),
+                     "pred_error_mm": rows_c[:, 4].copy(), "uc_v": rows_c[:, 2].copy(), "h_mm": rows_c[:, 5].copy(),
+                     "xs_mm": rows_c[:, 6].copy()})
+        for i, name in enumerate(ASYMMETRIC.names):
+            cols[f"theta_{name}"] = rows_c[:, 7 + i].copy()
+    cols["wall_time_s"] = np.asarray(wall)
+    return cols

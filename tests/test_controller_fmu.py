@@ -1,0 +1,235 @@
+"""The AMPCController FMU in fmpy: the direct controller's numbers, FMI errors not crashes, exact state."""
+
+import math
+import xml.etree.ElementTree as ET
+import zipfile
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+from fmpy.validation import validate_fmu
+
+from fmu_controller.controller_slave import AMPCController
+from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.reference import SineReference
+
+THETA = [f"theta.{n}" for n in ASYMMETRIC.names]
+
+
+@pytest.fixture(scope="module")
+def fmu(built_fmus):
+    path = built_fmus["AMPCController"]
+    md = read_model_description(str(path))
+    return path, md, extract(str(path)), {v.name: v.valueReference for v in md.modelVariables}
+
+
+def _instance(fmu, name="c", reals=None, ints=None):
+    path, md, folder, vr = fmu
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    for key, value in (reals or {}).items():
+        f.setReal([vr[key]], [value])
+    for key, value in (ints or {}).items():
+        f.setInteger([vr[key]], [value])
+    f.exitInitializationMode()
+    return f
+
+
+def _free(*fs):
+    for f in fs:
+        f.terminate()
+        f.freeInstance()
+
+
+def _l(k):
+    """A plausible measured displacement [mm] (the controller does not care where it comes from)."""
+    return 35 + 28 * math.sin(2 * math.pi * 0.1 * k * 0.1 - 0.2) + 0.3 * math.sin(1.7 * k)
+
+
+def test_fmpy_validation_reports_no_problems(fmu):
+    assert validate_fmu(str(fmu[0])) == []
+
+
+def test_model_description_declares_units_ranges_enumerations_and_no_feedthrough(fmu):
+    root = ET.fromstring(zipfile.ZipFile(fmu[0]).read("modelDescription.xml"))
+    svs = {sv.get("name"): sv for sv in root.iter("ScalarVariable")}
+    assert svs["u"][0].get("unit") == "V" and svs["u"][0].get("min") == "0.0" and svs["u"][0].get("max") == "10.0"
+    assert svs["l"][0].get("unit") == "mm" and svs["Ts"][0].get("unit") == "s"
+    assert {u.get("name") for u in root.iter("Unit")} >= {"mm", "V", "s", "Hz"}
+    mm = next(u for u in root.iter("Unit") if u.get("name") == "mm")[0]
+    assert mm.get("m") == "1" and float(mm.get("factor")) == 1e-3
+    method = svs["method"][0]
+    assert method.tag == "Enumeration" and method.get("declaredType") == "Method" and method.get("start") == "4"
+    items = {i.get("name"): i.get("value") for i in root.find("TypeDefinitions").iter("Item")}
+    assert items["ampc_servo"] == "4" and items["mpc_ucp"] == "1"
+    outputs = root.find("ModelStructure/Outputs")
+    assert len(outputs) == sum(sv.get("causality") == "output" for sv in svs.values())
+    assert all(u.get("dependencies") == "" for u in outputs)
+    assert root.get("generationDateAndTime") is None
+    cs = root.find("CoSimulation")
+    assert cs.get("canGetAndSetFMUstate") == "true" and cs.get("canSerializeFMUstate") == "true"
+
+
+@pytest.mark.parametrize("method_code, method", [(1, "mpc_ucp"), (2, "mpc_servo"), (3, "ampc_ucp"), (4, "ampc_servo")])
+def test_fmu_equals_the_direct_controller_bit_for_bit(fmu, method_code, method):
+    vr = fmu[3]
+    f = _instance(fmu, ints={"method": method_code}, reals={"sine.frequency": 0.2})
+    direct = DisplacementController(ControllerSettings(method=method), THETA0_44N)
+    ref = SineReference(frequency_hz=0.2)
+    direct.reset(_l(0))
+    for k in range(150):
+        f.setReal([vr["l"]], [_l(k)])
+        f.doStep(k * 0.1, 0.1)
+        step = direct.step(_l(k), ref.preview(k, direct.settings.preview_samples))
+        got = f.getReal([vr["u"], vr["uc"], vr["l_pred"], vr["H"], vr["xs"], vr["r_k"]] + [vr[t] for t in THETA])
+        assert got == [step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm, step.xs_mm,
+                       float(ref.at(k))] + step.theta.tolist()
+    _free(f)
+
+
+def test_state_rewind_and_serialisation_are_bit_identical(fmu):
+    vr = fmu[3]
+    f = _instance(fmu)  # ampc_servo: theta-hat, P, Bouc-Wen state, integrator, QP warm start
+
+    def run(k0):
+        out = []
+        for k in range(k0, k0 + 40):
+            f.setReal([vr["l"]], [_l(k)])
+            f.doStep(k * 0.1, 0.1)
+            out.append(f.getReal([vr["u"], vr["xs"]] + [vr[t] for t in THETA]))
+        return out
+
+    run(0)
+    state = f.getFMUstate()
+    a = run(40)
+    assert a[0][2:] != a[-1][2:]  # theta-hat moved: the replay checks real adaptive state
+    f.setFMUstate(state)
+    assert run(40) == a
+    f.setFMUstate(f.deSerializeFMUstate(f.serializeFMUstate(state)))
+    assert run(40) == a
+    _free(f)
+
+
+def test_steps_shorter_than_ts_hold_the_outputs_and_sample_on_the_grid(fmu):
+    vr = fmu[3]
+    coarse, fine = _instance(fmu, "coarse"), _instance(fmu, "fine")
+    for k in range(30):
+        coarse.setReal([vr["l"]], [_l(k)])
+        coarse.doStep(k * 0.1, 0.1)
+        u_coarse = coarse.getReal([vr["u"]])
+        for j in range(4):  # four 25 ms steps per sample; l is read at the sample instant only
+            fine.setReal([vr["l"]], [_l(k) if j == 0 else -50.0 + j])
+            fine.doStep(k * 0.1 + j * 0.025, 0.025)
+            assert fine.getReal([vr["u"]]) == u_coarse
+    assert fine.getInteger([vr["samples"]]) == [30]
+    _free(coarse, fine)
+
+
+@pytest.mark.parametrize("name, value, message", [("l", math.nan, "l = nan is not finite"),
+                                                  ("l", math.inf, "l = inf is not finite"),
+                                                  ("l", 900.0, "l = 900.0 is outside")])
+def test_bad_input_is_discarded_with_a_message_and_state_stays(fmu, capfd, name, value, message):
+    vr = fmu[3]
+    f, ref = _instance(fmu, "bad"), _instance(fmu, "ref")
+    for g in (f, ref):
+        g.setReal([vr["l"]], [_l(0)])
+        g.doStep(0.0, 0.1)
+    before = f.getReal([vr["u"]])
+    f.setReal([vr[name]], [value])
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.1, 0.1)
+    assert message in capfd.readouterr().out
+    assert f.getReal([vr["u"]]) == before
+    for g in (f, ref):  # the refused step changed nothing: both continue identically
+        g.setReal([vr["l"]], [_l(1)])
+        g.doStep(0.1, 0.1)
+    assert f.getReal([vr["u"]] + [vr[t] for t in THETA]) == ref.getReal([vr["u"]] + [vr[t] for t in THETA])
+    _free(f, ref)
+
+
+def test_external_reference_is_checked(fmu, capfd):
+    vr = fmu[3]
+    f = _instance(fmu, ints={"reference_source": 2})
+    f.setReal([vr["l"], vr["r"]], [10.0, math.nan])
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.0, 0.1)
+    assert "r = nan is not finite" in capfd.readouterr().out
+    _free(f)
+
+
+@pytest.mark.parametrize("t0, h, message", [(0.0, 0.0, "step size = 0.0"), (0.0, -1.0, "step size = -1.0"),
+                                            (0.0, 0.3, "exceeds the sampling period"),
+                                            (0.0, 1e9, "step size = 1000000000.0")])
+def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
+    f = _instance(fmu)
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(t0, h)
+    assert message in capfd.readouterr().out
+    _free(f)
+
+
+@pytest.mark.parametrize("reals, ints, message", [
+    ({}, {"method": 7}, "parameter method = 7 must be one of 1 (mpc_ucp)"),
+    ({}, {"servo.Hu": 9}, "hu must be <= hp"),
+    ({"P0.a1": -1.0}, {}, "parameter P0.a1 = -1.0 must be > 0"),
+    ({"Ts": 0.0}, {}, "parameter Ts = 0.0 is outside"),
+    ({"servo.R": math.nan}, {}, "parameter servo.R = nan is not finite"),
+    ({"box_lower.b1": 2.0}, {}, "box_lower.b1 = 2.0 exceeds box_upper.b1"),
+    ({"theta0.b1": 0.0}, {}, "theta0.b1 = 0.0 must not be ~0"),
+])
+def test_bad_parameters_are_reported_and_every_step_is_discarded(fmu, capfd, reals, ints, message):
+    f = _instance(fmu, reals=reals, ints=ints)
+    assert message in capfd.readouterr().out
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.0, 0.1)
+    assert "not initialised" in capfd.readouterr().out
+    assert all(math.isfinite(x) for x in f.getReal([fmu[3]["u"], fmu[3]["l_pred"]]))
+    _free(f)
+
+
+def test_several_instances_and_reinstantiation(fmu):
+    vr = fmu[3]
+    a, b = _instance(fmu, "a", ints={"method": 4}), _instance(fmu, "b", ints={"method": 2})
+    for k in range(60):
+        for g in (a, b):
+            g.setReal([vr["l"]], [_l(k)])
+            g.doStep(k * 0.1, 0.1)
+    ta, tb = a.getReal([vr[t] for t in THETA]), b.getReal([vr[t] for t in THETA])
+    assert tb == list(THETA0_44N) and ta != tb  # the fixed predictor did not adapt, the adaptive one did
+    _free(a, b)
+    c = _instance(fmu, "c", ints={"method": 4})
+    for k in range(60):
+        c.setReal([vr["l"]], [_l(k)])
+        c.doStep(k * 0.1, 0.1)
+    assert c.getReal([vr[t] for t in THETA]) == ta
+    _free(c)
+
+
+def test_external_advanced_reference_gives_the_exact_preview(monkeypatch):
+    """Fed r(t + Hp Ts), the controller's preview is exactly r(k..k+Hp) once Hp samples have arrived."""
+    seen = []
+    original = DisplacementController.step
+
+    def spy(self, l_mm, preview):
+        seen.append(np.array(preview, dtype=float))
+        return original(self, l_mm, preview)
+
+    monkeypatch.setattr(DisplacementController, "step", spy)
+    slave = AMPCController(instance_name="spy")
+    slave._int_par["reference_source"] = 3
+    slave.exit_initialization_mode()
+    ref = SineReference(frequency_hz=0.1)
+    hp = 5
+    for k in range(20):
+        slave.l, slave.r = _l(k), float(ref.at(k + hp))
+        assert slave.do_step(k * 0.1, 0.1)
+    for k in range(hp, 20):
+        np.testing.assert_array_equal(seen[k], ref.preview(k, hp))
+    assert slave.r_k == float(ref.at(19))

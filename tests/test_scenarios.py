@@ -1,0 +1,134 @@
+"""Scenario files and the co-simulation master: the FMU loop is the direct loop; bad files are named."""
+
+import json
+
+import numpy as np
+import pytest
+
+from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.reference import SineReference
+from fmu_plant import Plant, PlantParams
+from scenarios import PAPER_SCENARIOS, ScenarioError, co_simulate, load_scenario, parse_scenario
+from tapmuscle.cli import main
+from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
+from tapmuscle.paper import PAPER_RUNS
+from tapmuscle.recording import read_recording
+
+
+def _scenario(method, *, seed=3, duration=25.0, load_steps=(), plant_params=None, freq=0.1):
+    return parse_scenario({
+        "duration_s": duration, "step_s": 0.1, "seed": seed, "evaluation_samples": [50, 240],
+        "plant": {"parameters": plant_params or {}}, "controller": {"method": method},
+        "reference": {"kind": "sine", "frequency_hz": freq},
+        "load": {"initial_n": 44.0, "steps": [{"t_s": t, "load_n": v} for t, v in load_steps]}}, source="test")
+
+
+@pytest.mark.parametrize("method", ["mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"])
+def test_fmu_loop_equals_the_direct_loop(built_fmus, method):
+    """Issue 5: same seed, same numbers to 1e-9 (here: bit for bit), with a load step during the run."""
+    steps = ((12.0, 68.0),)
+    cols = co_simulate(_scenario(method, load_steps=steps, plant_params={"friction.rate_gain": 0.5}), built_fmus)
+    plant = Plant(PlantParams().with_values(**{"friction.rate_gain": 0.5}), seed=3)
+    plant.update(load_n=44.0)
+    direct = run_closed_loop(plant, DisplacementController(ControllerSettings(method=method), THETA0_44N),
+                             SineReference(frequency_hz=0.1), duration_s=25.0,
+                             load_n=lambda t: 68.0 if t + 1e-9 >= 12.0 else 44.0)
+    for key in direct:
+        np.testing.assert_allclose(cols[key], direct[key], rtol=0, atol=1e-9, err_msg=key)
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    assert cols["load_n"][119] == 44.0 and cols["load_n"][120] == 68.0
+
+
+def test_paper_scenario_files_match_the_paper_runs():
+    names = {p.stem for p in PAPER_SCENARIOS.glob("*.toml")}
+    assert names == {run.name for run in PAPER_RUNS}
+    for run in PAPER_RUNS:
+        s = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
+        assert (s.method, s.load.initial, s.reference.frequency_hz) == (run.method, run.load_n, run.frequency_hz)
+        assert s.evaluation_samples == (101, 401) and s.n_samples == 451
+        if run.frequency_hz > 0.15 and run.method.startswith("ampc"):
+            assert s.controller.parameters["P0.a1"] == 1000  # Table 8
+
+
+def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
+    fmu_dir = built_fmus["MusclePlant"].parent
+    scenario = tmp_path / "short.toml"
+    scenario.write_text('duration_s = 12.0\nseed = 1\nevaluation_samples = [20, 120]\n'
+                        '[controller]\nmethod = "ampc_servo"\n[load]\ninitial_n = 68.0\n'
+                        'steps = [ { t_s = 6.0, load_n = 44.0 } ]\n')
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "--out", str(out), "--fmu-dir", str(fmu_dir), "--quiet"]) == 0
+    rec = read_recording(out / "result.csv")
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(rec.t_s) == 121
+    assert summary["mae_mm"] == pytest.approx(eq21_error_mm(rec.columns["r_mm"], rec.columns["l_mm"], (20, 120)), rel=1e-6)  # CSV rounding
+    assert 0.0 < summary["mae_mm"] < 2.0
+    assert summary["fmus"]["AMPCController"]["guid"] and summary["real_time_factor"] > 1
+    assert rec.columns["load_n"][59] == 68.0 and rec.columns["load_n"][60] == 44.0
+    for png in ("tracking.png", "prediction_error.png", "parameters.png"):
+        assert (out / png).stat().st_size > 10_000
+
+
+def test_external_step_reference_is_tracked(built_fmus):
+    s = parse_scenario({"duration_s": 30.0, "evaluation_samples": [0, 300], "controller": {"method": "ampc_servo"},
+                        "reference": {"kind": "steps", "times_s": [0.0, 10.0, 20.0], "values_mm": [20.0, 50.0, 30.0],
+                                      "preview": "advanced"}}, source="t")
+    cols = co_simulate(s, built_fmus)
+    assert cols["r_mm"][99] == 20.0 and cols["r_mm"][100] == 50.0 and cols["r_mm"][200] == 30.0
+    for k in (95, 195, 295):  # settled on each level before the next step
+        assert abs(cols["l_mm"][k] - cols["r_mm"][k]) < 1.0
+    held = co_simulate(parse_scenario({**{"duration_s": 30.0, "evaluation_samples": [0, 300]},
+                                       "controller": {"method": "ampc_servo"},
+                                       "reference": {"kind": "steps", "times_s": [0.0, 10.0, 20.0],
+                                                     "values_mm": [20.0, 50.0, 30.0], "preview": "held"}},
+                                      source="t"), built_fmus)
+    # with the preview the muscle starts moving before the step, without it only after
+    assert cols["l_mm"][99] > cols["l_mm"][90] + 1.0 and abs(held["l_mm"][99] - held["l_mm"][90]) < 1.0
+
+
+@pytest.mark.parametrize("text, key, message", [
+    ("duration_s = 10.0\nspeed = 3\n", "speed", "unknown key"),
+    ("duration_s = 'long'\n", "duration_s", "must be a number"),
+    ("duration_s = -1.0\n", "duration_s", "is outside"),
+    ("duration_s = 10.0\nevaluation_samples = [101, 401]\n", "evaluation_samples", "past the last sample"),
+    ("duration_s = 10.0\n[controller]\nmethod = 'pid'\n", "controller.method", "is not one of"),
+    ("duration_s = 10.0\n[controller]\nfmu = 'nowhere.fmu'\n", "controller.fmu", "does not exist"),
+    ("duration_s = 10.0\n[controller.parameters]\nmethod = 2\n", "controller.parameters.method",
+     "set by the scenario itself"),
+    ("duration_s = 10.0\n[load]\nsteps = [ { t_s = 5.0, load = 68.0 } ]\n", "load.steps[0].load", "unknown key"),
+    ("duration_s = 10.0\n[load]\nsteps = [ { t_s = 5.0, load_n = 68.0 }, { t_s = 2.0, load_n = 44.0 } ]\n",
+     "load.steps[1].t_s", "must be later"),
+    ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [10]\n", "reference.times_s",
+     "has 2 entries"),
+    ("duration_s = 10.0\n[plant]\nparameters = { 'friction.rate_gain' = true }\n",
+     "plant.parameters.friction.rate_gain", "must be a number"),
+])
+def test_bad_scenarios_name_file_and_key(tmp_path, text, key, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    assert str(path) in str(err.value) and f"key '{key}'" in str(err.value) and message in str(err.value)
+
+
+def test_unknown_fmu_parameter_and_bad_toml_are_named(built_fmus, tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text("duration_s = 2.0\nevaluation_samples = [0, 10]\n[plant.parameters]\n'friction.rate_gian' = 0.3\n")
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", fmu_dir, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "plant.parameters.friction.rate_gian" in err and "not a parameter" in err
+    assert not (tmp_path / "o" / "result.csv").exists()
+    path.write_text("duration_s = = 3\n")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "not valid TOML" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_bad_fmu_parameter_value_stops_the_run_with_the_fmus_message(built_fmus):
+    s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
+                        "controller": {"method": "ampc_servo", "parameters": {"servo.Hu": 9}}}, source="s.toml")
+    with pytest.raises(ScenarioError, match="hu must be <= hp"):
+        co_simulate(s, built_fmus)
