@@ -1,0 +1,95 @@
+"""Inside the FMU, before anything else: find the packages, and say clearly when one is missing.
+
+``fmi_slave/__init__.py`` calls :func:`setup` first, so it runs before pythonfmu, numpy or the
+numerics are imported (the slave scripts import ``fmi_slave`` first). It uses only the standard
+library's pure-Python modules.
+
+* In a non-Python FMI host the interpreter was started by the FMU (the loader library made by
+  ``build_scripts/native_host.py`` already made libpython's symbols global and chose the building
+  interpreter). That interpreter does not know the building virtual environment, so the
+  site-packages recorded at build time in ``resources/tapmuscle_native.json`` are added with
+  ``site.addsitedir`` (those that exist; ``.pth`` files are honoured).
+* ``TAPMUSCLE_SITE_PACKAGES`` (directories separated by ``os.pathsep``) replaces the recorded list, in
+  any host; set but empty, it adds none.
+* In a Python host (fmpy) without the override nothing is added: the host's own environment rules.
+* In every host, a finder of last resort on ``sys.meta_path`` turns "No module named 'numpy'" (or
+  scipy, osqp) into a message saying what to install and where it looked; the exception makes
+  pythonfmu's ``fmi2Instantiate`` log it through the host's logger and return NULL.
+
+Outside an FMU (no ``tapmuscle_native.json`` beside the ``fmi_slave`` package) nothing happens.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import site
+import sys
+
+__all__ = ["CONFIG_NAME", "DEPENDENCIES", "SITE_ENV", "MissingDependencyFinder", "is_embedded", "setup"]
+
+CONFIG_NAME = "tapmuscle_native.json"
+SITE_ENV = "TAPMUSCLE_SITE_PACKAGES"
+#: Third-party packages the FMUs' numerics import (module name = pip name).
+DEPENDENCIES = ("numpy", "scipy", "osqp")
+
+_done = False
+
+
+def _resources() -> str:
+    return os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def is_embedded() -> bool:
+    """True when the interpreter was started by an FMU (``Py_Initialize`` in a C host), not by a
+    ``python`` command: such an interpreter has an empty ``sys.orig_argv``."""
+    return not getattr(sys, "orig_argv", ["python"])
+
+
+def _site_dirs(config: dict) -> list[str] | None:
+    """Directories to add: the override, or (embedded only) the recorded ones; None: add nothing."""
+    override = os.environ.get(SITE_ENV)
+    if override is not None:
+        return [d for d in override.split(os.pathsep) if d]
+    if is_embedded():
+        return list(config.get("site_packages", []))
+    return None
+
+
+class MissingDependencyFinder:
+    """Last entry of ``sys.meta_path``: asked only when no other finder has the module. For the
+    top-level packages in ``names`` it raises ModuleNotFoundError with what to install."""
+
+    def __init__(self, names: tuple[str, ...] = DEPENDENCIES) -> None:
+        self.names = tuple(names)
+
+    def find_spec(self, fullname, path=None, target=None):
+        if path is not None or fullname not in self.names:
+            return None
+        python = sys.executable or "python3"
+        raise ModuleNotFoundError(
+            f"tapmuscle FMU: cannot import {fullname}; install it into the Python the FMU uses: "
+            f"{python} -m pip install {fullname} (or set {SITE_ENV} to site-packages directories that have "
+            f"it, separated by '{os.pathsep}'; searched: {os.pathsep.join(p for p in sys.path if p)})",
+            name=fullname)
+
+    def invalidate_caches(self) -> None:
+        pass
+
+
+def setup() -> None:
+    """Prepare this interpreter for the FMU's code (see the module docstring); runs once."""
+    global _done
+    if _done:
+        return
+    _done = True
+    config_path = os.path.join(_resources(), CONFIG_NAME)
+    if not os.path.isfile(config_path):
+        return  # not inside a prepared FMU
+    with open(config_path, encoding="utf-8") as f:
+        config = json.load(f)
+    for d in _site_dirs(config) or ():
+        if os.path.isdir(d) and d not in sys.path:
+            site.addsitedir(d)
+    if not any(isinstance(f, MissingDependencyFinder) for f in sys.meta_path):
+        sys.meta_path.append(MissingDependencyFinder())
