@@ -2,24 +2,28 @@
 
 1. Preliminary identification (section 4.2's fixed predictor): the asymmetric Eq. (1) model,
    identified by the constrained RLS on the 0.1 Hz identification input at 44 N (240 s, seed 0).
-2. Closed loop, Ts = 0.1 s, r = 35 + 30 sin(2 pi f t) mm, 45 s per run, evaluated by Eq. (21) over
-   10-40 s: the four methods at 44 N and 68 N with f = 0.1 Hz (Tables 6, 7), and MPC/AMPC with servo
-   mechanism at f = 0.2 Hz (Table 9, with Table 8's P(0)); each cell the mean over three noise seeds.
+2. Closed loop through the FMUs (MusclePlant and AMPCController co-simulated in fmpy by
+   :mod:`scenarios.master`; the scenario files are ``scenarios/paper/<run>.toml``), Ts = 0.1 s,
+   r = 35 + 30 sin(2 pi f t) mm, 45 s per run, evaluated by Eq. (21) over 10-40 s: the four methods
+   at 44 N and 68 N with f = 0.1 Hz (Tables 6, 7), and MPC/AMPC with servo mechanism at f = 0.2 Hz
+   (Table 9, with Table 8's P(0)); each cell the mean over three noise seeds. The FMU loop gives the
+   direct Python loop's numbers bit for bit (tests/test_scenarios.py).
 3. Outputs: ``paper.json`` (Tables 6, 7, 9), one CSV per run in ``runs/``, tracking and
    prediction-error PNGs like Figs. 8-19, and the tables printed beside the paper's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import Callable, Mapping, TextIO
 
 import numpy as np
 
-from fmu_controller.displacement_control import P0_TABLE5, P0_TABLE8, ControllerSettings, DisplacementController
+from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import identify_record
 from fmu_controller.reference import SineReference
@@ -90,33 +94,41 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
 
 
 def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), refine_hz: float = 0.05,
-              stream: TextIO = sys.stdout, progress: Callable[[int, int], None] | None = None) -> dict:
+              fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
+              progress: Callable[[int, int], None] | None = None) -> dict:
     """Run every experiment of section 4 and write the outputs into ``out`` (see module docstring).
 
     Each table cell is the mean Eq. (21) error over the noise ``seeds`` (the per-seed values are in
     ``paper.json``): single runs of the unique-coincidence-point controllers differ by up to 0.3 mm
     between noise realisations, more than some of the differences the paper reports. The fixed
-    predictor is identified once, with the first seed. CSVs and figures show the first seed's runs.
+    predictor is identified once, with the first seed, and given to the controller FMU as its
+    ``theta0.*`` parameters. CSVs and figures show the first seed's runs. ``fmus`` defaults to the FMUs
+    built from this checkout (:func:`build_scripts.build_fmus.cached_fmus`).
     """
+    from build_scripts.build_fmus import cached_fmus
+    from scenarios import PAPER_SCENARIOS, co_simulate, load_scenario
+
     if not seeds:
         raise ValueError("seeds must name at least one noise seed")
     out = Path(out)
+    fmus = dict(fmus) if fmus is not None else cached_fmus()
     theta0 = preliminary_theta(seeds[0], refine_hz)
+    theta_params = {f"theta0.{n}": float(v) for n, v in zip(ASYMMETRIC.names, theta0)}
     results: dict[str, dict] = {}
     total, done = len(PAPER_RUNS) * len(seeds), 0
     for run in PAPER_RUNS:
-        settings = ControllerSettings(method=run.method, p0=P0_TABLE5 if run.frequency_hz < 0.15 else P0_TABLE8)
+        scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
         errors, first = [], None
         for seed in seeds:
-            plant = Plant(PlantParams().with_values(**{"load.load_n": run.load_n}), seed=seed)
-            cols = run_closed_loop(plant, DisplacementController(settings, theta0),
-                                   SineReference(frequency_hz=run.frequency_hz), duration_s=DURATION_S)
-            errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"]))
+            cols = co_simulate(dataclasses.replace(scenario, seed=seed), fmus, controller_parameters=theta_params)
+            cols.pop("wall_time_s")
+            errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"], scenario.evaluation_samples))
             if first is None:
                 first = cols
                 meta = {"ts_s": "0.1", "load_n": f"{run.load_n:g}", "seed": str(seed), "method": run.method,
                         "reference": f"35 + 30 sin(2 pi {run.frequency_hz:g} t) mm",
-                        "eq21_error_mm": f"{errors[0]:.4f}", "source": "tapmuscle paper (simulated rig, direct loop)"}
+                        "eq21_error_mm": f"{errors[0]:.4f}",
+                        "source": f"tapmuscle paper (simulated rig, FMU co-simulation of scenarios/paper/{run.name}.toml)"}
                 write_recording(out / "runs" / f"{run.name}.csv", Recording(cols, meta))
             done += 1
             if progress is not None:
