@@ -1,0 +1,42 @@
+"""`tapmuscle build`: both FMUs, reproducibly, and a content-derived GUID."""
+
+import zipfile
+
+import pytest
+
+from build_scripts.build_fmus import FMUS, build_fmus
+from build_scripts.model_description import finish_model_description
+from tapmuscle.cli import main
+
+
+def test_build_writes_both_fmus_byte_identical_to_an_earlier_build(built_fmus, tmp_path, capsys):
+    out = tmp_path / "again"
+    assert main(["build", "--out", str(out)]) == 0
+    assert "AMPCController.fmu" in capsys.readouterr().out
+    for name in FMUS:
+        assert (out / f"{name}.fmu").read_bytes() == built_fmus[name].read_bytes(), name
+    assert not list(out.glob(".*partial*"))
+
+
+def test_guid_follows_the_content(built_fmus):
+    guids = {}
+    for name, path in built_fmus.items():
+        with zipfile.ZipFile(path) as z:
+            md = z.read("modelDescription.xml").decode()
+            assert "generationDateAndTime" not in md
+            guids[name] = md.split('guid="')[1].split('"')[0]
+            assert all(i.date_time == (1980, 1, 1, 0, 0, 0) for i in z.infolist())
+            assert "resources/controller_slave.py" in z.namelist() or name == "MusclePlant"
+    assert len(set(guids.values())) == 2
+
+
+def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="unknown FMU 'Pump'"):
+        build_fmus(tmp_path, ("Pump",))
+    xml = ('<fmiModelDescription fmiVersion="2.0" guid="x"><CoSimulation modelIdentifier="m"/><ModelVariables>'
+           '<ScalarVariable name="q" valueReference="0" causality="output"><Real/></ScalarVariable>'
+           '</ModelVariables><ModelStructure/></fmiModelDescription>')
+    with pytest.raises(ValueError, match="unit 'furlong' has no entry"):
+        finish_model_description(xml, {"q": {"unit": "furlong"}}, guid="g")
+    with pytest.raises(ValueError, match="variable 'q' has no metadata"):
+        finish_model_description(xml, {}, guid="g")
