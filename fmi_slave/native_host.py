@@ -6,9 +6,10 @@ library's pure-Python modules.
 
 * In a non-Python FMI host the interpreter was started by the FMU (the loader library made by
   ``build_scripts/native_host.py`` already made libpython's symbols global and chose the building
-  interpreter). That interpreter does not know the building virtual environment, so the
-  site-packages recorded at build time in ``resources/tapmuscle_native.json`` are added with
-  ``site.addsitedir`` (those that exist; ``.pth`` files are honoured).
+  environment's interpreter, a venv's ``bin/python``, whose site-packages Python then adds itself).
+  The site-packages recorded at build time in ``resources/tapmuscle_native.json`` are added too, with
+  ``site.addsitedir`` (those that exist and are not on sys.path yet; ``.pth`` files are honoured),
+  ahead of the interpreter's own: that matters when the venv is gone and the base interpreter runs.
 * ``TAPMUSCLE_SITE_PACKAGES`` (directories separated by ``os.pathsep``) replaces the recorded list, in
   any host; set but empty, it adds none.
 * In a Python host (fmpy) without the override nothing is added: the host's own environment rules.
@@ -77,6 +78,24 @@ class MissingDependencyFinder:
         pass
 
 
+def _add_site_dirs(dirs) -> None:
+    """``site.addsitedir`` each existing directory (``.pth`` files honoured), then move what was added
+    ahead of the interpreter's own site-packages: the named environment takes precedence."""
+    before = set(sys.path)
+    for d in dirs:
+        if os.path.isdir(d) and d not in sys.path:
+            site.addsitedir(d)
+    added = [p for p in sys.path if p not in before]
+    if not added:
+        return
+    rest = [p for p in sys.path if p in before]
+    own = set(site.getsitepackages())
+    if site.ENABLE_USER_SITE:
+        own.add(site.getusersitepackages())
+    i = next((k for k, p in enumerate(rest) if p in own), len(rest))
+    sys.path[:] = rest[:i] + added + rest[i:]
+
+
 def setup() -> None:
     """Prepare this interpreter for the FMU's code (see the module docstring); runs once."""
     global _done
@@ -88,8 +107,6 @@ def setup() -> None:
         return  # not inside a prepared FMU
     with open(config_path, encoding="utf-8") as f:
         config = json.load(f)
-    for d in _site_dirs(config) or ():
-        if os.path.isdir(d) and d not in sys.path:
-            site.addsitedir(d)
+    _add_site_dirs(_site_dirs(config) or ())
     if not any(isinstance(f, MissingDependencyFinder) for f in sys.meta_path):
         sys.meta_path.append(MissingDependencyFinder())

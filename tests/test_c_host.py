@@ -1,0 +1,275 @@
+"""The FMUs in a non-Python FMI host: tests/c_host/fmi_host.c (gcc, dlopen RTLD_LOCAL, fmpy's FMI
+headers), run in a plain environment (no LD_PRELOAD, no PYTHONPATH, the venv's python not on PATH;
+Debian's /usr/bin/python3, where present, is on it, which is the case that used to start the wrong
+Python). Same numbers as fmpy to 1e-12, several instances, re-instantiation, clean process exit, and
+a missing dependency reported through the host's logger. See docs/fmu-native-hosts.md.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import fmpy
+import pytest
+from fmpy import read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+from build_scripts.build_fmus import FMUS
+
+HOST_SOURCE = Path(__file__).parent / "c_host" / "fmi_host.c"
+PLAIN_PATH = "/usr/bin:/bin"
+TS = 0.1
+
+
+class Fmu:
+    """An extracted FMU and what the host needs to know from its modelDescription.xml."""
+
+    def __init__(self, path: Path, folder: Path) -> None:
+        with zipfile.ZipFile(path) as z:
+            z.extractall(folder)
+        self.dir = folder
+        self.md = read_model_description(str(folder))
+        self.id = self.md.coSimulation.modelIdentifier
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+
+    def args(self, key: str, **vrs: str) -> list[str]:
+        """``KEY.dir= KEY.id= KEY.guid=`` and ``KEY.<role>=<vr of variable>`` for the host."""
+        return ([f"{key}.dir={self.dir}", f"{key}.id={self.id}", f"{key}.guid={self.md.guid}"]
+                + [f"{key}.{role}={self.vr[name]}" for role, name in vrs.items()])
+
+    def fmpy_instance(self, name: str, reals=None, ints=None) -> FMU2Slave:
+        f = FMU2Slave(guid=self.md.guid, unzipDirectory=str(self.dir), modelIdentifier=self.id,
+                      instanceName=name)
+        f.instantiate(loggingOn=True)
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        for key, value in (reals or {}).items():
+            f.setReal([self.vr[key]], [value])
+        for key, value in (ints or {}).items():
+            f.setInteger([self.vr[key]], [value])
+        f.exitInitializationMode()
+        return f
+
+
+@pytest.fixture(scope="module")
+def host(tmp_path_factory) -> Path:
+    """tests/c_host/fmi_host.c compiled into a temporary folder."""
+    gcc = shutil.which("gcc") or shutil.which("cc")
+    assert gcc, "gcc is needed to build the FMUs for native hosts and this test's host"
+    exe = tmp_path_factory.mktemp("c_host") / "fmi_host"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    subprocess.run([gcc, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-I", str(headers), "-o", str(exe),
+                    str(HOST_SOURCE), "-ldl", "-lm"], check=True)
+    return exe
+
+
+@pytest.fixture(scope="module")
+def plant(built_fmus, tmp_path_factory) -> Fmu:
+    return Fmu(built_fmus["MusclePlant"], tmp_path_factory.mktemp("MusclePlant"))
+
+
+@pytest.fixture(scope="module")
+def controller(built_fmus, tmp_path_factory) -> Fmu:
+    if "AMPCController" not in FMUS:
+        pytest.skip("the AMPCController FMU is not in build_scripts.build_fmus.FMUS yet")
+    return Fmu(built_fmus["AMPCController"], tmp_path_factory.mktemp("AMPCController"))
+
+
+def plain_env(tmp: Path, **extra: str) -> dict[str, str]:
+    """What a user's C host would have: no Python variables, no LD_PRELOAD, no venv on PATH."""
+    env = {"PATH": PLAIN_PATH, "HOME": str(tmp), "LANG": "C.UTF-8", **extra}
+    venv_bin = os.path.dirname(sys.executable)
+    assert venv_bin not in env["PATH"].split(os.pathsep)
+    return env
+
+
+def run_host(host: Path, tmp: Path, *args: str, env_extra: dict[str, str] | None = None, check=True):
+    proc = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=600,
+                          env=plain_env(tmp, **(env_extra or {})))
+    if check:
+        assert proc.returncode == 0, f"fmi_host exited {proc.returncode}\n{proc.stderr[-4000:]}"
+    return proc
+
+
+def table(stdout: str) -> list[dict[str, float]]:
+    return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(io.StringIO(stdout))]
+
+
+def test_plain_environment_really_is_plain(tmp_path):
+    env = plain_env(tmp_path)
+    assert not {"PYTHONPATH", "PYTHONHOME", "LD_PRELOAD", "LD_LIBRARY_PATH", "VIRTUAL_ENV"} & set(env)
+    found = shutil.which("python3", path=env["PATH"])
+    assert found is None or Path(found).resolve() != Path(sys.executable).resolve()
+
+
+def test_open_loop_equals_fmpy(host, plant, tmp_path):
+    params = {"load": 68.0, "friction.rate_gain": 0.3}
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l", p="p"),
+                    *(f"P.real={plant.vr[k]}:{v!r}" for k, v in params.items()), f"P.int={plant.vr['seed']}:5",
+                    "steps=200", f"dt={TS}", "sine=5,3,0.1")
+    rows = table(proc.stdout)
+    assert len(rows) == 200
+    f = plant.fmpy_instance("fmpy", reals=params, ints={"seed": 5})
+    worst = 0.0
+    for k, row in enumerate(rows):
+        t = k * TS
+        assert row["t"] == t
+        assert abs(row["u"] - (5 + 3 * math.sin(2 * math.pi * 0.1 * t))) <= 1e-12
+        f.setReal([plant.vr["u"]], [row["u"]])
+        f.doStep(t, TS)
+        l_mm, p_mpa = f.getReal([plant.vr["l"], plant.vr["p"]])
+        worst = max(worst, abs(row["l"] - l_mm), abs(row["p"] - p_mpa))
+    f.terminate()
+    f.freeInstance()
+    assert worst <= 1e-12
+    ls = [r["l"] for r in rows]
+    assert max(ls) - min(ls) > 10.0  # the muscle really moved: the comparison is not of constants
+
+
+@pytest.mark.parametrize("method", [3, 4])  # ampc_ucp; ampc_servo (OSQP)
+def test_closed_loop_equals_fmpy(host, plant, controller, tmp_path, method):
+    steps = 300
+    proc = run_host(host, tmp_path, "closed", *plant.args("P", u="u", l="l"), *controller.args("C", l="l", u="u"),
+                    f"C.int={controller.vr['method']}:{method}", f"steps={steps}", f"dt={TS}")
+    rows = table(proc.stdout)
+    assert len(rows) == steps
+    p = plant.fmpy_instance("plant")
+    c = controller.fmpy_instance("controller", ints={"method": method})
+    worst = 0.0
+    for k, row in enumerate(rows):  # the host's master algorithm, in fmpy
+        t = k * TS
+        (l_mm,) = p.getReal([plant.vr["l"]])
+        c.setReal([controller.vr["l"]], [l_mm])
+        c.doStep(t, TS)
+        (u,) = c.getReal([controller.vr["u"]])
+        p.setReal([plant.vr["u"]], [u])
+        p.doStep(t, TS)
+        assert row["t"] == t
+        worst = max(worst, abs(row["l"] - l_mm), abs(row["u"] - u))
+    for f in (c, p):
+        f.terminate()
+        f.freeInstance()
+    assert worst <= 1e-12
+    # and the loop tracks the built-in reference 35 + 30 sin(2 pi 0.1 t) mm once started
+    err = [r["l"] - (35 + 30 * math.sin(2 * math.pi * 0.1 * r["t"])) for r in rows[100:]]
+    assert math.sqrt(sum(e * e for e in err) / len(err)) < 2.0
+
+
+def test_two_instances_at_once_then_free_and_instantiate_again(host, plant, tmp_path):
+    proc = run_host(host, tmp_path, "instances", *plant.args("P", u="u", l="l", load="load"),
+                    "load_a=44", "load_b=68", "u_const=6", "steps=100", f"dt={TS}")
+    l_mm = {row["name"]: float(row["l"]) for row in csv.DictReader(io.StringIO(proc.stdout))}
+    assert set(l_mm) == {"a", "b", "c"}
+    assert l_mm["a"] - l_mm["b"] > 3.0  # the heavier load hangs lower: the instances do not share state
+    assert l_mm["c"] == l_mm["a"]  # a fresh instance after freeing both repeats a's run exactly
+
+
+def test_host_exit_is_clean_repeatedly(host, plant, tmp_path):
+    """pythonfmu 0.7.0 frees its interpreter holder twice at exit; unguarded that aborted every run
+    of this host ("free(): corrupted unsorted chunks", exit status 134)."""
+    for _ in range(3):
+        proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5")
+        assert "corrupted" not in proc.stderr and "Aborted" not in proc.stderr
+
+
+def test_missing_dependency_fails_instantiation_with_what_to_install(host, plant, tmp_path):
+    """A Python without numpy (an empty venv, recorded site-packages switched off): fmi2Instantiate
+    returns NULL and the host's logger got the message."""
+    empty = tmp_path / "empty-venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(empty)], check=True)
+    python = str(empty / "bin" / "python")
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
+                    env_extra={"TAPMUSCLE_PYTHON": python, "TAPMUSCLE_SITE_PACKAGES": ""})
+    assert proc.returncode == 3, proc.stderr  # fmi_host: fmi2Instantiate returned NULL
+    assert "tapmuscle FMU: cannot import numpy; install it into the Python the FMU uses: " in proc.stderr
+    assert f"{python} -m pip install numpy" in proc.stderr
+    assert "[Fatal] plant" in proc.stderr  # through the host's logger callback
+    assert proc.stdout == ""
+
+
+@pytest.mark.parametrize("override", [False, True])
+def test_packages_come_from_the_recorded_or_named_site_packages(host, plant, tmp_path, override):
+    """The interpreter named by TAPMUSCLE_PYTHON has no packages (an empty venv, as on a machine
+    where the FMU was moved): numpy comes from the site-packages recorded at build (the building
+    venv's), or from those named by TAPMUSCLE_SITE_PACKAGES; same numbers as the default run."""
+    empty = tmp_path / "other-python"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(empty)], check=True)
+    env = {"TAPMUSCLE_PYTHON": str(empty / "bin" / "python")}
+    if override:
+        recorded = json.loads((plant.dir / "resources" / "tapmuscle_native.json").read_text())["site_packages"]
+        env["TAPMUSCLE_SITE_PACKAGES"] = os.pathsep.join([str(tmp_path / "does-not-exist"), *recorded])
+    args = ["open", *plant.args("P", u="u", l="l", p="p"), "steps=50"]
+    moved = run_host(host, tmp_path, *args, env_extra=env)
+    assert len(table(moved.stdout)) == 50
+    assert moved.stdout == run_host(host, tmp_path, *args).stdout
+
+
+FMPY_RUN = textwrap.dedent("""
+    import sys
+    from fmpy import read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    for folder in sys.argv[1:]:
+        md = read_model_description(folder)
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="x")
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        f.exitInitializationMode()
+        for k in range(20):
+            f.setReal([vr["l"]], [30.0]) if "r_k" in vr else f.setReal([vr["u"]], [6.0])
+            f.doStep(k * 0.1, 0.1)
+        print(md.coSimulation.modelIdentifier, f.getReal([vr["u"] if "r_k" in vr else vr["l"]])[0])
+        f.terminate()
+        f.freeInstance()
+""")
+
+
+def test_fmpy_loads_runs_frees_the_prepared_fmus_and_exits_cleanly(plant, built_fmus, tmp_path):
+    folders = [str(plant.dir)]
+    if "AMPCController" in FMUS:
+        folders.append(str(Fmu(built_fmus["AMPCController"], tmp_path / "ctrl").dir))
+    for _ in range(5):
+        proc = subprocess.run([sys.executable, "-c", FMPY_RUN, *folders], capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stderr[-4000:]
+        assert "corrupted" not in proc.stderr
+        assert len(proc.stdout.splitlines()) == len(folders)
+
+
+def test_fmpy_missing_dependency_message(controller, tmp_path):
+    """In a Python host too: osqp not importable -> instantiation fails with the message."""
+    script = textwrap.dedent(f"""
+        import sys
+        import numpy, scipy, scipy.linalg, scipy.sparse  # what the host itself would have
+        from fmpy import read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        folder = {str(controller.dir)!r}
+        md = read_model_description(folder)
+        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="c")
+        assert "osqp" not in sys.modules
+        sys.path[:] = [p for p in sys.path if "-packages" not in p]  # osqp is no longer findable
+        try:
+            f.instantiate(loggingOn=True)
+        except Exception as exc:
+            print("instantiate failed:", exc)
+        else:
+            print("instantiated")
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert "instantiate failed" in proc.stdout
+    assert "tapmuscle FMU: cannot import osqp; install it into the Python the FMU uses: " in proc.stdout
+    assert "-m pip install osqp" in proc.stdout

