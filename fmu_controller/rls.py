@@ -359,24 +359,132 @@ class _BoxProjector:
             return theta_hat.copy()
         return self.project(theta_hat, P, th)
 
-    def project(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float]) -> np.ndarray:
-        """Projection of ``theta_hat`` (outside the box; ``th = theta_hat.tolist()``)."""
+    def project(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float],
+                hint: list[int] | None = None) -> np.ndarray:
+        """Projection of ``theta_hat`` (outside the box; ``th = theta_hat.tolist()``).
+
+        ``hint``: an active set to try first (see :meth:`_active_set`).
+        """
         if not self.small:
             m = self.c.size
             return self._bvls(theta_hat, P, np.ascontiguousarray(P).take(self.flat_cc).reshape(m, m))
-        theta = self._active_set(theta_hat, P, th)
+        theta = self._active_set(theta_hat, P, th, hint)
         return self._enumerate(theta_hat, P) if theta is None else theta
 
-    def _active_set(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float]) -> np.ndarray | None:
-        """Exact projection by KKT-verified active-set iterations; ``None`` if unverified.
+    def hint_from(self, theta: np.ndarray) -> list[int]:
+        """Active-set guess from an earlier estimate: -1/+1 where it lies exactly on its lower/upper bound."""
+        t = theta[self._rows].tolist()
+        return [-1 if ti == l else (1 if ti == h else 0) for ti, l, h in zip(t, self._lo, self._hi)]
 
-        Plain-float code: for ``m <= 4`` this beats any numpy formulation.  The
-        arithmetic (order of every operation) is fixed: the tests compare it bit
-        for bit with the reference enumeration's active set.
+    def _candidate(self, state: list[int], th_c: list[float], Pcc: list[list[float]]):
+        """Evaluate one active set (``state``: 0 free, -1 at lower, +1 at upper bound).
+
+        Returns ``(new_state, x, w)``: the candidate's boxed coordinates ``x``, its
+        multipliers ``w = P_cc^{-1} d_c`` and the state the KKT test asks for
+        (equal to ``state`` iff the candidate is the minimiser); ``None`` if the
+        pinned block of ``P`` is not numerically positive definite.  One or two
+        pinned coordinates (the usual cases) take unrolled code with the same
+        operations in the same order as the general loop.
         """
         lo, hi, fixed = self._lo, self._hi, self._fixed
         lo_tol, hi_tol = self._lo_tol, self._hi_tol
         all_m = self._all_m
+        S = [i for i in all_m if state[i]]
+        new = state[:]
+        x = th_c[:]
+        w = [0.0] * self._m
+        nS = len(S)
+        if nS == 1:
+            i0 = S[0]
+            s0 = state[i0]
+            v0 = lo[i0] if s0 < 0 else hi[i0]
+            p = Pcc[i0][i0]
+            if not p > 0.0:
+                return None
+            w0 = (v0 - th_c[i0]) / p
+            x[i0] = v0
+            w[i0] = w0
+            if s0 * w0 > 0.0 and not fixed[i0]:
+                new[i0] = 0
+            for i in all_m:
+                if i != i0:
+                    xi = th_c[i] + Pcc[i][i0] * w0
+                    x[i] = xi
+                    if xi < lo_tol[i]:
+                        new[i] = -1
+                    elif xi > hi_tol[i]:
+                        new[i] = 1
+            return new, x, w
+        if nS == 2:
+            i0, i1 = S
+            s0, s1 = state[i0], state[i1]
+            v0 = lo[i0] if s0 < 0 else hi[i0]
+            v1 = lo[i1] if s1 < 0 else hi[i1]
+            # _solve_spd_small on [[P00, P01], [P10, P11]] w = [v0 - th0, v1 - th1]
+            P0, P1 = Pcc[i0], Pcc[i1]
+            a00 = P0[i0]
+            if not a00 > 0.0:
+                return None
+            a01 = P0[i1]
+            f = P1[i0] / a00
+            a11 = P1[i1] - f * a01
+            if not a11 > 0.0:
+                return None
+            d0 = v0 - th_c[i0]
+            w1 = ((v1 - th_c[i1]) - f * d0) / a11
+            w0 = (d0 - a01 * w1) / a00
+            x[i0], x[i1] = v0, v1
+            w[i0], w[i1] = w0, w1
+            if s0 * w0 > 0.0 and not fixed[i0]:
+                new[i0] = 0
+            if s1 * w1 > 0.0 and not fixed[i1]:
+                new[i1] = 0
+            for i in all_m:
+                if not state[i]:
+                    Pi = Pcc[i]
+                    xi = th_c[i] + Pi[i0] * w0 + Pi[i1] * w1
+                    x[i] = xi
+                    if xi < lo_tol[i]:
+                        new[i] = -1
+                    elif xi > hi_tol[i]:
+                        new[i] = 1
+            return new, x, w
+        v = [lo[i] if state[i] < 0 else hi[i] for i in S]
+        wS = _solve_spd_small([[Pcc[i][j] for j in S] for i in S],
+                              [vi - th_c[i] for vi, i in zip(v, S)])
+        if wS is None:
+            return None
+        # KKT: multiplier signs of the pinned, bounds of the free ones
+        for i, vi, wi in zip(S, v, wS):
+            x[i] = vi  # exactly on the bound
+            w[i] = wi
+            if state[i] * wi > 0.0 and not fixed[i]:
+                new[i] = 0
+        for i in all_m:
+            if not state[i]:
+                xi = th_c[i]
+                Pi = Pcc[i]
+                for j, wj in zip(S, wS):
+                    xi += Pi[j] * wj
+                x[i] = xi
+                if xi < lo_tol[i]:
+                    new[i] = -1
+                elif xi > hi_tol[i]:
+                    new[i] = 1
+        return new, x, w
+
+    def _active_set(self, theta_hat: np.ndarray, P: np.ndarray, th: list[float],
+                    hint: list[int] | None = None) -> np.ndarray | None:
+        """Exact projection by KKT-verified active-set iterations; ``None`` if unverified.
+
+        Plain-float code: for ``m <= 4`` this beats any numpy formulation.  The
+        iterations start from the coordinates that ``th`` violates.  A ``hint``
+        (e.g. the previous step's active set, :meth:`hint_from`) is tried first
+        and kept only if it passes the KKT test; the result is a function of the
+        accepted active set alone, so a hint changes the work, not the answer
+        (the problem is strictly convex: its KKT point is unique).
+        """
+        lo, hi = self._lo, self._hi
         rows = self._rows
         if self._contiguous:
             th_c = th[rows]
@@ -384,59 +492,38 @@ class _BoxProjector:
         else:
             th_c = [th[i] for i in self._cl]
             Pcc = P.take(self.flat_cc).reshape(self._m, self._m).tolist()
-        # state: 0 free, -1 at lower, +1 at upper; start from what th violates
         state = [-1 if t < l else (1 if t > h else 0) for t, l, h in zip(th_c, lo, hi)]
+        if hint is not None and hint != state and any(hint):
+            cand = self._candidate(hint, th_c, Pcc)
+            if cand is not None and cand[0] == hint:
+                return self._finish(theta_hat, P, cand[1], cand[2])
         seen = []
         for _ in range(self.max_iterations):
-            S = [i for i in all_m if state[i]]
-            v = [lo[i] if state[i] < 0 else hi[i] for i in S]
-            if len(S) == 1:  # the common case
-                i0 = S[0]
-                p = Pcc[i0][i0]
-                if not p > 0.0:
-                    return None
-                wS = [(v[0] - th_c[i0]) / p]
-            else:
-                wS = _solve_spd_small([[Pcc[i][j] for j in S] for i in S],
-                                      [vi - th_c[i] for vi, i in zip(v, S)])
-                if wS is None:
-                    return None
-            # KKT: multiplier signs of the pinned, bounds of the free ones
-            new = state[:]
-            x = th_c[:]
-            w = [0.0] * len(all_m)
-            for i, vi, wi in zip(S, v, wS):
-                x[i] = vi  # exactly on the bound
-                w[i] = wi
-                if state[i] * wi > 0.0 and not fixed[i]:
-                    new[i] = 0
-            for i in all_m:
-                if not state[i]:
-                    xi = th_c[i]
-                    Pi = Pcc[i]
-                    for j, wj in zip(S, wS):
-                        xi += Pi[j] * wj
-                    x[i] = xi
-                    if xi < lo_tol[i]:
-                        new[i] = -1
-                    elif xi > hi_tol[i]:
-                        new[i] = 1
+            cand = self._candidate(state, th_c, Pcc)
+            if cand is None:
+                return None
+            new, x, w = cand
             if new == state:  # KKT point = the minimiser
-                # theta = th + P[:, c] w  (P symmetric: rows of P instead of columns)
-                theta = _dot(np.array(w), P[rows])
-                theta += theta_hat
-                # pinned ones exactly on the bound, free ones: clip the rounding residue
-                clipped = [min(max(xi, l), h) for xi, l, h in zip(x, lo, hi)]
-                if self._contiguous:
-                    theta[rows] = clipped
-                else:
-                    theta[self.c] = clipped
-                return theta
+                return self._finish(theta_hat, P, x, w)
             seen.append(state)
             if new in seen:
                 return None
             state = new
         return None
+
+    def _finish(self, theta_hat: np.ndarray, P: np.ndarray, x: list[float], w: list[float]) -> np.ndarray:
+        """``theta = theta_hat + P[:, c] w`` with the boxed coordinates ``x`` (clipped)."""
+        rows = self._rows
+        # P symmetric: rows of P instead of columns
+        theta = _dot(np.array(w), P[rows])
+        theta += theta_hat
+        # pinned ones exactly on the bound, free ones: clip the rounding residue
+        clipped = [min(max(xi, l), h) for xi, l, h in zip(x, self._lo, self._hi)]
+        if self._contiguous:
+            theta[rows] = clipped
+        else:
+            theta[self.c] = clipped
+        return theta
 
     def _enumerate(self, theta_hat: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Exact projection by enumerating all ``3^m - 1`` active sets (batched)."""
@@ -732,7 +819,7 @@ class ConstrainedRLS:
         # P_new = (P - Pphi Pphi^T / denom) / lam, in place on a fresh array;
         # (Pphi_i Pphi_j) / denom is bit-symmetric, so P stays exactly
         # symmetric (set_state symmetrises its input once)
-        P_new = Pphi[:, None] * Pphi  # = np.multiply.outer(Pphi, Pphi), cheaper
+        P_new = _dot(Pphi[:, None], Pphi[None, :])  # = np.multiply.outer(Pphi, Pphi) exactly (k = 1), cheaper
         P_new /= denom
         _subtract(P, P_new, out=P_new)
         if lam != 1.0:
@@ -757,7 +844,9 @@ class ConstrainedRLS:
 
         self._k += 1
         if self._boxed and self._k >= self._start and not self._projector.inside(th):
-            theta = self._projector.project(theta, P_new, th)
+            # the active set usually persists from sample to sample: try the one the
+            # previous estimate sits on first (a function of theta(k-1), so of the state)
+            theta = self._projector.project(theta, P_new, th, self._projector.hint_from(self._theta))
             self._n_projections += 1
         self._theta = theta
         self._P = P_new
