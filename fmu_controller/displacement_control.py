@@ -234,7 +234,11 @@ class DisplacementController:
             xs = self._xs
             uc, predicted, constrained = self._servo._solve_lean(l, state._l1, self._uc_prev, xs, rl, offset)
             u_raw = uc - offset  # Eq. (5)
-            u = min(max(u_raw, self._u_min), self._u_max)
+            u = u_raw  # = min(max(u_raw, u_min), u_max)
+            if self._u_min > u:
+                u = self._u_min
+            elif self._u_max < u:
+                u = self._u_max
             saturated = constrained or u != u_raw
             xs_next = xs + rl[0] - l  # Eq. (18)
             self._xs = xs_next

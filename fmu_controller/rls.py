@@ -518,11 +518,18 @@ class _BoxProjector:
         theta = _dot(np.array(w), P[rows])
         theta += theta_hat
         # pinned ones exactly on the bound, free ones: clip the rounding residue
-        clipped = [min(max(xi, l), h) for xi, l, h in zip(x, self._lo, self._hi)]
+        # (= min(max(x_i, lo_i), hi_i), without the builtin calls)
+        lo, hi = self._lo, self._hi
+        for i in self._all_m:
+            xi = x[i]
+            if lo[i] > xi:
+                x[i] = lo[i]
+            elif hi[i] < xi:
+                x[i] = hi[i]
         if self._contiguous:
-            theta[rows] = clipped
+            theta[rows] = x
         else:
-            theta[self.c] = clipped
+            theta[self.c] = x
         return theta
 
     def _enumerate(self, theta_hat: np.ndarray, P: np.ndarray) -> np.ndarray:
