@@ -252,11 +252,16 @@ class DisplacementController:
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
-        """Everything needed to continue bit-identically, as plain data."""
+        """Everything needed to continue bit-identically, as plain data (JSON-serialisable:
+        python floats, ints, lists and ``None``; ``predicted`` is NaN before the first step)."""
+        rls = None
+        if self._rls is not None:
+            rls = self._rls.get_state()
+            rls["theta"], rls["P"] = rls["theta"].tolist(), rls["P"].tolist()
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
-            "rls": None if self._rls is None else self._rls.get_state(),
+            "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
 
