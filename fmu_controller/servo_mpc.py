@@ -405,6 +405,13 @@ class ServoMPC:
         row_scale = np.concatenate([np.sqrt(Q), np.sqrt(Qs), np.sqrt(R), np.ones(2 * hp + hu)])
         self._T = np.stack(cols, axis=1) * np.repeat(row_scale, hu + nz)[:, None]
         self._B_shape = B0.shape
+        # Most entries of B do not depend on the model (104 of 450 for Table 5): keep B as
+        # one buffer holding the constant ones and rewrite only the rows of T that have a
+        # model coefficient (the same row-times-[x; 1] products, ~2x cheaper than all of T).
+        self._B_var = np.flatnonzero(np.any(self._T[:, :-1] != 0.0, axis=1))
+        self._T_var = np.ascontiguousarray(self._T[self._B_var])
+        self._B = self._T[:, -1].reshape(B0.shape).copy()  # x = 0: the constant entries
+        self._B_flat = self._B.reshape(-1)                  # a view: writes go to self._B
 
         # Fixed CSC patterns: P dense upper triangle, A = S dense lower
         # triangle.  Explicit (data, indices, indptr) so that an entry that
@@ -494,8 +501,13 @@ class ServoMPC:
         for n in range(hp):
             s += b1 * p
             p, q = a1 * p + q, a2 * p
-            x[n], x[hp + n], x[2 * hp + n] = s, p, q
-        B = self._T.dot(np.array(x)).reshape(self._B_shape)
+            x[n] = s
+            x[hp + n] = p
+            x[2 * hp + n] = q
+        # B = T [x; 1] (reshaped), in place: only the model-dependent entries change.
+        # Nothing keeps a view of the old B (results hold products of it, not views).
+        B = self._B
+        self._B_flat[self._B_var] = self._T_var.dot(x)
         # [P/2 | K/2] = Gall^T [Gall | W] with [Gall | W] the weighted residual rows
         Gall = B[:nres, :hu]
         H = Gall.T.dot(B[:nres])

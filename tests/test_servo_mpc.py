@@ -267,6 +267,28 @@ def test_update_model_equals_fresh_controller(warm):
         assert got.constrained == want.constrained
 
 
+def test_model_update_in_place_leaves_no_stale_entries():
+    # update_model rewrites only the model-dependent entries of the condensed matrix B in place;
+    # after any sequence of models every derived matrix must equal that of a fresh controller
+    rng = np.random.default_rng(15)
+    mpc = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    models = [(rng.uniform(1.1, 1.3), rng.uniform(-0.4, -0.2), rng.uniform(0.3, 1.5)) for _ in range(6)]
+    for model in models[:3] + [(0.0, 0.0, 0.9), (2.0, -1.5, -0.7)] + models[3:]:
+        mpc.update_model(*model)
+        fresh = ServoMPC(a1=model[0], a2=model[1], b1=model[2])
+        for name in ("_B", "_H", "_K_unc"):
+            assert np.array_equal(getattr(mpc, name), getattr(fresh, name)), (model, name)
+        # and B is the tabulated affine map of the step response and the rows C A^n
+        x = np.zeros(16)
+        p, q, srun = 1.0, 0.0, 0.0
+        for n in range(5):
+            srun += model[2] * p
+            p, q = model[0] * p + q, model[1] * p
+            x[n], x[5 + n], x[10 + n] = srun, p, q
+        x[-1] = 1.0
+        np.testing.assert_allclose(mpc._B.ravel(), mpc._T @ x, rtol=1e-14, atol=1e-14)
+
+
 def test_update_model_does_not_depend_on_warm_start_much():
     # warm vs cold start land on the same optimum (refined on the active set)
     rng = np.random.default_rng(6)
