@@ -36,8 +36,10 @@ TABLE2_UPPER: Mapping[str, float] = MappingProxyType({"a1": 1.260, "a2": -0.278,
 
 # bound once: the per-sample update is dominated by call overhead
 _dot = np.dot
-_multiply_outer = np.multiply.outer
 _subtract = np.subtract
+_add = np.add
+_multiply = np.multiply
+_divide = np.divide
 
 # Up to this many boxed coordinates the projection uses the exact small-box
 # solvers (active-set iterations, enumeration of 3^m candidates as fallback);
@@ -722,7 +724,6 @@ class ConstrainedRLS:
         self._projector = _BoxProjector(lower, upper)
         self._boxed = self._projector.c.size > 0
         self._phi_shape = (self._n,)
-        self._ones_n = np.ones(self._n)
         self._ones_nn = np.ones(self._n * self._n)
         self._lam = settings.forgetting
         self._start = settings.constraint_start_index
@@ -822,12 +823,12 @@ class ConstrainedRLS:
         Pphi = _dot(P, phi)
         denom = lam + _dot(phi, Pphi)
         err = y - _dot(phi, self._theta)
-        theta = self._theta + Pphi * (err / denom)
+        theta = _add(self._theta, _multiply(Pphi, err / denom))  # ufuncs: cheaper than the operators
         # P_new = (P - Pphi Pphi^T / denom) / lam, in place on a fresh array;
         # (Pphi_i Pphi_j) / denom is bit-symmetric, so P stays exactly
         # symmetric (set_state symmetrises its input once)
         P_new = _dot(Pphi[:, None], Pphi[None, :])  # = np.multiply.outer(Pphi, Pphi) exactly (k = 1), cheaper
-        P_new /= denom
+        _divide(P_new, denom, out=P_new)
         _subtract(P, P_new, out=P_new)
         if lam != 1.0:
             P_new /= lam
