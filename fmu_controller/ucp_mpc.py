@@ -29,7 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .hysteresis_model import ModelState
+from .hysteresis_model import ModelState, _regressor_terms
+
+_dot = np.dot
+_array = np.array
 
 __all__ = ["UCPSettings", "UCPResult", "predict_held_input", "ucp_move"]
 
@@ -82,15 +85,37 @@ def predict_held_input(state: ModelState, theta: np.ndarray, u_v: float, steps: 
 
     ``state`` must hold ``l(k)`` observed (not yet ``u(k)``); it is not modified.
     """
-    l2, l1, l0 = state.l
-    v2, v1, v0 = state.v
-    sim = ModelState(state.structure, l_init=(l2, l1, l0), v_init=(v2, v1, v0), u_init=u_v)
-    out = np.empty(steps)
-    for i in range(steps):
-        nxt = float(sim.phi() @ theta)
-        sim.observe(nxt, theta)
-        sim.apply(u_v)
-        out[i] = nxt
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape != (state.structure.n_params,):
+        raise ValueError(f"theta must have shape ({state.structure.n_params},), got {theta.shape}")
+    return np.array(_held(state, theta, theta[:3].tolist(), float(u_v), steps))
+
+
+def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, steps: int) -> list[float]:
+    """:func:`predict_held_input` as a list, for a float ``theta`` array of the right length and
+    its linear part ``lin = [a1, a2, b1]`` as python floats.
+
+    The same arithmetic as stepping a copy of ``state`` by ``phi() @ theta``, ``observe`` and
+    ``apply`` (one BLAS dot per step, the rest in python floats), without building the copy.
+    """
+    if not math.isfinite(u):
+        raise ValueError(f"u must be finite, got {u}")
+    a1, a2, b1 = lin
+    n = state.structure.n_params
+    l2, l1, l0 = state._l2, state._l1, state._l0
+    v2, v1, v0 = state._v2, state._v1, state._v0
+    out = []
+    for _ in range(steps):
+        terms = _regressor_terms(l0, l1, l2, u, v1, v2)
+        nxt = float(_dot(_array(terms if n == 15 else terms[:n]), theta))
+        if not math.isfinite(nxt):
+            raise ValueError(f"l must be finite, got {nxt}")
+        v = nxt - (a1 * l0 + a2 * l1 + b1 * u)
+        if not math.isfinite(v):
+            raise ValueError(f"theta gives a non-finite v: {v}")
+        l2, l1, l0 = l1, l0, nxt
+        v2, v1, v0 = v1, v0, v
+        out.append(nxt)
     return out
 
 
@@ -111,9 +136,14 @@ def ucp_move(settings: UCPSettings, state: ModelState, theta: np.ndarray, *, u_p
         ``r(k+Hp|k)`` [mm].
     """
     hp = settings.hp
-    free = predict_held_input(state, theta, u_prev_v, hp)
-    stepped = predict_held_input(state, theta, u_prev_v + 1.0, hp)
-    s = float(stepped[-1] - free[-1])
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape != (state.structure.n_params,):
+        raise ValueError(f"theta must have shape ({state.structure.n_params},), got {theta.shape}")
+    lin = theta[:3].tolist()
+    u_prev_v = float(u_prev_v)
+    free = _held(state, theta, lin, u_prev_v, hp)
+    stepped = _held(state, theta, lin, u_prev_v + 1.0, hp)
+    s = stepped[-1] - free[-1]
     if not math.isfinite(s) or abs(s) < settings.min_step_response_mm:
         # Linear part's unit step response at Hp: sum of its impulse response.
         a1, a2, b1 = float(theta[0]), float(theta[1]), float(theta[2])
@@ -121,10 +151,10 @@ def ucp_move(settings: UCPSettings, state: ModelState, theta: np.ndarray, *, u_p
         for _ in range(hp):
             y1, y0 = a1 * y1 + a2 * y0 + b1, y1
         s = y1 if abs(y1) >= settings.min_step_response_mm else math.copysign(settings.min_step_response_mm, y1 or 1.0)
-    du = (r_target_mm - float(free[-1])) / s
+    du = (r_target_mm - free[-1]) / s
     u = u_prev_v + du
     clipped = min(max(u, settings.u_min_v), settings.u_max_v)
     if not math.isfinite(clipped):
         clipped = u_prev_v if math.isfinite(u_prev_v) else settings.u_min_v
-    pred = predict_held_input(state, theta, clipped, hp)
-    return UCPResult(clipped, float(free[-1]), s, pred, clipped != u)
+    pred = np.array(_held(state, theta, lin, float(clipped), hp))
+    return UCPResult(clipped, free[-1], s, pred, clipped != u)
