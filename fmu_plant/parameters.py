@@ -171,7 +171,7 @@ class SolverParams(_Validated):
     size then adapts. Tighter tolerances cost more sub-steps per communication step.
     """
 
-    max_substep_s: float = _f(0.1, "Largest internal integration step [s]; the adaptive sub-steps never exceed it and end exactly on every communication point.", lo=1e-5, hi=1.0)
+    max_substep_s: float = _f(0.05, "Largest internal integration step [s]; the adaptive sub-steps never exceed it and end exactly on every communication point.", lo=1e-5, hi=1.0)
     min_substep_s: float = _f(1e-5, "Smallest internal integration step [s]; a sub-step this short is accepted whatever its error estimate (guarantees progress).", lo=1e-9, hi=1e-3)
     tol_p_mpa: float = _f(3e-4, "Local error tolerance of the muscle pressure per sub-step [MPa].", lo=0.0, lo_open=True)
     tol_l_mm: float = _f(3e-3, "Local error tolerance of the contraction per sub-step [mm].", lo=0.0, lo_open=True)
