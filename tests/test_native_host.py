@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from build_scripts.native_host import CONFIG_NAME, build_environment, prepare_for_native_hosts
+from build_scripts import native_host as build_native_host
+from build_scripts.native_host import CONFIG_NAME, NativeHostWarning, build_environment, prepare_for_native_hosts
 from fmi_slave import native_host
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,6 +81,19 @@ def test_preparing_again_changes_nothing(tree, tmp_path):
     before = _digest(copy)
     prepare_for_native_hosts(copy)
     assert _digest(copy) == before
+
+
+def test_without_patchelf_the_fmu_is_left_for_python_hosts_with_a_warning(tree, tmp_path, monkeypatch):
+    raw = tmp_path / "raw"
+    shutil.copytree(tree, raw)
+    bindir = raw / "binaries" / "linux64"
+    (bindir / "MusclePlant_pythonfmu.so").replace(bindir / "MusclePlant.so")  # the layout pythonfmu makes
+    (raw / "resources" / CONFIG_NAME).unlink()
+    before = _digest(raw)
+    monkeypatch.setattr(build_native_host, "_patchelf", lambda: None)
+    with pytest.warns(NativeHostWarning, match="patchelf not found"):
+        prepare_for_native_hosts(raw)
+    assert _digest(raw) == before
 
 
 def test_not_embedded_in_this_python_process():

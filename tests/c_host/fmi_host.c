@@ -11,8 +11,9 @@
  * Usage:  fmi_host MODE key=value ...
  *   MODE open       the plant alone, u = OFFSET + AMP*sin(2*pi*FREQ*t);      CSV: t,u,l,p
  *   MODE closed     plant and controller, the master algorithm below;           CSV: t,l,u
- *   MODE instances  two plant instances a, b at once (load_a, load_b, constant u), both freed, then c
- *                   instantiated again like a;                                  CSV: name,l
+ *   MODE instances  two plant instances a, b at once (load_a, load_b, constant u), both freed, the
+ *                   binary dlclose()d and loaded again (unless unload=0), then c instantiated like a;
+ *                                                                               CSV: name,l
  * FMU keys (P = plant, C = ctrl):
  *   P.dir=DIR P.id=MODEL_ID P.guid=GUID        extracted FMU folder, modelIdentifier, guid
  *   P.u=VR P.l=VR P.p=VR P.load=VR             value references (plant: input u, outputs l, p, input load)
@@ -266,6 +267,10 @@ int main(int argc, char **argv) {
         printf("a,%.17g\nb,%.17g\n", get1(&plant, a, plant.vr_l), get1(&plant, b, plant.vr_l));
         stop(&plant, a);
         stop(&plant, b);
+        if (unload) { /* as a host that runs a new simulation does: unload, load again, instantiate */
+            dlclose(plant.lib);
+            load(&plant);
+        }
         c = start(&plant, "c", plant.vr_load, load_a);
         for (k = 0; k < steps; k++) {
             set1(&plant, c, plant.vr_u, u_const);
