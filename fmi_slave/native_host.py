@@ -9,7 +9,8 @@ library's pure-Python modules.
   environment's interpreter, a venv's ``bin/python``, whose site-packages Python then adds itself).
   The site-packages recorded at build time in ``resources/tapmuscle_native.json`` are added too, with
   ``site.addsitedir`` (those that exist and are not on sys.path yet; ``.pth`` files are honoured),
-  ahead of the interpreter's own: that matters when the venv is gone and the base interpreter runs.
+  ahead of the interpreter's own (that matters when another interpreter runs: the venv is gone, or
+  ``TAPMUSCLE_PYTHON`` names another one).
 * ``TAPMUSCLE_SITE_PACKAGES`` (directories separated by ``os.pathsep``) replaces the recorded list, in
   any host; set but empty, it adds none.
 * In a Python host (fmpy) without the override nothing is added: the host's own environment rules.
