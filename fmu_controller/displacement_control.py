@@ -36,7 +36,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .hysteresis_model import ASYMMETRIC, ModelState, hysteresis_term
+from .hysteresis_model import ASYMMETRIC, ModelState
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, ucp_move

@@ -466,7 +466,9 @@ class ModelState:
 
     def _observe_finite(self, l: float, a1: float, a2: float, b1: float) -> float:
         """:meth:`observe` for a finite python float ``l`` and the linear part of ``theta``
-        (the controller's hot path, ``u(k)`` known to be applied); same arithmetic."""
+        (the controller's hot path); same arithmetic."""
+        if not self._has_u:
+            raise RuntimeError("apply(u) must be called before observe(l)")
         v = l - (a1 * self._l0 + a2 * self._l1 + b1 * self._u)
         if not math.isfinite(v):
             raise ValueError(f"theta gives a non-finite v: {v}")
@@ -492,7 +494,9 @@ class ModelState:
         return h
 
     def _phi_list(self) -> list[float]:
-        """:meth:`phi` as a list of python floats (``u(k)`` known to be applied)."""
+        """:meth:`phi` as a list of python floats."""
+        if not self._has_u:
+            raise RuntimeError("apply(u) must be called before phi()")
         terms = _regressor_terms(self._l0, self._l1, self._l2, self._u, self._v1, self._v2)
         return terms if self._n == 15 else terms[:self._n]
 

@@ -38,8 +38,9 @@ and the cost are formed.  One matrix ``B`` maps ``[D; z]`` to that residual
 followed by the predictions ``L``, ``X_s`` and the input plan, so cost,
 predictions and plan of any moves are one matrix-vector product.  ``B`` is
 affine in the step response and the rows ``C A^n``; that map is tabulated at
-construction, so a new model costs one matrix-vector product for ``B``, one
-small matrix product for ``P``, ``K`` and one Cholesky solve for ``-P^{-1} K``.
+construction, so a new model costs one matrix-vector product for ``B`` (only
+its model-dependent entries are rewritten, in place), one small matrix product
+for ``P``, ``K`` and one Cholesky solve for ``-P^{-1} K``.
 The constraint matrix is the cumulative-sum matrix ``S`` (``u_c(k+i|k) =
 u_c(k-1) + (S D)_i``).  ``P`` and ``K`` depend on ``(a1, a2, b1)`` only, ``S``
 never changes.
@@ -834,8 +835,9 @@ class ServoMPC:
         Arguments are python floats (``r_future`` a list of ``Hp + 1`` of them),
         the measured ones already checked finite.  The same computation as
         :meth:`solve`, bit for bit, without building a :class:`ServoMPCResult`
-        when the closed-form minimiser is feasible (the common case); otherwise,
-        or if a derived argument is not finite, :meth:`solve` itself runs.
+        when the closed-form minimiser is feasible (the common case); when a bound
+        of Eq. (19) binds, the OSQP path of :meth:`solve` runs on the same data,
+        and if a derived argument is not finite, :meth:`solve` itself (which raises).
         """
         if self._shortcut and math.isfinite(uc_prev_v + xs + offset_v) and len(r_future) == self._hp + 1:
             hu = self._hu

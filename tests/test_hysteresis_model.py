@@ -199,3 +199,30 @@ def test_model_state_get_set_state_round_trip():
         assert np.array_equal(pa, pb)
         a.update(float(pa @ theta), u[k], theta)
         b.update(float(pb @ theta), u[k], theta)
+
+
+@pytest.mark.parametrize("structure", [ASYMMETRIC, STANDARD])
+def test_controller_hot_path_helpers_equal_the_public_methods(structure):
+    # the controller steps ModelState through plain-float helpers; they must give exactly what
+    # phi(), observe() and hysteresis_term() give, so the two paths cannot drift apart
+    theta = ASYMMETRIC.from_dict(TABLE3)[: structure.n_params]
+    u = excitation(300)
+    a = ModelState(structure, l_init=(20.0, 20.5, 21.0), u_init=float(u[0]))
+    b = ModelState(structure, l_init=(20.0, 20.5, 21.0), u_init=float(u[0]))
+    t = theta.tolist()
+    for k in range(1, 300):
+        phi = a.phi()
+        assert b._phi_list() == phi.tolist()
+        l = float(phi @ theta) + 0.01 * math.sin(k)
+        assert b._observe_finite(l, t[0], t[1], t[2]) == a.observe(l, theta)
+        assert b._hysteresis(t) == hysteresis_term(theta, a)
+        a.apply(float(u[k]))
+        b.apply(float(u[k]))
+        assert a.get_state() == b.get_state()
+    b._observe_finite(30.0, *t[:3])
+    with pytest.raises(RuntimeError, match="apply"):  # u(k) not applied after l(k)
+        b._observe_finite(30.1, *t[:3])
+    with pytest.raises(RuntimeError, match="apply"):
+        b._phi_list()
+    with pytest.raises(ValueError, match="non-finite v"):
+        ModelState(structure, l_init=(1.0, 1.0, 1.0), u_init=1.0)._observe_finite(1.0, math.inf, 0.0, 0.0)

@@ -303,6 +303,51 @@ def test_active_set_fast_path_equals_full_enumeration():
     assert n_fast >= n_outside - 5  # the fast path settles (nearly) all cases itself
 
 
+def test_active_set_hint_changes_the_work_not_the_answer():
+    # the estimator first tries the active set theta(k-1) lies on; any hint that passes the KKT
+    # test gives the same point, bit for bit, as the cold start from the violated coordinates
+    rng = np.random.default_rng(41)
+    n_hinted = 0
+    for case in range(400):
+        n, m = int(rng.integers(4, 16)), int(rng.integers(1, 4))
+        P = _random_spd(rng, n, log_cond=rng.uniform(0, 5))
+        P = 0.5 * (P + P.T)
+        theta_hat = rng.normal(scale=3.0, size=n)
+        lower, upper = np.full(n, -np.inf), np.full(n, np.inf)
+        centre = theta_hat[:m] + rng.normal(scale=2.0, size=m)
+        half = rng.uniform(0.05, 2.0, m)
+        lower[:m], upper[:m] = centre - half, centre + half
+        proj = _BoxProjector(lower, upper)
+        th = theta_hat.tolist()
+        if proj.inside(th):
+            continue
+        cold = proj._active_set(theta_hat, P, th)
+        if cold is None:
+            continue
+        for hint in (proj.hint_from(cold), [int(x) for x in rng.integers(-1, 2, m)]):
+            hinted = proj._active_set(theta_hat, P, th, hint)
+            assert hinted is not None and np.array_equal(hinted, cold), (case, hint)
+            n_hinted += 1
+    assert n_hinted > 300
+
+
+def test_estimator_with_hints_equals_cold_projections():
+    # the whole constrained estimator, with and without the hint, on data that keep it on the box
+    theta_true = ASYMMETRIC.from_dict(TABLE3)
+    u = excitation(1500)
+    l = generate(theta_true, ASYMMETRIC, u)
+    phi, y = _true_regressors(theta_true, ASYMMETRIC, u, l)
+    y = y + np.random.default_rng(7).normal(0, 0.05, y.size)
+    settings = RLSSettings(p0=(200.0,) * 3 + (50.0,) * 8 + (20.0,) * 4, constraint_start_s=0.0,
+                           theta0=tuple(np.clip(theta_true, -5, 5)))
+    hinted, cold = ConstrainedRLS(ASYMMETRIC, settings), ConstrainedRLS(ASYMMETRIC, settings)
+    cold._projector.hint_from = lambda theta: None
+    for p, yy in zip(phi, y):
+        assert np.array_equal(hinted.update(p, yy), cold.update(p, yy))
+    assert np.array_equal(hinted.P, cold.P)
+    assert hinted.n_projections == cold.n_projections > 100
+
+
 def test_projection_ill_conditioned_all_pinned():
     # cond(P) = 2e6: the optimum pins both coordinates with |P^-1 d| ~ 1e6, so
     # recomputing its pinned coordinates is off by ~1e-10; that must not reject it

@@ -54,3 +54,21 @@ def test_degenerate_step_response_falls_back_to_linear_part():
 def test_bad_settings(kw, match):
     with pytest.raises(ValueError, match=match):
         UCPSettings(**kw)
+
+
+def test_held_input_prediction_equals_stepping_the_model():
+    # predict_held_input runs in plain floats; it must equal stepping a ModelState copy exactly
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        s = _state(l=float(rng.uniform(10, 60)), u=float(rng.uniform(0, 10)))
+        u = float(rng.uniform(0, 10))
+        sim = ModelState(ASYMMETRIC, l_init=s.l, v_init=s.v, u_init=u)
+        want = []
+        for _ in range(4):
+            nxt = float(sim.phi() @ THETA)
+            sim.observe(nxt, THETA)
+            sim.apply(u)
+            want.append(nxt)
+        assert predict_held_input(s, THETA, u, 4).tolist() == want
+    with pytest.raises(ValueError, match="u must be finite"):
+        predict_held_input(_state(), THETA, float("nan"), 2)
