@@ -574,3 +574,26 @@ def test_result_arrays_read_only_and_warm_start_unaffected():
                 a[0] = 1.0
         assert res.delta_uc_v.shape == (5,) and res.uc_plan_v.shape == (5,)
         assert res.predicted_l_mm.shape == (5,) and res.predicted_xs.shape == (5,)
+
+
+def test_lean_solve_equals_solve():
+    # the controller's hot path returns exactly solve()'s u_c, l_hat(k+1|k) and bound flag, and
+    # leaves the same warm start, on interior and constrained (OSQP) samples alike
+    rng = np.random.default_rng(21)
+    a = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    b = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    n_osqp = 0
+    for j in range(60):
+        model = (rng.uniform(1.208, 1.260), rng.uniform(-0.334, -0.278), rng.uniform(0.607, 1.184))
+        a.update_model(*model)
+        b._update_model_finite(*model)
+        case = random_case(rng, 5, big=bool(j % 3 == 0))
+        want = a.solve(**case)
+        got = b._solve_lean(case["l_mm"], case["l_prev_mm"], case["uc_prev_v"], case["xs"],
+                            case["r_future_mm"].tolist(), case["offset_v"])
+        assert got == (want.uc_v, float(want.predicted_l_mm[0]), want.constrained), j
+        assert a.get_state() == b.get_state(), j
+        n_osqp = b.osqp_solves
+    assert 5 < n_osqp < 60  # both paths were taken
+    with pytest.raises(ValueError, match="offset_v"):
+        b._solve_lean(30.0, 30.0, 5.0, 0.0, [30.0] * 6, float("nan"))
