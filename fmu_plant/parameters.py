@@ -173,10 +173,10 @@ class SolverParams(_Validated):
 
     max_substep_s: float = _f(0.05, "Largest internal integration step [s]; the adaptive sub-steps never exceed it and end exactly on every communication point.", lo=1e-5, hi=1.0)
     min_substep_s: float = _f(1e-5, "Smallest internal integration step [s]; a sub-step this short is accepted whatever its error estimate (guarantees progress).", lo=1e-9, hi=1e-3)
-    tol_p_mpa: float = _f(3e-4, "Local error tolerance of the muscle pressure per sub-step [MPa].", lo=0.0, lo_open=True)
-    tol_l_mm: float = _f(3e-3, "Local error tolerance of the contraction per sub-step [mm].", lo=0.0, lo_open=True)
-    tol_v_mm_s: float = _f(0.3, "Local error tolerance of the contraction speed per sub-step [mm/s].", lo=0.0, lo_open=True)
-    tol_z_n: float = _f(0.03, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True)
+    tol_p_mpa: float = _f(5e-4, "Local error tolerance of the muscle pressure per sub-step [MPa].", lo=0.0, lo_open=True)
+    tol_l_mm: float = _f(5e-3, "Local error tolerance of the contraction per sub-step [mm].", lo=0.0, lo_open=True)
+    tol_v_mm_s: float = _f(0.5, "Local error tolerance of the contraction speed per sub-step [mm/s].", lo=0.0, lo_open=True)
+    tol_z_n: float = _f(0.05, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True)
 
 
 @dataclass(frozen=True, kw_only=True)

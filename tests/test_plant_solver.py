@@ -1,5 +1,5 @@
-"""The plant's integrator: ROS34PW2 coefficients, analytic Jacobian, accuracy against a fine reference,
-step-size memory in the saved state, and the number of sub-steps it takes."""
+"""The plant's numerics: ROS34PW2 coefficients, analytic Jacobian, accuracy against a fine reference,
+step-size memory and noise blocks in the saved state, and the number of sub-steps it takes."""
 
 import cmath
 import math
@@ -9,6 +9,7 @@ import pytest
 
 from fmu_plant import Plant, PlantParams
 from fmu_plant.plant import _A, _E, _GC, _M, _ROS_GAMMA, _build_model
+from fmu_plant.sensors import read_encoder_mm, read_pressure_mpa
 
 QUIET = PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.pressure_noise_std_mpa": 0.0})
 
@@ -122,7 +123,7 @@ def test_step_size_memory_is_part_of_the_saved_state():
     for k in range(150):
         a.step(sine(0.1 * k), 0.1)
     saved = a.get_state()
-    assert saved["h_first_s"] != Plant(seed=2).get_state()["h_first_s"]  # it adapted
+    assert saved["kink_scale_s"] != Plant(seed=2).get_state()["kink_scale_s"]  # it adapted
     b = Plant(seed=2)  # a fresh plant continues bit-identically from the saved state
     b.set_state(saved)
     for k in range(150, 250):
@@ -131,7 +132,24 @@ def test_step_size_memory_is_part_of_the_saved_state():
     assert a.state == b.state
 
 
-@pytest.mark.parametrize("freq, most", [(0.1, 4.5), (0.2, 5.5)])
+def test_sensor_noise_is_the_seeded_generators_sequence_and_survives_a_rewind():
+    """Noise is drawn in blocks, but it is the same sequence sensors.py reads one value at a time."""
+    plant = Plant(seed=4)
+    sp = plant.params.sensor
+    rng = np.random.default_rng(4)
+    read_encoder_mm(sp, 0.0, rng), read_pressure_mpa(sp, 0.0, rng)  # the reading at reset
+    other = Plant(seed=9)
+    for k in range(300):
+        m = plant.step(sine(0.1 * k), 0.1)
+        assert (m.l_mm, m.p_mpa) == (read_encoder_mm(sp, plant.l_mm, rng), read_pressure_mpa(sp, plant.p_mpa, rng))
+        if k == 100:  # mid-block (two normals per step, 64 per block)
+            other.set_state(plant.get_state())
+        elif k > 100:
+            assert other.step(sine(0.1 * k), 0.1) == m
+    assert np.std([Plant(seed=s).step(5.0, 0.1).l_mm for s in range(40)]) > 0.005  # the noise is on
+
+
+@pytest.mark.parametrize("freq, most", [(0.1, 4.0), (0.2, 5.0)])
 def test_a_communication_step_takes_few_sub_steps(freq, most):
     """The point of the implicit scheme: sub-steps of tens of ms instead of RK4's 50 x 2 ms."""
     plant = Plant(seed=0)
