@@ -121,9 +121,9 @@ _KINK_FLOOR = 1e-3  # changes below this count as this (no change: a long first 
 
 def _build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Callable[..., tuple[float, ...]],
                                              Callable[..., tuple[float, ...]]]:
-    """The right-hand side and the ROS34PW2 sub-step of the rig's equations for parameters ``prm``.
+    """The right-hand side, its Jacobian and the ROS34PW2 sub-step of the rig's equations for ``prm``.
 
-    Both are closures over plain-float constants (no attribute lookups or numpy in the hot path).
+    All three are closures over plain-float constants (no attribute lookups or numpy in the hot path).
 
     Returns
     -------
@@ -514,6 +514,9 @@ class Plant:
         ValueError
             If ``u_v`` or ``dt_s`` is not finite, or ``dt_s`` is not within (0, 3600] s. The plant
             state is unchanged then.
+        FloatingPointError
+            If the integration breaks down (a non-finite error estimate at the shortest sub-step;
+            only with extreme parameters). The state is that of the start of the step.
         """
         u_v = _finite("u_v", u_v)
         dt_s = _finite("dt_s", dt_s)
@@ -695,6 +698,9 @@ class Plant:
             new = attempt(x, p, l, v, z, xs, ps, w, h)
             err = new[5]
             if err <= 1.0 or h <= h_min:
+                if not err < math.inf:  # NaN or inf at the shortest step: the numbers broke down
+                    raise FloatingPointError(f"plant integration failed at t = {t0 + done:.6g} s "
+                                             f"(state {self.state}, parameters {self.params})")
                 x, p, l, v, z = new[0], new[1], new[2], new[3], new[4]
                 if l < 0.0:  # the stop is rigid: no penetration, no rebound
                     l = 0.0

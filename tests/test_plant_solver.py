@@ -165,3 +165,12 @@ def test_a_communication_step_takes_few_sub_steps(freq, most):
         plant.step(5 + 3 * math.sin(2 * math.pi * freq * 0.1 * k), 0.1)
     assert len(attempts) / 600 < most
     assert np.median(attempts) > 0.015  # [s]
+
+
+def test_a_broken_down_integration_raises_instead_of_looping():
+    plant = Plant(seed=0)
+    plant.step(5.0, 0.1)
+    plant.state = [0.5, math.nan, 10.0, 0.0, 0.0]  # as if the numbers had overflowed
+    with pytest.raises(FloatingPointError, match="t = 0.1 s"):
+        plant.step(5.0, 0.1)
+    assert math.isnan(plant.state[1]) and plant.t_s == pytest.approx(0.1)  # the step did not happen
