@@ -174,3 +174,47 @@ def test_a_broken_down_integration_raises_instead_of_looping():
     with pytest.raises(FloatingPointError, match="t = 0.1 s"):
         plant.step(5.0, 0.1)
     assert math.isnan(plant.state[1]) and plant.t_s == pytest.approx(0.1)  # the step did not happen
+
+
+def _module_rhs(prm, s, u, ps, w):
+    """The equations of docs/plant.md written with the physics modules (valve, muscle, friction)."""
+    from fmu_plant.friction import friction_rate_n_s
+    from fmu_plant.muscle import MuscleGeometry
+    from fmu_plant.parameters import CV_TO_SI_WATER, GRAVITY_M_S2
+    from fmu_plant.valve import orifice_flow, valve_opening
+
+    x, p, l, v, z = s
+    vp, mp = prm.valve, prm.muscle
+    geo = MuscleGeometry.from_params(mp)
+    xc = min(max(x, 0.0), 1.0)
+    k = vp.cv_max * CV_TO_SI_WATER
+    k_in = k * (vp.leak_fraction + (1 - vp.leak_fraction) * xc ** vp.characteristic_exponent)
+    k_out = k * (vp.leak_fraction + (1 - vp.leak_fraction) * (1 - xc) ** vp.characteristic_exponent)
+    lam = vp.laminar_dp_mpa * 1e6
+    q = orifice_flow(k_in, (ps - p) * 1e6, lam) - orifice_flow(k_out, (p - prm.supply.drain_pressure_mpa) * 1e6, lam)
+    area = geo.piston_area_m2(l * 1e-3)
+    dp = (q - area * v * 1e-3) / prm.supply.compliance_m3_per_mpa
+    p_eff = mp.threshold_width_mpa * math.log1p(math.exp((p - mp.threshold_pressure_mpa) / mp.threshold_width_mpa))
+    force = (p_eff * 1e6 * area + mp.braid_lock_force_n * math.exp(-l / mp.braid_lock_length_mm)
+             - mp.rubber_stiffness_n_per_mm * l - w - mp.damping_n_s_per_mm * v - z)
+    dx = (valve_opening(u, vp.u_min_v, vp.u_max_v) - x) / vp.spool_time_constant_s
+    if l <= 0.0 and v <= 0.0 and force <= 0.0:
+        return [dx, dp, 0.0, 0.0, 0.0]
+    dz = friction_rate_n_s(prm.friction, z, v, p, geo.contact_factor(l * 1e-3))
+    return [dx, dp, v, force / (w / GRAVITY_M_S2 + prm.load.moving_mass_kg) * 1e3, dz]
+
+
+@pytest.mark.parametrize("changes", [{}, {"friction.rate_exponent": 0.5, "valve.characteristic_exponent": 1.0},
+                                     {"valve.leak_fraction": 0.2, "supply.drain_pressure_mpa": 0.05}])
+def test_the_inlined_equations_are_the_physics_modules(changes):
+    """The integrator's closures inline valve.py, muscle.py and friction.py for speed: same numbers."""
+    prm = PlantParams().with_values(**changes)
+    plant = Plant(prm)
+    rng = np.random.default_rng(1)
+    for _ in range(2000):
+        s = [rng.uniform(-0.1, 1.1), rng.uniform(-0.05, 0.4), float(rng.choice([0.0, rng.uniform(-1, 160)])),
+             float(rng.choice([0.0, rng.uniform(-200, 200)])), rng.uniform(-60, 60)]
+        u, ps, w = rng.uniform(-1, 11), rng.uniform(0, 1), rng.uniform(0, 100)
+        want = _module_rhs(prm, s, u, ps, w)
+        got = plant.derivatives(s, u, ps, w)
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-9), (s, u, ps, w)
