@@ -101,7 +101,15 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
             if (name) Py_SetProgramName(name);
         }
     }
-    /* (c) see release_pythonfmu_interpreter */
+    /* (c) see release_pythonfmu_interpreter. atexit() in a shared library runs its handler when the
+           library is unloaded, and hosts (fmpy) dlclose the FMU at fmi2FreeInstance: the handler would
+           then tear down the interpreter holder that other loaded FMUs still use (a segfault in their
+           next call). Pin this library, and with it pythonfmu's, for the life of the process first. */
+    {
+        Dl_info self;
+        if (dladdr((void *)&release_pythonfmu_interpreter, &self) && self.dli_fname)
+            dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+    }
     atexit(release_pythonfmu_interpreter);
 }
 """

@@ -29,10 +29,10 @@ logged message.
 from __future__ import annotations
 
 import atexit
+import itertools
 import shutil
 import tempfile
 import time
-from ctypes import byref
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -63,6 +63,41 @@ class Unpacked:
 
 
 _UNPACKED: dict[Path, Unpacked] = {}
+
+# One logger for every instance, alive for the whole process, routed by instance name. It is NOT passed
+# through fmpy's addLoggerProxy: that proxy keeps the Python logger in one process-wide C variable, so a
+# per-instance logger registered there is used by every later FMU, also those created with fmpy's
+# default callbacks, and crashed them once its instance was gone. pythonfmu's messages are plain text
+# (no printf arguments), so the proxy's formatting is not needed.
+_LOG_SINKS: dict[str, list[str]] = {}
+_INSTANCE_COUNTER = itertools.count()
+_CALLBACKS: list[Any] = []
+
+
+def _log(_env, name, status, _category, message) -> None:
+    text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
+    key = name.decode("utf-8", "replace") if isinstance(name, bytes) else str(name)
+    label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+    sink = _LOG_SINKS.get(key)
+    if sink is None:  # an instance that is not ours: print as fmpy's default logger does
+        print(f"[{label}] {text}")
+    else:
+        sink.append(f"[{label}] {text}")
+
+
+def _callbacks() -> Any:
+    """The process-wide fmi2CallbackFunctions (created once)."""
+    if not _CALLBACKS:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                               fmi2CallbackLoggerTYPE)
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        _CALLBACKS.append(cb)
+    return _CALLBACKS[0]
 
 
 def _cleanup(folder: str) -> None:
@@ -96,31 +131,21 @@ class FmuInstance:
     """
 
     def __init__(self, path: str | Path, instance_name: str, *, role: str) -> None:
-        from fmpy import calloc, free
-        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+        # The installed pythonfmu first: the first FMU's Python code would otherwise import the copy in
+        # its resources/ (no builder binaries), and a later build in this process would use that copy.
+        import pythonfmu  # noqa: F401
+        from fmpy.fmi2 import FMU2Slave
 
         self.unpacked = unpack(path)
         self.role = role
         self.messages: list[str] = []
         md = self.unpacked.model_description
-
-        def logger(_env, _name, status, _category, message):
-            text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
-            self.messages.append(f"[{_STATUS[status] if 0 <= status < 6 else status}] {text}")
-
-        self._callbacks = fmi2CallbackFunctions()
-        self._callbacks.logger = fmi2CallbackLoggerTYPE(logger)
-        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        try:
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(byref(self._callbacks))
-        except Exception:  # noqa: BLE001 - the proxy only formats printf-style messages
-            pass
+        instance_name = f"{instance_name}#{next(_INSTANCE_COUNTER)}"  # unique: messages are routed by name
+        _LOG_SINKS[instance_name] = self.messages
+        self._name = instance_name
         self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=self.unpacked.folder,
                              modelIdentifier=md.coSimulation.modelIdentifier, instanceName=instance_name)
-        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True))
+        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=_callbacks(), loggingOn=True))
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()
 
@@ -175,6 +200,7 @@ class FmuInstance:
             self.fmu.terminate()
         finally:
             self.fmu.freeInstance()
+            _LOG_SINKS.pop(self._name, None)
 
 
 def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: str = "all",
