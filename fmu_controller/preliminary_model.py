@@ -5,7 +5,7 @@ returns on the simulated rig with the default plant parameters. It is the defaul
 ``AMPCController`` FMU, which must not depend on the plant to start. ``tests/test_paper.py`` recomputes
 it and fails if the plant changed and this table was not regenerated with::
 
-    python -c "from tapmuscle.paper import preliminary_theta; print(preliminary_theta().tolist())"
+    python -c "from tapmuscle.paper import preliminary_theta; print(preliminary_theta(0, refine_hz=0.05).tolist())"
 """
 
 from __future__ import annotations
