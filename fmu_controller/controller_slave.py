@@ -173,6 +173,7 @@ class AMPCController(SafeSlave):
         except ValueError as exc:
             raise SlaveInputError(f"bad parameter: {exc}") from None
         self._hp = settings.preview_samples
+        self._source = REFERENCE_SOURCES[self._int_par["reference_source"]]
         self._k = 0
         self._buffer = []
         self._theta = [float(v) for v in theta0]
@@ -180,7 +181,7 @@ class AMPCController(SafeSlave):
 
     def _preview(self, k: int) -> list[float]:
         """``r(k..k+Hp)`` [mm] for the chosen reference source (module docstring)."""
-        source = REFERENCE_SOURCES[self._int_par["reference_source"]]
+        source = self._source
         if source == "builtin_sine":
             return self._reference.preview(k, self._hp)
         r = self.finite("r", self.r, *_L_RANGE_MM)
@@ -208,7 +209,7 @@ class AMPCController(SafeSlave):
         step: ControlStep = self._controller.step(l, preview)
         if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
-        if REFERENCE_SOURCES[self._int_par["reference_source"]] == "external_advanced":
+        if self._source == "external_advanced":
             self._buffer = list(preview)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm

@@ -73,8 +73,10 @@ class MusclePlant(SafeSlave):
         u = self.finite("u", self.u, -1.0, 11.0)
         load = self.finite("load", self.load, 0.0, 500.0)
         ps = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
-        self._plant.update(load_n=load, supply_pressure_mpa=ps)
-        m = self._plant.step(u, dt_s)
+        plant = self._plant
+        if load != plant.load_n or ps != plant.supply_pressure_mpa:
+            plant.update(load_n=load, supply_pressure_mpa=ps)
+        m = plant.step(u, dt_s)
         self.l, self.p = m.l_mm, m.p_mpa
 
     def numerics_state(self):
