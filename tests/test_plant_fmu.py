@@ -3,34 +3,20 @@
 import math
 
 import pytest
-from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
+from fmpy_helpers import instantiate, open_fmu
 
 from fmu_plant import Plant, PlantParams
 
 
 @pytest.fixture(scope="module")
 def fmu(built_fmus):
-    path = built_fmus["MusclePlant"]
-    md = read_model_description(str(path))
-    return path, md, extract(str(path)), {v.name: v.valueReference for v in md.modelVariables}
+    return open_fmu(built_fmus["MusclePlant"])
 
 
 def _instance(fmu, name="i", reals=None, ints=None):
-    path, md, folder, vr = fmu
-    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName=name)
-    f.instantiate(loggingOn=True)
-    f.setupExperiment(startTime=0.0)
-    f.enterInitializationMode()
-    for key, value in (reals or {}).items():
-        f.setReal([vr[key]], [value])
-    for key, value in (ints or {}).items():
-        f.setInteger([vr[key]], [value])
-    f.exitInitializationMode()
-    return f
+    return instantiate(fmu, name, reals, ints)
 
 
 def _sine(k):

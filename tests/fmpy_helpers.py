@@ -1,0 +1,26 @@
+"""Opening the project's FMUs in fmpy for tests: one place for the FMI start-up sequence."""
+
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+
+def open_fmu(path):
+    """``(path, model description, extracted folder, {name: value reference})``."""
+    md = read_model_description(str(path))
+    return path, md, extract(str(path)), {v.name: v.valueReference for v in md.modelVariables}
+
+
+def instantiate(fmu, name="i", reals=None, ints=None):
+    """An initialised FMU2Slave of ``fmu`` (from :func:`open_fmu`) with parameters/inputs set."""
+    path, md, folder, vr = fmu
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    for key, value in (reals or {}).items():
+        f.setReal([vr[key]], [value])
+    for key, value in (ints or {}).items():
+        f.setInteger([vr[key]], [value])
+    f.exitInitializationMode()
+    return f
