@@ -321,6 +321,8 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
     p_in, c_in = p_get.inputs, c_get.inputs
     p_out, c_out = p_get.outputs_view, c_get.outputs_view
     every = max(1, n // 100)
+    load_k = [scenario.load.at(k * h) for k in range(n)]
+    supply_k = [scenario.supply.at(k * h) for k in range(n)]
     start = time.perf_counter()
     for k in range(n):
         t = k * h
@@ -331,9 +333,9 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
         c_set(t)
         c_step(t, h)
         c_get.get(t)
-        load = scenario.load.at(t)
+        load = load_k[k]
         if k + 1 < n:
-            p_in[0], p_in[1], p_in[2] = c_out[0], load, scenario.supply.at(t)
+            p_in[0], p_in[1], p_in[2] = c_out[0], load, supply_k[k]
             p_set(t)
             p_step(t, h)
         rows_p[k], rows_c[k], loads[k] = p_out, c_out, load
