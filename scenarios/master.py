@@ -38,16 +38,15 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
+# The installed pythonfmu first: the first FMU's Python code would otherwise import the copy in its
+# resources/ (no builder binaries), and a later build in this process would use that copy.
+import pythonfmu  # noqa: F401
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
 
 from .spec import Scenario, ScenarioError
 
-__all__ = ["FmuInstance", "Unpacked", "unpack", "co_simulate", "CONTROLLER_CODES"]
-
-#: The controller FMU's enumeration values (fmu_controller.controller_slave): method and reference source.
-CONTROLLER_CODES = {"method": {"mpc_ucp": 1, "mpc_servo": 2, "ampc_ucp": 3, "ampc_servo": 4},
-                    "reference_source": {"builtin_sine": 1, "external_held": 2, "external_advanced": 3}}
+__all__ = ["FmuInstance", "Unpacked", "unpack", "co_simulate"]
 
 _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
 
@@ -131,9 +130,6 @@ class FmuInstance:
     """
 
     def __init__(self, path: str | Path, instance_name: str, *, role: str) -> None:
-        # The installed pythonfmu first: the first FMU's Python code would otherwise import the copy in
-        # its resources/ (no builder binaries), and a later build in this process would use that copy.
-        import pythonfmu  # noqa: F401
         from fmpy.fmi2 import FMU2Slave
 
         self.unpacked = unpack(path)
@@ -153,14 +149,17 @@ class FmuInstance:
     def vr(self, name: str) -> int:
         return self.unpacked.variables[name].valueReference
 
+    def error(self, what: str, detail: Any, t_s: float | None = None) -> ScenarioError:
+        """A ScenarioError for a failed FMI call, with the FMU's last logged messages."""
+        at = "" if t_s is None else f" at t = {t_s:g} s"
+        log = "; ".join(self.messages[-3:]) or "no message logged"
+        return ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {detail}: {log}")
+
     def _call(self, what: str, fn: Callable[[], Any], t_s: float | None = None) -> Any:
         try:
             return fn()
         except Exception as exc:  # noqa: BLE001 - fmpy raises FMICallException (and others on NULL)
-            at = "" if t_s is None else f" at t = {t_s:g} s"
-            log = "; ".join(self.messages[-3:]) or "no message logged"
-            raise ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {exc}: {log}") \
-                from None
+            raise self.error(what, exc, t_s) from None
 
     def set_parameters(self, values: Mapping[str, Any], *, where: str) -> None:
         """Set parameters by FMU variable name; ``where`` (e.g. ``file: key 'plant.parameters.'``)
@@ -282,8 +281,7 @@ class _RealPort:
 
     def _check(self, status: int, what: str, t_s: float) -> None:
         if status > 1:  # worse than fmi2Warning
-            self.inst._call(what, lambda: (_ for _ in ()).throw(
-                RuntimeError(f"{what} returned {_STATUS[status] if status < len(_STATUS) else status}")), t_s)
+            raise self.inst.error(what, f"status {_STATUS[status] if status < len(_STATUS) else status}", t_s)
 
     def get(self, t_s: float) -> None:
         status = self._get(self.component, self.out_vrs, self.n_out, self.outputs)
@@ -314,31 +312,27 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
     plant_in = [plant.vr("u"), plant.vr("load"), plant.vr("supply_pressure")]
     rows_p = np.empty((n, len(plant_out)))
     rows_c = np.empty((n, len(ctrl_out)))
-    loads = np.empty(n)
-    p_get, p_set, p_step = _RealPort(plant, plant_out, plant_in), None, None
-    c_get = _RealPort(ctrl, ctrl_out, ctrl_in)
-    p_set, p_step, c_set, c_step = p_get.set, p_get.step, c_get.set, c_get.step
-    p_in, c_in = p_get.inputs, c_get.inputs
-    p_out, c_out = p_get.outputs_view, c_get.outputs_view
+    plant_io, ctrl_io = _RealPort(plant, plant_out, plant_in), _RealPort(ctrl, ctrl_out, ctrl_in)
+    p_in, c_in = plant_io.inputs, ctrl_io.inputs
+    p_out, c_out = plant_io.outputs_view, ctrl_io.outputs_view
     every = max(1, n // 100)
     load_k = [scenario.load.at(k * h) for k in range(n)]
     supply_k = [scenario.supply.at(k * h) for k in range(n)]
     start = time.perf_counter()
     for k in range(n):
         t = k * h
-        p_get.get(t)
+        plant_io.get(t)
         c_in[0] = p_out[0]
         if external:
             c_in[1] = ref.at(t + advance)
-        c_set(t)
-        c_step(t, h)
-        c_get.get(t)
-        load = load_k[k]
+        ctrl_io.set(t)
+        ctrl_io.step(t, h)
+        ctrl_io.get(t)
         if k + 1 < n:
-            p_in[0], p_in[1], p_in[2] = c_out[0], load, supply_k[k]
-            p_set(t)
-            p_step(t, h)
-        rows_p[k], rows_c[k], loads[k] = p_out, c_out, load
+            p_in[0], p_in[1], p_in[2] = c_out[0], load_k[k], supply_k[k]
+            plant_io.set(t)
+            plant_io.step(t, h)
+        rows_p[k], rows_c[k] = p_out, c_out
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
     wall = time.perf_counter() - start
@@ -346,7 +340,7 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
             "u_v": rows_c[:, 0].copy()}
     if full:
         pred_next = rows_c[:, 3]
-        cols.update({"p_mpa": rows_p[:, 1].copy(), "load_n": loads,
+        cols.update({"p_mpa": rows_p[:, 1].copy(), "load_n": np.array(load_k),
                      "l_pred_mm": np.concatenate(([rows_p[0, 0]], pred_next[:-1])),
                      "pred_error_mm": rows_c[:, 4].copy(), "uc_v": rows_c[:, 2].copy(), "h_mm": rows_c[:, 5].copy(),
                      "xs_mm": rows_c[:, 6].copy()})
