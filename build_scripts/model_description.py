@@ -39,6 +39,7 @@ UNITS: dict[str, tuple[dict[str, int], float]] = {
     "N.s/mm": ({"kg": 1, "s": -1}, 1e3),
     "N/MPa": ({"m": 2}, 1e-6),
     "mm/s": ({"m": 1, "s": -1}, 1e-3),
+    "mm/min": ({"m": 1, "s": -1}, 1e-3 / 60.0),
     "m3/MPa": ({"kg": -1, "m": 4, "s": 2}, 1e-6),
     # The valve's flow coefficient Cv (US gal/min at 1 psi drop): not an SI quantity, declared without
     # a base unit as FMI allows.

@@ -7,11 +7,16 @@ simulation time. The ports are
 =====================  =============================================  ===========================
 hook                   signal                                          typical effects
 =====================  =============================================  ===========================
-``valve_command``      valve command [V], every integration sub-step  transport delay, dead zone
+``valve_command``      valve command [V], every integration sub-step  transport delay
+``valve_gate``         opening factor 0..1 of both valves, per sub-step  dead zone
 ``supply_pressure``    supply gauge pressure [MPa], every sub-step    supply sag or fluctuation
 ``load``               hanging load [N], every sub-step               load mismatch
 ``measurement``        true contraction -> encoder input [mm]         sensor drift, backlash
 =====================  =============================================  ===========================
+
+An effect whose port signal jumps at known instants (a delayed command change, the start of a supply
+sag) reports them from :meth:`Effect.breakpoints`; the plant then ends an integration sub-step exactly
+there. The concrete effects are in ``effect_library.py``.
 
 An effect with memory (a delay line, a backlash position) keeps it in its own state, resets it in
 :meth:`Effect.reset` and exposes it via :meth:`Effect.get_state` / :meth:`Effect.set_state` so that
@@ -37,6 +42,15 @@ class Effect:
     def valve_command(self, t_s: float, u_v: float) -> float:
         """Command the valve amplifier actually receives [V]."""
         return u_v
+
+    def valve_gate(self, t_s: float, u_v: float) -> float:
+        """Factor 0..1 on the opening of both valves for the command ``u_v`` [V] (1: unaffected)."""
+        return 1.0
+
+    def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
+        """Instants strictly inside ``(t0_s, t1_s)`` [s] where a port signal jumps, for a step that holds
+        the command ``u_v`` [V] from ``t0_s``."""
+        return []
 
     def supply_pressure(self, t_s: float, p_mpa: float) -> float:
         """Supply gauge pressure seen by the supply valve [MPa]."""

@@ -24,6 +24,13 @@ __all__ = [
     "FrictionParams",
     "SensorParams",
     "SolverParams",
+    "DeadZoneParams",
+    "DelayParams",
+    "SupplyVariationParams",
+    "LoadMismatchParams",
+    "SensorDriftParams",
+    "BacklashParams",
+    "EFFECT_GROUPS",
     "PlantParams",
     "GRAVITY_M_S2",
     "CV_TO_SI_WATER",
@@ -179,6 +186,88 @@ class SolverParams(_Validated):
     tol_z_n: float = _f(0.05, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True)
 
 
+# ------------------------------------------------------------------------------ effects (issue 6)
+# Physics the calibrated core model leaves out, each switched off by default (fmu_plant/effect_library.py
+# implements them at the plant's ports; docs/diagnosis.md is the vocabulary). Rate-dependent hysteresis
+# needs no group of its own: it is FrictionParams.rate_gain.
+
+@dataclass(frozen=True, kw_only=True)
+class DeadZoneParams(_Validated):
+    """Valve dead zone: a band of commands in which both valves pass no flow (beyond their leak).
+
+    Within ``center_v +- width_v / 2`` the spool of a worn or overlapped valve does not uncover its
+    ports, so the muscle is shut in and its pressure holds. ``width_v = 0`` switches it off.
+    """
+
+    center_v: float = _f(5.0, "Command at the middle of the dead band [V].", lo=0.0, hi=10.0)
+    width_v: float = _f(0.0, "Width of the dead band [V]; 0 switches the dead zone off.", lo=0.0, hi=5.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DelayParams(_Validated):
+    """Transport delay between the controller's command and the valve (fieldbus, amplifier, long hose).
+
+    The valve sees ``u(t - delay_s)``, exactly, also for fractions of a sample. 0 switches it off.
+    """
+
+    delay_s: float = _f(0.0, "Transport delay of the valve command [s]; 0 switches it off.", lo=0.0, hi=2.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SupplyVariationParams(_Validated):
+    """The tap-water supply pressure sags for a while and/or fluctuates (other taps in the building).
+
+    The supply valve sees ``ps - sag(t) + ripple_mpa sin(2 pi t / ripple_period_s)``, where ``sag``
+    ramps linearly from 0 to ``sag_mpa`` over ``ramp_s`` from ``start_s``, and back to 0 over
+    ``ramp_s`` from ``end_s``. ``sag_mpa = 0`` and ``ripple_mpa = 0`` switch it off.
+    """
+
+    sag_mpa: float = _f(0.0, "Drop of the supply gauge pressure during the sag [MPa]; 0 switches the sag off.", lo=0.0, hi=0.2)
+    start_s: float = _f(0.0, "Time the sag starts [s].", lo=0.0, hi=1.0e6)
+    end_s: float = _f(1.0e6, "Time the supply starts to recover [s] (the default: never).", lo=0.0, hi=1.0e6)
+    ramp_s: float = _f(1.0, "Duration of the fall and of the recovery [s].", lo=0.0, hi=60.0)
+    ripple_mpa: float = _f(0.0, "Amplitude of a periodic fluctuation of the supply pressure [MPa]; 0 switches it off.", lo=0.0, hi=0.1)
+    ripple_period_s: float = _f(10.0, "Period of the fluctuation [s].", lo=0.1, hi=1.0e4)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.end_s < self.start_s:
+            raise ValueError(f"SupplyVariationParams.end_s ({self.end_s}) must not precede start_s ({self.start_s})")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LoadMismatchParams(_Validated):
+    """The weight on the muscle differs from the nominal load (hook, pulley friction, a wrong plate).
+
+    The muscle carries ``load + extra_n``. 0 switches it off.
+    """
+
+    extra_n: float = _f(0.0, "Weight added to the nominal hanging load [N] (negative: lighter).", lo=-100.0, hi=100.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SensorDriftParams(_Validated):
+    """The encoder's zero drifts (thermal expansion, a slipping scale): ``l_seen = l + offset + rate t``."""
+
+    offset_mm: float = _f(0.0, "Encoder offset at t = 0 [mm].", lo=-20.0, hi=20.0)
+    rate_mm_per_min: float = _f(0.0, "Drift of the encoder offset [mm/min].", lo=-10.0, hi=10.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class BacklashParams(_Validated):
+    """Slack in the cable between the muscle and the encoder's slider: a play of ``slack_mm``.
+
+    The slider is dragged along only once the muscle end has taken up the slack (a backlash operator
+    on the encoder's input, applied at the sampling instants). 0 switches it off.
+    """
+
+    slack_mm: float = _f(0.0, "Total play of the cable link [mm]; 0 switches it off.", lo=0.0, hi=20.0)
+
+
+#: The PlantParams groups that hold effects (each off at its defaults).
+EFFECT_GROUPS = ("dead_zone", "delay", "supply_variation", "load_mismatch", "sensor_drift", "backlash")
+
+
 @dataclass(frozen=True, kw_only=True)
 class PlantParams:
     """All parameters of the simulated rig. Build variants with :func:`dataclasses.replace` or
@@ -191,6 +280,12 @@ class PlantParams:
     friction: FrictionParams = field(default_factory=FrictionParams)
     sensor: SensorParams = field(default_factory=SensorParams)
     solver: SolverParams = field(default_factory=SolverParams)
+    dead_zone: DeadZoneParams = field(default_factory=DeadZoneParams)
+    delay: DelayParams = field(default_factory=DelayParams)
+    supply_variation: SupplyVariationParams = field(default_factory=SupplyVariationParams)
+    load_mismatch: LoadMismatchParams = field(default_factory=LoadMismatchParams)
+    sensor_drift: SensorDriftParams = field(default_factory=SensorDriftParams)
+    backlash: BacklashParams = field(default_factory=BacklashParams)
 
     def with_values(self, **dotted: float) -> "PlantParams":
         """Return a copy with fields replaced by dotted name, e.g. ``with_values(**{"load.load_n": 68})``.

@@ -47,6 +47,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from .effect_library import effects_from_params
 from .effects import Effect
 from .muscle import MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
@@ -120,7 +121,7 @@ _KINK_FLOOR = 1e-3  # changes below this count as this (no change: a long first 
 
 
 def _build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Callable[..., tuple[float, ...]],
-                                             Callable[..., tuple[float, ...]]]:
+                                             Callable[..., tuple[float, ...]], Callable[[float], None]]:
     """The right-hand side, its Jacobian and the ROS34PW2 sub-step of the rig's equations for ``prm``.
 
     All three are closures over plain-float constants (no attribute lookups or numpy in the hot path).
@@ -140,12 +141,16 @@ def _build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Ca
         ``attempt(x, p, l, v, z, xs, ps, w, h) -> (x, p, l, v, z, err)``: one sub-step of ``h`` [s] with
         the spool target ``xs`` held; ``err`` the local error estimate relative to the tolerances
         (accept if <= 1). The stop clamp is the caller's.
+    set_gate : callable
+        ``set_gate(g)``: from now on both valves open ``g`` (0..1) times as far beyond their leak (the
+        valve-gate port of effects.py). Rebinding a closure constant keeps the ungated path free.
     """
     vp, sup, mp, fp, sol = prm.valve, prm.supply, prm.muscle, prm.friction, prm.solver
     geo = MuscleGeometry.from_params(mp)
     # Valves: Q / C in MPa/s for a drop in MPa, k(x) = K (e + (1 - e) x^n).
     kq = vp.cv_max * CV_TO_SI_WATER * 1e3 / sup.compliance_m3_per_mpa
-    kq_leak, kq_open = kq * vp.leak_fraction, kq * (1.0 - vp.leak_fraction)
+    kq_leak, kq_open_full = kq * vp.leak_fraction, kq * (1.0 - vp.leak_fraction)
+    kq_open = kq_open_full
     n_char = vp.characteristic_exponent
     lam = vp.laminar_dp_mpa
     inv_sqrt_lam = 1.0 / math.sqrt(lam)
@@ -309,6 +314,10 @@ def _build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Ca
                 k_force * slope * g_area * inv_mass, dforce_dl * inv_mass, -damping * inv_mass,
                 -inv_mass, j_zp, j_zv, j_zz)
 
+    def set_gate(g: float) -> None:
+        nonlocal kq_open
+        kq_open = kq_open_full * g
+
     def attempt(x, p, l, v, z, xs, ps, w, h):
         inv_mass = 1e3 / (w / GRAVITY_M_S2 + m_moving)
         (f_p, f_l, f_v, f_z, j_pp, j_pv, j_pl, j_vp, j_vl, j_vv, j_vz, j_zp, j_zv, j_zz) = \
@@ -396,7 +405,7 @@ def _build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Ca
             err = _CROSS_ERR
         return x1, y4p + u4p, y4l + u4l, v1, y4z + u4z, err
 
-    return rhs, jacobian, attempt
+    return rhs, jacobian, attempt, set_gate
 
 
 @dataclass(frozen=True)
@@ -446,7 +455,8 @@ class Plant:
         self.params = params if params is not None else PlantParams()
         if not isinstance(self.params, PlantParams):
             raise ValueError(f"params must be a PlantParams, got {type(self.params).__name__}")
-        self.effects: tuple[Effect, ...] = tuple(effects)
+        # the effects switched on in the parameters (effect_library.py), then the caller's own
+        self.effects: tuple[Effect, ...] = tuple(effects_from_params(self.params)) + tuple(effects)
         for e in self.effects:
             if not isinstance(e, Effect):
                 raise ValueError(f"effects must be Effect instances, got {type(e).__name__}")
@@ -454,7 +464,7 @@ class Plant:
         vp = self.params.valve
         self._k_valve = vp.cv_max * CV_TO_SI_WATER
         self._laminar_pa = vp.laminar_dp_mpa * 1e6
-        self._rhs, _, self._attempt = _build_model(self.params)
+        self._rhs, _, self._attempt, self._set_gate = _build_model(self.params)
         self.reset(seed=seed)
 
     # ------------------------------------------------------------------ lifecycle
@@ -481,6 +491,8 @@ class Plant:
         self.state = [0.0, 0.0, 0.0, 0.0, 0.0]
         self._kink_scale = _KINK_SCALE_INITIAL
         self._xs_last = 0.0
+        self._gate = 1.0
+        self._set_gate(1.0)
         self.u_v = self.params.valve.u_min_v
         self.load_n = self.params.load.load_n
         self.supply_pressure_mpa = self.params.supply.supply_pressure_mpa
@@ -524,8 +536,22 @@ class Plant:
             raise ValueError(f"dt_s must be within (0, {MAX_STEP_S}] s, got {dt_s!r}")
         self.u_v = u_v
         t0 = self.t_s
-        self._advance(t0, dt_s)
-        self.t_s = t0 + dt_s
+        t1 = t0 + dt_s
+        cuts = sorted({t for e in self.effects for t in e.breakpoints(t0, t1, u_v)}) if self.effects else ()
+        if cuts:  # end sub-steps exactly where an effect's port signal jumps
+            saved = (list(self.state), self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate)
+            try:
+                ta = t0
+                for tb in (*cuts, t1):
+                    self._advance(ta, tb - ta)
+                    ta = tb
+            except FloatingPointError:
+                self.state, self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate = saved
+                self._set_gate(self._gate)
+                raise
+        else:
+            self._advance(t0, dt_s)
+        self.t_s = t1
         self.measurement = self._measure()
         return self.measurement
 
@@ -553,7 +579,7 @@ class Plant:
             "effects": [e.get_state() for e in self.effects],
             "measurement": (self.measurement.t_s, self.measurement.l_mm, self.measurement.p_mpa),
             "last_supply_mpa": self._last_supply_mpa, "kink_scale_s": self._kink_scale,
-            "xs_last": self._xs_last,
+            "xs_last": self._xs_last, "gate": self._gate,
         }
 
     def set_state(self, s: dict[str, Any]) -> None:
@@ -577,6 +603,8 @@ class Plant:
         self._last_supply_mpa = float(s["last_supply_mpa"])
         self._kink_scale = float(s.get("kink_scale_s", _KINK_SCALE_INITIAL))
         self._xs_last = float(s.get("xs_last", self.state[0]))
+        self._gate = float(s.get("gate", 1.0))
+        self._set_gate(self._gate)
 
     def _normal(self) -> float:
         """The generator's next standard normal, drawn in blocks (the same sequence, 20x cheaper)."""
@@ -604,12 +632,19 @@ class Plant:
 
     # ------------------------------------------------------------------ dynamics
     def _ports(self, t_s: float) -> tuple[float, float, float]:
-        """Valve command [V], supply pressure [MPa], load [N] after the effects, at ``t_s``."""
+        """Valve command [V], supply pressure [MPa], load [N] after the effects, at ``t_s``; sets the
+        valve gate."""
         u, ps, w = self.u_v, self.supply_pressure_mpa, self.load_n
         for e in self.effects:
             u = e.valve_command(t_s, u)
+        gate = 1.0
+        for e in self.effects:
+            gate *= e.valve_gate(t_s, u)
             ps = e.supply_pressure(t_s, ps)
             w = e.load(t_s, w)
+        if gate != self._gate:
+            self._gate = gate
+            self._set_gate(gate)
         return u, ps, w
 
     def _valve_flows(self, x: float, p_mpa: float, ps_mpa: float) -> tuple[float, float]:
@@ -618,8 +653,8 @@ class Plant:
         xc = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
         leak = vp.leak_fraction
         n = vp.characteristic_exponent
-        k_in = self._k_valve * (leak + (1.0 - leak) * xc ** n)
-        k_out = self._k_valve * (leak + (1.0 - leak) * (1.0 - xc) ** n)
+        k_in = self._k_valve * (leak + (1.0 - leak) * self._gate * xc ** n)
+        k_out = self._k_valve * (leak + (1.0 - leak) * self._gate * (1.0 - xc) ** n)
         return (orifice_flow(k_in, (ps_mpa - p_mpa) * 1e6, self._laminar_pa),
                 orifice_flow(k_out, (p_mpa - self.params.supply.drain_pressure_mpa) * 1e6, self._laminar_pa))
 

@@ -45,7 +45,7 @@ def test_ros34pw2_is_third_order_l_stable_and_stiffly_accurate():
 
 
 def test_jacobian_matches_finite_differences():
-    rhs, jacobian, _ = _build_model(PlantParams())
+    rhs, jacobian, _, _ = _build_model(PlantParams())
     rng = np.random.default_rng(0)
     cols = {"p": 1, "l": 2, "v": 3, "z": 4}
     entries = ["pp", "pv", "pl", "vp", "vl", "vv", "vz", "zp", "zv", "zz"]

@@ -1,0 +1,215 @@
+"""The effects library: physics a calibrated core model may leave out, as plug-ins at the plant's ports.
+
+Each effect is parameterised by one group of :class:`~fmu_plant.parameters.PlantParams` (so the plant
+FMU exposes it as ordinary parameters, e.g. ``delay.delay_s``) and is off at that group's defaults.
+:func:`effects_from_params` builds the switched-on ones; :class:`~fmu_plant.Plant` does so itself.
+The vocabulary, with each effect's physics, parameters and how the diagnosis fits it, is in
+``docs/diagnosis.md``; rate-dependent hysteresis is the friction model's ``friction.rate_gain`` and
+needs no plug-in.
+
+==========================  ====================  ==========================================
+effect                      port                  parameters
+==========================  ====================  ==========================================
+``transport_delay``         valve command         ``delay.delay_s``
+``valve_dead_zone``         valve gate            ``dead_zone.center_v``, ``dead_zone.width_v``
+``supply_pressure_variation``  supply pressure    ``supply_variation.*``
+``load_mismatch``           load                  ``load_mismatch.extra_n``
+``backlash``                measurement           ``backlash.slack_mm``
+``sensor_drift``            measurement           ``sensor_drift.offset_mm``, ``.rate_mm_per_min``
+==========================  ====================  ==========================================
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from typing import Any
+
+from .effects import Effect
+from .parameters import (BacklashParams, DeadZoneParams, DelayParams, LoadMismatchParams, PlantParams,
+                         SensorDriftParams, SupplyVariationParams)
+
+__all__ = ["TransportDelay", "ValveDeadZone", "SupplyPressureVariation", "LoadMismatch", "Backlash",
+           "SensorDrift", "effects_from_params"]
+
+
+class TransportDelay(Effect):
+    """The valve receives the command ``delay_s`` late: ``u_valve(t) = u(t - delay_s)``.
+
+    The command is piecewise constant (zero-order hold), so the delayed command changes exactly at
+    ``t_change + delay_s``; these instants are reported as :meth:`breakpoints` and the plant ends a
+    sub-step on each, so a delay of a fraction of a sample is exact.
+    """
+
+    name = "transport_delay"
+
+    def __init__(self, p: DelayParams) -> None:
+        self.delay_s = p.delay_s
+        self._times: list[float] = [0.0]   # instants the command changed [s]
+        self._values: list[float] = [0.0]  # the command from then on [V]
+
+    def reset(self, t_s: float, u_v: float, l_mm: float) -> None:
+        self._times, self._values = [t_s], [u_v]
+
+    def _record(self, t_s: float, u_v: float) -> None:
+        if u_v != self._values[-1] and t_s >= self._times[-1]:
+            self._times.append(t_s)
+            self._values.append(u_v)
+            # forget what can no longer be seen (keep the value in force at t - delay)
+            cut = bisect.bisect_right(self._times, t_s - self.delay_s) - 1
+            if cut > 8:
+                del self._times[:cut], self._values[:cut]
+
+    def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
+        self._record(t0_s, u_v)
+        d = self.delay_s
+        return [t + d for t in self._times if t0_s < t + d < t1_s]
+
+    def valve_command(self, t_s: float, u_v: float) -> float:
+        self._record(t_s, u_v)
+        # 1e-12 s guard: a sub-step starting at t_change + delay sees the new value despite rounding
+        i = bisect.bisect_right(self._times, t_s - self.delay_s + 1e-12) - 1
+        return self._values[i if i >= 0 else 0]
+
+    def get_state(self) -> dict[str, Any]:
+        return {"times": list(self._times), "values": list(self._values)}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self._times = [float(t) for t in state["times"]]
+        self._values = [float(v) for v in state["values"]]
+
+
+class ValveDeadZone(Effect):
+    """Commands within ``center_v +- width_v / 2`` leave both valves shut (only their leak flows).
+
+    The physical picture: an overlapped or worn spool that must travel through a band before it
+    uncovers its ports, so the muscle is shut in and holds its pressure while the command crosses the
+    band. Acts through the valve-gate port (the opening of both valves is multiplied by the gate).
+    """
+
+    name = "valve_dead_zone"
+
+    def __init__(self, p: DeadZoneParams) -> None:
+        self.lo_v = p.center_v - 0.5 * p.width_v
+        self.hi_v = p.center_v + 0.5 * p.width_v
+
+    def valve_gate(self, t_s: float, u_v: float) -> float:
+        return 0.0 if self.lo_v < u_v < self.hi_v else 1.0
+
+
+class SupplyPressureVariation(Effect):
+    """The tap-water supply sags between ``start_s`` and ``end_s`` and/or ripples (parameters' docstring)."""
+
+    name = "supply_pressure_variation"
+
+    def __init__(self, p: SupplyVariationParams) -> None:
+        self.p = p
+
+    def sag_mpa(self, t_s: float) -> float:
+        """Drop of the supply pressure at ``t_s`` [MPa] (trapezoid in time)."""
+        p = self.p
+        if p.sag_mpa == 0.0 or t_s <= p.start_s:
+            return 0.0
+        ramp = p.ramp_s
+        up = 1.0 if ramp == 0.0 else min(1.0, (t_s - p.start_s) / ramp)
+        down = 1.0 if t_s <= p.end_s else 0.0 if ramp == 0.0 else max(0.0, 1.0 - (t_s - p.end_s) / ramp)
+        return p.sag_mpa * min(up, down)
+
+    def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
+        p = self.p
+        if p.sag_mpa == 0.0:
+            return []
+        corners = (p.start_s, p.start_s + p.ramp_s, p.end_s, p.end_s + p.ramp_s)
+        return [t for t in corners if t0_s < t < t1_s]
+
+    def supply_pressure(self, t_s: float, p_mpa: float) -> float:
+        ps = p_mpa - self.sag_mpa(t_s)
+        if self.p.ripple_mpa:
+            ps += self.p.ripple_mpa * math.sin(2.0 * math.pi * t_s / self.p.ripple_period_s)
+        return ps if ps > 0.0 else 0.0
+
+
+class LoadMismatch(Effect):
+    """The muscle carries ``extra_n`` more than the nominal load."""
+
+    name = "load_mismatch"
+
+    def __init__(self, p: LoadMismatchParams) -> None:
+        self.extra_n = p.extra_n
+
+    def load(self, t_s: float, load_n: float) -> float:
+        w = load_n + self.extra_n
+        return w if w > 0.0 else 0.0
+
+
+class Backlash(Effect):
+    """A play of ``slack_mm`` between the muscle end and the encoder slider (backlash operator).
+
+    The slider stays put until the muscle end has moved half the play past it, then is dragged along
+    at that distance. Applied to the positions at the sampling instants (the encoder's input).
+    """
+
+    name = "backlash"
+
+    def __init__(self, p: BacklashParams) -> None:
+        self.half_mm = 0.5 * p.slack_mm
+        self.y_mm = 0.0
+
+    def reset(self, t_s: float, u_v: float, l_mm: float) -> None:
+        self.y_mm = l_mm
+
+    def measurement(self, t_s: float, l_mm: float) -> float:
+        self.y_mm = backlash_operator(l_mm, self.y_mm, self.half_mm)
+        return self.y_mm
+
+    def get_state(self) -> dict[str, Any]:
+        return {"y_mm": self.y_mm}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self.y_mm = float(state["y_mm"])
+
+
+def backlash_operator(x: float, y: float, half_play: float) -> float:
+    """One update of the backlash (play) operator: output ``y`` follows ``x`` within ``+- half_play``."""
+    if x - y > half_play:
+        return x - half_play
+    if y - x > half_play:
+        return x + half_play
+    return y
+
+
+class SensorDrift(Effect):
+    """The encoder's zero drifts: ``l_seen = l + offset_mm + rate_mm_per_min t / 60``."""
+
+    name = "sensor_drift"
+
+    def __init__(self, p: SensorDriftParams) -> None:
+        self.offset_mm = p.offset_mm
+        self.rate_mm_s = p.rate_mm_per_min / 60.0
+
+    def measurement(self, t_s: float, l_mm: float) -> float:
+        return l_mm + self.offset_mm + self.rate_mm_s * t_s
+
+
+def effects_from_params(params: PlantParams) -> list[Effect]:
+    """The switched-on effects of ``params``, in the order the plant applies them.
+
+    Input side first (the delayed command is the one the dead zone sees), then the supply and the load,
+    then the measurement chain (the slider's backlash, then the encoder's drifting zero).
+    """
+    out: list[Effect] = []
+    if params.delay.delay_s > 0.0:
+        out.append(TransportDelay(params.delay))
+    if params.dead_zone.width_v > 0.0:
+        out.append(ValveDeadZone(params.dead_zone))
+    sv = params.supply_variation
+    if sv.sag_mpa > 0.0 or sv.ripple_mpa > 0.0:
+        out.append(SupplyPressureVariation(sv))
+    if params.load_mismatch.extra_n != 0.0:
+        out.append(LoadMismatch(params.load_mismatch))
+    if params.backlash.slack_mm > 0.0:
+        out.append(Backlash(params.backlash))
+    sd = params.sensor_drift
+    if sd.offset_mm != 0.0 or sd.rate_mm_per_min != 0.0:
+        out.append(SensorDrift(sd))
+    return out
