@@ -1,0 +1,393 @@
+"""The candidate effects the diagnosis knows, and how each is fitted to a recording.
+
+Each :class:`Candidate` names a piece of physics the calibrated plant may have left out, says in plain
+words what it is, lists its parameters (plant parameter, unit, bounds) and fits them: on the training
+samples only (:class:`Problem`), on top of a base model (the calibrated plant, or the plant with
+effects already found). The physics itself is the plant's (``fmu_plant/effect_library.py``), so a
+fitted candidate is just plant parameters, which the plant FMU accepts as they are.
+
+Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds:
+
+* measurement-side effects (``sensor_drift``, ``backlash``) do not feed back into the open-loop
+  simulation, so they are fitted on the base prediction directly (linear least squares; a bounded
+  scalar search), with no re-simulation;
+* ``transport_delay``: the base prediction shifted in time (cubic interpolation) stands in for a
+  delayed command during the search (exact for a time-invariant plant started at rest), then one
+  simulation with the delay;
+* ``load_mismatch``, ``rate_dependent_hysteresis``: Gauss-Newton with a secant slope, each evaluation a
+  simulation of the first ``fit_segment_s`` seconds (stationary effects show in any stretch);
+* ``valve_dead_zone``: a grid over the band's centre within the recorded commands, then Nelder-Mead
+  on centre and width;
+* ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
+  Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window.
+
+Every fit ends with one simulation of the whole recording with the fitted parameters, which gives the
+prediction the held-out score is computed on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy import optimize
+from scipy.interpolate import CubicSpline
+
+from fmu_plant import PlantParams
+from fmu_plant.effect_library import backlash_operator
+
+from .residual_analysis import located_windows
+from .simulation import Simulator
+
+__all__ = ["ParameterSpec", "Candidate", "Problem", "FitResult", "CANDIDATES", "candidate"]
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One fitted parameter: the plant parameter it sets, its unit and the bounds of the search."""
+
+    key: str
+    """Plant parameter (``group.field``), as the plant FMU names it."""
+    unit: str
+    lo: float
+    hi: float
+
+
+@dataclass
+class Problem:
+    """One recording to explain: measured data, the train/held-out split, the simulator."""
+
+    y_mm: np.ndarray
+    """Measured displacement [mm]."""
+    t_s: np.ndarray
+    u_v: np.ndarray
+    ts_s: float
+    train: np.ndarray
+    """Mask of the training samples (fits see only these)."""
+    test: np.ndarray
+    """Mask of the held-out samples (scores only)."""
+    sim: Simulator
+    noise_mm: float
+    """White-noise level of the residual [mm]."""
+    fit_segment_s: float = 120.0
+    """Stationary effects are fitted on the first this many seconds (whole-run simulations are the cost)."""
+
+    @property
+    def n(self) -> int:
+        return len(self.y_mm)
+
+    @property
+    def n_fit(self) -> int:
+        return min(self.n, int(round(self.fit_segment_s / self.ts_s)) + 1)
+
+    def train_residual(self, y_hat: np.ndarray, start: int = 0) -> np.ndarray:
+        """``y - y_hat`` on the training samples from ``start`` over ``len(y_hat)`` samples."""
+        stop = start + len(y_hat)
+        m = self.train[start:stop]
+        return (self.y_mm[start:stop] - y_hat)[m]
+
+
+@dataclass
+class FitResult:
+    """A fitted candidate: its parameter values and its prediction of the whole recording."""
+
+    values: dict[str, float]
+    """Plant parameters to set (``group.field`` -> value), on top of the base model."""
+    y_hat: np.ndarray
+    """Noise-free prediction of the whole recording with those values [mm]."""
+    located: list[tuple[float, float]] | None = None
+    """Where the effect acts, when the fit itself says (a sag's window); otherwise None."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A piece of physics the plant may have left out (module docstring)."""
+
+    name: str
+    """Machine name (the ``effect`` of a finding)."""
+    physics: str
+    """What it is, in plain words (docs/diagnosis.md)."""
+    parameters: tuple[ParameterSpec, ...]
+    fitting: str
+    """How it is fitted."""
+    fit: Callable[[Problem, PlantParams, np.ndarray], FitResult | None]
+    explain: Callable[[dict[str, float]], str]
+    """Plain-words explanation of a fitted value set."""
+
+
+# --------------------------------------------------------------------------------------- helpers
+def _get(params: PlantParams, key: str) -> float:
+    group, _, name = key.partition(".")
+    return float(getattr(getattr(params, group), name))
+
+
+def _full(problem: Problem, base: PlantParams, values: dict[str, float]) -> np.ndarray:
+    return problem.sim.run(base.with_values(**values))[0]
+
+
+def _gauss_newton_1d(resid: Callable[[float], np.ndarray], x0: float, r0: np.ndarray, h: float,
+                     lo: float, hi: float, *, iters: int = 5, tol: float = 0.0) -> float:
+    """Least squares in one parameter: Gauss-Newton with the slope from the last two evaluations."""
+    def clip(x):
+        return min(max(x, lo), hi)
+    xa, ra = x0, r0
+    xb = clip(x0 + h) if clip(x0 + h) != x0 else clip(x0 - h)
+    rb = resid(xb)
+    best = min(((float(ra @ ra), xa), (float(rb @ rb), xb)))
+    for _ in range(iters):
+        if xb == xa:
+            break
+        j = (rb - ra) / (xb - xa)
+        jj = float(j @ j)
+        if jj == 0.0:
+            break
+        xc = clip(xb - float(j @ rb) / jj)
+        if abs(xc - xb) <= tol:
+            break
+        rc = resid(xc)
+        best = min(best, (float(rc @ rc), xc))
+        xa, ra, xb, rb = xb, rb, xc, rc
+    return best[1]
+
+
+def _nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, step: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray, max_evals: int) -> np.ndarray:
+    """Bounded Nelder-Mead (scipy) from ``x0`` with an initial simplex of ``step``."""
+    x0 = np.clip(x0, lo, hi)
+    simplex = [x0] + [np.clip(x0 + np.eye(len(x0))[i] * step[i], lo, hi) for i in range(len(x0))]
+    res = optimize.minimize(cost, x0, method="Nelder-Mead", bounds=list(zip(lo, hi)),
+                            options={"initial_simplex": np.array(simplex), "maxfev": max_evals,
+                                     "xatol": 1e-3, "fatol": 1e-9})
+    return np.clip(res.x, lo, hi)
+
+
+# ------------------------------------------------------------------------------------- fitters
+def _fit_sensor_drift(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult:
+    e = pr.y_mm - y_base
+    a = np.column_stack([np.ones(pr.n), pr.t_s])[pr.train]
+    (offset, rate), *_ = np.linalg.lstsq(a, e[pr.train], rcond=None)
+    offset = float(np.clip(offset, -20.0, 20.0))
+    rate = float(np.clip(rate * 60.0, -10.0, 10.0)) / 60.0
+    values = {"sensor_drift.offset_mm": _get(base, "sensor_drift.offset_mm") + offset,
+              "sensor_drift.rate_mm_per_min": _get(base, "sensor_drift.rate_mm_per_min") + rate * 60.0}
+    return FitResult(values, y_base + offset + rate * pr.t_s)
+
+
+def _backlash_apply(y: np.ndarray, slack: float) -> np.ndarray:
+    out = np.empty_like(y)
+    half = 0.5 * slack
+    state = float(y[0])
+    for k, x in enumerate(y.tolist()):
+        state = backlash_operator(x, state, half)
+        out[k] = state
+    return out
+
+
+def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    if _get(base, "backlash.slack_mm") > 0:
+        return None  # already in the base model
+    drift = _get(base, "sensor_drift.offset_mm") + _get(base, "sensor_drift.rate_mm_per_min") / 60.0 * pr.t_s
+    core = y_base - drift  # the backlash acts before the encoder's drifting zero
+
+    def cost(s):
+        r = pr.train_residual(_backlash_apply(core, s) + drift)
+        return float(r @ r)
+    grid = np.linspace(0.0, 6.0, 25)
+    s0 = grid[int(np.argmin([cost(s) for s in grid]))]
+    res = optimize.minimize_scalar(cost, bounds=(max(0.0, s0 - 0.25), s0 + 0.25), method="bounded",
+                                   options={"xatol": 1e-3})
+    s = float(res.x)
+    return FitResult({"backlash.slack_mm": s}, _backlash_apply(core, s) + drift)
+
+
+def _fit_transport_delay(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    d_base = _get(base, "delay.delay_s")
+    spline = CubicSpline(pr.t_s, y_base)
+    t0 = float(pr.t_s[0])
+
+    def shifted(d):
+        tq = pr.t_s - d
+        return np.where(tq < t0, y_base[0], spline(np.maximum(tq, t0)))
+
+    def cost(d):
+        r = pr.train_residual(shifted(d))
+        return float(r @ r)
+    d_max = min(2.0 - d_base, 20 * pr.ts_s)
+    grid = np.linspace(0.0, d_max, 81)
+    d0 = float(grid[int(np.argmin([cost(d) for d in grid]))])
+    step = grid[1] - grid[0]
+    res = optimize.minimize_scalar(cost, bounds=(max(0.0, d0 - step), min(d_max, d0 + step)), method="bounded",
+                                   options={"xatol": 1e-4})
+    d = float(res.x)
+    if d <= 0.0:
+        return None
+    values = {"delay.delay_s": d_base + d}
+    return FitResult(values, _full(pr, base, values))
+
+
+def _scalar_fit(key: str, h: float, lo: float, hi: float) -> Callable[[Problem, PlantParams, np.ndarray], FitResult]:
+    """A fitter for one smooth plant parameter by Gauss-Newton on the fit segment."""
+    def fit(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult:
+        n_fit = pr.n_fit
+        x0 = _get(base, key)
+
+        def resid(x):
+            return pr.train_residual(pr.sim.run(base.with_values(**{key: x}), stop=n_fit)[0])
+        x = _gauss_newton_1d(resid, x0, pr.train_residual(y_base[:n_fit]), h, lo, hi, tol=1e-3 * h)
+        values = {key: x}
+        return FitResult(values, _full(pr, base, values))
+    return fit
+
+
+def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    if _get(base, "dead_zone.width_v") > 0:
+        return None
+    n_fit = pr.n_fit
+    n_grid = min(n_fit, int(round(60.0 / pr.ts_s)) + 1)  # the coarse grid on the first minute
+    lo_u, hi_u = np.percentile(pr.u_v[:n_fit], [2, 98])
+    if hi_u - lo_u < 0.5:
+        return None  # the command hardly moves: a band cannot be located
+
+    def cost(x, stop=n_fit):
+        c, w = float(x[0]), float(x[1])
+        p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
+        r = pr.train_residual(pr.sim.run(p, stop=stop)[0])
+        return float(r @ r)
+    centres = np.arange(math.floor(lo_u * 2) / 2 + 0.25, hi_u, 0.5)
+    costs = [cost((c, 0.6), n_grid) for c in centres]
+    c0 = float(centres[int(np.argmin(costs))])
+    x = _nelder_mead(cost, np.array([c0, 0.6]), np.array([0.3, 0.4]), np.array([0.0, 0.0]),
+                     np.array([10.0, 5.0]), max_evals=18)
+    values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
+    if values["dead_zone.width_v"] <= 1e-3:
+        return None
+    return FitResult(values, _full(pr, base, values))
+
+
+def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    if _get(base, "supply_variation.sag_mpa") > 0:
+        return None
+    e = pr.y_mm - y_base
+    wins = located_windows(e, pr.ts_s, noise_mm=pr.noise_mm)
+    if not wins:
+        return None
+    # the window holding most of the residual energy
+    def energy(w):
+        a, b = (int(round(x / pr.ts_s)) for x in w)
+        return float(np.sum(e[a:b + 1] ** 2))
+    a_s, b_s = max(wins, key=energy)
+    ck = [c for c in pr.sim.checkpoints() if c * pr.ts_s <= a_s - 10.0] or [0]
+    start = ck[-1]
+    t_first = start * pr.ts_s
+    stop = min(pr.n, int(round((b_s + 30.0) / pr.ts_s)) + 1)
+    ramp = _get(base, "supply_variation.ramp_s")
+
+    def params(x):
+        s, a, b = float(x[0]), float(x[1]), float(x[2])
+        return base.with_values(**{"supply_variation.sag_mpa": s, "supply_variation.start_s": a,
+                                   "supply_variation.end_s": max(a, b)})
+
+    def cost(x):
+        y = pr.sim.run(params(x), start=start, stop=stop)[0]
+        r = pr.train_residual(y, start)
+        return float(r @ r)
+    # depth: a quick scalar search with the located window, then all three together
+    sags = np.array([0.01, 0.03, 0.06, 0.1])
+    s0 = float(sags[int(np.argmin([cost((s, a_s, b_s)) for s in sags]))])
+    x = _nelder_mead(cost, np.array([s0, a_s, b_s]), np.array([0.5 * s0, 3.0, 3.0]),
+                     np.array([0.0, t_first, t_first]), np.array([0.2, pr.t_s[-1], pr.t_s[-1]]), max_evals=28)
+    p = params(x)
+    sv = p.supply_variation
+    if sv.sag_mpa <= 1e-4:
+        return None
+    values = {"supply_variation.sag_mpa": sv.sag_mpa, "supply_variation.start_s": sv.start_s,
+              "supply_variation.end_s": sv.end_s}
+    return FitResult(values, _full(pr, base, values),
+                     located=[(sv.start_s, min(float(pr.t_s[-1]), sv.end_s + ramp))])
+
+
+# ------------------------------------------------------------------------------------ catalogue
+def _fmt(v: float, unit: str, digits: int = 3) -> str:
+    return f"{v:.{digits}g} {unit}"
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate(
+        "rate_dependent_hysteresis",
+        "The muscle's hysteresis grows with the speed of motion: braid-bladder friction is higher when "
+        "sliding faster (the paper's section 4.4 / Fig. 20 remark on 0.2 Hz). A model calibrated at slow "
+        "motion then under-predicts the loop width of fast motion.",
+        (ParameterSpec("friction.rate_gain", "-", 0.0, 3.0),),
+        "Gauss-Newton on friction.rate_gain (the friction level's growth at the reference speed), "
+        "simulating the first fit_segment_s seconds per evaluation.",
+        _scalar_fit("friction.rate_gain", 0.2, 0.0, 3.0),
+        lambda v: (f"the hysteresis grows with speed: friction level x (1 + {v['friction.rate_gain']:.2f} "
+                   f"|v| / v_ref), faster motion lags more than the model says")),
+    Candidate(
+        "valve_dead_zone",
+        "A band of valve commands in which the valves pass no flow (an overlapped or worn spool): while "
+        "the command crosses the band the muscle is shut in and stalls.",
+        (ParameterSpec("dead_zone.center_v", "V", 0.0, 10.0), ParameterSpec("dead_zone.width_v", "V", 0.0, 5.0)),
+        "Grid over the band's centre within the recorded command range, then Nelder-Mead on centre and width.",
+        _fit_dead_zone,
+        lambda v: (f"the valve passes no flow for commands between "
+                   f"{v['dead_zone.center_v'] - v['dead_zone.width_v'] / 2:.2f} and "
+                   f"{v['dead_zone.center_v'] + v['dead_zone.width_v'] / 2:.2f} V; the muscle stalls there")),
+    Candidate(
+        "transport_delay",
+        "The valve acts on the command late (fieldbus or amplifier latency, a long hose), by any time, "
+        "not only whole samples.",
+        (ParameterSpec("delay.delay_s", "s", 0.0, 2.0),),
+        "Search on the base prediction shifted in time (cubic interpolation; exact for a time-invariant "
+        "plant started at rest), then one simulation with the delay.",
+        _fit_transport_delay,
+        lambda v: f"the valve acts {1000 * v['delay.delay_s']:.0f} ms after the command"),
+    Candidate(
+        "supply_pressure_variation",
+        "The tap-water supply pressure sagged for a while (other taps opened in the building): the muscle "
+        "reaches less contraction for the same command during that time.",
+        (ParameterSpec("supply_variation.sag_mpa", "MPa", 0.0, 0.2), ParameterSpec("supply_variation.start_s", "s", 0.0, 1e6),
+         ParameterSpec("supply_variation.end_s", "s", 0.0, 1e6)),
+        "Window from the residual's location, then Nelder-Mead on depth, start and end, simulating from a "
+        "checkpoint before the window. (The ripple parameters are simulated but not fitted.)",
+        _fit_supply_sag,
+        lambda v: (f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from "
+                   f"{v['supply_variation.start_s']:.1f} s to {v['supply_variation.end_s']:.1f} s")),
+    Candidate(
+        "load_mismatch",
+        "The weight on the muscle differs from the nominal load (hook and plate, pulley friction, a "
+        "different weight): the whole displacement range shifts, more at low pressure.",
+        (ParameterSpec("load_mismatch.extra_n", "N", -100.0, 100.0),),
+        "Gauss-Newton on the extra load, simulating the first fit_segment_s seconds per evaluation.",
+        _scalar_fit("load_mismatch.extra_n", 3.0, -100.0, 100.0),
+        lambda v: (f"the muscle carries {abs(v['load_mismatch.extra_n']):.1f} N "
+                   f"{'more' if v['load_mismatch.extra_n'] > 0 else 'less'} than the nominal load")),
+    Candidate(
+        "sensor_drift",
+        "The encoder's zero is offset and drifts (thermal expansion, a slipping scale): the reading is "
+        "the displacement plus a slowly changing offset, whatever the muscle does.",
+        (ParameterSpec("sensor_drift.offset_mm", "mm", -20.0, 20.0),
+         ParameterSpec("sensor_drift.rate_mm_per_min", "mm/min", -10.0, 10.0)),
+        "Linear least squares of the residual on (1, t): no re-simulation (the encoder does not feed back).",
+        _fit_sensor_drift,
+        lambda v: (f"the encoder reads {v['sensor_drift.offset_mm']:+.3f} mm off at t = 0, drifting "
+                   f"{v['sensor_drift.rate_mm_per_min']:+.3f} mm/min")),
+    Candidate(
+        "backlash",
+        "Slack in the cable between the muscle and the encoder's slider: after each reversal the muscle "
+        "moves through the play before the reading follows, a constant-width band whatever the speed.",
+        (ParameterSpec("backlash.slack_mm", "mm", 0.0, 20.0),),
+        "Grid then bounded scalar search on the play, applied to the base prediction (no re-simulation).",
+        _fit_backlash,
+        lambda v: f"the encoder link has {v['backlash.slack_mm']:.2f} mm of play"),
+)
+
+
+def candidate(name: str) -> Candidate:
+    """The candidate called ``name`` (``ValueError`` listing the known names otherwise)."""
+    for c in CANDIDATES:
+        if c.name == name:
+            return c
+    raise ValueError(f"unknown effect {name!r}; known: {', '.join(c.name for c in CANDIDATES)}")

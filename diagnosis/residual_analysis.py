@@ -1,0 +1,236 @@
+"""Residual analysis: fit, whiteness and input cross-correlation tests (as MATLAB's ``resid``), where
+in time and in which operating regime the residual lives.
+
+All functions are pure: arrays in, numbers out. ``e`` is always ``measured - simulated`` [mm].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+__all__ = ["fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
+           "cross_correlation_test", "is_structured", "located_windows", "regime_summary",
+           "interleaved_split", "iou", "dominant_frequency_hz"]
+
+#: Lags of the whiteness and cross-correlation tests (MATLAB's resid default is 25).
+MAX_LAG = 25
+#: Confidence level of the bands and of the structure test.
+CONFIDENCE = 0.99
+
+
+def fit_percent(y: np.ndarray, y_hat: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Normalised-RMSE fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` [%] (MATLAB ``compare``)."""
+    if mask is not None:
+        y, y_hat = y[mask], y_hat[mask]
+    den = float(np.linalg.norm(y - np.mean(y)))
+    return 100.0 * (1.0 - float(np.linalg.norm(y - y_hat)) / den) if den > 0 else float("nan")
+
+
+def white_noise_level_mm(e: np.ndarray) -> float:
+    """Standard deviation of the white part of ``e`` [mm], from its first differences.
+
+    A smooth mismatch barely changes from one sample to the next, white noise doubles its variance
+    in a difference, so ``MAD(diff e) / (0.6745 sqrt 2)`` estimates the noise level whatever the
+    mismatch (robust to the few samples where a mismatch jumps).
+    """
+    d = np.diff(e)
+    mad = float(np.median(np.abs(d - np.median(d))))
+    sigma = mad / (0.6745 * math.sqrt(2.0))
+    if sigma == 0.0:  # quantised, mostly identical readings: fall back to the plain std of differences
+        sigma = float(np.std(d)) / math.sqrt(2.0)
+    return sigma
+
+
+@dataclass(frozen=True)
+class Correlation:
+    """A normalised correlation function with its confidence band (MATLAB ``resid``)."""
+
+    lags: np.ndarray
+    values: np.ndarray
+    band: float
+    """Half-width of the band that white (independent) residuals stay within with CONFIDENCE."""
+    p_value: float
+    """Portmanteau (Ljung-Box / Box-Pierce) p-value of 'no correlation at these lags'."""
+
+    @property
+    def outside(self) -> int:
+        """Lags outside the band."""
+        return int(np.sum(np.abs(self.values) > self.band))
+
+
+def autocorrelation_test(e: np.ndarray, max_lag: int = MAX_LAG) -> Correlation:
+    """Whiteness test: autocorrelation of ``e`` at lags 1..max_lag, band ``z / sqrt(N)``, Ljung-Box p."""
+    x = np.asarray(e, float) - np.mean(e)
+    n = len(x)
+    den = float(x @ x)
+    lags = np.arange(1, max_lag + 1)
+    r = np.array([float(x[:-k] @ x[k:]) / den for k in lags]) if den > 0 else np.zeros(max_lag)
+    q = n * (n + 2) * float(np.sum(r * r / (n - lags)))
+    z = stats.norm.ppf(0.5 + CONFIDENCE / 2)
+    return Correlation(lags, r, z / math.sqrt(n), float(stats.chi2.sf(q, max_lag)))
+
+
+def cross_correlation_test(u: np.ndarray, e: np.ndarray, max_lag: int = MAX_LAG) -> Correlation:
+    """Cross-correlation of input ``u`` and residual ``e`` at lags -max_lag..max_lag (``e`` after ``u``
+    for positive lags); band ``z / sqrt(N)`` as for independent signals, Box-Pierce p-value."""
+    a = np.asarray(u, float) - np.mean(u)
+    b = np.asarray(e, float) - np.mean(e)
+    n = len(a)
+    den = math.sqrt(float(a @ a) * float(b @ b))
+    lags = np.arange(-max_lag, max_lag + 1)
+    if den == 0:
+        r = np.zeros(len(lags))
+    else:
+        r = np.array([float(a[:n - k] @ b[k:]) if k >= 0 else float(a[-k:] @ b[:n + k]) for k in lags]) / den
+    q = n * float(np.sum(r * r))
+    z = stats.norm.ppf(0.5 + CONFIDENCE / 2)
+    return Correlation(lags, r, z / math.sqrt(n), float(stats.chi2.sf(q, len(lags))))
+
+
+def is_structured(e: np.ndarray, *, alpha: float = 1e-3, materiality: float = 1.5) -> tuple[bool, dict]:
+    """Does ``e`` hold structure beyond white noise? Both must hold:
+
+    * the Ljung-Box whiteness test rejects white noise at level ``alpha``;
+    * the residual is material: its RMS exceeds ``materiality`` times its own white-noise level
+      (:func:`white_noise_level_mm`), i.e. the structured part is at least about the size of the noise.
+
+    Returns the decision and the numbers behind it.
+    """
+    ac = autocorrelation_test(e)
+    sigma = white_noise_level_mm(e)
+    rms = float(np.sqrt(np.mean((e - 0.0) ** 2)))
+    structured = ac.p_value < alpha and rms > materiality * sigma
+    return structured, {"ljung_box_p": ac.p_value, "lags_outside_band": ac.outside, "rms_mm": rms,
+                        "white_noise_mm": sigma}
+
+
+def interleaved_split(n: int, ts_s: float, block_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out masks: alternating blocks of ``block_s`` seconds (even blocks train).
+
+    Interleaving keeps both parts spread over the whole run, so an effect that is present only for a
+    while is seen by both (a first-half/second-half split could hide it from one of them).
+    """
+    block = np.arange(n) * ts_s // block_s
+    train = (block % 2) == 0
+    return train, ~train
+
+
+def _moving_rms(x: np.ndarray, width: int) -> np.ndarray:
+    width = max(1, min(width, len(x)))
+    c = np.convolve(x * x, np.ones(width) / width, mode="same")
+    return np.sqrt(np.maximum(c, 0.0))
+
+
+def located_windows(signal: np.ndarray, ts_s: float, *, noise_mm: float, window_s: float = 5.0,
+                    min_length_s: float = 3.0, merge_gap_s: float = 5.0, floor: float = 3.0,
+                    relative: float = 0.3) -> list[tuple[float, float]]:
+    """Time windows [s] where ``signal`` (a residual, or an effect's contribution) is large.
+
+    The moving RMS over ``window_s`` must exceed both ``floor`` times the noise level and ``relative``
+    times its own maximum; runs closer than ``merge_gap_s`` merge, runs shorter than ``min_length_s``
+    are dropped.
+    """
+    if len(signal) == 0:
+        return []
+    m = _moving_rms(np.asarray(signal, float), int(round(window_s / ts_s)))
+    thr = max(floor * noise_mm, relative * float(np.max(m)))
+    above = m > thr
+    runs: list[list[float]] = []
+    k = 0
+    n = len(above)
+    while k < n:
+        if above[k]:
+            j = k
+            while j + 1 < n and above[j + 1]:
+                j += 1
+            a, b = k * ts_s, j * ts_s
+            if runs and a - runs[-1][1] <= merge_gap_s:
+                runs[-1][1] = b
+            else:
+                runs.append([a, b])
+            k = j + 1
+        else:
+            k += 1
+    return [(a, b) for a, b in runs if b - a >= min_length_s]
+
+
+def iou(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> float:
+    """Intersection over union of two sets of disjoint time windows."""
+    def total(ws):
+        return sum(max(0.0, y - x) for x, y in ws)
+    inter = sum(max(0.0, min(y1, y2) - max(x1, x2)) for x1, y1 in a for x2, y2 in b)
+    union = total(a) + total(b) - inter
+    return inter / union if union > 0 else 0.0
+
+
+def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.ndarray | None = None,
+                   *, signal: np.ndarray | None = None, min_ratio: float = 1.3) -> tuple[str, dict]:
+    """In which operating regime does ``energy`` (per-sample squared residual or contribution) concentrate?
+
+    Regimes: direction of motion (contracting / extending / holding, from the recorded displacement
+    smoothed over 0.5 s), speed, displacement and pressure terciles, and (given the signed ``signal``)
+    the frequency at which its power peaks. A regime is reported when its share of the energy is at least
+    ``min_ratio`` times its share of the time.
+
+    Returns
+    -------
+    text : str
+        Plain words, e.g. ``"mostly while extending (61 % of the residual energy in 42 % of the time)"``.
+    table : dict
+        ``{axis: {regime: {"time_share": x, "energy_share": x}}}`` and ``"dominant_frequency_hz"``.
+    """
+    e = np.asarray(energy, float)
+    total = float(np.sum(e))
+    n = len(e)
+    k = max(1, int(round(0.5 / ts_s)))
+    smooth = np.convolve(l_mm, np.ones(k) / k, mode="same")
+    v = np.gradient(smooth, ts_s)
+    hold = max(0.5, 0.1 * float(np.percentile(np.abs(v), 90)))
+    axes: dict[str, dict[str, np.ndarray]] = {
+        "direction": {"contracting": v > hold, "extending": v < -hold, "holding": np.abs(v) <= hold}}
+
+    def terciles(x: np.ndarray, unit: str, fmt: str) -> dict[str, np.ndarray]:
+        q1, q2 = np.percentile(x, [100 / 3, 200 / 3])
+        return {f"low ({fmt.format(x.min())}-{fmt.format(q1)} {unit})": x <= q1,
+                f"middle ({fmt.format(q1)}-{fmt.format(q2)} {unit})": (x > q1) & (x <= q2),
+                f"high ({fmt.format(q2)}-{fmt.format(x.max())} {unit})": x > q2}
+
+    axes["speed"] = terciles(np.abs(v), "mm/s", "{:.1f}")
+    axes["displacement"] = terciles(np.asarray(l_mm, float), "mm", "{:.0f}")
+    if p_mpa is not None:
+        axes["pressure"] = terciles(np.asarray(p_mpa, float), "MPa", "{:.3f}")
+    table: dict = {}
+    notes = []
+    for axis, regimes in axes.items():
+        table[axis] = {}
+        best = None
+        for name, mask in regimes.items():
+            ts = float(np.mean(mask))
+            es = float(np.sum(e[mask])) / total if total > 0 else 0.0
+            table[axis][name] = {"time_share": ts, "energy_share": es}
+            if ts > 0.05 and es >= min_ratio * ts and (best is None or es / ts > best[2] / best[1]):
+                best = (name, ts, es)
+        if best is not None:
+            where = {"direction": f"while {best[0]}", "speed": f"at {best[0]} speed",
+                     "displacement": f"at {best[0]} displacement", "pressure": f"at {best[0]} pressure"}[axis]
+            notes.append(f"{where} ({100 * best[2]:.0f} % of it in {100 * best[1]:.0f} % of the time)")
+    if signal is not None:
+        f = dominant_frequency_hz(signal, ts_s)
+        table["dominant_frequency_hz"] = f
+        notes.append(f"its power peaks at {f:.3g} Hz" if f > 0 else "no dominant frequency")
+    text = "; ".join(notes) if notes else "spread evenly over the operating range"
+    return text, table
+
+
+def dominant_frequency_hz(e: np.ndarray, ts_s: float) -> float:
+    """Frequency [Hz] of the largest peak of the residual's periodogram (mean removed; 0 if flat)."""
+    x = np.asarray(e, float) - np.mean(e)
+    if len(x) < 8 or not np.any(x):
+        return 0.0
+    spec = np.abs(np.fft.rfft(x * np.hanning(len(x)))) ** 2
+    f = np.fft.rfftfreq(len(x), ts_s)
+    return float(f[1 + int(np.argmax(spec[1:]))])

@@ -1,0 +1,90 @@
+"""Open-loop re-simulation of a recording with a plant model: the recorded command in, the displacement
+the model predicts out.
+
+Sampling as in every recording (``fmu_plant.open_loop``): row ``k`` holds ``l(k)`` measured at
+``t_k = k Ts`` and the command ``u(k)`` held over ``[t_k, t_{k+1})``. The model is run without sensor
+noise and quantisation (they are the recording's, not the model's), from rest (drained, fully
+extended: how every tapmuscle recording starts; documented in docs/diagnosis.md), with the recorded
+load when the recording has a ``load_n`` column.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fmu_plant import Plant, PlantParams
+
+__all__ = ["Simulator", "noise_free"]
+
+
+def noise_free(params: PlantParams) -> PlantParams:
+    """``params`` with the encoder's and pressure sensor's noise and quantisation switched off."""
+    return params.with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0,
+                                 "sensor.pressure_noise_std_mpa": 0.0, "sensor.pressure_resolution_mpa": 0.0})
+
+
+@dataclass
+class Simulator:
+    """Re-simulates one recording's command with plant parameters (setup once, run many times).
+
+    Parameters
+    ----------
+    u_v : ndarray
+        Recorded command [V], one per sample.
+    ts_s : float
+        Sampling period [s].
+    load_n : ndarray, optional
+        Recorded load [N] per sample (default: the parameters' ``load.load_n`` throughout).
+    """
+
+    u_v: np.ndarray
+    ts_s: float
+    load_n: np.ndarray | None = None
+    runs: int = 0
+    """How many simulations were run (for the report)."""
+    _checkpoints: dict[int, dict[str, Any]] = field(default_factory=dict)
+
+    def run(self, params: PlantParams, *, stop: int | None = None, start: int = 0,
+            checkpoint_every: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free displacement [mm] and pressure [MPa] for samples ``start .. stop - 1``.
+
+        Parameters
+        ----------
+        params : PlantParams
+            The model (its sensor noise is switched off here).
+        stop : int, optional
+            First sample not simulated (default: all).
+        start : int
+            First sample; > 0 continues from the baseline checkpoint at ``start`` (see
+            ``checkpoint_every``), which is valid for effects that do not act before ``t_start``.
+        checkpoint_every : int
+            Keep the plant's state every this many samples (0: none), for later runs with ``start``.
+        """
+        n = len(self.u_v) if stop is None else stop
+        plant = Plant(noise_free(params), seed=0)
+        if start:
+            plant.set_state(self._checkpoints[start])
+        load = self.load_n
+        u = self.u_v
+        ts = self.ts_s
+        l = np.empty(n - start)
+        p = np.empty(n - start)
+        l[0], p[0] = plant.measurement.l_mm, plant.measurement.p_mpa
+        if load is not None:
+            plant.update(load_n=float(load[start]))
+        for k in range(start, n - 1):
+            if checkpoint_every and k % checkpoint_every == 0:
+                self._checkpoints[k] = plant.get_state()
+            if load is not None and load[k] != plant.load_n:
+                plant.update(load_n=float(load[k]))
+            m = plant.step(float(u[k]), ts)
+            l[k + 1 - start], p[k + 1 - start] = m.l_mm, m.p_mpa
+        self.runs += 1
+        return l, p
+
+    def checkpoints(self) -> list[int]:
+        """Samples at which :meth:`run` may start (from a baseline run with ``checkpoint_every``)."""
+        return sorted(self._checkpoints)
