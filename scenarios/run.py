@@ -4,8 +4,8 @@ Writes into ``DIR`` (each file atomically):
 
 * ``result.csv``: one row per sample (docs/recordings.md format; columns as the direct loop's,
   :func:`tapmuscle.closed_loop.run_closed_loop`), with the scenario in its header;
-* ``summary.json``: ``mae_mm`` (Eq. 21 over ``evaluation_samples``), command range, wall time, real-time
-  factor, the FMUs' GUIDs, the scenario;
+* ``summary.json``: the metrics of :data:`scenarios.expect.METRICS` (``mae_mm`` = Eq. 21 over
+  ``evaluation_samples``, command range, wall time, real-time factor, ...), the FMUs' GUIDs, the scenario;
 * ``tracking.png`` (r, l, error, u; load if it changes), ``prediction_error.png`` and, for the adaptive
   methods, ``parameters.png`` (theta-hat over time).
 """
@@ -20,10 +20,10 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from tapmuscle.closed_loop import eq21_error_mm
 from tapmuscle.figures import plot_parameter_convergence, plot_prediction_errors, plot_tracking
 from tapmuscle.recording import Recording, atomic_write_text, write_recording
 
+from .expect import scenario_metrics
 from .master import co_simulate, unpack
 from .spec import Scenario
 
@@ -33,14 +33,11 @@ __all__ = ["run_scenario", "summarise"]
 def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[str, Path]) -> dict[str, Any]:
     """The ``summary.json`` document of a run."""
     k0, k1 = scenario.evaluation_samples
-    wall = float(cols["wall_time_s"])
+    metrics = scenario_metrics(scenario, cols)
     return {
         "scenario": scenario.name, "source": scenario.source, "method": scenario.method, "seed": scenario.seed,
-        "mae_mm": eq21_error_mm(cols["r_mm"], cols["l_mm"], (k0, k1)),
+        **metrics, "real_time_factor": metrics["real_time_factor"] if metrics["wall_time_s"] > 0 else None,
         "evaluation_samples": [k0, k1], "evaluation_window_s": [k0 * scenario.step_s, k1 * scenario.step_s],
-        "u_min_v": float(np.min(cols["u_v"])), "u_max_v": float(np.max(cols["u_v"])),
-        "max_abs_error_mm": float(np.max(np.abs(cols["r_mm"][k0:k1 + 1] - cols["l_mm"][k0:k1 + 1]))),
-        "wall_time_s": wall, "real_time_factor": scenario.duration_s / wall if wall > 0 else None,
         "fmus": {name: {"path": str(p), "guid": unpack(p).model_description.guid} for name, p in fmus.items()},
         "scenario_spec": json.loads(json.dumps(asdict(scenario), default=str)),
     }

@@ -36,6 +36,10 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     [supply]                               # optional
     initial_mpa = 0.25
     steps = [ { t_s = 30.0, pressure_mpa = 0.22 } ]
+
+    [expect]                               # optional: bounds for `tapmuscle check` (scenarios/expect.py)
+    mae_mm_max = 0.35
+    u_within = [0, 10]
 """
 
 from __future__ import annotations
@@ -44,11 +48,15 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from fmu_controller.displacement_control import METHODS
 
-__all__ = ["ScenarioError", "Profile", "Reference", "FmuSpec", "Scenario", "load_scenario", "parse_scenario"]
+if TYPE_CHECKING:
+    from .expect import Expectations
+
+__all__ = ["ScenarioError", "Profile", "Reference", "FmuSpec", "Scenario", "load_scenario", "parse_scenario",
+           "read_toml"]
 
 
 class ScenarioError(ValueError):
@@ -118,6 +126,8 @@ class Scenario:
     supply: Profile
     evaluation_samples: tuple[int, int] = (101, 401)
     description: str = ""
+    expect: "Expectations | None" = None
+    """The ``[expect]`` table (:mod:`scenarios.expect`), None without one."""
 
     @property
     def n_samples(self) -> int:
@@ -126,7 +136,7 @@ class Scenario:
 
 
 _TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "plant", "controller",
-        "reference", "load", "supply"}
+        "reference", "load", "supply", "expect"}
 
 
 class _Reader:
@@ -284,23 +294,31 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     supply_r = top.sub("supply")
     supply_r.check_keys({"initial_mpa", "steps"})
     supply = supply_r.profile("initial_mpa", "pressure_mpa", 0.25, 0.0, 1.0)
+    from .expect import parse_expectations  # noqa: PLC0415 - expect imports this module
+
+    expect = parse_expectations(data["expect"], source=source) if "expect" in data else None
     return Scenario(name=top.string("name", default_name), source=source, duration_s=duration, step_s=step,
                     seed=top.integer("seed", 0), plant=plant, controller=controller, method=method,
                     reference=reference, load=load, supply=supply, evaluation_samples=(window[0], window[1]),
-                    description=top.string("description", ""))
+                    description=top.string("description", ""), expect=expect)
+
+
+def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
+    """The parsed TOML file ``path``; a missing, unreadable or invalid file raises ScenarioError."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: {what} file does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
 
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and check a scenario file (module docstring); errors name the file and key."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: scenario file does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: cannot read: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    return parse_scenario(data, source=str(path), base=path.parent, default_name=path.stem)
+    return parse_scenario(read_toml(path), source=str(path), base=path.parent, default_name=path.stem)

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from .sweep_cli import register as _register_sweep
+
 __all__ = ["main"]
 
 
@@ -320,6 +322,7 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Build MusclePlant.fmu with pythonfmu (docs/fmu.md).")
     bld.add_argument("--out", default="out/fmu", help="output folder (default out/fmu)")
     bld.set_defaults(func=_cmd_build)
+    _register_sweep(sub)
     return parser
 
 

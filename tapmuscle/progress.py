@@ -23,14 +23,16 @@ class Progress:
         self._last_decile = -1
         self._t0 = time.monotonic()
 
-    def __call__(self, done: int, total: int) -> None:
+    def __call__(self, done: int, total: int, detail: str = "") -> None:
+        """Report ``done`` of ``total`` units; ``detail`` (e.g. ``3 failed, 10 remaining``) is appended."""
         if not self.enabled or total < self.min_total:
             return
-        frac = done / total
+        frac = done / total if total else 1.0
+        extra = f"  {detail}" if detail else ""
         if self._tty:
             bar = "#" * int(30 * frac)
             self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% "
-                              f"{time.monotonic() - self._t0:6.1f} s")
+                              f"{time.monotonic() - self._t0:6.1f} s{extra}\033[K")
             if done >= total:
                 self.stream.write("\n")
         else:
@@ -38,5 +40,5 @@ class Progress:
             if decile > self._last_decile:
                 self._last_decile = decile
                 self.stream.write(f"{self.label}: {100 * frac:3.0f}% ({done}/{total}, "
-                                  f"{time.monotonic() - self._t0:.1f} s)\n")
+                                  f"{time.monotonic() - self._t0:.1f} s){extra}\n")
         self.stream.flush()
