@@ -55,7 +55,7 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
         raise UsageError("needs dask.distributed: pip install 'tapmuscle[dist]' (or run in this process with "
                          "--workers 0)") from None
     try:
-        client = stack.enter_context(dask_client(args.workers, args.scheduler))
+        client = stack.enter_context(dask_client(args.workers, args.scheduler, wait_s=args.timeout))
     except OSError as exc:  # includes TimeoutError
         where = f"--scheduler {args.scheduler}" if args.scheduler else f"local cluster of {args.workers} workers"
         raise UsageError(f"{where}: cannot start or connect: {exc}") from None
@@ -157,6 +157,8 @@ def _common(p: argparse.ArgumentParser, default_workers: str) -> None:
                         + "); 0 runs everything in this process, without Dask")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run on the Dask cluster of this scheduler instead of a local one (docs/sweeps.md)")
+    p.add_argument("--timeout", type=float, default=60.0, metavar="S",
+                   help="with --scheduler: seconds to wait for the scheduler and its first worker (default 60)")
     p.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
                                      "(default: built from the sources, cached)")
     p.add_argument("--quiet", action="store_true", help="no progress output")

@@ -1,0 +1,65 @@
+"""`tapmuscle check`: the project's CI scenario tests on the paper scenarios, JUnit XML, failures."""
+
+import xml.etree.ElementTree as ET
+
+from scenarios import PAPER_SCENARIOS, load_scenario
+from tapmuscle.cli import main
+
+
+def test_paper_scenarios_meet_their_expectations(built_fmus, tmp_path, capsys):
+    """The CI scenario tests: every paper scenario within its [expect] bounds, reported as JUnit XML."""
+    junit = tmp_path / "reports" / "scenarios.xml"
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    code = main(["check", str(PAPER_SCENARIOS), "--junit", str(junit), "--fmu-dir", fmu_dir, "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "12 scenarios: 12 passed, 0 failed, 0 errors" in out
+    root = ET.parse(junit).getroot()
+    assert root.tag == "testsuites" and root.get("tests") == "12" and root.get("failures") == "0"
+    cases = root.findall("testsuite/testcase")
+    assert sorted(c.get("name") for c in cases) == sorted(p.stem for p in PAPER_SCENARIOS.glob("*.toml"))
+    for case in cases:
+        assert case.find("failure") is None and case.find("error") is None
+        bound = load_scenario(PAPER_SCENARIOS / f"{case.get('name')}.toml").expect.bounds[0]
+        text = case.find("system-out").text
+        mae = float(text.split("mae_mm = ")[1].split()[0])
+        assert bound.metric == "mae_mm" and 0.0 < mae <= bound.hi
+        assert f"mae_mm <= {bound.hi:g}: " in text and "u_max_v <= 10: 10" in text
+
+
+def test_a_missed_expectation_fails_the_check(built_fmus, tmp_path, capsys):
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "tight.toml").write_text('duration_s = 12.0\nevaluation_samples = [20, 120]\n'
+                                       '[expect]\nmae_mm_max = 0.01\nu_within = [0, 10]\n')
+    (folder / "loose.toml").write_text('duration_s = 12.0\nevaluation_samples = [20, 120]\n'
+                                       '[expect]\nmae_mm_max = 5.0\n')
+    (folder / "broken.toml").write_text('duration_s = 12.0\nevaluation_samples = [20, 120]\n'
+                                        '[controller]\nparameters = { "servo.Hu" = 9 }\n[expect]\nmae_mm_max = 5.0\n')
+    (folder / "plain.toml").write_text('duration_s = 12.0\n')  # no [expect]: skipped
+    junit = tmp_path / "report.xml"
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    assert main(["check", str(folder), "--junit", str(junit), "--fmu-dir", fmu_dir, "--quiet"]) == 1
+    out = capsys.readouterr().out
+    assert "3 scenarios with expectations (1 files without [expect] skipped)" in out
+    assert "3 scenarios: 1 passed, 1 failed, 1 errors" in out
+    root = ET.parse(junit).getroot()
+    assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("3", "1", "1")
+    tight = next(c for c in root.iter("testcase") if c.get("name") == "tight")
+    failure = tight.find("failure")
+    assert failure is not None and failure.get("message").startswith("mae_mm = ")
+    assert "> 0.01 (mae_mm_max)" in failure.get("message")
+    broken = next(c for c in root.iter("testcase") if c.get("name") == "broken")
+    assert "hu must be <= hp" in broken.find("error").get("message")
+
+
+def test_check_reports_bad_files_and_empty_folders(tmp_path, capsys):
+    (tmp_path / "bad.toml").write_text('duration_s = 12.0\n[expect]\nmae_mm_maximum = 1\n')
+    assert main(["check", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "bad.toml") in err and "expect.mae_mm_maximum" in err
+    (tmp_path / "bad.toml").write_text('duration_s = 12.0\n')
+    assert main(["check", str(tmp_path)]) == 2
+    assert "no scenario with an [expect] table" in capsys.readouterr().err
+    assert main(["check", str(tmp_path / "missing")]) == 2
+    assert "no such file or folder" in capsys.readouterr().err

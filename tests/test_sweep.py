@@ -1,0 +1,312 @@
+"""Sweep files, expectations, the results log with resume, and `tapmuscle sweep` run in this process."""
+
+import csv
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from scenarios import ScenarioError, co_simulate, load_scenario, parse_scenario
+from scenarios.distributed_sweep import FmuFiles, make_task, run_serial
+from scenarios.expect import check_expectations, parse_expectations, scenario_metrics
+from scenarios.master import InstancePool
+from scenarios.sweep import load_sweep, parse_sweep
+from scenarios.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
+from tapmuscle.cli import main
+
+SHORT = {"duration_s": 12.0, "evaluation_samples": [20, 120], "controller": {"method": "ampc_servo"}}
+
+SMALL_SWEEP = """
+name = "small"
+[base]
+duration_s = 12.0
+evaluation_samples = [20, 120]
+[grid]
+"controller.method" = ["mpc_servo", "ampc_servo"]
+seed = [0, 1]
+"""
+
+
+def _write(tmp_path, text, name="sweep.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _rows(out):
+    with open(out / "results.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _same_results(a, b):
+    """Same runs, same status and metrics (wall time aside), bit for bit."""
+    key = lambda rows: {r["run_id"]: r for r in rows}  # noqa: E731
+    a, b = key(a), key(b)
+    assert a.keys() == b.keys()
+    for rid in a:
+        for col in ("status", "mae_mm", "rms_error_mm", "max_abs_error_mm", "u_min_v", "u_max_v", "error"):
+            assert a[rid][col] == b[rid][col], (rid, col)
+
+
+# ------------------------------------------------------------------------------------- sweep files
+def test_grid_and_monte_carlo_expand_deterministically(tmp_path):
+    path = _write(tmp_path, """
+base = { duration_s = 12.0, evaluation_samples = [20, 120] }
+[grid]
+"controller.method" = ["mpc_ucp", "ampc_servo"]
+"controller.parameters.servo.R" = [10.0, 20.0]
+[monte_carlo]
+n = 5
+sample_seed = 7
+"load.initial_n" = { uniform = [30.0, 90.0] }
+seed = { integers = [0, 3] }
+"reference.frequency_hz" = { choice = [0.1, 0.2] }
+""")
+    sweep = load_sweep(path)
+    assert len(sweep.runs) == 2 * 2 * 5
+    assert sweep.fields == ("controller.method", "controller.parameters.servo.R", "load.initial_n", "seed",
+                            "reference.frequency_hz")
+    again = load_sweep(path)
+    assert [r.run_id for r in sweep.runs] == [r.run_id for r in again.runs]
+    assert len({r.run_id for r in sweep.runs}) == 20
+    loads = [r.scenario.load.initial for r in sweep.runs]
+    assert all(30.0 <= v < 90.0 for v in loads) and len(set(loads)) == 5  # the same 5 samples per grid point
+    assert loads[:5] == loads[5:10] == loads[15:20]
+    assert {r.scenario.seed for r in sweep.runs} <= {0, 1, 2, 3}
+    assert {r.scenario.reference.frequency_hz for r in sweep.runs} <= {0.1, 0.2}
+    first = sweep.runs[0]
+    assert first.scenario.method == "mpc_ucp" and first.scenario.controller.parameters == {"servo.R": 10.0}
+    assert dict(first.params)["load.initial_n"] == first.scenario.load.initial
+    # another sampler seed, other samples
+    other = parse_sweep({**tomllib.loads(path.read_text()),
+                         "monte_carlo": {"n": 5, "sample_seed": 8, "load.initial_n": {"uniform": [30.0, 90.0]}}},
+                        source="x")
+    assert [r.scenario.load.initial for r in other.runs[:5]] != loads[:5]
+
+
+def test_base_glob_crosses_each_file_with_the_grid(tmp_path):
+    sweep = load_sweep("scenarios/sweeps/paper_grid.toml")
+    assert len(sweep.runs) == 12 * 3
+    names = {r.base for r in sweep.runs}
+    assert len(names) == 12 and "ampc_servo_44N_0.2Hz" in names
+    run = next(r for r in sweep.runs if r.base == "ampc_servo_44N_0.2Hz" and r.scenario.seed == 2)
+    assert run.scenario.controller.parameters["P0.a1"] == 1000 and run.scenario.reference.frequency_hz == 0.2
+    assert run.scenario.expect.bounds[0].hi == 0.58  # the base file's [expect]
+    mc = load_sweep("scenarios/sweeps/robustness_mc.toml")
+    assert len(mc.runs) == 200
+    assert {r.scenario.method for r in mc.runs} == {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
+    assert all(30.0 <= r.scenario.load.initial <= 90.0 and 0.2 <= r.scenario.supply.initial <= 0.3
+               for r in mc.runs)
+
+
+def test_run_ids_change_with_the_scenario_not_with_expectations(tmp_path):
+    a = parse_sweep({"base": dict(SHORT), "grid": {"seed": [0, 1]}}, source="a")
+    b = parse_sweep({"base": dict(SHORT), "grid": {"seed": [0, 1]}, "expect": {"mae_mm_max": 1.0}}, source="b")
+    c = parse_sweep({"base": {**SHORT, "duration_s": 13.0}, "grid": {"seed": [0, 1]}}, source="c")
+    assert [r.run_id for r in a.runs] == [r.run_id for r in b.runs]
+    assert not {r.run_id for r in a.runs} & {r.run_id for r in c.runs}
+    assert b.runs[0].scenario.expect.bounds[0].hi == 1.0 and a.runs[0].scenario.expect is None
+
+
+@pytest.mark.parametrize("text, key, message", [
+    ("base = 'nowhere.toml'\n", "base", "does not exist"),
+    ("base = 'nothing*.toml'\n", "base", "matches no file"),
+    ("base = { duration_s = 10.0 }\nsteps = 3\n", "steps", "unknown key"),
+    ("base = { duration_s = 10.0 }\n[grid]\nseed = 3\n", "grid.seed", "non-empty array"),
+    ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 3\nseed = 4\n", "monte_carlo.seed", "sample_seed"),
+    ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 3\n'load.initial_n' = { normal = [1, 2] }\n",
+     "monte_carlo.load.initial_n", "uniform"),
+    ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 3\n'load.initial_n' = { uniform = [9, 2] }\n",
+     "monte_carlo.load.initial_n.uniform", "lo < hi"),
+    ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 0\n'seed' = { integers = [0, 2] }\n", "monte_carlo.n", ">= 1"),
+    ("base = { duration_s = 10.0 }\n[grid]\n'load.initial_n' = [44, 600]\n", "load.initial_n", "is outside"),
+    ("base = { duration_s = 10.0 }\n[grid]\n'load.initial' = [44]\n", "load.initial", "unknown key"),
+    ("base = { duration_s = 10.0 }\n[grid]\nseed = [1, 1]\n", "", "the same scenario as run 0"),
+    ("base = { duration_s = 10.0 }\n[expect]\nmae_max = 1\n", "expect.mae_max", "unknown expectation"),
+])
+def test_bad_sweep_files_name_file_and_key(tmp_path, text, key, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(ScenarioError) as err:
+        load_sweep(path)
+    assert str(path) in str(err.value) and message in str(err.value)
+    assert f"key '{key}'" in str(err.value) if key else True
+    if key == "load.initial_n":
+        assert "load.initial_n=600" in str(err.value)  # the run's values
+
+
+# ------------------------------------------------------------------------------------- expectations
+def test_expectations_are_checked_against_the_metrics(tmp_path):
+    exp = parse_expectations({"mae_mm_max": 0.35, "u_within": [0, 10], "real_time_factor_min": 50}, source="f")
+    ok = {"mae_mm": 0.30, "u_min_v": 0.0, "u_max_v": 10.0, "real_time_factor": 300.0}
+    assert check_expectations(exp, ok).passed
+    bad = check_expectations(exp, {**ok, "mae_mm": 0.41, "u_min_v": -0.5, "real_time_factor": 20.0})
+    assert bad.violations == ("mae_mm = 0.41 > 0.35 (mae_mm_max)", "u_min_v = -0.5 < 0 (u_within)",
+                              "real_time_factor = 20 < 50 (real_time_factor_min)")
+    assert not check_expectations(exp, {**ok, "mae_mm": math.nan}).passed
+    path = _write(tmp_path, 'duration_s = 10.0\n[expect]\nmae_mm_max = 0.5\nu_within = [0, 10]\n', "s.toml")
+    assert [b.describe() for b in load_scenario(path).expect.bounds] == ["mae_mm <= 0.5", "u_min_v >= 0",
+                                                                         "u_max_v <= 10"]
+
+
+@pytest.mark.parametrize("table, key, message", [
+    ({"mae_max": 1}, "expect.mae_max", "unknown expectation"),
+    ({"mae_mm_below": 1}, "expect.mae_mm_below", "unknown expectation"),
+    ({"mae_mm_max": "low"}, "expect.mae_mm_max", "finite number"),
+    ({"u_within": [10, 0]}, "expect.u_within", "lo 10 > hi 0"),
+    ({"u_within": 5}, "expect.u_within", "[lo, hi]"),
+])
+def test_bad_expectations_name_file_and_key(table, key, message):
+    with pytest.raises(ScenarioError) as err:
+        parse_expectations(table, source="some.toml")
+    assert str(err.value).startswith(f"some.toml: key '{key}'") and message in str(err.value)
+
+
+def test_metrics_of_a_run():
+    s = parse_scenario({"duration_s": 1.0, "evaluation_samples": [1, 3]}, source="m")
+    cols = {"r_mm": np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]),
+            "l_mm": np.array([9.0, 1.5, 1.0, 3.0, 0.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]),
+            "u_v": np.linspace(-1.0, 11.0, 11), "wall_time_s": np.asarray(0.5)}
+    m = scenario_metrics(s, cols)
+    assert m["mae_mm"] == pytest.approx(0.5) and m["max_abs_error_mm"] == 1.0
+    assert m["rms_error_mm"] == pytest.approx(math.sqrt((0.25 + 1.0) / 3))
+    assert (m["u_min_v"], m["u_max_v"], m["real_time_factor"]) == (-1.0, 11.0, 2.0)
+
+
+# ------------------------------------------------------------------------------------- instance reuse
+def test_reused_instances_give_the_same_runs_bit_for_bit(built_fmus):
+    cases = [parse_scenario({**SHORT, "seed": 2, "controller": {"method": "ampc_servo",
+                                                                "parameters": {"servo.R": 3.0}}}, source="a"),
+             parse_scenario({**SHORT, "seed": 2}, source="b"),  # servo.R back at its default
+             parse_scenario({**SHORT, "controller": {"method": "mpc_ucp"}, "load": {"initial_n": 68.0},
+                             "plant": {"parameters": {"friction.rate_gain": 0.5}}}, source="c"),
+             parse_scenario({**SHORT, "seed": 2}, source="d")]
+    fresh = [co_simulate(s, built_fmus, record="minimal") for s in cases]
+    pool = InstancePool()
+    try:
+        pooled = [co_simulate(s, built_fmus, record="minimal", pool=pool) for s in cases]
+        assert sum(len(v) for v in pool._idle.values()) == 2  # one plant and one controller, reused
+    finally:
+        pool.close()
+    for f, p in zip(fresh, pooled):
+        assert np.array_equal(f["l_mm"], p["l_mm"]) and np.array_equal(f["u_v"], p["u_v"])
+    assert not np.array_equal(fresh[0]["u_v"], fresh[1]["u_v"])  # servo.R mattered, and was reset
+
+
+# ------------------------------------------------------------------------------------- run_sweep
+def test_sweep_records_failures_resumes_and_summarises(built_fmus, tmp_path):
+    text = SMALL_SWEEP + '"controller.parameters.servo.Hu" = [5, 9]\n'  # Hu = 9 > Hp = 5: the FMU refuses
+    sweep = parse_sweep(tomllib.loads(text), source="small.toml")
+    out = tmp_path / "out"
+    report = run_sweep(sweep, out, built_fmus, run_serial)
+    assert (report.total, report.skipped, report.ran, report.failed) == (8, 0, 8, 4)
+    rows = _rows(out)
+    assert len(rows) == 8 and [r["run_id"] for r in rows] == [r.run_id for r in sweep.runs]
+    failed = [r for r in rows if r["status"] == "failed"]
+    assert {r["controller.parameters.servo.Hu"] for r in failed} == {"9"}
+    assert all("hu must be <= hp" in r["error"] and r["mae_mm"] == "" for r in failed)
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert all(0.0 < float(r["mae_mm"]) < 5.0 and float(r["u_max_v"]) == 10.0 for r in ok)
+    summary = (out / "summary.md").read_text()
+    mae = sorted(float(r["mae_mm"]) for r in ok if r["method"] == "mpc_servo")
+    assert f"| mpc_servo | 4 | 2 | 0 | {np.mean(mae):.3f} | {np.median(mae):.3f} | {max(mae):.3f} |" in summary
+    assert "## Failed runs" in summary and (out / "mae_by_method.png").stat().st_size > 10_000
+
+    calls = []
+
+    def counting(tasks, files):
+        calls.append([t.run_id for t in tasks])
+        return run_serial(tasks, files)
+
+    again = run_sweep(sweep, out, built_fmus, counting)
+    assert sorted(calls[0]) == sorted(r["run_id"] for r in failed)  # only the failed runs again
+    assert (again.skipped, again.ran, again.failed) == (4, 4, 4)
+    assert len(_rows(out)) == 8  # one row per run, the last attempt
+    _same_results(rows, _rows(out))
+
+
+def test_interrupted_sweep_resumes_without_recomputing(built_fmus, tmp_path):
+    sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
+    full = tmp_path / "full"
+    run_sweep(sweep, full, built_fmus, run_serial, plots=False)
+
+    def interrupted(tasks, files):
+        for i, result in enumerate(run_serial(tasks, files)):
+            if i == 2:
+                raise KeyboardInterrupt
+            yield result
+
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(sweep, out, built_fmus, interrupted, plots=False)
+    logged = _rows(out)
+    assert len(logged) == 2 and not (out / "summary.md").exists()
+    with open(out / "results.csv", "a") as fh:  # a row cut short by a crash
+        fh.write(f"{sweep.runs[3].run_id},ok,small,ampc")
+    calls = []
+
+    def counting(tasks, files):
+        calls.append({t.run_id for t in tasks})
+        return run_serial(tasks, files)
+
+    report = run_sweep(sweep, out, built_fmus, counting, plots=False)
+    assert calls == [{r.run_id for r in sweep.runs} - {r["run_id"] for r in logged}]
+    assert (report.skipped, report.ran, report.failed) == (2, 2, 0)
+    final = _rows(out)
+    assert len(final) == 4 and [r["wall_time_s"] for r in final[:2]] == [r["wall_time_s"] for r in logged]
+    _same_results(final, _rows(full))
+
+
+def test_results_of_another_sweep_are_refused(built_fmus, tmp_path):
+    out = tmp_path / "out"
+    other = parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [44.0]}}, source="other.toml")
+    ResultsLog(out / "results.csv", result_columns(other)).append({"run_id": "x", "status": "ok"})
+    sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
+    with pytest.raises(ScenarioError, match="results of another sweep .*load.initial_n"):
+        run_sweep(sweep, out, built_fmus, run_serial)
+
+
+def test_summary_groups_grid_cells():
+    sweep = parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [44.0, 68.0], "seed": [0, 1]}}, source="s")
+    rows = [{"run_id": str(i), "status": "ok", "scenario": "s", "method": "ampc_servo", "load_n": load,
+             "supply_mpa": "0.25", "frequency_hz": "0.1", "seed": str(seed), "mae_mm": mae, "expect": "",
+             "error": ""} for i, (load, seed, mae) in enumerate([("44.0", 0, "0.1"), ("44.0", 1, "0.3"),
+                                                                 ("68.0", 0, "0.5"), ("68.0", 1, "0.9")])]
+    text = summary_markdown(sweep, rows)
+    assert "| ampc_servo | 4 | 0 | 0 | 0.450 | 0.400 | 0.900 |" in text
+    assert "| ampc_servo | 44.0 | 2 | 0 | 0.200 | 0.200 | 0.300 |" in text
+    assert "| ampc_servo | 68.0 | 2 | 0 | 0.700 | 0.700 | 0.900 |" in text
+
+
+def test_sweep_cli_in_process_and_its_errors(built_fmus, tmp_path, capsys):
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    path = _write(tmp_path, SMALL_SWEEP.replace("seed = [0, 1]", "seed = [0]")
+                  + "[expect]\nmae_mm_max = 0.01\n")
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--workers", "0", "--fmu-dir", fmu_dir, "--quiet"]) == 1
+    text = capsys.readouterr().out
+    assert "2 runs: 0 already done, 2 run now; 0 failed, 2 missed their expectations" in text
+    assert all(r["expect"].startswith("fail: mae_mm = ") for r in _rows(out))
+    assert (out / "mae_by_method.png").is_file() and not (out / "mae_map.png").exists()  # nothing numeric varies
+    bad = _write(tmp_path, "base = { duration_s = 10.0 }\n[grid]\n'controller.parameters.servo.Rr' = [1.0]\n")
+    assert main(["sweep", str(bad), "--out", str(tmp_path / "o2"), "--workers", "0", "--fmu-dir", fmu_dir]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "controller.parameters.servo.Rr" in err and "not a parameter" in err
+    assert not (tmp_path / "o2" / "results.csv").exists()
+
+
+def test_tasks_carry_fmu_digests_and_run_anywhere(built_fmus, tmp_path, monkeypatch):
+    """A worker without the client's files writes the shipped bytes into its cache, once."""
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    files = FmuFiles.read(built_fmus.values())
+    task = make_task("t", parse_scenario(SHORT, source="s"), built_fmus, files)
+    remote = files.without_local()
+    digest = dict(task.fmus)["MusclePlant"]
+    path = remote.path(digest)
+    assert path.parent.name == digest and str(path).startswith(str(tmp_path))
+    assert path.read_bytes() == built_fmus["MusclePlant"].read_bytes()
+    assert files.path(digest) == built_fmus["MusclePlant"].resolve()  # in the client: its own file
+    local = next(run_serial([task], files))
+    assert local.status == "ok" and local.metrics["mae_mm"] > 0
