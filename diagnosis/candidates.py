@@ -16,8 +16,8 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
   simulation with the delay;
 * ``load_mismatch``, ``rate_dependent_hysteresis``: Gauss-Newton with a secant slope, each evaluation a
   simulation of the first ``fit_segment_s`` seconds (stationary effects show in any stretch);
-* ``valve_dead_zone``: a grid over the band's centre within the recorded commands, then Nelder-Mead
-  on centre and width;
+* ``valve_dead_zone``: a fine grid (0.15 V) over the band's centre within the recorded commands, with
+  a narrow band, on the first 40 s, then Nelder-Mead on centre and width;
 * ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
   Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window.
 
@@ -245,7 +245,7 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     if _get(base, "dead_zone.width_v") > 0:
         return None
     n_fit = pr.n_fit
-    n_grid = min(n_fit, int(round(60.0 / pr.ts_s)) + 1)  # the coarse grid on the first minute
+    n_grid = min(n_fit, int(round(40.0 / pr.ts_s)) + 1)  # the grid on the first 40 s
     lo_u, hi_u = np.percentile(pr.u_v[:n_fit], [2, 98])
     if hi_u - lo_u < 0.5:
         return None  # the command hardly moves: a band cannot be located
@@ -255,10 +255,12 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
         p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
         r = pr.train_residual(pr.sim.run(p, stop=stop)[0])
         return float(r @ r)
-    centres = np.arange(math.floor(lo_u * 2) / 2 + 0.25, hi_u, 0.5)
-    costs = [cost((c, 0.6), n_grid) for c in centres]
+    # A misplaced band costs far more than no band (the muscle stalls where the rig moves), so the
+    # cost is sharp in the centre: a fine grid with a narrow band, then both parameters.
+    centres = np.arange(lo_u, hi_u, 0.15)
+    costs = [cost((c, 0.3), n_grid) for c in centres]
     c0 = float(centres[int(np.argmin(costs))])
-    x = _nelder_mead(cost, np.array([c0, 0.6]), np.array([0.3, 0.4]), np.array([0.0, 0.0]),
+    x = _nelder_mead(cost, np.array([c0, 0.3]), np.array([0.1, 0.2]), np.array([0.0, 0.0]),
                      np.array([10.0, 5.0]), max_evals=18)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
     if values["dead_zone.width_v"] <= 1e-3:
