@@ -8,21 +8,9 @@ import os
 import sys
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 __all__ = ["register"]
-
-
-def _count(name: str) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if not 0 <= value <= 4096:
-            raise argparse.ArgumentTypeError(f"{name} must be within 0..4096, got {value}")
-        return value
-    return parse
 
 
 def _fmus(fmu_dir: str | None) -> dict[str, Path]:
@@ -47,8 +35,12 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
 
     from .cli import UsageError
 
+    if not 0 <= args.workers <= 4096:
+        raise UsageError(f"--workers must be within 0..4096, got {args.workers}")
     if not args.scheduler and args.workers == 0:
         return run_serial
+    if not 0 < args.timeout <= 86400:
+        raise UsageError(f"--timeout must be within 0..86400 s, got {args.timeout:g}")
     try:
         import distributed  # noqa: F401
     except ImportError:
@@ -151,7 +143,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------------------------------ parser
 def _common(p: argparse.ArgumentParser, default_workers: str) -> None:
-    p.add_argument("--workers", type=_count("--workers"), default=None if default_workers == "cpus" else 0,
+    p.add_argument("--workers", type=int, default=None if default_workers == "cpus" else 0,
                    help="worker processes of a local Dask cluster (default: "
                         + ("the number of CPUs" if default_workers == "cpus" else "0")
                         + "); 0 runs everything in this process, without Dask")

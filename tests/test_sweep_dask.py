@@ -15,12 +15,8 @@ from tapmuscle.cli import main  # noqa: E402
 
 SWEEP = """
 name = "dask_small"
-[base]
-duration_s = 15.0
-evaluation_samples = [20, 150]
-[grid]
-"controller.method" = ["mpc_servo", "ampc_servo"]
-"load.initial_n" = [44.0, 68.0]
+base = { duration_s = 15.0, evaluation_samples = [20, 150] }
+grid = { "controller.method" = ["mpc_servo", "ampc_servo"], "load.initial_n" = [44.0, 68.0] }
 """
 
 
