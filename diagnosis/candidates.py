@@ -16,8 +16,8 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
   simulation with the delay;
 * ``load_mismatch``, ``rate_dependent_hysteresis``: Gauss-Newton with a secant slope, each evaluation a
   simulation of the first ``fit_segment_s`` seconds (stationary effects show in any stretch);
-* ``valve_dead_zone``: a fine grid (0.15 V) over the band's centre within the recorded commands, with
-  a narrow band, on the first 40 s, then Nelder-Mead on centre and width;
+* ``valve_dead_zone``: in the minute of largest residual (continuing from the base run's checkpoint),
+  a fine grid (0.15 V) over the band's centre with a narrow band, then Nelder-Mead on centre and width;
 * ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
   Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window.
 
@@ -241,24 +241,37 @@ def _scalar_fit(key: str, h: float, lo: float, hi: float) -> Callable[[Problem, 
     return fit
 
 
+def _energetic_window(pr: Problem, e: np.ndarray, length_s: float) -> tuple[int, int]:
+    """Checkpoint ``start`` and ``stop`` of the ``length_s`` window holding most residual energy."""
+    k = max(1, int(round(length_s / pr.ts_s)))
+    if k >= pr.n:
+        return 0, pr.n
+    c = np.convolve(e * e, np.ones(k), mode="valid")
+    a = int(np.argmax(c))
+    starts = [s for s in pr.sim.checkpoints() if s <= a] or [0]
+    return starts[-1], min(pr.n, a + k)
+
+
 def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
     if _get(base, "dead_zone.width_v") > 0:
         return None
-    n_fit = pr.n_fit
-    n_grid = min(n_fit, int(round(40.0 / pr.ts_s)) + 1)  # the grid on the first 40 s
-    lo_u, hi_u = np.percentile(pr.u_v[:n_fit], [2, 98])
-    if hi_u - lo_u < 0.5:
-        return None  # the command hardly moves: a band cannot be located
+    # The band shows only where the command dwells in it or crosses it slowly, which may be anywhere
+    # in the run: search where the residual is largest, continuing from the base run's checkpoint (an
+    # approximation during the search only; the final score is a whole-run simulation).
+    start, stop = _energetic_window(pr, pr.y_mm - y_base, 60.0)
+    lo_u, hi_u = np.percentile(pr.u_v[start:stop], [1, 99])
+    if hi_u - lo_u < 0.3:
+        lo_u, hi_u = lo_u - 0.3, hi_u + 0.3
 
-    def cost(x, stop=n_fit):
+    def cost(x):
         c, w = float(x[0]), float(x[1])
         p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
-        r = pr.train_residual(pr.sim.run(p, stop=stop)[0])
+        r = pr.train_residual(pr.sim.run(p, start=start, stop=stop)[0], start)
         return float(r @ r)
     # A misplaced band costs far more than no band (the muscle stalls where the rig moves), so the
     # cost is sharp in the centre: a fine grid with a narrow band, then both parameters.
-    centres = np.arange(lo_u, hi_u, 0.15)
-    costs = [cost((c, 0.3), n_grid) for c in centres]
+    centres = np.arange(max(0.0, lo_u), min(10.0, hi_u), 0.15)
+    costs = [cost((c, 0.3)) for c in centres]
     c0 = float(centres[int(np.argmin(costs))])
     x = _nelder_mead(cost, np.array([c0, 0.3]), np.array([0.1, 0.2]), np.array([0.0, 0.0]),
                      np.array([10.0, 5.0]), max_evals=18)

@@ -7,7 +7,8 @@ Procedure
    ``e = l_measured - l_model``.
 2. Split the samples into interleaved training and held-out blocks (``block_s``).
 3. Is there anything to explain? The residual must fail the whiteness test (Ljung-Box, p < ``alpha``)
-   *and* be material (RMS above 1.5 times its own white-noise level). If not, the verdict is
+   *and* be material (RMS above 1.5 times the noise level: the smaller of the residual's own
+   white-noise level and the encoder noise the model states). If not, the verdict is
    ``no_significant_mismatch`` and no cause is named: the difference is noise.
 4. Fit every candidate effect on the training blocks (:mod:`diagnosis.candidates`), score each on the
    held-out blocks. The best is accepted when it is significant: it removes at least
@@ -40,7 +41,7 @@ from .residual_analysis import (Correlation, autocorrelation_test, cross_correla
                                 white_noise_level_mm)
 from .simulation import Simulator
 
-__all__ = ["Finding", "Diagnosis", "diagnose", "MIN_SAMPLES"]
+__all__ = ["Finding", "Diagnosis", "diagnose", "sensor_noise_mm", "MIN_SAMPLES"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
@@ -106,8 +107,14 @@ class Diagnosis:
                 "simulations": self.simulations, "elapsed_s": round(self.elapsed_s, 2)}
 
 
-def _residual_tests(u: np.ndarray, e: np.ndarray) -> tuple[dict[str, Any], Correlation, Correlation]:
-    structured, numbers = is_structured(e)
+def sensor_noise_mm(model: PlantParams) -> float:
+    """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
+    sp = model.sensor
+    return math.sqrt(sp.encoder_noise_std_mm ** 2 + sp.encoder_resolution_mm ** 2 / 12.0)
+
+
+def _residual_tests(u: np.ndarray, e: np.ndarray, sensor_mm: float) -> tuple[dict[str, Any], Correlation, Correlation]:
+    structured, numbers = is_structured(e, sensor_noise_mm=sensor_mm)
     ac = autocorrelation_test(e)
     xc = cross_correlation_test(u, e)
     numbers.update({"structured": structured, "whiteness_p": ac.p_value, "autocorrelation_lags_outside": ac.outside,
@@ -194,9 +201,11 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     e0 = y - y0
     noise = white_noise_level_mm(e0)
     problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s)
-    tests0, ac0, xc0 = _residual_tests(u, e0)
+    sensor_mm = sensor_noise_mm(model)
+    tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
+    floor = tests0["noise_reference_mm"]
     fit_before = fit_percent(y, y0, test)
-    excess0 = max(tests0["rms_mm"] ** 2 - noise ** 2, 1e-30)
+    excess0 = max(tests0["rms_mm"] ** 2 - floor ** 2, 1e-30)
 
     base, y_base = model, y0
     findings: list[Finding] = []
@@ -239,8 +248,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
             base = base.with_values(**res.values)
             y_base = res.y_hat
             e = y - y_base
-            structured, numbers = is_structured(e)
-            if not structured or (numbers["rms_mm"] ** 2 - noise ** 2) / excess0 < unexplained_share:
+            structured, numbers = is_structured(e, sensor_noise_mm=sensor_mm)
+            if not structured or (numbers["rms_mm"] ** 2 - floor ** 2) / excess0 < unexplained_share:
                 break
             # next round: the other candidates that helped at all on their own
             helpful = {c.name for c, _, s in results[1:] if s["reduction"] > 0.02}
@@ -248,8 +257,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
             total = done + len(pool)
 
     e_after = y - y_base
-    tests1, ac1, xc1 = _residual_tests(u, e_after)
-    excess1 = tests1["rms_mm"] ** 2 - noise ** 2
+    tests1, ac1, xc1 = _residual_tests(u, e_after, sensor_mm)
+    excess1 = tests1["rms_mm"] ** 2 - floor ** 2
     verdict = "mismatch" if tests0["structured"] else "no_significant_mismatch"
     if tests0["structured"] and tests1["structured"] and excess1 / excess0 >= unexplained_share:
         located = located_windows(e_after, ts, noise_mm=noise)
