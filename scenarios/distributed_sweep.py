@@ -92,6 +92,11 @@ class FmuFiles:
             data[digest], names[digest], local[digest] = content, path.name, str(path)
         return cls(data, names, local)
 
+    @classmethod
+    def for_scenarios(cls, scenarios: Iterable[Scenario], fmus: Mapping[str, str | Path]) -> "FmuFiles":
+        """The FMU files the ``scenarios`` use: their own, else ``fmus``' (:func:`make_task`)."""
+        return cls.read({getattr(s, role).path or fmus[name] for s in scenarios for name, role in _ROLES})
+
     def digest_of(self, path: str | Path) -> str:
         """The digest of the local file ``path`` (one of those read)."""
         path = str(Path(path).resolve())
@@ -110,6 +115,8 @@ class FmuFiles:
         if use_local and digest in self.local and Path(self.local[digest]).is_file():
             return Path(self.local[digest])
         target = _cache_root() / digest / self.names[digest]
+        if _WRITTEN.get(digest) == target and target.is_file():
+            return target  # checked by this process already
         if not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
             target.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
@@ -120,7 +127,12 @@ class FmuFiles:
             except BaseException:
                 Path(tmp).unlink(missing_ok=True)
                 raise
+        _WRITTEN[digest] = target
         return target
+
+
+_WRITTEN: dict[str, Path] = {}
+"""digest -> the cached copy this process wrote or checked (so later runs skip the hash)."""
 
 
 def _cache_root() -> Path:

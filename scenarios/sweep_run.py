@@ -198,9 +198,7 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     out = Path(out)
     log = ResultsLog(out / "results.csv", result_columns(sweep))
     latest = log.latest()  # refuses another sweep's file before anything runs
-    paths = {Path(getattr(r.scenario, role).path or fmus[name]) for r in sweep.runs
-             for name, role in (("MusclePlant", "plant"), ("AMPCController", "controller"))}
-    files = FmuFiles.read(paths)
+    files = FmuFiles.for_scenarios((r.scenario for r in sweep.runs), fmus)
     tasks = {run.run_id: make_task(run.run_id, run.scenario, fmus, files) for run in sweep.runs}
     by_id = {run.run_id: run for run in sweep.runs}
     todo = [tasks[r.run_id] for r in sweep.runs

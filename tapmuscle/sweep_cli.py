@@ -118,8 +118,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     progress = Progress("check", enabled=not args.quiet, min_total=1)
     with ExitStack() as stack:
         try:
-            files = FmuFiles.read({Path(getattr(c.scenario, role).path or fmus[name]) for c in cases
-                                   for name, role in (("MusclePlant", "plant"), ("AMPCController", "controller"))})
+            files = FmuFiles.for_scenarios((c.scenario for c in cases), fmus)
             tasks = [make_task(str(i), case.scenario, fmus, files) for i, case in enumerate(cases)]
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
