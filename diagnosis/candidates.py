@@ -17,7 +17,8 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
 * ``load_mismatch``, ``rate_dependent_hysteresis``: Gauss-Newton with a secant slope, each evaluation a
   simulation of the first ``fit_segment_s`` seconds (stationary effects show in any stretch);
 * ``valve_dead_zone``: in the minute of largest residual (continuing from the base run's checkpoint),
-  a fine grid (0.15 V) over the band's centre with a narrow band, then Nelder-Mead on centre and width;
+  a fine grid (0.15 V) over the band's centre with a narrow band, then wider bands and Nelder-Mead on
+  centre and width with a minute of run-in before the window;
 * ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
   Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window.
 
@@ -275,6 +276,15 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     c0 = float(centres[int(np.argmin(costs))])
     x = _nelder_mead(cost, np.array([c0, 0.3]), np.array([0.1, 0.2]), np.array([0.0, 0.0]),
                      np.array([10.0, 5.0]), max_evals=18)
+    if start > 0:
+        # the stall's memory reaches back before the window: refine with a minute of run-in before it
+        run_in = int(round(60.0 / pr.ts_s))
+        start = max([c for c in pr.sim.checkpoints() if c <= start - run_in] or [0])
+    # With held commands (steps) the cost is piecewise constant in the band's edges, which stalls the
+    # simplex at the grid's narrow band: try wider bands around the centre before the last refinement.
+    trials = [np.array([x[0], w]) for w in (x[1], 0.5, 0.8, 1.2, 1.6)]
+    x = min(trials, key=cost)
+    x = _nelder_mead(cost, x, np.array([0.1, 0.15]), np.array([0.0, 0.0]), np.array([10.0, 5.0]), max_evals=14)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
     if values["dead_zone.width_v"] <= 1e-3:
         return None

@@ -1,0 +1,98 @@
+"""The effects library (fmu_plant/effect_library.py): off by default, each acts as its physics says,
+exact breakpoints, state save/restore."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fmu_plant import Plant, PlantParams
+from fmu_plant.effect_library import effects_from_params
+from fmu_plant.open_loop import run_open_loop
+
+QUIET = {"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0}
+
+
+def _run(overrides: dict, signal=lambda t: 5 + 3 * math.sin(2 * math.pi * 0.1 * t), duration=30.0, ts=0.1):
+    plant = Plant(PlantParams().with_values(**QUIET, **overrides), seed=0)
+    return run_open_loop(plant, signal, duration_s=duration, ts_s=ts)
+
+
+def test_every_effect_is_off_by_default_and_the_default_plant_is_unchanged():
+    assert effects_from_params(PlantParams()) == []
+    assert Plant().effects == ()
+
+
+def test_a_whole_sample_delay_equals_the_command_shifted_by_one_sample():
+    sig = lambda t: 5 + 3 * math.sin(2 * math.pi * 0.1 * t)  # noqa: E731
+    delayed = _run({"delay.delay_s": 0.1}, sig)
+    shifted = _run({}, lambda t: 0.0 if t < 0.05 else sig(t - 0.1))
+    assert np.max(np.abs(delayed["l_mm"] - shifted["l_mm"])) < 1e-9
+
+
+def test_a_fractional_delay_equals_a_finer_sampled_shift():
+    """0.25 s at Ts = 0.1 s (breakpoints inside steps) == a 0.05 s-sampled run with the command 5 samples late."""
+    levels = [2.0, 7.0, 4.0, 8.0, 3.0]
+    step = lambda t: levels[min(int(t // 5.0), 4)]  # noqa: E731
+    coarse = _run({"delay.delay_s": 0.25}, step, duration=25.0, ts=0.1)
+    fine = _run({}, lambda t: 0.0 if t < 0.25 - 1e-9 else step(t - 0.25), duration=25.0, ts=0.05)
+    assert np.max(np.abs(coarse["l_mm"] - fine["l_mm"][::2])) < 0.02  # solver tolerance, not a sample (~ 5 mm)
+    undelayed = _run({}, step, duration=25.0, ts=0.1)
+    assert np.max(np.abs(coarse["l_mm"] - undelayed["l_mm"])) > 1.0
+
+
+def test_dead_zone_shuts_the_muscle_in():
+    """Step into the band: the pressure stays where it was (only the leak moves it), outside it follows."""
+    signal = lambda t: 7.0 if t < 10.0 else 5.0  # noqa: E731
+    free = _run({}, signal, duration=20.0)
+    dz = _run({"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.0}, signal, duration=20.0)
+    assert np.allclose(free["l_mm"][:100], dz["l_mm"][:100], atol=1e-9)
+    drop_free = free["l_mm"][100] - free["l_mm"][110]  # the first second after the step
+    drop_dz = dz["l_mm"][100] - dz["l_mm"][110]
+    assert drop_free > 5.0 and abs(drop_dz) < 0.2 * drop_free
+
+
+def test_supply_sag_acts_only_in_its_window():
+    sag = {"supply_variation.sag_mpa": 0.04, "supply_variation.start_s": 10.0, "supply_variation.end_s": 20.0}
+    base = _run({}, duration=40.0)
+    sagged = _run(sag, duration=40.0)
+    assert np.array_equal(base["l_mm"][:101], sagged["l_mm"][:101])
+    assert np.max(base["l_mm"][110:200] - sagged["l_mm"][110:200]) > 2.0  # less contraction during the sag
+
+
+def test_load_mismatch_is_the_same_as_a_heavier_load():
+    a = _run({"load_mismatch.extra_n": 10.0})
+    b = _run({"load.load_n": 54.0})
+    assert np.max(np.abs(a["l_mm"] - b["l_mm"])) < 1e-9
+
+
+def test_sensor_drift_and_backlash_act_on_the_reading_only():
+    base = _run({})
+    drift = _run({"sensor_drift.offset_mm": 0.5, "sensor_drift.rate_mm_per_min": 1.2})
+    assert np.allclose(drift["l_mm"] - base["l_mm"], 0.5 + 1.2 / 60 * base["t_s"], atol=1e-9)
+    assert np.array_equal(drift["p_mpa"], base["p_mpa"])
+    play = _run({"backlash.slack_mm": 2.0})
+    gap = play["l_mm"] - base["l_mm"]
+    assert np.max(np.abs(gap)) <= 1.0 + 1e-9 and np.max(np.abs(gap)) > 0.9
+    assert np.array_equal(play["p_mpa"], base["p_mpa"])
+
+
+def test_state_with_effects_restores_bit_identically():
+    p = PlantParams().with_values(**{"delay.delay_s": 0.17, "backlash.slack_mm": 0.6, "dead_zone.width_v": 0.5})
+    plant = Plant(p, seed=3)
+    for k in range(40):
+        plant.step(5 + 3 * math.sin(0.3 * k), 0.1)
+    saved = plant.get_state()
+    ahead = [plant.step(5 + 2 * math.cos(0.2 * k), 0.1).l_mm for k in range(60)]
+    plant.set_state(saved)
+    again = [plant.step(5 + 2 * math.cos(0.2 * k), 0.1).l_mm for k in range(60)]
+    assert ahead == again
+
+
+def test_effect_parameters_are_validated():
+    with pytest.raises(ValueError, match="end_s"):
+        PlantParams().with_values(**{"supply_variation.start_s": 50.0, "supply_variation.end_s": 10.0})
+    with pytest.raises(ValueError, match="delay_s"):
+        PlantParams().with_values(**{"delay.delay_s": -0.1})
