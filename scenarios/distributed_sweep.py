@@ -242,6 +242,7 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
             client.close()
         return
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                           scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
                            silence_logs=logging.ERROR)
     try:
         client = Client(cluster)

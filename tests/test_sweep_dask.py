@@ -41,7 +41,7 @@ def dask_cluster(tmp_path_factory):
     procs = []
     try:
         procs.append(subprocess.Popen(
-            [sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+            [sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--dashboard-address", ":0",
              "--scheduler-file", str(scheduler_file)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         deadline = time.monotonic() + 60
         while not scheduler_file.is_file() or not scheduler_file.read_text().strip():
@@ -54,7 +54,7 @@ def dask_cluster(tmp_path_factory):
         for i in range(2):
             procs.append(subprocess.Popen(
                 [sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
-                 "--name", f"w{i}", "--local-directory", str(tmp / f"w{i}"), "--death-timeout", "60"],
+                 "--name", f"w{i}", "--dashboard-address", ":0", "--local-directory", str(tmp / f"w{i}"), "--death-timeout", "60"],
                 env={**env, "TMPDIR": str(worker_tmp)}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
         from distributed import Client
 
@@ -110,3 +110,13 @@ def test_unreachable_scheduler_is_a_usage_error(tmp_path, capsys):
     assert main(["sweep", str(sweep), "--scheduler", "tcp://127.0.0.1:9", "--timeout", "2", "--out", str(tmp_path / "o"),
                  "--quiet"]) == 2
     assert "--scheduler tcp://127.0.0.1:9: cannot start or connect" in capsys.readouterr().err
+
+
+def test_check_on_a_local_cluster(built_fmus, tmp_path, capsys):
+    """The default of `tapmuscle sweep`: a LocalCluster of worker processes started by the command."""
+    case = tmp_path / "case.toml"
+    case.write_text('duration_s = 12.0\nevaluation_samples = [20, 120]\n[expect]\nmae_mm_max = 5.0\n')
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    assert main(["check", str(case), "--workers", "1", "--fmu-dir", fmu_dir]) == 0
+    captured = capsys.readouterr()
+    assert "Dask: 1 workers at tcp://127.0.0.1:" in captured.err and "PASS    case" in captured.out
