@@ -44,7 +44,7 @@ def _on_cluster(workers: int, tasks, files, repeat: int) -> float:
 
     t0 = time.perf_counter()
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                           scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
+                      scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         started = time.perf_counter() - t0
         executor = DaskExecutor(client)
