@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from .diagnose_cli import register as _register_diagnose
 from .sweep_cli import register as _register_sweep
 
 __all__ = ["main"]
@@ -323,6 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
     bld.add_argument("--out", default="out/fmu", help="output folder (default out/fmu)")
     bld.set_defaults(func=_cmd_build)
     _register_sweep(sub)
+    _register_diagnose(sub)
     return parser
 
 
