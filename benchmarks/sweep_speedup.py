@@ -13,11 +13,10 @@ process, without Dask. Goal: speed-up 2 workers / 1 worker >= 1.8 on the 2-core 
 from __future__ import annotations
 
 import argparse
-import logging
 import time
 
 from build_scripts.build_fmus import cached_fmus
-from scenarios.distributed_sweep import DaskExecutor, FmuFiles, make_task, run_serial
+from scenarios.distributed_sweep import DaskExecutor, FmuFiles, dask_client, make_task, run_serial
 from scenarios.sweep import parse_sweep
 
 
@@ -40,12 +39,8 @@ def _timed(execute, tasks, files) -> tuple[float, int]:
 
 
 def _on_cluster(workers: int, tasks, files, repeat: int) -> float:
-    from distributed import Client, LocalCluster
-
     t0 = time.perf_counter()
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                      scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with dask_client(workers) as client:  # the local cluster of `tapmuscle sweep --workers N`
         started = time.perf_counter() - t0
         executor = DaskExecutor(client)
         t0 = time.perf_counter()

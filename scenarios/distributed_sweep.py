@@ -209,15 +209,17 @@ class DaskExecutor:
             return
         shipped = self.client.scatter(files.without_local(), broadcast=True, hash=False)
         tag = uuid.uuid4().hex[:8]
-        futures = {self.client.submit(_worker_run, task, shipped, key=f"tapmuscle-run-{task.run_id}-{tag}",
-                                      pure=False): task for task in tasks}
+        submitted = self.client.map(_worker_run, tasks, [shipped] * len(tasks), pure=False,
+                                    key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in tasks])
+        futures = dict(zip(submitted, tasks))
         try:
-            for future in as_completed(futures):
-                task = futures[future]
-                try:
-                    result = future.result()
-                except Exception as exc:  # noqa: BLE001 - worker died, task cancelled: recorded as failed
-                    result = RunResult(task.run_id, "failed", error=f"{type(exc).__name__}: {exc}")
+            # results gathered in batches by the event loop; errors returned, not raised
+            for future, value in as_completed(submitted, with_results=True, raise_errors=False):
+                task = futures.pop(future)
+                if future.status == "finished":
+                    result = value
+                else:  # worker died (KilledWorker), cancelled: recorded as failed
+                    result = RunResult(task.run_id, "failed", error=f"{type(value).__name__}: {value}")
                 future.release()
                 yield result
         finally:
@@ -231,6 +233,7 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
     or connected to the running scheduler at ``scheduler`` (``tcp://host:port``), which must get at
     least one worker within ``wait_s`` seconds. Raises OSError/TimeoutError if it cannot connect.
     """
+    import dask
     from distributed import Client, LocalCluster
 
     if scheduler:
@@ -241,9 +244,11 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         finally:
             client.close()
         return
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                           scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
-                           silence_logs=logging.ERROR)
+    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms)
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
+                               silence_logs=logging.ERROR)
     try:
         client = Client(cluster)
         try:
