@@ -7,7 +7,7 @@ Timed: from submitting the 64 tasks to the last result (best of ``--repeat``); t
 one warm-up run per worker (imports, FMU extraction) are printed apart. Also the same runs in this
 process, without Dask. Goal: speed-up 2 workers / 1 worker >= 1.8 on the 2-core development machine.
 
-    python benchmarks/sweep_speedup.py [--repeat 3] [--runs 64]
+    python benchmarks/sweep_speedup.py [--repeat 5] [--runs 64]
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def _on_cluster(workers: int, tasks, files, repeat: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3, help="timed repetitions; the best counts (default 3)")
+    parser.add_argument("--repeat", type=int, default=5, help="timed repetitions; the best counts (default 5)")
     parser.add_argument("--runs", type=int, default=64, help="runs per repetition (default 64)")
     args = parser.parse_args()
     tasks, files = _tasks(args.runs, cached_fmus())

@@ -194,7 +194,7 @@ def _worker_run(task: RunTask, files: FmuFiles) -> RunResult:
 class DaskExecutor:
     """Runs tasks on a ``distributed.Client``'s cluster, yielding results as they finish.
 
-    The FMU files go to every worker once (scattered, broadcast); each task is one ``client.submit``.
+    The FMU files go to every worker once (scattered, broadcast); one Dask task per run (``client.map``).
     A task whose worker died (``KilledWorker`` after Dask's retries) or that was cancelled is a
     ``failed`` result. Leaving the iteration early cancels the tasks not yet finished.
     """
