@@ -18,8 +18,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from diagnosis.demo import DEMO_MODEL, record  # noqa: E402
-from diagnosis.plant_source import plant_parameter_file  # noqa: E402
 from diagnosis.report import diagnose_files  # noqa: E402
+from tapmuscle.plant_file import plant_file_text  # noqa: E402
 from tapmuscle.recording import Recording, atomic_write_text, write_recording  # noqa: E402
 
 RIGS = {
@@ -39,7 +39,7 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         plant = Path(tmp) / "plant.json"
-        atomic_write_text(plant, plant_parameter_file(DEMO_MODEL, "demo model"))
+        atomic_write_text(plant, plant_file_text(DEMO_MODEL, "demo model"))
         print(f"{'concealed effect':28s} {'samples':>8s} {'verdict':>24s} {'top finding':>28s} {'sims':>5s} {'wall [s]':>9s}")
         for name in args.effects.split(","):
             cols = record(DEMO_MODEL.with_values(**RIGS[name]), "sine", 0, duration_s=600.0)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,8 @@ import numpy as np
 
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
+from tapmuscle.plant_file import plant_file_text
+from tapmuscle.recording import Recording, atomic_write_text, write_recording
 
 from .residual_analysis import fit_percent, iou, interleaved_split
 from .simulation import Simulator
@@ -169,9 +170,6 @@ def record(rig: PlantParams, excitation: str, seed: int, *, frequency_hz: float 
 def run_case(case: Case, workdir: str | Path, *, plots: bool = False, fig20_model: PlantParams | None = None,
              keep: bool = False) -> dict[str, Any]:
     """Make the recording of ``case``, write it as CSV, diagnose the CSV alone, score the result."""
-    from tapmuscle.recording import Recording, write_recording
-
-    from .plant_source import plant_parameter_file
     from .report import diagnose_files
 
     workdir = Path(workdir)
@@ -182,8 +180,7 @@ def run_case(case: Case, workdir: str | Path, *, plots: bool = False, fig20_mode
     rec_path = folder / "recording.csv"
     plant_path = folder / "plant.json"
     write_recording(rec_path, Recording(cols, {"ts_s": f"{TS_S:g}", "source": "tapmuscle demo-mismatch"}))
-    from tapmuscle.recording import atomic_write_text
-    atomic_write_text(plant_path, plant_parameter_file(model, "the demo's calibrated plant model"))
+    atomic_write_text(plant_path, plant_file_text(model, "the demo's calibrated plant model"))
     d, doc = diagnose_files(rec_path, plant_path, folder, plots=plots)
     # the concealed effect's cost: held-out fit of the true rig (noise-free) against the model's
     train, test = interleaved_split(len(cols["t_s"]), TS_S, 10.0)
@@ -249,7 +246,6 @@ def run_demo(out: str | Path, *, seeds: int = 3, clean_seeds: int = 20, jobs: in
     showcase, rest = results[:2], results[2:]
     concealed, clean_results = rest[:len(cases)], rest[len(cases):]
     scores = _scores(concealed, clean_results, showcase)
-    from tapmuscle.recording import atomic_write_text
     atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "cases": results,
                                                        "fig20_model": fig20_model.friction.__dict__}, indent=2,
                                                       default=str) + "\n")

@@ -1,7 +1,7 @@
 """The ``--plant`` of ``tapmuscle diagnose``: a plant parameter file or a MusclePlant FMU.
 
-* a JSON file ``{"plant": {group: {field: value}}}`` (or the inner mapping), as
-  ``tapmuscle record --params`` and the calibrated file ``diagnose`` writes;
+* a plant parameter file (``tapmuscle/plant_file.py``), as ``tapmuscle record --params`` reads and
+  ``diagnose`` writes;
 * a ``MusclePlant`` FMU: its parameters' start values (``group.field``) are the model. The FMU is also
   run once with the recording's command (:func:`simulate_plant_fmu`) to check that the in-process
   re-simulations the fits use are the FMU's.
@@ -9,18 +9,18 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
 from fmu_plant import PlantParams
+from tapmuscle.plant_file import PlantFileError, read_plant_file
 
-__all__ = ["PlantSourceError", "load_plant", "simulate_plant_fmu", "plant_parameter_file"]
+__all__ = ["PlantSourceError", "load_plant", "simulate_plant_fmu"]
 
 
-class PlantSourceError(ValueError):
+class PlantSourceError(PlantFileError):
     """A ``--plant`` that cannot be read; the message names the file (and key or line)."""
 
 
@@ -45,23 +45,7 @@ def load_plant(path: str | Path) -> tuple[PlantParams, str]:
             return PlantParams().with_values(**values), "fmu"
         except ValueError as exc:
             raise PlantSourceError(f"--plant {path}: {exc}") from None
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise PlantSourceError(f"--plant {path}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
-                               f"{exc.msg}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PlantSourceError(f"--plant {path}: cannot read: {exc}") from None
-    try:
-        return PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data), "json"
-    except ValueError as exc:
-        raise PlantSourceError(f"--plant {path}: {exc}") from None
-
-
-def plant_parameter_file(params: PlantParams, note: str) -> str:
-    """The JSON text of a plant parameter file (``load_plant`` and ``tapmuscle record --params`` read it;
-    every ``group.field`` is a parameter of the MusclePlant FMU)."""
-    return json.dumps({"note": note, "plant": params.to_dict()}, indent=2) + "\n"
+    return read_plant_file(path, "--plant"), "json"
 
 
 def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.ndarray, ts_s: float,

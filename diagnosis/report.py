@@ -12,10 +12,11 @@ from typing import Any, Callable
 import numpy as np
 
 from tapmuscle.figures import plt, save_figure
+from tapmuscle.plant_file import plant_file_text
 from tapmuscle.recording import Recording, atomic_write_text, read_recording
 
 from .diagnose import Diagnosis, diagnose
-from .plant_source import load_plant, plant_parameter_file, simulate_plant_fmu
+from .plant_source import load_plant, simulate_plant_fmu
 from .simulation import noise_free
 
 __all__ = ["diagnose_files", "write_outputs", "summary_lines", "OUTPUT_FILES"]
@@ -160,7 +161,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     if fmu_check is not None:
         doc["fmu_check"] = fmu_check
     atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2) + "\n")
-    atomic_write_text(out / "calibrated_plant.json", plant_parameter_file(
+    atomic_write_text(out / "calibrated_plant.json", plant_file_text(
         d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
         + (f" ({model_note})" if model_note else "")))
     atomic_write_text(out / "report.md", _report_md(d, recording, plant, fmu_check))
@@ -184,9 +185,8 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
                  progress=progress, **options)
     fmu_check = None
     if kind == "fmu":
-        sim_fmu = simulate_plant_fmu(plant, {k: v for g, fs in noise_free(model).to_dict().items()
-                                             for k, v in ((f"{g}.{f}", x) for f, x in fs.items())},
-                                     cols["u_v"], float(np.median(np.diff(cols["t_s"]))), load)
+        sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"],
+                                     float(np.median(np.diff(cols["t_s"]))), load)
         fmu_check = {"max_abs_difference_mm": float(np.max(np.abs(sim_fmu - d.y_before_mm)))}
     doc = write_outputs(d, out, recording=str(recording), plant=str(plant), fmu_check=fmu_check, plots=plots)
     return d, doc

@@ -189,7 +189,6 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
     """
     e = np.asarray(energy, float)
     total = float(np.sum(e))
-    n = len(e)
     k = max(1, int(round(0.5 / ts_s)))
     smooth = np.convolve(l_mm, np.ones(k) / k, mode="same")
     v = np.gradient(smooth, ts_s)

@@ -310,6 +310,10 @@ class PlantParams:
         return {f.name: {g.name: getattr(getattr(self, f.name), g.name) for g in fields(getattr(self, f.name))}
                 for f in fields(self)}
 
+    def dotted(self) -> dict[str, float]:
+        """Flat ``{"group.field": value}``: the MusclePlant FMU's parameter names (inverse of :meth:`with_values`)."""
+        return {f"{group}.{name}": value for group, values in self.to_dict().items() for name, value in values.items()}
+
     @classmethod
     def from_dict(cls, data: dict[str, dict[str, float]]) -> "PlantParams":
         """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from .arguments import integer_at_least, number_within
 from .diagnose_cli import register as _register_diagnose
 from .sweep_cli import register as _register_sweep
 
@@ -24,43 +25,21 @@ class UsageError(ValueError):
     """A problem with the user's input; reported without a traceback."""
 
 
-def _positive(name: str, lo: float, hi: float):
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not math.isfinite(v) or not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"{name} must be within {lo:g}..{hi:g}, got {text!r}")
-        return v
-    return parse
-
-
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--seed must be an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"--seed must be >= 0, got {v}")
-    return v
+_positive = number_within
+_seed = integer_at_least("--seed", 0)
 
 
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
     from fmu_plant import PlantParams
 
+    from .plant_file import PlantFileError, read_plant_file
+
     params = PlantParams()
     if path:
         try:
-            data = json.loads(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise UsageError(f"--params: no such file {path!r}") from None
-        except json.JSONDecodeError as exc:
-            raise UsageError(f"--params {path}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}") from None
-        try:
-            params = PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data)
-        except ValueError as exc:
-            raise UsageError(f"--params {path}: {exc}") from None
+            params = read_plant_file(path, "--params")
+        except PlantFileError as exc:
+            raise UsageError(str(exc)) from None
     flat = {}
     for item in overrides:
         key, eq, text = item.partition("=")

@@ -5,14 +5,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .arguments import integer_at_least, number_within
+
 __all__ = ["register"]
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from diagnosis.plant_source import PlantSourceError
     from diagnosis.report import diagnose_files, summary_lines
 
     from .cli import UsageError
+    from .plant_file import PlantFileError
     from .progress import Progress
     from .recording import RecordingError
 
@@ -21,7 +23,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1),
                               block_s=args.block, fit_segment_s=args.fit_segment)
-    except (RecordingError, PlantSourceError) as exc:
+    except (RecordingError, PlantFileError) as exc:
         raise UsageError(str(exc)) from None
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
@@ -55,30 +57,6 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _count(name: str, lo: int):
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if v < lo:
-            raise argparse.ArgumentTypeError(f"{name} must be >= {lo}, got {v}")
-        return v
-    return parse
-
-
-def _seconds(name: str):
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not 0.5 <= v <= 3600.0:
-            raise argparse.ArgumentTypeError(f"{name} must be within 0.5..3600 s, got {text!r}")
-        return v
-    return parse
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``diagnose`` and ``demo-mismatch`` to the ``tapmuscle`` command line."""
     dia = sub.add_parser("diagnose", help="locate and explain where a simulation and a rig recording differ",
@@ -88,9 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     dia.add_argument("--recording", required=True, help="recording CSV (docs/recordings.md): t_s,u_v,l_mm[,load_n,p_mpa]")
     dia.add_argument("--plant", required=True, help="a MusclePlant .fmu, or a plant parameter .json")
     dia.add_argument("--out", required=True, help="output folder")
-    dia.add_argument("--block", type=_seconds("--block"), default=10.0,
+    dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=10.0,
                      help="length of the interleaved training / held-out blocks [s] (default 10)")
-    dia.add_argument("--fit-segment", type=_seconds("--fit-segment"), default=120.0,
+    dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=120.0,
                      help="stationary effects are fitted on the first this many seconds (default 120)")
     dia.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     dia.add_argument("--quiet", action="store_true", help="no progress output")
@@ -101,10 +79,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "magnitudes x excitations x seeds), clean recordings, a 60-90 s supply "
                                       "sag and the Fig. 20 case; diagnose each from its CSV alone and score.")
     demo.add_argument("--out", required=True, help="output folder")
-    demo.add_argument("--seeds", type=_count("--seeds", 1), default=3, help="seeds per effect, level and excitation (default 3)")
-    demo.add_argument("--clean-seeds", type=_count("--clean-seeds", 0), default=20, help="clean recordings (default 20)")
+    demo.add_argument("--seeds", type=integer_at_least("--seeds", 1), default=3, help="seeds per effect, level and excitation (default 3)")
+    demo.add_argument("--clean-seeds", type=integer_at_least("--clean-seeds", 0), default=20, help="clean recordings (default 20)")
     demo.add_argument("--effects", help="comma-separated subset of the effects (default all)")
     demo.add_argument("--excitations", default="sine,ampc,steps", help="comma-separated subset of sine,ampc,steps")
-    demo.add_argument("--jobs", type=_count("--jobs", 1), default=None, help="worker processes (default: all cores)")
+    demo.add_argument("--jobs", type=integer_at_least("--jobs", 1), default=None, help="worker processes (default: all cores)")
     demo.add_argument("--quiet", action="store_true", help="no progress output")
     demo.set_defaults(func=_cmd_demo)

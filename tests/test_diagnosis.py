@@ -128,9 +128,8 @@ def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built
         assert (out / name).stat().st_size > 0
     # re-simulating the FMU with the calibrated file's parameters gives the improved fit
     calibrated, _ = load_plant(out / "calibrated_plant.json")
-    values = {f"{g}.{k}": v for g, fs in noise_free(calibrated).to_dict().items() for k, v in fs.items()}
     rec_back = read_recording(rec)
-    y = simulate_plant_fmu(built_fmus["MusclePlant"], values, rec_back.u_v, 0.1)
+    y = simulate_plant_fmu(built_fmus["MusclePlant"], noise_free(calibrated).dotted(), rec_back.u_v, 0.1)
     _, test = interleaved_split(len(y), 0.1, 10.0)
     assert fit_percent(rec_back.l_mm, y, test) == pytest.approx(doc["fit_after_percent"], abs=0.01)
 

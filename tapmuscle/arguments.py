@@ -1,0 +1,35 @@
+"""Checked argument types for the command line: a bad value is reported naming the option."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Callable
+
+__all__ = ["number_within", "integer_at_least"]
+
+
+def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
+    """Parser of a finite number within ``lo..hi`` for option ``name``."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not math.isfinite(v) or not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{name} must be within {lo:g}..{hi:g}, got {text!r}")
+        return v
+    return parse
+
+
+def integer_at_least(name: str, lo: int) -> Callable[[str], int]:
+    """Parser of an integer >= ``lo`` for option ``name``."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"{name} must be >= {lo}, got {v}")
+        return v
+    return parse
