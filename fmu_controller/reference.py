@@ -39,8 +39,14 @@ class SineReference:
 
     def at(self, k: int | np.ndarray) -> float | np.ndarray:
         """``r(k)`` [mm] at sample ``k`` (time ``k ts_s``)."""
-        return self.offset_mm + self.amplitude_mm * np.sin(2.0 * np.pi * self.frequency_hz * np.asarray(k) * self.ts_s)
+        if isinstance(k, (int, np.integer)):
+            return self._at(int(k))
+        return np.array([self._at(int(i)) for i in np.asarray(k).ravel()]).reshape(np.shape(k))
 
     def preview(self, k: int, n: int) -> np.ndarray:
         """``[r(k), r(k+1), ..., r(k+n)]`` [mm]: the present and ``n`` future samples."""
-        return np.asarray(self.at(np.arange(k, k + n + 1)), dtype=float)
+        return np.array([self._at(i) for i in range(k, k + n + 1)])
+
+    def _at(self, k: int) -> float:
+        # math.sin: a handful of samples per control step, where numpy's call overhead dominates
+        return self.offset_mm + self.amplitude_mm * math.sin(2.0 * math.pi * self.frequency_hz * k * self.ts_s)
