@@ -3,9 +3,9 @@
 The runs: the four controllers x 16 Monte-Carlo operating points (load U(30, 90) N, supply
 U(0.20, 0.30) MPa, own noise seed), 45 s of the 0.1 Hz sine each, through the FMUs, as
 ``tapmuscle sweep`` runs them (:class:`scenarios.distributed_sweep.DaskExecutor`, one task per run).
-Timed: from submitting the 64 tasks to the last result (best of ``--repeat``); the cluster's start and
-one warm-up run per worker (imports, FMU extraction) are printed apart. Also the same runs in this
-process, without Dask. Goal: speed-up 2 workers / 1 worker >= 1.8 on the 2-core development machine.
+Timed: from submitting the 64 tasks to the last result (best of ``--repeat``, the three set-ups
+interleaved, a new cluster each time); the cluster's start and one warm-up run per worker (imports,
+FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up 2 workers / 1 worker >= 1.8 on the 2-core development machine.
 
     python benchmarks/sweep_speedup.py [--repeat 5] [--runs 64]
 """
@@ -38,18 +38,17 @@ def _timed(execute, tasks, files) -> tuple[float, int]:
     return time.perf_counter() - t0, ok
 
 
-def _on_cluster(workers: int, tasks, files, repeat: int) -> float:
-    t0 = time.perf_counter()
+def _on_cluster(workers: int, tasks, files) -> tuple[float, int]:
+    """One timed sweep on a fresh local cluster of ``workers`` (started and warmed up untimed)."""
     with dask_client(workers) as client:  # the local cluster of `tapmuscle sweep --workers N`
-        started = time.perf_counter() - t0
         executor = DaskExecutor(client)
-        t0 = time.perf_counter()
         list(executor(tasks[:workers * 2], files))  # warm-up: imports and FMU extraction on every worker
-        warm = time.perf_counter() - t0
-        best, ok = min(_timed(executor, tasks, files) for _ in range(repeat))
-    print(f"  {workers} worker{'s' if workers > 1 else ' '}: {best:6.2f} s for {len(tasks)} runs "
-          f"({1e3 * best / len(tasks):5.1f} ms/run, {ok} ok)   [cluster start {started:.1f} s, warm-up {warm:.1f} s]")
-    return best
+        return _timed(executor, tasks, files)
+
+
+def _report(label: str, best: float, n: int, ok: int | None = None) -> None:
+    status = f", {ok} ok" if ok is not None else ""
+    print(f"  {label:<10} {best:6.2f} s for {n} runs ({1e3 * best / n:5.1f} ms/run{status})")
 
 
 def main() -> None:
@@ -60,12 +59,21 @@ def main() -> None:
     tasks, files = _tasks(args.runs, cached_fmus())
     print(f"{len(tasks)} runs of 45 s (4 controllers x {len(tasks) // 4} operating points), best of {args.repeat}")
     list(run_serial(tasks[:2], files))  # warm-up
-    serial = min(_timed(run_serial, tasks, files)[0] for _ in range(args.repeat))
-    print(f"  in-process: {serial:6.2f} s for {len(tasks)} runs ({1e3 * serial / len(tasks):5.1f} ms/run, no Dask)")
-    one = _on_cluster(1, tasks, files, args.repeat)
-    two = _on_cluster(2, tasks, files, args.repeat)
-    print(f"speed-up 2 workers / 1 worker: {one / two:.2f}x (goal >= 1.8); 2 workers / in-process: {serial / two:.2f}x")
-
+    # Interleaved rounds (in-process, 1 worker, 2 workers, again ...), each cluster new: the machine
+    # is shared and its speed drifts by 10-40 % over minutes, which would otherwise favour whichever
+    # set-up ran in a quiet spell.
+    rounds = []
+    for i in range(args.repeat):
+        rounds.append((_timed(run_serial, tasks, files), _on_cluster(1, tasks, files), _on_cluster(2, tasks, files)))
+        print(f"  round {i + 1}: in-process {rounds[-1][0][0]:.2f} s, 1 worker {rounds[-1][1][0]:.2f} s, "
+              f"2 workers {rounds[-1][2][0]:.2f} s", flush=True)
+    serial, one, two = (min(r[i] for r in rounds) for i in range(3))
+    _report("in-process", serial[0], len(tasks))
+    _report("1 worker", one[0], len(tasks), one[1])
+    _report("2 workers", two[0], len(tasks), two[1])
+    per_round = ", ".join(f"{r[1][0] / r[2][0]:.2f}" for r in rounds)
+    print(f"speed-up 2 workers / 1 worker: {one[0] / two[0]:.2f}x (goal >= 1.8; per round {per_round}); "
+          f"2 workers / in-process: {serial[0] / two[0]:.2f}x")
 
 if __name__ == "__main__":
     main()
