@@ -17,9 +17,10 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
 * ``load_mismatch``, ``rate_dependent_hysteresis``: Gauss-Newton with a secant slope, each evaluation a
   simulation of the first ``fit_segment_s`` seconds (stationary effects show in any stretch);
 * ``valve_dead_zone``: in the minute of largest residual (continuing from the base run's checkpoint),
-  a fine grid (0.15 V) over the band's centre with a narrow band, then a compass search on
-  the band's two edges (the cost is piecewise constant in them), refined on the window stretched by
-  a minute on either side;
+  every band of one to four consecutive levels when the command is held at few levels (steps);
+  otherwise a fine grid (0.15 V) over the band's centre with a narrow band, then a compass search on
+  the band's two edges between the recorded commands (the cost is piecewise constant in them). Then
+  a finer compass search on the window stretched by a minute on either side;
 * ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
   Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window; of the
   windows that fit the training blocks equally well, the shortest (bisection on end, then start).
@@ -256,6 +257,10 @@ def _energetic_window(pr: Problem, e: np.ndarray, length_s: float) -> tuple[int,
     return starts[-1], min(pr.n, a + k)
 
 
+#: Consecutive moves to new points of equal cost the dead-zone edge search may make.
+_SIDEWAYS = 4
+
+
 def _edge_search(cost: Callable[[tuple[float, float]], float], lower: float, upper: float,
                  steps: tuple[float, ...], cuts: np.ndarray) -> tuple[float, float, float]:
     """Compass search on a band's edges [V] for a cost of ``(centre, width)``; returns the cost and the
@@ -266,7 +271,8 @@ def _edge_search(cost: Callable[[tuple[float, float]], float], lower: float, upp
     ``step`` away that crosses at least one (no move ends on the plateau it started from). The moves:
     either edge alone, the band shifted, and the band widened or narrowed, for each of ``steps`` in
     turn (the band at least 0.02 V wide, within 0..10 V). Shifting moves follow the cost's valleys,
-    where one edge alone cannot move.
+    where one edge alone cannot move; up to ``_SIDEWAYS`` moves in a row to new points of equal cost
+    walk along a plateau.
     """
     seen: dict[tuple[float, float], float] = {}
 
@@ -279,11 +285,14 @@ def _edge_search(cost: Callable[[tuple[float, float]], float], lower: float, upp
     def moved(e: float, d: float) -> float | None:
         beyond = cuts[cuts > e + 1e-9] if d > 0 else cuts[cuts < e - 1e-9]
         return None if beyond.size == 0 else float(beyond[np.argmin(np.abs(beyond - (e + d)))])
+    # start on cut points, so that every move crosses a recorded command
+    lower = float(cuts[np.argmin(np.abs(cuts - lower))])
+    upper = float(cuts[np.argmin(np.abs(cuts - upper))])
     best = at(lower, upper)
     for step in steps:
         moves = [(step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step), (step, step), (-step, -step),
                  (-step, step), (step, -step)]
-        improved = True
+        improved, sideways = True, 0
         while improved:
             improved = False
             for da, db in moves:
@@ -291,11 +300,18 @@ def _edge_search(cost: Callable[[tuple[float, float]], float], lower: float, upp
                 b = moved(upper, db) if db else upper
                 if a is None or b is None:
                     continue
+                new = (round(a, 6), round(b, 6)) not in seen
                 c = at(a, b)
-                if c < best:
+                # a few sideways moves onto new points walk along a plateau of equal cost
+                if c < best or (c == best and new and sideways < _SIDEWAYS):
+                    sideways = sideways + 1 if c == best else 0
                     best, lower, upper, improved = c, a, b, True
                     break
     return best, lower, upper
+
+
+#: At most this many distinct commands in the dead-zone search window count as held levels (steps).
+_FEW_LEVELS = 40
 
 
 def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
@@ -314,22 +330,28 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
         p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
         r = pr.train_residual(pr.sim.run(p, start=start, stop=stop)[0], start)
         return float(r @ r)
-    # A misplaced band costs far more than no band (the muscle stalls where the rig moves), so the
-    # cost is sharp in the centre: a fine grid with a narrow band first.
-    centres = np.arange(max(0.0, lo_u), min(10.0, hi_u), 0.15)
-    costs = [cost((c, 0.3)) for c in centres]
-    # the grid's three lowest local minima: in closed loop a band elsewhere can look alike at first
-    cs = np.array(costs)
-    minima = [i for i in range(len(cs)) if (i == 0 or cs[i] <= cs[i - 1]) and (i + 1 == len(cs) or cs[i] <= cs[i + 1])]
-    starts = [float(centres[i]) for i in sorted(minima, key=lambda i: cs[i])[:3]]
     # The command is held over each sample, so the cost depends only on which recorded commands fall
     # inside the band: it is piecewise constant in the band's edges, with jumps, and a simplex stalls
-    # on its plateaus. A compass search on the two edges, coarse then fine, steps over them.
+    # on its plateaus. The search moves the edges between the cut points of the recorded commands.
     def cuts_of(a: int, b: int) -> np.ndarray:
         levels = np.unique(np.round(pr.u_v[a:b], 3))
         return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
     cuts = cuts_of(start, stop)
-    _, *edges = min(_edge_search(cost, c - 0.15, c + 0.15, (0.2, 0.1), cuts) for c in starts)
+    if len(cuts) <= _FEW_LEVELS:
+        # held commands (steps): every band holding one to four consecutive levels
+        bands = [(float(cuts[i]), float(cuts[j])) for i in range(len(cuts)) for j in range(i + 1, min(len(cuts), i + 5))]
+        edges = min(bands, key=lambda e: cost((0.5 * (e[0] + e[1]), e[1] - e[0])))
+    else:
+        # A misplaced band costs far more than no band (the muscle stalls where the rig moves), so the
+        # cost is sharp in the centre: a fine grid with a narrow band, then a compass search on the
+        # edges from the grid's three lowest local minima (in closed loop a band elsewhere can look
+        # alike at first).
+        centres = np.arange(max(0.0, lo_u), min(10.0, hi_u), 0.15)
+        cs = np.array([cost((c, 0.3)) for c in centres])
+        minima = [i for i in range(len(cs))
+                  if (i == 0 or cs[i] <= cs[i - 1]) and (i + 1 == len(cs) or cs[i] <= cs[i + 1])]
+        starts = [float(centres[i]) for i in sorted(minima, key=lambda i: cs[i])[:3]]
+        _, *edges = min(_edge_search(cost, c - 0.15, c + 0.15, (0.2, 0.1), cuts) for c in starts)
     # Refine on a longer stretch: the stall's memory reaches back before the window (a minute of
     # run-in), and with held commands (steps) a minute more after it brings in more levels that fall
     # inside or outside the band.
