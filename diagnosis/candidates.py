@@ -78,6 +78,8 @@ class Problem:
     """White-noise level of the residual [mm]."""
     fit_segment_s: float = 120.0
     """Stationary effects are fitted on the first this many seconds (whole-run simulations are the cost)."""
+    block_s: float = 10.0
+    """Length of the interleaved training and held-out blocks [s]."""
 
     @property
     def n(self) -> int:
@@ -358,7 +360,7 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     minute = int(round(60.0 / pr.ts_s))
     start = max([c for c in pr.sim.checkpoints() if c <= start - minute] or [0])
     stop = min(pr.n, stop + minute)
-    _, lower, upper = _edge_search(cost, *edges, (0.1, 0.05, 0.02), cuts_of(start, stop))
+    _, lower, upper = _edge_search(cost, *edges, (0.05, 0.02), cuts_of(start, stop))
     x = (0.5 * (lower + upper), upper - lower)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
     if values["dead_zone.width_v"] <= 1e-3:
@@ -416,11 +418,16 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike). Of the
     # windows that fit the training blocks equally well, take the shortest: the sag lasts no longer
     # than the data shows.
+    # Such a flat stretch is at most one held-out block long, so an edge is probed half a second
+    # inwards first and, if that fits as well, moved by bisection within one block.
     c_fit = cost(x)
     tol = c_fit + max(1e-3 * c_fit, 10.0 * pr.noise_mm ** 2)
-    depth, a = float(x[0]), float(x[1])
-    b = _tightest(lambda v: cost((depth, a, v)), a, max(a, float(x[2])), tol, 0.05)
-    a = _tightest(lambda v: cost((depth, v, b)), b, a, tol, 0.05)
+    depth, a, b = float(x[0]), float(x[1]), max(float(x[1]), float(x[2]))
+    block = pr.block_s + 2.0
+    if b - a > 1.0 and cost((depth, a, b - 0.5)) <= tol:
+        b = _tightest(lambda v: cost((depth, a, v)), max(a + 0.5, b - block), b - 0.5, tol, 0.1)
+    if b - a > 1.0 and cost((depth, a + 0.5, b)) <= tol:
+        a = _tightest(lambda v: cost((depth, v, b)), min(b - 0.5, a + block), a + 0.5, tol, 0.1)
     x = (depth, a, b)
     p = params(x)
     sv = p.supply_variation

@@ -200,7 +200,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     train, test = interleaved_split(n, ts, block_s)
     e0 = y - y0
     noise = white_noise_level_mm(e0)
-    problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s)
+    problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s)
     sensor_mm = sensor_noise_mm(model)
     tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
     floor = tests0["noise_reference_mm"]
