@@ -461,7 +461,8 @@ CANDIDATES: tuple[Candidate, ...] = (
         "A band of valve commands in which the valves pass no flow (an overlapped or worn spool): while "
         "the command crosses the band the muscle is shut in and stalls.",
         (ParameterSpec("dead_zone.center_v", "V", 0.0, 10.0), ParameterSpec("dead_zone.width_v", "V", 0.0, 5.0)),
-        "Grid over the band's centre within the recorded command range, then Nelder-Mead on centre and width.",
+        "Search on the band's edges between the recorded commands (every band of 1-4 levels for held "
+        "commands; otherwise a grid over the centre and a compass search), in the minute of largest residual.",
         _fit_dead_zone,
         lambda v: (f"the valve passes no flow for commands between "
                    f"{v['dead_zone.center_v'] - v['dead_zone.width_v'] / 2:.2f} and "
@@ -482,7 +483,8 @@ CANDIDATES: tuple[Candidate, ...] = (
         (ParameterSpec("supply_variation.sag_mpa", "MPa", 0.0, 0.2), ParameterSpec("supply_variation.start_s", "s", 0.0, 1e6),
          ParameterSpec("supply_variation.end_s", "s", 0.0, 1e6)),
         "Window from the residual's location, then Nelder-Mead on depth, start and end, simulating from a "
-        "checkpoint before the window. (The ripple parameters are simulated but not fitted.)",
+        "checkpoint before the window; then the shortest window that fits the training blocks as well. "
+        "(The ripple parameters are simulated but not fitted.)",
         _fit_supply_sag,
         lambda v: (f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from "
                    f"{v['supply_variation.start_s']:.1f} s to {v['supply_variation.end_s']:.1f} s")),
