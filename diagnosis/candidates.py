@@ -22,8 +22,9 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
   the band's two edges between the recorded commands (the cost is piecewise constant in them). Then
   a finer compass search on the window stretched by a minute on either side;
 * ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
-  Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window; of the
-  windows that fit the training blocks equally well, the shortest (bisection on end, then start).
+  Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window; an edge
+  the training blocks cannot place (it falls in a held-out block) goes to the middle of the stretch
+  where the training cost is flat (bisection).
 
 Every fit ends with one simulation of the whole recording with the fitted parameters, which gives the
 prediction the held-out score is computed on.
@@ -415,19 +416,26 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     x = _nelder_mead(cost, np.array([s0, a_s, b_s]), np.array([0.5 * s0, 3.0, 3.0]),
                      np.array([0.0, t_first, t_first]), np.array([0.2, pr.t_s[-1], pr.t_s[-1]]), max_evals=28)
     # An edge that falls inside a held-out block is invisible to the training cost, which is flat
-    # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike). Of the
-    # windows that fit the training blocks equally well, take the shortest: the sag lasts no longer
-    # than the data shows.
-    # Such a flat stretch is at most one held-out block long, so an edge is probed half a second
-    # inwards first and, if that fits as well, moved by bisection within one block.
+    # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike), and
+    # the simplex stops anywhere on the flat stretch. Take its middle: no more than half of it off,
+    # whichever end is true. The stretch is at most about one held-out block long: each edge is probed
+    # half a second either way and, where that fits as well, the stretch's ends found by bisection.
     c_fit = cost(x)
     tol = c_fit + max(1e-3 * c_fit, 10.0 * pr.noise_mm ** 2)
     depth, a, b = float(x[0]), float(x[1]), max(float(x[1]), float(x[2]))
-    block = pr.block_s + 2.0
-    if b - a > 1.0 and cost((depth, a, b - 0.5)) <= tol:
-        b = _tightest(lambda v: cost((depth, a, v)), max(a + 0.5, b - block), b - 0.5, tol, 0.1)
-    if b - a > 1.0 and cost((depth, a + 0.5, b)) <= tol:
-        a = _tightest(lambda v: cost((depth, v, b)), min(b - 0.5, a + block), a + 0.5, tol, 0.1)
+    block, t_last = pr.block_s + 2.0, float(pr.t_s[-1])
+
+    def flat_middle(cost_at: Callable[[float], float], edge: float, lo: float, hi: float) -> float:
+        ends = []
+        for d, limit in ((-1.0, lo), (1.0, hi)):
+            probe = edge + 0.5 * d
+            if d * (limit - probe) > 0.0 and cost_at(probe) <= tol:
+                ends.append(_tightest(cost_at, edge + d * min(block, d * (limit - edge)), probe, tol, 0.1))
+            else:
+                ends.append(edge)
+        return 0.5 * (ends[0] + ends[1])
+    b = flat_middle(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
+    a = flat_middle(lambda v: cost((depth, v, b)), a, t_first, b - 0.5)
     x = (depth, a, b)
     p = params(x)
     sv = p.supply_variation
@@ -483,7 +491,8 @@ CANDIDATES: tuple[Candidate, ...] = (
         (ParameterSpec("supply_variation.sag_mpa", "MPa", 0.0, 0.2), ParameterSpec("supply_variation.start_s", "s", 0.0, 1e6),
          ParameterSpec("supply_variation.end_s", "s", 0.0, 1e6)),
         "Window from the residual's location, then Nelder-Mead on depth, start and end, simulating from a "
-        "checkpoint before the window; then the shortest window that fits the training blocks as well. "
+        "checkpoint before the window; an edge the training blocks cannot place goes to the middle of the "
+        "stretch where their cost is flat. "
         "(The ripple parameters are simulated but not fitted.)",
         _fit_supply_sag,
         lambda v: (f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from "
