@@ -434,8 +434,10 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
             else:
                 ends.append(edge)
         return 0.5 * (ends[0] + ends[1])
-    b = flat_middle(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
-    a = flat_middle(lambda v: cost((depth, v, b)), a, t_first, b - 0.5)
+    r0 = pr.train_residual(y_base[start:stop], start)
+    if c_fit < 0.9 * float(r0 @ r0):  # only for a sag that could pass the 10 % acceptance rule
+        b = flat_middle(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
+        a = flat_middle(lambda v: cost((depth, v, b)), a, t_first, b - 0.5)
     x = (depth, a, b)
     p = params(x)
     sv = p.supply_variation
