@@ -115,3 +115,77 @@ def test_edge_search_crosses_the_plateaus_of_a_sampled_command():
     best, a, b = _edge_search(cost, 5.9 - 0.15, 5.9 + 0.15, (0.2, 0.1, 0.05, 0.02), cuts)
     assert best == 0.0
     assert np.array_equal((u > a) & (u < b), inside)
+
+
+def test_unexplained_when_no_candidate_fits():
+    """A load mismatch, with only the delay and backlash as candidates: the structure is reported as such."""
+    rig = DEMO_MODEL.with_values(**{"load_mismatch.extra_n": 8.0})
+    cols = record(rig, "sine", 4)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL,
+                 candidates=[candidate("transport_delay"), candidate("backlash")])
+    assert d.verdict == "mismatch"
+    assert [f.effect for f in d.findings][-1] == "unexplained"
+    assert all(f.effect != "load_mismatch" for f in d.findings)
+    assert d.findings[-1].located and "explains" in d.findings[-1].explanation
+
+
+def test_every_effect_of_the_library_is_a_candidate():
+    names = {c.name for c in CANDIDATES}
+    assert names == {"rate_dependent_hysteresis", "valve_dead_zone", "transport_delay", "supply_pressure_variation",
+                     "load_mismatch", "sensor_drift", "backlash"}
+    for c in CANDIDATES:  # every fitted parameter is a plant (FMU) parameter
+        for p in c.parameters:
+            DEMO_MODEL.with_values(**{p.key: p.lo})
+
+
+# ------------------------------------------------------------------------------ the command
+def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built_fmus, capsys):
+    from diagnosis.plant_source import load_plant, simulate_plant_fmu
+    from diagnosis.simulation import noise_free
+    from tapmuscle.recording import Recording, read_recording, write_recording
+
+    rig = PlantParams_default_with({"load_mismatch.extra_n": 6.0, "friction.rate_gain": 0.8})
+    cols = record(rig, "sine", 7)
+    rec = tmp_path / "rec.csv"
+    write_recording(rec, Recording(cols, {"ts_s": "0.1"}))
+    out = tmp_path / "diag"
+    # the default plant FMU: rate dependence on, no load mismatch
+    assert main(["diagnose", "--recording", str(rec), "--plant", str(built_fmus["MusclePlant"]), "--out", str(out),
+                 "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "load_mismatch" in printed
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["verdict"] == "mismatch" and doc["findings"][0]["effect"] == "load_mismatch"
+    assert doc["fmu_check"]["max_abs_difference_mm"] < 1e-6
+    assert doc["fit_after_percent"] - doc["fit_before_percent"] > 3.0
+    for name in ("report.md", "residual.png", "overlay.png", "hysteresis.png", "residual_tests.png"):
+        assert (out / name).stat().st_size > 0
+    # re-simulating the FMU with the calibrated file's parameters gives the improved fit
+    calibrated, _ = load_plant(out / "calibrated_plant.json")
+    rec_back = read_recording(rec)
+    y = simulate_plant_fmu(built_fmus["MusclePlant"], noise_free(calibrated).dotted(), rec_back.u_v, 0.1)
+    _, test = interleaved_split(len(y), 0.1, 10.0)
+    assert fit_percent(rec_back.l_mm, y, test) == pytest.approx(doc["fit_after_percent"], abs=0.01)
+
+
+def PlantParams_default_with(values):
+    from fmu_plant import PlantParams
+
+    return PlantParams().with_values(**values)
+
+
+def test_diagnose_cli_names_the_line_and_column_of_a_malformed_recording(tmp_path, capsys):
+    plant = tmp_path / "plant.json"
+    plant.write_text(json.dumps({"plant": DEMO_MODEL.to_dict()}))
+    rec = tmp_path / "bad.csv"
+    rec.write_text("t_s,u_v,l_mm\n0.0,5.0,0.0\n0.1,five,0.1\n")
+    out = tmp_path / "out"
+    assert main(["diagnose", "--recording", str(rec), "--plant", str(plant), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "line 3" in err and "'u_v'" in err and "'five'" in err
+    assert not out.exists()
+    rec.write_text("t_s,u_v,l_mm\n" + "".join(f"{0.1 * k:.1f},{5 + (k % 7)},{k}\n" for k in range(400)).replace("\n20.0,", "\n20.05,"))
+    assert main(["diagnose", "--recording", str(rec), "--plant", str(plant), "--out", str(out)]) == 2
+    assert "uniform sampling" in capsys.readouterr().err
+    assert main(["diagnose", "--recording", str(rec), "--plant", str(tmp_path / "nope.fmu"), "--out", str(out)]) == 2
+    assert "nope.fmu" in capsys.readouterr().err
