@@ -5,7 +5,8 @@ U(0.20, 0.30) MPa, own noise seed), 45 s of the 0.1 Hz sine each, through the FM
 ``tapmuscle sweep`` runs them (:class:`scenarios.distributed_sweep.DaskExecutor`, one task per run).
 Timed: from submitting the 64 tasks to the last result (best of ``--repeat``, the three set-ups
 interleaved, a new cluster each time); the cluster's start and one warm-up run per worker (imports,
-FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up 2 workers / 1 worker >= 1.8 on the 2-core development machine.
+FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up
+2 workers / 1 worker >= 1.8 on the 2-core development machine.
 
     python benchmarks/sweep_speedup.py [--repeat 5] [--runs 64]
 """
@@ -74,6 +75,7 @@ def main() -> None:
     per_round = ", ".join(f"{r[1][0] / r[2][0]:.2f}" for r in rounds)
     print(f"speed-up 2 workers / 1 worker: {one[0] / two[0]:.2f}x (goal >= 1.8; per round {per_round}); "
           f"2 workers / in-process: {serial[0] / two[0]:.2f}x")
+
 
 if __name__ == "__main__":
     main()

@@ -337,8 +337,8 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                     inst.free()
 
 
-def _holding_gil(fmu: Any, fn: Any) -> Any:
-    """``fn`` (one of fmpy's ctypes functions) called without releasing the GIL.
+def _holding_gil(fmu: Any, names: tuple[str, ...]) -> list[Any]:
+    """fmpy's ctypes functions ``names`` of ``fmu``, called without releasing the GIL.
 
     ctypes releases the GIL around every foreign call, and a pythonfmu FMU takes it back at once to
     run its Python slave. In a Dask worker the worker's event-loop thread is waiting for the GIL
@@ -348,9 +348,13 @@ def _holding_gil(fmu: Any, fn: Any) -> Any:
     """
     from ctypes import PyDLL
 
-    holding = getattr(PyDLL(fmu.dll._name, handle=fmu.dll._handle), fn.__name__)
-    holding.argtypes, holding.restype = fn.argtypes, fn.restype
-    return holding
+    lib = PyDLL(fmu.dll._name, handle=fmu.dll._handle)
+    functions = []
+    for name in names:
+        fn, holding = fmu._functions[name], getattr(lib, name)
+        holding.argtypes, holding.restype = fn.argtypes, fn.restype
+        functions.append(holding)
+    return functions
 
 
 class _RealPort:
@@ -363,10 +367,9 @@ class _RealPort:
     def __init__(self, inst: FmuInstance, out_vrs: list[int], in_vrs: list[int]) -> None:
         from ctypes import c_double, c_uint
 
-        fns = inst.fmu._functions  # fmpy's ctypes functions with their argtypes (status not checked)
         self.inst, self.component = inst, inst.fmu.component
-        self._get, self._set, self._step = (_holding_gil(inst.fmu, fns[name])
-                                            for name in ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
+        # fmpy's functions with their argtypes (status checked here, not by fmpy)
+        self._get, self._set, self._step = _holding_gil(inst.fmu, ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
         self.out_vrs, self.n_out = (c_uint * len(out_vrs))(*out_vrs), len(out_vrs)
         self.in_vrs, self.n_in = (c_uint * len(in_vrs))(*in_vrs), len(in_vrs)
         self.outputs = (c_double * len(out_vrs))()
