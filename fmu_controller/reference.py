@@ -36,6 +36,8 @@ class SineReference:
             raise ValueError(f"SineReference.frequency_hz must be >= 0, got {self.frequency_hz!r}")
         if self.ts_s <= 0:
             raise ValueError(f"SineReference.ts_s must be > 0, got {self.ts_s!r}")
+        # 2 pi f [rad/s], cached: the product is formed left to right, so r(k) keeps its last bit
+        object.__setattr__(self, "_omega", 2.0 * math.pi * self.frequency_hz)
 
     def at(self, k: int | np.ndarray) -> float | np.ndarray:
         """``r(k)`` [mm] at sample ``k`` (time ``k ts_s``)."""
@@ -45,8 +47,9 @@ class SineReference:
 
     def preview(self, k: int, n: int) -> np.ndarray:
         """``[r(k), r(k+1), ..., r(k+n)]`` [mm]: the present and ``n`` future samples."""
-        return np.array([self._at(i) for i in range(k, k + n + 1)])
+        # math.sin: a handful of samples per control step, where numpy's call overhead dominates
+        offset, amplitude, omega, ts, sin = self.offset_mm, self.amplitude_mm, self._omega, self.ts_s, math.sin
+        return np.array([offset + amplitude * sin(omega * i * ts) for i in range(k, k + n + 1)])
 
     def _at(self, k: int) -> float:
-        # math.sin: a handful of samples per control step, where numpy's call overhead dominates
-        return self.offset_mm + self.amplitude_mm * math.sin(2.0 * math.pi * self.frequency_hz * k * self.ts_s)
+        return self.offset_mm + self.amplitude_mm * math.sin(self._omega * k * self.ts_s)

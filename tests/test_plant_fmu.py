@@ -121,3 +121,20 @@ def test_several_instances_and_reinstantiation(fmu):
     assert c.getReal([vr["l"]])[0] == pytest.approx(la, abs=0.1)
     c.terminate()
     c.freeInstance()
+
+
+def test_real_access_to_a_non_real_variable_is_an_fmi_error(fmu):
+    vr = fmu[3]
+    f = _instance(fmu, reals={"load": 50.0, "friction.rate_gain": 0.3})
+    # parameters, inputs and outputs all read back through the value-reference table
+    assert f.getReal([vr["friction.rate_gain"], vr["load"], vr["u"]]) == [0.3, 50.0, 0.0]
+    f.setReal([vr["u"]], [4.5])
+    assert f.getReal([vr["u"]]) == [4.5]
+    for call in (lambda: f.getReal([vr["seed"]]), lambda: f.setReal([vr["seed"]], [1.0]),
+                 lambda: f.getReal([max(vr.values()) + 1])):
+        with pytest.raises(FMICallException):
+            call()
+    f.doStep(0.0, 0.1)  # the instance is still usable
+    assert 0.0 <= f.getReal([vr["l"]])[0] < 400.0
+    f.terminate()
+    f.freeInstance()
