@@ -127,7 +127,7 @@ class SafeSlave(Fmi2Slave):
         getters = (self._real_io or self._real_tables())[0]
         try:
             return [float(getters[vr]()) for vr in vrs]
-        except KeyError as exc:
+        except KeyError:
             missing = [vr for vr in vrs if vr not in getters]
             if missing:  # not a KeyError from inside a getter
                 raise TypeError(f"Variable with valueReference={missing[0]} is not of type Real!") from None
