@@ -243,14 +243,34 @@ def _stats(values: list[float]) -> tuple[str, str, str]:
     return (f"{statistics.fmean(values):.3f}", f"{statistics.median(values):.3f}", f"{max(values):.3f}")
 
 
+def _value(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _distinct(rows: Sequence[Mapping[str, str]], columns: Sequence[str]) -> list[str]:
+    """``columns`` less repeats and those equal in every row to an earlier one (a swept
+    ``load.initial_n`` next to the ``load_n`` derived from it), which would only repeat an axis."""
+    out: list[str] = []
+    seen: list[list[float | str]] = []
+    for c in columns:
+        values = [_value(row.get(c, "")) for row in rows]
+        if c not in out and values not in seen:
+            out.append(c)
+            seen.append(values)
+    return out
+
+
 def _cell_fields(rows: Sequence[Mapping[str, str]], sweep: Sweep) -> list[str]:
     """Columns that vary over a few discrete values (grid-like), method and seed left out."""
     candidates = ["scenario", "load_n", "supply_mpa", "frequency_hz"] + [
         f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")]
     out = []
-    for c in candidates:
+    for c in _distinct(rows, candidates):
         values = {row.get(c, "") for row in rows}
-        if 1 < len(values) <= 12 and c not in out:
+        if 1 < len(values) <= 12:
             out.append(c)
     if "scenario" in out and len(out) > 1:
         out.remove("scenario")  # the base's name repeats its load and frequency
@@ -316,8 +336,8 @@ def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], p
     if plots:
         from tapmuscle.sweep_figures import plot_mae_by_method, plot_mae_map
 
-        numeric = ["load_n", "frequency_hz", "supply_mpa"] + [f for f in sweep.fields
-                                                              if f not in DESCRIPTIVE and not f.endswith("method")]
+        numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + [
+            f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")])
         plot_mae_by_method(rows, out / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method")
         plot_mae_map(rows, numeric, out / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
 

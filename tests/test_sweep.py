@@ -278,6 +278,21 @@ def test_summary_groups_grid_cells():
     assert "| ampc_servo | 68.0 | 2 | 0 | 0.700 | 0.700 | 0.900 |" in text
 
 
+def test_a_swept_field_that_mirrors_a_derived_column_is_not_a_second_axis():
+    grid = {"load.initial_n": [44.0, 68.0], "controller.parameters.forgetting": [1.0, 0.98]}
+    sweep = parse_sweep({"base": dict(SHORT), "grid": grid}, source="s")
+    rows = [{"run_id": f"{load}-{lam}", "status": "ok", "scenario": "s", "method": "ampc_ucp", "load_n": load,
+             "load.initial_n": load, "controller.parameters.forgetting": lam, "supply_mpa": "0.25",
+             "frequency_hz": "0.1", "seed": "0", "mae_mm": mae, "expect": "", "error": ""}
+            for load, lam, mae in [("44.0", "1.0", "0.9"), ("44.0", "0.98", "0.4"), ("68.0", "1.0", "0.6"),
+                                   ("68.0", "0.98", "0.5")]]
+    text = summary_markdown(sweep, rows)
+    # load.initial_n repeats load_n row for row: one load column, the forgetting factor as the other
+    assert "## Per method and load_n, controller.parameters.forgetting\n" in text
+    assert "| ampc_ucp | 44.0 | 0.98 | 1 | 0 | 0.400 | 0.400 | 0.400 |" in text
+    rows[0]["load.initial_n"] = "45.0"  # no longer a mirror: kept
+    assert "load_n, load.initial_n, controller.parameters.forgetting" in summary_markdown(sweep, rows)
+
 def test_sweep_cli_in_process_and_its_errors(built_fmus, tmp_path, capsys):
     fmu_dir = str(built_fmus["MusclePlant"].parent)
     path = _write(tmp_path, SMALL_SWEEP.replace("seed = [0, 1]", "seed = [0]")
