@@ -12,18 +12,32 @@ are collected in :attr:`SafeSlave.variable_meta`; the build (``build_scripts``) 
 modelDescription.xml, which pythonfmu cannot do itself. Full dynamic state is saved and restored through
 :meth:`SafeSlave.numerics_state` / :meth:`SafeSlave.restore_numerics_state`, so FMI
 get/set/serialize FMU state restores everything, not just the registered variables.
+
+Exceptions that must reach the host (a value reference of the wrong type in ``fmi2GetReal`` and the
+like, a foreign FMU state) go through :meth:`SafeSlave._keep_references`. pythonfmu 0.7's C++ layer answers
+an exception with fmi2Fatal, and on the way releases its references to the slave, its class and its
+log queue (``cleanPyObject`` in ``handle_py_exception``) without forgetting them; ``fmi2FreeInstance``
+releases them a second time, which frees live objects and crashes the host later, in the garbage
+collector (measured: a segfault within 30 instantiate / bad call / free cycles, and in the test suite).
+``_keep_references`` adds the one reference per object that the C++ layer will take back, so freeing the
+instance after an fmi2Fatal is safe and nothing leaks (tests/test_plant_fmu.py).
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
+import json
 import math
 import traceback
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
 __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
+
+_BAD_STATE = "tapmuscle: bad FMU state"
 
 #: Per variable: ``unit`` (a key of fmi_slave.units.UNITS or ""), ``min``, ``max``, ``nominal`` (None =
 #: not declared), ``depends_on`` (outputs only: names of inputs with direct feedthrough; () = none),
@@ -43,6 +57,22 @@ def _plain(obj: Any) -> Any:
 
 class SlaveInputError(ValueError):
     """A bad input, parameter or step size; the message names it."""
+
+
+_incref = ctypes.pythonapi.Py_IncRef
+_incref.argtypes, _incref.restype = [ctypes.py_object], None
+
+
+def _to_host(method: Callable) -> Callable:
+    """``method`` (called by pythonfmu's C++ layer) with :meth:`SafeSlave._keep_references` on any exception."""
+    @functools.wraps(method)
+    def call(self, *args):
+        try:
+            return method(self, *args)
+        except BaseException:
+            self._keep_references()
+            raise
+    return call
 
 
 class SafeSlave(Fmi2Slave):
@@ -127,21 +157,42 @@ class SafeSlave(Fmi2Slave):
         getters = (self._real_io or self._real_tables())[0]
         try:
             return [float(getters[vr]()) for vr in vrs]
-        except KeyError:
+        except BaseException as exc:
+            self._keep_references()
             missing = [vr for vr in vrs if vr not in getters]
-            if missing:  # not a KeyError from inside a getter
+            if isinstance(exc, KeyError) and missing:  # not a KeyError from inside a getter
                 raise TypeError(f"Variable with valueReference={missing[0]} is not of type Real!") from None
             raise
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         """pythonfmu's ``set_real`` from a value-reference table (see :meth:`get_real`)."""
         setters = (self._real_io or self._real_tables())[1]
-        for vr, value in zip(vrs, values):
-            try:
-                fn = setters[vr]
-            except KeyError:
-                raise TypeError(f"Variable with valueReference={vr} is not of type Real!") from None
-            fn(value)
+        try:
+            for vr, value in zip(vrs, values):
+                fn = setters.get(vr)
+                if fn is None:
+                    raise TypeError(f"Variable with valueReference={vr} is not of type Real!")
+                fn(value)
+        except BaseException:
+            self._keep_references()
+            raise
+
+    # the other calls from the host that may raise (wrong value reference, foreign state)
+    get_integer = _to_host(Fmi2Slave.get_integer)
+    set_integer = _to_host(Fmi2Slave.set_integer)
+    get_boolean = _to_host(Fmi2Slave.get_boolean)
+    set_boolean = _to_host(Fmi2Slave.set_boolean)
+    get_string = _to_host(Fmi2Slave.get_string)
+    set_string = _to_host(Fmi2Slave.set_string)
+    setup_experiment = _to_host(Fmi2Slave.setup_experiment)
+    enter_initialization_mode = _to_host(Fmi2Slave.enter_initialization_mode)
+    terminate = _to_host(Fmi2Slave.terminate)
+
+    def _keep_references(self) -> None:
+        """Add the references pythonfmu's C++ layer drops once too often when an exception reaches it
+        (module docstring): the instance, its class and its log queue."""
+        for obj in (self, type(self), self.log_queue):
+            _incref(obj)
 
     # ------------------------------------------------------------------ guards
     @staticmethod
@@ -188,16 +239,41 @@ class SafeSlave(Fmi2Slave):
                              f"{traceback.format_exc(limit=3)}")
 
     # ------------------------------------------------------------------ state
-    def _get_fmu_state(self) -> dict[str, Any]:
+    def _snapshot(self) -> dict[str, Any]:
         # pythonfmu serialises the state as JSON: numpy arrays and scalars become lists and floats
         # (exact: JSON keeps the shortest repr, which round-trips every double).
         return {"variables": super()._get_fmu_state(), "numerics": _plain(self.numerics_state()),
                 "failed": self._failed}
 
+    _get_fmu_state = _to_host(_snapshot)
+
+    @_to_host
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        if not isinstance(state, dict) or set(state) != {"variables", "numerics", "failed"}:
+            reason = state.get(_BAD_STATE) if isinstance(state, dict) else None
+            raise SlaveInputError(f"not an FMU state of this FMU ({reason or 'unexpected content'}); "
+                                  "nothing was changed")
+        before = self._snapshot()
+        try:
+            self._restore(state)
+        except Exception as exc:  # a malformed state: put everything back as it was
+            self._restore(before)
+            raise SlaveInputError(f"not an FMU state of this FMU ({type(exc).__name__}: {exc}); "
+                                  "nothing was changed") from None
+
+    def _restore(self, state: dict[str, Any]) -> None:
         super()._set_fmu_state(state["variables"])
         self.restore_numerics_state(state["numerics"])
         self._failed = bool(state["failed"])
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes) -> dict[str, Any]:
+        # A static method has no instance to balance the C++ layer's references with (module
+        # docstring), so a bad byte string is reported by _set_fmu_state instead.
+        try:
+            return json.loads(state.decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            return {_BAD_STATE: f"the serialised state is not this FMU's JSON: {exc}"}
 
     # ------------------------------------------------------------------ to implement
     def initialize_numerics(self) -> None:

@@ -182,6 +182,17 @@ def test_host_exit_is_clean_repeatedly(host, plant, tmp_path):
         assert "corrupted" not in proc.stderr and "Aborted" not in proc.stderr
 
 
+
+def test_bad_value_reference_is_reported_and_the_host_survives_freeing(host, plant, tmp_path):
+    """Unguarded, pythonfmu frees the slave twice after a Python exception (fmi_slave.base): this host
+    segfaulted within a few instantiate / bad call / free cycles."""
+    proc = run_host(host, tmp_path, "badvr", *plant.args("P", u="u", l="l"), "steps=15", "u_const=6")
+    rows = list(csv.DictReader(io.StringIO(proc.stdout)))
+    assert len(rows) == 15
+    assert {r["get"] for r in rows} == {r["set"] for r in rows} == {"Fatal"}  # pythonfmu's status for it
+    assert len({r["l"] for r in rows}) == 1 and 0.0 < float(rows[0]["l"]) < 400.0  # each fresh, the same
+    assert "not of type Real" in proc.stderr
+
 def test_missing_dependency_fails_instantiation_with_what_to_install(host, plant, tmp_path):
     """A Python without numpy (an empty venv, recorded site-packages switched off): fmi2Instantiate
     returns NULL and the host's logger got the message."""

@@ -1,5 +1,6 @@
 """The MusclePlant FMU in fmpy: same numbers as the direct plant, FMI errors not crashes, exact state."""
 
+import gc
 import math
 
 import pytest
@@ -123,6 +124,11 @@ def test_several_instances_and_reinstantiation(fmu):
     c.freeInstance()
 
 
+def _live_slaves():
+    gc.collect()
+    return sum(type(o).__name__ == "MusclePlant" for o in gc.get_objects())
+
+
 def test_real_access_to_a_non_real_variable_is_an_fmi_error(fmu):
     vr = fmu[3]
     f = _instance(fmu, reals={"load": 50.0, "friction.rate_gain": 0.3})
@@ -130,11 +136,39 @@ def test_real_access_to_a_non_real_variable_is_an_fmi_error(fmu):
     assert f.getReal([vr["friction.rate_gain"], vr["load"], vr["u"]]) == [0.3, 50.0, 0.0]
     f.setReal([vr["u"]], [4.5])
     assert f.getReal([vr["u"]]) == [4.5]
-    for call in (lambda: f.getReal([vr["seed"]]), lambda: f.setReal([vr["seed"]], [1.0]),
-                 lambda: f.getReal([max(vr.values()) + 1])):
-        with pytest.raises(FMICallException):
-            call()
-    f.doStep(0.0, 0.1)  # the instance is still usable
-    assert 0.0 <= f.getReal([vr["l"]])[0] < 400.0
     f.terminate()
     f.freeInstance()
+    # pythonfmu answers an exception with fmi2Fatal and, unguarded, frees the slave twice at
+    # fmi2FreeInstance: a segfault a few cycles later (fmi_slave.base docstring)
+    before = _live_slaves()
+    for i in range(12):
+        f = _instance(fmu, f"bad{i}")
+        bad = [lambda: f.getReal([vr["seed"]]), lambda: f.setReal([vr["seed"]], [1.0]),
+               lambda: f.getReal([max(vr.values()) + 1]), lambda: f.getInteger([vr["u"]])][i % 4]
+        with pytest.raises(FMICallException, match="fatal"):
+            bad()
+        f.doStep(0.0, 0.1)  # the slave is still alive and consistent
+        assert 0.0 <= f.getReal([vr["l"]])[0] < 400.0
+        f.terminate()
+        f.freeInstance()
+        _ = [{"a": list(range(50))} for _ in range(2000)]  # reuse freed memory
+    assert _live_slaves() == before  # freed once each: no crash above, no leak
+
+
+def test_a_foreign_fmu_state_is_refused_and_changes_nothing(fmu, capfd):
+    vr = fmu[3]
+    f, ref = _instance(fmu, "f"), _instance(fmu, "ref")
+    for g in (f, ref):
+        g.setReal([vr["u"]], [6.0])
+        g.doStep(0.0, 0.1)
+    for garbage in (b"not json", b'{"variables": {}}', b'{"variables": {}, "numerics": [1], "failed": false}'):
+        with pytest.raises(FMICallException):
+            f.setFMUstate(f.deSerializeFMUstate(garbage))
+    assert "not an FMU state of this FMU" in capfd.readouterr().out
+    for k in range(1, 20):
+        for g in (f, ref):
+            g.doStep(k * 0.1, 0.1)
+    assert f.getReal([vr["l"], vr["p"]]) == ref.getReal([vr["l"], vr["p"]])
+    for g in (f, ref):
+        g.terminate()
+        g.freeInstance()

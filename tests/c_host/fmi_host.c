@@ -14,6 +14,8 @@
  *   MODE instances  two plant instances a, b at once (load_a, load_b, constant u), both freed, the
  *                   binary dlclose()d and loaded again (unless unload=0), then c instantiated like a;
  *                                                                               CSV: name,l
+ *   MODE badvr      N times (steps=N): instantiate, fmi2GetReal and fmi2SetReal with an unknown value
+ *                   reference (100000), one step, free; the host must survive; CSV: i,get,set,l
  * FMU keys (P = plant, C = ctrl):
  *   P.dir=DIR P.id=MODEL_ID P.guid=GUID        extracted FMU folder, modelIdentifier, guid
  *   P.u=VR P.l=VR P.p=VR P.load=VR             value references (plant: input u, outputs l, p, input load)
@@ -278,6 +280,21 @@ int main(int argc, char **argv) {
         }
         printf("c,%.17g\n", get1(&plant, c, plant.vr_l));
         stop(&plant, c);
+    } else if (!strcmp(mode, "badvr")) {
+        long k;
+        printf("i,get,set,l\n");
+        for (k = 0; k < steps; k++) {
+            fmi2Component c = start(&plant, "bad", -1, 0.0);
+            fmi2ValueReference bad = 100000;
+            fmi2Real v = 0.0, one = 1.0;
+            fmi2Status get = plant.getReal(c, &bad, 1, &v), set = plant.setReal(c, &bad, 1, &one);
+            double l;
+            set1(&plant, c, plant.vr_u, u_const);
+            step(&plant, c, 0.0, dt);
+            l = get1(&plant, c, plant.vr_l);
+            printf("%ld,%s,%s,%.17g\n", k, status_name(get), status_name(set), l);
+            stop(&plant, c);
+        }
     } else {
         die(1, "unknown mode %s", mode);
     }
