@@ -66,6 +66,8 @@ def main() -> None:
               f"real-time factor {DURATION_S / wall:6.0f}x  FMU/direct {wall / direct:5.2f} (goal <= 1.3)")
     print(f"goal: real-time factor >= 500x: {'met' if DURATION_S / minimal >= 500 else 'NOT met'} "
           f"({DURATION_S / minimal:.0f}x)")
+    print(f"goal: FMU / direct <= 1.3: {'met' if minimal / direct <= 1.3 else 'NOT met'} ({minimal / direct:.2f}; "
+          f"{full / direct:.2f} recording all outputs, as the direct loop does)")
 
 
 if __name__ == "__main__":
