@@ -263,12 +263,15 @@ def _distinct(rows: Sequence[Mapping[str, str]], columns: Sequence[str]) -> list
     return out
 
 
+def _swept_fields(sweep: Sweep) -> list[str]:
+    """The sweep's own fields that may be an axis of the summary (method and seed are not)."""
+    return [f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")]
+
+
 def _cell_fields(rows: Sequence[Mapping[str, str]], sweep: Sweep) -> list[str]:
     """Columns that vary over a few discrete values (grid-like), method and seed left out."""
-    candidates = ["scenario", "load_n", "supply_mpa", "frequency_hz"] + [
-        f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")]
     out = []
-    for c in _distinct(rows, candidates):
+    for c in _distinct(rows, ["scenario", "load_n", "supply_mpa", "frequency_hz"] + _swept_fields(sweep)):
         values = {row.get(c, "") for row in rows}
         if 1 < len(values) <= 12:
             out.append(c)
@@ -322,11 +325,8 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]]) -> str:
 
 
 def _sort_key(text: str) -> tuple[int, float, str]:
-    try:
-        value = float(text)
-    except ValueError:
-        return (1, math.inf, text)
-    return (0, value, text)
+    value = _value(text)
+    return (1, math.inf, text) if isinstance(value, str) else (0, value, text)
 
 
 def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool) -> None:
@@ -336,8 +336,7 @@ def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], p
     if plots:
         from tapmuscle.sweep_figures import plot_mae_by_method, plot_mae_map
 
-        numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + [
-            f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")])
+        numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + _swept_fields(sweep))
         plot_mae_by_method(rows, out / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method")
         plot_mae_map(rows, numeric, out / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
 

@@ -293,6 +293,7 @@ def test_a_swept_field_that_mirrors_a_derived_column_is_not_a_second_axis():
     rows[0]["load.initial_n"] = "45.0"  # no longer a mirror: kept
     assert "load_n, load.initial_n, controller.parameters.forgetting" in summary_markdown(sweep, rows)
 
+
 def test_sweep_cli_in_process_and_its_errors(built_fmus, tmp_path, capsys):
     fmu_dir = str(built_fmus["MusclePlant"].parent)
     path = _write(tmp_path, SMALL_SWEEP.replace("seed = [0, 1]", "seed = [0]")
