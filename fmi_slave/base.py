@@ -30,6 +30,7 @@ import functools
 import json
 import math
 import traceback
+from operator import itemgetter
 from typing import Any, Callable, Iterable
 
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
@@ -84,6 +85,12 @@ class SafeSlave(Fmi2Slave):
         self._int_par: dict[str, int] = {}
         self._failed = False
         self.variable_meta: dict[str, VariableMeta] = {}
+        #: Real variables whose value is the instance attribute of the same name (inputs, outputs without
+        #: a getter): read and written through ``self.__dict__`` by :meth:`get_real` / :meth:`set_real`.
+        self._attribute_reals: set[str] = set()
+        #: ``tuple(vrs) -> reader(self.__dict__)`` / ``-> names`` for vr lists of attribute Reals only
+        self._readers: dict[tuple[int, ...], Callable[[dict], list[float]]] = {}
+        self._writers: dict[tuple[int, ...], tuple[str, ...]] = {}
 
     # ------------------------------------------------------------------ registration
     def _meta(self, name: str, unit: str = "", lo: float | None = None, hi: float | None = None,
@@ -113,13 +120,20 @@ class SafeSlave(Fmi2Slave):
             setter=lambda v: self._int_par.__setitem__(name, int(v))), nested=False)
         self._meta(name, "", lo, hi, enumeration=enumeration)
 
+    def _attribute_accessors(self, name: str, start: Any) -> dict[str, Callable]:
+        """Getter and setter of the instance attribute ``name`` (set to ``start``). pythonfmu's defaults
+        would use the part of a dotted name after the last dot (``theta.a1`` -> ``a1``)."""
+        setattr(self, name, start)
+        self._attribute_reals.add(name)
+        return {"getter": lambda: getattr(self, name), "setter": lambda v: setattr(self, name, v)}
+
     def add_input(self, name: str, start: float, unit: str, description: str, *, lo: float, hi: float,
                   nominal: float | None = None) -> None:
         """Register a continuous Real input (attribute ``name``, checked against ``lo..hi`` by
         :meth:`finite` in the step)."""
-        setattr(self, name, float(start))
         self.register_variable(Real(name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
-                                    start=float(start), description=description), nested=False)
+                                    start=float(start), description=description,
+                                    **self._attribute_accessors(name, float(start))), nested=False)
         self._meta(name, unit, lo, hi, nominal)
 
     def add_output(self, name: str, start: float | bool | int, unit: str, description: str, *,
@@ -130,49 +144,82 @@ class SafeSlave(Fmi2Slave):
         value: the outputs are defined before the first step, which also gives hosts a correct
         InitialUnknowns list (PythonFMU#193). ``depends_on`` lists the inputs the output depends on
         directly at a communication point (none for ours, so hosts see no algebraic loop, PythonFMU#258)."""
-        if getter is None:
+        if getter is not None:
+            accessors = {"getter": getter}
+        elif kind is Real:
+            accessors = self._attribute_accessors(name, start)
+        else:  # pythonfmu's own (the Boolean/Integer paths are not ours)
             setattr(self, name, start)
-        kwargs = {"getter": getter} if getter is not None else {}
+            accessors = {}
         self.register_variable(kind(name, causality=Fmi2Causality.output, variability=variability,
-                                    initial=Fmi2Initial.exact, start=start, description=description, **kwargs),
+                                    initial=Fmi2Initial.exact, start=start, description=description, **accessors),
                                nested=False)
         self._meta(name, unit, lo, hi, nominal, depends_on=tuple(depends_on))
 
     # ------------------------------------------------------------------ Real I/O (hot path)
-    #: ``({vr: getter}, {vr: setter})`` of the Real variables; None: rebuild on the next call.
-    _real_io: tuple[dict[int, Any], dict[int, Any]] | None = None
+    #: ``({vr: getter}, {vr: setter}, {vr: attribute name})`` of the Real variables; None: rebuild.
+    _real_io: tuple[dict[int, Any], dict[int, Any], dict[int, str]] | None = None
 
     def register_variable(self, var: Any, nested: bool = True) -> None:
         super().register_variable(var, nested)
         self._real_io = None
+        self._readers, self._writers = {}, {}
 
-    def _real_tables(self) -> tuple[dict[int, Any], dict[int, Any]]:
+    def _real_tables(self) -> tuple[dict[int, Any], dict[int, Any], dict[int, str]]:
         reals = [(vr, var) for vr, var in self.vars.items() if isinstance(var, Real)]
-        self._real_io = ({vr: var.getter for vr, var in reals}, {vr: var.setter for vr, var in reals})
+        self._real_io = ({vr: var.getter for vr, var in reals}, {vr: var.setter for vr, var in reals},
+                         {vr: var.name for vr, var in reals if var.name in self._attribute_reals})
         return self._real_io
 
     def get_real(self, vrs: list[int]) -> list[float]:
-        """pythonfmu's ``get_real`` from a value-reference table: the same values and TypeError, without an
-        ABC ``isinstance`` per value (called about 4 times per sample by a master, benchmarks/fmu_cosim.py)."""
-        getters = (self._real_io or self._real_tables())[0]
+        """pythonfmu's ``get_real``: the same values and TypeError, faster.
+
+        A master asks for the same value references every step (benchmarks/fmu_cosim.py). The first call
+        with a list of attribute-backed Reals (inputs, outputs without a getter) compiles it into one
+        ``itemgetter`` on ``self.__dict__``; later calls with that list cost one dictionary lookup.
+        Other lists go through a value-reference table (no ABC ``isinstance`` per value as pythonfmu's).
+        """
         try:  # inline rather than @_to_host: one Python frame less on the hot path
-            return [float(getters[vr]()) for vr in vrs]
+            reader = self._readers.get(tuple(vrs))
+            if reader is not None:
+                return reader(self.__dict__)
+            return self._read_reals(vrs)
         except BaseException as exc:
             self._keep_references()
+            getters = (self._real_io or self._real_tables())[0]
             missing = [vr for vr in vrs if vr not in getters]
             if isinstance(exc, KeyError) and missing:  # not a KeyError from inside a getter
                 raise TypeError(f"Variable with valueReference={missing[0]} is not of type Real!") from None
             raise
 
+    def _read_reals(self, vrs: list[int]) -> list[float]:
+        getters, _, attributes = self._real_io or self._real_tables()
+        values = [float(getters[vr]()) for vr in vrs]  # KeyError: not a Real (get_real says so)
+        if vrs and len(self._readers) < 64 and all(vr in attributes for vr in vrs):
+            if len(vrs) == 1:
+                get_one = itemgetter(attributes[vrs[0]])
+                self._readers[tuple(vrs)] = lambda d: [float(get_one(d))]
+            else:
+                get_all = itemgetter(*(attributes[vr] for vr in vrs))
+                self._readers[tuple(vrs)] = lambda d: list(map(float, get_all(d)))
+        return values
+
     def set_real(self, vrs: list[int], values: list[float]) -> None:
-        """pythonfmu's ``set_real`` from a value-reference table (see :meth:`get_real`)."""
-        setters = (self._real_io or self._real_tables())[1]
+        """pythonfmu's ``set_real`` (see :meth:`get_real`): attribute-backed Reals are written into
+        ``self.__dict__`` in one update, as pythonfmu's default setter (``setattr``) would."""
         try:
+            names = self._writers.get(tuple(vrs))
+            if names is not None:
+                self.__dict__.update(zip(names, values))
+                return
+            _, setters, attributes = self._real_io or self._real_tables()
             for vr, value in zip(vrs, values):
                 fn = setters.get(vr)
                 if fn is None:
                     raise TypeError(f"Variable with valueReference={vr} is not of type Real!")
                 fn(value)
+            if vrs and len(self._writers) < 64 and all(vr in attributes for vr in vrs):
+                self._writers[tuple(vrs)] = tuple(attributes[vr] for vr in vrs)
         except BaseException:
             self._keep_references()
             raise

@@ -82,11 +82,11 @@ class AMPCController(SafeSlave):
                         kind=Boolean, variability=Fmi2Variability.discrete)
         self.add_output("samples", 0, "", "number of samples taken so far", kind=Integer,
                         variability=Fmi2Variability.discrete)
-        self._theta = [float(v) for v in THETA0_44N]
+        #: output names of theta-hat, in Eq. (1) order; the values are attributes of these names
+        self._theta_outputs = tuple(f"theta.{name}" for name in ASYMMETRIC.names)
         for i, name in enumerate(ASYMMETRIC.names):
-            self.add_output(f"theta.{name}", float(THETA0_44N[i]), "",
-                            f"predictor parameter {name} of Eq. (1) in use (theta-hat for AMPC)",
-                            getter=lambda i=i: self._theta[i])
+            self.add_output(self._theta_outputs[i], float(THETA0_44N[i]), "",
+                            f"predictor parameter {name} of Eq. (1) in use (theta-hat for AMPC)")
 
         self.add_integer_parameter("method", 4, "controller: 1 mpc_ucp, 2 mpc_servo, 3 ampc_ucp, 4 ampc_servo",
                                    lo=1, hi=4, enumeration=("Method", METHOD_CODES))
@@ -176,8 +176,12 @@ class AMPCController(SafeSlave):
         self._source = REFERENCE_SOURCES[self._int_par["reference_source"]]
         self._k = 0
         self._buffer = []
-        self._theta = [float(v) for v in theta0]
+        self._set_theta(theta0)
         self.samples = 0
+
+    def _set_theta(self, theta) -> None:
+        """The ``theta.*`` outputs from ``theta`` (Eq. (1) order)."""
+        self.__dict__.update(zip(self._theta_outputs, map(float, theta)))
 
     def _preview(self, k: int) -> list[float]:
         """``r(k..k+Hp)`` [mm] for the chosen reference source (module docstring)."""
@@ -214,7 +218,7 @@ class AMPCController(SafeSlave):
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)
-        self._theta = step.theta.tolist()
+        self._set_theta(step.theta.tolist())
         self._k += 1
         self.samples = self._k
 
@@ -223,11 +227,11 @@ class AMPCController(SafeSlave):
         if self._controller is None:
             return None
         return {"controller": self._controller.get_state(), "k": self._k, "buffer": list(self._buffer),
-                "theta": list(self._theta)}
+                "theta": [getattr(self, name) for name in self._theta_outputs]}
 
     def restore_numerics_state(self, state) -> None:
         if state is not None:
             self._controller.set_state(state["controller"])
             self._k = int(state["k"])
             self._buffer = [float(v) for v in state["buffer"]]
-            self._theta = [float(v) for v in state["theta"]]
+            self._set_theta(state["theta"])

@@ -338,63 +338,57 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
 
 
 def _holding_gil(fmu: Any, names: tuple[str, ...]) -> list[Any]:
-    """fmpy's ctypes functions ``names`` of ``fmu``, called without releasing the GIL.
+    """fmpy's ctypes functions ``names`` of ``fmu``, called without releasing the GIL and without
+    argument conversion.
 
     ctypes releases the GIL around every foreign call, and a pythonfmu FMU takes it back at once to
     run its Python slave. In a Dask worker the worker's event-loop thread is waiting for the GIL
     then, so every FMI call becomes a thread hand-over (a run was 15-25 % slower in a worker than in
     a plain process, benchmarks/sweep_speedup.py). Holding the GIL through the call is safe: the
-    slave's ``PyGILState_Ensure`` nests. The same library handle and argument types as fmpy's.
+    slave's ``PyGILState_Ensure`` nests. The same library handle as fmpy's; no ``argtypes``: the
+    callers (:class:`_RealPort`) pass ready-made ctypes objects of the C types, which saves the
+    per-argument conversion (about 0.5 us of a 2 us call).
     """
-    from ctypes import PyDLL
+    from ctypes import PyDLL, c_int
 
     lib = PyDLL(fmu.dll._name, handle=fmu.dll._handle)
     functions = []
     for name in names:
-        fn, holding = fmu._functions[name], getattr(lib, name)
-        holding.argtypes, holding.restype = fn.argtypes, fn.restype
-        functions.append(holding)
+        fn = getattr(lib, name)
+        fn.argtypes, fn.restype = None, c_int  # fmi2Status
+        functions.append(fn)
     return functions
 
 
 class _RealPort:
-    """Real outputs and inputs of one FMU through preallocated ctypes arrays.
+    """The hot FMI calls of one FMU (fmi2GetReal of its outputs, fmi2SetReal of its inputs, fmi2DoStep)
+    with preallocated ctypes arguments.
 
     fmpy's ``getReal``/``setReal`` build new arrays and lists on every call; in a loop of ~40 us per
     sample that overhead matters (benchmarks/fmu_cosim.py). Same FMI calls, same status checks.
+    Each call is a ``(function, arguments)`` pair, called by :func:`_loop` as ``fn(*args)``, which
+    returns the fmi2Status; :meth:`check` raises for a status worse than fmi2Warning. Write the inputs
+    into :attr:`inputs` and the step's start into ``t.value`` before the calls; read :attr:`outputs`.
     """
 
-    def __init__(self, inst: FmuInstance, out_vrs: list[int], in_vrs: list[int]) -> None:
-        from ctypes import c_double, c_uint
+    def __init__(self, inst: FmuInstance, out_vrs: list[int], in_vrs: list[int], h_s: float) -> None:
+        from ctypes import c_double, c_size_t, c_uint, c_void_p
 
-        self.inst, self.component = inst, inst.fmu.component
-        # fmpy's functions with their argtypes (status checked here, not by fmpy)
-        self._get, self._set, self._step = _holding_gil(inst.fmu, ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
-        self.out_vrs, self.n_out = (c_uint * len(out_vrs))(*out_vrs), len(out_vrs)
-        self.in_vrs, self.n_in = (c_uint * len(in_vrs))(*in_vrs), len(in_vrs)
-        self.outputs = (c_double * len(out_vrs))()
-        self.outputs_view = np.frombuffer(self.outputs, dtype=np.float64)
-        self.inputs_array = (c_double * len(in_vrs))()
-        self.inputs = np.frombuffer(self.inputs_array, dtype=np.float64)
+        self.inst = inst
+        get, set_, step = _holding_gil(inst.fmu, ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
+        component = c_void_p(inst.fmu.component)
+        outputs, inputs = (c_double * len(out_vrs))(), (c_double * len(in_vrs))()
+        self.outputs = np.frombuffer(outputs, dtype=np.float64)
+        self.inputs = np.frombuffer(inputs, dtype=np.float64)
+        self.t = c_double()
+        self.get = (get, (component, (c_uint * len(out_vrs))(*out_vrs), c_size_t(len(out_vrs)), outputs))
+        self.set = (set_, (component, (c_uint * len(in_vrs))(*in_vrs), c_size_t(len(in_vrs)), inputs))
+        self.step = (step, (component, self.t, c_double(h_s), 1))  # noSetFMUStatePriorToCurrentPoint
 
-    def _check(self, status: int, what: str, t_s: float) -> None:
-        if status > 1:  # worse than fmi2Warning
+    def check(self, status: int, what: str, t_s: float) -> None:
+        """Raise ScenarioError if ``status`` (of the call ``what`` at ``t_s``) is worse than fmi2Warning."""
+        if status > 1:
             raise self.inst.error(what, f"status {_STATUS[status] if status < len(_STATUS) else status}", t_s)
-
-    def get(self, t_s: float) -> None:
-        status = self._get(self.component, self.out_vrs, self.n_out, self.outputs)
-        if status:
-            self._check(status, "fmi2GetReal", t_s)
-
-    def set(self, t_s: float) -> None:
-        status = self._set(self.component, self.in_vrs, self.n_in, self.inputs_array)
-        if status:
-            self._check(status, "fmi2SetReal", t_s)
-
-    def step(self, t_s: float, h_s: float) -> None:
-        status = self._step(self.component, t_s, h_s, 1)
-        if status:
-            self._check(status, "fmi2DoStep", t_s)
 
 
 def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, record: str,
@@ -410,26 +404,36 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
     plant_in = [plant.vr("u"), plant.vr("load"), plant.vr("supply_pressure")]
     rows_p = np.empty((n, len(plant_out)))
     rows_c = np.empty((n, len(ctrl_out)))
-    plant_io, ctrl_io = _RealPort(plant, plant_out, plant_in), _RealPort(ctrl, ctrl_out, ctrl_in)
-    p_in, c_in = plant_io.inputs, ctrl_io.inputs
-    p_out, c_out = plant_io.outputs_view, ctrl_io.outputs_view
+    plant_io, ctrl_io = _RealPort(plant, plant_out, plant_in, h), _RealPort(ctrl, ctrl_out, ctrl_in, h)
+    p_in, c_in, p_out, c_out = plant_io.inputs, ctrl_io.inputs, plant_io.outputs, ctrl_io.outputs
+    (p_get, p_get_args), (p_set, p_set_args), (p_step, p_step_args) = plant_io.get, plant_io.set, plant_io.step
+    (c_get, c_get_args), (c_set, c_set_args), (c_step, c_step_args) = ctrl_io.get, ctrl_io.set, ctrl_io.step
+    p_t, c_t = plant_io.t, ctrl_io.t
     every = max(1, n // 100)
     load_k = [scenario.load.at(k * h) for k in range(n)]
     supply_k = [scenario.supply.at(k * h) for k in range(n)]
     start = time.perf_counter()
-    for k in range(n):
+    for k in range(n):  # the master algorithm of the module docstring; a status > 0 is checked
         t = k * h
-        plant_io.get(t)
+        if status := p_get(*p_get_args):
+            plant_io.check(status, "fmi2GetReal", t)
         c_in[0] = p_out[0]
         if external:
             c_in[1] = ref.at(t + advance)
-        ctrl_io.set(t)
-        ctrl_io.step(t, h)
-        ctrl_io.get(t)
+        if status := c_set(*c_set_args):
+            ctrl_io.check(status, "fmi2SetReal", t)
+        c_t.value = t
+        if status := c_step(*c_step_args):
+            ctrl_io.check(status, "fmi2DoStep", t)
+        if status := c_get(*c_get_args):
+            ctrl_io.check(status, "fmi2GetReal", t)
         if k + 1 < n:
             p_in[0], p_in[1], p_in[2] = c_out[0], load_k[k], supply_k[k]
-            plant_io.set(t)
-            plant_io.step(t, h)
+            if status := p_set(*p_set_args):
+                plant_io.check(status, "fmi2SetReal", t)
+            p_t.value = t
+            if status := p_step(*p_step_args):
+                plant_io.check(status, "fmi2DoStep", t)
         rows_p[k], rows_c[k] = p_out, c_out
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)

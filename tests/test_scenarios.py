@@ -132,3 +132,16 @@ def test_bad_fmu_parameter_value_stops_the_run_with_the_fmus_message(built_fmus)
                         "controller": {"method": "ampc_servo", "parameters": {"servo.Hu": 9}}}, source="s.toml")
     with pytest.raises(ScenarioError, match="hu must be <= hp"):
         co_simulate(s, built_fmus)
+
+
+def test_an_fmu_that_refuses_a_step_mid_run_stops_the_run_naming_call_time_and_message(built_fmus):
+    """The master checks every FMI status: a discarded plant step (here a load the file parser would
+    have refused, 600 N from t = 1 s) ends the run with the call, the time and the FMU's message."""
+    import dataclasses
+
+    from scenarios.spec import Profile
+
+    s = dataclasses.replace(_scenario("ampc_servo"), load=Profile(44.0, ((1.0, 600.0),)))
+    with pytest.raises(ScenarioError, match=r"plant FMU \(MusclePlant.fmu\) fmi2DoStep at t = 1 s failed: "
+                                            r"status DISCARD: .*load = 600.0 is outside 0..500"):
+        co_simulate(s, built_fmus)

@@ -1,0 +1,70 @@
+"""fmi_slave.base.SafeSlave's Real I/O: the same values and errors as pythonfmu's own get_real/set_real."""
+
+import random
+
+import pytest
+from pythonfmu import Fmi2Slave, Real
+
+from fmu_controller.controller_slave import AMPCController
+from fmu_plant.plant_slave import MusclePlant
+
+
+def _reals(slave):
+    return [vr for vr, var in slave.vars.items() if isinstance(var, Real)]
+
+
+@pytest.mark.parametrize("cls", [AMPCController, MusclePlant])
+def test_get_and_set_real_agree_with_pythonfmu_on_random_lists(cls):
+    """Random value-reference lists (repeats included), each read twice (the second read goes through
+    the compiled reader of attribute-backed lists) around random writes: the values always equal
+    pythonfmu's generic Fmi2Slave.get_real, so a reader never returns stale values."""
+    slave = cls(instance_name="io")
+    reals, rng = _reals(slave), random.Random(3)
+    attribute_backed = [vr for vr in reals if slave.vars[vr].name in slave._attribute_reals]
+    assert len(attribute_backed) >= 3  # inputs and outputs; the plant has 5, the controller 22
+    for _ in range(200):
+        vrs = rng.choices(attribute_backed if rng.random() < 0.7 else reals, k=rng.randint(1, 6))
+        for _ in range(2):
+            assert slave.get_real(vrs) == Fmi2Slave.get_real(slave, vrs)
+        # an input or output written through set_real is read back exactly
+        vr = rng.choice(attribute_backed)
+        value = rng.uniform(-5.0, 5.0)
+        for _ in range(2):
+            slave.set_real([vr], [value])
+            assert slave.get_real([vr]) == [value] == Fmi2Slave.get_real(slave, [vr])
+            value += 1.0
+    assert slave._readers and slave._writers  # the fast paths were taken
+
+
+def test_a_non_real_value_reference_is_a_type_error_also_after_fast_paths_exist():
+    slave = AMPCController(instance_name="io")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave._keep_references = lambda: None  # not called from pythonfmu's C++ layer here
+    fast = [vr["u"], vr["theta.b1"]]
+    assert slave.get_real(fast) == slave.get_real(fast)
+    slave.set_real([vr["l"]], [3.0])
+    slave.set_real([vr["l"]], [4.0])
+    for bad in ([vr["u"], vr["samples"]], [vr["samples"]], [vr["u"], 10_000]):
+        with pytest.raises(TypeError, match=f"valueReference={bad[-1]} is not of type Real"):
+            slave.get_real(bad)
+        with pytest.raises(TypeError, match=f"valueReference={bad[-1]} is not of type Real"):
+            slave.set_real(bad, [1.0] * len(bad))
+    assert slave.get_real([vr["l"]]) == [4.0]
+
+
+def test_theta_outputs_follow_the_estimate_and_its_saved_state():
+    """theta.* are attributes named like the variables (pythonfmu's default accessor would read ``b1``)."""
+    slave = AMPCController(instance_name="theta")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.exit_initialization_mode()
+    slave.l = 0.0
+    assert slave.do_step(0.0, 0.1)
+    state = slave._get_fmu_state()
+    before = slave.get_real([vr["theta.b1"], vr["theta.a1"]])
+    slave.l = 12.0
+    assert slave.do_step(0.1, 0.1)
+    after = slave.get_real([vr["theta.b1"], vr["theta.a1"]])
+    assert after != before  # AMPC-servo (the default) adapts
+    assert after == [float(slave._controller.theta[2]), float(slave._controller.theta[0])]
+    slave._set_fmu_state(state)
+    assert slave.get_real([vr["theta.b1"], vr["theta.a1"]]) == before
