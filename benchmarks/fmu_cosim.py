@@ -7,7 +7,7 @@ A 40 s AMPC-servo run at 44 N, 0.1 Hz, Ts = 0.1 s (401 samples):
   recording the minimum (``t, r, l, u``) and everything (diagnostics and theta-hat every step).
 
 Loop time only (instantiation, about 30 ms per FMU, is printed apart). Best of ``--repeat`` runs, since
-the machine may be shared. Goals: FMU / direct <= 1.3; real-time factor >= 500x.
+the machine may be shared. Goals, for both recordings: FMU / direct <= 1.3; real-time factor >= 500x.
 
     python benchmarks/fmu_cosim.py [--repeat 7]
 """
@@ -64,11 +64,13 @@ def main() -> None:
     for label, wall in (("FMU loop, minimal", minimal), ("FMU loop, all outputs", full)):
         print(f"  {label:<22} {1e3 * wall:8.1f} ms  ({1e6 * wall / n:6.1f} us/sample)  "
               f"real-time factor {DURATION_S / wall:6.0f}x  FMU/direct {wall / direct:5.2f} (goal <= 1.3)")
-    print(f"goal: real-time factor >= 500x: {'met' if DURATION_S / minimal >= 500 else 'NOT met'} "
-          f"({DURATION_S / minimal:.0f}x)")
-    print(f"goal: FMU / direct <= 1.3: {'met' if minimal / direct <= 1.3 else 'NOT met'} ({minimal / direct:.2f}; "
-          f"{full / direct:.2f} recording all outputs, as the direct loop does)")
-
+    # the verdicts hold for both recordings: "all outputs" is what `tapmuscle run` and `paper` record
+    rtf = [DURATION_S / minimal, DURATION_S / full]
+    ratio = [minimal / direct, full / direct]
+    print(f"goal: real-time factor >= 500x: {'met' if min(rtf) >= 500 else 'NOT met'} "
+          f"({rtf[0]:.0f}x minimal, {rtf[1]:.0f}x all outputs)")
+    print(f"goal: FMU / direct <= 1.3: {'met' if max(ratio) <= 1.3 else 'NOT met'} "
+          f"({ratio[0]:.2f} minimal, {ratio[1]:.2f} all outputs)")
 
 if __name__ == "__main__":
     main()

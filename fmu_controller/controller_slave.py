@@ -176,12 +176,12 @@ class AMPCController(SafeSlave):
         self._source = REFERENCE_SOURCES[self._int_par["reference_source"]]
         self._k = 0
         self._buffer = []
-        self._set_theta(theta0)
+        self._set_theta([float(v) for v in theta0])
         self.samples = 0
 
-    def _set_theta(self, theta) -> None:
-        """The ``theta.*`` outputs from ``theta`` (Eq. (1) order)."""
-        self.__dict__.update(zip(self._theta_outputs, map(float, theta)))
+    def _set_theta(self, theta: list[float]) -> None:
+        """The ``theta.*`` outputs from the Python floats ``theta`` (Eq. (1) order)."""
+        self.__dict__.update(zip(self._theta_outputs, theta))
 
     def _preview(self, k: int) -> list[float]:
         """``r(k..k+Hp)`` [mm] for the chosen reference source (module docstring)."""
@@ -234,4 +234,4 @@ class AMPCController(SafeSlave):
             self._controller.set_state(state["controller"])
             self._k = int(state["k"])
             self._buffer = [float(v) for v in state["buffer"]]
-            self._set_theta(state["theta"])
+            self._set_theta([float(v) for v in state["theta"]])
