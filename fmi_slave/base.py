@@ -120,11 +120,12 @@ class SafeSlave(Fmi2Slave):
             setter=lambda v: self._int_par.__setitem__(name, int(v))), nested=False)
         self._meta(name, "", lo, hi, enumeration=enumeration)
 
-    def _attribute_accessors(self, name: str, start: Any) -> dict[str, Callable]:
+    def _attribute_accessors(self, name: str, start: Any, kind: type = Real) -> dict[str, Callable]:
         """Getter and setter of the instance attribute ``name`` (set to ``start``). pythonfmu's defaults
         would use the part of a dotted name after the last dot (``theta.a1`` -> ``a1``)."""
         setattr(self, name, start)
-        self._attribute_reals.add(name)
+        if kind is Real:
+            self._attribute_reals.add(name)
         return {"getter": lambda: getattr(self, name), "setter": lambda v: setattr(self, name, v)}
 
     def add_input(self, name: str, start: float, unit: str, description: str, *, lo: float, hi: float,
@@ -144,13 +145,7 @@ class SafeSlave(Fmi2Slave):
         value: the outputs are defined before the first step, which also gives hosts a correct
         InitialUnknowns list (PythonFMU#193). ``depends_on`` lists the inputs the output depends on
         directly at a communication point (none for ours, so hosts see no algebraic loop, PythonFMU#258)."""
-        if getter is not None:
-            accessors = {"getter": getter}
-        elif kind is Real:
-            accessors = self._attribute_accessors(name, start)
-        else:  # pythonfmu's own (the Boolean/Integer paths are not ours)
-            setattr(self, name, start)
-            accessors = {}
+        accessors = {"getter": getter} if getter is not None else self._attribute_accessors(name, start, kind)
         self.register_variable(kind(name, causality=Fmi2Causality.output, variability=variability,
                                     initial=Fmi2Initial.exact, start=start, description=description, **accessors),
                                nested=False)
@@ -158,6 +153,9 @@ class SafeSlave(Fmi2Slave):
 
     # ------------------------------------------------------------------ Real I/O (hot path)
     #: ``({vr: getter}, {vr: setter}, {vr: attribute name})`` of the Real variables; None: rebuild.
+    #: At most this many value-reference lists are compiled (a host that asks for ever new lists gets
+    #: the table path, not a growing cache).
+    _MAX_COMPILED = 64
     _real_io: tuple[dict[int, Any], dict[int, Any], dict[int, str]] | None = None
 
     def register_variable(self, var: Any, nested: bool = True) -> None:
@@ -195,7 +193,7 @@ class SafeSlave(Fmi2Slave):
     def _read_reals(self, vrs: list[int]) -> list[float]:
         getters, _, attributes = self._real_io or self._real_tables()
         values = [float(getters[vr]()) for vr in vrs]  # KeyError: not a Real (get_real says so)
-        if vrs and len(self._readers) < 64 and all(vr in attributes for vr in vrs):
+        if vrs and len(self._readers) < self._MAX_COMPILED and all(vr in attributes for vr in vrs):
             if len(vrs) == 1:
                 get_one = itemgetter(attributes[vrs[0]])
                 self._readers[tuple(vrs)] = lambda d: [float(get_one(d))]
@@ -218,7 +216,7 @@ class SafeSlave(Fmi2Slave):
                 if fn is None:
                     raise TypeError(f"Variable with valueReference={vr} is not of type Real!")
                 fn(value)
-            if vrs and len(self._writers) < 64 and all(vr in attributes for vr in vrs):
+            if vrs and len(self._writers) < self._MAX_COMPILED and all(vr in attributes for vr in vrs):
                 self._writers[tuple(vrs)] = tuple(attributes[vr] for vr in vrs)
         except BaseException:
             self._keep_references()

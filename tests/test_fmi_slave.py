@@ -68,3 +68,13 @@ def test_theta_outputs_follow_the_estimate_and_its_saved_state():
     assert after == [float(slave._controller.theta[2]), float(slave._controller.theta[0])]
     slave._set_fmu_state(state)
     assert slave.get_real([vr["theta.b1"], vr["theta.a1"]]) == before
+
+
+def test_the_compiled_lists_are_bounded_and_later_lists_still_read_right():
+    slave = AMPCController(instance_name="many")
+    reals = [vr for vr in _reals(slave) if slave.vars[vr].name in slave._attribute_reals]
+    lists = [[a, b] for a in reals for b in reals][:3 * slave._MAX_COMPILED]
+    for vrs in lists * 2:
+        assert slave.get_real(vrs) == Fmi2Slave.get_real(slave, vrs)
+        slave.set_real(vrs, [1.5, 2.5])
+    assert len(slave._readers) == len(slave._writers) == slave._MAX_COMPILED
