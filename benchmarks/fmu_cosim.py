@@ -72,5 +72,6 @@ def main() -> None:
     print(f"goal: FMU / direct <= 1.3: {'met' if max(ratio) <= 1.3 else 'NOT met'} "
           f"({ratio[0]:.2f} minimal, {ratio[1]:.2f} all outputs)")
 
+
 if __name__ == "__main__":
     main()

@@ -33,7 +33,6 @@ prediction the held-out score is computed on.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import Callable
 

@@ -43,7 +43,7 @@ class SineReference:
         """``r(k)`` [mm] at sample ``k`` (time ``k ts_s``)."""
         if isinstance(k, (int, np.integer)):
             return self._at(int(k))
-        return self.offset_mm + self.amplitude_mm * np.sin(2.0 * np.pi * self.frequency_hz * np.asarray(k) * self.ts_s)
+        return self.offset_mm + self.amplitude_mm * np.sin(self._omega * np.asarray(k) * self.ts_s)
 
     def preview(self, k: int, n: int) -> np.ndarray:
         """``[r(k), r(k+1), ..., r(k+n)]`` [mm]: the present and ``n`` future samples."""

@@ -22,13 +22,15 @@ def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
     return parse
 
 
-def integer_at_least(name: str, lo: int) -> Callable[[str], int]:
-    """Parser of an integer >= ``lo`` for option ``name``."""
+def integer_at_least(name: str, lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """Parser of an integer >= ``lo`` (and <= ``hi`` if given) for option ``name``."""
     def parse(text: str) -> int:
         try:
             v = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+        if hi is not None and not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{name} must be within {lo}..{hi}, got {v}")
         if v < lo:
             raise argparse.ArgumentTypeError(f"{name} must be >= {lo}, got {v}")
         return v

@@ -25,10 +25,6 @@ class UsageError(ValueError):
     """A problem with the user's input; reported without a traceback."""
 
 
-_positive = number_within
-_seed = integer_at_least("--seed", 0)
-
-
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
     from fmu_plant import PlantParams
 
@@ -243,15 +239,15 @@ def build_parser() -> argparse.ArgumentParser:
     rec = sub.add_parser("record", help="run the simulated rig open-loop and write a recording CSV",
                          description="Run the simulated rig open-loop with a valve-command signal and "
                                      "write a recording (docs/recordings.md).")
-    rec.add_argument("--load", type=_positive("--load", 1e-9, 500.0), default=44.0,
+    rec.add_argument("--load", type=number_within("--load", 1e-9, 500.0), default=44.0,
                      help="hanging load [N], 0 < load <= 500 (paper: 44, 68)")
     rec.add_argument("--input", required=True,
                      help="command spec, e.g. sine:bias=5,amp=3,freq=0.1 | step:initial=4,final=6,at=10 | "
                           "steps:levels=3/7/5,period=20 | chirp:f0=0.01,f1=0.5 | random:lo=2,hi=8,seed=1 | csv:PATH")
-    rec.add_argument("--duration", type=_positive("--duration", 1e-3, 86400.0), required=True,
+    rec.add_argument("--duration", type=number_within("--duration", 1e-3, 86400.0), required=True,
                      help="length [s]")
-    rec.add_argument("--ts", type=_positive("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
-    rec.add_argument("--seed", type=_seed, default=0, help="noise seed (>= 0)")
+    rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
+    rec.add_argument("--seed", type=integer_at_least("--seed", 0), default=0, help="noise seed (>= 0)")
     rec.add_argument("--out", required=True, help="output CSV path")
     rec.add_argument("--plot", action="store_true", help="also write OUT.png: time traces and hysteresis loop")
     rec.add_argument("--no-noise", action="store_true", help="switch sensor noise off (quantisation stays)")
@@ -273,9 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
     idf.add_argument("--box", default="auto",
                      help="constraint region: auto (Table 2 for mm, V, Ts 0.1 s), none, or name=lo:hi,... "
                           "in the recording's units")
-    idf.add_argument("--constraint-start", type=_positive("--constraint-start", 0.0, math.inf), default=120.0,
+    idf.add_argument("--constraint-start", type=number_within("--constraint-start", 0.0, math.inf), default=120.0,
                      help="time from which the constraint applies [s] (paper: 120)")
-    idf.add_argument("--forgetting", type=_positive("--forgetting", 1e-6, 1.0), default=1.0,
+    idf.add_argument("--forgetting", type=number_within("--forgetting", 1e-6, 1.0), default=1.0,
                      help="forgetting factor lambda in (0, 1] (1 = off, the paper)")
     idf.set_defaults(func=_cmd_identify)
 

@@ -10,6 +10,8 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from .arguments import integer_at_least, number_within
+
 __all__ = ["register"]
 
 
@@ -35,12 +37,8 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
 
     from .cli import UsageError
 
-    if not 0 <= args.workers <= 4096:
-        raise UsageError(f"--workers must be within 0..4096, got {args.workers}")
     if not args.scheduler and args.workers == 0:
         return run_serial
-    if not 0 < args.timeout <= 86400:
-        raise UsageError(f"--timeout must be within 0..86400 s, got {args.timeout:g}")
     try:
         import distributed  # noqa: F401
     except ImportError:
@@ -142,13 +140,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------------------------------ parser
 def _common(p: argparse.ArgumentParser, default_workers: str) -> None:
-    p.add_argument("--workers", type=int, default=None if default_workers == "cpus" else 0,
+    p.add_argument("--workers", type=integer_at_least("--workers", 0, 4096), default=None if default_workers == "cpus" else 0,
                    help="worker processes of a local Dask cluster (default: "
                         + ("the number of CPUs" if default_workers == "cpus" else "0")
                         + "); 0 runs everything in this process, without Dask")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run on the Dask cluster of this scheduler instead of a local one (docs/sweeps.md)")
-    p.add_argument("--timeout", type=float, default=60.0, metavar="S",
+    p.add_argument("--timeout", type=number_within("--timeout", 1e-3, 86400.0), default=60.0, metavar="S",
                    help="with --scheduler: seconds to wait for the scheduler and its first worker (default 60)")
     p.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
                                      "(default: built from the sources, cached)")
