@@ -18,6 +18,15 @@ __all__ = ["plot_mae_by_method", "plot_mae_map"]
 _LABELS = {"load_n": "load [N]", "frequency_hz": "reference frequency [Hz]", "supply_mpa": "supply pressure [MPa]"}
 
 
+def _label(name: str) -> str:
+    """Axis or panel label of a column: its unit for the derived columns, the FMU variable name for a
+    swept FMU parameter (``controller.parameters.box_lower.a1`` -> ``controller box_lower.a1``)."""
+    for prefix in ("controller", "plant"):
+        if name.startswith(f"{prefix}.parameters."):
+            return f"{prefix} {name[len(prefix) + len('.parameters.'):]}"
+    return _LABELS.get(name, name)
+
+
 def _methods(rows: Sequence[Mapping[str, str]]) -> list[str]:
     present = {row["method"] for row in rows}
     return [m for m in METHODS if m in present] + sorted(present - set(METHODS))
@@ -57,6 +66,7 @@ def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLik
 
 
 def _numeric_axes(rows: Sequence[Mapping[str, str]], candidates: Sequence[str]) -> list[tuple[str, np.ndarray]]:
+    """Every candidate column that is numeric and varies, in ``candidates`` order."""
     axes = []
     for name in candidates:
         try:
@@ -65,16 +75,23 @@ def _numeric_axes(rows: Sequence[Mapping[str, str]], candidates: Sequence[str]) 
             continue
         if len(np.unique(values)) > 1 and name not in (a for a, _ in axes):
             axes.append((name, values))
-    return axes[:2]
+    return axes
+
+
+#: At most this many rows of panels, one per combination of the fields beyond the two map axes.
+_MAX_FACET_ROWS = 6
 
 
 def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], path: str | os.PathLike, *,
                  title: str = "") -> Path | None:
     """``mae_mm`` over the first two varying numeric ``candidates`` (columns), one panel per method.
 
-    Both fields with at most 12 values each (a grid): a heat map of the mean over the other fields
-    (e.g. seeds), with the numbers; otherwise points coloured by the error (a Monte-Carlo sample). One
-    varying field: the error against it. None (nothing written) if no candidate varies.
+    Both fields with at most 12 values each (a grid): a heat map of the mean over the runs that share
+    a cell (e.g. seeds), with the numbers; otherwise points coloured by the error (a Monte-Carlo
+    sample). One varying field: the error against it. Further varying fields of a grid get a row of
+    panels per combination of their values (at most ``_MAX_FACET_ROWS``), so no cell averages over
+    them; beyond that, or off a grid, the title names the fields averaged over. None (nothing written)
+    if no candidate varies.
     """
     ok = _ok(rows)
     axes = _numeric_axes(ok, candidates) if ok else []
@@ -83,37 +100,48 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
     methods = _methods(ok)
     mae = np.array([float(r["mae_mm"]) for r in ok])
     method = np.array([r["method"] for r in ok])
-    fig, panels = plt.subplots(1, len(methods), figsize=(0.8 + 3.6 * len(methods), 3.8), squeeze=False,
-                               sharex=True, sharey=True)
     (xname, x), (yname, y) = axes[0], axes[1] if len(axes) > 1 else (None, None)
-    norm = _norm(mae)
     grid = y is not None and len(np.unique(x)) <= 12 and len(np.unique(y)) <= 12
-    image = None
-    for ax, m in zip(panels[0], methods):
-        sel = method == m
-        if y is None:
-            ax.plot(x[sel], mae[sel], "o", ms=4, alpha=0.7)
-            ax.set_ylabel("Eq. (21) error [mm]" if ax is panels[0][0] else "")
-        elif grid:
-            xs, ys = np.unique(x), np.unique(y)
-            cell = np.full((len(ys), len(xs)), np.nan)
-            for i, yv in enumerate(ys):
-                for j, xv in enumerate(xs):
-                    hit = sel & (x == xv) & (y == yv)
-                    if hit.any():
-                        cell[i, j] = float(np.mean(mae[hit]))
-                        ax.text(j, i, f"{cell[i, j]:.2f}", ha="center", va="center", fontsize=8,
-                                color="white" if norm(cell[i, j]) < 0.5 else "black")
-            image = ax.imshow(cell, origin="lower", aspect="auto", cmap="viridis", norm=norm)
-            ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])
-            ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
+    extra = axes[2:]
+    facets: list[tuple[str, np.ndarray]] = [("", np.ones(len(ok), dtype=bool))]
+    if extra:
+        combos = sorted({tuple(v[i] for _, v in extra) for i in range(len(ok))})
+        if grid and len(combos) <= _MAX_FACET_ROWS:
+            facets = [(", ".join(f"{_label(n)} = {c:g}" for (n, _), c in zip(extra, combo)),
+                       np.all([v == c for (_, v), c in zip(extra, combo)], axis=0)) for combo in combos]
         else:
-            image = ax.scatter(x[sel], y[sel], c=mae[sel], cmap="viridis", norm=norm, s=18)
-        ax.set_title(m)
-        ax.set_xlabel(_LABELS.get(xname, xname))
-        if y is not None and ax is panels[0][0]:
-            ax.set_ylabel(_LABELS.get(yname, yname))
+            title = f"{title} (mean over {', '.join(_label(n) for n, _ in extra)})".strip()
+    fig, panels = plt.subplots(len(facets), len(methods), figsize=(0.8 + 3.6 * len(methods), 0.4 + 3.4 * len(facets)),
+                               squeeze=False, sharex=True, sharey=True)
+    norm = _norm(mae)
+    image = None
+    for r, (row, (label, in_facet)) in enumerate(zip(panels, facets)):
+        for ax, m in zip(row, methods):
+            sel = (method == m) & in_facet
+            if y is None:
+                ax.plot(x[sel], mae[sel], "o", ms=4, alpha=0.7)
+                ax.set_ylabel("Eq. (21) error [mm]" if ax is row[0] else "")
+            elif grid:
+                xs, ys = np.unique(x), np.unique(y)
+                cell = np.full((len(ys), len(xs)), np.nan)
+                for i, yv in enumerate(ys):
+                    for j, xv in enumerate(xs):
+                        hit = sel & (x == xv) & (y == yv)
+                        if hit.any():
+                            cell[i, j] = float(np.mean(mae[hit]))
+                            ax.text(j, i, f"{cell[i, j]:.2f}", ha="center", va="center", fontsize=8,
+                                    color="white" if norm(cell[i, j]) < 0.5 else "black")
+                image = ax.imshow(cell, origin="lower", aspect="auto", cmap="viridis", norm=norm)
+                ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])
+                ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
+            else:
+                image = ax.scatter(x[sel], y[sel], c=mae[sel], cmap="viridis", norm=norm, s=18)
+            ax.set_title(f"{m}\n{label}" if label else m, fontsize=9 if label else None)
+            if r == len(facets) - 1:
+                ax.set_xlabel(_label(xname))
+            if y is not None and ax is row[0]:
+                ax.set_ylabel(_label(yname))
     if image is not None:
-        fig.colorbar(image, ax=panels[0].tolist(), label="Eq. (21) error [mm]" + (" (mean)" if grid else ""))
+        fig.colorbar(image, ax=panels.ravel().tolist(), label="Eq. (21) error [mm]" + (" (mean)" if grid else ""))
     fig.suptitle(title)
     return save_figure(fig, path)

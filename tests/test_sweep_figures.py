@@ -1,0 +1,76 @@
+"""tapmuscle.sweep_figures: the map of a sweep's Eq. (21) errors over its swept fields."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+import tapmuscle.sweep_figures as sweep_figures
+
+
+def _rows(extra_values=(1.0, 2.0)):
+    """A 2 methods x 2 loads x 2 frequencies x extra grid, 2 seeds each; mae depends on every field."""
+    rows = []
+    for method, load, freq, extra, seed in itertools.product(("mpc_ucp", "ampc_ucp"), (44.0, 68.0), (0.1, 0.2),
+                                                            extra_values, (0, 1)):
+        mae = load / 100 + freq + 10 * extra + (0.5 if method == "ampc_ucp" else 0.0) + 0.01 * seed
+        rows.append({"method": method, "status": "ok", "mae_mm": repr(mae), "load_n": repr(load),
+                     "frequency_hz": repr(freq), "controller.parameters.box_lower.a2": repr(extra),
+                     "seed": str(seed)})
+    return rows
+
+
+@pytest.fixture
+def drawn(monkeypatch):
+    """The figure plot_mae_map would save, kept open for inspection."""
+    figures = []
+    monkeypatch.setattr(sweep_figures, "save_figure", lambda fig, path: figures.append(fig) or path)
+    yield figures
+    for fig in figures:
+        sweep_figures.plt.close(fig)
+
+
+def _cells(ax) -> list[float]:
+    return sorted(float(t.get_text()) for t in ax.texts)
+
+
+def test_a_third_swept_field_gets_its_own_row_of_panels(drawn, tmp_path):
+    rows = _rows()
+    columns = ["load_n", "frequency_hz", "controller.parameters.box_lower.a2"]
+    sweep_figures.plot_mae_map(rows, columns, tmp_path / "map.png", title="t")
+    (fig,) = drawn
+    panels = [ax for ax in fig.axes if ax.get_title()]  # the colour bar has no title
+    assert len(panels) == 4  # 2 values of the third field x 2 methods
+    for ax in panels:
+        method, label = ax.get_title().split("\n")
+        extra = float(label.split("=")[1])
+        assert label.startswith("controller box_lower.a2")
+        want = sorted(float(np.mean([float(r["mae_mm"]) for r in rows
+                                     if r["method"] == method and float(r["load_n"]) == load
+                                     and float(r["frequency_hz"]) == freq
+                                     and float(r["controller.parameters.box_lower.a2"]) == extra]))
+                      for load in (44.0, 68.0) for freq in (0.1, 0.2))
+        # the cell's text is the mean to 2 decimals; averaging over the third field would be 5 mm off
+        assert _cells(ax) == pytest.approx(want, abs=0.0051)
+    assert fig._suptitle.get_text() == "t"
+
+
+def test_too_many_combinations_are_averaged_and_the_title_says_over_what(drawn, tmp_path):
+    extra = tuple(float(v) for v in range(sweep_figures._MAX_FACET_ROWS + 1))
+    sweep_figures.plot_mae_map(_rows(extra), ["load_n", "frequency_hz", "controller.parameters.box_lower.a2"],
+                               tmp_path / "map.png", title="t")
+    (fig,) = drawn
+    assert len([ax for ax in fig.axes if ax.get_title()]) == 2  # one row: a panel per method
+    assert fig._suptitle.get_text() == "t (mean over controller box_lower.a2)"
+
+
+def test_two_fields_draw_one_row(drawn, tmp_path):
+    rows = [r for r in _rows() if r["controller.parameters.box_lower.a2"] == "1.0"]
+    sweep_figures.plot_mae_map(rows, ["load_n", "frequency_hz", "controller.parameters.box_lower.a2"],
+                               tmp_path / "map.png")
+    (fig,) = drawn
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert [ax.get_title() for ax in panels] == ["mpc_ucp", "ampc_ucp"]
+    assert panels[0].get_xlabel() == "load [N]" and panels[0].get_ylabel() == "reference frequency [Hz]"
