@@ -186,7 +186,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         raise UsageError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
     if not seeds or min(seeds) < 0:
         raise UsageError(f"--seeds must be non-negative integers, got {args.seeds!r}")
-    run_paper(out, seeds=seeds, progress=Progress("paper", enabled=not args.quiet, min_total=1))
+    run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet, min_total=1))
     print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
     return 0
 
@@ -281,6 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
     pap.add_argument("--out", default="out/paper", help="output folder (default out/paper)")
     pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
+    pap.add_argument("--id-seed", type=integer_at_least("--id-seed", 0), default=None,
+                     help="noise seed of the preliminary identification that gives the fixed predictor "
+                          "(default: the first of --seeds)")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
 

@@ -1,7 +1,8 @@
 """The paper's experiments (section 4) on the simulated rig: ``tapmuscle paper``.
 
 1. Preliminary identification (section 4.2's fixed predictor): the asymmetric Eq. (1) model,
-   identified by the constrained RLS on the 0.1 Hz identification input at 44 N (240 s, seed 0).
+   identified by the constrained RLS on the 0.1 Hz identification input at 44 N (240 s), then refined
+   in closed loop (:func:`preliminary_theta`), with noise seed ``--id-seed`` (default: the first noise seed).
 2. Closed loop through the FMUs (MusclePlant and AMPCController co-simulated in fmpy by
    :mod:`scenarios.master`; the scenario files are ``scenarios/paper/<run>.toml``), Ts = 0.1 s,
    r = 35 + 30 sin(2 pi f t) mm, 45 s per run, evaluated by Eq. (21) over 10-40 s: the four methods
@@ -76,8 +77,9 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
     The paper does not say on which data. We identify in two stages, both at 44 N:
 
     1. open loop: Eq. (1) by the constrained RLS on 5 + 3 sin(2 pi 0.1 t) V, 240 s (as Table 3);
-    2. closed loop: 120 s of AMPC with servo mechanism tracking the 0.1 Hz reference, started from
-       stage 1, with its own noise seed; the estimate at the end is frozen.
+    2. closed loop: 120 s of AMPC with servo mechanism tracking the reference at ``refine_hz``
+       (``tapmuscle paper``: 0.05 Hz, docs/control.md says why), started from stage 1, with its own
+       noise seed (``seed + 1000``); the estimate at the end is frozen.
 
     Stage 1 alone fits the open-loop data well (docs/identification.md) but its polynomial and
     A-terms give the hysteresis cancellation H(k) large, nearly cancelling velocity gains; the fixed
@@ -93,16 +95,18 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
 
 
-def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), refine_hz: float = 0.05,
-              fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
+def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | None = None,
+              refine_hz: float = 0.05, fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
               progress: Callable[[int, int], None] | None = None) -> dict:
     """Run every experiment of section 4 and write the outputs into ``out`` (see module docstring).
 
     Each table cell is the mean Eq. (21) error over the noise ``seeds`` (the per-seed values are in
     ``paper.json``): single runs of the unique-coincidence-point controllers differ by up to 0.3 mm
     between noise realisations, more than some of the differences the paper reports. The fixed
-    predictor is identified once, with the first seed, and given to the controller FMU as its
-    ``theta0.*`` parameters. CSVs and figures show the first seed's runs. ``fmus`` defaults to the FMUs
+    predictor is identified once, with the noise seed ``id_seed`` (default: the first of ``seeds``),
+    and given to the controller FMU as its ``theta0.*`` parameters. Another ``id_seed`` is another
+    preliminary identification experiment, which shows how much the tables owe to that one experiment
+    (docs/control.md). CSVs and figures show the first seed's runs. ``fmus`` defaults to the FMUs
     built from this checkout (:func:`build_scripts.build_fmus.cached_fmus`).
     """
     from build_scripts.build_fmus import cached_fmus
@@ -112,7 +116,9 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), refine_hz: float
         raise ValueError("seeds must name at least one noise seed")
     out = Path(out)
     fmus = dict(fmus) if fmus is not None else cached_fmus()
-    theta0 = preliminary_theta(seeds[0], refine_hz)
+    if id_seed is None:
+        id_seed = seeds[0]
+    theta0 = preliminary_theta(id_seed, refine_hz)
     theta_params = {f"theta0.{n}": float(v) for n, v in zip(ASYMMETRIC.names, theta0)}
     results: dict[str, dict] = {}
     total, done = len(PAPER_RUNS) * len(seeds), 0
@@ -152,7 +158,8 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), refine_hz: float
                           title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]})")
             plot_prediction_errors(runs, out / f"fig{fig_p:02d}_prediction_error_{load}N_{freq:g}Hz.png",
                                    title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]})")
-    document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "paper": PAPER_TABLES,
+    document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
+                "paper": PAPER_TABLES,
                 "theta0": ASYMMETRIC.to_dict(theta0),
                 "eq21_window_s": [10.0, 40.0]}
     atomic_write_text(out / "paper.json", json.dumps(document, indent=2) + "\n")
