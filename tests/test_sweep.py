@@ -3,6 +3,7 @@
 import csv
 import math
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -98,6 +99,21 @@ def test_base_glob_crosses_each_file_with_the_grid(tmp_path):
     assert {r.scenario.method for r in mc.runs} == {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
     assert all(30.0 <= r.scenario.load.initial <= 90.0 and 0.2 <= r.scenario.supply.initial <= 0.3
                for r in mc.runs)
+
+
+@pytest.mark.parametrize("path", sorted(Path("scenarios/sweeps").glob("*.toml")), ids=lambda p: p.name)
+def test_every_shipped_sweep_loads(path):
+    sweep = load_sweep(path)
+    assert sweep.runs and sweep.name == path.stem
+    assert all(r.scenario.duration_s > 0 for r in sweep.runs)
+
+
+def test_the_box_sweep_keeps_the_papers_corner_among_its_rows():
+    sweep = load_sweep("scenarios/sweeps/ucp_box.toml")
+    assert len(sweep.runs) == 48
+    corners = {(r.scenario.controller.parameters["box_lower.a1"], r.scenario.controller.parameters["box_lower.a2"])
+               for r in sweep.runs}
+    assert corners == {(1.208, -0.334), (1.208, -10.0), (-10.0, -0.334), (-10.0, -10.0)}
 
 
 def test_run_ids_change_with_the_scenario_not_with_expectations(tmp_path):
