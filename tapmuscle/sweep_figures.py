@@ -90,8 +90,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
     a cell (e.g. seeds), with the numbers; otherwise points coloured by the error (a Monte-Carlo
     sample). One varying field: the error against it. Further varying fields of a grid get a row of
     panels per combination of their values (at most ``_MAX_FACET_ROWS``), so no cell averages over
-    them; beyond that, or off a grid, the title names the fields averaged over. None (nothing written)
-    if no candidate varies.
+    them; beyond that, or off a grid, the title names the fields the cells average over (the points
+    do not tell apart). None (nothing written) if no candidate varies.
     """
     ok = _ok(rows)
     axes = _numeric_axes(ok, candidates) if ok else []
@@ -110,7 +110,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
             facets = [(", ".join(f"{_label(n)} = {c:g}" for (n, _), c in zip(extra, combo)),
                        np.all([v == c for (_, v), c in zip(extra, combo)], axis=0)) for combo in combos]
         else:
-            title = f"{title} (mean over {', '.join(_label(n) for n, _ in extra)})".strip()
+            others = ", ".join(_label(n) for n, _ in extra)
+            title = f"{title} ({'mean over' if grid else 'points at all values of'} {others})".strip()
     fig, panels = plt.subplots(len(facets), len(methods), figsize=(0.8 + 3.6 * len(methods), 0.4 + 3.4 * len(facets)),
                                squeeze=False, sharex=True, sharey=True)
     norm = _norm(mae)

@@ -74,3 +74,16 @@ def test_two_fields_draw_one_row(drawn, tmp_path):
     panels = [ax for ax in fig.axes if ax.get_title()]
     assert [ax.get_title() for ax in panels] == ["mpc_ucp", "ampc_ucp"]
     assert panels[0].get_xlabel() == "load [N]" and panels[0].get_ylabel() == "reference frequency [Hz]"
+
+
+def test_a_monte_carlo_sample_with_a_third_field_says_so(drawn, tmp_path):
+    rng = np.random.default_rng(1)
+    rows = [{"method": "ampc_servo", "status": "ok", "mae_mm": repr(float(rng.uniform(0.1, 0.3))),
+             "load_n": repr(float(rng.uniform(30, 90))), "supply_mpa": repr(float(rng.uniform(0.2, 0.3))),
+             "plant.parameters.friction.rate_gain": repr(float(rng.uniform(0, 1)))} for _ in range(40)]
+    sweep_figures.plot_mae_map(rows, ["load_n", "supply_mpa", "plant.parameters.friction.rate_gain"],
+                               tmp_path / "map.png", title="mc")
+    (fig,) = drawn
+    assert fig._suptitle.get_text() == "mc (points at all values of plant friction.rate_gain)"
+    (panel,) = [ax for ax in fig.axes if ax.get_title()]
+    assert len(panel.collections[0].get_offsets()) == 40  # every run is a point
