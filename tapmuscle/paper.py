@@ -20,7 +20,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, TextIO
+from typing import Callable, Mapping, TextIO, TypeVar
 
 import numpy as np
 
@@ -36,7 +36,8 @@ from .figures import plot_prediction_errors, plot_tracking
 from .recording import Recording, atomic_write_text, write_recording
 from .signals import parse_input_spec
 
-__all__ = ["PaperRun", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "preliminary_theta", "run_paper"]
+__all__ = ["PaperRun", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables", "preliminary_theta",
+           "run_paper"]
 
 #: The paper's measured Eq. (21) errors [mm]: table -> load -> method.
 PAPER_TABLES = {
@@ -46,6 +47,8 @@ PAPER_TABLES = {
 }
 
 DURATION_S = 45.0
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -144,15 +147,12 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
         print(f"  {run.name:<24} Eq. (21) error {err:6.3f} mm (seeds {', '.join(f'{e:.3f}' for e in errors)}), "
               f"u in [{first['u_v'].min():.2f}, {first['u_v'].max():.2f}] V", file=stream)
 
-    tables: dict[str, dict[str, dict[str, float]]] = {}
-    per_seed: dict[str, dict[str, dict[str, list[float]]]] = {}
-    for table, freq, methods, figs in _TABLES:
-        tables[table], per_seed[table] = {}, {}
+    tables = paper_tables({name: r["error"] for name, r in results.items()})
+    per_seed = paper_tables({name: r["errors"] for name, r in results.items()})
+    cols_by_table = paper_tables({name: r["cols"] for name, r in results.items()})
+    for table, freq, _, figs in _TABLES:
         for load in (44, 68):
-            names = {m: PaperRun(m, float(load), freq).name for m in methods}
-            tables[table][str(load)] = {m: results[n]["error"] for m, n in names.items()}
-            per_seed[table][str(load)] = {m: results[n]["errors"] for m, n in names.items()}
-            runs = {m: results[n]["cols"] for m, n in names.items()}
+            runs = cols_by_table[table][str(load)]
             fig_t, fig_p = figs[load]
             plot_tracking(runs, out / f"fig{fig_t:02d}_tracking_{load}N_{freq:g}Hz.png",
                           title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]})")
@@ -165,6 +165,13 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     atomic_write_text(out / "paper.json", json.dumps(document, indent=2) + "\n")
     print_tables(tables, stream)
     return document
+
+
+def paper_tables(values: Mapping[str, T]) -> dict[str, dict[str, dict[str, T]]]:
+    """Per-run ``values`` (keyed by :attr:`PaperRun.name`) arranged as Tables 6, 7 and 9:
+    ``table -> load ("44", "68") -> method``, the shape of ``paper.json``."""
+    return {table: {str(load): {m: values[PaperRun(m, float(load), freq).name] for m in methods} for load in (44, 68)}
+            for table, freq, methods, _ in _TABLES}
 
 
 def paper_findings(tables: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict[str, bool]:

@@ -5,15 +5,16 @@ import json
 import numpy as np
 import pytest
 
-from fmu_controller.displacement_control import P0_TABLE5, P0_TABLE8, ControllerSettings, DisplacementController
+from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_controller.rls import TABLE2_LOWER
 from fmu_plant import Plant, PlantParams
+from scenarios import PAPER_SCENARIOS, load_scenario
 from tapmuscle.cli import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
-from tapmuscle.paper import PAPER_RUNS, paper_findings, preliminary_theta
+from tapmuscle.paper import PAPER_RUNS, paper_findings, paper_tables, preliminary_theta
 from tapmuscle.recording import read_recording
 
 
@@ -61,11 +62,11 @@ def test_adaptive_ucp_beats_fixed_ucp_at_44n(paper):
     assert d["table7"]["44"]["ampc_ucp"] < d["table6"]["44"]["mpc_ucp"]
 
 
-def _ucp_44n(method, forgetting=1.0, box_lower=None, theta0=THETA0_44N, load_n=44.0, seed=0):
+def _ucp_44n(method, forgetting=1.0, box_lower=None, theta0=THETA0_44N, seed=0):
     plant = Plant(PlantParams(), seed=seed)
     box = {} if box_lower is None else {"box_lower": dict(TABLE2_LOWER, **box_lower)}
     ctrl = DisplacementController(ControllerSettings(method=method, forgetting=forgetting, **box), theta0)
-    cols = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.1), duration_s=40.0, load_n=load_n)
+    cols = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.1), duration_s=40.0)
     window = slice(101, 402)
     track, pred = cols["r_mm"][window] - cols["l_mm"][window], cols["pred_error_mm"][window]
     return ctrl, float(np.mean(np.abs(track))), float(np.mean(track)), float(np.mean(pred))
@@ -103,22 +104,20 @@ def test_without_the_a2_bound_adaptation_gains_at_44n_for_other_identifications(
 
 
 def _direct_tables(theta0, seeds=(0, 1, 2)):
-    """Tables 6, 7, 9 as `tapmuscle paper` computes them, on the direct loop (equal to the FMU loop,
-    tests/test_scenarios.py), for a given fixed predictor."""
+    """Tables 6, 7, 9 as `tapmuscle paper` computes them from scenarios/paper/*.toml, on the direct loop
+    (equal to the FMU loop, tests/test_scenarios.py), for a given fixed predictor."""
     errors = {}
     for run in PAPER_RUNS:
-        p0 = P0_TABLE8 if run.frequency_hz > 0.15 and run.method.startswith("ampc") else P0_TABLE5
+        parameters = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml").controller.parameters  # P0: Table 8 at 0.2 Hz
+        p0 = tuple(parameters.get(f"P0.{n}", P0_TABLE5[i]) for i, n in enumerate(ASYMMETRIC.names))
         runs = []
         for seed in seeds:
             ctrl = DisplacementController(ControllerSettings(method=run.method, p0=p0), theta0)
             cols = run_closed_loop(Plant(PlantParams(), seed=seed), ctrl, SineReference(frequency_hz=run.frequency_hz),
                                    duration_s=45.0, load_n=run.load_n)
             runs.append(eq21_error_mm(cols["r_mm"], cols["l_mm"]))
-        errors[run.method, f"{run.load_n:g}", run.frequency_hz] = float(np.mean(runs))
-    return {table: {load: {m: errors[m, load, freq] for m in methods} for load in ("44", "68")}
-            for table, freq, methods in (("table6", 0.1, ("mpc_servo", "mpc_ucp")),
-                                         ("table7", 0.1, ("ampc_servo", "ampc_ucp")),
-                                         ("table9", 0.2, ("ampc_servo", "mpc_servo")))}
+        errors[run.name] = float(np.mean(runs))
+    return paper_tables(errors)
 
 
 def test_findings_of_the_shipped_tables(paper):
