@@ -1,26 +1,30 @@
-"""``diagnose``: compare a recording with the plant model, locate the mismatch, name and fit the
-left-out physics, and score it on held-out data (issue 6; docs/diagnosis.md has the method).
+"""``diagnose``: compare a recording with the plant model, recalibrate what the recording can identify,
+then name, fit and score the left-out physics on held-out data (docs/diagnosis.md has the method).
 
 Procedure
 ---------
 1. Re-simulate the recorded command with the model (:mod:`diagnosis.simulation`), residual
-   ``e = l_measured - l_model``.
-2. Split the samples into interleaved training and held-out blocks (``block_s``).
-3. Is there anything to explain? The residual must fail the whiteness test (Ljung-Box, p < ``alpha``)
-   *and* be material (RMS above 1.5 times the noise level: the smaller of the residual's own
-   white-noise level and the encoder noise the model states). If not, the verdict is
-   ``no_significant_mismatch`` and no cause is named: the difference is noise.
-4. Fit every candidate effect on the training blocks (:mod:`diagnosis.candidates`), score each on the
-   held-out blocks. The best is accepted when it is significant: it removes at least
-   ``min_reduction`` of the held-out squared error, and the held-out residual's projection on the
-   effect's contribution, in units of the white-noise level, rejects "only noise" at level ``alpha``
-   (a one-sided z-test; the contribution was fitted on other samples, so under "only noise" the
-   projection is standard normal).
-5. While the residual is still structured and holds more than ``unexplained_share`` of the initial
-   excess energy (above noise), try the remaining candidates on top of the accepted ones (greedy
-   forward selection, at most ``max_effects``).
-6. If a structured, material residual remains, add the finding ``unexplained`` with where and in which
-   regime it lives.
+   ``e = l_measured - l_model``; split the samples into interleaved training and held-out blocks.
+2. Is there anything to explain? The residual must fail the whiteness test (Ljung-Box, p < ``alpha``)
+   *and* be material (RMS above 1.5 times the noise level). If not: ``no_significant_mismatch``.
+3. **Calibrate before accusing** (:mod:`diagnosis.calibration`): re-estimate the nominal constants the
+   recording can identify (the others stay nominal and are listed). Candidates are judged against the
+   calibrated plant.
+4. **Forward selection.** While the held-out residual is structured, every candidate effect is fitted
+   on top of the current model (:mod:`diagnosis.candidates`), and the promising ones are re-fitted
+   *jointly* with the calibrated constants. The best joint fit is accepted when it is significant
+   against the current model re-fitted alone: it removes at least ``min_reduction`` of the held-out
+   squared error, and the held-out residual's projection on the difference of the two predictions
+   rejects "only noise" at level ``alpha`` (a one-sided z-test). So an effect is only claimed when
+   recalibration cannot explain the data as well on the held-out blocks.
+5. **Backward step.** After each acceptance, every accepted effect is removed in turn (the rest
+   re-fitted jointly); one whose removal is not significantly worse is dropped.
+6. **Ambiguity.** Candidates whose joint fits pass the acceptance test themselves and that the
+   held-out data cannot tell from the best (:func:`distinguishable`) are alternatives: the verdict is
+   ``ambiguous`` with their evidence, and none of them is claimed alone. (The report designs an
+   experiment that separates them, :mod:`diagnosis.experiment_design`.)
+7. Whatever structured residual remains is reported as ``unexplained``, with its share of the
+   initial excess, however small.
 """
 
 from __future__ import annotations
@@ -35,16 +39,37 @@ from scipy import stats
 
 from fmu_plant import PlantParams
 
+from .calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
+                          calibration_rows, field_bounds, fit_parameters, nominal_coords)
 from .candidates import CANDIDATES, Candidate, FitResult, Problem
 from .residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from .simulation import Simulator
 
-__all__ = ["Finding", "Diagnosis", "diagnose", "sensor_noise_mm", "MIN_SAMPLES"]
+__all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "distinguishable", "sensor_noise_mm",
+           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
+
+#: What ``diagnose`` can conclude.
+VERDICTS = ("no_significant_mismatch", "calibration_only", "mismatch", "ambiguous")
+
+#: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
+#: the scale of their coordinate. The others keep the value their candidate's own search found (a
+#: band's edges and a sag's window make the cost piecewise constant; the measurement-side effects do
+#: not feed back and are fitted on the whole recording).
+JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
+    "rate_dependent_hysteresis": (("friction.rate_gain", 0.2),),
+    "transport_delay": (("delay.delay_s", 0.02),),
+    "supply_pressure_variation": (("supply_variation.sag_mpa", 0.01),),
+    "load_mismatch": (("load_mismatch.extra_n", 2.0),),
+}
+
+#: Joint re-fits tried per round, at most (the candidates with the lowest held-out error on their own;
+#: one that barely helps on top of the calibration may still win once the calibration is re-fitted with it).
+JOINT_PER_ROUND = 8
 
 
 @dataclass
@@ -62,13 +87,33 @@ class Finding:
     """Time windows [s] where it acts."""
     regime: str
     evidence: dict[str, Any] = field(default_factory=dict)
-    """Numbers behind the acceptance (held-out SSE before/after, F-test p-value, ...)."""
+    """Numbers behind the acceptance (held-out SSE before/after, z-test p-value, ...)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
                 "fit_gain_points": round(self.fit_gain_points, 3),
                 "located": [{"t_start_s": round(a, 2), "t_end_s": round(b, 2)} for a, b in self.located],
                 "regime": self.regime, "evidence": self.evidence}
+
+
+@dataclass
+class Alternative:
+    """One explanation of an ``ambiguous`` group: an effect re-fitted jointly with the calibration."""
+
+    effect: str
+    explanation: str
+    parameters: dict[str, float]
+    params: PlantParams = field(repr=False)
+    """The whole alternative plant (calibrated constants, accepted effects, this effect)."""
+    y_hat: np.ndarray = field(repr=False)
+    held_out_sse_mm2: float = 0.0
+    fit_after_percent: float = 0.0
+    evidence: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
+                "held_out_sse_mm2": round(self.held_out_sse_mm2, 6),
+                "fit_after_percent": round(self.fit_after_percent, 3), "evidence": self.evidence}
 
 
 @dataclass
@@ -80,7 +125,8 @@ class Diagnosis:
     fit_after_percent: float
     findings: list[Finding]
     calibrated: PlantParams
-    """The model with the accepted effects' parameters."""
+    """The model with the calibrated constants and the accepted effects' parameters (for an
+    ``ambiguous`` verdict: with the best-scoring alternative)."""
     t_s: np.ndarray
     u_v: np.ndarray
     y_mm: np.ndarray
@@ -95,11 +141,38 @@ class Diagnosis:
     """Every candidate tried, per round: name, held-out gain, SSE reduction, significance."""
     simulations: int
     elapsed_s: float
+    calibration: Calibration | None = None
+    """The final calibration (re-fitted jointly with the accepted effects); None when not run."""
+    fit_calibrated_percent: float | None = None
+    """Held-out fit of the calibrated plant without any effect [%]."""
+    y_calibrated_mm: np.ndarray | None = None
+    ambiguous: list[list[Alternative]] = field(default_factory=list)
+    """Groups of statistically indistinguishable explanations."""
+    selection: list[dict[str, Any]] = field(default_factory=list)
+    """The forward and backward steps taken, in order."""
+    nominal: PlantParams | None = None
+    load_n: np.ndarray | None = None
+    ts_s: float = 0.0
+
+    @property
+    def named(self) -> list[str]:
+        """Effects claimed (findings other than ``unexplained``)."""
+        return [f.effect for f in self.findings if f.effect != "unexplained"]
 
     def to_json(self) -> dict[str, Any]:
+        cal = None
+        if self.calibration is not None:
+            cal = self.calibration.to_json() | {
+                "fit_calibrated_percent": None if self.fit_calibrated_percent is None
+                else round(self.fit_calibrated_percent, 3)}
         return {"verdict": self.verdict, "fit_before_percent": round(self.fit_before_percent, 3),
                 "fit_after_percent": round(self.fit_after_percent, 3),
                 "findings": [f.to_json() for f in self.findings],
+                "calibration": cal if cal is not None else {"skipped": "the residual is white noise: nothing to "
+                                                                       "calibrate"},
+                "ambiguous": [{"alternatives": [a.to_json() for a in group], "discriminating_input": None}
+                              for group in self.ambiguous],
+                "selection": self.selection,
                 "residual_tests": {"before": self.tests_before, "after": self.tests_after},
                 "candidates_tried": self.candidates,
                 "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
@@ -138,10 +211,63 @@ def _significance(e0: np.ndarray, e1: np.ndarray, noise_mm: float, alpha: float)
             "z": z, "p_value": float(stats.norm.sf(z)), "significant_at": alpha}
 
 
+def distinguishable(e_best: np.ndarray, e_other: np.ndarray, blocks: np.ndarray, noise_mm: float, *,
+                    alpha: float = 1e-3, min_ratio: float = 1.1) -> tuple[bool, dict[str, float]]:
+    """Can the held-out data tell the best explanation from another one?
+
+    Both must hold: the other's held-out squared error exceeds the best's by at least
+    ``min_ratio``, and the difference is more than noise could give, consistently over the held-out
+    blocks. The z-statistic is ``(SSE_other - SSE_best) / (2 sigma |y_best - y_other|)`` (the
+    sampling spread of an SSE difference between two predictions under white noise ``sigma``), and
+    the per-block differences must be positive on average with a one-sided t-test p < 0.05 (a
+    residual that is not white spreads the SSE difference more than the z-statistic assumes).
+
+    Parameters
+    ----------
+    e_best, e_other : ndarray
+        Held-out residuals [mm] of the best explanation and the other one.
+    blocks : ndarray
+        Block index of every held-out sample.
+    noise_mm : float
+        White-noise level [mm].
+    """
+    s_best, s_other = float(e_best @ e_best), float(e_other @ e_other)
+    delta = float(np.linalg.norm(e_best - e_other))
+    z = (s_other - s_best) / (2.0 * noise_mm * delta) if delta > 0 and noise_mm > 0 else 0.0
+    per_block = np.array([float(e_other[blocks == b] @ e_other[blocks == b] - e_best[blocks == b] @ e_best[blocks == b])
+                          for b in np.unique(blocks)])
+    if len(per_block) > 1 and float(np.std(per_block, ddof=1)) > 0:
+        t = float(np.mean(per_block)) / (float(np.std(per_block, ddof=1)) / math.sqrt(len(per_block)))
+        p_blocks = float(stats.t.sf(t, len(per_block) - 1))
+    else:
+        p_blocks = 0.0 if len(per_block) and float(np.mean(per_block)) > 0 else 1.0
+    ratio = s_other / s_best if s_best > 0 else math.inf
+    ok = ratio >= min_ratio and stats.norm.sf(z) < alpha and p_blocks < 0.05
+    return ok, {"sse_ratio": ratio, "z": z, "p_value": float(stats.norm.sf(z)), "blocks_p_value": p_blocks}
+
+
+@dataclass
+class _Model:
+    """A model in the selection: calibrated constants plus effects, and its whole-run prediction."""
+
+    params: PlantParams
+    effects: tuple[str, ...]
+    y: np.ndarray
+    values: dict[str, dict[str, float]]
+    """Per effect, its fitted parameters."""
+
+
+def _effect_defaults(effect_values: dict[str, float]) -> dict[str, float]:
+    """Every parameter of an effect back at its 'off' default."""
+    defaults = PlantParams().dotted()
+    return {k: defaults[k] for k in effect_values}
+
+
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
              load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float = 10.0,
              fit_segment_s: float = 120.0, candidates: Sequence[Candidate] = CANDIDATES, max_effects: int = 3,
-             alpha: float = 1e-3, min_reduction: float = 0.10, unexplained_share: float = 0.25,
+             alpha: float = 1e-3, min_reduction: float = 0.10,
+             calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
              progress: Callable[[int, int], None] | None = None) -> Diagnosis:
     """Diagnose the mismatch between a recording and the plant model (module docstring).
 
@@ -150,20 +276,25 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     t_s, u_v, l_mm : ndarray
         The recording: uniformly sampled times [s], command [V], encoder displacement [mm].
     model : PlantParams
-        The calibrated plant (e.g. read from the MusclePlant FMU's parameters).
+        The nominal plant (e.g. read from the MusclePlant FMU's parameters).
     load_n, p_mpa : ndarray, optional
         Recorded load [N] (re-simulated as recorded) and pressure [MPa] (for the regime breakdown).
     block_s : float
         Length of the interleaved training / held-out blocks [s].
     fit_segment_s : float
-        Stationary effects are fitted on the first this many seconds.
+        The calibration and the stationary effects are fitted on the first this many seconds.
     candidates : sequence of Candidate
         Effects to try (default: all of :data:`CANDIDATES`).
     max_effects : int
         Most effects combined.
-    alpha, min_reduction, unexplained_share : float
-        Significance level; least held-out SSE reduction of an accepted effect; residual excess share
-        above which what is left is reported as ``unexplained`` (module docstring).
+    alpha, min_reduction : float
+        Significance level; least held-out SSE reduction of an accepted effect (module docstring).
+    calibration : sequence of NominalParameter or None
+        Nominal constants to re-estimate before the search (default
+        :data:`~diagnosis.calibration.NOMINAL_PARAMETERS`); None or empty: no calibration (the model
+        is taken as exact apart from left-out effects).
+    progress : callable, optional
+        ``progress(done, total)`` after each fit.
 
     Raises
     ------
@@ -195,9 +326,11 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         raise ValueError(f"column u_v: the command is constant ({u[0]:g} V); nothing excites the plant")
 
     n = len(t)
-    sim = Simulator(u, ts, None if load_n is None else np.asarray(load_n, float))
+    load = None if load_n is None else np.asarray(load_n, float)
+    sim = Simulator(u, ts, load)
     y0 = sim.run(model, checkpoint_every=max(1, int(round(10.0 / ts))))[0]
     train, test = interleaved_split(n, ts, block_s)
+    blocks = (np.arange(n) * ts // block_s).astype(int)[test]
     e0 = y - y0
     noise = white_noise_level_mm(e0)
     problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s)
@@ -206,71 +339,222 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     floor = tests0["noise_reference_mm"]
     fit_before = fit_percent(y, y0, test)
     excess0 = max(tests0["rms_mm"] ** 2 - floor ** 2, 1e-30)
+    sigma = max(noise, 1e-6)
+    n_fit = problem.n_fit
 
-    base, y_base = model, y0
+    def train_residual(p: PlantParams) -> np.ndarray:
+        return problem.train_residual(sim.run(p, stop=n_fit)[0])
+
     findings: list[Finding] = []
     tried: list[dict[str, Any]] = []
-    if tests0["structured"]:
-        pool = list(candidates)
-        total = len(pool)
-        done = 0
-        for round_no in range(1, max_effects + 1):
-            if not pool:
-                break
-            results: list[tuple[Candidate, FitResult, dict[str, float]]] = []
-            e_base_test = (y - y_base)[test]
-            fit_base = fit_percent(y, y_base, test)
-            for cand in pool:
-                res = cand.fit(problem, base, y_base)
-                done += 1
-                if progress is not None:
-                    progress(min(done, total), max(total, done))
-                if res is None:
-                    tried.append({"round": round_no, "effect": cand.name, "fitted": False})
-                    continue
-                sig = _significance(e_base_test, (y - res.y_hat)[test], noise, alpha)
-                gain = fit_percent(y, res.y_hat, test) - fit_base
-                tried.append({"round": round_no, "effect": cand.name, "fitted": True,
-                              "fit_gain_points": round(gain, 3), "held_out_sse_reduction": round(sig["reduction"], 4),
-                              "p_value": sig["p_value"], "parameters": res.values})
-                results.append((cand, res, sig | {"fit_gain_points": gain}))
-            if not results:
-                break
-            results.sort(key=lambda r: r[2]["sse_after_mm2"])
-            cand, res, sig = results[0]
-            if not (sig["reduction"] >= min_reduction and sig["p_value"] < alpha):
-                break
-            contribution = res.y_hat - y_base
-            located = res.located or located_windows(contribution, ts, noise_mm=noise)
-            regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution)
-            findings.append(Finding(cand.name, cand.explain(res.values), res.values, sig["fit_gain_points"],
-                                    located, regime, {k: v for k, v in sig.items() if k != "fit_gain_points"}))
-            base = base.with_values(**res.values)
-            y_base = res.y_hat
-            e = y - y_base
-            structured, numbers = is_structured(e, sensor_noise_mm=sensor_mm)
-            if not structured or (numbers["rms_mm"] ** 2 - floor ** 2) / excess0 < unexplained_share:
-                break
-            # next round: the other candidates that helped at all on their own
-            helpful = {c.name for c, _, s in results[1:] if s["reduction"] > 0.02}
-            pool = [c for c in pool if c.name in helpful]
-            total = done + len(pool)
+    selection: list[dict[str, Any]] = []
+    ambiguous: list[list[Alternative]] = []
+    cal: Calibration | None = None
+    y_cal = None
+    fit_cal = None
+    current = _Model(model, (), y0, {})
+    by_name = {c.name: c for c in candidates}
+    do_calibrate = bool(calibration) and tests0["structured"]
+    coords: list[FittedParameter] = []
+
+    def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
+              final: bool = False) -> tuple[PlantParams, Any]:
+        """Re-fit the calibrated constants jointly with the effects' smooth parameters (a short warm
+        start with secant updates during the search; the final model with fresh Jacobians)."""
+        extra = [FittedParameter(key, 0.0, scale, False, *field_bounds(key))
+                 for e in effects for key, scale in JOINT_PARAMETERS.get(e, ())]
+        if not coords and not extra:
+            return params, None
+        f = fit_parameters(train_residual, params, coords + extra, sigma, max_iterations=30 if final else 12,
+                           jacobian0=start_jac, refresh_every=5 if final else None)
+        return params.with_values(**f.values), f
+
+    def prior_cost(p: PlantParams) -> float:
+        """How far ``p`` stretches the calibrated constants, in squared prior sds."""
+        return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
+
+    if do_calibrate:
+        cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration))
+        coords = [c for c in nominal_coords(model, calibration) if c.key in cal.changed]
+        y_cal = sim.run(cal.params)[0]
+        fit_cal = fit_percent(y, y_cal, test)
+        current = _Model(cal.params, (), y_cal, {})
+        selection.append({"step": "calibrate", "identifiable": cal.identifiable, "prior_cost": round(prior_cost(cal.params), 3),
+                          "fit_after_percent": round(fit_cal, 3)})
+    cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
+
+    def significance(base: np.ndarray, new: np.ndarray) -> dict[str, float]:
+        return _significance((y - base)[test], (y - new)[test], noise, alpha)
+
+    def passes(sig: dict[str, float]) -> bool:
+        # material too: an effect whose held-out contribution is within the noise is not claimed
+        return (sig["reduction"] >= min_reduction and sig["p_value"] < alpha
+                and sig.get("contribution_rms_mm", math.inf) >= 1.5 * floor)
+
+    structured = tests0["structured"] and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
+    pool = list(candidates)
+    done = 0
+    round_no = 0
+    while tests0["structured"] and structured and pool and len(current.effects) < max_effects:
+        round_no += 1
+        # the reference: the current model re-fitted to convergence, so that a candidate's extra freedom
+        # is not mistaken for evidence (and the search stops if recalibration alone whitens the residual)
+        ref_params, _ = joint(current.params, current.effects, cal_jac, final=True)
+        if ref_params is not current.params:
+            ref_y = sim.run(ref_params)[0]
+            if float(np.sum((y - ref_y)[test] ** 2)) < float(np.sum((y - current.y)[test] ** 2)):
+                current = _Model(ref_params, current.effects, ref_y, current.values)
+                if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
+                    selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
+                                      "leaves a white residual"})
+                    break
+        total = done + len(pool)
+        fitted: list[tuple[Candidate, FitResult, dict[str, float]]] = []
+        fit_base = fit_percent(y, current.y, test)
+        for cand in pool:
+            runs0, t_fit = sim.runs, time.perf_counter()
+            res = cand.fit(problem, current.params, current.y)
+            cost = {"simulations": sim.runs - runs0, "seconds": round(time.perf_counter() - t_fit, 2)}
+            done += 1
+            if progress is not None:
+                progress(done, total)
+            if res is None:
+                tried.append({"round": round_no, "effect": cand.name, "fitted": False} | cost)
+                continue
+            sig = significance(current.y, res.y_hat)
+            gain = fit_percent(y, res.y_hat, test) - fit_base
+            tried.append({"round": round_no, "effect": cand.name, "fitted": True,
+                          "fit_gain_points": round(gain, 3), "held_out_sse_reduction": round(sig["reduction"], 4),
+                          "p_value": sig["p_value"], "parameters": res.values} | cost)
+            fitted.append((cand, res, sig))
+        promising = sorted(fitted, key=lambda r: r[2]["sse_after_mm2"])
+        promising = promising[:JOINT_PER_ROUND]
+        if not promising:
+            break
+        # joint re-fits: each promising effect together with the calibration; the reference is the
+        # current model re-fitted alone (so recalibration gets the same chance as the effect)
+        ref_y = current.y
+        alts: list[Alternative] = []
+        for cand, res, _ in promising:
+            runs0, t_fit = sim.runs, time.perf_counter()
+            p1 = current.params.with_values(**res.values)
+            effects = current.effects + (cand.name,)
+            p1, _ = joint(p1, effects, cal_jac)
+            y1 = sim.run(p1)[0]
+            contribution_rms = float(np.sqrt(np.mean((y1 - ref_y)[test] ** 2)))
+            cost = {"simulations": sim.runs - runs0, "seconds": round(time.perf_counter() - t_fit, 2)}
+            sig = significance(ref_y, y1) | {"contribution_rms_mm": contribution_rms}
+            values = {k: float(v) for k, v in p1.dotted().items() if k in res.values}
+            tried.append({"round": round_no, "effect": cand.name, "joint": True,
+                          "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
+                          "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
+            alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1, sig["sse_after_mm2"],
+                                    fit_percent(y, y1, test), {k: v for k, v in sig.items()}))
+        accepted = sorted((a for a in alts if passes(a.evidence)), key=lambda a: a.held_out_sse_mm2)
+        if not accepted:
+            selection.append({"step": "stop", "round": round_no, "reason": "no candidate passes the held-out test "
+                              "against the recalibrated model"})
+            break
+        best = accepted[0]
+        group = [best]
+        for other in accepted[1:]:
+            ok, ev = distinguishable((y - best.y_hat)[test], (y - other.y_hat)[test], blocks, noise, alpha=alpha)
+            other.evidence["versus_best"] = ev
+            if not ok:
+                group.append(other)
+        if len(group) > 1:
+            ambiguous.append(group)
+        contribution = best.y_hat - ref_y
+        located = located_windows(contribution, ts, noise_mm=noise)
+        res_best = next(r for c, r, _ in promising if c.name == best.effect)
+        if res_best.located:
+            located = res_best.located
+        regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution)
+        findings.append(Finding(best.effect, best.explanation, best.parameters,
+                                fit_percent(y, best.y_hat, test) - fit_percent(y, ref_y, test), located, regime,
+                                {k: v for k, v in best.evidence.items()}))
+        selection.append({"step": "add", "round": round_no, "effect": best.effect,
+                          "held_out_sse_reduction": round(best.evidence["reduction"], 4),
+                          "alternatives": [a.effect for a in group[1:]]})
+        current = _Model(best.params, current.effects + (best.effect,), best.y_hat,
+                         current.values | {best.effect: best.parameters})
+        # backward step: drop an accepted effect the others (re-fitted) do without
+        if len(current.effects) > 1:
+            for name in list(current.effects[:-1]):
+                rest = tuple(e for e in current.effects if e != name)
+                p_wo = current.params.with_values(**_effect_defaults(current.values[name]))
+                p_wo, _ = joint(p_wo, rest, cal_jac, final=True)
+                y_wo = sim.run(p_wo)[0]
+                sig = significance(y_wo, current.y)
+                if not passes(sig):
+                    selection.append({"step": "drop", "round": round_no, "effect": name,
+                                      "held_out_sse_reduction_it_gave": round(sig["reduction"], 4),
+                                      "p_value": sig["p_value"]})
+                    findings = [f for f in findings if f.effect != name]
+                    current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name})
+        structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
+        pool = [c for c in pool if c.name not in current.effects and c.name in {c2.name for c2, _, s in fitted
+                                                                                   if s["reduction"] > 0.02}]
+
+    # the final model: the calibrated constants re-fitted jointly with the accepted effects; the
+    # report's calibration rows are those of this joint fit
+    if do_calibrate and cal is not None:
+        if current.effects and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
+            # the constants were first calibrated with the effects left out, and the joint re-fits only
+            # moved them locally: calibrate them afresh with the accepted effects switched on
+            recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration))
+            if set(recal.identifiable) == set(cal.identifiable):
+                p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
+                y_re = sim.run(p_re)[0]
+                selection.append({"step": "recalibrate with the accepted effects", "simulations": recal.simulations})
+                if np.sum((y - y_re)[test] ** 2) < np.sum((y - current.y)[test] ** 2):
+                    current = _Model(p_re, current.effects, y_re, current.values)
+                    cal_jac = recal.jacobian
+        p_final, f_final = joint(current.params, current.effects, cal_jac, final=True)
+        y_final = sim.run(p_final)[0]
+        if f_final is not None and np.sum((y - y_final)[test] ** 2) <= np.sum((y - current.y)[test] ** 2):
+            for f in findings:
+                f.parameters = {k: float(v) for k, v in p_final.dotted().items() if k in f.parameters}
+            current = _Model(p_final, current.effects, y_final, current.values)
+            if not current.effects:  # the calibration alone, converged further
+                y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
+            cal = Calibration(p_final, calibration_rows(list(calibration), model, p_final, cal.identifiable,
+                                                        f_final.jacobian, f_final.residual, sigma, cal.shrink),
+                              cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink)
+    base, y_base = current.params, current.y
 
     e_after = y - y_base
     tests1, ac1, xc1 = _residual_tests(u, e_after, sensor_mm)
-    excess1 = tests1["rms_mm"] ** 2 - floor ** 2
-    verdict = "mismatch" if tests0["structured"] else "no_significant_mismatch"
-    if tests0["structured"] and tests1["structured"] and excess1 / excess0 >= unexplained_share:
+    excess1 = max(tests1["rms_mm"] ** 2 - floor ** 2, 0.0)
+    # an alternative that a later round accepted as well is part of the model, not an alternative
+    ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or a.effect not in current.effects]
+                             for g in ambiguous) if len(g) > 1 and g[0].effect in current.effects]
+    if not tests0["structured"]:
+        verdict = "no_significant_mismatch"
+    elif ambiguous:
+        verdict = "ambiguous"
+    elif current.effects:
+        verdict = "mismatch"
+    elif do_calibrate and not tests1["structured"]:
+        verdict = "calibration_only"
+    else:
+        verdict = "mismatch"
+    if ambiguous:
+        in_groups = {a.effect for g in ambiguous for a in g}
+        findings = [f for f in findings if f.effect not in in_groups]
+    if tests0["structured"] and tests1["structured"]:
         located = located_windows(e_after, ts, noise_mm=noise)
         regime, _ = regime_summary(e_after ** 2, y, ts, p_mpa, signal=e_after)
         share = 100.0 * excess1 / excess0
         findings.append(Finding(
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "
-            f"{tests1['rms_mm']:.3f} mm against {noise:.3f} mm of noise, {share:.0f} % of the initial "
-            f"excess) that none of the candidate effects explains",
+            f"{tests1['rms_mm']:.3f} mm against {noise:.3f} mm of noise, {share:.1f} % of the initial "
+            f"excess) that neither the calibration nor the candidate effects explain",
             {}, 0.0, located, regime, {"remaining_excess_share": excess1 / excess0}))
     return Diagnosis(verdict, fit_before, fit_percent(y, y_base, test), findings, base, t, u, y, y0, y_base,
                      train, test, tests0, tests1, {"autocorrelation_before": ac0, "cross_correlation_before": xc0,
                                                    "autocorrelation_after": ac1, "cross_correlation_after": xc1},
-                     tried, sim.runs, time.perf_counter() - started)
+                     tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
+                     y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
+                     ts_s=ts)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -15,15 +15,19 @@ from tapmuscle.figures import plt, save_figure
 from tapmuscle.plant_file import plant_file_text
 from tapmuscle.recording import Recording, atomic_write_text, read_recording
 
+from .candidates import candidate
 from .diagnose import Diagnosis, diagnose
+from .experiment_design import design_input, write_experiment
 from .plant_source import load_plant, simulate_plant_fmu
 from .simulation import noise_free
 
-__all__ = ["diagnose_files", "write_outputs", "summary_lines", "OUTPUT_FILES"]
+__all__ = ["diagnose_files", "write_outputs", "summary_lines", "OUTPUT_FILES", "EXPERIMENT_FILE"]
 
 #: What ``write_outputs`` writes (figures only with ``plots=True``).
 OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residual.png", "overlay.png",
                 "hysteresis.png", "residual_tests.png")
+#: Written as well when the verdict is ``ambiguous`` (one per ambiguous group, numbered from the second).
+EXPERIMENT_FILE = "discriminating_input.csv"
 
 _COLOURS = ("tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
 
@@ -35,8 +39,22 @@ def summary_lines(d: Diagnosis) -> list[str]:
         return [f"no significant mismatch: the residual is white noise (whiteness p = {t['whiteness_p']:.2g}, "
                 f"RMS {t['rms_mm']:.4f} mm, noise {t['white_noise_mm']:.4f} mm); held-out fit "
                 f"{d.fit_before_percent:.2f} %"]
-    out = [f"mismatch: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_after_percent:.2f} % with "
-           f"{', '.join(f.effect for f in d.findings if f.effect != 'unexplained') or 'no candidate effect'}"]
+    out = []
+    if d.calibration is not None:
+        changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}" for r in d.calibration.rows
+                            if r.identifiable and abs(r.estimate - r.nominal) > 1e-9 * max(1.0, abs(r.nominal)))
+        out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
+                   f"({changed or 'no constant changed'}; not identifiable: "
+                   f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'})")
+    if d.verdict == "calibration_only":
+        return out + [f"calibration only: the recalibrated plant explains the recording (residual white, "
+                      f"whiteness p = {d.tests_after['whiteness_p']:.2g}); no left-out effect is claimed"]
+    for group in d.ambiguous:
+        out.append(f"ambiguous: {' / '.join(a.effect for a in group)} explain the recording equally well on "
+                   f"held-out data (fits {', '.join(f'{a.fit_after_percent:.2f} %' for a in group)}); "
+                   f"see discriminating_input.csv")
+    out.append(f"{d.verdict}: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_after_percent:.2f} % with "
+               f"{', '.join(d.named) or 'no candidate effect claimed'}")
     for i, f in enumerate(d.findings, 1):
         where = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in f.located) or "nowhere in particular"
         gain = f" (+{f.fit_gain_points:.2f} points)" if f.effect != "unexplained" else ""
@@ -44,11 +62,38 @@ def summary_lines(d: Diagnosis) -> list[str]:
     return out
 
 
-def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None) -> str:
+def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
+               experiments: list[dict[str, Any] | None] | None = None) -> str:
     lines = [f"# Mismatch diagnosis of `{recording}`", "",
              f"Plant model: `{plant}`. Verdict: **{d.verdict}**. Held-out fit (NRMSE, interleaved "
              f"{int(d.test.sum())} of {len(d.test)} samples): **{d.fit_before_percent:.2f} % -> "
              f"{d.fit_after_percent:.2f} %**.", ""]
+    if d.calibration is not None:
+        lines += ["## Calibration", "",
+                  f"The nominal constants the recording can identify were re-estimated first (MAP least squares on "
+                  f"the training blocks, prior 20 % sd around nominal; identifiable when the data shrink the sd to "
+                  f"<= 25 % of the prior's). Held-out fit of the calibrated plant without any effect: "
+                  f"**{d.fit_calibrated_percent:.2f} %**.", "",
+                  "| parameter | unit | nominal | estimate | 95 % interval | identifiable |", "|---|---|---|---|---|---|"]
+        for r in d.calibration.rows:
+            lines.append(f"| `{r.parameter}` | {r.unit} | {r.nominal:.5g} | {r.estimate:.5g} | "
+                         f"{r.ci95[0]:.5g} .. {r.ci95[1]:.5g} | {'yes' if r.identifiable else 'no (left nominal)'} |")
+        lines.append("")
+    for i, group in enumerate(d.ambiguous, 1):
+        lines += [f"## Ambiguous ({i}): the held-out data cannot tell these apart", "",
+                  "| alternative | explanation | held-out fit [%] | held-out SSE [mm^2] | vs best: SSE ratio, p |",
+                  "|---|---|---|---|---|"]
+        for a in group:
+            vs = a.evidence.get("versus_best")
+            lines.append(f"| `{a.effect}` | {a.explanation} | {a.fit_after_percent:.2f} | {a.held_out_sse_mm2:.4g} | "
+                         + (f"{vs['sse_ratio']:.3f}, {vs['p_value']:.2g} |" if vs else "best |"))
+        lines.append("")
+        if experiments and i - 1 < len(experiments) and experiments[i - 1] is not None:
+            e = experiments[i - 1]
+            lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
+                      f"alternatives' predictions differ by at least {e['separation_sigma']:.0f} noise sd "
+                      f"({e['min_rms_difference_mm']:.3f} mm RMS). Record it (`tapmuscle record --input csv:{e['file']} "
+                      f"--duration {e['duration_s']:g}`) and diagnose the new recording.", ""]
     lines += ["## Findings", ""]
     if not d.findings:
         lines += ["None: the residual is consistent with sensor noise, so no cause is named.", ""]
@@ -73,13 +118,18 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
               f"| structured (whiteness rejected and RMS > 1.5 x noise) | {tb['structured']} | {ta['structured']} |", ""]
     lines += ["## Candidates tried", "", "| round | effect | held-out gain [points] | SSE reduction | p |", "|---|---|---|---|---|"]
     for c in d.candidates:
-        if c["fitted"]:
+        if c.get("joint"):
+            lines.append(f"| {c['round']} | `{c['effect']}` re-fitted with the calibration | | "
+                         f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
+        elif c["fitted"]:
             lines.append(f"| {c['round']} | `{c['effect']}` | {c['fit_gain_points']:.3f} | "
                          f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
         else:
             lines.append(f"| {c['round']} | `{c['effect']}` | not fitted (not applicable) | | |")
-    lines += ["", "An effect is accepted when it removes >= 10 % of the held-out squared error and the held-out "
-              "residual's projection on its contribution rejects 'only noise' at p < 0.001 (docs/diagnosis.md).", ""]
+    lines += ["", "An effect is accepted when, re-fitted jointly with the calibrated constants, it removes >= 10 % of "
+              "the held-out squared error of the model re-fitted without it, the held-out residual's projection on "
+              "its contribution rejects 'only noise' at p < 0.001, and its contribution exceeds 1.5 x the noise "
+              "(docs/diagnosis.md).", ""]
     if fmu_check is not None:
         lines += ["## FMU check", "", f"The plant FMU re-simulated the recording's command; it differs from the "
                   f"in-process model the fits use by at most {fmu_check['max_abs_difference_mm']:.2e} mm.", ""]
@@ -102,8 +152,10 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     e0, e1 = d.y_mm - d.y_before_mm, d.y_mm - d.y_after_mm
     fig, ax = plt.subplots(figsize=(10, 3.6))
     ax.plot(t, e0, lw=0.8, color="0.3", label="before")
-    if d.findings and d.findings[0].effect != "unexplained":
-        ax.plot(t, e1, lw=0.8, color="tab:blue", label="after")
+    if d.y_calibrated_mm is not None:
+        ax.plot(t, d.y_mm - d.y_calibrated_mm, lw=0.8, color="tab:green", label="after calibration")
+    if d.named or d.ambiguous:
+        ax.plot(t, e1, lw=0.8, color="tab:blue", label="after calibration and effects")
     _shade(ax, d)
     ax.set(xlabel="time [s]", ylabel="residual l_meas - l_sim [mm]", title=f"{title}: residual, located windows shaded")
     ax.legend(loc="upper right", fontsize=8)
@@ -113,6 +165,9 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
     a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"model before ({d.fit_before_percent:.2f} %)")
+    if d.y_calibrated_mm is not None:
+        a1.plot(t, d.y_calibrated_mm, color="tab:green", lw=0.9, ls="-.",
+                label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
     a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"model after ({d.fit_after_percent:.2f} %)")
     a1.set(ylabel="displacement l [mm]", title=f"{title}: before / after (held-out fit in brackets)")
     a1.legend(loc="upper right", fontsize=8)
@@ -160,25 +215,49 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
                                                        ("verdict", "fit_before_percent", "fit_after_percent", "findings")}}
     if fmu_check is not None:
         doc["fmu_check"] = fmu_check
-    atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2) + "\n")
+    experiments = []
+    for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
+        experiments.append(_write_experiment(d, group, out, i))
+        entry["discriminating_input"] = None if experiments[-1] is None else experiments[-1]["file"]
+        entry["experiment"] = experiments[-1]
+    atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
     atomic_write_text(out / "calibrated_plant.json", plant_file_text(
         d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
         + (f" ({model_note})" if model_note else "")))
-    atomic_write_text(out / "report.md", _report_md(d, recording, plant, fmu_check))
+    atomic_write_text(out / "report.md", _report_md(d, recording, plant, fmu_check, experiments))
     if plots:
         _figures(d, out, Path(recording).stem)
     return doc
 
 
+def _write_experiment(d: Diagnosis, group: list, out: Path, index: int) -> dict[str, Any] | None:
+    """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``,
+    numbered from the second group on)."""
+    name = "discriminating_input.csv" if index == 0 else f"discriminating_input_{index + 1}.csv"
+    load = float(d.load_n[0]) if d.load_n is not None else None
+    duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
+    exp = design_input({a.effect: a.params for a in group}, ts_s=d.ts_s, duration_s=duration,
+                       noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load)
+    write_experiment(exp, out / name, alternatives=[a.effect for a in group], ts_s=d.ts_s)
+    return {"file": name} | exp.to_json()
+
+
 def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *, plots: bool = True,
-                   progress: Callable[[int, int], None] | None = None, **options: Any) -> tuple[Diagnosis, dict]:
+                   progress: Callable[[int, int], None] | None = None, effects: Sequence[str] | None = None,
+                   **options: Any) -> tuple[Diagnosis, dict]:
     """Read a recording CSV and a plant (file or FMU), diagnose, write the outputs into ``out``.
+
+    ``effects`` limits the candidates to those names (e.g. the alternatives of an ambiguous verdict,
+    re-diagnosed on the recording of the discriminating experiment); other keywords go to
+    :func:`diagnosis.diagnose`.
 
     Raises ``tapmuscle.recording.RecordingError`` (file, line, column) for a malformed recording,
     ``PlantSourceError`` for a bad plant, ``ValueError`` for a recording the diagnosis cannot use.
     """
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
+    if effects is not None:
+        options["candidates"] = [candidate(e) for e in effects]
     cols = rec.columns
     load = cols.get("load_n")
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),

@@ -1,0 +1,420 @@
+"""Calibration before accusation: re-estimate the nominal plant constants that a recording can identify.
+
+Every real rig's constants differ from the simulator's by 10-20 %: the valves' flow coefficient,
+the bladder's stiffness, the braid angle, the friction levels. Such errors leave a structured
+residual that a search for left-out physics would otherwise blame on some effect (an encoder
+drift, a supply sag). So the diagnosis first fits the nominal constants, and judges the candidate
+effects against the calibrated plant.
+
+Method
+------
+* **Parameters.** :data:`NOMINAL_PARAMETERS`: the rig's physical constants (not its operating
+  conditions, load and supply pressure, whose mismatch are effects of the vocabulary). Each is
+  fitted in the scaled coordinate ``x = (theta - theta_nominal) / (prior_rel * theta_nominal)``.
+* **Estimate.** Maximum a posteriori with a Gaussian prior of ``prior_rel`` (20 %) relative
+  standard deviation around the nominal value: least squares of the training residual (held-out
+  blocks are never used) stacked with ``sigma * x`` (:func:`fit_parameters`, scipy's trust-region
+  reflective ``least_squares`` within the fields' bounds). The prior is what keeps the directions
+  the data cannot see (two constants that trade off exactly) at their nominal values, so the fit
+  is well posed with all constants free.
+* **Jacobian.** Forward differences (one simulation per parameter) at the start, then Broyden's
+  rank-one secant updates from the points the solver accepts, with a fresh forward-difference
+  Jacobian every :data:`FRESH_JACOBIAN_EVERY` iterations (simulations are the whole cost).
+* **Identifiability** from the Fisher information at the estimate, ``F = J'J / sigma^2`` in the
+  scaled coordinates at the recording's white-noise level ``sigma``, and the posterior covariance
+  ``C = (F + I)^-1`` (``I`` is the prior's information). A constant is *identifiable* when the data
+  shrink its standard deviation to at most :data:`IDENTIFIABLE_SD_SHRINK` of the prior's
+  (20 % -> 5 %): its marginal posterior then owes little to the prior, whether the constant is
+  insensitive or trades off with another (both give a large marginal variance). This is a property
+  of the experiment (what a correct model could tell from these data), so a left-out effect still
+  in the residual does not hide the constants.
+* **Intervals.** The 95 % interval is ``estimate +- 1.96 sd`` from the data-only covariance
+  ``(J'J / sigma_eff^2)^-1`` of the identifiable constants, with ``sigma_eff`` the final residual's
+  standard deviation inflated for its autocorrelation (AR(1) variance factor
+  ``(1 + rho_1) / (1 - rho_1)``), so that a structured residual does not pretend to more
+  information than it holds; a constant left at nominal gets its prior's interval.
+* **Left alone.** A constant that is not identifiable is put back to its nominal value, listed as
+  such, and the identifiable ones are polished once more without it, so the calibrated plant file
+  changes only what the recording pins down.
+
+References: Brun, Reichert and Kuensch (2001), *Practical identifiability analysis of large
+environmental simulation models*, Water Resour. Res. 37(4) (sensitivity-based identifiability);
+Broyden (1965) secant update.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from fmu_plant import PlantParams
+
+__all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "CalibrationRow",
+           "Calibration", "fit_parameters", "calibrate", "calibration_rows", "nominal_coords", "field_bounds",
+           "effective_sigma"]
+
+#: A fresh forward-difference Jacobian every this many solver iterations (Broyden updates between).
+FRESH_JACOBIAN_EVERY = 5
+#: A constant is identifiable when its posterior sd is at most this fraction of its prior sd.
+IDENTIFIABLE_SD_SHRINK = 0.25
+#: Forward-difference step in scaled coordinates (x = 1 is one prior sd, 20 %): 1 % of the nominal value.
+FD_STEP = 0.05
+
+
+@dataclass(frozen=True)
+class NominalParameter:
+    """A nominal constant of the plant that calibration may re-estimate."""
+
+    key: str
+    """Plant parameter (``group.field``), as the plant FMU names it."""
+    unit: str
+    prior_rel: float = 0.2
+    """Prior standard deviation relative to the nominal value [-] (rigs differ by 10-20 %)."""
+
+
+#: The rig's physical constants the calibration re-estimates (docs/diagnosis.md, "Calibration").
+NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = (
+    NominalParameter("valve.cv_max", "US gpm/psi^0.5"),
+    NominalParameter("valve.leak_fraction", "-"),
+    NominalParameter("supply.compliance_m3_per_mpa", "m^3/MPa"),
+    NominalParameter("muscle.rubber_stiffness_n_per_mm", "N/mm"),
+    NominalParameter("muscle.threshold_pressure_mpa", "MPa"),
+    NominalParameter("muscle.braid_angle_deg", "deg"),
+    NominalParameter("muscle.radius_mm", "mm"),
+    NominalParameter("muscle.damping_n_s_per_mm", "N s/mm"),
+    NominalParameter("friction.base_n", "N"),
+    NominalParameter("friction.per_mpa_n", "N/MPa"),
+    NominalParameter("friction.asymmetry", "-"),
+    NominalParameter("friction.presliding_mm", "mm"),
+)
+
+
+def _get(params: PlantParams, key: str) -> float:
+    group, _, name = key.partition(".")
+    return float(getattr(getattr(params, group), name))
+
+
+def field_bounds(key: str) -> tuple[float, float]:
+    """Bounds ``(lo, hi)`` of a plant parameter from its field metadata (open bounds nudged inside)."""
+    group, _, name = key.partition(".")
+    sub = getattr(PlantParams(), group)
+    for f in fields(sub):
+        if f.name == name:
+            lo = f.metadata.get("lo", -math.inf)
+            hi = f.metadata.get("hi", math.inf)
+            if f.metadata.get("lo_open") and math.isfinite(lo):
+                lo = lo + max(1e-12, 1e-9 * abs(lo))
+            return float(lo), float(hi)
+    raise ValueError(f"unknown plant parameter {key!r}")
+
+
+@dataclass(frozen=True)
+class FittedParameter:
+    """One coordinate of a least-squares fit: ``theta = center + scale * x``."""
+
+    key: str
+    center: float
+    scale: float
+    prior: bool
+    """Gaussian prior N(center, scale^2) (a nominal constant); False: flat within the bounds (an effect)."""
+    lo: float
+    hi: float
+
+
+@dataclass
+class Fit:
+    """Result of :func:`fit_parameters`."""
+
+    values: dict[str, float]
+    x: np.ndarray
+    jacobian: np.ndarray
+    """Residual Jacobian at the estimate, in the scaled coordinates (rows: training samples) [mm]."""
+    residual: np.ndarray
+    """Training residual at the estimate [mm]."""
+    simulations: int
+
+
+def effective_sigma(r: np.ndarray) -> float:
+    """Standard deviation of ``r`` inflated by the AR(1) variance factor of its lag-1 autocorrelation:
+    the noise level that makes ``J'J / sigma^2`` honest for a residual that is not white."""
+    r = np.asarray(r, float)
+    if r.size < 3:
+        return float(np.std(r)) or 1e-12
+    c = r - r.mean()
+    den = float(c @ c)
+    rho = float(c[:-1] @ c[1:]) / den if den > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.95)
+    return max(float(np.sqrt(np.mean(r * r))) * math.sqrt((1 + rho) / (1 - rho)), 1e-12)
+
+
+def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantParams,
+                   coords: Sequence[FittedParameter], sigma_mm: float, *, max_iterations: int = 40,
+                   jacobian0: np.ndarray | None = None, refresh_every: int | None = FRESH_JACOBIAN_EVERY,
+                   robust_scale_mm: float | None = None, restarts: int = 0) -> Fit:
+    """Least squares (MAP where a coordinate has a prior) of ``residual(params)`` over ``coords``.
+
+    Parameters
+    ----------
+    residual : callable
+        Plant parameters -> training residual [mm] (one simulation per call).
+    base : PlantParams
+        The model the coordinates are set on; every other parameter stays as it is.
+    coords : sequence of FittedParameter
+        What is fitted, scaled; the solver starts from each coordinate's current value in ``base``.
+    sigma_mm : float
+        Noise level that weighs the prior rows ``sigma * x`` against the residual [mm].
+    max_iterations : int
+        Solver iterations (each one simulation, plus the Jacobian refreshes).
+    jacobian0 : ndarray, optional
+        Jacobian columns to start from (e.g. of an earlier fit of the leading coordinates); the
+        remaining trailing columns are computed by forward differences.
+    refresh_every : int or None
+        A fresh forward-difference Jacobian every this many iterations; None: Broyden updates only
+        (a warm start, where the first Jacobian stays good).
+    robust_scale_mm : float, optional
+        Soft-L1 loss with this scale [mm] instead of squares: samples where a localised effect
+        (a supply sag) leaves a large residual pull the constants less.
+    restarts : int
+        When the solver stops on ``max_iterations`` rather than on convergence, start it again (with
+        a fresh Jacobian) up to this many times.
+    """
+    coords = list(coords)
+    p = len(coords)
+    center = np.array([c.center for c in coords])
+    scale = np.array([c.scale for c in coords])
+    prior = np.array([c.prior for c in coords], bool)
+    lo = np.array([(c.lo - c.center) / c.scale for c in coords])
+    hi = np.array([(c.hi - c.center) / c.scale for c in coords])
+    # keep strictly inside the bounds so that forward differences stay valid
+    span = hi - lo
+    lo_in, hi_in = lo + 1e-6 * np.minimum(span, 1.0), hi - 1e-6 * np.minimum(span, 1.0)
+    x0 = np.clip(np.array([(_get(base, c.key) - c.center) / c.scale for c in coords]), lo_in, hi_in)
+    sims = 0
+
+    def params_at(x: np.ndarray) -> PlantParams:
+        return base.with_values(**{c.key: float(v) for c, v in zip(coords, center + scale * x)})
+
+    cache: dict[bytes, np.ndarray] = {}
+
+    def data_residual(x: np.ndarray) -> np.ndarray:
+        nonlocal sims
+        key = np.asarray(x, float).tobytes()
+        if key not in cache:
+            sims += 1
+            cache[key] = residual(params_at(x))
+        return cache[key]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([data_residual(x), sigma_mm * x[prior]])
+
+    def fd_jacobian(x: np.ndarray, start: int = 0) -> np.ndarray:
+        r0 = data_residual(x)
+        cols = []
+        for j in range(start, p):
+            h = FD_STEP if x[j] + FD_STEP <= hi_in[j] else -FD_STEP
+            xj = x.copy()
+            xj[j] += h
+            cols.append((data_residual(xj) - r0) / h)
+        return np.column_stack(cols) if cols else np.zeros((len(r0), 0))
+
+    if jacobian0 is not None and jacobian0.shape[1] > p:
+        raise ValueError(f"jacobian0 has {jacobian0.shape[1]} columns for {p} coordinates")
+
+    prior_rows = np.eye(p)[prior] * sigma_mm
+    state: dict[str, Any] = {"calls": 0, "x": None, "J": None}
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        calls = state["calls"]
+        state["calls"] += 1
+        if state["J"] is None:
+            J = fd_jacobian(x, start=0 if jacobian0 is None else jacobian0.shape[1])
+            if jacobian0 is not None:
+                J = np.hstack([jacobian0, J])
+        elif refresh_every and calls % refresh_every == 0:
+            J = fd_jacobian(x)
+        else:  # Broyden: the secant through the last accepted point
+            dx = x - state["x"]
+            dd = float(dx @ dx)
+            J = state["J"]
+            if dd > 0:
+                df = data_residual(x) - data_residual(state["x"])
+                J = J + np.outer(df - J @ dx, dx) / dd
+        state["x"], state["J"] = x.copy(), J
+        return np.vstack([J, prior_rows])
+
+    if p:
+        loss = "linear" if robust_scale_mm is None else "soft_l1"
+        x = x0
+        for attempt in range(restarts + 1):
+            sol = optimize.least_squares(fun, x, jac=jac, bounds=(lo, hi), x_scale=1.0, method="trf",
+                                         max_nfev=max_iterations, xtol=1e-6, ftol=1e-8, gtol=1e-8, loss=loss,
+                                         f_scale=robust_scale_mm or 1.0)
+            x = np.clip(sol.x, lo_in, hi_in)
+            if sol.status != 0:  # converged (0: stopped on max_nfev)
+                break
+            state["J"] = None  # a fresh forward-difference Jacobian for the restart
+            jacobian0 = None
+    else:
+        x = x0
+    J = state["J"] if state["J"] is not None and np.array_equal(state["x"], x) else fd_jacobian(x)
+    values = {c.key: float(v) for c, v in zip(coords, center + scale * x)}
+    return Fit(values, x, J, data_residual(x), sims)
+
+
+@dataclass
+class CalibrationRow:
+    """One line of the report's ``calibration`` section."""
+
+    parameter: str
+    unit: str
+    nominal: float
+    estimate: float
+    ci95: tuple[float, float]
+    identifiable: bool
+    sd_shrink: float
+    """Posterior sd / prior sd [-] (<= IDENTIFIABLE_SD_SHRINK: identifiable)."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"parameter": self.parameter, "unit": self.unit, "nominal": _round(self.nominal),
+                "estimate": _round(self.estimate), "ci95": [_round(self.ci95[0]), _round(self.ci95[1])],
+                "identifiable": self.identifiable, "sd_shrink": round(self.sd_shrink, 4)}
+
+
+def _round(v: float) -> float:
+    return float(f"{v:.6g}")
+
+
+@dataclass
+class Calibration:
+    """The calibrated plant and the report's ``calibration`` section."""
+
+    params: PlantParams
+    rows: list[CalibrationRow]
+    simulations: int
+    jacobian: np.ndarray = field(repr=False)
+    """Training-residual Jacobian of the identifiable constants at the estimate (scaled coordinates)."""
+    sigma_mm: float = 0.0
+    """Effective (autocorrelation-inflated) level of the final training residual [mm]."""
+    shrink: tuple[float, ...] = ()
+    """Per constant (in ``rows`` order): posterior sd / prior sd at the first fit."""
+
+    @property
+    def identifiable(self) -> list[str]:
+        return [r.parameter for r in self.rows if r.identifiable]
+
+    @property
+    def changed(self) -> dict[str, float]:
+        """The calibrated constants (identifiable ones), ``group.field`` -> value."""
+        return {r.parameter: r.estimate for r in self.rows if r.identifiable}
+
+    def to_json(self) -> dict[str, Any]:
+        return {"method": "MAP least squares on the training blocks (prior: 20 % sd around nominal), "
+                          "identifiable when the posterior sd is <= 25 % of the prior sd",
+                "parameters": [r.to_json() for r in self.rows], "identifiable": self.identifiable,
+                "not_identifiable": [r.parameter for r in self.rows if not r.identifiable],
+                "simulations": self.simulations}
+
+
+def nominal_coords(nominal: PlantParams, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS
+                   ) -> list[FittedParameter]:
+    """Scaled coordinates of the nominal constants, centred on ``nominal``'s values (prior)."""
+    out = []
+    for np_ in parameters:
+        c = _get(nominal, np_.key)
+        scale = np_.prior_rel * abs(c) if c != 0 else np_.prior_rel
+        lo, hi = field_bounds(np_.key)
+        out.append(FittedParameter(np_.key, c, scale, True, max(lo, c - 4 * scale), min(hi, c + 4 * scale)))
+    return out
+
+
+def _posterior(J: np.ndarray, sigma: float, prior: np.ndarray) -> np.ndarray:
+    """Posterior covariance in scaled coordinates: ``(J'J / sigma^2 + diag(prior))^-1``."""
+    info = J.T @ J / sigma ** 2 + np.diag(prior.astype(float))
+    return np.linalg.pinv(info)
+
+
+def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParams, base: PlantParams,
+              sigma_mm: float, *, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
+              max_iterations: int = 40, robust: bool = True) -> Calibration:
+    """Re-estimate the nominal constants that a recording can identify (module docstring).
+
+    Parameters
+    ----------
+    residual : callable
+        Plant parameters -> training residual [mm] (one simulation per call).
+    nominal : PlantParams
+        The nominal model: the prior's centre, and what a constant the data cannot pin returns to.
+    base : PlantParams
+        Where the fit starts (usually ``nominal``).
+    sigma_mm : float
+        White-noise level of the recording [mm] (weighs the prior; sets identifiability).
+    parameters : sequence of NominalParameter
+        The constants to re-estimate.
+    max_iterations : int
+        Solver iterations of the first fit.
+    robust : bool
+        Soft-L1 loss at 3 sigma (a localised effect, such as a supply sag, then bends the constants
+        less); the intervals are those of the plain least-squares problem at the estimate.
+
+    Returns
+    -------
+    Calibration
+        The calibrated plant (identifiable constants at their estimates, the others nominal) and one
+        report row per constant.
+    """
+    coords = nominal_coords(nominal, parameters)
+    scale = 3.0 * sigma_mm if robust else None
+    first = fit_parameters(residual, base, coords, sigma_mm, max_iterations=max_iterations,
+                           robust_scale_mm=scale, restarts=2)
+    sims = first.simulations
+    # identifiability is a property of the experiment at the recording's noise level (what a correct
+    # model could tell from it), not of the remaining misfit, which may still hold a left-out effect
+    cov = _posterior(first.jacobian, sigma_mm, np.ones(len(coords), bool))
+    shrink = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    ident = shrink <= IDENTIFIABLE_SD_SHRINK
+    fit = first
+    params = base.with_values(**first.values)
+    if not ident.all():
+        # put back what the data cannot pin, and polish the rest without it
+        params = params.with_values(**{c.key: c.center for c, ok in zip(coords, ident) if not ok})
+        kept = [c for c, ok in zip(coords, ident) if ok]
+        fit = fit_parameters(residual, params, kept, sigma_mm, max_iterations=8, refresh_every=None,
+                             robust_scale_mm=scale, jacobian0=first.jacobian[:, ident])
+        sims += fit.simulations
+        params = params.with_values(**fit.values)
+    rows = calibration_rows(parameters, nominal, params, [c.key for c, ok in zip(coords, ident) if ok],
+                            fit.jacobian, fit.residual, sigma_mm, shrink)
+    return Calibration(params, rows, sims, fit.jacobian[:, :int(ident.sum())], effective_sigma(fit.residual),
+                       tuple(float(v) for v in shrink))
+
+
+def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
+                     identifiable: Sequence[str], jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float,
+                     sd_shrink: Sequence[float]) -> list[CalibrationRow]:
+    """The report rows of a calibrated plant ``params``.
+
+    ``jacobian``'s leading columns are the ``identifiable`` constants in scaled coordinates (further
+    columns, e.g. jointly fitted effect parameters, enter the covariance); the 95 % interval of an
+    identifiable constant is data-only with the autocorrelation-inflated residual level, a constant
+    left nominal gets its prior's.
+    """
+    coords = {c.key: c for c in nominal_coords(nominal, parameters)}
+    sig = max(effective_sigma(residual), sigma_mm)
+    k = len(identifiable)
+    cov = np.linalg.pinv(jacobian.T @ jacobian / sig ** 2)[:k, :k] if jacobian.size and k else None
+    rows = []
+    for p_, s in zip(parameters, sd_shrink):
+        c = coords[p_.key]
+        est = _get(params, c.key)
+        if c.key in identifiable and cov is not None:
+            j = list(identifiable).index(c.key)
+            half = 1.96 * math.sqrt(max(cov[j, j], 0.0)) * c.scale
+        else:
+            half = 1.96 * c.scale
+        rows.append(CalibrationRow(c.key, p_.unit, c.center, est, (est - half, est + half), c.key in identifiable,
+                                   float(s)))
+    return rows

@@ -1,0 +1,105 @@
+"""Calibration before accusation (diagnosis/calibration.py): the MAP least-squares solver, the
+identifiability rule and the recovery of a rig's constants from a recording."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from diagnosis.calibration import (NOMINAL_PARAMETERS, FittedParameter, NominalParameter, calibrate,
+                                   effective_sigma, field_bounds, fit_parameters)
+from diagnosis.demo import record
+from diagnosis.residual_analysis import fit_percent, interleaved_split, is_structured
+from diagnosis.simulation import Simulator
+from fmu_plant import PlantParams
+
+NOMINAL = PlantParams()
+KEYS = ("friction.base_n", "friction.per_mpa_n", "muscle.damping_n_s_per_mm")
+
+
+def _linear_residual(a: np.ndarray, b: np.ndarray):
+    """A residual linear in the three KEYS (relative to nominal): r = b - A d, d_j = theta_j / nominal_j - 1."""
+    nom = np.array([NOMINAL.dotted()[k] for k in KEYS])
+
+    def residual(p: PlantParams) -> np.ndarray:
+        d = np.array([p.dotted()[k] for k in KEYS]) / nom - 1.0
+        return b - a @ d
+    return residual
+
+
+def test_map_fit_of_a_linear_problem_equals_the_closed_form():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(200, 3))
+    truth = np.array([0.1, -0.15, 0.05])
+    b = a @ truth + 0.01 * rng.normal(size=200)
+    sigma = 0.01
+    coords = [FittedParameter(k, NOMINAL.dotted()[k], 0.2 * NOMINAL.dotted()[k], True, *field_bounds(k)) for k in KEYS]
+    fit = fit_parameters(_linear_residual(a, b), NOMINAL, coords, sigma)
+    # closed form in scaled coordinates x = d / 0.2: minimise |b - 0.2 A x|^2 + sigma^2 |x|^2
+    m = 0.2 * a
+    x = np.linalg.solve(m.T @ m + sigma ** 2 * np.eye(3), m.T @ b)
+    assert fit.x == pytest.approx(x, abs=1e-4)
+    # the secant/forward-difference Jacobian of a linear residual is exact
+    assert fit.jacobian == pytest.approx(-m, rel=1e-6, abs=1e-9)
+
+
+def test_two_constants_that_only_act_as_their_sum_are_not_identifiable():
+    rng = np.random.default_rng(1)
+    a1 = rng.normal(size=300)
+    a = np.column_stack([a1, a1, rng.normal(size=300)])  # the first two trade off exactly
+    b = a @ np.array([0.1, 0.1, -0.1]) + 0.01 * rng.normal(size=300)
+    params = [NominalParameter(k, "-") for k in KEYS]
+    cal = calibrate(_linear_residual(a, b), NOMINAL, NOMINAL, 0.01, parameters=params, robust=False)
+    ident = {r.parameter: r.identifiable for r in cal.rows}
+    assert ident == {KEYS[0]: False, KEYS[1]: False, KEYS[2]: True}
+    rows = {r.parameter: r for r in cal.rows}
+    # left nominal, with the prior's interval; the identifiable one recovered within its interval
+    assert rows[KEYS[0]].estimate == NOMINAL.dotted()[KEYS[0]]
+    assert rows[KEYS[0]].ci95[1] - rows[KEYS[0]].ci95[0] == pytest.approx(2 * 1.96 * 0.2 * NOMINAL.dotted()[KEYS[0]])
+    true3 = 0.9 * NOMINAL.dotted()[KEYS[2]]
+    assert rows[KEYS[2]].ci95[0] <= true3 <= rows[KEYS[2]].ci95[1]
+    assert cal.changed == {KEYS[2]: rows[KEYS[2]].estimate}
+
+
+def test_effective_sigma_inflates_for_autocorrelation():
+    rng = np.random.default_rng(2)
+    white = rng.normal(size=5000)
+    assert effective_sigma(white) == pytest.approx(1.0, rel=0.05)
+    ar = np.zeros(5000)
+    for k in range(1, 5000):
+        ar[k] = 0.8 * ar[k - 1] + white[k]
+    # AR(1) with rho 0.8: variance factor (1 + rho) / (1 - rho) = 9 on the standard deviation of the series
+    assert effective_sigma(ar) == pytest.approx(np.std(ar) * 3.0, rel=0.1)
+
+
+def test_every_nominal_parameter_is_a_plant_field_with_a_positive_nominal():
+    for p in NOMINAL_PARAMETERS:
+        lo, hi = field_bounds(p.key)
+        v = NOMINAL.dotted()[p.key]
+        assert lo <= v <= hi and v > 0, p.key
+
+
+def test_calibration_recovers_a_rig_whose_constants_are_off():
+    """Stiffness +15 %, base friction -20 %, valve Cv -10 % (no left-out physics): the calibrated plant
+    brings the held-out residual down to the noise."""
+    rig = NOMINAL.with_values(**{"muscle.rubber_stiffness_n_per_mm": 1.38, "friction.base_n": 6.4, "valve.cv_max": 1.35})
+    cols = record(rig, "steps", 3, duration_s=150)
+    y, ts = cols["l_mm"], 0.1
+    sim = Simulator(cols["u_v"], ts)
+    train, test = interleaved_split(len(y), ts, 10.0)
+    n_fit = 1201
+    m = train[:n_fit]
+
+    def residual(p):
+        return (y[:n_fit] - sim.run(p, stop=n_fit)[0])[m]
+    cal = calibrate(residual, NOMINAL, NOMINAL, 0.013)
+    y_cal = sim.run(cal.params)[0]
+    assert fit_percent(y, sim.run(NOMINAL)[0], test) < 90.0
+    assert fit_percent(y, y_cal, test) > 99.5
+    assert not is_structured(y - y_cal, sensor_noise_mm=math.sqrt(0.01 ** 2 + 0.01 ** 2 / 12))[0]
+    est = {r.parameter: r for r in cal.rows}
+    # the valve's flow coefficient is pinned by the step responses' speed
+    assert est["valve.cv_max"].identifiable
+    assert est["valve.cv_max"].estimate == pytest.approx(1.35, rel=0.05)
