@@ -11,6 +11,7 @@ needs no plug-in.
 effect                      port                  parameters
 ==========================  ====================  ==========================================
 ``transport_delay``         valve command         ``delay.delay_s``
+``input_map``               valve command         ``input_map.*`` (the knots of a monotone map)
 ``valve_dead_zone``         valve gate            ``dead_zone.center_v``, ``dead_zone.width_v``
 ``supply_pressure_variation``  supply pressure    ``supply_variation.*``
 ``load_mismatch``           load                  ``load_mismatch.extra_n``
@@ -26,11 +27,11 @@ import math
 from typing import Any
 
 from .effects import Effect
-from .parameters import (BacklashParams, DeadZoneParams, DelayParams, LoadMismatchParams, PlantParams,
-                         SensorDriftParams, SupplyVariationParams)
+from .parameters import (BacklashParams, DeadZoneParams, DelayParams, InputMapParams, LoadMismatchParams,
+                         PlantParams, SensorDriftParams, SupplyVariationParams)
 
-__all__ = ["TransportDelay", "ValveDeadZone", "SupplyPressureVariation", "LoadMismatch", "Backlash",
-           "SensorDrift", "effects_from_params"]
+__all__ = ["TransportDelay", "InputMap", "ValveDeadZone", "SupplyPressureVariation", "LoadMismatch", "Backlash",
+           "SensorDrift", "effects_from_params", "input_map_v"]
 
 
 class TransportDelay(Effect):
@@ -77,6 +78,54 @@ class TransportDelay(Effect):
     def set_state(self, state: dict[str, Any]) -> None:
         self._times = [float(t) for t in state["times"]]
         self._values = [float(v) for v in state["values"]]
+
+
+def input_map_v(u_v: float, p: InputMapParams) -> float:
+    """The command the valve receives through the input map ``p``.
+
+    Piecewise linear through (0 V, ``out_at_0_v``), the two knots and (10 V, ``out_at_10_v``); a
+    command outside 0..10 V continues the outer segment.
+
+    Parameters
+    ----------
+    u_v : float
+        Command [V].
+    p : InputMapParams
+        The map.
+
+    Returns
+    -------
+    float
+        Mapped command [V], clipped to 0..10 V.
+    """
+    if u_v < p.knot1_in_v:
+        x0, y0, x1, y1 = 0.0, p.out_at_0_v, p.knot1_in_v, p.knot1_out_v
+    elif u_v < p.knot2_in_v:
+        x0, y0, x1, y1 = p.knot1_in_v, p.knot1_out_v, p.knot2_in_v, p.knot2_out_v
+    else:
+        x0, y0, x1, y1 = p.knot2_in_v, p.knot2_out_v, 10.0, p.out_at_10_v
+    y = y0 + (y1 - y0) * (u_v - x0) / (x1 - x0)
+    return 0.0 if y < 0.0 else 10.0 if y > 10.0 else y
+
+
+class InputMap(Effect):
+    """The valve receives ``map(u)``: a static, monotone, piecewise-linear input map (parameters' docstring).
+
+    The physical picture: the amplifier and valve's static characteristic differs from the nominal
+    one. A dead band around some command (spool overlap: outside the band the flow still meters as
+    usual, but every command inside it gives the same opening), a gain or offset error of the
+    amplifier, a saturation below full scale. Unlike the valve dead zone, which shuts both valves,
+    the valve here keeps metering, at a shifted command. Memoryless: the held command maps to a held
+    command, so it adds no breakpoints (after a transport delay it maps the delayed command).
+    """
+
+    name = "input_map"
+
+    def __init__(self, p: InputMapParams) -> None:
+        self.p = p
+
+    def valve_command(self, t_s: float, u_v: float) -> float:
+        return input_map_v(u_v, self.p)
 
 
 class ValveDeadZone(Effect):
@@ -194,12 +243,16 @@ class SensorDrift(Effect):
 def effects_from_params(params: PlantParams) -> list[Effect]:
     """The switched-on effects of ``params``, in the order the plant applies them.
 
-    Input side first (the delayed command is the one the dead zone sees), then the supply and the load,
-    then the measurement chain (the slider's backlash, then the encoder's drifting zero).
+    Input side first (the delayed command passes through the input map, and the mapped command is the
+    one the dead zone sees), then the supply and the load, then the measurement chain (the slider's
+    backlash, then the encoder's drifting zero). An identity input map is left out, so the default
+    plant has no effects at all.
     """
     out: list[Effect] = []
     if params.delay.delay_s > 0.0:
         out.append(TransportDelay(params.delay))
+    if not params.input_map.is_identity():
+        out.append(InputMap(params.input_map))
     if params.dead_zone.width_v > 0.0:
         out.append(ValveDeadZone(params.dead_zone))
     sv = params.supply_variation

@@ -7,7 +7,7 @@ simulation time. The ports are
 =====================  =============================================  ===========================
 hook                   signal                                          typical effects
 =====================  =============================================  ===========================
-``valve_command``      valve command [V], every integration sub-step  transport delay
+``valve_command``      valve command [V], every integration sub-step  transport delay, input map
 ``valve_gate``         opening factor 0..1 of both valves, per sub-step  dead zone
 ``supply_pressure``    supply gauge pressure [MPa], every sub-step    supply sag or fluctuation
 ``load``               hanging load [N], every sub-step               load mismatch

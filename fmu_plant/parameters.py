@@ -30,6 +30,7 @@ __all__ = [
     "LoadMismatchParams",
     "SensorDriftParams",
     "BacklashParams",
+    "InputMapParams",
     "EFFECT_GROUPS",
     "PlantParams",
     "GRAVITY_M_S2",
@@ -264,8 +265,59 @@ class BacklashParams(_Validated):
     slack_mm: float = _f(0.0, "Total play of the cable link [mm]; 0 switches it off.", lo=0.0, hi=20.0)
 
 
+@dataclass(frozen=True, kw_only=True)
+class InputMapParams(_Validated):
+    """Static input map: the valve amplifier turns the command ``u`` into ``map(u)`` instead of ``u``.
+
+    The static characteristic of the amplifier and valve differs from the nominal one: a dead band
+    around some command (spool overlap: flow still meters outside the band, but every command inside
+    it gives the same opening), a gain or offset error of the amplifier, saturation below full scale.
+    ``map`` is monotone (non-decreasing) and piecewise linear through four points, (0 V,
+    ``out_at_0_v``), (``knot1_in_v``, ``knot1_out_v``), (``knot2_in_v``, ``knot2_out_v``), (10 V,
+    ``out_at_10_v``); commands outside 0..10 V continue the outer segments, and the result is clipped
+    to 0..10 V. The knots lie strictly inside 0..10 V and strictly in order, so the map is a
+    continuous function of the command (an end knot would make a jump at 0 or 10 V).
+
+    The defaults are the identity (every output equal to its input), which switches the map off; so
+    is any other identity (both knots' outputs equal to their inputs, ``out_at_0_v = 0``,
+    ``out_at_10_v = 10``), see :meth:`is_identity`. Examples: a dead band of 1.2 V centred at 5 V is
+    ``out_at_0_v = 0.6``, knots (4.4, 5.0) and (5.6, 5.0), ``out_at_10_v = 9.4``; a gain of 0.85 with an
+    offset of +0.5 V is ``out_at_0_v = 0.5``, knots at ``0.85 u + 0.5``, ``out_at_10_v = 9.0``.
+    """
+
+    # The knots at 10/3 and 20/3 V, each input and output the same float, so the identity is exact. Written
+    # with 16 significant digits, as the FMU's modelDescription states start values: a host that sets
+    # the parameters from there passes these very floats.
+    out_at_0_v: float = _f(0.0, "Command the valve receives at a command of 0 V [V].", lo=0.0, hi=10.0)
+    knot1_in_v: float = _f(3.333333333333333, "Command at the map's first inner knot [V]; 0 < knot1_in_v < knot2_in_v < 10.", lo=0.0, hi=10.0, lo_open=True)
+    knot1_out_v: float = _f(3.333333333333333, "Command the valve receives at knot1_in_v [V].", lo=0.0, hi=10.0)
+    knot2_in_v: float = _f(6.666666666666667, "Command at the map's second inner knot [V]; knot1_in_v < knot2_in_v < 10.", lo=0.0, hi=10.0, lo_open=True)
+    knot2_out_v: float = _f(6.666666666666667, "Command the valve receives at knot2_in_v [V].", lo=0.0, hi=10.0)
+    out_at_10_v: float = _f(10.0, "Command the valve receives at a command of 10 V [V].", lo=0.0, hi=10.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        name = type(self).__name__
+        if not self.knot1_in_v < self.knot2_in_v:
+            raise ValueError(f"{name}.knot2_in_v ({self.knot2_in_v!r}) must exceed knot1_in_v ({self.knot1_in_v!r})")
+        if not self.knot2_in_v < 10.0:
+            raise ValueError(f"{name}.knot2_in_v must be < 10.0, got {self.knot2_in_v!r}")
+        outs = (("out_at_0_v", self.out_at_0_v), ("knot1_out_v", self.knot1_out_v),
+                ("knot2_out_v", self.knot2_out_v), ("out_at_10_v", self.out_at_10_v))
+        for (lo_name, lo), (hi_name, hi) in zip(outs, outs[1:]):
+            if hi < lo:
+                raise ValueError(f"{name}.{hi_name} ({hi!r}) must not be below {lo_name} ({lo!r}): the map "
+                                 f"must be monotone (non-decreasing)")
+
+    def is_identity(self) -> bool:
+        """True when the map is ``u -> u`` on 0..10 V (then the plant leaves it out)."""
+        return (self.out_at_0_v == 0.0 and self.out_at_10_v == 10.0 and self.knot1_out_v == self.knot1_in_v
+                and self.knot2_out_v == self.knot2_in_v)
+
+
 #: The PlantParams groups that hold effects (each off at its defaults).
-EFFECT_GROUPS = ("dead_zone", "delay", "supply_variation", "load_mismatch", "sensor_drift", "backlash")
+EFFECT_GROUPS = ("dead_zone", "delay", "supply_variation", "load_mismatch", "sensor_drift", "backlash",
+                 "input_map")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -286,6 +338,7 @@ class PlantParams:
     load_mismatch: LoadMismatchParams = field(default_factory=LoadMismatchParams)
     sensor_drift: SensorDriftParams = field(default_factory=SensorDriftParams)
     backlash: BacklashParams = field(default_factory=BacklashParams)
+    input_map: InputMapParams = field(default_factory=InputMapParams)
 
     def with_values(self, **dotted: float) -> "PlantParams":
         """Return a copy with fields replaced by dotted name, e.g. ``with_values(**{"load.load_n": 68})``.

@@ -132,10 +132,62 @@ def test_unexplained_when_no_candidate_fits():
 def test_every_effect_of_the_library_is_a_candidate():
     names = {c.name for c in CANDIDATES}
     assert names == {"rate_dependent_hysteresis", "valve_dead_zone", "transport_delay", "supply_pressure_variation",
-                     "load_mismatch", "sensor_drift", "backlash"}
-    for c in CANDIDATES:  # every fitted parameter is a plant (FMU) parameter
-        for p in c.parameters:
-            DEMO_MODEL.with_values(**{p.key: p.lo})
+                     "load_mismatch", "sensor_drift", "backlash", "input_map"}
+    for c in CANDIDATES:  # every fitted parameter is a plant (FMU) parameter; all at their bounds at once
+        DEMO_MODEL.with_values(**{p.key: p.lo for p in c.parameters})
+        DEMO_MODEL.with_values(**{p.key: p.hi for p in c.parameters})
+
+
+#: A command dead band of 1.2 V at 5 V in the amplifier: the valve keeps metering, but commands in the
+#: band act as 5 V and the others 0.6 V closer to it.
+BAND_5V = {"input_map.out_at_0_v": 0.6, "input_map.knot1_in_v": 4.4, "input_map.knot1_out_v": 5.0,
+           "input_map.knot2_in_v": 5.6, "input_map.knot2_out_v": 5.0, "input_map.out_at_10_v": 9.4}
+INPUT_MAPS = [
+    ("dead band 1.2 V at 5 V", BAND_5V, "steps", "dead band"),
+    ("dead band 0.8 V at 6.5 V", {"input_map.out_at_0_v": 0.4, "input_map.knot1_in_v": 6.1, "input_map.knot1_out_v": 6.5,
+                                  "input_map.knot2_in_v": 6.9, "input_map.knot2_out_v": 6.5,
+                                  "input_map.out_at_10_v": 9.6}, "sine", "dead band"),
+    ("gain 0.85, offset +0.5 V", {"input_map.out_at_0_v": 0.5, "input_map.knot1_in_v": 2.0, "input_map.knot1_out_v": 2.2,
+                                  "input_map.knot2_in_v": 6.0, "input_map.knot2_out_v": 5.6,
+                                  "input_map.out_at_10_v": 9.0}, "ampc", "0.85 x the command +0.50 V"),
+]
+
+
+@pytest.mark.parametrize("name,rig_map,excitation,words", INPUT_MAPS, ids=[c[0] for c in INPUT_MAPS])
+def test_the_input_map_candidate_fits_a_static_input_map_to_the_noise(name, rig_map, excitation, words):
+    """Fitted on the training blocks of the fit segment, on top of the model, and scored on the held-out
+    blocks of the whole 180-s recording, the map is recovered to the noise."""
+    from diagnosis.candidates import Problem
+    from diagnosis.residual_analysis import white_noise_level_mm
+    from diagnosis.simulation import Simulator
+
+    model = PlantParams_default_with({})
+    cols = record(model.with_values(**rig_map), excitation, 0, duration_s=180.0)
+    sim = Simulator(cols["u_v"], 0.1)
+    y0 = sim.run(model, checkpoint_every=100)[0]
+    train, test = interleaved_split(len(y0), 0.1, 10.0)
+    problem = Problem(cols["l_mm"], cols["t_s"], cols["u_v"], 0.1, train, test, sim,
+                      white_noise_level_mm(cols["l_mm"] - y0))
+    runs = sim.runs
+    res = candidate("input_map").fit(problem, model, y0)
+    assert sim.runs - runs <= 71  # the search's budget and the final whole-run simulation
+    assert fit_percent(cols["l_mm"], y0, test) < 90.0
+    assert fit_percent(cols["l_mm"], res.y_hat, test) >= 99.0
+    assert words in candidate("input_map").explain(res.values)
+    # the map is the model's now: the candidate does not fit it again
+    assert candidate("input_map").fit(problem, model.with_values(**res.values), res.y_hat) is None
+
+
+def test_a_command_dead_band_is_named_an_input_map():
+    """The diagnosis names the 1.2-V dead band of the amplifier an input map, fitted to the noise."""
+    model = PlantParams_default_with({})
+    cols = record(model.with_values(**BAND_5V), "steps", 0, duration_s=180.0)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model,
+                 candidates=[candidate("valve_dead_zone"), candidate("input_map")])
+    assert d.fit_before_percent < 50.0
+    assert d.findings[0].effect == "input_map", [(c["effect"], c.get("fit_gain_points")) for c in d.candidates]
+    assert d.fit_after_percent >= 95.0
+    assert "dead band" in d.findings[0].explanation
 
 
 # ------------------------------------------------------------------------------ the command

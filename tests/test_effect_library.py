@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from fmu_plant import Plant, PlantParams
-from fmu_plant.effect_library import effects_from_params
+from fmu_plant.effect_library import InputMap, effects_from_params, input_map_v
+from fmu_plant.parameters import InputMapParams
 from fmu_plant.open_loop import run_open_loop
 
 QUIET = {"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0}
@@ -23,6 +24,10 @@ def _run(overrides: dict, signal=lambda t: 5 + 3 * math.sin(2 * math.pi * 0.1 * 
 def test_every_effect_is_off_by_default_and_the_default_plant_is_unchanged():
     assert effects_from_params(PlantParams()) == []
     assert Plant().effects == ()
+    # an identity input map with knots elsewhere is left out too
+    assert effects_from_params(PlantParams().with_values(**{
+        "input_map.knot1_in_v": 1.7, "input_map.knot1_out_v": 1.7, "input_map.knot2_in_v": 8.2,
+        "input_map.knot2_out_v": 8.2})) == []
 
 
 def test_a_whole_sample_delay_equals_the_command_shifted_by_one_sample():
@@ -96,3 +101,68 @@ def test_effect_parameters_are_validated():
         PlantParams().with_values(**{"supply_variation.start_s": 50.0, "supply_variation.end_s": 10.0})
     with pytest.raises(ValueError, match="delay_s"):
         PlantParams().with_values(**{"delay.delay_s": -0.1})
+
+
+#: A command dead band of 1.2 V centred at 5 V, the outer parts of slope 1.
+BAND = {"input_map.out_at_0_v": 0.6, "input_map.knot1_in_v": 4.4, "input_map.knot1_out_v": 5.0,
+        "input_map.knot2_in_v": 5.6, "input_map.knot2_out_v": 5.0, "input_map.out_at_10_v": 9.4}
+
+
+def _map(overrides: dict) -> InputMapParams:
+    return PlantParams().with_values(**overrides).input_map
+
+
+def test_input_map_values_on_a_grid():
+    grid = np.linspace(0.0, 10.0, 101)
+    assert [input_map_v(u, InputMapParams()) for u in grid] == pytest.approx(grid, abs=1e-12)
+    band = np.array([input_map_v(u, _map(BAND)) for u in grid])
+    expected = np.where(grid < 4.4, grid + 0.6, np.where(grid > 5.6, grid - 0.6, 5.0))
+    assert band == pytest.approx(expected, abs=1e-12)
+    # gain 0.85, offset +0.5 V
+    gain = _map({"input_map.out_at_0_v": 0.5, "input_map.knot1_in_v": 2.0, "input_map.knot1_out_v": 2.2,
+                 "input_map.knot2_in_v": 6.0, "input_map.knot2_out_v": 5.6, "input_map.out_at_10_v": 9.0})
+    assert [input_map_v(u, gain) for u in grid] == pytest.approx(0.85 * grid + 0.5, abs=1e-12)
+    # commands outside 0..10 V continue the outer segments, and the result is clipped to 0..10 V
+    assert input_map_v(-0.3, _map(BAND)) == pytest.approx(0.3)
+    assert input_map_v(-1.0, _map(BAND)) == 0.0 and input_map_v(11.0, _map(BAND)) == 10.0
+    steep = _map({"input_map.out_at_0_v": 0.0, "input_map.knot1_in_v": 1.0, "input_map.knot1_out_v": 2.0,
+                  "input_map.knot2_in_v": 4.0, "input_map.knot2_out_v": 9.0, "input_map.out_at_10_v": 10.0})
+    assert input_map_v(10.5, steep) == 10.0
+    assert isinstance(effects_from_params(PlantParams().with_values(**BAND))[0], InputMap)
+
+
+def test_input_map_is_the_same_as_the_mapped_command():
+    """The plant with the map == the plant without it, driven by the mapped command."""
+    sig = lambda t: 5 + 3 * math.sin(2 * math.pi * 0.1 * t)  # noqa: E731
+    mapped = _run(BAND, sig)
+    by_hand = _run({}, lambda t: input_map_v(sig(t), _map(BAND)))
+    assert np.array_equal(mapped["l_mm"], by_hand["l_mm"])
+    assert np.max(np.abs(mapped["l_mm"] - _run({}, sig)["l_mm"])) > 5.0
+    # after a transport delay the map acts on the delayed command (it comes first in the chain)
+    delayed = PlantParams().with_values(**BAND, **{"delay.delay_s": 0.2, "dead_zone.width_v": 0.4})
+    assert [e.name for e in effects_from_params(delayed)] == ["transport_delay", "input_map", "valve_dead_zone"]
+
+
+def test_input_map_parameters_are_validated_naming_the_field():
+    for overrides, field in [({"input_map.knot1_in_v": 0.0}, "knot1_in_v"),
+                             ({"input_map.knot2_in_v": 10.0}, "knot2_in_v"),
+                             ({"input_map.knot1_in_v": 7.0}, "knot2_in_v"),
+                             ({"input_map.out_at_0_v": -0.1}, "out_at_0_v"),
+                             ({"input_map.knot1_out_v": 10.5}, "knot1_out_v"),
+                             ({"input_map.knot1_out_v": 8.0}, "knot2_out_v"),
+                             ({"input_map.out_at_10_v": 6.0}, "out_at_10_v"),
+                             ({"input_map.out_at_0_v": float("nan")}, "out_at_0_v")]:
+        with pytest.raises(ValueError, match=f"InputMapParams.{field}"):
+            PlantParams().with_values(**overrides)
+    PlantParams().with_values(**BAND)  # a flat stretch is monotone (non-decreasing)
+
+
+def test_state_with_the_input_map_restores_bit_identically():
+    plant = Plant(PlantParams().with_values(**BAND, **{"delay.delay_s": 0.13}), seed=3)
+    for k in range(40):
+        plant.step(5 + 3 * math.sin(0.3 * k), 0.1)
+    saved = plant.get_state()
+    ahead = [plant.step(5 + 2 * math.cos(0.2 * k), 0.1).l_mm for k in range(60)]
+    plant.set_state(saved)
+    again = [plant.step(5 + 2 * math.cos(0.2 * k), 0.1).l_mm for k in range(60)]
+    assert ahead == again

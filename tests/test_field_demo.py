@@ -1,0 +1,311 @@
+"""The field-recording proof (diagnosis/field_demo.py): the generator is seeded and varied, the scoring
+counts what it says on made-up results, the discriminating experiment is run on the truth, and a tiny
+run writes its files."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from diagnosis import CANDIDATES
+from diagnosis import field_demo as fd
+from diagnosis.field_demo import (CATEGORY_MIX, EXCITATIONS, FIELD_ERROR_PARAMETERS, INCOMPATIBLE_PAIRS, OOV_KINDS,
+                                  field_cases, record_case, run_field_case, run_field_demo, score_results,
+                                  scores_markdown, vocabulary)
+from fmu_plant import PlantParams
+from tapmuscle.recording import Recording, atomic_write_text, read_recording, write_recording
+
+
+@pytest.fixture(scope="module")
+def cases120():
+    return field_cases(120, 0)
+
+
+# ------------------------------------------------------------------------------------ generator
+def test_the_same_seed_gives_the_same_cases_and_another_seed_others(cases120):
+    assert field_cases(120, 0) == cases120
+    other = field_cases(120, 1)
+    assert other != cases120
+    assert sum(a.parameter_errors != b.parameter_errors for a, b in zip(cases120, other)) > 100
+    assert len({c.name for c in cases120}) == 120
+
+
+def test_three_to_six_constants_are_off_by_5_to_20_percent_within_their_bounds(cases120):
+    counts = Counter()
+    for c in cases120:
+        keys = [k for k, _ in c.parameter_errors]
+        assert 3 <= len(keys) <= 6 and len(set(keys)) == len(keys)
+        assert set(keys) <= set(FIELD_ERROR_PARAMETERS)
+        counts[len(keys)] += 1
+        for key, rel in c.parameter_errors:
+            assert 0.05 - 1e-12 <= abs(rel) <= 0.20 + 1e-12, (c.name, key, rel)
+        truth = c.truth()  # constructing it validates every field's bounds
+        assert truth.valve.cv_max <= 1.6
+        for key, value in c.true_constants().items():
+            group, _, name = key.partition(".")
+            assert getattr(getattr(truth, group), name) == value
+        assert c.model().load.load_n == c.load_n and c.model().friction.rate_gain == 0.0
+    assert set(counts) == {3, 4, 5, 6}
+    signs = [np.sign(rel) for c in cases120 for _, rel in c.parameter_errors]
+    assert 0.35 < np.mean(np.array(signs) > 0) < 0.65
+    # cv_max above its rating is clipped to 1.6 (+6.7 %)
+    cv = [rel for c in cases120 for k, rel in c.parameter_errors if k == "valve.cv_max"]
+    assert max(cv) == pytest.approx(1.6 / 1.5 - 1.0)
+
+
+def test_category_mix_effects_excitations_and_disturbances(cases120):
+    cats = Counter(c.category for c in cases120)
+    assert cats == {"none": 30, "single": 42, "pair": 30, "oov": 18}
+    assert sum(share for _, share in CATEGORY_MIX) == pytest.approx(1.0)
+    assert sum(Counter(c.category for c in field_cases(7, 3)).values()) == 7
+    vocab = set(vocabulary())
+    singles = Counter(c.effects[0] for c in cases120 if c.category == "single")
+    assert set(singles) == vocab and max(singles.values()) - min(singles.values()) <= 1
+    for c in cases120:
+        assert len(c.effects) == {"none": 0, "single": 1, "pair": 2, "oov": 0}[c.category]
+        assert (c.oov is not None) == (c.category == "oov")
+        if c.category == "pair":
+            assert c.effects[0] != c.effects[1] and frozenset(c.effects) not in INCOMPATIBLE_PAIRS
+        assert set(c.effects) <= vocab
+        c.truth()  # the effects' parameters are valid plant parameters
+    assert set(e for c in cases120 for e in c.effects) == vocab
+    assert Counter(c.oov for c in cases120 if c.oov) == {k: 6 for k in OOV_KINDS}
+    exc = Counter(c.excitation for c in cases120)
+    assert set(exc) == set(EXCITATIONS) and min(exc.values()) >= 20
+    assert {c.load_n for c in cases120} == {44.0, 68.0}
+
+
+def test_every_candidate_of_the_diagnosis_can_be_drawn():
+    assert {c.name for c in CANDIDATES} <= set(vocabulary())
+    if "input_map" in {f for f in PlantParams().to_dict()}:
+        assert "input_map" in vocabulary()
+
+
+def test_excitation_parameters_stay_within_their_ranges(cases120):
+    for c in cases120:
+        p = dict(c.excitation_params)
+        if c.excitation == "sine":
+            assert 4 <= p["offset_v"] <= 6 and 2 <= p["amplitude_v"] <= 4 and 0.05 <= p["frequency_hz"] <= 0.2
+            assert c.input_spec().startswith("sine:")
+        elif c.excitation == "sinesum":
+            amps = [v for k, v in p.items() if k.startswith("amplitude")]
+            assert len(amps) in (2, 3) and 2 <= sum(amps) <= 4 and c.input_spec() is None
+        elif c.excitation in ("steps", "random"):
+            assert c.input_spec().startswith("random:")
+        else:
+            assert 20 <= p["amplitude_mm"] <= 30 and 0.05 <= p["frequency_hz"] <= 0.15
+
+
+def test_out_of_vocabulary_disturbances_act_as_documented(cases120):
+    base = next(c for c in cases120 if c.category == "none" and c.excitation == "sine")
+    short = dict(duration_s=40.0)
+
+    def with_oov(kind, params):
+        return replace(base, category="oov", oov=kind, oov_params=tuple(params.items()))
+
+    clean = record_case(base, **short)
+    vib = record_case(with_oov("vibration", {"amplitude_mm": 1.0, "frequency_hz": 1.0, "phase_rad": 0.0}), **short)
+    d = vib["l_mm"] - clean["l_mm"]  # same noise seed: the difference is the vibration (quantised)
+    assert np.max(np.abs(d - np.sin(2 * np.pi * vib["t_s"]))) < 0.02
+    stop = record_case(with_oov("end_stop", {"below_peak_mm": 5.0}), end_stop_mm=30.0, **short)
+    assert stop["l_mm"].max() <= 30.0 + 0.05 and clean["l_mm"].max() > 35.0
+    load = record_case(with_oov("varying_load", {"form": 1.0, "extra_n": 8.0, "on_s": 10.0, "off_s": 25.0}), **short)
+    assert np.all(load["load_n"] == base.load_n)  # the recording does not know the extra weight
+    late = load["t_s"] > 12.0
+    assert np.max(np.abs(load["l_mm"] - clean["l_mm"])[late]) > 1.0
+    before = load["t_s"] < 9.95
+    assert np.array_equal(load["l_mm"][before], clean["l_mm"][before])
+
+
+# ------------------------------------------------------------------------------------ scoring
+def _r(category, effects=(), findings=(), ambiguous=(), fit_after=97.0, oov=None, verdict=None, **more):
+    r = {"case": f"c{_r.i}", "category": category, "effects": list(effects), "oov": oov,
+         "findings": list(findings), "ambiguous": [list(g) for g in ambiguous],
+         "verdict": verdict or ("ambiguous" if ambiguous else "mismatch" if findings else "calibration_only"),
+         "fit_before_percent": 60.0, "fit_after_percent": fit_after, **more}
+    _r.i += 1
+    return r
+
+
+_r.i = 0
+
+
+def test_scores_count_each_target_the_confusion_and_the_misses():
+    results = [
+        # none: 3 right (two calibration_only, one no_significant_mismatch), 1 claims drift, 1 unexplained
+        _r("none"), _r("none"), _r("none", verdict="no_significant_mismatch"),
+        _r("none", findings=["sensor_drift"]), _r("none", findings=["unexplained"], fit_after=90.0),
+        # single: named alone, named with an extra, named as an ambiguous alternative, missed, failed
+        _r("single", ["backlash"], ["backlash"]),
+        _r("single", ["backlash"], ["backlash", "unexplained"]),
+        _r("single", ["transport_delay"], ambiguous=[["transport_delay", "rate_dependent_hysteresis"]],
+           discrimination={"alternatives": ["rate_dependent_hysteresis", "transport_delay"], "input_written": True,
+                           "right": True}),
+        _r("single", ["load_mismatch"], ["supply_pressure_variation"]),
+        {**_r("single", ["load_mismatch"]), "error": "RuntimeError: boom"},
+        # pair: both, one, neither
+        _r("pair", ["backlash", "sensor_drift"], ["sensor_drift", "backlash"]),
+        _r("pair", ["backlash", "sensor_drift"], ["sensor_drift"]),
+        _r("pair", ["load_mismatch", "transport_delay"], ["unexplained"]),
+        # oov: unexplained alone, unexplained with a wrong name, only a wrong name
+        _r("oov", oov="vibration", findings=["unexplained"], oov_cost_points=2.0),
+        _r("oov", oov="end_stop", findings=["backlash", "unexplained"], oov_cost_points=5.0),
+        _r("oov", oov="end_stop", findings=["sensor_drift"], oov_cost_points=0.1),
+    ]
+    s = score_results(results)
+    t = s["targets"]
+    assert (t["none_no_effect_claimed"]["passed"], t["none_no_effect_claimed"]["cases"]) == (3, 5)
+    assert t["none_no_effect_claimed"]["rate_percent"] == pytest.approx(60.0) and not t["none_no_effect_claimed"]["met"]
+    assert (t["single_named"]["passed"], t["single_named"]["cases"]) == (3, 5)
+    assert t["single_named_alone"]["passed"] == 1
+    assert (t["pair_both_found"]["passed"], t["pair_both_found"]["cases"]) == (1, 3)
+    assert (t["oov_unexplained"]["passed"], t["oov_unexplained"]["cases"]) == (2, 3)
+    # visible: the oov case whose disturbance costs 0.1 points is not
+    assert (t["oov_unexplained"]["visible_passed"], t["oov_unexplained"]["visible_cases"]) == (2, 2)
+    assert t["oov_unexplained"]["visible_rate_percent"] == pytest.approx(100.0)
+    # fit after >= 95 in the 13 in-vocabulary cases: the failed one and the 90 % one miss
+    assert (t["fit_after_at_least_95"]["passed"], t["fit_after_at_least_95"]["cases"]) == (11, 13)
+    assert s["more"]["oov_unexplained_alone"]["passed"] == 1
+    assert s["more"]["pair_found_alone"]["passed"] == 1
+    assert s["more"]["none_verdicts"] == {"calibration_only": 2, "no_significant_mismatch": 1, "mismatch": 2}
+    assert s["failed"] == 1 and s["recordings"] == 16
+
+    conf = s["confusion"]
+    c = conf["counts"]
+    assert c["none"]["nothing"] == 3 and c["none"]["sensor_drift"] == 1 and c["none"]["unexplained"] == 1
+    assert c["single: backlash"]["backlash"] == 2 and c["single: backlash"]["unexplained"] == 1
+    assert c["single: transport_delay"]["ambiguous"] == 1
+    assert c["single: transport_delay"]["transport_delay"] == 1
+    assert c["single: transport_delay"]["rate_dependent_hysteresis"] == 1
+    assert c["single: load_mismatch"]["supply_pressure_variation"] == 1 and c["single: load_mismatch"]["failed"] == 1
+    assert conf["cases"]["single: load_mismatch"] == 2 and conf["correct"]["single: load_mismatch"] == 0
+    assert c["pair"]["backlash"] == 1 and c["pair"]["sensor_drift"] == 2 and c["pair"]["unexplained"] == 1
+    assert c["oov: end_stop"]["unexplained"] == 1 and c["oov: end_stop"]["backlash"] == 1
+    assert conf["cases"]["oov: end_stop"] == 2 and conf["correct"]["oov: end_stop"] == 1
+    assert s["pairs"]["backlash+sensor_drift"] == {"cases": 2, "both": 1, "one": 1, "neither": 0, "failed": 0}
+    assert s["pairs"]["load_mismatch+transport_delay"]["neither"] == 1
+    assert s["discrimination"] == {"ambiguous_verdicts": 1, "inputs_written": 1, "re_diagnosed": 1, "right": 1,
+                                 "failed": 0}
+
+    why = {m["case"]: m["why"] for m in s["misses"]}
+    assert len(s["misses"]) == 9
+    assert why[results[4]["case"]] == "claimed something; fit after < 95 %"
+    assert why[results[6]["case"]] == "named, not alone"
+    assert why[results[9]["case"]] == "failed"
+
+    md = scores_markdown(s)
+    assert "| one effect -> named (or an ambiguous alternative) | 3 / 5 | 60.0 % | >= 90 % | **no** |" in md
+    assert "| none | 5 | 3 |" in md and "Misses (9)" in md and "RuntimeError: boom" in md
+
+
+def test_confusion_figure_is_a_png(tmp_path):
+    s = score_results([_r("none"), _r("single", ["backlash"], ["backlash"]),
+                       _r("oov", oov="vibration", findings=["unexplained"])])
+    path = fd.confusion_figure(s, tmp_path / "confusion.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# ------------------------------------------------------------------------------------ running
+def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_path, monkeypatch, cases120):
+    """With a stand-in diagnosis: the first call says `ambiguous` and writes an input, the re-diagnosis
+    (limited to the alternatives) names the true effect."""
+    import diagnosis.report as report
+
+    case = next(c for c in cases120 if c.category == "single" and c.excitation == "sine")
+    case = replace(case, duration_s=40.0)
+    true, other = case.effects[0], next(e for e in vocabulary() if e != case.effects[0])
+    calls = []
+
+    def fake(rec, plant, out, *, plots=True, effects=None, **options):
+        out = Path(out)
+        calls.append({"samples": len(read_recording(rec).t_s), "effects": effects})
+        if effects is None:
+            t = np.arange(0.0, 35.05, 0.1)
+            write_recording(out / "discriminating_input.csv",
+                            Recording({"t_s": t, "u_v": 5 + 2 * np.sign(np.sin(t)), "l_mm": 0 * t}, {"ts_s": "0.1"}))
+            doc = {"verdict": "ambiguous", "findings": [], "fit_before_percent": 50.0, "fit_after_percent": 96.0,
+                   "ambiguous": [{"alternatives": [{"effect": true}, {"effect": other}],
+                                  "discriminating_input": "discriminating_input.csv"}]}
+        else:
+            doc = {"verdict": "mismatch", "findings": [{"effect": true}], "fit_before_percent": 40.0,
+                   "fit_after_percent": 98.0}
+        atomic_write_text(out / "diagnosis.json", json.dumps(doc))
+        atomic_write_text(out / "report.md", "# stand-in\n")
+        return None, doc
+
+    monkeypatch.setattr(report, "diagnose_files", fake)
+    r = run_field_case(case, tmp_path)
+    assert r["verdict"] == "ambiguous" and r["named"] == sorted([true, other])
+    d = r["discrimination"]
+    assert d["input_written"] and d["right"] and d["picked"] == [true] and d["duration_s"] == pytest.approx(35.0)
+    assert calls[1]["effects"] == sorted([true, other])
+    assert calls[1]["samples"] == 351  # recorded for the input's 35 s
+    folder = tmp_path / case.name
+    assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "discriminate", "report.md"]
+    assert sorted(p.name for p in (folder / "discriminate").iterdir()) == ["diagnosis.json", "report.md"]
+
+    # a diagnosis without the `effects` keyword: the re-diagnosis runs with every candidate
+    def older(rec, plant, out, *, plots=True, **options):
+        if "effects" in options:
+            raise TypeError("diagnose() got an unexpected keyword argument 'effects'")
+        return fake(rec, plant, out, plots=plots, effects=["second call"] if calls else None)
+
+    calls.clear()
+    monkeypatch.setattr(report, "diagnose_files", older)
+    r = run_field_case(case, tmp_path / "older")
+    assert len(calls) == 2 and r["discrimination"]["verdict"] == "mismatch" and r["discrimination"]["right"]
+
+
+def test_a_tiny_run_writes_its_files(tmp_path):
+    scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=32.0)
+    assert scores["recordings"] == 2 and scores["failed"] == 0, scores["misses"]
+    for name in ("scores.md", "scores.json", "confusion.png"):
+        assert (tmp_path / name).is_file()
+    doc = json.loads((tmp_path / "scores.json").read_text())
+    assert len(doc["cases"]) == 2 and {c["category"] for c in doc["cases"]} == {"none", "single"}
+    for c in doc["cases"]:
+        assert c["fit_truth_percent"] > 99.0 and "verdict" in c
+        folder = tmp_path / "cases" / c["case"]
+        assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "report.md"]
+    assert "Confusion table" in (tmp_path / "scores.md").read_text()
+
+
+def test_the_closed_loop_recording_is_the_fmus_bit_for_bit(tmp_path, built_fmus, cases120):
+    """The AMPC FMU driving the plant FMU, with the truth's constants and effects as FMU parameters,
+    records what the direct loop records (docs/diagnosis.md)."""
+    from scenarios.master import co_simulate
+    from scenarios.spec import load_scenario
+
+    case = next(c for c in cases120 if c.excitation == "ampc" and c.category == "pair")
+    default = PlantParams().dotted()
+    params = {k: v for k, v in case.truth().dotted().items() if v != default[k]}
+    p = dict(case.excitation_params)
+    path = tmp_path / "field.toml"
+    path.write_text("\n".join([
+        'duration_s = 30.0', 'step_s = 0.1', f'seed = {case.noise_seed}',
+        '[plant]', "parameters = { " + ", ".join(f'"{k}" = {v!r}' for k, v in params.items()) + " }",
+        '[controller]', 'method = "ampc_servo"',
+        '[reference]', 'kind = "sine"', f'offset_mm = {p["offset_mm"]!r}', f'amplitude_mm = {p["amplitude_mm"]!r}',
+        f'frequency_hz = {p["frequency_hz"]!r}', '[load]', f'initial_n = {case.load_n!r}']) + "\n")
+    cols = co_simulate(load_scenario(path), built_fmus)
+    direct = record_case(case, duration_s=30.0)
+    assert np.array_equal(cols["l_mm"], direct["l_mm"]) and np.array_equal(cols["u_v"], direct["u_v"])
+
+
+def test_the_cli_keeps_each_suites_flags_to_it(tmp_path, capsys):
+    from tapmuscle.cli import main
+
+    out = tmp_path / "out"
+    assert main(["demo-mismatch", "--out", str(out), "--seeds", "2"]) == 2
+    assert "--seeds belongs to --suite concealed, not --suite field" in capsys.readouterr().err
+    assert main(["demo-mismatch", "--out", str(out), "--suite", "concealed", "--recordings", "5", "--seed", "1"]) == 2
+    assert "--recordings, --seed belong to --suite field" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["demo-mismatch", "--out", str(out), "--recordings", "0"])
+    assert "--recordings must be >= 1" in capsys.readouterr().err
+    assert not out.exists()
