@@ -181,7 +181,8 @@ def run_case(case: Case, workdir: str | Path, *, plots: bool = False, fig20_mode
     plant_path = folder / "plant.json"
     write_recording(rec_path, Recording(cols, {"ts_s": f"{TS_S:g}", "source": "tapmuscle demo-mismatch"}))
     atomic_write_text(plant_path, plant_file_text(model, "the demo's calibrated plant model"))
-    d, doc = diagnose_files(rec_path, plant_path, folder, plots=plots)
+    # the concealed-effect proof hands over the exact model: it proves the effect search alone
+    d, doc = diagnose_files(rec_path, plant_path, folder, plots=plots, calibration=None)
     # the concealed effect's cost: held-out fit of the true rig (noise-free) against the model's
     train, test = interleaved_split(len(cols["t_s"]), TS_S, 10.0)
     y_true = Simulator(cols["u_v"], TS_S, cols["load_n"]).run(rig)[0]

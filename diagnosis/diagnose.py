@@ -40,7 +40,7 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from .calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          calibration_rows, field_bounds, fit_parameters, nominal_coords)
+                          calibration_rows, effective_sigma, field_bounds, fit_parameters, nominal_coords)
 from .candidates import CANDIDATES, Candidate, FitResult, Problem
 from .residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
@@ -215,39 +215,31 @@ def _significance(e0: np.ndarray, e1: np.ndarray, noise_mm: float, alpha: float)
             "z": z, "p_value": float(stats.norm.sf(z)), "significant_at": alpha}
 
 
-def distinguishable(e_best: np.ndarray, e_other: np.ndarray, blocks: np.ndarray, noise_mm: float, *,
-                    alpha: float = 1e-3, min_ratio: float = 1.1) -> tuple[bool, dict[str, float]]:
+def distinguishable(e_best: np.ndarray, e_other: np.ndarray, noise_mm: float, *, alpha: float = 1e-3,
+                    min_ratio: float = 1.1) -> tuple[bool, dict[str, float]]:
     """Can the held-out data tell the best explanation from another one?
 
     Both must hold: the other's held-out squared error exceeds the best's by at least
-    ``min_ratio``, and the difference is more than noise could give, consistently over the held-out
-    blocks. The z-statistic is ``(SSE_other - SSE_best) / (2 sigma |y_best - y_other|)`` (the
-    sampling spread of an SSE difference between two predictions under white noise ``sigma``), and
-    the per-block differences must be positive on average with a one-sided t-test p < 0.05 (a
-    residual that is not white spreads the SSE difference more than the z-statistic assumes).
+    ``min_ratio``, and the difference is more than noise could give. The statistic is
+    ``z = (SSE_other - SSE_best) / (2 sigma |y_best - y_other|)``, the SSE difference in units of its
+    sampling spread when the best leaves noise of level ``sigma``; ``sigma`` is the white-noise level,
+    or the best's own residual level inflated for its autocorrelation where that is larger (a
+    residual that is not white spreads an SSE difference more). One-sided, level ``alpha``.
 
     Parameters
     ----------
     e_best, e_other : ndarray
         Held-out residuals [mm] of the best explanation and the other one.
-    blocks : ndarray
-        Block index of every held-out sample.
     noise_mm : float
         White-noise level [mm].
     """
     s_best, s_other = float(e_best @ e_best), float(e_other @ e_other)
     delta = float(np.linalg.norm(e_best - e_other))
-    z = (s_other - s_best) / (2.0 * noise_mm * delta) if delta > 0 and noise_mm > 0 else 0.0
-    per_block = np.array([float(e_other[blocks == b] @ e_other[blocks == b] - e_best[blocks == b] @ e_best[blocks == b])
-                          for b in np.unique(blocks)])
-    if len(per_block) > 1 and float(np.std(per_block, ddof=1)) > 0:
-        t = float(np.mean(per_block)) / (float(np.std(per_block, ddof=1)) / math.sqrt(len(per_block)))
-        p_blocks = float(stats.t.sf(t, len(per_block) - 1))
-    else:
-        p_blocks = 0.0 if len(per_block) and float(np.mean(per_block)) > 0 else 1.0
+    sigma = max(noise_mm, effective_sigma(e_best))
+    z = (s_other - s_best) / (2.0 * sigma * delta) if delta > 0 and sigma > 0 else 0.0
     ratio = s_other / s_best if s_best > 0 else math.inf
-    ok = ratio >= min_ratio and stats.norm.sf(z) < alpha and p_blocks < 0.05
-    return ok, {"sse_ratio": ratio, "z": z, "p_value": float(stats.norm.sf(z)), "blocks_p_value": p_blocks}
+    p = float(stats.norm.sf(z))
+    return ratio >= min_ratio and p < alpha, {"sse_ratio": ratio, "z": z, "p_value": p, "sigma_mm": sigma}
 
 
 @dataclass
@@ -335,7 +327,6 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     checkpoint_every = max(1, int(round(10.0 / ts)))
     y0 = sim.run(model, checkpoint_every=checkpoint_every)[0]
     train, test = interleaved_split(n, ts, block_s)
-    blocks = (np.arange(n) * ts // block_s).astype(int)[test]
     e0 = y - y0
     noise = white_noise_level_mm(e0)
     problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s)
@@ -509,7 +500,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         best = accepted[0]
         group = [best]
         for other in accepted[1:]:
-            ok, ev = distinguishable((y - best.y_hat)[test], (y - other.y_hat)[test], blocks, noise, alpha=alpha)
+            ok, ev = distinguishable((y - best.y_hat)[test], (y - other.y_hat)[test], noise, alpha=alpha)
             other.evidence["versus_best"] = ev
             if not ok:
                 group.append(other)
@@ -601,7 +592,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "
             f"{tests1['rms_mm']:.3f} mm against {noise:.3f} mm of noise, {share:.1f} % of the initial "
-            f"excess) that neither the calibration nor the candidate effects explain",
+            f"excess) that neither the calibration nor any candidate effect explains",
             {}, 0.0, located, regime, {"remaining_excess_share": excess1 / excess0}))
     return Diagnosis(verdict, fit_before, fit_percent(y, y_base, test), findings, base, t, u, y, y0, y_base,
                      train, test, tests0, tests1, {"autocorrelation_before": ac0, "cross_correlation_before": xc0,
