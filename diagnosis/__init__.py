@@ -1,5 +1,7 @@
-"""Mismatch diagnosis: where a simulation and a rig recording differ, which physics the simulation left
-out, a fitted model of it, and the fit it wins on held-out data (issue 6, docs/diagnosis.md).
+"""Mismatch diagnosis: where a simulation and a rig recording differ, how much of it recalibrating the
+nominal constants explains, which physics the simulation left out, a fitted model of it, and the fit
+it wins on held-out data; an ``ambiguous`` verdict with a discriminating experiment where the data
+cannot tell explanations apart (docs/diagnosis.md).
 
 Pure numerics, apart from :mod:`diagnosis.report` (files and figures) and :mod:`diagnosis.plant_source`
 (reading a plant parameter file or a MusclePlant FMU). The physics of the candidate effects lives in
@@ -8,6 +10,9 @@ this package fits them.
 """
 
 from .candidates import CANDIDATES, Candidate
-from .diagnose import Diagnosis, Finding, diagnose
+from .calibration import NOMINAL_PARAMETERS, Calibration, calibrate
+from .diagnose import VERDICTS, Alternative, Diagnosis, Finding, diagnose
+from .experiment_design import Experiment, design_input
 
-__all__ = ["diagnose", "Diagnosis", "Finding", "Candidate", "CANDIDATES"]
+__all__ = ["diagnose", "Diagnosis", "Finding", "Alternative", "VERDICTS", "Candidate", "CANDIDATES", "calibrate",
+           "Calibration", "NOMINAL_PARAMETERS", "design_input", "Experiment"]

@@ -1,7 +1,7 @@
 """Physical model of the tap-water McKibben muscle rig (paper section 2.4, Table 1).
 
-Pure numerics: nothing here reads files or knows about FMI. The FMU slave (``fmu_plant.slave``,
-issue 5) and the command line are thin shells around :class:`Plant`.
+Pure numerics: nothing here reads files or knows about FMI. The FMU slave (``fmu_plant.plant_slave``)
+and the command line are thin shells around :class:`Plant`.
 """
 
 from .effects import Effect

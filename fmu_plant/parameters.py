@@ -187,7 +187,7 @@ class SolverParams(_Validated):
     tol_z_n: float = _f(0.05, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True)
 
 
-# ------------------------------------------------------------------------------ effects (issue 6)
+# ------------------------------------------------------------------------------ left-out effects
 # Physics the calibrated core model leaves out, each switched off by default (fmu_plant/effect_library.py
 # implements them at the plant's ports; docs/diagnosis.md is the vocabulary). Rate-dependent hysteresis
 # needs no group of its own: it is FrictionParams.rate_gain.
