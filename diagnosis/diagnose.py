@@ -398,7 +398,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         ref_params, _ = joint(current.params, current.effects, cal_jac, final=True)
         if ref_params is not current.params:
             ref_y = sim.run(ref_params)[0]
-            if float(np.sum((y - ref_y)[test] ** 2)) < float(np.sum((y - current.y)[test] ** 2)):
+            if float(np.sum((y - ref_y)[train] ** 2)) < float(np.sum((y - current.y)[train] ** 2)):
                 current = _Model(ref_params, current.effects, ref_y, current.values)
                 if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
                     selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
@@ -467,9 +467,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         # An effect whose parameters are not re-fitted jointly (a band's edges, a map's knots, a play, a
         # drift) was fitted on constants that had absorbed part of it: fit it afresh on the re-fitted
         # constants, and re-fit those once more. Chosen on the training blocks only.
-        ref_train = float(np.sum((y - ref_y)[train] ** 2))
-        train_sse = [float(np.sum((y - j[3])[train] ** 2)) for j in joints]
-        order = [i for i in np.argsort(train_sse) if train_sse[i] < ref_train and not JOINT_PARAMETERS.get(joints[i][0].name)]
+        ref_train = train_sse(ref_y)
+        joint_sse = [train_sse(j[3]) for j in joints]
+        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and not JOINT_PARAMETERS.get(joints[i][0].name)]
         for i in order[:ALTERNATE_PER_ROUND]:
             cand, res, p1, y1, sims_used, secs = joints[i]
             runs0, t_fit = sim.runs, time.perf_counter()
@@ -478,7 +478,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
             if res2 is not None:
                 p2, _ = joint(off.with_values(**res2.values), current.effects + (cand.name,), cal_jac)
                 y2 = sim.run(p2)[0]
-                if float(np.sum((y - y2)[train] ** 2)) < train_sse[i]:
+                if train_sse(y2) < joint_sse[i]:
                     joints[i][1:4] = [res2, p2, y2]
             joints[i][4] += sim.runs - runs0
             joints[i][5] += time.perf_counter() - t_fit
@@ -549,12 +549,12 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                 p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
                 y_re = sim.run(p_re)[0]
                 selection.append({"step": "recalibrate with the accepted effects", "simulations": recal.simulations})
-                if np.sum((y - y_re)[test] ** 2) < np.sum((y - current.y)[test] ** 2):
+                if np.sum((y - y_re)[train] ** 2) < np.sum((y - current.y)[train] ** 2):
                     current = _Model(p_re, current.effects, y_re, current.values)
                     cal_jac = recal.jacobian
         p_final, f_final = joint(current.params, current.effects, cal_jac, final=True)
         y_final = sim.run(p_final)[0]
-        if f_final is not None and np.sum((y - y_final)[test] ** 2) <= np.sum((y - current.y)[test] ** 2):
+        if f_final is not None and np.sum((y - y_final)[train] ** 2) <= np.sum((y - current.y)[train] ** 2):
             for f in findings:
                 f.parameters = {k: float(v) for k, v in p_final.dotted().items() if k in f.parameters}
             current = _Model(p_final, current.effects, y_final, current.values)

@@ -84,9 +84,14 @@ def test_sensor_drift_and_backlash_act_on_the_reading_only():
     assert np.array_equal(play["p_mpa"], base["p_mpa"])
 
 
-def test_state_with_effects_restores_bit_identically():
-    p = PlantParams().with_values(**{"delay.delay_s": 0.17, "backlash.slack_mm": 0.6, "dead_zone.width_v": 0.5})
-    plant = Plant(p, seed=3)
+@pytest.mark.parametrize("effects", [
+    {"delay.delay_s": 0.17, "backlash.slack_mm": 0.6, "dead_zone.width_v": 0.5},
+    "input_map",  # the band below, with a delay
+], ids=["delay-backlash-dead_zone", "input_map-delay"])
+def test_state_with_effects_restores_bit_identically(effects):
+    if effects == "input_map":
+        effects = {**BAND, "delay.delay_s": 0.13}
+    plant = Plant(PlantParams().with_values(**effects), seed=3)
     for k in range(40):
         plant.step(5 + 3 * math.sin(0.3 * k), 0.1)
     saved = plant.get_state()
@@ -157,12 +162,3 @@ def test_input_map_parameters_are_validated_naming_the_field():
     PlantParams().with_values(**BAND)  # a flat stretch is monotone (non-decreasing)
 
 
-def test_state_with_the_input_map_restores_bit_identically():
-    plant = Plant(PlantParams().with_values(**BAND, **{"delay.delay_s": 0.13}), seed=3)
-    for k in range(40):
-        plant.step(5 + 3 * math.sin(0.3 * k), 0.1)
-    saved = plant.get_state()
-    ahead = [plant.step(5 + 2 * math.cos(0.2 * k), 0.1).l_mm for k in range(60)]
-    plant.set_state(saved)
-    again = [plant.step(5 + 2 * math.cos(0.2 * k), 0.1).l_mm for k in range(60)]
-    assert ahead == again
