@@ -126,6 +126,8 @@ DURATION_S = 180.0
 TS_S = 0.1
 #: The discriminating experiment's folder inside a case's folder.
 DISCRIMINATE_DIR = "discriminate"
+#: A finished case's result in its folder (what ``resume`` reuses).
+RESULT_FILE = "result.json"
 #: What a case's folder keeps (the recording CSVs are deleted unless ``keep``).
 KEPT_FILES = ("diagnosis.json", "report.md")
 
@@ -744,7 +746,19 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False) 
         result["discrimination"] = {"input_written": True, "error": f"{type(exc).__name__}: {exc}"}
     result["elapsed_s"] = time.monotonic() - t0
     _tidy(folder, keep)
+    atomic_write_text(folder / RESULT_FILE, json.dumps(result, indent=2, default=_json_default) + "\n")
     return result
+
+
+def _stored_result(case: FieldCase, workdir: Path) -> dict[str, Any] | None:
+    """The case's stored result if an earlier run finished it with the same truth (else None)."""
+    path = workdir / case.name / RESULT_FILE
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    truth = json.loads(json.dumps(case.describe(), default=_json_default))
+    return stored if all(stored.get(k) == v for k, v in truth.items()) else None
 
 
 def _run_safe(args: tuple[FieldCase, str, bool]) -> dict[str, Any]:
@@ -757,7 +771,7 @@ def _run_safe(args: tuple[FieldCase, str, bool]) -> dict[str, Any]:
 
 # ------------------------------------------------------------------------------------ the suite
 def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | None = None,
-                   duration_s: float = DURATION_S, keep: bool = False,
+                   duration_s: float = DURATION_S, keep: bool = False, resume: bool = False,
                    progress: Callable[..., None] | None = None, heartbeat_s: float = 5.0) -> dict[str, Any]:
     """Make, diagnose and score ``n`` field recordings (module docstring).
 
@@ -771,6 +785,10 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
         Worker processes (default: all cores).
     keep : bool
         Keep the recordings and plant files in the case folders.
+    resume : bool
+        Reuse the results of cases that an earlier (interrupted) run into ``out`` finished: each
+        finished case leaves ``cases/<name>/result.json``, reused only if its truth is the same.
+        The caller vouches that the diagnosis code has not changed in between.
     progress : callable, optional
         ``progress(done, total, detail)``, called as cases finish and at least every ``heartbeat_s``.
 
@@ -785,8 +803,14 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
     jobs = jobs or os.cpu_count() or 1
     t0 = time.monotonic()
     results: dict[int, dict[str, Any]] = {}
-    with ProcessPoolExecutor(max_workers=min(jobs, len(cases))) as pool:
-        pending: dict[Future, FieldCase] = {pool.submit(_run_safe, (c, str(out / "cases"), keep)): c for c in cases}
+    if resume:
+        for c in cases:
+            stored = _stored_result(c, out / "cases")
+            if stored is not None:
+                results[c.index] = stored
+    todo = [c for c in cases if c.index not in results]
+    with ProcessPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as pool:
+        pending: dict[Future, FieldCase] = {pool.submit(_run_safe, (c, str(out / "cases"), keep)): c for c in todo}
         # wait() rather than as_completed(): the same results as they finish, plus a heartbeat while
         # the slowest cases run (as_completed's timeout would end the iteration instead)
         while pending:
@@ -799,6 +823,7 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
     ordered = [results[c.index] for c in cases]
     scores = score_results(ordered)
     settings = {"recordings": n, "seed": seed, "duration_s": duration_s, "ts_s": TS_S, "jobs": jobs,
+                "resumed_cases": len(cases) - len(todo),
                 "vocabulary": list(vocabulary()), "wall_s": time.monotonic() - t0}
     scores["settings"] = settings
     atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "cases": ordered}, indent=2,
@@ -842,7 +867,7 @@ def _visible(r: dict[str, Any]) -> bool:
 def _judge(r: dict[str, Any]) -> dict[str, bool]:
     """The pass flags of one case (see :func:`score_results`)."""
     if "error" in r:
-        return {"ok": False, "alone": False, "unexplained": False, "fit_ok": False}
+        return {"ok": False, "alone": False, "strict": False, "unexplained": False, "fit_ok": False}
     findings = list(r.get("findings") or [])
     groups = list(r.get("ambiguous") or [])
     named = _named(findings, groups)
@@ -850,13 +875,19 @@ def _judge(r: dict[str, Any]) -> dict[str, bool]:
     fa = r.get("fit_after_percent")
     fit_ok = isinstance(fa, (int, float)) and fa >= FIT_AFTER_PERCENT
     c = r.get("category")
-    alone = set(findings) == truth and not groups
+    # alone: the truth's effects are the only effects named (Diagnosis.named: an `unexplained`
+    # remainder reported beside them is not a named effect); strict: and no remainder either
+    alone = named == truth and not groups
+    strict = set(findings) == truth and not groups
     if c == "none":
-        return {"ok": not named and "unexplained" not in findings, "alone": alone, "unexplained": False, "fit_ok": fit_ok}
+        return {"ok": not named and "unexplained" not in findings, "alone": alone, "strict": strict,
+                "unexplained": False, "fit_ok": fit_ok}
     if c in ("single", "pair"):
-        return {"ok": truth <= named, "alone": alone, "unexplained": "unexplained" in findings, "fit_ok": fit_ok}
+        return {"ok": truth <= named, "alone": alone, "strict": strict, "unexplained": "unexplained" in findings,
+                "fit_ok": fit_ok}
     unexplained = "unexplained" in findings
-    return {"ok": unexplained, "alone": unexplained and not named, "unexplained": unexplained, "fit_ok": fit_ok}
+    return {"ok": unexplained, "alone": unexplained and not named, "strict": unexplained and not named,
+            "unexplained": unexplained, "fit_ok": fit_ok}
 
 
 def score_results(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -866,8 +897,10 @@ def score_results(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
     its ``ambiguous`` groups. Per category:
 
     * ``none``: no effect named and no ``unexplained`` finding (calibration alone);
-    * ``single``: the effect is named (``single_named``); *named alone*: the findings' effects are
-      exactly it (an extra ``unexplained`` finding too is a miss) and no ambiguous group;
+    * ``single``: the effect is named (``single_named``); *named alone*: it is the only effect named
+      and there is no ambiguous group (an ``unexplained`` remainder reported beside it is not a named
+      effect, as in :attr:`Diagnosis.named`); ``more.single_named_alone_no_remainder`` is the
+      stricter count that also wants no ``unexplained`` finding;
     * ``pair``: both effects named (``pair_both_found``);
     * ``oov``: an ``unexplained`` finding (``oov_unexplained``); *alone*: no vocabulary effect
       named besides;
@@ -910,6 +943,10 @@ def score_results(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
     }
     extra = {
         "pair_found_alone": {"passed": sum(flags[i]["alone"] for i in by_cat["pair"]), "cases": len(by_cat["pair"])},
+        "single_named_alone_no_remainder": {"passed": sum(flags[i]["strict"] for i in by_cat["single"]),
+                                            "cases": len(by_cat["single"])},
+        "pair_found_alone_no_remainder": {"passed": sum(flags[i]["strict"] for i in by_cat["pair"]),
+                                          "cases": len(by_cat["pair"])},
         "oov_unexplained_alone": {"passed": sum(flags[i]["alone"] for i in by_cat["oov"]), "cases": len(by_cat["oov"])},
         "none_verdicts": _count(results[i].get("verdict") or "failed" for i in by_cat["none"]),
     }
@@ -1054,8 +1091,11 @@ def scores_markdown(s: dict[str, Any]) -> str:
         lines.append(f"| {labels[key]} | {t['passed']} / {t['cases']} | {_pct(t['rate_percent'])} | "
                      f">= {t['target_percent']:g} % | {met} | {vis} |")
     m = s["more"]
-    lines += ["", f"* two effects, found alone (exactly the two, no ambiguous group): "
-              f"{m['pair_found_alone']['passed']} / {m['pair_found_alone']['cases']}",
+    lines += ["", f"* one effect, named alone with no `unexplained` remainder either: "
+              f"{m['single_named_alone_no_remainder']['passed']} / {m['single_named_alone_no_remainder']['cases']}",
+              f"* two effects, found alone (exactly the two named, no ambiguous group): "
+              f"{m['pair_found_alone']['passed']} / {m['pair_found_alone']['cases']}; with no `unexplained` "
+              f"remainder either: {m['pair_found_alone_no_remainder']['passed']}",
               f"* out of vocabulary, `unexplained` with no vocabulary effect named: "
               f"{m['oov_unexplained_alone']['passed']} / {m['oov_unexplained_alone']['cases']}",
               f"* verdicts of the no-effect cases: " + (", ".join(f"`{k}` {v}" for k, v in m["none_verdicts"].items()) or "-"),

@@ -51,7 +51,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from .cli import UsageError
     from .progress import Progress
 
-    field_only = {"--recordings": args.recordings, "--seed": args.seed}
+    field_only = {"--recordings": args.recordings, "--seed": args.seed, "--resume": args.resume or None}
     concealed_only = {"--seeds": args.seeds, "--clean-seeds": args.clean_seeds, "--effects": args.effects,
                       "--excitations": args.excitations}
     wrong = [k for k, v in (concealed_only if args.suite == "field" else field_only).items() if v is not None]
@@ -64,7 +64,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
         n = 120 if args.recordings is None else args.recordings
         scores = run_field_demo(args.out, n=n, seed=0 if args.seed is None else args.seed, jobs=args.jobs,
-                                progress=progress)
+                                resume=args.resume, progress=progress)
         print(field_markdown(scores))
         print(f"wrote {args.out}/scores.md, scores.json (every case's truth and result), confusion.png and "
               f"cases/*/diagnosis.json, report.md")
@@ -128,6 +128,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="field: number of recordings (default 120)")
     demo.add_argument("--seed", type=integer_at_least("--seed", 0), default=None,
                       help="field: seed of the drawn cases (default 0)")
+    demo.add_argument("--resume", action="store_true",
+                      help="field: reuse the cases that an interrupted run into --out finished (same truths)")
     demo.add_argument("--seeds", type=integer_at_least("--seeds", 1), default=None,
                       help="concealed: seeds per effect, level and excitation (default 3)")
     demo.add_argument("--clean-seeds", type=integer_at_least("--clean-seeds", 0), default=None,
