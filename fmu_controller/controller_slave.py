@@ -20,8 +20,20 @@ Reference and preview (``reference_source``)
 2. ``external_held``: the input ``r`` is ``r(k)``; with no knowledge of the future the controller
    assumes ``r(k+i|k) = r(k)``, which costs tracking lag on a moving reference.
 3. ``external_advanced``: the host feeds ``r(t + Hp Ts)`` (the reference ``Hp`` samples ahead; ``Hp``
-   of the chosen method); the controller keeps the last ``Hp + 1`` values, which are exactly
-   ``r(k..k+Hp)``. Before ``Hp`` samples have arrived the missing past is filled with the first value.
+   of the chosen method, plus ``input_delay_samples``); the controller keeps the last ``Hp + 1``
+   values, which are exactly ``r(k..k+Hp)``. Before ``Hp`` samples have arrived the missing past is
+   filled with the first value.
+
+Parallel masters (``input_delay_samples``)
+------------------------------------------
+A master that steps every FMU on the outputs of the previous communication point (libcosim, Ecos,
+OMSimulator, SSP runners) hands the plant at ``t_k`` the command the controller output at ``t_k``,
+which it computed in the step *before*, from ``l(k-1)``: one macro step of computational delay. With
+``input_delay_samples = 1`` the controller expects it: at ``t_k`` it records the command now being
+applied, predicts ``l(k+1|k)`` with Eq. (1) and evaluates its control law one sample ahead, so its
+output is ``u(k+1)`` (:class:`~fmu_controller.displacement_control.ControllerSettings`). On a plant
+that is the model, the commands then equal those of the undelayed loop bit for bit; on the rig the
+prediction error of Eq. (1) is what is left (docs/fmu.md has the figures).
 
 The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) in any mode.
 """
@@ -93,6 +105,12 @@ class AMPCController(SafeSlave):
         self.add_integer_parameter("reference_source", 1, "1 builtin_sine, 2 external_held (r(k+i|k) = r(k)), "
                                    "3 external_advanced (input r is r(t + Hp Ts))", lo=1, hi=3,
                                    enumeration=("ReferenceSource", REFERENCE_SOURCES))
+        self.add_integer_parameter("input_delay_samples", 0, "samples between computing u and the valve "
+                                   "receiving it: 0 when the master steps the controller before the plant "
+                                   "(fmpy scenarios, a sequential container), 1 when it steps both on the previous "
+                                   "outputs (libcosim, Ecos, OMSimulator: one macro step h = Ts late); with 1 "
+                                   "the output after the step at t_k is u(k+1), computed from l(k) and the "
+                                   "Eq. (1) prediction l(k+1|k)", lo=0, hi=1)
         self.add_integer_parameter("servo.Hp", 5, "servo MPC prediction horizon Hp [samples] (Table 5)", lo=1, hi=50)
         self.add_integer_parameter("servo.Hu", 5, "servo MPC control horizon Hu <= Hp [samples] (Table 5)",
                                    lo=1, hi=50)
@@ -160,7 +178,8 @@ class AMPCController(SafeSlave):
             method=METHOD_CODES[ip["method"]], ts_s=p["Ts"], ucp=ucp, servo=servo,
             p0=tuple(p[f"P0.{n}"] for n in ASYMMETRIC.names),
             box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
-            box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"])
+            box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
+            input_delay_samples=ip["input_delay_samples"])
 
     def initialize_numerics(self) -> None:
         settings = self._settings()

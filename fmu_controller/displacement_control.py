@@ -39,7 +39,7 @@ import numpy as np
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings
-from .ucp_mpc import UCPSettings, ucp_move
+from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep", "DisplacementController"]
 
@@ -71,6 +71,13 @@ class ControllerSettings:
     """Upper bounds of C (Table 2)."""
     forgetting: float = 1.0
     """RLS forgetting factor (1 = off, as the paper)."""
+    input_delay_samples: int = 0
+    """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
+    drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
+    master, which applies the controller's output one macro step late, or of a controller whose
+    computation takes a whole sample). With 1 the controller computes ``u(k+1)`` at sample ``k``
+    from ``l(k)`` and its own Eq. (1) prediction ``l(k+1|k)`` under the command already on its way
+    (the classic one-sample delay compensation), so it needs ``r(k..k+1+Hp)``."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -80,6 +87,8 @@ class ControllerSettings:
         if len(self.p0) != ASYMMETRIC.n_params or not all(math.isfinite(p) and p > 0 for p in self.p0):
             raise ValueError(f"ControllerSettings.p0 must be {ASYMMETRIC.n_params} positive finite numbers, "
                              f"got {self.p0!r}")
+        if self.input_delay_samples not in (0, 1) or isinstance(self.input_delay_samples, bool):
+            raise ValueError(f"ControllerSettings.input_delay_samples must be 0 or 1, got {self.input_delay_samples!r}")
 
     @property
     def adaptive(self) -> bool:
@@ -91,8 +100,8 @@ class ControllerSettings:
 
     @property
     def preview_samples(self) -> int:
-        """How many future reference samples the method needs (``Hp``)."""
-        return self.servo.hp if self.servo_mechanism else self.ucp.hp
+        """How many future reference samples the method needs (``Hp``, plus the input delay)."""
+        return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + self.input_delay_samples
 
 
 @dataclass(frozen=True)
@@ -164,6 +173,7 @@ class DisplacementController:
         self._need = settings.preview_samples + 1
         self._ucp_hp = settings.ucp.hp
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
+        self._delayed = settings.input_delay_samples == 1
         self.reset(0.0)
 
     # ------------------------------------------------------------------ lifecycle
@@ -184,6 +194,9 @@ class DisplacementController:
         self._uc_prev = 0.0
         self._xs = 0.0
         self._predicted = math.nan
+        # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
+        self._u_next = 0.0
+        self._uc_next = 0.0
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
         """One control sample: measured ``l(k)`` [mm] and ``r(k), ..., r(k+Hp)`` [mm] -> ``u(k)``.
@@ -224,23 +237,12 @@ class DisplacementController:
             t = self._theta_list
         theta = self.theta
         state._observe_finite(l, t[0], t[1], t[2])
+        if self._delayed:
+            return self._step_ahead(l, rl, t, theta, error)
 
-        if self._servo is None:
-            res = ucp_move(self.settings.ucp, state, theta, u_prev_v=self._u_prev, r_target_mm=rl[self._ucp_hp])
-            u, uc, h, xs_next, predicted, saturated = res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
-        else:
-            h = state._hysteresis(t)
-            offset = h / t[2]
-            xs = self._xs
-            uc, predicted, constrained = self._servo._solve_lean(l, state._l1, self._uc_prev, xs, rl, offset)
-            u_raw = uc - offset  # Eq. (5)
-            u = u_raw  # = min(max(u_raw, u_min), u_max)
-            if self._u_min > u:
-                u = self._u_min
-            elif self._u_max < u:
-                u = self._u_max
-            saturated = constrained or u != u_raw
-            xs_next = xs + rl[0] - l  # Eq. (18)
+        u, uc, h, xs_next, predicted, saturated = self._decide(l, rl, t, theta, self._xs, self._u_prev,
+                                                               self._uc_prev)
+        if self._servo is not None:
             self._xs = xs_next
             self._uc_prev = uc
         state.apply(u)
@@ -249,6 +251,51 @@ class DisplacementController:
         self._k += 1
         # theta is never modified in place (a new array every adaptive step), so it can be shared.
         return _control_step(u, predicted, error, uc, h, xs_next, theta, saturated)
+
+    def _decide(self, l: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float, u_prev: float,
+                uc_prev: float) -> tuple[float, float, float, float, float, bool]:
+        """The control law at a sample whose ``l`` the state has observed: ``(u, u_c, H, x_s(k+1),
+        l(k+1|k), saturated)`` for the preview ``rl = r(k..k+Hp)``; changes no state (but the QP's
+        warm start)."""
+        if self._servo is None:
+            res = ucp_move(self.settings.ucp, self._state, theta, u_prev_v=u_prev, r_target_mm=rl[self._ucp_hp])
+            return res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
+        h = self._state._hysteresis(t)
+        offset = h / t[2]
+        uc, predicted, constrained = self._servo._solve_lean(l, self._state._l1, uc_prev, xs, rl, offset)
+        u_raw = uc - offset  # Eq. (5)
+        u = u_raw  # = min(max(u_raw, u_min), u_max)
+        if self._u_min > u:
+            u = self._u_min
+        elif self._u_max < u:
+            u = self._u_max
+        return u, uc, h, xs + rl[0] - l, predicted, constrained or u != u_raw  # x_s: Eq. (18)
+
+    def _step_ahead(self, l: float, rl: list[float], t: list[float], theta: np.ndarray,
+                    error: float) -> ControlStep:
+        """One sample with one sample of input delay (``ControllerSettings.input_delay_samples``).
+
+        The valve receives over ``[t_k, t_k+1)`` the command computed at ``k - 1``. It is recorded
+        as ``u(k)`` (with the true ``l(k)`` the state has observed, and ``x_s`` integrating the true
+        error); the Eq. (1) model predicts ``l(k+1|k)`` under it; the control law is then evaluated
+        one sample ahead on that prediction with ``r(k+1..k+1+Hp)``, on a scratch copy of the
+        history, and its command is returned (it reaches the valve at ``t_k+1``).
+        """
+        state = self._state
+        u_now, uc_now = self._u_next, self._uc_next
+        l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
+        state.apply(u_now)
+        xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)
+        saved = (state._l2, state._l1, state._l0, state._v2, state._v1, state._v0)
+        state._observe_finite(l_next, t[0], t[1], t[2])
+        u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now)
+        state._l2, state._l1, state._l0, state._v2, state._v1, state._v0 = saved
+        state.apply(u_now)
+        self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
+        self._u_next, self._uc_next = u, uc
+        self._predicted = l_next
+        self._k += 1
+        return _control_step(u, l_next, error, uc, h, xs, theta, saturated)
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
@@ -261,6 +308,7 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
+            "u_next": self._u_next, "uc_next": self._uc_next,
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
@@ -273,6 +321,7 @@ class DisplacementController:
         self._k = int(state["k"])
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
         self._predicted = float(state["predicted"])
+        self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         if self._rls is not None:
             self._rls.set_state(state["rls"])
         if self._servo is not None:

@@ -33,8 +33,13 @@ def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = 
 
 def run_closed_loop(plant: Plant, controller: DisplacementController, reference: SineReference, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
+                    loop_delay_samples: int = 0,
                     progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Run the loop for ``duration_s`` from the plant's and controller's current state.
+
+    ``loop_delay_samples = 1`` applies each command one sample late (``u`` computed at ``t_k`` drives
+    the valve over ``[t_k+1, t_k+2)``, 0 V at first), as a parallel co-simulation master does at a
+    macro step of ``Ts``; ``u_v`` then records the command the valve received.
 
     Returns
     -------
@@ -42,8 +47,11 @@ def run_closed_loop(plant: Plant, controller: DisplacementController, reference:
         ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
         ``pred_error_mm``, ``uc_v``, ``h_mm``, ``xs_mm`` and ``theta_<name>`` for the 15 parameters.
     """
+    if loop_delay_samples not in (0, 1) or isinstance(loop_delay_samples, bool):
+        raise ValueError(f"loop_delay_samples must be 0 or 1, got {loop_delay_samples!r}")
     ts = reference.ts_s
     n = int(round(duration_s / ts)) + 1
+    in_flight = 0.0
     names = ASYMMETRIC.names
     cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "u_v", "p_mpa", "load_n", "l_pred_mm",
                                       "pred_error_mm", "uc_v", "h_mm", "xs_mm")}
@@ -61,14 +69,17 @@ def run_closed_loop(plant: Plant, controller: DisplacementController, reference:
         if load_fn is not None:
             plant.update(load_n=load_fn(t))
         step = controller.step(meas.l_mm, reference.preview(k, hp))
-        cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, step.u_v
+        u = step.u_v
+        if loop_delay_samples:
+            u, in_flight = in_flight, u
+        cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, u
         cols["p_mpa"][k], cols["load_n"][k] = meas.p_mpa, plant.load_n
         cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
         cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
         theta_hist[k] = step.theta
         pred_prev = step.predicted_next_mm
         if k + 1 < n:
-            meas = plant.step(step.u_v, ts)
+            meas = plant.step(u, ts)
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
     for i, name in enumerate(names):

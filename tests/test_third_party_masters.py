@@ -1,0 +1,115 @@
+"""The FMUs in a third-party co-simulation master: libcosim (``libcosimpy``, Open Simulation Platform).
+
+libcosim steps every FMU in parallel on the outputs of the previous communication point (a Jacobi
+master), so at a macro step of ``Ts`` the controller's command reaches the plant one sample late.
+These tests run the FMUs inside libcosim and compare with the direct Python loop that applies each
+command one sample late (:func:`tapmuscle.closed_loop.run_closed_loop` with ``loop_delay_samples=1``):
+the same code runs in the same process, so the trajectories must agree to rounding.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+libcosim = pytest.importorskip("libcosimpy.CosimExecution", reason="libcosimpy (test extra) is not installed")
+
+from libcosimpy.CosimObserver import CosimObserver  # noqa: E402
+from libcosimpy.CosimSlave import CosimLocalSlave  # noqa: E402
+
+from fmu_controller.displacement_control import ControllerSettings, DisplacementController  # noqa: E402
+from fmu_controller.preliminary_model import THETA0_44N  # noqa: E402
+from fmu_controller.reference import SineReference  # noqa: E402
+from fmu_plant import Plant  # noqa: E402
+from tapmuscle.closed_loop import run_closed_loop  # noqa: E402
+
+TS_S = 0.1
+
+
+class _Libcosim:
+    """A libcosim execution at a fixed step with named variables and a last-value observer."""
+
+    def __init__(self, step_s: float) -> None:
+        self.ex = libcosim.CosimExecution.from_step_size(step_size=int(round(step_s * 1e9)))
+        self.obs = CosimObserver.create_last_value()
+        self.ex.add_observer(self.obs)
+        self.slaves: dict[str, int] = {}
+        self.vrs: dict[str, dict[str, int]] = {}
+
+    def add(self, name: str, path) -> None:
+        idx = self.ex.add_local_slave(CosimLocalSlave(fmu_path=str(path), instance_name=name))
+        assert idx >= 0, f"libcosim did not load {path}"
+        self.slaves[name] = idx
+        self.vrs[name] = {v.name.decode(): v.reference for v in self.ex.slave_variables(idx)}
+
+    def connect(self, src: str, dst: str) -> None:
+        (a, va), (b, vb) = src.split("."), dst.split(".")
+        self.ex.connect_real_variables(self.slaves[a], self.vrs[a][va], self.slaves[b], self.vrs[b][vb])
+
+    def real(self, name: str) -> float:
+        fmu, var = name.split(".", 1)
+        return self.obs.last_real_values(self.slaves[fmu], [self.vrs[fmu][var]])[0]
+
+
+def _closed_loop(fmus, input_delay_samples: int, duration_s: float = 45.0) -> dict[str, np.ndarray]:
+    sim = _Libcosim(TS_S)
+    sim.add("plant", fmus["MusclePlant"])
+    sim.add("ctrl", fmus["AMPCController"])
+    sim.connect("plant.l", "ctrl.l")
+    sim.connect("ctrl.u", "plant.u")
+    assert sim.ex.integer_initial_value(sim.slaves["ctrl"], sim.vrs["ctrl"]["input_delay_samples"],
+                                        input_delay_samples)
+    n = int(round(duration_s / TS_S))
+    rows = []
+    for _ in range(n):
+        assert sim.ex.step(1)
+        rows.append((sim.real("plant.l"), sim.real("plant.u"), sim.real("ctrl.r_k")))
+    a = np.array(rows)
+    return {"l_mm": a[:, 0], "u_v": a[:, 1], "r_k_mm": a[:, 2]}
+
+
+@pytest.fixture(scope="module")
+def libcosim_runs(built_fmus):
+    return {d: _closed_loop(built_fmus, d) for d in (0, 1)}
+
+
+def _direct(input_delay_samples: int) -> dict[str, np.ndarray]:
+    c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=input_delay_samples),
+                               THETA0_44N)
+    return run_closed_loop(Plant(seed=0), c, SineReference(), duration_s=45.0, loop_delay_samples=1)
+
+
+@pytest.mark.parametrize("delay", [0, 1])
+def test_libcosim_closed_loop_is_the_direct_loop_with_one_sample_of_delay(libcosim_runs, delay):
+    """Row k of libcosim is after its (k+1)-th step: l(k+1) and the u the plant held over [t_k, t_k+1)."""
+    run, direct = libcosim_runs[delay], _direct(delay)
+    n = len(run["l_mm"])
+    np.testing.assert_allclose(run["l_mm"], direct["l_mm"][1:n + 1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(run["u_v"], direct["u_v"][:n], rtol=0, atol=1e-9)
+
+
+def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
+    """Built-in 35 + 30 sin(2 pi 0.1 t) mm, mean |r - l| after 5 s at h = Ts: several mm without the
+    compensation (a sustained oscillation), a fraction of a mm with ``input_delay_samples = 1``."""
+    err = {}
+    for d, run in libcosim_runs.items():
+        t = (np.arange(len(run["l_mm"])) + 1) * TS_S
+        r = 35.0 + 30.0 * np.sin(2 * math.pi * 0.1 * t)
+        err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= 5.0]))
+        assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
+    assert err[0] > 3.0 and err[1] < 0.6, err
+
+
+def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):
+    """l(10 s) at u = 5 V: libcosim and fmpy run the same FMU to the same number."""
+    from fmpy import simulate_fmu
+
+    sim = _Libcosim(TS_S)
+    sim.add("plant", built_fmus["MusclePlant"])
+    sim.ex.real_initial_value(sim.slaves["plant"], sim.vrs["plant"]["u"], 5.0)
+    assert sim.ex.step(100)
+    res = simulate_fmu(str(built_fmus["MusclePlant"]), start_values={"u": 5.0}, stop_time=10.0,
+                       output_interval=TS_S, output=["l"])
+    assert res["time"][-1] == pytest.approx(10.0)
+    assert sim.real("plant.l") > 1.0  # the muscle contracted: the comparison is not between zeros
+    assert abs(sim.real("plant.l") - float(res["l"][-1])) <= 1e-9
