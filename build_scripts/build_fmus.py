@@ -8,7 +8,7 @@ After pythonfmu, the build (one FMU at a time, in a temporary folder; the finish
 place whole, so a failed build leaves no partial file):
 
 1. completes modelDescription.xml (:mod:`build_scripts.model_description`: units, ranges,
-   enumerations, output dependencies, state capabilities, content-derived GUID, no time stamp);
+   output dependencies, state capabilities, content-derived GUID, no time stamp);
 2. prepares the binary and resources for non-Python FMI hosts (:mod:`build_scripts.native_host`);
 3. zips the tree deterministically (sorted entries, fixed time stamps and permissions), so the same
    sources and build environment give byte-identical FMUs.

@@ -1,4 +1,4 @@
-"""Complete pythonfmu's modelDescription.xml: units, ranges, enumerations, dependencies, a stable GUID.
+"""Complete pythonfmu's modelDescription.xml: units, ranges, dependencies, a stable GUID.
 
 pythonfmu 0.7 writes variables with name, causality, variability, description and start only, lists
 every output in ``ModelStructure/Outputs`` without ``dependencies`` (which FMI 2.0 reads as "depends
@@ -8,8 +8,8 @@ fixes all of that from the slave's :attr:`fmi_slave.SafeSlave.variable_meta`:
 
 * ``UnitDefinitions`` with SI base-unit exponents for each unit used, ``unit``/``min``/``max``/
   ``nominal`` on Real variables, ``min``/``max`` on Integers;
-* Integer parameters with an enumeration meta become ``Enumeration`` variables of a declared type
-  (``TypeDefinitions``); hosts show the item names and set them with ``fmi2SetInteger``;
+* no ``Enumeration`` variables: choices are Integers whose description lists the codes, because
+  libcosim ignores Enumeration parameters and its SSP loader aborts on them;
 * ``Outputs`` and ``InitialUnknowns`` with explicit ``dependencies`` (ours: none);
 * ``canGetAndSetFMUstate``/``canSerializeFMUstate`` true (the slaves keep all dynamic state);
 * no ``generationDateAndTime``, and a GUID derived from a hash of the FMU's content, so the same
@@ -71,7 +71,7 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
     xml_text : str
         pythonfmu's modelDescription.xml.
     meta : mapping
-        ``SafeSlave.variable_meta`` of the slave: name -> unit, min, max, nominal, depends_on, enumeration.
+        ``SafeSlave.variable_meta`` of the slave: name -> unit, min, max, nominal, depends_on.
     guid : str
         The GUID to write.
     """
@@ -85,7 +85,6 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
     variables = root.find("ModelVariables")
     index: dict[str, int] = {}
     units_used: list[str] = []
-    enum_types: dict[str, Mapping[int, str]] = {}
     for i, sv in enumerate(variables.findall("ScalarVariable"), start=1):
         name = sv.get("name")
         index[name] = i
@@ -93,11 +92,6 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
         if m is None:
             raise ValueError(f"variable {name!r} has no metadata (register it through SafeSlave)")
         typed = sv[0]
-        if m.get("enumeration"):
-            type_name, items = m["enumeration"]
-            enum_types[type_name] = items
-            typed.tag = "Enumeration"
-            typed.set("declaredType", type_name)
         unit = _unit(m.get("unit", ""))
         if unit and typed.tag == "Real":
             typed.set("unit", unit)
@@ -107,20 +101,11 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
             value = m.get(key)
             if value is None or (key == "nominal" and typed.tag != "Real"):
                 continue
-            if typed.tag in ("Integer", "Enumeration"):
+            if typed.tag == "Integer":
                 typed.set(key, str(int(value)))
             else:
                 typed.set(key, repr(float(value)))
 
-    if enum_types:
-        types = ET.Element("TypeDefinitions")
-        for type_name, items in enum_types.items():
-            simple = ET.SubElement(types, "SimpleType", name=type_name)
-            enum = ET.SubElement(simple, "Enumeration")
-            for value, item in sorted(items.items()):
-                ET.SubElement(enum, "Item", name=item, value=str(int(value)))
-        # FMI 2.0 order: UnitDefinitions, TypeDefinitions, LogCategories, DefaultExperiment, ...
-        root.insert(list(root).index(cs) + 1, types)
     if units_used:
         defs = ET.Element("UnitDefinitions")
         for unit in units_used:

@@ -40,9 +40,13 @@ __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
 
 _BAD_STATE = "tapmuscle: bad FMU state"
 
+#: Shortest communication step that is integrated [s]. A master whose accumulated time leaves a
+#: rounding remainder asks for a last step of 1e-14 .. 2e-12 s: such a step is accepted with fmi2OK
+#: and changes nothing (the outputs hold), since no physics happens in it.
+MIN_STEP_S = 1e-9
+
 #: Per variable: ``unit`` (a key of fmi_slave.units.UNITS or ""), ``min``, ``max``, ``nominal`` (None =
-#: not declared), ``depends_on`` (outputs only: names of inputs with direct feedthrough; () = none),
-#: ``enumeration`` (Integer variables shown as an enumeration: the type name).
+#: not declared), ``depends_on`` (outputs only: names of inputs with direct feedthrough; () = none).
 VariableMeta = dict[str, Any]
 
 
@@ -110,15 +114,15 @@ class SafeSlave(Fmi2Slave):
             self._meta(name, unit, lo, hi)
 
     def add_integer_parameter(self, name: str, start: int, description: str, *, lo: int | None = None,
-                              hi: int | None = None, enumeration: tuple[str, dict[int, str]] | None = None) -> None:
-        """Register a fixed Integer parameter; ``enumeration = (type name, {value: item name})`` makes
-        the build declare it as an FMI Enumeration (hosts show the names; set with fmi2SetInteger)."""
+                              hi: int | None = None) -> None:
+        """Register a fixed Integer parameter (a choice is an Integer whose description lists the codes:
+        libcosim cannot set FMI Enumerations)."""
         self._int_par[name] = int(start)
         self.register_variable(Integer(
             name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed, description=description,
             getter=lambda: self._int_par[name],
             setter=lambda v: self._int_par.__setitem__(name, int(v))), nested=False)
-        self._meta(name, "", lo, hi, enumeration=enumeration)
+        self._meta(name, "", lo, hi)
 
     def _attribute_accessors(self, name: str, start: Any, kind: type = Real) -> dict[str, Callable]:
         """Getter and setter of the instance attribute ``name`` (set to ``start``). pythonfmu's defaults
@@ -274,8 +278,12 @@ class SafeSlave(Fmi2Slave):
             if self._failed:
                 return self.fail("the FMU was not initialised (see the previous error); fix the parameters and "
                                  "instantiate again")
-            self.finite("step size", step_size, 1e-9, 3600.0)
-            self.step_numerics(float(current_time), float(step_size))
+            h = self.finite("step size", step_size, 0.0, 3600.0)
+            if h == 0.0:
+                raise SlaveInputError(f"step size = {step_size!r} must be > 0")
+            if h < MIN_STEP_S:
+                return True
+            self.step_numerics(float(current_time), h)
             return True
         except SlaveInputError as exc:
             return self.fail(f"t = {current_time:g} s: {exc}; outputs keep their last values")

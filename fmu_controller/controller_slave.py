@@ -45,23 +45,19 @@ import math
 import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts
 from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
-from pythonfmu import Boolean, Fmi2Variability, Integer
+from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 
-from fmu_controller.displacement_control import (METHODS, P0_TABLE5, ControllerSettings, ControlStep,
+from fmu_controller.displacement_control import (METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
                                                  DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
-from fmu_controller.reference import SineReference
+from fmu_controller.reference import REFERENCE_SOURCES, SineReference
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
 
-#: FMI value of the ``method`` parameter -> method name (an Enumeration in modelDescription.xml).
-METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
-#: FMI value of the ``reference_source`` parameter -> name (module docstring).
-REFERENCE_SOURCES: dict[int, str] = {1: "builtin_sine", 2: "external_held", 3: "external_advanced"}
 
 _L_RANGE_MM = (-100.0, 500.0)
 
@@ -72,6 +68,9 @@ class AMPCController(SafeSlave):
     author = "tapmuscle"
     description = ("Displacement controller of a tap-water McKibben muscle: MPC/AMPC with unique coincidence "
                    "point or servo mechanism, constrained RLS (Algorithm 1), hysteresis cancellation (Eq. 5)")
+    #: Tells hosts the communication step (the controller's Ts = 0.1 s) and a run as long as the paper's
+    #: 60 s experiments; the internal solvers are fixed-step, so no tolerance.
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=60.0, step_size=0.1)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -101,10 +100,9 @@ class AMPCController(SafeSlave):
                             f"predictor parameter {name} of Eq. (1) in use (theta-hat for AMPC)")
 
         self.add_integer_parameter("method", 4, "controller: 1 mpc_ucp, 2 mpc_servo, 3 ampc_ucp, 4 ampc_servo",
-                                   lo=1, hi=4, enumeration=("Method", METHOD_CODES))
+                                   lo=1, hi=4)
         self.add_integer_parameter("reference_source", 1, "1 builtin_sine, 2 external_held (r(k+i|k) = r(k)), "
-                                   "3 external_advanced (input r is r(t + Hp Ts))", lo=1, hi=3,
-                                   enumeration=("ReferenceSource", REFERENCE_SOURCES))
+                                   "3 external_advanced (input r is r(t + Hp Ts))", lo=1, hi=3)
         self.add_integer_parameter("input_delay_samples", 0, "samples between computing u and the valve "
                                    "receiving it: 0 when the master steps the controller before the plant "
                                    "(fmpy scenarios, a sequential container), 1 when it steps both on the previous "

@@ -41,9 +41,11 @@ from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
-__all__ = ["METHODS", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep", "DisplacementController"]
+__all__ = ["METHODS", "METHOD_CODES", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep", "DisplacementController"]
 
 METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
+#: The controller FMU's ``method`` parameter (an Integer) -> method name.
+METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
 
 #: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
 P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4

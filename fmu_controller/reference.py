@@ -11,7 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SineReference"]
+__all__ = ["SineReference", "REFERENCE_SOURCES"]
+
+#: The controller FMU's ``reference_source`` parameter (an Integer) -> where r(k..k+Hp) comes from
+#: (fmu_controller.controller_slave explains each).
+REFERENCE_SOURCES: dict[int, str] = {1: "builtin_sine", 2: "external_held", 3: "external_advanced"}
 
 
 @dataclass(frozen=True, kw_only=True)

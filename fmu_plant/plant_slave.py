@@ -17,6 +17,7 @@ from dataclasses import fields
 
 from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
+from pythonfmu import DefaultExperiment
 from fmu_plant import Plant, PlantParams
 
 __all__ = ["MusclePlant", "parameter_table"]
@@ -41,6 +42,9 @@ class MusclePlant(SafeSlave):
 
     author = "tapmuscle"
     description = "Tap-water-driven McKibben muscle rig: proportional valves, 0.25 MPa supply, 400 mm muscle, load, encoder"
+    #: Tells hosts the communication step (the controller's Ts = 0.1 s) and a run as long as the paper's
+    #: 60 s experiments; the internal solvers are fixed-step, so no tolerance.
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=60.0, step_size=0.1)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

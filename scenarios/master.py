@@ -43,11 +43,16 @@ import numpy as np
 # resources/ (no builder binaries), and a later build in this process would use that copy.
 import pythonfmu  # noqa: F401
 
+from fmu_controller.displacement_control import METHOD_CODES
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.reference import REFERENCE_SOURCES
 
 from .spec import Scenario, ScenarioError
 
 __all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameter_names", "co_simulate"]
+
+#: The controller FMU's Integer codes of its methods and reference sources, by name.
+_CODE: dict[str, int] = {name: code for codes in (METHOD_CODES, REFERENCE_SOURCES) for code, name in codes.items()}
 
 _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
 
@@ -312,12 +317,13 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         ref = scenario.reference
         plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
                              where=f"{src}: key '[load]/[supply] ")
-        ctrl_params: dict[str, Any] = {"method": scenario.method, "Ts": h}
+        ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
         if ref.kind == "sine":
-            ctrl_params.update({"reference_source": "builtin_sine", "sine.offset": ref.offset_mm,
+            ctrl_params.update({"reference_source": _CODE["builtin_sine"], "sine.offset": ref.offset_mm,
                                 "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
         else:
-            ctrl_params["reference_source"] = "external_advanced" if ref.preview == "advanced" else "external_held"
+            ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
+                                                    else "external_held"]
         ctrl_params.update(scenario.controller.parameters)
         ctrl_params.update(controller_parameters or {})
         ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")

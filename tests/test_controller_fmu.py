@@ -43,7 +43,7 @@ def test_fmpy_validation_reports_no_problems(fmu):
     assert validate_fmu(str(fmu[0])) == []
 
 
-def test_model_description_declares_units_ranges_enumerations_and_no_feedthrough(fmu):
+def test_model_description_declares_units_ranges_integer_choices_and_no_feedthrough(fmu):
     root = ET.fromstring(zipfile.ZipFile(fmu[0]).read("modelDescription.xml"))
     svs = {sv.get("name"): sv for sv in root.iter("ScalarVariable")}
     assert svs["u"][0].get("unit") == "V" and svs["u"][0].get("min") == "0.0" and svs["u"][0].get("max") == "10.0"
@@ -51,10 +51,11 @@ def test_model_description_declares_units_ranges_enumerations_and_no_feedthrough
     assert {u.get("name") for u in root.iter("Unit")} >= {"mm", "V", "s", "Hz"}
     mm = next(u for u in root.iter("Unit") if u.get("name") == "mm")[0]
     assert mm.get("m") == "1" and float(mm.get("factor")) == 1e-3
+    # choices are Integers with their codes in the description (libcosim cannot set Enumerations)
     method = svs["method"][0]
-    assert method.tag == "Enumeration" and method.get("declaredType") == "Method" and method.get("start") == "4"
-    items = {i.get("name"): i.get("value") for i in root.find("TypeDefinitions").iter("Item")}
-    assert items["ampc_servo"] == "4" and items["mpc_ucp"] == "1"
+    assert method.tag == "Integer" and (method.get("start"), method.get("min"), method.get("max")) == ("4", "1", "4")
+    assert "1 mpc_ucp" in svs["method"].get("description") and "4 ampc_servo" in svs["method"].get("description")
+    assert svs["reference_source"][0].tag == "Integer" and root.find("TypeDefinitions") is None
     outputs = root.find("ModelStructure/Outputs")
     assert len(outputs) == sum(sv.get("causality") == "output" for sv in svs.values())
     assert all(u.get("dependencies") == "" for u in outputs)
@@ -219,3 +220,18 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch):
     for k in range(hp, 20):
         np.testing.assert_array_equal(seen[k], ref.preview(k, hp))
     assert slave.r_k == float(ref.at(19))
+
+
+def test_a_rounding_remainder_step_is_accepted(fmu):
+    """OMSimulator ends a run with a step of its time's rounding remainder (1e-14 .. 2e-12 s): OK,
+    the command holds, and the sampling continues on the regular grid."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    f.setReal([vr["l"]], [10.0])
+    f.doStep(0.0, 0.1)
+    u0 = f.getReal([vr["u"]])[0]
+    f.doStep(0.1, 1e-14)
+    assert f.getReal([vr["u"]])[0] == u0 and f.getInteger([vr["samples"]])[0] == 1
+    f.doStep(0.1 + 1e-14, 0.1 - 1e-14)  # the sample at 0.1 s is taken within the time tolerance
+    assert f.getInteger([vr["samples"]])[0] == 2
+    _free(f)

@@ -172,3 +172,29 @@ def test_a_foreign_fmu_state_is_refused_and_changes_nothing(fmu, capfd):
     for g in (f, ref):
         g.terminate()
         g.freeInstance()
+
+
+def test_a_rounding_remainder_step_is_accepted_and_changes_nothing(fmu):
+    """A master whose accumulated time leaves a remainder asks for a last step of 1e-14 .. 2e-12 s:
+    fmi2OK, outputs unchanged; the next regular step continues."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    f.setReal([vr["u"], vr["load"], vr["supply_pressure"]], [6.0, 44.0, 0.25])
+    f.doStep(0.0, 0.1)
+    before = f.getReal([vr["l"], vr["p"]])
+    for h in (1e-14, 2e-12, 9.9e-10):
+        f.doStep(0.1, h)  # raises on any status but OK
+        assert f.getReal([vr["l"], vr["p"]]) == before
+    f.doStep(0.1, 0.1)
+    assert f.getReal([vr["l"], vr["p"]]) != before
+    f.terminate()
+    f.freeInstance()
+
+
+def test_both_fmus_declare_a_default_experiment(built_fmus):
+    from fmpy import read_model_description
+
+    for path in built_fmus.values():
+        de = read_model_description(str(path)).defaultExperiment
+        assert de is not None and float(de.startTime) == 0.0 and float(de.stepSize) == 0.1, path
+        assert float(de.stopTime) == 60.0

@@ -113,3 +113,23 @@ def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):
     assert res["time"][-1] == pytest.approx(10.0)
     assert sim.real("plant.l") > 1.0  # the muscle contracted: the comparison is not between zeros
     assert abs(sim.real("plant.l") - float(res["l"][-1])) <= 1e-9
+
+
+def test_libcosim_sets_the_method_an_integer_parameter(built_fmus):
+    """libcosim ignores FMI Enumerations: the method is an Integer, so it can choose MPC-UCP (code 1),
+    which cancels no hysteresis (H = 0, u_c = u), where the default AMPC-servo (4) does."""
+    h = {}
+    for method in (1, 4):
+        sim = _Libcosim(TS_S)
+        sim.add("plant", built_fmus["MusclePlant"])
+        sim.add("ctrl", built_fmus["AMPCController"])
+        sim.connect("plant.l", "ctrl.l")
+        sim.connect("ctrl.u", "plant.u")
+        assert sim.ex.integer_initial_value(sim.slaves["ctrl"], sim.vrs["ctrl"]["method"], method)
+        rows = []
+        for _ in range(100):
+            assert sim.ex.step(1)
+            rows.append((sim.real("ctrl.H"), sim.real("ctrl.uc") - sim.real("ctrl.u")))
+        h[method] = np.abs(np.array(rows)).max(axis=0)
+    assert h[1][0] == 0.0 and h[1][1] == 0.0
+    assert h[4][0] > 0.1, h
