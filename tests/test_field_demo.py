@@ -249,7 +249,7 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
     assert calls[1]["effects"] == sorted([true, other])
     assert calls[1]["samples"] == 351  # recorded for the input's 35 s
     folder = tmp_path / case.name
-    assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "discriminate", "report.md"]
+    assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "discriminate", "report.md", "result.json"]
     assert sorted(p.name for p in (folder / "discriminate").iterdir()) == ["diagnosis.json", "report.md"]
 
     # a diagnosis without the `effects` keyword: the re-diagnosis runs with every candidate
