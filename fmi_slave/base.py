@@ -2,9 +2,11 @@
 
 pythonfmu turns an exception escaping ``do_step`` into fmi2Fatal; a host may then abandon the whole
 simulation. :class:`SafeSlave` runs the slave's step inside a guard: any problem (bad input, bad step
-size, bad parameter, a numerical failure) is logged at error level with a message naming the
-offending variable and value, the outputs keep their last valid values, and ``do_step`` returns
-False, which pythonfmu reports as fmi2Discard. The host can fix the input and step again.
+size, bad parameter, a numerical failure) is logged with a message naming the offending variable and
+value, the outputs keep their last valid values, and ``do_step`` returns False, which pythonfmu reports
+as fmi2Discard: a bad input or step size is logged as a discard (the host can fix it and step again),
+a failure no retry can fix (parameters rejected at initialisation, an internal error) as an error,
+which the FMU's loader library (build_scripts.native_host) returns instead of pythonfmu's status.
 
 Parameters are kept in one table (``self._par``) registered from a list of
 ``(name, start, unit, description[, min, max])``. Units, ranges and nominal values of every variable
@@ -260,9 +262,13 @@ class SafeSlave(Fmi2Slave):
             raise SlaveInputError(f"{name} = {v!r} is outside {lo:g}..{hi:g}")
         return v
 
-    def fail(self, message: str) -> bool:
-        """Log ``message`` at error level and report the step as discarded."""
-        self.log(message, status=Fmi2Status.error)
+    def fail(self, message: str, status: Fmi2Status = Fmi2Status.discard) -> bool:
+        """Log ``message`` with ``status`` and report the step as not done (pythonfmu: fmi2Discard).
+
+        The FMU's loader library returns the worst status logged during a call (docs/fmu.md), so a
+        host sees fmi2Discard for a step it may retry with other inputs and fmi2Error (``status``)
+        for one that no retry can fix."""
+        self.log(message, status=status)
         return False
 
     def exit_initialization_mode(self) -> None:
@@ -270,14 +276,17 @@ class SafeSlave(Fmi2Slave):
             self.initialize_numerics()
             self._failed = False
         except Exception as exc:  # noqa: BLE001 - reported to the host, never raised into it
+            # A warning here and fmi2Error from every fmi2DoStep: libcosim terminates the process on an
+            # error during its initialisation phase, but stops cleanly on an error from a step.
             self._failed = True
-            self.log(f"initialisation failed: {exc}", status=Fmi2Status.error)
+            self.log(f"initialisation failed: {exc}; every fmi2DoStep will return fmi2Error (set valid "
+                     "parameters and instantiate again)", status=Fmi2Status.warning)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
             if self._failed:
                 return self.fail("the FMU was not initialised (see the previous error); fix the parameters and "
-                                 "instantiate again")
+                                 "instantiate again", Fmi2Status.error)
             h = self.finite("step size", step_size, 0.0, 3600.0)
             if h == 0.0:
                 raise SlaveInputError(f"step size = {step_size!r} must be > 0")
@@ -289,7 +298,7 @@ class SafeSlave(Fmi2Slave):
             return self.fail(f"t = {current_time:g} s: {exc}; outputs keep their last values")
         except Exception as exc:  # noqa: BLE001
             return self.fail(f"t = {current_time:g} s: internal error {type(exc).__name__}: {exc}\n"
-                             f"{traceback.format_exc(limit=3)}")
+                             f"{traceback.format_exc(limit=3)}", Fmi2Status.error)
 
     # ------------------------------------------------------------------ state
     def _snapshot(self) -> dict[str, Any]:

@@ -81,6 +81,7 @@ _CALLBACKS: list[Any] = []
 
 def _log(_env, name, status, _category, message) -> None:
     text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
+    text = text.replace("%%", "%")  # the FMUs send their text as a printf format without arguments
     key = name.decode("utf-8", "replace") if isinstance(name, bytes) else str(name)
     label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
     sink = _LOG_SINKS.get(key)
@@ -212,9 +213,10 @@ class FmuInstance:
 
     def start(self) -> None:
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
-        if any(m.startswith(("[ERROR]", "[FATAL]")) for m in self.messages):
+        bad = ("[WARNING]", "[ERROR]", "[FATAL]")  # a rejected parameter is a warning at this call
+        if any(m.startswith(bad) for m in self.messages):
             raise ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) rejected its parameters: "
-                                + "; ".join(m for m in self.messages if m.startswith(("[ERROR]", "[FATAL]"))))
+                                + "; ".join(m for m in self.messages if m.startswith(bad)))
 
     def reset(self) -> None:
         """Back to the state right after construction (fmi2Terminate, fmi2Reset, setup, enter

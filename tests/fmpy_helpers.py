@@ -10,8 +10,11 @@ def open_fmu(path):
     return path, md, extract(str(path)), {v.name: v.valueReference for v in md.modelVariables}
 
 
-def instantiate(fmu, name="i", reals=None, ints=None):
-    """An initialised FMU2Slave of ``fmu`` (from :func:`open_fmu`) with parameters/inputs set."""
+def instantiate(fmu, name="i", reals=None, ints=None, *, rejected=False):
+    """An initialised FMU2Slave of ``fmu`` (from :func:`open_fmu`) with parameters/inputs set.
+
+    ``rejected``: the parameters are bad, so ``fmi2ExitInitializationMode`` must return fmi2Warning
+    with the reason (not fmi2Error: libcosim would terminate), and every later step fmi2Error."""
     path, md, folder, vr = fmu
     f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
                   instanceName=name)
@@ -22,5 +25,6 @@ def instantiate(fmu, name="i", reals=None, ints=None):
         f.setReal([vr[key]], [value])
     for key, value in (ints or {}).items():
         f.setInteger([vr[key]], [value])
-    f.exitInitializationMode()
+    status = f.exitInitializationMode()
+    assert status == (1 if rejected else 0), f"fmi2ExitInitializationMode returned status {status}"
     return f

@@ -193,19 +193,20 @@ def test_bad_value_reference_is_reported_and_the_host_survives_freeing(host, pla
     assert len({r["l"] for r in rows}) == 1 and 0.0 < float(rows[0]["l"]) < 400.0  # each fresh, the same
     assert "not of type Real" in proc.stderr
 
-def test_missing_dependency_fails_instantiation_with_what_to_install(host, plant, tmp_path):
+def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plant, tmp_path):
     """A Python without numpy (an empty venv, recorded site-packages switched off): fmi2Instantiate
-    returns NULL and the host's logger got the message."""
+    returns an instance that refuses to step (some hosts do not check NULL), the host's logger got
+    the message, and the host ends at the first fmi2DoStep with fmi2Error."""
     empty = tmp_path / "empty-venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(empty)], check=True)
     python = str(empty / "bin" / "python")
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
                     env_extra={"TAPMUSCLE_PYTHON": python, "TAPMUSCLE_SITE_PACKAGES": ""})
-    assert proc.returncode == 3, proc.stderr  # fmi_host: fmi2Instantiate returned NULL
+    assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr  # fmi_host: an FMI call failed
     assert "tapmuscle FMU: cannot import numpy; install it into the Python the FMU uses: " in proc.stderr
     assert f"{python} -m pip install numpy" in proc.stderr
     assert "[Fatal] plant" in proc.stderr  # through the host's logger callback
-    assert proc.stdout == ""
+    assert proc.stdout.splitlines() == ["t,u,l,p"]  # the header, no row
 
 
 @pytest.mark.parametrize("override", [False, True])

@@ -24,8 +24,8 @@ def fmu(built_fmus):
     return open_fmu(built_fmus["AMPCController"])
 
 
-def _instance(fmu, name="c", reals=None, ints=None):
-    return instantiate(fmu, name, reals, ints)
+def _instance(fmu, name="c", reals=None, ints=None, **kw):
+    return instantiate(fmu, name, reals, ints, **kw)
 
 
 def _free(*fs):
@@ -171,10 +171,12 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"box_lower.b1": 2.0}, {}, "box_lower.b1 = 2.0 exceeds box_upper.b1"),
     ({"theta0.b1": 0.0}, {}, "theta0.b1 = 0.0 must not be ~0"),
 ])
-def test_bad_parameters_are_reported_and_every_step_is_discarded(fmu, capfd, reals, ints, message):
-    f = _instance(fmu, reals=reals, ints=ints)
+def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):
+    """fmi2Error, not Discard (a host answers Discard with a smaller step, forever); the instance stays
+    usable for getting values and freeing."""
+    f = _instance(fmu, reals=reals, ints=ints, rejected=True)
     assert message in capfd.readouterr().out
-    with pytest.raises(FMICallException, match="discard"):
+    with pytest.raises(FMICallException, match="error"):
         f.doStep(0.0, 0.1)
     assert "not initialised" in capfd.readouterr().out
     assert all(math.isfinite(x) for x in f.getReal([fmu[3]["u"], fmu[3]["l_pred"]]))

@@ -1,0 +1,135 @@
+"""The FMI shim of the FMUs' loader library (build_scripts/native_host.py): what a foreign host sees.
+
+* A failed instantiation (here: the slave's Python code imports a package the interpreter lacks, as
+  when numpy is missing from a tool's Python) gives an instance, not NULL: hosts that do not check
+  NULL (libcosim) would dereference it. The instance logs the reason on every call, answers the calls
+  before the first step with fmi2Warning and fmi2DoStep with fmi2Error; freeing it is safe.
+* Messages reach the host with a category (pythonfmu passes NULL on its exception path), and
+  Discard/Error messages reach it even with ``loggingOn = false``.
+
+The failure cases run in a fresh interpreter each: Python caches a slave module by name, so a broken
+copy must not meet a working one in one process.
+"""
+
+import json
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+HOST = r'''
+import json, sys
+import fmpy
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+path, reps, logging_on = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "1"
+md = read_model_description(path)
+folder = extract(path)
+log = []
+cb = fmi2CallbackFunctions()
+cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(
+    [status, None if cat is None else cat.decode(), msg.decode()]))
+cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+out = []
+for _ in range(reps):
+    log.clear()
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="c")
+    f.instantiate(callbacks=cb, loggingOn=logging_on)
+    calls = {"setupExperiment": f.setupExperiment(startTime=0.0), "enterInitializationMode": f.enterInitializationMode(),
+             "exitInitializationMode": f.exitInitializationMode()}
+    if len(sys.argv) > 4:  # an input to set before the step: [name, value]
+        name, value = json.loads(sys.argv[4])
+        f.setReal([next(v.valueReference for v in md.modelVariables if v.name == name)], [value])
+    try:
+        status = f.doStep(0.0, 0.1)
+        calls["doStep"] = 0 if status is None else status
+    except FMICallException as exc:
+        calls["doStep"] = exc.status
+    f.freeInstance()
+    out.append({"calls": calls, "log": list(log)})
+print(json.dumps(out))
+'''
+
+
+def _run_host(fmu: Path, reps: int, logging_on: bool, set_input=None) -> list[dict]:
+    args = [sys.executable, "-c", HOST, str(fmu), str(reps), "1" if logging_on else "0"]
+    if set_input:
+        args.append(json.dumps(set_input))
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def broken_controller(built_fmus, tmp_path_factory) -> Path:
+    """The controller FMU whose slave module imports a package that does not exist."""
+    src = Path(built_fmus["AMPCController"])
+    out = tmp_path_factory.mktemp("broken") / "AMPCController.fmu"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "resources/controller_slave.py":
+                data += b"\nimport tapmuscle_missing_package_xyz\n"
+            zout.writestr(item, data)
+    return out
+
+
+def test_a_failed_instantiation_is_an_instance_that_refuses_to_step(broken_controller):
+    """20 times in one process with logging off: the reason names the missing module, every message has
+    a category, the calls before the step are warnings, the step an error, the process exits cleanly."""
+    runs = _run_host(broken_controller, 20, logging_on=False)
+    assert len(runs) == 20
+    for run in runs:
+        assert run["calls"] == {"setupExperiment": 1, "enterInitializationMode": 1, "exitInitializationMode": 1,
+                                "doStep": 3}
+        assert all(cat for _, cat, _ in run["log"]), run["log"]
+        assert any("tapmuscle_missing_package_xyz" in msg and status >= 3 for status, _, msg in run["log"])
+        step_msgs = [msg for status, _, msg in run["log"] if status == 3 and msg.startswith("fmi2DoStep refused")]
+        assert step_msgs and "tapmuscle_missing_package_xyz" in step_msgs[0]
+
+
+def test_libcosim_stops_cleanly_on_a_failed_instantiation(broken_controller, built_fmus):
+    """libcosim dereferences a NULL instance; with the shim its step returns False and the process
+    exits normally, 20 executions in a row."""
+    pytest.importorskip("libcosimpy")
+    code = r'''
+import sys
+from libcosimpy.CosimExecution import CosimExecution
+from libcosimpy.CosimSlave import CosimLocalSlave
+for _ in range(20):
+    ex = CosimExecution.from_step_size(step_size=100_000_000)
+    ex.add_local_slave(CosimLocalSlave(fmu_path=sys.argv[1], instance_name="plant"))
+    ex.add_local_slave(CosimLocalSlave(fmu_path=sys.argv[2], instance_name="ctrl"))
+    assert ex.step(1) is False
+print("clean")
+'''
+    proc = subprocess.run([sys.executable, "-c", code, str(built_fmus["MusclePlant"]), str(broken_controller)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "clean" in proc.stdout.splitlines(), proc.stderr[-2000:]
+    assert "tapmuscle_missing_package_xyz" in proc.stdout + proc.stderr
+
+
+def test_discard_messages_reach_a_host_that_turned_logging_off(built_fmus):
+    """A bad input (l = NaN) with loggingOn = false: fmi2Discard, and its message with status Discard
+    and category logStatusDiscard (as the Reference FMUs do)."""
+    runs = _run_host(Path(built_fmus["AMPCController"]), 1, logging_on=False, set_input=["l", float("nan")])
+    run = runs[0]
+    assert run["calls"]["exitInitializationMode"] == 0 and run["calls"]["doStep"] == 2
+    assert [s for s, _, _ in run["log"]] == [2]
+    status, cat, msg = run["log"][0]
+    assert cat == "logStatusDiscard" and "l = nan is not finite" in msg
+
+
+def test_quiet_when_all_is_well_and_logging_is_off(built_fmus):
+    run = _run_host(Path(built_fmus["AMPCController"]), 1, logging_on=False, set_input=["l", 10.0])[0]
+    assert run["calls"] == {"setupExperiment": 0, "enterInitializationMode": 0, "exitInitializationMode": 0,
+                            "doStep": 0}
+    assert run["log"] == []
