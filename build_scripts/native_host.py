@@ -125,7 +125,6 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
    (4) a call returns at least the worst status the FMU logged during it, so the status a host sees
    is the one in the message (pythonfmu returns OK from fmi2ExitInitializationMode after a rejected
    parameter, which the slave logs as an error). */
-#include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
 #include "fmi2Functions.h"
@@ -173,14 +172,12 @@ static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String 
                        category && *category ? category : category_of(status), escaped);
 }
 
+/* pythonfmu passes its text as the format with no arguments: it is taken literally here (formatting a
+   '%' in it would read arguments that were never passed). */
 static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
                         fmi2String message, ...) {
     Shim *s = (Shim *)env;
-    char text[8192];
-    va_list args;
-    va_start(args, message);
-    vsnprintf(text, sizeof text, message ? message : "", args);
-    va_end(args);
+    const char *text = message ? message : "";
     if (status > s->worst) s->worst = status;
     if (status >= fmi2Error && !s->reason[0]) snprintf(s->reason, sizeof s->reason, "%s", text);
     if (status == fmi2OK && !s->logging_on) return;

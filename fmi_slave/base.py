@@ -90,6 +90,9 @@ class SafeSlave(Fmi2Slave):
         self._par: dict[str, float] = {}
         self._int_par: dict[str, int] = {}
         self._failed = False
+        #: fixed parameters are settable until fmi2ExitInitializationMode; steps until fmi2Terminate
+        self._initialised = False
+        self._terminated = False
         self.variable_meta: dict[str, VariableMeta] = {}
         #: Real variables whose value is the instance attribute of the same name (inputs, outputs without
         #: a getter): read and written through ``self.__dict__`` by :meth:`get_real` / :meth:`set_real`.
@@ -112,7 +115,7 @@ class SafeSlave(Fmi2Slave):
                 name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                 description=description,
                 getter=lambda n=name: self._par[n],
-                setter=lambda v, n=name: self._par.__setitem__(n, float(v))), nested=False)
+                setter=lambda v, n=name: self._set_parameter(self._par, n, float(v))), nested=False)
             self._meta(name, unit, lo, hi)
 
     def add_integer_parameter(self, name: str, start: int, description: str, *, lo: int | None = None,
@@ -123,8 +126,29 @@ class SafeSlave(Fmi2Slave):
         self.register_variable(Integer(
             name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed, description=description,
             getter=lambda: self._int_par[name],
-            setter=lambda v: self._int_par.__setitem__(name, int(v))), nested=False)
+            setter=lambda v: self._set_parameter(self._int_par, name, int(v))), nested=False)
         self._meta(name, "", lo, hi)
+
+    def _set_parameter(self, table: dict, name: str, value: float | int) -> None:
+        """A fixed parameter's setter: after fmi2ExitInitializationMode the dynamics would ignore a new
+        value, so it is refused (logged as an error, which the loader returns as fmi2Error)."""
+        if self._initialised:
+            self.log(f"parameter {name} is fixed: set it before fmi2ExitInitializationMode (the value "
+                     f"{value!r} is ignored, {table[name]!r} stays)", status=Fmi2Status.error)
+            return
+        table[name] = value
+
+    def _check_parameter_ranges(self) -> None:
+        """Every parameter within its declared min..max (modelDescription.xml), or SlaveInputError."""
+        for table in (self._par, self._int_par):
+            for name, value in table.items():
+                meta = self.variable_meta.get(name, {})
+                lo, hi = meta.get("min"), meta.get("max")
+                if (lo is not None and value < lo) or (hi is not None and value > hi):
+                    span = f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'}"
+                    var = next((v for v in self.vars.values() if v.name == name), None)
+                    about = f" ({var.description})" if var is not None and var.description else ""
+                    raise SlaveInputError(f"parameter {name} = {value!r} is outside its declared range {span}{about}")
 
     def _attribute_accessors(self, name: str, start: Any, kind: type = Real) -> dict[str, Callable]:
         """Getter and setter of the instance attribute ``name`` (set to ``start``). pythonfmu's defaults
@@ -236,8 +260,17 @@ class SafeSlave(Fmi2Slave):
     get_string = _to_host(Fmi2Slave.get_string)
     set_string = _to_host(Fmi2Slave.set_string)
     setup_experiment = _to_host(Fmi2Slave.setup_experiment)
-    enter_initialization_mode = _to_host(Fmi2Slave.enter_initialization_mode)
-    terminate = _to_host(Fmi2Slave.terminate)
+
+    @_to_host
+    def enter_initialization_mode(self) -> None:
+        # also after fmi2Reset: parameters are settable again, steps allowed after initialisation
+        self._initialised = self._terminated = False
+        Fmi2Slave.enter_initialization_mode(self)
+
+    @_to_host
+    def terminate(self) -> None:
+        self._terminated = True
+        Fmi2Slave.terminate(self)
 
     def _keep_references(self) -> None:
         """Add the references pythonfmu's C++ layer drops once too often when an exception reaches it
@@ -272,7 +305,9 @@ class SafeSlave(Fmi2Slave):
         return False
 
     def exit_initialization_mode(self) -> None:
+        self._initialised = True
         try:
+            self._check_parameter_ranges()
             self.initialize_numerics()
             self._failed = False
         except Exception as exc:  # noqa: BLE001 - reported to the host, never raised into it
@@ -287,6 +322,9 @@ class SafeSlave(Fmi2Slave):
             if self._failed:
                 return self.fail("the FMU was not initialised (see the previous error); fix the parameters and "
                                  "instantiate again", Fmi2Status.error)
+            if self._terminated or not self._initialised:
+                return self.fail(f"fmi2DoStep {'after fmi2Terminate' if self._terminated else 'before fmi2ExitInitializationMode'}"
+                                 "; instantiate (or fmi2Reset) and initialise again", Fmi2Status.error)
             h = self.finite("step size", step_size, 0.0, 3600.0)
             if h == 0.0:
                 raise SlaveInputError(f"step size = {step_size!r} must be > 0")
@@ -324,7 +362,11 @@ class SafeSlave(Fmi2Slave):
                                   "nothing was changed") from None
 
     def _restore(self, state: dict[str, Any]) -> None:
-        super()._set_fmu_state(state["variables"])
+        initialised, self._initialised = self._initialised, False  # a state sets the fixed parameters too
+        try:
+            super()._set_fmu_state(state["variables"])
+        finally:
+            self._initialised = initialised
         self.restore_numerics_state(state["numerics"])
         self._failed = bool(state["failed"])
 

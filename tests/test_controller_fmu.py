@@ -163,9 +163,11 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
 
 
 @pytest.mark.parametrize("reals, ints, message", [
-    ({}, {"method": 7}, "parameter method = 7 must be one of 1 (mpc_ucp)"),
+    ({}, {"method": 7}, "parameter method = 7 is outside its declared range 1..4 (controller: 1 mpc_ucp"),
+    ({}, {"servo.Hp": 51}, "parameter servo.Hp = 51 is outside its declared range 1..50"),
+    ({}, {"servo.Hp": 5000}, "parameter servo.Hp = 5000 is outside"),  # would take minutes to set up
     ({}, {"servo.Hu": 9}, "hu must be <= hp"),
-    ({"P0.a1": -1.0}, {}, "parameter P0.a1 = -1.0 must be > 0"),
+    ({"P0.a1": -1.0}, {}, "parameter P0.a1 = -1.0 is outside its declared range 0..inf"),
     ({"Ts": 0.0}, {}, "parameter Ts = 0.0 is outside"),
     ({"servo.R": math.nan}, {}, "parameter servo.R = nan is not finite"),
     ({"box_lower.b1": 2.0}, {}, "box_lower.b1 = 2.0 exceeds box_upper.b1"),

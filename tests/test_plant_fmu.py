@@ -198,3 +198,37 @@ def test_both_fmus_declare_a_default_experiment(built_fmus):
         de = read_model_description(str(path)).defaultExperiment
         assert de is not None and float(de.startTime) == 0.0 and float(de.stepSize) == 0.1, path
         assert float(de.stopTime) == 60.0
+
+
+def test_fmi_call_order_and_fixed_parameters_are_enforced(fmu, capfd):
+    """A fixed parameter set after initialisation is refused with fmi2Error (the dynamics would ignore
+    it) and keeps its value; fmi2DoStep after fmi2Terminate is fmi2Error; fmi2Reset makes both fine."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    with pytest.raises(FMICallException, match="error"):
+        f.setReal([vr["valve.cv_max"]], [1.2])
+    assert "parameter valve.cv_max is fixed" in capfd.readouterr().out
+    assert f.getReal([vr["valve.cv_max"]]) == [1.5]
+    f.doStep(0.0, 0.1)
+    f.terminate()
+    with pytest.raises(FMICallException, match="error"):
+        f.doStep(0.1, 0.1)
+    assert "fmi2DoStep after fmi2Terminate" in capfd.readouterr().out
+    f.reset()
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setReal([vr["valve.cv_max"]], [1.2])
+    assert f.exitInitializationMode() == 0
+    f.doStep(0.0, 0.1)
+    assert f.getReal([vr["valve.cv_max"]]) == [1.2]
+    f.terminate()
+    f.freeInstance()
+
+
+def test_a_message_with_a_percent_sign_reaches_the_host_intact(fmu, capfd):
+    """The loader passes pythonfmu's text on literally (formatting a '%' in it once crashed the host)."""
+    g = _instance(fmu, reals={"valve.cv_max": -1.0}, rejected=True)
+    out = capfd.readouterr().out
+    assert "valve.cv_max = -1.0 is outside" in out and "%" in out, out
+    g.terminate()
+    g.freeInstance()
