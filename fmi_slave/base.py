@@ -35,7 +35,7 @@ import traceback
 from operator import itemgetter
 from typing import Any, Callable, Iterable
 
-from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
 
 __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
@@ -213,11 +213,11 @@ class SafeSlave(Fmi2Slave):
                 return reader(self.__dict__)
             return self._read_reals(vrs)
         except BaseException as exc:
-            self._keep_references()
             getters = (self._real_io or self._real_tables())[0]
             missing = [vr for vr in vrs if vr not in getters]
             if isinstance(exc, KeyError) and missing:  # not a KeyError from inside a getter
-                raise TypeError(f"Variable with valueReference={missing[0]} is not of type Real!") from None
+                return self._wrong_reference(missing[0], Real, vrs, 0.0)
+            self._keep_references()
             raise
 
     def _read_reals(self, vrs: list[int]) -> list[float]:
@@ -241,24 +241,44 @@ class SafeSlave(Fmi2Slave):
                 self.__dict__.update(zip(names, values))
                 return
             _, setters, attributes = self._real_io or self._real_tables()
+            missing = [vr for vr in vrs if vr not in setters]
+            if missing:
+                self._wrong_reference(missing[0], Real, vrs, None)
+                return
             for vr, value in zip(vrs, values):
-                fn = setters.get(vr)
-                if fn is None:
-                    raise TypeError(f"Variable with valueReference={vr} is not of type Real!")
-                fn(value)
+                setters[vr](value)
             if vrs and len(self._writers) < self._MAX_COMPILED and all(vr in attributes for vr in vrs):
                 self._writers[tuple(vrs)] = tuple(attributes[vr] for vr in vrs)
         except BaseException:
             self._keep_references()
             raise
 
-    # the other calls from the host that may raise (wrong value reference, foreign state)
-    get_integer = _to_host(Fmi2Slave.get_integer)
-    set_integer = _to_host(Fmi2Slave.set_integer)
-    get_boolean = _to_host(Fmi2Slave.get_boolean)
-    set_boolean = _to_host(Fmi2Slave.set_boolean)
-    get_string = _to_host(Fmi2Slave.get_string)
-    set_string = _to_host(Fmi2Slave.set_string)
+    def _wrong_reference(self, vr: int, kind: type, vrs: list[int], zero: Any) -> list | None:
+        """A value reference that is not a ``kind`` variable of this FMU: an error, logged (the loader
+        returns fmi2Error; the instance is fine, so not pythonfmu's fmi2Fatal); nothing is written,
+        a getter returns ``zero`` for every value."""
+        self.log(f"value reference {vr} is not a variable of type {kind.__name__} of this FMU; nothing was "
+                 f"{'read' if zero is not None else 'written'}", status=Fmi2Status.error)
+        return None if zero is None else [zero] * len(vrs)
+
+    def _typed_access(kind: type, getter: bool, zero: Any) -> Callable:  # noqa: N805 - a class-body helper
+        method = getattr(Fmi2Slave, f"{'get' if getter else 'set'}_{kind.__name__.lower()}")
+        guarded = _to_host(method)
+
+        def call(self, vrs, *values):
+            bad = [vr for vr in vrs if not isinstance(self.vars.get(vr), kind)]
+            if bad:
+                return self._wrong_reference(bad[0], kind, vrs, zero if getter else None)
+            return guarded(self, vrs, *values)
+        return call
+
+    get_integer = _typed_access(Integer, True, 0)
+    set_integer = _typed_access(Integer, False, 0)
+    get_boolean = _typed_access(Boolean, True, False)
+    set_boolean = _typed_access(Boolean, False, False)
+    get_string = _typed_access(String, True, "")
+    set_string = _typed_access(String, False, "")
+    del _typed_access
     setup_experiment = _to_host(Fmi2Slave.setup_experiment)
 
     @_to_host
@@ -349,17 +369,20 @@ class SafeSlave(Fmi2Slave):
 
     @_to_host
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
+        # A foreign or corrupted state leaves the instance as it was and usable: an error, logged (the
+        # loader returns fmi2Error), not an exception (pythonfmu would answer fmi2Fatal).
         if not isinstance(state, dict) or set(state) != {"variables", "numerics", "failed"}:
             reason = state.get(_BAD_STATE) if isinstance(state, dict) else None
-            raise SlaveInputError(f"not an FMU state of this FMU ({reason or 'unexpected content'}); "
-                                  "nothing was changed")
+            self.log(f"not an FMU state of this FMU ({reason or 'unexpected content'}); nothing was changed",
+                     status=Fmi2Status.error)
+            return
         before = self._snapshot()
         try:
             self._restore(state)
-        except Exception as exc:  # a malformed state: put everything back as it was
+        except Exception as exc:  # noqa: BLE001 - a malformed state: put everything back as it was
             self._restore(before)
-            raise SlaveInputError(f"not an FMU state of this FMU ({type(exc).__name__}: {exc}); "
-                                  "nothing was changed") from None
+            self.log(f"not an FMU state of this FMU ({type(exc).__name__}: {exc}); nothing was changed",
+                     status=Fmi2Status.error)
 
     def _restore(self, state: dict[str, Any]) -> None:
         initialised, self._initialised = self._initialised, False  # a state sets the fixed parameters too

@@ -189,9 +189,9 @@ def test_bad_value_reference_is_reported_and_the_host_survives_freeing(host, pla
     proc = run_host(host, tmp_path, "badvr", *plant.args("P", u="u", l="l"), "steps=15", "u_const=6")
     rows = list(csv.DictReader(io.StringIO(proc.stdout)))
     assert len(rows) == 15
-    assert {r["get"] for r in rows} == {r["set"] for r in rows} == {"Fatal"}  # pythonfmu's status for it
+    assert {r["get"] for r in rows} == {r["set"] for r in rows} == {"Error"}  # the instance is fine: not Fatal
     assert len({r["l"] for r in rows}) == 1 and 0.0 < float(rows[0]["l"]) < 400.0  # each fresh, the same
-    assert "not of type Real" in proc.stderr
+    assert "is not a variable of type Real" in proc.stderr
 
 def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plant, tmp_path):
     """A Python without numpy (an empty venv, recorded site-packages switched off): fmi2Instantiate

@@ -3,6 +3,7 @@
 import random
 
 import pytest
+from pythonfmu.enums import Fmi2Status
 from pythonfmu import Fmi2Slave, Real
 
 from fmu_controller.controller_slave import AMPCController
@@ -36,20 +37,27 @@ def test_get_and_set_real_agree_with_pythonfmu_on_random_lists(cls):
     assert slave._readers and slave._writers  # the fast paths were taken
 
 
-def test_a_non_real_value_reference_is_a_type_error_also_after_fast_paths_exist():
+def test_a_wrong_value_reference_is_a_logged_error_also_after_fast_paths_exist():
+    """Not an exception (pythonfmu would answer fmi2Fatal, and the instance is fine): an error-level
+    message naming the reference (the loader returns fmi2Error), zeros read, nothing written."""
     slave = AMPCController(instance_name="io")
     vr = {var.name: v for v, var in slave.vars.items()}
-    slave._keep_references = lambda: None  # not called from pythonfmu's C++ layer here
     fast = [vr["u"], vr["theta.b1"]]
     assert slave.get_real(fast) == slave.get_real(fast)
     slave.set_real([vr["l"]], [3.0])
     slave.set_real([vr["l"]], [4.0])
     for bad in ([vr["u"], vr["samples"]], [vr["samples"]], [vr["u"], 10_000]):
-        with pytest.raises(TypeError, match=f"valueReference={bad[-1]} is not of type Real"):
-            slave.get_real(bad)
-        with pytest.raises(TypeError, match=f"valueReference={bad[-1]} is not of type Real"):
-            slave.set_real(bad, [1.0] * len(bad))
-    assert slave.get_real([vr["l"]]) == [4.0]
+        slave.log_queue.clear()
+        assert slave.get_real(bad) == [0.0] * len(bad)
+        slave.set_real([vr["l"], *bad], [9.0] * (len(bad) + 1))
+        msgs = [(m.status, m.msg) for m in slave.log_queue]
+        assert [s for s, _ in msgs] == [Fmi2Status.error] * 2
+        assert all(f"value reference {bad[-1] if bad[-1] == 10_000 else vr['samples']} is not a variable of type Real"
+                   in m for _, m in msgs), msgs
+    assert slave.get_real([vr["l"]]) == [4.0]  # the bad write wrote nothing, not even the good l
+    slave.log_queue.clear()
+    assert slave.get_integer([vr["u"]]) == [0] and slave.get_boolean([vr["l"]]) == [False]
+    assert slave.get_integer([vr["samples"]]) == [0] and len(slave.log_queue) == 2
 
 
 def test_theta_outputs_follow_the_estimate_and_its_saved_state():
