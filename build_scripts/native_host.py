@@ -194,6 +194,24 @@ static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
     return status;
 }
 
+/* A thread with no Python thread state (any thread of a C host) gets one for good at its first FMI
+   call. pythonfmu brackets every call with PyGILState_Ensure/Release, which otherwise creates and
+   destroys a thread state each time (mmap and munmap of its frame stack: six per closed-loop step).
+   The GIL is released again at once, so other threads (a parallel master's) can run the FMUs. */
+typedef int PyGILState_STATE_;
+extern PyGILState_STATE_ PyGILState_Ensure(void);
+extern void *PyGILState_GetThisThreadState(void);
+extern void *PyEval_SaveThread(void);
+static __thread int thread_pinned;
+
+static void pin_thread(void) {
+    if (thread_pinned || !Py_IsInitialized()) return;
+    thread_pinned = 1;
+    if (PyGILState_GetThisThreadState()) return;   /* a Python thread (fmpy): it has its state */
+    PyGILState_Ensure();
+    PyEval_SaveThread();
+}
+
 static fmi2Status settle(Shim *s, fmi2Status returned) {
     fmi2Status worst = s->worst;
     s->worst = fmi2OK;
@@ -263,6 +281,7 @@ FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size
         if (!s->inner) { ZOMBIE_FILL; return refuse(s, #X, ZOMBIE_STATUS); }            \
         if (!fn) fn = (X##TYPE *)real(#X);                                              \
         if (!fn) return refuse(s, #X, fmi2Error);                                       \
+        pin_thread();                                                                   \
         s->worst = fmi2OK;                                                              \
         return settle(s, fn ARGS);                                                      \
     }

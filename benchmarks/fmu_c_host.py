@@ -1,0 +1,107 @@
+"""The closed loop in a host with no Python in its process: the project's C host and libcosim.
+
+* C host: ``tests/c_host/fmi_host.c`` (gcc, dlopen RTLD_LOCAL), ``closed`` mode, plant and AMPC-servo
+  controller at h = Ts = 0.1 s, run in a plain environment as a user's C master would be. The stepping
+  time is the run of N + 10 steps minus the run of 10 steps (start-up, about 1.5 s, is Python's and
+  the FMUs' instantiation), so the real-time factor is that of the loop.
+* libcosim (``libcosimpy``, if installed): the same loop in a parallel master; its worker threads are
+  not Python threads either.
+
+Goal: >= 300x real time in the C host. Best of ``--repeat`` runs (the machine may be shared). The fmpy
+figures of today are ``python benchmarks/fmu_cosim.py`` (FMU/direct <= 1.3, >= 500x).
+
+    python benchmarks/fmu_c_host.py [--steps 2400] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import fmpy
+from fmpy import extract, read_model_description
+
+from build_scripts.build_fmus import cached_fmus
+
+HOST_SOURCE = Path(__file__).resolve().parents[1] / "tests" / "c_host" / "fmi_host.c"
+TS_S = 0.1
+
+
+def _host(folder: Path) -> Path:
+    gcc = shutil.which("gcc") or shutil.which("cc")
+    if not gcc:
+        raise SystemExit("gcc is needed to build the C host")
+    exe = folder / "fmi_host"
+    subprocess.run([gcc, "-std=c99", "-O2", "-I", str(Path(fmpy.__file__).parent / "c-code"), "-o", str(exe),
+                    str(HOST_SOURCE), "-ldl", "-lm"], check=True)
+    return exe
+
+
+def _args(fmus: dict[str, Path], folder: Path) -> list[str]:
+    out = []
+    for key, name, roles in (("P", "MusclePlant", {"u": "u", "l": "l"}), ("C", "AMPCController", {"l": "l", "u": "u"})):
+        md = read_model_description(str(fmus[name]))
+        unzipped = extract(str(fmus[name]), unzipdir=str(folder / name))
+        vr = {v.name: v.valueReference for v in md.modelVariables}
+        out += [f"{key}.dir={unzipped}", f"{key}.id={md.coSimulation.modelIdentifier}", f"{key}.guid={md.guid}"]
+        out += [f"{key}.{role}={vr[var]}" for role, var in roles.items()]
+    return out
+
+
+def c_host_seconds(exe: Path, args: list[str], steps: int) -> float:
+    env = {"PATH": "/usr/bin:/bin", "HOME": tempfile.gettempdir(), "LANG": "C.UTF-8"}
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(exe), "closed", *args, f"steps={steps}"], capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        raise SystemExit(f"fmi_host failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    return time.perf_counter() - t0
+
+
+def libcosim_seconds(fmus: dict[str, Path], steps: int) -> float | None:
+    try:
+        from libcosimpy.CosimExecution import CosimExecution
+        from libcosimpy.CosimSlave import CosimLocalSlave
+    except ImportError:
+        return None
+    ex = CosimExecution.from_step_size(step_size=int(round(TS_S * 1e9)))
+    p = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmus["MusclePlant"]), instance_name="plant"))
+    c = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmus["AMPCController"]), instance_name="ctrl"))
+    pv = {v.name.decode(): v.reference for v in ex.slave_variables(p)}
+    cv = {v.name.decode(): v.reference for v in ex.slave_variables(c)}
+    ex.connect_real_variables(p, pv["l"], c, cv["l"])
+    ex.connect_real_variables(c, cv["u"], p, pv["u"])
+    ex.step(1)  # initialisation
+    t0 = time.perf_counter()
+    ex.step(steps)
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=2400)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    fmus = cached_fmus()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        exe = _host(folder)
+        host_args = _args(fmus, folder)
+        loop = min(c_host_seconds(exe, host_args, args.steps + 10) - c_host_seconds(exe, host_args, 10)
+                   for _ in range(args.repeat))
+        simulated = args.steps * TS_S
+        print(f"C host, closed loop, {args.steps} steps of {TS_S} s: {loop:.3f} s, real-time factor "
+              f"{simulated / loop:.0f}x (goal >= 300x)")
+        lc = [libcosim_seconds(fmus, args.steps) for _ in range(args.repeat)]
+        if lc[0] is None:
+            print("libcosim: libcosimpy not installed")
+        else:
+            print(f"libcosim, closed loop (parallel), {args.steps} steps: {min(lc):.3f} s, real-time factor "
+                  f"{simulated / min(lc):.0f}x")
+
+
+if __name__ == "__main__":
+    main()
