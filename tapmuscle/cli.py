@@ -193,10 +193,15 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------- build
 def _cmd_build(args: argparse.Namespace) -> int:
-    from build_scripts.build_fmus import build_fmus
+    from build_scripts.build_fmus import FMUS, build_fmus
 
-    for path in build_fmus(args.out):
+    paths = build_fmus(args.out)
+    for path in paths:
         print(f"wrote {path}")
+    if args.ssp:
+        from build_scripts.ssp import write_ssp
+
+        print(f"wrote {write_ssp(dict(zip(FMUS, paths)), args.out)} (both FMUs as one closed loop for SSP tools)")
     return 0
 
 
@@ -298,8 +303,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_cmd_run)
 
     bld = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMUs",
-                         description="Build MusclePlant.fmu with pythonfmu (docs/fmu.md).")
+                         description="Build MusclePlant.fmu and AMPCController.fmu with pythonfmu (docs/fmu.md).")
     bld.add_argument("--out", default="out/fmu", help="output folder (default out/fmu)")
+    bld.add_argument("--ssp", action="store_true",
+                     help="also write TapMuscleLoop.ssp: both FMUs connected, parameter sets for 44 N and 68 N, "
+                          "for SSP tools (libcosim, Ecos, OMSimulator)")
     bld.set_defaults(func=_cmd_build)
     _register_sweep(sub)
     _register_diagnose(sub)
