@@ -1,8 +1,9 @@
-"""The FMUs in a third-party co-simulation master: libcosim (``libcosimpy``, Open Simulation Platform).
+"""The FMUs in third-party co-simulation masters: libcosim (``libcosimpy``, Open Simulation Platform) and
+an FMU container of fmu-manipulation-toolbox (a C binary that steps the embedded FMUs), run by fmpy.
 
-libcosim steps every FMU in parallel on the outputs of the previous communication point (a Jacobi
+Both step every FMU in parallel on the outputs of the previous communication point (a Jacobi
 master), so at a macro step of ``Ts`` the controller's command reaches the plant one sample late.
-These tests run the FMUs inside libcosim and compare with the direct Python loop that applies each
+These tests run the FMUs inside them and compare with the direct Python loop that applies each
 command one sample late (:func:`tapmuscle.closed_loop.run_closed_loop` with ``loop_delay_samples=1``):
 the same code runs in the same process, so the trajectories must agree to rounding.
 """
@@ -133,3 +134,42 @@ def test_libcosim_sets_the_method_an_integer_parameter(built_fmus):
         h[method] = np.abs(np.array(rows)).max(axis=0)
     assert h[1][0] == 0.0 and h[1][1] == 0.0
     assert h[4][0] > 0.1, h
+
+
+# ------------------------------------------------------------------ an FMU container (parallel) in fmpy
+@pytest.fixture(scope="module")
+def container(built_fmus, tmp_path_factory):
+    """Both FMUs in one FMU built by fmu-manipulation-toolbox's ``fmucontainer``, in its default
+    parallel mode (every embedded FMU stepped on the previous outputs), parameters exposed."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    pytest.importorskip("fmu_manipulation_toolbox", reason="fmu-manipulation-toolbox (test extra) is not installed")
+    folder = tmp_path_factory.mktemp("container")
+    for name, path in built_fmus.items():
+        shutil.copy(path, folder / f"{name}.fmu")
+    (folder / "loop.json").write_text(json.dumps({
+        "name": "TapLoop.fmu", "step_size": TS_S, "sequential": False,
+        "fmu": ["MusclePlant.fmu", "AMPCController.fmu"],
+        "link": [["MusclePlant.fmu", "l", "AMPCController.fmu", "l"], ["AMPCController.fmu", "u", "MusclePlant.fmu", "u"]],
+        "output": [["MusclePlant.fmu", "l", "l"], ["AMPCController.fmu", "u", "u"]]}))
+    cli = [sys.executable, "-c", "from fmu_manipulation_toolbox.cli.fmucontainer import fmucontainer; fmucontainer()"]
+    proc = subprocess.run([*cli, "-container", "loop.json", "-auto-parameter", "-fmu-directory", str(folder)],
+                          cwd=folder, capture_output=True, text=True, timeout=300)
+    assert (folder / "TapLoop.fmu").is_file(), proc.stdout[-2000:] + proc.stderr[-2000:]
+    return folder / "TapLoop.fmu"
+
+
+@pytest.mark.parametrize("delay", [0, 1])
+def test_a_parallel_fmu_container_in_fmpy_is_the_delayed_direct_loop(container, delay):
+    from fmpy import simulate_fmu
+
+    res = simulate_fmu(str(container), stop_time=45.0, output_interval=TS_S, output=["l", "u"],
+                       start_values={"ampccontroller.input_delay_samples": delay})
+    direct = _direct(delay)
+    np.testing.assert_allclose(res["l"], direct["l_mm"][:len(res["l"])], rtol=0, atol=1e-9)
+    t = res["time"]
+    err = float(np.mean(np.abs(35 + 30 * np.sin(2 * math.pi * 0.1 * t) - res["l"])[t >= 5.0]))
+    assert (err > 3.0) if delay == 0 else (err < 0.6), err
