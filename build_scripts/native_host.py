@@ -221,6 +221,40 @@ static fmi2Status settle(Shim *s, fmi2Status returned) {
 FMI2_Export const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 FMI2_Export const char *fmi2GetVersion(void) { return fmi2Version; }
 
+/* The GUID in the unzipped FMU's modelDescription.xml (resources/../modelDescription.xml), from the
+   resource location URI (file:///path or file:/path, percent-decoded); 0 if it cannot be read. */
+static int model_guid(const char *resources, char *guid, size_t size) {
+    char path[4096], text[65536];
+    size_t j = 0, n;
+    const char *p = resources, *g, *e;
+    FILE *f;
+    if (!p || strncmp(p, "file:", 5)) return 0;
+    p += 5;
+    if (!strncmp(p, "//", 2)) p += 2;
+    if (*p != '/') return 0;                                 /* file://host/... is not ours */
+    for (; *p && j + 1 < sizeof path; p++) {
+        if (*p == '%' && p[1] && p[2]) {
+            char hex[3] = {p[1], p[2], 0};
+            path[j++] = (char)strtol(hex, NULL, 16);
+            p += 2;
+        } else path[j++] = *p;
+    }
+    while (j > 0 && path[j - 1] == '/') j--;
+    path[j] = 0;
+    if (j + 40 >= sizeof path) return 0;
+    strcat(path, "/../modelDescription.xml");
+    if (!(f = fopen(path, "rb"))) return 0;
+    n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    text[n] = 0;
+    if (!(g = strstr(text, " guid=\""))) return 0;
+    g += 7;
+    if (!(e = strchr(g, '"')) || (size_t)(e - g) >= size) return 0;
+    memcpy(guid, g, (size_t)(e - g));
+    guid[e - g] = 0;
+    return 1;
+}
+
 FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String resources,
                                           const fmi2CallbackFunctions *functions, fmi2Boolean visible,
                                           fmi2Boolean loggingOn) {
@@ -239,6 +273,15 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
                  why ? why : "");
         to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
         return s;
+    }
+    {
+        char expected[128];
+        if (guid && model_guid(resources, expected, sizeof expected) && strcmp(guid, expected)) {
+            snprintf(s->reason, sizeof s->reason, "the host passed GUID %s, this FMU's is %s (modelDescription.xml)",
+                     guid, expected);
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
     }
     s->inner = inst(name, type, guid, resources, &s->mine, visible, fmi2True);
     if (!s->inner) {

@@ -133,3 +133,35 @@ def test_quiet_when_all_is_well_and_logging_is_off(built_fmus):
     assert run["calls"] == {"setupExperiment": 0, "enterInitializationMode": 0, "exitInitializationMode": 0,
                             "doStep": 0}
     assert run["log"] == []
+
+
+def test_a_wrong_guid_is_refused_with_both_guids(built_fmus, tmp_path, capfd):
+    """FMI 2.0: the host passes the GUID it read; an FMU that does not match must not run. The
+    instance logs both GUIDs and refuses to step, like any failed instantiation; the right GUID works
+    from a folder whose path needs percent-encoding in the resource URI."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+
+    path = built_fmus["MusclePlant"]
+    md = read_model_description(str(path))
+    folder = extract(str(path), unzipdir=str(tmp_path / "dir with space"))
+    wrong = "{00000000-0000-0000-0000-000000000000}"
+    f = FMU2Slave(guid=wrong, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="g")
+    f.instantiate(loggingOn=False)
+    assert f.setupExperiment(startTime=0.0) == 1  # fmi2Warning: the calls before the first step
+    with pytest.raises(FMICallException, match="error"):
+        f.doStep(0.0, 0.1)
+    f.freeInstance()
+    out = capfd.readouterr().out
+    assert f"the host passed GUID {wrong}, this FMU's is {md.guid}" in out, out
+    good = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                     instanceName="ok")
+    good.instantiate()
+    good.setupExperiment(startTime=0.0)
+    good.enterInitializationMode()
+    assert good.exitInitializationMode() == 0
+    good.doStep(0.0, 0.1)
+    good.terminate()
+    good.freeInstance()
