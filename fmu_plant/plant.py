@@ -583,7 +583,38 @@ class Plant:
         }
 
     def set_state(self, s: dict[str, Any]) -> None:
-        """Restore what :meth:`get_state` returned."""
+        """Restore what :meth:`get_state` returned.
+
+        Raises
+        ------
+        ValueError
+            A field that no plant could have saved (non-finite, out of its range, wrong length), named;
+            a restored plant must step as the saved one did (a zero step scale would never return).
+        """
+        def field(name: str, lo: float = -math.inf, hi: float = math.inf, *, open_lo: bool = False) -> float:
+            v = float(s[name])
+            if not (math.isfinite(v) and (lo < v if open_lo else lo <= v) and v <= hi):
+                raise ValueError(f"state field {name} = {v!r} must be a finite number in "
+                                 f"{'(' if open_lo else '['}{lo:g}, {hi:g}]")
+            return v
+
+        field("t_s", 0.0)
+        field("u_v")
+        field("load_n", 0.0)
+        field("supply_pressure_mpa", 0.0)
+        field("last_supply_mpa", 0.0)
+        if "kink_scale_s" in s:
+            field("kink_scale_s", 0.0, 1.0, open_lo=True)
+        if "gate" in s:
+            field("gate", 0.0, 1.0)
+        if len(s["state"]) != len(self.state) or not all(math.isfinite(float(v)) for v in s["state"]):
+            raise ValueError(f"state field state must be {len(self.state)} finite numbers, got {s['state']!r}")
+        if not all(math.isfinite(float(v)) for v in s["measurement"]) or len(s["measurement"]) != 3:
+            raise ValueError(f"state field measurement must be 3 finite numbers, got {s['measurement']!r}")
+        if int(s["seed"]) < 0:
+            raise ValueError(f"state field seed = {s['seed']!r} must be >= 0")
+        if len(s["effects"]) != len(self.effects):
+            raise ValueError(f"state field effects has {len(s['effects'])} entries, this plant {len(self.effects)}")
         self.t_s = float(s["t_s"])
         self.state = [float(v) for v in s["state"]]
         self.u_v = float(s["u_v"])

@@ -232,3 +232,29 @@ def test_a_message_with_a_percent_sign_reaches_the_host_intact(fmu, capfd):
     assert "valve.cv_max = -1.0 is outside" in out and "%" in out, out
     g.terminate()
     g.freeInstance()
+
+
+@pytest.mark.parametrize("key, value", [("kink_scale_s", float("nan")), ("kink_scale_s", 0.0), ("kink_scale_s", -1.0),
+                                        ("t_s", float("inf")), ("state", [1.0]), ("gate", 2.0)])
+def test_a_corrupted_state_field_is_refused_and_changes_nothing(fmu, capfd, key, value):
+    """A serialised state edited by hand (a zero step scale once hung the next fmi2DoStep): fmi2Error
+    naming the field, and the instance continues as if nothing had happened."""
+    import json
+
+    vr = fmu[3]
+    f, ref = _instance(fmu, "f"), _instance(fmu, "ref")
+    for g in (f, ref):
+        g.setReal([vr["u"]], [6.0])
+        g.doStep(0.0, 0.1)
+    doc = json.loads(bytes(f.serializeFMUstate(f.getFMUstate())).decode())
+    doc["numerics"][key] = value
+    with pytest.raises(FMICallException, match="error"):
+        f.setFMUstate(f.deSerializeFMUstate(json.dumps(doc).encode()))
+    assert f"state field {key}" in capfd.readouterr().out
+    for k in range(1, 10):
+        for g in (f, ref):
+            g.doStep(k * 0.1, 0.1)
+    assert f.getReal([vr["l"], vr["p"]]) == ref.getReal([vr["l"], vr["p"]])
+    for g in (f, ref):
+        g.terminate()
+        g.freeInstance()
