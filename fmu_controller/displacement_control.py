@@ -316,8 +316,26 @@ class DisplacementController:
         }
 
     def set_state(self, state: Mapping[str, Any]) -> None:
-        """Restore what :meth:`get_state` returned."""
-        self.theta = np.asarray(state["theta"], dtype=float)
+        """Restore what :meth:`get_state` returned.
+
+        Raises
+        ------
+        ValueError
+            A field that no controller could have saved (non-finite, wrong length, negative count),
+            named. The RLS and QP parts validate their own fields.
+        """
+        theta = np.asarray(state["theta"], dtype=float)
+        if theta.shape != (ASYMMETRIC.n_params,) or not np.all(np.isfinite(theta)) or abs(theta[2]) < 1e-6:
+            raise ValueError(f"state field theta must be {ASYMMETRIC.n_params} finite numbers with b1 not ~0, "
+                             f"got {state['theta']!r}")
+        for name in ("u_prev", "uc_prev", "xs", "u_next", "uc_next"):
+            if name in state and not math.isfinite(float(state[name])):
+                raise ValueError(f"state field {name} = {state[name]!r} must be finite")
+        if not (math.isfinite(float(state["predicted"])) or math.isnan(float(state["predicted"]))):
+            raise ValueError(f"state field predicted = {state['predicted']!r} must be finite (or NaN before a step)")
+        if int(state["k"]) < 0:
+            raise ValueError(f"state field k = {state['k']!r} must be >= 0")
+        self.theta = theta
         self._theta_list = self.theta.tolist()
         self._state.set_state(state["model"])
         self._k = int(state["k"])

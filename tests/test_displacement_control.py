@@ -224,3 +224,14 @@ def test_delayed_state_replays_bit_identically(theta0):
         c.set_state(saved)
         b = [c.step(l_seq[k], ref.preview(k, 6)).u_v for k in range(100, 200)]
         assert a == b, method
+
+
+@pytest.mark.parametrize("key, value", [("theta", [1.0] * 3), ("xs", math.inf), ("k", -1), ("u_next", math.nan),
+                                        ("predicted", math.inf)])
+def test_a_corrupted_state_is_refused_naming_the_field(theta0, key, value):
+    c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=1), theta0)
+    for k in range(5):
+        c.step(30.0 + k, [35.0] * 7)
+    good = c.get_state()
+    with pytest.raises(ValueError, match=f"state field {key}"):
+        c.set_state({**good, key: value})
