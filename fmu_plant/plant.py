@@ -613,8 +613,10 @@ class Plant:
             raise ValueError(f"state field measurement must be 3 finite numbers, got {s['measurement']!r}")
         if int(s["seed"]) < 0:
             raise ValueError(f"state field seed = {s['seed']!r} must be >= 0")
-        if len(s["effects"]) != len(self.effects):
-            raise ValueError(f"state field effects has {len(s['effects'])} entries, this plant {len(self.effects)}")
+        if len(s["effects"]) > len(self.effects):  # fewer is fine: a plant with an extra effect may start
+            # from a state of the plant without it (the diagnosis's checkpoints); that effect keeps its own
+            raise ValueError(f"state field effects has {len(s['effects'])} entries, this plant has "
+                             f"{len(self.effects)} effects")
         self.t_s = float(s["t_s"])
         self.state = [float(v) for v in s["state"]]
         self.u_v = float(s["u_v"])
