@@ -216,7 +216,7 @@ def _significance(e0: np.ndarray, e1: np.ndarray, noise_mm: float, alpha: float)
 
 
 def distinguishable(e_best: np.ndarray, e_other: np.ndarray, noise_mm: float, *, alpha: float = 1e-3,
-                    min_ratio: float = 1.1) -> tuple[bool, dict[str, float]]:
+                    min_ratio: float = 1.1, residual_mm: np.ndarray | None = None) -> tuple[bool, dict[str, float]]:
     """Can the held-out data tell the best explanation from another one?
 
     Both must hold: the other's held-out squared error exceeds the best's by at least
@@ -232,10 +232,15 @@ def distinguishable(e_best: np.ndarray, e_other: np.ndarray, noise_mm: float, *,
         Held-out residuals [mm] of the best explanation and the other one.
     noise_mm : float
         White-noise level [mm].
+    residual_mm : ndarray, optional
+        The residual whose level stands for what no explanation accounts for (default ``e_best``).
+        The diagnosis passes the final model's held-out residual: the best's residual at the round
+        the alternatives were fitted still holds the effects that later rounds explained, and those
+        are not noise.
     """
     s_best, s_other = float(e_best @ e_best), float(e_other @ e_other)
     delta = float(np.linalg.norm(e_best - e_other))
-    sigma = max(noise_mm, effective_sigma(e_best))
+    sigma = max(noise_mm, effective_sigma(e_best if residual_mm is None else residual_mm))
     z = (s_other - s_best) / (2.0 * sigma * delta) if delta > 0 and sigma > 0 else 0.0
     ratio = s_other / s_best if s_best > 0 else math.inf
     p = float(stats.norm.sf(z))
@@ -535,8 +540,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                     findings = [f for f in findings if f.effect != name]
                     current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name})
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
-        pool = [c for c in pool if c.name not in current.effects and c.name in {c2.name for c2, _, s in fitted
-                                                                                   if s["reduction"] > 0.02}]
+        # every effect not yet in the model is tried again: a second effect's own fit in the first round
+        # was judged against a residual that the first effect dominated
+        pool = [c for c in pool if c.name not in current.effects]
 
     # the final model: the calibrated constants re-fitted jointly with the accepted effects; the
     # report's calibration rows are those of this joint fit
@@ -568,8 +574,17 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     e_after = y - y_base
     tests1, ac1, xc1 = _residual_tests(u, e_after, sensor_mm)
     excess1 = max(tests1["rms_mm"] ** 2 - floor ** 2, 0.0)
-    # an alternative that a later round accepted as well is part of the model, not an alternative
-    ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or a.effect not in current.effects]
+    # an alternative that a later round accepted as well is part of the model, not an alternative;
+    # and the others are judged again against what the final model leaves unexplained
+    final_test = (y - y_base)[test]
+
+    def still_tied(best: Alternative, other: Alternative) -> bool:
+        ok, ev = distinguishable((y - best.y_hat)[test], (y - other.y_hat)[test], noise, alpha=alpha,
+                                 residual_mm=final_test)
+        other.evidence["versus_best"] = ev
+        return not ok
+    ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or (a.effect not in current.effects
+                                                                      and still_tied(g[0], a))]
                              for g in ambiguous) if len(g) > 1 and g[0].effect in current.effects]
     if not tests0["structured"]:
         verdict = "no_significant_mismatch"
