@@ -1,9 +1,11 @@
 """The fixed predictor of section 4.2 ("a preliminary identification under 44 N"), as numbers.
 
 :data:`THETA0_44N` is what :func:`tapmuscle.paper.preliminary_theta` (seed 0, refinement at 0.05 Hz)
-returns on the simulated rig with the default plant parameters. It is the default ``theta0`` of the
-``AMPCController`` FMU, which must not depend on the plant to start. ``tests/test_paper.py`` recomputes
-it and fails if the plant changed and this table was not regenerated with::
+returns on the simulated rig with the default plant parameters (on the machine it was generated on: the
+identification ends in a closed loop, so another CPU's rounding gives another, equally good estimate).
+It is the default ``theta0`` of the ``AMPCController`` FMU, which must not depend on the plant to start.
+``tests/test_paper.py`` identifies again and fails when this table predicts the plant worse than the new
+estimate does; the plant then changed, and this table is regenerated with::
 
     python -c "from tapmuscle.paper import preliminary_theta; print(preliminary_theta(0, refine_hz=0.05).tolist())"
 """

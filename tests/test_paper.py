@@ -7,15 +7,18 @@ import pytest
 
 from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.identification import score_model
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_controller.rls import TABLE2_LOWER
 from fmu_plant import Plant, PlantParams
+from fmu_plant.open_loop import run_open_loop
 from scenarios import PAPER_SCENARIOS, load_scenario
 from tapmuscle.cli import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.paper import PAPER_RUNS, paper_findings, paper_tables, preliminary_theta
 from tapmuscle.recording import read_recording
+from tapmuscle.signals import parse_input_spec
 
 
 @pytest.fixture(scope="module")
@@ -163,8 +166,23 @@ def test_the_fixed_predictor_is_identified_with_the_first_noise_seed_by_default(
     assert d["seeds"] == [0, 1, 2] and d["id_seed"] == 0
 
 
-def test_fmu_default_theta0_is_this_plants_preliminary_identification(paper):
-    """THETA0_44N (the controller FMU's default theta0) must be regenerated when the plant changes."""
+def test_fmu_default_theta0_predicts_this_plant_as_well_as_its_preliminary_identification(paper):
+    """THETA0_44N (the controller FMU's default theta0) must be regenerated when the plant changes.
+
+    The preliminary identification ends in a closed loop, so its estimate is not a reproducible
+    number: another noise seed moves single parameters by up to 10x their size (seeds 0-3), and
+    another CPU's rounding does the same. What it must reproduce is the predictor: on open-loop
+    data of this plant the stored theta predicts 1, 3 and 5 steps ahead within 2 points of the
+    estimate identified now (noise seeds 0-3 spread by <= 1.0 point; b1 10 % off costs 2.4) and
+    runs free within 15 points (seeds spread by 10.6).
+    """
     _, d = paper
-    got = [d["theta0"][n] for n in ASYMMETRIC.names]
-    assert got == pytest.approx(list(THETA0_44N), rel=1e-9, abs=1e-12)
+    fresh = np.array([d["theta0"][n] for n in ASYMMETRIC.names])
+    rec = run_open_loop(Plant(PlantParams(), seed=77), parse_input_spec("sine:bias=5,amp=3.5,freq=0.07"),
+                        duration_s=120.0, ts_s=0.1)
+    stored = score_model(np.array(THETA0_44N), ASYMMETRIC, rec["u_v"], rec["l_mm"])
+    now = score_model(fresh, ASYMMETRIC, rec["u_v"], rec["l_mm"])
+    assert not stored.free_run_diverged and now.percent["1"] > 90.0
+    for horizon in ("1", "3", "5"):
+        assert stored.percent[horizon] >= now.percent[horizon] - 2.0, (horizon, stored.percent, now.percent)
+    assert stored.percent["sim"] >= now.percent["sim"] - 15.0, (stored.percent, now.percent)

@@ -471,10 +471,14 @@ def test_shortcut_matches_osqp_reference(settings):
     rng = np.random.default_rng(20)
     fast = ServoMPC(fast_settings, a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
     ref = ServoMPC(ref_settings, a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
-    n_interior = n_constrained = 0
-    # with refinement both paths return the exact optimum (to rounding); refine=False
-    # leaves OSQP's answer at eps accuracy, the shortcut is exact either way
-    atol = 1e-9 if fast_settings.refine else 1e-5
+    n_interior = n_constrained = n_exact = 0
+    # With refinement both paths return the exact optimum (to rounding) whenever the active
+    # set guessed from ADMM's iterates is right. Those iterates' last bits depend on the CPU
+    # and BLAS, so on some machines one path's guess misses and that path keeps OSQP's answer,
+    # accurate to eps_abs = 1e-7 in the multipliers' scale: the plans then agree to ~1e-6, not
+    # to rounding. Every case must agree to OSQP's accuracy and almost every one exactly;
+    # refine=False leaves OSQP's answer at eps accuracy everywhere.
+    exact, atol = 1e-9, 1e-5
     for _ in range(100):
         model = (rng.uniform(1.208, 1.260), rng.uniform(-0.334, -0.278), rng.uniform(0.607, 1.184))
         fast.update_model(*model)
@@ -488,7 +492,8 @@ def test_shortcut_matches_osqp_reference(settings):
         np.testing.assert_allclose(got.uc_plan_v, want.uc_plan_v, atol=atol, rtol=0)
         np.testing.assert_allclose(got.predicted_l_mm, want.predicted_l_mm, atol=10 * atol, rtol=0)
         np.testing.assert_allclose(got.predicted_xs, want.predicted_xs, atol=10 * atol, rtol=0)
-        assert got.cost == pytest.approx(want.cost, rel=1e-7, abs=1e-9)
+        n_exact += bool(np.max(np.abs(got.uc_plan_v - want.uc_plan_v)) <= exact)
+        assert got.cost == pytest.approx(want.cost, rel=1e-6, abs=1e-9)
         assert got.cost <= want.cost * (1 + 1e-12) + 1e-12  # never worse than the reference
         assert got.constrained == want.constrained
         u = got.uc_plan_v - case["offset_v"]
@@ -504,6 +509,8 @@ def test_shortcut_matches_osqp_reference(settings):
             n_constrained += 1
     # both paths are exercised, with active bounds on the OSQP path
     assert n_interior >= 25 and n_constrained >= 25
+    if fast_settings.refine:
+        assert n_exact >= 90, n_exact
 
 
 def test_osqp_path_taken_only_when_a_bound_is_violated():
