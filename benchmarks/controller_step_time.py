@@ -1,4 +1,4 @@
-"""Per-step compute time of each controller (issue 4): median and p99 over >= 2000 steps.
+"""Per-step compute time of each controller: median and p99 over >= 2000 steps.
 
 Run: ``python benchmarks/controller_step_time.py [--repeat N] [--methods m1,m2]``. Each controller
 runs in closed loop with the simulated rig (44 N, 0.1 Hz reference); only

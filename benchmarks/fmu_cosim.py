@@ -1,4 +1,4 @@
-"""FMU co-simulation cost: wall time against the direct loop, and the real-time factor (issue 5).
+"""FMU co-simulation cost: wall time against the direct loop, and the real-time factor.
 
 A 40 s AMPC-servo run at 44 N, 0.1 Hz, Ts = 0.1 s (401 samples):
 

@@ -5,7 +5,7 @@ Records (with ``tapmuscle record``) the paper's identification input u = 5 + 3 s
 44 N and 68 N: 240 s for identification (seed 0) and a fresh 120 s for validation (seed 1), Ts 0.1 s,
 encoder noise and quantisation on. Identifies both models with the constrained RLS (Table 2 box from
 120 s) and prints the validation fits beside the paper's Table 4; also the unconstrained estimate's
-linear part (issue 2's calibration aim). Writes Fig. 4 / Fig. 5 style PNGs into OUT_DIR.
+linear part (against the Table 2 box the rig was calibrated to). Writes Fig. 4 / Fig. 5 style PNGs into OUT_DIR.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def main(out: Path) -> int:
         th = free.theta_dict
         s = th["a1"] + th["a2"]
         print(f"unconstrained asymmetric: a1+a2={s:.3f} b1={th['b1']:.3f} mm/V "
-              f"(issue 2 aims at 0.87..0.98 and 0.6..1.2); a1+A1={free.identifiable['a1+A1']:.3f}, "
+              f"(the Table 2 box: 0.87..0.98 and 0.6..1.2); a1+A1={free.identifiable['a1+A1']:.3f}, "
               f"a2-A1={free.identifiable['a2-A1']:.3f}")
         plot_model_vs_measured(va.t_s, va.u_v, va.l_mm, sims, out / f"fig4_models_{load}N.png",
                                title=f"free run of both models against the validation record, {load} N (cf. Fig. 4)")

@@ -1,4 +1,4 @@
-"""Print the simulated rig's calibration figures (issue 2) and the plant's step cost.
+"""Print the simulated rig's calibration figures and the plant's step cost.
 
 Run: ``python benchmarks/plant_calibration.py``. Makes the target recordings with
 ``tapmuscle record`` (Ts 0.1 s, seed 0, noise on) in a temporary folder and measures them.

@@ -1,4 +1,4 @@
-"""Sweep speed-up on a local Dask cluster: 64 runs on 1 worker process against 2 (issue 7).
+"""Sweep speed-up on a local Dask cluster: 64 runs on 1 worker process against 2.
 
 The runs: the four controllers x 16 Monte-Carlo operating points (load U(30, 90) N, supply
 U(0.20, 0.30) MPa, own noise seed), 45 s of the 0.1 Hz sine each, through the FMUs, as

@@ -358,7 +358,8 @@ FORWARD(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate st), (s->inner, st), fmi
 FORWARD(fmi2FreeFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st), fmi2Error, NOTHING)
 FORWARD(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate st, size_t *n), (s->inner, st, n), fmi2Error, NOTHING)
 FORWARD(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t n), (s->inner, st, b, n), fmi2Error, NOTHING)
-FORWARD(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st), (s->inner, b, n, st), fmi2Error, NOTHING)
+FORWARD(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st),
+        (s->inner, b, n, st), fmi2Error, NOTHING)
 FORWARD(fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu,
         const fmi2ValueReference k[], size_t nk, const fmi2Real dk[], fmi2Real du[]), (s->inner, u, nu, k, nk, dk, du), fmi2Error, NOTHING)
 FORWARD(fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],

@@ -497,7 +497,7 @@ def _input_map_values(x: np.ndarray) -> dict[str, float]:
             "input_map.out_at_10_v": min(max(v2 + s_hi * (10.0 - k2), v2), 10.0)}
 
 
-class _BudgetSpent(Exception):
+class _BudgetSpentError(Exception):
     """The input-map fit has run its simulations, or reached the noise."""
 
 
@@ -527,7 +527,7 @@ def _fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
 
     def resid(x: np.ndarray) -> np.ndarray:
         if len(seen) >= _MAP_SIMULATIONS - _MAP_SIMPLER or (seen and min(seen)[0] <= done_cost):
-            raise _BudgetSpent
+            raise _BudgetSpentError
         y = pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit)[0]
         r = pr.train_residual(y)
         seen.append((float(r @ r), tuple(float(v) for v in x)))
@@ -571,7 +571,7 @@ def _fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
                                    method="trf", ftol=_MAP_FTOL, xtol=1e-4, max_nfev=_MAP_SIMULATIONS)
             if min(seen)[0] > (1.0 - _MAP_FTOL) * before:
                 break
-    except _BudgetSpent:
+    except _BudgetSpentError:
         pass
     cost, best = min(seen)
     if cost >= cost_base:

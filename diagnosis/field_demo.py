@@ -1083,7 +1083,7 @@ def scores_markdown(s: dict[str, Any]) -> str:
              f"{s['visible']} visible (every effect costs >= {VISIBLE_POINTS} points of held-out fit); "
              f"{s['failed']} failed.", ""]
     if s["recordings"] < 100:
-        lines += [f"*Fewer than 100 recordings: the targets are stated for at least 100.*", ""]
+        lines += ["*Fewer than 100 recordings: the targets are stated for at least 100.*", ""]
     lines += ["| target | passed | rate | target | met | visible cases: rate |", "|---|---|---|---|---|---|"]
     for key, t in s["targets"].items():
         met = "-" if t["met"] is None else "yes" if t["met"] else "**no**"
@@ -1098,7 +1098,7 @@ def scores_markdown(s: dict[str, Any]) -> str:
               f"remainder either: {m['pair_found_alone_no_remainder']['passed']}",
               f"* out of vocabulary, `unexplained` with no vocabulary effect named: "
               f"{m['oov_unexplained_alone']['passed']} / {m['oov_unexplained_alone']['cases']}",
-              f"* verdicts of the no-effect cases: " + (", ".join(f"`{k}` {v}" for k, v in m["none_verdicts"].items()) or "-"),
+              "* verdicts of the no-effect cases: " + (", ".join(f"`{k}` {v}" for k, v in m["none_verdicts"].items()) or "-"),
               f"* median held-out fit before / after: {_num(s['median_fit_before_percent'])} % / "
               f"{_num(s['median_fit_after_percent'])} %"]
     d = s["discrimination"]

@@ -113,8 +113,10 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
               f"| RMS residual [mm] | {tb['rms_mm']:.4f} | {ta['rms_mm']:.4f} |",
               f"| white-noise level [mm] | {tb['white_noise_mm']:.4f} | {ta['white_noise_mm']:.4f} |",
               f"| whiteness (Ljung-Box, 25 lags) p | {tb['whiteness_p']:.2g} | {ta['whiteness_p']:.2g} |",
-              f"| autocorrelation lags outside the 99 % band | {tb['autocorrelation_lags_outside']} / 25 | {ta['autocorrelation_lags_outside']} / 25 |",
-              f"| input cross-correlation lags outside the band | {tb['cross_correlation_lags_outside']} / 51 | {ta['cross_correlation_lags_outside']} / 51 |",
+              f"| autocorrelation lags outside the 99 % band | {tb['autocorrelation_lags_outside']} / 25 "
+              f"| {ta['autocorrelation_lags_outside']} / 25 |",
+              f"| input cross-correlation lags outside the band | {tb['cross_correlation_lags_outside']} / 51 "
+              f"| {ta['cross_correlation_lags_outside']} / 51 |",
               f"| structured (whiteness rejected and RMS > 1.5 x noise) | {tb['structured']} | {ta['structured']} |", ""]
     lines += ["## Candidates tried", "", "| round | effect | held-out gain [points] | SSE reduction | p |", "|---|---|---|---|---|"]
     for c in d.candidates:

@@ -175,7 +175,7 @@ def paper_tables(values: Mapping[str, T]) -> dict[str, dict[str, dict[str, T]]]:
 
 
 def paper_findings(tables: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict[str, bool]:
-    """Issue 4's targets on Tables 6, 7 and 9 (``paper.json``'s shape), each true where it holds.
+    """The reproduction targets on Tables 6, 7 and 9 (``paper.json``'s shape), each true where it holds.
 
     The paper's findings (sections 4.2-4.4): servo beats UCP, fixed and adaptive; the fixed UCP degrades
     with load (by more than 0.2 mm: its predictor is a 44 N model); AMPC-UCP beats MPC-UCP;

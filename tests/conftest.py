@@ -1,4 +1,10 @@
-"""Shared fixtures: the FMUs are built once per test session (about 3 s)."""
+"""Shared fixtures and markers.
+
+The FMUs are built once per test session (about 3 s). Every test that uses them is marked ``fmu``
+here, so ``pytest -m "not fmu"`` runs the pure numerics without building anything. The other markers
+(``slow``, ``dask``, ``c_host``) are set in the test modules; all four are registered in
+``pyproject.toml``.
+"""
 
 import pytest
 
@@ -11,3 +17,9 @@ def built_fmus(tmp_path_factory):
     out = tmp_path_factory.mktemp("fmus")
     paths = build_fmus(out)
     return {name: path for name, path in zip(FMUS, paths)}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if "built_fmus" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.fmu)

@@ -26,6 +26,8 @@ from fmpy.fmi2 import FMU2Slave
 
 from build_scripts.build_fmus import FMUS
 
+pytestmark = pytest.mark.c_host
+
 HOST_SOURCE = Path(__file__).parent / "c_host" / "fmi_host.c"
 PLAIN_PATH = "/usr/bin:/bin"
 TS = 0.1

@@ -1,4 +1,4 @@
-"""Acceptance of issue 2: `tapmuscle record` makes the recordings, the targets are measured from the CSVs."""
+"""The simulated rig's calibration targets: `tapmuscle record` makes the recordings, the targets are measured from the CSVs."""
 
 import pytest
 

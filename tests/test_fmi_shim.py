@@ -12,13 +12,14 @@ copy must not meet a working one in one process.
 """
 
 import json
-import shutil
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
 import pytest
+
+pytestmark = pytest.mark.c_host
 
 HOST = r'''
 import json, sys

@@ -1,4 +1,4 @@
-"""Issue 3 on the simulated rig: `tapmuscle identify` reaches the Table-4-like targets; bad data is refused."""
+"""On the simulated rig, `tapmuscle identify` reaches the Table-4-like targets; bad data is refused."""
 
 import json
 

@@ -21,6 +21,8 @@ from build_scripts import native_host as build_native_host
 from build_scripts.native_host import CONFIG_NAME, NativeHostWarning, build_environment, prepare_for_native_hosts
 from fmi_slave import native_host
 
+pytestmark = pytest.mark.c_host
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

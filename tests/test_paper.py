@@ -1,4 +1,4 @@
-"""Issue 4's acceptance: `tapmuscle paper` reproduces the paper's findings (Tables 6, 7, 9)."""
+"""`tapmuscle paper` reproduces the paper's findings (Tables 6, 7, 9)."""
 
 import json
 

@@ -26,7 +26,7 @@ def _scenario(method, *, seed=3, duration=25.0, load_steps=(), plant_params=None
 
 @pytest.mark.parametrize("method", ["mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"])
 def test_fmu_loop_equals_the_direct_loop(built_fmus, method):
-    """Issue 5: same seed, same numbers to 1e-9 (here: bit for bit), with a load step during the run."""
+    """Reproducibility: same seed, same numbers to 1e-9 (here: bit for bit), with a load step during the run."""
     steps = ((12.0, 68.0),)
     cols = co_simulate(_scenario(method, load_steps=steps, plant_params={"friction.rate_gain": 0.5}), built_fmus)
     plant = Plant(PlantParams().with_values(**{"friction.rate_gain": 0.5}), seed=3)

@@ -307,7 +307,8 @@ def test_update_model_does_not_depend_on_warm_start_much():
 # ---------------------------------------------------------------------------
 def test_closed_loop_sine_tracking():
     # section 4.1 reference: 35 mm offset, 30 mm amplitude, 0.1 Hz, Ts = 0.1 s; Eq. (21)
-    ref = lambda k: 35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * k * 0.1)
+    def ref(k: int) -> float:
+        return 35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * k * 0.1)
     l, u = closed_loop(MODEL, MODEL, ref, 402)
     e_bar = np.mean([abs(ref(k) - l[k]) for k in range(101, 402)])
     assert e_bar < 0.5

@@ -13,6 +13,8 @@ pytest.importorskip("distributed")
 
 from tapmuscle.cli import main  # noqa: E402
 
+pytestmark = pytest.mark.dask
+
 SWEEP = """
 name = "dask_small"
 base = { duration_s = 15.0, evaluation_samples = [20, 150] }
