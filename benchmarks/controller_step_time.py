@@ -21,7 +21,7 @@ import numpy as np
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant
-from tapmuscle.paper import preliminary_theta
+from tapmuscle.paper.reproduce import preliminary_theta
 
 STEPS = 2500
 

@@ -3,7 +3,7 @@ machine for a rig whose constants are off with two left-out effects).
 
 Records the simulated rig for 600 s (the identification sine, noise on): the demo model with some of
 its nominal constants off by 10-20 % and 0, 1 or 2 concealed effects; then times
-:func:`diagnosis.report.diagnose_files` (the whole ``tapmuscle diagnose`` job: reading, calibrating,
+:func:`tapmuscle.diagnosis.report.diagnose_files` (the whole ``tapmuscle diagnose`` job: reading, calibrating,
 fitting the candidates, writing the JSON, report and PNGs) once per rig given.
 
     python benchmarks/diagnose_time.py [--rigs field_two_effects,field_none,...] [--excitation sine]
@@ -19,10 +19,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from diagnosis.demo import DEMO_MODEL, record  # noqa: E402
-from diagnosis.report import diagnose_files  # noqa: E402
-from tapmuscle.plant_file import plant_file_text  # noqa: E402
-from tapmuscle.recording import Recording, atomic_write_text, write_recording  # noqa: E402
+from tapmuscle.diagnosis.demo import DEMO_MODEL, record  # noqa: E402
+from tapmuscle.diagnosis.report import diagnose_files  # noqa: E402
+from tapmuscle.io.plant_file import plant_file_text  # noqa: E402
+from tapmuscle.io.recording import Recording, atomic_write_text, write_recording  # noqa: E402
 
 #: Nominal constants off as a real rig's are: stiffness +15 %, base friction -20 %, valve Cv -10 %,
 #: friction growth with pressure +12 %.

@@ -3,7 +3,7 @@
 A 40 s AMPC-servo run at 44 N, 0.1 Hz, Ts = 0.1 s (401 samples):
 
 * direct: :func:`tapmuscle.closed_loop.run_closed_loop` with fmu_plant.Plant and the controller;
-* FMU: the same loop through MusclePlant.fmu and AMPCController.fmu in fmpy (:mod:`scenarios.master`),
+* FMU: the same loop through MusclePlant.fmu and AMPCController.fmu in fmpy (:mod:`tapmuscle.cosim.master`),
   recording the minimum (``t, r, l, u``) and everything (diagnostics and theta-hat every step).
 
 Loop time only (instantiation, about 30 ms per FMU, is printed apart). Best of ``--repeat`` runs, since
@@ -22,8 +22,8 @@ from fmu_controller.displacement_control import ControllerSettings, Displacement
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
-from scenarios import co_simulate, parse_scenario
-from scenarios.master import FmuInstance
+from tapmuscle.cosim import co_simulate, parse_scenario
+from tapmuscle.cosim.master import FmuInstance
 from tapmuscle.closed_loop import run_closed_loop
 
 DURATION_S = 40.0

@@ -15,9 +15,9 @@ import time
 from pathlib import Path
 
 from fmu_controller.identification import identify_record, score_model
-from tapmuscle.cli import main as tapmuscle
-from tapmuscle.figures import plot_loop_comparison, plot_model_vs_measured
-from tapmuscle.recording import read_recording
+from tapmuscle.cli.main import main as tapmuscle
+from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured
+from tapmuscle.io.recording import read_recording
 
 PAPER_TABLE4 = {"asymmetric": ("99.6", "98.3", "96.8", "> 90"), "standard": ("99.5", "97.4", "93.9", "81.9")}
 

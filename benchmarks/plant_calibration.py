@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from fmu_plant import Plant, PlantParams
-from tapmuscle.calibration import TARGET_RECORDINGS, check_targets, loop_figures
-from tapmuscle.cli import main as tapmuscle
-from tapmuscle.recording import read_recording
+from tapmuscle.paper.rig_targets import TARGET_RECORDINGS, check_targets, loop_figures
+from tapmuscle.cli.main import main as tapmuscle
+from tapmuscle.io.recording import read_recording
 
 
 def record(folder: Path, name: str, load: float, spec: str, duration: float, *extra: str):

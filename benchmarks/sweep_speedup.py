@@ -2,7 +2,7 @@
 
 The runs: the four controllers x 16 Monte-Carlo operating points (load U(30, 90) N, supply
 U(0.20, 0.30) MPa, own noise seed), 45 s of the 0.1 Hz sine each, through the FMUs, as
-``tapmuscle sweep`` runs them (:class:`scenarios.distributed_sweep.DaskExecutor`, one task per run).
+``tapmuscle sweep`` runs them (:class:`tapmuscle.cosim.distributed_sweep.DaskExecutor`, one task per run).
 Timed: from submitting the 64 tasks to the last result (best of ``--repeat``, the three set-ups
 interleaved, a new cluster each time); the cluster's start and one warm-up run per worker (imports,
 FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up
@@ -17,8 +17,8 @@ import argparse
 import time
 
 from build_scripts.build_fmus import cached_fmus
-from scenarios.distributed_sweep import DaskExecutor, FmuFiles, dask_client, make_task, run_serial
-from scenarios.sweep import parse_sweep
+from tapmuscle.cosim.distributed_sweep import DaskExecutor, FmuFiles, dask_client, make_task, run_serial
+from tapmuscle.cosim.sweep import parse_sweep
 
 
 def _tasks(n_runs: int, fmus):

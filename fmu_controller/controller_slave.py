@@ -8,7 +8,7 @@ Sampling and timing
 The controller samples at ``t_k = k Ts``. A ``doStep(t, h)`` whose start ``t`` is a sample time reads
 the inputs ``l`` (and ``r``) as set for ``t``, computes ``u(k)`` and sets the outputs to it: the
 output after that step is the command to hold over ``[t_k, t_k + Ts)``. Stepping the controller
-before the plant in each macro step (the master of :mod:`scenarios.master`) therefore applies
+before the plant in each macro step (the master of :mod:`tapmuscle.cosim.master`) therefore applies
 ``u(k)`` over the same interval as the direct loop, with no extra sample of delay. Steps shorter than
 ``Ts`` are allowed (the outputs hold between samples); a step longer than ``Ts`` would skip samples
 and is refused with fmi2Discard, as is a step that starts past a missed sample time.

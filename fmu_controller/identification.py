@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -77,7 +77,22 @@ class FitReport:
 
 
 def score_model(theta: np.ndarray, structure: ModelStructure, u: np.ndarray, l: np.ndarray) -> FitReport:
-    """1-, 3-, 5-step-ahead and free-run fits of ``theta`` on ``(u, l)`` (Table 4)."""
+    """1-, 3-, 5-step-ahead and free-run fits of ``theta`` on ``(u, l)`` (Table 4).
+
+    Parameters
+    ----------
+    theta : ndarray
+        Eq. (1)'s parameters in the order of ``structure`` (record units).
+    structure : ModelStructure
+        :data:`~fmu_controller.hysteresis_model.ASYMMETRIC` or ``STANDARD``.
+    u, l : ndarray
+        Command [V] and displacement [mm] of a record, one sample per period.
+
+    Returns
+    -------
+    FitReport
+        NRMSE fits [%] (MATLAB ``compare``) and the free run.
+    """
     u, l = np.asarray(u, dtype=float), np.asarray(l, dtype=float)
     rng = (float(l.min()), float(l.max()))
     percent: dict[str, float] = {}
@@ -91,12 +106,16 @@ def score_model(theta: np.ndarray, structure: ModelStructure, u: np.ndarray, l: 
 
 @dataclass(frozen=True)
 class IdentificationReport:
-    """Result of :func:`identify_record` (all in the record's units)."""
+    """Result of :func:`identify_record` (all in the record's units); :meth:`to_dict` for JSON."""
 
     model: str
+    """``"asymmetric"`` or ``"standard"`` (Eq. (1) with or without ``g(l)``)."""
     structure: ModelStructure
+    """The regressor layout of Eq. (1): parameter names and their order in ``theta``."""
     ts_s: float
+    """Sampling period [s]."""
     n_samples: int
+    """Samples in the record."""
     theta: np.ndarray
     """Final estimate, record units (``theta[structure.index(name)]``)."""
     theta_history: np.ndarray
@@ -104,13 +123,21 @@ class IdentificationReport:
     fit: FitReport
     """Fits on the identification record itself."""
     l_scale: float
+    """Power of ten the displacement was divided by for the RLS (1 for mm; module docstring)."""
     u_scale: float
+    """Power of ten the command was divided by for the RLS (1 for V)."""
     box_lower: dict[str, float]
+    """Algorithm 1's constraint region C, lower bounds by parameter name (record units; empty: none)."""
     box_upper: dict[str, float]
+    """Upper bounds of C."""
     constraint_start_s: float
+    """Time from which the projection was applied [s] (paper: 120)."""
     n_projections: int
+    """Samples at which the estimate was projected onto C."""
     n_resets: int
+    """Times the covariance was reset (kept positive definite)."""
     notes: tuple[str, ...]
+    """What the user should know (e.g. why no box was applied)."""
 
     @property
     def theta_dict(self) -> dict[str, float]:
@@ -120,6 +147,29 @@ class IdentificationReport:
     def identifiable(self) -> dict[str, float]:
         """The identifiable combinations (``a1+A1``, ``a2-A1`` and the rest), see hysteresis_model."""
         return {k: float(v) for k, v in identifiable_combinations(self.theta, self.structure).items()}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as plain data (JSON-ready; ``tapmuscle identify --json`` writes it).
+
+        Returns
+        -------
+        dict
+            ``model``, ``ts_s`` [s], ``n_samples``, ``theta`` (name -> value, record units),
+            ``fit_percent`` (``"1"``, ``"3"``, ``"5"``, ``"sim"``: Table 4's fits [%]),
+            ``free_run_diverged``, ``identifiable_combinations``, ``constraint`` (Algorithm 1's box
+            ``lower``/``upper``, ``start_s`` [s], ``n_projections``), ``scaling`` (``l_scale``,
+            ``u_scale``) and ``notes``. The histories (``theta_history``, the free run) are left out.
+        """
+        return {
+            "model": self.model, "ts_s": self.ts_s, "n_samples": self.n_samples,
+            "theta": self.theta_dict, "fit_percent": dict(self.fit.percent),
+            "free_run_diverged": self.fit.free_run_diverged,
+            "identifiable_combinations": self.identifiable,
+            "constraint": {"lower": dict(self.box_lower), "upper": dict(self.box_upper),
+                           "start_s": self.constraint_start_s, "n_projections": self.n_projections},
+            "scaling": {"l_scale": self.l_scale, "u_scale": self.u_scale},
+            "notes": list(self.notes),
+        }
 
 
 def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:

@@ -1,17 +1,20 @@
 """Reference trajectories with preview (section 4.1: r = 35 + 30 sin(2 pi f t) mm, f = 0.1 or 0.2 Hz).
 
-The paper's controllers know the future reference ``r(k+i|k)`` (preview); :meth:`SineReference.preview`
-returns it exactly.
+The paper's controllers know the future reference ``r(k+i|k)`` (preview); every reference here gives
+``at(k)`` (``r(k)`` [mm]) and ``preview(k, n)`` (``r(k..k+n)`` [mm]) on the sampling grid ``ts_s``:
+:class:`SineReference` (the paper's), :class:`ArrayReference` (given samples, e.g. from a file) and
+:class:`FunctionReference` (any ``r(t)``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
 
 import numpy as np
 
-__all__ = ["SineReference", "REFERENCE_SOURCES"]
+__all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES"]
 
 #: The controller FMU's ``reference_source`` parameter (an Integer) -> where r(k..k+Hp) comes from
 #: (fmu_controller.controller_slave explains each).
@@ -57,3 +60,89 @@ class SineReference:
 
     def _at(self, k: int) -> float:
         return self.offset_mm + self.amplitude_mm * math.sin(self._omega * k * self.ts_s)
+
+
+class Reference(Protocol):
+    """What a closed loop needs from a reference: its grid and its samples with preview."""
+
+    ts_s: float
+
+    def at(self, k: int) -> float:
+        """``r(k)`` [mm]."""
+
+    def preview(self, k: int, n: int) -> np.ndarray:
+        """``[r(k), ..., r(k+n)]`` [mm]."""
+
+
+def _check_ts(owner: str, ts_s: float) -> None:
+    if isinstance(ts_s, bool) or not isinstance(ts_s, (int, float)) or not math.isfinite(ts_s) or ts_s <= 0:
+        raise ValueError(f"{owner}.ts_s must be a finite number > 0 [s], got {ts_s!r}")
+
+
+@dataclass(frozen=True)
+class ArrayReference:
+    """``r(k) = values_mm[k]``; past the last sample the last value is held (also in the preview).
+
+    Parameters
+    ----------
+    values_mm : array_like
+        The reference at ``t_k = k ts_s`` [mm], one value per sample, all finite.
+    ts_s : float
+        Sampling period [s].
+    """
+
+    values_mm: np.ndarray = field(repr=False)
+    ts_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        v = np.array(self.values_mm, dtype=float)
+        if v.ndim != 1 or v.size == 0:
+            raise ValueError(f"ArrayReference.values_mm must be a non-empty 1-D array, got shape {v.shape}")
+        bad = np.nonzero(~np.isfinite(v))[0]
+        if bad.size:
+            raise ValueError(f"ArrayReference.values_mm[{int(bad[0])}] = {v[bad[0]]!r} is not finite")
+        _check_ts("ArrayReference", self.ts_s)
+        v.setflags(write=False)
+        object.__setattr__(self, "values_mm", v)
+
+    def at(self, k: int) -> float:
+        """``r(k)`` [mm]."""
+        return float(self.values_mm[min(int(k), len(self.values_mm) - 1)])
+
+    def preview(self, k: int, n: int) -> np.ndarray:
+        """``[r(k), ..., r(k+n)]`` [mm]."""
+        idx = np.minimum(np.arange(k, k + n + 1), len(self.values_mm) - 1)
+        return self.values_mm[idx].copy()
+
+
+@dataclass(frozen=True)
+class FunctionReference:
+    """``r(k) = function(k ts_s)`` for any callable of time.
+
+    Parameters
+    ----------
+    function : callable
+        ``r(t)`` [mm] of the time ``t`` [s]; it must return a finite number.
+    ts_s : float
+        Sampling period [s].
+    """
+
+    function: Callable[[float], float]
+    ts_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not callable(self.function):
+            raise ValueError(f"FunctionReference.function must be callable r(t) [mm], got {self.function!r}")
+        _check_ts("FunctionReference", self.ts_s)
+
+    def at(self, k: int) -> float:
+        """``r(k)`` [mm]; ``ValueError`` naming the time if the function returns a non-finite value."""
+        t = k * self.ts_s
+        r = float(self.function(t))
+        if not math.isfinite(r):
+            raise ValueError(f"reference r(t = {t:g} s) = {r!r} is not finite")
+        return r
+
+    def preview(self, k: int, n: int) -> np.ndarray:
+        """``[r(k), ..., r(k+n)]`` [mm]."""
+        return np.array([self.at(i) for i in range(k, k + n + 1)])

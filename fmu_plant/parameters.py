@@ -326,19 +326,33 @@ class PlantParams:
     :meth:`with_values`."""
 
     valve: ValveParams = field(default_factory=ValveParams)
+    """Proportional valves (section 2.4, Table 1)."""
     supply: SupplyParams = field(default_factory=SupplyParams)
+    """Tap-water supply and drain (Table 1: 0.25 MPa)."""
     muscle: MuscleParams = field(default_factory=MuscleParams)
+    """McKibben muscle geometry and bladder (Table 1: 400 mm)."""
     load: LoadParams = field(default_factory=LoadParams)
+    """Hanging load (section 4.1: 44 N, 68 N)."""
     friction: FrictionParams = field(default_factory=FrictionParams)
+    """Braid-bladder friction: the source of the hysteresis (load-, pressure- and rate-dependent)."""
     sensor: SensorParams = field(default_factory=SensorParams)
+    """Linear encoder (Table 1: 0.01 mm) and the pressure sensor."""
     solver: SolverParams = field(default_factory=SolverParams)
+    """Numerical integration settings."""
     dead_zone: DeadZoneParams = field(default_factory=DeadZoneParams)
+    """Effect: a valve no-flow band (off by default; docs/diagnosis.md)."""
     delay: DelayParams = field(default_factory=DelayParams)
+    """Effect: a transport delay of the valve command (off by default)."""
     supply_variation: SupplyVariationParams = field(default_factory=SupplyVariationParams)
+    """Effect: a supply-pressure sag or ripple (off by default)."""
     load_mismatch: LoadMismatchParams = field(default_factory=LoadMismatchParams)
+    """Effect: a load that differs from the nominal one (off by default)."""
     sensor_drift: SensorDriftParams = field(default_factory=SensorDriftParams)
+    """Effect: encoder offset and drift (off by default)."""
     backlash: BacklashParams = field(default_factory=BacklashParams)
+    """Effect: slack between muscle and encoder (off by default)."""
     input_map: InputMapParams = field(default_factory=InputMapParams)
+    """Effect: a static, monotone piecewise-linear valve-command map (off by default)."""
 
     def with_values(self, **dotted: float) -> "PlantParams":
         """Return a copy with fields replaced by dotted name, e.g. ``with_values(**{"load.load_n": 68})``.

@@ -1,5 +1,80 @@
-"""tapmuscle: command line, recordings and figures around the plant (fmu_plant) and the identification
-and control numerics (fmu_controller). Nothing in the numerics packages reads or writes files; this
-package does."""
+"""tapmuscle: simulate, identify and control a tap-water-driven McKibben muscle.
+
+The Python API (docs/python-api.md)::
+
+    import tapmuscle as tm
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=240.0)      # the rig, open loop
+    report = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1)                  # Eq. (1), Algorithm 1
+    run = tm.simulate_closed_loop("ampc_servo", lambda t: 35 + 30 * np.sin(0.2 * np.pi * t), duration_s=45.0)
+    tm.eq21_error_mm(run["r_mm"], run["l_mm"])                               # Eq. (21)
+
+The names load on first use, so ``import tapmuscle`` (and the command line) stays fast. The layers
+under the root, bottom to top: :mod:`tapmuscle.errors`, :mod:`tapmuscle.io`, :mod:`tapmuscle.plots`,
+:mod:`tapmuscle.closed_loop`, :mod:`tapmuscle.cosim`, :mod:`tapmuscle.diagnosis`,
+:mod:`tapmuscle.paper`, :mod:`tapmuscle.cli`; the numerics that ship inside the FMUs are the
+top-level packages ``fmu_plant`` and ``fmu_controller``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
+
+#: public name -> (module, attribute)
+_EXPORTS: dict[str, tuple[str, str]] = {
+    # the simulated rig (section 2.4, Table 1)
+    "Plant": ("fmu_plant", "Plant"),
+    "PlantParams": ("fmu_plant", "PlantParams"),
+    "simulate": ("tapmuscle.api", "simulate"),
+    # identification of Eq. (1) (section 2.3, Algorithm 1, Table 4)
+    "identify": ("fmu_controller.identification", "identify_record"),
+    "IdentificationReport": ("fmu_controller.identification", "IdentificationReport"),
+    "score_model": ("fmu_controller.identification", "score_model"),
+    "ASYMMETRIC": ("fmu_controller.hysteresis_model", "ASYMMETRIC"),
+    "STANDARD": ("fmu_controller.hysteresis_model", "STANDARD"),
+    # control (section 3, Eqs. (3)-(5), (15)-(21))
+    "METHODS": ("fmu_controller.displacement_control", "METHODS"),
+    "ControllerSettings": ("fmu_controller.displacement_control", "ControllerSettings"),
+    "DisplacementController": ("fmu_controller.displacement_control", "DisplacementController"),
+    "THETA0_44N": ("fmu_controller.preliminary_model", "THETA0_44N"),
+    "SineReference": ("fmu_controller.reference", "SineReference"),
+    "ArrayReference": ("fmu_controller.reference", "ArrayReference"),
+    "FunctionReference": ("fmu_controller.reference", "FunctionReference"),
+    "simulate_closed_loop": ("tapmuscle.api", "simulate_closed_loop"),
+    "run_closed_loop": ("tapmuscle.closed_loop", "run_closed_loop"),
+    "eq21_error_mm": ("tapmuscle.closed_loop", "eq21_error_mm"),
+    # FMUs and co-simulation
+    "build_fmus": ("tapmuscle.api", "build_fmus"),
+    "cosimulate": ("tapmuscle.api", "cosimulate"),
+    "load_scenario": ("tapmuscle.cosim", "load_scenario"),
+    "PAPER_SCENARIOS": ("tapmuscle.cosim", "PAPER_SCENARIOS"),
+    # recordings
+    "Recording": ("tapmuscle.io.recording", "Recording"),
+    "read_recording": ("tapmuscle.io.recording", "read_recording"),
+    "write_recording": ("tapmuscle.io.recording", "write_recording"),
+    # mismatch diagnosis
+    "diagnose": ("tapmuscle.diagnosis", "diagnose"),
+    "Diagnosis": ("tapmuscle.diagnosis", "Diagnosis"),
+    "diagnose_files": ("tapmuscle.diagnosis.report", "diagnose_files"),
+    # errors
+    "TapmuscleError": ("tapmuscle.errors", "TapmuscleError"),
+    "UsageError": ("tapmuscle.errors", "UsageError"),
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    try:
+        module, attribute = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'tapmuscle' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value  # later look-ups skip __getattr__
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

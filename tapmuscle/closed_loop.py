@@ -14,7 +14,7 @@ import numpy as np
 
 from fmu_controller.displacement_control import DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.reference import SineReference
+from fmu_controller.reference import Reference
 from fmu_plant import Plant
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "EQ21_WINDOW"]
@@ -24,22 +24,49 @@ EQ21_WINDOW = (101, 401)
 
 
 def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = EQ21_WINDOW) -> float:
-    """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] (inclusive window)."""
+    """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] (inclusive window).
+
+    Parameters
+    ----------
+    r_mm, l_mm : ndarray
+        Reference and displacement [mm], one value per sample ``k``.
+    window : (int, int)
+        First and last sample of the mean, inclusive (paper: 101..401, 10 s to 40 s at Ts = 0.1 s).
+    """
     k0, k1 = window
     if len(r_mm) <= k1:
         raise ValueError(f"Eq. (21) needs samples up to k = {k1}, the run has {len(r_mm)}")
     return float(np.mean(np.abs(np.asarray(r_mm)[k0:k1 + 1] - np.asarray(l_mm)[k0:k1 + 1])))
 
 
-def run_closed_loop(plant: Plant, controller: DisplacementController, reference: SineReference, *,
+def run_closed_loop(plant: Plant, controller: DisplacementController, reference: Reference, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
                     loop_delay_samples: int = 0,
                     progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Run the loop for ``duration_s`` from the plant's and controller's current state.
 
-    ``loop_delay_samples = 1`` applies each command one sample late (``u`` computed at ``t_k`` drives
-    the valve over ``[t_k+1, t_k+2)``, 0 V at first), as a parallel co-simulation master does at a
-    macro step of ``Ts``; ``u_v`` then records the command the valve received.
+    ``reference`` is any :class:`fmu_controller.reference.Reference` (a sine, given samples, a function
+    of time); the controller sees its preview ``r(k..k+Hp)`` at every sample, and the loop runs on
+    its grid ``reference.ts_s``.
+
+    Parameters
+    ----------
+    plant : Plant
+        The simulated rig, advanced in place.
+    controller : DisplacementController
+        One of the paper's four controllers; reset to the plant's displacement first.
+    reference : Reference
+        ``r(k)`` with preview on the loop's grid (see above).
+    duration_s : float
+        Length of the run [s]; ``round(duration_s / ts) + 1`` samples.
+    load_n : float or callable, optional
+        Hanging load [N], constant or as a function of time [s].
+    loop_delay_samples : {0, 1}
+        1 applies each command one sample late (``u`` computed at ``t_k`` drives the valve over
+        ``[t_k+1, t_k+2)``, 0 V at first), as a parallel co-simulation master does at a macro step
+        of ``Ts``; ``u_v`` then records the command the valve received.
+    progress : callable, optional
+        ``progress(done, total)`` about every 1 % of the run.
 
     Returns
     -------

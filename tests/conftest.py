@@ -1,7 +1,8 @@
 """Shared fixtures and markers.
 
 The FMUs are built once per test session (about 3 s). Every test that uses them is marked ``fmu``
-here, so ``pytest -m "not fmu"`` runs the pure numerics without building anything. The other markers
+here, so ``pytest -m "not fmu"`` runs the pure numerics without building anything; ``pytest -m "not
+slow"`` is the quick run (under 30 s here). The other markers
 (``slow``, ``dask``, ``c_host``) are set in the test modules; all four are registered in
 ``pyproject.toml``.
 """
@@ -19,7 +20,13 @@ def built_fmus(tmp_path_factory):
     return {name: path for name, path in zip(FMUS, paths)}
 
 
+#: fixtures that make every test using them ``fmu`` or ``slow`` (the ``paper`` fixture of
+#: tests/test_paper.py runs section 4's grid, about 5 s)
+_FIXTURE_MARKS = {"built_fmus": "fmu", "paper": "slow"}
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
-        if "built_fmus" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.fmu)
+        for fixture, mark in _FIXTURE_MARKS.items():
+            if fixture in getattr(item, "fixturenames", ()):
+                item.add_marker(getattr(pytest.mark, mark))

@@ -6,9 +6,10 @@ import pytest
 
 from build_scripts.build_fmus import FMUS, build_fmus
 from build_scripts.model_description import finish_model_description
-from tapmuscle.cli import main
+from tapmuscle.cli.main import main
 
 
+@pytest.mark.slow
 def test_build_writes_both_fmus_byte_identical_to_an_earlier_build(built_fmus, tmp_path, capsys):
     out = tmp_path / "again"
     assert main(["build", "--out", str(out)]) == 0

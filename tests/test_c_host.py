@@ -136,6 +136,7 @@ def test_open_loop_equals_fmpy(host, plant, tmp_path):
     assert max(ls) - min(ls) > 10.0  # the muscle really moved: the comparison is not of constants
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", [3, 4])  # ampc_ucp; ampc_servo (OSQP)
 def test_closed_loop_equals_fmpy(host, plant, controller, tmp_path, method):
     steps = 300
@@ -250,6 +251,7 @@ FMPY_RUN = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_fmpy_loads_runs_frees_the_prepared_fmus_and_exits_cleanly(plant, built_fmus, tmp_path):
     folders = [str(plant.dir)]
     if "AMPCController" in FMUS:

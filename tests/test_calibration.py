@@ -1,4 +1,4 @@
-"""Calibration before accusation (diagnosis/calibration.py): the MAP least-squares solver, the
+"""Calibration before accusation (tapmuscle/diagnosis/calibration.py): the MAP least-squares solver, the
 identifiability rule and the recovery of a rig's constants from a recording."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from diagnosis.calibration import (NOMINAL_PARAMETERS, FittedParameter, NominalParameter, calibrate,
+from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, FittedParameter, NominalParameter, calibrate,
                                    effective_sigma, field_bounds, fit_parameters)
-from diagnosis.demo import record
-from diagnosis.residual_analysis import fit_percent, interleaved_split, is_structured
-from diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.demo import record
+from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split, is_structured
+from tapmuscle.diagnosis.simulation import Simulator
 from fmu_plant import PlantParams
 
 NOMINAL = PlantParams()
@@ -81,6 +81,7 @@ def test_every_nominal_parameter_is_a_plant_field_with_a_positive_nominal():
         assert lo <= v <= hi and v > 0, p.key
 
 
+@pytest.mark.slow
 def test_calibration_recovers_a_rig_whose_constants_are_off():
     """Stiffness +15 %, base friction -20 %, valve Cv -10 % (no left-out physics): the calibrated plant
     brings the held-out residual down to the noise."""

@@ -2,9 +2,9 @@
 
 import pytest
 
-from tapmuscle.calibration import TARGET_RECORDINGS, check_targets
-from tapmuscle.cli import main
-from tapmuscle.recording import read_recording
+from tapmuscle.paper.rig_targets import TARGET_RECORDINGS, check_targets
+from tapmuscle.cli.main import main
+from tapmuscle.io.recording import read_recording
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,8 @@
 
 import xml.etree.ElementTree as ET
 
-from scenarios import PAPER_SCENARIOS, load_scenario
-from tapmuscle.cli import main
+from tapmuscle.cosim import PAPER_SCENARIOS, load_scenario
+from tapmuscle.cli.main import main
 
 
 def test_paper_scenarios_meet_their_expectations(built_fmus, tmp_path, capsys):

@@ -5,8 +5,8 @@ import sys
 
 import pytest
 
-from tapmuscle.cli import main
-from tapmuscle.recording import read_recording
+from tapmuscle.cli.main import main
+from tapmuscle.io.recording import read_recording
 
 
 def test_record_writes_csv_and_png(tmp_path):
@@ -28,6 +28,7 @@ def test_parameter_overrides_change_the_rig(tmp_path):
     assert read_recording(a).l_mm[-1] - read_recording(b).l_mm[-1] > 2.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, message", [
     (["--load", "-5"], "--load must be within"),
     (["--load", "nan"], "--load must be within"),

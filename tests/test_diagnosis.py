@@ -8,14 +8,14 @@ import json
 import numpy as np
 import pytest
 
-from diagnosis import CANDIDATES, diagnose
-from diagnosis.calibration import NOMINAL_PARAMETERS
-from diagnosis.diagnose import distinguishable
-from diagnosis.candidates import _edge_search, _tightest, candidate
-from diagnosis.demo import DEMO_MODEL, Case, run_case, record
-from diagnosis.residual_analysis import (autocorrelation_test, fit_percent, interleaved_split, iou,
+from tapmuscle.diagnosis import CANDIDATES, diagnose
+from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS
+from tapmuscle.diagnosis.diagnose import distinguishable
+from tapmuscle.diagnosis.candidates import _edge_search, _tightest, candidate
+from tapmuscle.diagnosis.demo import DEMO_MODEL, Case, run_case, record
+from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, fit_percent, interleaved_split, iou,
                                          located_windows)
-from tapmuscle.cli import main
+from tapmuscle.cli.main import main
 
 
 # ------------------------------------------------------------------------------ residual analysis
@@ -64,6 +64,7 @@ CONCEALED = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect,overrides,excitation", CONCEALED, ids=[f"{c[0]}-{c[2]}" for c in CONCEALED])
 def test_a_concealed_effect_is_named_fitted_and_improves_the_held_out_fit(tmp_path, effect, overrides, excitation):
     r = run_case(Case(effect, 1, excitation, 5, overrides), tmp_path)
@@ -78,6 +79,7 @@ def test_a_concealed_effect_is_named_fitted_and_improves_the_held_out_fit(tmp_pa
         assert r["fitted_parameters"][key] == pytest.approx(value, rel=0.15, abs=0.05), key
 
 
+@pytest.mark.slow
 def test_a_supply_sag_from_60_to_90_s_is_located(tmp_path):
     sag = {"supply_variation.sag_mpa": 0.03, "supply_variation.start_s": 60.0, "supply_variation.end_s": 90.0}
     r = run_case(Case("supply_pressure_variation", 1, "sine", 2, sag, (60.0, 91.0)), tmp_path)
@@ -155,13 +157,14 @@ INPUT_MAPS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,rig_map,excitation,words", INPUT_MAPS, ids=[c[0] for c in INPUT_MAPS])
 def test_the_input_map_candidate_fits_a_static_input_map_to_the_noise(name, rig_map, excitation, words):
     """Fitted on the training blocks of the fit segment, on top of the model, and scored on the held-out
     blocks of the whole 180-s recording, the map is recovered to the noise."""
-    from diagnosis.candidates import Problem
-    from diagnosis.residual_analysis import white_noise_level_mm
-    from diagnosis.simulation import Simulator
+    from tapmuscle.diagnosis.candidates import Problem
+    from tapmuscle.diagnosis.residual_analysis import white_noise_level_mm
+    from tapmuscle.diagnosis.simulation import Simulator
 
     model = PlantParams_default_with({})
     cols = record(model.with_values(**rig_map), excitation, 0, duration_s=180.0)
@@ -180,6 +183,7 @@ def test_the_input_map_candidate_fits_a_static_input_map_to_the_noise(name, rig_
     assert candidate("input_map").fit(problem, model.with_values(**res.values), res.y_hat) is None
 
 
+@pytest.mark.slow
 def test_a_command_dead_band_is_named_an_input_map():
     """The diagnosis names the 1.2-V dead band of the amplifier an input map, fitted to the noise."""
     model = PlantParams_default_with({})
@@ -193,10 +197,11 @@ def test_a_command_dead_band_is_named_an_input_map():
 
 
 # ------------------------------------------------------------------------------ the command
+@pytest.mark.slow
 def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built_fmus, capsys):
-    from diagnosis.plant_source import load_plant, simulate_plant_fmu
-    from diagnosis.simulation import noise_free
-    from tapmuscle.recording import Recording, read_recording, write_recording
+    from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
+    from tapmuscle.diagnosis.simulation import noise_free
+    from tapmuscle.io.recording import Recording, read_recording, write_recording
 
     rig = PlantParams_default_with({"load_mismatch.extra_n": 6.0, "friction.rate_gain": 0.8})
     cols = record(rig, "sine", 7)
@@ -251,11 +256,12 @@ def test_diagnose_cli_names_the_line_and_column_of_a_malformed_recording(tmp_pat
 OFF = {"muscle.rubber_stiffness_n_per_mm": 1.38, "friction.base_n": 6.4, "valve.cv_max": 1.35}
 
 
+@pytest.mark.slow
 def test_parameter_errors_alone_are_calibrated_not_blamed_on_an_effect(tmp_path, capsys):
-    from tapmuscle.plant_file import plant_file_text
-    from tapmuscle.recording import Recording, atomic_write_text, write_recording
-    from diagnosis.plant_source import load_plant
-    from diagnosis.simulation import Simulator
+    from tapmuscle.io.plant_file import plant_file_text
+    from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
+    from tapmuscle.diagnosis.plant_source import load_plant
+    from tapmuscle.diagnosis.simulation import Simulator
 
     cols = record(DEMO_MODEL.with_values(**OFF), "steps", 3, duration_s=150.0)
     rec, plant, out = tmp_path / "rec.csv", tmp_path / "plant.json", tmp_path / "diag"
@@ -281,6 +287,7 @@ def test_parameter_errors_alone_are_calibrated_not_blamed_on_an_effect(tmp_path,
     assert fit_percent(cols["l_mm"], y, test) == pytest.approx(doc["fit_after_percent"], abs=0.01)
 
 
+@pytest.mark.slow
 def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
     """Before calibration came first, this recording was blamed on a supply sag, then a delay."""
     cols = record(DEMO_MODEL.with_values(**OFF, **{"delay.delay_s": 0.3}), "steps", 3, duration_s=150.0)
@@ -305,12 +312,13 @@ def test_distinguishable_separates_a_real_difference_from_noise():
     assert distinguishable(noise, noise + local, 0.01)[0]
 
 
+@pytest.mark.slow
 def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path):
     """The report designs and writes the experiment for every ambiguous group (the alternatives here
     are made by hand: a delay and a load that the recording would not have told apart)."""
-    from diagnosis.diagnose import Alternative
-    from diagnosis.report import write_outputs
-    from tapmuscle.signals import parse_input_spec
+    from tapmuscle.diagnosis.diagnose import Alternative
+    from tapmuscle.diagnosis.report import write_outputs
+    from tapmuscle.io.signals import parse_input_spec
 
     cols = record(DEMO_MODEL, "sine", 11, duration_s=60.0)
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)

@@ -13,7 +13,7 @@ from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_plant import Plant
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 
-from tapmuscle.paper import preliminary_theta
+from tapmuscle.paper.reproduce import preliminary_theta
 
 
 

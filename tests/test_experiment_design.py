@@ -1,4 +1,4 @@
-"""The discriminating experiment (diagnosis/experiment_design.py): an input within 0..10 V whose
+"""The discriminating experiment (tapmuscle/diagnosis/experiment_design.py): an input within 0..10 V whose
 predictions under two explanations differ, written as a `record --input csv:` file."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from diagnosis.experiment_design import design_input, separation, write_experiment
-from diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.experiment_design import design_input, separation, write_experiment
+from tapmuscle.diagnosis.simulation import Simulator
 from fmu_plant import PlantParams
-from tapmuscle.signals import parse_input_spec
+from tapmuscle.io.signals import parse_input_spec
 
 A = PlantParams()
 B = PlantParams().with_values(**{"delay.delay_s": 0.15})
@@ -21,6 +21,7 @@ def test_separation_is_the_smallest_pairwise_distance():
     assert separation(y[:1]) == 0.0
 
 
+@pytest.mark.slow
 def test_designed_input_separates_two_explanations_better_than_the_paper_sine(tmp_path):
     exp = design_input({"none": A, "transport_delay": B}, ts_s=0.1, duration_s=60.0, noise_mm=0.013, seed=0)
     assert exp.t_s[-1] == pytest.approx(60.0) and len(exp.u_v) == 601

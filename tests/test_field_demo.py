@@ -1,4 +1,4 @@
-"""The field-recording proof (diagnosis/field_demo.py): the generator is seeded and varied, the scoring
+"""The field-recording proof (tapmuscle/diagnosis/field_demo.py): the generator is seeded and varied, the scoring
 counts what it says on made-up results, the discriminating experiment is run on the truth, and a tiny
 run writes its files."""
 
@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from diagnosis import CANDIDATES
-from diagnosis import field_demo as fd
-from diagnosis.field_demo import (CATEGORY_MIX, EXCITATIONS, FIELD_ERROR_PARAMETERS, INCOMPATIBLE_PAIRS, OOV_KINDS,
+from tapmuscle.diagnosis import CANDIDATES
+from tapmuscle.diagnosis import field_demo as fd
+from tapmuscle.diagnosis.field_demo import (CATEGORY_MIX, EXCITATIONS, FIELD_ERROR_PARAMETERS, INCOMPATIBLE_PAIRS, OOV_KINDS,
                                   field_cases, record_case, run_field_case, run_field_demo, score_results,
                                   scores_markdown, vocabulary)
 from fmu_plant import PlantParams
-from tapmuscle.recording import Recording, atomic_write_text, read_recording, write_recording
+from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
 
 
 @pytest.fixture(scope="module")
@@ -217,7 +217,7 @@ def test_confusion_figure_is_a_png(tmp_path):
 def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_path, monkeypatch, cases120):
     """With a stand-in diagnosis: the first call says `ambiguous` and writes an input, the re-diagnosis
     (limited to the alternatives) names the true effect."""
-    import diagnosis.report as report
+    import tapmuscle.diagnosis.report as report
 
     case = next(c for c in cases120 if c.category == "single" and c.excitation == "sine")
     case = replace(case, duration_s=40.0)
@@ -264,6 +264,7 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
     assert len(calls) == 2 and r["discrimination"]["verdict"] == "mismatch" and r["discrimination"]["right"]
 
 
+@pytest.mark.slow
 def test_a_tiny_run_writes_its_files(tmp_path):
     scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=32.0)
     assert scores["recordings"] == 2 and scores["failed"] == 0, scores["misses"]
@@ -291,8 +292,8 @@ def test_a_tiny_run_writes_its_files(tmp_path):
 def test_the_closed_loop_recording_is_the_fmus_bit_for_bit(tmp_path, built_fmus, cases120):
     """The AMPC FMU driving the plant FMU, with the truth's constants and effects as FMU parameters,
     records what the direct loop records (docs/diagnosis.md)."""
-    from scenarios.master import co_simulate
-    from scenarios.spec import load_scenario
+    from tapmuscle.cosim.master import co_simulate
+    from tapmuscle.cosim.spec import load_scenario
 
     case = next(c for c in cases120 if c.excitation == "ampc" and c.category == "pair")
     default = PlantParams().dotted()
@@ -311,7 +312,7 @@ def test_the_closed_loop_recording_is_the_fmus_bit_for_bit(tmp_path, built_fmus,
 
 
 def test_the_cli_keeps_each_suites_flags_to_it(tmp_path, capsys):
-    from tapmuscle.cli import main
+    from tapmuscle.cli.main import main
 
     out = tmp_path / "out"
     assert main(["demo-mismatch", "--out", str(out), "--seeds", "2"]) == 2

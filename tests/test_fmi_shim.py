@@ -97,6 +97,7 @@ def test_a_failed_instantiation_is_an_instance_that_refuses_to_step(broken_contr
         assert step_msgs and "tapmuscle_missing_package_xyz" in step_msgs[0]
 
 
+@pytest.mark.slow
 def test_libcosim_stops_cleanly_on_a_failed_instantiation(broken_controller, built_fmus):
     """libcosim dereferences a NULL instance; with the shim its step returns False and the process
     exits normally, 20 executions in a row."""

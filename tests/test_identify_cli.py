@@ -7,8 +7,8 @@ import pytest
 
 from fmu_controller.identification import identify_record, score_model
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
-from tapmuscle.cli import main
-from tapmuscle.recording import Recording, read_recording, write_recording
+from tapmuscle.cli.main import main
+from tapmuscle.io.recording import Recording, read_recording, write_recording
 
 SINE = "sine:bias=5,amp=3,freq=0.1"
 
@@ -75,6 +75,7 @@ def test_asymmetric_model_at_68n(results):
     assert v["sim"] >= 85.0, v
 
 
+@pytest.mark.slow
 def test_plots_are_written(records, tmp_path):
     folder, paths = records
     assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "r.json"),

@@ -13,12 +13,12 @@ from fmu_controller.reference import SineReference
 from fmu_controller.rls import TABLE2_LOWER
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
-from scenarios import PAPER_SCENARIOS, load_scenario
-from tapmuscle.cli import main
+from tapmuscle.cosim import PAPER_SCENARIOS, load_scenario
+from tapmuscle.cli.main import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
-from tapmuscle.paper import PAPER_RUNS, paper_findings, paper_tables, preliminary_theta
-from tapmuscle.recording import read_recording
-from tapmuscle.signals import parse_input_spec
+from tapmuscle.paper.reproduce import PAPER_RUNS, paper_findings, paper_tables, preliminary_theta
+from tapmuscle.io.recording import read_recording
+from tapmuscle.io.signals import parse_input_spec
 
 
 @pytest.fixture(scope="module")
@@ -28,6 +28,7 @@ def paper(tmp_path_factory):
     return out, json.loads((out / "paper.json").read_text())
 
 
+@pytest.mark.slow
 def test_outputs(paper):
     out, doc = paper
     for run in PAPER_RUNS:
@@ -129,6 +130,7 @@ def test_findings_of_the_shipped_tables(paper):
     assert [name for name, holds in d["findings"].items() if not holds] == ["AMPC-UCP beats MPC-UCP, 44 N"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("id_seed", [1, 2, 3, 4, 5])
 def test_every_other_finding_holds_for_other_preliminary_identifications(id_seed):
     """docs/control.md's six-identification table: only the 44 N UCP cell depends on the one

@@ -34,6 +34,7 @@ def test_reset_restarts_the_same_run():
     assert np.array_equal(a, _run(p, sine, 200))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dt", [0.001, 0.01, 0.1, 0.5, 1.0])
 def test_any_communication_step_gives_the_same_trajectory(dt):
     """Stable and consistent for communication steps from 1 ms to 1 s (true state, no noise)."""

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tapmuscle.recording import Recording, RecordingError, read_recording, write_recording
+from tapmuscle.io.recording import Recording, RecordingError, read_recording, write_recording
 
 
 def _rec(n=5):

@@ -9,11 +9,11 @@ from fmu_controller.displacement_control import ControllerSettings, Displacement
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
-from scenarios import PAPER_SCENARIOS, ScenarioError, co_simulate, load_scenario, parse_scenario
-from tapmuscle.cli import main
+from tapmuscle.cosim import PAPER_SCENARIOS, ScenarioError, co_simulate, load_scenario, parse_scenario
+from tapmuscle.cli.main import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
-from tapmuscle.paper import PAPER_RUNS
-from tapmuscle.recording import read_recording
+from tapmuscle.paper.reproduce import PAPER_RUNS
+from tapmuscle.io.recording import read_recording
 
 
 def _scenario(method, *, seed=3, duration=25.0, load_steps=(), plant_params=None, freq=0.1):
@@ -51,6 +51,7 @@ def test_paper_scenario_files_match_the_paper_runs():
             assert s.controller.parameters["P0.a1"] == 1000  # Table 8
 
 
+@pytest.mark.slow
 def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
     fmu_dir = built_fmus["MusclePlant"].parent
     scenario = tmp_path / "short.toml"
@@ -139,7 +140,7 @@ def test_an_fmu_that_refuses_a_step_mid_run_stops_the_run_naming_call_time_and_m
     have refused, 600 N from t = 1 s) ends the run with the call, the time and the FMU's message."""
     import dataclasses
 
-    from scenarios.spec import Profile
+    from tapmuscle.cosim.spec import Profile
 
     s = dataclasses.replace(_scenario("ampc_servo"), load=Profile(44.0, ((1.0, 600.0),)))
     with pytest.raises(ScenarioError, match=r"plant FMU \(MusclePlant.fmu\) fmi2DoStep at t = 1 s failed: "

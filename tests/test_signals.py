@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from tapmuscle.recording import Recording, write_recording
-from tapmuscle.signals import parse_input_spec
+from tapmuscle.io.recording import Recording, write_recording
+from tapmuscle.io.signals import parse_input_spec
 
 
 def test_sine_matches_the_paper_identification_input():

@@ -8,7 +8,7 @@ import pytest
 from fmpy.ssp.ssd import read_ssd
 
 from build_scripts.ssp import SSP_NAME, write_ssp
-from tapmuscle.cli import main
+from tapmuscle.cli.main import main
 
 
 @pytest.fixture(scope="module")

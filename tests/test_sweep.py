@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenarios import ScenarioError, co_simulate, load_scenario, parse_scenario
-from scenarios.distributed_sweep import FmuFiles, make_task, run_serial
-from scenarios.expect import check_expectations, parse_expectations, scenario_metrics
-from scenarios.master import InstancePool
-from scenarios.sweep import load_sweep, parse_sweep
-from scenarios.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
-from tapmuscle.cli import main
+from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario, parse_scenario
+from tapmuscle.cosim.distributed_sweep import FmuFiles, make_task, run_serial
+from tapmuscle.cosim.expect import check_expectations, parse_expectations, scenario_metrics
+from tapmuscle.cosim.master import InstancePool
+from tapmuscle.cosim.sweep import load_sweep, parse_sweep
+from tapmuscle.cosim.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
+from tapmuscle.cli.main import main
 
 SHORT = {"duration_s": 12.0, "evaluation_samples": [20, 120], "controller": {"method": "ampc_servo"}}
 

@@ -11,9 +11,10 @@ import pytest
 
 pytest.importorskip("distributed")
 
-from tapmuscle.cli import main  # noqa: E402
+from tapmuscle.cli.main import main  # noqa: E402
 
-pytestmark = pytest.mark.dask
+# every test here starts a Dask cluster (seconds each)
+pytestmark = [pytest.mark.dask, pytest.mark.slow]
 
 SWEEP = """
 name = "dask_small"
@@ -73,6 +74,7 @@ def _rows(path):
         return {r["run_id"]: r for r in csv.DictReader(fh)}
 
 
+@pytest.mark.slow
 def test_sweep_on_a_dask_cluster_equals_the_serial_run(dask_cluster, built_fmus, tmp_path, capsys):
     address, worker_pids, worker_tmp = dask_cluster
     sweep = tmp_path / "sweep.toml"
@@ -106,6 +108,7 @@ def test_check_on_the_dask_cluster(dask_cluster, built_fmus, tmp_path, capsys):
     assert "FAIL    case" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_unreachable_scheduler_is_a_usage_error(tmp_path, capsys):
     sweep = tmp_path / "sweep.toml"
     sweep.write_text(SWEEP)
@@ -114,6 +117,7 @@ def test_unreachable_scheduler_is_a_usage_error(tmp_path, capsys):
     assert "--scheduler tcp://127.0.0.1:9: cannot start or connect" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_check_on_a_local_cluster(built_fmus, tmp_path, capsys):
     """The default of `tapmuscle sweep`: a LocalCluster of worker processes started by the command."""
     case = tmp_path / "case.toml"

@@ -1,4 +1,4 @@
-"""tapmuscle.sweep_figures: the map of a sweep's Eq. (21) errors over its swept fields."""
+"""tapmuscle.plots.sweep_figures: the map of a sweep's Eq. (21) errors over its swept fields."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-import tapmuscle.sweep_figures as sweep_figures
+import tapmuscle.plots.sweep_figures as sweep_figures
 
 
 def _rows(extra_values=(1.0, 2.0)):

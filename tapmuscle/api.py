@@ -1,0 +1,250 @@
+"""The Python API's own functions: one call for each of the things the command line does.
+
+The package root (``import tapmuscle as tm``) re-exports these with the numerics they are made of
+(:class:`~fmu_plant.Plant`, :class:`~fmu_controller.displacement_control.DisplacementController`,
+:func:`~fmu_controller.identification.identify_record` as ``tm.identify``, ...). Each function here
+is a thin composition of the layers below; nothing here writes a file unless asked to.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
+from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.reference import ArrayReference, FunctionReference, Reference, SineReference
+from fmu_plant import Plant, PlantParams
+from fmu_plant.open_loop import run_open_loop
+from tapmuscle.closed_loop import run_closed_loop
+from tapmuscle.io.signals import parse_input_spec
+
+__all__ = ["simulate", "simulate_closed_loop", "cosimulate", "build_fmus"]
+
+
+def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant:
+    if params is not None and not isinstance(params, PlantParams):
+        raise ValueError(f"params must be a PlantParams, got {type(params).__name__}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2 ** 63:
+        raise ValueError(f"seed must be an integer in 0 .. 2**63 - 1, got {seed!r}")
+    p = params or PlantParams()
+    if load_n is not None:
+        p = p.with_values(**{"load.load_n": float(load_n)})
+    return Plant(p, seed=int(seed))
+
+
+def _check_positive(name: str, value: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not math.isfinite(value) \
+            or value <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | str, *,
+             duration_s: float | None = None, ts_s: float = 0.1, load_n: float | None = None,
+             params: PlantParams | None = None, seed: int = 0) -> dict[str, np.ndarray]:
+    """Run the simulated rig open loop from rest (what ``tapmuscle record`` records).
+
+    Parameters
+    ----------
+    command : callable, array_like or str
+        The valve command [V]: ``u(t)`` of the time [s]; or one value per sample ``u(k)``, held over
+        ``[t_k, t_k+1)`` (the last one held to the end); or a ``tapmuscle record --input`` spec such as
+        ``"sine:bias=5,amp=3,freq=0.1"`` (docs/recordings.md). The valve takes 0..10 V.
+    duration_s : float, optional
+        Length of the run [s]; required for a callable or a spec, default ``(len - 1) ts_s`` for samples.
+    ts_s : float
+        Sampling period [s] (paper: 0.1).
+    load_n : float, optional
+        Hanging load [N] (section 4.1: 44 or 68); default that of ``params`` (44 N).
+    params : PlantParams, optional
+        The rig's parameters (default: the calibrated rig of docs/plant.md).
+    seed : int
+        Seed of the encoder noise.
+
+    Returns
+    -------
+    dict of ndarray
+        ``t_s`` [s], ``u_v`` [V], ``l_mm`` [mm] (encoder reading at ``t_k``), ``p_mpa`` [MPa],
+        ``load_n`` [N], one row per sample (``round(duration_s / ts_s) + 1`` rows).
+
+    Examples
+    --------
+    >>> import tapmuscle as tm
+    >>> rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=20.0)
+    >>> rec["l_mm"].shape
+    (201,)
+    """
+    ts = _check_positive("ts_s", ts_s)
+    if isinstance(command, str):
+        signal = parse_input_spec(command)
+    elif callable(command):
+        signal = command
+    else:
+        u = np.asarray(command, dtype=float)
+        if u.ndim != 1 or u.size == 0:
+            raise ValueError(f"command samples must be a non-empty 1-D array, got shape {u.shape}")
+        bad = np.nonzero(~np.isfinite(u))[0]
+        if bad.size:
+            raise ValueError(f"command[{int(bad[0])}] = {u[bad[0]]!r} is not finite")
+        if duration_s is None:
+            duration_s = (u.size - 1) * ts
+
+        def signal(t: float) -> float:
+            return float(u[min(int(round(t / ts)), u.size - 1)])
+    if duration_s is None:
+        raise ValueError("duration_s is required when the command is a function or a spec")
+    return run_open_loop(_plant(params, load_n, seed), signal, duration_s=_check_positive("duration_s", duration_s),
+                         ts_s=ts)
+
+
+def _reference(reference: Any, ts_s: float) -> Reference:
+    if reference is None:
+        return SineReference(ts_s=ts_s)
+    if isinstance(reference, (SineReference, ArrayReference, FunctionReference)):
+        if abs(reference.ts_s - ts_s) > 1e-12 * ts_s:
+            raise ValueError(f"the reference's ts_s = {reference.ts_s!r} s differs from ts_s = {ts_s!r} s")
+        return reference
+    if callable(reference):
+        return FunctionReference(reference, ts_s)
+    return ArrayReference(np.asarray(reference, dtype=float), ts_s)
+
+
+def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, duration_s: float = 45.0,
+                ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
+                params: PlantParams | None = None, theta0: Sequence[float] | None = None,
+                settings: ControllerSettings | None = None, seed: int = 0,
+                loop_delay_samples: int = 0) -> dict[str, np.ndarray]:
+    """Track a reference with one of the paper's four controllers on the simulated rig (no FMU).
+
+    The loop of :func:`tapmuscle.closed_loop.run_closed_loop`: at ``t_k`` the controller reads
+    ``l(k)``, sees the preview ``r(k..k+Hp)`` and sets ``u(k)``, held until ``t_k+1``. It gives the
+    co-simulated FMUs' numbers bit for bit (docs/fmu.md).
+
+    Parameters
+    ----------
+    method : {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
+        MPC with unique coincidence point (Eq. (3)) or with servo mechanism (Eqs. (15)-(20)), with a
+        fixed predictor (MPC) or adapted online by Algorithm 1 (AMPC).
+    reference : callable, array_like, Reference or None
+        ``r(t)`` [mm] of the time [s]; or one value per sample ``r(k)`` [mm] (the last held beyond
+        its end, also in the preview); or a :class:`~fmu_controller.reference.SineReference`,
+        :class:`~fmu_controller.reference.ArrayReference` or
+        :class:`~fmu_controller.reference.FunctionReference`. Default: the paper's
+        ``35 + 30 sin(2 pi 0.1 t)`` mm (section 4.1).
+    duration_s : float
+        Length of the run [s] (the paper's: 45).
+    ts_s : float
+        Sampling period [s] (paper: 0.1).
+    load_n : float or callable, optional
+        Hanging load [N], constant or ``load(t)``; default that of ``params`` (44 N).
+    params : PlantParams, optional
+        The simulated rig (default: the calibrated rig of docs/plant.md).
+    theta0 : sequence of 15 floats, optional
+        The predictor's initial (for MPC: fixed) Eq. (1) parameters; default the 44 N preliminary
+        identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2).
+    settings : ControllerSettings, optional
+        Full controller settings (horizons, weights, P(0), box); its ``method`` and ``ts_s`` must
+        agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's.
+    seed : int
+        Seed of the encoder noise.
+    loop_delay_samples : {0, 1}
+        1: each command acts one sample late, as in a parallel co-simulation master at h = Ts.
+
+    Returns
+    -------
+    dict of ndarray
+        ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm, pred_error_mm, uc_v, h_mm, xs_mm`` and
+        ``theta_<name>`` for Eq. (1)'s 15 parameters; one row per sample. Score with
+        :func:`tapmuscle.closed_loop.eq21_error_mm` (Eq. (21)).
+
+    Examples
+    --------
+    >>> import tapmuscle as tm
+    >>> run = tm.simulate_closed_loop("ampc_servo", lambda t: 40.0 + 10.0 * (t > 5.0), duration_s=20.0)
+    >>> bool(abs(run["l_mm"][-1] - 50.0) < 2.0)
+    True
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    ts = _check_positive("ts_s", ts_s)
+    if settings is None:
+        settings = ControllerSettings(method=method, ts_s=ts)
+    elif not isinstance(settings, ControllerSettings):
+        raise ValueError(f"settings must be a ControllerSettings, got {type(settings).__name__}")
+    elif settings.method != method or abs(settings.ts_s - ts) > 1e-12 * ts:
+        raise ValueError(f"settings.method = {settings.method!r}, settings.ts_s = {settings.ts_s!r} s disagree "
+                         f"with method = {method!r}, ts_s = {ts!r} s")
+    ref = _reference(reference, ts)
+    plant = _plant(params, None if callable(load_n) else load_n, seed)
+    controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
+    return run_closed_loop(plant, controller, ref, duration_s=_check_positive("duration_s", duration_s),
+                           load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples)
+
+
+def build_fmus(out: str | Path, names: Sequence[str] | None = None) -> list[Path]:
+    """Build ``MusclePlant.fmu`` and ``AMPCController.fmu`` (FMI 2.0 co-simulation), reproducibly.
+
+    Parameters
+    ----------
+    out : path
+        Folder to write the FMUs into (created if missing).
+    names : sequence of str, optional
+        A subset of ``("MusclePlant", "AMPCController")``; default both.
+
+    Returns
+    -------
+    list of Path
+        The FMU files, in the order of ``names``.
+    """
+    from build_scripts.build_fmus import build_fmus as _build
+
+    return _build(out, tuple(names) if names is not None else None)
+
+
+def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, out: str | Path | None = None,
+               plots: bool = True) -> dict[str, Any]:
+    """Co-simulate a scenario through the two FMUs in fmpy (what ``tapmuscle run`` does).
+
+    Parameters
+    ----------
+    scenario : path or Scenario
+        A scenario TOML file (docs/fmu.md; e.g. one of :data:`tapmuscle.cosim.PAPER_SCENARIOS`) or a
+        parsed :class:`~tapmuscle.cosim.spec.Scenario`.
+    fmus : mapping, optional
+        ``{"MusclePlant": path, "AMPCController": path}``; default the FMUs built from this
+        installation (cached while the sources are unchanged).
+    out : path, optional
+        If given, also write ``result.csv``, ``summary.json`` and the PNGs there, as ``tapmuscle run``.
+    plots : bool
+        With ``out``: write the PNGs.
+
+    Returns
+    -------
+    dict
+        ``columns`` (one array per recorded variable, one row per sample: ``t_s, r_mm, l_mm, u_v``
+        and the controller's diagnostics) and ``mae_mm`` (Eq. (21) over the scenario's evaluation
+        window [mm]).
+    """
+    from build_scripts.build_fmus import cached_fmus
+    from tapmuscle.cosim import load_scenario
+    from tapmuscle.cosim.master import co_simulate
+    from tapmuscle.cosim.run import run_scenario, summarise
+    from tapmuscle.cosim.spec import Scenario
+
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    given = dict(fmus) if fmus is not None else cached_fmus()
+    if out is not None:
+        summary = run_scenario(sc, out, given, plots=plots)
+        cols = summary.pop("cols")
+    else:
+        # the scenario's own FMU paths win, as in tapmuscle run
+        used = {"MusclePlant": Path(sc.plant.path or given["MusclePlant"]),
+                "AMPCController": Path(sc.controller.path or given["AMPCController"])}
+        cols = co_simulate(sc, used)
+        summary = summarise(sc, cols, used)
+    return {"columns": {k: v for k, v in cols.items() if k != "wall_time_s"}, "mae_mm": summary["mae_mm"],
+            "summary": summary}

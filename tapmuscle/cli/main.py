@@ -1,0 +1,322 @@
+"""The ``tapmuscle`` command line: a thin shell around the numerics packages.
+
+Each subcommand parses and validates its arguments, calls pure functions, and writes its outputs
+atomically. Errors in the user's input end with ``tapmuscle <cmd>: error: ...`` and exit status 2,
+having written nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from tapmuscle.cli.arguments import integer_at_least, number_within
+from tapmuscle.cli.diagnose import register as _register_diagnose
+from tapmuscle.cli.sweep import register as _register_sweep
+from tapmuscle.errors import UsageError
+
+__all__ = ["main"]
+
+
+def _load_plant_params(path: str | None, overrides: Sequence[str]):
+    from fmu_plant import PlantParams
+
+    from tapmuscle.io.plant_file import PlantFileError, read_plant_file
+
+    params = PlantParams()
+    if path:
+        try:
+            params = read_plant_file(path, "--params")
+        except PlantFileError as exc:
+            raise UsageError(str(exc)) from None
+    flat = {}
+    for item in overrides:
+        key, eq, text = item.partition("=")
+        if not eq:
+            raise UsageError(f"--set expects group.field=value, got {item!r}")
+        try:
+            flat[key.strip()] = float(text)
+        except ValueError:
+            raise UsageError(f"--set {item!r}: {text!r} is not a number") from None
+    try:
+        return params.with_values(**flat) if flat else params
+    except ValueError as exc:
+        raise UsageError(f"--set: {exc}") from None
+
+
+# --------------------------------------------------------------------------------------- record
+def _cmd_record(args: argparse.Namespace) -> int:
+    from fmu_plant import Plant
+    from fmu_plant.open_loop import run_open_loop
+
+    from tapmuscle.plots.figures import plot_recording
+    from tapmuscle.cli.progress import Progress
+    from tapmuscle.io.recording import Recording, write_recording
+    from tapmuscle.io.signals import parse_input_spec
+
+    if args.ts > args.duration:
+        raise UsageError(f"--ts ({args.ts:g} s) must not exceed --duration ({args.duration:g} s)")
+    try:
+        signal = parse_input_spec(args.input)
+    except ValueError as exc:
+        raise UsageError(f"--input: {exc}") from None
+    params = _load_plant_params(args.params, args.set)
+    overrides = {"load.load_n": args.load}
+    if args.no_noise:
+        overrides.update({"sensor.encoder_noise_std_mm": 0.0, "sensor.pressure_noise_std_mpa": 0.0})
+    params = params.with_values(**overrides)
+    plant = Plant(params, seed=args.seed)
+    try:
+        data = run_open_loop(plant, signal, duration_s=args.duration, ts_s=args.ts,
+                             progress=Progress("record", enabled=not args.quiet))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    meta = {"ts_s": f"{args.ts:g}", "load_n": f"{args.load:g}", "seed": str(args.seed),
+            "input": args.input, "source": "tapmuscle record (simulated rig)",
+            "command": " ".join(["tapmuscle"] + list(args.argv))}
+    rec = Recording(data, meta)
+    out = Path(args.out)
+    write_recording(out, rec)
+    print(f"wrote {out} ({len(rec)} samples, l {rec.l_mm.min():.2f}..{rec.l_mm.max():.2f} mm)")
+    if args.plot:
+        png = plot_recording(rec.t_s, rec.u_v, rec.l_mm, out.with_suffix(".png"), p_mpa=data["p_mpa"],
+                             title=f"{args.input}, load {args.load:g} N, seed {args.seed}",
+                             settle_s=min(30.0, args.duration / 2))
+        print(f"wrote {png}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- identify
+def _parse_box(text: str):
+    if text in ("auto", "none"):
+        return None if text == "none" else "auto"
+    box = {}
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        name, eq, rng = item.partition("=")
+        lo, colon, hi = rng.partition(":")
+        if not eq or not colon:
+            raise UsageError(f"--box: expected name=lower:upper, got {item!r} (e.g. a1=1.208:1.26,b1=0.6:1.2)")
+        try:
+            box[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise UsageError(f"--box: bounds of {name.strip()!r} must be numbers, got {rng!r}") from None
+    return box
+
+
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from fmu_controller.identification import identify_record, score_model
+
+    from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
+    from tapmuscle.io.recording import atomic_write_text, read_recording
+
+    rec = read_recording(args.recording)
+    val = read_recording(args.validate) if args.validate else None
+    try:
+        report = identify_record(rec.u_v, rec.l_mm, ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box),
+                                 constraint_start_s=args.constraint_start, forgetting=args.forgetting)
+    except ValueError as exc:
+        raise UsageError(f"{args.recording}: {exc}") from None
+    out = report.to_dict() | {"recording": str(args.recording)}
+    val_fit = None
+    if val is not None:
+        if abs(val.ts_s - rec.ts_s) > 1e-9 * rec.ts_s:
+            raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
+                             f"identification record's {rec.ts_s:g} s")
+        val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm)
+        out["validation_fit_percent"] = val_fit.percent
+        out["validation_free_run_diverged"] = val_fit.free_run_diverged
+        out["validation_recording"] = str(args.validate)
+    atomic_write_text(args.json, json.dumps(out, indent=2) + "\n")
+    for note in report.notes:
+        print(f"note: {note}", file=sys.stderr)
+    fits = report.fit.percent
+    print(f"{report.model} model, {report.n_samples} samples at Ts {report.ts_s:g} s -> {args.json}")
+    print("fit [%]      1-step  3-step  5-step  free run")
+    print(f"identif.    {fits['1']:7.1f} {fits['3']:7.1f} {fits['5']:7.1f} {fits['sim']:9.1f}"
+          + ("  (diverged)" if report.fit.free_run_diverged else ""))
+    if val_fit is not None:
+        v = val_fit.percent
+        print(f"validation  {v['1']:7.1f} {v['3']:7.1f} {v['5']:7.1f} {v['sim']:9.1f}"
+              + ("  (diverged)" if val_fit.free_run_diverged else ""))
+    if args.plot:
+        folder = Path(args.plot)
+        t = rec.t_s
+        plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / "convergence.png",
+                                   constraint_start_s=report.constraint_start_s if report.box_lower else None,
+                                   title=f"{report.model} model: parameter convergence ({Path(args.recording).name})")
+        shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
+        label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
+        plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
+                               folder / "model_vs_measured.png",
+                               title=f"free run against {'validation' if val is not None else 'identification'} "
+                                     f"record (cf. Fig. 4)")
+        skip = int(len(shown.t_s) // 4)
+        plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
+                             skip=skip)
+        print(f"wrote {folder}/convergence.png, model_vs_measured.png, hysteresis_loop.png")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- paper
+def _cmd_paper(args: argparse.Namespace) -> int:
+    from tapmuscle.paper.reproduce import PAPER_RUNS, run_paper
+    from tapmuscle.cli.progress import Progress
+
+    out = Path(args.out)
+    print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {out}/")
+    try:
+        seeds = tuple(int(x) for x in args.seeds.split(","))
+    except ValueError:
+        raise UsageError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise UsageError(f"--seeds must be non-negative integers, got {args.seeds!r}")
+    run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet, min_total=1))
+    print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- build
+def _cmd_build(args: argparse.Namespace) -> int:
+    from build_scripts.build_fmus import FMUS, build_fmus
+
+    paths = build_fmus(args.out)
+    for path in paths:
+        print(f"wrote {path}")
+    if args.ssp:
+        from build_scripts.ssp import write_ssp
+
+        print(f"wrote {write_ssp(dict(zip(FMUS, paths)), args.out)} (both FMUs as one closed loop for SSP tools)")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- run
+def _cmd_run(args: argparse.Namespace) -> int:
+    from build_scripts.build_fmus import FMUS, cached_fmus
+    from tapmuscle.cosim import ScenarioError, load_scenario, run_scenario
+
+    from tapmuscle.cli.progress import Progress
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    if args.fmu_dir:
+        fmus = {name: Path(args.fmu_dir) / f"{name}.fmu" for name in FMUS}
+        for name, path in fmus.items():
+            if not path.is_file():
+                raise UsageError(f"--fmu-dir {args.fmu_dir}: {path.name} is missing (tapmuscle build --out DIR)")
+    else:
+        fmus = cached_fmus()
+    out = Path(args.out)
+    try:
+        summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet))
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    print(f"{scenario.name}: Eq. (21) error {summary['mae_mm']:.3f} mm over samples "
+          f"{summary['evaluation_samples'][0]}..{summary['evaluation_samples'][1]}, u in "
+          f"[{summary['u_min_v']:.2f}, {summary['u_max_v']:.2f}] V, real-time factor "
+          f"{summary['real_time_factor']:.0f}x")
+    print(f"wrote {out}/result.csv, {out}/summary.json and {out}/*.png")
+    return 0
+
+
+# --------------------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tapmuscle", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    rec = sub.add_parser("record", help="run the simulated rig open-loop and write a recording CSV",
+                         description="Run the simulated rig open-loop with a valve-command signal and "
+                                     "write a recording (docs/recordings.md).")
+    rec.add_argument("--load", type=number_within("--load", 1e-9, 500.0), default=44.0,
+                     help="hanging load [N], 0 < load <= 500 (paper: 44, 68)")
+    rec.add_argument("--input", required=True,
+                     help="command spec, e.g. sine:bias=5,amp=3,freq=0.1 | step:initial=4,final=6,at=10 | "
+                          "steps:levels=3/7/5,period=20 | chirp:f0=0.01,f1=0.5 | random:lo=2,hi=8,seed=1 | csv:PATH")
+    rec.add_argument("--duration", type=number_within("--duration", 1e-3, 86400.0), required=True,
+                     help="length [s]")
+    rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
+    rec.add_argument("--seed", type=integer_at_least("--seed", 0), default=0, help="noise seed (>= 0)")
+    rec.add_argument("--out", required=True, help="output CSV path")
+    rec.add_argument("--plot", action="store_true", help="also write OUT.png: time traces and hysteresis loop")
+    rec.add_argument("--no-noise", action="store_true", help="switch sensor noise off (quantisation stays)")
+    rec.add_argument("--params", help="plant parameter file (JSON, as written by `tapmuscle diagnose`)")
+    rec.add_argument("--set", action="append", default=[], metavar="GROUP.FIELD=VALUE",
+                     help="override one plant parameter, e.g. --set friction.rate_gain=0 (repeatable)")
+    rec.add_argument("--quiet", action="store_true", help="no progress output")
+    rec.set_defaults(func=_cmd_record)
+
+    idf = sub.add_parser("identify", help="identify the paper's Eq. (1) model on a recording by (constrained) RLS",
+                         description="Identify Eq. (1) (linear ARX + discretised Bouc-Wen) on a recording with the "
+                                     "RLS of Eq. (4) and the constrained RLS of Algorithm 1; report Table-4 fits.")
+    idf.add_argument("recording", help="recording CSV (docs/recordings.md)")
+    idf.add_argument("--model", choices=("asymmetric", "standard"), default="asymmetric",
+                     help="asymmetric Bouc-Wen (with g(l), 15 parameters) or standard (11)")
+    idf.add_argument("--validate", help="a second recording to score the identified model on")
+    idf.add_argument("--json", required=True, help="output JSON path")
+    idf.add_argument("--plot", metavar="DIR", help="write convergence, model-vs-measured and loop PNGs into DIR")
+    idf.add_argument("--box", default="auto",
+                     help="constraint region: auto (Table 2 for mm, V, Ts 0.1 s), none, or name=lo:hi,... "
+                          "in the recording's units")
+    idf.add_argument("--constraint-start", type=number_within("--constraint-start", 0.0, math.inf), default=120.0,
+                     help="time from which the constraint applies [s] (paper: 120)")
+    idf.add_argument("--forgetting", type=number_within("--forgetting", 1e-6, 1.0), default=1.0,
+                     help="forgetting factor lambda in (0, 1] (1 = off, the paper)")
+    idf.set_defaults(func=_cmd_identify)
+
+    pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",
+                         description="Identify the fixed predictor at 44 N, then run the four controllers at 44 and "
+                                     "68 N (0.1 Hz) and the servo controllers at 0.2 Hz; write paper.json, run CSVs "
+                                     "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
+    pap.add_argument("--out", default="out/paper", help="output folder (default out/paper)")
+    pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
+    pap.add_argument("--id-seed", type=integer_at_least("--id-seed", 0), default=None,
+                     help="noise seed of the preliminary identification that gives the fixed predictor "
+                          "(default: the first of --seeds)")
+    pap.add_argument("--quiet", action="store_true", help="no progress bar")
+    pap.set_defaults(func=_cmd_paper)
+
+    run = sub.add_parser("run", help="run a scenario file through the FMUs (fmpy co-simulation)",
+                         description="Co-simulate MusclePlant and AMPCController as a scenario file says "
+                                     "(tapmuscle/cosim/spec.py, docs/fmu.md); write result.csv, summary.json, PNGs.")
+    run.add_argument("scenario", help="scenario TOML file (e.g. scenarios/paper/ampc_servo_44N_0.1Hz.toml)")
+    run.add_argument("--out", required=True, help="output folder")
+    run.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
+                                       "(default: built from the sources, cached)")
+    run.add_argument("--quiet", action="store_true", help="no progress output")
+    run.set_defaults(func=_cmd_run)
+
+    bld = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMUs",
+                         description="Build MusclePlant.fmu and AMPCController.fmu with pythonfmu (docs/fmu.md).")
+    bld.add_argument("--out", default="out/fmu", help="output folder (default out/fmu)")
+    bld.add_argument("--ssp", action="store_true",
+                     help="also write TapMuscleLoop.ssp: both FMUs connected, parameter sets for 44 N and 68 N, "
+                          "for SSP tools (libcosim, Ecos, OMSimulator)")
+    bld.set_defaults(func=_cmd_build)
+    _register_sweep(sub)
+    _register_diagnose(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``tapmuscle`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    args.argv = argv
+    try:
+        return int(args.func(args) or 0)
+    except UsageError as exc:
+        print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as exc:
+        print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

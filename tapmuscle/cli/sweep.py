@@ -1,0 +1,172 @@
+"""``tapmuscle sweep`` and ``tapmuscle check``: many scenario runs, locally or on a Dask cluster
+(docs/sweeps.md). :func:`register` adds the two subcommands to the ``tapmuscle`` parser."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from tapmuscle.cli.arguments import integer_at_least, number_within
+from tapmuscle.errors import UsageError
+
+__all__ = ["register"]
+
+
+def _fmus(fmu_dir: str | None) -> dict[str, Path]:
+    """The FMUs of ``--fmu-dir``, or those built from the sources (cached)."""
+    from build_scripts.build_fmus import FMUS, cached_fmus
+
+    if not fmu_dir:
+        return cached_fmus()
+    fmus = {name: Path(fmu_dir) / f"{name}.fmu" for name in FMUS}
+    missing = [p.name for p in fmus.values() if not p.is_file()]
+    if missing:
+        raise UsageError(f"--fmu-dir {fmu_dir}: {', '.join(missing)} missing (tapmuscle build --out DIR)")
+    return fmus
+
+
+def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
+    """In this process (``--workers 0`` without ``--scheduler``) or on Dask (a local cluster of
+    ``--workers`` processes, or the cluster of ``--scheduler``)."""
+    from tapmuscle.cosim.distributed_sweep import DaskExecutor, dask_client, run_serial
+
+    if not args.scheduler and args.workers == 0:
+        return run_serial
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise UsageError("needs dask.distributed: pip install 'tapmuscle[dist]' (or run in this process with "
+                         "--workers 0)") from None
+    try:
+        client = stack.enter_context(dask_client(args.workers, args.scheduler, wait_s=args.timeout))
+    except OSError as exc:  # includes TimeoutError
+        where = f"--scheduler {args.scheduler}" if args.scheduler else f"local cluster of {args.workers} workers"
+        raise UsageError(f"{where}: cannot start or connect: {exc}") from None
+    if not args.quiet:
+        workers = len(client.scheduler_info().get("workers", {}))
+        print(f"Dask: {workers} workers at {client.scheduler.address}", file=sys.stderr)
+    return DaskExecutor(client)
+
+
+# ------------------------------------------------------------------------------------------ sweep
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from tapmuscle.cosim import ScenarioError
+    from tapmuscle.cosim.sweep import load_sweep
+    from tapmuscle.cosim.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
+
+    from tapmuscle.cli.progress import Progress
+
+    try:
+        sweep = load_sweep(args.sweep)
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    if args.workers is None:
+        args.workers = os.cpu_count() or 1
+    fmus = _fmus(args.fmu_dir)
+    out = Path(args.out)
+    print(f"tapmuscle sweep: {sweep.name}, {len(sweep.runs)} runs -> {out}/")
+    with ExitStack() as stack:
+        try:
+            ResultsLog(out / "results.csv", result_columns(sweep)).latest()  # another sweep's file: refuse early
+            execute = _executor(args, stack)
+            report = run_sweep(sweep, out, fmus, execute, plots=not args.no_plots,
+                               progress=Progress("sweep", enabled=not args.quiet, min_total=1))
+        except ScenarioError as exc:
+            raise UsageError(str(exc)) from None
+        except KeyboardInterrupt:
+            print(f"\ninterrupted: finished runs are in {out}/results.csv; rerun the same command to go on",
+                  file=sys.stderr)
+            return 130
+    text = summary_markdown(sweep, report.rows)
+    start = text.index("## Per method")
+    print(text[start:text.find("\n\n", text.index("|", start))].strip())
+    print(f"{report.total} runs: {report.skipped} already done, {report.ran} run now; {report.failed} failed, "
+          f"{report.violated} missed their expectations")
+    print(f"wrote {out}/results.csv, {out}/summary.md" + ("" if args.no_plots else f" and {out}/*.png"))
+    return 1 if report.failed or report.violated else 0
+
+
+# ------------------------------------------------------------------------------------------ check
+def _cmd_check(args: argparse.Namespace) -> int:
+    from tapmuscle.cosim import ScenarioError
+    from tapmuscle.cosim.check import collect_cases, evaluate, junit_xml, result_table
+    from tapmuscle.cosim.distributed_sweep import FmuFiles, make_task
+
+    from tapmuscle.cli.progress import Progress
+    from tapmuscle.io.recording import atomic_write_text
+
+    try:
+        cases, skipped = collect_cases(args.paths)
+    except ScenarioError as exc:
+        raise UsageError(str(exc)) from None
+    if not cases:
+        raise UsageError(f"no scenario with an [expect] table under {', '.join(args.paths)}")
+    fmus = _fmus(args.fmu_dir)
+    print(f"tapmuscle check: {len(cases)} scenarios with expectations"
+          + (f" ({len(skipped)} files without [expect] skipped)" if skipped else ""))
+    progress = Progress("check", enabled=not args.quiet, min_total=1)
+    with ExitStack() as stack:
+        try:
+            files = FmuFiles.for_scenarios((c.scenario for c in cases), fmus)
+            tasks = [make_task(str(i), case.scenario, fmus, files) for i, case in enumerate(cases)]
+        except ScenarioError as exc:
+            raise UsageError(str(exc)) from None
+        execute = _executor(args, stack)
+        runs, failed = {}, 0
+        try:
+            for run in execute(tasks, files):
+                runs[int(run.run_id)] = run
+                failed += run.status != "ok"
+                progress(len(runs), len(tasks), f"{failed} failed, {len(tasks) - len(runs)} remaining")
+        except KeyboardInterrupt:
+            print("\ninterrupted: no report written", file=sys.stderr)
+            return 130
+    results = [evaluate(case, runs[i]) for i, case in enumerate(cases)]
+    print(result_table(results), end="")
+    if args.junit:
+        atomic_write_text(args.junit, junit_xml(results))
+        print(f"wrote {args.junit}")
+    return 0 if all(r.status == "pass" for r in results) else 1
+
+
+# ------------------------------------------------------------------------------------------ parser
+def _common(p: argparse.ArgumentParser, default_workers: str) -> None:
+    p.add_argument("--workers", type=integer_at_least("--workers", 0, 4096), default=None if default_workers == "cpus" else 0,
+                   help="worker processes of a local Dask cluster (default: "
+                        + ("the number of CPUs" if default_workers == "cpus" else "0")
+                        + "); 0 runs everything in this process, without Dask")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="run on the Dask cluster of this scheduler instead of a local one (docs/sweeps.md)")
+    p.add_argument("--timeout", type=number_within("--timeout", 1e-3, 86400.0), default=60.0, metavar="S",
+                   help="with --scheduler: seconds to wait for the scheduler and its first worker (default 60)")
+    p.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
+                                     "(default: built from the sources, cached)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def register(sub: Any) -> None:
+    """Add ``sweep`` and ``check`` to the subparsers ``sub`` of the ``tapmuscle`` parser."""
+    sw = sub.add_parser("sweep", help="run a grid / Monte-Carlo sweep of scenarios (locally or on Dask)",
+                        description="Run every scenario of a sweep file (a base scenario with a grid and/or "
+                                    "Monte-Carlo sample over its fields; tapmuscle/cosim/sweep.py, docs/sweeps.md) "
+                                    "through the FMUs on a Dask cluster; write DIR/results.csv as runs finish "
+                                    "(a rerun skips finished runs), DIR/summary.md and PNGs. Exit status 1 if "
+                                    "a run failed or missed its expectations.")
+    sw.add_argument("sweep", help="sweep TOML file (e.g. scenarios/sweeps/robustness_mc.toml)")
+    sw.add_argument("--out", required=True, help="output folder (rerun into the same folder to resume)")
+    _common(sw, "cpus")
+    sw.add_argument("--no-plots", action="store_true", help="no PNGs")
+    sw.set_defaults(func=_cmd_sweep)
+
+    ck = sub.add_parser("check", help="run the scenarios that carry [expect] bounds and report pass/fail (CI)",
+                        description="Run every scenario file, and every run of a sweep file, with an [expect] "
+                                    "table under PATH (files or folders); print a pass/fail table, optionally "
+                                    "write JUnit XML; exit status 1 on any missed expectation or failed run.")
+    ck.add_argument("paths", nargs="+", metavar="PATH", help="scenario/sweep files or folders (searched for *.toml)")
+    ck.add_argument("--junit", metavar="FILE", help="write a JUnit XML report (for CI test reports)")
+    _common(ck, "zero")
+    ck.set_defaults(func=_cmd_check)

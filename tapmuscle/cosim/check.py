@@ -1,0 +1,151 @@
+"""``tapmuscle check``: scenario tests for CI.
+
+Every scenario file and every run of a sweep file that carries expectations (``[expect]``,
+:mod:`tapmuscle.cosim.expect`) is a test case: run it through the FMUs, compare its metrics with the bounds.
+This module collects the cases from files and folders, and formats the outcome as a text table and as
+JUnit XML (the format CI systems display: GitLab, Jenkins, GitHub actions' test reporters, Azure).
+Running the cases is :mod:`tapmuscle.cosim.distributed_sweep`'s; writing files is the CLI's.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from tapmuscle.cosim.distributed_sweep import RunResult
+from tapmuscle.cosim.expect import Outcome, check_expectations
+from tapmuscle.cosim.spec import Scenario, ScenarioError, parse_scenario, read_toml
+from tapmuscle.cosim.sweep import is_sweep_data, parse_sweep
+
+__all__ = ["CheckCase", "CheckResult", "collect_cases", "evaluate", "result_table", "junit_xml"]
+
+
+@dataclass(frozen=True)
+class CheckCase:
+    """One scenario to run and check."""
+
+    file: str
+    """The scenario or sweep file."""
+    name: str
+    scenario: Scenario
+    """With its expectations (``scenario.expect``)."""
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """A case, its run and the comparison with its expectations (None if the run failed)."""
+
+    case: CheckCase
+    run: RunResult
+    outcome: Outcome | None
+
+    @property
+    def status(self) -> str:
+        """``pass``, ``fail`` (an expectation missed) or ``error`` (the run failed)."""
+        if self.outcome is None:
+            return "error"
+        return "pass" if self.outcome.passed else "fail"
+
+
+def _files(path: Path) -> list[Path]:
+    if path.is_dir():
+        return sorted(path.rglob("*.toml"))
+    if path.is_file():
+        return [path]
+    raise ScenarioError(f"{path}: no such file or folder")
+
+
+def collect_cases(paths: Iterable[str | Path]) -> tuple[list[CheckCase], list[str]]:
+    """The cases under ``paths`` (files, or folders searched for ``*.toml``), and the files without
+    expectations (skipped). A bad file raises ScenarioError naming it and the key."""
+    cases: list[CheckCase] = []
+    skipped: list[str] = []
+    seen: set[Path] = set()
+    for path in paths:
+        for file in _files(Path(path)):
+            if file.resolve() in seen:
+                continue
+            seen.add(file.resolve())
+            data = read_toml(file)
+            before = len(cases)
+            if is_sweep_data(data):
+                sweep = parse_sweep(data, source=str(file), folder=file.parent, default_name=file.stem)
+                for run in sweep.runs:
+                    if run.scenario.expect:
+                        label = ", ".join(f"{f}={v!r}" for f, v in run.params)
+                        cases.append(CheckCase(str(file), f"{sweep.name}/{run.scenario.name}"
+                                               + (f" [{label}]" if label else ""), run.scenario))
+            else:
+                scenario = parse_scenario(data, source=str(file), base=file.parent, default_name=file.stem)
+                if scenario.expect:
+                    cases.append(CheckCase(str(file), scenario.name, scenario))
+            if len(cases) == before:
+                skipped.append(str(file))
+    return cases, skipped
+
+
+def evaluate(case: CheckCase, run: RunResult) -> CheckResult:
+    """Compare a finished run with its case's expectations."""
+    if run.status != "ok":
+        return CheckResult(case, run, None)
+    return CheckResult(case, run, check_expectations(case.scenario.expect, run.metrics))
+
+
+def result_table(results: Sequence[CheckResult]) -> str:
+    """A plain-text pass/fail table, one line per case, and a count."""
+    width = max([len(r.case.name) for r in results] + [8])
+    lines = [f"{'result':<6}  {'scenario':<{width}}  {'method':<10}  {'mae_mm':>7}  details"]
+    for r in results:
+        mae = f"{r.run.metrics['mae_mm']:7.3f}" if "mae_mm" in r.run.metrics else f"{'-':>7}"
+        if r.status == "error":
+            detail = r.run.error
+        elif r.status == "fail":
+            detail = "; ".join(r.outcome.violations)
+        else:
+            detail = f"{len(r.outcome.checked)} bounds met"
+        lines.append(f"{r.status.upper():<6}  {r.case.name:<{width}}  {r.case.scenario.method:<10}  {mae}  {detail}")
+    counts = {s: sum(r.status == s for r in results) for s in ("pass", "fail", "error")}
+    lines.append(f"{len(results)} scenarios: {counts['pass']} passed, {counts['fail']} failed, "
+                 f"{counts['error']} errors")
+    return "\n".join(lines) + "\n"
+
+
+def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check") -> str:
+    """The results as JUnit XML: a ``testsuite`` per file, a ``testcase`` per scenario run; a missed
+    expectation is a ``failure``, a run that failed an ``error``; the checked bounds and the metrics
+    are in ``system-out``."""
+    root = ET.Element("testsuites", name=name)
+    suites: dict[str, list[CheckResult]] = {}
+    for r in results:
+        suites.setdefault(r.case.file, []).append(r)
+    for file, members in suites.items():
+        suite = ET.SubElement(root, "testsuite", name=file)
+        classname = ".".join(Path(file).with_suffix("").parent.parts) or "scenarios"
+        for r in members:
+            wall = r.run.metrics.get("wall_time_s", 0.0)
+            case = ET.SubElement(suite, "testcase", classname=classname, name=r.case.name, time=f"{wall:.3f}")
+            if r.status == "error":
+                ET.SubElement(case, "error", message=r.run.error[:500], type="RunFailed").text = r.run.error
+            elif r.status == "fail":
+                text = "\n".join(r.outcome.violations)
+                ET.SubElement(case, "failure", message="; ".join(r.outcome.violations)[:500],
+                              type="ExpectationNotMet").text = text
+            out = [f"scenario file: {file}", f"method: {r.case.scenario.method}"]
+            if r.outcome is not None:
+                out += ["bounds:"] + [f"  {c}" for c in r.outcome.checked]
+            out += ["metrics:"] + [f"  {k} = {v:.6g}" for k, v in r.run.metrics.items()]
+            ET.SubElement(case, "system-out").text = "\n".join(out)
+        _count(suite, members)
+    _count(root, results)
+    ET.indent(root)
+    return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def _count(element: ET.Element, results: Sequence[CheckResult]) -> None:
+    element.set("tests", str(len(results)))
+    element.set("failures", str(sum(r.status == "fail" for r in results)))
+    element.set("errors", str(sum(r.status == "error" for r in results)))
+    element.set("skipped", "0")
+    element.set("time", f"{sum(r.run.metrics.get('wall_time_s', 0.0) for r in results):.3f}")

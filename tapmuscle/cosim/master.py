@@ -1,0 +1,462 @@
+"""The co-simulation master: MusclePlant and AMPCController coupled at a fixed macro step in fmpy.
+
+Master algorithm (Gauss-Seidel, controller first), macro step ``h`` = the controller's ``Ts``;
+for ``k = 0 .. N-1``, ``t_k = k h``::
+
+    l(k), p(k)   <- plant outputs                    (the plant is at t_k)
+    controller.l <- l(k);  controller.r <- r(.)       (r only for an external reference)
+    controller.doStep(t_k, h)                         samples l(k), r(k..k+Hp): u(k)
+    u(k), diagnostics <- controller outputs
+    plant.u <- u(k);  plant.load <- load(t_k);  plant.supply_pressure <- supply(t_k)
+    plant.doStep(t_k, h)                              holds u(k) over [t_k, t_k + h): l(k+1)
+
+Timing diagram (one row of the result per ``k``)::
+
+    t_k                         t_{k+1}
+    |------ u(k) held ----------|------ u(k+1) held ---...
+    ^ l(k) read, u(k) computed  ^ l(k+1) read, u(k+1) computed
+
+``u(k)`` is computed from ``l(k)`` and acts on ``l(k+1)``: exactly the direct loop of
+:func:`tapmuscle.closed_loop.run_closed_loop` and Eq. (1), with no hidden extra sample of delay. A
+Jacobi master (all FMUs stepped with the outputs of the previous communication point) would add one
+sample of delay in the controller's path; docs/fmu.md explains how to avoid it in other tools.
+
+The last row (``k = N-1``) reads the plant and runs the controller but does not step the plant, as the
+direct loop. Any FMI call that fails raises :class:`~tapmuscle.cosim.spec.ScenarioError` with the FMU's
+logged message.
+"""
+
+from __future__ import annotations
+
+import atexit
+import itertools
+import shutil
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+# The installed pythonfmu first: the first FMU's Python code would otherwise import the copy in its
+# resources/ (no builder binaries), and a later build in this process would use that copy.
+import pythonfmu  # noqa: F401
+
+from fmu_controller.displacement_control import METHOD_CODES
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.reference import REFERENCE_SOURCES
+
+from tapmuscle.cosim.spec import Scenario, ScenarioError
+
+__all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameter_names", "co_simulate"]
+
+#: The controller FMU's Integer codes of its methods and reference sources, by name.
+_CODE: dict[str, int] = {name: code for codes in (METHOD_CODES, REFERENCE_SOURCES) for code, name in codes.items()}
+
+_STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
+
+
+@dataclass(frozen=True)
+class Unpacked:
+    """An FMU extracted once per process: its model description and folder."""
+
+    path: Path
+    model_description: Any
+    folder: str
+    variables: Mapping[str, Any]
+
+
+_UNPACKED: dict[Path, Unpacked] = {}
+
+# One logger for every instance, alive for the whole process, routed by instance name. It is NOT passed
+# through fmpy's addLoggerProxy: that proxy keeps the Python logger in one process-wide C variable, so a
+# per-instance logger registered there is used by every later FMU, also those created with fmpy's
+# default callbacks, and crashed them once its instance was gone. pythonfmu's messages are plain text
+# (no printf arguments), so the proxy's formatting is not needed.
+_LOG_SINKS: dict[str, list[str]] = {}
+_INSTANCE_COUNTER = itertools.count()
+_CALLBACKS: list[Any] = []
+
+
+def _log(_env, name, status, _category, message) -> None:
+    text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
+    text = text.replace("%%", "%")  # the FMUs send their text as a printf format without arguments
+    key = name.decode("utf-8", "replace") if isinstance(name, bytes) else str(name)
+    label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+    sink = _LOG_SINKS.get(key)
+    if sink is None:  # an instance that is not ours: print as fmpy's default logger does
+        print(f"[{label}] {text}")
+    else:
+        sink.append(f"[{label}] {text}")
+
+
+def _callbacks() -> Any:
+    """The process-wide fmi2CallbackFunctions (created once)."""
+    if not _CALLBACKS:
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                               fmi2CallbackLoggerTYPE)
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_log)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        _CALLBACKS.append(cb)
+    return _CALLBACKS[0]
+
+
+def _cleanup(folder: str) -> None:
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def unpack(path: str | Path) -> Unpacked:
+    """Extract ``path`` (cached per process; removed at exit)."""
+    from fmpy import extract, read_model_description
+
+    path = Path(path).resolve()
+    if path not in _UNPACKED:
+        if not path.is_file():
+            raise ScenarioError(f"{path}: FMU file does not exist")
+        try:
+            md = read_model_description(str(path))
+        except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU file
+            raise ScenarioError(f"{path}: not a readable FMU: {exc}") from None
+        folder = extract(str(path), tempfile.mkdtemp(prefix=f"tapmuscle_{md.modelName}_"))
+        atexit.register(_cleanup, folder)
+        _UNPACKED[path] = Unpacked(path, md, folder, {v.name: v for v in md.modelVariables})
+    return _UNPACKED[path]
+
+
+def _settable(unpacked: Unpacked, name: str, where: str) -> Any:
+    """The parameter or input ``name`` of the FMU; ScenarioError (prefixed by ``where``) if it has none."""
+    var = unpacked.variables.get(name)
+    if var is None or var.causality not in ("parameter", "input"):
+        known = sorted(n for n, v in unpacked.variables.items() if v.causality == "parameter")
+        raise ScenarioError(f"{where}{name}': not a parameter of {unpacked.model_description.modelName} "
+                            f"(known: {', '.join(known[:8])}, ...; docs/fmu.md lists all)")
+    return var
+
+
+def check_parameter_names(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None:
+    """Raise ScenarioError (naming file and key) if ``scenario`` sets a parameter its FMUs do not have;
+    reads only the model descriptions (no instance), to check a whole sweep before it runs."""
+    for name, role, spec in (("MusclePlant", "plant", scenario.plant),
+                             ("AMPCController", "controller", scenario.controller)):
+        unpacked = unpack(spec.path or fmus[name])
+        for key in spec.parameters:
+            _settable(unpacked, key, f"{scenario.source}: key '{role}.parameters.")
+
+
+class FmuInstance:
+    """An fmpy ``FMU2Slave`` with a logger that keeps the FMU's messages (to name them in errors).
+
+    Lifecycle as FMI's: construct (instantiate, setup experiment, enter initialization), set
+    parameters and initial inputs, :meth:`start` (exit initialization), then ``set``/``do_step``/
+    ``get``; :meth:`free` at the end.
+    """
+
+    def __init__(self, path: str | Path, instance_name: str, *, role: str) -> None:
+        from fmpy.fmi2 import FMU2Slave
+
+        self.unpacked = unpack(path)
+        self.role = role
+        self.messages: list[str] = []
+        md = self.unpacked.model_description
+        instance_name = f"{instance_name}#{next(_INSTANCE_COUNTER)}"  # unique: messages are routed by name
+        _LOG_SINKS[instance_name] = self.messages
+        self._name = instance_name
+        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=self.unpacked.folder,
+                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=instance_name)
+        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=_callbacks(), loggingOn=True))
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+
+    # ------------------------------------------------------------------ helpers
+    def vr(self, name: str) -> int:
+        return self.unpacked.variables[name].valueReference
+
+    def error(self, what: str, detail: Any, t_s: float | None = None) -> ScenarioError:
+        """A ScenarioError for a failed FMI call, with the FMU's last logged messages."""
+        at = "" if t_s is None else f" at t = {t_s:g} s"
+        log = "; ".join(self.messages[-3:]) or "no message logged"
+        return ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {detail}: {log}")
+
+    def _call(self, what: str, fn: Callable[[], Any], t_s: float | None = None) -> Any:
+        try:
+            return fn()
+        except Exception as exc:  # noqa: BLE001 - fmpy raises FMICallException (and others on NULL)
+            raise self.error(what, exc, t_s) from None
+
+    def set_parameters(self, values: Mapping[str, Any], *, where: str) -> None:
+        """Set parameters by FMU variable name; ``where`` (e.g. ``file: key 'plant.parameters.'``)
+        prefixes the name in errors."""
+        for name, value in values.items():
+            var = _settable(self.unpacked, name, where)
+            if var.type == "Enumeration":
+                items = {item.name: item.value for item in var.declaredType.items}
+                if isinstance(value, str):
+                    if value not in items:
+                        raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
+                    value = items[value]
+                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [int(value)]))
+            elif var.type == "Integer":
+                if isinstance(value, str) or int(value) != value:
+                    raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
+                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [int(value)]))
+            elif var.type == "Real":
+                if isinstance(value, str):
+                    raise ScenarioError(f"{where}{name}': must be a number, got {value!r}")
+                self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [float(value)]))
+            else:
+                raise ScenarioError(f"{where}{name}': {var.type} parameters are not supported")
+
+    def start(self) -> None:
+        self._call("exitInitializationMode", self.fmu.exitInitializationMode)
+        bad = ("[WARNING]", "[ERROR]", "[FATAL]")  # a rejected parameter is a warning at this call
+        if any(m.startswith(bad) for m in self.messages):
+            raise ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) rejected its parameters: "
+                                + "; ".join(m for m in self.messages if m.startswith(bad)))
+
+    def reset(self) -> None:
+        """Back to the state right after construction (fmi2Terminate, fmi2Reset, setup, enter
+        initialization): every parameter at its start value, for the next run."""
+        self._call("fmi2Terminate", self.fmu.terminate)
+        self._call("fmi2Reset", self.fmu.reset)
+        self.messages.clear()
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+
+    def free(self) -> None:
+        try:
+            self.fmu.terminate()
+        finally:
+            self.fmu.freeInstance()
+            _LOG_SINKS.pop(self._name, None)
+
+
+class InstancePool:
+    """Idle FMU instances of one process, reused by :func:`co_simulate` (``pool=``) across runs.
+
+    A run takes an idle instance of the same FMU file and role, resets it (:meth:`FmuInstance.reset`:
+    fmi2Reset, after which pythonfmu creates the slave object anew, so every parameter and all state
+    are back at their start values) instead of instantiating (about 12 ms per FMU against 0.5 ms).
+    Results are the same bit for bit (tests/test_sweep.py). An instance whose run raised is freed,
+    not reused. Thread-safe; :meth:`close` frees the idle instances.
+    """
+
+    def __init__(self) -> None:
+        self._idle: dict[tuple[Path, str], list[FmuInstance]] = {}
+        self._lock = threading.Lock()
+
+    def acquire(self, path: str | Path, instance_name: str, *, role: str) -> FmuInstance:
+        """An instance of ``path`` in initialization mode: a reset idle one, or a new one."""
+        key = (unpack(path).path, role)
+        with self._lock:
+            idle = self._idle.get(key)
+            inst = idle.pop() if idle else None
+        if inst is None:
+            return FmuInstance(path, instance_name, role=role)
+        try:
+            inst.reset()
+        except BaseException:
+            inst.free()
+            raise
+        return inst
+
+    def release(self, inst: FmuInstance) -> None:
+        """Keep ``inst`` (after a run that ended normally) for a later :meth:`acquire`."""
+        with self._lock:
+            self._idle.setdefault((inst.unpacked.path, inst.role), []).append(inst)
+
+    def close(self) -> None:
+        """Free every idle instance."""
+        with self._lock:
+            idle, self._idle = [i for lst in self._idle.values() for i in lst], {}
+        for inst in idle:
+            inst.free()
+
+
+def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: str = "all",
+                controller_parameters: Mapping[str, Any] | None = None,
+                progress: Callable[[int, int], None] | None = None,
+                pool: InstancePool | None = None) -> dict[str, np.ndarray]:
+    """Run ``scenario`` with the master algorithm of the module docstring.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    fmus : mapping
+        ``{"MusclePlant": path, "AMPCController": path}``; the scenario's own ``fmu`` keys win.
+    record : {"all", "minimal"}
+        ``all``: the columns of :func:`tapmuscle.closed_loop.run_closed_loop` (diagnostics and theta-hat
+        each step); ``minimal``: ``t_s, r_mm, l_mm, u_v`` only (fewer FMI calls, for timing).
+    controller_parameters : mapping, optional
+        Extra controller parameters (e.g. ``theta0.*``), applied after the scenario's.
+    progress : callable, optional
+        Called with ``(done, total)`` samples.
+    pool : InstancePool, optional
+        Take the FMU instances from (and give them back to) this pool instead of instantiating and
+        freeing them; same results.
+
+    Returns
+    -------
+    dict of ndarray
+        One row per sample ``k`` (module docstring), plus ``wall_time_s`` (a 0-d array).
+    """
+    if record not in ("all", "minimal"):
+        raise ValueError(f"record must be 'all' or 'minimal', got {record!r}")
+    src = scenario.source
+    new = pool.acquire if pool is not None else FmuInstance
+    plant = new(scenario.plant.path or fmus["MusclePlant"], f"{scenario.name}.plant", role="plant")
+    ctrl, done = None, False
+    try:
+        ctrl = new(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
+                   role="controller")
+        plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
+        plant.set_parameters({"seed": scenario.seed}, where=f"{src}: key '")
+        h = scenario.step_s
+        ref = scenario.reference
+        plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
+                             where=f"{src}: key '[load]/[supply] ")
+        ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
+        if ref.kind == "sine":
+            ctrl_params.update({"reference_source": _CODE["builtin_sine"], "sine.offset": ref.offset_mm,
+                                "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
+        else:
+            ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
+                                                    else "external_held"]
+        ctrl_params.update(scenario.controller.parameters)
+        ctrl_params.update(controller_parameters or {})
+        ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
+        hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
+        hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
+        if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
+            hp += ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0]
+        plant.start()
+        ctrl.start()
+        cols = _loop(scenario, plant, ctrl, hp, record, progress)
+        done = True
+        return cols
+    finally:
+        for inst in (ctrl, plant):
+            if inst is not None:
+                if done and pool is not None:
+                    pool.release(inst)
+                else:
+                    inst.free()
+
+
+def _holding_gil(fmu: Any, names: tuple[str, ...]) -> list[Any]:
+    """fmpy's ctypes functions ``names`` of ``fmu``, called without releasing the GIL and without
+    argument conversion.
+
+    ctypes releases the GIL around every foreign call, and a pythonfmu FMU takes it back at once to
+    run its Python slave. In a Dask worker the worker's event-loop thread is waiting for the GIL
+    then, so every FMI call becomes a thread hand-over (a run was 15-25 % slower in a worker than in
+    a plain process, benchmarks/sweep_speedup.py). Holding the GIL through the call is safe: the
+    slave's ``PyGILState_Ensure`` nests. The same library handle as fmpy's; no ``argtypes``: the
+    callers (:class:`_RealPort`) pass ready-made ctypes objects of the C types, which saves the
+    per-argument conversion (about 0.5 us of a 2 us call).
+    """
+    from ctypes import PyDLL, c_int
+
+    lib = PyDLL(fmu.dll._name, handle=fmu.dll._handle)
+    functions = []
+    for name in names:
+        fn = getattr(lib, name)
+        fn.argtypes, fn.restype = None, c_int  # fmi2Status
+        functions.append(fn)
+    return functions
+
+
+class _RealPort:
+    """The hot FMI calls of one FMU (fmi2GetReal of its outputs, fmi2SetReal of its inputs, fmi2DoStep)
+    with preallocated ctypes arguments.
+
+    fmpy's ``getReal``/``setReal`` build new arrays and lists on every call; in a loop of ~40 us per
+    sample that overhead matters (benchmarks/fmu_cosim.py). Same FMI calls, same status checks.
+    Each call is a ``(function, arguments)`` pair, called by :func:`_loop` as ``fn(*args)``, which
+    returns the fmi2Status; :meth:`check` raises for a status worse than fmi2Warning. Write the inputs
+    into :attr:`inputs` and the step's start into ``t.value`` before the calls; read :attr:`outputs`.
+    """
+
+    def __init__(self, inst: FmuInstance, out_vrs: list[int], in_vrs: list[int], h_s: float) -> None:
+        from ctypes import c_double, c_size_t, c_uint, c_void_p
+
+        self.inst = inst
+        get, set_, step = _holding_gil(inst.fmu, ("fmi2GetReal", "fmi2SetReal", "fmi2DoStep"))
+        component = c_void_p(inst.fmu.component)
+        outputs, inputs = (c_double * len(out_vrs))(), (c_double * len(in_vrs))()
+        self.outputs = np.frombuffer(outputs, dtype=np.float64)
+        self.inputs = np.frombuffer(inputs, dtype=np.float64)
+        self.t = c_double()
+        self.get = (get, (component, (c_uint * len(out_vrs))(*out_vrs), c_size_t(len(out_vrs)), outputs))
+        self.set = (set_, (component, (c_uint * len(in_vrs))(*in_vrs), c_size_t(len(in_vrs)), inputs))
+        self.step = (step, (component, self.t, c_double(h_s), 1))  # noSetFMUStatePriorToCurrentPoint
+
+    def check(self, status: int, what: str, t_s: float) -> None:
+        """Raise ScenarioError if ``status`` (of the call ``what`` at ``t_s``) is worse than fmi2Warning."""
+        if status > 1:
+            raise self.inst.error(what, f"status {_STATUS[status] if status < len(_STATUS) else status}", t_s)
+
+
+def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, record: str,
+          progress: Callable[[int, int], None] | None) -> dict[str, np.ndarray]:
+    n, h, ref = scenario.n_samples, scenario.step_s, scenario.reference
+    external = ref.kind != "sine"
+    advance = hp * h if external and ref.preview == "advanced" else 0.0
+    full = record == "all"
+    diag = ["u", "r_k", "uc", "l_pred", "pred_error", "H", "xs"] + [f"theta.{n_}" for n_ in ASYMMETRIC.names]
+    ctrl_out = [ctrl.vr(v) for v in (diag if full else ["u", "r_k"])]
+    plant_out = [plant.vr("l"), plant.vr("p")] if full else [plant.vr("l")]
+    ctrl_in = [ctrl.vr("l"), ctrl.vr("r")] if external else [ctrl.vr("l")]
+    plant_in = [plant.vr("u"), plant.vr("load"), plant.vr("supply_pressure")]
+    rows_p = np.empty((n, len(plant_out)))
+    rows_c = np.empty((n, len(ctrl_out)))
+    plant_io, ctrl_io = _RealPort(plant, plant_out, plant_in, h), _RealPort(ctrl, ctrl_out, ctrl_in, h)
+    p_in, c_in, p_out, c_out = plant_io.inputs, ctrl_io.inputs, plant_io.outputs, ctrl_io.outputs
+    (p_get, p_get_args), (p_set, p_set_args), (p_step, p_step_args) = plant_io.get, plant_io.set, plant_io.step
+    (c_get, c_get_args), (c_set, c_set_args), (c_step, c_step_args) = ctrl_io.get, ctrl_io.set, ctrl_io.step
+    p_t, c_t = plant_io.t, ctrl_io.t
+    every = max(1, n // 100)
+    load_k = [scenario.load.at(k * h) for k in range(n)]
+    supply_k = [scenario.supply.at(k * h) for k in range(n)]
+    start = time.perf_counter()
+    for k in range(n):  # the master algorithm of the module docstring; a status > 0 is checked
+        t = k * h
+        if status := p_get(*p_get_args):
+            plant_io.check(status, "fmi2GetReal", t)
+        c_in[0] = p_out[0]
+        if external:
+            c_in[1] = ref.at(t + advance)
+        if status := c_set(*c_set_args):
+            ctrl_io.check(status, "fmi2SetReal", t)
+        c_t.value = t
+        if status := c_step(*c_step_args):
+            ctrl_io.check(status, "fmi2DoStep", t)
+        if status := c_get(*c_get_args):
+            ctrl_io.check(status, "fmi2GetReal", t)
+        if k + 1 < n:
+            p_in[0], p_in[1], p_in[2] = c_out[0], load_k[k], supply_k[k]
+            if status := p_set(*p_set_args):
+                plant_io.check(status, "fmi2SetReal", t)
+            p_t.value = t
+            if status := p_step(*p_step_args):
+                plant_io.check(status, "fmi2DoStep", t)
+        rows_p[k], rows_c[k] = p_out, c_out
+        if progress is not None and (k % every == 0 or k + 1 == n):
+            progress(k + 1, n)
+    wall = time.perf_counter() - start
+    cols = {"t_s": np.arange(n) * h, "r_mm": rows_c[:, 1].copy(), "l_mm": rows_p[:, 0].copy(),
+            "u_v": rows_c[:, 0].copy()}
+    if full:
+        pred_next = rows_c[:, 3]
+        cols.update({"p_mpa": rows_p[:, 1].copy(), "load_n": np.array(load_k),
+                     "l_pred_mm": np.concatenate(([rows_p[0, 0]], pred_next[:-1])),
+                     "pred_error_mm": rows_c[:, 4].copy(), "uc_v": rows_c[:, 2].copy(), "h_mm": rows_c[:, 5].copy(),
+                     "xs_mm": rows_c[:, 6].copy()})
+        for i, name in enumerate(ASYMMETRIC.names):
+            cols[f"theta_{name}"] = rows_c[:, 7 + i].copy()
+    cols["wall_time_s"] = np.asarray(wall)
+    return cols

@@ -1,0 +1,340 @@
+"""Scenario files (TOML): what to couple, with which parameters, reference, load and supply profile.
+
+A scenario names the two FMUs and their parameters, the reference, the load (and supply-pressure)
+profile with steps during the run, the duration and macro step, the Eq. (21) evaluation window and the
+noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming the file and the key::
+
+    name = "ampc_servo_44N_0.1Hz"          # optional, default: the file name
+    description = "Table 7, 44 N"          # optional
+    duration_s = 45.0
+    step_s = 0.1                           # macro (communication) step = controller Ts
+    seed = 0                               # plant sensor-noise seed
+    evaluation_samples = [101, 401]        # Eq. (21) window k0..k1 (inclusive); default 101..401, or
+                                           # every sample of a run shorter than 40.1 s
+
+    [plant]
+    fmu = "MusclePlant.fmu"                # optional, relative to this file; default: built from the sources
+    parameters = { "friction.rate_gain" = 0.8 }   # any MusclePlant parameter, by FMU variable name
+
+    [controller]
+    fmu = "AMPCController.fmu"             # optional, as above
+    method = "ampc_servo"                  # mpc_ucp | mpc_servo | ampc_ucp | ampc_servo
+    parameters = { "servo.R" = 15.0 }      # any AMPCController parameter
+
+    [reference]                            # kind = "sine": the controller's built-in generator, exact preview
+    kind = "sine"
+    offset_mm = 35.0
+    amplitude_mm = 30.0
+    frequency_hz = 0.1
+    # kind = "steps": values_mm = [20, 50], times_s = [0, 15], preview = "advanced" | "held"
+    # (fed through the input r; "advanced" feeds r(t + Hp Ts), giving the exact preview)
+
+    [load]
+    initial_n = 44.0
+    steps = [ { t_s = 20.0, load_n = 68.0 } ]   # optional
+
+    [supply]                               # optional
+    initial_mpa = 0.25
+    steps = [ { t_s = 30.0, pressure_mpa = 0.22 } ]
+
+    [expect]                               # optional: bounds for `tapmuscle check` (tapmuscle/cosim/expect.py)
+    mae_mm_max = 0.35
+    u_within = [0, 10]
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Mapping
+
+from fmu_controller.displacement_control import METHODS
+from tapmuscle.errors import TapmuscleError
+
+if TYPE_CHECKING:
+    from tapmuscle.cosim.expect import Expectations
+
+__all__ = ["ScenarioError", "Profile", "Reference", "FmuSpec", "Scenario", "load_scenario", "parse_scenario",
+           "read_toml"]
+
+
+class ScenarioError(TapmuscleError, ValueError):
+    """A scenario that cannot run; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A piecewise-constant signal: ``initial`` until the first step, then each step's value from its time."""
+
+    initial: float
+    steps: tuple[tuple[float, float], ...] = ()
+    """``(t_s, value)`` in increasing time."""
+
+    def at(self, t_s: float) -> float:
+        value = self.initial
+        for t, v in self.steps:
+            if t_s + 1e-9 >= t:
+                value = v
+        return value
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The reference ``r`` [mm]: ``kind = "sine"`` (built-in, exact preview) or ``"steps"`` (input r)."""
+
+    kind: str = "sine"
+    offset_mm: float = 35.0
+    amplitude_mm: float = 30.0
+    frequency_hz: float = 0.1
+    steps: Profile | None = None
+    """For ``kind = "steps"``: the profile."""
+    preview: str = "advanced"
+    """For ``kind = "steps"``: ``advanced`` (the master feeds ``r(t + Hp Ts)``: exact preview) or ``held``."""
+
+    def at(self, t_s: float) -> float:
+        if self.kind == "sine":
+            return self.offset_mm + self.amplitude_mm * math.sin(2.0 * math.pi * self.frequency_hz * t_s)
+        return self.steps.at(t_s)
+
+
+@dataclass(frozen=True)
+class FmuSpec:
+    """One FMU of the scenario."""
+
+    path: Path | None
+    """The .fmu file; None = built from this checkout's sources."""
+    parameters: Mapping[str, Any] = field(default_factory=dict)
+    """FMU variable name -> value (float, int, or an enumeration item name)."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A parsed, checked scenario file (module docstring)."""
+
+    name: str
+    source: str
+    """Where it came from (file path), for messages."""
+    duration_s: float
+    step_s: float
+    seed: int
+    plant: FmuSpec
+    controller: FmuSpec
+    method: str
+    reference: Reference
+    load: Profile
+    supply: Profile
+    evaluation_samples: tuple[int, int] = (101, 401)
+    description: str = ""
+    expect: "Expectations | None" = None
+    """The ``[expect]`` table (:mod:`tapmuscle.cosim.expect`), None without one."""
+
+    @property
+    def n_samples(self) -> int:
+        """Rows of the result: ``t_k = k step_s`` for ``k = 0 .. duration_s / step_s``."""
+        return int(round(self.duration_s / self.step_s)) + 1
+
+
+_TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "plant", "controller",
+        "reference", "load", "supply", "expect"}
+
+
+class _Reader:
+    """Typed access to one TOML table that names file and key in every error."""
+
+    def __init__(self, source: str, table: Mapping[str, Any], prefix: str = "") -> None:
+        self.source, self.table, self.prefix = source, table, prefix
+
+    def error(self, key: str, message: str) -> ScenarioError:
+        return ScenarioError(f"{self.source}: key '{self.prefix}{key}': {message}")
+
+    def check_keys(self, allowed: set[str]) -> None:
+        for key in self.table:
+            if key not in allowed:
+                raise self.error(key, f"unknown key; allowed here: {', '.join(sorted(allowed))}")
+
+    def number(self, key: str, default: float | None = None, *, lo: float = -math.inf, hi: float = math.inf,
+               lo_open: bool = False) -> float:
+        if key not in self.table:
+            if default is None:
+                raise self.error(key, "missing (a number is required)")
+            return default
+        v = self.table[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.error(key, f"must be a number, got {type(v).__name__} {v!r}")
+        v = float(v)
+        if not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo):
+            raise self.error(key, f"{v!r} is outside {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+        return v
+
+    def integer(self, key: str, default: int, *, lo: int = 0) -> int:
+        v = self.table.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"must be an integer, got {type(v).__name__} {v!r}")
+        if v < lo:
+            raise self.error(key, f"{v!r} must be >= {lo}")
+        return v
+
+    def string(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
+        if key not in self.table:
+            if default is None:
+                raise self.error(key, "missing (a string is required)")
+            return default
+        v = self.table[key]
+        if not isinstance(v, str):
+            raise self.error(key, f"must be a string, got {type(v).__name__} {v!r}")
+        if choices is not None and v not in choices:
+            raise self.error(key, f"{v!r} is not one of {', '.join(choices)}")
+        return v
+
+    def sub(self, key: str, required: bool = False) -> "_Reader":
+        v = self.table.get(key, None)
+        if v is None:
+            if required:
+                raise self.error(key, "missing table")
+            v = {}
+        if not isinstance(v, dict):
+            raise self.error(key, f"must be a table, got {type(v).__name__} {v!r}")
+        return _Reader(self.source, v, f"{self.prefix}{key}.")
+
+    def path(self, key: str, base: Path | None) -> Path | None:
+        if key not in self.table:
+            return None
+        p = Path(self.string(key))
+        p = p if p.is_absolute() or base is None else base / p
+        if not p.is_file():
+            raise self.error(key, f"file {str(p)!r} does not exist")
+        return p
+
+    def profile(self, initial_key: str, value_key: str, default: float, lo: float, hi: float) -> Profile:
+        initial = self.number(initial_key, default, lo=lo, hi=hi)
+        raw = self.table.get("steps", [])
+        if not isinstance(raw, list):
+            raise self.error("steps", f"must be an array of tables {{ t_s = ..., {value_key} = ... }}")
+        steps, last = [], -math.inf
+        for i, item in enumerate(raw):
+            if not isinstance(item, dict):
+                raise self.error(f"steps[{i}]", f"must be a table {{ t_s = ..., {value_key} = ... }}, got {item!r}")
+            r = _Reader(self.source, item, f"{self.prefix}steps[{i}].")
+            r.check_keys({"t_s", value_key})
+            t = r.number("t_s", lo=0.0)
+            if t <= last:
+                raise r.error("t_s", f"{t!r} must be later than the previous step ({last!r})")
+            steps.append((t, r.number(value_key, lo=lo, hi=hi)))
+            last = t
+        return Profile(initial, tuple(steps))
+
+
+def _parameters(r: _Reader) -> dict[str, Any]:
+    params = r.table.get("parameters", {})
+    if not isinstance(params, dict):
+        raise r.error("parameters", f"must be a table of FMU variable name = value, got {params!r}")
+    for key, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise _Reader(r.source, params, f"{r.prefix}parameters.").error(
+                key, f"must be a number or an enumeration name, got {type(value).__name__} {value!r}")
+    return dict(params)
+
+
+def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base: Path | None = None,
+                   default_name: str = "scenario") -> Scenario:
+    """Check a scenario given as a mapping (the parsed TOML); ``base`` resolves relative FMU paths."""
+    top = _Reader(source, data)
+    top.check_keys(_TOP)
+    duration = top.number("duration_s", lo=0.0, hi=1e6, lo_open=True)
+    step = top.number("step_s", 0.1, lo=0.0, hi=60.0, lo_open=True)
+    n = int(round(duration / step)) + 1
+    # Eq. (21)'s window by default; a run too short for it is evaluated whole.
+    window = data.get("evaluation_samples", [101, 401] if n > 401 else [0, n - 1])
+    if (not isinstance(window, list) or len(window) != 2 or not all(isinstance(k, int) and not isinstance(k, bool)
+                                                                   for k in window) or not 0 <= window[0] <= window[1]):
+        raise top.error("evaluation_samples", f"must be [k0, k1] with 0 <= k0 <= k1 integers, got {window!r}")
+    if window[1] >= n:
+        raise top.error("evaluation_samples", f"k1 = {window[1]} is past the last sample k = {n - 1} of a "
+                                              f"{duration:g} s run at step {step:g} s")
+
+    plant_r = top.sub("plant")
+    plant_r.check_keys({"fmu", "parameters"})
+    plant = FmuSpec(plant_r.path("fmu", base), _parameters(plant_r))
+    ctrl_r = top.sub("controller")
+    ctrl_r.check_keys({"fmu", "parameters", "method"})
+    method = ctrl_r.string("method", "ampc_servo", METHODS)
+    controller = FmuSpec(ctrl_r.path("fmu", base), _parameters(ctrl_r))
+    for key in ("method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency"):
+        if key in controller.parameters:
+            raise _Reader(source, controller.parameters, "controller.parameters.").error(
+                key, "is set by the scenario itself (controller.method, step_s, [reference]); set it there")
+    if "seed" in plant.parameters:
+        raise _Reader(source, plant.parameters, "plant.parameters.").error("seed", "set the top-level key 'seed'")
+
+    ref_r = top.sub("reference")
+    kind = ref_r.string("kind", "sine", ("sine", "steps"))
+    if kind == "sine":
+        ref_r.check_keys({"kind", "offset_mm", "amplitude_mm", "frequency_hz"})
+        reference = Reference("sine", ref_r.number("offset_mm", 35.0), ref_r.number("amplitude_mm", 30.0),
+                              ref_r.number("frequency_hz", 0.1, lo=0.0))
+    else:
+        ref_r.check_keys({"kind", "values_mm", "times_s", "preview"})
+        values, times = ref_r.table.get("values_mm"), ref_r.table.get("times_s")
+        for key, seq in (("values_mm", values), ("times_s", times)):
+            if not isinstance(seq, list) or not seq or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in seq):
+                raise ref_r.error(key, f"must be a non-empty array of numbers, got {seq!r}")
+        if len(values) != len(times):
+            raise ref_r.error("times_s", f"has {len(times)} entries, values_mm has {len(values)}")
+        if times[0] != 0 or any(b <= a for a, b in zip(times, times[1:])):
+            raise ref_r.error("times_s", f"must start at 0 and increase, got {times!r}")
+        profile = Profile(float(values[0]), tuple((float(t), float(v)) for t, v in zip(times[1:], values[1:])))
+        reference = Reference("steps", steps=profile, preview=ref_r.string("preview", "advanced",
+                                                                           ("advanced", "held")))
+
+    load_r = top.sub("load")
+    load_r.check_keys({"initial_n", "steps"})
+    load = load_r.profile("initial_n", "load_n", 44.0, 0.0, 500.0)
+    supply_r = top.sub("supply")
+    supply_r.check_keys({"initial_mpa", "steps"})
+    supply = supply_r.profile("initial_mpa", "pressure_mpa", 0.25, 0.0, 1.0)
+    from tapmuscle.cosim.expect import parse_expectations  # noqa: PLC0415 - expect imports this module
+
+    expect = parse_expectations(data["expect"], source=source) if "expect" in data else None
+    return Scenario(name=top.string("name", default_name), source=source, duration_s=duration, step_s=step,
+                    seed=top.integer("seed", 0), plant=plant, controller=controller, method=method,
+                    reference=reference, load=load, supply=supply, evaluation_samples=(window[0], window[1]),
+                    description=top.string("description", ""), expect=expect)
+
+
+def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
+    """The parsed TOML file ``path``; a missing, unreadable or invalid file raises ScenarioError."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: {what} file does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and check a scenario file (module docstring); errors name the file and key.
+
+    Parameters
+    ----------
+    path : path
+        A scenario TOML file (docs/fmu.md); relative FMU paths in it are relative to its folder.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    ScenarioError
+        A missing file, bad TOML, an unknown or out-of-range key (named with the file).
+    """
+    path = Path(path)
+    return parse_scenario(read_toml(path), source=str(path), base=path.parent, default_name=path.stem)

@@ -1,0 +1,342 @@
+"""``tapmuscle sweep``: run a sweep's runs, log each as it finishes, resume, summarise.
+
+Outputs in ``DIR``:
+
+* ``results.csv``: one row per run: ``run_id``, ``status`` (``ok`` / ``failed``), the base
+  ``scenario``, ``method``, ``load_n``, ``supply_mpa``, ``frequency_hz`` (empty for a step reference),
+  ``seed``, the swept fields, the metrics of :data:`tapmuscle.cosim.expect.METRICS`, ``expect`` (``pass``,
+  ``fail: ...`` or empty without expectations), ``error``, ``worker`` and ``fmus`` (first 8 hex digits
+  of the FMU files' SHA-256). While the sweep runs the file is a log: each finished run appends its row
+  (flushed and fsynced), so an interrupted sweep loses nothing it finished. At the end it is rewritten
+  (atomically) with one row per run, the last one logged, in the sweep's order; rows of run ids the
+  sweep no longer has are kept after them.
+* ``summary.md``: per method, runs, failures, expectation violations and the Eq. (21) error's mean,
+  median and maximum; per grid cell where the sweep varies a few discrete values; the failed runs.
+* ``mae_by_method.png`` and, when load, reference frequency, supply or another numeric field varies,
+  ``mae_map.png`` (:mod:`tapmuscle.plots.sweep_figures`).
+
+**Resume.** A rerun of the same sweep into the same ``DIR`` skips every run whose last row is ``ok``
+and was made with the same FMU files; failed runs are run again (their new row replaces the old one at
+the end). A ``results.csv`` with other columns (another sweep, or this one with other swept fields) is
+refused rather than mixed.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+from tapmuscle.cosim.distributed_sweep import FmuFiles, RunResult, RunTask, make_task
+from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
+from tapmuscle.cosim.spec import Scenario, ScenarioError
+from tapmuscle.cosim.sweep import Sweep, SweepRun
+
+__all__ = ["DESCRIPTIVE", "SweepReport", "ResultsLog", "result_columns", "run_sweep", "summary_markdown",
+           "describe_scenario"]
+
+#: Columns that describe every run, whether swept or not.
+DESCRIPTIVE = ("scenario", "method", "load_n", "supply_mpa", "frequency_hz", "seed")
+_TAIL = ("expect", "error", "worker", "fmus")
+
+Executor = Callable[[Sequence[RunTask], FmuFiles], Iterable[RunResult]]
+
+
+def describe_scenario(scenario: Scenario) -> dict[str, Any]:
+    """The :data:`DESCRIPTIVE` columns of a run (initial load and supply, built-in sine frequency)."""
+    return {"method": scenario.method, "load_n": scenario.load.initial, "supply_mpa": scenario.supply.initial,
+            "frequency_hz": scenario.reference.frequency_hz if scenario.reference.kind == "sine" else None,
+            "seed": scenario.seed}
+
+
+def result_columns(sweep: Sweep) -> tuple[str, ...]:
+    """The header of ``results.csv`` for ``sweep``."""
+    swept = tuple(f for f in sweep.fields if f not in DESCRIPTIVE)
+    return ("run_id", "status") + DESCRIPTIVE + swept + tuple(METRICS) + _TAIL
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return repr(value)  # round-trips exactly
+    if isinstance(value, (list, dict)):
+        return json.dumps(value, sort_keys=True)
+    return str(value)
+
+
+class ResultsLog:
+    """``results.csv`` (module docstring): append rows, read the last row per run, rewrite compacted."""
+
+    def __init__(self, path: str | Path, columns: Sequence[str]) -> None:
+        self.path, self.columns = Path(path), tuple(columns)
+
+    def rows(self) -> list[dict[str, str]]:
+        """Every complete row, in file order (a line cut short by a crash is ignored)."""
+        if not self.path.is_file():
+            return []
+        text = self.path.read_text(encoding="utf-8")
+        if not text:
+            return []
+        if not text.endswith("\n"):
+            text = text[:text.rfind("\n") + 1]
+        reader = csv.reader(io.StringIO(text))
+        header = tuple(next(reader, ()))
+        if header != self.columns:
+            extra = sorted(set(header) ^ set(self.columns))
+            raise ScenarioError(f"{self.path}: holds results of another sweep (columns differ: "
+                                f"{', '.join(extra) or 'order'}); write into another --out folder")
+        return [dict(zip(header, row)) for row in reader if len(row) == len(header)]
+
+    def latest(self) -> dict[str, dict[str, str]]:
+        """run_id -> its last row."""
+        return {row["run_id"]: row for row in self.rows()}
+
+    def append(self, row: Mapping[str, Any]) -> None:
+        """Append one row (the header first if the file is new), flushed to disk."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        new = not self.path.is_file() or self.path.stat().st_size == 0
+        if not new:
+            self._drop_partial_line()
+        with open(self.path, "a", encoding="utf-8", newline="") as fh:
+            writer = csv.writer(fh, lineterminator="\n")
+            if new:
+                writer.writerow(self.columns)
+            writer.writerow([_cell(row.get(c)) for c in self.columns])
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def _drop_partial_line(self) -> None:
+        with open(self.path, "rb+") as fh:
+            fh.seek(0, os.SEEK_END)
+            size = fh.tell()
+            fh.seek(max(0, size - 1))
+            if fh.read(1) == b"\n":
+                return
+            fh.seek(0)
+            content = fh.read()
+            fh.truncate(content.rfind(b"\n") + 1)
+
+    def rewrite(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Replace the file with ``rows`` (atomically)."""
+        from tapmuscle.io.recording import atomic_write_text
+
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow(self.columns)
+        for row in rows:
+            writer.writerow([_cell(row.get(c)) for c in self.columns])
+        atomic_write_text(self.path, buf.getvalue())
+
+
+@dataclass(frozen=True)
+class SweepReport:
+    """What :func:`run_sweep` did."""
+
+    total: int
+    skipped: int
+    """Runs already finished in ``results.csv`` (not run again)."""
+    ran: int
+    failed: int
+    """Runs of the sweep whose last row is ``failed``."""
+    violated: int
+    """Runs that finished but miss their expectations."""
+    rows: tuple[dict[str, str], ...]
+    """The final row of every run of the sweep, in its order."""
+
+
+def _expect_cell(expect: Expectations | None, metrics: Mapping[str, float]) -> str:
+    if not expect:
+        return ""
+    outcome = check_expectations(expect, metrics)
+    return "pass" if outcome.passed else "fail: " + "; ".join(outcome.violations)
+
+
+def _row(run: SweepRun, task: RunTask, result: RunResult) -> dict[str, Any]:
+    row: dict[str, Any] = {"run_id": run.run_id, "status": result.status, "scenario": run.base,
+                           **describe_scenario(run.scenario), **dict(run.params), **result.metrics,
+                           "error": result.error, "worker": result.worker, "fmus": task.fmu_tag}
+    if result.status == "ok":
+        row["expect"] = _expect_cell(run.scenario.expect, result.metrics)
+    return row
+
+
+def _metrics_of(row: Mapping[str, str]) -> dict[str, float]:
+    return {m: float(row[m]) for m in METRICS if row.get(m, "") != ""}
+
+
+def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], execute: Executor, *,
+              progress: Callable[..., None] | None = None, plots: bool = True) -> SweepReport:
+    """Run the runs of ``sweep`` not yet finished in ``out/results.csv``, then write the summary.
+
+    Parameters
+    ----------
+    sweep : Sweep
+    out : path
+        Output folder (module docstring).
+    fmus : mapping
+        ``{"MusclePlant": path, "AMPCController": path}`` for runs whose scenario names no FMU file.
+    execute : callable
+        ``execute(tasks, files)`` yielding a :class:`RunResult` per task as it finishes
+        (:func:`tapmuscle.cosim.distributed_sweep.run_serial`, :class:`~tapmuscle.cosim.distributed_sweep.DaskExecutor`).
+    progress : callable, optional
+        Called as ``progress(done, total, detail)`` after each run (``detail``: failed and remaining).
+    plots : bool
+        Write the PNGs.
+
+    Raises
+    ------
+    ScenarioError
+        ``results.csv`` holds another sweep's results.
+    """
+    out = Path(out)
+    log = ResultsLog(out / "results.csv", result_columns(sweep))
+    latest = log.latest()  # refuses another sweep's file before anything runs
+    files = FmuFiles.for_scenarios((r.scenario for r in sweep.runs), fmus)
+    tasks = {run.run_id: make_task(run.run_id, run.scenario, fmus, files) for run in sweep.runs}
+    by_id = {run.run_id: run for run in sweep.runs}
+    todo = [tasks[r.run_id] for r in sweep.runs
+            if not (latest.get(r.run_id, {}).get("status") == "ok"
+                    and latest[r.run_id].get("fmus") == tasks[r.run_id].fmu_tag)]
+    total, skipped = len(sweep.runs), len(sweep.runs) - len(todo)
+    done, failed = skipped, 0
+    if progress is not None:
+        progress(done, total, f"{skipped} already done, {len(todo)} to run")
+    for result in execute(todo, files):
+        log.append(_row(by_id[result.run_id], tasks[result.run_id], result))
+        done += 1
+        failed += result.status != "ok"
+        if progress is not None:
+            progress(done, total, f"{done - skipped - failed} ok, {failed} failed, {total - done} remaining")
+    final = _compact(log, sweep)
+    report = SweepReport(total=total, skipped=skipped, ran=done - skipped,
+                         failed=sum(r["status"] != "ok" for r in final),
+                         violated=sum(r["expect"].startswith("fail") for r in final), rows=tuple(final))
+    _write_summary(sweep, out, final, plots)
+    return report
+
+
+def _compact(log: ResultsLog, sweep: Sweep) -> list[dict[str, str]]:
+    """Rewrite the log with one row per run (expectations re-checked); the sweep's rows in its order."""
+    latest = log.latest()
+    final = []
+    for run in sweep.runs:
+        row = dict(latest[run.run_id])
+        if row["status"] == "ok":
+            row["expect"] = _expect_cell(run.scenario.expect, _metrics_of(row))
+        final.append(row)
+    ids = {run.run_id for run in sweep.runs}
+    log.rewrite(final + [row for rid, row in latest.items() if rid not in ids])
+    return final
+
+
+# ------------------------------------------------------------------------------------------ summary
+def _stats(values: list[float]) -> tuple[str, str, str]:
+    if not values:
+        return ("", "", "")
+    return (f"{statistics.fmean(values):.3f}", f"{statistics.median(values):.3f}", f"{max(values):.3f}")
+
+
+def _value(text: str) -> float | str:
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def _distinct(rows: Sequence[Mapping[str, str]], columns: Sequence[str]) -> list[str]:
+    """``columns`` less repeats and those equal in every row to an earlier one (a swept
+    ``load.initial_n`` next to the ``load_n`` derived from it), which would only repeat an axis."""
+    out: list[str] = []
+    seen: list[list[float | str]] = []
+    for c in columns:
+        values = [_value(row.get(c, "")) for row in rows]
+        if c not in out and values not in seen:
+            out.append(c)
+            seen.append(values)
+    return out
+
+
+def _swept_fields(sweep: Sweep) -> list[str]:
+    """The sweep's own fields that may be an axis of the summary (method and seed are not)."""
+    return [f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")]
+
+
+def _cell_fields(rows: Sequence[Mapping[str, str]], sweep: Sweep) -> list[str]:
+    """Columns that vary over a few discrete values (grid-like), method and seed left out."""
+    out = []
+    for c in _distinct(rows, ["scenario", "load_n", "supply_mpa", "frequency_hz"] + _swept_fields(sweep)):
+        values = {row.get(c, "") for row in rows}
+        if 1 < len(values) <= 12:
+            out.append(c)
+    if "scenario" in out and len(out) > 1:
+        out.remove("scenario")  # the base's name repeats its load and frequency
+    return out
+
+
+def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]]) -> str:
+    """``summary.md``: tables per method (and per grid cell), failed runs (module docstring)."""
+    methods = sorted({row["method"] for row in rows})
+    lines = [f"# Sweep {sweep.name}", ""]
+    if sweep.description:
+        lines += [sweep.description, ""]
+    n_failed = sum(row["status"] != "ok" for row in rows)
+    lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm] "
+              "over the runs that finished.", "",
+              "## Per method", "",
+              "| method | runs | failed | expectations missed | mae mean | mae median | mae max |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for m in methods:
+        sel = [row for row in rows if row["method"] == m]
+        mae = [float(row["mae_mm"]) for row in sel if row["status"] == "ok" and row["mae_mm"] != ""]
+        missed = sum(row["expect"].startswith("fail") for row in sel)
+        lines.append(f"| {m} | {len(sel)} | {sum(r['status'] != 'ok' for r in sel)} | {missed} | "
+                     + " | ".join(_stats(mae)) + " |")
+    cells = _cell_fields(rows, sweep)
+    if cells:
+        lines += ["", f"## Per method and {', '.join(cells)}", "",
+                  "| method | " + " | ".join(cells) + " | runs | failed | mae mean | mae median | mae max |",
+                  "|---|" + "---:|" * (len(cells) + 5)]
+        groups: dict[tuple[str, ...], list[Mapping[str, str]]] = {}
+        for row in rows:
+            groups.setdefault((row["method"],) + tuple(row.get(c, "") for c in cells), []).append(row)
+        for key in sorted(groups, key=lambda k: tuple(_sort_key(v) for v in k)):
+            sel = groups[key]
+            mae = [float(r["mae_mm"]) for r in sel if r["status"] == "ok" and r["mae_mm"] != ""]
+            lines.append("| " + " | ".join(key) + f" | {len(sel)} | {sum(r['status'] != 'ok' for r in sel)} | "
+                         + " | ".join(_stats(mae)) + " |")
+    failed = [row for row in rows if row["status"] != "ok"]
+    if failed:
+        lines += ["", "## Failed runs", ""]
+        lines += [f"- `{row['run_id']}` ({row['scenario']}, {row['method']}): {row['error']}" for row in failed[:50]]
+        if len(failed) > 50:
+            lines.append(f"- ... and {len(failed) - 50} more (results.csv)")
+    missed = [row for row in rows if row["expect"].startswith("fail")]
+    if missed:
+        lines += ["", "## Expectations missed", ""]
+        lines += [f"- `{row['run_id']}` ({row['scenario']}, {row['method']}): {row['expect'][6:]}" for row in missed[:50]]
+    return "\n".join(lines) + "\n"
+
+
+def _sort_key(text: str) -> tuple[int, float, str]:
+    value = _value(text)
+    return (1, math.inf, text) if isinstance(value, str) else (0, value, text)
+
+
+def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool) -> None:
+    from tapmuscle.io.recording import atomic_write_text
+
+    atomic_write_text(out / "summary.md", summary_markdown(sweep, rows))
+    if plots:
+        from tapmuscle.plots.sweep_figures import plot_mae_by_method, plot_mae_map
+
+        numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + _swept_fields(sweep))
+        plot_mae_by_method(rows, out / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method")
+        plot_mae_map(rows, numeric, out / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
+

@@ -1,0 +1,723 @@
+"""The candidate effects the diagnosis knows, and how each is fitted to a recording.
+
+Each :class:`Candidate` names a piece of physics the calibrated plant may have left out, says in plain
+words what it is, lists its parameters (plant parameter, unit, bounds) and fits them: on the training
+samples only (:class:`Problem`), on top of a base model (the calibrated plant, or the plant with
+effects already found). The physics itself is the plant's (``fmu_plant/effect_library.py``), so a
+fitted candidate is just plant parameters, which the plant FMU accepts as they are.
+
+Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds:
+
+* measurement-side effects (``sensor_drift``, ``backlash``) do not feed back into the open-loop
+  simulation, so they are fitted on the base prediction directly (linear least squares; a bounded
+  scalar search), with no re-simulation;
+* ``transport_delay``: the base prediction shifted in time (cubic interpolation) stands in for a
+  delayed command during the search (exact for a time-invariant plant started at rest), then one
+  simulation with the delay;
+* ``load_mismatch``, ``rate_dependent_hysteresis``: Gauss-Newton with a secant slope, each evaluation a
+  simulation of the first ``fit_segment_s`` seconds (stationary effects show in any stretch);
+* ``valve_dead_zone``: in the minute of largest residual (continuing from the base run's checkpoint),
+  every band of one to four consecutive levels when the command is held at few levels (steps);
+  otherwise a fine grid (0.15 V) over the band's centre with a narrow band, then a compass search on
+  the band's two edges between the recorded commands (the cost is piecewise constant in them). Then
+  a finer compass search on the window stretched by a minute on either side;
+* ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
+  Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window; an edge
+  the training blocks cannot place (it falls in a held-out block) goes to the middle of the stretch
+  where the training cost is flat (bisection);
+* ``input_map``: a 1-V dead band at 13 centres over the commanded range as starts, then bounded least
+  squares (trust-region reflective; finite-difference Jacobian, Broyden-updated between) on all six
+  knot coordinates, simulating the first ``fit_segment_s`` seconds per evaluation, at most 70
+  simulations; the straight line closest to the fitted map replaces it when it fits as well.
+
+Every fit ends with one simulation of the whole recording with the fitted parameters, which gives the
+prediction the held-out score is computed on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy import optimize
+from scipy.interpolate import CubicSpline
+
+from fmu_plant import PlantParams
+from fmu_plant.effect_library import backlash_operator, input_map_v
+from fmu_plant.parameters import InputMapParams
+
+from tapmuscle.diagnosis.residual_analysis import located_windows
+from tapmuscle.diagnosis.simulation import Simulator
+
+__all__ = ["ParameterSpec", "Candidate", "Problem", "FitResult", "CANDIDATES", "candidate"]
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One fitted parameter: the plant parameter it sets, its unit and the bounds of the search."""
+
+    key: str
+    """Plant parameter (``group.field``), as the plant FMU names it."""
+    unit: str
+    lo: float
+    hi: float
+
+
+@dataclass
+class Problem:
+    """One recording to explain: measured data, the train/held-out split, the simulator."""
+
+    y_mm: np.ndarray
+    """Measured displacement [mm]."""
+    t_s: np.ndarray
+    u_v: np.ndarray
+    ts_s: float
+    train: np.ndarray
+    """Mask of the training samples (fits see only these)."""
+    test: np.ndarray
+    """Mask of the held-out samples (scores only)."""
+    sim: Simulator
+    noise_mm: float
+    """White-noise level of the residual [mm]."""
+    fit_segment_s: float = 120.0
+    """Stationary effects are fitted on the first this many seconds (whole-run simulations are the cost)."""
+    block_s: float = 10.0
+    """Length of the interleaved training and held-out blocks [s]."""
+
+    @property
+    def n(self) -> int:
+        return len(self.y_mm)
+
+    @property
+    def n_fit(self) -> int:
+        return min(self.n, int(round(self.fit_segment_s / self.ts_s)) + 1)
+
+    def train_residual(self, y_hat: np.ndarray, start: int = 0) -> np.ndarray:
+        """``y - y_hat`` on the training samples from ``start`` over ``len(y_hat)`` samples."""
+        stop = start + len(y_hat)
+        m = self.train[start:stop]
+        return (self.y_mm[start:stop] - y_hat)[m]
+
+
+@dataclass
+class FitResult:
+    """A fitted candidate: its parameter values and its prediction of the whole recording."""
+
+    values: dict[str, float]
+    """Plant parameters to set (``group.field`` -> value), on top of the base model."""
+    y_hat: np.ndarray
+    """Noise-free prediction of the whole recording with those values [mm]."""
+    located: list[tuple[float, float]] | None = None
+    """Where the effect acts, when the fit itself says (a sag's window); otherwise None."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A piece of physics the plant may have left out (module docstring)."""
+
+    name: str
+    """Machine name (the ``effect`` of a finding)."""
+    physics: str
+    """What it is, in plain words (docs/diagnosis.md)."""
+    parameters: tuple[ParameterSpec, ...]
+    fitting: str
+    """How it is fitted."""
+    fit: Callable[[Problem, PlantParams, np.ndarray], FitResult | None]
+    explain: Callable[[dict[str, float]], str]
+    """Plain-words explanation of a fitted value set."""
+
+
+# --------------------------------------------------------------------------------------- helpers
+def _get(params: PlantParams, key: str) -> float:
+    group, _, name = key.partition(".")
+    return float(getattr(getattr(params, group), name))
+
+
+def _full(problem: Problem, base: PlantParams, values: dict[str, float]) -> np.ndarray:
+    return problem.sim.run(base.with_values(**values))[0]
+
+
+def _gauss_newton_1d(resid: Callable[[float], np.ndarray], x0: float, r0: np.ndarray, h: float,
+                     lo: float, hi: float, *, iters: int = 5, tol: float = 0.0) -> float:
+    """Least squares in one parameter: Gauss-Newton with the slope from the last two evaluations."""
+    def clip(x):
+        return min(max(x, lo), hi)
+    xa, ra = x0, r0
+    xb = clip(x0 + h) if clip(x0 + h) != x0 else clip(x0 - h)
+    rb = resid(xb)
+    best = min(((float(ra @ ra), xa), (float(rb @ rb), xb)))
+    for _ in range(iters):
+        if xb == xa:
+            break
+        j = (rb - ra) / (xb - xa)
+        jj = float(j @ j)
+        if jj == 0.0:
+            break
+        xc = clip(xb - float(j @ rb) / jj)
+        if abs(xc - xb) <= tol:
+            break
+        rc = resid(xc)
+        best = min(best, (float(rc @ rc), xc))
+        xa, ra, xb, rb = xb, rb, xc, rc
+    return best[1]
+
+
+def _nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, step: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray, max_evals: int) -> np.ndarray:
+    """Bounded Nelder-Mead (scipy) from ``x0`` with an initial simplex of ``step``."""
+    x0 = np.clip(x0, lo, hi)
+    simplex = [x0] + [np.clip(x0 + np.eye(len(x0))[i] * step[i], lo, hi) for i in range(len(x0))]
+    res = optimize.minimize(cost, x0, method="Nelder-Mead", bounds=list(zip(lo, hi)),
+                            options={"initial_simplex": np.array(simplex), "maxfev": max_evals,
+                                     "xatol": 1e-3, "fatol": 1e-9})
+    return np.clip(res.x, lo, hi)
+
+
+# ------------------------------------------------------------------------------------- fitters
+def _fit_sensor_drift(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult:
+    e = pr.y_mm - y_base
+    a = np.column_stack([np.ones(pr.n), pr.t_s])[pr.train]
+    (offset, rate), *_ = np.linalg.lstsq(a, e[pr.train], rcond=None)
+    offset = float(np.clip(offset, -20.0, 20.0))
+    rate = float(np.clip(rate * 60.0, -10.0, 10.0)) / 60.0
+    values = {"sensor_drift.offset_mm": _get(base, "sensor_drift.offset_mm") + offset,
+              "sensor_drift.rate_mm_per_min": _get(base, "sensor_drift.rate_mm_per_min") + rate * 60.0}
+    return FitResult(values, y_base + offset + rate * pr.t_s)
+
+
+def _backlash_apply(y: np.ndarray, slack: float) -> np.ndarray:
+    out = np.empty_like(y)
+    half = 0.5 * slack
+    state = float(y[0])
+    for k, x in enumerate(y.tolist()):
+        state = backlash_operator(x, state, half)
+        out[k] = state
+    return out
+
+
+def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    if _get(base, "backlash.slack_mm") > 0:
+        return None  # already in the base model
+    drift = _get(base, "sensor_drift.offset_mm") + _get(base, "sensor_drift.rate_mm_per_min") / 60.0 * pr.t_s
+    core = y_base - drift  # the backlash acts before the encoder's drifting zero
+
+    def cost(s):
+        r = pr.train_residual(_backlash_apply(core, s) + drift)
+        return float(r @ r)
+    grid = np.linspace(0.0, 6.0, 25)
+    s0 = grid[int(np.argmin([cost(s) for s in grid]))]
+    res = optimize.minimize_scalar(cost, bounds=(max(0.0, s0 - 0.25), s0 + 0.25), method="bounded",
+                                   options={"xatol": 1e-3})
+    s = float(res.x)
+    return FitResult({"backlash.slack_mm": s}, _backlash_apply(core, s) + drift)
+
+
+def _fit_transport_delay(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    d_base = _get(base, "delay.delay_s")
+    spline = CubicSpline(pr.t_s, y_base)
+    t0 = float(pr.t_s[0])
+
+    def shifted(d):
+        tq = pr.t_s - d
+        return np.where(tq < t0, y_base[0], spline(np.maximum(tq, t0)))
+
+    def cost(d):
+        r = pr.train_residual(shifted(d))
+        return float(r @ r)
+    d_max = min(2.0 - d_base, 20 * pr.ts_s)
+    grid = np.linspace(0.0, d_max, 81)
+    d0 = float(grid[int(np.argmin([cost(d) for d in grid]))])
+    step = grid[1] - grid[0]
+    res = optimize.minimize_scalar(cost, bounds=(max(0.0, d0 - step), min(d_max, d0 + step)), method="bounded",
+                                   options={"xatol": 1e-4})
+    d = float(res.x)
+    if d <= 0.0:
+        return None
+    values = {"delay.delay_s": d_base + d}
+    return FitResult(values, _full(pr, base, values))
+
+
+def _scalar_fit(key: str, h: float, lo: float, hi: float) -> Callable[[Problem, PlantParams, np.ndarray], FitResult]:
+    """A fitter for one smooth plant parameter by Gauss-Newton on the fit segment."""
+    def fit(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult:
+        n_fit = pr.n_fit
+        x0 = _get(base, key)
+
+        def resid(x):
+            return pr.train_residual(pr.sim.run(base.with_values(**{key: x}), stop=n_fit)[0])
+        x = _gauss_newton_1d(resid, x0, pr.train_residual(y_base[:n_fit]), h, lo, hi, tol=1e-3 * h)
+        values = {key: x}
+        return FitResult(values, _full(pr, base, values))
+    return fit
+
+
+def _energetic_window(pr: Problem, e: np.ndarray, length_s: float) -> tuple[int, int]:
+    """Checkpoint ``start`` and ``stop`` of the ``length_s`` window holding most residual energy."""
+    k = max(1, int(round(length_s / pr.ts_s)))
+    if k >= pr.n:
+        return 0, pr.n
+    c = np.convolve(e * e, np.ones(k), mode="valid")
+    a = int(np.argmax(c))
+    starts = [s for s in pr.sim.checkpoints() if s <= a] or [0]
+    return starts[-1], min(pr.n, a + k)
+
+
+#: Consecutive moves to new points of equal cost the dead-zone edge search may make.
+_SIDEWAYS = 4
+
+
+def _edge_search(cost: Callable[[tuple[float, float]], float], lower: float, upper: float,
+                 steps: tuple[float, ...], cuts: np.ndarray) -> tuple[float, float, float]:
+    """Compass search on a band's edges [V] for a cost of ``(centre, width)``; returns the cost and the
+    edges.
+
+    ``cuts`` are the points between consecutive recorded commands (sorted): the cost changes only
+    when an edge crosses a recorded command, so every move takes an edge to the cut nearest to
+    ``step`` away that crosses at least one (no move ends on the plateau it started from). The moves:
+    either edge alone, the band shifted, and the band widened or narrowed, for each of ``steps`` in
+    turn (the band at least 0.02 V wide, within 0..10 V). Shifting moves follow the cost's valleys,
+    where one edge alone cannot move; up to ``_SIDEWAYS`` moves in a row to new points of equal cost
+    walk along a plateau.
+    """
+    seen: dict[tuple[float, float], float] = {}
+
+    def at(a: float, b: float) -> float:
+        key = (round(a, 6), round(b, 6))
+        if key not in seen:
+            seen[key] = cost((0.5 * (a + b), b - a)) if 0.0 <= a <= b - 0.02 and b <= 10.0 else math.inf
+        return seen[key]
+
+    def moved(e: float, d: float) -> float | None:
+        beyond = cuts[cuts > e + 1e-9] if d > 0 else cuts[cuts < e - 1e-9]
+        return None if beyond.size == 0 else float(beyond[np.argmin(np.abs(beyond - (e + d)))])
+    # start on cut points, so that every move crosses a recorded command
+    lower = float(cuts[np.argmin(np.abs(cuts - lower))])
+    upper = float(cuts[np.argmin(np.abs(cuts - upper))])
+    best = at(lower, upper)
+    for step in steps:
+        moves = [(step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step), (step, step), (-step, -step),
+                 (-step, step), (step, -step)]
+        improved, sideways = True, 0
+        while improved:
+            improved = False
+            for da, db in moves:
+                a = moved(lower, da) if da else lower
+                b = moved(upper, db) if db else upper
+                if a is None or b is None:
+                    continue
+                new = (round(a, 6), round(b, 6)) not in seen
+                c = at(a, b)
+                # a few sideways moves onto new points walk along a plateau of equal cost
+                if c < best or (c == best and new and sideways < _SIDEWAYS):
+                    sideways = sideways + 1 if c == best else 0
+                    best, lower, upper, improved = c, a, b, True
+                    break
+    return best, lower, upper
+
+
+#: At most this many distinct commands in the dead-zone search window count as held levels (steps).
+_FEW_LEVELS = 40
+
+
+def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    if _get(base, "dead_zone.width_v") > 0:
+        return None
+    # The band shows only where the command dwells in it or crosses it slowly, which may be anywhere
+    # in the run: search where the residual is largest, continuing from the base run's checkpoint (an
+    # approximation during the search only; the final score is a whole-run simulation).
+    start, stop = _energetic_window(pr, pr.y_mm - y_base, 60.0)
+    lo_u, hi_u = np.percentile(pr.u_v[start:stop], [1, 99])
+    if hi_u - lo_u < 0.3:
+        lo_u, hi_u = lo_u - 0.3, hi_u + 0.3
+
+    def cost(x):
+        c, w = float(x[0]), float(x[1])
+        p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
+        r = pr.train_residual(pr.sim.run(p, start=start, stop=stop)[0], start)
+        return float(r @ r)
+    # The command is held over each sample, so the cost depends only on which recorded commands fall
+    # inside the band: it is piecewise constant in the band's edges, with jumps, and a simplex stalls
+    # on its plateaus. The search moves the edges between the cut points of the recorded commands.
+    def cuts_of(a: int, b: int) -> np.ndarray:
+        levels = np.unique(np.round(pr.u_v[a:b], 3))
+        return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
+    cuts = cuts_of(start, stop)
+    if len(cuts) <= _FEW_LEVELS:
+        # held commands (steps): every band holding one to four consecutive levels
+        bands = [(float(cuts[i]), float(cuts[j])) for i in range(len(cuts)) for j in range(i + 1, min(len(cuts), i + 5))]
+        edges = min(bands, key=lambda e: cost((0.5 * (e[0] + e[1]), e[1] - e[0])))
+    else:
+        # A misplaced band costs far more than no band (the muscle stalls where the rig moves), so the
+        # cost is sharp in the centre: a fine grid with a narrow band, then a compass search on the
+        # edges from the grid's three lowest local minima (in closed loop a band elsewhere can look
+        # alike at first).
+        centres = np.arange(max(0.0, lo_u), min(10.0, hi_u), 0.15)
+        cs = np.array([cost((c, 0.3)) for c in centres])
+        minima = [i for i in range(len(cs))
+                  if (i == 0 or cs[i] <= cs[i - 1]) and (i + 1 == len(cs) or cs[i] <= cs[i + 1])]
+        starts = [float(centres[i]) for i in sorted(minima, key=lambda i: cs[i])[:3]]
+        _, *edges = min(_edge_search(cost, c - 0.15, c + 0.15, (0.2, 0.1), cuts) for c in starts)
+    # Refine on a longer stretch: the stall's memory reaches back before the window (a minute of
+    # run-in), and with held commands (steps) a minute more after it brings in more levels that fall
+    # inside or outside the band.
+    minute = int(round(60.0 / pr.ts_s))
+    start = max([c for c in pr.sim.checkpoints() if c <= start - minute] or [0])
+    stop = min(pr.n, stop + minute)
+    _, lower, upper = _edge_search(cost, *edges, (0.05, 0.02), cuts_of(start, stop))
+    x = (0.5 * (lower + upper), upper - lower)
+    values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
+    if values["dead_zone.width_v"] <= 1e-3:
+        return None
+    return FitResult(values, _full(pr, base, values))
+
+
+def _tightest(cost_at: Callable[[float], float], near: float, far: float, tol: float, resolution: float) -> float:
+    """The point of ``[near, far]`` closest to ``near`` whose cost is within ``tol`` (``far``'s is), by
+    bisection to ``resolution``: the cost is taken to stay within ``tol`` from there to ``far``."""
+    if cost_at(near) <= tol:
+        return near
+    while abs(far - near) > resolution:
+        mid = 0.5 * (near + far)
+        if cost_at(mid) <= tol:
+            far = mid
+        else:
+            near = mid
+    return far
+
+
+def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    if _get(base, "supply_variation.sag_mpa") > 0:
+        return None
+    e = pr.y_mm - y_base
+    wins = located_windows(e, pr.ts_s, noise_mm=pr.noise_mm)
+    if not wins:
+        return None
+    # the window holding most of the residual energy
+    def energy(w):
+        a, b = (int(round(x / pr.ts_s)) for x in w)
+        return float(np.sum(e[a:b + 1] ** 2))
+    a_s, b_s = max(wins, key=energy)
+    ck = [c for c in pr.sim.checkpoints() if c * pr.ts_s <= a_s - 10.0] or [0]
+    start = ck[-1]
+    t_first = start * pr.ts_s
+    stop = min(pr.n, int(round((b_s + 30.0) / pr.ts_s)) + 1)
+    ramp = _get(base, "supply_variation.ramp_s")
+
+    def params(x):
+        s, a, b = float(x[0]), float(x[1]), float(x[2])
+        return base.with_values(**{"supply_variation.sag_mpa": s, "supply_variation.start_s": a,
+                                   "supply_variation.end_s": max(a, b)})
+
+    def cost(x):
+        y = pr.sim.run(params(x), start=start, stop=stop)[0]
+        r = pr.train_residual(y, start)
+        return float(r @ r)
+    # depth: a quick scalar search with the located window, then all three together
+    sags = np.array([0.01, 0.03, 0.06, 0.1])
+    s0 = float(sags[int(np.argmin([cost((s, a_s, b_s)) for s in sags]))])
+    x = _nelder_mead(cost, np.array([s0, a_s, b_s]), np.array([0.5 * s0, 3.0, 3.0]),
+                     np.array([0.0, t_first, t_first]), np.array([0.2, pr.t_s[-1], pr.t_s[-1]]), max_evals=28)
+    # An edge that falls inside a held-out block is invisible to the training cost, which is flat
+    # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike), and
+    # the simplex stops anywhere on the flat stretch. Take its middle: no more than half of it off,
+    # whichever end is true. The stretch is at most about one held-out block long: each edge is probed
+    # half a second either way and, where that fits as well, the stretch's ends found by bisection.
+    c_fit = cost(x)
+    tol = c_fit + max(1e-3 * c_fit, 10.0 * pr.noise_mm ** 2)
+    depth, a, b = float(x[0]), float(x[1]), max(float(x[1]), float(x[2]))
+    block, t_last = pr.block_s + 2.0, float(pr.t_s[-1])
+
+    def flat_middle(cost_at: Callable[[float], float], edge: float, lo: float, hi: float) -> float:
+        ends = []
+        for d, limit in ((-1.0, lo), (1.0, hi)):
+            probe = edge + 0.5 * d
+            if d * (limit - probe) > 0.0 and cost_at(probe) <= tol:
+                ends.append(_tightest(cost_at, edge + d * min(block, d * (limit - edge)), probe, tol, 0.1))
+            else:
+                ends.append(edge)
+        return 0.5 * (ends[0] + ends[1])
+    r0 = pr.train_residual(y_base[start:stop], start)
+    if c_fit < 0.9 * float(r0 @ r0):  # only for a sag that could pass the 10 % acceptance rule
+        b = flat_middle(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
+        a = flat_middle(lambda v: cost((depth, v, b)), a, t_first, b - 0.5)
+    x = (depth, a, b)
+    p = params(x)
+    sv = p.supply_variation
+    if sv.sag_mpa <= 1e-4:
+        return None
+    values = {"supply_variation.sag_mpa": sv.sag_mpa, "supply_variation.start_s": sv.start_s,
+              "supply_variation.end_s": sv.end_s}
+    return FitResult(values, _full(pr, base, values),
+                     located=[(sv.start_s, min(float(pr.t_s[-1]), sv.end_s + ramp))])
+
+
+#: Bounds of the input-map search in its reparameterisation (:func:`_input_map_values`): knots' centre,
+#: knots' spacing [V]; mean output at the knots, output rise between them [V]; slopes of the segments
+#: below and above the knots [-].
+_MAP_LO = np.array([0.05, 0.02, 0.0, 0.0, 0.0, 0.0])
+_MAP_HI = np.array([9.95, 6.0, 10.0, 10.0, 3.0, 3.0])
+#: Finite-difference steps of the input-map Jacobian, well above the solver's tolerance in the cost.
+_MAP_STEP = np.array([0.05, 0.05, 0.05, 0.05, 0.02, 0.02])
+#: Most simulations of the fit segment one input-map fit may run (starts, steps and Jacobians).
+_MAP_SIMULATIONS = 70
+#: Of those, kept for trying a straight line once the search is done.
+_MAP_SIMPLER = 1
+#: Between finite-difference Jacobians, this many Broyden updates (one simulation each, not seven).
+_MAP_BROYDEN = 8
+#: A least-squares run that lowers the cost by less than this share ends the fit; more gain a restart
+#: from a fresh finite-difference Jacobian.
+_MAP_FTOL = 1e-2
+#: The input-map fit stops once the training residual's RMS is within this factor of the noise, or
+#: its energy below this share of the base residual's (RMS 0.3 %: the fit then lacks < 0.3 % of the
+#: base residual's held-out RMS).
+_MAP_DONE_RMS = 1.5
+_MAP_DONE_SHARE = 1e-5
+#: A segment of the input map this flat [V/V] is a dead band (inside the knots) or a saturation (outside).
+_FLAT_GAIN = 0.15
+#: Segments whose gains differ by no more than this [V/V] read as one straight line (gain and offset).
+_SAME_GAIN = 0.1
+
+
+def _input_map_values(x: np.ndarray) -> dict[str, float]:
+    """Plant parameters ``input_map.*`` of the search point ``x`` (see :data:`_MAP_LO`).
+
+    In these coordinates the map's ordering and monotonicity are simple bounds (a spacing, a rise and
+    slopes that are not negative); what the bounds leave open (a knot beyond 0..10 V, an output above
+    10 V) is clipped, which keeps the map, and so the cost, continuous in ``x``.
+    """
+    c, w, vm, dv, s_lo, s_hi = (float(v) for v in x)
+    k1 = min(max(c - 0.5 * w, 0.01), 9.97)
+    k2 = min(max(c + 0.5 * w, k1 + 0.01), 9.99)
+    v1 = min(max(vm - 0.5 * dv, 0.0), 10.0)
+    v2 = min(max(vm + 0.5 * dv, v1), 10.0)
+    return {"input_map.out_at_0_v": min(max(v1 - s_lo * k1, 0.0), v1), "input_map.knot1_in_v": k1,
+            "input_map.knot1_out_v": v1, "input_map.knot2_in_v": k2, "input_map.knot2_out_v": v2,
+            "input_map.out_at_10_v": min(max(v2 + s_hi * (10.0 - k2), v2), 10.0)}
+
+
+class _BudgetSpentError(Exception):
+    """The input-map fit has run its simulations, or reached the noise."""
+
+
+def _fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
+    """Fit the six ``input_map.*`` parameters on the fit segment's training samples, on top of ``base``.
+
+    Returns None when ``base`` already has an input map or no map lowers the training cost.
+    """
+    if not base.input_map.is_identity():
+        return None  # already in the base model
+    n_fit = pr.n_fit
+    r0 = pr.train_residual(y_base[:n_fit])
+    cost_base = float(r0 @ r0)
+    # Done once the training residual is down to the noise (the smaller of the residual's white-noise
+    # level, inflated while the map is still off, and the encoder noise the model states), or to a
+    # sliver of the base residual (no held-out fit left to gain): more steps would only cost time.
+    sp = base.sensor
+    noise = min(pr.noise_mm, math.sqrt(sp.encoder_noise_std_mm ** 2 + sp.encoder_resolution_mm ** 2 / 12.0))
+    done_cost = max(r0.size * (_MAP_DONE_RMS * noise) ** 2, _MAP_DONE_SHARE * cost_base)
+    seen: list[tuple[float, tuple[float, ...]]] = []
+    last: dict[str, np.ndarray] = {}
+    jac_at: dict[str, object] = {}
+
+    def train_cost(x: np.ndarray) -> float:
+        r = pr.train_residual(pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit)[0])
+        return float(r @ r)
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        if len(seen) >= _MAP_SIMULATIONS - _MAP_SIMPLER or (seen and min(seen)[0] <= done_cost):
+            raise _BudgetSpentError
+        y = pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit)[0]
+        r = pr.train_residual(y)
+        seen.append((float(r @ r), tuple(float(v) for v in x)))
+        last["x"], last["r"] = np.array(x, float), r
+        return r
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        # Each simulation costs as much as the whole search step, so the Jacobian is a Broyden update
+        # along the step from where the last one was taken (one simulation), and forward differences
+        # (inward at an upper bound; six more) only at a run's start and every _MAP_BROYDEN updates.
+        x = np.array(x, float)
+        r = last["r"] if "x" in last and np.array_equal(last["x"], x) else resid(x)
+        if not jac_at or jac_at["age"] >= _MAP_BROYDEN:
+            cols = []
+            for i, h in enumerate(_MAP_STEP):
+                h = h if x[i] + h <= _MAP_HI[i] else -h
+                xi = x.copy()
+                xi[i] += h
+                cols.append((resid(xi) - r) / h)
+            j, age = np.column_stack(cols), 0
+        else:
+            j, dx = jac_at["j"], x - jac_at["x"]
+            if float(dx @ dx) > 0.0:
+                j = j + np.outer(r - jac_at["r"] - j @ dx, dx) / float(dx @ dx)
+            age = jac_at["age"] + 1
+        jac_at.update(x=x, r=r, j=j, age=age)
+        return j
+
+    # Starts: a 1-V dead band with slope-1 outer parts, its centre over the commanded range and just
+    # beyond it. Such a band shifts commands above it down and those below it up, so the same starts
+    # serve a gain error about its centre, and one beyond the range is an offset of either sign.
+    lo_u, hi_u = (float(v) for v in np.percentile(pr.u_v[:n_fit], [1, 99]))
+    centres = np.clip(np.linspace(lo_u - 0.5, hi_u + 0.5, 13), _MAP_LO[0], _MAP_HI[0])
+    try:
+        for c in centres:
+            resid(np.array([c, 1.0, c, 0.0, 1.0, 1.0]))
+        while True:  # a run may stop on a poor Broyden Jacobian: restart while that gains
+            before = min(seen)[0]
+            jac_at.clear()
+            optimize.least_squares(resid, np.array(min(seen)[1]), jac=jac, bounds=(_MAP_LO, _MAP_HI),
+                                   method="trf", ftol=_MAP_FTOL, xtol=1e-4, max_nfev=_MAP_SIMULATIONS)
+            if min(seen)[0] > (1.0 - _MAP_FTOL) * before:
+                break
+    except _BudgetSpentError:
+        pass
+    cost, best = min(seen)
+    if cost >= cost_base:
+        return None
+    # A segment with few commands in it is barely identified and its slope may end anywhere, which
+    # would misdescribe the map (a gain error read as three gains, or as a band where no command
+    # fell). Prefer the straight line that is closest to the fitted map at the recorded commands, when
+    # its training cost stays within the noise's energy of the fit's.
+    x = np.array(best)
+    u_fit = pr.u_v[:n_fit]
+    fitted = InputMapParams(**{k.partition(".")[2]: v for k, v in _input_map_values(x).items()})
+    gain, offset = np.polyfit(u_fit, [input_map_v(float(u), fitted) for u in u_fit], 1)
+    k1, k2 = fitted.knot1_in_v, fitted.knot2_in_v
+    line = np.clip([0.5 * (k1 + k2), k2 - k1, offset + gain * 0.5 * (k1 + k2), gain * (k2 - k1), gain, gain],
+                   _MAP_LO, _MAP_HI)
+    if gain > _FLAT_GAIN and train_cost(line) <= (1.0 + _MAP_FTOL) * cost + r0.size * noise ** 2:
+        x = line
+    values = _input_map_values(x)
+    return FitResult(values, _full(pr, base, values))
+
+
+def _explain_input_map(v: dict[str, float]) -> str:
+    """Plain words for a fitted input map: a dead band, a gain and offset error, a saturation, or its
+    three gains."""
+    o0, o10 = v["input_map.out_at_0_v"], v["input_map.out_at_10_v"]
+    k1, v1 = v["input_map.knot1_in_v"], v["input_map.knot1_out_v"]
+    k2, v2 = v["input_map.knot2_in_v"], v["input_map.knot2_out_v"]
+    g_lo, g_mid, g_hi = (v1 - o0) / k1, (v2 - v1) / (k2 - k1), (o10 - v2) / (10.0 - k2)
+    offset = v1 - g_mid * k1  # of the line through the knots
+    if g_mid > _FLAT_GAIN and max(g_lo, g_mid, g_hi) - min(g_lo, g_mid, g_hi) <= _SAME_GAIN:
+        return (f"the valve sees {g_mid:.2f} x the command {offset:+.2f} V (amplifier gain and offset error; "
+                f"a command of 5 V acts as {offset + 5.0 * g_mid:.2f} V)")
+    if g_mid <= _FLAT_GAIN < min(g_lo, g_hi):
+        return (f"the valve sees a command dead band {k1:.2f}-{k2:.2f} V (held at {0.5 * (v1 + v2):.2f} V), "
+                f"gain {g_lo:.2f} below ({v1 - k1:+.2f} V at the band) / {g_hi:.2f} above "
+                f"({v2 - k2:+.2f} V at the band)")
+    parts = []
+    if g_lo <= _FLAT_GAIN:
+        parts.append(f"commands below {k1:.2f} V all act as about {v1:.2f} V")
+    if g_hi <= _FLAT_GAIN:
+        parts.append(f"the command saturates at about {v2:.2f} V above {k2:.2f} V")
+    return ("the valve's command map is distorted: " + "; ".join(parts + [
+        f"gain {g_lo:.2f} below {k1:.2f} V, {g_mid:.2f} up to {k2:.2f} V, {g_hi:.2f} above "
+        f"({k1:.2f} V acts as {v1:.2f} V, {k2:.2f} V as {v2:.2f} V)"]))
+
+
+# ------------------------------------------------------------------------------------ catalogue
+def _fmt(v: float, unit: str, digits: int = 3) -> str:
+    return f"{v:.{digits}g} {unit}"
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate(
+        "rate_dependent_hysteresis",
+        "The muscle's hysteresis grows with the speed of motion: braid-bladder friction is higher when "
+        "sliding faster (the paper's section 4.4 / Fig. 20 remark on 0.2 Hz). A model calibrated at slow "
+        "motion then under-predicts the loop width of fast motion.",
+        (ParameterSpec("friction.rate_gain", "-", 0.0, 3.0),),
+        "Gauss-Newton on friction.rate_gain (the friction level's growth at the reference speed), "
+        "simulating the first fit_segment_s seconds per evaluation.",
+        _scalar_fit("friction.rate_gain", 0.2, 0.0, 3.0),
+        lambda v: (f"the hysteresis grows with speed: friction level x (1 + {v['friction.rate_gain']:.2f} "
+                   f"|v| / v_ref), faster motion lags more than the model says")),
+    Candidate(
+        "valve_dead_zone",
+        "A band of valve commands in which the valves pass no flow (an overlapped or worn spool): while "
+        "the command crosses the band the muscle is shut in and stalls.",
+        (ParameterSpec("dead_zone.center_v", "V", 0.0, 10.0), ParameterSpec("dead_zone.width_v", "V", 0.0, 5.0)),
+        "Search on the band's edges between the recorded commands (every band of 1-4 levels for held "
+        "commands; otherwise a grid over the centre and a compass search), in the minute of largest residual.",
+        _fit_dead_zone,
+        lambda v: (f"the valve passes no flow for commands between "
+                   f"{v['dead_zone.center_v'] - v['dead_zone.width_v'] / 2:.2f} and "
+                   f"{v['dead_zone.center_v'] + v['dead_zone.width_v'] / 2:.2f} V; the muscle stalls there")),
+    Candidate(
+        "transport_delay",
+        "The valve acts on the command late (fieldbus or amplifier latency, a long hose), by any time, "
+        "not only whole samples.",
+        (ParameterSpec("delay.delay_s", "s", 0.0, 2.0),),
+        "Search on the base prediction shifted in time (cubic interpolation; exact for a time-invariant "
+        "plant started at rest), then one simulation with the delay.",
+        _fit_transport_delay,
+        lambda v: f"the valve acts {1000 * v['delay.delay_s']:.0f} ms after the command"),
+    Candidate(
+        "supply_pressure_variation",
+        "The tap-water supply pressure sagged for a while (other taps opened in the building): the muscle "
+        "reaches less contraction for the same command during that time.",
+        (ParameterSpec("supply_variation.sag_mpa", "MPa", 0.0, 0.2), ParameterSpec("supply_variation.start_s", "s", 0.0, 1e6),
+         ParameterSpec("supply_variation.end_s", "s", 0.0, 1e6)),
+        "Window from the residual's location, then Nelder-Mead on depth, start and end, simulating from a "
+        "checkpoint before the window; an edge the training blocks cannot place goes to the middle of the "
+        "stretch where their cost is flat. "
+        "(The ripple parameters are simulated but not fitted.)",
+        _fit_supply_sag,
+        lambda v: (f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from "
+                   f"{v['supply_variation.start_s']:.1f} s to {v['supply_variation.end_s']:.1f} s")),
+    Candidate(
+        "load_mismatch",
+        "The weight on the muscle differs from the nominal load (hook and plate, pulley friction, a "
+        "different weight): the whole displacement range shifts, more at low pressure.",
+        (ParameterSpec("load_mismatch.extra_n", "N", -100.0, 100.0),),
+        "Gauss-Newton on the extra load, simulating the first fit_segment_s seconds per evaluation.",
+        _scalar_fit("load_mismatch.extra_n", 3.0, -100.0, 100.0),
+        lambda v: (f"the muscle carries {abs(v['load_mismatch.extra_n']):.1f} N "
+                   f"{'more' if v['load_mismatch.extra_n'] > 0 else 'less'} than the nominal load")),
+    Candidate(
+        "sensor_drift",
+        "The encoder's zero is offset and drifts (thermal expansion, a slipping scale): the reading is "
+        "the displacement plus a slowly changing offset, whatever the muscle does.",
+        (ParameterSpec("sensor_drift.offset_mm", "mm", -20.0, 20.0),
+         ParameterSpec("sensor_drift.rate_mm_per_min", "mm/min", -10.0, 10.0)),
+        "Linear least squares of the residual on (1, t): no re-simulation (the encoder does not feed back).",
+        _fit_sensor_drift,
+        lambda v: (f"the encoder reads {v['sensor_drift.offset_mm']:+.3f} mm off at t = 0, drifting "
+                   f"{v['sensor_drift.rate_mm_per_min']:+.3f} mm/min")),
+    Candidate(
+        "backlash",
+        "Slack in the cable between the muscle and the encoder's slider: after each reversal the muscle "
+        "moves through the play before the reading follows, a constant-width band whatever the speed.",
+        (ParameterSpec("backlash.slack_mm", "mm", 0.0, 20.0),),
+        "Grid then bounded scalar search on the play, applied to the base prediction (no re-simulation).",
+        _fit_backlash,
+        lambda v: f"the encoder link has {v['backlash.slack_mm']:.2f} mm of play"),
+    Candidate(
+        "input_map",
+        "The valve amplifier's static characteristic differs from the nominal one: a command dead band "
+        "anywhere (spool overlap: outside the band the valve meters as usual, inside it every command "
+        "gives the same opening), a gain or offset error, a saturation. The valve receives a monotone, "
+        "piecewise-linear map of the command instead of the command.",
+        (ParameterSpec("input_map.out_at_0_v", "V", 0.0, 10.0), ParameterSpec("input_map.knot1_in_v", "V", 0.01, 9.97),
+         ParameterSpec("input_map.knot1_out_v", "V", 0.0, 10.0), ParameterSpec("input_map.knot2_in_v", "V", 0.02, 9.99),
+         ParameterSpec("input_map.knot2_out_v", "V", 0.0, 10.0), ParameterSpec("input_map.out_at_10_v", "V", 0.0, 10.0)),
+        "Starts: a 1-V dead band with slope-1 outer parts, centred at 13 commands over and just beyond "
+        "the commanded range; then bounded least squares (trust-region reflective; forward-difference "
+        "Jacobian, Broyden-updated between refreshes) on the knots' centre and spacing, the outputs' mean "
+        "and rise at the knots and the outer slopes (so ordering and monotonicity are bounds), simulating "
+        "the first fit_segment_s seconds per evaluation; at most 70 simulations, fewer once the residual "
+        "is down to the noise. The straight line closest to the fitted map replaces it when it fits as well.",
+        _fit_input_map,
+        _explain_input_map),
+)
+
+
+def candidate(name: str) -> Candidate:
+    """The candidate called ``name`` (``ValueError`` listing the known names otherwise)."""
+    for c in CANDIDATES:
+        if c.name == name:
+            return c
+    raise ValueError(f"unknown effect {name!r}; known: {', '.join(c.name for c in CANDIDATES)}")

@@ -1,0 +1,205 @@
+"""The discriminating experiment: an input that separates explanations the recording could not tell apart.
+
+When the diagnosis ends ``ambiguous``, two or more fitted plants (each the calibrated plant with one
+alternative effect) predict the recording equally well. They still differ elsewhere: a transport
+delay shows on fast reversals, a load mismatch at low pressure, a dead band where the command dwells
+in it. :func:`design_input` searches for a command within the valve's 0..10 V, of a stated duration,
+for which their noise-free predictions differ most: it maximises the **smallest** pairwise distance
+between the alternatives' predicted displacements (every pair must be separated), in units of the
+recording's noise.
+
+Search (each evaluation one simulation per alternative):
+
+1. a library of inputs people run on such rigs: held steps (staircases up and down, random levels,
+   for three hold times), sines (three offsets, two amplitudes, four frequencies) and slow ramps;
+2. from the best few, a seeded random local search that changes one to three held levels (or the
+   sine's offset, amplitude and frequency) at a time and keeps a change that separates better.
+
+The result is a ``tapmuscle record --input csv:`` file: ``t_s, u_v`` and, in ``l_mm`` and one
+``l_<effect>_mm`` column per alternative, what each alternative predicts. Effects that act at given
+times (a supply sag's window) are predicted in the new experiment's own time base from 0 s.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from fmu_plant import PlantParams
+
+from tapmuscle.diagnosis.simulation import Simulator
+
+__all__ = ["Experiment", "design_input", "separation", "write_experiment"]
+
+#: Commands the designed input stays within [V] (the valve's range).
+U_MIN_V, U_MAX_V = 0.0, 10.0
+
+
+@dataclass
+class Experiment:
+    """A designed discriminating input and what each alternative predicts for it."""
+
+    t_s: np.ndarray
+    u_v: np.ndarray
+    predictions: dict[str, np.ndarray] = field(repr=False)
+    """Alternative name -> predicted noise-free displacement [mm]."""
+    separation_sigma: float
+    """Smallest pairwise distance of the predictions, ``|y_i - y_j| / sigma`` (whole run) [-]."""
+    rms_difference_mm: float
+    """Smallest pairwise RMS difference of the predictions [mm]."""
+    description: str
+    """What kind of input it is, in words."""
+    evaluations: int
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+    def to_json(self) -> dict[str, Any]:
+        return {"duration_s": round(self.duration_s, 3), "samples": len(self.t_s),
+                "separation_sigma": round(self.separation_sigma, 2),
+                "min_rms_difference_mm": round(self.rms_difference_mm, 4), "input": self.description,
+                "evaluations": self.evaluations}
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """Recording columns: ``t_s, u_v, l_mm`` (the first alternative's prediction) and one
+        ``l_<name>_mm`` per alternative."""
+        first = next(iter(self.predictions.values()))
+        cols = {"t_s": self.t_s, "u_v": self.u_v, "l_mm": first}
+        for name, y in self.predictions.items():
+            cols[f"l_{name}_mm"] = y
+        return cols
+
+
+def separation(predictions: Sequence[np.ndarray]) -> float:
+    """Smallest pairwise Euclidean distance between predictions [mm] (0 for fewer than two)."""
+    best = math.inf
+    for i in range(len(predictions)):
+        for j in range(i + 1, len(predictions)):
+            best = min(best, float(np.linalg.norm(predictions[i] - predictions[j])))
+    return 0.0 if best == math.inf else best
+
+
+def _held(levels: Sequence[float], hold_s: float, t: np.ndarray) -> np.ndarray:
+    k = np.minimum((t / hold_s).astype(int), len(levels) - 1)
+    return np.clip(np.asarray(levels, float)[k], U_MIN_V, U_MAX_V)
+
+
+def _sine(offset: float, amp: float, freq: float, t: np.ndarray) -> np.ndarray:
+    return np.clip(offset + amp * np.sin(2 * math.pi * freq * t), U_MIN_V, U_MAX_V)
+
+
+def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_s: float = 120.0,
+                 noise_mm: float = 0.01, load_n: float | None = None, seed: int = 0, local_steps: int = 30,
+                 u_span_v: tuple[float, float] = (1.0, 9.0),
+                 progress: Callable[[int, int], None] | None = None) -> Experiment:
+    """Design the input that separates the ``alternatives`` best (module docstring).
+
+    Parameters
+    ----------
+    alternatives : dict of str to PlantParams
+        Name -> fitted plant, at least two.
+    ts_s : float
+        Sampling period of the experiment [s] (the recording's).
+    duration_s : float
+        Length of the experiment [s].
+    noise_mm : float
+        Encoder noise [mm]: the separation is reported in its units.
+    load_n : float, optional
+        Load to run at [N] (default: each plant's own).
+    seed : int
+        Seed of the local search.
+    local_steps : int
+        Local-search moves after the library.
+    u_span_v : (float, float)
+        Commands the library's inputs spread over [V] (within 0..10 V).
+
+    Raises
+    ------
+    ValueError
+        Fewer than two alternatives, or a duration / sampling period that gives fewer than 10 samples.
+    """
+    if len(alternatives) < 2:
+        raise ValueError(f"a discriminating experiment needs at least two alternatives, got {len(alternatives)}")
+    n = int(round(duration_s / ts_s)) + 1
+    if n < 10 or ts_s <= 0:
+        raise ValueError(f"duration_s = {duration_s!r} s at ts_s = {ts_s!r} s gives {n} samples; need at least 10")
+    t = np.arange(n) * ts_s
+    names = list(alternatives)
+    plants = [alternatives[k] if load_n is None else alternatives[k].with_values(**{"load.load_n": load_n})
+              for k in names]
+    evals = 0
+
+    def predict(u: np.ndarray) -> list[np.ndarray]:
+        nonlocal evals
+        evals += 1
+        sim = Simulator(u, ts_s)
+        return [sim.run(p)[0] for p in plants]
+
+    lo, hi = u_span_v
+    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    rng = np.random.default_rng(seed)
+    # the library: (kind, parameters)
+    library: list[tuple[str, tuple]] = []
+    for hold in (2.0, 5.0, 10.0):
+        k = int(math.ceil(duration_s / hold)) + 1
+        up = np.linspace(lo, hi, k)
+        library += [("steps", (tuple(up), hold)), ("steps", (tuple(up[::-1]), hold)),
+                    ("steps", (tuple(np.where(np.arange(k) % 2 == 0, up, up[::-1])), hold)),
+                    ("steps", (tuple(rng.uniform(lo, hi, k)), hold))]
+    for offset in (mid - 0.5 * half, mid, mid + 0.5 * half):
+        for amp in (0.5 * half, half):
+            for freq in (0.05, 0.1, 0.2, 0.4):
+                library.append(("sine", (offset, min(amp, offset - U_MIN_V, U_MAX_V - offset), freq)))
+
+    def build(kind: str, args: tuple) -> np.ndarray:
+        return _held(args[0], args[1], t) if kind == "steps" else _sine(*args, t)
+
+    scored = []
+    for i, (kind, args) in enumerate(library):
+        scored.append((separation(predict(build(kind, args))), kind, args))
+        if progress is not None:
+            progress(i + 1, len(library) + local_steps)
+    scored.sort(key=lambda s: -s[0])
+    best_sep, kind, args = scored[0]
+    # local search from the best: move one to three held levels, or the sine's parameters
+    for step in range(local_steps):
+        if kind == "steps":
+            levels = np.array(args[0], float)
+            idx = rng.choice(len(levels), size=min(len(levels), int(rng.integers(1, 4))), replace=False)
+            levels[idx] = np.clip(levels[idx] + rng.normal(0.0, 1.5, len(idx)), U_MIN_V, U_MAX_V)
+            trial = (tuple(levels), args[1])
+        else:
+            offset, amp, freq = args
+            offset = float(np.clip(offset + rng.normal(0.0, 0.5), 1.0, 9.0))
+            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.2, min(offset, 10.0 - offset)))
+            freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
+            trial = (offset, amp, freq)
+        sep = separation(predict(build(kind, trial)))
+        if sep > best_sep:
+            best_sep, args = sep, trial
+        if progress is not None:
+            progress(len(library) + step + 1, len(library) + local_steps)
+    u = build(kind, args)
+    preds = predict(u)
+    rms = separation(preds) / math.sqrt(n)
+    if kind == "steps":
+        text = f"held levels every {args[1]:g} s between {min(args[0]):.2f} and {max(args[0]):.2f} V"
+    else:
+        text = f"sine {args[0]:.2f} + {args[1]:.2f} sin(2 pi {args[2]:.3f} t) V"
+    return Experiment(t, u, dict(zip(names, preds)), best_sep / max(noise_mm, 1e-12), rms, text, evals)
+
+
+def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequence[str], ts_s: float) -> None:
+    """Write ``exp`` as a ``tapmuscle record --input csv:`` file (atomically)."""
+    from tapmuscle.io.recording import Recording, write_recording
+
+    meta = {"ts_s": f"{ts_s:g}", "source": "tapmuscle diagnose: discriminating experiment",
+            "alternatives": ", ".join(alternatives),
+            "note": f"run it with: tapmuscle record --input csv:{Path(path).name} --duration {exp.duration_s:g}; "
+                    f"predicted separation {exp.separation_sigma:.0f} sigma"}
+    write_recording(path, Recording(exp.columns(), meta))

@@ -1,0 +1,294 @@
+"""Files of a diagnosis: ``diagnosis.json``, the calibrated plant file, ``report.md`` and the figures;
+and :func:`diagnose_files`, the recording-file-in, report-out entry point ``tapmuscle diagnose`` and
+``tapmuscle demo-mismatch`` share. Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.io.plant_file import plant_file_text
+from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
+
+from tapmuscle.diagnosis.candidates import candidate
+from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose
+from tapmuscle.diagnosis.experiment_design import design_input, write_experiment
+from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
+from tapmuscle.diagnosis.simulation import noise_free
+
+__all__ = ["diagnose_files", "write_outputs", "summary_lines", "OUTPUT_FILES", "EXPERIMENT_FILE"]
+
+#: What ``write_outputs`` writes (figures only with ``plots=True``).
+OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residual.png", "overlay.png",
+                "hysteresis.png", "residual_tests.png")
+#: Written as well when the verdict is ``ambiguous`` (one per ambiguous group, numbered from the second).
+EXPERIMENT_FILE = "discriminating_input.csv"
+
+_COLOURS = ("tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
+
+
+def summary_lines(d: Diagnosis) -> list[str]:
+    """The short human summary ``tapmuscle diagnose`` prints."""
+    if d.verdict == "no_significant_mismatch":
+        t = d.tests_before
+        return [f"no significant mismatch: the residual is white noise (whiteness p = {t['whiteness_p']:.2g}, "
+                f"RMS {t['rms_mm']:.4f} mm, noise {t['white_noise_mm']:.4f} mm); held-out fit "
+                f"{d.fit_before_percent:.2f} %"]
+    out = []
+    if d.calibration is not None:
+        changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}" for r in d.calibration.rows
+                            if r.identifiable and abs(r.estimate - r.nominal) > 1e-9 * max(1.0, abs(r.nominal)))
+        out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
+                   f"({changed or 'no constant changed'}; not identifiable: "
+                   f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'})")
+    if d.verdict == "calibration_only":
+        return out + [f"calibration only: the recalibrated plant explains the recording (residual white, "
+                      f"whiteness p = {d.tests_after['whiteness_p']:.2g}); no left-out effect is claimed"]
+    for group in d.ambiguous:
+        out.append(f"ambiguous: {' / '.join(a.effect for a in group)} explain the recording equally well on "
+                   f"held-out data (fits {', '.join(f'{a.fit_after_percent:.2f} %' for a in group)}); "
+                   f"see discriminating_input.csv")
+    out.append(f"{d.verdict}: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_after_percent:.2f} % with "
+               f"{', '.join(d.named) or 'no candidate effect claimed'}")
+    for i, f in enumerate(d.findings, 1):
+        where = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in f.located) or "nowhere in particular"
+        gain = f" (+{f.fit_gain_points:.2f} points)" if f.effect != "unexplained" else ""
+        out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
+    return out
+
+
+def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
+               experiments: list[dict[str, Any] | None] | None = None) -> str:
+    lines = [f"# Mismatch diagnosis of `{recording}`", "",
+             f"Plant model: `{plant}`. Verdict: **{d.verdict}**. Held-out fit (NRMSE, interleaved "
+             f"{int(d.test.sum())} of {len(d.test)} samples): **{d.fit_before_percent:.2f} % -> "
+             f"{d.fit_after_percent:.2f} %**.", ""]
+    if d.calibration is not None:
+        lines += ["## Calibration", "",
+                  f"The nominal constants the recording can identify were re-estimated first (MAP least squares on "
+                  f"the training blocks, prior 20 % sd around nominal; identifiable when the data shrink the sd to "
+                  f"<= 25 % of the prior's). Held-out fit of the calibrated plant without any effect: "
+                  f"**{d.fit_calibrated_percent:.2f} %**.", "",
+                  "| parameter | unit | nominal | estimate | 95 % interval | identifiable |", "|---|---|---|---|---|---|"]
+        for r in d.calibration.rows:
+            lines.append(f"| `{r.parameter}` | {r.unit} | {r.nominal:.5g} | {r.estimate:.5g} | "
+                         f"{r.ci95[0]:.5g} .. {r.ci95[1]:.5g} | {'yes' if r.identifiable else 'no (left nominal)'} |")
+        lines.append("")
+    for i, group in enumerate(d.ambiguous, 1):
+        lines += [f"## Ambiguous ({i}): the held-out data cannot tell these apart", "",
+                  "| alternative | explanation | held-out fit [%] | held-out SSE [mm^2] | vs best: SSE ratio, p |",
+                  "|---|---|---|---|---|"]
+        for a in group:
+            vs = a.evidence.get("versus_best")
+            lines.append(f"| `{a.effect}` | {a.explanation} | {a.fit_after_percent:.2f} | {a.held_out_sse_mm2:.4g} | "
+                         + (f"{vs['sse_ratio']:.3f}, {vs['p_value']:.2g} |" if vs else "best |"))
+        lines.append("")
+        if experiments and i - 1 < len(experiments) and experiments[i - 1] is not None:
+            e = experiments[i - 1]
+            lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
+                      f"alternatives' predictions differ by at least {e['separation_sigma']:.0f} noise sd "
+                      f"({e['min_rms_difference_mm']:.3f} mm RMS). Record it (`tapmuscle record --input csv:{e['file']} "
+                      f"--duration {e['duration_s']:g}`) and diagnose the new recording.", ""]
+    lines += ["## Findings", ""]
+    if not d.findings:
+        lines += ["None: the residual is consistent with sensor noise, so no cause is named.", ""]
+    else:
+        lines += ["| # | effect | explanation | held-out gain [points] | located | regime |", "|---|---|---|---|---|---|"]
+        for i, f in enumerate(d.findings, 1):
+            where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in f.located) or "-"
+            lines.append(f"| {i} | `{f.effect}` | {f.explanation} | {f.fit_gain_points:.2f} | {where} | {f.regime} |")
+        lines.append("")
+        for f in d.findings:
+            if f.parameters:
+                lines.append(f"* `{f.effect}` parameters: " + ", ".join(f"`{k}` = {v:.6g}" for k, v in f.parameters.items()))
+        lines.append("")
+    tb, ta = d.tests_before, d.tests_after
+    lines += ["## Residual tests", "",
+              "| | before | after |", "|---|---|---|",
+              f"| RMS residual [mm] | {tb['rms_mm']:.4f} | {ta['rms_mm']:.4f} |",
+              f"| white-noise level [mm] | {tb['white_noise_mm']:.4f} | {ta['white_noise_mm']:.4f} |",
+              f"| whiteness (Ljung-Box, 25 lags) p | {tb['whiteness_p']:.2g} | {ta['whiteness_p']:.2g} |",
+              f"| autocorrelation lags outside the 99 % band | {tb['autocorrelation_lags_outside']} / 25 "
+              f"| {ta['autocorrelation_lags_outside']} / 25 |",
+              f"| input cross-correlation lags outside the band | {tb['cross_correlation_lags_outside']} / 51 "
+              f"| {ta['cross_correlation_lags_outside']} / 51 |",
+              f"| structured (whiteness rejected and RMS > 1.5 x noise) | {tb['structured']} | {ta['structured']} |", ""]
+    lines += ["## Candidates tried", "", "| round | effect | held-out gain [points] | SSE reduction | p |", "|---|---|---|---|---|"]
+    for c in d.candidates:
+        if c.get("joint"):
+            lines.append(f"| {c['round']} | `{c['effect']}` re-fitted with the calibration | | "
+                         f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
+        elif c["fitted"]:
+            lines.append(f"| {c['round']} | `{c['effect']}` | {c['fit_gain_points']:.3f} | "
+                         f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
+        else:
+            lines.append(f"| {c['round']} | `{c['effect']}` | not fitted (not applicable) | | |")
+    lines += ["", "An effect is accepted when, re-fitted jointly with the calibrated constants, it removes >= 10 % of "
+              "the held-out squared error of the model re-fitted without it, the held-out residual's projection on "
+              "its contribution rejects 'only noise' at p < 0.001, and its contribution exceeds 1.5 x the noise "
+              "(docs/diagnosis.md).", ""]
+    if fmu_check is not None:
+        lines += ["## FMU check", "", f"The plant FMU re-simulated the recording's command; it differs from the "
+                  f"in-process model the fits use by at most {fmu_check['max_abs_difference_mm']:.2e} mm.", ""]
+    lines += ["## Files", "", "* `calibrated_plant.json`: the model with the fitted effects; every `group.field` is a "
+              "parameter of the MusclePlant FMU (set them as start values) and `tapmuscle record --params` reads it.",
+              "* `residual.png`, `overlay.png`, `hysteresis.png`, `residual_tests.png`.",
+              f"* {d.simulations} simulations, {d.elapsed_s:.1f} s.", ""]
+    return "\n".join(lines)
+
+
+def _shade(ax, d: Diagnosis) -> None:
+    for i, f in enumerate(d.findings):
+        for j, (a, b) in enumerate(f.located):
+            ax.axvspan(a, b, color=_COLOURS[i % len(_COLOURS)], alpha=0.12, lw=0,
+                       label=f"located: {f.effect}" if j == 0 else None)
+
+
+def _figures(d: Diagnosis, out: Path, title: str) -> None:
+    t = d.t_s
+    e0, e1 = d.y_mm - d.y_before_mm, d.y_mm - d.y_after_mm
+    fig, ax = plt.subplots(figsize=(10, 3.6))
+    ax.plot(t, e0, lw=0.8, color="0.3", label="before")
+    if d.y_calibrated_mm is not None:
+        ax.plot(t, d.y_mm - d.y_calibrated_mm, lw=0.8, color="tab:green", label="after calibration")
+    if d.named or d.ambiguous:
+        ax.plot(t, e1, lw=0.8, color="tab:blue", label="after calibration and effects")
+    _shade(ax, d)
+    ax.set(xlabel="time [s]", ylabel="residual l_meas - l_sim [mm]", title=f"{title}: residual, located windows shaded")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    save_figure(fig, out / "residual.png")
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
+    a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"model before ({d.fit_before_percent:.2f} %)")
+    if d.y_calibrated_mm is not None:
+        a1.plot(t, d.y_calibrated_mm, color="tab:green", lw=0.9, ls="-.",
+                label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
+    a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"model after ({d.fit_after_percent:.2f} %)")
+    a1.set(ylabel="displacement l [mm]", title=f"{title}: before / after (held-out fit in brackets)")
+    a1.legend(loc="upper right", fontsize=8)
+    a1.grid(alpha=0.3)
+    held = np.where(d.test, 1.0, np.nan)
+    a2.plot(t, e0 * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
+    a2.plot(t, e1 * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
+    a2.set(xlabel="time [s]", ylabel="residual [mm]")
+    a2.legend(loc="upper right", fontsize=8)
+    a2.grid(alpha=0.3)
+    save_figure(fig, out / "overlay.png")
+
+    fig, ax = plt.subplots(figsize=(6, 5))
+    ax.plot(d.u_v, d.y_mm, color="k", lw=0.8, label="recording")
+    ax.plot(d.u_v, d.y_before_mm, color="0.5", lw=0.8, ls="--", label="model before")
+    ax.plot(d.u_v, d.y_after_mm, color="tab:blue", lw=0.8, ls=":", label="model after")
+    ax.set(xlabel="command u [V]", ylabel="displacement l [mm]", title=f"{title}: hysteresis loops")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    save_figure(fig, out / "hysteresis.png")
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6))
+    for key, colour, label in (("before", "0.4", "before"), ("after", "tab:blue", "after")):
+        ac, xc = d.correlations[f"autocorrelation_{key}"], d.correlations[f"cross_correlation_{key}"]
+        a1.stem(ac.lags + (0.15 if key == "after" else 0), ac.values, linefmt=colour, markerfmt=" ", basefmt=" ", label=label)
+        a2.stem(xc.lags + (0.15 if key == "after" else 0), xc.values, linefmt=colour, markerfmt=" ", basefmt=" ", label=label)
+    for ax, c, name in ((a1, d.correlations["autocorrelation_before"], "autocorrelation of the residual"),
+                        (a2, d.correlations["cross_correlation_before"], "cross-correlation input u -> residual")):
+        ax.axhspan(-c.band, c.band, color="tab:orange", alpha=0.2, label="99 % band (white)")
+        ax.set(title=name, ylabel="normalised")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    a2.set_xlabel("lag [samples]")
+    fig.tight_layout()
+    save_figure(fig, out / "residual_tests.png")
+
+
+def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, model_note: str = "",
+                  fmu_check: dict[str, Any] | None = None, plots: bool = True) -> dict[str, Any]:
+    """Write the diagnosis files into ``out``; returns the ``diagnosis.json`` document."""
+    out = Path(out)
+    doc = d.to_json()
+    doc = {**{k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")},
+           "recording": recording, "plant": plant, **{k: v for k, v in doc.items() if k not in
+                                                       ("verdict", "fit_before_percent", "fit_after_percent", "findings")}}
+    if fmu_check is not None:
+        doc["fmu_check"] = fmu_check
+    experiments = []
+    for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
+        experiments.append(_write_experiment(d, group, out, i))
+        entry["discriminating_input"] = None if experiments[-1] is None else experiments[-1]["file"]
+        entry["experiment"] = experiments[-1]
+    atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    atomic_write_text(out / "calibrated_plant.json", plant_file_text(
+        d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
+        + (f" ({model_note})" if model_note else "")))
+    atomic_write_text(out / "report.md", _report_md(d, recording, plant, fmu_check, experiments))
+    if plots:
+        _figures(d, out, Path(recording).stem)
+    return doc
+
+
+def _write_experiment(d: Diagnosis, group: list, out: Path, index: int) -> dict[str, Any] | None:
+    """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``,
+    numbered from the second group on)."""
+    name = "discriminating_input.csv" if index == 0 else f"discriminating_input_{index + 1}.csv"
+    load = float(d.load_n[0]) if d.load_n is not None else None
+    duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
+    exp = design_input({a.effect: a.params for a in group}, ts_s=d.ts_s, duration_s=duration,
+                       noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load)
+    write_experiment(exp, out / name, alternatives=[a.effect for a in group], ts_s=d.ts_s)
+    return {"file": name} | exp.to_json()
+
+
+def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *, plots: bool = True,
+                   progress: Callable[[int, int], None] | None = None, effects: Sequence[str] | None = None,
+                   **options: Any) -> tuple[Diagnosis, dict]:
+    """Read a recording CSV and a plant (file or FMU), diagnose, write the outputs into ``out``.
+
+    Parameters
+    ----------
+    recording : path
+        The rig's recording CSV (docs/recordings.md): ``t_s,u_v,l_mm`` [, ``load_n``, ``p_mpa``].
+    plant : path
+        A MusclePlant FMU or a plant parameter JSON file: the nominal model.
+    out : path
+        Folder for ``diagnosis.json``, ``calibrated_plant.json``, ``report.md`` and the PNGs
+        (docs/diagnosis.md), each written atomically.
+    plots : bool
+        Write the PNGs.
+    progress : callable, optional
+        ``progress(done, total)`` after each candidate fit.
+    effects : sequence of str, optional
+        Limit the candidates to these names (e.g. the alternatives of an ambiguous verdict,
+        re-diagnosed on the recording of the discriminating experiment).
+    **options
+        Passed to :func:`tapmuscle.diagnosis.diagnose` (``block_s``, ``fit_segment_s``,
+        ``calibration``, ...).
+
+    Returns
+    -------
+    (Diagnosis, dict)
+        The diagnosis and the ``diagnosis.json`` document.
+
+    Raises ``tapmuscle.io.recording.RecordingError`` (file, line, column) for a malformed recording,
+    ``PlantSourceError`` for a bad plant, ``ValueError`` for a recording the diagnosis cannot use.
+    """
+    rec: Recording = read_recording(recording)
+    model, kind = load_plant(plant)
+    if effects is not None:
+        options["candidates"] = [candidate(e) for e in effects]
+    cols = rec.columns
+    load = cols.get("load_n")
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
+                 progress=progress, **options)
+    fmu_check = None
+    if kind == "fmu":
+        sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"],
+                                     float(np.median(np.diff(cols["t_s"]))), load)
+        fmu_check = {"max_abs_difference_mm": float(np.max(np.abs(sim_fmu - d.y_before_mm)))}
+    doc = write_outputs(d, out, recording=str(recording), plant=str(plant), fmu_check=fmu_check, plots=plots)
+    return d, doc

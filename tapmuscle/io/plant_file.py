@@ -1,0 +1,44 @@
+"""Plant parameter files: ``{"note": ..., "plant": {group: {field: value}}}`` (JSON).
+
+``tapmuscle record --params`` and ``tapmuscle diagnose --plant`` read them; ``diagnose`` writes the
+calibrated one. Every ``group.field`` is also a parameter of the MusclePlant FMU.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from fmu_plant import PlantParams
+from tapmuscle.errors import TapmuscleError
+
+__all__ = ["PlantFileError", "read_plant_file", "plant_file_text"]
+
+
+class PlantFileError(TapmuscleError, ValueError):
+    """A plant file that cannot be read; the message names the option, the file and the line or key."""
+
+
+def read_plant_file(path: str | Path, option: str) -> PlantParams:
+    """The parameters in ``path`` (the ``"plant"`` mapping, or the whole document if it has none).
+
+    Raises :class:`PlantFileError` prefixed by ``option`` (e.g. ``--params``).
+    """
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PlantFileError(f"{option}: no such file {str(path)!r}") from None
+    except json.JSONDecodeError as exc:
+        raise PlantFileError(f"{option} {path}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
+                             f"{exc.msg}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise PlantFileError(f"{option} {path}: cannot read: {exc}") from None
+    try:
+        return PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data)
+    except ValueError as exc:
+        raise PlantFileError(f"{option} {path}: {exc}") from None
+
+
+def plant_file_text(params: PlantParams, note: str) -> str:
+    """The JSON text of a plant parameter file for ``params``."""
+    return json.dumps({"note": note, "plant": params.to_dict()}, indent=2) + "\n"

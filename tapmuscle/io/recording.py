@@ -1,0 +1,240 @@
+"""Recordings: the CSV format every tapmuscle tool reads and writes (docs/recordings.md).
+
+::
+
+    # tapmuscle recording v1
+    # ts_s: 0.1
+    # load_n: 44
+    # seed: 0
+    # source: tapmuscle record --load 44 --input sine:bias=5,amp=3,freq=0.1 ...
+    t_s,u_v,l_mm,p_mpa,load_n
+    0.1,5.0,0.00,0.0002,44
+    ...
+
+* leading ``#`` lines carry metadata as ``key: value`` (free text; tools use ``ts_s``, ``load_n``,
+  ``seed``, ``source`` when present);
+* one header row; required columns ``t_s,u_v,l_mm``; optional ``p_mpa,load_n,r_mm``; other columns
+  are kept and ignored by tools that do not know them;
+* ``t_s`` strictly increasing; every value a finite number.
+
+:func:`read_recording` raises :class:`RecordingError` (a ``ValueError``) naming the file, line and
+column of the first problem. :func:`write_recording` writes atomically: a temporary file in the same
+folder is renamed over the target, so a failure never leaves a half-written or truncated file.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tapmuscle.errors import TapmuscleError
+
+__all__ = ["Recording", "RecordingError", "read_recording", "write_recording", "atomic_write_text",
+           "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
+
+REQUIRED_COLUMNS = ("t_s", "u_v", "l_mm")
+OPTIONAL_COLUMNS = ("p_mpa", "load_n", "r_mm")
+MAGIC = "tapmuscle recording v1"
+
+
+class RecordingError(TapmuscleError, ValueError):
+    """A recording file that cannot be read; the message names file, line and column."""
+
+
+@dataclass
+class Recording:
+    """A recording in memory: columns as float arrays, plus metadata.
+
+    Attributes
+    ----------
+    columns : dict of str to ndarray
+        At least ``t_s`` [s], ``u_v`` [V], ``l_mm`` [mm]; optionally ``p_mpa`` [MPa],
+        ``load_n`` [N], ``r_mm`` [mm] and any other column.
+    metadata : dict of str to str
+        From the ``# key: value`` lines.
+    """
+
+    columns: dict[str, np.ndarray]
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in REQUIRED_COLUMNS:
+            if name not in self.columns:
+                raise RecordingError(f"recording has no {name!r} column (required: {', '.join(REQUIRED_COLUMNS)})")
+        n = {len(v) for v in self.columns.values()}
+        if len(n) != 1:
+            raise RecordingError(f"recording columns differ in length: "
+                                 f"{ {k: len(v) for k, v in self.columns.items()} }")
+        self.columns = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.columns["t_s"]
+
+    @property
+    def u_v(self) -> np.ndarray:
+        return self.columns["u_v"]
+
+    @property
+    def l_mm(self) -> np.ndarray:
+        return self.columns["l_mm"]
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def ts_s(self) -> float:
+        """Sampling period [s]: the metadata's ``ts_s`` or the median time step."""
+        if "ts_s" in self.metadata:
+            try:
+                return float(self.metadata["ts_s"])
+            except ValueError:
+                pass
+        if len(self.t_s) < 2:
+            raise RecordingError("cannot tell the sampling period of a recording with fewer than 2 rows")
+        return float(np.median(np.diff(self.t_s)))
+
+
+def read_recording(path: str | os.PathLike) -> Recording:
+    """Read a recording CSV (see module docstring).
+
+    Parameters
+    ----------
+    path : path
+        The CSV file: ``t_s,u_v,l_mm`` and optional columns, ``#`` header lines (docs/recordings.md).
+
+    Returns
+    -------
+    Recording
+        The columns as arrays, the header's key-value lines and the sampling period ``ts_s`` [s].
+
+    Raises
+    ------
+    RecordingError
+        Missing file, no header, a missing required column, a duplicate column, a row with the
+        wrong number of fields, a value that is not a finite number, or ``t_s`` not increasing;
+        the message names the file, the line and the column.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such recording file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path}: cannot read recording: {exc}") from None
+
+    metadata: dict[str, str] = {}
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        body = lines[i].lstrip("#").strip()
+        key, sep, value = body.partition(":")
+        if sep and key.strip() and " " not in key.strip():
+            metadata[key.strip()] = value.strip()
+        i += 1
+    if i >= len(lines):
+        raise RecordingError(f"{path}: no header row (expected e.g. 't_s,u_v,l_mm')")
+    header_line = i + 1
+    header = [h.strip() for h in next(csv.reader([lines[i]]))]
+    for name in REQUIRED_COLUMNS:
+        if name not in header:
+            raise RecordingError(f"{path}, line {header_line}: header has no {name!r} column "
+                                 f"(required: {', '.join(REQUIRED_COLUMNS)}; found: {', '.join(header)})")
+    seen = set()
+    for name in header:
+        if name in seen:
+            raise RecordingError(f"{path}, line {header_line}: column {name!r} appears twice")
+        seen.add(name)
+
+    data: list[list[float]] = []
+    linenos: list[int] = []
+    for lineno, row in enumerate(csv.reader(lines[i + 1:]), start=header_line + 1):
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        if len(row) != len(header):
+            raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, header has {len(header)}")
+        values = []
+        for col, cell in zip(header, row):
+            try:
+                v = float(cell)
+            except ValueError:
+                raise RecordingError(f"{path}, line {lineno}, column {col!r}: {cell.strip()!r} is not a number") from None
+            if not math.isfinite(v):
+                raise RecordingError(f"{path}, line {lineno}, column {col!r}: {cell.strip()!r} is not finite")
+            values.append(v)
+        data.append(values)
+        linenos.append(lineno)
+    if not data:
+        raise RecordingError(f"{path}: header but no data rows")
+    arr = np.array(data, dtype=float)
+    t = arr[:, header.index("t_s")]
+    bad = np.nonzero(np.diff(t) <= 0)[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise RecordingError(f"{path}, line {linenos[k]}, column 't_s': time {float(t[k])!r} does not "
+                             f"increase (previous row {float(t[k - 1])!r})")
+    return Recording({name: arr[:, j].copy() for j, name in enumerate(header)}, metadata)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+_FORMATS = {"t_s": "{:.6g}", "u_v": "{:.6f}", "l_mm": "{:.4f}", "p_mpa": "{:.6f}", "load_n": "{:.4g}",
+            "r_mm": "{:.6f}"}
+
+
+def write_recording(path: str | os.PathLike, rec: Recording) -> None:
+    """Write ``rec`` as CSV to ``path`` atomically (see :func:`atomic_write_text`).
+
+    Parameters
+    ----------
+    path : path
+        The CSV file to write (replaced whole, or left as it was on error).
+    rec : Recording
+        Columns (``t_s``, ``u_v``, ``l_mm`` required) and header lines.
+
+    Raises
+    ------
+    RecordingError
+        If any value is not finite (named by column and row); nothing is written then.
+    """
+    names = list(REQUIRED_COLUMNS) + [c for c in OPTIONAL_COLUMNS if c in rec.columns] + \
+        [c for c in rec.columns if c not in REQUIRED_COLUMNS and c not in OPTIONAL_COLUMNS]
+    for name in names:
+        bad = np.nonzero(~np.isfinite(rec.columns[name]))[0]
+        if bad.size:
+            raise RecordingError(f"cannot write {path}: column {name!r} row {int(bad[0]) + 1} is "
+                                 f"{float(rec.columns[name][bad[0]])!r}")
+    buf = io.StringIO()
+    buf.write(f"# {MAGIC}\n")
+    for key, value in rec.metadata.items():
+        buf.write(f"# {key}: {str(value).replace(chr(10), ' ')}\n")
+    buf.write(",".join(names) + "\n")
+    fmts = [_FORMATS.get(n, "{:.10g}") for n in names]
+    cols = [rec.columns[n] for n in names]
+    for k in range(len(rec)):
+        buf.write(",".join(f.format(c[k]) for f, c in zip(fmts, cols)) + "\n")
+    atomic_write_text(path, buf.getvalue())

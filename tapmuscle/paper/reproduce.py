@@ -1,0 +1,212 @@
+"""The paper's experiments (section 4) on the simulated rig: ``tapmuscle paper``.
+
+1. Preliminary identification (section 4.2's fixed predictor): the asymmetric Eq. (1) model,
+   identified by the constrained RLS on the 0.1 Hz identification input at 44 N (240 s), then refined
+   in closed loop (:func:`preliminary_theta`), with noise seed ``--id-seed`` (default: the first noise seed).
+2. Closed loop through the FMUs (MusclePlant and AMPCController co-simulated in fmpy by
+   :mod:`tapmuscle.cosim.master`; the scenario files are ``scenarios/paper/<run>.toml``), Ts = 0.1 s,
+   r = 35 + 30 sin(2 pi f t) mm, 45 s per run, evaluated by Eq. (21) over 10-40 s: the four methods
+   at 44 N and 68 N with f = 0.1 Hz (Tables 6, 7), and MPC/AMPC with servo mechanism at f = 0.2 Hz
+   (Table 9, with Table 8's P(0)); each cell the mean over three noise seeds. The FMU loop gives the
+   direct Python loop's numbers bit for bit (tests/test_scenarios.py).
+3. Outputs: ``paper.json`` (Tables 6, 7, 9), one CSV per run in ``runs/``, tracking and
+   prediction-error PNGs like Figs. 8-19, and the tables printed beside the paper's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping, TextIO, TypeVar
+
+import numpy as np
+
+from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.identification import identify_record
+from fmu_controller.reference import SineReference
+from fmu_plant import Plant, PlantParams
+from fmu_plant.open_loop import run_open_loop
+
+from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
+from tapmuscle.plots.figures import plot_prediction_errors, plot_tracking
+from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
+from tapmuscle.io.signals import parse_input_spec
+
+__all__ = ["PaperRun", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables", "preliminary_theta",
+           "run_paper"]
+
+#: The paper's measured Eq. (21) errors [mm]: table -> load -> method.
+PAPER_TABLES = {
+    "table6": {"44": {"mpc_servo": 0.33, "mpc_ucp": 1.27}, "68": {"mpc_servo": 0.33, "mpc_ucp": 2.25}},
+    "table7": {"44": {"ampc_servo": 0.28, "ampc_ucp": 1.07}, "68": {"ampc_servo": 0.29, "ampc_ucp": 1.40}},
+    "table9": {"44": {"ampc_servo": 0.67, "mpc_servo": 0.80}, "68": {"ampc_servo": 0.68, "mpc_servo": 0.91}},
+}
+
+DURATION_S = 45.0
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class PaperRun:
+    """One closed-loop experiment of section 4."""
+
+    method: str
+    load_n: float
+    frequency_hz: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.method}_{self.load_n:g}N_{self.frequency_hz:g}Hz"
+
+
+PAPER_RUNS: tuple[PaperRun, ...] = tuple(
+    [PaperRun(m, load, 0.1) for load in (44.0, 68.0) for m in ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")]
+    + [PaperRun(m, load, 0.2) for load in (44.0, 68.0) for m in ("mpc_servo", "ampc_servo")])
+
+#: (table, frequency, methods compared, figure numbers of tracking and prediction error)
+_TABLES = (("table6", 0.1, ("mpc_servo", "mpc_ucp"), {44: (8, 9), 68: (10, 11)}),
+           ("table7", 0.1, ("ampc_servo", "ampc_ucp"), {44: (12, 13), 68: (14, 15)}),
+           ("table9", 0.2, ("ampc_servo", "mpc_servo"), {44: (16, 17), 68: (18, 19)}))
+
+
+def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
+    """Section 4.2's fixed predictor, "obtained by a preliminary identification under 44 N".
+
+    The paper does not say on which data. We identify in two stages, both at 44 N:
+
+    1. open loop: Eq. (1) by the constrained RLS on 5 + 3 sin(2 pi 0.1 t) V, 240 s (as Table 3);
+    2. closed loop: 120 s of AMPC with servo mechanism tracking the reference at ``refine_hz``
+       (``tapmuscle paper``: 0.05 Hz, docs/control.md says why), started from stage 1, with its own
+       noise seed (``seed + 1000``); the estimate at the end is frozen.
+
+    Stage 1 alone fits the open-loop data well (docs/identification.md) but its polynomial and
+    A-terms give the hysteresis cancellation H(k) large, nearly cancelling velocity gains; the fixed
+    servo loop then oscillates at the Nyquist rate (measured: 3.7 mm Eq. (21) error at 44 N).
+    Stage 2 gives the estimate the closed loop sees. docs/control.md has the numbers.
+    """
+    rec = run_open_loop(Plant(PlantParams(), seed=seed), parse_input_spec("sine:bias=5,amp=3,freq=0.1"),
+                        duration_s=240.0, ts_s=0.1)
+    stage1 = identify_record(rec["u_v"], rec["l_mm"], ts_s=0.1, model="asymmetric").theta
+    refine = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5), stage1)
+    cols = run_closed_loop(Plant(PlantParams(), seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz),
+                           duration_s=120.0)
+    return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
+
+
+def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | None = None,
+              refine_hz: float = 0.05, fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
+              progress: Callable[[int, int], None] | None = None) -> dict:
+    """Run every experiment of section 4 and write the outputs into ``out`` (see module docstring).
+
+    Each table cell is the mean Eq. (21) error over the noise ``seeds`` (the per-seed values are in
+    ``paper.json``): single runs of the unique-coincidence-point controllers differ by up to 0.3 mm
+    between noise realisations, more than some of the differences the paper reports. The fixed
+    predictor is identified once, with the noise seed ``id_seed`` (default: the first of ``seeds``),
+    and given to the controller FMU as its ``theta0.*`` parameters. Another ``id_seed`` is another
+    preliminary identification experiment, which shows how much the tables owe to that one experiment
+    (docs/control.md). CSVs and figures show the first seed's runs. ``fmus`` defaults to the FMUs
+    built from this checkout (:func:`build_scripts.build_fmus.cached_fmus`).
+    """
+    from build_scripts.build_fmus import cached_fmus
+    from tapmuscle.cosim import PAPER_SCENARIOS, co_simulate, load_scenario
+
+    if not seeds:
+        raise ValueError("seeds must name at least one noise seed")
+    out = Path(out)
+    fmus = dict(fmus) if fmus is not None else cached_fmus()
+    if id_seed is None:
+        id_seed = seeds[0]
+    theta0 = preliminary_theta(id_seed, refine_hz)
+    theta_params = {f"theta0.{n}": float(v) for n, v in zip(ASYMMETRIC.names, theta0)}
+    results: dict[str, dict] = {}
+    total, done = len(PAPER_RUNS) * len(seeds), 0
+    for run in PAPER_RUNS:
+        scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
+        errors, first = [], None
+        for seed in seeds:
+            cols = co_simulate(dataclasses.replace(scenario, seed=seed), fmus, controller_parameters=theta_params)
+            cols.pop("wall_time_s")
+            errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"], scenario.evaluation_samples))
+            if first is None:
+                first = cols
+                meta = {"ts_s": "0.1", "load_n": f"{run.load_n:g}", "seed": str(seed), "method": run.method,
+                        "reference": f"35 + 30 sin(2 pi {run.frequency_hz:g} t) mm",
+                        "eq21_error_mm": f"{errors[0]:.4f}",
+                        "source": f"tapmuscle paper (simulated rig, FMU co-simulation of scenarios/paper/{run.name}.toml)"}
+                write_recording(out / "runs" / f"{run.name}.csv", Recording(cols, meta))
+            done += 1
+            if progress is not None:
+                progress(done, total)
+        err = float(np.mean(errors))
+        results[run.name] = {"run": run, "cols": first, "error": err, "errors": errors}
+        print(f"  {run.name:<24} Eq. (21) error {err:6.3f} mm (seeds {', '.join(f'{e:.3f}' for e in errors)}), "
+              f"u in [{first['u_v'].min():.2f}, {first['u_v'].max():.2f}] V", file=stream)
+
+    tables = paper_tables({name: r["error"] for name, r in results.items()})
+    per_seed = paper_tables({name: r["errors"] for name, r in results.items()})
+    cols_by_table = paper_tables({name: r["cols"] for name, r in results.items()})
+    for table, freq, _, figs in _TABLES:
+        for load in (44, 68):
+            runs = cols_by_table[table][str(load)]
+            fig_t, fig_p = figs[load]
+            plot_tracking(runs, out / f"fig{fig_t:02d}_tracking_{load}N_{freq:g}Hz.png",
+                          title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]})")
+            plot_prediction_errors(runs, out / f"fig{fig_p:02d}_prediction_error_{load}N_{freq:g}Hz.png",
+                                   title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]})")
+    document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
+                "findings": paper_findings(tables), "paper": PAPER_TABLES,
+                "theta0": ASYMMETRIC.to_dict(theta0),
+                "eq21_window_s": [10.0, 40.0]}
+    atomic_write_text(out / "paper.json", json.dumps(document, indent=2) + "\n")
+    print_tables(tables, stream)
+    return document
+
+
+def paper_tables(values: Mapping[str, T]) -> dict[str, dict[str, dict[str, T]]]:
+    """Per-run ``values`` (keyed by :attr:`PaperRun.name`) arranged as Tables 6, 7 and 9:
+    ``table -> load ("44", "68") -> method``, the shape of ``paper.json``."""
+    return {table: {str(load): {m: values[PaperRun(m, float(load), freq).name] for m in methods} for load in (44, 68)}
+            for table, freq, methods, _ in _TABLES}
+
+
+def paper_findings(tables: Mapping[str, Mapping[str, Mapping[str, float]]]) -> dict[str, bool]:
+    """The reproduction targets on Tables 6, 7 and 9 (``paper.json``'s shape), each true where it holds.
+
+    The paper's findings (sections 4.2-4.4): servo beats UCP, fixed and adaptive; the fixed UCP degrades
+    with load (by more than 0.2 mm: its predictor is a 44 N model); AMPC-UCP beats MPC-UCP;
+    AMPC-servo <= MPC-servo at 0.1 Hz and < at 0.2 Hz; and the AMPC-servo error targets,
+    <= 0.30 mm at 0.1 Hz and <= 0.70 mm at 0.2 Hz.
+    """
+    t6, t7, t9 = tables["table6"], tables["table7"], tables["table9"]
+    out: dict[str, bool] = {}
+    for load in ("44", "68"):
+        out[f"servo beats UCP, fixed, {load} N"] = t6[load]["mpc_servo"] < t6[load]["mpc_ucp"]
+        out[f"servo beats UCP, adaptive, {load} N"] = t7[load]["ampc_servo"] < t7[load]["ampc_ucp"]
+        out[f"AMPC-UCP beats MPC-UCP, {load} N"] = t7[load]["ampc_ucp"] < t6[load]["mpc_ucp"]
+        out[f"AMPC-servo <= MPC-servo at 0.1 Hz, {load} N"] = t7[load]["ampc_servo"] <= t6[load]["mpc_servo"]
+        out[f"AMPC-servo < MPC-servo at 0.2 Hz, {load} N"] = t9[load]["ampc_servo"] < t9[load]["mpc_servo"]
+        out[f"AMPC-servo <= 0.30 mm at 0.1 Hz, {load} N"] = t7[load]["ampc_servo"] <= 0.30
+        out[f"AMPC-servo <= 0.70 mm at 0.2 Hz, {load} N"] = t9[load]["ampc_servo"] <= 0.70
+    out["fixed UCP degrades with load"] = t6["68"]["mpc_ucp"] > t6["44"]["mpc_ucp"] + 0.2
+    return out
+
+
+def print_tables(tables: dict, stream: TextIO = sys.stdout) -> None:
+    """Tables 6, 7 and 9: our Eq. (21) errors beside the paper's [mm]."""
+    titles = {"table6": "Table 6 (0.1 Hz, fixed predictor)", "table7": "Table 7 (0.1 Hz, adaptive)",
+              "table9": "Table 9 (0.2 Hz, servo mechanism)"}
+    for table, freq, methods, _ in _TABLES:
+        print(f"\n{titles[table]}: Eq. (21) error [mm], simulated (paper)", file=stream)
+        print(f"{'load':>6}  " + "  ".join(f"{m:>20}" for m in methods), file=stream)
+        for load in ("44", "68"):
+            cells = [f"{tables[table][load][m]:9.3f} ({PAPER_TABLES[table][load][m]:5.2f})" for m in methods]
+            print(f"{load + ' N':>6}  " + "  ".join(f"{c:>20}" for c in cells), file=stream)
+    findings = paper_findings(tables)
+    print(f"\nThe paper's findings: {sum(findings.values())} of {len(findings)} hold (docs/control.md)", file=stream)
+    for name, holds in findings.items():
+        print(f"  {'holds' if holds else 'DOES NOT HOLD':>13}  {name}", file=stream)

@@ -1,0 +1,158 @@
+"""The Python API at the package root: every public name documented, and docs/python-api.md runs.
+
+Like python-control's docstring test: each public function's (and class constructor's) parameters
+must appear in its numpydoc ``Parameters`` section (or, for a dataclass field, in its attribute
+docstring or field metadata); an undocumented argument fails here.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import re
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tapmuscle as tm
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _documented_names(doc: str | None) -> set[str]:
+    """Names listed in the numpydoc Parameters / Attributes / Other Parameters sections."""
+    doc = inspect.cleandoc(doc or "")
+    names: set[str] = set()
+    for section in re.split(r"\n(?=[A-Z][A-Za-z ]+\n-{3,}\n)", doc):
+        head = section.split("\n", 1)[0].strip()
+        if head not in ("Parameters", "Attributes", "Other Parameters", "Keyword Arguments"):
+            continue
+        for line in section.split("\n")[2:]:
+            if line and not line.startswith(" "):
+                for part in line.split(":")[0].split(","):
+                    names.add(part.strip().lstrip("*"))
+    return names
+
+
+def _attribute_docstrings(cls: type) -> set[str]:
+    """Fields of ``cls`` followed by a string literal (attribute docstrings), through its bases."""
+    out: set[str] = set()
+    for klass in cls.__mro__:
+        if klass is object:
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError):
+            continue
+        body = tree.body[0].body
+        for stmt, nxt in zip(body, body[1:]):
+            if (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)
+                    and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)
+                    and isinstance(nxt.value.value, str)):
+                out.add(stmt.target.id)
+    return out
+
+
+def undocumented(obj) -> list[str]:
+    """Parameters of ``obj`` (a function, or a class's constructor) that its documentation omits."""
+    if inspect.isclass(obj):
+        if dataclasses.is_dataclass(obj):
+            documented = _documented_names(obj.__doc__) | _attribute_docstrings(obj)
+            return [f.name for f in dataclasses.fields(obj) if f.init and not f.name.startswith("_")
+                    and f.name not in documented and not f.metadata.get("description")]
+        sig = inspect.signature(obj.__init__)
+        documented = _documented_names(obj.__doc__) | _documented_names(obj.__init__.__doc__)
+    else:
+        sig = inspect.signature(obj)
+        documented = _documented_names(obj.__doc__)
+    return [p for p in sig.parameters if p not in ("self", "cls") and p not in documented]
+
+
+# exceptions take Exception's arguments; their docstring says when they are raised
+PUBLIC = [n for n in tm.__all__ if callable(getattr(tm, n))
+          and not (inspect.isclass(getattr(tm, n)) and issubclass(getattr(tm, n), BaseException))]
+
+
+@pytest.mark.parametrize("name", PUBLIC)
+def test_every_public_parameter_is_documented(name):
+    obj = getattr(tm, name)
+    assert obj.__doc__ and obj.__doc__.strip(), f"tm.{name} has no docstring"
+    missing = undocumented(obj)
+    assert not missing, f"tm.{name}: parameters not in its docstring: {missing}"
+
+
+def test_the_check_fails_on_an_undocumented_argument():
+    def documented(a: int, b: int) -> int:
+        """Add.
+
+        Parameters
+        ----------
+        a, b : int
+            Terms.
+        """
+        return a + b
+
+    def half(a: int, b: int) -> int:
+        """Add.
+
+        Parameters
+        ----------
+        a : int
+            A term.
+        """
+        return a + b
+
+    @dataclasses.dataclass
+    class Settings:
+        """Settings."""
+
+        gain: float = 1.0
+        """Gain [-]."""
+        horizon: int = 5
+
+    assert undocumented(documented) == []
+    assert undocumented(half) == ["b"]
+    assert undocumented(Settings) == ["horizon"]
+
+
+def test_import_is_lazy_and_names_resolve():
+    assert set(tm.__all__) <= set(dir(tm))
+    with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
+        tm.nonexistent  # noqa: B018
+    assert issubclass(tm.UsageError, tm.TapmuscleError) and issubclass(tm.UsageError, ValueError)
+
+
+def _examples() -> list[tuple[str, str]]:
+    """The ``python`` code blocks of docs/python-api.md, with the heading each stands under."""
+    out: list[tuple[str, str]] = []
+    heading, code = "", None
+    for line in (ROOT / "docs" / "python-api.md").read_text().splitlines():
+        if code is not None:
+            if line.startswith("```"):
+                out.append((heading, "\n".join(code)))
+                code = None
+            else:
+                code.append(line)
+        elif line.startswith("```python"):
+            code = []
+        elif line.startswith("#"):
+            heading = line.lstrip("# ").strip()
+    return out
+
+
+@pytest.mark.slow
+def test_the_documented_examples_run(tmp_path, monkeypatch):
+    """Every example of docs/python-api.md, in order, in one namespace (later ones use earlier results);
+    each states what it shows with ``assert``."""
+    monkeypatch.chdir(tmp_path)
+    examples = _examples()
+    assert len(examples) >= 6
+    namespace: dict = {"np": np}
+    for heading, code in examples:
+        try:
+            exec(compile(code, f"docs/python-api.md ({heading})", "exec"), namespace)  # noqa: S102
+        except Exception as exc:  # noqa: BLE001 - name the failing example
+            pytest.fail(f"docs/python-api.md, example under '{heading}': {type(exc).__name__}: {exc}")
