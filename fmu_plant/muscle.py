@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from .parameters import MuscleParams
 
-__all__ = ["MuscleGeometry"]
+__all__ = ["MuscleGeometry", "effective_pressure_mpa", "muscle_force_n"]
 
 
 @dataclass(frozen=True)
@@ -64,3 +64,38 @@ class MuscleGeometry:
         s = 1.0 - l_m / self.rest_length_m
         c = self.cos_alpha0 * s
         return math.sqrt(max(1.0 - c * c, 0.0)) / self.sin_alpha0 * s
+
+
+def effective_pressure_mpa(p_mpa: float, threshold_mpa: float, width_mpa: float) -> float:
+    """Pressure that loads the braid [MPa]: the bladder takes the first ``threshold_mpa``.
+
+    A softplus, ``w ln(1 + exp((p - p_th) / w))``: zero well below the threshold, ``p - p_th`` well
+    above, smooth over ``width_mpa`` (a hard kink acts as a dead zone Eq. (1) cannot follow;
+    docs/plant.md).
+    """
+    arg = (p_mpa - threshold_mpa) / width_mpa
+    return width_mpa * (arg + math.log1p(math.exp(-arg)) if arg > 0.0 else math.log1p(math.exp(arg)))
+
+
+def muscle_force_n(mp: MuscleParams, geo: MuscleGeometry, p_mpa: float, l_mm: float, v_mm_s: float,
+                   z_n: float, load_n: float) -> float:
+    """Net force on the muscle's free end [N], positive contracting (before the extension stop).
+
+    Tondu-Lopez braid force at the effective pressure, minus the bladder's rubber stiffness, the
+    hanging load, viscous damping and the friction state ``z_n`` (friction.py), plus the braid lock
+    near full extension, ``F_lock exp(-l / l_lock)``.
+
+    Parameters
+    ----------
+    mp : MuscleParams
+    geo : MuscleGeometry
+        ``MuscleGeometry.from_params(mp)``.
+    p_mpa, l_mm, v_mm_s, z_n, load_n : float
+        Muscle pressure [MPa], contraction [mm], its rate [mm/s], friction state [N], load [N].
+    """
+    p_eff = effective_pressure_mpa(p_mpa, mp.threshold_pressure_mpa, mp.threshold_width_mpa)
+    force = (p_eff * 1e6 * geo.piston_area_m2(l_mm * 1e-3) - mp.rubber_stiffness_n_per_mm * l_mm - load_n
+             - mp.damping_n_s_per_mm * v_mm_s - z_n)
+    if mp.braid_lock_force_n:
+        force += mp.braid_lock_force_n * math.exp(-l_mm / mp.braid_lock_length_mm)
+    return force

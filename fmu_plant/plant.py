@@ -52,7 +52,7 @@ from .effects import Effect
 from .muscle import MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 from .sensors import quantise
-from .valve import orifice_flow, valve_opening
+from .valve import flow_coefficient, orifice_flow, valve_opening
 
 __all__ = ["Plant", "Measurement", "STATE_NAMES", "MAX_STEP_S"]
 
@@ -683,11 +683,8 @@ class Plant:
     def _valve_flows(self, x: float, p_mpa: float, ps_mpa: float) -> tuple[float, float]:
         """Flows through the supply and drain valves [m^3/s] at spool opening ``x``."""
         vp = self.params.valve
-        xc = 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
-        leak = vp.leak_fraction
-        n = vp.characteristic_exponent
-        k_in = self._k_valve * (leak + (1.0 - leak) * self._gate * xc ** n)
-        k_out = self._k_valve * (leak + (1.0 - leak) * self._gate * (1.0 - xc) ** n)
+        k_in = flow_coefficient(self._k_valve, x, vp.leak_fraction, vp.characteristic_exponent, self._gate)
+        k_out = flow_coefficient(self._k_valve, 1.0 - x, vp.leak_fraction, vp.characteristic_exponent, self._gate)
         return (orifice_flow(k_in, (ps_mpa - p_mpa) * 1e6, self._laminar_pa),
                 orifice_flow(k_out, (p_mpa - self.params.supply.drain_pressure_mpa) * 1e6, self._laminar_pa))
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["valve_opening", "orifice_flow"]
+__all__ = ["valve_opening", "flow_coefficient", "orifice_flow"]
 
 
 def valve_opening(u_v: float, u_min_v: float, u_max_v: float) -> float:
@@ -18,6 +18,19 @@ def valve_opening(u_v: float, u_min_v: float, u_max_v: float) -> float:
     """
     x = (u_v - u_min_v) / (u_max_v - u_min_v)
     return 0.0 if x < 0.0 else 1.0 if x > 1.0 else x
+
+
+def flow_coefficient(k_full: float, opening: float, leak_fraction: float, exponent: float,
+                     gate: float = 1.0) -> float:
+    """Orifice coefficient of a valve at spool ``opening`` (0..1, clipped) [units of ``k_full``].
+
+    ``k = k_full (e + (1 - e) g x^n)``: the leak ``e`` of a closed spool, a quick-opening
+    characteristic ``x^n`` (n = 0.5 makes the bleed circuit's steady pressure proportional to the
+    command, docs/plant.md), and a gate ``g`` (1; 0 in a no-flow band, the ``valve_dead_zone``
+    effect). The supply valve opens with ``x``, the drain valve with ``1 - x``.
+    """
+    x = 0.0 if opening < 0.0 else 1.0 if opening > 1.0 else opening
+    return k_full * (leak_fraction + (1.0 - leak_fraction) * gate * x ** exponent)
 
 
 def orifice_flow(k_m3_s_pa05: float, dp_pa: float, laminar_dp_pa: float) -> float:
