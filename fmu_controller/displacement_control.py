@@ -228,17 +228,17 @@ class DisplacementController:
 
         if self._rls is not None and self._k > 0:
             # Algorithm 1 with phi(k-1) built from the history and the new l(k).
-            phi = state._phi_list()
+            phi = state.phi_list()
             if not math.isfinite(sum(phi)) and not all(map(math.isfinite, phi)):
                 raise ValueError(f"phi must be finite, got {phi}")
-            self.theta = self._rls._advance(np.array(phi), l).copy()
+            self.theta = self._rls.update_unchecked(np.array(phi), l).copy()
             t = self.theta.tolist()
             if self._servo is not None:
-                self._servo._update_model_finite(t[0], t[1], t[2])
+                self._servo.update_model_unchecked(t[0], t[1], t[2])
         else:
             t = self._theta_list
         theta = self.theta
-        state._observe_finite(l, t[0], t[1], t[2])
+        state.observe_unchecked(l, t[0], t[1], t[2])
         if self._delayed:
             return self._step_ahead(l, rl, t, theta, error)
 
@@ -262,9 +262,9 @@ class DisplacementController:
         if self._servo is None:
             res = ucp_move(self.settings.ucp, self._state, theta, u_prev_v=u_prev, r_target_mm=rl[self._ucp_hp])
             return res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
-        h = self._state._hysteresis(t)
+        h = self._state.hysteresis_unchecked(t)
         offset = h / t[2]
-        uc, predicted, constrained = self._servo._solve_lean(l, self._state._l1, uc_prev, xs, rl, offset)
+        uc, predicted, constrained = self._servo.solve_unchecked(l, self._state.l_prev_mm, uc_prev, xs, rl, offset)
         u_raw = uc - offset  # Eq. (5)
         u = u_raw  # = min(max(u_raw, u_min), u_max)
         if self._u_min > u:
@@ -288,10 +288,10 @@ class DisplacementController:
         l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         state.apply(u_now)
         xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)
-        saved = (state._l2, state._l1, state._l0, state._v2, state._v1, state._v0)
-        state._observe_finite(l_next, t[0], t[1], t[2])
+        saved = state.history
+        state.observe_unchecked(l_next, t[0], t[1], t[2])
         u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now)
-        state._l2, state._l1, state._l0, state._v2, state._v1, state._v0 = saved
+        state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._u_next, self._uc_next = u, uc

@@ -360,7 +360,7 @@ def hysteresis_term(theta: Sequence[float] | np.ndarray, state: "ModelState") ->
         raise ValueError(
             f"theta must have length {state.structure.n_params}, got {len(t)}"
         )
-    return float(state._hysteresis(t))
+    return float(state.hysteresis_unchecked(t))
 
 
 def _finite_triplet(name: str, values: Sequence[float]) -> tuple[float, float, float]:
@@ -464,9 +464,9 @@ class ModelState:
         self.apply(u)
         return v
 
-    def _observe_finite(self, l: float, a1: float, a2: float, b1: float) -> float:
-        """:meth:`observe` for a finite python float ``l`` and the linear part of ``theta``
-        (the controller's hot path); same arithmetic."""
+    def observe_unchecked(self, l: float, a1: float, a2: float, b1: float) -> float:
+        """:meth:`observe` without its checks (the controller's per-sample fast path): ``l`` a finite
+        python float and ``a1, a2, b1`` the linear part of ``theta``; same arithmetic, bit for bit."""
         if not self._has_u:
             raise RuntimeError("apply(u) must be called before observe(l)")
         v = l - (a1 * self._l0 + a2 * self._l1 + b1 * self._u)
@@ -477,8 +477,9 @@ class ModelState:
         self._has_u = False
         return v
 
-    def _hysteresis(self, t: list[float]) -> float:
-        """:func:`hysteresis_term` for ``theta`` as a list of ``n_params`` python floats."""
+    def hysteresis_unchecked(self, t: list[float]) -> float:
+        """:func:`hysteresis_term` without its checks (fast path): ``t`` is ``theta`` as a list of
+        ``n_params`` python floats; same arithmetic, bit for bit."""
         l0, l1, l2 = self._l0, self._l1, self._l2
         v1, v2 = self._v1, self._v2
         d0 = l0 - l1
@@ -493,8 +494,24 @@ class ModelState:
             h += t[11] * l0 * l0 + t[12] * l1 * l1 + t[13] * l0 ** 3 + t[14] * l1 ** 3
         return h
 
-    def _phi_list(self) -> list[float]:
-        """:meth:`phi` as a list of python floats."""
+    @property
+    def history(self) -> tuple[float, float, float, float, float, float]:
+        """``(l(k-2), l(k-1), l(k), v(k-2), v(k-1), v(k))`` [mm]: the displacements and virtual
+        hysteresis outputs the state holds (the controller's one-sample-ahead evaluation saves
+        and restores them with :meth:`restore_history`)."""
+        return self._l2, self._l1, self._l0, self._v2, self._v1, self._v0
+
+    def restore_history(self, history: tuple[float, float, float, float, float, float]) -> None:
+        """Put back a :attr:`history` taken earlier (the input ``u`` is not part of it)."""
+        self._l2, self._l1, self._l0, self._v2, self._v1, self._v0 = history
+
+    @property
+    def l_prev_mm(self) -> float:
+        """``l(k-1)`` [mm]: the displacement before the last one observed."""
+        return self._l1
+
+    def phi_list(self) -> list[float]:
+        """:meth:`phi` as a list of python floats (fast path: no array is built)."""
         if not self._has_u:
             raise RuntimeError("apply(u) must be called before phi()")
         terms = _regressor_terms(self._l0, self._l1, self._l2, self._u, self._v1, self._v2)

@@ -21,29 +21,8 @@ where ``offset = H(k) / b1`` is the hysteresis-cancellation term of Eq. (5)
 
 Condensed QP
 ------------
-Let ``D = [Delta u_c(k|k), ..., Delta u_c(k+Hu-1|k)]`` and the data vector
-``z = [l(k), l(k-1), u_c(k-1), x_s(k), r(k), ..., r(k+Hp)]``.  With the impulse
-response ``h_n = C A^n B`` and step response ``s_i = sum_{n<i} h_n``::
-
-    l_hat(k+i|k) = C A^i x(k) + s_i u_c(k-1) + sum_{m<min(i,Hu)} s_{i-m} D_m
-    L   = F z + G D                      (Hp predictions, G[i-1, m] = s_{i-m})
-    X_s = S0 z - H D,   H = M G          (M: strictly lower-triangular ones)
-
-so ``J = 0.5 D^T P D + (K z)^T D + const`` with
-``P = 2 (G^T Q G + R + H^T Qs H)`` and ``K = 2 (G^T Q E0 - H^T Qs S0)``
-(``E0 = F - [r(k+1..k+Hp) selector]``).  Internally Eq. (15) is kept as the
-sum of squares of the stacked residual ``[E0 z + G D; S0 z - H D; D]`` with
-rows scaled by ``sqrt([Q; Qs; R])``, from which ``P``, ``K`` (as Gram blocks)
-and the cost are formed.  One matrix ``B`` maps ``[D; z]`` to that residual
-followed by the predictions ``L``, ``X_s`` and the input plan, so cost,
-predictions and plan of any moves are one matrix-vector product.  ``B`` is
-affine in the step response and the rows ``C A^n``; that map is tabulated at
-construction, so a new model costs one matrix-vector product for ``B`` (only
-its model-dependent entries are rewritten, in place), one small matrix product
-for ``P``, ``K`` and one Cholesky solve for ``-P^{-1} K``.
-The constraint matrix is the cumulative-sum matrix ``S`` (``u_c(k+i|k) =
-u_c(k-1) + (S D)_i``).  ``P`` and ``K`` depend on ``(a1, a2, b1)`` only, ``S``
-never changes.
+Eq. (15)-(19) as a QP in the moves ``D`` with data ``z``: :mod:`fmu_controller.servo_qp`
+(:class:`~fmu_controller.servo_qp.CondensedServoQP` builds and updates its matrices).
 
 Solution strategy
 -----------------
@@ -96,7 +75,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 from scipy.linalg.lapack import dgesv as _dgesv
-from scipy.linalg.lapack import dposv as _dposv
+
+from .servo_qp import CondensedServoQP
 
 _cumsum = np.add.accumulate  # = np.cumsum for 1-d arrays, less call overhead
 
@@ -353,66 +333,19 @@ class ServoMPC:
         self.settings = settings
         hp, hu = settings.hp, settings.hu
         self._hp, self._hu = hp, hu
-        nz = self._nz = 4 + hp + 1  # z = [l, l_prev, uc_prev, xs, r(k..k+Hp)]
-        nres = self._nres = 2 * hp + hu  # residual rows of Eq. (15)
+        self._nz = 4 + hp + 1  # z = [l, l_prev, uc_prev, xs, r(k..k+Hp)]
+        self._nres = 2 * hp + hu  # residual rows of Eq. (15)
         Q, Qs, R = settings.weights()
         self._u_min, self._u_max = settings.u_min_v, settings.u_max_v
         self._shortcut = not settings.always_osqp
-        self._S = np.tril(np.ones((hu, hu)))       # u_c(k+i) = uc_prev + (S D)_i
+        self._S = np.tril(np.ones((hu, hu)))       # u_c(k+i) = uc_prev + (S D)_i (Eq. (20))
         self._ones_hu = np.ones(hu)
         self._zeros_hu = np.zeros(hu)
         self._zeros_hu.setflags(write=False)       # shared zero dual warm start
         self._zeros_list = [0.0] * hu
 
-        # The stacked matrix B maps v = [D; z] (Hu moves, then the nz data) to
-        #   rows 0..Hp-1           sqrt(Q)  (l_hat(k+i|k) - r(k+i)),  i = 1..Hp
-        #   rows Hp..2Hp-1         sqrt(Qs) x_s(k+i|k),               i = 1..Hp
-        #   rows 2Hp..2Hp+Hu-1     sqrt(R)  D
-        #   rows 2Hp+Hu..          l_hat(k+i|k), then x_s(k+i|k)      (predictions)
-        #   last Hu rows           u_c(k+i|k) = u_c(k-1) + (S D)_i    (input plan)
-        # so Eq. (15) is |first nres rows of B v|^2 and P/2, K/2 are Gram blocks.
-        # Unweighted, B = B0 + Lmap @ [G | F]; the model enters only through
-        # [G | F] (Hp rows), whose entries are taken from
-        # x = [s_1..s_Hp, p_1..p_Hp, q_1..q_Hp] (step response, rows C A^n).
-        c = hu  # first z column
-        B0 = np.zeros((nres + 2 * hp + hu, hu + nz))
-        B0[np.arange(hp), c + 5 + np.arange(hp)] = -1.0            # - r(k+i)
-        B0[hp:2 * hp, c + 0] = -1.0                                 # - l(k|k)
-        B0[hp:2 * hp, c + 3] = 1.0                                  # + x_s(k)
-        B0[hp:2 * hp, c + 4:c + 4 + hp] = np.tril(np.ones((hp, hp)))  # + r(k..k+i-1)
-        B0[2 * hp:nres, :hu] = np.eye(hu)                           # + D
-        B0[nres + hp:nres + 2 * hp] = B0[hp:2 * hp]                 # x_s again, unweighted
-        B0[nres + 2 * hp:, :hu] = self._S                           # u_c(k-1) + S D
-        B0[nres + 2 * hp:, c + 2] = 1.0
-        M = np.tril(np.ones((hp, hp)), -1)  # x_s(k+i) sums l_hat(k+1..k+i-1)
-        Lmap = np.vstack([np.eye(hp), -M, np.zeros((hu, hp)), np.eye(hp), -M, np.zeros((hu, hp))])
-        # [G | F] = [0, x][gf_idx]: G[i-1, m] = s_{max(i-m, 0)} (s_0 = 0),
-        # F[i-1, :3] = [p_i, q_i, s_i], other columns of F zero
-        gf_idx = np.zeros((hp, hu + nz), dtype=np.intp)
-        i, m = np.meshgrid(np.arange(1, hp + 1), np.arange(hu), indexing="ij")
-        gf_idx[:, :hu] = np.maximum(i - m, 0)
-        gf_idx[:, c + 0] = hp + np.arange(1, hp + 1)
-        gf_idx[:, c + 1] = 2 * hp + np.arange(1, hp + 1)
-        gf_idx[:, c + 2] = np.arange(1, hp + 1)
-
-        def unweighted(x: np.ndarray) -> np.ndarray:
-            return B0 + Lmap @ np.concatenate([[0.0], x])[gf_idx]
-
-        # B is affine in x: tabulate it once (exact: integer entries) so that a
-        # model update is a single matrix-vector product, B = T @ [x; 1]
-        nx = 3 * hp
-        base = unweighted(np.zeros(nx))
-        cols = [(unweighted(e) - base).ravel() for e in np.eye(nx)] + [base.ravel()]
-        row_scale = np.concatenate([np.sqrt(Q), np.sqrt(Qs), np.sqrt(R), np.ones(2 * hp + hu)])
-        self._T = np.stack(cols, axis=1) * np.repeat(row_scale, hu + nz)[:, None]
-        self._B_shape = B0.shape
-        # Most entries of B do not depend on the model (104 of 450 for Table 5): keep B as
-        # one buffer holding the constant ones and rewrite only the rows of T that have a
-        # model coefficient (the same row-times-[x; 1] products, ~2x cheaper than all of T).
-        self._B_var = np.flatnonzero(np.any(self._T[:, :-1] != 0.0, axis=1))
-        self._T_var = np.ascontiguousarray(self._T[self._B_var])
-        self._B = self._T[:, -1].reshape(B0.shape).copy()  # x = 0: the constant entries
-        self._B_flat = self._B.reshape(-1)                  # a view: writes go to self._B
+        self._qp = CondensedServoQP(hp, hu, Q, Qs, R)
+        self._B = self._qp.B  # updated in place by the QP's set_model
 
         # Fixed CSC patterns: P dense upper triangle, A = S dense lower
         # triangle.  Explicit (data, indices, indptr) so that an entry that
@@ -473,8 +406,9 @@ class ServoMPC:
         self._set_model(*new)
         self._a1, self._a2, self._b1 = new
 
-    def _update_model_finite(self, a1: float, a2: float, b1: float) -> None:
-        """:meth:`update_model` for python floats known to be finite (the controller's RLS output)."""
+    def update_model_unchecked(self, a1: float, a2: float, b1: float) -> None:
+        """:meth:`update_model` without the finiteness checks (fast path): ``a1, a2, b1`` are python
+        floats known to be finite (the controller's RLS output); ``|b1|`` is still checked."""
         if a1 == self._a1 and a2 == self._a2 and b1 == self._b1:
             return
         if not abs(b1) >= _B1_MIN:
@@ -492,54 +426,26 @@ class ServoMPC:
         return a1, a2, b1
 
     def _set_model(self, a1: float, a2: float, b1: float) -> None:
-        """Condensed matrices of the module docstring for ``(a1, a2, b1)`` (numpy only)."""
-        hp, hu, nres = self._hp, self._hu, self._nres
-        # rows C A^n = [p_n, q_n] by [p, q] A = [a1 p + q, a2 p]; impulse
-        # response h_n = C A^n B = b1 p_n, step response s_n = sum_{m<n} h_m
-        x = [0.0] * (3 * hp + 1)  # [s_1..s_Hp, p_1..p_Hp, q_1..q_Hp, 1]
-        x[-1] = 1.0
-        p, q, s = 1.0, 0.0, 0.0
-        for n in range(hp):
-            s += b1 * p
-            p, q = a1 * p + q, a2 * p
-            x[n] = s
-            x[hp + n] = p
-            x[2 * hp + n] = q
-        # B = T [x; 1] (reshaped), in place: only the model-dependent entries change.
-        # Nothing keeps a view of the old B (results hold products of it, not views).
-        B = self._B
-        self._B_flat[self._B_var] = self._T_var.dot(x)
-        # [P/2 | K/2] = Gall^T [Gall | W] with [Gall | W] the weighted residual rows
-        Gall = B[:nres, :hu]
-        H = Gall.T.dot(B[:nres])
-        # unconstrained minimiser D* = -P^{-1} K z; P is SPD (R > 0): Cholesky
-        _, X, info = _dposv(H[:, :hu], H[:, hu:])
-        if info != 0:  # not numerically positive definite: general LU solve
-            X = np.linalg.solve(H[:, :hu], H[:, hu:])
-        self._K_unc = np.negative(X)
-        self._B, self._H = B, H
-        self._P = self._K = None  # OSQP-path matrices, built on demand by _qp_matrices
+        """The condensed QP for ``(a1, a2, b1)`` (numpy only; OSQP gets it in :meth:`_push_model`)."""
+        self._qp.set_model(a1, a2, b1)
+        self._K_unc = self._qp.K_unc
 
     @property
     def _Gall(self) -> np.ndarray:
         """Weighted residual rows of ``B``, move columns (OSQP path and :meth:`cost` only)."""
-        return self._B[:self._nres, :self._hu]
+        return self._qp.G_weighted
 
     @property
     def _W(self) -> np.ndarray:
         """Weighted residual rows of ``B``, data columns."""
-        return self._B[:self._nres, self._hu:]
+        return self._qp.W_weighted
 
     def _qp_matrices(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(P, K)`` of the module docstring for the current model (cached)."""
-        if self._P is None:
-            Ph = self._H[:, :self._hu]
-            self._P = Ph + Ph.T                    # = 2 * sym(P/2), bit-symmetric for OSQP
-            self._K = 2.0 * self._H[:, self._hu:]
-        return self._P, self._K
+        """``(P, K)`` of the condensed QP for the current model (cached)."""
+        return self._qp.matrices()
 
     def _Px(self) -> np.ndarray:
-        return self._qp_matrices()[0][self._p_rows, self._p_cols]
+        return self._qp.matrices()[0][self._p_rows, self._p_cols]
 
     def _push_model(self) -> None:
         # OSQP recomputes its Ruiz scaling from (P, A, q) on a matrix update
@@ -828,7 +734,7 @@ class ServoMPC:
                 return result
         return self._solve_osqp(v, uc_prev, offset, t0)
 
-    def _solve_lean(self, l_mm: float, l_prev_mm: float, uc_prev_v: float, xs: float,
+    def solve_unchecked(self, l_mm: float, l_prev_mm: float, uc_prev_v: float, xs: float,
                     r_future: list[float], offset_v: float) -> tuple[float, float, bool]:
         """:meth:`solve` for the controller's hot path: ``(uc_v, l_hat(k+1|k), constrained)``.
 

@@ -102,8 +102,7 @@ def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, step
         raise ValueError(f"u must be finite, got {u}")
     a1, a2, b1 = lin
     n = state.structure.n_params
-    l2, l1, l0 = state._l2, state._l1, state._l0
-    v2, v1, v0 = state._v2, state._v1, state._v0
+    l2, l1, l0, v2, v1, v0 = state.history
     out = []
     for _ in range(steps):
         terms = _regressor_terms(l0, l1, l2, u, v1, v2)

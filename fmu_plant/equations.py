@@ -12,7 +12,7 @@ docs/plant.md states them:
     m \\ddot l = F(p, l, \\dot l, z) \\;(\\text{0 on the extension stop}), \\qquad
     \\dot z = |\\dot l| / \\delta\\,(s F_s - z)
 
-The simulator integrates a hand-fused copy of the same equations (``plant._build_model``: plain-float
+The simulator integrates a hand-fused copy of the same equations (``rosenbrock.build_model``: plain-float
 closures, no function calls in the hot path, plus the Jacobian its Rosenbrock scheme needs).
 ``tests/test_equations.py`` checks the two against each other at thousands of states and the
 Jacobian against finite differences of this definition, so an edit to the physics modules that is

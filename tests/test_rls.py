@@ -19,7 +19,7 @@ from fmu_controller.rls import (
     TABLE2_UPPER,
     ConstrainedRLS,
     RLSSettings,
-    _BoxProjector,
+    BoxProjector,
     project_onto_box,
 )
 from synthetic import TABLE3, NO_BOX, excitation, generate
@@ -278,14 +278,14 @@ def test_active_set_fast_path_equals_full_enumeration():
         one_sided = rng.random(m) < 0.2
         lower[boxed[one_sided & (rng.random(m) < 0.5)]] = -np.inf
         upper[boxed[one_sided & np.isfinite(lower[boxed])]] = np.inf
-        proj = _BoxProjector(lower, upper)
+        proj = BoxProjector(lower, upper)
         th = theta_hat.tolist()
         if proj.inside(th):
             assert np.array_equal(proj(theta_hat, P), theta_hat)
             continue
         n_outside += 1
         full = proj._enumerate(theta_hat, P)
-        forced = _BoxProjector(lower, upper)
+        forced = BoxProjector(lower, upper)
         forced.max_iterations = 0  # no active-set candidate: the fallback path
         assert np.array_equal(forced(theta_hat, P), full)
         fast = proj._active_set(theta_hat, P, th)
@@ -317,7 +317,7 @@ def test_active_set_hint_changes_the_work_not_the_answer():
         centre = theta_hat[:m] + rng.normal(scale=2.0, size=m)
         half = rng.uniform(0.05, 2.0, m)
         lower[:m], upper[:m] = centre - half, centre + half
-        proj = _BoxProjector(lower, upper)
+        proj = BoxProjector(lower, upper)
         th = theta_hat.tolist()
         if proj.inside(th):
             continue
@@ -355,7 +355,7 @@ def test_projection_ill_conditioned_all_pinned():
     theta_hat = np.zeros(2)
     lower, upper = np.array([1.0, -2.0]), np.array([2.0, -1.0])
     ref = _reference_projection(theta_hat, P, lower, upper)
-    proj = _BoxProjector(lower, upper)
+    proj = BoxProjector(lower, upper)
     for theta in (project_onto_box(theta_hat, P, lower, upper), proj._enumerate(theta_hat, P)):
         assert theta.tolist() == [1.0, -1.0] == ref.tolist()
         assert _metric(P, theta, theta_hat) == pytest.approx(_metric(P, ref, theta_hat), rel=1e-9)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+from fmu_controller.servo_qp import CondensedServoQP
 from fmu_controller.servo_mpc import (
     TABLE5_SERVO,
     ServoMPC,
@@ -271,13 +272,17 @@ def test_model_update_in_place_leaves_no_stale_entries():
     # update_model rewrites only the model-dependent entries of the condensed matrix B in place;
     # after any sequence of models every derived matrix must equal that of a fresh controller
     rng = np.random.default_rng(15)
-    mpc = ServoMPC(a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    weights = ServoMPCSettings().weights()
+    qp = CondensedServoQP(5, 5, *weights)
+    qp.set_model(*MODEL)
     models = [(rng.uniform(1.1, 1.3), rng.uniform(-0.4, -0.2), rng.uniform(0.3, 1.5)) for _ in range(6)]
     for model in models[:3] + [(0.0, 0.0, 0.9), (2.0, -1.5, -0.7)] + models[3:]:
-        mpc.update_model(*model)
-        fresh = ServoMPC(a1=model[0], a2=model[1], b1=model[2])
-        for name in ("_B", "_H", "_K_unc"):
-            assert np.array_equal(getattr(mpc, name), getattr(fresh, name)), (model, name)
+        qp.set_model(*model)
+        fresh = CondensedServoQP(5, 5, *weights)
+        fresh.set_model(*model)
+        for name in ("B", "H", "K_unc"):
+            assert np.array_equal(getattr(qp, name), getattr(fresh, name)), (model, name)
+        assert all(np.array_equal(a, b) for a, b in zip(qp.matrices(), fresh.matrices()))
         # and B is the tabulated affine map of the step response and the rows C A^n
         x = np.zeros(16)
         p, q, srun = 1.0, 0.0, 0.0
@@ -286,7 +291,7 @@ def test_model_update_in_place_leaves_no_stale_entries():
             p, q = model[0] * p + q, model[1] * p
             x[n], x[5 + n], x[10 + n] = srun, p, q
         x[-1] = 1.0
-        np.testing.assert_allclose(mpc._B.ravel(), mpc._T @ x, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(qp.B.ravel(), qp.T @ x, rtol=1e-14, atol=1e-14)
 
 
 def test_update_model_does_not_depend_on_warm_start_much():
@@ -594,14 +599,14 @@ def test_lean_solve_equals_solve():
     for j in range(60):
         model = (rng.uniform(1.208, 1.260), rng.uniform(-0.334, -0.278), rng.uniform(0.607, 1.184))
         a.update_model(*model)
-        b._update_model_finite(*model)
+        b.update_model_unchecked(*model)
         case = random_case(rng, 5, big=bool(j % 3 == 0))
         want = a.solve(**case)
-        got = b._solve_lean(case["l_mm"], case["l_prev_mm"], case["uc_prev_v"], case["xs"],
+        got = b.solve_unchecked(case["l_mm"], case["l_prev_mm"], case["uc_prev_v"], case["xs"],
                             case["r_future_mm"].tolist(), case["offset_v"])
         assert got == (want.uc_v, float(want.predicted_l_mm[0]), want.constrained), j
         assert a.get_state() == b.get_state(), j
         n_osqp = b.osqp_solves
     assert 5 < n_osqp < 60  # both paths were taken
     with pytest.raises(ValueError, match="offset_v"):
-        b._solve_lean(30.0, 30.0, 5.0, 0.0, [30.0] * 6, float("nan"))
+        b.solve_unchecked(30.0, 30.0, 5.0, 0.0, [30.0] * 6, float("nan"))
