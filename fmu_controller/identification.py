@@ -1,7 +1,7 @@
 """Identify Eq. (1) on a whole record and score it like the paper's Table 4.
 
 This is the pipeline behind ``tapmuscle identify``: validate the data, normalise units, run the
-(constrained) RLS of Eq. (4) / Algorithm 1 (:func:`fmu_controller.prediction.identify`), convert the
+(constrained) RLS of Eq. (4) / Algorithm 1 (:func:`fmu_controller.prediction.run_rls`), convert the
 estimate back to the record's units, and compute the 1-, 3-, 5-step-ahead and free-run fits.
 
 Units and scaling
@@ -32,7 +32,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
-from .prediction import (IdentificationResult, fit_percent, identify, predict_ahead, rescale_theta,
+from .prediction import (IdentificationResult, fit_percent, predict_ahead, rescale_theta, run_rls,
                          simulate, theta_scale_factors)
 from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
 
@@ -266,7 +266,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     settings = RLSSettings(p0=p0, theta0=None if th0 is None else tuple(th0), forgetting=forgetting,
                            box_lower=s_lower, box_upper=s_upper,
                            constraint_start_s=constraint_start_s, ts_s=float(ts_s))
-    result: IdentificationResult = identify(structure, u / u_scale, l / l_scale, settings)
+    result: IdentificationResult = run_rls(structure, u / u_scale, l / l_scale, settings)
     theta = rescale_theta(result.theta, structure, l_scale, u_scale)
     history = result.theta_history * f
     return IdentificationReport(

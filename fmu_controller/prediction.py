@@ -36,7 +36,7 @@ __all__ = [
     "simulate",
     "predict_ahead",
     "fit_percent",
-    "identify",
+    "run_rls",
     "theta_scale_factors",
     "rescale_theta",
 ]
@@ -74,7 +74,7 @@ class PredictionResult:
 
 @dataclass(frozen=True)
 class IdentificationResult:
-    """Output of :func:`identify`.
+    """Output of :func:`run_rls`.
 
     Attributes
     ----------
@@ -334,7 +334,7 @@ def fit_percent(
 # ---------------------------------------------------------------------------
 # identification
 # ---------------------------------------------------------------------------
-def identify(
+def run_rls(
     structure: ModelStructure,
     u: Sequence[float] | np.ndarray,
     l: Sequence[float] | np.ndarray,

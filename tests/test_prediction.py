@@ -14,7 +14,7 @@ from fmu_controller.hysteresis_model import (
 from fmu_controller.prediction import (
     N_INITIAL,
     fit_percent,
-    identify,
+    run_rls,
     predict_ahead,
     rescale_theta,
     simulate,
@@ -174,7 +174,7 @@ def test_identify_recovers_all_parameters_with_prior_pinning_a1_a2(record):
     p0[:2] = 1e-12
     theta0 = np.zeros(15)
     theta0[:2] = THETA[:2]
-    res = identify(ASYMMETRIC, u, l, RLSSettings(p0=p0, theta0=theta0, forgetting=0.995, **NO_BOX))
+    res = run_rls(ASYMMETRIC, u, l, RLSSettings(p0=p0, theta0=theta0, forgetting=0.995, **NO_BOX))
     np.testing.assert_allclose(res.theta, THETA, rtol=1e-3)
     assert np.max(np.abs(res.errors[-500:])) < 1e-3
     assert res.theta_history.shape == (3000, 15) and res.start == N_INITIAL
@@ -187,7 +187,7 @@ def test_identify_recovers_all_parameters_with_prior_pinning_a1_a2(record):
 def test_identify_errors_are_a_priori(record):
     u, l = record
     u, l = u[:300], l[:300]
-    res = identify(ASYMMETRIC, u, l, RLSSettings(**NO_BOX))
+    res = run_rls(ASYMMETRIC, u, l, RLSSettings(**NO_BOX))
     state = ModelState(ASYMMETRIC, l_init=l[1:4], v_init=virtual_hysteresis_sequence(np.zeros(15), l[:4], u[:4])[1:4], u_init=u[3])
     for k in range(4, 300):
         phi = state.phi()
@@ -198,7 +198,7 @@ def test_identify_errors_are_a_priori(record):
 def test_identify_with_paper_settings(record):
     # P(-1) = 1e3 I, theta(0) = 0, Table 2 box from 120 s (section 2.4)
     u, l = record
-    res = identify(ASYMMETRIC, u, l)
+    res = run_rls(ASYMMETRIC, u, l)
     lower = np.array([1.208, -0.334, 0.607])
     upper = np.array([1.260, -0.278, 1.184])
     hist = res.theta_history[:, :3]
@@ -248,8 +248,8 @@ def test_identify_on_scaled_and_raw_data_agree(record):
     lower_raw[:3] = [1.208, -0.334, 0.607]
     upper_raw[:3] = [1.260, -0.278, 1.184]
     common = dict(constraint_start_s=120.0)
-    raw = identify(ASYMMETRIC, u, l, RLSSettings(p0=1e3 * f**2 / ls**2, box_lower=lower_raw, box_upper=upper_raw, **common))
-    scaled = identify(ASYMMETRIC, u / us, l / ls, RLSSettings(p0=1e3, box_lower=lower_raw / f, box_upper=upper_raw / f, **common))
+    raw = run_rls(ASYMMETRIC, u, l, RLSSettings(p0=1e3 * f**2 / ls**2, box_lower=lower_raw, box_upper=upper_raw, **common))
+    scaled = run_rls(ASYMMETRIC, u / us, l / ls, RLSSettings(p0=1e3, box_lower=lower_raw / f, box_upper=upper_raw / f, **common))
     assert raw.n_projections == scaled.n_projections > 0
     theta_back = rescale_theta(scaled.theta, ASYMMETRIC, ls, us)
     np.testing.assert_allclose(theta_back, raw.theta, rtol=1e-7, atol=1e-13)
