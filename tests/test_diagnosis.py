@@ -10,7 +10,7 @@ import pytest
 
 from tapmuscle.diagnosis import CANDIDATES, diagnose
 from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS
-from tapmuscle.diagnosis.diagnose import distinguishable
+from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, distinguishable
 from tapmuscle.diagnosis.candidates import _edge_search, _tightest, candidate
 from tapmuscle.diagnosis.demo import DEMO_MODEL, Case, run_case, record
 from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, fit_percent, interleaved_split, iou,
@@ -131,6 +131,21 @@ def test_unexplained_when_no_candidate_fits():
     assert [f.effect for f in d.findings][-1] == "unexplained"
     assert all(f.effect != "load_mismatch" for f in d.findings)
     assert d.findings[-1].located and "explains" in d.findings[-1].explanation
+
+
+@pytest.mark.parametrize("amplitude_mm, material", [(0.025, False), (0.3, True)])
+def test_a_structured_remainder_is_reported_and_claimed_only_when_material(amplitude_mm, material):
+    """The exact model and a slow ripple on the reading that no candidate describes: reported as
+    ``unexplained`` with its share however small, a finding only at >= MATERIAL_FACTOR x the noise."""
+    cols = record(DEMO_MODEL, "sine", 5)
+    y = cols["l_mm"] + amplitude_mm * np.sin(2 * np.pi * 0.37 * cols["t_s"])
+    d = diagnose(cols["t_s"], cols["u_v"], y, DEMO_MODEL, candidates=[candidate("backlash")], calibration=None)
+    rem = d.unexplained
+    assert rem is not None and rem["share"] > 0.0 and rem["material"] is material
+    assert (rem["rms_mm"] >= MATERIAL_FACTOR * rem["noise_mm"]) is material
+    assert ("unexplained" in [f.effect for f in d.findings]) is material
+    assert d.verdict == ("mismatch" if material else "no_significant_mismatch")
+    assert d.to_json()["unexplained"]["material"] is material
 
 
 def test_every_effect_of_the_library_is_a_candidate():

@@ -24,7 +24,11 @@ Procedure
    ``ambiguous`` with their evidence, and none of them is claimed alone. (The report designs an
    experiment that separates them, :mod:`tapmuscle.diagnosis.experiment_design`.)
 7. Whatever structured residual remains is reported as ``unexplained``, with its share of the
-   initial excess, however small.
+   initial excess, however small. It is a *finding* (a claim that something the vocabulary lacks
+   acts on the rig) only when it is material: its RMS is at least :data:`MATERIAL_FACTOR` times the
+   noise level, the level at which step 10 of docs/diagnosis.md locates a signal in time. Below
+   that it is a remainder of the calibration (constants the data could not pin), reported in
+   ``Diagnosis.unexplained`` but not claimed.
 """
 
 from __future__ import annotations
@@ -48,7 +52,7 @@ from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_
 from tapmuscle.diagnosis.simulation import Simulator
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "distinguishable", "sensor_noise_mm",
-           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS"]
+           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
@@ -70,6 +74,10 @@ JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
 #: Effects without joint coordinates fitted afresh on the re-fitted constants per round, at most (the best
 #: on the training blocks).
 ALTERNATE_PER_ROUND = 1
+
+#: A structured remainder is a finding when its RMS is at least this many times the noise level (the
+#: factor at which ``located_windows`` finds a signal in time); below, it is reported, not claimed.
+MATERIAL_FACTOR = 3.0
 
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).
@@ -178,6 +186,10 @@ class Diagnosis:
     """The recorded load [N], if the recording had one."""
     ts_s: float = 0.0
     """Sampling period [s]."""
+    unexplained: dict[str, Any] | None = None
+    """The structured residual the final model leaves (None if white): ``share`` of the initial
+    excess, ``rms_mm``, ``noise_mm``, ``material`` (RMS >= :data:`MATERIAL_FACTOR` x noise: then it
+    is also an ``unexplained`` finding)."""
 
     @property
     def named(self) -> list[str]:
@@ -193,6 +205,7 @@ class Diagnosis:
         return {"verdict": self.verdict, "fit_before_percent": round(self.fit_before_percent, 3),
                 "fit_after_percent": round(self.fit_after_percent, 3),
                 "findings": [f.to_json() for f in self.findings],
+                "unexplained": self.unexplained,
                 "calibration": cal if cal is not None else {"skipped": "the residual is white noise: nothing to "
                                                                        "calibrate"},
                 "ambiguous": [{"alternatives": [a.to_json() for a in group], "discriminating_input": None}
@@ -607,32 +620,39 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or (a.effect not in current.effects
                                                                       and still_tied(g[0], a))]
                              for g in ambiguous) if len(g) > 1 and g[0].effect in current.effects]
+    remainder = None
+    if tests0["structured"] and tests1["structured"]:
+        share = excess1 / excess0
+        remainder = {"share": share, "rms_mm": tests1["rms_mm"], "noise_mm": floor,
+                     "material": bool(tests1["rms_mm"] >= MATERIAL_FACTOR * floor),
+                     "whiteness_p": tests1["whiteness_p"]}
     if not tests0["structured"]:
         verdict = "no_significant_mismatch"
     elif ambiguous:
         verdict = "ambiguous"
-    elif current.effects:
+    elif current.effects or (remainder is not None and remainder["material"]):
         verdict = "mismatch"
-    elif do_calibrate and not tests1["structured"]:
+    elif do_calibrate:
         verdict = "calibration_only"
     else:
-        verdict = "mismatch"
+        # the exact model (no calibration) leaves a residual that is structured but below the
+        # materiality level: nothing to name
+        verdict = "no_significant_mismatch"
     if ambiguous:
         in_groups = {a.effect for g in ambiguous for a in g}
         findings = [f for f in findings if f.effect not in in_groups]
-    if tests0["structured"] and tests1["structured"]:
+    if remainder is not None and remainder["material"]:
         located = located_windows(e_after, ts, noise_mm=noise)
         regime, _ = regime_summary(e_after ** 2, y, ts, p_mpa, signal=e_after)
-        share = 100.0 * excess1 / excess0
         findings.append(Finding(
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "
-            f"{tests1['rms_mm']:.3f} mm against {noise:.3f} mm of noise, {share:.1f} % of the initial "
-            f"excess) that neither the calibration nor any candidate effect explains",
-            {}, 0.0, located, regime, {"remaining_excess_share": excess1 / excess0}))
+            f"{tests1['rms_mm']:.3f} mm against {noise:.3f} mm of noise, {100.0 * remainder['share']:.1f} % of the "
+            f"initial excess) that neither the calibration nor any candidate effect explains",
+            {}, 0.0, located, regime, {"remaining_excess_share": remainder["share"]}))
     return Diagnosis(verdict, fit_before, fit_percent(y, y_base, test), findings, base, t, u, y, y0, y_base,
                      train, test, tests0, tests1, {"autocorrelation_before": ac0, "cross_correlation_before": xc0,
                                                    "autocorrelation_after": ac1, "cross_correlation_after": xc1},
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
-                     ts_s=ts)
+                     ts_s=ts, unexplained=remainder)

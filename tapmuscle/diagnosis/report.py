@@ -16,7 +16,7 @@ from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
 
 from tapmuscle.diagnosis.candidates import candidate
-from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose
+from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import design_input, write_experiment
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free
@@ -46,9 +46,15 @@ def summary_lines(d: Diagnosis) -> list[str]:
         out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
                    f"({changed or 'no constant changed'}; not identifiable: "
                    f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'})")
+    rem = d.unexplained
+    remainder = ([] if rem is None or rem["material"] else
+                 [f"  a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} mm against "
+                  f"{rem['noise_mm']:.4f} mm of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
+                  f"initial excess; reported, not claimed"])
     if d.verdict == "calibration_only":
-        return out + [f"calibration only: the recalibrated plant explains the recording (residual white, "
-                      f"whiteness p = {d.tests_after['whiteness_p']:.2g}); no left-out effect is claimed"]
+        white = ("residual white" if rem is None else "residual within the materiality level")
+        return out + [f"calibration only: the recalibrated plant explains the recording ({white}, "
+                      f"whiteness p = {d.tests_after['whiteness_p']:.2g}); no left-out effect is claimed"] + remainder
     for group in d.ambiguous:
         out.append(f"ambiguous: {' / '.join(a.effect for a in group)} explain the recording equally well on "
                    f"held-out data (fits {', '.join(f'{a.fit_after_percent:.2f} %' for a in group)}); "
@@ -59,7 +65,7 @@ def summary_lines(d: Diagnosis) -> list[str]:
         where = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in f.located) or "nowhere in particular"
         gain = f" (+{f.fit_gain_points:.2f} points)" if f.effect != "unexplained" else ""
         out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
-    return out
+    return out + remainder
 
 
 def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
