@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -49,6 +49,7 @@ from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Pro
 from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
+from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
 from tapmuscle.diagnosis.simulation import Simulator
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "distinguishable", "sensor_noise_mm",
@@ -56,9 +57,6 @@ __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "distinguishable",
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
-
-#: What ``diagnose`` can conclude.
-VERDICTS = ("no_significant_mismatch", "calibration_only", "mismatch", "ambiguous")
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
@@ -82,140 +80,6 @@ MATERIAL_FACTOR = 3.0
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).
 JOINT_PER_ROUND = 3
-
-
-@dataclass
-class Finding:
-    """One entry of ``diagnosis.json``'s ``findings``."""
-
-    effect: str
-    """Candidate name, or ``"unexplained"``."""
-    explanation: str
-    parameters: dict[str, float]
-    """Fitted plant parameters (``group.field``: value, as the plant FMU names them)."""
-    fit_gain_points: float
-    """Held-out fit gained by adding this effect [percentage points]."""
-    located: list[tuple[float, float]]
-    """Time windows [s] where it acts."""
-    regime: str
-    evidence: dict[str, Any] = field(default_factory=dict)
-    """Numbers behind the acceptance (held-out SSE before/after, z-test p-value, ...)."""
-
-    def to_json(self) -> dict[str, Any]:
-        return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
-                "fit_gain_points": round(self.fit_gain_points, 3),
-                "located": [{"t_start_s": round(a, 2), "t_end_s": round(b, 2)} for a, b in self.located],
-                "regime": self.regime, "evidence": self.evidence}
-
-
-@dataclass
-class Alternative:
-    """One explanation of an ``ambiguous`` group: an effect re-fitted jointly with the calibration."""
-
-    effect: str
-    explanation: str
-    parameters: dict[str, float]
-    params: PlantParams = field(repr=False)
-    """The whole alternative plant (calibrated constants, accepted effects, this effect)."""
-    y_hat: np.ndarray = field(repr=False)
-    held_out_sse_mm2: float = 0.0
-    fit_after_percent: float = 0.0
-    evidence: dict[str, Any] = field(default_factory=dict)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
-                "held_out_sse_mm2": round(self.held_out_sse_mm2, 6),
-                "fit_after_percent": round(self.fit_after_percent, 3), "evidence": self.evidence}
-
-
-@dataclass
-class Diagnosis:
-    """Everything ``diagnose`` found (``to_json`` is ``diagnosis.json``)."""
-
-    verdict: str
-    """One of :data:`VERDICTS`: ``no_significant_mismatch``, ``calibration_only``, ``mismatch``,
-    ``ambiguous``."""
-    fit_before_percent: float
-    """Held-out NRMSE fit of the nominal model [%]."""
-    fit_after_percent: float
-    """Held-out fit of the final model (calibration and accepted effects) [%]."""
-    findings: list[Finding]
-    """The effects named, ordered by evidence, and ``unexplained`` for a remaining structured residual."""
-    calibrated: PlantParams
-    """The model with the calibrated constants and the accepted effects' parameters (for an
-    ``ambiguous`` verdict: with the best-scoring alternative)."""
-    t_s: np.ndarray
-    """The recording's time [s]."""
-    u_v: np.ndarray
-    """The recording's command [V]."""
-    y_mm: np.ndarray
-    """The recording's displacement [mm]."""
-    y_before_mm: np.ndarray
-    """The nominal model's re-simulation [mm]."""
-    y_after_mm: np.ndarray
-    """The final model's re-simulation [mm]."""
-    train: np.ndarray
-    """Indices of the training blocks."""
-    test: np.ndarray
-    """Indices of the held-out blocks."""
-    tests_before: dict[str, Any]
-    """Residual tests of the nominal model (whiteness, RMS, noise level, ``structured``)."""
-    tests_after: dict[str, Any]
-    """Residual tests of the final model."""
-    correlations: dict[str, Correlation]
-    """Autocorrelation and input cross-correlation of the residual, before and after."""
-    candidates: list[dict[str, Any]]
-    """Every candidate tried, per round: name, held-out gain, SSE reduction, significance."""
-    simulations: int
-    """Plant simulations the diagnosis ran."""
-    elapsed_s: float
-    """Wall time [s]."""
-    calibration: Calibration | None = None
-    """The final calibration (re-fitted jointly with the accepted effects); None when not run."""
-    fit_calibrated_percent: float | None = None
-    """Held-out fit of the calibrated plant without any effect [%]."""
-    y_calibrated_mm: np.ndarray | None = None
-    """The calibrated plant's re-simulation without effects [mm]; None without calibration."""
-    ambiguous: list[list[Alternative]] = field(default_factory=list)
-    """Groups of statistically indistinguishable explanations."""
-    selection: list[dict[str, Any]] = field(default_factory=list)
-    """The forward and backward steps taken, in order."""
-    nominal: PlantParams | None = None
-    """The nominal model the diagnosis started from."""
-    load_n: np.ndarray | None = None
-    """The recorded load [N], if the recording had one."""
-    ts_s: float = 0.0
-    """Sampling period [s]."""
-    unexplained: dict[str, Any] | None = None
-    """The structured residual the final model leaves (None if white): ``share`` of the initial
-    excess, ``rms_mm``, ``noise_mm``, ``material`` (RMS >= :data:`MATERIAL_FACTOR` x noise: then it
-    is also an ``unexplained`` finding)."""
-
-    @property
-    def named(self) -> list[str]:
-        """Effects claimed (findings other than ``unexplained``)."""
-        return [f.effect for f in self.findings if f.effect != "unexplained"]
-
-    def to_json(self) -> dict[str, Any]:
-        cal = None
-        if self.calibration is not None:
-            cal = self.calibration.to_json() | {
-                "fit_calibrated_percent": None if self.fit_calibrated_percent is None
-                else round(self.fit_calibrated_percent, 3)}
-        return {"verdict": self.verdict, "fit_before_percent": round(self.fit_before_percent, 3),
-                "fit_after_percent": round(self.fit_after_percent, 3),
-                "findings": [f.to_json() for f in self.findings],
-                "unexplained": self.unexplained,
-                "calibration": cal if cal is not None else {"skipped": "the residual is white noise: nothing to "
-                                                                       "calibrate"},
-                "ambiguous": [{"alternatives": [a.to_json() for a in group], "discriminating_input": None}
-                              for group in self.ambiguous],
-                "selection": self.selection,
-                "residual_tests": {"before": self.tests_before, "after": self.tests_after},
-                "candidates_tried": self.candidates,
-                "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
-                          "held_out_samples": int(self.test.sum())},
-                "simulations": self.simulations, "elapsed_s": round(self.elapsed_s, 2)}
 
 
 def sensor_noise_mm(model: PlantParams) -> float:

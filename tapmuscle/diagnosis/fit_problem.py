@@ -1,0 +1,70 @@
+"""The fitting problem every candidate effect works on: the recording, its split, the simulator.
+
+:class:`Problem` is one recording to explain (measured data, interleaved training and held-out
+blocks, the simulator with its checkpoints); :class:`FitResult` is a fitted candidate;
+:func:`full_prediction` simulates the whole recording with a candidate's values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fmu_plant import PlantParams
+from tapmuscle.diagnosis.simulation import Simulator
+
+__all__ = ["Problem", "FitResult", "full_prediction"]
+
+
+@dataclass
+class Problem:
+    """One recording to explain: measured data, the train/held-out split, the simulator."""
+
+    y_mm: np.ndarray
+    """Measured displacement [mm]."""
+    t_s: np.ndarray
+    u_v: np.ndarray
+    ts_s: float
+    train: np.ndarray
+    """Mask of the training samples (fits see only these)."""
+    test: np.ndarray
+    """Mask of the held-out samples (scores only)."""
+    sim: Simulator
+    noise_mm: float
+    """White-noise level of the residual [mm]."""
+    fit_segment_s: float = 120.0
+    """Stationary effects are fitted on the first this many seconds (whole-run simulations are the cost)."""
+    block_s: float = 10.0
+    """Length of the interleaved training and held-out blocks [s]."""
+
+    @property
+    def n(self) -> int:
+        return len(self.y_mm)
+
+    @property
+    def n_fit(self) -> int:
+        return min(self.n, int(round(self.fit_segment_s / self.ts_s)) + 1)
+
+    def train_residual(self, y_hat: np.ndarray, start: int = 0) -> np.ndarray:
+        """``y - y_hat`` on the training samples from ``start`` over ``len(y_hat)`` samples."""
+        stop = start + len(y_hat)
+        m = self.train[start:stop]
+        return (self.y_mm[start:stop] - y_hat)[m]
+
+
+@dataclass
+class FitResult:
+    """A fitted candidate: its parameter values and its prediction of the whole recording."""
+
+    values: dict[str, float]
+    """Plant parameters to set (``group.field`` -> value), on top of the base model."""
+    y_hat: np.ndarray
+    """Noise-free prediction of the whole recording with those values [mm]."""
+    located: list[tuple[float, float]] | None = None
+    """Where the effect acts, when the fit itself says (a sag's window); otherwise None."""
+
+
+def full_prediction(problem: Problem, base: PlantParams, values: dict[str, float]) -> np.ndarray:
+    """Noise-free prediction of the whole recording [mm] by ``base`` with ``values`` set."""
+    return problem.sim.run(base.with_values(**values))[0]
