@@ -134,7 +134,9 @@ def write_ssp(fmus: Mapping[str, str | Path], out: str | Path) -> Path:
                 z.writestr(name, text)
             for fmu in ("MusclePlant", "AMPCController"):
                 z.write(fmus[fmu], f"resources/{fmu}.fmu")
-        os.chmod(tmp, 0o644)
+        mask = os.umask(0o022)  # the mode open() would give: mkstemp's 0600 would survive the rename
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)
         os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

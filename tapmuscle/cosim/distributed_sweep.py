@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 from tapmuscle.cosim.expect import scenario_metrics
+from tapmuscle.io.atomic import atomic_path
 from tapmuscle.cosim.master import InstancePool, check_parameter_names, co_simulate
 from tapmuscle.cosim.spec import FmuSpec, Scenario
 
@@ -118,15 +119,9 @@ class FmuFiles:
         if _WRITTEN.get(digest) == target and target.is_file():
             return target  # checked by this process already
         if not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-            try:
-                with os.fdopen(fd, "wb") as fh:
-                    fh.write(self.data[digest])
-                os.replace(tmp, target)  # atomic: other worker processes see the whole file or none
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
+            # atomic: other worker processes see the whole file or none
+            with atomic_path(target) as tmp:
+                tmp.write_bytes(self.data[digest])
         _WRITTEN[digest] = target
         return target
 

@@ -28,12 +28,12 @@ import csv
 import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.atomic import atomic_path
 
 __all__ = ["Recording", "RecordingError", "read_recording", "write_recording", "atomic_write_text",
            "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
@@ -183,23 +183,12 @@ def read_recording(path: str | os.PathLike) -> Recording:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temporary file in the same folder, then rename)."""
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+    """Write ``text`` to ``path`` atomically with the user's umask (:func:`tapmuscle.io.atomic.atomic_path`)."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 _FORMATS = {"t_s": "{:.6g}", "u_v": "{:.6f}", "l_mm": "{:.4f}", "p_mpa": "{:.6f}", "load_n": "{:.4g}",

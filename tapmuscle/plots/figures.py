@@ -7,7 +7,6 @@ leaves a truncated PNG behind.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -16,6 +15,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from tapmuscle.io.atomic import atomic_path  # noqa: E402
+
 __all__ = ["save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
            "plot_loop_comparison", "plot_tracking", "plot_prediction_errors"]
 
@@ -23,15 +24,9 @@ __all__ = ["save_figure", "plot_recording", "plot_parameter_convergence", "plot_
 def save_figure(fig: "plt.Figure", path: str | os.PathLike, *, dpi: int = 120) -> Path:
     """Save ``fig`` as PNG to ``path`` atomically and close it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        with atomic_path(path, suffix=".png") as tmp:
+            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
     finally:
         plt.close(fig)
     return path
