@@ -1,6 +1,7 @@
 """On the simulated rig, `tapmuscle identify` reaches the Table-4-like targets; bad data is refused."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -145,3 +146,26 @@ def test_score_model_reports_divergence():
     l = np.linspace(1, 2, 300)
     rep = score_model(theta, ASYMMETRIC, u, l)
     assert rep.free_run_diverged and np.all(np.isfinite(rep.simulated_mm))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t, meta: (np.delete(t, 100), meta), r"sample 100: t = 10.1 s breaks the uniform sampling of 0.1 s"),
+    (lambda t, meta: (t, {"ts_s": "0.05"}), r"header '# ts_s: 0.05' contradicts the t_s column, sampled every 0.1 s"),
+    (lambda t, meta: (t, {"ts_s": "1e300"}), r"header '# ts_s: 1e300' contradicts"),
+    (lambda t, meta: (t, {"ts_s": "fast"}), r"header '# ts_s: fast' is not a number"),
+])
+def test_a_recording_that_is_not_uniformly_sampled_is_refused(tmp_path, capsys, edit, message):
+    """The RLS assumes one sample per period: a dropped sample, or a header that contradicts the
+    time column, is named instead of silently setting Ts (or dropping Table 2's box)."""
+    t0 = np.arange(400) * 0.1
+    t, meta = edit(t0, {})
+    n = len(t)
+    path = tmp_path / "rec.csv"
+    write_recording(path, Recording({"t_s": t, "u_v": 5 + 3 * np.sin(0.6 * t), "l_mm": 30 + np.sin(0.6 * t - 0.3)},
+                                    meta))
+    assert n in (399, 400)
+    out = tmp_path / "out.json"
+    assert main(["identify", str(path), "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(message, err) and str(path) in err and "Traceback" not in err
+    assert not out.exists()

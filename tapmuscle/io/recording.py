@@ -90,15 +90,37 @@ class Recording:
 
     @property
     def ts_s(self) -> float:
-        """Sampling period [s]: the metadata's ``ts_s`` or the median time step."""
-        if "ts_s" in self.metadata:
-            try:
-                return float(self.metadata["ts_s"])
-            except ValueError:
-                pass
-        if len(self.t_s) < 2:
+        """Sampling period [s] of the uniformly sampled recording.
+
+        The median step of ``t_s``; every step must be within 0.1 % of it, and a ``# ts_s:`` header
+        line must agree with it to 0.1 % (its value is returned then, as written).
+
+        Raises
+        ------
+        RecordingError
+            Fewer than 2 rows; a step off the uniform sampling (naming the sample and its time); a
+            ``ts_s`` header that is not a positive number or contradicts the ``t_s`` column.
+        """
+        t = self.t_s
+        if len(t) < 2:
             raise RecordingError("cannot tell the sampling period of a recording with fewer than 2 rows")
-        return float(np.median(np.diff(self.t_s)))
+        dt = np.diff(t)
+        ts = float(np.median(dt))
+        off = np.nonzero(np.abs(dt - ts) > 1e-3 * abs(ts))[0]
+        if ts <= 0.0 or off.size:
+            k = int(off[0]) + 1 if off.size else 1
+            raise RecordingError(f"column t_s, sample {k}: t = {float(t[k]):.9g} s breaks the uniform sampling of "
+                                 f"{ts:g} s (previous sample {float(t[k - 1]):.9g} s); resample the recording first")
+        if "ts_s" in self.metadata:
+            text = self.metadata["ts_s"]
+            try:
+                meta = float(text)
+            except ValueError:
+                raise RecordingError(f"header '# ts_s: {text}' is not a number (the t_s column says {ts:g} s)") from None
+            if not (math.isfinite(meta) and meta > 0.0) or abs(meta - ts) > 1e-3 * ts:
+                raise RecordingError(f"header '# ts_s: {text}' contradicts the t_s column, sampled every {ts:g} s")
+            return meta
+        return ts
 
 
 def read_recording(path: str | os.PathLike) -> Recording:
