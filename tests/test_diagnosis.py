@@ -380,3 +380,22 @@ def test_the_sag_window_is_found_when_constants_off_raise_the_whole_residual(mon
     assert hit is found
     if found:
         assert fit_percent(cols["l_mm"], res.y_hat, test) > fit_percent(cols["l_mm"], y0, test) + 10.0
+
+
+@pytest.mark.parametrize("block", ["600", "50"])
+def test_blocks_too_long_for_held_out_data_are_refused(tmp_path, capsys, block):
+    """With blocks as long as the recording nothing is held out (a NaN fit and NaN in the JSON): the
+    block is refused, naming --block and the longest allowed, and nothing is written."""
+    from tapmuscle.cli.main import main
+    from tapmuscle.io.plant_file import plant_file_text
+    from tapmuscle.io.recording import Recording, write_recording
+
+    cols = record(DEMO_MODEL, "sine", 1)  # 150 s
+    write_recording(tmp_path / "rec.csv", Recording({k: cols[k] for k in ("t_s", "u_v", "l_mm")}, {"ts_s": "0.1"}))
+    (tmp_path / "plant.json").write_text(plant_file_text(DEMO_MODEL, "test"))
+    out = tmp_path / "out"
+    assert main(["diagnose", "--recording", str(tmp_path / "rec.csv"), "--plant", str(tmp_path / "plant.json"),
+                 "--out", str(out), "--block", block, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--block" in err and "at most 37.5 s" in err and "Traceback" not in err and len(err.splitlines()) == 1
+    assert not out.exists()

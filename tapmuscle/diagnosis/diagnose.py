@@ -225,6 +225,10 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         raise ValueError(f"column u_v: the command is constant ({u[0]:g} V); nothing excites the plant")
 
     n = len(t)
+    duration = (n - 1) * ts
+    if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0):
+        raise ValueError(f"block_s (--block) = {block_s!r} s: a {duration:g}-s recording needs blocks of more than 0 and at "
+                         f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
     checkpoint_every = max(1, int(round(10.0 / ts)))
