@@ -399,3 +399,20 @@ def test_blocks_too_long_for_held_out_data_are_refused(tmp_path, capsys, block):
     err = capsys.readouterr().err
     assert "--block" in err and "at most 37.5 s" in err and "Traceback" not in err and len(err.splitlines()) == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize("flag, value, pattern", [
+    ("--effects", "", "--effects '' names no effect"),
+    ("--effects", " , ", "names no effect"),
+    ("--excitations", "", "--excitations '' names no excitation"),
+    ("--effects", "gravity", "unknown effect 'gravity'"),
+])
+def test_demo_mismatch_refuses_an_empty_or_unknown_list(tmp_path, capsys, flag, value, pattern):
+    """An empty --effects used to run every effect: refused before any work, nothing written."""
+    from tapmuscle.cli.main import main
+
+    out = tmp_path / "demo"
+    assert main(["demo-mismatch", "--suite", "concealed", "--out", str(out), flag, value, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert pattern in err and len(err.splitlines()) == 1
+    assert not out.exists()

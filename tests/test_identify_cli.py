@@ -169,3 +169,11 @@ def test_a_recording_that_is_not_uniformly_sampled_is_refused(tmp_path, capsys, 
     err = capsys.readouterr().err
     assert re.search(message, err) and str(path) in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_an_empty_box_is_an_error_like_any_malformed_one(records, tmp_path, capsys):
+    _, paths = records
+    for box in ("", "x"):
+        assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "o.json"), "--box", box]) == 2
+        assert "--box" in capsys.readouterr().err
+    assert not (tmp_path / "o.json").exists()

@@ -71,11 +71,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     from tapmuscle.diagnosis.demo import EXCITATIONS, MAGNITUDES, run_demo, scores_markdown
 
-    effects = tuple(args.effects.split(",")) if args.effects else None
+    effects = None if args.effects is None else tuple(e.strip() for e in args.effects.split(",") if e.strip())
+    if effects is not None and not effects:
+        raise UsageError(f"--effects {args.effects!r} names no effect; known: {', '.join(MAGNITUDES)} "
+                         "(leave the flag out for all)")
     for e in effects or ():
         if e not in MAGNITUDES:
             raise UsageError(f"--effects: unknown effect {e!r}; known: {', '.join(MAGNITUDES)}")
-    excitations = tuple((args.excitations or ",".join(EXCITATIONS)).split(","))
+    excitations = (EXCITATIONS if args.excitations is None
+                   else tuple(x.strip() for x in args.excitations.split(",") if x.strip()))
+    if not excitations:
+        raise UsageError(f"--excitations {args.excitations!r} names no excitation; known: {', '.join(EXCITATIONS)}")
     for x in excitations:
         if x not in EXCITATIONS:
             raise UsageError(f"--excitations: unknown excitation {x!r}; known: {', '.join(EXCITATIONS)}")

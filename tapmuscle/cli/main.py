@@ -94,6 +94,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
 def _parse_box(text: str):
     if text in ("auto", "none"):
         return None if text == "none" else "auto"
+    if not text.strip():
+        raise UsageError("--box '' names no bound: give 'auto', 'none' or name=lower:upper,... "
+                         "(e.g. a1=1.208:1.26,b1=0.6:1.2)")
     box = {}
     for item in filter(None, (t.strip() for t in text.split(","))):
         name, eq, rng = item.partition("=")
