@@ -1,5 +1,6 @@
 """`tapmuscle record`: outputs, plots, and errors that name the bad value and write nothing."""
 
+import re
 import subprocess
 import sys
 
@@ -64,3 +65,30 @@ def test_existing_output_survives_a_failed_run(tmp_path):
     out.write_text("precious")
     rc = main(["record", "--input", "sine:amp=oops", "--duration", "10", "--out", str(out), "--quiet"])
     assert rc == 2 and out.read_text() == "precious"
+
+
+@pytest.mark.parametrize("extra, pattern", [
+    (["--input", "const:value=1e308"], r"the command is 1e\+308 V at t = 0 s; the valve takes 0\.\.10 V"),
+    (["--input", "const:value=-5"], r"the command is -5 V at t = 0 s"),
+    (["--input", "sine:bias=5,amp=1e308,freq=0.1"], r"the valve takes 0\.\.10 V"),
+    (["--input", "random:hold_min=1e-7,hold_max=1e-7"], r"0\.001 s <= hold_min"),
+    (["--input", "const:value=5", "--duration", "86400", "--ts", "0.01"], r"makes 8640001 samples; at most 864001"),
+])
+def test_commands_outside_the_valve_or_endless_are_refused_before_running(tmp_path, capsys, extra, pattern):
+    """The recorded u_v is what the valve receives: out-of-range commands, endless random signals and
+    absurd lengths are named at once (they used to be written unclipped, or hang)."""
+    out = tmp_path / "rec.csv"
+    args = ["record", "--load", "44", "--duration", "20", "--out", str(out), "--quiet"]
+    assert main(args + extra) == 2  # a repeated --duration: the last one counts
+    err = capsys.readouterr().err
+    assert re.search(pattern, err) and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_a_plot_that_cannot_be_written_leaves_no_csv(tmp_path, capsys):
+    out = tmp_path / "rec.csv"
+    (tmp_path / "rec.png").mkdir()  # the plot's path is a directory
+    assert main(["record", "--load", "44", "--input", "const:value=5", "--duration", "2", "--out", str(out),
+                 "--plot", "--quiet"]) == 2
+    assert "rec.png is a directory" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.png"]

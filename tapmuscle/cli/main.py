@@ -19,7 +19,11 @@ from tapmuscle.cli.diagnose import register as _register_diagnose
 from tapmuscle.cli.sweep import register as _register_sweep
 from tapmuscle.errors import UsageError
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser", "MAX_SAMPLES"]
+
+#: Most samples of one recording (24 h at Ts = 0.1 s, the longest --duration): a finer --ts over such a
+#: length is almost surely a unit mistake, and it would run for a day.
+MAX_SAMPLES = 864_001
 
 
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
@@ -55,6 +59,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
     from tapmuscle.plots.figures import plot_recording
     from tapmuscle.cli.progress import Progress
+    import numpy as np
+
+    from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.recording import Recording, write_recording
     from tapmuscle.io.signals import parse_input_spec
 
@@ -69,23 +76,42 @@ def _cmd_record(args: argparse.Namespace) -> int:
     if args.no_noise:
         overrides.update({"sensor.encoder_noise_std_mm": 0.0, "sensor.pressure_noise_std_mpa": 0.0})
     params = params.with_values(**overrides)
+    # the recorded u_v is the command the valve receives: a signal outside the valve's range is the
+    # user's mistake (the amplifier would clip it), named before anything runs
+    n = int(round(args.duration / args.ts)) + 1
+    if n > MAX_SAMPLES:
+        raise UsageError(f"--duration {args.duration:g} / --ts {args.ts:g} makes {n} samples; at most {MAX_SAMPLES} "
+                         "in one recording")
+    t_grid = np.arange(n) * args.ts
+    u_grid = np.array([signal(t) for t in t_grid])
+    lo, hi = params.valve.u_min_v, params.valve.u_max_v
+    bad = np.nonzero(~((u_grid >= lo) & (u_grid <= hi)))[0]
+    if bad.size:
+        k = int(bad[0])
+        raise UsageError(f"--input {args.input!r}: the command is {float(u_grid[k]):.6g} V at t = {float(t_grid[k]):g} s; "
+                         f"the valve takes {lo:g}..{hi:g} V")
     plant = Plant(params, seed=args.seed)
     try:
         data = run_open_loop(plant, signal, duration_s=args.duration, ts_s=args.ts,
                              progress=Progress("record", enabled=not args.quiet))
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+    except (ValueError, FloatingPointError) as exc:
+        raise UsageError(str(exc).splitlines()[0][:300]) from None
     meta = {"ts_s": f"{args.ts:g}", "load_n": f"{args.load:g}", "seed": str(args.seed),
             "input": args.input, "source": "tapmuscle record (simulated rig)",
             "command": " ".join(["tapmuscle"] + list(args.argv))}
     rec = Recording(data, meta)
     out = Path(args.out)
-    write_recording(out, rec)
+    png = out.with_suffix(".png")
+    # both files or neither: the CSV is renamed into place only after the plot succeeded
+    with atomic_path(out) as tmp_csv:
+        write_recording(tmp_csv, rec)
+        if args.plot:
+            with atomic_path(png, suffix=".png") as tmp_png:
+                plot_recording(rec.t_s, rec.u_v, rec.l_mm, tmp_png, p_mpa=data["p_mpa"],
+                               title=f"{args.input}, load {args.load:g} N, seed {args.seed}",
+                               settle_s=min(30.0, args.duration / 2))
     print(f"wrote {out} ({len(rec)} samples, l {rec.l_mm.min():.2f}..{rec.l_mm.max():.2f} mm)")
     if args.plot:
-        png = plot_recording(rec.t_s, rec.u_v, rec.l_mm, out.with_suffix(".png"), p_mpa=data["p_mpa"],
-                             title=f"{args.input}, load {args.load:g} N, seed {args.seed}",
-                             settle_s=min(30.0, args.duration / 2))
         print(f"wrote {png}")
     return 0
 

@@ -135,12 +135,18 @@ def _chirp(spec: str, v: dict) -> InputSignal:
     return chirp
 
 
+#: Shortest hold of a ``random`` command [s]: far below the valve's 30-ms spool time, and it bounds the
+#: number of levels a run draws (1000 per second).
+MIN_HOLD_S = 1e-3
+
+
 def _random(spec: str, v: dict) -> InputSignal:
     lo, hi, hmin, hmax = v["lo"], v["hi"], v["hold_min"], v["hold_max"]
     if lo > hi:
         raise ValueError(f"input spec {spec!r}: lo ({lo}) must not exceed hi ({hi})")
-    if not 0 < hmin <= hmax:
-        raise ValueError(f"input spec {spec!r}: need 0 < hold_min <= hold_max, got {hmin}, {hmax}")
+    if not MIN_HOLD_S <= hmin <= hmax:
+        raise ValueError(f"input spec {spec!r}: need {MIN_HOLD_S:g} s <= hold_min <= hold_max, got {hmin:g}, {hmax:g} "
+                         f"(the valve's spool needs 30 ms; shorter holds only make the signal endless)")
     if v["seed"] < 0 or v["seed"] != int(v["seed"]):
         raise ValueError(f"input spec {spec!r}: seed must be a non-negative integer, got {v['seed']}")
     rng = np.random.default_rng(int(v["seed"]))
