@@ -177,3 +177,14 @@ def test_an_empty_box_is_an_error_like_any_malformed_one(records, tmp_path, caps
         assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "o.json"), "--box", box]) == 2
         assert "--box" in capsys.readouterr().err
     assert not (tmp_path / "o.json").exists()
+
+
+def test_a_plot_folder_that_cannot_be_written_leaves_no_json(records, tmp_path, capsys):
+    _, paths = records
+    out = tmp_path / "o.json"
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert main(["identify", str(paths["train", 44]), "--json", str(out), "--plot", str(blocker / "plots")]) == 2
+    err = capsys.readouterr().err
+    assert "file" in err and len(err.splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]

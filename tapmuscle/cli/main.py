@@ -140,6 +140,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
 
     from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
+    from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.recording import atomic_write_text, read_recording
 
     rec = read_recording(args.recording)
@@ -159,7 +160,27 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         out["validation_fit_percent"] = val_fit.percent
         out["validation_free_run_diverged"] = val_fit.free_run_diverged
         out["validation_recording"] = str(args.validate)
-    atomic_write_text(args.json, json.dumps(out, indent=2) + "\n")
+    # the JSON is renamed into place only once the plots are written: a plot folder that cannot be
+    # written leaves no JSON behind
+    with atomic_path(args.json) as tmp_json:
+        atomic_write_text(tmp_json, json.dumps(out, indent=2) + "\n")
+        if args.plot:
+            folder = Path(args.plot)
+            folder.mkdir(parents=True, exist_ok=True)
+            t = rec.t_s
+            plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / "convergence.png",
+                                       constraint_start_s=report.constraint_start_s if report.box_lower else None,
+                                       title=f"{report.model} model: parameter convergence "
+                                             f"({Path(args.recording).name})")
+            shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
+            label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
+            plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
+                                   folder / "model_vs_measured.png",
+                                   title=f"free run against {'validation' if val is not None else 'identification'} "
+                                         f"record (cf. Fig. 4)")
+            skip = int(len(shown.t_s) // 4)
+            plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
+                                 skip=skip)
     for note in report.notes:
         print(f"note: {note}", file=sys.stderr)
     fits = report.fit.percent
@@ -172,21 +193,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"validation  {v['1']:7.1f} {v['3']:7.1f} {v['5']:7.1f} {v['sim']:9.1f}"
               + ("  (diverged)" if val_fit.free_run_diverged else ""))
     if args.plot:
-        folder = Path(args.plot)
-        t = rec.t_s
-        plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / "convergence.png",
-                                   constraint_start_s=report.constraint_start_s if report.box_lower else None,
-                                   title=f"{report.model} model: parameter convergence ({Path(args.recording).name})")
-        shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
-        label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
-        plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
-                               folder / "model_vs_measured.png",
-                               title=f"free run against {'validation' if val is not None else 'identification'} "
-                                     f"record (cf. Fig. 4)")
-        skip = int(len(shown.t_s) // 4)
-        plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
-                             skip=skip)
-        print(f"wrote {folder}/convergence.png, model_vs_measured.png, hysteresis_loop.png")
+        print(f"wrote {args.plot}/convergence.png, model_vs_measured.png, hysteresis_loop.png")
     return 0
 
 
