@@ -53,6 +53,7 @@ from .muscle import MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 from .rosenbrock import (ERR_FLOOR, GROWTH, KINK_FLOOR, KINK_SCALE_INITIAL, SAFETY, SHRINK, STRETCH,
                          build_model)
+from .seed import check_seed
 from .sensors import quantise
 from .valve import flow_coefficient, orifice_flow, valve_opening
 
@@ -140,9 +141,7 @@ class Plant:
             Initial load [N] and supply pressure [MPa] (default: from the parameters).
         """
         if seed is not None:
-            if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-                raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-            self._seed = int(seed)
+            self._seed = check_seed(seed)  # unsigned 64-bit, as the FMU carries it (seed.py)
         self._rng = np.random.default_rng(self._seed)
         self._noise_start = None  # generator state before the current block of normals (None: no block)
         self._noise: list[float] = []

@@ -19,6 +19,7 @@ from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from pythonfmu import DefaultExperiment
 from fmu_plant import Plant, PlantParams
+from fmu_plant.seed import join_seed
 
 __all__ = ["MusclePlant", "parameter_table"]
 
@@ -57,7 +58,10 @@ class MusclePlant(SafeSlave):
         self.add_output("l", 0.0, "mm", "encoder reading of the contraction [mm]", lo=-1.0, hi=400.0, nominal=50.0)
         self.add_output("p", 0.0, "MPa", "pressure-sensor reading [MPa(G)]", lo=0.0, hi=1.0, nominal=0.25)
         self.add_real_parameters(parameter_table())
-        self.add_integer_parameter("seed", 0, "seed of the sensor-noise generator")
+        self.add_integer_parameter("seed", 0, "seed of the sensor-noise generator: its low 32 bits (bit pattern; "
+                                   "a seed below 2**31 needs this alone)")
+        self.add_integer_parameter("seed_high", 0, "high 32 bits of the sensor-noise seed (bit pattern; seeds are "
+                                   "unsigned 64-bit)")
         self._plant: Plant | None = None
 
     def initialize_numerics(self) -> None:
@@ -65,9 +69,10 @@ class MusclePlant(SafeSlave):
             params = PlantParams().with_values(**self._par)
         except ValueError as exc:
             raise SlaveInputError(f"bad parameter: {exc}") from None
-        seed = self._int_par["seed"]
-        if seed < 0:
-            raise SlaveInputError(f"seed = {seed} must be >= 0")
+        try:
+            seed = join_seed(self._int_par["seed"], self._int_par["seed_high"])
+        except ValueError as exc:
+            raise SlaveInputError(str(exc)) from None
         self._plant = Plant(params, seed=seed)
         self._plant.update(load_n=self.finite("load", self.load, 0.0, 500.0),
                            supply_pressure_mpa=self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0))

@@ -92,3 +92,16 @@ def test_a_plot_that_cannot_be_written_leaves_no_csv(tmp_path, capsys):
                  "--plot", "--quiet"]) == 2
     assert "rec.png is a directory" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.png"]
+
+
+def test_seeds_are_unsigned_64_bit_on_the_command_line(tmp_path, capsys):
+    from fmu_plant.seed import SEED_MAX
+
+    assert sys.modules["tapmuscle.cli.main"]._SEED_MAX == SEED_MAX  # the parser's copy of the bound
+    out = tmp_path / "rec.csv"
+    base = ["record", "--load", "44", "--input", "const:value=5", "--duration", "1", "--out", str(out), "--quiet"]
+    with pytest.raises(SystemExit):
+        main(base + ["--seed", str(2 ** 64)])
+    assert "--seed must be within 0..18446744073709551615" in capsys.readouterr().err
+    assert main(base + ["--seed", str(2 ** 64 - 1)]) == 0
+    assert read_recording(out).metadata["seed"] == str(2 ** 64 - 1)

@@ -146,3 +146,22 @@ def test_an_fmu_that_refuses_a_step_mid_run_stops_the_run_naming_call_time_and_m
     with pytest.raises(ScenarioError, match=r"plant FMU \(MusclePlant.fmu\) fmi2DoStep at t = 1 s failed: "
                                             r"status DISCARD: .*load = 600.0 is outside 0..500"):
         co_simulate(s, built_fmus)
+
+
+@pytest.mark.parametrize("seed", [2 ** 31, 2 ** 32, 2 ** 63])
+def test_large_seeds_reach_the_fmu_whole(built_fmus, seed):
+    """A scenario's seed is unsigned 64-bit: the FMU loop is the direct loop with that seed (not the seed
+    cut to 32 bits), and 2**32 is not 0."""
+    cols = co_simulate(_scenario("ampc_servo", seed=seed, duration=25.0), built_fmus)
+    plant = Plant(PlantParams(), seed=seed)
+    plant.update(load_n=44.0)
+    direct = run_closed_loop(plant, DisplacementController(ControllerSettings(method="ampc_servo"), THETA0_44N),
+                             SineReference(frequency_hz=0.1), duration_s=25.0)
+    assert np.array_equal(cols["l_mm"], direct["l_mm"])
+    zero = co_simulate(_scenario("ampc_servo", seed=0, duration=25.0), built_fmus)
+    assert not np.array_equal(cols["l_mm"], zero["l_mm"])
+
+
+def test_a_seed_beyond_64_bits_is_named():
+    with pytest.raises(ScenarioError, match=r"seed.*must be <= 18446744073709551615"):
+        _scenario("ampc_servo", seed=2 ** 64)

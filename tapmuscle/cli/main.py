@@ -25,6 +25,10 @@ __all__ = ["main", "build_parser", "MAX_SAMPLES"]
 #: length is almost surely a unit mistake, and it would run for a day.
 MAX_SAMPLES = 864_001
 
+#: fmu_plant.seed.SEED_MAX, written out so that the parser does not import the numerics (startup
+#: time); tests/test_cli_record.py checks that they agree.
+_SEED_MAX = 2 ** 64 - 1
+
 
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
     from fmu_plant import PlantParams
@@ -208,8 +212,8 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         seeds = tuple(int(x) for x in args.seeds.split(","))
     except ValueError:
         raise UsageError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
-    if not seeds or min(seeds) < 0:
-        raise UsageError(f"--seeds must be non-negative integers, got {args.seeds!r}")
+    if not seeds or min(seeds) < 0 or max(seeds) > _SEED_MAX:
+        raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
     run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet, min_total=1))
     print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
     return 0
@@ -276,7 +280,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--duration", type=number_within("--duration", 1e-3, 86400.0), required=True,
                      help="length [s]")
     rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
-    rec.add_argument("--seed", type=integer_at_least("--seed", 0), default=0, help="noise seed (>= 0)")
+    rec.add_argument("--seed", type=integer_at_least("--seed", 0, _SEED_MAX), default=0,
+                     help="noise seed (0 .. 2**64 - 1)")
     rec.add_argument("--out", required=True, help="output CSV path")
     rec.add_argument("--plot", action="store_true", help="also write OUT.png: time traces and hysteresis loop")
     rec.add_argument("--no-noise", action="store_true", help="switch sensor noise off (quantisation stays)")
@@ -310,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
     pap.add_argument("--out", default="out/paper", help="output folder (default out/paper)")
     pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
-    pap.add_argument("--id-seed", type=integer_at_least("--id-seed", 0), default=None,
+    pap.add_argument("--id-seed", type=integer_at_least("--id-seed", 0, _SEED_MAX), default=None,
                      help="noise seed of the preliminary identification that gives the fixed predictor "
                           "(default: the first of --seeds)")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -47,6 +47,7 @@ from fmu_controller.displacement_control import METHOD_CODES
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import REFERENCE_SOURCES
 
+from fmu_plant.seed import split_seed
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
 __all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameter_names", "co_simulate"]
@@ -314,7 +315,8 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         ctrl = new(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
                    role="controller")
         plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
-        plant.set_parameters({"seed": scenario.seed}, where=f"{src}: key '")
+        low, high = split_seed(scenario.seed)  # FMI Integers are 32-bit: the seed travels as two
+        plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
         h = scenario.step_s
         ref = scenario.reference
         plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},

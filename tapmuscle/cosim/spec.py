@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
 from fmu_controller.displacement_control import METHODS
+from fmu_plant.seed import SEED_MAX
 from tapmuscle.errors import TapmuscleError
 
 if TYPE_CHECKING:
@@ -168,12 +169,14 @@ class _Reader:
             raise self.error(key, f"{v!r} is outside {'(' if lo_open else '['}{lo:g}, {hi:g}]")
         return v
 
-    def integer(self, key: str, default: int, *, lo: int = 0) -> int:
+    def integer(self, key: str, default: int, *, lo: int = 0, hi: int | None = None) -> int:
         v = self.table.get(key, default)
         if isinstance(v, bool) or not isinstance(v, int):
             raise self.error(key, f"must be an integer, got {type(v).__name__} {v!r}")
         if v < lo:
             raise self.error(key, f"{v!r} must be >= {lo}")
+        if hi is not None and v > hi:
+            raise self.error(key, f"{v!r} must be <= {hi}")
         return v
 
     def string(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
@@ -299,7 +302,7 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
 
     expect = parse_expectations(data["expect"], source=source) if "expect" in data else None
     return Scenario(name=top.string("name", default_name), source=source, duration_s=duration, step_s=step,
-                    seed=top.integer("seed", 0), plant=plant, controller=controller, method=method,
+                    seed=top.integer("seed", 0, hi=SEED_MAX), plant=plant, controller=controller, method=method,
                     reference=reference, load=load, supply=supply, evaluation_samples=(window[0], window[1]),
                     description=top.string("description", ""), expect=expect)
 
