@@ -54,6 +54,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
+from fmu_controller.servo_settings import MAX_HORIZON
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
@@ -109,10 +110,12 @@ class AMPCController(SafeSlave):
                                    "outputs (libcosim, Ecos, OMSimulator: one macro step h = Ts late); with 1 "
                                    "the output after the step at t_k is u(k+1), computed from l(k) and the "
                                    "Eq. (1) prediction l(k+1|k)", lo=0, hi=1)
-        self.add_integer_parameter("servo.Hp", 5, "servo MPC prediction horizon Hp [samples] (Table 5)", lo=1, hi=50)
+        self.add_integer_parameter("servo.Hp", 5, "servo MPC prediction horizon Hp [samples] (Table 5)", lo=1,
+                                   hi=MAX_HORIZON)
         self.add_integer_parameter("servo.Hu", 5, "servo MPC control horizon Hu <= Hp [samples] (Table 5)",
-                                   lo=1, hi=50)
-        self.add_integer_parameter("ucp.Hp", 2, "unique coincidence point Hp [samples] (Table 5)", lo=1, hi=50)
+                                   lo=1, hi=MAX_HORIZON)
+        self.add_integer_parameter("ucp.Hp", 2, "unique coincidence point Hp [samples] (Table 5)", lo=1,
+                                   hi=MAX_HORIZON)
         table = [
             ("Ts", 0.1, "s", "sampling period Ts [s] (paper: 0.1)", 1e-4, 60.0),
             ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),

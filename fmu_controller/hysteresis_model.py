@@ -186,7 +186,7 @@ def _as_theta(theta: Sequence[float] | np.ndarray, structure: ModelStructure) ->
     return arr
 
 
-def _regressor_terms(l0, l1, l2, u0, v1, v2):
+def regressor_terms(l0, l1, l2, u0, v1, v2):
     """The 15 entries of phi(k) as a list; works for floats and arrays alike.
 
     ``l0 = l(k)``, ``l1 = l(k-1)``, ``l2 = l(k-2)``, ``u0 = u(k)``,
@@ -232,7 +232,7 @@ def regressor(
     ndarray
         Shape ``(..., n_params)`` (inputs broadcast against each other).
     """
-    terms = _regressor_terms(
+    terms = regressor_terms(
         *(np.asarray(x, dtype=float) for x in (l0, l1, l2, u0, v1, v2))
     )[: structure.n_params]
     return np.stack(np.broadcast_arrays(*terms), axis=-1)
@@ -514,7 +514,7 @@ class ModelState:
         """:meth:`phi` as a list of python floats (fast path: no array is built)."""
         if not self._has_u:
             raise RuntimeError("apply(u) must be called before phi()")
-        terms = _regressor_terms(self._l0, self._l1, self._l2, self._u, self._v1, self._v2)
+        terms = regressor_terms(self._l0, self._l1, self._l2, self._u, self._v1, self._v2)
         return terms if self._n == 15 else terms[:self._n]
 
     # -- queries ---------------------------------------------------------
@@ -522,7 +522,7 @@ class ModelState:
         """Current regressor ``phi(k)`` (``l(k+1) = phi(k)^T theta``)."""
         if not self._has_u:
             raise RuntimeError("apply(u) must be called before phi()")
-        terms = _regressor_terms(
+        terms = regressor_terms(
             self._l0, self._l1, self._l2, self._u, self._v1, self._v2
         )
         return np.array(terms[: self.structure.n_params])

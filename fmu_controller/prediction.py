@@ -24,7 +24,7 @@ import numpy as np
 from .hysteresis_model import (
     ModelState,
     ModelStructure,
-    _regressor_terms,
+    regressor_terms,
     virtual_hysteresis_sequence,
 )
 from .rls import ConstrainedRLS, RLSSettings
@@ -157,7 +157,7 @@ def _propagate(theta, n, l0, l1, l2, v0, v1, v2, u_steps, bounds, record):
     diverged = False
     out = []
     for u0 in u_steps:
-        terms = _regressor_terms(l0, l1, l2, u0, v1, v2)
+        terms = regressor_terms(l0, l1, l2, u0, v1, v2)
         l_new = t[0] * terms[0]
         for coef, term in zip(t[1:], terms[1:n]):
             l_new = l_new + coef * term

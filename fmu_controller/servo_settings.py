@@ -15,7 +15,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "finite_float", "positive_int"]
+#: Longest prediction horizon accepted [samples] (Table 5: 5; 5 s at Ts = 0.1 s); the controller FMU
+#: declares the same range for servo.Hp, servo.Hu and ucp.Hp.
+MAX_HORIZON = 50
+
+__all__ = ["MAX_HORIZON", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "finite_float", "positive_int"]
 
 #: Table 5, "MPC/AMPC with servo mechanism" column.
 TABLE5_SERVO: Mapping[str, Any] = MappingProxyType({
@@ -106,6 +110,10 @@ class ServoMPCSettings:
     def __post_init__(self) -> None:
         hp = positive_int("hp", self.hp)
         hu = positive_int("hu", self.hu)
+        if hp > MAX_HORIZON:
+            # the condensed QP grows as Hp^2 (tabulated once) and each solve as Hu^3: bounded so a typo
+            # cannot stall an FMU's instantiation
+            raise ValueError(f"hp must be <= {MAX_HORIZON} samples, got {hp}")
         if hu > hp:
             # moves after k+Hp-1 would not affect any prediction in Eq. (15)
             raise ValueError(f"hu must be <= hp = {hp}, got {self.hu!r}")

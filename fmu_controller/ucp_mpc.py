@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .hysteresis_model import ModelState, _regressor_terms
+from .hysteresis_model import ModelState, regressor_terms
+from .servo_settings import MAX_HORIZON
 
 _dot = np.dot
 _array = np.array
@@ -52,8 +53,8 @@ class UCPSettings:
     linear part's step response."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.hp, int) or isinstance(self.hp, bool) or not 1 <= self.hp <= 50:
-            raise ValueError(f"UCPSettings.hp must be an integer in 1..50, got {self.hp!r}")
+        if not isinstance(self.hp, int) or isinstance(self.hp, bool) or not 1 <= self.hp <= MAX_HORIZON:
+            raise ValueError(f"UCPSettings.hp must be an integer in 1..{MAX_HORIZON}, got {self.hp!r}")
         for name in ("u_min_v", "u_max_v", "min_step_response_mm"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -105,7 +106,7 @@ def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, step
     l2, l1, l0, v2, v1, v0 = state.history
     out = []
     for _ in range(steps):
-        terms = _regressor_terms(l0, l1, l2, u, v1, v2)
+        terms = regressor_terms(l0, l1, l2, u, v1, v2)
         nxt = float(_dot(_array(terms if n == 15 else terms[:n]), theta))
         if not math.isfinite(nxt):
             raise ValueError(f"l must be finite, got {nxt}")

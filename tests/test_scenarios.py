@@ -1,6 +1,7 @@
 """Scenario files and the co-simulation master: the FMU loop is the direct loop; bad files are named."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -165,3 +166,24 @@ def test_large_seeds_reach_the_fmu_whole(built_fmus, seed):
 def test_a_seed_beyond_64_bits_is_named():
     with pytest.raises(ScenarioError, match=r"seed.*must be <= 18446744073709551615"):
         _scenario("ampc_servo", seed=2 ** 64)
+
+
+@pytest.mark.parametrize("doc, key, pattern", [
+    ({"duration_s": 20.0, "step_s": 60.0}, "step_s", "leaves no step in duration_s = 20 s"),
+    ({"duration_s": 1e6, "step_s": 0.01}, "duration_s", "makes 100000001 samples; at most 864001"),
+    ({"duration_s": 10.0, "reference": {"amplitude_mm": 1e300}}, "reference.amplitude_mm", r"outside \[0, 400\]"),
+    ({"duration_s": 10.0, "reference": {"offset_mm": -1e4}}, "reference.offset_mm", r"outside \[-400, 400\]"),
+    ({"duration_s": 10.0, "reference": {"frequency_hz": 50.0}}, "reference.frequency_hz", r"outside \[0, 5\]"),
+])
+def test_runaway_or_meaningless_scenarios_are_named(doc, key, pattern):
+    """A one-sample run, a day-long run at a millisecond step, a reference of 1e300 mm: refused with the
+    key and the allowed range (they used to run and report a 35 mm or 1e300 mm error with exit 0)."""
+    with pytest.raises(ScenarioError, match=f"key '{re.escape(key)}'.*{pattern}"):
+        parse_scenario(doc, source="s.toml")
+
+
+def test_a_runaway_horizon_is_refused_by_the_controller_fmu(built_fmus):
+    s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
+                        "controller": {"method": "ampc_servo", "parameters": {"servo.Hp": 5000}}}, source="s.toml")
+    with pytest.raises(ScenarioError, match=r"servo.Hp = 5000 is outside its declared range 1..50"):
+        co_simulate(s, built_fmus)

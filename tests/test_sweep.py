@@ -135,7 +135,7 @@ def test_run_ids_change_with_the_scenario_not_with_expectations(tmp_path):
      "monte_carlo.load.initial_n", "uniform"),
     ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 3\n'load.initial_n' = { uniform = [9, 2] }\n",
      "monte_carlo.load.initial_n.uniform", "lo < hi"),
-    ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 0\n'seed' = { integers = [0, 2] }\n", "monte_carlo.n", ">= 1"),
+    ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 0\n'seed' = { integers = [0, 2] }\n", "monte_carlo.n", "within 1..100000"),
     ("base = { duration_s = 10.0 }\n[grid]\n'load.initial_n' = [44, 600]\n", "load.initial_n", "is outside"),
     ("base = { duration_s = 10.0 }\n[grid]\n'load.initial' = [44]\n", "load.initial", "unknown key"),
     ("base = { duration_s = 10.0 }\n[grid]\nseed = [1, 1]\n", "", "the same scenario as run 0"),
@@ -342,3 +342,13 @@ def test_tasks_carry_fmu_digests_and_run_anywhere(built_fmus, tmp_path, monkeypa
     assert files.path(digest) == built_fmus["MusclePlant"].resolve()  # in the client: its own file
     local = next(run_serial([task], files))
     assert local.status == "ok" and local.metrics["mae_mm"] > 0
+
+
+def test_a_monte_carlo_size_beyond_the_limit_is_refused_at_once(tmp_path):
+    """n = 1e8 used to draw for 45 s and then report duplicate values in the grid."""
+    from tapmuscle.cosim.sweep import load_sweep
+
+    path = _write(tmp_path, "base = { duration_s = 10.0 }\n[monte_carlo]\nn = 100000000\n"
+                            "seed = { integers = [0, 999] }\n")
+    with pytest.raises(ScenarioError, match=r"monte_carlo\.n.*must be within 1\.\.100000, got 100000000"):
+        load_sweep(path)

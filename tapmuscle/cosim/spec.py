@@ -137,6 +137,9 @@ class Scenario:
         return int(round(self.duration_s / self.step_s)) + 1
 
 
+#: Most samples of one scenario run (24 h at Ts = 0.1 s).
+MAX_RUN_SAMPLES = 864_001
+
 _TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "plant", "controller",
         "reference", "load", "supply", "expect"}
 
@@ -248,6 +251,12 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     duration = top.number("duration_s", lo=0.0, hi=1e6, lo_open=True)
     step = top.number("step_s", 0.1, lo=0.0, hi=60.0, lo_open=True)
     n = int(round(duration / step)) + 1
+    if n < 2:
+        raise top.error("step_s", f"{step:g} s leaves no step in duration_s = {duration:g} s (step_s must be <= "
+                                  "duration_s)")
+    if n > MAX_RUN_SAMPLES:
+        raise top.error("duration_s", f"{duration:g} s at step_s = {step:g} s makes {n} samples; at most "
+                                      f"{MAX_RUN_SAMPLES} in one run")
     # Eq. (21)'s window by default; a run too short for it is evaluated whole.
     window = data.get("evaluation_samples", [101, 401] if n > 401 else [0, n - 1])
     if (not isinstance(window, list) or len(window) != 2 or not all(isinstance(k, int) and not isinstance(k, bool)
@@ -275,8 +284,10 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     kind = ref_r.string("kind", "sine", ("sine", "steps"))
     if kind == "sine":
         ref_r.check_keys({"kind", "offset_mm", "amplitude_mm", "frequency_hz"})
-        reference = Reference("sine", ref_r.number("offset_mm", 35.0), ref_r.number("amplitude_mm", 30.0),
-                              ref_r.number("frequency_hz", 0.1, lo=0.0))
+        # the muscle contracts at most 150 mm of its 400: a reference far beyond is a unit mistake
+        reference = Reference("sine", ref_r.number("offset_mm", 35.0, lo=-400.0, hi=400.0),
+                              ref_r.number("amplitude_mm", 30.0, lo=0.0, hi=400.0),
+                              ref_r.number("frequency_hz", 0.1, lo=0.0, hi=0.5 / step))
     else:
         ref_r.check_keys({"kind", "values_mm", "times_s", "preview"})
         values, times = ref_r.table.get("values_mm"), ref_r.table.get("times_s")

@@ -62,6 +62,9 @@ from tapmuscle.cosim.spec import Scenario, ScenarioError, parse_scenario, read_t
 
 __all__ = ["SweepRun", "Sweep", "load_sweep", "parse_sweep", "is_sweep_data", "run_id_of", "set_field"]
 
+#: Most Monte-Carlo samples of a sweep (per grid point and base): 10^5 runs is days of computing.
+MAX_MONTE_CARLO = 100_000
+
 _TOP = {"name", "description", "base", "grid", "monte_carlo", "expect"}
 _SWEEP_KEYS = ("base", "grid", "monte_carlo")
 _PARAMETER_TABLES = ("plant", "controller")
@@ -189,8 +192,8 @@ def _monte_carlo(data: Mapping[str, Any], source: str) -> tuple[list[str], list[
     if "n" not in mc:
         raise _error(source, "monte_carlo.n", "missing (the number of samples)")
     n = _number(source, "monte_carlo.n", mc["n"], integer=True)
-    if n < 1:
-        raise _error(source, "monte_carlo.n", f"must be >= 1, got {n}")
+    if not 1 <= n <= MAX_MONTE_CARLO:
+        raise _error(source, "monte_carlo.n", f"must be within 1..{MAX_MONTE_CARLO}, got {n}")
     sample_seed = _number(source, "monte_carlo.sample_seed", mc.get("sample_seed", 0), integer=True)
     if sample_seed < 0:
         raise _error(source, "monte_carlo.sample_seed", f"must be >= 0, got {sample_seed}")
