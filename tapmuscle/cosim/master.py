@@ -48,6 +48,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import REFERENCE_SOURCES
 
 from fmu_plant.seed import split_seed
+from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
 __all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameter_names", "co_simulate"]
@@ -119,6 +120,7 @@ def unpack(path: str | Path) -> Unpacked:
     if path not in _UNPACKED:
         if not path.is_file():
             raise ScenarioError(f"{path}: FMU file does not exist")
+        check_fmu_file(path)  # a broken binary is named here, not by a signal in this process
         try:
             md = read_model_description(str(path))
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU file

@@ -32,6 +32,14 @@ def load_plant(path: str | Path) -> tuple[PlantParams, str]:
     if path.suffix.lower() == ".fmu":
         from fmpy import read_model_description
 
+        from tapmuscle.cosim.fmu_file import check_fmu_file
+        from tapmuscle.cosim.spec import ScenarioError
+
+        try:  # before the diagnosis: its FMU check would load the binary at the end
+            check_fmu_file(path)
+        except ScenarioError as exc:
+            raise PlantSourceError(f"--plant {exc}") from None
+
         try:
             md = read_model_description(str(path))
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU

@@ -1,0 +1,136 @@
+"""Check an FMU file before anything loads it: a broken one is named, the process survives.
+
+The dynamic loader maps a shared library into the process; a truncated binary then kills the
+process with SIGBUS before Python can say anything (and leaves its extraction folders behind). So
+:func:`check_fmu_file`, before the first extraction of a file,
+
+1. tests the zip archive (reads every member: its CRC and its compressed stream);
+2. checks that ``modelDescription.xml`` is there and the co-simulation binary for this platform
+   exists, is an ELF file of the right class, and is not shorter than its own header says (its
+   section-header table ends within the file);
+3. loads the binary once in a *child* process (``ctypes.CDLL``), with a time limit.
+
+A failure raises :class:`~tapmuscle.cosim.spec.ScenarioError` ("... is not a loadable FMU: ...")
+naming the file and the member. A file that passed is remembered by its SHA-256 digest for the
+rest of the process, so a sweep of many runs checks each FMU once.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import zipfile
+import zlib
+from pathlib import Path
+
+from tapmuscle.cosim.spec import ScenarioError
+
+__all__ = ["check_fmu_file", "LOAD_TIMEOUT_S"]
+
+#: Longest a child process may take to load a binary [s] (pythonfmu's start Python; ~0.1 s here).
+LOAD_TIMEOUT_S = 60.0
+
+_CHECKED: set[str] = set()
+"""Digests of the FMU files that passed in this process."""
+
+
+def _platform_folder() -> str:
+    if sys.platform.startswith("linux"):
+        return "linux64"
+    if sys.platform == "darwin":
+        return "darwin64"
+    return "win64"
+
+
+def _elf_problem(data: bytes) -> str | None:
+    """Why ``data`` is not a complete 64-bit little-endian ELF file, or None."""
+    if len(data) < 64 or data[:4] != b"\x7fELF":
+        return f"not an ELF shared library ({len(data)} bytes, starts {data[:4]!r})"
+    if data[4] != 2 or data[5] != 1:
+        return "not a 64-bit little-endian ELF file"
+    shoff, = struct.unpack_from("<Q", data, 0x28)
+    shentsize, shnum = struct.unpack_from("<HH", data, 0x3A)
+    end = shoff + shentsize * shnum
+    if end > len(data):
+        return f"truncated: {len(data)} bytes, its header says at least {end}"
+    return None
+
+
+def _load_in_child(binaries: dict[str, bytes], main: str) -> str | None:
+    """Write the platform's binaries into a scratch folder and load ``main`` with ``ctypes`` in a child
+    process (its sibling libraries resolve next to it); why it failed, or None."""
+    with tempfile.TemporaryDirectory(prefix="tapmuscle_fmucheck_") as folder:
+        for name, data in binaries.items():
+            (Path(folder) / name).write_bytes(data)
+        try:
+            proc = subprocess.run([sys.executable, "-c", "import ctypes, sys; ctypes.CDLL(sys.argv[1])",
+                                   str(Path(folder) / main)], capture_output=True, text=True, timeout=LOAD_TIMEOUT_S,
+                                  cwd=folder)
+        except subprocess.TimeoutExpired:
+            return f"loading it took longer than {LOAD_TIMEOUT_S:g} s"
+    if proc.returncode == 0:
+        return None
+    if proc.returncode < 0:
+        return f"the dynamic loader died of {signal.Signals(-proc.returncode).name} loading it"
+    last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+    return f"the dynamic loader refused it: {last[:200]}"
+
+
+def check_fmu_file(path: str | Path) -> None:
+    """Raise ScenarioError unless ``path`` is an FMU whose co-simulation binary loads (module docstring).
+
+    Parameters
+    ----------
+    path : path
+        The ``.fmu`` file.
+    """
+    path = Path(path)
+    raw = path.read_bytes()
+    digest = hashlib.sha256(raw).hexdigest()
+    if digest in _CHECKED:
+        return
+    where = f"{path}: is not a loadable FMU:"
+    try:
+        with zipfile.ZipFile(path) as z:
+            for info in z.infolist():  # every member's CRC (what ZipFile.testzip does, naming the member)
+                try:
+                    with z.open(info) as fh:
+                        while fh.read(1 << 20):
+                            pass
+                except (zipfile.BadZipFile, zlib.error, EOFError) as exc:
+                    raise ScenarioError(f"{where} the archive is damaged ({info.filename}: "
+                                        f"{str(exc).splitlines()[0][:100]})") from None
+            names = set(z.namelist())
+            if "modelDescription.xml" not in names:
+                raise ScenarioError(f"{where} it has no modelDescription.xml")
+            from fmpy import read_model_description
+
+            try:
+                md = read_model_description(str(path))
+            except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU
+                raise ScenarioError(f"{where} {str(exc).splitlines()[0][:200]}") from None
+            if md.coSimulation is None:
+                raise ScenarioError(f"{where} it is not a co-simulation FMU")
+            ext = {"linux64": ".so", "darwin64": ".dylib", "win64": ".dll"}[_platform_folder()]
+            folder = f"binaries/{_platform_folder()}/"
+            member = f"{folder}{md.coSimulation.modelIdentifier}{ext}"
+            if member not in names:
+                raise ScenarioError(f"{where} it has no {member} for this platform")
+            binaries = {n[len(folder):]: z.read(n) for n in names
+                        if n.startswith(folder) and "/" not in n[len(folder):] and n != folder}
+    except zipfile.BadZipFile as exc:
+        raise ScenarioError(f"{where} not a zip archive ({exc})") from None
+    if ext == ".so":
+        for name, data in sorted(binaries.items()):
+            if ".so" in name:
+                problem = _elf_problem(data)
+                if problem is not None:
+                    raise ScenarioError(f"{where} {folder}{name} is {problem}")
+    problem = _load_in_child(binaries, Path(member).name)
+    if problem is not None:
+        raise ScenarioError(f"{where} {member}: {problem}")
+    _CHECKED.add(digest)

@@ -1,0 +1,95 @@
+"""A broken FMU file is named before anything loads it (tapmuscle/cosim/fmu_file.py): no signal death,
+no traceback, no temporary folder left behind."""
+
+from __future__ import annotations
+
+import glob
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from tapmuscle.cosim.fmu_file import check_fmu_file
+from tapmuscle.cosim.spec import ScenarioError
+
+
+def _rewrite(src: Path, dst: Path, edit) -> Path:
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
+        for info in zin.infolist():
+            data = edit(info.filename, zin.read(info.filename))
+            if data is not None:
+                zout.writestr(info, data)
+    return dst
+
+
+def _truncated(src: Path, dst: Path) -> Path:
+    return _rewrite(src, dst, lambda name, data: data[:len(data) // 2] if name.endswith("MusclePlant.so") else data)
+
+
+def _bad_crc(src: Path, dst: Path) -> Path:
+    data = bytearray(src.read_bytes())
+    with zipfile.ZipFile(src) as z:
+        info = z.getinfo("modelDescription.xml")
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+    data[start + 10] ^= 0xFF  # inside the member's compressed bytes
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def _no_binary(src: Path, dst: Path) -> Path:
+    return _rewrite(src, dst, lambda name, data: None if name.startswith("binaries/linux64/") else data)
+
+
+def _not_a_zip(src: Path, dst: Path) -> Path:
+    dst.write_bytes(b"PK\x03\x04 not really a zip")
+    return dst
+
+
+CASES = [(_truncated, r"binaries/linux64/MusclePlant.so is truncated: \d+ bytes, its header says at least \d+"),
+         (_bad_crc, r"the archive is damaged \(modelDescription.xml: "),
+         (_no_binary, r"it has no binaries/linux64/MusclePlant.so for this platform"),
+         (_not_a_zip, r"not a zip archive")]
+
+
+@pytest.mark.parametrize("make, pattern", CASES, ids=[c[0].__name__.strip("_") for c in CASES])
+def test_a_broken_fmu_is_named_without_loading_it(built_fmus, tmp_path, make, pattern):
+    bad = make(built_fmus["MusclePlant"], tmp_path / "MusclePlant.fmu")
+    with pytest.raises(ScenarioError, match=r"MusclePlant.fmu: is not a loadable FMU: " + pattern):
+        check_fmu_file(bad)
+
+
+def test_the_good_fmus_pass(built_fmus):
+    for path in built_fmus.values():
+        check_fmu_file(path)
+
+
+@pytest.mark.parametrize("command", ["run", "diagnose"])
+def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_path, command):
+    """The truncated binary used to kill `run` and `diagnose --plant` with SIGBUS and leave tapmuscle_*
+    folders in the temporary directory. Now: exit 2, one line, nothing left."""
+    fmu_dir = tmp_path / "fmus"
+    fmu_dir.mkdir()
+    _truncated(built_fmus["MusclePlant"], fmu_dir / "MusclePlant.fmu")
+    (fmu_dir / "AMPCController.fmu").write_bytes(built_fmus["AMPCController"].read_bytes())
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    if command == "run":
+        scenario = tmp_path / "s.toml"
+        scenario.write_text("duration_s = 2.0\nevaluation_samples = [0, 10]\n")
+        argv = ["run", str(scenario), "--out", str(tmp_path / "out"), "--fmu-dir", str(fmu_dir), "--quiet"]
+    else:
+        rec = tmp_path / "rec.csv"
+        rec.write_text("t_s,u_v,l_mm\n" + "".join(f"{k / 10:g},{5 + (k // 20) % 2},{k % 7}\n" for k in range(1801)))
+        argv = ["diagnose", "--recording", str(rec), "--plant", str(fmu_dir / "MusclePlant.fmu"),
+                "--out", str(tmp_path / "out"), "--no-calibration", "--no-plots", "--quiet"]
+    proc = subprocess.run([sys.executable, "-m", "tapmuscle.cli", *argv], capture_output=True, text=True,
+                          env={"TMPDIR": str(scratch), "PATH": "/usr/bin:/bin"}, timeout=600)
+    assert proc.returncode == 2, proc.stderr
+    assert "is not a loadable FMU" in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+    assert glob.glob(str(scratch / "tapmuscle_*")) == []
+    assert Path(tempfile.gettempdir()).is_dir()
