@@ -89,12 +89,12 @@ class ValveParams(_Validated):
     """
 
     cv_max: float = _f(1.5, "Effective flow coefficient of each valve at full command [US gpm/psi^0.5]; calibration (2 % settling of a few seconds, the paper's slow dominant pole, Table 3), bounded by the datasheet rating 1.6 (Table 1).", lo=0.0, lo_open=True, hi=1.6)
-    u_min_v: float = _f(0.0, "Lowest valve command [V]; datasheet (Table 1).")
-    u_max_v: float = _f(10.0, "Highest valve command [V]; datasheet (Table 1).")
-    spool_time_constant_s: float = _f(0.03, "First-order spool response time constant [s]; calibration (typical of proportional valves).", lo=0.0, lo_open=True)
+    u_min_v: float = _f(0.0, "Lowest valve command [V]; datasheet (Table 1).", lo=-100.0, hi=100.0)
+    u_max_v: float = _f(10.0, "Highest valve command [V]; datasheet (Table 1).", lo=-100.0, hi=100.0)
+    spool_time_constant_s: float = _f(0.03, "First-order spool response time constant [s]; calibration (typical of proportional valves).", lo=0.0, lo_open=True, hi=10.0)
     characteristic_exponent: float = _f(0.5, "Flow characteristic: flow coefficient proportional to opening^n (1 linear, 0.5 quick-opening) [-]; calibration: 0.5 makes the bleed circuit's steady pressure proportional to the command.", lo=0.1, hi=3.0)
     leak_fraction: float = _f(0.01, "Opening of a closed valve as a fraction of full opening (spool underlap/leak) [-]; calibration.", lo=0.0, hi=1.0)
-    laminar_dp_mpa: float = _f(0.002, "Pressure drop below which orifice flow is regularised to laminar [MPa]; numerical.", lo=0.0, lo_open=True)
+    laminar_dp_mpa: float = _f(0.002, "Pressure drop below which orifice flow is regularised to laminar [MPa]; numerical.", lo=0.0, lo_open=True, hi=0.1)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -108,7 +108,7 @@ class SupplyParams(_Validated):
 
     supply_pressure_mpa: float = _f(0.25, "Gauge pressure of the tap-water supply [MPa(G)]; paper (Table 1, average).", lo=0.0, hi=1.0)
     drain_pressure_mpa: float = _f(0.0, "Gauge pressure of the drain (atmosphere) [MPa(G)]; paper.", lo=0.0, hi=1.0)
-    compliance_m3_per_mpa: float = _f(1.0e-5, "Hydraulic compliance of hose, fittings and bladder dV/dp [m^3/MPa]; calibration (water itself is nearly incompressible).", lo=0.0, lo_open=True)
+    compliance_m3_per_mpa: float = _f(1.0e-5, "Hydraulic compliance of hose, fittings and bladder dV/dp [m^3/MPa]; calibration (water itself is nearly incompressible).", lo=0.0, lo_open=True, hi=1e-2)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -120,15 +120,15 @@ class MuscleParams(_Validated):
     unit contraction, ``dV/dl = A0 (a (1 - eps)^2 - b)``.
     """
 
-    rest_length_mm: float = _f(400.0, "Active length L0 at zero contraction [mm]; paper (Table 1).", lo=0.0, lo_open=True)
-    radius_mm: float = _f(10.0, "Initial bladder radius r0 [mm]; calibration (in-house muscle, not given).", lo=0.0, lo_open=True)
+    rest_length_mm: float = _f(400.0, "Active length L0 at zero contraction [mm]; paper (Table 1).", lo=0.0, lo_open=True, hi=5000.0)
+    radius_mm: float = _f(10.0, "Initial bladder radius r0 [mm]; calibration (in-house muscle, not given).", lo=0.0, lo_open=True, hi=200.0)
     braid_angle_deg: float = _f(23.0, "Initial braid angle alpha0 [deg]; calibration (sets the 149 mm maximal contraction).", lo=1.0, hi=54.0)
-    rubber_stiffness_n_per_mm: float = _f(1.2, "Axial stiffness of the rubber bladder against contraction [N/mm]; calibration.", lo=0.0)
-    threshold_pressure_mpa: float = _f(0.04, "Pressure the bladder needs before the braid is loaded [MPa]; calibration.", lo=0.0)
-    threshold_width_mpa: float = _f(0.01, "Width over which the bladder threshold is passed (smooth onset of the braid force) [MPa]; calibration.", lo=0.0, lo_open=True)
-    braid_lock_force_n: float = _f(40.0, "Passive force of the braid near full extension at l = 0, decaying as exp(-l/lock_length) (braid lock); 0 disables it [N]; calibration.", lo=0.0)
-    braid_lock_length_mm: float = _f(20.0, "Decay length of the braid-lock force [mm]; calibration.", lo=0.0, lo_open=True)
-    damping_n_s_per_mm: float = _f(0.08, "Viscous damping of muscle and load [N s/mm]; calibration.", lo=0.0)
+    rubber_stiffness_n_per_mm: float = _f(1.2, "Axial stiffness of the rubber bladder against contraction [N/mm]; calibration.", lo=0.0, hi=1000.0)
+    threshold_pressure_mpa: float = _f(0.04, "Pressure the bladder needs before the braid is loaded [MPa]; calibration.", lo=0.0, hi=1.0)
+    threshold_width_mpa: float = _f(0.01, "Width over which the bladder threshold is passed (smooth onset of the braid force) [MPa]; calibration.", lo=0.0, lo_open=True, hi=1.0)
+    braid_lock_force_n: float = _f(40.0, "Passive force of the braid near full extension at l = 0, decaying as exp(-l/lock_length) (braid lock); 0 disables it [N]; calibration.", lo=0.0, hi=1e4)
+    braid_lock_length_mm: float = _f(20.0, "Decay length of the braid-lock force [mm]; calibration.", lo=0.0, lo_open=True, hi=1000.0)
+    damping_n_s_per_mm: float = _f(0.08, "Viscous damping of muscle and load [N s/mm]; calibration.", lo=0.0, hi=100.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -136,7 +136,7 @@ class LoadParams(_Validated):
     """Hanging load (section 4.1: 44 N and 68 N). Its mass is ``load_n / g`` plus the moving parts."""
 
     load_n: float = _f(44.0, "Weight of the hanging load [N]; paper (section 4.1).", lo=0.0, hi=500.0)
-    moving_mass_kg: float = _f(0.3, "Mass of the muscle end plate, cable and encoder slider [kg]; calibration.", lo=0.0, lo_open=True)
+    moving_mass_kg: float = _f(0.3, "Mass of the muscle end plate, cable and encoder slider [kg]; calibration.", lo=0.0, lo_open=True, hi=100.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -151,24 +151,24 @@ class FrictionParams(_Validated):
         F_s = (f0 + mu * p) * (1 + s * asym) * (1 + rate * (|v| / v_ref)^rate_exponent)
     """
 
-    base_n: float = _f(8.0, "Pressure-independent friction level f0 [N]; calibration.", lo=0.0)
-    per_mpa_n: float = _f(30.0, "Growth of friction with muscle pressure mu [N/MPa]; calibration.", lo=0.0)
+    base_n: float = _f(8.0, "Pressure-independent friction level f0 [N]; calibration.", lo=0.0, hi=1000.0)
+    per_mpa_n: float = _f(30.0, "Growth of friction with muscle pressure mu [N/MPa]; calibration.", lo=0.0, hi=1e4)
     asymmetry: float = _f(0.35, "Contraction friction (1+asym) vs extension friction (1-asym) [-]; calibration.", lo=-0.95, hi=0.95)
-    presliding_mm: float = _f(1.5, "Presliding displacement over which friction builds up (Dahl) [mm]; calibration.", lo=0.0, lo_open=True)
-    rate_gain: float = _f(0.8, "Rate dependence of the friction level at v_ref (0 switches it off) [-]; calibration to section 4.4.", lo=0.0)
-    rate_ref_mm_s: float = _f(20.0, "Reference sliding speed v_ref for the rate dependence [mm/s]; calibration.", lo=0.0, lo_open=True)
-    rate_exponent: float = _f(1.0, "Exponent of the rate dependence [-]; calibration.", lo=0.0, lo_open=True)
+    presliding_mm: float = _f(1.5, "Presliding displacement over which friction builds up (Dahl) [mm]; calibration.", lo=0.0, lo_open=True, hi=100.0)
+    rate_gain: float = _f(0.8, "Rate dependence of the friction level at v_ref (0 switches it off) [-]; calibration to section 4.4.", lo=0.0, hi=10.0)
+    rate_ref_mm_s: float = _f(20.0, "Reference sliding speed v_ref for the rate dependence [mm/s]; calibration.", lo=0.0, lo_open=True, hi=1e4)
+    rate_exponent: float = _f(1.0, "Exponent of the rate dependence [-]; calibration.", lo=0.0, lo_open=True, hi=5.0)
 
 
 @dataclass(frozen=True, kw_only=True)
 class SensorParams(_Validated):
     """Linear encoder (MUTOH DX-025, 0.01 mm) and pressure sensor (Yokogawa FP101, 0-1 MPa), Table 1."""
 
-    encoder_resolution_mm: float = _f(0.01, "Encoder quantisation step [mm]; datasheet (Table 1). 0 disables quantisation.", lo=0.0)
-    encoder_noise_std_mm: float = _f(0.01, "Standard deviation of white encoder noise before quantisation [mm]; calibration. 0 disables it.", lo=0.0)
-    pressure_range_mpa: float = _f(1.0, "Full scale of the pressure sensor [MPa]; datasheet (Table 1).", lo=0.0, lo_open=True)
-    pressure_resolution_mpa: float = _f(1.0 / 4096.0, "Pressure quantisation (12-bit ADC over the range) [MPa]. 0 disables it.", lo=0.0)
-    pressure_noise_std_mpa: float = _f(0.001, "Standard deviation of white pressure-sensor noise [MPa]. 0 disables it.", lo=0.0)
+    encoder_resolution_mm: float = _f(0.01, "Encoder quantisation step [mm]; datasheet (Table 1). 0 disables quantisation.", lo=0.0, hi=10.0)
+    encoder_noise_std_mm: float = _f(0.01, "Standard deviation of white encoder noise before quantisation [mm]; calibration. 0 disables it.", lo=0.0, hi=10.0)
+    pressure_range_mpa: float = _f(1.0, "Full scale of the pressure sensor [MPa]; datasheet (Table 1).", lo=0.0, lo_open=True, hi=100.0)
+    pressure_resolution_mpa: float = _f(1.0 / 4096.0, "Pressure quantisation (12-bit ADC over the range) [MPa]. 0 disables it.", lo=0.0, hi=1.0)
+    pressure_noise_std_mpa: float = _f(0.001, "Standard deviation of white pressure-sensor noise [MPa]. 0 disables it.", lo=0.0, hi=1.0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -181,10 +181,10 @@ class SolverParams(_Validated):
 
     max_substep_s: float = _f(0.05, "Largest internal integration step [s]; the adaptive sub-steps never exceed it and end exactly on every communication point.", lo=1e-5, hi=1.0)
     min_substep_s: float = _f(1e-5, "Smallest internal integration step [s]; a sub-step this short is accepted whatever its error estimate (guarantees progress).", lo=1e-9, hi=1e-3)
-    tol_p_mpa: float = _f(5e-4, "Local error tolerance of the muscle pressure per sub-step [MPa].", lo=0.0, lo_open=True)
-    tol_l_mm: float = _f(5e-3, "Local error tolerance of the contraction per sub-step [mm].", lo=0.0, lo_open=True)
-    tol_v_mm_s: float = _f(0.5, "Local error tolerance of the contraction speed per sub-step [mm/s].", lo=0.0, lo_open=True)
-    tol_z_n: float = _f(0.05, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True)
+    tol_p_mpa: float = _f(5e-4, "Local error tolerance of the muscle pressure per sub-step [MPa].", lo=0.0, lo_open=True, hi=0.05)
+    tol_l_mm: float = _f(5e-3, "Local error tolerance of the contraction per sub-step [mm].", lo=0.0, lo_open=True, hi=0.5)
+    tol_v_mm_s: float = _f(0.5, "Local error tolerance of the contraction speed per sub-step [mm/s].", lo=0.0, lo_open=True, hi=50.0)
+    tol_z_n: float = _f(0.05, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True, hi=5.0)
 
 
 # ------------------------------------------------------------------------------ left-out effects

@@ -105,3 +105,18 @@ def test_seeds_are_unsigned_64_bit_on_the_command_line(tmp_path, capsys):
     assert "--seed must be within 0..18446744073709551615" in capsys.readouterr().err
     assert main(base + ["--seed", str(2 ** 64 - 1)]) == 0
     assert read_recording(out).metadata["seed"] == str(2 ** 64 - 1)
+
+
+@pytest.mark.parametrize("setting, pattern", [
+    ("sensor.encoder_noise_std_mm=1e300", r"encoder_noise_std_mm.*1e\+300"),
+    ("friction.rate_gain=1e308", r"rate_gain.*1e\+308"),
+])
+def test_absurd_plant_parameters_are_refused_in_one_line(tmp_path, capsys, setting, pattern):
+    """Every plant parameter has bounds (physically generous): 1e308 used to end in a FloatingPointError
+    and a 1.3 kB parameter dump."""
+    out = tmp_path / "rec.csv"
+    assert main(["record", "--load", "44", "--input", "const:value=5", "--duration", "2", "--out", str(out),
+                 "--set", setting, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(pattern, err) and len(err.splitlines()) == 1 and len(err) <= 300, err
+    assert not out.exists()
