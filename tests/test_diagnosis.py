@@ -416,3 +416,10 @@ def test_demo_mismatch_refuses_an_empty_or_unknown_list(tmp_path, capsys, flag, 
     err = capsys.readouterr().err
     assert pattern in err and len(err.splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_constant_displacement_is_named_before_any_fit():
+    """A disconnected encoder (l_mm constant) used to end in 'DeadZoneParams.width_v must be <= 5.0'."""
+    cols = record(DEMO_MODEL, "sine", 2)
+    with pytest.raises(ValueError, match=r"column l_mm: the displacement is constant \(3 mm\)"):
+        diagnose(cols["t_s"], cols["u_v"], np.full_like(cols["l_mm"], 3.0), DEMO_MODEL)

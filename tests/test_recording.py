@@ -60,3 +60,11 @@ def test_non_finite_data_is_refused_and_the_old_file_survives(tmp_path):
         write_recording(path, bad)
     assert path.read_text() == before
     assert [p.name for p in tmp_path.iterdir()] == ["r.csv"]  # no temporary file left behind
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_column(tmp_path):
+    """Spreadsheet exports start with a UTF-8 BOM; it used to make the header's first name '\\ufefft_s'."""
+    path = tmp_path / "bom.csv"
+    path.write_bytes("\ufefft_s,u_v,l_mm\n0,1,2\n0.1,1,2.5\n".encode("utf-8"))
+    rec = read_recording(path)
+    assert list(rec.columns) == ["t_s", "u_v", "l_mm"] and rec.l_mm.tolist() == [2.0, 2.5]

@@ -223,6 +223,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                          f"(previous sample {t[k - 1]!r} s); resample the recording first")
     if float(np.ptp(u)) == 0.0:
         raise ValueError(f"column u_v: the command is constant ({u[0]:g} V); nothing excites the plant")
+    if float(np.ptp(y)) == 0.0:
+        raise ValueError(f"column l_mm: the displacement is constant ({y[0]:g} mm); the recording shows no motion "
+                         "to compare with the model (a disconnected encoder?)")
 
     n = len(t)
     duration = (n - 1) * ts

@@ -145,7 +145,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (spreadsheet exports) is not data
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such recording file") from None
     except (OSError, UnicodeDecodeError) as exc:
