@@ -265,8 +265,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------------------- main
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors, like the commands' own: ``tapmuscle <cmd>: error: ...``."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tapmuscle", description=__doc__.splitlines()[0])
+    """The ``tapmuscle`` parser with every subcommand (errors are one line, exit status 2)."""
+    parser = _Parser(prog="tapmuscle", description="Simulate, identify and control a tap-water McKibben muscle; "
+                     "the plant and the AMPC controller as FMI 2.0 co-simulation FMUs. "
+                     "'tapmuscle <command> --help' for each command.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     rec = sub.add_parser("record", help="run the simulated rig open-loop and write a recording CSV",
