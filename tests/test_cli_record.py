@@ -120,3 +120,18 @@ def test_absurd_plant_parameters_are_refused_in_one_line(tmp_path, capsys, setti
     err = capsys.readouterr().err
     assert re.search(pattern, err) and len(err.splitlines()) == 1 and len(err) <= 300, err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["record", "--load", "44", "--input", "const:value=5", "--duration", "1", "--out", ""],
+    ["run", "x.toml", "--out", "  "],
+    ["diagnose", "--recording", "r.csv", "--plant", "p.json", "--out", ""],
+    ["sweep", "s.toml", "--out", ""],
+])
+def test_an_empty_output_path_is_refused_in_one_line(capsys, argv):
+    """``--out ''`` meant the current folder and ended in 'Device or resource busy' naming a temp file."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "must name a file or folder, got an empty string" in err
+    assert len(err.strip().splitlines()) == 1

@@ -6,7 +6,7 @@ import argparse
 import math
 from typing import Callable
 
-__all__ = ["number_within", "integer_at_least"]
+__all__ = ["number_within", "integer_at_least", "output_path"]
 
 
 def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
@@ -34,4 +34,14 @@ def integer_at_least(name: str, lo: int, hi: int | None = None) -> Callable[[str
         if v < lo:
             raise argparse.ArgumentTypeError(f"{name} must be >= {lo}, got {v}")
         return v
+    return parse
+
+
+def output_path(name: str) -> Callable[[str], str]:
+    """Parser of an output path for option ``name``: not empty (an empty path means the current folder,
+    which a command would then try to replace)."""
+    def parse(text: str) -> str:
+        if not text.strip():
+            raise argparse.ArgumentTypeError(f"{name} must name a file or folder, got an empty string")
+        return text
     return parse

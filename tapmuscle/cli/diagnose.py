@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tapmuscle.cli.arguments import integer_at_least, number_within
+from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
 from tapmuscle.errors import UsageError
 
 __all__ = ["register"]
@@ -104,7 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "(docs/diagnosis.md).")
     dia.add_argument("--recording", required=True, help="recording CSV (docs/recordings.md): t_s,u_v,l_mm[,load_n,p_mpa]")
     dia.add_argument("--plant", required=True, help="a MusclePlant .fmu, or a plant parameter .json")
-    dia.add_argument("--out", required=True, help="output folder")
+    dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=10.0,
                      help="length of the interleaved training / held-out blocks [s] (default 10)")
     dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=120.0,
@@ -126,7 +126,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "effect concealed in the exact model (every effect x 3 magnitudes x "
                                       "excitations x seeds), clean recordings, a 60-90 s supply sag and the "
                                       "Fig. 20 case (docs/diagnosis.md).")
-    demo.add_argument("--out", required=True, help="output folder")
+    demo.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     demo.add_argument("--suite", choices=("field", "concealed"), default="field",
                       help="field recordings (default) or the concealed-effect proof")
     demo.add_argument("--recordings", type=integer_at_least("--recordings", 1), default=None,
