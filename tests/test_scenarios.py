@@ -187,3 +187,14 @@ def test_a_runaway_horizon_is_refused_by_the_controller_fmu(built_fmus):
                         "controller": {"method": "ampc_servo", "parameters": {"servo.Hp": 5000}}}, source="s.toml")
     with pytest.raises(ScenarioError, match=r"servo.Hp = 5000 is outside its declared range 1..50"):
         co_simulate(s, built_fmus)
+
+
+def test_a_controller_fmu_as_the_plant_is_named_as_such(built_fmus, tmp_path, capsys):
+    """It used to fail with "key 'seed': not a parameter of AMPCController"."""
+    path = tmp_path / "s.toml"
+    path.write_text(f"duration_s = 2.0\nevaluation_samples = [0, 10]\n[plant]\nfmu = '{built_fmus['AMPCController']}'\n")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "this AMPCController FMU cannot be the plant: it lacks input u, output l" in err
+    assert len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()

@@ -147,8 +147,26 @@ def check_parameter_names(scenario: Scenario, fmus: Mapping[str, str | Path]) ->
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
                              ("AMPCController", "controller", scenario.controller)):
         unpacked = unpack(spec.path or fmus[name])
+        check_role(unpacked, role)
         for key in spec.parameters:
             _settable(unpacked, key, f"{scenario.source}: key '{role}.parameters.")
+
+
+#: The interface each role of the closed loop needs: (inputs, outputs) by name.
+ROLE_INTERFACE = {"plant": ({"u"}, {"l"}), "controller": ({"l"}, {"u"})}
+
+
+def check_role(unpacked: Unpacked, role: str) -> None:
+    """ScenarioError unless the FMU has the inputs and outputs its ``role`` in the loop needs (a
+    controller FMU given as the plant is named as such, not by a parameter it lacks)."""
+    need_in, need_out = ROLE_INTERFACE[role]
+    variables = unpacked.variables
+    ins = {n for n, v in variables.items() if v.causality == "input"}
+    outs = {n for n, v in variables.items() if v.causality == "output"}
+    missing = [f"input {n}" for n in sorted(need_in - ins)] + [f"output {n}" for n in sorted(need_out - outs)]
+    if missing:
+        raise ScenarioError(f"{unpacked.path}: this {unpacked.model_description.modelName} FMU cannot be the {role}: "
+                            f"it lacks {', '.join(missing)}")
 
 
 class FmuInstance:
@@ -166,6 +184,7 @@ class FmuInstance:
         self.role = role
         self.messages: list[str] = []
         md = self.unpacked.model_description
+        check_role(self.unpacked, role)
         instance_name = f"{instance_name}#{next(_INSTANCE_COUNTER)}"  # unique: messages are routed by name
         _LOG_SINKS[instance_name] = self.messages
         self._name = instance_name
