@@ -352,3 +352,13 @@ def test_a_monte_carlo_size_beyond_the_limit_is_refused_at_once(tmp_path):
                             "seed = { integers = [0, 999] }\n")
     with pytest.raises(ScenarioError, match=r"monte_carlo\.n.*must be within 1\.\.100000, got 100000000"):
         load_sweep(path)
+
+
+@pytest.mark.parametrize("content", [b"\xff\xfe\x00garbage", b"run_id,\"status\n\"x\x00", b"a,b,c\n1,2,3\n"])
+def test_a_corrupt_results_file_is_named(tmp_path, content):
+    from tapmuscle.cosim.sweep_run import ResultsLog
+
+    path = tmp_path / "results.csv"
+    path.write_bytes(content)
+    with pytest.raises(ScenarioError, match=f"{path}"):
+        ResultsLog(path, ("run_id", "status")).rows()

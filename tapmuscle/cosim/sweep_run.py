@@ -81,18 +81,26 @@ class ResultsLog:
         """Every complete row, in file order (a line cut short by a crash is ignored)."""
         if not self.path.is_file():
             return []
-        text = self.path.read_text(encoding="utf-8")
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ScenarioError(f"{self.path}: cannot be read as a results file ({exc}); move it away or write "
+                                "into another --out folder") from None
         if not text:
             return []
         if not text.endswith("\n"):
             text = text[:text.rfind("\n") + 1]
         reader = csv.reader(io.StringIO(text))
-        header = tuple(next(reader, ()))
-        if header != self.columns:
-            extra = sorted(set(header) ^ set(self.columns))
-            raise ScenarioError(f"{self.path}: holds results of another sweep (columns differ: "
-                                f"{', '.join(extra) or 'order'}); write into another --out folder")
-        return [dict(zip(header, row)) for row in reader if len(row) == len(header)]
+        try:
+            header = tuple(next(reader, ()))
+            if header != self.columns:
+                extra = sorted(set(header) ^ set(self.columns))
+                raise ScenarioError(f"{self.path}: holds results of another sweep (columns differ: "
+                                    f"{', '.join(extra)[:120] or 'order'}); write into another --out folder")
+            return [dict(zip(header, row)) for row in reader if len(row) == len(header)]
+        except csv.Error as exc:
+            raise ScenarioError(f"{self.path}, line {reader.line_num}: not a results file ({exc}); move it away "
+                                "or write into another --out folder") from None
 
     def latest(self) -> dict[str, dict[str, str]]:
         """run_id -> its last row."""
