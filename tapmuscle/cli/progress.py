@@ -1,18 +1,31 @@
-"""Progress reports on stderr for long runs: a bar on a terminal, a line every 10% otherwise."""
+"""Progress reports on stderr for long runs: a bar on a terminal, lines in a log.
+
+A run never goes quiet for long: besides each update, a heartbeat re-reports the last state with the
+elapsed time when nothing has been written for :data:`HEARTBEAT_TTY_S` (a terminal: the bar's clock
+keeps moving) or :data:`HEARTBEAT_LOG_S` (a log file or CI: one line then, not a flood).
+"""
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
+import weakref
 from typing import TextIO
 
-__all__ = ["Progress"]
+__all__ = ["Progress", "HEARTBEAT_TTY_S", "HEARTBEAT_LOG_S"]
+
+#: Longest silence on a terminal [s].
+HEARTBEAT_TTY_S = 5.0
+#: Longest silence in a log (not a terminal) [s]; updates there also come every 10 %.
+HEARTBEAT_LOG_S = 30.0
 
 
 class Progress:
     """Callable ``progress(done, total)`` that reports on ``stream`` (default stderr).
 
-    Silent when ``enabled`` is false or the run is short (fewer than ``min_total`` units).
+    Silent when ``enabled`` is false or the run is short (fewer than ``min_total`` units). The
+    heartbeat (module docstring) runs in a daemon thread from the first report to the last.
     """
 
     def __init__(self, label: str, *, enabled: bool = True, stream: TextIO | None = None,
@@ -22,23 +35,70 @@ class Progress:
         self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._last_decile = -1
         self._t0 = time.monotonic()
+        self._lock = threading.Lock()
+        self._state: tuple[int, int, str] | None = None
+        self._last_write = self._t0
+        self._heart: threading.Thread | None = None
+
+    @property
+    def heartbeat_s(self) -> float:
+        """The longest silence allowed on this stream [s]."""
+        return HEARTBEAT_TTY_S if self._tty else HEARTBEAT_LOG_S
 
     def __call__(self, done: int, total: int, detail: str = "") -> None:
         """Report ``done`` of ``total`` units; ``detail`` (e.g. ``3 failed, 10 remaining``) is appended."""
         if not self.enabled or total < self.min_total:
             return
+        with self._lock:
+            self._state = (done, total, detail)
+            self._render(done, total, detail, heartbeat=False)
+        if self._heart is None and done < total:
+            # the thread holds only a weak reference: when the command is over and its Progress is
+            # gone, the heartbeat stops too (a run that ends early never reaches done == total)
+            self._heart = threading.Thread(target=_beat, args=(weakref.ref(self),), name=f"progress-{self.label}",
+                                           daemon=True)
+            self._heart.start()
+
+    def _render(self, done: int, total: int, detail: str, *, heartbeat: bool) -> None:
         frac = done / total if total else 1.0
         extra = f"  {detail}" if detail else ""
+        elapsed = time.monotonic() - self._t0
         if self._tty:
             bar = "#" * int(30 * frac)
-            self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% "
-                              f"{time.monotonic() - self._t0:6.1f} s{extra}\033[K")
+            self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% {elapsed:6.1f} s{extra}\033[K")
             if done >= total:
                 self.stream.write("\n")
         else:
             decile = int(10 * frac)
-            if decile > self._last_decile:
-                self._last_decile = decile
-                self.stream.write(f"{self.label}: {100 * frac:3.0f}% ({done}/{total}, "
-                                  f"{time.monotonic() - self._t0:.1f} s){extra}\n")
+            if decile > self._last_decile or heartbeat:
+                self._last_decile = max(decile, self._last_decile)
+                still = "  (still running)" if heartbeat else ""
+                self.stream.write(f"{self.label}: {100 * frac:3.0f}% ({done}/{total}, {elapsed:.1f} s){extra}{still}\n")
+            else:
+                return
         self.stream.flush()
+        self._last_write = time.monotonic()
+
+    def _beat_once(self) -> bool:
+        """Re-report if silent too long; False once the run is complete."""
+        with self._lock:
+            if self._state is None:
+                return True
+            done, total, detail = self._state
+            if done >= total:
+                return False
+            if time.monotonic() - self._last_write >= self.heartbeat_s:
+                self._render(done, total, detail, heartbeat=True)
+        return True
+
+
+def _beat(ref: "weakref.ReferenceType[Progress]") -> None:
+    while True:
+        progress = ref()
+        if progress is None:
+            return
+        pause = min(1.0, progress.heartbeat_s / 5)
+        if not progress._beat_once():
+            return
+        del progress
+        time.sleep(pause)

@@ -1,0 +1,53 @@
+"""Progress reports (tapmuscle/cli/progress.py): no run goes quiet for longer than the heartbeat."""
+
+from __future__ import annotations
+
+import gc
+import io
+import threading
+import time
+
+import tapmuscle.cli.progress as progress_module
+from tapmuscle.cli.progress import Progress
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_silent_stretch_gets_heartbeats_and_they_stop_at_the_end(monkeypatch):
+    monkeypatch.setattr(progress_module, "HEARTBEAT_TTY_S", 0.2)
+    out = _Tty()
+    p = Progress("job", stream=out, min_total=1)
+    p(1, 10)
+    time.sleep(0.9)  # a long unit of work without an update
+    beats = out.getvalue().count("\r")
+    assert beats >= 3  # the first report and at least two heartbeats with a moving clock
+    p(10, 10)
+    n = len(out.getvalue())
+    time.sleep(0.5)
+    assert len(out.getvalue()) == n and out.getvalue().endswith("\n")  # done: silent
+
+
+def test_a_log_gets_a_still_running_line(monkeypatch):
+    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.2)
+    out = io.StringIO()
+    p = Progress("job", stream=out, min_total=1)
+    p(3, 10)
+    time.sleep(0.7)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("job:  30% (3/10") and any(line.endswith("(still running)") for line in lines[1:])
+
+
+def test_the_heartbeat_ends_with_its_command(monkeypatch):
+    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.1)
+    out = io.StringIO()
+
+    def command():
+        Progress("job", stream=out, min_total=1)(1, 10)  # fails before the end: never done == total
+
+    command()
+    gc.collect()
+    time.sleep(0.5)
+    assert not [t for t in threading.enumerate() if t.name == "progress-job"]
