@@ -42,7 +42,7 @@ def test_parameter_overrides_change_the_rig(tmp_path):
     (["--input", "sine:amp=x"], "amp='x' is not a number"),
     (["--input", "triangle:amp=1"], "unknown kind 'triangle'"),
     (["--input", "csv:/nonexistent/u.csv"], "no such recording file"),
-    (["--seed", "-1"], "--seed must be >= 0"),
+    (["--seed", "-1"], "--seed must be within 0..18446744073709551615, got -1"),
     (["--set", "valve.cv_max=-2"], "cv_max"),
     (["--set", "valve.bogus=1"], "bogus"),
 ])

@@ -159,7 +159,7 @@ def test_bad_seeds(tmp_path, capsys):
     assert "--seeds" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:  # refused by argparse, before anything runs
         main(["paper", "--out", str(tmp_path / "p"), "--id-seed", "-1"])
-    assert exit_.value.code == 2 and "--id-seed must be >= 0" in capsys.readouterr().err
+    assert exit_.value.code == 2 and "--id-seed must be within 0..18446744073709551615" in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
 
 
