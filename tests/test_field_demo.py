@@ -266,7 +266,7 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
 
 @pytest.mark.slow
 def test_a_tiny_run_writes_its_files(tmp_path):
-    scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=32.0)
+    scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=40.0)  # 4 blocks of 10 s at least
     assert scores["recordings"] == 2 and scores["failed"] == 0, scores["misses"]
     for name in ("scores.md", "scores.json", "confusion.png"):
         assert (tmp_path / name).is_file()
@@ -282,7 +282,7 @@ def test_a_tiny_run_writes_its_files(tmp_path):
     first = json.loads((tmp_path / "cases" / doc["cases"][0]["case"] / "result.json").read_text())
     other = tmp_path / "cases" / doc["cases"][1]["case"] / "result.json"
     other.write_text(json.dumps({**json.loads(other.read_text()), "noise_seed": -1}))
-    again = run_field_demo(tmp_path, n=2, seed=4, jobs=1, duration_s=32.0, resume=True)
+    again = run_field_demo(tmp_path, n=2, seed=4, jobs=1, duration_s=40.0, resume=True)
     redo = json.loads((tmp_path / "scores.json").read_text())
     assert redo["scores"]["settings"]["resumed_cases"] == 1 and again["recordings"] == 2
     assert redo["cases"][0]["elapsed_s"] == first["elapsed_s"]
