@@ -66,6 +66,7 @@ def test_the_good_fmus_pass(built_fmus):
         check_fmu_file(path)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", ["run", "diagnose"])
 def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_path, command):
     """The truncated binary used to kill `run` and `diagnose --plant` with SIGBUS and leave tapmuscle_*
