@@ -85,9 +85,16 @@ def controller(built_fmus, tmp_path_factory) -> Fmu:
     return Fmu(built_fmus["AMPCController"], tmp_path_factory.mktemp("AMPCController"))
 
 
+#: Variables that choose the floating-point kernels (CI's second pass sets them): the host gets the
+#: same ones as this process, or its closed loop would not be comparable bit for bit with fmpy's here.
+NUMERICS_VARIABLES = ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
+
+
 def plain_env(tmp: Path, **extra: str) -> dict[str, str]:
-    """What a user's C host would have: no Python variables, no LD_PRELOAD, no venv on PATH."""
-    env = {"PATH": PLAIN_PATH, "HOME": str(tmp), "LANG": "C.UTF-8", **extra}
+    """What a user's C host would have: no Python variables, no LD_PRELOAD, no venv on PATH (only the
+    floating-point kernel choice of this process, :data:`NUMERICS_VARIABLES`)."""
+    numerics = {k: os.environ[k] for k in NUMERICS_VARIABLES if k in os.environ}
+    env = {"PATH": PLAIN_PATH, "HOME": str(tmp), "LANG": "C.UTF-8", **numerics, **extra}
     venv_bin = os.path.dirname(sys.executable)
     assert venv_bin not in env["PATH"].split(os.pathsep)
     return env
