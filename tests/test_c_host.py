@@ -184,6 +184,7 @@ def test_two_instances_at_once_then_free_and_instantiate_again(host, plant, tmp_
     assert l_mm["c"] == l_mm["a"]  # a fresh instance after freeing both repeats a's run exactly
 
 
+@pytest.mark.slow
 def test_host_exit_is_clean_repeatedly(host, plant, tmp_path):
     """pythonfmu 0.7.0 frees its interpreter holder twice at exit; unguarded that aborted every run
     of this host ("free(): corrupted unsorted chunks", exit status 134)."""
@@ -271,6 +272,7 @@ def test_fmpy_loads_runs_frees_the_prepared_fmus_and_exits_cleanly(plant, built_
         assert len(proc.stdout.splitlines()) == len(folders)
 
 
+@pytest.mark.slow
 def test_fmpy_missing_dependency_message(controller, tmp_path):
     """In a Python host too: osqp not importable -> instantiation fails with the message."""
     script = textwrap.dedent(f"""

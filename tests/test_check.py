@@ -2,10 +2,13 @@
 
 import xml.etree.ElementTree as ET
 
+import pytest
+
 from tapmuscle.cosim import PAPER_SCENARIOS, load_scenario
 from tapmuscle.cli.main import main
 
 
+@pytest.mark.slow
 def test_paper_scenarios_meet_their_expectations(built_fmus, tmp_path, capsys):
     """The CI scenario tests: every paper scenario within its [expect] bounds, reported as JUnit XML."""
     junit = tmp_path / "reports" / "scenarios.xml"

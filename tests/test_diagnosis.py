@@ -351,6 +351,7 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path):
     assert "Discriminating experiment" in (tmp_path / "report.md").read_text()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("levels, found", [((0.3,), False), (None, True)])
 def test_the_sag_window_is_found_when_constants_off_raise_the_whole_residual(monkeypatch, levels, found):
     """Field case 044 of the proof: a 0.046 MPa sag at 54-99 s under a sine-sum on a rig whose

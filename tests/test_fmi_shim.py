@@ -83,6 +83,7 @@ def broken_controller(built_fmus, tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_a_failed_instantiation_is_an_instance_that_refuses_to_step(broken_controller):
     """20 times in one process with logging off: the reason names the missing module, every message has
     a category, the calls before the step are warnings, the step an error, the process exits cleanly."""
@@ -119,6 +120,7 @@ print("clean")
     assert "tapmuscle_missing_package_xyz" in proc.stdout + proc.stderr
 
 
+@pytest.mark.slow
 def test_discard_messages_reach_a_host_that_turned_logging_off(built_fmus):
     """A bad input (l = NaN) with loggingOn = false: fmi2Discard, and its message with status Discard
     and category logStatusDiscard (as the Reference FMUs do)."""
@@ -130,6 +132,7 @@ def test_discard_messages_reach_a_host_that_turned_logging_off(built_fmus):
     assert cat == "logStatusDiscard" and "l = nan is not finite" in msg
 
 
+@pytest.mark.slow
 def test_quiet_when_all_is_well_and_logging_is_off(built_fmus):
     run = _run_host(Path(built_fmus["AMPCController"]), 1, logging_on=False, set_input=["l", 10.0])[0]
     assert run["calls"] == {"setupExperiment": 0, "enterInitializationMode": 0, "exitInitializationMode": 0,

@@ -17,31 +17,31 @@ class _Tty(io.StringIO):
 
 
 def test_a_silent_stretch_gets_heartbeats_and_they_stop_at_the_end(monkeypatch):
-    monkeypatch.setattr(progress_module, "HEARTBEAT_TTY_S", 0.2)
+    monkeypatch.setattr(progress_module, "HEARTBEAT_TTY_S", 0.05)
     out = _Tty()
     p = Progress("job", stream=out, min_total=1)
     p(1, 10)
-    time.sleep(0.9)  # a long unit of work without an update
+    time.sleep(0.3)  # a long unit of work without an update
     beats = out.getvalue().count("\r")
     assert beats >= 3  # the first report and at least two heartbeats with a moving clock
     p(10, 10)
     n = len(out.getvalue())
-    time.sleep(0.5)
+    time.sleep(0.2)
     assert len(out.getvalue()) == n and out.getvalue().endswith("\n")  # done: silent
 
 
 def test_a_log_gets_a_still_running_line(monkeypatch):
-    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.2)
+    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.05)
     out = io.StringIO()
     p = Progress("job", stream=out, min_total=1)
     p(3, 10)
-    time.sleep(0.7)
+    time.sleep(0.25)
     lines = out.getvalue().splitlines()
     assert lines[0].startswith("job:  30% (3/10") and any(line.endswith("(still running)") for line in lines[1:])
 
 
 def test_the_heartbeat_ends_with_its_command(monkeypatch):
-    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.1)
+    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.05)
     out = io.StringIO()
 
     def command():
@@ -49,5 +49,5 @@ def test_the_heartbeat_ends_with_its_command(monkeypatch):
 
     command()
     gc.collect()
-    time.sleep(0.5)
+    time.sleep(0.2)
     assert not [t for t in threading.enumerate() if t.name == "progress-job"]

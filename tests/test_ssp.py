@@ -51,6 +51,7 @@ def test_libcosim_runs_the_ssp_and_tracks(ssp):
     assert err < 0.6, err  # without the bound compensation: about 4.9 mm
 
 
+@pytest.mark.slow
 def test_build_cli_writes_the_ssp(tmp_path, capsys):
     assert main(["build", "--out", str(tmp_path), "--ssp"]) == 0
     assert (tmp_path / SSP_NAME).is_file() and f"wrote {tmp_path / SSP_NAME}" in capsys.readouterr().out
