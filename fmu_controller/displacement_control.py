@@ -160,7 +160,7 @@ class DisplacementController:
         if theta0.shape != (ASYMMETRIC.n_params,) or not np.all(np.isfinite(theta0)):
             raise ValueError(f"theta0 must be {ASYMMETRIC.n_params} finite numbers, got shape {theta0.shape}")
         if abs(theta0[2]) < 1e-6:
-            raise ValueError(f"theta0's b1 must not be ~0 (it divides the hysteresis cancellation, Eq. 5), got {theta0[2]!r}")
+            raise ValueError(f"theta0's b1 must not be ~0 (it divides the hysteresis cancellation, Eq. 5), got {float(theta0[2])!r}")
         self.settings = settings
         self.theta0 = theta0.copy()
         self._rls: ConstrainedRLS | None = None

@@ -100,7 +100,7 @@ class ArrayReference:
             raise ValueError(f"ArrayReference.values_mm must be a non-empty 1-D array, got shape {v.shape}")
         bad = np.nonzero(~np.isfinite(v))[0]
         if bad.size:
-            raise ValueError(f"ArrayReference.values_mm[{int(bad[0])}] = {v[bad[0]]!r} is not finite")
+            raise ValueError(f"ArrayReference.values_mm[{int(bad[0])}] = {float(v[bad[0]])!r} is not finite")
         _check_ts("ArrayReference", self.ts_s)
         v.setflags(write=False)
         object.__setattr__(self, "values_mm", v)

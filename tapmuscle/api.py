@@ -89,7 +89,7 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
             raise ValueError(f"command samples must be a non-empty 1-D array, got shape {u.shape}")
         bad = np.nonzero(~np.isfinite(u))[0]
         if bad.size:
-            raise ValueError(f"command[{int(bad[0])}] = {u[bad[0]]!r} is not finite")
+            raise ValueError(f"command[{int(bad[0])}] = {float(u[bad[0]])!r} is not finite")
         if duration_s is None:
             duration_s = (u.size - 1) * ts
 

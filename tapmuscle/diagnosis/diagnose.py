@@ -213,14 +213,14 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     for name, arr in (("t_s", t), ("u_v", u), ("l_mm", y)):
         bad = np.nonzero(~np.isfinite(arr))[0]
         if bad.size:
-            raise ValueError(f"column {name}, sample {int(bad[0])}: {arr[bad[0]]!r} is not finite")
+            raise ValueError(f"column {name}, sample {int(bad[0])}: {float(arr[bad[0]])!r} is not finite")
     dt = np.diff(t)
     ts = float(np.median(dt))
     off = np.nonzero(np.abs(dt - ts) > 1e-3 * ts)[0]
     if ts <= 0 or off.size:
         k = int(off[0]) + 1 if off.size else 1
-        raise ValueError(f"column t_s, sample {k}: t = {t[k]!r} s breaks the uniform sampling of {ts:g} s "
-                         f"(previous sample {t[k - 1]!r} s); resample the recording first")
+        raise ValueError(f"column t_s, sample {k}: t = {float(t[k])!r} s breaks the uniform sampling of {ts:g} s "
+                         f"(previous sample {float(t[k - 1])!r} s); resample the recording first")
     if float(np.ptp(u)) == 0.0:
         raise ValueError(f"column u_v: the command is constant ({u[0]:g} V); nothing excites the plant")
     if float(np.ptp(y)) == 0.0:
