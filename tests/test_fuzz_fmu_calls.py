@@ -67,3 +67,32 @@ def test_random_call_sequences_keep_the_fmu_sane(fmus, name, inputs, outputs, se
     f.terminate()
     f.freeInstance()
     assert done > 10 and refused > 0  # both paths exercised
+
+
+@pytest.mark.parametrize("name, fixed, output", [("MusclePlant", "friction.base_n", "l"),
+                                                 ("AMPCController", "servo.R", "u")])
+def test_calls_out_of_the_fmi_state_machine_are_errors(fmus, name, fixed, output):
+    """FMI 2.0's co-simulation state machine: no step before fmi2ExitInitializationMode or after
+    fmi2Terminate, no fixed parameter after initialisation. Each such call returns fmi2Error with a
+    logged reason; reading outputs stays allowed and finite."""
+    from fmpy.fmi2 import FMU2Slave
+
+    path, md, folder, vr = fmus[name]
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=f"sm-{name}")
+    f.instantiate(loggingOn=False)
+    with pytest.raises(FMICallException, match="status 3"):
+        f.doStep(0.0, 0.1)  # instantiated, not initialised
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    with pytest.raises(FMICallException, match="status 3"):
+        f.doStep(0.0, 0.1)  # in initialisation mode
+    f.exitInitializationMode()
+    with pytest.raises(FMICallException, match="status 3"):
+        f.setReal([vr[fixed]], [1.0])  # a fixed parameter after initialisation
+    f.doStep(0.0, 0.1)
+    f.terminate()
+    with pytest.raises(FMICallException, match="status 3"):
+        f.doStep(0.1, 0.1)  # terminated
+    assert math.isfinite(f.getReal([vr[output]])[0])
+    f.freeInstance()
