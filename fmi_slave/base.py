@@ -147,7 +147,9 @@ class SafeSlave(Fmi2Slave):
                 if (lo is not None and value < lo) or (hi is not None and value > hi):
                     span = f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'}"
                     var = next((v for v in self.vars.values() if v.name == name), None)
-                    about = f" ({var.description})" if var is not None and var.description else ""
+                    desc = var.description if var is not None and var.description else ""
+                    # one host log line: the description shortened (the name is what identifies it)
+                    about = f" ({desc[:60]}{'...' if len(desc) > 60 else ''})" if desc else ""
                     raise SlaveInputError(f"parameter {name} = {value!r} is outside its declared range {span}{about}")
 
     def _attribute_accessors(self, name: str, start: Any, kind: type = Real) -> dict[str, Callable]:

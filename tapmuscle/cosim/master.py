@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import atexit
 import itertools
+import re
 import shutil
 import tempfile
 import threading
@@ -169,6 +170,12 @@ def check_role(unpacked: Unpacked, role: str) -> None:
                             f"it lacks {', '.join(missing)}")
 
 
+def _reason(message: str) -> str:
+    """An FMU's initialisation log line without its level tag and its advice to FMI hosts."""
+    text = re.sub(r"^\[[A-Z]+\] (initialisation failed: )?", "", message)
+    return text.split("; every fmi2DoStep will return fmi2Error")[0]
+
+
 class FmuInstance:
     """An fmpy ``FMU2Slave`` with a logger that keeps the FMU's messages (to name them in errors).
 
@@ -237,8 +244,10 @@ class FmuInstance:
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
         bad = ("[WARNING]", "[ERROR]", "[FATAL]")  # a rejected parameter is a warning at this call
         if any(m.startswith(bad) for m in self.messages):
+            # the reason only: the log's level and its advice to FMI hosts mean nothing to a scenario's user
+            reasons = [_reason(m) for m in self.messages if m.startswith(bad)]
             raise ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) rejected its parameters: "
-                                + "; ".join(m for m in self.messages if m.startswith(bad)))
+                                + "; ".join(reasons))
 
     def reset(self) -> None:
         """Back to the state right after construction (fmi2Terminate, fmi2Reset, setup, enter
