@@ -149,7 +149,7 @@ class SafeSlave(Fmi2Slave):
                     var = next((v for v in self.vars.values() if v.name == name), None)
                     desc = var.description if var is not None and var.description else ""
                     # one host log line: the description shortened (the name is what identifies it)
-                    about = f" ({desc[:60]}{'...' if len(desc) > 60 else ''})" if desc else ""
+                    about = f" ({desc[:100]}{'...' if len(desc) > 100 else ''})" if desc else ""
                     raise SlaveInputError(f"parameter {name} = {value!r} is outside its declared range {span}{about}")
 
     def _attribute_accessors(self, name: str, start: Any, kind: type = Real) -> dict[str, Callable]:
