@@ -68,7 +68,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         args.workers = os.cpu_count() or 1
     fmus = _fmus(args.fmu_dir)
     out = Path(args.out)
-    print(f"tapmuscle sweep: {sweep.name}, {len(sweep.runs)} runs -> {out}/")
+    if not args.quiet:
+        print(f"tapmuscle sweep: {sweep.name}, {len(sweep.runs)} runs -> {out}/")
     with ExitStack() as stack:
         try:
             ResultsLog(out / "results.csv", result_columns(sweep)).latest()  # another sweep's file: refuse early
