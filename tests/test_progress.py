@@ -51,3 +51,7 @@ def test_the_heartbeat_ends_with_its_command(monkeypatch):
     gc.collect()
     time.sleep(0.2)
     assert not [t for t in threading.enumerate() if t.name == "progress-job"]
+
+
+def test_no_stream_is_left_quiet_for_more_than_5_s():
+    assert progress_module.HEARTBEAT_TTY_S <= 5.0 and progress_module.HEARTBEAT_LOG_S <= 5.0

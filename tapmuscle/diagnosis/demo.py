@@ -239,6 +239,8 @@ def run_demo(out: str | Path, *, seeds: int = 3, clean_seeds: int = 20, jobs: in
     tasks = [(c, str(out / "showcase"), True, fig20_model, True) for c, _ in special] + \
             [(c, str(work), False, None, False) for c in cases + clean]
     results: list[dict[str, Any]] = []
+    if progress is not None:
+        progress(0, len(tasks))
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         for i, r in enumerate(pool.map(_run, tasks), 1):
             results.append(r)

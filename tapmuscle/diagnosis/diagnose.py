@@ -202,6 +202,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         (naming the first offending sample), non-finite values, or a command that never changes.
     """
     started = time.perf_counter()
+    if progress is not None:
+        progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t = np.asarray(t_s, float)
     u = np.asarray(u_v, float)
     y = np.asarray(l_mm, float)

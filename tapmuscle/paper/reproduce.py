@@ -118,13 +118,15 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     if not seeds:
         raise ValueError("seeds must name at least one noise seed")
     out = Path(out)
+    total, done = len(PAPER_RUNS) * len(seeds), 0
+    if progress is not None:
+        progress(0, total)  # from the start: the FMU build and the identification come first
     fmus = dict(fmus) if fmus is not None else cached_fmus()
     if id_seed is None:
         id_seed = seeds[0]
     theta0 = preliminary_theta(id_seed, refine_hz)
     theta_params = {f"theta0.{n}": float(v) for n, v in zip(ASYMMETRIC.names, theta0)}
     results: dict[str, dict] = {}
-    total, done = len(PAPER_RUNS) * len(seeds), 0
     for run in PAPER_RUNS:
         scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
         errors, first = [], None
