@@ -67,9 +67,9 @@ def test_the_good_fmus_pass(built_fmus):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("command", ["run", "diagnose"])
+@pytest.mark.parametrize("command", ["run", "diagnose", "sweep"])
 def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_path, command):
-    """The truncated binary used to kill `run` and `diagnose --plant` with SIGBUS and leave tapmuscle_*
+    """The truncated binary used to kill `run`, `diagnose --plant` and `sweep` with SIGBUS and leave tapmuscle_*
     folders in the temporary directory. Now: exit 2, one line, nothing left."""
     fmu_dir = tmp_path / "fmus"
     fmu_dir.mkdir()
@@ -81,6 +81,11 @@ def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_p
         scenario = tmp_path / "s.toml"
         scenario.write_text("duration_s = 2.0\nevaluation_samples = [0, 10]\n")
         argv = ["run", str(scenario), "--out", str(tmp_path / "out"), "--fmu-dir", str(fmu_dir), "--quiet"]
+    elif command == "sweep":
+        sweep = tmp_path / "s.toml"
+        sweep.write_text("base = { duration_s = 5.0, evaluation_samples = [0, 40] }\n[grid]\nseed = [0, 1]\n")
+        argv = ["sweep", str(sweep), "--out", str(tmp_path / "out"), "--workers", "0", "--fmu-dir", str(fmu_dir),
+                "--quiet"]
     else:
         rec = tmp_path / "rec.csv"
         rec.write_text("t_s,u_v,l_mm\n" + "".join(f"{k / 10:g},{5 + (k // 20) % 2},{k % 7}\n" for k in range(1801)))
