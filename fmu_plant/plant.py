@@ -423,8 +423,9 @@ class Plant:
             err = new[5]
             if err <= 1.0 or h <= h_min:
                 if not err < math.inf:  # NaN or inf at the shortest step: the numbers broke down
-                    raise FloatingPointError(f"plant integration failed at t = {t0 + done:.6g} s "
-                                             f"(state {self.state}, parameters {self.params})")
+                    raise FloatingPointError(f"plant integration failed at t = {t0 + done:.6g} s: the state "
+                                             f"({', '.join(f'{v:.6g}' for v in self.state)}) went non-finite at "
+                                             f"the shortest sub-step (extreme parameters?)")
                 x, p, l, v, z = new[0], new[1], new[2], new[3], new[4]
                 if l < 0.0:  # the stop is rigid: no penetration, no rebound
                     l = 0.0

@@ -26,14 +26,11 @@ __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "build_fmus"]
 
 
 def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant:
-    if params is not None and not isinstance(params, PlantParams):
-        raise ValueError(f"params must be a PlantParams, got {type(params).__name__}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2 ** 63:
-        raise ValueError(f"seed must be an integer in 0 .. 2**63 - 1, got {seed!r}")
-    p = params or PlantParams()
-    if load_n is not None:
+    """The rig at ``load_n``; :class:`Plant` checks ``params`` and ``seed`` (unsigned 64-bit)."""
+    p = PlantParams() if params is None else params
+    if load_n is not None and isinstance(p, PlantParams):
         p = p.with_values(**{"load.load_n": float(load_n)})
-    return Plant(p, seed=int(seed))
+    return Plant(p, seed=seed)
 
 
 def _check_positive(name: str, value: float) -> float:

@@ -99,7 +99,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
         data = run_open_loop(plant, signal, duration_s=args.duration, ts_s=args.ts,
                              progress=Progress("record", enabled=not args.quiet))
     except (ValueError, FloatingPointError) as exc:
-        raise UsageError(str(exc).splitlines()[0][:300]) from None
+        raise UsageError(str(exc)) from None
     meta = {"ts_s": f"{args.ts:g}", "load_n": f"{args.load:g}", "seed": str(args.seed),
             "input": args.input, "source": "tapmuscle record (simulated rig)",
             "command": " ".join(["tapmuscle"] + list(args.argv))}
