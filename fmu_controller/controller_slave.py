@@ -110,6 +110,9 @@ class AMPCController(SafeSlave):
                                    "outputs (libcosim, Ecos, OMSimulator: one macro step h = Ts late); with 1 "
                                    "the output after the step at t_k is u(k+1), computed from l(k) and the "
                                    "Eq. (1) prediction l(k+1|k)", lo=0, hi=1)
+        self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
+                                   "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
+                                   "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)
         self.add_integer_parameter("servo.Hp", 5, "servo MPC prediction horizon Hp [samples] (Table 5)", lo=1,
                                    hi=MAX_HORIZON)
         self.add_integer_parameter("servo.Hu", 5, "servo MPC control horizon Hu <= Hp [samples] (Table 5)",
@@ -180,7 +183,7 @@ class AMPCController(SafeSlave):
             p0=tuple(p[f"P0.{n}"] for n in ASYMMETRIC.names),
             box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
-            input_delay_samples=ip["input_delay_samples"])
+            covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"])
 
     def initialize_numerics(self) -> None:
         settings = self._settings()

@@ -73,6 +73,10 @@ class ControllerSettings:
     """Upper bounds of C (Table 2)."""
     forgetting: float = 1.0
     """RLS forgetting factor (1 = off, as the paper)."""
+    covariance_ceiling: bool = False
+    """Keep the RLS covariance at or below ``P(0)`` (:class:`~fmu_controller.rls.RLSSettings`), which
+    stops covariance wind-up under forgetting. Off in the paper; with ``forgetting = 0.999`` it is
+    what keeps the adaptive loop as good after 24 h as after 10 min (docs/control.md, "24 hours")."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
@@ -167,6 +171,7 @@ class DisplacementController:
         if settings.adaptive:
             self._rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(
                 p0=settings.p0, theta0=tuple(theta0), forgetting=settings.forgetting,
+                covariance_ceiling=settings.covariance_ceiling,
                 box_lower=dict(settings.box_lower), box_upper=dict(settings.box_upper),
                 constraint_start_s=0.0, ts_s=settings.ts_s))
         self._servo = ServoMPC(settings.servo, a1=theta0[0], a2=theta0[1], b1=theta0[2]) \
@@ -298,6 +303,18 @@ class DisplacementController:
         self._predicted = l_next
         self._k += 1
         return _control_step(u, l_next, error, uc, h, xs, theta, saturated)
+
+    # ------------------------------------------------------------------ estimator
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """The AMPC's RLS covariance ``P(k)`` (a copy, 15 x 15); None for the fixed-predictor MPCs."""
+        return None if self._rls is None else self._rls.P
+
+    @property
+    def covariance_resets(self) -> int:
+        """How often Algorithm 1's covariance lost positive definiteness and restarted from ``P(0)``
+        (the estimator's documented rule; 0 for the fixed-predictor MPCs)."""
+        return 0 if self._rls is None else self._rls.n_resets
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:

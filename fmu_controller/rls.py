@@ -101,6 +101,16 @@ class RLSSettings:
         a diagonal <= 0) or ``theta`` becomes non-finite after an update:
         ``"reset"`` discards that update, keeps ``theta(k-1)`` and resets
         ``P`` to ``P(-1)``; ``"raise"`` raises ``FloatingPointError``.
+    covariance_ceiling : bool
+        Keep ``P(k) <= P(-1)`` (in the matrix order): the estimator never
+        becomes more uncertain than it was at the start. With forgetting
+        (``lambda < 1``), ``P`` grows as ``lambda^-k`` in every direction the
+        regressor does not excite (covariance wind-up, Astrom and Wittenmark,
+        *Adaptive Control*, section 11.2); the ceiling stops that growth at
+        ``P(-1)`` and leaves the excited directions, where forgetting keeps
+        ``P`` small but non-zero, untouched: after each update, the eigenvalues
+        of ``P(-1)^-1/2 P P(-1)^-1/2`` above 1 are set to 1. Default False
+        (the paper's Eq. (4) has no ceiling and no forgetting).
     """
 
     p0: float | Sequence[float] = 1e3
@@ -111,6 +121,7 @@ class RLSSettings:
     constraint_start_s: float = 120.0
     ts_s: float = 0.1
     on_covariance_loss: Literal["reset", "raise"] = "reset"
+    covariance_ceiling: bool = False
 
     def __post_init__(self) -> None:
         # p0
@@ -139,6 +150,8 @@ class RLSSettings:
         if math.isnan(start) or start < 0:
             raise ValueError(f"constraint_start_s must be >= 0 (inf = never), got {self.constraint_start_s!r}")
         object.__setattr__(self, "constraint_start_s", start)
+        if not isinstance(self.covariance_ceiling, bool):
+            raise ValueError(f"covariance_ceiling must be True or False, got {self.covariance_ceiling!r}")
         if self.on_covariance_loss not in ("reset", "raise"):
             raise ValueError(
                 f"on_covariance_loss must be 'reset' or 'raise', got {self.on_covariance_loss!r}"
@@ -306,6 +319,10 @@ class ConstrainedRLS:
         self._phi_shape = (self._n,)
         self._ones_nn = np.ones(self._n * self._n)
         self._lam = settings.forgetting
+        # the ceiling P(-1) (diagonal) as the scaling of the eigenvalue clip
+        self._ceiling = settings.covariance_ceiling
+        self._p0_sqrt = np.sqrt(self._P0.diagonal())
+        self._n_ceilings = 0
         self._start = settings.constraint_start_index
         self._theta = self._theta0.copy()
         self._P = self._P0.copy()
@@ -412,6 +429,8 @@ class ConstrainedRLS:
         _subtract(P, P_new, out=P_new)
         if lam != 1.0:
             P_new /= lam
+        if self._ceiling and lam != 1.0:  # with lambda = 1, P only shrinks from P(-1)
+            P_new = self._limit(P_new)
 
         # one sum catches any inf/NaN entry (inf - inf -> NaN as well); done as
         # a BLAS dot with ones, cheaper than .sum() on this tiny array.  Then
@@ -440,6 +459,29 @@ class ConstrainedRLS:
         self._P = P_new
         return theta
 
+    def _limit(self, P: np.ndarray) -> np.ndarray:
+        """``P`` with the eigenvalues of ``S = P(-1)^-1/2 P P(-1)^-1/2`` clipped at 1
+        (``covariance_ceiling``), exactly symmetric; ``P`` itself when ``S <= I`` already (decided by
+        Gershgorin's bound, the largest absolute row sum of ``S``, and only if that exceeds 1 by the
+        eigenvalues)."""
+        s = self._p0_sqrt
+        S = P / s[:, None] / s[None, :]
+        if np.abs(S).sum(axis=1).max() <= 1.0:
+            return P
+        w, V = np.linalg.eigh(S)
+        if w[-1] <= 1.0:
+            return P
+        np.minimum(w, 1.0, out=w)
+        S = (V * w) @ V.T
+        P = S * s[:, None] * s[None, :]
+        self._n_ceilings += 1
+        return 0.5 * (P + P.T)
+
+    @property
+    def n_ceilings(self) -> int:
+        """Number of updates where ``covariance_ceiling`` clipped ``P``."""
+        return self._n_ceilings
+
     # -- state -----------------------------------------------------------
     def get_state(self) -> dict:
         """Plain-dict snapshot (copies) for FMU state save/rewind."""
@@ -450,6 +492,7 @@ class ConstrainedRLS:
             "k": self._k,
             "n_projections": self._n_projections,
             "n_resets": self._n_resets,
+            "n_ceilings": self._n_ceilings,
         }
 
     def set_state(self, state: Mapping) -> None:
@@ -472,6 +515,7 @@ class ConstrainedRLS:
         self._k = int(state["k"])
         self._n_projections = int(state.get("n_projections", 0))
         self._n_resets = int(state.get("n_resets", 0))
+        self._n_ceilings = int(state.get("n_ceilings", 0))
 
     def _check_ready(self) -> None:
         if not self._ready:

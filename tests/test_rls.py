@@ -109,6 +109,61 @@ def test_forgetting_tracks_parameter_jump_faster():
     assert errors[0.98] < 0.05 * np.linalg.norm(theta_b - theta_a)
 
 
+def _ceiling_ratio(P: np.ndarray, p0: np.ndarray) -> float:
+    """Largest eigenvalue of P(0)^-1/2 P P(0)^-1/2 (<= 1 means P <= P(0))."""
+    s = 1.0 / np.sqrt(p0)
+    return float(np.linalg.eigvalsh(P * s[:, None] * s[None, :])[-1])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_covariance_ceiling_stops_wind_up_and_keeps_p_positive_definite(seed):
+    # Forgetting with a regressor that excites only 5 of 15 directions: P grows as lambda^-k in the
+    # other ten (wind-up). The ceiling holds P <= P(0) at every step and leaves P positive definite.
+    rng = np.random.default_rng(seed)
+    p0 = rng.uniform(1.0, 100.0, 15)
+    basis = np.linalg.qr(rng.normal(size=(15, 5)))[0]
+    theta = rng.normal(size=15)
+    runs = {}
+    for ceiling in (False, True):
+        rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=tuple(p0), forgetting=0.98, covariance_ceiling=ceiling,
+                                                     **NO_BOX))
+        worst = 0.0
+        for _ in range(600):
+            phi = basis @ rng.normal(size=5) * rng.uniform(0.1, 10.0)
+            rls.update(phi, float(phi @ theta) + 0.01 * rng.normal())
+            worst = max(worst, _ceiling_ratio(rls.P, p0))
+            np.linalg.cholesky(rls.P)  # positive definite
+            assert np.array_equal(rls.P, rls.P.T)
+        runs[ceiling] = (worst, rls)
+    assert runs[False][0] > 1e3  # without the ceiling: wound up (0.98^-600 ~ 1e5 in the idle directions)
+    assert runs[True][0] <= 1.0 + 1e-9
+    assert runs[True][1].n_ceilings > 0
+    # the excited directions are still learned: the estimate's error there is small
+    err = basis.T @ (runs[True][1].theta - theta)
+    assert np.linalg.norm(err) < 0.05 * np.linalg.norm(basis.T @ theta)
+
+
+def test_covariance_ceiling_is_inactive_without_forgetting():
+    # With lambda = 1, P only shrinks, so the ceiling never acts: the estimates are bit-identical.
+    rng = np.random.default_rng(7)
+    phi = rng.normal(size=(800, 15)) * rng.uniform(0.1, 50.0, 15)
+    y = phi @ rng.normal(size=15) + 0.01 * rng.normal(size=800)
+    out = []
+    for ceiling in (False, True):
+        rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=(200.0,) * 3 + (50.0,) * 12, covariance_ceiling=ceiling,
+                                                     **NO_BOX))
+        for p, yy in zip(phi, y):
+            rls.update(p, yy)
+        out.append((rls.theta, rls.P, rls.n_ceilings))
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    assert out[1][2] == 0
+
+
+def test_covariance_ceiling_must_be_boolean():
+    with pytest.raises(ValueError, match="covariance_ceiling"):
+        RLSSettings(covariance_ceiling=1)
+
+
 @pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
 def test_covariance_loss_reset_and_raise():
     phi = np.full(15, 1e160)  # finite, but phi^T P phi overflows
