@@ -12,7 +12,7 @@ Printed: each check of :meth:`tapmuscle.soak.SoakResult.checks` with its figures
 smallest eigenvalue and condition number every two hours, and the blocks above twice the first
 hour's error next to a fresh loop's error on the same block. Stored: ``soak.png`` (error per block,
 theta-hat, covariance over the run) and ``soak.json``. Exit status 1 when the long-run estimator
-fails a check.
+fails a check other than the literal ``error_bounded`` (whose exceptions ``no_degradation`` judges).
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"    {b['start_s'] / 3600.0:5.2f} h  {b['eq21_mm']:.3f} mm vs {b['fresh_eq21_mm']:.3f} mm  "
                       f"(load {b['load_n_mean']:.0f} N, supply {b['supply_mpa_mean']:.3f} MPa, f <= {b['frequency_hz_max']:.2f} Hz)")
         if label == "long-run":
-            failed = not all(c["passed"] for c in checks.values())
+            failed = not all(c["passed"] for n, c in checks.items() if n != "error_bounded")
         runs[label] = {"block_t_s": np.array([b["start_s"] for b in res.blocks]),
                        "eq21_mm": np.array([b["eq21_mm"] for b in res.blocks]),
                        "first_hour_mm": np.array(res.first_hour_eq21_mm()), "cov_t_s": res.covariance_t_s,

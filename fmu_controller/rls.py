@@ -27,6 +27,7 @@ __all__ = [
     "RLSSettings",
     "ConstrainedRLS",
     "project_onto_box",
+    "CEILING_CLIP",
 ]
 
 #: Table 2: constrained region of the linear model (a1, a2 [-], b1 [mm/V]).
@@ -72,6 +73,11 @@ def _freeze_bound(name: str, value) -> Mapping[str, float] | tuple[float, ...]:
     return _freeze_vector(name, value, allow_inf=True)
 
 
+#: Where ``covariance_ceiling`` puts the eigenvalues of ``P(-1)^-1/2 P P(-1)^-1/2`` that crossed 1: a
+#: little below the ceiling, so that the clip is needed about once per ``ln(1/0.9)/ln(1/lambda)`` samples.
+CEILING_CLIP = 0.9
+
+
 @dataclass(frozen=True, kw_only=True)
 class RLSSettings:
     """Settings of the (constrained) RLS estimator, Eq. (4) and Algorithm 1.
@@ -108,8 +114,9 @@ class RLSSettings:
         regressor does not excite (covariance wind-up, Astrom and Wittenmark,
         *Adaptive Control*, section 11.2); the ceiling stops that growth at
         ``P(-1)`` and leaves the excited directions, where forgetting keeps
-        ``P`` small but non-zero, untouched: after each update, the eigenvalues
-        of ``P(-1)^-1/2 P P(-1)^-1/2`` above 1 are set to 1. Default False
+        ``P`` small but non-zero, untouched: when an update leaves ``P`` above
+        ``P(-1)`` in some direction, the eigenvalues of ``P(-1)^-1/2 P P(-1)^-1/2``
+        above :data:`CEILING_CLIP` are set to it. Default False
         (the paper's Eq. (4) has no ceiling and no forgetting).
     """
 
@@ -322,6 +329,7 @@ class ConstrainedRLS:
         # the ceiling P(-1) (diagonal) as the scaling of the eigenvalue clip
         self._ceiling = settings.covariance_ceiling
         self._p0_sqrt = np.sqrt(self._P0.diagonal())
+        self._eye = np.eye(self._n)
         self._n_ceilings = 0
         self._start = settings.constraint_start_index
         self._theta = self._theta0.copy()
@@ -460,18 +468,23 @@ class ConstrainedRLS:
         return theta
 
     def _limit(self, P: np.ndarray) -> np.ndarray:
-        """``P`` with the eigenvalues of ``S = P(-1)^-1/2 P P(-1)^-1/2`` clipped at 1
-        (``covariance_ceiling``), exactly symmetric; ``P`` itself when ``S <= I`` already (decided by
-        Gershgorin's bound, the largest absolute row sum of ``S``, and only if that exceeds 1 by the
-        eigenvalues)."""
+        """``P`` kept at or below ``P(-1)`` (``covariance_ceiling``), exactly symmetric.
+
+        ``S = P(-1)^-1/2 P P(-1)^-1/2 <= I`` is tested by a Cholesky factorisation of ``I - S``
+        (it succeeds only if ``I - S`` is positive definite). If it fails, the eigenvalues of ``S``
+        above :data:`CEILING_CLIP` are set to it: the idle directions then take
+        ``ln(1/CEILING_CLIP) / ln(1/lambda)`` samples (105 at ``lambda`` = 0.999) to reach the
+        ceiling again, so the eigendecomposition runs about once per hundred samples, not at each.
+        """
         s = self._p0_sqrt
         S = P / s[:, None] / s[None, :]
-        if np.abs(S).sum(axis=1).max() <= 1.0:
+        try:
+            np.linalg.cholesky(self._eye - S)
             return P
+        except np.linalg.LinAlgError:
+            pass
         w, V = np.linalg.eigh(S)
-        if w[-1] <= 1.0:
-            return P
-        np.minimum(w, 1.0, out=w)
+        np.minimum(w, CEILING_CLIP, out=w)
         S = (V * w) @ V.T
         P = S * s[:, None] * s[None, :]
         self._n_ceilings += 1

@@ -38,7 +38,12 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import ArrayReference
 from fmu_plant import Plant, PlantParams
 
-__all__ = ["SoakSettings", "SoakSchedule", "SoakResult", "soak_schedule", "run_soak", "covariance_spectrum"]
+#: A block above twice the first hour's error passes ``no_degradation`` when the soaked loop's error is
+#: at most this factor times a fresh loop's on the same block (two loops on the same block differ by
+#: their start; the paper's estimator, which freezes, is 2-4 times worse than fresh there).
+FRESH_FACTOR = 1.5
+
+__all__ = ["FRESH_FACTOR", "SoakSettings", "SoakSchedule", "SoakResult", "soak_schedule", "run_soak", "covariance_spectrum"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -206,10 +211,18 @@ class SoakResult:
         return float(np.mean([b["eq21_mm"] for b in self.blocks[:per_hour]]))
 
     def checks(self) -> dict[str, dict[str, Any]]:
-        """The soak's pass/fail criteria with the measured figures."""
+        """The soak's pass/fail criteria with the measured figures.
+
+        ``error_bounded`` is the literal rule: every block's error at most twice the first hour's.
+        The blocks differ in load and supply pressure, so some are harder than the first hour for any
+        loop; ``no_degradation`` asks of each block above that limit that the soaked loop be within
+        :data:`FRESH_FACTOR` of a fresh loop on the same block, i.e. that hours of running made it
+        no worse.
+        """
         b = self.blocks
         first = self.first_hour_eq21_mm()
         worst = max(b, key=lambda x: x["eq21_mm"])
+        over = [x for x in b if x.get("fresh_eq21_mm") is not None]
         per_hour = max(1, int(round(3600.0 / self.settings.block_s)))
         t_first = float(np.median([x["step_median_us"] for x in b[:per_hour]]))
         t_last = float(np.median([x["step_median_us"] for x in b[-per_hour:]]))
@@ -230,7 +243,11 @@ class SoakResult:
                                  "u_min_v": min(x["u_min_v"] for x in b), "u_max_v": max(x["u_max_v"] for x in b)},
             "error_bounded": {"passed": worst["eq21_mm"] <= 2.0 * first, "first_hour_mm": first,
                               "worst_block_mm": worst["eq21_mm"], "worst_block_start_s": worst["start_s"],
-                              "limit_mm": 2.0 * first},
+                              "limit_mm": 2.0 * first, "blocks_above": len(over)},
+            "no_degradation": {"passed": all(x["eq21_mm"] <= FRESH_FACTOR * x["fresh_eq21_mm"] for x in over),
+                               "worst_ratio_to_fresh": max((x["eq21_mm"] / x["fresh_eq21_mm"] for x in over),
+                                                           default=None),
+                               "limit_ratio": FRESH_FACTOR},
             "step_time_flat": {"passed": t_last <= 1.5 * t_first, "first_hour_median_us": t_first,
                                "last_hour_median_us": t_last},
         }
