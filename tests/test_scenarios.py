@@ -41,6 +41,22 @@ def test_fmu_loop_equals_the_direct_loop(built_fmus, method):
     assert cols["load_n"][119] == 44.0 and cols["load_n"][120] == 68.0
 
 
+def test_long_run_estimator_settings_reach_the_fmu(built_fmus):
+    """forgetting and covariance_ceiling set on the controller FMU give the direct loop's numbers, bit
+    for bit, over a run long enough (300 s at 0.3 Hz) for the ceiling to act."""
+    doc = {"duration_s": 300.0, "step_s": 0.1, "seed": 5, "evaluation_samples": [100, 2999],
+           "controller": {"method": "ampc_servo", "parameters": {"forgetting": 0.99, "covariance_ceiling": 1}},
+           "reference": {"kind": "sine", "frequency_hz": 0.3}, "load": {"initial_n": 68.0}}
+    cols = co_simulate(parse_scenario(doc, source="test"), built_fmus)
+    plant = Plant(seed=5)
+    plant.update(load_n=68.0)
+    ctrl = DisplacementController(ControllerSettings(method="ampc_servo", forgetting=0.99, covariance_ceiling=True),
+                                  THETA0_44N)
+    direct = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.3), duration_s=300.0)
+    assert ctrl._rls.n_ceilings > 0  # the ceiling acted
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+
+
 def test_paper_scenario_files_match_the_paper_runs():
     names = {p.stem for p in PAPER_SCENARIOS.glob("*.toml")}
     assert names == {run.name for run in PAPER_RUNS}
