@@ -110,6 +110,9 @@ class AMPCController(SafeSlave):
                                    "outputs (libcosim, Ecos, OMSimulator: one macro step h = Ts late); with 1 "
                                    "the output after the step at t_k is u(k+1), computed from l(k) and the "
                                    "Eq. (1) prediction l(k+1|k)", lo=0, hi=1)
+        self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo, off "
+                                   "for ampc_servo), 1 cancel H(k-1)/4 + H(k)/2 + H(k+1|k)/4 in Eq. (5) (no valve "
+                                   "chatter), 0 cancel H(k) as the paper's Eq. (5)", lo=-1, hi=1)
         self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
                                    "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
                                    "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)
@@ -183,7 +186,8 @@ class AMPCController(SafeSlave):
             p0=tuple(p[f"P0.{n}"] for n in ASYMMETRIC.names),
             box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
-            covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"])
+            covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"],
+            hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1)
 
     def initialize_numerics(self) -> None:
         settings = self._settings()

@@ -77,6 +77,17 @@ class ControllerSettings:
     """Keep the RLS covariance at or below ``P(0)`` (:class:`~fmu_controller.rls.RLSSettings`), which
     stops covariance wind-up under forgetting. Off in the paper; with ``forgetting = 0.999`` it is
     what keeps the adaptive loop as good after 24 h as after 10 min (docs/control.md, "24 hours")."""
+    hysteresis_notch: bool | None = None
+    """Servo methods: cancel ``H(k-1)/4 + H(k)/2 + H(k+1|k)/4`` in Eq. (5) instead of ``H(k)``
+    (``H(k+1|k)``: Eq. (1)'s hysteresis term on the one-step prediction with the last command held).
+    ``H(k)`` responds to the latest measured increments ``l(k) - l(k-1)`` (its Bouc-Wen terms), so the
+    cancellation is a feedback path from the measurement to the valve that the QP's linear model
+    (Eq. 2) does not know. Where the plant's local gain exceeds the fixed model's (the bottom of the
+    cycle, the valve nearly closed) that loop oscillates at the Nyquist frequency, ``u`` alternating
+    sample by sample: the MPC-servo chatter. The centred three-point mean has a double zero at the
+    Nyquist frequency and no lag (docs/control.md, "Chatter"). None (default): on for ``mpc_servo``,
+    off for ``ampc_servo``, whose adapted model follows the local gain (it is smooth without, and
+    worse with); False: the paper's Eq. (5)."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
@@ -95,6 +106,9 @@ class ControllerSettings:
                              f"got {self.p0!r}")
         if self.input_delay_samples not in (0, 1) or isinstance(self.input_delay_samples, bool):
             raise ValueError(f"ControllerSettings.input_delay_samples must be 0 or 1, got {self.input_delay_samples!r}")
+        if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
+            raise ValueError(f"ControllerSettings.hysteresis_notch must be None, True or False, "
+                             f"got {self.hysteresis_notch!r}")
 
     @property
     def adaptive(self) -> bool:
@@ -181,6 +195,8 @@ class DisplacementController:
         self._ucp_hp = settings.ucp.hp
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
         self._delayed = settings.input_delay_samples == 1
+        notch = settings.hysteresis_notch
+        self._notch = settings.servo_mechanism and (not settings.adaptive if notch is None else notch)
         self.reset(0.0)
 
     # ------------------------------------------------------------------ lifecycle
@@ -200,6 +216,7 @@ class DisplacementController:
         self._u_prev = 0.0
         self._uc_prev = 0.0
         self._xs = 0.0
+        self._h_prev = math.nan  # H(k-1) for hysteresis_notch (NaN: none yet)
         self._predicted = math.nan
         # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
         self._u_next = 0.0
@@ -248,10 +265,12 @@ class DisplacementController:
             return self._step_ahead(l, rl, t, theta, error)
 
         u, uc, h, xs_next, predicted, saturated = self._decide(l, rl, t, theta, self._xs, self._u_prev,
-                                                               self._uc_prev)
+                                                               self._uc_prev, self._h_prev)
         if self._servo is not None:
             self._xs = xs_next
             self._uc_prev = uc
+            if self._notch:
+                self._h_prev = state.hysteresis_unchecked(t)
         state.apply(u)
         self._u_prev = u
         self._predicted = predicted
@@ -259,8 +278,21 @@ class DisplacementController:
         # theta is never modified in place (a new array every adaptive step), so it can be shared.
         return _control_step(u, predicted, error, uc, h, xs_next, theta, saturated)
 
+    def _next_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> float:
+        """``H(k+1|k)`` [mm]: the Eq. (1) hysteresis term one sample ahead, on the prediction
+        ``l(k+1|k)`` with the last command held (for ``hysteresis_notch``); the state is left as it
+        was but for its input, which the caller sets next."""
+        state = self._state
+        l_next = _held(state, theta, t[:3], u_prev, 1)[0]
+        saved = state.history
+        state.apply(u_prev)
+        state.observe_unchecked(l_next, t[0], t[1], t[2])
+        h_next = state.hysteresis_unchecked(t)
+        state.restore_history(saved)
+        return h_next
+
     def _decide(self, l: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float, u_prev: float,
-                uc_prev: float) -> tuple[float, float, float, float, float, bool]:
+                uc_prev: float, h_prev: float) -> tuple[float, float, float, float, float, bool]:
         """The control law at a sample whose ``l`` the state has observed: ``(u, u_c, H, x_s(k+1),
         l(k+1|k), saturated)`` for the preview ``rl = r(k..k+Hp)``; changes no state (but the QP's
         warm start)."""
@@ -268,6 +300,8 @@ class DisplacementController:
             res = ucp_move(self.settings.ucp, self._state, theta, u_prev_v=u_prev, r_target_mm=rl[self._ucp_hp])
             return res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
         h = self._state.hysteresis_unchecked(t)
+        if self._notch and h_prev == h_prev:  # not NaN: a previous H exists
+            h = 0.25 * h_prev + 0.5 * h + 0.25 * self._next_hysteresis(t, theta, u_prev)
         offset = h / t[2]
         uc, predicted, constrained = self._servo.solve_unchecked(l, self._state.l_prev_mm, uc_prev, xs, rl, offset)
         u_raw = uc - offset  # Eq. (5)
@@ -294,12 +328,14 @@ class DisplacementController:
         state.apply(u_now)
         xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)
         saved = state.history
+        h_now = state.hysteresis_unchecked(t) if self._notch else math.nan  # H(k), before the scratch step
         state.observe_unchecked(l_next, t[0], t[1], t[2])
-        u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now)
+        u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, h_now)
         state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._u_next, self._uc_next = u, uc
+        self._h_prev = h_now
         self._predicted = l_next
         self._k += 1
         return _control_step(u, l_next, error, uc, h, xs, theta, saturated)
@@ -327,7 +363,7 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
-            "u_next": self._u_next, "uc_next": self._uc_next,
+            "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
@@ -359,6 +395,10 @@ class DisplacementController:
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
         self._predicted = float(state["predicted"])
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
+        h_prev = float(state.get("h_prev", math.nan))
+        if math.isinf(h_prev):
+            raise ValueError(f"state field h_prev = {state['h_prev']!r} must be finite (or NaN before a step)")
+        self._h_prev = h_prev
         if self._rls is not None:
             self._rls.set_state(state["rls"])
         if self._servo is not None:
