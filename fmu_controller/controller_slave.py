@@ -47,7 +47,7 @@ from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 
-from fmu_controller.displacement_control import (METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
+from fmu_controller.displacement_control import (MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
                                                  DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
@@ -130,6 +130,9 @@ class AMPCController(SafeSlave):
             ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", None, None),
             ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", None, None),
             ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", 0.5, 1.0),
+            ("startup_s", 0.0, "s", "start-up mode T [s]: the reference led in from the measured position over "
+             "T/2 and the adaptive estimate blended in from theta0 over T; 0 = the paper's start "
+             "(docs/control.md, Start-up)", 0.0, MAX_STARTUP_S),
             ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35)", None, None),
             ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", None, None),
             ("sine.frequency", 0.1, "Hz", "built-in reference frequency [Hz] (paper: 0.1, 0.2)", 0.0, None),
@@ -187,7 +190,8 @@ class AMPCController(SafeSlave):
             box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
             covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"],
-            hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1)
+            hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
+            startup_s=p["startup_s"])
 
     def initialize_numerics(self) -> None:
         settings = self._settings()

@@ -41,11 +41,15 @@ from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
-__all__ = ["METHODS", "METHOD_CODES", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep", "DisplacementController"]
+__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
+           "DisplacementController"]
 
 METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
 #: The controller FMU's ``method`` parameter (an Integer) -> method name.
 METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
+
+#: Longest start-up mode ``ControllerSettings.startup_s`` [s].
+MAX_STARTUP_S = 600.0
 
 #: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
 P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
@@ -88,6 +92,21 @@ class ControllerSettings:
     Nyquist frequency and no lag (docs/control.md, "Chatter"). None (default): on for ``mpc_servo``,
     off for ``ampc_servo``, whose adapted model follows the local gain (it is smooth without, and
     worse with); False: the paper's Eq. (5)."""
+    startup_s: float = 0.0
+    """Start-up mode ``T`` [s]; 0 (default): the paper's start, the law on the full reference and the
+    raw estimate from the first sample. With ``T > 0`` (docs/control.md, "Start-up"):
+
+    * the reference is led in from the displacement ``l0`` measured at the first sample: over
+      ``t < T/2`` the law sees ``l0 + s(2t/T) (r(t) - l0)`` (its preview too), with the smoothstep
+      ``s(x) = 3x^2 - 2x^3``;
+    * the adaptive controllers use ``theta0 + s(t/T) (theta_hat - theta0)`` over ``t < T``: the
+      estimate enters the law gradually while Algorithm 1 runs unchanged, so that its first
+      estimates, taken while ``l`` is near 0 and the cubic terms of Eq. (1) take most of ``P(0)``'s
+      gain, do not reach the valve at full weight.
+
+    ``T = 10`` s makes AMPC-UCP beat MPC-UCP at both loads (the paper's start does not at 44 N) and
+    starts the fixed-predictor MPCs without overshoot; it slows AMPC-servo's convergence, whose
+    violent paper start excites the estimator quickly (docs/control.md has the figures)."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
@@ -106,6 +125,9 @@ class ControllerSettings:
                              f"got {self.p0!r}")
         if self.input_delay_samples not in (0, 1) or isinstance(self.input_delay_samples, bool):
             raise ValueError(f"ControllerSettings.input_delay_samples must be 0 or 1, got {self.input_delay_samples!r}")
+        if not (isinstance(self.startup_s, (int, float)) and not isinstance(self.startup_s, bool)
+                and math.isfinite(self.startup_s) and 0.0 <= self.startup_s <= MAX_STARTUP_S):
+            raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
             raise ValueError(f"ControllerSettings.hysteresis_notch must be None, True or False, "
                              f"got {self.hysteresis_notch!r}")
@@ -122,6 +144,12 @@ class ControllerSettings:
     def preview_samples(self) -> int:
         """How many future reference samples the method needs (``Hp``, plus the input delay)."""
         return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + self.input_delay_samples
+
+
+def _smoothstep(x: float) -> float:
+    """``3x^2 - 2x^3`` on [0, 1] (0 below, 1 above): 0 -> 1 with zero slope at both ends."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
 
 
 @dataclass(frozen=True)
@@ -197,6 +225,8 @@ class DisplacementController:
         self._delayed = settings.input_delay_samples == 1
         notch = settings.hysteresis_notch
         self._notch = settings.servo_mechanism and (not settings.adaptive if notch is None else notch)
+        self._ramp_n = int(round(0.5 * settings.startup_s / settings.ts_s))
+        self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self.reset(0.0)
 
     # ------------------------------------------------------------------ lifecycle
@@ -213,6 +243,7 @@ class DisplacementController:
             self._servo.update_model(*self.theta[:3])
         self._state = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
         self._k = 0
+        self._l_start = l0
         self._u_prev = 0.0
         self._uc_prev = 0.0
         self._xs = 0.0
@@ -247,13 +278,19 @@ class DisplacementController:
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
         error = 0.0 if math.isnan(self._predicted) else l - self._predicted
         state = self._state
+        k = self._k
+        if k < self._ramp_n:
+            rl = self._lead_in(rl, l)
 
-        if self._rls is not None and self._k > 0:
-            # Algorithm 1 with phi(k-1) built from the history and the new l(k).
+        if self._rls is not None and k > 0:
             phi = state.phi_list()
             if not math.isfinite(sum(phi)) and not all(map(math.isfinite, phi)):
                 raise ValueError(f"phi must be finite, got {phi}")
-            self.theta = self._rls.update_unchecked(np.array(phi), l).copy()
+            theta_hat = self._rls.update_unchecked(np.array(phi), l)
+            if k < self._blend_n:
+                w = _smoothstep(k / self._blend_n)
+                theta_hat = self.theta0 + w * (theta_hat - self.theta0)
+            self.theta = theta_hat.copy()
             t = self.theta.tolist()
             if self._servo is not None:
                 self._servo.update_model_unchecked(t[0], t[1], t[2])
@@ -290,6 +327,15 @@ class DisplacementController:
         h_next = state.hysteresis_unchecked(t)
         state.restore_history(saved)
         return h_next
+
+    def _lead_in(self, rl: list[float], l: float) -> list[float]:
+        """The preview ``r(k..k+Hp)`` as the start-up mode leads it in from the first measured ``l0``
+        (``ControllerSettings.startup_s``); entries at or after the lead-in's end unchanged."""
+        k, n = self._k, self._ramp_n
+        if k == 0:
+            self._l_start = l
+        l0 = self._l_start
+        return [x if k + i >= n else l0 + _smoothstep((k + i) / n) * (x - l0) for i, x in enumerate(rl)]
 
     def _decide(self, l: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float, u_prev: float,
                 uc_prev: float, h_prev: float) -> tuple[float, float, float, float, float, bool]:
@@ -363,7 +409,7 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
-            "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
+            "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev, "l_start": self._l_start,
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
@@ -381,7 +427,7 @@ class DisplacementController:
         if theta.shape != (ASYMMETRIC.n_params,) or not np.all(np.isfinite(theta)) or abs(theta[2]) < 1e-6:
             raise ValueError(f"state field theta must be {ASYMMETRIC.n_params} finite numbers with b1 not ~0, "
                              f"got {state['theta']!r}")
-        for name in ("u_prev", "uc_prev", "xs", "u_next", "uc_next"):
+        for name in ("u_prev", "uc_prev", "xs", "u_next", "uc_next", "l_start"):
             if name in state and not math.isfinite(float(state[name])):
                 raise ValueError(f"state field {name} = {state[name]!r} must be finite")
         if not (math.isfinite(float(state["predicted"])) or math.isnan(float(state["predicted"]))):
@@ -399,6 +445,7 @@ class DisplacementController:
         if math.isinf(h_prev):
             raise ValueError(f"state field h_prev = {state['h_prev']!r} must be finite (or NaN before a step)")
         self._h_prev = h_prev
+        self._l_start = float(state.get("l_start", self._state.history[2]))
         if self._rls is not None:
             self._rls.set_state(state["rls"])
         if self._servo is not None:

@@ -1,0 +1,97 @@
+"""Start from rest: the paper's start against the start-up mode (``ControllerSettings.startup_s``).
+
+Run: ``python benchmarks/startup.py [--seeds 8] [--startup 10] [--out out/startup]`` (about 40 s).
+Every method at 44 and 68 N, 0.1 and 0.2 Hz (P(0) of Table 8 at 0.2 Hz), from rest, with the fixed
+predictor that ``tapmuscle paper`` identifies; noise seeds 0..N-1. Printed per cell and start, over
+the seeds: the largest overshoot above the reference's 65-mm peak in the first 10 s, the most
+full-range (0 <-> 10 V) command reversals in the first 10 s, how many runs break either limit of
+the start-up requirement (3 mm, 2 reversals), Eq. (21) over 10-40 s and the mean |r - l| over
+50-90 s (means). Stored: ``startup.png``, the first 20 s of AMPC-servo at 44 N, 0.2 Hz and of AMPC-UCP
+at 44 N, 0.1 Hz, seed 0, both starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from fmu_controller.displacement_control import (METHODS, P0_TABLE5, P0_TABLE8, ControllerSettings,
+                                                 DisplacementController)
+from fmu_controller.reference import SineReference
+from fmu_plant import Plant
+from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
+from tapmuscle.paper.reproduce import preliminary_theta
+from tapmuscle.plots.figures import plt, save_figure
+
+CELLS = [(44.0, 0.1), (44.0, 0.2), (68.0, 0.1), (68.0, 0.2)]
+
+
+def reversals(u: np.ndarray) -> int:
+    """Changes between 0-V and 10-V saturation (samples in between ignored)."""
+    s = np.where(u <= 0.05, -1, np.where(u >= 9.95, 1, 0))
+    s = s[s != 0]
+    return int(np.count_nonzero(s[1:] != s[:-1]))
+
+
+def run(method: str, load: float, f: float, seed: int, startup_s: float, theta0: np.ndarray) -> dict:
+    plant = Plant(seed=seed)
+    plant.update(load_n=load)
+    cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup_s)
+    return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=90.0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=8, help="noise seeds 0..N-1 (default 8)")
+    parser.add_argument("--startup", type=float, default=10.0, help="startup_s of the start-up mode (default 10)")
+    parser.add_argument("--out", type=Path, default=Path("out/startup"), help="folder of startup.png")
+    args = parser.parse_args(argv)
+    theta0 = preliminary_theta(0, refine_hz=0.05)
+    print(f"{'method':<11} {'cell':<12} {'start':<10} {'overshoot [mm]':>15} {'reversals':>10} {'runs over':>10} "
+          f"{'Eq.(21) 10-40 s':>16} {'|r-l| 50-90 s':>14}")
+    totals = {}
+    for method in METHODS:
+        for load, f in CELLS:
+            for label, startup in (("paper", 0.0), (f"{args.startup:g} s", args.startup)):
+                over, rev, e21, late = [], [], [], []
+                for seed in range(args.seeds):
+                    r = run(method, load, f, seed, startup, theta0)
+                    first = r["t_s"] <= 10.0
+                    over.append(max(0.0, float(np.max(r["l_mm"][first])) - 65.0))
+                    rev.append(reversals(r["u_v"][first]))
+                    e21.append(eq21_error_mm(r["r_mm"], r["l_mm"]))
+                    k = (r["t_s"] >= 50.0) & (r["t_s"] <= 90.0)
+                    late.append(float(np.mean(np.abs(r["r_mm"][k] - r["l_mm"][k]))))
+                bad = sum(o > 3.0 or v > 2 for o, v in zip(over, rev))
+                totals[label] = totals.get(label, 0) + bad
+                print(f"{method:<11} {f'{load:.0f} N {f:g} Hz':<12} {label:<10} {max(over):15.1f} {max(rev):10d} "
+                      f"{bad:>6d}/{args.seeds:<3d} {np.mean(e21):16.3f} {np.mean(late):14.3f}", flush=True)
+    for label, bad in totals.items():
+        print(f"start '{label}': {bad} of {len(METHODS) * len(CELLS) * args.seeds} runs break the start-up limits")
+    fig, ax = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
+    for col, (method, load, f) in enumerate((("ampc_servo", 44.0, 0.2), ("ampc_ucp", 44.0, 0.1))):
+        for label, startup, colour in (("paper start", 0.0, "tab:red"), (f"start-up mode {args.startup:g} s",
+                                                                         args.startup, "tab:blue")):
+            r = run(method, load, f, 0, startup, theta0)
+            k = r["t_s"] <= 20.0
+            ax[0, col].plot(r["t_s"][k], r["l_mm"][k], color=colour, label=f"l, {label}")
+            ax[1, col].step(r["t_s"][k], r["u_v"][k], where="post", color=colour, label=label)
+        ax[0, col].plot(r["t_s"][k], r["r_mm"][k], "k:", label="r")
+        ax[0, col].axhline(68.0, color="k", lw=0.6, ls="--")
+        ax[0, col].set_title(f"{method}, {load:.0f} N, {f:g} Hz, seed 0 (dashed: 65 + 3 mm)")
+        ax[0, col].set_ylabel("l [mm]")
+        ax[1, col].set_ylabel("u [V]")
+        ax[1, col].set_xlabel("t [s]")
+        for a in ax[:, col]:
+            a.grid(True, alpha=0.3)
+            a.legend(fontsize=8)
+    png = save_figure(fig, args.out / "startup.png")
+    print(f"wrote {png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
