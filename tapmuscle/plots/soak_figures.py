@@ -61,7 +61,6 @@ def plot_soak(runs: Mapping[str, Mapping[str, np.ndarray]], names: Sequence[str]
     ax[3].set_xlabel("time [h]")
     for a in ax:
         a.grid(True, alpha=0.3)
-    for a in ax:
         a.legend(fontsize=8)
     fig.tight_layout()
     return save_figure(fig, path)
