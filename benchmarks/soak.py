@@ -74,11 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"(load {b['load_n_mean']:.0f} N, supply {b['supply_mpa_mean']:.3f} MPa, f <= {b['frequency_hz_max']:.2f} Hz)")
         if label == "long-run":
             failed = not all(c["passed"] for n, c in checks.items() if n != "error_bounded")
-        runs[label] = {"block_t_s": np.array([b["start_s"] for b in res.blocks]),
-                       "eq21_mm": np.array([b["eq21_mm"] for b in res.blocks]),
-                       "first_hour_mm": np.array(res.first_hour_eq21_mm()), "cov_t_s": res.covariance_t_s,
-                       "scaled_min_eig": res.p_eigenvalues[:, 2],
-                       "scaled_cond": res.p_eigenvalues[:, 3] / res.p_eigenvalues[:, 2], "theta": res.theta}
+        runs[label] = res.figure_data()
     cs = CONFIGS["long-run"]
     lower = np.array([cs.box_lower.get(n, -np.inf) for n in ASYMMETRIC.names])
     upper = np.array([cs.box_upper.get(n, np.inf) for n in ASYMMETRIC.names])

@@ -204,6 +204,14 @@ class SoakResult:
     """Covariance restarts of Algorithm 1 over the run."""
     elapsed_s: float
 
+    def figure_data(self) -> dict[str, np.ndarray]:
+        """The arrays :func:`tapmuscle.plots.soak_figures.plot_soak` draws for this run."""
+        ev = self.p_eigenvalues
+        return {"block_t_s": np.array([b["start_s"] for b in self.blocks]),
+                "eq21_mm": np.array([b["eq21_mm"] for b in self.blocks]),
+                "first_hour_mm": np.array(self.first_hour_eq21_mm()), "cov_t_s": self.covariance_t_s,
+                "scaled_min_eig": ev[:, 2], "scaled_cond": ev[:, 3] / ev[:, 2], "theta": self.theta}
+
     def first_hour_eq21_mm(self) -> float:
         """Mean ``|r - l|`` over the blocks of the first hour [mm] (the first block without its
         first ``settle_s``, the start-up)."""

@@ -11,6 +11,8 @@ import pytest
 
 from fmu_controller.displacement_control import ControllerSettings
 from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from tapmuscle.plots.soak_figures import plot_soak
 from tapmuscle.soak import SoakSettings, covariance_spectrum, run_soak, soak_schedule
 
 
@@ -56,7 +58,7 @@ def test_covariance_spectrum_detects_indefinite():
 
 
 @pytest.mark.slow
-def test_long_run_estimator_passes_three_hours():
+def test_long_run_estimator_passes_three_hours(tmp_path):
     cs = ControllerSettings(method="ampc_servo", forgetting=0.999, covariance_ceiling=True)
     res = run_soak(SoakSettings(duration_s=3 * 3600.0, seed=1), theta0=THETA0_44N, controller=cs)
     checks = res.checks()
@@ -67,3 +69,7 @@ def test_long_run_estimator_passes_three_hours():
     assert res.covariance_resets == 0
     # the first hour's error is that of a good loop (the paper's 45-s runs: 0.1-0.4 mm)
     assert checks["error_bounded"]["first_hour_mm"] < 0.3
+    # the benchmark's figure from this result
+    png = plot_soak({"long-run": res.figure_data()}, ASYMMETRIC.names, tmp_path / "soak.png",
+                    theta_lower=np.full(15, -np.inf), theta_upper=np.full(15, np.inf))
+    assert png.stat().st_size > 10_000
