@@ -41,12 +41,25 @@ from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
-__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
+__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
+           "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
 METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
 #: The controller FMU's ``method`` parameter (an Integer) -> method name.
 METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
+
+#: ``input_delay_samples = -1``: weight of the newest squared one-step error in the running means
+#: (a memory of about 50 samples, 5 s at Ts = 0.1 s: over one second the two hypotheses' errors
+#: overlap, the sequential/parallel ratio reaching 1.53 in a sequential loop and only 2.15 in a
+#: parallel one; over five seconds at most 1.03 and at least 1.43, measured over every method,
+#: 44/68 N, 0.1/0.2 Hz, two seeds) ...
+DELAY_FORGET = 0.02
+#: ... the parallel hypothesis must explain the data this many times better (in mean square), between
+#: those two figures ...
+DELAY_RATIO = 1.25
+#: ... after at least this many samples compared.
+DELAY_MIN_SAMPLES = 50
 
 #: Longest start-up mode ``ControllerSettings.startup_s`` [s].
 MAX_STARTUP_S = 600.0
@@ -113,7 +126,13 @@ class ControllerSettings:
     master, which applies the controller's output one macro step late, or of a controller whose
     computation takes a whole sample). With 1 the controller computes ``u(k+1)`` at sample ``k``
     from ``l(k)`` and its own Eq. (1) prediction ``l(k+1|k)`` under the command already on its way
-    (the classic one-sample delay compensation), so it needs ``r(k..k+1+Hp)``."""
+    (the classic one-sample delay compensation), so it needs ``r(k..k+1+Hp)``. -1 (the controller
+    FMU's default): decide from the data. The controller starts as with 0 and compares, at every
+    sample, how well Eq. (1) with ``theta0`` predicts the measured ``l(k)`` under its output of the
+    last sample (a sequential master) and under the output before it (a parallel one); when the
+    second explains the data :data:`DELAY_RATIO` times better (mean squares over about 5 s, after at
+    least :data:`DELAY_MIN_SAMPLES` samples) it switches to 1 for good. With a sequential master it stays
+    with 0 and its commands are those of 0 bit for bit (docs/fmu.md, "Parallel masters")."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -123,8 +142,9 @@ class ControllerSettings:
         if len(self.p0) != ASYMMETRIC.n_params or not all(math.isfinite(p) and p > 0 for p in self.p0):
             raise ValueError(f"ControllerSettings.p0 must be {ASYMMETRIC.n_params} positive finite numbers, "
                              f"got {self.p0!r}")
-        if self.input_delay_samples not in (0, 1) or isinstance(self.input_delay_samples, bool):
-            raise ValueError(f"ControllerSettings.input_delay_samples must be 0 or 1, got {self.input_delay_samples!r}")
+        if self.input_delay_samples not in (-1, 0, 1) or isinstance(self.input_delay_samples, bool):
+            raise ValueError(f"ControllerSettings.input_delay_samples must be -1 (detect), 0 or 1, "
+                             f"got {self.input_delay_samples!r}")
         if not (isinstance(self.startup_s, (int, float)) and not isinstance(self.startup_s, bool)
                 and math.isfinite(self.startup_s) and 0.0 <= self.startup_s <= MAX_STARTUP_S):
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
@@ -142,8 +162,9 @@ class ControllerSettings:
 
     @property
     def preview_samples(self) -> int:
-        """How many future reference samples the method needs (``Hp``, plus the input delay)."""
-        return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + self.input_delay_samples
+        """How many future reference samples the method needs (``Hp``, plus one for an input delay of 1
+        or -1)."""
+        return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + (self.input_delay_samples != 0)
 
 
 def _smoothstep(x: float) -> float:
@@ -222,7 +243,7 @@ class DisplacementController:
         self._need = settings.preview_samples + 1
         self._ucp_hp = settings.ucp.hp
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
-        self._delayed = settings.input_delay_samples == 1
+        self._auto = settings.input_delay_samples == -1
         notch = settings.hysteresis_notch
         self._notch = settings.servo_mechanism and (not settings.adaptive if notch is None else notch)
         self._ramp_n = int(round(0.5 * settings.startup_s / settings.ts_s))
@@ -252,6 +273,15 @@ class DisplacementController:
         # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
         self._u_next = 0.0
         self._uc_next = 0.0
+        self._delayed = self.settings.input_delay_samples == 1
+        # input_delay_samples = -1: the last two outputs and the mean squared one-step errors of Eq. (1)
+        # under each (sequential, parallel master); samples compared so far
+        self._u_out1 = self._u_out2 = 0.0
+        self._ms_seq = self._ms_par = 0.0
+        self._compared = 0
+        self._lin0 = self.theta0[:3].tolist()
+        self._shadow_seq = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
+        self._shadow_par = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
         """One control sample: measured ``l(k)`` [mm] and ``r(k), ..., r(k+Hp)`` [mm] -> ``u(k)``.
@@ -282,6 +312,13 @@ class DisplacementController:
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
 
+        if self._auto and not self._delayed:
+            if k == 0:  # the shadow models start from the first measurement
+                for shadow in (self._shadow_seq, self._shadow_par):
+                    shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
+            else:
+                self._detect_delay(l)
+
         if self._rls is not None and k > 0:
             phi = state.phi_list()
             if not math.isfinite(sum(phi)) and not all(map(math.isfinite, phi)):
@@ -300,6 +337,8 @@ class DisplacementController:
         state.observe_unchecked(l, t[0], t[1], t[2])
         if self._delayed:
             return self._step_ahead(l, rl, t, theta, error)
+        if self._auto:  # undelayed until detected: the preview holds one sample more than the law takes
+            rl = rl[:-1]
 
         u, uc, h, xs_next, predicted, saturated = self._decide(l, rl, t, theta, self._xs, self._u_prev,
                                                                self._uc_prev, self._h_prev)
@@ -310,10 +349,40 @@ class DisplacementController:
                 self._h_prev = state.hysteresis_unchecked(t)
         state.apply(u)
         self._u_prev = u
+        self._u_out2, self._u_out1 = self._u_out1, u
         self._predicted = predicted
         self._k += 1
         # theta is never modified in place (a new array every adaptive step), so it can be shared.
         return _control_step(u, predicted, error, uc, h, xs_next, theta, saturated)
+
+    def _detect_delay(self, l: float) -> None:
+        """``input_delay_samples = -1``: score the fixed prior model ``theta0``'s prediction of ``l(k)``
+        (Eq. (1)) under the last output (a sequential master applied it over ``[t_k-1, t_k)``) and
+        under the one before (a parallel master did), each hypothesis with its own model state; switch
+        to the delayed law once the parallel one is :data:`DELAY_RATIO` times better. (The prior, not
+        the adaptive estimate: in the first seconds the estimate can be far off.) On the switch the
+        model's input over ``[t_k-1, t_k)`` is corrected to the command the valve really had, and the
+        last output is the one in flight."""
+        th0, lin0 = self.theta0, self._lin0
+        scores = []
+        for shadow, u in ((self._shadow_seq, self._u_out1), (self._shadow_par, self._u_out2)):
+            shadow.apply(u)
+            e = l - _held(shadow, th0, lin0, u, 1)[0]
+            shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
+            scores.append(e * e)
+        self._ms_seq += DELAY_FORGET * (scores[0] - self._ms_seq)
+        self._ms_par += DELAY_FORGET * (scores[1] - self._ms_par)
+        self._compared += 1
+        if self._compared >= DELAY_MIN_SAMPLES and DELAY_RATIO * self._ms_par < self._ms_seq:
+            self._delayed = True
+            self._state.apply(self._u_out2)
+            self._u_next, self._uc_next = self._u_out1, self._uc_prev
+
+    @property
+    def input_delay_detected(self) -> bool:
+        """``input_delay_samples = -1``: whether the controller has switched to the delayed law
+        (always True for 1, False for 0)."""
+        return self._delayed
 
     def _next_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> float:
         """``H(k+1|k)`` [mm]: the Eq. (1) hysteresis term one sample ahead, on the prediction
@@ -381,6 +450,7 @@ class DisplacementController:
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._u_next, self._uc_next = u, uc
+        self._u_out2, self._u_out1 = self._u_out1, u
         self._h_prev = h_now
         self._predicted = l_next
         self._k += 1
@@ -410,6 +480,8 @@ class DisplacementController:
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev, "l_start": self._l_start,
+            "delayed": self._delayed, "u_out": [self._u_out1, self._u_out2], "delay_scores": [self._ms_seq, self._ms_par],
+            "compared": self._compared,
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
@@ -446,6 +518,18 @@ class DisplacementController:
             raise ValueError(f"state field h_prev = {state['h_prev']!r} must be finite (or NaN before a step)")
         self._h_prev = h_prev
         self._l_start = float(state.get("l_start", self._state.history[2]))
+        if "delayed" in state:
+            if state["delayed"] not in (True, False) or (state["delayed"] is False and self.settings.input_delay_samples == 1) \
+                    or (state["delayed"] is True and self.settings.input_delay_samples == 0):
+                raise ValueError(f"state field delayed = {state['delayed']!r} contradicts input_delay_samples = "
+                                 f"{self.settings.input_delay_samples}")
+            values = [float(x) for x in (*state["u_out"], *state["delay_scores"])]
+            if len(values) != 4 or not all(map(math.isfinite, values)) or min(values[2:]) < 0 or int(state["compared"]) < 0:
+                raise ValueError(f"state fields u_out, delay_scores, compared must be finite (scores >= 0), got "
+                                 f"{state['u_out']!r}, {state['delay_scores']!r}, {state['compared']!r}")
+            self._delayed = bool(state["delayed"])
+            self._u_out1, self._u_out2, self._ms_seq, self._ms_par = values
+            self._compared = int(state["compared"])
         if self._rls is not None:
             self._rls.set_state(state["rls"])
         if self._servo is not None:

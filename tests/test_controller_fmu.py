@@ -203,8 +203,11 @@ def test_several_instances_and_reinstantiation(fmu):
     _free(c)
 
 
-def test_external_advanced_reference_gives_the_exact_preview(monkeypatch):
-    """Fed r(t + Hp Ts), the controller's preview is exactly r(k..k+Hp) once Hp samples have arrived."""
+@pytest.mark.parametrize("delay", [0, -1, 1])
+def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay):
+    """Fed r(t + H Ts), H = Hp plus one unless input_delay_samples = 0 (-1, the default, may switch to
+    the delayed law, which needs it), the controller's preview is exactly r(k..k+H) once H samples
+    have arrived."""
     seen = []
     original = DisplacementController.step
 
@@ -215,14 +218,15 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch):
     monkeypatch.setattr(DisplacementController, "step", spy)
     slave = AMPCController(instance_name="spy")
     slave._int_par["reference_source"] = 3
+    slave._int_par["input_delay_samples"] = delay
     slave.exit_initialization_mode()
     ref = SineReference(frequency_hz=0.1)
-    hp = 5
+    ahead = 5 + (delay != 0)
     for k in range(20):
-        slave.l, slave.r = _l(k), float(ref.at(k + hp))
+        slave.l, slave.r = _l(k), float(ref.at(k + ahead))
         assert slave.do_step(k * 0.1, 0.1)
-    for k in range(hp, 20):
-        np.testing.assert_array_equal(seen[k], ref.preview(k, hp))
+    for k in range(ahead, 20):
+        np.testing.assert_array_equal(seen[k], ref.preview(k, ahead))
     assert slave.r_k == float(ref.at(19))
 
 

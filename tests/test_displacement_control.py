@@ -357,3 +357,67 @@ def test_state_round_trip_during_the_startup_mode(paper_theta0):
         sa, sb = a.step(l, p), b.step(l, p)
         assert sa.u_v == sb.u_v and np.array_equal(sa.theta, sb.theta)
         l = plant.step(sa.u_v, 0.1).l_mm
+
+
+# ------------------------------------------------------------------ input delay detected (-1)
+@pytest.mark.parametrize("method", METHODS)
+def test_detected_delay_is_the_undelayed_law_in_a_sequential_loop(theta0, method):
+    """input_delay_samples = -1 with a sequential loop never switches: the commands are those of 0, bit
+    for bit (over 5 s of 0.1 Hz, 0.2 Hz and a load step)."""
+    for f, load_n in ((0.1, 44.0), (0.2, lambda t: 68.0 if t >= 20.0 else 44.0)):
+        runs = []
+        for d in (0, -1):
+            c = DisplacementController(ControllerSettings(method=method, input_delay_samples=d), theta0)
+            runs.append(run_closed_loop(Plant(seed=3), c, SineReference(frequency_hz=f), duration_s=45.0, load_n=load_n))
+            assert not c.input_delay_detected
+        assert np.array_equal(runs[0]["u_v"], runs[1]["u_v"]) and np.array_equal(runs[0]["l_mm"], runs[1]["l_mm"])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_detected_delay_switches_in_a_parallel_loop(theta0, method):
+    """With each command applied one sample late (a parallel master at h = Ts), -1 switches to the
+    delayed law within 6 s; AMPC-servo then tracks as with 1 (after 30 s within 1.5x of it) and far
+    better than with 0."""
+    errors = {}
+    for d in (0, 1, -1):
+        c = DisplacementController(ControllerSettings(method=method, input_delay_samples=d), theta0)
+        switched_at = None
+        plant, ref = Plant(seed=0), SineReference()
+        hp = c.settings.preview_samples
+        c.reset(plant.measurement.l_mm)
+        meas, in_flight, err = plant.measurement, 0.0, []
+        for k in range(900):
+            u = c.step(meas.l_mm, ref.preview(k, hp)).u_v
+            if d == -1 and switched_at is None and c.input_delay_detected:
+                switched_at = k * 0.1
+            if k >= 300:
+                err.append(abs(ref.at(k) - meas.l_mm))
+            u, in_flight = in_flight, u
+            meas = plant.step(u, 0.1)
+        errors[d] = float(np.mean(err))
+        if d == -1:
+            assert switched_at is not None and switched_at <= 6.0, switched_at
+    if method == "ampc_servo":
+        assert errors[-1] <= 1.5 * errors[1] and errors[-1] < 0.3 * errors[0], errors
+
+
+def test_detected_delay_state_round_trip(theta0):
+    """get_state/set_state after the switch continue bit for bit (the detection's state included)."""
+    cs = ControllerSettings(method="ampc_servo", input_delay_samples=-1)
+    a, b = DisplacementController(cs, theta0), DisplacementController(cs, theta0)
+    plant, ref = Plant(seed=2), SineReference()
+    hp = cs.preview_samples
+    a.reset(plant.measurement.l_mm)
+    l, in_flight = plant.measurement.l_mm, 0.0
+    for k in range(120):
+        u = a.step(l, ref.preview(k, hp)).u_v
+        u, in_flight = in_flight, u
+        l = plant.step(u, 0.1).l_mm
+    assert a.input_delay_detected
+    b.set_state(json.loads(json.dumps(a.get_state())))
+    assert b.input_delay_detected
+    for k in range(120, 200):
+        sa, sb = a.step(l, ref.preview(k, hp)), b.step(l, ref.preview(k, hp))
+        assert sa.u_v == sb.u_v
+        u, in_flight = in_flight, sa.u_v
+        l = plant.step(u, 0.1).l_mm

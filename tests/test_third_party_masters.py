@@ -52,14 +52,15 @@ class _Libcosim:
         return self.obs.last_real_values(self.slaves[fmu], [self.vrs[fmu][var]])[0]
 
 
-def _closed_loop(fmus, input_delay_samples: int, duration_s: float = 45.0) -> dict[str, np.ndarray]:
+def _closed_loop(fmus, input_delay_samples: int | None, duration_s: float = 45.0) -> dict[str, np.ndarray]:
     sim = _Libcosim(TS_S)
     sim.add("plant", fmus["MusclePlant"])
     sim.add("ctrl", fmus["AMPCController"])
     sim.connect("plant.l", "ctrl.l")
     sim.connect("ctrl.u", "plant.u")
-    assert sim.ex.integer_initial_value(sim.slaves["ctrl"], sim.vrs["ctrl"]["input_delay_samples"],
-                                        input_delay_samples)
+    if input_delay_samples is not None:  # None: the FMU's default (-1, detected)
+        assert sim.ex.integer_initial_value(sim.slaves["ctrl"], sim.vrs["ctrl"]["input_delay_samples"],
+                                            input_delay_samples)
     n = int(round(duration_s / TS_S))
     rows = []
     for _ in range(n):
@@ -71,7 +72,7 @@ def _closed_loop(fmus, input_delay_samples: int, duration_s: float = 45.0) -> di
 
 @pytest.fixture(scope="module")
 def libcosim_runs(built_fmus):
-    return {d: _closed_loop(built_fmus, d) for d in (0, 1)}
+    return {d: _closed_loop(built_fmus, d) for d in (0, 1, None)}
 
 
 def _direct(input_delay_samples: int) -> dict[str, np.ndarray]:
@@ -80,10 +81,11 @@ def _direct(input_delay_samples: int) -> dict[str, np.ndarray]:
     return run_closed_loop(Plant(seed=0), c, SineReference(), duration_s=45.0, loop_delay_samples=1)
 
 
-@pytest.mark.parametrize("delay", [0, 1])
+@pytest.mark.parametrize("delay", [0, 1, None])
 def test_libcosim_closed_loop_is_the_direct_loop_with_one_sample_of_delay(libcosim_runs, delay):
-    """Row k of libcosim is after its (k+1)-th step: l(k+1) and the u the plant held over [t_k, t_k+1)."""
-    run, direct = libcosim_runs[delay], _direct(delay)
+    """Row k of libcosim is after its (k+1)-th step: l(k+1) and the u the plant held over [t_k, t_k+1).
+    None: nothing set, the FMU's default (-1: the controller detects the delay)."""
+    run, direct = libcosim_runs[delay], _direct(-1 if delay is None else delay)
     n = len(run["l_mm"])
     np.testing.assert_allclose(run["l_mm"], direct["l_mm"][1:n + 1], rtol=0, atol=1e-9)
     np.testing.assert_allclose(run["u_v"], direct["u_v"][:n], rtol=0, atol=1e-9)
@@ -91,7 +93,8 @@ def test_libcosim_closed_loop_is_the_direct_loop_with_one_sample_of_delay(libcos
 
 def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
     """Built-in 35 + 30 sin(2 pi 0.1 t) mm, mean |r - l| after 5 s at h = Ts: several mm without the
-    compensation (a sustained oscillation), a fraction of a mm with ``input_delay_samples = 1``."""
+    compensation (a sustained oscillation), a fraction of a mm with ``input_delay_samples = 1``, and
+    under 1 mm with the FMU's default, which detects the master's delay."""
     err = {}
     for d, run in libcosim_runs.items():
         t = (np.arange(len(run["l_mm"])) + 1) * TS_S
@@ -99,6 +102,9 @@ def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
         err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= 5.0]))
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
     assert err[0] > 3.0 and err[1] < 0.6, err
+    # with nothing set, the controller detects the parallel master within ~5 s (measured 0.62 mm, the
+    # five seconds of oscillation before the switch included)
+    assert err[None] < 1.0, err
 
 
 def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):

@@ -364,7 +364,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
         hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
         if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
-            hp += ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0]
+            hp += ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0] != 0  # -1 (detect) may need it too
         plant.start()
         ctrl.start()
         cols = _loop(scenario, plant, ctrl, hp, record, progress)
