@@ -66,3 +66,15 @@ def test_check_reports_bad_files_and_empty_folders(tmp_path, capsys):
     assert "no scenario with an [expect] table" in capsys.readouterr().err
     assert main(["check", str(tmp_path / "missing")]) == 2
     assert "no such file or folder" in capsys.readouterr().err
+
+
+def test_the_long_run_scenario_meets_its_expectation(built_fmus, capsys):
+    """The 24-hour soak's CI scenario test: 30 min of AMPC-servo through the FMUs with the long-run
+    estimator, load and supply stepping, within its bound over the last 10 minutes."""
+    from tapmuscle.cosim import PAPER_SCENARIOS
+
+    folder = PAPER_SCENARIOS.parent / "long_run"
+    code = main(["check", str(folder), "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "1 scenarios: 1 passed, 0 failed, 0 errors" in out, out
