@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import sys
 import json
 import math
 import traceback
@@ -82,11 +83,23 @@ def _to_host(method: Callable) -> Callable:
     return call
 
 
+def _drop_repeated_path(resources: str | None) -> None:
+    """pythonfmu inserts the FMU's resources folder at the front of ``sys.path`` at every
+    instantiation, so a host that instantiates the FMU N times carries N copies (a long sweep in one
+    process: thousands). Keep the first only; the module is imported already."""
+    if not resources:
+        return
+    seen = [i for i, p in enumerate(sys.path) if p == resources]
+    for i in reversed(seen[1:]):
+        del sys.path[i]
+
+
 class SafeSlave(Fmi2Slave):
     """Base of the project's FMU slaves (see module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        _drop_repeated_path(kwargs.get("resources"))
         self._par: dict[str, float] = {}
         self._int_par: dict[str, int] = {}
         self._failed = False

@@ -208,3 +208,26 @@ def test_a_wrong_guid_is_refused_with_both_guids(built_fmus, tmp_path, capfd):
     good.doStep(0.0, 0.1)
     good.terminate()
     good.freeInstance()
+
+
+def test_repeated_instantiation_keeps_one_resources_entry_in_sys_path(built_fmus):
+    """pythonfmu puts the FMU's resources folder in front of sys.path at every instantiation; the slave
+    keeps one copy, so a host that instantiates the FMU a thousand times does not carry a thousand."""
+    code = r"""
+import sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+folder = extract(sys.argv[1])
+before = len(sys.path)
+for _ in range(20):
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="p")
+    f.instantiate()
+    f.freeInstance()
+print(len(sys.path) - before, sum("resources" in p for p in sys.path))
+"""
+    proc = subprocess.run([sys.executable, "-c", code, str(built_fmus["MusclePlant"])], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == ["1", "1"], proc.stdout
