@@ -97,6 +97,16 @@ class SoakSettings:
             raise ValueError(f"SoakSettings.block_s = {self.block_s!r} s is too short for three segments of at least one "
                              f"period at {self.frequency_hz[0]!r} Hz")
 
+    @property
+    def samples_per_block(self) -> int:
+        """Samples in one scoring block."""
+        return int(round(self.block_s / self.ts_s))
+
+    @property
+    def blocks_per_hour(self) -> int:
+        """Scoring blocks in an hour (at least one): the first hour's blocks are the reference."""
+        return max(1, int(round(3600.0 / self.block_s)))
+
 
 @dataclass(frozen=True)
 class SoakSchedule:
@@ -153,7 +163,7 @@ def soak_schedule(s: SoakSettings) -> SoakSchedule:
     freq = np.empty(n)
     f_lo, f_hi = s.frequency_hz
     thirds = np.linspace(f_lo, f_hi, 4)
-    per_block = int(round(s.block_s / ts))
+    per_block = s.samples_per_block
     seg_s = s.block_s / 3.0
     for k0 in range(0, n, per_block):
         k = k0
@@ -215,8 +225,7 @@ class SoakResult:
     def first_hour_eq21_mm(self) -> float:
         """Mean ``|r - l|`` over the blocks of the first hour [mm] (the first block without its
         first ``settle_s``, the start-up)."""
-        per_hour = max(1, int(round(3600.0 / self.settings.block_s)))
-        return float(np.mean([b["eq21_mm"] for b in self.blocks[:per_hour]]))
+        return float(np.mean([b["eq21_mm"] for b in self.blocks[:self.settings.blocks_per_hour]]))
 
     def checks(self) -> dict[str, dict[str, Any]]:
         """The soak's pass/fail criteria with the measured figures.
@@ -231,7 +240,7 @@ class SoakResult:
         first = self.first_hour_eq21_mm()
         worst = max(b, key=lambda x: x["eq21_mm"])
         over = [x for x in b if x.get("fresh_eq21_mm") is not None]
-        per_hour = max(1, int(round(3600.0 / self.settings.block_s)))
+        per_hour = self.settings.blocks_per_hour
         t_first = float(np.median([x["step_median_us"] for x in b[:per_hour]]))
         t_last = float(np.median([x["step_median_us"] for x in b[-per_hour:]]))
         return {
@@ -275,7 +284,7 @@ class _Loop:
         self.lower = np.array([cs.box_lower.get(nm, -np.inf) for nm in names])
         self.upper = np.array([cs.box_upper.get(nm, np.inf) for nm in names])
         self.hp = cs.preview_samples
-        self.per_block = int(round(s.block_s / s.ts_s))
+        self.per_block = s.samples_per_block
         self.cov_every = max(1, int(round(s.covariance_every_s / s.ts_s)))
         self.settle = k_start + int(round(s.settle_s / s.ts_s))
         self.meas = self.plant.measurement
@@ -377,14 +386,14 @@ def run_soak(settings: SoakSettings = SoakSettings(), *, theta0: np.ndarray, con
         blocks.append(loop.block())
         if progress is not None:
             progress(b + 1, n_blocks)
-    per_hour = max(1, int(round(3600.0 / settings.block_s)))
-    first = float(np.mean([x["eq21_mm"] for x in blocks[:per_hour]]))
+    result = SoakResult(settings, blocks, np.array(loop.cov_t), np.array(loop.cov_eig).reshape(-1, 4),
+                        np.array(loop.thetas).reshape(-1, len(ASYMMETRIC.names)), loop.ctrl.covariance_resets, 0.0)
+    first = result.first_hour_eq21_mm()
     for b, row in enumerate(blocks):
         row["fresh_eq21_mm"] = None
         if b > 0 and row["eq21_mm"] > 2.0 * first:
             fresh = _Loop(settings, sched, cs, theta0, params, (b - 1) * loop.per_block)
             fresh.block()
             row["fresh_eq21_mm"] = fresh.block()["eq21_mm"]
-    return SoakResult(settings, blocks, np.array(loop.cov_t), np.array(loop.cov_eig).reshape(-1, 4),
-                      np.array(loop.thetas).reshape(-1, len(ASYMMETRIC.names)), loop.ctrl.covariance_resets,
-                      time.perf_counter() - started)
+    result.elapsed_s = time.perf_counter() - started
+    return result
