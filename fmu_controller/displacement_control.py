@@ -482,6 +482,7 @@ class DisplacementController:
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev, "l_start": self._l_start,
             "delayed": self._delayed, "u_out": [self._u_out1, self._u_out2], "delay_scores": [self._ms_seq, self._ms_par],
             "compared": self._compared,
+            "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
@@ -530,6 +531,12 @@ class DisplacementController:
             self._delayed = bool(state["delayed"])
             self._u_out1, self._u_out2, self._ms_seq, self._ms_par = values
             self._compared = int(state["compared"])
+            models = state.get("delay_models")
+            if models is not None:
+                if len(models) != 2:
+                    raise ValueError(f"state field delay_models must hold 2 model states, got {len(models)}")
+                self._shadow_seq.set_state(models[0])
+                self._shadow_par.set_state(models[1])
         if self._rls is not None:
             self._rls.set_state(state["rls"])
         if self._servo is not None:

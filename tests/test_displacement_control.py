@@ -401,23 +401,26 @@ def test_detected_delay_switches_in_a_parallel_loop(theta0, method):
         assert errors[-1] <= 1.5 * errors[1] and errors[-1] < 0.3 * errors[0], errors
 
 
-def test_detected_delay_state_round_trip(theta0):
-    """get_state/set_state after the switch continue bit for bit (the detection's state included)."""
+@pytest.mark.parametrize("saved_at", [30, 120])
+def test_detected_delay_state_round_trip(theta0, saved_at):
+    """get_state/set_state while still detecting (3 s) and after the switch (12 s) continue bit for bit
+    (the detection's scores and its two shadow models included)."""
     cs = ControllerSettings(method="ampc_servo", input_delay_samples=-1)
     a, b = DisplacementController(cs, theta0), DisplacementController(cs, theta0)
     plant, ref = Plant(seed=2), SineReference()
     hp = cs.preview_samples
     a.reset(plant.measurement.l_mm)
     l, in_flight = plant.measurement.l_mm, 0.0
-    for k in range(120):
+    for k in range(saved_at):
         u = a.step(l, ref.preview(k, hp)).u_v
         u, in_flight = in_flight, u
         l = plant.step(u, 0.1).l_mm
-    assert a.input_delay_detected
+    assert a.input_delay_detected == (saved_at == 120)
     b.set_state(json.loads(json.dumps(a.get_state())))
-    assert b.input_delay_detected
-    for k in range(120, 200):
+    assert b.input_delay_detected == a.input_delay_detected
+    for k in range(saved_at, 200):
         sa, sb = a.step(l, ref.preview(k, hp)), b.step(l, ref.preview(k, hp))
         assert sa.u_v == sb.u_v
+        assert json.dumps(a.get_state()) == json.dumps(b.get_state()), k  # the whole state, every bit
         u, in_flight = in_flight, sa.u_v
         l = plant.step(u, 0.1).l_mm
