@@ -326,7 +326,7 @@ class ConstrainedRLS:
         self._phi_shape = (self._n,)
         self._ones_nn = np.ones(self._n * self._n)
         self._lam = settings.forgetting
-        # the ceiling P(-1) (diagonal) as the scaling of the eigenvalue clip
+        # covariance_ceiling: P(-1)'s diagonal scales the eigenvalue clip
         self._ceiling = settings.covariance_ceiling
         self._p0_sqrt = np.sqrt(self._P0.diagonal())
         self._eye = np.eye(self._n)
@@ -437,8 +437,6 @@ class ConstrainedRLS:
         _subtract(P, P_new, out=P_new)
         if lam != 1.0:
             P_new /= lam
-        if self._ceiling and lam != 1.0:  # with lambda = 1, P only shrinks from P(-1)
-            P_new = self._limit(P_new)
 
         # one sum catches any inf/NaN entry (inf - inf -> NaN as well); done as
         # a BLAS dot with ones, cheaper than .sum() on this tiny array.  Then
@@ -456,6 +454,8 @@ class ConstrainedRLS:
             self._P = self._P0.copy()
             self._n_resets += 1
             return self._theta
+        if self._ceiling and lam != 1.0:  # a valid P only; with lambda = 1, P only shrinks from P(-1)
+            P_new = self._limit(P_new)
 
         self._k += 1
         if self._boxed and self._k >= self._start and not self._projector.inside(th):

@@ -159,6 +159,16 @@ def test_covariance_ceiling_is_inactive_without_forgetting():
     assert out[1][2] == 0
 
 
+@pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
+def test_covariance_loss_resets_with_the_ceiling_on_too():
+    """The ceiling acts on a valid covariance only: a lost one takes the documented reset."""
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=2.0, forgetting=0.98, covariance_ceiling=True, **NO_BOX))
+    rls.update(np.ones(15), 1.0)
+    theta_before, clipped = rls.theta, rls.n_ceilings
+    assert np.array_equal(rls.update(np.full(15, 1e160), 1.0), theta_before)
+    assert rls.n_resets == 1 and rls.n_ceilings == clipped and np.array_equal(rls.P, 2.0 * np.eye(15))
+
+
 def test_covariance_ceiling_must_be_boolean():
     with pytest.raises(ValueError, match="covariance_ceiling"):
         RLSSettings(covariance_ceiling=1)
