@@ -50,8 +50,8 @@ from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 
-from fmu_controller.displacement_control import (MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
-                                                 DisplacementController)
+from fmu_controller.displacement_control import (DEFAULT_STARTUP_S, MAX_STARTUP_S, METHOD_CODES, P0_TABLE5,
+                                                 ControllerSettings, ControlStep, DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference
@@ -115,9 +115,10 @@ class AMPCController(SafeSlave):
                                    "Ecos, OMSimulator: one macro step h = Ts late); with 1 the output after the step "
                                    "at t_k is u(k+1), computed from l(k) and the Eq. (1) prediction l(k+1|k)",
                                    lo=-1, hi=1)
-        self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo, off "
-                                   "for ampc_servo), 1 cancel H(k-1)/4 + H(k)/2 + H(k+1|k)/4 in Eq. (5) (no valve "
-                                   "chatter), 0 cancel H(k) as the paper's Eq. (5)", lo=-1, hi=1)
+        self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo; for "
+                                   "ampc_servo on with the start-up mode, off with startup_s = 0), 1 cancel "
+                                   "H(k-1)/4 + H(k)/2 + H(k+1|k)/4 in Eq. (5) (no valve chatter), 0 cancel H(k) as "
+                                   "the paper's Eq. (5)", lo=-1, hi=1)
         self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
                                    "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
                                    "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)
@@ -135,9 +136,9 @@ class AMPCController(SafeSlave):
             ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", None, None),
             ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", None, None),
             ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", 0.5, 1.0),
-            ("startup_s", 0.0, "s", "start-up mode T [s]: the reference led in from the measured position over "
-             "T/2 and the adaptive estimate blended in from theta0 over T; 0 = the paper's start "
-             "(docs/control.md, Start-up)", 0.0, MAX_STARTUP_S),
+            ("startup_s", DEFAULT_STARTUP_S, "s", "start-up mode T [s]: the reference led in from the measured "
+             "position over T/4, the adaptive law on theta0 until T/2 and the estimate blended in by T; 0 = the "
+             "paper's start (docs/control.md, Start-up)", 0.0, MAX_STARTUP_S),
             ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35)", None, None),
             ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", None, None),
             ("sine.frequency", 0.1, "Hz", "built-in reference frequency [Hz] (paper: 0.1, 0.2)", 0.0, None),

@@ -63,6 +63,8 @@ DELAY_MIN_SAMPLES = 50
 
 #: Longest start-up mode ``ControllerSettings.startup_s`` [s].
 MAX_STARTUP_S = 600.0
+#: Default start-up mode ``ControllerSettings.startup_s`` [s] (docs/control.md, "Start-up").
+DEFAULT_STARTUP_S = 12.0
 
 #: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
 P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
@@ -99,27 +101,31 @@ class ControllerSettings:
     (``H(k+1|k)``: Eq. (1)'s hysteresis term on the one-step prediction with the last command held).
     ``H(k)`` responds to the latest measured increments ``l(k) - l(k-1)`` (its Bouc-Wen terms), so the
     cancellation is a feedback path from the measurement to the valve that the QP's linear model
-    (Eq. 2) does not know. Where the plant's local gain exceeds the fixed model's (the bottom of the
-    cycle, the valve nearly closed) that loop oscillates at the Nyquist frequency, ``u`` alternating
-    sample by sample: the MPC-servo chatter. The centred three-point mean has a double zero at the
-    Nyquist frequency and no lag (docs/control.md, "Chatter"). None (default): on for ``mpc_servo``,
-    off for ``ampc_servo``, whose adapted model follows the local gain (it is smooth without, and
-    worse with); False: the paper's Eq. (5)."""
-    startup_s: float = 0.0
-    """Start-up mode ``T`` [s]; 0 (default): the paper's start, the law on the full reference and the
-    raw estimate from the first sample. With ``T > 0`` (docs/control.md, "Start-up"):
+    (Eq. 2) does not know. Where the plant's local gain exceeds the model's (the bottom of the
+    cycle, the valve nearly closed; the first full-amplitude cycle while the estimate is young) that
+    loop oscillates at the Nyquist frequency, ``u`` alternating sample by sample: the MPC-servo
+    chatter. The centred three-point mean has a double zero at the Nyquist frequency and no lag
+    (docs/control.md, "Chatter"). None (default): on for ``mpc_servo``; for ``ampc_servo`` on with
+    the start-up mode (``startup_s > 0``), without which its first adaptive cycles chatter and
+    overshoot, and off with the paper's start, whose violent first seconds excite the estimator so
+    that the adapted model follows the local gain (smooth without, and worse with). False: the
+    paper's Eq. (5)."""
+    startup_s: float = DEFAULT_STARTUP_S
+    """Length ``T`` [s] of the start-up mode (docs/control.md, "Start-up"); 0: the paper's start, the
+    law on the full reference and the raw estimate from the first sample. With ``T > 0``:
 
     * the reference is led in from the displacement ``l0`` measured at the first sample: over
-      ``t < T/2`` the law sees ``l0 + s(2t/T) (r(t) - l0)`` (its preview too), with the smoothstep
+      ``t < T/4`` the law sees ``l0 + s(4t/T) (r(t) - l0)`` (its preview too), with the smoothstep
       ``s(x) = 3x^2 - 2x^3``;
-    * the adaptive controllers use ``theta0 + s(t/T) (theta_hat - theta0)`` over ``t < T``: the
-      estimate enters the law gradually while Algorithm 1 runs unchanged, so that its first
-      estimates, taken while ``l`` is near 0 and the cubic terms of Eq. (1) take most of ``P(0)``'s
-      gain, do not reach the valve at full weight.
+    * the adaptive controllers run Algorithm 1 unchanged from the first sample, but their law uses
+      ``theta0`` for ``t < T/2`` (the estimator's warm-up) and ``theta0 + s(2t/T - 1) (theta_hat -
+      theta0)`` over ``T/2 <= t < T``: the first estimates, taken while ``l`` is near 0 and the cubic
+      terms of Eq. (1) take most of ``P(0)``'s gain, and those of the first full-amplitude cycle, do
+      not reach the valve at full weight.
 
-    ``T = 10`` s makes AMPC-UCP beat MPC-UCP at both loads (the paper's start does not at 44 N) and
-    starts the fixed-predictor MPCs without overshoot; it slows AMPC-servo's convergence, whose
-    violent paper start excites the estimator quickly (docs/control.md has the figures)."""
+    The default 12 s starts every method from rest within 3 mm of the reference's envelope and
+    without repeated 0 <-> 10 V reversals, at 44 and 68 N, 0.1 and 0.2 Hz (benchmarks/startup.py);
+    it also makes AMPC-UCP beat MPC-UCP at both loads."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
@@ -245,8 +251,12 @@ class DisplacementController:
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
         self._auto = settings.input_delay_samples == -1
         notch = settings.hysteresis_notch
-        self._notch = settings.servo_mechanism and (not settings.adaptive if notch is None else notch)
-        self._ramp_n = int(round(0.5 * settings.startup_s / settings.ts_s))
+        if notch is None:
+            notch = not settings.adaptive or settings.startup_s > 0
+        self._notch = settings.servo_mechanism and notch
+        # start-up mode: reference lead-in over T/4, theta0 in the law until T/2, blend until T
+        self._ramp_n = int(round(0.25 * settings.startup_s / settings.ts_s))
+        self._warm_n = int(round(0.5 * settings.startup_s / settings.ts_s))
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self.reset(0.0)
 
@@ -264,6 +274,7 @@ class DisplacementController:
             self._servo.update_model(*self.theta[:3])
         self._state = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
         self._k = 0
+        self._est_from = 0  # the sample the estimator (re)started at: the start-up mode's clock
         self._l_start = l0
         self._u_prev = 0.0
         self._uc_prev = 0.0
@@ -324,8 +335,9 @@ class DisplacementController:
             if not math.isfinite(sum(phi)) and not all(map(math.isfinite, phi)):
                 raise ValueError(f"phi must be finite, got {phi}")
             theta_hat = self._rls.update_unchecked(np.array(phi), l)
-            if k < self._blend_n:
-                w = _smoothstep(k / self._blend_n)
+            j = k - self._est_from
+            if j < self._blend_n:
+                w = _smoothstep((j - self._warm_n) / (self._blend_n - self._warm_n)) if j >= self._warm_n else 0.0
                 theta_hat = self.theta0 + w * (theta_hat - self.theta0)
             self.theta = theta_hat.copy()
             t = self.theta.tolist()
@@ -377,6 +389,11 @@ class DisplacementController:
             self._delayed = True
             self._state.apply(self._u_out2)
             self._u_next, self._uc_next = self._u_out1, self._uc_prev
+            if self._rls is not None:
+                # every regressor so far held the command one sample off: start the estimator again
+                # from theta0 and P(0), and the start-up mode's warm-up and blend with it
+                self._rls.setup(ASYMMETRIC, self._rls.settings)
+                self._est_from = self._k
 
     @property
     def input_delay_detected(self) -> bool:
@@ -481,7 +498,7 @@ class DisplacementController:
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev, "l_start": self._l_start,
             "delayed": self._delayed, "u_out": [self._u_out1, self._u_out2], "delay_scores": [self._ms_seq, self._ms_par],
-            "compared": self._compared,
+            "compared": self._compared, "est_from": self._est_from,
             "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
@@ -531,6 +548,9 @@ class DisplacementController:
             self._delayed = bool(state["delayed"])
             self._u_out1, self._u_out2, self._ms_seq, self._ms_par = values
             self._compared = int(state["compared"])
+            self._est_from = int(state.get("est_from", 0))
+            if not 0 <= self._est_from <= self._k:
+                raise ValueError(f"state field est_from = {state['est_from']!r} must be within 0 .. k = {self._k}")
             models = state.get("delay_models")
             if models is not None:
                 if len(models) != 2:

@@ -21,6 +21,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant
 from tapmuscle.closed_loop import run_closed_loop
+from tracking import TRACKING_FROM_S
 
 TS_S = 0.1
 
@@ -86,16 +87,16 @@ def test_ecos_closed_loop_is_the_direct_loop_with_one_sample_of_delay(ecos_runs,
 
 
 def test_ecos_tracks_with_the_delay_compensated_or_detected(ecos_runs):
-    """Built-in 35 + 30 sin(2 pi 0.1 t) mm at h = Ts, mean |r - l| after 5 s: several mm with 0 (a
-    sustained oscillation), a fraction of a mm with 1, under 1 mm with nothing set (the default
-    detects the delay; measured 0.32 and 0.74 mm)."""
+    """Built-in 35 + 30 sin(2 pi 0.1 t) mm at h = Ts, mean |r - l| after the start-up mode (20 s on):
+    several mm with 0 (a sustained oscillation), a fraction of a mm with 1 and with nothing set (the
+    default detects the delay; measured 3.10, 0.31 and 0.40 mm)."""
     err = {}
     for d, run in ecos_runs.items():
         t = (np.arange(len(run["l_mm"])) + 1) * TS_S
         r = 35.0 + 30.0 * np.sin(2 * math.pi * 0.1 * t)
-        err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= 5.0]))
+        err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= TRACKING_FROM_S]))
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
-    assert err[0] > 3.0 and err[1] < 0.6 and err[None] < 1.0, err
+    assert err[0] > 2.0 and err[1] < 0.45 and err[None] < 0.6, err
 
 
 def test_plant_alone_in_ecos_equals_fmpy(ecos, built_fmus):
@@ -144,6 +145,6 @@ def test_ecos_runs_the_ssp_and_tracks(ecos, built_fmus, tmp_path, parameter_set,
         sim.free()
     a = np.array(rows)
     t = (np.arange(len(a)) + 1) * TS_S
-    err = float(np.mean(np.abs(35 + 30 * np.sin(2 * math.pi * 0.1 * t) - a[:, 0])[t >= 5.0]))
+    err = float(np.mean(np.abs(35 + 30 * np.sin(2 * math.pi * 0.1 * t) - a[:, 0])[t >= TRACKING_FROM_S]))
     assert a[:, 1].min() >= 0.0 and a[:, 1].max() <= 10.0
     assert err < limit_mm, err

@@ -61,9 +61,11 @@ def test_a_wrong_value_reference_is_a_logged_error_also_after_fast_paths_exist()
 
 
 def test_theta_outputs_follow_the_estimate_and_its_saved_state():
-    """theta.* are attributes named like the variables (pythonfmu's default accessor would read ``b1``)."""
+    """theta.* are attributes named like the variables (pythonfmu's default accessor would read ``b1``);
+    with the paper's start the law uses the estimate from the first sample."""
     slave = AMPCController(instance_name="theta")
     vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_real([vr["startup_s"]], [0.0])
     slave.exit_initialization_mode()
     slave.l = 0.0
     assert slave.do_step(0.0, 0.1)

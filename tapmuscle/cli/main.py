@@ -215,7 +215,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     if not seeds or min(seeds) < 0 or max(seeds) > _SEED_MAX:
         raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
     run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet, min_total=1),
-              faithful_eq5=args.paper_eq5)
+              faithful_eq5=args.paper_eq5, faithful_start=args.paper_start)
     print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
     return 0
 
@@ -333,6 +333,10 @@ def build_parser() -> argparse.ArgumentParser:
     pap.add_argument("--paper-eq5", action="store_true",
                      help="MPC-servo cancels H(k) exactly as the paper's Eq. (5) (valve chatter at the bottom of "
                           "the cycle); default: the controller FMU's hysteresis notch (docs/control.md, Chatter)")
+    pap.add_argument("--paper-start", action="store_true",
+                     help="start as the paper does: the full reference and the raw adaptive estimate from the first "
+                          "sample (overshoot and valve slamming in the first seconds); default: the controller FMU's "
+                          "start-up mode (docs/control.md, Start-up). With --paper-eq5: the paper's controllers exactly")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
 

@@ -82,7 +82,8 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
     1. open loop: Eq. (1) by the constrained RLS on 5 + 3 sin(2 pi 0.1 t) V, 240 s (as Table 3);
     2. closed loop: 120 s of AMPC with servo mechanism tracking the reference at ``refine_hz``
        (``tapmuscle paper``: 0.05 Hz, docs/control.md says why), started from stage 1, with its own
-       noise seed (``seed + 1000``); the estimate at the end is frozen.
+       noise seed (``seed + 1000``); the estimate at the end is frozen. The experiment is fixed: the
+       paper's AMPC-servo with the paper's start and Eq. (5), whatever the controller's defaults.
 
     Stage 1 alone fits the open-loop data well (docs/identification.md) but its polynomial and
     A-terms give the hysteresis cancellation H(k) large, nearly cancelling velocity gains; the fixed
@@ -92,7 +93,8 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
     rec = run_open_loop(Plant(PlantParams(), seed=seed), parse_input_spec("sine:bias=5,amp=3,freq=0.1"),
                         duration_s=240.0, ts_s=0.1)
     stage1 = identify_record(rec["u_v"], rec["l_mm"], ts_s=0.1, model="asymmetric").theta
-    refine = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5), stage1)
+    refine = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5, startup_s=0.0,
+                                                   hysteresis_notch=False), stage1)
     cols = run_closed_loop(Plant(PlantParams(), seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz),
                            duration_s=120.0)
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
@@ -100,7 +102,8 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
 
 def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | None = None,
               refine_hz: float = 0.05, fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
-              progress: Callable[[int, int], None] | None = None, faithful_eq5: bool = False) -> dict:
+              progress: Callable[[int, int], None] | None = None, faithful_eq5: bool = False,
+              faithful_start: bool = False) -> dict:
     """Run every experiment of section 4 and write the outputs into ``out`` (see module docstring).
 
     Each table cell is the mean Eq. (21) error over the noise ``seeds`` (the per-seed values are in
@@ -113,7 +116,10 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     built from this checkout (:func:`build_scripts.build_fmus.cached_fmus`). ``faithful_eq5`` cancels
     ``H(k)`` in MPC-servo as the paper's Eq. (5) does (the controller FMU's ``hysteresis_notch = 0``);
     by default the FMU's own setting applies, which removes MPC-servo's valve chatter
-    (docs/control.md, "Chatter").
+    (docs/control.md, "Chatter"). ``faithful_start`` starts every controller as the paper does (the
+    FMU's ``startup_s = 0``: the full reference and the raw estimate from the first sample); by
+    default the FMU's start-up mode applies (docs/control.md, "Start-up"). Both together run the
+    paper's controllers exactly.
     """
     from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim import PAPER_SCENARIOS, co_simulate, load_scenario
@@ -131,6 +137,8 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     theta_params = {f"theta0.{n}": float(v) for n, v in zip(ASYMMETRIC.names, theta0)}
     if faithful_eq5:
         theta_params["hysteresis_notch"] = 0
+    if faithful_start:
+        theta_params["startup_s"] = 0.0
     results: dict[str, dict] = {}
     for run in PAPER_RUNS:
         scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
@@ -168,7 +176,8 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
                 "findings": paper_findings(tables), "paper": PAPER_TABLES,
                 "theta0": ASYMMETRIC.to_dict(theta0),
-                "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default (on for MPC-servo)",
+                "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default",
+                "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
                 "eq21_window_s": [10.0, 40.0]}
     atomic_write_text(out / "paper.json", json.dumps(document, indent=2) + "\n")
     print_tables(tables, stream)
