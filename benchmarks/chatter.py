@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{fig[:, 1].mean():14.0f} ({worst[1]:4.0f}) {fig[:, 2].mean():10.1f} ({worst[2]:4.1f})")
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for label, notch, colour in (("Eq. (5): cancels H(k)", False, "tab:red"),
-                                 ("notch: H(k-1)/4 + H(k)/2 + H(k+1|k)/4", None, "tab:blue")):
+                                 ("notch: (1, 3, 4, 3, 1)/12 mean of H(k-2..k+2|k)", None, "tab:blue")):
         r = run("mpc_servo", notch, 44.0, 0.2, 0, theta0)
         k = (r["t_s"] >= 30.0) & (r["t_s"] <= 35.0)
         ax[0].step(r["t_s"][k], r["u_v"][k], where="post", color=colour, label=label)

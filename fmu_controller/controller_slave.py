@@ -116,9 +116,9 @@ class AMPCController(SafeSlave):
                                    "at t_k is u(k+1), computed from l(k) and the Eq. (1) prediction l(k+1|k)",
                                    lo=-1, hi=1)
         self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo; for "
-                                   "ampc_servo on with the start-up mode, off with startup_s = 0), 1 cancel "
-                                   "H(k-1)/4 + H(k)/2 + H(k+1|k)/4 in Eq. (5) (no valve chatter), 0 cancel H(k) as "
-                                   "the paper's Eq. (5)", lo=-1, hi=1)
+                                   "ampc_servo on with the start-up mode, off with startup_s = 0), 1 cancel the centred "
+                                   "mean (H(k-2) + 3 H(k-1) + 4 H(k) + 3 H(k+1|k) + H(k+2|k))/12 in Eq. (5) (no valve "
+                                   "chatter), 0 cancel H(k) as the paper's Eq. (5)", lo=-1, hi=1)
         self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
                                    "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
                                    "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)

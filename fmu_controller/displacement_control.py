@@ -97,19 +97,19 @@ class ControllerSettings:
     stops covariance wind-up under forgetting. Off in the paper; with ``forgetting = 0.999`` it is
     what keeps the adaptive loop as good after 24 h as after 10 min (docs/control.md, "24 hours")."""
     hysteresis_notch: bool | None = None
-    """Servo methods: cancel ``H(k-1)/4 + H(k)/2 + H(k+1|k)/4`` in Eq. (5) instead of ``H(k)``
-    (``H(k+1|k)``: Eq. (1)'s hysteresis term on the one-step prediction with the last command held).
-    ``H(k)`` responds to the latest measured increments ``l(k) - l(k-1)`` (its Bouc-Wen terms), so the
-    cancellation is a feedback path from the measurement to the valve that the QP's linear model
-    (Eq. 2) does not know. Where the plant's local gain exceeds the model's (the bottom of the
-    cycle, the valve nearly closed; the first full-amplitude cycle while the estimate is young) that
-    loop oscillates at the Nyquist frequency, ``u`` alternating sample by sample: the MPC-servo
-    chatter. The centred three-point mean has a double zero at the Nyquist frequency and no lag
-    (docs/control.md, "Chatter"). None (default): on for ``mpc_servo``; for ``ampc_servo`` on with
-    the start-up mode (``startup_s > 0``), without which its first adaptive cycles chatter and
-    overshoot, and off with the paper's start, whose violent first seconds excite the estimator so
-    that the adapted model follows the local gain (smooth without, and worse with). False: the
-    paper's Eq. (5)."""
+    """Servo methods: cancel the centred mean ``(H(k-2) + 3 H(k-1) + 4 H(k) + 3 H(k+1|k) + H(k+2|k))/12``
+    in Eq. (5) instead of ``H(k)`` (``H(k+i|k)``: Eq. (1)'s hysteresis term on the predictions with the
+    last command held). ``H(k)`` responds to the latest measured increments ``l(k) - l(k-1)`` (its
+    Bouc-Wen terms), so the cancellation is a feedback path from the measurement to the valve that the
+    QP's linear model (Eq. 2) does not know. Where the plant's local gain exceeds the model's (the
+    bottom of the cycle, the valve nearly closed; the first cycles of a young adaptive estimate) that
+    loop oscillates with a period of two or three samples: the MPC-servo chatter. The mean is the
+    product of ``(1, 2, 1)/4`` and ``(1, 1, 1)/3``: a double zero at the Nyquist frequency and a zero
+    at a period of three samples, no lag, and a gain of 0.98 at 0.3 Hz, so the cancellation still
+    acts on the hysteresis loop of the reference (docs/control.md, "Chatter"). None (default): on for
+    ``mpc_servo``; for ``ampc_servo`` on with the start-up mode (``startup_s > 0``), and off with the
+    paper's start, whose violent first seconds excite the estimator so that the adapted model
+    follows the local gain. False: the paper's Eq. (5)."""
     startup_s: float = DEFAULT_STARTUP_S
     """Length ``T`` [s] of the start-up mode (docs/control.md, "Start-up"); 0: the paper's start, the
     law on the full reference and the raw estimate from the first sample. With ``T > 0``:
@@ -279,7 +279,7 @@ class DisplacementController:
         self._u_prev = 0.0
         self._uc_prev = 0.0
         self._xs = 0.0
-        self._h_prev = math.nan  # H(k-1) for hysteresis_notch (NaN: none yet)
+        self._h_prev = self._h_prev2 = math.nan  # H(k-1), H(k-2) for hysteresis_notch (NaN: none yet)
         self._predicted = math.nan
         # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
         self._u_next = 0.0
@@ -353,12 +353,12 @@ class DisplacementController:
             rl = rl[:-1]
 
         u, uc, h, xs_next, predicted, saturated = self._decide(l, rl, t, theta, self._xs, self._u_prev,
-                                                               self._uc_prev, self._h_prev)
+                                                               self._uc_prev, self._h_prev2, self._h_prev)
         if self._servo is not None:
             self._xs = xs_next
             self._uc_prev = uc
             if self._notch:
-                self._h_prev = state.hysteresis_unchecked(t)
+                self._h_prev2, self._h_prev = self._h_prev, state.hysteresis_unchecked(t)
         state.apply(u)
         self._u_prev = u
         self._u_out2, self._u_out1 = self._u_out1, u
@@ -401,18 +401,21 @@ class DisplacementController:
         (always True for 1, False for 0)."""
         return self._delayed
 
-    def _next_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> float:
-        """``H(k+1|k)`` [mm]: the Eq. (1) hysteresis term one sample ahead, on the prediction
-        ``l(k+1|k)`` with the last command held (for ``hysteresis_notch``); the state is left as it
-        was but for its input, which the caller sets next."""
+    def _future_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> tuple[float, float]:
+        """``(H(k+1|k), H(k+2|k))`` [mm]: the Eq. (1) hysteresis term one and two samples ahead, on the
+        predictions ``l(k+1|k), l(k+2|k)`` with the last command held (for ``hysteresis_notch``); the
+        state is left as it was but for its input, which the caller sets next."""
         state = self._state
-        l_next = _held(state, theta, t[:3], u_prev, 1)[0]
+        l1, l2 = _held(state, theta, t[:3], u_prev, 2)
         saved = state.history
         state.apply(u_prev)
-        state.observe_unchecked(l_next, t[0], t[1], t[2])
-        h_next = state.hysteresis_unchecked(t)
+        state.observe_unchecked(l1, t[0], t[1], t[2])
+        h1 = state.hysteresis_unchecked(t)
+        state.apply(u_prev)
+        state.observe_unchecked(l2, t[0], t[1], t[2])
+        h2 = state.hysteresis_unchecked(t)
         state.restore_history(saved)
-        return h_next
+        return h1, h2
 
     def _lead_in(self, rl: list[float], l: float) -> list[float]:
         """The preview ``r(k..k+Hp)`` as the start-up mode leads it in from the first measured ``l0``
@@ -424,7 +427,7 @@ class DisplacementController:
         return [x if k + i >= n else l0 + _smoothstep((k + i) / n) * (x - l0) for i, x in enumerate(rl)]
 
     def _decide(self, l: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float, u_prev: float,
-                uc_prev: float, h_prev: float) -> tuple[float, float, float, float, float, bool]:
+                uc_prev: float, h_prev2: float, h_prev: float) -> tuple[float, float, float, float, float, bool]:
         """The control law at a sample whose ``l`` the state has observed: ``(u, u_c, H, x_s(k+1),
         l(k+1|k), saturated)`` for the preview ``rl = r(k..k+Hp)``; changes no state (but the QP's
         warm start)."""
@@ -433,7 +436,11 @@ class DisplacementController:
             return res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
         h = self._state.hysteresis_unchecked(t)
         if self._notch and h_prev == h_prev:  # not NaN: a previous H exists
-            h = 0.25 * h_prev + 0.5 * h + 0.25 * self._next_hysteresis(t, theta, u_prev)
+            h_next, h_next2 = self._future_hysteresis(t, theta, u_prev)
+            if h_prev2 != h_prev2:  # the second sample: H(k-2) does not exist yet
+                h_prev2 = h_prev
+            # the centred 5-point mean (1, 3, 4, 3, 1)/12 of H(k-2) .. H(k+2|k)
+            h = (h_prev2 + h_next2) / 12.0 + (h_prev + h_next) / 4.0 + h / 3.0
         offset = h / t[2]
         uc, predicted, constrained = self._servo.solve_unchecked(l, self._state.l_prev_mm, uc_prev, xs, rl, offset)
         u_raw = uc - offset  # Eq. (5)
@@ -462,13 +469,13 @@ class DisplacementController:
         saved = state.history
         h_now = state.hysteresis_unchecked(t) if self._notch else math.nan  # H(k), before the scratch step
         state.observe_unchecked(l_next, t[0], t[1], t[2])
-        u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, h_now)
+        u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, self._h_prev, h_now)
         state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._u_next, self._uc_next = u, uc
         self._u_out2, self._u_out1 = self._u_out1, u
-        self._h_prev = h_now
+        self._h_prev2, self._h_prev = self._h_prev, h_now
         self._predicted = l_next
         self._k += 1
         return _control_step(u, l_next, error, uc, h, xs, theta, saturated)
@@ -496,7 +503,8 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
-            "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev, "l_start": self._l_start,
+            "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
+            "h_prev2": self._h_prev2, "l_start": self._l_start,
             "delayed": self._delayed, "u_out": [self._u_out1, self._u_out2], "delay_scores": [self._ms_seq, self._ms_par],
             "compared": self._compared, "est_from": self._est_from,
             "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
@@ -531,10 +539,10 @@ class DisplacementController:
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
         self._predicted = float(state["predicted"])
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
-        h_prev = float(state.get("h_prev", math.nan))
-        if math.isinf(h_prev):
-            raise ValueError(f"state field h_prev = {state['h_prev']!r} must be finite (or NaN before a step)")
-        self._h_prev = h_prev
+        for name in ("h_prev", "h_prev2"):
+            if math.isinf(float(state.get(name, math.nan))):
+                raise ValueError(f"state field {name} = {state[name]!r} must be finite (or NaN before a step)")
+        self._h_prev, self._h_prev2 = float(state.get("h_prev", math.nan)), float(state.get("h_prev2", math.nan))
         self._l_start = float(state.get("l_start", self._state.history[2]))
         if "delayed" in state:
             if state["delayed"] not in (True, False) or (state["delayed"] is False and self.settings.input_delay_samples == 1) \

@@ -94,7 +94,7 @@ def test_libcosim_closed_loop_is_the_direct_loop_with_one_sample_of_delay(libcos
 
 def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
     """Built-in 35 + 30 sin(2 pi 0.1 t) mm at h = Ts, mean |r - l| after the start-up mode (20 s on):
-    several mm without the compensation (a sustained oscillation), a fraction of a mm with
+    over a mm without the compensation (an oscillation), a fraction of a mm with
     ``input_delay_samples = 1`` and with the FMU's default, which detects the master's delay."""
     err = {}
     for d, run in libcosim_runs.items():
@@ -102,8 +102,8 @@ def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
         r = 35.0 + 30.0 * np.sin(2 * math.pi * 0.1 * t)
         err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= TRACKING_FROM_S]))
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
-    assert err[0] > 2.0 and err[1] < 0.45, err
-    # with nothing set, the controller detects the parallel master within ~5 s (measured 3.10, 0.31, 0.40 mm)
+    assert err[0] > 1.0 and err[0] > 3 * err[1] and err[1] < 0.45, err
+    # with nothing set, the controller detects the parallel master within ~5 s (measured 1.46, 0.29, 0.42 mm)
     assert err[None] < 0.6, err
 
 
@@ -178,4 +178,4 @@ def test_a_parallel_fmu_container_in_fmpy_is_the_delayed_direct_loop(container, 
     np.testing.assert_allclose(res["l"], direct["l_mm"][:len(res["l"])], rtol=0, atol=1e-9)
     t = res["time"]
     err = float(np.mean(np.abs(35 + 30 * np.sin(2 * math.pi * 0.1 * t) - res["l"])[t >= TRACKING_FROM_S]))
-    assert (err > 3.0) if delay == 0 else (err < 0.6), err
+    assert (err > 1.0) if delay == 0 else (err < 0.45), err
