@@ -326,11 +326,10 @@ def test_the_default_start_is_clean_for_every_method(paper_theta0, method, load,
             assert e1 <= 1.02 * e0, (e1, e0)
 
 
-def test_the_default_start_makes_adaptive_beat_fixed_at_both_loads(paper_theta0):
+def test_the_default_start_makes_adaptive_ucp_beat_fixed_ucp_at_both_loads(paper_theta0):
     """With the default start-up mode, AMPC-UCP beats MPC-UCP at 44 N (where the paper's start does
-    not) and at 68 N, in every one of seeds 0-4, and AMPC-servo is within 10 % of the paper start's
-    Eq. (21) at 0.1 Hz (measured over seeds 0-7: AMPC-UCP 0.29 vs 0.87 mm at 44 N, 0.57 vs 1.34 mm at
-    68 N; AMPC-servo 0.134 vs 0.136 and 0.165 vs 0.133 mm)."""
+    not) and at 68 N, in every one of seeds 0-4 (measured over seeds 0-9: 0.28 vs 0.87 mm at 44 N,
+    0.57 vs 1.34 mm at 68 N)."""
     for load in (44.0, 68.0):
         fixed, adaptive = [], []
         for seed in range(5):
@@ -342,6 +341,30 @@ def test_the_default_start_makes_adaptive_beat_fixed_at_both_loads(paper_theta0)
                 out.append(eq21_error_mm(r["r_mm"], r["l_mm"]))
         assert max(adaptive) < min(fixed), (load, adaptive, fixed)
         assert np.mean(adaptive) < 0.8 * np.mean(fixed)
+
+
+@pytest.mark.parametrize("load, f", [(44.0, 0.1), (44.0, 0.2), (68.0, 0.1), (68.0, 0.2)])
+def test_default_adaptive_servo_against_the_papers(paper_theta0, load, f):
+    """AMPC-servo with the defaults (start-up mode, 5-point notch) against the paper's controller
+    (paper start, Eq. (5)), seeds 0-2: Eq. (21) lower in every cell (measured 0.078, 0.103, 0.095,
+    0.117 mm against 0.137, 0.380, 0.131, 0.273), and the command's total variation in the Eq. (21)
+    window at most 10 % above smooth at 0.2 Hz. At 0.1 Hz the young estimate's first cycles still
+    ripple (measured 14-26 % above smooth per run, docs/control.md "Chatter"); the bound of 35 %
+    guards that figure, not the goal of 10 %."""
+    runs = {}
+    for name, extra in (("default", {}), ("paper", {"startup_s": 0.0, "hysteresis_notch": False})):
+        runs[name] = []
+        for seed in range(3):
+            plant = Plant(seed=seed)
+            plant.update(load_n=load)
+            cs = ControllerSettings(method="ampc_servo", p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, **extra)
+            runs[name].append(run_closed_loop(plant, DisplacementController(cs, paper_theta0),
+                                              SineReference(frequency_hz=f), duration_s=45.0))
+    e = {name: np.mean([eq21_error_mm(r["r_mm"], r["l_mm"]) for r in rs]) for name, rs in runs.items()}
+    assert e["default"] < e["paper"], e
+    limit = 0.10 if f == 0.2 else 0.35
+    for r in runs["default"]:
+        assert _tv_excess(r["u_v"][101:402], f) <= limit
 
 
 def test_startup_mode_is_on_by_default_and_validated(theta0):
