@@ -24,6 +24,12 @@ Per sample ``k`` (:meth:`DisplacementController.step`)::
            u(k) = u_c(k) - H(k)/b1                           Eq. (5)
            x_s(k+1) = x_s(k) + r(k) - l(k)                   Eq. (18)
 
+Two departures from the paper are on by default, each documented on its setting and measured in
+docs/control.md: the start-up mode (``ControllerSettings.startup_s``: reference lead-in, estimator
+warm-up and blend) and the hysteresis notch (``ControllerSettings.hysteresis_notch``: the servo
+methods cancel a centred 5-point mean of ``H`` instead of ``H(k)``). ``startup_s=0`` with
+``hysteresis_notch=False`` is the paper's controller.
+
 Lifecycle as osqp's: construct (setup), :meth:`reset` with the first measurement, :meth:`step` every
 sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
 """

@@ -374,19 +374,22 @@ def test_startup_mode_is_on_by_default_and_validated(theta0):
             ControllerSettings(startup_s=bad)
 
 
-def test_state_round_trip_during_the_startup_mode(paper_theta0):
-    """get_state/set_state in the middle of the lead-in and the blending continue bit for bit."""
-    cs = ControllerSettings(method="ampc_ucp", startup_s=10.0)
+@pytest.mark.parametrize("method", ["ampc_ucp", "ampc_servo"])
+@pytest.mark.parametrize("saved_at", [20, 80])
+def test_state_round_trip_during_the_startup_mode(paper_theta0, method, saved_at):
+    """get_state/set_state (through JSON) in the middle of the default start-up mode's lead-in (2 s)
+    and of its blending (8 s) continue bit for bit, the notch's past values included."""
+    cs = ControllerSettings(method=method)
     ref = SineReference()
     a, b = DisplacementController(cs, paper_theta0), DisplacementController(cs, paper_theta0)
     plant = Plant(seed=1)
     l = plant.measurement.l_mm
     a.reset(l)
-    for k in range(30):  # 3 s: inside the 5-s lead-in and the 10-s blending
+    for k in range(saved_at):
         u = a.step(l, ref.preview(k, a.settings.preview_samples)).u_v
         l = plant.step(u, 0.1).l_mm
     b.set_state(json.loads(json.dumps(a.get_state())))
-    for k in range(30, 150):
+    for k in range(saved_at, saved_at + 150):
         p = ref.preview(k, a.settings.preview_samples)
         sa, sb = a.step(l, p), b.step(l, p)
         assert sa.u_v == sb.u_v and np.array_equal(sa.theta, sb.theta)
