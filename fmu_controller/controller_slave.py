@@ -101,7 +101,8 @@ class AMPCController(SafeSlave):
         self._theta_outputs = tuple(f"theta.{name}" for name in ASYMMETRIC.names)
         for i, name in enumerate(ASYMMETRIC.names):
             self.add_output(self._theta_outputs[i], float(THETA0_44N[i]), "",
-                            f"predictor parameter {name} of Eq. (1) in use (theta-hat for AMPC)")
+                            f"predictor parameter {name} of Eq. (1) in use (AMPC: theta-hat as the law uses it, "
+                            "theta0 in the start-up mode's warm-up)")
 
         self.add_integer_parameter("method", 4, "controller: 1 mpc_ucp, 2 mpc_servo, 3 ampc_ucp, 4 ampc_servo",
                                    lo=1, hi=4)
