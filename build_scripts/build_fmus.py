@@ -1,17 +1,17 @@
 """Build ``MusclePlant.fmu`` and ``AMPCController.fmu`` with pythonfmu, then finish them.
 
-Each FMU carries its slave script, the numerics package it wraps and the shared ``fmi_slave`` shell
-in ``resources/``: the project's code travels inside the FMU; the host needs a Python with numpy
+Each FMU carries the numerics package it wraps (with its slave module) and the shared ``fmi_slave``
+shell in ``resources/``: the project's code travels inside the FMU; the host needs a Python with numpy
 (and scipy, osqp for the controller) and pythonfmu's runtime, which pythonfmu also packs.
 
-After pythonfmu, the build (one FMU at a time, in a temporary folder; the finished file is moved into
-place whole, so a failed build leaves no partial file):
-
-1. completes modelDescription.xml (:mod:`build_scripts.model_description`: units, ranges,
-   output dependencies, state capabilities, content-derived GUID, no time stamp);
-2. prepares the binary and resources for non-Python FMI hosts (:mod:`build_scripts.native_host`);
-3. zips the tree deterministically (sorted entries, fixed time stamps and permissions), so the same
-   sources and build environment give byte-identical FMUs.
+pythonfmu's entry script is not the slave module itself but an import of its class
+(:func:`entry_script`). pythonfmu 0.7 finds the slave class at every ``fmi2Instantiate`` by executing
+the entry script again (globals: the entry module's dict; locals: a fresh dict), takes the class it
+finds there by name from the module, keeps a list of the class's MRO it never frees, and releases a
+reference to the module's dict that ``PyModule_GetDict`` never gave it. With the whole slave class in
+the entry script, every instantiation left a new copy of the class behind, about 40 kB for the
+controller (its methods hold the dict, which is what kept the dict alive). An import defines no new
+class, and the entry gives the dict back the reference pythonfmu takes, once per execution.
 """
 
 from __future__ import annotations
@@ -39,6 +39,21 @@ FMUS: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+def entry_script(name: str) -> str:
+    """Source of pythonfmu's entry script for FMU ``name``: the slave class imported from its module,
+    and one reference added to the entry's own module dict per execution (module docstring)."""
+    script = Path(FMUS[name][0])
+    module = ".".join(script.with_suffix("").parts)
+    return (f'"""pythonfmu\'s entry script of {name}.fmu, written by build_scripts/build_fmus.py: the slave\n'
+            f"class {module}.{name}. pythonfmu executes this file at every instantiation and each\n"
+            "time releases a reference to its module dict that it never took: give it back.\n"
+            '"""\n\n'
+            "import ctypes\n\n"
+            "import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts\n"
+            f"from {module} import {name}  # noqa: F401 - the slave class pythonfmu takes\n\n"
+            "ctypes.pythonapi.Py_IncRef(ctypes.py_object(globals()))\n")
 
 
 def _clean_copy(src: Path, dst: Path) -> None:
@@ -100,9 +115,12 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
             tmp = Path(tmp)
             for pkg in packages:
                 _clean_copy(ROOT / pkg, tmp / "src" / pkg)
+            entry = tmp / "entry" / Path(script).name
+            entry.parent.mkdir()
+            entry.write_text(entry_script(name), encoding="utf-8")
             path = sys.path[:]
             try:
-                fmu = FmuBuilder.build_FMU(ROOT / script, dest=tmp / "pythonfmu",
+                fmu = FmuBuilder.build_FMU(entry, dest=tmp / "pythonfmu",
                                            project_files=[tmp / "src" / p for p in packages])
             finally:
                 sys.path[:] = path  # pythonfmu puts the script's folder first on sys.path

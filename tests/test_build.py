@@ -41,3 +41,39 @@ def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
         finish_model_description(xml, {"q": {"unit": "furlong"}}, guid="g")
     with pytest.raises(ValueError, match="variable 'q' has no metadata"):
         finish_model_description(xml, {}, guid="g")
+
+
+@pytest.mark.parametrize("name", ["MusclePlant", "AMPCController"])
+def test_instantiating_again_and_again_defines_no_new_slave_class(built_fmus, name):
+    """pythonfmu executes the entry script at every fmi2Instantiate (build_scripts.build_fmus): 60
+    instantiate/free cycles in this process leave no new slave class behind (with the whole class in
+    the entry script each cycle left one, about 50 kB for the controller) and the entry module keeps
+    working (its dict would be freed by pythonfmu's extra release, and the 2nd instantiation fail)."""
+    import gc
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    path = str(built_fmus[name])
+    md, folder = read_model_description(path), str(extract(path))
+
+    def cycle(i):
+        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName=f"cycle{i}")
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        f.exitInitializationMode()
+        f.doStep(0.0, 0.1)
+        f.terminate()
+        f.freeInstance()
+
+    def classes():
+        gc.collect()
+        return sum(1 for o in gc.get_objects() if isinstance(o, type) and o.__name__ == name)
+
+    cycle(0)
+    before = classes()
+    for i in range(1, 61):
+        cycle(i)
+    assert classes() == before
