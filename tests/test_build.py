@@ -51,22 +51,15 @@ def test_instantiating_again_and_again_defines_no_new_slave_class(built_fmus, na
     working (its dict would be freed by pythonfmu's extra release, and the 2nd instantiation fail)."""
     import gc
 
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+    from tapmuscle.cosim.master import FmuInstance
 
-    path = str(built_fmus[name])
-    md, folder = read_model_description(path), str(extract(path))
+    role = "plant" if name == "MusclePlant" else "controller"
 
     def cycle(i):
-        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                      instanceName=f"cycle{i}")
-        f.instantiate()
-        f.setupExperiment(startTime=0.0)
-        f.enterInitializationMode()
-        f.exitInitializationMode()
-        f.doStep(0.0, 0.1)
-        f.terminate()
-        f.freeInstance()
+        inst = FmuInstance(built_fmus[name], f"cycle{i}", role=role)
+        inst.start()
+        inst.fmu.doStep(0.0, 0.1)
+        inst.free()
 
     def classes():
         gc.collect()

@@ -10,7 +10,6 @@ same process).
 """
 
 import ctypes
-import math
 from importlib import metadata
 
 import numpy as np
@@ -21,7 +20,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant
 from tapmuscle.closed_loop import run_closed_loop
-from tracking import TRACKING_FROM_S
+from tracking import tracking_error_mm
 
 TS_S = 0.1
 
@@ -93,8 +92,7 @@ def test_ecos_tracks_with_the_delay_compensated_or_detected(ecos_runs):
     err = {}
     for d, run in ecos_runs.items():
         t = (np.arange(len(run["l_mm"])) + 1) * TS_S
-        r = 35.0 + 30.0 * np.sin(2 * math.pi * 0.1 * t)
-        err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= TRACKING_FROM_S]))
+        err[d] = tracking_error_mm(t, run["l_mm"])
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
     assert err[0] > 1.0 and err[0] > 3 * err[1] and err[1] < 0.45 and err[None] < 0.6, err
 
@@ -145,6 +143,6 @@ def test_ecos_runs_the_ssp_and_tracks(ecos, built_fmus, tmp_path, parameter_set,
         sim.free()
     a = np.array(rows)
     t = (np.arange(len(a)) + 1) * TS_S
-    err = float(np.mean(np.abs(35 + 30 * np.sin(2 * math.pi * 0.1 * t) - a[:, 0])[t >= TRACKING_FROM_S]))
+    err = tracking_error_mm(t, a[:, 0])
     assert a[:, 1].min() >= 0.0 and a[:, 1].max() <= 10.0
     assert err < limit_mm, err

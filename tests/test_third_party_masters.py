@@ -8,7 +8,6 @@ command one sample late (:func:`tapmuscle.closed_loop.run_closed_loop` with ``lo
 the same code runs in the same process, so the trajectories must agree to rounding.
 """
 
-import math
 
 import numpy as np
 import pytest
@@ -23,7 +22,7 @@ from fmu_controller.preliminary_model import THETA0_44N  # noqa: E402
 from fmu_controller.reference import SineReference  # noqa: E402
 from fmu_plant import Plant  # noqa: E402
 from tapmuscle.closed_loop import run_closed_loop  # noqa: E402
-from tracking import TRACKING_FROM_S  # noqa: E402
+from tracking import tracking_error_mm  # noqa: E402
 
 TS_S = 0.1
 
@@ -99,8 +98,7 @@ def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
     err = {}
     for d, run in libcosim_runs.items():
         t = (np.arange(len(run["l_mm"])) + 1) * TS_S
-        r = 35.0 + 30.0 * np.sin(2 * math.pi * 0.1 * t)
-        err[d] = float(np.mean(np.abs(r - run["l_mm"])[t >= TRACKING_FROM_S]))
+        err[d] = tracking_error_mm(t, run["l_mm"])
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
     assert err[0] > 1.0 and err[0] > 3 * err[1] and err[1] < 0.45, err
     # with nothing set, the controller detects the parallel master within ~5 s (measured 1.46, 0.29, 0.42 mm)
@@ -177,5 +175,5 @@ def test_a_parallel_fmu_container_in_fmpy_is_the_delayed_direct_loop(container, 
     direct = _direct(delay)
     np.testing.assert_allclose(res["l"], direct["l_mm"][:len(res["l"])], rtol=0, atol=1e-9)
     t = res["time"]
-    err = float(np.mean(np.abs(35 + 30 * np.sin(2 * math.pi * 0.1 * t) - res["l"])[t >= TRACKING_FROM_S]))
+    err = tracking_error_mm(t, res["l"])
     assert (err > 1.0) if delay == 0 else (err < 0.45), err
