@@ -50,8 +50,8 @@ from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 
-from fmu_controller.displacement_control import (DEFAULT_STARTUP_S, MAX_STARTUP_S, METHOD_CODES, P0_TABLE5,
-                                                 ControllerSettings, ControlStep, DisplacementController)
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, MAX_PROBING_V, MAX_STARTUP_S,
+                                                 METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep, DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference
@@ -140,6 +140,10 @@ class AMPCController(SafeSlave):
             ("startup_s", DEFAULT_STARTUP_S, "s", "start-up mode T [s]: the reference led in from the measured "
              "position over T/4, the adaptive law on theta0 until T/2 and the estimate blended in by T; 0 = the "
              "paper's start (docs/control.md, Start-up)", 0.0, MAX_STARTUP_S),
+            ("probing_v", DEFAULT_PROBING_V, "V", "adaptive methods with the start-up mode: amplitude [V] of the "
+             "probing signal (a maximum-length sequence, bits of 4 samples) added to the valve command while the "
+             "law is on theta0 (t < startup_s/2), so that the estimate is excited; 0 = off (docs/control.md, "
+             "Start-up)", 0.0, MAX_PROBING_V),
             ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35)", None, None),
             ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", None, None),
             ("sine.frequency", 0.1, "Hz", "built-in reference frequency [Hz] (paper: 0.1, 0.2)", 0.0, None),
@@ -198,7 +202,7 @@ class AMPCController(SafeSlave):
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
             covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"],
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
-            startup_s=p["startup_s"])
+            startup_s=p["startup_s"], probing_v=p["probing_v"])
 
     def initialize_numerics(self) -> None:
         settings = self._settings()

@@ -44,6 +44,7 @@ import numpy as np
 
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
+from .probing import probe_v
 from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
@@ -71,6 +72,11 @@ DELAY_MIN_SAMPLES = 50
 MAX_STARTUP_S = 600.0
 #: Default start-up mode ``ControllerSettings.startup_s`` [s] (docs/control.md, "Start-up").
 DEFAULT_STARTUP_S = 12.0
+
+#: Default amplitude [V] of the start-up mode's probing signal (``ControllerSettings.probing_v``).
+DEFAULT_PROBING_V = 0.5
+#: Largest ``ControllerSettings.probing_v`` [V]: a quarter of the valve's 0-10 V range.
+MAX_PROBING_V = 2.5
 
 #: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
 P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
@@ -132,6 +138,14 @@ class ControllerSettings:
     The default 12 s starts every method from rest within 3 mm of the reference's envelope and
     without repeated 0 <-> 10 V reversals, at 44 and 68 N, 0.1 and 0.2 Hz (benchmarks/startup.py);
     it also makes AMPC-UCP beat MPC-UCP at both loads."""
+    probing_v: float = DEFAULT_PROBING_V
+    """Adaptive methods with the start-up mode: amplitude [V] of the probing signal added to the valve
+    command during the estimator's warm-up (``t < startup_s/2``): a 127-bit maximum-length sequence,
+    each bit held 4 samples (:mod:`fmu_controller.probing`). The law does not see it (the servo's ``u_c``
+    and the integrator are the law's own); the estimator does, through the applied command. Without
+    it the gentle start leaves the closed-loop estimate unexcited and ``b1`` drifts to C's lower
+    bound, where the servo law ripples at the cycle's turning points (docs/control.md, "Start-up").
+    0 turns it off; at most 2.5 V (a quarter of the valve's range)."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
@@ -160,6 +174,9 @@ class ControllerSettings:
         if not (isinstance(self.startup_s, (int, float)) and not isinstance(self.startup_s, bool)
                 and math.isfinite(self.startup_s) and 0.0 <= self.startup_s <= MAX_STARTUP_S):
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
+        if not (isinstance(self.probing_v, (int, float)) and not isinstance(self.probing_v, bool)
+                and math.isfinite(self.probing_v) and 0.0 <= self.probing_v <= MAX_PROBING_V):
+            raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
             raise ValueError(f"ControllerSettings.hysteresis_notch must be None, True or False, "
                              f"got {self.hysteresis_notch!r}")
@@ -264,6 +281,7 @@ class DisplacementController:
         self._ramp_n = int(round(0.25 * settings.startup_s / settings.ts_s))
         self._warm_n = int(round(0.5 * settings.startup_s / settings.ts_s))
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
+        self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
         self.reset(0.0)
 
     # ------------------------------------------------------------------ lifecycle
@@ -439,7 +457,8 @@ class DisplacementController:
         warm start)."""
         if self._servo is None:
             res = ucp_move(self.settings.ucp, self._state, theta, u_prev_v=u_prev, r_target_mm=rl[self._ucp_hp])
-            return res.u_v, res.u_v, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
+            u = self._probed(res.u_v)
+            return u, u, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
         h = self._state.hysteresis_unchecked(t)
         if self._notch and h_prev == h_prev:  # not NaN: a previous H exists
             h_next, h_next2 = self._future_hysteresis(t, theta, u_prev)
@@ -455,7 +474,17 @@ class DisplacementController:
             u = self._u_min
         elif self._u_max < u:
             u = self._u_max
-        return u, uc, h, xs + rl[0] - l, predicted, constrained or u != u_raw  # x_s: Eq. (18)
+        saturated = constrained or u != u_raw
+        return self._probed(u), uc, h, xs + rl[0] - l, predicted, saturated  # x_s: Eq. (18)
+
+    def _probed(self, u: float) -> float:
+        """``u`` [V] plus the start-up mode's probing signal during the estimator's warm-up
+        (``ControllerSettings.probing_v``), within the valve's range."""
+        j = self._k - self._est_from
+        if self._probing_v and 0 < j < self._warm_n:
+            u += probe_v(j, self._probing_v)
+            return min(max(u, self._u_min), self._u_max)
+        return u
 
     def _step_ahead(self, l: float, rl: list[float], t: list[float], theta: np.ndarray,
                     error: float) -> ControlStep:
