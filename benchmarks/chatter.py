@@ -21,7 +21,7 @@ import numpy as np
 from fmu_controller.displacement_control import P0_TABLE5, P0_TABLE8, ControllerSettings, DisplacementController
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant
-from tapmuscle.closed_loop import EQ21_WINDOW, eq21_error_mm, run_closed_loop
+from tapmuscle.closed_loop import EQ21_WINDOW, command_tv_excess, eq21_error_mm, run_closed_loop
 from tapmuscle.paper.reproduce import preliminary_theta
 from tapmuscle.plots.figures import plt, save_figure
 
@@ -40,7 +40,7 @@ def figures(r: dict, f: float) -> tuple[float, float, float]:
     k0, k1 = EQ21_WINDOW
     u = r["u_v"][k0:k1 + 1]
     cycles = (k1 - k0) * 0.1 * f
-    tv = 100.0 * (np.sum(np.abs(np.diff(u))) / (2.0 * np.ptp(u) * cycles) - 1.0)
+    tv = 100.0 * command_tv_excess(r["u_v"], f)
     extrema = np.count_nonzero(np.diff(np.sign(np.diff(u)))) / cycles
     return eq21_error_mm(r["r_mm"], r["l_mm"]), tv, extrema
 

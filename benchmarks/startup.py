@@ -20,11 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_controller.displacement_control import (DEFAULT_STARTUP_S, METHODS, P0_TABLE5, P0_TABLE8, ControllerSettings,
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, METHODS, P0_TABLE5, P0_TABLE8, ControllerSettings,
                                                  DisplacementController)
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant
-from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
+from fmu_plant.parameters import PlantParams
+from tapmuscle.closed_loop import command_tv_excess, eq21_error_mm, run_closed_loop
+from tapmuscle.diagnosis.field_cases import draw_parameter_errors, off_nominal
 from tapmuscle.paper.reproduce import preliminary_theta
 from tapmuscle.plots.figures import plt, save_figure
 
@@ -38,11 +40,49 @@ def reversals(u: np.ndarray) -> int:
     return int(np.count_nonzero(s[1:] != s[:-1]))
 
 
-def run(method: str, load: float, f: float, seed: int, startup_s: float, theta0: np.ndarray) -> dict:
-    plant = Plant(seed=seed)
+def run(method: str, load: float, f: float, seed: int, startup_s: float, theta0: np.ndarray, *,
+        params: PlantParams | None = None, input_delay: int = 0, loop_delay: int = 0,
+        probing_v: float = DEFAULT_PROBING_V) -> dict:
+    plant = Plant(params, seed=seed)
     plant.update(load_n=load)
-    cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup_s)
-    return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=90.0)
+    cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup_s,
+                            input_delay_samples=input_delay, probing_v=probing_v)
+    return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=90.0,
+                           loop_delay_samples=loop_delay)
+
+
+def off_nominal_rigs(n: int, startup_s: float, theta0: np.ndarray, input_delay: int, loop_delay: int,
+                     probing_v: float) -> None:
+    """``n`` off-nominal rigs (3-6 constants off by 5-20 %, docs/diagnosis.md's field generator), load
+    30-80 N, 0.1 or 0.2 Hz, the four methods in turn, each with the paper's start and the start-up mode."""
+    bad = {"paper": 0, "mode": 0}
+    e21 = {"paper": [], "mode": []}
+    tv = {m: [] for m in METHODS}
+    for i in range(n):
+        rng = np.random.default_rng(1000 + i)
+        load = float(rng.uniform(30.0, 80.0))
+        f = 0.1 if i % 2 == 0 else 0.2
+        method = METHODS[(i // 2) % len(METHODS)]
+        params = off_nominal(PlantParams(), draw_parameter_errors(rng, PlantParams().with_values(**{"load.load_n": load})))
+        for label, startup in (("paper", 0.0), ("mode", startup_s)):
+            r = run(method, load, f, i, startup, theta0, params=params, input_delay=input_delay, loop_delay=loop_delay,
+                    probing_v=probing_v)
+            over, rev = float(np.max(r["l_mm"])) - 65.0, reversals(r["u_v"])
+            e21[label].append(eq21_error_mm(r["r_mm"], r["l_mm"]))
+            if label == "mode":
+                tv[method].append(100.0 * command_tv_excess(r["u_v"], f))
+            if over > 3.0 or rev > 2:
+                bad[label] += 1
+            if (over > 3.0 or rev > 2) and label == "mode":
+                print(f"rig {i:3d} {method:<11} {load:5.1f} N {f:g} Hz  {label:<5}: overshoot {over:5.1f} mm, "
+                      f"{rev} reversals", flush=True)
+    for label, name in (("paper", "paper start"), ("mode", f"start-up mode {startup_s:g} s")):
+        print(f"{name}: {bad[label]} of {n} off-nominal rigs break the start-up limits; mean Eq. (21) "
+              f"{np.mean(e21[label]):.3f} mm")
+    for m, v in tv.items():
+        if v:
+            print(f"  {m:<11} Eq. (21)-window TV above smooth, start-up mode: mean {np.mean(v):5.1f} %, "
+                  f"worst {np.max(v):5.1f} % ({len(v)} rigs)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,8 +91,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--startup", type=float, default=DEFAULT_STARTUP_S,
                         help=f"startup_s of the start-up mode (default {DEFAULT_STARTUP_S:g})")
     parser.add_argument("--out", type=Path, default=Path("out/startup"), help="folder of startup.png")
+    parser.add_argument("--probing", type=float, default=DEFAULT_PROBING_V,
+                        help=f"probing_v of the start-up mode [V] (default {DEFAULT_PROBING_V:g}; 0: none)")
+    parser.add_argument("--off-nominal", type=int, default=0, metavar="N",
+                        help="instead: N off-nominal rigs, the four methods in turn (see off_nominal_rigs)")
+    parser.add_argument("--input-delay", type=int, default=0, choices=(-1, 0, 1),
+                        help="the controller's input_delay_samples (with --off-nominal; default 0)")
+    parser.add_argument("--loop-delay", type=int, default=0, choices=(0, 1),
+                        help="1: apply each command one sample late, as a parallel master (with --off-nominal)")
     args = parser.parse_args(argv)
     theta0 = preliminary_theta(0, refine_hz=0.05)
+    if args.off_nominal:
+        off_nominal_rigs(args.off_nominal, args.startup, theta0, args.input_delay, args.loop_delay, args.probing)
+        return 0
     print(f"{'method':<11} {'cell':<12} {'start':<10} {'overshoot [mm]':>15} {'reversals':>10} {'runs over':>10} "
           f"{'Eq.(21) 10-40 s':>16} {'|r-l| 50-90 s':>14}")
     totals = {}
@@ -61,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
             for label, startup in (("paper", 0.0), (f"{args.startup:g} s", args.startup)):
                 over, rev, e21, late = [], [], [], []
                 for seed in range(args.seeds):
-                    r = run(method, load, f, seed, startup, theta0)
+                    r = run(method, load, f, seed, startup, theta0, probing_v=args.probing)
                     over.append(max(0.0, float(np.max(r["l_mm"])) - 65.0))
                     rev.append(reversals(r["u_v"]))
                     e21.append(eq21_error_mm(r["r_mm"], r["l_mm"]))

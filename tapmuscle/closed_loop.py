@@ -17,7 +17,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import Reference
 from fmu_plant import Plant
 
-__all__ = ["run_closed_loop", "eq21_error_mm", "EQ21_WINDOW"]
+__all__ = ["run_closed_loop", "eq21_error_mm", "command_tv_excess", "EQ21_WINDOW"]
 
 #: Samples of Eq. (21): k = 101..401 (10 s to 40 s at Ts = 0.1 s).
 EQ21_WINDOW = (101, 401)
@@ -37,6 +37,32 @@ def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = 
     if len(r_mm) <= k1:
         raise ValueError(f"Eq. (21) needs samples up to k = {k1}, the run has {len(r_mm)}")
     return float(np.mean(np.abs(np.asarray(r_mm)[k0:k1 + 1] - np.asarray(l_mm)[k0:k1 + 1])))
+
+
+def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1,
+                      window: tuple[int, int] = EQ21_WINDOW) -> float:
+    """How far the command's total variation in the Eq. (21) window exceeds a smooth command's [-].
+
+    A command that follows a sine reference of ``frequency_hz`` without ripple travels its range twice
+    per cycle, so the figure is ``sum |u(k+1) - u(k)| / (2 (max u - min u) f (k1 - k0) Ts) - 1`` over
+    ``k = k0..k1``: 0 for a smooth command, 0.1 for one that travels 10 % more (valve chatter).
+
+    Parameters
+    ----------
+    u_v : ndarray
+        Valve command [V], one value per sample ``k``.
+    frequency_hz : float
+        Frequency of the reference [Hz].
+    ts_s : float
+        Sampling period [s].
+    window : (int, int)
+        First and last sample, inclusive (default: Eq. (21)'s 101..401).
+    """
+    k0, k1 = window
+    if len(u_v) <= k1:
+        raise ValueError(f"the Eq. (21) window needs samples up to k = {k1}, the run has {len(u_v)}")
+    u = np.asarray(u_v, dtype=float)[k0:k1 + 1]
+    return float(np.sum(np.abs(np.diff(u))) / (2.0 * np.ptp(u) * frequency_hz * (k1 - k0) * ts_s) - 1.0)
 
 
 def run_closed_loop(plant: Plant, controller: DisplacementController, reference: Reference, *,

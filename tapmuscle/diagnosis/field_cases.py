@@ -26,7 +26,8 @@ from tapmuscle.diagnosis.simulation import noise_free
 
 __all__ = ["FIELD_ERROR_PARAMETERS", "CATEGORY_MIX", "CATEGORIES", "EXCITATIONS", "OOV_KINDS", "LOADS_N",
            "EFFECT_RANGES", "INCOMPATIBLE_PAIRS", "DURATION_S", "TS_S", "FieldCase", "vocabulary",
-           "compatible_pairs", "field_cases", "record_case", "effect_costs", "parameter_value"]
+           "compatible_pairs", "field_cases", "record_case", "effect_costs", "parameter_value", "draw_parameter_errors",
+           "off_nominal"]
 
 # ------------------------------------------------------------------------------------- settings
 #: Physical constants of the rig that a field rig has off (not the operating conditions load and
@@ -153,6 +154,11 @@ class FieldCase:
                 "oov_params": dict(self.oov_params)}
 
 
+def off_nominal(model: PlantParams, errors: Sequence[tuple[str, float]]) -> PlantParams:
+    """``model`` with each ``(group.field, relative error)`` of ``errors`` applied."""
+    return model.with_values(**{key: parameter_value(model, key) * (1.0 + rel) for key, rel in errors})
+
+
 def parameter_value(params: PlantParams, key: str) -> float:
     group, _, name = key.partition(".")
     return float(getattr(getattr(params, group), name))
@@ -254,7 +260,15 @@ _DRAWERS: dict[str, Callable[[np.random.Generator, float], dict[str, float]]] = 
 }
 
 
-def _draw_errors(rng: np.random.Generator, model: PlantParams) -> tuple[tuple[str, float], ...]:
+def draw_parameter_errors(rng: np.random.Generator, model: PlantParams) -> tuple[tuple[str, float], ...]:
+    """Draw a field rig's off constants: 3-6 of :data:`FIELD_ERROR_PARAMETERS`, each off by 5-20 %
+    with a random sign, clipped to the parameter's bounds.
+
+    Returns
+    -------
+    tuple of (str, float)
+        ``(group.field, relative error)`` pairs, the error after clipping.
+    """
     k = int(rng.integers(ERRORS_PER_CASE[0], ERRORS_PER_CASE[1] + 1))
     keys = rng.choice(len(FIELD_ERROR_PARAMETERS), size=k, replace=False)
     out = []
@@ -349,7 +363,7 @@ def field_cases(n: int = 120, seed: int = 0, *, duration_s: float = DURATION_S) 
         seen[category] += 1
         rng = np.random.default_rng([seed, index])
         model = DEMO_MODEL
-        errors = _draw_errors(rng, model)
+        errors = draw_parameter_errors(rng, model)
         load = float(LOADS_N[int(rng.integers(0, len(LOADS_N)))])
         excitation = EXCITATIONS[(j + exc_offset[category]) % len(EXCITATIONS)]
         exc_params = _draw_excitation(excitation, rng)

@@ -1,0 +1,36 @@
+"""Scores of a closed-loop run (tapmuscle.closed_loop)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tapmuscle.closed_loop import EQ21_WINDOW, command_tv_excess, eq21_error_mm
+
+
+def _sine_command(f: float, n: int = 451) -> np.ndarray:
+    t = 0.1 * np.arange(n)
+    return 5.0 + 3.0 * np.sin(2 * np.pi * f * t)
+
+
+@pytest.mark.parametrize("f", [0.1, 0.2])
+def test_a_smooth_command_travels_twice_its_range_per_cycle(f):
+    # a sampled sine over whole cycles: its samples miss the exact peaks by at most 1 - cos(pi f Ts)
+    assert abs(command_tv_excess(_sine_command(f), f)) <= 1.0 - np.cos(np.pi * f * 0.1) + 1e-12
+
+
+def test_a_period_two_ripple_adds_its_travel():
+    """A ripple +-a at the Nyquist frequency larger than the sine's steps (2a > its 0.19 V largest
+    step) makes every step 2a long, give or take the sine's: 300 steps of 2a against a smooth travel
+    of 2 (6 V + 2a) per cycle over 3 cycles."""
+    f, a = 0.1, 0.5
+    u = _sine_command(f) + a * (-1.0) ** np.arange(451)
+    expected = 300 * 2 * a / (2 * (6.0 + 2 * a) * 3) - 1.0
+    assert command_tv_excess(u, f) == pytest.approx(expected, abs=0.05)
+
+
+def test_too_short_a_run_is_refused_naming_the_window():
+    with pytest.raises(ValueError, match=f"k = {EQ21_WINDOW[1]}"):
+        command_tv_excess(np.zeros(300), 0.1)
+    with pytest.raises(ValueError, match="Eq. \\(21\\)"):
+        eq21_error_mm(np.zeros(300), np.zeros(300))
