@@ -313,6 +313,31 @@ def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
     assert d.fit_calibrated_percent < 95.0 < d.fit_after_percent
 
 
+@pytest.mark.slow
+def test_worker_processes_give_the_same_diagnosis():
+    """workers = 2 spreads the candidates' own fits, the joint re-fits and the forward-difference
+    Jacobians over two processes: the diagnosis is the serial one, bit for bit (same verdict, same
+    simulations, same fitted prediction)."""
+    cols = record(DEMO_MODEL.with_values(**OFF, **{"delay.delay_s": 0.3}), "steps", 3, duration_s=150.0)
+    cands = [candidate(n) for n in ("transport_delay", "supply_pressure_variation", "sensor_drift")]
+    calls = {1: [], 2: []}
+    d = {w: diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, candidates=cands, workers=w,
+                     progress=lambda i, n, w=w: calls[w].append((i, n))) for w in (1, 2)}
+    assert d[1].named == d[2].named == ["transport_delay"]
+    assert d[1].simulations == d[2].simulations and calls[1] == calls[2]
+    assert np.array_equal(d[1].y_after_mm, d[2].y_after_mm)
+    assert [c["parameters"] for c in d[1].candidates if "parameters" in c] == \
+        [c["parameters"] for c in d[2].candidates if "parameters" in c]
+
+
+def test_worker_pool_is_validated():
+    from tapmuscle.diagnosis.simulation import worker_pool
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="workers"):
+            with worker_pool(bad):
+                pass
+
+
 def test_distinguishable_separates_a_real_difference_from_noise():
     rng = np.random.default_rng(3)
     n = 900

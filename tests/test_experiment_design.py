@@ -46,3 +46,17 @@ def test_design_input_refuses_fewer_than_two_alternatives():
         design_input({"a": A}, ts_s=0.1)
     with pytest.raises(ValueError, match="samples"):
         design_input({"a": A, "b": B}, ts_s=0.1, duration_s=0.5)
+
+
+@pytest.mark.slow
+def test_the_design_is_the_same_with_worker_processes():
+    """The library and the local search's pairs of moves scored in two processes: the same input."""
+    from tapmuscle.diagnosis.simulation import worker_pool
+
+    alts = {"none": A, "transport_delay": B}
+    serial = design_input(alts, ts_s=0.1, duration_s=30.0, noise_mm=0.013, seed=1, local_steps=6)
+    with worker_pool(2) as pool:
+        parallel = design_input(alts, ts_s=0.1, duration_s=30.0, noise_mm=0.013, seed=1, local_steps=6,
+                                executor=pool)
+    assert np.array_equal(serial.u_v, parallel.u_v) and serial.separation_sigma == parallel.separation_sigma
+    assert serial.evaluations == parallel.evaluations

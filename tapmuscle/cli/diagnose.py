@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
@@ -34,7 +35,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1),
-                              block_s=args.block, fit_segment_s=args.fit_segment, effects=effects, **options)
+                              block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
+                              workers=args.workers or os.cpu_count() or 1, **options)
     except (RecordingError, PlantFileError) as exc:
         raise UsageError(str(exc)) from None
     except ValueError as exc:
@@ -114,6 +116,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "ambiguous verdict when diagnosing the discriminating experiment's recording")
     dia.add_argument("--no-calibration", action="store_true",
                      help="take the plant's nominal constants as exact (skip the calibration step)")
+    dia.add_argument("--workers", type=integer_at_least("--workers", 1), default=None,
+                     help="processes for the independent simulations (default: all cores; 1: this process "
+                          "only); the diagnosis is the same")
     dia.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     dia.add_argument("--quiet", action="store_true", help="no progress output")
     dia.set_defaults(func=_cmd_diagnose)

@@ -154,7 +154,8 @@ def effective_sigma(r: np.ndarray) -> float:
 def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantParams,
                    coords: Sequence[FittedParameter], sigma_mm: float, *, max_iterations: int = 40,
                    jacobian0: np.ndarray | None = None, refresh_every: int | None = FRESH_JACOBIAN_EVERY,
-                   robust_scale_mm: float | None = None, restarts: int = 0) -> Fit:
+                   robust_scale_mm: float | None = None, restarts: int = 0,
+                   residual_many: Callable[[list[PlantParams]], list[np.ndarray]] | None = None) -> Fit:
     """Least squares (MAP where a coordinate has a prior) of ``residual(params)`` over ``coords``.
 
     Parameters
@@ -181,6 +182,10 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
     restarts : int
         When the solver stops on ``max_iterations`` rather than on convergence, start it again (with
         a fresh Jacobian) up to this many times.
+    residual_many : callable, optional
+        ``residual`` for a list of parameter sets at once (e.g. in parallel processes): used for the
+        forward-difference columns, whose simulations are independent. Must return what ``residual``
+        would, in order.
     """
     coords = list(coords)
     p = len(coords)
@@ -212,13 +217,23 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
         return np.concatenate([data_residual(x), sigma_mm * x[prior]])
 
     def fd_jacobian(x: np.ndarray, start: int = 0) -> np.ndarray:
-        r0 = data_residual(x)
-        cols = []
+        nonlocal sims
+        points, steps = [x], []
         for j in range(start, p):
             h = FD_STEP if x[j] + FD_STEP <= hi_in[j] else -FD_STEP
             xj = x.copy()
             xj[j] += h
-            cols.append((data_residual(xj) - r0) / h)
+            points.append(xj)
+            steps.append(h)
+        if residual_many is not None:  # the uncached points in one batch
+            todo = {np.asarray(xi, float).tobytes(): xi for xi in points}
+            todo = {k: xi for k, xi in todo.items() if k not in cache}
+            if todo:
+                for key, r in zip(todo, residual_many([params_at(xi) for xi in todo.values()])):
+                    cache[key] = r
+                sims += len(todo)
+        r0 = data_residual(x)
+        cols = [(data_residual(xj) - r0) / h for xj, h in zip(points[1:], steps)]
         return np.column_stack(cols) if cols else np.zeros((len(r0), 0))
 
     if jacobian0 is not None and jacobian0.shape[1] > p:
@@ -339,7 +354,8 @@ def _posterior(J: np.ndarray, sigma: float, prior: np.ndarray) -> np.ndarray:
 
 def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParams, base: PlantParams,
               sigma_mm: float, *, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
-              max_iterations: int = 40, robust: bool = True) -> Calibration:
+              max_iterations: int = 40, robust: bool = True,
+              residual_many: Callable[[list[PlantParams]], list[np.ndarray]] | None = None) -> Calibration:
     """Re-estimate the nominal constants that a recording can identify (module docstring).
 
     Parameters
@@ -359,6 +375,8 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
     robust : bool
         Soft-L1 loss at 3 sigma (a localised effect, such as a supply sag, then bends the constants
         less); the intervals are those of the plain least-squares problem at the estimate.
+    residual_many : callable, optional
+        ``residual`` for a list of parameter sets at once (:func:`fit_parameters`).
 
     Returns
     -------
@@ -369,7 +387,7 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
     coords = nominal_coords(nominal, parameters)
     scale = 3.0 * sigma_mm if robust else None
     first = fit_parameters(residual, base, coords, sigma_mm, max_iterations=max_iterations,
-                           robust_scale_mm=scale, restarts=2)
+                           robust_scale_mm=scale, restarts=2, residual_many=residual_many)
     sims = first.simulations
     # identifiability is a property of the experiment at the recording's noise level (what a correct
     # model could tell from it), not of the remaining misfit, which may still hold a left-out effect
@@ -383,7 +401,7 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
         params = params.with_values(**{c.key: c.center for c, ok in zip(coords, ident) if not ok})
         kept = [c for c, ok in zip(coords, ident) if ok]
         fit = fit_parameters(residual, params, kept, sigma_mm, max_iterations=8, refresh_every=None,
-                             robust_scale_mm=scale, jacobian0=first.jacobian[:, ident])
+                             robust_scale_mm=scale, jacobian0=first.jacobian[:, ident], residual_many=residual_many)
         sims += fit.simulations
         params = params.with_values(**fit.values)
     rows = calibration_rows(parameters, nominal, params, [c.key for c, ok in zip(coords, ident) if ok],

@@ -34,7 +34,10 @@ Procedure
 from __future__ import annotations
 
 import math
+import pickle
 import time
+from concurrent.futures import Executor, Future
+from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -50,7 +53,7 @@ from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
-from tapmuscle.diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.simulation import Simulator, worker_pool
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "distinguishable", "sensor_noise_mm",
            "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR"]
@@ -167,7 +170,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
              fit_segment_s: float = 120.0, candidates: Sequence[Candidate] = CANDIDATES, max_effects: int = 3,
              alpha: float = 1e-3, min_reduction: float = 0.10,
              calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
-             progress: Callable[[int, int], None] | None = None) -> Diagnosis:
+             progress: Callable[[int, int], None] | None = None, workers: int = 1,
+             executor: Executor | None = None) -> Diagnosis:
     """Diagnose the mismatch between a recording and the plant model (module docstring).
 
     Parameters
@@ -194,6 +198,13 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         is taken as exact apart from left-out effects).
     progress : callable, optional
         ``progress(done, total)`` after each fit.
+    workers : int
+        Processes for the independent work (the candidates' own fits, the joint re-fits, the
+        forward-difference Jacobians); 1: all in this process. The diagnosis is the same, bit for bit,
+        whatever the number.
+    executor : Executor, optional
+        An existing pool to use instead (:func:`~tapmuscle.diagnosis.simulation.worker_pool`);
+        ``workers`` is then ignored.
 
     Raises
     ------
@@ -236,6 +247,106 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                          f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
+    with ExitStack() as stack:
+        sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
+        return _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
+                       candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
+                       calibration=calibration, progress=progress, started=started)
+
+
+def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
+                y_base: np.ndarray) -> list[Callable[[], tuple[FitResult | None, dict[str, float]]]]:
+    """Each candidate's own fit on ``base`` (whose run left the checkpoints): one handle per candidate,
+    in order, that returns ``(fit, cost)``.
+
+    The fits are independent. With worker processes (``problem.sim.executor``) the built-in candidates
+    are submitted now, each on a copy of the problem taken now (the next baseline run changes the
+    checkpoints), so that fits on two bases can run at once; without, they run here and now. The
+    results are the same either way.
+    """
+    pool = problem.sim.executor
+    if pool is None or any(_BUILTIN.get(c.name) is not c for c in cands):
+        out = []
+        for cand in cands:
+            runs0, t_fit = problem.sim.runs, time.perf_counter()
+            res = cand.fit(problem, base, y_base)
+            cost = {"simulations": problem.sim.runs - runs0, "seconds": round(time.perf_counter() - t_fit, 2)}
+            out.append(lambda res=res, cost=cost: (res, cost))
+        return out
+    blob = pickle.dumps((problem, base, y_base))
+    futures = [pool.submit(_fit_in_worker, cand.name, blob) for cand in cands]
+
+    def collect(fut: Future) -> tuple[FitResult | None, dict[str, float]]:
+        res, runs, secs = fut.result()
+        problem.sim.runs += runs
+        return res, {"simulations": runs, "seconds": round(secs, 2)}
+    return [lambda fut=fut: collect(fut) for fut in futures]
+
+
+_BUILTIN = {c.name: c for c in CANDIDATES}
+
+
+def _fit_in_worker(name: str, blob: bytes) -> tuple[FitResult | None, int, float]:
+    """A worker process's share of :func:`_fit_candidates`."""
+    problem, base, y_base = pickle.loads(blob)
+    runs0, t0 = problem.sim.runs, time.perf_counter()
+    res = _BUILTIN[name].fit(problem, base, y_base)
+    return res, problem.sim.runs - runs0, time.perf_counter() - t0
+
+
+def _joint_refit(problem: Problem, coords: Sequence[FittedParameter], sigma: float, params: PlantParams,
+                 effects: Sequence[str], start_jac: np.ndarray | None = None,
+                 final: bool = False) -> tuple[PlantParams, Any]:
+    """Re-fit the calibrated constants ``coords`` jointly with the effects' smooth parameters (a short
+    warm start with secant updates during the search; the final model with fresh Jacobians)."""
+    extra = [FittedParameter(key, 0.0, scale, False, *field_bounds(key))
+             for e in effects for key, scale in JOINT_PARAMETERS.get(e, ())]
+    if not coords and not extra:
+        return params, None
+    f = fit_parameters(problem.fit_residual, params, list(coords) + extra, sigma,
+                       max_iterations=30 if final else 12, jacobian0=start_jac,
+                       refresh_every=5 if final else None, residual_many=problem.fit_residuals)
+    return params.with_values(**f.values), f
+
+
+def _joint_refits(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
+                  tasks: Sequence[tuple[PlantParams, tuple[str, ...]]],
+                  start_jac: np.ndarray | None) -> list[tuple[PlantParams, np.ndarray, int, float]]:
+    """:func:`_joint_refit` of each ``(start, effects)`` and its whole-recording prediction:
+    ``(params, y_hat, simulations, seconds)`` per task, in order; in the simulator's worker processes
+    when it has some (the re-fits are independent), with the serial loop's results."""
+    pool = problem.sim.executor
+    if pool is None or len(tasks) < 2:
+        return [_joint_task(problem, coords, sigma, start, effects, start_jac) for start, effects in tasks]
+    blob = pickle.dumps((problem, list(coords), sigma, start_jac))
+    futures = [pool.submit(_joint_in_worker, blob, start, effects) for start, effects in tasks]
+    out = [f.result() for f in futures]
+    problem.sim.runs += sum(o[2] for o in out)
+    return out
+
+
+def _joint_task(problem: Problem, coords: Sequence[FittedParameter], sigma: float, start: PlantParams,
+                effects: tuple[str, ...], start_jac: np.ndarray | None) -> tuple[PlantParams, np.ndarray, int, float]:
+    runs0, t0 = problem.sim.runs, time.perf_counter()
+    p1, _ = _joint_refit(problem, coords, sigma, start, effects, start_jac)
+    y1 = problem.sim.run(p1)[0]
+    return p1, y1, problem.sim.runs - runs0, time.perf_counter() - t0
+
+
+def _joint_in_worker(blob: bytes, start: PlantParams,
+                     effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, int, float]:
+    """A worker process's share of :func:`_joint_refits`."""
+    problem, coords, sigma, start_jac = pickle.loads(blob)
+    return _joint_task(problem, coords, sigma, start, effects, start_jac)
+
+
+def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, load: np.ndarray | None,
+            p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
+            candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
+            calibration: Sequence[NominalParameter] | None, progress: Callable[[int, int], None] | None,
+            started: float) -> Diagnosis:
+    """The calibration and the effect search of :func:`diagnose` on its validated recording."""
+    n = len(t)
     checkpoint_every = max(1, int(round(10.0 / ts)))
     y0 = sim.run(model, checkpoint_every=checkpoint_every)[0]
     train, test = interleaved_split(n, ts, block_s)
@@ -248,10 +359,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     fit_before = fit_percent(y, y0, test)
     excess0 = max(tests0["rms_mm"] ** 2 - floor ** 2, 1e-30)
     sigma = max(noise, 1e-6)
-    n_fit = problem.n_fit
 
-    def train_residual(p: PlantParams) -> np.ndarray:
-        return problem.train_residual(sim.run(p, stop=n_fit)[0])
+    train_residual, train_residuals = problem.fit_residual, problem.fit_residuals
 
     findings: list[Finding] = []
     tried: list[dict[str, Any]] = []
@@ -267,22 +376,15 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
 
     def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
-        """Re-fit the calibrated constants jointly with the effects' smooth parameters (a short warm
-        start with secant updates during the search; the final model with fresh Jacobians)."""
-        extra = [FittedParameter(key, 0.0, scale, False, *field_bounds(key))
-                 for e in effects for key, scale in JOINT_PARAMETERS.get(e, ())]
-        if not coords and not extra:
-            return params, None
-        f = fit_parameters(train_residual, params, coords + extra, sigma, max_iterations=30 if final else 12,
-                           jacobian0=start_jac, refresh_every=5 if final else None)
-        return params.with_values(**f.values), f
+        return _joint_refit(problem, coords, sigma, params, effects, start_jac, final)
 
     def prior_cost(p: PlantParams) -> float:
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
         return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
 
     if do_calibrate:
-        cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration))
+        cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
+                        residual_many=train_residuals)
         coords = [c for c in nominal_coords(model, calibration) if c.key in cal.changed]
         y_cal = sim.run(cal.params)[0]
         fit_cal = fit_percent(y, y_cal, test)
@@ -326,15 +428,17 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
             # nominal constants with the effect fitted on the nominal model (the better start on the
             # training blocks is kept after the joint re-fit).
             sim.run(model, checkpoint_every=checkpoint_every)  # window fits continue from checkpoints of their base
-            for cand in pool:
-                res_n = cand.fit(problem, model, y0)
-                if res_n is not None:
-                    nominal_fits[cand.name] = res_n
+            nominal_jobs = _start_fits(pool, problem, model, y0)
+        else:
+            nominal_jobs = []
         sim.run(current.params, checkpoint_every=checkpoint_every)
-        for cand in pool:
-            runs0, t_fit = sim.runs, time.perf_counter()
-            res = cand.fit(problem, current.params, current.y)
-            cost = {"simulations": sim.runs - runs0, "seconds": round(time.perf_counter() - t_fit, 2)}
+        jobs = _start_fits(pool, problem, current.params, current.y)
+        for cand, job in zip(pool, nominal_jobs):
+            res_n = job()[0]
+            if res_n is not None:
+                nominal_fits[cand.name] = res_n
+        for cand, job in zip(pool, jobs):
+            res, cost = job()
             done += 1
             if progress is not None:
                 progress(done, total)
@@ -369,13 +473,10 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         # current model re-fitted alone (so recalibration gets the same chance as the effect)
         ref_y = current.y
         alts: list[Alternative] = []
-        joints = []
-        for cand, res, start, _ in promising:
-            runs0, t_fit = sim.runs, time.perf_counter()
-            effects = (cand.name,) if start is model else current.effects + (cand.name,)
-            p1, _ = joint(start.with_values(**res.values), effects, cal_jac)
-            y1 = sim.run(p1)[0]
-            joints.append([cand, res, p1, y1, sim.runs - runs0, time.perf_counter() - t_fit])
+        tasks = [(start.with_values(**res.values), (cand.name,) if start is model else current.effects + (cand.name,))
+                 for cand, res, start, _ in promising]
+        joints = [[cand, res, *out] for (cand, res, _, _), out in
+                  zip(promising, _joint_refits(problem, coords, sigma, tasks, cal_jac))]
         # An effect whose parameters are not re-fitted jointly (a band's edges, a map's knots, a play, a
         # drift) was fitted on constants that had absorbed part of it: fit it afresh on the re-fitted
         # constants, and re-fit those once more. Chosen on the training blocks only.
@@ -457,7 +558,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         if current.effects and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
             # the constants were first calibrated with the effects left out, and the joint re-fits only
             # moved them locally: calibrate them afresh with the accepted effects switched on
-            recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration))
+            recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration),
+                              residual_many=train_residuals)
             if set(recal.identifiable) == set(cal.identifiable):
                 p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
                 y_re = sim.run(p_re)[0]

@@ -12,8 +12,9 @@ Search (each evaluation one simulation per alternative):
 
 1. a library of inputs people run on such rigs: held steps (staircases up and down, random levels,
    for three hold times), sines (three offsets, two amplitudes, four frequencies) and slow ramps;
-2. from the best few, a seeded random local search that changes one to three held levels (or the
-   sine's offset, amplitude and frequency) at a time and keeps a change that separates better.
+2. from the best, a seeded random local search: two changes per step, each of one to three held
+   levels (or of the sine's offset, amplitude and frequency) from the current input, keeping the
+   better one if it separates better (the two are scored together, in worker processes if given).
 
 The result is a ``tapmuscle record --input csv:`` file: ``t_s, u_v`` and, in ``l_mm`` and one
 ``l_<effect>_mm`` column per alternative, what each alternative predicts. Effects that act at given
@@ -23,6 +24,7 @@ times (a supply sag's window) are predicted in the new experiment's own time bas
 from __future__ import annotations
 
 import math
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -96,7 +98,8 @@ def _sine(offset: float, amp: float, freq: float, t: np.ndarray) -> np.ndarray:
 def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_s: float = 120.0,
                  noise_mm: float = 0.01, load_n: float | None = None, seed: int = 0, local_steps: int = 30,
                  u_span_v: tuple[float, float] = (1.0, 9.0),
-                 progress: Callable[[int, int], None] | None = None) -> Experiment:
+                 progress: Callable[[int, int], None] | None = None,
+                 executor: Executor | None = None) -> Experiment:
     """Design the input that separates the ``alternatives`` best (module docstring).
 
     Parameters
@@ -117,6 +120,11 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
         Local-search moves after the library.
     u_span_v : (float, float)
         Commands the library's inputs spread over [V] (within 0..10 V).
+    progress : callable, optional
+        ``progress(done, total)`` after each input scored.
+    executor : Executor, optional
+        Worker processes (:func:`~tapmuscle.diagnosis.simulation.worker_pool`) for the library's
+        inputs; the design is the same with or without.
 
     Raises
     ------
@@ -137,8 +145,7 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
     def predict(u: np.ndarray) -> list[np.ndarray]:
         nonlocal evals
         evals += 1
-        sim = Simulator(u, ts_s)
-        return [sim.run(p)[0] for p in plants]
+        return _predict(u, ts_s, plants)
 
     lo, hi = u_span_v
     mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
@@ -160,30 +167,46 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
         return _held(args[0], args[1], t) if kind == "steps" else _sine(*args, t)
 
     scored = []
-    for i, (kind, args) in enumerate(library):
-        scored.append((separation(predict(build(kind, args))), kind, args))
+    inputs = [build(kind, args) for kind, args in library]
+    if executor is None:
+        preds = map(predict, inputs)
+    else:  # the library's inputs are independent: in the worker processes, in order
+        preds = executor.map(_predict, inputs, [ts_s] * len(inputs), [plants] * len(inputs))
+        evals += len(inputs)
+    for i, ((kind, args), pred) in enumerate(zip(library, preds)):
+        scored.append((separation(pred), kind, args))
         if progress is not None:
             progress(i + 1, len(library) + local_steps)
     scored.sort(key=lambda s: -s[0])
     best_sep, kind, args = scored[0]
-    # local search from the best: move one to three held levels, or the sine's parameters
-    for step in range(local_steps):
+    # local search from the best: move one to three held levels, or the sine's parameters; two moves
+    # per step, scored together (in the worker processes when there are some), the better one kept
+    def move(args: tuple) -> tuple:
         if kind == "steps":
             levels = np.array(args[0], float)
             idx = rng.choice(len(levels), size=min(len(levels), int(rng.integers(1, 4))), replace=False)
             levels[idx] = np.clip(levels[idx] + rng.normal(0.0, 1.5, len(idx)), U_MIN_V, U_MAX_V)
-            trial = (tuple(levels), args[1])
+            return (tuple(levels), args[1])
+        offset, amp, freq = args
+        offset = float(np.clip(offset + rng.normal(0.0, 0.5), 1.0, 9.0))
+        amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.2, min(offset, 10.0 - offset)))
+        freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
+        return (offset, amp, freq)
+
+    for step in range(0, local_steps, 2):
+        trials = [move(args) for _ in range(min(2, local_steps - step))]
+        inputs = [build(kind, trial) for trial in trials]
+        if executor is None or len(inputs) < 2:
+            preds = [predict(x) for x in inputs]
         else:
-            offset, amp, freq = args
-            offset = float(np.clip(offset + rng.normal(0.0, 0.5), 1.0, 9.0))
-            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.2, min(offset, 10.0 - offset)))
-            freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
-            trial = (offset, amp, freq)
-        sep = separation(predict(build(kind, trial)))
-        if sep > best_sep:
-            best_sep, args = sep, trial
+            preds = list(executor.map(_predict, inputs, [ts_s] * len(inputs), [plants] * len(inputs)))
+            evals += len(inputs)
+        for trial, pred in zip(trials, preds):  # both moved from the same point: keep the better
+            sep = separation(pred)
+            if sep > best_sep:
+                best_sep, args = sep, trial
         if progress is not None:
-            progress(len(library) + step + 1, len(library) + local_steps)
+            progress(len(library) + step + len(trials), len(library) + local_steps)
     u = build(kind, args)
     preds = predict(u)
     rms = separation(preds) / math.sqrt(n)
@@ -192,6 +215,12 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
     else:
         text = f"sine {args[0]:.2f} + {args[1]:.2f} sin(2 pi {args[2]:.3f} t) V"
     return Experiment(t, u, dict(zip(names, preds)), best_sep / max(noise_mm, 1e-12), rms, text, evals)
+
+
+def _predict(u: np.ndarray, ts_s: float, plants: Sequence[PlantParams]) -> list[np.ndarray]:
+    """Each plant's noise-free response [mm] to the command ``u``."""
+    sim = Simulator(u, ts_s)
+    return [sim.run(p)[0] for p in plants]
 
 
 def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequence[str], ts_s: float) -> None:

@@ -46,6 +46,14 @@ class Problem:
     def n_fit(self) -> int:
         return min(self.n, int(round(self.fit_segment_s / self.ts_s)) + 1)
 
+    def fit_residual(self, params: PlantParams) -> np.ndarray:
+        """Training residual [mm] of ``params`` over the fit segment (one simulation)."""
+        return self.train_residual(self.sim.run(params, stop=self.n_fit)[0])
+
+    def fit_residuals(self, params: list[PlantParams]) -> list[np.ndarray]:
+        """:meth:`fit_residual` of each of ``params`` (spread over the simulator's executor, if any)."""
+        return [self.train_residual(l) for l in self.sim.run_many(params, stop=self.n_fit)]
+
     def train_residual(self, y_hat: np.ndarray, start: int = 0) -> np.ndarray:
         """``y - y_hat`` on the training samples from ``start`` over ``len(y_hat)`` samples."""
         stop = start + len(y_hat)

@@ -6,6 +6,7 @@ and :func:`diagnose_files`, the recording-file-in, report-out entry point ``tapm
 from __future__ import annotations
 
 import json
+from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -19,7 +20,7 @@ from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import design_input, write_experiment
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
-from tapmuscle.diagnosis.simulation import noise_free
+from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
 __all__ = ["diagnose_files", "write_outputs", "summary_lines", "OUTPUT_FILES", "EXPERIMENT_FILE"]
 
@@ -214,8 +215,10 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
 
 
 def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, model_note: str = "",
-                  fmu_check: dict[str, Any] | None = None, plots: bool = True) -> dict[str, Any]:
-    """Write the diagnosis files into ``out``; returns the ``diagnosis.json`` document."""
+                  fmu_check: dict[str, Any] | None = None, plots: bool = True,
+                  executor: Executor | None = None) -> dict[str, Any]:
+    """Write the diagnosis files into ``out``; returns the ``diagnosis.json`` document (``executor``:
+    worker processes for the discriminating experiments' designs)."""
     out = Path(out)
     doc = d.to_json()
     doc = {**{k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")},
@@ -225,7 +228,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
         doc["fmu_check"] = fmu_check
     experiments = []
     for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
-        experiments.append(_write_experiment(d, group, out, i))
+        experiments.append(_write_experiment(d, group, out, i, executor))
         entry["discriminating_input"] = None if experiments[-1] is None else experiments[-1]["file"]
         entry["experiment"] = experiments[-1]
     atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
@@ -238,21 +241,22 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     return doc
 
 
-def _write_experiment(d: Diagnosis, group: list, out: Path, index: int) -> dict[str, Any] | None:
+def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
+                      executor: Executor | None = None) -> dict[str, Any] | None:
     """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``,
     numbered from the second group on)."""
     name = "discriminating_input.csv" if index == 0 else f"discriminating_input_{index + 1}.csv"
     load = float(d.load_n[0]) if d.load_n is not None else None
     duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
     exp = design_input({a.effect: a.params for a in group}, ts_s=d.ts_s, duration_s=duration,
-                       noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load)
+                       noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, executor=executor)
     write_experiment(exp, out / name, alternatives=[a.effect for a in group], ts_s=d.ts_s)
     return {"file": name} | exp.to_json()
 
 
 def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *, plots: bool = True,
                    progress: Callable[[int, int], None] | None = None, effects: Sequence[str] | None = None,
-                   **options: Any) -> tuple[Diagnosis, dict]:
+                   workers: int = 1, **options: Any) -> tuple[Diagnosis, dict]:
     """Read a recording CSV and a plant (file or FMU), diagnose, write the outputs into ``out``.
 
     Parameters
@@ -271,6 +275,9 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     effects : sequence of str, optional
         Limit the candidates to these names (e.g. the alternatives of an ambiguous verdict,
         re-diagnosed on the recording of the discriminating experiment).
+    workers : int
+        Processes for the independent simulations of the diagnosis and of the discriminating
+        experiments (:func:`tapmuscle.diagnosis.simulation.worker_pool`); the outputs are the same.
     **options
         Passed to :func:`tapmuscle.diagnosis.diagnose` (``block_s``, ``fit_segment_s``,
         ``calibration``, ...).
@@ -289,12 +296,15 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
         options["candidates"] = [candidate(e) for e in effects]
     cols = rec.columns
     load = cols.get("load_n")
-    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
-                 progress=progress, **options)
-    fmu_check = None
-    if kind == "fmu":
-        sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"],
-                                     float(np.median(np.diff(cols["t_s"]))), load)
-        fmu_check = {"max_abs_difference_mm": float(np.max(np.abs(sim_fmu - d.y_before_mm)))}
-    doc = write_outputs(d, out, recording=str(recording), plant=str(plant), fmu_check=fmu_check, plots=plots)
+    with worker_pool(workers) as pool:
+        d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
+                     progress=progress, executor=pool, **options)
+        fmu_check = None
+        if kind == "fmu":
+            sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"],
+                                         float(np.median(np.diff(cols["t_s"]))), load)
+            fmu_check = {"max_abs_difference_mm": float(np.max(np.abs(sim_fmu - d.y_before_mm)))}
+        doc = write_outputs(d, out, recording=str(recording), plant=str(plant), fmu_check=fmu_check, plots=plots,
+                            executor=pool)
     return d, doc
+

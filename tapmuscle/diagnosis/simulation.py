@@ -10,14 +10,17 @@ load when the recording has a ``load_n`` column.
 
 from __future__ import annotations
 
+import multiprocessing
+from concurrent.futures import Executor, ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from fmu_plant import Plant, PlantParams
 
-__all__ = ["Simulator", "noise_free"]
+__all__ = ["Simulator", "noise_free", "worker_pool"]
 
 
 def noise_free(params: PlantParams) -> PlantParams:
@@ -46,6 +49,7 @@ class Simulator:
     runs: int = 0
     """How many simulations were run (for the report)."""
     _checkpoints: dict[int, dict[str, Any]] = field(default_factory=dict)
+    _executor: Executor | None = field(default=None, repr=False)
 
     def run(self, params: PlantParams, *, stop: int | None = None, start: int = 0,
             checkpoint_every: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -85,6 +89,56 @@ class Simulator:
         self.runs += 1
         return l, p
 
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_executor"] = None  # a copy sent to a worker process runs there, serially
+        return state
+
+    @property
+    def executor(self) -> Executor | None:
+        """Worker processes (:func:`worker_pool`) that :meth:`run_many` spreads its runs over, and that
+        other independent work on this recording may use (None: everything in this process)."""
+        return self._executor
+
+    @executor.setter
+    def executor(self, pool: Executor | None) -> None:
+        self._executor = pool
+
+    def run_many(self, params: Sequence[PlantParams], *, stop: int | None = None) -> list[np.ndarray]:
+        """Noise-free displacements [mm] of ``run(p, stop=stop)`` for each of ``params``, in order.
+
+        With an :attr:`executor` the runs are spread over its processes; the results are the same,
+        bit for bit (each run is a deterministic function of its parameters).
+        """
+        params = list(params)
+        if self._executor is None or len(params) < 2:
+            return [self.run(p, stop=stop)[0] for p in params]
+        light = Simulator(self.u_v, self.ts_s, self.load_n)  # what a run needs, without the checkpoints
+        out = list(self._executor.map(_run_copy, [light] * len(params), params, [stop] * len(params)))
+        self.runs += len(params)
+        return out
+
     def checkpoints(self) -> list[int]:
         """Samples at which :meth:`run` may start (from a baseline run with ``checkpoint_every``)."""
         return sorted(self._checkpoints)
+
+
+@contextmanager
+def worker_pool(workers: int) -> Iterator[Executor | None]:
+    """``workers`` fresh processes for independent simulations (None for 1: run in this process).
+
+    The processes are spawned (safe under threads, notebooks and Dask workers); as with any
+    ``multiprocessing`` use, a script that starts them needs an ``if __name__ == "__main__":`` guard.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if workers == 1:
+        yield None
+        return
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield pool
+
+
+def _run_copy(sim: Simulator, params: PlantParams, stop: int | None) -> np.ndarray:
+    """One run of :meth:`Simulator.run_many` in a worker process."""
+    return sim.run(params, stop=stop)[0]
