@@ -43,8 +43,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .hysteresis_model import ASYMMETRIC, ModelState
-from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .probing import probe_v
+from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
