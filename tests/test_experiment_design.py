@@ -50,7 +50,7 @@ def test_design_input_refuses_fewer_than_two_alternatives():
 
 @pytest.mark.slow
 def test_the_design_is_the_same_with_worker_processes():
-    """The library and the local search's pairs of moves scored in two processes: the same input."""
+    """The library scored in two processes (the local search stays in this one): the same input."""
     from tapmuscle.diagnosis.simulation import worker_pool
 
     alts = {"none": A, "transport_delay": B}

@@ -12,9 +12,9 @@ Search (each evaluation one simulation per alternative):
 
 1. a library of inputs people run on such rigs: held steps (staircases up and down, random levels,
    for three hold times), sines (three offsets, two amplitudes, four frequencies) and slow ramps;
-2. from the best, a seeded random local search: two changes per step, each of one to three held
-   levels (or of the sine's offset, amplitude and frequency) from the current input, keeping the
-   better one if it separates better (the two are scored together, in worker processes if given).
+2. from the best, a seeded random local search that changes one to three held levels (or the
+   sine's offset, amplitude and frequency) at a time and keeps a change that separates better (each
+   step depends on the last, so it runs in this process).
 
 The result is a ``tapmuscle record --input csv:`` file: ``t_s, u_v`` and, in ``l_mm`` and one
 ``l_<effect>_mm`` column per alternative, what each alternative predicts. Effects that act at given
@@ -124,7 +124,7 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
         ``progress(done, total)`` after each input scored.
     executor : Executor, optional
         Worker processes (:func:`~tapmuscle.diagnosis.simulation.worker_pool`) for the library's
-        inputs; the design is the same with or without.
+        inputs (independent of each other); the design is the same with or without.
 
     Raises
     ------
@@ -179,34 +179,24 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
             progress(i + 1, len(library) + local_steps)
     scored.sort(key=lambda s: -s[0])
     best_sep, kind, args = scored[0]
-    # local search from the best: move one to three held levels, or the sine's parameters; two moves
-    # per step, scored together (in the worker processes when there are some), the better one kept
-    def move(args: tuple) -> tuple:
+    # local search from the best: move one to three held levels, or the sine's parameters
+    for step in range(local_steps):
         if kind == "steps":
             levels = np.array(args[0], float)
             idx = rng.choice(len(levels), size=min(len(levels), int(rng.integers(1, 4))), replace=False)
             levels[idx] = np.clip(levels[idx] + rng.normal(0.0, 1.5, len(idx)), U_MIN_V, U_MAX_V)
-            return (tuple(levels), args[1])
-        offset, amp, freq = args
-        offset = float(np.clip(offset + rng.normal(0.0, 0.5), 1.0, 9.0))
-        amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.2, min(offset, 10.0 - offset)))
-        freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
-        return (offset, amp, freq)
-
-    for step in range(0, local_steps, 2):
-        trials = [move(args) for _ in range(min(2, local_steps - step))]
-        inputs = [build(kind, trial) for trial in trials]
-        if executor is None or len(inputs) < 2:
-            preds = [predict(x) for x in inputs]
+            trial = (tuple(levels), args[1])
         else:
-            preds = list(executor.map(_predict, inputs, [ts_s] * len(inputs), [plants] * len(inputs)))
-            evals += len(inputs)
-        for trial, pred in zip(trials, preds):  # both moved from the same point: keep the better
-            sep = separation(pred)
-            if sep > best_sep:
-                best_sep, args = sep, trial
+            offset, amp, freq = args
+            offset = float(np.clip(offset + rng.normal(0.0, 0.5), 1.0, 9.0))
+            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.2, min(offset, 10.0 - offset)))
+            freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
+            trial = (offset, amp, freq)
+        sep = separation(predict(build(kind, trial)))
+        if sep > best_sep:
+            best_sep, args = sep, trial
         if progress is not None:
-            progress(len(library) + step + len(trials), len(library) + local_steps)
+            progress(len(library) + step + 1, len(library) + local_steps)
     u = build(kind, args)
     preds = predict(u)
     rms = separation(preds) / math.sqrt(n)
