@@ -254,44 +254,58 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                        calibration=calibration, progress=progress, started=started)
 
 
-def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
-                y_base: np.ndarray) -> list[Callable[[], tuple[FitResult | None, dict[str, float]]]]:
-    """Each candidate's own fit on ``base`` (whose run left the checkpoints): one handle per candidate,
-    in order, that returns ``(fit, cost)``.
+def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: Sequence[tuple], *,
+               parallel: bool = True) -> list[Callable[[], tuple[Any, int, float]]]:
+    """``fn(problem, *shared, *task)`` for each of ``tasks``: one handle per task, in order, that
+    returns ``(result, simulations, seconds)``.
 
-    The fits are independent. With worker processes (``problem.sim.executor``) the built-in candidates
-    are submitted now, each on a copy of the problem taken now (the next baseline run changes the
-    checkpoints), so that fits on two bases can run at once; without, they run here and now. The
-    results are the same either way.
+    The tasks must be independent. With the simulator's worker processes (and ``parallel``) they are
+    submitted now, each on a copy of ``(problem, shared)`` taken now (a later baseline run changes the
+    checkpoints), so that tasks on two bases can run at once; otherwise they run here and now. The
+    results are the same either way (``fn`` must be a module-level function to go to a worker).
     """
     pool = problem.sim.executor
-    if pool is None or any(_BUILTIN.get(c.name) is not c for c in cands):
-        out = []
-        for cand in cands:
-            runs0, t_fit = problem.sim.runs, time.perf_counter()
-            res = cand.fit(problem, base, y_base)
-            cost = {"simulations": problem.sim.runs - runs0, "seconds": round(time.perf_counter() - t_fit, 2)}
-            out.append(lambda res=res, cost=cost: (res, cost))
-        return out
-    blob = pickle.dumps((problem, base, y_base))
-    futures = [pool.submit(_fit_in_worker, cand.name, blob) for cand in cands]
+    if pool is None or not parallel or len(tasks) < 2:
+        done = [_timed(fn, problem, shared, task) for task in tasks]
+        return [lambda out=out: out for out in done]
+    blob = pickle.dumps((problem, shared))
+    futures = [pool.submit(_timed_on_copy, fn, blob, task) for task in tasks]
 
-    def collect(fut: Future) -> tuple[FitResult | None, dict[str, float]]:
-        res, runs, secs = fut.result()
-        problem.sim.runs += runs
-        return res, {"simulations": runs, "seconds": round(secs, 2)}
+    def collect(fut: Future) -> tuple[Any, int, float]:
+        out = fut.result()
+        problem.sim.runs += out[1]  # the worker's copy counted them
+        return out
     return [lambda fut=fut: collect(fut) for fut in futures]
+
+
+def _timed(fn: Callable[..., Any], problem: Problem, shared: tuple, task: tuple) -> tuple[Any, int, float]:
+    runs0, t0 = problem.sim.runs, time.perf_counter()
+    result = fn(problem, *shared, *task)
+    return result, problem.sim.runs - runs0, time.perf_counter() - t0
+
+
+def _timed_on_copy(fn: Callable[..., Any], blob: bytes, task: tuple) -> tuple[Any, int, float]:
+    """A worker process's share of :func:`_on_copies`."""
+    problem, shared = pickle.loads(blob)
+    return _timed(fn, problem, shared, task)
 
 
 _BUILTIN = {c.name: c for c in CANDIDATES}
 
 
-def _fit_in_worker(name: str, blob: bytes) -> tuple[FitResult | None, int, float]:
-    """A worker process's share of :func:`_fit_candidates`."""
-    problem, base, y_base = pickle.loads(blob)
-    runs0, t0 = problem.sim.runs, time.perf_counter()
-    res = _BUILTIN[name].fit(problem, base, y_base)
-    return res, problem.sim.runs - runs0, time.perf_counter() - t0
+def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Candidate | str) -> FitResult | None:
+    """A candidate's own fit on ``base`` (a built-in one by name: candidates hold lambdas, which do not
+    pickle)."""
+    return (_BUILTIN[cand] if isinstance(cand, str) else cand).fit(problem, base, y_base)
+
+
+def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
+                y_base: np.ndarray) -> list[Callable[[], tuple[Any, int, float]]]:
+    """Each candidate's own fit on ``base`` (whose run left the checkpoints) by :func:`_on_copies`;
+    in worker processes for the built-in candidates only."""
+    builtin = all(_BUILTIN.get(c.name) is c for c in cands)
+    return _on_copies(problem, _own_fit, (base, y_base), [(c.name if builtin else c,) for c in cands],
+                      parallel=builtin)
 
 
 def _joint_refit(problem: Problem, coords: Sequence[FittedParameter], sigma: float, params: PlantParams,
@@ -309,35 +323,12 @@ def _joint_refit(problem: Problem, coords: Sequence[FittedParameter], sigma: flo
     return params.with_values(**f.values), f
 
 
-def _joint_refits(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
-                  tasks: Sequence[tuple[PlantParams, tuple[str, ...]]],
-                  start_jac: np.ndarray | None) -> list[tuple[PlantParams, np.ndarray, int, float]]:
-    """:func:`_joint_refit` of each ``(start, effects)`` and its whole-recording prediction:
-    ``(params, y_hat, simulations, seconds)`` per task, in order; in the simulator's worker processes
-    when it has some (the re-fits are independent), with the serial loop's results."""
-    pool = problem.sim.executor
-    if pool is None or len(tasks) < 2:
-        return [_joint_task(problem, coords, sigma, start, effects, start_jac) for start, effects in tasks]
-    blob = pickle.dumps((problem, list(coords), sigma, start_jac))
-    futures = [pool.submit(_joint_in_worker, blob, start, effects) for start, effects in tasks]
-    out = [f.result() for f in futures]
-    problem.sim.runs += sum(o[2] for o in out)
-    return out
-
-
-def _joint_task(problem: Problem, coords: Sequence[FittedParameter], sigma: float, start: PlantParams,
-                effects: tuple[str, ...], start_jac: np.ndarray | None) -> tuple[PlantParams, np.ndarray, int, float]:
-    runs0, t0 = problem.sim.runs, time.perf_counter()
+def _joint_prediction(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
+                      start_jac: np.ndarray | None, start: PlantParams,
+                      effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray]:
+    """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction."""
     p1, _ = _joint_refit(problem, coords, sigma, start, effects, start_jac)
-    y1 = problem.sim.run(p1)[0]
-    return p1, y1, problem.sim.runs - runs0, time.perf_counter() - t0
-
-
-def _joint_in_worker(blob: bytes, start: PlantParams,
-                     effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, int, float]:
-    """A worker process's share of :func:`_joint_refits`."""
-    problem, coords, sigma, start_jac = pickle.loads(blob)
-    return _joint_task(problem, coords, sigma, start, effects, start_jac)
+    return p1, problem.sim.run(p1)[0]
 
 
 def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, load: np.ndarray | None,
@@ -438,7 +429,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             if res_n is not None:
                 nominal_fits[cand.name] = res_n
         for cand, job in zip(pool, jobs):
-            res, cost = job()
+            res, sims_used, secs = job()
+            cost = {"simulations": sims_used, "seconds": round(secs, 2)}
             done += 1
             if progress is not None:
                 progress(done, total)
@@ -475,8 +467,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         alts: list[Alternative] = []
         tasks = [(start.with_values(**res.values), (cand.name,) if start is model else current.effects + (cand.name,))
                  for cand, res, start, _ in promising]
-        joints = [[cand, res, *out] for (cand, res, _, _), out in
-                  zip(promising, _joint_refits(problem, coords, sigma, tasks, cal_jac))]
+        jobs = _on_copies(problem, _joint_prediction, (list(coords), sigma, cal_jac), tasks)
+        joints = []
+        for (cand, res, _, _), job in zip(promising, jobs):
+            (p1, y1), sims_used, secs = job()
+            joints.append([cand, res, p1, y1, sims_used, secs])
         # An effect whose parameters are not re-fitted jointly (a band's edges, a map's knots, a play, a
         # drift) was fitted on constants that had absorbed part of it: fit it afresh on the re-fitted
         # constants, and re-fit those once more. Chosen on the training blocks only.

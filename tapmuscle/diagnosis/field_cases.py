@@ -27,7 +27,7 @@ from tapmuscle.diagnosis.simulation import noise_free
 __all__ = ["FIELD_ERROR_PARAMETERS", "CATEGORY_MIX", "CATEGORIES", "EXCITATIONS", "OOV_KINDS", "LOADS_N",
            "EFFECT_RANGES", "INCOMPATIBLE_PAIRS", "DURATION_S", "TS_S", "FieldCase", "vocabulary",
            "compatible_pairs", "field_cases", "record_case", "effect_costs", "parameter_value", "draw_parameter_errors",
-           "off_nominal"]
+           "off_nominal", "off_values"]
 
 # ------------------------------------------------------------------------------------- settings
 #: Physical constants of the rig that a field rig has off (not the operating conditions load and
@@ -130,8 +130,7 @@ class FieldCase:
 
     def true_constants(self) -> dict[str, float]:
         """The truth's values of the constants that are off (``group.field`` -> value)."""
-        model = self.model()
-        return {key: parameter_value(model, key) * (1.0 + rel) for key, rel in self.parameter_errors}
+        return off_values(self.model(), self.parameter_errors)
 
     def input_spec(self) -> str | None:
         """The ``tapmuscle record --input`` spec of an open-loop excitation (None: sinesum, ampc)."""
@@ -154,9 +153,15 @@ class FieldCase:
                 "oov_params": dict(self.oov_params)}
 
 
+def off_values(model: PlantParams, errors: Sequence[tuple[str, float]]) -> dict[str, float]:
+    """The values (``group.field`` -> value) of ``model``'s constants with each ``(group.field, relative
+    error)`` of ``errors`` applied."""
+    return {key: parameter_value(model, key) * (1.0 + rel) for key, rel in errors}
+
+
 def off_nominal(model: PlantParams, errors: Sequence[tuple[str, float]]) -> PlantParams:
     """``model`` with each ``(group.field, relative error)`` of ``errors`` applied."""
-    return model.with_values(**{key: parameter_value(model, key) * (1.0 + rel) for key, rel in errors})
+    return model.with_values(**off_values(model, errors))
 
 
 def parameter_value(params: PlantParams, key: str) -> float:

@@ -49,7 +49,9 @@ class Simulator:
     runs: int = 0
     """How many simulations were run (for the report)."""
     _checkpoints: dict[int, dict[str, Any]] = field(default_factory=dict)
-    _executor: Executor | None = field(default=None, repr=False)
+    executor: Executor | None = field(default=None, repr=False, compare=False)
+    """Worker processes (:func:`worker_pool`) that :meth:`run_many` spreads its runs over, and that
+    other independent work on this recording may use (None: everything in this process)."""
 
     def run(self, params: PlantParams, *, stop: int | None = None, start: int = 0,
             checkpoint_every: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -91,18 +93,8 @@ class Simulator:
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_executor"] = None  # a copy sent to a worker process runs there, serially
+        state["executor"] = None  # a copy sent to a worker process runs there, serially
         return state
-
-    @property
-    def executor(self) -> Executor | None:
-        """Worker processes (:func:`worker_pool`) that :meth:`run_many` spreads its runs over, and that
-        other independent work on this recording may use (None: everything in this process)."""
-        return self._executor
-
-    @executor.setter
-    def executor(self, pool: Executor | None) -> None:
-        self._executor = pool
 
     def run_many(self, params: Sequence[PlantParams], *, stop: int | None = None) -> list[np.ndarray]:
         """Noise-free displacements [mm] of ``run(p, stop=stop)`` for each of ``params``, in order.
@@ -111,10 +103,10 @@ class Simulator:
         bit for bit (each run is a deterministic function of its parameters).
         """
         params = list(params)
-        if self._executor is None or len(params) < 2:
+        if self.executor is None or len(params) < 2:
             return [self.run(p, stop=stop)[0] for p in params]
         light = Simulator(self.u_v, self.ts_s, self.load_n)  # what a run needs, without the checkpoints
-        out = list(self._executor.map(_run_copy, [light] * len(params), params, [stop] * len(params)))
+        out = list(self.executor.map(_run_copy, [light] * len(params), params, [stop] * len(params)))
         self.runs += len(params)
         return out
 
