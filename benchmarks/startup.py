@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, METHODS, P0_TABLE5, P0_TABLE8, ControllerSettings,
-                                                 DisplacementController)
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, METHODS, P0_TABLE5, P0_TABLE8,
+                                                 ControllerSettings, DisplacementController)
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant
 from fmu_plant.parameters import PlantParams
@@ -63,7 +63,8 @@ def off_nominal_rigs(n: int, startup_s: float, theta0: np.ndarray, input_delay: 
         load = float(rng.uniform(30.0, 80.0))
         f = 0.1 if i % 2 == 0 else 0.2
         method = METHODS[(i // 2) % len(METHODS)]
-        params = off_nominal(PlantParams(), draw_parameter_errors(rng, PlantParams().with_values(**{"load.load_n": load})))
+        errors = draw_parameter_errors(rng, PlantParams().with_values(**{"load.load_n": load}))
+        params = off_nominal(PlantParams(), errors)
         for label, startup in (("paper", 0.0), ("mode", startup_s)):
             r = run(method, load, f, i, startup, theta0, params=params, input_delay=input_delay, loop_delay=loop_delay,
                     probing_v=probing_v)

@@ -51,7 +51,8 @@ from fmi_slave.base import SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 
 from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, MAX_PROBING_V, MAX_STARTUP_S,
-                                                 METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep, DisplacementController)
+                                                 METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
+                                                 DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference
