@@ -372,6 +372,11 @@ class PlantParams:
             groups.setdefault(group, {})[name] = value
         return replace(self, **{g: replace(getattr(self, g), **kv) for g, kv in groups.items()})
 
+    def value(self, key: str) -> float:
+        """The value of one parameter by dotted name (``"group.field"``); ``AttributeError`` if unknown."""
+        group, _, name = key.partition(".")
+        return float(getattr(getattr(self, group), name))
+
     def to_dict(self) -> dict[str, dict[str, float]]:
         """Nested plain dict ``{group: {field: value}}`` (JSON-serialisable)."""
         return {f.name: {g.name: getattr(getattr(self, f.name), g.name) for g in fields(getattr(self, f.name))}

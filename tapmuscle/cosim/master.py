@@ -159,7 +159,10 @@ ROLE_INTERFACE = {"plant": ({"u"}, {"l"}), "controller": ({"l"}, {"u"})}
 
 def check_role(unpacked: Unpacked, role: str) -> None:
     """ScenarioError unless the FMU has the inputs and outputs its ``role`` in the loop needs (a
-    controller FMU given as the plant is named as such, not by a parameter it lacks)."""
+    controller FMU given as the plant is named as such, not by a parameter it lacks). A role outside
+    the closed loop (:data:`ROLE_INTERFACE`), such as a foreign plant FMU, has no fixed interface."""
+    if role not in ROLE_INTERFACE:
+        return
     need_in, need_out = ROLE_INTERFACE[role]
     variables = unpacked.variables
     ins = {n for n, v in variables.items() if v.causality == "input"}

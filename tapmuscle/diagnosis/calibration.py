@@ -93,11 +93,6 @@ NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = (
 )
 
 
-def _get(params: PlantParams, key: str) -> float:
-    group, _, name = key.partition(".")
-    return float(getattr(getattr(params, group), name))
-
-
 def field_bounds(key: str) -> tuple[float, float]:
     """Bounds ``(lo, hi)`` of a plant parameter from its field metadata (open bounds nudged inside)."""
     group, _, name = key.partition(".")
@@ -197,7 +192,7 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
     # keep strictly inside the bounds so that forward differences stay valid
     span = hi - lo
     lo_in, hi_in = lo + 1e-6 * np.minimum(span, 1.0), hi - 1e-6 * np.minimum(span, 1.0)
-    x0 = np.clip(np.array([(_get(base, c.key) - c.center) / c.scale for c in coords]), lo_in, hi_in)
+    x0 = np.clip(np.array([(base.value(c.key) - c.center) / c.scale for c in coords]), lo_in, hi_in)
     sims = 0
 
     def params_at(x: np.ndarray) -> PlantParams:
@@ -334,14 +329,15 @@ class Calibration:
                 "simulations": self.simulations}
 
 
-def nominal_coords(nominal: PlantParams, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS
-                   ) -> list[FittedParameter]:
-    """Scaled coordinates of the nominal constants, centred on ``nominal``'s values (prior)."""
+def nominal_coords(nominal: PlantParams, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
+                   bounds: Callable[[str], tuple[float, float]] = field_bounds) -> list[FittedParameter]:
+    """Scaled coordinates of the nominal constants, centred on ``nominal``'s values (prior), within
+    ``bounds(key)`` (default: the plant fields' bounds)."""
     out = []
     for np_ in parameters:
-        c = _get(nominal, np_.key)
+        c = nominal.value(np_.key)
         scale = np_.prior_rel * abs(c) if c != 0 else np_.prior_rel
-        lo, hi = field_bounds(np_.key)
+        lo, hi = bounds(np_.key)
         out.append(FittedParameter(np_.key, c, scale, True, max(lo, c - 4 * scale), min(hi, c + 4 * scale)))
     return out
 
@@ -355,7 +351,8 @@ def _posterior(J: np.ndarray, sigma: float, prior: np.ndarray) -> np.ndarray:
 def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParams, base: PlantParams,
               sigma_mm: float, *, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
               max_iterations: int = 40, robust: bool = True,
-              residual_many: Callable[[list[PlantParams]], list[np.ndarray]] | None = None) -> Calibration:
+              residual_many: Callable[[list[PlantParams]], list[np.ndarray]] | None = None,
+              bounds: Callable[[str], tuple[float, float]] = field_bounds) -> Calibration:
     """Re-estimate the nominal constants that a recording can identify (module docstring).
 
     Parameters
@@ -377,6 +374,9 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
         less); the intervals are those of the plain least-squares problem at the estimate.
     residual_many : callable, optional
         ``residual`` for a list of parameter sets at once (:func:`fit_parameters`).
+    bounds : callable
+        ``bounds(key) -> (lo, hi)`` of a constant (default: the plant fields' bounds; another model
+        family, such as a foreign FMU, gives its own).
 
     Returns
     -------
@@ -384,7 +384,7 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
         The calibrated plant (identifiable constants at their estimates, the others nominal) and one
         report row per constant.
     """
-    coords = nominal_coords(nominal, parameters)
+    coords = nominal_coords(nominal, parameters, bounds)
     scale = 3.0 * sigma_mm if robust else None
     first = fit_parameters(residual, base, coords, sigma_mm, max_iterations=max_iterations,
                            robust_scale_mm=scale, restarts=2, residual_many=residual_many)
@@ -405,14 +405,15 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
         sims += fit.simulations
         params = params.with_values(**fit.values)
     rows = calibration_rows(parameters, nominal, params, [c.key for c, ok in zip(coords, ident) if ok],
-                            fit.jacobian, fit.residual, sigma_mm, shrink)
+                            fit.jacobian, fit.residual, sigma_mm, shrink, bounds)
     return Calibration(params, rows, sims, fit.jacobian[:, :int(ident.sum())], effective_sigma(fit.residual),
                        tuple(float(v) for v in shrink))
 
 
 def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
                      identifiable: Sequence[str], jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float,
-                     sd_shrink: Sequence[float]) -> list[CalibrationRow]:
+                     sd_shrink: Sequence[float],
+                     bounds: Callable[[str], tuple[float, float]] = field_bounds) -> list[CalibrationRow]:
     """The report rows of a calibrated plant ``params``.
 
     ``jacobian``'s leading columns are the ``identifiable`` constants in scaled coordinates (further
@@ -420,14 +421,14 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
     identifiable constant is data-only with the autocorrelation-inflated residual level, a constant
     left nominal gets its prior's.
     """
-    coords = {c.key: c for c in nominal_coords(nominal, parameters)}
+    coords = {c.key: c for c in nominal_coords(nominal, parameters, bounds)}
     sig = max(effective_sigma(residual), sigma_mm)
     k = len(identifiable)
     cov = np.linalg.pinv(jacobian.T @ jacobian / sig ** 2)[:k, :k] if jacobian.size and k else None
     rows = []
     for p_, s in zip(parameters, sd_shrink):
         c = coords[p_.key]
-        est = _get(params, c.key)
+        est = params.value(c.key)
         if c.key in identifiable and cov is not None:
             j = list(identifiable).index(c.key)
             half = 1.96 * math.sqrt(max(cov[j, j], 0.0)) * c.scale

@@ -82,11 +82,6 @@ class Candidate:
 
 
 # --------------------------------------------------------------------------------------- helpers
-def _get(params: PlantParams, key: str) -> float:
-    group, _, name = key.partition(".")
-    return float(getattr(getattr(params, group), name))
-
-
 
 
 def _gauss_newton_1d(resid: Callable[[float], np.ndarray], x0: float, r0: np.ndarray, h: float,
@@ -132,8 +127,8 @@ def _fit_sensor_drift(pr: Problem, base: PlantParams, y_base: np.ndarray) -> Fit
     (offset, rate), *_ = np.linalg.lstsq(a, e[pr.train], rcond=None)
     offset = float(np.clip(offset, -20.0, 20.0))
     rate = float(np.clip(rate * 60.0, -10.0, 10.0)) / 60.0
-    values = {"sensor_drift.offset_mm": _get(base, "sensor_drift.offset_mm") + offset,
-              "sensor_drift.rate_mm_per_min": _get(base, "sensor_drift.rate_mm_per_min") + rate * 60.0}
+    values = {"sensor_drift.offset_mm": base.value("sensor_drift.offset_mm") + offset,
+              "sensor_drift.rate_mm_per_min": base.value("sensor_drift.rate_mm_per_min") + rate * 60.0}
     return FitResult(values, y_base + offset + rate * pr.t_s)
 
 
@@ -148,9 +143,9 @@ def _backlash_apply(y: np.ndarray, slack: float) -> np.ndarray:
 
 
 def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
-    if _get(base, "backlash.slack_mm") > 0:
+    if base.value("backlash.slack_mm") > 0:
         return None  # already in the base model
-    drift = _get(base, "sensor_drift.offset_mm") + _get(base, "sensor_drift.rate_mm_per_min") / 60.0 * pr.t_s
+    drift = base.value("sensor_drift.offset_mm") + base.value("sensor_drift.rate_mm_per_min") / 60.0 * pr.t_s
     core = y_base - drift  # the backlash acts before the encoder's drifting zero
 
     def cost(s):
@@ -165,7 +160,7 @@ def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
 
 
 def _fit_transport_delay(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
-    d_base = _get(base, "delay.delay_s")
+    d_base = base.value("delay.delay_s")
     spline = CubicSpline(pr.t_s, y_base)
     t0 = float(pr.t_s[0])
 
@@ -193,7 +188,7 @@ def _scalar_fit(key: str, h: float, lo: float, hi: float) -> Callable[[Problem, 
     """A fitter for one smooth plant parameter by Gauss-Newton on the fit segment."""
     def fit(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult:
         n_fit = pr.n_fit
-        x0 = _get(base, key)
+        x0 = base.value(key)
 
         def resid(x):
             return pr.train_residual(pr.sim.run(base.with_values(**{key: x}), stop=n_fit)[0])
@@ -272,7 +267,7 @@ _FEW_LEVELS = 40
 
 
 def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
-    if _get(base, "dead_zone.width_v") > 0:
+    if base.value("dead_zone.width_v") > 0:
         return None
     # The band shows only where the command dwells in it or crosses it slowly, which may be anywhere
     # in the run: search where the residual is largest, continuing from the base run's checkpoint (an
@@ -342,7 +337,7 @@ SAG_WINDOW_LEVELS = (0.3, 0.5, 0.7)
 
 
 def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
-    if _get(base, "supply_variation.sag_mpa") > 0:
+    if base.value("supply_variation.sag_mpa") > 0:
         return None
     e = pr.y_mm - y_base
     # Where the sag acts: the window holding most of the residual energy, at three levels of the
@@ -366,7 +361,7 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     start = ck[-1]
     t_first = start * pr.ts_s
     stop = min(pr.n, int(round((b_s + 30.0) / pr.ts_s)) + 1)
-    ramp = _get(base, "supply_variation.ramp_s")
+    ramp = base.value("supply_variation.ramp_s")
 
     def params(x):
         s, a, b = float(x[0]), float(x[1]), float(x[2])

@@ -47,30 +47,22 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          calibration_rows, effective_sigma, field_bounds, fit_parameters, nominal_coords)
+                          calibration_rows, effective_sigma, fit_parameters, nominal_coords)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem
+from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
+from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, worker_pool
 
-__all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "distinguishable", "sensor_noise_mm",
+__all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
+           "distinguishable", "sensor_noise_mm",
            "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
-
-#: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
-#: the scale of their coordinate. The others keep the value their candidate's own search found (a
-#: band's edges and a sag's window make the cost piecewise constant; the measurement-side effects do
-#: not feed back and are fitted on the whole recording).
-JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
-    "rate_dependent_hysteresis": (("friction.rate_gain", 0.2),),
-    "transport_delay": (("delay.delay_s", 0.02),),
-    "supply_pressure_variation": (("supply_variation.sag_mpa", 0.01),),
-    "load_mismatch": (("load_mismatch.extra_n", 2.0),),
-}
 
 #: Effects without joint coordinates fitted afresh on the re-fitted constants per round, at most (the best
 #: on the training blocks).
@@ -83,12 +75,6 @@ MATERIAL_FACTOR = 3.0
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).
 JOINT_PER_ROUND = 3
-
-
-def sensor_noise_mm(model: PlantParams) -> float:
-    """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
-    sp = model.sensor
-    return math.sqrt(sp.encoder_noise_std_mm ** 2 + sp.encoder_resolution_mm ** 2 / 12.0)
 
 
 def _residual_tests(u: np.ndarray, e: np.ndarray, sensor_mm: float) -> tuple[dict[str, Any], Correlation, Correlation]:
@@ -159,12 +145,6 @@ class _Model:
     """Per effect, its fitted parameters."""
 
 
-def _effect_defaults(effect_values: dict[str, float]) -> dict[str, float]:
-    """Every parameter of an effect back at its 'off' default."""
-    defaults = PlantParams().dotted()
-    return {k: defaults[k] for k in effect_values}
-
-
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
              load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float = 10.0,
              fit_segment_s: float = 120.0, candidates: Sequence[Candidate] = CANDIDATES, max_effects: int = 3,
@@ -215,15 +195,32 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     started = time.perf_counter()
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
+    t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
+    load = None if load_n is None else np.asarray(load_n, float)
+    sim = Simulator(u, ts, load)
+    with ExitStack() as stack:
+        sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
+        return _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
+                       candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
+                       calibration=calibration, progress=progress, started=started, space=MUSCLE)
+
+
+def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s: float, *,
+                        load_n: np.ndarray | None = None, names: tuple[str, str, str] = ("t_s", "u_v", "l_mm"),
+                        units: tuple[str, str] = ("V", "mm")) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(t, u, y, Ts)`` of a recording the diagnosis can use, or ``ValueError`` naming the column
+    (``names``: the time, input and output columns' names; ``units``: the input's and output's) and
+    sample (:func:`diagnose`'s Raises)."""
     t = np.asarray(t_s, float)
     u = np.asarray(u_v, float)
-    y = np.asarray(l_mm, float)
-    for name, arr in (("u_v", u), ("l_mm", y)) + ((("load_n", load_n),) if load_n is not None else ()):
+    y = np.asarray(y, float)
+    tn, un, yn = names
+    for name, arr in ((un, u), (yn, y)) + ((("load_n", load_n),) if load_n is not None else ()):
         if len(arr) != len(t):
-            raise ValueError(f"column {name} has {len(arr)} samples, t_s has {len(t)}")
+            raise ValueError(f"column {name} has {len(arr)} samples, {tn} has {len(t)}")
     if len(t) < MIN_SAMPLES:
         raise ValueError(f"the recording has {len(t)} samples; the diagnosis needs at least {MIN_SAMPLES}")
-    for name, arr in (("t_s", t), ("u_v", u), ("l_mm", y)):
+    for name, arr in ((tn, t), (un, u), (yn, y)):
         bad = np.nonzero(~np.isfinite(arr))[0]
         if bad.size:
             raise ValueError(f"column {name}, sample {int(bad[0])}: {float(arr[bad[0]])!r} is not finite")
@@ -232,26 +229,36 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     off = np.nonzero(np.abs(dt - ts) > 1e-3 * ts)[0]
     if ts <= 0 or off.size:
         k = int(off[0]) + 1 if off.size else 1
-        raise ValueError(f"column t_s, sample {k}: t = {float(t[k])!r} s breaks the uniform sampling of {ts:g} s "
+        raise ValueError(f"column {tn}, sample {k}: t = {float(t[k])!r} s breaks the uniform sampling of {ts:g} s "
                          f"(previous sample {float(t[k - 1])!r} s); resample the recording first")
     if float(np.ptp(u)) == 0.0:
-        raise ValueError(f"column u_v: the command is constant ({u[0]:g} V); nothing excites the plant")
+        raise ValueError(f"column {un}: the command is constant ({u[0]:g} {units[0]}); nothing excites the plant")
     if float(np.ptp(y)) == 0.0:
-        raise ValueError(f"column l_mm: the displacement is constant ({y[0]:g} mm); the recording shows no motion "
-                         "to compare with the model (a disconnected encoder?)")
-
-    n = len(t)
-    duration = (n - 1) * ts
+        what = "displacement" if yn == "l_mm" else "output"
+        raise ValueError(f"column {yn}: the {what} is constant ({y[0]:g} {units[1]}); the recording shows no "
+                         "response to compare with the model (a disconnected sensor?)")
+    duration = (len(t) - 1) * ts
     if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0):
         raise ValueError(f"block_s (--block) = {block_s!r} s: a {duration:g}-s recording needs blocks of more than 0 and at "
                          f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")
-    load = None if load_n is None else np.asarray(load_n, float)
-    sim = Simulator(u, ts, load)
-    with ExitStack() as stack:
-        sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
-        return _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
-                       candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                       calibration=calibration, progress=progress, started=started)
+    return t, u, y, ts
+
+
+def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, model: Any, *,
+                  space: ModelSpace, candidates: Sequence[Candidate],
+                  calibration: Sequence[NominalParameter] | None, block_s: float = 10.0,
+                  fit_segment_s: float = 120.0, max_effects: int = 3, alpha: float = 1e-3,
+                  min_reduction: float = 0.10, progress: Callable[[int, int], None] | None = None) -> Diagnosis:
+    """The search of :func:`diagnose` for another model family: any simulator (``run``, ``run_many``,
+    ``checkpoints``, ``runs``, ``executor`` as :class:`~tapmuscle.diagnosis.simulation.Simulator`), its
+    model and :class:`~tapmuscle.diagnosis.model_space.ModelSpace`, on a recording checked by
+    :func:`validated_recording` (``u``: the input the residual is cross-correlated with)."""
+    started = time.perf_counter()
+    if progress is not None:
+        progress(0, len(candidates))
+    return _search(sim, t, u, y, ts, None, None, model, block_s=block_s, fit_segment_s=fit_segment_s,
+                   candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
+                   calibration=calibration, progress=progress, started=started, space=space)
 
 
 def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: Sequence[tuple], *,
@@ -279,8 +286,12 @@ def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: S
 
 
 def _timed(fn: Callable[..., Any], problem: Problem, shared: tuple, task: tuple) -> tuple[Any, int, float]:
+    """``fn``'s result (:class:`Rejected` with the reason if a simulation failed), simulations, seconds."""
     runs0, t0 = problem.sim.runs, time.perf_counter()
-    result = fn(problem, *shared, *task)
+    try:
+        result = fn(problem, *shared, *task)
+    except SimulationError as exc:
+        result = Rejected(str(exc))
     return result, problem.sim.runs - runs0, time.perf_counter() - t0
 
 
@@ -308,13 +319,13 @@ def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
                       parallel=builtin)
 
 
-def _joint_refit(problem: Problem, coords: Sequence[FittedParameter], sigma: float, params: PlantParams,
-                 effects: Sequence[str], start_jac: np.ndarray | None = None,
+def _joint_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
+                 params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None,
                  final: bool = False) -> tuple[PlantParams, Any]:
     """Re-fit the calibrated constants ``coords`` jointly with the effects' smooth parameters (a short
     warm start with secant updates during the search; the final model with fresh Jacobians)."""
-    extra = [FittedParameter(key, 0.0, scale, False, *field_bounds(key))
-             for e in effects for key, scale in JOINT_PARAMETERS.get(e, ())]
+    extra = [FittedParameter(key, 0.0, scale, False, *space.bounds(key))
+             for e in effects for key, scale in space.joint_parameters.get(e, ())]
     if not coords and not extra:
         return params, None
     f = fit_parameters(problem.fit_residual, params, list(coords) + extra, sigma,
@@ -323,11 +334,11 @@ def _joint_refit(problem: Problem, coords: Sequence[FittedParameter], sigma: flo
     return params.with_values(**f.values), f
 
 
-def _joint_prediction(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
+def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                       start_jac: np.ndarray | None, start: PlantParams,
                       effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray]:
     """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction."""
-    p1, _ = _joint_refit(problem, coords, sigma, start, effects, start_jac)
+    p1, _ = _joint_refit(problem, space, coords, sigma, start, effects, start_jac)
     return p1, problem.sim.run(p1)[0]
 
 
@@ -335,7 +346,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
             candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
             calibration: Sequence[NominalParameter] | None, progress: Callable[[int, int], None] | None,
-            started: float) -> Diagnosis:
+            started: float, space: ModelSpace) -> Diagnosis:
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
     n = len(t)
     checkpoint_every = max(1, int(round(10.0 / ts)))
@@ -344,7 +355,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     e0 = y - y0
     noise = white_noise_level_mm(e0)
     problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s)
-    sensor_mm = sensor_noise_mm(model)
+    sensor_mm = space.sensor_noise(model)
     tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
     floor = tests0["noise_reference_mm"]
     fit_before = fit_percent(y, y0, test)
@@ -367,7 +378,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
-        return _joint_refit(problem, coords, sigma, params, effects, start_jac, final)
+        return _joint_refit(problem, space, coords, sigma, params, effects, start_jac, final)
 
     def prior_cost(p: PlantParams) -> float:
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
@@ -375,8 +386,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     if do_calibrate:
         cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
-                        residual_many=train_residuals)
-        coords = [c for c in nominal_coords(model, calibration) if c.key in cal.changed]
+                        residual_many=train_residuals, bounds=space.bounds)
+        coords = [c for c in nominal_coords(model, calibration, space.bounds) if c.key in cal.changed]
         y_cal = sim.run(cal.params)[0]
         fit_cal = fit_percent(y, y_cal, test)
         current = _Model(cal.params, (), y_cal, {})
@@ -426,7 +437,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         jobs = _start_fits(pool, problem, current.params, current.y)
         for cand, job in zip(pool, nominal_jobs):
             res_n = job()[0]
-            if res_n is not None:
+            if isinstance(res_n, FitResult):
                 nominal_fits[cand.name] = res_n
         for cand, job in zip(pool, jobs):
             res, sims_used, secs = job()
@@ -434,8 +445,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             done += 1
             if progress is not None:
                 progress(done, total)
-            if res is None:
-                tried.append({"round": round_no, "effect": cand.name, "fitted": False} | cost)
+            if not isinstance(res, FitResult):
+                tried.append({"round": round_no, "effect": cand.name, "fitted": False} | cost
+                             | ({"rejected": res.reason} if isinstance(res, Rejected) else {}))
                 continue
             sig = significance(current.y, res.y_hat)
             gain = fit_percent(y, res.y_hat, test) - fit_base
@@ -467,23 +479,27 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         alts: list[Alternative] = []
         tasks = [(start.with_values(**res.values), (cand.name,) if start is model else current.effects + (cand.name,))
                  for cand, res, start, _ in promising]
-        jobs = _on_copies(problem, _joint_prediction, (list(coords), sigma, cal_jac), tasks)
+        jobs = _on_copies(problem, _joint_prediction, (space, list(coords), sigma, cal_jac), tasks)
         joints = []
         for (cand, res, _, _), job in zip(promising, jobs):
-            (p1, y1), sims_used, secs = job()
-            joints.append([cand, res, p1, y1, sims_used, secs])
+            out, sims_used, secs = job()
+            if isinstance(out, Rejected):
+                tried.append({"round": round_no, "effect": cand.name, "joint": True, "rejected": out.reason,
+                              "simulations": sims_used, "seconds": round(secs, 2)})
+                continue
+            joints.append([cand, res, *out, sims_used, secs])
         # An effect whose parameters are not re-fitted jointly (a band's edges, a map's knots, a play, a
         # drift) was fitted on constants that had absorbed part of it: fit it afresh on the re-fitted
         # constants, and re-fit those once more. Chosen on the training blocks only.
         ref_train = train_sse(ref_y)
         joint_sse = [train_sse(j[3]) for j in joints]
-        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and not JOINT_PARAMETERS.get(joints[i][0].name)]
+        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and not space.joint_parameters.get(joints[i][0].name)]
         for i in order[:ALTERNATE_PER_ROUND]:
             cand, res, p1, y1, sims_used, secs = joints[i]
             runs0, t_fit = sim.runs, time.perf_counter()
-            off = p1.with_values(**_effect_defaults(res.values))
-            res2 = cand.fit(problem, off, sim.run(off, checkpoint_every=checkpoint_every)[0])
-            if res2 is not None:
+            off = p1.with_values(**space.off_values(res.values))
+            res2 = _timed(_own_fit, problem, (off, sim.run(off, checkpoint_every=checkpoint_every)[0]), (cand,))[0]
+            if isinstance(res2, FitResult):
                 p2, _ = joint(off.with_values(**res2.values), current.effects + (cand.name,), cal_jac)
                 y2 = sim.run(p2)[0]
                 if train_sse(y2) < joint_sse[i]:
@@ -532,7 +548,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if len(current.effects) > 1:
             for name in list(current.effects[:-1]):
                 rest = tuple(e for e in current.effects if e != name)
-                p_wo = current.params.with_values(**_effect_defaults(current.values[name]))
+                p_wo = current.params.with_values(**space.off_values(current.values[name]))
                 p_wo, _ = joint(p_wo, rest, cal_jac, final=True)
                 y_wo = sim.run(p_wo)[0]
                 sig = significance(y_wo, current.y)
@@ -554,7 +570,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # the constants were first calibrated with the effects left out, and the joint re-fits only
             # moved them locally: calibrate them afresh with the accepted effects switched on
             recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration),
-                              residual_many=train_residuals)
+                              residual_many=train_residuals, bounds=space.bounds)
             if set(recal.identifiable) == set(cal.identifiable):
                 p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
                 y_re = sim.run(p_re)[0]
@@ -571,7 +587,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             if not current.effects:  # the calibration alone, converged further
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
             cal = Calibration(p_final, calibration_rows(list(calibration), model, p_final, cal.identifiable,
-                                                        f_final.jacobian, f_final.residual, sigma, cal.shrink),
+                                                        f_final.jacobian, f_final.residual, sigma, cal.shrink,
+                                                        space.bounds),
                               cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink)
     base, y_base = current.params, current.y
 

@@ -14,7 +14,24 @@ import numpy as np
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.simulation import Simulator
 
-__all__ = ["Problem", "FitResult", "full_prediction"]
+__all__ = ["Problem", "FitResult", "Rejected", "SimulationError", "full_prediction"]
+
+
+class SimulationError(RuntimeError):
+    """A model that cannot be simulated with some parameters (an FMU error, non-finite outputs); the
+    message says which parameters and why."""
+
+
+@dataclass(frozen=True)
+class Rejected:
+    """A candidate whose fit had to stop: a simulation failed (``reason``); the search goes on."""
+
+    reason: str
+
+
+#: The residual of a failed simulation, in multiples of the recording's largest magnitude: far worse than
+#: any real prediction, and finite, so that a solver steps back from the point instead of failing.
+FAILED_RESIDUAL_SCALE = 1e3
 
 
 @dataclass
@@ -47,12 +64,23 @@ class Problem:
         return min(self.n, int(round(self.fit_segment_s / self.ts_s)) + 1)
 
     def fit_residual(self, params: PlantParams) -> np.ndarray:
-        """Training residual [mm] of ``params`` over the fit segment (one simulation)."""
-        return self.train_residual(self.sim.run(params, stop=self.n_fit)[0])
+        """Training residual [mm] of ``params`` over the fit segment (one simulation); for parameters
+        the model cannot be simulated with, a large finite residual (:data:`FAILED_RESIDUAL_SCALE`)."""
+        try:
+            return self.train_residual(self.sim.run(params, stop=self.n_fit)[0])
+        except SimulationError:
+            return self._failed_residual()
 
     def fit_residuals(self, params: list[PlantParams]) -> list[np.ndarray]:
         """:meth:`fit_residual` of each of ``params`` (spread over the simulator's executor, if any)."""
-        return [self.train_residual(l) for l in self.sim.run_many(params, stop=self.n_fit)]
+        try:
+            return [self.train_residual(l) for l in self.sim.run_many(params, stop=self.n_fit)]
+        except SimulationError:  # find out which, one by one
+            return [self.fit_residual(p) for p in params]
+
+    def _failed_residual(self) -> np.ndarray:
+        size = int(np.count_nonzero(self.train[:self.n_fit]))
+        return np.full(size, FAILED_RESIDUAL_SCALE * (1.0 + float(np.max(np.abs(self.y_mm)))))
 
     def train_residual(self, y_hat: np.ndarray, start: int = 0) -> np.ndarray:
         """``y - y_hat`` on the training samples from ``start`` over ``len(y_hat)`` samples."""

@@ -35,7 +35,7 @@ import numpy as np
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import atomic_path
 
-__all__ = ["Recording", "RecordingError", "read_recording", "write_recording", "atomic_write_text",
+__all__ = ["Recording", "RecordingError", "read_recording", "read_columns", "write_recording", "atomic_write_text",
            "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
 
 REQUIRED_COLUMNS = ("t_s", "u_v", "l_mm")
@@ -143,6 +143,17 @@ def read_recording(path: str | os.PathLike) -> Recording:
         wrong number of fields, a value that is not a finite number, or ``t_s`` not increasing;
         the message names the file, the line and the column.
     """
+    columns, metadata = read_columns(path, REQUIRED_COLUMNS)
+    return Recording(columns, metadata)
+
+
+def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_column: str = "t_s"
+                 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """The columns and ``# key: value`` metadata of any CSV in the recording format (other column
+    names; ``required`` must be there, ``time_column``, if present, must increase).
+
+    Raises :class:`RecordingError` as :func:`read_recording` does.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (spreadsheet exports) is not data
@@ -164,10 +175,10 @@ def read_recording(path: str | os.PathLike) -> Recording:
         raise RecordingError(f"{path}: no header row (expected e.g. 't_s,u_v,l_mm')")
     header_line = i + 1
     header = [h.strip() for h in next(csv.reader([lines[i]]))]
-    for name in REQUIRED_COLUMNS:
+    for name in required:
         if name not in header:
             raise RecordingError(f"{path}, line {header_line}: header has no {name!r} column "
-                                 f"(required: {', '.join(REQUIRED_COLUMNS)}; found: {', '.join(header)})")
+                                 f"(required: {', '.join(required)}; found: {', '.join(header)})")
     seen = set()
     for name in header:
         if name in seen:
@@ -195,13 +206,14 @@ def read_recording(path: str | os.PathLike) -> Recording:
     if not data:
         raise RecordingError(f"{path}: header but no data rows")
     arr = np.array(data, dtype=float)
-    t = arr[:, header.index("t_s")]
-    bad = np.nonzero(np.diff(t) <= 0)[0]
-    if bad.size:
-        k = int(bad[0]) + 1
-        raise RecordingError(f"{path}, line {linenos[k]}, column 't_s': time {float(t[k])!r} does not "
-                             f"increase (previous row {float(t[k - 1])!r})")
-    return Recording({name: arr[:, j].copy() for j, name in enumerate(header)}, metadata)
+    if time_column in header:
+        t = arr[:, header.index(time_column)]
+        bad = np.nonzero(np.diff(t) <= 0)[0]
+        if bad.size:
+            k = int(bad[0]) + 1
+            raise RecordingError(f"{path}, line {linenos[k]}, column '{time_column}': time {float(t[k])!r} does not "
+                                 f"increase (previous row {float(t[k - 1])!r})")
+    return {name: arr[:, j].copy() for j, name in enumerate(header)}, metadata
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -1,0 +1,80 @@
+"""What the diagnosis needs to know of a model family besides its simulator.
+
+The search of :mod:`tapmuscle.diagnosis.diagnose` works on any model whose parameter sets have
+``value(key)``, ``dotted()`` and ``with_values(**values)`` (as :class:`fmu_plant.PlantParams` does),
+and a simulator with ``run`` / ``run_many``. The rest it asks a :class:`ModelSpace`:
+
+* the bounds of a parameter (where the calibration and the joint re-fits may move it);
+* which effect parameters are re-fitted jointly with the calibrated constants, with their scale;
+* an effect's parameters at their "off" values (the backward step switches an effect off);
+* the sensor noise the model states (the materiality reference of the residual tests).
+
+:data:`MUSCLE` is the tapmuscle plant's; a foreign FMU has its own
+(:class:`tapmuscle.diagnosis.boundary_candidates.BoundarySpace`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Mapping
+
+from fmu_plant import PlantParams
+from tapmuscle.diagnosis.calibration import field_bounds
+
+__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "sensor_noise_mm"]
+
+#: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
+#: the scale of their coordinate. The others keep the value their candidate's own search found (a
+#: band's edges and a sag's window make the cost piecewise constant; the measurement-side effects do
+#: not feed back and are fitted on the whole recording).
+JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
+    "rate_dependent_hysteresis": (("friction.rate_gain", 0.2),),
+    "transport_delay": (("delay.delay_s", 0.02),),
+    "supply_pressure_variation": (("supply_variation.sag_mpa", 0.01),),
+    "load_mismatch": (("load_mismatch.extra_n", 2.0),),
+}
+
+
+def sensor_noise_mm(model: PlantParams) -> float:
+    """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
+    sp = model.sensor
+    return math.sqrt(sp.encoder_noise_std_mm ** 2 + sp.encoder_resolution_mm ** 2 / 12.0)
+
+
+class ModelSpace:
+    """The model family's answers to the search (module docstring). Subclasses must pickle (the
+    search sends them to worker processes)."""
+
+    joint_parameters: Mapping[str, tuple[tuple[str, float], ...]] = {}
+
+    def bounds(self, key: str) -> tuple[float, float]:
+        """``(lo, hi)`` of parameter ``key``."""
+        raise NotImplementedError
+
+    def off_values(self, keys: Iterable[str]) -> dict[str, float]:
+        """Each of ``keys`` (an effect's parameters) at its "off" value."""
+        raise NotImplementedError
+
+    def sensor_noise(self, model: Any) -> float | None:
+        """The output noise level the model states (None: unknown, the residual's own level is used)."""
+        return None
+
+
+class MuscleSpace(ModelSpace):
+    """The tapmuscle plant: :class:`~fmu_plant.PlantParams`, its fields' bounds, its effect library."""
+
+    joint_parameters = JOINT_PARAMETERS
+
+    def bounds(self, key: str) -> tuple[float, float]:
+        return field_bounds(key)
+
+    def off_values(self, keys: Iterable[str]) -> dict[str, float]:
+        defaults = PlantParams().dotted()
+        return {k: defaults[k] for k in keys}
+
+    def sensor_noise(self, model: PlantParams) -> float:
+        return sensor_noise_mm(model)
+
+
+#: The tapmuscle plant's model space.
+MUSCLE = MuscleSpace()
