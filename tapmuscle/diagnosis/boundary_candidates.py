@@ -58,7 +58,14 @@ def effect_kind(name: str) -> tuple[str, str]:
 
 # ------------------------------------------------------------------------------------ the space
 class BoundarySpace(ModelSpace):
-    """Bounds, "off" values and jointly re-fitted parameters of a foreign FMU with boundary effects."""
+    """Bounds, "off" values and jointly re-fitted parameters of a foreign FMU with boundary effects.
+
+    A foreign FMU's parameters are whatever its author exposed, often redundant for one output (a
+    motor's ``R, K, J, b`` reach its speed in three combinations): the calibration keeps every MAP
+    estimate (``combinations``), so that the combinations the recording pins are calibrated.
+    """
+
+    combinations = True
 
     def __init__(self, sim: ForeignSimulator) -> None:
         iface = sim.interface
@@ -76,7 +83,11 @@ class BoundarySpace(ModelSpace):
                                  f"{v.name}:map_k1_in": (lo, hi), f"{v.name}:map_gap": (0.0, span),
                                  f"{v.name}:map_out_lo": (lo - span, hi + span)}
                 self._bounds |= {f"{v.name}:{k}": (0.0, 2.0 * span) for k in ("map_rise1", "map_rise2", "map_rise3")}
+                # the smooth boundary parameters are re-fitted jointly with the calibrated constants (a
+                # map's coordinates and a play move the prediction continuously)
                 self.joint_parameters[f"transport_delay[{v.name}]"] = ((f"{v.name}:delay_s", 0.2 * sim.ts_s),)
+                self.joint_parameters[f"input_map[{v.name}]"] = tuple((f"{v.name}:{k}", 0.05 * span) for k in MAP_FIELDS)
+                self.joint_parameters[f"input_backlash[{v.name}]"] = ((f"{v.name}:backlash", 0.02 * span),)
             else:
                 scale = _scale(v.start)
                 self._off |= secondary_defaults(v.name)
@@ -183,8 +194,7 @@ def _fit_input_map(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
     start = base.with_values(**{f"{var}:{k}": v for k, v in best.items()})
     space = BoundarySpace(pr.sim)
     coords = [FittedParameter(k, 0.0, 0.05 * span, False, *space.bounds(k)) for k in keys]
-    fit = fit_parameters(pr.fit_residual, start, coords, max(pr.noise_mm, 1e-12), max_iterations=25,
-                         refresh_every=None)
+    fit = fit_parameters(pr.fit_residual, start, coords, max(pr.noise_mm, 1e-12), max_iterations=30)
     values = {k: fit.values[k] for k in keys}
     if float(fit.residual @ fit.residual) >= float(r0 @ r0):
         return None

@@ -311,6 +311,8 @@ class Calibration:
     """Effective (autocorrelation-inflated) level of the final training residual [mm]."""
     shrink: tuple[float, ...] = ()
     """Per constant (in ``rows`` order): posterior sd / prior sd at the first fit."""
+    kept: tuple[str, ...] = ()
+    """Constants kept at their MAP estimate although not identifiable one by one (``combinations``)."""
 
     @property
     def identifiable(self) -> list[str]:
@@ -318,8 +320,8 @@ class Calibration:
 
     @property
     def changed(self) -> dict[str, float]:
-        """The calibrated constants (identifiable ones), ``group.field`` -> value."""
-        return {r.parameter: r.estimate for r in self.rows if r.identifiable}
+        """The calibrated constants (identifiable ones, and the ``kept``), ``group.field`` -> value."""
+        return {r.parameter: r.estimate for r in self.rows if r.identifiable or r.parameter in self.kept}
 
     def to_json(self) -> dict[str, Any]:
         return {"method": "MAP least squares on the training blocks (prior: 20 % sd around nominal), "
@@ -352,7 +354,7 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
               sigma_mm: float, *, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
               max_iterations: int = 40, robust: bool = True,
               residual_many: Callable[[list[PlantParams]], list[np.ndarray]] | None = None,
-              bounds: Callable[[str], tuple[float, float]] = field_bounds) -> Calibration:
+              bounds: Callable[[str], tuple[float, float]] = field_bounds, combinations: bool = False) -> Calibration:
     """Re-estimate the nominal constants that a recording can identify (module docstring).
 
     Parameters
@@ -377,6 +379,12 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
     bounds : callable
         ``bounds(key) -> (lo, hi)`` of a constant (default: the plant fields' bounds; another model
         family, such as a foreign FMU, gives its own).
+    combinations : bool
+        Keep every constant at its MAP estimate, identifiable or not: for a model whose constants
+        the data pin only in combinations (a DC motor's ``R, K, J, b`` from its speed alone), where
+        putting back the ones that are not identifiable one by one would undo the calibration. The
+        prior holds the directions the data cannot see; the rows still say which constants are
+        identifiable, and their intervals include the prior.
 
     Returns
     -------
@@ -396,6 +404,12 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
     ident = shrink <= IDENTIFIABLE_SD_SHRINK
     fit = first
     params = base.with_values(**first.values)
+    if combinations:
+        keys = [c.key for c in coords]
+        rows = calibration_rows(parameters, nominal, params, [c.key for c, ok in zip(coords, ident) if ok],
+                                fit.jacobian, fit.residual, sigma_mm, shrink, bounds, fitted=keys)
+        return Calibration(params, rows, sims, fit.jacobian, effective_sigma(fit.residual),
+                           tuple(float(v) for v in shrink), kept=tuple(keys))
     if not ident.all():
         # put back what the data cannot pin, and polish the rest without it
         params = params.with_values(**{c.key: c.center for c, ok in zip(coords, ident) if not ok})
@@ -413,24 +427,33 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
 def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
                      identifiable: Sequence[str], jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float,
                      sd_shrink: Sequence[float],
-                     bounds: Callable[[str], tuple[float, float]] = field_bounds) -> list[CalibrationRow]:
+                     bounds: Callable[[str], tuple[float, float]] = field_bounds,
+                     fitted: Sequence[str] | None = None) -> list[CalibrationRow]:
     """The report rows of a calibrated plant ``params``.
 
-    ``jacobian``'s leading columns are the ``identifiable`` constants in scaled coordinates (further
-    columns, e.g. jointly fitted effect parameters, enter the covariance); the 95 % interval of an
-    identifiable constant is data-only with the autocorrelation-inflated residual level, a constant
-    left nominal gets its prior's.
+    ``jacobian``'s leading columns are the ``fitted`` constants (default: the ``identifiable``
+    ones) in scaled coordinates (further columns, e.g. jointly fitted effect parameters, enter the
+    covariance); the 95 % interval of an identifiable constant is data-only with the
+    autocorrelation-inflated residual level, a constant left nominal gets its prior's. When constants
+    that are not identifiable are fitted too (``calibrate(combinations=True)``), the intervals of
+    all fitted ones include the prior (the data alone leave some directions free).
     """
     coords = {c.key: c for c in nominal_coords(nominal, parameters, bounds)}
     sig = max(effective_sigma(residual), sigma_mm)
-    k = len(identifiable)
-    cov = np.linalg.pinv(jacobian.T @ jacobian / sig ** 2)[:k, :k] if jacobian.size and k else None
+    fitted = list(identifiable if fitted is None else fitted)
+    k = len(fitted)
+    cov = None
+    if jacobian.size and k:
+        info = jacobian.T @ jacobian / sig ** 2
+        if set(fitted) != set(identifiable):
+            info = info + np.diag([1.0] * k + [0.0] * (info.shape[0] - k))
+        cov = np.linalg.pinv(info)[:k, :k]
     rows = []
     for p_, s in zip(parameters, sd_shrink):
         c = coords[p_.key]
         est = params.value(c.key)
-        if c.key in identifiable and cov is not None:
-            j = list(identifiable).index(c.key)
+        if c.key in fitted and cov is not None:
+            j = fitted.index(c.key)
             half = 1.96 * math.sqrt(max(cov[j, j], 0.0)) * c.scale
         else:
             half = 1.96 * c.scale

@@ -386,7 +386,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     if do_calibrate:
         cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
-                        residual_many=train_residuals, bounds=space.bounds)
+                        residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
         coords = [c for c in nominal_coords(model, calibration, space.bounds) if c.key in cal.changed]
         y_cal = sim.run(cal.params)[0]
         fit_cal = fit_percent(y, y_cal, test)
@@ -570,7 +570,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # the constants were first calibrated with the effects left out, and the joint re-fits only
             # moved them locally: calibrate them afresh with the accepted effects switched on
             recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration),
-                              residual_many=train_residuals, bounds=space.bounds)
+                              residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
             if set(recal.identifiable) == set(cal.identifiable):
                 p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
                 y_re = sim.run(p_re)[0]
@@ -588,8 +588,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
             cal = Calibration(p_final, calibration_rows(list(calibration), model, p_final, cal.identifiable,
                                                         f_final.jacobian, f_final.residual, sigma, cal.shrink,
-                                                        space.bounds),
-                              cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink)
+                                                        space.bounds, fitted=list(cal.changed)),
+                              cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept)
     base, y_base = current.params, current.y
 
     e_after = y - y_base

@@ -46,6 +46,9 @@ class ModelSpace:
     search sends them to worker processes)."""
 
     joint_parameters: Mapping[str, tuple[tuple[str, float], ...]] = {}
+    combinations: bool = False
+    """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
+    constant's MAP estimate, for models whose constants the data pin only in combinations."""
 
     def bounds(self, key: str) -> tuple[float, float]:
         """``(lo, hi)`` of parameter ``key``."""

@@ -1,0 +1,269 @@
+"""``tapmuscle diagnose --plant ANY.fmu``: diagnose a foreign plant FMU against its recording.
+
+The same method as for the tapmuscle plant (docs/diagnosis.md): calibrate the FMU's Real
+parameters that the recording identifies, then select the boundary effects
+(:mod:`tapmuscle.diagnosis.boundary_candidates`) that recalibration cannot explain on held-out
+blocks, with the backward step, ambiguity and the unexplained remainder. The FMU is run by the
+diagnosis as a co-simulation master would (:class:`~tapmuscle.diagnosis.foreign_model.ForeignSimulator`).
+
+Outputs (``--out DIR``, written into a temporary folder beside it and renamed at the end, so a
+failure leaves no partial folder): ``diagnosis.json`` (the keys of the tapmuscle plant's document;
+values named ``*_mm`` are in the diagnosed output's unit, stated in ``output``), ``calibrated_parameters.json``
+(the FMU parameters to set and the boundary effects, as a master applies them), ``report.md`` and
+``overlay.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from tapmuscle.io.recording import atomic_write_text, read_columns
+from tapmuscle.plots.figures import plt, save_figure
+
+from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_candidates, calibration_parameters,
+                                                     nominal_values)
+from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose_with, validated_recording
+from tapmuscle.diagnosis.fit_problem import SimulationError
+from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator, read_interface
+from tapmuscle.diagnosis.report import summary_lines
+from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
+
+__all__ = ["diagnose_foreign", "prepare_foreign", "ForeignSetup", "FOREIGN_OUTPUT_FILES"]
+
+#: What :func:`diagnose_foreign` writes (the figure only with ``plots=True``).
+FOREIGN_OUTPUT_FILES = ("diagnosis.json", "calibrated_parameters.json", "report.md", "overlay.png")
+
+
+class ForeignSetup:
+    """A recording and a foreign FMU made ready for the search: the mapping, the simulator, the
+    model space, the nominal parameters, the candidates and the calibration list."""
+
+    def __init__(self, recording: str | Path, plant: str | Path, *, map_path: str | Path | None = None,
+                 output: str | None = None, block_s: float = 10.0, echo: Callable[[str], None] = print) -> None:
+        self.recording, self.plant = str(recording), str(plant)
+        iface = read_interface(plant)
+        columns, _ = read_columns(recording)
+        names = list(columns)
+        smap: SignalMap = (read_signal_map(map_path, iface, names) if map_path is not None
+                           else match_by_name(iface, names))
+        if map_path is None:
+            for line in smap.lines():
+                echo(line)
+        if smap.time_column not in columns:
+            raise SignalMapError(f"{recording}: no time column {smap.time_column!r}")
+        outs = {s.variable: s for s in smap.outputs}
+        if output is None:
+            out_sig = smap.outputs[0]
+        elif output in outs:
+            out_sig = outs[output]
+        else:
+            raise SignalMapError(f"--output {output!r}: not a mapped output (mapped: {', '.join(outs)})")
+        first = smap.inputs[0]
+        t, u, y, ts = validated_recording(columns[smap.time_column], columns[first.column], columns[out_sig.column],
+                                          block_s, names=(smap.time_column, first.column, out_sig.column),
+                                          units=(first.unit or "", out_sig.unit or ""))
+        if smap.ts_s is not None and abs(ts - smap.ts_s) > 1e-3 * smap.ts_s:
+            raise SignalMapError(f"{recording}: sampled every {ts:g} s, but {smap.source} states ts_s = {smap.ts_s:g} s")
+        inputs: dict[str, np.ndarray] = {}
+        ranges: dict[str, tuple[float, float]] = {}
+        for s in smap.inputs:
+            col = columns[s.column]
+            bad = np.nonzero(~np.isfinite(col))[0]
+            if bad.size:
+                raise ValueError(f"column {s.column}, sample {int(bad[0])}: {float(col[bad[0]])!r} is not finite")
+            inputs[s.variable] = col
+            lo, hi = float(np.min(col)), float(np.max(col))
+            if hi - lo <= 0.0:
+                pad = 0.1 * abs(lo) or 1.0
+                lo, hi = lo - pad, hi + pad
+            ranges[s.variable] = (lo, hi)
+        self.map, self.interface, self.output = smap, iface, out_sig
+        self.t, self.u, self.y, self.ts = t, u, y, ts
+        self.sim = ForeignSimulator(iface, t, ts, inputs, out_sig.variable, ranges, dict(smap.parameters))
+        self.space = BoundarySpace(self.sim)
+        self.nominal = nominal_values(self.sim, self.space)
+        self.candidates = boundary_candidates(self.sim)
+        self.calibration = calibration_parameters(iface, smap.parameters, smap.calibrate)
+        t0 = time.perf_counter()
+        try:
+            self.sim.run(self.nominal)
+        except SimulationError as exc:
+            raise ForeignFmuError(f"--plant {plant}: the FMU cannot re-simulate {recording} with its own start "
+                                  f"values: {exc}") from None
+        self.simulation_s = time.perf_counter() - t0
+        self.sim.runs = 0
+        echo(f"one simulation of the {len(t)}-sample recording ({(len(t) - 1) * ts:g} s) through "
+             f"{iface.model_name}: {self.simulation_s:.3f} s")
+
+
+def prepare_foreign(recording: str | Path, plant: str | Path, **options: Any) -> ForeignSetup:
+    """:class:`ForeignSetup` of a recording file and an FMU file (``map_path``, ``output``, ``block_s``,
+    ``echo``)."""
+    return ForeignSetup(recording, plant, **options)
+
+
+def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, *, map_path: str | Path | None = None,
+                     output: str | None = None, block_s: float = 10.0, fit_segment_s: float | None = None,
+                     effects: Sequence[str] | None = None, calibrate: bool = True, plots: bool = True,
+                     progress: Callable[[int, int], None] | None = None,
+                     echo: Callable[[str], None] = print) -> tuple[Diagnosis, dict[str, Any]]:
+    """Diagnose a foreign FMU against a recording and write the outputs into ``out`` (module docstring).
+
+    Parameters
+    ----------
+    recording : path
+        CSV in the recording format (any column names; docs/recordings.md).
+    plant : path
+        An FMI 2.0 co-simulation FMU.
+    out : path
+        Output folder (replaced as a whole at the end).
+    map_path : path, optional
+        ``MAP.toml`` (:mod:`tapmuscle.diagnosis.signal_map`); without it, columns are matched to
+        variables by name and the mapping is printed.
+    output : str, optional
+        The mapped output to diagnose (default: the first).
+    block_s : float
+        Length of the interleaved training / held-out blocks [s].
+    fit_segment_s : float, optional
+        The calibration and the smooth effects are fitted on the first this many seconds (default:
+        the whole recording; a foreign plant's time constants are unknown, and a short segment may
+        not show them).
+    effects : sequence of str, optional
+        Only these candidates (names as ``transport_delay[V]``).
+    calibrate : bool
+        Re-estimate the FMU's parameters first (default).
+    plots : bool
+        Write ``overlay.png``.
+    progress : callable, optional
+        ``progress(done, total)`` after each candidate fit.
+    echo : callable
+        Where the mapping and the simulation time are printed.
+
+    Raises
+    ------
+    ForeignFmuError, SignalMapError, tapmuscle.io.recording.RecordingError, ValueError
+        Each naming the file, key, column or variable at fault; nothing is written then.
+    """
+    setup = prepare_foreign(recording, plant, map_path=map_path, output=output, block_s=block_s, echo=echo)
+    cands = setup.candidates
+    if effects is not None:
+        known = {c.name: c for c in cands}
+        unknown = [e for e in effects if e not in known]
+        if unknown or not effects:
+            raise ValueError(f"--effects: {'unknown effect ' + repr(unknown[0]) if unknown else 'names no effect'}; "
+                             f"known for this FMU and recording: {', '.join(known)}")
+        cands = [known[e] for e in effects]
+    try:
+        d = diagnose_with(setup.sim, setup.t, setup.u, setup.y, setup.ts, setup.nominal, space=setup.space,
+                          candidates=cands, calibration=setup.calibration if calibrate else None, block_s=block_s,
+                          fit_segment_s=setup.t[-1] - setup.t[0] if fit_segment_s is None else fit_segment_s,
+                          progress=progress)
+    finally:
+        setup.sim.close()
+    doc = _write(d, setup, Path(out), plots)
+    return d, doc
+
+
+def _calibrated_file(d: Diagnosis, setup: ForeignSetup) -> dict[str, Any]:
+    values = d.calibrated.dotted()
+    nominal = setup.nominal.dotted()
+    own = {p.name for p in setup.interface.parameters}
+    return {"fmu": setup.plant, "recording": setup.recording,
+            "parameters": {k: v for k, v in values.items() if k in own and v != nominal[k]} | setup.map.parameters,
+            "boundary_effects": {k: v for k, v in values.items() if k not in own and v != nominal[k]},
+            "note": "set 'parameters' on the FMU; apply 'boundary_effects' in the master "
+                    "(tapmuscle.diagnosis.boundary_effects: '<input>:delay_s', '<input>:map_*', '<input>:backlash', "
+                    "'<input>:change/start_s/end_s', '<output>:gain/offset/drift_per_min')"}
+
+
+def _report(d: Diagnosis, setup: ForeignSetup, doc: dict[str, Any]) -> str:
+    unit = setup.output.unit or "(unit)"
+    lines = [f"# Diagnosis of {setup.interface.model_name} against {Path(setup.recording).name}", "",
+             f"- FMU: `{setup.plant}`; recording: `{setup.recording}` ({len(setup.t)} samples, Ts {setup.ts:g} s)",
+             f"- diagnosed output: `{setup.output.variable}` (column `{setup.output.column}`, {unit}); values "
+             f"named `*_mm` in diagnosis.json are in {unit}",
+             f"- one simulation of the recording: {setup.simulation_s:.3f} s; the diagnosis ran {d.simulations} in "
+             f"{d.elapsed_s:.1f} s", "", "## Mapping", ""]
+    lines += [f"    {line}" for line in setup.map.lines()]
+    lines += ["", "## Verdict", ""] + [f"    {line}" for line in summary_lines(d)]
+    if d.ambiguous:
+        lines += ["", "An ambiguous verdict on a foreign FMU comes without a designed discriminating input "
+                  "(the experiment design simulates the tapmuscle plant); record the plant with an input that "
+                  "exercises where the alternatives differ and diagnose again with `--effects`."]
+    if d.calibration is not None:
+        lines += ["", "## Calibration", "", "| parameter | unit | nominal | estimate | 95 % interval | identifiable |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {r.parameter} | {r.unit} | {r.nominal:.6g} | {r.estimate:.6g} | {r.ci95[0]:.4g} .. {r.ci95[1]:.4g} "
+                  f"| {'yes' if r.identifiable else 'no'} |" for r in d.calibration.rows]
+    rejected = [c for c in d.candidates if "rejected" in c]
+    if rejected:
+        lines += ["", "## Candidates rejected", ""]
+        lines += [f"- {c['effect']} (round {c['round']}): {c['rejected']}" for c in rejected]
+    return "\n".join(lines) + "\n"
+
+
+def _figure(d: Diagnosis, setup: ForeignSetup, path: Path) -> None:
+    t, unit, name = d.t_s, setup.output.unit or "", setup.output.variable
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
+    a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"FMU before ({d.fit_before_percent:.2f} %)")
+    if d.y_calibrated_mm is not None:
+        a1.plot(t, d.y_calibrated_mm, color="tab:green", lw=0.9, ls="-.",
+                label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
+    a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"FMU after ({d.fit_after_percent:.2f} %)")
+    a1.set(ylabel=f"{name} [{unit}]", title=f"{setup.interface.model_name}: {', '.join(d.named) or d.verdict} "
+                                             "(held-out fit in brackets)")
+    a1.legend(loc="upper right", fontsize=8)
+    a1.grid(alpha=0.3)
+    held = np.where(d.test, 1.0, np.nan)
+    a2.plot(t, (d.y_mm - d.y_before_mm) * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
+    a2.plot(t, (d.y_mm - d.y_after_mm) * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
+    a2.set(xlabel="time [s]", ylabel=f"residual [{unit}]")
+    a2.legend(loc="upper right", fontsize=8)
+    a2.grid(alpha=0.3)
+    save_figure(fig, path)
+
+
+def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[str, Any]:
+    doc = d.to_json()
+    doc = {k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")} | {
+        "recording": setup.recording, "plant": setup.plant, "model": setup.interface.model_name,
+        "output": {"variable": setup.output.variable, "column": setup.output.column, "unit": setup.output.unit},
+        "mapping": setup.map.to_json(), "simulation_s": round(setup.simulation_s, 4)} | {
+        k: v for k, v in doc.items() if k not in ("verdict", "fit_before_percent", "fit_after_percent", "findings")}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False, default=_plain) + "\n")
+        atomic_write_text(tmp / "calibrated_parameters.json",
+                          json.dumps(_calibrated_file(d, setup), indent=2, allow_nan=False) + "\n")
+        atomic_write_text(tmp / "report.md", _report(d, setup, doc))
+        if plots:
+            _figure(d, setup, tmp / "overlay.png")
+        if out.exists():
+            old = out.with_name(f".{out.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return doc
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (np.floating, np.integer)):
+        v = value.item()
+        return v if not isinstance(v, float) or math.isfinite(v) else None
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
