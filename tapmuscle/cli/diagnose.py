@@ -31,11 +31,16 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             raise UsageError(f"--effects {args.effects!r}: "
                              + (f"unknown effect {unknown[0]!r}" if unknown else "names no effect")
                              + f"; known: {', '.join(known)}")
+    if _is_foreign(args.plant):
+        return _diagnose_foreign(args)
+    if args.map is not None or args.output is not None:
+        raise UsageError(f"--map and --output are for a foreign plant FMU; {args.plant} is tapmuscle's plant")
     options = {"calibration": None} if args.no_calibration else {}
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1),
-                              block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
+                              block_s=args.block, fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
+                              effects=effects,
                               workers=args.workers or os.cpu_count() or 1, **options)
     except (RecordingError, PlantFileError) as exc:
         raise UsageError(str(exc)) from None
@@ -49,17 +54,65 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_foreign(plant: str) -> bool:
+    """Is ``plant`` an FMU other than tapmuscle's MusclePlant (read from its model description)?"""
+    from tapmuscle.diagnosis.foreign_model import ForeignFmuError, read_interface
+
+    if not str(plant).lower().endswith(".fmu"):
+        return False
+    try:
+        return read_interface(plant).model_name != "MusclePlant"
+    except ForeignFmuError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _diagnose_foreign(args: argparse.Namespace) -> int:
+    from tapmuscle.cli.progress import Progress
+    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
+    from tapmuscle.diagnosis.foreign_model import ForeignFmuError
+    from tapmuscle.diagnosis.report import summary_lines
+    from tapmuscle.diagnosis.signal_map import SignalMapError
+    from tapmuscle.io.recording import RecordingError
+
+    effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
+    try:
+        d, _ = diagnose_foreign(args.recording, args.plant, args.out, map_path=args.map, output=args.output,
+                                block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
+                                calibrate=not args.no_calibration, plots=not args.no_plots,
+                                progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
+    except (RecordingError, SignalMapError, ForeignFmuError) as exc:
+        raise UsageError(str(exc)) from None
+    except ValueError as exc:
+        raise UsageError(f"{args.recording}: {exc}") from None
+    for line in summary_lines(d):
+        print(line)
+    print(f"wrote {args.out}/diagnosis.json, calibrated_parameters.json, report.md"
+          + ("" if args.no_plots else ", overlay.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
 
     field_only = {"--recordings": args.recordings, "--seed": args.seed, "--resume": args.resume or None}
     concealed_only = {"--seeds": args.seeds, "--clean-seeds": args.clean_seeds, "--effects": args.effects,
                       "--excitations": args.excitations}
-    wrong = [k for k, v in (concealed_only if args.suite == "field" else field_only).items() if v is not None]
+    home = {"field": "field", "concealed": "concealed", "foreign": "field"}[args.suite]
+    wrong = [k for k, v in (concealed_only if home == "field" else field_only).items() if v is not None]
     if wrong:
         raise UsageError(f"{', '.join(wrong)} belong{'s' if len(wrong) == 1 else ''} to --suite "
-                         f"{'concealed' if args.suite == 'field' else 'field'}, not --suite {args.suite}")
+                         f"{'concealed' if home == 'field' else 'field'}, not --suite {args.suite}")
+    if args.suite == "foreign" and args.resume:
+        raise UsageError("--resume belongs to --suite field, not --suite foreign")
     progress = Progress("demo-mismatch", enabled=not args.quiet, min_total=1)
+    if args.suite == "foreign":
+        from tapmuscle.diagnosis.foreign_demo import foreign_scores_markdown, run_foreign_demo
+
+        scores = run_foreign_demo(args.out, n=40 if args.recordings is None else args.recordings,
+                                  seed=0 if args.seed is None else args.seed, jobs=args.jobs, progress=progress)
+        print(foreign_scores_markdown(scores))
+        print(f"wrote {args.out}/scores.md, scores.json and cases/*/ (recording.csv, map.toml, diagnosis/)")
+        return 0
     if args.suite == "field":
         from tapmuscle.diagnosis.field_demo import run_field_demo, scores_markdown as field_markdown
 
@@ -105,12 +158,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "'ambiguous' and design a discriminating input when alternatives tie "
                                      "(docs/diagnosis.md).")
     dia.add_argument("--recording", required=True, help="recording CSV (docs/recordings.md): t_s,u_v,l_mm[,load_n,p_mpa]")
-    dia.add_argument("--plant", required=True, help="a MusclePlant .fmu, or a plant parameter .json")
+    dia.add_argument("--plant", required=True,
+                     help="a MusclePlant .fmu or a plant parameter .json; or any FMI 2.0 co-simulation FMU "
+                          "(boundary effects and calibration of its parameters, docs/diagnosis.md)")
+    dia.add_argument("--map", default=None,
+                     help="foreign FMU: MAP.toml saying which columns drive which inputs and which are measured "
+                          "outputs (default: columns named as the FMU's variables; the mapping is printed)")
+    dia.add_argument("--output", default=None,
+                     help="foreign FMU: the mapped output to diagnose (default: the first)")
     dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=10.0,
                      help="length of the interleaved training / held-out blocks [s] (default 10)")
-    dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=120.0,
-                     help="stationary effects are fitted on the first this many seconds (default 120)")
+    dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=None,
+                     help="stationary effects are fitted on the first this many seconds (default 120 for "
+                          "tapmuscle's plant, the whole recording for a foreign FMU)")
     dia.add_argument("--effects", default=None,
                      help="comma-separated candidate effects to consider (default all), e.g. the alternatives of an "
                           "ambiguous verdict when diagnosing the discriminating experiment's recording")
@@ -132,10 +193,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "excitations x seeds), clean recordings, a 60-90 s supply sag and the "
                                       "Fig. 20 case (docs/diagnosis.md).")
     demo.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
-    demo.add_argument("--suite", choices=("field", "concealed"), default="field",
-                      help="field recordings (default) or the concealed-effect proof")
+    demo.add_argument("--suite", choices=("field", "concealed", "foreign"), default="field",
+                      help="field recordings (default), the concealed-effect proof, or foreign FMUs (a DC motor "
+                           "in C, a thermal two-mass model in pythonfmu) with concealed boundary effects")
     demo.add_argument("--recordings", type=integer_at_least("--recordings", 1), default=None,
-                      help="field: number of recordings (default 120)")
+                      help="field / foreign: number of recordings (default 120 / 40)")
     demo.add_argument("--seed", type=integer_at_least("--seed", 0), default=None,
                       help="field: seed of the drawn cases (default 0)")
     demo.add_argument("--resume", action="store_true",
