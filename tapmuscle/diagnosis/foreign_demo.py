@@ -157,13 +157,14 @@ def _inputs(case: ForeignCase, t: np.ndarray, rng: np.random.Generator) -> dict[
     return {"P1": steps(0.0, 60.0, (60.0, 200.0)), "P2": steps(0.0, 40.0, (80.0, 250.0))}
 
 
-def record_foreign_case(case: ForeignCase, fmu: Path, folder: Path) -> tuple[Path, Path]:
+def record_foreign_case(case: ForeignCase, fmu: Path, folder: Path, *, duration_s: float | None = None
+                        ) -> tuple[Path, Path]:
     """Simulate the truth of ``case`` through ``fmu`` with noise and write ``recording.csv`` and
-    ``map.toml`` into ``folder``."""
+    ``map.toml`` into ``folder`` (``duration_s``: instead of the plant's default)."""
     spec = PLANTS[case.plant]
     rng = np.random.default_rng(case.seed + [1])
     ts = spec["ts_s"]
-    t = np.arange(0.0, spec["duration_s"] + ts / 2, ts)
+    t = np.arange(0.0, (duration_s or spec["duration_s"]) + ts / 2, ts)
     iface = read_interface(fmu)
     signals = _inputs(case, t, rng)
     ranges = {k: (0.0, 12.0) if case.plant == "DcMotor" else (0.0, 60.0) for k in signals}
@@ -224,7 +225,7 @@ def _run_case(args: tuple[ForeignCase, str, str]) -> dict[str, Any]:
 
 def score_foreign(results: list[dict[str, Any]]) -> dict[str, Any]:
     """The proof's scores (module docstring) and each case's verdict."""
-    named = clean = fit = 0
+    named = alone = clean = fit = 0
     n_eff = n_clean = 0
     rows = []
     for r in results:
@@ -240,6 +241,7 @@ def score_foreign(results: list[dict[str, Any]]) -> dict[str, Any]:
             n_eff += 1
             ok = eff in claims
             named += ok
+            alone += r.get("named") == [eff] and not r.get("ambiguous")
         rows.append({"case": r["case"]["name"], "truth": eff or "clean", "verdict": r.get("verdict", "error"),
                      "claimed": sorted(claims), "fit_after_percent": r.get("fit_after_percent"), "right": ok,
                      "fit_ok": ok_fit, "error": r.get("error")})
@@ -247,7 +249,8 @@ def score_foreign(results: list[dict[str, Any]]) -> dict[str, Any]:
     def rate(k: int, n: int) -> float | None:
         return None if n == 0 else 100.0 * k / n
     rates = {"named": rate(named, n_eff), "clean": rate(clean, n_clean), "fit": rate(fit, len(results))}
-    return {"cases": len(results), "named": [named, n_eff], "clean": [clean, n_clean], "fit": [fit, len(results)],
+    return {"cases": len(results), "named": [named, n_eff], "named_alone": [alone, n_eff], "clean": [clean, n_clean],
+            "fit": [fit, len(results)],
             "rates": rates, "met": {k: v is not None and v >= TARGETS[k] for k, v in rates.items()}, "rows": rows}
 
 
@@ -260,6 +263,9 @@ def foreign_scores_markdown(s: dict[str, Any]) -> str:
         rate = s["rates"][key]
         lines.append(f"| {label} | {k} / {n} | {'-' if rate is None else f'{rate:.1f} %'} | >= {TARGETS[key]:g} % "
                      f"| {'yes' if s['met'][key] else '**no**'} |")
+    k, n = s["named_alone"]
+    lines.append(f"| concealed effect named alone (reported, no goal) | {k} / {n} | "
+                 f"{'-' if not n else f'{100.0 * k / n:.1f} %'} | - | - |")
     misses = [r for r in s["rows"] if not r["right"] or not r["fit_ok"]]
     if misses:
         lines += ["", "Misses:", ""]

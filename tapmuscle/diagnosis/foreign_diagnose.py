@@ -36,7 +36,12 @@ from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator,
 from tapmuscle.diagnosis.report import summary_lines
 from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
 
-__all__ = ["diagnose_foreign", "prepare_foreign", "ForeignSetup", "FOREIGN_OUTPUT_FILES"]
+__all__ = ["diagnose_foreign", "prepare_foreign", "ForeignSetup", "FOREIGN_OUTPUT_FILES", "FIT_SEGMENT_SAMPLES"]
+
+#: Default fit segment: the whole recording, up to this many samples (the fits' simulations are the
+#: cost, and a foreign plant's time constants are unknown: a long segment is safe, a short one may not
+#: show them).
+FIT_SEGMENT_SAMPLES = 4000
 
 #: What :func:`diagnose_foreign` writes (the figure only with ``plots=True``).
 FOREIGN_OUTPUT_FILES = ("diagnosis.json", "calibrated_parameters.json", "report.md", "overlay.png")
@@ -134,8 +139,7 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
         Length of the interleaved training / held-out blocks [s].
     fit_segment_s : float, optional
         The calibration and the smooth effects are fitted on the first this many seconds (default:
-        the whole recording; a foreign plant's time constants are unknown, and a short segment may
-        not show them).
+        the whole recording, at most :data:`FIT_SEGMENT_SAMPLES` samples).
     effects : sequence of str, optional
         Only these candidates (names as ``transport_delay[V]``).
     calibrate : bool
@@ -164,7 +168,8 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
     try:
         d = diagnose_with(setup.sim, setup.t, setup.u, setup.y, setup.ts, setup.nominal, space=setup.space,
                           candidates=cands, calibration=setup.calibration if calibrate else None, block_s=block_s,
-                          fit_segment_s=setup.t[-1] - setup.t[0] if fit_segment_s is None else fit_segment_s,
+                          fit_segment_s=(min(setup.t[-1] - setup.t[0], FIT_SEGMENT_SAMPLES * setup.ts)
+                                         if fit_segment_s is None else fit_segment_s),
                           progress=progress)
     finally:
         setup.sim.close()

@@ -1,0 +1,199 @@
+"""``tapmuscle diagnose`` on FMUs that are not tapmuscle's: the DC motor in C and the thermal two-mass
+model in pythonfmu (tapmuscle/diagnosis/foreign_fmus), with boundary effects concealed in recordings
+made through the same FMUs (docs/diagnosis.md, "Foreign plant FMUs")."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tapmuscle.diagnosis.boundary_effects import (backlash, dead_band_map, fractional_delay, identity_map,
+                                                  input_map, map_knots)
+from tapmuscle.diagnosis.foreign_demo import ForeignCase, build_demo_fmus, foreign_cases, record_foreign_case
+from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
+from tapmuscle.diagnosis.foreign_model import ForeignFmuError, read_interface
+from tapmuscle.diagnosis.signal_map import SignalMapError, read_signal_map
+
+pytestmark = pytest.mark.c_host
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    return build_demo_fmus(tmp_path_factory.mktemp("foreign_fmus"))
+
+
+def _case(plant: str, effect: str | None, truth: dict, errors: dict, seed: int = 7, record_p2: bool = True):
+    return ForeignCase(f"t_{plant}_{effect}", plant, effect, truth, errors, "steps", record_p2, [seed, 0])
+
+
+# ------------------------------------------------------------------------------ boundary effects
+def test_fractional_delay_interpolates_between_whole_samples():
+    u = np.arange(10.0)
+    assert np.array_equal(fractional_delay(u, 0.2, 0.1), np.r_[0.0, 0.0, np.arange(8.0)])
+    d = fractional_delay(u, 0.25, 0.1)  # 2.5 samples: the mean of the samples 2 and 3 back
+    assert d[5] == pytest.approx(2.5)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_every_map_coordinate_set_is_monotone(seed):
+    rng = np.random.default_rng(seed)
+    values = dict(zip(("map_k1_in", "map_gap", "map_out_lo", "map_rise1", "map_rise2", "map_rise3"),
+                      rng.uniform(-3, 15, 6)))
+    u = np.linspace(-1, 11, 500)
+    assert np.all(np.diff(input_map(u, values, 0.0, 10.0)) >= 0.0)
+
+
+def test_identity_and_dead_band_maps():
+    u = np.linspace(0, 10, 101)
+    assert np.allclose(input_map(u, identity_map(0.0, 10.0), 0.0, 10.0), u)
+    m = input_map(u, dead_band_map(5.0, 1.2, 0.0, 10.0), 0.0, 10.0)
+    assert np.allclose(m[(u > 4.4) & (u < 5.6)], 5.0)  # inside the band: the centre
+    assert np.allclose(m[u >= 5.6], u[u >= 5.6] - 0.6) and np.allclose(m[u <= 4.4], u[u <= 4.4] + 0.6)
+    xs, _ = map_knots(dead_band_map(5.0, 1.2, 0.0, 10.0), 0.0, 10.0)
+    assert xs[1] == pytest.approx(4.4) and xs[2] == pytest.approx(5.6)
+
+
+def test_backlash_holds_within_the_play():
+    u = np.r_[np.linspace(0, 5, 51), np.linspace(5, 4, 11)]
+    out = backlash(u, 1.0)
+    assert out[50] == pytest.approx(4.5)
+    assert np.allclose(out[51:], 4.5)  # a 1-unit reversal stays inside the play
+
+
+# ------------------------------------------------------------------------------ the mapping
+def test_map_errors_name_the_file_and_key(fmus, tmp_path):
+    iface = read_interface(fmus["DcMotor"])
+    cols = ["t_s", "volts", "speed"]
+    cases = {
+        '[inputs]\nVx = "volts"\n[outputs]\nomega = "speed"\n': "has no Real input 'Vx'",
+        '[inputs]\nV = "missing"\n[outputs]\nomega = "speed"\n': "no column 'missing'",
+        '[inputs]\nV = { column = "volts", unit = "mV" }\n[outputs]\nomega = "speed"\n': "is in 'mV'",
+        '[inputs]\nV = "volts"\n[outputs]\nomega = "speed"\n[parameters]\nQ = 1\n': "no tunable or fixed Real parameter 'Q'",
+        'ts_s = -1\n[inputs]\nV = "volts"\n[outputs]\nomega = "speed"\n': "ts_s = -1",
+        '[inputs]\nV = "volts"\n': "[outputs] is missing",
+    }
+    for text, message in cases.items():
+        p = tmp_path / "map.toml"
+        p.write_text(text)
+        with pytest.raises(SignalMapError, match=r"map\.toml") as info:
+            read_signal_map(p, iface, cols)
+        assert message in str(info.value)
+
+
+# ------------------------------------------------------------------------------ diagnoses
+def test_delay_on_the_c_motor_is_named_and_fitted(fmus, tmp_path):
+    case = _case("DcMotor", "transport_delay[V]", {"V:delay_s": 0.15}, {"K": 0.1, "Tc": -0.15})
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    d, doc = diagnose_foreign(rec, fmus["DcMotor"], tmp_path / "out", map_path=m, echo=lambda s: None)
+    assert d.named == ["transport_delay[V]"]
+    delay = d.findings[0].parameters["V:delay_s"]
+    assert abs(delay - 0.15) < 0.01  # a fifth of a sample
+    assert d.fit_after_percent >= 95.0 and d.fit_before_percent < 95.0
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["calibrated_parameters.json", "diagnosis.json",
+                                                                     "overlay.png", "report.md"]
+    cal = json.loads((tmp_path / "out" / "calibrated_parameters.json").read_text())
+    assert cal["boundary_effects"]["V:delay_s"] == pytest.approx(delay)
+    assert doc["output"] == {"variable": "omega", "column": "meas", "unit": "rad/s"}
+
+
+def test_clean_thermal_recording_claims_nothing(fmus, tmp_path):
+    case = _case("ThermalTwoMass", None, {}, {"C1": 0.12, "G12": -0.1})
+    rec, m = record_foreign_case(case, fmus["ThermalTwoMass"], tmp_path / "rec")
+    d, _ = diagnose_foreign(rec, fmus["ThermalTwoMass"], tmp_path / "out", map_path=m, plots=False, echo=lambda s: None)
+    assert d.verdict in ("no_significant_mismatch", "calibration_only") and not d.named
+    assert d.fit_after_percent >= 99.0
+
+
+def test_unrecorded_second_input_is_found_as_a_secondary_input(fmus, tmp_path):
+    case = _case("ThermalTwoMass", "secondary_input[P2]", {"P2:change": 20.0, "P2:start_s": 400.0, "P2:end_s": 700.0},
+                 {"G1a": 0.1}, record_p2=False)
+    rec, m = record_foreign_case(case, fmus["ThermalTwoMass"], tmp_path / "rec")
+    d, _ = diagnose_foreign(rec, fmus["ThermalTwoMass"], tmp_path / "out", map_path=m, plots=False, echo=lambda s: None)
+    assert "secondary_input[P2]" in d.named
+    p = next(f.parameters for f in d.findings if f.effect == "secondary_input[P2]")
+    assert abs(p["P2:start_s"] - 400.0) < 20.0 and abs(p["P2:end_s"] - 700.0) < 20.0
+    assert abs(p["P2:change"] - 20.0) < 3.0
+
+
+def test_columns_matched_by_name_and_the_mapping_printed(fmus, tmp_path):
+    case = _case("DcMotor", None, {}, {})
+    rec, _ = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    text = rec.read_text().replace("time_s,V_rec,meas", "t_s,V,omega")
+    rec.write_text(text)
+    lines = []
+    d, doc = diagnose_foreign(rec, fmus["DcMotor"], tmp_path / "out", plots=False, echo=lines.append)
+    assert "input  V <- column V [V]" in "\n".join(lines) and "one simulation of the 3601-sample" in "\n".join(lines)
+    assert doc["mapping"]["source"] == "matched by name"
+    assert d.verdict in ("no_significant_mismatch", "calibration_only")
+
+
+def test_bad_inputs_fail_cleanly_and_leave_no_output(fmus, tmp_path):
+    case = _case("DcMotor", None, {}, {})
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    out = tmp_path / "out"
+    # a recording sampled otherwise than the map states
+    m2 = tmp_path / "m2.toml"
+    m2.write_text(m.read_text().replace("ts_s = 0.05", "ts_s = 0.1"))
+    with pytest.raises(SignalMapError, match="sampled every 0.05 s, but .*m2.toml states ts_s = 0.1 s"):
+        diagnose_foreign(rec, fmus["DcMotor"], out, map_path=m2, echo=lambda s: None)
+    # not an FMU
+    bad = tmp_path / "bad.fmu"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(ForeignFmuError, match="bad.fmu"):
+        diagnose_foreign(rec, bad, out, map_path=m, echo=lambda s: None)
+    # an FMU that cannot run the recording with the map's parameters (the C FMU refuses R <= 0)
+    m3 = tmp_path / "m3.toml"
+    m3.write_text(m.read_text() + "\n[parameters]\nR = -1.0\n")
+    with pytest.raises(ForeignFmuError, match="cannot re-simulate .* R = -1"):
+        diagnose_foreign(rec, fmus["DcMotor"], out, map_path=m3, echo=lambda s: None)
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+def test_parameters_the_fmu_cannot_run_raise_simulation_error_and_the_instance_recovers(fmus, tmp_path):
+    """The C motor returns fmi2Error when its state diverges (an electrical time constant L/R far below
+    its 0.5 ms internal step): the simulator names the parameters and the FMU's message, the
+    search turns that into a rejected candidate (or a large finite residual inside a fit), and the
+    next run works on a fresh instance."""
+    from tapmuscle.diagnosis.foreign_diagnose import prepare_foreign
+    from tapmuscle.diagnosis.fit_problem import SimulationError
+
+    case = _case("DcMotor", None, {}, {})
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    setup = prepare_foreign(rec, fmus["DcMotor"], map_path=m, echo=lambda s: None)
+    with pytest.raises(SimulationError, match=r"L = 1e-07"):
+        setup.sim.run(setup.nominal.with_values(L=1e-7))
+    y = setup.sim.run(setup.nominal)[0]  # the instance recovers: re-created after the failure
+    assert np.all(np.isfinite(y))
+    setup.sim.close()
+
+
+def test_cli_runs_a_foreign_fmu_and_reports_bad_map_without_traceback(fmus, tmp_path):
+    case = _case("DcMotor", "output_drift[omega]", {"omega:offset": 1.0, "omega:drift_per_min": 0.6}, {"J": 0.1})
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "diagnose", "--recording", str(rec), "--plant",
+                        str(fmus["DcMotor"]), "--map", str(m), "--out", str(tmp_path / "out"), "--quiet", "--no-plots"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "output_drift[omega]" in r.stdout and "one simulation of the 3601-sample recording" in r.stdout
+    doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    drift = next(f for f in doc["findings"] if f["effect"] == "output_drift[omega]")["parameters"]
+    assert math.isclose(drift["omega:drift_per_min"], 0.6, abs_tol=0.1)
+    m.write_text(m.read_text().replace('column = "meas"', 'column = "nope"'))
+    r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "diagnose", "--recording", str(rec), "--plant",
+                        str(fmus["DcMotor"]), "--map", str(m), "--out", str(tmp_path / "out2"), "--quiet"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert "no column 'nope'" in r.stderr and not (tmp_path / "out2").exists()
+
+
+def test_demo_cases_are_seeded_and_cover_both_fmus():
+    a, b = foreign_cases(16, 3), foreign_cases(16, 3)
+    assert a == b
+    assert {c.plant for c in a} == {"DcMotor", "ThermalTwoMass"}
+    assert sum(c.effect is None for c in a) == 4
