@@ -91,7 +91,7 @@ class BoundarySpace(ModelSpace):
             else:
                 scale = _scale(v.start)
                 self._off |= secondary_defaults(v.name)
-                self._bounds |= {f"{v.name}:change": (-10.0 * scale, 10.0 * scale),
+                self._bounds |= {f"{v.name}:change": (-math.inf, math.inf),
                                  f"{v.name}:start_s": (t0, t1), f"{v.name}:end_s": (t0, t1)}
                 self.joint_parameters[f"secondary_input[{v.name}]"] = ((f"{v.name}:change", 0.02 * scale),)
         self._off |= output_defaults(sim.output)
@@ -206,17 +206,18 @@ def _fit_secondary(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
     if base.value(kc) != 0.0:
         return None
     e = pr.y_mm - y_base
+    t0, t1 = float(pr.t_s[0]), float(pr.t_s[-1])
+    duration = t1 - t0
+    # Where: the windows the residual locates (which a slow plant shifts late), and a coarse grid of
+    # windows over the run. How much: the plant is nearly linear in a small change, so each window's
+    # best change is the least-squares multiple of its response to a unit change (two simulations).
     windows = []
     for level in WINDOW_LEVELS:
         wins = located_windows(e, pr.ts_s, noise_mm=pr.noise_mm, relative=level)
-        if wins:
-            w = max(wins, key=lambda w: float(np.sum(e[int(w[0] / pr.ts_s):int(w[1] / pr.ts_s) + 1] ** 2)))
-            if w not in windows:
-                windows.append(w)
-    t0 = float(pr.t_s[0])
-    windows = [(a + t0, b + t0) for a, b in windows] or [(t0, float(pr.t_s[-1]))]
-    lo_c, hi_c = BoundarySpace(pr.sim).bounds(kc)
-    scale = hi_c / 10.0
+        windows += [(a + t0, b + t0) for a, b in wins]
+    windows += [(t0 + f * duration, min(t1, t0 + (f + g) * duration)) for g in (0.1, 0.25, 0.5)
+                for f in np.arange(0.0, 1.0 - g / 2, g / 2)]
+    unit = _scale(pr.sim.interface.variable(var).start)
 
     def params(x: np.ndarray) -> ModelValues:
         return base.with_values(**{kc: float(x[0]), ka: float(x[1]), kb: float(max(x[1], x[2]))})
@@ -224,10 +225,24 @@ def _fit_secondary(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
     def cost(x: np.ndarray) -> float:
         r = pr.train_residual(pr.sim.run(params(x))[0])
         return float(r @ r)
-    changes = [s * scale * f for f in (0.05, 0.2) for s in (1.0, -1.0)]
-    _, c0, a0, b0 = min((cost(np.array([c, a, b])), c, a, b) for a, b in windows for c in changes)
-    x = _nelder_mead(cost, np.array([c0, a0, b0]), np.array([0.5 * c0, 3.0 * pr.block_s / 10.0, 3.0 * pr.block_s / 10.0]),
-                     np.array([lo_c, t0, t0]), np.array([hi_c, pr.t_s[-1], pr.t_s[-1]]), max_evals=40)
+    best = None
+    et = e[pr.train]
+    for a, b in dict.fromkeys(windows):
+        resp = (pr.sim.run(params(np.array([unit, a, b])))[0] - y_base)[pr.train] / unit
+        den = float(resp @ resp)
+        if den == 0.0:
+            continue
+        c = float(resp @ et) / den
+        r = et - c * resp
+        if best is None or float(r @ r) < best[0]:
+            best = (float(r @ r), c, a, b)
+    if best is None or best[1] == 0.0:
+        return None
+    _, c0, a0, b0 = best
+    lo_c, hi_c = BoundarySpace(pr.sim).bounds(kc)
+    step = max(pr.block_s / 4.0, 3.0 * pr.ts_s)
+    x = _nelder_mead(cost, np.array([c0, a0, b0]), np.array([0.2 * c0, step, step]),
+                     np.array([lo_c, t0, t0]), np.array([hi_c, t1, t1]), max_evals=40)
     p = params(x)
     if p.value(kc) == 0.0 or p.value(kb) <= p.value(ka):
         return None
