@@ -58,8 +58,8 @@ def _is_foreign(plant: str) -> bool:
     """Is ``plant`` an FMU other than tapmuscle's MusclePlant (read from its model description)?"""
     from tapmuscle.diagnosis.foreign_model import ForeignFmuError, read_interface
 
-    if not str(plant).lower().endswith(".fmu"):
-        return False
+    if not str(plant).lower().endswith(".fmu") or not os.path.isfile(plant):
+        return False  # the plant's own reader names what is wrong with it
     try:
         return read_interface(plant).model_name != "MusclePlant"
     except ForeignFmuError as exc:
