@@ -164,12 +164,12 @@ def test_parameters_the_fmu_cannot_run_raise_simulation_error_and_the_instance_r
     its 0.5 ms internal step): the simulator names the parameters and the FMU's message, the
     search turns that into a rejected candidate (or a large finite residual inside a fit), and the
     next run works on a fresh instance."""
-    from tapmuscle.diagnosis.foreign_diagnose import prepare_foreign
+    from tapmuscle.diagnosis.foreign_diagnose import ForeignSetup
     from tapmuscle.diagnosis.fit_problem import SimulationError
 
     case = _case("DcMotor", None, {}, {})
     rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
-    setup = prepare_foreign(rec, fmus["DcMotor"], map_path=m, echo=lambda s: None)
+    setup = ForeignSetup(rec, fmus["DcMotor"], map_path=m, echo=lambda s: None)
     with pytest.raises(SimulationError, match=r"L = 1e-07"):
         setup.sim.run(setup.nominal.with_values(L=1e-7))
     y = setup.sim.run(setup.nominal)[0]  # the instance recovers: re-created after the failure

@@ -42,12 +42,23 @@ from tapmuscle.diagnosis.model_space import ModelSpace
 from tapmuscle.diagnosis.residual_analysis import located_windows
 
 __all__ = ["BoundarySpace", "boundary_candidates", "calibration_parameters", "nominal_values", "effect_kind",
-           "DELAY_MAX_SAMPLES"]
+           "map_bounds", "DELAY_MAX_SAMPLES", "GAIN_BOUNDS"]
 
 #: Longest transport delay searched, in samples.
 DELAY_MAX_SAMPLES = 20
 #: Levels of the residual's moving RMS (fractions of its maximum) at which a secondary input's window is sought.
 WINDOW_LEVELS = (0.3, 0.5, 0.7)
+
+
+#: Bounds of a sensor gain [-].
+GAIN_BOUNDS = (0.2, 5.0)
+
+
+def map_bounds(lo: float, hi: float) -> tuple[tuple[float, float], ...]:
+    """Bounds of the map's coordinates (``MAP_FIELDS`` order) on the input range ``[lo, hi]``: knots
+    within the range, outputs within a span beyond it, rises up to twice the span."""
+    span = hi - lo
+    return ((lo, hi), (0.0, span), (lo - span, hi + span), (0.0, 2.0 * span), (0.0, 2.0 * span), (0.0, 2.0 * span))
 
 
 def effect_kind(name: str) -> tuple[str, str]:
@@ -79,10 +90,8 @@ class BoundarySpace(ModelSpace):
                 span = hi - lo
                 self._off |= input_defaults(v.name, lo, hi)
                 self._bounds |= {f"{v.name}:delay_s": (0.0, DELAY_MAX_SAMPLES * sim.ts_s),
-                                 f"{v.name}:backlash": (0.0, 0.5 * span),
-                                 f"{v.name}:map_k1_in": (lo, hi), f"{v.name}:map_gap": (0.0, span),
-                                 f"{v.name}:map_out_lo": (lo - span, hi + span)}
-                self._bounds |= {f"{v.name}:{k}": (0.0, 2.0 * span) for k in ("map_rise1", "map_rise2", "map_rise3")}
+                                 f"{v.name}:backlash": (0.0, 0.5 * span)}
+                self._bounds |= {f"{v.name}:{k}": b for k, b in zip(MAP_FIELDS, map_bounds(lo, hi))}
                 # the smooth boundary parameters are re-fitted jointly with the calibrated constants (a
                 # map's coordinates and a play move the prediction continuously)
                 self.joint_parameters[f"transport_delay[{v.name}]"] = ((f"{v.name}:delay_s", 0.2 * sim.ts_s),)
@@ -95,7 +104,7 @@ class BoundarySpace(ModelSpace):
                                  f"{v.name}:start_s": (t0, t1), f"{v.name}:end_s": (t0, t1)}
                 self.joint_parameters[f"secondary_input[{v.name}]"] = ((f"{v.name}:change", 0.02 * scale),)
         self._off |= output_defaults(sim.output)
-        self._bounds |= {f"{sim.output}:gain": (0.2, 5.0), f"{sim.output}:offset": (-math.inf, math.inf),
+        self._bounds |= {f"{sim.output}:gain": GAIN_BOUNDS, f"{sim.output}:offset": (-math.inf, math.inf),
                          f"{sim.output}:drift_per_min": (-math.inf, math.inf)}
 
     def bounds(self, key: str) -> tuple[float, float]:
@@ -192,8 +201,7 @@ def _fit_input_map(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
     if best is starts[0]:  # from the identity: a small dead band in the middle gives the knots room to move
         best = dead_band_map(0.5 * (lo + hi), 0.02 * span, lo, hi)
     start = base.with_values(**{f"{var}:{k}": v for k, v in best.items()})
-    space = BoundarySpace(pr.sim)
-    coords = [FittedParameter(k, 0.0, 0.05 * span, False, *space.bounds(k)) for k in keys]
+    coords = [FittedParameter(k, 0.0, 0.05 * span, False, *b) for k, b in zip(keys, map_bounds(lo, hi))]
     fit = fit_parameters(pr.fit_residual, start, coords, max(pr.noise_mm, 1e-12), max_iterations=30)
     values = {k: fit.values[k] for k in keys}
     if float(fit.residual @ fit.residual) >= float(r0 @ r0):
@@ -239,10 +247,9 @@ def _fit_secondary(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
     if best is None or best[1] == 0.0:
         return None
     _, c0, a0, b0 = best
-    lo_c, hi_c = BoundarySpace(pr.sim).bounds(kc)
     step = max(pr.block_s / 4.0, 3.0 * pr.ts_s)
     x = _nelder_mead(cost, np.array([c0, a0, b0]), np.array([0.2 * c0, step, step]),
-                     np.array([lo_c, t0, t0]), np.array([hi_c, t1, t1]), max_evals=40)
+                     np.array([-math.inf, t0, t0]), np.array([math.inf, t1, t1]), max_evals=40)
     p = params(x)
     if p.value(kc) == 0.0 or p.value(kb) <= p.value(ka):
         return None
@@ -270,8 +277,7 @@ def _fit_output_gain(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var:
     if den == 0.0:
         return None
     a = float(raw[pr.train] @ e[pr.train]) / den
-    lo, hi = BoundarySpace(pr.sim).bounds(f"{var}:gain")
-    g = min(max(1.0 + a, lo), hi)
+    g = min(max(1.0 + a, GAIN_BOUNDS[0]), GAIN_BOUNDS[1])
     return FitResult({f"{var}:gain": g}, y_base + (g - 1.0) * raw)
 
 
@@ -321,9 +327,7 @@ def boundary_candidates(sim: ForeignSimulator) -> list[Candidate]:
                 Candidate(f"input_map[{v.name}]", f"The actuator's static characteristic for {v.name} differs "
                           "from the model's: a dead band anywhere, a gain or offset error, a saturation (a "
                           "monotone piecewise-linear map of the input).",
-                          tuple(ParameterSpec(f"{v.name}:{k}", unit, *sim_bounds) for k, sim_bounds in
-                                zip(MAP_FIELDS, ((lo, hi), (0.0, hi - lo), (2 * lo - hi, 2 * hi - lo),
-                                                 (0.0, 2 * (hi - lo)), (0.0, 2 * (hi - lo)), (0.0, 2 * (hi - lo))))),
+                          tuple(ParameterSpec(f"{v.name}:{k}", unit, *b) for k, b in zip(MAP_FIELDS, map_bounds(lo, hi))),
                           "Dead-band and identity starts, then bounded least squares on the map's six coordinates.",
                           partial(_fit_input_map, var=v.name), partial(_explain_map, var=v.name, lo=lo, hi=hi)),
                 Candidate(f"input_backlash[{v.name}]", f"Play between the recorded {v.name} and what the plant "
@@ -352,7 +356,7 @@ def boundary_candidates(sim: ForeignSimulator) -> list[Candidate]:
                   partial(_fit_output_drift, var=y), partial(_explain_drift, var=y, unit=unit)),
         Candidate(f"output_gain[{y}]", f"The sensor of {y} has a gain error: the reading is a constant multiple of "
                   "the value.",
-                  (ParameterSpec(f"{y}:gain", "-", 0.2, 5.0),),
+                  (ParameterSpec(f"{y}:gain", "-", *GAIN_BOUNDS),),
                   "Linear least squares of the residual on the prediction; no simulation.",
                   partial(_fit_output_gain, var=y), partial(_explain_gain, var=y)),
     ]

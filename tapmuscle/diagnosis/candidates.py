@@ -45,8 +45,8 @@ from scipy import optimize
 from scipy.interpolate import CubicSpline
 
 from fmu_plant import PlantParams
-from fmu_plant.effect_library import backlash_operator
 
+from tapmuscle.diagnosis.boundary_effects import backlash
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
 from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
 from tapmuscle.diagnosis.residual_analysis import located_windows
@@ -132,16 +132,6 @@ def _fit_sensor_drift(pr: Problem, base: PlantParams, y_base: np.ndarray) -> Fit
     return FitResult(values, y_base + offset + rate * pr.t_s)
 
 
-def _backlash_apply(y: np.ndarray, slack: float) -> np.ndarray:
-    out = np.empty_like(y)
-    half = 0.5 * slack
-    state = float(y[0])
-    for k, x in enumerate(y.tolist()):
-        state = backlash_operator(x, state, half)
-        out[k] = state
-    return out
-
-
 def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
     if base.value("backlash.slack_mm") > 0:
         return None  # already in the base model
@@ -149,14 +139,14 @@ def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     core = y_base - drift  # the backlash acts before the encoder's drifting zero
 
     def cost(s):
-        r = pr.train_residual(_backlash_apply(core, s) + drift)
+        r = pr.train_residual(backlash(core, s) + drift)
         return float(r @ r)
     grid = np.linspace(0.0, 6.0, 25)
     s0 = grid[int(np.argmin([cost(s) for s in grid]))]
     res = optimize.minimize_scalar(cost, bounds=(max(0.0, s0 - 0.25), s0 + 0.25), method="bounded",
                                    options={"xatol": 1e-3})
     s = float(res.x)
-    return FitResult({"backlash.slack_mm": s}, _backlash_apply(core, s) + drift)
+    return FitResult({"backlash.slack_mm": s}, backlash(core, s) + drift)
 
 
 def _fit_transport_delay(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:

@@ -16,7 +16,6 @@ values named ``*_mm`` are in the diagnosed output's unit, stated in ``output``),
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import tempfile
 import time
@@ -26,17 +25,16 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from tapmuscle.io.recording import atomic_write_text, read_columns
-from tapmuscle.plots.figures import plt, save_figure
 
 from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_candidates, calibration_parameters,
                                                      nominal_values)
 from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose_with, validated_recording
 from tapmuscle.diagnosis.fit_problem import SimulationError
 from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator, read_interface
-from tapmuscle.diagnosis.report import summary_lines
+from tapmuscle.diagnosis.report import overlay_figure, summary_lines
 from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
 
-__all__ = ["diagnose_foreign", "prepare_foreign", "ForeignSetup", "FOREIGN_OUTPUT_FILES", "FIT_SEGMENT_SAMPLES"]
+__all__ = ["diagnose_foreign", "ForeignSetup", "FOREIGN_OUTPUT_FILES", "FIT_SEGMENT_SAMPLES"]
 
 #: Default fit segment: the whole recording, up to this many samples (the fits' simulations are the
 #: cost, and a foreign plant's time constants are unknown: a long segment is safe, a short one may not
@@ -109,12 +107,6 @@ class ForeignSetup:
              f"{iface.model_name}: {self.simulation_s:.3f} s")
 
 
-def prepare_foreign(recording: str | Path, plant: str | Path, **options: Any) -> ForeignSetup:
-    """:class:`ForeignSetup` of a recording file and an FMU file (``map_path``, ``output``, ``block_s``,
-    ``echo``)."""
-    return ForeignSetup(recording, plant, **options)
-
-
 def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, *, map_path: str | Path | None = None,
                      output: str | None = None, block_s: float = 10.0, fit_segment_s: float | None = None,
                      effects: Sequence[str] | None = None, calibrate: bool = True, plots: bool = True,
@@ -156,7 +148,7 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
     ForeignFmuError, SignalMapError, tapmuscle.io.recording.RecordingError, ValueError
         Each naming the file, key, column or variable at fault; nothing is written then.
     """
-    setup = prepare_foreign(recording, plant, map_path=map_path, output=output, block_s=block_s, echo=echo)
+    setup = ForeignSetup(recording, plant, map_path=map_path, output=output, block_s=block_s, echo=echo)
     cands = setup.candidates
     if effects is not None:
         known = {c.name: c for c in cands}
@@ -215,28 +207,6 @@ def _report(d: Diagnosis, setup: ForeignSetup, doc: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _figure(d: Diagnosis, setup: ForeignSetup, path: Path) -> None:
-    t, unit, name = d.t_s, setup.output.unit or "", setup.output.variable
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
-    a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
-    a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"FMU before ({d.fit_before_percent:.2f} %)")
-    if d.y_calibrated_mm is not None:
-        a1.plot(t, d.y_calibrated_mm, color="tab:green", lw=0.9, ls="-.",
-                label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
-    a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"FMU after ({d.fit_after_percent:.2f} %)")
-    a1.set(ylabel=f"{name} [{unit}]", title=f"{setup.interface.model_name}: {', '.join(d.named) or d.verdict} "
-                                             "(held-out fit in brackets)")
-    a1.legend(loc="upper right", fontsize=8)
-    a1.grid(alpha=0.3)
-    held = np.where(d.test, 1.0, np.nan)
-    a2.plot(t, (d.y_mm - d.y_before_mm) * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
-    a2.plot(t, (d.y_mm - d.y_after_mm) * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
-    a2.set(xlabel="time [s]", ylabel=f"residual [{unit}]")
-    a2.legend(loc="upper right", fontsize=8)
-    a2.grid(alpha=0.3)
-    save_figure(fig, path)
-
-
 def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[str, Any]:
     doc = d.to_json()
     doc = {k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")} | {
@@ -247,12 +217,14 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False, default=_plain) + "\n")
+        atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
         atomic_write_text(tmp / "calibrated_parameters.json",
                           json.dumps(_calibrated_file(d, setup), indent=2, allow_nan=False) + "\n")
         atomic_write_text(tmp / "report.md", _report(d, setup, doc))
         if plots:
-            _figure(d, setup, tmp / "overlay.png")
+            overlay_figure(d, tmp / "overlay.png", quantity=setup.output.variable, unit=setup.output.unit or "-",
+                           model="FMU", title=f"{setup.interface.model_name}: {', '.join(d.named) or d.verdict} "
+                                              "(held-out fit in brackets)")
         if out.exists():
             old = out.with_name(f".{out.name}.old")
             shutil.rmtree(old, ignore_errors=True)
@@ -265,10 +237,3 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return doc
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, (np.floating, np.integer)):
-        v = value.item()
-        return v if not isinstance(v, float) or math.isfinite(v) else None
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")

@@ -16,6 +16,7 @@ and a simulator with ``run`` / ``run_many``. The rest it asks a :class:`ModelSpa
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from typing import Any, Iterable, Mapping
 
 from fmu_plant import PlantParams
@@ -41,7 +42,7 @@ def sensor_noise_mm(model: PlantParams) -> float:
     return math.sqrt(sp.encoder_noise_std_mm ** 2 + sp.encoder_resolution_mm ** 2 / 12.0)
 
 
-class ModelSpace:
+class ModelSpace(ABC):
     """The model family's answers to the search (module docstring). Subclasses must pickle (the
     search sends them to worker processes)."""
 
@@ -50,13 +51,13 @@ class ModelSpace:
     """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
     constant's MAP estimate, for models whose constants the data pin only in combinations."""
 
+    @abstractmethod
     def bounds(self, key: str) -> tuple[float, float]:
         """``(lo, hi)`` of parameter ``key``."""
-        raise NotImplementedError
 
+    @abstractmethod
     def off_values(self, keys: Iterable[str]) -> dict[str, float]:
         """Each of ``keys`` (an effect's parameters) at its "off" value."""
-        raise NotImplementedError
 
     def sensor_noise(self, model: Any) -> float | None:
         """The output noise level the model states (None: unknown, the residual's own level is used)."""

@@ -22,7 +22,7 @@ from tapmuscle.diagnosis.experiment_design import design_input, write_experiment
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
-__all__ = ["diagnose_files", "write_outputs", "summary_lines", "OUTPUT_FILES", "EXPERIMENT_FILE"]
+__all__ = ["diagnose_files", "write_outputs", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE"]
 
 #: What ``write_outputs`` writes (figures only with ``plots=True``).
 OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residual.png", "overlay.png",
@@ -156,6 +156,29 @@ def _shade(ax, d: Diagnosis) -> None:
                        label=f"located: {f.effect}" if j == 0 else None)
 
 
+def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title: str, model: str = "model") -> None:
+    """The recording against the model before, calibrated and after (held-out fits in the legend), and
+    the held-out residuals before and after: ``overlay.png``."""
+    t = d.t_s
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
+    a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"{model} before ({d.fit_before_percent:.2f} %)")
+    if d.y_calibrated_mm is not None:
+        a1.plot(t, d.y_calibrated_mm, color="tab:green", lw=0.9, ls="-.",
+                label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
+    a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"{model} after ({d.fit_after_percent:.2f} %)")
+    a1.set(ylabel=f"{quantity} [{unit}]", title=title)
+    a1.legend(loc="upper right", fontsize=8)
+    a1.grid(alpha=0.3)
+    held = np.where(d.test, 1.0, np.nan)
+    a2.plot(t, (d.y_mm - d.y_before_mm) * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
+    a2.plot(t, (d.y_mm - d.y_after_mm) * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
+    a2.set(xlabel="time [s]", ylabel=f"residual [{unit}]")
+    a2.legend(loc="upper right", fontsize=8)
+    a2.grid(alpha=0.3)
+    save_figure(fig, path)
+
+
 def _figures(d: Diagnosis, out: Path, title: str) -> None:
     t = d.t_s
     e0, e1 = d.y_mm - d.y_before_mm, d.y_mm - d.y_after_mm
@@ -171,23 +194,8 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     ax.grid(alpha=0.3)
     save_figure(fig, out / "residual.png")
 
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
-    a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
-    a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"model before ({d.fit_before_percent:.2f} %)")
-    if d.y_calibrated_mm is not None:
-        a1.plot(t, d.y_calibrated_mm, color="tab:green", lw=0.9, ls="-.",
-                label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
-    a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"model after ({d.fit_after_percent:.2f} %)")
-    a1.set(ylabel="displacement l [mm]", title=f"{title}: before / after (held-out fit in brackets)")
-    a1.legend(loc="upper right", fontsize=8)
-    a1.grid(alpha=0.3)
-    held = np.where(d.test, 1.0, np.nan)
-    a2.plot(t, e0 * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
-    a2.plot(t, e1 * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
-    a2.set(xlabel="time [s]", ylabel="residual [mm]")
-    a2.legend(loc="upper right", fontsize=8)
-    a2.grid(alpha=0.3)
-    save_figure(fig, out / "overlay.png")
+    overlay_figure(d, out / "overlay.png", quantity="displacement l", unit="mm",
+                   title=f"{title}: before / after (held-out fit in brackets)")
 
     fig, ax = plt.subplots(figsize=(6, 5))
     ax.plot(d.u_v, d.y_mm, color="k", lw=0.8, label="recording")
