@@ -159,7 +159,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "(docs/diagnosis.md).")
     dia.add_argument("--recording", required=True, help="recording CSV (docs/recordings.md): t_s,u_v,l_mm[,load_n,p_mpa]")
     dia.add_argument("--plant", required=True,
-                     help="a MusclePlant .fmu or a plant parameter .json; or any FMI 2.0 co-simulation FMU "
+                     help="a MusclePlant .fmu or a plant parameter .json; or any FMI 2.0 FMU (co-simulation, or model "
+                          "exchange integrated by CVode) "
                           "(boundary effects and calibration of its parameters, docs/diagnosis.md)")
     dia.add_argument("--map", default=None,
                      help="foreign FMU: MAP.toml saying which columns drive which inputs and which are measured "

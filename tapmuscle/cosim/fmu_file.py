@@ -5,7 +5,8 @@ process with SIGBUS before Python can say anything (and leaves its extraction fo
 :func:`check_fmu_file`, before the first extraction of a file,
 
 1. tests the zip archive (reads every member: its CRC and its compressed stream);
-2. checks that ``modelDescription.xml`` is there and the co-simulation binary for this platform
+2. checks that ``modelDescription.xml`` is there and the binary for this platform (co-simulation's,
+   else model exchange's)
    exists, is an ELF file of the right class, and is not shorter than its own header says (its
    section-header table ends within the file);
 3. loads the binary once in a *child* process (``ctypes.CDLL``), with a time limit.
@@ -81,7 +82,8 @@ def _load_in_child(binaries: dict[str, bytes], main: str) -> str | None:
 
 
 def check_fmu_file(path: str | Path) -> None:
-    """Raise ScenarioError unless ``path`` is an FMU whose co-simulation binary loads (module docstring).
+    """Raise ScenarioError unless ``path`` is an FMU whose binary loads: its co-simulation binary, or
+    its model-exchange one when it offers only that (module docstring).
 
     Parameters
     ----------
@@ -113,11 +115,12 @@ def check_fmu_file(path: str | Path) -> None:
                 md = read_model_description(str(path))
             except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU
                 raise ScenarioError(f"{where} {str(exc).splitlines()[0][:200]}") from None
-            if md.coSimulation is None:
-                raise ScenarioError(f"{where} it is not a co-simulation FMU")
+            interface = md.coSimulation or md.modelExchange
+            if interface is None:
+                raise ScenarioError(f"{where} it offers neither co-simulation nor model exchange")
             ext = {"linux64": ".so", "darwin64": ".dylib", "win64": ".dll"}[_platform_folder()]
             folder = f"binaries/{_platform_folder()}/"
-            member = f"{folder}{md.coSimulation.modelIdentifier}{ext}"
+            member = f"{folder}{interface.modelIdentifier}{ext}"
             if member not in names:
                 raise ScenarioError(f"{where} it has no {member} for this platform")
             binaries = {n[len(folder):]: z.read(n) for n in names

@@ -180,15 +180,17 @@ def _reason(message: str) -> str:
 
 
 class FmuInstance:
-    """An fmpy ``FMU2Slave`` with a logger that keeps the FMU's messages (to name them in errors).
+    """An fmpy ``FMU2Slave`` (or, with ``model_exchange=True``, an ``FMU2Model``) with a logger that
+    keeps the FMU's messages (to name them in errors).
 
     Lifecycle as FMI's: construct (instantiate, setup experiment, enter initialization), set
     parameters and initial inputs, :meth:`start` (exit initialization), then ``set``/``do_step``/
-    ``get``; :meth:`free` at the end.
+    ``get``; :meth:`free` at the end. A model-exchange instance is in event mode after :meth:`start`;
+    :class:`tapmuscle.cosim.model_exchange.ModelExchangeStepper` steps it.
     """
 
-    def __init__(self, path: str | Path, instance_name: str, *, role: str) -> None:
-        from fmpy.fmi2 import FMU2Slave
+    def __init__(self, path: str | Path, instance_name: str, *, role: str, model_exchange: bool = False) -> None:
+        from fmpy.fmi2 import FMU2Model, FMU2Slave
 
         self.unpacked = unpack(path)
         self.role = role
@@ -198,8 +200,12 @@ class FmuInstance:
         instance_name = f"{instance_name}#{next(_INSTANCE_COUNTER)}"  # unique: messages are routed by name
         _LOG_SINKS[instance_name] = self.messages
         self._name = instance_name
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=self.unpacked.folder,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=instance_name)
+        kind, interface = (FMU2Model, md.modelExchange) if model_exchange else (FMU2Slave, md.coSimulation)
+        if interface is None:
+            raise ScenarioError(f"{self.unpacked.path}: {md.modelName} has no "
+                                f"{'model-exchange' if model_exchange else 'co-simulation'} interface")
+        self.fmu = kind(guid=md.guid, unzipDirectory=self.unpacked.folder,
+                        modelIdentifier=interface.modelIdentifier, instanceName=instance_name)
         self._call("instantiate", lambda: self.fmu.instantiate(callbacks=_callbacks(), loggingOn=True))
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()

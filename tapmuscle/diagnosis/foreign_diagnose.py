@@ -104,7 +104,7 @@ class ForeignSetup:
         self.simulation_s = time.perf_counter() - t0
         self.sim.runs = 0
         echo(f"one simulation of the {len(t)}-sample recording ({(len(t) - 1) * ts:g} s) through "
-             f"{iface.model_name}: {self.simulation_s:.3f} s")
+             f"{iface.model_name} ({iface.kind}): {self.simulation_s:.3f} s")
 
 
 def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, *, map_path: str | Path | None = None,
@@ -119,7 +119,8 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
     recording : path
         CSV in the recording format (any column names; docs/recordings.md).
     plant : path
-        An FMI 2.0 co-simulation FMU.
+        An FMI 2.0 FMU: co-simulation, or (when it offers only that) model exchange, integrated
+        between samples by CVode with the inputs held (slower: about 9x for the DC motor).
     out : path
         Output folder (replaced as a whole at the end).
     map_path : path, optional
@@ -184,7 +185,9 @@ def _calibrated_file(d: Diagnosis, setup: ForeignSetup) -> dict[str, Any]:
 def _report(d: Diagnosis, setup: ForeignSetup, doc: dict[str, Any]) -> str:
     unit = setup.output.unit or "(unit)"
     lines = [f"# Diagnosis of {setup.interface.model_name} against {Path(setup.recording).name}", "",
-             f"- FMU: `{setup.plant}`; recording: `{setup.recording}` ({len(setup.t)} samples, Ts {setup.ts:g} s)",
+             f"- FMU: `{setup.plant}` ({setup.interface.kind}"
+             f"{', integrated between samples by CVode' if setup.interface.model_exchange else ''}); "
+             f"recording: `{setup.recording}` ({len(setup.t)} samples, Ts {setup.ts:g} s)",
              f"- diagnosed output: `{setup.output.variable}` (column `{setup.output.column}`, {unit}); values "
              f"named `*_mm` in diagnosis.json are in {unit}",
              f"- one simulation of the recording: {setup.simulation_s:.3f} s; the diagnosis ran {d.simulations} in "
@@ -211,6 +214,7 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
     doc = d.to_json()
     doc = {k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")} | {
         "recording": setup.recording, "plant": setup.plant, "model": setup.interface.model_name,
+        "fmi_interface": setup.interface.kind,
         "output": {"variable": setup.output.variable, "column": setup.output.column, "unit": setup.output.unit},
         "mapping": setup.map.to_json(), "simulation_s": round(setup.simulation_s, 4)} | {
         k: v for k, v in doc.items() if k not in ("verdict", "fit_before_percent", "fit_after_percent", "findings")}

@@ -1,5 +1,6 @@
-"""Any FMI 2.0 co-simulation FMU as the plant of a diagnosis: its interface, its parameter sets, and
-the re-simulation of a recording through it with boundary effects added by the master.
+"""Any FMI 2.0 FMU (co-simulation, or model exchange integrated by CVode) as the plant of a
+diagnosis: its interface, its parameter sets, and the re-simulation of a recording through it with
+boundary effects added by the master.
 
 * :class:`FmuInterface`: the Real inputs, outputs and parameters the model description declares
   (start value, bounds, unit).
@@ -9,7 +10,9 @@ the re-simulation of a recording through it with boundary effects added by the m
   calibration and the search work on it unchanged.
 * :class:`ForeignSimulator`: runs the recording through the FMU (one instance, reset between runs)
   with a parameter set; what :class:`tapmuscle.diagnosis.simulation.Simulator` is for the
-  tapmuscle plant.
+  tapmuscle plant. An FMU that offers co-simulation is stepped by its own solver; one that offers
+  only model exchange is integrated between samples by fmpy's CVode
+  (:class:`tapmuscle.cosim.model_exchange.ModelExchangeStepper`), with the inputs held.
 
 Sampling as in every recording: row ``k`` holds the output at ``t_k`` and the inputs held over
 ``[t_k, t_{k+1})``; the FMU is initialised with the first inputs set, and its time 0 is the
@@ -27,6 +30,7 @@ from typing import Any, Iterator, Mapping, Sequence
 import numpy as np
 
 from tapmuscle.cosim.master import FmuInstance, unpack
+from tapmuscle.cosim.model_exchange import ModelExchangeStepper
 from tapmuscle.cosim.spec import ScenarioError
 from tapmuscle.diagnosis.boundary_effects import apply_input_effects, apply_output_effects, window_profile
 from tapmuscle.diagnosis.fit_problem import SimulationError
@@ -35,8 +39,8 @@ __all__ = ["FmuVariable", "FmuInterface", "ModelValues", "ForeignSimulator", "re
 
 
 class ForeignFmuError(ValueError):
-    """An FMU the diagnosis cannot use (unreadable, no co-simulation, fails to instantiate or to run
-    with its own start values); the message names the file and the reason."""
+    """An FMU the diagnosis cannot use (unreadable, neither co-simulation nor model exchange, fails to
+    instantiate or to run with its own start values); the message names the file and the reason."""
 
 
 @dataclass(frozen=True)
@@ -54,7 +58,8 @@ class FmuVariable:
 
 @dataclass(frozen=True)
 class FmuInterface:
-    """What the model description declares: Real inputs, outputs and parameters."""
+    """What the model description declares: Real inputs, outputs and parameters, and whether the
+    FMU is run through model exchange (it offers no co-simulation)."""
 
     path: Path
     model_name: str
@@ -62,6 +67,12 @@ class FmuInterface:
     outputs: tuple[FmuVariable, ...]
     parameters: tuple[FmuVariable, ...]
     default_step_s: float | None
+    model_exchange: bool = False
+
+    @property
+    def kind(self) -> str:
+        """``"co-simulation"`` or ``"model exchange"``: how the diagnosis runs the FMU."""
+        return "model exchange" if self.model_exchange else "co-simulation"
 
     def variable(self, name: str) -> FmuVariable:
         for v in self.inputs + self.outputs + self.parameters:
@@ -71,8 +82,8 @@ class FmuInterface:
 
 
 def read_interface(path: str | Path) -> FmuInterface:
-    """The :class:`FmuInterface` of the FMU file ``path``; :class:`ForeignFmuError` naming the file if it
-    cannot be read or has no co-simulation interface."""
+    """The :class:`FmuInterface` of the FMU file ``path`` (co-simulation when offered, else model
+    exchange); :class:`ForeignFmuError` naming the file if it cannot be read or offers neither."""
     path = Path(path)
     if not path.is_file():
         raise ForeignFmuError(f"--plant {path}: no such FMU file")
@@ -82,9 +93,8 @@ def read_interface(path: str | Path) -> FmuInterface:
         raise ForeignFmuError(f"--plant {exc}") from None
     if md.fmiVersion != "2.0":
         raise ForeignFmuError(f"--plant {path}: FMI {md.fmiVersion}; the diagnosis runs FMI 2.0 FMUs")
-    if md.coSimulation is None:
-        raise ForeignFmuError(f"--plant {path}: {md.modelName} has no co-simulation interface (model exchange "
-                              "only); export it for co-simulation")
+    if md.coSimulation is None and md.modelExchange is None:
+        raise ForeignFmuError(f"--plant {path}: {md.modelName} offers neither co-simulation nor model exchange")
 
     def real(v: Any) -> FmuVariable:
         dt = v.declaredType
@@ -100,7 +110,8 @@ def read_interface(path: str | Path) -> FmuInterface:
                         tuple(real(v) for v in reals if v.causality == "input"),
                         tuple(real(v) for v in reals if v.causality == "output"),
                         tuple(real(v) for v in reals if v.causality == "parameter"
-                              and v.variability in ("fixed", "tunable")), step)
+                              and v.variability in ("fixed", "tunable")), step,
+                        model_exchange=md.coSimulation is None)
 
 
 @dataclass(frozen=True)
@@ -180,7 +191,8 @@ class ForeignSimulator:
             except ScenarioError:
                 self.close()
         try:
-            self._instance = FmuInstance(self.interface.path, "diagnose.foreign", role="foreign plant")
+            self._instance = FmuInstance(self.interface.path, "diagnose.foreign", role="foreign plant",
+                                         model_exchange=self.interface.model_exchange)
         except ScenarioError as exc:
             raise ForeignFmuError(f"--plant {self.interface.path}: cannot instantiate: {exc}") from None
         return self._instance
@@ -242,12 +254,19 @@ class ForeignSimulator:
             vr_out = (ctypes.c_uint * 1)(self.interface.variable(self.output).value_reference)
             got = (ctypes.c_double * 1)()
             comp = fmu.component
-            set_real, get_real, do_step = fmu.fmi2SetReal, fmu.fmi2GetReal, fmu.fmi2DoStep
+            set_real, get_real = fmu.fmi2SetReal, fmu.fmi2GetReal
             nin = u.shape[1]
             if nin:
                 buf[:] = u[0].tolist()
                 set_real(comp, vr_in, nin, buf)
             inst.start()
+            if self.interface.model_exchange:
+                step = ModelExchangeStepper(fmu, inst.unpacked.model_description, 0.0).do_step
+            else:
+                do_step = fmu.fmi2DoStep
+
+                def step(t: float, h: float) -> None:
+                    do_step(comp, t, h, 1)
             y = np.empty(n)
             get_real(comp, vr_out, 1, got)
             y[0] = got[0]
@@ -257,12 +276,14 @@ class ForeignSimulator:
                 if nin:
                     buf[:] = rows[k]
                     set_real(comp, vr_in, nin, buf)
-                do_step(comp, k * ts, ts, 1)
+                step(k * ts, ts)
                 get_real(comp, vr_out, 1, got)
                 y[k + 1] = got[0]
-        except Exception as exc:  # noqa: BLE001 - fmpy raises FMICallException; the instance is reset or re-made
+        except Exception as exc:  # noqa: BLE001 - FMICallException, ModelExchangeError; the instance is re-made
+            logged = [m for m in inst.messages[-2:] if str(exc) not in m]
             self.close()
-            raise SimulationError(f"{self.interface.model_name} with {_short(values)}: {exc}") from None
+            said = f" (the FMU logged: {'; '.join(logged)})" if logged else ""
+            raise SimulationError(f"{self.interface.model_name} with {_short(values)}: {exc}{said}") from None
         bad = np.nonzero(~np.isfinite(y))[0]
         if bad.size:
             raise SimulationError(f"{self.interface.model_name} with {_short(values)}: output {self.output} is "

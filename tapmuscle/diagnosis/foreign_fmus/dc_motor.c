@@ -1,4 +1,5 @@
-/* DcMotor: an FMI 2.0 co-simulation FMU of a DC motor with Coulomb friction, written by hand in C.
+/* DcMotor: an FMI 2.0 FMU of a DC motor with Coulomb friction, written by hand in C; co-simulation
+ * and model exchange from one binary (the model description says which interfaces are offered).
  *
  * It is a "foreign" plant for `tapmuscle diagnose`: nothing here comes from tapmuscle's FMU build.
  * tapmuscle/diagnosis/foreign_fmus/dc_motor.py compiles this file and writes modelDescription.xml;
@@ -13,6 +14,9 @@
  *
  * fmi2DoStep integrates with classic RK4 on at most 0.5 ms substeps: the electrical time constant
  * L/R is 5 ms with the default parameters, so the substep stays well inside RK4's stability region.
+ * In model exchange the host integrates: the states are (i, omega, theta), their derivatives are
+ * the variables der(i), der(omega), der(theta), and there are no events (no event indicators, no
+ * time events).
  * Errors are always reported through the host's logger, whatever fmi2SetDebugLogging said.
  */
 
@@ -46,18 +50,23 @@ enum {
     VR_B,
     VR_TC,
     VR_OMEGA_S,
+    VR_DER_I,
+    VR_DER_OMEGA,
+    VR_DER_THETA,
     N_VARIABLES
 };
 
 static const char *const VARIABLE_NAMES[N_VARIABLES] = {
-    "V", "omega", "i", "theta", "R", "L", "K", "J", "b", "Tc", "omega_s"};
+    "V", "omega", "i", "theta", "R", "L", "K", "J", "b", "Tc", "omega_s", "der(i)", "der(omega)", "der(theta)"};
 
 enum { X_I = 0, X_OMEGA, X_THETA, N_STATES };
 
 typedef enum {
     MODE_INSTANTIATED,
     MODE_INITIALIZATION,
-    MODE_STEP_COMPLETE,
+    MODE_STEP_COMPLETE, /* co-simulation: between fmi2DoStep calls */
+    MODE_EVENT,         /* model exchange: event mode */
+    MODE_CONTINUOUS,    /* model exchange: continuous-time mode */
     MODE_TERMINATED,
     MODE_ERROR
 } Mode;
@@ -87,6 +96,7 @@ typedef struct {
     char *instanceName;
     fmi2CallbackLogger logger;
     fmi2ComponentEnvironment environment;
+    fmi2Type type;
     int categoryOn[N_CATEGORIES];
 } Instance;
 
@@ -170,6 +180,11 @@ static void rk4_step(const ModelData *m, double x[N_STATES], double dt) {
 }
 
 static double get_value(const ModelData *m, fmi2ValueReference vr) {
+    double dx[N_STATES];
+    if (vr >= VR_DER_I) {
+        derivatives(m, m->x, dx);
+        return dx[vr - VR_DER_I];
+    }
     switch (vr) {
         case VR_V: return m->V;
         case VR_OMEGA: return m->x[X_OMEGA];
@@ -183,6 +198,7 @@ static double get_value(const ModelData *m, fmi2ValueReference vr) {
 static const char *value_problem(const Instance *inst, fmi2ValueReference vr, double value) {
     if (vr >= N_VARIABLES) return "is not a value reference of DcMotor";
     if (vr >= VR_OMEGA && vr <= VR_THETA) return "is an output and cannot be set";
+    if (vr >= VR_DER_I) return "is a state derivative and cannot be set";
     if (!isfinite(value)) return "must be finite";
     if (vr == VR_V) {
         if (inst->m.mode == MODE_TERMINATED || inst->m.mode == MODE_ERROR)
@@ -264,9 +280,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         log_instantiate_error(functions, instanceName, "fmi2Instantiate: missing instanceName");
         return NULL;
     }
-    if (fmuType != fmi2CoSimulation) {
-        log_instantiate_error(functions, instanceName,
-                              "fmi2Instantiate: DcMotor is a co-simulation FMU only (fmuType = %d)", (int)fmuType);
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        log_instantiate_error(functions, instanceName, "fmi2Instantiate: unknown fmuType %d", (int)fmuType);
         return NULL;
     }
     if (fmuGUID == NULL || strcmp(fmuGUID, DC_MOTOR_GUID) != 0) {
@@ -286,6 +301,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     strcpy(inst->instanceName, instanceName);
     inst->logger = functions->logger;
     inst->environment = functions->componentEnvironment;
+    inst->type = fmuType;
     for (j = 0; j < N_CATEGORIES; j++) inst->categoryOn[j] = loggingOn ? 1 : 0;
     set_defaults(&inst->m);
     return inst;
@@ -330,14 +346,17 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     Instance *inst = (Instance *)c;
     if (inst == NULL) return fmi2Error;
     if (wrong_mode(inst, "fmi2ExitInitializationMode", inst->m.mode == MODE_INITIALIZATION)) return fmi2Error;
-    inst->m.mode = MODE_STEP_COMPLETE; /* the states start at rest: i = omega = theta = 0 */
+    /* the states start at rest: i = omega = theta = 0 */
+    inst->m.mode = inst->type == fmi2CoSimulation ? MODE_STEP_COMPLETE : MODE_EVENT;
     return fmi2OK;
 }
 
 fmi2Status fmi2Terminate(fmi2Component c) {
     Instance *inst = (Instance *)c;
     if (inst == NULL) return fmi2Error;
-    if (wrong_mode(inst, "fmi2Terminate", inst->m.mode == MODE_STEP_COMPLETE)) return fmi2Error;
+    if (wrong_mode(inst, "fmi2Terminate", inst->m.mode == MODE_STEP_COMPLETE || inst->m.mode == MODE_EVENT ||
+                                              inst->m.mode == MODE_CONTINUOUS))
+        return fmi2Error;
     inst->m.mode = MODE_TERMINATED;
     return fmi2OK;
 }
@@ -656,57 +675,144 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
 }
 
 /* ---------------------------------------------------------------------------------------------- */
-/* Model exchange: declared by fmi2Functions.h, not offered (no <ModelExchange> element). Defined   */
-/* so that hosts which resolve every symbol of the header can load the library.                    */
+/* Model exchange: the host integrates the states; the model has no events.                        */
 
-fmi2Status fmi2EnterEventMode(fmi2Component c) { return unsupported(c, "fmi2EnterEventMode"); }
-
-fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *fmi2eventInfo) {
-    (void)fmi2eventInfo;
-    return unsupported(c, "fmi2NewDiscreteStates");
+static int me_call(Instance *inst, const char *function, int allowed_modes) {
+    if (inst->type != fmi2ModelExchange) {
+        log_message(inst, fmi2Error, "%s: this instance was created for co-simulation", function);
+        return 1;
+    }
+    return wrong_mode(inst, function, allowed_modes);
 }
 
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return unsupported(c, "fmi2EnterContinuousTimeMode"); }
+static int wrong_size(Instance *inst, const char *function, size_t n, size_t expected, const void *array) {
+    if (n != expected) {
+        log_message(inst, fmi2Error, "%s: called with %lu values; DcMotor has %lu", function, (unsigned long)n,
+                    (unsigned long)expected);
+        return 1;
+    }
+    if (n > 0 && array == NULL) {
+        log_message(inst, fmi2Error, "%s: the array is NULL", function);
+        return 1;
+    }
+    return 0;
+}
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) {
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2EnterEventMode", inst->m.mode == MODE_CONTINUOUS || inst->m.mode == MODE_EVENT))
+        return fmi2Error;
+    inst->m.mode = MODE_EVENT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *fmi2eventInfo) {
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2NewDiscreteStates", inst->m.mode == MODE_EVENT)) return fmi2Error;
+    if (fmi2eventInfo == NULL) {
+        log_message(inst, fmi2Error, "fmi2NewDiscreteStates: eventInfo is NULL");
+        return fmi2Error;
+    }
+    fmi2eventInfo->newDiscreteStatesNeeded = fmi2False;
+    fmi2eventInfo->terminateSimulation = fmi2False;
+    fmi2eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
+    fmi2eventInfo->valuesOfContinuousStatesChanged = fmi2False;
+    fmi2eventInfo->nextEventTimeDefined = fmi2False;
+    fmi2eventInfo->nextEventTime = 0.0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2EnterContinuousTimeMode", inst->m.mode == MODE_EVENT)) return fmi2Error;
+    inst->m.mode = MODE_CONTINUOUS;
+    return fmi2OK;
+}
 
 fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
                                        fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
+    Instance *inst = (Instance *)c;
     (void)noSetFMUStatePriorToCurrentPoint;
-    (void)enterEventMode;
-    (void)terminateSimulation;
-    return unsupported(c, "fmi2CompletedIntegratorStep");
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2CompletedIntegratorStep", inst->m.mode == MODE_CONTINUOUS)) return fmi2Error;
+    if (enterEventMode == NULL || terminateSimulation == NULL) {
+        log_message(inst, fmi2Error, "fmi2CompletedIntegratorStep: an output argument is NULL");
+        return fmi2Error;
+    }
+    *enterEventMode = fmi2False;
+    *terminateSimulation = fmi2False;
+    return fmi2OK;
 }
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
-    (void)time;
-    return unsupported(c, "fmi2SetTime");
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2SetTime", inst->m.mode == MODE_EVENT || inst->m.mode == MODE_CONTINUOUS))
+        return fmi2Error;
+    if (!isfinite(time)) {
+        log_message(inst, fmi2Error, "fmi2SetTime: time = %g is not finite", time);
+        return fmi2Error;
+    }
+    inst->m.time = time;
+    return fmi2OK;
 }
 
 fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
-    (void)x;
-    (void)nx;
-    return unsupported(c, "fmi2SetContinuousStates");
+    Instance *inst = (Instance *)c;
+    size_t j;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2SetContinuousStates", inst->m.mode == MODE_CONTINUOUS)) return fmi2Error;
+    if (wrong_size(inst, "fmi2SetContinuousStates", nx, N_STATES, x)) return fmi2Error;
+    for (j = 0; j < nx; j++) {
+        if (!isfinite(x[j])) {
+            log_message(inst, fmi2Error, "fmi2SetContinuousStates: %s = %g is not finite at t = %g",
+                        VARIABLE_NAMES[j == X_I ? VR_I : j == X_OMEGA ? VR_OMEGA : VR_THETA], x[j], inst->m.time);
+            return fmi2Error;
+        }
+    }
+    memcpy(inst->m.x, x, sizeof inst->m.x);
+    return fmi2OK;
+}
+
+static int me_query_mode(const Instance *inst) {
+    return inst->m.mode == MODE_INITIALIZATION || inst->m.mode == MODE_EVENT || inst->m.mode == MODE_CONTINUOUS ||
+           inst->m.mode == MODE_TERMINATED;
 }
 
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives_[], size_t nx) {
-    (void)derivatives_;
-    (void)nx;
-    return unsupported(c, "fmi2GetDerivatives");
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2GetDerivatives", me_query_mode(inst))) return fmi2Error;
+    if (wrong_size(inst, "fmi2GetDerivatives", nx, N_STATES, derivatives_)) return fmi2Error;
+    derivatives(&inst->m, inst->m.x, derivatives_);
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
-    (void)eventIndicators;
-    (void)ni;
-    return unsupported(c, "fmi2GetEventIndicators");
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2GetEventIndicators", me_query_mode(inst))) return fmi2Error;
+    return wrong_size(inst, "fmi2GetEventIndicators", ni, 0, eventIndicators) ? fmi2Error : fmi2OK;
 }
 
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
-    (void)x;
-    (void)nx;
-    return unsupported(c, "fmi2GetContinuousStates");
+    Instance *inst = (Instance *)c;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2GetContinuousStates", me_query_mode(inst))) return fmi2Error;
+    if (wrong_size(inst, "fmi2GetContinuousStates", nx, N_STATES, x)) return fmi2Error;
+    memcpy(x, inst->m.x, sizeof inst->m.x);
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
-    (void)x_nominal;
-    (void)nx;
-    return unsupported(c, "fmi2GetNominalsOfContinuousStates");
+    Instance *inst = (Instance *)c;
+    size_t j;
+    if (inst == NULL) return fmi2Error;
+    if (me_call(inst, "fmi2GetNominalsOfContinuousStates", inst->m.mode != MODE_ERROR)) return fmi2Error;
+    if (wrong_size(inst, "fmi2GetNominalsOfContinuousStates", nx, N_STATES, x_nominal)) return fmi2Error;
+    for (j = 0; j < nx; j++) x_nominal[j] = 1.0;
+    return fmi2OK;
 }

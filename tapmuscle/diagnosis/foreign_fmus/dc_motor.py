@@ -1,4 +1,5 @@
-"""DcMotor: an FMI 2.0 co-simulation FMU of a DC motor with Coulomb friction, written in C.
+"""DcMotor: an FMI 2.0 FMU of a DC motor with Coulomb friction, written in C (co-simulation,
+model exchange, or both).
 
 The model (``dc_motor.c`` next to this module), with the armature current ``i`` [A], the speed
 ``omega`` [rad/s] and the angle ``theta`` [rad] as states and the armature voltage ``V`` [V] as input::
@@ -21,11 +22,14 @@ omega_s  0.5     rad/s       speed over which the Coulomb term is smoothed by ta
 
 All parameters are ``fixed`` (set them before ``fmi2ExitInitializationMode``, or after ``fmi2Reset``).
 The states start at 0. ``fmi2DoStep`` integrates with classic RK4 on ``ceil(h / 0.5 ms)`` equal
-substeps, so any communication step ``h > 0`` works. The FMU can get and set its state
+substeps, so any communication step ``h > 0`` works. In model exchange the host integrates the
+states ``(i, omega, theta)``, whose derivatives are the local variables ``der(i)``, ``der(omega)``,
+``der(theta)``; the model has no events. The FMU can get and set its state
 (``canGetAndSetFMUstate``) but not serialize it.
 
 :func:`build_dc_motor_fmu` compiles the C source with gcc against fmpy's FMI 2.0 headers (Linux
-x86_64 only) and writes ``DcMotor.fmu``.
+x86_64 only) and writes ``DcMotor.fmu``, offering the interfaces it is asked for (one binary serves
+both).
 """
 
 from __future__ import annotations
@@ -39,14 +43,17 @@ import sys
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import fmpy
 
-__all__ = ["build_dc_motor_fmu", "MODEL_IDENTIFIER", "VARIABLES"]
+__all__ = ["build_dc_motor_fmu", "MODEL_IDENTIFIER", "VARIABLES", "INTERFACES"]
 
 MODEL_IDENTIFIER = "DcMotor"
 SOURCE = Path(__file__).with_name("dc_motor.c")
+
+#: The FMI 2.0 interface elements the one binary implements.
+INTERFACES = ("CoSimulation", "ModelExchange")
 
 
 class Variable(NamedTuple):
@@ -58,6 +65,7 @@ class Variable(NamedTuple):
     start: float | None  # None: calculated by the FMU (the outputs)
     unit: str
     description: str
+    derivative_of: int | None = None  # a state derivative: the value reference of its state
 
 
 #: In value-reference order, which must be the order of the enum in dc_motor.c.
@@ -73,6 +81,10 @@ VARIABLES = (
     Variable("b", 8, "parameter", 0.002, "N.m.s/rad", "viscous friction coefficient"),
     Variable("Tc", 9, "parameter", 0.02, "N.m", "Coulomb friction torque"),
     Variable("omega_s", 10, "parameter", 0.5, "rad/s", "smoothing speed of the Coulomb friction: Tc*tanh(omega/omega_s)"),
+    # state derivatives, in the order of the state vector of model exchange: (i, omega, theta)
+    Variable("der(i)", 11, "local", None, "A/s", "derivative of the armature current", derivative_of=2),
+    Variable("der(omega)", 12, "local", None, "rad/s2", "rotor acceleration", derivative_of=1),
+    Variable("der(theta)", 13, "local", None, "rad/s", "derivative of the rotor angle", derivative_of=3),
 )
 
 #: SI base-unit exponents of every unit the variables use (FMI 2.0 <BaseUnit> attributes).
@@ -81,6 +93,8 @@ _UNITS = {
     "A": {"A": 1},
     "rad": {"rad": 1},
     "rad/s": {"rad": 1, "s": -1},
+    "rad/s2": {"rad": 1, "s": -2},
+    "A/s": {"A": 1, "s": -1},
     "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
     "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
     "N.m/A": {"kg": 1, "m": 2, "s": -2, "A": -1},
@@ -113,16 +127,25 @@ def _scalar_variable(v: Variable) -> str:
     else:
         attributes += ' variability="continuous"'  # inputs have no initial; outputs default to calculated
     start = "" if v.start is None else f' start="{v.start!r}"'
+    if v.derivative_of is not None:  # FMI 2.0: the 1-based index of the state in ModelVariables
+        start += f' derivative="{_index(v.derivative_of)}"'
     return f'    <ScalarVariable {attributes}>\n      <Real unit="{v.unit}"{start}/>\n    </ScalarVariable>'
 
 
-def model_description(guid: str) -> str:
+def _index(value_reference: int) -> int:
+    """1-based position in ModelVariables (ModelStructure and ``derivative`` attributes use it)."""
+    return next(k for k, v in enumerate(VARIABLES, start=1) if v.value_reference == value_reference)
+
+
+def model_description(guid: str, interfaces: Sequence[str] = ("CoSimulation",)) -> str:
     """modelDescription.xml of DcMotor.
 
     Parameters
     ----------
     guid
         The GUID compiled into the binary.
+    interfaces
+        The interface elements to offer, any of :data:`INTERFACES`.
 
     Returns
     -------
@@ -133,22 +156,43 @@ def model_description(guid: str) -> str:
         f'    <Unit name="{name}"><BaseUnit ' + " ".join(f'{k}="{e}"' for k, e in exponents.items()) + "/></Unit>"
         for name, exponents in _UNITS.items())
     categories = "\n".join(f'    <Category name="{name}" description="{text}"/>' for name, text in _LOG_CATEGORIES.items())
+    unknown = set(interfaces) - set(INTERFACES)
+    if unknown or not interfaces:
+        raise ValueError(f"interfaces {tuple(interfaces)!r}: give one or both of {', '.join(INTERFACES)}")
     variables = "\n".join(_scalar_variable(v) for v in VARIABLES)
-    # ModelStructure indices are 1-based positions in ModelVariables. The outputs are states, so
-    # they depend on no input directly (dependencies=""), and at initialization they are simply 0.
-    outputs = "\n".join(f'      <Unknown index="{k}" dependencies=""/>'
+    # ModelStructure indices are 1-based positions in ModelVariables. The outputs are states, so in
+    # co-simulation they depend on no input directly (dependencies=""); model exchange's dependencies
+    # also count states, so they are left out there (= may depend on every known). At initialization
+    # the states are simply 0.
+    dependencies = ' dependencies=""' if "ModelExchange" not in interfaces else ""
+    outputs = "\n".join(f'      <Unknown index="{k}"{dependencies}/>'
                         for k, v in enumerate(VARIABLES, start=1) if v.causality == "output")
-    return f"""<?xml version="1.0" encoding="UTF-8"?>
-<fmiModelDescription fmiVersion="2.0" modelName="{MODEL_IDENTIFIER}" guid="{guid}"
-  description="DC motor with smoothed Coulomb friction (hand-written C, RK4 on 0.5 ms substeps)"
-  generationTool="tapmuscle.diagnosis.foreign_fmus.dc_motor" variableNamingConvention="flat"
-  numberOfEventIndicators="0">
-  <CoSimulation modelIdentifier="{MODEL_IDENTIFIER}" canHandleVariableCommunicationStepSize="true"
-    canGetAndSetFMUstate="true" canSerializeFMUstate="false" canNotUseMemoryManagementFunctions="true">
+    derivative_rows = [f'      <Unknown index="{k}"/>'
+                       for k, v in enumerate(VARIABLES, start=1) if v.derivative_of is not None]
+    derivatives = initial_derivatives = ""
+    if "ModelExchange" in interfaces:
+        derivatives = "\n    <Derivatives>\n" + "\n".join(derivative_rows) + "\n    </Derivatives>"
+        initial_derivatives = "\n" + "\n".join(derivative_rows)
+    sources = f"""
     <SourceFiles>
       <File name="{SOURCE.name}"/>
-    </SourceFiles>
-  </CoSimulation>
+    </SourceFiles>"""
+    capabilities = 'canGetAndSetFMUstate="true" canSerializeFMUstate="false" canNotUseMemoryManagementFunctions="true"'
+    elements = []
+    if "ModelExchange" in interfaces:
+        elements.append(f'  <ModelExchange modelIdentifier="{MODEL_IDENTIFIER}" {capabilities}>{sources}\n'
+                        '  </ModelExchange>')
+    if "CoSimulation" in interfaces:
+        elements.append(f'  <CoSimulation modelIdentifier="{MODEL_IDENTIFIER}" '
+                        f'canHandleVariableCommunicationStepSize="true"\n    {capabilities}>{sources}\n'
+                        '  </CoSimulation>')
+    interface_elements = "\n".join(elements)
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="{MODEL_IDENTIFIER}" guid="{guid}"
+  description="DC motor with smoothed Coulomb friction (hand-written C; co-simulation: RK4 on 0.5 ms substeps)"
+  generationTool="tapmuscle.diagnosis.foreign_fmus.dc_motor" variableNamingConvention="flat"
+  numberOfEventIndicators="0">
+{interface_elements}
   <UnitDefinitions>
 {units}
   </UnitDefinitions>
@@ -162,9 +206,9 @@ def model_description(guid: str) -> str:
   <ModelStructure>
     <Outputs>
 {outputs}
-    </Outputs>
+    </Outputs>{derivatives}
     <InitialUnknowns>
-{outputs}
+{outputs}{initial_derivatives}
     </InitialUnknowns>
   </ModelStructure>
 </fmiModelDescription>
@@ -206,13 +250,15 @@ def _zip_atomically(tree: Path, target: Path) -> None:
         raise
 
 
-def build_dc_motor_fmu(out_dir: str | Path) -> Path:
+def build_dc_motor_fmu(out_dir: str | Path, *, interfaces: Sequence[str] = ("CoSimulation",)) -> Path:
     """Compile ``dc_motor.c`` and pack ``out_dir/DcMotor.fmu``.
 
     Parameters
     ----------
     out_dir
         Folder of the FMU; created if missing. An existing ``DcMotor.fmu`` there is replaced atomically.
+    interfaces
+        The interfaces the model description offers, any of :data:`INTERFACES` (the binary has both).
 
     Returns
     -------
@@ -223,18 +269,20 @@ def build_dc_motor_fmu(out_dir: str | Path) -> Path:
     ------
     RuntimeError
         Not on Linux x86_64, gcc missing, or gcc failing (the message carries gcc's stderr).
+    ValueError
+        ``interfaces`` names none or an unknown one.
     """
     _check_platform()
+    description = model_description(_guid(SOURCE.read_text()), interfaces)  # checks interfaces first
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    source = SOURCE.read_text()
     with tempfile.TemporaryDirectory(prefix="dc_motor_fmu_") as tmp:
         tree = Path(tmp)
         (tree / "binaries" / "linux64").mkdir(parents=True)
         (tree / "sources").mkdir()
         _compile(tree / "binaries" / "linux64" / f"{MODEL_IDENTIFIER}.so")
         shutil.copyfile(SOURCE, tree / "sources" / SOURCE.name)
-        (tree / "modelDescription.xml").write_text(model_description(_guid(source)), encoding="utf-8")
+        (tree / "modelDescription.xml").write_text(description, encoding="utf-8")
         target = out_dir / f"{MODEL_IDENTIFIER}.fmu"
         _zip_atomically(tree, target)
     return target
