@@ -15,9 +15,11 @@ import pytest
 from tapmuscle.diagnosis.boundary_effects import (backlash, dead_band_map, fractional_delay, identity_map,
                                                   input_map, map_knots)
 from tapmuscle.diagnosis.foreign_demo import ForeignCase, build_demo_fmus, foreign_cases, record_foreign_case
-from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
-from tapmuscle.diagnosis.foreign_model import ForeignFmuError, read_interface
+from tapmuscle.diagnosis.boundary_candidates import BoundarySpace, nominal_values
+from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_foreign_outputs
+from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.signal_map import SignalMapError, read_signal_map
+from tapmuscle.io.recording import read_columns
 
 pytestmark = pytest.mark.c_host
 
@@ -201,3 +203,44 @@ def test_demo_cases_are_seeded_and_cover_both_fmus():
     assert a == b
     assert {c.plant for c in a} == {"DcMotor", "ThermalTwoMass"}
     assert sum(c.effect is None for c in a) == 4
+
+
+def test_every_mapped_output_diagnosed_with_a_summary(fmus, tmp_path):
+    """Speed and current both measured, a delay on the voltage: an input effect, so it is named on
+    both outputs, and the summary says so; a bad --output names the mapped ones."""
+    case = _case("DcMotor", "transport_delay[V]", {"V:delay_s": 0.15}, {})
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec", duration_s=60.0)
+    cols, _ = read_columns(rec)
+    t = cols["time_s"]
+    sim = ForeignSimulator(read_interface(fmus["DcMotor"]), t, 0.05, {"V": cols["V_rec"]}, "i",
+                           {"V": (0.0, 12.0)})
+    current = sim.run(nominal_values(sim, BoundarySpace(sim)).with_values(**{"V:delay_s": 0.15}))[0]
+    sim.close()
+    current = current + np.random.default_rng(5).normal(0.0, 0.02, len(current))
+    lines = rec.read_text().splitlines()
+    body = [ln for ln in lines if not ln.startswith("#")]
+    rec.write_text("\n".join([lines[0], body[0] + ",cur"] + [f"{row},{c:.6g}" for row, c in zip(body[1:], current)])
+                   + "\n")
+    m.write_text(m.read_text() + 'i = { column = "cur", unit = "A" }\n')
+    with pytest.raises(SignalMapError, match="'theta': not a mapped output .*mapped: omega, i"):
+        diagnose_foreign_outputs(rec, fmus["DcMotor"], tmp_path / "bad", map_path=m, outputs=["theta"],
+                                 echo=lambda s: None)
+    assert not (tmp_path / "bad").exists()
+    results = diagnose_foreign_outputs(rec, fmus["DcMotor"], tmp_path / "out", map_path=m, calibrate=False,
+                                       plots=False, effects=["transport_delay[V]", "output_drift[omega]",
+                                                             "output_drift[i]"], echo=lambda s: None)
+    assert list(results) == ["omega", "i"]
+    for variable, (d, doc) in results.items():
+        assert d.named == ["transport_delay[V]"], variable
+        assert doc["output"]["variable"] == variable
+        assert abs(d.findings[0].parameters["V:delay_s"] - 0.15) < 0.01
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["input_effects"] == {"transport_delay[V]": {"named_on": ["omega", "i"], "on_every_output": True}}
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["i", "omega", "summary.json", "summary.md"]
+    assert "named on omega, i (every output)" in (tmp_path / "out" / "summary.md").read_text()
+    r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "diagnose", "--recording", str(rec), "--plant",
+                        str(fmus["DcMotor"]), "--map", str(m), "--output", "all", "--out", str(tmp_path / "cli"),
+                        "--quiet", "--no-plots", "--no-calibration", "--effects", "transport_delay[V]"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "== output omega" in r.stdout and "== output i" in r.stdout and "(every output)" in r.stdout

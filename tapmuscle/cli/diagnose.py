@@ -21,6 +21,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
     from tapmuscle.diagnosis.candidates import CANDIDATES
 
+    if _is_foreign(args.plant):  # its candidates depend on the FMU and the map: checked there
+        return _diagnose_foreign(args)
     out = Path(args.out)
     effects = None
     if args.effects is not None:
@@ -31,8 +33,6 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             raise UsageError(f"--effects {args.effects!r}: "
                              + (f"unknown effect {unknown[0]!r}" if unknown else "names no effect")
                              + f"; known: {', '.join(known)}")
-    if _is_foreign(args.plant):
-        return _diagnose_foreign(args)
     if args.map is not None or args.output is not None:
         raise UsageError(f"--map and --output are for a foreign plant FMU; {args.plant} is tapmuscle's plant")
     options = {"calibration": None} if args.no_calibration else {}
@@ -75,6 +75,8 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.io.recording import RecordingError
 
     effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
+    if args.output == "all":
+        return _diagnose_foreign_outputs(args, effects)
     try:
         d, _ = diagnose_foreign(args.recording, args.plant, args.out, map_path=args.map, output=args.output,
                                 block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
@@ -88,6 +90,27 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
         print(line)
     print(f"wrote {args.out}/diagnosis.json, calibrated_parameters.json, report.md"
           + ("" if args.no_plots else ", overlay.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
+    return 0
+
+
+def _diagnose_foreign_outputs(args: argparse.Namespace, effects: list[str] | None) -> int:
+    from tapmuscle.cli.progress import Progress
+    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign_outputs
+    from tapmuscle.diagnosis.foreign_model import ForeignFmuError
+    from tapmuscle.diagnosis.signal_map import SignalMapError
+    from tapmuscle.io.recording import RecordingError
+
+    try:
+        results = diagnose_foreign_outputs(args.recording, args.plant, args.out, map_path=args.map,
+                                           block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
+                                           calibrate=not args.no_calibration, plots=not args.no_plots,
+                                           progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
+    except (RecordingError, SignalMapError, ForeignFmuError) as exc:
+        raise UsageError(str(exc)) from None
+    except ValueError as exc:
+        raise UsageError(f"{args.recording}: {exc}") from None
+    print((Path(args.out) / "summary.md").read_text(), end="")
+    print(f"wrote {args.out}/summary.md, summary.json and {', '.join(f'{v}/' for v in results)}")
     return 0
 
 
@@ -166,7 +189,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="foreign FMU: MAP.toml saying which columns drive which inputs and which are measured "
                           "outputs (default: columns named as the FMU's variables; the mapping is printed)")
     dia.add_argument("--output", default=None,
-                     help="foreign FMU: the mapped output to diagnose (default: the first)")
+                     help="foreign FMU: the mapped output to diagnose (default: the first); 'all': each mapped "
+                          "output in turn, into OUT/<output>/, with OUT/summary.md setting them side by side")
     dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=10.0,
                      help="length of the interleaved training / held-out blocks [s] (default 10)")

@@ -30,11 +30,12 @@ from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_can
                                                      nominal_values)
 from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose_with, validated_recording
 from tapmuscle.diagnosis.fit_problem import SimulationError
-from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator, read_interface
+from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.report import overlay_figure, summary_lines
 from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
 
-__all__ = ["diagnose_foreign", "ForeignSetup", "FOREIGN_OUTPUT_FILES", "FIT_SEGMENT_SAMPLES"]
+__all__ = ["diagnose_foreign", "diagnose_foreign_outputs", "ForeignSetup", "FOREIGN_OUTPUT_FILES",
+           "FIT_SEGMENT_SAMPLES"]
 
 #: Default fit segment: the whole recording, up to this many samples (the fits' simulations are the
 #: cost, and a foreign plant's time constants are unknown: a long segment is safe, a short one may not
@@ -45,6 +46,16 @@ FIT_SEGMENT_SAMPLES = 4000
 FOREIGN_OUTPUT_FILES = ("diagnosis.json", "calibrated_parameters.json", "report.md", "overlay.png")
 
 
+def _mapping(recording: str | Path, plant: str | Path, map_path: str | Path | None
+             ) -> tuple[FmuInterface, dict[str, np.ndarray], SignalMap]:
+    """The FMU's interface, the recording's columns and the signal map (``map_path``'s, or by name)."""
+    iface = read_interface(plant)
+    columns, _ = read_columns(recording)
+    smap = (read_signal_map(map_path, iface, list(columns)) if map_path is not None
+            else match_by_name(iface, list(columns)))
+    return iface, columns, smap
+
+
 class ForeignSetup:
     """A recording and a foreign FMU made ready for the search: the mapping, the simulator, the
     model space, the nominal parameters, the candidates and the calibration list."""
@@ -52,11 +63,7 @@ class ForeignSetup:
     def __init__(self, recording: str | Path, plant: str | Path, *, map_path: str | Path | None = None,
                  output: str | None = None, block_s: float = 10.0, echo: Callable[[str], None] = print) -> None:
         self.recording, self.plant = str(recording), str(plant)
-        iface = read_interface(plant)
-        columns, _ = read_columns(recording)
-        names = list(columns)
-        smap: SignalMap = (read_signal_map(map_path, iface, names) if map_path is not None
-                           else match_by_name(iface, names))
+        iface, columns, smap = _mapping(recording, plant, map_path)
         if map_path is None:
             for line in smap.lines():
                 echo(line)
@@ -229,15 +236,117 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
             overlay_figure(d, tmp / "overlay.png", quantity=setup.output.variable, unit=setup.output.unit or "-",
                            model="FMU", title=f"{setup.interface.model_name}: {', '.join(d.named) or d.verdict} "
                                               "(held-out fit in brackets)")
-        if out.exists():
-            old = out.with_name(f".{out.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out)
+        _install(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return doc
+
+
+def _install(tmp: Path, out: Path) -> None:
+    """Put the finished folder ``tmp`` in place of ``out`` (an older ``out`` is removed only then)."""
+    if out.exists():
+        old = out.with_name(f".{out.name}.old")
+        shutil.rmtree(old, ignore_errors=True)
+        out.rename(old)
+        tmp.rename(out)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        tmp.rename(out)
+
+
+def diagnose_foreign_outputs(recording: str | Path, plant: str | Path, out: str | Path, *,
+                             map_path: str | Path | None = None, outputs: Sequence[str] | None = None,
+                             echo: Callable[[str], None] = print, **options: Any
+                             ) -> dict[str, tuple[Diagnosis, dict[str, Any]]]:
+    """Diagnose each of several measured outputs in turn (``tapmuscle diagnose --output all``).
+
+    Each output gets its own diagnosis, written into ``out/<variable>/`` as :func:`diagnose_foreign`
+    writes it, and ``out/summary.md`` and ``out/summary.json`` set the verdicts side by side. An
+    effect at an FMU input (delay, input map, backlash, secondary input) acts on every output, so
+    the summary says for each one named on which outputs it was found: named on all of them, it is
+    corroborated; on some only, the others' data did not show it (or it is spurious there). Output
+    effects (drift, gain) belong to one sensor each.
+
+    Parameters
+    ----------
+    recording, plant, map_path
+        As for :func:`diagnose_foreign`.
+    out : path
+        Output folder, replaced as a whole at the end (nothing is written if any diagnosis fails).
+    outputs : sequence of str, optional
+        The mapped outputs to diagnose (default: every mapped output).
+    echo : callable
+        Where each output's heading, its mapping and simulation time are printed.
+    **options
+        Passed to :func:`diagnose_foreign` (``block_s``, ``effects``, ``calibrate``, ``plots``, ...);
+        an effect named for one output's sensor is left out of the other outputs' diagnoses.
+
+    Returns
+    -------
+    dict
+        ``{variable: (Diagnosis, diagnosis.json document)}`` in the map's order.
+    """
+    iface, _, smap = _mapping(recording, plant, map_path)
+    mapped = [sig.variable for sig in smap.outputs]
+    chosen = mapped if outputs is None else list(outputs)
+    unknown = [o for o in chosen if o not in mapped]
+    if unknown or not chosen:
+        raise SignalMapError(f"--output {unknown[0] if unknown else '(none)'!r}: not a mapped output "
+                             f"(mapped: {', '.join(mapped)})")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    results: dict[str, tuple[Diagnosis, dict[str, Any]]] = {}
+    try:
+        effects = options.pop("effects", None)
+        for variable in chosen:
+            echo(f"== output {variable}")
+            # an effect on another output's sensor is not a candidate of this output's diagnosis
+            own = None if effects is None else [e for e in effects if _target(e) not in set(mapped) - {variable}]
+            results[variable] = diagnose_foreign(recording, plant, tmp / variable, map_path=map_path, output=variable,
+                                                 effects=own, echo=echo, **options)
+        summary = _outputs_summary(results, {v.name for v in iface.inputs})
+        atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2, allow_nan=False) + "\n")
+        atomic_write_text(tmp / "summary.md", _outputs_markdown(summary, iface.model_name, Path(recording).name))
+        _install(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return results
+
+
+def _target(effect: str) -> str:
+    """The variable a boundary effect acts on: ``transport_delay[V]`` -> ``V`` ('' if none)."""
+    return effect[effect.find("[") + 1:-1] if effect.endswith("]") and "[" in effect else ""
+
+
+def _outputs_summary(results: dict[str, tuple[Diagnosis, dict[str, Any]]], inputs: set[str]) -> dict[str, Any]:
+    """Each output's verdict, and each input effect named with the outputs that named it."""
+    per_output = {v: {"verdict": d.verdict, "named": d.named, "fit_before_percent": round(d.fit_before_percent, 3),
+                      "fit_after_percent": round(d.fit_after_percent, 3), "folder": v}
+                  for v, (d, _) in results.items()}
+    input_effects: dict[str, list[str]] = {}
+    for v, (d, _) in results.items():
+        for name in d.named:
+            if _target(name) in inputs:
+                input_effects.setdefault(name, []).append(v)
+    return {"outputs": per_output,
+            "input_effects": {name: {"named_on": on, "on_every_output": len(on) == len(results)}
+                              for name, on in input_effects.items()}}
+
+
+def _outputs_markdown(summary: dict[str, Any], model: str, recording: str) -> str:
+    lines = [f"# Diagnosis of {model} against {recording}, output by output", "",
+             "| output | verdict | named | held-out fit before -> after |", "|---|---|---|---|"]
+    lines += [f"| [{v}]({v}/report.md) | {o['verdict']} | {', '.join(o['named']) or '-'} | "
+              f"{o['fit_before_percent']:.1f} % -> {o['fit_after_percent']:.1f} % |"
+              for v, o in summary["outputs"].items()]
+    lines += ["", "An effect at an input acts on every output: named on all of them it is corroborated; named on "
+              "some only, the others did not show it (or it is spurious where named).", ""]
+    if summary["input_effects"]:
+        lines += [f"- {name}: named on {', '.join(e['named_on'])}"
+                  + (" (every output)" if e["on_every_output"] else " only") for name, e in summary["input_effects"].items()]
+    else:
+        lines += ["- no input effect named on any output"]
+    return "\n".join(lines) + "\n"
