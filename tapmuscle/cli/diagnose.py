@@ -68,49 +68,33 @@ def _is_foreign(plant: str) -> bool:
 
 def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
-    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
+    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_foreign_outputs
     from tapmuscle.diagnosis.foreign_model import ForeignFmuError
     from tapmuscle.diagnosis.report import summary_lines
     from tapmuscle.diagnosis.signal_map import SignalMapError
     from tapmuscle.io.recording import RecordingError
 
     effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
-    if args.output == "all":
-        return _diagnose_foreign_outputs(args, effects)
+    options = dict(map_path=args.map, block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
+                   calibrate=not args.no_calibration, plots=not args.no_plots,
+                   progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
     try:
-        d, _ = diagnose_foreign(args.recording, args.plant, args.out, map_path=args.map, output=args.output,
-                                block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
-                                calibrate=not args.no_calibration, plots=not args.no_plots,
-                                progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
+        if args.output == "all":
+            results = diagnose_foreign_outputs(args.recording, args.plant, args.out, **options)
+        else:
+            d, _ = diagnose_foreign(args.recording, args.plant, args.out, output=args.output, **options)
     except (RecordingError, SignalMapError, ForeignFmuError) as exc:
         raise UsageError(str(exc)) from None
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
+    if args.output == "all":
+        print((Path(args.out) / "summary.md").read_text(), end="")
+        print(f"wrote {args.out}/summary.md, summary.json and {', '.join(f'{v}/' for v in results)}")
+        return 0
     for line in summary_lines(d):
         print(line)
     print(f"wrote {args.out}/diagnosis.json, calibrated_parameters.json, report.md"
           + ("" if args.no_plots else ", overlay.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
-    return 0
-
-
-def _diagnose_foreign_outputs(args: argparse.Namespace, effects: list[str] | None) -> int:
-    from tapmuscle.cli.progress import Progress
-    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign_outputs
-    from tapmuscle.diagnosis.foreign_model import ForeignFmuError
-    from tapmuscle.diagnosis.signal_map import SignalMapError
-    from tapmuscle.io.recording import RecordingError
-
-    try:
-        results = diagnose_foreign_outputs(args.recording, args.plant, args.out, map_path=args.map,
-                                           block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
-                                           calibrate=not args.no_calibration, plots=not args.no_plots,
-                                           progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
-    except (RecordingError, SignalMapError, ForeignFmuError) as exc:
-        raise UsageError(str(exc)) from None
-    except ValueError as exc:
-        raise UsageError(f"{args.recording}: {exc}") from None
-    print((Path(args.out) / "summary.md").read_text(), end="")
-    print(f"wrote {args.out}/summary.md, summary.json and {', '.join(f'{v}/' for v in results)}")
     return 0
 
 
