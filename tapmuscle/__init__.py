@@ -58,6 +58,8 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "diagnose": ("tapmuscle.diagnosis", "diagnose"),
     "Diagnosis": ("tapmuscle.diagnosis", "Diagnosis"),
     "diagnose_files": ("tapmuscle.diagnosis.report", "diagnose_files"),
+    "diagnose_foreign": ("tapmuscle.diagnosis.foreign_diagnose", "diagnose_foreign"),
+    "diagnose_foreign_outputs": ("tapmuscle.diagnosis.foreign_diagnose", "diagnose_foreign_outputs"),
     # errors
     "TapmuscleError": ("tapmuscle.errors", "TapmuscleError"),
     "UsageError": ("tapmuscle.errors", "UsageError"),
