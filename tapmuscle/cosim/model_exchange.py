@@ -17,6 +17,7 @@ exception cannot cross the ctypes callback), so the caller sees the FMU's messag
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -33,13 +34,15 @@ class ModelExchangeError(RuntimeError):
     """An FMI call or the integration failed; the message names the call and the time."""
 
 
+@functools.cache
 def _solver_class() -> type:
     """fmpy's CVodeSolver with a right-hand side that calls the FMU's C functions directly.
 
     fmpy's own right-hand side goes through its status-checking wrappers and two ``ctypes.cast``
     per vector; CVode calls it about 40 times per sample, which made one re-simulation of a
     10-minute recording 2.5 s. Here a failing call returns CVode's "unrecoverable" code (-1)
-    and the reason is kept for :meth:`ModelExchangeStepper.do_step`.
+    and the reason is kept for :meth:`ModelExchangeStepper.do_step`. Built once per process (it
+    binds a SUNDIALS function).
     """
     import ctypes
 
@@ -152,15 +155,12 @@ class ModelExchangeStepper:
         """``fn`` for use inside CVode's callbacks: a failure is kept (and, for an output array,
         answered with NaN, so that CVode stops) instead of raised into ctypes."""
         def call(*args: Any) -> None:
-            if self.failure is not None and nan_fill and args and len(args) == 2:
-                np.ctypeslib.as_array(args[0], (args[1],))[:] = np.nan
-                return None
             try:
                 return fn(*args)
             except Exception as exc:  # noqa: BLE001 - see the docstring
                 if self.failure is None:
                     self.failure = f"{name} failed: {exc}"
-                if nan_fill and len(args) == 2 and args[1]:
+                if nan_fill and args[1]:  # (array pointer, length)
                     np.ctypeslib.as_array(args[0], (args[1],))[:] = np.nan
                 return None
         return call
