@@ -42,6 +42,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .probing import probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
@@ -159,6 +160,11 @@ class ControllerSettings:
     second explains the data :data:`DELAY_RATIO` times better (mean squares over about 5 s, after at
     least :data:`DELAY_MIN_SAMPLES` samples) it switches to 1 for good. With a sequential master it stays
     with 0 and its commands are those of 0 bit for bit (docs/fmu.md, "Parallel masters")."""
+    delay_correction: bool = True
+    """With one sample of input delay (``input_delay_samples`` 1, or -1 once switched): predict
+    ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
+    (:class:`~fmu_controller.delay_predictor.DelayPredictor`), which halves the delayed loop's
+    tracking error; False: Eq. (1) alone. No effect on the undelayed law."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -177,6 +183,8 @@ class ControllerSettings:
         if not (isinstance(self.probing_v, (int, float)) and not isinstance(self.probing_v, bool)
                 and math.isfinite(self.probing_v) and 0.0 <= self.probing_v <= MAX_PROBING_V):
             raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
+        if not isinstance(self.delay_correction, bool):
+            raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
             raise ValueError(f"ControllerSettings.hysteresis_notch must be None, True or False, "
                              f"got {self.hysteresis_notch!r}")
@@ -282,6 +290,7 @@ class DisplacementController:
         self._warm_n = int(round(0.5 * settings.startup_s / settings.ts_s))
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
+        self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
 
     # ------------------------------------------------------------------ lifecycle
@@ -317,6 +326,8 @@ class DisplacementController:
         self._lin0 = self.theta0[:3].tolist()
         self._shadow_seq = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
         self._shadow_par = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
+        if self._delay_predictor is not None:
+            self._delay_predictor.reset(l0, 0.0)
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
         """One control sample: measured ``l(k)`` [mm] and ``r(k), ..., r(k+Hp)`` [mm] -> ``u(k)``.
@@ -413,6 +424,8 @@ class DisplacementController:
             self._delayed = True
             self._state.apply(self._u_out2)
             self._u_next, self._uc_next = self._u_out1, self._uc_prev
+            if self._delay_predictor is not None:
+                self._delay_predictor.reset(l, self._u_out2)
             if self._rls is not None:
                 # every regressor so far held the command one sample off: start the estimator again
                 # from theta0 and P(0), and the start-up mode's warm-up and blend with it
@@ -494,11 +507,14 @@ class DisplacementController:
         as ``u(k)`` (with the true ``l(k)`` the state has observed, and ``x_s`` integrating the true
         error); the Eq. (1) model predicts ``l(k+1|k)`` under it; the control law is then evaluated
         one sample ahead on that prediction with ``r(k+1..k+1+Hp)``, on a scratch copy of the
-        history, and its command is returned (it reaches the valve at ``t_k+1``).
+        history, and its command is returned (it reaches the valve at ``t_k+1``). With
+        ``delay_correction`` the prediction is :class:`~fmu_controller.delay_predictor.DelayPredictor`'s.
         """
         state = self._state
         u_now, uc_now = self._u_next, self._uc_next
         l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
+        if self._delay_predictor is not None:
+            l_next = self._delay_predictor.predict(l, u_now, l_next)
         state.apply(u_now)
         xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)
         saved = state.history
@@ -543,6 +559,7 @@ class DisplacementController:
             "delayed": self._delayed, "u_out": [self._u_out1, self._u_out2], "delay_scores": [self._ms_seq, self._ms_par],
             "compared": self._compared, "est_from": self._est_from,
             "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
+            "delay_predictor": None if self._delay_predictor is None else self._delay_predictor.get_state(),
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
         }
@@ -600,6 +617,13 @@ class DisplacementController:
                     raise ValueError(f"state field delay_models must hold 2 model states, got {len(models)}")
                 self._shadow_seq.set_state(models[0])
                 self._shadow_par.set_state(models[1])
+        predictor = state.get("delay_predictor")
+        if "delay_predictor" in state and (predictor is None) != (self._delay_predictor is None):
+            raise ValueError(f"state field delay_predictor = {'None' if predictor is None else 'a predictor'} "
+                             f"contradicts delay_correction = {self.settings.delay_correction} with "
+                             f"input_delay_samples = {self.settings.input_delay_samples}")
+        if predictor is not None:
+            self._delay_predictor.set_state(predictor)
         if self._rls is not None:
             self._rls.set_state(state["rls"])
         if self._servo is not None:

@@ -22,6 +22,7 @@ from .box_projection import BoxProjector, project_onto_box
 from .hysteresis_model import ModelStructure
 
 __all__ = [
+    "Regressors",
     "TABLE2_LOWER",
     "TABLE2_UPPER",
     "RLSSettings",
@@ -41,6 +42,40 @@ _add = np.add
 _multiply = np.multiply
 _divide = np.divide
 
+
+
+@dataclass(frozen=True)
+class Regressors:
+    """The named entries of a regressor vector that is not Eq. (1)'s (an estimator beside the paper's
+    model, e.g. :class:`~fmu_controller.delay_predictor.DelayPredictor`), for :class:`ConstrainedRLS`.
+
+    Parameters
+    ----------
+    names : tuple of str
+        One name per regressor entry, in order.
+    """
+
+    names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if not self.names or len(set(self.names)) != len(self.names) \
+                or not all(isinstance(n, str) and n for n in self.names):
+            raise ValueError(f"Regressors.names must be distinct non-empty strings, got {self.names!r}")
+
+    @property
+    def kind(self) -> str:
+        return "regressor"
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        """Position of entry ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown regressor {name!r}; expected one of {self.names}") from None
 
 
 # ---------------------------------------------------------------------------
@@ -217,7 +252,7 @@ class RLSSettings:
         # tolerate float noise like 120 / 0.1 = 1200.0000000000002
         return float(math.ceil(self.constraint_start_s / self.ts_s - 1e-9))
 
-    def resolve(self, structure: ModelStructure) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def resolve(self, structure: ModelStructure | Regressors) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Concrete ``(P0, theta0, lower, upper)`` arrays for ``structure``."""
         n = structure.n_params
         if isinstance(self.p0, tuple):
@@ -279,8 +314,8 @@ class ConstrainedRLS:
 
     Parameters
     ----------
-    structure : ModelStructure, optional
-        Model variant (names for the box, dimension).
+    structure : ModelStructure or Regressors, optional
+        Model variant (names for the box, dimension), or the names of another regressor.
     settings : RLSSettings, optional
         Defaults to ``RLSSettings()`` (paper values).
     k0 : int
@@ -291,7 +326,7 @@ class ConstrainedRLS:
 
     def __init__(
         self,
-        structure: ModelStructure | None = None,
+        structure: ModelStructure | Regressors | None = None,
         settings: RLSSettings | None = None,
         *,
         k0: int = 0,
@@ -302,14 +337,14 @@ class ConstrainedRLS:
 
     def setup(
         self,
-        structure: ModelStructure,
+        structure: ModelStructure | Regressors,
         settings: RLSSettings | None = None,
         *,
         k0: int = 0,
     ) -> None:
         """(Re)initialise: ``theta = theta(0)``, ``P = P(-1)``, step ``k = k0``."""
-        if not isinstance(structure, ModelStructure):
-            raise ValueError(f"structure must be a ModelStructure, got {structure!r}")
+        if not isinstance(structure, (ModelStructure, Regressors)):
+            raise ValueError(f"structure must be a ModelStructure or Regressors, got {structure!r}")
         if settings is None:
             settings = RLSSettings()
         if not isinstance(settings, RLSSettings):
