@@ -117,6 +117,10 @@ class AMPCController(SafeSlave):
                                    "Ecos, OMSimulator: one macro step h = Ts late); with 1 the output after the step "
                                    "at t_k is u(k+1), computed from l(k) and the Eq. (1) prediction l(k+1|k)",
                                    lo=-1, hi=1)
+        self.add_integer_parameter("delay_correction", 1, "with one sample of input delay (input_delay_samples 1, "
+                                   "or -1 once switched): 1 predict l(k+1|k) with Eq. (1) plus a residual "
+                                   "correction fitted online by RLS (halves the delayed loop's error), 0 with "
+                                   "Eq. (1) alone", lo=0, hi=1)
         self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo; for "
                                    "ampc_servo on with the start-up mode, off with startup_s = 0), 1 cancel the centred "
                                    "mean (H(k-2) + 3 H(k-1) + 4 H(k) + 3 H(k+1|k) + H(k+2|k))/12 in Eq. (5) (no valve "
@@ -202,6 +206,7 @@ class AMPCController(SafeSlave):
             box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
             covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"],
+            delay_correction=ip["delay_correction"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
             startup_s=p["startup_s"], probing_v=p["probing_v"])
 
