@@ -195,16 +195,16 @@ def delayed_runs(theta0):
 
 def test_delay_compensation_restores_tracking_on_the_rig(delayed_runs):
     """A parallel master's one sample of delay makes the uncompensated loop oscillate (several mm);
-    the compensated one tracks within the Eq. (1) predictor's error (measured 2.73 against 0.45 mm;
-    the Eq. (21) window holds the end of the start-up mode's blend, docs/fmu.md), with the command
-    inside 0..10 V and far less valve travel."""
+    the compensated one, with its corrected one-step prediction, tracks within 0.25 mm (measured 2.44
+    against 0.177 mm; the Eq. (21) window holds the end of the start-up mode's blend, docs/fmu.md), with
+    the command inside 0..10 V and far less valve travel (55 against 785 V)."""
     plain, comp = delayed_runs[0], delayed_runs[1]
     e_plain = eq21_error_mm(plain["r_mm"], plain["l_mm"])
     e_comp = eq21_error_mm(comp["r_mm"], comp["l_mm"])
-    assert e_plain > 2.0 and e_comp < 0.65 and e_plain > 5 * e_comp, (e_plain, e_comp)
+    assert e_plain > 2.0 and e_comp < 0.25 and e_plain > 5 * e_comp, (e_plain, e_comp)
     assert comp["u_v"].min() >= 0.0 and comp["u_v"].max() <= 10.0
     travel = {k: float(np.sum(np.abs(np.diff(r["u_v"][100:])))) for k, r in delayed_runs.items()}
-    assert travel[1] < 0.25 * travel[0], travel
+    assert travel[1] < 0.15 * travel[0], travel
 
 
 def test_the_delayed_loop_applies_the_previous_command(delayed_runs):
