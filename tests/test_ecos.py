@@ -88,13 +88,14 @@ def test_ecos_closed_loop_is_the_direct_loop_with_one_sample_of_delay(ecos_runs,
 def test_ecos_tracks_with_the_delay_compensated_or_detected(ecos_runs):
     """Built-in 35 + 30 sin(2 pi 0.1 t) mm at h = Ts, mean |r - l| after the start-up mode (20 s on):
     over a mm with 0 (an oscillation), a fraction of a mm with 1 and with nothing set (the
-    default detects the delay; measured 1.46, 0.29 and 0.42 mm)."""
+    default detects the delay; measured 1.23, 0.130 and 0.183 mm, the same as libcosim's; the bounds
+    leave half again for another CPU's rounding, which the closed loop amplifies)."""
     err = {}
     for d, run in ecos_runs.items():
         t = (np.arange(len(run["l_mm"])) + 1) * TS_S
         err[d] = tracking_error_mm(t, run["l_mm"])
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
-    assert err[0] > 1.0 and err[0] > 3 * err[1] and err[1] < 0.45 and err[None] < 0.6, err
+    assert err[0] > 1.0 and err[0] > 5 * err[1] and err[1] < 0.2 and err[None] < 0.3, err
 
 
 def test_plant_alone_in_ecos_equals_fmpy(ecos, built_fmus):
@@ -120,11 +121,11 @@ def test_plant_alone_in_ecos_equals_fmpy(ecos, built_fmus):
     assert abs(l_ecos - float(res["l"][-1])) <= 1e-9
 
 
-@pytest.mark.parametrize("parameter_set, limit_mm", [("parallel_master", 0.6), (None, 1.0)])
+@pytest.mark.parametrize("parameter_set, limit_mm", [("parallel_master", 0.25), (None, 0.35)])
 def test_ecos_runs_the_ssp_and_tracks(ecos, built_fmus, tmp_path, parameter_set, limit_mm):
     """Ecos's SSP loader runs TapMuscleLoop.ssp: with its parameter set ``parallel_master`` (the
-    controller's input_delay_samples = 1) as libcosim does (0.40 mm); with no set the controller's
-    default detects the delay (0.62 mm)."""
+    controller's input_delay_samples = 1) as libcosim does (0.138 mm over 20-30 s); with no set the
+    controller's default detects the delay (0.214 mm)."""
     from build_scripts.ssp import write_ssp
 
     EcosSimulation, _ = ecos

@@ -100,9 +100,11 @@ def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
         t = (np.arange(len(run["l_mm"])) + 1) * TS_S
         err[d] = tracking_error_mm(t, run["l_mm"])
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
-    assert err[0] > 1.0 and err[0] > 3 * err[1] and err[1] < 0.45, err
-    # with nothing set, the controller detects the parallel master within ~5 s (measured 1.46, 0.29, 0.42 mm)
-    assert err[None] < 0.6, err
+    # measured 1.23, 0.130 mm; the bounds leave half again for another CPU's rounding, which the
+    # closed loop amplifies
+    assert err[0] > 1.0 and err[0] > 5 * err[1] and err[1] < 0.2, err
+    # with nothing set, the controller detects the parallel master within ~5 s (measured 0.183 mm)
+    assert err[None] < 0.3, err
 
 
 def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):
