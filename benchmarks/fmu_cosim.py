@@ -45,10 +45,8 @@ def fmu_once(fmus, record: str) -> float:
     return float(co_simulate(scenario, fmus, record=record)["wall_time_s"])
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=7)
-    args = parser.parse_args()
+def report(repeat: int = 7) -> None:
+    """Measure and print the figures and the two verdicts (also called by ``benchmarks/fmu_c_host.py``)."""
     fmus = cached_fmus()
     t0 = time.perf_counter()
     inst = FmuInstance(fmus["AMPCController"], "timing", role="controller")
@@ -57,10 +55,10 @@ def main() -> None:
     print(f"controller FMU instantiate + initialise + free: {1e3 * (time.perf_counter() - t0):.1f} ms")
     fmu_once(fmus, "minimal")  # warm-up: imports inside the FMUs
     # interleaved, so that a slow spell of the (shared) machine hits all three alike
-    times = [(direct_once(), fmu_once(fmus, "minimal"), fmu_once(fmus, "all")) for _ in range(args.repeat)]
+    times = [(direct_once(), fmu_once(fmus, "minimal"), fmu_once(fmus, "all")) for _ in range(repeat)]
     direct, minimal, full = (min(column) for column in zip(*times))
     n = int(DURATION_S / 0.1) + 1
-    print(f"{DURATION_S:g} s AMPC-servo run, {n} samples, best of {args.repeat}:")
+    print(f"{DURATION_S:g} s AMPC-servo run, {n} samples, best of {repeat}:")
     print(f"  direct loop            {1e3 * direct:8.1f} ms  ({1e6 * direct / n:6.1f} us/sample)  "
           f"real-time factor {DURATION_S / direct:6.0f}x")
     for label, wall in (("FMU loop, minimal", minimal), ("FMU loop, all outputs", full)):
@@ -73,6 +71,12 @@ def main() -> None:
           f"({rtf[0]:.0f}x minimal, {rtf[1]:.0f}x all outputs)")
     print(f"goal: FMU / direct <= 1.3: {'met' if max(ratio) <= 1.3 else 'NOT met'} "
           f"({ratio[0]:.2f} minimal, {ratio[1]:.2f} all outputs)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=7)
+    report(parser.parse_args().repeat)
 
 
 if __name__ == "__main__":
