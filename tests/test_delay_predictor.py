@@ -9,7 +9,7 @@ import pytest
 from fmu_controller.delay_predictor import DELAY_PREDICTOR_REGRESSORS, DelayPredictor
 from fmu_controller.displacement_control import ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
-from fmu_controller.reference import SineReference
+from fmu_controller.reference import FunctionReference, SineReference
 from fmu_plant.plant import Plant
 from tapmuscle.closed_loop import run_closed_loop
 
@@ -115,3 +115,23 @@ def test_the_correction_cuts_the_delayed_loops_error_on_the_rig(method, ratio):
         err[corr] = float(np.mean(np.abs(run["r_mm"] - run["l_mm"])[200:601]))
         assert run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
     assert err[True] < ratio * err[False], err
+
+
+def test_the_correction_survives_ten_minutes_at_rest_in_the_delayed_loop():
+    """600 s holding 40 mm (the regressor unexcited: covariance wind-up would show here), then the
+    built-in sine: the corrected loop tracks after the rest as before it. Measured over 620-700 s,
+    seed 0: 0.113 mm against 0.338 with Eq. (1) alone; at rest both 0.013-0.014 mm."""
+    def r_mm(t):
+        return 40.0 if t < 600.0 else 35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * (t - 600.0)) \
+            + 5.0 * (1.0 - math.exp(-(t - 600.0)))
+
+    err, rest = {}, {}
+    for corr in (False, True):
+        settings = ControllerSettings(method="ampc_servo", input_delay_samples=1, delay_correction=corr)
+        run = run_closed_loop(Plant(seed=0), DisplacementController(settings, THETA0_44N),
+                              FunctionReference(r_mm, 0.1), duration_s=700.0, loop_delay_samples=1)
+        e = np.abs(run["r_mm"] - run["l_mm"])
+        assert np.all(np.isfinite(run["l_pred_mm"])) and run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
+        rest[corr], err[corr] = float(e[1000:6000].mean()), float(e[6200:].mean())
+    assert rest[True] < 0.05, rest
+    assert err[True] < 0.2 and err[True] < 0.6 * err[False], err
