@@ -81,9 +81,34 @@ def test_fmu_equals_the_direct_controller_bit_for_bit(fmu, method_code, method):
     _free(f)
 
 
-def test_state_rewind_and_serialisation_are_bit_identical(fmu):
+@pytest.mark.parametrize("correction", [0, 1])
+def test_delay_correction_parameter_is_the_direct_controllers(fmu, correction):
+    """``input_delay_samples = 1`` with ``delay_correction`` 0 or 1: the FMU's commands are the direct
+    controller's with ``delay_correction`` False or True, bit for bit (the correction acts from the
+    21st sample, so 60 samples compare both)."""
     vr = fmu[3]
-    f = _instance(fmu)  # ampc_servo: theta-hat, P, Bouc-Wen state, integrator, QP warm start
+    f = _instance(fmu, ints={"input_delay_samples": 1, "delay_correction": correction})
+    direct = DisplacementController(ControllerSettings(input_delay_samples=1, delay_correction=bool(correction)),
+                                    THETA0_44N)
+    ref = SineReference()
+    direct.reset(_l(0))
+    got, want = [], []
+    for k in range(60):
+        f.setReal([vr["l"]], [_l(k)])
+        f.doStep(k * 0.1, 0.1)
+        got.append(f.getReal([vr["u"], vr["l_pred"]]))
+        step = direct.step(_l(k), ref.preview(k, direct.settings.preview_samples))
+        want.append([step.u_v, step.predicted_next_mm])
+    assert got == want
+    _free(f)
+
+
+@pytest.mark.parametrize("ints", [{}, {"input_delay_samples": 1}])
+def test_state_rewind_and_serialisation_are_bit_identical(fmu, ints):
+    """ampc_servo: theta-hat, P, Bouc-Wen state, integrator, QP warm start; with one sample of input
+    delay also the command in flight and the delay predictor's correction (active after 20 samples)."""
+    vr = fmu[3]
+    f = _instance(fmu, ints=ints)
 
     def run(k0):
         out = []
