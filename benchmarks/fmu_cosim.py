@@ -2,8 +2,8 @@
 
 A 40 s AMPC-servo run at 44 N, 0.1 Hz, Ts = 0.1 s (401 samples):
 
-* direct: :func:`tapmuscle.closed_loop.run_closed_loop` with fmu_plant.Plant and the controller with the
-  controller FMU's defaults (``input_delay_samples = -1``: the delay detection runs at every sample);
+* direct: :func:`tapmuscle.closed_loop.run_closed_loop` with fmu_plant.Plant and the controller as the
+  project's master sets it up (``input_delay_samples = 0``: it steps the controller first);
 * FMU: the same loop through MusclePlant.fmu and AMPCController.fmu in fmpy (:mod:`tapmuscle.cosim.master`),
   recording the minimum (``t, r, l, u``) and everything (diagnostics and theta-hat every step).
 
@@ -32,8 +32,8 @@ DURATION_S = 40.0
 
 def direct_once() -> float:
     plant = Plant(PlantParams(), seed=0)
-    # the FMU's defaults, so that the ratio is the FMU's overhead on the same arithmetic
-    controller = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=-1), THETA0_44N)
+    # as the project's master sets the FMU up, so that the ratio is the FMU's overhead on the same arithmetic
+    controller = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=0), THETA0_44N)
     t0 = time.perf_counter()
     run_closed_loop(plant, controller, SineReference(frequency_hz=0.1), duration_s=DURATION_S)
     return time.perf_counter() - t0

@@ -20,23 +20,26 @@ Reference and preview (``reference_source``)
 2. ``external_held``: the input ``r`` is ``r(k)``; with no knowledge of the future the controller
    assumes ``r(k+i|k) = r(k)``, which costs tracking lag on a moving reference.
 3. ``external_advanced``: the host feeds ``r(t + Hp Ts)`` (the reference ``Hp`` samples ahead; ``Hp``
-   of the chosen method, plus 1 unless ``input_delay_samples = 0``: the default -1 may switch to the
+   of the chosen method, plus 1 unless ``input_delay_samples = 0``: the default -1 starts with the
    delayed law, which needs one sample more); the controller keeps the last ``Hp + 1``
    values, which are exactly ``r(k..k+Hp)``. Before ``Hp`` samples have arrived the missing past is
    filled with the first value.
 
-Parallel masters (``input_delay_samples``, default -1: detected)
-----------------------------------------------------------------
+Parallel masters (``input_delay_samples``, default -1: decided from the data)
+-----------------------------------------------------------------------------
 A master that steps every FMU on the outputs of the previous communication point (libcosim, Ecos,
 OMSimulator, SSP runners) hands the plant at ``t_k`` the command the controller output at ``t_k``,
 which it computed in the step *before*, from ``l(k-1)``: one macro step of computational delay. With
 ``input_delay_samples = 1`` the controller expects it: at ``t_k`` it records the command now being
-applied, predicts ``l(k+1|k)`` with Eq. (1) and evaluates its control law one sample ahead, so its
-output is ``u(k+1)`` (:class:`~fmu_controller.displacement_control.ControllerSettings`). On a plant
-that is the model, the commands then equal those of the undelayed loop bit for bit; on the rig the
-prediction error of Eq. (1) is what is left (docs/fmu.md has the figures). The default -1 detects
-the master's kind from the data within about 5 s and then acts as 1; with a sequential master it
-stays 0, bit for bit.
+applied, predicts ``l(k+1|k)`` with Eq. (1) plus an online-fitted correction
+(:mod:`fmu_controller.delay_predictor`, parameter ``delay_correction``) and evaluates its control law
+one sample ahead, so its output is ``u(k+1)``
+(:class:`~fmu_controller.displacement_control.ControllerSettings`). On a plant that is the model, the
+commands then equal those of the undelayed loop bit for bit; on the rig the one-step prediction error
+is what is left (docs/fmu.md has the figures). The default -1 starts with the delayed law (safe in
+both kinds of master) and decides the master's kind from the data within about 5 s: it keeps the
+delayed law in a parallel master and switches to the undelayed one (as 0) in a sequential one. The
+project's own master sets 0.
 
 The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) in any mode.
 """
@@ -110,12 +113,14 @@ class AMPCController(SafeSlave):
         self.add_integer_parameter("reference_source", 1, "1 builtin_sine, 2 external_held (r(k+i|k) = r(k)), "
                                    "3 external_advanced (input r is r(t + Hp Ts))", lo=1, hi=3)
         self.add_integer_parameter("input_delay_samples", -1, "samples between computing u and the valve "
-                                   "receiving it: -1 (default) detect it from the data (starts as 0, switches to 1 "
-                                   "for good when the measurements show the master applies u one step late); "
+                                   "receiving it: -1 (default) decide it from the data (starts with the delayed law, "
+                                   "safe in both kinds of master, keeps it when the measurements show the master "
+                                   "applies u one step late and switches to 0 within about 5 s when they show it "
+                                   "does not); "
                                    "0 when the master steps the controller before the plant (fmpy scenarios, a "
                                    "sequential container); 1 when it steps both on the previous outputs (libcosim, "
                                    "Ecos, OMSimulator: one macro step h = Ts late); with 1 the output after the step "
-                                   "at t_k is u(k+1), computed from l(k) and the Eq. (1) prediction l(k+1|k)",
+                                   "at t_k is u(k+1), computed from l(k) and the prediction l(k+1|k)",
                                    lo=-1, hi=1)
         self.add_integer_parameter("delay_correction", 1, "with one sample of input delay (input_delay_samples 1, "
                                    "or -1 once switched): 1 predict l(k+1|k) with Eq. (1) plus a residual "

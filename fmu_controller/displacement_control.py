@@ -63,11 +63,16 @@ METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
 #: parallel one; over five seconds at most 1.03 and at least 1.43, measured over every method,
 #: 44/68 N, 0.1/0.2 Hz, two seeds) ...
 DELAY_FORGET = 0.02
-#: ... the parallel hypothesis must explain the data this many times better (in mean square), between
-#: those two figures ...
+#: ... one hypothesis must explain the data this many times better (in mean square) to be decided,
+#: between those two figures (measured with the undelayed law running; with the delayed law the
+#: decision came at the minimum in every case of tests/test_displacement_control.py) ...
 DELAY_RATIO = 1.25
 #: ... after at least this many samples compared.
 DELAY_MIN_SAMPLES = 50
+#: ``input_delay_samples = -1``: if neither hypothesis has won by :data:`DELAY_RATIO` after this many
+#: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
+#: is taken.
+DELAY_DECIDE_BY_SAMPLES = 300
 
 #: Longest start-up mode ``ControllerSettings.startup_s`` [s].
 MAX_STARTUP_S = 600.0
@@ -154,12 +159,14 @@ class ControllerSettings:
     computation takes a whole sample). With 1 the controller computes ``u(k+1)`` at sample ``k``
     from ``l(k)`` and its own Eq. (1) prediction ``l(k+1|k)`` under the command already on its way
     (the classic one-sample delay compensation), so it needs ``r(k..k+1+Hp)``. -1 (the controller
-    FMU's default): decide from the data. The controller starts as with 0 and compares, at every
-    sample, how well Eq. (1) with ``theta0`` predicts the measured ``l(k)`` under its output of the
-    last sample (a sequential master) and under the output before it (a parallel one); when the
-    second explains the data :data:`DELAY_RATIO` times better (mean squares over about 5 s, after at
-    least :data:`DELAY_MIN_SAMPLES` samples) it switches to 1 for good. With a sequential master it stays
-    with 0 and its commands are those of 0 bit for bit (docs/fmu.md, "Parallel masters")."""
+    FMU's default): decide from the data. The controller starts with the delayed law (one sample early
+    in a sequential master, which costs tracking; the undelayed law in a parallel master oscillates)
+    and compares, at every sample, how well Eq. (1) with ``theta0`` predicts the measured ``l(k)``
+    under its output of the last sample (a sequential master) and under the output before it (a
+    parallel one); once one explains the data :data:`DELAY_RATIO` times better (mean squares over
+    about 5 s, after at least :data:`DELAY_MIN_SAMPLES` samples; the better one after
+    :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
+    switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters")."""
     delay_correction: bool = True
     """With one sample of input delay (``input_delay_samples`` 1, or -1 once switched): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
@@ -317,7 +324,10 @@ class DisplacementController:
         # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
         self._u_next = 0.0
         self._uc_next = 0.0
-        self._delayed = self.settings.input_delay_samples == 1
+        # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
+        # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
+        self._delayed = self.settings.input_delay_samples != 0
+        self._decided = not self._auto
         # input_delay_samples = -1: the last two outputs and the mean squared one-step errors of Eq. (1)
         # under each (sequential, parallel master); samples compared so far
         self._u_out1 = self._u_out2 = 0.0
@@ -358,7 +368,7 @@ class DisplacementController:
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
 
-        if self._auto and not self._delayed:
+        if self._auto and not self._decided:
             if k == 0:  # the shadow models start from the first measurement
                 for shadow in (self._shadow_seq, self._shadow_par):
                     shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
@@ -405,11 +415,12 @@ class DisplacementController:
     def _detect_delay(self, l: float) -> None:
         """``input_delay_samples = -1``: score the fixed prior model ``theta0``'s prediction of ``l(k)``
         (Eq. (1)) under the last output (a sequential master applied it over ``[t_k-1, t_k)``) and
-        under the one before (a parallel master did), each hypothesis with its own model state; switch
-        to the delayed law once the parallel one is :data:`DELAY_RATIO` times better. (The prior, not
-        the adaptive estimate: in the first seconds the estimate can be far off.) On the switch the
-        model's input over ``[t_k-1, t_k)`` is corrected to the command the valve really had, and the
-        last output is the one in flight."""
+        under the one before (a parallel master did), each hypothesis with its own model state. The
+        controller starts with the delayed law; once the parallel hypothesis is :data:`DELAY_RATIO`
+        times better it keeps it, once the sequential one is, it switches to the undelayed law (the
+        model's input over ``[t_k-1, t_k)`` corrected to the command the valve really had), and after
+        :data:`DELAY_DECIDE_BY_SAMPLES` samples the better one is taken. (The prior, not the adaptive
+        estimate: in the first seconds the estimate can be far off.)"""
         th0, lin0 = self.theta0, self._lin0
         scores = []
         for shadow, u in ((self._shadow_seq, self._u_out1), (self._shadow_par, self._u_out2)):
@@ -420,12 +431,19 @@ class DisplacementController:
         self._ms_seq += DELAY_FORGET * (scores[0] - self._ms_seq)
         self._ms_par += DELAY_FORGET * (scores[1] - self._ms_par)
         self._compared += 1
-        if self._compared >= DELAY_MIN_SAMPLES and DELAY_RATIO * self._ms_par < self._ms_seq:
-            self._delayed = True
-            self._state.apply(self._u_out2)
-            self._u_next, self._uc_next = self._u_out1, self._uc_prev
-            if self._delay_predictor is not None:
-                self._delay_predictor.reset(l, self._u_out2)
+        if self._compared < DELAY_MIN_SAMPLES:
+            return
+        ms_seq, ms_par = self._ms_seq, self._ms_par
+        late = self._compared >= DELAY_DECIDE_BY_SAMPLES
+        if DELAY_RATIO * ms_par < ms_seq or (late and ms_par <= ms_seq):
+            self._decided = True  # a parallel master (or a rig's delay): the delayed law stays
+        elif DELAY_RATIO * ms_seq < ms_par or late:
+            # a sequential master: the valve had the last output over [t_k-1, t_k), not the one
+            # before; the law runs undelayed from now on
+            self._decided = True
+            self._delayed = False
+            self._state.apply(self._u_out1)
+            self._u_prev, self._uc_prev = self._u_out1, self._uc_next
             if self._rls is not None:
                 # every regressor so far held the command one sample off: start the estimator again
                 # from theta0 and P(0), and the start-up mode's warm-up and blend with it
@@ -433,10 +451,19 @@ class DisplacementController:
                 self._est_from = self._k
 
     @property
+    def input_delay_decision(self) -> int | None:
+        """The delay the controller runs its law for: 0 or 1; None while ``input_delay_samples = -1``
+        is still undecided (the delayed law runs then)."""
+        if not self._decided:
+            return None
+        return 1 if self._delayed else 0
+
+    @property
     def input_delay_detected(self) -> bool:
-        """``input_delay_samples = -1``: whether the controller has switched to the delayed law
-        (always True for 1, False for 0)."""
-        return self._delayed
+        """``input_delay_samples = -1``: whether the controller has decided for the delayed law (a
+        parallel master); False while undecided and after deciding for a sequential one. Always True
+        for 1, False for 0."""
+        return self._delayed and self._decided
 
     def _future_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> tuple[float, float]:
         """``(H(k+1|k), H(k+2|k))`` [mm]: the Eq. (1) hysteresis term one and two samples ahead, on the
@@ -514,7 +541,12 @@ class DisplacementController:
         u_now, uc_now = self._u_next, self._uc_next
         l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         if self._delay_predictor is not None:
-            l_next = self._delay_predictor.predict(l, u_now, l_next)
+            corrected = self._delay_predictor.predict(l, u_now, l_next)
+            if self._decided:
+                # not while -1 is undecided: in a sequential master the command in flight is not the
+                # one the valve has, and a correction fitted to that wrong record destabilises the
+                # loop (an overshoot of 19 mm on an off-nominal rig); it keeps learning meanwhile
+                l_next = corrected
         state.apply(u_now)
         xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)
         saved = state.history
@@ -556,7 +588,8 @@ class DisplacementController:
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
-            "delayed": self._delayed, "u_out": [self._u_out1, self._u_out2], "delay_scores": [self._ms_seq, self._ms_par],
+            "delayed": self._delayed, "decided": self._decided, "u_out": [self._u_out1, self._u_out2],
+            "delay_scores": [self._ms_seq, self._ms_par],
             "compared": self._compared, "est_from": self._est_from,
             "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
             "delay_predictor": None if self._delay_predictor is None else self._delay_predictor.get_state(),
@@ -605,7 +638,12 @@ class DisplacementController:
             if len(values) != 4 or not all(map(math.isfinite, values)) or min(values[2:]) < 0 or int(state["compared"]) < 0:
                 raise ValueError(f"state fields u_out, delay_scores, compared must be finite (scores >= 0), got "
                                  f"{state['u_out']!r}, {state['delay_scores']!r}, {state['compared']!r}")
+            decided = state.get("decided", True)  # states saved before the field: decided
+            if decided not in (True, False) or (not decided and not self._auto) or (not decided and not state["delayed"]):
+                raise ValueError(f"state field decided = {decided!r} contradicts input_delay_samples = "
+                                 f"{self.settings.input_delay_samples} with delayed = {state['delayed']!r}")
             self._delayed = bool(state["delayed"])
+            self._decided = bool(decided)
             self._u_out1, self._u_out2, self._ms_seq, self._ms_par = values
             self._compared = int(state["compared"])
             self._est_from = int(state.get("est_from", 0))

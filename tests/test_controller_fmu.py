@@ -68,7 +68,8 @@ def test_model_description_declares_units_ranges_integer_choices_and_no_feedthro
 def test_fmu_equals_the_direct_controller_bit_for_bit(fmu, method_code, method):
     vr = fmu[3]
     f = _instance(fmu, ints={"method": method_code}, reals={"sine.frequency": 0.2})
-    direct = DisplacementController(ControllerSettings(method=method), THETA0_44N)
+    # the FMU's defaults, input_delay_samples = -1 included
+    direct = DisplacementController(ControllerSettings(method=method, input_delay_samples=-1), THETA0_44N)
     ref = SineReference(frequency_hz=0.2)
     direct.reset(_l(0))
     for k in range(150):

@@ -446,24 +446,42 @@ def test_state_round_trip_during_the_startup_mode(paper_theta0, method, saved_at
 
 # ------------------------------------------------------------------ input delay detected (-1)
 @pytest.mark.parametrize("method", METHODS)
-def test_detected_delay_is_the_undelayed_law_in_a_sequential_loop(theta0, method):
-    """input_delay_samples = -1 with a sequential loop never switches: the commands are those of 0, bit
-    for bit (over 5 s of 0.1 Hz, 0.2 Hz and a load step)."""
+def test_detected_delay_decides_for_the_undelayed_law_in_a_sequential_loop(theta0, method):
+    """input_delay_samples = -1 with a sequential loop starts with the delayed law and decides for the
+    undelayed one after the 5 s of scores it needs (0.1 Hz, 0.2 Hz with a load step). The fixed
+    predictors then track as 0 (measured equal to 1e-3 mm over 20-45 s, seed 3); the adaptive ones
+    restart their estimator at the decision (its first regressors held the command one sample off),
+    which costs at most a third over 20-45 s (measured AMPC-UCP 0.318 against 0.237 mm, AMPC-servo
+    0.085 against 0.064 mm at 0.1 Hz)."""
     for f, load_n in ((0.1, 44.0), (0.2, lambda t: 68.0 if t >= 20.0 else 44.0)):
-        runs = []
+        err = {}
         for d in (0, -1):
             c = DisplacementController(ControllerSettings(method=method, input_delay_samples=d), theta0)
-            runs.append(run_closed_loop(Plant(seed=3), c, SineReference(frequency_hz=f), duration_s=45.0, load_n=load_n))
-            assert not c.input_delay_detected
-        assert np.array_equal(runs[0]["u_v"], runs[1]["u_v"]) and np.array_equal(runs[0]["l_mm"], runs[1]["l_mm"])
+            plant, ref = Plant(seed=3), SineReference(frequency_hz=f)
+            hp = c.settings.preview_samples
+            c.reset(plant.measurement.l_mm)
+            meas, e, decided_at = plant.measurement, [], None
+            for k in range(451):
+                if callable(load_n):
+                    plant.update(load_n=load_n(k * 0.1))
+                u = c.step(meas.l_mm, ref.preview(k, hp)).u_v
+                if decided_at is None and c.input_delay_decision is not None:
+                    decided_at = k * 0.1
+                if k >= 200:
+                    e.append(abs(ref.at(k) - meas.l_mm))
+                meas = plant.step(u, 0.1)
+            assert c.input_delay_decision == 0 and not c.input_delay_detected
+            assert decided_at <= 6.0, decided_at
+            err[d] = float(np.mean(e))
+        limit = 1.01 if not method.startswith("ampc") else 1.5
+        assert err[-1] <= limit * err[0] + 1e-3, (f, err)
 
 
 @pytest.mark.parametrize("method", METHODS)
 def test_detected_delay_switches_in_a_parallel_loop(theta0, method):
-    """With each command applied one sample late (a parallel master at h = Ts), -1 switches to the
-    delayed law within 6 s; AMPC-servo then tracks as with 1 and far better than with 0, judged on the
-    mean |r - l| over 30-90 s of seeds 0-3 (per seed the closed loop varies: -1 measured 0.9-1.5x of
-    1 and 0.28-0.35x of 0; means 1.2x and 0.33x)."""
+    """With each command applied one sample late (a parallel master at h = Ts), -1 keeps the delayed
+    law it starts with, decided within 6 s; AMPC-servo then tracks as with 1 and far better than with
+    0, judged on the mean |r - l| over 30-90 s of seeds 0-3."""
     errors: dict[int, list[float]] = {0: [], 1: [], -1: []}
     for seed in range(4 if method == "ampc_servo" else 1):
         for d in (0, 1, -1):
@@ -491,8 +509,8 @@ def test_detected_delay_switches_in_a_parallel_loop(theta0, method):
 
 @pytest.mark.parametrize("saved_at", [30, 120])
 def test_detected_delay_state_round_trip(theta0, saved_at):
-    """get_state/set_state while still detecting (3 s) and after the switch (12 s) continue bit for bit
-    (the detection's scores and its two shadow models included)."""
+    """get_state/set_state while still deciding (3 s) and after deciding (12 s) continue bit for bit
+    (the detection's scores, its two shadow models and the delay predictor included)."""
     cs = ControllerSettings(method="ampc_servo", input_delay_samples=-1)
     a, b = DisplacementController(cs, theta0), DisplacementController(cs, theta0)
     plant, ref = Plant(seed=2), SineReference()

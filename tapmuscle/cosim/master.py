@@ -367,6 +367,10 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         else:
             ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
                                                     else "external_held"]
+        if "input_delay_samples" in ctrl.unpacked.variables:
+            # this master steps the controller before the plant: no delay to detect (the FMU's
+            # default -1 would start with the delayed law); a scenario may still set -1 or 1
+            ctrl_params["input_delay_samples"] = 0
         ctrl_params.update(scenario.controller.parameters)
         ctrl_params.update(controller_parameters or {})
         ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
