@@ -394,7 +394,7 @@ class DisplacementController:
         state.observe_unchecked(l, t[0], t[1], t[2])
         if self._delayed:
             return self._step_ahead(l, rl, t, theta, error)
-        if self._auto:  # undelayed until detected: the preview holds one sample more than the law takes
+        if self._auto:  # decided for a sequential master: the preview holds one sample more than the law takes
             rl = rl[:-1]
 
         u, uc, h, xs_next, predicted, saturated = self._decide(l, rl, t, theta, self._xs, self._u_prev,
