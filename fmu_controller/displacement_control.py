@@ -73,6 +73,10 @@ DELAY_MIN_SAMPLES = 50
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
 #: is taken.
 DELAY_DECIDE_BY_SAMPLES = 300
+#: ``input_delay_samples = -1``, undecided: the delayed law uses the corrected one-step prediction
+#: (:class:`~fmu_controller.delay_predictor.DelayPredictor`) once this many samples are compared and
+#: the parallel hypothesis leads.
+DELAY_LEAD_SAMPLES = 20
 
 #: Longest start-up mode ``ControllerSettings.startup_s`` [s].
 MAX_STARTUP_S = 600.0
@@ -542,10 +546,11 @@ class DisplacementController:
         l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         if self._delay_predictor is not None:
             corrected = self._delay_predictor.predict(l, u_now, l_next)
-            if self._decided:
-                # not while -1 is undecided: in a sequential master the command in flight is not the
-                # one the valve has, and a correction fitted to that wrong record destabilises the
-                # loop (an overshoot of 19 mm on an off-nominal rig); it keeps learning meanwhile
+            if self._decided or (self._compared >= DELAY_LEAD_SAMPLES and self._ms_par < self._ms_seq):
+                # while -1 is undecided, only where the parallel hypothesis leads: in a sequential
+                # master the command in flight is not the one the valve has, and a correction fitted
+                # to that wrong record destabilises the loop (an overshoot of 19 mm on an off-nominal
+                # rig); it keeps learning meanwhile
                 l_next = corrected
         state.apply(u_now)
         xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)

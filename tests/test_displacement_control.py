@@ -507,6 +507,21 @@ def test_detected_delay_switches_in_a_parallel_loop(theta0, method):
         assert e[-1] <= 1.5 * e[1] and e[-1] < 0.5 * e[0], errors
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_detected_delay_in_a_parallel_loop_is_the_delayed_law_bit_for_bit(theta0, method):
+    """-1 starts with the delayed law and, once the parallel hypothesis leads (from the 20th compared
+    sample), uses the corrected prediction as 1 does from its 21st sample: in a parallel loop its
+    commands are those of 1, bit for bit (the hypotheses' scores differ by a factor of 1.4 or more,
+    far from a rounding tie)."""
+    runs = []
+    for d in (1, -1):
+        c = DisplacementController(ControllerSettings(method=method, input_delay_samples=d), theta0)
+        runs.append(run_closed_loop(Plant(seed=1), c, SineReference(frequency_hz=0.2), duration_s=30.0,
+                                    loop_delay_samples=1))
+        assert c.input_delay_detected
+    assert np.array_equal(runs[0]["u_v"], runs[1]["u_v"])
+
+
 @pytest.mark.parametrize("saved_at", [30, 120])
 def test_detected_delay_state_round_trip(theta0, saved_at):
     """get_state/set_state while still deciding (3 s) and after deciding (12 s) continue bit for bit

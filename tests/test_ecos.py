@@ -88,7 +88,7 @@ def test_ecos_closed_loop_is_the_direct_loop_with_one_sample_of_delay(ecos_runs,
 def test_ecos_tracks_with_the_delay_compensated_or_detected(ecos_runs):
     """Built-in 35 + 30 sin(2 pi 0.1 t) mm at h = Ts, mean |r - l| after the start-up mode (20 s on):
     over a mm with 0 (an oscillation), a fraction of a mm with 1 and with nothing set (the
-    default starts with the delayed law and keeps it; measured 1.23, 0.130 and 0.152 mm, the same as libcosim's; the bounds
+    default starts with the delayed law and keeps it; measured 1.23, 0.130 and 0.130 mm, the same as libcosim's; the bounds
     leave half again for another CPU's rounding, which the closed loop amplifies)."""
     err = {}
     for d, run in ecos_runs.items():
@@ -125,7 +125,7 @@ def test_plant_alone_in_ecos_equals_fmpy(ecos, built_fmus):
 def test_ecos_runs_the_ssp_and_tracks(ecos, built_fmus, tmp_path, parameter_set, limit_mm):
     """Ecos's SSP loader runs TapMuscleLoop.ssp: with its parameter set ``parallel_master`` (the
     controller's input_delay_samples = 1) as libcosim does (0.138 mm over 20-30 s); with no set the
-    controller's default -1 keeps the delayed law it starts with (0.160 mm)."""
+    controller's default -1 keeps the delayed law it starts with (0.138 mm, as with 1)."""
     from build_scripts.ssp import write_ssp
 
     EcosSimulation, _ = ecos

@@ -103,7 +103,7 @@ def test_libcosim_tracks_with_delay_compensation_at_h_ts(libcosim_runs):
     # measured 1.23, 0.130 mm; the bounds leave half again for another CPU's rounding, which the
     # closed loop amplifies
     assert err[0] > 1.0 and err[0] > 5 * err[1] and err[1] < 0.2, err
-    # with nothing set, the controller starts with the delayed law and keeps it (measured 0.152 mm)
+    # with nothing set, the controller starts with the delayed law and keeps it (measured 0.130 mm)
     assert err[None] < 0.3, err
 
 
