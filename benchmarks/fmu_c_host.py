@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import sys
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path

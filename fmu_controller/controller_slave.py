@@ -123,7 +123,7 @@ class AMPCController(SafeSlave):
                                    "at t_k is u(k+1), computed from l(k) and the prediction l(k+1|k)",
                                    lo=-1, hi=1)
         self.add_integer_parameter("delay_correction", 1, "with one sample of input delay (input_delay_samples 1, "
-                                   "or -1 once switched): 1 predict l(k+1|k) with Eq. (1) plus a residual "
+                                   "or -1 deciding for a parallel master): 1 predict l(k+1|k) with Eq. (1) plus a residual "
                                    "correction fitted online by RLS (halves the delayed loop's error), 0 with "
                                    "Eq. (1) alone", lo=0, hi=1)
         self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo; for "

@@ -87,6 +87,7 @@ class DelayPredictor:
         self._rls.setup(DELAY_PREDICTOR_REGRESSORS, self._rls.settings)
         self._l = [l, l, l, l]  # l(k), l(k-1), l(k-2), l(k-3) once the next measurement is in
         self._u_prev = u
+        self._w = self._rls.theta  # the estimator's own array, replaced (never modified) by each update
         self._psi: list[float] | None = None  # psi(k-1) and p(k|k-1), awaiting l(k)
         self._model = math.nan
         self._updates = 0
@@ -107,7 +108,7 @@ class DelayPredictor:
         """
         l, u, p = float(l_mm), float(u_v), float(model_mm)
         if self._psi is not None:
-            self._rls.update_unchecked(np.array(self._psi), l - self._model)
+            self._w = self._rls.update_unchecked(np.array(self._psi), l - self._model)
             self._updates += 1
         hist = self._l
         hist[3], hist[2], hist[1], hist[0] = hist[2], hist[1], hist[0], l
@@ -116,7 +117,7 @@ class DelayPredictor:
         self._psi, self._model = psi, p
         if self._updates < self.warmup_samples:
             return p
-        correction = float(np.dot(self._rls.theta, psi))
+        correction = float(np.dot(self._w, psi))
         return p + correction if math.isfinite(correction) else p
 
     # ------------------------------------------------------------------ state
@@ -151,6 +152,7 @@ class DelayPredictor:
         if updates < 0:
             raise ValueError(f"delay predictor state field updates = {state['updates']!r} must be >= 0")
         self._rls.set_state(state["rls"])
+        self._w = self._rls.theta
         self._l, self._u_prev, self._psi = hist, u_prev, psi
         self._model = math.nan if psi is None else float(state["model"])
         self._updates = updates

@@ -172,7 +172,7 @@ class ControllerSettings:
     :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
     switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters")."""
     delay_correction: bool = True
-    """With one sample of input delay (``input_delay_samples`` 1, or -1 once switched): predict
+    """With one sample of input delay (``input_delay_samples`` 1, or -1 once the parallel hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
     (:class:`~fmu_controller.delay_predictor.DelayPredictor`), which halves the delayed loop's
     tracking error; False: Eq. (1) alone. No effect on the undelayed law."""
