@@ -50,6 +50,7 @@ from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, Fi
                           calibration_rows, effective_sigma, fit_parameters, nominal_coords)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
+from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
@@ -143,6 +144,8 @@ class _Model:
     y: np.ndarray
     values: dict[str, dict[str, float]]
     """Per effect, its fitted parameters."""
+    q: np.ndarray | None = None
+    """Its whole-run pressure prediction [MPa] (None: the model predicts none)."""
 
 
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
@@ -328,18 +331,19 @@ def _joint_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
              for e in effects for key, scale in space.joint_parameters.get(e, ())]
     if not coords and not extra:
         return params, None
-    f = fit_parameters(problem.fit_residual, params, list(coords) + extra, sigma,
+    f = fit_parameters(problem.sensor_residual, params, list(coords) + extra, sigma,
                        max_iterations=30 if final else 12, jacobian0=start_jac,
-                       refresh_every=5 if final else None, residual_many=problem.fit_residuals)
+                       refresh_every=5 if final else None, residual_many=problem.sensor_residuals)
     return params.with_values(**f.values), f
 
 
 def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                       start_jac: np.ndarray | None, start: PlantParams,
-                      effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray]:
-    """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction."""
+                      effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
+    """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction
+    (displacement [mm], pressure [MPa] or None)."""
     p1, _ = _joint_refit(problem, space, coords, sigma, start, effects, start_jac)
-    return p1, problem.sim.run(p1)[0]
+    return (p1, *problem.sim.run(p1))
 
 
 def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, load: np.ndarray | None,
@@ -350,11 +354,26 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
     n = len(t)
     checkpoint_every = max(1, int(round(10.0 / ts)))
-    y0 = sim.run(model, checkpoint_every=checkpoint_every)[0]
+    y0, q0 = sim.run(model, checkpoint_every=checkpoint_every)
     train, test = interleaved_split(n, ts, block_s)
     e0 = y - y0
     noise = white_noise_level_mm(e0)
-    problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s)
+    evidence = HeldOut.setup(y, test, noise, p_mpa, q0)
+    if not evidence.uses_pressure:
+        q0 = None
+
+    def _used(q: np.ndarray | None) -> np.ndarray | None:
+        return q if evidence.uses_pressure else None
+
+    problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s, evidence.p_mpa,
+                      evidence.weight_mm_per_mpa)
+
+    def sensors_sse(y_hat: np.ndarray, q_hat: np.ndarray | None) -> float:
+        """Training SSE of every sensor the fits weigh [mm^2] (the pressure's rescaled, when used)."""
+        sse = float(np.sum((y - y_hat)[train] ** 2))
+        if evidence.uses_pressure and q_hat is not None:
+            sse += float(np.sum((evidence.weight_mm_per_mpa * (evidence.p_mpa - q_hat))[train] ** 2))
+        return sse
     sensor_mm = space.sensor_noise(model)
     tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
     floor = tests0["noise_reference_mm"]
@@ -362,7 +381,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     excess0 = max(tests0["rms_mm"] ** 2 - floor ** 2, 1e-30)
     sigma = max(noise, 1e-6)
 
-    train_residual, train_residuals = problem.fit_residual, problem.fit_residuals
+    train_residual, train_residuals = problem.sensor_residual, problem.sensor_residuals
 
     findings: list[Finding] = []
     tried: list[dict[str, Any]] = []
@@ -371,7 +390,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     cal: Calibration | None = None
     y_cal = None
     fit_cal = None
-    current = _Model(model, (), y0, {})
+    current = _Model(model, (), y0, {}, q0)
     by_name = {c.name: c for c in candidates}
     do_calibrate = bool(calibration) and tests0["structured"]
     coords: list[FittedParameter] = []
@@ -388,15 +407,24 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
                         residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
         coords = [c for c in nominal_coords(model, calibration, space.bounds) if c.key in cal.changed]
-        y_cal = sim.run(cal.params)[0]
+        y_cal, q_cal = sim.run(cal.params)
         fit_cal = fit_percent(y, y_cal, test)
-        current = _Model(cal.params, (), y_cal, {})
+        current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
         selection.append({"step": "calibrate", "identifiable": cal.identifiable, "prior_cost": round(prior_cost(cal.params), 3),
                           "fit_after_percent": round(fit_cal, 3)})
     cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
 
-    def significance(base: np.ndarray, new: np.ndarray) -> dict[str, float]:
-        return _significance((y - base)[test], (y - new)[test], noise, alpha)
+    def significance(base: np.ndarray, new: np.ndarray, q_base: np.ndarray | None = None,
+                     q_new: np.ndarray | None = None) -> dict[str, float]:
+        """The held-out test of ``new`` against ``base`` (both channels when both predictions carry
+        the pressure; the SSE reduction is the displacement's)."""
+        both = q_base is not None and q_new is not None
+        sig = _significance(evidence.residual(base, q_base) if both else (y - base)[test],
+                            evidence.residual(new, q_new) if both else (y - new)[test], noise, alpha)
+        if both:
+            e0, e1 = (y - base)[test], (y - new)[test]
+            sig["reduction"] = 1.0 - float(e1 @ e1) / float(e0 @ e0) if float(e0 @ e0) > 0 else 0.0
+        return sig
 
     def passes(sig: dict[str, float]) -> bool:
         # material too: an effect whose held-out contribution is within the noise is not claimed
@@ -413,9 +441,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # is not mistaken for evidence (and the search stops if recalibration alone whitens the residual)
         ref_params, _ = joint(current.params, current.effects, cal_jac, final=True)
         if ref_params is not current.params:
-            ref_y = sim.run(ref_params)[0]
-            if float(np.sum((y - ref_y)[train] ** 2)) < float(np.sum((y - current.y)[train] ** 2)):
-                current = _Model(ref_params, current.effects, ref_y, current.values)
+            ref_y, ref_q = sim.run(ref_params)
+            if sensors_sse(ref_y, ref_q) < sensors_sse(current.y, current.q):
+                current = _Model(ref_params, current.effects, ref_y, current.values, _used(ref_q))
                 if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
                     selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
                                       "leaves a white residual"})
@@ -470,12 +498,17 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         for name, res_n in nominal_fits.items():  # fitted on the nominal model only
             if name not in {c.name for c, *_ in starts}:
                 starts.append((by_name[name], res_n, model, train_sse(res_n.y_hat)))
+        if evidence.uses_pressure and starts:
+            # ranked on both sensors: a start that fits the displacement by a pressure the rig does not
+            # have (constants that mimic an amplifier's map) is not promising
+            runs = sim.run_many([st.with_values(**res.values) for _, res, st, _ in starts], pressure=True)
+            starts = [(c, res, st, sensors_sse(*lq)) for (c, res, st, _), lq in zip(starts, runs)]
         promising = sorted(starts, key=lambda r: r[3])[:JOINT_PER_ROUND]
         if not promising:
             break
         # joint re-fits: each promising effect together with the calibration; the reference is the
         # current model re-fitted alone (so recalibration gets the same chance as the effect)
-        ref_y = current.y
+        ref_y, ref_q = current.y, current.q
         alts: list[Alternative] = []
         tasks = [(start.with_values(**res.values), (cand.name,) if start is model else current.effects + (cand.name,))
                  for cand, res, start, _ in promising]
@@ -491,32 +524,35 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # An effect whose parameters are not re-fitted jointly (a band's edges, a map's knots, a play, a
         # drift) was fitted on constants that had absorbed part of it: fit it afresh on the re-fitted
         # constants, and re-fit those once more. Chosen on the training blocks only.
-        ref_train = train_sse(ref_y)
-        joint_sse = [train_sse(j[3]) for j in joints]
+        ref_train = sensors_sse(ref_y, ref_q)
+        joint_sse = [sensors_sse(j[3], j[4]) for j in joints]  # [cand, res, params, y, q, simulations, seconds]
         order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and not space.joint_parameters.get(joints[i][0].name)]
         for i in order[:ALTERNATE_PER_ROUND]:
-            cand, res, p1, y1, sims_used, secs = joints[i]
+            cand, res, p1, y1, q1, sims_used, secs = joints[i]
             runs0, t_fit = sim.runs, time.perf_counter()
             off = p1.with_values(**space.off_values(res.values))
             res2 = _timed(_own_fit, problem, (off, sim.run(off, checkpoint_every=checkpoint_every)[0]), (cand,))[0]
             if isinstance(res2, FitResult):
                 p2, _ = joint(off.with_values(**res2.values), current.effects + (cand.name,), cal_jac)
-                y2 = sim.run(p2)[0]
-                if train_sse(y2) < joint_sse[i]:
-                    joints[i][1:4] = [res2, p2, y2]
-            joints[i][4] += sim.runs - runs0
-            joints[i][5] += time.perf_counter() - t_fit
-        for cand, res, p1, y1, sims_used, secs in joints:
+                y2, q2 = sim.run(p2)
+                if sensors_sse(y2, q2) < joint_sse[i]:
+                    joints[i][1:5] = [res2, p2, y2, q2]
+            joints[i][5] += sim.runs - runs0
+            joints[i][6] += time.perf_counter() - t_fit
+        for cand, res, p1, y1, q1, sims_used, secs in joints:
+            q1 = _used(q1)
             cost = {"simulations": sims_used, "seconds": round(secs, 2)}
-            contribution_rms = float(np.sqrt(np.mean((y1 - ref_y)[test] ** 2)))
-            sig = significance(ref_y, y1) | {"contribution_rms_mm": contribution_rms}
+            contribution_rms = evidence.contribution_rms_mm(y1, q1, ref_y, ref_q)
+            sig = significance(ref_y, y1, ref_q, q1) | {"contribution_rms_mm": contribution_rms}
             values = {k: float(v) for k, v in p1.dotted().items() if k in res.values}
             tried.append({"round": round_no, "effect": cand.name, "joint": True,
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
                           "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
-            alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1, sig["sse_after_mm2"],
-                                    fit_percent(y, y1, test), {k: v for k, v in sig.items()}))
-        accepted = sorted((a for a in alts if passes(a.evidence)), key=lambda a: a.held_out_sse_mm2)
+            alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1,
+                                    float(np.sum((y - y1)[test] ** 2)), fit_percent(y, y1, test),
+                                    {k: v for k, v in sig.items()}, q_hat=q1))
+        # ranked on the evidence of both channels (the displacement's alone without a pressure)
+        accepted = sorted((a for a in alts if passes(a.evidence)), key=lambda a: a.evidence["sse_after_mm2"])
         if not accepted:
             selection.append({"step": "stop", "round": round_no, "reason": "no candidate passes the held-out test "
                               "against the recalibrated model"})
@@ -524,7 +560,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         best = accepted[0]
         group = [best]
         for other in accepted[1:]:
-            ok, ev = distinguishable((y - best.y_hat)[test], (y - other.y_hat)[test], noise, alpha=alpha)
+            ok, ev = distinguishable(evidence.residual(best.y_hat, best.q_hat),
+                                     evidence.residual(other.y_hat, other.q_hat), noise, alpha=alpha)
             other.evidence["versus_best"] = ev
             if not ok:
                 group.append(other)
@@ -543,21 +580,22 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                           "held_out_sse_reduction": round(best.evidence["reduction"], 4),
                           "alternatives": [a.effect for a in group[1:]]})
         current = _Model(best.params, current.effects + (best.effect,), best.y_hat,
-                         current.values | {best.effect: best.parameters})
+                         current.values | {best.effect: best.parameters}, best.q_hat)
         # backward step: drop an accepted effect the others (re-fitted) do without
         if len(current.effects) > 1:
             for name in list(current.effects[:-1]):
                 rest = tuple(e for e in current.effects if e != name)
                 p_wo = current.params.with_values(**space.off_values(current.values[name]))
                 p_wo, _ = joint(p_wo, rest, cal_jac, final=True)
-                y_wo = sim.run(p_wo)[0]
-                sig = significance(y_wo, current.y)
+                y_wo, q_wo = sim.run(p_wo)
+                q_wo = _used(q_wo)
+                sig = significance(y_wo, current.y, q_wo, current.q)
                 if not passes(sig):
                     selection.append({"step": "drop", "round": round_no, "effect": name,
                                       "held_out_sse_reduction_it_gave": round(sig["reduction"], 4),
                                       "p_value": sig["p_value"]})
                     findings = [f for f in findings if f.effect != name]
-                    current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name})
+                    current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated
@@ -573,17 +611,17 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                               residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
             if set(recal.identifiable) == set(cal.identifiable):
                 p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
-                y_re = sim.run(p_re)[0]
+                y_re, q_re = sim.run(p_re)
                 selection.append({"step": "recalibrate with the accepted effects", "simulations": recal.simulations})
-                if np.sum((y - y_re)[train] ** 2) < np.sum((y - current.y)[train] ** 2):
-                    current = _Model(p_re, current.effects, y_re, current.values)
+                if sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q):
+                    current = _Model(p_re, current.effects, y_re, current.values, _used(q_re))
                     cal_jac = recal.jacobian
         p_final, f_final = joint(current.params, current.effects, cal_jac, final=True)
-        y_final = sim.run(p_final)[0]
-        if f_final is not None and np.sum((y - y_final)[train] ** 2) <= np.sum((y - current.y)[train] ** 2):
+        y_final, q_final = sim.run(p_final)
+        if f_final is not None and sensors_sse(y_final, q_final) <= sensors_sse(current.y, current.q):
             for f in findings:
                 f.parameters = {k: float(v) for k, v in p_final.dotted().items() if k in f.parameters}
-            current = _Model(p_final, current.effects, y_final, current.values)
+            current = _Model(p_final, current.effects, y_final, current.values, _used(q_final))
             if not current.effects:  # the calibration alone, converged further
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
             cal = Calibration(p_final, calibration_rows(list(calibration), model, p_final, cal.identifiable,
@@ -597,11 +635,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     excess1 = max(tests1["rms_mm"] ** 2 - floor ** 2, 0.0)
     # an alternative that a later round accepted as well is part of the model, not an alternative;
     # and the others are judged again against what the final model leaves unexplained
-    final_test = (y - y_base)[test]
+    final_test = evidence.residual(y_base, current.q)
 
     def still_tied(best: Alternative, other: Alternative) -> bool:
-        ok, ev = distinguishable((y - best.y_hat)[test], (y - other.y_hat)[test], noise, alpha=alpha,
-                                 residual_mm=final_test)
+        ok, ev = distinguishable(evidence.residual(best.y_hat, best.q_hat), evidence.residual(other.y_hat, other.q_hat),
+                                 noise, alpha=alpha, residual_mm=final_test)
         other.evidence["versus_best"] = ev
         return not ok
     ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or (a.effect not in current.effects
@@ -642,4 +680,4 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                                    "autocorrelation_after": ac1, "cross_correlation_after": xc1},
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
-                     ts_s=ts, unexplained=remainder)
+                     ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa)

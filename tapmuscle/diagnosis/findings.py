@@ -58,6 +58,8 @@ class Alternative:
     held_out_sse_mm2: float = 0.0
     fit_after_percent: float = 0.0
     evidence: dict[str, Any] = field(default_factory=dict)
+    q_hat: np.ndarray | None = field(default=None, repr=False)
+    """Its pressure prediction [MPa] when the held-out evidence uses the pressure, else None."""
 
     def to_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
@@ -127,6 +129,10 @@ class Diagnosis:
     """The structured residual the final model leaves (None if white): ``share`` of the initial
     excess, ``rms_mm``, ``noise_mm``, ``material`` (RMS >= :data:`~tapmuscle.diagnosis.diagnose.MATERIAL_FACTOR` x noise: then it
     is also an ``unexplained`` finding)."""
+    pressure_noise_mpa: float | None = None
+    """White-noise level of the pressure residual [MPa] when the held-out evidence weighs the
+    recorded pressure beside the displacement (:mod:`tapmuscle.diagnosis.held_out`); None: the
+    displacement alone."""
 
     @property
     def named(self) -> list[str]:
@@ -152,4 +158,6 @@ class Diagnosis:
                 "candidates_tried": self.candidates,
                 "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
                           "held_out_samples": int(self.test.sum())},
+                "evidence": {"channels": ["l_mm"] + (["p_mpa"] if self.pressure_noise_mpa is not None else []),
+                             "pressure_noise_mpa": self.pressure_noise_mpa},
                 "simulations": self.simulations, "elapsed_s": round(self.elapsed_s, 2)}

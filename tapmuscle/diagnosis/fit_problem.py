@@ -54,6 +54,11 @@ class Problem:
     """Stationary effects are fitted on the first this many seconds (whole-run simulations are the cost)."""
     block_s: float = 10.0
     """Length of the interleaved training and held-out blocks [s]."""
+    p_mpa: np.ndarray | None = None
+    """Recorded pressure [MPa] that :meth:`sensor_residual` weighs beside the displacement (None: the
+    displacement alone; :mod:`tapmuscle.diagnosis.held_out`)."""
+    p_weight_mm_per_mpa: float = 0.0
+    """``sigma_l / sigma_p`` [mm/MPa]: the pressure residual's scale to the displacement's noise level."""
 
     @property
     def n(self) -> int:
@@ -78,8 +83,36 @@ class Problem:
         except SimulationError:  # find out which, one by one
             return [self.fit_residual(p) for p in params]
 
-    def _failed_residual(self) -> np.ndarray:
-        size = int(np.count_nonzero(self.train[:self.n_fit]))
+    def sensor_residual(self, params: PlantParams) -> np.ndarray:
+        """Training residual of every sensor the fits weigh [mm]: :meth:`fit_residual`'s, with the
+        rescaled pressure residual appended when :attr:`p_mpa` is set (the calibration and the
+        joint re-fits use it; the candidates' own searches stay on the displacement)."""
+        if self.p_mpa is None:
+            return self.fit_residual(params)
+        try:
+            return self.stacked_residual(*self.sim.run(params, stop=self.n_fit))
+        except SimulationError:
+            return self._failed_residual(2)
+
+    def sensor_residuals(self, params: list[PlantParams]) -> list[np.ndarray]:
+        """:meth:`sensor_residual` of each of ``params`` (spread over the simulator's executor, if any)."""
+        if self.p_mpa is None:
+            return self.fit_residuals(params)
+        try:
+            return [self.stacked_residual(l, p) for l, p in self.sim.run_many(params, stop=self.n_fit, pressure=True)]
+        except SimulationError:
+            return [self.sensor_residual(p) for p in params]
+
+    def stacked_residual(self, l_hat: np.ndarray, p_hat: np.ndarray | None) -> np.ndarray:
+        """Training residual [mm] of a prediction from sample 0 (displacement [mm], pressure [MPa]):
+        the displacement's, with the rescaled pressure's appended when :attr:`p_mpa` is set."""
+        if self.p_mpa is None:
+            return self.train_residual(l_hat)
+        m = self.train[:len(p_hat)]
+        return np.concatenate([self.train_residual(l_hat), self.p_weight_mm_per_mpa * (self.p_mpa[:len(p_hat)] - p_hat)[m]])
+
+    def _failed_residual(self, channels: int = 1) -> np.ndarray:
+        size = channels * int(np.count_nonzero(self.train[:self.n_fit]))
         return np.full(size, FAILED_RESIDUAL_SCALE * (1.0 + float(np.max(np.abs(self.y_mm)))))
 
     def train_residual(self, y_hat: np.ndarray, start: int = 0) -> np.ndarray:

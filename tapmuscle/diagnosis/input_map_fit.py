@@ -79,7 +79,8 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     if not base.input_map.is_identity():
         return None  # already in the base model
     n_fit = pr.n_fit
-    r0 = pr.train_residual(y_base[:n_fit])
+    # on every sensor the fits weigh: an amplifier's map shows in the pressure the command sets
+    r0 = pr.train_residual(y_base[:n_fit]) if pr.p_mpa is None else pr.stacked_residual(*pr.sim.run(base, stop=n_fit))
     cost_base = float(r0 @ r0)
     # Done once the training residual is down to the noise (the smaller of the residual's white-noise
     # level, inflated while the map is still off, and the encoder noise the model states), or to a
@@ -92,14 +93,13 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     jac_at: dict[str, object] = {}
 
     def train_cost(x: np.ndarray) -> float:
-        r = pr.train_residual(pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit)[0])
+        r = pr.stacked_residual(*pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit))
         return float(r @ r)
 
     def resid(x: np.ndarray) -> np.ndarray:
         if len(seen) >= _MAP_SIMULATIONS - _MAP_SIMPLER or (seen and min(seen)[0] <= done_cost):
             raise _BudgetSpentError
-        y = pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit)[0]
-        r = pr.train_residual(y)
+        r = pr.stacked_residual(*pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit))
         seen.append((float(r @ r), tuple(float(v) for v in x)))
         last["x"], last["r"] = np.array(x, float), r
         return r

@@ -96,17 +96,20 @@ class Simulator:
         state["executor"] = None  # a copy sent to a worker process runs there, serially
         return state
 
-    def run_many(self, params: Sequence[PlantParams], *, stop: int | None = None) -> list[np.ndarray]:
-        """Noise-free displacements [mm] of ``run(p, stop=stop)`` for each of ``params``, in order.
+    def run_many(self, params: Sequence[PlantParams], *, stop: int | None = None,
+                 pressure: bool = False) -> list[Any]:
+        """Noise-free displacements [mm] of ``run(p, stop=stop)`` for each of ``params``, in order
+        (``pressure``: ``(displacement, pressure)`` pairs instead).
 
         With an :attr:`executor` the runs are spread over its processes; the results are the same,
         bit for bit (each run is a deterministic function of its parameters).
         """
         params = list(params)
         if self.executor is None or len(params) < 2:
-            return [self.run(p, stop=stop)[0] for p in params]
+            return [self.run(p, stop=stop) if pressure else self.run(p, stop=stop)[0] for p in params]
         light = Simulator(self.u_v, self.ts_s, self.load_n)  # what a run needs, without the checkpoints
-        out = list(self.executor.map(_run_copy, [light] * len(params), params, [stop] * len(params)))
+        n = len(params)
+        out = list(self.executor.map(_run_copy, [light] * n, params, [stop] * n, [pressure] * n))
         self.runs += len(params)
         return out
 
@@ -131,6 +134,7 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
         yield pool
 
 
-def _run_copy(sim: Simulator, params: PlantParams, stop: int | None) -> np.ndarray:
+def _run_copy(sim: Simulator, params: PlantParams, stop: int | None, pressure: bool = False) -> Any:
     """One run of :meth:`Simulator.run_many` in a worker process."""
-    return sim.run(params, stop=stop)[0]
+    out = sim.run(params, stop=stop)
+    return out if pressure else out[0]

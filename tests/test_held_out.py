@@ -1,0 +1,69 @@
+"""The held-out evidence (diagnosis/held_out.py): the pressure's residual stacked beside the
+displacement's at the displacement's noise level, and the displacement alone when there is no usable
+pressure."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tapmuscle.diagnosis.held_out import HeldOut
+from tapmuscle.diagnosis.residual_analysis import interleaved_split
+
+N = 1800
+NOISE_MM = 0.01
+NOISE_MPA = 0.001
+
+
+def _recording(seed: int = 0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(N) * 0.1
+    l_model = 30.0 + 20.0 * np.sin(2 * np.pi * 0.05 * t)
+    p_model = 0.12 + 0.08 * np.sin(2 * np.pi * 0.05 * t - 0.3)
+    y = l_model + NOISE_MM * rng.standard_normal(N)
+    p = p_model + NOISE_MPA * rng.standard_normal(N)
+    _, test = interleaved_split(N, 0.1, 10.0)
+    return y, p, l_model, p_model, test
+
+
+def test_the_pressure_residual_is_weighed_to_the_displacement_noise_level():
+    y, p, l_model, p_model, test = _recording()
+    ev = HeldOut.setup(y, test, NOISE_MM, p, p_model)
+    assert ev.uses_pressure
+    assert ev.pressure_noise_mpa == pytest.approx(NOISE_MPA, rel=0.1)  # from first differences, 1800 samples
+    e = ev.residual(l_model, p_model)
+    k = int(test.sum())
+    assert e.shape == (2 * k,)
+    assert np.array_equal(e[:k], (y - l_model)[test])
+    # both halves are white noise of the displacement's level, so one z-statistic serves both
+    assert np.std(e[k:]) == pytest.approx(NOISE_MM, rel=0.1)
+
+
+@pytest.mark.parametrize("bad", ["missing", "nan", "constant", "short", "no model"])
+def test_without_a_usable_pressure_the_evidence_is_the_displacement_alone(bad):
+    y, p, l_model, p_model, test = _recording()
+    p_rec, p_mod = {"missing": (None, p_model), "nan": (np.where(np.arange(N) == 7, np.nan, p), p_model),
+                    "constant": (np.full(N, 0.1), p_model), "short": (p[:-1], p_model),
+                    "no model": (p, None)}[bad]
+    ev = HeldOut.setup(y, test, NOISE_MM, p_rec, p_mod)
+    assert not ev.uses_pressure and ev.pressure_noise_mpa is None and ev.weight_mm_per_mpa == 0.0
+    assert np.array_equal(ev.residual(l_model, None), (y - l_model)[test])
+
+
+def test_a_prediction_without_pressure_is_refused_once_the_pressure_is_used():
+    y, p, l_model, p_model, test = _recording()
+    ev = HeldOut.setup(y, test, NOISE_MM, p, p_model)
+    with pytest.raises(ValueError, match="pressure"):
+        ev.residual(l_model, None)
+
+
+def test_an_effect_seen_in_one_channel_is_not_diluted_by_the_other():
+    """The contribution is the larger channel's: a pressure-only change of 5 sigma_p counts as 5
+    sigma_l, a displacement-only change as itself."""
+    y, p, l_model, p_model, test = _recording()
+    ev = HeldOut.setup(y, test, NOISE_MM, p, p_model)
+    shift_p = p_model + 5 * ev.pressure_noise_mpa
+    assert ev.contribution_rms_mm(l_model, shift_p, l_model, p_model) == pytest.approx(5 * NOISE_MM, rel=1e-9)
+    assert ev.contribution_rms_mm(l_model + 0.03, p_model, l_model, p_model) == pytest.approx(0.03, rel=1e-9)
+    alone = HeldOut.setup(y, test, NOISE_MM, None, None)
+    assert alone.contribution_rms_mm(l_model, shift_p, l_model, p_model) == 0.0
