@@ -485,24 +485,25 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             fitted.append((cand, res, sig))
         # each candidate's start: on top of the current model, or (first round) from the nominal model,
         # whichever fits the training blocks better; the best few on the training blocks are re-fitted
-        # jointly with the constants (ranked on training data: the held-out blocks only judge)
+        # jointly with the constants (ranked on training data: the held-out blocks only judge). With the
+        # pressure, both choices are made on both sensors: a start that fits the displacement by a
+        # pressure the rig does not have (constants that mimic an amplifier's map) is not promising.
         def train_sse(y_hat: np.ndarray) -> float:
             return float(np.sum((y - y_hat)[train] ** 2))
+        options = [(cand, res, current.params) for cand, res, _ in fitted]
+        options += [(by_name[name], res_n, model) for name, res_n in nominal_fits.items()]
+        if evidence.uses_pressure and options:
+            runs = sim.run_many([st.with_values(**res.values) for _, res, st in options], pressure=True)
+            scores = [sensors_sse(*lq) for lq in runs]
+        else:
+            scores = [train_sse(res.y_hat) for _, res, _ in options]
         starts = []
-        for cand, res, sig in fitted:
-            res_n = nominal_fits.get(cand.name)
-            if res_n is not None and train_sse(res_n.y_hat) < train_sse(res.y_hat):
-                starts.append((cand, res_n, model, train_sse(res_n.y_hat)))
-            else:
-                starts.append((cand, res, current.params, train_sse(res.y_hat)))
-        for name, res_n in nominal_fits.items():  # fitted on the nominal model only
-            if name not in {c.name for c, *_ in starts}:
-                starts.append((by_name[name], res_n, model, train_sse(res_n.y_hat)))
-        if evidence.uses_pressure and starts:
-            # ranked on both sensors: a start that fits the displacement by a pressure the rig does not
-            # have (constants that mimic an amplifier's map) is not promising
-            runs = sim.run_many([st.with_values(**res.values) for _, res, st, _ in starts], pressure=True)
-            starts = [(c, res, st, sensors_sse(*lq)) for (c, res, st, _), lq in zip(starts, runs)]
+        for (cand, res, st), score in zip(options, scores):  # the current model's start first: kept on a tie
+            i = next((i for i, s_ in enumerate(starts) if s_[0].name == cand.name), None)
+            if i is None:
+                starts.append((cand, res, st, score))
+            elif score < starts[i][3]:
+                starts[i] = (cand, res, st, score)
         promising = sorted(starts, key=lambda r: r[3])[:JOINT_PER_ROUND]
         if not promising:
             break
