@@ -67,3 +67,43 @@ def test_an_effect_seen_in_one_channel_is_not_diluted_by_the_other():
     assert ev.contribution_rms_mm(l_model + 0.03, p_model, l_model, p_model) == pytest.approx(0.03, rel=1e-9)
     alone = HeldOut.setup(y, test, NOISE_MM, None, None)
     assert alone.contribution_rms_mm(l_model, shift_p, l_model, p_model) == 0.0
+
+
+# ------------------------------------------------------------------------------ in the diagnosis
+def _field_case(index: int):
+    from tapmuscle.diagnosis.field_cases import field_cases
+
+    return field_cases(100, 0)[index]
+
+
+@pytest.mark.slow
+def test_with_the_pressure_an_amplifier_map_on_an_off_nominal_rig_is_named_alone():
+    """Field case 067 (seed 0): an amplifier gain of about 0.84 with offset on a rig with six constants
+    off by 7-18 %. On the displacement alone the recalibrated constants absorbed the map and a load
+    mismatch and a rate dependence were named; the pressure shows the map the command goes through."""
+    from tapmuscle.diagnosis import diagnose
+    from tapmuscle.diagnosis.field_cases import record_case
+
+    case = _field_case(67)
+    assert case.effects == ("input_map",)
+    cols = record_case(case)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"], p_mpa=cols["p_mpa"])
+    assert d.to_json()["evidence"]["channels"] == ["l_mm", "p_mpa"]
+    sensor = case.truth().sensor.pressure_noise_std_mpa  # the map's mismatch inflates the estimate a little
+    assert 0.5 * sensor <= d.pressure_noise_mpa <= 2.0 * sensor
+    assert d.named == ["input_map"] and not d.ambiguous
+    assert d.fit_after_percent >= 95.0
+
+
+@pytest.mark.slow
+def test_with_the_pressure_constants_off_alone_are_calibration_only():
+    """Field case 017 (seed 0): no effect, constants off. On the displacement alone the verdict was
+    ambiguous between a load and an input map; with the pressure the valve constants are pinned."""
+    from tapmuscle.diagnosis import diagnose
+    from tapmuscle.diagnosis.field_cases import record_case
+
+    case = _field_case(17)
+    assert case.category == "none"
+    cols = record_case(case)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"], p_mpa=cols["p_mpa"])
+    assert d.verdict == "calibration_only" and d.named == []
