@@ -492,9 +492,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             return float(np.sum((y - y_hat)[train] ** 2))
         options = [(cand, res, current.params) for cand, res, _ in fitted]
         options += [(by_name[name], res_n, model) for name, res_n in nominal_fits.items()]
-        if evidence.uses_pressure and options:
-            runs = sim.run_many([st.with_values(**res.values) for _, res, st in options], pressure=True)
-            scores = [sensors_sse(*lq) for lq in runs]
+        if evidence.uses_pressure and options:  # on the fit segment, where the fits themselves look
+            runs = sim.run_many([st.with_values(**res.values) for _, res, st in options], stop=problem.n_fit,
+                                pressure=True)
+            scores = [float(np.sum(problem.stacked_residual(*lq) ** 2)) for lq in runs]
         else:
             scores = [train_sse(res.y_hat) for _, res, _ in options]
         starts = []
