@@ -17,7 +17,11 @@ from dataclasses import dataclass
 
 from .parameters import MuscleParams
 
-__all__ = ["MuscleGeometry", "effective_pressure_mpa", "muscle_force_n"]
+__all__ = ["MuscleGeometry", "effective_pressure_mpa", "muscle_force_n", "LOCK_EXPONENT_MAX"]
+
+#: Largest exponent of the braid lock's ``exp(-l / l_lock)`` evaluated (exp overflows past ~709): at a
+#: (trial) state farther beyond the extension stop the force is infinite, and an integrator rejects it.
+LOCK_EXPONENT_MAX = 700.0
 
 
 @dataclass(frozen=True)
@@ -97,5 +101,6 @@ def muscle_force_n(mp: MuscleParams, geo: MuscleGeometry, p_mpa: float, l_mm: fl
     force = (p_eff * 1e6 * geo.piston_area_m2(l_mm * 1e-3) - mp.rubber_stiffness_n_per_mm * l_mm - load_n
              - mp.damping_n_s_per_mm * v_mm_s - z_n)
     if mp.braid_lock_force_n:
-        force += mp.braid_lock_force_n * math.exp(-l_mm / mp.braid_lock_length_mm)
+        e_lock = -l_mm / mp.braid_lock_length_mm
+        force += mp.braid_lock_force_n * (math.exp(e_lock) if e_lock < LOCK_EXPONENT_MAX else math.inf)
     return force

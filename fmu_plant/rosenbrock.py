@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from .muscle import MuscleGeometry
+from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
 __all__ = ["build_model", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH", "KINK_SCALE_INITIAL", "KINK_FLOOR"]
@@ -127,7 +127,7 @@ def build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Cal
     # Error weights.
     inv_tol_p, inv_tol_l = 1.0 / sol.tol_p_mpa, 1.0 / sol.tol_l_mm
     inv_tol_v, inv_tol_z = 1.0 / sol.tol_v_mm_s, 1.0 / sol.tol_z_n
-    sqrt, exp, log1p = math.sqrt, math.exp, math.log1p
+    sqrt, exp, log1p, inf = math.sqrt, math.exp, math.log1p, math.inf
     (_, _, _, _), (a21, _, _, _), (a31, a32, _, _), (a41, a42, a43, _) = _A
     (_, _, _, _), (c21, _, _, _), (c31, c32, _, _), (c41, c42, c43, _) = _GC
     e1, e2, e3, e4 = _E
@@ -162,7 +162,8 @@ def build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Cal
         p_eff = w_th * (arg + log1p(exp(-arg)) if arg > 0.0 else log1p(exp(arg)))
         force = k_force * p_eff * g_area - k_rubber * l - w - damping * v - z
         if f_lock0:
-            force += f_lock0 * exp(-l * inv_lock)
+            e_lock = -l * inv_lock  # a trial stage far beyond the stop: inf, and the sub-step is rejected
+            force += f_lock0 * (exp(e_lock) if e_lock < LOCK_EXPONENT_MAX else inf)
         if l <= 0.0 and v <= 0.0 and force <= 0.0:
             # Resting on the braid's full-extension stop: the stop carries the net force.
             return dp, 0.0, 0.0, 0.0
@@ -231,7 +232,8 @@ def build_model(prm: PlantParams) -> tuple[Callable[..., tuple[float, ...]], Cal
         force = k_force * p_eff * g_area - k_rubber * l - w - damping * v - z
         dforce_dl = k_force * p_eff * dg_area - k_rubber
         if f_lock0:
-            lock = f_lock0 * exp(-l * inv_lock)
+            e_lock = -l * inv_lock
+            lock = f_lock0 * (exp(e_lock) if e_lock < LOCK_EXPONENT_MAX else inf)
             force += lock
             dforce_dl -= lock * inv_lock
         if l <= 0.0 and v <= 0.0 and force <= 0.0:

@@ -105,3 +105,19 @@ def test_an_edit_to_the_physics_would_be_caught(monkeypatch):
     state = (0.5, 0.15, 60.0, 10.0, 3.0)
     fast = Plant(params).derivatives(state, 5.0, 0.25, 44.0)
     assert not np.allclose(fast, rig_derivatives(params, state, 5.0, 0.25, 44.0), rtol=1e-10, atol=1e-9)
+
+
+def test_a_trial_state_far_beyond_the_extension_stop_is_infinite_not_an_overflow():
+    """A Rosenbrock stage of a large sub-step can land far below l = 0, where the braid lock's
+    ``exp(-l / l_lock)`` overflows: both definitions give an infinite force there (the integrator then
+    rejects the sub-step) instead of raising OverflowError, which broke an experiment design."""
+    params = PlantParams()
+    lock_mm = params.muscle.braid_lock_length_mm
+    far = (0.5, 0.1, -800.0 * lock_mm, 5.0, 0.0)  # moving up: not resting on the stop
+    assert math.isinf(rig_derivatives(params, far, 5.0, 0.25, 44.0)[3])
+    rhs, jac, *_ = build_model(params)
+    inv_mass = 1e3 / (44.0 / GRAVITY_M_S2 + params.load.moving_mass_kg)
+    assert math.isinf(rhs(*far, 0.25, 44.0, inv_mass)[2])
+    # just inside the limit the force is finite and both agree
+    near = (0.5, 0.1, -650.0 * lock_mm, 5.0, 0.0)
+    assert math.isfinite(rig_derivatives(params, near, 5.0, 0.25, 44.0)[3])
