@@ -321,6 +321,10 @@ def test_the_cli_keeps_each_suites_flags_to_it(tmp_path, capsys):
     assert "--seeds belongs to --suite concealed, not --suite field" in capsys.readouterr().err
     assert main(["demo-mismatch", "--out", str(out), "--suite", "concealed", "--recordings", "5", "--seed", "1"]) == 2
     assert "--recordings, --seed belong to --suite field" in capsys.readouterr().err
+    assert main(["demo-mismatch", "--out", str(out), "--suite", "concealed", "--use-pressure"]) == 2
+    assert "--use-pressure belongs to --suite field, not --suite concealed" in capsys.readouterr().err
+    assert main(["demo-mismatch", "--out", str(out), "--suite", "foreign", "--use-pressure"]) == 2
+    assert "--use-pressure belongs to --suite field, not --suite foreign" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["demo-mismatch", "--out", str(out), "--recordings", "0"])
     assert "--recordings must be >= 1" in capsys.readouterr().err

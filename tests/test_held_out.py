@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tapmuscle.diagnosis import CANDIDATES
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.residual_analysis import interleaved_split
 
@@ -70,6 +71,25 @@ def test_an_effect_seen_in_one_channel_is_not_diluted_by_the_other():
 
 
 # ------------------------------------------------------------------------------ in the diagnosis
+def test_the_pressure_is_weighed_only_when_asked():
+    """By default the diagnosis judges on the displacement alone, whatever columns the recording has
+    (the field proof's default figures); ``use_pressure`` adds the pressure and records it."""
+    from tapmuscle.diagnosis import diagnose
+    from tapmuscle.diagnosis.demo import DEMO_MODEL, record
+
+    cols = record(DEMO_MODEL.with_values(**{"delay.delay_s": 0.2}), "sine", 0, duration_s=60.0)
+    args = (cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)
+    kw = {"load_n": cols["load_n"], "p_mpa": cols["p_mpa"], "calibration": None,
+          "candidates": [c for c in CANDIDATES if c.name == "transport_delay"]}
+    alone, both = diagnose(*args, **kw), diagnose(*args, **kw, use_pressure=True)
+    assert alone.to_json()["evidence"] == {"channels": ["l_mm"], "pressure_noise_mpa": None}
+    assert both.to_json()["evidence"]["channels"] == ["l_mm", "p_mpa"]
+    assert 0.5e-3 <= both.pressure_noise_mpa <= 2e-3  # the sensor's 1 kPa, from the delayed pressure's residual
+    # a 0.2-s delay shows in both channels: named either way, to the same value within a sample's tenth
+    assert alone.named == both.named == ["transport_delay"]
+    assert both.findings[0].parameters["delay.delay_s"] == pytest.approx(0.2, abs=0.01)
+
+
 def _field_case(index: int):
     from tapmuscle.diagnosis.field_cases import field_cases
 
@@ -87,7 +107,8 @@ def test_with_the_pressure_an_amplifier_map_on_an_off_nominal_rig_is_named_alone
     case = _field_case(67)
     assert case.effects == ("input_map",)
     cols = record_case(case)
-    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"], p_mpa=cols["p_mpa"])
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"], p_mpa=cols["p_mpa"],
+                 use_pressure=True)
     assert d.to_json()["evidence"]["channels"] == ["l_mm", "p_mpa"]
     sensor = case.truth().sensor.pressure_noise_std_mpa  # the map's mismatch inflates the estimate a little
     assert 0.5 * sensor <= d.pressure_noise_mpa <= 2.0 * sensor
@@ -105,5 +126,6 @@ def test_with_the_pressure_constants_off_alone_are_calibration_only():
     case = _field_case(17)
     assert case.category == "none"
     cols = record_case(case)
-    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"], p_mpa=cols["p_mpa"])
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"], p_mpa=cols["p_mpa"],
+                 use_pressure=True)
     assert d.verdict == "calibration_only" and d.named == []

@@ -22,6 +22,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.candidates import CANDIDATES
 
     if _is_foreign(args.plant):  # its candidates depend on the FMU and the map: checked there
+        if args.use_pressure:
+            raise UsageError(f"--use-pressure is for tapmuscle's plant; the foreign FMU {args.plant} predicts "
+                             "no muscle pressure")
         return _diagnose_foreign(args)
     out = Path(args.out)
     effects = None
@@ -35,7 +38,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                              + f"; known: {', '.join(known)}")
     if args.map is not None or args.output is not None:
         raise UsageError(f"--map and --output are for a foreign plant FMU; {args.plant} is tapmuscle's plant")
-    options = {"calibration": None} if args.no_calibration else {}
+    options = ({"calibration": None} if args.no_calibration else {}) | {"use_pressure": args.use_pressure}
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1),
@@ -101,7 +104,8 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
 
-    field_only = {"--recordings": args.recordings, "--seed": args.seed, "--resume": args.resume or None}
+    field_only = {"--recordings": args.recordings, "--seed": args.seed, "--resume": args.resume or None,
+                  "--use-pressure": args.use_pressure or None}
     concealed_only = {"--seeds": args.seeds, "--clean-seeds": args.clean_seeds, "--effects": args.effects,
                       "--excitations": args.excitations}
     home = {"field": "field", "concealed": "concealed", "foreign": "field"}[args.suite]
@@ -109,8 +113,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if wrong:
         raise UsageError(f"{', '.join(wrong)} belong{'s' if len(wrong) == 1 else ''} to --suite "
                          f"{'concealed' if home == 'field' else 'field'}, not --suite {args.suite}")
-    if args.suite == "foreign" and args.resume:
-        raise UsageError("--resume belongs to --suite field, not --suite foreign")
+    for flag, value in (("--resume", args.resume), ("--use-pressure", args.use_pressure)):
+        if args.suite == "foreign" and value:
+            raise UsageError(f"{flag} belongs to --suite field, not --suite foreign")
     progress = Progress("demo-mismatch", enabled=not args.quiet, min_total=1)
     if args.suite == "foreign":
         from tapmuscle.diagnosis.foreign_demo import foreign_scores_markdown, run_foreign_demo
@@ -125,7 +130,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
         n = 120 if args.recordings is None else args.recordings
         scores = run_field_demo(args.out, n=n, seed=0 if args.seed is None else args.seed, jobs=args.jobs,
-                                resume=args.resume, progress=progress)
+                                resume=args.resume, progress=progress, use_pressure=args.use_pressure)
         print(field_markdown(scores))
         print(f"wrote {args.out}/scores.md, scores.json (every case's truth and result), confusion.png and "
               f"cases/*/diagnosis.json, report.md")
@@ -189,6 +194,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     dia.add_argument("--workers", type=integer_at_least("--workers", 1), default=None,
                      help="processes for the independent simulations (default: all cores; 1: this process "
                           "only); the diagnosis is the same")
+    dia.add_argument("--use-pressure", action="store_true",
+                     help="weigh the recording's p_mpa beside l_mm in the fits and tests (docs/diagnosis.md)")
     dia.add_argument("--no-plots", action="store_true", help="skip the PNGs")
     dia.add_argument("--quiet", action="store_true", help="no progress output")
     dia.set_defaults(func=_cmd_diagnose)
@@ -218,5 +225,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     demo.add_argument("--effects", help="concealed: comma-separated subset of the effects (default all)")
     demo.add_argument("--excitations", help="concealed: comma-separated subset of sine,ampc,steps (default all)")
     demo.add_argument("--jobs", type=integer_at_least("--jobs", 1), default=None, help="worker processes (default: all cores)")
+    demo.add_argument("--use-pressure", action="store_true",
+                      help="field: diagnose with the recorded pressure beside the displacement")
     demo.add_argument("--quiet", action="store_true", help="no progress output")
     demo.set_defaults(func=_cmd_demo)

@@ -154,7 +154,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
              alpha: float = 1e-3, min_reduction: float = 0.10,
              calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
              progress: Callable[[int, int], None] | None = None, workers: int = 1,
-             executor: Executor | None = None) -> Diagnosis:
+             executor: Executor | None = None, use_pressure: bool = False) -> Diagnosis:
     """Diagnose the mismatch between a recording and the plant model (module docstring).
 
     Parameters
@@ -164,7 +164,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     model : PlantParams
         The nominal plant (e.g. read from the MusclePlant FMU's parameters).
     load_n, p_mpa : ndarray, optional
-        Recorded load [N] (re-simulated as recorded) and pressure [MPa] (for the regime breakdown).
+        Recorded load [N] (re-simulated as recorded) and pressure [MPa] (for the regime breakdown, and
+        the fits and tests with ``use_pressure``).
     block_s : float
         Length of the interleaved training / held-out blocks [s].
     fit_segment_s : float
@@ -188,6 +189,10 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     executor : Executor, optional
         An existing pool to use instead (:func:`~tapmuscle.diagnosis.simulation.worker_pool`);
         ``workers`` is then ignored.
+    use_pressure : bool
+        Weigh the recorded pressure ``p_mpa`` beside the displacement in the calibration, the joint
+        re-fits, the input map's search and the held-out tests (:mod:`tapmuscle.diagnosis.held_out`;
+        docs/diagnosis.md has its measured trade-off). Off by default.
 
     Raises
     ------
@@ -205,7 +210,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         return _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                        candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                       calibration=calibration, progress=progress, started=started, space=MUSCLE)
+                       calibration=calibration, progress=progress, started=started, space=MUSCLE,
+                       use_pressure=use_pressure)
 
 
 def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s: float, *,
@@ -350,7 +356,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
             candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
             calibration: Sequence[NominalParameter] | None, progress: Callable[[int, int], None] | None,
-            started: float, space: ModelSpace) -> Diagnosis:
+            started: float, space: ModelSpace, use_pressure: bool = False) -> Diagnosis:
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
     n = len(t)
     checkpoint_every = max(1, int(round(10.0 / ts)))
@@ -358,7 +364,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     train, test = interleaved_split(n, ts, block_s)
     e0 = y - y0
     noise = white_noise_level_mm(e0)
-    evidence = HeldOut.setup(y, test, noise, p_mpa, q0)
+    evidence = HeldOut.setup(y, test, noise, p_mpa if use_pressure else None, q0)
     if not evidence.uses_pressure:
         q0 = None
 

@@ -114,18 +114,20 @@ def _calibration_check(doc: dict[str, Any], case: FieldCase) -> dict[str, Any] |
     return out
 
 
-def _diagnose(rec: Path, plant: Path, folder: Path, effects: Sequence[str] | None = None) -> dict[str, Any]:
+def _diagnose(rec: Path, plant: Path, folder: Path, effects: Sequence[str] | None = None, *,
+              use_pressure: bool = False) -> dict[str, Any]:
     from tapmuscle.diagnosis.report import diagnose_files
 
+    opts = {"use_pressure": True} if use_pressure else {}
     if effects is None:
-        return diagnose_files(rec, plant, folder, plots=False)[1]
+        return diagnose_files(rec, plant, folder, plots=False, **opts)[1]
     try:
-        return diagnose_files(rec, plant, folder, plots=False, effects=list(effects))[1]
+        return diagnose_files(rec, plant, folder, plots=False, effects=list(effects), **opts)[1]
     except TypeError as exc:
         if "effects" not in str(exc):
             raise
         # a diagnosis without the keyword: the re-diagnosis tries every candidate
-        return diagnose_files(rec, plant, folder, plots=False)[1]
+        return diagnose_files(rec, plant, folder, plots=False, **opts)[1]
 
 
 def _tidy(folder: Path, keep: bool) -> None:
@@ -137,7 +139,7 @@ def _tidy(folder: Path, keep: bool) -> None:
 
 
 def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path: Path,
-                  end_stop_mm: float | None, keep: bool) -> dict[str, Any] | None:
+                  end_stop_mm: float | None, keep: bool, use_pressure: bool = False) -> dict[str, Any] | None:
     """The discriminating experiment of an ``ambiguous`` verdict, run on the truth and re-diagnosed."""
     groups = [g for g in (doc.get("ambiguous") or []) if isinstance(g, dict)]
     if doc.get("verdict") != "ambiguous" and not groups:
@@ -162,7 +164,7 @@ def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path
                        noise_seed=case.noise_seed + 1, end_stop_mm=end_stop_mm)
     rec = sub / "recording.csv"
     write_recording(rec, Recording(cols, {"ts_s": f"{ts:g}", "source": "tapmuscle demo-mismatch (discriminating input)"}))
-    doc2 = _diagnose(rec, plant_path, sub, alternatives or None)
+    doc2 = _diagnose(rec, plant_path, sub, alternatives or None, use_pressure=use_pressure)
     c2 = _claims(doc2)
     named2 = _named(c2["findings"], c2["ambiguous"])
     picked = sorted(named2 & set(alternatives))
@@ -179,7 +181,8 @@ def _named(findings: Sequence[str], ambiguous: Sequence[Sequence[str]]) -> set[s
     return {e for e in findings if e != "unexplained"} | {a for g in ambiguous for a in g}
 
 
-def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False) -> dict[str, Any]:
+def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False,
+                   use_pressure: bool = False) -> dict[str, Any]:
     """Record the case's truth, write the CSV and the nominal model's plant file, diagnose, score.
 
     Parameters
@@ -189,6 +192,8 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False) 
         The case's folder is ``workdir / case.name``; it keeps ``diagnosis.json`` and ``report.md``
         (and those of the discriminating experiment in ``discriminate/``); the CSVs and the plant
         files are deleted unless ``keep``. A case that raises keeps them, for a look at what failed.
+    use_pressure : bool
+        Diagnose with the recorded pressure beside the displacement (``diagnose(use_pressure=True)``).
 
     Returns
     -------
@@ -213,18 +218,18 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False) 
     plant_path = folder / "plant.json"
     write_recording(rec_path, Recording(cols, {"ts_s": f"{TS_S:g}", "source": "tapmuscle demo-mismatch (field)"}))
     atomic_write_text(plant_path, plant_file_text(case.model(), "the nominal model of the field demo"))
-    doc = _diagnose(rec_path, plant_path, folder)
+    doc = _diagnose(rec_path, plant_path, folder, use_pressure=use_pressure)
     claims = _claims(doc)
     result: dict[str, Any] = {**case.describe(), **claims,
                               "named": sorted(_named(claims["findings"], claims["ambiguous"])),
                               "fit_before_percent": doc.get("fit_before_percent"),
                               "fit_after_percent": doc.get("fit_after_percent"),
                               "end_stop_mm": end_stop_mm,
-                              "diagnosis_elapsed_s": doc.get("elapsed_s")}
+                              "diagnosis_elapsed_s": doc.get("elapsed_s"), "use_pressure": use_pressure}
     result.update(effect_costs(case, cols, end_stop_mm))
     result["calibration_check"] = _calibration_check(doc, case)
     try:
-        result["discrimination"] = _discriminate(case, doc, folder, plant_path, end_stop_mm, keep)
+        result["discrimination"] = _discriminate(case, doc, folder, plant_path, end_stop_mm, keep, use_pressure)
     except Exception as exc:  # noqa: BLE001 - the first diagnosis stands; the experiment's failure is reported
         result["discrimination"] = {"input_written": True, "error": f"{type(exc).__name__}: {exc}"}
     result["elapsed_s"] = time.monotonic() - t0
@@ -233,21 +238,23 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False) 
     return result
 
 
-def _stored_result(case: FieldCase, workdir: Path) -> dict[str, Any] | None:
-    """The case's stored result if an earlier run finished it with the same truth (else None)."""
+def _stored_result(case: FieldCase, workdir: Path, use_pressure: bool = False) -> dict[str, Any] | None:
+    """The case's stored result if an earlier run finished it with the same truth and the same
+    ``use_pressure`` (else None)."""
     path = workdir / case.name / RESULT_FILE
     try:
         stored = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
     truth = json.loads(json.dumps(case.describe(), default=_json_default))
-    return stored if all(stored.get(k) == v for k, v in truth.items()) else None
+    same = all(stored.get(k) == v for k, v in truth.items()) and bool(stored.get("use_pressure")) == use_pressure
+    return stored if same else None
 
 
-def _run_safe(args: tuple[FieldCase, str, bool]) -> dict[str, Any]:
-    case, workdir, keep = args
+def _run_safe(args: tuple[FieldCase, str, bool, bool]) -> dict[str, Any]:
+    case, workdir, keep, use_pressure = args
     try:
-        return run_field_case(case, workdir, keep=keep)
+        return run_field_case(case, workdir, keep=keep, use_pressure=use_pressure)
     except Exception as exc:  # noqa: BLE001 - a failing case is scored as failed, with its error
         return {**case.describe(), "error": f"{type(exc).__name__}: {exc}"}
 
@@ -255,7 +262,8 @@ def _run_safe(args: tuple[FieldCase, str, bool]) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------ the suite
 def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | None = None,
                    duration_s: float = DURATION_S, keep: bool = False, resume: bool = False,
-                   progress: Callable[..., None] | None = None, heartbeat_s: float = 5.0) -> dict[str, Any]:
+                   progress: Callable[..., None] | None = None, heartbeat_s: float = 5.0,
+                   use_pressure: bool = False) -> dict[str, Any]:
     """Make, diagnose and score ``n`` field recordings (module docstring).
 
     Parameters
@@ -274,6 +282,8 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
         The caller vouches that the diagnosis code has not changed in between.
     progress : callable, optional
         ``progress(done, total, detail)``, called as cases finish and at least every ``heartbeat_s``.
+    use_pressure : bool
+        Diagnose with the recorded pressure beside the displacement (``diagnose(use_pressure=True)``).
 
     Returns
     -------
@@ -288,12 +298,13 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
     results: dict[int, dict[str, Any]] = {}
     if resume:
         for c in cases:
-            stored = _stored_result(c, out / "cases")
+            stored = _stored_result(c, out / "cases", use_pressure)
             if stored is not None:
                 results[c.index] = stored
     todo = [c for c in cases if c.index not in results]
     with ProcessPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as pool:
-        pending: dict[Future, FieldCase] = {pool.submit(_run_safe, (c, str(out / "cases"), keep)): c for c in todo}
+        pending: dict[Future, FieldCase] = {pool.submit(_run_safe, (c, str(out / "cases"), keep, use_pressure)): c
+                                            for c in todo}
         # wait() rather than as_completed(): the same results as they finish, plus a heartbeat while
         # the slowest cases run (as_completed's timeout would end the iteration instead)
         while pending:
@@ -306,6 +317,7 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
     ordered = [results[c.index] for c in cases]
     scores = score_results(ordered)
     settings = {"recordings": n, "seed": seed, "duration_s": duration_s, "ts_s": TS_S, "jobs": jobs,
+                "use_pressure": use_pressure,
                 "resumed_cases": len(cases) - len(todo),
                 "vocabulary": list(vocabulary()), "wall_s": time.monotonic() - t0}
     scores["settings"] = settings
