@@ -8,9 +8,10 @@ moves the bleed circuit's pressure, which the command sets). On the displacement
 trade with each other and with the recalibrated constants (a backlash looks like a short delay, an
 amplifier gain like a load and a stiffer bladder); on both channels they do not.
 
-So every held-out test of the diagnosis (an effect's significance against the recalibrated model,
-two explanations' distinguishability, the ranking of alternatives, the backward step) works on
-the stacked residual
+With ``diagnose(..., use_pressure=True)`` (off by default: docs/diagnosis.md has the measured
+trade-off) every held-out test of the diagnosis (an effect's significance against the recalibrated
+model, two explanations' distinguishability, the ranking of alternatives, the backward step) works
+on the stacked residual
 
 .. math::
 
@@ -19,9 +20,10 @@ the stacked residual
 in which the pressure residual is rescaled so that its white noise has the displacement's level
 ``sigma_l`` [mm]: the Gaussian likelihood of both sensors, with the tests' statistics unchanged.
 ``sigma_p`` is the pressure residual's white-noise level from its first differences (as for the
-displacement). The fits themselves stay on the displacement's training blocks: the pressure only
-judges, on held-out blocks, what the displacement proposed. Without a pressure column (or with a
-model that predicts none, a foreign FMU) the evidence is the displacement's alone, as before.
+displacement). The calibration, the joint re-fits and the input map's search fit the same stacked
+residual on the training blocks (:meth:`tapmuscle.diagnosis.fit_problem.Problem.sensor_residual`).
+Without a usable pressure column (or with a model that predicts none, a foreign FMU) the evidence is
+the displacement's alone.
 """
 
 from __future__ import annotations
