@@ -7,6 +7,7 @@ its nominal constants off by 10-20 % and 0, 1 or 2 concealed effects; then times
 fitting the candidates, writing the JSON, report and PNGs) once per rig given.
 
     python benchmarks/diagnose_time.py [--rigs field_two_effects,field_none,...] [--excitation sine] [--workers 2]
+                                       [--use-pressure]
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ def main() -> None:
     ap.add_argument("--rigs", default="clean,field_none,field_two_effects,field_delay_load")
     ap.add_argument("--excitation", default="sine", choices=("sine", "steps", "ampc"))
     ap.add_argument("--workers", type=int, default=2, help="processes for the simulations (default 2)")
+    ap.add_argument("--use-pressure", action="store_true", help="weigh the recorded pressure too (diagnose(use_pressure=True))")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         plant = Path(tmp) / "plant.json"
@@ -58,7 +60,7 @@ def main() -> None:
             rec = Path(tmp) / f"{name}.csv"
             write_recording(rec, Recording(cols, {"ts_s": "0.1"}))
             t0 = time.perf_counter()
-            d, doc = diagnose_files(rec, plant, Path(tmp) / name, workers=args.workers)
+            d, doc = diagnose_files(rec, plant, Path(tmp) / name, workers=args.workers, use_pressure=args.use_pressure)
             wall = time.perf_counter() - t0
             named = ",".join(d.named) or "-"
             if d.ambiguous:
