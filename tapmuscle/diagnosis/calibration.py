@@ -241,11 +241,9 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
         calls = state["calls"]
         state["calls"] += 1
         if state["J"] is None:
-            # the Jacobian of another residual (the displacement's alone, for both sensors) is no start
-            j0 = jacobian0 if jacobian0 is not None and jacobian0.shape[0] == len(data_residual(x)) else None
-            J = fd_jacobian(x, start=0 if j0 is None else j0.shape[1])
-            if j0 is not None:
-                J = np.hstack([j0, J])
+            J = fd_jacobian(x, start=0 if jacobian0 is None else jacobian0.shape[1])
+            if jacobian0 is not None:
+                J = np.hstack([jacobian0, J])
         elif refresh_every and calls % refresh_every == 0:
             J = fd_jacobian(x)
         else:  # Broyden: the secant through the last accepted point

@@ -371,15 +371,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     def _used(q: np.ndarray | None) -> np.ndarray | None:
         return q if evidence.uses_pressure else None
 
-    problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s, evidence.p_mpa,
-                      evidence.weight_mm_per_mpa)
+    problem = Problem(y, t, u, ts, train, test, sim, noise, fit_segment_s, block_s, evidence)
 
     def sensors_sse(y_hat: np.ndarray, q_hat: np.ndarray | None) -> float:
         """Training SSE of every sensor the fits weigh [mm^2] (the pressure's rescaled, when used)."""
-        sse = float(np.sum((y - y_hat)[train] ** 2))
-        if evidence.uses_pressure and q_hat is not None:
-            sse += float(np.sum((evidence.weight_mm_per_mpa * (evidence.p_mpa - q_hat))[train] ** 2))
-        return sse
+        return float(np.sum(evidence.stacked(y_hat, q_hat, train) ** 2))
     sensor_mm = space.sensor_noise(model)
     tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
     floor = tests0["noise_reference_mm"]

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fmu_plant import PlantParams
+from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.simulation import Simulator
 
 __all__ = ["Problem", "FitResult", "Rejected", "SimulationError", "full_prediction"]
@@ -54,11 +55,13 @@ class Problem:
     """Stationary effects are fitted on the first this many seconds (whole-run simulations are the cost)."""
     block_s: float = 10.0
     """Length of the interleaved training and held-out blocks [s]."""
-    p_mpa: np.ndarray | None = None
-    """Recorded pressure [MPa] that :meth:`sensor_residual` weighs beside the displacement (None: the
-    displacement alone; :mod:`tapmuscle.diagnosis.held_out`)."""
-    p_weight_mm_per_mpa: float = 0.0
-    """``sigma_l / sigma_p`` [mm/MPa]: the pressure residual's scale to the displacement's noise level."""
+    evidence: HeldOut | None = None
+    """How the recording's channels are weighed; with the pressure in it, :meth:`sensor_residual`
+    stacks it beside the displacement (None: the displacement alone)."""
+
+    @property
+    def uses_pressure(self) -> bool:
+        return self.evidence is not None and self.evidence.uses_pressure
 
     @property
     def n(self) -> int:
@@ -85,9 +88,9 @@ class Problem:
 
     def sensor_residual(self, params: PlantParams) -> np.ndarray:
         """Training residual of every sensor the fits weigh [mm]: :meth:`fit_residual`'s, with the
-        rescaled pressure residual appended when :attr:`p_mpa` is set (the calibration and the
-        joint re-fits use it; the candidates' own searches stay on the displacement)."""
-        if self.p_mpa is None:
+        rescaled pressure residual appended when :attr:`evidence` uses the pressure (the calibration
+        and the joint re-fits use it; the candidates' own searches stay on the displacement)."""
+        if not self.uses_pressure:
             return self.fit_residual(params)
         try:
             return self.stacked_residual(*self.sim.run(params, stop=self.n_fit))
@@ -96,7 +99,7 @@ class Problem:
 
     def sensor_residuals(self, params: list[PlantParams]) -> list[np.ndarray]:
         """:meth:`sensor_residual` of each of ``params`` (spread over the simulator's executor, if any)."""
-        if self.p_mpa is None:
+        if not self.uses_pressure:
             return self.fit_residuals(params)
         try:
             return [self.stacked_residual(l, p) for l, p in self.sim.run_many(params, stop=self.n_fit, pressure=True)]
@@ -105,11 +108,10 @@ class Problem:
 
     def stacked_residual(self, l_hat: np.ndarray, p_hat: np.ndarray | None) -> np.ndarray:
         """Training residual [mm] of a prediction from sample 0 (displacement [mm], pressure [MPa]):
-        the displacement's, with the rescaled pressure's appended when :attr:`p_mpa` is set."""
-        if self.p_mpa is None:
+        the displacement's, with the rescaled pressure's appended when :attr:`evidence` uses it."""
+        if not self.uses_pressure:
             return self.train_residual(l_hat)
-        m = self.train[:len(p_hat)]
-        return np.concatenate([self.train_residual(l_hat), self.p_weight_mm_per_mpa * (self.p_mpa[:len(p_hat)] - p_hat)[m]])
+        return self.evidence.stacked(l_hat, p_hat, self.train)
 
     def _failed_residual(self, channels: int = 1) -> np.ndarray:
         size = channels * int(np.count_nonzero(self.train[:self.n_fit]))

@@ -88,14 +88,22 @@ class HeldOut:
         """``w = sigma_l / sigma_p`` [mm/MPa] (0 when the pressure is not used)."""
         return 0.0 if self.pressure_noise_mpa is None else self.noise_mm / self.pressure_noise_mpa
 
-    def residual(self, y_hat: np.ndarray, p_hat: np.ndarray | None) -> np.ndarray:
-        """Stacked held-out residual [mm] of a prediction (displacement and, when used, pressure)."""
-        e = (self.y_mm - y_hat)[self.test]
+    def stacked(self, y_hat: np.ndarray, p_hat: np.ndarray | None, mask: np.ndarray) -> np.ndarray:
+        """Stacked residual [mm] on the samples of ``mask`` of a prediction from sample 0 (displacement
+        [mm] and, when the pressure is used, pressure [MPa]; it may stop before the recording's end)."""
+        n = len(y_hat)
+        m = mask[:n]
+        e = (self.y_mm[:n] - y_hat)[m]
         if self.p_mpa is None:
             return e
         if p_hat is None:
             raise ValueError("the evidence uses the pressure, but this prediction has none")
-        return np.concatenate([e, self.weight_mm_per_mpa * (self.p_mpa - p_hat)[self.test]])
+        return np.concatenate([e, self.weight_mm_per_mpa * (self.p_mpa[:n] - p_hat)[m]])
+
+    def residual(self, y_hat: np.ndarray, p_hat: np.ndarray | None) -> np.ndarray:
+        """Stacked held-out residual [mm] of a whole-run prediction (:meth:`stacked` on the held-out
+        blocks)."""
+        return self.stacked(y_hat, p_hat, self.test)
 
     def contribution_rms_mm(self, y_a: np.ndarray, p_a: np.ndarray | None, y_b: np.ndarray,
                             p_b: np.ndarray | None) -> float:

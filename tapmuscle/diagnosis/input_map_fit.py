@@ -80,7 +80,7 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
         return None  # already in the base model
     n_fit = pr.n_fit
     # on every sensor the fits weigh: an amplifier's map shows in the pressure the command sets
-    r0 = pr.train_residual(y_base[:n_fit]) if pr.p_mpa is None else pr.stacked_residual(*pr.sim.run(base, stop=n_fit))
+    r0 = pr.stacked_residual(*pr.sim.run(base, stop=n_fit)) if pr.uses_pressure else pr.train_residual(y_base[:n_fit])
     cost_base = float(r0 @ r0)
     # Done once the training residual is down to the noise (the smaller of the residual's white-noise
     # level, inflated while the map is still off, and the encoder noise the model states), or to a
