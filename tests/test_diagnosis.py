@@ -449,3 +449,31 @@ def test_a_constant_displacement_is_named_before_any_fit():
     cols = record(DEMO_MODEL, "sine", 2)
     with pytest.raises(ValueError, match=r"column l_mm: the displacement is constant \(3 mm\)"):
         diagnose(cols["t_s"], cols["u_v"], np.full_like(cols["l_mm"], 3.0), DEMO_MODEL)
+
+
+def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes():
+    """Held commands 2 V apart: four consecutive levels span 6 V, beyond the 5-V bound of
+    ``dead_zone.width_v``. Such bands are skipped (the search once raised the plant's ValueError)."""
+    from fmu_plant import Plant
+    from fmu_plant.open_loop import run_open_loop
+    from tapmuscle.diagnosis.calibration import field_bounds
+    from tapmuscle.diagnosis.candidates import Problem
+    from tapmuscle.diagnosis.residual_analysis import white_noise_level_mm
+    from tapmuscle.diagnosis.simulation import Simulator
+
+    levels = (0.5, 2.5, 4.5, 6.5, 8.5, 6.5, 4.5, 2.5)
+    rig = DEMO_MODEL.with_values(**{"dead_zone.center_v": 6.5, "dead_zone.width_v": 1.0})
+    cols = run_open_loop(Plant(rig, seed=3), lambda t: levels[int(t // 5.0) % len(levels)], duration_s=120.0, ts_s=0.1)
+    sim = Simulator(cols["u_v"], 0.1)
+    y0 = sim.run(DEMO_MODEL, checkpoint_every=100)[0]
+    train, test = interleaved_split(len(y0), 0.1, 10.0)
+    problem = Problem(cols["l_mm"], cols["t_s"], cols["u_v"], 0.1, train, test, sim,
+                      white_noise_level_mm(cols["l_mm"] - y0))
+    assert len(np.unique(cols["u_v"])) == 5
+    res = candidate("valve_dead_zone").fit(problem, DEMO_MODEL, y0)
+    assert res is not None
+    assert 0.0 < res.values["dead_zone.width_v"] <= field_bounds("dead_zone.width_v")[1]
+    # the band holds the 6.5-V level and no other, as the rig's does
+    lo = res.values["dead_zone.center_v"] - res.values["dead_zone.width_v"] / 2
+    hi = res.values["dead_zone.center_v"] + res.values["dead_zone.width_v"] / 2
+    assert [v for v in sorted(set(levels)) if lo < v < hi] == [6.5]

@@ -47,6 +47,7 @@ from scipy.interpolate import CubicSpline
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.boundary_effects import backlash
+from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
 from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
 from tapmuscle.diagnosis.residual_analysis import located_windows
@@ -267,8 +268,12 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     if hi_u - lo_u < 0.3:
         lo_u, hi_u = lo_u - 0.3, hi_u + 0.3
 
+    max_width = field_bounds("dead_zone.width_v")[1]
+
     def cost(x):
         c, w = float(x[0]), float(x[1])
+        if w > max_width:  # a band the plant cannot take (four held levels can span more)
+            return math.inf
         p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
         r = pr.train_residual(pr.sim.run(p, start=start, stop=stop)[0], start)
         return float(r @ r)
