@@ -32,14 +32,20 @@ Method
   ``(J'J / sigma_eff^2)^-1`` of the identifiable constants, with ``sigma_eff`` the final residual's
   standard deviation inflated for its autocorrelation (AR(1) variance factor
   ``(1 + rho_1) / (1 - rho_1)``), so that a structured residual does not pretend to more
-  information than it holds; a constant left at nominal gets its prior's interval.
+  information than it holds; a constant left at nominal gets its prior's interval. The constants
+  left at nominal are only known to their prior, and an identifiable constant that trades with one
+  of them has absorbed its error: their prior variance is carried into the interval ("consider
+  covariance", Tapley, Schutz and Born 2004, section 6.3): with ``J_c`` the residual's Jacobian in
+  the considered constants (prior sd units), ``A = (J'J)^-1 J' J_c`` is how far the estimate moves
+  per prior sd of theirs, and ``A A'`` adds to the data-only covariance.
 * **Left alone.** A constant that is not identifiable is put back to its nominal value, listed as
   such, and the identifiable ones are polished once more without it, so the calibrated plant file
   changes only what the recording pins down.
 
 References: Brun, Reichert and Kuensch (2001), *Practical identifiability analysis of large
 environmental simulation models*, Water Resour. Res. 37(4) (sensitivity-based identifiability);
-Broyden (1965) secant update.
+Broyden (1965) secant update; Tapley, Schutz and Born (2004), *Statistical Orbit Determination*,
+Elsevier, section 6.3 (consider covariance).
 """
 
 from __future__ import annotations
@@ -313,6 +319,9 @@ class Calibration:
     """Per constant (in ``rows`` order): posterior sd / prior sd at the first fit."""
     kept: tuple[str, ...] = ()
     """Constants kept at their MAP estimate although not identifiable one by one (``combinations``)."""
+    consider_jacobian: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    """Training-residual Jacobian of the constants put back to nominal (scaled coordinates, rows as
+    ``jacobian``'s): their prior uncertainty enters the intervals (:func:`calibration_rows`)."""
 
     @property
     def identifiable(self) -> list[str]:
@@ -418,25 +427,29 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
                              robust_scale_mm=scale, jacobian0=first.jacobian[:, ident], residual_many=residual_many)
         sims += fit.simulations
         params = params.with_values(**fit.values)
+    consider = first.jacobian[:, ~ident]
     rows = calibration_rows(parameters, nominal, params, [c.key for c, ok in zip(coords, ident) if ok],
-                            fit.jacobian, fit.residual, sigma_mm, shrink, bounds)
+                            fit.jacobian, fit.residual, sigma_mm, shrink, bounds, consider=consider)
     return Calibration(params, rows, sims, fit.jacobian[:, :int(ident.sum())], effective_sigma(fit.residual),
-                       tuple(float(v) for v in shrink))
+                       tuple(float(v) for v in shrink), consider_jacobian=consider)
 
 
 def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
                      identifiable: Sequence[str], jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float,
                      sd_shrink: Sequence[float],
                      bounds: Callable[[str], tuple[float, float]] = field_bounds,
-                     fitted: Sequence[str] | None = None) -> list[CalibrationRow]:
+                     fitted: Sequence[str] | None = None, consider: np.ndarray | None = None) -> list[CalibrationRow]:
     """The report rows of a calibrated plant ``params``.
 
     ``jacobian``'s leading columns are the ``fitted`` constants (default: the ``identifiable``
     ones) in scaled coordinates (further columns, e.g. jointly fitted effect parameters, enter the
     covariance); the 95 % interval of an identifiable constant is data-only with the
-    autocorrelation-inflated residual level, a constant left nominal gets its prior's. When constants
-    that are not identifiable are fitted too (``calibrate(combinations=True)``), the intervals of
-    all fitted ones include the prior (the data alone leave some directions free).
+    autocorrelation-inflated residual level, widened by ``consider``, the residual's Jacobian in the
+    constants left nominal (same rows, scaled coordinates: one unit is one prior sd), whose prior
+    variance the estimate inherits through ``A = (J'J)^-1 J' consider`` (covariance ``A A'``, module
+    docstring). A constant left nominal gets its prior's interval. When constants that are not
+    identifiable are fitted too (``calibrate(combinations=True)``), the intervals of all fitted ones
+    include the prior (the data alone leave some directions free).
     """
     coords = {c.key: c for c in nominal_coords(nominal, parameters, bounds)}
     sig = max(effective_sigma(residual), sigma_mm)
@@ -447,7 +460,11 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
         info = jacobian.T @ jacobian / sig ** 2
         if set(fitted) != set(identifiable):
             info = info + np.diag([1.0] * k + [0.0] * (info.shape[0] - k))
-        cov = np.linalg.pinv(info)[:k, :k]
+        full = np.linalg.pinv(info)
+        cov = full[:k, :k]
+        if consider is not None and consider.size and consider.shape[0] == jacobian.shape[0]:
+            a = full @ (jacobian.T @ consider) / sig ** 2
+            cov = cov + (a @ a.T)[:k, :k]
     rows = []
     for p_, s in zip(parameters, sd_shrink):
         c = coords[p_.key]

@@ -630,8 +630,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
             cal = Calibration(p_final, calibration_rows(list(calibration), model, p_final, cal.identifiable,
                                                         f_final.jacobian, f_final.residual, sigma, cal.shrink,
-                                                        space.bounds, fitted=list(cal.changed)),
-                              cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept)
+                                                        space.bounds, fitted=list(cal.changed),
+                                                        consider=cal.consider_jacobian),
+                              cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept, cal.consider_jacobian)
     base, y_base = current.params, current.y
 
     e_after = y - y_base
