@@ -334,7 +334,8 @@ class Calibration:
 
     def to_json(self) -> dict[str, Any]:
         return {"method": "MAP least squares on the training blocks (prior: 20 % sd around nominal), "
-                          "identifiable when the posterior sd is <= 25 % of the prior sd",
+                          "identifiable when the posterior sd is <= 25 % of the prior sd; the 95 % intervals "
+                          "include the prior of the constants left nominal",
                 "parameters": [r.to_json() for r in self.rows], "identifiable": self.identifiable,
                 "not_identifiable": [r.parameter for r in self.rows if not r.identifiable],
                 "simulations": self.simulations}

@@ -79,7 +79,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
         lines += ["## Calibration", "",
                   f"The nominal constants the recording can identify were re-estimated first (MAP least squares on "
                   f"the training blocks, prior 20 % sd around nominal; identifiable when the data shrink the sd to "
-                  f"<= 25 % of the prior's). Held-out fit of the calibrated plant without any effect: "
+                  f"<= 25 % of the prior's; an identifiable constant's interval includes what the constants left "
+                  f"nominal may be off, within their prior). Held-out fit of the calibrated plant without any effect: "
                   f"**{d.fit_calibrated_percent:.2f} %**.", "",
                   "| parameter | unit | nominal | estimate | 95 % interval | identifiable |", "|---|---|---|---|---|---|"]
         for r in d.calibration.rows:
