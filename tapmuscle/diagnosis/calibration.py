@@ -463,7 +463,7 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
             info = info + np.diag([1.0] * k + [0.0] * (info.shape[0] - k))
         full = np.linalg.pinv(info)
         cov = full[:k, :k]
-        if consider is not None and consider.size and consider.shape[0] == jacobian.shape[0]:
+        if consider is not None and consider.size:  # same rows as ``jacobian``: the same training residual
             a = full @ (jacobian.T @ consider) / sig ** 2
             cov = cov + (a @ a.T)[:k, :k]
     rows = []

@@ -118,16 +118,15 @@ def _diagnose(rec: Path, plant: Path, folder: Path, effects: Sequence[str] | Non
               use_pressure: bool = False) -> dict[str, Any]:
     from tapmuscle.diagnosis.report import diagnose_files
 
-    opts = {"use_pressure": True} if use_pressure else {}
-    if effects is None:
-        return diagnose_files(rec, plant, folder, plots=False, **opts)[1]
-    try:
-        return diagnose_files(rec, plant, folder, plots=False, effects=list(effects), **opts)[1]
-    except TypeError as exc:
-        if "effects" not in str(exc):
-            raise
-        # a diagnosis without the keyword: the re-diagnosis tries every candidate
-        return diagnose_files(rec, plant, folder, plots=False, **opts)[1]
+    opts: dict[str, Any] = {"plots": False, "use_pressure": use_pressure}
+    if effects is not None:
+        try:
+            return diagnose_files(rec, plant, folder, effects=list(effects), **opts)[1]
+        except TypeError as exc:
+            if "effects" not in str(exc):
+                raise
+            # a diagnosis without the keyword: the re-diagnosis tries every candidate
+    return diagnose_files(rec, plant, folder, **opts)[1]
 
 
 def _tidy(folder: Path, keep: bool) -> None:
