@@ -47,13 +47,14 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          calibration_rows, effective_sigma, fit_parameters, nominal_coords)
+                          FD_STEP, calibration_rows, effective_sigma, fit_parameters, nominal_coords)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
+from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, worker_pool
@@ -343,6 +344,42 @@ def _joint_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     return params.with_values(**f.values), f
 
 
+def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
+                 jac_c: np.ndarray, current: _Model, cands: Sequence[Candidate]) -> dict[str, float]:
+    """The score test (:func:`~tapmuscle.diagnosis.score_test.score_gain`) of each candidate whose every
+    parameter is a joint one, at the current model: the training error [mm^2] of the fit segment a
+    linearised joint step (constants and the effect's parameters) would remove beyond the constants'
+    own step. One simulation of the fit segment per parameter, all at once."""
+    keys = {c.name: space.joint_parameters.get(c.name, ()) for c in cands}
+    smooth = [c for c in cands if keys[c.name] and {k for k, _ in keys[c.name]} == {ps.key for ps in c.parameters}]
+    if not smooth:
+        return {}
+    n_fit = problem.n_fit
+    r = problem.stacked_residual(current.y[:n_fit], None if current.q is None else current.q[:n_fit])
+    if jac_c.shape[0] != len(r):
+        raise ValueError(f"the constants' Jacobian has {jac_c.shape[0]} rows for a training residual of {len(r)}")
+    p = current.params
+    prior = np.array([c.prior for c in coords], bool)
+    x_c = np.array([(p.value(c.key) - c.center) / c.scale for c in coords])
+    A = np.vstack([jac_c, sigma * np.eye(len(coords))[prior]])
+    b = np.concatenate([r, sigma * x_c[prior]])
+    steps, runs = [], []
+    for c in smooth:
+        for key, scale in keys[c.name]:
+            lo, hi = space.bounds(key)
+            v = p.value(key)
+            h = FD_STEP if v + FD_STEP * scale <= hi else -FD_STEP
+            steps.append((c.name, h, v <= lo))
+            runs.append(p.with_values(**{key: v + h * scale}))
+    cols = problem.sensor_residuals(runs)
+    out = {}
+    for c in smooth:
+        idx = [i for i, s_ in enumerate(steps) if s_[0] == c.name]
+        E = np.column_stack([np.concatenate([(cols[i] - r) / steps[i][1], np.zeros(int(prior.sum()))]) for i in idx])
+        out[c.name] = score_gain(b, A, E, [steps[i][2] for i in idx])
+    return out
+
+
 def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                       start_jac: np.ndarray | None, start: PlantParams,
                       effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
@@ -507,6 +544,15 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 starts.append((cand, res, st, score))
             elif score < starts[i][3]:
                 starts[i] = (cand, res, st, score)
+        # the score test's prediction too: a candidate whose own fit found nothing because the constants
+        # absorbed it may still be what a joint step finds (the lower of the two predictions ranks)
+        if cal_jac is not None:
+            gains = _score_gains(problem, space, coords, sigma, cal_jac, current, [c for c, *_ in starts])
+            for entry in tried:
+                if entry["round"] == round_no and not entry.get("joint") and entry["effect"] in gains:
+                    entry["score_test_gain_mm2"] = round(gains[entry["effect"]], 4)
+            current_train = train_sse(current.y)
+            starts = [(c, r_, st, min(sc, current_train - gains.get(c.name, 0.0))) for c, r_, st, sc in starts]
         promising = sorted(starts, key=lambda r: r[3])[:JOINT_PER_ROUND]
         if not promising:
             break

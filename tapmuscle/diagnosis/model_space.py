@@ -26,13 +26,18 @@ __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "sensor_no
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
-#: band's edges and a sag's window make the cost piecewise constant; the measurement-side effects do
-#: not feed back and are fitted on the whole recording).
+#: band's edges and a sag's window make the cost piecewise constant; a sensor drift is linear in the
+#: output and fitted on the whole recording). The play of a backlash is joint although it acts on the
+#: measurement side: the friction's hysteresis mimics a play (a higher base friction with a shorter
+#: presliding range), so the calibration absorbs much of it and a play fitted on the calibrated
+#: constants comes out near zero; only a joint step that widens the play while it gives the friction
+#: back its width finds the rig's.
 JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
     "rate_dependent_hysteresis": (("friction.rate_gain", 0.2),),
     "transport_delay": (("delay.delay_s", 0.02),),
     "supply_pressure_variation": (("supply_variation.sag_mpa", 0.01),),
     "load_mismatch": (("load_mismatch.extra_n", 2.0),),
+    "backlash": (("backlash.slack_mm", 0.5),),
 }
 
 
