@@ -13,6 +13,7 @@ __all__ = ["register"]
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from tapmuscle.diagnosis.diagnose import BLOCK_S
     from tapmuscle.diagnosis.report import diagnose_files, summary_lines
 
     from tapmuscle.io.plant_file import PlantFileError
@@ -42,7 +43,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1),
-                              block_s=args.block, fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
+                              block_s=BLOCK_S if args.block is None else args.block,
+                              fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
                               effects=effects,
                               workers=args.workers or os.cpu_count() or 1, **options)
     except (RecordingError, PlantFileError) as exc:
@@ -71,14 +73,15 @@ def _is_foreign(plant: str) -> bool:
 
 def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
-    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_foreign_outputs
+    from tapmuscle.diagnosis.foreign_diagnose import FOREIGN_BLOCK_S, diagnose_foreign, diagnose_foreign_outputs
     from tapmuscle.diagnosis.foreign_model import ForeignFmuError
     from tapmuscle.diagnosis.report import summary_lines
     from tapmuscle.diagnosis.signal_map import SignalMapError
     from tapmuscle.io.recording import RecordingError
 
     effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
-    options = dict(map_path=args.map, block_s=args.block, fit_segment_s=args.fit_segment, effects=effects,
+    options = dict(map_path=args.map, block_s=FOREIGN_BLOCK_S if args.block is None else args.block,
+                   fit_segment_s=args.fit_segment, effects=effects,
                    calibrate=not args.no_calibration, plots=not args.no_plots,
                    progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
     try:
@@ -181,8 +184,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="foreign FMU: the mapped output to diagnose (default: the first); 'all': each mapped "
                           "output in turn, into OUT/<output>/, with OUT/summary.md setting them side by side")
     dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
-    dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=10.0,
-                     help="length of the interleaved training / held-out blocks [s] (default 10)")
+    dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=None,
+                     help="length of the interleaved training / held-out blocks [s] (default 5 for tapmuscle's "
+                          "plant, 10 for a foreign FMU)")
     dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=None,
                      help="stationary effects are fitted on the first this many seconds (default 120 for "
                           "tapmuscle's plant, the whole recording for a foreign FMU)")

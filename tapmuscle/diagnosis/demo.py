@@ -29,6 +29,7 @@ from fmu_plant.open_loop import run_open_loop
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 
+from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, iou, interleaved_split
 from tapmuscle.diagnosis.simulation import Simulator
 
@@ -184,7 +185,7 @@ def run_case(case: Case, workdir: str | Path, *, plots: bool = False, fig20_mode
     # the concealed-effect proof hands over the exact model: it proves the effect search alone
     d, doc = diagnose_files(rec_path, plant_path, folder, plots=plots, calibration=None)
     # the concealed effect's cost: held-out fit of the true rig (noise-free) against the model's
-    train, test = interleaved_split(len(cols["t_s"]), TS_S, 10.0)
+    train, test = interleaved_split(len(cols["t_s"]), TS_S, BLOCK_S)
     y_true = Simulator(cols["u_v"], TS_S, cols["load_n"]).run(rig)[0]
     fit_true = fit_percent(cols["l_mm"], y_true, test)
     top = doc["findings"][0]["effect"] if doc["findings"] else "none"

@@ -61,7 +61,7 @@ from tapmuscle.diagnosis.simulation import Simulator, worker_pool
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
            "distinguishable", "sensor_noise_mm",
-           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR"]
+           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR", "BLOCK_S"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
@@ -73,6 +73,13 @@ ALTERNATE_PER_ROUND = 1
 #: A structured remainder is a finding when its RMS is at least this many times the noise level (the
 #: factor at which ``located_windows`` finds a signal in time); below, it is reported, not claimed.
 MATERIAL_FACTOR = 3.0
+
+#: Length of the interleaved training / held-out blocks for the muscle [s] (a foreign FMU's default
+#: is :data:`tapmuscle.diagnosis.foreign_diagnose.FOREIGN_BLOCK_S`). An edge of a localised effect (a
+#: supply sag's start or end) that falls inside a held-out block leaves the training cost flat across
+#: the block, so the fits place it only to within a block: shorter blocks place it closer, and the
+#: held-out fit follows (docs/diagnosis.md, "The field suite").
+BLOCK_S = 5.0
 
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).
@@ -150,7 +157,7 @@ class _Model:
 
 
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
-             load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float = 10.0,
+             load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float = BLOCK_S,
              fit_segment_s: float = 120.0, candidates: Sequence[Candidate] = CANDIDATES, max_effects: int = 3,
              alpha: float = 1e-3, min_reduction: float = 0.10,
              calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
@@ -168,7 +175,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         Recorded load [N] (re-simulated as recorded) and pressure [MPa] (for the regime breakdown, and
         the fits and tests with ``use_pressure``).
     block_s : float
-        Length of the interleaved training / held-out blocks [s].
+        Length of the interleaved training / held-out blocks [s] (:data:`BLOCK_S`).
     fit_segment_s : float
         The calibration and the stationary effects are fitted on the first this many seconds.
     candidates : sequence of Candidate
@@ -256,7 +263,7 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
 
 def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, model: Any, *,
                   space: ModelSpace, candidates: Sequence[Candidate],
-                  calibration: Sequence[NominalParameter] | None, block_s: float = 10.0,
+                  calibration: Sequence[NominalParameter] | None, block_s: float,
                   fit_segment_s: float = 120.0, max_effects: int = 3, alpha: float = 1e-3,
                   min_reduction: float = 0.10, progress: Callable[[int, int], None] | None = None) -> Diagnosis:
     """The search of :func:`diagnose` for another model family: any simulator (``run``, ``run_many``,
@@ -344,6 +351,11 @@ def _joint_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     return params.with_values(**f.values), f
 
 
+def _own_parameters(space: ModelSpace, cand: Candidate) -> set[str]:
+    """The candidate's parameters that only its own search fits (not re-fitted jointly)."""
+    return {ps.key for ps in cand.parameters} - {key for key, _ in space.joint_parameters.get(cand.name, ())}
+
+
 def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                  jac_c: np.ndarray, current: _Model, cands: Sequence[Candidate]) -> dict[str, float]:
     """The score test (:func:`~tapmuscle.diagnosis.score_test.score_gain`) of each candidate whose every
@@ -351,7 +363,7 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     linearised joint step (constants and the effect's parameters) would remove beyond the constants'
     own step. One simulation of the fit segment per parameter, all at once."""
     keys = {c.name: space.joint_parameters.get(c.name, ()) for c in cands}
-    smooth = [c for c in cands if keys[c.name] and {k for k, _ in keys[c.name]} == {ps.key for ps in c.parameters}]
+    smooth = [c for c in cands if keys[c.name] and not _own_parameters(space, c)]
     if not smooth:
         return {}
     n_fit = problem.n_fit
@@ -571,12 +583,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                               "simulations": sims_used, "seconds": round(secs, 2)})
                 continue
             joints.append([cand, res, *out, sims_used, secs])
-        # An effect whose parameters are not re-fitted jointly (a band's edges, a map's knots, a play, a
-        # drift) was fitted on constants that had absorbed part of it: fit it afresh on the re-fitted
-        # constants, and re-fit those once more. Chosen on the training blocks only.
+        # An effect with parameters that are not re-fitted jointly (a band's edges, a map's knots, a
+        # drift, a sag's window) was fitted on constants that had absorbed part of it: fit it afresh on
+        # the re-fitted constants, and re-fit those once more. Chosen on the training blocks only.
         ref_train = sensors_sse(ref_y, ref_q)
         joint_sse = [sensors_sse(j[3], j[4]) for j in joints]  # [cand, res, params, y, q, simulations, seconds]
-        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and not space.joint_parameters.get(joints[i][0].name)]
+        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and _own_parameters(space, joints[i][0])]
         for i in order[:ALTERNATE_PER_ROUND]:
             cand, res, p1, y1, q1, sims_used, secs = joints[i]
             runs0, t_fit = sim.runs, time.perf_counter()
@@ -731,4 +743,4 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                                    "autocorrelation_after": ac1, "cross_correlation_after": xc1},
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
-                     ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa)
+                     ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa, block_s=block_s)

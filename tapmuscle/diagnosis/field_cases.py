@@ -21,6 +21,7 @@ from fmu_plant.effects import Effect
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.diagnosis.candidates import CANDIDATES
 from tapmuscle.diagnosis.demo import DEMO_MODEL, MAGNITUDES
+from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split
 from tapmuscle.diagnosis.simulation import noise_free
 
@@ -529,7 +530,7 @@ def effect_costs(case: FieldCase, cols: dict[str, np.ndarray], end_stop_mm: floa
     ``cost`` of an effect (or the disturbance, or the constants' errors) = held-out fit of the whole
     truth minus that of the truth without it [points]: how much there is to find.
     """
-    _, test = interleaved_split(len(cols["t_s"]), TS_S, 10.0)
+    _, test = interleaved_split(len(cols["t_s"]), TS_S, BLOCK_S)
     u, y = cols["u_v"], cols["l_mm"]
     extra = _disturbances(case, end_stop_mm)
     truth = case.truth()

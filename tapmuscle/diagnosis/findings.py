@@ -133,6 +133,8 @@ class Diagnosis:
     """White-noise level of the pressure residual [MPa] when the held-out evidence weighs the
     recorded pressure beside the displacement (:mod:`tapmuscle.diagnosis.held_out`); None: the
     displacement alone."""
+    block_s: float | None = None
+    """Length of the interleaved training / held-out blocks [s]."""
 
     @property
     def named(self) -> list[str]:
@@ -157,7 +159,7 @@ class Diagnosis:
                 "residual_tests": {"before": self.tests_before, "after": self.tests_after},
                 "candidates_tried": self.candidates,
                 "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
-                          "held_out_samples": int(self.test.sum())},
+                          "held_out_samples": int(self.test.sum()), "block_s": self.block_s},
                 "evidence": {"channels": ["l_mm"] + (["p_mpa"] if self.pressure_noise_mpa is not None else []),
                              "pressure_noise_mpa": self.pressure_noise_mpa},
                 "simulations": self.simulations, "elapsed_s": round(self.elapsed_s, 2)}
