@@ -266,7 +266,7 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
 
 @pytest.mark.slow
 def test_a_tiny_run_writes_its_files(tmp_path):
-    scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=40.0)  # 4 blocks of 5 s at least (a foreign FMU takes 10)
+    scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=40.0)  # 4 blocks of 10 s at least
     assert scores["recordings"] == 2 and scores["failed"] == 0, scores["misses"]
     for name in ("scores.md", "scores.json", "confusion.png"):
         assert (tmp_path / name).is_file()

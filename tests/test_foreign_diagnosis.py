@@ -188,7 +188,7 @@ def test_cli_runs_a_foreign_fmu_and_reports_bad_map_without_traceback(fmus, tmp_
     assert r.returncode == 0, r.stderr
     assert "output_drift[omega]" in r.stdout and "one simulation of the 3601-sample recording" in r.stdout
     doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
-    assert doc["split"]["block_s"] == 10.0  # a foreign FMU's default blocks (the muscle's are 5 s)
+    assert doc["split"]["block_s"] == 10.0  # the default blocks
     drift = next(f for f in doc["findings"] if f["effect"] == "output_drift[omega]")["parameters"]
     assert math.isclose(drift["omega:drift_per_min"], 0.6, abs_tol=0.1)
     m.write_text(m.read_text().replace('column = "meas"', 'column = "nope"'))

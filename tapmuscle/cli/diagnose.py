@@ -73,14 +73,15 @@ def _is_foreign(plant: str) -> bool:
 
 def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
-    from tapmuscle.diagnosis.foreign_diagnose import FOREIGN_BLOCK_S, diagnose_foreign, diagnose_foreign_outputs
+    from tapmuscle.diagnosis.diagnose import BLOCK_S
+    from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_foreign_outputs
     from tapmuscle.diagnosis.foreign_model import ForeignFmuError
     from tapmuscle.diagnosis.report import summary_lines
     from tapmuscle.diagnosis.signal_map import SignalMapError
     from tapmuscle.io.recording import RecordingError
 
     effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
-    options = dict(map_path=args.map, block_s=FOREIGN_BLOCK_S if args.block is None else args.block,
+    options = dict(map_path=args.map, block_s=BLOCK_S if args.block is None else args.block,
                    fit_segment_s=args.fit_segment, effects=effects,
                    calibrate=not args.no_calibration, plots=not args.no_plots,
                    progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
@@ -185,8 +186,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "output in turn, into OUT/<output>/, with OUT/summary.md setting them side by side")
     dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=None,
-                     help="length of the interleaved training / held-out blocks [s] (default 5 for tapmuscle's "
-                          "plant, 10 for a foreign FMU)")
+                     help="length of the interleaved training / held-out blocks [s] (default 10)")
     dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=None,
                      help="stationary effects are fitted on the first this many seconds (default 120 for "
                           "tapmuscle's plant, the whole recording for a foreign FMU)")

@@ -74,12 +74,12 @@ ALTERNATE_PER_ROUND = 1
 #: factor at which ``located_windows`` finds a signal in time); below, it is reported, not claimed.
 MATERIAL_FACTOR = 3.0
 
-#: Length of the interleaved training / held-out blocks for the muscle [s] (a foreign FMU's default
-#: is :data:`tapmuscle.diagnosis.foreign_diagnose.FOREIGN_BLOCK_S`). An edge of a localised effect (a
-#: supply sag's start or end) that falls inside a held-out block leaves the training cost flat across
-#: the block, so the fits place it only to within a block: shorter blocks place it closer, and the
-#: held-out fit follows (docs/diagnosis.md, "The field suite").
-BLOCK_S = 5.0
+#: Default length of the interleaved training / held-out blocks [s]. An edge of a localised effect (a
+#: supply sag's start or end) inside a held-out block leaves the training cost flat across the block,
+#: so shorter blocks would place it closer; but a block of half an input's period makes every training
+#: block see the same half of every cycle (5-s blocks and the paper's 0.1-Hz sine: a valve band in the
+#: other half is never trained on). docs/diagnosis.md, step 2, has both measurements.
+BLOCK_S = 10.0
 
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).

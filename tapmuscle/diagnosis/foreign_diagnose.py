@@ -28,25 +28,19 @@ from tapmuscle.io.recording import atomic_write_text, read_columns
 
 from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_candidates, calibration_parameters,
                                                      nominal_values)
-from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose_with, validated_recording
+from tapmuscle.diagnosis.diagnose import BLOCK_S, Diagnosis, diagnose_with, validated_recording
 from tapmuscle.diagnosis.fit_problem import SimulationError
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.report import overlay_figure, summary_lines
 from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
 
 __all__ = ["diagnose_foreign", "diagnose_foreign_outputs", "ForeignSetup", "FOREIGN_OUTPUT_FILES",
-           "FIT_SEGMENT_SAMPLES", "FOREIGN_BLOCK_S"]
+           "FIT_SEGMENT_SAMPLES"]
 
 #: Default fit segment: the whole recording, up to this many samples (the fits' simulations are the
 #: cost, and a foreign plant's time constants are unknown: a long segment is safe, a short one may not
 #: show them).
 FIT_SEGMENT_SAMPLES = 4000
-
-#: Default length of the interleaved training / held-out blocks for a foreign FMU [s]: longer than the
-#: muscle's (:data:`tapmuscle.diagnosis.diagnose.BLOCK_S`), since a foreign plant's time constants are
-#: unknown (a thermal mass sampled each second) and a held-out block must not be predicted from its
-#: neighbours by continuity alone.
-FOREIGN_BLOCK_S = 10.0
 
 #: What :func:`diagnose_foreign` writes (the figure only with ``plots=True``).
 FOREIGN_OUTPUT_FILES = ("diagnosis.json", "calibrated_parameters.json", "report.md", "overlay.png")
@@ -67,7 +61,7 @@ class ForeignSetup:
     model space, the nominal parameters, the candidates and the calibration list."""
 
     def __init__(self, recording: str | Path, plant: str | Path, *, map_path: str | Path | None = None,
-                 output: str | None = None, block_s: float = FOREIGN_BLOCK_S, echo: Callable[[str], None] = print) -> None:
+                 output: str | None = None, block_s: float = BLOCK_S, echo: Callable[[str], None] = print) -> None:
         self.recording, self.plant = str(recording), str(plant)
         iface, columns, smap = _mapping(recording, plant, map_path)
         if map_path is None:
@@ -121,7 +115,7 @@ class ForeignSetup:
 
 
 def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, *, map_path: str | Path | None = None,
-                     output: str | None = None, block_s: float = FOREIGN_BLOCK_S, fit_segment_s: float | None = None,
+                     output: str | None = None, block_s: float = BLOCK_S, fit_segment_s: float | None = None,
                      effects: Sequence[str] | None = None, calibrate: bool = True, plots: bool = True,
                      progress: Callable[[int, int], None] | None = None,
                      echo: Callable[[str], None] = print) -> tuple[Diagnosis, dict[str, Any]]:
@@ -142,7 +136,7 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
     output : str, optional
         The mapped output to diagnose (default: the first).
     block_s : float
-        Length of the interleaved training / held-out blocks [s] (:data:`FOREIGN_BLOCK_S`).
+        Length of the interleaved training / held-out blocks [s] (:data:`~tapmuscle.diagnosis.diagnose.BLOCK_S`).
     fit_segment_s : float, optional
         The calibration and the smooth effects are fitted on the first this many seconds (default:
         the whole recording, at most :data:`FIT_SEGMENT_SAMPLES` samples).
