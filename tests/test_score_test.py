@@ -26,8 +26,10 @@ def test_on_a_linear_problem_the_gain_is_the_exact_reduction_of_the_refit(seed):
     before = _sse_after(b, A) if p else float(b @ b)
     expected = before - _sse_after(b, np.hstack([A, E]))
     got = score_gain(b, A, E)
-    assert got == pytest.approx(expected, rel=1e-9, abs=1e-9 * before)
-    assert 0.0 <= got <= before + 1e-9
+    # two algorithms (QR + bounded least squares against lstsq) on well-conditioned random problems:
+    # they agree to ~1e-13 of the sum of squares on any BLAS; a wrong formula is off by O(1)
+    assert got == pytest.approx(expected, rel=1e-6, abs=1e-6 * before)
+    assert 0.0 <= got <= before * (1.0 + 1e-6)
 
 
 @pytest.mark.parametrize("seed", range(10))
@@ -36,7 +38,7 @@ def test_columns_the_constants_already_span_gain_nothing(seed):
     A = rng.normal(size=(150, 4))
     b = rng.normal(size=150)
     E = A @ rng.normal(size=(4, 2))
-    assert score_gain(b, A, E) == pytest.approx(0.0, abs=1e-9 * float(b @ b))
+    assert score_gain(b, A, E) == pytest.approx(0.0, abs=1e-6 * float(b @ b))
 
 
 def test_a_parameter_at_its_lower_bound_gains_only_by_growing():
@@ -47,8 +49,8 @@ def test_a_parameter_at_its_lower_bound_gains_only_by_growing():
     b = 0.7 * e[:, 0] + 0.01 * rng.normal(size=100)  # minimised by x_e = -0.7
     free = score_gain(b, A, e)
     assert free > 0.5 * float(b @ b)
-    assert score_gain(b, A, e, [True]) == pytest.approx(0.0, abs=1e-12)
-    assert score_gain(-b, A, e, [True]) == pytest.approx(free, rel=1e-9)
+    assert score_gain(b, A, e, [True]) == pytest.approx(0.0, abs=1e-6 * float(b @ b))
+    assert score_gain(-b, A, e, [True]) == pytest.approx(free, rel=1e-6)
 
 
 def test_a_zero_column_gains_nothing_and_does_not_fail():
