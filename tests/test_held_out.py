@@ -97,9 +97,9 @@ def _field_case(index: int):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="known miss of the opt-in pressure path: the map is named first, but a load "
-                   "the score test brings into the joint re-fits is accepted beside it in the second round (it "
-                   "removes 56 % of the held-out squared error left; docs/diagnosis.md, 'Why it is not the default')")
+@pytest.mark.xfail(strict=True, reason="known regression of the opt-in pressure path: the score test ranks a load "
+                   "(linearised gain 236 mm^2) ahead of the map's own fit, so the map gets no joint re-fit and the "
+                   "load is named instead (docs/diagnosis.md, 'Why it is not the default')")
 def test_with_the_pressure_an_amplifier_map_on_an_off_nominal_rig_is_named_alone():
     """Field case 067 (seed 0): an amplifier gain of about 0.84 with offset on a rig with six constants
     off by 7-18 %. On the displacement alone the recalibrated constants absorbed the map and a load
