@@ -501,34 +501,3 @@ def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_tes
     # the joint fit's play: within 15 % of the rig's (the friction constants it trades with stay uncertain)
     assert d.findings[0].parameters["backlash.slack_mm"] == pytest.approx(true_slack, rel=0.15)
     assert d.fit_after_percent >= 99.0
-
-
-def test_joint_candidates_keep_the_best_own_fits_and_add_the_score_tests_best_pick():
-    from tapmuscle.diagnosis.diagnose import joint_candidates
-
-    own = {"a": 10.0, "b": 12.0, "c": 14.0, "d": 99.0, "e": 98.0, "f": 97.0}
-    # d's predicted joint error 100 - 40 = 60 beats its own 99; e's 100 - 30 = 70 beats 98 but less;
-    # c is already among the own fits, whatever its gain
-    picked = joint_candidates(own, {"c": 95.0, "d": 40.0, "e": 30.0}, 100.0, n_own=3, n_score=1)
-    assert picked == ["a", "b", "c", "d"]
-    assert joint_candidates(own, {"d": 40.0, "e": 30.0}, 100.0, n_own=3, n_score=2) == ["a", "b", "c", "d", "e"]
-
-
-def test_joint_candidates_add_nothing_the_score_test_does_not_predict_beyond_the_own_fit():
-    from tapmuscle.diagnosis.diagnose import joint_candidates
-
-    rng = np.random.default_rng(7)
-    for _ in range(50):
-        names = [f"x{i}" for i in range(int(rng.integers(1, 9)))]
-        own = {n: float(rng.uniform(0.0, 100.0)) for n in names}
-        gains = {n: float(rng.uniform(0.0, 60.0)) for n in names if rng.random() < 0.6}
-        current = float(rng.uniform(50.0, 100.0))
-        picked = joint_candidates(own, gains, current, n_own=3, n_score=1)
-        best_own = sorted(own, key=own.get)[:3]
-        assert picked[:len(best_own)] == best_own  # the own fits' ranking is never displaced
-        assert len(picked) == len(set(picked)) <= 4
-        eligible = [n for n in own if n not in best_own and n in gains and current - gains[n] < own[n]]
-        for extra in picked[3:]:
-            assert current - gains[extra] == min(current - gains[n] for n in eligible)
-        if len(picked) == len(best_own):  # nothing added: no other candidate was predicted to do better
-            assert all(not (n in gains and current - gains[n] < own[n]) for n in own if n not in best_own)

@@ -60,9 +60,8 @@ from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace
 from tapmuscle.diagnosis.simulation import Simulator, worker_pool
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
-           "distinguishable", "joint_candidates", "sensor_noise_mm",
-           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR", "BLOCK_S", "JOINT_PER_ROUND",
-           "SCORE_TEST_PER_ROUND"]
+           "distinguishable", "sensor_noise_mm",
+           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR", "BLOCK_S"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
@@ -85,11 +84,6 @@ BLOCK_S = 10.0
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).
 JOINT_PER_ROUND = 3
-
-#: Further joint re-fits per round, at most: of the other candidates, those the score test predicts a
-#: joint step to take further than their own fit went, the best predicted. A slot of their own, so
-#: that a candidate the constants absorbed is tried without displacing one that fits on its own.
-SCORE_TEST_PER_ROUND = 1
 
 
 def _residual_tests(u: np.ndarray, e: np.ndarray, sensor_mm: float) -> tuple[dict[str, Any], Correlation, Correlation]:
@@ -398,34 +392,6 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     return out
 
 
-def joint_candidates(own_sse: dict[str, float], score_gain: dict[str, float], current_sse: float, *,
-                     n_own: int = JOINT_PER_ROUND, n_score: int = SCORE_TEST_PER_ROUND) -> list[str]:
-    """The candidates of a round that get a joint re-fit with the constants.
-
-    Parameters
-    ----------
-    own_sse : dict
-        Each candidate's training error [mm^2] after its own fit (the constants held).
-    score_gain : dict
-        The score test's gain [mm^2] of the candidates it applies to (:func:`_score_gains`): what a
-        linearised joint step would remove beyond the constants' own step.
-    current_sse : float
-        The current model's training error [mm^2].
-    n_own, n_score : int
-        Re-fits for the lowest own errors, and further ones for the other candidates whose predicted
-        joint error ``current_sse - score_gain`` is below their own error (the lowest predicted first).
-
-    Returns
-    -------
-    list of str
-        The names, the own-fit ones first (lowest error first), then the score test's.
-    """
-    own = sorted(own_sse, key=lambda name: own_sse[name])[:n_own]
-    predicted = {name: current_sse - gain for name, gain in score_gain.items()
-                 if name in own_sse and name not in own and current_sse - gain < own_sse[name]}
-    return own + sorted(predicted, key=lambda name: predicted[name])[:n_score]
-
-
 def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                       start_jac: np.ndarray | None, start: PlantParams,
                       effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
@@ -591,20 +557,15 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             elif score < starts[i][3]:
                 starts[i] = (cand, res, st, score)
         # the score test's prediction too: a candidate whose own fit found nothing because the constants
-        # absorbed it may still be what a joint step finds (it gets a further joint re-fit of its own)
+        # absorbed it may still be what a joint step finds (the lower of the two predictions ranks)
         if cal_jac is not None:
             gains = _score_gains(problem, space, coords, sigma, cal_jac, current, [c for c, *_ in starts])
             for entry in tried:
                 if entry["round"] == round_no and not entry.get("joint") and entry["effect"] in gains:
                     entry["score_test_gain_mm2"] = round(gains[entry["effect"]], 4)
-        else:
-            gains = {}
-        if evidence.uses_pressure:  # on the basis the starts were scored on
-            current_sse = float(np.sum(problem.stacked_residual(current.y[:problem.n_fit], current.q[:problem.n_fit]) ** 2))
-        else:
-            current_sse = train_sse(current.y)
-        picked = joint_candidates({c.name: sc for c, _, _, sc in starts}, gains, current_sse)
-        promising = sorted((s_ for s_ in starts if s_[0].name in picked), key=lambda s_: picked.index(s_[0].name))
+            current_train = train_sse(current.y)
+            starts = [(c, r_, st, min(sc, current_train - gains.get(c.name, 0.0))) for c, r_, st, sc in starts]
+        promising = sorted(starts, key=lambda r: r[3])[:JOINT_PER_ROUND]
         if not promising:
             break
         # joint re-fits: each promising effect together with the calibration; the reference is the
