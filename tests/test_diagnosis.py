@@ -23,19 +23,9 @@ def test_fit_percent_and_split():
     y = np.sin(np.linspace(0, 20, 500))
     assert fit_percent(y, y) == 100.0
     assert fit_percent(y, np.full_like(y, y.mean())) == pytest.approx(0.0)
-    train, test = interleaved_split(1801, 0.1, 10.0)
-    assert np.array_equal(train, ~test)
-    # every 10-s block is one 5-s training half and one 5-s held-out half
-    blocks = train[:1800].reshape(18, 2, 50)
-    assert np.all(blocks.all(axis=2) | (~blocks).all(axis=2))
-    assert np.array_equal(blocks[:, 0, 0], ~blocks[:, 1, 0])
-    # in both orders, so no input period aliases with the pattern, and reproducibly
-    assert 0 < blocks[:, 0, 0].sum() < 18
-    assert np.array_equal(interleaved_split(1801, 0.1, 10.0)[0], train)
-    assert not np.array_equal(interleaved_split(1801, 0.1, 10.0, seed=1)[0], train)
-    # a sine of twice the half's period is trained on in both its phases
-    phase = np.sin(2 * np.pi * 0.1 * np.arange(1801) * 0.1) > 0
-    assert 0.3 < np.mean(phase[train]) < 0.7
+    train, test = interleaved_split(500, 0.1, 10.0)
+    assert train.sum() + test.sum() == 500 and not np.any(train & test)
+    assert train[:100].all() and test[100:200].all()
 
 
 def test_whiteness_test_accepts_noise_and_rejects_structure():
@@ -460,12 +450,6 @@ def test_a_constant_displacement_is_named_before_any_fit():
     cols = record(DEMO_MODEL, "sine", 2)
     with pytest.raises(ValueError, match=r"column l_mm: the displacement is constant \(3 mm\)"):
         diagnose(cols["t_s"], cols["u_v"], np.full_like(cols["l_mm"], 3.0), DEMO_MODEL)
-
-
-def test_blocks_too_short_to_hold_both_halves_are_named():
-    cols = record(DEMO_MODEL, "sine", 2)
-    with pytest.raises(ValueError, match=r"block_s \(--block\) = 0.15 s: .* at least 0.2 s \(a sample in each half\)"):
-        diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, block_s=0.15)
 
 
 def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes():

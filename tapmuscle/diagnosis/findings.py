@@ -13,7 +13,7 @@ import numpy as np
 
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.calibration import Calibration
-from tapmuscle.diagnosis.residual_analysis import SPLIT_SEED, Correlation
+from tapmuscle.diagnosis.residual_analysis import Correlation
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "VERDICTS"]
 
@@ -158,8 +158,7 @@ class Diagnosis:
                 "selection": self.selection,
                 "residual_tests": {"before": self.tests_before, "after": self.tests_after},
                 "candidates_tried": self.candidates,
-                "split": {"method": "interleaved blocks, a training and a held-out half in random order",
-                          "seed": SPLIT_SEED, "train_samples": int(self.train.sum()),
+                "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
                           "held_out_samples": int(self.test.sum()), "block_s": self.block_s},
                 "evidence": {"channels": ["l_mm"] + (["p_mpa"] if self.pressure_noise_mpa is not None else []),
                              "pressure_noise_mpa": self.pressure_noise_mpa},

@@ -14,7 +14,7 @@ from scipy import stats
 
 __all__ = ["fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
            "cross_correlation_test", "is_structured", "located_windows", "regime_summary",
-           "interleaved_split", "SPLIT_SEED", "iou", "dominant_frequency_hz"]
+           "interleaved_split", "iou", "dominant_frequency_hz"]
 
 #: Lags of the whiteness and cross-correlation tests (MATLAB's resid default is 25).
 MAX_LAG = 25
@@ -112,42 +112,14 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
                         "white_noise_mm": sigma, "noise_reference_mm": ref}
 
 
-#: Seed of :func:`interleaved_split`'s order of training and held-out halves.
-SPLIT_SEED = 12345
-
-
-def interleaved_split(n: int, ts_s: float, block_s: float, *, seed: int = SPLIT_SEED) -> tuple[np.ndarray, np.ndarray]:
-    """Training and held-out masks: every ``block_s`` seconds hold one training and one held-out half,
-    in an order drawn at random.
+def interleaved_split(n: int, ts_s: float, block_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out masks: alternating blocks of ``block_s`` seconds (even blocks train).
 
     Interleaving keeps both parts spread over the whole run, so an effect that is present only for a
-    while is seen by both (a first-half/second-half split could hide it from one of them). The order
-    within each block is random so that the pattern has no period: a periodic one (alternating blocks)
-    makes every training block see the same phase of an input of twice its period, and an input
-    nonlinearity acting only in the other phase is then never trained on. Halves keep the held-out
-    stretch in which the training cost is flat (where an edge of a localised effect cannot be placed)
-    at ``block_s / 2`` most of the time, ``block_s`` at most.
-
-    Parameters
-    ----------
-    n : int
-        Number of samples.
-    ts_s : float
-        Sampling period [s].
-    block_s : float
-        Length of one training + held-out pair [s]; at least ``2 ts_s``.
-    seed : int
-        Seed of the order, so that the split is reproducible (:data:`SPLIT_SEED`).
-
-    Returns
-    -------
-    train, test : numpy.ndarray
-        Boolean masks of length ``n``, complementary.
+    while is seen by both (a first-half/second-half split could hide it from one of them).
     """
-    half = (np.arange(n) * ts_s // (block_s / 2.0)).astype(int)
-    pairs = int(half[-1]) // 2 + 1 if n else 0
-    held_out_first = np.random.default_rng(seed).integers(0, 2, size=pairs)
-    train = (half % 2) == held_out_first[half // 2]
+    block = np.arange(n) * ts_s // block_s
+    train = (block % 2) == 0
     return train, ~train
 
 
