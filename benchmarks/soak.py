@@ -8,7 +8,8 @@ Run: ``python benchmarks/soak.py [--hours 24] [--seed 0] [--out out/soak]`` (abo
   hold of any condition, 120 s) with the covariance ceiling ``P <= P(0)``
   (``ControllerSettings.covariance_ceiling``), which stops the wind-up that forgetting alone causes.
 
-Printed: each check of :meth:`tapmuscle.soak.SoakResult.checks` with its figures, the covariance's
+Printed: each check of :meth:`tapmuscle.soak.SoakResult.checks` and
+:meth:`~tapmuscle.soak.SoakResult.timing_checks` with its figures, the covariance's
 smallest eigenvalue and condition number every two hours, and the blocks above twice the first
 hour's error next to a fresh loop's error on the same block. Stored: ``soak.png`` (error per block,
 theta-hat, covariance over the run) and ``soak.json``. Exit status 1 when the long-run estimator
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         bar = Progress(f"soak {label}", min_total=1)
         bar(0, 1)
         res = run_soak(settings, theta0=THETA0_44N, controller=cs, progress=bar)
-        checks = res.checks()
+        checks = {**res.checks(), **res.timing_checks()}
         report[label] = {"checks": checks, "blocks": res.blocks, "elapsed_s": res.elapsed_s}
         print(f"\n== {label} (forgetting {cs.forgetting:g}, covariance ceiling {'on' if cs.covariance_ceiling else 'off'}): "
               f"{res.elapsed_s:.0f} s")

@@ -235,14 +235,14 @@ class SoakResult:
         loop; ``no_degradation`` asks of each block above that limit that the soaked loop be within
         :data:`FRESH_FACTOR` of a fresh loop on the same block, i.e. that hours of running made it
         no worse.
+
+        These are the numerical criteria only, so they give the same verdict on any machine; the
+        wall-clock criterion is :meth:`timing_checks`.
         """
         b = self.blocks
         first = self.first_hour_eq21_mm()
         worst = max(b, key=lambda x: x["eq21_mm"])
         over = [x for x in b if x.get("fresh_eq21_mm") is not None]
-        per_hour = self.settings.blocks_per_hour
-        t_first = float(np.median([x["step_median_us"] for x in b[:per_hour]]))
-        t_last = float(np.median([x["step_median_us"] for x in b[-per_hour:]]))
         return {
             "finite": {"passed": sum(x["non_finite"] for x in b) == 0,
                        "non_finite_samples": sum(x["non_finite"] for x in b)},
@@ -265,9 +265,20 @@ class SoakResult:
                                "worst_ratio_to_fresh": max((x["eq21_mm"] / x["fresh_eq21_mm"] for x in over),
                                                            default=None),
                                "limit_ratio": FRESH_FACTOR},
-            "step_time_flat": {"passed": t_last <= 1.5 * t_first, "first_hour_median_us": t_first,
-                               "last_hour_median_us": t_last},
         }
+
+    def timing_checks(self) -> dict[str, dict[str, Any]]:
+        """The soak's wall-clock criterion: the last hour's median controller step at most 1.5 times
+        the first hour's (no slow-down from a growing state).
+
+        Kept apart from :meth:`checks` because a step time depends on the machine and its load at the
+        moment: the benchmark judges it, the unit tests do not.
+        """
+        b, per_hour = self.blocks, self.settings.blocks_per_hour
+        t_first = float(np.median([x["step_median_us"] for x in b[:per_hour]]))
+        t_last = float(np.median([x["step_median_us"] for x in b[-per_hour:]]))
+        return {"step_time_flat": {"passed": t_last <= 1.5 * t_first, "first_hour_median_us": t_first,
+                                   "last_hour_median_us": t_last}}
 
 
 class _Loop:

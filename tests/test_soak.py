@@ -64,6 +64,8 @@ def test_long_run_estimator_passes_three_hours(tmp_path):
     checks = res.checks()
     failed = {k: v for k, v in checks.items() if not v["passed"]}
     assert not failed, failed  # the literal 2x rule too: the three hours of seed 1 have no hard block
+    # the wall-clock criterion is reported with its figures but judged by benchmarks/soak.py only
+    assert set(res.timing_checks()) == {"step_time_flat"} and "step_time_flat" not in checks
     # the ceiling holds: no covariance eigenvalue above P(0)'s largest, none lost
     assert res.p_eigenvalues[:, 1].max() <= max(cs.p0) * (1 + 1e-9)
     assert res.covariance_resets == 0
