@@ -40,6 +40,7 @@ from tapmuscle.diagnosis.fit_problem import FitResult, Problem
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignSimulator, ModelValues
 from tapmuscle.diagnosis.model_space import ModelSpace
 from tapmuscle.diagnosis.residual_analysis import located_windows
+from tapmuscle.diagnosis.reproducible import dot, snap_relative, sse
 
 __all__ = ["BoundarySpace", "boundary_candidates", "calibration_parameters", "nominal_values", "effect_kind",
            "map_bounds", "DELAY_MAX_SAMPLES", "GAIN_BOUNDS"]
@@ -143,7 +144,7 @@ def calibration_parameters(iface: FmuInterface, fixed: Iterable[str] = (), only:
 # ------------------------------------------------------------------------------------- fitters
 def _cost(pr: Problem, params: ModelValues) -> float:
     r = pr.fit_residual(params)
-    return float(r @ r)
+    return sse(r)
 
 
 def _scalar_search(pr: Problem, base: ModelValues, key: str, grid: np.ndarray, xatol: float) -> float:
@@ -196,7 +197,7 @@ def _fit_input_map(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
                                        for c in np.linspace(lo + 0.1 * span, hi - 0.1 * span, 7)]
     costs = [_cost(pr, base.with_values(**{f"{var}:{k}": v for k, v in s.items()})) for s in starts[1:]]
     r0 = pr.train_residual(y_base[:pr.n_fit])
-    costs = [float(r0 @ r0)] + costs
+    costs = [sse(r0)] + costs
     best = starts[int(np.argmin(costs))]
     if best is starts[0]:  # from the identity: a small dead band in the middle gives the knots room to move
         best = dead_band_map(0.5 * (lo + hi), 0.02 * span, lo, hi)
@@ -204,7 +205,7 @@ def _fit_input_map(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
     coords = [FittedParameter(k, 0.0, 0.05 * span, False, *b) for k, b in zip(keys, map_bounds(lo, hi))]
     fit = fit_parameters(pr.fit_residual, start, coords, max(pr.noise_mm, 1e-12), max_iterations=30)
     values = {k: fit.values[k] for k in keys}
-    if float(fit.residual @ fit.residual) >= float(r0 @ r0):
+    if sse(fit.residual) >= sse(r0):
         return None
     return FitResult(values, pr.sim.run(base.with_values(**values))[0])
 
@@ -232,18 +233,18 @@ def _fit_secondary(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
 
     def cost(x: np.ndarray) -> float:
         r = pr.train_residual(pr.sim.run(params(x))[0])
-        return float(r @ r)
+        return sse(r)
     best = None
     et = e[pr.train]
     for a, b in dict.fromkeys(windows):
         resp = (pr.sim.run(params(np.array([unit, a, b])))[0] - y_base)[pr.train] / unit
-        den = float(resp @ resp)
+        den = sse(resp)
         if den == 0.0:
             continue
-        c = float(resp @ et) / den
+        c = dot(resp, et) / den
         r = et - c * resp
-        if best is None or float(r @ r) < best[0]:
-            best = (float(r @ r), c, a, b)
+        if best is None or sse(r) < best[0]:
+            best = (sse(r), c, a, b)
     if best is None or best[1] == 0.0:
         return None
     _, c0, a0, b0 = best
@@ -262,8 +263,9 @@ def _fit_output_drift(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var
     e = pr.y_mm - y_base
     a = np.column_stack([np.ones(pr.n), t])[pr.train]
     (offset, rate), *_ = np.linalg.lstsq(a, e[pr.train], rcond=None)
-    values = {f"{var}:offset": base.value(f"{var}:offset") + float(offset),
-              f"{var}:drift_per_min": base.value(f"{var}:drift_per_min") + float(rate) * 60.0}
+    offset, rate = snap_relative(offset), snap_relative(rate)  # least squares in the BLAS: rounded alike on every CPU
+    values = {f"{var}:offset": base.value(f"{var}:offset") + offset,
+              f"{var}:drift_per_min": base.value(f"{var}:drift_per_min") + rate * 60.0}
     return FitResult(values, y_base + offset + rate * t)
 
 
@@ -273,10 +275,10 @@ def _fit_output_gain(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var:
     t = pr.t_s - pr.t_s[0]
     raw = y_base - base.value(f"{var}:offset") - base.value(f"{var}:drift_per_min") / 60.0 * t
     e = pr.y_mm - y_base
-    den = float(raw[pr.train] @ raw[pr.train])
+    den = sse(raw[pr.train])
     if den == 0.0:
         return None
-    a = float(raw[pr.train] @ e[pr.train]) / den
+    a = dot(raw[pr.train], e[pr.train]) / den
     g = min(max(1.0 + a, GAIN_BOUNDS[0]), GAIN_BOUNDS[1])
     return FitResult({f"{var}:gain": g}, y_base + (g - 1.0) * raw)
 

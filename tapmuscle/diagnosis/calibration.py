@@ -59,6 +59,9 @@ from scipy import optimize
 
 from fmu_plant import PlantParams
 
+from tapmuscle.diagnosis.reproducible import dot, snap, snap_relative, sse
+
+
 __all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "CalibrationRow",
            "Calibration", "fit_parameters", "calibrate", "calibration_rows", "nominal_coords", "field_bounds",
            "effective_sigma"]
@@ -146,8 +149,8 @@ def effective_sigma(r: np.ndarray) -> float:
     if r.size < 3:
         return float(np.std(r)) or 1e-12
     c = r - r.mean()
-    den = float(c @ c)
-    rho = float(c[:-1] @ c[1:]) / den if den > 0 else 0.0
+    den = sse(c)
+    rho = dot(c[:-1], c[1:]) / den if den > 0 else 0.0
     rho = min(max(rho, 0.0), 0.95)
     return max(float(np.sqrt(np.mean(r * r))) * math.sqrt((1 + rho) / (1 - rho)), 1e-12)
 
@@ -215,6 +218,8 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
         return cache[key]
 
     def fun(x: np.ndarray) -> np.ndarray:
+        # the solver's steps come out of the BLAS: on the grid, every CPU simulates the same points
+        x = snap(x)
         return np.concatenate([data_residual(x), sigma_mm * x[prior]])
 
     def fd_jacobian(x: np.ndarray, start: int = 0) -> np.ndarray:
@@ -244,6 +249,7 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
     state: dict[str, Any] = {"calls": 0, "x": None, "J": None}
 
     def jac(x: np.ndarray) -> np.ndarray:
+        x = snap(x)
         calls = state["calls"]
         state["calls"] += 1
         if state["J"] is None:
@@ -254,11 +260,11 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
             J = fd_jacobian(x)
         else:  # Broyden: the secant through the last accepted point
             dx = x - state["x"]
-            dd = float(dx @ dx)
+            dd = sse(dx)
             J = state["J"]
             if dd > 0:
                 df = data_residual(x) - data_residual(state["x"])
-                J = J + np.outer(df - J @ dx, dx) / dd
+                J = J + np.outer(df - np.sum(J * dx, axis=1), dx) / dd
         state["x"], state["J"] = x.copy(), J
         return np.vstack([J, prior_rows])
 
@@ -269,7 +275,7 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
             sol = optimize.least_squares(fun, x, jac=jac, bounds=(lo, hi), x_scale=1.0, method="trf",
                                          max_nfev=max_iterations, xtol=1e-6, ftol=1e-8, gtol=1e-8, loss=loss,
                                          f_scale=robust_scale_mm or 1.0)
-            x = np.clip(sol.x, lo_in, hi_in)
+            x = np.clip(snap(sol.x), lo_in, hi_in)
             if sol.status != 0:  # converged (0: stopped on max_nfev)
                 break
             state["J"] = None  # a fresh forward-difference Jacobian for the restart
@@ -410,7 +416,9 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
     # identifiability is a property of the experiment at the recording's noise level (what a correct
     # model could tell from it), not of the remaining misfit, which may still hold a left-out effect
     cov = _posterior(first.jacobian, sigma_mm, np.ones(len(coords), bool))
-    shrink = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # rounded to GRID_BITS bits: the factorisation's last bits (the BLAS's) must not move a constant across
+    # the threshold on one CPU and not on another
+    shrink = np.array([snap_relative(v) for v in np.sqrt(np.clip(np.diag(cov), 0.0, None))])
     ident = shrink <= IDENTIFIABLE_SD_SHRINK
     fit = first
     params = base.with_values(**first.values)

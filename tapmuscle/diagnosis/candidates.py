@@ -51,6 +51,7 @@ from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
 from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
 from tapmuscle.diagnosis.residual_analysis import located_windows
+from tapmuscle.diagnosis.reproducible import dot, moving_sum, snap_relative, sse
 
 __all__ = ["ParameterSpec", "Candidate", "Problem", "FitResult", "CANDIDATES", "candidate"]
 
@@ -93,19 +94,19 @@ def _gauss_newton_1d(resid: Callable[[float], np.ndarray], x0: float, r0: np.nda
     xa, ra = x0, r0
     xb = clip(x0 + h) if clip(x0 + h) != x0 else clip(x0 - h)
     rb = resid(xb)
-    best = min(((float(ra @ ra), xa), (float(rb @ rb), xb)))
+    best = min(((sse(ra), xa), (sse(rb), xb)))
     for _ in range(iters):
         if xb == xa:
             break
         j = (rb - ra) / (xb - xa)
-        jj = float(j @ j)
+        jj = sse(j)
         if jj == 0.0:
             break
-        xc = clip(xb - float(j @ rb) / jj)
+        xc = clip(xb - dot(j, rb) / jj)
         if abs(xc - xb) <= tol:
             break
         rc = resid(xc)
-        best = min(best, (float(rc @ rc), xc))
+        best = min(best, (sse(rc), xc))
         xa, ra, xb, rb = xb, rb, xc, rc
     return best[1]
 
@@ -126,8 +127,8 @@ def _fit_sensor_drift(pr: Problem, base: PlantParams, y_base: np.ndarray) -> Fit
     e = pr.y_mm - y_base
     a = np.column_stack([np.ones(pr.n), pr.t_s])[pr.train]
     (offset, rate), *_ = np.linalg.lstsq(a, e[pr.train], rcond=None)
-    offset = float(np.clip(offset, -20.0, 20.0))
-    rate = float(np.clip(rate * 60.0, -10.0, 10.0)) / 60.0
+    offset = float(np.clip(snap_relative(offset), -20.0, 20.0))
+    rate = float(np.clip(snap_relative(rate) * 60.0, -10.0, 10.0)) / 60.0
     values = {"sensor_drift.offset_mm": base.value("sensor_drift.offset_mm") + offset,
               "sensor_drift.rate_mm_per_min": base.value("sensor_drift.rate_mm_per_min") + rate * 60.0}
     return FitResult(values, y_base + offset + rate * pr.t_s)
@@ -141,7 +142,7 @@ def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
 
     def cost(s):
         r = pr.train_residual(backlash(core, s) + drift)
-        return float(r @ r)
+        return sse(r)
     grid = np.linspace(0.0, 6.0, 25)
     s0 = grid[int(np.argmin([cost(s) for s in grid]))]
     res = optimize.minimize_scalar(cost, bounds=(max(0.0, s0 - 0.25), s0 + 0.25), method="bounded",
@@ -161,7 +162,7 @@ def _fit_transport_delay(pr: Problem, base: PlantParams, y_base: np.ndarray) -> 
 
     def cost(d):
         r = pr.train_residual(shifted(d))
-        return float(r @ r)
+        return sse(r)
     d_max = min(2.0 - d_base, 20 * pr.ts_s)
     grid = np.linspace(0.0, d_max, 81)
     d0 = float(grid[int(np.argmin([cost(d) for d in grid]))])
@@ -194,7 +195,7 @@ def _energetic_window(pr: Problem, e: np.ndarray, length_s: float) -> tuple[int,
     k = max(1, int(round(length_s / pr.ts_s)))
     if k >= pr.n:
         return 0, pr.n
-    c = np.convolve(e * e, np.ones(k), mode="valid")
+    c = moving_sum(e * e, k)
     a = int(np.argmax(c))
     starts = [s for s in pr.sim.checkpoints() if s <= a] or [0]
     return starts[-1], min(pr.n, a + k)
@@ -276,7 +277,7 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
             return math.inf
         p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
         r = pr.train_residual(pr.sim.run(p, start=start, stop=stop)[0], start)
-        return float(r @ r)
+        return sse(r)
     # The command is held over each sample, so the cost depends only on which recorded commands fall
     # inside the band: it is piecewise constant in the band's edges, with jumps, and a simplex stalls
     # on its plateaus. The search moves the edges between the cut points of the recorded commands.
@@ -342,7 +343,7 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     # below, and the best start goes on to the simplex.
     def energy(w):
         a, b = (int(round(x / pr.ts_s)) for x in w)
-        return float(np.sum(e[a:b + 1] ** 2))
+        return sse(e[a:b + 1])
     windows = []
     for level in SAG_WINDOW_LEVELS:
         wins = located_windows(e, pr.ts_s, noise_mm=pr.noise_mm, relative=level)
@@ -366,7 +367,7 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     def cost(x):
         y = pr.sim.run(params(x), start=start, stop=stop)[0]
         r = pr.train_residual(y, start)
-        return float(r @ r)
+        return sse(r)
     # depth: a quick scalar search on each located window, then all three together from the best
     sags = (0.01, 0.03, 0.06, 0.1)
     _, s0, a_s, b_s = min((cost((sg, a, b)), sg, a, b) for a, b in windows for sg in sags)
@@ -392,7 +393,7 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
                 ends.append(edge)
         return 0.5 * (ends[0] + ends[1])
     r0 = pr.train_residual(y_base[start:stop], start)
-    if c_fit < 0.9 * float(r0 @ r0):  # only for a sag that could pass the 10 % acceptance rule
+    if c_fit < 0.9 * sse(r0):  # only for a sag that could pass the 10 % acceptance rule
         b = flat_middle(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
         a = flat_middle(lambda v: cost((depth, v, b)), a, t_first, b - 0.5)
     x = (depth, a, b)

@@ -32,6 +32,7 @@ from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, iou, interleaved_split
 from tapmuscle.diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.reproducible import sse
 
 __all__ = ["DEMO_MODEL", "EXCITATIONS", "MAGNITUDES", "Case", "concealed_cases", "record", "run_case",
            "run_demo", "calibrate_without_rate"]
@@ -138,7 +139,7 @@ def calibrate_without_rate(recording_u: np.ndarray, recording_l: np.ndarray, ts_
 
     def cost(scale: float) -> float:
         r = recording_l - sim.run(params(scale))[0]
-        return float(r @ r)
+        return sse(r)
     res = optimize.minimize_scalar(cost, bounds=(1.0, 3.0), method="bounded", options={"xatol": 1e-3})
     return params(float(res.x))
 

@@ -58,6 +58,7 @@ from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, worker_pool
+from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
            "distinguishable", "sensor_noise_mm",
@@ -103,10 +104,10 @@ def _significance(e0: np.ndarray, e1: np.ndarray, noise_mm: float, alpha: float)
     is the residual's projection on the contribution in units of the white-noise level ``sigma``: a
     standard normal if the held-out residual were only noise. One-sided p-value.
     """
-    sse0, sse1 = float(e0 @ e0), float(e1 @ e1)
+    sse0, sse1 = sse(e0), sse(e1)
     d = e0 - e1
-    nd = float(np.linalg.norm(d))
-    z = float(e0 @ d) / (noise_mm * nd) if nd > 0 and noise_mm > 0 else (math.inf if nd > 0 else 0.0)
+    nd = norm(d)
+    z = dot(e0, d) / (noise_mm * nd) if nd > 0 and noise_mm > 0 else (math.inf if nd > 0 else 0.0)
     return {"sse_before_mm2": sse0, "sse_after_mm2": sse1, "reduction": 1.0 - sse1 / sse0 if sse0 > 0 else 0.0,
             "z": z, "p_value": float(stats.norm.sf(z)), "significant_at": alpha}
 
@@ -134,8 +135,8 @@ def distinguishable(e_best: np.ndarray, e_other: np.ndarray, noise_mm: float, *,
         the alternatives were fitted still holds the effects that later rounds explained, and those
         are not noise.
     """
-    s_best, s_other = float(e_best @ e_best), float(e_other @ e_other)
-    delta = float(np.linalg.norm(e_best - e_other))
+    s_best, s_other = sse(e_best), sse(e_other)
+    delta = norm(e_best - e_other)
     sigma = max(noise_mm, effective_sigma(e_best if residual_mm is None else residual_mm))
     z = (s_other - s_best) / (2.0 * sigma * delta) if delta > 0 and sigma > 0 else 0.0
     ratio = s_other / s_best if s_best > 0 else math.inf
@@ -424,7 +425,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     def sensors_sse(y_hat: np.ndarray, q_hat: np.ndarray | None) -> float:
         """Training SSE of every sensor the fits weigh [mm^2] (the pressure's rescaled, when used)."""
-        return float(np.sum(evidence.stacked(y_hat, q_hat, train) ** 2))
+        return sse(evidence.stacked(y_hat, q_hat, train))
     sensor_mm = space.sensor_noise(model)
     tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
     floor = tests0["noise_reference_mm"]
@@ -474,7 +475,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                             evidence.residual(new, q_new) if both else (y - new)[test], noise, alpha)
         if both:
             e0, e1 = (y - base)[test], (y - new)[test]
-            sig["reduction"] = 1.0 - float(e1 @ e1) / float(e0 @ e0) if float(e0 @ e0) > 0 else 0.0
+            sig["reduction"] = 1.0 - sse(e1) / sse(e0) if sse(e0) > 0 else 0.0
         return sig
 
     def passes(sig: dict[str, float]) -> bool:
@@ -540,13 +541,13 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # pressure, both choices are made on both sensors: a start that fits the displacement by a
         # pressure the rig does not have (constants that mimic an amplifier's map) is not promising.
         def train_sse(y_hat: np.ndarray) -> float:
-            return float(np.sum((y - y_hat)[train] ** 2))
+            return sse((y - y_hat)[train])
         options = [(cand, res, current.params) for cand, res, _ in fitted]
         options += [(by_name[name], res_n, model) for name, res_n in nominal_fits.items()]
         if evidence.uses_pressure and options:  # on the fit segment, where the fits themselves look
             runs = sim.run_many([st.with_values(**res.values) for _, res, st in options], stop=problem.n_fit,
                                 pressure=True)
-            scores = [float(np.sum(problem.stacked_residual(*lq) ** 2)) for lq in runs]
+            scores = [sse(problem.stacked_residual(*lq)) for lq in runs]
         else:
             scores = [train_sse(res.y_hat) for _, res, _ in options]
         starts = []
@@ -611,7 +612,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
                           "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
             alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1,
-                                    float(np.sum((y - y1)[test] ** 2)), fit_percent(y, y1, test),
+                                    sse((y - y1)[test]), fit_percent(y, y1, test),
                                     {k: v for k, v in sig.items()}, q_hat=q1))
         # ranked on the evidence of both channels (the displacement's alone without a pressure)
         accepted = sorted((a for a in alts if passes(a.evidence)), key=lambda a: a.evidence["sse_after_mm2"])

@@ -34,6 +34,7 @@ import numpy as np
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.reproducible import norm
 
 __all__ = ["Experiment", "design_input", "separation", "write_experiment"]
 
@@ -82,7 +83,7 @@ def separation(predictions: Sequence[np.ndarray]) -> float:
     best = math.inf
     for i in range(len(predictions)):
         for j in range(i + 1, len(predictions)):
-            best = min(best, float(np.linalg.norm(predictions[i] - predictions[j])))
+            best = min(best, norm(predictions[i] - predictions[j]))
     return 0.0 if best == math.inf else best
 
 

@@ -19,6 +19,7 @@ from fmu_plant import PlantParams
 from fmu_plant.effect_library import input_map_v
 from fmu_plant.parameters import InputMapParams
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
+from tapmuscle.diagnosis.reproducible import snap, sse
 
 __all__ = ["fit_input_map", "explain_input_map"]
 
@@ -81,7 +82,7 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     n_fit = pr.n_fit
     # on every sensor the fits weigh: an amplifier's map shows in the pressure the command sets
     r0 = pr.stacked_residual(*pr.sim.run(base, stop=n_fit)) if pr.uses_pressure else pr.train_residual(y_base[:n_fit])
-    cost_base = float(r0 @ r0)
+    cost_base = sse(r0)
     # Done once the training residual is down to the noise (the smaller of the residual's white-noise
     # level, inflated while the map is still off, and the encoder noise the model states), or to a
     # sliver of the base residual (no held-out fit left to gain): more steps would only cost time.
@@ -94,13 +95,14 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
 
     def train_cost(x: np.ndarray) -> float:
         r = pr.stacked_residual(*pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit))
-        return float(r @ r)
+        return sse(r)
 
     def resid(x: np.ndarray) -> np.ndarray:
         if len(seen) >= _MAP_SIMULATIONS - _MAP_SIMPLER or (seen and min(seen)[0] <= done_cost):
             raise _BudgetSpentError
+        x = snap(x)  # the solver's steps come out of the BLAS: on the grid, every CPU simulates the same maps
         r = pr.stacked_residual(*pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit))
-        seen.append((float(r @ r), tuple(float(v) for v in x)))
+        seen.append((sse(r), tuple(float(v) for v in x)))
         last["x"], last["r"] = np.array(x, float), r
         return r
 
@@ -108,7 +110,7 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
         # Each simulation costs as much as the whole search step, so the Jacobian is a Broyden update
         # along the step from where the last one was taken (one simulation), and forward differences
         # (inward at an upper bound; six more) only at a run's start and every _MAP_BROYDEN updates.
-        x = np.array(x, float)
+        x = snap(x)
         r = last["r"] if "x" in last and np.array_equal(last["x"], x) else resid(x)
         if not jac_at or jac_at["age"] >= _MAP_BROYDEN:
             cols = []
@@ -120,8 +122,8 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
             j, age = np.column_stack(cols), 0
         else:
             j, dx = jac_at["j"], x - jac_at["x"]
-            if float(dx @ dx) > 0.0:
-                j = j + np.outer(r - jac_at["r"] - j @ dx, dx) / float(dx @ dx)
+            if sse(dx) > 0.0:
+                j = j + np.outer(r - jac_at["r"] - np.sum(j * dx, axis=1), dx) / sse(dx)
             age = jac_at["age"] + 1
         jac_at.update(x=x, r=r, j=j, age=age)
         return j

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
+
 __all__ = ["fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
            "cross_correlation_test", "is_structured", "located_windows", "regime_summary",
            "interleaved_split", "iou", "dominant_frequency_hz"]
@@ -26,8 +28,8 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray, mask: np.ndarray | None = None
     """Normalised-RMSE fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` [%] (MATLAB ``compare``)."""
     if mask is not None:
         y, y_hat = y[mask], y_hat[mask]
-    den = float(np.linalg.norm(y - np.mean(y)))
-    return 100.0 * (1.0 - float(np.linalg.norm(y - y_hat)) / den) if den > 0 else float("nan")
+    den = norm(y - np.mean(y))
+    return 100.0 * (1.0 - norm(y - y_hat) / den) if den > 0 else float("nan")
 
 
 def white_noise_level_mm(e: np.ndarray) -> float:
@@ -66,9 +68,9 @@ def autocorrelation_test(e: np.ndarray, max_lag: int = MAX_LAG) -> Correlation:
     """Whiteness test: autocorrelation of ``e`` at lags 1..max_lag, band ``z / sqrt(N)``, Ljung-Box p."""
     x = np.asarray(e, float) - np.mean(e)
     n = len(x)
-    den = float(x @ x)
+    den = sse(x)
     lags = np.arange(1, max_lag + 1)
-    r = np.array([float(x[:-k] @ x[k:]) / den for k in lags]) if den > 0 else np.zeros(max_lag)
+    r = np.array([dot(x[:-k], x[k:]) / den for k in lags]) if den > 0 else np.zeros(max_lag)
     q = n * (n + 2) * float(np.sum(r * r / (n - lags)))
     z = stats.norm.ppf(0.5 + CONFIDENCE / 2)
     return Correlation(lags, r, z / math.sqrt(n), float(stats.chi2.sf(q, max_lag)))
@@ -80,12 +82,12 @@ def cross_correlation_test(u: np.ndarray, e: np.ndarray, max_lag: int = MAX_LAG)
     a = np.asarray(u, float) - np.mean(u)
     b = np.asarray(e, float) - np.mean(e)
     n = len(a)
-    den = math.sqrt(float(a @ a) * float(b @ b))
+    den = math.sqrt(sse(a) * sse(b))
     lags = np.arange(-max_lag, max_lag + 1)
     if den == 0:
         r = np.zeros(len(lags))
     else:
-        r = np.array([float(a[:n - k] @ b[k:]) if k >= 0 else float(a[-k:] @ b[:n + k]) for k in lags]) / den
+        r = np.array([dot(a[:n - k], b[k:]) if k >= 0 else dot(a[-k:], b[:n + k]) for k in lags]) / den
     q = n * float(np.sum(r * r))
     z = stats.norm.ppf(0.5 + CONFIDENCE / 2)
     return Correlation(lags, r, z / math.sqrt(n), float(stats.chi2.sf(q, len(lags))))
@@ -125,7 +127,7 @@ def interleaved_split(n: int, ts_s: float, block_s: float) -> tuple[np.ndarray, 
 
 def _moving_rms(x: np.ndarray, width: int) -> np.ndarray:
     width = max(1, min(width, len(x)))
-    c = np.convolve(x * x, np.ones(width) / width, mode="same")
+    c = moving_sum(x * x, width, centred=True) / width
     return np.sqrt(np.maximum(c, 0.0))
 
 
@@ -190,7 +192,7 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
     e = np.asarray(energy, float)
     total = float(np.sum(e))
     k = max(1, int(round(0.5 / ts_s)))
-    smooth = np.convolve(l_mm, np.ones(k) / k, mode="same")
+    smooth = moving_sum(l_mm, k, centred=True) / k
     v = np.gradient(smooth, ts_s)
     hold = max(0.5, 0.1 * float(np.percentile(np.abs(v), 90)))
     axes: dict[str, dict[str, np.ndarray]] = {
