@@ -40,6 +40,9 @@ _MAP_BROYDEN = 8
 #: A least-squares run that lowers the cost by less than this share ends the fit; more gain a restart
 #: from a fresh finite-difference Jacobian.
 _MAP_FTOL = 1e-2
+#: Weight of the damping rows towards a least-squares run's start, in noise levels per unit of the
+#: search coordinates (volts, or a slope).
+_MAP_DAMPING = 0.1
 #: The input-map fit stops once the training residual's RMS is within this factor of the noise, or
 #: its energy below this share of the base residual's (RMS 0.3 %: the fit then lacks < 0.3 % of the
 #: base residual's held-out RMS).
@@ -97,7 +100,7 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
         r = pr.stacked_residual(*pr.sim.run(base.with_values(**_input_map_values(x)), stop=n_fit))
         return sse(r)
 
-    def resid(x: np.ndarray) -> np.ndarray:
+    def data(x: np.ndarray) -> np.ndarray:
         if len(seen) >= _MAP_SIMULATIONS - _MAP_SIMPLER or (seen and min(seen)[0] <= done_cost):
             raise _BudgetSpentError
         x = snap(x)  # the solver's steps come out of the BLAS: on the grid, every CPU simulates the same maps
@@ -106,19 +109,29 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
         last["x"], last["r"] = np.array(x, float), r
         return r
 
+    # A knot or slope that no training command reaches (or that the clipping holds) leaves the
+    # Jacobian singular, and the solver's step along it is then rounding noise (another CPU, another
+    # map). Damping rows towards the run's start keep such coordinates where they are; at a tenth of
+    # the noise per volt they weigh nothing against the data.
+    damping = _MAP_DAMPING * noise
+    run: dict[str, np.ndarray] = {}
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([data(x), damping * (snap(x) - run["x0"])])
+
     def jac(x: np.ndarray) -> np.ndarray:
         # Each simulation costs as much as the whole search step, so the Jacobian is a Broyden update
         # along the step from where the last one was taken (one simulation), and forward differences
         # (inward at an upper bound; six more) only at a run's start and every _MAP_BROYDEN updates.
         x = snap(x)
-        r = last["r"] if "x" in last and np.array_equal(last["x"], x) else resid(x)
+        r = last["r"] if "x" in last and np.array_equal(last["x"], x) else data(x)
         if not jac_at or jac_at["age"] >= _MAP_BROYDEN:
             cols = []
             for i, h in enumerate(_MAP_STEP):
                 h = h if x[i] + h <= _MAP_HI[i] else -h
                 xi = x.copy()
                 xi[i] += h
-                cols.append((resid(xi) - r) / h)
+                cols.append((data(xi) - r) / h)
             j, age = np.column_stack(cols), 0
         else:
             j, dx = jac_at["j"], x - jac_at["x"]
@@ -126,7 +139,7 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
                 j = j + np.outer(r - jac_at["r"] - np.sum(j * dx, axis=1), dx) / sse(dx)
             age = jac_at["age"] + 1
         jac_at.update(x=x, r=r, j=j, age=age)
-        return j
+        return np.vstack([j, damping * np.eye(len(x))])
 
     # Starts: a 1-V dead band with slope-1 outer parts, its centre over the commanded range and just
     # beyond it. Such a band shifts commands above it down and those below it up, so the same starts
@@ -135,11 +148,12 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     centres = np.clip(np.linspace(lo_u - 0.5, hi_u + 0.5, 13), _MAP_LO[0], _MAP_HI[0])
     try:
         for c in centres:
-            resid(np.array([c, 1.0, c, 0.0, 1.0, 1.0]))
+            data(np.array([c, 1.0, c, 0.0, 1.0, 1.0]))
         while True:  # a run may stop on a poor Broyden Jacobian: restart while that gains
             before = min(seen)[0]
             jac_at.clear()
-            optimize.least_squares(resid, np.array(min(seen)[1]), jac=jac, bounds=(_MAP_LO, _MAP_HI),
+            run["x0"] = np.array(min(seen)[1])
+            optimize.least_squares(resid, run["x0"], jac=jac, bounds=(_MAP_LO, _MAP_HI),
                                    method="trf", ftol=_MAP_FTOL, xtol=1e-4, max_nfev=_MAP_SIMULATIONS)
             if min(seen)[0] > (1.0 - _MAP_FTOL) * before:
                 break
