@@ -27,7 +27,8 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
   where the training cost is flat (bisection);
 * ``input_map``: a 1-V dead band at 13 centres over the commanded range as starts, then bounded least
   squares (trust-region reflective; finite-difference Jacobian, Broyden-updated between; damped
-  towards each run's start, so that a knot no command reaches stays put) on all six knot coordinates, simulating the first ``fit_segment_s`` seconds per evaluation, at most 70
+  towards each run's start, so that a knot no command reaches stays put) on all six knot
+  coordinates, simulating the first ``fit_segment_s`` seconds per evaluation, at most 70
   simulations; the straight line closest to the fitted map replaces it when it fits as well.
 
 Every fit ends with one simulation of the whole recording with the fitted parameters, which gives the
