@@ -29,6 +29,10 @@ Procedure
    noise level, the level at which step 10 of docs/diagnosis.md locates a signal in time. Below
    that it is a remainder of the calibration (constants the data could not pin), reported in
    ``Diagnosis.unexplained`` but not claimed.
+
+Every sum a decision rests on, and every point a solver proposes, goes through
+:mod:`tapmuscle.diagnosis.reproducible`, so one recording gets the same diagnosis, bit for bit, on
+another CPU or BLAS kernel (and with any number of ``workers``).
 """
 
 from __future__ import annotations
