@@ -19,7 +19,7 @@ from fmu_plant import PlantParams
 from fmu_plant.effect_library import input_map_v
 from fmu_plant.parameters import InputMapParams
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
-from tapmuscle.diagnosis.reproducible import snap, sse
+from tapmuscle.diagnosis.reproducible import snap, snap_relative, sse
 
 __all__ = ["fit_input_map", "explain_input_map"]
 
@@ -169,7 +169,8 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     x = np.array(best)
     u_fit = pr.u_v[:n_fit]
     fitted = InputMapParams(**{k.partition(".")[2]: v for k, v in _input_map_values(x).items()})
-    gain, offset = np.polyfit(u_fit, [input_map_v(float(u), fitted) for u in u_fit], 1)
+    # a least-squares line out of LAPACK: rounded, it is the same line on every CPU
+    gain, offset = (snap_relative(v) for v in np.polyfit(u_fit, [input_map_v(float(u), fitted) for u in u_fit], 1))
     k1, k2 = fitted.knot1_in_v, fitted.knot2_in_v
     line = np.clip([0.5 * (k1 + k2), k2 - k1, offset + gain * 0.5 * (k1 + k2), gain * (k2 - k1), gain, gain],
                    _MAP_LO, _MAP_HI)
