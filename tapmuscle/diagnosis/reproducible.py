@@ -24,9 +24,9 @@ So every number a decision depends on is computed here:
   diagnosis proposes a few hundred points, so about one in a hundred may still part somewhere.
 
 What this does not make reproducible: a least-squares problem whose Jacobian is singular (a
-parameter with no effect on the training samples, as an input map's knot above every recorded
-command). The solver's step in the null space is then decided by rounding noise in the BLAS, and
-snapping cannot hold it.
+parameter with no effect on the training samples, such as an effect's joint parameter that no
+training sample sees). The solver's step in the null space is then decided by rounding noise in
+the BLAS, and snapping cannot hold it; the input map's fit has damping rows for this reason.
 """
 
 from __future__ import annotations
