@@ -14,7 +14,8 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from tapmuscle.diagnosis.reproducible import GRID_BITS, dot, moving_sum, norm, snap, snap_relative, sse
+from tapmuscle.diagnosis.reproducible import (GRID_BITS, broyden_update, dot, moving_sum, norm, snap, snap_relative,
+                                              sse)
 
 
 def _vectors(seed: int, n: int) -> np.ndarray:
@@ -44,6 +45,20 @@ def test_sse_and_dot_do_not_depend_on_the_order_of_summation(seed):
 def test_dot_refuses_vectors_of_different_lengths():
     with pytest.raises(ValueError, match="lengths 3 and 4"):
         dot(np.ones(3), np.ones(4))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_broyden_update_meets_the_secant_condition_and_keeps_the_orthogonal_directions(seed):
+    rng = np.random.default_rng(seed)
+    J, dx, df = rng.normal(size=(40, 6)), rng.normal(size=6), rng.normal(size=40)
+    J1 = broyden_update(J, dx, df)
+    # the secant condition J+ dx = df, to the rounding of a 6-term sum of O(1) terms
+    assert np.allclose(J1 @ dx, df, rtol=0, atol=1e-12 * (1 + np.abs(df).max()))
+    # a direction orthogonal to the step sees the old Jacobian
+    v = rng.normal(size=6)
+    v -= dx * (v @ dx) / (dx @ dx)
+    assert np.allclose(J1 @ v, J @ v, rtol=0, atol=1e-12)
+    assert broyden_update(J, np.zeros(6), df) is J
 
 
 @pytest.mark.parametrize("n, k", [(1, 1), (5, 2), (5, 5), (100, 1), (100, 7), (100, 10), (1801, 50)])

@@ -59,7 +59,7 @@ from scipy import optimize
 
 from fmu_plant import PlantParams
 
-from tapmuscle.diagnosis.reproducible import dot, snap, snap_relative, sse
+from tapmuscle.diagnosis.reproducible import broyden_update, dot, snap, snap_relative, sse
 
 
 __all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "CalibrationRow",
@@ -259,12 +259,7 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
         elif refresh_every and calls % refresh_every == 0:
             J = fd_jacobian(x)
         else:  # Broyden: the secant through the last accepted point
-            dx = x - state["x"]
-            dd = sse(dx)
-            J = state["J"]
-            if dd > 0:
-                df = data_residual(x) - data_residual(state["x"])
-                J = J + np.outer(df - np.sum(J * dx, axis=1), dx) / dd
+            J = broyden_update(state["J"], x - state["x"], data_residual(x) - data_residual(state["x"]))
         state["x"], state["J"] = x.copy(), J
         return np.vstack([J, prior_rows])
 

@@ -19,7 +19,7 @@ from fmu_plant import PlantParams
 from fmu_plant.effect_library import input_map_v
 from fmu_plant.parameters import InputMapParams
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
-from tapmuscle.diagnosis.reproducible import snap, snap_relative, sse
+from tapmuscle.diagnosis.reproducible import broyden_update, snap, snap_relative, sse
 
 __all__ = ["fit_input_map", "explain_input_map"]
 
@@ -134,9 +134,7 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
                 cols.append((data(xi) - r) / h)
             j, age = np.column_stack(cols), 0
         else:
-            j, dx = jac_at["j"], x - jac_at["x"]
-            if sse(dx) > 0.0:
-                j = j + np.outer(r - jac_at["r"] - np.sum(j * dx, axis=1), dx) / sse(dx)
+            j = broyden_update(jac_at["j"], x - jac_at["x"], r - jac_at["r"])
             age = jac_at["age"] + 1
         jac_at.update(x=x, r=r, j=j, age=age)
         return np.vstack([j, damping * np.eye(len(x))])

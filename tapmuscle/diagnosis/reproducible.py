@@ -13,6 +13,8 @@ So every number a decision depends on is computed here:
 
 * :func:`sse` and :func:`dot` are correctly rounded (``math.fsum`` of the exactly rounded products),
   hence independent of the order of summation and of the CPU;
+* :func:`broyden_update` updates a Jacobian along a step with the product ``J dx`` summed
+  elementwise, not in the BLAS;
 * :func:`moving_sum` sums windows by a running sum in index order (``numpy.cumsum``), not by
   ``numpy.convolve``;
 * :func:`snap` puts the points an optimiser proposes (whose linear algebra runs in the BLAS) on a
@@ -35,7 +37,7 @@ import math
 
 import numpy as np
 
-__all__ = ["sse", "dot", "norm", "moving_sum", "snap", "snap_relative", "GRID_BITS"]
+__all__ = ["sse", "dot", "norm", "broyden_update", "moving_sum", "snap", "snap_relative", "GRID_BITS"]
 
 #: :func:`snap`'s grid is ``2**-GRID_BITS`` in the snapped coordinate (6e-8 prior sds, or volts: far
 #: below any tolerance of the searches and finite-difference steps, far above the 1e-16 relative
@@ -60,6 +62,34 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
 def norm(r: np.ndarray) -> float:
     """The Euclidean norm of ``r`` from :func:`sse`."""
     return math.sqrt(sse(r))
+
+
+def broyden_update(J: np.ndarray, dx: np.ndarray, df: np.ndarray) -> np.ndarray:
+    r"""Broyden's (1965) rank-one secant update of a Jacobian along one step.
+
+    .. math:: J_+ = J + \frac{(\Delta f - J \Delta x)\,\Delta x^T}{\Delta x^T \Delta x}
+
+    so that ``J_+ dx = df``. ``J dx`` is an elementwise sum per row and ``dx' dx`` is :func:`sse`,
+    so the update is the same on every CPU.
+
+    Parameters
+    ----------
+    J : ndarray, shape (m, n)
+        The Jacobian at the step's start.
+    dx : ndarray, shape (n,)
+        The step in the coordinates.
+    df : ndarray, shape (m,)
+        The change of the residual along it.
+
+    Returns
+    -------
+    ndarray
+        The updated Jacobian (``J`` itself for a zero step).
+    """
+    dd = sse(dx)
+    if dd == 0.0:
+        return J
+    return J + np.outer(df - np.sum(J * dx, axis=1), dx) / dd
 
 
 def moving_sum(x: np.ndarray, k: int, *, centred: bool = False) -> np.ndarray:
