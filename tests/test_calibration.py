@@ -135,6 +135,7 @@ def test_calibration_recovers_a_rig_whose_constants_are_off():
     assert est["valve.cv_max"].estimate == pytest.approx(1.35, rel=0.05)
 
 
+@pytest.mark.slow
 def test_run_many_is_run_for_each_in_processes_too():
     """Simulator.run_many: each run's displacement, in order, the same bit for bit with an executor."""
     from fmu_plant import PlantParams

@@ -68,6 +68,7 @@ def test_check_reports_bad_files_and_empty_folders(tmp_path, capsys):
     assert "no such file or folder" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_long_run_scenario_meets_its_expectation(built_fmus, capsys):
     """The 24-hour soak's CI scenario test: 30 min of AMPC-servo through the FMUs with the long-run
     estimator, load and supply stepping, within its bound over the last 10 minutes."""

@@ -117,6 +117,7 @@ def test_the_correction_cuts_the_delayed_loops_error_on_the_rig(method, ratio):
     assert err[True] < ratio * err[False], err
 
 
+@pytest.mark.slow
 def test_the_correction_survives_ten_minutes_at_rest_in_the_delayed_loop():
     """600 s holding 40 mm (the regressor unexcited: covariance wind-up would show here), then the
     built-in sine: the corrected loop tracks after the rest as before it. Measured over 620-700 s,

@@ -121,6 +121,7 @@ def test_edge_search_crosses_the_plateaus_of_a_sampled_command():
     assert np.array_equal((u > a) & (u < b), inside)
 
 
+@pytest.mark.slow
 def test_unexplained_when_no_candidate_fits():
     """A load mismatch, with only the delay and backlash as candidates: the structure is reported as such."""
     rig = DEMO_MODEL.with_values(**{"load_mismatch.extra_n": 8.0})

@@ -478,6 +478,7 @@ def test_detected_delay_decides_for_the_undelayed_law_in_a_sequential_loop(theta
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_detected_delay_switches_in_a_parallel_loop(theta0, method):
     """With each command applied one sample late (a parallel master at h = Ts), -1 keeps the delayed
     law it starts with, decided within 6 s; AMPC-servo then tracks as with 1 and far better than with

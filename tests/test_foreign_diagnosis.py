@@ -88,6 +88,7 @@ def test_map_errors_name_the_file_and_key(fmus, tmp_path):
 
 
 # ------------------------------------------------------------------------------ diagnoses
+@pytest.mark.slow
 def test_delay_on_the_c_motor_is_named_and_fitted(fmus, tmp_path):
     case = _case("DcMotor", "transport_delay[V]", {"V:delay_s": 0.15}, {"K": 0.1, "Tc": -0.15})
     rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
@@ -111,6 +112,7 @@ def test_clean_thermal_recording_claims_nothing(fmus, tmp_path):
     assert d.fit_after_percent >= 99.0
 
 
+@pytest.mark.slow
 def test_unrecorded_second_input_is_found_as_a_secondary_input(fmus, tmp_path):
     case = _case("ThermalTwoMass", "secondary_input[P2]", {"P2:change": 20.0, "P2:start_s": 400.0, "P2:end_s": 700.0},
                  {"G1a": 0.1}, record_p2=False)
@@ -179,6 +181,7 @@ def test_parameters_the_fmu_cannot_run_raise_simulation_error_and_the_instance_r
     setup.sim.close()
 
 
+@pytest.mark.slow
 def test_cli_runs_a_foreign_fmu_and_reports_bad_map_without_traceback(fmus, tmp_path):
     case = _case("DcMotor", "output_drift[omega]", {"omega:offset": 1.0, "omega:drift_per_min": 0.6}, {"J": 0.1})
     rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
@@ -206,6 +209,7 @@ def test_demo_cases_are_seeded_and_cover_both_fmus():
     assert sum(c.effect is None for c in a) == 4
 
 
+@pytest.mark.slow
 def test_every_mapped_output_diagnosed_with_a_summary(fmus, tmp_path):
     """Speed and current both measured, a delay on the voltage: an input effect, so it is named on
     both outputs, and the summary says so; a bad --output names the mapped ones."""

@@ -71,6 +71,7 @@ def test_an_effect_seen_in_one_channel_is_not_diluted_by_the_other():
 
 
 # ------------------------------------------------------------------------------ in the diagnosis
+@pytest.mark.slow
 def test_the_pressure_is_weighed_only_when_asked():
     """By default the diagnosis judges on the displacement alone, whatever columns the recording has
     (the field proof's default figures); ``use_pressure`` adds the pressure and records it."""

@@ -110,6 +110,7 @@ def test_model_exchange_calls_on_a_co_simulation_instance_are_refused(builds):
     inst.free()
 
 
+@pytest.mark.slow
 def test_a_model_exchange_fmu_is_diagnosed_as_its_co_simulation_build(builds, tmp_path):
     case = ForeignCase("t_me", "DcMotor", "transport_delay[V]", {"V:delay_s": 0.15}, {}, "steps", True, [7, 0])
     rec, m = record_foreign_case(case, builds["cs"], tmp_path / "rec", duration_s=60.0)

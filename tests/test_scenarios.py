@@ -41,6 +41,7 @@ def test_fmu_loop_equals_the_direct_loop(built_fmus, method):
     assert cols["load_n"][119] == 44.0 and cols["load_n"][120] == 68.0
 
 
+@pytest.mark.slow
 def test_long_run_estimator_settings_reach_the_fmu(built_fmus):
     """forgetting and covariance_ceiling set on the controller FMU give the direct loop's numbers, bit
     for bit, over a run long enough (300 s at 0.3 Hz) for the ceiling to act."""
