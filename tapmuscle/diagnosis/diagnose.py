@@ -450,6 +450,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     by_name = {c.name: c for c in candidates}
     do_calibrate = bool(calibration) and tests0["structured"]
     coords: list[FittedParameter] = []
+    converged: PlantParams | None = None  # the current model's parameters once re-fitted to convergence
 
     def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
@@ -495,7 +496,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         round_no += 1
         # the reference: the current model re-fitted to convergence, so that a candidate's extra freedom
         # is not mistaken for evidence (and the search stops if recalibration alone whitens the residual)
-        ref_params, _ = joint(current.params, current.effects, cal_jac, final=True)
+        ref_params = current.params
+        if current.params is not converged:
+            ref_params, _ = joint(current.params, current.effects, cal_jac, final=True)
         if ref_params is not current.params:
             ref_y, ref_q = sim.run(ref_params)
             if sensors_sse(ref_y, ref_q) < sensors_sse(current.y, current.q):
@@ -648,8 +651,16 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                           "alternatives": [a.effect for a in group[1:]]})
         current = _Model(best.params, current.effects + (best.effect,), best.y_hat,
                          current.values | {best.effect: best.parameters}, best.q_hat)
-        # backward step: drop an accepted effect the others (re-fitted) do without
+        # backward step: drop an accepted effect the others (re-fitted) do without. The model with every
+        # effect gets the same re-fit to convergence as each model without one: the acceptance's short
+        # warm-started re-fit would otherwise lose to it by convergence alone, and a true effect be dropped.
         if len(current.effects) > 1:
+            p_all, _ = joint(current.params, current.effects, cal_jac, final=True)
+            if p_all is not current.params:
+                y_all, q_all = sim.run(p_all)
+                if sensors_sse(y_all, q_all) < sensors_sse(current.y, current.q):
+                    current = _Model(p_all, current.effects, y_all, current.values, _used(q_all))
+            converged = current.params
             for name in list(current.effects[:-1]):
                 rest = tuple(e for e in current.effects if e != name)
                 p_wo = current.params.with_values(**space.off_values(current.values[name]))
@@ -663,6 +674,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                       "p_value": sig["p_value"]})
                     findings = [f for f in findings if f.effect != name]
                     current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
+                    converged = current.params
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated

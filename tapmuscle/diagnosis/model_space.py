@@ -26,9 +26,12 @@ __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "sensor_no
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
-#: band's edges and a sag's window make the cost piecewise constant; a sensor drift is linear in the
-#: output and fitted on the whole recording). The play of a backlash is joint although it acts on the
-#: measurement side: the friction's hysteresis mimics a play (a higher base friction with a shorter
+#: band's edges and a sag's window make the cost piecewise constant). A sensor drift's offset and rate
+#: are joint although its own fit is linear least squares: the offset shifts the reading as the
+#: constants or a load shift the muscle's equilibrium, so an offset fitted once on constants that the
+#: joint re-fits then move stays wrong, and a spurious load is found to correct it. The play of a
+#: backlash is joint although it acts on the measurement side: the friction's hysteresis mimics a play
+#: (a higher base friction with a shorter
 #: presliding range), so the calibration absorbs much of it and a play fitted on the calibrated
 #: constants comes out near zero; only a joint step that widens the play while it gives the friction
 #: back its width finds the rig's.
@@ -38,6 +41,7 @@ JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
     "supply_pressure_variation": (("supply_variation.sag_mpa", 0.01),),
     "load_mismatch": (("load_mismatch.extra_n", 2.0),),
     "backlash": (("backlash.slack_mm", 0.5),),
+    "sensor_drift": (("sensor_drift.offset_mm", 0.2), ("sensor_drift.rate_mm_per_min", 0.2)),
 }
 
 
