@@ -31,10 +31,9 @@ __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "sensor_no
 #: constants or a load shift the muscle's equilibrium, so an offset fitted once on constants that the
 #: joint re-fits then move stays wrong, and a spurious load is found to correct it. The play of a
 #: backlash is joint although it acts on the measurement side: the friction's hysteresis mimics a play
-#: (a higher base friction with a shorter
-#: presliding range), so the calibration absorbs much of it and a play fitted on the calibrated
-#: constants comes out near zero; only a joint step that widens the play while it gives the friction
-#: back its width finds the rig's.
+#: (a higher base friction with a shorter presliding range), so the calibration absorbs much of it and
+#: a play fitted on the calibrated constants comes out near zero; only a joint step that widens the
+#: play while it gives the friction back its width finds the rig's.
 JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
     "rate_dependent_hysteresis": (("friction.rate_gain", 0.2),),
     "transport_delay": (("delay.delay_s", 0.02),),
