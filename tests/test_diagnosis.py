@@ -312,6 +312,7 @@ def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
                  candidates=[candidate(n) for n in ("transport_delay", "supply_pressure_variation", "sensor_drift")])
     assert d.named == ["transport_delay"] and d.verdict == "mismatch"
     assert d.findings[0].parameters["delay.delay_s"] == pytest.approx(0.3, abs=0.03)
+    assert d.findings[0].explanation == candidate("transport_delay").explain(d.findings[0].parameters)
     assert d.fit_calibrated_percent < 95.0 < d.fit_after_percent
 
 
@@ -501,4 +502,6 @@ def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_tes
     assert d.named == ["backlash"] and not d.ambiguous
     # the joint fit's play: within 15 % of the rig's (the friction constants it trades with stay uncertain)
     assert d.findings[0].parameters["backlash.slack_mm"] == pytest.approx(true_slack, rel=0.15)
+    # the words state the value reported, which is the final joint fit's
+    assert d.findings[0].explanation == candidate("backlash").explain(d.findings[0].parameters)
     assert d.fit_after_percent >= 99.0
