@@ -654,6 +654,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # backward step: drop an accepted effect the others (re-fitted) do without. The model with every
         # effect gets the same re-fit to convergence as each model without one: the acceptance's short
         # warm-started re-fit would otherwise lose to it by convergence alone, and a true effect be dropped.
+        # The newcomer is tested too, last: its joint re-fit also moved the constants and the other
+        # effects from where the reference had them, and what that move gained is not its evidence.
         if len(current.effects) > 1:
             p_all, _ = joint(current.params, current.effects, cal_jac, final=True)
             if p_all is not current.params:
@@ -661,7 +663,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 if sensors_sse(y_all, q_all) < sensors_sse(current.y, current.q):
                     current = _Model(p_all, current.effects, y_all, current.values, _used(q_all))
             converged = current.params
-            for name in list(current.effects[:-1]):
+            for name in list(current.effects):
+                if len(current.effects) == 1:
+                    break
                 rest = tuple(e for e in current.effects if e != name)
                 p_wo = current.params.with_values(**space.off_values(current.values[name]))
                 p_wo, _ = joint(p_wo, rest, cal_jac, final=True)
@@ -678,7 +682,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated
-        pool = [c for c in pool if c.name not in current.effects]
+        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect]
 
     # the final model: the calibrated constants re-fitted jointly with the accepted effects; the
     # report's calibration rows are those of this joint fit
