@@ -17,8 +17,10 @@ Procedure
    squared error, and the held-out residual's projection on the difference of the two predictions
    rejects "only noise" at level ``alpha`` (a one-sided z-test). So an effect is only claimed when
    recalibration cannot explain the data as well on the held-out blocks.
-5. **Backward step.** After each acceptance, every accepted effect is removed in turn (the rest
-   re-fitted jointly); one whose removal is not significantly worse is dropped.
+5. **Backward step.** After each acceptance (two or more effects), every accepted effect, the
+   newcomer last, is removed in turn (the rest re-fitted jointly); one whose removal is not
+   significantly worse is dropped. Both sides of each test are optima: a model with every effect
+   that fits the training blocks worse than the one without an effect is re-fitted from it first.
 6. **Ambiguity.** Candidates whose joint fits pass the acceptance test themselves and that the
    held-out data cannot tell from the best (:func:`distinguishable`) are alternatives: the verdict is
    ``ambiguous`` with their evidence, and none of them is claimed alone. (The report designs an
