@@ -54,7 +54,7 @@ from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
                           FD_STEP, calibration_rows, effective_sigma, fit_parameters, nominal_coords)
-from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, candidate
+from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
@@ -718,7 +718,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if f_final is not None and sensors_sse(y_final, q_final) <= sensors_sse(current.y, current.q):
             for f in findings:  # the values reported, and the words that state them, are the final model's
                 f.parameters = {k: float(v) for k, v in p_final.dotted().items() if k in f.parameters}
-                f.explanation = candidate(f.effect).explain(f.parameters)
+                f.explanation = by_name[f.effect].explain(f.parameters)
             current = _Model(p_final, current.effects, y_final, current.values, _used(q_final))
             if not current.effects:  # the calibration alone, converged further
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
