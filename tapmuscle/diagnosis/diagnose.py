@@ -458,6 +458,17 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
               final: bool = False) -> tuple[PlantParams, Any]:
         return _joint_refit(problem, space, coords, sigma, params, effects, start_jac, final)
 
+    def refitted(start: PlantParams) -> _Model | None:
+        """The current model's effects re-fitted jointly from ``start`` to convergence, when that fits
+        the training blocks better than the current model (None otherwise)."""
+        p, _ = joint(start, current.effects, cal_jac, final=True)
+        if p is current.params:
+            return None
+        y_p, q_p = sim.run(p)
+        if sensors_sse(y_p, q_p) < sensors_sse(current.y, current.q):
+            return _Model(p, current.effects, y_p, current.values, _used(q_p))
+        return None
+
     def prior_cost(p: PlantParams) -> float:
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
         return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
@@ -498,17 +509,13 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         round_no += 1
         # the reference: the current model re-fitted to convergence, so that a candidate's extra freedom
         # is not mistaken for evidence (and the search stops if recalibration alone whitens the residual)
-        ref_params = current.params
-        if current.params is not converged:
-            ref_params, _ = joint(current.params, current.effects, cal_jac, final=True)
-        if ref_params is not current.params:
-            ref_y, ref_q = sim.run(ref_params)
-            if sensors_sse(ref_y, ref_q) < sensors_sse(current.y, current.q):
-                current = _Model(ref_params, current.effects, ref_y, current.values, _used(ref_q))
-                if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
-                    selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
-                                      "leaves a white residual"})
-                    break
+        better = refitted(current.params) if current.params is not converged else None
+        if better is not None:
+            current = better
+            if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
+                selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
+                                  "leaves a white residual"})
+                break
         total = done + len(pool)
         fitted: list[tuple[Candidate, FitResult, dict[str, float]]] = []
         fit_base = fit_percent(y, current.y, test)
@@ -659,11 +666,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # The newcomer is tested too, last: its joint re-fit also moved the constants and the other
         # effects from where the reference had them, and what that move gained is not its evidence.
         if len(current.effects) > 1:
-            p_all, _ = joint(current.params, current.effects, cal_jac, final=True)
-            if p_all is not current.params:
-                y_all, q_all = sim.run(p_all)
-                if sensors_sse(y_all, q_all) < sensors_sse(current.y, current.q):
-                    current = _Model(p_all, current.effects, y_all, current.values, _used(q_all))
+            current = refitted(current.params) or current
             converged = current.params
             for name in list(current.effects):
                 if len(current.effects) == 1:
@@ -678,12 +681,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                     # training blocks worse: its re-fit stopped short of its optimum. Re-fit it from
                     # here with the effect on again, so that the test compares two optima.
                     on = {k: current.params.value(k) for k in current.values[name]}
-                    p_re, _ = joint(p_wo.with_values(**on), current.effects, cal_jac, final=True)
-                    y_re, q_re = sim.run(p_re)
-                    if sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q):
+                    better = refitted(p_wo.with_values(**on))
+                    if better is not None:
                         selection.append({"step": "re-fit from the model without", "round": round_no,
                                           "effect": name})
-                        current = _Model(p_re, current.effects, y_re, current.values, _used(q_re))
+                        current = better
                         converged = current.params
                 sig = significance(y_wo, current.y, q_wo, current.q)
                 if not passes(sig):
