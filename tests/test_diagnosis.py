@@ -514,7 +514,8 @@ def test_a_newcomer_that_only_rode_on_its_joint_re_fit_is_dropped():
     load, and against the round's reference that move counts as the delay's (69 % of the held-out
     error). The backward step tests the newcomer too, between two optima: the model without the delay
     fits the training blocks better than the one with it, so the model with it is re-fitted from
-    there, and the delay then gives nothing on the held-out blocks and is dropped."""
+    there first; the delay gives nothing on the held-out blocks and is dropped. (It is dropped without
+    that re-fit too: here the newcomer's own drop test is what removes it.)"""
     from tapmuscle.diagnosis.field_cases import field_cases, record_case
 
     case = field_cases(100, 0)[32]
