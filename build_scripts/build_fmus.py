@@ -57,7 +57,9 @@ def entry_script(name: str) -> str:
 
 
 def _clean_copy(src: Path, dst: Path) -> None:
-    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    # The FMU carries Python sources only: the plant's compiled sub-step (built for this interpreter,
+    # setup.py) is left out, and the FMU runs the Python one, which gives the same bits.
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.so", "*.pyd", "*.c"))
 
 
 def slave_metadata(name: str) -> dict[str, dict[str, Any]]:

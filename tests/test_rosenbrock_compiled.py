@@ -1,0 +1,86 @@
+"""The compiled ROS34PW2 sub-step (fmu_plant/_ros34pw2.c) is the Python one, bit for bit.
+
+Bit identity is the contract here, not a tolerance: the compiled copy does the same IEEE-754
+operations in the same order, so every simulation, documented figure and FMU result is the same
+whichever sub-step ran (the FMUs carry the Python one). The install builds it where a C compiler is;
+CI sets ``TAPMUSCLE_REQUIRE_COMPILED=1`` so that a silently failed build fails here instead of
+making the suite slow.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+
+from fmu_plant import Plant, PlantParams
+from fmu_plant import plant as plant_module
+from fmu_plant import rosenbrock
+from fmu_plant.rosenbrock import COMPILED, build_model
+from test_equations import VARIANTS, _states
+
+if not COMPILED:
+    if os.environ.get("TAPMUSCLE_REQUIRE_COMPILED") == "1":
+        raise ImportError("TAPMUSCLE_REQUIRE_COMPILED=1 but fmu_plant._ros34pw2 did not build (setup.py)")
+    pytest.skip("the compiled sub-step is not installed (no C compiler at install time)", allow_module_level=True)
+
+
+def _same(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return all(x == y or (math.isnan(x) and math.isnan(y)) for x, y in zip(a, b, strict=True))
+
+
+@pytest.mark.parametrize("name", list(VARIANTS))
+def test_a_sub_step_is_the_python_one_bit_for_bit(name):
+    prm = VARIANTS[name]
+    _, _, step_py, gate_py = build_model(prm, compiled=False)
+    _, _, step_c, gate_c = build_model(prm, compiled=True)
+    rng = np.random.default_rng(11)
+    checked = 0
+    for gate in (1.0, 0.3, 0.0):
+        gate_py(gate)
+        gate_c(gate)
+        for state in _states(rng, 1000):
+            # any spool target, supply and load, steps from 1 us to 30 ms (both sides of the
+            # spurious-reversal threshold)
+            args = (*state, rng.uniform(-0.1, 1.1), rng.uniform(0.15, 0.3), rng.uniform(0.0, 90.0),
+                    10.0 ** rng.uniform(-6.0, -1.5))
+            try:
+                expected = step_py(*args)
+            except (ZeroDivisionError, OverflowError):  # Python raises where C returns inf: not compared
+                continue
+            got = step_c(*args)
+            assert _same(got, expected), f"{name}, gate {gate}: attempt{args} = {got}, Python {expected}"
+            checked += 1
+    assert checked > 2900
+
+
+def test_a_run_with_effects_is_the_python_one_bit_for_bit(monkeypatch):
+    # A dead band (the valve gate switches), a delay and a supply sag: every port the sub-step sees.
+    prm = PlantParams().with_values(**{"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.0, "delay.delay_s": 0.2,
+                                       "supply_variation.sag_mpa": 0.03, "supply_variation.start_s": 10.0,
+                                       "supply_variation.end_s": 20.0, "friction.rate_gain": 0.5})
+    u = 5.0 + 4.5 * np.sin(2 * np.pi * 0.2 * np.arange(300) * 0.1) * np.sign(np.sin(np.arange(300) * 0.05))
+
+    def run() -> np.ndarray:
+        plant = Plant(prm, seed=3)
+        return np.array([[m.l_mm, m.p_mpa, *plant.state] for m in (plant.step(float(uk), 0.1) for uk in u)])
+
+    compiled = run()
+    original = plant_module.build_model
+    monkeypatch.setattr(plant_module, "build_model", lambda p: original(p, compiled=False))
+    python = run()
+    assert np.array_equal(compiled, python)
+    assert np.ptp(compiled[:, 0]) > 50.0  # the run moved the muscle over most of its stroke
+
+
+def test_the_compiled_model_checks_its_inputs():
+    compiled = rosenbrock._ros34pw2
+    with pytest.raises(ValueError, match=f"takes {len(compiled.NAMES)} constants"):
+        compiled.Model([1.0, 2.0])
+    _, _, step, _ = build_model(PlantParams(), compiled=True)
+    with pytest.raises(TypeError, match="takes 9 arguments"):
+        step(0.0, 0.0, 0.0)
+    with pytest.raises(TypeError):
+        step(0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.25, "44", 1e-3)
