@@ -10,6 +10,7 @@ communication step). ``tests/test_equations.py`` checks the closures against the
 from __future__ import annotations
 
 import math
+import os
 from typing import Callable
 
 from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
@@ -18,6 +19,8 @@ from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 try:  # the sub-step compiled from _ros34pw2.c when the install could build it (setup.py)
     from . import _ros34pw2
 except ImportError:  # no compiler at install time, or inside an FMU: the closure below, same bits
+    _ros34pw2 = None
+if os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1":  # the reference path, on request (same bits, slower)
     _ros34pw2 = None
 
 __all__ = ["build_model", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH", "KINK_SCALE_INITIAL",
