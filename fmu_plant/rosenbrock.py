@@ -9,22 +9,39 @@ communication step). ``tests/test_equations.py`` checks the closures against the
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
+from importlib.machinery import EXTENSION_SUFFIXES
+from types import ModuleType
 from typing import Callable
 
 from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
-try:  # the sub-step compiled from _ros34pw2.c when the install could build it (setup.py)
-    from . import _ros34pw2
-except ImportError:  # no compiler at install time, or inside an FMU: the closure below, same bits
-    _ros34pw2 = None
-if os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1":  # the reference path, on request (same bits, slower)
-    _ros34pw2 = None
-
 __all__ = ["build_model", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH", "KINK_SCALE_INITIAL",
            "KINK_FLOOR"]
+
+
+def _compiled_module() -> ModuleType | None:
+    """The sub-step compiled from ``_ros34pw2.c`` (setup.py) if it was built beside this file.
+
+    Only beside this file: an FMU carries the Python sources alone, and a host whose path reaches a
+    checkout with a build of its own (an editable install's import finder does) must not load that
+    one into the FMU's interpreter. ``TAPMUSCLE_PURE_PYTHON=1`` asks for the Python sub-step (the
+    same bits, slower).
+    """
+    here = os.path.dirname(os.path.abspath(__file__))
+    if os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1" or not any(
+            os.path.isfile(os.path.join(here, "_ros34pw2" + suffix)) for suffix in EXTENSION_SUFFIXES):
+        return None
+    try:
+        return importlib.import_module("._ros34pw2", __package__)
+    except ImportError:  # built for another interpreter: the closure below, same bits
+        return None
+
+
+_ros34pw2 = _compiled_module()
 
 #: Whether :func:`build_model` can return the compiled sub-step (``fmu_plant/_ros34pw2.c``).
 COMPILED = _ros34pw2 is not None

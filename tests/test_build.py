@@ -70,3 +70,13 @@ def test_instantiating_again_and_again_defines_no_new_slave_class(built_fmus, na
     for i in range(1, 61):
         cycle(i)
     assert classes() == before
+
+
+def test_the_fmus_carry_python_sources_only(built_fmus):
+    # The plant's compiled sub-step is built for one interpreter (setup.py); the FMUs run the Python
+    # one (the same bits), and rosenbrock.py loads a compiled one only from beside itself.
+    for name, path in built_fmus.items():
+        with zipfile.ZipFile(path) as z:
+            resources = [n for n in z.namelist() if n.startswith("resources/")]
+        assert name != "MusclePlant" or "resources/fmu_plant/rosenbrock.py" in resources
+        assert not [n for n in resources if n.endswith((".so", ".pyd", ".c"))], name
