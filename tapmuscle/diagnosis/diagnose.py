@@ -86,7 +86,7 @@ MATERIAL_FACTOR = 3.0
 #: ``alpha`` (the level it entered at). Stepwise selection's usual asymmetry, a level to remove above
 #: the level to enter (Efroymson's; e.g. 0.05 / 0.10 in SPSS): an effect that passed the entry test
 #: stays unless the data speak against it clearly, and an add-drop-add cycle cannot start. Measured
-#: on the field suite (docs/diagnosis.md, step 5): at 1e-3, the drops with 1e-3 <= p < 1e-2 in
+#: on the field suite (docs/diagnosis.md, step 6): at 1e-3, the drops with 1e-3 <= p < 1e-2 in
 #: seeds 0 and 1 were both true effects (a rate dependence, an amplifier map).
 REMOVE_LEVEL_FACTOR = 10.0
 
