@@ -159,16 +159,16 @@ class SupplyPressureVariation(Effect):
         p = self.p
         if p.sag_mpa == 0.0 or t_s <= p.start_s:
             return 0.0
-        ramp = p.ramp_s
+        ramp, back = p.ramp_s, p.recovery_s
         up = 1.0 if ramp == 0.0 else min(1.0, (t_s - p.start_s) / ramp)
-        down = 1.0 if t_s <= p.end_s else 0.0 if ramp == 0.0 else max(0.0, 1.0 - (t_s - p.end_s) / ramp)
+        down = 1.0 if t_s <= p.end_s else 0.0 if back == 0.0 else max(0.0, 1.0 - (t_s - p.end_s) / back)
         return p.sag_mpa * min(up, down)
 
     def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
         p = self.p
         if p.sag_mpa == 0.0:
             return []
-        corners = (p.start_s, p.start_s + p.ramp_s, p.end_s, p.end_s + p.ramp_s)
+        corners = (p.start_s, p.start_s + p.ramp_s, p.end_s, p.end_s + p.recovery_s)
         return [t for t in corners if t0_s < t < t1_s]
 
     def supply_pressure(self, t_s: float, p_mpa: float) -> float:

@@ -220,13 +220,15 @@ class SupplyVariationParams(_Validated):
 
     The supply valve sees ``ps - sag(t) + ripple_mpa sin(2 pi t / ripple_period_s)``, where ``sag``
     ramps linearly from 0 to ``sag_mpa`` over ``ramp_s`` from ``start_s``, and back to 0 over
-    ``ramp_s`` from ``end_s``. ``sag_mpa = 0`` and ``ripple_mpa = 0`` switch it off.
+    ``recovery_ramp_s`` (by default: ``ramp_s`` too) from ``end_s``. ``sag_mpa = 0`` and
+    ``ripple_mpa = 0`` switch it off.
     """
 
     sag_mpa: float = _f(0.0, "Drop of the supply gauge pressure during the sag [MPa]; 0 switches the sag off.", lo=0.0, hi=0.2)
     start_s: float = _f(0.0, "Time the sag starts [s].", lo=0.0, hi=1.0e6)
     end_s: float = _f(1.0e6, "Time the supply starts to recover [s] (the default: never).", lo=0.0, hi=1.0e6)
-    ramp_s: float = _f(1.0, "Duration of the fall and of the recovery [s].", lo=0.0, hi=60.0)
+    ramp_s: float = _f(1.0, "Duration of the fall, and of the recovery unless recovery_ramp_s is set [s].", lo=0.0, hi=60.0)
+    recovery_ramp_s: float = _f(-1.0, "Duration of the recovery [s]; negative (the default): ramp_s, as long as the fall.", lo=-1.0, hi=60.0)
     ripple_mpa: float = _f(0.0, "Amplitude of a periodic fluctuation of the supply pressure [MPa]; 0 switches it off.", lo=0.0, hi=0.1)
     ripple_period_s: float = _f(10.0, "Period of the fluctuation [s].", lo=0.1, hi=1.0e4)
 
@@ -234,6 +236,11 @@ class SupplyVariationParams(_Validated):
         super().__post_init__()
         if self.end_s < self.start_s:
             raise ValueError(f"SupplyVariationParams.end_s ({self.end_s}) must not precede start_s ({self.start_s})")
+
+    @property
+    def recovery_s(self) -> float:
+        """Duration of the recovery in effect [s]: ``recovery_ramp_s``, or ``ramp_s`` when that is negative."""
+        return self.ramp_s if self.recovery_ramp_s < 0.0 else self.recovery_ramp_s
 
 
 @dataclass(frozen=True, kw_only=True)

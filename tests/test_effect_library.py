@@ -67,6 +67,23 @@ def test_supply_sag_acts_only_in_its_window():
     assert np.max(base["l_mm"][110:200] - sagged["l_mm"][110:200]) > 2.0  # less contraction during the sag
 
 
+def test_the_sag_recovers_over_its_own_ramp():
+    """``recovery_ramp_s`` sets the recovery alone; negative (the default) is ``ramp_s``, as before."""
+    from fmu_plant.effect_library import SupplyPressureVariation
+    from fmu_plant.parameters import SupplyVariationParams
+    same = SupplyPressureVariation(SupplyVariationParams(sag_mpa=0.04, start_s=10.0, end_s=20.0, ramp_s=2.0))
+    own = SupplyPressureVariation(SupplyVariationParams(sag_mpa=0.04, start_s=10.0, end_s=20.0, ramp_s=2.0,
+                                                        recovery_ramp_s=8.0))
+    assert same.sag_mpa(11.0) == own.sag_mpa(11.0) == pytest.approx(0.02)  # the fall: 2 s either way
+    assert same.sag_mpa(21.0) == pytest.approx(0.02) and same.sag_mpa(22.0) == 0.0
+    assert own.sag_mpa(22.0) == pytest.approx(0.03) and own.sag_mpa(26.0) == pytest.approx(0.01)
+    assert own.sag_mpa(28.0) == 0.0
+    assert own.breakpoints(0.0, 100.0, 5.0) == [10.0, 12.0, 20.0, 28.0]
+    sag = {"supply_variation.sag_mpa": 0.04, "supply_variation.start_s": 10.0, "supply_variation.end_s": 20.0}
+    assert np.array_equal(_run(sag, duration=30.0)["l_mm"],
+                          _run({**sag, "supply_variation.recovery_ramp_s": 1.0}, duration=30.0)["l_mm"])
+
+
 def test_load_mismatch_is_the_same_as_a_heavier_load():
     a = _run({"load_mismatch.extra_n": 10.0})
     b = _run({"load.load_n": 54.0})
@@ -106,6 +123,8 @@ def test_effect_parameters_are_validated():
         PlantParams().with_values(**{"supply_variation.start_s": 50.0, "supply_variation.end_s": 10.0})
     with pytest.raises(ValueError, match="delay_s"):
         PlantParams().with_values(**{"delay.delay_s": -0.1})
+    with pytest.raises(ValueError, match="recovery_ramp_s"):
+        PlantParams().with_values(**{"supply_variation.recovery_ramp_s": -2.0})
 
 
 #: A command dead band of 1.2 V centred at 5 V, the outer parts of slope 1.

@@ -360,13 +360,14 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     stop = min(pr.n, int(round((b_s + 30.0) / pr.ts_s)) + 1)
     ramp = base.value("supply_variation.ramp_s")
 
-    def params(x):
+    def params(x, fall: float = ramp, recovery: float = ramp):
         s, a, b = float(x[0]), float(x[1]), float(x[2])
         return base.with_values(**{"supply_variation.sag_mpa": s, "supply_variation.start_s": a,
-                                   "supply_variation.end_s": max(a, b)})
+                                   "supply_variation.end_s": max(a, b), "supply_variation.ramp_s": fall,
+                                   "supply_variation.recovery_ramp_s": recovery})
 
-    def cost(x):
-        y = pr.sim.run(params(x), start=start, stop=stop)[0]
+    def cost(x, fall: float = ramp, recovery: float = ramp):
+        y = pr.sim.run(params(x, fall, recovery), start=start, stop=stop)[0]
         r = pr.train_residual(y, start)
         return sse(r)
     # depth: a quick scalar search on each located window, then all three together from the best
@@ -376,15 +377,18 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
                      np.array([0.0, t_first, t_first]), np.array([0.2, pr.t_s[-1], pr.t_s[-1]]), max_evals=28)
     # An edge that falls inside a held-out block is invisible to the training cost, which is flat
     # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike), and
-    # the simplex stops anywhere on the flat stretch. Take its middle: no more than half of it off,
-    # whichever end is true. The stretch is at most about one held-out block long: each edge is probed
-    # half a second either way and, where that fits as well, the stretch's ends found by bisection.
+    # the simplex stops anywhere on the flat stretch. The stretch is at most about one held-out block
+    # long: each edge is probed half a second either way and, where that fits as well, the stretch's
+    # ends are found by bisection. With the edge equally likely anywhere on the stretch, the
+    # prediction of least expected squared error is the expected supply pressure: a ramp across the
+    # whole stretch, not a step at one guessed instant (its expected squared error is 2/3 of a step's
+    # at the middle, and half of it when the edge is at an end of the stretch).
     c_fit = cost(x)
     tol = c_fit + max(1e-3 * c_fit, 10.0 * pr.noise_mm ** 2)
     depth, a, b = float(x[0]), float(x[1]), max(float(x[1]), float(x[2]))
     block, t_last = pr.block_s + 2.0, float(pr.t_s[-1])
 
-    def flat_middle(cost_at: Callable[[float], float], edge: float, lo: float, hi: float) -> float:
+    def flat_stretch(cost_at: Callable[[float], float], edge: float, lo: float, hi: float) -> tuple[float, float]:
         ends = []
         for d, limit in ((-1.0, lo), (1.0, hi)):
             probe = edge + 0.5 * d
@@ -392,20 +396,40 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
                 ends.append(_tightest(cost_at, edge + d * min(block, d * (limit - edge)), probe, tol, 0.1))
             else:
                 ends.append(edge)
-        return 0.5 * (ends[0] + ends[1])
+        return ends[0], ends[1]
+    fall = recovery = ramp
     r0 = pr.train_residual(y_base[start:stop], start)
     if c_fit < 0.9 * sse(r0):  # only for a sag that could pass the 10 % acceptance rule
-        b = flat_middle(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
-        a = flat_middle(lambda v: cost((depth, v, b)), a, t_first, b - 0.5)
+        b_lo, b_hi = flat_stretch(lambda v: cost((depth, a, v)), b, a + 0.5, t_last)
+        a_lo, a_hi = flat_stretch(lambda v: cost((depth, v, 0.5 * (b_lo + b_hi))), a, t_first, b_lo - 0.5)
+        hedged = ((depth, a_lo, b_lo), ramp + (a_hi - a_lo), ramp + (b_hi - b_lo))
+        # the ramps keep the training fit (each instant on a stretch does); else the stretches' middles
+        if cost(*hedged) <= tol:
+            (depth, a, b), fall, recovery = hedged
+        else:
+            a, b = 0.5 * (a_lo + a_hi), 0.5 * (b_lo + b_hi)
     x = (depth, a, b)
-    p = params(x)
+    p = params(x, fall, recovery)
     sv = p.supply_variation
     if sv.sag_mpa <= 1e-4:
         return None
     values = {"supply_variation.sag_mpa": sv.sag_mpa, "supply_variation.start_s": sv.start_s,
-              "supply_variation.end_s": sv.end_s}
+              "supply_variation.end_s": sv.end_s, "supply_variation.ramp_s": sv.ramp_s,
+              "supply_variation.recovery_ramp_s": sv.recovery_ramp_s}
     return FitResult(values, full_prediction(pr, base, values),
-                     located=[(sv.start_s, min(float(pr.t_s[-1]), sv.end_s + ramp))])
+                     located=[(sv.start_s, min(float(pr.t_s[-1]), sv.end_s + sv.recovery_s))])
+
+
+def _explain_sag(v: dict[str, float]) -> str:
+    start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
+    fall = v.get("supply_variation.ramp_s", 1.0)
+    back = v.get("supply_variation.recovery_ramp_s", -1.0)
+    back = fall if back < 0.0 else back
+    text = f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from {start:.1f} s to {end:.1f} s"
+    # a ramp longer than a few seconds is an edge the data place only within that stretch
+    vague = [f"it fell between {start:.1f} and {start + fall:.1f} s"] if fall > 2.0 else []
+    vague += [f"it recovered between {end:.1f} and {end + back:.1f} s"] if back > 2.0 else []
+    return text + (f" ({'; '.join(vague)}: the training blocks do not place it closer)" if vague else "")
 
 
 # ------------------------------------------------------------------------------------ catalogue
@@ -450,14 +474,14 @@ CANDIDATES: tuple[Candidate, ...] = (
         "The tap-water supply pressure sagged for a while (other taps opened in the building): the muscle "
         "reaches less contraction for the same command during that time.",
         (ParameterSpec("supply_variation.sag_mpa", "MPa", 0.0, 0.2), ParameterSpec("supply_variation.start_s", "s", 0.0, 1e6),
-         ParameterSpec("supply_variation.end_s", "s", 0.0, 1e6)),
+         ParameterSpec("supply_variation.end_s", "s", 0.0, 1e6), ParameterSpec("supply_variation.ramp_s", "s", 0.0, 60.0),
+         ParameterSpec("supply_variation.recovery_ramp_s", "s", -1.0, 60.0)),
         "Window from the residual's location, then Nelder-Mead on depth, start and end, simulating from a "
-        "checkpoint before the window; an edge the training blocks cannot place goes to the middle of the "
-        "stretch where their cost is flat. "
+        "checkpoint before the window; an edge the training blocks cannot place becomes a ramp across the "
+        "stretch where their cost is flat (the expected supply pressure when the edge may be anywhere on it). "
         "(The ripple parameters are simulated but not fitted.)",
         _fit_supply_sag,
-        lambda v: (f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from "
-                   f"{v['supply_variation.start_s']:.1f} s to {v['supply_variation.end_s']:.1f} s")),
+        _explain_sag),
     Candidate(
         "load_mismatch",
         "The weight on the muscle differs from the nominal load (hook and plate, pulley friction, a "
