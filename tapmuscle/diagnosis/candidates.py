@@ -379,10 +379,10 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike), and
     # the simplex stops anywhere on the flat stretch. The stretch is at most about one held-out block
     # long: each edge is probed half a second either way and, where that fits as well, the stretch's
-    # ends are found by bisection. With the edge equally likely anywhere on the stretch, the
+    # ends are found by bisection. With the edge equally likely anywhere on a stretch of length L, the
     # prediction of least expected squared error is the expected supply pressure: a ramp across the
-    # whole stretch, not a step at one guessed instant (its expected squared error is 2/3 of a step's
-    # at the middle, and half of it when the edge is at an end of the stretch).
+    # stretch, not a step at one guessed instant. In depth^2 x seconds its expected error is L/6
+    # against a step's L/4 at the middle, and L/3 against L/2 when the true edge is at an end.
     c_fit = cost(x)
     tol = c_fit + max(1e-3 * c_fit, 10.0 * pr.noise_mm ** 2)
     depth, a, b = float(x[0]), float(x[1]), max(float(x[1]), float(x[2]))
@@ -416,8 +416,10 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     values = {"supply_variation.sag_mpa": sv.sag_mpa, "supply_variation.start_s": sv.start_s,
               "supply_variation.end_s": sv.end_s, "supply_variation.ramp_s": sv.ramp_s,
               "supply_variation.recovery_ramp_s": sv.recovery_ramp_s}
+    # where it acts: from the edges' expected instants (a ramp's middle, less the model's own ramp)
+    located = (sv.start_s + 0.5 * (sv.ramp_s - ramp), sv.end_s + 0.5 * (sv.recovery_s - ramp) + ramp)
     return FitResult(values, full_prediction(pr, base, values),
-                     located=[(sv.start_s, min(float(pr.t_s[-1]), sv.end_s + sv.recovery_s))])
+                     located=[(located[0], min(float(pr.t_s[-1]), located[1]))])
 
 
 def _explain_sag(v: dict[str, float]) -> str:

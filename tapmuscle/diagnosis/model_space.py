@@ -22,7 +22,7 @@ from typing import Any, Iterable, Mapping
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.calibration import field_bounds
 
-__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "sensor_noise_mm"]
+__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "sensor_noise_mm"]
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
@@ -44,6 +44,15 @@ JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
 }
 
 
+#: Own-search parameters profiled with the constants re-fitted at each value, and the multiples tried.
+#: A valve band's stall is partly mimicked by the constants calibrated before it was found (a softer
+#: bladder, a smaller flow coefficient), and its own search on them then finds it about half as wide:
+#: the profile looks wider only (docs/diagnosis.md, "The band's width, profiled").
+PROFILED: dict[str, tuple[str, tuple[float, ...]]] = {
+    "valve_dead_zone": ("dead_zone.width_v", (1.4, 1.8, 2.4, 3.2)),
+}
+
+
 def sensor_noise_mm(model: PlantParams) -> float:
     """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
     sp = model.sensor
@@ -55,6 +64,9 @@ class ModelSpace(ABC):
     search sends them to worker processes)."""
 
     joint_parameters: Mapping[str, tuple[tuple[str, float], ...]] = {}
+    profiled: Mapping[str, tuple[str, tuple[float, ...]]] = {}
+    """Per effect, an own-search parameter that the calibrated constants bias, and the multiples of its
+    fitted value at which it is profiled with the constants re-fitted jointly (the search's last step)."""
     combinations: bool = False
     """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
     constant's MAP estimate, for models whose constants the data pin only in combinations."""
@@ -76,6 +88,7 @@ class MuscleSpace(ModelSpace):
     """The tapmuscle plant: :class:`~fmu_plant.PlantParams`, its fields' bounds, its effect library."""
 
     joint_parameters = JOINT_PARAMETERS
+    profiled = PROFILED
 
     def bounds(self, key: str) -> tuple[float, float]:
         return field_bounds(key)
