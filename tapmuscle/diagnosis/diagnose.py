@@ -528,12 +528,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
         return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
 
-    def profile(**where: Any) -> bool:
+    def profile(**where: Any) -> None:
         """:func:`_profiled_refit` of the current model, kept if it fits the training blocks better."""
         nonlocal current, cal_jac
         out = _profiled_refit(problem, space, coords, current, by_name, sigma, cal_jac, checkpoint_every)
         if out is None:
-            return False
+            return
         p_re, values_re, jac_re, sims = out
         y_re, q_re = sim.run(p_re)
         improved = sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q)
@@ -545,8 +545,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             for f in findings:  # the values reported are the current model's
                 f.parameters = {k: float(v) for k, v in p_re.dotted().items() if k in f.parameters}
                 f.explanation = by_name[f.effect].explain(f.parameters)
-        return True
-    profiled_in_round = False
 
     if do_calibrate:
         cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
@@ -737,7 +735,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                          current.values | {best.effect: best.parameters}, best.q_hat)
         # a profiled parameter is re-chosen before the next round searches the residual it leaves
         if best.effect in space.profiled and coords:
-            profiled_in_round = profile(round=round_no) or profiled_in_round
+            profile(round=round_no)
         # backward step: drop an accepted effect the others (re-fitted) do without. The model with every
         # effect gets the same re-fit to convergence as each model without one: the acceptance's short
         # warm-started re-fit would otherwise lose to it by convergence alone, and a true effect be dropped.
@@ -793,8 +791,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 if sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q):
                     current = _Model(p_re, current.effects, y_re, current.values, _used(q_re))
                     cal_jac = recal.jacobian
-        if not profiled_in_round:
-            profile()
         p_final, f_final = joint(current.params, current.effects, cal_jac, final=True)
         y_final, q_final = sim.run(p_final)
         if f_final is not None and sensors_sse(y_final, q_final) <= sensors_sse(current.y, current.q):
