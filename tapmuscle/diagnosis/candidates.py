@@ -23,8 +23,9 @@ Fitting strategies, chosen so that a 10-minute recording is diagnosed in seconds
   a finer compass search on the window stretched by a minute on either side;
 * ``supply_pressure_variation``: the sag's window starts from where the residual is located, then
   Nelder-Mead on depth, start and end, simulating only from a checkpoint before the window; an edge
-  the training blocks cannot place (it falls in a held-out block) goes to the middle of the stretch
-  where the training cost is flat (bisection);
+  the training blocks cannot place (it falls in a held-out block) becomes a ramp across the stretch
+  where the training cost is flat (bisection): the expected supply pressure when the edge may lie
+  anywhere on it;
 * ``input_map``: a 1-V dead band at 13 centres over the commanded range as starts, then bounded least
   squares (trust-region reflective; finite-difference Jacobian, Broyden-updated between; damped
   towards each run's start, so that a knot no command reaches stays put) on all six knot
@@ -423,6 +424,7 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
 
 
 def _explain_sag(v: dict[str, float]) -> str:
+    """The sag's finding in words; a long ramp is stated as the stretch the edge lies in."""
     start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
     fall = v.get("supply_variation.ramp_s", 1.0)
     back = v.get("supply_variation.recovery_ramp_s", -1.0)
