@@ -16,7 +16,10 @@ Procedure
    against the current model re-fitted alone: it removes at least ``min_reduction`` of the held-out
    squared error, and the held-out residual's projection on the difference of the two predictions
    rejects "only noise" at level ``alpha`` (a one-sided z-test). So an effect is only claimed when
-   recalibration cannot explain the data as well on the held-out blocks.
+   recalibration cannot explain the data as well on the held-out blocks. An accepted effect with a
+   parameter its own search fits on constants that absorbed part of it (a valve band's width:
+   ``ModelSpace.profiled``) has that parameter profiled at once, the constants re-fitted jointly at
+   each value (:func:`_profiled_refit`).
 5. **Backward step.** After each acceptance (two or more effects), every accepted effect, the
    newcomer last, is removed in turn (the rest re-fitted jointly); one whose removal is not
    significantly worse (at :data:`REMOVE_LEVEL_FACTOR` times ``alpha``) is dropped. Both sides of
@@ -528,7 +531,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
         return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
 
-    def profile(**where: Any) -> None:
+    def profile(round_no: int) -> None:
         """:func:`_profiled_refit` of the current model, kept if it fits the training blocks better."""
         nonlocal current, cal_jac
         out = _profiled_refit(problem, space, coords, current, by_name, sigma, cal_jac, checkpoint_every)
@@ -537,8 +540,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         p_re, values_re, jac_re, sims = out
         y_re, q_re = sim.run(p_re)
         improved = sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q)
-        selection.append({"step": "profile with the constants re-fitted", **where, "simulations": sims,
-                          "kept": improved})
+        selection.append({"step": "profile with the constants re-fitted", "round": round_no,
+                          "simulations": sims, "kept": improved})
         if improved:
             current = _Model(p_re, current.effects, y_re, values_re, _used(q_re))
             cal_jac = jac_re
@@ -735,7 +738,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                          current.values | {best.effect: best.parameters}, best.q_hat)
         # a profiled parameter is re-chosen before the next round searches the residual it leaves
         if best.effect in space.profiled and coords:
-            profile(round=round_no)
+            profile(round_no)
         # backward step: drop an accepted effect the others (re-fitted) do without. The model with every
         # effect gets the same re-fit to convergence as each model without one: the acceptance's short
         # warm-started re-fit would otherwise lose to it by convergence alone, and a true effect be dropped.

@@ -47,7 +47,7 @@ JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
 #: Own-search parameters profiled with the constants re-fitted at each value, and the multiples tried.
 #: A valve band's stall is partly mimicked by the constants calibrated before it was found (a softer
 #: bladder, a smaller flow coefficient), and its own search on them then finds it about half as wide:
-#: the profile looks wider only (docs/diagnosis.md, "The band's width, profiled").
+#: the profile looks wider only (docs/diagnosis.md, method step 6).
 PROFILED: dict[str, tuple[str, tuple[float, ...]]] = {
     "valve_dead_zone": ("dead_zone.width_v", (1.4, 1.8, 2.4, 3.2)),
 }
@@ -66,7 +66,7 @@ class ModelSpace(ABC):
     joint_parameters: Mapping[str, tuple[tuple[str, float], ...]] = {}
     profiled: Mapping[str, tuple[str, tuple[float, ...]]] = {}
     """Per effect, an own-search parameter that the calibrated constants bias, and the multiples of its
-    fitted value at which it is profiled with the constants re-fitted jointly (the search's last step)."""
+    fitted value at which it is profiled with the constants re-fitted jointly (as soon as the effect is accepted)."""
     combinations: bool = False
     """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
     constant's MAP estimate, for models whose constants the data pin only in combinations."""
