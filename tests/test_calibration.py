@@ -152,3 +152,26 @@ def test_run_many_is_run_for_each_in_processes_too():
         sim.executor = None
     assert all(np.array_equal(a, b) for a, b in zip(one, many)) and sim.runs == 9
     assert not np.array_equal(one[0], one[2])  # different loads: a comparison of different runs
+
+
+def test_an_interval_stays_within_the_parameters_bounds():
+    """A structured residual (10 mm RMS, autocorrelated) inflates the level behind an identifiable
+    constant's interval; the flow coefficient's must still not reach below 0 or above the
+    datasheet's 1.6 (its bounds), and a constant whose interval fits inside them keeps it whole."""
+    from tapmuscle.diagnosis.calibration import calibration_rows
+
+    n = 400
+    t = np.arange(n)
+    residual = 10.0 * np.sin(2 * np.pi * t / 200.0)  # slow: lag-1 autocorrelation near 1
+    keys = ("valve.cv_max", "friction.base_n")
+    jac = np.column_stack([0.05 * np.cos(0.3 * t), 50.0 * np.sin(0.7 * t)])
+    params = [NominalParameter(k, "-") for k in keys]
+    nominal = PlantParams()
+    rows = {r.parameter: r for r in calibration_rows(params, nominal, nominal, list(keys), jac, residual, 0.01,
+                                                     [0.1, 0.1])}
+    lo, hi = field_bounds("valve.cv_max")
+    cv = rows["valve.cv_max"].ci95
+    assert cv[0] == lo and cv[1] == hi  # clipped at both ends: unclipped it would be about 1.5 +- 12
+    base = rows["friction.base_n"].ci95
+    assert 0.0 < base[0] < 8.0 < base[1] < 16.0  # narrow enough to stay whole
+    assert base[1] - 8.0 == pytest.approx(8.0 - base[0])

@@ -37,7 +37,8 @@ Method
   of them has absorbed its error: their prior variance is carried into the interval ("consider
   covariance", Tapley, Schutz and Born 2004, section 6.3): with ``J_c`` the residual's Jacobian in
   the considered constants (prior sd units), ``A = (J'J)^-1 J' J_c`` is how far the estimate moves
-  per prior sd of theirs, and ``A A'`` adds to the data-only covariance.
+  per prior sd of theirs, and ``A A'`` adds to the data-only covariance. Every interval is clipped
+  to the parameter's bounds (the inflated level can otherwise reach a negative flow coefficient).
 * **Left alone.** A constant that is not identifiable is put back to its nominal value, listed as
   such, and the identifiable ones are polished once more without it, so the calibrated plant file
   changes only what the recording pins down.
@@ -451,7 +452,8 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
     autocorrelation-inflated residual level, widened by ``consider``, the residual's Jacobian in the
     constants left nominal (same rows, scaled coordinates: one unit is one prior sd), whose prior
     variance the estimate inherits through ``A = (J'J)^-1 J' consider`` (covariance ``A A'``, module
-    docstring). A constant left nominal gets its prior's interval. When constants that are not
+    docstring). A constant left nominal gets its prior's interval. Every interval is clipped to the
+    parameter's ``bounds``. When constants that are not
     identifiable are fitted too (``calibrate(combinations=True)``), the intervals of all fitted ones
     include the prior (the data alone leave some directions free).
     """
@@ -478,6 +480,9 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
             half = 1.96 * math.sqrt(max(cov[j, j], 0.0)) * c.scale
         else:
             half = 1.96 * c.scale
-        rows.append(CalibrationRow(c.key, p_.unit, c.center, est, (est - half, est + half), c.key in identifiable,
-                                   float(s)))
+        # within the parameter's own bounds: a structured residual's inflated level can widen an
+        # interval past values the constant cannot take (a negative flow coefficient)
+        lo, hi = bounds(c.key)
+        rows.append(CalibrationRow(c.key, p_.unit, c.center, est, (max(lo, est - half), min(hi, est + half)),
+                                   c.key in identifiable, float(s)))
     return rows
