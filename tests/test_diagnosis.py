@@ -88,10 +88,10 @@ def test_a_supply_sag_from_60_to_90_s_is_located(tmp_path):
     assert r["gain_points"] >= 3.0
     # 90-100 s is held out, so the training blocks allow any end from 90 to about 95 s: the fit's
     # recovery is a ramp across that stretch (the simplex alone stopped anywhere in it), the start,
-    # in a training block, keeps the model's 1-s fall
+    # in a training block, keeps about the model's 1-s fall
     fitted = r["fitted_parameters"]
     assert fitted["supply_variation.start_s"] == pytest.approx(60.0, abs=0.5)
-    assert fitted["supply_variation.ramp_s"] == 1.0
+    assert 1.0 <= fitted["supply_variation.ramp_s"] <= 2.0  # 1.0 here: no flat stretch at the start
     assert fitted["supply_variation.end_s"] == pytest.approx(90.0, abs=1.0)
     assert 3.0 <= fitted["supply_variation.recovery_ramp_s"] <= 8.0
 
