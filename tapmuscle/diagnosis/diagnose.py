@@ -531,6 +531,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
         return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
 
+    def restate(p: PlantParams) -> None:
+        """The findings' values, and the words that state them, become ``p``'s (the model kept)."""
+        for f in findings:
+            f.parameters = {k: float(v) for k, v in p.dotted().items() if k in f.parameters}
+            f.explanation = by_name[f.effect].explain(f.parameters)
+
     def profile(round_no: int) -> None:
         """:func:`_profiled_refit` of the current model, kept if it fits the training blocks better."""
         nonlocal current, cal_jac
@@ -545,9 +551,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if improved:
             current = _Model(p_re, current.effects, y_re, values_re, _used(q_re))
             cal_jac = jac_re
-            for f in findings:  # the values reported are the current model's
-                f.parameters = {k: float(v) for k, v in p_re.dotted().items() if k in f.parameters}
-                f.explanation = by_name[f.effect].explain(f.parameters)
+            restate(p_re)
 
     if do_calibrate:
         cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
@@ -797,9 +801,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         p_final, f_final = joint(current.params, current.effects, cal_jac, final=True)
         y_final, q_final = sim.run(p_final)
         if f_final is not None and sensors_sse(y_final, q_final) <= sensors_sse(current.y, current.q):
-            for f in findings:  # the values reported, and the words that state them, are the final model's
-                f.parameters = {k: float(v) for k, v in p_final.dotted().items() if k in f.parameters}
-                f.explanation = by_name[f.effect].explain(f.parameters)
+            restate(p_final)
             current = _Model(p_final, current.effects, y_final, current.values, _used(q_final))
             if not current.effects:  # the calibration alone, converged further
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
