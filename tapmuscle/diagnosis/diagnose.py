@@ -9,7 +9,14 @@ Procedure
    *and* be material (RMS above 1.5 times the noise level). If not: ``no_significant_mismatch``.
 3. **Calibrate before accusing** (:mod:`tapmuscle.diagnosis.calibration`): re-estimate the nominal constants the
    recording can identify (the others stay nominal and are listed). Candidates are judged against the
-   calibrated plant.
+   calibrated plant. The noise level that weighs the prior and scales every test is first the
+   nominal residual's white-noise level, which a large mismatch inflates (a closed loop's command
+   replayed through a wrong model leaves a velocity error that changes from sample to sample). Once
+   an effect is accepted, at the start of each round, it is taken again from the current model's
+   residual whenever that is lower by more than :data:`NOISE_DROP`, and the constants are calibrated
+   afresh at the new level with the accepted effects on. Not before: the first calibration's
+   residual still holds every effect, and weighed as if it were the sensor's noise it bends more
+   constants into mimicking them (docs/diagnosis.md, step 4).
 4. **Forward selection.** While the held-out residual is structured, every candidate effect is fitted
    on top of the current model (:mod:`tapmuscle.diagnosis.candidates`), and the promising ones are re-fitted
    *jointly* with the calibrated constants. The best joint fit is accepted when it is significant
@@ -99,6 +106,11 @@ REMOVE_LEVEL_FACTOR = 10.0
 #: block see the same half of every cycle (5-s blocks and the paper's 0.1-Hz sine: a valve band in the
 #: other half is never trained on). docs/diagnosis.md, step 2, has both measurements.
 BLOCK_S = 10.0
+
+#: From the second round on, the noise level in use is replaced by the current model's residual's
+#: white-noise level when that is lower by more than this factor (and the constants are calibrated
+#: afresh at it): module docstring, step 3.
+NOISE_DROP = 2.0
 
 #: Joint re-fits tried per round, at most: the candidates with the lowest training error on their own
 #: (from either start).
@@ -553,6 +565,20 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             cal_jac = jac_re
             restate(p_re)
 
+    def renoise(y_hat: np.ndarray, q_hat: np.ndarray | None) -> bool:
+        """Take the white-noise level of ``y - y_hat`` when it is below the level in use by more than
+        :data:`NOISE_DROP` (True if so). The first-difference level of the nominal residual holds the
+        mismatch's own fast part (a closed loop's or a fast input's velocity error); a better model's
+        residual is nearer the sensor's, and every weight and test is in its units."""
+        nonlocal noise, sigma, evidence
+        level = white_noise_level_mm(y - y_hat)
+        if not level < noise / NOISE_DROP:
+            return False
+        noise, sigma = level, max(level, 1e-6)
+        evidence = HeldOut.setup(y, test, noise, p_mpa if use_pressure else None, q_hat)
+        problem.noise_mm, problem.evidence = noise, evidence
+        return True
+
     if do_calibrate:
         cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
                         residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
@@ -561,7 +587,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         fit_cal = fit_percent(y, y_cal, test)
         current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
         selection.append({"step": "calibrate", "identifiable": cal.identifiable, "prior_cost": round(prior_cost(cal.params), 3),
-                          "fit_after_percent": round(fit_cal, 3)})
+                          "fit_after_percent": round(fit_cal, 3), "noise_mm": round(noise, 6)})
     cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
 
     def significance(base: np.ndarray, new: np.ndarray, q_base: np.ndarray | None = None,
@@ -592,6 +618,27 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         better = refitted(current.params) if current.params is not converged else None
         if better is not None:
             current = better
+        if round_no > 1 and renoise(current.y, current.q):
+            step: dict[str, Any] = {"step": "noise level", "round": round_no, "noise_mm": round(noise, 6)}
+            selection.append(step)
+            if cal is not None:
+                # the constants were calibrated at the inflated level, which left most of them nominal:
+                # calibrate them afresh at this level with the accepted effects switched on
+                recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration),
+                                  residual_many=train_residuals, bounds=space.bounds,
+                                  combinations=space.combinations)
+                y_re, q_re = sim.run(recal.params)
+                step["recalibrated"] = sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q)
+                step["identifiable"] = recal.identifiable
+                if step["recalibrated"]:
+                    cal = recal
+                    coords = [c for c in nominal_coords(model, calibration, space.bounds) if c.key in cal.changed]
+                    cal_jac = cal.jacobian[:, :len(coords)]
+                    current = (refitted(cal.params)
+                               or _Model(cal.params, current.effects, y_re, current.values, _used(q_re)))
+                    better = current
+                    restate(current.params)
+        if better is not None:
             if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
                 selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
                                   "leaves a white residual"})
