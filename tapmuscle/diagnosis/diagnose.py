@@ -565,6 +565,15 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             cal_jac = jac_re
             restate(p_re)
 
+    def calibrated(base: PlantParams) -> Calibration:
+        """The nominal constants calibrated from ``base`` (its effects on) at the noise level in use."""
+        return calibrate(train_residual, model, base, sigma, parameters=list(calibration),
+                         residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
+
+    def fitted_coords(c: Calibration) -> list[FittedParameter]:
+        """The coordinates of the constants ``c`` calibrated (the joint re-fits move these)."""
+        return [k for k in nominal_coords(model, calibration, space.bounds) if k.key in c.changed]
+
     def renoise(y_hat: np.ndarray, q_hat: np.ndarray | None) -> bool:
         """Take the white-noise level of ``y - y_hat`` when it is below the level in use by more than
         :data:`NOISE_DROP` (True if so). The first-difference level of the nominal residual holds the
@@ -580,9 +589,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         return True
 
     if do_calibrate:
-        cal = calibrate(train_residual, model, model, sigma, parameters=list(calibration),
-                        residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
-        coords = [c for c in nominal_coords(model, calibration, space.bounds) if c.key in cal.changed]
+        cal = calibrated(model)
+        coords = fitted_coords(cal)
         y_cal, q_cal = sim.run(cal.params)
         fit_cal = fit_percent(y, y_cal, test)
         current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
@@ -624,15 +632,13 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             if cal is not None:
                 # the constants were calibrated at the inflated level, which left most of them nominal:
                 # calibrate them afresh at this level with the accepted effects switched on
-                recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration),
-                                  residual_many=train_residuals, bounds=space.bounds,
-                                  combinations=space.combinations)
+                recal = calibrated(current.params)
                 y_re, q_re = sim.run(recal.params)
                 step["recalibrated"] = sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q)
                 step["identifiable"] = recal.identifiable
                 if step["recalibrated"]:
                     cal = recal
-                    coords = [c for c in nominal_coords(model, calibration, space.bounds) if c.key in cal.changed]
+                    coords = fitted_coords(cal)
                     cal_jac = cal.jacobian[:, :len(coords)]
                     current = (refitted(cal.params)
                                or _Model(cal.params, current.effects, y_re, current.values, _used(q_re)))
@@ -836,8 +842,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if current.effects and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
             # the constants were first calibrated with the effects left out, and the joint re-fits only
             # moved them locally: calibrate them afresh with the accepted effects switched on
-            recal = calibrate(train_residual, model, current.params, sigma, parameters=list(calibration),
-                              residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
+            recal = calibrated(current.params)
             if set(recal.identifiable) == set(cal.identifiable):
                 p_re = current.params.with_values(**{c.key: recal.params.dotted()[c.key] for c in coords})
                 y_re, q_re = sim.run(p_re)
