@@ -566,6 +566,26 @@ def test_an_accepted_effect_stays_unless_its_removal_is_clearly_insignificant(tm
 
 
 @pytest.mark.slow
+def test_constants_that_explain_the_recording_at_their_own_noise_level_end_the_search(tmp_path):
+    """Field case 049 (seed 0): no effect, five constants off, the closed loop. Calibrated at the
+    nominal residual's level (0.195 mm) the constants leave a structured residual, and the search
+    then claimed an ambiguous load or input map. Calibrated again at the level the calibrated
+    residual shows (0.016 mm) they explain the recording: ``calibration_only``."""
+    from tapmuscle.diagnosis.field_cases import field_cases
+    from tapmuscle.diagnosis.field_demo import run_field_case
+
+    case = field_cases(100, 0)[49]
+    assert case.category == "none" and case.excitation == "ampc"
+    result = run_field_case(case, tmp_path)
+    doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    first, again = doc["selection"][:2]
+    assert first["step"] == "calibrate" and again["white"], doc["selection"]
+    assert again["noise_mm"] < first["noise_mm"] / 2.0
+    assert result["verdict"] == "calibration_only" and result["named"] == []
+    assert result["fit_after_percent"] >= result["fit_truth_percent"] - 0.05
+
+
+@pytest.mark.slow
 def test_the_noise_level_is_taken_again_from_the_better_models_residual(tmp_path):
     """Field case 063 (seed 0), as ``tapmuscle demo-mismatch`` runs it: a 0.17-s delay and a load
     14 N heavy in the closed loop, three constants off. Replaying the loop's command through the

@@ -14,9 +14,12 @@ Procedure
    replayed through a wrong model leaves a velocity error that changes from sample to sample). Once
    an effect is accepted, at the start of each round, it is taken again from the current model's
    residual whenever that is lower by more than :data:`NOISE_DROP`, and the constants are calibrated
-   afresh at the new level with the accepted effects on. Not before: the first calibration's
-   residual still holds every effect, and weighed as if it were the sensor's noise it bends more
-   constants into mimicking them (docs/diagnosis.md, step 4).
+   afresh at the new level with the accepted effects on. Before that, the calibrated residual's level
+   only asks whether the constants alone explain the recording: calibrated again at it (and
+   converged), do they leave a white residual? If so the search ends (``calibration_only``);
+   otherwise it starts from the first calibration. Its residual still holds every effect, and
+   weighed as if it were the sensor's noise it bends more constants into mimicking them
+   (docs/diagnosis.md, step 4).
 4. **Forward selection.** While the held-out residual is structured, every candidate effect is fitted
    on top of the current model (:mod:`tapmuscle.diagnosis.candidates`), and the promising ones are re-fitted
    *jointly* with the calibrated constants. The best joint fit is accepted when it is significant
@@ -55,7 +58,7 @@ import pickle
 import time
 from concurrent.futures import Executor, Future
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -596,6 +599,28 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
         selection.append({"step": "calibrate", "identifiable": cal.identifiable, "prior_cost": round(prior_cost(cal.params), 3),
                           "fit_after_percent": round(fit_cal, 3), "noise_mm": round(noise, 6)})
+        level = white_noise_level_mm(y - y_cal)
+        if level < noise / NOISE_DROP and is_structured(y - y_cal, sensor_noise_mm=sensor_mm)[0]:
+            # can the constants alone explain the recording, calibrated at the level their own residual
+            # shows? Kept only if so (then nothing is claimed): otherwise the search starts from the first
+            # calibration, which bends fewer constants into mimicking the effects still in its residual
+            trial = calibrate(train_residual, model, cal.params, max(level, 1e-6), parameters=list(calibration),
+                              residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
+            coords_t = fitted_coords(trial)
+            # converged, as every model a verdict rests on (the search's reference is re-fitted too)
+            p_t, _ = _joint_refit(problem, space, coords_t, max(level, 1e-6), trial.params, (),
+                                  trial.jacobian[:, :len(coords_t)], final=True)
+            y_t, q_t = sim.run(p_t)
+            white = not is_structured(y - y_t, sensor_noise_mm=sensor_mm)[0]
+            selection.append({"step": "calibrate again at the calibrated residual's noise level",
+                              "noise_mm": round(level, 6), "identifiable": trial.identifiable,
+                              "fit_after_percent": round(fit_percent(y, y_t, test), 3), "white": white})
+            if white:
+                renoise(y_cal, q_cal)
+                cal, coords = replace(trial, params=p_t), coords_t
+                y_cal, q_cal = y_t, q_t
+                fit_cal = fit_percent(y, y_cal, test)
+                current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
     cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
 
     def significance(base: np.ndarray, new: np.ndarray, q_base: np.ndarray | None = None,
