@@ -571,9 +571,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             cal_jac = jac_re
             restate(p_re)
 
-    def calibrated(base: PlantParams) -> Calibration:
-        """The nominal constants calibrated from ``base`` (its effects on) at the noise level in use."""
-        return calibrate(train_residual, model, base, sigma, parameters=list(calibration),
+    def calibrated(base: PlantParams, level_mm: float | None = None) -> Calibration:
+        """The nominal constants calibrated from ``base`` (its effects on) at ``level_mm`` (default: the
+        noise level in use)."""
+        return calibrate(train_residual, model, base, sigma if level_mm is None else max(level_mm, 1e-6),
+                         parameters=list(calibration),
                          residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
 
     def fitted_coords(c: Calibration) -> list[FittedParameter]:
@@ -607,8 +609,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # can the constants alone explain the recording, calibrated at the level their own residual
             # shows? Kept only if so (then nothing is claimed): otherwise the search starts from the first
             # calibration, which bends fewer constants into mimicking the effects still in its residual
-            trial = calibrate(train_residual, model, cal.params, max(level, 1e-6), parameters=list(calibration),
-                              residual_many=train_residuals, bounds=space.bounds, combinations=space.combinations)
+            trial = calibrated(cal.params, level)
             coords_t = fitted_coords(trial)
             # converged, as every model a verdict rests on (the search's reference is re-fitted too)
             p_t, _ = _joint_refit(problem, space, coords_t, max(level, 1e-6), trial.params, (),
