@@ -47,11 +47,12 @@ Procedure
    ``Diagnosis.unexplained`` but not claimed.
 
 Every sum a decision rests on, and every point a solver proposes, goes through
-:mod:`tapmuscle.diagnosis.reproducible`, so that a CPU's or BLAS kernel's last bits rarely part two
-runs of one recording (``tests/test_reproducible.py``), and with any number of ``workers`` the
-diagnosis is the same, bit for bit. Across BLAS kernels this is not guaranteed: field case 063
-(seed 0) names the same two effects with OpenBLAS's Nehalem kernels, with the load at 10.7 N
-against 13.5 N here (true 14.0 N), so tests on field cases compare with tolerances.
+:mod:`tapmuscle.diagnosis.reproducible`, so that one recording gets the same diagnosis, bit for bit,
+on another CPU or BLAS kernel (``tests/test_reproducible.py``) and with any number of ``workers``.
+A closed-loop recording *made* on another floating-point path is another recording: the AMPC's QP
+gives commands a few 1e-9 V apart, and the loop amplifies them (field case 063, seed 0: displacements
+up to 28 mm apart; diagnosed, the same two effects with the load at 10.7 N instead of 13.5 N, true
+14.0 N). Tests that regenerate closed-loop field cases compare with tolerances for that reason.
 """
 
 from __future__ import annotations
