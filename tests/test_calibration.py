@@ -45,6 +45,27 @@ def test_map_fit_of_a_linear_problem_equals_the_closed_form():
     assert fit.jacobian == pytest.approx(-m, rel=1e-6, abs=1e-9)
 
 
+def test_a_point_the_model_refuses_is_never_simulated_and_the_fit_ends_at_a_valid_one():
+    """Bounds are per coordinate, but an input map's outputs must not decrease: a fit of two outputs
+    pulled across each other (knot 1 towards 8 V, knot 2 towards 5 V) must not raise; the residual
+    is only ever asked for maps the plant accepts, and the fit ends at one."""
+    keys = ("input_map.knot1_out_v", "input_map.knot2_out_v")
+    asked = []
+
+    def residual(p: PlantParams) -> np.ndarray:
+        asked.append(p)
+        return np.array([p.input_map.knot1_out_v - 8.0, p.input_map.knot2_out_v - 5.0])
+    coords = [FittedParameter(k, NOMINAL.dotted()[k], 0.2, False, *field_bounds(k)) for k in keys]
+    fit = fit_parameters(residual, NOMINAL, coords, 0.01, max_iterations=40)
+    assert asked and all(p.input_map.knot1_out_v <= p.input_map.knot2_out_v for p in asked)
+    k1, k2 = fit.values["input_map.knot1_out_v"], fit.values["input_map.knot2_out_v"]
+    assert k1 <= k2
+    NOMINAL.with_values(**fit.values)  # a map the plant accepts
+    # and it moved towards the targets as far as the order lets it: better than the start
+    start = residual(NOMINAL)
+    assert float(np.sum(fit.residual ** 2)) < float(np.sum(start ** 2))
+
+
 def test_two_constants_that_only_act_as_their_sum_are_not_identifiable():
     rng = np.random.default_rng(1)
     a1 = rng.normal(size=300)

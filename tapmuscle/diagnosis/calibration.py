@@ -73,6 +73,9 @@ FRESH_JACOBIAN_EVERY = 5
 IDENTIFIABLE_SD_SHRINK = 0.25
 #: Forward-difference step in scaled coordinates (x = 1 is one prior sd, 20 %): 1 % of the nominal value.
 FD_STEP = 0.05
+#: The residual of a point the model refuses, in multiples of the start residual's largest magnitude
+#: (as :data:`~tapmuscle.diagnosis.fit_problem.FAILED_RESIDUAL_SCALE` for a failed simulation).
+REFUSED_RESIDUAL_SCALE = 1e3
 
 
 @dataclass(frozen=True)
@@ -205,17 +208,33 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
     x0 = np.clip(np.array([(base.value(c.key) - c.center) / c.scale for c in coords]), lo_in, hi_in)
     sims = 0
 
-    def params_at(x: np.ndarray) -> PlantParams:
-        return base.with_values(**{c.key: float(v) for c, v in zip(coords, center + scale * x)})
+    def params_at(x: np.ndarray) -> PlantParams | None:
+        """The parameters at ``x``; None where the model's own checks refuse them (the bounds are per
+        coordinate, and an input map's outputs may cross: the map must not decrease)."""
+        try:
+            return base.with_values(**{c.key: float(v) for c, v in zip(coords, center + scale * x)})
+        except ValueError:
+            return None
 
     cache: dict[bytes, np.ndarray] = {}
+    refused: list[np.ndarray] = []
+
+    def refused_residual() -> np.ndarray:
+        # far worse than any prediction and finite, so that the solver steps back (the start is valid)
+        if not refused:
+            r0 = data_residual(x0)
+            refused.append(np.full(len(r0), REFUSED_RESIDUAL_SCALE * (1.0 + float(np.max(np.abs(r0), initial=0.0)))))
+        return refused[0]
 
     def data_residual(x: np.ndarray) -> np.ndarray:
         nonlocal sims
         key = np.asarray(x, float).tobytes()
         if key not in cache:
+            point = params_at(x)
+            if point is None:
+                return refused_residual()
             sims += 1
-            cache[key] = residual(params_at(x))
+            cache[key] = residual(point)
         return cache[key]
 
     def fun(x: np.ndarray) -> np.ndarray:
@@ -234,7 +253,7 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
             steps.append(h)
         if residual_many is not None:  # the uncached points in one batch
             todo = {np.asarray(xi, float).tobytes(): xi for xi in points}
-            todo = {k: xi for k, xi in todo.items() if k not in cache}
+            todo = {k: xi for k, xi in todo.items() if k not in cache and params_at(xi) is not None}
             if todo:
                 for key, r in zip(todo, residual_many([params_at(xi) for xi in todo.values()])):
                     cache[key] = r

@@ -26,7 +26,10 @@ Procedure
    against the current model re-fitted alone: it removes at least ``min_reduction`` of the held-out
    squared error, and the held-out residual's projection on the difference of the two predictions
    rejects "only noise" at level ``alpha`` (a one-sided z-test). So an effect is only claimed when
-   recalibration cannot explain the data as well on the held-out blocks. An accepted effect with a
+   recalibration cannot explain the data as well on the held-out blocks. An effect whose own fit the
+   calibrated constants hold near its off value (``ModelSpace.joint_starts``: an amplifier's map, a
+   load) is re-fitted jointly from further starts as well, the best on the training blocks kept. An
+   accepted effect with a
    parameter its own search fits on constants that absorbed part of it (a valve band's width:
    ``ModelSpace.profiled``) has that parameter profiled at once, the constants re-fitted jointly at
    each value (:func:`_profiled_refit`).
@@ -401,14 +404,20 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     linearised joint step (constants and the effect's parameters) would remove beyond the constants'
     own step. One simulation of the fit segment per parameter, all at once."""
     keys = {c.name: space.joint_parameters.get(c.name, ()) for c in cands}
-    smooth = [c for c in cands if keys[c.name] and not _own_parameters(space, c)]
+    p = current.params
+
+    def linearisable(c: Candidate) -> bool:
+        # its own parameters (if any) at a joint start's values: the joint ones then describe it alone
+        own = _own_parameters(space, c)
+        return not own or any(all(p.value(k) == v for k, v in start.items() if k in own)
+                              for start in space.joint_starts.get(c.name, ()))
+    smooth = [c for c in cands if keys[c.name] and linearisable(c)]
     if not smooth:
         return {}
     n_fit = problem.n_fit
     r = problem.stacked_residual(current.y[:n_fit], None if current.q is None else current.q[:n_fit])
     if jac_c.shape[0] != len(r):
         raise ValueError(f"the constants' Jacobian has {jac_c.shape[0]} rows for a training residual of {len(r)}")
-    p = current.params
     prior = np.array([c.prior for c in coords], bool)
     x_c = np.array([(p.value(c.key) - c.center) / c.scale for c in coords])
     A = np.vstack([jac_c, sigma * np.eye(len(coords))[prior]])
@@ -480,9 +489,24 @@ def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[Fitt
                       start_jac: np.ndarray | None, start: PlantParams,
                       effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
     """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction
-    (displacement [mm], pressure [MPa] or None)."""
+    (displacement [mm], pressure [MPa] or None). When the newest effect has joint starts
+    (:attr:`ModelSpace.joint_starts`), the re-fit also starts from ``start`` with each of them set,
+    and the one that fits the training blocks best is kept (the first on a tie)."""
     p1, _ = _joint_refit(problem, space, coords, sigma, start, effects, start_jac)
-    return (p1, *problem.sim.run(p1))
+    best = (p1, *problem.sim.run(p1))
+    if not coords or not effects:
+        return best
+    best_sse = sse(problem.stacked_residual(best[1], best[2]))
+    for st in (start.with_values(**values) for values in space.joint_starts.get(effects[-1], ())):
+        try:
+            p2, _ = _joint_refit(problem, space, coords, sigma, st, effects, start_jac)
+            out = (p2, *problem.sim.run(p2))
+        except SimulationError:  # a start the model cannot run from: the others still count
+            continue
+        out_sse = sse(problem.stacked_residual(out[1], out[2]))
+        if out_sse < best_sse:
+            best, best_sse = out, out_sse
+    return best
 
 
 def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, load: np.ndarray | None,

@@ -22,7 +22,7 @@ from typing import Any, Iterable, Mapping
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.calibration import field_bounds
 
-__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "sensor_noise_mm"]
+__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "JOINT_STARTS", "sensor_noise_mm"]
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
@@ -33,7 +33,11 @@ __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED"
 #: backlash is joint although it acts on the measurement side: the friction's hysteresis mimics a play
 #: (a higher base friction with a shorter presliding range), so the calibration absorbs much of it and
 #: a play fitted on the calibrated constants comes out near zero; only a joint step that widens the
-#: play while it gives the friction back its width finds the rig's.
+#: play while it gives the friction back its width finds the rig's. An input map's four outputs are
+#: joint (its two knots' inputs are its own search's): an amplifier's gain and offset are taken up by
+#: the flow coefficient, the threshold and the bladder in the calibration, so a map fitted on the
+#: calibrated constants comes out near the identity; only a joint step moves the outputs and gives the
+#: constants back (docs/diagnosis.md, step 5).
 JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
     "rate_dependent_hysteresis": (("friction.rate_gain", 0.2),),
     "transport_delay": (("delay.delay_s", 0.02),),
@@ -41,6 +45,7 @@ JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
     "load_mismatch": (("load_mismatch.extra_n", 2.0),),
     "backlash": (("backlash.slack_mm", 0.5),),
     "sensor_drift": (("sensor_drift.offset_mm", 0.2), ("sensor_drift.rate_mm_per_min", 0.2)),
+    "input_map": tuple((f"input_map.{k}", 0.2) for k in ("out_at_0_v", "knot1_out_v", "knot2_out_v", "out_at_10_v")),
 }
 
 
@@ -50,6 +55,19 @@ JOINT_PARAMETERS: dict[str, tuple[tuple[str, float], ...]] = {
 #: the profile looks wider only (docs/diagnosis.md, method step 6).
 PROFILED: dict[str, tuple[str, tuple[float, ...]]] = {
     "valve_dead_zone": ("dead_zone.width_v", (1.4, 1.8, 2.4, 3.2)),
+}
+
+
+#: Further starts of an effect's joint re-fit (each a set of its parameters' values; the re-fit that
+#: fits the training blocks best is kept). The calibration moves the flow coefficient, the bladder's
+#: stiffness, threshold and braid first, and they take up much of an amplifier's map or a load's
+#: weight: the effect's own fit on the calibrated constants then comes out near its off value, and a
+#: joint step from there stays in the constants' valley. The map starts again from the identity (its
+#: knots at 10/3 and 20/3 V, where a gain and an offset are two outputs away); the load from weights
+#: either way (the field suite draws 5-16 N). docs/diagnosis.md, step 5.
+JOINT_STARTS: dict[str, tuple[dict[str, float], ...]] = {
+    "input_map": ({k: v for k, v in PlantParams().dotted().items() if k.startswith("input_map.")},),
+    "load_mismatch": tuple({"load_mismatch.extra_n": w} for w in (-12.0, -6.0, 6.0, 12.0)),
 }
 
 
@@ -67,6 +85,11 @@ class ModelSpace(ABC):
     profiled: Mapping[str, tuple[str, tuple[float, ...]]] = {}
     """Per effect, an own-search parameter that the calibrated constants bias, and the multiples of its
     fitted value at which it is profiled with the constants re-fitted jointly (as soon as the effect is accepted)."""
+    joint_starts: Mapping[str, tuple[Mapping[str, float], ...]] = {}
+    """Per effect, further starts of its joint re-fit (values of its parameters; the re-fit that fits
+    the training blocks best is kept): for an effect whose own fit the calibrated constants hold near
+    its off value. A start also makes the effect's joint parameters score-tested
+    (:func:`~tapmuscle.diagnosis.score_test.score_gain`) on a model whose own parameters are at the start's."""
     combinations: bool = False
     """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
     constant's MAP estimate, for models whose constants the data pin only in combinations."""
@@ -89,6 +112,7 @@ class MuscleSpace(ModelSpace):
 
     joint_parameters = JOINT_PARAMETERS
     profiled = PROFILED
+    joint_starts = JOINT_STARTS
 
     def bounds(self, key: str) -> tuple[float, float]:
         return field_bounds(key)
