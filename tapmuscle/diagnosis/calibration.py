@@ -169,7 +169,10 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
     Parameters
     ----------
     residual : callable
-        Plant parameters -> training residual [mm] (one simulation per call).
+        Plant parameters -> training residual [mm] (one simulation per call). Never called with a
+        point the plant refuses (``with_values`` raises ``ValueError``: an input map whose outputs
+        cross); such a point gets a large finite residual (:data:`REFUSED_RESIDUAL_SCALE`), and the
+        solver steps back.
     base : PlantParams
         The model the coordinates are set on; every other parameter stays as it is.
     coords : sequence of FittedParameter
