@@ -256,9 +256,10 @@ def fit_parameters(residual: Callable[[PlantParams], np.ndarray], base: PlantPar
             steps.append(h)
         if residual_many is not None:  # the uncached points in one batch
             todo = {np.asarray(xi, float).tobytes(): xi for xi in points}
-            todo = {k: xi for k, xi in todo.items() if k not in cache and params_at(xi) is not None}
+            todo = {k: params_at(xi) for k, xi in todo.items() if k not in cache}
+            todo = {k: point for k, point in todo.items() if point is not None}  # refused: not simulated
             if todo:
-                for key, r in zip(todo, residual_many([params_at(xi) for xi in todo.values()])):
+                for key, r in zip(todo, residual_many(list(todo.values()))):
                     cache[key] = r
                 sims += len(todo)
         r0 = data_residual(x)
