@@ -53,6 +53,28 @@ def test_a_parameter_at_its_lower_bound_gains_only_by_growing():
     assert score_gain(-b, A, e, [True]) == pytest.approx(free, rel=1e-6)
 
 
+def test_a_parameter_at_its_upper_bound_gains_only_by_falling():
+    # the mirror image: an amplifier map's output at 10 V may only fall; with two columns, the bound
+    # holds on its own column while the other stays free
+    rng = np.random.default_rng(5)
+    A, E = rng.normal(size=(120, 3)), rng.normal(size=(120, 2))
+    b = -0.5 * E[:, 0] + 0.01 * rng.normal(size=120)  # minimised by x_0 = +0.5, x_1 = 0
+    free = score_gain(b, A, E)
+    assert free > 0.5 * float(b @ b)
+    # the free column only takes its chance correlation with the bound one (~1/sqrt(120) in amplitude)
+    assert score_gain(b, A, E, nonpositive=[True, False]) < 0.05 * free
+    assert score_gain(b, A, E, nonpositive=[False, True]) == pytest.approx(free, rel=1e-3)
+    assert score_gain(-b, A, E, nonpositive=[True, False]) == pytest.approx(free, rel=1e-6)
+    # pinned both ways (bounds lo == hi): no step at all
+    assert score_gain(b, A, E[:, :1], [True], [True]) == 0.0
+
+
+def test_bound_flags_of_the_wrong_length_are_refused_naming_them():
+    rng = np.random.default_rng(6)
+    with pytest.raises(ValueError, match="nonpositive has 1 entries for 2"):
+        score_gain(rng.normal(size=30), rng.normal(size=(30, 2)), rng.normal(size=(30, 2)), nonpositive=[True])
+
+
 def test_a_zero_column_gains_nothing_and_does_not_fail():
     rng = np.random.default_rng(4)
     assert score_gain(rng.normal(size=50), rng.normal(size=(50, 3)), np.zeros((50, 1))) == 0.0

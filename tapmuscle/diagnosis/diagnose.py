@@ -428,14 +428,14 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
             lo, hi = space.bounds(key)
             v = p.value(key)
             h = FD_STEP if v + FD_STEP * scale <= hi else -FD_STEP
-            steps.append((c.name, h, v <= lo))
+            steps.append((c.name, h, v <= lo, v >= hi))
             runs.append(p.with_values(**{key: v + h * scale}))
     cols = problem.sensor_residuals(runs)
     out = {}
     for c in smooth:
         idx = [i for i, s_ in enumerate(steps) if s_[0] == c.name]
         E = np.column_stack([np.concatenate([(cols[i] - r) / steps[i][1], np.zeros(int(prior.sum()))]) for i in idx])
-        out[c.name] = score_gain(b, A, E, [steps[i][2] for i in idx])
+        out[c.name] = score_gain(b, A, E, [steps[i][2] for i in idx], [steps[i][3] for i in idx])
     return out
 
 

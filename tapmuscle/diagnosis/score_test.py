@@ -18,7 +18,8 @@ linearised joint step lowers the sum of squares by
 which is the Lagrange-multiplier statistic ``g' H^-1 g`` (``g = E'Mb``, ``H = E'ME``) times the noise
 variance (Rao 1948; Seber and Wild, *Nonlinear Regression*, 2003, section 5.9.1). An effect parameter
 switched off at its lower bound (a play, a delay) can only grow: its step is constrained to be
-non-negative (bounded linear least squares).
+non-negative; one at its upper bound (an amplifier map's output at 10 V) can only fall, and its step
+is non-positive (bounded linear least squares). A step across a bound is no fit the search can make.
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ from tapmuscle.diagnosis.reproducible import snap_relative, sse
 __all__ = ["score_gain"]
 
 
-def score_gain(b: np.ndarray, A: np.ndarray, E: np.ndarray, nonnegative: Sequence[bool] | None = None) -> float:
+def score_gain(b: np.ndarray, A: np.ndarray, E: np.ndarray, nonnegative: Sequence[bool] | None = None,
+               nonpositive: Sequence[bool] | None = None) -> float:
     """Sum of squares the linearised joint step on the columns ``E`` removes beyond the step on ``A`` alone.
 
     Parameters
@@ -46,6 +48,8 @@ def score_gain(b: np.ndarray, A: np.ndarray, E: np.ndarray, nonnegative: Sequenc
         Jacobian of ``b`` with respect to the extra parameters (zero on the prior rows of ``A``).
     nonnegative : sequence of bool, optional
         Per extra parameter: its step may not be negative (it sits at its lower bound).
+    nonpositive : sequence of bool, optional
+        Per extra parameter: its step may not be positive (it sits at its upper bound).
 
     Returns
     -------
@@ -63,8 +67,16 @@ def score_gain(b: np.ndarray, A: np.ndarray, E: np.ndarray, nonnegative: Sequenc
         Mb, ME = b, E
     if not np.all(np.isfinite(ME)) or float(np.sum(ME ** 2)) <= 1e-24 * max(float(np.sum(E ** 2)), 1e-300):
         return 0.0
-    lo = np.array([0.0 if nn else -np.inf for nn in (nonnegative or [False] * E.shape[1])])
-    step = lsq_linear(ME, -Mb, bounds=(lo, np.full(E.shape[1], np.inf)), method="bvls").x
-    rest = Mb + ME @ step
+    q = E.shape[1]
+    for name, flags in (("nonnegative", nonnegative), ("nonpositive", nonpositive)):
+        if flags is not None and len(flags) != q:
+            raise ValueError(f"{name} has {len(flags)} entries for {q} extra parameters")
+    lo = np.array([0.0 if nn else -np.inf for nn in (nonnegative or [False] * q)])
+    hi = np.array([0.0 if npos else np.inf for npos in (nonpositive or [False] * q)])
+    free = lo < hi  # a parameter pinned at both bounds cannot step at all
+    if not np.any(free):
+        return 0.0
+    step = lsq_linear(ME[:, free], -Mb, bounds=(lo[free], hi[free]), method="bvls").x
+    rest = Mb + ME[:, free] @ step
     # the QR's last bits are the BLAS's: rounded, the gain ranks the same on every CPU
     return max(0.0, snap_relative(sse(Mb) - sse(rest)))
