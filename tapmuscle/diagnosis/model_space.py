@@ -69,7 +69,7 @@ PROFILED: dict[str, tuple[str, tuple[float, ...]]] = {
 #: either way (the field suite draws 5-16 N). A rate dependence is taken up by the friction's level:
 #: calibrated without it, the base and per-MPa friction rise to the level the recording's typical speed
 #: needs, and a rate gain re-fitted from its own fit on those constants stops short (a 0.88 gain re-fitted
-#: to 0.21 on a sine, docs/diagnosis.md); it starts again from gains either way of the paper-calibrated
+#: to 0.21 on a sine); it starts again from gains either way of the paper-calibrated
 #: 0.8 (the field suite draws 0.5-1.4). docs/diagnosis.md, step 5.
 JOINT_STARTS: dict[str, tuple[dict[str, float], ...]] = {
     "input_map": ({k: v for k, v in PlantParams().dotted().items() if k.startswith("input_map.")},),
