@@ -176,6 +176,16 @@ def test_joint_parameters_and_starts_are_the_candidates_own_plant_parameters():
     assert any(DEMO_MODEL.with_values(**st).input_map.is_identity() for st in MUSCLE.joint_starts["input_map"])
 
 
+def test_every_effect_is_off_at_its_off_values_as_in_the_effect_free_demo_model():
+    # the backward step and the own contribution switch an effect off with these values: for the rate
+    # dependence that is gain 0 (the default plant's 0.8 is the paper's calibration, an effect that is on)
+    from tapmuscle.diagnosis.model_space import MUSCLE
+    for c in CANDIDATES:
+        keys = [p.key for p in c.parameters]
+        assert MUSCLE.off_values(keys) == {k: DEMO_MODEL.value(k) for k in keys}, c.name
+    assert MUSCLE.off_values(["friction.rate_gain"]) == {"friction.rate_gain": 0.0}
+
+
 #: A command dead band of 1.2 V at 5 V in the amplifier: the valve keeps metering, but commands in the
 #: band act as 5 V and the others 0.6 V closer to it.
 BAND_5V = {"input_map.out_at_0_v": 0.6, "input_map.knot1_in_v": 4.4, "input_map.knot1_out_v": 5.0,

@@ -24,7 +24,8 @@ from typing import Any, Iterable, Mapping
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.calibration import field_bounds
 
-__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "JOINT_STARTS", "sensor_noise_mm"]
+__all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "JOINT_STARTS", "OFF_VALUES",
+           "sensor_noise_mm"]
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
@@ -78,6 +79,13 @@ JOINT_STARTS: dict[str, tuple[dict[str, float], ...]] = {
 }
 
 
+#: Effect parameters whose "off" value is not the default plant's: the rate dependence is the friction
+#: model's ``rate_gain``, which the default plant has on (0.8, calibrated to the paper's section 4.4)
+#: and which 0 switches off (``fmu_plant/friction.py``). Every other effect is off at its group's
+#: defaults (``fmu_plant/effect_library.py``).
+OFF_VALUES: dict[str, float] = {"friction.rate_gain": 0.0}
+
+
 def sensor_noise_mm(model: PlantParams) -> float:
     """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
     sp = model.sensor
@@ -126,7 +134,7 @@ class MuscleSpace(ModelSpace):
 
     def off_values(self, keys: Iterable[str]) -> dict[str, float]:
         defaults = PlantParams().dotted()
-        return {k: defaults[k] for k in keys}
+        return {k: OFF_VALUES.get(k, defaults[k]) for k in keys}
 
     def sensor_noise(self, model: PlantParams) -> float:
         return sensor_noise_mm(model)
