@@ -177,7 +177,7 @@ def test_joint_parameters_and_starts_are_the_candidates_own_plant_parameters():
 
 
 def test_every_effect_is_off_at_its_off_values_as_in_the_effect_free_demo_model():
-    # the backward step and the own contribution switch an effect off with these values: for the rate
+    # the backward step switches an effect off with these values: for the rate
     # dependence that is gain 0 (the default plant's 0.8 is the paper's calibration, an effect that is on)
     from tapmuscle.diagnosis.model_space import MUSCLE
     for c in CANDIDATES:
@@ -695,8 +695,8 @@ def test_a_rate_dependence_that_the_friction_level_took_up_is_found_by_its_joint
     """Field case 072 (seed 0), as ``tapmuscle demo-mismatch`` runs it: a rate gain of 0.88 under a
     sine, four constants off. Calibrated without it, the friction's level rises to what the sine's
     speeds need, and the rate gain re-fitted from its own fit on those constants stops at about a
-    quarter of the truth, where an amplifier's map fits the held-out blocks as well (the verdict was
-    ``ambiguous``). The rate's joint re-fit also starts from gains either way of 0.8
+    quarter of the truth, where an amplifier's map fits the held-out blocks as well (without the
+    starts the verdict is ``ambiguous``). The rate's joint re-fit also starts from gains either way of 0.8
     (``MUSCLE.joint_starts``): that re-fit is the better one, and the rate dependence is named alone."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
