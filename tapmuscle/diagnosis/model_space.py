@@ -8,7 +8,7 @@ and a simulator with ``run`` / ``run_many``. The rest it asks a :class:`ModelSpa
 * which effect parameters are re-fitted jointly with the calibrated constants, with their scale;
 * an effect's parameters at their "off" values (the backward step switches an effect off);
 * further starts of an effect's joint re-fit, where the calibrated constants hold its own fit near
-  its off value (an amplifier's map, a load);
+  its off value (an amplifier's map, a load, a rate dependence);
 * the sensor noise the model states (the materiality reference of the residual tests).
 
 :data:`MUSCLE` is the tapmuscle plant's; a foreign FMU has its own
