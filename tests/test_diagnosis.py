@@ -732,3 +732,19 @@ def test_a_valve_bands_width_is_profiled_with_the_constants_refitted(tmp_path):
     assert band["dead_zone.width_v"] == pytest.approx(truth["dead_zone.width_v"], rel=0.1)
     assert band["dead_zone.center_v"] == pytest.approx(truth["dead_zone.center_v"], abs=0.1)
     assert result["fit_after_percent"] >= 98.5
+
+
+def test_the_report_lists_a_joint_re_fit_that_failed_with_its_reason(tmp_path):
+    """A joint re-fit whose simulation failed is a row of the candidates table with the reason, and the
+    numbers the acceptance rests on are in every other joint row of diagnosis.json."""
+    from tapmuscle.diagnosis.report import write_outputs
+
+    cols = record(DEMO_MODEL.with_values(**{"delay.delay_s": 0.3}), "sine", 5, duration_s=60.0)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, calibration=())
+    joint = [c for c in d.candidates if c.get("joint")]
+    assert joint and all(c["contribution_rms_mm"] >= 0.0 for c in joint)
+    d.candidates.append({"round": 1, "effect": "backlash", "joint": True, "rejected": "the plant diverged",
+                         "simulations": 3, "seconds": 0.1})
+    write_outputs(d, tmp_path, recording="rec.csv", plant="plant.json", plots=False)
+    assert "| 1 | `backlash` re-fitted with the calibration | not fitted (the plant diverged) | | |" in \
+        (tmp_path / "report.md").read_text()

@@ -102,6 +102,11 @@ ALTERNATE_PER_ROUND = 1
 #: factor at which ``located_windows`` finds a signal in time); below, it is reported, not claimed.
 MATERIAL_FACTOR = 3.0
 
+#: An effect is accepted only when its held-out contribution (the RMS of its re-fitted model's
+#: prediction minus the reference's) is at least this many times the noise level: an effect within the
+#: noise is not claimed however significant its projection (docs/diagnosis.md, step 5).
+MATERIAL_EFFECT_FACTOR = 1.5
+
 #: The backward step drops an accepted effect when its removal is not significant at this many times
 #: ``alpha`` (the level it entered at). Stepwise selection's usual asymmetry, a level to remove above
 #: the level to enter (Efroymson's; e.g. 0.05 / 0.10 in SPSS): an effect that passed the entry test
@@ -667,7 +672,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     def passes(sig: dict[str, float], level: float = alpha) -> bool:
         # material too: an effect whose held-out contribution is within the noise is not claimed
         return (sig["reduction"] >= min_reduction and sig["p_value"] < level
-                and sig.get("contribution_rms_mm", math.inf) >= 1.5 * floor)
+                and sig.get("contribution_rms_mm", math.inf) >= MATERIAL_EFFECT_FACTOR * floor)
 
     structured = tests0["structured"] and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
     pool = list(candidates)
@@ -813,6 +818,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             values = {k: float(v) for k, v in p1.dotted().items() if k in res.values}
             tried.append({"round": round_no, "effect": cand.name, "joint": True,
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
+                          "contribution_rms_mm": round(contribution_rms, 6),
                           "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
             alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1,
                                     sse((y - y1)[test]), fit_percent(y, y1, test),

@@ -17,7 +17,7 @@ from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
 
 from tapmuscle.diagnosis.candidates import candidate
-from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, Diagnosis, diagnose
+from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import design_input, write_experiment
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
@@ -129,8 +129,11 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
     lines += ["## Candidates tried", "", "| round | effect | held-out gain [points] | SSE reduction | p |", "|---|---|---|---|---|"]
     for c in d.candidates:
         if c.get("joint"):
-            lines.append(f"| {c['round']} | `{c['effect']}` re-fitted with the calibration | | "
-                         f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
+            if "rejected" in c:
+                lines.append(f"| {c['round']} | `{c['effect']}` re-fitted with the calibration | not fitted ({c['rejected']}) | | |")
+            else:
+                lines.append(f"| {c['round']} | `{c['effect']}` re-fitted with the calibration | | "
+                             f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
         elif c["fitted"]:
             lines.append(f"| {c['round']} | `{c['effect']}` | {c['fit_gain_points']:.3f} | "
                          f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
@@ -138,7 +141,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             lines.append(f"| {c['round']} | `{c['effect']}` | not fitted (not applicable) | | |")
     lines += ["", "An effect is accepted when, re-fitted jointly with the calibrated constants, it removes >= 10 % of "
               "the held-out squared error of the model re-fitted without it, the held-out residual's projection on "
-              "its contribution rejects 'only noise' at p < 0.001, and its contribution exceeds 1.5 x the noise "
+              f"its contribution rejects 'only noise' at p < 0.001, and its contribution exceeds {MATERIAL_EFFECT_FACTOR:g} x "
+              "the noise "
               "(docs/diagnosis.md).", ""]
     if fmu_check is not None:
         lines += ["## FMU check", "", f"The plant FMU re-simulated the recording's command; it differs from the "
