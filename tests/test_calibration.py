@@ -196,3 +196,25 @@ def test_an_interval_stays_within_the_parameters_bounds():
     base = rows["friction.base_n"].ci95
     assert 0.0 < base[0] < 8.0 < base[1] < 16.0  # narrow enough to stay whole
     assert base[1] - 8.0 == pytest.approx(8.0 - base[0])
+
+
+@pytest.mark.slow
+def test_a_left_out_valve_band_cannot_push_a_constant_beyond_its_prior_bound():
+    """A 1.2-V valve band left out of the model pulls the constants far from nominal (the calibration
+    takes up the stall it cannot model); none goes beyond PRIOR_BOUND_SDS prior sds, and the band
+    pulls at least one constant to that bound (the bound is what holds it)."""
+    from tapmuscle.diagnosis.calibration import PRIOR_BOUND_SDS, nominal_coords
+
+    rig = NOMINAL.with_values(**{"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.2})
+    cols = record(rig, "sine", 4, duration_s=120)
+    y, ts = cols["l_mm"], 0.1
+    sim = Simulator(cols["u_v"], ts)
+    train, _ = interleaved_split(len(y), ts, 10.0)
+
+    def residual(p):
+        return (y - sim.run(p)[0])[train]
+    cal = calibrate(residual, NOMINAL, NOMINAL, 0.013)
+    coords = {c.key: c for c in nominal_coords(NOMINAL)}
+    sds = {k: (cal.params.value(k) - c.center) / c.scale for k, c in coords.items()}
+    assert all(abs(x) <= PRIOR_BOUND_SDS + 1e-6 for x in sds.values()), sds
+    assert max(abs(x) for x in sds.values()) > PRIOR_BOUND_SDS - 0.05, sds
