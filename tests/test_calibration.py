@@ -201,9 +201,9 @@ def test_an_interval_stays_within_the_parameters_bounds():
 @pytest.mark.slow
 def test_a_left_out_valve_band_cannot_push_a_constant_beyond_its_prior_bound():
     """A 1.2-V valve band left out of the model pulls the constants far from nominal (the calibration
-    takes up the stall it cannot model); none goes beyond PRIOR_BOUND_SDS prior sds, and the band
-    pulls at least one constant to that bound (the bound is what holds it)."""
-    from tapmuscle.diagnosis.calibration import PRIOR_BOUND_SDS, nominal_coords
+    takes up the stall it cannot model); none goes beyond PRIOR_BOUND_SDS prior sds, the band pulls
+    at least one constant to that bound (the bound is what holds it), and the rows say which."""
+    from tapmuscle.diagnosis.calibration import AT_BOUND_SDS, PRIOR_BOUND_SDS, nominal_coords
 
     rig = NOMINAL.with_values(**{"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.2})
     cols = record(rig, "sine", 4, duration_s=120)
@@ -218,3 +218,10 @@ def test_a_left_out_valve_band_cannot_push_a_constant_beyond_its_prior_bound():
     sds = {k: (cal.params.value(k) - c.center) / c.scale for k, c in coords.items()}
     assert all(abs(x) <= PRIOR_BOUND_SDS + 1e-6 for x in sds.values()), sds
     assert max(abs(x) for x in sds.values()) > PRIOR_BOUND_SDS - 0.05, sds
+    # the report flags exactly the identifiable constants the bound holds
+    rows = {r.parameter: r for r in cal.rows}
+    held = {k for k, c in coords.items() if rows[k].identifiable
+            and min(cal.params.value(k) - c.lo, c.hi - cal.params.value(k)) <= AT_BOUND_SDS * c.scale}
+    assert held and {k for k, r in rows.items() if r.at_bound} == held
+    assert all(r.to_json()["at_bound"] == r.at_bound for r in rows.values())
+    assert rows[next(iter(held))].identifiable_text().startswith("yes, at its bound")

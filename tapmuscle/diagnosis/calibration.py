@@ -72,6 +72,8 @@ __all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "
 #: by a per-MPa friction at a fifth of its value); 3 sds, which would leave more of such an effect in the
 #: residual, was measured on the field suite and not kept (docs/diagnosis.md, method step 4).
 PRIOR_BOUND_SDS = 4.0
+#: A calibrated constant within this many prior sds of a bound is reported as at it.
+AT_BOUND_SDS = 0.05
 #: A fresh forward-difference Jacobian every this many solver iterations (Broyden updates between).
 FRESH_JACOBIAN_EVERY = 5
 #: A constant is identifiable when its posterior sd is at most this fraction of its prior sd.
@@ -323,11 +325,21 @@ class CalibrationRow:
     identifiable: bool
     sd_shrink: float
     """Posterior sd / prior sd [-] (<= IDENTIFIABLE_SD_SHRINK: identifiable)."""
+    at_bound: bool = False
+    """The estimate sits at a bound of the fit (:data:`PRIOR_BOUND_SDS` prior sds from nominal, or the
+    parameter's own bound): the data would take it further, so it may stand in for an effect the model
+    lacks."""
+
+    def identifiable_text(self) -> str:
+        """The reports' ``identifiable`` cell."""
+        if not self.identifiable:
+            return "no (left nominal)"
+        return "yes, at its bound (it may stand in for a left-out effect)" if self.at_bound else "yes"
 
     def to_json(self) -> dict[str, Any]:
         return {"parameter": self.parameter, "unit": self.unit, "nominal": _round(self.nominal),
                 "estimate": _round(self.estimate), "ci95": [_round(self.ci95[0]), _round(self.ci95[1])],
-                "identifiable": self.identifiable, "sd_shrink": round(self.sd_shrink, 4)}
+                "identifiable": self.identifiable, "sd_shrink": round(self.sd_shrink, 4), "at_bound": self.at_bound}
 
 
 def _round(v: float) -> float:
@@ -512,6 +524,9 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
         # within the parameter's own bounds: a structured residual's inflated level can widen an
         # interval past values the constant cannot take (a negative flow coefficient)
         lo, hi = bounds(c.key)
+        # the solver keeps a point strictly inside the bounds (forward differences), and a joint re-fit
+        # may stop just short of one: within a twentieth of a prior sd counts as at it
+        at_bound = c.key in identifiable and min(est - c.lo, c.hi - est) <= AT_BOUND_SDS * c.scale
         rows.append(CalibrationRow(c.key, p_.unit, c.center, est, (max(lo, est - half), min(hi, est + half)),
-                                   c.key in identifiable, float(s)))
+                                   c.key in identifiable, float(s), at_bound))
     return rows

@@ -209,7 +209,7 @@ def _report(d: Diagnosis, setup: ForeignSetup, doc: dict[str, Any]) -> str:
         lines += ["", "## Calibration", "", "| parameter | unit | nominal | estimate | 95 % interval | identifiable |",
                   "|---|---|---|---|---|---|"]
         lines += [f"| {r.parameter} | {r.unit} | {r.nominal:.6g} | {r.estimate:.6g} | {r.ci95[0]:.4g} .. {r.ci95[1]:.4g} "
-                  f"| {'yes' if r.identifiable else 'no'} |" for r in d.calibration.rows]
+                  f"| {r.identifiable_text()} |" for r in d.calibration.rows]
     rejected = [c for c in d.candidates if "rejected" in c]
     if rejected:
         lines += ["", "## Candidates rejected", ""]

@@ -42,7 +42,8 @@ def summary_lines(d: Diagnosis) -> list[str]:
                 f"{d.fit_before_percent:.2f} %"]
     out = []
     if d.calibration is not None:
-        changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}" for r in d.calibration.rows
+        changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}{' (at its bound)' if r.at_bound else ''}"
+                            for r in d.calibration.rows
                             if r.identifiable and abs(r.estimate - r.nominal) > 1e-9 * max(1.0, abs(r.nominal)))
         out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
                    f"({changed or 'no constant changed'}; not identifiable: "
@@ -85,7 +86,7 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                   "| parameter | unit | nominal | estimate | 95 % interval | identifiable |", "|---|---|---|---|---|---|"]
         for r in d.calibration.rows:
             lines.append(f"| `{r.parameter}` | {r.unit} | {r.nominal:.5g} | {r.estimate:.5g} | "
-                         f"{r.ci95[0]:.5g} .. {r.ci95[1]:.5g} | {'yes' if r.identifiable else 'no (left nominal)'} |")
+                         f"{r.ci95[0]:.5g} .. {r.ci95[1]:.5g} | {r.identifiable_text()} |")
         lines.append("")
     for i, group in enumerate(d.ambiguous, 1):
         lines += [f"## Ambiguous ({i}): the held-out data cannot tell these apart", "",
