@@ -734,6 +734,29 @@ def test_a_valve_bands_width_is_profiled_with_the_constants_refitted(tmp_path):
     assert result["fit_after_percent"] >= 98.5
 
 
+@pytest.mark.slow
+def test_a_band_is_searched_again_on_constants_calibrated_from_nominal(tmp_path):
+    """Field case 027 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 1.24 V wide at
+    6.28 V under a sine, constants off. The constants calibrated before the band was found took part
+    of its stall up, and the profile's re-fits start from them: the verdict was ``ambiguous`` between
+    the band, an amplifier's map and a drift. The band's search alternated with the calibration from
+    the nominal constants (``FROM_NOMINAL_ROUNDS``) leaves that valley, and the band is named alone."""
+    from tapmuscle.diagnosis.field_cases import field_cases
+    from tapmuscle.diagnosis.field_demo import run_field_case
+
+    case = field_cases(100, 1)[27]
+    assert case.effects == ("valve_dead_zone",) and case.excitation == "sine"
+    result = run_field_case(case, tmp_path)
+    doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    assert result["named"] == ["valve_dead_zone"] and not result["ambiguous"], doc["selection"]
+    assert any(s["step"] == "search and calibrate from the nominal constants" and s["kept"] for s in doc["selection"])
+    truth = dict(case.effect_values)
+    band = next(f for f in doc["findings"] if f["effect"] == "valve_dead_zone")["parameters"]
+    # the edges to 0.1 V: the sine sweeps every command, so the band's edges are between close cuts
+    assert band["dead_zone.width_v"] == pytest.approx(truth["dead_zone.width_v"], abs=0.1)
+    assert band["dead_zone.center_v"] == pytest.approx(truth["dead_zone.center_v"], abs=0.1)
+
+
 def test_the_report_lists_a_joint_re_fit_that_failed_with_its_reason(tmp_path):
     """A joint re-fit whose simulation failed is a row of the candidates table with the reason, and the
     numbers the acceptance rests on are in every other joint row of diagnosis.json."""
