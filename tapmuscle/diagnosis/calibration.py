@@ -65,7 +65,7 @@ from tapmuscle.diagnosis.reproducible import broyden_update, dot, snap, snap_rel
 
 __all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "CalibrationRow",
            "Calibration", "fit_parameters", "calibrate", "calibration_rows", "nominal_coords", "field_bounds",
-           "effective_sigma", "PRIOR_BOUND_SDS"]
+           "effective_sigma", "PRIOR_BOUND_SDS", "AT_BOUND_SDS"]
 
 #: The solver keeps a nominal constant within this many prior sds of its nominal value (80 % of it at a
 #: 20 % prior). A constant at this bound stands in for an effect the model lacks (a valve band taken up

@@ -32,7 +32,8 @@ Procedure
    accepted effect with a
    parameter its own search fits on constants that absorbed part of it (a valve band's width:
    ``ModelSpace.profiled``) has that parameter profiled at once, the constants re-fitted jointly at
-   each value (:func:`_profiled_refit`).
+   each value (:func:`_profiled_refit`); then its own search alternates with the calibration from the
+   nominal constants (:data:`FROM_NOMINAL_ROUNDS`), kept if that fits the training blocks better.
 5. **Backward step.** After each acceptance (two or more effects), every accepted effect, the
    newcomer last, is removed in turn (the rest re-fitted jointly); one whose removal is not
    significantly worse (at :data:`REMOVE_LEVEL_FACTOR` times ``alpha``) is dropped. Both sides of
