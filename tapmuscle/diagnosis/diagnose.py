@@ -33,7 +33,8 @@ Procedure
    parameter its own search fits on constants that absorbed part of it (a valve band's width:
    ``ModelSpace.profiled``) has that parameter profiled at once, the constants re-fitted jointly at
    each value (:func:`_profiled_refit`); then its own search alternates with the calibration from the
-   nominal constants (:data:`FROM_NOMINAL_ROUNDS`), kept if that fits the training blocks better.
+   nominal constants (:data:`FROM_NOMINAL_ROUNDS`), kept if that fits the training blocks better, and
+   again whenever the constants are calibrated afresh at a new noise level.
 5. **Backward step.** After each acceptance (two or more effects), every accepted effect, the
    newcomer last, is removed in turn (the rest re-fitted jointly); one whose removal is not
    significantly worse (at :data:`REMOVE_LEVEL_FACTOR` times ``alpha``) is dropped. Both sides of
@@ -748,6 +749,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                or _Model(cal.params, current.effects, y_re, current.values, _used(q_re)))
                     better = current
                     restate(current.params)
+                    # a band accepted on other constants (the nominal ones, when the inflated level
+                    # left none identifiable) pulls these to their bounds: search it again on them
+                    from_nominal(round_no)
+                    better = current
         if better is not None:
             if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
                 selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
