@@ -450,6 +450,18 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     return out
 
 
+def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
+                     values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
+    """``params`` with ``cand``'s own search run again on its constants (the effect switched off
+    first); ``values[cand.name]`` is updated. Unchanged when the search finds nothing."""
+    off = params.with_values(**space.off_values(values[cand.name]))
+    res = cand.fit(problem, off, problem.sim.run(off, checkpoint_every=checkpoint_every)[0])
+    if res is None:
+        return params
+    values[cand.name] = dict(res.values)
+    return off.with_values(**res.values)
+
+
 def _profiled_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], current: _Model,
                     by_name: dict[str, Candidate], sigma: float, jac0: np.ndarray | None,
                     checkpoint_every: int) -> tuple[PlantParams, dict[str, dict[str, float]], np.ndarray | None, int] | None:
@@ -487,11 +499,7 @@ def _profiled_refit(problem: Problem, space: ModelSpace, coords: Sequence[Fitted
         _, p, f = best
         if f is not None:
             jac = f.jacobian[:, :len(coords)]
-        off = p.with_values(**space.off_values(values[name]))
-        res = by_name[name].fit(problem, off, sim.run(off, checkpoint_every=checkpoint_every)[0])
-        if res is not None:
-            p = off.with_values(**res.values)
-            values[name] = dict(res.values)
+        p = _searched_afresh(problem, space, by_name[name], p, values, checkpoint_every)
     p, f = _joint_refit(problem, space, coords, sigma, p, current.effects, jac, final=True)
     return p, values, (jac if f is None else f.jacobian[:, :len(coords)]), sim.runs - runs0
 
@@ -630,11 +638,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             c = calibrated(model.with_values(**{k: p.value(k) for vals in values.values() for k in vals}))
             p = c.params
             for name in names:
-                off = p.with_values(**space.off_values(values[name]))
-                res = by_name[name].fit(problem, off, sim.run(off, checkpoint_every=checkpoint_every)[0])
-                if res is not None:
-                    p = off.with_values(**res.values)
-                    values[name] = dict(res.values)
+                p = _searched_afresh(problem, space, by_name[name], p, values, checkpoint_every)
         coords_c = fitted_coords(c)
         p, f = _joint_refit(problem, space, coords_c, sigma, p, current.effects, None, final=True)
         y_c, q_c = sim.run(p)
