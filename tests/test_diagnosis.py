@@ -758,6 +758,37 @@ def test_a_band_is_searched_again_on_constants_calibrated_from_nominal(tmp_path)
 
 
 @pytest.mark.slow
+def test_a_band_the_calibrated_constants_took_up_is_found_by_what_their_re_fit_leaves(tmp_path):
+    """Field case 079 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 0.91 V wide at
+    5.62 V under a sine sum, constants off (braid angle +14 %). Judged on the calibrated constants as
+    they stand, the band's own search found 0.18 V at 3.25 V: the band was never accepted, an
+    amplifier's map was named instead and the held-out fit stayed at 90.5 %. Judged by what the
+    constants' linearised re-fit leaves, the first round's search finds the band, and it is named."""
+    from tapmuscle.diagnosis.field_cases import field_cases
+    from tapmuscle.diagnosis.field_demo import run_field_case
+
+    case = field_cases(100, 1)[79]
+    assert case.effects == ("valve_dead_zone",) and case.excitation == "sinesum"
+    result = run_field_case(case, tmp_path)
+    doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    own = next(t for t in doc["candidates_tried"]
+               if t["round"] == 1 and t["effect"] == "valve_dead_zone" and not t.get("joint"))
+    assert own["linearised_gain_mm2"] > 0.0
+    truth = dict(case.effect_values)
+    lower = truth["dead_zone.center_v"] - truth["dead_zone.width_v"] / 2
+    upper = lower + truth["dead_zone.width_v"]
+    found = own["parameters"]
+    # the edges to 0.05 V: the sine sum sweeps the commands densely (cuts ~0.01 V apart near the band);
+    # the plain search's band was 2 V away
+    assert found["dead_zone.center_v"] - found["dead_zone.width_v"] / 2 == pytest.approx(lower, abs=0.05)
+    assert found["dead_zone.center_v"] + found["dead_zone.width_v"] / 2 == pytest.approx(upper, abs=0.05)
+    assert {"step": "add", "round": 1, "effect": "valve_dead_zone"}.items() <= next(
+        s for s in doc["selection"] if s["step"] == "add").items()
+    assert "valve_dead_zone" in result["named"]
+    assert result["fit_after_percent"] >= 98.0
+
+
+@pytest.mark.slow
 def test_a_band_is_searched_again_when_the_constants_are_calibrated_afresh(tmp_path):
     """Field case 000 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 0.87 V wide under
     steps, constants off. The band is accepted and searched again on constants calibrated from the

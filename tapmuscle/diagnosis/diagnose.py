@@ -80,6 +80,7 @@ from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, Fi
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
+from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
 from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
@@ -450,6 +451,24 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
     return out
 
 
+def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
+                          params: PlantParams, y_hat: np.ndarray) -> LinearisedConstants:
+    """The constants ``coords``' linearised MAP step at ``params`` (whose whole-run prediction is
+    ``y_hat``): one simulation of the whole recording per constant, all at once."""
+    steps, runs = [], []
+    for c in coords:
+        v = params.value(c.key)
+        h = FD_STEP if v + FD_STEP * c.scale <= c.hi else -FD_STEP
+        steps.append(h)
+        runs.append(params.with_values(**{c.key: v + h * c.scale}))
+    ys = problem.sim.run_many(runs)
+    jac = np.column_stack([(y_hat - y_p) / h for y_p, h in zip(ys, steps)])
+    scaled = [((params.value(c.key) - c.center) / c.scale, (c.lo - c.center) / c.scale, (c.hi - c.center) / c.scale)
+              for c in coords]
+    x, lower, upper = (np.array(col, float) for col in zip(*scaled))
+    return LinearisedConstants(params, jac, x, np.array([c.prior for c in coords], bool), lower, upper, sigma)
+
+
 def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
                      values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
     """``params`` with ``cand``'s own search run again on its constants (the effect switched off
@@ -775,6 +794,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             nominal_jobs = _start_fits(pool, problem, model, y0)
         else:
             nominal_jobs = []
+        if coords and any(c.linearised for c in pool):
+            try:
+                problem.constants = _linearised_constants(problem, coords, sigma, current.params, current.y)
+            except SimulationError:  # a constant's step the plant cannot take: the plain searches only
+                problem.constants = None
         sim.run(current.params, checkpoint_every=checkpoint_every)
         jobs = _start_fits(pool, problem, current.params, current.y)
         for cand, job in zip(pool, nominal_jobs):
@@ -795,7 +819,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             gain = fit_percent(y, res.y_hat, test) - fit_base
             tried.append({"round": round_no, "effect": cand.name, "fitted": True,
                           "fit_gain_points": round(gain, 3), "held_out_sse_reduction": round(sig["reduction"], 4),
-                          "p_value": sig["p_value"], "parameters": res.values} | cost)
+                          "p_value": sig["p_value"], "parameters": res.values} | cost
+                         | ({} if res.joint_gain_mm2 is None else {"linearised_gain_mm2": round(res.joint_gain_mm2, 4)}))
             fitted.append((cand, res, sig))
         # each candidate's start: on top of the current model, or (first round) from the nominal model,
         # whichever fits the training blocks better; the best few on the training blocks are re-fitted
@@ -812,6 +837,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             scores = [sse(problem.stacked_residual(*lq)) for lq in runs]
         else:
             scores = [train_sse(res.y_hat) for _, res, _ in options]
+        # an own search judged by what the constants' linearised step leaves predicts its joint fit
+        # that way too (the lower prediction counts, also against the nominal start)
+        scores = [sc if st is not current.params or res.joint_gain_mm2 is None
+                  else min(sc, train_sse(current.y) - res.joint_gain_mm2) for (_, res, st), sc in zip(options, scores)]
         starts = []
         for (cand, res, st), score in zip(options, scores):  # the current model's start first: kept on a tie
             i = next((i for i, s_ in enumerate(starts) if s_[0].name == cand.name), None)

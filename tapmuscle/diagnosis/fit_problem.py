@@ -13,6 +13,7 @@ import numpy as np
 
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.held_out import HeldOut
+from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
 from tapmuscle.diagnosis.simulation import Simulator
 
 __all__ = ["Problem", "FitResult", "Rejected", "SimulationError", "full_prediction"]
@@ -58,6 +59,10 @@ class Problem:
     evidence: HeldOut | None = None
     """How the recording's channels are weighed; with the pressure in it, :meth:`sensor_residual`
     stacks it beside the displacement (None: the displacement alone)."""
+    constants: LinearisedConstants | None = None
+    """The calibrated constants' linearised step at the model the round's own searches start from
+    (None without a calibration): a search whose base is that model may judge trial values by what
+    the constants' re-fit would leave."""
 
     @property
     def uses_pressure(self) -> bool:
@@ -134,6 +139,10 @@ class FitResult:
     """Noise-free prediction of the whole recording with those values [mm]."""
     located: list[tuple[float, float]] | None = None
     """Where the effect acts, when the fit itself says (a sag's window); otherwise None."""
+    joint_gain_mm2: float | None = None
+    """Training error of the fit segment [mm^2] that the constants' linearised step with the effect
+    as fitted removes beyond their step without it (:class:`LinearisedConstants`), when the search
+    judged its trial values that way; otherwise None."""
 
 
 def full_prediction(problem: Problem, base: PlantParams, values: dict[str, float]) -> np.ndarray:
