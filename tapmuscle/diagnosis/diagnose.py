@@ -618,6 +618,16 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             f.parameters = {k: float(v) for k, v in p.dotted().items() if k in f.parameters}
             f.explanation = by_name[f.effect].explain(f.parameters)
 
+    def linearise(params: PlantParams, y_hat: np.ndarray) -> None:
+        """The calibrated constants' linearised step at ``params`` for the own searches that use it
+        (:attr:`Candidate.linearised`); none without calibrated constants."""
+        problem.constants = None
+        if coords:
+            try:
+                problem.constants = _linearised_constants(problem, coords, sigma, params, y_hat)
+            except SimulationError:  # a constant's step the plant cannot take: the plain searches only
+                pass
+
     def profile(round_no: int) -> None:
         """:func:`_profiled_refit` of the current model, kept if it fits the training blocks better;
         then :func:`from_nominal`."""
@@ -794,11 +804,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             nominal_jobs = _start_fits(pool, problem, model, y0)
         else:
             nominal_jobs = []
-        if coords and any(c.linearised for c in pool):
-            try:
-                problem.constants = _linearised_constants(problem, coords, sigma, current.params, current.y)
-            except SimulationError:  # a constant's step the plant cannot take: the plain searches only
-                problem.constants = None
+        if any(c.linearised for c in pool):
+            linearise(current.params, current.y)
         sim.run(current.params, checkpoint_every=checkpoint_every)
         jobs = _start_fits(pool, problem, current.params, current.y)
         for cand, job in zip(pool, nominal_jobs):
@@ -885,7 +892,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             cand, res, p1, y1, q1, sims_used, secs = joints[i]
             runs0, t_fit = sim.runs, time.perf_counter()
             off = p1.with_values(**space.off_values(res.values))
-            res2 = _timed(_own_fit, problem, (off, sim.run(off, checkpoint_every=checkpoint_every)[0]), (cand,))[0]
+            y_off = sim.run(off, checkpoint_every=checkpoint_every)[0]
+            if cand.linearised:
+                linearise(off, y_off)
+            res2 = _timed(_own_fit, problem, (off, y_off), (cand,))[0]
             if isinstance(res2, FitResult):
                 p2, _ = joint(off.with_values(**res2.values), current.effects + (cand.name,), cal_jac)
                 y2, q2 = sim.run(p2)
