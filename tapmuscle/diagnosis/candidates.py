@@ -267,7 +267,8 @@ _FEW_LEVELS = 40
 def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
     if base.value("dead_zone.width_v") > 0:
         return None
-    found = _dead_zone_search(pr, base, y_base, None)
+    runs: dict[tuple[float, float, int, int], np.ndarray] = {}  # both searches try many of the same bands
+    found = _dead_zone_search(pr, base, y_base, None, runs)
     lin = pr.constants if pr.constants is not None and pr.constants.at == base else None
     if lin is None:
         return None if found is None else FitResult(found, full_prediction(pr, base, found))
@@ -278,7 +279,7 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     seg = np.flatnonzero(pr.train[:pr.n_fit])
     left_ref = lin.left_mm2((pr.y_mm - y_base)[seg], seg)
     best: tuple[float, dict[str, float], np.ndarray] | None = None
-    for values in (found, _dead_zone_search(pr, base, y_base, lin)):
+    for values in (found, _dead_zone_search(pr, base, y_base, lin, runs)):
         if values is None:
             continue
         y_hat = full_prediction(pr, base, values)
@@ -290,11 +291,12 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     return FitResult(best[1], best[2], joint_gain_mm2=max(left_ref - best[0], 0.0))
 
 
-def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray,
-                      lin: LinearisedConstants | None) -> dict[str, float] | None:
+def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: LinearisedConstants | None,
+                      runs: dict[tuple[float, float, int, int], np.ndarray]) -> dict[str, float] | None:
     """The band's edges [V] (``dead_zone.*`` values; None for no band): each trial judged by its
     training error on the search window, or, with ``lin``, by what the constants' linearised step
-    leaves of it."""
+    leaves of it. ``runs`` keeps each trial's simulation of its window (shared between searches on
+    the same base)."""
     # The band shows only where the command dwells in it or crosses it slowly, which may be anywhere
     # in the run: search where the residual is largest, continuing from the base run's checkpoint (an
     # approximation during the search only; the final score is a whole-run simulation).
@@ -309,8 +311,11 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray,
         c, w = float(x[0]), float(x[1])
         if w > max_width:  # a band the plant cannot take (four held levels can span more)
             return math.inf
-        p = base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w})
-        y_w = pr.sim.run(p, start=start, stop=stop)[0]
+        key = (round(c, 9), round(w, 9), start, stop)
+        if key not in runs:
+            runs[key] = pr.sim.run(base.with_values(**{"dead_zone.center_v": c, "dead_zone.width_v": w}),
+                                   start=start, stop=stop)[0]
+        y_w = runs[key]
         r = pr.train_residual(y_w, start)
         if lin is None:
             return sse(r)
