@@ -87,3 +87,9 @@ def test_residual_and_rows_must_agree():
     lin, r = _random(0)
     with pytest.raises(ValueError, match="19 residual values for 20 rows"):
         lin.left_mm2(r[:19], np.arange(20))
+
+
+def test_rows_beyond_the_jacobian_are_named():
+    lin, r = _random(0, n=50)
+    with pytest.raises(ValueError, match="rows 40..55 reach beyond the Jacobian's 50 samples"):
+        lin.left_mm2(np.zeros(16), np.arange(40, 56))

@@ -84,9 +84,11 @@ class Candidate:
     fit: Callable[[Problem, PlantParams, np.ndarray], FitResult | None]
     explain: Callable[[dict[str, float]], str]
     """Plain-words explanation of a fitted value set."""
-    linearised: bool = False
-    """Its own search judges trial values by what the calibrated constants' linearised step leaves
-    (:attr:`Problem.constants`, set by the search when there are calibrated constants)."""
+    linearised_reach: Callable[[Problem, np.ndarray], int] | None = None
+    """Set when its own search also judges trial values by what the calibrated constants' linearised
+    step leaves (:attr:`Problem.constants`, set by the search when there are calibrated constants):
+    ``(problem, y_base) ->`` the number of samples from the start that search looks at on a base
+    whose prediction is ``y_base`` (the constants' Jacobian is simulated that far)."""
 
 
 # --------------------------------------------------------------------------------------- helpers
@@ -289,6 +291,13 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     if best is None:
         return None
     return FitResult(best[1], best[2], joint_gain_mm2=max(left_ref - best[0], 0.0))
+
+
+def _dead_zone_reach(pr: Problem, y_base: np.ndarray) -> int:
+    """Samples from the start that the band's searches and their choice look at: the fit segment and
+    up to a minute past the window of largest residual (:func:`_dead_zone_search`)."""
+    _, stop = _energetic_window(pr, pr.y_mm - y_base, 60.0)
+    return max(pr.n_fit, min(pr.n, stop + int(round(60.0 / pr.ts_s))))
 
 
 def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: LinearisedConstants | None,
@@ -504,7 +513,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         lambda v: (f"the valve passes no flow for commands between "
                    f"{v['dead_zone.center_v'] - v['dead_zone.width_v'] / 2:.2f} and "
                    f"{v['dead_zone.center_v'] + v['dead_zone.width_v'] / 2:.2f} V; the muscle stalls there"),
-        linearised=True),
+        linearised_reach=_dead_zone_reach),
     Candidate(
         "transport_delay",
         "The valve acts on the command late (fieldbus or amplifier latency, a long hose), by any time, "

@@ -452,17 +452,17 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
 
 
 def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
-                          params: PlantParams, y_hat: np.ndarray) -> LinearisedConstants:
+                          params: PlantParams, y_hat: np.ndarray, reach: int) -> LinearisedConstants:
     """The constants ``coords``' linearised MAP step at ``params`` (whose whole-run prediction is
-    ``y_hat``): one simulation of the whole recording per constant, all at once."""
+    ``y_hat``) on the first ``reach`` samples: one simulation that far per constant, all at once."""
     steps, runs = [], []
     for c in coords:
         v = params.value(c.key)
         h = FD_STEP if v + FD_STEP * c.scale <= c.hi else -FD_STEP
         steps.append(h)
         runs.append(params.with_values(**{c.key: v + h * c.scale}))
-    ys = problem.sim.run_many(runs)
-    jac = np.column_stack([(y_hat - y_p) / h for y_p, h in zip(ys, steps)])
+    ys = problem.sim.run_many(runs, stop=reach)
+    jac = np.column_stack([(y_hat[:reach] - y_p) / h for y_p, h in zip(ys, steps)])
     scaled = [((params.value(c.key) - c.center) / c.scale, (c.lo - c.center) / c.scale, (c.hi - c.center) / c.scale)
               for c in coords]
     x, lower, upper = (np.array(col, float) for col in zip(*scaled))
@@ -618,13 +618,15 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             f.parameters = {k: float(v) for k, v in p.dotted().items() if k in f.parameters}
             f.explanation = by_name[f.effect].explain(f.parameters)
 
-    def linearise(params: PlantParams, y_hat: np.ndarray) -> None:
-        """The calibrated constants' linearised step at ``params`` for the own searches that use it
-        (:attr:`Candidate.linearised`); none without calibrated constants."""
+    def linearise(params: PlantParams, y_hat: np.ndarray, cands: Sequence[Candidate]) -> None:
+        """The calibrated constants' linearised step at ``params`` as far as the own searches of
+        ``cands`` that use it look (:attr:`Candidate.linearised_reach`); none without calibrated
+        constants or such a search."""
         problem.constants = None
-        if coords:
+        reach = max((c.linearised_reach(problem, y_hat) for c in cands if c.linearised_reach), default=0)
+        if coords and reach:
             try:
-                problem.constants = _linearised_constants(problem, coords, sigma, params, y_hat)
+                problem.constants = _linearised_constants(problem, coords, sigma, params, y_hat, reach)
             except SimulationError:  # a constant's step the plant cannot take: the plain searches only
                 pass
 
@@ -804,8 +806,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             nominal_jobs = _start_fits(pool, problem, model, y0)
         else:
             nominal_jobs = []
-        if any(c.linearised for c in pool):
-            linearise(current.params, current.y)
+        linearise(current.params, current.y, pool)
         sim.run(current.params, checkpoint_every=checkpoint_every)
         jobs = _start_fits(pool, problem, current.params, current.y)
         for cand, job in zip(pool, nominal_jobs):
@@ -893,8 +894,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             runs0, t_fit = sim.runs, time.perf_counter()
             off = p1.with_values(**space.off_values(res.values))
             y_off = sim.run(off, checkpoint_every=checkpoint_every)[0]
-            if cand.linearised:
-                linearise(off, y_off)
+            linearise(off, y_off, [cand])
             res2 = _timed(_own_fit, problem, (off, y_off), (cand,))[0]
             if isinstance(res2, FitResult):
                 p2, _ = joint(off.with_values(**res2.values), current.effects + (cand.name,), cal_jac)

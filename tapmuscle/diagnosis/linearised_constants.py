@@ -45,8 +45,8 @@ class LinearisedConstants:
     at : PlantParams
         The model the Jacobian was taken at; a search on any other base must not use it.
     jacobian : ndarray, shape (n, k)
-        Derivative of the residual ``y - y_hat`` of every sample of the recording with respect to the
-        ``k`` constants' scaled coordinates [mm per prior sd].
+        Derivative of the residual ``y - y_hat`` of the recording's first ``n`` samples with respect
+        to the ``k`` constants' scaled coordinates [mm per prior sd].
     x : ndarray, shape (k,)
         The constants' scaled distance from their nominal values at ``at`` [prior sds].
     prior : ndarray of bool, shape (k,)
@@ -82,6 +82,9 @@ class LinearisedConstants:
         rows = np.asarray(rows)
         if r.shape != rows.shape:
             raise ValueError(f"{r.size} residual values for {rows.size} rows")
+        if rows.size and not 0 <= int(rows.min()) <= int(rows.max()) < len(self.jacobian):
+            raise ValueError(f"rows {int(rows.min())}..{int(rows.max())} reach beyond the Jacobian's "
+                             f"{len(self.jacobian)} samples")
         p = self.prior.astype(bool)
         eye = np.eye(len(self.x))[p]
         A = np.vstack([self.jacobian[rows], self.sigma_mm * eye])
