@@ -26,7 +26,11 @@ Procedure
    against the current model re-fitted alone: it removes at least ``min_reduction`` of the held-out
    squared error, and the held-out residual's projection on the difference of the two predictions
    rejects "only noise" at level ``alpha`` (a one-sided z-test). So an effect is only claimed when
-   recalibration cannot explain the data as well on the held-out blocks. An effect whose own fit the
+   recalibration cannot explain the data as well on the held-out blocks. An effect whose own search
+   cannot be linearised (a valve band's edges: :attr:`Candidate.linearised_reach`) is also searched
+   with each trial judged by what the calibrated constants' linearised MAP step leaves
+   (:class:`~tapmuscle.diagnosis.linearised_constants.LinearisedConstants`, the Jacobian taken at the
+   current model), and that prediction ranks it. An effect whose own fit the
    calibrated constants hold near its off value (``ModelSpace.joint_starts``: an amplifier's map, a
    load) is re-fitted jointly from further starts as well, the best on the training blocks kept. An
    accepted effect with a
