@@ -280,17 +280,18 @@ def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRes
     # joint step is predicted to fit the fit segment better is kept (the plain one on a tie).
     seg = np.flatnonzero(pr.train[:pr.n_fit])
     left_ref = lin.left_mm2((pr.y_mm - y_base)[seg], seg)
-    best: tuple[float, dict[str, float], np.ndarray] | None = None
+    best: tuple[float, dict[str, float]] | None = None
     for values in (found, _dead_zone_search(pr, base, y_base, lin, runs)):
-        if values is None:
+        if values is None or (best is not None and values == best[1]):
             continue
-        y_hat = full_prediction(pr, base, values)
-        left = lin.left_mm2((pr.y_mm - y_hat)[seg], seg)
+        # the choice looks at the fit segment only: the whole run is simulated for the kept band alone
+        y_seg = pr.sim.run(base.with_values(**values), stop=pr.n_fit)[0]
+        left = lin.left_mm2((pr.y_mm[:pr.n_fit] - y_seg)[seg], seg)
         if best is None or left < best[0]:
-            best = (left, values, y_hat)
+            best = (left, values)
     if best is None:
         return None
-    return FitResult(best[1], best[2], joint_gain_mm2=max(left_ref - best[0], 0.0))
+    return FitResult(best[1], full_prediction(pr, base, best[1]), joint_gain_mm2=max(left_ref - best[0], 0.0))
 
 
 def _dead_zone_reach(pr: Problem, y_base: np.ndarray) -> int:

@@ -413,6 +413,14 @@ def _own_parameters(space: ModelSpace, cand: Candidate) -> set[str]:
     return {ps.key for ps in cand.parameters} - {key for key, _ in space.joint_parameters.get(cand.name, ())}
 
 
+def _stepped(params: PlantParams, key: str, scale: float, hi: float) -> tuple[float, PlantParams]:
+    """A forward-difference step of ``key`` (:data:`FD_STEP` in units of ``scale``; backwards where
+    the step would cross the upper bound ``hi``): the step and the stepped parameters."""
+    v = params.value(key)
+    h = FD_STEP if v + FD_STEP * scale <= hi else -FD_STEP
+    return h, params.with_values(**{key: v + h * scale})
+
+
 def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                  jac_c: np.ndarray, current: _Model, cands: Sequence[Candidate]) -> dict[str, float]:
     """The score test (:func:`~tapmuscle.diagnosis.score_test.score_gain`) of each candidate whose every
@@ -443,9 +451,9 @@ def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedPar
         for key, scale in keys[c.name]:
             lo, hi = space.bounds(key)
             v = p.value(key)
-            h = FD_STEP if v + FD_STEP * scale <= hi else -FD_STEP
+            h, stepped = _stepped(p, key, scale, hi)
             steps.append((c.name, h, v <= lo, v >= hi))
-            runs.append(p.with_values(**{key: v + h * scale}))
+            runs.append(stepped)
     cols = problem.sensor_residuals(runs)
     out = {}
     for c in smooth:
@@ -459,12 +467,7 @@ def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], s
                           params: PlantParams, y_hat: np.ndarray, reach: int) -> LinearisedConstants:
     """The constants ``coords``' linearised MAP step at ``params`` (whose whole-run prediction is
     ``y_hat``) on the first ``reach`` samples: one simulation that far per constant, all at once."""
-    steps, runs = [], []
-    for c in coords:
-        v = params.value(c.key)
-        h = FD_STEP if v + FD_STEP * c.scale <= c.hi else -FD_STEP
-        steps.append(h)
-        runs.append(params.with_values(**{c.key: v + h * c.scale}))
+    steps, runs = zip(*(_stepped(params, c.key, c.scale, c.hi) for c in coords))
     ys = problem.sim.run_many(runs, stop=reach)
     jac = np.column_stack([(y_hat[:reach] - y_p) / h for y_p, h in zip(ys, steps)])
     scaled = [((params.value(c.key) - c.center) / c.scale, (c.lo - c.center) / c.scale, (c.hi - c.center) / c.scale)

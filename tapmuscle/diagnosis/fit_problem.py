@@ -60,9 +60,9 @@ class Problem:
     """How the recording's channels are weighed; with the pressure in it, :meth:`sensor_residual`
     stacks it beside the displacement (None: the displacement alone)."""
     constants: LinearisedConstants | None = None
-    """The calibrated constants' linearised step at the model the round's own searches start from
-    (None without a calibration): a search whose base is that model may judge trial values by what
-    the constants' re-fit would leave."""
+    """The calibrated constants' linearised step at the model the own searches about to run start
+    from (None without a calibration): a search whose base is that model may judge trial values by
+    what the constants' re-fit would leave."""
 
     @property
     def uses_pressure(self) -> bool:
