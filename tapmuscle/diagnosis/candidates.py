@@ -287,8 +287,9 @@ def _edge_scan(cost: Callable[[tuple[float, float]], float], best: float, lower:
 #: At most this many distinct commands in the dead-zone search window count as held levels (steps).
 _FEW_LEVELS = 40
 
-#: Distinct commands at most this fraction of the samples: the command is held between changes
-#: (random levels, steps), and the band's edges are also scanned (:func:`_edge_scan`).
+#: Command changes at most this fraction of the samples: the command is held between changes (random
+#: levels, steps), and the band's edges are also scanned (:func:`_edge_scan`). Counted as changes, not
+#: distinct levels: a sampled periodic sine repeats its levels but changes every sample.
 _HELD_FRACTION = 0.25
 
 
@@ -386,7 +387,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
     stop = min(pr.n, stop + minute)
     cuts = cuts_of(start, stop)
     best, lower, upper = _edge_search(cost, *edges, (0.05, 0.02), cuts)
-    if len(cuts) <= _HELD_FRACTION * (stop - start):
+    if np.count_nonzero(np.diff(pr.u_v[start:stop])) <= _HELD_FRACTION * (stop - start):
         # held commands: the compass may stop on a band holding part of the rig's (field case 046,
         # seed 1: 0.49 V of a 1.04-V band under random levels, 85.8 % held-out fit, 99.9 % scanned)
         scanned, a, b = _edge_scan(cost, best, lower, upper, cuts, max_width)
