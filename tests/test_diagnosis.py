@@ -171,6 +171,58 @@ def test_edge_scan_leaves_a_band_holding_part_of_the_true_one(seed):
     assert best == cost((0.5 * (a + b), b - a))
 
 
+def _presliding_reading(x: np.ndarray, scale_mm: float) -> np.ndarray:
+    """A friction's presliding lag (Dahl-like, bounded by ``scale_mm``): hysteresis that mimics a play."""
+    out, z = np.empty_like(x), 0.0
+    for k in range(1, len(x)):
+        dx = x[k] - x[k - 1]
+        z += dx - abs(dx) * z / scale_mm
+        out[k] = z
+    out[0] = 0.0
+    return -out
+
+
+def test_a_play_the_constants_took_up_is_searched_by_what_their_re_fit_leaves():
+    """A 1.5-mm play in the reading; the calibrated model holds a friction lag fitted in its place (a
+    constant scaling a presliding hysteresis, least squares). The play's search on that model as it
+    stands finds a tenth of the play; judged by what the constant's linearised re-fit leaves, it finds
+    a wider play, whose predicted joint error is lower, and reports the predicted gain. No
+    simulation: the play acts on the reading."""
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.boundary_effects import backlash
+    from tapmuscle.diagnosis.fit_problem import Problem
+    from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
+
+    t = np.arange(1801) * 0.1
+    core = 10.0 + 8.0 * np.sin(2 * np.pi * 0.1 * t) + 3.0 * np.sin(2 * np.pi * 0.023 * t)
+    y = backlash(core, 1.5) + np.random.default_rng(0).normal(0.0, 0.01, t.size)
+    lag = _presliding_reading(core, 0.5)
+    taken = float(lag @ (y - core) / (lag @ lag))  # the constant's calibrated value
+    y_base = core + taken * lag
+    train, test = interleaved_split(t.size, 0.1, 10.0)
+    pr = Problem(y, t, np.zeros_like(t), 0.1, train, test, None, 0.01)
+    base = PlantParams()
+    plain = candidate("backlash").fit(pr, base, y_base)
+    assert plain.joint_gain_mm2 is None and plain.values["backlash.slack_mm"] < 0.3
+    lin = LinearisedConstants(base, -lag[:pr.n_fit, None], np.array([taken]), np.array([True]),
+                              np.array([-50.0]), np.array([50.0]), 0.01)
+    # taken at another model: not used
+    pr.constants = LinearisedConstants(base.with_values(**{"valve.cv_max": 1.1}), lin.jacobian, lin.x, lin.prior,
+                                       lin.lower, lin.upper, lin.sigma_mm)
+    assert candidate("backlash").fit(pr, base, y_base).values == plain.values
+    pr.constants = lin
+    res = candidate("backlash").fit(pr, base, y_base)
+    seg = np.flatnonzero(train[:pr.n_fit])
+
+    def left(s):
+        return lin.left_mm2((y - backlash(y_base, s))[seg], seg)
+    assert res.values["backlash.slack_mm"] > 2.0 * plain.values["backlash.slack_mm"] + 0.2
+    assert left(res.values["backlash.slack_mm"]) < left(plain.values["backlash.slack_mm"])
+    assert res.joint_gain_mm2 == pytest.approx(left(0.0) - left(res.values["backlash.slack_mm"]), rel=1e-9)
+    assert res.joint_gain_mm2 > 0.0
+    np.testing.assert_array_equal(res.y_hat, backlash(y_base, res.values["backlash.slack_mm"]))
+
+
 @pytest.mark.slow
 def test_unexplained_when_no_candidate_fits():
     """A load mismatch, with only the delay and backlash as candidates: the structure is reported as such."""
