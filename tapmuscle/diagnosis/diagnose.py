@@ -27,7 +27,8 @@ Procedure
    squared error, and the held-out residual's projection on the difference of the two predictions
    rejects "only noise" at level ``alpha`` (a one-sided z-test). So an effect is only claimed when
    recalibration cannot explain the data as well on the held-out blocks. An effect whose own search
-   cannot be linearised (a valve band's edges: :attr:`Candidate.linearised_reach`) is also searched
+   cannot be linearised, or that the constants mimic far from its off value (a valve band's edges, a
+   play: :attr:`Candidate.linearised_reach`), is also searched
    with each trial judged by what the calibrated constants' linearised MAP step leaves
    (:class:`~tapmuscle.diagnosis.linearised_constants.LinearisedConstants`, the Jacobian taken at the
    current model), and that prediction ranks it. An effect whose own fit the
