@@ -108,6 +108,12 @@ def test_tightest_takes_the_nearest_point_within_tolerance():
     assert _tightest(lambda v: 0.0, 60.0, 95.0, 0.2, 0.05) == 60.0
 
 
+def _cuts(u: np.ndarray) -> np.ndarray:
+    """The points between consecutive recorded commands, as the dead zone's search takes them."""
+    levels = np.unique(u)
+    return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
+
+
 def test_edge_search_crosses_the_plateaus_of_a_sampled_command():
     """A cost that counts the samples of a sampled sine command on the wrong side of the band
     (piecewise constant in the edges, as the dead zone's): from a band 0.35 V off, the search ends with
@@ -115,8 +121,7 @@ def test_edge_search_crosses_the_plateaus_of_a_sampled_command():
     u = np.round(5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(600)), 3)
     truth = (6.15, 6.61)
     inside = (u > truth[0]) & (u < truth[1])
-    levels = np.unique(u)
-    cuts = np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
+    cuts = _cuts(u)
 
     def cost(x):
         a, b = x[0] - x[1] / 2, x[0] + x[1] / 2
@@ -134,8 +139,7 @@ def _held_levels_band_cost(seed: int) -> tuple[np.ndarray, np.ndarray, tuple[flo
     u = np.round(rng.uniform(2.0, 8.0, 70), 3)
     truth = (5.35, 6.39)
     inside = (u > truth[0]) & (u < truth[1])
-    levels = np.unique(u)
-    cuts = np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
+    cuts = _cuts(u)
 
     def cost(x):
         a, b = x[0] - x[1] / 2, x[0] + x[1] / 2
@@ -611,8 +615,10 @@ def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes()
 def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_test_ranks_in():
     """Field case 013 (seed 0): a 1.63-mm play on a rig with five constants off by 6-16 %. The
     calibration trades the play for friction (presliding 1.5 -> 0.3 mm), a play fitted on those
-    constants comes out near zero, and without the score test's ranking the play never got a joint fit:
-    nothing was named (98.6 % held-out fit)."""
+    constants as they stand comes out near zero, and without the score test's ranking the play never got
+    a joint fit: nothing was named (98.6 % held-out fit). Judged by what the constants' linearised
+    re-fit leaves, the own search finds more of it, still well short of the rig's; the joint fit
+    finds the rest."""
     from tapmuscle.diagnosis.field_cases import field_cases, record_case
 
     case = field_cases(100, 0)[13]
@@ -622,8 +628,9 @@ def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_tes
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], case.model(), load_n=cols["load_n"])
     tried = d.to_json()["candidates_tried"]
     own = next(t for t in tried if t["effect"] == "backlash" and not t.get("joint"))
-    assert own["parameters"]["backlash.slack_mm"] < 0.1 * true_slack  # absorbed: what the ranking has to see past
-    assert own["score_test_gain_mm2"] > 0.0
+    # absorbed in large part: what the ranking has to see past
+    assert own["parameters"]["backlash.slack_mm"] < 0.5 * true_slack
+    assert own["score_test_gain_mm2"] > 0.0 and own["linearised_gain_mm2"] > 0.0
     assert d.named == ["backlash"] and not d.ambiguous
     # the joint fit's play: within 15 % of the rig's (the friction constants it trades with stay uncertain)
     assert d.findings[0].parameters["backlash.slack_mm"] == pytest.approx(true_slack, rel=0.15)
