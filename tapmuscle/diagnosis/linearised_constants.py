@@ -32,6 +32,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from fmu_plant import PlantParams
+from tapmuscle.diagnosis.reproducible import snap_relative, sse
 
 __all__ = ["LinearisedConstants"]
 
@@ -90,11 +91,11 @@ class LinearisedConstants:
         A = np.vstack([self.jacobian[rows], self.sigma_mm * eye])
         b = np.concatenate([r, self.sigma_mm * self.x[p]])
         if A.shape[1] == 0:
-            return float(b @ b)
+            return sse(b)
         # b + A d with d within the bounds: lsq_linear minimises |A z - c|, so z = d and c = -b
         # (a constant at its bound gets a vanishing outward range: the solver needs lower < upper)
         lo = np.minimum(self.lower - self.x, -1e-9)
         hi = np.maximum(self.upper - self.x, 1e-9)
         step = lsq_linear(A, -b, bounds=(lo, hi), method="bvls").x
-        e = b + A @ step
-        return float(e @ e)
+        # the solver's last bits are the BLAS's: rounded, a search on this ranks the same on every CPU
+        return snap_relative(sse(b + A @ step))
