@@ -8,7 +8,7 @@ residual that the joint re-fit would change at once: on field case ``079`` (seed
 constants left where they were, fit worse than none.
 
 :class:`LinearisedConstants` holds, at the model the search starts from, the Jacobian ``A`` of the
-residual in the constants' scaled coordinates (one simulation of the whole recording per constant),
+residual in the constants' scaled coordinates (one simulation per constant, as far as the searches look),
 their prior rows and their bounds. :meth:`LinearisedConstants.left_mm2` is the squared error the
 linearised MAP step of the constants leaves on chosen samples,
 
