@@ -152,8 +152,10 @@ def _fit_backlash(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     seg = np.flatnonzero(pr.train[:pr.n_fit])
 
     def left(s: float) -> float:
-        """What the constants' linearised step leaves of the play's fit-segment residual."""
-        return lin.left_mm2((pr.y_mm - backlash(core, s) - drift)[seg], seg)
+        """What the constants' linearised step leaves of the play's fit-segment residual (the play's
+        reading at a sample depends only on the samples before it: run over the fit segment only)."""
+        n = pr.n_fit
+        return lin.left_mm2((pr.y_mm[:n] - backlash(core[:n], s) - drift[:n])[seg], seg)
 
     def search(cost: Callable[[float], float]) -> float:
         grid = np.linspace(0.0, 6.0, 25)
