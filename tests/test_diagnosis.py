@@ -12,7 +12,7 @@ import pytest
 from tapmuscle.diagnosis import CANDIDATES, diagnose
 from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS
 from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, distinguishable
-from tapmuscle.diagnosis.candidates import _edge_scan, _edge_search, _tightest, candidate
+from tapmuscle.diagnosis.candidates import _command_cuts, _edge_scan, _edge_search, _tightest, candidate
 from tapmuscle.diagnosis.demo import DEMO_MODEL, Case, run_case, record
 from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, fit_percent, interleaved_split, iou,
                                          located_windows)
@@ -108,12 +108,6 @@ def test_tightest_takes_the_nearest_point_within_tolerance():
     assert _tightest(lambda v: 0.0, 60.0, 95.0, 0.2, 0.05) == 60.0
 
 
-def _cuts(u: np.ndarray) -> np.ndarray:
-    """The points between consecutive recorded commands, as the dead zone's search takes them."""
-    levels = np.unique(u)
-    return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
-
-
 def test_edge_search_crosses_the_plateaus_of_a_sampled_command():
     """A cost that counts the samples of a sampled sine command on the wrong side of the band
     (piecewise constant in the edges, as the dead zone's): from a band 0.35 V off, the search ends with
@@ -121,7 +115,7 @@ def test_edge_search_crosses_the_plateaus_of_a_sampled_command():
     u = np.round(5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(600)), 3)
     truth = (6.15, 6.61)
     inside = (u > truth[0]) & (u < truth[1])
-    cuts = _cuts(u)
+    cuts = _command_cuts(u)
 
     def cost(x):
         a, b = x[0] - x[1] / 2, x[0] + x[1] / 2
@@ -139,7 +133,7 @@ def _held_levels_band_cost(seed: int) -> tuple[np.ndarray, np.ndarray, tuple[flo
     u = np.round(rng.uniform(2.0, 8.0, 70), 3)
     truth = (5.35, 6.39)
     inside = (u > truth[0]) & (u < truth[1])
-    cuts = _cuts(u)
+    cuts = _command_cuts(u)
 
     def cost(x):
         a, b = x[0] - x[1] / 2, x[0] + x[1] / 2
@@ -173,6 +167,37 @@ def test_edge_scan_leaves_a_band_holding_part_of_the_true_one(seed):
     assert max(tried) <= 1.5 + 1e-9
     assert np.array_equal((u > a) & (u < b), inside)
     assert best == cost((0.5 * (a + b), b - a))
+
+
+@pytest.mark.parametrize("lower,upper", [(5.79, 6.59), (5.70, 6.70), (5.75, 6.60)])
+def test_a_band_refined_on_its_model_holds_the_rig_s_commands(lower, upper):
+    """A 0.9-V band at 6.2 V under the paper's sine; the model holds it with edges a few hundredths
+    of a volt off (as after the constants moved under a band found earlier). The refinement on the
+    whole run's training blocks ends with exactly the rig's recorded commands inside the band, and
+    the held-out fit at the noise; on the rig's own band, and on a model without a band, it
+    proposes nothing."""
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.fit_problem import Problem
+    from tapmuscle.diagnosis.simulation import Simulator
+
+    model = PlantParams()
+    rig = model.with_values(**{"dead_zone.center_v": 6.2, "dead_zone.width_v": 0.9})
+    cols = record(rig, "sine", 0, duration_s=180.0)
+    u, y = cols["u_v"], cols["l_mm"]
+    sim = Simulator(u, 0.1)
+    train, test = interleaved_split(len(u), 0.1, 10.0)
+    problem = Problem(y, cols["t_s"], u, 0.1, train, test, sim, 0.01)
+    start = model.with_values(**{"dead_zone.center_v": 0.5 * (lower + upper), "dead_zone.width_v": upper - lower})
+    refine = candidate("valve_dead_zone").refine
+    moved = refine(problem, start)
+    assert moved is not None
+    c, w = moved["dead_zone.center_v"], moved["dead_zone.width_v"]
+    inside = (u > c - w / 2) & (u < c + w / 2)
+    assert np.array_equal(inside, (u > 5.75) & (u < 6.65))
+    before = fit_percent(y, sim.run(start)[0], test)
+    after = fit_percent(y, sim.run(start.with_values(**moved))[0], test)
+    assert before < 97.0 and after >= 99.9
+    assert refine(problem, rig) is None and refine(problem, model) is None
 
 
 def _presliding_reading(x: np.ndarray, scale_mm: float) -> np.ndarray:

@@ -84,6 +84,10 @@ class Candidate:
     fit: Callable[[Problem, PlantParams, np.ndarray], FitResult | None]
     explain: Callable[[dict[str, float]], str]
     """Plain-words explanation of a fitted value set."""
+    refine: Callable[[Problem, PlantParams], dict[str, float] | None] | None = None
+    """Set when its own parameters are not re-fitted jointly and a local search of them pays on a
+    model that already has the effect on: ``(problem, params) ->`` the effect's values moved where
+    the training error of the fit segment is lower (None: not lower). Run on the final constants."""
     linearised_reach: Callable[[Problem, np.ndarray], int] | None = None
     """Set when its own search also judges trial values by what the calibrated constants' linearised
     step leaves (:attr:`Problem.constants`, set by the search when there are calibrated constants):
@@ -313,6 +317,41 @@ _FEW_LEVELS = 40
 _HELD_FRACTION = 0.25
 
 
+def _command_cuts(u_v: np.ndarray) -> np.ndarray:
+    """The points between consecutive recorded commands [V] (to 1 mV), and 0.05 V beyond the extremes:
+    a band's cost changes only where an edge crosses one (:func:`_edge_search`)."""
+    levels = np.unique(np.round(u_v, 3))
+    return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
+
+
+def _refine_dead_zone(pr: Problem, params: PlantParams) -> dict[str, float] | None:
+    """The band of ``params`` [V] with its edges moved by a fine compass search (steps of 0.02 and
+    0.005 V, :func:`_edge_search`), each trial judged as the search keeps a model: by the training
+    error of the whole run (:meth:`Problem.stacked_residual`). None when no move lowers it.
+
+    The own search placed the edges on other constants, judged on its window, in steps of 0.02 V at
+    the finest: where the command dwells near an edge (a sine-sum's turning points) a few
+    hundredths of a volt decide whether the muscle stalls, and the stall's offset persists. The
+    whole run, not the fit segment: the few samples that place an edge may lie anywhere in it."""
+    width = params.value("dead_zone.width_v")
+    if width <= 0:
+        return None
+    centre = params.value("dead_zone.center_v")
+    max_width = field_bounds("dead_zone.width_v")[1]
+
+    def cost(x: tuple[float, float]) -> float:
+        if x[1] > max_width:
+            return math.inf
+        trial = params.with_values(**{"dead_zone.center_v": x[0], "dead_zone.width_v": x[1]})
+        return sse(pr.stacked_residual(*pr.sim.run(trial)))
+    here = cost((centre, width))
+    best, lower, upper = _edge_search(cost, centre - 0.5 * width, centre + 0.5 * width, (0.02, 0.005),
+                                      _command_cuts(pr.u_v))
+    if not best < here:
+        return None
+    return {"dead_zone.center_v": 0.5 * (lower + upper), "dead_zone.width_v": upper - lower}
+
+
 def _fit_dead_zone(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResult | None:
     if base.value("dead_zone.width_v") > 0:
         return None
@@ -381,8 +420,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
     # inside the band: it is piecewise constant in the band's edges, with jumps, and a simplex stalls
     # on its plateaus. The search moves the edges between the cut points of the recorded commands.
     def cuts_of(a: int, b: int) -> np.ndarray:
-        levels = np.unique(np.round(pr.u_v[a:b], 3))
-        return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
+        return _command_cuts(pr.u_v[a:b])
     cuts = cuts_of(start, stop)
     if len(cuts) <= _FEW_LEVELS:
         # held commands (steps): every band holding one to four consecutive levels
@@ -568,7 +606,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         lambda v: (f"the valve passes no flow for commands between "
                    f"{v['dead_zone.center_v'] - v['dead_zone.width_v'] / 2:.2f} and "
                    f"{v['dead_zone.center_v'] + v['dead_zone.width_v'] / 2:.2f} V; the muscle stalls there"),
-        linearised_reach=_dead_zone_reach),
+        linearised_reach=_dead_zone_reach, refine=_refine_dead_zone),
     Candidate(
         "transport_delay",
         "The valve acts on the command late (fieldbus or amplifier latency, a long hose), by any time, "
