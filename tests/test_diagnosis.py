@@ -664,6 +664,26 @@ def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_tes
     assert d.fit_after_percent >= 99.0
 
 
+def _stored_field_case(seed: int, index: int, tmp_path: Path):
+    """Field case ``index`` of ``field_cases(100, seed)`` diagnosed as ``tapmuscle demo-mismatch`` does
+    (the recording and the nominal plant through their files), from its stored recording in
+    ``tests/field_recordings/``: a closed loop's recording made on another floating-point path is
+    another recording (the AMPC's last bits, amplified by the loop), while the diagnosis of one
+    recording is the same on every path. Returns the case, ``diagnosis.json`` and the truth's own
+    held-out fit (its noise-free run on the recorded command, as the field demo scores it)."""
+    from tapmuscle.diagnosis.field_cases import effect_costs, field_cases
+    from tapmuscle.diagnosis.report import diagnose_files
+    from tapmuscle.io.plant_file import plant_file_text
+    from tapmuscle.io.recording import read_recording
+
+    case = field_cases(100, seed)[index]
+    rec = Path(__file__).parent / "field_recordings" / f"seed{seed}_{case.name}.csv"
+    plant = tmp_path / "plant.json"
+    plant.write_text(plant_file_text(case.model(), "the nominal model of the field demo"))
+    doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)[1]
+    return case, doc, effect_costs(case, read_recording(rec).columns, None)["fit_truth_percent"]
+
+
 @pytest.mark.slow
 def test_a_play_in_the_closed_loop_is_named_before_a_map_can_mimic_it(tmp_path):
     """Field case 081 (seed 0): a 1.93-mm play in the closed loop, constants off, diagnosed as
@@ -676,24 +696,13 @@ def test_a_play_in_the_closed_loop_is_named_before_a_map_can_mimic_it(tmp_path):
     The recording is the stored one (``tests/field_recordings/``): a closed loop's recording made on
     another floating-point path is another recording (the AMPC's last bits, amplified by the loop).
     The diagnosis of one recording is the same on every path."""
-    from tapmuscle.diagnosis.field_cases import effect_costs, field_cases
-    from tapmuscle.diagnosis.report import diagnose_files
-    from tapmuscle.io.plant_file import plant_file_text
-    from tapmuscle.io.recording import read_recording
-
-    case = field_cases(100, 0)[81]
+    case, doc, fit_truth = _stored_field_case(0, 81, tmp_path)
     assert case.effects == ("backlash",) and case.excitation == "ampc"
-    rec = Path(__file__).parent / "field_recordings" / "seed0_081_single_backlash_ampc.csv"
-    plant = tmp_path / "plant.json"
-    plant.write_text(plant_file_text(case.model(), "the nominal model of the field demo"))
-    doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)[1]
     added = [s for s in doc["selection"] if s["step"] == "add"]
     assert [(s["round"], s["effect"]) for s in added] == [(1, "backlash")], doc["selection"]
     assert [f["effect"] for f in doc["findings"]] == ["backlash"] and not doc["ambiguous"], doc["findings"]
     slack = doc["findings"][0]["parameters"]["backlash.slack_mm"]
     assert slack == pytest.approx(dict(case.effect_values)["backlash.slack_mm"], rel=0.2)
-    # the truth's own held-out fit (its noise-free run on the recorded command), as the field demo scores it
-    fit_truth = effect_costs(case, read_recording(rec).columns, None)["fit_truth_percent"]
     assert doc["fit_after_percent"] >= fit_truth - 0.1
 
 
@@ -705,20 +714,9 @@ def test_an_effect_that_a_later_one_explains_is_dropped(tmp_path):
     dependence in that round); the rate dependence is accepted in the next round, and the backward
     step finds that the map's removal no longer costs a significant share of the held-out error, and
     drops it (its finding and its parameters leave the model). What stays is the rate dependence
-    alone, at the truth's own held-out fit.
-
-    The recording is the stored one (``tests/field_recordings/``), as in the play's test above."""
-    from tapmuscle.diagnosis.field_cases import effect_costs, field_cases
-    from tapmuscle.diagnosis.report import diagnose_files
-    from tapmuscle.io.plant_file import plant_file_text
-    from tapmuscle.io.recording import read_recording
-
-    case = field_cases(100, 0)[30]
+    alone, at the truth's own held-out fit. From the stored recording (:func:`_stored_field_case`)."""
+    case, doc, fit_truth = _stored_field_case(0, 30, tmp_path)
     assert case.effects == ("rate_dependent_hysteresis",) and case.excitation == "ampc"
-    rec = Path(__file__).parent / "field_recordings" / "seed0_030_single_rate_dependent_hysteresis_ampc.csv"
-    plant = tmp_path / "plant.json"
-    plant.write_text(plant_file_text(case.model(), "the nominal model of the field demo"))
-    doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)[1]
     steps = doc["selection"]
     added = {s["effect"]: s["round"] for s in steps if s["step"] == "add"}
     dropped = [s for s in steps if s["step"] == "drop"]
@@ -731,7 +729,6 @@ def test_an_effect_that_a_later_one_explains_is_dropped(tmp_path):
     assert [f["effect"] for f in doc["findings"]] == ["rate_dependent_hysteresis"] and not doc["ambiguous"]
     gain = doc["findings"][0]["parameters"]["friction.rate_gain"]
     assert gain == pytest.approx(dict(case.effect_values)["friction.rate_gain"], rel=0.15)
-    fit_truth = effect_costs(case, read_recording(rec).columns, None)["fit_truth_percent"]
     assert doc["fit_after_percent"] >= fit_truth - 0.1
     # the calibrated plant file holds the dropped effect switched off (the rate dependence is a
     # friction parameter, not one of the library's switched effects)

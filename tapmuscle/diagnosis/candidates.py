@@ -87,7 +87,8 @@ class Candidate:
     refine: Callable[[Problem, PlantParams], dict[str, float] | None] | None = None
     """Set when its own parameters are not re-fitted jointly and a local search of them pays on a
     model that already has the effect on: ``(problem, params) ->`` the effect's values moved where
-    the training error of the fit segment is lower (None: not lower). Run on the final constants."""
+    the whole run's training error is lower (None: not lower). Run on the final calibrated constants
+    (step 9 of docs/diagnosis.md)."""
     linearised_reach: Callable[[Problem, np.ndarray], int] | None = None
     """Set when its own search also judges trial values by what the calibrated constants' linearised
     step leaves (:attr:`Problem.constants`, set by the search when there are calibrated constants):
