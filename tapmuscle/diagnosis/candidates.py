@@ -325,10 +325,42 @@ def _command_cuts(u_v: np.ndarray) -> np.ndarray:
     return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
 
 
+def _midway_edges(cost: Callable[[tuple[float, float]], float], best: float, lower: float, upper: float,
+                  u_v: np.ndarray, train: np.ndarray, pr: Problem) -> tuple[float, float]:
+    """The band's edges [V], each moved to the middle between the training blocks' commands either
+    side of it where that fits the training blocks as well (:meth:`Problem.plateau`).
+
+    The training cost changes only when an edge crosses a command that a training block holds, so an
+    edge may stop anywhere between two of them; the commands in between are held-out ones (random
+    levels: seed 1's field case 041 has 4.044 and 4.108 V held out between 4.012 and 4.151 V
+    trained, the rig's edge at 4.097 V, and the search stopped at 4.028). With the edge equally likely
+    anywhere between the two training commands, the middle is the place that puts the fewest held-out
+    commands on the wrong side, in expectation (the median of a uniform distribution minimises the
+    expected distance). Held commands only (``u_v`` changes at most :data:`_HELD_FRACTION` of the
+    samples): a command that changes every sample leaves the training blocks' commands millivolts
+    apart, and a move within that gap is a change of path, not of evidence."""
+    if np.count_nonzero(np.diff(u_v)) > _HELD_FRACTION * len(u_v):
+        return lower, upper
+    levels = np.unique(np.round(u_v[train], 3))
+    tol = pr.plateau(best)
+    for which in (0, 1):
+        edge = upper if which else lower
+        below, above = levels[levels < edge], levels[levels > edge]
+        if below.size == 0 or above.size == 0:
+            continue
+        mid = 0.5 * float(below[-1] + above[0])
+        a, b = (lower, mid) if which else (mid, upper)
+        if b - a >= 0.02 and cost((0.5 * (a + b), b - a)) <= tol:
+            lower, upper = a, b
+    return lower, upper
+
+
 def _refine_dead_zone(pr: Problem, params: PlantParams) -> dict[str, float] | None:
     """The band of ``params`` [V] with its edges moved by a fine compass search (steps of 0.02 and
     0.005 V, :func:`_edge_search`), each trial judged as the search keeps a model: by the training
-    error of the whole run (:meth:`Problem.stacked_residual`). None when no move lowers it.
+    error of the whole run (:meth:`Problem.stacked_residual`), then each set midway between the
+    training blocks' commands around it (:func:`_midway_edges`). None when no recorded command
+    changes side.
 
     The own search placed the edges on other constants, judged on its window, in steps of 0.02 V at
     the finest: where the command dwells near an edge (a sine-sum's turning points) a few
@@ -349,6 +381,11 @@ def _refine_dead_zone(pr: Problem, params: PlantParams) -> dict[str, float] | No
     best, lower, upper = _edge_search(cost, centre - 0.5 * width, centre + 0.5 * width, (0.02, 0.005),
                                       _command_cuts(pr.u_v))
     if not best < here:
+        best, lower, upper = here, centre - 0.5 * width, centre + 0.5 * width
+    lower, upper = _midway_edges(cost, best, lower, upper, pr.u_v, pr.train, pr)
+    # the gate acts on the recorded commands only: edges that hold the same ones are the same model
+    if np.array_equal((pr.u_v > lower) & (pr.u_v < upper),
+                      (pr.u_v > centre - 0.5 * width) & (pr.u_v < centre + 0.5 * width)):
         return None
     return {"dead_zone.center_v": 0.5 * (lower + upper), "dead_zone.width_v": upper - lower}
 
@@ -452,6 +489,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
         scanned, a, b = _edge_scan(cost, best, lower, upper, cuts, max_width)
         if scanned < best:
             _, lower, upper = _edge_search(cost, a, b, (0.05, 0.02), cuts)
+    lower, upper = _midway_edges(cost, best, lower, upper, pr.u_v[start:stop], pr.train[start:stop], pr)
     x = (0.5 * (lower + upper), upper - lower)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
     return None if values["dead_zone.width_v"] <= 1e-3 else values
@@ -526,7 +564,7 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
     # stretch, not a step at one guessed instant. In depth^2 x seconds its expected error is L/6
     # against a step's L/4 at the middle, and L/3 against L/2 when the true edge is at an end.
     c_fit = cost(x)
-    tol = c_fit + max(1e-3 * c_fit, 10.0 * pr.noise_mm ** 2)
+    tol = pr.plateau(c_fit)
     depth, a, b = float(x[0]), float(x[1]), max(float(x[1]), float(x[2]))
     block, t_last = pr.block_s + 2.0, float(pr.t_s[-1])
 

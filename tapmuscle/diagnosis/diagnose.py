@@ -999,7 +999,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     def polished(p: PlantParams, f: Any, y_p: np.ndarray, q_p: np.ndarray | None) -> tuple:
         """The final joint re-fit ``p`` (its fit ``f`` and predictions), or, where the training blocks
-        say it fits better, the same with each accepted effect that has a local search of its own
+        say it fits as well or better (:meth:`Problem.plateau`), the same with each accepted effect that has a local search of its own
         parameters (:attr:`Candidate.refine`: a band's edges) moved by it on ``p``'s constants and
         re-fitted jointly; with the effects' values.
 
@@ -1015,7 +1015,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             if moved is not None:
                 p_j, f_j = joint(p.with_values(**moved), current.effects, cal_jac, final=True)
                 y_j, q_j = sim.run(p_j)
-                kept = f_j is not None and sensors_sse(y_j, q_j) < sensors_sse(y_p, q_p)
+                # as well as before is enough: an edge moved within the training blocks' plateau
+                # (to the middle between the commands they hold) is no worse on them
+                kept = f_j is not None and sensors_sse(y_j, q_j) <= problem.plateau(sensors_sse(y_p, q_p))
                 if kept:
                     p, f, y_p, q_p = p_j, f_j, y_j, q_j
                     values = values | {name: {k: float(v) for k, v in p_j.dotted().items() if k in moved}}

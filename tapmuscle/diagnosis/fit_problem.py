@@ -76,6 +76,12 @@ class Problem:
     def n_fit(self) -> int:
         return min(self.n, int(round(self.fit_segment_s / self.ts_s)) + 1)
 
+    def plateau(self, best_mm2: float) -> float:
+        """The highest training cost [mm^2] that still counts as ``best_mm2``'s: 0.1 % above it, or
+        ten samples' noise variance. A parameter the training blocks cannot place (an edge whose
+        evidence lies in a held-out block) leaves the cost flat within this."""
+        return best_mm2 + max(1e-3 * best_mm2, 10.0 * self.noise_mm ** 2)
+
     def fit_residual(self, params: PlantParams) -> np.ndarray:
         """Training residual [mm] of ``params`` over the fit segment (one simulation); for parameters
         the model cannot be simulated with, a large finite residual (:data:`FAILED_RESIDUAL_SCALE`)."""
