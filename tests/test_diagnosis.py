@@ -1031,6 +1031,38 @@ def test_a_band_under_held_random_levels_is_found_whole(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_band_edge_among_held_out_levels_is_set_midway(tmp_path):
+    """Field case 041 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 0.85 V wide at
+    4.52 V and a sensor drift of -0.98 mm/min under random held levels, constants off. Between the
+    training blocks' levels 4.012 and 4.151 V around the band's lower edge (4.097 V) lie two held-out
+    ones, 4.044 and 4.108 V. The band's search stopped at 4.028 V, the 4.044-V level's stall cost the
+    band its held-out test, and nothing was named (83.7 %). Set midway between the training levels,
+    the edge puts both held-out levels on the rig's side; band and drift are named, nothing else."""
+    from tapmuscle.diagnosis.field_cases import field_cases
+    from tapmuscle.diagnosis.field_demo import run_field_case
+    from tapmuscle.io.recording import read_recording
+
+    case = field_cases(100, 1)[41]
+    assert set(case.effects) == {"valve_dead_zone", "sensor_drift"} and case.excitation == "random"
+    result = run_field_case(case, tmp_path, keep=True)
+    doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    assert sorted(result["named"]) == ["sensor_drift", "valve_dead_zone"] and not result["ambiguous"], doc["selection"]
+    truth = dict(case.effect_values)
+    band = next(f["parameters"] for f in doc["findings"] if f["effect"] == "valve_dead_zone")
+    u = read_recording(tmp_path / case.name / "recording.csv").columns["u_v"]
+    train, test = interleaved_split(len(u), 0.1, 10.0)
+    rig_lo = truth["dead_zone.center_v"] - truth["dead_zone.width_v"] / 2
+    lo = band["dead_zone.center_v"] - band["dead_zone.width_v"] / 2
+    trained = np.unique(u[train])
+    a, b = trained[trained < rig_lo].max(), trained[trained > rig_lo].min()
+    assert lo == pytest.approx(0.5 * (a + b), abs=1e-3)  # the levels to 1 mV, as the search takes them
+    held_out = np.unique(u[test & (u > a) & (u < b)])
+    assert held_out.size >= 1
+    assert np.array_equal(held_out > lo, held_out > rig_lo)
+    assert result["fit_after_percent"] >= 99.0
+
+
+@pytest.mark.slow
 def test_a_band_is_searched_again_when_the_constants_are_calibrated_afresh(tmp_path):
     """Field case 010 (seed 0), as ``tapmuscle demo-mismatch`` runs it: a valve band 1.26 V wide at
     4.19 V and a 0.21-s delay under a sine sum, constants off. Once the delay is in, the noise level
