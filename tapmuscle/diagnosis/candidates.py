@@ -488,7 +488,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
         # seed 1: 0.49 V of a 1.04-V band under random levels, 85.8 % held-out fit, 99.9 % scanned)
         scanned, a, b = _edge_scan(cost, best, lower, upper, cuts, max_width)
         if scanned < best:
-            _, lower, upper = _edge_search(cost, a, b, (0.05, 0.02), cuts)
+            best, lower, upper = _edge_search(cost, a, b, (0.05, 0.02), cuts)
     lower, upper = _midway_edges(cost, best, lower, upper, pr.u_v[start:stop], pr.train[start:stop], pr)
     x = (0.5 * (lower + upper), upper - lower)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
