@@ -171,14 +171,11 @@ def test_edge_scan_leaves_a_band_holding_part_of_the_true_one(seed):
 
 def _held_levels_split(seed: int) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
     """Random levels held 3 s each over 180 s, 10-s training and held-out blocks, and a band."""
-    from tapmuscle.diagnosis.fit_problem import Problem
-
     rng = np.random.default_rng(seed)
     u = np.repeat(np.round(rng.uniform(2.0, 8.0, 60), 3), 30)
     train, _ = interleaved_split(len(u), 0.1, 10.0)
     lo = rng.uniform(3.5, 4.5)
-    problem = Problem(np.zeros(len(u)), 0.1 * np.arange(len(u)), u, 0.1, train, ~train, None, 0.01)
-    return u, train, (lo, lo + rng.uniform(0.6, 1.4)), problem
+    return u, train, (lo, lo + rng.uniform(0.6, 1.4))
 
 
 def test_a_band_s_edges_go_midway_between_the_training_blocks_commands():
@@ -190,7 +187,7 @@ def test_a_band_s_edges_go_midway_between_the_training_blocks_commands():
     held-out commands, or a command that changes every sample, leaves the edges where they are."""
     wrong_mid = wrong_low = wrong_high = 0
     for seed in range(200):
-        u, train, (lo, hi), problem = _held_levels_split(seed)
+        u, train, (lo, hi) = _held_levels_split(seed)
         inside = (u > lo) & (u < hi)
 
         def cost(x, mask=train):
@@ -203,7 +200,7 @@ def test_a_band_s_edges_go_midway_between_the_training_blocks_commands():
         above = [float(levels[levels > e].min()) for e in (lo, hi)]
         a0, b0 = below[0] + 1e-4, above[1] - 1e-4  # the plateaus' outer ends: the widest band
         assert cost((0.5 * (a0 + b0), b0 - a0)) == 0.0
-        a, b = _midway_edges(cost, 0.0, a0, b0, u, train, problem)
+        a, b = _midway_edges(cost, 0.0, a0, b0, u, train)
         assert (a, b) == (0.5 * (below[0] + above[0]), 0.5 * (below[1] + above[1]))
         assert cost((0.5 * (a + b), b - a)) == 0.0
 
@@ -213,13 +210,13 @@ def test_a_band_s_edges_go_midway_between_the_training_blocks_commands():
         wrong_low += wrong(below[0] + 1e-4, below[1] + 1e-4)
         wrong_high += wrong(above[0] - 1e-4, above[1] - 1e-4)
         # the held-out commands seen too: from the rig's edges, no move changes a recorded command's side
-        a1, b1 = _midway_edges(lambda x: cost(x, np.ones_like(train)), 0.0, lo, hi, u, train, problem)
+        a1, b1 = _midway_edges(lambda x: cost(x, np.ones_like(train)), 0.0, lo, hi, u, train)
         assert np.array_equal((u > a1) & (u < b1), inside)
     assert wrong_mid < min(wrong_low, wrong_high)
     # a command changing every sample: no move
-    u, train, (lo, hi), problem = _held_levels_split(0)
+    u, train, (lo, hi) = _held_levels_split(0)
     ramp = np.linspace(2.0, 8.0, len(u))
-    assert _midway_edges(lambda x: 0.0, 0.0, lo, hi, ramp, train, problem) == (lo, hi)
+    assert _midway_edges(lambda x: 0.0, 0.0, lo, hi, ramp, train) == (lo, hi)
 
 
 @pytest.mark.parametrize("lower,upper", [(5.79, 6.59), (5.70, 6.70), (5.75, 6.60)])

@@ -325,10 +325,17 @@ def _command_cuts(u_v: np.ndarray) -> np.ndarray:
     return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
 
 
-def _midway_edges(cost: Callable[[tuple[float, float]], float], best: float, lower: float, upper: float,
-                  u_v: np.ndarray, train: np.ndarray, pr: Problem) -> tuple[float, float]:
+def _held(u_v: np.ndarray) -> bool:
+    """Is the command held between changes (it changes in at most :data:`_HELD_FRACTION` of the
+    samples: random levels, steps)?"""
+    return np.count_nonzero(np.diff(u_v)) <= _HELD_FRACTION * len(u_v)
+
+
+def _midway_edges(cost: Callable[[tuple[float, float]], float], tol: float, lower: float, upper: float,
+                  u_v: np.ndarray, train: np.ndarray) -> tuple[float, float]:
     """The band's edges [V], each moved to the middle between the training blocks' commands either
-    side of it where that fits the training blocks as well (:meth:`Problem.plateau`).
+    side of it where the training cost stays within ``tol`` (the plateau of the edges' own cost,
+    :meth:`Problem.plateau`).
 
     The training cost changes only when an edge crosses a command that a training block holds, so an
     edge may stop anywhere between two of them; the commands in between are held-out ones (random
@@ -336,13 +343,12 @@ def _midway_edges(cost: Callable[[tuple[float, float]], float], best: float, low
     trained, the rig's edge at 4.097 V, and the search stopped at 4.028). With the edge equally likely
     anywhere between the two training commands, the middle is the place that puts the fewest held-out
     commands on the wrong side, in expectation (the median of a uniform distribution minimises the
-    expected distance). Held commands only (``u_v`` changes at most :data:`_HELD_FRACTION` of the
-    samples): a command that changes every sample leaves the training blocks' commands millivolts
-    apart, and a move within that gap is a change of path, not of evidence."""
-    if np.count_nonzero(np.diff(u_v)) > _HELD_FRACTION * len(u_v):
+    expected distance). Held commands only (:func:`_held`): a command that changes every sample
+    leaves the training blocks' commands millivolts apart, and a move within that gap is a change of
+    path, not of evidence."""
+    if not _held(u_v):
         return lower, upper
     levels = np.unique(np.round(u_v[train], 3))
-    tol = pr.plateau(best)
     for which in (0, 1):
         edge = upper if which else lower
         below, above = levels[levels < edge], levels[levels > edge]
@@ -377,15 +383,14 @@ def _refine_dead_zone(pr: Problem, params: PlantParams) -> dict[str, float] | No
             return math.inf
         trial = params.with_values(**{"dead_zone.center_v": x[0], "dead_zone.width_v": x[1]})
         return sse(pr.stacked_residual(*pr.sim.run(trial)))
+    lo0, hi0 = centre - 0.5 * width, centre + 0.5 * width
     here = cost((centre, width))
-    best, lower, upper = _edge_search(cost, centre - 0.5 * width, centre + 0.5 * width, (0.02, 0.005),
-                                      _command_cuts(pr.u_v))
+    best, lower, upper = _edge_search(cost, lo0, hi0, (0.02, 0.005), _command_cuts(pr.u_v))
     if not best < here:
-        best, lower, upper = here, centre - 0.5 * width, centre + 0.5 * width
-    lower, upper = _midway_edges(cost, best, lower, upper, pr.u_v, pr.train, pr)
+        best, lower, upper = here, lo0, hi0
+    lower, upper = _midway_edges(cost, pr.plateau(best), lower, upper, pr.u_v, pr.train)
     # the gate acts on the recorded commands only: edges that hold the same ones are the same model
-    if np.array_equal((pr.u_v > lower) & (pr.u_v < upper),
-                      (pr.u_v > centre - 0.5 * width) & (pr.u_v < centre + 0.5 * width)):
+    if np.array_equal((pr.u_v > lower) & (pr.u_v < upper), (pr.u_v > lo0) & (pr.u_v < hi0)):
         return None
     return {"dead_zone.center_v": 0.5 * (lower + upper), "dead_zone.width_v": upper - lower}
 
@@ -483,13 +488,13 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
     stop = min(pr.n, stop + minute)
     cuts = cuts_of(start, stop)
     best, lower, upper = _edge_search(cost, *edges, (0.05, 0.02), cuts)
-    if np.count_nonzero(np.diff(pr.u_v[start:stop])) <= _HELD_FRACTION * (stop - start):
+    if _held(pr.u_v[start:stop]):
         # held commands: the compass may stop on a band holding part of the rig's (field case 046,
         # seed 1: 0.49 V of a 1.04-V band under random levels, 85.8 % held-out fit, 99.9 % scanned)
         scanned, a, b = _edge_scan(cost, best, lower, upper, cuts, max_width)
         if scanned < best:
             best, lower, upper = _edge_search(cost, a, b, (0.05, 0.02), cuts)
-    lower, upper = _midway_edges(cost, best, lower, upper, pr.u_v[start:stop], pr.train[start:stop], pr)
+    lower, upper = _midway_edges(cost, pr.plateau(best), lower, upper, pr.u_v[start:stop], pr.train[start:stop])
     x = (0.5 * (lower + upper), upper - lower)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
     return None if values["dead_zone.width_v"] <= 1e-3 else values
