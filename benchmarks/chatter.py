@@ -23,7 +23,7 @@ from fmu_controller.reference import SineReference
 from fmu_plant import Plant
 from tapmuscle.closed_loop import EQ21_WINDOW, command_tv_excess, eq21_error_mm, run_closed_loop
 from tapmuscle.paper.reproduce import preliminary_theta
-from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.plots.figures import new_figure, save_figure
 
 CELLS = [(44.0, 0.1), (44.0, 0.2), (68.0, 0.1), (68.0, 0.2)]
 
@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
             worst = fig.max(axis=0)
             print(f"{f'{load:.0f} N {f:g} Hz':<14} {label:<22} {fig[:, 0].mean():9.3f} ({worst[0]:.3f}) "
                   f"{fig[:, 1].mean():14.0f} ({worst[1]:4.0f}) {fig[:, 2].mean():10.1f} ({worst[2]:4.1f})")
-    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    fig, ax = new_figure(2, 1, figsize=(9, 6), sharex=True)
     for label, notch, colour in (("Eq. (5): cancels H(k)", False, "tab:red"),
                                  ("notch: (1, 3, 4, 3, 1)/12 mean of H(k-2..k+2|k)", None, "tab:blue")):
         r = run("mpc_servo", notch, 44.0, 0.2, 0, theta0)

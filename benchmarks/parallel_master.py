@@ -24,7 +24,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
-from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.plots.figures import new_figure, save_figure
 
 CASES = (("ampc_servo", 44.0, 0.1), ("ampc_servo", 44.0, 0.2), ("ampc_servo", 68.0, 0.1), ("ampc_servo", 68.0, 0.2),
          ("mpc_servo", 44.0, 0.1), ("mpc_servo", 68.0, 0.2), ("mpc_ucp", 44.0, 0.1), ("ampc_ucp", 44.0, 0.1))
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
               + f"   parallel 1 / sequential {ratio:4.2f}", flush=True)
     print("  (par., 1, Eq.(1): input_delay_samples = 1 with delay_correction = 0)")
 
-    fig, (ax_e, ax_u) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    fig, (ax_e, ax_u) = new_figure(2, 1, figsize=(10, 6.5), sharex=True)
     for (label, d, corr, loop), color in zip((COLUMNS[0], COLUMNS[2], COLUMNS[3]), ("k", "tab:red", "tab:blue")):
         r = run("ampc_servo", 44.0, 0.1, d, corr, loop, duration_s=60.0)
         e = r["r_mm"] - r["l_mm"]

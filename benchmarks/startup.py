@@ -28,7 +28,7 @@ from fmu_plant.parameters import PlantParams
 from tapmuscle.closed_loop import command_tv_excess, eq21_error_mm, run_closed_loop
 from tapmuscle.diagnosis.field_cases import draw_parameter_errors, off_nominal
 from tapmuscle.paper.reproduce import preliminary_theta
-from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.plots.figures import new_figure, save_figure
 
 CELLS = [(44.0, 0.1), (44.0, 0.2), (68.0, 0.1), (68.0, 0.2)]
 
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"{bad:>6d}/{args.seeds:<3d} {np.mean(e21):16.3f} {np.mean(late):14.3f}", flush=True)
     for label, bad in totals.items():
         print(f"start '{label}': {bad} of {len(METHODS) * len(CELLS) * args.seeds} runs break the start-up limits")
-    fig, ax = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
+    fig, ax = new_figure(2, 2, figsize=(12, 7), sharex=True)
     for col, (method, load, f) in enumerate((("ampc_servo", 44.0, 0.2), ("ampc_ucp", 44.0, 0.1))):
         for label, startup, colour in (("paper start", 0.0, "tab:red"), (f"start-up mode {args.startup:g} s",
                                                                          args.startup, "tab:blue")):

@@ -4,6 +4,9 @@ alone, windows located, 'unexplained' when no candidate fits, the CLI's files an
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -543,6 +546,35 @@ def test_worker_pool_is_validated():
         with pytest.raises(ValueError, match="workers"):
             with worker_pool(bad):
                 pass
+
+
+@pytest.mark.parametrize("how", ["stdin", "-c"])
+def test_worker_processes_from_a_script_without_a_file(how):
+    """Processes spawned from a script read from stdin could not re-import its ``<stdin>`` main and
+    died at start; that is refused up front, naming the setting. ``python -c`` (like a notebook) has
+    no main file, and its processes run and give the in-process result bit for bit."""
+    script = textwrap.dedent("""
+        import numpy as np
+        from fmu_plant import PlantParams
+        from tapmuscle.diagnosis.simulation import Simulator, worker_pool
+        u = 5.0 + 2.0 * np.sin(2 * np.pi * 0.01 * np.arange(101))
+        ps = [PlantParams().with_values(**{"load.load_n": w}) for w in (40.0, 60.0)]
+        sim = Simulator(u, 0.1)
+        one = sim.run_many(ps, stop=80)
+        with worker_pool(2) as pool:
+            sim.executor = pool
+            many = sim.run_many(ps, stop=80)
+        print("same" if all(np.array_equal(a, b) for a, b in zip(one, many)) else "differ")
+    """)
+    if how == "stdin":
+        out = subprocess.run([sys.executable, "-"], input=script, capture_output=True, text=True, timeout=300)
+        assert out.returncode != 0
+        assert "UsageError: workers=2 starts worker processes" in out.stderr and "'<stdin>'" in out.stderr
+        assert "BrokenProcessPool" not in out.stderr
+    else:
+        out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split() == ["same"]
 
 
 def test_distinguishable_separates_a_real_difference_from_noise():

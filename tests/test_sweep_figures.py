@@ -24,12 +24,10 @@ def _rows(extra_values=(1.0, 2.0)):
 
 @pytest.fixture
 def drawn(monkeypatch):
-    """The figure plot_mae_map would save, kept open for inspection."""
+    """The figure plot_mae_map would save, kept for inspection."""
     figures = []
     monkeypatch.setattr(sweep_figures, "save_figure", lambda fig, path: figures.append(fig) or path)
-    yield figures
-    for fig in figures:
-        sweep_figures.plt.close(fig)
+    return figures
 
 
 def _cells(ax) -> list[float]:

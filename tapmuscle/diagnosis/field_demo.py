@@ -643,13 +643,15 @@ def scores_markdown(s: dict[str, Any]) -> str:
 
 def confusion_figure(s: dict[str, Any], path: str | Path) -> Path:
     """Heat map of the confusion table (share of each row's cases claiming each column), counts written in."""
-    from tapmuscle.plots.figures import plt, save_figure
+    from matplotlib.patches import Rectangle
+
+    from tapmuscle.plots.figures import new_figure, save_figure
 
     conf = s["confusion"]
     rows = [r for r in conf["rows"] if conf["cases"][r]]
     cols = conf["columns"]
     share = np.array([[conf["counts"][r][c] / conf["cases"][r] for c in cols] for r in rows]) if rows else np.zeros((1, len(cols)))
-    fig, ax = plt.subplots(figsize=(1.0 + 0.62 * len(cols), 1.4 + 0.42 * max(len(rows), 1)))
+    fig, ax = new_figure(figsize=(1.0 + 0.62 * len(cols), 1.4 + 0.42 * max(len(rows), 1)))
     im = ax.imshow(share, cmap="Blues", vmin=0.0, vmax=1.0, aspect="auto")
     for i, r in enumerate(rows):
         for j, c in enumerate(cols):
@@ -665,7 +667,7 @@ def confusion_figure(s: dict[str, Any], path: str | Path) -> Path:
                 else "unexplained" if r.startswith("oov: ") else None)
         if want in cols:
             j = cols.index(want)
-            ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="tab:orange", lw=1.6))
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="tab:orange", lw=1.6))
     ax.set_xlabel("claimed by the diagnosis (orange box: the right answer)")
     ax.set_ylabel("truth (cases)")
     t = s["targets"]

@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.plots.figures import new_figure, save_figure
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
 
@@ -166,7 +166,7 @@ def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title:
     """The recording against the model before, calibrated and after (held-out fits in the legend), and
     the held-out residuals before and after: ``overlay.png``."""
     t = d.t_s
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    fig, (a1, a2) = new_figure(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
     a1.plot(t, d.y_before_mm, color="0.5", lw=1.0, ls="--", label=f"{model} before ({d.fit_before_percent:.2f} %)")
     if d.y_calibrated_mm is not None:
@@ -188,7 +188,7 @@ def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title:
 def _figures(d: Diagnosis, out: Path, title: str) -> None:
     t = d.t_s
     e0, e1 = d.y_mm - d.y_before_mm, d.y_mm - d.y_after_mm
-    fig, ax = plt.subplots(figsize=(10, 3.6))
+    fig, ax = new_figure(figsize=(10, 3.6))
     ax.plot(t, e0, lw=0.8, color="0.3", label="before")
     if d.y_calibrated_mm is not None:
         ax.plot(t, d.y_mm - d.y_calibrated_mm, lw=0.8, color="tab:green", label="after calibration")
@@ -203,7 +203,7 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     overlay_figure(d, out / "overlay.png", quantity="displacement l", unit="mm",
                    title=f"{title}: before / after (held-out fit in brackets)")
 
-    fig, ax = plt.subplots(figsize=(6, 5))
+    fig, ax = new_figure(figsize=(6, 5))
     ax.plot(d.u_v, d.y_mm, color="k", lw=0.8, label="recording")
     ax.plot(d.u_v, d.y_before_mm, color="0.5", lw=0.8, ls="--", label="model before")
     ax.plot(d.u_v, d.y_after_mm, color="tab:blue", lw=0.8, ls=":", label="model after")
@@ -212,7 +212,7 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     ax.grid(alpha=0.3)
     save_figure(fig, out / "hysteresis.png")
 
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6))
+    fig, (a1, a2) = new_figure(2, 1, figsize=(8, 6))
     for key, colour, label in (("before", "0.4", "before"), ("after", "tab:blue", "after")):
         ac, xc = d.correlations[f"autocorrelation_{key}"], d.correlations[f"cross_correlation_{key}"]
         a1.stem(ac.lags + (0.15 if key == "after" else 0), ac.values, linefmt=colour, markerfmt=" ", basefmt=" ", label=label)

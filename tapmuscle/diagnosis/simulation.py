@@ -11,6 +11,8 @@ load when the recording has a ``load_n`` column.
 from __future__ import annotations
 
 import multiprocessing
+import os
+import sys
 from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -20,7 +22,9 @@ import numpy as np
 
 from fmu_plant import Plant, PlantParams
 
-__all__ = ["Simulator", "noise_free", "worker_pool"]
+from tapmuscle.errors import UsageError
+
+__all__ = ["Simulator", "noise_free", "worker_pool", "spawn_context"]
 
 
 def noise_free(params: PlantParams) -> PlantParams:
@@ -130,8 +134,27 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
     if workers == 1:
         yield None
         return
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(workers, mp_context=spawn_context(f"workers={workers}")) as pool:
         yield pool
+
+
+def spawn_context(what: str) -> Any:
+    """The ``spawn`` multiprocessing context, refused with a clear error where it cannot start.
+
+    A spawned process re-imports the parent's ``__main__`` from its file. A script read from stdin
+    (``python - < script.py``) has the file name ``<stdin>``, and every process would die at start
+    with a bare ``BrokenProcessPool``; a notebook or ``python -c`` has no file and is fine.
+
+    Parameters
+    ----------
+    what : str
+        The setting that asked for processes, named in the error (``"workers=2"``).
+    """
+    path = getattr(sys.modules.get("__main__"), "__file__", None)
+    if path is not None and not os.path.exists(path):
+        raise UsageError(f"{what} starts worker processes, which re-import the main script {path!r}, and that is "
+                         "not a file; run the script from a file, or with 1 worker")
+    return multiprocessing.get_context("spawn")
 
 
 def _run_copy(sim: Simulator, params: PlantParams, stop: int | None, pressure: bool = False) -> Any:

@@ -1,2 +1,3 @@
-"""Figures like the paper's (matplotlib, Agg backend): recordings, identified models, tracking runs,
-prediction errors, sweep maps. Each function writes one PNG atomically and returns its path."""
+"""Figures like the paper's: recordings, identified models, tracking runs, prediction errors, sweep
+maps. Each function writes one PNG atomically and returns its path. They are matplotlib figures
+rendered with Agg outside pyplot, so the caller's backend and pyplot figures are left alone."""

@@ -1,4 +1,10 @@
-"""Matplotlib (Agg) figures of recordings, like the paper's Figs. 3 and 5.
+"""Matplotlib figures of recordings, like the paper's Figs. 3 and 5.
+
+The figures are made with matplotlib's object-oriented API (:class:`matplotlib.figure.Figure`), not
+pyplot: a library must not switch its caller's backend or leave figures in pyplot's list, or a
+notebook that calls tapmuscle stops showing its own plots. A ``Figure`` renders to PNG with Agg
+whatever backend pyplot uses, and belongs to the thread that made it (a threaded sweep may draw
+several at once).
 
 Figures are written atomically (to a temporary file, then renamed) so that a failing plot never
 leaves a truncated PNG behind.
@@ -8,27 +14,50 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from tapmuscle.io.atomic import atomic_path
 
-from tapmuscle.io.atomic import atomic_path  # noqa: E402
-
-__all__ = ["save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
+__all__ = ["new_figure", "save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
            "plot_loop_comparison", "plot_tracking", "plot_prediction_errors"]
 
 
-def save_figure(fig: "plt.Figure", path: str | os.PathLike, *, dpi: int = 120) -> Path:
-    """Save ``fig`` as PNG to ``path`` atomically and close it."""
+def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **subplots: Any) -> tuple[Figure, Any]:
+    """A figure and its axes as ``pyplot.subplots`` makes them, but outside pyplot (module docstring).
+
+    Parameters
+    ----------
+    nrows, ncols : int
+        The grid of axes.
+    figsize : (float, float)
+        Width and height [inch].
+    **subplots
+        Passed to :meth:`matplotlib.figure.Figure.subplots` (``sharex``, ``squeeze``, ``gridspec_kw``).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+    axes : Axes or ndarray of Axes
+    """
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **subplots)
+
+
+def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:
+    """Save ``fig`` as PNG to ``path`` atomically; a figure that pyplot made is closed there too."""
     path = Path(path)
     try:
         with atomic_path(path, suffix=".png") as tmp:
             fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
     finally:
-        plt.close(fig)
+        if getattr(fig.canvas, "manager", None) is not None:
+            # only pyplot gives a figure a manager, so pyplot is already loaded here
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
     return path
 
 
@@ -49,7 +78,7 @@ def plot_recording(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, path: str
     Left: paper Fig. 3 (valve input voltage and muscle displacement over time). Right: Fig. 5
     (displacement against command, the hysteresis loop), drawn for ``t >= settle_s``.
     """
-    fig = plt.figure(figsize=(12, 6))
+    fig = Figure(figsize=(12, 6))
     gs = fig.add_gridspec(3 if p_mpa is not None else 2, 2, width_ratios=(1.6, 1))
     ax_u = fig.add_subplot(gs[0, 0])
     ax_u.plot(t_s, u_v, color="tab:blue", lw=1)
@@ -87,7 +116,7 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
     n = len(names)
     cols = 5 if n > 12 else 4
     rows = -(-n // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.1 * rows), sharex=True, squeeze=False)
+    fig, axes = new_figure(rows, cols, figsize=(3.2 * cols, 2.1 * rows), sharex=True, squeeze=False)
     for i, ax in enumerate(axes.flat):
         if i >= n:
             ax.set_visible(False)
@@ -113,7 +142,7 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
 def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
                            path: str | os.PathLike, *, title: str = "") -> Path:
     """Measured displacement against free-run model outputs (paper Fig. 4) and their errors."""
-    fig, (ax, ax_e) = plt.subplots(2, 1, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": (2, 1)})
+    fig, (ax, ax_e) = new_figure(2, 1, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": (2, 1)})
     ax.plot(t_s, l_mm, color="black", lw=1.2, label="measured")
     lo, hi = float(np.min(l_mm)), float(np.max(l_mm))
     pad = 0.25 * (hi - lo) + 1e-9
@@ -140,7 +169,7 @@ def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, m
 def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
                          path: str | os.PathLike, *, skip: int = 0, title: str = "") -> Path:
     """Hysteresis loops (u, l) of the measurement and of models (paper Fig. 5)."""
-    fig, ax = plt.subplots(figsize=(7, 6))
+    fig, ax = new_figure(figsize=(7, 6))
     u = np.asarray(u_v)[skip:-1]
     ax.plot(u, np.asarray(l_mm)[skip + 1:], color="black", lw=1.2, label="measured")
     lo, hi = float(np.min(l_mm[skip:])), float(np.max(l_mm[skip:]))
@@ -175,8 +204,8 @@ def _style(method: str, index: int) -> tuple[str, str]:
 def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
                   window_s: tuple[float, float] = (10.0, 40.0)) -> Path:
     """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18)."""
-    fig, (ax, ax_e, ax_u) = plt.subplots(3, 1, figsize=(11, 8), sharex=True,
-                                         gridspec_kw={"height_ratios": (2.2, 1, 1)})
+    fig, (ax, ax_e, ax_u) = new_figure(3, 1, figsize=(11, 8), sharex=True,
+                                       gridspec_kw={"height_ratios": (2.2, 1, 1)})
     first = next(iter(runs.values()))
     ax.plot(first["t_s"], first["r_mm"], color="black", lw=1.2, ls="--", label="reference r")
     for i, (method, cols) in enumerate(runs.items()):
@@ -202,7 +231,7 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
 def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *,
                            title: str = "", window_s: tuple[float, float] = (10.0, 40.0)) -> Path:
     """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over 10-40 s (Figs. 9-19)."""
-    fig, ax = plt.subplots(figsize=(11, 4))
+    fig, ax = new_figure(figsize=(11, 4))
     for i, (method, cols) in enumerate(runs.items()):
         keep = (cols["t_s"] >= window_s[0]) & (cols["t_s"] <= window_s[1])
         color, label = _style(method, i)

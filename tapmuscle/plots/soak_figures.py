@@ -10,7 +10,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.plots.figures import new_figure, save_figure
 
 __all__ = ["plot_soak"]
 
@@ -34,7 +34,7 @@ def plot_soak(runs: Mapping[str, Mapping[str, np.ndarray]], names: Sequence[str]
     theta_lower, theta_upper : ndarray
         Table 2's box (+-inf where unbounded).
     """
-    fig, ax = plt.subplots(4, 1, figsize=(11, 12), sharex=True)
+    fig, ax = new_figure(4, 1, figsize=(11, 12), sharex=True)
     for (label, r), colour in zip(runs.items(), ("tab:red", "tab:blue", "tab:green", "tab:orange")):
         h = np.asarray(r["block_t_s"]) / 3600.0
         ax[0].step(h, r["eq21_mm"], where="post", color=colour, label=f"{label}: per 10-min block")

@@ -11,7 +11,7 @@ import numpy as np
 
 from fmu_controller.displacement_control import METHODS
 
-from tapmuscle.plots.figures import plt, save_figure
+from tapmuscle.plots.figures import new_figure, save_figure
 
 __all__ = ["plot_mae_by_method", "plot_mae_map"]
 
@@ -50,7 +50,7 @@ def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLik
         return None
     methods = _methods(ok)
     data = [np.array([float(r["mae_mm"]) for r in ok if r["method"] == m]) for m in methods]
-    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(methods), 4.5))
+    fig, ax = new_figure(figsize=(1.8 + 1.6 * len(methods), 4.5))
     ax.boxplot(data, showfliers=False, widths=0.5)
     rng = np.random.default_rng(0)  # fixed jitter: the same figure for the same results
     for i, values in enumerate(data, start=1):
@@ -112,8 +112,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
         else:
             others = ", ".join(_label(n) for n, _ in extra)
             title = f"{title} ({'mean over' if grid else 'points at all values of'} {others})".strip()
-    fig, panels = plt.subplots(len(facets), len(methods), figsize=(0.8 + 3.6 * len(methods), 0.4 + 3.4 * len(facets)),
-                               squeeze=False, sharex=True, sharey=True)
+    fig, panels = new_figure(len(facets), len(methods), figsize=(0.8 + 3.6 * len(methods), 0.4 + 3.4 * len(facets)),
+                             squeeze=False, sharex=True, sharey=True)
     norm = _norm(mae)
     image = None
     for r, (row, (label, in_facet)) in enumerate(zip(panels, facets)):

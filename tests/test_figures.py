@@ -1,0 +1,79 @@
+"""The figures leave their caller's matplotlib alone (a notebook keeps its backend and its figures)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from matplotlib.image import imread
+
+from tapmuscle.plots.figures import plot_recording, plot_tracking
+
+# A notebook's session as a fresh interpreter: its own backend (here pdf, a non-Agg backend that
+# needs no display) and one figure of its own, then every tapmuscle module imported and figures drawn.
+_SESSION = textwrap.dedent("""
+    import importlib, json, pkgutil, sys
+    import matplotlib
+    matplotlib.use("pdf")
+    import matplotlib.pyplot as plt
+    mine = plt.figure()
+    import numpy as np
+    import tapmuscle
+    for m in pkgutil.walk_packages(tapmuscle.__path__, "tapmuscle."):
+        if not m.name.endswith("__main__"):
+            importlib.import_module(m.name)
+    from tapmuscle.plots.figures import plot_recording
+    from tapmuscle.diagnosis.field_demo import confusion_figure
+    t = np.arange(200) * 0.1
+    plot_recording(t, 5 + 3 * np.sin(t), 40 + 20 * np.sin(t - 0.5), sys.argv[1] + "/rec.png", settle_s=5.0)
+    rows, cols = ["none", "single: sensor_drift"], ["nothing", "sensor_drift"]
+    conf = {"rows": rows, "columns": cols, "cases": {"none": 2, "single: sensor_drift": 3},
+            "counts": {"none": {"nothing": 2, "sensor_drift": 0}, "single: sensor_drift": {"nothing": 1, "sensor_drift": 2}}}
+    targets = {k: {"rate_percent": 50.0} for k in ("single_named", "single_named_alone", "pair_both_found",
+                                                    "none_no_effect_claimed", "oov_unexplained")}
+    confusion_figure({"confusion": conf, "targets": targets, "recordings": 5}, sys.argv[1] + "/confusion.png")
+    print(json.dumps({"backend": matplotlib.get_backend(), "figures": plt.get_fignums(), "mine": mine.number}))
+""")
+
+
+def test_importing_and_drawing_keeps_the_callers_backend_and_figures(tmp_path):
+    out = subprocess.run([sys.executable, "-c", _SESSION, str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    state = json.loads(out.stdout.strip().splitlines()[-1])
+    assert state["backend"] == "pdf"
+    assert state["figures"] == [state["mine"]]  # none of tapmuscle's left in pyplot, the user's kept
+    for name in ("rec.png", "confusion.png"):
+        image = imread(tmp_path / name)
+        assert image.ndim == 3 and image.shape[0] > 300 and image.shape[1] > 300, name
+        assert float(image[..., :3].std()) > 0.05, name  # something is drawn, not a blank canvas
+
+
+def _runs(phase: float) -> dict[str, dict[str, np.ndarray]]:
+    t = np.arange(0.0, 45.0, 0.1)
+    r = 35 + 30 * np.sin(0.2 * np.pi * t)
+    return {"ampc_servo": {"t_s": t, "r_mm": r, "l_mm": r - np.sin(t + phase), "u_v": 5 + 2 * np.cos(t + phase)}}
+
+
+def test_figures_drawn_in_threads_at_once_are_those_drawn_one_by_one(tmp_path):
+    # A threaded sweep (dask's local default) draws several figures at the same time: each must come
+    # out as it does alone, pixel for pixel (same process, same Agg: a contract, not a tolerance).
+    phases = [0.0, 0.7, 1.4, 2.1]
+    for i, ph in enumerate(phases):
+        plot_tracking(_runs(ph), tmp_path / f"serial{i}.png", title=f"run {i}")
+        plot_recording(*(_runs(ph)["ampc_servo"][k] for k in ("t_s", "u_v", "l_mm")), tmp_path / f"serial_rec{i}.png")
+
+    def draw(i: int) -> None:
+        ph = phases[i]
+        plot_tracking(_runs(ph), tmp_path / f"threaded{i}.png", title=f"run {i}")
+        plot_recording(*(_runs(ph)["ampc_servo"][k] for k in ("t_s", "u_v", "l_mm")), tmp_path / f"threaded_rec{i}.png")
+
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(draw, list(range(len(phases))) * 3))  # each three times, overlapping
+    for i in range(len(phases)):
+        for kind in ("", "_rec"):
+            a, b = imread(tmp_path / f"serial{kind}{i}.png"), imread(tmp_path / f"threaded{kind}{i}.png")
+            assert a.shape == b.shape and np.array_equal(a, b), f"{kind or 'tracking'} {i}"
