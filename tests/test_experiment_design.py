@@ -60,3 +60,22 @@ def test_the_design_is_the_same_with_worker_processes():
                                 executor=pool)
     assert np.array_equal(serial.u_v, parallel.u_v) and serial.separation_sigma == parallel.separation_sigma
     assert serial.evaluations == parallel.evaluations
+
+
+def test_the_design_stays_within_the_commands_it_is_given():
+    """Beyond the recording's commands the alternatives are extrapolations: a valve band at 8.3-8.9 V
+    that a recording over 2-7 V never reached is no evidence, and the design must not look for it
+    there (it would find it: the default span reaches it)."""
+    band = A.with_values(**{"dead_zone.center_v": 8.6, "dead_zone.width_v": 0.6})
+    alts = {"none": A, "valve_dead_zone": band}
+    for seed in (0, 1, 2):
+        exp = design_input(alts, ts_s=0.1, duration_s=30.0, noise_mm=0.013, seed=seed, local_steps=10,
+                           u_span_v=(2.0, 7.0))
+        assert 2.0 <= exp.u_v.min() and exp.u_v.max() <= 7.0, seed  # library and local search alike
+        assert exp.separation_sigma < 1.0, seed  # never enters the band: the same prediction to noise
+    wide = design_input(alts, ts_s=0.1, duration_s=30.0, noise_mm=0.013, seed=0, local_steps=10)
+    assert 1.0 <= wide.u_v.min() and wide.u_v.max() <= 9.0 and wide.separation_sigma > 10.0
+    with pytest.raises(ValueError, match="u_span_v"):
+        design_input(alts, ts_s=0.1, u_span_v=(3.0, 10.5))
+    with pytest.raises(ValueError, match="u_span_v"):
+        design_input(alts, ts_s=0.1, u_span_v=(6.0, 4.0))

@@ -3,8 +3,8 @@
 When the diagnosis ends ``ambiguous``, two or more fitted plants (each the calibrated plant with one
 alternative effect) predict the recording equally well. They still differ elsewhere: a transport
 delay shows on fast reversals, a load mismatch at low pressure, a dead band where the command dwells
-in it. :func:`design_input` searches for a command within the valve's 0..10 V, of a stated duration,
-for which their noise-free predictions differ most: it maximises the **smallest** pairwise distance
+in it. :func:`design_input` searches for a command within the valve's 0..10 V (and within the
+recording's commands, below), of a stated duration, for which their noise-free predictions differ most: it maximises the **smallest** pairwise distance
 between the alternatives' predicted displacements (every pair must be separated), in units of the
 recording's noise.
 
@@ -19,6 +19,13 @@ Search (each evaluation one simulation per alternative):
 The result is a ``tapmuscle record --input csv:`` file: ``t_s, u_v`` and, in ``l_mm`` and one
 ``l_<effect>_mm`` column per alternative, what each alternative predicts. Effects that act at given
 times (a supply sag's window) are predicted in the new experiment's own time base from 0 s.
+
+The input stays within ``u_span_v``, which the diagnosis sets to the commands its recording covered.
+The alternatives were fitted there; beyond it their parameters (a map's knots, a band's edges, the
+constants' reach) are extrapolations, and an input that separates them there separates guesses, not
+explanations (on the field proof's ambiguous verdicts, the right alternative predicted the new
+recording to 0.04-0.76 mm within the recorded commands and to 1.2-3.1 mm beyond them). It also keeps
+the rig where it has already been driven.
 """
 
 from __future__ import annotations
@@ -89,11 +96,11 @@ def separation(predictions: Sequence[np.ndarray]) -> float:
 
 def _held(levels: Sequence[float], hold_s: float, t: np.ndarray) -> np.ndarray:
     k = np.minimum((t / hold_s).astype(int), len(levels) - 1)
-    return np.clip(np.asarray(levels, float)[k], U_MIN_V, U_MAX_V)
+    return np.asarray(levels, float)[k]
 
 
 def _sine(offset: float, amp: float, freq: float, t: np.ndarray) -> np.ndarray:
-    return np.clip(offset + amp * np.sin(2 * math.pi * freq * t), U_MIN_V, U_MAX_V)
+    return offset + amp * np.sin(2 * math.pi * freq * t)
 
 
 def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_s: float = 120.0,
@@ -120,7 +127,10 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
     local_steps : int
         Local-search moves after the library.
     u_span_v : (float, float)
-        Commands the library's inputs spread over [V] (within 0..10 V).
+        Commands the input stays within [V] (within 0..10 V). The diagnosis passes the range its
+        recording covered: beyond it the alternatives' parameters (a map's knots, a band's edges,
+        the constants' reach) are extrapolations, and a difference between their predictions there
+        is no evidence for either.
     progress : callable, optional
         ``progress(done, total)`` after each input scored.
     executor : Executor, optional
@@ -130,8 +140,12 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
     Raises
     ------
     ValueError
-        Fewer than two alternatives, or a duration / sampling period that gives fewer than 10 samples.
+        Fewer than two alternatives, a duration / sampling period that gives fewer than 10 samples,
+        or a ``u_span_v`` not within 0..10 V.
     """
+    lo, hi = (float(v) for v in u_span_v)
+    if not (U_MIN_V <= lo <= hi <= U_MAX_V):
+        raise ValueError(f"u_span_v = {u_span_v!r} V: need {U_MIN_V:g} <= low <= high <= {U_MAX_V:g}")
     if len(alternatives) < 2:
         raise ValueError(f"a discriminating experiment needs at least two alternatives, got {len(alternatives)}")
     n = int(round(duration_s / ts_s)) + 1
@@ -148,7 +162,6 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
         evals += 1
         return _predict(u, ts_s, plants)
 
-    lo, hi = u_span_v
     mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     rng = np.random.default_rng(seed)
     # the library: (kind, parameters)
@@ -162,7 +175,7 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
     for offset in (mid - 0.5 * half, mid, mid + 0.5 * half):
         for amp in (0.5 * half, half):
             for freq in (0.05, 0.1, 0.2, 0.4):
-                library.append(("sine", (offset, min(amp, offset - U_MIN_V, U_MAX_V - offset), freq)))
+                library.append(("sine", (offset, min(amp, offset - lo, hi - offset), freq)))
 
     def build(kind: str, args: tuple) -> np.ndarray:
         return _held(args[0], args[1], t) if kind == "steps" else _sine(*args, t)
@@ -185,12 +198,12 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
         if kind == "steps":
             levels = np.array(args[0], float)
             idx = rng.choice(len(levels), size=min(len(levels), int(rng.integers(1, 4))), replace=False)
-            levels[idx] = np.clip(levels[idx] + rng.normal(0.0, 1.5, len(idx)), U_MIN_V, U_MAX_V)
+            levels[idx] = np.clip(levels[idx] + rng.normal(0.0, 1.5 * half / 4.0, len(idx)), lo, hi)
             trial = (tuple(levels), args[1])
         else:
             offset, amp, freq = args
-            offset = float(np.clip(offset + rng.normal(0.0, 0.5), 1.0, 9.0))
-            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.2, min(offset, 10.0 - offset)))
+            offset = float(np.clip(offset + rng.normal(0.0, 0.5 * half / 4.0), lo, hi))
+            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.0, min(offset - lo, hi - offset)))
             freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
             trial = (offset, amp, freq)
         sep = separation(predict(build(kind, trial)))

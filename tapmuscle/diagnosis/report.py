@@ -18,7 +18,7 @@ from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
 
 from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
-from tapmuscle.diagnosis.experiment_design import design_input, write_experiment
+from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
@@ -262,8 +262,11 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     name = "discriminating_input.csv" if index == 0 else f"discriminating_input_{index + 1}.csv"
     load = float(d.load_n[0]) if d.load_n is not None else None
     duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
+    # within the commands the recording covered, where the alternatives were fitted (design_input)
+    span = (float(np.clip(np.min(d.u_v), U_MIN_V, U_MAX_V)), float(np.clip(np.max(d.u_v), U_MIN_V, U_MAX_V)))
     exp = design_input({a.effect: a.params for a in group}, ts_s=d.ts_s, duration_s=duration,
-                       noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, executor=executor)
+                       noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, u_span_v=span,
+                       executor=executor)
     write_experiment(exp, out / name, alternatives=[a.effect for a in group], ts_s=d.ts_s)
     return {"file": name} | exp.to_json()
 
