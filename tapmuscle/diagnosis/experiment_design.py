@@ -4,9 +4,9 @@ When the diagnosis ends ``ambiguous``, two or more fitted plants (each the calib
 alternative effect) predict the recording equally well. They still differ elsewhere: a transport
 delay shows on fast reversals, a load mismatch at low pressure, a dead band where the command dwells
 in it. :func:`design_input` searches for a command within the valve's 0..10 V (and within the
-recording's commands, below), of a stated duration, for which their noise-free predictions differ most: it maximises the **smallest** pairwise distance
-between the alternatives' predicted displacements (every pair must be separated), in units of the
-recording's noise.
+recording's commands, below), of a stated duration, for which their noise-free predictions differ
+most: it maximises the **smallest** pairwise distance between the alternatives' predicted
+displacements (every pair must be separated), in units of the recording's noise.
 
 Search (each evaluation one simulation per alternative):
 
