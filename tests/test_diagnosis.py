@@ -603,6 +603,7 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path):
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)
     a = DEMO_MODEL.with_values(**{"delay.delay_s": 0.1})
     b = DEMO_MODEL.with_values(**{"load_mismatch.extra_n": 3.0})
+    d.calibrated = d.calibrated.with_values(**{"delay.delay_s": 0.1})  # the best alternative in the final model
     d.ambiguous = [[Alternative("transport_delay", "late", {"delay.delay_s": 0.1}, a, d.y_after_mm),
                     Alternative("load_mismatch", "heavier", {"load_mismatch.extra_n": 3.0}, b, d.y_after_mm)]]
     doc = write_outputs(d, tmp_path, recording="rec.csv", plant="plant.json", plots=False)
@@ -616,6 +617,17 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path):
     assert 0.0 <= lo and hi <= 10.0
     assert all(lo <= signal(t) <= hi for t in np.arange(0.0, 60.0, 0.1))
     assert "Discriminating experiment" in (tmp_path / "report.md").read_text()
+    # the plant to re-diagnose its recording with: the calibrated one with both alternatives off
+    from tapmuscle.io.plant_file import read_plant_file
+
+    assert group["discriminate_plant"] == "discriminate_plant.json"
+    base = read_plant_file(tmp_path / "discriminate_plant.json", "test").dotted()
+    cal = d.calibrated.dotted()
+    assert base["delay.delay_s"] == 0.0 and base["load_mismatch.extra_n"] == 0.0
+    assert {k: v for k, v in base.items() if k not in ("delay.delay_s", "load_mismatch.extra_n")} == \
+        {k: v for k, v in cal.items() if k not in ("delay.delay_s", "load_mismatch.extra_n")}
+    assert ("--plant discriminate_plant.json --effects transport_delay,load_mismatch"
+            in (tmp_path / "report.md").read_text())
 
 
 @pytest.mark.slow

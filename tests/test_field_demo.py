@@ -215,8 +215,8 @@ def test_confusion_figure_is_a_png(tmp_path):
 
 # ------------------------------------------------------------------------------------ running
 def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_path, monkeypatch, cases120):
-    """With a stand-in diagnosis: the first call says `ambiguous` and writes an input, the re-diagnosis
-    (limited to the alternatives) names the true effect."""
+    """With a stand-in diagnosis: the first call says `ambiguous` and writes an input and the plant to
+    re-diagnose with, the re-diagnosis (limited to the alternatives, on that plant) names the true effect."""
     import tapmuscle.diagnosis.report as report
 
     case = next(c for c in cases120 if c.category == "single" and c.excitation == "sine")
@@ -226,14 +226,16 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
 
     def fake(rec, plant, out, *, plots=True, effects=None, **options):
         out = Path(out)
-        calls.append({"samples": len(read_recording(rec).t_s), "effects": effects})
+        calls.append({"samples": len(read_recording(rec).t_s), "effects": effects, "plant": Path(plant)})
         if effects is None:
             t = np.arange(0.0, 35.05, 0.1)
             write_recording(out / "discriminating_input.csv",
                             Recording({"t_s": t, "u_v": 5 + 2 * np.sign(np.sin(t)), "l_mm": 0 * t}, {"ts_s": "0.1"}))
+            atomic_write_text(out / "discriminate_plant.json", "{}\n")
             doc = {"verdict": "ambiguous", "findings": [], "fit_before_percent": 50.0, "fit_after_percent": 96.0,
                    "ambiguous": [{"alternatives": [{"effect": true}, {"effect": other}],
-                                  "discriminating_input": "discriminating_input.csv"}]}
+                                  "discriminating_input": "discriminating_input.csv",
+                                  "discriminate_plant": "discriminate_plant.json"}]}
         else:
             doc = {"verdict": "mismatch", "findings": [{"effect": true}], "fit_before_percent": 40.0,
                    "fit_after_percent": 98.0}
@@ -248,6 +250,7 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
     assert d["input_written"] and d["right"] and d["picked"] == [true] and d["duration_s"] == pytest.approx(35.0)
     assert calls[1]["effects"] == sorted([true, other])
     assert calls[1]["samples"] == 351  # recorded for the input's 35 s
+    assert calls[0]["plant"].name == "plant.json" and calls[1]["plant"] == tmp_path / case.name / "discriminate_plant.json"
     folder = tmp_path / case.name
     assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "discriminate", "report.md", "result.json"]
     assert sorted(p.name for p in (folder / "discriminate").iterdir()) == ["diagnosis.json", "report.md"]

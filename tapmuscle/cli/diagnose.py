@@ -54,7 +54,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     for line in summary_lines(d):
         print(line)
     print(f"wrote {out}/diagnosis.json, calibrated_plant.json, report.md"
-          + (", discriminating_input.csv" if d.ambiguous else "")
+          + (", discriminating_input.csv, discriminate_plant.json" if d.ambiguous else "")
           + ("" if args.no_plots else " and *.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
     return 0
 

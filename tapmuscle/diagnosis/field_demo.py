@@ -16,7 +16,8 @@ FMU, docs/fmu.md), 180 s at Ts = 0.1 s with the encoder's noise and quantisation
 nominal model's plant file go to :func:`tapmuscle.diagnosis.report.diagnose_files`, nothing else; the verdict
 is scored against the truth (:func:`score_results`). When the verdict is ``ambiguous`` and the
 diagnosis wrote ``discriminating_input.csv``, the same truth rig is recorded again with that input
-(fresh noise) and re-diagnosed among the alternatives: does it pick the right one?
+(fresh noise) and re-diagnosed among the alternatives, with the plant the diagnosis wrote for it
+(``discriminate_plant.json``: its calibrated constants, the alternatives off): does it pick the right one?
 
 Every draw is seeded (``numpy.random.default_rng([seed, ...])``), so ``field_cases(n, seed)`` is the
 same list on every machine. The magnitudes of the effects span levels 1-2 of the concealed-effect
@@ -145,10 +146,14 @@ def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path
         return None
     alternatives = sorted({str(a.get("effect")) for g in groups for a in (g.get("alternatives") or [])
                            if isinstance(a, dict)})
-    names = {g.get("discriminating_input") for g in groups if g.get("discriminating_input")}
-    path = next((folder / str(n) for n in sorted(names) if (folder / str(n)).is_file()), None)
+    # the first group's experiment, and the plant it is re-diagnosed with (the nominal one if none was written)
+    plants = {str(g["discriminating_input"]): g.get("discriminate_plant") for g in groups if g.get("discriminating_input")}
+    path = next((folder / n for n in sorted(plants) if (folder / n).is_file()), None)
     if path is None and (folder / "discriminating_input.csv").is_file():
         path = folder / "discriminating_input.csv"
+    base = plants.get(path.name) if path is not None else None
+    if base and (folder / str(base)).is_file():
+        plant_path = folder / str(base)
     truth_in = sorted(set(case.effects) & set(alternatives))
     out: dict[str, Any] = {"alternatives": alternatives, "true_alternatives": truth_in, "input_written": path is not None}
     if path is None:

@@ -153,7 +153,8 @@ class Diagnosis:
                 "unexplained": self.unexplained,
                 "calibration": cal if cal is not None else {"skipped": "the residual is white noise: nothing to "
                                                                        "calibrate"},
-                "ambiguous": [{"alternatives": [a.to_json() for a in group], "discriminating_input": None}
+                "ambiguous": [{"alternatives": [a.to_json() for a in group], "discriminating_input": None,
+                               "discriminate_plant": None}
                               for group in self.ambiguous],
                 "selection": self.selection,
                 "residual_tests": {"before": self.tests_before, "after": self.tests_after},

@@ -19,16 +19,20 @@ from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
 from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
+from tapmuscle.diagnosis.model_space import MUSCLE
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
-__all__ = ["diagnose_files", "write_outputs", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE"]
+__all__ = ["diagnose_files", "write_outputs", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE",
+           "EXPERIMENT_PLANT_FILE"]
 
 #: What ``write_outputs`` writes (figures only with ``plots=True``).
 OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residual.png", "overlay.png",
                 "hysteresis.png", "residual_tests.png")
 #: Written as well when the verdict is ``ambiguous`` (one per ambiguous group, numbered from the second).
 EXPERIMENT_FILE = "discriminating_input.csv"
+#: With it: the plant to re-diagnose the experiment's recording with (the calibrated plant, the group's effects off).
+EXPERIMENT_PLANT_FILE = "discriminate_plant.json"
 
 _COLOURS = ("tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
 
@@ -102,7 +106,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
                       f"alternatives' predictions differ by at least {e['separation_sigma']:.0f} noise sd "
                       f"({e['min_rms_difference_mm']:.3f} mm RMS). Record it (`tapmuscle record --input csv:{e['file']} "
-                      f"--duration {e['duration_s']:g}`) and diagnose the new recording.", ""]
+                      f"--duration {e['duration_s']:g}`) and diagnose the new recording with `{e['plant']}` "
+                      f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}`.", ""]
     lines += ["## Findings", ""]
     if not d.findings:
         lines += ["None: the residual is consistent with sensor noise, so no cause is named.", ""]
@@ -244,6 +249,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
         experiments.append(_write_experiment(d, group, out, i, executor))
         entry["discriminating_input"] = None if experiments[-1] is None else experiments[-1]["file"]
+        entry["discriminate_plant"] = None if experiments[-1] is None else experiments[-1]["plant"]
         entry["experiment"] = experiments[-1]
     atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
     atomic_write_text(out / "calibrated_plant.json", plant_file_text(
@@ -259,7 +265,9 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
                       executor: Executor | None = None) -> dict[str, Any] | None:
     """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``,
     numbered from the second group on)."""
-    name = "discriminating_input.csv" if index == 0 else f"discriminating_input_{index + 1}.csv"
+    suffix = "" if index == 0 else f"_{index + 1}"
+    name = EXPERIMENT_FILE.replace(".csv", f"{suffix}.csv")
+    plant_name = EXPERIMENT_PLANT_FILE.replace(".json", f"{suffix}.json")
     load = float(d.load_n[0]) if d.load_n is not None else None
     duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
     # within the commands the recording covered, where the alternatives were fitted (design_input)
@@ -267,8 +275,17 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     exp = design_input({a.effect: a.params for a in group}, ts_s=d.ts_s, duration_s=duration,
                        noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, u_span_v=span,
                        executor=executor)
-    write_experiment(exp, out / name, alternatives=[a.effect for a in group], ts_s=d.ts_s)
-    return {"file": name} | exp.to_json()
+    effects = [a.effect for a in group]
+    write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s)
+    # The re-diagnosis starts from the constants this recording identified: the experiment's recording
+    # was designed to separate the alternatives, not to pin the constants, and recalibrated from the
+    # nominal plant on it they would take up again what the alternatives differ in.
+    base = d.calibrated.with_values(**MUSCLE.off_values([k for a in group for k in a.parameters]))
+    atomic_write_text(out / plant_name, plant_file_text(
+        base, f"the calibrated plant without {', '.join(effects)}: re-diagnose the recording of {name} with it"))
+    command = (f"tapmuscle diagnose --recording NEW.csv --plant {plant_name} --effects {','.join(effects)} "
+               "--out NEW_DIAGNOSIS")
+    return {"file": name, "plant": plant_name, "rediagnose": command} | exp.to_json()
 
 
 def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *, plots: bool = True,
