@@ -1,0 +1,42 @@
+"""docs/notebooks/ run in a real Jupyter kernel (nbclient, ipykernel): tapmuscle called from a notebook
+keeps the notebook's inline figures, spawns its worker processes, and gives the documented results."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+NOTEBOOK = Path(__file__).resolve().parent.parent / "docs" / "notebooks" / "tapmuscle_in_a_notebook.ipynb"
+
+
+def _text(cell) -> str:
+    return "".join(o.get("text", "") for o in cell.outputs if o.output_type == "stream")
+
+
+def _images(cell) -> int:
+    return sum("image/png" in o.get("data", {}) for o in cell.outputs)
+
+
+@pytest.mark.slow
+def test_the_notebook_runs_in_a_jupyter_kernel_with_its_figures_inline(tmp_path):
+    nb = nbformat.read(NOTEBOOK, as_version=4)
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert all(not c.outputs for c in code), "commit the notebook without outputs"
+    # raises CellExecutionError, naming the cell, on any error
+    NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    rig, diagnosis, files, loop = code[1:]
+    assert _images(rig) == 1  # the user's own plot, inline
+    m = re.search(r"mismatch \['transport_delay'\] delay ([0-9.]+) s fit ([0-9.]+) %", _text(diagnosis))
+    assert m, _text(diagnosis)  # workers=2: spawned from the kernel
+    assert abs(float(m.group(1)) - 0.3) < 0.05 and float(m.group(2)) > 95.0
+    assert "mismatch ['transport_delay']" in _text(files) and _images(files) == 1  # the report's overlay.png
+    assert (tmp_path / "diagnosis_out" / "overlay.png").is_file()
+    # after tapmuscle drew its figures, the user's plot still shows inline, on the inline backend
+    assert _images(loop) == 1
+    assert "module://matplotlib_inline.backend_inline" in _text(loop)
+    eq21 = float(re.search(r"Eq\. \(21\) error ([0-9.]+) mm", _text(loop)).group(1))
+    assert eq21 < 0.5  # the AMPC-servo tracks the 60-mm sine (0.084 mm at 44 N, 0.1 Hz: docs/control.md, Table 7)
