@@ -193,7 +193,8 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
             progress(i + 1, len(library) + local_steps)
     scored.sort(key=lambda s: -s[0])
     best_sep, kind, args = scored[0]
-    # local search from the best: move one to three held levels, or the sine's parameters
+    # local search from the best: move one to three held levels, or the sine's parameters, by steps
+    # in proportion to the span (1.5 V and 0.5 V on the default 8-V span)
     for step in range(local_steps):
         if kind == "steps":
             levels = np.array(args[0], float)

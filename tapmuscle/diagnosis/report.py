@@ -263,8 +263,9 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
 
 def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
                       executor: Executor | None = None) -> dict[str, Any] | None:
-    """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``,
-    numbered from the second group on)."""
+    """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``)
+    with the plant to re-diagnose its recording with (``discriminate_plant.json``), both numbered from
+    the second group on."""
     suffix = "" if index == 0 else f"_{index + 1}"
     name = EXPERIMENT_FILE.replace(".csv", f"{suffix}.csv")
     plant_name = EXPERIMENT_PLANT_FILE.replace(".json", f"{suffix}.json")

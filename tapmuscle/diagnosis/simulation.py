@@ -138,7 +138,7 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
         yield pool
 
 
-def spawn_context(what: str) -> Any:
+def spawn_context(what: str) -> multiprocessing.context.SpawnContext:
     """The ``spawn`` multiprocessing context, refused with a clear error where it cannot start.
 
     A spawned process re-imports the parent's ``__main__`` from its file. A script read from stdin
@@ -149,6 +149,11 @@ def spawn_context(what: str) -> Any:
     ----------
     what : str
         The setting that asked for processes, named in the error (``"workers=2"``).
+
+    Raises
+    ------
+    tapmuscle.errors.UsageError
+        The main module names a file that does not exist.
     """
     path = getattr(sys.modules.get("__main__"), "__file__", None)
     if path is not None and not os.path.exists(path):
