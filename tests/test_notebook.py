@@ -1,5 +1,6 @@
 """docs/notebooks/ run in a real Jupyter kernel (nbclient, ipykernel): tapmuscle called from a notebook
-keeps the notebook's inline figures, spawns its worker processes, and gives the documented results."""
+keeps the notebook's inline figures, spawns its worker processes, runs the FMUs in the kernel's process
+(twice, as a re-run cell does), and gives the documented results."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ def test_the_notebook_runs_in_a_jupyter_kernel_with_its_figures_inline(tmp_path)
     assert all(not c.outputs for c in code), "commit the notebook without outputs"
     # raises CellExecutionError, naming the cell, on any error
     NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
-    rig, diagnosis, files, loop = code[1:]
+    rig, diagnosis, files, loop, fmus = code[1:]
     assert _images(rig) == 1  # the user's own plot, inline
     m = re.search(r"mismatch \['transport_delay'\] delay ([0-9.]+) s fit ([0-9.]+) %", _text(diagnosis))
     assert m, _text(diagnosis)  # workers=2: spawned from the kernel
@@ -40,3 +41,6 @@ def test_the_notebook_runs_in_a_jupyter_kernel_with_its_figures_inline(tmp_path)
     assert "module://matplotlib_inline.backend_inline" in _text(loop)
     eq21 = float(re.search(r"Eq\. \(21\) error ([0-9.]+) mm", _text(loop)).group(1))
     assert eq21 < 0.5  # the AMPC-servo tracks the 60-mm sine (0.084 mm at 44 N, 0.1 Hz: docs/control.md, Table 7)
+    # the FMUs loaded into the kernel's process, twice: the direct loop bit for bit (a contract: one process)
+    runs = re.findall(r"FMUs, run (\d): Eq\. \(21\) error ([0-9.]+) mm, the direct loop's bit for bit: (\w+)", _text(fmus))
+    assert [(n, same) for n, _, same in runs] == [("1", "True"), ("2", "True")], _text(fmus)
