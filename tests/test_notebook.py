@@ -39,7 +39,7 @@ def test_the_notebook_runs_in_a_jupyter_kernel_with_its_figures_inline(tmp_path)
     # after tapmuscle drew its figures, the user's plot still shows inline, on the inline backend
     assert _images(loop) == 1
     backend = _text(loop).split()[-1]  # the cell's last line: plt.get_backend()
-    assert "inline" in backend, backend  # "module://matplotlib_inline.backend_inline"; "inline" in newer matplotlib
+    assert "inline" in backend, backend  # "module://matplotlib_inline.backend_inline"; IPython 9 names it "inline"
     eq21 = float(re.search(r"Eq\. \(21\) error ([0-9.]+) mm", _text(loop)).group(1))
     assert eq21 < 0.5  # the AMPC-servo tracks the 60-mm sine (0.084 mm at 44 N, 0.1 Hz: docs/control.md, Table 7)
     # the FMUs loaded into the kernel's process, twice: the direct loop bit for bit (a contract: one process)
