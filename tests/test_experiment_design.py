@@ -79,3 +79,15 @@ def test_the_design_stays_within_the_commands_it_is_given():
         design_input(alts, ts_s=0.1, u_span_v=(3.0, 10.5))
     with pytest.raises(ValueError, match="u_span_v"):
         design_input(alts, ts_s=0.1, u_span_v=(6.0, 4.0))
+
+
+def test_the_local_search_keeps_the_command_moving():
+    """A 3-N load mismatch separates best with the command low: the sine's local search walks to the
+    span's lower edge, where its amplitude once shrank to 0.01-0.03 V, nearly a constant command (the
+    diagnosis refuses a constant one). It keeps at least 0.2 V there."""
+    heavier = A.with_values(**{"load_mismatch.extra_n": 3.0})
+    for seed in (0, 1, 2):
+        exp = design_input({"none": A, "load_mismatch": heavier}, ts_s=0.1, duration_s=20.0, noise_mm=0.013,
+                           seed=seed, local_steps=30, u_span_v=(5.0, 6.0))
+        assert 5.0 <= exp.u_v.min() and exp.u_v.max() <= 6.0, seed
+        assert np.ptp(exp.u_v) > 0.3, (seed, exp.description)  # a 0.2-V sine sampled at 0.1 s

@@ -163,6 +163,7 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
         return _predict(u, ts_s, plants)
 
     mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    a_min = min(0.2, 0.5 * half)  # [V], the smallest sine amplitude of the local search
     rng = np.random.default_rng(seed)
     # the library: (kind, parameters)
     library: list[tuple[str, tuple]] = []
@@ -203,13 +204,17 @@ def design_input(alternatives: dict[str, PlantParams], *, ts_s: float, duration_
             trial = (tuple(levels), args[1])
         else:
             offset, amp, freq = args
-            offset = float(np.clip(offset + rng.normal(0.0, 0.5 * half / 4.0), lo, hi))
-            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), 0.0, min(offset - lo, hi - offset)))
+            # a sine keeps at least a_min of amplitude: a constant command excites nothing, and the
+            # diagnosis refuses a recording of one
+            offset = float(np.clip(offset + rng.normal(0.0, 0.5 * half / 4.0), lo + a_min, hi - a_min))
+            amp = float(np.clip(amp * math.exp(rng.normal(0.0, 0.2)), a_min, min(offset - lo, hi - offset)))
             freq = float(np.clip(freq * math.exp(rng.normal(0.0, 0.3)), 0.02, 0.5 / (4 * ts_s)))
             trial = (offset, amp, freq)
-        sep = separation(predict(build(kind, trial)))
-        if sep > best_sep:
-            best_sep, args = sep, trial
+        u_trial = build(kind, trial)
+        if np.ptp(u_trial) > 0.0:  # held levels moved onto one value are a constant command, as above
+            sep = separation(predict(u_trial))
+            if sep > best_sep:
+                best_sep, args = sep, trial
         if progress is not None:
             progress(len(library) + step + 1, len(library) + local_steps)
     u = build(kind, args)
