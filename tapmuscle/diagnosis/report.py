@@ -75,7 +75,7 @@ def summary_lines(d: Diagnosis) -> list[str]:
 
 
 def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
-               experiments: list[dict[str, Any] | None] | None = None) -> str:
+               experiments: list[dict[str, Any]] | None = None) -> str:
     lines = [f"# Mismatch diagnosis of `{recording}`", "",
              f"Plant model: `{plant}`. Verdict: **{d.verdict}**. Held-out fit (NRMSE, interleaved "
              f"{int(d.test.sum())} of {len(d.test)} samples): **{d.fit_before_percent:.2f} % -> "
@@ -101,7 +101,7 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             lines.append(f"| `{a.effect}` | {a.explanation} | {a.fit_after_percent:.2f} | {a.held_out_sse_mm2:.4g} | "
                          + (f"{vs['sse_ratio']:.3f}, {vs['p_value']:.2g} |" if vs else "best |"))
         lines.append("")
-        if experiments and i - 1 < len(experiments) and experiments[i - 1] is not None:
+        if experiments and i - 1 < len(experiments):
             e = experiments[i - 1]
             lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
                       f"alternatives' predictions differ by at least {e['separation_sigma']:.0f} noise sd "
@@ -248,9 +248,8 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     experiments = []
     for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
         experiments.append(_write_experiment(d, group, out, i, executor))
-        entry["discriminating_input"] = None if experiments[-1] is None else experiments[-1]["file"]
-        entry["discriminate_plant"] = None if experiments[-1] is None else experiments[-1]["plant"]
-        entry["experiment"] = experiments[-1]
+        entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
+                     experiment=experiments[-1])
     atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
     atomic_write_text(out / "calibrated_plant.json", plant_file_text(
         d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
@@ -262,7 +261,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
 
 
 def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
-                      executor: Executor | None = None) -> dict[str, Any] | None:
+                      executor: Executor | None = None) -> dict[str, Any]:
     """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``)
     with the plant to re-diagnose its recording with (``discriminate_plant.json``), both numbered from
     the second group on."""
