@@ -7,7 +7,29 @@ slow"`` is the quick run (under 30 s here). The other markers
 ``pyproject.toml``.
 """
 
+import os
+import tempfile
+
 import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _temporary_directory_of_the_run(tmp_path_factory):
+    """The temporary directory of this process and of every process it starts (subprocesses, Jupyter
+    kernels, Dask workers) is a folder of pytest's base directory, which pytest keeps for the last 3
+    runs only: what the hosts under test extract and leave there (fmpy's ``extract()`` without a
+    folder, the SSP Ecos unpacks into ``ecos_ssp_<uuid>`` and keeps) does not pile up in the
+    machine's ``/tmp``, run after run."""
+    folder = tmp_path_factory.mktemp("TMPDIR", numbered=False)
+    before = os.environ.get("TMPDIR"), tempfile.tempdir
+    os.environ["TMPDIR"] = str(folder)
+    tempfile.tempdir = None  # gettempdir() reads TMPDIR again
+    yield folder
+    if before[0] is None:
+        os.environ.pop("TMPDIR", None)
+    else:
+        os.environ["TMPDIR"] = before[0]
+    tempfile.tempdir = before[1]
 
 
 @pytest.fixture(scope="session")

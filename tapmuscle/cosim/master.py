@@ -28,11 +28,8 @@ logged message.
 
 from __future__ import annotations
 
-import atexit
 import itertools
 import re
-import shutil
-import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -49,6 +46,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import REFERENCE_SOURCES
 
 from fmu_plant.seed import split_seed
+from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
@@ -109,12 +107,9 @@ def _callbacks() -> Any:
     return _CALLBACKS[0]
 
 
-def _cleanup(folder: str) -> None:
-    shutil.rmtree(folder, ignore_errors=True)
-
-
 def unpack(path: str | Path) -> Unpacked:
-    """Extract ``path`` (cached per process; removed at exit)."""
+    """Extract ``path`` (cached per process; removed after the process, even a killed one:
+    :mod:`tapmuscle.cosim.extraction_folder`)."""
     from fmpy import extract, read_model_description
 
     path = Path(path).resolve()
@@ -126,8 +121,7 @@ def unpack(path: str | Path) -> Unpacked:
             md = read_model_description(str(path))
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU file
             raise ScenarioError(f"{path}: not a readable FMU: {exc}") from None
-        folder = extract(str(path), tempfile.mkdtemp(prefix=f"tapmuscle_{md.modelName}_"))
-        atexit.register(_cleanup, folder)
+        folder = extract(str(path), claimed_folder(f"tapmuscle_{md.modelName}_"))
         _UNPACKED[path] = Unpacked(path, md, folder, {v.name: v for v in md.modelVariables})
     return _UNPACKED[path]
 

@@ -1,0 +1,117 @@
+"""The folders FMUs are extracted into, removed after the process that uses them, even a killed one.
+
+An FMU is a zip file; a host extracts it and loads its binary from the folder. A folder removed at
+the interpreter's exit (``atexit``) outlives every process that ends without it: a Jupyter kernel
+restarted or interrupted for good, a Dask worker its nanny terminates, a forked worker that leaves
+through ``os._exit``, a CI job killed at its time limit. Each leaves a copy of the FMU (about 1 MB
+per FMU here) in the temporary directory.
+
+So each folder holds a lock file with an exclusive ``flock`` for as long as the process that
+extracted it (and any child it forked) is alive; the kernel releases the lock when the process ends,
+however it ends. Whoever extracts an FMU next removes the folders of the same prefix whose lock can
+be taken: nobody holds them. A folder is created under a name the sweep does not look at, locked,
+and only then renamed to its final name, so no sweep can see it unlocked. Where ``fcntl`` is missing
+(Windows), the folders are removed at exit only.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["LOCK_NAME", "claimed_folder", "remove_abandoned"]
+
+#: The lock file in each claimed folder.
+LOCK_NAME = ".in-use.lock"
+
+_HELD: list[int] = []
+"""Lock file descriptors of this process's folders (kept open: closing one releases its lock)."""
+
+
+def _try_lock(fd: int) -> bool:
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True
+
+
+def remove_abandoned(prefix: str, root: str | Path | None = None) -> list[Path]:
+    """Remove the folders ``root/prefix*`` whose lock nobody holds; the removed folders.
+
+    A folder without a lock file is left alone (not made by :func:`claimed_folder`).
+
+    Parameters
+    ----------
+    prefix : str
+        The folders' name prefix, as given to :func:`claimed_folder`.
+    root : str or Path, optional
+        Where they are (default: the temporary directory, ``tempfile.gettempdir()``).
+    """
+    if fcntl is None:  # pragma: no cover - Windows
+        return []
+    removed = []
+    for folder in sorted(Path(root or tempfile.gettempdir()).glob(f"{prefix}*")):
+        try:
+            fd = os.open(folder / LOCK_NAME, os.O_RDWR)
+        except OSError:  # no lock file, or not ours to open
+            continue
+        try:
+            if _try_lock(fd):
+                shutil.rmtree(folder, ignore_errors=True)
+                removed.append(folder)
+        finally:
+            os.close(fd)
+    return removed
+
+
+def _remove_at_exit(folder: str) -> None:
+    owner = os.getpid()
+
+    def remove() -> None:
+        if os.getpid() == owner:  # a forked child that exits through sys.exit leaves its parent's folder
+            shutil.rmtree(folder, ignore_errors=True)
+
+    atexit.register(remove)
+
+
+def claimed_folder(prefix: str, root: str | Path | None = None) -> str:
+    """A new empty folder ``root/prefix<random>``, locked for this process's life and removed at its exit.
+
+    The abandoned folders of the same prefix (:func:`remove_abandoned`) are removed first.
+
+    Parameters
+    ----------
+    prefix : str
+        The folder's name prefix (e.g. ``tapmuscle_MusclePlant_``).
+    root : str or Path, optional
+        Where to create it (default: the temporary directory).
+
+    Returns
+    -------
+    str
+        The folder's path.
+    """
+    root = str(root or tempfile.gettempdir())
+    remove_abandoned(prefix, root)
+    if fcntl is None:  # pragma: no cover - Windows
+        folder = tempfile.mkdtemp(prefix=prefix, dir=root)
+        _remove_at_exit(folder)
+        return folder
+    # created under a name no sweep matches, locked, then renamed: never visible unlocked
+    staging = tempfile.mkdtemp(prefix=f".claiming-{prefix}", dir=root)
+    fd = os.open(os.path.join(staging, LOCK_NAME), os.O_CREAT | os.O_RDWR, 0o600)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    folder = os.path.join(root, prefix + os.path.basename(staging)[len(f".claiming-{prefix}"):])
+    os.rename(staging, folder)
+    _HELD.append(fd)
+    _remove_at_exit(folder)
+    return folder
