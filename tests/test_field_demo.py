@@ -314,6 +314,29 @@ def test_the_discriminating_experiment_picks_the_rate_dependence_over_a_map(tmp_
     assert Path(rediag["plant"]).name == "discriminate_plant.json"
 
 
+@pytest.mark.slow
+def test_a_second_effect_beside_a_sag_is_judged_without_the_blocks_of_its_unplaced_edge(tmp_path):
+    """Seed 3 case 028 as the demo runs it: a supply sag and a rate dependence under the AMPC loop.
+    The sag's fall lies in the held-out block 50-60 s, where the training blocks do not place it,
+    and the model's error there is the fall's. Judged on every held-out block, the rate
+    dependence's joint re-fit removed 2.3 % of the held-out error and was not accepted; without
+    that block it removes over 40 %, and both effects are named."""
+    case = field_cases(100, 3)[28]
+    assert sorted(case.effects) == ["rate_dependent_hysteresis", "supply_pressure_variation"]
+    r = run_field_case(case, tmp_path, keep=True)
+    assert r["verdict"] == "mismatch"
+    assert sorted(f for f in r["findings"] if f != "unexplained") == sorted(case.effects)
+    assert r["fit_after_percent"] > 94.0  # 95.2 here; the fall's placement caps it (docs/diagnosis.md)
+    doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    added = [s for s in doc["selection"] if s["step"] == "add"]
+    assert [s["effect"] for s in added] == ["supply_pressure_variation", "rate_dependent_hysteresis"]
+    assert "held_out_blocks_left_out_s" not in added[0]  # nothing in the model yet: every block judged
+    assert [50.0, 60.0] in added[1]["held_out_blocks_left_out_s"]
+    assert added[1]["held_out_sse_reduction"] > 0.2
+    report = (tmp_path / case.name / "report.md").read_text()
+    assert "added `rate_dependent_hysteresis` (round 2) left out the held-out blocks" in report
+
+
 def test_the_closed_loop_recording_is_the_fmus_bit_for_bit(tmp_path, built_fmus, cases120):
     """The AMPC FMU driving the plant FMU, with the truth's constants and effects as FMU parameters,
     records what the direct loop records (docs/diagnosis.md). The recordings use the paper's timing

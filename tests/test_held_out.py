@@ -70,6 +70,40 @@ def test_an_effect_seen_in_one_channel_is_not_diluted_by_the_other():
     assert alone.contribution_rms_mm(l_model, shift_p, l_model, p_model) == 0.0
 
 
+@pytest.mark.parametrize("stretches, left_out", [
+    ([(51.9, 54.1), (78.2, 79.3)], [5, 7]),  # a sag's fall and recovery, both in held-out blocks
+    ([(61.0, 62.5), (78.2, 79.3)], [7]),  # its fall placed within a training block
+    ([(58.0, 71.0)], [5, 7]),  # a ramp across a training block and into the held-out blocks either side
+    ([(120.0, 120.0)], []),  # an instant at a training block's start
+    ([(119.95, 119.95)], [11]),  # ... and the last sample before it
+])
+def test_the_blocks_an_edge_touches_are_left_out_of_the_evidence(stretches, left_out):
+    """Only held-out blocks go, whole, and only those a stretch touches; the residual is the same
+    computation on fewer samples (the pressure's too)."""
+    y, p, l_model, p_model, test = _recording()
+    ev = HeldOut.setup(y, test, NOISE_MM, p, p_model)
+    out = ev.without_blocks_touching(stretches, 0.1, 10.0)
+    block = np.arange(N) // 100
+    gone = sorted(set(block[ev.test & ~out.test]))
+    assert gone == left_out
+    assert not np.any(out.test & ~ev.test)  # nothing added
+    assert all(not np.any(out.test[block == k]) for k in left_out)  # whole blocks
+    assert out.pressure_noise_mpa == ev.pressure_noise_mpa and out.noise_mm == ev.noise_mm
+    k = int(out.test.sum())
+    assert np.array_equal(out.residual(l_model, p_model)[:k], (y - l_model)[out.test])
+
+
+def test_the_evidence_is_kept_whole_rather_than_halved():
+    """Leaving out blocks that hold half the held-out samples or more would take the tests' power:
+    the evidence stays as it is."""
+    y, p, l_model, p_model, test = _recording()
+    ev = HeldOut.setup(y, test, NOISE_MM, None, None)
+    four = ev.without_blocks_touching([(10.0, 75.0)], 0.1, 10.0)  # 4 of the 9 held-out blocks go
+    assert int(four.test.sum()) == 500
+    assert ev.without_blocks_touching([(10.0, 90.0)], 0.1, 10.0) is ev  # 5 of 9 would go: kept whole
+    assert ev.without_blocks_touching([], 0.1, 10.0) is ev
+
+
 # ------------------------------------------------------------------------------ in the diagnosis
 @pytest.mark.slow
 def test_the_pressure_is_weighed_only_when_asked():

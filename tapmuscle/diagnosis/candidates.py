@@ -94,6 +94,11 @@ class Candidate:
     step leaves (:attr:`Problem.constants`, set by the search when there are calibrated constants):
     ``(problem, y_base) ->`` the number of samples from the start that search looks at on a base
     whose prediction is ``y_base`` (the constants' Jacobian is simulated that far)."""
+    edges: Callable[[dict[str, float]], list[tuple[float, float]]] | None = None
+    """Set for an effect present only for a while: ``values ->`` the stretches [s] its edges cover as
+    fitted (a sag's fall and recovery). The held-out blocks they touch are left out of the tests of
+    the other effects (docs/diagnosis.md, step 5): where an edge lies inside a held-out block, the
+    training blocks do not place it, and the prediction error there is the edge's."""
 
 
 # --------------------------------------------------------------------------------------- helpers
@@ -607,6 +612,15 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
                      located=[(located[0], min(float(pr.t_s[-1]), located[1]))])
 
 
+def _sag_edges(v: dict[str, float]) -> list[tuple[float, float]]:
+    """The fall and the recovery [s], as fitted (a ramp across the stretch an edge may lie on)."""
+    fall = v["supply_variation.ramp_s"]
+    back = v.get("supply_variation.recovery_ramp_s", -1.0)
+    back = fall if back < 0.0 else back
+    start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
+    return [(start, start + fall), (end, end + back)]
+
+
 def _explain_sag(v: dict[str, float]) -> str:
     """The sag's finding in words; a long ramp is stated as the stretch the edge lies in."""
     start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
@@ -672,7 +686,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "stretch where their cost is flat (the expected supply pressure when the edge may be anywhere on it). "
         "(The ripple parameters are simulated but not fitted.)",
         _fit_supply_sag,
-        _explain_sag),
+        _explain_sag, edges=_sag_edges),
     Candidate(
         "load_mismatch",
         "The weight on the muscle differs from the nominal load (hook and plate, pulley friction, a "

@@ -746,15 +746,35 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
     cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
 
+    def judged(effect: str | None = None) -> HeldOut:
+        """The held-out evidence a test of ``effect`` rests on (None: an effect not in the model).
+
+        Without the held-out blocks that an edge of another effect in the model touches, as its fit
+        placed it (:attr:`Candidate.edges`: a sag's fall and recovery). An edge inside a held-out
+        block is not placed by the training blocks, and the prediction error there is mostly where
+        the edge lies, which no other effect can explain: left in, it dilutes every later effect's
+        share of the held-out error, and a re-fit that moves the edge within the block decides the
+        backward step (docs/diagnosis.md, step 5). The fits reported stay on every held-out block."""
+        stretches = [s_ for name, vals in current.values.items() if name != effect and by_name[name].edges
+                     for s_ in by_name[name].edges(vals)]
+        return evidence.without_blocks_touching(stretches, ts, block_s)
+
+    def left_out(on: HeldOut) -> dict[str, list[list[float]]]:
+        """The held-out blocks [s] ``on`` leaves out, for the selection's record (none: nothing)."""
+        starts = sorted({float(k * block_s) for k in (np.flatnonzero(evidence.test & ~on.test) * ts // block_s)})
+        return {"held_out_blocks_left_out_s": [[a, a + block_s] for a in starts]} if starts else {}
+
     def significance(base: np.ndarray, new: np.ndarray, q_base: np.ndarray | None = None,
-                     q_new: np.ndarray | None = None) -> dict[str, float]:
-        """The held-out test of ``new`` against ``base`` (both channels when both predictions carry
-        the pressure; the SSE reduction is the displacement's)."""
+                     q_new: np.ndarray | None = None, *, on: HeldOut | None = None) -> dict[str, float]:
+        """The held-out test of ``new`` against ``base`` on the evidence ``on`` (default: every
+        held-out block); both channels when both predictions carry the pressure (the SSE reduction
+        is the displacement's)."""
+        on = evidence if on is None else on
         both = q_base is not None and q_new is not None
-        sig = _significance(evidence.residual(base, q_base) if both else (y - base)[test],
-                            evidence.residual(new, q_new) if both else (y - new)[test], noise, alpha)
+        sig = _significance(on.residual(base, q_base) if both else (y - base)[on.test],
+                            on.residual(new, q_new) if both else (y - new)[on.test], noise, alpha)
         if both:
-            e0, e1 = (y - base)[test], (y - new)[test]
+            e0, e1 = (y - base)[on.test], (y - new)[on.test]
             sig["reduction"] = 1.0 - sse(e1) / sse(e0) if sse(e0) > 0 else 0.0
         return sig
 
@@ -831,7 +851,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 tried.append({"round": round_no, "effect": cand.name, "fitted": False} | cost
                              | ({"rejected": res.reason} if isinstance(res, Rejected) else {}))
                 continue
-            sig = significance(current.y, res.y_hat)
+            sig = significance(current.y, res.y_hat, on=judged())
             gain = fit_percent(y, res.y_hat, test) - fit_base
             tried.append({"round": round_no, "effect": cand.name, "fitted": True,
                           "fit_gain_points": round(gain, 3), "held_out_sse_reduction": round(sig["reduction"], 4),
@@ -911,11 +931,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                     joints[i][1:5] = [res2, p2, y2, q2]
             joints[i][5] += sim.runs - runs0
             joints[i][6] += time.perf_counter() - t_fit
+        on = judged()
         for cand, res, p1, y1, q1, sims_used, secs in joints:
             q1 = _used(q1)
             cost = {"simulations": sims_used, "seconds": round(secs, 2)}
-            contribution_rms = evidence.contribution_rms_mm(y1, q1, ref_y, ref_q)
-            sig = significance(ref_y, y1, ref_q, q1) | {"contribution_rms_mm": contribution_rms}
+            contribution_rms = on.contribution_rms_mm(y1, q1, ref_y, ref_q)
+            sig = significance(ref_y, y1, ref_q, q1, on=on) | {"contribution_rms_mm": contribution_rms}
             values = {k: float(v) for k, v in p1.dotted().items() if k in res.values}
             tried.append({"round": round_no, "effect": cand.name, "joint": True,
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
@@ -928,13 +949,13 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         accepted = sorted((a for a in alts if passes(a.evidence)), key=lambda a: a.evidence["sse_after_mm2"])
         if not accepted:
             selection.append({"step": "stop", "round": round_no, "reason": "no candidate passes the held-out test "
-                              "against the recalibrated model"})
+                              "against the recalibrated model"} | left_out(on))
             break
         best = accepted[0]
         group = [best]
         for other in accepted[1:]:
-            ok, ev = distinguishable(evidence.residual(best.y_hat, best.q_hat),
-                                     evidence.residual(other.y_hat, other.q_hat), noise, alpha=alpha)
+            ok, ev = distinguishable(on.residual(best.y_hat, best.q_hat),
+                                     on.residual(other.y_hat, other.q_hat), noise, alpha=alpha)
             other.evidence["versus_best"] = ev
             if not ok:
                 group.append(other)
@@ -951,7 +972,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                 {k: v for k, v in best.evidence.items()}))
         selection.append({"step": "add", "round": round_no, "effect": best.effect,
                           "held_out_sse_reduction": round(best.evidence["reduction"], 4),
-                          "alternatives": [a.effect for a in group[1:]]})
+                          "alternatives": [a.effect for a in group[1:]]} | left_out(on))
         current = _Model(best.params, current.effects + (best.effect,), best.y_hat,
                          current.values | {best.effect: best.parameters}, best.q_hat)
         # a profiled parameter is re-chosen before the next round searches the residual it leaves
@@ -984,11 +1005,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                           "effect": name})
                         current = better
                         converged = current.params
-                sig = significance(y_wo, current.y, q_wo, current.q)
+                on_wo = judged(name)
+                sig = significance(y_wo, current.y, q_wo, current.q, on=on_wo)
                 if not passes(sig, REMOVE_LEVEL_FACTOR * alpha):
                     selection.append({"step": "drop", "round": round_no, "effect": name,
                                       "held_out_sse_reduction_it_gave": round(sig["reduction"], 4),
-                                      "p_value": sig["p_value"]})
+                                      "p_value": sig["p_value"]} | left_out(on_wo))
                     findings = [f for f in findings if f.effect != name]
                     current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
                     converged = current.params
@@ -1061,11 +1083,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     excess1 = max(tests1["rms_mm"] ** 2 - floor ** 2, 0.0)
     # an alternative that a later round accepted as well is part of the model, not an alternative;
     # and the others are judged again against what the final model leaves unexplained
-    final_test = evidence.residual(y_base, current.q)
 
     def still_tied(best: Alternative, other: Alternative) -> bool:
-        ok, ev = distinguishable(evidence.residual(best.y_hat, best.q_hat), evidence.residual(other.y_hat, other.q_hat),
-                                 noise, alpha=alpha, residual_mm=final_test)
+        on = judged(best.effect)
+        ok, ev = distinguishable(on.residual(best.y_hat, best.q_hat), on.residual(other.y_hat, other.q_hat),
+                                 noise, alpha=alpha, residual_mm=on.residual(y_base, current.q))
         other.evidence["versus_best"] = ev
         return not ok
     ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or (a.effect not in current.effects

@@ -29,7 +29,8 @@ the displacement's alone.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Sequence
 
 import numpy as np
 
@@ -104,6 +105,24 @@ class HeldOut:
         """Stacked held-out residual [mm] of a whole-run prediction (:meth:`stacked` on the held-out
         blocks)."""
         return self.stacked(y_hat, p_hat, self.test)
+
+    def without_blocks_touching(self, stretches_s: Sequence[tuple[float, float]], ts_s: float,
+                                block_s: float) -> "HeldOut":
+        """The evidence without the held-out blocks that any of ``stretches_s`` touches.
+
+        A stretch is ``(from, to)`` [s] on the recording's time base ``k ts_s``; the blocks are those
+        of :func:`~tapmuscle.diagnosis.residual_analysis.interleaved_split` with ``block_s``. The
+        evidence is returned unchanged when the blocks left would hold fewer than half its held-out
+        samples (the tests' power would go with them).
+        """
+        if not len(stretches_s):
+            return self
+        block = np.arange(len(self.y_mm)) * ts_s // block_s
+        touched = [k for a, b in stretches_s for k in range(int(a // block_s), int(b // block_s) + 1)]
+        test = self.test & ~np.isin(block, touched)
+        if 2 * int(test.sum()) < int(self.test.sum()):
+            return self
+        return replace(self, test=test)
 
     def contribution_rms_mm(self, y_a: np.ndarray, p_a: np.ndarray | None, y_b: np.ndarray,
                             p_b: np.ndarray | None) -> float:

@@ -150,6 +150,15 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
               f"its contribution rejects 'only noise' at p < 0.001, and its contribution exceeds {MATERIAL_EFFECT_FACTOR:g} x "
               "the noise "
               "(docs/diagnosis.md).", ""]
+    for step in d.selection or []:
+        blocks = step.get("held_out_blocks_left_out_s")
+        if blocks:
+            where = ", ".join(f"{a:g}-{b:g} s" for a, b in blocks)
+            what = {"add": f"added `{step.get('effect')}`", "drop": f"dropped `{step.get('effect')}`",
+                    "stop": "found no further effect"}[step["step"]]
+            lines += [f"The held-out tests that {what} (round "
+                      f"{step['round']}) left out the held-out blocks {where}: an edge of an effect in the model lies "
+                      "there, which the training blocks do not place (docs/diagnosis.md, step 5).", ""]
     if fmu_check is not None:
         lines += ["## FMU check", "", f"The plant FMU re-simulated the recording's command; it differs from the "
                   f"in-process model the fits use by at most {fmu_check['max_abs_difference_mm']:.2e} mm.", ""]
