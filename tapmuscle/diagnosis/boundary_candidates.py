@@ -298,6 +298,11 @@ def _explain_backlash(v: dict[str, float], *, var: str, unit: str) -> str:
     return f"input {var} acts through {v[f'{var}:backlash']:.3g} {unit} of play"
 
 
+def _secondary_edges(v: dict[str, float], *, var: str) -> list[tuple[float, float]]:
+    """The change's start and end [s], as fitted (steps: each an instant)."""
+    return [(v[f"{var}:start_s"],) * 2, (v[f"{var}:end_s"],) * 2]
+
+
 def _explain_secondary(v: dict[str, float], *, var: str, unit: str) -> str:
     return (f"input {var} (not recorded, held at its start value) changed by {v[f'{var}:change']:+.3g} {unit} from "
             f"{v[f'{var}:start_s']:.1f} s to {v[f'{var}:end_s']:.1f} s")
@@ -346,7 +351,8 @@ def boundary_candidates(sim: ForeignSimulator) -> list[Candidate]:
                  ParameterSpec(f"{v.name}:start_s", "s", float(sim.t_s[0]), float(sim.t_s[-1])),
                  ParameterSpec(f"{v.name}:end_s", "s", float(sim.t_s[0]), float(sim.t_s[-1]))),
                 "Window from the residual's location, a scan of changes, then Nelder-Mead on change, start and end.",
-                partial(_fit_secondary, var=v.name), partial(_explain_secondary, var=v.name, unit=unit)))
+                partial(_fit_secondary, var=v.name), partial(_explain_secondary, var=v.name, unit=unit),
+                edges=partial(_secondary_edges, var=v.name)))
     y = sim.output
     unit = iface.variable(y).unit or "(unit)"
     out += [

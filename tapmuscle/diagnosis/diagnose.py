@@ -755,13 +755,14 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         the edge lies, which no other effect can explain: left in, it dilutes every later effect's
         share of the held-out error, and a re-fit that moves the edge within the block decides the
         backward step (docs/diagnosis.md, step 5). The fits reported stay on every held-out block."""
-        stretches = [s_ for name, vals in current.values.items() if name != effect and by_name[name].edges
-                     for s_ in by_name[name].edges(vals)]
+        t0 = float(t[0])  # the blocks count from the recording's first sample
+        stretches = [(a - t0, b - t0) for name, vals in current.values.items() if name != effect and by_name[name].edges
+                     for a, b in by_name[name].edges(vals)]
         return evidence.without_blocks_touching(stretches, ts, block_s)
 
     def left_out(on: HeldOut) -> dict[str, list[list[float]]]:
         """The held-out blocks [s] ``on`` leaves out, for the selection's record (none: nothing)."""
-        starts = sorted({float(k * block_s) for k in (np.flatnonzero(evidence.test & ~on.test) * ts // block_s)})
+        starts = sorted({float(t[0] + k * block_s) for k in (np.flatnonzero(evidence.test & ~on.test) * ts // block_s)})
         return {"held_out_blocks_left_out_s": [[a, a + block_s] for a in starts]} if starts else {}
 
     def significance(base: np.ndarray, new: np.ndarray, q_base: np.ndarray | None = None,
