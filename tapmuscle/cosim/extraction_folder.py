@@ -9,8 +9,8 @@ per FMU here) in the temporary directory.
 So each folder holds a lock file with an exclusive ``flock`` for as long as the process that
 extracted it (and any child it forked) is alive; the kernel releases the lock when the process ends,
 however it ends. Whoever extracts an FMU next removes the folders of the same prefix whose lock can
-be taken: nobody holds them. A folder is created under a name the sweep does not look at, locked,
-and only then renamed to its final name, so no sweep can see it unlocked. Where ``fcntl`` is missing
+be taken: nobody holds them. A folder is created under a name that removal does not look at,
+locked, and only then renamed to its final name, so no removal can see it unlocked. Where ``fcntl`` is missing
 (Windows), the folders are removed at exit only.
 """
 
@@ -106,12 +106,17 @@ def claimed_folder(prefix: str, root: str | Path | None = None) -> str:
         folder = tempfile.mkdtemp(prefix=prefix, dir=root)
         _remove_at_exit(folder)
         return folder
-    # created under a name no sweep matches, locked, then renamed: never visible unlocked
+    # created under a name no removal matches, locked, then renamed: never visible unlocked
     staging = tempfile.mkdtemp(prefix=f".claiming-{prefix}", dir=root)
     fd = os.open(os.path.join(staging, LOCK_NAME), os.O_CREAT | os.O_RDWR, 0o600)
-    fcntl.flock(fd, fcntl.LOCK_EX)
     folder = os.path.join(root, prefix + os.path.basename(staging)[len(f".claiming-{prefix}"):])
-    os.rename(staging, folder)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        os.rename(staging, folder)
+    except OSError:
+        os.close(fd)
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     _HELD.append(fd)
     _remove_at_exit(folder)
     return folder
