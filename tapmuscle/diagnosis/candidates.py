@@ -615,8 +615,8 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
 def _sag_edges(v: dict[str, float]) -> list[tuple[float, float]]:
     """The fall and the recovery [s], as fitted (a ramp across the stretch an edge may lie on)."""
     fall = v["supply_variation.ramp_s"]
-    back = v.get("supply_variation.recovery_ramp_s", -1.0)
-    back = fall if back < 0.0 else back
+    back = v["supply_variation.recovery_ramp_s"]
+    back = fall if back < 0.0 else back  # negative: as long as the fall (SupplyVariation.recovery_s)
     start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
     return [(start, start + fall), (end, end + back)]
 
@@ -625,8 +625,8 @@ def _explain_sag(v: dict[str, float]) -> str:
     """The sag's finding in words; a long ramp is stated as the stretch the edge lies in."""
     start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
     fall = v.get("supply_variation.ramp_s", 1.0)
-    back = v.get("supply_variation.recovery_ramp_s", -1.0)
-    back = fall if back < 0.0 else back
+    back = v["supply_variation.recovery_ramp_s"]
+    back = fall if back < 0.0 else back  # negative: as long as the fall (SupplyVariation.recovery_s)
     text = f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from {start:.1f} s to {end:.1f} s"
     # a ramp longer than a few seconds is an edge the data place only within that stretch
     vague = [f"it fell between {start:.1f} and {start + fall:.1f} s"] if fall > 2.0 else []

@@ -86,7 +86,7 @@ from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Pro
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.residual_analysis import (Correlation, autocorrelation_test, cross_correlation_test, fit_percent,
+from tapmuscle.diagnosis.residual_analysis import (Correlation, block_index, autocorrelation_test, cross_correlation_test, fit_percent,
                                 interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
@@ -762,7 +762,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     def left_out(on: HeldOut) -> dict[str, list[list[float]]]:
         """The held-out blocks [s] ``on`` leaves out, for the selection's record (none: nothing)."""
-        starts = sorted({float(t[0] + k * block_s) for k in (np.flatnonzero(evidence.test & ~on.test) * ts // block_s)})
+        blocks = block_index(len(t), ts, block_s)[evidence.test & ~on.test]
+        starts = sorted({float(t[0] + k * block_s) for k in blocks})
         return {"held_out_blocks_left_out_s": [[a, a + block_s] for a in starts]} if starts else {}
 
     def significance(base: np.ndarray, new: np.ndarray, q_base: np.ndarray | None = None,

@@ -34,7 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tapmuscle.diagnosis.residual_analysis import white_noise_level_mm
+from tapmuscle.diagnosis.residual_analysis import block_index, white_noise_level_mm
 
 __all__ = ["HeldOut"]
 
@@ -111,13 +111,13 @@ class HeldOut:
         """The evidence without the held-out blocks that any of ``stretches_s`` touches.
 
         A stretch is ``(from, to)`` [s] on the recording's time base ``k ts_s``; the blocks are those
-        of :func:`~tapmuscle.diagnosis.residual_analysis.interleaved_split` with ``block_s``. The
+        of :func:`~tapmuscle.diagnosis.residual_analysis.block_index` with ``block_s``. The
         evidence is returned unchanged when the blocks left would hold fewer than half its held-out
         samples (the tests' power would go with them).
         """
         if not len(stretches_s):
             return self
-        block = np.arange(len(self.y_mm)) * ts_s // block_s
+        block = block_index(len(self.y_mm), ts_s, block_s)
         touched = [k for a, b in stretches_s for k in range(int(a // block_s), int(b // block_s) + 1)]
         test = self.test & ~np.isin(block, touched)
         if 2 * int(test.sum()) < int(self.test.sum()):

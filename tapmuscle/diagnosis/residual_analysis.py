@@ -14,7 +14,7 @@ from scipy import stats
 
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
 
-__all__ = ["fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
+__all__ = ["block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
            "cross_correlation_test", "is_structured", "located_windows", "regime_summary",
            "interleaved_split", "iou", "dominant_frequency_hz"]
 
@@ -114,13 +114,19 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
                         "white_noise_mm": sigma, "noise_reference_mm": ref}
 
 
+def block_index(n: int, ts_s: float, block_s: float) -> np.ndarray:
+    """The block of ``block_s`` seconds each of ``n`` samples at ``ts_s`` lies in (0, 1, ...; float)."""
+    return np.arange(n) * ts_s // block_s
+
+
 def interleaved_split(n: int, ts_s: float, block_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Training and held-out masks: alternating blocks of ``block_s`` seconds (even blocks train).
+    """Training and held-out masks: alternating blocks of ``block_s`` seconds (even blocks train;
+    :func:`block_index`).
 
     Interleaving keeps both parts spread over the whole run, so an effect that is present only for a
     while is seen by both (a first-half/second-half split could hide it from one of them).
     """
-    block = np.arange(n) * ts_s // block_s
+    block = block_index(n, ts_s, block_s)
     train = (block % 2) == 0
     return train, ~train
 
