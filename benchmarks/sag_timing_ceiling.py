@@ -1,5 +1,5 @@
 """Benchmark (accuracy): how much of the field suite's held-out fit misses is a supply sag's timing
-(docs/diagnosis.md, "Where it misses").
+(docs/diagnosis.md, "Where it misses, and why").
 
 The field suite's target "held-out fit after >= 95 %" is missed mostly on recordings with a supply
 sag whose fall or recovery lies inside a held-out block: the training blocks cannot say when, within

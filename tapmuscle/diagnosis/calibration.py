@@ -96,7 +96,7 @@ class NominalParameter:
     """Prior standard deviation relative to the nominal value [-] (rigs differ by 10-20 %)."""
 
 
-#: The rig's physical constants the calibration re-estimates (docs/diagnosis.md, "Calibration").
+#: The rig's physical constants the calibration re-estimates (docs/diagnosis.md, step 4).
 NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = (
     NominalParameter("valve.cv_max", "US gpm/psi^0.5"),
     NominalParameter("valve.leak_fraction", "-"),
