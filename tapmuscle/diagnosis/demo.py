@@ -279,19 +279,26 @@ def _scores(concealed: list[dict], clean: list[dict], showcase: list[dict]) -> d
     window, fig20 = showcase
     return {
         "concealed_cases": n,
-        "correct_top_finding_percent": 100.0 * sum(e["correct"] for e in per_effect.values()) / n if n else float("nan"),
+        "correct_top_finding_percent": _percent(sum(e["correct"] for e in per_effect.values()), n),
         "visible_cases": len(visible),
-        "correct_top_finding_visible_percent": (100.0 * sum(bool(r["correct"]) for r in visible) / len(visible)
-                                                if visible else float("nan")),
+        "correct_top_finding_visible_percent": _percent(sum(bool(r["correct"]) for r in visible), len(visible)),
         "costly_cases": costly,
-        "costly_with_gain_3_points_percent": (100.0 * sum(e["costly_gain_ok"] for e in per_effect.values()) / costly
-                                              if costly else float("nan")),
+        "costly_with_gain_3_points_percent": _percent(sum(e["costly_gain_ok"] for e in per_effect.values()), costly),
         "per_effect": per_effect,
         "clean_cases": len(clean),
-        "clean_no_significant_mismatch_percent": (100.0 * sum(bool(r["correct"]) for r in clean) / len(clean)
-                                                  if clean else float("nan")),
+        "clean_no_significant_mismatch_percent": _percent(sum(bool(r["correct"]) for r in clean), len(clean)),
         "window_case": window, "fig20_case": fig20,
     }
+
+
+def _percent(k: int, n: int) -> float | None:
+    """``k`` of ``n`` in percent; None when there is nothing to count (``scores.json`` stays strict JSON)."""
+    return 100.0 * k / n if n else None
+
+
+def _share(percent: float | None, n: int, what: str) -> str:
+    """``**87.5 %** of 8 <what>``, or ``no <what>`` when none were run."""
+    return f"**{percent:.1f} %** of {n} {what}" if percent is not None else f"no {what}"
 
 
 def scores_markdown(s: dict[str, Any]) -> str:
@@ -303,14 +310,14 @@ def scores_markdown(s: dict[str, Any]) -> str:
         lines.append(f"| `{name}` | {e['cases']} | {e['correct']} ({100 * e['correct'] / e['cases']:.0f} %) | "
                      f"{e['costly']} | {e['costly_gain_ok']} | {conf} |")
     w, f = s["window_case"], s["fig20_case"]
-    lines += ["", f"* correct top finding: **{s['correct_top_finding_percent']:.1f} %** of {s['concealed_cases']} "
-              f"concealed-effect recordings (target >= 90 %); **{s['correct_top_finding_visible_percent']:.1f} %** of the "
-              f"{s['visible_cases']} where the effect costs >= {VISIBLE_POINTS} points of held-out fit (the others leave "
-              f"nothing above the noise to find)",
-              f"* held-out gain >= 3 points where the effect cost >= 3 points: **{s['costly_with_gain_3_points_percent']:.1f} %** "
-              f"of {s['costly_cases']} (target 100 %)",
-              f"* clean recordings judged `no_significant_mismatch`: **{s['clean_no_significant_mismatch_percent']:.1f} %** "
-              f"of {s['clean_cases']} (target >= 95 %)",
+    lines += ["", f"* correct top finding: {_share(s['correct_top_finding_percent'], s['concealed_cases'], 'concealed-effect recordings')} "
+              f"(target >= 90 %); {_share(s['correct_top_finding_visible_percent'], s['visible_cases'], 'recordings')} "
+              f"where the effect costs >= {VISIBLE_POINTS} points of held-out fit (the others leave nothing above the "
+              f"noise to find)",
+              f"* held-out gain >= 3 points where the effect cost >= 3 points: "
+              f"{_share(s['costly_with_gain_3_points_percent'], s['costly_cases'], 'recordings')} (target 100 %)",
+              f"* clean recordings judged `no_significant_mismatch`: "
+              f"{_share(s['clean_no_significant_mismatch_percent'], s['clean_cases'], 'clean recordings')} (target >= 95 %)",
               f"* supply sag 60-90 s: top finding `{w.get('top_finding')}`, located IoU **{w.get('iou', float('nan')):.2f}** "
               f"(target >= 0.5)",
               f"* Fig. 20 case (model calibrated at 0.1 Hz without rate dependence, 0.2 Hz recording): top finding "
