@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 
-from tapmuscle.diagnosis.demo import _scores, scores_markdown
+import pytest
+
+from tapmuscle.diagnosis.demo import _scores, concealed_cases, scores_markdown
 
 SHOWCASE = [{"top_finding": "supply_pressure_variation", "iou": 0.92},
             {"top_finding": "rate_dependent_hysteresis", "fit_before_percent": 90.8, "fit_after_percent": 97.1}]
@@ -39,3 +41,20 @@ def test_a_run_without_clean_recordings_writes_strict_json_and_says_none_were_ru
     md = scores_markdown(s)
     assert "no clean recordings (target >= 95 %)" in md and "nan" not in md
     assert "**100.0 %** of 1 concealed-effect recordings" in md
+
+
+def test_a_run_of_some_rows_draws_the_same_cases_as_the_whole_suite():
+    """``--effects`` / ``--excitations``: the sag row of the steps input is the whole suite's, case by case
+    (same names, same magnitudes and windows), so a row re-run to look closer is the row that was scored."""
+    whole = {c.name: c for c in concealed_cases(3)}
+    part = concealed_cases(3, effects=("supply_pressure_variation",), excitations=("steps",))
+    assert len(part) == 9 and len({c.name for c in part}) == 9
+    for c in part:
+        assert c.overrides == whole[c.name].overrides and c.true_window == whole[c.name].true_window
+
+
+def test_an_unknown_effect_or_excitation_is_named():
+    with pytest.raises(ValueError, match="unknown effect 'sag'"):
+        concealed_cases(1, effects=("sag",))
+    with pytest.raises(ValueError, match="unknown excitation 'chirp'"):
+        concealed_cases(1, excitations=("sine", "chirp"))

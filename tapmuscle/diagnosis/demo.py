@@ -112,11 +112,28 @@ def _draw(effect: str, level: int, rng: np.random.Generator) -> tuple[dict[str, 
 
 def concealed_cases(seeds: int = 3, *, effects: tuple[str, ...] | None = None,
                     excitations: tuple[str, ...] = EXCITATIONS, levels: tuple[int, ...] = (0, 1, 2)) -> list[Case]:
-    """Every effect x level x excitation x seed (``seeds`` seeds), magnitudes drawn reproducibly."""
+    """Every effect x level x excitation x seed (``seeds`` seeds), magnitudes drawn reproducibly.
+
+    A case is seeded by its effect's and excitation's places in the whole suite (:data:`MAGNITUDES`,
+    :data:`EXCITATIONS`), its level and its seed, so a run of some rows (``effects``, ``excitations``)
+    draws the very cases, under the same names, that the whole suite does.
+
+    Raises
+    ------
+    ValueError
+        An effect or excitation the suite does not know.
+    """
+    for name, known in (("effect", tuple(MAGNITUDES)), ("excitation", EXCITATIONS)):
+        given = (effects or ()) if name == "effect" else excitations
+        unknown = [x for x in given if x not in known]
+        if unknown:
+            raise ValueError(f"unknown {name} {unknown[0]!r}; known: {', '.join(known)}")
     cases = []
-    for ei, effect in enumerate(effects or tuple(MAGNITUDES)):
+    for effect in effects or tuple(MAGNITUDES):
+        ei = tuple(MAGNITUDES).index(effect)
         for level in levels:
-            for xi, exc in enumerate(excitations):
+            for exc in excitations:
+                xi = EXCITATIONS.index(exc)
                 for seed in range(seeds):
                     rng = np.random.default_rng([ei, level, xi, seed])
                     overrides, window = _draw(effect, level, rng)
