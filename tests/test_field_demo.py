@@ -267,6 +267,66 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
     assert len(calls) == 2 and r["discrimination"]["verdict"] == "mismatch" and r["discrimination"]["right"]
 
 
+
+def test_each_ambiguous_group_gets_its_own_experiment_as_the_report_says(tmp_path, monkeypatch, cases120):
+    """Two ambiguous groups, as the report gives them: each group's input is recorded on the truth
+    (its own noise seed) and diagnosed from that group's plant among that group's alternatives. Right
+    only when every group's re-diagnosis names exactly its true effects (none for a group without one)."""
+    import tapmuscle.diagnosis.report as report
+
+    case = next(c for c in cases120 if c.category == "single" and c.excitation == "sine")
+    case = replace(case, duration_s=40.0)
+    true = case.effects[0]
+    others = [e for e in vocabulary() if e != true]
+    first, second = sorted([true, others[0]]), sorted(others[1:3])  # the second group has no true effect
+    calls = []
+
+    def fake(named_in_second):
+        def diagnose_files(rec, plant, out, *, plots=True, effects=None, **options):
+            out = Path(out)
+            samples = len(read_recording(rec).t_s)
+            calls.append({"samples": samples, "effects": effects, "plant": Path(plant), "folder": out.name,
+                          "u0": float(read_recording(rec).u_v[0])})
+            if effects is None:
+                groups = []
+                for k, (alts, u0, seconds) in enumerate(((first, 3.0, 30.0), (second, 7.0, 20.0)), 1):
+                    tail = "" if k == 1 else f"_{k}"
+                    t = np.arange(0.0, seconds + 0.05, 0.1)
+                    write_recording(out / f"discriminating_input{tail}.csv",
+                                    Recording({"t_s": t, "u_v": u0 + np.sign(np.sin(t)), "l_mm": 0 * t}, {"ts_s": "0.1"}))
+                    atomic_write_text(out / f"discriminate_plant{tail}.json", "{}\n")
+                    groups.append({"alternatives": [{"effect": a} for a in alts],
+                                   "discriminating_input": f"discriminating_input{tail}.csv",
+                                   "discriminate_plant": f"discriminate_plant{tail}.json"})
+                doc = {"verdict": "ambiguous", "findings": [], "fit_before_percent": 50.0,
+                       "fit_after_percent": 96.0, "ambiguous": groups}
+            else:
+                named = [true] if true in effects else named_in_second
+                doc = {"verdict": "mismatch" if named else "calibration_only",
+                       "findings": [{"effect": e} for e in named], "fit_before_percent": 40.0, "fit_after_percent": 98.0}
+            atomic_write_text(out / "diagnosis.json", json.dumps(doc))
+            atomic_write_text(out / "report.md", "# stand-in\n")
+            return None, doc
+        return diagnose_files
+
+    monkeypatch.setattr(report, "diagnose_files", fake([]))
+    r = run_field_case(case, tmp_path)
+    d = r["discrimination"]
+    assert [c["effects"] for c in calls] == [None, first, second]
+    assert [c["plant"].name for c in calls] == ["plant.json", "discriminate_plant.json", "discriminate_plant_2.json"]
+    assert [c["folder"] for c in calls[1:]] == ["discriminate", "discriminate_2"]
+    assert [c["samples"] for c in calls[1:]] == [301, 201]  # each group's own input, 30 s and 20 s
+    assert [c["u0"] for c in calls[1:]] == pytest.approx([3.0, 7.0])  # the rig ran each group's command
+    assert d["right"] and d["picked"] == [true] and [g["right"] for g in d["groups"]] == [True, True]
+    assert d["alternatives"] == sorted(first + second) and d["true_alternatives"] == [true]
+    assert d["groups"][1]["true_alternatives"] == [] and d["groups"][1]["verdict"] == "calibration_only"
+
+    calls.clear()  # the second group's re-diagnosis names one of its alternatives, which the truth lacks
+    monkeypatch.setattr(report, "diagnose_files", fake([second[0]]))
+    d = run_field_case(case, tmp_path / "wrong")["discrimination"]
+    assert not d["right"] and d["picked"] == sorted([true, second[0]]) and [g["right"] for g in d["groups"]] == [True, False]
+
+
 @pytest.mark.slow
 def test_a_tiny_run_writes_its_files(tmp_path):
     scores = run_field_demo(tmp_path, n=2, seed=4, jobs=2, duration_s=40.0)  # 4 blocks of 10 s at least

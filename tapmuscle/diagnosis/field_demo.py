@@ -140,38 +140,61 @@ def _tidy(folder: Path, keep: bool) -> None:
 
 def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path: Path,
                   end_stop_mm: float | None, keep: bool, use_pressure: bool = False) -> dict[str, Any] | None:
-    """The discriminating experiment of an ``ambiguous`` verdict, run on the truth and re-diagnosed."""
+    """The discriminating experiments of an ``ambiguous`` verdict, run on the truth and re-diagnosed.
+
+    Each ambiguous group's experiment is run as the report tells a user to: its input recorded on
+    the rig (a fresh noise seed per group), then diagnosed from the plant the diagnosis wrote for it
+    among that group's alternatives. The verdict is right when every group's re-diagnosis names
+    exactly the truth's effects among its alternatives (none, for a group without one) and is not
+    ambiguous again. ``groups`` holds each group's run; the keys beside it are the first group's,
+    with ``picked`` and ``right`` over all groups.
+    """
     groups = [g for g in (doc.get("ambiguous") or []) if isinstance(g, dict)]
     if doc.get("verdict") != "ambiguous" and not groups:
         return None
-    alternatives = sorted({str(a.get("effect")) for g in groups for a in (g.get("alternatives") or [])
-                           if isinstance(a, dict)})
-    # the first group's experiment, and the plant it is re-diagnosed with (the nominal one if none was written)
-    plants = {str(g["discriminating_input"]): g.get("discriminate_plant") for g in groups if g.get("discriminating_input")}
-    path = next((folder / n for n in sorted(plants) if (folder / n).is_file()), None)
-    if path is None and (folder / "discriminating_input.csv").is_file():
-        path = folder / "discriminating_input.csv"
-    base = plants.get(path.name) if path is not None else None
-    if base and (folder / str(base)).is_file():
-        plant_path = folder / str(base)
-    truth_in = sorted(set(case.effects) & set(alternatives))
+    group_alternatives = [sorted({str(a.get("effect")) for a in (g.get("alternatives") or []) if isinstance(a, dict)})
+                          for g in groups]
+    alternatives = sorted({a for alts in group_alternatives for a in alts})
+    truth = set(case.effects)
+    out: dict[str, Any] = {"alternatives": alternatives, "true_alternatives": sorted(truth & set(alternatives))}
+    runs = []
+    for i, (g, alts) in enumerate(zip(groups or [{}], group_alternatives or [alternatives])):
+        name = g.get("discriminating_input") or ("discriminating_input.csv" if i == 0 else None)
+        path = folder / str(name) if name and (folder / str(name)).is_file() else None
+        base = g.get("discriminate_plant")
+        plant = folder / str(base) if base and (folder / str(base)).is_file() else plant_path
+        sub = folder / (DISCRIMINATE_DIR if i == 0 else f"{DISCRIMINATE_DIR}_{i + 1}")
+        runs.append(_rediagnosed(case, path, plant, sub, alts, truth, i, end_stop_mm, keep, use_pressure))
+    out["input_written"] = any(r["input_written"] for r in runs)
+    if not runs[0]["input_written"]:
+        return out
+    out.update({k: v for k, v in runs[0].items() if k not in ("alternatives", "true_alternatives", "input_written")})
+    out["picked"] = sorted({a for r in runs for a in r.get("picked", [])})
+    out["right"] = all(r.get("right", False) for r in runs)
+    out["groups"] = runs
+    return out
+
+
+def _rediagnosed(case: FieldCase, path: Path | None, plant: Path, sub: Path, alternatives: list[str], truth: set[str],
+                 index: int, end_stop_mm: float | None, keep: bool, use_pressure: bool) -> dict[str, Any]:
+    """One group's experiment (the input at ``path``) recorded on the truth and diagnosed from ``plant``
+    among ``alternatives`` in ``sub``."""
+    from tapmuscle.io.signals import parse_input_spec
+
+    truth_in = sorted(truth & set(alternatives))
     out: dict[str, Any] = {"alternatives": alternatives, "true_alternatives": truth_in, "input_written": path is not None}
     if path is None:
         return out
-    from tapmuscle.io.signals import parse_input_spec
-
     stim = read_recording(path)
     ts = stim.ts_s
     duration = float(stim.t_s[-1] - stim.t_s[0])
-    sub = folder / DISCRIMINATE_DIR
     cols = record_case(case, signal=parse_input_spec(f"csv:{path}"), duration_s=duration, ts_s=ts,
-                       noise_seed=case.noise_seed + 1, end_stop_mm=end_stop_mm)
+                       noise_seed=case.noise_seed + 1 + index, end_stop_mm=end_stop_mm)
     rec = sub / "recording.csv"
     write_recording(rec, Recording(cols, {"ts_s": f"{ts:g}", "source": "tapmuscle demo-mismatch (discriminating input)"}))
-    doc2 = _diagnose(rec, plant_path, sub, alternatives or None, use_pressure=use_pressure)
+    doc2 = _diagnose(rec, plant, sub, alternatives or None, use_pressure=use_pressure)
     c2 = _claims(doc2)
-    named2 = _named(c2["findings"], c2["ambiguous"])
-    picked = sorted(named2 & set(alternatives))
+    picked = sorted(_named(c2["findings"], c2["ambiguous"]) & set(alternatives))
     out.update({"duration_s": duration, "verdict": c2["verdict"], "findings": c2["findings"],
                 "ambiguous": c2["ambiguous"], "picked": picked,
                 "right": picked == truth_in and not c2["ambiguous"],
@@ -194,8 +217,9 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False,
     case : FieldCase
     workdir : path
         The case's folder is ``workdir / case.name``; it keeps ``diagnosis.json`` and ``report.md``
-        (and those of the discriminating experiment in ``discriminate/``); the CSVs and the plant
-        files are deleted unless ``keep``. A case that raises keeps them, for a look at what failed.
+        (and those of each ambiguous group's discriminating experiment in ``discriminate/``,
+        ``discriminate_2/``, ...); the CSVs and the plant files are deleted unless ``keep``. A case
+        that raises keeps them, for a look at what failed.
     use_pressure : bool
         Diagnose with the recorded pressure beside the displacement (``diagnose(use_pressure=True)``).
 
