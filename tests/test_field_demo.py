@@ -281,7 +281,7 @@ def test_each_ambiguous_group_gets_its_own_experiment_as_the_report_says(tmp_pat
     first, second = sorted([true, others[0]]), sorted(others[1:3])  # the second group has no true effect
     calls = []
 
-    def fake(named_in_second):
+    def fake(named_in_second, first_input=True):
         def diagnose_files(rec, plant, out, *, plots=True, effects=None, **options):
             out = Path(out)
             samples = len(read_recording(rec).t_s)
@@ -291,13 +291,15 @@ def test_each_ambiguous_group_gets_its_own_experiment_as_the_report_says(tmp_pat
                 groups = []
                 for k, (alts, u0, seconds) in enumerate(((first, 3.0, 30.0), (second, 7.0, 20.0)), 1):
                     tail = "" if k == 1 else f"_{k}"
+                    groups.append({"alternatives": [{"effect": a} for a in alts]})
+                    if k == 1 and not first_input:  # the design failed for this group
+                        continue
                     t = np.arange(0.0, seconds + 0.05, 0.1)
                     write_recording(out / f"discriminating_input{tail}.csv",
                                     Recording({"t_s": t, "u_v": u0 + np.sign(np.sin(t)), "l_mm": 0 * t}, {"ts_s": "0.1"}))
                     atomic_write_text(out / f"discriminate_plant{tail}.json", "{}\n")
-                    groups.append({"alternatives": [{"effect": a} for a in alts],
-                                   "discriminating_input": f"discriminating_input{tail}.csv",
-                                   "discriminate_plant": f"discriminate_plant{tail}.json"})
+                    groups[-1].update({"discriminating_input": f"discriminating_input{tail}.csv",
+                                       "discriminate_plant": f"discriminate_plant{tail}.json"})
                 doc = {"verdict": "ambiguous", "findings": [], "fit_before_percent": 50.0,
                        "fit_after_percent": 96.0, "ambiguous": groups}
             else:
@@ -325,6 +327,13 @@ def test_each_ambiguous_group_gets_its_own_experiment_as_the_report_says(tmp_pat
     monkeypatch.setattr(report, "diagnose_files", fake([second[0]]))
     d = run_field_case(case, tmp_path / "wrong")["discrimination"]
     assert not d["right"] and d["picked"] == sorted([true, second[0]]) and [g["right"] for g in d["groups"]] == [True, False]
+
+    calls.clear()  # no input for the first group: the second is still run, and the verdict is not resolved
+    monkeypatch.setattr(report, "diagnose_files", fake([], first_input=False))
+    d = run_field_case(case, tmp_path / "no_first")["discrimination"]
+    assert [c["effects"] for c in calls] == [None, second] and calls[1]["folder"] == "discriminate_2"
+    assert d["input_written"] and not d["right"] and [g["input_written"] for g in d["groups"]] == [False, True]
+    assert d["verdict"] == "calibration_only" and d["picked"] == []
 
 
 @pytest.mark.slow

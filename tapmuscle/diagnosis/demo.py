@@ -123,8 +123,7 @@ def concealed_cases(seeds: int = 3, *, effects: tuple[str, ...] | None = None,
     ValueError
         An effect or excitation the suite does not know.
     """
-    for name, known in (("effect", tuple(MAGNITUDES)), ("excitation", EXCITATIONS)):
-        given = (effects or ()) if name == "effect" else excitations
+    for name, given, known in (("effect", effects or (), tuple(MAGNITUDES)), ("excitation", excitations, EXCITATIONS)):
         unknown = [x for x in given if x not in known]
         if unknown:
             raise ValueError(f"unknown {name} {unknown[0]!r}; known: {', '.join(known)}")

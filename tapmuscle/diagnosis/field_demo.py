@@ -146,8 +146,8 @@ def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path
     the rig (a fresh noise seed per group), then diagnosed from the plant the diagnosis wrote for it
     among that group's alternatives. The verdict is right when every group's re-diagnosis names
     exactly the truth's effects among its alternatives (none, for a group without one) and is not
-    ambiguous again. ``groups`` holds each group's run; the keys beside it are the first group's,
-    with ``picked`` and ``right`` over all groups.
+    ambiguous again (a group without an input is not). ``groups`` holds each group's run; the keys
+    beside it are the first re-diagnosed group's, with ``picked`` and ``right`` over all groups.
     """
     groups = [g for g in (doc.get("ambiguous") or []) if isinstance(g, dict)]
     if doc.get("verdict") != "ambiguous" and not groups:
@@ -165,10 +165,11 @@ def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path
         plant = folder / str(base) if base and (folder / str(base)).is_file() else plant_path
         sub = folder / (DISCRIMINATE_DIR if i == 0 else f"{DISCRIMINATE_DIR}_{i + 1}")
         runs.append(_rediagnosed(case, path, plant, sub, alts, truth, i, end_stop_mm, keep, use_pressure))
-    out["input_written"] = any(r["input_written"] for r in runs)
-    if not runs[0]["input_written"]:
+    done = [r for r in runs if r["input_written"]]
+    out["input_written"] = bool(done)
+    if not done:
         return out
-    out.update({k: v for k, v in runs[0].items() if k not in ("alternatives", "true_alternatives", "input_written")})
+    out.update({k: v for k, v in done[0].items() if k not in ("alternatives", "true_alternatives", "input_written")})
     out["picked"] = sorted({a for r in runs for a in r.get("picked", [])})
     out["right"] = all(r.get("right", False) for r in runs)
     out["groups"] = runs
