@@ -785,6 +785,41 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         return (sig["reduction"] >= min_reduction and sig["p_value"] < level
                 and sig.get("contribution_rms_mm", math.inf) >= MATERIAL_EFFECT_FACTOR * floor)
 
+    def backward(round_no: int, *, last_too: bool = False) -> None:
+        """Drop each accepted effect whose removal, with the constants and the other effects re-fitted,
+        is not significant at the level to remove (step 6); the last one too if ``last_too``."""
+        nonlocal current, converged, findings
+        current = refitted(current.params) or current
+        converged = current.params
+        for name in list(current.effects):
+            if len(current.effects) == 1 and not last_too:
+                break
+            rest = tuple(e for e in current.effects if e != name)
+            p_wo = current.params.with_values(**space.off_values(current.values[name]))
+            p_wo, _ = joint(p_wo, rest, cal_jac, final=True)
+            y_wo, q_wo = sim.run(p_wo)
+            q_wo = _used(q_wo)
+            if sensors_sse(y_wo, q_wo) < sensors_sse(current.y, current.q):
+                # The model with every effect contains this one (the effect off) and fits the
+                # training blocks worse: its re-fit stopped short of its optimum. Re-fit it from
+                # here with the effect on again, so that the test compares two optima.
+                on = {k: current.params.value(k) for k in current.values[name]}
+                better = refitted(p_wo.with_values(**on))
+                if better is not None:
+                    selection.append({"step": "re-fit from the model without", "round": round_no,
+                                      "effect": name})
+                    current = better
+                    converged = current.params
+            on_wo = judged(name)
+            sig = significance(y_wo, current.y, q_wo, current.q, on=on_wo)
+            if not passes(sig, REMOVE_LEVEL_FACTOR * alpha):
+                selection.append({"step": "drop", "round": round_no, "effect": name,
+                                  "held_out_sse_reduction_it_gave": round(sig["reduction"], 4),
+                                  "p_value": sig["p_value"]} | left_out(on_wo))
+                findings = [f for f in findings if f.effect != name]
+                current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
+                converged = current.params
+
     structured = tests0["structured"] and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
     pool = list(candidates)
     done = 0
@@ -796,7 +831,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         better = refitted(current.params) if current.params is not converged else None
         if better is not None:
             current = better
-        if round_no > 1 and renoise(current.y, current.q):
+        # after a removal the model's residual is another: its noise level is taken again at once, as
+        # the next round would (a removal leaves the search where the level in use may be too high
+        # for any candidate to pass)
+        renoised = round_no > 1 and renoise(current.y, current.q)
+        while renoised:
+            renoised = False
             step: dict[str, Any] = {"step": "noise level", "round": round_no, "noise_mm": round(noise, 6)}
             selection.append(step)
             if cal is not None:
@@ -817,6 +857,17 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                     # a band accepted on other constants (the nominal ones, when the inflated level
                     # left none identifiable) pulls these to their bounds: search it again on them
                     from_nominal(round_no)
+                    # The effects were accepted against the constants identifiable at the inflated
+                    # level; those calibrated at this one may explain as much: each effect, the last
+                    # one too, must still be worth its removal against them (step 6). Only a removal
+                    # changes the model: the test's re-fits are kept only with it.
+                    kept_as = (current, converged, len(selection))
+                    backward(round_no, last_too=True)
+                    if current.effects == kept_as[0].effects:
+                        current, converged = kept_as[:2]
+                        del selection[kept_as[2]:]
+                    else:
+                        renoised = renoise(current.y, current.q)
                     better = current
         if better is not None:
             if not is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
@@ -986,36 +1037,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # The newcomer is tested too, last: its joint re-fit also moved the constants and the other
         # effects from where the reference had them, and what that move gained is not its evidence.
         if len(current.effects) > 1:
-            current = refitted(current.params) or current
-            converged = current.params
-            for name in list(current.effects):
-                if len(current.effects) == 1:
-                    break
-                rest = tuple(e for e in current.effects if e != name)
-                p_wo = current.params.with_values(**space.off_values(current.values[name]))
-                p_wo, _ = joint(p_wo, rest, cal_jac, final=True)
-                y_wo, q_wo = sim.run(p_wo)
-                q_wo = _used(q_wo)
-                if sensors_sse(y_wo, q_wo) < sensors_sse(current.y, current.q):
-                    # The model with every effect contains this one (the effect off) and fits the
-                    # training blocks worse: its re-fit stopped short of its optimum. Re-fit it from
-                    # here with the effect on again, so that the test compares two optima.
-                    on = {k: current.params.value(k) for k in current.values[name]}
-                    better = refitted(p_wo.with_values(**on))
-                    if better is not None:
-                        selection.append({"step": "re-fit from the model without", "round": round_no,
-                                          "effect": name})
-                        current = better
-                        converged = current.params
-                on_wo = judged(name)
-                sig = significance(y_wo, current.y, q_wo, current.q, on=on_wo)
-                if not passes(sig, REMOVE_LEVEL_FACTOR * alpha):
-                    selection.append({"step": "drop", "round": round_no, "effect": name,
-                                      "held_out_sse_reduction_it_gave": round(sig["reduction"], 4),
-                                      "p_value": sig["p_value"]} | left_out(on_wo))
-                    findings = [f for f in findings if f.effect != name]
-                    current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
-                    converged = current.params
+            backward(round_no)
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated
