@@ -44,7 +44,9 @@ Procedure
    newcomer last, is removed in turn (the rest re-fitted jointly); one whose removal is not
    significantly worse (at :data:`REMOVE_LEVEL_FACTOR` times ``alpha``) is dropped. Both sides of
    each test are optima: a model with every effect that fits the training blocks worse than the one
-   without an effect is re-fitted from it first.
+   without an effect is re-fitted from it first. The same test, a sole effect included, follows each
+   calibration afresh at a lower noise level: the effects were accepted against the constants
+   identifiable at the inflated level, and those identifiable now may explain as much.
 6. **Ambiguity.** Candidates whose joint fits pass the acceptance test themselves and that the
    held-out data cannot tell from the best (:func:`distinguishable`) are alternatives: the verdict is
    ``ambiguous`` with their evidence, and none of them is claimed alone. (The report designs an
