@@ -612,22 +612,22 @@ def _fit_supply_sag(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitRe
                      located=[(located[0], min(float(pr.t_s[-1]), located[1]))])
 
 
+def _sag(v: dict[str, float]):
+    """The fitted sag's parameters (the plant's own rule for the recovery's duration, ``recovery_s``)."""
+    return PlantParams().with_values(**v).supply_variation
+
+
 def _sag_edges(v: dict[str, float]) -> list[tuple[float, float]]:
     """The fall and the recovery [s], as fitted (a ramp across the stretch an edge may lie on)."""
-    fall = v["supply_variation.ramp_s"]
-    back = v["supply_variation.recovery_ramp_s"]
-    back = fall if back < 0.0 else back  # negative: as long as the fall (SupplyVariation.recovery_s)
-    start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
-    return [(start, start + fall), (end, end + back)]
+    sv = _sag(v)
+    return [(sv.start_s, sv.start_s + sv.ramp_s), (sv.end_s, sv.end_s + sv.recovery_s)]
 
 
 def _explain_sag(v: dict[str, float]) -> str:
     """The sag's finding in words; a long ramp is stated as the stretch the edge lies in."""
-    start, end = v["supply_variation.start_s"], v["supply_variation.end_s"]
-    fall = v.get("supply_variation.ramp_s", 1.0)
-    back = v["supply_variation.recovery_ramp_s"]
-    back = fall if back < 0.0 else back  # negative: as long as the fall (SupplyVariation.recovery_s)
-    text = f"the supply pressure was {1000 * v['supply_variation.sag_mpa']:.0f} kPa lower from {start:.1f} s to {end:.1f} s"
+    sv = _sag(v)
+    start, end, fall, back = sv.start_s, sv.end_s, sv.ramp_s, sv.recovery_s
+    text = f"the supply pressure was {1000 * sv.sag_mpa:.0f} kPa lower from {start:.1f} s to {end:.1f} s"
     # a ramp longer than a few seconds is an edge the data place only within that stretch
     vague = [f"it fell between {start:.1f} and {start + fall:.1f} s"] if fall > 2.0 else []
     vague += [f"it recovered between {end:.1f} and {end + back:.1f} s"] if back > 2.0 else []
