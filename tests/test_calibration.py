@@ -84,6 +84,31 @@ def test_two_constants_that_only_act_as_their_sum_are_not_identifiable():
     assert cal.changed == {KEYS[2]: rows[KEYS[2]].estimate}
 
 
+def test_the_map_estimate_with_every_constant_free_is_kept_beside_the_calibrated_plant():
+    """Putting back the constants that are not identifiable one by one can undo a fit: two that act
+    only as their sum, both 10 % off, go back to nominal and leave their sum's error in the residual.
+    The MAP estimate with every constant free (``map_params``) still fits it to the noise; with every
+    constant identifiable there is nothing put back, and it is None."""
+    rng = np.random.default_rng(1)
+    a1 = rng.normal(size=300)
+    a = np.column_stack([a1, a1, rng.normal(size=300)])
+    b = a @ np.array([0.1, 0.1, -0.1]) + 0.01 * rng.normal(size=300)
+    params = [NominalParameter(k, "-") for k in KEYS]
+    residual = _linear_residual(a, b)
+    cal = calibrate(residual, NOMINAL, NOMINAL, 0.01, parameters=params, robust=False)
+    assert cal.map_params is not None
+    free = {k: cal.map_params.dotted()[k] / NOMINAL.dotted()[k] - 1.0 for k in KEYS}
+    assert free[KEYS[0]] + free[KEYS[1]] == pytest.approx(0.2, abs=2e-3)
+    assert free[KEYS[2]] == pytest.approx(-0.1, abs=2e-3)
+    sse_free, sse_cal = (float(np.sum(residual(p) ** 2)) for p in (cal.map_params, cal.params))
+    assert sse_free < 1.5 * 300 * 0.01 ** 2 < sse_cal
+    # independent columns: every constant identifiable, nothing put back
+    a = rng.normal(size=(300, 3))
+    b = a @ np.array([0.1, 0.1, -0.1]) + 0.01 * rng.normal(size=300)
+    cal = calibrate(_linear_residual(a, b), NOMINAL, NOMINAL, 0.01, parameters=params, robust=False)
+    assert all(r.identifiable for r in cal.rows) and cal.map_params is None
+
+
 def test_an_interval_covers_the_truth_when_a_constant_it_trades_with_is_left_nominal():
     """The third constant acts as 2 % of the first's column: it is not identifiable and goes back to
     nominal, and the first absorbs its error. Over rigs whose third constant is drawn from its prior

@@ -364,6 +364,10 @@ class Calibration:
     consider_jacobian: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     """Training-residual Jacobian of the constants put back to nominal (scaled coordinates, rows as
     ``jacobian``'s): their prior uncertainty enters the intervals (:func:`calibration_rows`)."""
+    map_params: PlantParams | None = None
+    """The MAP estimate with every constant free, before the ones not identifiable go back to nominal
+    (None: the same as ``params``). At a noise level inflated by the nominal model's misfit, few
+    constants pass as identifiable, and putting the others back can undo a fit that was right."""
 
     @property
     def identifiable(self) -> list[str]:
@@ -477,7 +481,8 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
     rows = calibration_rows(parameters, nominal, params, [c.key for c, ok in zip(coords, ident) if ok],
                             fit.jacobian, fit.residual, sigma_mm, shrink, bounds, consider=consider)
     return Calibration(params, rows, sims, fit.jacobian[:, :int(ident.sum())], effective_sigma(fit.residual),
-                       tuple(float(v) for v in shrink), consider_jacobian=consider)
+                       tuple(float(v) for v in shrink), consider_jacobian=consider,
+                       map_params=None if ident.all() else base.with_values(**first.values))
 
 
 def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
