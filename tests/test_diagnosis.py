@@ -863,30 +863,27 @@ def test_an_accepted_effect_stays_unless_its_removal_is_clearly_insignificant(tm
 
 @pytest.mark.slow
 def test_an_effect_accepted_at_the_inflated_noise_level_must_beat_the_constants_calibrated_at_the_lower_one(tmp_path):
-    """Field case 073 (seed 3): no effect, four constants off, the closed loop. At the nominal
-    residual's level (0.29 mm) only the threshold pressure is identifiable, and a transport delay is
-    accepted against it (95 % of the held-out error). Calibrated afresh at the better model's level
-    (0.13 mm), six constants are identifiable; without the delay they leave the held-out blocks
-    only 16 % more error, not significant at the level to remove, so the delay is dropped. Its
-    noise level then taken again (the encoder's), the constants explain the recording:
-    ``calibration_only`` (before: the delay named, 99.92 %). The same on CI's second
-    floating-point path, checked by hand."""
+    """Field case 065 (seed 1): an encoder drift and an amplifier map under steps, constants off.
+    The map is found first; a rate dependence is then accepted against the constants calibrated at
+    the inflated noise level (21 % of the held-out error, a delay its alternative). Calibrated afresh
+    at the better model's level, more constants are identifiable, and against them the rate
+    dependence removes only 7 % of the held-out error, under the 10-% minimum: it is dropped, and
+    the drift, which the rig has, is found after it (without this test the rate dependence stayed
+    among the findings)."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
 
-    case = field_cases(100, 3)[73]
-    assert case.category == "none" and case.excitation == "ampc"
+    case = field_cases(100, 1)[65]
+    assert case.effects == ("sensor_drift", "input_map") and case.excitation == "steps"
     result = run_field_case(case, tmp_path)
     doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
     steps = doc["selection"]
-    assert result["verdict"] == "calibration_only" and result["named"] == [], steps
     i = next(k for k, s in enumerate(steps) if s["step"] == "noise level")
-    assert steps[i - 1]["step"] == "add" and steps[i - 1]["effect"] == "transport_delay"
+    assert steps[i - 1]["step"] == "add" and steps[i - 1]["effect"] == "rate_dependent_hysteresis", steps
     assert steps[i]["recalibrated"] and len(steps[i]["identifiable"]) > len(steps[0]["identifiable"])
-    assert steps[i + 1]["step"] == "drop" and steps[i + 1]["effect"] == "transport_delay"
-    assert steps[i + 1]["p_value"] > 1e-2
-    assert steps[i + 2]["step"] == "noise level" and steps[i + 2]["noise_mm"] < 0.5 * steps[i]["noise_mm"]
-    assert result["fit_after_percent"] > 99.5
+    assert steps[i + 1]["step"] == "drop" and steps[i + 1]["effect"] == "rate_dependent_hysteresis"
+    assert steps[i + 1]["held_out_sse_reduction_it_gave"] < 0.10
+    assert "rate_dependent_hysteresis" not in result["named"] and "sensor_drift" in result["named"]
 
 
 @pytest.mark.slow
