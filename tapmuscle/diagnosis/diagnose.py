@@ -19,7 +19,10 @@ Procedure
    converged), do they leave a white residual? If so the search ends (``calibration_only``);
    otherwise it starts from the first calibration. Its residual still holds every effect, and
    weighed as if it were the sensor's noise it bends more constants into mimicking them
-   (docs/diagnosis.md, step 4).
+   (docs/diagnosis.md, step 4). The level asked at is that of the MAP fit with every constant
+   free when lower, and the second calibration then starts from that fit: putting back the
+   constants an inflated level leaves unidentifiable can undo a fit that was right
+   (:attr:`tapmuscle.diagnosis.calibration.Calibration.map_params`).
 4. **Forward selection.** While the held-out residual is structured, every candidate effect is fitted
    on top of the current model (:mod:`tapmuscle.diagnosis.candidates`), and the promising ones are re-fitted
    *jointly* with the calibrated constants. The best joint fit is accepted when it is significant
