@@ -16,8 +16,10 @@ band is diagnosed (``run_field_case(..., keep=True)``, as ``tapmuscle demo-misma
 the held-out fit after is under 95 %, the kept ``calibrated_plant.json`` is re-simulated on the
 same recording with only those edges set to the rig's (the sag's start, end and both ramps; the
 band's centre and width), every other value kept (a sag's fitted depth too). A fit that then
-reaches 95 % while the training blocks' fit stays as it was (within 0.05 point) lacked nothing but
-what the training blocks cannot show; one that does not also lacks an effect or misfits one.
+reaches 95 % lacked nothing but where the edges lie; one that does not also lacks an effect or
+misfits one. The training blocks' fit is compared too: where it stays within 0.05 point the
+training blocks cannot tell the two placements apart; where it is better with the rig's edges they
+held some of that information and the fit did not use it.
 
     python benchmarks/edge_placement_ceiling.py [--seeds 0 1 2 3] [--jobs 2] [--out DIR]
 
@@ -79,7 +81,14 @@ def _one(case: FieldCase, out: Path) -> dict[str, Any]:
 
 
 def _reached(row: dict[str, Any]) -> bool:
-    return row["rig_edges"] >= TARGET_PERCENT and row["training_moved"] >= -TRAINING_SAME_POINTS
+    return row["rig_edges"] >= TARGET_PERCENT
+
+
+def _training_same(row: dict[str, Any]) -> bool:
+    """The rig's edges fit the training blocks as the diagnosis's do: the training blocks could not
+    tell the two placements apart. Better by more means they held some of the edge's information,
+    which the fit did not use (a hedged ramp fits them within the statistical plateau, not best)."""
+    return abs(row["training_moved"]) <= TRAINING_SAME_POINTS
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -104,11 +113,16 @@ def main(argv: list[str] | None = None) -> None:
                   f"{', '.join(row['named']) or 'nothing'}; held-out fit {row['fit']:.2f} %{tail}", flush=True)
     misses = [r for r in rows if r["rig_edges"] is not None]
     reached = [r for r in misses if _reached(r)]
+    same = [r for r in reached if _training_same(r)]
     worst = max((abs(r["resimulated"] - r["fit"]) for r in misses), default=0.0)
-    print(f"\n{len(rows)} cases with a sag or a band; {len(misses)} under {TARGET_PERCENT:g} % held-out fit; "
-          f"{len(reached)} of them reach it with only those edges set to the rig's, the training blocks' fit "
-          f"within {TRAINING_SAME_POINTS:g} point (re-simulation of the kept plant within {worst:.3f} point of "
-          f"the diagnosis's figure)")
+    print(f"\n{len(rows)} cases with a sag or a band; {len(misses)} under {TARGET_PERCENT:g} % held-out fit "
+          f"(re-simulation of the kept plant within {worst:.3f} point of the diagnosis's figure).\n"
+          f"{len(reached)} of them reach it with only those edges set to the rig's; in {len(same)} of these "
+          f"the training blocks' fit moves by at most {TRAINING_SAME_POINTS:g} point (they cannot tell the "
+          f"placements apart), in {len(reached) - len(same)} it is better with the rig's edges:")
+    for r in reached:
+        if not _training_same(r):
+            print(f"  training fit {r['training_moved']:+.3f} point with the rig's edges: {r['case']}")
     for r in misses:
         if not _reached(r):
             missing = sorted(set(r["effects"]) - set(r["named"]))
