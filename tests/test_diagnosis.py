@@ -253,6 +253,39 @@ def test_a_band_refined_on_its_model_holds_the_rig_s_commands(lower, upper):
     assert refine(problem, rig) is None and refine(problem, model) is None
 
 
+def test_a_sag_refined_on_its_model_places_the_edge_a_training_block_holds():
+    """A 50-kPa sag from 46.7 s (inside the training block 40-50 s) to 80.8 s (inside the held-out
+    block 80-90 s) under the paper's sine; the model holds it as the own search may leave it when
+    judged against a round's larger training error: its fall hedged as an 11.6-s ramp from 45.6 s,
+    reaching into the held-out block 50-60 s where the training cost is flat. The refinement on the
+    model's constants places the fall within 0.3 s, keeps the recovery where it was (or a ramp
+    across it), and brings the held-out fit near the noise; on a model without a sag
+    it proposes nothing."""
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.fit_problem import Problem
+    from tapmuscle.diagnosis.simulation import Simulator
+
+    model = PlantParams()
+    sag = {"supply_variation.sag_mpa": 0.05, "supply_variation.start_s": 46.7, "supply_variation.end_s": 80.8}
+    cols = record(model.with_values(**sag), "sine", 0, duration_s=180.0)
+    u, y = cols["u_v"], cols["l_mm"]
+    sim = Simulator(u, 0.1)
+    train, test = interleaved_split(len(u), 0.1, 10.0)
+    problem = Problem(y, cols["t_s"], u, 0.1, train, test, sim, 0.01)
+    hedged = model.with_values(**(sag | {"supply_variation.start_s": 45.6, "supply_variation.ramp_s": 11.6}))
+    moved = candidate("supply_pressure_variation").refine(problem, hedged)
+    assert moved is not None
+    fitted = hedged.with_values(**moved).supply_variation
+    assert fitted.start_s == pytest.approx(46.7, abs=0.3) and fitted.ramp_s <= 2.0
+    # the recovery, in a held-out block: on the exact model the muscle's memory in the next training
+    # block places it; a ramp would span it
+    assert fitted.end_s - 0.3 <= 80.8 <= fitted.end_s + fitted.recovery_s + 0.3
+    before = fit_percent(y, sim.run(hedged)[0], test)
+    after = fit_percent(y, sim.run(hedged.with_values(**moved))[0], test)
+    assert before < 97.0 and after >= 99.0, (before, after)
+    assert candidate("supply_pressure_variation").refine(problem, model) is None
+
+
 def _presliding_reading(x: np.ndarray, scale_mm: float) -> np.ndarray:
     """A friction's presliding lag (Dahl-like, bounded by ``scale_mm``): hysteresis that mimics a play."""
     out, z = np.empty_like(x), 0.0

@@ -97,7 +97,7 @@ from tapmuscle.diagnosis.residual_analysis import (Correlation, block_index, aut
 from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
-from tapmuscle.diagnosis.simulation import Simulator, worker_pool
+from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
@@ -567,7 +567,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             started: float, space: ModelSpace, use_pressure: bool = False) -> Diagnosis:
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
     n = len(t)
-    checkpoint_every = max(1, int(round(10.0 / ts)))
+    checkpoint_every = checkpoint_interval(ts)
     y0, q0 = sim.run(model, checkpoint_every=checkpoint_every)
     train, test = interleaved_split(n, ts, block_s)
     e0 = y - y0
@@ -1060,7 +1060,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     def polished(p: PlantParams, f: Any, y_p: np.ndarray, q_p: np.ndarray | None) -> tuple:
         """The final joint re-fit ``p`` (its fit ``f`` and predictions), or, where the training blocks
         say it fits as well or better (:meth:`Problem.plateau`), the same with each accepted effect
-        that has a local search of its own parameters (:attr:`Candidate.refine`: a band's edges)
+        that has a local search of its own parameters (:attr:`Candidate.refine`: a band's edges, a sag's window)
         moved by it on ``p``'s constants and re-fitted jointly; with the effects' values.
 
         Those parameters are their own search's, made on constants that the re-fits after it moved,

@@ -14,7 +14,7 @@ import numpy as np
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval
 
 __all__ = ["Problem", "FitResult", "Rejected", "SimulationError", "full_prediction"]
 
@@ -71,6 +71,11 @@ class Problem:
     @property
     def n(self) -> int:
         return len(self.y_mm)
+
+    @property
+    def checkpoint_every(self) -> int:
+        """Samples between the checkpoints a baseline run keeps (:func:`checkpoint_interval`)."""
+        return checkpoint_interval(self.ts_s)
 
     @property
     def n_fit(self) -> int:

@@ -24,13 +24,22 @@ from fmu_plant import Plant, PlantParams
 
 from tapmuscle.errors import UsageError
 
-__all__ = ["Simulator", "noise_free", "worker_pool", "spawn_context"]
+__all__ = ["Simulator", "noise_free", "checkpoint_interval", "worker_pool", "spawn_context"]
+
+#: Recording time between the checkpoints a baseline run keeps [s]: a window fit continues from the
+#: last one before its window, so it simulates at most this much more than the window.
+CHECKPOINT_S = 10.0
 
 
 def noise_free(params: PlantParams) -> PlantParams:
     """``params`` with the encoder's and pressure sensor's noise and quantisation switched off."""
     return params.with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0,
                                  "sensor.pressure_noise_std_mpa": 0.0, "sensor.pressure_resolution_mpa": 0.0})
+
+
+def checkpoint_interval(ts_s: float) -> int:
+    """Samples between checkpoints (:data:`CHECKPOINT_S`) at sampling period ``ts_s`` [s]."""
+    return max(1, int(round(CHECKPOINT_S / ts_s)))
 
 
 @dataclass
