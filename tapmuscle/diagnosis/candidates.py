@@ -586,14 +586,15 @@ def _sag_cost(pr: Problem, base: PlantParams, x, start: int, stop: int, fall: fl
 
 
 def _placed_sag(pr: Problem, base: PlantParams, y_base: np.ndarray, x0: tuple[float, float, float], start: int,
-                stop: int, ramp: float, *, scan: bool = False) -> FitResult | None:
+                stop: int, ramp: float, *, final: bool = False) -> FitResult | None:
     """The sag on ``base`` (which has none) from ``x0`` (depth [MPa], start, end [s]): Nelder-Mead on
     the three, judged on the training samples ``start .. stop - 1`` (simulated from the checkpoint
     at ``start``), then each edge the training blocks cannot place made a ramp across the stretch
     where their cost is flat (the own search's last step, module docstring). ``ramp`` [s] is the
-    model's own fall and recovery. With ``scan``, each edge is also scanned a held-out block and a
-    second either way after the simplex (:func:`_scanned_edge`), and the simplex run again from
-    the lowest, with steps of a second."""
+    model's own fall and recovery. ``final``: ``base`` is the final model's constants; each edge is
+    then also scanned a held-out block and a second either way after the simplex
+    (:func:`_scanned_edge`), the simplex run again from the lowest with steps of a second, and "as
+    good" counts ten samples' worth of the residual left, where that exceeds the plateau."""
     t_first, t_last = start * pr.ts_s, float(pr.t_s[-1])
     block = pr.block_s + 2.0
 
@@ -601,7 +602,7 @@ def _placed_sag(pr: Problem, base: PlantParams, y_base: np.ndarray, x0: tuple[fl
         return _sag_cost(pr, base, x, start, stop, fall, recovery)
     lo, hi = np.array([0.0, t_first, t_first]), np.array([0.2, t_last, t_last])
     x = _nelder_mead(cost, np.array(x0), np.array([0.5 * x0[0], 3.0, 3.0]), lo, hi, max_evals=28)
-    if scan:
+    if final:
         # The simplex stops on the first stretch where the cost is flat: an edge it starts from in a
         # held-out block, with the edge's evidence in the training block next to it, stays there (field
         # case 030, seed 3: its fall's start at 52 s, training error 1819 mm^2; at 46.2 s, 354 mm^2).
@@ -620,7 +621,7 @@ def _placed_sag(pr: Problem, base: PlantParams, y_base: np.ndarray, x0: tuple[fl
     # against a step's L/4 at the middle, and L/3 against L/2 when the true edge is at an end.
     c_fit = cost(x)
     tol = pr.plateau(c_fit)
-    if scan:
+    if final:
         # On the final model the cost left is mostly model error, which is not white: an edge moved
         # within a held-out block changes the training cost through the muscle's memory by more than
         # ten samples' noise variance (0.006 mm^2 against 0.001 mm^2 in field case 073, seed 2), and
@@ -683,7 +684,7 @@ def _refine_supply_sag(pr: Problem, params: PlantParams) -> dict[str, float] | N
     first = sv.start_s - pr.block_s - 10.0
     start = ([c for c in pr.sim.checkpoints() if c * pr.ts_s <= first] or [0])[-1]
     stop = min(pr.n, int(round((sv.end_s + sv.recovery_s + pr.block_s + 30.0) / pr.ts_s)) + 1)
-    res = _placed_sag(pr, off, y_off, (sv.sag_mpa, a, b), start, stop, ramp, scan=True)
+    res = _placed_sag(pr, off, y_off, (sv.sag_mpa, a, b), start, stop, ramp, final=True)
     if res is None or all(math.isclose(res.values[k], params.value(k)) for k in res.values):
         return None
     return res.values

@@ -1060,8 +1060,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     def polished(p: PlantParams, f: Any, y_p: np.ndarray, q_p: np.ndarray | None) -> tuple:
         """The final joint re-fit ``p`` (its fit ``f`` and predictions), or, where the training blocks
         say it fits as well or better (:meth:`Problem.plateau`), the same with each accepted effect
-        that has a local search of its own parameters (:attr:`Candidate.refine`: a band's edges, a sag's window)
-        moved by it on ``p``'s constants and re-fitted jointly; with the effects' values.
+        that has a local search of its own parameters (:attr:`Candidate.refine`: a band's edges, a
+        sag's window) moved by it on ``p``'s constants and re-fitted jointly; with the effects' values.
 
         Those parameters are their own search's, made on constants that the re-fits after it moved,
         and a band's stall makes the fit sharp in its edges: in field case 024 (seed 1, a band and a
