@@ -222,6 +222,36 @@ def test_a_band_s_edges_go_midway_between_the_training_blocks_commands():
     assert _midway_edges(lambda x: 0.0, 0.0, lo, hi, ramp, train) == (lo, hi)
 
 
+def test_a_band_s_edge_goes_to_the_middle_of_the_training_commands_it_may_cross_as_well():
+    """Seed 3's field case 047 in its levels: 6.68 V held briefly in a training block, 6.635 V held
+    out, the rig's upper edge at 6.59 V. The training cost takes 6.68 V in by a hair (the model
+    error's doing, within ``tol``), and an edge between 6.68 and 6.693 V has 6.635 V inside the band;
+    the edge goes to the middle of 6.473 .. 6.693 V, the stretch it may cross as well, which leaves
+    6.635 V out. A level that costs more than ``tol`` to cross bounds the stretch, the band keeps its
+    cost within ``tol``, and with ``tol`` zero only the gap the edge lies in counts (the plain midway
+    rule, which keeps 6.635 V in)."""
+    levels = {5.5: 1, 5.98: 0, 6.011: 1, 6.017: 1, 6.174: 1, 6.194: 1, 6.201: 1, 6.337: 0, 6.37: 0,
+              6.437: 1, 6.473: 1, 6.635: 0, 6.68: 1, 6.693: 1, 6.696: 1, 7.2: 1}
+    u = np.repeat(list(levels), 10)
+    train = np.repeat([bool(v) for v in levels.values()], 10)
+    weight = np.where(u == 6.68, 0.02, 1.0)  # the brief level: its side is barely seen
+    seen_inside = ((u > 5.957) & (u < 6.588)) | (u == 6.68)  # the rig's band, and the model error's hair
+
+    def cost(x):
+        a, b = x[0] - x[1] / 2, x[0] + x[1] / 2
+        return float(np.sum((weight * (((u > a) & (u < b)) != seen_inside))[train]))
+    lo0, hi0 = 0.5 * (5.5 + 6.011), 0.5 * (6.68 + 6.693)  # the search's band: 6.68 V taken in
+    assert cost((0.5 * (lo0 + hi0), hi0 - lo0)) == 0.0
+    a, b = _midway_edges(cost, 0.5, lo0, hi0, u, train)
+    assert b == pytest.approx(0.5 * (6.473 + 6.693))
+    assert a == pytest.approx(lo0)  # crossing 5.5 or 6.011 V costs ten samples
+    assert cost((0.5 * (a + b), b - a)) <= 0.5
+    assert not a < 6.635 < b
+    a0, b0 = _midway_edges(cost, 0.0, lo0, hi0, u, train)
+    assert (a0, b0) == (pytest.approx(lo0), pytest.approx(hi0))
+    assert a0 < 6.635 < b0
+
+
 @pytest.mark.parametrize("lower,upper", [(5.79, 6.59), (5.70, 6.70), (5.75, 6.60)])
 def test_a_band_refined_on_its_model_holds_the_rig_s_commands(lower, upper):
     """A 0.9-V band at 6.2 V under the paper's sine; the model holds it with edges a few hundredths

@@ -87,6 +87,15 @@ class Problem:
         evidence lies in a held-out block) leaves the cost flat within this."""
         return best_mm2 + max(1e-3 * best_mm2, 10.0 * self.noise_mm ** 2)
 
+    def as_good(self, best_mm2: float, n_samples: int) -> float:
+        """:meth:`plateau`, or ten samples' worth of the residual left (``best_mm2`` over the
+        ``n_samples`` training samples it sums) where that is higher [mm^2].
+
+        A residual that is model error, not noise, is not white: a parameter moved where the
+        training blocks hold no evidence of it changes their cost through the muscle's memory by
+        more than ten samples' noise variance."""
+        return max(self.plateau(best_mm2), best_mm2 + 10.0 * best_mm2 / max(1, n_samples))
+
     def fit_residual(self, params: PlantParams) -> np.ndarray:
         """Training residual [mm] of ``params`` over the fit segment (one simulation); for parameters
         the model cannot be simulated with, a large finite residual (:data:`FAILED_RESIDUAL_SCALE`)."""
