@@ -353,9 +353,9 @@ def _midway_edges(cost: Callable[[tuple[float, float]], float], tol: float, lowe
     trained, the rig's edge at 4.097 V, and the search stopped at 4.028). A training command the edge
     may take in or leave out at a cost within ``tol`` does not place it either (seed 3's case 047:
     6.68 V held briefly in a training block, the rig's edge at 6.59 V, 6.635 V held out; taking
-    6.68 V in cut the training error by 0.3 % and doubled the held-out one). With the edge equally
-    likely anywhere on the stretch, its middle puts the fewest held-out commands on the wrong side, in
-    expectation (the median of a uniform distribution minimises the expected distance). Held
+    6.68 V in cut the training error by 0.3 % and multiplied the held-out one by 6.7). With the edge
+    equally likely anywhere on the stretch, its middle puts the fewest held-out commands on the wrong
+    side, in expectation (the median of a uniform distribution minimises the expected distance). Held
     commands only (:func:`_held`): a command that changes every sample leaves the training blocks'
     commands millivolts apart, and a move within that gap is a change of path, not of evidence."""
     if not _held(u_v):
@@ -373,12 +373,12 @@ def _midway_edges(cost: Callable[[tuple[float, float]], float], tol: float, lowe
         def fits(a: float, b: float) -> bool:
             return b - a >= 0.02 and cost((0.5 * (a + b), b - a)) <= tol
 
-        def as_good(gap: int) -> bool:
+        def crossable(gap: int) -> bool:
             return fits(*band(0.5 * float(levels[gap - 1] + levels[gap])))
         lo_k = hi_k = k
-        while lo_k > 1 and k - lo_k < _MIDWAY_LEVELS and as_good(lo_k - 1):
+        while lo_k > 1 and k - lo_k < _MIDWAY_LEVELS and crossable(lo_k - 1):
             lo_k -= 1
-        while hi_k + 1 < len(levels) and hi_k - k < _MIDWAY_LEVELS and as_good(hi_k + 1):
+        while hi_k + 1 < len(levels) and hi_k - k < _MIDWAY_LEVELS and crossable(hi_k + 1):
             hi_k += 1
         a, b = band(0.5 * float(levels[lo_k - 1] + levels[hi_k]))
         if fits(a, b):
@@ -389,8 +389,8 @@ def _midway_edges(cost: Callable[[tuple[float, float]], float], tol: float, lowe
 def _refine_dead_zone(pr: Problem, params: PlantParams) -> dict[str, float] | None:
     """The band of ``params`` [V] with its edges moved by a fine compass search (steps of 0.02 and
     0.005 V, :func:`_edge_search`), each trial judged as the search keeps a model: by the training
-    error of the whole run (:meth:`Problem.stacked_residual`), then each set midway between the
-    training blocks' commands around it (:func:`_midway_edges`). None when no recorded command
+    error of the whole run (:meth:`Problem.stacked_residual`), then each moved to the middle of the
+    training commands it may cross as well (:func:`_midway_edges`). None when no recorded command
     changes side.
 
     The own search placed the edges on other constants, judged on its window, in steps of 0.02 V at
