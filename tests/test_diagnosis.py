@@ -1262,28 +1262,3 @@ def test_the_report_lists_a_joint_re_fit_that_failed_with_its_reason(tmp_path):
     write_outputs(d, tmp_path, recording="rec.csv", plant="plant.json", plots=False)
     assert "| 1 | `backlash` re-fitted with the calibration | not fitted (the plant diverged) | | |" in \
         (tmp_path / "report.md").read_text()
-
-
-def test_a_calibration_is_stretched_only_in_its_prior_s_chi_square_tail():
-    """Constants drawn from their prior are called stretched at the test level's rate; the field
-    truths' constants never are; the first calibrations of the field cases that took an effect up are."""
-    from tapmuscle.diagnosis.calibration import nominal_coords
-    from tapmuscle.diagnosis.diagnose import stretched_calibration
-    from tapmuscle.diagnosis.field_cases import field_cases
-    rng = np.random.default_rng(7)
-    n = 5000
-    for k, alpha in ((3, 0.05), (8, 0.01), (13, 0.05)):
-        costs = np.sum(rng.standard_normal((n, k)) ** 2, axis=1)
-        rate = np.mean([stretched_calibration(c, k, alpha) for c in costs])
-        # binomial: 5 sds of the rate's sampling spread
-        assert abs(rate - alpha) < 5 * np.sqrt(alpha * (1 - alpha) / n), (k, alpha, rate)
-    for case in field_cases(100, 0):
-        model = case.model()
-        coords = {c.key: c for c in nominal_coords(model, NOMINAL_PARAMETERS)}
-        errors = dict(case.parameter_errors)
-        cost = sum((errors[key] * model.value(key) / coords[key].scale) ** 2 for key in errors if key in coords)
-        assert not stretched_calibration(cost, len(errors), 1e-3), (case.name, cost)
-    # seed 2's field case 018 (a 1.08-V band): its first calibration's prior cost over 8 constants
-    assert stretched_calibration(89.85, 8, 1e-3)
-    with pytest.raises(ValueError, match="constants must be at least 1, got 0"):
-        stretched_calibration(1.0, 0, 1e-3)

@@ -482,54 +482,6 @@ def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], s
     return LinearisedConstants(params, jac, x, np.array([c.prior for c in coords], bool), lower, upper, sigma)
 
 
-def stretched_calibration(prior_cost: float, constants: int, alpha: float) -> bool:
-    """Does a calibration stretch its constants beyond their prior?
-
-    With the rig's constants drawn from the prior (each Gaussian about its nominal value with the
-    prior's sd :math:`s_k`, :class:`FittedParameter`) and estimates near them, the prior cost
-    :math:`\\sum_k ((\\hat\\theta_k - \\theta_{k,0}) / s_k)^2` is a chi-square with ``constants``
-    degrees of freedom, or less (the prior shrinks each estimate toward nominal). A cost in its upper
-    tail beyond ``alpha`` says the constants were bent to mimic something the plant lacks. The field
-    rigs' constants are off by at most one prior sd (20 %); the four field cases whose first
-    calibration took up a band, a map or a delay cost 27-104 over 6-13 constants.
-
-    Parameters
-    ----------
-    prior_cost : float
-        The calibration's prior cost [squared prior standard deviations].
-    constants : int
-        Constants it calibrated (>= 1).
-    alpha : float
-        Test level (the diagnosis's significance level).
-    """
-    if constants < 1:
-        raise ValueError(f"constants must be at least 1, got {constants}")
-    return bool(stats.chi2.sf(prior_cost, constants) < alpha)
-
-
-def _calibrated_starts(calibrated: Callable[[PlantParams], Calibration], sim: Simulator, model: PlantParams,
-                       fits: Sequence[tuple[Candidate, FitResult]]) -> list[tuple[Candidate, FitResult, PlantParams]]:
-    """Each nominal start ``fits`` (an effect's own fit on the nominal constants) with the constants
-    calibrated from nominal with that effect on: ``(candidate, its fit re-predicted, the calibrated
-    parameters)``, for the starts whose calibration the plant can simulate.
-
-    The first calibration took the effect up and ended far from nominal (:func:`stretched_calibration`);
-    an effect whose own parameters are not re-fitted jointly (a band's edges, a map's knots) is then
-    not moved out of that valley by the joint re-fit, and the constants calibrated with it on can fit
-    the recording where the ones calibrated without it cannot (field case ``018``, seed 2: a 1.08-V band
-    under steps, the first calibration's prior cost 90, with four constants at their bounds; with the
-    band on, the calibration from nominal reaches the noise on the training blocks)."""
-    out = []
-    for cand, res in fits:
-        try:
-            p = calibrated(model.with_values(**res.values)).params
-            y_p = sim.run(p)[0]
-        except SimulationError:  # a calibration the plant cannot take: that start is not tried
-            continue
-        out.append((cand, replace(res, y_hat=y_p, joint_gain_mm2=None), p))
-    return out
-
-
 def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
                      values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
     """``params`` with ``cand``'s own search run again on its constants (the effect switched off
@@ -807,13 +759,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 fit_cal = fit_percent(y, y_cal, test)
                 current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
     cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
-    # A calibration the constants' own prior makes implausible (its prior cost a chi-square tail at
-    # the test level) has taken up a left-out effect: the first round's starts from the nominal
-    # constants then also calibrate them with each such effect on (:func:`_calibrated_starts`).
-    stretched = cal is not None and bool(coords) and stretched_calibration(prior_cost(cal.params), len(coords), alpha)
-    if stretched:
-        selection.append({"step": "the calibration stretched the constants", "prior_cost": round(prior_cost(cal.params), 3),
-                          "constants": len(coords)})
 
     def judged(effect: str | None = None) -> HeldOut:
         """The held-out evidence a test of ``effect`` rests on (None: an effect not in the model).
@@ -953,8 +898,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # nominal constants with the effect fitted on the nominal model (the better start on the
             # training blocks is kept after the joint re-fit).
             sim.run(model, checkpoint_every=checkpoint_every)  # window fits continue from checkpoints of their base
-            if stretched:  # the effects' own searches judge each trial by the constants' linearised step
-                linearise(model, y0, pool)
             nominal_jobs = _start_fits(pool, problem, model, y0)
         else:
             nominal_jobs = []
@@ -965,10 +908,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             res_n = job()[0]
             if isinstance(res_n, FitResult):
                 nominal_fits[cand.name] = res_n
-        calibrated_starts = []
-        if stretched and nominal_fits:
-            calibrated_starts = _calibrated_starts(calibrated, sim, model, [(by_name[name], res_n) for name, res_n in nominal_fits.items()
-                                                                      if _own_parameters(space, by_name[name])])
         for cand, job in zip(pool, jobs):
             res, sims_used, secs = job()
             cost = {"simulations": sims_used, "seconds": round(secs, 2)}
@@ -995,7 +934,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             return sse((y - y_hat)[train])
         options = [(cand, res, current.params) for cand, res, _ in fitted]
         options += [(by_name[name], res_n, model) for name, res_n in nominal_fits.items()]
-        options += calibrated_starts
         if evidence.uses_pressure and options:  # on the fit segment, where the fits themselves look
             runs = sim.run_many([st.with_values(**res.values) for _, res, st in options], stop=problem.n_fit,
                                 pressure=True)
