@@ -29,6 +29,7 @@ About 30 s per case on one core (about 20 per seed).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -40,7 +41,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fmu_plant.parameters import PlantParams  # noqa: E402
-from tapmuscle.diagnosis.diagnose import BLOCK_S  # noqa: E402
 from tapmuscle.diagnosis.field_cases import FieldCase, field_cases  # noqa: E402
 from tapmuscle.diagnosis.field_demo import run_field_case  # noqa: E402
 from tapmuscle.diagnosis.plant_source import load_plant  # noqa: E402
@@ -70,7 +70,9 @@ def _one(case: FieldCase, out: Path) -> dict[str, Any]:
     ts = float(np.median(np.diff(cols["t_s"])))
     sim = Simulator(cols["u_v"], ts, cols.get("load_n"))
     y = cols["l_mm"]
-    training, held_out = interleaved_split(len(y), ts, BLOCK_S)
+    # the diagnosis's own split (its block length depends on the command)
+    block_s = json.loads((folder / "diagnosis.json").read_text())["split"]["block_s"]
+    training, held_out = interleaved_split(len(y), ts, block_s)
     rig, default = dict(case.effect_values), PlantParams()
     edges = {key: rig.get(key, default.value(key)) for effect in case.effects for key in EDGES.get(effect, ())}
     y_fit, y_rig = sim.run(fitted)[0], sim.run(fitted.with_values(**edges))[0]

@@ -13,7 +13,6 @@ __all__ = ["register"]
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from tapmuscle.diagnosis.diagnose import BLOCK_S
     from tapmuscle.diagnosis.report import diagnose_files, summary_lines
 
     from tapmuscle.io.plant_file import PlantFileError
@@ -43,7 +42,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1),
-                              block_s=BLOCK_S if args.block is None else args.block,
+                              block_s=args.block,
                               fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
                               effects=effects,
                               workers=args.workers or os.cpu_count() or 1, **options)
@@ -186,7 +185,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "output in turn, into OUT/<output>/, with OUT/summary.md setting them side by side")
     dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=None,
-                     help="length of the interleaved training / held-out blocks [s] (default 10)")
+                     help="length of the interleaved training / held-out blocks [s] (default 10, or for "
+                          "tapmuscle's plant and a continuous command the training blocks see rise and the "
+                          "held-out ones fall, the nearest length that balances them)")
     dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=None,
                      help="stationary effects are fitted on the first this many seconds (default 120 for "
                           "tapmuscle's plant, the whole recording for a foreign FMU)")

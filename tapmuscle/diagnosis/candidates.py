@@ -54,7 +54,7 @@ from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
 from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.residual_analysis import located_windows
+from tapmuscle.diagnosis.residual_analysis import held_command, located_windows
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, snap_relative, sse
 
 __all__ = ["ParameterSpec", "Candidate", "Problem", "FitResult", "CANDIDATES", "candidate"]
@@ -318,11 +318,6 @@ def _edge_scan(cost: Callable[[tuple[float, float]], float], best: float, lower:
 #: At most this many distinct commands in the dead-zone search window count as held levels (steps).
 _FEW_LEVELS = 40
 
-#: Command changes at most this fraction of the samples: the command is held between changes (random
-#: levels, steps), and the band's edges are also scanned (:func:`_edge_scan`). Counted as changes, not
-#: distinct levels: a sampled periodic sine repeats its levels but changes every sample.
-_HELD_FRACTION = 0.25
-
 #: Training commands a band's edge is walked across, at most, either way while the fit stays as good
 #: (:func:`_midway_edges`).
 _MIDWAY_LEVELS = 3
@@ -333,12 +328,6 @@ def _command_cuts(u_v: np.ndarray) -> np.ndarray:
     a band's cost changes only where an edge crosses one (:func:`_edge_search`)."""
     levels = np.unique(np.round(u_v, 3))
     return np.concatenate(([levels[0] - 0.05], 0.5 * (levels[1:] + levels[:-1]), [levels[-1] + 0.05]))
-
-
-def _held(u_v: np.ndarray) -> bool:
-    """Is the command held between changes (it changes in at most :data:`_HELD_FRACTION` of the
-    samples: random levels, steps)?"""
-    return np.count_nonzero(np.diff(u_v)) <= _HELD_FRACTION * len(u_v)
 
 
 def _midway_edges(cost: Callable[[tuple[float, float]], float], tol: float, lower: float, upper: float,
@@ -356,9 +345,10 @@ def _midway_edges(cost: Callable[[tuple[float, float]], float], tol: float, lowe
     6.68 V in cut the training error by 0.3 % and multiplied the held-out one by 6.7). With the edge
     equally likely anywhere on the stretch, its middle puts the fewest held-out commands on the wrong
     side, in expectation (the median of a uniform distribution minimises the expected distance). Held
-    commands only (:func:`_held`): a command that changes every sample leaves the training blocks'
-    commands millivolts apart, and a move within that gap is a change of path, not of evidence."""
-    if not _held(u_v):
+    commands only (:func:`~tapmuscle.diagnosis.residual_analysis.held_command`): a command that
+    changes every sample leaves the training blocks' commands millivolts apart, and a move within
+    that gap is a change of path, not of evidence."""
+    if not held_command(u_v):
         return lower, upper
     levels = np.unique(np.round(u_v[train], 3))
     for which in (0, 1):
@@ -513,7 +503,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
     stop = min(pr.n, stop + minute)
     cuts = cuts_of(start, stop)
     best, lower, upper = _edge_search(cost, *edges, (0.05, 0.02), cuts)
-    if _held(pr.u_v[start:stop]):
+    if held_command(pr.u_v[start:stop]):
         # held commands: the compass may stop on a band holding part of the rig's (field case 046,
         # seed 1: 0.49 V of a 1.04-V band under random levels, 85.8 % held-out fit, 99.9 % scanned)
         scanned, a, b = _edge_scan(cost, best, lower, upper, cuts, max_width)

@@ -91,8 +91,8 @@ from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Pro
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.residual_analysis import (Correlation, block_index, autocorrelation_test, cross_correlation_test, fit_percent,
-                                interleaved_split, is_structured, located_windows, regime_summary,
+from tapmuscle.diagnosis.residual_analysis import (Correlation, balanced_block_s, block_index, autocorrelation_test,
+                                cross_correlation_test, fit_percent, interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
@@ -220,7 +220,7 @@ class _Model:
 
 
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
-             load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float = BLOCK_S,
+             load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float | None = None,
              fit_segment_s: float = 120.0, candidates: Sequence[Candidate] = CANDIDATES, max_effects: int = 3,
              alpha: float = 1e-3, min_reduction: float = 0.10,
              calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
@@ -237,8 +237,12 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     load_n, p_mpa : ndarray, optional
         Recorded load [N] (re-simulated as recorded) and pressure [MPa] (for the regime breakdown, and
         the fits and tests with ``use_pressure``).
-    block_s : float
-        Length of the interleaved training / held-out blocks [s] (:data:`BLOCK_S`).
+    block_s : float, optional
+        Length of the interleaved training / held-out blocks [s]. Default: :data:`BLOCK_S`, or, for
+        a continuous command that it splits into training blocks that see it mostly rise and held-out
+        blocks that see it mostly fall (or the reverse), the nearest length that does not
+        (:func:`~tapmuscle.diagnosis.residual_analysis.balanced_block_s`); the length used is the
+        report's ``split.block_s``.
     fit_segment_s : float
         The calibration and the stationary effects are fitted on the first this many seconds.
     candidates : sequence of Candidate
@@ -274,7 +278,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     started = time.perf_counter()
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
-    t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
+    t, u, y, ts = validated_recording(t_s, u_v, l_mm, BLOCK_S if block_s is None else block_s, load_n=load_n)
+    if block_s is None:
+        block_s = balanced_block_s(u, ts, BLOCK_S, longest_s=(len(t) - 1) * ts / 4.0)
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
     with ExitStack() as stack:
