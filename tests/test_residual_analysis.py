@@ -1,0 +1,67 @@
+"""The training / held-out split's balance (tapmuscle/diagnosis/residual_analysis.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tapmuscle.diagnosis import diagnose
+from tapmuscle.diagnosis.demo import DEMO_MODEL
+from tapmuscle.diagnosis.residual_analysis import (BLOCK_CHOICES, SPLIT_BALANCE, balanced_block_s, direction_imbalance,
+                                                   held_command)
+from tapmuscle.diagnosis.simulation import Simulator
+
+TS = 0.1
+
+
+def _t(duration_s: float) -> np.ndarray:
+    return np.arange(0.0, duration_s + 0.5 * TS, TS)
+
+
+def test_a_sine_locked_to_the_split_is_rising_in_training_and_falling_held_out():
+    t = _t(180.0)
+    # period twice the block, minimum at each even block's start: the training blocks see it rise only
+    locked = 5.0 - 3.0 * np.cos(2 * math.pi * t / 20.0)
+    assert direction_imbalance(locked, TS, 10.0) > 0.99
+    # a full period in every block: both parts see the same motion
+    assert direction_imbalance(5.0 + 3.0 * np.sin(2 * math.pi * t / 10.0), TS, 10.0) < 0.01
+    # the same sine a quarter period later: each block a half rise and a half fall (up to the one
+    # sample at each block's edge that falls to the other part: about pi / 100 of 100-sample blocks)
+    assert direction_imbalance(5.0 + 3.0 * np.sin(2 * math.pi * t / 20.0), TS, 10.0) < 0.05
+
+
+def test_the_balanced_block_length_is_the_preferred_one_unless_a_continuous_command_is_locked_to_it():
+    t = _t(180.0)
+    locked = 5.0 - 3.0 * np.cos(2 * math.pi * t / 20.0)
+    b = balanced_block_s(locked, TS, 10.0)
+    assert b != 10.0 and any(math.isclose(b, 10.0 * k) for k in BLOCK_CHOICES)
+    assert direction_imbalance(locked, TS, b) <= SPLIT_BALANCE
+    # the first balanced choice in the documented order: every earlier one is unbalanced
+    earlier = [10.0 * k for k in BLOCK_CHOICES[:BLOCK_CHOICES.index(round(b / 10.0, 6))]]
+    assert all(direction_imbalance(locked, TS, e) > SPLIT_BALANCE for e in earlier)
+    assert balanced_block_s(5.0 + 3.0 * np.sin(2 * math.pi * t / 10.0), TS, 10.0) == 10.0
+    # no longer than the recording allows
+    assert balanced_block_s(locked, TS, 10.0, longest_s=9.5) <= 9.5
+
+
+def test_a_held_command_keeps_the_preferred_blocks_however_its_jumps_fall():
+    t = _t(180.0)
+    # steps that rise in every training block and fall in every held-out one
+    steps = np.where((t // 10.0) % 2 == 0, 3.0 + (t % 10.0 // 2.0), 7.0 - (t % 10.0 // 2.0))
+    assert held_command(steps)
+    assert direction_imbalance(steps, TS, 10.0) > SPLIT_BALANCE
+    assert balanced_block_s(steps, TS, 10.0) == 10.0
+
+
+def test_diagnose_reports_the_block_length_it_chose_and_keeps_one_it_is_given():
+    t = _t(120.0)
+    u = 5.0 - 2.0 * np.cos(2 * math.pi * t / 20.0)
+    y = Simulator(u, TS).run(DEMO_MODEL)[0] + np.random.default_rng(3).normal(0.0, 0.01, len(t))
+    d = diagnose(t, u, y, DEMO_MODEL, candidates=[], calibration=None)
+    assert d.block_s == balanced_block_s(u, TS, 10.0, longest_s=30.0) != 10.0
+    assert d.to_json()["split"]["block_s"] == d.block_s
+    assert diagnose(t, u, y, DEMO_MODEL, candidates=[], calibration=None, block_s=10.0).block_s == 10.0
+    with pytest.raises(ValueError, match=r"block_s \(--block\) = 40.0 s"):
+        diagnose(t, u, y, DEMO_MODEL, candidates=[], calibration=None, block_s=40.0)
