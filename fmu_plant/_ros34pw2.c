@@ -20,7 +20,8 @@
     X(down_factor) X(rate_gain) X(inv_v_ref) X(rate_exp) X(inv_delta) X(inv_tol_p) X(inv_tol_l) \
     X(inv_tol_v) X(inv_tol_z) X(a21) X(a31) X(a32) X(a41) X(a42) X(a43) X(c21) X(c31) X(c32) X(c41) \
     X(c42) X(c43) X(e1) X(e2) X(e3) X(e4) X(t2) X(t3) X(gamma) X(m_moving) X(gravity) X(cross_err) \
-    X(cross_min_h)
+    X(cross_min_h) X(u_min) X(u_span) X(h_max) X(h_min) X(safety) X(growth) X(shrink) X(err_floor) \
+    X(stretch) X(kink_floor)
 
 #define AS_FIELD(name) double name;
 #define AS_STRING(name) #name,
@@ -311,6 +312,116 @@ static PyObject *Model_attempt(ModelObject *self, PyObject *const *args, Py_ssiz
     return Py_BuildValue("(dddddd)", out[0], out[1], out[2], out[3], out[4], out[5]);
 }
 
+/* The spool target of a valve command: (u - u_min) / u_span within 0..1. */
+static double spool_target(const Constants *k, double u) {
+    double xs = (u - k->u_min) / k->u_span;
+    return xs < 0.0 ? 0.0 : xs > 1.0 ? 1.0 : xs;
+}
+
+/* advance(...) of build_model: the adaptive sub-steps over one communication step (see there). */
+static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 14) {
+        PyErr_Format(PyExc_TypeError, "advance() takes 14 arguments (x, p, l, v, z, xs_last, kink_scale, "
+                     "last_ps, u, ps, w, t0, dt, ports), got %zd", nargs);
+        return NULL;
+    }
+    double a[13];
+    for (int i = 0; i < 13; i++) {
+        a[i] = PyFloat_AsDouble(args[i]);
+        if (a[i] == -1.0 && PyErr_Occurred())
+            return NULL;
+    }
+    PyObject *ports = args[13];
+    const int sample_ports = ports != Py_None;
+    const Constants *k = &self->k; /* read afresh in every sub-step: the ports may set the gate */
+    const double x0 = a[0], p0 = a[1], l0 = a[2], v0 = a[3], z0 = a[4], xs_last = a[5];
+    double x = x0, p = p0, l = l0, v = v0, z = z0, kink_scale = a[6], last_ps = a[7];
+    double u = a[8], ps = a[9], w = a[10];
+    const double t0 = a[11], dt = a[12];
+    double xs = sample_ports ? xs_last : spool_target(k, u);
+    double done = 0.0, left = dt, h_try = 0.0, kink_root = 1.0, h, out[6];
+    int first = 1, sampled = 0, retry = 0, last;
+    for (;;) {
+        if (sample_ports && !sampled) {
+            PyObject *t = PyFloat_FromDouble(t0 + done);
+            if (t == NULL)
+                return NULL;
+            PyObject *r = PyObject_CallOneArg(ports, t);
+            Py_DECREF(t);
+            if (r == NULL)
+                return NULL;
+            if (!PyTuple_Check(r) || PyTuple_GET_SIZE(r) != 3) {
+                Py_DECREF(r);
+                PyErr_SetString(PyExc_TypeError, "advance(): ports(t) must return a tuple (u, ps, w)");
+                return NULL;
+            }
+            u = PyFloat_AsDouble(PyTuple_GET_ITEM(r, 0));
+            ps = PyFloat_AsDouble(PyTuple_GET_ITEM(r, 1));
+            w = PyFloat_AsDouble(PyTuple_GET_ITEM(r, 2));
+            Py_DECREF(r);
+            if (PyErr_Occurred())
+                return NULL;
+            xs = spool_target(k, u);
+            sampled = 1;
+        }
+        if (first && !retry) {
+            double kink = xs - xs_last;
+            kink = kink > k->kink_floor ? kink : -kink > k->kink_floor ? -kink : k->kink_floor;
+            kink_root = pow(kink, 1.0 / 3.0);
+            h_try = kink_scale / kink_root;
+        }
+        if (h_try > k->h_max)
+            h_try = k->h_max;
+        if (left <= (retry ? h_try : k->stretch * h_try)) {
+            h = left;
+            last = 1;
+        } else if (left < 2.0 * h_try) {
+            h = 0.5 * left;
+            last = 0;
+        } else {
+            h = h_try;
+            last = 0;
+        }
+        attempt(k, x, p, l, v, z, xs, ps, w, h, out);
+        double err = out[5];
+        if (err <= 1.0 || h <= k->h_min) {
+            if (!(err < INFINITY)) /* the state of the step's start, and the time it broke down */
+                return Py_BuildValue("(ddddddddd)", x0, p0, l0, v0, z0, xs_last, kink_scale, last_ps, t0 + done);
+            x = out[0];
+            p = out[1];
+            l = out[2];
+            v = out[3];
+            z = out[4];
+            if (l < 0.0) {
+                l = 0.0;
+                if (v < 0.0)
+                    v = 0.0;
+            }
+            double fac = err > k->err_floor ? k->safety * pow(err, -1.0 / 3.0) : k->growth;
+            if (fac > k->growth)
+                fac = k->growth;
+            double h_next = h * fac;
+            if (first) {
+                if (!last || fac < 1.0 || h_next * kink_root > kink_scale)
+                    kink_scale = h_next * kink_root;
+                first = 0;
+            }
+            last_ps = ps;
+            if (last)
+                break;
+            done += h;
+            left = dt - done;
+            h_try = h_next;
+            sampled = retry = 0;
+        } else {
+            double fac = k->safety * pow(err, -1.0 / 3.0);
+            h_try = h * (fac > k->shrink ? fac : k->shrink);
+            retry = 1;
+        }
+    }
+    return Py_BuildValue("(ddddddddd)", x, p, l, v, z, xs, kink_scale, last_ps, (double)NAN);
+}
+
 static PyObject *Model_set_gate(ModelObject *self, PyObject *arg) {
     double g = PyFloat_AsDouble(arg);
     if (g == -1.0 && PyErr_Occurred())
@@ -349,6 +460,9 @@ static int Model_init(ModelObject *self, PyObject *args, PyObject *kwds) {
 static PyMethodDef Model_methods[] = {
     {"attempt", (PyCFunction)(void (*)(void))Model_attempt, METH_FASTCALL,
      "attempt(x, p, l, v, z, xs, ps, w, h) -> (x, p, l, v, z, err): one ROS34PW2 sub-step (rosenbrock.build_model)."},
+    {"advance", (PyCFunction)(void (*)(void))Model_advance, METH_FASTCALL,
+     "advance(x, p, l, v, z, xs_last, kink_scale, last_ps, u, ps, w, t0, dt, ports) -> (x, p, l, v, z, xs, "
+     "kink_scale, last_ps, failed_at): the sub-steps of one communication step (rosenbrock.build_model)."},
     {"set_gate", (PyCFunction)Model_set_gate, METH_O,
      "set_gate(g): both valves open g (0..1) times as far beyond their leak from now on."},
     {NULL, NULL, 0, NULL},

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -51,8 +51,7 @@ from .effect_library import effects_from_params
 from .effects import Effect
 from .muscle import MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
-from .rosenbrock import (ERR_FLOOR, GROWTH, KINK_FLOOR, KINK_SCALE_INITIAL, SAFETY, SHRINK, STRETCH,
-                         build_model)
+from .rosenbrock import KINK_SCALE_INITIAL, build_model
 from .seed import check_seed
 from .sensors import quantise
 from .valve import flow_coefficient, orifice_flow, valve_opening
@@ -79,6 +78,12 @@ class Measurement:
     """Encoder reading of the contraction [mm] (noise, 0.01 mm quantisation)."""
     p_mpa: float
     """Pressure-sensor reading [MPa(G)]."""
+
+
+def _hooks(effects: Sequence[Effect], hook: str) -> tuple[Callable[..., Any], ...]:
+    """The bound ``hook`` methods of those ``effects`` that override the base class's, in order."""
+    base = getattr(Effect, hook)
+    return tuple(getattr(e, hook) for e in effects if getattr(type(e), hook) is not base)
 
 
 def _finite(name: str, value: Any) -> float:
@@ -121,11 +126,21 @@ class Plant:
         for e in self.effects:
             if not isinstance(e, Effect):
                 raise ValueError(f"effects must be Effect instances, got {type(e).__name__}")
+        # Each port calls only the effects that act on it: a base hook is the identity (and a gate of
+        # 1.0 multiplies exactly), so leaving it out changes no bit, and a sub-step of a plant whose
+        # effects act on no port is integrated as the effect-free plant's.
+        self._command_hooks = _hooks(self.effects, "valve_command")
+        self._gate_hooks = _hooks(self.effects, "valve_gate")
+        self._supply_hooks = _hooks(self.effects, "supply_pressure")
+        self._load_hooks = _hooks(self.effects, "load")
+        self._measurement_hooks = _hooks(self.effects, "measurement")
+        self._breakpoint_hooks = _hooks(self.effects, "breakpoints")
+        self._acts_on_ports = bool(self._command_hooks or self._gate_hooks or self._supply_hooks or self._load_hooks)
         self._geometry = MuscleGeometry.from_params(self.params.muscle)
         vp = self.params.valve
         self._k_valve = vp.cv_max * CV_TO_SI_WATER
         self._laminar_pa = vp.laminar_dp_mpa * 1e6
-        self._rhs, _, self._attempt, self._set_gate = build_model(self.params)
+        self._rhs, _, _, self._set_gate, self._advance_substeps = build_model(self.params)
         self.reset(seed=seed)
 
     # ------------------------------------------------------------------ lifecycle
@@ -196,7 +211,7 @@ class Plant:
         self.u_v = u_v
         t0 = self.t_s
         t1 = t0 + dt_s
-        cuts = sorted({t for e in self.effects for t in e.breakpoints(t0, t1, u_v)}) if self.effects else ()
+        cuts = sorted({t for f in self._breakpoint_hooks for t in f(t0, t1, u_v)}) if self._breakpoint_hooks else ()
         if cuts:  # end sub-steps exactly where an effect's port signal jumps
             saved = (list(self.state), self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate)
             try:
@@ -311,8 +326,8 @@ class Plant:
         """Sensor readings of the current state (sensors.py: noise, then quantisation, then range)."""
         sp = self.params.sensor
         l_seen = self.state[2]
-        for e in self.effects:
-            l_seen = e.measurement(self.t_s, l_seen)
+        for f in self._measurement_hooks:
+            l_seen = f(self.t_s, l_seen)
         if sp.encoder_noise_std_mm > 0.0:
             l_seen = l_seen + sp.encoder_noise_std_mm * self._normal()
         p_seen = self.state[1]
@@ -327,13 +342,15 @@ class Plant:
         """Valve command [V], supply pressure [MPa], load [N] after the effects, at ``t_s``; sets the
         valve gate."""
         u, ps, w = self.u_v, self.supply_pressure_mpa, self.load_n
-        for e in self.effects:
-            u = e.valve_command(t_s, u)
+        for f in self._command_hooks:
+            u = f(t_s, u)
         gate = 1.0
-        for e in self.effects:
-            gate *= e.valve_gate(t_s, u)
-            ps = e.supply_pressure(t_s, ps)
-            w = e.load(t_s, w)
+        for f in self._gate_hooks:
+            gate *= f(t_s, u)
+        for f in self._supply_hooks:
+            ps = f(t_s, ps)
+        for f in self._load_hooks:
+            w = f(t_s, w)
         if gate != self._gate:
             self._gate = gate
             self._set_gate(gate)
@@ -377,79 +394,17 @@ class Plant:
 
     def _advance(self, t0: float, dt: float) -> None:
         """Integrate the state over ``[t0, t0 + dt]`` with adaptive ROS34PW2 sub-steps (module docstring)."""
-        sp = self.params.solver
-        h_max, h_min = sp.max_substep_s, sp.min_substep_s
-        vp = self.params.valve
-        u_min, u_span = vp.u_min_v, vp.u_max_v - vp.u_min_v
-        attempt = self._attempt
+        # the ports are sampled at every sub-step where an effect acts on them; a gate left from a
+        # restored state is reset by their first sampling
+        ports = self._ports if self._acts_on_ports or self._gate != 1.0 else None
         x, p, l, v, z = self.state
-        effects = self.effects
-        if not effects:
-            ps, w = self.supply_pressure_mpa, self.load_n
-            xs = (self.u_v - u_min) / u_span
-            xs = 0.0 if xs < 0.0 else 1.0 if xs > 1.0 else xs
-        else:
-            xs = self._xs_last
-        done = 0.0
-        left = dt
-        h_try = 0.0  # set with the first sub-step's command below
-        first = True
-        sampled = False
-        retry = False  # after a rejection the step must shrink (no stretching)
-        while True:
-            if effects and not sampled:  # the ports are sampled once per sub-step, also when it is retried
-                u, ps, w = self._ports(t0 + done)
-                xs = (u - u_min) / u_span
-                xs = 0.0 if xs < 0.0 else 1.0 if xs > 1.0 else xs
-                sampled = True
-            if first and not retry:
-                # The first sub-step after a command change resolves the spool's kink; its error grows
-                # with the change, roughly as |change| h^3: scale the remembered proposal with it.
-                kink = xs - self._xs_last
-                kink = kink if kink > KINK_FLOOR else -kink if -kink > KINK_FLOOR else KINK_FLOOR
-                kink_root = kink ** (1.0 / 3.0)
-                h_try = self._kink_scale / kink_root
-            if h_try > h_max:
-                h_try = h_max
-            # End exactly on the communication point: stretch the step a little rather than leave a
-            # short remainder, or split the rest in two.
-            if left <= (h_try if retry else STRETCH * h_try):
-                h, last = left, True
-            elif left < 2.0 * h_try:
-                h, last = 0.5 * left, False
-            else:
-                h, last = h_try, False
-            new = attempt(x, p, l, v, z, xs, ps, w, h)
-            err = new[5]
-            if err <= 1.0 or h <= h_min:
-                if not err < math.inf:  # NaN or inf at the shortest step: the numbers broke down
-                    raise FloatingPointError(f"plant integration failed at t = {t0 + done:.6g} s: the state "
-                                             f"({', '.join(f'{v:.6g}' for v in self.state)}) went non-finite at "
-                                             f"the shortest sub-step (extreme parameters?)")
-                x, p, l, v, z = new[0], new[1], new[2], new[3], new[4]
-                if l < 0.0:  # the stop is rigid: no penetration, no rebound
-                    l = 0.0
-                    if v < 0.0:
-                        v = 0.0
-                fac = SAFETY * err ** (-1.0 / 3.0) if err > ERR_FLOOR else GROWTH
-                if fac > GROWTH:
-                    fac = GROWTH
-                h_next = h * fac
-                if first:
-                    if not last or fac < 1.0 or h_next * kink_root > self._kink_scale:
-                        self._kink_scale = h_next * kink_root
-                    first = False
-                self._last_supply_mpa = ps
-                if last:
-                    break
-                done += h
-                left = dt - done
-                h_try = h_next
-                sampled = retry = False
-            else:
-                fac = SAFETY * err ** (-1.0 / 3.0)
-                h_try = h * (fac if fac > SHRINK else SHRINK)
-                retry = True
+        x, p, l, v, z, xs, self._kink_scale, self._last_supply_mpa, failed_at = self._advance_substeps(
+            x, p, l, v, z, self._xs_last, self._kink_scale, self._last_supply_mpa, self.u_v,
+            self.supply_pressure_mpa, self.load_n, t0, dt, ports)
+        if failed_at == failed_at:  # not NaN: the numbers broke down at the shortest sub-step
+            raise FloatingPointError(f"plant integration failed at t = {failed_at:.6g} s: the state "
+                                     f"({', '.join(f'{v:.6g}' for v in self.state)}) went non-finite at "
+                                     f"the shortest sub-step (extreme parameters?)")
         self.state = [x, p, l, v, z]
         self._xs_last = xs
 

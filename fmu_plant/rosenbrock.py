@@ -2,9 +2,8 @@
 
 :func:`build_model` returns plain-float closures of the right-hand side (the equations of
 :mod:`fmu_plant.equations`, inlined: no function calls or attribute look-ups in the hot path), the
-entries of its Jacobian the Rosenbrock-W scheme uses, and one adaptive sub-step. The step-size
-controller's constants are :class:`~fmu_plant.plant.Plant`'s too (it drives the sub-steps over a
-communication step). ``tests/test_equations.py`` checks the closures against the one definition.
+entries of its Jacobian the Rosenbrock-W scheme uses, one sub-step, and the adaptive sub-steps over
+one communication step with their step-size controller. ``tests/test_equations.py`` checks the closures against the one definition.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
 __all__ = ["build_model", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH", "KINK_SCALE_INITIAL",
-           "KINK_FLOOR"]
+           "KINK_FLOOR", "adaptive_steps"]
 
 
 def _compiled_module() -> ModuleType | None:
@@ -101,15 +100,95 @@ KINK_SCALE_INITIAL = 0.004  # [s] after :meth:`Plant.reset` (5 ms for a first co
 KINK_FLOOR = 1e-3  # changes below this count as this (no change: a long first step)
 
 
+def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) -> Callable[..., tuple[float, ...]]:
+    """The ``advance`` of :func:`build_model` (its docstring) around the sub-step ``attempt``, in Python.
+
+    The compiled ``advance`` is this loop, operation for operation; a benchmark passes a counting
+    ``attempt`` here to see the sub-steps.
+    """
+    u_min, u_span = prm.valve.u_min_v, prm.valve.u_max_v - prm.valve.u_min_v
+    h_max, h_min = prm.solver.max_substep_s, prm.solver.min_substep_s
+    inf = math.inf
+
+    def advance(x, p, l, v, z, xs_last, kink_scale, last_ps, u, ps, w, t0, dt, ports):
+        x0, p0, l0, v0, z0 = x, p, l, v, z
+        if ports is None:
+            xs = (u - u_min) / u_span
+            xs = 0.0 if xs < 0.0 else 1.0 if xs > 1.0 else xs
+        else:
+            xs = xs_last
+        done = 0.0
+        left = dt
+        h_try = 0.0  # set with the first sub-step's command below
+        first = True
+        sampled = False
+        retry = False  # after a rejection the step must shrink (no stretching)
+        while True:
+            if ports is not None and not sampled:  # once per sub-step, also when it is retried
+                u, ps, w = ports(t0 + done)
+                xs = (u - u_min) / u_span
+                xs = 0.0 if xs < 0.0 else 1.0 if xs > 1.0 else xs
+                sampled = True
+            if first and not retry:
+                # The first sub-step after a command change resolves the spool's kink; its error
+                # grows with the change, roughly as |change| h^3: scale the remembered proposal.
+                kink = xs - xs_last
+                kink = kink if kink > KINK_FLOOR else -kink if -kink > KINK_FLOOR else KINK_FLOOR
+                kink_root = kink ** (1.0 / 3.0)
+                h_try = kink_scale / kink_root
+            if h_try > h_max:
+                h_try = h_max
+            # End exactly on the communication point: stretch the step a little rather than leave
+            # a short remainder, or split the rest in two.
+            if left <= (h_try if retry else STRETCH * h_try):
+                h, last = left, True
+            elif left < 2.0 * h_try:
+                h, last = 0.5 * left, False
+            else:
+                h, last = h_try, False
+            new = attempt(x, p, l, v, z, xs, ps, w, h)
+            err = new[5]
+            if err <= 1.0 or h <= h_min:
+                if not err < inf:  # NaN or inf at the shortest step: the numbers broke down
+                    return x0, p0, l0, v0, z0, xs_last, kink_scale, last_ps, t0 + done
+                x, p, l, v, z = new[0], new[1], new[2], new[3], new[4]
+                if l < 0.0:  # the stop is rigid: no penetration, no rebound
+                    l = 0.0
+                    if v < 0.0:
+                        v = 0.0
+                fac = SAFETY * err ** (-1.0 / 3.0) if err > ERR_FLOOR else GROWTH
+                if fac > GROWTH:
+                    fac = GROWTH
+                h_next = h * fac
+                if first:
+                    if not last or fac < 1.0 or h_next * kink_root > kink_scale:
+                        kink_scale = h_next * kink_root
+                    first = False
+                last_ps = ps
+                if last:
+                    return x, p, l, v, z, xs, kink_scale, last_ps, math.nan
+                done += h
+                left = dt - done
+                h_try = h_next
+                sampled = retry = False
+            else:
+                fac = SAFETY * err ** (-1.0 / 3.0)
+                h_try = h * (fac if fac > SHRINK else SHRINK)
+                retry = True
+
+    return advance
+
+
 def build_model(prm: PlantParams, *, compiled: bool | None = None
                 ) -> tuple[Callable[..., tuple[float, ...]], Callable[..., tuple[float, ...]],
-                           Callable[..., tuple[float, ...]], Callable[[float], None]]:
-    """The right-hand side, its Jacobian and the ROS34PW2 sub-step of the rig's equations for ``prm``.
+                           Callable[..., tuple[float, ...]], Callable[[float], None], Callable[..., tuple[float, ...]]]:
+    """The right-hand side, its Jacobian, the ROS34PW2 sub-step and the adaptive sub-steps over one
+    communication step of the rig's equations for ``prm``.
 
-    All three are closures over plain-float constants (no attribute lookups or numpy in the hot path).
-    The sub-step may instead be its compiled copy (``fmu_plant/_ros34pw2.c``), which does the same
-    IEEE-754 operations in the same order: the same bits, about 30 times faster (1 us a sub-step;
-    ``Plant.step`` about 7 times, ``benchmarks/plant_step_time.py``).
+    All are closures over plain-float constants (no attribute lookups or numpy in the hot path). The
+    sub-step and the sub-steps' loop may instead be their compiled copies (``fmu_plant/_ros34pw2.c``),
+    which do the same IEEE-754 operations in the same order: the same bits, about 30 times faster
+    for a sub-step (1 us; ``Plant.step`` several times, ``benchmarks/plant_step_time.py``).
 
     Parameters
     ----------
@@ -136,6 +215,16 @@ def build_model(prm: PlantParams, *, compiled: bool | None = None
     set_gate : callable
         ``set_gate(g)``: from now on both valves open ``g`` (0..1) times as far beyond their leak (the
         valve-gate port of effects.py). Rebinding a closure constant keeps the ungated path free.
+    advance : callable
+        ``advance(x, p, l, v, z, xs_last, kink_scale, last_ps, u, ps, w, t0, dt, ports) -> (x, p, l, v,
+        z, xs, kink_scale, last_ps, failed_at)``: the state from ``t0`` to ``t0 + dt`` [s] over adaptive
+        sub-steps (docs/plant.md, "Integration"). ``xs_last`` is the spool target of the previous
+        communication step and ``kink_scale`` [s] the first sub-step's scale (both carried from one
+        call to the next, as is ``last_ps``, the supply pressure [MPa] of the last accepted sub-step).
+        ``ports`` is None, with the command ``u`` [V], supply ``ps`` [MPa] and load ``w`` [N] held,
+        or ``ports(t) -> (u, ps, w)``, sampled at the start of every sub-step (it may call
+        ``set_gate``). ``failed_at`` is NaN, or the time [s] at which the state went non-finite at
+        the shortest sub-step; the returned state is then the one at ``t0``.
     """
     vp, sup, mp, fp, sol = prm.valve, prm.supply, prm.muscle, prm.friction, prm.solver
     geo = MuscleGeometry.from_params(mp)
@@ -399,18 +488,23 @@ def build_model(prm: PlantParams, *, compiled: bool | None = None
             err = _CROSS_ERR
         return x1, y4p + u4p, y4l + u4l, v1, y4z + u4z, err
 
+    u_min, u_span = vp.u_min_v, vp.u_max_v - vp.u_min_v  # the compiled advance's constants
+    h_max, h_min = sol.max_substep_s, sol.min_substep_s
+
+
     if compiled is None:
         compiled = COMPILED
     if not compiled:
-        return rhs, jacobian, attempt, set_gate
+        return rhs, jacobian, attempt, set_gate, adaptive_steps(attempt, prm)
     if _ros34pw2 is None:
         raise ImportError("the compiled sub-step fmu_plant._ros34pw2 is not installed (reinstall with a C compiler)")
     scope = locals() | {"lock_exponent_max": LOCK_EXPONENT_MAX, "gravity": GRAVITY_M_S2, "cross_err": _CROSS_ERR,
-                        "cross_min_h": _CROSS_MIN_H}
+                        "cross_min_h": _CROSS_MIN_H, "safety": SAFETY, "growth": GROWTH, "shrink": SHRINK,
+                        "err_floor": ERR_FLOOR, "stretch": STRETCH, "kink_floor": KINK_FLOOR}
     model = _ros34pw2.Model([scope[name] for name in _ros34pw2.NAMES])
 
     def set_gate_both(g: float) -> None:
         set_gate(g)  # rhs and jacobian too (Plant.derivatives)
         model.set_gate(g)
 
-    return rhs, jacobian, model.attempt, set_gate_both
+    return rhs, jacobian, model.attempt, set_gate_both, model.advance

@@ -34,8 +34,8 @@ def _same(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
 @pytest.mark.parametrize("name", list(VARIANTS))
 def test_a_sub_step_is_the_python_one_bit_for_bit(name):
     prm = VARIANTS[name]
-    _, _, step_py, gate_py = build_model(prm, compiled=False)
-    _, _, step_c, gate_c = build_model(prm, compiled=True)
+    _, _, step_py, gate_py, _ = build_model(prm, compiled=False)
+    _, _, step_c, gate_c, _ = build_model(prm, compiled=True)
     rng = np.random.default_rng(11)
     checked = 0
     for gate in (1.0, 0.3, 0.0):
@@ -56,11 +56,20 @@ def test_a_sub_step_is_the_python_one_bit_for_bit(name):
     assert checked > 2900
 
 
-def test_a_run_with_effects_is_the_python_one_bit_for_bit(monkeypatch):
-    # A dead band (the valve gate switches), a delay and a supply sag: every port the sub-step sees.
-    prm = PlantParams().with_values(**{"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.0, "delay.delay_s": 0.2,
-                                       "supply_variation.sag_mpa": 0.03, "supply_variation.start_s": 10.0,
-                                       "supply_variation.end_s": 20.0, "friction.rate_gain": 0.5})
+# A dead band (the valve gate switches), a delay and a supply sag: every port the sub-steps sample
+# (the compiled loop calls back into the effects); a drift and a play act on the measurement alone
+# (the loop holds the ports, as without effects).
+RUNS = {
+    "ports": {"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.0, "delay.delay_s": 0.2,
+              "supply_variation.sag_mpa": 0.03, "supply_variation.start_s": 10.0,
+              "supply_variation.end_s": 20.0, "friction.rate_gain": 0.5},
+    "measurement only": {"sensor_drift.rate_mm_per_min": 1.5, "backlash.slack_mm": 0.4},
+}
+
+
+@pytest.mark.parametrize("name", list(RUNS))
+def test_a_run_with_effects_is_the_python_one_bit_for_bit(monkeypatch, name):
+    prm = PlantParams().with_values(**RUNS[name])
     u = 5.0 + 4.5 * np.sin(2 * np.pi * 0.2 * np.arange(300) * 0.1) * np.sign(np.sin(np.arange(300) * 0.05))
 
     def run() -> np.ndarray:
@@ -79,8 +88,25 @@ def test_the_compiled_model_checks_its_inputs():
     compiled = rosenbrock._ros34pw2
     with pytest.raises(ValueError, match=f"takes {len(compiled.NAMES)} constants"):
         compiled.Model([1.0, 2.0])
-    _, _, step, _ = build_model(PlantParams(), compiled=True)
+    _, _, step, *_ = build_model(PlantParams(), compiled=True)
     with pytest.raises(TypeError, match="takes 9 arguments"):
         step(0.0, 0.0, 0.0)
     with pytest.raises(TypeError):
         step(0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.25, "44", 1e-3)
+    _, _, _, _, advance = build_model(PlantParams(), compiled=True)
+    with pytest.raises(TypeError, match="takes 14 arguments"):
+        advance(0.0, 0.0, 0.0)
+    state = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.004, 0.25, 5.0, 0.25, 44.0, 0.0, 0.1)
+    with pytest.raises(TypeError, match="must return a tuple"):
+        advance(*state, lambda t: [5.0, 0.25, 44.0])
+    with pytest.raises(ZeroDivisionError):  # an effect's error comes through, not a crash
+        advance(*state, lambda t: 1 / 0)
+
+
+def test_a_broken_down_step_returns_the_start_and_the_time_as_the_python_loop_does():
+    prm = PlantParams()
+    _, _, _, _, advance_c = build_model(prm, compiled=True)
+    _, _, _, _, advance_py = build_model(prm, compiled=False)
+    state = (0.5, math.nan, 10.0, 0.0, 0.0, 0.5, 0.004, 0.25, 5.0, 0.25, 44.0, 1.0, 0.1, None)
+    got, expected = advance_c(*state), advance_py(*state)
+    assert _same(got, expected) and got[-1] == 1.0 and math.isnan(got[1]), (got, expected)
