@@ -81,9 +81,11 @@ class Measurement:
 
 
 def _hooks(effects: Sequence[Effect], hook: str) -> tuple[Callable[..., Any], ...]:
-    """The bound ``hook`` methods of those ``effects`` that override the base class's, in order."""
+    """The ``hook`` callables of those ``effects`` that replace the base class's (in the subclass or
+    on the instance), in order."""
     base = getattr(Effect, hook)
-    return tuple(getattr(e, hook) for e in effects if getattr(type(e), hook) is not base)
+    bound = [getattr(e, hook) for e in effects]
+    return tuple(f for f in bound if getattr(f, "__func__", None) is not base)
 
 
 def _finite(name: str, value: Any) -> float:

@@ -19,6 +19,7 @@ from tapmuscle.diagnosis.field_demo import (CATEGORY_MIX, EXCITATIONS, FIELD_ERR
                                   scores_markdown, vocabulary)
 from fmu_plant import PlantParams
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
+from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split
 
 
 @pytest.fixture(scope="module")
@@ -266,6 +267,29 @@ def test_an_ambiguous_verdict_runs_the_discriminating_input_on_the_truth(tmp_pat
     r = run_field_case(case, tmp_path / "older")
     assert len(calls) == 2 and r["discrimination"]["verdict"] == "mismatch" and r["discrimination"]["right"]
 
+
+
+def test_the_truth_s_fit_is_taken_on_the_held_out_blocks_of_the_diagnosis_s_split(tmp_path, monkeypatch, cases120):
+    """The truth's held-out fit (beside which the diagnosis's is judged) is taken on the held-out
+    blocks of the split the diagnosis reports, here 9-s blocks (a stand-in diagnosis)."""
+    import tapmuscle.diagnosis.report as report
+    from tapmuscle.diagnosis.field_cases import _replay
+
+    case = replace(next(c for c in cases120 if c.category == "single" and c.excitation == "sine"), duration_s=60.0)
+
+    def fake(rec, plant, out, *, plots=True, effects=None, **options):
+        doc = {"verdict": "mismatch", "findings": [], "fit_before_percent": 50.0, "fit_after_percent": 96.0,
+               "split": {"block_s": 9.0}}
+        atomic_write_text(Path(out) / "diagnosis.json", json.dumps(doc))
+        return None, doc
+
+    monkeypatch.setattr(report, "diagnose_files", fake)
+    r = run_field_case(case, tmp_path)
+    cols = record_case(case)  # the recording again (seeded), unrounded as the run has it
+    truth = _replay(case.truth(), cols["u_v"], 0.1)
+    fits = {b: fit_percent(cols["l_mm"], truth, interleaved_split(len(truth), 0.1, b)[1]) for b in (9.0, 10.0)}
+    assert fits[9.0] != fits[10.0]  # the two splits hold different samples out
+    assert r["fit_truth_percent"] == fits[9.0]  # the same arithmetic on the same samples
 
 
 def test_each_ambiguous_group_gets_its_own_experiment_as_the_report_says(tmp_path, monkeypatch, cases120):

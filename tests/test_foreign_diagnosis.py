@@ -87,6 +87,22 @@ def test_map_errors_name_the_file_and_key(fmus, tmp_path):
         assert message in str(info.value)
 
 
+def test_a_sine_locked_to_the_split_gets_balanced_blocks_as_for_the_muscle(fmus, tmp_path):
+    """Seed 2's case 006 drives the motor with a sine sum whose training blocks see 0.21 more of its
+    rise than the held-out ones (``direction_imbalance``) at 10 s: the setup takes the first
+    balanced length, 9 s, as ``diagnose`` does for the muscle; a length given is kept."""
+    from tapmuscle.diagnosis.foreign_diagnose import ForeignSetup
+    from tapmuscle.diagnosis.residual_analysis import SPLIT_BALANCE, direction_imbalance
+
+    case = foreign_cases(8, 2)[6]
+    assert case.plant == "DcMotor" and case.excitation == "sines"
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    setup = ForeignSetup(rec, fmus["DcMotor"], map_path=m, echo=lambda s: None)
+    assert direction_imbalance(setup.u, setup.ts, 10.0) > SPLIT_BALANCE
+    assert setup.block_s == 9.0 and direction_imbalance(setup.u, setup.ts, 9.0) <= SPLIT_BALANCE
+    assert ForeignSetup(rec, fmus["DcMotor"], map_path=m, block_s=10.0, echo=lambda s: None).block_s == 10.0
+
+
 # ------------------------------------------------------------------------------ diagnoses
 @pytest.mark.slow
 def test_delay_on_the_c_motor_is_named_and_fitted(fmus, tmp_path):

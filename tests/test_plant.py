@@ -110,6 +110,13 @@ def test_identity_effect_changes_nothing_and_an_effect_plugs_into_a_port():
     assert np.array_equal(shifted, reference)
 
 
+def test_a_hook_set_on_an_effect_instance_acts_as_one_in_its_class():
+    # the plant calls only the hooks an effect replaces: on the instance counts too
+    offset = Effect()
+    offset.valve_command = lambda t_s, u_v: u_v + 1.0
+    assert np.array_equal(_run(Plant(seed=0, effects=[offset]), 4.0, 200), _run(Plant(seed=0), 5.0, 200))
+
+
 def test_rate_dependence_resists_fast_motion_and_can_be_switched_off():
     def swing(rate_gain):
         prm = PlantParams().with_values(**{"friction.rate_gain": rate_gain, "sensor.encoder_noise_std_mm": 0.0})

@@ -72,7 +72,6 @@ def _is_foreign(plant: str) -> bool:
 
 def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
-    from tapmuscle.diagnosis.diagnose import BLOCK_S
     from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_foreign_outputs
     from tapmuscle.diagnosis.foreign_model import ForeignFmuError
     from tapmuscle.diagnosis.report import summary_lines
@@ -80,7 +79,7 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.io.recording import RecordingError
 
     effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
-    options = dict(map_path=args.map, block_s=BLOCK_S if args.block is None else args.block,
+    options = dict(map_path=args.map, block_s=args.block,
                    fit_segment_s=args.fit_segment, effects=effects,
                    calibrate=not args.no_calibration, plots=not args.no_plots,
                    progress=Progress("diagnose", enabled=not args.quiet, min_total=1))
@@ -185,9 +184,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "output in turn, into OUT/<output>/, with OUT/summary.md setting them side by side")
     dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=None,
-                     help="length of the interleaved training / held-out blocks [s] (default 10, or for "
-                          "tapmuscle's plant and a continuous command the training blocks see rise and the "
-                          "held-out ones fall, the nearest length that balances them)")
+                     help="length of the interleaved training / held-out blocks [s] (default 10, or, for a "
+                          "continuous command (the first input of a foreign FMU) that the training blocks see "
+                          "rise and the held-out ones fall, the nearest length that balances them)")
     dia.add_argument("--fit-segment", type=number_within("--fit-segment", 0.5, 3600.0), default=None,
                      help="stationary effects are fitted on the first this many seconds (default 120 for "
                           "tapmuscle's plant, the whole recording for a foreign FMU)")

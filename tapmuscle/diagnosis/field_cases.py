@@ -524,13 +524,16 @@ def _replay(params: PlantParams, u_v: np.ndarray, ts_s: float, extra: Sequence[E
     return y
 
 
-def effect_costs(case: FieldCase, cols: dict[str, np.ndarray], end_stop_mm: float | None) -> dict[str, Any]:
+def effect_costs(case: FieldCase, cols: dict[str, np.ndarray], end_stop_mm: float | None, *,
+                 block_s: float = BLOCK_S) -> dict[str, Any]:
     """Held-out fits of noise-free variants of the truth, and what each part of the truth costs.
 
     ``cost`` of an effect (or the disturbance, or the constants' errors) = held-out fit of the whole
-    truth minus that of the truth without it [points]: how much there is to find.
+    truth minus that of the truth without it [points]: how much there is to find. The held-out
+    blocks are those of a split into ``block_s``-long blocks [s]: the diagnosis's own, so that its
+    fit and the truth's are taken on the same samples.
     """
-    _, test = interleaved_split(len(cols["t_s"]), TS_S, BLOCK_S)
+    _, test = interleaved_split(len(cols["t_s"]), TS_S, block_s)
     u, y = cols["u_v"], cols["l_mm"]
     extra = _disturbances(case, end_stop_mm)
     truth = case.truth()

@@ -41,6 +41,7 @@ import numpy as np
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
 
+from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.field_cases import (CATEGORIES, CATEGORY_MIX, DURATION_S, EFFECT_RANGES, EXCITATIONS,
                                              FIELD_ERROR_PARAMETERS, INCOMPATIBLE_PAIRS, LOADS_N, OOV_KINDS, TS_S,
                                              FieldCase, compatible_pairs, effect_costs, field_cases,
@@ -255,7 +256,9 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False,
                               "fit_after_percent": doc.get("fit_after_percent"),
                               "end_stop_mm": end_stop_mm,
                               "diagnosis_elapsed_s": doc.get("elapsed_s"), "use_pressure": use_pressure}
-    result.update(effect_costs(case, cols, end_stop_mm))
+    # the truth's fits on the held-out blocks of the diagnosis's own split
+    block_s = (doc.get("split") or {}).get("block_s") or BLOCK_S
+    result.update(effect_costs(case, cols, end_stop_mm, block_s=block_s))
     result["calibration_check"] = _calibration_check(doc, case)
     try:
         result["discrimination"] = _discriminate(case, doc, folder, plant_path, end_stop_mm, keep, use_pressure)

@@ -29,6 +29,7 @@ from tapmuscle.io.recording import atomic_write_text, read_columns
 from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_candidates, calibration_parameters,
                                                      nominal_values)
 from tapmuscle.diagnosis.diagnose import BLOCK_S, Diagnosis, diagnose_with, validated_recording
+from tapmuscle.diagnosis.residual_analysis import balanced_block_s
 from tapmuscle.diagnosis.fit_problem import SimulationError
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.report import overlay_figure, summary_lines
@@ -61,7 +62,7 @@ class ForeignSetup:
     model space, the nominal parameters, the candidates and the calibration list."""
 
     def __init__(self, recording: str | Path, plant: str | Path, *, map_path: str | Path | None = None,
-                 output: str | None = None, block_s: float = BLOCK_S, echo: Callable[[str], None] = print) -> None:
+                 output: str | None = None, block_s: float | None = None, echo: Callable[[str], None] = print) -> None:
         self.recording, self.plant = str(recording), str(plant)
         iface, columns, smap = _mapping(recording, plant, map_path)
         if map_path is None:
@@ -78,8 +79,13 @@ class ForeignSetup:
             raise SignalMapError(f"--output {output!r}: not a mapped output (mapped: {', '.join(outs)})")
         first = smap.inputs[0]
         t, u, y, ts = validated_recording(columns[smap.time_column], columns[first.column], columns[out_sig.column],
-                                          block_s, names=(smap.time_column, first.column, out_sig.column),
+                                          BLOCK_S if block_s is None else block_s,
+                                          names=(smap.time_column, first.column, out_sig.column),
                                           units=(first.unit or "", out_sig.unit or ""))
+        #: Length of the training / held-out blocks [s]: as given, or balanced on the first input as
+        #: for the muscle (:func:`~tapmuscle.diagnosis.diagnose.diagnose`, ``block_s``).
+        self.block_s = (balanced_block_s(u, ts, BLOCK_S, longest_s=(len(t) - 1) * ts / 4.0) if block_s is None
+                        else block_s)
         if smap.ts_s is not None and abs(ts - smap.ts_s) > 1e-3 * smap.ts_s:
             raise SignalMapError(f"{recording}: sampled every {ts:g} s, but {smap.source} states ts_s = {smap.ts_s:g} s")
         inputs: dict[str, np.ndarray] = {}
@@ -115,7 +121,7 @@ class ForeignSetup:
 
 
 def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, *, map_path: str | Path | None = None,
-                     output: str | None = None, block_s: float = BLOCK_S, fit_segment_s: float | None = None,
+                     output: str | None = None, block_s: float | None = None, fit_segment_s: float | None = None,
                      effects: Sequence[str] | None = None, calibrate: bool = True, plots: bool = True,
                      progress: Callable[[int, int], None] | None = None,
                      echo: Callable[[str], None] = print) -> tuple[Diagnosis, dict[str, Any]]:
@@ -135,8 +141,11 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
         variables by name and the mapping is printed.
     output : str, optional
         The mapped output to diagnose (default: the first).
-    block_s : float
-        Length of the interleaved training / held-out blocks [s] (:data:`~tapmuscle.diagnosis.diagnose.BLOCK_S`).
+    block_s : float, optional
+        Length of the interleaved training / held-out blocks [s]. Default: as for the muscle
+        (:func:`~tapmuscle.diagnosis.diagnose.diagnose`), :data:`~tapmuscle.diagnosis.diagnose.BLOCK_S`
+        unless the first input is continuous and locked to that split, then a balanced length; the
+        length used is the report's ``split.block_s``.
     fit_segment_s : float, optional
         The calibration and the smooth effects are fitted on the first this many seconds (default:
         the whole recording, at most :data:`FIT_SEGMENT_SAMPLES` samples).
@@ -157,6 +166,7 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
         Each naming the file, key, column or variable at fault; nothing is written then.
     """
     setup = ForeignSetup(recording, plant, map_path=map_path, output=output, block_s=block_s, echo=echo)
+    block_s = setup.block_s
     cands = setup.candidates
     if effects is not None:
         known = {c.name: c for c in cands}
