@@ -296,17 +296,24 @@ static void attempt(const Constants *k, double x, double p, double l, double v, 
     out[0] = x1; out[1] = y4p + u4p; out[2] = y4l + u4l; out[3] = v1; out[4] = y4z + u4z; out[5] = err;
 }
 
+/* The first n arguments as doubles; -1 with the exception set if one is not a number. */
+static int as_doubles(PyObject *const *args, int n, double *out) {
+    for (int i = 0; i < n; i++) {
+        out[i] = PyFloat_AsDouble(args[i]);
+        if (out[i] == -1.0 && PyErr_Occurred())
+            return -1;
+    }
+    return 0;
+}
+
 static PyObject *Model_attempt(ModelObject *self, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 9) {
         PyErr_Format(PyExc_TypeError, "attempt() takes 9 arguments (x, p, l, v, z, xs, ps, w, h), got %zd", nargs);
         return NULL;
     }
     double a[9];
-    for (int i = 0; i < 9; i++) {
-        a[i] = PyFloat_AsDouble(args[i]);
-        if (a[i] == -1.0 && PyErr_Occurred())
-            return NULL;
-    }
+    if (as_doubles(args, 9, a) < 0)
+        return NULL;
     double out[6];
     attempt(&self->k, a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], out);
     return Py_BuildValue("(dddddd)", out[0], out[1], out[2], out[3], out[4], out[5]);
@@ -326,11 +333,8 @@ static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssiz
         return NULL;
     }
     double a[13];
-    for (int i = 0; i < 13; i++) {
-        a[i] = PyFloat_AsDouble(args[i]);
-        if (a[i] == -1.0 && PyErr_Occurred())
-            return NULL;
-    }
+    if (as_doubles(args, 13, a) < 0)
+        return NULL;
     PyObject *ports = args[13];
     const int sample_ports = ports != Py_None;
     const Constants *k = &self->k; /* read afresh in every sub-step: the ports may set the gate */
