@@ -3,7 +3,8 @@
 :func:`build_model` returns plain-float closures of the right-hand side (the equations of
 :mod:`fmu_plant.equations`, inlined: no function calls or attribute look-ups in the hot path), the
 entries of its Jacobian the Rosenbrock-W scheme uses, one sub-step, and the adaptive sub-steps over
-one communication step with their step-size controller. ``tests/test_equations.py`` checks the closures against the one definition.
+one communication step with their step-size controller. ``tests/test_equations.py`` checks the
+closures against the one definition.
 """
 
 from __future__ import annotations
@@ -100,14 +101,22 @@ KINK_SCALE_INITIAL = 0.004  # [s] after :meth:`Plant.reset` (5 ms for a first co
 KINK_FLOOR = 1e-3  # changes below this count as this (no change: a long first step)
 
 
+def _loop_constants(prm: PlantParams) -> dict[str, float]:
+    """The constants of the loop of sub-steps, by the names the compiled model takes them under."""
+    vp, sol = prm.valve, prm.solver
+    return {"u_min": vp.u_min_v, "u_span": vp.u_max_v - vp.u_min_v, "h_max": sol.max_substep_s,
+            "h_min": sol.min_substep_s, "safety": SAFETY, "growth": GROWTH, "shrink": SHRINK,
+            "err_floor": ERR_FLOOR, "stretch": STRETCH, "kink_floor": KINK_FLOOR}
+
+
 def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) -> Callable[..., tuple[float, ...]]:
     """The ``advance`` of :func:`build_model` (its docstring) around the sub-step ``attempt``, in Python.
 
     The compiled ``advance`` is this loop, operation for operation; a benchmark passes a counting
     ``attempt`` here to see the sub-steps.
     """
-    u_min, u_span = prm.valve.u_min_v, prm.valve.u_max_v - prm.valve.u_min_v
-    h_max, h_min = prm.solver.max_substep_s, prm.solver.min_substep_s
+    c = _loop_constants(prm)
+    u_min, u_span, h_max, h_min = c["u_min"], c["u_span"], c["h_max"], c["h_min"]
     inf = math.inf
 
     def advance(x, p, l, v, z, xs_last, kink_scale, last_ps, u, ps, w, t0, dt, ports):
@@ -488,10 +497,6 @@ def build_model(prm: PlantParams, *, compiled: bool | None = None
             err = _CROSS_ERR
         return x1, y4p + u4p, y4l + u4l, v1, y4z + u4z, err
 
-    u_min, u_span = vp.u_min_v, vp.u_max_v - vp.u_min_v  # the compiled advance's constants
-    h_max, h_min = sol.max_substep_s, sol.min_substep_s
-
-
     if compiled is None:
         compiled = COMPILED
     if not compiled:
@@ -499,8 +504,7 @@ def build_model(prm: PlantParams, *, compiled: bool | None = None
     if _ros34pw2 is None:
         raise ImportError("the compiled sub-step fmu_plant._ros34pw2 is not installed (reinstall with a C compiler)")
     scope = locals() | {"lock_exponent_max": LOCK_EXPONENT_MAX, "gravity": GRAVITY_M_S2, "cross_err": _CROSS_ERR,
-                        "cross_min_h": _CROSS_MIN_H, "safety": SAFETY, "growth": GROWTH, "shrink": SHRINK,
-                        "err_floor": ERR_FLOOR, "stretch": STRETCH, "kink_floor": KINK_FLOOR}
+                        "cross_min_h": _CROSS_MIN_H} | _loop_constants(prm)
     model = _ros34pw2.Model([scope[name] for name in _ros34pw2.NAMES])
 
     def set_gate_both(g: float) -> None:

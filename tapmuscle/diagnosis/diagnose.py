@@ -102,7 +102,8 @@ from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
            "distinguishable", "sensor_noise_mm",
-           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR", "BLOCK_S", "REMOVE_LEVEL_FACTOR"]
+           "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR", "BLOCK_S", "REMOVE_LEVEL_FACTOR",
+           "split_length_s"]
 
 #: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
 MIN_SAMPLES = 300
@@ -278,9 +279,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     started = time.perf_counter()
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
-    t, u, y, ts = validated_recording(t_s, u_v, l_mm, BLOCK_S if block_s is None else block_s, load_n=load_n)
-    if block_s is None:
-        block_s = balanced_block_s(u, ts, BLOCK_S, longest_s=(len(t) - 1) * ts / 4.0)
+    t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
+    block_s = split_length_s(u, ts, block_s)
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
     with ExitStack() as stack:
@@ -291,12 +291,24 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                        use_pressure=use_pressure)
 
 
-def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s: float, *,
+def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:
+    """Length of the training / held-out blocks [s] for the command ``u_v``: ``block_s`` as given, or
+    by default :data:`BLOCK_S` balanced for a continuous command locked to it
+    (:func:`~tapmuscle.diagnosis.residual_analysis.balanced_block_s`, no longer than the quarter of
+    the recording that :func:`validated_recording` allows)."""
+    if block_s is not None:
+        return block_s
+    return balanced_block_s(u_v, ts_s, BLOCK_S, longest_s=(len(u_v) - 1) * ts_s / 4.0)
+
+
+def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s: float | None, *,
                         load_n: np.ndarray | None = None, names: tuple[str, str, str] = ("t_s", "u_v", "l_mm"),
                         units: tuple[str, str] = ("V", "mm")) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """``(t, u, y, Ts)`` of a recording the diagnosis can use, or ``ValueError`` naming the column
     (``names``: the time, input and output columns' names; ``units``: the input's and output's) and
-    sample (:func:`diagnose`'s Raises)."""
+    sample (:func:`diagnose`'s Raises). ``block_s`` None checks :data:`BLOCK_S`."""
+    if block_s is None:
+        block_s = BLOCK_S
     t = np.asarray(t_s, float)
     u = np.asarray(u_v, float)
     y = np.asarray(y, float)

@@ -28,8 +28,7 @@ from tapmuscle.io.recording import atomic_write_text, read_columns
 
 from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_candidates, calibration_parameters,
                                                      nominal_values)
-from tapmuscle.diagnosis.diagnose import BLOCK_S, Diagnosis, diagnose_with, validated_recording
-from tapmuscle.diagnosis.residual_analysis import balanced_block_s
+from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose_with, split_length_s, validated_recording
 from tapmuscle.diagnosis.fit_problem import SimulationError
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.report import overlay_figure, summary_lines
@@ -79,13 +78,11 @@ class ForeignSetup:
             raise SignalMapError(f"--output {output!r}: not a mapped output (mapped: {', '.join(outs)})")
         first = smap.inputs[0]
         t, u, y, ts = validated_recording(columns[smap.time_column], columns[first.column], columns[out_sig.column],
-                                          BLOCK_S if block_s is None else block_s,
-                                          names=(smap.time_column, first.column, out_sig.column),
+                                          block_s, names=(smap.time_column, first.column, out_sig.column),
                                           units=(first.unit or "", out_sig.unit or ""))
         #: Length of the training / held-out blocks [s]: as given, or balanced on the first input as
-        #: for the muscle (:func:`~tapmuscle.diagnosis.diagnose.diagnose`, ``block_s``).
-        self.block_s = (balanced_block_s(u, ts, BLOCK_S, longest_s=(len(t) - 1) * ts / 4.0) if block_s is None
-                        else block_s)
+        #: for the muscle.
+        self.block_s = split_length_s(u, ts, block_s)
         if smap.ts_s is not None and abs(ts - smap.ts_s) > 1e-3 * smap.ts_s:
             raise SignalMapError(f"{recording}: sampled every {ts:g} s, but {smap.source} states ts_s = {smap.ts_s:g} s")
         inputs: dict[str, np.ndarray] = {}
