@@ -623,6 +623,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     do_calibrate = bool(calibration) and tests0["structured"]
     coords: list[FittedParameter] = []
     converged: PlantParams | None = None  # the current model's parameters once re-fitted to convergence
+    nominal_start = None
 
     def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
@@ -642,6 +643,20 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     def prior_cost(p: PlantParams) -> float:
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
         return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
+
+    def implausible(p: PlantParams) -> bool:
+        """Whether ``p``'s calibrated constants lie in their prior's chi-square tail at ``alpha``.
+
+        The truths of a rig are off by a prior sd or so; constants stretched further have taken up an
+        effect not yet in the model (or one modelled wrongly), and the searches on them stay in that
+        valley. Then the calibration from the nominal constants with the accepted effects on is
+        tried (:func:`from_nominal`)."""
+        return bool(coords) and prior_cost(p) > float(stats.chi2.isf(alpha, len(coords)))
+
+    def own_searched() -> list[str]:
+        """The accepted effects with parameters only their own search fits (a band's edges, a map's
+        knots, a sag's window)."""
+        return [e for e in current.effects if _own_parameters(space, by_name[e])]
 
     def restate(p: PlantParams) -> None:
         """The findings' values, and the words that state them, become ``p``'s (the model kept)."""
@@ -679,10 +694,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             restate(p_re)
         from_nominal(round_no)
 
-    def from_nominal(round_no: int) -> None:
-        """The profiled effects' own searches alternated with the calibration from the nominal
-        constants (:data:`FROM_NOMINAL_ROUNDS` times), the result re-fitted jointly to convergence and
-        kept if it fits the training blocks better.
+    def from_nominal(round_no: int | str, names: Sequence[str] | None = None) -> _Model | None:
+        """The own searches of ``names`` (default: the profiled effects) alternated with the
+        calibration from the nominal constants (:data:`FROM_NOMINAL_ROUNDS` times), the result
+        re-fitted jointly to convergence and kept if it fits the training blocks better; returned when
+        it is not kept (None otherwise), as a further start for the next round's candidates.
 
         The constants calibrated before a valve band was found took its stall up, and a band is not a
         joint coordinate: the profile's re-fits start in that valley and stay there. In field case
@@ -691,9 +707,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         calibration from the nominal constants with the band on leaves the valley, and the band's
         search on those constants finds a width nearer the rig's (docs/diagnosis.md, step 5)."""
         nonlocal current, cal, coords, cal_jac
-        names = [name for name in current.effects if name in space.profiled]
+        if names is None:
+            names = [name for name in current.effects if name in space.profiled]
         if cal is None or not names:
-            return
+            return None
         runs0 = sim.runs
         p, values, c = current.params, dict(current.values), cal
         for _ in range(FROM_NOMINAL_ROUNDS):
@@ -712,6 +729,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             cal_jac = None if f is None else f.jacobian[:, :len(coords_c)]
             current = _Model(p, current.effects, y_c, values, _used(q_c))
             restate(p)
+            return None
+        return _Model(p, current.effects, y_c, values, _used(q_c))
 
     def calibrated(base: PlantParams, level_mm: float | None = None) -> Calibration:
         """The nominal constants calibrated from ``base`` (its effects on) at ``level_mm`` (default: the
@@ -917,8 +936,14 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # training blocks is kept after the joint re-fit).
             sim.run(model, checkpoint_every=checkpoint_every)  # window fits continue from checkpoints of their base
             nominal_jobs = _start_fits(pool, problem, model, y0)
+            start_n = model
+        elif nominal_start is not None:
+            start_n = nominal_start.params
+            sim.run(start_n, checkpoint_every=checkpoint_every)
+            nominal_jobs = _start_fits(pool, problem, start_n, nominal_start.y)
         else:
             nominal_jobs = []
+        nominal_start = None
         linearise(current.params, current.y, pool)
         sim.run(current.params, checkpoint_every=checkpoint_every)
         jobs = _start_fits(pool, problem, current.params, current.y)
@@ -951,7 +976,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         def train_sse(y_hat: np.ndarray) -> float:
             return sse((y - y_hat)[train])
         options = [(cand, res, current.params) for cand, res, _ in fitted]
-        options += [(by_name[name], res_n, model) for name, res_n in nominal_fits.items()]
+        options += [(by_name[name], res_n, start_n) for name, res_n in nominal_fits.items()]
         if evidence.uses_pressure and options:  # on the fit segment, where the fits themselves look
             runs = sim.run_many([st.with_values(**res.values) for _, res, st in options], stop=problem.n_fit,
                                 pressure=True)
@@ -1063,6 +1088,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # a profiled parameter is re-chosen before the next round searches the residual it leaves
         if best.effect in space.profiled and coords:
             profile(round_no)
+        elif implausible(current.params):
+            nominal_start = from_nominal(round_no, own_searched())
         # backward step: drop an accepted effect the others (re-fitted) do without. The model with every
         # effect gets the same re-fit to convergence as each model without one: the acceptance's short
         # warm-started re-fit would otherwise lose to it by convergence alone, and a true effect be dropped.
@@ -1117,6 +1144,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 if sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q):
                     current = _Model(p_re, current.effects, y_re, current.values, _used(q_re))
                     cal_jac = recal.jacobian
+            if implausible(current.params) and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
+                from_nominal("final", own_searched())
         p_final, f_final = joint(current.params, current.effects, cal_jac, final=True)
         y_final, q_final = sim.run(p_final)
         values_final = current.values
