@@ -42,7 +42,11 @@ Procedure
    ``ModelSpace.profiled``) has that parameter profiled at once, the constants re-fitted jointly at
    each value (:func:`_profiled_refit`); then its own search alternates with the calibration from the
    nominal constants (:data:`FROM_NOMINAL_ROUNDS`), kept if that fits the training blocks better, and
-   again whenever the constants are calibrated afresh at a new noise level.
+   again whenever the constants are calibrated afresh at a new noise level. Whenever the calibrated
+   constants lie in their prior's chi-square tail at ``alpha`` (stretched by an effect they took up),
+   the same alternation runs after any acceptance, and before the final re-fit, with the own searches
+   of every accepted effect; when its result is not kept, it is a further start for the next round's
+   candidates.
 5. **Backward step.** After each acceptance (two or more effects), every accepted effect, the
    newcomer last, is removed in turn (the rest re-fitted jointly); one whose removal is not
    significantly worse (at :data:`REMOVE_LEVEL_FACTOR` times ``alpha``) is dropped. Both sides of
