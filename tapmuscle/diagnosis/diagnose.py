@@ -627,7 +627,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     do_calibrate = bool(calibration) and tests0["structured"]
     coords: list[FittedParameter] = []
     converged: PlantParams | None = None  # the current model's parameters once re-fitted to convergence
-    nominal_start = None
+    # the alternation from nominal constants that was not kept: a further start for the next round
+    nominal_start: _Model | None = None
 
     def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
@@ -941,7 +942,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             sim.run(model, checkpoint_every=checkpoint_every)  # window fits continue from checkpoints of their base
             nominal_jobs = _start_fits(pool, problem, model, y0)
             start_n = model
-        elif nominal_start is not None:
+        elif nominal_start is not None and nominal_start.effects == current.effects:
+            # (a start made before the backward step dropped an effect would switch it on again)
             start_n = nominal_start.params
             sim.run(start_n, checkpoint_every=checkpoint_every)
             nominal_jobs = _start_fits(pool, problem, start_n, nominal_start.y)
