@@ -647,7 +647,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     def prior_cost(p: PlantParams) -> float:
         """How far ``p`` stretches the calibrated constants, in squared prior sds."""
-        return float(sum(((p.dotted()[c.key] - c.center) / c.scale) ** 2 for c in coords))
+        values = p.dotted()
+        return float(sum(((values[c.key] - c.center) / c.scale) ** 2 for c in coords))
 
     def implausible(p: PlantParams) -> bool:
         """Whether ``p``'s calibrated constants lie in their prior's chi-square tail at ``alpha``.
