@@ -68,3 +68,71 @@ def test_a_byte_order_mark_is_not_part_of_the_first_column(tmp_path):
     path.write_bytes("\ufefft_s,u_v,l_mm\n0,1,2\n0.1,1,2.5\n".encode("utf-8"))
     rec = read_recording(path)
     assert list(rec.columns) == ["t_s", "u_v", "l_mm"] and rec.l_mm.tolist() == [2.0, 2.5]
+
+
+@pytest.mark.parametrize("t0, ts, n", [(0.0, 0.005, 200_030),    # 1 kHz-class sampling past 1000 s
+                                       (1.7e9, 0.001, 50),         # epoch time stamps, 1 ms apart
+                                       (1e4, 0.05, 30)])
+def test_times_stay_distinct_and_uniform_when_written(tmp_path, t0, ts, n):
+    """Every time stamp is written with the digits it needs: the file reads back uniform."""
+    t = t0 + np.arange(n) * ts
+    rec = Recording({"t_s": t, "u_v": np.full(n, 5.0), "l_mm": np.zeros(n)}, {"ts_s": repr(ts)})
+    write_recording(tmp_path / "r.csv", rec)
+    back = read_recording(tmp_path / "r.csv")
+    np.testing.assert_allclose(back.t_s, t, rtol=0, atol=1e-9 * max(1.0, abs(t0)))
+    assert back.ts_s == pytest.approx(ts)
+
+
+def test_ordinary_times_are_written_without_last_bit_noise(tmp_path):
+    write_recording(tmp_path / "r.csv", _rec(4))
+    rows = (tmp_path / "r.csv").read_text().splitlines()[-4:]
+    assert [r.split(",")[0] for r in rows] == ["0", "0.1", "0.2", "0.3"]  # 3 * 0.1 is 0.30000000000000004
+
+
+def test_a_load_is_written_as_given(tmp_path):
+    rec = _rec(3)
+    rec.columns["load_n"] = np.full(3, 123.456)
+    write_recording(tmp_path / "r.csv", rec)
+    assert np.all(read_recording(tmp_path / "r.csv").columns["load_n"] == 123.456)
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda r: r.columns.update({"T_water,C": r.l_mm}), "column name 'T_water,C'"),
+    (lambda r: r.metadata.update({"a:b": "1"}), "metadata key 'a:b'"),
+    (lambda r: r.columns.update({"t_s": r.t_s[::-1].copy()}), r"column 't_s' row 2 is 0\.3\d*, not after row 1's 0\.4"),
+])
+def test_what_could_not_be_read_back_is_not_written(tmp_path, change, match):
+    path = tmp_path / "r.csv"
+    path.write_text("old\n")
+    rec = _rec()
+    change(rec)
+    with pytest.raises(RecordingError, match=match):
+        write_recording(path, rec)
+    assert path.read_text() == "old\n"
+
+
+def test_a_line_break_in_a_metadata_value_becomes_a_space(tmp_path):
+    rec = _rec()
+    rec.metadata["note"] = "rig A\rrun 3\nday 2"
+    write_recording(tmp_path / "r.csv", rec)
+    assert read_recording(tmp_path / "r.csv").metadata["note"] == "rig A run 3 day 2"
+
+
+@pytest.mark.parametrize("text, load", [(None, None), ("68", 68.0)])
+def test_the_load_comes_from_the_column_else_the_header(text, load):
+    rec = _rec()
+    del rec.metadata["load_n"]
+    if text is not None:
+        rec.metadata["load_n"] = text
+    got = rec.load_n
+    assert got is None if load is None else np.all(got == load) and got.shape == rec.t_s.shape
+    rec.columns["load_n"] = np.full(len(rec), 44.0)
+    assert np.all(rec.load_n == 44.0)  # the column wins
+
+
+@pytest.mark.parametrize("text", ["abc", "nan", "-5", "900"])
+def test_a_bad_load_header_is_named(text):
+    rec = _rec()
+    rec.metadata["load_n"] = text
+    with pytest.raises(RecordingError, match=f"'# load_n: {text}'"):
+        rec.load_n

@@ -89,6 +89,29 @@ class Recording:
         return len(self.t_s)
 
     @property
+    def load_n(self) -> np.ndarray | None:
+        """The hanging load per sample [N]: the ``load_n`` column, else the ``# load_n:`` header line
+        as a constant column, else None (the tool's default load).
+
+        Raises
+        ------
+        RecordingError
+            A ``load_n`` header that is not a finite number within 0..500 N (the plant's range).
+        """
+        if "load_n" in self.columns:
+            return self.columns["load_n"]
+        if "load_n" not in self.metadata:
+            return None
+        text = self.metadata["load_n"]
+        try:
+            value = float(text)
+        except ValueError:
+            raise RecordingError(f"header '# load_n: {text}' is not a number [N]") from None
+        if not (math.isfinite(value) and 0.0 <= value <= 500.0):
+            raise RecordingError(f"header '# load_n: {text}' must be a finite load within 0..500 N")
+        return np.full(len(self), value)
+
+    @property
     def ts_s(self) -> float:
         """Sampling period [s] of the uniformly sampled recording.
 
@@ -225,8 +248,14 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
             os.fsync(fh.fileno())
 
 
-_FORMATS = {"t_s": "{:.6g}", "u_v": "{:.6f}", "l_mm": "{:.4f}", "p_mpa": "{:.6f}", "load_n": "{:.4g}",
+#: Time to 15 significant digits: a 1-ms sampling after a day, or epoch time stamps to the microsecond,
+#: stay distinct and uniform, while the last-bit noise of ``k * ts`` is rounded away (``0.1``, not
+#: ``0.30000000000000004``).
+_FORMATS = {"t_s": "{:.15g}", "u_v": "{:.6f}", "l_mm": "{:.4f}", "p_mpa": "{:.6f}", "load_n": "{:.10g}",
             "r_mm": "{:.6f}"}
+
+#: Characters that would break the CSV header row or a ``# key: value`` line.
+_NAME_BREAKERS = (",", '"', "\n", "\r")
 
 
 def write_recording(path: str | os.PathLike, rec: Recording) -> None:
@@ -242,22 +271,42 @@ def write_recording(path: str | os.PathLike, rec: Recording) -> None:
     Raises
     ------
     RecordingError
-        If any value is not finite (named by column and row); nothing is written then.
+        What :func:`read_recording` would refuse, so nothing is written then: a value that is not
+        finite (named by column and row), ``t_s`` not strictly increasing (named by row), a column
+        name with a comma, quote or line break, a metadata key with a colon or line break.
     """
     names = list(REQUIRED_COLUMNS) + [c for c in OPTIONAL_COLUMNS if c in rec.columns] + \
         [c for c in rec.columns if c not in REQUIRED_COLUMNS and c not in OPTIONAL_COLUMNS]
     for name in names:
+        if not name or any(ch in name for ch in _NAME_BREAKERS):
+            raise RecordingError(f"cannot write {path}: column name {name!r} is empty or holds a comma, "
+                                 f"quote or line break")
         bad = np.nonzero(~np.isfinite(rec.columns[name]))[0]
         if bad.size:
             raise RecordingError(f"cannot write {path}: column {name!r} row {int(bad[0]) + 1} is "
                                  f"{float(rec.columns[name][bad[0]])!r}")
+    for key in rec.metadata:
+        if not key or ":" in key or "\n" in key or "\r" in key:
+            raise RecordingError(f"cannot write {path}: metadata key {key!r} is empty or holds a colon or "
+                                 f"line break")
+    t_text = [_FORMATS["t_s"].format(v) for v in rec.t_s]
+    back = np.array([float(v) for v in t_text])
+    if not np.all(np.diff(back) > 0.0):
+        # times closer than 15 digits tell apart: every bit of them (Python's shortest round-trip form)
+        t_text = [repr(float(v)) for v in rec.t_s]
+        back = rec.t_s
+    bad = np.nonzero(~(np.diff(back) > 0.0))[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise RecordingError(f"cannot write {path}: column 't_s' row {k + 1} is {float(rec.t_s[k])!r}, not after "
+                             f"row {k}'s {float(rec.t_s[k - 1])!r} (time must increase strictly)")
     buf = io.StringIO()
     buf.write(f"# {MAGIC}\n")
     for key, value in rec.metadata.items():
-        buf.write(f"# {key}: {str(value).replace(chr(10), ' ')}\n")
+        buf.write(f"# {key}: {' '.join(str(value).splitlines())}\n")
     buf.write(",".join(names) + "\n")
     fmts = [_FORMATS.get(n, "{:.10g}") for n in names]
-    cols = [rec.columns[n] for n in names]
+    cols = [t_text if n == "t_s" else rec.columns[n] for n in names]
     for k in range(len(rec)):
-        buf.write(",".join(f.format(c[k]) for f, c in zip(fmts, cols)) + "\n")
+        buf.write(",".join(c[k] if n == "t_s" else f.format(c[k]) for n, f, c in zip(names, fmts, cols)) + "\n")
     atomic_write_text(path, buf.getvalue())
