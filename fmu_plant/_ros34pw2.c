@@ -21,7 +21,7 @@
     X(inv_tol_v) X(inv_tol_z) X(a21) X(a31) X(a32) X(a41) X(a42) X(a43) X(c21) X(c31) X(c32) X(c41) \
     X(c42) X(c43) X(e1) X(e2) X(e3) X(e4) X(t2) X(t3) X(gamma) X(m_moving) X(gravity) X(cross_err) \
     X(cross_min_h) X(u_min) X(u_span) X(h_max) X(h_min) X(safety) X(growth) X(shrink) X(err_floor) \
-    X(stretch) X(kink_floor)
+    X(stretch) X(kink_floor) X(forced_max)
 
 #define AS_FIELD(name) double name;
 #define AS_STRING(name) #name,
@@ -325,6 +325,20 @@ static double spool_target(const Constants *k, double u) {
     return xs < 0.0 ? 0.0 : xs > 1.0 ? 1.0 : xs;
 }
 
+/* FloatingPointError of adaptive_steps when more than forced_max sub-steps of h_min were accepted over
+ * their tolerances, with Python's message ("{:.6g}" is PyOS_double_to_string(.., 'g', 6, 0, ..)). */
+static PyObject *too_many_substeps(double t, double h_min, long forced) {
+    char *ts = PyOS_double_to_string(t, 'g', 6, 0, NULL);
+    char *hs = ts == NULL ? NULL : PyOS_double_to_string(h_min, 'g', 6, 0, NULL);
+    if (hs != NULL)
+        PyErr_Format(PyExc_FloatingPointError, "plant integration failed at t = %s s: too many sub-steps of "
+                     "solver.min_substep_s = %s s over their error tolerances in one communication step "
+                     "(%ld): stiff/extreme parameters? (a smaller min_substep_s may help)", ts, hs, forced);
+    PyMem_Free(ts);
+    PyMem_Free(hs);
+    return NULL;
+}
+
 /* advance(...) of build_model: the adaptive sub-steps over one communication step (see there). */
 static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 14) {
@@ -345,6 +359,10 @@ static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssiz
     double xs = sample_ports ? xs_last : spool_target(k, u);
     double done = 0.0, left = dt, h_try = 0.0, kink_root = 1.0, h, out[6];
     int first = 1, sampled = 0, retry = 0, last;
+    long forced = 0; /* sub-steps accepted at the shortest sub-step although over their tolerances */
+    double forced_max = dt / k->h_max;
+    if (forced_max < k->forced_max)
+        forced_max = k->forced_max;
     for (;;) {
         if (sample_ports && !sampled) {
             PyObject *t = PyFloat_FromDouble(t0 + done);
@@ -376,6 +394,8 @@ static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssiz
         }
         if (h_try > k->h_max)
             h_try = k->h_max;
+        if (!(h_try >= k->h_min)) /* never propose less than the shortest sub-step (nor NaN) */
+            h_try = k->h_min;
         if (left <= (retry ? h_try : k->stretch * h_try)) {
             h = left;
             last = 1;
@@ -391,6 +411,11 @@ static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssiz
         if (err <= 1.0 || h <= k->h_min) {
             if (!(err < INFINITY)) /* the state of the step's start, and the time it broke down */
                 return Py_BuildValue("(ddddddddd)", x0, p0, l0, v0, z0, xs_last, kink_scale, last_ps, t0 + done);
+            if (err > 1.0) { /* accepted only for being the shortest sub-step */
+                forced += 1;
+                if ((double)forced > forced_max)
+                    return too_many_substeps(t0 + done, k->h_min, forced);
+            }
             x = out[0];
             p = out[1];
             l = out[2];

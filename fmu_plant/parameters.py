@@ -186,6 +186,12 @@ class SolverParams(_Validated):
     tol_v_mm_s: float = _f(0.5, "Local error tolerance of the contraction speed per sub-step [mm/s].", lo=0.0, lo_open=True, hi=50.0)
     tol_z_n: float = _f(0.05, "Local error tolerance of the friction state per sub-step [N].", lo=0.0, lo_open=True, hi=5.0)
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.min_substep_s > self.max_substep_s:
+            raise ValueError(f"SolverParams.min_substep_s ({self.min_substep_s}) must not exceed max_substep_s "
+                             f"({self.max_substep_s})")
+
 
 # ------------------------------------------------------------------------------ left-out effects
 # Physics the calibrated core model leaves out, each switched off by default (fmu_plant/effect_library.py

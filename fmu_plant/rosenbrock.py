@@ -20,7 +20,7 @@ from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
 __all__ = ["build_model", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH", "KINK_SCALE_INITIAL",
-           "KINK_FLOOR", "adaptive_steps"]
+           "KINK_FLOOR", "FORCED_MAX", "adaptive_steps"]
 
 
 def _compiled_module() -> ModuleType | None:
@@ -96,6 +96,13 @@ STRETCH = 1.25  # the last sub-step of a communication step may exceed the propo
 _CROSS_ERR = 2.0  # error given to a sub-step whose stages reverse the motion spuriously (shrinks it by 0.7)
 _CROSS_MIN_H = 1e-4  # [s] below this a spurious stage reversal is accepted (it moves z by ~ |v| h)
 
+#: Sub-steps of ``solver.min_substep_s`` accepted over their tolerances (to get past a kink) that one
+#: communication step may take: this many, or ``dt / max_substep_s`` if more. Beyond that the
+#: tolerances cannot be met at all (stiff/extreme parameters): ``FloatingPointError`` rather than a
+#: long run of inaccurate sub-steps. With no floor on the proposals, such parameters (a presliding
+#: length of 1e-9 mm) settled the step size at 1e-10 s, and a communication step never ended.
+FORCED_MAX = 1000
+
 #: First sub-step of a communication step: ``h = kink_scale / |change of spool target|^(1/3)``.
 KINK_SCALE_INITIAL = 0.004  # [s] after :meth:`Plant.reset` (5 ms for a first command of 5 V)
 KINK_FLOOR = 1e-3  # changes below this count as this (no change: a long first step)
@@ -106,17 +113,25 @@ def _loop_constants(prm: PlantParams) -> dict[str, float]:
     vp, sol = prm.valve, prm.solver
     return {"u_min": vp.u_min_v, "u_span": vp.u_max_v - vp.u_min_v, "h_max": sol.max_substep_s,
             "h_min": sol.min_substep_s, "safety": SAFETY, "growth": GROWTH, "shrink": SHRINK,
-            "err_floor": ERR_FLOOR, "stretch": STRETCH, "kink_floor": KINK_FLOOR}
+            "err_floor": ERR_FLOOR, "stretch": STRETCH, "kink_floor": KINK_FLOOR, "forced_max": float(FORCED_MAX)}
 
 
 def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) -> Callable[..., tuple[float, ...]]:
     """The ``advance`` of :func:`build_model` (its docstring) around the sub-step ``attempt``, in Python.
 
-    The compiled ``advance`` is this loop, operation for operation; a benchmark passes a counting
-    ``attempt`` here to see the sub-steps.
+    The compiled ``advance`` is this loop, operation for operation (and the same error message); a
+    benchmark passes a counting ``attempt`` here to see the sub-steps.
+
+    Its work is bounded: no sub-step is shorter than ``h_min`` (``solver.min_substep_s``) but those
+    that end the communication step (the last one, or the halved rest), and one of ``h_min`` is
+    accepted whatever its error, so a step takes at most about ``dt / h_min`` sub-steps (between two
+    of them a bounded number of rejections, each shrinking the step by 10 % or more); more than
+    ``max(FORCED_MAX, dt / h_max)`` sub-steps accepted over their tolerances raise
+    ``FloatingPointError``.
     """
     c = _loop_constants(prm)
     u_min, u_span, h_max, h_min = c["u_min"], c["u_span"], c["h_max"], c["h_min"]
+    forced_max_floor = c["forced_max"]
     inf = math.inf
 
     def advance(x, p, l, v, z, xs_last, kink_scale, last_ps, u, ps, w, t0, dt, ports):
@@ -132,6 +147,10 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
         first = True
         sampled = False
         retry = False  # after a rejection the step must shrink (no stretching)
+        forced = 0  # sub-steps accepted at the shortest sub-step although over their tolerances
+        forced_max = dt / h_max
+        if forced_max < forced_max_floor:
+            forced_max = forced_max_floor
         while True:
             if ports is not None and not sampled:  # once per sub-step, also when it is retried
                 u, ps, w = ports(t0 + done)
@@ -147,6 +166,8 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
                 h_try = kink_scale / kink_root
             if h_try > h_max:
                 h_try = h_max
+            if not h_try >= h_min:  # never propose less than the shortest sub-step (nor NaN)
+                h_try = h_min
             # End exactly on the communication point: stretch the step a little rather than leave
             # a short remainder, or split the rest in two.
             if left <= (h_try if retry else STRETCH * h_try):
@@ -160,6 +181,14 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
             if err <= 1.0 or h <= h_min:
                 if not err < inf:  # NaN or inf at the shortest step: the numbers broke down
                     return x0, p0, l0, v0, z0, xs_last, kink_scale, last_ps, t0 + done
+                if err > 1.0:  # accepted only for being the shortest sub-step
+                    forced += 1
+                    if forced > forced_max:
+                        raise FloatingPointError(
+                            f"plant integration failed at t = {t0 + done:.6g} s: too many sub-steps of "
+                            f"solver.min_substep_s = {h_min:.6g} s over their error tolerances in one "
+                            f"communication step ({forced}): stiff/extreme parameters? (a smaller "
+                            f"min_substep_s may help)")
                 x, p, l, v, z = new[0], new[1], new[2], new[3], new[4]
                 if l < 0.0:  # the stop is rigid: no penetration, no rebound
                     l = 0.0
@@ -233,7 +262,11 @@ def build_model(prm: PlantParams, *, compiled: bool | None = None
         ``ports`` is None, with the command ``u`` [V], supply ``ps`` [MPa] and load ``w`` [N] held,
         or ``ports(t) -> (u, ps, w)``, sampled at the start of every sub-step (it may call
         ``set_gate``). ``failed_at`` is NaN, or the time [s] at which the state went non-finite at
-        the shortest sub-step; the returned state is then the one at ``t0``.
+        the shortest sub-step; the returned state is then the one at ``t0``. Sub-steps are never
+        shorter than ``solver.min_substep_s`` except those ending on ``t0 + dt``, and one that short is
+        accepted whatever its error estimate; more than ``max(FORCED_MAX, dt / max_substep_s)`` such
+        sub-steps over their tolerances raise ``FloatingPointError`` (naming the time; the caller's
+        state is untouched): the work of a call is bounded.
     """
     vp, sup, mp, fp, sol = prm.valve, prm.supply, prm.muscle, prm.friction, prm.solver
     geo = MuscleGeometry.from_params(mp)

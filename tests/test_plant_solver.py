@@ -1,14 +1,21 @@
 """The plant's numerics: ROS34PW2 coefficients, analytic Jacobian, accuracy against a fine reference,
-step-size memory and noise blocks in the saved state, and the number of sub-steps it takes."""
+step-size memory and noise blocks in the saved state, the number of sub-steps it takes, and bounded
+work with parameters the tolerances cannot be met with."""
 
 import cmath
+import json
 import math
+import os
+import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from fmu_plant import Plant, PlantParams
-from fmu_plant.rosenbrock import _A, _E, _GC, _M, _ROS_GAMMA, adaptive_steps, build_model
+from fmu_plant.parameters import SolverParams
+from fmu_plant.rosenbrock import _A, _E, _GC, _M, _ROS_GAMMA, COMPILED, adaptive_steps, build_model
 from fmu_plant.sensors import read_encoder_mm, read_pressure_mpa
 
 QUIET = PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.pressure_noise_std_mpa": 0.0})
@@ -174,3 +181,150 @@ def test_a_broken_down_integration_raises_instead_of_looping():
     with pytest.raises(FloatingPointError, match="t = 0.1 s"):
         plant.step(5.0, 0.1)
     assert math.isnan(plant.state[1]) and plant.t_s == pytest.approx(0.1)  # the step did not happen
+
+
+# ------------------------------------------------------------------------- extreme parameters
+# In-range parameters the tolerances cannot be met with at min_substep_s. The step size used to settle
+# far below min_substep_s (1.3e-10 s with a presliding of 1e-9 mm) and a communication step never
+# ended, in the API, the CLI and an FMU host alike. Such runs are checked in a subprocess with a
+# timeout, so that a regression fails the test instead of hanging the suite.
+EXTREME = {"presliding": {"friction.presliding_mm": 1e-9},
+           "rest length": {"muscle.rest_length_mm": 1e-12},
+           # sub-steps end on the delay's breakpoints: Plant.step restores the state itself
+           "rest length, delayed": {"muscle.rest_length_mm": 1e-12, "delay.delay_s": 0.05}}
+
+_RUN_EXTREME = r"""
+import hashlib, json, math, sys
+import numpy as np
+from fmu_plant import Plant, PlantParams, rosenbrock
+assert rosenbrock.COMPILED == (sys.argv[1] == "compiled"), (sys.argv[1], rosenbrock.COMPILED)
+for name, values in json.loads(sys.argv[2]).items():
+    plant = Plant(PlantParams().with_values(**values), seed=0)
+    rows = []
+    for k in range(50):
+        before = (list(plant.state), plant.t_s, plant.get_state()["kink_scale_s"])
+        try:
+            m = plant.step(5.0 + 3.0 * math.sin(2 * math.pi * 0.2 * 0.1 * k), 0.1)
+        except FloatingPointError as exc:
+            # the documented failure: the state is that of the start of the step
+            assert (list(plant.state), plant.t_s, plant.get_state()["kink_scale_s"]) == before
+            print(f"{name}: FloatingPointError at step {k}: {exc}")
+            break
+        rows.append([m.l_mm, m.p_mpa, *plant.state])
+    else:
+        rows = np.array(rows)
+        print(f"{name}: completed 5 s, finite {bool(np.isfinite(rows).all())}, "
+              f"sha256 {hashlib.sha256(rows.tobytes()).hexdigest()}")
+"""
+
+
+def _isolated(code: str, *args: str, pure_python: bool = False, timeout: float = 60.0) -> str:
+    """stdout of ``python -c code *args``, failing the test if it does not end within ``timeout`` [s]."""
+    env = {k: v for k, v in os.environ.items() if k != "TAPMUSCLE_PURE_PYTHON"}
+    if pure_python:
+        env["TAPMUSCLE_PURE_PYTHON"] = "1"
+    try:
+        done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                              timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"still running after {timeout} s: the sub-steps of a communication step never end")
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_extreme_parameters_end_in_bounded_time_in_python_and_compiled():
+    paths = ["python", "compiled"] if COMPILED else ["python"]
+    out = {path: _isolated(_RUN_EXTREME, path, json.dumps(EXTREME), pure_python=path == "python") for path in paths}
+    lines = out["python"].splitlines()
+    assert len(lines) == len(EXTREME), out["python"]
+    # a sub-step of min_substep_s is accepted whatever its error: the presliding run ends (inaccurate)
+    assert lines[0].startswith("presliding: completed 5 s, finite True"), lines[0]
+    # a thousand of them in one communication step mean the tolerances cannot be met at all: the
+    # documented error, at a time within the step that raised it (0.139 s; 0.068 s with the delay)
+    for name, line in zip(list(EXTREME)[1:], lines[1:]):
+        found = re.fullmatch(rf"{name}: FloatingPointError at step (\d+): plant integration failed at t = (\S+) s: "
+                             r"too many sub-steps of solver\.min_substep_s = 1e-05 s over their error tolerances in "
+                             r"one communication step \(1001\): stiff/extreme parameters\? \(a smaller "
+                             r"min_substep_s may help\)", line)
+        assert found, line
+        k, t = int(found[1]), float(found[2])
+        assert k < 2 and 0.1 * k <= t < 0.1 * (k + 1), line
+    if COMPILED:
+        assert out["compiled"] == out["python"]  # the same bits, the same message
+
+
+def test_no_sub_step_is_shorter_than_min_substep_but_those_ending_a_communication_step():
+    prm = PlantParams().with_values(**EXTREME["presliding"])
+    plant = Plant(prm, seed=0)
+    h_min = prm.solver.min_substep_s
+    _, _, inner, _, _ = build_model(prm)
+    attempts = []
+
+    def counting(*args):
+        attempts.append(args[-1])
+        return inner(*args)
+
+    plant._advance_substeps = adaptive_steps(counting, prm)
+    short = []
+    for k in range(30):  # 3 s: before the fix the step size had long left min_substep_s by then
+        del attempts[:]
+        plant.step(5.0 + 3.0 * math.sin(2 * math.pi * 0.2 * 0.1 * k), 0.1)
+        short.append(sum(h < h_min for h in attempts))
+        assert len(attempts) < 0.1 / h_min
+    assert max(short) <= 2  # the last sub-step, or the halved rest
+    assert all(math.isfinite(v) for v in plant.state)
+
+
+def test_min_substep_longer_than_max_substep_is_refused():
+    with pytest.raises(ValueError, match=r"SolverParams\.min_substep_s \(0\.001\) must not exceed "
+                                         r"max_substep_s \(0\.0001\)"):
+        PlantParams().with_values(**{"solver.min_substep_s": 1e-3, "solver.max_substep_s": 1e-4})
+    with pytest.raises(ValueError, match="min_substep_s"):
+        SolverParams(min_substep_s=2e-5, max_substep_s=1e-5)
+    fixed = PlantParams().with_values(**{"solver.min_substep_s": 1e-3, "solver.max_substep_s": 1e-3})
+    assert Plant(fixed).step(6.0, 0.1).l_mm > 0.0  # equal: fixed sub-steps, allowed
+
+
+_RUN_FMU = r"""
+import math, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+folder = extract(sys.argv[1], sys.argv[2])
+vr = {v.name: v.valueReference for v in md.modelVariables}
+for name, values in (("presliding", {"friction.presliding_mm": 1e-9}),
+                     ("rest length", {"muscle.rest_length_mm": 1e-12}),
+                     ("min > max", {"solver.min_substep_s": 1e-3, "solver.max_substep_s": 1e-4})):
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="i")
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    for key, value in values.items():
+        f.setReal([vr[key]], [value])
+    print(f"RESULT {name}: exitInitializationMode status {f.exitInitializationMode()}", flush=True)
+    try:
+        for k in range(50):
+            f.setReal([vr["u"]], [5.0 + 3.0 * math.sin(2 * math.pi * 0.2 * 0.1 * k)])
+            f.doStep(k * 0.1, 0.1)
+        print(f"RESULT {name}: 50 steps, l finite {math.isfinite(f.getReal([vr['l']])[0])}", flush=True)
+    except FMICallException as exc:
+        print(f"RESULT {name}: doStep at step {k}: {exc}", flush=True)
+    f.terminate()
+    f.freeInstance()
+"""
+
+
+def test_the_plant_fmu_ends_its_steps_with_extreme_parameters_and_refuses_min_above_max(built_fmus, tmp_path):
+    out = _isolated(_RUN_FMU, str(built_fmus["MusclePlant"]), str(tmp_path), timeout=120.0)
+    results = [line for line in out.splitlines() if line.startswith("RESULT ")]
+    assert results == ["RESULT presliding: exitInitializationMode status 0",
+                       "RESULT presliding: 50 steps, l finite True",
+                       "RESULT rest length: exitInitializationMode status 0",
+                       "RESULT rest length: doStep at step 1: fmi2DoStep failed with status 3 (error).",
+                       "RESULT min > max: exitInitializationMode status 1",  # fmi2Warning, then errors
+                       "RESULT min > max: doStep at step 0: fmi2DoStep failed with status 3 (error)."], out
+    # the logged reasons
+    assert "too many sub-steps of solver.min_substep_s = 1e-05 s" in out and "stiff/extreme parameters?" in out
+    assert "SolverParams.min_substep_s (0.001) must not exceed max_substep_s (0.0001)" in out
