@@ -15,6 +15,13 @@ modelDescription.xml, which pythonfmu cannot do itself. Full dynamic state is sa
 :meth:`SafeSlave.numerics_state` / :meth:`SafeSlave.restore_numerics_state`, so FMI
 get/set/serialize FMU state restores everything, not just the registered variables.
 
+Time: the FMU's clock starts at the start time of ``fmi2SetupExperiment`` (``tStart``; 0 without
+that call) and advances with every completed step. A step whose ``currentCommunicationPoint`` is not
+the FMU's time (a gap, or a step back, beyond :data:`TIME_TOLERANCE`) is refused with fmi2Error and a
+message naming both times: a slave's numerics (the plant's clock, the controller's sampling grid)
+would silently run on another time than the host's. Going back is what FMU states are for: the time
+is part of the state, so after ``fmi2SetFMUstate`` the FMU's time is the restored one.
+
 Exceptions that must reach the host (a value reference of the wrong type in ``fmi2GetReal`` and the
 like, a foreign FMU state) go through :meth:`SafeSlave._keep_references`. pythonfmu 0.7's C++ layer answers
 an exception with fmi2Fatal, and on the way releases its references to the slave, its class and its
@@ -47,6 +54,13 @@ _BAD_STATE = "tapmuscle: bad FMU state"
 #: rounding remainder asks for a last step of 1e-14 .. 2e-12 s: such a step is accepted with fmi2OK
 #: and changes nothing (the outputs hold), since no physics happens in it.
 MIN_STEP_S = 1e-9
+
+#: A step's ``currentCommunicationPoint`` may differ from the FMU's time (the start time, or the end of
+#: the last step) by ``TIME_TOLERANCE * max(step size, |time|)`` or by :data:`MIN_STEP_S`, whichever is
+#: larger: a master that computes its time as ``tStart + n h`` rather than by summing the steps differs
+#: by a few units in the last place, and an interval shorter than a step that integrates nothing is no
+#: gap. The same relative tolerance as the controller's sampling grid.
+TIME_TOLERANCE = 1e-9
 
 #: Per variable: ``unit`` (a key of fmi_slave.units.UNITS or ""), ``min``, ``max``, ``nominal`` (None =
 #: not declared), ``depends_on`` (outputs only: names of inputs with direct feedthrough; () = none).
@@ -103,6 +117,10 @@ class SafeSlave(Fmi2Slave):
         self._par: dict[str, float] = {}
         self._int_par: dict[str, int] = {}
         self._failed = False
+        #: the start time of fmi2SetupExperiment [s] and the FMU's time: the start time, then the end of
+        #: the last completed step (module docstring)
+        self._start_s = 0.0
+        self._time_s = 0.0
         #: fixed parameters are settable until fmi2ExitInitializationMode; steps until fmi2Terminate
         self._initialised = False
         self._terminated = False
@@ -294,7 +312,21 @@ class SafeSlave(Fmi2Slave):
     get_string = _typed_access(String, True, "")
     set_string = _typed_access(String, False, "")
     del _typed_access
-    setup_experiment = _to_host(Fmi2Slave.setup_experiment)
+
+    @_to_host
+    def setup_experiment(self, start_time: float, stop_time: float | None, tolerance: float | None) -> None:
+        """Keep the start time: the FMU's clock starts there at fmi2ExitInitializationMode (the stop time
+        and tolerance do not apply to fixed-step numerics; after fmi2Reset the next initialisation takes
+        the new one). A non-finite start time is an error, logged; the start time stays."""
+        try:
+            t0 = float(start_time)
+        except (TypeError, ValueError):
+            t0 = math.nan
+        if not math.isfinite(t0):
+            self.log(f"fmi2SetupExperiment: startTime = {start_time!r} is not finite; the start time stays "
+                     f"{self._start_s!r} s", status=Fmi2Status.error)
+            return
+        self._start_s = t0
 
     @_to_host
     def enter_initialization_mode(self) -> None:
@@ -341,6 +373,7 @@ class SafeSlave(Fmi2Slave):
 
     def exit_initialization_mode(self) -> None:
         self._initialised = True
+        self._time_s = self._start_s
         try:
             self._check_parameter_ranges()
             self.initialize_numerics()
@@ -363,9 +396,12 @@ class SafeSlave(Fmi2Slave):
             h = self.finite("step size", step_size, 0.0, 3600.0)
             if h == 0.0:
                 raise SlaveInputError(f"step size = {step_size!r} must be > 0")
-            if h < MIN_STEP_S:
-                return True
-            self.step_numerics(float(current_time), h)
+            t = float(current_time)
+            if not abs(t - self._time_s) <= max(MIN_STEP_S, TIME_TOLERANCE * max(h, abs(self._time_s))):
+                return self.fail(self._time_mismatch(t), Fmi2Status.error)
+            if h >= MIN_STEP_S:
+                self.step_numerics(t, h)
+            self._time_s = t + h
             return True
         except SlaveInputError as exc:
             return self.fail(f"t = {current_time:g} s: {exc}; outputs keep their last values")
@@ -373,12 +409,21 @@ class SafeSlave(Fmi2Slave):
             return self.fail(f"t = {current_time:g} s: internal error {type(exc).__name__}: {exc}\n"
                              f"{traceback.format_exc(limit=3)}", Fmi2Status.error)
 
+    def _time_mismatch(self, t: float) -> str:
+        """The message for a step at ``t`` that does not start at the FMU's time."""
+        now = self._time_s
+        what = f"a gap of {t - now:.6g} s" if t > now else f"{now - t:.6g} s back" if t < now else "not a time"
+        return (f"fmi2DoStep at currentCommunicationPoint = {t:.12g} s, but the FMU's time is {now:.12g} s ("
+                f"{'the start time' if now == self._start_s else 'the end of the last step'}): {what}; a step must "
+                "start where the previous one ended (to go back, restore an FMU state with fmi2SetFMUstate); "
+                "nothing was done")
+
     # ------------------------------------------------------------------ state
     def _snapshot(self) -> dict[str, Any]:
         # pythonfmu serialises the state as JSON: numpy arrays and scalars become lists and floats
         # (exact: JSON keeps the shortest repr, which round-trips every double).
         return {"variables": super()._get_fmu_state(), "numerics": _plain(self.numerics_state()),
-                "failed": self._failed}
+                "failed": self._failed, "time": self._time_s}
 
     _get_fmu_state = _to_host(_snapshot)
 
@@ -386,7 +431,7 @@ class SafeSlave(Fmi2Slave):
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
         # A foreign or corrupted state leaves the instance as it was and usable: an error, logged (the
         # loader returns fmi2Error), not an exception (pythonfmu would answer fmi2Fatal).
-        if not isinstance(state, dict) or set(state) != {"variables", "numerics", "failed"}:
+        if not isinstance(state, dict) or set(state) != {"variables", "numerics", "failed", "time"}:
             reason = state.get(_BAD_STATE) if isinstance(state, dict) else None
             self.log(f"not an FMU state of this FMU ({reason or 'unexpected content'}); nothing was changed",
                      status=Fmi2Status.error)
@@ -400,6 +445,9 @@ class SafeSlave(Fmi2Slave):
                      status=Fmi2Status.error)
 
     def _restore(self, state: dict[str, Any]) -> None:
+        time_s = float(state["time"])
+        if not math.isfinite(time_s):
+            raise ValueError(f"time = {time_s!r} is not finite")
         initialised, self._initialised = self._initialised, False  # a state sets the fixed parameters too
         try:
             super()._set_fmu_state(state["variables"])
@@ -407,6 +455,7 @@ class SafeSlave(Fmi2Slave):
             self._initialised = initialised
         self.restore_numerics_state(state["numerics"])
         self._failed = bool(state["failed"])
+        self._time_s = time_s
 
     @staticmethod
     def _fmu_state_from_bytes(state: bytes) -> dict[str, Any]:

@@ -5,9 +5,12 @@ behaviour (errors, state) is :class:`fmi_slave.SafeSlave`'s. docs/fmu.md lists e
 
 Sampling and timing
 -------------------
-The controller samples at ``t_k = k Ts``. A ``doStep(t, h)`` whose start ``t`` is a sample time reads
-the inputs ``l`` (and ``r``) as set for ``t``, computes ``u(k)`` and sets the outputs to it: the
-output after that step is the command to hold over ``[t_k, t_k + Ts)``. Stepping the controller
+The controller samples at ``t_k = t_0 + k Ts``, ``t_0`` the start time of ``fmi2SetupExperiment`` (0
+without it). Everything in it counts samples ``k`` from there: the start-up mode, the probing signal
+and the built-in sine (phase 0 at ``t_0``), so a run started at ``t_0`` gives the commands of a run
+started at 0 for the same measurements, ``t_0`` later. A ``doStep(t, h)`` whose start ``t`` is a
+sample time reads the inputs ``l`` (and ``r``) as set for ``t``, computes ``u(k)`` and sets the outputs
+to it: the output after that step is the command to hold over ``[t_k, t_k + Ts)``. Stepping the controller
 before the plant in each macro step (the master of :mod:`tapmuscle.cosim.master`) therefore applies
 ``u(k)`` over the same interval as the direct loop, with no extra sample of delay. Steps shorter than
 ``Ts`` are allowed (the outputs hold between samples); a step longer than ``Ts`` would skip samples
@@ -15,7 +18,7 @@ and is refused with fmi2Discard, as is a step that starts past a missed sample t
 
 Reference and preview (``reference_source``)
 --------------------------------------------
-1. ``builtin_sine`` (default): ``r(t) = sine.offset + sine.amplitude sin(2 pi sine.frequency t)``,
+1. ``builtin_sine`` (default): ``r(t) = sine.offset + sine.amplitude sin(2 pi sine.frequency (t - t_0))``,
    known ahead, so ``r(k..k+Hp)`` is exact as in the paper; the input ``r`` is ignored.
 2. ``external_held``: the input ``r`` is ``r(k)``; with no knowledge of the future the controller
    assumes ``r(k+i|k) = r(k)``, which costs tracking lag on a moving reference.
@@ -253,12 +256,13 @@ class AMPCController(SafeSlave):
         if dt_s > ts + tol:
             raise SlaveInputError(f"step size {dt_s:g} s exceeds the sampling period Ts = {ts:g} s; the "
                                   "controller would skip samples (use a communication step <= Ts)")
-        t_next = self._k * ts
+        t_next = self._start_s + self._k * ts  # at start time 0: k*Ts, bit for bit
         if t_s < t_next - tol:
             return  # between samples: the outputs hold
         if t_s > t_next + tol:
             raise SlaveInputError(f"the step starting at t = {t_s:g} s skips the sample time {t_next:g} s "
-                                  f"(k = {self._k}); step so that every k*Ts = k*{ts:g} s is a communication point")
+                                  f"(k = {self._k}); step so that every t0 + k*Ts = {self._start_s:g} + "
+                                  f"k*{ts:g} s is a communication point")
         l = self.finite("l", self.l, *_L_RANGE_MM)
         preview = self._preview(self._k)  # validates r first: a refused step changes nothing
         if self._k == 0:

@@ -143,12 +143,12 @@ class Plant:
         self._k_valve = vp.cv_max * CV_TO_SI_WATER
         self._laminar_pa = vp.laminar_dp_mpa * 1e6
         self._rhs, _, _, self._set_gate, self._advance_substeps = build_model(self.params)
-        self.reset(seed=seed)
+        self.reset(seed=check_seed(seed))  # None is no seed here: there is no previous one to keep
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, *, seed: int | None = None, load_n: float | None = None,
-              supply_pressure_mpa: float | None = None) -> Measurement:
-        """Start over at rest: drained muscle, fully extended, time 0.
+              supply_pressure_mpa: float | None = None, t_s: float = 0.0) -> Measurement:
+        """Start over at rest: drained muscle, fully extended, at time ``t_s``.
 
         Parameters
         ----------
@@ -156,14 +156,17 @@ class Plant:
             New noise seed (default: the previous one).
         load_n, supply_pressure_mpa : float, optional
             Initial load [N] and supply pressure [MPa] (default: from the parameters).
+        t_s : float
+            The clock's start [s] (an FMU's start time): every time-based effect counts in it.
         """
+        t_s = _finite("t_s", t_s)
         if seed is not None:
             self._seed = check_seed(seed)  # unsigned 64-bit, as the FMU carries it (seed.py)
         self._rng = np.random.default_rng(self._seed)
         self._noise_start = None  # generator state before the current block of normals (None: no block)
         self._noise: list[float] = []
         self._noise_i = 0
-        self.t_s = 0.0
+        self.t_s = t_s
         self.state = [0.0, 0.0, 0.0, 0.0, 0.0]
         self._kink_scale = KINK_SCALE_INITIAL
         self._xs_last = 0.0
@@ -175,7 +178,7 @@ class Plant:
         self.update(load_n=load_n, supply_pressure_mpa=supply_pressure_mpa)
         self._last_supply_mpa = self.supply_pressure_mpa
         for e in self.effects:
-            e.reset(0.0, self.u_v, 0.0)
+            e.reset(t_s, self.u_v, 0.0)
         self.measurement = self._measure()
         return self.measurement
 
@@ -203,8 +206,9 @@ class Plant:
             If ``u_v`` or ``dt_s`` is not finite, or ``dt_s`` is not within (0, 3600] s. The plant
             state is unchanged then.
         FloatingPointError
-            If the integration breaks down (a non-finite error estimate at the shortest sub-step;
-            only with extreme parameters). The state is that of the start of the step.
+            If the integration breaks down (a non-finite error estimate at the shortest sub-step, or
+            too many sub-steps of ``solver.min_substep_s`` over their tolerances; only with extreme
+            parameters). The state is that of the start of the step.
         """
         u_v = _finite("u_v", u_v)
         dt_s = _finite("dt_s", dt_s)
@@ -274,7 +278,7 @@ class Plant:
                                  f"{'(' if open_lo else '['}{lo:g}, {hi:g}]")
             return v
 
-        field("t_s", 0.0)
+        field("t_s")  # any start time
         field("u_v")
         field("load_n", 0.0)
         field("supply_pressure_mpa", 0.0)

@@ -9,6 +9,12 @@ Bad input (NaN, inf, a command outside -1..11 V, a load outside 0..500 N, a supp
 0..1 MPa, a step size <= 0) is refused with fmi2Discard and a logged message naming it; the plant and
 its outputs are unchanged. A command within -1..11 V saturates in the valve amplifier at 0..10 V as
 on the rig.
+
+Time: the plant's clock is the host's. It starts at the start time of ``fmi2SetupExperiment`` (the
+plant is at rest there, its sensors read there) and advances with the steps, so every time-based
+effect counts in the host's time: a supply sag with ``supply_variation.start_s = 6`` begins at host
+time 6 s whatever the start time, and a transport delay's memory starts at the start time. A step
+must start at the plant's time (:class:`fmi_slave.SafeSlave`: a gap or a step back is fmi2Error).
 """
 
 from __future__ import annotations
@@ -74,6 +80,8 @@ class MusclePlant(SafeSlave):
         except ValueError as exc:
             raise SlaveInputError(str(exc)) from None
         self._plant = Plant(params, seed=seed)
+        if self._start_s != 0.0:
+            self._plant.reset(t_s=self._start_s)
         self._plant.update(load_n=self.finite("load", self.load, 0.0, 500.0),
                            supply_pressure_mpa=self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0))
         self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
@@ -94,3 +102,4 @@ class MusclePlant(SafeSlave):
     def restore_numerics_state(self, state) -> None:
         if state is not None:
             self._plant.set_state(state)
+
