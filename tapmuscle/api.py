@@ -88,6 +88,8 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
         if bad.size:
             raise ValueError(f"command[{int(bad[0])}] = {float(u[bad[0]])!r} is not finite")
         if duration_s is None:
+            if u.size < 2:
+                raise ValueError(f"command has {u.size} sample; give at least 2 samples, or duration_s")
             duration_s = (u.size - 1) * ts
 
         def signal(t: float) -> float:
@@ -233,7 +235,15 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
     from tapmuscle.cosim.spec import Scenario
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if fmus is not None and not isinstance(fmus, Mapping):
+        raise TypeError(f"fmus must be a mapping {{'MusclePlant': path, 'AMPCController': path}}, got a "
+                        f"{type(fmus).__name__}")
     given = dict(fmus) if fmus is not None else cached_fmus()
+    missing = [name for name, own in (("MusclePlant", sc.plant.path), ("AMPCController", sc.controller.path))
+               if not own and name not in given]
+    if missing:
+        raise ValueError(f"fmus has no {' and no '.join(repr(m) for m in missing)} (and the scenario names no "
+                         f"path for it); given: {', '.join(map(repr, given)) or 'none'}")
     if out is not None:
         summary = run_scenario(sc, out, given, plots=plots)
         cols = summary.pop("cols")

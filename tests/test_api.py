@@ -156,3 +156,22 @@ def test_the_documented_examples_run(tmp_path, monkeypatch):
             exec(compile(code, f"docs/python-api.md ({heading})", "exec"), namespace)  # noqa: S102
         except Exception as exc:  # noqa: BLE001 - name the failing example
             pytest.fail(f"docs/python-api.md, example under '{heading}': {type(exc).__name__}: {exc}")
+
+
+_PAPER_SCENARIO = tm.PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml"
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda: tm.Plant(seed=None), ValueError, r"seed = None must be an integer"),
+    (lambda: tm.simulate("const:value=5", duration_s=2.0, seed=None), ValueError, r"seed = None must be an integer"),
+    (lambda: tm.simulate(np.array([5.0])), ValueError, r"command has 1 sample; give at least 2 samples, or duration_s"),
+    (lambda: tm.diagnose(np.arange(10.0), np.ones(10), np.ones(10), "MusclePlant.fmu"), TypeError,
+     r"model must be a PlantParams .* got str 'MusclePlant.fmu'"),
+    (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus=["MusclePlant.fmu", "AMPCController.fmu"]), TypeError,
+     r"fmus must be a mapping .* got a list"),
+    (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlant": "MusclePlant.fmu"}), ValueError,
+     r"fmus has no 'AMPCController' .*given: 'MusclePlant'"),
+])
+def test_a_wrong_argument_is_named(call, error, match):
+    with pytest.raises(error, match=match):
+        call()

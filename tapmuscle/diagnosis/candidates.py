@@ -323,6 +323,14 @@ _FEW_LEVELS = 40
 _MIDWAY_LEVELS = 3
 
 
+def _band_out_of_bounds(centre_v: float, width_v: float) -> bool:
+    """Whether a band the plant cannot take: its centre outside ``dead_zone.center_v``'s bounds (the
+    recorded commands, and the cuts 0.05 V beyond them, may lie below 0 or above 10 V) or wider than
+    ``dead_zone.width_v``'s (four held levels can span more)."""
+    lo_c, hi_c = field_bounds("dead_zone.center_v")
+    return not lo_c <= centre_v <= hi_c or width_v > field_bounds("dead_zone.width_v")[1]
+
+
 def _command_cuts(u_v: np.ndarray) -> np.ndarray:
     """The points between consecutive recorded commands [V] (to 1 mV), and 0.05 V beyond the extremes:
     a band's cost changes only where an edge crosses one (:func:`_edge_search`)."""
@@ -391,10 +399,9 @@ def _refine_dead_zone(pr: Problem, params: PlantParams) -> dict[str, float] | No
     if width <= 0:
         return None
     centre = params.value("dead_zone.center_v")
-    max_width = field_bounds("dead_zone.width_v")[1]
 
     def cost(x: tuple[float, float]) -> float:
-        if x[1] > max_width:
+        if _band_out_of_bounds(*x):
             return math.inf
         trial = params.with_values(**{"dead_zone.center_v": x[0], "dead_zone.width_v": x[1]})
         return sse(pr.stacked_residual(*pr.sim.run(trial)))
@@ -463,7 +470,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
 
     def cost(x):
         c, w = float(x[0]), float(x[1])
-        if w > max_width:  # a band the plant cannot take (four held levels can span more)
+        if _band_out_of_bounds(c, w):
             return math.inf
         key = (round(c, 9), round(w, 9), start, stop)
         if key not in runs:
@@ -513,7 +520,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
                                   pr.u_v[start:stop], pr.train[start:stop])
     x = (0.5 * (lower + upper), upper - lower)
     values = {"dead_zone.center_v": float(x[0]), "dead_zone.width_v": float(x[1])}
-    return None if values["dead_zone.width_v"] <= 1e-3 else values
+    return None if values["dead_zone.width_v"] <= 1e-3 or _band_out_of_bounds(*x) else values
 
 
 def _scanned_edge(cost_at: Callable[[float], float], edge: float, lo: float, hi: float, step: float = 0.5) -> float:

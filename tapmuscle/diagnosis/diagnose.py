@@ -279,8 +279,13 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     ValueError
         Arrays of different lengths, fewer than :data:`MIN_SAMPLES` samples, non-uniform sampling
         (naming the first offending sample), non-finite values, or a command that never changes.
+    TypeError
+        ``model`` is not a :class:`~fmu_plant.PlantParams`.
     """
     started = time.perf_counter()
+    if not isinstance(model, PlantParams):
+        raise TypeError(f"model must be a PlantParams (tapmuscle.diagnosis.plant_source.load_plant(path)[0] "
+                        f"reads one from a plant file or FMU), got {type(model).__name__} {model!r:.60}")
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)

@@ -16,14 +16,13 @@ values named ``*_mm`` are in the diagnosed output's unit, stated in ``output``),
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.recording import atomic_write_text, read_columns
 
 from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_candidates, calibration_parameters,
@@ -232,9 +231,7 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
         "output": {"variable": setup.output.variable, "column": setup.output.column, "unit": setup.output.unit},
         "mapping": setup.map.to_json(), "simulation_s": round(setup.simulation_s, 4)} | {
         k: v for k, v in doc.items() if k not in ("verdict", "fit_before_percent", "fit_after_percent", "findings")}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    try:
+    with staged_folder(out) as tmp:
         atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
         atomic_write_text(tmp / "calibrated_parameters.json",
                           json.dumps(_calibrated_file(d, setup), indent=2, allow_nan=False) + "\n")
@@ -243,23 +240,7 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
             overlay_figure(d, tmp / "overlay.png", quantity=setup.output.variable, unit=setup.output.unit or "-",
                            model="FMU", title=f"{setup.interface.model_name}: {', '.join(d.named) or d.verdict} "
                                               "(held-out fit in brackets)")
-        _install(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return doc
-
-
-def _install(tmp: Path, out: Path) -> None:
-    """Put the finished folder ``tmp`` in place of ``out`` (an older ``out`` is removed only then)."""
-    if out.exists():
-        old = out.with_name(f".{out.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        out.rename(old)
-        tmp.rename(out)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        tmp.rename(out)
 
 
 def diagnose_foreign_outputs(recording: str | Path, plant: str | Path, out: str | Path, *,
@@ -301,11 +282,8 @@ def diagnose_foreign_outputs(recording: str | Path, plant: str | Path, out: str 
     if unknown or not chosen:
         raise SignalMapError(f"--output {unknown[0] if unknown else '(none)'!r}: not a mapped output "
                              f"(mapped: {', '.join(mapped)})")
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     results: dict[str, tuple[Diagnosis, dict[str, Any]]] = {}
-    try:
+    with staged_folder(out) as tmp:
         effects = options.pop("effects", None)
         for variable in chosen:
             echo(f"== output {variable}")
@@ -316,10 +294,6 @@ def diagnose_foreign_outputs(recording: str | Path, plant: str | Path, out: str 
         summary = _outputs_summary(results, {v.name for v in iface.inputs})
         atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2, allow_nan=False) + "\n")
         atomic_write_text(tmp / "summary.md", _outputs_markdown(summary, iface.model_name, Path(recording).name))
-        _install(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return results
 
 

@@ -13,8 +13,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from tapmuscle.plots.figures import new_figure, save_figure
+from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.plant_file import plant_file_text
-from tapmuscle.io.recording import Recording, atomic_write_text, read_recording
+from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text, read_recording
 
 from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
@@ -24,7 +25,7 @@ from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
 __all__ = ["diagnose_files", "write_outputs", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE",
-           "EXPERIMENT_PLANT_FILE"]
+           "EXPERIMENT_PLANT_FILE", "OWNED_FILES"]
 
 #: What ``write_outputs`` writes (figures only with ``plots=True``).
 OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residual.png", "overlay.png",
@@ -33,6 +34,8 @@ OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residua
 EXPERIMENT_FILE = "discriminating_input.csv"
 #: With it: the plant to re-diagnose the experiment's recording with (the calibrated plant, the group's effects off).
 EXPERIMENT_PLANT_FILE = "discriminate_plant.json"
+#: The files of an output folder that a diagnosis owns: written anew or removed by each diagnosis into it.
+OWNED_FILES = OUTPUT_FILES + ("discriminating_input*.csv", "discriminate_plant*.json")
 
 _COLOURS = ("tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
 
@@ -49,9 +52,12 @@ def summary_lines(d: Diagnosis) -> list[str]:
         changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}{' (at its bound)' if r.at_bound else ''}"
                             for r in d.calibration.rows
                             if r.identifiable and abs(r.estimate - r.nominal) > 1e-9 * max(1.0, abs(r.nominal)))
+        # the constants are the final model's (re-fitted with the effects found); the fit is the first
+        # calibration's, before any effect: said so, as the two can differ much
+        final = " (in the final model, re-fitted with the effects)" if d.named or d.ambiguous else ""
         out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
-                   f"({changed or 'no constant changed'}; not identifiable: "
-                   f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'})")
+                   f"without any effect; constants{final}: {changed or 'none changed'}; not identifiable: "
+                   f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'}")
     rem = d.unexplained
     remainder = ([] if rem is None or rem["material"] else
                  [f"  a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} mm against "
@@ -75,7 +81,7 @@ def summary_lines(d: Diagnosis) -> list[str]:
 
 
 def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
-               experiments: list[dict[str, Any]] | None = None) -> str:
+               experiments: list[dict[str, Any]] | None = None, plots: bool = True) -> str:
     lines = [f"# Mismatch diagnosis of `{recording}`", "",
              f"Plant model: `{plant}`. Verdict: **{d.verdict}**. Held-out fit (NRMSE, interleaved "
              f"{int(d.test.sum())} of {len(d.test)} samples): **{d.fit_before_percent:.2f} % -> "
@@ -86,7 +92,9 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                   f"the training blocks, prior 20 % sd around nominal; identifiable when the data shrink the sd to "
                   f"<= 25 % of the prior's; an identifiable constant's interval includes what the constants left "
                   f"nominal may be off, within their prior). Held-out fit of the calibrated plant without any effect: "
-                  f"**{d.fit_calibrated_percent:.2f} %**.", "",
+                  f"**{d.fit_calibrated_percent:.2f} %**."
+                  + (" The estimates below are those of the final model, re-fitted jointly with the effects found "
+                     "(the calibrated plant file's)." if d.named or d.ambiguous else ""), "",
                   "| parameter | unit | nominal | estimate | 95 % interval | identifiable |", "|---|---|---|---|---|---|"]
         for r in d.calibration.rows:
             lines.append(f"| `{r.parameter}` | {r.unit} | {r.nominal:.5g} | {r.estimate:.5g} | "
@@ -164,7 +172,7 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                   f"in-process model the fits use by at most {fmu_check['max_abs_difference_mm']:.2e} mm.", ""]
     lines += ["## Files", "", "* `calibrated_plant.json`: the model with the fitted effects; every `group.field` is a "
               "parameter of the MusclePlant FMU (set them as start values) and `tapmuscle record --params` reads it.",
-              "* `residual.png`, `overlay.png`, `hysteresis.png`, `residual_tests.png`.",
+              *(["* `residual.png`, `overlay.png`, `hysteresis.png`, `residual_tests.png`."] if plots else []),
               f"* {d.simulations} simulations, {d.elapsed_s:.1f} s.", ""]
     return "\n".join(lines)
 
@@ -255,17 +263,19 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     if fmu_check is not None:
         doc["fmu_check"] = fmu_check
     experiments = []
-    for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
-        experiments.append(_write_experiment(d, group, out, i, executor))
-        entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
-                     experiment=experiments[-1])
-    atomic_write_text(out / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
-    atomic_write_text(out / "calibrated_plant.json", plant_file_text(
-        d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
-        + (f" ({model_note})" if model_note else "")))
-    atomic_write_text(out / "report.md", _report_md(d, recording, plant, fmu_check, experiments))
-    if plots:
-        _figures(d, out, Path(recording).stem)
+    # all or nothing, and no file of an earlier diagnosis left beside these (its figures, its experiments)
+    with staged_folder(out, owned=OWNED_FILES) as tmp:
+        for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
+            experiments.append(_write_experiment(d, group, tmp, i, executor))
+            entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
+                         experiment=experiments[-1])
+        atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        atomic_write_text(tmp / "calibrated_plant.json", plant_file_text(
+            d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
+            + (f" ({model_note})" if model_note else "")))
+        atomic_write_text(tmp / "report.md", _report_md(d, recording, plant, fmu_check, experiments, plots))
+        if plots:
+            _figures(d, tmp, Path(recording).stem)
     return doc
 
 
@@ -305,7 +315,8 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     Parameters
     ----------
     recording : path
-        The rig's recording CSV (docs/recordings.md): ``t_s,u_v,l_mm`` [, ``load_n``, ``p_mpa``].
+        The rig's recording CSV (docs/recordings.md): ``t_s,u_v,l_mm`` [, ``load_n``, ``p_mpa``]; without
+        a ``load_n`` column, its ``# load_n:`` header line gives the load.
     plant : path
         A MusclePlant FMU or a plant parameter JSON file: the nominal model.
     out : path
@@ -338,7 +349,12 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     if effects is not None:
         options["candidates"] = [candidate(e) for e in effects]
     cols = rec.columns
-    load = cols.get("load_n")
+    try:
+        if "ts_s" in rec.metadata:
+            rec.ts_s  # the header must agree with the t_s column
+        load = rec.load_n  # the column, else the '# load_n:' header
+    except RecordingError as e:
+        raise RecordingError(f"{recording}: {e}") from None
     with worker_pool(workers) as pool:
         d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
                      progress=progress, executor=pool, **options)

@@ -1,0 +1,73 @@
+"""The diagnosis's files (tapmuscle/diagnosis/report.py): what the recording's header says is used, a
+command outside 0..10 V is diagnosed, and an output folder holds one diagnosis whole."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fmu_plant import PlantParams
+from tapmuscle.diagnosis.demo import DEMO_MODEL, record
+from tapmuscle.diagnosis.report import OUTPUT_FILES, diagnose_files
+from tapmuscle.io.plant_file import plant_file_text
+from tapmuscle.io.recording import Recording, RecordingError, write_recording
+
+pytestmark = pytest.mark.slow
+
+
+def _files(tmp_path, rig: PlantParams, *, drop=(), metadata=None, shift_v=0.0):
+    """A 60-s step recording of ``rig`` without the columns ``drop``, its command shifted by
+    ``shift_v``, and the nominal plant file."""
+    cols = record(rig, "steps", 3, duration_s=60.0)
+    cols = {k: v for k, v in cols.items() if k not in drop} | {"u_v": cols["u_v"] + shift_v}
+    rec = tmp_path / "rec.csv"
+    write_recording(rec, Recording(cols, {"ts_s": "0.1"} | (metadata or {})))
+    plant = tmp_path / "plant.json"
+    plant.write_text(plant_file_text(DEMO_MODEL, "nominal"))
+    return rec, plant
+
+
+def test_the_load_of_the_header_is_used_without_a_load_column(tmp_path):
+    """A rig at 68 N recorded without its load column but with '# load_n: 68': the plant at 68 N is
+    the rig, so nothing is found (read at the default 44 N, a 24-N load mismatch would be)."""
+    rig = DEMO_MODEL.with_values(**{"load.load_n": 68.0})
+    rec, plant = _files(tmp_path, rig, drop=("load_n",), metadata={"load_n": "68"})
+    d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
+    assert np.all(d.load_n == 68.0)
+    assert doc["verdict"] == "no_significant_mismatch" and doc["fit_after_percent"] > 99.0
+
+
+@pytest.mark.parametrize("meta, match", [({"load_n": "heavy"}, "'# load_n: heavy' is not a number"),
+                                         ({"ts_s": "0.2"}, "'# ts_s: 0.2' contradicts the t_s column")])
+def test_a_header_that_is_wrong_is_named_with_the_file(tmp_path, meta, match):
+    rec, plant = _files(tmp_path, DEMO_MODEL, drop=("load_n",), metadata=meta)
+    with pytest.raises(RecordingError, match=f"rec.csv: header {match}"):
+        diagnose_files(rec, plant, tmp_path / "out", plots=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_commands_below_0_v_are_diagnosed_not_refused_by_a_band_search(tmp_path):
+    """The amplifier takes -2.5 V off the command (the plant accepts -1..11 V, the valve saturates):
+    the band searches stay within the band's bounds, and the input map explains the offset."""
+    rec, plant = _files(tmp_path, DEMO_MODEL, shift_v=-2.5)
+    d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
+    assert float(np.min(d.u_v)) < 0.0
+    assert doc["verdict"] == "mismatch" and "input_map" in d.named and doc["fit_after_percent"] > 95.0
+
+
+def test_a_diagnosis_replaces_the_files_of_the_one_before_in_its_folder(tmp_path):
+    rec, plant = _files(tmp_path, DEMO_MODEL)
+    out = tmp_path / "out"
+    diagnose_files(rec, plant, out, plots=True)
+    (out / "discriminating_input_2.csv").write_text("an earlier diagnosis's experiment\n")
+    (out / "notes.txt").write_text("the user's\n")
+    diagnose_files(rec, plant, out, plots=False)
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES[:3] + ("notes.txt",))
+    assert ".png" not in (out / "report.md").read_text()
+    (out / "report.md").unlink()
+    (out / "report.md").mkdir()  # a file that cannot be written: nothing of this diagnosis appears
+    before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    with pytest.raises(IsADirectoryError, match="report.md is a directory"):
+        diagnose_files(rec, plant, out, plots=False)
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "plant.json", "rec.csv"]
