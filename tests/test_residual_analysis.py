@@ -10,7 +10,7 @@ import pytest
 from tapmuscle.diagnosis import diagnose
 from tapmuscle.diagnosis.demo import DEMO_MODEL
 from tapmuscle.diagnosis.residual_analysis import (BLOCK_CHOICES, SPLIT_BALANCE, balanced_block_s, direction_imbalance,
-                                                   held_command)
+                                                   held_command, regime_summary)
 from tapmuscle.diagnosis.simulation import Simulator
 
 TS = 0.1
@@ -65,3 +65,18 @@ def test_diagnose_reports_the_block_length_it_chose_and_keeps_one_it_is_given():
     assert diagnose(t, u, y, DEMO_MODEL, candidates=[], calibration=None, block_s=10.0).block_s == 10.0
     with pytest.raises(ValueError, match=r"block_s \(--block\) = 40.0 s"):
         diagnose(t, u, y, DEMO_MODEL, candidates=[], calibration=None, block_s=40.0)
+
+
+def test_the_regimes_of_another_models_output_are_worded_in_its_name_and_unit():
+    """A residual while a speed omega [rad/s] rises: its words, not the muscle's."""
+    ts = 0.05
+    t = np.arange(0, 60, ts)
+    omega = 50 + 40 * np.sin(2 * np.pi * 0.05 * t)
+    energy = np.where(np.gradient(omega) > 0, 1.0, 0.01)
+    text, table = regime_summary(energy, omega, ts, output=("omega", "rad/s"))
+    assert "while omega is rising" in text
+    assert set(table["direction"]) == {"rising", "falling", "steady"}
+    assert all(k.endswith(" rad/s/s)") for k in table["speed"]) and all(k.endswith(" rad/s)") for k in table["displacement"])
+    assert not any(word in text for word in ("contracting", "extending", "mm", "displacement"))
+    muscle, _ = regime_summary(energy, omega, ts)
+    assert "while contracting" in muscle

@@ -355,17 +355,19 @@ def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                   space: ModelSpace, candidates: Sequence[Candidate],
                   calibration: Sequence[NominalParameter] | None, block_s: float,
                   fit_segment_s: float = 120.0, max_effects: int = 3, alpha: float = 1e-3,
-                  min_reduction: float = 0.10, progress: Callable[[int, int], None] | None = None) -> Diagnosis:
+                  min_reduction: float = 0.10, progress: Callable[[int, int], None] | None = None,
+                  output: tuple[str, str] | None = None) -> Diagnosis:
     """The search of :func:`diagnose` for another model family: any simulator (``run``, ``run_many``,
     ``checkpoints``, ``runs``, ``executor`` as :class:`~tapmuscle.diagnosis.simulation.Simulator`), its
     model and :class:`~tapmuscle.diagnosis.model_space.ModelSpace`, on a recording checked by
-    :func:`validated_recording` (``u``: the input the residual is cross-correlated with)."""
+    :func:`validated_recording` (``u``: the input the residual is cross-correlated with; ``output``: the
+    measured output's ``(name, unit)``, in which the findings are worded)."""
     started = time.perf_counter()
     if progress is not None:
         progress(0, len(candidates))
     return _search(sim, t, u, y, ts, None, None, model, block_s=block_s, fit_segment_s=fit_segment_s,
                    candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                   calibration=calibration, progress=progress, started=started, space=space)
+                   calibration=calibration, progress=progress, started=started, space=space, output=output)
 
 
 def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: Sequence[tuple], *,
@@ -591,7 +593,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
             candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
             calibration: Sequence[NominalParameter] | None, progress: Callable[[int, int], None] | None,
-            started: float, space: ModelSpace, use_pressure: bool = False) -> Diagnosis:
+            started: float, space: ModelSpace, use_pressure: bool = False,
+            output: tuple[str, str] | None = None) -> Diagnosis:
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
     n = len(t)
     checkpoint_every = checkpoint_interval(ts)
@@ -1088,7 +1091,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         res_best = next(j[1] for j in joints if j[0].name == best.effect)
         if res_best.located:
             located = res_best.located
-        regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution)
+        regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution, output=output)
         findings.append(Finding(best.effect, best.explanation, best.parameters,
                                 fit_percent(y, best.y_hat, test) - fit_percent(y, ref_y, test), located, regime,
                                 {k: v for k, v in best.evidence.items()}))
@@ -1213,11 +1216,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         findings = [f for f in findings if f.effect not in in_groups]
     if remainder is not None and remainder["material"]:
         located = located_windows(e_after, ts, noise_mm=noise)
-        regime, _ = regime_summary(e_after ** 2, y, ts, p_mpa, signal=e_after)
+        regime, _ = regime_summary(e_after ** 2, y, ts, p_mpa, signal=e_after, output=output)
+        unit = "mm" if output is None else output[1] or "-"
         findings.append(Finding(
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "
-            f"{tests1['rms_mm']:.3f} mm against {noise:.3f} mm of noise, {100.0 * remainder['share']:.1f} % of the "
+            f"{tests1['rms_mm']:.3f} {unit} against {noise:.3f} {unit} of noise, {100.0 * remainder['share']:.1f} % of the "
             f"initial excess) that neither the calibration nor any candidate effect explains",
             {}, 0.0, located, regime, {"remaining_excess_share": remainder["share"]}))
     return Diagnosis(verdict, fit_before, fit_percent(y, y_base, test), findings, base, t, u, y, y0, y_base,
@@ -1225,4 +1229,5 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                                    "autocorrelation_after": ac1, "cross_correlation_after": xc1},
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
-                     ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa, block_s=block_s)
+                     ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa, block_s=block_s,
+                     output=output)

@@ -135,6 +135,14 @@ class Diagnosis:
     displacement alone."""
     block_s: float | None = None
     """Length of the interleaved training / held-out blocks [s]."""
+    output: tuple[str, str] | None = None
+    """``(name, unit)`` of another model's measured output, which the ``*_mm`` fields then hold in its
+    unit; None: the muscle's displacement [mm]."""
+
+    @property
+    def unit(self) -> str:
+        """The unit of the output diagnosed (and of every ``*_mm`` field)."""
+        return "mm" if self.output is None else self.output[1] or "-"
 
     @property
     def named(self) -> list[str]:

@@ -176,7 +176,7 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
                           candidates=cands, calibration=setup.calibration if calibrate else None, block_s=block_s,
                           fit_segment_s=(min(setup.t[-1] - setup.t[0], FIT_SEGMENT_SAMPLES * setup.ts)
                                          if fit_segment_s is None else fit_segment_s),
-                          progress=progress)
+                          progress=progress, output=(setup.output.variable, setup.output.unit))
     finally:
         setup.sim.close()
     doc = _write(d, setup, Path(out), plots)

@@ -45,7 +45,7 @@ def summary_lines(d: Diagnosis) -> list[str]:
     if d.verdict == "no_significant_mismatch":
         t = d.tests_before
         return [f"no significant mismatch: the residual is white noise (whiteness p = {t['whiteness_p']:.2g}, "
-                f"RMS {t['rms_mm']:.4f} mm, noise {t['white_noise_mm']:.4f} mm); held-out fit "
+                f"RMS {t['rms_mm']:.4f} {d.unit}, noise {t['white_noise_mm']:.4f} {d.unit}); held-out fit "
                 f"{d.fit_before_percent:.2f} %"]
     out = []
     if d.calibration is not None:
@@ -60,8 +60,8 @@ def summary_lines(d: Diagnosis) -> list[str]:
                    f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'}")
     rem = d.unexplained
     remainder = ([] if rem is None or rem["material"] else
-                 [f"  a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} mm against "
-                  f"{rem['noise_mm']:.4f} mm of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
+                 [f"  a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} {d.unit} against "
+                  f"{rem['noise_mm']:.4f} {d.unit} of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
                   f"initial excess; reported, not claimed"])
     if d.verdict == "calibration_only":
         white = ("residual white" if rem is None else "residual within the materiality level")

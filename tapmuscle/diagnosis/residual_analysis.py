@@ -241,13 +241,18 @@ def iou(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> float:
 
 
 def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.ndarray | None = None,
-                   *, signal: np.ndarray | None = None, min_ratio: float = 1.3) -> tuple[str, dict]:
+                   *, signal: np.ndarray | None = None, min_ratio: float = 1.3,
+                   output: tuple[str, str] | None = None) -> tuple[str, dict]:
     """In which operating regime does ``energy`` (per-sample squared residual or contribution) concentrate?
 
     Regimes: direction of motion (contracting / extending / holding, from the recorded displacement
     smoothed over 0.5 s), speed, displacement and pressure terciles, and (given the signed ``signal``)
     the frequency at which its power peaks. A regime is reported when its share of the energy is at least
     ``min_ratio`` times its share of the time.
+
+    ``output``: ``(name, unit)`` of another model's measured output in place of the muscle's
+    displacement ``l_mm``; the regimes are then its direction (rising / falling / steady), rate of
+    change and level, in its unit.
 
     Returns
     -------
@@ -261,9 +266,13 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
     k = max(1, int(round(0.5 / ts_s)))
     smooth = moving_sum(l_mm, k, centred=True) / k
     v = np.gradient(smooth, ts_s)
-    hold = max(0.5, 0.1 * float(np.percentile(np.abs(v), 90)))
-    axes: dict[str, dict[str, np.ndarray]] = {
-        "direction": {"contracting": v > hold, "extending": v < -hold, "holding": np.abs(v) <= hold}}
+    if output is None:
+        hold = max(0.5, 0.1 * float(np.percentile(np.abs(v), 90)))  # [mm/s]
+        up, down, still, quantity, unit = "contracting", "extending", "holding", "displacement", "mm"
+    else:  # no unit-bound floor: only the recording's own rates
+        hold = 0.1 * float(np.percentile(np.abs(v), 90))
+        (quantity, unit), (up, down, still) = output, ("rising", "falling", "steady")
+    axes: dict[str, dict[str, np.ndarray]] = {"direction": {up: v > hold, down: v < -hold, still: np.abs(v) <= hold}}
 
     def terciles(x: np.ndarray, unit: str, fmt: str) -> dict[str, np.ndarray]:
         q1, q2 = np.percentile(x, [100 / 3, 200 / 3])
@@ -271,8 +280,8 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
                 f"middle ({fmt.format(q1)}-{fmt.format(q2)} {unit})": (x > q1) & (x <= q2),
                 f"high ({fmt.format(q2)}-{fmt.format(x.max())} {unit})": x > q2}
 
-    axes["speed"] = terciles(np.abs(v), "mm/s", "{:.1f}")
-    axes["displacement"] = terciles(np.asarray(l_mm, float), "mm", "{:.0f}")
+    axes["speed"] = terciles(np.abs(v), f"{unit or '1'}/s", "{:.1f}" if output is None else "{:.3g}")
+    axes["displacement"] = terciles(np.asarray(l_mm, float), unit or "-", "{:.0f}" if output is None else "{:.3g}")
     if p_mpa is not None:
         axes["pressure"] = terciles(np.asarray(p_mpa, float), "MPa", "{:.3f}")
     table: dict = {}
@@ -287,8 +296,9 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
             if ts > 0.05 and es >= min_ratio * ts and (best is None or es / ts > best[2] / best[1]):
                 best = (name, ts, es)
         if best is not None:
-            where = {"direction": f"while {best[0]}", "speed": f"at {best[0]} speed",
-                     "displacement": f"at {best[0]} displacement", "pressure": f"at {best[0]} pressure"}[axis]
+            where = {"direction": f"while {best[0]}" if output is None else f"while {quantity} is {best[0]}",
+                     "speed": f"at {best[0]} speed" if output is None else f"at {best[0]} rate of change of {quantity}",
+                     "displacement": f"at {best[0]} {quantity}", "pressure": f"at {best[0]} pressure"}[axis]
             notes.append(f"{where} ({100 * best[2]:.0f} % of it in {100 * best[1]:.0f} % of the time)")
     if signal is not None:
         f = dominant_frequency_hz(signal, ts_s)
