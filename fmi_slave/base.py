@@ -405,6 +405,9 @@ class SafeSlave(Fmi2Slave):
             return True
         except SlaveInputError as exc:
             return self.fail(f"t = {current_time:g} s: {exc}; outputs keep their last values")
+        except FloatingPointError as exc:  # a documented breakdown of the numerics (extreme parameters): no bug
+            return self.fail(f"t = {current_time:g} s: {exc}; the state and outputs are those of the step's start",
+                             Fmi2Status.error)
         except Exception as exc:  # noqa: BLE001
             return self.fail(f"t = {current_time:g} s: internal error {type(exc).__name__}: {exc}\n"
                              f"{traceback.format_exc(limit=3)}", Fmi2Status.error)

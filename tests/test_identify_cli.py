@@ -133,6 +133,9 @@ def test_bad_box_is_named(records, tmp_path, capsys):
     _, paths = records
     assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "o.json"), "--box", "a1=2"]) == 2
     assert "--box" in capsys.readouterr().err
+    for box, said in (("a1=0:1,a1=2:3", "'a1' is given twice"), ("a1=nan:1", "not NaN")):
+        assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "o.json"), "--box", box]) == 2
+        assert said in capsys.readouterr().err
     with pytest.raises(ValueError, match="unknown parameter 'zz'"):
         identify_record(np.sin(np.arange(300.0)), np.cos(np.arange(300.0)), ts_s=0.1, box={"zz": (0, 1)})
 

@@ -43,6 +43,7 @@ def test_csv_replays_the_u_column(tmp_path):
     ("sine:amp=three", "amp='three' is not a number"), ("sine:amp=inf", "not finite"),
     ("sine:freq=-1", "freq must be >= 0"), ("steps:period=2", "levels"), ("random:lo=8,hi=2", "lo"),
     ("sine:amp", "expected key=value"), ("csv:", "needs a path"),
+    ("sine:freq=0.1,freq=0.2", "'freq' is given twice"),
 ])
 def test_bad_specs_name_the_problem(spec, match):
     with pytest.raises(ValueError, match=match):

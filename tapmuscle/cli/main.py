@@ -133,10 +133,16 @@ def _parse_box(text: str):
         lo, colon, hi = rng.partition(":")
         if not eq or not colon:
             raise UsageError(f"--box: expected name=lower:upper, got {item!r} (e.g. a1=1.208:1.26,b1=0.6:1.2)")
+        name = name.strip()
+        if name in box:
+            raise UsageError(f"--box: {name!r} is given twice")
         try:
-            box[name.strip()] = (float(lo), float(hi))
+            bounds = (float(lo), float(hi))
         except ValueError:
-            raise UsageError(f"--box: bounds of {name.strip()!r} must be numbers, got {rng!r}") from None
+            raise UsageError(f"--box: bounds of {name!r} must be numbers, got {rng!r}") from None
+        if any(math.isnan(b) for b in bounds):  # an infinite one is a one-sided box
+            raise UsageError(f"--box: bounds of {name!r} must be numbers, not NaN, got {rng!r}")
+        box[name] = bounds
     return box
 
 

@@ -80,6 +80,7 @@ def parse_input_spec(spec: str) -> InputSignal:
         raise ValueError(f"input spec {spec!r}: unknown kind {kind!r}; expected one of "
                          f"{', '.join(list(SPEC_KINDS) + ['csv'])}")
     values: dict[str, float | str] = dict(SPEC_KINDS[kind])
+    given: set[str] = set()
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, text = item.partition("=")
         key = key.strip()
@@ -88,6 +89,9 @@ def parse_input_spec(spec: str) -> InputSignal:
         if key not in values:
             raise ValueError(f"input spec {spec!r}: unknown key {key!r} for {kind}; expected "
                              f"{', '.join(values)}")
+        if key in given:  # which one was meant cannot be told
+            raise ValueError(f"input spec {spec!r}: {key!r} is given twice")
+        given.add(key)
         values[key] = text.strip() if key == "levels" else _number(spec, key, text.strip())
     return _BUILDERS[kind](spec, values)
 
