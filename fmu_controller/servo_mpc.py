@@ -161,19 +161,27 @@ class ServoMPC:
         self._Ax = np.ones(a_rows.size)  # rewritten with every P update, see _push_model
 
         self._a1, self._a2, self._b1 = self._check_model(a1, a2, b1)
-        self._set_model(self._a1, self._a2, self._b1)
-
-        P = sp.csc_matrix((self._Px(), self._p_rows.copy(), p_indptr), shape=(hu, hu))
-        A = sp.csc_matrix((self._Ax.copy(), a_rows, a_indptr), shape=(hu, hu))
-        self._prob = osqp.OSQP()
-        # q = 0 at setup, as in every later matrix update (see _push_model)
-        self._prob.setup(
-            P, np.zeros(hu), A,
-            np.full(hu, self._u_min), np.full(hu, self._u_max),
-            verbose=False, polishing=False, rho=_RHO0,
-            eps_abs=settings.eps_abs, eps_rel=settings.eps_rel,
-            max_iter=settings.max_iter, warm_starting=settings.warm_start,
-        )
+        try:
+            self._set_model(self._a1, self._a2, self._b1)
+            if not np.all(np.isfinite(self._qp.H)):
+                raise ValueError("its matrices overflow")
+            P = sp.csc_matrix((self._Px(), self._p_rows.copy(), p_indptr), shape=(hu, hu))
+            A = sp.csc_matrix((self._Ax.copy(), a_rows, a_indptr), shape=(hu, hu))
+            self._prob = osqp.OSQP()
+            # q = 0 at setup, as in every later matrix update (see _push_model)
+            self._prob.setup(
+                P, np.zeros(hu), A,
+                np.full(hu, self._u_min), np.full(hu, self._u_max),
+                verbose=False, polishing=False, rho=_RHO0,
+                eps_abs=settings.eps_abs, eps_rel=settings.eps_rel,
+                max_iter=settings.max_iter, warm_starting=settings.warm_start,
+            )
+        except (np.linalg.LinAlgError, osqp.OSQPException, ValueError) as exc:
+            # a model whose predictions over Hp samples overflow the QP's numbers (a far-off or unstable
+            # initial model): named, rather than the solver's bare error code
+            raise ValueError(f"the servo QP (Eq. (15)-(20)) cannot be set up for the initial model a1 = {self._a1!r}, "
+                             f"a2 = {self._a2!r}, b1 = {self._b1!r} over Hp = {hp} samples ({type(exc).__name__}: {exc}); "
+                             f"is the model (theta0) far off the rig's?") from None
         # Model held by OSQP.  None: push before the first OSQP solve, so that
         # every model OSQP solves with went through _push_model (not setup).
         self._osqp_model: tuple[float, float, float] | None = None

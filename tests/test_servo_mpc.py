@@ -9,6 +9,8 @@ import dataclasses
 import json
 import math
 
+import re
+
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -610,3 +612,9 @@ def test_lean_solve_equals_solve():
     assert 5 < n_osqp < 60  # both paths were taken
     with pytest.raises(ValueError, match="offset_v"):
         b.solve_unchecked(30.0, 30.0, 5.0, 0.0, [30.0] * 6, float("nan"))
+
+
+@pytest.mark.parametrize("a1", [1e100, -1e100])  # predictions over Hp overflow: on any CPU
+def test_an_initial_model_the_qp_cannot_hold_is_named(a1):
+    with pytest.raises(ValueError, match=re.escape(f"initial model a1 = {a1!r}, a2 = -0.33, b1 = 0.8 over Hp = 5 samples")):
+        ServoMPC(ServoMPCSettings(), a1=a1, a2=-0.33, b1=0.8)
