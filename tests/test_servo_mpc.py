@@ -8,7 +8,6 @@ controller's condensed matrices.
 import dataclasses
 import json
 import math
-
 import re
 
 import numpy as np
