@@ -135,3 +135,21 @@ def test_an_empty_output_path_is_refused_in_one_line(capsys, argv):
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "must name a file or folder, got an empty string" in err
     assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["identify", "r.csv", "--json", "DIR"], "--json DIR: a folder, not a file to write"),
+    (["check", "s.toml", "--junit", "DIR"], "--junit DIR: a folder, not a file to write"),
+    (["diagnose", "--recording", "r.csv", "--plant", "p.json", "--out", "FILE"], "--out FILE: a file, not a folder"),
+    (["record", "--load", "44", "--input", "const:value=5", "--duration", "1", "--out", "FILE/r.csv"],
+     "--out FILE/r.csv: FILE is a file, not a folder"),
+])
+def test_an_output_path_of_the_wrong_kind_is_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, said):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "DIR").mkdir()
+    (tmp_path / "FILE").write_text("keep")
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and said in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DIR", "FILE"] and (tmp_path / "FILE").read_text() == "keep"

@@ -187,7 +187,8 @@ def test_a_plot_folder_that_cannot_be_written_leaves_no_json(records, tmp_path, 
     out = tmp_path / "o.json"
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    assert main(["identify", str(paths["train", 44]), "--json", str(out), "--plot", str(blocker / "plots")]) == 2
+    with pytest.raises(SystemExit) as exc:  # refused with the arguments, before identifying
+        main(["identify", str(paths["train", 44]), "--json", str(out), "--plot", str(blocker / "plots")])
     err = capsys.readouterr().err
-    assert "file" in err and len(err.splitlines()) == 1
+    assert exc.value.code == 2 and f"{blocker} is a file, not a folder" in err and len(err.splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]

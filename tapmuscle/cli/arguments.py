@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 from typing import Callable
 
 __all__ = ["number_within", "integer_at_least", "output_path"]
@@ -37,11 +38,23 @@ def integer_at_least(name: str, lo: int, hi: int | None = None) -> Callable[[str
     return parse
 
 
-def output_path(name: str) -> Callable[[str], str]:
-    """Parser of an output path for option ``name``: not empty (an empty path means the current folder,
-    which a command would then try to replace)."""
+def output_path(name: str, kind: str) -> Callable[[str], str]:
+    """Parser of an output path for option ``name``, a ``kind`` ``"file"`` or ``"folder"``: not empty (an
+    empty path means the current folder, which a command would then try to replace), not a folder
+    where a file goes or a file where a folder goes, and under folders (checked before any work, so
+    that a long run does not end in a path it cannot write)."""
     def parse(text: str) -> str:
         if not text.strip():
             raise argparse.ArgumentTypeError(f"{name} must name a file or folder, got an empty string")
+        path = Path(text)
+        if kind == "file" and path.is_dir():
+            raise argparse.ArgumentTypeError(f"{name} {text}: a folder, not a file to write")
+        if kind == "folder" and path.exists() and not path.is_dir():
+            raise argparse.ArgumentTypeError(f"{name} {text}: a file, not a folder to write into")
+        for parent in path.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise argparse.ArgumentTypeError(f"{name} {text}: {parent} is a file, not a folder")
+                break
         return text
     return parse

@@ -182,7 +182,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     dia.add_argument("--output", default=None,
                      help="foreign FMU: the mapped output to diagnose (default: the first); 'all': each mapped "
                           "output in turn, into OUT/<output>/, with OUT/summary.md setting them side by side")
-    dia.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
+    dia.add_argument("--out", type=output_path("--out", "folder"), required=True, help="output folder")
     dia.add_argument("--block", type=number_within("--block", 0.5, 3600.0), default=None,
                      help="length of the interleaved training / held-out blocks [s] (default 10, or, for a "
                           "continuous command (the first input of a foreign FMU) that the training blocks see "
@@ -212,7 +212,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                       "effect concealed in the exact model (every effect x 3 magnitudes x "
                                       "excitations x seeds), clean recordings, a 60-90 s supply sag and the "
                                       "Fig. 20 case (docs/diagnosis.md).")
-    demo.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
+    demo.add_argument("--out", type=output_path("--out", "folder"), required=True, help="output folder")
     demo.add_argument("--suite", choices=("field", "concealed", "foreign"), default="field",
                       help="field recordings (default), the concealed-effect proof, or foreign FMUs (a DC motor "
                            "in C, a thermal two-mass model in pythonfmu) with concealed boundary effects")

@@ -299,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
     rec.add_argument("--seed", type=integer_at_least("--seed", 0, _SEED_MAX), default=0,
                      help="noise seed (0 .. 2**64 - 1)")
-    rec.add_argument("--out", type=output_path("--out"), required=True, help="output CSV path")
+    rec.add_argument("--out", type=output_path("--out", "file"), required=True, help="output CSV path")
     rec.add_argument("--plot", action="store_true", help="also write OUT.png: time traces and hysteresis loop")
     rec.add_argument("--no-noise", action="store_true", help="switch sensor noise off (quantisation stays)")
     rec.add_argument("--params", help="plant parameter file (JSON, as written by `tapmuscle diagnose`)")
@@ -315,8 +315,8 @@ def build_parser() -> argparse.ArgumentParser:
     idf.add_argument("--model", choices=("asymmetric", "standard"), default="asymmetric",
                      help="asymmetric Bouc-Wen (with g(l), 15 parameters) or standard (11)")
     idf.add_argument("--validate", help="a second recording to score the identified model on")
-    idf.add_argument("--json", type=output_path("--json"), required=True, help="output JSON path")
-    idf.add_argument("--plot", type=output_path("--plot"), metavar="DIR",
+    idf.add_argument("--json", type=output_path("--json", "file"), required=True, help="output JSON path")
+    idf.add_argument("--plot", type=output_path("--plot", "folder"), metavar="DIR",
                      help="write convergence, model-vs-measured and loop PNGs into DIR")
     idf.add_argument("--box", default="auto",
                      help="constraint region: auto (Table 2 for mm, V, Ts 0.1 s), none, or name=lo:hi,... "
@@ -331,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Identify the fixed predictor at 44 N, then run the four controllers at 44 and "
                                      "68 N (0.1 Hz) and the servo controllers at 0.2 Hz; write paper.json, run CSVs "
                                      "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
-    pap.add_argument("--out", type=output_path("--out"), default="out/paper", help="output folder (default out/paper)")
+    pap.add_argument("--out", type=output_path("--out", "folder"), default="out/paper", help="output folder (default out/paper)")
     pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
     pap.add_argument("--id-seed", type=integer_at_least("--id-seed", 0, _SEED_MAX), default=None,
                      help="noise seed of the preliminary identification that gives the fixed predictor "
@@ -350,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Co-simulate MusclePlant and AMPCController as a scenario file says "
                                      "(tapmuscle/cosim/spec.py, docs/fmu.md); write result.csv, summary.json, PNGs.")
     run.add_argument("scenario", help="scenario TOML file (e.g. scenarios/paper/ampc_servo_44N_0.1Hz.toml)")
-    run.add_argument("--out", type=output_path("--out"), required=True, help="output folder")
+    run.add_argument("--out", type=output_path("--out", "folder"), required=True, help="output folder")
     run.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
                                        "(default: built from the sources, cached)")
     run.add_argument("--quiet", action="store_true", help="no progress output")
@@ -358,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     bld = sub.add_parser("build", help="build the FMI 2.0 co-simulation FMUs",
                          description="Build MusclePlant.fmu and AMPCController.fmu with pythonfmu (docs/fmu.md).")
-    bld.add_argument("--out", type=output_path("--out"), default="out/fmu", help="output folder (default out/fmu)")
+    bld.add_argument("--out", type=output_path("--out", "folder"), default="out/fmu", help="output folder (default out/fmu)")
     bld.add_argument("--ssp", action="store_true",
                      help="also write TapMuscleLoop.ssp: both FMUs connected, parameter sets for 44 N and 68 N, "
                           "for SSP tools (libcosim, Ecos, OMSimulator)")

@@ -158,7 +158,8 @@ def register(sub: Any) -> None:
                                     "(a rerun skips finished runs), DIR/summary.md and PNGs. Exit status 1 if "
                                     "a run failed or missed its expectations.")
     sw.add_argument("sweep", help="sweep TOML file (e.g. scenarios/sweeps/robustness_mc.toml)")
-    sw.add_argument("--out", type=output_path("--out"), required=True, help="output folder (rerun into the same folder to resume)")
+    sw.add_argument("--out", type=output_path("--out", "folder"), required=True,
+                    help="output folder (rerun into the same folder to resume)")
     _common(sw, "cpus")
     sw.add_argument("--no-plots", action="store_true", help="no PNGs")
     sw.set_defaults(func=_cmd_sweep)
@@ -168,6 +169,6 @@ def register(sub: Any) -> None:
                                     "table under PATH (files or folders); print a pass/fail table, optionally "
                                     "write JUnit XML; exit status 1 on any missed expectation or failed run.")
     ck.add_argument("paths", nargs="+", metavar="PATH", help="scenario/sweep files or folders (searched for *.toml)")
-    ck.add_argument("--junit", type=output_path("--junit"), metavar="FILE", help="write a JUnit XML report (for CI test reports)")
+    ck.add_argument("--junit", type=output_path("--junit", "file"), metavar="FILE", help="write a JUnit XML report (for CI test reports)")
     _common(ck, "zero")
     ck.set_defaults(func=_cmd_check)
