@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from fmu_plant import PlantParams
+from tapmuscle.cli.main import main
 from tapmuscle.diagnosis.demo import DEMO_MODEL, record
 from tapmuscle.diagnosis.report import OUTPUT_FILES, diagnose_files
 from tapmuscle.io.plant_file import plant_file_text
@@ -71,3 +72,10 @@ def test_a_diagnosis_replaces_the_files_of_the_one_before_in_its_folder(tmp_path
         diagnose_files(rec, plant, out, plots=False)
     assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "plant.json", "rec.csv"]
+
+
+def test_asking_for_the_pressure_without_a_pressure_column_is_said(tmp_path, capsys):
+    rec, plant = _files(tmp_path, DEMO_MODEL, drop=("p_mpa",))
+    assert main(["diagnose", "--recording", str(rec), "--plant", str(plant), "--out", str(tmp_path / "out"),
+                 "--use-pressure", "--no-plots", "--quiet", "--workers", "1"]) == 0
+    assert "--use-pressure: the recording has no usable p_mpa column" in capsys.readouterr().out

@@ -50,6 +50,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
+    if args.use_pressure and d.pressure_noise_mpa is None:
+        print("--use-pressure: the recording has no usable p_mpa column (missing, constant, short or not "
+              "finite); judged on the displacement alone")
     for line in summary_lines(d):
         print(line)
     print(f"wrote {out}/diagnosis.json, calibrated_plant.json, report.md"
