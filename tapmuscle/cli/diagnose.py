@@ -12,6 +12,15 @@ from tapmuscle.errors import UsageError
 __all__ = ["register"]
 
 
+def _effect_list(text: str) -> list[str]:
+    """The names of ``--effects`` (comma-separated); a name given twice is refused."""
+    names = [e.strip() for e in text.split(",") if e.strip()]
+    twice = sorted({e for e in names if names.count(e) > 1})
+    if twice:
+        raise UsageError(f"--effects {text!r}: {twice[0]!r} is given twice")
+    return names
+
+
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.report import diagnose_files, summary_lines
 
@@ -29,7 +38,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     out = Path(args.out)
     effects = None
     if args.effects is not None:
-        effects = [e.strip() for e in args.effects.split(",") if e.strip()]
+        effects = _effect_list(args.effects)
         known = [c.name for c in CANDIDATES]
         unknown = [e for e in effects if e not in known]
         if unknown or not effects:
@@ -81,7 +90,7 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.signal_map import SignalMapError
     from tapmuscle.io.recording import RecordingError
 
-    effects = None if args.effects is None else [e.strip() for e in args.effects.split(",") if e.strip()]
+    effects = None if args.effects is None else _effect_list(args.effects)
     options = dict(map_path=args.map, block_s=args.block,
                    fit_segment_s=args.fit_segment, effects=effects,
                    calibrate=not args.no_calibration, plots=not args.no_plots,
@@ -143,7 +152,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     from tapmuscle.diagnosis.demo import EXCITATIONS, MAGNITUDES, run_demo, scores_markdown
 
-    effects = None if args.effects is None else tuple(e.strip() for e in args.effects.split(",") if e.strip())
+    effects = None if args.effects is None else tuple(_effect_list(args.effects))
     if effects is not None and not effects:
         raise UsageError(f"--effects {args.effects!r} names no effect; known: {', '.join(MAGNITUDES)} "
                          "(leave the flag out for all)")
