@@ -14,14 +14,9 @@ import numpy as np
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval
+from tapmuscle.diagnosis.simulation import SimulationError, Simulator, checkpoint_interval
 
 __all__ = ["Problem", "FitResult", "Rejected", "SimulationError", "full_prediction"]
-
-
-class SimulationError(RuntimeError):
-    """A model that cannot be simulated with some parameters (an FMU error, non-finite outputs); the
-    message says which parameters and why."""
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from fmu_plant import Plant, PlantParams
 
 from tapmuscle.errors import UsageError
 
-__all__ = ["Simulator", "noise_free", "checkpoint_interval", "worker_pool", "spawn_context"]
+__all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "spawn_context"]
 
 #: Recording time between the checkpoints a baseline run keeps [s]: a window fit continues from the
 #: last one before its window, so it simulates at most this much more than the window.
@@ -40,6 +40,11 @@ def noise_free(params: PlantParams) -> PlantParams:
 def checkpoint_interval(ts_s: float) -> int:
     """Samples between checkpoints (:data:`CHECKPOINT_S`) at sampling period ``ts_s`` [s]."""
     return max(1, int(round(CHECKPOINT_S / ts_s)))
+
+
+class SimulationError(RuntimeError):
+    """A model that cannot be simulated with some parameters (an FMU error, non-finite outputs, the
+    plant's integration breaking down); the message says which parameters and why."""
 
 
 @dataclass
@@ -99,7 +104,10 @@ class Simulator:
                 self._checkpoints[k] = plant.get_state()
             if load is not None and load[k] != plant.load_n:
                 plant.update(load_n=float(load[k]))
-            m = plant.step(float(u[k]), ts)
+            try:
+                m = plant.step(float(u[k]), ts)
+            except FloatingPointError as exc:  # parameters the plant cannot be integrated with: a failed run
+                raise SimulationError(f"the plant with {_changed(params)}: {exc}") from None
             l[k + 1 - start], p[k + 1 - start] = m.l_mm, m.p_mpa
         self.runs += 1
         return l, p
@@ -175,3 +183,10 @@ def _run_copy(sim: Simulator, params: PlantParams, stop: int | None, pressure: b
     """One run of :meth:`Simulator.run_many` in a worker process."""
     out = sim.run(params, stop=stop)
     return out if pressure else out[0]
+
+
+def _changed(params: PlantParams) -> str:
+    """``params``' values that differ from the defaults, ``group.field=value``, for a message."""
+    nominal = PlantParams().dotted()
+    diff = [f"{k}={v:.6g}" for k, v in params.dotted().items() if v != nominal.get(k)]
+    return ", ".join(diff[:8]) + (f" and {len(diff) - 8} more" if len(diff) > 8 else "") if diff else "its defaults"
