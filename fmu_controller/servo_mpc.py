@@ -162,7 +162,8 @@ class ServoMPC:
 
         self._a1, self._a2, self._b1 = self._check_model(a1, a2, b1)
         try:
-            self._set_model(self._a1, self._a2, self._b1)
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is the error below, not a warning
+                self._set_model(self._a1, self._a2, self._b1)
             if not np.all(np.isfinite(self._qp.H)):
                 raise ValueError("its matrices overflow")
             P = sp.csc_matrix((self._Px(), self._p_rows.copy(), p_indptr), shape=(hu, hu))
