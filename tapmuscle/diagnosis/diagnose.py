@@ -99,7 +99,7 @@ from tapmuscle.diagnosis.residual_analysis import (Correlation, balanced_block_s
                                 cross_correlation_test, fit_percent, interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
-from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding
+from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
@@ -1217,7 +1217,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     if remainder is not None and remainder["material"]:
         located = located_windows(e_after, ts, noise_mm=noise)
         regime, _ = regime_summary(e_after ** 2, y, ts, p_mpa, signal=e_after, output=output)
-        unit = "mm" if output is None else output[1] or "-"
+        unit = output_unit(output)
         findings.append(Finding(
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "

@@ -15,7 +15,7 @@ from fmu_plant import PlantParams
 from tapmuscle.diagnosis.calibration import Calibration
 from tapmuscle.diagnosis.residual_analysis import Correlation
 
-__all__ = ["Finding", "Alternative", "Diagnosis", "VERDICTS"]
+__all__ = ["Finding", "Alternative", "Diagnosis", "VERDICTS", "output_unit"]
 
 #: What ``diagnose`` can conclude.
 VERDICTS = ("no_significant_mismatch", "calibration_only", "mismatch", "ambiguous")
@@ -65,6 +65,11 @@ class Alternative:
         return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
                 "held_out_sse_mm2": round(self.held_out_sse_mm2, 6),
                 "fit_after_percent": round(self.fit_after_percent, 3), "evidence": self.evidence}
+
+
+def output_unit(output: tuple[str, str] | None) -> str:
+    """The unit of the output ``(name, unit)`` a diagnosis is of (None: the muscle's displacement, mm)."""
+    return "mm" if output is None else output[1] or "-"
 
 
 @dataclass
@@ -142,7 +147,7 @@ class Diagnosis:
     @property
     def unit(self) -> str:
         """The unit of the output diagnosed (and of every ``*_mm`` field)."""
-        return "mm" if self.output is None else self.output[1] or "-"
+        return output_unit(self.output)
 
     @property
     def named(self) -> list[str]:

@@ -99,16 +99,16 @@ class Simulator:
         l[0], p[0] = plant.measurement.l_mm, plant.measurement.p_mpa
         if load is not None:
             plant.update(load_n=float(load[start]))
-        for k in range(start, n - 1):
-            if checkpoint_every and k % checkpoint_every == 0:
-                self._checkpoints[k] = plant.get_state()
-            if load is not None and load[k] != plant.load_n:
-                plant.update(load_n=float(load[k]))
-            try:
+        try:
+            for k in range(start, n - 1):
+                if checkpoint_every and k % checkpoint_every == 0:
+                    self._checkpoints[k] = plant.get_state()
+                if load is not None and load[k] != plant.load_n:
+                    plant.update(load_n=float(load[k]))
                 m = plant.step(float(u[k]), ts)
-            except FloatingPointError as exc:  # parameters the plant cannot be integrated with: a failed run
-                raise SimulationError(f"the plant with {_changed(params)}: {exc}") from None
-            l[k + 1 - start], p[k + 1 - start] = m.l_mm, m.p_mpa
+                l[k + 1 - start], p[k + 1 - start] = m.l_mm, m.p_mpa
+        except FloatingPointError as exc:  # parameters the plant cannot be integrated with: a failed run
+            raise SimulationError(f"the plant with {_changed(params)}: {exc}") from None
         self.runs += 1
         return l, p
 

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from fmu_plant.parameters import LoadParams
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import atomic_path
 
@@ -96,7 +98,7 @@ class Recording:
         Raises
         ------
         RecordingError
-            A ``load_n`` header that is not a finite number within 0..500 N (the plant's range).
+            A ``load_n`` header that is not a number within the plant's range (``LoadParams.load_n``).
         """
         if "load_n" in self.columns:
             return self.columns["load_n"]
@@ -107,8 +109,10 @@ class Recording:
             value = float(text)
         except ValueError:
             raise RecordingError(f"header '# load_n: {text}' is not a number [N]") from None
-        if not (math.isfinite(value) and 0.0 <= value <= 500.0):
-            raise RecordingError(f"header '# load_n: {text}' must be a finite load within 0..500 N")
+        try:
+            LoadParams(load_n=value)  # the plant's own range check
+        except ValueError as exc:
+            raise RecordingError(f"header '# load_n: {text}': {exc}") from None
         return np.full(len(self), value)
 
     @property
@@ -305,8 +309,7 @@ def write_recording(path: str | os.PathLike, rec: Recording) -> None:
     for key, value in rec.metadata.items():
         buf.write(f"# {key}: {' '.join(str(value).splitlines())}\n")
     buf.write(",".join(names) + "\n")
-    fmts = [_FORMATS.get(n, "{:.10g}") for n in names]
-    cols = [t_text if n == "t_s" else rec.columns[n] for n in names]
-    for k in range(len(rec)):
-        buf.write(",".join(c[k] if n == "t_s" else f.format(c[k]) for n, f, c in zip(names, fmts, cols)) + "\n")
+    cols = [t_text if n == "t_s" else [_FORMATS.get(n, "{:.10g}").format(v) for v in rec.columns[n]] for n in names]
+    for row in zip(*cols):
+        buf.write(",".join(row) + "\n")
     atomic_write_text(path, buf.getvalue())
