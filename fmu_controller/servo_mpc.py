@@ -89,6 +89,8 @@ __all__ = [
 
 
 # |b1| below this makes the predictor (and offset = H/b1) meaningless.
+# smallest eigenvalue of the QP Hessian, relative to the largest, that OSQP's LDL factorisation takes
+_PD_RTOL = 1e-12
 _B1_MIN = 1e-9
 # An OSQP answer that is not "solved" is still used if it violates Eq. (19)
 # by at most this much [V] and is not worse than the clipped fallback.
@@ -166,6 +168,11 @@ class ServoMPC:
                 self._set_model(self._a1, self._a2, self._b1)
             if not np.all(np.isfinite(self._qp.H)):
                 raise ValueError("its matrices overflow")
+            # OSQP's factorisation needs P positive definite in floating point; a model whose
+            # predictions dwarf the move weight R loses R to rounding (OSQP would print "non-convex")
+            eig = np.linalg.eigvalsh(self._qp.matrices()[0])
+            if not eig[0] > _PD_RTOL * eig[-1]:
+                raise ValueError(f"its Hessian is not numerically positive definite (eigenvalues {eig[0]:.3g} .. {eig[-1]:.3g})")
             P = sp.csc_matrix((self._Px(), self._p_rows.copy(), p_indptr), shape=(hu, hu))
             A = sp.csc_matrix((self._Ax.copy(), a_rows, a_indptr), shape=(hu, hu))
             self._prob = osqp.OSQP()
