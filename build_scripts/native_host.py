@@ -29,8 +29,10 @@ What this module does to the tree:
   its ``pyvenv.cfg``; the base interpreter if that is gone) as the program, so ``Py_Initialize`` uses
   its prefix and site-packages (``TAPMUSCLE_PYTHON`` overrides), (c) registers an exit handler that
   releases pythonfmu's interpreter holder before pythonfmu's own static destructor runs, so the
-  second release is a no-op.
-  In a Python host (fmpy) (a) and (b) change nothing and (c) only reorders a release.
+  second release is a no-op, (d) starts Python (under the dynamic loader's lock: two FMUs whose
+  first instantiations run in parallel threads would otherwise start it twice at once).
+  In a Python host (fmpy) (a), (b) and (d) change nothing and (c) only reorders a release.
+  Every FMI function goes through the loader's shim to pythonfmu's (see ``_LOADER_C``).
 * ``resources/tapmuscle_native.json`` records the building environment's site-packages (a venv's,
   where numpy/scipy/osqp live), the building interpreter and libpython; ``fmi_slave.native_host``
   reads it inside the FMU (see there and docs/fmu-native-hosts.md for ``TAPMUSCLE_SITE_PACKAGES``).
@@ -77,6 +79,8 @@ _LOADER_C = r"""
 #include <wchar.h>
 
 extern int Py_IsInitialized(void);
+extern void Py_InitializeEx(int initsigs);
+extern void *PyEval_SaveThread(void);
 extern void Py_SetProgramName(const wchar_t *name);        /* deprecated in 3.11, still honoured */
 extern wchar_t *Py_DecodeLocale(const char *arg, size_t *size);
 extern void finalizePythonInterpreter(void) __attribute__((weak));   /* pythonfmu's */
@@ -102,6 +106,15 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
             wchar_t *name = Py_DecodeLocale(python, NULL);   /* kept for the life of the process */
             if (name) Py_SetProgramName(name);
         }
+        /* (d) and start it here. Each pythonfmu binary starts Python at its first fmi2Instantiate under a
+               lock of its own, so a parallel master instantiating the plant and the controller at once
+               ran two Py_Initialize together (a segfault); constructors run under the dynamic loader's
+               lock, one library at a time. No signal handlers: the host keeps its Ctrl-C. The GIL is
+               released for the host's threads. pythonfmu then finds Python running and never finalises
+               it, so a C host exits without Py_Finalize (which pythonfmu runs in a thread of its own;
+               this thread may be gone by then). */
+        Py_InitializeEx(0);
+        PyEval_SaveThread();
     }
     /* (c) see release_pythonfmu_interpreter. atexit() in a shared library runs its handler when the
            library is unloaded, and hosts (fmpy) dlclose the FMU at fmi2FreeInstance: the handler would
@@ -198,18 +211,42 @@ static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
    call. pythonfmu brackets every call with PyGILState_Ensure/Release, which otherwise creates and
    destroys a thread state each time (mmap and munmap of its frame stack: six per closed-loop step).
    The GIL is released again at once, so other threads (a parallel master's) can run the FMUs. */
+#include <pthread.h>
 typedef int PyGILState_STATE_;
 extern PyGILState_STATE_ PyGILState_Ensure(void);
 extern void *PyGILState_GetThisThreadState(void);
-extern void *PyEval_SaveThread(void);
+extern void PyEval_RestoreThread(void *tstate);
+extern void PyThreadState_Clear(void *tstate);
+extern void PyThreadState_DeleteCurrent(void);
+extern int _Py_IsFinalizing(void) __attribute__((weak));  /* 3.11, 3.12 */
+extern int Py_IsFinalizing(void) __attribute__((weak));   /* 3.13 on */
 static __thread int thread_pinned;
+static pthread_key_t pin_key;
+static pthread_once_t pin_once = PTHREAD_ONCE_INIT;
+static int pin_key_made;
+
+/* At the exit of a pinned thread its thread state is deleted: a master that starts new threads (per
+   run, per step) would otherwise leak one per thread. Not with PyGILState_Release: the C library may
+   already have cleared Python's own thread-local slot of this exiting thread. */
+static void unpin_thread(void *saved) {
+    if (!Py_IsInitialized() || (Py_IsFinalizing ? Py_IsFinalizing() : _Py_IsFinalizing ? _Py_IsFinalizing() : 0))
+        return;
+    PyEval_RestoreThread(saved);
+    PyThreadState_Clear(saved);
+    PyThreadState_DeleteCurrent();   /* and releases the GIL */
+}
+
+static void make_pin_key(void) { pin_key_made = pthread_key_create(&pin_key, unpin_thread) == 0; }
 
 static void pin_thread(void) {
+    void *saved;
     if (thread_pinned || !Py_IsInitialized()) return;
     thread_pinned = 1;
-    if (PyGILState_GetThisThreadState()) return;   /* a Python thread (fmpy): it has its state */
+    if (PyGILState_GetThisThreadState()) return;   /* a Python thread (fmpy), or pinned by the other FMU */
     PyGILState_Ensure();
-    PyEval_SaveThread();
+    saved = PyEval_SaveThread();
+    pthread_once(&pin_once, make_pin_key);
+    if (pin_key_made) pthread_setspecific(pin_key, saved);
 }
 
 static fmi2Status settle(Shim *s, fmi2Status returned) {
@@ -353,13 +390,77 @@ FORWARD(fmi2SetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t 
         (s->inner, vr, n, v), fmi2Warning, NOTHING)
 FORWARD(fmi2SetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]),
         (s->inner, vr, n, v), fmi2Warning, NOTHING)
-FORWARD(fmi2GetFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st), fmi2Error, NOTHING)
 FORWARD(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate st), (s->inner, st), fmi2Error, NOTHING)
-FORWARD(fmi2FreeFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st), fmi2Error, NOTHING)
 FORWARD(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate st, size_t *n), (s->inner, st, n), fmi2Error, NOTHING)
 FORWARD(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t n), (s->inner, st, b, n), fmi2Error, NOTHING)
-FORWARD(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st),
-        (s->inner, b, n, st), fmi2Error, NOTHING)
+
+/* FMU states as FMI 2.0 (2.1.8) has them; pythonfmu always makes a new state and never clears a freed
+   pointer. fmi2FreeFMUstate sets *st to NULL and ignores a NULL state (a host may free twice). */
+FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *st) {
+    Shim *s = (Shim *)c;
+    static fmi2FreeFMUstateTYPE *fn;
+    fmi2Status status;
+    if (!s) return fmi2Error;
+    if (!s->inner) return refuse(s, "fmi2FreeFMUstate", fmi2Error);
+    if (!st || !*st) return fmi2OK;
+    if (!fn) fn = (fmi2FreeFMUstateTYPE *)real("fmi2FreeFMUstate");
+    if (!fn) return refuse(s, "fmi2FreeFMUstate", fmi2Error);
+    pin_thread();
+    s->worst = fmi2OK;
+    status = settle(s, fn(s->inner, st));
+    if (status <= fmi2Warning) *st = NULL;
+    return status;
+}
+
+/* fmi2GetFMUstate and fmi2DeSerializeFMUstate given a state the host already holds update that
+   state: the host owns one state, not two, so the one pythonfmu replaced is freed here (else every
+   such call leaks a state; masters that rewind reuse one pointer). */
+static fmi2Status replace_state(Shim *s, fmi2FMUstate *st, fmi2FMUstate old, fmi2Status status) {
+    static fmi2FreeFMUstateTYPE *release;
+    if (status > fmi2Warning || !old || old == *st) return status;
+    if (!release) release = (fmi2FreeFMUstateTYPE *)real("fmi2FreeFMUstate");
+    if (release) {
+        s->worst = fmi2OK;
+        settle(s, release(s->inner, &old));
+    }
+    return status;
+}
+
+FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st) {
+    Shim *s = (Shim *)c;
+    static fmi2GetFMUstateTYPE *fn;
+    fmi2FMUstate old;
+    if (!s) return fmi2Error;
+    if (!s->inner) return refuse(s, "fmi2GetFMUstate", fmi2Error);
+    if (!fn) fn = (fmi2GetFMUstateTYPE *)real("fmi2GetFMUstate");
+    if (!fn) return refuse(s, "fmi2GetFMUstate", fmi2Error);
+    if (!st) {
+        to_host(s, s->name, fmi2Error, "logStatusError", "fmi2GetFMUstate: the FMUstate pointer is NULL");
+        return fmi2Error;
+    }
+    pin_thread();
+    old = *st;
+    s->worst = fmi2OK;
+    return replace_state(s, st, old, settle(s, fn(s->inner, st)));
+}
+
+FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st) {
+    Shim *s = (Shim *)c;
+    static fmi2DeSerializeFMUstateTYPE *fn;
+    fmi2FMUstate old;
+    if (!s) return fmi2Error;
+    if (!s->inner) return refuse(s, "fmi2DeSerializeFMUstate", fmi2Error);
+    if (!fn) fn = (fmi2DeSerializeFMUstateTYPE *)real("fmi2DeSerializeFMUstate");
+    if (!fn) return refuse(s, "fmi2DeSerializeFMUstate", fmi2Error);
+    if (!st) {
+        to_host(s, s->name, fmi2Error, "logStatusError", "fmi2DeSerializeFMUstate: the FMUstate pointer is NULL");
+        return fmi2Error;
+    }
+    pin_thread();
+    old = *st;
+    s->worst = fmi2OK;
+    return replace_state(s, st, old, settle(s, fn(s->inner, b, n, st)));
+}
 FORWARD(fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu,
         const fmi2ValueReference k[], size_t nk, const fmi2Real dk[], fmi2Real du[]), (s->inner, u, nu, k, nk, dk, du), fmi2Error, NOTHING)
 FORWARD(fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],
@@ -498,7 +599,7 @@ def prepare_for_native_hosts(tree: Path) -> None:
         loader = tmp / f"{model_id}.so"
         _run([*cc, "-shared", "-fPIC", "-O2", f"-I{_FMI_HEADERS}", "-o", str(loader), str(source),
               "-Wl,--no-as-needed", f"-L{tmp}", f"-l:{real_name}", f"-L{env['libdir']}",
-              f"-l:{env['libpython_soname']}", "-ldl",
+              f"-l:{env['libpython_soname']}", "-ldl", "-pthread",
               # $ORIGIN: the pythonfmu binary beside it; libdir: libpython. nodelete: like pythonfmu's
               # binary (which has STB_GNU_UNIQUE symbols), never unloaded, so the exit handler stays valid.
               "-Wl,--enable-new-dtags", "-Wl,-rpath,$ORIGIN", f"-Wl,-rpath,{env['libdir']}",

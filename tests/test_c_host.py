@@ -76,6 +76,18 @@ def host(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def threaded_host(tmp_path_factory) -> Path:
+    """tests/c_host/threaded_host.c (a parallel master's threads) compiled into a temporary folder."""
+    gcc = shutil.which("gcc") or shutil.which("cc")
+    assert gcc, "gcc is needed to build the FMUs for native hosts and this test's host"
+    exe = tmp_path_factory.mktemp("threaded_host") / "threaded_host"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    subprocess.run([gcc, "-std=gnu11", "-O2", "-Wall", "-Wextra", "-pthread", "-I", str(headers), "-o", str(exe),
+                    str(HOST_SOURCE.with_name("threaded_host.c")), "-ldl"], check=True)
+    return exe
+
+
+@pytest.fixture(scope="module")
 def plant(built_fmus, tmp_path_factory) -> Fmu:
     return Fmu(built_fmus["MusclePlant"], tmp_path_factory.mktemp("MusclePlant"))
 
@@ -302,3 +314,56 @@ def test_fmpy_missing_dependency_message(controller, tmp_path):
     assert "failed: " in proc.stdout
     assert "tapmuscle FMU: cannot import osqp; install it into the Python the FMU uses: " in proc.stdout
     assert "-m pip install osqp" in proc.stdout
+
+
+def _threaded(threaded_host, plant, controller, tmp, mode, **keys) -> subprocess.CompletedProcess:
+    """threaded_host MODE in a fresh plain process (Python started by the FMUs, not yet running)."""
+    args = [str(threaded_host), mode, *plant.args("P", u="u", l="l", load="load"),
+            *controller.args("C", l="l", u="u"), *(f"{k}={v}" for k, v in keys.items())]
+    return subprocess.run(args, capture_output=True, text=True, timeout=180, env=plain_env(tmp))
+
+
+def _key_values(stdout: str) -> dict[str, str]:
+    return dict(line.split("=", 1) for line in stdout.splitlines() if "=" in line)
+
+
+@pytest.mark.slow
+def test_a_parallel_master_instantiates_and_steps_both_loops_at_once_as_one_thread_does(
+        threaded_host, plant, controller, tmp_path):
+    # The process's first fmi2Instantiate of the plant and of the controller in two threads at the same
+    # moment (each pythonfmu binary would start Python under a lock of its own: two Py_Initialize at once
+    # crashed 19 of 20 such processes), then every fmi2DoStep of a step in its own thread. The same
+    # binaries, inputs and environment as the one-thread run: the threads change only who calls, so the
+    # trajectories are the same bit for bit (hex floats).
+    alone = _threaded(threaded_host, plant, controller, tmp_path, "loops", threads=1)
+    assert alone.returncode == 0, alone.stderr[-3000:]
+    rows = alone.stdout.splitlines()
+    assert len(rows) == 601
+    last = rows[-1].split(",")
+    assert all(10.0 < float.fromhex(last[i]) < 80.0 for i in (1, 3))  # both loops track (l in mm)
+    assert last[1] != last[3]  # 44 N and 68 N are two different loops
+    for run in range(5):
+        parallel = _threaded(threaded_host, plant, controller, tmp_path, "loops", threads=4)
+        assert parallel.returncode == 0, f"run {run}: exit {parallel.returncode}\n{parallel.stderr[-3000:]}"
+        assert parallel.stdout == alone.stdout, f"run {run}"
+
+
+def test_fmu_states_are_updated_freed_and_nulled_as_fmi2_says(threaded_host, plant, controller, tmp_path):
+    # 2000 fmi2GetFMUstate and 2000 fmi2DeSerializeFMUstate into the state the host holds (FMI 2.0,
+    # 2.1.8: that state is updated, the host owns one): a leak of the replaced states would grow RSS by
+    # about 2.9 and 11 kB per call (5.7 and 23 MB); 1 MB bounds the allocator's own noise.
+    proc = _threaded(threaded_host, plant, controller, tmp_path, "states", steps=2000)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = _key_values(proc.stdout)
+    assert int(out["get_into_held_state_kb"]) < 1000, out
+    assert int(out["deserialize_into_held_state_kb"]) < 1000, out
+    assert out["pointer_after_free"] == "NULL"  # "returns a null pointer in argument FMUstate"
+    assert out["second_free_status"] == "0"  # a null pointer: the call is ignored (fmi2OK)
+
+
+def test_host_threads_that_exit_leave_no_python_thread_state_behind(threaded_host, plant, controller, tmp_path):
+    # 2000 short-lived host threads, one fmi2GetReal each (a master that starts threads per run or per
+    # step): each thread's Python thread state (about 4.4 kB) is deleted when the thread exits.
+    proc = _threaded(threaded_host, plant, controller, tmp_path, "threads", steps=2000)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert int(_key_values(proc.stdout)["rss_growth_kb"]) < 1000, proc.stdout
