@@ -656,7 +656,7 @@ def test_distinguishable_separates_a_real_difference_from_noise():
 
 
 @pytest.mark.slow
-def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path):
+def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
     """The report designs and writes the experiment for every ambiguous group (the alternatives here
     are made by hand: a delay and a load that the recording would not have told apart)."""
     from tapmuscle.diagnosis.diagnose import Alternative
@@ -692,6 +692,20 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path):
         {k: v for k, v in cal.items() if k not in ("delay.delay_s", "load_mismatch.extra_n")}
     assert ("--plant discriminate_plant.json --effects transport_delay,load_mismatch"
             in (tmp_path / "report.md").read_text())
+    # the record command the report prints runs as printed, at the recording's load and period
+    import re
+    import shlex
+
+    from tapmuscle.cli.main import main
+    from tapmuscle.io.recording import read_recording
+
+    printed = re.search(r"`(tapmuscle record [^`]*)`", (tmp_path / "report.md").read_text()).group(1)
+    assert printed == group["experiment"]["record"]
+    monkeypatch.chdir(tmp_path)
+    assert main(shlex.split(printed)[1:] + ["--quiet"]) == 0
+    new = read_recording(tmp_path / "NEW.csv")
+    assert np.all(new.load_n == DEMO_MODEL.load.load_n) and new.t_s[-1] == pytest.approx(60.0)
+    assert np.allclose(new.u_v, [signal(t) for t in new.t_s], atol=1e-6)
 
 
 @pytest.mark.slow

@@ -233,12 +233,27 @@ def _predict(u: np.ndarray, ts_s: float, plants: Sequence[PlantParams]) -> list[
     return [sim.run(p)[0] for p in plants]
 
 
-def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequence[str], ts_s: float) -> None:
-    """Write ``exp`` as a ``tapmuscle record --input csv:`` file (atomically)."""
+def record_command(file: str, *, duration_s: float, ts_s: float, load_n: float | None,
+                   out: str = "NEW.csv") -> str:
+    """The ``tapmuscle record`` command that runs the experiment file ``file`` on the simulated rig at
+    the diagnosed recording's load [N] and sampling period [s] (``LOAD_N`` where it had no load), into
+    ``out``: as printed, it runs."""
+    load = "LOAD_N" if load_n is None else f"{load_n:g}"
+    return (f"tapmuscle record --load {load} --ts {ts_s:g} --input csv:{file} --duration {duration_s:g} "
+            f"--out {out}")
+
+
+def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequence[str], ts_s: float,
+                     load_n: float | None = None) -> None:
+    """Write ``exp`` as a ``tapmuscle record --input csv:`` file (atomically); ``load_n`` [N] is the
+    load to run it at (the diagnosed recording's)."""
     from tapmuscle.io.recording import Recording, write_recording
 
+    command = record_command(Path(path).name, duration_s=exp.duration_s, ts_s=ts_s, load_n=load_n)
     meta = {"ts_s": f"{ts_s:g}", "source": "tapmuscle diagnose: discriminating experiment",
             "alternatives": ", ".join(alternatives),
-            "note": f"run it with: tapmuscle record --input csv:{Path(path).name} --duration {exp.duration_s:g}; "
+            "note": f"apply it to the rig, or to the simulated rig with: {command}; "
                     f"predicted separation {exp.separation_sigma:.0f} sigma"}
+    if load_n is not None:
+        meta["load_n"] = f"{load_n:g}"
     write_recording(path, Recording(exp.columns(), meta))

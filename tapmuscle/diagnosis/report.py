@@ -19,7 +19,7 @@ from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text,
 
 from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
-from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
+from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, record_command, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
@@ -113,8 +113,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             e = experiments[i - 1]
             lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
                       f"alternatives' predictions differ by at least {e['separation_sigma']:.0f} noise sd "
-                      f"({e['min_rms_difference_mm']:.3f} mm RMS). Record it (`tapmuscle record --input csv:{e['file']} "
-                      f"--duration {e['duration_s']:g}`) and diagnose the new recording with `{e['plant']}` "
+                      f"({e['min_rms_difference_mm']:.3f} mm RMS). Apply it to the rig at this recording's load "
+                      f"(the simulated rig: `{e['record']}`) and diagnose the new recording with `{e['plant']}` "
                       f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}`.", ""]
     lines += ["## Findings", ""]
     if not d.findings:
@@ -287,7 +287,9 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     suffix = "" if index == 0 else f"_{index + 1}"
     name = EXPERIMENT_FILE.replace(".csv", f"{suffix}.csv")
     plant_name = EXPERIMENT_PLANT_FILE.replace(".json", f"{suffix}.json")
-    load = float(d.load_n[0]) if d.load_n is not None else None
+    # the load the diagnosis simulated: the recording's column, else the model's (a rig's load is not in doubt)
+    load = (float(d.load_n[0]) if d.load_n is not None
+            else float(d.nominal.load.load_n) if d.nominal is not None else None)
     duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
     # within the commands the recording covered, where the alternatives were fitted (design_input)
     span = (float(np.clip(np.min(d.u_v), U_MIN_V, U_MAX_V)), float(np.clip(np.max(d.u_v), U_MIN_V, U_MAX_V)))
@@ -295,7 +297,7 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
                        noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, u_span_v=span,
                        executor=executor)
     effects = [a.effect for a in group]
-    write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s)
+    write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s, load_n=load)
     # The re-diagnosis starts from the constants this recording identified: the experiment's recording
     # was designed to separate the alternatives, not to pin the constants, and recalibrated from the
     # nominal plant on it they would take up again what the alternatives differ in.
@@ -304,7 +306,8 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
         base, f"the calibrated plant without {', '.join(effects)}: re-diagnose the recording of {name} with it"))
     command = (f"tapmuscle diagnose --recording NEW.csv --plant {plant_name} --effects {','.join(effects)} "
                "--out NEW_DIAGNOSIS")
-    return {"file": name, "plant": plant_name, "rediagnose": command} | exp.to_json()
+    record = record_command(name, duration_s=exp.duration_s, ts_s=d.ts_s, load_n=load)
+    return {"file": name, "plant": plant_name, "record": record, "rediagnose": command} | exp.to_json()
 
 
 def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *, plots: bool = True,
