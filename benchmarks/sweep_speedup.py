@@ -4,8 +4,8 @@ The runs: the four controllers x 16 Monte-Carlo operating points (load U(30, 90)
 U(0.20, 0.30) MPa, own noise seed), 45 s of the 0.1 Hz sine each, through the FMUs, as
 ``tapmuscle sweep`` runs them (:class:`tapmuscle.cosim.distributed_sweep.DaskExecutor`, one task per run).
 Timed: from submitting the 64 tasks to the last result (best of ``--repeat``, the three set-ups
-interleaved, a new cluster each time); the cluster's start and one warm-up run per worker (imports,
-FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up
+interleaved, a new cluster each time); the cluster's start and a warm-up run of each controller method
+on every worker (imports, FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up
 2 workers / 1 worker >= 1.8 on the 2-core development machine.
 
     python benchmarks/sweep_speedup.py [--repeat 5] [--runs 64]
@@ -17,7 +17,7 @@ import argparse
 import time
 
 from build_scripts.build_fmus import cached_fmus
-from tapmuscle.cosim.distributed_sweep import DaskExecutor, FmuFiles, dask_client, make_task, run_serial
+from tapmuscle.cosim.distributed_sweep import DaskExecutor, FmuFiles, _worker_run, dask_client, make_task, run_serial
 from tapmuscle.cosim.sweep import parse_sweep
 
 
@@ -39,12 +39,23 @@ def _timed(execute, tasks, files) -> tuple[float, int]:
     return time.perf_counter() - t0, ok
 
 
+def _warm_up(client, tasks, files) -> None:
+    """Every worker runs one task of each controller method, untimed: its imports (the servo methods'
+    OSQP and SciPy among them), FMU extraction and pooled instances are then in place, as in the
+    process that runs the in-process set-up."""
+    shipped = client.scatter(files.without_local(), broadcast=True, hash=False)
+    first = {}
+    for task in tasks:
+        first.setdefault(task.scenario.method, task)
+    client.gather([client.submit(_worker_run, task, shipped, workers=[worker], allow_other_workers=False, pure=False)
+                   for worker in client.scheduler_info()["workers"] for task in first.values()])
+
+
 def _on_cluster(workers: int, tasks, files) -> tuple[float, int]:
     """One timed sweep on a fresh local cluster of ``workers`` (started and warmed up untimed)."""
     with dask_client(workers) as client:  # the local cluster of `tapmuscle sweep --workers N`
-        executor = DaskExecutor(client)
-        list(executor(tasks[:workers * 2], files))  # warm-up: imports and FMU extraction on every worker
-        return _timed(executor, tasks, files)
+        _warm_up(client, tasks, files)
+        return _timed(DaskExecutor(client), tasks, files)
 
 
 def _report(label: str, best: float, n: int, ok: int | None = None) -> None:
@@ -59,7 +70,7 @@ def main() -> None:
     args = parser.parse_args()
     tasks, files = _tasks(args.runs, cached_fmus())
     print(f"{len(tasks)} runs of 45 s (4 controllers x {len(tasks) // 4} operating points), best of {args.repeat}")
-    list(run_serial(tasks[:2], files))  # warm-up
+    list(run_serial(list({task.scenario.method: task for task in tasks}.values()), files))  # warm-up, every method
     # Interleaved rounds (in-process, 1 worker, 2 workers, again ...), each cluster new: the machine
     # is shared and its speed drifts by 10-40 % over minutes, which would otherwise favour whichever
     # set-up ran in a quiet spell.
