@@ -426,41 +426,30 @@ static fmi2Status replace_state(Shim *s, fmi2FMUstate *st, fmi2FMUstate old, fmi
     return status;
 }
 
-FMI2_Export fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *st) {
-    Shim *s = (Shim *)c;
-    static fmi2GetFMUstateTYPE *fn;
-    fmi2FMUstate old;
-    if (!s) return fmi2Error;
-    if (!s->inner) return refuse(s, "fmi2GetFMUstate", fmi2Error);
-    if (!fn) fn = (fmi2GetFMUstateTYPE *)real("fmi2GetFMUstate");
-    if (!fn) return refuse(s, "fmi2GetFMUstate", fmi2Error);
-    if (!st) {
-        to_host(s, s->name, fmi2Error, "logStatusError", "fmi2GetFMUstate: the FMUstate pointer is NULL");
-        return fmi2Error;
+/* fmi2X(fmi2Component c, PARAMS) that writes a state into *st: forwarded with ARGS, the replaced
+   state freed (replace_state). */
+#define REPLACE_STATE(X, PARAMS, ARGS)                                                                 \
+    FMI2_Export fmi2Status X PARAMS {                                                                  \
+        Shim *s = (Shim *)c;                                                                           \
+        static X##TYPE *fn;                                                                            \
+        fmi2FMUstate old;                                                                              \
+        if (!s) return fmi2Error;                                                                      \
+        if (!s->inner) return refuse(s, #X, fmi2Error);                                                \
+        if (!fn) fn = (X##TYPE *)real(#X);                                                             \
+        if (!fn) return refuse(s, #X, fmi2Error);                                                      \
+        if (!st) {                                                                                     \
+            to_host(s, s->name, fmi2Error, "logStatusError", #X ": the FMUstate pointer is NULL");     \
+            return fmi2Error;                                                                          \
+        }                                                                                              \
+        pin_thread();                                                                                  \
+        old = *st;                                                                                     \
+        s->worst = fmi2OK;                                                                             \
+        return replace_state(s, st, old, settle(s, fn ARGS));                                          \
     }
-    pin_thread();
-    old = *st;
-    s->worst = fmi2OK;
-    return replace_state(s, st, old, settle(s, fn(s->inner, st)));
-}
 
-FMI2_Export fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st) {
-    Shim *s = (Shim *)c;
-    static fmi2DeSerializeFMUstateTYPE *fn;
-    fmi2FMUstate old;
-    if (!s) return fmi2Error;
-    if (!s->inner) return refuse(s, "fmi2DeSerializeFMUstate", fmi2Error);
-    if (!fn) fn = (fmi2DeSerializeFMUstateTYPE *)real("fmi2DeSerializeFMUstate");
-    if (!fn) return refuse(s, "fmi2DeSerializeFMUstate", fmi2Error);
-    if (!st) {
-        to_host(s, s->name, fmi2Error, "logStatusError", "fmi2DeSerializeFMUstate: the FMUstate pointer is NULL");
-        return fmi2Error;
-    }
-    pin_thread();
-    old = *st;
-    s->worst = fmi2OK;
-    return replace_state(s, st, old, settle(s, fn(s->inner, b, n, st)));
-}
+REPLACE_STATE(fmi2GetFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st))
+REPLACE_STATE(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st),
+              (s->inner, b, n, st))
 FORWARD(fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu,
         const fmi2ValueReference k[], size_t nk, const fmi2Real dk[], fmi2Real du[]), (s->inner, u, nu, k, nk, dk, du), fmi2Error, NOTHING)
 FORWARD(fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],

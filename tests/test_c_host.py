@@ -63,28 +63,29 @@ class Fmu:
         return f
 
 
-@pytest.fixture(scope="module")
-def host(tmp_path_factory) -> Path:
-    """tests/c_host/fmi_host.c compiled into a temporary folder."""
+def _compile(tmp_path_factory, source: str, *, std: str, libs: list[str]) -> Path:
+    """tests/c_host/``source`` compiled with gcc (``-std=STD``, linked with ``-ldl`` and ``libs``) and
+    fmpy's FMI headers into a temporary folder."""
     gcc = shutil.which("gcc") or shutil.which("cc")
     assert gcc, "gcc is needed to build the FMUs for native hosts and this test's host"
-    exe = tmp_path_factory.mktemp("c_host") / "fmi_host"
+    name = Path(source).stem
+    exe = tmp_path_factory.mktemp(name) / name
     headers = Path(fmpy.__file__).parent / "c-code"
-    subprocess.run([gcc, "-std=c99", "-O2", "-Wall", "-Wextra", "-I", str(headers), "-o", str(exe),
-                    str(HOST_SOURCE), "-ldl", "-lm"], check=True)
+    subprocess.run([gcc, f"-std={std}", "-O2", "-Wall", "-Wextra", "-I", str(headers), "-o", str(exe),
+                    str(HOST_SOURCE.with_name(source)), "-ldl", *libs], check=True)
     return exe
+
+
+@pytest.fixture(scope="module")
+def host(tmp_path_factory) -> Path:
+    """tests/c_host/fmi_host.c compiled."""
+    return _compile(tmp_path_factory, "fmi_host.c", std="c99", libs=["-lm"])
 
 
 @pytest.fixture(scope="module")
 def threaded_host(tmp_path_factory) -> Path:
-    """tests/c_host/threaded_host.c (a parallel master's threads) compiled into a temporary folder."""
-    gcc = shutil.which("gcc") or shutil.which("cc")
-    assert gcc, "gcc is needed to build the FMUs for native hosts and this test's host"
-    exe = tmp_path_factory.mktemp("threaded_host") / "threaded_host"
-    headers = Path(fmpy.__file__).parent / "c-code"
-    subprocess.run([gcc, "-std=gnu11", "-O2", "-Wall", "-Wextra", "-pthread", "-I", str(headers), "-o", str(exe),
-                    str(HOST_SOURCE.with_name("threaded_host.c")), "-ldl"], check=True)
-    return exe
+    """tests/c_host/threaded_host.c (a parallel master's threads) compiled."""
+    return _compile(tmp_path_factory, "threaded_host.c", std="gnu11", libs=["-pthread"])
 
 
 @pytest.fixture(scope="module")
