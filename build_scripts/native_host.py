@@ -207,7 +207,7 @@ static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
     return status;
 }
 
-/* A thread with no Python thread state (any thread of a C host) gets one for good at its first FMI
+/* A thread with no Python thread state (any thread of a C host) gets one for its life at its first FMI
    call. pythonfmu brackets every call with PyGILState_Ensure/Release, which otherwise creates and
    destroys a thread state each time (mmap and munmap of its frame stack: six per closed-loop step).
    The GIL is released again at once, so other threads (a parallel master's) can run the FMUs. */
