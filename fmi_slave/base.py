@@ -175,6 +175,8 @@ class SafeSlave(Fmi2Slave):
             for name, value in table.items():
                 meta = self.variable_meta.get(name, {})
                 lo, hi = meta.get("min"), meta.get("max")
+                if value != value:  # NaN passes every comparison below
+                    raise SlaveInputError(f"parameter {name} = {value!r} is not finite")
                 if (lo is not None and value < lo) or (hi is not None and value > hi):
                     span = f"{'-inf' if lo is None else f'{lo:g}'}..{'inf' if hi is None else f'{hi:g}'}"
                     var = next((v for v in self.vars.values() if v.name == name), None)
@@ -225,6 +227,7 @@ class SafeSlave(Fmi2Slave):
         super().register_variable(var, nested)
         self._real_io = None
         self._readers, self._writers = {}, {}
+        self.__dict__.pop("_output_vrs", None)
 
     def _real_tables(self) -> tuple[dict[int, Any], dict[int, Any], dict[int, str]]:
         reals = [(vr, var) for vr, var in self.vars.items() if isinstance(var, Real)]
@@ -267,10 +270,11 @@ class SafeSlave(Fmi2Slave):
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         """pythonfmu's ``set_real`` (see :meth:`get_real`): attribute-backed Reals are written into
-        ``self.__dict__`` in one update, as pythonfmu's default setter (``setattr``) would."""
+        ``self.__dict__`` in one update, as pythonfmu's default setter (``setattr``) would. Refused
+        (logged error, nothing written) after fmi2Terminate, and for an output after initialisation."""
         try:
             names = self._writers.get(tuple(vrs))
-            if names is not None:
+            if names is not None and not self._terminated:
                 self.__dict__.update(zip(names, values))
                 return
             _, setters, attributes = self._real_io or self._real_tables()
@@ -278,13 +282,40 @@ class SafeSlave(Fmi2Slave):
             if missing:
                 self._wrong_reference(missing[0], Real, vrs, None)
                 return
+            if self._refused_set("fmi2SetReal", vrs):
+                return
             for vr, value in zip(vrs, values):
                 setters[vr](value)
-            if vrs and len(self._writers) < self._MAX_COMPILED and all(vr in attributes for vr in vrs):
+            # outputs are never compiled: the compiled path does not check the mode
+            if (vrs and len(self._writers) < self._MAX_COMPILED and all(vr in attributes for vr in vrs)
+                    and not any(vr in self._outputs for vr in vrs)):
                 self._writers[tuple(vrs)] = tuple(attributes[vr] for vr in vrs)
         except BaseException:
             self._keep_references()
             raise
+
+    @property
+    def _outputs(self) -> frozenset[int]:
+        """Value references of the outputs (any type)."""
+        outputs = self.__dict__.get("_output_vrs")
+        if outputs is None:
+            outputs = self._output_vrs = frozenset(
+                vr for vr, var in self.vars.items() if var.causality == Fmi2Causality.output)
+        return outputs
+
+    def _refused_set(self, call: str, vrs: list[int]) -> bool:
+        """True (and logged as an error) if setting ``vrs`` now is not allowed: after fmi2Terminate, or
+        an output after fmi2ExitInitializationMode (FMI 2.0: then only inputs and tunable parameters)."""
+        if self._terminated:
+            self._after_terminate(call)
+            return True
+        if self._initialised:
+            out = [vr for vr in vrs if vr in self._outputs]
+            if out:
+                self.log(f"{call}: {self.vars[out[0]].name} is an output: after initialisation only inputs can be "
+                         "set; nothing was written", status=Fmi2Status.error)
+                return True
+        return False
 
     def _wrong_reference(self, vr: int, kind: type, vrs: list[int], zero: Any) -> list | None:
         """A value reference that is not a ``kind`` variable of this FMU: an error, logged (the loader
@@ -302,6 +333,8 @@ class SafeSlave(Fmi2Slave):
             bad = [vr for vr in vrs if not isinstance(self.vars.get(vr), kind)]
             if bad:
                 return self._wrong_reference(bad[0], kind, vrs, zero if getter else None)
+            if not getter and self._refused_set(f"fmi2Set{kind.__name__}", vrs):
+                return None
             return guarded(self, vrs, *values)
         return call
 
@@ -318,6 +351,9 @@ class SafeSlave(Fmi2Slave):
         """Keep the start time: the FMU's clock starts there at fmi2ExitInitializationMode (the stop time
         and tolerance do not apply to fixed-step numerics; after fmi2Reset the next initialisation takes
         the new one). A non-finite start time is an error, logged; the start time stays."""
+        if self._terminated:
+            self._after_terminate("fmi2SetupExperiment")
+            return
         try:
             t0 = float(start_time)
         except (TypeError, ValueError):
@@ -330,9 +366,19 @@ class SafeSlave(Fmi2Slave):
 
     @_to_host
     def enter_initialization_mode(self) -> None:
-        # also after fmi2Reset: parameters are settable again, steps allowed after initialisation
-        self._initialised = self._terminated = False
+        # fmi2Reset makes a new slave object (pythonfmu), so a terminated one is only ever reused by
+        # mistake: its outputs would start from the last run's values
+        if self._terminated:
+            self._after_terminate("fmi2EnterInitializationMode")
+            return
+        self._initialised = False
         Fmi2Slave.enter_initialization_mode(self)
+
+    def _after_terminate(self, call: str) -> None:
+        """Log the refusal of ``call`` on a terminated instance (FMI 2.0 allows only the getters,
+        fmi2Reset and fmi2FreeInstance there); the loader returns fmi2Error."""
+        self.log(f"{call} after fmi2Terminate: call fmi2Reset first (after fmi2Terminate FMI 2.0 allows only "
+                 "the getters, fmi2Reset and fmi2FreeInstance); nothing was done", status=Fmi2Status.error)
 
     @_to_host
     def terminate(self) -> None:
@@ -372,6 +418,9 @@ class SafeSlave(Fmi2Slave):
         return False
 
     def exit_initialization_mode(self) -> None:
+        if self._terminated:
+            self._after_terminate("fmi2ExitInitializationMode")
+            return
         self._initialised = True
         self._time_s = self._start_s
         try:

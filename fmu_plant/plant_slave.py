@@ -19,15 +19,26 @@ must start at the plant's time (:class:`fmi_slave.SafeSlave`: a gap or a step ba
 
 from __future__ import annotations
 
+import re
 from dataclasses import fields
 
 from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from pythonfmu import DefaultExperiment
+from pythonfmu.enums import Fmi2Status
 from fmu_plant import Plant, PlantParams
 from fmu_plant.seed import join_seed
 
 __all__ = ["MusclePlant", "parameter_table"]
+
+_DEFAULTS = PlantParams().dotted()
+#: ``ValveParams`` -> ``valve``: the FMU's names for the parameter groups in PlantParams' messages
+_GROUP_OF = {type(getattr(PlantParams(), f.name)).__name__: f.name for f in fields(PlantParams)}
+
+
+def _fmu_names(message: str) -> str:
+    """``message`` with ``ValveParams.cv_max`` written as the FMU's parameter name ``valve.cv_max``."""
+    return re.sub(r"\b(\w+Params)\.(\w+)", lambda m: f"{_GROUP_OF.get(m[1], m[1])}.{m[2]}", message)
 
 
 def parameter_table() -> list[tuple[str, float, str, str, float | None, float | None]]:
@@ -74,7 +85,7 @@ class MusclePlant(SafeSlave):
         try:
             params = PlantParams().with_values(**self._par)
         except ValueError as exc:
-            raise SlaveInputError(f"bad parameter: {exc}") from None
+            raise SlaveInputError(f"bad parameter: {_fmu_names(str(exc))}") from None
         try:
             seed = join_seed(self._int_par["seed"], self._int_par["seed_high"])
         except ValueError as exc:
@@ -82,8 +93,15 @@ class MusclePlant(SafeSlave):
         self._plant = Plant(params, seed=seed)
         if self._start_s != 0.0:
             self._plant.reset(t_s=self._start_s)
-        self._plant.update(load_n=self.finite("load", self.load, 0.0, 500.0),
-                           supply_pressure_mpa=self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0))
+        load = self.finite("load", self.load, 0.0, 500.0)
+        supply = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
+        # the inputs set the load and the supply pressure; the parameters of the same physics are the
+        # plant files' (tapmuscle record --params): one set to another value than its input is unused
+        for name, value, inp in (("load.load_n", load, "load"), ("supply.supply_pressure_mpa", supply, "supply_pressure")):
+            if self._par[name] != value and self._par[name] != _DEFAULTS[name]:
+                self.log(f"parameter {name} = {self._par[name]!r} is not used: the input {inp} (= {value!r}) sets it in "
+                         f"the FMU; set the input instead", status=Fmi2Status.warning)
+        self._plant.update(load_n=load, supply_pressure_mpa=supply)
         self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
 
     def step_numerics(self, t_s: float, dt_s: float) -> None:

@@ -277,3 +277,81 @@ def test_a_message_with_a_percent_sign_reaches_the_host_intact(fmu, capfd):
     assert "valve.cv_max = -1.0 is outside" in out and "%" in out, out
     g.terminate()
     g.freeInstance()
+
+
+def test_a_terminated_instance_is_not_initialised_again_without_reset(fmu, capfd):
+    """After fmi2Terminate FMI 2.0 allows only the getters, fmi2Reset and fmi2FreeInstance: a host that
+    reuses the instance without fmi2Reset (fmpy's simulate_fmu(fmu_instance=...) without reset()) gets
+    fmi2Error and a message naming fmi2Reset, and no run starts from the last run's outputs."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    f.setReal([vr["u"]], [8.0])
+    for k in range(30):
+        f.doStep(k * 0.1, 0.1)
+    l_end = f.getReal([vr["l"]])[0]
+    assert l_end > 50.0
+    f.terminate()
+    capfd.readouterr()
+    for call in (lambda: f.setupExperiment(startTime=0.0), f.enterInitializationMode, f.exitInitializationMode,
+                 lambda: f.setReal([vr["u"]], [5.0])):
+        with pytest.raises(FMICallException, match="error"):
+            call()
+    out = capfd.readouterr().out
+    assert out.count("after fmi2Terminate: call fmi2Reset first") == 4, out
+    assert f.getReal([vr["l"], vr["u"]]) == [l_end, 8.0]  # nothing was done
+    f.reset()  # and then all of it is fine, from the start values
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    assert f.exitInitializationMode() == 0
+    assert f.getReal([vr["l"]]) == [0.0]
+    f.terminate()
+    f.freeInstance()
+
+
+def test_an_output_cannot_be_written_after_initialisation(fmu, capfd):
+    """FMI 2.0 step mode: only inputs (and tunable parameters) are settable; a host that mixes up two value
+    references gets fmi2Error naming the output, and the output keeps the plant's value."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    f.doStep(0.0, 0.1)
+    before = f.getReal([vr["l"]])
+    for _ in range(2):  # also once the input lists are compiled (the fast path)
+        with pytest.raises(FMICallException, match="error"):
+            f.setReal([vr["u"], vr["l"]], [5.0, 123.0])
+        assert "fmi2SetReal: l is an output" in capfd.readouterr().out
+        f.setReal([vr["u"]], [5.0])
+    assert f.getReal([vr["l"], vr["u"]]) == [before[0], 5.0]  # nothing of the refused call was written
+    f.terminate()
+    f.freeInstance()
+
+
+@pytest.mark.parametrize("name, value, message", [
+    ("valve.cv_max", math.nan, "parameter valve.cv_max = nan is not finite"),
+    ("valve.cv_max", 0.0, "valve.cv_max must be > 0.0, got 0.0"),  # the dataclass's check, in the FMU's name
+    ("input_map.knot2_in_v", 1.0, "input_map.knot2_in_v (1.0) must exceed"),
+])
+def test_a_rejected_plant_parameter_is_named_as_the_fmu_names_it(fmu, capfd, name, value, message):
+    reals = {name: value, "input_map.knot1_in_v": 2.0} if name.startswith("input_map") else {name: value}
+    f = _instance(fmu, reals=reals, rejected=True)
+    out = capfd.readouterr().out
+    assert message in out and "Params." not in out, out
+    f.terminate()
+    f.freeInstance()
+
+
+@pytest.mark.parametrize("parameter, value, inp, inp_value", [
+    ("load.load_n", 68.0, "load", 44.0), ("supply.supply_pressure_mpa", 0.15, "supply_pressure", 0.25)])
+def test_a_load_or_supply_parameter_the_input_overrides_is_said_unused(fmu, capfd, parameter, value, inp, inp_value):
+    """The inputs ``load`` and ``supply_pressure`` set these in the FMU (they change during a run); the
+    parameters of the same names (a plant file's) would silently do nothing: a warning names the input."""
+    vr = fmu[3]
+    f = _instance(fmu, reals={parameter: value}, rejected=True)  # fmi2Warning at fmi2ExitInitializationMode
+    assert f"parameter {parameter} = {value!r} is not used: the input {inp} (= {inp_value!r})" in capfd.readouterr().out
+    f.doStep(0.0, 0.1)  # a warning, not an error: the run goes on, with the input's value
+    f.terminate()
+    f.freeInstance()
+    g = _instance(fmu, reals={parameter: value, inp: value})  # both agree: no warning (status OK)
+    assert "is not used" not in capfd.readouterr().out
+    g.terminate()
+    g.freeInstance()
+    assert vr[inp] != vr[parameter]
