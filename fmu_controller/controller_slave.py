@@ -55,6 +55,7 @@ import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non
 from fmi_slave import SafeSlave
 from fmi_slave.base import SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
+from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, MAX_PROBING_V, MAX_STARTUP_S,
                                                  METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
@@ -71,6 +72,10 @@ __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
 
 
 _L_RANGE_MM = (-100.0, 500.0)
+#: A one-step prediction outside ten times that range [mm], or a QP input u_c beyond this [V] (a
+#: hundred times the valve's span), means the adaptive estimate diverges.
+_DIVERGED_MM = (10.0 * _L_RANGE_MM[0], 10.0 * _L_RANGE_MM[1])
+_DIVERGED_V = 1000.0
 
 
 class AMPCController(SafeSlave):
@@ -147,8 +152,8 @@ class AMPCController(SafeSlave):
             ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
             ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
             ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5)", 0.0, None),
-            ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", None, None),
-            ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", None, None),
+            ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", 0.0, 10.0),
+            ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", 0.0, 10.0),
             ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", 0.5, 1.0),
             ("startup_s", DEFAULT_STARTUP_S, "s", "start-up mode T [s]: the reference led in from the measured "
              "position over T/4, the adaptive law on theta0 until T/2 and the estimate blended in by T; 0 = the "
@@ -171,6 +176,7 @@ class AMPCController(SafeSlave):
         table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2)", None, None)
                   for n in TABLE2_UPPER]
         self.add_real_parameters(table)
+        self._diverged = False
         self._controller: DisplacementController | None = None
         self._reference: SineReference | None = None
         self._hp = 0
@@ -219,6 +225,7 @@ class AMPCController(SafeSlave):
             startup_s=p["startup_s"], probing_v=p["probing_v"])
 
     def initialize_numerics(self) -> None:
+        self._diverged = False
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
         try:
@@ -272,6 +279,15 @@ class AMPCController(SafeSlave):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
         if self._source == "external_advanced":
             self._buffer = list(preview)
+        if not self._diverged and (not _DIVERGED_MM[0] <= step.predicted_next_mm <= _DIVERGED_MM[1]
+                                   or abs(step.uc_v) > _DIVERGED_V):
+            self._diverged = True  # said once: a host's log is not flooded every sample
+            self.log(f"t = {t_s:g} s: the adaptive model predicts l_pred = {step.predicted_next_mm:.3g} mm and asks "
+                     f"for u_c = {step.uc_v:.3g} V, far outside the rig's: its estimate diverges "
+                     f"(forgetting = {self._par['forgetting']:g}, "
+                     f"covariance_ceiling = {self._int_par['covariance_ceiling']}; a forgetting factor below 1 needs "
+                     "covariance_ceiling = 1 or a value closer to 1, docs/control.md). The command stays within "
+                     "u_min..u_max.", status=Fmi2Status.warning)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

@@ -270,3 +270,26 @@ def test_a_rounding_remainder_step_is_accepted(fmu):
     f.doStep(0.1 + 1e-14, 0.1 - 1e-14)  # the sample at 0.1 s is taken within the time tolerance
     assert f.getInteger([vr["samples"]])[0] == 2
     _free(f)
+
+
+@pytest.mark.parametrize("forgetting, warned", [(0.5, True), (1.0, False)])
+def test_a_diverging_adaptive_estimate_is_said_once(fmu, capfd, forgetting, warned):
+    """forgetting = 0.5 (its declared minimum) without the covariance ceiling: the estimate diverges once
+    the start-up mode hands over (the servo's u_c beyond 1e60 V in 20 s of a sine); the controller says
+    so once, with a warning naming the parameters, and its command stays within u_min..u_max."""
+    vr = fmu[3]
+    f = _instance(fmu, reals={"forgetting": forgetting})
+    capfd.readouterr()
+    u, uc = [], []
+    for k in range(200):
+        f.setReal([vr["l"]], [35.0 + 28.0 * math.sin(2 * math.pi * 0.1 * (k * 0.1 - 0.3))])
+        f.doStep(k * 0.1, 0.1)  # fmpy raises on fmi2Error; a warning goes to the log
+        u_k, uc_k = f.getReal([vr["u"], vr["uc"]])
+        u.append(u_k)
+        uc.append(uc_k)
+    out = capfd.readouterr().out
+    assert out.count("its estimate diverges (forgetting = ") == (1 if warned else 0), out[-2000:]
+    assert (max(map(abs, uc)) > 1e3) == warned
+    assert all(0.0 <= x <= 10.0 for x in u)
+    f.terminate()
+    f.freeInstance()
