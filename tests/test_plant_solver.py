@@ -328,4 +328,4 @@ def test_the_plant_fmu_ends_its_steps_with_extreme_parameters_and_refuses_min_ab
     # the logged reasons
     assert "too many sub-steps of solver.min_substep_s = 1e-05 s" in out and "stiff/extreme parameters?" in out
     assert "Traceback" not in out and "internal error" not in out  # a documented failure, not a bug
-    assert "SolverParams.min_substep_s (0.001) must not exceed max_substep_s (0.0001)" in out
+    assert "solver.min_substep_s (0.001) must not exceed max_substep_s (0.0001)" in out  # the FMU's name
