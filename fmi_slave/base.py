@@ -131,6 +131,8 @@ class SafeSlave(Fmi2Slave):
         #: ``tuple(vrs) -> reader(self.__dict__)`` / ``-> names`` for vr lists of attribute Reals only
         self._readers: dict[tuple[int, ...], Callable[[dict], list[float]]] = {}
         self._writers: dict[tuple[int, ...], tuple[str, ...]] = {}
+        #: value references of the outputs (any type): settable only before initialisation
+        self._outputs: set[int] = set()
 
     # ------------------------------------------------------------------ registration
     def _meta(self, name: str, unit: str = "", lo: float | None = None, hi: float | None = None,
@@ -227,7 +229,8 @@ class SafeSlave(Fmi2Slave):
         super().register_variable(var, nested)
         self._real_io = None
         self._readers, self._writers = {}, {}
-        self.__dict__.pop("_output_vrs", None)
+        if var.causality == Fmi2Causality.output:
+            self._outputs.add(var.value_reference)
 
     def _real_tables(self) -> tuple[dict[int, Any], dict[int, Any], dict[int, str]]:
         reals = [(vr, var) for vr, var in self.vars.items() if isinstance(var, Real)]
@@ -293,15 +296,6 @@ class SafeSlave(Fmi2Slave):
         except BaseException:
             self._keep_references()
             raise
-
-    @property
-    def _outputs(self) -> frozenset[int]:
-        """Value references of the outputs (any type)."""
-        outputs = self.__dict__.get("_output_vrs")
-        if outputs is None:
-            outputs = self._output_vrs = frozenset(
-                vr for vr, var in self.vars.items() if var.causality == Fmi2Causality.output)
-        return outputs
 
     def _refused_set(self, call: str, vrs: list[int]) -> bool:
         """True (and logged as an error) if setting ``vrs`` now is not allowed: after fmi2Terminate, or

@@ -89,9 +89,9 @@ __all__ = [
 
 
 # |b1| below this makes the predictor (and offset = H/b1) meaningless.
+_B1_MIN = 1e-9
 # smallest eigenvalue of the QP Hessian, relative to the largest, that OSQP's LDL factorisation takes
 _PD_RTOL = 1e-12
-_B1_MIN = 1e-9
 # An OSQP answer that is not "solved" is still used if it violates Eq. (19)
 # by at most this much [V] and is not worse than the clipped fallback.
 _FEAS_TOL_V = 1e-4

@@ -31,6 +31,7 @@ from fmu_plant.seed import join_seed
 
 __all__ = ["MusclePlant", "parameter_table"]
 
+#: every parameter's default, by the FMU's name
 _DEFAULTS = PlantParams().dotted()
 #: ``ValveParams`` -> ``valve``: the FMU's names for the parameter groups in PlantParams' messages
 _GROUP_OF = {type(getattr(PlantParams(), f.name)).__name__: f.name for f in fields(PlantParams)}

@@ -244,9 +244,9 @@ def record_command(file: str, *, duration_s: float, ts_s: float, load_n: float |
 
 
 def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequence[str], ts_s: float,
-                     load_n: float | None = None) -> None:
+                     load_n: float | None = None) -> str:
     """Write ``exp`` as a ``tapmuscle record --input csv:`` file (atomically); ``load_n`` [N] is the
-    load to run it at (the diagnosed recording's)."""
+    load to run it at (the diagnosed recording's). Returns the :func:`record_command` its note gives."""
     from tapmuscle.io.recording import Recording, write_recording
 
     command = record_command(Path(path).name, duration_s=exp.duration_s, ts_s=ts_s, load_n=load_n)
@@ -257,3 +257,4 @@ def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequenc
     if load_n is not None:
         meta["load_n"] = f"{load_n:g}"
     write_recording(path, Recording(exp.columns(), meta))
+    return command

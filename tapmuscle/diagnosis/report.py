@@ -19,7 +19,7 @@ from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text,
 
 from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
-from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, record_command, write_experiment
+from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
@@ -297,7 +297,7 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
                        noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, u_span_v=span,
                        executor=executor)
     effects = [a.effect for a in group]
-    write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s, load_n=load)
+    record = write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s, load_n=load)
     # The re-diagnosis starts from the constants this recording identified: the experiment's recording
     # was designed to separate the alternatives, not to pin the constants, and recalibrated from the
     # nominal plant on it they would take up again what the alternatives differ in.
@@ -306,7 +306,6 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
         base, f"the calibrated plant without {', '.join(effects)}: re-diagnose the recording of {name} with it"))
     command = (f"tapmuscle diagnose --recording NEW.csv --plant {plant_name} --effects {','.join(effects)} "
                "--out NEW_DIAGNOSIS")
-    record = record_command(name, duration_s=exp.duration_s, ts_s=d.ts_s, load_n=load)
     return {"file": name, "plant": plant_name, "record": record, "rediagnose": command} | exp.to_json()
 
 
