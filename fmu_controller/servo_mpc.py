@@ -101,6 +101,9 @@ _ACTIVE_TOL_V = 1e-6
 # OSQP's default initial rho; restored before a solve if adaptive rho moved it
 # so that each solve depends only on (model, warm start, data).
 _RHO0 = 0.1
+# OSQP treats a bound beyond this as infinite and refuses (printing to stdout) an update with a lower
+# bound at +inf or an upper one at -inf: QP data of that size only arise from a diverged estimate.
+_OSQP_INFTY = osqp.constant("OSQP_INFTY")
 
 
 # ---------------------------------------------------------------------------
@@ -404,8 +407,12 @@ class ServoMPC:
         wz = self._W.dot(z)
         q = self._qp_matrices()[1].dot(z)
         # Eq. (19) on u_c(k+i) = uc_prev + (S D)_i
-        lower = (self._u_min + offset - uc_prev) * self._ones_hu
-        upper = (self._u_max + offset - uc_prev) * self._ones_hu
+        lo = self._u_min + offset - uc_prev
+        hi = self._u_max + offset - uc_prev
+        if not max(abs(lo), abs(hi), float(np.abs(q).max())) < _OSQP_INFTY:
+            return self._fallback(v, None, uc_prev, offset, "data beyond OSQP's range", 0, t0)
+        lower = lo * self._ones_hu
+        upper = hi * self._ones_hu
         prob = self._prob
         prob.update(q=q, l=lower, u=upper)
         if self._rho_dirty:
@@ -445,14 +452,20 @@ class ServoMPC:
             return self._result(v, self._B.dot(v), plan, offset, status, info.iter,
                                 self._at_bound(plan, offset), t0)
 
+        return self._fallback(v, fallback, uc_prev, offset, status, info.iter, t0)
+
+    def _fallback(self, v, fallback, uc_prev, offset, why, iters, t0) -> ServoMPCResult:
+        """The unconstrained plan clipped to Eq. (19) (``fallback``, if already computed)."""
+        hu = self._hu
         if fallback is None:
-            fallback = self._project(self._K_unc @ z, uc_prev, offset)
+            fallback = self._project(self._K_unc @ v[hu:], uc_prev, offset)
         D, plan, changed = fallback
-        # restart the next solve from the feasible fallback plan, not a bad iterate
-        self._x_ws = np.array(D, dtype=float)
+        # restart the next solve from the feasible fallback plan, not a bad iterate; a plan beyond
+        # OSQP's range is no start (its iterates overflow: "problem non convex" on sane data next)
+        self._x_ws = np.array(D, dtype=float) if float(np.abs(D).max()) < _OSQP_INFTY else self._zeros_hu
         self._y_ws = self._zeros_hu
         v[:hu] = D
-        return self._result(v, self._B.dot(v), plan, offset, f"fallback: {status}", info.iter,
+        return self._result(v, self._B.dot(v), plan, offset, f"fallback: {why}", iters,
                             changed or self._at_bound(plan, offset), t0)
 
     # -- public ------------------------------------------------------------
@@ -526,7 +539,10 @@ class ServoMPC:
             "solved", its plan is kept only if finite, within 1e-4 V of
             Eq. (19) and not costlier than the clipped unconstrained plan;
             otherwise that clipped plan is returned with status
-            ``"fallback: <osqp status>"``.  Never NaN.
+            ``"fallback: <osqp status>"``.  QP data beyond OSQP's infinity
+            (1e30: a bound or linear term of that size, only from a diverged
+            model or state) skip OSQP for the same clipped plan, status
+            ``"fallback: data beyond OSQP's range"``.  Never NaN.
 
         Raises
         ------

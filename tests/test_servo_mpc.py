@@ -402,6 +402,21 @@ def test_fallback_when_osqp_fails(monkeypatch):
     assert mpc.solve(**case).status == "solved"  # recovers from the reset warm start
 
 
+@pytest.mark.parametrize("uc_prev_v, offset_v", [(-3.8e24, 2.0e60), (2.0e60, -2.4e26), (1e29, 5e29)])
+def test_data_beyond_osqp_infinity_fall_back_silently(capfd, uc_prev_v, offset_v):
+    """A diverged estimate's state (figures from an AMPC-servo run with forgetting 0.5): OSQP would refuse
+    the update and print to stdout; the clipped plan is returned instead, silent and within Eq. (19)."""
+    mpc = ServoMPC(ServoMPCSettings(always_osqp=True), a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
+    case = dict(l_mm=31.5, l_prev_mm=31.0, uc_prev_v=uc_prev_v, xs=0.0, r_future_mm=[30.0] * 6, offset_v=offset_v)
+    res = mpc.solve(**case)
+    assert res.status == "fallback: data beyond OSQP's range" and res.iterations == 0
+    np.testing.assert_array_equal(res.uc_plan_v, mpc.unconstrained_solution(**case, clip=True).uc_plan_v)
+    assert np.isfinite(res.delta_uc_v).all() and res.u_v == res.uc_v - offset_v
+    back = dict(case, uc_prev_v=1.0, offset_v=0.0, r_future_mm=[10.0] + [60.0] * 5)
+    assert mpc.solve(**back).status == "solved"  # sane data reach OSQP again
+    assert capfd.readouterr() == ("", "")
+
+
 def test_iteration_limit_never_returns_nan():
     rng = np.random.default_rng(8)
     mpc = ServoMPC(ServoMPCSettings(max_iter=2, warm_start=False), a1=MODEL[0], a2=MODEL[1], b1=MODEL[2])
