@@ -80,6 +80,29 @@ class Measurement:
     """Pressure-sensor reading [MPa(G)]."""
 
 
+def _effect_states(saved: Any, effects: Sequence[Effect]) -> list[dict[str, Any] | None]:
+    """The saved state of each of ``effects``, paired by name (and order among equal names), or None.
+
+    A plant with an extra effect may start from the state of the plant without it (the diagnosis's
+    checkpoints): that effect keeps its own state, wherever it sits in the order. A saved effect this
+    plant does not have is an error (the state of another plant).
+    """
+    try:
+        pairs = [(str(name), dict(state)) for name, state in saved]
+    except (TypeError, ValueError):
+        raise ValueError(f"state field effects must be [name, state] pairs, got {saved!r}") from None
+    out: list[dict[str, Any] | None] = [None] * len(effects)
+    taken = [False] * len(effects)
+    for name, state in pairs:
+        i = next((i for i, e in enumerate(effects) if not taken[i] and e.name == name), None)
+        if i is None:
+            raise ValueError(f"state field effects holds the state of effect {name!r}, which this plant "
+                             f"does not have (it has {[e.name for e in effects]})")
+        taken[i] = True
+        out[i] = state
+    return out
+
+
 def _hooks(effects: Sequence[Effect], hook: str) -> tuple[Callable[..., Any], ...]:
     """The ``hook`` callables of those ``effects`` that replace the base class's (in the subclass or
     on the instance), in order."""
@@ -256,7 +279,7 @@ class Plant:
             "supply_pressure_mpa": self.supply_pressure_mpa, "seed": self._seed,
             "rng": self._rng.bit_generator.state if self._noise_start is None else self._noise_start,
             "noise_index": None if self._noise_start is None else self._noise_i,
-            "effects": [e.get_state() for e in self.effects],
+            "effects": [[e.name, e.get_state()] for e in self.effects],
             "measurement": (self.measurement.t_s, self.measurement.l_mm, self.measurement.p_mpa),
             "last_supply_mpa": self._last_supply_mpa, "kink_scale_s": self._kink_scale,
             "xs_last": self._xs_last, "gate": self._gate,
@@ -293,10 +316,7 @@ class Plant:
             raise ValueError(f"state field measurement must be 3 finite numbers, got {s['measurement']!r}")
         if int(s["seed"]) < 0:
             raise ValueError(f"state field seed = {s['seed']!r} must be >= 0")
-        if len(s["effects"]) > len(self.effects):  # fewer is fine: a plant with an extra effect may start
-            # from a state of the plant without it (the diagnosis's checkpoints); that effect keeps its own
-            raise ValueError(f"state field effects has {len(s['effects'])} entries, this plant has "
-                             f"{len(self.effects)} effects")
+        effect_states = _effect_states(s["effects"], self.effects)
         self.t_s = float(s["t_s"])
         self.state = [float(v) for v in s["state"]]
         self.u_v = float(s["u_v"])
@@ -310,8 +330,9 @@ class Plant:
             self._noise_start = s["rng"]
             self._noise = self._rng.standard_normal(_NOISE_BLOCK).tolist()
             self._noise_i = int(s["noise_index"])
-        for e, es in zip(self.effects, s["effects"]):
-            e.set_state(es)
+        for e, es in zip(self.effects, effect_states):
+            if es is not None:
+                e.set_state(es)
         self.measurement = Measurement(*s["measurement"])
         self._last_supply_mpa = float(s["last_supply_mpa"])
         self._kink_scale = float(s.get("kink_scale_s", KINK_SCALE_INITIAL))

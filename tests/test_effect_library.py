@@ -118,6 +118,35 @@ def test_state_with_effects_restores_bit_identically(effects):
     assert ahead == again
 
 
+@pytest.mark.parametrize("saved_with", [
+    {"backlash.slack_mm": 2.0, "sensor_drift.offset_mm": 1.0},
+    {"backlash.slack_mm": 2.0},
+])
+def test_a_state_restores_into_a_plant_with_an_extra_effect_ahead_by_name(saved_with):
+    """A checkpoint of a plant with a play (and a drift) continues in a plant that also has a valve band,
+    which comes first in the effect order: the play keeps its saved slider, and the plant steps as the
+    one it was saved from until the band's commands are reached (the diagnosis's window searches)."""
+    cmd = [6.0 + 0.5 * math.sin(0.3 * k) for k in range(80)]  # never in the band at 2.5 +- 0.25 V
+    plant = Plant(PlantParams().with_values(**saved_with), seed=0)
+    for u in cmd[:50]:
+        plant.step(u, 0.1)
+    saved, slider_mm = plant.get_state(), plant.effects[0].y_mm
+    assert slider_mm > 10.0  # the play's slider has moved from its start
+    ahead = [plant.step(u, 0.1).l_mm for u in cmd[50:]]
+    extra = Plant(PlantParams().with_values(**saved_with, **{"dead_zone.center_v": 2.5, "dead_zone.width_v": 0.5}),
+                  seed=0)
+    assert [e.name for e in extra.effects][0] == "valve_dead_zone"
+    extra.set_state(saved)
+    assert extra.effects[1].y_mm == slider_mm
+    assert [extra.step(u, 0.1).l_mm for u in cmd[50:]] == ahead
+
+
+def test_a_state_with_an_effect_the_plant_lacks_is_refused_by_name():
+    saved = Plant(PlantParams().with_values(**{"backlash.slack_mm": 2.0}), seed=0).get_state()
+    with pytest.raises(ValueError, match="effect 'backlash', which this plant does not have"):
+        Plant(PlantParams(), seed=0).set_state(saved)
+
+
 def test_effect_parameters_are_validated():
     with pytest.raises(ValueError, match="end_s"):
         PlantParams().with_values(**{"supply_variation.start_s": 50.0, "supply_variation.end_s": 10.0})
