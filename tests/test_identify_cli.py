@@ -103,6 +103,13 @@ def test_other_sampling_period_and_no_box_note(records):
     half = identify_record(rec.u_v[::2], rec.l_mm[::2], ts_s=0.2)
     assert half.box_lower == {} and "no constraint region" in half.notes[0]
     assert half.fit.percent["1"] > 95.0
+    # a period known as exactly as a recording tells it (0.1 %: jittered or Unix-time stamps) keeps Table 2's
+    # box, and gives the estimate of 0.1 s (the constraint's start, 120 s, may fall one sample earlier)
+    exact = identify_record(rec.u_v, rec.l_mm, ts_s=0.1).theta
+    for ts in (0.1 * (1 + 9e-4), 0.09999975):
+        near = identify_record(rec.u_v, rec.l_mm, ts_s=ts)
+        assert near.box_lower and np.allclose(near.theta, exact, rtol=1e-3, atol=1e-6)
+    assert identify_record(rec.u_v, rec.l_mm, ts_s=0.1 * (1 + 2e-3)).box_lower == {}
 
 
 @pytest.mark.parametrize("make, message", [
@@ -152,7 +159,8 @@ def test_score_model_reports_divergence():
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda t, meta: (np.delete(t, 100), meta), r"sample 100: t = 10.1 s breaks the uniform sampling of 0.1 s"),
+    (lambda t, meta: (np.delete(t, 100), meta), r"sample 100: t = 10.1 s follows 9.9 s, a step of 0.2 s in a recording sampled every 0.1 s: "
+     r"a dropped or doubled sample"),
     (lambda t, meta: (t, {"ts_s": "0.05"}), r"header '# ts_s: 0.05' contradicts the t_s column, sampled every 0.1 s"),
     (lambda t, meta: (t, {"ts_s": "1e300"}), r"header '# ts_s: 1e300' contradicts"),
     (lambda t, meta: (t, {"ts_s": "fast"}), r"header '# ts_s: fast' is not a number"),

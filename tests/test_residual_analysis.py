@@ -80,3 +80,19 @@ def test_the_regimes_of_another_models_output_are_worded_in_its_name_and_unit():
     assert not any(word in text for word in ("contracting", "extending", "mm", "displacement"))
     muscle, _ = regime_summary(energy, omega, ts)
     assert "while contracting" in muscle
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_constant_offset_is_structure_though_white_about_its_mean(seed):
+    """The whiteness test removes the mean; an offset of a few noise levels is still a mismatch (an encoder
+    zeroed elsewhere), and one below the materiality factor, or none, is not."""
+    from tapmuscle.diagnosis.residual_analysis import is_structured, mean_test
+
+    e = np.random.default_rng(seed).normal(0.0, 0.01, 2401)
+    assert not is_structured(e, sensor_noise_mm=0.01)[0]
+    structured, numbers = is_structured(e + 0.03, sensor_noise_mm=0.01)
+    assert structured and numbers["ljung_box_p"] > 1e-3 and numbers["mean_p"] < 1e-12
+    assert numbers["mean_mm"] == pytest.approx(0.03, abs=0.001)
+    # significant (t about 24) but its RMS within 1.5 noise levels: immaterial
+    assert mean_test(e + 0.005) < 1e-3 and not is_structured(e + 0.005, sensor_noise_mm=0.01)[0]
+    assert mean_test(np.zeros(10)) == 1.0 and mean_test(np.full(10, 2.0)) == 0.0

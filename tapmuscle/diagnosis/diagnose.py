@@ -102,6 +102,7 @@ from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
+from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
@@ -331,13 +332,7 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
         bad = np.nonzero(~np.isfinite(arr))[0]
         if bad.size:
             raise ValueError(f"column {name}, sample {int(bad[0])}: {float(arr[bad[0]])!r} is not finite")
-    dt = np.diff(t)
-    ts = float(np.median(dt))
-    off = np.nonzero(np.abs(dt - ts) > 1e-3 * ts)[0]
-    if ts <= 0 or off.size:
-        k = int(off[0]) + 1 if off.size else 1
-        raise ValueError(f"column {tn}, sample {k}: t = {float(t[k])!r} s breaks the uniform sampling of {ts:g} s "
-                         f"(previous sample {float(t[k - 1])!r} s); resample the recording first")
+    ts = uniform_sampling(t, tn).ts_s
     if float(np.ptp(u)) == 0.0:
         raise ValueError(f"column {un}: the command is constant ({u[0]:g} {units[0]}); nothing excites the plant")
     if float(np.ptp(y)) == 0.0:

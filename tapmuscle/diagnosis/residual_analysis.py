@@ -15,7 +15,7 @@ from scipy import stats
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
 
 __all__ = ["block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
-           "cross_correlation_test", "is_structured", "located_windows", "regime_summary",
+           "cross_correlation_test", "is_structured", "mean_test", "located_windows", "regime_summary",
            "interleaved_split", "iou", "dominant_frequency_hz"]
 
 #: Lags of the whiteness and cross-correlation tests (MATLAB's resid default is 25).
@@ -97,7 +97,9 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
                   materiality: float = 1.5) -> tuple[bool, dict]:
     """Does ``e`` hold structure beyond white noise? Both must hold:
 
-    * the Ljung-Box whiteness test rejects white noise at level ``alpha``;
+    * the Ljung-Box whiteness test rejects white noise at level ``alpha``, or the residual's mean is
+      not zero at that level (a t-test: a constant offset, an encoder zeroed elsewhere, is white about
+      its mean, which the whiteness test removes);
     * the residual is material: its RMS exceeds ``materiality`` times the noise level, the smaller of
       its own white-noise level (:func:`white_noise_level_mm`) and the sensor noise the model states
       (an oscillation at a few samples' period inflates the first, a rig noisier than its model the
@@ -109,9 +111,23 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
     sigma = white_noise_level_mm(e)
     ref = sigma if sensor_noise_mm is None or sensor_noise_mm <= 0 else min(sigma, sensor_noise_mm)
     rms = float(np.sqrt(np.mean(e ** 2)))
-    structured = ac.p_value < alpha and rms > materiality * ref
+    mean_p = mean_test(e)
+    structured = (ac.p_value < alpha or mean_p < alpha) and rms > materiality * ref
     return structured, {"ljung_box_p": ac.p_value, "lags_outside_band": ac.outside, "rms_mm": rms,
-                        "white_noise_mm": sigma, "noise_reference_mm": ref}
+                        "white_noise_mm": sigma, "noise_reference_mm": ref, "mean_mm": float(np.mean(e)),
+                        "mean_p": mean_p}
+
+
+def mean_test(e: np.ndarray) -> float:
+    """Two-sided p-value of "``e`` has zero mean" (one-sample t-test on independent samples)."""
+    n = len(e)
+    if n < 2:
+        return 1.0
+    sd = float(np.std(e, ddof=1))
+    mean = float(np.mean(e))
+    if sd == 0.0:
+        return 1.0 if mean == 0.0 else 0.0
+    return float(2.0 * stats.t.sf(abs(mean) / (sd / math.sqrt(n)), n - 1))
 
 
 def block_index(n: int, ts_s: float, block_s: float) -> np.ndarray:

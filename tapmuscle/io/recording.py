@@ -36,6 +36,7 @@ import numpy as np
 from fmu_plant.parameters import LoadParams
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import atomic_path
+from tapmuscle.io.sampling import Sampling, SamplingError, uniform_sampling
 
 __all__ = ["Recording", "RecordingError", "read_recording", "read_columns", "write_recording", "atomic_write_text",
            "REQUIRED_COLUMNS", "OPTIONAL_COLUMNS"]
@@ -116,28 +117,36 @@ class Recording:
         return np.full(len(self), value)
 
     @property
-    def ts_s(self) -> float:
-        """Sampling period [s] of the uniformly sampled recording.
-
-        The median step of ``t_s``; every step must be within 0.1 % of it, and a ``# ts_s:`` header
-        line must agree with it to 0.1 % (its value is returned then, as written).
+    def sampling(self) -> Sampling:
+        """The uniform grid of ``t_s`` (:func:`tapmuscle.io.sampling.uniform_sampling`): its period and the
+        timestamps' largest jitter about it [s].
 
         Raises
         ------
         RecordingError
-            Fewer than 2 rows; a step off the uniform sampling (naming the sample and its time); a
+            Fewer than 2 rows, or a sample off the uniform sampling (naming the sample and its time).
+        """
+        try:
+            return uniform_sampling(self.t_s)
+        except SamplingError as exc:
+            raise RecordingError(str(exc)) from None
+
+    @property
+    def ts_s(self) -> float:
+        """Sampling period [s] of the uniformly sampled recording.
+
+        The median step of ``t_s`` when every step is within 0.1 % of it; times that scatter about a
+        uniform grid by up to a quarter period (a logger's jitter) give the grid's period
+        (:attr:`sampling`). A ``# ts_s:`` header line must agree with it to 0.1 % (its value is returned
+        then, as written).
+
+        Raises
+        ------
+        RecordingError
+            Fewer than 2 rows; a sample off the uniform sampling (naming the sample and its time); a
             ``ts_s`` header that is not a positive number or contradicts the ``t_s`` column.
         """
-        t = self.t_s
-        if len(t) < 2:
-            raise RecordingError("cannot tell the sampling period of a recording with fewer than 2 rows")
-        dt = np.diff(t)
-        ts = float(np.median(dt))
-        off = np.nonzero(np.abs(dt - ts) > 1e-3 * abs(ts))[0]
-        if ts <= 0.0 or off.size:
-            k = int(off[0]) + 1 if off.size else 1
-            raise RecordingError(f"column t_s, sample {k}: t = {float(t[k]):.9g} s breaks the uniform sampling of "
-                                 f"{ts:g} s (previous sample {float(t[k - 1]):.9g} s); resample the recording first")
+        ts = self.sampling.ts_s
         if "ts_s" in self.metadata:
             text = self.metadata["ts_s"]
             try:

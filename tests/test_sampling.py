@@ -1,0 +1,79 @@
+"""The uniform grid of a time column: exact recordings as written, a logger's jitter accepted, a
+dropped, doubled or drifting sample refused by name."""
+
+import numpy as np
+import pytest
+
+from tapmuscle.io.recording import Recording, RecordingError
+from tapmuscle.io.sampling import JITTER_TOLERANCE, SamplingError, uniform_sampling
+
+TS = 0.1
+N = 2401
+
+
+def _grid(start: float = 0.0) -> np.ndarray:
+    return start + np.arange(N) * TS
+
+
+def test_a_uniform_column_gives_its_median_step_and_no_jitter():
+    t = np.round(_grid(), 10)  # as written with rounded decimals
+    s = uniform_sampling(t)
+    assert s.ts_s == float(np.median(np.diff(t))) and s.jitter_s == 0.0 and not s.jittered
+
+
+@pytest.mark.parametrize("seed", range(20))
+@pytest.mark.parametrize("start", [0.0, 12.3, 1.7e9])  # from zero, mid-run, Unix time
+def test_jitter_within_a_quarter_period_is_the_grid_it_scatters_about(seed, start):
+    rng = np.random.default_rng(seed)
+    amp = rng.uniform(0.001, 0.9 * JITTER_TOLERANCE) * TS
+    t = _grid(start) + rng.uniform(-amp, amp, N)
+    s = uniform_sampling(t)
+    # the least-squares slope of N stamps with the jitter's sd amp/sqrt(3): sd sqrt(12) amp/sqrt(3) / N^1.5
+    # = 2 amp / N^1.5; five of them (the 1.2e-7 s rounding of a stamp near 1.7e9 s is far below amp)
+    assert abs(s.ts_s - TS) < 10.0 * amp / N ** 1.5
+    # measured about the fitted line, whose own error at the run's ends is about 4 amp / sqrt(N) (2 sd)
+    assert s.jittered and 0.5 * amp < s.jitter_s <= amp * (1.0 + 8.0 / np.sqrt(N))
+
+
+@pytest.mark.parametrize("seed", range(10))
+@pytest.mark.parametrize("where", [1, 7, 1200, N - 3])
+def test_a_dropped_sample_is_named_wherever_it_lies_even_under_jitter(seed, where):
+    rng = np.random.default_rng(seed)
+    t = np.delete(_grid() + rng.uniform(-0.2, 0.2, N) * TS, where)
+    with pytest.raises(SamplingError, match=rf"sample {where}: t = .* a dropped or doubled sample"):
+        uniform_sampling(t)
+
+
+def test_a_doubled_sample_and_a_backward_step_are_named():
+    t = _grid()
+    with pytest.raises(SamplingError, match=r"sample 701: t = 70\.001 s follows 70\.0+\d* s, a step of 0\.001 s"):
+        uniform_sampling(np.insert(t, 701, t[700] + 0.001))
+    back = t.copy()
+    back[300] = back[299] - 0.01
+    with pytest.raises(SamplingError, match=r"sample 300: .* a dropped or doubled sample"):
+        uniform_sampling(back)
+
+
+def test_a_drifting_clock_is_refused_though_no_single_step_is():
+    t = _grid()
+    t[1000:] += np.minimum(np.arange(N - 1000) * 0.01, 2.0)  # 10 % slow for 20 s: every step within 10 %
+    with pytest.raises(SamplingError, match=r"lies [+-][\d.]+ s off the uniform grid .* more than a quarter period"):
+        uniform_sampling(t)
+
+
+def test_too_few_or_no_increasing_times_are_refused():
+    with pytest.raises(SamplingError, match="fewer than 2"):
+        uniform_sampling(np.array([0.0]))
+    with pytest.raises(SamplingError, match="median time step is 0.0 s"):
+        uniform_sampling(np.zeros(5))
+
+
+def test_a_recording_with_jittered_stamps_has_the_grid_period_and_a_header_must_agree():
+    rng = np.random.default_rng(0)
+    t = _grid() + rng.uniform(-0.005, 0.005, N)
+    cols = {"t_s": t, "u_v": np.full(N, 5.0), "l_mm": np.zeros(N)}
+    rec = Recording(dict(cols), {})
+    assert abs(rec.ts_s - TS) < 1e-6 and 0.0045 < rec.sampling.jitter_s <= 0.0055
+    assert Recording(dict(cols), {"ts_s": "0.1"}).ts_s == 0.1  # as written
+    with pytest.raises(RecordingError, match="contradicts the t_s column"):
+        _ = Recording(dict(cols), {"ts_s": "0.1002"}).ts_s
