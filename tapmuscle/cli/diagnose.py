@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
@@ -62,6 +63,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.use_pressure and d.pressure_noise_mpa is None:
         print("--use-pressure: the recording has no usable p_mpa column (missing, constant, short or not "
               "finite); judged on the displacement alone")
+    for note in d.notes:
+        print(f"note: {note}", file=sys.stderr)
     for line in summary_lines(d):
         print(line)
     print(f"wrote {out}/diagnosis.json, calibrated_plant.json, report.md"

@@ -102,6 +102,7 @@ from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
+from tapmuscle.diagnosis.recording_checks import check_muscle_recording, muscle_recording_notes
 from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
@@ -290,15 +291,19 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
+    check_muscle_recording(u, ts)
+    notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float))
     block_s = split_length_s(u, ts, block_s)
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
     with ExitStack() as stack:
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
-        return _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
-                       candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                       calibration=calibration, progress=progress, started=started, space=MUSCLE,
-                       use_pressure=use_pressure)
+        d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
+                    candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
+                    calibration=calibration, progress=progress, started=started, space=MUSCLE,
+                    use_pressure=use_pressure)
+    d.notes[:0] = notes
+    return d
 
 
 def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:
@@ -1171,6 +1176,24 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                                         space.bounds, fitted=list(cal.changed),
                                                         consider=cal.consider_jacobian),
                               cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept, cal.consider_jacobian)
+    notes: list[str] = []
+    skipped = None
+    fit_kept = fit_percent(y, current.y, test)
+    if cal is not None and fit_kept < fit_before:
+        # Every choice of the search was made on held-out blocks against the calibrated reference; the
+        # calibration itself is a training-block fit. Where it carries over worse than the nominal plant,
+        # the training blocks hold something no constant explains (a recording started mid-run: the
+        # constants bent to its start-up transient), and the nominal plant is the better model.
+        skipped = (f"not kept: the calibrated model{' with ' + ', '.join(current.effects) if current.effects else ''} "
+                   f"fits the held-out blocks worse ({fit_kept:.2f} %) than the nominal plant ({fit_before:.2f} %)")
+        notes.append(f"The calibration was {skipped}: what the training blocks bent the constants to is not in the "
+                     "held-out blocks (a start-up transient of a recording that does not start at rest?), so the "
+                     "nominal plant is kept and no effect is claimed")
+        selection.append({"step": "calibration not kept", "fit_calibrated_percent": round(fit_kept, 3),
+                          "fit_nominal_percent": round(fit_before, 3), "effects_dropped": list(current.effects)})
+        current = _Model(model, (), y0, {}, q0)
+        findings = []
+        cal, y_cal, fit_cal = None, None, None
     base, y_base = current.params, current.y
 
     e_after = y - y_base
@@ -1225,4 +1248,4 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
                      ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa, block_s=block_s,
-                     output=output)
+                     output=output, notes=notes, **({"calibration_skipped": skipped} if skipped else {}))

@@ -143,6 +143,11 @@ class Diagnosis:
     output: tuple[str, str] | None = None
     """``(name, unit)`` of another model's measured output, which the ``*_mm`` fields then hold in its
     unit; None: the muscle's displacement [mm]."""
+    notes: list[str] = field(default_factory=list)
+    """What the reader should know before the findings: about the recording (a start away from rest,
+    jittered timestamps, a pressure in another unit) and a calibration not kept."""
+    calibration_skipped: str = "the residual is white noise: nothing to calibrate"
+    """Why :attr:`calibration` is None (``diagnosis.json``'s ``calibration.skipped``)."""
 
     @property
     def unit(self) -> str:
@@ -164,8 +169,8 @@ class Diagnosis:
                 "fit_after_percent": round(self.fit_after_percent, 3),
                 "findings": [f.to_json() for f in self.findings],
                 "unexplained": self.unexplained,
-                "calibration": cal if cal is not None else {"skipped": "the residual is white noise: nothing to "
-                                                                       "calibrate"},
+                "calibration": cal if cal is not None else {"skipped": self.calibration_skipped},
+                "notes": list(self.notes),
                 "ambiguous": [{"alternatives": [a.to_json() for a in group], "discriminating_input": None,
                                "discriminate_plant": None}
                               for group in self.ambiguous],

@@ -86,6 +86,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
              f"Plant model: `{plant}`. Verdict: **{d.verdict}**. Held-out fit (NRMSE, interleaved "
              f"{int(d.test.sum())} of {len(d.test)} samples): **{d.fit_before_percent:.2f} % -> "
              f"{d.fit_after_percent:.2f} %**.", ""]
+    if d.notes:
+        lines += ["## Notes", ""] + [f"- {n}." for n in d.notes] + [""]
     if d.calibration is not None:
         lines += ["## Calibration", "",
                   f"The nominal constants the recording can identify were re-estimated first (MAP least squares on "

@@ -1,0 +1,77 @@
+"""What in a rig's recording of the muscle would make its diagnosis meaningless, checked before any
+simulation runs: a command outside the valve's range or a sampling period no muscle recording has
+(refused), and a start away from rest, jittered timestamps or a pressure column in another unit
+(said, in the report's notes).
+
+A real rig's log differs from `tapmuscle record`'s in ways that leave every column a finite number
+and yet make the diagnosis compare the wrong things: a command logged in percent, times in
+milliseconds, pressure in kPa, an encoder zeroed elsewhere, a log started mid-run. The recording
+format (docs/recordings.md) fixes the units; these checks name a value that cannot be in them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tapmuscle.io.sampling import uniform_sampling
+
+__all__ = ["check_muscle_recording", "muscle_recording_notes", "COMMAND_RANGE_V", "TS_RANGE_S", "AT_REST_MM",
+           "DRAINED_MPA", "PRESSURE_PLAUSIBLE_MPA"]
+
+#: The valve's command range [V] with a margin for a logged read-back's noise; outside: another unit.
+COMMAND_RANGE_V = (-0.5, 10.5)
+#: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
+TS_RANGE_S = (1e-3, 10.0)
+#: A first reading further than this from 0 [mm] is not a muscle at rest with its encoder zeroed there.
+AT_REST_MM = 0.5
+#: A first pressure above this [MPa(G)] is not a drained muscle.
+DRAINED_MPA = 0.02
+#: A tap-water rig's muscle pressure stays below this [MPa(G)] (the supply is 0.25 MPa); above: kPa?
+PRESSURE_PLAUSIBLE_MPA = 2.0
+
+
+def check_muscle_recording(u_v: np.ndarray, ts_s: float) -> None:
+    """Refuse a command outside :data:`COMMAND_RANGE_V` or a period outside :data:`TS_RANGE_S`.
+
+    Raises
+    ------
+    ValueError
+        Naming the first command sample outside the range (and its value), or the period.
+    """
+    lo, hi = COMMAND_RANGE_V
+    bad = np.nonzero((u_v < lo) | (u_v > hi))[0]
+    if bad.size:
+        k = int(bad[0])
+        raise ValueError(f"column u_v, sample {k}: {float(u_v[k]):g} V is outside the valve's 0..10 V command "
+                         f"({bad.size} samples are; range {float(np.min(u_v)):g}..{float(np.max(u_v)):g}): "
+                         "is the command logged in another unit (percent, mV)? Scale it to volts")
+    if not TS_RANGE_S[0] <= ts_s <= TS_RANGE_S[1]:
+        raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
+                         "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
+
+
+def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray | None) -> list[str]:
+    """What the report should say about the recording before its findings (empty: nothing).
+
+    * the first reading away from rest (the model starts drained at ``l = 0``);
+    * timestamps that scatter about the uniform grid (taken as on it);
+    * a pressure column beyond :data:`PRESSURE_PLAUSIBLE_MPA` (another unit).
+    """
+    notes = []
+    l0 = float(l_mm[0])
+    p0 = None if p_mpa is None else float(p_mpa[0])
+    if abs(l0) > AT_REST_MM or (p0 is not None and p0 > DRAINED_MPA):
+        what = f"l = {l0:g} mm" + (f", p = {p0:g} MPa" if p0 is not None else "")
+        notes.append(f"The recording starts at {what}, but the model starts at rest (drained, l = 0): an encoder "
+                     "zeroed elsewhere shows as a constant sensor_drift offset; a recording started mid-run has a "
+                     "start-up transient that the model cannot reproduce (record from rest, or expect an "
+                     "unexplained window at its start)")
+    sampling = uniform_sampling(t_s)
+    if sampling.jittered:
+        notes.append(f"The timestamps scatter by up to {1e3 * sampling.jitter_s:.3g} ms about a uniform "
+                     f"{sampling.ts_s:.6g}-s grid (logger jitter); the samples are taken as on it")
+    if p_mpa is not None and float(np.max(p_mpa)) > PRESSURE_PLAUSIBLE_MPA:
+        notes.append(f"Column p_mpa reaches {float(np.max(p_mpa)):g} MPa, far above a tap-water rig's (supply "
+                     "0.25 MPa): is it logged in kPa? It only enters the regime breakdown (and the fits with "
+                     "--use-pressure)")
+    return notes
