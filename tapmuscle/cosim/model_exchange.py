@@ -47,30 +47,40 @@ def _solver_class() -> type:
     import ctypes
 
     from fmpy.sundials import CVodeSolver
-    from fmpy.sundials.libraries import sundials_core, sundials_nvecserial
-    from fmpy.sundials.sundials_context import SUNContext, SUNContext_PushErrHandler
+    from fmpy.sundials.libraries import sundials_nvecserial
     from fmpy.sundials.sundials_nvector import N_Vector
+
+    try:  # fmpy >= 0.3.28 (SUNDIALS 7): error handlers live on the SUNContext
+        from fmpy.sundials.libraries import sundials_core
+        from fmpy.sundials.sundials_context import SUNContext, SUNContext_PushErrHandler
+    except ImportError:  # older fmpy (SUNDIALS 5): its CVodeSetErrHandlerFn already replaced the printing default
+        sundials_core = None
 
     data = sundials_nvecserial.N_VGetArrayPointer_Serial
     data.argtypes = [N_Vector]
     data.restype = ctypes.POINTER(ctypes.c_double)
-    clear_handlers = sundials_core.SUNContext_ClearErrHandlers
-    clear_handlers.argtypes = [SUNContext]
+    if sundials_core is not None:
+        clear_handlers = sundials_core.SUNContext_ClearErrHandlers
+        clear_handlers.argtypes = [SUNContext]
 
     class Solver(CVodeSolver):
         def __init__(self, fmu: Any, stepper: "ModelExchangeStepper", **kwargs: Any) -> None:
-            functions = fmu._functions  # the raw ctypes functions, argtypes set by fmpy
+            # the raw ctypes functions, argtypes set by fmpy (fmpy 0.3.20-0.3.23 have no _functions: the
+            # library's own attributes are those same function objects)
+            functions = getattr(fmu, "_functions", None)
+            raw = functions.__getitem__ if functions is not None else (lambda name: getattr(fmu.dll, name))
             self._component = fmu.component
-            self._set_time_c = functions["fmi2SetTime"]
-            self._set_x_c = functions["fmi2SetContinuousStates"]
-            self._get_dx_c = functions["fmi2GetDerivatives"]
+            self._set_time_c = raw("fmi2SetTime")
+            self._set_x_c = raw("fmi2SetContinuousStates")
+            self._get_dx_c = raw("fmi2GetDerivatives")
             self._stepper = stepper
             super().__init__(**kwargs)
             # SUNDIALS' default handler prints every failure to stderr; a rejected candidate's failed
             # integration is expected and reported by do_step, so only fmpy's handler (which keeps
             # the message) stays
-            clear_handlers(self.sunctx)
-            SUNContext_PushErrHandler(self.sunctx, self.ehfun_, None)
+            if sundials_core is not None:
+                clear_handlers(self.sunctx)
+                SUNContext_PushErrHandler(self.sunctx, self.ehfun_, None)
 
         def f(self, t: float, y: Any, ydot: Any, user_data: Any) -> int:
             c, nx = self._component, self.nx
