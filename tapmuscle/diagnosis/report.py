@@ -364,8 +364,7 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
                      progress=progress, executor=pool, **options)
         fmu_check = None
         if kind == "fmu":
-            sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"],
-                                         float(np.median(np.diff(cols["t_s"]))), load)
+            sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"], d.ts_s, load)
             fmu_check = {"max_abs_difference_mm": float(np.max(np.abs(sim_fmu - d.y_before_mm)))}
         doc = write_outputs(d, out, recording=str(recording), plant=str(plant), fmu_check=fmu_check, plots=plots,
                             executor=pool)
