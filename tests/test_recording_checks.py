@@ -29,13 +29,13 @@ def test_a_clean_recording_passes_without_notes():
 def test_a_command_in_percent_or_times_in_milliseconds_are_refused_by_sample():
     t, u, _, _ = _clean()
     pct = 10.0 * u
-    with pytest.raises(ValueError, match=r"column u_v, sample 0: 50 V is outside the valve's 0..10 V command .*percent"):
+    with pytest.raises(ValueError, match=r"column u_v, sample 0: 50 V is outside the -1..11 V the plant takes .*percent"):
         check_muscle_recording(pct, TS)
     noisy = u.copy()
-    noisy[7] = -0.3  # a read-back's noise below 0 V is within the margin
+    noisy[7] = -0.9  # below 0 V but within what the amplifier saturates (the plant FMU's -1..11 V)
     check_muscle_recording(noisy, TS)
-    noisy[9] = 10.6
-    with pytest.raises(ValueError, match=r"sample 9: 10.6 V .*\(1 samples are"):
+    noisy[9] = 11.2
+    with pytest.raises(ValueError, match=r"sample 9: 11.2 V .*1 samples are outside"):
         check_muscle_recording(noisy, TS)
     with pytest.raises(ValueError, match=r"the sampling period is 100 s, outside the 0.001..10 s .*milliseconds"):
         check_muscle_recording(u, 100.0)

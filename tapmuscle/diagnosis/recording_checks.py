@@ -18,8 +18,10 @@ from tapmuscle.io.sampling import uniform_sampling
 __all__ = ["check_muscle_recording", "muscle_recording_notes", "COMMAND_RANGE_V", "TS_RANGE_S", "AT_REST_MM",
            "DRAINED_MPA", "PRESSURE_PLAUSIBLE_MPA"]
 
-#: The valve's command range [V] with a margin for a logged read-back's noise; outside: another unit.
-COMMAND_RANGE_V = (-0.5, 10.5)
+#: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
+#: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
+#: outside: another unit.
+COMMAND_RANGE_V = (-1.0, 11.0)
 #: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
 TS_RANGE_S = (1e-3, 10.0)
 #: A first reading further than this from 0 [mm] is not a muscle at rest with its encoder zeroed there.
@@ -42,8 +44,8 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float) -> None:
     bad = np.nonzero((u_v < lo) | (u_v > hi))[0]
     if bad.size:
         k = int(bad[0])
-        raise ValueError(f"column u_v, sample {k}: {float(u_v[k]):g} V is outside the valve's 0..10 V command "
-                         f"({bad.size} samples are; range {float(np.min(u_v)):g}..{float(np.max(u_v)):g}): "
+        raise ValueError(f"column u_v, sample {k}: {float(u_v[k]):g} V is outside the -1..11 V the plant takes (the "
+                         f"valve's 0..10 V command; {bad.size} samples are outside, range {float(np.min(u_v)):g}..{float(np.max(u_v)):g}): "
                          "is the command logged in another unit (percent, mV)? Scale it to volts")
     if not TS_RANGE_S[0] <= ts_s <= TS_RANGE_S[1]:
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
