@@ -34,8 +34,17 @@ def test_the_load_of_the_header_is_used_without_a_load_column(tmp_path):
     rig = DEMO_MODEL.with_values(**{"load.load_n": 68.0})
     rec, plant = _files(tmp_path, rig, drop=("load_n",), metadata={"load_n": "68"})
     d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
-    assert np.all(d.load_n == 68.0)
+    assert np.all(d.load_n == 68.0) and doc["notes"] == []
     assert doc["verdict"] == "no_significant_mismatch" and doc["fit_after_percent"] > 99.0
+
+
+def test_a_recording_without_its_load_says_which_load_was_assumed(tmp_path):
+    rec, plant = _files(tmp_path, DEMO_MODEL, drop=("load_n",))
+    d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
+    assert d.load_n is None and doc["verdict"] == "no_significant_mismatch"
+    assert doc["notes"] == ["The recording gives no load (no load_n column, no '# load_n:' line): the plant's 44 N is "
+                            "assumed (a rig at another load shows as load_mismatch)"]
+    assert "## Notes" in (tmp_path / "out" / "report.md").read_text()
 
 
 @pytest.mark.parametrize("meta, match", [({"load_n": "heavy"}, "'# load_n: heavy' is not a number"),

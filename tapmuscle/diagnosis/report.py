@@ -362,6 +362,9 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     with worker_pool(workers) as pool:
         d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
                      progress=progress, executor=pool, **options)
+        if load is None:
+            d.notes.append(f"The recording gives no load (no load_n column, no '# load_n:' line): the plant's "
+                           f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch)")
         fmu_check = None
         if kind == "fmu":
             sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"], d.ts_s, load)
