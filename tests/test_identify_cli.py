@@ -200,3 +200,21 @@ def test_a_plot_folder_that_cannot_be_written_leaves_no_json(records, tmp_path, 
     err = capsys.readouterr().err
     assert exc.value.code == 2 and f"{blocker} is a file, not a folder" in err and len(err.splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_jittered_timestamps_are_identified_as_the_grid_with_a_note(records, tmp_path, capsys):
+    """A PC logger's +-4 ms on the 0.1-s period: the same model as the exact times (the RLS never reads
+    the times), Table 2's box kept, and a note that says how far the stamps scatter."""
+    _, paths = records
+    rec = read_recording(paths["train", 44])
+    jittered = rec.t_s + np.random.default_rng(2).uniform(-0.004, 0.004, len(rec.t_s))
+    path = tmp_path / "jittered.csv"
+    write_recording(path, Recording(dict(rec.columns) | {"t_s": jittered}, {}))
+    for src, out in ((paths["train", 44], tmp_path / "exact.json"), (path, tmp_path / "jittered.json")):
+        assert main(["identify", str(src), "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"note: the timestamps scatter by up to [34]\.\d+ ms about a uniform 0\.1\d*-s grid", err)
+    exact, jit = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("exact", "jittered"))
+    assert jit["constraint"]["lower"] == exact["constraint"]["lower"] != {}
+    names = list(exact["theta"])
+    np.testing.assert_allclose([jit["theta"][k] for k in names], [exact["theta"][k] for k in names], rtol=1e-3, atol=1e-6)
