@@ -1223,11 +1223,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         verdict = "ambiguous"
     elif current.effects or (remainder is not None and remainder["material"]):
         verdict = "mismatch"
-    elif do_calibrate:
+    elif do_calibrate and skipped is None:
         verdict = "calibration_only"
     else:
-        # the exact model (no calibration) leaves a residual that is structured but below the
-        # materiality level: nothing to name
+        # the exact model (no calibration, or none kept) leaves a residual that is structured but below
+        # the materiality level: nothing to name
         verdict = "no_significant_mismatch"
     if ambiguous:
         in_groups = {a.effect for g in ambiguous for a in g}
