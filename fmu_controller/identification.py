@@ -180,7 +180,8 @@ def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
     for name, x in (("u_v", u), ("l_mm", l)):
         bad = np.nonzero(~np.isfinite(x))[0]
         if bad.size:
-            raise ValueError(f"column {name} row {int(bad[0]) + 1} is {float(x[bad[0]])!r}; data must be finite")
+            # samples counted from 0, as the diagnosis names them
+            raise ValueError(f"column {name}, sample {int(bad[0])}: {float(x[bad[0]])!r} is not finite; data must be finite")
     if len(l) < MIN_SAMPLES:
         raise ValueError(f"too short to identify the 15-parameter model: {len(l)} samples, need at least "
                          f"{MIN_SAMPLES} (ten per parameter)")

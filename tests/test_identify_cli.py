@@ -218,3 +218,19 @@ def test_jittered_timestamps_are_identified_as_the_grid_with_a_note(records, tmp
     assert jit["constraint"]["lower"] == exact["constraint"]["lower"] != {}
     names = list(exact["theta"])
     np.testing.assert_allclose([jit["theta"][k] for k in names], [exact["theta"][k] for k in names], rtol=1e-3, atol=1e-6)
+
+
+def test_a_non_finite_sample_is_named_as_the_diagnosis_names_it(records):
+    """Counted from 0 in both: the same file gives one sample number whichever tool reads it."""
+    from tapmuscle.diagnosis import diagnose
+    from tapmuscle.diagnosis.demo import DEMO_MODEL
+
+    _, paths = records
+    rec = read_recording(paths["train", 44])
+    l = rec.l_mm.copy()
+    l[1200] = np.nan
+    message = r"column l_mm, sample 1200: nan is not finite"
+    with pytest.raises(ValueError, match=message):
+        identify_record(rec.u_v, l, ts_s=0.1)
+    with pytest.raises(ValueError, match=message):
+        diagnose(rec.t_s, rec.u_v, l, DEMO_MODEL)
