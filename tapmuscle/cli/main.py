@@ -191,11 +191,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             skip = int(len(shown.t_s) // 4)
             plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
                                  skip=skip)
-    jitter_s = rec.sampling.jitter_s
-    notes = list(report.notes) + ([f"the timestamps scatter by up to {1e3 * jitter_s:.3g} ms about a uniform "
-                                   f"{rec.ts_s:.6g}-s grid (logger jitter); the samples are taken as on it"]
-                                  if jitter_s > 0.0 else [])
-    for note in notes:
+    jitter = rec.sampling.note()
+    for note in list(report.notes) + ([jitter] if jitter else []):
         print(f"note: {note}", file=sys.stderr)
     fits = report.fit.percent
     print(f"{report.model} model, {report.n_samples} samples at Ts {report.ts_s:g} s -> {args.json}")

@@ -69,10 +69,9 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
                      f"beside another effect the calibration absorbs it); a recording started mid-run has a "
                      "start-up transient that the model cannot reproduce (record from rest, or expect an "
                      "unexplained window at its start)")
-    sampling = uniform_sampling(t_s)
-    if sampling.jittered:
-        notes.append(f"The timestamps scatter by up to {1e3 * sampling.jitter_s:.3g} ms about a uniform "
-                     f"{sampling.ts_s:.6g}-s grid (logger jitter); the samples are taken as on it")
+    jitter = uniform_sampling(t_s).note()
+    if jitter:
+        notes.append(jitter[0].upper() + jitter[1:])
     if p_mpa is not None and float(np.max(p_mpa)) > PRESSURE_PLAUSIBLE_MPA:
         notes.append(f"Column p_mpa reaches {float(np.max(p_mpa)):g} MPa, far above a tap-water rig's (supply "
                      "0.25 MPa): is it logged in kPa? It only enters the regime breakdown (and the fits with "

@@ -114,17 +114,22 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
     mean_p = mean_test(e)
     structured = (ac.p_value < alpha or mean_p < alpha) and rms > materiality * ref
     return structured, {"ljung_box_p": ac.p_value, "lags_outside_band": ac.outside, "rms_mm": rms,
-                        "white_noise_mm": sigma, "noise_reference_mm": ref, "mean_mm": float(np.mean(e)),
+                        "white_noise_mm": sigma, "noise_reference_mm": ref, "mean_mm": math.fsum(np.asarray(e, float).tolist()) / len(e),
                         "mean_p": mean_p}
 
 
 def mean_test(e: np.ndarray) -> float:
-    """Two-sided p-value of "``e`` has zero mean" (one-sample t-test on independent samples)."""
-    n = len(e)
+    """Two-sided p-value of "``e`` has zero mean" (one-sample t-test on independent samples).
+
+    As ``scipy.stats.ttest_1samp``, but on correctly rounded sums: the verdict it gates must not
+    depend on the CPU's summation order (:mod:`tapmuscle.diagnosis.reproducible`).
+    """
+    x = np.asarray(e, float)
+    n = len(x)
     if n < 2:
         return 1.0
-    sd = float(np.std(e, ddof=1))
-    mean = float(np.mean(e))
+    mean = math.fsum(x.tolist()) / n
+    sd = math.sqrt(sse(x - mean) / (n - 1))
     if sd == 0.0:
         return 1.0 if mean == 0.0 else 0.0
     return float(2.0 * stats.t.sf(abs(mean) / (sd / math.sqrt(n)), n - 1))

@@ -50,6 +50,13 @@ class Sampling:
         """Whether the times scatter about the grid (by up to :attr:`jitter_s`) rather than lie on it."""
         return self.jitter_s > 0.0
 
+    def note(self) -> str | None:
+        """What a tool tells its user about jittered times (None: they lie on the grid)."""
+        if not self.jittered:
+            return None
+        return (f"the timestamps scatter by up to {1e3 * self.jitter_s:.3g} ms about a uniform {self.ts_s:.6g}-s grid "
+                "(logger jitter); the samples are taken as on it")
+
 
 def uniform_sampling(t_s: np.ndarray, column: str = "t_s") -> Sampling:
     """The uniform grid of the times ``t_s`` [s], or a :class:`SamplingError` naming the sample off it.
