@@ -263,7 +263,8 @@ class LoadMismatchParams(_Validated):
 class SensorDriftParams(_Validated):
     """The encoder's zero drifts (thermal expansion, a slipping scale): ``l_seen = l + offset + rate t``."""
 
-    offset_mm: float = _f(0.0, "Encoder offset at t = 0 [mm].", lo=-20.0, hi=20.0)
+    offset_mm: float = _f(0.0, "Encoder offset at t = 0 [mm]: an encoder zeroed anywhere within the muscle's stroke.",
+                          lo=-100.0, hi=100.0)
     rate_mm_per_min: float = _f(0.0, "Drift of the encoder offset [mm/min].", lo=-10.0, hi=10.0)
 
 

@@ -581,6 +581,30 @@ def test_parameter_errors_alone_are_calibrated_not_blamed_on_an_effect(tmp_path,
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("excitation,seed", [("sine", 22), ("steps", 23)])
+def test_an_encoder_offset_beside_a_delay_is_named_from_the_first_reading(excitation, seed):
+    """An encoder zeroed 12.5 mm off on a rig with a 0.3-s delay. Left to the calibration, the offset
+    bent the constants (radius and braid angle) and the delay was then misread: an input map and a
+    backlash (sine), an ambiguous delay (steps). The first reading, drained at t = 0 where the model
+    reads 0 whatever its constants, starts the search with the offset, and both effects are named with
+    the constants left near nominal (the fit at the noise floor)."""
+    rig = DEMO_MODEL.with_values(**{"sensor_drift.offset_mm": 12.5, "delay.delay_s": 0.3})
+    cols = record(rig, excitation, seed, duration_s=120.0)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, p_mpa=cols["p_mpa"])
+    assert d.verdict == "mismatch" and d.named == ["sensor_drift", "transport_delay"], d.named
+    values = {k: v for f in d.findings for k, v in f.parameters.items()}
+    assert values["sensor_drift.offset_mm"] == pytest.approx(12.5, abs=0.05)  # 5 encoder steps
+    assert values["delay.delay_s"] == pytest.approx(0.3, abs=0.01)
+    assert d.fit_after_percent > 99.8
+    # the constants that took the offset up (to 72 % and 62 % off) stay well within a rig's 20 %
+    for key in ("muscle.radius_mm", "muscle.braid_angle_deg"):
+        assert d.calibrated.value(key) == pytest.approx(DEMO_MODEL.value(key), rel=0.05), key
+    (first,) = [s for s in d.selection if s.get("round") == 0]
+    assert (first["step"], first["effect"], first["from"]) == ("add", "sensor_drift", "the first reading")
+    assert first["held_out_sse_reduction"] >= 0.10  # diagnose's min_reduction
+
+
+@pytest.mark.slow
 def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
     """Before calibration came first, this recording was blamed on a supply sag, then a delay."""
     cols = record(DEMO_MODEL.with_values(**OFF, **{"delay.delay_s": 0.3}), "steps", 3, duration_s=150.0)

@@ -792,7 +792,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "sensor_drift",
         "The encoder's zero is offset and drifts (thermal expansion, a slipping scale): the reading is "
         "the displacement plus a slowly changing offset, whatever the muscle does.",
-        (ParameterSpec("sensor_drift.offset_mm", "mm", -20.0, 20.0),
+        (ParameterSpec("sensor_drift.offset_mm", "mm", -100.0, 100.0),
          ParameterSpec("sensor_drift.rate_mm_per_min", "mm/min", -10.0, 10.0)),
         "Linear least squares of the residual on (1, t): no re-simulation (the encoder does not feed back).",
         _fit_sensor_drift,

@@ -23,6 +23,13 @@ Procedure
    free when lower, and the second calibration then starts from that fit: putting back the
    constants an inflated level leaves unidentifiable can undo a fit that was right
    (:attr:`tapmuscle.diagnosis.calibration.Calibration.map_params`).
+   **The first reading** (:meth:`~tapmuscle.diagnosis.model_space.ModelSpace.first_reading`): the
+   model's output at t = 0 is its initial state's whatever the constants, so no calibration explains a
+   first reading away from it (the muscle's, drained: an encoder zeroed elsewhere). The effect it
+   evidences is calibrated with from the start, re-fitted jointly with the constants, and kept as the
+   first finding (round 0) when it passes step 4's held-out test against the calibration without it.
+   Left to the search, a 12.5-mm offset bent the radius and the braid angle 60-70 % off, and the
+   effects beside it were misread.
 4. **Forward selection.** While the held-out residual is structured, every candidate effect is fitted
    on top of the current model (:mod:`tapmuscle.diagnosis.candidates`), and the promising ones are re-fitted
    *jointly* with the calibrated constants. The best joint fit is accepted when it is significant
@@ -885,8 +892,46 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
                 converged = current.params
 
+    # the first reading (step 3): an effect no calibration can explain is calibrated with from the start
+    first = space.first_reading(y, y0, p_mpa) if cal is not None else None
+    first_values: dict[str, float] = {}
+    if first is not None and first[0] in by_name:
+        name, start = first
+        runs0 = sim.runs
+        current = refitted(current.params) or current
+        converged = current.params
+        c1 = calibrated(model.with_values(**start))
+        coords1 = fitted_coords(c1)
+        p1, f1 = _joint_refit(problem, space, coords1, sigma, c1.params, (name,), c1.jacobian[:, :len(coords1)], True)
+        y1, q1 = sim.run(p1)
+        q1 = _used(q1)
+        keys = [spec.key for spec in by_name[name].parameters]
+        values = {k: float(p1.value(k)) for k in keys}
+        on = judged()
+        contribution_rms = on.contribution_rms_mm(y1, q1, current.y, current.q)
+        sig = significance(current.y, y1, current.q, q1, on=on) | {"contribution_rms_mm": contribution_rms}
+        kept = passes(sig)
+        tried.append({"round": 0, "effect": name, "joint": True, "from": "the first reading",
+                      "start": dict(start), "held_out_sse_reduction": round(sig["reduction"], 4),
+                      "p_value": sig["p_value"], "contribution_rms_mm": round(contribution_rms, 6),
+                      "prior_cost": round(prior_cost(p1), 3), "parameters": values,
+                      "simulations": sim.runs - runs0})
+        selection.append({"step": "add" if kept else "not added", "round": 0, "effect": name,
+                          "from": "the first reading", "held_out_sse_reduction": round(sig["reduction"], 4),
+                          "alternatives": []})
+        if kept:
+            contribution = y1 - current.y
+            regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution, output=output)
+            findings.append(Finding(name, by_name[name].explain(values), values,
+                                    fit_percent(y, y1, test) - fit_percent(y, current.y, test),
+                                    located_windows(contribution, ts, noise_mm=noise), regime, dict(sig)))
+            cal, coords = c1, coords1
+            cal_jac = (c1.jacobian if f1 is None else f1.jacobian)[:, :len(coords1)]
+            current = _Model(p1, (name,), y1, {name: values}, q1)
+            converged = p1
+            first_values = values
     structured = tests0["structured"] and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
-    pool = list(candidates)
+    pool = [c for c in candidates if c.name not in current.effects]
     done = 0
     round_no = 0
     while tests0["structured"] and structured and pool and len(current.effects) < max_effects:
@@ -948,9 +993,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # own valley, and a start from there stays in it: every candidate also starts from the
             # nominal constants with the effect fitted on the nominal model (the better start on the
             # training blocks is kept after the joint re-fit).
-            sim.run(model, checkpoint_every=checkpoint_every)  # window fits continue from checkpoints of their base
-            nominal_jobs = _start_fits(pool, problem, model, y0)
-            start_n = model
+            # (with the first reading's effect, when kept, at its values)
+            start_n = model.with_values(**first_values) if first_values else model
+            y_n = sim.run(start_n, checkpoint_every=checkpoint_every)[0]  # window fits continue from checkpoints of their base
+            nominal_jobs = _start_fits(pool, problem, start_n, y_n if first_values else y0)
         elif nominal_start is not None and nominal_start.effects == current.effects:
             # (a start made before the backward step dropped an effect would switch it on again)
             start_n = nominal_start.params
@@ -1025,8 +1071,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # current model re-fitted alone (so recalibration gets the same chance as the effect)
         ref_y, ref_q = current.y, current.q
         alts: list[Alternative] = []
-        tasks = [(start.with_values(**res.values), (cand.name,) if start is model else current.effects + (cand.name,))
-                 for cand, res, start, _ in promising]
+        tasks = [(start.with_values(**res.values), current.effects + (cand.name,)) for cand, res, start, _ in promising]
         jobs = _on_copies(problem, _joint_prediction, (space, list(coords), sigma, cal_jac), tasks)
         joints = []
         for (cand, res, _, _), job in zip(promising, jobs):

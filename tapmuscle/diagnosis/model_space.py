@@ -21,8 +21,11 @@ import math
 from abc import ABC, abstractmethod
 from typing import Any, Iterable, Mapping
 
+import numpy as np
+
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.calibration import field_bounds
+from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
 
 __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "JOINT_STARTS", "OFF_VALUES",
            "sensor_noise_mm"]
@@ -121,6 +124,13 @@ class ModelSpace(ABC):
         """The output noise level the model states (None: unknown, the residual's own level is used)."""
         return None
 
+    def first_reading(self, y: np.ndarray, y_hat: np.ndarray,
+                      p_mpa: np.ndarray | None) -> tuple[str, dict[str, float]] | None:
+        """The effect that the recording's first sample alone evidences, and its start values (None:
+        none): the model's initial output is fixed whatever its constants, so no calibration explains
+        a first reading away from it, and a calibration left to it bends the constants to take it up."""
+        return None
+
 
 class MuscleSpace(ModelSpace):
     """The tapmuscle plant: :class:`~fmu_plant.PlantParams`, its fields' bounds, its effect library."""
@@ -138,6 +148,19 @@ class MuscleSpace(ModelSpace):
 
     def sensor_noise(self, model: PlantParams) -> float:
         return sensor_noise_mm(model)
+
+    def first_reading(self, y: np.ndarray, y_hat: np.ndarray,
+                      p_mpa: np.ndarray | None) -> tuple[str, dict[str, float]] | None:
+        """An encoder zeroed elsewhere: the plant starts drained at rest (``l = 0``) whatever its
+        constants, and a first reading more than :data:`~tapmuscle.diagnosis.recording_checks.AT_REST_MM`
+        away from it, with the recorded pressure (if any) that of a drained muscle, is the encoder's
+        offset [mm], clipped to its bounds. A first pressure above a drained muscle's is a recording
+        started mid-run instead: no offset (its start-up transient is no constant's either)."""
+        e0 = float(y[0] - y_hat[0])
+        if abs(e0) <= AT_REST_MM or (p_mpa is not None and float(p_mpa[0]) > DRAINED_MPA):
+            return None
+        lo, hi = self.bounds("sensor_drift.offset_mm")
+        return "sensor_drift", {"sensor_drift.offset_mm": min(max(e0, lo), hi)}
 
 
 #: The tapmuscle plant's model space.

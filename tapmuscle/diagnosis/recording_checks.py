@@ -65,8 +65,8 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
     if abs(l0) > AT_REST_MM or (p0 is not None and p0 > DRAINED_MPA):
         what = f"l = {l0:g} mm" + (f", p = {p0:g} MPa" if p0 is not None else "")
         notes.append(f"The recording starts at {what}, but the model starts at rest (drained, l = 0): an encoder "
-                     f"zeroed elsewhere is an offset to subtract from l_mm first (alone, it is named sensor_drift; "
-                     f"beside another effect the calibration absorbs it); a recording started mid-run has a "
+                     f"zeroed elsewhere is an offset (with a drained first pressure, or none recorded, the search "
+                     f"starts with it as sensor_drift); a recording started mid-run has a "
                      "start-up transient that the model cannot reproduce (record from rest, or expect an "
                      "unexplained window at its start)")
     jitter = uniform_sampling(t_s).note()

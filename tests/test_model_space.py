@@ -1,0 +1,51 @@
+"""The model family's answers to the search (tapmuscle/diagnosis/model_space.py): the effect a first
+reading evidences on its own."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace
+from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
+
+REST = np.zeros(5)
+
+
+@pytest.mark.parametrize("l0", [0.0, 0.01, -AT_REST_MM, AT_REST_MM])
+def test_a_first_reading_at_rest_evidences_nothing(l0):
+    y = REST + l0
+    assert MUSCLE.first_reading(y, REST, None) is None
+    assert MUSCLE.first_reading(y, REST, np.zeros(5)) is None
+
+
+@pytest.mark.parametrize("l0", [0.51, -0.6, 12.5, -37.0])
+def test_a_drained_first_reading_away_from_rest_is_the_encoders_offset(l0):
+    y = REST + l0
+    for p in (None, np.full(5, DRAINED_MPA)):
+        assert MUSCLE.first_reading(y, REST, p) == ("sensor_drift", {"sensor_drift.offset_mm": l0})
+    # measured against the model's own first output, whatever it is
+    name, start = MUSCLE.first_reading(y + 2.0, REST + 2.0, None)
+    assert name == "sensor_drift" and start["sensor_drift.offset_mm"] == pytest.approx(l0, abs=1e-12)
+
+
+def test_an_offset_beyond_its_bounds_starts_at_the_bound():
+    lo, hi = MUSCLE.bounds("sensor_drift.offset_mm")
+    assert MUSCLE.first_reading(REST + 2 * hi, REST, None)[1] == {"sensor_drift.offset_mm": hi}
+    assert MUSCLE.first_reading(REST + 2 * lo, REST, None)[1] == {"sensor_drift.offset_mm": lo}
+
+
+def test_a_pressurised_first_reading_is_a_recording_started_mid_run_not_an_offset():
+    y = REST + 12.5
+    assert MUSCLE.first_reading(y, REST, np.full(5, DRAINED_MPA * 1.01)) is None
+    assert MUSCLE.first_reading(y, REST, np.full(5, 0.15)) is None
+
+
+def test_another_model_family_has_no_first_reading_rule():
+    class Other(ModelSpace):
+        def bounds(self, key):
+            return (-1.0, 1.0)
+
+        def off_values(self, keys):
+            return dict.fromkeys(keys, 0.0)
+    assert Other().first_reading(REST + 12.5, REST, None) is None
