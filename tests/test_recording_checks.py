@@ -9,7 +9,8 @@ import pytest
 
 from tapmuscle.diagnosis import diagnose
 from tapmuscle.diagnosis.demo import DEMO_MODEL, record
-from tapmuscle.diagnosis.recording_checks import check_muscle_recording, muscle_recording_notes
+from tapmuscle.diagnosis.recording_checks import (DISPLACEMENT_PLAUSIBLE_MM, check_muscle_recording,
+                                                  displacement_scale_notes, muscle_recording_notes)
 
 TS = 0.1
 
@@ -39,6 +40,20 @@ def test_a_command_in_percent_or_times_in_milliseconds_are_refused_by_sample():
         check_muscle_recording(noisy, TS)
     with pytest.raises(ValueError, match=r"the sampling period is 100 s, outside the 0.001..10 s .*milliseconds"):
         check_muscle_recording(u, 100.0)
+
+
+def test_a_displacement_in_micrometres_is_refused_and_one_in_metres_is_said():
+    t, u, l, _ = _clean()
+    check_muscle_recording(u, TS, l)
+    check_muscle_recording(u, TS, l - DISPLACEMENT_PLAUSIBLE_MM)  # an encoder zeroed at the far end: still mm
+    with pytest.raises(ValueError, match=r"column l_mm, sample 10: 598.003 mm is further from 0 than the muscle's 500 mm "
+                                         r".*\(micrometres\)\? Scale it to millimetres"):
+        check_muscle_recording(u, TS, 1000.0 * l)
+    assert displacement_scale_notes(l, l) == [] and displacement_scale_notes(0.5 * l, l) == []  # a rig half as stiff
+    (note,) = displacement_scale_notes(l / 1000.0, l)
+    assert "spans 0.06 mm where the nominal model" in note and "1e+03 times" in note and "metres" in note
+    assert "metres" in displacement_scale_notes(np.zeros_like(l), l)[0]  # a stuck encoder is said too
+    assert displacement_scale_notes(l, np.zeros_like(l)) == []  # a model that does not move says nothing
 
 
 def test_a_start_away_from_rest_jitter_and_kpa_are_said():

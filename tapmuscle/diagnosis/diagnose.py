@@ -109,7 +109,7 @@ from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
-from tapmuscle.diagnosis.recording_checks import check_muscle_recording, muscle_recording_notes
+from tapmuscle.diagnosis.recording_checks import check_muscle_recording, displacement_scale_notes, muscle_recording_notes
 from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
@@ -287,7 +287,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     ------
     ValueError
         Arrays of different lengths, fewer than :data:`MIN_SAMPLES` samples, non-uniform sampling
-        (naming the first offending sample), non-finite values, or a command that never changes.
+        (naming the first offending sample), non-finite values, a command that never changes, or
+        values no muscle recording has (a command outside -1..11 V, a displacement beyond 500 mm, a
+        period outside 1 ms..10 s: :func:`~tapmuscle.diagnosis.recording_checks.check_muscle_recording`).
     TypeError
         ``model`` is not a :class:`~fmu_plant.PlantParams`.
     """
@@ -298,7 +300,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
-    check_muscle_recording(u, ts)
+    check_muscle_recording(u, ts, y)
     notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float))
     block_s = split_length_s(u, ts, block_s)
     load = None if load_n is None else np.asarray(load_n, float)
@@ -309,7 +311,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
                     calibration=calibration, progress=progress, started=started, space=MUSCLE,
                     use_pressure=use_pressure)
-    d.notes[:0] = notes
+    d.notes[:0] = notes + displacement_scale_notes(y, d.y_before_mm)
     return d
 
 

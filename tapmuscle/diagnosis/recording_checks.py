@@ -1,6 +1,7 @@
 """What in a rig's recording of the muscle would make its diagnosis meaningless, checked before any
-simulation runs: a command outside the valve's range or a sampling period no muscle recording has
-(refused), and a start away from rest, jittered timestamps or a pressure column in another unit
+simulation runs: a command outside the valve's range, a displacement beyond the muscle's length or a
+sampling period no muscle recording has (refused), and a start away from rest, jittered timestamps,
+a pressure column in another unit or a displacement a thousand times smaller than the model's
 (said, in the report's notes).
 
 A real rig's log differs from `tapmuscle record`'s in ways that leave every column a finite number
@@ -15,8 +16,9 @@ import numpy as np
 
 from tapmuscle.io.sampling import uniform_sampling
 
-__all__ = ["check_muscle_recording", "muscle_recording_notes", "COMMAND_RANGE_V", "TS_RANGE_S", "AT_REST_MM",
-           "DRAINED_MPA", "PRESSURE_PLAUSIBLE_MPA"]
+__all__ = ["check_muscle_recording", "muscle_recording_notes", "displacement_scale_notes", "COMMAND_RANGE_V",
+           "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
+           "PRESSURE_PLAUSIBLE_MPA"]
 
 #: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
 #: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
@@ -24,6 +26,12 @@ __all__ = ["check_muscle_recording", "muscle_recording_notes", "COMMAND_RANGE_V"
 COMMAND_RANGE_V = (-1.0, 11.0)
 #: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
 TS_RANGE_S = (1e-3, 10.0)
+#: No reading of the 400-mm muscle's contraction lies further than this from 0 [mm]: its length and
+#: an encoder zeroed anywhere in its stroke (``sensor_drift.offset_mm``'s 100-mm bound); beyond: µm?
+DISPLACEMENT_PLAUSIBLE_MM = 500.0
+#: A recorded displacement whose span is below this fraction of the nominal model's for the same
+#: command is in another unit (metres: a thousandth), not a rig a few tens of percent off.
+SPAN_RATIO_PLAUSIBLE = 0.05
 #: A first reading further than this from 0 [mm] is not a muscle at rest with its encoder zeroed there.
 AT_REST_MM = 0.5
 #: A first pressure above this [MPa(G)] is not a drained muscle.
@@ -32,13 +40,14 @@ DRAINED_MPA = 0.02
 PRESSURE_PLAUSIBLE_MPA = 2.0
 
 
-def check_muscle_recording(u_v: np.ndarray, ts_s: float) -> None:
-    """Refuse a command outside :data:`COMMAND_RANGE_V` or a period outside :data:`TS_RANGE_S`.
+def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None) -> None:
+    """Refuse a command outside :data:`COMMAND_RANGE_V`, a period outside :data:`TS_RANGE_S`, or a
+    displacement ``l_mm`` beyond :data:`DISPLACEMENT_PLAUSIBLE_MM`.
 
     Raises
     ------
     ValueError
-        Naming the first command sample outside the range (and its value), or the period.
+        Naming the first sample outside the range (and its value), or the period.
     """
     lo, hi = COMMAND_RANGE_V
     bad = np.nonzero((u_v < lo) | (u_v > hi))[0]
@@ -50,6 +59,14 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float) -> None:
     if not TS_RANGE_S[0] <= ts_s <= TS_RANGE_S[1]:
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
                          "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
+    if l_mm is not None:
+        far = np.nonzero(np.abs(l_mm) > DISPLACEMENT_PLAUSIBLE_MM)[0]
+        if far.size:
+            k = int(far[0])
+            raise ValueError(f"column l_mm, sample {k}: {float(l_mm[k]):g} mm is further from 0 than the muscle's "
+                             f"{DISPLACEMENT_PLAUSIBLE_MM:g} mm (its 400-mm length and an encoder zeroed anywhere in its "
+                             f"stroke; {far.size} samples are, range {float(np.min(l_mm)):g}..{float(np.max(l_mm)):g}): is "
+                             "the displacement logged in another unit (micrometres)? Scale it to millimetres")
 
 
 def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray | None) -> list[str]:
@@ -77,3 +94,14 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
                      "0.25 MPa): is it logged in kPa? It only enters the regime breakdown (and the fits with "
                      "--use-pressure)")
     return notes
+
+
+def displacement_scale_notes(l_mm: np.ndarray, l_model_mm: np.ndarray) -> list[str]:
+    """A note when the recorded displacement spans less than :data:`SPAN_RATIO_PLAUSIBLE` of what the
+    nominal model ``l_model_mm`` does for the same command (metres logged as mm); empty otherwise."""
+    span, model_span = float(np.ptp(l_mm)), float(np.ptp(l_model_mm))
+    if model_span <= 0.0 or span >= SPAN_RATIO_PLAUSIBLE * model_span:
+        return []
+    return [f"Column l_mm spans {span:.4g} mm where the nominal model, driven by the same command, spans "
+            f"{model_span:.4g} mm ({model_span / max(span, 1e-300):.3g} times as much): is the displacement logged in "
+            "another unit (metres)? The diagnosis compares it as millimetres (a stuck encoder reads so too)"]
