@@ -49,3 +49,11 @@ def test_another_model_family_has_no_first_reading_rule():
         def off_values(self, keys):
             return dict.fromkeys(keys, 0.0)
     assert Other().first_reading(REST + 12.5, REST, None) is None
+
+
+def test_a_recording_starts_mid_run_when_its_first_pressure_is_above_a_drained_muscles():
+    y = REST + 80.0
+    assert MUSCLE.starts_mid_run(y, np.full(5, DRAINED_MPA * 1.01))
+    assert not MUSCLE.starts_mid_run(y, np.full(5, DRAINED_MPA))
+    assert not MUSCLE.starts_mid_run(y, None)  # without a pressure: an offset or a mid-run start (first_reading)
+    assert not MUSCLE.starts_mid_run(REST, np.zeros(5))

@@ -609,6 +609,13 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     checkpoint_every = checkpoint_interval(ts)
     y0, q0 = sim.run(model, checkpoint_every=checkpoint_every)
     train, test = interleaved_split(n, ts, block_s)
+    # a start-up transient that no parameter explains would bend the constants fitted to it: the
+    # first (training) block is left out of the fits of a recording that starts mid-run
+    start_left_out_s = 0.0
+    if space.starts_mid_run(y, p_mpa):
+        first_block = block_index(n, ts, block_s) == 0
+        train = train & ~first_block
+        start_left_out_s = round(float(np.count_nonzero(first_block)) * ts, 6)
     e0 = y - y0
     noise = white_noise_level_mm(e0)
     evidence = HeldOut.setup(y, test, noise, p_mpa if use_pressure else None, q0)
@@ -1231,8 +1238,11 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # calibration itself is a training-block fit. Where it carries over worse than the nominal plant,
         # the training blocks hold something no constant explains (a recording started mid-run: the
         # constants bent to its start-up transient), and the nominal plant is the better model.
+        # as many decimals as tell the two fits apart (a worse fit printed as the same number reads as a bug)
+        digits = next((k for k in range(2, 7) if f"{fit_kept:.{k}f}" != f"{fit_before:.{k}f}"), 6)
         skipped = (f"not kept: the calibrated model{' with ' + ', '.join(current.effects) if current.effects else ''} "
-                   f"fits the held-out blocks worse ({fit_kept:.2f} %) than the nominal plant ({fit_before:.2f} %)")
+                   f"fits the held-out blocks worse ({fit_kept:.{digits}f} %) than the nominal plant "
+                   f"({fit_before:.{digits}f} %)")
         notes.append(f"The calibration was {skipped}: what the training blocks bent the constants to is not in the "
                      "held-out blocks (a start-up transient of a recording that does not start at rest?), so the "
                      "nominal plant is kept and no effect is claimed")
@@ -1295,4 +1305,5 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
                      ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa, block_s=block_s,
-                     output=output, notes=notes, **({"calibration_skipped": skipped} if skipped else {}))
+                     output=output, notes=notes, start_left_out_s=start_left_out_s,
+                     **({"calibration_skipped": skipped} if skipped else {}))

@@ -140,6 +140,10 @@ class Diagnosis:
     displacement alone."""
     block_s: float | None = None
     """Length of the interleaved training / held-out blocks [s]."""
+    start_left_out_s: float = 0.0
+    """Seconds at the recording's start left out of the training blocks (the first block of a
+    recording that starts mid-run: :meth:`~tapmuscle.diagnosis.model_space.ModelSpace.starts_mid_run`);
+    0: none. ``diagnosis.json``'s ``split.start_left_out_s`` when not 0."""
     output: tuple[str, str] | None = None
     """``(name, unit)`` of another model's measured output, which the ``*_mm`` fields then hold in its
     unit; None: the muscle's displacement [mm]."""
@@ -178,7 +182,8 @@ class Diagnosis:
                 "residual_tests": {"before": self.tests_before, "after": self.tests_after},
                 "candidates_tried": self.candidates,
                 "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
-                          "held_out_samples": int(self.test.sum()), "block_s": self.block_s},
+                          "held_out_samples": int(self.test.sum()), "block_s": self.block_s}
+                         | ({"start_left_out_s": self.start_left_out_s} if self.start_left_out_s else {}),
                 "evidence": {"channels": ["l_mm"] + (["p_mpa"] if self.pressure_noise_mpa is not None else []),
                              "pressure_noise_mpa": self.pressure_noise_mpa},
                 "simulations": self.simulations, "elapsed_s": round(self.elapsed_s, 2)}

@@ -131,6 +131,12 @@ class ModelSpace(ABC):
         a first reading away from it, and a calibration left to it bends the constants to take it up."""
         return None
 
+    def starts_mid_run(self, y: np.ndarray, p_mpa: np.ndarray | None) -> bool:
+        """Whether the recording starts where the model's initial state cannot be (a run already under
+        way): its start-up transient is then no parameter's to explain, and the search leaves the first
+        block out of the training blocks."""
+        return False
+
 
 class MuscleSpace(ModelSpace):
     """The tapmuscle plant: :class:`~fmu_plant.PlantParams`, its fields' bounds, its effect library."""
@@ -161,6 +167,13 @@ class MuscleSpace(ModelSpace):
             return None
         lo, hi = self.bounds("sensor_drift.offset_mm")
         return "sensor_drift", {"sensor_drift.offset_mm": min(max(e0, lo), hi)}
+
+    def starts_mid_run(self, y: np.ndarray, p_mpa: np.ndarray | None) -> bool:
+        """A first recorded pressure above a drained muscle's
+        (:data:`~tapmuscle.diagnosis.recording_checks.DRAINED_MPA`): the model starts drained. Without
+        a pressure column a mid-run start cannot be told from an encoder offset
+        (:meth:`first_reading`)."""
+        return p_mpa is not None and float(p_mpa[0]) > DRAINED_MPA
 
 
 #: The tapmuscle plant's model space.

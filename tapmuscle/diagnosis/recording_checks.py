@@ -84,8 +84,9 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
         notes.append(f"The recording starts at {what}, but the model starts at rest (drained, l = 0): an encoder "
                      f"zeroed elsewhere is an offset (with a drained first pressure, or none recorded, the search "
                      f"starts with it as sensor_drift); a recording started mid-run has a "
-                     "start-up transient that the model cannot reproduce (record from rest, or expect an "
-                     "unexplained window at its start)")
+                     "start-up transient that the model cannot reproduce (with a first pressure above a "
+                     "drained muscle's, the first block is left out of the fits; expect an unexplained "
+                     "window at the start, or record from rest)")
     jitter = uniform_sampling(t_s).note()
     if jitter:
         notes.append(jitter[0].upper() + jitter[1:])
