@@ -5,6 +5,9 @@ Procedure
 ---------
 1. Re-simulate the recorded command with the model (:mod:`tapmuscle.diagnosis.simulation`), residual
    ``e = l_measured - l_model``; split the samples into interleaved training and held-out blocks.
+   A recording that starts mid-run (:meth:`~tapmuscle.diagnosis.model_space.ModelSpace.starts_mid_run`)
+   has its first block left out of the training blocks: the start-up transient from a state the
+   model cannot start in is no parameter's to fit.
 2. Is there anything to explain? The residual must fail the whiteness test (Ljung-Box, p < ``alpha``)
    *and* be material (RMS above 1.5 times the noise level). If not: ``no_significant_mismatch``.
 3. **Calibrate before accusing** (:mod:`tapmuscle.diagnosis.calibration`): re-estimate the nominal constants the
