@@ -54,6 +54,8 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "Recording": ("tapmuscle.io.recording", "Recording"),
     "read_recording": ("tapmuscle.io.recording", "read_recording"),
     "write_recording": ("tapmuscle.io.recording", "write_recording"),
+    "read_rig_log": ("tapmuscle.io.rig_log", "read_rig_log"),
+    "LogColumn": ("tapmuscle.io.rig_log", "LogColumn"),
     # mismatch diagnosis
     "diagnose": ("tapmuscle.diagnosis", "diagnose"),
     "Diagnosis": ("tapmuscle.diagnosis", "Diagnosis"),

@@ -16,6 +16,7 @@ from typing import Sequence
 
 from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
 from tapmuscle.cli.diagnose import register as _register_diagnose
+from tapmuscle.cli.rig_import import register as _register_import
 from tapmuscle.cli.sweep import register as _register_sweep
 from tapmuscle.errors import UsageError
 
@@ -366,6 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
     bld.set_defaults(func=_cmd_build)
     _register_sweep(sub)
     _register_diagnose(sub)
+    _register_import(sub)
     return parser
 
 

@@ -1,0 +1,82 @@
+"""``tapmuscle import``: a rig's data-acquisition log into the recording format (docs/recordings.md),
+with what the mismatch diagnosis would refuse or say about it printed before any diagnosis runs."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tapmuscle.cli.arguments import number_within, output_path
+from tapmuscle.errors import UsageError
+
+__all__ = ["register"]
+
+
+def _column(target: str, flag: str):
+    from tapmuscle.io.rig_log import parse_column_spec
+
+    def parse(text: str):
+        try:
+            return parse_column_spec(text, target)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(f"{flag} {exc}") from None
+    return parse
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from tapmuscle.diagnosis.recording_checks import check_muscle_recording, muscle_recording_notes
+    from tapmuscle.io.recording import RecordingError, write_recording
+    from tapmuscle.io.rig_log import read_rig_log
+    from tapmuscle.io.sampling import SamplingError
+
+    if args.load is not None and args.load_n is not None:
+        raise UsageError("--load and --load-n: give the load as a column or as one value, not both")
+    try:
+        rec = read_rig_log(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
+                           load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal)
+        sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
+    except (RecordingError, SamplingError) as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        check_muscle_recording(rec.u_v, sampling.ts_s, rec.l_mm)
+        problems = []
+    except ValueError as exc:
+        problems = [f"the diagnosis would refuse it: {exc}"]
+    p = rec.columns.get("p_mpa")
+    notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, p)
+    write_recording(args.out, rec)
+    print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
+          + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else ""))
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``import`` to the ``tapmuscle`` command line."""
+    imp = sub.add_parser("import", help="convert a rig's data-acquisition log into a recording CSV",
+                         description="Read a rig's log (any column names; units, separator and decimal mark as "
+                                     "given or detected; text columns ignored) and write it as a recording "
+                                     "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
+                                     "min, h or iso (ISO 8601 text); command V, mV or %% (of 0..10 V); "
+                                     "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi; load N or kN.")
+    imp.add_argument("log", help="the logger's file")
+    imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
+    imp.add_argument("--time", type=_column("t_s", "--time"), required=True, metavar="COLUMN[:UNIT]",
+                     help="time column and unit (default unit s), e.g. time_ms:ms or stamp:iso")
+    imp.add_argument("--u", type=_column("u_v", "--u"), required=True, metavar="COLUMN[:UNIT]",
+                     help="valve command column (default unit V), e.g. valve_pct:%%")
+    imp.add_argument("--l", type=_column("l_mm", "--l"), required=True, metavar="COLUMN[:UNIT]",
+                     help="encoder displacement column (default unit mm), e.g. position_um:um")
+    imp.add_argument("--p", type=_column("p_mpa", "--p"), default=None, metavar="COLUMN[:UNIT]",
+                     help="muscle pressure column (default unit MPa), e.g. p_kpa:kPa")
+    imp.add_argument("--load", type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
+                     help="load column (default unit N)")
+    imp.add_argument("--load-n", type=number_within("--load-n", 1e-9, 500.0), default=None,
+                     help="the hanging load [N] when it is not a column (written as the recording's load_n)")
+    imp.add_argument("--delimiter", default=None, help="field separator (default: the one of ';', tab, ',' the "
+                                                       "header row holds most of)")
+    imp.add_argument("--decimal", choices=(".", ","), default=None,
+                     help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
+    imp.set_defaults(func=_cmd_import)

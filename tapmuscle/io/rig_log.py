@@ -1,0 +1,233 @@
+"""A rig's data-acquisition log read into a :class:`~tapmuscle.io.recording.Recording` (``tapmuscle import``).
+
+A logger writes its own file: other column names, its own units (a command in percent, a length in
+micrometres, a pressure in kPa, times in milliseconds, Unix seconds or ISO 8601 stamps), a semicolon
+or a tab between fields and a decimal comma, a units row under the header, text columns. The caller
+names the log's column of each quantity and its unit; everything else is read as it is:
+
+* the field separator is the one of ``; <tab> ,`` the header row holds most of (or ``delimiter``);
+* the decimal mark is a comma when the separator is not and a mapped cell reads ``12,5`` (or
+  ``decimal``);
+* leading ``#`` lines and blank lines are skipped, and so is one row under the header in which no
+  mapped value is a number (a units row);
+* columns not mapped are ignored (text, status flags);
+* times become seconds from the first sample (the first stamp as written is kept in the metadata
+  ``start``): the recording format's ``t_s``.
+
+The values are converted, nothing else: no resampling, no filling. Timestamps that scatter about a
+uniform grid by up to a quarter period are read as they are (the recording format accepts them,
+docs/recordings.md); a dropped or doubled sample is refused by the recording's sampling check. A cell
+that is empty or not a number is refused with its file, line and column.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import re
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from tapmuscle.io.recording import Recording, RecordingError
+
+__all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec"]
+
+#: Per recording column, the units a log may hold it in and the factor to the recording's unit
+#: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range.
+UNITS: dict[str, dict[str, float | None]] = {
+    "t_s": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0, "iso": None},
+    "u_v": {"V": 1.0, "mV": 1e-3, "%": 0.1},
+    "l_mm": {"mm": 1.0, "um": 1e-3, "cm": 10.0, "m": 1e3},
+    "p_mpa": {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6, "psi": 6.894757293168361e-3},
+    "load_n": {"N": 1.0, "kN": 1e3},
+}
+#: The unit assumed when a column is named without one: the recording format's.
+DEFAULT_UNITS = {"t_s": "s", "u_v": "V", "l_mm": "mm", "p_mpa": "MPa", "load_n": "N"}
+
+_SEPARATORS = (";", "\t", ",")
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$")
+
+
+@dataclass(frozen=True)
+class LogColumn:
+    """The log's column that holds one recording column, and its unit.
+
+    Parameters
+    ----------
+    column : str
+        The column's name in the log's header row.
+    unit : str
+        Its unit, a key of :data:`UNITS` for the recording column it is read into (``"ms"``, ``"%"``,
+        ``"um"``, ``"kPa"``, ``"iso"`` for ISO 8601 time text, ...).
+    """
+
+    column: str
+    unit: str
+
+    def factor(self, target: str) -> float | None:
+        """The factor to ``target``'s unit (None: ISO date-time text); ``ValueError`` naming the units known."""
+        units = UNITS[target]
+        if self.unit not in units:
+            raise ValueError(f"column {self.column!r}: unknown unit {self.unit!r} for {target} "
+                             f"(known: {', '.join(units)})")
+        return units[self.unit]
+
+
+def parse_column_spec(text: str, target: str) -> LogColumn:
+    """``"NAME"`` or ``"NAME:UNIT"`` as a :class:`LogColumn` for the recording column ``target``.
+
+    A colon followed by something that is not a unit of ``target`` is refused, naming the known
+    units (a column whose name itself holds a colon can only be given with its unit)."""
+    name, sep, unit = text.rpartition(":")
+    if not sep:
+        name, unit = text, DEFAULT_UNITS[target]
+    name = name.strip()
+    if not name:
+        raise ValueError(f"{text!r}: no column name (expected NAME or NAME:UNIT)")
+    col = LogColumn(name, unit.strip())
+    col.factor(target)
+    return col
+
+
+def _separator(header: str) -> str:
+    counts = [header.count(s) for s in _SEPARATORS]
+    return _SEPARATORS[int(np.argmax(counts))] if max(counts) else ","
+
+
+def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn | str, l: LogColumn | str,  # noqa: E741
+                 p: LogColumn | str | None = None, load: LogColumn | str | None = None, load_n: float | None = None,
+                 delimiter: str | None = None, decimal: str | None = None) -> Recording:
+    """Read a rig's log as a recording (module docstring).
+
+    Parameters
+    ----------
+    path : path
+        The log file (text; a byte-order mark is ignored).
+    time, u, l : LogColumn or str
+        The log's columns of the time, the valve command and the encoder displacement, with their
+        units (:data:`UNITS`): ``t_s`` [s from the first sample], ``u_v`` [V], ``l_mm`` [mm]. A string
+        is ``"NAME"`` or ``"NAME:UNIT"`` (:func:`parse_column_spec`).
+    p, load : LogColumn or str, optional
+        The muscle pressure (``p_mpa`` [MPa]) and the load (``load_n`` [N]) columns.
+    load_n : float, optional
+        The hanging load [N] for the metadata (the recording's ``# load_n:``), when it is not a column.
+    delimiter, decimal : str, optional
+        Field separator and decimal mark (default: detected, module docstring).
+
+    Returns
+    -------
+    Recording
+        Columns ``t_s, u_v, l_mm`` (and ``p_mpa``, ``load_n``); metadata ``source`` (the file and the
+        conversions), ``start`` (the first time stamp as written) and ``load_n`` when given.
+
+    Raises
+    ------
+    RecordingError
+        The file cannot be read, a mapped column is not in the header (naming the columns found),
+        an unknown unit, a cell that is empty or not a number or not an ISO 8601 time (file, line,
+        column), times that do not increase (line).
+    """
+    path = Path(path)
+    given = {"t_s": time, "u_v": u, "l_mm": l, "p_mpa": p, "load_n": load}
+    try:
+        mapping = {target: parse_column_spec(col, target) if isinstance(col, str) else col
+                   for target, col in given.items() if col is not None}
+        factors = {target: col.factor(target) for target, col in mapping.items()}
+    except ValueError as exc:
+        raise RecordingError(f"{path}: {exc}") from None
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such log file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path}: cannot read log: {exc}") from None
+    lines = text.splitlines()
+    i = 0
+    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
+        i += 1
+    if i >= len(lines):
+        raise RecordingError(f"{path}: no header row")
+    header_line = i + 1
+    sep = delimiter or _separator(lines[i])
+    rows = list(csv.reader(io.StringIO("\n".join(lines[i:])), delimiter=sep))
+    header = [h.strip() for h in rows[0]]
+    index = {}
+    for target, col in mapping.items():
+        if col.column not in header:
+            raise RecordingError(f"{path}, line {header_line}: no column {col.column!r} for {target} (found, "
+                                 f"separated by {sep!r}: {', '.join(header)})")
+        index[target] = header.index(col.column)
+    body = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
+    if decimal is None:
+        decimal = "."
+        if sep != ",":
+            cells = (row[j].strip() for _, row in body[:50] for j in index.values() if j < len(row))
+            decimal = "," if any(_DECIMAL_COMMA.match(c) for c in cells) else "."
+
+    def number(cell: str) -> float:
+        return float(cell.replace(decimal, ".") if decimal != "." else cell)
+
+    def is_number(cell: str) -> bool:
+        try:
+            number(cell.strip())
+        except ValueError:
+            return False
+        return True
+
+    skipped = None
+    if body and not any(is_number(body[0][1][j]) for target, j in index.items() if target != "t_s" and j < len(body[0][1])):
+        skipped, body = body[0][0], body[1:]  # a units row under the header: no mapped value is a number
+    if not body:
+        raise RecordingError(f"{path}: header but no data rows")
+    columns: dict[str, np.ndarray] = {}
+    start = ""
+    for target, j in index.items():
+        col = mapping[target]
+        values = np.empty(len(body))
+        first_dt = None
+        for k, (lineno, row) in enumerate(body):
+            if j >= len(row):
+                raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, no column {col.column!r} "
+                                     f"(header has {len(header)})")
+            cell = row[j].strip()
+            if factors[target] is None:
+                try:
+                    dt = datetime.fromisoformat(cell)
+                    first_dt = first_dt or dt
+                    values[k] = (dt - first_dt).total_seconds()
+                except (ValueError, TypeError) as exc:
+                    raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not an ISO 8601 "
+                                         f"time comparable with the first ({exc})") from None
+                continue
+            try:
+                v = number(cell)
+            except ValueError:
+                raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not a number"
+                                     + (f" (decimal mark {decimal!r})" if "," in cell or "." in cell else "")) from None
+            if not math.isfinite(v):
+                raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not finite")
+            values[k] = v
+        if target != "t_s":
+            columns[target] = values * factors[target]
+            continue
+        start = body[0][1][j].strip()
+        if factors[target] is not None:  # from the first sample in the log's own unit, then scaled:
+            values = (values - values[0]) * factors[target]  # epoch stamps keep their digits
+        bad = np.nonzero(np.diff(values) <= 0)[0]
+        if bad.size:
+            k = int(bad[0]) + 1
+            raise RecordingError(f"{path}, line {body[k][0]}, column {col.column!r}: time does not increase "
+                                 f"({body[k - 1][1][j].strip()!r}, then {body[k][1][j].strip()!r})")
+        columns[target] = values
+    used = ", ".join(f"{target} <- {col.column} [{col.unit}]" for target, col in mapping.items())
+    metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}
+    if skipped is not None:
+        metadata["units_row"] = f"line {skipped}, skipped"
+    if load_n is not None:
+        metadata["load_n"] = f"{load_n:g}"
+    return Recording(columns, metadata)

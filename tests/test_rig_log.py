@@ -1,0 +1,163 @@
+"""A rig's data-acquisition log into the recording format (tapmuscle/io/rig_log.py, ``tapmuscle import``):
+column names, units, separators, decimal commas, units rows, text columns and time stamps as loggers
+write them, read back to the recording they came from; and every malformed log refused by file, line
+and column, with nothing written."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from datetime import datetime, timedelta, timezone
+
+import numpy as np
+import pytest
+
+import tapmuscle as tm
+from tapmuscle.cli.main import main
+from tapmuscle.diagnosis.demo import DEMO_MODEL, record
+from tapmuscle.io.recording import RecordingError, read_recording
+from tapmuscle.io.rig_log import UNITS, LogColumn, parse_column_spec, read_rig_log
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return record(DEMO_MODEL, "sine", 1, duration_s=30.0)
+
+
+def _comma(x: float, fmt: str) -> str:
+    return format(x, fmt).replace(".", ",")
+
+
+def _logger(path, cols, *, jitter_s=0.004, epoch_ms=1.7e12, units_row=True, seed=0):
+    """What a PC logger writes: ';' and a decimal comma, epoch milliseconds with jitter, the command
+    in percent, the position in micrometres, the pressure in kPa, a text status and a units row."""
+    jitter = np.random.default_rng(seed).uniform(-jitter_s, jitter_s, len(cols["t_s"]))
+    with open(path, "w", newline="", encoding="utf-8-sig") as f:
+        f.write("# DAQ export, rig 2\n\n")
+        w = csv.writer(f, delimiter=";")
+        w.writerow(["time_ms", "valve_pct", "position_um", "p_kpa", "status"])
+        if units_row:
+            w.writerow(["ms", "%", "um", "kPa", "-"])
+        for t, u, l, p in zip(epoch_ms + 1e3 * (cols["t_s"] + jitter), cols["u_v"], cols["l_mm"], cols["p_mpa"]):
+            w.writerow([_comma(t, ".1f"), _comma(10 * u, ".4f"), f"{1e3 * l:.0f}", _comma(1e3 * p, ".3f"), "OK"])
+    return jitter
+
+
+def test_a_pc_loggers_file_reads_back_as_the_recording_it_came_from(tmp_path, truth):
+    log = tmp_path / "logger.csv"
+    jitter = _logger(log, truth)
+    rec = read_rig_log(log, time="time_ms:ms", u="valve_pct:%", l="position_um:um", p=LogColumn("p_kpa", "kPa"),
+                       load_n=44.0)
+    # each value to the resolution the logger wrote it with
+    assert np.max(np.abs(rec.u_v - truth["u_v"])) <= 0.5e-4 / 10 + 1e-12
+    assert np.max(np.abs(rec.l_mm - truth["l_mm"])) <= 0.5e-3 + 1e-12
+    assert np.max(np.abs(rec.columns["p_mpa"] - truth["p_mpa"])) <= 0.5e-6 + 1e-12
+    # seconds from the first stamp, the logger's jitter kept (0.05 ms: the stamps' 0.1-ms digit)
+    assert rec.t_s[0] == 0.0
+    assert np.max(np.abs(rec.t_s - (truth["t_s"] + jitter - jitter[0]))) <= 1e-4
+    assert rec.ts_s == pytest.approx(0.1, rel=1e-4) and rec.sampling.jitter_s < 0.005
+    assert set(rec.columns) == {"t_s", "u_v", "l_mm", "p_mpa"}  # the text status is not a column
+    assert rec.metadata["start"] == _comma(1.7e12 + 1e3 * jitter[0], ".1f")
+    assert rec.metadata["load_n"] == "44" and rec.metadata["units_row"] == "line 4, skipped"
+    assert "u_v <- valve_pct [%]" in rec.metadata["source"]
+
+
+def test_tabs_iso_stamps_metres_and_bar(tmp_path, truth):
+    start = datetime(2025, 3, 14, 9, 26, 53, 589000, tzinfo=timezone(timedelta(hours=1)))
+    log = tmp_path / "rig.tsv"
+    lines = ["stamp\tLength [m]\tCmd [V]\tp [bar]"]
+    for t, u, l, p in zip(truth["t_s"], truth["u_v"], truth["l_mm"], truth["p_mpa"]):
+        lines.append(f"{(start + timedelta(seconds=float(t))).isoformat()}\t{l / 1e3:.7f}\t{u:.6f}\t{10 * p:.6f}")
+    log.write_text("\r\n".join(lines) + "\r\n")
+    rec = read_rig_log(log, time="stamp:iso", u="Cmd [V]", l="Length [m]:m", p="p [bar]:bar")
+    assert np.max(np.abs(rec.t_s - truth["t_s"])) <= 1e-6
+    assert np.max(np.abs(rec.l_mm - truth["l_mm"])) <= 0.5e-4 + 1e-12
+    assert np.max(np.abs(rec.u_v - truth["u_v"])) <= 0.5e-6 + 1e-12
+    assert np.max(np.abs(rec.columns["p_mpa"] - truth["p_mpa"])) <= 0.5e-7 + 1e-12
+    assert rec.metadata["start"] == start.isoformat() and "units_row" not in rec.metadata
+
+
+def test_a_comma_separated_log_keeps_its_decimal_point(tmp_path):
+    log = tmp_path / "plain.csv"
+    log.write_text("t,u,x\n0,1.5,0\n0.1,2.5,1.25\n0.2,3.5,2.5\n")
+    rec = read_rig_log(log, time="t", u="u", l="x:cm")
+    np.testing.assert_array_equal(rec.l_mm, [0.0, 12.5, 25.0])
+    np.testing.assert_array_equal(rec.u_v, [1.5, 2.5, 3.5])
+
+
+def test_every_unit_has_a_factor_and_column_specs_parse():
+    assert all(f is None or f > 0 for units in UNITS.values() for f in units.values())
+    assert UNITS["u_v"]["%"] * 100.0 == 10.0  # 100 % is the valve's 10 V
+    assert parse_column_spec("pos", "l_mm") == LogColumn("pos", "mm")
+    assert parse_column_spec("a:b:um", "l_mm") == LogColumn("a:b", "um")
+    with pytest.raises(ValueError, match=r"column 'a': unknown unit 'b' for l_mm \(known: mm, um, cm, m\)"):
+        parse_column_spec("a:b", "l_mm")
+    with pytest.raises(ValueError, match="no column name"):
+        parse_column_spec(":ms", "t_s")
+
+
+@pytest.mark.parametrize("body,message", [
+    ("time;u;l\n0;1;0\n0,1;;0\n", r"line 3, column 'u': '' is not a number"),
+    ("time;u;l\n0;1;0\n0,1;x;0\n", r"line 3, column 'u': 'x' is not a number"),
+    ("time;u;l\n0;1;0\n0;2;0\n", r"line 3, column 'time': time does not increase \('0', then '0'\)"),
+    ("time;u;l\n0;1;0\n0,1;2\n", r"line 3: 2 fields, no column 'l'"),
+    ("time;u;pos\n0;1;0\n", r"line 1: no column 'l' for l_mm \(found, separated by ';': time, u, pos\)"),
+    ("# only a comment\n\n", r"no header row"),
+    ("time;u;l\nms;V;mm\n", r"header but no data rows"),
+])
+def test_a_malformed_log_is_refused_by_line_and_column(tmp_path, body, message):
+    log = tmp_path / "bad.csv"
+    log.write_text(body)
+    with pytest.raises(RecordingError, match=message):
+        read_rig_log(log, time="time", u="u", l="l")
+
+
+def test_iso_stamps_that_cannot_be_compared_and_iso_values_are_refused(tmp_path):
+    """Only the time's unit may be ISO 8601 text."""
+    log = tmp_path / "mixed.csv"
+    log.write_text("t,u,l\n2025-03-14T09:00:00+00:00,1,0\n2025-03-14T09:00:00.1,1,0\n")
+    with pytest.raises(RecordingError, match=r"line 3, column 't': '2025-03-14T09:00:00.1' is not an ISO 8601 time"):
+        read_rig_log(log, time="t:iso", u="u", l="l")
+    with pytest.raises(RecordingError, match=r"column 'u': unknown unit 'iso' for u_v \(known: V, mV, %\)"):
+        read_rig_log(log, time="t:iso", u=LogColumn("u", "iso"), l="l")
+
+
+def test_import_writes_the_recording_and_says_what_diagnose_would(tmp_path, truth, capsys):
+    log = tmp_path / "logger.csv"
+    _logger(log, truth)
+    out = tmp_path / "rec.csv"
+    assert main(["import", str(log), "--out", str(out), "--time", "time_ms:ms", "--u", "valve_pct:%",
+                 "--l", "position_um:um", "--p", "p_kpa:kPa", "--load-n", "44"]) == 0
+    io = capsys.readouterr()
+    assert "30" in io.out and "Ts 0.1" in io.out and "line 4, skipped (units row)" in io.out
+    assert "scatter by up to" in io.err  # the logger's jitter, taken as on the grid
+    rec = read_recording(out)
+    assert rec.metadata["load_n"] == "44" and len(rec) == len(truth["t_s"])
+    # the command left in percent: written as declared, with what the diagnosis would refuse said
+    assert main(["import", str(log), "--out", str(tmp_path / "pct.csv"), "--time", "time_ms:ms", "--u", "valve_pct",
+                 "--l", "position_um:um"]) == 0
+    assert "the diagnosis would refuse it: column u_v, sample 0: 50 V" in capsys.readouterr().err
+
+
+def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):
+    log = tmp_path / "logger.csv"
+    _logger(log, truth, units_row=False)
+    out = tmp_path / "rec.csv"
+    out.write_text("precious\n")
+    lines = log.read_text(encoding="utf-8-sig").splitlines()
+    del lines[20]  # a dropped sample
+    log.write_text("\n".join(lines) + "\n")
+    r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "import", str(log), "--out", str(out), "--time",
+                        "time_ms:ms", "--u", "valve_pct:%", "--l", "position_um:um"], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "breaks the uniform sampling" in r.stderr or "dropped" in r.stderr, r.stderr
+    assert out.read_text() == "precious\n"
+    r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "import", str(log), "--out", str(out), "--time",
+                        "time_ms:seconds", "--u", "valve_pct:%", "--l", "position_um:um"], capture_output=True, text=True)
+    assert r.returncode == 2 and "--time column 'time_ms': unknown unit 'seconds' for t_s" in r.stderr
+    assert out.read_text() == "precious\n"
+
+
+def test_the_package_root_reads_a_log():
+    assert tm.read_rig_log is read_rig_log and tm.LogColumn is LogColumn
