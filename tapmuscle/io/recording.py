@@ -183,6 +183,17 @@ def read_recording(path: str | os.PathLike) -> Recording:
     return Recording(columns, metadata)
 
 
+def read_text(path: Path, what: str) -> str:
+    """The text of the ``what`` file ``path`` (a byte-order mark, as spreadsheet exports write, is not
+    data); :class:`RecordingError` naming the file when it is missing or unreadable."""
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such {what} file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path}: cannot read {what}: {exc}") from None
+
+
 def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_column: str = "t_s"
                  ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """The columns and ``# key: value`` metadata of any CSV in the recording format (other column
@@ -191,12 +202,7 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
     Raises :class:`RecordingError` as :func:`read_recording` does.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark (spreadsheet exports) is not data
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: no such recording file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecordingError(f"{path}: cannot read recording: {exc}") from None
+    text = read_text(path, "recording")
 
     metadata: dict[str, str] = {}
     lines = text.splitlines()

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tapmuscle.io.recording import Recording, RecordingError
+from tapmuscle.io.recording import Recording, RecordingError, read_text
 
 __all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec"]
 
@@ -140,13 +140,7 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         factors = {target: col.factor(target) for target, col in mapping.items()}
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: no such log file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecordingError(f"{path}: cannot read log: {exc}") from None
-    lines = text.splitlines()
+    lines = read_text(path, "log").splitlines()
     i = 0
     while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
         i += 1
