@@ -151,7 +151,8 @@ def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):
     r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "import", str(log), "--out", str(out), "--time",
                         "time_ms:ms", "--u", "valve_pct:%", "--l", "position_um:um"], capture_output=True, text=True)
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert "breaks the uniform sampling" in r.stderr or "dropped" in r.stderr, r.stderr
+    # named by the log's line: the sample after the gap
+    assert "logger.csv, line 21: column time_ms, sample 17:" in r.stderr and "a dropped or doubled sample" in r.stderr
     assert out.read_text() == "precious\n"
     r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "import", str(log), "--out", str(out), "--time",
                         "time_ms:seconds", "--u", "valve_pct:%", "--l", "position_um:um"], capture_output=True, text=True)

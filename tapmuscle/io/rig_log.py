@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from tapmuscle.io.recording import Recording, RecordingError, read_text
+from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
 __all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec"]
 
@@ -217,6 +218,11 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             k = int(bad[0]) + 1
             raise RecordingError(f"{path}, line {body[k][0]}, column {col.column!r}: time does not increase "
                                  f"({body[k - 1][1][j].strip()!r}, then {body[k][1][j].strip()!r})")
+        try:  # a dropped or doubled sample named by the log's line
+            uniform_sampling(values, column=col.column)
+        except SamplingError as exc:
+            where = "" if exc.sample is None else f", line {body[exc.sample][0]}"
+            raise RecordingError(f"{path}{where}: {exc} (times counted from the first stamp)") from None
         columns[target] = values
     used = ", ".join(f"{target} <- {col.column} [{col.unit}]" for target, col in mapping.items())
     metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}

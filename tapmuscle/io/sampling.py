@@ -26,7 +26,12 @@ STRICT_TOLERANCE = 1e-3
 
 
 class SamplingError(ValueError):
-    """A time column that is not uniformly sampled; the message names the sample and its time."""
+    """A time column that is not uniformly sampled; the message names the sample and its time, and
+    :attr:`sample` is its index (None: no one sample is to blame)."""
+
+    def __init__(self, message: str, sample: int | None = None) -> None:
+        super().__init__(message)
+        self.sample = sample
 
 
 @dataclass(frozen=True)
@@ -95,11 +100,11 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s") -> Sampling:
         raise SamplingError(
             f"column {column}, sample {j + 1}: t = {float(t[j + 1])!r} s follows {float(t[j])!r} s, a step of "
             f"{float(dt[j]):.6g} s in a recording sampled every {ts:.6g} s: a dropped or doubled sample; "
-            f"resample the recording onto a uniform grid first")
+            f"resample the recording onto a uniform grid first", j + 1)
     if float(np.max(dev)) > JITTER_TOLERANCE * slope:
         k = int(np.argmax(dev))
         raise SamplingError(
             f"column {column}, sample {k}: t = {float(t[k])!r} s lies {float(t[k] - slot[k]):+.6g} s off the uniform "
             f"grid of {slope:.6g} s through all samples, more than a quarter period (logger jitter may be up to "
-            f"that): the logger's clock drifts or samples are late; resample the recording onto a uniform grid first")
+            f"that): the logger's clock drifts or samples are late; resample the recording onto a uniform grid first", k)
     return Sampling(float(slope), float(np.max(dev)))
