@@ -788,6 +788,33 @@ def test_blocks_too_long_for_held_out_data_are_refused(tmp_path, capsys, block):
     assert not out.exists()
 
 
+def test_blocks_shorter_than_the_sampling_period_are_refused(tmp_path, capsys):
+    """Blocks shorter than the period skip block numbers: at 1-s sampling and 0.5-s blocks every sample
+    fell in an even (training) block, nothing was held out, and every fit was NaN (a 100-s period with
+    the default 10-s blocks crashed the JSON so after a 10-min run). Refused, naming both; the
+    default block is never shorter than the period."""
+    from tapmuscle.cli.main import main
+    from tapmuscle.diagnosis.diagnose import split_length_s, validated_recording
+    from tapmuscle.io.plant_file import plant_file_text
+    from tapmuscle.io.recording import Recording, write_recording
+
+    cols = record(DEMO_MODEL, "sine", 1, duration_s=400.0)
+    slow = {k: cols[k][::10] for k in ("t_s", "u_v", "l_mm")}  # 1-s sampling, 401 samples
+    write_recording(tmp_path / "rec.csv", Recording(slow))
+    (tmp_path / "plant.json").write_text(plant_file_text(DEMO_MODEL, "test"))
+    out = tmp_path / "out"
+    assert main(["diagnose", "--recording", str(tmp_path / "rec.csv"), "--plant", str(tmp_path / "plant.json"),
+                 "--out", str(out), "--block", "0.5", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--block) = 0.5 s is shorter than the sampling period 1 s" in err and "Traceback" not in err
+    assert not out.exists()
+    # a foreign FMU may be sampled more slowly than the default block: then one sample per block
+    t = np.arange(400) * 20.0
+    u = np.sin(t / 300.0)
+    validated_recording(t, u, u, None)
+    assert split_length_s(u, 20.0, None) == 20.0 and split_length_s(slow["u_v"], 1.0, None) == 10.0
+
+
 @pytest.mark.parametrize("flag, value, pattern", [
     ("--effects", "", "--effects '' names no effect"),
     ("--effects", " , ", "names no effect"),

@@ -88,3 +88,21 @@ def test_asking_for_the_pressure_without_a_pressure_column_is_said(tmp_path, cap
     assert main(["diagnose", "--recording", str(rec), "--plant", str(plant), "--out", str(tmp_path / "out"),
                  "--use-pressure", "--no-plots", "--quiet", "--workers", "1"]) == 0
     assert "--use-pressure: the recording has no usable p_mpa column" in capsys.readouterr().out
+
+
+def test_a_value_that_is_not_finite_goes_to_the_json_as_null_by_its_path():
+    """Strict JSON has no NaN: one left in a diagnosis used to end the run in a crash after the
+    search (the files lost); it is written as null, and write_outputs names its path in the notes."""
+    import json
+    import math
+
+    from tapmuscle.diagnosis.report import finite_json
+
+    doc = {"fit": math.nan, "ok": 1.5, "n": 3, "text": "nan", "findings": [{"gain": math.inf, "p": [0.1, -math.inf]}],
+           "pair": (2.0, np.float64("nan"))}
+    clean, paths = finite_json(doc)
+    assert paths == [".fit", ".findings[0].gain", ".findings[0].p[1]", ".pair[1]"]
+    assert clean == {"fit": None, "ok": 1.5, "n": 3, "text": "nan", "findings": [{"gain": None, "p": [0.1, None]}],
+                     "pair": [2.0, None]}
+    json.dumps(clean, allow_nan=False)
+    assert finite_json({"a": [1.0, {"b": 2.0}]}) == ({"a": [1.0, {"b": 2.0}]}, [])

@@ -325,7 +325,8 @@ def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float
     the recording that :func:`validated_recording` allows)."""
     if block_s is not None:
         return block_s
-    return balanced_block_s(u_v, ts_s, BLOCK_S, longest_s=(len(u_v) - 1) * ts_s / 4.0)
+    # every block holds a sample (a recording sampled more slowly than BLOCK_S: one per block)
+    return max(balanced_block_s(u_v, ts_s, BLOCK_S, longest_s=(len(u_v) - 1) * ts_s / 4.0), ts_s)
 
 
 def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s: float | None, *,
@@ -333,9 +334,7 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
                         units: tuple[str, str] = ("V", "mm")) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """``(t, u, y, Ts)`` of a recording the diagnosis can use, or ``ValueError`` naming the column
     (``names``: the time, input and output columns' names; ``units``: the input's and output's) and
-    sample (:func:`diagnose`'s Raises). ``block_s`` None checks :data:`BLOCK_S`."""
-    if block_s is None:
-        block_s = BLOCK_S
+    sample (:func:`diagnose`'s Raises). ``block_s`` None checks the default (:func:`split_length_s`)."""
     t = np.asarray(t_s, float)
     u = np.asarray(u_v, float)
     y = np.asarray(y, float)
@@ -357,6 +356,13 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
         raise ValueError(f"column {yn}: the {what} is constant ({y[0]:g} {units[1]}); the recording shows no "
                          "response to compare with the model (a disconnected sensor?)")
     duration = (len(t) - 1) * ts
+    if block_s is None:
+        block_s = max(BLOCK_S, ts)
+    elif math.isfinite(block_s) and 0.0 < block_s < ts:
+        # shorter blocks skip block numbers, and with a period of two blocks or more every sample
+        # falls in a training block: no held-out sample, every fit NaN
+        raise ValueError(f"block_s (--block) = {block_s!r} s is shorter than the sampling period {ts:g} s: every "
+                         "training and held-out block must hold a sample")
     if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0):
         raise ValueError(f"block_s (--block) = {block_s!r} s: a {duration:g}-s recording needs blocks of more than 0 and at "
                          f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")

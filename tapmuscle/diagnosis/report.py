@@ -24,7 +24,7 @@ from tapmuscle.diagnosis.model_space import MUSCLE
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
-__all__ = ["diagnose_files", "write_outputs", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE",
+__all__ = ["diagnose_files", "write_outputs", "finite_json", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE",
            "EXPERIMENT_PLANT_FILE", "OWNED_FILES"]
 
 #: What ``write_outputs`` writes (figures only with ``plots=True``).
@@ -252,6 +252,20 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     save_figure(fig, out / "residual_tests.png")
 
 
+def finite_json(doc: Any, path: str = "") -> tuple[Any, list[str]]:
+    """``doc`` with every float that is not finite replaced by None (strict JSON has no NaN), and the
+    paths of those replaced (``.findings[0].fit_gain_points``)."""
+    if isinstance(doc, float):
+        return (doc, []) if np.isfinite(doc) else (None, [path or "."])
+    if isinstance(doc, dict):
+        pairs = [(k, finite_json(v, f"{path}.{k}")) for k, v in doc.items()]
+        return {k: v for k, (v, _) in pairs}, [p for _, (_, ps) in pairs for p in ps]
+    if isinstance(doc, (list, tuple)):
+        items = [finite_json(v, f"{path}[{i}]") for i, v in enumerate(doc)]
+        return [v for v, _ in items], [p for _, ps in items for p in ps]
+    return doc, []
+
+
 def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, model_note: str = "",
                   fmu_check: dict[str, Any] | None = None, plots: bool = True,
                   executor: Executor | None = None) -> dict[str, Any]:
@@ -271,6 +285,11 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
             experiments.append(_write_experiment(d, group, tmp, i, executor))
             entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
                          experiment=experiments[-1])
+        # a value that is not a number is written as null and said, not a crash that loses the run
+        doc, nonfinite = finite_json(doc)
+        if nonfinite:
+            doc.setdefault("notes", []).append(f"not a finite number, written as null: {', '.join(nonfinite[:10])}"
+                                                + (f" and {len(nonfinite) - 10} more" if len(nonfinite) > 10 else ""))
         atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
         atomic_write_text(tmp / "calibrated_plant.json", plant_file_text(
             d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
