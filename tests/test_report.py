@@ -96,7 +96,7 @@ def test_a_value_that_is_not_finite_goes_to_the_json_as_null_by_its_path():
     import json
     import math
 
-    from tapmuscle.diagnosis.report import finite_json
+    from tapmuscle.diagnosis.report import finite_json, json_text
 
     doc = {"fit": math.nan, "ok": 1.5, "n": 3, "text": "nan", "findings": [{"gain": math.inf, "p": [0.1, -math.inf]}],
            "pair": (2.0, np.float64("nan"))}
@@ -106,3 +106,5 @@ def test_a_value_that_is_not_finite_goes_to_the_json_as_null_by_its_path():
                      "pair": [2.0, None]}
     json.dumps(clean, allow_nan=False)
     assert finite_json({"a": [1.0, {"b": 2.0}]}) == ({"a": [1.0, {"b": 2.0}]}, [])
+    written = json.loads(json_text({"fit": math.nan, "notes": ["before"]}))
+    assert written == {"fit": None, "notes": ["before", "not a finite number, written as null: .fit"]}

@@ -30,7 +30,7 @@ from tapmuscle.diagnosis.boundary_candidates import (BoundarySpace, boundary_can
 from tapmuscle.diagnosis.diagnose import Diagnosis, diagnose_with, split_length_s, validated_recording
 from tapmuscle.diagnosis.fit_problem import SimulationError
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignFmuError, ForeignSimulator, read_interface
-from tapmuscle.diagnosis.report import overlay_figure, summary_lines
+from tapmuscle.diagnosis.report import json_text, overlay_figure, summary_lines
 from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
 
 __all__ = ["diagnose_foreign", "diagnose_foreign_outputs", "ForeignSetup", "FOREIGN_OUTPUT_FILES",
@@ -232,7 +232,7 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
         "mapping": setup.map.to_json(), "simulation_s": round(setup.simulation_s, 4)} | {
         k: v for k, v in doc.items() if k not in ("verdict", "fit_before_percent", "fit_after_percent", "findings")}
     with staged_folder(out) as tmp:
-        atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        atomic_write_text(tmp / "diagnosis.json", json_text(doc))
         atomic_write_text(tmp / "calibrated_parameters.json",
                           json.dumps(_calibrated_file(d, setup), indent=2, allow_nan=False) + "\n")
         atomic_write_text(tmp / "report.md", _report(d, setup, doc))
@@ -292,7 +292,7 @@ def diagnose_foreign_outputs(recording: str | Path, plant: str | Path, out: str 
             results[variable] = diagnose_foreign(recording, plant, tmp / variable, map_path=map_path, output=variable,
                                                  effects=own, echo=echo, **options)
         summary = _outputs_summary(results, {v.name for v in iface.inputs})
-        atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2, allow_nan=False) + "\n")
+        atomic_write_text(tmp / "summary.json", json_text(summary))
         atomic_write_text(tmp / "summary.md", _outputs_markdown(summary, iface.model_name, Path(recording).name))
     return results
 

@@ -24,8 +24,8 @@ from tapmuscle.diagnosis.model_space import MUSCLE
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
-__all__ = ["diagnose_files", "write_outputs", "finite_json", "summary_lines", "overlay_figure", "OUTPUT_FILES", "EXPERIMENT_FILE",
-           "EXPERIMENT_PLANT_FILE", "OWNED_FILES"]
+__all__ = ["diagnose_files", "write_outputs", "finite_json", "json_text", "summary_lines", "overlay_figure", "OUTPUT_FILES",
+           "EXPERIMENT_FILE", "EXPERIMENT_PLANT_FILE", "OWNED_FILES"]
 
 #: What ``write_outputs`` writes (figures only with ``plots=True``).
 OUTPUT_FILES = ("diagnosis.json", "calibrated_plant.json", "report.md", "residual.png", "overlay.png",
@@ -266,6 +266,16 @@ def finite_json(doc: Any, path: str = "") -> tuple[Any, list[str]]:
     return doc, []
 
 
+def json_text(doc: dict[str, Any]) -> str:
+    """``doc`` as strict JSON text (indented, a final newline). A value that is not a number is
+    written as null and named in the document's ``notes``: a crash there would lose the run."""
+    doc, nonfinite = finite_json(doc)
+    if nonfinite:
+        doc.setdefault("notes", []).append(f"not a finite number, written as null: {', '.join(nonfinite[:10])}"
+                                            + (f" and {len(nonfinite) - 10} more" if len(nonfinite) > 10 else ""))
+    return json.dumps(doc, indent=2, allow_nan=False) + "\n"
+
+
 def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, model_note: str = "",
                   fmu_check: dict[str, Any] | None = None, plots: bool = True,
                   executor: Executor | None = None) -> dict[str, Any]:
@@ -285,12 +295,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
             experiments.append(_write_experiment(d, group, tmp, i, executor))
             entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
                          experiment=experiments[-1])
-        # a value that is not a number is written as null and said, not a crash that loses the run
-        doc, nonfinite = finite_json(doc)
-        if nonfinite:
-            doc.setdefault("notes", []).append(f"not a finite number, written as null: {', '.join(nonfinite[:10])}"
-                                                + (f" and {len(nonfinite) - 10} more" if len(nonfinite) > 10 else ""))
-        atomic_write_text(tmp / "diagnosis.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+        atomic_write_text(tmp / "diagnosis.json", json_text(doc))
         atomic_write_text(tmp / "calibrated_plant.json", plant_file_text(
             d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
             + (f" ({model_note})" if model_note else "")))
