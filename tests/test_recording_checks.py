@@ -58,6 +58,15 @@ def test_a_displacement_in_micrometres_is_refused_and_one_in_metres_is_said():
     assert displacement_scale_notes(l, np.zeros_like(l)) == []  # a model that does not move says nothing
 
 
+def test_a_pressure_in_kpa_is_refused_where_the_fits_weigh_it():
+    t, u, l, p = _clean()
+    check_muscle_recording(u, TS, l, p)
+    check_muscle_recording(u, TS, l, None)  # not weighed: only said (below)
+    with pytest.raises(ValueError, match=r"column p_mpa, sample 11: 2.41026 MPa is far above .*--use-pressure .*kPa\? "
+                                         r"Scale it to MPa"):
+        check_muscle_recording(u, TS, l, 1000.0 * p)
+
+
 def test_a_start_away_from_rest_jitter_and_kpa_are_said():
     t, u, l, p = _clean()
     notes = muscle_recording_notes(t, l + 12.5, p)

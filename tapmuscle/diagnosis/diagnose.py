@@ -303,7 +303,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
-    check_muscle_recording(u, ts, y)
+    check_muscle_recording(u, ts, y, np.asarray(p_mpa, float) if use_pressure and p_mpa is not None else None)
     notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float))
     block_s = split_length_s(u, ts, block_s)
     load = None if load_n is None else np.asarray(load_n, float)

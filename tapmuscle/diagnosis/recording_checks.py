@@ -40,9 +40,11 @@ DRAINED_MPA = 0.02
 PRESSURE_PLAUSIBLE_MPA = 2.0
 
 
-def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None) -> None:
-    """Refuse a command outside :data:`COMMAND_RANGE_V`, a period outside :data:`TS_RANGE_S`, or a
-    displacement ``l_mm`` beyond :data:`DISPLACEMENT_PLAUSIBLE_MM`.
+def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None,
+                           p_fitted_mpa: np.ndarray | None = None) -> None:
+    """Refuse a command outside :data:`COMMAND_RANGE_V`, a period outside :data:`TS_RANGE_S`, a
+    displacement ``l_mm`` beyond :data:`DISPLACEMENT_PLAUSIBLE_MM`, or a pressure that the fits weigh
+    (``p_fitted_mpa``: ``diagnose(use_pressure=True)``) above :data:`PRESSURE_PLAUSIBLE_MPA`.
 
     Raises
     ------
@@ -67,6 +69,13 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
                              f"{DISPLACEMENT_PLAUSIBLE_MM:g} mm (its 400-mm length and an encoder zeroed anywhere in its "
                              f"stroke; {far.size} samples are, range {float(np.min(l_mm)):g}..{float(np.max(l_mm)):g}): is "
                              "the displacement logged in another unit (micrometres)? Scale it to millimetres")
+    if p_fitted_mpa is not None:
+        high = np.nonzero(p_fitted_mpa > PRESSURE_PLAUSIBLE_MPA)[0]
+        if high.size:
+            k = int(high[0])
+            raise ValueError(f"column p_mpa, sample {k}: {float(p_fitted_mpa[k]):g} MPa is far above a tap-water rig's "
+                             f"(supply 0.25 MPa; {high.size} samples above {PRESSURE_PLAUSIBLE_MPA:g} MPa), and with "
+                             "--use-pressure the fits weigh it: is it logged in kPa? Scale it to MPa")
 
 
 def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray | None) -> list[str]:
@@ -92,8 +101,8 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
         notes.append(jitter[0].upper() + jitter[1:])
     if p_mpa is not None and float(np.max(p_mpa)) > PRESSURE_PLAUSIBLE_MPA:
         notes.append(f"Column p_mpa reaches {float(np.max(p_mpa)):g} MPa, far above a tap-water rig's (supply "
-                     "0.25 MPa): is it logged in kPa? It only enters the regime breakdown (and the fits with "
-                     "--use-pressure)")
+                     "0.25 MPa): is it logged in kPa? It only enters the regime breakdown here (--use-pressure, "
+                     "which weighs it in the fits, refuses it)")
     return notes
 
 
