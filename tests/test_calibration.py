@@ -221,6 +221,10 @@ def test_an_interval_stays_within_the_parameters_bounds():
     base = rows["friction.base_n"].ci95
     assert 0.0 < base[0] < 8.0 < base[1] < 16.0  # narrow enough to stay whole
     assert base[1] - 8.0 == pytest.approx(8.0 - base[0])
+    # identifiable, yet its interval is wider than the prior's (+-1.96 x 0.3): the report says so
+    assert rows["valve.cv_max"].wider_than_prior and "trades with them" in rows["valve.cv_max"].identifiable_text()
+    assert rows["valve.cv_max"].to_json()["wider_than_prior"] is True
+    assert not rows["friction.base_n"].wider_than_prior and rows["friction.base_n"].identifiable_text() == "yes"
 
 
 @pytest.mark.slow

@@ -329,17 +329,27 @@ class CalibrationRow:
     """The estimate sits at a bound of the fit (:data:`PRIOR_BOUND_SDS` prior sds from nominal, or the
     parameter's own bound): the data would take it further, so it may stand in for an effect the model
     lacks."""
+    wider_than_prior: bool = False
+    """An identifiable constant whose interval (before clipping to the bounds) is wider than its
+    prior's 95 % interval: identifiable with the other constants held to their priors, but the data
+    alone let it trade with them (or with the effects found), so the estimate is one of many that
+    fit as well."""
 
     def identifiable_text(self) -> str:
         """The reports' ``identifiable`` cell."""
         if not self.identifiable:
             return "no (left nominal)"
-        return "yes, at its bound (it may stand in for a left-out effect)" if self.at_bound else "yes"
+        if self.at_bound:
+            return "yes, at its bound (it may stand in for a left-out effect)"
+        if self.wider_than_prior:
+            return "yes with the others at their priors; alone it trades with them (interval wider than the prior's)"
+        return "yes"
 
     def to_json(self) -> dict[str, Any]:
         return {"parameter": self.parameter, "unit": self.unit, "nominal": _round(self.nominal),
                 "estimate": _round(self.estimate), "ci95": [_round(self.ci95[0]), _round(self.ci95[1])],
-                "identifiable": self.identifiable, "sd_shrink": round(self.sd_shrink, 4), "at_bound": self.at_bound}
+                "identifiable": self.identifiable, "sd_shrink": round(self.sd_shrink, 4), "at_bound": self.at_bound,
+                "wider_than_prior": self.wider_than_prior}
 
 
 def _round(v: float) -> float:
@@ -533,5 +543,6 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
         # may stop just short of one: within a twentieth of a prior sd counts as at it
         at_bound = c.key in identifiable and min(est - c.lo, c.hi - est) <= AT_BOUND_SDS * c.scale
         rows.append(CalibrationRow(c.key, p_.unit, c.center, est, (max(lo, est - half), min(hi, est + half)),
-                                   c.key in identifiable, float(s), at_bound))
+                                   c.key in identifiable, float(s), at_bound,
+                                   c.key in identifiable and half > 1.96 * c.scale))
     return rows
