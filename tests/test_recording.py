@@ -29,6 +29,8 @@ def test_reads_a_hand_written_file_with_extra_columns(tmp_path):
 
 @pytest.mark.parametrize("body, match", [
     ("t_s,u_v\n0,1\n", r"line 1: header has no 'l_mm'"),
+    ("t_s;u_v;l_mm\n0;1;2\n", r"line 1: header has no 't_s' column .*one field: separated by ';' or tabs\? `tapmuscle import`"),
+    ("time,valve,pos\n0,1,2\n", r"header has no 't_s' column .*found: time, valve, pos\); a logger's file\? `tapmuscle import`"),
     ("t_s,u_v,l_mm\n0,1,2\n0.1,1,abc\n", r"line 3, column 'l_mm': 'abc' is not a number"),
     ("t_s,u_v,l_mm\n0,1,2\n0.1,nan,2\n", r"line 3, column 'u_v': 'nan' is not finite"),
     ("t_s,u_v,l_mm\n0,1,2\n0.1,1\n", r"line 3: 2 fields, header has 3"),

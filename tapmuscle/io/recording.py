@@ -219,8 +219,11 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
     header = [h.strip() for h in next(csv.reader([lines[i]]))]
     for name in required:
         if name not in header:
+            one_field = len(header) == 1 and any(sep in header[0] for sep in (";", "\t"))
+            hint = ("; the header is one field: separated by ';' or tabs? " if one_field else "; a logger's file? ")
             raise RecordingError(f"{path}, line {header_line}: header has no {name!r} column "
-                                 f"(required: {', '.join(required)}; found: {', '.join(header)})")
+                                 f"(required: {', '.join(required)}; found: {', '.join(header)}){hint}"
+                                 "`tapmuscle import` reads it with its own column names, units and separator")
     seen = set()
     for name in header:
         if name in seen:
