@@ -162,3 +162,31 @@ def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):
 
 def test_the_package_root_reads_a_log():
     assert tm.read_rig_log is read_rig_log and tm.LogColumn is LogColumn
+
+
+def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth):
+    log = tmp_path / "logger.csv"
+    _logger(log, truth, units_row=False)
+    lines = log.read_text(encoding="utf-8-sig").splitlines()
+    header_at = 2  # a comment and a blank line first
+    keep = [i for i in range(len(lines)) if i not in (header_at + 1 + 50, header_at + 1 + 120, header_at + 1 + 121)]
+    log.write_text("\n".join(lines[i] for i in keep) + "\n")
+    spec = {"time": "time_ms:ms", "u": "valve_pct:%", "l": "position_um:um"}
+    # the longer gap, named by the line of the sample after it (line 4 + k holds sample k; 120, 121 gone)
+    with pytest.raises(RecordingError, match=r"logger.csv, line 123: column time_ms, sample 119: .*a dropped or doubled "
+                                             r"sample.*--fill-gaps fills dropped samples"):
+        read_rig_log(log, **spec)
+    with pytest.raises(RecordingError, match=r"line 123, column 'time_ms': 0.2\d* s of samples are missing after "
+                                             r"t = 11.8\d* s .*more than the 0.15 s --fill-gaps fills"):
+        read_rig_log(log, **spec, fill_gaps_s=0.15)
+    rec = read_rig_log(log, **spec, fill_gaps_s=0.3)
+    assert len(rec) == len(truth["t_s"])
+    np.testing.assert_array_equal(np.nonzero(rec.columns["filled"])[0], [50, 120, 121])
+    assert rec.sampling.jitter_s < 0.005  # back on the grid
+    kept = rec.columns["filled"] == 0
+    assert np.max(np.abs(rec.l_mm[kept] - truth["l_mm"][kept])) <= 0.5e-3 + 1e-12  # the others as logged
+    # a filled sample lies between its neighbours (linear), here within the step the muscle moved
+    for k in (50, 120, 121):
+        lo, hi = sorted((rec.l_mm[k - 1 if k != 121 else 119], rec.l_mm[k + 1 if k != 120 else 122]))
+        assert lo - 1e-9 <= rec.l_mm[k] <= hi + 1e-9
+    assert rec.metadata["filled"].startswith("3 dropped samples in 2 gaps put back")

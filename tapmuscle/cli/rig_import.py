@@ -33,7 +33,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
         raise UsageError("--load and --load-n: give the load as a column or as one value, not both")
     try:
         rec = read_rig_log(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
-                           load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal)
+                           load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal,
+                           fill_gaps_s=args.fill_gaps or 0.0)
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
@@ -47,6 +48,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
     write_recording(args.out, rec)
     print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
           + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else ""))
+    if "filled" in rec.metadata:
+        notes.insert(0, rec.metadata["filled"][0].upper() + rec.metadata["filled"][1:])
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     print(f"wrote {args.out}")
@@ -77,6 +80,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="the hanging load [N] when it is not a column (written as the recording's load_n)")
     imp.add_argument("--delimiter", default=None, help="field separator (default: the one of ';', tab, ',' the "
                                                        "header row holds most of)")
+    imp.add_argument("--fill-gaps", type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
+                     help="put back samples the logger dropped, in gaps of up to S seconds (every column "
+                          "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")
     imp.add_argument("--decimal", choices=(".", ","), default=None,
                      help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
     imp.set_defaults(func=_cmd_import)

@@ -14,9 +14,10 @@ names the log's column of each quantity and its unit; everything else is read as
 * times become seconds from the first sample (the first stamp as written is kept in the metadata
   ``start``): the recording format's ``t_s``.
 
-The values are converted, nothing else: no resampling, no filling. Timestamps that scatter about a
-uniform grid by up to a quarter period are read as they are (the recording format accepts them,
-docs/recordings.md); a dropped or doubled sample is refused by the recording's sampling check. A cell
+The values are converted, nothing else: no resampling. Timestamps that scatter about a uniform grid
+by up to a quarter period are read as they are (the recording format accepts them,
+docs/recordings.md); a dropped or doubled sample is refused by the recording's sampling check,
+naming its line, unless ``fill_gaps_s`` puts dropped samples back (interpolated, and marked). A cell
 that is empty or not a number is refused with its file, line and column.
 """
 
@@ -100,9 +101,39 @@ def _separator(header: str) -> str:
     return _SEPARATORS[int(np.argmax(counts))] if max(counts) else ","
 
 
+def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: float,
+            where: str) -> tuple[dict[str, np.ndarray], np.ndarray, str | None]:
+    """``columns`` with the samples a logger dropped put back, each column interpolated linearly
+    across the gap (the command too: what the controller sent there was not logged), the log's line
+    of each sample (a filled one: the line after its gap), and what was filled (None: nothing).
+    A step more than 1.5 median periods long is a gap of ``round(step / period) - 1`` samples; one
+    missing more than ``longest_s`` seconds is refused (``where`` names its line)."""
+    t = columns["t_s"]
+    dt = np.diff(t)
+    ts = float(np.median(dt))
+    gaps = np.nonzero(dt > 1.5 * ts)[0]
+    if not gaps.size:
+        return columns, line_of, None
+    missing_s = dt[gaps] - ts
+    if float(np.max(missing_s)) > longest_s + 0.5 * ts:
+        g = int(gaps[np.argmax(missing_s > longest_s + 0.5 * ts)])
+        raise RecordingError(f"{where.format(line_of[g + 1])}: {dt[g] - ts:.6g} s of samples are missing after "
+                             f"t = {t[g]:.6g} s (from the first stamp), more than the {longest_s:g} s --fill-gaps fills")
+    counts = np.maximum(np.rint(dt[gaps] / ts).astype(int) - 1, 1)
+    at = np.repeat(gaps + 1, counts)
+    new_t = np.concatenate([t[g] + dt[g] * np.arange(1, n + 1) / (n + 1) for g, n in zip(gaps, counts)])
+    t_all = np.insert(t, at, new_t)
+    out = {name: (t_all if name == "t_s" else np.interp(t_all, t, v)) for name, v in columns.items()}
+    out["filled"] = np.insert(np.zeros(len(t)), at, 1.0)
+    note = (f"{int(counts.sum())} dropped sample{'s' if counts.sum() > 1 else ''} in {gaps.size} "
+            f"gap{'s' if gaps.size > 1 else ''} put back, each column interpolated linearly "
+            f"(column filled = 1), the longest gap {float(np.max(missing_s)):.3g} s, the first after t = {t[gaps[0]]:.6g} s")
+    return out, np.insert(line_of, at, line_of[at]), note
+
+
 def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn | str, l: LogColumn | str,  # noqa: E741
                  p: LogColumn | str | None = None, load: LogColumn | str | None = None, load_n: float | None = None,
-                 delimiter: str | None = None, decimal: str | None = None) -> Recording:
+                 delimiter: str | None = None, decimal: str | None = None, fill_gaps_s: float = 0.0) -> Recording:
     """Read a rig's log as a recording (module docstring).
 
     Parameters
@@ -119,6 +150,10 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         The hanging load [N] for the metadata (the recording's ``# load_n:``), when it is not a column.
     delimiter, decimal : str, optional
         Field separator and decimal mark (default: detected, module docstring).
+    fill_gaps_s : float
+        Put back the samples a logger dropped, in gaps of up to this many seconds: every column
+        interpolated linearly, a column ``filled`` (1 in a filled sample) and the metadata ``filled``
+        saying what was done. 0 (default): a dropped sample is refused, naming its line.
 
     Returns
     -------
@@ -131,7 +166,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     RecordingError
         The file cannot be read, a mapped column is not in the header (naming the columns found),
         an unknown unit, a cell that is empty or not a number or not an ISO 8601 time (file, line,
-        column), times that do not increase (line).
+        column), times that do not increase, a dropped or doubled sample or a clock that drifts, a gap
+        longer than ``fill_gaps_s`` (line).
     """
     path = Path(path)
     given = {"t_s": time, "u_v": u, "l_mm": l, "p_mpa": p, "load_n": load}
@@ -218,16 +254,23 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             k = int(bad[0]) + 1
             raise RecordingError(f"{path}, line {body[k][0]}, column {col.column!r}: time does not increase "
                                  f"({body[k - 1][1][j].strip()!r}, then {body[k][1][j].strip()!r})")
-        try:  # a dropped or doubled sample named by the log's line
-            uniform_sampling(values, column=col.column)
-        except SamplingError as exc:
-            where = "" if exc.sample is None else f", line {body[exc.sample][0]}"
-            raise RecordingError(f"{path}{where}: {exc} (times counted from the first stamp)") from None
         columns[target] = values
+    line_of = np.array([lineno for lineno, _ in body])
+    filled = None
+    if fill_gaps_s:
+        columns, line_of, filled = _filled(columns, line_of, fill_gaps_s, f"{path}, line {{}}, column {mapping['t_s'].column!r}")
+    try:  # a dropped or doubled sample named by the log's line
+        uniform_sampling(columns["t_s"], column=mapping["t_s"].column)
+    except SamplingError as exc:
+        where = "" if exc.sample is None else f", line {line_of[exc.sample]}"
+        raise RecordingError(f"{path}{where}: {exc} (times counted from the first stamp"
+                             + ("; --fill-gaps fills dropped samples" if not fill_gaps_s else "") + ")") from None
     used = ", ".join(f"{target} <- {col.column} [{col.unit}]" for target, col in mapping.items())
     metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}
     if skipped is not None:
         metadata["units_row"] = f"line {skipped}, skipped"
+    if filled is not None:
+        metadata["filled"] = filled
     if load_n is not None:
         metadata["load_n"] = f"{load_n:g}"
     return Recording(columns, metadata)
