@@ -47,6 +47,19 @@ def test_a_recording_without_its_load_says_which_load_was_assumed(tmp_path):
     assert "## Notes" in (tmp_path / "out" / "report.md").read_text()
 
 
+def test_samples_put_back_by_the_import_are_said(tmp_path):
+    rec, plant = _files(tmp_path, DEMO_MODEL)
+    from tapmuscle.io.recording import read_recording
+    r = read_recording(rec)
+    filled = np.zeros(len(r))
+    filled[[250, 400, 401]] = 1.0  # what tapmuscle import --fill-gaps marks
+    write_recording(rec, Recording(r.columns | {"filled": filled}, r.metadata))
+    d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
+    assert doc["notes"] == ["3 samples were put back by interpolation (column filled, from t = 25 s): they are compared "
+                            "as if recorded, and a gap of more than a few samples may show as an effect or an "
+                            "unexplained window there"]
+
+
 @pytest.mark.parametrize("meta, match", [({"load_n": "heavy"}, "'# load_n: heavy' is not a number"),
                                          ({"ts_s": "0.2"}, "'# ts_s: 0.2' contradicts the t_s column")])
 def test_a_header_that_is_wrong_is_named_with_the_file(tmp_path, meta, match):

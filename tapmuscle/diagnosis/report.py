@@ -389,6 +389,11 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
         if load is None:
             d.notes.append(f"The recording gives no load (no load_n column, no '# load_n:' line): the plant's "
                            f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch)")
+        filled = np.flatnonzero(cols.get("filled", np.zeros(0)) != 0)
+        if filled.size:  # tapmuscle import --fill-gaps
+            d.notes.append(f"{filled.size} samples were put back by interpolation (column filled, from t = "
+                           f"{float(cols['t_s'][filled[0]] - cols['t_s'][0]):g} s): they are compared as if recorded, "
+                           "and a gap of more than a few samples may show as an effect or an unexplained window there")
         fmu_check = None
         if kind == "fmu":
             sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"], d.ts_s, load)
