@@ -220,6 +220,26 @@ def test_jittered_timestamps_are_identified_as_the_grid_with_a_note(records, tmp
     np.testing.assert_allclose([jit["theta"][k] for k in names], [exact["theta"][k] for k in names], rtol=1e-3, atol=1e-6)
 
 
+def test_a_jittered_log_validates_a_model_identified_on_another(records, tmp_path):
+    """Two PC loggers' files: each period is its own least-squares grid (0.1 s give or take 1e-7), which
+    a validation compared to 1e-9 and refused; they agree within the reader's 0.1 %, and a 0.2-s
+    file is still refused."""
+    _, paths = records
+    files = []
+    for kind, seed in (("train", 3), ("val", 4)):
+        rec = read_recording(paths[kind, 44])
+        jittered = rec.t_s + np.random.default_rng(seed).uniform(-0.004, 0.004, len(rec.t_s))
+        files.append(tmp_path / f"{kind}.csv")
+        write_recording(files[-1], Recording(dict(rec.columns) | {"t_s": jittered}, {}))
+    assert read_recording(files[0]).ts_s != read_recording(files[1]).ts_s
+    assert main(["identify", str(files[0]), "--validate", str(files[1]), "--json", str(tmp_path / "j.json")]) == 0
+    assert json.loads((tmp_path / "j.json").read_text())["validation_fit_percent"]["sim"] > 90.0
+    slow = read_recording(paths["val", 44])
+    write_recording(tmp_path / "slow.csv", Recording(dict(slow.columns) | {"t_s": 2.0 * slow.t_s}, {}))
+    assert main(["identify", str(files[0]), "--validate", str(tmp_path / "slow.csv"), "--json",
+                 str(tmp_path / "k.json")]) == 2
+
+
 def test_a_non_finite_sample_is_named_as_the_diagnosis_names_it(records):
     """Counted from 0 in both: the same file gives one sample number whichever tool reads it."""
     from tapmuscle.diagnosis import diagnose

@@ -174,7 +174,7 @@ def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth
     spec = {"time": "time_ms:ms", "u": "valve_pct:%", "l": "position_um:um"}
     # the longer gap, named by the line of the sample after it (line 4 + k holds sample k; 120, 121 gone)
     with pytest.raises(RecordingError, match=r"logger.csv, line 123: column time_ms, sample 119: .*a dropped or doubled "
-                                             r"sample.*--fill-gaps fills dropped samples"):
+                                             r"sample.*; or --fill-gaps S\)"):
         read_rig_log(log, **spec)
     with pytest.raises(RecordingError, match=r"line 123, column 'time_ms': 0.2\d* s of samples are missing after "
                                              r"t = 11.8\d* s .*more than the 0.15 s --fill-gaps fills"):
@@ -190,3 +190,41 @@ def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth
         lo, hi = sorted((rec.l_mm[k - 1 if k != 121 else 119], rec.l_mm[k + 1 if k != 120 else 122]))
         assert lo - 1e-9 <= rec.l_mm[k] <= hi + 1e-9
     assert rec.metadata["filled"].startswith("3 dropped samples in 2 gaps put back")
+
+
+@pytest.mark.parametrize("body,options,message", [
+    # integers with '.' thousands separators (a German export): read with a decimal point, 1.350 um was 1.35
+    ("t;u;pos\n0;5;12\n1;5;999\n2;5;1.350\n3;5;2.001\n", {},
+     r"line 4, column 'pos': '1.350' reads as a thousands separator .*remove the separators"),
+    ("t;u;pos\n0;5;12,5\n1;5;999,0\n2;5;1.350,0\n", {},
+     r"line 4, column 'pos': '1.350,0' is not a number with the decimal mark ',': '.' as a thousands separator\?"),
+    ("t;u;pos\n0;5;12.5\n1;5;1,350.0\n", {}, r"line 3, column 'pos': '1,350.0' is not a number with the decimal "
+                                             r"mark '.': a decimal comma \(--decimal ','\) or a thousands separator"),
+    # a first data row with empty cells is not a units row
+    ("t;u;pos\n0;;\n1;5;2\n2;5;3\n", {}, r"line 2, column 'u': '' is not a number"),
+    ("t,u,pos\n0,5,1\n1,5,2\n", {"delimiter": "::"}, r"delimiter '::' is not one separating character"),
+    ("t,u,pos\n0,5,1\n1,5,2\n", {"load_n": float("nan")}, r"load_n = nan is not a positive number of newtons"),
+    ("t,u,pos\n0,5,1\n1,5,2\n", {"load_n": "44"}, r"load_n = '44' is not a positive number of newtons"),
+])
+def test_what_a_logger_writes_wrongly_is_refused_with_a_remedy(tmp_path, body, options, message):
+    log = tmp_path / "log.csv"
+    log.write_text(body)
+    with pytest.raises(RecordingError, match=message):
+        read_rig_log(log, time="t", u="u", l="pos:um", **options)
+
+
+@pytest.mark.parametrize("name", ["tab", "\\t", "\t"])
+def test_a_tab_can_be_named(tmp_path, name):
+    log = tmp_path / "log.txt"
+    log.write_text("t\tu\tpos,um\n0\t5\t1,5\n0,1\t5\t2,5\n0,2\t5\t3,5\n")  # a comma in a name: not the separator
+    rec = read_rig_log(log, time="t", u="u", l="pos,um:um", delimiter=name)
+    np.testing.assert_allclose(rec.l_mm, [1.5e-3, 2.5e-3, 3.5e-3], rtol=1e-12)
+
+
+def test_import_never_writes_over_the_log(tmp_path, capsys):
+    log = tmp_path / "log.csv"
+    log.write_text("t,u,pos\n0,5,1\n0.1,5,2\n0.2,5,3\n")
+    before = log.read_text()
+    assert main(["import", str(log), "--out", str(tmp_path / "." / "log.csv"), "--time", "t", "--u", "u",
+                 "--l", "pos"]) == 2
+    assert "is the log itself" in capsys.readouterr().err and log.read_text() == before

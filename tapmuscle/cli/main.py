@@ -153,6 +153,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
     from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.recording import atomic_write_text, read_recording
+    from tapmuscle.io.sampling import STRICT_TOLERANCE
 
     rec = read_recording(args.recording)
     val = read_recording(args.validate) if args.validate else None
@@ -164,9 +165,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     out = report.to_dict() | {"recording": str(args.recording)}
     val_fit = None
     if val is not None:
-        if abs(val.ts_s - rec.ts_s) > 1e-9 * rec.ts_s:
+        # the periods of two jittered logs (each a least-squares grid) agree as closely as a header must
+        if abs(val.ts_s - rec.ts_s) > STRICT_TOLERANCE * rec.ts_s:
             raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
-                             f"identification record's {rec.ts_s:g} s")
+                             f"identification record's {rec.ts_s:g} s (by more than {100 * STRICT_TOLERANCE:g} %)")
         val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm)
         out["validation_fit_percent"] = val_fit.percent
         out["validation_free_run_diverged"] = val_fit.free_run_diverged

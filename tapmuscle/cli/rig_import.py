@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from tapmuscle.cli.arguments import number_within, output_path
 from tapmuscle.errors import UsageError
@@ -29,6 +30,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
     from tapmuscle.io.rig_log import read_rig_log
     from tapmuscle.io.sampling import SamplingError
 
+    if Path(args.out).resolve() == Path(args.log).resolve():
+        raise UsageError(f"--out {args.out} is the log itself: write the recording beside it, the log is the raw data")
     if args.load is not None and args.load_n is not None:
         raise UsageError("--load and --load-n: give the load as a column or as one value, not both")
     try:
@@ -62,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          description="Read a rig's log (any column names; units, separator and decimal mark as "
                                      "given or detected; text columns ignored) and write it as a recording "
                                      "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
-                                     "min, h or iso (ISO 8601 text); command V, mV or %% (of 0..10 V); "
+                                     "min, h or iso (ISO 8601 text); command V, mV or % (of 0..10 V); "
                                      "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi; load N or kN.")
     imp.add_argument("log", help="the logger's file")
     imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
@@ -78,8 +81,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="load column (default unit N)")
     imp.add_argument("--load-n", type=number_within("--load-n", 1e-9, 500.0), default=None,
                      help="the hanging load [N] when it is not a column (written as the recording's load_n)")
-    imp.add_argument("--delimiter", default=None, help="field separator (default: the one of ';', tab, ',' the "
-                                                       "header row holds most of)")
+    imp.add_argument("--delimiter", default=None, help="field separator: one character, or 'tab' (default: the one "
+                                                       "of ';', tab, ',' the header row holds most of)")
     imp.add_argument("--fill-gaps", type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
                      help="put back samples the logger dropped, in gaps of up to S seconds (every column "
                           "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")

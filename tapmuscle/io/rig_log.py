@@ -52,7 +52,11 @@ UNITS: dict[str, dict[str, float | None]] = {
 DEFAULT_UNITS = {"t_s": "s", "u_v": "V", "l_mm": "mm", "p_mpa": "MPa", "load_n": "N"}
 
 _SEPARATORS = (";", "\t", ",")
+#: Names a user may give the tab (a shell passes ``'\t'`` as two characters).
+DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "TAB": "\t"}
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$")
+_THOUSANDS = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+$")
+_INTEGER = re.compile(r"^[+-]?\d+$")
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,21 @@ def parse_column_spec(text: str, target: str) -> LogColumn:
     col = LogColumn(name, unit.strip())
     col.factor(target)
     return col
+
+
+def _refuse_thousands(path: Path, body: list, index: dict[str, int], header: list[str]) -> None:
+    """Refuse a column of integers written with '.' thousands separators (``12``, ``1.350``), which a
+    decimal point would read a thousand times too small: in it every cell with a '.' has groups of
+    three digits after it, and other cells have none."""
+    for j in index.values():
+        cells = [(lineno, row[j].strip()) for lineno, row in body if j < len(row)]
+        dotted = [(lineno, c) for lineno, c in cells if "." in c]
+        if (dotted and len(dotted) < len(cells) and all(_THOUSANDS.match(c) for _, c in dotted)
+                and all(_INTEGER.match(c) for _, c in cells if "." not in c)):
+            lineno, cell = dotted[0]
+            raise RecordingError(f"{path}, line {lineno}, column {header[j]!r}: {cell!r} reads as a thousands separator "
+                                 f"(the column holds integers without a '.' too): remove the separators, or give "
+                                 f"--decimal '.' if they are decimals")
 
 
 def _separator(header: str) -> str:
@@ -170,6 +189,13 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         longer than ``fill_gaps_s`` (line).
     """
     path = Path(path)
+    if load_n is not None and not (isinstance(load_n, (int, float)) and math.isfinite(load_n) and load_n > 0):
+        raise RecordingError(f"{path}: load_n = {load_n!r} is not a positive number of newtons")
+    if delimiter is not None:
+        delimiter = DELIMITER_NAMES.get(delimiter, delimiter)
+        if len(delimiter) != 1 or delimiter in "\"\r\n" or delimiter.isalnum() or delimiter in ".-+":
+            raise RecordingError(f"{path}: delimiter {delimiter!r} is not one separating character (e.g. ';', ',', '|' "
+                                 f"or {', '.join(repr(k) for k in DELIMITER_NAMES)})")
     given = {"t_s": time, "u_v": u, "l_mm": l, "p_mpa": p, "load_n": load}
     try:
         mapping = {target: parse_column_spec(col, target) if isinstance(col, str) else col
@@ -199,8 +225,16 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         if sep != ",":
             cells = (row[j].strip() for _, row in body[:50] for j in index.values() if j < len(row))
             decimal = "," if any(_DECIMAL_COMMA.match(c) for c in cells) else "."
+        if decimal == "." and sep != ",":
+            _refuse_thousands(path, body, {t: j for t, j in index.items() if factors[t] is not None}, header)
+
+    other_mark = "." if decimal == "," else ","
 
     def number(cell: str) -> float:
+        # a mark of the other kind is a thousands separator (1.350,5 or 1,350.5): refused, not read as
+        # a decimal (1.350 um read as 1.35 mm off by a thousand)
+        if other_mark in cell:
+            raise ValueError(other_mark)
         return float(cell.replace(decimal, ".") if decimal != "." else cell)
 
     def is_number(cell: str) -> bool:
@@ -211,8 +245,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         return True
 
     skipped = None
-    if body and not any(is_number(body[0][1][j]) for target, j in index.items() if target != "t_s" and j < len(body[0][1])):
-        skipped, body = body[0][0], body[1:]  # a units row under the header: no mapped value is a number
+    first = [body[0][1][j].strip() for target, j in index.items() if target != "t_s" and j < len(body[0][1])] if body else []
+    if first and all(cell and not is_number(cell) for cell in first):
+        skipped, body = body[0][0], body[1:]  # a units row under the header: text in every mapped column
     if not body:
         raise RecordingError(f"{path}: header but no data rows")
     columns: dict[str, np.ndarray] = {}
@@ -238,8 +273,12 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             try:
                 v = number(cell)
             except ValueError:
-                raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not a number"
-                                     + (f" (decimal mark {decimal!r})" if "," in cell or "." in cell else "")) from None
+                hint = ""
+                if other_mark in cell:
+                    hint = (" with the decimal mark '.': a decimal comma (--decimal ',') or a thousands separator "
+                            "(remove it)?" if other_mark == "," else
+                            " with the decimal mark ',': '.' as a thousands separator? Remove it")
+                raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not a number{hint}") from None
             if not math.isfinite(v):
                 raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not finite")
             values[k] = v
@@ -263,8 +302,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         uniform_sampling(columns["t_s"], column=mapping["t_s"].column)
     except SamplingError as exc:
         where = "" if exc.sample is None else f", line {line_of[exc.sample]}"
-        raise RecordingError(f"{path}{where}: {exc} (times counted from the first stamp"
-                             + ("; --fill-gaps fills dropped samples" if not fill_gaps_s else "") + ")") from None
+        raise RecordingError(f"{path}{where}: {exc} (times from the first stamp"
+                             + ("; or --fill-gaps S" if not fill_gaps_s else "") + ")") from None
     used = ", ".join(f"{target} <- {col.column} [{col.unit}]" for target, col in mapping.items())
     metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}
     if skipped is not None:
