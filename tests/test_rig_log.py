@@ -228,3 +228,20 @@ def test_import_never_writes_over_the_log(tmp_path, capsys):
     assert main(["import", str(log), "--out", str(tmp_path / "." / "log.csv"), "--time", "t", "--u", "u",
                  "--l", "pos"]) == 2
     assert "is the log itself" in capsys.readouterr().err and log.read_text() == before
+
+
+def test_a_preamble_and_another_encoding(tmp_path):
+    """A LabVIEW-style preamble before the header, in Latin-1 (a degree sign) and in UTF-16."""
+    text = ("LabVIEW Measurement\nOperator\trig\nTemperature [°C]\t21\n***End_of_Header***\n"
+            "Time [s]\tValve [V]\tPosition [µm]\n0,0\t2,5\t0\n0,1\t2,6\t10\n0,2\t2,7\t25\n")
+    for encoding in ("latin-1", "utf-16"):
+        log = tmp_path / f"{encoding}.lvm"
+        log.write_bytes(text.encode(encoding))
+        with pytest.raises(RecordingError, match=r"(line 3: not utf-8 text \(byte 0xb0\): give its encoding"
+                                                 r"|line 1: not utf-8 text)"):
+            read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um")
+        with pytest.raises(RecordingError, match=r"line 1: no column 'Time \[s\]' for t_s .*--skip-lines N skips it"):
+            read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um", encoding=encoding)
+        rec = read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um", encoding=encoding, skip_lines=4)
+        np.testing.assert_allclose(rec.l_mm, [0.0, 0.01, 0.025], rtol=1e-12)
+        np.testing.assert_allclose(rec.u_v, [2.5, 2.6, 2.7], rtol=1e-12)

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tapmuscle.cli.arguments import number_within, output_path
+from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
 from tapmuscle.errors import UsageError
 
 __all__ = ["register"]
@@ -37,7 +37,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
     try:
         rec = read_rig_log(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
                            load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal,
-                           fill_gaps_s=args.fill_gaps or 0.0)
+                           fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines, encoding=args.encoding)
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
@@ -86,6 +86,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp.add_argument("--fill-gaps", type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
                      help="put back samples the logger dropped, in gaps of up to S seconds (every column "
                           "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")
+    imp.add_argument("--skip-lines", type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
+                     help="lines before the header to skip (a program's preamble, boot messages)")
+    imp.add_argument("--encoding", default="utf-8-sig",
+                     help="the file's text encoding (default UTF-8; e.g. latin-1, cp1252, utf-16)")
     imp.add_argument("--decimal", choices=(".", ","), default=None,
                      help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
     imp.set_defaults(func=_cmd_import)

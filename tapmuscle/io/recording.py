@@ -183,14 +183,19 @@ def read_recording(path: str | os.PathLike) -> Recording:
     return Recording(columns, metadata)
 
 
-def read_text(path: Path, what: str) -> str:
-    """The text of the ``what`` file ``path`` (a byte-order mark, as spreadsheet exports write, is not
-    data); :class:`RecordingError` naming the file when it is missing or unreadable."""
+def read_text(path: Path, what: str, encoding: str = "utf-8-sig", remedy: str = "save it as UTF-8") -> str:
+    """The text of the ``what`` file ``path`` (UTF-8 by default; a byte-order mark, as spreadsheet
+    exports write, is not data); :class:`RecordingError` naming the file when it is missing or
+    unreadable, and the line of a byte the encoding cannot read (with ``remedy``)."""
     try:
-        return path.read_text(encoding="utf-8-sig")
+        return path.read_text(encoding=encoding)
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such {what} file") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        line = exc.object[:exc.start].count(b"\n") + 1
+        raise RecordingError(f"{path}, line {line}: not {exc.encoding} text (byte {exc.object[exc.start]:#04x}): "
+                             f"{remedy}") from None
+    except (OSError, LookupError) as exc:
         raise RecordingError(f"{path}: cannot read {what}: {exc}") from None
 
 

@@ -152,7 +152,8 @@ def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: floa
 
 def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn | str, l: LogColumn | str,  # noqa: E741
                  p: LogColumn | str | None = None, load: LogColumn | str | None = None, load_n: float | None = None,
-                 delimiter: str | None = None, decimal: str | None = None, fill_gaps_s: float = 0.0) -> Recording:
+                 delimiter: str | None = None, decimal: str | None = None, fill_gaps_s: float = 0.0,
+                 skip_lines: int = 0, encoding: str = "utf-8-sig") -> Recording:
     """Read a rig's log as a recording (module docstring).
 
     Parameters
@@ -169,6 +170,12 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         The hanging load [N] for the metadata (the recording's ``# load_n:``), when it is not a column.
     delimiter, decimal : str, optional
         Field separator and decimal mark (default: detected, module docstring).
+    skip_lines : int
+        Lines before the header to skip (a data-acquisition program's preamble, a board's boot
+        messages), besides the leading ``#`` and blank lines.
+    encoding : str
+        The file's text encoding (default UTF-8, with or without a byte-order mark; e.g. ``latin-1``,
+        ``cp1252``, ``utf-16`` for a spreadsheet's "Unicode text").
     fill_gaps_s : float
         Put back the samples a logger dropped, in gaps of up to this many seconds: every column
         interpolated linearly, a column ``filled`` (1 in a filled sample) and the metadata ``filled``
@@ -203,8 +210,10 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         factors = {target: col.factor(target) for target, col in mapping.items()}
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
-    lines = read_text(path, "log").splitlines()
-    i = 0
+    lines = read_text(path, "log", encoding, "give its encoding (--encoding latin-1, cp1252, utf-16)").splitlines()
+    if not (isinstance(skip_lines, int) and skip_lines >= 0):
+        raise RecordingError(f"{path}: skip_lines = {skip_lines!r} is not a number of lines")
+    i = skip_lines
     while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
         i += 1
     if i >= len(lines):
@@ -216,8 +225,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     index = {}
     for target, col in mapping.items():
         if col.column not in header:
+            hint = ("; is a preamble before the header? --skip-lines N skips it" if len(header) < len(mapping) else "")
             raise RecordingError(f"{path}, line {header_line}: no column {col.column!r} for {target} (found, "
-                                 f"separated by {sep!r}: {', '.join(header)})")
+                                 f"separated by {sep!r}: {', '.join(header)}){hint}")
         index[target] = header.index(col.column)
     body = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
     if decimal is None:
