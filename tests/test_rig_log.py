@@ -89,6 +89,7 @@ def test_a_comma_separated_log_keeps_its_decimal_point(tmp_path):
 def test_every_unit_has_a_factor_and_column_specs_parse():
     assert all(f is None or f > 0 for units in UNITS.values() for f in units.values())
     assert UNITS["u_v"]["%"] * 100.0 == 10.0  # 100 % is the valve's 10 V
+    assert UNITS["u_v"]["pwm"] * 255.0 == pytest.approx(10.0, rel=1e-15)  # a full 8-bit duty cycle too
     assert parse_column_spec("pos", "l_mm") == LogColumn("pos", "mm")
     assert parse_column_spec("a:b:um", "l_mm") == LogColumn("a:b", "um")
     with pytest.raises(ValueError, match=r"column 'a': unknown unit 'b' for l_mm \(known: mm, um, cm, m\)"):
@@ -119,7 +120,7 @@ def test_iso_stamps_that_cannot_be_compared_and_iso_values_are_refused(tmp_path)
     log.write_text("t,u,l\n2025-03-14T09:00:00+00:00,1,0\n2025-03-14T09:00:00.1,1,0\n")
     with pytest.raises(RecordingError, match=r"line 3, column 't': '2025-03-14T09:00:00.1' is not an ISO 8601 time"):
         read_rig_log(log, time="t:iso", u="u", l="l")
-    with pytest.raises(RecordingError, match=r"column 'u': unknown unit 'iso' for u_v \(known: V, mV, %\)"):
+    with pytest.raises(RecordingError, match=r"column 'u': unknown unit 'iso' for u_v \(known: V, mV, %, pwm\)"):
         read_rig_log(log, time="t:iso", u=LogColumn("u", "iso"), l="l")
 
 
@@ -134,9 +135,13 @@ def test_import_writes_the_recording_and_says_what_diagnose_would(tmp_path, trut
     assert "scatter by up to" in io.err  # the logger's jitter, taken as on the grid
     rec = read_recording(out)
     assert rec.metadata["load_n"] == "44" and len(rec) == len(truth["t_s"])
-    # the command left in percent: written as declared, with what the diagnosis would refuse said
-    assert main(["import", str(log), "--out", str(tmp_path / "pct.csv"), "--time", "time_ms:ms", "--u", "valve_pct",
-                 "--l", "position_um:um"]) == 0
+    # the command left in percent (its unit not given): refused, unless written as it is on purpose
+    pct = ["import", str(log), "--out", str(tmp_path / "pct.csv"), "--time", "time_ms:ms", "--u", "valve_pct",
+           "--l", "position_um:um"]
+    assert main(pct) == 2
+    assert "column u_v, sample 0: 50 V is outside the -1..11 V" in capsys.readouterr().err
+    assert not (tmp_path / "pct.csv").exists()
+    assert main(pct + ["--no-checks"]) == 0
     assert "the diagnosis would refuse it: column u_v, sample 0: 50 V" in capsys.readouterr().err
 
 

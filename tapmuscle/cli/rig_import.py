@@ -41,10 +41,13 @@ def _cmd_import(args: argparse.Namespace) -> int:
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
+    # the units were declared: values no muscle recording has mean a wrong one (percent given as V)
     try:
         check_muscle_recording(rec.u_v, sampling.ts_s, rec.l_mm)
         problems = []
     except ValueError as exc:
+        if not args.no_checks:
+            raise UsageError(f"{args.log}: {exc} (--no-checks writes it as it is)") from None
         problems = [f"the diagnosis would refuse it: {exc}"]
     p = rec.columns.get("p_mpa")
     notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, p)
@@ -65,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          description="Read a rig's log (any column names; units, separator and decimal mark as "
                                      "given or detected; text columns ignored) and write it as a recording "
                                      "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
-                                     "min, h or iso (ISO 8601 text); command V, mV or % (of 0..10 V); "
+                                     "min, h or iso (ISO 8601 text); command V, mV, % (of 0..10 V) or pwm (0..255 of 0..10 V); "
                                      "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi; load N or kN.")
     imp.add_argument("log", help="the logger's file")
     imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
@@ -90,6 +93,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="lines before the header to skip (a program's preamble, boot messages)")
     imp.add_argument("--encoding", default="utf-8-sig",
                      help="the file's text encoding (default UTF-8; e.g. latin-1, cp1252, utf-16)")
+    imp.add_argument("--no-checks", action="store_true",
+                     help="write values no muscle recording has (a command outside -1..11 V, a displacement beyond "
+                          "500 mm, a period outside 1 ms..10 s) instead of refusing them, e.g. for identify on "
+                          "another rig's units")
     imp.add_argument("--decimal", choices=(".", ","), default=None,
                      help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
     imp.set_defaults(func=_cmd_import)

@@ -40,10 +40,11 @@ from tapmuscle.io.sampling import SamplingError, uniform_sampling
 __all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec"]
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
-#: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range.
+#: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
+#: ``pwm`` an 8-bit duty cycle 0..255 (a microcontroller's ``analogWrite``) of the same range.
 UNITS: dict[str, dict[str, float | None]] = {
     "t_s": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0, "iso": None},
-    "u_v": {"V": 1.0, "mV": 1e-3, "%": 0.1},
+    "u_v": {"V": 1.0, "mV": 1e-3, "%": 0.1, "pwm": 10.0 / 255.0},
     "l_mm": {"mm": 1.0, "um": 1e-3, "cm": 10.0, "m": 1e3},
     "p_mpa": {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6, "psi": 6.894757293168361e-3},
     "load_n": {"N": 1.0, "kN": 1e3},
