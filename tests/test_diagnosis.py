@@ -605,6 +605,30 @@ def test_an_encoder_offset_beside_a_delay_is_named_from_the_first_reading(excita
 
 
 @pytest.mark.slow
+def test_samples_a_logger_dropped_and_the_import_put_back_are_left_out_of_the_fits():
+    """1.5 s of a delayed rig's recording interpolated (what ``tapmuscle import --fill-gaps`` writes):
+    fitted as if measured, they made a supply sag be claimed beside the delay (99.79 %); left out of
+    the fits and tests, the delay alone is named, and the state the unlogged command left after the
+    gap is the unexplained window there."""
+    rig = DEMO_MODEL.with_values(**{"delay.delay_s": 0.3})
+    cols = record(rig, "steps", 21, duration_s=180.0)
+    t, u, l = cols["t_s"], cols["u_v"].copy(), cols["l_mm"].copy()
+    gap = np.arange(1000, 1015)
+    kept = np.setdiff1d(np.arange(len(t)), gap)
+    u[gap], l[gap] = np.interp(t[gap], t[kept], u[kept]), np.interp(t[gap], t[kept], l[kept])
+    left_out = np.isin(np.arange(len(t)), gap)
+    d = diagnose(t, u, l, DEMO_MODEL, p_mpa=cols["p_mpa"], left_out=left_out)
+    assert [f.effect for f in d.findings] == ["transport_delay", "unexplained"], d.findings
+    assert d.findings[0].parameters["delay.delay_s"] == pytest.approx(0.3, abs=0.01)
+    (window, *_), = [f.located for f in d.findings if f.effect == "unexplained"]
+    assert 96.0 < window[0] <= 100.0 and 101.5 <= window[1] < 106.0
+    assert d.fit_after_percent > 99.8 and d.to_json()["split"]["left_out_samples"] == 15
+    assert not (d.train | d.test)[gap].any()
+    with pytest.raises(ValueError, match="left_out has 3 samples, the recording 1801"):
+        diagnose(t, u, l, DEMO_MODEL, left_out=np.zeros(3, bool))
+
+
+@pytest.mark.slow
 def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
     """Before calibration came first, this recording was blamed on a supply sag, then a delay."""
     cols = record(DEMO_MODEL.with_values(**OFF, **{"delay.delay_s": 0.3}), "steps", 3, duration_s=150.0)

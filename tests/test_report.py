@@ -55,9 +55,10 @@ def test_samples_put_back_by_the_import_are_said(tmp_path):
     filled[[250, 400, 401]] = 1.0  # what tapmuscle import --fill-gaps marks
     write_recording(rec, Recording(r.columns | {"filled": filled}, r.metadata))
     d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
-    assert doc["notes"] == ["3 samples were put back by interpolation (column filled, from t = 25 s): they are compared "
-                            "as if recorded, and a gap of more than a few samples may show as an effect or an "
-                            "unexplained window there"]
+    assert doc["notes"] == ["3 samples were put back by interpolation (column filled, from t = 25 s): left out of the "
+                            "fits and the held-out tests; the command there was not logged, so a gap of more than a "
+                            "few samples may leave an unexplained window after it"]
+    assert doc["split"]["left_out_samples"] == 3
 
 
 @pytest.mark.parametrize("meta, match", [({"load_n": "heavy"}, "'# load_n: heavy' is not a number"),

@@ -242,7 +242,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
              alpha: float = 1e-3, min_reduction: float = 0.10,
              calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
              progress: Callable[[int, int], None] | None = None, workers: int = 1,
-             executor: Executor | None = None, use_pressure: bool = False) -> Diagnosis:
+             executor: Executor | None = None, use_pressure: bool = False,
+             left_out: np.ndarray | None = None) -> Diagnosis:
     """Diagnose the mismatch between a recording and the plant model (module docstring).
 
     Parameters
@@ -285,6 +286,10 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         Weigh the recorded pressure ``p_mpa`` beside the displacement in the calibration, the joint
         re-fits, the input map's search and the held-out tests (:mod:`tapmuscle.diagnosis.held_out`;
         docs/diagnosis.md has its measured trade-off). Off by default.
+    left_out : ndarray of bool, optional
+        Samples left out of every fit and held-out test (the recording's values there are not
+        measurements: samples ``tapmuscle import --fill-gaps`` put back). They are still simulated
+        through, and the residual tests of the whole run still see them.
 
     Raises
     ------
@@ -313,7 +318,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
                     calibration=calibration, progress=progress, started=started, space=MUSCLE,
-                    use_pressure=use_pressure)
+                    use_pressure=use_pressure, left_out=left_out)
     d.notes[:0] = notes + displacement_scale_notes(y, d.y_before_mm)
     return d
 
@@ -611,7 +616,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
             candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
             calibration: Sequence[NominalParameter] | None, progress: Callable[[int, int], None] | None,
-            started: float, space: ModelSpace, use_pressure: bool = False,
+            started: float, space: ModelSpace, use_pressure: bool = False, left_out: np.ndarray | None = None,
             output: tuple[str, str] | None = None) -> Diagnosis:
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
     n = len(t)
@@ -625,6 +630,14 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         first_block = block_index(n, ts, block_s) == 0
         train = train & ~first_block
         start_left_out_s = round(float(np.count_nonzero(first_block)) * ts, 6)
+    if left_out is not None:
+        mask = np.asarray(left_out, bool)
+        if mask.shape != (n,):
+            raise ValueError(f"left_out has {mask.size} samples, the recording {n}")
+        train, test = train & ~mask, test & ~mask
+        left_out_samples = int(np.count_nonzero(mask))
+    else:
+        left_out_samples = 0
     e0 = y - y0
     noise = white_noise_level_mm(e0)
     evidence = HeldOut.setup(y, test, noise, p_mpa if use_pressure else None, q0)
@@ -1314,5 +1327,5 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                      tried, sim.runs, time.perf_counter() - started, calibration=cal, fit_calibrated_percent=fit_cal,
                      y_calibrated_mm=y_cal, ambiguous=ambiguous, selection=selection, nominal=model, load_n=load,
                      ts_s=ts, unexplained=remainder, pressure_noise_mpa=evidence.pressure_noise_mpa, block_s=block_s,
-                     output=output, notes=notes, start_left_out_s=start_left_out_s,
+                     output=output, notes=notes, start_left_out_s=start_left_out_s, left_out_samples=left_out_samples,
                      **({"calibration_skipped": skipped} if skipped else {}))

@@ -144,6 +144,9 @@ class Diagnosis:
     """Seconds at the recording's start left out of the training blocks (the first block of a
     recording that starts mid-run: :meth:`~tapmuscle.diagnosis.model_space.ModelSpace.starts_mid_run`);
     0: none. ``diagnosis.json``'s ``split.start_left_out_s`` when not 0."""
+    left_out_samples: int = 0
+    """Samples left out of every fit and held-out test (``diagnose(left_out=...)``: samples the import
+    put back); ``split.left_out_samples`` when not 0."""
     output: tuple[str, str] | None = None
     """``(name, unit)`` of another model's measured output, which the ``*_mm`` fields then hold in its
     unit; None: the muscle's displacement [mm]."""
@@ -183,7 +186,8 @@ class Diagnosis:
                 "candidates_tried": self.candidates,
                 "split": {"method": "interleaved blocks", "train_samples": int(self.train.sum()),
                           "held_out_samples": int(self.test.sum()), "block_s": self.block_s}
-                         | ({"start_left_out_s": self.start_left_out_s} if self.start_left_out_s else {}),
+                         | ({"start_left_out_s": self.start_left_out_s} if self.start_left_out_s else {})
+                         | ({"left_out_samples": self.left_out_samples} if self.left_out_samples else {}),
                 "evidence": {"channels": ["l_mm"] + (["p_mpa"] if self.pressure_noise_mpa is not None else []),
                              "pressure_noise_mpa": self.pressure_noise_mpa},
                 "simulations": self.simulations, "elapsed_s": round(self.elapsed_s, 2)}

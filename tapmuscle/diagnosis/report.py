@@ -384,16 +384,18 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     except RecordingError as e:
         raise RecordingError(f"{recording}: {e}") from None
     with worker_pool(workers) as pool:
+        filled = np.flatnonzero(cols.get("filled", np.zeros(0)) != 0)  # tapmuscle import --fill-gaps
         d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
-                     progress=progress, executor=pool, **options)
+                     progress=progress, executor=pool, left_out=cols["filled"] != 0 if filled.size else None,
+                     **options)
         if load is None:
             d.notes.append(f"The recording gives no load (no load_n column, no '# load_n:' line): the plant's "
                            f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch)")
-        filled = np.flatnonzero(cols.get("filled", np.zeros(0)) != 0)
-        if filled.size:  # tapmuscle import --fill-gaps
+        if filled.size:
             d.notes.append(f"{filled.size} samples were put back by interpolation (column filled, from t = "
-                           f"{float(cols['t_s'][filled[0]] - cols['t_s'][0]):g} s): they are compared as if recorded, "
-                           "and a gap of more than a few samples may show as an effect or an unexplained window there")
+                           f"{float(cols['t_s'][filled[0]] - cols['t_s'][0]):g} s): left out of the fits and the held-out "
+                           "tests; the command there was not logged, so a gap of more than a few samples may leave an "
+                           "unexplained window after it")
         fmu_check = None
         if kind == "fmu":
             sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"], d.ts_s, load)
