@@ -250,3 +250,11 @@ def test_a_preamble_and_another_encoding(tmp_path):
         rec = read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um", encoding=encoding, skip_lines=4)
         np.testing.assert_allclose(rec.l_mm, [0.0, 0.01, 0.025], rtol=1e-12)
         np.testing.assert_allclose(rec.u_v, [2.5, 2.6, 2.7], rtol=1e-12)
+
+
+def test_a_remark_among_the_data_is_skipped_and_said(tmp_path):
+    log = tmp_path / "log.csv"
+    log.write_text("t,u,pos\n0,5,1\n0.1,5,2\n# operator paused logging\n0.2,5,3\n  # again\n0.3,5,4\n")
+    rec = read_rig_log(log, time="t", u="u", l="pos")
+    np.testing.assert_array_equal(rec.l_mm, [1.0, 2.0, 3.0, 4.0])
+    assert rec.metadata["remarks"] == "2 '#' lines among the data skipped (line 4 and more)"

@@ -53,7 +53,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
     notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, p)
     write_recording(args.out, rec)
     print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
-          + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else ""))
+          + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else "")
+          + (f"; {rec.metadata['remarks']}" if "remarks" in rec.metadata else ""))
     if "filled" in rec.metadata:
         notes.insert(0, rec.metadata["filled"][0].upper() + rec.metadata["filled"][1:])
     for note in notes:

@@ -8,8 +8,8 @@ names the log's column of each quantity and its unit; everything else is read as
 * the field separator is the one of ``; <tab> ,`` the header row holds most of (or ``delimiter``);
 * the decimal mark is a comma when the separator is not and a mapped cell reads ``12,5`` (or
   ``decimal``);
-* leading ``#`` lines and blank lines are skipped, and so is one row under the header in which no
-  mapped value is a number (a units row);
+* leading ``#`` lines and blank lines are skipped, and so are ``#`` lines among the data (a
+  logger's remarks) and one row under the header in which every mapped value is text (a units row);
 * columns not mapped are ignored (text, status flags);
 * times become seconds from the first sample (the first stamp as written is kept in the metadata
   ``start``): the recording format's ``t_s``.
@@ -231,6 +231,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
                                  f"separated by {sep!r}: {', '.join(header)}){hint}")
         index[target] = header.index(col.column)
     body = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
+    # a '#' line among the data is a logger's remark (an operator's marker), not a sample
+    remarks = [lineno for lineno, row in body if row[0].lstrip().startswith("#")]
+    body = [(lineno, row) for lineno, row in body if not row[0].lstrip().startswith("#")]
     if decimal is None:
         decimal = "."
         if sep != ",":
@@ -319,6 +322,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}
     if skipped is not None:
         metadata["units_row"] = f"line {skipped}, skipped"
+    if remarks:
+        metadata["remarks"] = (f"{len(remarks)} '#' line{'s' if len(remarks) > 1 else ''} among the data skipped "
+                               f"(line {remarks[0]}" + (" and more)" if len(remarks) > 1 else ")"))
     if filled is not None:
         metadata["filled"] = filled
     if load_n is not None:
