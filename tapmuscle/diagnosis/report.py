@@ -384,10 +384,10 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     except RecordingError as e:
         raise RecordingError(f"{recording}: {e}") from None
     with worker_pool(workers) as pool:
-        filled = np.flatnonzero(cols.get("filled", np.zeros(0)) != 0)  # tapmuscle import --fill-gaps
+        put_back = cols["filled"] != 0 if "filled" in cols else None  # tapmuscle import --fill-gaps
+        filled = np.zeros(0, int) if put_back is None else np.flatnonzero(put_back)
         d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
-                     progress=progress, executor=pool, left_out=cols["filled"] != 0 if filled.size else None,
-                     **options)
+                     progress=progress, executor=pool, left_out=put_back if filled.size else None, **options)
         if load is None:
             d.notes.append(f"The recording gives no load (no load_n column, no '# load_n:' line): the plant's "
                            f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch)")

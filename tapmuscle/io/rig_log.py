@@ -211,9 +211,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         factors = {target: col.factor(target) for target, col in mapping.items()}
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
-    lines = read_text(path, "log", encoding, "give its encoding (--encoding latin-1, cp1252, utf-16)").splitlines()
     if not (isinstance(skip_lines, int) and skip_lines >= 0):
         raise RecordingError(f"{path}: skip_lines = {skip_lines!r} is not a number of lines")
+    lines = read_text(path, "log", encoding, "give its encoding (--encoding latin-1, cp1252, utf-16)").splitlines()
     i = skip_lines
     while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
         i += 1
@@ -230,10 +230,10 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             raise RecordingError(f"{path}, line {header_line}: no column {col.column!r} for {target} (found, "
                                  f"separated by {sep!r}: {', '.join(header)}){hint}")
         index[target] = header.index(col.column)
-    body = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
-    # a '#' line among the data is a logger's remark (an operator's marker), not a sample
-    remarks = [lineno for lineno, row in body if row[0].lstrip().startswith("#")]
-    body = [(lineno, row) for lineno, row in body if not row[0].lstrip().startswith("#")]
+    # blank rows dropped; a '#' line among the data is a logger's remark (an operator's marker), not a sample
+    rows_in = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
+    remarks = [lineno for lineno, row in rows_in if row[0].lstrip().startswith("#")]
+    body = [(lineno, row) for lineno, row in rows_in if not row[0].lstrip().startswith("#")]
     if decimal is None:
         decimal = "."
         if sep != ",":
