@@ -118,7 +118,7 @@ def test_iso_stamps_that_cannot_be_compared_and_iso_values_are_refused(tmp_path)
     """Only the time's unit may be ISO 8601 text."""
     log = tmp_path / "mixed.csv"
     log.write_text("t,u,l\n2025-03-14T09:00:00+00:00,1,0\n2025-03-14T09:00:00.1,1,0\n")
-    with pytest.raises(RecordingError, match=r"line 3, column 't': '2025-03-14T09:00:00.1' is not an ISO 8601 time"):
+    with pytest.raises(RecordingError, match=r"line 3, column 't': '2025-03-14T09:00:00.1' is not an ISO 8601 \(or day.month.year\) time"):
         read_rig_log(log, time="t:iso", u="u", l="l")
     with pytest.raises(RecordingError, match=r"column 'u': unknown unit 'iso' for u_v \(known: V, mV, %, pwm\)"):
         read_rig_log(log, time="t:iso", u=LogColumn("u", "iso"), l="l")
@@ -258,3 +258,53 @@ def test_a_remark_among_the_data_is_skipped_and_said(tmp_path):
     rec = read_rig_log(log, time="t", u="u", l="pos")
     np.testing.assert_array_equal(rec.l_mm, [1.0, 2.0, 3.0, 4.0])
     assert rec.metadata["remarks"] == "2 '#' lines among the data skipped (line 4 and more)"
+
+
+def test_a_restarted_logger_writes_runs_one_of_which_is_read(tmp_path, capsys):
+    """A logger restarted into the same file repeats its header (and units row) with a new clock:
+    refused without ``run``, naming where each run starts; each run read on its own."""
+    log = tmp_path / "restarted.csv"
+    log.write_text("t;u;pos\ns;V;mm\n0;5;1\n0,1;5;2\n0,2;5;3\n"
+                   "t;u;pos\ns;V;mm\n0;6;7\n0,1;6;8\n"
+                   "t ; u ; pos\n0;7;9\n0,1;7;10\n0,2;7;11\n0,3;7;12\n")
+    with pytest.raises(RecordingError, match=r"restarted.csv, line 6: the header again, a logger restarted into the "
+                                             r"same file: 3 runs \(1 at line 1, 2 at line 6, 3 at line 10\), each "
+                                             r"with its own clock; import one with --run K"):
+        read_rig_log(log, time="t", u="u", l="pos")
+    for run, l_mm, u_v in ((1, [1, 2, 3], 5.0), (2, [7, 8], 6.0), (3, [9, 10, 11, 12], 7.0)):
+        rec = read_rig_log(log, time="t", u="u", l="pos", run=run)
+        np.testing.assert_array_equal(rec.l_mm, l_mm)
+        np.testing.assert_array_equal(rec.u_v, u_v)
+        assert rec.t_s[0] == 0.0 and rec.ts_s == pytest.approx(0.1)
+        assert rec.metadata["run"].startswith(f"run {run} of 3")
+    with pytest.raises(RecordingError, match=r"run 4 asked for, the log holds 3 \(1 at line 1"):
+        read_rig_log(log, time="t", u="u", l="pos", run=4)
+    with pytest.raises(RecordingError, match=r"run = 0 is not a run number"):
+        read_rig_log(log, time="t", u="u", l="pos", run=0)
+    out = tmp_path / "rec.csv"
+    assert main(["import", str(log), "--out", str(out), "--time", "t", "--u", "u", "--l", "pos", "--run", "2"]) == 0
+    assert "run 2 of 3 (header at line 6)" in capsys.readouterr().out
+    np.testing.assert_array_equal(read_recording(out).l_mm, [7.0, 8.0])
+    # a log of one run: --run 1 reads it, --run 2 is refused
+    single = tmp_path / "single.csv"
+    single.write_text("t,u,pos\n0,5,1\n0.1,5,2\n")
+    np.testing.assert_array_equal(read_rig_log(single, time="t", u="u", l="pos", run=1).l_mm, [1.0, 2.0])
+    with pytest.raises(RecordingError, match=r"run 2 asked for, the log holds 1 \(1 at line 1\)"):
+        read_rig_log(single, time="t", u="u", l="pos", run=2)
+
+
+def test_day_first_dotted_dates_as_a_german_locale_writes_them(tmp_path):
+    log = tmp_path / "de.csv"
+    log.write_text("Zeit;Ventil [V];Weg [mm]\n"
+                   "31.12.2024 23:59:59,9;2,5;0\n01.01.2025 00:00:00;2,5;0,5\n01.01.2025 00:00:00,1;2,5;1\n"
+                   "1.1.2025 00:00:00.2;2,5;1,5\n")
+    rec = read_rig_log(log, time="Zeit:iso", u="Ventil [V]", l="Weg [mm]")
+    np.testing.assert_allclose(rec.t_s, [0.0, 0.1, 0.2, 0.3], atol=1e-9)  # across a year's end
+    np.testing.assert_array_equal(rec.l_mm, [0.0, 0.5, 1.0, 1.5])
+    assert rec.metadata["start"] == "31.12.2024 23:59:59,9"
+    # a dotted date that is not a day-first date is refused like any other text
+    log.write_text("Zeit;u;l\n13.31.2024 10:00:00;1;0\n")
+    with pytest.raises(RecordingError, match=r"line 2, column 'Zeit': '13.31.2024 10:00:00' is not an ISO 8601 "
+                                             r"\(or day.month.year\) time"):
+        read_rig_log(log, time="Zeit:iso", u="u", l="l")
+    assert tm.read_rig_log is read_rig_log

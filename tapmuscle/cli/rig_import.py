@@ -37,7 +37,8 @@ def _cmd_import(args: argparse.Namespace) -> int:
     try:
         rec = read_rig_log(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
                            load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal,
-                           fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines, encoding=args.encoding)
+                           fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines, encoding=args.encoding,
+                           run=args.run)
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
@@ -53,6 +54,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
     notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, p)
     write_recording(args.out, rec)
     print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
+          + (f"; {rec.metadata['run']}" if "run" in rec.metadata else "")
           + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else "")
           + (f"; {rec.metadata['remarks']}" if "remarks" in rec.metadata else ""))
     if "filled" in rec.metadata:
@@ -69,7 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                          description="Read a rig's log (any column names; units, separator and decimal mark as "
                                      "given or detected; text columns ignored) and write it as a recording "
                                      "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
-                                     "min, h or iso (ISO 8601 text); command V, mV, % (of 0..10 V) or pwm (0..255 of 0..10 V); "
+                                     "min, h or iso (ISO 8601 or day.month.year text); "
+                                     "command V, mV, % (of 0..10 V) or pwm (0..255 of 0..10 V); "
                                      "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi; load N or kN.")
     imp.add_argument("log", help="the logger's file")
     imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
@@ -92,6 +95,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")
     imp.add_argument("--skip-lines", type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
                      help="lines before the header to skip (a program's preamble, boot messages)")
+    imp.add_argument("--run", type=integer_at_least("--run", 1, 10 ** 6), default=None, metavar="K",
+                     help="of a log a restarted logger wrote on (the header repeated among the data), read run "
+                          "K (1 = the first); default: a log of several runs is refused, naming where they start")
     imp.add_argument("--encoding", default="utf-8-sig",
                      help="the file's text encoding (default UTF-8; e.g. latin-1, cp1252, utf-16)")
     imp.add_argument("--no-checks", action="store_true",

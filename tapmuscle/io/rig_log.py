@@ -12,7 +12,10 @@ names the log's column of each quantity and its unit; everything else is read as
   logger's remarks) and one row under the header in which every mapped value is text (a units row);
 * columns not mapped are ignored (text, status flags);
 * times become seconds from the first sample (the first stamp as written is kept in the metadata
-  ``start``): the recording format's ``t_s``.
+  ``start``): the recording format's ``t_s``; a time given as text is ISO 8601 or a day-first dotted
+  date (``05.03.2024 10:00:00,5``, as a German locale writes it; dots never put the month first);
+* a row that repeats the header among the data is a logger restarted into the same file: the log
+  then holds several runs, each with its own clock, and one of them is read (``run``).
 
 The values are converted, nothing else: no resampling. Timestamps that scatter about a uniform grid
 by up to a quarter period are read as they are (the recording format accepts them,
@@ -37,7 +40,7 @@ import numpy as np
 from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
-__all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec"]
+__all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec", "parse_time_text"]
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
 #: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
@@ -58,6 +61,19 @@ DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "TAB": "\t"}
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$")
 _THOUSANDS = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+$")
 _INTEGER = re.compile(r"^[+-]?\d+$")
+_DOTTED_DATE = re.compile(r"^(\d{1,2})\.(\d{1,2})\.(\d{4})[ T]+(\d{1,2}):(\d{2})(?::(\d{2})(?:[.,](\d{1,6}))?)?$")
+
+
+def parse_time_text(cell: str) -> datetime:
+    """A time stamp written as text: ISO 8601 (``2024-03-05T10:00:00.5``, as
+    :meth:`datetime.fromisoformat` reads it) or a day-first dotted date (``05.03.2024 10:00:00,5``,
+    the German locale's, with a decimal point or comma in the seconds). ``ValueError`` otherwise."""
+    m = _DOTTED_DATE.match(cell)
+    if m is None:
+        return datetime.fromisoformat(cell)
+    day, month, year, hour, minute, second, frac = m.groups()
+    return datetime(int(year), int(month), int(day), int(hour), int(minute), int(second or 0),
+                    int((frac or "0").ljust(6, "0")))
 
 
 @dataclass(frozen=True)
@@ -70,7 +86,7 @@ class LogColumn:
         The column's name in the log's header row.
     unit : str
         Its unit, a key of :data:`UNITS` for the recording column it is read into (``"ms"``, ``"%"``,
-        ``"um"``, ``"kPa"``, ``"iso"`` for ISO 8601 time text, ...).
+        ``"um"``, ``"kPa"``, ``"iso"`` for time text, :func:`parse_time_text`, ...).
     """
 
     column: str
@@ -116,6 +132,28 @@ def _refuse_thousands(path: Path, body: list, index: dict[str, int], header: lis
                                  f"--decimal '.' if they are decimals")
 
 
+def _one_run(path: Path, body: list, header: list[str], header_line: int,
+             run: int | None) -> tuple[list, str | None]:
+    """The rows of run ``run`` (1-based) of a log whose rows repeating ``header`` separate runs, and
+    which run it was of how many (None for a log of one run and no ``run``). A log of several runs
+    without ``run``, or ``run`` beyond them, is refused naming the lines where each run starts."""
+    repeats = [k for k, (_, row) in enumerate(body) if [c.strip() for c in row] == header]
+    if run is not None and not (isinstance(run, int) and not isinstance(run, bool) and run >= 1):
+        raise RecordingError(f"{path}: run = {run!r} is not a run number (1 = the first)")
+    if not repeats and run in (None, 1):
+        return body, None
+    starts = [header_line] + [body[k][0] for k in repeats]
+    where = ", ".join(f"{i + 1} at line {line}" for i, line in enumerate(starts))
+    if run is None:
+        raise RecordingError(f"{path}, line {starts[1]}: the header again, a logger restarted into the same file: "
+                             f"{len(starts)} runs ({where}), each with its own clock; import one with --run K")
+    if run > len(starts):
+        raise RecordingError(f"{path}: run {run} asked for, the log holds {len(starts)} ({where})")
+    bounds = [-1] + repeats + [len(body)]
+    rows = body[bounds[run - 1] + 1:bounds[run]]
+    return rows, f"run {run} of {len(starts)} (header at line {starts[run - 1]})"
+
+
 def _separator(header: str) -> str:
     counts = [header.count(s) for s in _SEPARATORS]
     return _SEPARATORS[int(np.argmax(counts))] if max(counts) else ","
@@ -154,7 +192,7 @@ def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: floa
 def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn | str, l: LogColumn | str,  # noqa: E741
                  p: LogColumn | str | None = None, load: LogColumn | str | None = None, load_n: float | None = None,
                  delimiter: str | None = None, decimal: str | None = None, fill_gaps_s: float = 0.0,
-                 skip_lines: int = 0, encoding: str = "utf-8-sig") -> Recording:
+                 skip_lines: int = 0, encoding: str = "utf-8-sig", run: int | None = None) -> Recording:
     """Read a rig's log as a recording (module docstring).
 
     Parameters
@@ -181,6 +219,10 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         Put back the samples a logger dropped, in gaps of up to this many seconds: every column
         interpolated linearly, a column ``filled`` (1 in a filled sample) and the metadata ``filled``
         saying what was done. 0 (default): a dropped sample is refused, naming its line.
+    run : int, optional
+        Which run to read (1 = the first) of a log a restarted logger wrote on: rows repeating the
+        header separate the runs. Default: a log of one run; one of several is refused, naming the
+        lines where the runs start.
 
     Returns
     -------
@@ -194,7 +236,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         The file cannot be read, a mapped column is not in the header (naming the columns found),
         an unknown unit, a cell that is empty or not a number or not an ISO 8601 time (file, line,
         column), times that do not increase, a dropped or doubled sample or a clock that drifts, a gap
-        longer than ``fill_gaps_s`` (line).
+        longer than ``fill_gaps_s`` (line), a log of several runs without ``run`` or ``run`` beyond
+        them.
     """
     path = Path(path)
     if load_n is not None and not (isinstance(load_n, (int, float)) and math.isfinite(load_n) and load_n > 0):
@@ -234,6 +277,7 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     rows_in = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
     remarks = [lineno for lineno, row in rows_in if row[0].lstrip().startswith("#")]
     body = [(lineno, row) for lineno, row in rows_in if not row[0].lstrip().startswith("#")]
+    body, run_note = _one_run(path, body, header, header_line, run)
     if decimal is None:
         decimal = "."
         if sep != ",":
@@ -277,12 +321,12 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             cell = row[j].strip()
             if factors[target] is None:
                 try:
-                    dt = datetime.fromisoformat(cell)
+                    dt = parse_time_text(cell)
                     first_dt = first_dt or dt
                     values[k] = (dt - first_dt).total_seconds()
                 except (ValueError, TypeError) as exc:
                     raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not an ISO 8601 "
-                                         f"time comparable with the first ({exc})") from None
+                                         f"(or day.month.year) time comparable with the first ({exc})") from None
                 continue
             try:
                 v = number(cell)
@@ -320,6 +364,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
                              + ("; or --fill-gaps S" if not fill_gaps_s else "") + ")") from None
     used = ", ".join(f"{target} <- {col.column} [{col.unit}]" for target, col in mapping.items())
     metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}
+    if run_note:
+        metadata["run"] = run_note
     if skipped is not None:
         metadata["units_row"] = f"line {skipped}, skipped"
     if remarks:
