@@ -20,6 +20,7 @@ from tapmuscle.diagnosis.field_demo import (CATEGORY_MIX, EXCITATIONS, FIELD_ERR
 from fmu_plant import PlantParams
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
 from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split
+from tapmuscle.diagnosis.simulation import Simulator
 
 
 @pytest.fixture(scope="module")
@@ -421,10 +422,25 @@ def test_a_second_effect_beside_a_sag_is_judged_without_the_blocks_of_its_unplac
     r = run_field_case(case, tmp_path, keep=True)
     found = set(r["findings"]) | {a for g in r["ambiguous"] for a in g}
     assert set(case.effects) <= found
-    # 93.6 here: the fall's placement within the held-out block caps it (99.9 % with the rig's
-    # edges; docs/diagnosis.md, "Why the sag cases miss the fit target")
-    assert r["fit_after_percent"] > 92.5
     doc = json.loads((tmp_path / case.name / "diagnosis.json").read_text())
+    # The held-out fit is not a figure of this recording: the fall may be placed anywhere in the 4 s
+    # the training blocks leave (their fit moves by 0.005 point across it), and the held-out fit
+    # then ranges from 85 % (the fall at 49.9 s) to 97.7 % (at 53.8 s). CPUs put it at 90.5 %,
+    # 93.25 % and 93.6 %. What holds: the fall is bracketed where the rig's is, and with the rig's
+    # edges the fitted plant reaches 99.9 % (docs/diagnosis.md, "Why the sag cases miss the fit target").
+    sag = next(f["parameters"] for f in doc["findings"] if f["effect"] == "supply_pressure_variation")
+    rig = dict(case.effect_values)
+    rig_start = rig["supply_variation.start_s"]
+    assert sag["supply_variation.start_s"] - 0.1 <= rig_start <= sag["supply_variation.start_s"] + sag["supply_variation.ramp_s"] + 0.1
+    assert r["fit_after_percent"] > 84.0
+    fitted = PlantParams.from_dict(json.loads((tmp_path / case.name / "calibrated_plant.json").read_text())["plant"])
+    cols = read_recording(tmp_path / case.name / "recording.csv").columns
+    sim = Simulator(cols["u_v"], float(np.median(np.diff(cols["t_s"]))), cols.get("load_n"))
+    _, held_out = interleaved_split(len(cols["l_mm"]), sim.ts_s, doc["split"]["block_s"])
+    edges = ("supply_variation.start_s", "supply_variation.end_s", "supply_variation.ramp_s",
+             "supply_variation.recovery_ramp_s")
+    at_rig = fitted.with_values(**{k: rig.get(k, PlantParams().value(k)) for k in edges})
+    assert fit_percent(cols["l_mm"], sim.run(at_rig)[0], held_out) > 99.0
     added = [s for s in doc["selection"] if s["step"] == "add"]
     assert [s["effect"] for s in added[:2]] == ["supply_pressure_variation", "rate_dependent_hysteresis"]
     assert "held_out_blocks_left_out_s" not in added[0]  # nothing in the model yet: every block judged

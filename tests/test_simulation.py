@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from fmu_plant import PlantParams
 from tapmuscle.diagnosis.fit_problem import SimulationError as FitProblemSimulationError
-from tapmuscle.diagnosis.simulation import SimulationError, Simulator
+from tapmuscle.diagnosis.simulation import SimulationError, Simulator, process_pool
 
 
 def test_parameters_the_plant_cannot_integrate_are_a_failed_simulation_naming_them():
@@ -18,3 +25,45 @@ def test_parameters_the_plant_cannot_integrate_are_a_failed_simulation_naming_th
         sim.run(PlantParams().with_values(**{"muscle.rest_length_mm": 1e-12}))
     assert FitProblemSimulationError is SimulationError  # the one the fits catch
     assert sim.run(PlantParams())[0].shape == (50,) and sim.runs == 1  # the failed run is not counted
+
+
+def _sleep_then_mark(folder: str, k: int) -> int:
+    """A task of a worker: sleeps, then leaves a file saying it finished."""
+    time.sleep(20.0)
+    Path(folder, f"done_{k}").write_text("")
+    return k
+
+
+def test_an_interrupt_stops_the_pools_processes_and_its_queued_work(tmp_path):
+    """A notebook's interrupt reaches the kernel alone: the pool must not first run what is queued."""
+    with pytest.raises(KeyboardInterrupt):
+        with process_pool(2, "jobs=2") as pool:
+            futures = [pool.submit(_sleep_then_mark, str(tmp_path), k) for k in range(6)]
+            processes = list(pool._processes.values())
+            raise KeyboardInterrupt
+    assert len(processes) == 2 and not any(p.is_alive() for p in processes)
+    assert all(f.cancelled() or f.done() for f in futures)
+    assert not list(tmp_path.glob("done_*"))  # no task ran to its end
+
+
+def test_ctrl_c_on_a_diagnosis_with_workers_ends_it_without_tracebacks_or_output(tmp_path):
+    from tapmuscle.diagnosis.demo import DEMO_MODEL, record
+    from tapmuscle.io.recording import Recording, write_recording
+    from tapmuscle.io.plant_file import plant_file_text
+
+    rig = DEMO_MODEL.with_values(**{"delay.delay_s": 0.3})
+    rec = record(rig, "steps", 5, duration_s=120.0)
+    write_recording(tmp_path / "rec.csv", Recording({k: rec[k] for k in ("t_s", "u_v", "l_mm")}, {}))
+    (tmp_path / "plant.json").write_text(plant_file_text(DEMO_MODEL, "nominal"))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle.cli", "diagnose", "--recording", str(tmp_path / "rec.csv"),
+                             "--plant", str(tmp_path / "plant.json"), "--out", str(out), "--workers", "2"],
+                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    first = proc.stderr.readline()  # the first progress line: the workers are running
+    assert first.startswith("diagnose:"), first
+    os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches every process of the group
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted; nothing is half-written" in err and "Traceback" not in err, err
+    assert not out.exists()

@@ -387,6 +387,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # every output is written whole or not at all (tapmuscle.io.atomic): say so, not a traceback
+        field_run = args.command == "demo-mismatch" and getattr(args, "suite", None) == "field"
+        resume = "; the same command with --resume goes on from the finished cases" if field_run else ""
+        print(f"\ntapmuscle {args.command}: interrupted; nothing is half-written (each output file is complete "
+              f"or absent){resume}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

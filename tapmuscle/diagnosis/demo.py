@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -31,7 +30,7 @@ from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 
 from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, iou, interleaved_split
-from tapmuscle.diagnosis.simulation import Simulator
+from tapmuscle.diagnosis.simulation import Simulator, process_pool
 from tapmuscle.diagnosis.reproducible import sse
 
 __all__ = ["DEMO_MODEL", "EXCITATIONS", "MAGNITUDES", "Case", "concealed_cases", "record", "run_case",
@@ -259,7 +258,7 @@ def run_demo(out: str | Path, *, seeds: int = 3, clean_seeds: int = 20, jobs: in
     results: list[dict[str, Any]] = []
     if progress is not None:
         progress(0, len(tasks))
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with process_pool(jobs, f"jobs={jobs}") as pool:
         for i, r in enumerate(pool.map(_run, tasks), 1):
             results.append(r)
             if progress is not None:

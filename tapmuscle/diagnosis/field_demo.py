@@ -32,7 +32,7 @@ import json
 import math
 import os
 import time
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -46,6 +46,7 @@ from tapmuscle.diagnosis.field_cases import (CATEGORIES, CATEGORY_MIX, DURATION_
                                              FIELD_ERROR_PARAMETERS, INCOMPATIBLE_PAIRS, LOADS_N, OOV_KINDS, TS_S,
                                              FieldCase, compatible_pairs, effect_costs, field_cases,
                                              parameter_value, record_case, vocabulary)
+from tapmuscle.diagnosis.simulation import process_pool
 
 __all__ = ["FIELD_ERROR_PARAMETERS", "CATEGORY_MIX", "CATEGORIES", "EXCITATIONS", "OOV_KINDS", "LOADS_N",
            "EFFECT_RANGES", "INCOMPATIBLE_PAIRS", "TARGETS", "FIT_AFTER_PERCENT", "VISIBLE_POINTS",
@@ -334,7 +335,7 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
             if stored is not None:
                 results[c.index] = stored
     todo = [c for c in cases if c.index not in results]
-    with ProcessPoolExecutor(max_workers=max(1, min(jobs, len(todo)))) as pool:
+    with process_pool(max(1, min(jobs, len(todo))), f"jobs={jobs}") as pool:
         pending: dict[Future, FieldCase] = {pool.submit(_run_safe, (c, str(out / "cases"), keep, use_pressure)): c
                                             for c in todo}
         # wait() rather than as_completed(): the same results as they finish, plus a heartbeat while

@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -44,7 +43,7 @@ from tapmuscle.diagnosis.boundary_effects import dead_band_map
 from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
 from tapmuscle.diagnosis.foreign_fmus import build_dc_motor_fmu, build_thermal_fmu
 from tapmuscle.diagnosis.foreign_model import ForeignSimulator, read_interface
-from tapmuscle.diagnosis.simulation import spawn_context
+from tapmuscle.diagnosis.simulation import process_pool
 
 __all__ = ["ForeignCase", "foreign_cases", "record_foreign_case", "run_foreign_demo", "score_foreign",
            "foreign_scores_markdown", "CONCEALED", "FIT_AFTER_PERCENT", "TARGETS", "build_demo_fmus"]
@@ -294,7 +293,7 @@ def run_foreign_demo(out: str | Path, *, n: int = 40, seed: int = 0, jobs: int |
             if progress is not None:
                 progress(len(results), len(tasks))
     else:
-        with ProcessPoolExecutor(jobs, mp_context=spawn_context(f"jobs={jobs}")) as pool:
+        with process_pool(jobs, f"jobs={jobs}") as pool:
             for r in pool.map(_run_case, tasks):
                 results.append(r)
                 if progress is not None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import sys
 from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import contextmanager
@@ -24,7 +25,8 @@ from fmu_plant import Plant, PlantParams
 
 from tapmuscle.errors import UsageError
 
-__all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "spawn_context"]
+__all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "process_pool",
+           "spawn_context"]
 
 #: Recording time between the checkpoints a baseline run keeps [s]: a window fit continues from the
 #: last one before its window, so it simulates at most this much more than the window.
@@ -151,8 +153,48 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
     if workers == 1:
         yield None
         return
-    with ProcessPoolExecutor(workers, mp_context=spawn_context(f"workers={workers}")) as pool:
+    with process_pool(workers, f"workers={workers}") as pool:
         yield pool
+
+
+@contextmanager
+def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
+    """``workers`` spawned processes (:func:`spawn_context`) that leave an interrupt to this one.
+
+    On an interrupt (Ctrl-C; a notebook's interrupt reaches its kernel alone) or any other exception
+    in the ``with`` block, the work not started is cancelled and the processes are stopped at once.
+    A plain ``ProcessPoolExecutor`` would first finish every queued task (a field run's remaining
+    cases: minutes), and each process would print its own ``KeyboardInterrupt`` traceback.
+
+    Parameters
+    ----------
+    workers : int
+        Number of processes.
+    what : str
+        The setting that asked for them, named if they cannot start (``"jobs=2"``).
+    """
+    pool = ProcessPoolExecutor(workers, mp_context=spawn_context(what), initializer=_leave_interrupts_to_parent)
+    try:
+        yield pool
+    except BaseException:
+        # the executor has no public way to stop a task that has started; its shutdown forgets the
+        # processes and the thread that feeds them, so both are taken first
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        manager = getattr(pool, "_executor_manager_thread", None)
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join()
+        if manager is not None:
+            manager.join()
+        raise
+    pool.shutdown(wait=True)
+
+
+def _leave_interrupts_to_parent() -> None:
+    """A worker ignores SIGINT: the parent stops it (:func:`process_pool`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def spawn_context(what: str) -> multiprocessing.context.SpawnContext:
