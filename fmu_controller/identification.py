@@ -183,8 +183,8 @@ def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
             # samples counted from 0, as the diagnosis names them
             raise ValueError(f"column {name}, sample {int(bad[0])}: {float(x[bad[0]])!r} is not finite; data must be finite")
     if len(l) < MIN_SAMPLES:
-        raise ValueError(f"too short to identify the 15-parameter model: {len(l)} samples, need at least "
-                         f"{MIN_SAMPLES} (ten per parameter)")
+        raise ValueError(f"too short to identify Eq. (1): {len(l)} samples, need at least {MIN_SAMPLES} (ten per "
+                         "parameter of the larger model, the asymmetric one's 15)")
     if np.ptp(u) <= 1e-9 * max(1.0, float(np.max(np.abs(u)))):
         raise ValueError(f"the input u_v is constant ({float(u[0]):g}) over the whole record: it cannot excite "
                          "the model (b1 and the hysteresis terms are not identifiable)")

@@ -2,8 +2,8 @@
 
 Every error here names the offending value, file, line or variable in its message. The command line
 prints the message on one line (``tapmuscle <cmd>: error: ...``) and exits with status 2; a Python
-caller can catch :class:`TapmuscleError` for all of them. Each is also a :class:`ValueError`, as it
-always was, so ``except ValueError`` keeps working.
+caller can catch :class:`TapmuscleError` for all of them. It is a :class:`ValueError` (bad input, as
+the standard library would say), so ``except ValueError`` catches them too.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 __all__ = ["TapmuscleError", "UsageError"]
 
 
-class TapmuscleError(Exception):
+class TapmuscleError(ValueError):
     """Base of tapmuscle's domain errors: a recording, plant file, scenario or argument that is wrong."""
 
 
-class UsageError(TapmuscleError, ValueError):
+class UsageError(TapmuscleError):
     """A problem with the user's input (an argument, a file it names); reported without a traceback."""

@@ -122,7 +122,15 @@ def test_import_is_lazy_and_names_resolve():
     assert set(tm.__all__) <= set(dir(tm))
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         tm.nonexistent  # noqa: B018
-    assert issubclass(tm.UsageError, tm.TapmuscleError) and issubclass(tm.UsageError, ValueError)
+    # docs/python-api.md: the base of every bad-input error, and a ValueError
+    from tapmuscle.cosim.spec import ScenarioError
+    from tapmuscle.diagnosis.plant_source import PlantSourceError
+    from tapmuscle.io.plant_file import PlantFileError
+    from tapmuscle.io.recording import RecordingError
+
+    assert issubclass(tm.TapmuscleError, ValueError)
+    for error in (tm.UsageError, ScenarioError, PlantFileError, PlantSourceError, RecordingError):
+        assert issubclass(error, tm.TapmuscleError), error
 
 
 def _examples() -> list[tuple[str, str]]:

@@ -265,3 +265,16 @@ def test_every_mapped_output_diagnosed_with_a_summary(fmus, tmp_path):
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert "== output omega" in r.stdout and "== output i" in r.stdout and "(every output)" in r.stdout
+
+
+def test_a_goal_without_cases_is_not_scored_as_missed():
+    """Two clean recordings only: the 'named' goal has no case, so it is neither met nor missed."""
+    from tapmuscle.diagnosis.foreign_demo import foreign_scores_markdown, score_foreign
+
+    results = [{"case": {"name": f"clean_{k}", "effect": None}, "verdict": "no_significant_mismatch",
+                "named": [], "ambiguous": [], "fit_after_percent": 99.0} for k in range(2)]
+    scores = score_foreign(results)
+    assert scores["named"] == [0, 0] and scores["rates"]["named"] is None and scores["clean"] == [2, 2]
+    table = foreign_scores_markdown(scores)
+    assert "| concealed effect named | 0 / 0 | - | >= 90 % | - (no case) |" in table
+    assert "| clean -> nothing claimed | 2 / 2 | 100.0 % |" in table and "**no**" not in table

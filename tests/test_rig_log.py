@@ -201,6 +201,10 @@ def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth
     # integers with '.' thousands separators (a German export): read with a decimal point, 1.350 um was 1.35
     ("t;u;pos\n0;5;12\n1;5;999\n2;5;1.350\n3;5;2.001\n", {},
      r"line 4, column 'pos': '1.350' reads as a thousands separator .*remove the separators"),
+    # the same under a units row (which is text, not an integer), and comma-separated
+    ("t;u;pos\ns;V;um\n0;5;12\n1;5;999\n2;5;1.350\n3;5;2.001\n", {},
+     r"line 5, column 'pos': '1.350' reads as a thousands separator"),
+    ("t,u,pos\n0,5,12\n1,5,999\n2,5,1.350\n", {}, r"line 4, column 'pos': '1.350' reads as a thousands separator"),
     ("t;u;pos\n0;5;12,5\n1;5;999,0\n2;5;1.350,0\n", {},
      r"line 4, column 'pos': '1.350,0' is not a number with the decimal mark ',': '.' as a thousands separator\?"),
     ("t;u;pos\n0;5;12.5\n1;5;1,350.0\n", {}, r"line 3, column 'pos': '1,350.0' is not a number with the decimal "

@@ -297,7 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="hanging load [N], 0 < load <= 500 (paper: 44, 68)")
     rec.add_argument("--input", required=True,
                      help="command spec, e.g. sine:bias=5,amp=3,freq=0.1 | step:initial=4,final=6,at=10 | "
-                          "steps:levels=3/7/5,period=20 | chirp:f0=0.01,f1=0.5 | random:lo=2,hi=8,seed=1 | csv:PATH")
+                          "steps:levels=3/7/5,period=20 | chirp:f0=0.01,f1=0.5 | random:lo=2,hi=8,seed=1 | const:value=5 | "
+                          "csv:PATH")
     rec.add_argument("--duration", type=number_within("--duration", 1e-3, 86400.0), required=True,
                      help="length [s]")
     rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")

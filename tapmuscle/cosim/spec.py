@@ -61,7 +61,7 @@ __all__ = ["ScenarioError", "Profile", "Reference", "FmuSpec", "Scenario", "load
            "read_toml"]
 
 
-class ScenarioError(TapmuscleError, ValueError):
+class ScenarioError(TapmuscleError):
     """A scenario that cannot run; the message names the file and the key."""
 
 

@@ -261,7 +261,7 @@ def foreign_scores_markdown(s: dict[str, Any]) -> str:
         k, n = s[key]
         rate = s["rates"][key]
         lines.append(f"| {label} | {k} / {n} | {'-' if rate is None else f'{rate:.1f} %'} | >= {TARGETS[key]:g} % "
-                     f"| {'yes' if s['met'][key] else '**no**'} |")
+                     f"| {'- (no case)' if rate is None else 'yes' if s['met'][key] else '**no**'} |")
     k, n = s["named_alone"]
     lines.append(f"| concealed effect named alone (reported, no goal) | {k} / {n} | "
                  f"{'-' if not n else f'{100.0 * k / n:.1f} %'} | - | - |")

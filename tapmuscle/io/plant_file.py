@@ -15,7 +15,7 @@ from tapmuscle.errors import TapmuscleError
 __all__ = ["PlantFileError", "read_plant_file", "plant_file_text"]
 
 
-class PlantFileError(TapmuscleError, ValueError):
+class PlantFileError(TapmuscleError):
     """A plant file that cannot be read; the message names the option, the file and the line or key."""
 
 

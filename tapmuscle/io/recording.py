@@ -46,7 +46,7 @@ OPTIONAL_COLUMNS = ("p_mpa", "load_n", "r_mm")
 MAGIC = "tapmuscle recording v1"
 
 
-class RecordingError(TapmuscleError, ValueError):
+class RecordingError(TapmuscleError):
     """A recording file that cannot be read; the message names file, line and column."""
 
 

@@ -278,13 +278,12 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     remarks = [lineno for lineno, row in rows_in if row[0].lstrip().startswith("#")]
     body = [(lineno, row) for lineno, row in rows_in if not row[0].lstrip().startswith("#")]
     body, run_note = _one_run(path, body, header, header_line, run)
+    check_thousands = decimal is None  # a decimal mark given says what a '.' is
     if decimal is None:
         decimal = "."
         if sep != ",":
             cells = (row[j].strip() for _, row in body[:50] for j in index.values() if j < len(row))
             decimal = "," if any(_DECIMAL_COMMA.match(c) for c in cells) else "."
-        if decimal == "." and sep != ",":
-            _refuse_thousands(path, body, {t: j for t, j in index.items() if factors[t] is not None}, header)
 
     other_mark = "." if decimal == "," else ","
 
@@ -308,6 +307,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         skipped, body = body[0][0], body[1:]  # a units row under the header: text in every mapped column
     if not body:
         raise RecordingError(f"{path}: header but no data rows")
+    if check_thousands and decimal == ".":  # on the values alone: a units row is text in every column
+        _refuse_thousands(path, body, {t: j for t, j in index.items() if factors[t] is not None}, header)
     columns: dict[str, np.ndarray] = {}
     start = ""
     for target, j in index.items():
