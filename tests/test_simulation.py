@@ -35,7 +35,8 @@ def _sleep_then_mark(folder: str, k: int) -> int:
 
 
 def test_an_interrupt_stops_the_pools_processes_and_its_queued_work(tmp_path):
-    """A notebook's interrupt reaches the kernel alone: the pool must not first run what is queued."""
+    """An interrupt of the main process alone (kill -INT, a scheduler): the pool must not first run
+    what is queued."""
     with pytest.raises(KeyboardInterrupt):
         with process_pool(2, "jobs=2") as pool:
             futures = [pool.submit(_sleep_then_mark, str(tmp_path), k) for k in range(6)]

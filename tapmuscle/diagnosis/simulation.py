@@ -161,10 +161,11 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
 def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
     """``workers`` spawned processes (:func:`spawn_context`) that leave an interrupt to this one.
 
-    On an interrupt (Ctrl-C; a notebook's interrupt reaches its kernel alone) or any other exception
-    in the ``with`` block, the work not started is cancelled and the processes are stopped at once.
-    A plain ``ProcessPoolExecutor`` would first finish every queued task (a field run's remaining
-    cases: minutes), and each process would print its own ``KeyboardInterrupt`` traceback.
+    On an interrupt or any other exception in the ``with`` block, the work not started is cancelled
+    and the processes are stopped at once. A terminal's Ctrl-C and Jupyter's interrupt reach every
+    process of the group, and a plain ``ProcessPoolExecutor``'s workers would each print their own
+    ``KeyboardInterrupt`` traceback; an interrupt sent to this process alone (``kill -INT``, a job
+    scheduler) would make it first finish every queued task (a field run's remaining cases: minutes).
 
     Parameters
     ----------
