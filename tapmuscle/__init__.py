@@ -55,6 +55,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "read_recording": ("tapmuscle.io.recording", "read_recording"),
     "write_recording": ("tapmuscle.io.recording", "write_recording"),
     "read_rig_log": ("tapmuscle.io.rig_log", "read_rig_log"),
+    "rig_log_runs": ("tapmuscle.io.rig_log", "rig_log_runs"),
     "LogColumn": ("tapmuscle.io.rig_log", "LogColumn"),
     # mismatch diagnosis
     "diagnose": ("tapmuscle.diagnosis", "diagnose"),

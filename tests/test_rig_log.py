@@ -17,7 +17,7 @@ import tapmuscle as tm
 from tapmuscle.cli.main import main
 from tapmuscle.diagnosis.demo import DEMO_MODEL, record
 from tapmuscle.io.recording import RecordingError, read_recording
-from tapmuscle.io.rig_log import UNITS, LogColumn, parse_column_spec, read_rig_log
+from tapmuscle.io.rig_log import UNITS, LogColumn, parse_column_spec, read_rig_log, rig_log_runs
 
 
 @pytest.fixture(scope="module")
@@ -295,6 +295,35 @@ def test_a_restarted_logger_writes_runs_one_of_which_is_read(tmp_path, capsys):
     np.testing.assert_array_equal(read_rig_log(single, time="t", u="u", l="pos", run=1).l_mm, [1.0, 2.0])
     with pytest.raises(RecordingError, match=r"run 2 asked for, the log holds 1 \(1 at line 1\)"):
         read_rig_log(single, time="t", u="u", l="pos", run=2)
+    assert (rig_log_runs(log), rig_log_runs(single)) == (3, 1)
+
+
+def test_every_run_of_a_restarted_log_is_imported_to_its_own_file_or_none_is(tmp_path, capsys):
+    """``--run all`` writes OUT_runK per run, each the same as ``--run K``; one run refused (a command
+    in percent in the second run) writes none, names the run, and leaves earlier files untouched."""
+    log = tmp_path / "restarted.csv"
+    log.write_text("t,u,pos\n0,5,1\n0.1,5,2\nt,u,pos\n0,6,7\n0.1,6,8\n0.2,6,9\n")
+    args = ["--time", "t", "--u", "u", "--l", "pos"]
+    assert main(["import", str(log), "--out", str(tmp_path / "rec.csv"), "--run", "all"] + args) == 0
+    assert not (tmp_path / "rec.csv").exists()
+    for k in (1, 2):
+        assert main(["import", str(log), "--out", str(tmp_path / f"one{k}.csv"), "--run", str(k)] + args) == 0
+        assert (tmp_path / f"rec_run{k}.csv").read_text() == (tmp_path / f"one{k}.csv").read_text()
+    np.testing.assert_array_equal(read_recording(tmp_path / "rec_run2.csv").l_mm, [7.0, 8.0, 9.0])
+    capsys.readouterr()
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,u,pos\n0,5,3\n0.1,5,4\nt,u,pos\n0,60,7\n0.1,60,8\n")
+    before = (tmp_path / "rec_run1.csv").read_text()
+    assert main(["import", str(bad), "--out", str(tmp_path / "rec.csv"), "--run", "all"] + args) == 2
+    err = capsys.readouterr().err
+    assert "run 2 of 2: " in err and "60 V is outside" in err and "nothing written" in err
+    assert (tmp_path / "rec_run1.csv").read_text() == before
+    assert sorted(f.name for f in tmp_path.glob("rec*")) == ["rec_run1.csv", "rec_run2.csv"]
+    with pytest.raises(SystemExit) as exc:
+        main(["import", str(bad), "--out", str(tmp_path / "x.csv"), "--run", "0"] + args)
+    assert exc.value.code == 2
+    assert "--run must be a run number (1 = the first) or 'all', got '0'" in capsys.readouterr().err
 
 
 def test_day_first_dotted_dates_as_a_german_locale_writes_them(tmp_path):

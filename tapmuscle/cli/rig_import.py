@@ -24,21 +24,33 @@ def _column(target: str, flag: str):
     return parse
 
 
-def _cmd_import(args: argparse.Namespace) -> int:
+def _run_number(text: str) -> int | str:
+    if text == "all":
+        return text
+    try:
+        return integer_at_least("--run", 1, 10 ** 6)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"--run must be a run number (1 = the first) or 'all', "
+                                         f"got {text!r}") from None
+
+
+def _run_outputs(out: Path, runs: int) -> list[Path]:
+    """OUT_run1.csv .. OUT_runN.csv beside ``out``: one recording per run of a restarted log."""
+    return [out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, runs + 1)]
+
+
+def _converted(args: argparse.Namespace, run: int | None):
+    """The recording of run ``run`` of the log, checked as the diagnosis would, and its notes."""
     from tapmuscle.diagnosis.recording_checks import check_muscle_recording, muscle_recording_notes
-    from tapmuscle.io.recording import RecordingError, write_recording
+    from tapmuscle.io.recording import RecordingError
     from tapmuscle.io.rig_log import read_rig_log
     from tapmuscle.io.sampling import SamplingError
 
-    if Path(args.out).resolve() == Path(args.log).resolve():
-        raise UsageError(f"--out {args.out} is the log itself: write the recording beside it, the log is the raw data")
-    if args.load is not None and args.load_n is not None:
-        raise UsageError("--load and --load-n: give the load as a column or as one value, not both")
     try:
         rec = read_rig_log(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
                            load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal,
                            fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines, encoding=args.encoding,
-                           run=args.run)
+                           run=run)
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
@@ -50,18 +62,49 @@ def _cmd_import(args: argparse.Namespace) -> int:
         if not args.no_checks:
             raise UsageError(f"{args.log}: {exc} (--no-checks writes it as it is)") from None
         problems = [f"the diagnosis would refuse it: {exc}"]
-    p = rec.columns.get("p_mpa")
-    notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, p)
-    write_recording(args.out, rec)
-    print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
-          + (f"; {rec.metadata['run']}" if "run" in rec.metadata else "")
-          + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else "")
-          + (f"; {rec.metadata['remarks']}" if "remarks" in rec.metadata else ""))
+    notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, rec.columns.get("p_mpa"))
     if "filled" in rec.metadata:
         notes.insert(0, rec.metadata["filled"][0].upper() + rec.metadata["filled"][1:])
-    for note in notes:
-        print(f"note: {note}", file=sys.stderr)
-    print(f"wrote {args.out}")
+    return rec, sampling, notes
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from tapmuscle.io.recording import RecordingError, write_recording
+    from tapmuscle.io.rig_log import rig_log_runs
+
+    if args.load is not None and args.load_n is not None:
+        raise UsageError("--load and --load-n: give the load as a column or as one value, not both")
+    if args.run == "all":
+        try:
+            runs = rig_log_runs(args.log, delimiter=args.delimiter, skip_lines=args.skip_lines, encoding=args.encoding)
+        except RecordingError as exc:
+            raise UsageError(str(exc)) from None
+        outs = _run_outputs(Path(args.out), runs)
+        wanted = list(range(1, runs + 1))
+    else:
+        outs, wanted = [Path(args.out)], [args.run]
+    for out in outs:
+        if out.resolve() == Path(args.log).resolve():
+            raise UsageError(f"--out {out} is the log itself: write the recording beside it, the log is the raw data")
+    # every run converted and checked before the first file is written: all of them, or none
+    converted = []
+    for run in wanted:
+        try:
+            converted.append(_converted(args, run))
+        except UsageError as exc:
+            if args.run != "all":
+                raise
+            raise UsageError(f"run {run} of {len(wanted)}: {exc}; nothing written (--run K imports the "
+                             f"others one by one)") from None
+    for out, (rec, sampling, notes) in zip(outs, converted):
+        write_recording(out, rec)
+        print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
+              + (f"; {rec.metadata['run']}" if "run" in rec.metadata else "")
+              + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else "")
+              + (f"; {rec.metadata['remarks']}" if "remarks" in rec.metadata else ""))
+        for note in notes:
+            print(f"note: {note}", file=sys.stderr)
+        print(f"wrote {out}")
     return 0
 
 
@@ -95,9 +138,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")
     imp.add_argument("--skip-lines", type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
                      help="lines before the header to skip (a program's preamble, boot messages)")
-    imp.add_argument("--run", type=integer_at_least("--run", 1, 10 ** 6), default=None, metavar="K",
+    imp.add_argument("--run", type=_run_number, default=None, metavar="K|all",
                      help="of a log a restarted logger wrote on (the header repeated among the data), read run "
-                          "K (1 = the first); default: a log of several runs is refused, naming where they start")
+                          "K (1 = the first), or every run, each to its own OUT_runK file (all written, or none "
+                          "when one is refused); default: a log of several runs is refused, naming where they start")
     imp.add_argument("--encoding", default="utf-8-sig",
                      help="the file's text encoding (default UTF-8; e.g. latin-1, cp1252, utf-16)")
     imp.add_argument("--no-checks", action="store_true",

@@ -15,7 +15,8 @@ names the log's column of each quantity and its unit; everything else is read as
   ``start``): the recording format's ``t_s``; a time given as text is ISO 8601 or a day-first dotted
   date (``05.03.2024 10:00:00,5``, as a German locale writes it; dots never put the month first);
 * a row that repeats the header among the data is a logger restarted into the same file: the log
-  then holds several runs, each with its own clock, and one of them is read (``run``).
+  then holds several runs, each with its own clock, and one of them is read (``run``;
+  :func:`rig_log_runs` counts them).
 
 The values are converted, nothing else: no resampling. Timestamps that scatter about a uniform grid
 by up to a quarter period are read as they are (the recording format accepts them,
@@ -40,7 +41,7 @@ import numpy as np
 from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
-__all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "parse_column_spec", "parse_time_text"]
+__all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "rig_log_runs", "parse_column_spec", "parse_time_text"]
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
 #: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
@@ -137,7 +138,7 @@ def _one_run(path: Path, body: list, header: list[str], header_line: int,
     """The rows of run ``run`` (1-based) of a log whose rows repeating ``header`` separate runs, and
     which run it was of how many (None for a log of one run and no ``run``). A log of several runs
     without ``run``, or ``run`` beyond them, is refused naming the lines where each run starts."""
-    repeats = [k for k, (_, row) in enumerate(body) if [c.strip() for c in row] == header]
+    repeats = _run_starts(body, header)
     if run is not None and not (isinstance(run, int) and not isinstance(run, bool) and run >= 1):
         raise RecordingError(f"{path}: run = {run!r} is not a run number (1 = the first)")
     if not repeats and run in (None, 1):
@@ -152,6 +153,59 @@ def _one_run(path: Path, body: list, header: list[str], header_line: int,
     bounds = [-1] + repeats + [len(body)]
     rows = body[bounds[run - 1] + 1:bounds[run]]
     return rows, f"run {run} of {len(starts)} (header at line {starts[run - 1]})"
+
+
+def _header_and_rows(path: Path, delimiter: str | None, skip_lines: int,
+                     encoding: str) -> tuple[str, list[str], int, list[tuple[int, list[str]]]]:
+    """The field separator, the header's column names, the header's line number and the rows under
+    it with their line numbers (blank rows dropped; ``#`` remarks kept) of a log file."""
+    if delimiter is not None:
+        delimiter = DELIMITER_NAMES.get(delimiter, delimiter)
+        if len(delimiter) != 1 or delimiter in "\"\r\n" or delimiter.isalnum() or delimiter in ".-+":
+            raise RecordingError(f"{path}: delimiter {delimiter!r} is not one separating character (e.g. ';', ',', '|' "
+                                 f"or {', '.join(repr(k) for k in DELIMITER_NAMES)})")
+    if not (isinstance(skip_lines, int) and skip_lines >= 0):
+        raise RecordingError(f"{path}: skip_lines = {skip_lines!r} is not a number of lines")
+    lines = read_text(path, "log", encoding, "give its encoding (--encoding latin-1, cp1252, utf-16)").splitlines()
+    i = skip_lines
+    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
+        i += 1
+    if i >= len(lines):
+        raise RecordingError(f"{path}: no header row")
+    header_line = i + 1
+    sep = delimiter or _separator(lines[i])
+    rows = list(csv.reader(io.StringIO("\n".join(lines[i:])), delimiter=sep))
+    header = [h.strip() for h in rows[0]]
+    # blank rows dropped; a '#' line among the data is a logger's remark (an operator's marker)
+    body = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
+    return sep, header, header_line, body
+
+
+def _run_starts(body: list, header: list[str]) -> list[int]:
+    """Indices into ``body`` of the rows that repeat ``header``: a logger restarted into the file."""
+    return [k for k, (_, row) in enumerate(body) if [c.strip() for c in row] == header]
+
+
+def rig_log_runs(path: str | os.PathLike, *, delimiter: str | None = None, skip_lines: int = 0,
+                 encoding: str = "utf-8-sig") -> int:
+    """How many runs a log holds: 1, plus one per row among the data that repeats the header (a
+    logger restarted into the same file, each run with its own clock).
+
+    Parameters
+    ----------
+    path : path
+        The log file.
+    delimiter, skip_lines, encoding
+        As for :func:`read_rig_log`.
+
+    Returns
+    -------
+    int
+        The number of runs; :func:`read_rig_log` reads run ``K`` (``run=K``) for ``K = 1 .. runs``.
+    """
+    path = Path(path)
+    _, header, _, rows = _header_and_rows(path, delimiter, skip_lines, encoding)
+    return 1 + len(_run_starts(rows, header))
 
 
 def _separator(header: str) -> str:
@@ -242,11 +296,6 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     path = Path(path)
     if load_n is not None and not (isinstance(load_n, (int, float)) and math.isfinite(load_n) and load_n > 0):
         raise RecordingError(f"{path}: load_n = {load_n!r} is not a positive number of newtons")
-    if delimiter is not None:
-        delimiter = DELIMITER_NAMES.get(delimiter, delimiter)
-        if len(delimiter) != 1 or delimiter in "\"\r\n" or delimiter.isalnum() or delimiter in ".-+":
-            raise RecordingError(f"{path}: delimiter {delimiter!r} is not one separating character (e.g. ';', ',', '|' "
-                                 f"or {', '.join(repr(k) for k in DELIMITER_NAMES)})")
     given = {"t_s": time, "u_v": u, "l_mm": l, "p_mpa": p, "load_n": load}
     try:
         mapping = {target: parse_column_spec(col, target) if isinstance(col, str) else col
@@ -254,18 +303,7 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         factors = {target: col.factor(target) for target, col in mapping.items()}
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
-    if not (isinstance(skip_lines, int) and skip_lines >= 0):
-        raise RecordingError(f"{path}: skip_lines = {skip_lines!r} is not a number of lines")
-    lines = read_text(path, "log", encoding, "give its encoding (--encoding latin-1, cp1252, utf-16)").splitlines()
-    i = skip_lines
-    while i < len(lines) and (lines[i].lstrip().startswith("#") or not lines[i].strip()):
-        i += 1
-    if i >= len(lines):
-        raise RecordingError(f"{path}: no header row")
-    header_line = i + 1
-    sep = delimiter or _separator(lines[i])
-    rows = list(csv.reader(io.StringIO("\n".join(lines[i:])), delimiter=sep))
-    header = [h.strip() for h in rows[0]]
+    sep, header, header_line, rows = _header_and_rows(path, delimiter, skip_lines, encoding)
     index = {}
     for target, col in mapping.items():
         if col.column not in header:
@@ -273,10 +311,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             raise RecordingError(f"{path}, line {header_line}: no column {col.column!r} for {target} (found, "
                                  f"separated by {sep!r}: {', '.join(header)}){hint}")
         index[target] = header.index(col.column)
-    # blank rows dropped; a '#' line among the data is a logger's remark (an operator's marker), not a sample
-    rows_in = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
-    remarks = [lineno for lineno, row in rows_in if row[0].lstrip().startswith("#")]
-    body = [(lineno, row) for lineno, row in rows_in if not row[0].lstrip().startswith("#")]
+    remarks = [lineno for lineno, row in rows if row[0].lstrip().startswith("#")]
+    body = [(lineno, row) for lineno, row in rows if not row[0].lstrip().startswith("#")]
     body, run_note = _one_run(path, body, header, header_line, run)
     check_thousands = decimal is None  # a decimal mark given says what a '.' is
     if decimal is None:
