@@ -79,6 +79,23 @@ def test_a_start_away_from_rest_jitter_and_kpa_are_said():
     assert "reaches 200 MPa" in note and "kPa" in note
 
 
+def test_an_absolute_pressure_is_told_from_a_start_mid_run():
+    """A drained muscle reads the atmosphere's pressure on an absolute sensor: a first pressure in
+    AMBIENT_MPA_RANGE at rest that never drains below it is said to be absolute (with the import's
+    remedy); a gauge reading of a run started mid-stroke, which drains below its start, is not."""
+    t, u, l, p = _clean()
+    for ambient in (0.101325, 0.0899):  # sea level; 1000 m
+        (note,) = muscle_recording_notes(t, l, p + ambient)
+        assert f"starts at {ambient:g} MPa with the muscle at rest" in note and "absolute" in note
+        assert "--p COLUMN:bar_abs" in note and "first block is left out" in note
+    mid_run = 0.1 * (1.0 - np.cos(0.2 * t + 1.2))  # pressurised at row 0, drained half a period on
+    (note,) = muscle_recording_notes(t, l, mid_run)
+    assert "absolute" not in note and "p = 0.06376" in note
+    (note,) = muscle_recording_notes(t, l + 12.5, p + 0.101325)  # away from rest: not told apart
+    assert "absolute" not in note and "starts at l = 12.5 mm" in note
+    assert "absolute" not in muscle_recording_notes(t, l, p + 0.2)[0]  # above any atmosphere
+
+
 @pytest.mark.slow
 def test_a_recording_started_mid_run_keeps_the_nominal_plant_and_says_why():
     """The first 30 s of a recording of the exact model cut off: the muscle is contracted and

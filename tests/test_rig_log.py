@@ -78,6 +78,40 @@ def test_tabs_iso_stamps_metres_and_bar(tmp_path, truth):
     assert rec.metadata["start"] == start.isoformat() and "units_row" not in rec.metadata
 
 
+def test_an_absolute_pressure_becomes_gauge_against_the_ambient(tmp_path, truth, capsys):
+    """A sensor that reads absolute pressure (psia, bar(a)): the ambient is subtracted, the standard
+    atmosphere's unless given; the drained muscle's reading off by a few kPa is said, with the
+    --ambient-kpa that zeroes it. An ambient with a gauge unit is refused."""
+    ambient_kpa = 97.2  # a low-pressure day, or 400 m up
+    log = tmp_path / "abs.csv"
+    lines = ["t,u,pos,p_psia"] + [f"{t:.1f},{u:.6f},{l:.4f},{(1e3 * p + ambient_kpa) / 6.894757293168361:.6f}"
+                                  for t, u, l, p in zip(truth["t_s"], truth["u_v"], truth["l_mm"], truth["p_mpa"])]
+    log.write_text("\n".join(lines) + "\n")
+    rec = read_rig_log(log, time="t", u="u", l="pos", p="p_psia:psi_abs", ambient_kpa=ambient_kpa)
+    assert np.max(np.abs(rec.columns["p_mpa"] - truth["p_mpa"])) <= 0.5e-6 * 6.894757293168361e-3 + 1e-12
+    assert rec.metadata["ambient_kpa"] == "97.2, subtracted from the absolute pressure"
+    rec = read_rig_log(log, time="t", u="u", l="pos", p="p_psia:psi_abs")
+    np.testing.assert_allclose(rec.columns["p_mpa"] - truth["p_mpa"], -(101.325 - ambient_kpa) * 1e-3, atol=1e-8)
+    assert "(the standard atmosphere)" in rec.metadata["ambient_kpa"]
+    with pytest.raises(RecordingError, match=r"ambient_kpa is for an absolute pressure .*the pressure is in psi"):
+        read_rig_log(log, time="t", u="u", l="pos", p="p_psia:psi", ambient_kpa=97.2)
+    with pytest.raises(RecordingError, match=r"ambient_kpa = 970 is not an atmosphere's pressure"):
+        read_rig_log(log, time="t", u="u", l="pos", p="p_psia:psi_abs", ambient_kpa=970)
+    # the command line says how far the drained muscle reads from 0, and what zeroes it
+    out = tmp_path / "rec.csv"
+    assert main(["import", str(log), "--out", str(out), "--time", "t", "--u", "u", "--l", "pos", "--p",
+                 "p_psia:psi_abs"]) == 0
+    assert "the first pressure reads -4.13 kPa against the ambient 101.325 kPa" in capsys.readouterr().err
+    assert main(["import", str(log), "--out", str(out), "--time", "t", "--u", "u", "--l", "pos", "--p",
+                 "p_psia:psi_abs", "--ambient-kpa", "97.2"]) == 0
+    assert "first pressure" not in capsys.readouterr().err
+    assert abs(read_recording(out).columns["p_mpa"][0]) <= 1e-6
+    # declared gauge, it is said to look absolute
+    assert main(["import", str(log), "--out", str(out), "--time", "t", "--u", "u", "--l", "pos", "--p",
+                 "p_psia:psi"]) == 0
+    assert "an absolute pressure" in capsys.readouterr().err
+
+
 def test_a_comma_separated_log_keeps_its_decimal_point(tmp_path):
     log = tmp_path / "plain.csv"
     log.write_text("t,u,x\n0,1.5,0\n0.1,2.5,1.25\n0.2,3.5,2.5\n")

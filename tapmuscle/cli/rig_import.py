@@ -41,16 +41,17 @@ def _run_outputs(out: Path, runs: int) -> list[Path]:
 
 def _converted(args: argparse.Namespace, run: int | None):
     """The recording of run ``run`` of the log, checked as the diagnosis would, and its notes."""
-    from tapmuscle.diagnosis.recording_checks import check_muscle_recording, muscle_recording_notes
+    from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, DRAINED_MPA, check_muscle_recording,
+                                                      muscle_recording_notes)
     from tapmuscle.io.recording import RecordingError
-    from tapmuscle.io.rig_log import read_rig_log
+    from tapmuscle.io.rig_log import STANDARD_ATMOSPHERE_KPA, read_rig_log
     from tapmuscle.io.sampling import SamplingError
 
     try:
         rec = read_rig_log(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
                            load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal,
                            fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines, encoding=args.encoding,
-                           run=run)
+                           run=run, ambient_kpa=args.ambient_kpa)
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
@@ -63,6 +64,12 @@ def _converted(args: argparse.Namespace, run: int | None):
             raise UsageError(f"{args.log}: {exc} (--no-checks writes it as it is)") from None
         problems = [f"the diagnosis would refuse it: {exc}"]
     notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, rec.columns.get("p_mpa"))
+    if "ambient_kpa" in rec.metadata and abs(rec.l_mm[0]) <= AT_REST_MM:
+        p0_kpa = 1e3 * float(rec.columns["p_mpa"][0])
+        ambient = args.ambient_kpa or STANDARD_ATMOSPHERE_KPA
+        if 1.0 < abs(p0_kpa) and abs(p0_kpa) <= 1e3 * DRAINED_MPA:  # a few kPa off: the day's atmosphere
+            notes.append(f"At rest, the first pressure reads {p0_kpa:+.3g} kPa against the ambient {ambient:g} kPa; if "
+                         f"the muscle was drained there, --ambient-kpa {ambient + p0_kpa:.5g} (that reading) makes it 0")
     if "filled" in rec.metadata:
         notes.insert(0, rec.metadata["filled"][0].upper() + rec.metadata["filled"][1:])
     return rec, sampling, notes
@@ -101,6 +108,7 @@ def _cmd_import(args: argparse.Namespace) -> int:
         print(f"{args.log}: {len(rec)} samples, Ts {sampling.ts_s:.9g} s, {rec.metadata['source'].partition(': ')[2]}"
               + (f"; {rec.metadata['run']}" if "run" in rec.metadata else "")
               + (f"; {rec.metadata['units_row']} (units row)" if "units_row" in rec.metadata else "")
+              + (f"; ambient {rec.metadata['ambient_kpa']}" if "ambient_kpa" in rec.metadata else "")
               + (f"; {rec.metadata['remarks']}" if "remarks" in rec.metadata else ""))
         for note in notes:
             print(f"note: {note}", file=sys.stderr)
@@ -116,7 +124,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
                                      "min, h or iso (ISO 8601 or day.month.year text); "
                                      "command V, mV, % (of 0..10 V) or pwm (0..255 of 0..10 V); "
-                                     "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi; load N or kN.")
+                                     "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
+                                     "bar_abs, Pa_abs or psi_abs (absolute, read against --ambient-kpa); load N or kN.")
     imp.add_argument("log", help="the logger's file")
     imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
     imp.add_argument("--time", type=_column("t_s", "--time"), required=True, metavar="COLUMN[:UNIT]",
@@ -127,6 +136,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="encoder displacement column (default unit mm), e.g. position_um:um")
     imp.add_argument("--p", type=_column("p_mpa", "--p"), default=None, metavar="COLUMN[:UNIT]",
                      help="muscle pressure column (default unit MPa), e.g. p_kpa:kPa")
+    imp.add_argument("--ambient-kpa", type=number_within("--ambient-kpa", 30.0, 120.0), default=None, metavar="KPA",
+                     help="with an absolute pressure unit (e.g. --p p_abs:bar_abs): the ambient pressure subtracted "
+                          "to give the recording's gauge pressure, the local barometric pressure or the sensor's "
+                          "reading of the drained muscle (default: the standard atmosphere, 101.325 kPa)")
     imp.add_argument("--load", type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
                      help="load column (default unit N)")
     imp.add_argument("--load-n", type=number_within("--load-n", 1e-9, 500.0), default=None,

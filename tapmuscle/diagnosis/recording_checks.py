@@ -18,7 +18,7 @@ from tapmuscle.io.sampling import uniform_sampling
 
 __all__ = ["check_muscle_recording", "muscle_recording_notes", "displacement_scale_notes", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
-           "PRESSURE_PLAUSIBLE_MPA"]
+           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA"]
 
 #: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
 #: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
@@ -36,6 +36,10 @@ SPAN_RATIO_PLAUSIBLE = 0.05
 AT_REST_MM = 0.5
 #: A first pressure above this [MPa(G)] is not a drained muscle.
 DRAINED_MPA = 0.02
+#: The atmosphere's pressure [MPa(A)]: 0.101 MPa at sea level (weather moves it by a few kPa), 0.062 MPa
+#: at 4000 m. A drained muscle reads this on an absolute sensor, 0 on the gauge sensor the recording
+#: format asks for.
+AMBIENT_MPA_RANGE = (0.06, 0.11)
 #: A tap-water rig's muscle pressure stays below this [MPa(G)] (the supply is 0.25 MPa); above: kPa?
 PRESSURE_PLAUSIBLE_MPA = 2.0
 
@@ -82,13 +86,24 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
     """What the report should say about the recording before its findings (empty: nothing).
 
     * the first reading away from rest (the model starts drained at ``l = 0``);
+    * a pressure that starts at the atmosphere's (:data:`AMBIENT_MPA_RANGE`) with the muscle at rest
+      and never drains below it: an absolute sensor's;
     * timestamps that scatter about the uniform grid (taken as on it);
     * a pressure column beyond :data:`PRESSURE_PLAUSIBLE_MPA` (another unit).
     """
     notes = []
     l0 = float(l_mm[0])
     p0 = None if p_mpa is None else float(p_mpa[0])
-    if abs(l0) > AT_REST_MM or (p0 is not None and p0 > DRAINED_MPA):
+    absolute = (p0 is not None and abs(l0) <= AT_REST_MM and AMBIENT_MPA_RANGE[0] <= p0 <= AMBIENT_MPA_RANGE[1]
+                and float(np.min(p_mpa)) >= p0 - DRAINED_MPA)
+    if absolute:
+        notes.append(f"Column p_mpa starts at {p0:g} MPa with the muscle at rest (l = {l0:g} mm) and never falls "
+                     f"below {float(np.min(p_mpa)):g} MPa, where a drained muscle reads 0 MPa(G): an absolute "
+                     "pressure (the atmosphere's is about 0.1 MPa), or a run started mid-stroke with the encoder "
+                     "zeroed there? The recording format holds gauge pressure: import an absolute sensor's log with "
+                     "--p COLUMN:bar_abs (or kPa_abs, MPa_abs, psi_abs), or subtract the ambient. As it is, the "
+                     "start counts as mid-run: the first block is left out of the fits")
+    elif abs(l0) > AT_REST_MM or (p0 is not None and p0 > DRAINED_MPA):
         what = f"l = {l0:g} mm" + (f", p = {p0:g} MPa" if p0 is not None else "")
         notes.append(f"The recording starts at {what}, but the model starts at rest (drained, l = 0): an encoder "
                      f"zeroed elsewhere is an offset (with a drained first pressure, or none recorded, the search "

@@ -14,6 +14,8 @@ names the log's column of each quantity and its unit; everything else is read as
 * times become seconds from the first sample (the first stamp as written is kept in the metadata
   ``start``): the recording format's ``t_s``; a time given as text is ISO 8601 or a day-first dotted
   date (``05.03.2024 10:00:00,5``, as a German locale writes it; dots never put the month first);
+* a pressure from an absolute sensor (a unit of :data:`ABSOLUTE_UNITS`, ``bar_abs``) becomes the
+  recording's gauge pressure: the ambient (``ambient_kpa``) is subtracted;
 * a row that repeats the header among the data is a logger restarted into the same file: the log
   then holds several runs, each with its own clock, and one of them is read (``run``;
   :func:`rig_log_runs` counts them).
@@ -41,7 +43,8 @@ import numpy as np
 from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
-__all__ = ["UNITS", "DEFAULT_UNITS", "LogColumn", "read_rig_log", "rig_log_runs", "parse_column_spec", "parse_time_text"]
+__all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "STANDARD_ATMOSPHERE_KPA", "LogColumn", "read_rig_log",
+           "rig_log_runs", "parse_column_spec", "parse_time_text"]
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
 #: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
@@ -50,9 +53,14 @@ UNITS: dict[str, dict[str, float | None]] = {
     "t_s": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0, "iso": None},
     "u_v": {"V": 1.0, "mV": 1e-3, "%": 0.1, "pwm": 10.0 / 255.0},
     "l_mm": {"mm": 1.0, "um": 1e-3, "cm": 10.0, "m": 1e3},
-    "p_mpa": {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6, "psi": 6.894757293168361e-3},
+    "p_mpa": {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6, "psi": 6.894757293168361e-3,
+              "MPa_abs": 1.0, "kPa_abs": 1e-3, "bar_abs": 0.1, "Pa_abs": 1e-6, "psi_abs": 6.894757293168361e-3},
     "load_n": {"N": 1.0, "kN": 1e3},
 }
+#: Pressure units of an absolute sensor: the recording holds gauge pressure, the reading less the
+#: ambient (``ambient_kpa``, the standard atmosphere's 101.325 kPa unless given).
+ABSOLUTE_UNITS = frozenset(unit for unit in UNITS["p_mpa"] if unit.endswith("_abs"))
+STANDARD_ATMOSPHERE_KPA = 101.325
 #: The unit assumed when a column is named without one: the recording format's.
 DEFAULT_UNITS = {"t_s": "s", "u_v": "V", "l_mm": "mm", "p_mpa": "MPa", "load_n": "N"}
 
@@ -246,7 +254,8 @@ def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: floa
 def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn | str, l: LogColumn | str,  # noqa: E741
                  p: LogColumn | str | None = None, load: LogColumn | str | None = None, load_n: float | None = None,
                  delimiter: str | None = None, decimal: str | None = None, fill_gaps_s: float = 0.0,
-                 skip_lines: int = 0, encoding: str = "utf-8-sig", run: int | None = None) -> Recording:
+                 skip_lines: int = 0, encoding: str = "utf-8-sig", run: int | None = None,
+                 ambient_kpa: float | None = None) -> Recording:
     """Read a rig's log as a recording (module docstring).
 
     Parameters
@@ -277,6 +286,11 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         Which run to read (1 = the first) of a log a restarted logger wrote on: rows repeating the
         header separate the runs. Default: a log of one run; one of several is refused, naming the
         lines where the runs start.
+    ambient_kpa : float, optional
+        The ambient pressure [kPa] an absolute pressure (a unit of :data:`ABSOLUTE_UNITS`, e.g.
+        ``"p_abs:bar_abs"``) is read against, to the recording's gauge pressure: the local
+        barometric pressure, or the sensor's reading of the drained muscle. Default: the standard
+        atmosphere, 101.325 kPa. Only with an absolute unit.
 
     Returns
     -------
@@ -296,6 +310,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     path = Path(path)
     if load_n is not None and not (isinstance(load_n, (int, float)) and math.isfinite(load_n) and load_n > 0):
         raise RecordingError(f"{path}: load_n = {load_n!r} is not a positive number of newtons")
+    if ambient_kpa is not None and not (isinstance(ambient_kpa, (int, float)) and 30.0 <= ambient_kpa <= 120.0):
+        raise RecordingError(f"{path}: ambient_kpa = {ambient_kpa!r} is not an atmosphere's pressure (30..120 kPa)")
     given = {"t_s": time, "u_v": u, "l_mm": l, "p_mpa": p, "load_n": load}
     try:
         mapping = {target: parse_column_spec(col, target) if isinstance(col, str) else col
@@ -303,6 +319,10 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         factors = {target: col.factor(target) for target, col in mapping.items()}
     except ValueError as exc:
         raise RecordingError(f"{path}: {exc}") from None
+    absolute = "p_mpa" in mapping and mapping["p_mpa"].unit in ABSOLUTE_UNITS
+    if ambient_kpa is not None and not absolute:
+        raise RecordingError(f"{path}: ambient_kpa is for an absolute pressure (a unit of {', '.join(sorted(ABSOLUTE_UNITS))}), "
+                             f"the pressure is " + (f"in {mapping['p_mpa'].unit}" if "p_mpa" in mapping else "not mapped"))
     sep, header, header_line, rows = _header_and_rows(path, delimiter, skip_lines, encoding)
     index = {}
     for target, col in mapping.items():
@@ -379,6 +399,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             values[k] = v
         if target != "t_s":
             columns[target] = values * factors[target]
+            if target == "p_mpa" and absolute:  # the recording holds gauge pressure
+                columns[target] = columns[target] - 1e-3 * (ambient_kpa or STANDARD_ATMOSPHERE_KPA)
             continue
         start = body[0][1][j].strip()
         if factors[target] is not None:  # from the first sample in the log's own unit, then scaled:
@@ -410,6 +432,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
                                f"(line {remarks[0]}" + (" and more)" if len(remarks) > 1 else ")"))
     if filled is not None:
         metadata["filled"] = filled
+    if absolute:
+        metadata["ambient_kpa"] = (f"{ambient_kpa or STANDARD_ATMOSPHERE_KPA:g}, subtracted from the absolute pressure"
+                                   + ("" if ambient_kpa else " (the standard atmosphere)"))
     if load_n is not None:
         metadata["load_n"] = f"{load_n:g}"
     return Recording(columns, metadata)
