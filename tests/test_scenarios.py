@@ -58,6 +58,36 @@ def test_long_run_estimator_settings_reach_the_fmu(built_fmus):
     assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
 
 
+def test_a_plant_parameter_file_sets_the_plant_fmu(built_fmus, tmp_path):
+    """``plant.parameters_file`` (a calibrated_plant.json) gives the direct loop on a Plant with the
+    file's parameters, bit for bit, at the scenario's load (the file's load_n left out, its load
+    mismatch kept); ``parameters`` keys win over the file's; a bad file is named by the key."""
+    rig = PlantParams().with_values(**{"muscle.radius_mm": 10.8, "friction.base_n": 6.5, "valve.cv_max": 1.35,
+                                       "load_mismatch.extra_n": 4.0, "delay.delay_s": 0.1, "load.load_n": 68.0})
+    plant_file = tmp_path / "calibrated_plant.json"
+    plant_file.write_text(json.dumps({"note": "a calibrated rig", "plant": rig.to_dict()}))
+    doc = {"duration_s": 20.0, "step_s": 0.1, "seed": 3, "evaluation_samples": [50, 199],
+           "plant": {"parameters_file": "calibrated_plant.json", "parameters": {"friction.base_n": 7.0}},
+           "controller": {"method": "ampc_servo"}, "reference": {"kind": "sine", "frequency_hz": 0.1},
+           "load": {"initial_n": 44.0}}
+    scenario = parse_scenario(doc, source="test", base=tmp_path)
+    assert scenario.plant.parameters["muscle.radius_mm"] == 10.8 and scenario.plant.parameters["friction.base_n"] == 7.0
+    assert scenario.plant.parameters["load_mismatch.extra_n"] == 4.0 and "load.load_n" not in scenario.plant.parameters
+    cols = co_simulate(scenario, built_fmus)
+    plant = Plant(rig.with_values(**{"friction.base_n": 7.0, "load.load_n": 44.0}), seed=3)
+    ctrl = DisplacementController(ControllerSettings(method="ampc_servo"), THETA0_44N)
+    direct = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.1), duration_s=20.0)
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    nominal = co_simulate(parse_scenario({**doc, "plant": {}}, source="test"), built_fmus)
+    assert np.max(np.abs(nominal["l_mm"] - cols["l_mm"])) > 1.0  # the file's rig is another rig
+
+    (tmp_path / "bad.json").write_text('{"plant": {"muscle": {"radius_mm": -1}}}')
+    with pytest.raises(ScenarioError, match=r"test: key 'plant.parameters_file' .*bad.json: .*radius_mm"):
+        parse_scenario({**doc, "plant": {"parameters_file": "bad.json"}}, source="test", base=tmp_path)
+    with pytest.raises(ScenarioError, match=r"key 'plant.parameters_file': file .*missing.json' does not exist"):
+        parse_scenario({**doc, "plant": {"parameters_file": "missing.json"}}, source="test", base=tmp_path)
+
+
 @pytest.mark.parametrize("fmu_value, notch", [(-1, None), (0, False), (1, True)])
 def test_hysteresis_notch_reaches_the_fmu(built_fmus, fmu_value, notch):
     """The controller FMU's hysteresis_notch (-1 by method, 0 the paper's Eq. (5), 1 on) gives the direct

@@ -1,6 +1,7 @@
 """Sweep files, expectations, the results log with resume, and `tapmuscle sweep` run in this process."""
 
 import csv
+import json
 import math
 import tomllib
 from pathlib import Path
@@ -281,6 +282,35 @@ def test_results_of_another_sweep_are_refused(built_fmus, tmp_path):
     sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
     with pytest.raises(ScenarioError, match="results of another sweep .*load.initial_n"):
         run_sweep(sweep, out, built_fmus, run_serial)
+
+
+def test_a_sweep_over_plant_files_reruns_a_run_whose_file_changed(built_fmus, tmp_path):
+    """Rigs as plant parameter files (``plant.parameters_file``, relative to the sweep file): a rerun
+    into the same folder skips the runs whose file is unchanged and runs the one whose file changed
+    (a run id follows the file's values, not its name)."""
+    from fmu_plant import PlantParams
+
+    def rig(name, **values):
+        (tmp_path / name).write_text(json.dumps({"plant": PlantParams().with_values(**values).to_dict()}))
+
+    rig("rigA.json", **{"muscle.radius_mm": 11.0})
+    rig("rigB.json", **{"muscle.radius_mm": 9.0})
+    path = _write(tmp_path, SMALL_SWEEP.replace('"controller.method" = ["mpc_servo", "ampc_servo"]\nseed = [0, 1]',
+                                                '"plant.parameters_file" = ["rigA.json", "rigB.json"]'))
+    sweep = load_sweep(path)
+    assert [r.scenario.plant.parameters["muscle.radius_mm"] for r in sweep.runs] == [11.0, 9.0]
+    out = tmp_path / "out"
+    first = run_sweep(sweep, out, built_fmus, run_serial, plots=False)
+    assert (first.ran, first.failed) == (2, 0)
+    maes = {r["plant.parameters_file"]: r["mae_mm"] for r in _rows(out)}
+    assert maes["rigA.json"] != maes["rigB.json"]
+    rig("rigB.json", **{"muscle.radius_mm": 9.5})  # rig B re-calibrated
+    again = run_sweep(load_sweep(path), out, built_fmus, run_serial, plots=False)
+    assert (again.skipped, again.ran) == (1, 1)
+    rows = _rows(out)  # the sweep's runs in its order, then the replaced run of the old rig B
+    assert [r["plant.parameters_file"] for r in rows] == ["rigA.json", "rigB.json", "rigB.json"]
+    assert rows[0]["mae_mm"] == maes["rigA.json"] and rows[1]["mae_mm"] != maes["rigB.json"]
+    assert rows[2]["mae_mm"] == maes["rigB.json"]
 
 
 def test_summary_groups_grid_cells():

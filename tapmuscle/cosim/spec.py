@@ -14,7 +14,8 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
 
     [plant]
     fmu = "MusclePlant.fmu"                # optional, relative to this file; default: built from the sources
-    parameters = { "friction.rate_gain" = 0.8 }   # any MusclePlant parameter, by FMU variable name
+    parameters_file = "calibrated_plant.json"   # optional: a plant parameter file (tapmuscle diagnose writes one)
+    parameters = { "friction.rate_gain" = 0.8 }   # any MusclePlant parameter, by FMU variable name (over the file's)
 
     [controller]
     fmu = "AMPCController.fmu"             # optional, as above
@@ -53,6 +54,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 from fmu_controller.displacement_control import METHODS
 from fmu_plant.seed import SEED_MAX
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.plant_file import PlantFileError, read_plant_file
 
 if TYPE_CHECKING:
     from tapmuscle.cosim.expect import Expectations
@@ -243,6 +245,23 @@ def _parameters(r: _Reader) -> dict[str, Any]:
     return dict(params)
 
 
+def _plant_file_parameters(r: _Reader, base: Path | None) -> dict[str, Any]:
+    """The MusclePlant parameters of the plant parameter file ``parameters_file`` names (e.g. the
+    ``calibrated_plant.json`` that ``tapmuscle diagnose`` writes), by FMU variable name; empty
+    without one. The load and the supply pressure are the scenario's (``[load]``, ``[supply]``: the
+    plant FMU's inputs), so the file's ``load.load_n`` and ``supply.supply_pressure_mpa`` are left out;
+    its effects (a ``load_mismatch`` on top of the load, a timed supply sag) are kept."""
+    path = r.path("parameters_file", base)
+    if path is None:
+        return {}
+    try:
+        params = read_plant_file(path, f"{r.source}: key '{r.prefix}parameters_file'")
+    except PlantFileError as exc:
+        raise ScenarioError(str(exc)) from None
+    return {name: value for name, value in params.dotted().items()
+            if name not in ("load.load_n", "supply.supply_pressure_mpa")}
+
+
 def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base: Path | None = None,
                    default_name: str = "scenario") -> Scenario:
     """Check a scenario given as a mapping (the parsed TOML); ``base`` resolves relative FMU paths."""
@@ -267,8 +286,8 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
                                               f"{duration:g} s run at step {step:g} s")
 
     plant_r = top.sub("plant")
-    plant_r.check_keys({"fmu", "parameters"})
-    plant = FmuSpec(plant_r.path("fmu", base), _parameters(plant_r))
+    plant_r.check_keys({"fmu", "parameters", "parameters_file"})
+    plant = FmuSpec(plant_r.path("fmu", base), {**_plant_file_parameters(plant_r, base), **_parameters(plant_r)})
     ctrl_r = top.sub("controller")
     ctrl_r.check_keys({"fmu", "parameters", "method"})
     method = ctrl_r.string("method", "ampc_servo", METHODS)

@@ -277,12 +277,16 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
                         set_field(raw, field, value)
                     except ScenarioError as exc:
                         raise ScenarioError(f"{where}: {exc}") from None
-                run_id = run_id_of(raw)
+                scenario = parse_scenario(raw, source=where, base=base_folder, default_name=base_name)
+                hashed = raw
+                if "parameters_file" in raw.get("plant", {}):
+                    # the file's values, not its name: a rerun after the file changed runs anew
+                    hashed = {**raw, "plant": {**raw["plant"], "parameters_file": dict(scenario.plant.parameters)}}
+                run_id = run_id_of(hashed)
                 if run_id in seen:
                     raise ScenarioError(f"{where}: the same scenario as run {seen[run_id]} (duplicate values in "
                                         f"the grid or base?)")
                 seen[run_id] = len(runs)
-                scenario = parse_scenario(raw, source=where, base=base_folder, default_name=base_name)
                 scenario = dataclasses.replace(scenario, name=f"{base_name}-{run_id}",
                                                expect=expect if expect is not None else scenario.expect)
                 runs.append(SweepRun(run_id, len(runs), base_name, params, scenario))
