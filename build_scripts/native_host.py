@@ -138,6 +138,7 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
    (4) a call returns at least the worst status the FMU logged during it, so the status a host sees
    is the one in the message (pythonfmu returns OK from fmi2ExitInitializationMode after a rejected
    parameter, which the slave logs as an error). */
+#include <ctype.h>
 #include <stdio.h>
 #include <string.h>
 #include "fmi2Functions.h"
@@ -258,28 +259,46 @@ static fmi2Status settle(Shim *s, fmi2Status returned) {
 FMI2_Export const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 FMI2_Export const char *fmi2GetVersion(void) { return fmi2Version; }
 
-/* The GUID in the unzipped FMU's modelDescription.xml (resources/../modelDescription.xml), from the
-   resource location URI (file:///path or file:/path, percent-decoded); 0 if it cannot be read. */
-static int model_guid(const char *resources, char *guid, size_t size) {
-    char path[4096], text[65536];
-    size_t j = 0, n;
-    const char *p = resources, *g, *e;
-    FILE *f;
-    if (!p || strncmp(p, "file:", 5)) return 0;
-    p += 5;
-    if (!strncmp(p, "//", 2)) p += 2;
-    if (*p != '/') return 0;                                 /* file://host/... is not ours */
-    for (; *p && j + 1 < sizeof path; p++) {
-        if (*p == '%' && p[1] && p[2]) {
+/* The resources folder's path from the host's fmuResourceLocation: a file URI (file:///p,
+   file://localhost/p, file:/p), percent-decoded as RFC 3986 encodes it (fmpy, libcosim: a space as %20,
+   a non-ASCII byte as %C3%BC), or, as some hosts pass it, an absolute path as it is; trailing slashes
+   dropped. 0 if it is neither (NULL, another host's file://host/..., a relative path, too long).
+   pythonfmu itself only strips "file://" and decodes %20, so any other encoded byte (a user folder
+   "Müller") left it a path that does not exist, and its failure path then called a NULL class (a
+   segfault in fmi2Instantiate): the shim hands it the decoded path. */
+static int resource_path(const char *resources, char *path, size_t size) {
+    const char *p = resources;
+    size_t j = 0;
+    int uri;
+    if (!p) return 0;
+    uri = !strncmp(p, "file:", 5);
+    if (uri) {
+        p += 5;
+        if (!strncmp(p, "//localhost/", 12)) p += 11;
+        else if (!strncmp(p, "//", 2)) p += 2;
+    }
+    if (*p != '/') return 0;
+    for (; *p; p++) {
+        if (j + 1 >= size) return 0;
+        if (uri && *p == '%' && isxdigit((unsigned char)p[1]) && isxdigit((unsigned char)p[2])) {
             char hex[3] = {p[1], p[2], 0};
             path[j++] = (char)strtol(hex, NULL, 16);
             p += 2;
         } else path[j++] = *p;
     }
-    while (j > 0 && path[j - 1] == '/') j--;
+    while (j > 1 && path[j - 1] == '/') j--;
     path[j] = 0;
-    if (j + 40 >= sizeof path) return 0;
-    strcat(path, "/../modelDescription.xml");
+    return 1;
+}
+
+/* The GUID in the unzipped FMU's modelDescription.xml (resources/../modelDescription.xml); 0 if it
+   cannot be read. */
+static int model_guid(const char *resources_dir, char *guid, size_t size) {
+    char path[4200], text[65536];
+    size_t n;
+    const char *g, *e;
+    FILE *f;
+    snprintf(path, sizeof path, "%s/../modelDescription.xml", resources_dir);
     if (!(f = fopen(path, "rb"))) return 0;
     n = fread(text, 1, sizeof text - 1, f);
     fclose(f);
@@ -312,15 +331,33 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
         return s;
     }
     {
-        char expected[128];
-        if (guid && model_guid(resources, expected, sizeof expected) && strcmp(guid, expected)) {
+        char dir[4096], expected[128], module[4200];
+        if (!resource_path(resources, dir, sizeof dir)) {
+            snprintf(s->reason, sizeof s->reason, "fmuResourceLocation %.900s is not a file URI of a local folder "
+                     "(file:///path/to/the/extracted/fmu/resources)", resources ? resources : "(NULL)");
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        if (guid && model_guid(dir, expected, sizeof expected) && strcmp(guid, expected)) {
             snprintf(s->reason, sizeof s->reason, "the host passed GUID %s, this FMU's is %s (modelDescription.xml)",
                      guid, expected);
             to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
             return s;
         }
+        snprintf(module, sizeof module, "%s/slavemodule.txt", dir);
+        if (access(module, R_OK) != 0 || strstr(dir, "%20")) {
+            /* pythonfmu would fail on it, and its failure path calls a NULL class (a segfault); and it
+               reads a literal "%20" in a folder's name as a space */
+            snprintf(s->reason, sizeof s->reason, strstr(dir, "%20")
+                     ? "the FMU's folder %.900s holds \"%%20\" in a name, which pythonfmu reads as a space: extract "
+                       "the FMU into another folder"
+                     : "fmuResourceLocation %.900s: no readable slavemodule.txt in it (the extracted FMU's resources "
+                       "folder?)", strstr(dir, "%20") ? dir : resources);
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        s->inner = inst(name, type, guid, dir, &s->mine, visible, fmi2True);
     }
-    s->inner = inst(name, type, guid, resources, &s->mine, visible, fmi2True);
     if (!s->inner) {
         char text[1400];
         snprintf(text, sizeof text, "fmi2Instantiate failed%s%s; every later call of this instance returns fmi2Error",

@@ -156,6 +156,24 @@ def test_open_loop_equals_fmpy(host, plant, tmp_path):
     assert max(ls) - min(ls) > 10.0  # the muscle really moved: the comparison is not of constants
 
 
+def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_path):
+    """The FMU extracted into a user's folder such as "Müller Straße": the C host passes the path as
+    it is (file:// and UTF-8 bytes), fmpy percent-encodes it (file:///...M%C3%BCller%20Stra%C3%9Fe);
+    both load and step the FMU and read the same displacement."""
+    plant = Fmu(built_fmus["MusclePlant"], tmp_path / "Müller Straße" / "日本")
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l", p="p"), "steps=30", f"dt={TS}",
+                    "sine=5,3,0.1")
+    rows = table(proc.stdout)
+    f = plant.fmpy_instance("fmpy")
+    for k, row in enumerate(rows):
+        f.setReal([plant.vr["u"]], [row["u"]])
+        f.doStep(k * TS, TS)
+        assert abs(f.getReal([plant.vr["l"]])[0] - row["l"]) <= 1e-12
+    f.terminate()
+    f.freeInstance()
+    assert len(rows) == 30 and rows[-1]["l"] > 10.0  # it moved
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("method", [3, 4])  # ampc_ucp; ampc_servo (OSQP)
 def test_closed_loop_equals_fmpy(host, plant, controller, tmp_path, method):

@@ -231,3 +231,67 @@ print(len(sys.path) - before, sum("resources" in p for p in sys.path))
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split() == ["1", "1"], proc.stdout
+
+
+RESOURCE_LOCATIONS = r"""
+import sys
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+folder, location = sys.argv[1], sys.argv[2].encode()
+md = read_model_description(folder)
+log = []
+f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="r",
+              fmiCallLogger=None)
+f.instantiate(loggingOn=False, callbacks=None)  # fmpy's own URI first: a working instance to free
+f.freeInstance()
+f.component = f.fmi2Instantiate(b"r", 1, md.guid.encode(), None if location == b"NULL" else location, f.callbacks,
+                                0, 0)
+print("instance", bool(f.component))
+try:
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    f.doStep(0.0, 0.1)
+    print("stepped")
+except FMICallException as exc:
+    print("refused", exc.status)
+f.freeInstance()
+"""
+
+
+@pytest.mark.parametrize("location, reason", [
+    ("http://example.org/resources", "is not a file URI of a local folder"),
+    ("file://otherhost/tmp/resources", "is not a file URI of a local folder"),
+    ("relative/resources", "is not a file URI of a local folder"),
+    ("NULL", "fmuResourceLocation (NULL) is not a file URI"),
+    ("file:///nonexistent/resources", "no readable slavemodule.txt in it"),
+])
+def test_a_resource_location_pythonfmu_cannot_use_fails_cleanly(built_fmus, tmp_path, location, reason):
+    """pythonfmu only strips "file://" and decodes %20; a location it cannot use made its failure path call
+    a NULL class (a segfault in fmi2Instantiate). The shim refuses such a location with the reason, and
+    the instance refuses to step."""
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(tmp_path / "fmu")
+    proc = subprocess.run([sys.executable, "-c", RESOURCE_LOCATIONS, str(tmp_path / "fmu"), location],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.splitlines()  # fmpy prints the FMU's messages among them
+    assert "instance True" in lines and "refused 3" in lines, proc.stdout
+    assert reason in proc.stdout + proc.stderr
+
+
+@pytest.mark.parametrize("folder, works", [("Müller dir", True), ("a%41b", True), ("x%20y", False)])
+def test_percent_encoded_folder_names_reach_pythonfmu_decoded(built_fmus, tmp_path, folder, works):
+    """fmpy percent-encodes the resource URI (Müller -> M%C3%BCller, % -> %25); the shim decodes it. A
+    literal "%20" in a folder's name, which pythonfmu would read as a space, is refused with that reason."""
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(tmp_path / folder)
+    location = (tmp_path / folder / "resources").as_uri()
+    proc = subprocess.run([sys.executable, "-c", RESOURCE_LOCATIONS, str(tmp_path / folder), location],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    if works:
+        assert {"instance True", "stepped"} <= set(proc.stdout.splitlines()), proc.stdout + proc.stderr
+    else:
+        assert "refused 3" in proc.stdout and 'holds "%20" in a name' in proc.stdout + proc.stderr

@@ -122,6 +122,41 @@ def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):
     assert abs(sim.real("plant.l") - float(res["l"][-1])) <= 1e-9
 
 
+def test_plant_in_libcosim_from_a_folder_with_non_ascii_characters(built_fmus, tmp_path):
+    """A user's FMU folder and temporary folder named "Müller Straße": libcosim extracts the FMU there
+    and passes a percent-encoded resource URI, which pythonfmu alone does not decode (it segfaulted).
+    In a fresh process, as libcosim reads TMPDIR once; l(10 s) at u = 5 V as fmpy's."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    from fmpy import simulate_fmu
+
+    folder = tmp_path / "Müller Straße"
+    folder.mkdir()
+    fmu = shutil.copy(built_fmus["MusclePlant"], folder / "MusclePlant.fmu")
+    code = (
+        "import sys\n"
+        "from libcosimpy.CosimExecution import CosimExecution\n"
+        "from libcosimpy.CosimObserver import CosimObserver\n"
+        "from libcosimpy.CosimSlave import CosimLocalSlave\n"
+        "ex = CosimExecution.from_step_size(step_size=100000000)\n"
+        "obs = CosimObserver.create_last_value(); ex.add_observer(obs)\n"
+        "i = ex.add_local_slave(CosimLocalSlave(fmu_path=sys.argv[1], instance_name='plant'))\n"
+        "vr = {v.name.decode(): v.reference for v in ex.slave_variables(i)}\n"
+        "ex.real_initial_value(i, vr['u'], 5.0)\n"
+        "assert ex.step(100)\n"
+        "print('l =', repr(obs.last_real_values(i, [vr['l']])[0]))\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(fmu)], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "TMPDIR": str(folder)})
+    assert proc.returncode == 0, f"libcosim exited {proc.returncode}: {proc.stderr[-2000:]}"
+    res = simulate_fmu(str(built_fmus["MusclePlant"]), start_values={"u": 5.0}, stop_time=10.0,
+                       output_interval=TS_S, output=["l"])
+    l_mm = float(next(line for line in proc.stdout.splitlines() if line.startswith("l = "))[4:])
+    assert l_mm > 1.0 and abs(l_mm - float(res["l"][-1])) <= 1e-9
+
+
 def test_libcosim_sets_the_method_an_integer_parameter(built_fmus):
     """libcosim ignores FMI Enumerations: the method is an Integer, so it can choose MPC-UCP (code 1),
     which cancels no hysteresis (H = 0, u_c = u), where the default AMPC-servo (4) does."""
