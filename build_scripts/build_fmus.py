@@ -2,7 +2,9 @@
 
 Each FMU carries the numerics package it wraps (with its slave module) and the shared ``fmi_slave``
 shell in ``resources/``: the project's code travels inside the FMU; the host needs a Python with numpy
-(and scipy, osqp for the controller) and pythonfmu's runtime, which pythonfmu also packs.
+(and scipy, osqp for the controller) and pythonfmu's runtime, which pythonfmu also packs. All of it
+lives in a package of the FMU's own build (:func:`private_package`), so that the FMU runs its own code
+in a process that has imported the project's packages, or another build of them.
 
 pythonfmu's entry script is not the slave module itself but an import of its class
 (:func:`entry_script`). pythonfmu 0.7 finds the slave class at every ``fmi2Instantiate`` by executing
@@ -16,6 +18,7 @@ class, and the entry gives the dict back the reference pythonfmu takes, once per
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import importlib.util
 import os
@@ -23,12 +26,13 @@ import shutil
 import sys
 import tempfile
 import zipfile
+from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 from typing import Any
 
 from .model_description import content_guid, finish_model_description
 
-__all__ = ["FMUS", "build_fmus", "cached_fmus", "slave_metadata"]
+__all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "slave_metadata"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,25 +45,76 @@ FMUS: dict[str, tuple[str, tuple[str, ...]]] = {
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 
 
-def entry_script(name: str) -> str:
-    """Source of pythonfmu's entry script for FMU ``name``: the slave class imported from its module,
-    and one reference added to the entry's own module dict per execution (module docstring)."""
+def entry_script(name: str, private: str) -> str:
+    """Source of pythonfmu's entry script for FMU ``name`` whose code lives in the package ``private``
+    (:func:`private_package`): the slave class imported from its module, and one reference added to
+    the entry's own module dict per execution (module docstring)."""
     script = Path(FMUS[name][0])
     module = ".".join(script.with_suffix("").parts)
     return (f'"""pythonfmu\'s entry script of {name}.fmu, written by build_scripts/build_fmus.py: the slave\n'
-            f"class {module}.{name}. pythonfmu executes this file at every instantiation and each\n"
-            "time releases a reference to its module dict that it never took: give it back.\n"
+            f"class {module}.{name}, of this FMU's own copy {private}. pythonfmu executes this file at every\n"
+            "instantiation and each time releases a reference to its module dict that it never took: give it back.\n"
             '"""\n\n'
             "import ctypes\n\n"
-            "import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts\n"
-            f"from {module} import {name}  # noqa: F401 - the slave class pythonfmu takes\n\n"
+            f"from {private} import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts\n"
+            f"from {private}.{module} import {name}  # noqa: F401 - the slave class pythonfmu takes\n\n"
             "ctypes.pythonapi.Py_IncRef(ctypes.py_object(globals()))\n")
 
 
+def private_package(name: str, sources: Path) -> str:
+    """The name of FMU ``name``'s own package of its code, from a digest of ``sources`` (the copied
+    packages): ``_tapmuscle_<name>_<12 hex digits>``.
+
+    Python caches modules by name, process-wide. Under their own names (``fmu_plant``, ``pythonfmu``)
+    the packages an FMU carries would meet those of its host: an FMU loaded in a process that had
+    imported ``fmu_plant`` (tapmuscle's own master, a notebook) ran the host's copy instead of its
+    own (another version's code, silently), and one loaded first left its copy, in a temporary
+    folder its host deletes, as the host's ``fmu_plant``. A name per build keeps each FMU's code its
+    own, and two builds of one FMU apart in one process.
+    """
+    return f"_tapmuscle_{name.lower()}_{_digest(sources).hex()[:12]}"
+
+
+#: Packages whose absolute imports an FMU's own copy redirects into its private package.
+_PRIVATE = ("fmu_plant", "fmu_controller", "fmi_slave", "pythonfmu")
+
+
+def _redirect_imports(root: Path, private: str) -> None:
+    """Rewrite, in every ``.py`` file under ``root``, the absolute imports of :data:`_PRIVATE`
+    packages to ``private``: ``from fmu_plant.x import y`` -> ``from P.fmu_plant.x import y``,
+    ``import fmi_slave`` -> ``from P import fmi_slave``. The statements are found by ``ast`` (not in
+    strings or docstrings); a form that cannot be redirected (``import fmu_plant.x``) is refused."""
+    for path in sorted(root.rglob("*.py")):
+        text = path.read_text(encoding="utf-8")
+        lines = text.splitlines(keepends=True)
+        for node in ast.walk(ast.parse(text, filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module.split(".")[0] in _PRIVATE:
+                line = lines[node.lineno - 1]
+                head = line[:node.col_offset] + "from " + node.module
+                assert line.startswith(head), f"{path}:{node.lineno}: unexpected import layout"
+                lines[node.lineno - 1] = line[:node.col_offset] + f"from {private}.{node.module}" + line[len(head):]
+            elif isinstance(node, ast.Import) and any(a.name.split(".")[0] in _PRIVATE for a in node.names):
+                line = lines[node.lineno - 1]
+                alias = node.names[0]
+                head = line[:node.col_offset] + "import " + alias.name
+                if len(node.names) != 1 or "." in alias.name or not line.startswith(head):
+                    raise ValueError(f"{path}:{node.lineno}: write this import as 'from {alias.name.split('.')[0]} "
+                                     f"import ...' so that the FMU can carry it under its own name")
+                lines[node.lineno - 1] = line[:node.col_offset] + f"from {private} import {alias.name}" + line[len(head):]
+        path.write_text("".join(lines), encoding="utf-8")
+
+
+def _shipped(folder: str, names: list[str]) -> set[str]:
+    """``shutil.copytree``'s ``ignore``: what an FMU does not carry. It carries the Python sources,
+    and the plant's compiled sub-step (setup.py) built for this interpreter's exact ABI, the one the
+    FMU's binary links (a CPython 3.11 on x86_64 Linux): the same bits as the Python sub-step, which
+    the FMU runs wherever the compiled one does not load (another platform, an older C library)."""
+    compiled = "_ros34pw2" + EXTENSION_SUFFIXES[0]
+    return {n for n in names if n == "__pycache__" or (n.endswith((".pyc", ".c", ".so", ".pyd")) and n != compiled)}
+
+
 def _clean_copy(src: Path, dst: Path) -> None:
-    # The FMU carries Python sources only: the plant's compiled sub-step (built for this interpreter,
-    # setup.py) is left out, and the FMU runs the Python one, which gives the same bits.
-    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.so", "*.pyd", "*.c"))
+    shutil.copytree(src, dst, ignore=_shipped)
 
 
 def slave_metadata(name: str) -> dict[str, dict[str, Any]]:
@@ -100,9 +155,33 @@ def _prepare_native_hosts(tree: Path) -> None:
     prepare_for_native_hosts(tree)
 
 
+def _pythonfmu_build(entry: Path, package: Path, dest: Path) -> Path:
+    """pythonfmu's build of ``entry`` with the FMU's own ``package``. pythonfmu imports the entry and
+    instantiates its slave class (for the model description) in this process, and takes only a
+    subclass of its own ``Fmi2Slave``: for that while, the package's ``pythonfmu`` is this process's.
+    Everything imported is forgotten afterwards."""
+    import pythonfmu
+    import pythonfmu.enums
+    from pythonfmu.builder import FmuBuilder
+
+    private = package.name
+    # an FMU of this build loaded in this process earlier has its own modules under the same names
+    loaded = {m: sys.modules.pop(m) for m in list(sys.modules) if m.startswith(private)}
+    path = sys.path[:]
+    sys.path.insert(0, str(package.parent))
+    sys.modules[f"{private}.pythonfmu"] = pythonfmu
+    sys.modules[f"{private}.pythonfmu.enums"] = pythonfmu.enums
+    try:
+        return FmuBuilder.build_FMU(entry, dest=dest, project_files=[package])
+    finally:
+        sys.path[:] = path  # pythonfmu puts the script's folder first on sys.path too
+        for module in [m for m in sys.modules if m.startswith(private)]:
+            del sys.modules[module]
+        sys.modules.update(loaded)
+
+
 def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Path]:
     """Build the FMUs ``names`` (default: all of :data:`FMUS`) into ``out``; returns their paths."""
-    from pythonfmu.builder import FmuBuilder
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -116,19 +195,23 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
         with tempfile.TemporaryDirectory() as tmp:
             tmp = Path(tmp)
             for pkg in packages:
-                _clean_copy(ROOT / pkg, tmp / "src" / pkg)
-            entry = tmp / "entry" / Path(script).name
+                _clean_copy(ROOT / pkg, tmp / "copy" / pkg)
+            private = private_package(name, tmp / "copy")
+            (tmp / "copy").rename(tmp / "src")
+            shutil.move(tmp / "src", tmp / private)
+            (tmp / private / "__init__.py").write_text(f'"""{name}.fmu\'s own copy of its code (build_scripts/'
+                                                       f'build_fmus.py, private_package)."""\n', encoding="utf-8")
+            _redirect_imports(tmp / private, private)
+            entry = tmp / "entry" / f"{private}_slave.py"
             entry.parent.mkdir()
-            entry.write_text(entry_script(name), encoding="utf-8")
-            path = sys.path[:]
-            try:
-                fmu = FmuBuilder.build_FMU(entry, dest=tmp / "pythonfmu",
-                                           project_files=[tmp / "src" / p for p in packages])
-            finally:
-                sys.path[:] = path  # pythonfmu puts the script's folder first on sys.path
+            entry.write_text(entry_script(name, private), encoding="utf-8")
+            fmu = _pythonfmu_build(entry, tmp / private, tmp / "pythonfmu")
             tree = tmp / "tree"
             with zipfile.ZipFile(fmu) as z:
                 z.extractall(tree)
+            # pythonfmu's runtime, packed beside, joins the FMU's own package too
+            shutil.move(tree / "resources" / "pythonfmu", tree / "resources" / private / "pythonfmu")
+            _redirect_imports(tree / "resources" / private / "pythonfmu", private)
             _prepare_native_hosts(tree)
             md = tree / "modelDescription.xml"
             raw = md.read_text(encoding="utf-8")
@@ -148,7 +231,8 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
 def _source_digest() -> str:
     h = hashlib.sha256()
     files = {ROOT / script for script, _ in FMUS.values()} | {f for _, pkgs in FMUS.values() for p in pkgs
-                                                           for f in (ROOT / p).rglob("*.py")}
+                                                           for f in (ROOT / p).rglob("*")
+                                                           if f.suffix == ".py" or f.name == "_ros34pw2" + EXTENSION_SUFFIXES[0]}
     files |= set((ROOT / "build_scripts").glob("*.py"))
     for f in sorted(files):
         h.update(f.relative_to(ROOT).as_posix().encode() + b"\0" + f.read_bytes())

@@ -39,7 +39,11 @@ _done = False
 
 
 def _resources() -> str:
-    return os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    """The FMU's resources folder: this package's parent, or (inside a built FMU, where the code is
+    the FMU's own package under resources/) the one above it, whichever holds :data:`CONFIG_NAME`."""
+    parent = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    above = os.path.dirname(parent)
+    return above if os.path.isfile(os.path.join(above, CONFIG_NAME)) else parent
 
 
 def is_embedded() -> bool:

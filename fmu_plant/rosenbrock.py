@@ -26,10 +26,10 @@ __all__ = ["build_model", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR",
 def _compiled_module() -> ModuleType | None:
     """The sub-step compiled from ``_ros34pw2.c`` (setup.py) if it was built beside this file.
 
-    Only beside this file: an FMU carries the Python sources alone, and a host whose path reaches a
-    checkout with a build of its own (an editable install's import finder does) must not load that
-    one into the FMU's interpreter. ``TAPMUSCLE_PURE_PYTHON=1`` asks for the Python sub-step (the
-    same bits, slower).
+    Only beside this file: an FMU carries the one built for its building interpreter (or none), and
+    a host whose path reaches a checkout with a build of its own (an editable install's import
+    finder does) must not load that one into the FMU's code. ``TAPMUSCLE_PURE_PYTHON=1`` asks for
+    the Python sub-step (the same bits, slower).
     """
     here = os.path.dirname(os.path.abspath(__file__))
     if os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1" or not any(

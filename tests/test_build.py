@@ -1,10 +1,14 @@
 """`tapmuscle build`: both FMUs, reproducibly, and a content-derived GUID."""
 
+import os
+import shutil
+import subprocess
+import sys
 import zipfile
 
 import pytest
 
-from build_scripts.build_fmus import FMUS, build_fmus
+from build_scripts.build_fmus import FMUS, build_fmus, private_package
 from build_scripts.model_description import finish_model_description
 from tapmuscle.cli.main import main
 
@@ -27,7 +31,8 @@ def test_guid_follows_the_content(built_fmus):
             assert "generationDateAndTime" not in md
             guids[name] = md.split('guid="')[1].split('"')[0]
             assert all(i.date_time == (1980, 1, 1, 0, 0, 0) for i in z.infolist())
-            assert "resources/controller_slave.py" in z.namelist() or name == "MusclePlant"
+            entry = z.read("resources/slavemodule.txt").decode().strip()
+            assert f"resources/{entry}.py" in z.namelist() and entry.startswith(f"_tapmuscle_{name.lower()}_")
     assert len(set(guids.values())) == 2
 
 
@@ -72,11 +77,87 @@ def test_instantiating_again_and_again_defines_no_new_slave_class(built_fmus, na
     assert classes() == before
 
 
-def test_the_fmus_carry_python_sources_only(built_fmus):
-    # The plant's compiled sub-step is built for one interpreter (setup.py); the FMUs run the Python
-    # one (the same bits), and rosenbrock.py loads a compiled one only from beside itself.
+def test_the_fmus_carry_python_sources_and_this_interpreters_compiled_sub_step(built_fmus):
+    """The plant's compiled sub-step (setup.py) travels in the FMU for the building interpreter's exact
+    ABI, the one the FMU's binary links; nothing else compiled, no C source."""
+    from importlib.machinery import EXTENSION_SUFFIXES
+
+    from fmu_plant.rosenbrock import COMPILED
+
     for name, path in built_fmus.items():
         with zipfile.ZipFile(path) as z:
             resources = [n for n in z.namelist() if n.startswith("resources/")]
-        assert name != "MusclePlant" or "resources/fmu_plant/rosenbrock.py" in resources
-        assert not [n for n in resources if n.endswith((".so", ".pyd", ".c"))], name
+        compiled = [n for n in resources if n.endswith((".so", ".pyd"))]
+        if name == "MusclePlant":
+            assert any(n.endswith("/fmu_plant/rosenbrock.py") for n in resources)
+            expected = ["fmu_plant/_ros34pw2" + EXTENSION_SUFFIXES[0]] if COMPILED else []
+            assert [n.split("/", 2)[2] for n in compiled] == expected
+        else:
+            assert not compiled, name
+        assert not [n for n in resources if n.endswith(".c")], name
+
+
+SUB_STEP = r"""
+import sys
+import fmpy
+l = fmpy.simulate_fmu(sys.argv[1], stop_time=10.0, output_interval=0.1, start_values={"u": 5.0})["l"]
+(r,) = [m for name, m in sys.modules.items() if name.endswith(".fmu_plant.rosenbrock")]
+print(r.COMPILED, repr(float(l[-1])))
+"""
+
+
+def test_the_plant_fmu_runs_its_compiled_sub_step_and_the_python_one_gives_the_same_bits(built_fmus):
+    from fmu_plant.rosenbrock import COMPILED
+
+    if not COMPILED:
+        pytest.skip("the compiled sub-step is not built here (no C compiler at install time)")
+    env = {k: v for k, v in os.environ.items() if k != "TAPMUSCLE_PURE_PYTHON"}
+    runs = {}
+    for pure in ("0", "1"):
+        proc = subprocess.run([sys.executable, "-c", SUB_STEP, str(built_fmus["MusclePlant"])], capture_output=True,
+                              text=True, timeout=300, env={**env, "TAPMUSCLE_PURE_PYTHON": pure})
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        runs[pure] = proc.stdout.split()[-2:]
+    assert runs["0"][0] == "True" and runs["1"][0] == "False"
+    assert runs["0"][1] == runs["1"][1] and float(runs["0"][1]) > 10.0  # the same bits (repr), a moved muscle
+
+
+OWN_CODE = r"""
+import sys
+import fmpy
+import fmu_plant.plant_slave  # the host's copy, as in tapmuscle's own master or a notebook
+host = fmu_plant.__file__
+l = fmpy.simulate_fmu(sys.argv[1], stop_time=0.2, output_interval=0.1, start_values={"u": 5.0})["l"]
+import fmu_plant
+print(float(l[0]), fmu_plant.__file__ == host, "fmu_plant" in sys.modules and "resources" not in fmu_plant.__file__)
+"""
+
+
+def test_an_fmu_runs_its_own_code_beside_the_hosts(built_fmus, tmp_path):
+    """An FMU carries its code under a name of its build, so a host that has imported the project's
+    packages (tapmuscle's master, a notebook) neither lends it its own copy nor gets the FMU's. Here
+    the FMU's copy is changed after the build (its l reads 1000 mm high, as another version's code
+    would differ): loaded in a process that imported fmu_plant, the FMU still runs its own copy, and
+    the host's fmu_plant is still its own."""
+    tree = tmp_path / "fmu"
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(tree)
+    (slave,) = tree.glob("resources/_tapmuscle_muscleplant_*/fmu_plant/plant_slave.py")
+    text = slave.read_text()
+    changed = text.replace("self.l, self.p = self._plant.measurement.l_mm,", "self.l, self.p = 1000.0 + self._plant.measurement.l_mm,", 1)
+    assert changed != text
+    slave.write_text(changed)
+    patched = shutil.make_archive(str(tmp_path / "patched"), "zip", tree)
+    proc = subprocess.run([sys.executable, "-c", OWN_CODE, patched], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    l0, same_host_module, not_the_fmus = proc.stdout.split()[-3:]
+    assert float(l0) == 1000.0 and same_host_module == "True" and not_the_fmus == "True", proc.stdout
+
+
+def test_the_private_package_name_follows_the_sources(tmp_path):
+    (tmp_path / "a" / "fmu_plant").mkdir(parents=True)
+    (tmp_path / "a" / "fmu_plant" / "x.py").write_text("A = 1\n")
+    first = private_package("MusclePlant", tmp_path / "a")
+    assert first == private_package("MusclePlant", tmp_path / "a") and first.startswith("_tapmuscle_muscleplant_")
+    (tmp_path / "a" / "fmu_plant" / "x.py").write_text("A = 2\n")
+    assert private_package("MusclePlant", tmp_path / "a") != first

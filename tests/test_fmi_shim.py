@@ -75,9 +75,10 @@ def broken_controller(built_fmus, tmp_path_factory) -> Path:
     src = Path(built_fmus["AMPCController"])
     out = tmp_path_factory.mktemp("broken") / "AMPCController.fmu"
     with zipfile.ZipFile(src) as zin, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
+        entry = f"resources/{zin.read('resources/slavemodule.txt').decode().strip()}.py"
         for item in zin.infolist():
             data = zin.read(item.filename)
-            if item.filename == "resources/controller_slave.py":
+            if item.filename == entry:
                 data += b"\nimport tapmuscle_missing_package_xyz\n"
             zout.writestr(item, data)
     return out
