@@ -182,7 +182,6 @@ def _pythonfmu_build(entry: Path, package: Path, dest: Path) -> Path:
 
 def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Path]:
     """Build the FMUs ``names`` (default: all of :data:`FMUS`) into ``out``; returns their paths."""
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     unknown = [n for n in names or () if n not in FMUS]
@@ -197,8 +196,7 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
             for pkg in packages:
                 _clean_copy(ROOT / pkg, tmp / "copy" / pkg)
             private = private_package(name, tmp / "copy")
-            (tmp / "copy").rename(tmp / "src")
-            shutil.move(tmp / "src", tmp / private)
+            (tmp / "copy").rename(tmp / private)
             (tmp / private / "__init__.py").write_text(f'"""{name}.fmu\'s own copy of its code (build_scripts/'
                                                        f'build_fmus.py, private_package)."""\n', encoding="utf-8")
             _redirect_imports(tmp / private, private)
