@@ -242,13 +242,20 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     """Both FMUs built from this checkout, reused while the sources are unchanged.
 
     The cache lives in ``cache_root`` (default ``$XDG_CACHE_HOME/tapmuscle`` or ``~/.cache/tapmuscle``)
-    under a folder named by a digest of the sources and the interpreter.
+    under a folder named by a digest of the sources and the interpreter. ``OSError`` naming the
+    folder and the remedies when it cannot be written (a read-only home in a container).
     """
     if cache_root is None:
-        cache_root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tapmuscle"
+        cache_root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tapmuscle"
     folder = Path(cache_root) / f"fmu-{_source_digest()}"
     paths = {name: folder / f"{name}.fmu" for name in FMUS}
     missing = tuple(name for name, p in paths.items() if not p.is_file())
     if missing:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
+                          f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
+                          f"tapmuscle build --out DIR)") from None
         build_fmus(folder, missing)
     return paths

@@ -161,3 +161,20 @@ def test_the_private_package_name_follows_the_sources(tmp_path):
     assert first == private_package("MusclePlant", tmp_path / "a") and first.startswith("_tapmuscle_muscleplant_")
     (tmp_path / "a" / "fmu_plant" / "x.py").write_text("A = 2\n")
     assert private_package("MusclePlant", tmp_path / "a") != first
+
+
+def test_an_unwritable_cache_is_named_with_its_remedy(tmp_path, monkeypatch):
+    """A cache folder that cannot be made (a read-only home in a container; here a file in the way)
+    is named, with what to do; an empty XDG_CACHE_HOME means unset, not the current folder."""
+    from build_scripts.build_fmus import cached_fmus
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OSError, match=r"cannot write the FMU cache .*file/fmu-\w+ \(Not a directory\): set "
+                                      r"XDG_CACHE_HOME to a writable folder \(or give run, sweep and check --fmu-dir"):
+        cached_fmus(tmp_path / "file")
+    monkeypatch.setenv("XDG_CACHE_HOME", "")
+    monkeypatch.setenv("HOME", str(tmp_path / "file"))
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OSError, match=r"cannot write the FMU cache .*file/\.cache/tapmuscle/fmu-"):
+        cached_fmus()
+    assert not (tmp_path / "tapmuscle").exists()
