@@ -11,6 +11,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
 from tapmuscle.cosim import PAPER_SCENARIOS, ScenarioError, co_simulate, load_scenario, parse_scenario
+from tapmuscle.cosim.run import summarise
 from tapmuscle.cli.main import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.paper.reproduce import PAPER_RUNS
@@ -74,6 +75,8 @@ def test_a_plant_parameter_file_sets_the_plant_fmu(built_fmus, tmp_path):
     assert scenario.plant.parameters["muscle.radius_mm"] == 10.8 and scenario.plant.parameters["friction.base_n"] == 7.0
     assert scenario.plant.parameters["load_mismatch.extra_n"] == 4.0 and "load.load_n" not in scenario.plant.parameters
     cols = co_simulate(scenario, built_fmus)
+    summary = summarise(scenario, cols, built_fmus)  # says where its plant came from
+    assert summary["scenario_spec"]["plant"]["parameters_file"] == str(plant_file)
     plant = Plant(rig.with_values(**{"friction.base_n": 7.0, "load.load_n": 44.0}), seed=3)
     ctrl = DisplacementController(ControllerSettings(method="ampc_servo"), THETA0_44N)
     direct = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.1), duration_s=20.0)

@@ -110,6 +110,9 @@ class FmuSpec:
     """The .fmu file; None = built from this checkout's sources."""
     parameters: Mapping[str, Any] = field(default_factory=dict)
     """FMU variable name -> value (float, int, or an enumeration item name)."""
+    parameters_file: Path | None = None
+    """The plant parameter file whose values ``parameters`` holds (``[plant] parameters_file``), kept so
+    that a run's ``summary.json`` says where its plant came from; None without one."""
 
 
 @dataclass(frozen=True)
@@ -287,7 +290,8 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
 
     plant_r = top.sub("plant")
     plant_r.check_keys({"fmu", "parameters", "parameters_file"})
-    plant = FmuSpec(plant_r.path("fmu", base), {**_plant_file_parameters(plant_r, base), **_parameters(plant_r)})
+    plant = FmuSpec(plant_r.path("fmu", base), {**_plant_file_parameters(plant_r, base), **_parameters(plant_r)},
+                    plant_r.path("parameters_file", base))
     ctrl_r = top.sub("controller")
     ctrl_r.check_keys({"fmu", "parameters", "method"})
     method = ctrl_r.string("method", "ampc_servo", METHODS)
