@@ -14,7 +14,7 @@ import math
 import os
 from importlib.machinery import EXTENSION_SUFFIXES
 from types import ModuleType
-from typing import Callable
+from typing import Callable, Iterable
 
 from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
@@ -66,6 +66,16 @@ _ROS_B = (0.24212380706095346, -1.2232505839045147, 1.5452602553351020, 0.435866
 _ROS_B_HAT = (0.37810903145819369, -0.096042292212423178, 0.5, 0.2179332607542295)
 
 
+def _sum(terms: Iterable[float]) -> float:
+    """Left-to-right float sum. The built-in ``sum`` compensates rounding since Python 3.12, which
+    moved the coefficients below, and so every plant output, by a last bit between Python versions;
+    this one gives the same coefficients on every version."""
+    total = 0.0
+    for term in terms:
+        total += term
+    return total
+
+
 def _ros_transformed() -> tuple[list[list[float]], list[list[float]], list[float], list[float], list[float]]:
     """``(A, GC, M, E, c)`` of the transformed ROS34PW2 scheme (see the comment above)."""
     s, g = 4, _ROS_GAMMA
@@ -73,14 +83,14 @@ def _ros_transformed() -> tuple[list[list[float]], list[list[float]], list[float
     inv = [[0.0] * s for _ in range(s)]  # inverse of the lower-triangular Gamma, by forward substitution
     for col in range(s):
         for i in range(s):
-            acc = (1.0 if i == col else 0.0) - sum(gam[i][k] * inv[k][col] for k in range(i))
+            acc = (1.0 if i == col else 0.0) - _sum(gam[i][k] * inv[k][col] for k in range(i))
             inv[i][col] = acc / gam[i][i]
     alpha = [[(_ROS_ALPHA[i][j] if j < i else 0.0) for j in range(s)] for i in range(s)]
-    a = [[sum(alpha[i][k] * inv[k][j] for k in range(s)) for j in range(s)] for i in range(s)]
+    a = [[_sum(alpha[i][k] * inv[k][j] for k in range(s)) for j in range(s)] for i in range(s)]
     gc = [[g * ((1.0 / g if i == j else 0.0) - inv[i][j]) for j in range(s)] for i in range(s)]
-    m = [sum(_ROS_B[k] * inv[k][j] for k in range(s)) for j in range(s)]
-    e = [m[j] - sum(_ROS_B_HAT[k] * inv[k][j] for k in range(s)) for j in range(s)]
-    c = [sum(row) for row in alpha]
+    m = [_sum(_ROS_B[k] * inv[k][j] for k in range(s)) for j in range(s)]
+    e = [m[j] - _sum(_ROS_B_HAT[k] * inv[k][j] for k in range(s)) for j in range(s)]
+    c = [_sum(row) for row in alpha]
     return a, gc, m, e, c
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from fmu_plant import Plant, PlantParams
 from fmu_plant.parameters import SolverParams
-from fmu_plant.rosenbrock import _A, _E, _GC, _M, _ROS_GAMMA, COMPILED, adaptive_steps, build_model
+from fmu_plant.rosenbrock import _A, _E, _GC, _M, _ROS_GAMMA, COMPILED, _sum, adaptive_steps, build_model
 from fmu_plant.sensors import read_encoder_mm, read_pressure_mpa
 
 QUIET = PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.pressure_noise_std_mpa": 0.0})
@@ -49,6 +49,20 @@ def test_ros34pw2_is_third_order_l_stable_and_stiffly_accurate():
     assert all(abs(stability_function(complex(-x, y))[0]) <= 1.0 for x in (0.1, 1, 10, 100) for y in (0, 1, 10, 100))
     # stiffly accurate: the new state is the last stage plus its increment (weights = last row of A, 1)
     assert np.allclose(_M, [*_A[3][:3], 1.0], rtol=0, atol=1e-14)
+
+
+def test_the_coefficients_sum_left_to_right_as_on_every_python_version():
+    """The transformed coefficients come from plain left-to-right float sums: Python 3.12's built-in
+    ``sum`` compensates rounding (1e16 + 1 - 1e16 = 1), which moved every plant output by a last bit
+    against Python 3.11 and turned an extreme-parameter run that fails on one into one that ends."""
+    assert _sum([1e16, 1.0, -1e16]) == 0.0 and _sum([]) == 0.0 and math.copysign(1.0, _sum([-0.0])) == 1.0
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        terms = (rng.standard_normal(rng.integers(1, 6)) * 10.0 ** rng.integers(-8, 9, 1)).tolist()
+        total = 0.0
+        for t in terms:
+            total = total + t
+        assert _sum(iter(terms)) == total
 
 
 def test_jacobian_matches_finite_differences():
