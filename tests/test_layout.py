@@ -11,6 +11,9 @@ functions.
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
+import textwrap
 import tomllib
 from pathlib import Path
 
@@ -104,3 +107,23 @@ def test_only_what_ships_in_the_fmus_is_a_top_level_package():
     # scenarios/ is the scenario files' folder (installed as tapmuscle.scenario_files), not a package
     assert tops == {*FOUNDATION, "tapmuscle", "scenarios"}
     assert not list((ROOT / "scenarios").glob("*.py"))[1:], "scenarios/ holds scenario files, not code"
+
+
+def test_a_checkout_imported_without_its_install_finds_its_scenario_files():
+    """With the checkout first on sys.path and no ``tapmuscle.scenario_files`` package (a non-editable
+    install beside ``python -m pytest``, or ``sys.path.insert(0, checkout)`` in a notebook), the
+    scenario files are the checkout's ``scenarios/``."""
+    code = textwrap.dedent("""
+        import importlib.abc, sys
+        class NoDataPackage(importlib.abc.MetaPathFinder):
+            def find_spec(self, name, path=None, target=None):
+                if name == "tapmuscle.scenario_files":
+                    raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        sys.meta_path.insert(0, NoDataPackage())
+        from tapmuscle.cosim import PAPER_SCENARIOS, SCENARIO_FILES
+        print(SCENARIO_FILES, len(list(PAPER_SCENARIOS.glob("*.toml"))))
+    """)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    folder, n_paper = done.stdout.split()
+    assert Path(folder) == ROOT / "scenarios" and int(n_paper) >= 10
