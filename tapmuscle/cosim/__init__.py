@@ -13,7 +13,6 @@ __all__ = ["SCENARIO_FILES", "PAPER_SCENARIOS", "Scenario", "ScenarioError", "co
            "run_scenario"]
 
 
-
 def _scenario_files() -> Path:
     """The installed data package ``tapmuscle.scenario_files``; in a source tree imported without
     installing it (the checkout first on ``sys.path``: ``python -m pytest`` or a notebook beside a
