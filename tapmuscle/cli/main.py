@@ -12,7 +12,7 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
 from tapmuscle.cli.diagnose import register as _register_diagnose
@@ -283,11 +283,38 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+class _Version(argparse.Action):
+    """``tapmuscle --version``: this version, the Python, the packages the numbers come from and whether
+    the plant runs its compiled sub-step: what a bug report needs, as results move by last bits
+    between their releases. Looked up only when asked (startup time)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="print the versions and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any) -> None:
+        import platform
+        from importlib import metadata
+
+        from fmu_plant.rosenbrock import COMPILED
+
+        def version(name: str) -> str:
+            try:
+                return metadata.version(name)
+            except metadata.PackageNotFoundError:
+                return "not installed"
+
+        packages = ", ".join(f"{name} {version(name)}" for name in ("numpy", "scipy", "osqp", "pythonfmu", "fmpy"))
+        print(f"tapmuscle {version('tapmuscle')} (Python {platform.python_version()}; {packages}; compiled sub-step "
+              f"{'yes' if COMPILED else 'no'})")
+        parser.exit(0)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``tapmuscle`` parser with every subcommand (errors are one line, exit status 2)."""
     parser = _Parser(prog="tapmuscle", description="Simulate, identify and control a tap-water McKibben muscle; "
                      "the plant and the AMPC controller as FMI 2.0 co-simulation FMUs. "
                      "'tapmuscle <command> --help' for each command.")
+    parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", required=True)
 
     rec = sub.add_parser("record", help="run the simulated rig open-loop and write a recording CSV",
