@@ -25,14 +25,17 @@ import os
 import shutil
 import sys
 import tempfile
+import tomllib
 import zipfile
+from importlib import metadata
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 from typing import Any
 
 from .model_description import content_guid, finish_model_description
 
-__all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "slave_metadata"]
+__all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
+           "slave_metadata"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -213,8 +216,10 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
             _prepare_native_hosts(tree)
             md = tree / "modelDescription.xml"
             raw = md.read_text(encoding="utf-8")
-            md.write_text(finish_model_description(raw, meta, guid="{pending}"), encoding="utf-8")
-            md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree))), encoding="utf-8")
+            version = project_version()
+            md.write_text(finish_model_description(raw, meta, guid="{pending}", version=version), encoding="utf-8")
+            md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree)), version=version),
+                          encoding="utf-8")
             target = out / f"{name}.fmu"
             staged = out / f".{name}.fmu.partial-{os.getpid()}"
             try:
@@ -226,8 +231,18 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
     return built
 
 
+def project_version() -> str:
+    """tapmuscle's version for the FMUs' model descriptions: the checkout's ``pyproject.toml`` (the
+    sources being packed), else the installed distribution's."""
+    pyproject = ROOT / "pyproject.toml"
+    if pyproject.is_file():
+        return tomllib.loads(pyproject.read_text(encoding="utf-8"))["project"]["version"]
+    return metadata.version("tapmuscle")
+
+
 def _source_digest() -> str:
     h = hashlib.sha256()
+    h.update(project_version().encode() + b"\0")  # the model descriptions carry it
     files = {ROOT / script for script, _ in FMUS.values()} | {f for _, pkgs in FMUS.values() for p in pkgs
                                                            for f in (ROOT / p).rglob("*")
                                                            if f.suffix == ".py" or f.name == "_ros34pw2" + EXTENSION_SUFFIXES[0]}

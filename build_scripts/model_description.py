@@ -12,6 +12,7 @@ fixes all of that from the slave's :attr:`fmi_slave.SafeSlave.variable_meta`:
   libcosim ignores Enumeration parameters and its SSP loader aborts on them;
 * ``Outputs`` and ``InitialUnknowns`` with explicit ``dependencies`` (ours: none);
 * ``canGetAndSetFMUstate``/``canSerializeFMUstate`` true (the slaves keep all dynamic state);
+* the model ``version`` and ``generationTool`` name the tapmuscle release;
 * no ``generationDateAndTime``, and a GUID derived from a hash of the FMU's content, so the same
   sources give the same FMU byte for byte.
 """
@@ -63,7 +64,8 @@ def content_guid(digest: bytes) -> str:
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "tapmuscle:" + digest.hex()))
 
 
-def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]], *, guid: str) -> str:
+def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]], *, guid: str,
+                             version: str | None = None) -> str:
     """Return the completed modelDescription.xml (see module docstring).
 
     Parameters
@@ -74,9 +76,16 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
         ``SafeSlave.variable_meta`` of the slave: name -> unit, min, max, nominal, depends_on.
     guid : str
         The GUID to write.
+    version : str, optional
+        tapmuscle's version: the model's ``version`` attribute, and ``generationTool`` becomes
+        ``tapmuscle <version> (PythonFMU <its version>)``, so a tool's FMU browser says which
+        release built the FMU.
     """
     root = ET.fromstring(xml_text)
     root.set("guid", guid)
+    if version is not None:
+        root.set("version", version)
+        root.set("generationTool", f"tapmuscle {version} ({root.get('generationTool', 'PythonFMU')})")
     root.attrib.pop("generationDateAndTime", None)
     cs = root.find("CoSimulation")
     cs.set("canGetAndSetFMUstate", "true")

@@ -4,10 +4,13 @@ import os
 import shutil
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 import zipfile
 
 import pytest
+import pythonfmu
 
+import tapmuscle
 from build_scripts.build_fmus import FMUS, build_fmus, private_package
 from build_scripts.model_description import finish_model_description
 from tapmuscle.cli.main import main
@@ -34,6 +37,16 @@ def test_guid_follows_the_content(built_fmus):
             entry = z.read("resources/slavemodule.txt").decode().strip()
             assert f"resources/{entry}.py" in z.namelist() and entry.startswith(f"_tapmuscle_{name.lower()}_")
     assert len(set(guids.values())) == 2
+
+
+def test_the_model_descriptions_name_the_release_that_built_them(built_fmus):
+    """An FMI tool's FMU browser shows ``version`` and ``generationTool``: tapmuscle's release, and
+    the PythonFMU it runs on."""
+    for name, path in built_fmus.items():
+        with zipfile.ZipFile(path) as z:
+            root = ET.fromstring(z.read("modelDescription.xml"))
+        assert root.get("version") == tapmuscle.__version__, name
+        assert root.get("generationTool") == f"tapmuscle {tapmuscle.__version__} (PythonFMU {pythonfmu.__version__})"
 
 
 def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
