@@ -52,3 +52,6 @@ def pytest_collection_modifyitems(config, items):
         for fixture, mark in _FIXTURE_MARKS.items():
             if fixture in getattr(item, "fixturenames", ()):
                 item.add_marker(getattr(pytest.mark, mark))
+    # The slow tests first (stable otherwise): with `-n auto` the long diagnosis runs start early and the
+    # quick tests fill the gaps, instead of a long one starting last while the other core idles.
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
