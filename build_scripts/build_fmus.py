@@ -190,7 +190,7 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
     unknown = [n for n in names or () if n not in FMUS]
     if unknown:
         raise ValueError(f"unknown FMU {unknown[0]!r}; known: {', '.join(FMUS)}")
-    built = []
+    built, version = [], project_version()
     for name in names or tuple(FMUS):
         script, packages = FMUS[name]
         meta = slave_metadata(name)
@@ -216,7 +216,6 @@ def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Pa
             _prepare_native_hosts(tree)
             md = tree / "modelDescription.xml"
             raw = md.read_text(encoding="utf-8")
-            version = project_version()
             md.write_text(finish_model_description(raw, meta, guid="{pending}", version=version), encoding="utf-8")
             md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree)), version=version),
                           encoding="utf-8")
