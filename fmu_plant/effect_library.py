@@ -64,7 +64,17 @@ class TransportDelay(Effect):
     def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
         self._record(t0_s, u_v)
         d = self.delay_s
-        return [t + d for t in self._times if t0_s < t + d < t1_s]
+        # from the newest change back: the times are in order, so the first change seen at or before
+        # t0_s ends the search (the step is called for every sample)
+        out = []
+        for t in reversed(self._times):
+            seen_s = t + d
+            if seen_s <= t0_s:
+                break
+            if seen_s < t1_s:
+                out.append(seen_s)
+        out.reverse()
+        return out
 
     def valve_command(self, t_s: float, u_v: float) -> float:
         self._record(t_s, u_v)
@@ -153,23 +163,23 @@ class SupplyPressureVariation(Effect):
 
     def __init__(self, p: SupplyVariationParams) -> None:
         self.p = p
+        # read once: the port is sampled at every integration sub-step
+        self._sag, self._start, self._end = p.sag_mpa, p.start_s, p.end_s
+        self._ramp, self._back = p.ramp_s, p.recovery_s
+        self._corners = () if p.sag_mpa == 0.0 else (p.start_s, p.start_s + p.ramp_s, p.end_s, p.end_s + p.recovery_s)
 
     def sag_mpa(self, t_s: float) -> float:
         """Drop of the supply pressure at ``t_s`` [MPa] (trapezoid in time)."""
-        p = self.p
-        if p.sag_mpa == 0.0 or t_s <= p.start_s:
+        if self._sag == 0.0 or t_s <= self._start:
             return 0.0
-        ramp, back = p.ramp_s, p.recovery_s
-        up = 1.0 if ramp == 0.0 else min(1.0, (t_s - p.start_s) / ramp)
-        down = 1.0 if t_s <= p.end_s else 0.0 if back == 0.0 else max(0.0, 1.0 - (t_s - p.end_s) / back)
-        return p.sag_mpa * min(up, down)
+        ramp, back = self._ramp, self._back
+        up = 1.0 if ramp == 0.0 else min(1.0, (t_s - self._start) / ramp)
+        end = self._end
+        down = 1.0 if t_s <= end else 0.0 if back == 0.0 else max(0.0, 1.0 - (t_s - end) / back)
+        return self._sag * min(up, down)
 
     def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
-        p = self.p
-        if p.sag_mpa == 0.0:
-            return []
-        corners = (p.start_s, p.start_s + p.ramp_s, p.end_s, p.end_s + p.recovery_s)
-        return [t for t in corners if t0_s < t < t1_s]
+        return [t for t in self._corners if t0_s < t < t1_s]
 
     def supply_pressure(self, t_s: float, p_mpa: float) -> float:
         ps = p_mpa - self.sag_mpa(t_s)

@@ -42,8 +42,7 @@ bit-for-bit reproducible.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -68,16 +67,25 @@ MAX_STEP_S = 3600.0
 _NOISE_BLOCK = 64
 
 
-@dataclass(frozen=True)
-class Measurement:
-    """What the rig's instruments report after a step."""
+class Measurement(NamedTuple):
+    """What the rig's instruments report after a step: ``t_s, l_mm, p_mpa = plant.step(u_v, dt_s)``.
+
+    A named tuple (immutable), as cheap to make as the plant's step needs: a diagnosis steps the
+    plant millions of times.
+
+    Attributes
+    ----------
+    t_s : float
+        Time at the end of the step [s].
+    l_mm : float
+        Encoder reading of the contraction [mm] (noise, 0.01 mm quantisation).
+    p_mpa : float
+        Pressure-sensor reading [MPa(G)].
+    """
 
     t_s: float
-    """Time at the end of the step [s]."""
     l_mm: float
-    """Encoder reading of the contraction [mm] (noise, 0.01 mm quantisation)."""
     p_mpa: float
-    """Pressure-sensor reading [MPa(G)]."""
 
 
 def _effect_states(saved: Any, effects: Sequence[Effect]) -> list[dict[str, Any] | None]:
@@ -119,6 +127,27 @@ def _finite(name: str, value: Any) -> float:
     if not math.isfinite(f):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return f
+
+
+def _step_length(dt_s: Any) -> float:
+    dt_s = _finite("dt_s", dt_s)
+    if not 0.0 < dt_s <= MAX_STEP_S:
+        raise ValueError(f"dt_s must be within (0, {MAX_STEP_S}] s, got {dt_s!r}")
+    return dt_s
+
+
+def _finite_array(name: str, values: Any) -> np.ndarray:
+    """``values`` as a 1-D float array, every entry finite (else a ValueError naming the first bad one)."""
+    try:
+        a = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a sequence of numbers, got {values!r}") from None
+    if a.ndim != 1:
+        raise ValueError(f"{name} must be one-dimensional, got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ValueError(f"{name}[{bad[0]}] must be finite, got {float(a[bad[0]])!r}")
+    return a
 
 
 class Plant:
@@ -234,13 +263,77 @@ class Plant:
             parameters). The state is that of the start of the step.
         """
         u_v = _finite("u_v", u_v)
-        dt_s = _finite("dt_s", dt_s)
-        if not 0.0 < dt_s <= MAX_STEP_S:
-            raise ValueError(f"dt_s must be within (0, {MAX_STEP_S}] s, got {dt_s!r}")
+        dt_s = _step_length(dt_s)
+        self._integrate(u_v, dt_s)
+        self.measurement = self._measure()
+        return self.measurement
+
+    def step_many(self, u_v: Sequence[float] | np.ndarray, dt_s: float, *,
+                  load_n: Sequence[float] | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Hold each command of ``u_v`` [V] for ``dt_s`` [s] in turn; the readings after each step.
+
+        The same, bit for bit, as calling :meth:`step` once per command (and :meth:`update` before a
+        step whose load differs), without the per-step checks and records: a diagnosis re-simulates a
+        recording's commands thousands of times.
+
+        Parameters
+        ----------
+        u_v : sequence of float
+            Valve commands [V], one per step.
+        dt_s : float
+            Length of every step [s], within (0, 3600].
+        load_n : sequence of float, optional
+            Hanging load [N] during each step, within 0..500 (default: the current load throughout).
+
+        Returns
+        -------
+        l_mm, p_mpa : ndarray
+            Encoder and pressure-sensor readings [mm], [MPa(G)] at the end of each step, as
+            :attr:`measurement` (which holds the last of them afterwards).
+
+        Raises
+        ------
+        ValueError
+            A command or load that is not finite or out of range (its index named), or a bad ``dt_s``;
+            the plant is unchanged then.
+        FloatingPointError
+            As :meth:`step`; the plant is at the start of the step that failed.
+        """
+        u = _finite_array("u_v", u_v)
+        dt_s = _step_length(dt_s)
+        loads = None
+        if load_n is not None:
+            w = _finite_array("load_n", load_n)
+            if len(w) != len(u):
+                raise ValueError(f"load_n has {len(w)} values for {len(u)} commands in u_v")
+            out = np.flatnonzero((w < 0.0) | (w > 500.0))
+            if out.size:
+                raise ValueError(f"load_n[{out[0]}] must be within 0..500 N, got {float(w[out[0]])!r}")
+            loads = w.tolist()
+        l_mm: list[float] = []
+        p_mpa: list[float] = []
+        integrate, readings = self._integrate, self._readings
+        try:
+            for i, u_i in enumerate(u.tolist()):
+                if loads is not None and loads[i] != self.load_n:
+                    self.load_n = loads[i]
+                integrate(u_i, dt_s)
+                l_i, p_i = readings()
+                l_mm.append(l_i)
+                p_mpa.append(p_i)
+        finally:
+            if l_mm:
+                self.measurement = Measurement(self.t_s, l_mm[-1], p_mpa[-1])
+        return np.array(l_mm, dtype=float), np.array(p_mpa, dtype=float)
+
+    def _integrate(self, u_v: float, dt_s: float) -> None:
+        """Advance the state by one step of a checked command and length (:meth:`step`)."""
         self.u_v = u_v
         t0 = self.t_s
         t1 = t0 + dt_s
-        cuts = sorted({t for f in self._breakpoint_hooks for t in f(t0, t1, u_v)}) if self._breakpoint_hooks else ()
+        cuts = [t for f in self._breakpoint_hooks for t in f(t0, t1, u_v)] if self._breakpoint_hooks else ()
+        if len(cuts) > 1:
+            cuts = sorted(set(cuts))
         if cuts:  # end sub-steps exactly where an effect's port signal jumps
             saved = (list(self.state), self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate)
             try:
@@ -255,8 +348,6 @@ class Plant:
         else:
             self._advance(t0, dt_s)
         self.t_s = t1
-        self.measurement = self._measure()
-        return self.measurement
 
     # ------------------------------------------------------------------ outputs
     #: The latest sensor readings (from :meth:`reset` or :meth:`step`).
@@ -350,7 +441,12 @@ class Plant:
         return self._noise[self._noise_i - 1]
 
     def _measure(self) -> Measurement:
-        """Sensor readings of the current state (sensors.py: noise, then quantisation, then range)."""
+        """Sensor readings of the current state, timed."""
+        return Measurement(self.t_s, *self._readings())
+
+    def _readings(self) -> tuple[float, float]:
+        """Encoder [mm] and pressure [MPa(G)] readings of the current state (sensors.py: noise, then
+        quantisation, then range); draws the noise and updates the measurement effects."""
         sp = self.params.sensor
         l_seen = self.state[2]
         for f in self._measurement_hooks:
@@ -361,8 +457,7 @@ class Plant:
         if sp.pressure_noise_std_mpa > 0.0:
             p_seen = p_seen + sp.pressure_noise_std_mpa * self._normal()
         p_seen = quantise(p_seen, sp.pressure_resolution_mpa)
-        return Measurement(self.t_s, quantise(l_seen, sp.encoder_resolution_mm),
-                           min(max(p_seen, 0.0), sp.pressure_range_mpa))
+        return quantise(l_seen, sp.encoder_resolution_mm), min(max(p_seen, 0.0), sp.pressure_range_mpa)
 
     # ------------------------------------------------------------------ dynamics
     def _ports(self, t_s: float) -> tuple[float, float, float]:

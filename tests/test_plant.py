@@ -173,3 +173,58 @@ def test_docs_list_every_parameter_with_its_value():
         sub = getattr(p, group.name)
         for f in fields(sub):
             assert f"| `{group.name}.{f.name}` | {getattr(sub, f.name):g} |" in text, f"{group.name}.{f.name}"
+
+
+#: Every library effect at once, each with a value that acts in a 40-s run (the delay cuts every step).
+_ALL_EFFECTS = {"delay.delay_s": 0.13, "dead_zone.center_v": 4.0, "dead_zone.width_v": 0.5,
+                "supply_variation.sag_mpa": 0.03, "supply_variation.start_s": 15.0, "supply_variation.end_s": 25.0,
+                "load_mismatch.extra_n": 5.0, "backlash.slack_mm": 0.5, "sensor_drift.rate_mm_per_min": 1.0,
+                "input_map.out_at_0_v": 0.6, "input_map.out_at_10_v": 9.4}
+
+
+@pytest.mark.parametrize("values", [{}, _ALL_EFFECTS], ids=["nominal", "every-effect"])
+def test_step_many_is_step_in_a_loop_bit_for_bit(values):
+    """The batch loop is a speed path, not another model: the same readings, state, noise draws and
+    effect states as one step() per command, with the load changing where load_n says."""
+    params = PlantParams().with_values(**values)
+    rng = np.random.default_rng(5)
+    u = np.clip(5.0 + np.cumsum(rng.normal(0.0, 0.4, 400)), -1.0, 11.0)  # also beyond the valve's range
+    load = np.where(np.arange(400) < 200, 44.0, 68.0)
+    one = Plant(params, seed=9)
+    by_step = []
+    for u_k, w_k in zip(u, load):
+        if w_k != one.load_n:
+            one.update(load_n=w_k)
+        by_step.append(one.step(u_k, 0.1))
+    many = Plant(params, seed=9)
+    l_mm, p_mpa = many.step_many(u[:150], 0.1, load_n=load[:150])
+    l2, p2 = many.step_many(list(u[150:]), 0.1, load_n=list(load[150:]))
+    assert np.array_equal(np.concatenate([l_mm, l2]), [m.l_mm for m in by_step])
+    assert np.array_equal(np.concatenate([p_mpa, p2]), [m.p_mpa for m in by_step])
+    assert many.measurement == by_step[-1] and many.state == one.state
+    assert many.get_state() == one.get_state()
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"u_v": [5.0, math.nan]}, r"u_v\[1\] must be finite, got nan"),
+    ({"u_v": [[5.0]]}, r"u_v must be one-dimensional"),
+    ({"u_v": ["five"]}, r"u_v must be a sequence of numbers"),
+    ({"dt_s": 0.0}, r"dt_s must be within"),
+    ({"load_n": [44.0, 44.0, 600.0]}, r"load_n\[2\] must be within 0..500 N, got 600.0"),
+    ({"load_n": [44.0, math.inf, 44.0]}, r"load_n\[1\] must be finite"),
+    ({"load_n": [44.0]}, r"load_n has 1 values for 3 commands"),
+])
+def test_step_many_refuses_bad_input_by_index_and_leaves_the_plant_alone(kw, match):
+    plant = Plant(seed=2)
+    plant.step(6.0, 0.1)
+    before = plant.get_state()
+    args = {"u_v": [5.0, 6.0, 7.0], "dt_s": 0.1, **kw}
+    with pytest.raises(ValueError, match=match):
+        plant.step_many(args.pop("u_v"), args.pop("dt_s"), **args)
+    assert plant.get_state() == before
+
+
+def test_step_many_of_no_commands_changes_nothing():
+    plant = Plant(seed=2)
+    l_mm, p_mpa = plant.step_many([], 0.1)
+    assert l_mm.shape == p_mpa.shape == (0,) and plant.t_s == 0.0 and plant.measurement.t_s == 0.0
