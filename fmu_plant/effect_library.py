@@ -43,6 +43,7 @@ class TransportDelay(Effect):
     """
 
     name = "transport_delay"
+    held_between_breakpoints = True
 
     def __init__(self, p: DelayParams) -> None:
         self.delay_s = p.delay_s
@@ -130,6 +131,7 @@ class InputMap(Effect):
     """
 
     name = "input_map"
+    held_between_breakpoints = True
 
     def __init__(self, p: InputMapParams) -> None:
         self.p = p
@@ -147,6 +149,7 @@ class ValveDeadZone(Effect):
     """
 
     name = "valve_dead_zone"
+    held_between_breakpoints = True
 
     def __init__(self, p: DeadZoneParams) -> None:
         self.lo_v = p.center_v - 0.5 * p.width_v
@@ -192,6 +195,7 @@ class LoadMismatch(Effect):
     """The muscle carries ``extra_n`` more than the nominal load."""
 
     name = "load_mismatch"
+    held_between_breakpoints = True
 
     def __init__(self, p: LoadMismatchParams) -> None:
         self.extra_n = p.extra_n

@@ -31,7 +31,8 @@ solves four 4x4 linear systems with the analytic Jacobian of the stiff couplings
 2nd-order solution estimates the local error, and the step size follows the tolerances in
 ``SolverParams`` (``docs/plant.md``, "Integration"). Sub-steps end exactly on every communication
 point, so the trajectory does not depend on the communication step beyond those tolerances. The
-effect ports (effects.py) are sampled at the start of every sub-step.
+effect ports (effects.py) are sampled at the start of every sub-step (once per stretch between
+breakpoints for effects that hold their signals there).
 
 Lifecycle, as osqp's setup -> update -> solve: ``Plant(params)`` sets up, :meth:`Plant.update` changes
 the load or supply pressure between steps (they may change during a run), :meth:`Plant.step` advances
@@ -119,6 +120,15 @@ def _hooks(effects: Sequence[Effect], hook: str) -> tuple[Callable[..., Any], ..
     return tuple(f for f in bound if getattr(f, "__func__", None) is not base)
 
 
+def _held_between_breakpoints(effect: Effect) -> bool:
+    """Whether ``effect``'s port signals are constant between its breakpoints (its class says so,
+    and no port hook of it was replaced on the instance)."""
+    port_hooks = ("valve_command", "valve_gate", "supply_pressure", "load")
+    if not any(_hooks([effect], h) for h in port_hooks):
+        return True  # on no port (a measurement effect)
+    return effect.held_between_breakpoints and not any(h in vars(effect) for h in port_hooks)
+
+
 def _finite(name: str, value: Any) -> float:
     try:
         f = float(value)
@@ -190,6 +200,10 @@ class Plant:
         self._measurement_hooks = _hooks(self.effects, "measurement")
         self._breakpoint_hooks = _hooks(self.effects, "breakpoints")
         self._acts_on_ports = bool(self._command_hooks or self._gate_hooks or self._supply_hooks or self._load_hooks)
+        # Ports that hold still between breakpoints are sampled once per integration segment: the
+        # sub-steps would sample the same values (the shortest sub-step, 1e-9 s, is far longer than a
+        # delay's 1e-12-s guard), and a sub-step's Python call costs more than its arithmetic.
+        self._ports_held = all(_held_between_breakpoints(e) for e in self.effects)
         self._geometry = MuscleGeometry.from_params(self.params.muscle)
         vp = self.params.valve
         self._k_valve = vp.cv_max * CV_TO_SI_WATER
@@ -519,10 +533,13 @@ class Plant:
         # the ports are sampled at every sub-step where an effect acts on them; a gate left from a
         # restored state is reset by their first sampling
         ports = self._ports if self._acts_on_ports or self._gate != 1.0 else None
+        u, ps, w = self.u_v, self.supply_pressure_mpa, self.load_n
+        if ports is not None and self._ports_held:
+            u, ps, w = ports(t0)
+            ports = None
         x, p, l, v, z = self.state
         x, p, l, v, z, xs, self._kink_scale, self._last_supply_mpa, failed_at = self._advance_substeps(
-            x, p, l, v, z, self._xs_last, self._kink_scale, self._last_supply_mpa, self.u_v,
-            self.supply_pressure_mpa, self.load_n, t0, dt, ports)
+            x, p, l, v, z, self._xs_last, self._kink_scale, self._last_supply_mpa, u, ps, w, t0, dt, ports)
         if failed_at == failed_at:  # not NaN: the numbers broke down at the shortest sub-step
             raise FloatingPointError(f"plant integration failed at t = {failed_at:.6g} s: the state "
                                      f"({', '.join(f'{v:.6g}' for v in self.state)}) went non-finite at "

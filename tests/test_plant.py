@@ -117,6 +117,49 @@ def test_a_hook_set_on_an_effect_instance_acts_as_one_in_its_class():
     assert np.array_equal(_run(Plant(seed=0, effects=[offset]), 4.0, 200), _run(Plant(seed=0), 5.0, 200))
 
 
+class _SupplyRamp(Effect):
+    """The supply falls by 0.02 MPa/s: a port signal that changes within a step."""
+
+    name = "supply_ramp"
+
+    def supply_pressure(self, t_s, p_mpa):
+        return p_mpa - 0.02 * t_s
+
+
+class _HeldSupplyRamp(_SupplyRamp):
+    held_between_breakpoints = True  # wrongly: to show that the flag decides the sampling
+
+
+def test_ports_that_vary_within_a_step_are_sampled_at_every_sub_step_unless_declared_held():
+    # 1-s steps: many sub-steps each, so sampling once per step visibly changes the trajectory
+    every = _run(Plant(seed=0, effects=[_SupplyRamp()]), 9.0, 12, dt=1.0)
+    once = _run(Plant(seed=0, effects=[_HeldSupplyRamp()]), 9.0, 12, dt=1.0)
+    assert np.max(np.abs(every - once)) > 0.02
+    # a held effect whose port hook was replaced on the instance is sampled at every sub-step again
+    patched = _HeldSupplyRamp()
+    patched.supply_pressure = lambda t_s, p_mpa: p_mpa - 0.02 * t_s
+    assert np.array_equal(_run(Plant(seed=0, effects=[patched]), 9.0, 12, dt=1.0), every)
+
+
+def test_a_held_effect_is_sampled_once_per_stretch_between_breakpoints():
+    from fmu_plant.effect_library import TransportDelay
+    from fmu_plant.parameters import DelayParams
+
+    calls = []
+
+    class CountedDelay(TransportDelay):
+        def valve_command(self, t_s, u_v):
+            calls.append(t_s)
+            return super().valve_command(t_s, u_v)
+
+    plant = Plant(seed=0, effects=[CountedDelay(DelayParams(delay_s=0.25))])
+    for k in range(20):
+        plant.step(4.0 + (k % 2), 0.1)  # a new command every step: one delayed change inside each step
+    # from the third step (0.2 .. 0.3 s) on, each is cut once, where the change made 0.25 s before
+    # arrives: two stretches, one sampling each (the sub-steps within them sample nothing)
+    assert calls[:4] == pytest.approx([0.0, 0.1, 0.2, 0.25], abs=1e-15) and len(calls) == 2 + 2 * 18
+
+
 def test_rate_dependence_resists_fast_motion_and_can_be_switched_off():
     def swing(rate_gain):
         prm = PlantParams().with_values(**{"friction.rate_gain": rate_gain, "sensor.encoder_noise_std_mm": 0.0})
