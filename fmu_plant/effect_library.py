@@ -43,7 +43,6 @@ class TransportDelay(Effect):
     """
 
     name = "transport_delay"
-    held_between_breakpoints = True
 
     def __init__(self, p: DelayParams) -> None:
         self.delay_s = p.delay_s
@@ -76,6 +75,11 @@ class TransportDelay(Effect):
                 out.append(seen_s)
         out.reverse()
         return out
+
+    def held(self, t0_s: float, t1_s: float) -> bool:
+        # between breakpoints the delayed command is one value (the 1e-12-s guard below is far shorter
+        # than the plant's shortest sub-step, 1e-9 s, so no sub-step starts within it)
+        return True
 
     def valve_command(self, t_s: float, u_v: float) -> float:
         self._record(t_s, u_v)
@@ -131,13 +135,15 @@ class InputMap(Effect):
     """
 
     name = "input_map"
-    held_between_breakpoints = True
 
     def __init__(self, p: InputMapParams) -> None:
         self.p = p
 
     def valve_command(self, t_s: float, u_v: float) -> float:
         return input_map_v(u_v, self.p)
+
+    def held(self, t0_s: float, t1_s: float) -> bool:
+        return True  # a function of the held command alone
 
 
 class ValveDeadZone(Effect):
@@ -149,7 +155,6 @@ class ValveDeadZone(Effect):
     """
 
     name = "valve_dead_zone"
-    held_between_breakpoints = True
 
     def __init__(self, p: DeadZoneParams) -> None:
         self.lo_v = p.center_v - 0.5 * p.width_v
@@ -157,6 +162,9 @@ class ValveDeadZone(Effect):
 
     def valve_gate(self, t_s: float, u_v: float) -> float:
         return 0.0 if self.lo_v < u_v < self.hi_v else 1.0
+
+    def held(self, t0_s: float, t1_s: float) -> bool:
+        return True  # a function of the held command alone
 
 
 class SupplyPressureVariation(Effect):
@@ -184,6 +192,22 @@ class SupplyPressureVariation(Effect):
     def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
         return [t for t in self._corners if t0_s < t < t1_s]
 
+    def held(self, t0_s: float, t1_s: float) -> bool:
+        """Constant before the sag, on its plateau and after its recovery (no ripple). Each test is
+        one that, true at ``t0_s`` or ``t1_s``, holds at every instant between, float for float:
+        ``sag_mpa``'s subtractions and divisions are monotone in ``t_s``."""
+        if self.p.ripple_mpa:
+            return False
+        if self._sag == 0.0 or t1_s <= self._start:
+            return True  # sag_mpa is 0.0 up to start_s
+        if t0_s <= self._start:
+            return False
+        ramp, back = self._ramp, self._back
+        if t1_s <= self._end:  # the fall's fraction is 1.0 from t0_s on: the plateau
+            return ramp == 0.0 or (t0_s - self._start) / ramp >= 1.0
+        # the recovery's fraction is 0.0 from t0_s on: recovered
+        return t0_s > self._end and (back == 0.0 or 1.0 - (t0_s - self._end) / back <= 0.0)
+
     def supply_pressure(self, t_s: float, p_mpa: float) -> float:
         ps = p_mpa - self.sag_mpa(t_s)
         if self.p.ripple_mpa:
@@ -195,7 +219,6 @@ class LoadMismatch(Effect):
     """The muscle carries ``extra_n`` more than the nominal load."""
 
     name = "load_mismatch"
-    held_between_breakpoints = True
 
     def __init__(self, p: LoadMismatchParams) -> None:
         self.extra_n = p.extra_n
@@ -203,6 +226,9 @@ class LoadMismatch(Effect):
     def load(self, t_s: float, load_n: float) -> float:
         w = load_n + self.extra_n
         return w if w > 0.0 else 0.0
+
+    def held(self, t0_s: float, t1_s: float) -> bool:
+        return True
 
 
 class Backlash(Effect):

@@ -16,9 +16,9 @@ hook                   signal                                          typical e
 
 An effect whose port signal jumps at known instants (a delayed command change, the start of a supply
 sag) reports them from :meth:`Effect.breakpoints`; the plant then ends an integration sub-step exactly
-there. An effect whose signals are constant between those instants (for a held command) says so with
-:attr:`Effect.held_between_breakpoints`, and its ports are then sampled once per stretch between
-breakpoints rather than at every sub-step. The concrete effects are in ``effect_library.py``.
+there. An effect whose signals hold still over a stretch of time (between those instants, for a held
+command) says so from :meth:`Effect.held`, and its ports are then sampled once per stretch rather than
+at every sub-step. The concrete effects are in ``effect_library.py``.
 
 An effect with memory (a delay line, a backlash position) keeps it in its own state, resets it in
 :meth:`Effect.reset` and exposes it via :meth:`Effect.get_state` / :meth:`Effect.set_state` so that
@@ -38,11 +38,6 @@ class Effect:
     #: Short machine name of the effect (e.g. ``"transport_delay"``).
     name: str = "identity"
 
-    #: True if, while the command is held, every port signal of this effect is constant between the
-    #: instants :meth:`breakpoints` reports (a delay, a static map, a load offset): the plant then
-    #: samples the ports once per stretch between breakpoints instead of at every integration
-    #: sub-step, with the same result. False (the default) for a signal that may vary with time (a ramp).
-    held_between_breakpoints: bool = False
 
     def reset(self, t_s: float, u_v: float, l_mm: float) -> None:
         """Forget memory; called by :meth:`Plant.reset` with the initial time, command and contraction."""
@@ -59,6 +54,14 @@ class Effect:
         """Instants strictly inside ``(t0_s, t1_s)`` [s] where a port signal jumps, for a step that holds
         the command ``u_v`` [V] from ``t0_s``."""
         return []
+
+    def held(self, t0_s: float, t1_s: float) -> bool:
+        """True if every port signal of this effect has the same value at every instant of
+        ``[t0_s, t1_s]`` [s], a stretch within one step (between two of its breakpoints, the command
+        held): the plant then samples the ports once, at ``t0_s``, instead of at every integration
+        sub-step, with the same result. The default, False, is always safe; a wrong True changes the
+        trajectory."""
+        return False
 
     def supply_pressure(self, t_s: float, p_mpa: float) -> float:
         """Supply gauge pressure seen by the supply valve [MPa]."""

@@ -120,13 +120,20 @@ def _hooks(effects: Sequence[Effect], hook: str) -> tuple[Callable[..., Any], ..
     return tuple(f for f in bound if getattr(f, "__func__", None) is not base)
 
 
-def _held_between_breakpoints(effect: Effect) -> bool:
-    """Whether ``effect``'s port signals are constant between its breakpoints (its class says so,
-    and no port hook of it was replaced on the instance)."""
-    port_hooks = ("valve_command", "valve_gate", "supply_pressure", "load")
-    if not any(_hooks([effect], h) for h in port_hooks):
-        return True  # on no port (a measurement effect)
-    return effect.held_between_breakpoints and not any(h in vars(effect) for h in port_hooks)
+def _hold_checks(effects: Sequence[Effect]) -> tuple[Callable[[float, float], bool], ...] | None:
+    """The :meth:`Effect.held` methods of the ``effects`` that act on a port, or None if one of them
+    has a port hook replaced on the instance (which its class's ``held`` knows nothing of)."""
+    checks = []
+    for e in effects:
+        replaced = [h for h in _PORT_HOOKS if _hooks([e], h)]
+        if replaced:
+            if any(h in vars(e) for h in replaced):
+                return None
+            checks.append(e.held)
+    return tuple(checks)
+
+
+_PORT_HOOKS = ("valve_command", "valve_gate", "supply_pressure", "load")
 
 
 def _finite(name: str, value: Any) -> float:
@@ -200,10 +207,10 @@ class Plant:
         self._measurement_hooks = _hooks(self.effects, "measurement")
         self._breakpoint_hooks = _hooks(self.effects, "breakpoints")
         self._acts_on_ports = bool(self._command_hooks or self._gate_hooks or self._supply_hooks or self._load_hooks)
-        # Ports that hold still between breakpoints are sampled once per integration segment: the
-        # sub-steps would sample the same values (the shortest sub-step, 1e-9 s, is far longer than a
-        # delay's 1e-12-s guard), and a sub-step's Python call costs more than its arithmetic.
-        self._ports_held = all(_held_between_breakpoints(e) for e in self.effects)
+        # Ports that hold still over a stretch between breakpoints are sampled once for it (Effect.held):
+        # the sub-steps would sample the same values, and a sub-step's Python call costs more than
+        # its arithmetic.
+        self._hold_checks = _hold_checks(self.effects)
         self._geometry = MuscleGeometry.from_params(self.params.muscle)
         vp = self.params.valve
         self._k_valve = vp.cv_max * CV_TO_SI_WATER
@@ -534,7 +541,7 @@ class Plant:
         # restored state is reset by their first sampling
         ports = self._ports if self._acts_on_ports or self._gate != 1.0 else None
         u, ps, w = self.u_v, self.supply_pressure_mpa, self.load_n
-        if ports is not None and self._ports_held:
+        if ports is not None and self._hold_checks is not None and all(h(t0, t0 + dt) for h in self._hold_checks):
             u, ps, w = ports(t0)
             ports = None
         x, p, l, v, z = self.state

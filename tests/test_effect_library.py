@@ -84,6 +84,40 @@ def test_the_sag_recovers_over_its_own_ramp():
                           _run({**sag, "supply_variation.recovery_ramp_s": 1.0}, duration=30.0)["l_mm"])
 
 
+def test_a_sag_said_to_hold_over_a_stretch_gives_one_value_throughout_it():
+    """``held`` lets the plant sample the supply once per stretch: wherever it says True, every
+    instant of the stretch (its ends, their neighbouring floats, points between) must give the same
+    bits, and it must say True on the plateau and before and after the sag, where the time goes."""
+    from fmu_plant.effect_library import SupplyPressureVariation
+    from fmu_plant.parameters import SupplyVariationParams
+    rng = np.random.default_rng(3)
+    said = 0
+    for _ in range(300):
+        start = float(rng.choice([0.0, 10.0, rng.uniform(0.0, 50.0)]))
+        p = SupplyVariationParams(sag_mpa=float(rng.uniform(0.001, 0.2)), start_s=start,
+                                  end_s=start + float(rng.choice([0.0, 3.0, rng.uniform(0.0, 40.0)])),
+                                  ramp_s=float(rng.choice([0.0, 1.0, 0.3, rng.uniform(0.0, 5.0)])),
+                                  recovery_ramp_s=float(rng.choice([-1.0, 0.0, rng.uniform(0.0, 5.0)])))
+        sag = SupplyPressureVariation(p)
+        corners = sag.breakpoints(-1.0, 1e9, 5.0)
+        for _ in range(40):
+            t0 = float(rng.choice([*corners, rng.uniform(-1.0, 100.0)]))
+            t1 = t0 + float(rng.choice([1e-9, 0.01, 0.1, rng.uniform(0.0, 2.0)]))
+            if not sag.held(t0, t1):
+                continue
+            said += 1
+            ts = [t0, t1, np.nextafter(t0, np.inf), np.nextafter(t1, -np.inf), *rng.uniform(t0, t1, 8)]
+            values = {sag.supply_pressure(float(t), 0.25) for t in ts}
+            assert len(values) == 1, (p, t0, t1, values)
+        plateau = p.start_s + p.ramp_s + 0.5
+        if plateau + 0.1 <= p.end_s:
+            assert sag.held(plateau, plateau + 0.1)
+        assert sag.held(p.start_s - 0.2, p.start_s - 0.1) and sag.held(p.end_s + p.recovery_s + 0.5, 1e6)
+    assert said > 4000
+    rippled = SupplyPressureVariation(SupplyVariationParams(ripple_mpa=0.01))
+    assert not rippled.held(0.0, 0.1)
+
+
 def test_load_mismatch_is_the_same_as_a_heavier_load():
     a = _run({"load_mismatch.extra_n": 10.0})
     b = _run({"load.load_n": 54.0})

@@ -127,7 +127,8 @@ class _SupplyRamp(Effect):
 
 
 class _HeldSupplyRamp(_SupplyRamp):
-    held_between_breakpoints = True  # wrongly: to show that the flag decides the sampling
+    def held(self, t0_s, t1_s):
+        return True  # wrongly: to show that held decides the sampling
 
 
 def test_ports_that_vary_within_a_step_are_sampled_at_every_sub_step_unless_declared_held():
