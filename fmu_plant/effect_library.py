@@ -62,7 +62,8 @@ class TransportDelay(Effect):
                 del self._times[:cut], self._values[:cut]
 
     def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
-        self._record(t0_s, u_v)
+        if u_v != self._values[-1]:  # (_record's own first test, without the call)
+            self._record(t0_s, u_v)
         d = self.delay_s
         # from the newest change back: the times are in order, so the first change seen at or before
         # t0_s ends the search (the step is called for every sample)
@@ -82,7 +83,8 @@ class TransportDelay(Effect):
         return True
 
     def valve_command(self, t_s: float, u_v: float) -> float:
-        self._record(t_s, u_v)
+        if u_v != self._values[-1]:
+            self._record(t_s, u_v)
         # 1e-12 s guard: a sub-step starting at t_change + delay sees the new value despite rounding
         i = bisect.bisect_right(self._times, t_s - self.delay_s + 1e-12) - 1
         return self._values[i if i >= 0 else 0]

@@ -535,13 +535,22 @@ class Plant:
         inv_mass = 1e3 / (load_n / GRAVITY_M_S2 + self.params.load.moving_mass_kg)
         return [dx, *self._rhs(x, p, l, v, z, ps_mpa, load_n, inv_mass)]
 
+    def _held(self, t0: float, t1: float) -> bool:
+        """Whether every port effect holds its signals over ``[t0, t1]`` (Effect.held)."""
+        if self._hold_checks is None:
+            return False
+        for held in self._hold_checks:  # a loop, not all(...) over a generator: it runs for every stretch
+            if not held(t0, t1):
+                return False
+        return True
+
     def _advance(self, t0: float, dt: float) -> None:
         """Integrate the state over ``[t0, t0 + dt]`` with adaptive ROS34PW2 sub-steps (module docstring)."""
         # the ports are sampled at every sub-step where an effect acts on them; a gate left from a
         # restored state is reset by their first sampling
         ports = self._ports if self._acts_on_ports or self._gate != 1.0 else None
         u, ps, w = self.u_v, self.supply_pressure_mpa, self.load_n
-        if ports is not None and self._hold_checks is not None and all(h(t0, t0 + dt) for h in self._hold_checks):
+        if ports is not None and self._held(t0, t0 + dt):
             u, ps, w = ports(t0)
             ports = None
         x, p, l, v, z = self.state
