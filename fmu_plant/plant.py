@@ -120,6 +120,10 @@ def _hooks(effects: Sequence[Effect], hook: str) -> tuple[Callable[..., Any], ..
     return tuple(f for f in bound if getattr(f, "__func__", None) is not base)
 
 
+#: The hooks of the ports sampled during the integration (the measurement hook is not one).
+_PORT_HOOKS = ("valve_command", "valve_gate", "supply_pressure", "load")
+
+
 def _hold_checks(effects: Sequence[Effect]) -> tuple[Callable[[float, float], bool], ...] | None:
     """The :meth:`Effect.held` methods of the ``effects`` that act on a port, or None if one of them
     has a port hook replaced on the instance (which its class's ``held`` knows nothing of)."""
@@ -131,9 +135,6 @@ def _hold_checks(effects: Sequence[Effect]) -> tuple[Callable[[float, float], bo
                 return None
             checks.append(e.held)
     return tuple(checks)
-
-
-_PORT_HOOKS = ("valve_command", "valve_gate", "supply_pressure", "load")
 
 
 def _finite(name: str, value: Any) -> float:
@@ -546,8 +547,9 @@ class Plant:
 
     def _advance(self, t0: float, dt: float) -> None:
         """Integrate the state over ``[t0, t0 + dt]`` with adaptive ROS34PW2 sub-steps (module docstring)."""
-        # the ports are sampled at every sub-step where an effect acts on them; a gate left from a
-        # restored state is reset by their first sampling
+        # the ports are sampled at every sub-step where an effect acts on them, or once for the stretch
+        # where every such effect holds its signals; a gate left from a restored state is reset by
+        # their first sampling
         ports = self._ports if self._acts_on_ports or self._gate != 1.0 else None
         u, ps, w = self.u_v, self.supply_pressure_mpa, self.load_n
         if ports is not None and self._held(t0, t0 + dt):
