@@ -52,8 +52,9 @@ class TransportDelay(Effect):
     def reset(self, t_s: float, u_v: float, l_mm: float) -> None:
         self._times, self._values = [t_s], [u_v]
 
-    def _record(self, t_s: float, u_v: float) -> None:
-        if u_v != self._values[-1] and t_s >= self._times[-1]:
+    def _record_change(self, t_s: float, u_v: float) -> None:
+        """Record a command ``u_v`` that differs from the last one recorded, from ``t_s`` on."""
+        if t_s >= self._times[-1]:
             self._times.append(t_s)
             self._values.append(u_v)
             # forget what can no longer be seen (keep the value in force at t - delay)
@@ -62,8 +63,8 @@ class TransportDelay(Effect):
                 del self._times[:cut], self._values[:cut]
 
     def breakpoints(self, t0_s: float, t1_s: float, u_v: float) -> list[float]:
-        if u_v != self._values[-1]:  # (_record's own first test, without the call)
-            self._record(t0_s, u_v)
+        if u_v != self._values[-1]:  # tested here: the ports call this at every stretch
+            self._record_change(t0_s, u_v)
         d = self.delay_s
         # from the newest change back: the times are in order, so the first change seen at or before
         # t0_s ends the search (the step is called for every sample)
@@ -84,7 +85,7 @@ class TransportDelay(Effect):
 
     def valve_command(self, t_s: float, u_v: float) -> float:
         if u_v != self._values[-1]:
-            self._record(t_s, u_v)
+            self._record_change(t_s, u_v)
         # 1e-12 s guard: a sub-step starting at t_change + delay sees the new value despite rounding
         i = bisect.bisect_right(self._times, t_s - self.delay_s + 1e-12) - 1
         return self._values[i if i >= 0 else 0]
