@@ -14,13 +14,13 @@ import math
 import os
 from importlib.machinery import EXTENSION_SUFFIXES
 from types import ModuleType
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable
 
 from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
-__all__ = ["build_model", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH", "KINK_SCALE_INITIAL",
-           "KINK_FLOOR", "FORCED_MAX", "adaptive_steps"]
+__all__ = ["build_model", "compiled_step_loop", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH",
+           "KINK_SCALE_INITIAL", "KINK_FLOOR", "FORCED_MAX", "adaptive_steps"]
 
 
 def _compiled_module() -> ModuleType | None:
@@ -225,6 +225,13 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
                 retry = True
 
     return advance
+
+
+def compiled_step_loop(advance: Callable[..., tuple[float, ...]]) -> Callable[..., tuple[Any, ...]] | None:
+    """The compiled step loop (``Model.run``, ``compiled_run.py``) of the model whose ``advance``
+    :func:`build_model` returned, or None for the Python sub-step's."""
+    model = getattr(advance, "__self__", None)
+    return model.run if _ros34pw2 is not None and isinstance(model, _ros34pw2.Model) else None
 
 
 def build_model(prm: PlantParams, *, compiled: bool | None = None

@@ -226,10 +226,13 @@ _ALL_EFFECTS = {"delay.delay_s": 0.13, "dead_zone.center_v": 4.0, "dead_zone.wid
                 "input_map.out_at_0_v": 0.6, "input_map.out_at_10_v": 9.4}
 
 
-@pytest.mark.parametrize("values", [{}, _ALL_EFFECTS], ids=["nominal", "every-effect"])
+@pytest.mark.parametrize("values", [{}, _ALL_EFFECTS, _ALL_EFFECTS | {"sensor.encoder_noise_std_mm": 0.0,
+                                                                     "sensor.pressure_noise_std_mpa": 0.0}],
+                         ids=["nominal", "every-effect", "every-effect-noise-free"])
 def test_step_many_is_step_in_a_loop_bit_for_bit(values):
     """The batch loop is a speed path, not another model: the same readings, state, noise draws and
-    effect states as one step() per command, with the load changing where load_n says."""
+    effect states as one step() per command, with the load changing where load_n says (noise-free, its
+    loop is the compiled one where that is installed)."""
     params = PlantParams().with_values(**values)
     rng = np.random.default_rng(5)
     u = np.clip(5.0 + np.cumsum(rng.normal(0.0, 0.4, 400)), -1.0, 11.0)  # also beyond the valve's range
