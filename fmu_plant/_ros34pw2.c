@@ -326,6 +326,11 @@ static double spool_target(const Constants *k, double u) {
     return xs < 0.0 ? 0.0 : xs > 1.0 ? 1.0 : xs;
 }
 
+/* Both valves open g (0..1) times as far beyond their leak (rosenbrock.build_model's set_gate). */
+static void set_gate(ModelObject *self, double g) {
+    self->k.kq_open = self->kq_open_full * g;
+}
+
 /* FloatingPointError of adaptive_steps when more than forced_max sub-steps of h_min were accepted over
  * their tolerances, with Python's message ("{:.6g}" is PyOS_double_to_string(.., 'g', 6, 0, ..)). */
 static PyObject *too_many_substeps(double t, double h_min, long forced) {
@@ -677,7 +682,7 @@ static int rig_ports(void *ctx, double t, double *u_out, double *ps_out, double 
     }
     if (gate != r->gate) {
         r->gate = gate;
-        r->model->k.kq_open = r->model->kq_open_full * gate;
+        set_gate(r->model, gate);
     }
     *u_out = u;
     *ps_out = ps;
@@ -753,7 +758,7 @@ static int rig_step(Rig *r, Track *tr, double t0, double dt, double *failed_at, 
         if (rc != STRETCH_OK) { /* the step's start again, as Plant._integrate restores it */
             *tr = saved;
             r->gate = saved_gate;
-            r->model->k.kq_open = r->model->kq_open_full * saved_gate;
+            set_gate(r->model, saved_gate);
             return rc;
         }
         ta = tb;
@@ -959,7 +964,7 @@ static PyObject *Model_run(ModelObject *self, PyObject *const *args, Py_ssize_t 
     goto done;
 error: /* the plant as it was: its Python side is untouched, and the gate goes back */
     if (gate_in == gate_in)
-        self->k.kq_open = self->kq_open_full * gate_in;
+        set_gate(self, gate_in);
 done:
     Py_XDECREF(failure);
     PyMem_Free(r.times);
@@ -980,7 +985,7 @@ static PyObject *Model_set_gate(ModelObject *self, PyObject *arg) {
     double g = PyFloat_AsDouble(arg);
     if (g == -1.0 && PyErr_Occurred())
         return NULL;
-    self->k.kq_open = self->kq_open_full * g;
+    set_gate(self, g);
     Py_RETURN_NONE;
 }
 
