@@ -490,7 +490,7 @@ static PyObject *Model_advance(ModelObject *self, PyObject *const *args, Py_ssiz
  * breakpoints, held and port hooks) is the definition; this is that loop, call for call and operation
  * for operation, with the library effects' arithmetic inlined, so that it gives the same bits. Only
  * for noise-free sensors (no random draws) and the library's effects in their fixed order
- * (plant.py decides; compiled_run.py packs the arguments). tests/test_plant.py checks the bits.
+ * (plant.py decides; compiled_run.py packs the arguments). tests/test_compiled_run.py checks the bits.
  */
 
 typedef struct {

@@ -2,8 +2,8 @@
 
 The compiled loop is :meth:`~fmu_plant.Plant.step_many`'s Python loop (``_integrate``, ``_advance``,
 ``_ports``, ``_readings``) with the arithmetic of the effects in ``effect_library.py`` inlined,
-operation for operation, so it gives the same bits (``tests/test_plant.py`` checks them). It runs
-only what it inlines: a plant whose effects are exactly the library's classes (no subclass, no hook
+operation for operation, so it gives the same bits (``tests/test_compiled_run.py`` checks them). It
+runs only what it inlines: a plant whose effects are exactly the library's classes (no subclass, no hook
 replaced on the instance), each at most once and in the order :func:`effects_from_params` gives them,
 and whose sensors draw no noise; :meth:`Plant.step_many` keeps its Python loop otherwise. This module
 packs such an effect list into the run's arguments and writes back the memory the run changed (the
