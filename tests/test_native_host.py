@@ -98,6 +98,54 @@ def test_without_patchelf_the_fmu_is_left_for_python_hosts_with_a_warning(tree, 
     assert _digest(raw) == before
 
 
+def _win64_shim(tree: Path) -> Path:
+    bindir = tree / "binaries" / "win64"
+    if not (bindir / "MusclePlant_pythonfmu.dll").exists():
+        reason = "the FMUs were built without a MinGW-w64 compiler (x86_64-w64-mingw32-gcc)"
+        if os.environ.get("TAPMUSCLE_REQUIRE_WINDOWS") == "1":
+            pytest.fail(f"TAPMUSCLE_REQUIRE_WINDOWS=1 but {reason}")
+        pytest.skip(reason)
+    return bindir
+
+
+def _pe(path: Path) -> str:
+    objdump = shutil.which("x86_64-w64-mingw32-objdump")
+    if not objdump:
+        pytest.skip("x86_64-w64-mingw32-objdump not found")
+    return subprocess.run([objdump, "-p", str(path)], check=True, capture_output=True, text=True).stdout
+
+
+def _exports(pe: str) -> set[str]:
+    return {w for w in pe.split() if w.startswith("fmi2")}
+
+
+def test_win64_binary_is_the_fmi_shim_in_front_of_pythonfmus_dll(tree):
+    bindir = _win64_shim(tree)
+    shim, real = _pe(bindir / "MusclePlant.dll"), _pe(bindir / "MusclePlant_pythonfmu.dll")
+    # every FMI function pythonfmu's DLL has, the shim has (and forwards)
+    assert _exports(shim) == _exports(real)
+    assert len(_exports(shim)) >= 30 and {"fmi2Instantiate", "fmi2DoStep", "fmi2DeSerializeFMUstate"} <= _exports(shim)
+    # nothing that a Windows machine might lack: no MinGW runtime DLL, no Python
+    needed = {line.split("DLL Name:")[1].strip().lower() for line in shim.splitlines() if "DLL Name:" in line}
+    assert needed == {"kernel32.dll", "msvcrt.dll"}
+    assert b"MusclePlant_pythonfmu.dll" in (bindir / "MusclePlant.dll").read_bytes()
+    assert "python3.dll" in real.lower()  # pythonfmu's, unchanged
+
+
+def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(tree, tmp_path, monkeypatch):
+    bindir = _win64_shim(tree)
+    raw = tmp_path / "raw"
+    shutil.copytree(tree, raw)
+    win = raw / "binaries" / "win64"
+    (win / "MusclePlant_pythonfmu.dll").replace(win / "MusclePlant.dll")  # the layout pythonfmu makes
+    before = _digest(raw)
+    monkeypatch.setattr(build_native_host, "_win64_compiler", lambda: [])
+    with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64"):
+        prepare_for_native_hosts(raw)
+    assert _digest(raw) == before
+    assert bindir.is_dir()
+
+
 def test_not_embedded_in_this_python_process():
     assert not native_host.is_embedded()
 
