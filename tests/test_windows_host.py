@@ -57,7 +57,10 @@ def answers(built_fmus, tmp_path_factory) -> dict:
             _unavailable("the FMUs were built without the win64 shim (no x86_64-w64-mingw32-gcc)")
     out = tmp_path_factory.mktemp("windows")
     fmu_dir = Path(built_fmus["MusclePlant"]).parent
-    env = {**os.environ, "WINEPREFIX": str(folder / "wineprefix"), "WINEDEBUG": "-all"}
+    # CI's second pass picks this machine's floating-point path with NPY_*/OPENBLAS_*; they name Linux
+    # numpy's and OpenBLAS's kernels, not Windows numpy 1.26's
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NPY_", "OPENBLAS_"))}
+    env.update(WINEPREFIX=str(folder / "wineprefix"), WINEDEBUG="-all")
     script = _windows_path(HERE / "fmu_checks.py")
     result: dict = {}
     for key, extra in (("windows", []), ("windows_folder", ["non-ascii-folder"]), ("windows_missing", ["osqp"])):
