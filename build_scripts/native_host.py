@@ -700,14 +700,24 @@ def prepare_for_native_hosts(tree: Path) -> None:
         _prepare_win64(tree, model_id)
 
 
-def _prepare_linux64(tree: Path, model_id: str) -> None:
-    bindir = tree / "binaries" / _PLATFORM
-    fmu_lib = bindir / f"{model_id}.so"
-    real_name = f"{model_id}_pythonfmu.so"
+def _unprepared(tree: Path, platform: str, suffix: str, model_id: str) -> tuple[Path, Path, str] | None:
+    """``platform``'s binaries folder, the FMU's library in it and the name pythonfmu's library gets;
+    None if the platform is prepared already."""
+    bindir = tree / "binaries" / platform
+    fmu_lib = bindir / f"{model_id}{suffix}"
+    real_name = f"{model_id}_pythonfmu{suffix}"
     if (bindir / real_name).exists():
-        return
+        return None
     if not fmu_lib.is_file():
-        raise FileNotFoundError(f"{fmu_lib} not found: not an extracted pythonfmu FMU for {_PLATFORM}")
+        raise FileNotFoundError(f"{fmu_lib} not found: not an extracted pythonfmu FMU for {platform}")
+    return bindir, fmu_lib, real_name
+
+
+def _prepare_linux64(tree: Path, model_id: str) -> None:
+    found = _unprepared(tree, _PLATFORM, ".so", model_id)
+    if found is None:
+        return
+    bindir, fmu_lib, real_name = found
     env = build_environment()
     if not env["libpython_soname"] or not Path(env["libpython"]).is_file():
         return _skip(f"the building Python ({sys.executable}) has no shared libpython "
@@ -755,13 +765,10 @@ def _win64_compiler() -> list[str]:
 def _prepare_win64(tree: Path, model_id: str) -> None:
     """``binaries/win64``: pythonfmu's DLL becomes ``<id>_pythonfmu.dll`` and ``<id>.dll`` the FMI shim
     in front of it (the shim of the Linux loader, with Windows' library loading and paths)."""
-    bindir = tree / "binaries" / "win64"
-    fmu_lib = bindir / f"{model_id}.dll"
-    real_name = f"{model_id}_pythonfmu.dll"
-    if (bindir / real_name).exists():
+    found = _unprepared(tree, "win64", ".dll", model_id)
+    if found is None:
         return
-    if not fmu_lib.is_file():
-        raise FileNotFoundError(f"{fmu_lib} not found: not an extracted pythonfmu FMU for win64")
+    bindir, fmu_lib, real_name = found
     cc = _win64_compiler()
     if not cc:
         return _skip("no MinGW-w64 cross compiler (install x86_64-w64-mingw32-gcc, e.g. Debian's gcc-mingw-w64-x86-64, "
