@@ -647,6 +647,7 @@ def build_environment() -> dict:
     soname = sysconfig.get_config_var("INSTSONAME") or ""
     return {
         "format": 1,
+        "platform": sys.platform,
         "python": _building_python(),
         "base_python": str(_base_python()),
         "python_version": ".".join(map(str, sys.version_info[:3])),

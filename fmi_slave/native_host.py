@@ -13,7 +13,8 @@ library's pure-Python modules.
   ``TAPMUSCLE_PYTHON`` names another one).
 * ``TAPMUSCLE_SITE_PACKAGES`` (directories separated by ``os.pathsep``) replaces the recorded list, in
   any host; set but empty, it adds none.
-* In a Python host (fmpy) without the override nothing is added: the host's own environment rules.
+* In a Python host (fmpy) without the override nothing is added: the host's own environment rules;
+  nor in a host on another operating system than the build's (a Windows C host: its Python's own).
 * In every host, a finder of last resort on ``sys.meta_path`` turns "No module named 'numpy'" (or
   scipy, osqp) into a message saying what to install and where it looked; the exception makes
   pythonfmu's ``fmi2Instantiate`` log it through the host's logger and return NULL.
@@ -57,7 +58,9 @@ def _site_dirs(config: dict) -> list[str] | None:
     override = os.environ.get(SITE_ENV)
     if override is not None:
         return [d for d in override.split(os.pathsep) if d]
-    if is_embedded():
+    # the recorded directories are the building machine's: another operating system (a Windows host of
+    # an FMU built on Linux) has its own, and may even reach those paths (Wine's Z: drive)
+    if is_embedded() and config.get("platform", "linux") == sys.platform:
         return list(config.get("site_packages", []))
     return None
 

@@ -71,6 +71,7 @@ def test_recorded_environment_is_the_building_one(tree):
     env = build_environment()
     assert config["site_packages"] == env["site_packages"]
     assert config["python"] == env["python"] and Path(config["python"]).is_file()
+    assert config["platform"] == sys.platform
     numpy_home = str(Path(importlib.util.find_spec("numpy").origin).parents[1])
     assert numpy_home in config["site_packages"]
     if sys.prefix != sys.base_prefix:  # built from a venv: its site-packages are recorded
@@ -160,6 +161,20 @@ def test_site_dirs_only_embedded_or_by_override(monkeypatch):
     assert native_host._site_dirs(config) == ["/a", "/b"]
     monkeypatch.setenv(native_host.SITE_ENV, "")
     assert native_host._site_dirs(config) == []
+
+
+def test_recorded_site_dirs_only_on_the_building_operating_system(monkeypatch):
+    monkeypatch.delenv(native_host.SITE_ENV, raising=False)
+    monkeypatch.setattr(native_host, "is_embedded", lambda: True)
+    assert native_host._site_dirs({"site_packages": ["/r"], "platform": sys.platform}) == ["/r"]
+    # an FMU built on Linux in a Windows C host: Linux's numpy would be found (Wine maps / to Z:) and fail
+    assert native_host._site_dirs({"site_packages": ["/r"], "platform": "linux"}) == (
+        ["/r"] if sys.platform == "linux" else None)
+    monkeypatch.setattr(native_host.sys, "platform", "win32")
+    assert native_host._site_dirs({"site_packages": ["/r"], "platform": "linux"}) is None
+    assert native_host._site_dirs({"site_packages": ["/r"]}) is None  # recorded before the key: Linux
+    monkeypatch.setenv(native_host.SITE_ENV, "/s")  # the override holds on any system
+    assert native_host._site_dirs({"site_packages": ["/r"], "platform": "linux"}) == ["/s"]
 
 
 def test_missing_dependency_finder_names_what_to_install(monkeypatch):

@@ -12,6 +12,7 @@ win64 shim from Debian's packages (`.ci/run` installs all three). Without them t
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -44,7 +45,8 @@ def _windows_path(path: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def answers(built_fmus, tmp_path_factory) -> dict:
+def windows(built_fmus) -> dict:
+    """Wine, the Windows Python and its environment; FMUs built with the win64 shim."""
     wine = _wine()
     folder = Path(os.environ.get("TAPMUSCLE_WINDOWS_DIR", DEFAULT_DIR))
     exe = python_exe(folder)
@@ -55,18 +57,28 @@ def answers(built_fmus, tmp_path_factory) -> dict:
     with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
         if "binaries/win64/MusclePlant_pythonfmu.dll" not in z.namelist():
             _unavailable("the FMUs were built without the win64 shim (no x86_64-w64-mingw32-gcc)")
-    out = tmp_path_factory.mktemp("windows")
-    fmu_dir = Path(built_fmus["MusclePlant"]).parent
     # CI's second pass picks this machine's floating-point path with NPY_*/OPENBLAS_*; they name Linux
     # numpy's and OpenBLAS's kernels, not Windows numpy 1.26's
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NPY_", "OPENBLAS_"))}
     env.update(WINEPREFIX=str(folder / "wineprefix"), WINEDEBUG="-all")
+    return {"wine": wine, "python": exe, "env": env}
+
+
+def _run_windows(windows: dict, *args: str, env_extra: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([windows["wine"], *args], env={**windows["env"], **(env_extra or {})},
+                          capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def answers(windows, built_fmus, tmp_path_factory) -> dict:
+    out = tmp_path_factory.mktemp("windows")
+    fmu_dir = Path(built_fmus["MusclePlant"]).parent
     script = _windows_path(HERE / "fmu_checks.py")
     result: dict = {}
     for key, extra in (("windows", []), ("windows_folder", ["non-ascii-folder"]), ("windows_missing", ["osqp"])):
         target = out / f"{key}.json"
-        proc = subprocess.run([wine, str(exe), script, _windows_path(fmu_dir), _windows_path(target), *extra],
-                              env=env, capture_output=True, text=True, timeout=600)
+        proc = _run_windows(windows, str(windows["python"]), script, _windows_path(fmu_dir), _windows_path(target),
+                            *extra)
         # a host that died is an answer too (the test of that case fails with its output)
         result[key] = (json.loads(target.read_text(encoding="utf-8")) if proc.returncode == 0 and target.is_file()
                        else {"exit": proc.returncode, "output": (proc.stdout + proc.stderr)[-3000:]})
@@ -118,3 +130,81 @@ def test_a_missing_package_is_named_and_the_instance_refuses_cleanly(answers):
     errors = [m for status, _category, m in missing["messages"] if status >= 3]
     assert errors and all("osqp" in m for m in errors)  # logged although logging is off
     assert all(category for _status, category, _m in missing["messages"])
+
+
+# ---- a Windows C host: tests/c_host/fmi_host.c cross-compiled, no Python in the process but the FMU's ----
+
+C_HOST = Path(__file__).resolve().parent / "c_host" / "fmi_host.c"
+
+
+def _table(stdout: str) -> list[list[float]]:
+    lines = [line for line in stdout.splitlines() if line and line[0].isdigit()]
+    return [[float(x) for x in line.split(",")] for line in lines]
+
+
+@pytest.fixture(scope="module")
+def c_host_runs(windows, built_fmus, tmp_path_factory) -> dict:
+    """tests/c_host/fmi_host.c built for Linux (gcc) and for Windows (MinGW-w64), each run on the plant
+    alone (`open`) and on the closed loop (`closed`) with the same arguments; the Windows one under Wine
+    with the Windows Python's folder on its PATH (python3.dll, which pythonfmu's DLL imports)."""
+    from fmpy import read_model_description
+
+    mingw, gcc = shutil.which("x86_64-w64-mingw32-gcc"), shutil.which("gcc") or shutil.which("cc")
+    if not mingw or not gcc:
+        _unavailable("x86_64-w64-mingw32-gcc and gcc are needed to build the C host for both systems")
+    tmp = tmp_path_factory.mktemp("windows-c-host")
+    headers = str(Path(__import__("fmpy").__file__).parent / "c-code")
+    flags = ["-std=c99", "-O2", "-Wall", "-Wextra", "-I", headers]
+    subprocess.run([mingw, *flags, "-o", str(tmp / "fmi_host.exe"), str(C_HOST)], check=True)
+    subprocess.run([gcc, *flags, "-o", str(tmp / "fmi_host"), str(C_HOST), "-ldl", "-lm"], check=True)
+    fmus = {}
+    for key, name in (("P", "MusclePlant"), ("C", "AMPCController")):
+        folder = tmp / name
+        with zipfile.ZipFile(built_fmus[name]) as z:
+            z.extractall(folder)
+        md = read_model_description(str(folder))
+        fmus[key] = (folder, md.coSimulation.modelIdentifier, md.guid,
+                     {v.name: v.valueReference for v in md.modelVariables})
+
+    def args(windows_paths: bool, mode: str) -> list[str]:
+        out = [mode]
+        for key, roles in (("P", {"u": "u", "l": "l", "p": "p"}), ("C", {"l": "l", "u": "u"})):
+            if key == "C" and mode != "closed":
+                continue
+            folder, model_id, guid, vr = fmus[key]
+            where = _windows_path(folder).replace("\\", "/") if windows_paths else str(folder)
+            out += [f"{key}.dir={where}", f"{key}.id={model_id}", f"{key}.guid={guid}"]
+            out += [f"{key}.{role}={vr[name]}" for role, name in roles.items()]
+        return out + ["dt=0.1", f"steps={100 if mode == 'open' else 600}"]
+
+    runs: dict = {}
+    path = {"WINEPATH": _windows_path(windows["python"].parent)}
+    for mode in ("open", "closed"):
+        lin = subprocess.run([str(tmp / "fmi_host"), *args(False, mode)], capture_output=True, text=True, timeout=600)
+        win = _run_windows(windows, str(tmp / "fmi_host.exe"), *args(True, mode), env_extra=path)
+        runs[mode] = {"linux": (lin.returncode, _table(lin.stdout), lin.stderr[-3000:]),
+                      "windows": (win.returncode, _table(win.stdout), win.stderr[-3000:])}
+    return runs
+
+
+def test_the_plant_in_a_windows_c_host_reads_as_in_the_linux_one(c_host_runs):
+    (lin_rc, lin, lin_err), (win_rc, win, win_err) = c_host_runs["open"]["linux"], c_host_runs["open"]["windows"]
+    assert lin_rc == 0, lin_err
+    assert win_rc == 0, win_err
+    assert len(win) == len(lin) == 100
+    for a, b in zip(win, lin):
+        assert a == pytest.approx(b, abs=1e-9)  # t, u, l, p: the same code on the same inputs
+
+
+def test_the_closed_loop_in_a_windows_c_host_tracks_as_in_the_linux_one(c_host_runs):
+    (lin_rc, lin, lin_err), (win_rc, win, win_err) = c_host_runs["closed"]["linux"], c_host_runs["closed"]["windows"]
+    assert lin_rc == 0, lin_err
+    assert win_rc == 0, win_err
+
+    def mae(rows):  # Eq. (21) over 20-60 s against the controller's built-in reference
+        err = [abs(35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * t) - l) for t, l, _u in rows if t >= 20.0 - 1e-9]
+        return sum(err) / len(err)
+
+    assert len(win) == len(lin) == 600
+    assert all(0.0 <= u <= 10.0 and math.isfinite(l) for _t, l, u in win)
+    assert mae(win) == pytest.approx(mae(lin), rel=0.10) and mae(win) < 0.15

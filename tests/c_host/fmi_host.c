@@ -31,7 +31,25 @@
  * Exit status: 0 ok, 1 usage, 2 an FMI call failed, 3 fmi2Instantiate returned NULL, 4 load failed.
  */
 #define _GNU_SOURCE
+#ifdef _WIN32
+/* the same host for Windows (MinGW-w64; tests/test_windows_host.py runs it under Wine) */
+#include <windows.h>
+#include <stdio.h>
+#define dlopen(path, mode) ((void *)LoadLibraryA(path))
+#define dlsym(lib, name) ((void *)GetProcAddress((HMODULE)(lib), name))
+#define dlclose(lib) FreeLibrary((HMODULE)(lib))
+static const char *dlerror(void) {
+    static char text[64];
+    snprintf(text, sizeof text, "Windows error %lu", (unsigned long)GetLastError());
+    return text;
+}
+#define FMU_BINARY "%s/binaries/win64/%s.dll"
+#define RESOURCES_URI "file:///%s/resources"
+#else
 #include <dlfcn.h>
+#define FMU_BINARY "%s/binaries/linux64/%s.so"
+#define RESOURCES_URI "file://%s/resources"
+#endif
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -114,10 +132,10 @@ static void *sym(Fmu *f, const char *name) {
 static void load(Fmu *f) {
     char path[4096];
     if (!f->dir || !f->id || !f->guid) die(1, "%s.dir, %s.id and %s.guid are required", f->key, f->key, f->key);
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", f->dir, f->id);
+    snprintf(path, sizeof path, FMU_BINARY, f->dir, f->id);
     f->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL); /* as fmusim and the FMI Library do */
     if (!f->lib) die(4, "cannot load %s: %s", path, dlerror());
-    snprintf(f->uri, sizeof f->uri, "file://%s/resources", f->dir);
+    snprintf(f->uri, sizeof f->uri, RESOURCES_URI, f->dir);
     f->instantiate = (fmi2InstantiateTYPE *)sym(f, "fmi2Instantiate");
     f->freeInstance = (fmi2FreeInstanceTYPE *)sym(f, "fmi2FreeInstance");
     f->setupExperiment = (fmi2SetupExperimentTYPE *)sym(f, "fmi2SetupExperiment");
