@@ -721,6 +721,9 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
     if found is None:
         return
     bindir, fmu_lib, real_name = found
+    if not sys.platform.startswith("linux"):
+        return _skip(f"the loader for Linux hosts is built on Linux (this build runs on {sys.platform})",
+                     "linux64 binary left as pythonfmu made it (Python hosts only)")
     env = build_environment()
     if not env["libpython_soname"] or not Path(env["libpython"]).is_file():
         return _skip(f"the building Python ({sys.executable}) has no shared libpython "

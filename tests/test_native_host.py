@@ -147,6 +147,19 @@ def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(
     assert bindir.is_dir()
 
 
+def test_built_on_another_system_the_linux64_binary_is_left_with_a_warning(tree, tmp_path, monkeypatch):
+    raw = tmp_path / "raw"
+    shutil.copytree(tree, raw)
+    bindir = raw / "binaries" / "linux64"
+    (bindir / "MusclePlant_pythonfmu.so").replace(bindir / "MusclePlant.so")
+    (raw / "resources" / CONFIG_NAME).unlink()
+    before = _digest(raw)
+    monkeypatch.setattr(build_native_host.sys, "platform", "win32")  # tapmuscle build in a Windows Python
+    with pytest.warns(NativeHostWarning, match=r"linux64 binary left as pythonfmu made it.*runs on win32"):
+        prepare_for_native_hosts(raw)
+    assert _digest(raw) == before
+
+
 def test_not_embedded_in_this_python_process():
     assert not native_host.is_embedded()
 

