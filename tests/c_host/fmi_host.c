@@ -7,6 +7,8 @@
  * model identifier, GUID and value references on the command line. See docs/fmu-native-hosts.md.
  *
  * Build:  gcc -std=c99 -O2 -I <fmpy>/c-code -o fmi_host fmi_host.c -ldl
+ *         x86_64-w64-mingw32-gcc -std=c99 -O2 -I <fmpy>/c-code -o fmi_host.exe fmi_host.c   (Windows: it loads
+ *         binaries/win64/<id>.dll; tests/test_windows_host.py runs it under Wine)
  *
  * Usage:  fmi_host MODE key=value ...
  *   MODE open       the plant alone, u = OFFSET + AMP*sin(2*pi*FREQ*t);      CSV: t,u,l,p
