@@ -52,7 +52,8 @@ def prepare(folder: Path) -> Path:
             z.extractall(staged)
         (interpreter,) = [p.parent for p in staged.glob("*/python.exe")]
         (interpreter / "python311._pth").write_text("python311.zip\n.\n..\\site\nimport site\n", encoding="ascii")
-        subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--target", str(staged / "site"),
+        # --no-warn-conflicts: pip would compare the Windows packages with this machine's installed ones
+        subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-warn-conflicts", "--target", str(staged / "site"),
                         "--platform", "win_amd64", "--python-version", "3.11", "--implementation", "cp",
                         "--only-binary=:all:", *PACKAGES], check=True)
         folder.mkdir(parents=True, exist_ok=True)
