@@ -1,12 +1,12 @@
 """What tests/test_windows_host.py asks of the FMUs in a Python host: run by a Windows Python (under
 Wine) and by this machine's Python, the same script, so the two answers can be compared.
 
-    python fmu_checks.py FMU_DIR OUT.json                    the plant alone, the closed loop
+    python fmu_checks.py FMU_DIR OUT.json                    the plant alone, the closed loop (fmpy, libcosim)
     python fmu_checks.py FMU_DIR OUT.json non-ascii-folder   the plant unpacked into "Jürgen 日本 ..."
     python fmu_checks.py FMU_DIR OUT.json osqp               the controller in a Python that lacks osqp
 
-Only fmpy's ``FMU2Slave`` (the FMI calls themselves, stable across fmpy releases) and numpy are used;
-the output is JSON, written at the end.
+fmpy's ``FMU2Slave`` (the FMI calls themselves, stable across fmpy releases) and, for a third-party
+master, libcosimpy; the output is JSON, written at the end.
 """
 
 import json
@@ -109,6 +109,38 @@ def closed_loop(fmus: dict, parallel: bool, duration_s: float = 60.0) -> dict:
             "l_mm": [r[1] for r in rows]}
 
 
+def libcosim_loop(fmus: dict, duration_s: float = 60.0) -> dict:
+    """The closed loop in libcosim (``libcosimpy``: the Open Simulation Platform's C++ master, which steps
+    the FMUs in parallel), h = Ts, the controller's defaults."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    ex = CosimExecution.from_step_size(step_size=int(round(TS_S * 1e9)))
+    observer = CosimObserver.create_last_value()
+    ex.add_observer(observer)
+    index, vr = {}, {}
+    for name, fmu in (("plant", fmus["MusclePlant"]), ("ctrl", fmus["AMPCController"])):
+        index[name] = ex.add_local_slave(CosimLocalSlave(fmu_path=fmu, instance_name=name))
+        vr[name] = {v.name.decode(): v.reference for v in ex.slave_variables(index[name])}
+    ex.connect_real_variables(index["plant"], vr["plant"]["l"], index["ctrl"], vr["ctrl"]["l"])
+    ex.connect_real_variables(index["ctrl"], vr["ctrl"]["u"], index["plant"], vr["plant"]["u"])
+
+    def real(name: str, var: str) -> float:
+        return observer.last_real_values(index[name], [vr[name][var]])[0]
+
+    rows, l_k = [], 0.0
+    for k in range(int(round(duration_s / TS_S))):
+        if not ex.step(1):
+            return {"stepped": k}
+        # the controller took l(k) (the plant's output before this step) with r(k)
+        rows.append((k * TS_S, l_k, real("plant", "u"), real("ctrl", "r_k")))
+        l_k = real("plant", "l")
+    after = [abs(r - l) for t_s, l, _u, r in rows if t_s >= 20.0 - 1e-9]
+    return {"stepped": len(rows), "mae_20_60_mm": sum(after) / len(after),
+            "u_min_v": min(r[2] for r in rows), "u_max_v": max(r[2] for r in rows)}
+
+
 class _Missing:
     """An import hook: ``name`` is not installed, as in a tool's own Python environment."""
 
@@ -152,7 +184,8 @@ def main(argv: list[str]) -> None:
         result = {"missing": missing_package(fmus["AMPCController"], argv[3])}
     else:
         result = {"platform": sys.platform, "plant": plant_alone(fmus["MusclePlant"]),
-                  "sequential": closed_loop(fmus, parallel=False), "parallel": closed_loop(fmus, parallel=True)}
+                  "sequential": closed_loop(fmus, parallel=False), "parallel": closed_loop(fmus, parallel=True),
+                  "libcosim": libcosim_loop(fmus)}
     with open(out, "w", encoding="utf-8") as f:
         json.dump(result, f)
 

