@@ -2,8 +2,8 @@
 
 ``tests/windows_host/fmu_checks.py`` runs in that interpreter and in this one, and the answers are
 compared: the plant alone, the closed loop stepped sequentially and in parallel (as libcosim and Ecos
-step), the loop in libcosim's Windows build, the FMU unpacked into a folder whose name is not ASCII (a Windows user folder "Jürgen"), and the
-controller in a Python that lacks osqp with logging off. And ``tests/c_host/fmi_host.c``, built for
+step), the loop in libcosim's Windows build, the FMU unpacked into a folder whose name is not ASCII (a
+Windows user folder "Jürgen"), and the controller in a Python that lacks osqp with logging off. And ``tests/c_host/fmi_host.c``, built for
 both systems, runs the plant and the loop as a C host (no Python in the process but the one the FMU
 starts from ``python3.dll`` on the Windows PATH). The Windows interpreter comes from
 ``tests/windows_host/prepare_python.py`` (PyPI only); Wine and the MinGW-w64 compiler that builds the
