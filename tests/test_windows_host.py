@@ -3,12 +3,12 @@
 ``tests/windows_host/fmu_checks.py`` runs in that interpreter and in this one, and the answers are
 compared: the plant alone, the closed loop stepped sequentially and in parallel (as libcosim and Ecos
 step), the loop in libcosim's Windows build, the FMU unpacked into a folder whose name is not ASCII (a
-Windows user folder "Jürgen"), and the controller in a Python that lacks osqp with logging off. And ``tests/c_host/fmi_host.c``, built for
-both systems, runs the plant and the loop as a C host (no Python in the process but the one the FMU
-starts from ``python3.dll`` on the Windows PATH). The Windows interpreter comes from
-``tests/windows_host/prepare_python.py`` (PyPI only); Wine and the MinGW-w64 compiler that builds the
-win64 shim from Debian's packages (`.ci/run` installs all three). Without them the tests skip, unless
-``TAPMUSCLE_REQUIRE_WINDOWS=1`` (CI) makes that a failure.
+Windows user folder "Jürgen"), and the controller in a Python that lacks osqp with logging off. And
+``tests/c_host/fmi_host.c``, built for both systems, runs the plant and the loop as a C host (no Python in
+the process but the one the FMU starts from ``python3.dll`` on the Windows PATH). The Windows interpreter
+comes from ``tests/windows_host/prepare_python.py`` (PyPI only); Wine and the MinGW-w64 compiler that
+builds the win64 shim from Debian's packages (`.ci/run` installs all three). Without them the tests skip,
+unless ``TAPMUSCLE_REQUIRE_WINDOWS=1`` (CI) makes that a failure (``tests/windows_requirement.py``).
 """
 
 from __future__ import annotations
@@ -27,14 +27,9 @@ import pytest
 HERE = Path(__file__).resolve().parent / "windows_host"
 sys.path.insert(0, str(HERE))
 from prepare_python import DEFAULT_DIR, python_exe  # noqa: E402
+from windows_requirement import unavailable  # noqa: E402
 
 pytestmark = [pytest.mark.windows, pytest.mark.slow]
-
-
-def _unavailable(reason: str):
-    if os.environ.get("TAPMUSCLE_REQUIRE_WINDOWS") == "1":
-        pytest.fail(f"TAPMUSCLE_REQUIRE_WINDOWS=1 but {reason}")
-    pytest.skip(reason)
 
 
 def _wine() -> str | None:
@@ -53,12 +48,12 @@ def windows(built_fmus) -> dict:
     folder = Path(os.environ.get("TAPMUSCLE_WINDOWS_DIR", DEFAULT_DIR))
     exe = python_exe(folder)
     if not wine:
-        _unavailable("Wine is not installed (Debian: apt-get install wine64)")
+        unavailable("Wine is not installed (Debian: apt-get install wine64)")
     if not exe.is_file():
-        _unavailable(f"no Windows Python in {folder} (python tests/windows_host/prepare_python.py {folder})")
+        unavailable(f"no Windows Python in {folder} (python tests/windows_host/prepare_python.py {folder})")
     with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
         if "binaries/win64/MusclePlant_pythonfmu.dll" not in z.namelist():
-            _unavailable("the FMUs were built without the win64 shim (no x86_64-w64-mingw32-gcc)")
+            unavailable("the FMUs were built without the win64 shim (no x86_64-w64-mingw32-gcc)")
     # CI's second pass picks this machine's floating-point path with NPY_*/OPENBLAS_*; they name Linux
     # numpy's and OpenBLAS's kernels, not Windows numpy 1.26's
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NPY_", "OPENBLAS_"))}
@@ -156,7 +151,7 @@ def c_host_runs(windows, built_fmus, tmp_path_factory) -> dict:
 
     mingw, gcc = shutil.which("x86_64-w64-mingw32-gcc"), shutil.which("gcc") or shutil.which("cc")
     if not mingw or not gcc:
-        _unavailable("x86_64-w64-mingw32-gcc and gcc are needed to build the C host for both systems")
+        unavailable("x86_64-w64-mingw32-gcc and gcc are needed to build the C host for both systems")
     tmp = tmp_path_factory.mktemp("windows-c-host")
     headers = str(Path(__import__("fmpy").__file__).parent / "c-code")
     flags = ["-std=c99", "-O2", "-Wall", "-Wextra", "-I", headers]
