@@ -6,12 +6,16 @@
   the FMUs' instantiation), so the real-time factor is that of the loop.
 * libcosim (``libcosimpy``, if installed): the same loop in a parallel master; its worker threads are
   not Python threads either.
+* With ``--windows DIR``: the same C host cross-compiled with MinGW-w64 and run under Wine, with the
+  Windows Python that ``tests/windows_host/prepare_python.py DIR`` prepared (python3.dll on its PATH),
+  on the FMUs' win64 binaries. Wine is not Windows: the figure compares builds of the shim, not
+  operating systems.
 
 Goal: >= 300x real time in the C host. Best of ``--repeat`` runs (the machine may be shared). Then the
 fmpy figures of today, those of ``python benchmarks/fmu_cosim.py`` (goals FMU/direct <= 1.3, >= 500x),
 so that the C host's work is seen not to slow the Python hosts (``--no-fmpy`` skips them).
 
-    python benchmarks/fmu_c_host.py [--steps 2400] [--repeat 3]
+    python benchmarks/fmu_c_host.py [--steps 2400] [--repeat 3] [--windows DIR]
 """
 
 from __future__ import annotations
@@ -33,31 +37,54 @@ HOST_SOURCE = Path(__file__).resolve().parents[1] / "tests" / "c_host" / "fmi_ho
 TS_S = 0.1
 
 
-def _host(folder: Path) -> Path:
-    gcc = shutil.which("gcc") or shutil.which("cc")
-    if not gcc:
-        raise SystemExit("gcc is needed to build the C host")
-    exe = folder / "fmi_host"
-    subprocess.run([gcc, "-std=c99", "-O2", "-I", str(Path(fmpy.__file__).parent / "c-code"), "-o", str(exe),
-                    str(HOST_SOURCE), "-ldl", "-lm"], check=True)
+def _host(folder: Path, windows: bool = False) -> Path:
+    compiler = "x86_64-w64-mingw32-gcc" if windows else "gcc"
+    cc = shutil.which(compiler)
+    if not cc:
+        raise SystemExit(f"{compiler} is needed to build the C host")
+    exe = folder / ("fmi_host.exe" if windows else "fmi_host")
+    libs = [] if windows else ["-ldl", "-lm"]
+    subprocess.run([cc, "-std=c99", "-O2", "-I", str(Path(fmpy.__file__).parent / "c-code"), "-o", str(exe),
+                    str(HOST_SOURCE), *libs], check=True)
     return exe
 
 
-def _args(fmus: dict[str, Path], folder: Path) -> list[str]:
+def _windows_path(path: Path) -> str:
+    return "Z:" + str(path)  # Wine maps the root of this machine to Z: (the C host takes / in paths)
+
+
+def _args(fmus: dict[str, Path], folder: Path, windows: bool = False) -> list[str]:
     out = []
     for key, name, roles in (("P", "MusclePlant", {"u": "u", "l": "l"}), ("C", "AMPCController", {"l": "l", "u": "u"})):
         md = read_model_description(str(fmus[name]))
         unzipped = extract(str(fmus[name]), unzipdir=str(folder / name))
         vr = {v.name: v.valueReference for v in md.modelVariables}
-        out += [f"{key}.dir={unzipped}", f"{key}.id={md.coSimulation.modelIdentifier}", f"{key}.guid={md.guid}"]
+        where = _windows_path(Path(unzipped)) if windows else unzipped
+        out += [f"{key}.dir={where}", f"{key}.id={md.coSimulation.modelIdentifier}", f"{key}.guid={md.guid}"]
         out += [f"{key}.{role}={vr[var]}" for role, var in roles.items()]
     return out
 
 
-def c_host_seconds(exe: Path, args: list[str], steps: int) -> float:
+def _wine_command(python_dir: Path) -> tuple[list[str], dict]:
+    """Wine and the environment that runs a Windows C host with ``python_dir``'s python3.dll on PATH."""
+    wine = shutil.which("wine64") or shutil.which("wine") or "/usr/lib/wine/wine64"
+    exe = python_dir / "python" / "python.exe"
+    if not Path(wine).is_file() or not exe.is_file():
+        raise SystemExit(f"--windows needs Wine and a prepared Windows Python in {python_dir} "
+                         f"(python tests/windows_host/prepare_python.py {python_dir})")
+    env = {"PATH": "/usr/bin:/bin", "HOME": tempfile.gettempdir(), "LANG": "C.UTF-8", "WINEDEBUG": "-all",
+           "WINEPREFIX": str(python_dir / "wineprefix"), "WINEPATH": "Z:" + str(exe.parent).replace("/", "\\")}
+    return [wine], env
+
+
+def c_host_seconds(exe: Path, args: list[str], steps: int, wine: tuple[list[str], dict] | None = None) -> float:
     env = {"PATH": "/usr/bin:/bin", "HOME": tempfile.gettempdir(), "LANG": "C.UTF-8"}
+    prefix: list[str] = []
+    if wine:
+        prefix, env = wine
     t0 = time.perf_counter()
-    proc = subprocess.run([str(exe), "closed", *args, f"steps={steps}"], capture_output=True, text=True, env=env)
+    proc = subprocess.run([*prefix, str(exe), "closed", *args, f"steps={steps}"], capture_output=True, text=True,
+                          env=env)
     if proc.returncode != 0:
         raise SystemExit(f"fmi_host failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
     return time.perf_counter() - t0
@@ -87,17 +114,26 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=2400)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-fmpy", action="store_true", help="skip the fmpy figures of benchmarks/fmu_cosim.py")
+    ap.add_argument("--windows", type=Path, metavar="DIR",
+                    help="also the Windows C host under Wine, with the Windows Python prepared in DIR")
     args = ap.parse_args()
     fmus = cached_fmus()
+    simulated = args.steps * TS_S
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         exe = _host(folder)
         host_args = _args(fmus, folder)
         loop = min(c_host_seconds(exe, host_args, args.steps + 10) - c_host_seconds(exe, host_args, 10)
                    for _ in range(args.repeat))
-        simulated = args.steps * TS_S
         print(f"C host, closed loop, {args.steps} steps of {TS_S} s: {loop:.3f} s, real-time factor "
               f"{simulated / loop:.0f}x (goal >= 300x)")
+        if args.windows:
+            wine = _wine_command(args.windows.resolve())
+            win_exe, win_args = _host(folder, windows=True), _args(fmus, folder, windows=True)
+            loop = min(c_host_seconds(win_exe, win_args, args.steps + 10, wine)
+                       - c_host_seconds(win_exe, win_args, 10, wine) for _ in range(args.repeat))
+            print(f"Windows C host under Wine, closed loop, {args.steps} steps: {loop:.3f} s, real-time factor "
+                  f"{simulated / loop:.0f}x")
         lc = [libcosim_seconds(fmus, args.steps) for _ in range(args.repeat)]
         if lc[0] is None:
             print("libcosim: libcosimpy not installed")

@@ -151,6 +151,11 @@ static int local_path(char *path, size_t size) {
     return 1;
 }
 
+/* Python is already running when pythonfmu's first fmi2Instantiate comes (the constructor above). */
+typedef int instantiate_guard;
+static instantiate_guard instantiate_lock(void) { return 0; }
+static void instantiate_unlock(instantiate_guard guard) { (void)guard; }
+
 /* A thread with no Python thread state (any thread of a C host) gets one for its life at its first FMI
    call. pythonfmu brackets every call with PyGILState_Ensure/Release, which otherwise creates and
    destroys a thread state each time (mmap and munmap of its frame stack: six per closed-loop step).
@@ -255,9 +260,105 @@ static int local_path(char *path, size_t size) {
     return 1;
 }
 
-/* No thread state kept per host thread, unlike on Linux: a Python host's threads hold one already, and
-   in a C host pythonfmu creates and frees one per call (slower, not wrong). */
-static void pin_thread(void) {}
+/* pythonfmu starts Python at its first fmi2Instantiate under a lock of its own library: a parallel
+   master instantiating the plant and the controller at once ran two Py_Initialize together (a crash,
+   "failed to initialize importlib"). So the instantiations of the project's FMUs in one process take
+   turns under a mutex named for the process (the Linux loader starts Python in its constructor;
+   DllMain runs under the loader lock, where starting Python, which loads DLLs, is not safe). */
+typedef HANDLE instantiate_guard;
+static instantiate_guard instantiate_lock(void) {
+    wchar_t name[64];
+    HANDLE mutex;
+    _snwprintf(name, 64, L"Local\\tapmuscle-fmu-instantiate-%lu", (unsigned long)GetCurrentProcessId());
+    name[63] = 0;
+    mutex = CreateMutexW(NULL, FALSE, name);
+    if (mutex) WaitForSingleObject(mutex, INFINITE);   /* WAIT_ABANDONED also hands it over */
+    return mutex;
+}
+static void instantiate_unlock(instantiate_guard mutex) {
+    if (!mutex) return;
+    ReleaseMutex(mutex);
+    CloseHandle(mutex);
+}
+
+/* A thread with no Python thread state (any thread of a C host) gets one for its life at its first FMI
+   call, as on Linux: pythonfmu brackets every call with PyGILState_Ensure/Release, which otherwise
+   creates and destroys a thread state each time (a heap block and a VirtualAlloc'd frame stack). The
+   GIL is released again at once, so other threads (a parallel master's) can run the FMUs. Python's C
+   API comes from the Python DLL that pythonfmu's library imports (python3.dll forwards to the full
+   python3XY.dll, which also exports the calls outside the stable ABI). A fiber-local slot's callback
+   deletes the thread state when the thread exits (a master that starts threads per run or per step
+   would otherwise leak one per thread); it also marks the thread as seen. */
+static struct {
+    int (*is_initialized)(void);
+    int (*is_finalizing)(void);
+    void *(*this_thread_state)(void);
+    int (*ensure)(void);
+    void *(*save_thread)(void);
+    void (*restore_thread)(void *);
+    void (*clear)(void *);
+    void (*delete_current)(void);
+    unsigned char (*shutdown_in_progress)(void);   /* ntdll's RtlDllShutdownInProgress */
+} py;
+static DWORD pin_slot = FLS_OUT_OF_INDEXES;
+static INIT_ONCE pin_once = INIT_ONCE_STATIC_INIT;
+#define PYTHON_THREAD ((void *)1)   /* the slot's value for a thread that had a thread state already */
+
+static void WINAPI unpin_thread(void *saved) {
+    if (!saved || saved == PYTHON_THREAD) return;
+    /* not at process exit (the other threads are gone, one of them may hold the GIL), nor once Python
+       is finalising */
+    if ((py.shutdown_in_progress && py.shutdown_in_progress()) || !py.is_initialized()
+        || (py.is_finalizing && py.is_finalizing()))
+        return;
+    py.restore_thread(saved);
+    py.clear(saved);
+    py.delete_current();   /* and releases the GIL */
+}
+
+static BOOL CALLBACK resolve_python(PINIT_ONCE once, void *parameter, void **context) {
+    HMODULE stable = GetModuleHandleW(L"python3.dll"), full = NULL, self = NULL;
+    FARPROC probe = stable ? GetProcAddress(stable, "Py_IsInitialized") : NULL;
+    (void)once, (void)parameter, (void)context;
+    if (!probe || !GetModuleHandleExW(GET_MODULE_HANDLE_EX_FLAG_FROM_ADDRESS | GET_MODULE_HANDLE_EX_FLAG_UNCHANGED_REFCOUNT,
+                                      (LPCWSTR)(void *)probe, &full))
+        return TRUE;
+#define PY_CALL(field, name) *(FARPROC *)&py.field = GetProcAddress(full, name)
+    PY_CALL(is_initialized, "Py_IsInitialized");
+    PY_CALL(this_thread_state, "PyGILState_GetThisThreadState");
+    PY_CALL(ensure, "PyGILState_Ensure");
+    PY_CALL(save_thread, "PyEval_SaveThread");
+    PY_CALL(restore_thread, "PyEval_RestoreThread");
+    PY_CALL(clear, "PyThreadState_Clear");
+    PY_CALL(delete_current, "PyThreadState_DeleteCurrent");
+    PY_CALL(is_finalizing, "Py_IsFinalizing");   /* 3.13 on */
+    if (!py.is_finalizing) PY_CALL(is_finalizing, "_Py_IsFinalizing");   /* 3.11, 3.12 */
+#undef PY_CALL
+    *(FARPROC *)&py.shutdown_in_progress = GetProcAddress(GetModuleHandleW(L"ntdll.dll"), "RtlDllShutdownInProgress");
+    if (!py.is_initialized || !py.this_thread_state || !py.ensure || !py.save_thread || !py.restore_thread
+        || !py.clear || !py.delete_current || !py.shutdown_in_progress)
+        return TRUE;   /* not pinned: pythonfmu's own per-call thread states, slower, not wrong */
+    /* The callback must outlive the host's FreeLibrary of this FMU: pin this library (and with it
+       pythonfmu's, never freed) for the life of the process. */
+    if (!GetModuleHandleExW(GET_MODULE_HANDLE_EX_FLAG_FROM_ADDRESS | GET_MODULE_HANDLE_EX_FLAG_PIN,
+                            (LPCWSTR)(void *)&unpin_thread, &self))
+        return TRUE;
+    pin_slot = FlsAlloc(unpin_thread);
+    return TRUE;
+}
+
+static void pin_thread(void) {
+    void *saved;
+    InitOnceExecuteOnce(&pin_once, resolve_python, NULL, NULL);
+    if (pin_slot == FLS_OUT_OF_INDEXES || FlsGetValue(pin_slot) || !py.is_initialized()) return;
+    if (py.this_thread_state()) {   /* a Python thread (fmpy), or pinned by the other FMU */
+        FlsSetValue(pin_slot, PYTHON_THREAD);
+        return;
+    }
+    py.ensure();
+    saved = py.save_thread();
+    if (!FlsSetValue(pin_slot, saved)) FlsSetValue(pin_slot, PYTHON_THREAD);
+}
 
 """
 
@@ -459,7 +560,11 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
             to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
             return s;
         }
-        s->inner = inst(name, type, guid, dir, &s->mine, visible, fmi2True);
+        {
+            instantiate_guard guard = instantiate_lock();
+            s->inner = inst(name, type, guid, dir, &s->mine, visible, fmi2True);
+            instantiate_unlock(guard);
+        }
     }
     if (!s->inner) {
         char text[1400];

@@ -2,6 +2,9 @@
  * the FMUs with threads, in a C process with no Python of its own. tests/test_c_host.py runs it.
  *
  * Build:  gcc -std=gnu11 -O2 -pthread -I <fmpy>/c-code -o threaded_host threaded_host.c -ldl
+ *         x86_64-w64-mingw32-gcc -std=gnu11 -O2 -I <fmpy>/c-code -o threaded_host.exe threaded_host.c -static
+ *         (Windows: the FMU's binaries/win64 DLL, POSIX threads from MinGW-w64's winpthreads; run with the
+ *         Python folder holding python3.dll on PATH; P.dir=C:/... with forward slashes)
  *
  * Usage:  threaded_host MODE key=value ...
  *   MODE loops    two closed loops (plant + controller each; plant load 44 N and 68 N), instantiated
@@ -15,13 +18,19 @@
  *                 then fmi2FreeFMUstate (must set it to NULL) and a second free (must be ignored).
  *                 Prints: key=value lines (RSS growth in kB, the pointer after the free, statuses)
  *   MODE threads  N short-lived host threads (steps=N), each one fmi2GetReal on one plant instance.
- *                 Prints: rss_growth_kb=...
+ *                 Prints: rss_growth_kb=... (Linux: resident set; Windows: commit charge)
  * Keys: P.dir= P.id= P.guid= P.u= P.l= P.load=  (plant: folder, model identifier, GUID, value refs)
  *       C.dir= C.id= C.guid= C.l= C.u=          (controller)   steps=N threads=1|4
  * Exit status: 0 ok, 1 usage, 2 an FMI call failed, 3 fmi2Instantiate returned NULL, 4 load failed.
  */
 #define _GNU_SOURCE
+#ifdef _WIN32
+#define WIN32_LEAN_AND_MEAN
+#include <windows.h>
+#include <psapi.h>
+#else
 #include <dlfcn.h>
+#endif
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -76,19 +85,41 @@ static void check(fmi2Status s, const char *what) {
     if (s != fmi2OK && s != fmi2Warning) die(2, "%s returned status %d", what, (int)s);
 }
 
+#ifdef _WIN32
+#define BINARY "binaries/win64/%s.dll"
+#define URI "file:///%s/resources"
+#define OPEN(path) (void *)LoadLibraryA(path)
+#define OPEN_ERROR() "LoadLibrary failed"
+#define SYMBOL(lib, name) (void *)GetProcAddress((HMODULE)(lib), name)
+#else
+#define BINARY "binaries/linux64/%s.so"
+#define URI "file://%s/resources"
+#define OPEN(path) dlopen(path, RTLD_NOW | RTLD_LOCAL)
+#define OPEN_ERROR() dlerror()
+#define SYMBOL(lib, name) dlsym(lib, name)
+#endif
+
 static void load(Fmu *f, const char *key) {
     char path[4096];
     if (!f->dir || !f->id || !f->guid) die(1, "%s.dir, %s.id and %s.guid are required", key, key, key);
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", f->dir, f->id);
-    if (!(f->lib = dlopen(path, RTLD_NOW | RTLD_LOCAL))) die(4, "cannot load %s: %s", path, dlerror());
-    snprintf(f->uri, sizeof f->uri, "file://%s/resources", f->dir);
-#define F(n) if (!(f->n = (fmi2##n##TYPE *)dlsym(f->lib, "fmi2" #n))) die(4, "%s: no fmi2" #n, f->id);
+    snprintf(path, sizeof path, "%s/" BINARY, f->dir, f->id);
+    if (!(f->lib = OPEN(path))) die(4, "cannot load %s: %s", path, OPEN_ERROR());
+    snprintf(f->uri, sizeof f->uri, URI, f->dir);
+#define F(n) if (!(f->n = (fmi2##n##TYPE *)SYMBOL(f->lib, "fmi2" #n))) die(4, "%s: no fmi2" #n, f->id);
     F(Instantiate) F(FreeInstance) F(SetupExperiment) F(EnterInitializationMode) F(ExitInitializationMode)
     F(Terminate) F(GetReal) F(SetReal) F(DoStep) F(GetFMUstate) F(FreeFMUstate) F(SerializedFMUstateSize)
     F(SerializeFMUstate) F(DeSerializeFMUstate)
 #undef F
 }
 
+#ifdef _WIN32
+static long rss_kb(void) {   /* the commit charge: the private memory the process allocated (Wine: its
+                               PrivateUsage stays 0, its PagefileUsage counts) */
+    PROCESS_MEMORY_COUNTERS m = {.cb = sizeof m};
+    if (!GetProcessMemoryInfo(GetCurrentProcess(), &m, sizeof m)) die(1, "GetProcessMemoryInfo failed");
+    return (long)(m.PagefileUsage / 1024);
+}
+#else
 static long rss_kb(void) {
     long pages = 0, resident = 0;
     FILE *f = fopen("/proc/self/statm", "r");
@@ -96,6 +127,7 @@ static long rss_kb(void) {
     fclose(f);
     return resident * 4;   /* 4 kB pages (x86-64 Linux) */
 }
+#endif
 
 /* ---- closed loops ---- */
 typedef struct {
