@@ -211,7 +211,37 @@ _WIN64_LOADER_C = r"""
 #include <stdio.h>
 
 static HMODULE pythonfmu_lib;
-static char load_error[512];
+static char load_error[1024];
+
+/* Why pythonfmu's library at `path` did not load (`error`, GetLastError's): mostly because the
+   python3.dll it imports is not on the DLL search path, which Windows reports only as "module not
+   found" (126), the same code as for the library itself. */
+static void explain_load_error(const wchar_t *path, DWORD error) {
+    wchar_t found[4096] = L"";
+    HMODULE python;
+    DWORD on_path;
+    if (GetFileAttributesW(path) == INVALID_FILE_ATTRIBUTES) {
+        snprintf(load_error, sizeof load_error, "it is not in the folder of the FMU's binary (Windows error %lu)",
+                 (unsigned long)GetLastError());
+        return;
+    }
+    on_path = SearchPathW(NULL, L"python3.dll", NULL, 4096, found, NULL);
+    if (on_path >= 4096) found[0] = 0;
+    if (error == ERROR_MOD_NOT_FOUND && !on_path) {
+        snprintf(load_error, sizeof load_error, "it imports python3.dll, which is not on the DLL search path: put "
+                 "the folder of a 64-bit Python 3 (python3.dll lies beside its python.exe) with numpy, scipy and "
+                 "osqp on PATH, or start the host from an environment that has it there");
+        return;
+    }
+    python = LoadLibraryExW(L"python3.dll", NULL, 0);
+    if (!python && GetLastError() == ERROR_BAD_EXE_FORMAT) {
+        snprintf(load_error, sizeof load_error, "the python3.dll on the DLL search path is not a 64-bit one (%ls): "
+                 "put the folder of a 64-bit Python 3 first on PATH", found);
+        return;
+    }
+    if (python) FreeLibrary(python);
+    snprintf(load_error, sizeof load_error, "LoadLibrary failed with Windows error %lu", (unsigned long)error);
+}
 
 /* pythonfmu's library from this library's own folder (not the host's search path). */
 static void *real(const char *symbol) {
@@ -225,11 +255,13 @@ static void *real(const char *symbol) {
         if (n > 0 && n < 4096) {
             wchar_t *slash = wcsrchr(path, L'\\');
             size_t room = 4096 - (size_t)(slash ? slash + 1 - path : 0);
-            if (slash && MultiByteToWideChar(CP_UTF8, 0, PYTHONFMU_LIBRARY, -1, slash + 1, (int)room) > 0)
+            if (slash && MultiByteToWideChar(CP_UTF8, 0, PYTHONFMU_LIBRARY, -1, slash + 1, (int)room) > 0) {
                 pythonfmu_lib = LoadLibraryExW(path, NULL, LOAD_WITH_ALTERED_SEARCH_PATH);
+                if (!pythonfmu_lib) explain_load_error(path, GetLastError());
+            }
         }
-        if (!pythonfmu_lib)
-            snprintf(load_error, sizeof load_error, "LoadLibrary failed with Windows error %lu",
+        if (!pythonfmu_lib && !load_error[0])
+            snprintf(load_error, sizeof load_error, "the FMU's own library path is unknown (Windows error %lu)",
                      (unsigned long)GetLastError());
     }
     return pythonfmu_lib ? (void *)GetProcAddress(pythonfmu_lib, symbol) : NULL;
@@ -522,7 +554,7 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
     s->logging_on = loggingOn;
     snprintf(s->name, sizeof s->name, "%s", name ? name : "");
     if (!inst) {
-        snprintf(s->reason, sizeof s->reason, "the FMU's pythonfmu library %s was not found: %s", PYTHONFMU_LIBRARY,
+        snprintf(s->reason, sizeof s->reason, "the FMU's pythonfmu library %s could not be loaded: %s", PYTHONFMU_LIBRARY,
                  library_error());
         to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
         return s;

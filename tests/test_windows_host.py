@@ -223,7 +223,21 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
         win = _run_windows(windows, str(hosts["windows"]), *args(True, mode), env_extra=path)
         runs[mode] = {"linux": (lin.returncode, _table(lin.stdout), lin.stderr[-3000:]),
                       "windows": (win.returncode, _table(win.stdout), win.stderr[-3000:])}
+    # and as a user's C host may start: no Python on PATH (Wine's PATH has no python3.dll of its own)
+    bare = _run_windows(windows, str(hosts["windows"]), *args(True, "open"))
+    runs["no_python"] = (bare.returncode, bare.stdout, bare.stderr[-3000:])
     return runs
+
+
+def test_a_windows_c_host_without_python_on_path_is_told_what_to_put_there(c_host_runs):
+    # Windows reports a missing python3.dll (pythonfmu's DLL imports it) as "module not found", the
+    # same code as a missing FMU library: the message names python3.dll and PATH, and the host goes on
+    # to a clean refusal (fmi_host exits 2 at the first fmi2DoStep, no crash)
+    returncode, _stdout, stderr = c_host_runs["no_python"]
+    assert returncode == 2, stderr
+    assert ("could not be loaded: it imports python3.dll, which is not on the DLL search path: put the folder "
+            "of a 64-bit Python 3") in stderr
+    assert "fmi2DoStep refused" in stderr
 
 
 def test_the_plant_in_a_windows_c_host_reads_as_in_the_linux_one(c_host_runs):
