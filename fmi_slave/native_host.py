@@ -29,7 +29,8 @@ import os
 import site
 import sys
 
-__all__ = ["CONFIG_NAME", "DEPENDENCIES", "SITE_ENV", "MissingDependencyFinder", "is_embedded", "setup"]
+__all__ = ["CONFIG_NAME", "DEPENDENCIES", "SITE_ENV", "MissingDependencyFinder", "is_embedded", "python_command",
+           "setup"]
 
 CONFIG_NAME = "tapmuscle_native.json"
 SITE_ENV = "TAPMUSCLE_SITE_PACKAGES"
@@ -65,6 +66,25 @@ def _site_dirs(config: dict) -> list[str] | None:
     return None
 
 
+def python_command() -> str:
+    """The interpreter the FMU runs in, as a command for ``-m pip install`` advice.
+
+    ``sys.executable``, unless it is not a Python: an interpreter started by the FMU in a Windows C
+    host reports the host's program there (``fmi_host.exe``, a simulation tool's executable). Its own
+    executable then lies in its prefix (``python.exe`` on Windows, ``bin/python3`` elsewhere).
+    """
+    executable = sys.executable or ""
+    if os.path.basename(executable).lower().startswith("python"):
+        return executable
+    names = ("python.exe",) if sys.platform == "win32" else ("bin/python3", "bin/python")
+    for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
+        for name in names:
+            candidate = os.path.join(prefix, name)
+            if os.path.isfile(candidate):
+                return candidate
+    return executable or "python3"
+
+
 class MissingDependencyFinder:
     """Last entry of ``sys.meta_path``: asked only when no other finder has the module. For the
     top-level packages in ``names`` it raises ModuleNotFoundError with what to install."""
@@ -75,7 +95,7 @@ class MissingDependencyFinder:
     def find_spec(self, fullname, path=None, target=None):
         if path is not None or fullname not in self.names:
             return None
-        python = sys.executable or "python3"
+        python = python_command()
         raise ModuleNotFoundError(
             f"tapmuscle FMU: cannot import {fullname}; install it into the Python the FMU uses: "
             f"{python} -m pip install {fullname} (or set {SITE_ENV} to site-packages directories that have "

@@ -200,6 +200,26 @@ def test_missing_dependency_finder_names_what_to_install(monkeypatch):
     assert finder.find_spec("json") is None and finder.find_spec("tapmuscle_not_installed.x", ["p"]) is None
 
 
+@pytest.mark.parametrize("system, name", [("linux", "bin/python3"), ("win32", "python.exe")])
+def test_the_pip_advice_names_the_interpreter_not_the_host_program(tmp_path, monkeypatch, system, name):
+    # An interpreter started by the FMU in a Windows C host has the host's program as sys.executable
+    # (measured under Wine: "fmi_host.exe -m pip install osqp" was the advice); its own executable lies
+    # in its prefix
+    monkeypatch.setattr(native_host.sys, "platform", system)
+    monkeypatch.setattr(native_host.sys, "executable", str(tmp_path / "host" / "Simulator.exe"))
+    monkeypatch.setattr(native_host.sys, "prefix", str(tmp_path / "venv"))
+    monkeypatch.setattr(native_host.sys, "base_prefix", str(tmp_path / "base"))
+    assert native_host.python_command() == str(tmp_path / "host" / "Simulator.exe")  # nothing better found
+    (tmp_path / "base" / name).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "base" / name).write_text("")
+    assert native_host.python_command() == str(tmp_path / "base" / name)
+    (tmp_path / "venv" / name).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "venv" / name).write_text("")
+    assert native_host.python_command() == str(tmp_path / "venv" / name)  # the environment's first
+    monkeypatch.setattr(native_host.sys, "executable", "/usr/bin/python3.11")  # a Python host: its own
+    assert native_host.python_command() == "/usr/bin/python3.11"
+
+
 def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_path, monkeypatch):
     """fmi_slave.native_host as it runs from an FMU's resources/, embedded in a C host."""
     resources = tmp_path / "resources"

@@ -226,6 +226,16 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
     # and as a user's C host may start: no Python on PATH (Wine's PATH has no python3.dll of its own)
     bare = _run_windows(windows, str(hosts["windows"]), *args(True, "open"))
     runs["no_python"] = (bare.returncode, bare.stdout, bare.stderr[-3000:])
+    # or a Python without osqp: a copy of the interpreter whose site folder links all but osqp
+    lacking = tmp_path_factory.mktemp("windows-python-without-osqp")
+    shutil.copytree(windows["python"].parent, lacking / "python")
+    (lacking / "site").mkdir()
+    for entry in (windows["python"].parent.parent / "site").iterdir():
+        if not entry.name.lower().startswith("osqp"):
+            (lacking / "site" / entry.name).symlink_to(entry)
+    no_osqp = _run_windows(windows, str(hosts["windows"]), *args(True, "closed"),
+                           env_extra={"WINEPATH": _windows_path(lacking / "python")})
+    runs["no_osqp"] = (no_osqp.returncode, _windows_path(lacking / "python" / "python.exe"), no_osqp.stderr[-3000:])
     return runs
 
 
@@ -238,6 +248,14 @@ def test_a_windows_c_host_without_python_on_path_is_told_what_to_put_there(c_hos
     assert ("could not be loaded: it imports python3.dll, which is not on the DLL search path: put the folder "
             "of a 64-bit Python 3") in stderr
     assert "fmi2DoStep refused" in stderr
+
+
+def test_a_windows_c_host_whose_python_lacks_osqp_is_told_how_to_install_it_there(c_host_runs):
+    # The interpreter the FMU started reports the host's program as sys.executable; the advice names
+    # the Python's own python.exe ("...\\fmi_host.exe -m pip install osqp" before)
+    returncode, python, stderr = c_host_runs["no_osqp"]
+    assert returncode == 2, stderr
+    assert f"install it into the Python the FMU uses: {python} -m pip install osqp".replace("\\", "\\\\") in stderr
 
 
 def test_the_plant_in_a_windows_c_host_reads_as_in_the_linux_one(c_host_runs):
