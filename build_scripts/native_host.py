@@ -243,9 +243,79 @@ static void explain_load_error(const wchar_t *path, DWORD error) {
     snprintf(load_error, sizeof load_error, "LoadLibrary failed with Windows error %lu", (unsigned long)error);
 }
 
+/* A Python already in this process (a Python host, or one an FMU started): its own rules. */
+static int python_in_process(void) {
+    wchar_t name[32];
+    int minor;
+    if (GetModuleHandleW(L"python3.dll")) return 1;
+    for (minor = 6; minor < 40; minor++) {
+        _snwprintf(name, 32, L"python3%d.dll", minor);
+        name[31] = 0;
+        if (GetModuleHandleW(name)) return 1;
+    }
+    return 0;
+}
+
+/* TAPMUSCLE_PYTHON names the Python that a C host's FMU starts (its python.exe, as on Linux): its
+   python3.dll is loaded first, so that pythonfmu's DLL binds to it rather than to the first one on the
+   DLL search path, and it becomes the program name (its prefix, sys.executable). 0 if the variable
+   names no usable Python (load_error says why). */
+static int choose_python(void) {
+    static wchar_t program[4096];   /* Py_SetProgramName keeps the pointer */
+    wchar_t dll[4096], *slash;
+    DWORD n = GetEnvironmentVariableW(L"TAPMUSCLE_PYTHON", program, 4096), attributes;
+    HMODULE python;
+    HANDLE found;
+    WIN32_FIND_DATAW entry;
+    void (*set_program_name)(const wchar_t *);
+    if (n == 0 || python_in_process()) return 1;
+    if (n >= 4096) {
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON is longer than 4095 characters");
+        return 0;
+    }
+    attributes = GetFileAttributesW(program);
+    if (attributes == INVALID_FILE_ATTRIBUTES || (attributes & FILE_ATTRIBUTE_DIRECTORY)) {
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%ls is not a file (name the python.exe of a "
+                 "64-bit Python 3 with numpy, scipy and osqp)", program);
+        return 0;
+    }
+    wcscpy(dll, program);
+    slash = wcsrchr(dll, L'\\');
+    if (!slash) slash = wcsrchr(dll, L'/');
+    if (!slash || (size_t)(slash + 1 - dll) + 12 > 4096) {
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%ls is not an absolute path", program);
+        return 0;
+    }
+    /* python3.dll only forwards to the full python3XY.dll beside it, which the loader would look for
+       on the search path when it binds the forwarders: loaded from here first */
+    wcscpy(slash + 1, L"python3*.dll");
+    found = FindFirstFileW(dll, &entry);
+    if (found != INVALID_HANDLE_VALUE) {
+        do {
+            if (_wcsicmp(entry.cFileName, L"python3.dll") && wcslen(entry.cFileName) < 32) {
+                wcscpy(slash + 1, entry.cFileName);
+                LoadLibraryExW(dll, NULL, LOAD_WITH_ALTERED_SEARCH_PATH);
+            }
+        } while (FindNextFileW(found, &entry));
+        FindClose(found);
+    }
+    wcscpy(slash + 1, L"python3.dll");
+    python = LoadLibraryExW(dll, NULL, LOAD_WITH_ALTERED_SEARCH_PATH);
+    if (!python) {
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%ls: %ls could not be loaded (Windows error %lu); "
+                 "name the python.exe of a Python installation (a venv's Scripts\\python.exe has no python3.dll "
+                 "beside it: name its base Python's and set TAPMUSCLE_SITE_PACKAGES to the venv's "
+                 "Lib\\site-packages)", program, dll, (unsigned long)GetLastError());
+        return 0;
+    }
+    *(FARPROC *)&set_program_name = GetProcAddress(python, "Py_SetProgramName");   /* deprecated, honoured */
+    if (set_program_name) set_program_name(program);
+    return 1;
+}
+
 /* pythonfmu's library from this library's own folder (not the host's search path). */
 static void *real(const char *symbol) {
-    if (!pythonfmu_lib) {
+    if (!pythonfmu_lib && !load_error[0] && choose_python()) {
         wchar_t path[4096];
         HMODULE self = NULL;
         DWORD n = 0;

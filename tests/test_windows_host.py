@@ -236,7 +236,35 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
     no_osqp = _run_windows(windows, str(hosts["windows"]), *args(True, "closed"),
                            env_extra={"WINEPATH": _windows_path(lacking / "python")})
     runs["no_osqp"] = (no_osqp.returncode, _windows_path(lacking / "python" / "python.exe"), no_osqp.stderr[-3000:])
+    # TAPMUSCLE_PYTHON names the Python, ahead of the one on PATH (here the one without osqp)
+    named = _run_windows(windows, str(hosts["windows"]), *args(True, "closed"),
+                         env_extra={"WINEPATH": _windows_path(lacking / "python"),
+                                    "TAPMUSCLE_PYTHON": _windows_path(windows["python"])})
+    runs["named"] = (named.returncode, _table(named.stdout), named.stderr[-3000:])
+    missing = _windows_path(lacking / "nothing" / "python.exe")
+    wrong = _run_windows(windows, str(hosts["windows"]), *args(True, "open"), env_extra={"TAPMUSCLE_PYTHON": missing})
+    runs["named_wrong"] = (wrong.returncode, missing, wrong.stderr[-3000:])
     return runs
+
+
+def _mae(rows: list[list[float]]) -> float:
+    """Eq. (21) over 20-60 s of the C host's closed loop (t, l, u rows), against the controller's
+    built-in reference."""
+    err = [abs(35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * t) - l) for t, l, _u in rows if t >= 20.0 - 1e-9]
+    return sum(err) / len(err)
+
+
+def test_tapmuscle_python_names_the_python_of_a_windows_c_host(c_host_runs):
+    # As on Linux: TAPMUSCLE_PYTHON names the interpreter the FMU starts, here ahead of a Python on PATH
+    # that lacks osqp; the loop runs as with the right Python on PATH. A name that is not a file is
+    # refused with the variable and its value.
+    (lin_rc, lin, lin_err), (rc, rows, err) = c_host_runs["closed"]["linux"], c_host_runs["named"]
+    assert lin_rc == 0, lin_err
+    assert rc == 0, err
+    assert len(rows) == 600 and _mae(rows) == pytest.approx(_mae(lin), rel=0.10)
+    rc, missing, err = c_host_runs["named_wrong"]
+    assert rc == 2, err
+    assert f"could not be loaded: TAPMUSCLE_PYTHON={missing} is not a file" in err
 
 
 def test_a_windows_c_host_without_python_on_path_is_told_what_to_put_there(c_host_runs):
@@ -273,13 +301,9 @@ def test_the_closed_loop_in_a_windows_c_host_tracks_as_in_the_linux_one(c_host_r
     assert lin_rc == 0, lin_err
     assert win_rc == 0, win_err
 
-    def mae(rows):  # Eq. (21) over 20-60 s against the controller's built-in reference
-        err = [abs(35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * t) - l) for t, l, _u in rows if t >= 20.0 - 1e-9]
-        return sum(err) / len(err)
-
     assert len(win) == len(lin) == 600
     assert all(0.0 <= u <= 10.0 and math.isfinite(l) for _t, l, u in win)
-    assert mae(win) == pytest.approx(mae(lin), rel=0.10) and mae(win) < 0.15
+    assert _mae(win) == pytest.approx(_mae(lin), rel=0.10) and _mae(win) < 0.15
 
 
 # ---- a parallel master's threads in a Windows C host: tests/c_host/threaded_host.c cross-compiled ----
