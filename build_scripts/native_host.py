@@ -308,19 +308,24 @@ static int choose_python(void) {
                  "Lib\\site-packages)", program, dll, (unsigned long)GetLastError());
         return 0;
     }
-    *(FARPROC *)&set_program_name = GetProcAddress(python, "Py_SetProgramName");   /* deprecated, honoured */
+    /* deprecated since 3.11, honoured */
+    set_program_name = (void (*)(const wchar_t *))(void (*)(void))GetProcAddress(python, "Py_SetProgramName");
     if (set_program_name) set_program_name(program);
     return 1;
 }
 
-/* pythonfmu's library from this library's own folder (not the host's search path). */
-static void *real(const char *symbol) {
-    if (!pythonfmu_lib && !load_error[0] && choose_python()) {
+/* pythonfmu's library from this library's own folder (not the host's search path); once, whichever
+   thread comes first (a parallel master's may come together). */
+static INIT_ONCE load_once = INIT_ONCE_STATIC_INIT;
+
+static BOOL CALLBACK load_pythonfmu(PINIT_ONCE once, void *parameter, void **context) {
+    (void)once, (void)parameter, (void)context;
+    if (choose_python()) {
         wchar_t path[4096];
         HMODULE self = NULL;
         DWORD n = 0;
         if (GetModuleHandleExW(GET_MODULE_HANDLE_EX_FLAG_FROM_ADDRESS | GET_MODULE_HANDLE_EX_FLAG_UNCHANGED_REFCOUNT,
-                               (LPCWSTR)(void *)&real, &self))
+                               (LPCWSTR)(void *)&load_pythonfmu, &self))
             n = GetModuleFileNameW(self, path, 4096);
         if (n > 0 && n < 4096) {
             wchar_t *slash = wcsrchr(path, L'\\');
@@ -334,6 +339,11 @@ static void *real(const char *symbol) {
             snprintf(load_error, sizeof load_error, "the FMU's own library path is unknown (Windows error %lu)",
                      (unsigned long)GetLastError());
     }
+    return TRUE;
+}
+
+static void *real(const char *symbol) {
+    InitOnceExecuteOnce(&load_once, load_pythonfmu, NULL, NULL);
     return pythonfmu_lib ? (void *)GetProcAddress(pythonfmu_lib, symbol) : NULL;
 }
 
@@ -425,7 +435,7 @@ static BOOL CALLBACK resolve_python(PINIT_ONCE once, void *parameter, void **con
     if (!probe || !GetModuleHandleExW(GET_MODULE_HANDLE_EX_FLAG_FROM_ADDRESS | GET_MODULE_HANDLE_EX_FLAG_UNCHANGED_REFCOUNT,
                                       (LPCWSTR)(void *)probe, &full))
         return TRUE;
-#define PY_CALL(field, name) *(FARPROC *)&py.field = GetProcAddress(full, name)
+#define PY_CALL(field, name) py.field = (__typeof__(py.field))(void (*)(void))GetProcAddress(full, name)
     PY_CALL(is_initialized, "Py_IsInitialized");
     PY_CALL(this_thread_state, "PyGILState_GetThisThreadState");
     PY_CALL(ensure, "PyGILState_Ensure");
@@ -436,7 +446,8 @@ static BOOL CALLBACK resolve_python(PINIT_ONCE once, void *parameter, void **con
     PY_CALL(is_finalizing, "Py_IsFinalizing");   /* 3.13 on */
     if (!py.is_finalizing) PY_CALL(is_finalizing, "_Py_IsFinalizing");   /* 3.11, 3.12 */
 #undef PY_CALL
-    *(FARPROC *)&py.shutdown_in_progress = GetProcAddress(GetModuleHandleW(L"ntdll.dll"), "RtlDllShutdownInProgress");
+    py.shutdown_in_progress = (__typeof__(py.shutdown_in_progress))(void (*)(void))GetProcAddress(
+        GetModuleHandleW(L"ntdll.dll"), "RtlDllShutdownInProgress");
     if (!py.is_initialized || !py.this_thread_state || !py.ensure || !py.save_thread || !py.restore_thread
         || !py.clear || !py.delete_current || !py.shutdown_in_progress)
         return TRUE;   /* not pinned: pythonfmu's own per-call thread states, slower, not wrong */
