@@ -9,7 +9,8 @@
 * With ``--windows DIR``: the same C host cross-compiled with MinGW-w64 and run under Wine, with the
   Windows Python that ``tests/windows_host/prepare_python.py DIR`` prepared (python3.dll on its PATH),
   on the FMUs' win64 binaries. Wine is not Windows: the figure compares builds of the shim, not
-  operating systems.
+  operating systems. Wine's start-up varies by about as much as 2400 steps cost: take
+  ``--steps 12000`` for a steady figure.
 
 Goal: >= 300x real time in the C host. Best of ``--repeat`` runs (the machine may be shared). Then the
 fmpy figures of today, those of ``python benchmarks/fmu_cosim.py`` (goals FMU/direct <= 1.3, >= 500x),
@@ -90,6 +91,15 @@ def c_host_seconds(exe: Path, args: list[str], steps: int, wine: tuple[list[str]
     return time.perf_counter() - t0
 
 
+def loop_seconds(run, steps: int, repeat: int) -> float:
+    """The stepping time of ``steps`` steps: the best of ``repeat`` runs of ``steps + 10`` steps minus
+    the best of as many runs of 10 (start-up varies from run to run, by more than the loop costs
+    under Wine: the best of the differences would be biased low)."""
+    long = min(run(steps + 10) for _ in range(repeat))
+    short = min(run(10) for _ in range(repeat))
+    return long - short
+
+
 def libcosim_seconds(fmus: dict[str, Path], steps: int) -> float | None:
     try:
         from libcosimpy.CosimExecution import CosimExecution
@@ -123,15 +133,13 @@ def main() -> None:
         folder = Path(tmp)
         exe = _host(folder)
         host_args = _args(fmus, folder)
-        loop = min(c_host_seconds(exe, host_args, args.steps + 10) - c_host_seconds(exe, host_args, 10)
-                   for _ in range(args.repeat))
+        loop = loop_seconds(lambda steps: c_host_seconds(exe, host_args, steps), args.steps, args.repeat)
         print(f"C host, closed loop, {args.steps} steps of {TS_S} s: {loop:.3f} s, real-time factor "
               f"{simulated / loop:.0f}x (goal >= 300x)")
         if args.windows:
             wine = _wine_command(args.windows.resolve())
             win_exe, win_args = _host(folder, windows=True), _args(fmus, folder, windows=True)
-            loop = min(c_host_seconds(win_exe, win_args, args.steps + 10, wine)
-                       - c_host_seconds(win_exe, win_args, 10, wine) for _ in range(args.repeat))
+            loop = loop_seconds(lambda steps: c_host_seconds(win_exe, win_args, steps, wine), args.steps, args.repeat)
             print(f"Windows C host under Wine, closed loop, {args.steps} steps: {loop:.3f} s, real-time factor "
                   f"{simulated / loop:.0f}x")
         lc = [libcosim_seconds(fmus, args.steps) for _ in range(args.repeat)]
