@@ -25,6 +25,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from build_scripts.build_fmus import FMUS
+from threaded_loops import assert_parallel_loops_as_one_thread
 
 pytestmark = pytest.mark.c_host
 
@@ -354,17 +355,8 @@ def test_a_parallel_master_instantiates_and_steps_both_loops_at_once_as_one_thre
     # crashed 19 of 20 such processes), then every fmi2DoStep of a step in its own thread. The same
     # binaries, inputs and environment as the one-thread run: the threads change only who calls, so the
     # trajectories are the same bit for bit (hex floats).
-    alone = _threaded(threaded_host, plant, controller, tmp_path, "loops", threads=1)
-    assert alone.returncode == 0, alone.stderr[-3000:]
-    rows = alone.stdout.splitlines()
-    assert len(rows) == 601
-    last = rows[-1].split(",")
-    assert all(10.0 < float.fromhex(last[i]) < 80.0 for i in (1, 3))  # both loops track (l in mm)
-    assert last[1] != last[3]  # 44 N and 68 N are two different loops
-    for run in range(5):
-        parallel = _threaded(threaded_host, plant, controller, tmp_path, "loops", threads=4)
-        assert parallel.returncode == 0, f"run {run}: exit {parallel.returncode}\n{parallel.stderr[-3000:]}"
-        assert parallel.stdout == alone.stdout, f"run {run}"
+    assert_parallel_loops_as_one_thread(
+        lambda threads: _threaded(threaded_host, plant, controller, tmp_path, "loops", threads=threads), repeats=5)
 
 
 def test_fmu_states_are_updated_freed_and_nulled_as_fmi2_says(threaded_host, plant, controller, tmp_path):

@@ -29,6 +29,7 @@ import pytest
 HERE = Path(__file__).resolve().parent / "windows_host"
 sys.path.insert(0, str(HERE))
 from prepare_python import DEFAULT_DIR, python_exe  # noqa: E402
+from threaded_loops import assert_parallel_loops_as_one_thread  # noqa: E402
 from windows_requirement import unavailable  # noqa: E402
 
 pytestmark = [pytest.mark.windows, pytest.mark.slow]
@@ -329,17 +330,7 @@ def test_a_parallel_windows_master_instantiates_and_steps_both_loops_at_once_as_
     # without the shim's process-wide mutex 5 of 5 such processes crashed in Py_Initialize under Wine),
     # then every fmi2DoStep of a step in its own thread. The same binaries and inputs as the one-thread
     # run: the threads change only who calls, so the trajectories are the same bit for bit (hex floats).
-    alone = threaded("loops", threads=1)
-    assert alone.returncode == 0, alone.stderr[-3000:]
-    rows = alone.stdout.splitlines()
-    assert len(rows) == 601
-    last = rows[-1].split(",")
-    assert all(10.0 < float.fromhex(last[i]) < 80.0 for i in (1, 3))  # both loops track (l in mm)
-    assert last[1] != last[3]  # 44 N and 68 N are two different loops
-    for run in range(3):
-        parallel = threaded("loops", threads=4)
-        assert parallel.returncode == 0, f"run {run}: exit {parallel.returncode}\n{parallel.stderr[-3000:]}"
-        assert parallel.stdout == alone.stdout, f"run {run}"
+    assert_parallel_loops_as_one_thread(lambda threads: threaded("loops", threads=threads), repeats=3)
 
 
 def test_windows_host_threads_that_exit_leave_no_python_thread_state_behind(threaded):
