@@ -258,16 +258,14 @@ static int python_in_process(void) {
 
 /* TAPMUSCLE_PYTHON names the Python that a C host's FMU starts (its python.exe, as on Linux): its
    python3.dll is loaded first, so that pythonfmu's DLL binds to it rather than to the first one on the
-   DLL search path, and it becomes the program name (its prefix, sys.executable). 0 if the variable
-   names no usable Python (load_error says why). */
+   DLL search path (Python finds its prefix from the DLL's folder; the program name is pythonfmu's).
+   0 if the variable names no usable Python (load_error says why). */
 static int choose_python(void) {
-    static wchar_t program[4096];   /* Py_SetProgramName keeps the pointer */
-    wchar_t dll[4096], *slash;
+    wchar_t program[4096], dll[4096], *slash;
     DWORD n = GetEnvironmentVariableW(L"TAPMUSCLE_PYTHON", program, 4096), attributes;
     HMODULE python;
     HANDLE found;
     WIN32_FIND_DATAW entry;
-    void (*set_program_name)(const wchar_t *);
     if (n == 0 || python_in_process()) return 1;
     if (n >= 4096) {
         snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON is longer than 4095 characters");
@@ -308,9 +306,6 @@ static int choose_python(void) {
                  "Lib\\site-packages)", program, dll, (unsigned long)GetLastError());
         return 0;
     }
-    /* deprecated since 3.11, honoured */
-    set_program_name = (void (*)(const wchar_t *))(void (*)(void))GetProcAddress(python, "Py_SetProgramName");
-    if (set_program_name) set_program_name(program);
     return 1;
 }
 
