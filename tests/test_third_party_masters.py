@@ -17,6 +17,7 @@ libcosim = pytest.importorskip("libcosimpy.CosimExecution", reason="libcosimpy (
 from libcosimpy.CosimObserver import CosimObserver  # noqa: E402
 from libcosimpy.CosimSlave import CosimLocalSlave  # noqa: E402
 
+from fmu_container import build_parallel_container  # noqa: E402
 from fmu_controller.displacement_control import ControllerSettings, DisplacementController  # noqa: E402
 from fmu_controller.preliminary_model import THETA0_44N  # noqa: E402
 from fmu_controller.reference import SineReference  # noqa: E402
@@ -182,25 +183,8 @@ def test_libcosim_sets_the_method_an_integer_parameter(built_fmus):
 def container(built_fmus, tmp_path_factory):
     """Both FMUs in one FMU built by fmu-manipulation-toolbox's ``fmucontainer``, in its default
     parallel mode (every embedded FMU stepped on the previous outputs), parameters exposed."""
-    import json
-    import shutil
-    import subprocess
-    import sys
-
     pytest.importorskip("fmu_manipulation_toolbox", reason="fmu-manipulation-toolbox (test extra) is not installed")
-    folder = tmp_path_factory.mktemp("container")
-    for name, path in built_fmus.items():
-        shutil.copy(path, folder / f"{name}.fmu")
-    (folder / "loop.json").write_text(json.dumps({
-        "name": "TapLoop.fmu", "step_size": TS_S, "sequential": False,
-        "fmu": ["MusclePlant.fmu", "AMPCController.fmu"],
-        "link": [["MusclePlant.fmu", "l", "AMPCController.fmu", "l"], ["AMPCController.fmu", "u", "MusclePlant.fmu", "u"]],
-        "output": [["MusclePlant.fmu", "l", "l"], ["AMPCController.fmu", "u", "u"]]}))
-    cli = [sys.executable, "-c", "from fmu_manipulation_toolbox.cli.fmucontainer import fmucontainer; fmucontainer()"]
-    proc = subprocess.run([*cli, "-container", "loop.json", "-auto-parameter", "-fmu-directory", str(folder)],
-                          cwd=folder, capture_output=True, text=True, timeout=300)
-    assert (folder / "TapLoop.fmu").is_file(), proc.stdout[-2000:] + proc.stderr[-2000:]
-    return folder / "TapLoop.fmu"
+    return build_parallel_container(built_fmus, tmp_path_factory.mktemp("container"))
 
 
 @pytest.mark.parametrize("delay", [0, 1])

@@ -2,7 +2,8 @@
 
 ``tests/windows_host/fmu_checks.py`` runs in that interpreter and in this one, and the answers are
 compared: the plant alone, the closed loop stepped sequentially and in parallel (as libcosim and Ecos
-step), the loop in libcosim's Windows build, the FMU unpacked into a folder whose name is not ASCII (a
+step), the loop in libcosim's Windows build and as an FMU container of fmu-manipulation-toolbox (its
+win64 C++ master), the FMU unpacked into a folder whose name is not ASCII (a
 Windows user folder "Jürgen"), and the controller in a Python that lacks osqp with logging off. And
 ``tests/c_host/fmi_host.c``, built for both systems, runs the plant and the loop as a C host (no Python in
 the process but the one the FMU starts from ``python3.dll`` on the Windows PATH), and
@@ -29,6 +30,7 @@ import pytest
 HERE = Path(__file__).resolve().parent / "windows_host"
 sys.path.insert(0, str(HERE))
 from prepare_python import DEFAULT_DIR, python_exe  # noqa: E402
+from fmu_container import build_parallel_container  # noqa: E402
 from threaded_loops import assert_parallel_loops_as_one_thread  # noqa: E402
 from windows_requirement import unavailable  # noqa: E402
 
@@ -83,7 +85,10 @@ def _run_windows(windows: dict, *args: str, env_extra: dict | None = None,
 @pytest.fixture(scope="module")
 def answers(windows, built_fmus, tmp_path_factory) -> dict:
     out = tmp_path_factory.mktemp("windows")
-    fmu_dir = Path(built_fmus["MusclePlant"]).parent
+    # both FMUs and the loop as an FMU container (made here, on Linux; it carries its win64 binary too)
+    fmu_dir = out / "fmus"
+    fmu_dir.mkdir()
+    build_parallel_container(built_fmus, fmu_dir)
     script = _windows_path(HERE / "fmu_checks.py")
     result: dict = {}
     for key, extra in (("windows", []), ("windows_folder", ["non-ascii-folder"]), ("windows_missing", ["osqp"])):
@@ -126,7 +131,7 @@ def test_an_fmu_folder_with_non_ascii_characters_runs(answers):
     assert odd["l_mm"] == plain["l_mm"] and odd["p_mpa"] == plain["p_mpa"]
 
 
-@pytest.mark.parametrize("master", ["sequential", "parallel", "libcosim"])
+@pytest.mark.parametrize("master", ["sequential", "parallel", "libcosim", "container"])
 def test_the_closed_loop_tracks_as_in_linux(answers, master):
     win, lin = _answer(answers, "windows")[master], answers["linux"][master]
     assert win.get("finite", True) and win.get("stepped", 600) == 600
@@ -134,7 +139,7 @@ def test_the_closed_loop_tracks_as_in_linux(answers, master):
     # Windows' numpy (1.26 under Wine) and C library round differently from Linux's in the last bits, and
     # the adaptive loop carries that on: Eq. (21) within the 10 % a master may cost
     assert win["mae_20_60_mm"] == pytest.approx(lin["mae_20_60_mm"], rel=0.10)
-    assert win["mae_20_60_mm"] < 0.15  # docs/fmu.md: 0.071 mm sequential, 0.124 mm parallel (libcosim too)
+    assert win["mae_20_60_mm"] < 0.15  # docs/fmu.md: 0.071 mm sequential, 0.124 mm parallel (libcosim, container too)
 
 
 def test_a_missing_package_is_named_and_the_instance_refuses_cleanly(answers):

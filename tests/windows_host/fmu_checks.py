@@ -1,7 +1,8 @@
 """What tests/test_windows_host.py asks of the FMUs in a Python host: run by a Windows Python (under
 Wine) and by this machine's Python, the same script, so the two answers can be compared.
 
-    python fmu_checks.py FMU_DIR OUT.json                    the plant alone, the closed loop (fmpy, libcosim)
+    python fmu_checks.py FMU_DIR OUT.json                    the plant alone, the closed loop (fmpy, libcosim,
+                                                             and FMU_DIR/TapLoop.fmu, a container, if there)
     python fmu_checks.py FMU_DIR OUT.json non-ascii-folder   the plant unpacked into "Jürgen 日本 ..."
     python fmu_checks.py FMU_DIR OUT.json osqp               the controller in a Python that lacks osqp
 
@@ -174,6 +175,18 @@ def missing_package(fmu: str, package: str) -> dict:
     return out
 
 
+def container_loop(fmu: str, duration_s: float = 60.0) -> dict:
+    """The closed loop as one FMU made by fmu-manipulation-toolbox's ``fmucontainer`` (its C++ container
+    steps the two FMUs in parallel in one thread), run by fmpy, h = Ts, the controller's defaults."""
+    from fmpy import simulate_fmu
+
+    res = simulate_fmu(fmu, stop_time=duration_s, output_interval=TS_S, output=["l", "u"])
+    rows = [(float(t), float(l_mm), float(u_v)) for t, l_mm, u_v in zip(res["time"], res["l"], res["u"])]
+    after = [abs(35.0 + 30.0 * math.sin(2 * math.pi * 0.1 * t) - l_mm) for t, l_mm, _u in rows if t >= 20.0 - 1e-9]
+    return {"mae_20_60_mm": sum(after) / len(after), "u_min_v": min(r[2] for r in rows),
+            "u_max_v": max(r[2] for r in rows), "finite": all(math.isfinite(x) for r in rows for x in r)}
+
+
 def main(argv: list[str]) -> None:
     fmu_dir, out = argv[1], argv[2]
     fmus = {n: os.path.join(fmu_dir, n + ".fmu") for n in ("MusclePlant", "AMPCController")}
@@ -186,6 +199,8 @@ def main(argv: list[str]) -> None:
         result = {"platform": sys.platform, "plant": plant_alone(fmus["MusclePlant"]),
                   "sequential": closed_loop(fmus, parallel=False), "parallel": closed_loop(fmus, parallel=True),
                   "libcosim": libcosim_loop(fmus)}
+        if os.path.isfile(os.path.join(fmu_dir, "TapLoop.fmu")):
+            result["container"] = container_loop(os.path.join(fmu_dir, "TapLoop.fmu"))
     with open(out, "w", encoding="utf-8") as f:
         json.dump(result, f)
 
