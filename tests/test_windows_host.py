@@ -16,6 +16,8 @@ unless ``TAPMUSCLE_REQUIRE_WINDOWS=1`` (CI) makes that a failure (``tests/window
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import math
 import os
@@ -229,6 +231,11 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
         win = _run_windows(windows, str(hosts["windows"]), *args(True, mode), env_extra=path)
         runs[mode] = {"linux": (lin.returncode, _table(lin.stdout), lin.stderr[-3000:]),
                       "windows": (win.returncode, _table(win.stdout), win.stderr[-3000:])}
+    # two plant instances at once, both freed, the DLL freed and loaded again, a third instance
+    again = _run_windows(windows, str(hosts["windows"]), "instances",
+                         *_host_args(extracted, True, {"P": {"u": "u", "l": "l", "load": "load"}}),
+                         "load_a=44", "load_b=68", "u_const=6", "steps=100", "dt=0.1", "unload=1", env_extra=path)
+    runs["instances"] = (again.returncode, again.stdout, again.stderr[-3000:])
     # and as a user's C host may start: no Python on PATH (Wine's PATH has no python3.dll of its own)
     bare = _run_windows(windows, str(hosts["windows"]), *args(True, "open"))
     runs["no_python"] = (bare.returncode, bare.stdout, bare.stderr[-3000:])
@@ -271,6 +278,17 @@ def test_tapmuscle_python_names_the_python_of_a_windows_c_host(c_host_runs):
     rc, missing, err = c_host_runs["named_wrong"]
     assert rc == 2, err
     assert f"could not be loaded: TAPMUSCLE_PYTHON={missing} is not a file" in err
+
+
+def test_a_windows_c_host_frees_reloads_and_instantiates_again(c_host_runs):
+    # As tests/test_c_host.py on Linux: between the frees and the new instance the host FreeLibrary()s
+    # and loads the FMU's DLL again (the shim stays loaded once it keeps thread states)
+    returncode, stdout, stderr = c_host_runs["instances"]
+    assert returncode == 0, stderr
+    l_mm = {row["name"]: float(row["l"]) for row in csv.DictReader(io.StringIO(stdout))}
+    assert set(l_mm) == {"a", "b", "c"}
+    assert l_mm["a"] - l_mm["b"] > 3.0  # the heavier load hangs lower: the instances do not share state
+    assert l_mm["c"] == l_mm["a"]  # a fresh instance after freeing both repeats a's run exactly
 
 
 def test_a_windows_c_host_without_python_on_path_is_told_what_to_put_there(c_host_runs):
