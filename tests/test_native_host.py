@@ -79,6 +79,19 @@ def test_recorded_environment_is_the_building_one(tree):
         assert any(Path(d).is_relative_to(Path(sys.prefix)) for d in config["site_packages"])
 
 
+def _as_pythonfmu_made_it(tree: Path, tmp_path: Path, platform: str) -> Path:
+    """A copy of the prepared FMU ``tree`` whose ``platform`` binary is back to the layout pythonfmu
+    makes (its library under the model identifier's name; for linux64 also no recorded environment)."""
+    raw = tmp_path / "raw"
+    shutil.copytree(tree, raw)
+    bindir = raw / "binaries" / platform
+    suffix = ".dll" if platform == "win64" else ".so"
+    (bindir / f"MusclePlant_pythonfmu{suffix}").replace(bindir / f"MusclePlant{suffix}")
+    if platform == "linux64":
+        (raw / "resources" / CONFIG_NAME).unlink()
+    return raw
+
+
 def test_preparing_again_changes_nothing(tree, tmp_path):
     copy = tmp_path / "again"
     shutil.copytree(tree, copy)
@@ -88,11 +101,7 @@ def test_preparing_again_changes_nothing(tree, tmp_path):
 
 
 def test_without_patchelf_the_fmu_is_left_for_python_hosts_with_a_warning(tree, tmp_path, monkeypatch):
-    raw = tmp_path / "raw"
-    shutil.copytree(tree, raw)
-    bindir = raw / "binaries" / "linux64"
-    (bindir / "MusclePlant_pythonfmu.so").replace(bindir / "MusclePlant.so")  # the layout pythonfmu makes
-    (raw / "resources" / CONFIG_NAME).unlink()
+    raw = _as_pythonfmu_made_it(tree, tmp_path, "linux64")
     before = _digest(raw)
     monkeypatch.setattr(build_native_host, "_patchelf", lambda: None)
     with pytest.warns(NativeHostWarning, match="patchelf not found"):
@@ -133,10 +142,7 @@ def test_win64_binary_is_the_fmi_shim_in_front_of_pythonfmus_dll(tree):
 
 def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(tree, tmp_path, monkeypatch):
     _win64_shim(tree)
-    raw = tmp_path / "raw"
-    shutil.copytree(tree, raw)
-    win = raw / "binaries" / "win64"
-    (win / "MusclePlant_pythonfmu.dll").replace(win / "MusclePlant.dll")  # the layout pythonfmu makes
+    raw = _as_pythonfmu_made_it(tree, tmp_path, "win64")
     before = _digest(raw)
     monkeypatch.setattr(build_native_host, "_win64_compiler", lambda: [])
     with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64"):
@@ -145,11 +151,7 @@ def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(
 
 
 def test_built_on_another_system_the_linux64_binary_is_left_with_a_warning(tree, tmp_path, monkeypatch):
-    raw = tmp_path / "raw"
-    shutil.copytree(tree, raw)
-    bindir = raw / "binaries" / "linux64"
-    (bindir / "MusclePlant_pythonfmu.so").replace(bindir / "MusclePlant.so")
-    (raw / "resources" / CONFIG_NAME).unlink()
+    raw = _as_pythonfmu_made_it(tree, tmp_path, "linux64")
     before = _digest(raw)
     monkeypatch.setattr(build_native_host.sys, "platform", "win32")  # tapmuscle build in a Windows Python
     with pytest.warns(NativeHostWarning, match=r"linux64 binary left as pythonfmu made it.*runs on win32"):
