@@ -3,6 +3,15 @@
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
+#: What fmpy prints to stdout when it imports its FMI modules on a machine its logging helper is not
+#: built for (fmpy 0.3's wheel has it for x86-64 Linux only: aarch64 prints it twice).
+FMPY_IMPORT_NOTICE = "Failed to add logger proxy function."
+
+
+def host_lines(stdout: str) -> list[str]:
+    """The lines an fmpy child process printed itself: ``stdout`` without fmpy's import notice."""
+    return [line for line in stdout.splitlines() if not line.startswith(FMPY_IMPORT_NOTICE)]
+
 
 def open_fmu(path):
     """``(path, model description, extracted folder, {name: value reference})``."""

@@ -25,6 +25,7 @@ from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from build_scripts.build_fmus import FMUS
+from fmpy_helpers import host_lines
 from threaded_loops import assert_parallel_loops_as_one_thread
 
 pytestmark = pytest.mark.c_host
@@ -301,7 +302,7 @@ def test_fmpy_loads_runs_frees_the_prepared_fmus_and_exits_cleanly(plant, built_
                               timeout=180)
         assert proc.returncode == 0, proc.stderr[-4000:]
         assert "corrupted" not in proc.stderr
-        assert len(proc.stdout.splitlines()) == len(folders)
+        assert len(host_lines(proc.stdout)) == len(folders)
 
 
 @pytest.mark.slow

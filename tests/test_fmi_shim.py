@@ -12,12 +12,14 @@ copy must not meet a working one in one process.
 """
 
 import json
+import re
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
 import pytest
+from fmpy_helpers import host_lines
 
 pytestmark = pytest.mark.c_host
 
@@ -231,7 +233,7 @@ print(len(sys.path) - before, sum("resources" in p for p in sys.path))
     proc = subprocess.run([sys.executable, "-c", code, str(built_fmus["MusclePlant"])], capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.split() == ["1", "1"], proc.stdout
+    assert " ".join(host_lines(proc.stdout)).split() == ["1", "1"], proc.stdout
 
 
 RESOURCE_LOCATIONS = r"""
@@ -295,4 +297,5 @@ def test_percent_encoded_folder_names_reach_pythonfmu_decoded(built_fmus, tmp_pa
     if works:
         assert {"instance True", "stepped"} <= set(proc.stdout.splitlines()), proc.stdout + proc.stderr
     else:
-        assert "refused 3" in proc.stdout and 'holds "%20" in a name' in proc.stdout + proc.stderr
+        # '%%': without fmpy's logging helper (aarch64) the host prints the shim's format unformatted
+        assert "refused 3" in proc.stdout and re.search(r'holds "%%?20" in a name', proc.stdout + proc.stderr)
