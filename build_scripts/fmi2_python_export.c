@@ -487,23 +487,14 @@ FMI2_Export fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2V
 }
 /* fmi2DoStep always completes before it returns: there is no asynchronous step to cancel or ask about. */
 FMI2_Export fmi2Status fmi2CancelStep(fmi2Component c) { return unsupported(c, "fmi2CancelStep"); }
-FMI2_Export fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind k, fmi2Status *v) {
-    (void)k, (void)v;
-    return unsupported(c, "fmi2GetStatus");
-}
-FMI2_Export fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind k, fmi2Real *v) {
-    (void)k, (void)v;
-    return unsupported(c, "fmi2GetRealStatus");
-}
-FMI2_Export fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind k, fmi2Integer *v) {
-    (void)k, (void)v;
-    return unsupported(c, "fmi2GetIntegerStatus");
-}
-FMI2_Export fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind k, fmi2Boolean *v) {
-    (void)k, (void)v;
-    return unsupported(c, "fmi2GetBooleanStatus");
-}
-FMI2_Export fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind k, fmi2String *v) {
-    (void)k, (void)v;
-    return unsupported(c, "fmi2GetStringStatus");
-}
+/* fmi2GetXStatus on fmi2DoStep's asynchronous step */
+#define STATUS_INQUIRY(X, TYPE)                                                       \
+    FMI2_Export fmi2Status X(fmi2Component c, const fmi2StatusKind k, TYPE *v) {      \
+        (void)k, (void)v;                                                             \
+        return unsupported(c, #X);                                                    \
+    }
+STATUS_INQUIRY(fmi2GetStatus, fmi2Status)
+STATUS_INQUIRY(fmi2GetRealStatus, fmi2Real)
+STATUS_INQUIRY(fmi2GetIntegerStatus, fmi2Integer)
+STATUS_INQUIRY(fmi2GetBooleanStatus, fmi2Boolean)
+STATUS_INQUIRY(fmi2GetStringStatus, fmi2String)
