@@ -904,15 +904,20 @@ def python_machine() -> int | None:
         return elf_machine(f.read(20))
 
 
-def fmi_export(pythonfmu_library: Path) -> str:
+def fmi_export(pythonfmu_library: Path | None = None) -> str:
     """Which library runs the slave behind the FMI shim on Linux.
 
-    ``"pythonfmu"``, pythonfmu's own binary (``pythonfmu_library``), where it is built for the machine
-    of the building Python; else ``"tapmuscle"``, the project's ``fmi2_python_export.c`` compiled
-    here (pythonfmu 0.7 ships linux64 for x86-64 only). The environment variable
-    ``TAPMUSCLE_FMI_EXPORT`` (``pythonfmu`` or ``tapmuscle``) chooses instead; a wrong value raises
-    ``ValueError`` naming it.
+    ``"pythonfmu"``, pythonfmu's own binary (``pythonfmu_library``; default the linux64 library of the
+    installed pythonfmu), where it is built for the machine of the building Python; else
+    ``"tapmuscle"``, the project's ``fmi2_python_export.c`` compiled here (pythonfmu 0.7 ships linux64
+    for x86-64 only). The environment variable ``TAPMUSCLE_FMI_EXPORT`` (``pythonfmu`` or
+    ``tapmuscle``) chooses instead; a wrong value raises ``ValueError`` naming it.
     """
+    if pythonfmu_library is None:
+        import pythonfmu
+
+        pythonfmu_library = Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64" / \
+            "libpythonfmu-export.so"
     chosen = os.environ.get(EXPORT_VARIABLE, "").strip()
     if chosen:
         if chosen not in _EXPORTS:

@@ -45,6 +45,7 @@ def test_pythonfmus_library_runs_the_slave_where_it_is_built_for_this_machine(mo
     theirs = elf_machine(PYTHONFMU_LIBRARY.read_bytes()[:20])
     assert machine_name(theirs) == "x86-64"  # pythonfmu 0.7 ships linux64 for x86-64 only
     assert fmi_export(PYTHONFMU_LIBRARY) == ("pythonfmu" if theirs == python_machine() else "tapmuscle")
+    assert fmi_export() == fmi_export(PYTHONFMU_LIBRARY)  # the installed pythonfmu's, by default
 
 
 def test_a_library_for_another_machine_gets_the_projects_export(tmp_path, monkeypatch):

@@ -231,12 +231,26 @@ def _cmd_paper(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------------------- build
+def _linux64_note(fmu: Path) -> str:
+    """What runs the slave in the FMU's linux64 binary, as the build recorded it; "" if not recorded."""
+    import zipfile
+
+    from build_scripts.native_host import CONFIG_NAME, machine_name, python_machine
+
+    with zipfile.ZipFile(fmu) as z:
+        if f"resources/{CONFIG_NAME}" not in z.namelist():
+            return ""
+        export = json.loads(z.read(f"resources/{CONFIG_NAME}")).get("fmi_export", "pythonfmu")
+    library = "pythonfmu's FMI library" if export == "pythonfmu" else "the project's FMI export library"
+    return f" (linux64 for {machine_name(python_machine())}: {library})"
+
+
 def _cmd_build(args: argparse.Namespace) -> int:
     from build_scripts.build_fmus import FMUS, build_fmus
 
     paths = build_fmus(args.out)
     for path in paths:
-        print(f"wrote {path}")
+        print(f"wrote {path}{_linux64_note(path)}")
     if args.ssp:
         from build_scripts.ssp import write_ssp
 
