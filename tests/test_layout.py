@@ -18,6 +18,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from fmpy_helpers import host_lines
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ["tapmuscle.errors", "tapmuscle.io", "tapmuscle.plots", "tapmuscle.closed_loop", "tapmuscle.soak",
@@ -125,5 +126,5 @@ def test_a_checkout_imported_without_its_install_finds_its_scenario_files():
     """)
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
-    folder, n_paper = done.stdout.split()
+    folder, n_paper = host_lines(done.stdout)[-1].split()
     assert Path(folder) == ROOT / "scenarios" and int(n_paper) >= 10
