@@ -33,6 +33,10 @@ What this module does to the tree:
   first instantiations run in parallel threads would otherwise start it twice at once).
   In a Python host (fmpy) (a), (b) and (d) change nothing and (c) only reorders a release.
   Every FMI function goes through the loader's shim to pythonfmu's (see ``_SHIM_C``; on win64 the same shim, ``_WIN64_LOADER_C``).
+* where pythonfmu's binary is built for another machine than the building Python (pythonfmu 0.7
+  ships linux64 for x86-64 only; an aarch64 build), ``<id>_pythonfmu.so`` is instead the project's
+  own export library, ``fmi2_python_export.c`` compiled here against the building Python's headers
+  (:func:`fmi_export`; ``TAPMUSCLE_FMI_EXPORT`` chooses), behind the same loader and shim.
 * ``resources/tapmuscle_native.json`` records the building environment's site-packages (a venv's,
   where numpy/scipy/osqp live), the building interpreter and libpython; ``fmi_slave.native_host``
   reads it inside the FMU (see there and docs/fmu-native-hosts.md for ``TAPMUSCLE_SITE_PACKAGES``).
