@@ -27,8 +27,8 @@ states ``(i, omega, theta)``, whose derivatives are the local variables ``der(i)
 ``der(theta)``; the model has no events. The FMU can get and set its state
 (``canGetAndSetFMUstate``) but not serialize it.
 
-:func:`build_dc_motor_fmu` compiles the C source with gcc against fmpy's FMI 2.0 headers (Linux
-x86_64 only) and writes ``DcMotor.fmu``, offering the interfaces it is asked for (one binary serves
+:func:`build_dc_motor_fmu` compiles the C source with gcc against fmpy's FMI 2.0 headers (64-bit
+Linux: x86-64 or aarch64, into ``binaries/linux64``) and writes ``DcMotor.fmu``, offering the interfaces it is asked for (one binary serves
 both).
 """
 
@@ -216,8 +216,10 @@ def model_description(guid: str, interfaces: Sequence[str] = ("CoSimulation",)) 
 
 
 def _check_platform() -> None:
-    if not (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")):
-        raise RuntimeError(f"build_dc_motor_fmu builds binaries/linux64 only (Linux x86_64); this is "
+    # linux64 holds the building machine's binary, x86-64 or aarch64 alike (FMI 2.0 has no folder for
+    # aarch64; FMI tools use linux64 for every 64-bit Linux)
+    if not (sys.platform.startswith("linux") and sys.maxsize > 2**32):
+        raise RuntimeError(f"build_dc_motor_fmu builds binaries/linux64 only (64-bit Linux); this is "
                            f"{sys.platform} {platform.machine()}")
 
 
@@ -268,7 +270,7 @@ def build_dc_motor_fmu(out_dir: str | Path, *, interfaces: Sequence[str] = ("CoS
     Raises
     ------
     RuntimeError
-        Not on Linux x86_64, gcc missing, or gcc failing (the message carries gcc's stderr).
+        Not on 64-bit Linux, gcc missing, or gcc failing (the message carries gcc's stderr).
     ValueError
         ``interfaces`` names none or an unknown one.
     """
