@@ -48,6 +48,7 @@ pythonfmu made it (Python hosts only) and a warning says why.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import platform
@@ -902,8 +903,9 @@ def machine_name(code: int | None) -> str:
     return _MACHINES.get(code, f"ELF machine {code}")
 
 
+@functools.cache
 def python_machine() -> int | None:
-    """The ``e_machine`` code of the running interpreter's executable (None if it is not ELF)."""
+    """The ``e_machine`` code of the running interpreter's executable (None if it is not ELF); read once."""
     with open(Path(sys.executable).resolve(), "rb") as f:
         return elf_machine(f.read(20))
 

@@ -9,8 +9,7 @@ process with SIGBUS before Python can say anything (and leaves its extraction fo
    else model exchange's)
    exists, is an ELF file of the right class and for this machine (an FMU built on x86-64 Linux
    carries x86-64 binaries in ``linux64``, which an aarch64 host cannot load), and is not shorter
-   than its own header says (its
-   section-header table ends within the file);
+   than its own header says (its section-header table ends within the file);
 3. loads the binary once in a *child* process (``ctypes.CDLL``), with a time limit.
 
 A failure raises :class:`~tapmuscle.cosim.spec.ScenarioError` ("... is not a loadable FMU: ...")
@@ -57,9 +56,9 @@ def _elf_problem(data: bytes) -> str | None:
         return f"not an ELF shared library ({len(data)} bytes, starts {data[:4]!r})"
     if data[4] != 2 or data[5] != 1:
         return "not a 64-bit little-endian ELF file"
-    ours = python_machine()
-    if ours is not None and elf_machine(data) != ours:
-        return (f"built for {machine_name(elf_machine(data))}, and this machine is {machine_name(ours)} "
+    ours, theirs = python_machine(), elf_machine(data)
+    if ours is not None and theirs != ours:
+        return (f"built for {machine_name(theirs)}, and this machine is {machine_name(ours)} "
                 f"({platform.machine()}): build the FMUs on this machine (tapmuscle build), which compiles "
                 "their binary for it")
     shoff, = struct.unpack_from("<Q", data, 0x28)
