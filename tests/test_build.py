@@ -31,6 +31,21 @@ def test_build_writes_both_fmus_byte_identical_to_an_earlier_build(built_fmus, t
     assert not list(out.glob(".*partial*"))
 
 
+def test_the_build_says_when_its_fmus_run_in_python_hosts_only(tmp_path):
+    # built by a Python without a shared libpython (tests/test_c_host.py builds and runs one)
+    from build_scripts.native_host import CONFIG_NAME
+    from tapmuscle.cli.main import _linux64_note
+
+    notes = {}
+    for hosts_only in (False, True):
+        fmu = tmp_path / f"{hosts_only}.fmu"
+        with zipfile.ZipFile(fmu, "w") as z:
+            z.writestr(f"resources/{CONFIG_NAME}", f'{{"fmi_export": "pythonfmu", "python_hosts_only": {str(hosts_only).lower()}}}')
+        notes[hosts_only] = _linux64_note(fmu)
+    assert notes[False] == f" (linux64 for {machine_name(python_machine())}: pythonfmu's FMI library)"
+    assert notes[True] == notes[False][:-1] + "; Python hosts only: the building Python has no shared libpython)"
+
+
 def test_guid_follows_the_content(built_fmus):
     guids = {}
     for name, path in built_fmus.items():

@@ -24,7 +24,9 @@ import pytest
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
+from build_scripts import native_host
 from build_scripts.build_fmus import FMUS
+from build_scripts.native_host import CONFIG_NAME, NativeHostWarning, prepare_for_native_hosts
 from fmpy_helpers import host_lines
 from threaded_loops import assert_parallel_loops_as_one_thread
 
@@ -42,6 +44,12 @@ class Fmu:
         with zipfile.ZipFile(path) as z:
             z.extractall(folder)
         self.dir = folder
+        config = json.loads((folder / "resources" / CONFIG_NAME).read_text(encoding="utf-8"))
+        if config.get("python_hosts_only"):
+            # a C host needs an FMU that starts a Python; test_a_python_without_a_shared_libpython_...
+            # checks what such a host gets from this build
+            pytest.skip(f"the building Python ({config['python']}) has no shared libpython: its FMUs run in "
+                        "Python hosts only")
         self.md = read_model_description(str(folder))
         self.id = self.md.coSimulation.modelIdentifier
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
@@ -379,3 +387,62 @@ def test_host_threads_that_exit_leave_no_python_thread_state_behind(threaded_hos
     proc = _threaded(threaded_host, plant, controller, tmp_path, "threads", steps=2000)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert int(_key_values(proc.stdout)["rss_growth_kb"]) < 1000, proc.stdout
+
+
+def _needed(library: Path) -> list[str]:
+    """The DT_NEEDED entries of ``library`` (readelf, binutils beside gcc)."""
+    out = subprocess.run(["readelf", "-d", str(library)], check=True, capture_output=True, text=True).stdout
+    return [line.split("[", 1)[1].rstrip("]") for line in out.splitlines() if "(NEEDED)" in line]
+
+
+def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_tell_other_hosts_why(
+        host, built_fmus, tmp_path, monkeypatch):
+    """A CPython built without --enable-shared (pyenv's and ./configure's default) has only a static
+    libpython, which no shared library can link. Its FMUs then run in Python hosts (fmpy, and libcosim
+    or Ecos imported into Python), which are Python processes, and take Python's API from the process;
+    a host that runs no Python gets the reason from fmi2Instantiate, and the FMU never crashes it.
+    Measured with such a Python (CPython 3.11.2 ./configure && make): the FMU suite passes but for the
+    C-host tests, which skip (docs/fmu-native-hosts.md). Here the build is told the building Python
+    has no shared libpython."""
+    import pythonfmu
+
+    tree = tmp_path / "python-hosts-only"
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(tree)
+    bindir = tree / "binaries" / "linux64"
+    (bindir / "MusclePlant_pythonfmu.so").unlink()  # back to the tree pythonfmu makes
+    shutil.copy(Path(pythonfmu.__file__).parent / "resources" / "binaries" / "linux64" / "libpythonfmu-export.so",
+                bindir / "MusclePlant.so")
+    (tree / "resources" / CONFIG_NAME).unlink()
+    env = native_host.build_environment()
+    monkeypatch.setattr(native_host, "build_environment", lambda: {**env, "libpython": "", "libpython_soname": ""})
+    with pytest.warns(NativeHostWarning, match=r"FMU prepared for Python hosts only: the building Python .* has no "
+                      r"shared libpython .*PYTHON_CONFIGURE_OPTS=--enable-shared"):
+        prepare_for_native_hosts(tree)
+    assert json.loads((tree / "resources" / CONFIG_NAME).read_text())["python_hosts_only"] is True
+    # linked to no libpython (there is none to link), and the loader opens pythonfmu's library itself
+    assert not [n for n in _needed(bindir / "MusclePlant.so") if "python" in n.lower()]
+    assert not [n for n in _needed(bindir / "MusclePlant_pythonfmu.so") if n.startswith("libpython")]
+
+    # in fmpy: the same run as the FMU built with a shared libpython, and clean exits
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(tmp_path / "as-built")
+    expected = subprocess.run([sys.executable, "-c", FMPY_RUN, str(tmp_path / "as-built")], capture_output=True,
+                              text=True, timeout=180, check=True).stdout
+    for _ in range(3):
+        proc = subprocess.run([sys.executable, "-c", FMPY_RUN, str(tree)], capture_output=True, text=True,
+                              timeout=180)
+        assert proc.returncode == 0 and "corrupted" not in proc.stderr, proc.stderr[-4000:]
+        assert host_lines(proc.stdout) == host_lines(expected) and len(host_lines(expected)) == 1
+
+    # in a C host: the instance refuses with the reason, the host ends at its first step, no crash
+    md = read_model_description(str(tree))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    for _ in range(3):
+        proc = run_host(host, tmp_path, "open", f"P.dir={tree}", "P.id=MusclePlant", f"P.guid={md.guid}",
+                        f"P.u={vr['u']}", f"P.l={vr['l']}", "steps=5", check=False)
+        assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr  # fmi_host: an FMI call failed
+        assert ("the FMU's pythonfmu library MusclePlant_pythonfmu.so could not be loaded: the building Python "
+                in proc.stderr), proc.stderr
+        assert "has no shared libpython" in proc.stderr and "--enable-shared" in proc.stderr
+        assert proc.stdout.splitlines() == ["t,u,l,p"]

@@ -41,6 +41,13 @@ def tree(built_fmus, tmp_path_factory) -> Path:
     return folder
 
 
+def _linked_to_libpython(tree: Path) -> None:
+    """Skip where the building Python has no shared libpython (its FMUs link none: tests/test_c_host.py's
+    test_a_python_without_a_shared_libpython_... covers that build)."""
+    if json.loads((tree / "resources" / CONFIG_NAME).read_text()).get("python_hosts_only"):
+        pytest.skip(f"the building Python ({sys.executable}) has no shared libpython to link")
+
+
 def _digest(folder: Path) -> str:
     h = hashlib.sha256()
     for f in sorted(p for p in folder.rglob("*") if p.is_file()):
@@ -49,6 +56,7 @@ def _digest(folder: Path) -> str:
 
 
 def test_pythonfmu_binary_declares_libpython_with_runpath_to_the_base_interpreter(tree):
+    _linked_to_libpython(tree)
     real = tree / "binaries" / "linux64" / "MusclePlant_pythonfmu.so"
     soname = sysconfig.get_config_var("INSTSONAME")
     libdir = sysconfig.get_config_var("LIBDIR")
@@ -59,6 +67,7 @@ def test_pythonfmu_binary_declares_libpython_with_runpath_to_the_base_interprete
 
 
 def test_loader_is_the_fmu_binary_and_depends_on_pythonfmus(tree):
+    _linked_to_libpython(tree)
     loader = tree / "binaries" / "linux64" / "MusclePlant.so"
     needed = _patchelf("--print-needed", str(loader)).split()
     assert needed[0] == "MusclePlant_pythonfmu.so"

@@ -240,9 +240,12 @@ def _linux64_note(fmu: Path) -> str:
     with zipfile.ZipFile(fmu) as z:
         if f"resources/{CONFIG_NAME}" not in z.namelist():
             return ""
-        export = json.loads(z.read(f"resources/{CONFIG_NAME}")).get("fmi_export", "pythonfmu")
-    library = "pythonfmu's FMI library" if export == "pythonfmu" else "the project's FMI export library"
-    return f" (linux64 for {machine_name(python_machine())}: {library})"
+        config = json.loads(z.read(f"resources/{CONFIG_NAME}"))
+    library = "pythonfmu's FMI library" if config.get("fmi_export", "pythonfmu") == "pythonfmu" \
+        else "the project's FMI export library"
+    hosts = "; Python hosts only: the building Python has no shared libpython" if config.get("python_hosts_only") \
+        else ""
+    return f" (linux64 for {machine_name(python_machine())}: {library}{hosts})"
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
