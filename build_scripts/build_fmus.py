@@ -36,7 +36,7 @@ from .model_description import content_guid, finish_model_description
 from .native_host import EXPORT_VARIABLE
 
 __all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
-           "slave_metadata"]
+           "slave_metadata", "user_cache_root"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -254,6 +254,11 @@ def _source_digest() -> str:
     return h.hexdigest()[:16]
 
 
+def user_cache_root() -> Path:
+    """``$XDG_CACHE_HOME/tapmuscle``, else ``~/.cache/tapmuscle``: this user's tapmuscle cache."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tapmuscle"
+
+
 def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     """Both FMUs built from this checkout, reused while the sources are unchanged.
 
@@ -262,7 +267,7 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     folder and the remedies when it cannot be written (a read-only home in a container).
     """
     if cache_root is None:
-        cache_root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tapmuscle"
+        cache_root = user_cache_root()
     folder = Path(cache_root) / f"fmu-{_source_digest()}"
     paths = {name: folder / f"{name}.fmu" for name in FMUS}
     missing = tuple(name for name, p in paths.items() if not p.is_file())

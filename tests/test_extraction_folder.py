@@ -106,3 +106,60 @@ def test_an_fmu_extracted_by_a_killed_process_is_removed_by_the_next(built_fmus,
     assert (tmp_path / left / "modelDescription.xml").is_file()
     run("exit")  # removes the abandoned folder, and its own at its exit
     assert _folders(tmp_path, "tapmuscle_") == []
+
+
+def test_a_temporary_directory_mounted_noexec_sends_the_folders_to_the_cache(tmp_path, monkeypatch):
+    from tapmuscle.cosim import extraction_folder
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    monkeypatch.setattr(extraction_folder.tempfile, "tempdir", None)  # read TMPDIR again
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    assert extraction_folder.extraction_root() == str(tmp_path / "tmp")
+    noexec = {str(tmp_path / "tmp")}
+    monkeypatch.setattr(extraction_folder, "_noexec", lambda folder: str(folder) in noexec)
+    assert extraction_folder.extraction_root() == str(tmp_path / "cache" / "tapmuscle" / "extracted")
+    assert claimed_folder("tm_test_").startswith(str(tmp_path / "cache" / "tapmuscle" / "extracted" / "tm_test_"))
+    noexec.add(str(tmp_path / "cache" / "tapmuscle" / "extracted"))
+    with pytest.raises(OSError, match=r"temporary directory .*/tmp and the cache .*/extracted are on file systems "
+                                      r"mounted noexec: .*set TMPDIR"):
+        extraction_folder.extraction_root()
+
+
+NOEXEC_RUN = textwrap.dedent("""
+    mount -t tmpfs -o noexec,size=256m tmpfs "$TMPDIR" || exit 77
+    # the mount refuses libraries: what the dynamic loader says for any library there
+    cp "$LIBRARY" "$TMPDIR/probe.so"
+    "$PYTHON" -c 'import ctypes, sys; ctypes.CDLL(sys.argv[1])' "$TMPDIR/probe.so" 2>&1 | tail -1
+    exec "$PYTHON" -m tapmuscle run "$SCENARIO" --out "$OUT" --fmu-dir "$FMUS" --quiet
+""")
+
+
+@pytest.mark.slow
+def test_a_scenario_runs_where_the_temporary_directory_is_mounted_noexec(built_fmus, tmp_path):
+    """A hardened system's /tmp (noexec) refuses to map the FMUs' libraries; the run extracts them
+    into the user's cache instead. A tmpfs mounted noexec in a private mount namespace (unshare)."""
+    import shutil
+
+    from build_scripts.build_fmus import ROOT
+
+    unshare = shutil.which("unshare")
+    if not unshare:
+        pytest.skip("unshare (util-linux) not found")
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp_path / "tmp"), "XDG_CACHE_HOME": str(tmp_path / "cache"),
+           "PYTHON": sys.executable, "LIBRARY": str(subprocess.check_output(
+               [sys.executable, "-c", "import _ctypes; print(_ctypes.__file__)"], text=True).strip()),
+           "SCENARIO": str(ROOT / "scenarios" / "paper" / "ampc_servo_44N_0.1Hz.toml"),
+           "OUT": str(tmp_path / "out"), "FMUS": str(next(iter(built_fmus.values())).parent)}
+    # root: a private mount namespace; anyone else: a user namespace as well, where allowed
+    flags = ["--mount"] if os.geteuid() == 0 else ["--user", "--map-root-user", "--mount"]
+    proc = subprocess.run([unshare, *flags, "sh", "-c", NOEXEC_RUN], env=env, capture_output=True, text=True,
+                          timeout=600)
+    if proc.returncode == 77 or "unshare failed" in proc.stderr or "Operation not permitted" in proc.stderr:
+        pytest.skip(f"cannot mount a tmpfs in a private namespace here: {proc.stderr.strip()[-300:]}")
+    assert "failed to map segment from shared object" in proc.stdout, proc.stdout + proc.stderr
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Eq. (21) error" in proc.stdout and (tmp_path / "out" / "summary.json").is_file()
+    assert (tmp_path / "cache" / "tapmuscle" / "extracted").is_dir()
+    assert not list((tmp_path / "cache" / "tapmuscle" / "extracted").iterdir())  # removed at the exit

@@ -12,6 +12,11 @@ however it ends. Whoever extracts an FMU next removes the folders of the same pr
 be taken: nobody holds them. A folder is created under a name that removal does not look at,
 locked, and only then renamed to its final name, so no removal can see it unlocked. Where ``fcntl`` is missing
 (Windows), the folders are removed at exit only.
+
+The folders hold libraries to load, and a file system mounted ``noexec`` (a hardened system's
+``/tmp``) refuses to map one ("failed to map segment from shared object"). So they go to the
+temporary directory unless it is mounted so, and then to the user's tapmuscle cache
+(:func:`extraction_root`).
 """
 
 from __future__ import annotations
@@ -27,13 +32,51 @@ try:
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["LOCK_NAME", "claimed_folder", "remove_abandoned"]
+__all__ = ["LOCK_NAME", "claimed_folder", "extraction_root", "remove_abandoned"]
 
 #: The lock file in each claimed folder.
 LOCK_NAME = ".in-use.lock"
 
 _HELD: list[int] = []
 """Lock file descriptors of this process's folders (kept open: closing one releases its lock)."""
+
+
+def _noexec(folder: str | Path) -> bool:
+    """Whether ``folder`` is on a file system mounted ``noexec`` (False where that cannot be told)."""
+    try:
+        return bool(os.statvfs(folder).f_flag & getattr(os, "ST_NOEXEC", 0))
+    except (OSError, AttributeError):  # pragma: no cover - no statvfs (Windows)
+        return False
+
+
+def extraction_root() -> str:
+    """Where FMUs are extracted to load their binaries: the temporary directory (``TMPDIR``), unless it
+    is on a file system mounted ``noexec``, where no library can be loaded; then ``extracted/`` in the
+    user's tapmuscle cache (``$XDG_CACHE_HOME/tapmuscle``, else ``~/.cache/tapmuscle``).
+
+    Raises
+    ------
+    OSError
+        Both are mounted ``noexec``, or the cache folder cannot be made; the message names them and
+        what to set.
+    """
+    temp = tempfile.gettempdir()
+    if not _noexec(temp):
+        return temp
+    from build_scripts.build_fmus import user_cache_root
+
+    cache = user_cache_root() / "extracted"
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"the temporary directory {temp} is mounted noexec (no FMU binary can be loaded from it), "
+                      f"and {cache} cannot be made ({exc.strerror or exc}): set TMPDIR to a folder on a file "
+                      "system that allows executing") from None
+    if _noexec(cache):
+        raise OSError(f"the temporary directory {temp} and the cache {cache} are on file systems mounted noexec: "
+                      "no FMU binary can be loaded from them; set TMPDIR (or XDG_CACHE_HOME) to a folder on a "
+                      "file system that allows executing")
+    return str(cache)
 
 
 def _try_lock(fd: int) -> bool:
@@ -54,12 +97,12 @@ def remove_abandoned(prefix: str, root: str | Path | None = None) -> list[Path]:
     prefix : str
         The folders' name prefix, as given to :func:`claimed_folder`.
     root : str or Path, optional
-        Where they are (default: the temporary directory, ``tempfile.gettempdir()``).
+        Where they are (default: :func:`extraction_root`).
     """
     if fcntl is None:  # pragma: no cover - Windows
         return []
     removed = []
-    for folder in sorted(Path(root or tempfile.gettempdir()).glob(f"{prefix}*")):
+    for folder in sorted(Path(root or extraction_root()).glob(f"{prefix}*")):
         try:
             fd = os.open(folder / LOCK_NAME, os.O_RDWR)
         except OSError:  # no lock file, or not ours to open
@@ -93,14 +136,14 @@ def claimed_folder(prefix: str, root: str | Path | None = None) -> str:
     prefix : str
         The folder's name prefix (e.g. ``tapmuscle_MusclePlant_``).
     root : str or Path, optional
-        Where to create it (default: the temporary directory).
+        Where to create it (default: :func:`extraction_root`).
 
     Returns
     -------
     str
         The folder's path.
     """
-    root = str(root or tempfile.gettempdir())
+    root = str(root or extraction_root())
     remove_abandoned(prefix, root)
     if fcntl is None:  # pragma: no cover - Windows
         folder = tempfile.mkdtemp(prefix=prefix, dir=root)

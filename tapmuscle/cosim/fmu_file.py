@@ -31,6 +31,7 @@ import zlib
 from pathlib import Path
 
 from build_scripts.native_host import elf_machine, machine_name, python_machine
+from tapmuscle.cosim.extraction_folder import extraction_root
 from tapmuscle.cosim.spec import ScenarioError
 
 __all__ = ["check_fmu_file", "LOAD_TIMEOUT_S"]
@@ -72,7 +73,7 @@ def _elf_problem(data: bytes) -> str | None:
 def _load_in_child(binaries: dict[str, bytes], main: str) -> str | None:
     """Write the platform's binaries into a scratch folder and load ``main`` with ``ctypes`` in a child
     process (its sibling libraries resolve next to it); why it failed, or None."""
-    with tempfile.TemporaryDirectory(prefix="tapmuscle_fmucheck_") as folder:
+    with tempfile.TemporaryDirectory(prefix="tapmuscle_fmucheck_", dir=extraction_root()) as folder:
         for name, data in binaries.items():
             (Path(folder) / name).write_bytes(data)
         try:
