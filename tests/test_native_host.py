@@ -41,11 +41,11 @@ def tree(built_fmus, tmp_path_factory) -> Path:
     return folder
 
 
-def _linked_to_libpython(tree: Path) -> None:
-    """Skip where the building Python has no shared libpython (its FMUs link none: tests/test_c_host.py's
+def _with_a_shared_libpython(tree: Path) -> None:
+    """Skip where the building Python has no shared libpython (tests/test_c_host.py's
     test_a_python_without_a_shared_libpython_... covers that build)."""
     if json.loads((tree / "resources" / CONFIG_NAME).read_text()).get("python_hosts_only"):
-        pytest.skip(f"the building Python ({sys.executable}) has no shared libpython to link")
+        pytest.skip(f"the building Python ({sys.executable}) has no shared libpython to record")
 
 
 def _digest(folder: Path) -> str:
@@ -55,25 +55,24 @@ def _digest(folder: Path) -> str:
     return h.hexdigest()
 
 
-def test_pythonfmu_binary_declares_libpython_with_runpath_to_the_base_interpreter(tree):
-    _linked_to_libpython(tree)
-    real = tree / "binaries" / "linux64" / "MusclePlant_pythonfmu.so"
-    soname = sysconfig.get_config_var("INSTSONAME")
-    libdir = sysconfig.get_config_var("LIBDIR")
-    assert soname in _patchelf("--print-needed", str(real)).split()
-    assert _patchelf("--print-rpath", str(real)) == libdir  # intact, not corrupted
-    assert (Path(libdir) / soname).is_file()
-    assert Path(libdir).resolve().is_relative_to(Path(sys.base_prefix).resolve())  # a venv has no libpython
-
-
-def test_loader_is_the_fmu_binary_and_depends_on_pythonfmus(tree):
-    _linked_to_libpython(tree)
-    loader = tree / "binaries" / "linux64" / "MusclePlant.so"
-    needed = _patchelf("--print-needed", str(loader)).split()
-    assert needed[0] == "MusclePlant_pythonfmu.so"
-    assert sysconfig.get_config_var("INSTSONAME") in needed
-    assert _patchelf("--print-rpath", str(loader)) == "$ORIGIN:" + sysconfig.get_config_var("LIBDIR")
+def test_neither_library_is_with_a_shared_libpython_which_is_recorded_for_hosts_that_run_no_python(tree):
+    """Linked to the building machine's libpython, the FMU would not load in a Python host elsewhere
+    whose Python has none at that path (tests/test_c_host.py runs one); a C host's loader opens it."""
+    bindir = tree / "binaries" / "linux64"
+    loader, real = bindir / "MusclePlant.so", bindir / "MusclePlant_pythonfmu.so"
+    for library in (loader, real):
+        assert not [n for n in _patchelf("--print-needed", str(library)).split() if "python" in n.lower()], library
+        assert _patchelf("--print-rpath", str(library)) == ""
+    assert _patchelf("--print-soname", str(real)) == "MusclePlant_pythonfmu.so"
     assert loader.stat().st_size < 100_000  # a small library, not a copy of pythonfmu's
+    assert b"MusclePlant_pythonfmu.so" in loader.read_bytes()  # opened beside it
+    _with_a_shared_libpython(tree)
+    config = json.loads((tree / "resources" / CONFIG_NAME).read_text())
+    soname, libdir = sysconfig.get_config_var("INSTSONAME"), sysconfig.get_config_var("LIBDIR")
+    assert (config["libpython_soname"], config["libpython"]) == (soname, str(Path(libdir) / soname))
+    assert Path(config["libpython"]).is_file()
+    assert Path(libdir).resolve().is_relative_to(Path(sys.base_prefix).resolve())  # a venv has no libpython
+    assert config["libpython"].encode() in loader.read_bytes()
 
 
 def test_recorded_environment_is_the_building_one(tree):
