@@ -139,7 +139,7 @@ static int bind_python(void) {
 static int python_running(void) { return py.IsInitialized && py.IsInitialized(); }
 
 static void *pythonfmu_lib;
-static char load_failure[1200];   /* why pythonfmu's library is not loaded */
+static char load_failure[900];   /* why pythonfmu's library is not loaded */
 static void (*finalize_interpreter)(void);   /* pythonfmu's finalizePythonInterpreter, where it has one */
 
 static void failed(const char *what, const char *why) {
@@ -178,7 +178,8 @@ static void release_pythonfmu_interpreter(void) {
 __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
     Dl_info self;
     char path[4096];
-    const char *python, *slash;
+    const char *python, *slash = NULL;
+    int located;
     if (!bind_python() && !open_libpython()) return;   /* fmi2Instantiate tells the host why (real()) */
     /* (b) in a host that is not Python, start the building environment's interpreter (a venv's python:
            Python then reads its pyvenv.cfg), else its base installation, not the first python3 on PATH. */
@@ -200,8 +201,8 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
         py.SaveThread();
     }
     /* pythonfmu's library, beside this one, now that Python's symbols are in the process */
-    if (!dladdr((void *)&tapmuscle_fmu_loader, &self) || !self.dli_fname ||
-        !(slash = strrchr(self.dli_fname, '/')) ||
+    located = dladdr((void *)&tapmuscle_fmu_loader, &self) && self.dli_fname;
+    if (!located || !(slash = strrchr(self.dli_fname, '/')) ||
         snprintf(path, sizeof path, "%.*s/%s", (int)(slash - self.dli_fname), self.dli_fname,
                  PYTHONFMU_LIBRARY) >= (int)sizeof path)
         snprintf(path, sizeof path, "%s", PYTHONFMU_LIBRARY);
@@ -215,7 +216,7 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
            down the interpreter holder that other loaded FMUs still use (a segfault in their next call).
            So this library is pinned for the life of the process first (pythonfmu's is, RTLD_NODELETE). */
     *(void **)&finalize_interpreter = dlsym(pythonfmu_lib, "finalizePythonInterpreter");
-    dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+    if (located) dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
     atexit(release_pythonfmu_interpreter);
 }
 
