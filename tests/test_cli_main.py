@@ -4,6 +4,7 @@ import platform
 import re
 import subprocess
 import sys
+import sysconfig
 
 import numpy as np
 import pytest
@@ -21,10 +22,14 @@ def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
     out, err = capsys.readouterr()
     assert err == ""
     found = re.fullmatch(r"tapmuscle (\S+) \(Python (\S+); numpy (\S+), scipy (\S+), osqp \S+, pythonfmu \S+, "
-                         r"fmpy \S+; compiled sub-step (yes|no)\)\n", out)
+                         r"fmpy \S+; compiled sub-step (yes|no)(; libpython shared|; libpython static: FMUs for "
+                         r"Python hosts only)?\)\n", out)
     assert found, out
+    shared = bool(sysconfig.get_config_var("Py_ENABLE_SHARED"))
+    libpython = None if not sys.platform.startswith("linux") else \
+        "; libpython shared" if shared else "; libpython static: FMUs for Python hosts only"
     assert found.groups() == (tapmuscle.__version__, platform.python_version(), np.__version__, scipy.__version__,
-                              "yes" if COMPILED else "no")
+                              "yes" if COMPILED else "no", libpython)
 
 
 def test_version_from_the_installed_command_needs_no_subcommand():

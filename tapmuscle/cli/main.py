@@ -301,8 +301,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 class _Version(argparse.Action):
-    """``tapmuscle --version``: this version, the Python, the packages the numbers come from and whether
-    the plant runs its compiled sub-step: what a bug report needs, as results move by last bits
+    """``tapmuscle --version``: this version, the Python, the packages the numbers come from, whether
+    the plant runs its compiled sub-step and (Linux) whether the Python has a shared libpython, which
+    the FMUs need in hosts that run no Python: what a bug report needs, as results move by last bits
     between their releases. Looked up only when asked (startup time)."""
 
     def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
@@ -321,8 +322,14 @@ class _Version(argparse.Action):
                 return "not installed"
 
         packages = ", ".join(f"{name} {version(name)}" for name in ("numpy", "scipy", "osqp", "pythonfmu", "fmpy"))
+        libpython = ""
+        if sys.platform.startswith("linux"):  # whether the FMUs built here can start a Python in a C host
+            from build_scripts.native_host import build_environment
+
+            libpython = "; libpython " + ("shared" if build_environment()["libpython_soname"]
+                                          else "static: FMUs for Python hosts only")
         print(f"tapmuscle {version('tapmuscle')} (Python {platform.python_version()}; {packages}; compiled sub-step "
-              f"{'yes' if COMPILED else 'no'})")
+              f"{'yes' if COMPILED else 'no'}{libpython})")
         parser.exit(0)
 
 
