@@ -459,9 +459,9 @@ def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_t
 def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_hosts_find_it_on_the_library_path(
         host, built_fmus, tmp_path, monkeypatch):
     """The FMU copied to another machine: its building Python's libpython is not at the recorded path.
-    A Python host never needs it (before, the loader was linked to it: "cannot open shared object
-    file" in fmpy under a Python whose executable has Python linked in, measured with a static CPython
-    3.11.2 and both libpython3.11.so.1.0 of this machine hidden). A C host finds it by its soname on
+    A Python host never needs it (before, the loader was linked to it, and fmpy under a Python whose
+    executable has Python linked in could not load the FMU: measured with a static CPython 3.11.2 and
+    both libpython3.11.so.1.0 of this machine hidden). A C host finds it by its soname on
     LD_LIBRARY_PATH, or is told what to set."""
     libdir = sysconfig.get_config_var("LIBDIR")
     soname = native_host.build_environment()["libpython_soname"]
