@@ -1075,7 +1075,7 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
         return _skip(f"the loader for Linux hosts is built on Linux (this build runs on {sys.platform})",
                      "linux64 binary left as pythonfmu made it (Python hosts only)")
     env = build_environment()
-    linked = bool(env["libpython_soname"])
+    shared = bool(env["libpython_soname"])  # a libpython for hosts that run no Python
     cc = shlex.split(os.environ.get("CC", "")) or [c for c in (shutil.which("gcc") or shutil.which("cc"),) if c]
     if not cc:
         return _skip("no C compiler (install gcc, or set CC)")
@@ -1115,9 +1115,9 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
               "-Wl,-z,nodelete", f"-Wl,-soname,{model_id}.so"])
         shutil.copy2(real, bindir / real_name)
         shutil.copy2(loader, fmu_lib)
-    if not linked:
+    if not shared:
         _skip(_no_python_reason(), "FMU prepared for Python hosts only")
-    config = {**env, "model_identifier": model_id, "fmi_export": export, "python_hosts_only": not linked}
+    config = {**env, "model_identifier": model_id, "fmi_export": export, "python_hosts_only": not shared}
     (tree / "resources" / CONFIG_NAME).write_text(json.dumps(config, indent=1, sort_keys=True) + "\n",
                                                    encoding="utf-8")
 
