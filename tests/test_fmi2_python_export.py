@@ -253,5 +253,9 @@ def test_the_fmu_check_names_a_binary_built_for_another_machine(built_fmus, tmp_
 
 
 def test_the_export_source_ships_with_the_build_scripts():
+    """Installed from a wheel, the file itself is the proof; in a source checkout (an editable
+    install), the package data that puts it into the wheel is."""
     assert native_host._EXPORT_C.is_file()
-    assert '"build_scripts" = ["*.c"]' in (Path(native_host.__file__).parents[1] / "pyproject.toml").read_text()
+    pyproject = Path(native_host.__file__).parents[1] / "pyproject.toml"
+    if pyproject.is_file():
+        assert '"build_scripts" = ["*.c"]' in pyproject.read_text()

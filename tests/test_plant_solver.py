@@ -9,10 +9,12 @@ import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import fmu_plant
 from fmu_plant import Plant, PlantParams
 from fmu_plant.parameters import SolverParams
 from fmu_plant.rosenbrock import _A, _E, _GC, _M, _ROS_GAMMA, COMPILED, _sum, adaptive_steps, build_model
@@ -233,13 +235,18 @@ for name, values in json.loads(sys.argv[2]).items():
 
 
 def _isolated(code: str, *args: str, pure_python: bool = False, timeout: float = 60.0) -> str:
-    """stdout of ``python -c code *args``, failing the test if it does not end within ``timeout`` [s]."""
+    """stdout of ``python -c code *args``, failing the test if it does not end within ``timeout`` [s].
+
+    It runs in the folder that holds the ``fmu_plant`` these tests import (``python -c`` puts its
+    working folder first on the path), so that it imports that copy: in an unpacked sdist with the
+    package installed, the source folder's copy has no compiled sub-step.
+    """
     env = {k: v for k, v in os.environ.items() if k != "TAPMUSCLE_PURE_PYTHON"}
     if pure_python:
         env["TAPMUSCLE_PURE_PYTHON"] = "1"
     try:
         done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
-                              timeout=timeout, env=env)
+                              timeout=timeout, env=env, cwd=Path(fmu_plant.__file__).parents[1])
     except subprocess.TimeoutExpired:
         pytest.fail(f"still running after {timeout} s: the sub-steps of a communication step never end")
     assert done.returncode == 0, done.stderr
