@@ -1,6 +1,7 @@
 """FMU extraction folders: removed after the process that used them, also when it was killed."""
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -9,6 +10,7 @@ import textwrap
 import pytest
 from fmpy_helpers import host_lines
 
+from tapmuscle.cosim import PAPER_SCENARIOS
 from tapmuscle.cosim.extraction_folder import LOCK_NAME, claimed_folder, remove_abandoned
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="the lock is an fcntl.flock")
@@ -139,10 +141,6 @@ NOEXEC_RUN = textwrap.dedent("""
 def test_a_scenario_runs_where_the_temporary_directory_is_mounted_noexec(built_fmus, tmp_path):
     """A hardened system's /tmp (noexec) refuses to map the FMUs' libraries; the run extracts them
     into the user's cache instead. A tmpfs mounted noexec in a private mount namespace (unshare)."""
-    import shutil
-
-    from build_scripts.build_fmus import ROOT
-
     unshare = shutil.which("unshare")
     if not unshare:
         pytest.skip("unshare (util-linux) not found")
@@ -150,7 +148,7 @@ def test_a_scenario_runs_where_the_temporary_directory_is_mounted_noexec(built_f
     env = {**os.environ, "TMPDIR": str(tmp_path / "tmp"), "XDG_CACHE_HOME": str(tmp_path / "cache"),
            "PYTHON": sys.executable, "LIBRARY": str(subprocess.check_output(
                [sys.executable, "-c", "import _ctypes; print(_ctypes.__file__)"], text=True).strip()),
-           "SCENARIO": str(ROOT / "scenarios" / "paper" / "ampc_servo_44N_0.1Hz.toml"),
+           "SCENARIO": str(PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml"),
            "OUT": str(tmp_path / "out"), "FMUS": str(next(iter(built_fmus.values())).parent)}
     # root: a private mount namespace; anyone else: a user namespace as well, where allowed
     flags = ["--mount"] if os.geteuid() == 0 else ["--user", "--map-root-user", "--mount"]
