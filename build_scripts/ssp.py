@@ -35,11 +35,14 @@ _NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
 for _prefix, _uri in _NS.items():
     ET.register_namespace(_prefix, _uri)
 
-#: Components: name in the system -> (FMU, connectors as (name, kind)).
+#: Components: name in the system -> (FMU, connectors as (name, kind)). Every input connector is
+#: connected: fmpy's SSP runner (``fmpy.ssp.simulation.simulate_ssp``) wires an unconnected one to the
+#: source of the connection found before it (the plant's load and supply pressure to the command in
+#: volts, the controller's reference to the displacement). The plant's other inputs keep their start
+#: values or take the bound parameter set's (``load``), which the SSP tools apply by variable name.
 _COMPONENTS = {
-    "plant": ("MusclePlant", (("u", "input"), ("load", "input"), ("supply_pressure", "input"), ("l", "output"),
-                              ("p", "output"))),
-    "controller": ("AMPCController", (("l", "input"), ("r", "input"), ("u", "output"), ("r_k", "output"),
+    "plant": ("MusclePlant", (("u", "input"), ("l", "output"), ("p", "output"))),
+    "controller": ("AMPCController", (("l", "input"), ("u", "output"), ("r_k", "output"),
                                       ("input_delay_samples", "parameter"))),
 }
 _INTEGERS = {"input_delay_samples"}

@@ -51,6 +51,53 @@ def test_libcosim_runs_the_ssp_and_tracks(ssp):
     assert err < 0.25, err  # measured 0.138 mm; without the bound compensation: about 3 mm
 
 
+def test_a_load_set_bound_in_the_ssd_reaches_the_plant_which_declares_no_load_connector(ssp, tmp_path):
+    """docs/fmu.md: for 68 N, bind ``load_68N.ssv`` to the plant in the SSD instead; libcosim applies
+    a set's values by variable name, so the plant's ``load`` needs no connector."""
+    libcosim = pytest.importorskip("libcosimpy.CosimExecution")
+    from libcosimpy.CosimObserver import CosimObserver
+
+    edited = tmp_path / "TapMuscleLoop_68N.ssp"
+    with zipfile.ZipFile(ssp) as src, zipfile.ZipFile(edited, "w") as dst:
+        for name in src.namelist():
+            data = src.read(name)
+            if name == "SystemStructure.ssd":
+                assert data.count(b"resources/load_44N.ssv") == 1
+                data = data.replace(b"resources/load_44N.ssv", b"resources/load_68N.ssv")
+            dst.writestr(name, data)
+    ex = libcosim.CosimExecution.from_ssp_file(ssp_path=str(edited), step_size=100_000_000)
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    idx = {s.name.decode(): s.index for s in ex.slave_infos()}
+    pv = {v.name.decode(): v.reference for v in ex.slave_variables(idx["plant"])}
+    assert ex.step(3)
+    assert obs.last_real_values(idx["plant"], [pv["load"]]) == [68.0]
+
+
+def test_fmpys_ssp_runner_runs_the_ssp_and_tracks(ssp):
+    """fmpy's own SSP runner (``fmpy.ssp.simulation.simulate_ssp``: each component stepped on the
+    others' previous outputs, the SSD's parameter bindings not applied, so the plant's load stays at its
+    start value, 44 N, and the controller detects the delay itself) tracks as libcosim does. It wires
+    an input connector without a connection to the source of the connection found before it: with the
+    plant's load and supply pressure declared, the supply pressure took the command in volts and
+    the run stopped at 1.1 s on the plant's refusal; the SSD declares only the connected inputs."""
+    from fmpy.ssp.simulation import simulate_ssp
+
+    res = simulate_ssp(str(ssp), stop_time=30.0, step_size=0.1)
+    assert len(res) == 300
+    assert np.array_equal(res["controller.l"], res["plant.l"]) and np.array_equal(res["plant.u"], res["controller.u"])
+    assert res["plant.u"].min() >= 0.0 and res["plant.u"].max() <= 10.0
+    err = tracking_error_mm(res["time"] + 0.1, res["plant.l"])  # a row holds the outputs at the step's end
+    assert err < 0.25, err  # measured 0.137 mm
+
+
+def test_every_input_connector_of_the_ssd_is_connected(ssp):
+    ssd = read_ssd(str(ssp))
+    ends = {(c.endElement, c.endConnector) for c in ssd.system.connections}
+    inputs = {(e.name, c.name) for e in ssd.system.elements for c in e.connectors if c.kind == "input"}
+    assert inputs == ends == {("plant", "u"), ("controller", "l")}
+
+
 @pytest.mark.slow
 def test_build_cli_writes_the_ssp(tmp_path, capsys):
     assert main(["build", "--out", str(tmp_path), "--ssp"]) == 0
