@@ -3,7 +3,7 @@
    The export library for machines pythonfmu 0.7 ships no binary for (its linux64 library is x86-64
    only: an aarch64 Linux host, a Raspberry Pi, a Docker container on an ARM Mac). It is compiled by
    build_scripts/native_host.py at `tapmuscle build` and sits where pythonfmu's library would, behind the
-   project's FMI shim (_SHIM_C there), which already checks the host's arguments (resources path,
+   project's FMI shim (fmi_shim.c), which already checks the host's arguments (resources path,
    GUID), keeps a Python thread state per host thread, names every message's category, logs errors
    with logging off and returns the worst status logged. This file does what pythonfmu's library does
    for the slave:

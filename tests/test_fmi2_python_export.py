@@ -252,10 +252,13 @@ def test_the_fmu_check_names_a_binary_built_for_another_machine(built_fmus, tmp_
         check_fmu_file(moved)
 
 
-def test_the_export_source_ships_with_the_build_scripts():
-    """Installed from a wheel, the file itself is the proof; in a source checkout (an editable
-    install), the package data that puts it into the wheel is."""
-    assert native_host._EXPORT_C.is_file()
+def test_the_c_sources_ship_with_the_build_scripts():
+    """The export library, both loaders and the FMI shim. Installed from a wheel, the files themselves
+    are the proof; in a source checkout (an editable install), the package data that puts them into
+    the wheel is."""
+    for source in (native_host._EXPORT_C, native_host._LINUX_LOADER_C, native_host._WIN64_LOADER_C,
+                   native_host._SHIM_C):
+        assert source.is_file() and source.parent == Path(native_host.__file__).parent, source
     pyproject = Path(native_host.__file__).parents[1] / "pyproject.toml"
     if pyproject.is_file():
         assert '"build_scripts" = ["*.c"]' in pyproject.read_text()

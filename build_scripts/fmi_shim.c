@@ -1,0 +1,348 @@
+/* ---- FMI shim: every FMI function of the FMU goes through here to pythonfmu's ----
+   Compiled appended to a loader (native_loader_linux64.c, native_loader_win64.c), which provides
+   real(symbol) (pythonfmu's function), library_error() (why pythonfmu's library is not loaded),
+   readable(path), local_path(path, size), instantiate_lock()/instantiate_unlock() and pin_thread().
+   Why: (1) some hosts do not check a NULL from fmi2Instantiate (libcosim dereferences it, Ecos crashes
+   in fmi2SetupExperiment): a failed instantiation returns an instance that answers every later call
+   with fmi2Error and the reason; (2) pythonfmu passes category NULL on its exception path (OMSimulator
+   aborts on it): the shim names the category after the status; (3) with loggingOn = false pythonfmu
+   logs nothing, so a Discard or an Error came without its reason: pythonfmu always logs to the shim,
+   which passes on OK/info messages only if the host asked for logging and every other one always;
+   (4) a call returns at least the worst status the FMU logged during it, so the status a host sees
+   is the one in the message (pythonfmu returns OK from fmi2ExitInitializationMode after a rejected
+   parameter, which the slave logs as an error). */
+#include <ctype.h>
+#include <stdio.h>
+#include <string.h>
+#include "fmi2Functions.h"
+
+typedef struct {
+    fmi2Component inner;                  /* pythonfmu's instance; NULL: instantiation failed */
+    fmi2CallbackFunctions host;           /* the host's callbacks */
+    fmi2CallbackFunctions mine;           /* what pythonfmu gets: our logger, our instance as environment */
+    fmi2Boolean logging_on;
+    fmi2Status worst;                     /* worst status logged during the current call */
+    char name[256];
+    char reason[1024];                    /* the first error logged (why an instantiation failed) */
+} Shim;
+
+static const char *category_of(fmi2Status status) {
+    switch (status) {
+        case fmi2Warning: return "logStatusWarning";
+        case fmi2Discard: return "logStatusDiscard";
+        case fmi2Error: return "logStatusError";
+        case fmi2Fatal: return "logStatusFatal";
+        default: return "logAll";
+    }
+}
+
+/* The message goes to the host as a format without arguments, '%' doubled: hosts that format it
+   (vsnprintf) print the text, and hosts that cannot take C varargs (fmpy's ctypes logger) get the
+   text rather than a bare "%s". */
+static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String category, const char *text) {
+    char escaped[16384];
+    size_t j = 0;
+    for (const char *p = text; *p && j + 2 < sizeof escaped; p++) {
+        if (*p == '%') escaped[j++] = '%';
+        escaped[j++] = *p;
+    }
+    escaped[j] = 0;
+    if (s->host.logger)
+        s->host.logger(s->host.componentEnvironment, instance ? instance : s->name, status,
+                       category && *category ? category : category_of(status), escaped);
+}
+
+/* pythonfmu passes its text as the format with no arguments: it is taken literally here (formatting a
+   '%' in it would read arguments that were never passed). */
+static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
+                        fmi2String message, ...) {
+    Shim *s = (Shim *)env;
+    const char *text = message ? message : "";
+    if (status > s->worst) s->worst = status;
+    if (status >= fmi2Error && !s->reason[0]) snprintf(s->reason, sizeof s->reason, "%s", text);
+    if (status == fmi2OK && !s->logging_on) return;
+    to_host(s, instance, status, category, text);
+}
+
+/* A call on an instance whose instantiation failed: logged with the reason and answered with `status`
+   (fmi2Warning before the first step, fmi2Error from fmi2DoStep on; see FORWARD). */
+static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
+    char text[1400];
+    snprintf(text, sizeof text, "%s %s: the instance failed to instantiate (%s)", call,
+             status >= fmi2Error ? "refused" : "ignored", s->reason[0] ? s->reason : "see the earlier messages");
+    to_host(s, s->name, status, category_of(status), text);
+    return status;
+}
+
+
+static fmi2Status settle(Shim *s, fmi2Status returned) {
+    fmi2Status worst = s->worst;
+    s->worst = fmi2OK;
+    return worst > returned && worst <= fmi2Fatal ? worst : returned;
+}
+
+FMI2_Export const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+FMI2_Export const char *fmi2GetVersion(void) { return fmi2Version; }
+
+/* The resources folder's path from the host's fmuResourceLocation: a file URI (file:///p,
+   file://localhost/p, file:/p), percent-decoded as RFC 3986 encodes it (fmpy, libcosim: a space as %20,
+   a non-ASCII byte as %C3%BC), or, as some hosts pass it, an absolute path as it is; trailing slashes
+   dropped. 0 if it is neither (NULL, another host's file://host/..., a relative path, too long).
+   pythonfmu itself only strips "file://" and decodes %20, so any other encoded byte (a user folder
+   "Müller") left it a path that does not exist, and its failure path then called a NULL class (a
+   segfault in fmi2Instantiate): the shim hands it the decoded path. On Windows the URI's /C:/dir is C:/dir. */
+#ifdef _WIN32
+#define PATH_BACKSLASH 1
+#else
+#define PATH_BACKSLASH 0
+#endif
+static int resource_path(const char *resources, char *path, size_t size) {
+    const char *p = resources;
+    size_t j = 0;
+    int uri;
+    if (!p) return 0;
+    uri = !strncmp(p, "file:", 5);
+    if (uri) {
+        p += 5;
+        if (!strncmp(p, "//localhost/", 12)) p += 11;
+        else if (!strncmp(p, "//", 2)) p += 2;
+    }
+#ifdef _WIN32
+    /* file:///C:/dir gives /C:/dir; a host may also pass C:\dir or C:/dir */
+    if (*p == '/' && isalpha((unsigned char)p[1]) && p[2] == ':') p++;
+    if (*p != '/' && !(isalpha((unsigned char)p[0]) && p[1] == ':' && (p[2] == '/' || p[2] == '\\'))) return 0;
+#else
+    if (*p != '/') return 0;
+#endif
+    for (; *p; p++) {
+        if (j + 1 >= size) return 0;
+        if (uri && *p == '%' && isxdigit((unsigned char)p[1]) && isxdigit((unsigned char)p[2])) {
+            char hex[3] = {p[1], p[2], 0};
+            path[j++] = (char)strtol(hex, NULL, 16);
+            p += 2;
+        } else path[j++] = *p;
+    }
+    while (j > 1 && (path[j - 1] == '/' || (PATH_BACKSLASH && path[j - 1] == '\\'))) j--;
+    path[j] = 0;
+    return 1;
+}
+
+/* The GUID in the unzipped FMU's modelDescription.xml (resources/../modelDescription.xml); 0 if it
+   cannot be read. */
+static int model_guid(const char *resources_dir, char *guid, size_t size) {
+    char path[4200], text[65536];
+    size_t n;
+    const char *g, *e;
+    FILE *f;
+    snprintf(path, sizeof path, "%s/../modelDescription.xml", resources_dir);
+    if (!(f = fopen(path, "rb"))) return 0;
+    n = fread(text, 1, sizeof text - 1, f);
+    fclose(f);
+    text[n] = 0;
+    if (!(g = strstr(text, " guid=\""))) return 0;
+    g += 7;
+    if (!(e = strchr(g, '"')) || (size_t)(e - g) >= size) return 0;
+    memcpy(guid, g, (size_t)(e - g));
+    guid[e - g] = 0;
+    return 1;
+}
+
+FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String resources,
+                                          const fmi2CallbackFunctions *functions, fmi2Boolean visible,
+                                          fmi2Boolean loggingOn) {
+    fmi2InstantiateTYPE *inst = (fmi2InstantiateTYPE *)real("fmi2Instantiate");
+    Shim *s = calloc(1, sizeof *s);
+    if (!s) return NULL;
+    if (functions) s->host = *functions;
+    s->mine = s->host;
+    s->mine.logger = shim_logger;
+    s->mine.componentEnvironment = s;
+    s->logging_on = loggingOn;
+    snprintf(s->name, sizeof s->name, "%s", name ? name : "");
+    if (!inst) {
+        snprintf(s->reason, sizeof s->reason, "the FMU's pythonfmu library %s could not be loaded: %s", PYTHONFMU_LIBRARY,
+                 library_error());
+        to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+        return s;
+    }
+    {
+        char dir[4096], expected[128], module[4200];
+        if (!resource_path(resources, dir, sizeof dir)) {
+            snprintf(s->reason, sizeof s->reason, "fmuResourceLocation %.900s is not a file URI of a local folder "
+                     "(file:///path/to/the/extracted/fmu/resources)", resources ? resources : "(NULL)");
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        if (!local_path(dir, sizeof dir)) {
+            snprintf(s->reason, sizeof s->reason, "the FMU's folder %.900s has a non-ASCII character and no short "
+                     "(8.3) name, which pythonfmu cannot open on Windows: extract the FMU into a folder whose path "
+                     "is ASCII", dir);
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        if (guid && model_guid(dir, expected, sizeof expected) && strcmp(guid, expected)) {
+            snprintf(s->reason, sizeof s->reason, "the host passed GUID %s, this FMU's is %s (modelDescription.xml)",
+                     guid, expected);
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        snprintf(module, sizeof module, "%s/slavemodule.txt", dir);
+        if (!readable(module) || strstr(dir, "%20")) {
+            /* pythonfmu would fail on it, and its failure path calls a NULL class (a segfault); and it
+               reads a literal "%20" in a folder's name as a space */
+            snprintf(s->reason, sizeof s->reason, strstr(dir, "%20")
+                     ? "the FMU's folder %.900s holds \"%%20\" in a name, which pythonfmu reads as a space: extract "
+                       "the FMU into another folder"
+                     : "fmuResourceLocation %.900s: no readable slavemodule.txt in it (the extracted FMU's resources "
+                       "folder?)", strstr(dir, "%20") ? dir : resources);
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        {
+            instantiate_guard guard = instantiate_lock();
+            s->inner = inst(name, type, guid, dir, &s->mine, visible, fmi2True);
+            instantiate_unlock(guard);
+        }
+    }
+    if (!s->inner) {
+        char text[1400];
+        snprintf(text, sizeof text, "fmi2Instantiate failed%s%s; every later call of this instance returns fmi2Error",
+                 s->reason[0] ? ": " : "", s->reason);
+        to_host(s, s->name, fmi2Error, "logStatusError", text);
+    }
+    s->worst = fmi2OK;
+    return s;
+}
+
+FMI2_Export void fmi2FreeInstance(fmi2Component c) {
+    Shim *s = (Shim *)c;
+    if (!s) return;
+    if (s->inner) ((fmi2FreeInstanceTYPE *)real("fmi2FreeInstance"))(s->inner);
+    free(s);
+}
+
+FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]) {
+    Shim *s = (Shim *)c;
+    if (!s) return fmi2Error;
+    s->logging_on = on;
+    if (!s->inner) return fmi2OK;
+    /* pythonfmu keeps logging to the shim, which filters */
+    s->worst = fmi2OK;
+    return settle(s, ((fmi2SetDebugLoggingTYPE *)real("fmi2SetDebugLogging"))(s->inner, fmi2True, n, cats));
+}
+
+/* fmi2Status fmi2X(fmi2Component c, PARAMS) forwarded to pythonfmu's with ARGS. On an instance whose
+   instantiation failed: ZOMBIE_STATUS, after ZOMBIE_FILL (a getter's values: zeros, never garbage).
+   Calls before the first step answer fmi2Warning there, because libcosim terminates the process on an
+   error during its initialisation phase (an exception escapes its worker thread) but stops cleanly
+   on an error from fmi2DoStep. */
+#define FORWARD(X, PARAMS, ARGS, ZOMBIE_STATUS, ZOMBIE_FILL)                            \
+    FMI2_Export fmi2Status X PARAMS {                                                   \
+        Shim *s = (Shim *)c;                                                            \
+        static X##TYPE *fn;                                                             \
+        if (!s) return fmi2Error;                                                       \
+        if (!s->inner) { ZOMBIE_FILL; return refuse(s, #X, ZOMBIE_STATUS); }            \
+        if (!fn) fn = (X##TYPE *)real(#X);                                              \
+        if (!fn) return refuse(s, #X, fmi2Error);                                       \
+        pin_thread();                                                                   \
+        s->worst = fmi2OK;                                                              \
+        return settle(s, fn ARGS);                                                      \
+    }
+#define ZEROS(v) for (size_t i = 0; v && i < n; i++) v[i] = 0
+#define NOTHING (void)0
+
+FORWARD(fmi2SetupExperiment, (fmi2Component c, fmi2Boolean td, fmi2Real tol, fmi2Real t0, fmi2Boolean sd, fmi2Real t1),
+        (s->inner, td, tol, t0, sd, t1), fmi2Warning, NOTHING)
+FORWARD(fmi2EnterInitializationMode, (fmi2Component c), (s->inner), fmi2Warning, NOTHING)
+FORWARD(fmi2ExitInitializationMode, (fmi2Component c), (s->inner), fmi2Warning, NOTHING)
+FORWARD(fmi2Terminate, (fmi2Component c), (s->inner), fmi2Warning, NOTHING)
+FORWARD(fmi2Reset, (fmi2Component c), (s->inner), fmi2Error, NOTHING)
+FORWARD(fmi2GetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]), (s->inner, vr, n, v),
+        fmi2Warning, ZEROS(v))
+FORWARD(fmi2GetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[]),
+        (s->inner, vr, n, v), fmi2Warning, ZEROS(v))
+FORWARD(fmi2GetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]),
+        (s->inner, vr, n, v), fmi2Warning, ZEROS(v))
+FORWARD(fmi2GetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]),
+        (s->inner, vr, n, v), fmi2Warning, for (size_t i = 0; v && i < n; i++) v[i] = "")
+FORWARD(fmi2SetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]),
+        (s->inner, vr, n, v), fmi2Warning, NOTHING)
+FORWARD(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate st), (s->inner, st), fmi2Error, NOTHING)
+FORWARD(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate st, size_t *n), (s->inner, st, n), fmi2Error, NOTHING)
+FORWARD(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t n), (s->inner, st, b, n), fmi2Error, NOTHING)
+
+/* FMU states as FMI 2.0 (2.1.8) has them; pythonfmu always makes a new state and never clears a freed
+   pointer. fmi2FreeFMUstate sets *st to NULL and ignores a NULL state (a host may free twice). */
+FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *st) {
+    Shim *s = (Shim *)c;
+    static fmi2FreeFMUstateTYPE *fn;
+    fmi2Status status;
+    if (!s) return fmi2Error;
+    if (!s->inner) return refuse(s, "fmi2FreeFMUstate", fmi2Error);
+    if (!st || !*st) return fmi2OK;
+    if (!fn) fn = (fmi2FreeFMUstateTYPE *)real("fmi2FreeFMUstate");
+    if (!fn) return refuse(s, "fmi2FreeFMUstate", fmi2Error);
+    pin_thread();
+    s->worst = fmi2OK;
+    status = settle(s, fn(s->inner, st));
+    if (status <= fmi2Warning) *st = NULL;
+    return status;
+}
+
+/* fmi2GetFMUstate and fmi2DeSerializeFMUstate given a state the host already holds update that
+   state: the host owns one state, not two, so the one pythonfmu replaced is freed here (else every
+   such call leaks a state; masters that rewind reuse one pointer). */
+static fmi2Status replace_state(Shim *s, fmi2FMUstate *st, fmi2FMUstate old, fmi2Status status) {
+    static fmi2FreeFMUstateTYPE *release;
+    if (status > fmi2Warning || !old || old == *st) return status;
+    if (!release) release = (fmi2FreeFMUstateTYPE *)real("fmi2FreeFMUstate");
+    if (release) {
+        s->worst = fmi2OK;
+        settle(s, release(s->inner, &old));
+    }
+    return status;
+}
+
+/* fmi2X(fmi2Component c, PARAMS) that writes a state into *st: forwarded with ARGS, the replaced
+   state freed (replace_state). */
+#define REPLACE_STATE(X, PARAMS, ARGS)                                                                 \
+    FMI2_Export fmi2Status X PARAMS {                                                                  \
+        Shim *s = (Shim *)c;                                                                           \
+        static X##TYPE *fn;                                                                            \
+        fmi2FMUstate old;                                                                              \
+        if (!s) return fmi2Error;                                                                      \
+        if (!s->inner) return refuse(s, #X, fmi2Error);                                                \
+        if (!fn) fn = (X##TYPE *)real(#X);                                                             \
+        if (!fn) return refuse(s, #X, fmi2Error);                                                      \
+        if (!st) {                                                                                     \
+            to_host(s, s->name, fmi2Error, "logStatusError", #X ": the FMUstate pointer is NULL");     \
+            return fmi2Error;                                                                          \
+        }                                                                                              \
+        pin_thread();                                                                                  \
+        old = *st;                                                                                     \
+        s->worst = fmi2OK;                                                                             \
+        return replace_state(s, st, old, settle(s, fn ARGS));                                          \
+    }
+
+REPLACE_STATE(fmi2GetFMUstate, (fmi2Component c, fmi2FMUstate *st), (s->inner, st))
+REPLACE_STATE(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *st),
+              (s->inner, b, n, st))
+FORWARD(fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu,
+        const fmi2ValueReference k[], size_t nk, const fmi2Real dk[], fmi2Real du[]), (s->inner, u, nu, k, nk, dk, du), fmi2Error, NOTHING)
+FORWARD(fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],
+        const fmi2Real v[]), (s->inner, vr, n, o, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetRealOutputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[],
+        fmi2Real v[]), (s->inner, vr, n, o, v), fmi2Error, NOTHING)
+FORWARD(fmi2DoStep, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_prior), (s->inner, t, h, no_prior), fmi2Error, NOTHING)
+FORWARD(fmi2CancelStep, (fmi2Component c), (s->inner), fmi2Error, NOTHING)
+FORWARD(fmi2GetStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Status *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetRealStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Real *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetIntegerStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Integer *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetBooleanStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Boolean *v), (s->inner, k, v), fmi2Error, NOTHING)
+FORWARD(fmi2GetStringStatus, (fmi2Component c, const fmi2StatusKind k, fmi2String *v), (s->inner, k, v), fmi2Error, NOTHING)

@@ -1,0 +1,188 @@
+/* Loader for a pythonfmu FMU in non-Python FMI hosts (Linux): binaries/linux64/<id>.so.
+   build_scripts/native_host.py compiles it with these macros (C strings) defined before it:
+   PYTHONFMU_LIBRARY (pythonfmu's library beside it, <id>_pythonfmu.so), LIBPYTHON_PATH and
+   LIBPYTHON_SONAME (the building Python's shared libpython; "" where it has none), NO_PYTHON_REASON
+   (what a host without Python is told then), BUILD_PYTHON and BASE_PYTHON (the interpreter a C host
+   starts), and with fmi_shim.c appended, which uses real(), library_error(), readable(),
+   local_path(), instantiate_lock()/instantiate_unlock() and pin_thread() from here. */
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include <wchar.h>
+
+/* Python's API, found in the process: a Python host's own (fmpy: its executable or its libpython), or,
+   in a host that runs no Python, that of the libpython this library opens. Neither this library nor
+   pythonfmu's is linked to a libpython: an FMU linked to the building machine's would not load in a
+   Python host elsewhere whose Python has none at that path (a static build: pyenv's default; conda's
+   and Debian's executables have Python linked in). */
+static struct {
+    int (*IsInitialized)(void);
+    void (*InitializeEx)(int initsigs);
+    void *(*SaveThread)(void);
+    void (*SetProgramName)(const wchar_t *name);            /* deprecated in 3.11, still honoured */
+    wchar_t *(*DecodeLocale)(const char *arg, size_t *size);
+    int (*GILState_Ensure)(void);
+    void *(*GILState_GetThisThreadState)(void);
+    void (*RestoreThread)(void *tstate);
+    void (*ThreadState_Clear)(void *tstate);
+    void (*ThreadState_DeleteCurrent)(void);
+    int (*IsFinalizing)(void);                              /* Py_IsFinalizing (3.13 on), else _Py_IsFinalizing */
+} py;
+
+static int bind_python(void) {
+#define BIND(field, name) (*(void **)&py.field = dlsym(RTLD_DEFAULT, name))
+    BIND(IsInitialized, "Py_IsInitialized");
+    BIND(InitializeEx, "Py_InitializeEx");
+    BIND(SaveThread, "PyEval_SaveThread");
+    BIND(SetProgramName, "Py_SetProgramName");
+    BIND(DecodeLocale, "Py_DecodeLocale");
+    BIND(GILState_Ensure, "PyGILState_Ensure");
+    BIND(GILState_GetThisThreadState, "PyGILState_GetThisThreadState");
+    BIND(RestoreThread, "PyEval_RestoreThread");
+    BIND(ThreadState_Clear, "PyThreadState_Clear");
+    BIND(ThreadState_DeleteCurrent, "PyThreadState_DeleteCurrent");
+    if (!BIND(IsFinalizing, "Py_IsFinalizing")) BIND(IsFinalizing, "_Py_IsFinalizing");
+#undef BIND
+    return py.IsInitialized && py.InitializeEx && py.SaveThread && py.SetProgramName && py.DecodeLocale &&
+           py.GILState_Ensure && py.GILState_GetThisThreadState && py.RestoreThread && py.ThreadState_Clear &&
+           py.ThreadState_DeleteCurrent;
+}
+
+static int python_running(void) { return py.IsInitialized && py.IsInitialized(); }
+
+static void *pythonfmu_lib;
+static char load_failure[900];   /* why pythonfmu's library is not loaded */
+static void (*finalize_interpreter)(void);   /* pythonfmu's finalizePythonInterpreter, where it has one */
+
+static void failed(const char *what, const char *why) {
+    snprintf(load_failure, sizeof load_failure, "%s%s", what, why ? why : "");
+}
+
+/* (a) In a host that runs no Python: the building Python's libpython (recorded path, else its soname on
+       the library path: LD_LIBRARY_PATH), global, so that pythonfmu's library and the extension modules
+       Python imports (not linked to libpython on Linux) find its symbols. */
+static int open_libpython(void) {
+    const char *why;
+    if (!LIBPYTHON_SONAME[0]) {
+        failed(NO_PYTHON_REASON, NULL);
+        return 0;
+    }
+    if ((LIBPYTHON_PATH[0] && dlopen(LIBPYTHON_PATH, RTLD_NOW | RTLD_GLOBAL)) ||
+        dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_GLOBAL)) {
+        if (bind_python()) return 1;
+        failed("libpython lacks Python's embedding API: ", LIBPYTHON_SONAME);
+        return 0;
+    }
+    why = dlerror();
+    snprintf(load_failure, sizeof load_failure, "this process runs no Python, and the FMU cannot load %s (%s) to "
+             "start one: %s. Set LD_LIBRARY_PATH to the folder of the %s of a CPython built with --enable-shared, "
+             "and TAPMUSCLE_PYTHON to its python (docs/fmu-native-hosts.md)", LIBPYTHON_SONAME,
+             LIBPYTHON_PATH[0] ? LIBPYTHON_PATH : "not recorded", why ? why : "not found", LIBPYTHON_SONAME);
+    return 0;
+}
+
+static void release_pythonfmu_interpreter(void) {
+    /* Runs before pythonfmu's static destructor (registered later than it, at_exit order is LIFO):
+       releases the interpreter holder once, properly; pythonfmu's own two releases then find it empty. */
+    if (finalize_interpreter) finalize_interpreter();
+}
+
+__attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
+    Dl_info self;
+    char path[4096];
+    const char *python, *slash = NULL;
+    int located;
+    if (!bind_python() && !open_libpython()) return;   /* fmi2Instantiate tells the host why (real()) */
+    /* (b) in a host that is not Python, start the building environment's interpreter (a venv's python:
+           Python then reads its pyvenv.cfg), else its base installation, not the first python3 on PATH. */
+    if (!py.IsInitialized()) {
+        python = getenv("TAPMUSCLE_PYTHON");
+        if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
+        if (access(python, X_OK) == 0) {
+            wchar_t *name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */
+            if (name) py.SetProgramName(name);
+        }
+        /* (d) and start it here. Each pythonfmu binary starts Python at its first fmi2Instantiate under a
+               lock of its own, so a parallel master instantiating the plant and the controller at once
+               ran two Py_Initialize together (a segfault); constructors run under the dynamic loader's
+               lock, one library at a time. No signal handlers: the host keeps its Ctrl-C. The GIL is
+               released for the host's threads. pythonfmu then finds Python running and never finalises
+               it, so a C host exits without Py_Finalize (which pythonfmu runs in a thread of its own;
+               this thread may be gone by then). */
+        py.InitializeEx(0);
+        py.SaveThread();
+    }
+    /* pythonfmu's library, beside this one, now that Python's symbols are in the process */
+    located = dladdr((void *)&tapmuscle_fmu_loader, &self) && self.dli_fname;
+    if (!located || !(slash = strrchr(self.dli_fname, '/')) ||
+        snprintf(path, sizeof path, "%.*s/%s", (int)(slash - self.dli_fname), self.dli_fname,
+                 PYTHONFMU_LIBRARY) >= (int)sizeof path)
+        snprintf(path, sizeof path, "%s", PYTHONFMU_LIBRARY);
+    if (!(pythonfmu_lib = dlopen(path, RTLD_NOW | RTLD_NODELETE))) {
+        failed("", dlerror());
+        return;
+    }
+    /* (c) see release_pythonfmu_interpreter; registered after pythonfmu's library registered its own exit
+           work, so it runs first. atexit() in a shared library runs its handler when the library is
+           unloaded, and hosts (fmpy) dlclose the FMU at fmi2FreeInstance: the handler would then tear
+           down the interpreter holder that other loaded FMUs still use (a segfault in their next call).
+           So this library is pinned for the life of the process first (pythonfmu's is, RTLD_NODELETE). */
+    *(void **)&finalize_interpreter = dlsym(pythonfmu_lib, "finalizePythonInterpreter");
+    if (located) dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
+    atexit(release_pythonfmu_interpreter);
+}
+
+static void *real(const char *symbol) { return pythonfmu_lib ? dlsym(pythonfmu_lib, symbol) : NULL; }
+
+static const char *library_error(void) { return load_failure; }
+
+static int readable(const char *path) { return access(path, R_OK) == 0; }
+
+/* Paths are bytes on Linux: pythonfmu opens the decoded UTF-8 path as it is. */
+static int local_path(char *path, size_t size) {
+    (void)path;
+    (void)size;
+    return 1;
+}
+
+/* Python is already running when pythonfmu's first fmi2Instantiate comes (the constructor above, or
+   the host is a Python). */
+typedef int instantiate_guard;
+static instantiate_guard instantiate_lock(void) { return 0; }
+static void instantiate_unlock(instantiate_guard guard) { (void)guard; }
+
+/* A thread with no Python thread state (any thread of a C host) gets one for its life at its first FMI
+   call. pythonfmu brackets every call with PyGILState_Ensure/Release, which otherwise creates and
+   destroys a thread state each time (mmap and munmap of its frame stack: six per closed-loop step).
+   The GIL is released again at once, so other threads (a parallel master's) can run the FMUs. */
+#include <pthread.h>
+static __thread int thread_pinned;
+static pthread_key_t pin_key;
+static pthread_once_t pin_once = PTHREAD_ONCE_INIT;
+static int pin_key_made;
+
+/* At the exit of a pinned thread its thread state is deleted: a master that starts new threads (per
+   run, per step) would otherwise leak one per thread. Not with PyGILState_Release: the C library may
+   already have cleared Python's own thread-local slot of this exiting thread. */
+static void unpin_thread(void *saved) {
+    if (!python_running() || (py.IsFinalizing && py.IsFinalizing())) return;
+    py.RestoreThread(saved);
+    py.ThreadState_Clear(saved);
+    py.ThreadState_DeleteCurrent();   /* and releases the GIL */
+}
+
+static void make_pin_key(void) { pin_key_made = pthread_key_create(&pin_key, unpin_thread) == 0; }
+
+static void pin_thread(void) {
+    void *saved;
+    if (thread_pinned || !python_running()) return;
+    thread_pinned = 1;
+    if (py.GILState_GetThisThreadState()) return;   /* a Python thread (fmpy), or pinned by the other FMU */
+    py.GILState_Ensure();
+    saved = py.SaveThread();
+    pthread_once(&pin_once, make_pin_key);
+    if (pin_key_made) pthread_setspecific(pin_key, saved);
+}
