@@ -24,8 +24,21 @@ def build_parallel_container(fmus: dict[str, Path], folder: Path, name: str = "T
         "fmu": ["MusclePlant.fmu", "AMPCController.fmu"],
         "link": [["MusclePlant.fmu", "l", "AMPCController.fmu", "l"], ["AMPCController.fmu", "u", "MusclePlant.fmu", "u"]],
         "output": [["MusclePlant.fmu", "l", "l"], ["AMPCController.fmu", "u", "u"]]}))
+    return _fmucontainer(folder, name, "-container", "loop.json", "-auto-parameter")
+
+
+def build_container_from_ssp(ssp: Path, folder: Path) -> Path:
+    """The loop of an SSP archive (``tapmuscle build --ssp``) as one FMU, ``folder/<archive's stem>.fmu``,
+    stepped at Ts in the container's default parallel mode. fmucontainer reads the system structure,
+    not the parameter bindings."""
+    shutil.copy(ssp, folder / ssp.name)
+    return _fmucontainer(folder, f"{ssp.stem}.fmu", "-container", f"{ssp.name}:{TS_S}")
+
+
+def _fmucontainer(folder: Path, name: str, *args: str) -> Path:
+    """Run fmu-manipulation-toolbox's ``fmucontainer`` in ``folder`` (its FMU directory); ``folder/name``."""
     cli = [sys.executable, "-c", "from fmu_manipulation_toolbox.cli.fmucontainer import fmucontainer; fmucontainer()"]
-    proc = subprocess.run([*cli, "-container", "loop.json", "-auto-parameter", "-fmu-directory", str(folder)],
-                          cwd=folder, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([*cli, *args, "-fmu-directory", str(folder)], cwd=folder, capture_output=True, text=True,
+                          timeout=300)
     assert (folder / name).is_file(), proc.stdout[-2000:] + proc.stderr[-2000:]
     return folder / name

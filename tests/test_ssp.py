@@ -1,4 +1,5 @@
-"""TapMuscleLoop.ssp (``tapmuscle build --ssp``): valid SSP 1.0, and it runs in libcosim's SSP loader."""
+"""TapMuscleLoop.ssp (``tapmuscle build --ssp``): valid SSP 1.0, and it runs in three SSP tools: libcosim's SSP
+loader, fmpy's SSP runner, and fmu-manipulation-toolbox's container built from it (Ecos: tests/test_ecos.py)."""
 
 import zipfile
 
@@ -7,6 +8,7 @@ import pytest
 from fmpy.ssp.ssd import read_ssd
 
 from build_scripts.ssp import SSP_NAME, write_ssp
+from fmu_container import build_container_from_ssp
 from tapmuscle.cli.main import main
 from tracking import tracking_error_mm
 
@@ -88,6 +90,20 @@ def test_fmpys_ssp_runner_runs_the_ssp_and_tracks(ssp):
     assert np.array_equal(res["controller.l"], res["plant.l"]) and np.array_equal(res["plant.u"], res["controller.u"])
     assert res["plant.u"].min() >= 0.0 and res["plant.u"].max() <= 10.0
     err = tracking_error_mm(res["time"] + 0.1, res["plant.l"])  # a row holds the outputs at the step's end
+    assert err < 0.25, err  # measured 0.137 mm
+
+
+def test_fmu_manipulation_toolbox_makes_one_fmu_of_the_ssp_that_tracks(ssp, tmp_path):
+    """``fmucontainer -container TapMuscleLoop.ssp:0.1`` (an SSP tool of the test extra) builds the loop
+    as one FMU, parallel mode, without the parameter bindings (the FMUs' defaults: 44 N, the
+    controller's delay detection); in fmpy it tracks as the other parallel masters."""
+    pytest.importorskip("fmu_manipulation_toolbox", reason="fmu-manipulation-toolbox (test extra) is not installed")
+    from fmpy import simulate_fmu
+
+    loop = build_container_from_ssp(ssp, tmp_path)
+    res = simulate_fmu(str(loop), stop_time=30.0, step_size=0.1, output_interval=0.1)
+    assert len(res) == 301 and "muscleplant.l" in res.dtype.names, res.dtype.names
+    err = tracking_error_mm(res["time"], res["muscleplant.l"])
     assert err < 0.25, err  # measured 0.137 mm
 
 
