@@ -441,8 +441,10 @@ class ConstrainedRLS:
         if phi.shape != self._phi_shape:
             raise ValueError(f"phi must have shape ({self._n},), got {phi.shape}")
         # phi.phi is a sum of squares: finite iff every entry is finite, unless
-        # it overflows; only then pay for the element-wise test
-        if not math.isfinite(_dot(phi, phi)) and not np.isfinite(phi).all():
+        # it overflows (IEEE: to inf, whatever np.seterr says); only then pay for the element-wise test
+        with np.errstate(over="ignore"):
+            squares = _dot(phi, phi)
+        if not math.isfinite(squares) and not np.isfinite(phi).all():
             raise ValueError(f"phi must be finite, got non-finite entries at {np.flatnonzero(~np.isfinite(phi)).tolist()}")
         y = float(y)
         if not math.isfinite(y):
@@ -457,7 +459,16 @@ class ConstrainedRLS:
         This runs every sample, so it is written for few numpy calls on the
         tiny arrays (their per-call overhead dominates): scalar checks where
         they are exact, and the rank-1 covariance update in place.
+
+        It computes with IEEE arithmetic whatever numpy's error handling in the calling thread (a
+        notebook's ``np.seterr(all="raise")``, a host's): an overflow is the covariance loss handled
+        below (``on_covariance_loss``), neither a numpy exception nor a warning.
         """
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._update(phi, y)
+
+    def _update(self, phi: np.ndarray, y: float) -> np.ndarray:
+        """:meth:`update_unchecked`'s arithmetic."""
         P = self._P
         lam = self._lam
         Pphi = _dot(P, phi)
