@@ -141,7 +141,9 @@ class RLSSettings:
         What to do if ``P`` loses positive definiteness (non-finite entry or
         a diagonal <= 0) or ``theta`` becomes non-finite after an update:
         ``"reset"`` discards that update, keeps ``theta(k-1)`` and resets
-        ``P`` to ``P(-1)``; ``"raise"`` raises ``FloatingPointError``.
+        ``P`` to ``P(-1)``; ``"raise"`` raises ``FloatingPointError``. Either
+        way numpy's error handling in the caller (``np.seterr``) plays no part:
+        the update computes with IEEE arithmetic (an overflow to inf).
     covariance_ceiling : bool
         Keep ``P(k) <= P(-1)`` (in the matrix order): the estimator never
         becomes more uncertain than it was at the start. With forgetting
