@@ -183,3 +183,27 @@ _PAPER_SCENARIO = tm.PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml"
 def test_a_wrong_argument_is_named(call, error, match):
     with pytest.raises(error, match=match):
         call()
+
+
+@pytest.mark.slow
+def test_a_callers_numpy_error_handling_changes_no_result(built_fmus):
+    """Careful notebooks set ``np.seterr(all="raise")``, and fmpy runs the FMUs in the caller's thread,
+    under that setting. Where the numerics rely on IEEE arithmetic they say so themselves (the RLS's
+    covariance loss), so the direct loop, an identification and a co-simulation through both FMUs give
+    the default's results bit for bit."""
+    from tapmuscle.cosim import PAPER_SCENARIOS
+
+    scenario = tm.load_scenario(PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml")
+
+    def runs() -> list[np.ndarray]:
+        loop = tm.simulate_closed_loop("ampc_servo", None, duration_s=30.0, seed=3)
+        rec = tm.simulate("random:lo=2,hi=8,hold_min=1,hold_max=4,seed=2", duration_s=60.0)
+        fit = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1)
+        co = tm.cosimulate(scenario, fmus=built_fmus)["columns"]
+        return [loop["l_mm"], loop["u_v"], fit.theta_history, co["l_mm"], co["u_v"]]
+
+    default = runs()
+    with np.errstate(all="raise"):
+        raised = runs()
+    for a, b in zip(default, raised):
+        assert np.array_equal(a, b)
