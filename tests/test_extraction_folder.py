@@ -50,9 +50,9 @@ def _folders(root, prefix="tm_test_"):
 
 @pytest.mark.parametrize("how", ["_exit", "kill"])
 def test_a_killed_process_folder_is_removed_by_the_next_claim(tmp_path, how):
-    proc = _claim(tmp_path, how)
-    folder = _claimed(proc)
-    proc.wait(timeout=60)
+    with _claim(tmp_path, how) as proc:
+        folder = _claimed(proc)
+        proc.wait(timeout=60)
     assert proc.returncode == (0 if how == "_exit" else -signal.SIGKILL)
     assert _folders(tmp_path) == [os.path.basename(folder)]  # atexit did not run: the folder is left
     mine = claimed_folder("tm_test_", tmp_path)
@@ -60,17 +60,18 @@ def test_a_killed_process_folder_is_removed_by_the_next_claim(tmp_path, how):
 
 
 def test_a_live_process_folder_is_kept_and_removed_at_its_normal_exit(tmp_path):
-    proc = _claim(tmp_path, "wait")
-    try:
-        folder = _claimed(proc)
-        assert remove_abandoned("tm_test_", tmp_path) == []
-        mine = claimed_folder("tm_test_", tmp_path)
-        assert _folders(tmp_path) == sorted([os.path.basename(folder), os.path.basename(mine)])
-        assert open(os.path.join(folder, "payload")).read() == "x"
-        # this process's own folder is in use too: a sweep from here leaves it
-        assert remove_abandoned("tm_test_", tmp_path) == []
-    finally:
-        proc.communicate("\n", timeout=60)
+    with _claim(tmp_path, "wait") as proc:
+        try:
+            folder = _claimed(proc)
+            assert remove_abandoned("tm_test_", tmp_path) == []
+            mine = claimed_folder("tm_test_", tmp_path)
+            assert _folders(tmp_path) == sorted([os.path.basename(folder), os.path.basename(mine)])
+            with open(os.path.join(folder, "payload")) as fh:
+                assert fh.read() == "x"
+            # this process's own folder is in use too: a sweep from here leaves it
+            assert remove_abandoned("tm_test_", tmp_path) == []
+        finally:
+            proc.communicate("\n", timeout=60)
     assert proc.returncode == 0
     assert _folders(tmp_path) == [os.path.basename(mine)]
 
