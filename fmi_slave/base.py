@@ -50,6 +50,12 @@ __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
 
 _BAD_STATE = "tapmuscle: bad FMU state"
 
+#: A Ctrl-C in a Python host lands in whatever Python code runs, most often a slave's step. It cannot
+#: pass through FMI as an exception, and reaching pythonfmu's C++ layer it became fmi2Fatal after
+#: which freeing the instance crashed the host: the slave answers fmi2Error with this instead.
+_INTERRUPTED = ("interrupted {where} (KeyboardInterrupt: Ctrl-C in the host process); the state may be "
+                "half updated: restore an FMU state saved before, or instantiate again")
+
 #: Shortest communication step that is integrated [s]. A master whose accumulated time leaves a
 #: rounding remainder asks for a last step of 1e-14 .. 2e-12 s: such a step is accepted with fmi2OK
 #: and changes nothing (the outputs hold), since no physics happens in it.
@@ -433,6 +439,9 @@ class SafeSlave(Fmi2Slave):
             self._failed = True
             self.log(f"initialisation failed: {exc}; every fmi2DoStep will return fmi2Error (set valid "
                      "parameters and instantiate again)", status=Fmi2Status.warning)
+        except KeyboardInterrupt:
+            self._failed = True
+            self.log(_INTERRUPTED.format(where="during initialisation"), status=Fmi2Status.error)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
@@ -460,6 +469,8 @@ class SafeSlave(Fmi2Slave):
         except Exception as exc:  # noqa: BLE001
             return self.fail(f"t = {current_time:g} s: internal error {type(exc).__name__}: {exc}\n"
                              f"{traceback.format_exc(limit=3)}", Fmi2Status.error)
+        except KeyboardInterrupt:
+            return self.fail(_INTERRUPTED.format(where=f"in the step from t = {current_time:g} s"), Fmi2Status.error)
 
     def _time_mismatch(self, t: float) -> str:
         """The message for a step at ``t`` that does not start at the FMU's time."""

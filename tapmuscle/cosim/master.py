@@ -23,7 +23,8 @@ sample of delay in the controller's path; docs/fmu.md explains how to avoid it i
 
 The last row (``k = N-1``) reads the plant and runs the controller but does not step the plant, as the
 direct loop. Any FMI call that fails raises :class:`~tapmuscle.cosim.spec.ScenarioError` with the FMU's
-logged message.
+logged message. A Ctrl-C is held while FMI calls run and raised between samples
+(:mod:`tapmuscle.cosim.held_interrupt`), so the FMUs are freed normally.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from fmu_controller.reference import REFERENCE_SOURCES
 from fmu_plant.seed import split_seed
 from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
+from tapmuscle.cosim.held_interrupt import held_interrupts
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
 __all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameter_names", "co_simulate"]
@@ -342,48 +344,49 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         raise ValueError(f"record must be 'all' or 'minimal', got {record!r}")
     src = scenario.source
     new = pool.acquire if pool is not None else FmuInstance
-    plant = new(scenario.plant.path or fmus["MusclePlant"], f"{scenario.name}.plant", role="plant")
-    ctrl, done = None, False
-    try:
-        ctrl = new(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
-                   role="controller")
-        plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
-        low, high = split_seed(scenario.seed)  # FMI Integers are 32-bit: the seed travels as two
-        plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
-        h = scenario.step_s
-        ref = scenario.reference
-        plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
-                             where=f"{src}: key '[load]/[supply] ")
-        ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
-        if ref.kind == "sine":
-            ctrl_params.update({"reference_source": _CODE["builtin_sine"], "sine.offset": ref.offset_mm,
-                                "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
-        else:
-            ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
-                                                    else "external_held"]
-        if "input_delay_samples" in ctrl.unpacked.variables:
-            # this master steps the controller before the plant: no delay to detect (the FMU's
-            # default -1 would start with the delayed law); a scenario may still set -1 or 1
-            ctrl_params["input_delay_samples"] = 0
-        ctrl_params.update(scenario.controller.parameters)
-        ctrl_params.update(controller_parameters or {})
-        ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
-        hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
-        hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
-        if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
-            hp += ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0] != 0  # -1 (detect) may need it too
-        plant.start()
-        ctrl.start()
-        cols = _loop(scenario, plant, ctrl, hp, record, progress)
-        done = True
-        return cols
-    finally:
-        for inst in (ctrl, plant):
-            if inst is not None:
-                if done and pool is not None:
-                    pool.release(inst)
-                else:
-                    inst.free()
+    with held_interrupts() as held:  # Ctrl-C ends the run between FMI calls, not inside an FMU
+        plant = new(scenario.plant.path or fmus["MusclePlant"], f"{scenario.name}.plant", role="plant")
+        ctrl, done = None, False
+        try:
+            ctrl = new(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
+                       role="controller")
+            plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
+            low, high = split_seed(scenario.seed)  # FMI Integers are 32-bit: the seed travels as two
+            plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
+            h = scenario.step_s
+            ref = scenario.reference
+            plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
+                                 where=f"{src}: key '[load]/[supply] ")
+            ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
+            if ref.kind == "sine":
+                ctrl_params.update({"reference_source": _CODE["builtin_sine"], "sine.offset": ref.offset_mm,
+                                    "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
+            else:
+                ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
+                                                        else "external_held"]
+            if "input_delay_samples" in ctrl.unpacked.variables:
+                # this master steps the controller before the plant: no delay to detect (the FMU's
+                # default -1 would start with the delayed law); a scenario may still set -1 or 1
+                ctrl_params["input_delay_samples"] = 0
+            ctrl_params.update(scenario.controller.parameters)
+            ctrl_params.update(controller_parameters or {})
+            ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
+            hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
+            hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
+            if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
+                hp += ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0] != 0  # -1 (detect) may need it too
+            plant.start()
+            ctrl.start()
+            cols = _loop(scenario, plant, ctrl, hp, record, progress, held)
+            done = True
+            return cols
+        finally:
+            for inst in (ctrl, plant):
+                if inst is not None:
+                    if done and pool is not None:
+                        pool.release(inst)
+                    else:
+                        inst.free()
 
 
 def _holding_gil(fmu: Any, names: tuple[str, ...]) -> list[Any]:
@@ -441,7 +444,7 @@ class _RealPort:
 
 
 def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, record: str,
-          progress: Callable[[int, int], None] | None) -> dict[str, np.ndarray]:
+          progress: Callable[[int, int], None] | None, held: Any) -> dict[str, np.ndarray]:
     n, h, ref = scenario.n_samples, scenario.step_s, scenario.reference
     external = ref.kind != "sine"
     advance = hp * h if external and ref.preview == "advanced" else 0.0
@@ -484,6 +487,8 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
             if status := p_step(*p_step_args):
                 plant_io.check(status, "fmi2DoStep", t)
         rows_p[k], rows_c[k] = p_out, c_out
+        if held.pending:
+            held.raise_if_pending()
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
     wall = time.perf_counter() - start

@@ -60,27 +60,31 @@ def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.nd
                        load_n: np.ndarray | None = None) -> np.ndarray:
     """Run a MusclePlant FMU with parameters ``values`` and the command ``u_v`` held over each ``ts_s``;
     the encoder output per sample [mm] (row ``k`` before the step that applies ``u(k)``)."""
+    from tapmuscle.cosim.held_interrupt import held_interrupts
     from tapmuscle.cosim.master import FmuInstance
 
-    inst = FmuInstance(path, "diagnose.plant", role="plant")
-    try:
-        inst.set_parameters(dict(values), where=f"{path}: parameter '")
-        # the FMU's inputs set the load and the supply pressure (its parameters of the same names are unused)
-        inputs = {"load": float(load_n[0]) if load_n is not None else values.get("load.load_n"),
-                  "supply_pressure": values.get("supply.supply_pressure_mpa")}
-        inst.set_parameters({k: float(v) for k, v in inputs.items() if v is not None}, where=f"{path}: input '")
-        inst.start()
-        fmu = inst.fmu
-        vr_u, vr_l, vr_w = inst.vr("u"), inst.vr("l"), inst.vr("load")
-        n = len(u_v)
-        out = np.empty(n)
-        out[0] = fmu.getReal([vr_l])[0]
-        for k in range(n - 1):
-            if load_n is not None:
-                fmu.setReal([vr_w], [float(load_n[k])])
-            fmu.setReal([vr_u], [float(u_v[k])])
-            inst._call("doStep", lambda: fmu.doStep(k * ts_s, ts_s), k * ts_s)
-            out[k + 1] = fmu.getReal([vr_l])[0]
-        return out
-    finally:
-        inst.free()
+    with held_interrupts() as held:  # Ctrl-C between FMI calls, not inside the FMU's step
+        inst = FmuInstance(path, "diagnose.plant", role="plant")
+        try:
+            inst.set_parameters(dict(values), where=f"{path}: parameter '")
+            # the FMU's inputs set the load and the supply pressure (its parameters of the same names are unused)
+            inputs = {"load": float(load_n[0]) if load_n is not None else values.get("load.load_n"),
+                      "supply_pressure": values.get("supply.supply_pressure_mpa")}
+            inst.set_parameters({k: float(v) for k, v in inputs.items() if v is not None}, where=f"{path}: input '")
+            inst.start()
+            fmu = inst.fmu
+            vr_u, vr_l, vr_w = inst.vr("u"), inst.vr("l"), inst.vr("load")
+            n = len(u_v)
+            out = np.empty(n)
+            out[0] = fmu.getReal([vr_l])[0]
+            for k in range(n - 1):
+                if load_n is not None:
+                    fmu.setReal([vr_w], [float(load_n[k])])
+                fmu.setReal([vr_u], [float(u_v[k])])
+                inst._call("doStep", lambda: fmu.doStep(k * ts_s, ts_s), k * ts_s)
+                out[k + 1] = fmu.getReal([vr_l])[0]
+                if held.pending:
+                    held.raise_if_pending()
+            return out
+        finally:
+            inst.free()

@@ -1,0 +1,148 @@
+"""Ctrl-C during a co-simulation: held until the master is between FMI calls; in a slave, fmi2Error.
+
+Without both, SIGINT landed in a Python FMU's step most of the time: ``tapmuscle paper`` ended with a
+segfault (exit 139) or a fatal FMU error (exit 2) in two of three tries, and a sweep recorded the
+interrupted run as failed and went on.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from tapmuscle.cosim import PAPER_SCENARIOS
+from tapmuscle.cosim.held_interrupt import HELD, held_interrupts
+
+pytestmark = pytest.mark.skipif(os.name != "posix", reason="SIGINT sent to a child process (POSIX)")
+
+
+def test_a_sigint_in_the_block_is_held_then_raised_where_asked_and_the_handler_restored():
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts() as held:
+            signal.raise_signal(signal.SIGINT)
+            reached.append("after the signal")  # the block goes on: the signal is only noted
+            assert held.pending
+            held.raise_if_pending()
+            reached.append("never")
+    assert reached == ["after the signal"] and not HELD.pending
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_signal_still_held_at_the_end_of_the_block_is_raised_there():
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts():
+            signal.raise_signal(signal.SIGINT)
+            done.append(True)
+    assert done == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_nested_blocks_hold_once_and_other_threads_and_handlers_are_left_alone():
+    with held_interrupts():
+        ours = signal.getsignal(signal.SIGINT)
+        with held_interrupts():
+            assert signal.getsignal(signal.SIGINT) is ours
+        assert signal.getsignal(signal.SIGINT) is ours  # the inner block did not restore the default
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+    seen = []
+    thread = threading.Thread(target=lambda: seen.append(held_interrupts().__enter__() is HELD))
+    thread.start()
+    thread.join()
+    assert seen == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+    def own(signum, frame):
+        seen.append("own handler")
+
+    previous = signal.signal(signal.SIGINT, own)
+    try:
+        with held_interrupts():
+            assert signal.getsignal(signal.SIGINT) is own
+            signal.raise_signal(signal.SIGINT)
+        assert seen[-1] == "own handler"
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+_INTERRUPTED_STEP = r"""
+import signal, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+
+path, cycles = sys.argv[1], int(sys.argv[2])
+md = read_model_description(path)
+folder = extract(path)
+vr = {v.name: v.valueReference for v in md.modelVariables}
+for i in range(cycles):
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=f"i{i}")
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    slave = next(m for name, m in sys.modules.items() if name.endswith(".fmu_plant.plant_slave")).MusclePlant
+    original = slave.step_numerics
+    def interrupted(self, t, h):
+        original(self, t, h)
+        signal.raise_signal(signal.SIGINT)  # Ctrl-C: Python's handler raises KeyboardInterrupt in the slave
+        for _ in range(3):
+            pass
+    slave.step_numerics = interrupted
+    f.setReal([vr["u"]], [6.0])
+    try:
+        f.doStep(0.0, 0.1)
+        status = 0
+    except FMICallException as exc:
+        status = exc.status
+    slave.step_numerics = original
+    print("status", status, flush=True)
+    f.terminate()
+    f.freeInstance()
+print("done", flush=True)
+"""
+
+
+@pytest.mark.fmu
+def test_an_interrupt_inside_a_slaves_step_is_an_error_not_a_crash(built_fmus):
+    """Python's own SIGINT handler inside the plant slave's step, 20 instantiate / interrupted step /
+    free cycles in one fmpy process: fmi2Error every time, and the process ends normally (a
+    KeyboardInterrupt reaching pythonfmu's C++ layer was fmi2Fatal, and freeing the instance then
+    crashed the host)."""
+    proc = subprocess.run([sys.executable, "-c", _INTERRUPTED_STEP, str(built_fmus["MusclePlant"]), "20"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    lines = [line for line in proc.stdout.splitlines() if line.startswith(("status", "done"))]
+    assert lines == ["status 3"] * 20 + ["done"], proc.stdout[-2000:]
+
+
+def test_tapmuscle_run_interrupted_mid_run_exits_130_and_frees_the_fmus(built_fmus, tmp_path):
+    """SIGINT to ``tapmuscle run`` once its loop is under way (its first progress line): the
+    interrupted message, exit status 130, no output file, and no FMU error on the way."""
+    fmu_dir = Path(built_fmus["MusclePlant"]).parent
+    paper = (PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml").read_text(encoding="utf-8")
+    assert "duration_s = 45.0" in paper
+    scenario = tmp_path / "long.toml"  # two hours of rig time: about 7 s here
+    scenario.write_text(paper.replace("duration_s = 45.0", "duration_s = 7200.0"), encoding="utf-8")
+    for attempt in range(3):
+        out = tmp_path / f"out{attempt}"
+        proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "run", str(scenario), "--out", str(out),
+                                 "--fmu-dir", str(fmu_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        with proc:
+            deadline = time.monotonic() + 120
+            for line in proc.stderr:  # progress goes to stderr
+                if "%" in line or time.monotonic() > deadline:
+                    break
+            time.sleep(0.2 * attempt)
+            proc.send_signal(signal.SIGINT)
+            stdout, stderr = proc.communicate(timeout=120)
+        assert proc.returncode == 130, (proc.returncode, stdout[-1000:], stderr[-2000:])
+        assert "interrupted; nothing is half-written" in stderr and "FATAL" not in stderr and "ERROR" not in stderr
+        assert not (out / "result.csv").exists()
