@@ -521,6 +521,34 @@ def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built
     assert fit_percent(rec_back.l_mm, y, test) == pytest.approx(doc["fit_after_percent"], abs=0.01)
 
 
+@pytest.mark.slow
+def test_the_reported_constants_are_the_calibrated_plant_files(tmp_path):
+    """The report's calibration rows state the final model's constants, the ones written to
+    calibrated_plant.json. A 0.3-s delay under random steps: the first calibration, with the delay
+    left out, bent the flow coefficient to 0.79 and the friction to 1.7 N; the delay's joint re-fit
+    took them back to the rig's 1.50 and 8 N, and the rows kept the first calibration's values."""
+    from fmu_plant import PlantParams
+
+    out = tmp_path / "diag"
+    rec = tmp_path / "delayed.csv"
+    assert main(["record", "--load", "44", "--input", "random:lo=2,hi=8,hold_min=2,hold_max=10,seed=0",
+                 "--duration", "240", "--seed", "3", "--set", "delay.delay_s=0.3", "--out", str(rec), "--quiet"]) == 0
+    nominal = tmp_path / "plant.json"
+    nominal.write_text(json.dumps({"plant": PlantParams().to_dict()}))
+    assert main(["diagnose", "--recording", str(rec), "--plant", str(nominal), "--out", str(out), "--quiet"]) == 0
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert [f["effect"] for f in doc["findings"]] == ["transport_delay"]
+    plant = PlantParams.from_dict(json.loads((out / "calibrated_plant.json").read_text())["plant"])
+    rows = doc["calibration"]["parameters"]
+    assert len(rows) >= 10
+    for row in rows:
+        assert row["estimate"] == pytest.approx(plant.value(row["parameter"]), rel=1e-5), row
+        assert row["ci95"][0] <= row["estimate"] <= row["ci95"][1], row
+    # the final model is the rig's, to well within the noise: its constants are the nominal ones
+    assert plant.value("valve.cv_max") == pytest.approx(1.5, rel=0.02)
+    assert plant.value("friction.base_n") == pytest.approx(8.0, rel=0.05)
+
+
 def PlantParams_default_with(values):
     from fmu_plant import PlantParams
 

@@ -1247,10 +1247,16 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             current = _Model(p_final, current.effects, y_final, values_final, _used(q_final))
             if not current.effects:  # the calibration alone, converged further
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
-            cal = Calibration(p_final, calibration_rows(list(calibration), model, p_final, cal.identifiable,
-                                                        f_final.jacobian, f_final.residual, sigma, cal.shrink,
-                                                        space.bounds, fitted=list(cal.changed),
-                                                        consider=cal.consider_jacobian),
+        if f_final is not None:
+            # The rows state the final model's constants, those of the calibrated plant file, also where
+            # the final re-fit was not kept: the search's joint re-fits moved the constants from the
+            # first calibration (a delay's: the flow coefficient from 0.79 back to the rig's 1.50), and
+            # rows of the first calibration contradicted the file. The intervals are the final re-fit's,
+            # which started from these constants.
+            cal = Calibration(current.params, calibration_rows(list(calibration), model, current.params,
+                                                               cal.identifiable, f_final.jacobian, f_final.residual,
+                                                               sigma, cal.shrink, space.bounds,
+                                                               fitted=list(cal.changed), consider=cal.consider_jacobian),
                               cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept, cal.consider_jacobian)
     notes: list[str] = []
     skipped = None
