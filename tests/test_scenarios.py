@@ -261,10 +261,18 @@ def test_runaway_or_meaningless_scenarios_are_named(doc, key, pattern):
         parse_scenario(doc, source="s.toml")
 
 
-def test_a_runaway_horizon_is_refused_by_the_controller_fmu(built_fmus):
+def test_a_runaway_horizon_is_refused_by_the_controller_fmus_declared_range(built_fmus):
+    """Before the FMU is instantiated (the model description's min/max), naming the file and key; a
+    value the FMU itself refuses (servo.Hu > servo.Hp, a rule between parameters) at its start."""
     s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
                         "controller": {"method": "ampc_servo", "parameters": {"servo.Hp": 5000}}}, source="s.toml")
-    with pytest.raises(ScenarioError, match=r"servo.Hp = 5000 is outside its declared range 1..50"):
+    with pytest.raises(ScenarioError, match=r"s.toml: key 'controller.parameters.servo.Hp': 5000 is outside its "
+                                            r"declared range 1..50"):
+        co_simulate(s, built_fmus)
+    s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
+                        "controller": {"method": "ampc_servo", "parameters": {"servo.Hp": 5, "servo.Hu": 8}}},
+                       source="s.toml")
+    with pytest.raises(ScenarioError, match=r"controller FMU \(AMPCController.fmu\) rejected its parameters: .*Hu"):
         co_simulate(s, built_fmus)
 
 

@@ -355,7 +355,16 @@ def test_sweep_cli_in_process_and_its_errors(built_fmus, tmp_path, capsys):
     assert main(["sweep", str(bad), "--out", str(tmp_path / "o2"), "--workers", "0", "--fmu-dir", fmu_dir]) == 2
     err = capsys.readouterr().err
     assert str(bad) in err and "controller.parameters.servo.Rr" in err and "not a parameter" in err
+    assert "did you mean 'servo.R'" in err
     assert not (tmp_path / "o2" / "results.csv").exists()
+    # a value outside the FMU's declared range stops the sweep before any run too (it used to run, and
+    # record that run as failed)
+    bad = _write(tmp_path, "base = { duration_s = 10.0 }\n[grid]\n'controller.parameters.servo.R' = [10.0, -15.0]\n")
+    assert main(["sweep", str(bad), "--out", str(tmp_path / "o3"), "--workers", "0", "--fmu-dir", fmu_dir]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "controller.parameters.servo.R=-15.0" in err
+    assert "key 'controller.parameters.servo.R': -15.0 is outside its declared range 0.0..inf" in err
+    assert not (tmp_path / "o3").exists()
 
 
 def test_tasks_carry_fmu_digests_and_run_anywhere(built_fmus, tmp_path, monkeypatch):

@@ -33,7 +33,7 @@ from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.io.atomic import atomic_path
-from tapmuscle.cosim.master import InstancePool, check_parameter_names, co_simulate
+from tapmuscle.cosim.master import InstancePool, check_parameters, co_simulate
 from tapmuscle.cosim.spec import FmuSpec, Scenario
 
 __all__ = ["RunTask", "RunResult", "FmuFiles", "make_task", "execute_run", "run_serial", "DaskExecutor",
@@ -137,9 +137,10 @@ def _cache_root() -> Path:
 def make_task(run_id: str, scenario: Scenario, fmus: Mapping[str, str | Path], files: FmuFiles) -> RunTask:
     """The task of running ``scenario``: its own FMU files if it names them, else ``fmus``'.
 
-    Raises ScenarioError if the scenario sets a parameter the FMU does not have (before anything runs).
+    Raises ScenarioError if the scenario sets a parameter the FMU does not have, or a value outside its
+    declared range (before anything runs).
     """
-    check_parameter_names(scenario, fmus)
+    check_parameters(scenario, fmus)
     digests = []
     for name, role in _ROLES:
         spec: FmuSpec = getattr(scenario, role)

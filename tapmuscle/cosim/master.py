@@ -29,7 +29,9 @@ logged message. A Ctrl-C is held while FMI calls run and raised between samples
 
 from __future__ import annotations
 
+import difflib
 import itertools
+import math
 import re
 import threading
 import time
@@ -52,7 +54,7 @@ from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.held_interrupt import held_interrupts
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
-__all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameter_names", "co_simulate"]
+__all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameters", "co_simulate"]
 
 #: The controller FMU's Integer codes of its methods and reference sources, by name.
 _CODE: dict[str, int] = {name: code for codes in (METHOD_CODES, REFERENCE_SOURCES) for code, name in codes.items()}
@@ -129,24 +131,59 @@ def unpack(path: str | Path) -> Unpacked:
 
 
 def _settable(unpacked: Unpacked, name: str, where: str) -> Any:
-    """The parameter or input ``name`` of the FMU; ScenarioError (prefixed by ``where``) if it has none."""
+    """The parameter or input ``name`` of the FMU; ScenarioError (prefixed by ``where``) if it has none,
+    with the closest names it has."""
     var = unpacked.variables.get(name)
     if var is None or var.causality not in ("parameter", "input"):
-        known = sorted(n for n, v in unpacked.variables.items() if v.causality == "parameter")
+        known = sorted(n for n, v in unpacked.variables.items() if v.causality in ("parameter", "input"))
+        close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+        hint = f"did you mean {' or '.join(repr(c) for c in close)}? " if close else ""
         raise ScenarioError(f"{where}{name}': not a parameter of {unpacked.model_description.modelName} "
-                            f"(known: {', '.join(known[:8])}, ...; docs/fmu.md lists all)")
+                            f"({hint}known: {', '.join(known[:8])}, ...; docs/fmu.md lists all)")
     return var
 
 
-def check_parameter_names(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None:
-    """Raise ScenarioError (naming file and key) if ``scenario`` sets a parameter its FMUs do not have;
-    reads only the model descriptions (no instance), to check a whole sweep before it runs."""
+def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
+    """``value`` as FMI sets the variable ``var`` (an Enumeration's item name as its number); ScenarioError
+    (prefixed by ``where``) if it has the wrong type, is not finite, or lies outside the range the model
+    description declares, so that a whole sweep is checked before it runs."""
+    if var.type == "Enumeration":
+        items = {item.name: item.value for item in var.declaredType.items}
+        if isinstance(value, str):
+            if value not in items:
+                raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
+            value = items[value]
+        number: int | float = int(value)
+    elif var.type == "Integer":
+        if isinstance(value, str) or int(value) != value:
+            raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
+        number = int(value)
+    elif var.type == "Real":
+        if isinstance(value, str) or not math.isfinite(float(value)):
+            raise ScenarioError(f"{where}{name}': must be a finite number, got {value!r}")
+        number = float(value)
+    else:
+        raise ScenarioError(f"{where}{name}': {var.type} parameters are not supported")
+    lo = -math.inf if var.min is None else float(var.min)
+    hi = math.inf if var.max is None else float(var.max)
+    if not lo <= number <= hi:
+        raise ScenarioError(f"{where}{name}': {value!r} is outside its declared range "
+                            f"{var.min if var.min is not None else '-inf'}..{var.max if var.max is not None else 'inf'}")
+    return number
+
+
+def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None:
+    """Raise ScenarioError (naming file and key) if ``scenario`` sets a parameter its FMUs do not have, or
+    a value of the wrong type or outside the range their model descriptions declare; reads only the
+    model descriptions (no instance), to check a whole sweep before it runs. (Rules between parameters,
+    such as ``servo.Hu <= servo.Hp``, are the FMU's, checked when a run starts.)"""
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
                              ("AMPCController", "controller", scenario.controller)):
         unpacked = unpack(spec.path or fmus[name])
         check_role(unpacked, role)
-        for key in spec.parameters:
-            _settable(unpacked, key, f"{scenario.source}: key '{role}.parameters.")
+        where = f"{scenario.source}: key '{role}.parameters."
+        for key, value in spec.parameters.items():
+            _declared_value(_settable(unpacked, key, where), key, value, where)
 
 
 #: The interface each role of the closed loop needs: (inputs, outputs) by name.
@@ -227,23 +264,11 @@ class FmuInstance:
         prefixes the name in errors."""
         for name, value in values.items():
             var = _settable(self.unpacked, name, where)
-            if var.type == "Enumeration":
-                items = {item.name: item.value for item in var.declaredType.items}
-                if isinstance(value, str):
-                    if value not in items:
-                        raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
-                    value = items[value]
-                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [int(value)]))
-            elif var.type == "Integer":
-                if isinstance(value, str) or int(value) != value:
-                    raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
-                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [int(value)]))
-            elif var.type == "Real":
-                if isinstance(value, str):
-                    raise ScenarioError(f"{where}{name}': must be a number, got {value!r}")
-                self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [float(value)]))
+            number = _declared_value(var, name, value, where)
+            if var.type == "Real":
+                self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [number]))
             else:
-                raise ScenarioError(f"{where}{name}': {var.type} parameters are not supported")
+                self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [number]))
 
     def start(self) -> None:
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
