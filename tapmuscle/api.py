@@ -77,7 +77,7 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
     """
     ts = _check_positive("ts_s", ts_s)
     if isinstance(command, str):
-        signal = parse_input_spec(command)
+        signal = parse_input_spec(command, run_duration_s=duration_s)
     elif callable(command):
         signal = command
     else:

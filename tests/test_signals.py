@@ -48,3 +48,28 @@ def test_csv_replays_the_u_column(tmp_path):
 def test_bad_specs_name_the_problem(spec, match):
     with pytest.raises(ValueError, match=match):
         parse_input_spec(spec)
+
+
+def test_a_chirp_without_its_duration_sweeps_over_the_run():
+    """``record --input chirp:f0=0.01,f1=0.5 --duration 60`` swept over the default 240 s and never
+    reached f1; given the run's length it is the chirp with ``duration=`` that length, and a duration
+    in the spec still wins."""
+    t = np.arange(0.0, 60.0, 0.1)
+    over_run = parse_input_spec("chirp:f0=0.01,f1=0.5", run_duration_s=60.0)
+    explicit = parse_input_spec("chirp:f0=0.01,f1=0.5,duration=60")
+    assert [over_run(x) for x in t] == [explicit(x) for x in t]
+    default = parse_input_spec("chirp:f0=0.01,f1=0.5")
+    assert [default(x) for x in t] == [parse_input_spec("chirp:f0=0.01,f1=0.5,duration=240")(x) for x in t]
+    given = parse_input_spec("chirp:f0=0.01,f1=0.5,duration=30", run_duration_s=60.0)
+    assert [given(x) for x in t] == [parse_input_spec("chirp:f0=0.01,f1=0.5,duration=30")(x) for x in t]
+
+
+def test_record_sweeps_a_chirp_over_its_duration(tmp_path):
+    from tapmuscle.cli.main import main
+    from tapmuscle.io.recording import read_recording
+
+    out = tmp_path / "c.csv"
+    assert main(["record", "--input", "chirp:f0=0.01,f1=0.5", "--duration", "60", "--out", str(out), "--quiet"]) == 0
+    u = read_recording(out).u_v
+    expected = parse_input_spec("chirp:f0=0.01,f1=0.5,duration=60")
+    assert np.allclose(u, [expected(k * 0.1) for k in range(len(u))], atol=1e-6)

@@ -12,7 +12,8 @@ kind        meaning                                                    keys (def
 ``steps``   piecewise constant, ``levels`` separated by ``/``,         ``levels``, ``period`` [s] (20)
             each held ``period`` seconds, cycling
 ``chirp``   sine whose frequency sweeps linearly from ``f0`` to        ``bias`` (5), ``amp`` (3), ``f0`` (0.01),
-            ``f1`` over ``duration``                                   ``f1`` (0.5), ``duration`` [s] (240)
+            ``f1`` over ``duration``                                   ``f1`` (0.5), ``duration`` [s] (the
+                                                                        run's, else 240)
 ``random``  random steps: a new level uniform in ``lo..hi`` every      ``lo`` (2), ``hi`` (8), ``hold_min`` (2),
             hold drawn uniform in ``hold_min..hold_max`` seconds       ``hold_max`` (10), ``seed`` (0)
 ``csv``     replay the ``u_v`` column of a recording (``csv:PATH``);   (the path)
@@ -55,13 +56,16 @@ def _number(spec: str, key: str, text: str) -> float:
     return value
 
 
-def parse_input_spec(spec: str) -> InputSignal:
+def parse_input_spec(spec: str, *, run_duration_s: float | None = None) -> InputSignal:
     """Turn a spec string into a command signal ``u(t)`` [V].
 
     Parameters
     ----------
     spec : str
         See the module docstring, e.g. ``"sine:bias=5,amp=3,freq=0.1"`` or ``"csv:run.csv"``.
+    run_duration_s : float, optional
+        The length of the run the signal is for [s]: a ``chirp`` without ``duration=`` sweeps over
+        it, so that it reaches ``f1`` by the end (without it, over 240 s).
 
     Raises
     ------
@@ -80,6 +84,8 @@ def parse_input_spec(spec: str) -> InputSignal:
         raise ValueError(f"input spec {spec!r}: unknown kind {kind!r}; expected one of "
                          f"{', '.join(list(SPEC_KINDS) + ['csv'])}")
     values: dict[str, float | str] = dict(SPEC_KINDS[kind])
+    if kind == "chirp" and run_duration_s is not None:
+        values["duration"] = float(run_duration_s)
     given: set[str] = set()
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, text = item.partition("=")
