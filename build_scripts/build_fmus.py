@@ -25,6 +25,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 import tomllib
 import zipfile
 from importlib import metadata
@@ -279,4 +280,32 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
                           f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
                           f"tapmuscle build --out DIR)") from None
         build_fmus(folder, missing)
+        _prune_cache(Path(cache_root), folder)
+    else:
+        try:
+            os.utime(folder)  # last used: what the pruning keeps
+        except OSError:
+            pass  # a read-only cache still serves
     return paths
+
+
+#: The FMU cache keeps the builds of this many source states, the most recently used, and any used
+#: in the last :data:`CACHE_IN_USE_S` (another process may be running it).
+CACHE_KEEP = 8
+CACHE_IN_USE_S = 3600.0
+
+
+def _prune_cache(cache_root: Path, keep: Path) -> None:
+    """Remove the cached builds beyond :data:`CACHE_KEEP` (each source state of a checkout gets one,
+    and a developer's cache held 51, 35 MB); never ``keep`` nor one used within :data:`CACHE_IN_USE_S`."""
+    builds = []
+    for d in cache_root.glob("fmu-*"):
+        try:
+            builds.append((d.stat().st_mtime, d))
+        except OSError:
+            continue
+    builds.sort(reverse=True)
+    now = time.time()
+    for mtime, d in builds[CACHE_KEEP:]:
+        if d != keep and now - mtime > CACHE_IN_USE_S:
+            shutil.rmtree(d, ignore_errors=True)

@@ -211,3 +211,29 @@ def test_an_unwritable_cache_is_named_with_its_remedy(tmp_path, monkeypatch):
     with pytest.raises(OSError, match=r"cannot write the FMU cache .*file/\.cache/tapmuscle/fmu-"):
         cached_fmus()
     assert not (tmp_path / "tapmuscle").exists()
+
+
+def test_the_fmu_cache_keeps_the_recently_used_builds(tmp_path):
+    """Each source state of a checkout gets a build in the cache: beyond CACHE_KEEP the least recently
+    used ones go, but never the one just built nor one used within the hour (another process)."""
+    import os
+    import time
+
+    from build_scripts.build_fmus import CACHE_IN_USE_S, CACHE_KEEP, _prune_cache
+
+    now = time.time()
+    ages_h = [0.1, 0.5, *range(2, 14)]  # hours since last use: two in use, twelve idle
+    folders = []
+    for i, age in enumerate(ages_h):
+        d = tmp_path / f"fmu-{i:016x}"
+        (d / "x").mkdir(parents=True)
+        os.utime(d, (now - age * 3600, now - age * 3600))
+        folders.append(d)
+    (tmp_path / "extracted").mkdir()  # not a build: left alone
+    just_built = folders[-1]  # the oldest time stamp, but the build this call made
+    _prune_cache(tmp_path, just_built)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert "extracted" in left and just_built.name in left
+    kept = [d for d in folders if d.exists()]
+    assert kept == folders[:CACHE_KEEP] + [just_built]
+    assert all(d.exists() for d, age in zip(folders, ages_h) if age * 3600 < CACHE_IN_USE_S)
