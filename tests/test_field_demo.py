@@ -498,7 +498,32 @@ def test_the_cli_keeps_each_suites_flags_to_it(tmp_path, capsys):
     assert "--use-pressure belongs to --suite field, not --suite concealed" in capsys.readouterr().err
     assert main(["demo-mismatch", "--out", str(out), "--suite", "foreign", "--use-pressure"]) == 2
     assert "--use-pressure belongs to --suite field, not --suite foreign" in capsys.readouterr().err
+    assert main(["demo-mismatch", "--out", str(out), "--suite", "foreign", "--keep-files"]) == 2
+    assert "--keep-files belongs to --suite field, not --suite foreign" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["demo-mismatch", "--out", str(out), "--recordings", "0"])
     assert "--recordings must be >= 1" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_tidied_case_says_which_of_its_files_are_gone(tmp_path):
+    """A case's report names the designed experiment and the calibrated plant as files to use: where
+    the demo deletes them (the default), the report says so and how to keep them."""
+    from tapmuscle.diagnosis.field_demo import KEPT_FILES, _tidy
+
+    names = ["diagnosis.json", "report.md", "recording.csv", "calibrated_plant.json", "discriminating_input.csv"]
+    for keep in (True, False):
+        folder = tmp_path / f"keep_{keep}"
+        folder.mkdir()
+        for name in names:
+            (folder / name).write_text("# report\nsee discriminating_input.csv\n" if name == "report.md" else "x")
+        _tidy(folder, keep)
+        left = sorted(p.name for p in folder.iterdir())
+        report = (folder / "report.md").read_text()
+        if keep:
+            assert left == sorted(names) and "deleted" not in report
+        else:
+            assert left == sorted(KEPT_FILES)
+            assert report.startswith("# report\nsee discriminating_input.csv\n") and report.endswith(
+                "demo-mismatch deleted this case's other files (calibrated_plant.json, discriminating_input.csv, "
+                "recording.csv) to save space; `tapmuscle demo-mismatch --keep-files` keeps them.\n")

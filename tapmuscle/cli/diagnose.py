@@ -122,7 +122,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from tapmuscle.cli.progress import Progress
 
     field_only = {"--recordings": args.recordings, "--seed": args.seed, "--resume": args.resume or None,
-                  "--use-pressure": args.use_pressure or None}
+                  "--use-pressure": args.use_pressure or None, "--keep-files": args.keep_files or None}
     concealed_only = {"--seeds": args.seeds, "--clean-seeds": args.clean_seeds, "--effects": args.effects,
                       "--excitations": args.excitations}
     home = {"field": "field", "concealed": "concealed", "foreign": "field"}[args.suite]
@@ -130,7 +130,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if wrong:
         raise UsageError(f"{', '.join(wrong)} belong{'s' if len(wrong) == 1 else ''} to --suite "
                          f"{'concealed' if home == 'field' else 'field'}, not --suite {args.suite}")
-    for flag, value in (("--resume", args.resume), ("--use-pressure", args.use_pressure)):
+    for flag, value in (("--resume", args.resume), ("--use-pressure", args.use_pressure),
+                        ("--keep-files", args.keep_files)):
         if args.suite == "foreign" and value:
             raise UsageError(f"{flag} belongs to --suite field, not --suite foreign")
     progress = Progress("demo-mismatch", enabled=not args.quiet, min_total=1)
@@ -147,10 +148,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
         n = 120 if args.recordings is None else args.recordings
         scores = run_field_demo(args.out, n=n, seed=0 if args.seed is None else args.seed, jobs=args.jobs,
-                                resume=args.resume, progress=progress, use_pressure=args.use_pressure)
+                                resume=args.resume, progress=progress, use_pressure=args.use_pressure,
+                                keep=args.keep_files)
         print(field_markdown(scores))
         print(f"wrote {args.out}/scores.md, scores.json (every case's truth and result), confusion.png and "
-              f"cases/*/diagnosis.json, report.md")
+              f"cases/*/diagnosis.json, report.md" + (" and the recordings, plants and experiments" if args.keep_files else ""))
         return 0
 
     from tapmuscle.diagnosis.demo import EXCITATIONS, MAGNITUDES, run_demo, scores_markdown
@@ -246,5 +248,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     demo.add_argument("--jobs", type=integer_at_least("--jobs", 1), default=None, help="worker processes (default: all cores)")
     demo.add_argument("--use-pressure", action="store_true",
                       help="field: diagnose with the recorded pressure beside the displacement")
+    demo.add_argument("--keep-files", action="store_true",
+                      help="field: keep each case's recordings, calibrated plants and designed experiments "
+                           "(default: only diagnosis.json and report.md)")
     demo.add_argument("--quiet", action="store_true", help="no progress output")
     demo.set_defaults(func=_cmd_demo)

@@ -133,11 +133,18 @@ def _diagnose(rec: Path, plant: Path, folder: Path, effects: Sequence[str] | Non
 
 
 def _tidy(folder: Path, keep: bool) -> None:
+    """Delete the case's files but :data:`KEPT_FILES` (unless ``keep``), and say so in its report, which
+    names some of them (the designed experiment, the calibrated plant) as files to use."""
     if keep or not folder.is_dir():
         return
-    for p in folder.iterdir():
-        if p.is_file() and p.name not in KEPT_FILES:
-            p.unlink()
+    gone = sorted(p.name for p in folder.iterdir() if p.is_file() and p.name not in KEPT_FILES)
+    for name in gone:
+        (folder / name).unlink()
+    report = folder / "report.md"
+    if gone and report.is_file():
+        atomic_write_text(report, report.read_text(encoding="utf-8").rstrip("\n") + "\n\n---\n"
+                          f"demo-mismatch deleted this case's other files ({', '.join(gone)}) to save space; "
+                          "`tapmuscle demo-mismatch --keep-files` keeps them.\n")
 
 
 def _discriminate(case: FieldCase, doc: dict[str, Any], folder: Path, plant_path: Path,
