@@ -37,7 +37,8 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
     return {
         "scenario": scenario.name, "source": scenario.source, "method": scenario.method, "seed": scenario.seed,
         **metrics, "real_time_factor": metrics["real_time_factor"] if metrics["wall_time_s"] > 0 else None,
-        "evaluation_samples": [k0, k1], "evaluation_window_s": [k0 * scenario.step_s, k1 * scenario.step_s],
+        # the window's times as decimals: 10.1, not 10.100000000000001
+        "evaluation_samples": [k0, k1], "evaluation_window_s": [float(f"{k * scenario.step_s:.12g}") for k in (k0, k1)],
         "fmus": {name: {"path": str(p), "guid": unpack(p).model_description.guid} for name, p in fmus.items()},
         "scenario_spec": json.loads(json.dumps(asdict(scenario), default=str)),
     }
