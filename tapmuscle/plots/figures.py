@@ -121,13 +121,21 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
         if i >= n:
             ax.set_visible(False)
             continue
-        ax.plot(t_s, history[:, i], lw=1)
         # Scale to the settled part: the first seconds of RLS swing wildly and would hide the rest.
         settled = history[len(t_s) // 20:, i]
         lo, hi = float(np.min(settled)), float(np.max(settled))
+        # a tiny or huge parameter (xi31 ~ 1e-5) in units of a power of ten named in the title:
+        # matplotlib's own "1e-5" above the axes ran into the title
+        size = max(abs(lo), abs(hi))
+        power = int(np.floor(np.log10(size))) if size > 0 else 0
+        power = power if not -3 <= power <= 3 else 0
+        scale = 10.0 ** -power
+        ax.plot(t_s, history[:, i] * scale, lw=1)
+        lo, hi = lo * scale, hi * scale
         pad = 0.15 * (hi - lo) + 1e-12 + 0.02 * max(abs(lo), abs(hi))
         ax.set_ylim(lo - pad, hi + pad)
-        ax.set_title(names[i], fontsize=9)
+        ax.ticklabel_format(axis="y", useOffset=False)
+        ax.set_title(names[i] if power == 0 else f"{names[i]} [x 1e{power}]", fontsize=9)
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=7)
         if constraint_start_s is not None and constraint_start_s < t_s[-1]:
