@@ -285,3 +285,22 @@ def test_a_controller_fmu_as_the_plant_is_named_as_such(built_fmus, tmp_path, ca
     assert "this AMPCController FMU cannot be the plant: it lacks input u, output l" in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("servo.R", -1.0, "-1.0 is outside its declared range 0.0..inf"),
+    ("servo.Hp", 5.5, "must be an integer, got 5.5"),
+    ("servo.Hp", 0, "0 is outside its declared range 1..50"),
+    ("servo.Rr", 1.0, "not a parameter of AMPCController (did you mean 'servo.R'"),
+])
+def test_parameters_are_checked_against_the_model_description_before_a_run(built_fmus, key, value, message):
+    """What a sweep checks for every run before any runs: name, type and declared range, naming the
+    file and the key (a value the FMU's own rules refuse is refused when the run starts; a value that
+    is no number at all, the scenario's parser refuses)."""
+    from tapmuscle.cosim.master import check_parameters
+
+    s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
+                        "controller": {"method": "ampc_servo", "parameters": {key: value}}}, source="s.toml")
+    with pytest.raises(ScenarioError) as err:
+        check_parameters(s, built_fmus)
+    assert str(err.value).startswith(f"s.toml: key 'controller.parameters.{key}': ") and message in str(err.value)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import difflib
 import itertools
 import math
+import numbers
 import re
 import threading
 import time
@@ -147,19 +148,18 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
     """``value`` as FMI sets the variable ``var`` (an Enumeration's item name as its number); ScenarioError
     (prefixed by ``where``) if it has the wrong type, is not finite, or lies outside the range the model
     description declares, so that a whole sweep is checked before it runs."""
-    if var.type == "Enumeration":
+    if var.type == "Enumeration" and isinstance(value, str):
         items = {item.name: item.value for item in var.declaredType.items}
-        if isinstance(value, str):
-            if value not in items:
-                raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
-            value = items[value]
-        number: int | float = int(value)
-    elif var.type == "Integer":
-        if isinstance(value, str) or int(value) != value:
+        if value not in items:
+            raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
+        value = items[value]
+    finite = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    if var.type in ("Enumeration", "Integer"):
+        if not finite or int(value) != value:
             raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
-        number = int(value)
+        number: int | float = int(value)
     elif var.type == "Real":
-        if isinstance(value, str) or not math.isfinite(float(value)):
+        if not finite:
             raise ScenarioError(f"{where}{name}': must be a finite number, got {value!r}")
         number = float(value)
     else:
