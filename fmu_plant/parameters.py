@@ -369,7 +369,8 @@ class PlantParams:
     """Effect: a static, monotone piecewise-linear valve-command map (off by default)."""
 
     def with_values(self, **dotted: float) -> "PlantParams":
-        """Return a copy with fields replaced by dotted name, e.g. ``with_values(**{"load.load_n": 68})``.
+        """Return a copy with fields replaced by dotted name, e.g. ``with_values(**{"load.load_n": 68})``;
+        numpy scalars are taken as the Python numbers they hold.
 
         Raises ``ValueError`` naming an unknown group or field.
         """
@@ -383,6 +384,8 @@ class PlantParams:
             if name not in {f.name for f in fields(sub)}:
                 raise ValueError(f"unknown plant parameter {key!r}; {group} has: "
                                  f"{', '.join(f.name for f in fields(sub))}")
+            if getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
+                value = value.item()  # a numpy scalar (np.int64 from np.arange, np.float32) as Python's number
             groups.setdefault(group, {})[name] = value
         return replace(self, **{g: replace(getattr(self, g), **kv) for g, kv in groups.items()})
 

@@ -9,6 +9,7 @@ is a thin composition of the layers below; nothing here writes a file unless ask
 from __future__ import annotations
 
 import math
+import numbers
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -34,8 +35,7 @@ def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant
 
 
 def _check_positive(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not math.isfinite(value) \
-            or value <= 0:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
     return float(value)
 

@@ -32,11 +32,24 @@ def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = 
         Reference and displacement [mm], one value per sample ``k``.
     window : (int, int)
         First and last sample of the mean, inclusive (paper: 101..401, 10 s to 40 s at Ts = 0.1 s).
+
+    Raises
+    ------
+    ValueError
+        ``r_mm`` and ``l_mm`` not one-dimensional or of different lengths (a column vector against a
+        row broadcast to a matrix and gave a wrong number), a window that is not ``0 <= k0 <= k1``, or
+        a run that ends before ``k1``.
     """
-    k0, k1 = window
-    if len(r_mm) <= k1:
-        raise ValueError(f"Eq. (21) needs samples up to k = {k1}, the run has {len(r_mm)}")
-    return float(np.mean(np.abs(np.asarray(r_mm)[k0:k1 + 1] - np.asarray(l_mm)[k0:k1 + 1])))
+    r, l = np.asarray(r_mm, dtype=float), np.asarray(l_mm, dtype=float)
+    if r.ndim != 1 or l.ndim != 1 or r.shape != l.shape:
+        raise ValueError(f"r_mm and l_mm must be 1-D arrays of the same length (one value per sample k), got "
+                         f"shapes {r.shape} and {l.shape}")
+    k0, k1 = (int(k) for k in window)
+    if not 0 <= k0 <= k1:
+        raise ValueError(f"window must be (k0, k1) with 0 <= k0 <= k1, got {tuple(window)}")
+    if len(r) <= k1:
+        raise ValueError(f"Eq. (21) needs samples k = 0..{k1} ({k1 + 1} samples), the run has {len(r)}")
+    return float(np.mean(np.abs(r[k0:k1 + 1] - l[k0:k1 + 1])))
 
 
 def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1,

@@ -34,3 +34,19 @@ def test_too_short_a_run_is_refused_naming_the_window():
         command_tv_excess(np.zeros(300), 0.1)
     with pytest.raises(ValueError, match="Eq. \\(21\\)"):
         eq21_error_mm(np.zeros(300), np.zeros(300))
+
+
+def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():
+    """A column-vector reference against a row of displacements broadcast to a matrix (24.3 mm for a
+    0.083-mm run, silently); a reversed window gave NaN."""
+    r = 35.0 + 30.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(451))
+    l = r + 0.1
+    assert eq21_error_mm(r, l) == pytest.approx(0.1, abs=1e-12)
+    assert eq21_error_mm(list(r), tuple(l)) == eq21_error_mm(r, l)
+    for bad_r, bad_l, message in ((r[:, None], l, r"shapes \(451, 1\) and \(451,\)"), (r, l[:400], "same length")):
+        with pytest.raises(ValueError, match=message):
+            eq21_error_mm(bad_r, bad_l)
+    with pytest.raises(ValueError, match=r"0 <= k0 <= k1, got \(300, 200\)"):
+        eq21_error_mm(r, l, window=(300, 200))
+    with pytest.raises(ValueError, match=r"needs samples k = 0..401 \(402 samples\), the run has 401"):
+        eq21_error_mm(r[:401], l[:401])

@@ -1414,3 +1414,20 @@ def test_the_report_lists_a_joint_re_fit_that_failed_with_its_reason(tmp_path):
     write_outputs(d, tmp_path, recording="rec.csv", plant="plant.json", plots=False)
     assert "| 1 | `backlash` re-fitted with the calibration | not fitted (the plant diverged) | | |" in \
         (tmp_path / "report.md").read_text()
+
+
+def test_diagnose_names_bad_arguments_before_any_work():
+    """A pressure column of another length crashed after the calibration with a numpy IndexError; a
+    fit segment of 0 s named a wrong effect silently; alpha and max_effects were not checked."""
+    from fmu_plant import PlantParams
+
+    t = np.arange(600) * 0.1
+    u = 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * t)
+    l = 40.0 + 30.0 * np.sin(2 * np.pi * 0.1 * t - 0.5)
+    for kwargs, message in (({"p_mpa": np.zeros(599)}, r"p_mpa has shape \(599,\), t_s \(600,\)"),
+                            ({"fit_segment_s": 0.0}, "fit_segment_s must be a number of seconds > 0, got 0.0"),
+                            ({"fit_segment_s": float("nan")}, "fit_segment_s must be"),
+                            ({"alpha": 2.0}, r"alpha \(the significance level\) must be in 0..1"),
+                            ({"max_effects": -1}, "max_effects must be an integer >= 0, got -1")):
+        with pytest.raises(ValueError, match=message):
+            diagnose(t, u, l, PlantParams(), **kwargs)

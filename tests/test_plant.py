@@ -275,3 +275,16 @@ def test_step_many_of_no_commands_changes_nothing():
     plant = Plant(seed=2)
     l_mm, p_mpa = plant.step_many([], 0.1)
     assert l_mm.shape == p_mpa.shape == (0,) and plant.t_s == 0.0 and plant.measurement.t_s == 0.0
+
+
+def test_with_values_takes_numpy_scalars_as_the_numbers_they_hold():
+    """``for load in np.arange(40, 70, 4): params.with_values(**{"load.load_n": load})`` was refused."""
+    import numpy as np
+
+    from fmu_plant import PlantParams
+
+    p = PlantParams().with_values(**{"load.load_n": np.int64(68), "valve.cv_max": np.float32(1.25),
+                                     "friction.base_n": np.array(7.5)})
+    assert (p.load.load_n, p.valve.cv_max, p.friction.base_n) == (68, 1.25, 7.5)
+    assert type(p.load.load_n) is int and type(p.valve.cv_max) is float
+    assert p == PlantParams().with_values(**{"load.load_n": 68, "valve.cv_max": 1.25, "friction.base_n": 7.5})

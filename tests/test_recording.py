@@ -1,5 +1,7 @@
 """The recording format: round trip, errors that name file/line/column, atomic writes."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -138,3 +140,24 @@ def test_a_bad_load_header_is_named(text):
     rec.metadata["load_n"] = text
     with pytest.raises(RecordingError, match=f"'# load_n: {text}'"):
         rec.load_n
+
+
+def test_write_recording_takes_simulate_columns_and_refuses_what_readers_would(tmp_path):
+    """``write_recording(path, tm.simulate(...))`` is the obvious first try (it raised AttributeError);
+    a file the tools would refuse later (one row, a column vector, a missing column) is refused
+    before anything is written."""
+    import tapmuscle as tm
+
+    cols = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=5.0)
+    write_recording(tmp_path / "a.csv", cols)
+    back = read_recording(tmp_path / "a.csv")
+    # the file holds l to 4 decimals, and the encoder reads multiples of 0.01 mm: equal up to float parsing
+    assert np.allclose(back.l_mm, cols["l_mm"], rtol=0, atol=1e-9) and back.ts_s == pytest.approx(0.1)
+    bad = {"one row": ({k: v[:1] for k, v in cols.items()}, "1 row(s); a recording needs at least 2 samples"),
+           "column vector": ({**cols, "u_v": cols["u_v"][:, None]}, "column 'u_v' has shape (51, 1)"),
+           "no l_mm": ({k: v for k, v in cols.items() if k != "l_mm"}, "no 'l_mm' column")}
+    for name, (columns, message) in bad.items():
+        target = tmp_path / f"{name}.csv"
+        with pytest.raises(RecordingError, match=re.escape(message)):
+            write_recording(target, columns)
+        assert not target.exists(), name

@@ -87,6 +87,7 @@ up to 28 mm apart; diagnosed, the same two effects with the load at 10.7 N inste
 from __future__ import annotations
 
 import math
+import numbers
 import pickle
 import time
 from concurrent.futures import Executor, Future
@@ -253,8 +254,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     model : PlantParams
         The nominal plant (e.g. read from the MusclePlant FMU's parameters).
     load_n, p_mpa : ndarray, optional
-        Recorded load [N] (re-simulated as recorded) and pressure [MPa] (for the regime breakdown, and
-        the fits and tests with ``use_pressure``).
+        Recorded load [N] (re-simulated as recorded; a number: that load throughout) and pressure [MPa]
+        (for the regime breakdown, and the fits and tests with ``use_pressure``), one value per sample.
     block_s : float, optional
         Length of the interleaved training / held-out blocks [s]. Default: :data:`BLOCK_S`, or, for
         a continuous command that it splits into training blocks that see it mostly rise and held-out
@@ -297,7 +298,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         Arrays of different lengths, fewer than :data:`MIN_SAMPLES` samples, non-uniform sampling
         (naming the first offending sample), non-finite values, a command that never changes, or
         values no muscle recording has (a command outside -1..11 V, a displacement beyond 500 mm, a
-        period outside 1 ms..10 s: :func:`~tapmuscle.diagnosis.recording_checks.check_muscle_recording`).
+        period outside 1 ms..10 s: :func:`~tapmuscle.diagnosis.recording_checks.check_muscle_recording`);
+        a ``p_mpa`` of another length, ``fit_segment_s <= 0``, ``alpha`` outside 0..1, ``max_effects < 0``.
     TypeError
         ``model`` is not a :class:`~fmu_plant.PlantParams`.
     """
@@ -305,6 +307,16 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if not isinstance(model, PlantParams):
         raise TypeError(f"model must be a PlantParams (tapmuscle.diagnosis.plant_source.load_plant(path)[0] "
                         f"reads one from a plant file or FMU), got {type(model).__name__} {model!r:.60}")
+    if load_n is not None and np.ndim(load_n) == 0:  # one load for the whole recording, as elsewhere
+        load_n = np.full(np.shape(np.asarray(t_s)), float(load_n))
+    if p_mpa is not None and np.shape(p_mpa) != np.shape(np.asarray(t_s)):
+        raise ValueError(f"p_mpa has shape {np.shape(p_mpa)}, t_s {np.shape(np.asarray(t_s))}: one pressure per sample")
+    if not (isinstance(fit_segment_s, numbers.Real) and fit_segment_s > 0):  # NaN fails too
+        raise ValueError(f"fit_segment_s must be a number of seconds > 0, got {fit_segment_s!r}")
+    if not (isinstance(alpha, numbers.Real) and 0.0 < alpha < 1.0):
+        raise ValueError(f"alpha (the significance level) must be in 0..1 (exclusive), got {alpha!r}")
+    if isinstance(max_effects, bool) or not isinstance(max_effects, numbers.Integral) or max_effects < 0:
+        raise ValueError(f"max_effects must be an integer >= 0, got {max_effects!r}")
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)

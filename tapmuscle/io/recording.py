@@ -30,6 +30,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -70,11 +71,15 @@ class Recording:
         for name in REQUIRED_COLUMNS:
             if name not in self.columns:
                 raise RecordingError(f"recording has no {name!r} column (required: {', '.join(REQUIRED_COLUMNS)})")
+        self.columns = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
+        flat = [k for k, v in self.columns.items() if v.ndim != 1]
+        if flat:
+            raise RecordingError(f"recording column {flat[0]!r} has shape {self.columns[flat[0]].shape}: each column "
+                                 "must be one value per sample (1-D)")
         n = {len(v) for v in self.columns.values()}
         if len(n) != 1:
             raise RecordingError(f"recording columns differ in length: "
                                  f"{ {k: len(v) for k, v in self.columns.items()} }")
-        self.columns = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
 
     @property
     def t_s(self) -> np.ndarray:
@@ -285,23 +290,37 @@ _FORMATS = {"t_s": "{:.15g}", "u_v": "{:.6f}", "l_mm": "{:.4f}", "p_mpa": "{:.6f
 _NAME_BREAKERS = (",", '"', "\n", "\r")
 
 
-def write_recording(path: str | os.PathLike, rec: Recording) -> None:
+def write_recording(path: str | os.PathLike, rec: Recording | Mapping[str, Any]) -> None:
     """Write ``rec`` as CSV to ``path`` atomically (see :func:`atomic_write_text`).
 
     Parameters
     ----------
     path : path
         The CSV file to write (replaced whole, or left as it was on error).
-    rec : Recording
-        Columns (``t_s``, ``u_v``, ``l_mm`` required) and header lines.
+    rec : Recording or mapping
+        Columns (``t_s``, ``u_v``, ``l_mm`` required) and header lines; or the columns alone (what
+        :func:`tapmuscle.simulate` returns), written without header lines.
 
     Raises
     ------
     RecordingError
-        What :func:`read_recording` would refuse, so nothing is written then: a value that is not
-        finite (named by column and row), ``t_s`` not strictly increasing (named by row), a column
-        name with a comma, quote or line break, a metadata key with a colon or line break.
+        What :func:`read_recording` or the tools reading the file would refuse, so nothing is written
+        then: a required column missing, a column that is not one value per row of ``t_s``, fewer
+        than 2 rows, a value that is not finite (named by column and row), ``t_s`` not strictly
+        increasing (named by row), a column name with a comma, quote or line break, a metadata key
+        with a colon or line break. (A ``# ts_s`` header that the times contradict, or a dropped
+        sample, is written as given: files like that are what the readers' checks are for.)
     """
+    if not isinstance(rec, Recording):
+        if not isinstance(rec, Mapping):
+            raise RecordingError(f"cannot write {path}: expected a Recording or a mapping of columns, got "
+                                 f"{type(rec).__name__}")
+        try:
+            rec = Recording(dict(rec), {})  # checks the columns
+        except RecordingError as exc:
+            raise RecordingError(f"cannot write {path}: {exc}") from None
+    if len(rec.t_s) < 2:
+        raise RecordingError(f"cannot write {path}: {len(rec.t_s)} row(s); a recording needs at least 2 samples")
     names = list(REQUIRED_COLUMNS) + [c for c in OPTIONAL_COLUMNS if c in rec.columns] + \
         [c for c in rec.columns if c not in REQUIRED_COLUMNS and c not in OPTIONAL_COLUMNS]
     for name in names:
