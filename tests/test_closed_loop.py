@@ -41,7 +41,7 @@ def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():
     0.083-mm run, silently); a reversed window gave NaN."""
     r = 35.0 + 30.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(451))
     l = r + 0.1
-    assert eq21_error_mm(r, l) == pytest.approx(0.1, abs=1e-12)
+    assert eq21_error_mm(r, l) == pytest.approx(0.1, abs=1e-12)  # |r - l| is 0.1 to the rounding of r + 0.1 (~1e-14)
     assert eq21_error_mm(list(r), tuple(l)) == eq21_error_mm(r, l)
     for bad_r, bad_l, message in ((r[:, None], l, r"shapes \(451, 1\) and \(451,\)"), (r, l[:400], "same length")):
         with pytest.raises(ValueError, match=message):
