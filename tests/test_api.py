@@ -207,3 +207,37 @@ def test_a_callers_numpy_error_handling_changes_no_result(built_fmus):
         raised = runs()
     for a, b in zip(default, raised):
         assert np.array_equal(a, b)
+
+
+def _short(path: Path, method: str):
+    import dataclasses as dc
+
+    sc = tm.load_scenario(path)
+    return dc.replace(sc, name=f"short_{method}", duration_s=3.0, evaluation_samples=(5, 30), method=method)
+
+
+@pytest.mark.slow
+def test_an_output_folder_holds_one_run(built_fmus, tmp_path):
+    """``cosimulate(out=DIR)`` (and ``tapmuscle run``) writes a run's files together: a second run into
+    the same folder leaves none of the first run's files that it does not write (the adaptive
+    controller's ``parameters.png`` after a fixed-predictor run), and keeps the user's own files."""
+    out = tmp_path / "run"
+    tm.cosimulate(_short(_PAPER_SCENARIO, "ampc_servo"), fmus=built_fmus, out=out)
+    assert {p.name for p in out.iterdir()} == {"result.csv", "summary.json", "tracking.png",
+                                               "prediction_error.png", "parameters.png"}
+    (out / "notes.txt").write_text("mine")
+    tm.cosimulate(_short(_PAPER_SCENARIO, "mpc_servo"), fmus=built_fmus, out=out)
+    assert {p.name for p in out.iterdir()} == {"result.csv", "summary.json", "tracking.png",
+                                               "prediction_error.png", "notes.txt"}
+    assert '"method": "mpc_servo"' in (out / "summary.json").read_text()
+    tm.cosimulate(_short(_PAPER_SCENARIO, "mpc_servo"), fmus=built_fmus, out=out, plots=False)
+    assert {p.name for p in out.iterdir()} == {"result.csv", "summary.json", "notes.txt"}
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no staging folder left
+
+
+def test_an_output_path_that_is_a_file_is_refused_before_the_run(tmp_path):
+    (tmp_path / "taken").write_text("a file")
+    fmus = {"MusclePlant": tmp_path / "none.fmu", "AMPCController": tmp_path / "none.fmu"}
+    with pytest.raises(NotADirectoryError, match="taken is a file, not a folder"):
+        tm.cosimulate(_PAPER_SCENARIO, fmus=fmus, out=tmp_path / "taken")
+    assert (tmp_path / "taken").read_text() == "a file"

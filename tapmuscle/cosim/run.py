@@ -1,6 +1,7 @@
 """``tapmuscle run SCENARIO.toml --out DIR``: one scenario through the FMUs, with its outputs.
 
-Writes into ``DIR`` (each file atomically):
+Writes into ``DIR``, all files at once (:func:`tapmuscle.io.atomic.staged_folder`: a failed run
+leaves the folder as it was, and a figure of an earlier run that this run does not draw is removed):
 
 * ``result.csv``: one row per sample (docs/recordings.md format; columns as the direct loop's,
   :func:`tapmuscle.closed_loop.run_closed_loop`), with the scenario in its header;
@@ -21,13 +22,18 @@ import numpy as np
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from tapmuscle.plots.figures import plot_parameter_convergence, plot_prediction_errors, plot_tracking
+from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.cosim.master import co_simulate, unpack
 from tapmuscle.cosim.spec import Scenario
 
-__all__ = ["run_scenario", "summarise"]
+__all__ = ["RUN_FILES", "run_scenario", "summarise"]
+
+#: What :func:`run_scenario` writes into its folder (figures only with ``plots=True``, the parameter
+#: figure only for the adaptive methods); other files in the folder are left alone.
+RUN_FILES = ("result.csv", "summary.json", "tracking.png", "prediction_error.png", "parameters.png")
 
 
 def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[str, Path]) -> dict[str, Any]:
@@ -54,24 +60,26 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
     out = Path(out)
     used = {"MusclePlant": Path(scenario.plant.path or fmus["MusclePlant"]),
             "AMPCController": Path(scenario.controller.path or fmus["AMPCController"])}
-    cols = co_simulate(scenario, used, controller_parameters=controller_parameters, progress=progress)
-    summary = summarise(scenario, cols, used)
-    table = {k: v for k, v in cols.items() if k != "wall_time_s"}
-    meta = {"scenario": scenario.name, "method": scenario.method, "seed": str(scenario.seed),
-            "ts_s": f"{scenario.step_s:g}", "mae_mm": f"{summary['mae_mm']:.4f}",
-            "source": f"tapmuscle run {scenario.source} (FMU co-simulation)"}
-    write_recording(out / "result.csv", Recording(table, meta))
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    if plots:
-        k0, k1 = scenario.evaluation_samples
-        window = (k0 * scenario.step_s, k1 * scenario.step_s)
-        title = f"{scenario.name}: {scenario.method}, Eq. (21) error {summary['mae_mm']:.3f} mm"
-        plot_tracking({scenario.method: table}, out / "tracking.png", title=title, window_s=window)
-        plot_prediction_errors({scenario.method: table}, out / "prediction_error.png",
-                               title=f"{scenario.name}: one-step prediction error", window_s=window)
-        if scenario.method.startswith("ampc") and "theta_a1" in table:
-            history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
-            plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, out / "parameters.png",
-                                       title=f"{scenario.name}: theta-hat (constrained RLS, Algorithm 1)")
+    # staged before the run: an output folder that cannot be written is named before the run, not after
+    with staged_folder(out, owned=RUN_FILES) as tmp:
+        cols = co_simulate(scenario, used, controller_parameters=controller_parameters, progress=progress)
+        summary = summarise(scenario, cols, used)
+        table = {k: v for k, v in cols.items() if k != "wall_time_s"}
+        meta = {"scenario": scenario.name, "method": scenario.method, "seed": str(scenario.seed),
+                "ts_s": f"{scenario.step_s:g}", "mae_mm": f"{summary['mae_mm']:.4f}",
+                "source": f"tapmuscle run {scenario.source} (FMU co-simulation)"}
+        write_recording(tmp / "result.csv", Recording(table, meta))
+        atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2) + "\n")
+        if plots:
+            k0, k1 = scenario.evaluation_samples
+            window = (k0 * scenario.step_s, k1 * scenario.step_s)
+            title = f"{scenario.name}: {scenario.method}, Eq. (21) error {summary['mae_mm']:.3f} mm"
+            plot_tracking({scenario.method: table}, tmp / "tracking.png", title=title, window_s=window)
+            plot_prediction_errors({scenario.method: table}, tmp / "prediction_error.png",
+                                   title=f"{scenario.name}: one-step prediction error", window_s=window)
+            if scenario.method.startswith("ampc") and "theta_a1" in table:
+                history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
+                plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / "parameters.png",
+                                           title=f"{scenario.name}: theta-hat (constrained RLS, Algorithm 1)")
     summary["cols"] = cols
     return summary
