@@ -264,16 +264,15 @@ class DisplacementController:
     Parameters
     ----------
     settings : ControllerSettings
-    theta0 : sequence of 15 float
-        Eq. (1) parameters from the preliminary identification (asymmetric model order).
+    theta0 : sequence of 15 float or mapping
+        Eq. (1) parameters from the preliminary identification: in the asymmetric model's order (as
+        ``IdentificationReport.theta``) or all 15 by name (as its ``theta_dict``).
     """
 
-    def __init__(self, settings: ControllerSettings, theta0: Sequence[float]) -> None:
+    def __init__(self, settings: ControllerSettings, theta0: Sequence[float] | Mapping[str, float]) -> None:
         if not isinstance(settings, ControllerSettings):
             raise ValueError(f"settings must be ControllerSettings, got {type(settings).__name__}")
-        theta0 = np.asarray(theta0, dtype=float)
-        if theta0.shape != (ASYMMETRIC.n_params,) or not np.all(np.isfinite(theta0)):
-            raise ValueError(f"theta0 must be {ASYMMETRIC.n_params} finite numbers, got shape {theta0.shape}")
+        theta0 = ASYMMETRIC.as_theta(theta0, what="theta0")
         if abs(theta0[2]) < 1e-6:
             raise ValueError(f"theta0's b1 must not be ~0 (it divides the hysteresis cancellation, Eq. 5), got {float(theta0[2])!r}")
         self.settings = settings

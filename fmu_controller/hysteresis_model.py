@@ -162,11 +162,58 @@ class ModelStructure:
 
         Values are regression coefficients (see module docstring for signs).
         """
-        theta = np.full(self.n_params, float(default))
-        for name, value in params.items():
-            theta[self.index(name)] = float(value)
-        if not np.all(np.isfinite(theta)):
-            raise ValueError(f"params must be finite, got {dict(params)!r}")
+        return self.as_theta(params, what="params", default=default)
+
+    def as_theta(self, values: Mapping[str, float] | Sequence[float] | np.ndarray, *, what: str = "theta",
+                 default: float | None = None) -> np.ndarray:
+        """A parameter vector from either form a caller holds: ``{name: value}`` (as
+        ``IdentificationReport.theta_dict``) or the values in :attr:`names` order (as ``.theta``).
+
+        Parameters
+        ----------
+        values : mapping or sequence of float
+            The parameters by name, or all ``n_params`` of them in order.
+        what : str
+            The argument's name, for the error messages.
+        default : float, optional
+            Value of the names a mapping leaves out; None: a mapping must name every parameter.
+
+        Raises
+        ------
+        TypeError
+            ``values`` is neither a mapping nor a sequence of numbers (a string, ``None``, ...).
+        ValueError
+            An unknown or missing name, a sequence of another length, or a value that is not finite.
+        """
+        if isinstance(values, Mapping):
+            unknown = [n for n in values if n not in self.names]
+            if unknown:
+                raise ValueError(f"{what}: unknown parameter {unknown[0]!r} for the {self.kind} model; "
+                                 f"expected names from {', '.join(self.names)}")
+            missing = [n for n in self.names if n not in values]
+            if missing and default is None:
+                raise ValueError(f"{what} names {len(values)} of the {self.n_params} parameters; missing: "
+                                 f"{', '.join(missing)} (or give all {self.n_params} values in order)")
+            try:
+                theta = np.array([values.get(n, default) for n in self.names], dtype=float)
+            except (TypeError, ValueError):
+                bad = next(n for n in values if not _is_number(values[n]))
+                raise ValueError(f"{what}[{bad!r}] = {values[bad]!r} is not a number") from None
+        else:
+            if isinstance(values, (str, bytes)) or values is None or not np.iterable(values):
+                raise TypeError(f"{what} must be a mapping name -> value or {self.n_params} values in the "
+                                f"order {', '.join(self.names)}; got {type(values).__name__} {values!r}")
+            try:
+                theta = np.asarray(values, dtype=float)
+            except (TypeError, ValueError):
+                raise ValueError(f"{what} must hold numbers, got {values!r}") from None
+            if theta.shape != (self.n_params,):
+                raise ValueError(f"{what} must be {self.n_params} values ({', '.join(self.names)}) for the "
+                                 f"{self.kind} model, got shape {theta.shape}")
+        bad_i = np.nonzero(~np.isfinite(theta))[0]
+        if bad_i.size:
+            i = int(bad_i[0])
+            raise ValueError(f"{what}: {self.names[i]} = {float(theta[i])!r} is not finite")
         return theta
 
 
@@ -174,6 +221,14 @@ class ModelStructure:
 ASYMMETRIC = ModelStructure(kind="asymmetric")
 #: Eq. (1) without ``g(l)``: the conventional standard Bouc-Wen model (11).
 STANDARD = ModelStructure(kind="standard")
+
+
+def _is_number(value: object) -> bool:
+    try:
+        float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def _as_theta(theta: Sequence[float] | np.ndarray, structure: ModelStructure) -> np.ndarray:

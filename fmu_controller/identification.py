@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -195,7 +195,7 @@ def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
 def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: str = "asymmetric",
                     box: str | Mapping[str, tuple[float, float]] | None = "auto",
                     constraint_start_s: float = 120.0, p0: float = 1e3, forgetting: float = 1.0,
-                    theta0: Mapping[str, float] | None = None) -> IdentificationReport:
+                    theta0: Mapping[str, float] | Sequence[float] | None = None) -> IdentificationReport:
     """Identify Eq. (1) on a record by (constrained) RLS and score it (section 2.3, Table 4).
 
     Parameters
@@ -214,8 +214,10 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         ``P(-1) = p0 I`` in normalised units (paper: 1e3).
     forgetting : float
         Forgetting factor (1 = off, the paper's Eq. (4)).
-    theta0 : mapping, optional
-        Initial estimate by name, record units (default zeros, section 2.4).
+    theta0 : mapping or sequence of float, optional
+        Initial estimate, record units: by name (names left out start at 0, as
+        ``report.theta_dict``) or every parameter in ``structure.names`` order (as ``report.theta``).
+        Default zeros (section 2.4).
 
     Raises
     ------
@@ -258,13 +260,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     idx = {n: i for i, n in enumerate(structure.names)}
     s_lower = {n: v / f[idx[n]] for n, v in lower.items()}
     s_upper = {n: v / f[idx[n]] for n, v in upper.items()}
-    th0 = None
-    if theta0 is not None:
-        th0 = np.zeros(structure.n_params)
-        for n, v in theta0.items():
-            if n not in idx:
-                raise ValueError(f"theta0: unknown parameter {n!r} for the {model} model")
-            th0[idx[n]] = float(v) / f[idx[n]]
+    th0 = None if theta0 is None else structure.as_theta(theta0, what="theta0", default=0.0) / f
     settings = RLSSettings(p0=p0, theta0=None if th0 is None else tuple(th0), forgetting=forgetting,
                            box_lower=s_lower, box_upper=s_upper,
                            constraint_start_s=constraint_start_s, ts_s=float(ts_s))

@@ -114,7 +114,7 @@ def _reference(reference: Any, ts_s: float) -> Reference:
 
 def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, duration_s: float = 45.0,
                 ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
-                params: PlantParams | None = None, theta0: Sequence[float] | None = None,
+                params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
                 settings: ControllerSettings | None = None, seed: int = 0,
                 loop_delay_samples: int = 0) -> dict[str, np.ndarray]:
     """Track a reference with one of the paper's four controllers on the simulated rig (no FMU).
@@ -142,9 +142,10 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         Hanging load [N], constant or ``load(t)``; default that of ``params`` (44 N).
     params : PlantParams, optional
         The simulated rig (default: the calibrated rig of docs/plant.md).
-    theta0 : sequence of 15 floats, optional
-        The predictor's initial (for MPC: fixed) Eq. (1) parameters; default the 44 N preliminary
-        identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2).
+    theta0 : sequence of 15 floats or mapping, optional
+        The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
+        (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``); default the 44 N
+        preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2).
     settings : ControllerSettings, optional
         Full controller settings (horizons, weights, P(0), box); its ``method`` and ``ts_s`` must
         agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's.

@@ -241,3 +241,22 @@ def test_an_output_path_that_is_a_file_is_refused_before_the_run(tmp_path):
     with pytest.raises(NotADirectoryError, match="taken is a file, not a folder"):
         tm.cosimulate(_PAPER_SCENARIO, fmus=fmus, out=tmp_path / "taken")
     assert (tmp_path / "taken").read_text() == "a file"
+
+
+def test_theta0_is_taken_in_both_forms_an_identification_gives():
+    """``identify`` and ``simulate_closed_loop`` both take ``report.theta`` (an array in the model's
+    order) and ``report.theta_dict`` (by name), with the same result."""
+    rec = tm.simulate("random:lo=2,hi=8,hold_min=1,hold_max=4,seed=2", duration_s=40.0)
+    fit = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1)
+    by_order = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, theta0=fit.theta)
+    by_name = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, theta0=fit.theta_dict)
+    assert np.array_equal(by_order.theta, by_name.theta)
+    named = dict(zip(tm.ASYMMETRIC.names, tm.THETA0_44N))
+    a = tm.simulate_closed_loop("mpc_servo", None, duration_s=3.0, theta0=named)
+    b = tm.simulate_closed_loop("mpc_servo", None, duration_s=3.0, theta0=np.array(tm.THETA0_44N))
+    assert np.array_equal(a["u_v"], b["u_v"])
+    with pytest.raises(ValueError, match=r"theta0 names 14 of the 15 parameters; missing: xi32"):
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=3.0,
+                                theta0={n: v for n, v in named.items() if n != "xi32"})
+    with pytest.raises(TypeError, match=r"theta0 must be a mapping .* got str"):
+        tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, theta0="THETA0_44N")

@@ -226,3 +226,25 @@ def test_controller_hot_path_helpers_equal_the_public_methods(structure):
         b.phi_list()
     with pytest.raises(ValueError, match="non-finite v"):
         ModelState(structure, l_init=(1.0, 1.0, 1.0), u_init=1.0).observe_unchecked(1.0, math.inf, 0.0, 0.0)
+
+
+def test_a_parameter_vector_from_either_form_a_caller_holds():
+    """By name or in order, the same vector; what cannot be one is named, never guessed."""
+    theta = ASYMMETRIC.from_dict(TABLE3)
+    assert np.array_equal(ASYMMETRIC.as_theta(TABLE3), theta)
+    assert np.array_equal(ASYMMETRIC.as_theta(list(theta)), theta)
+    assert np.array_equal(ASYMMETRIC.as_theta({"b1": 0.5}, default=0.0), [0, 0, 0.5] + [0] * 12)
+    with pytest.raises(ValueError, match=r"theta0 names 1 of the 15 parameters; missing: a1, a2, A1"):
+        ASYMMETRIC.as_theta({"b1": 0.5}, what="theta0")
+    with pytest.raises(ValueError, match=r"unknown parameter 'B1' .* expected names from a1, a2, b1"):
+        ASYMMETRIC.as_theta({**TABLE3, "B1": 1.0})
+    with pytest.raises(TypeError, match=r"theta0 must be a mapping name -> value or 15 values .* got str 'a1'"):
+        ASYMMETRIC.as_theta("a1", what="theta0")
+    with pytest.raises(TypeError, match=r"got NoneType None"):
+        ASYMMETRIC.as_theta(None)
+    with pytest.raises(ValueError, match=r"must be 11 values \(a1, .*c2\) for the standard model, got shape \(15,\)"):
+        STANDARD.as_theta(theta)
+    with pytest.raises(ValueError, match=r"theta: gamma1 = nan is not finite"):
+        ASYMMETRIC.as_theta({**TABLE3, "gamma1": float("nan")})
+    with pytest.raises(ValueError, match=r"theta\['c1'\] = 'big' is not a number"):
+        ASYMMETRIC.as_theta({**TABLE3, "c1": "big"})
