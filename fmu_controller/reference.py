@@ -14,7 +14,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-__all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES"]
+__all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES", "as_reference"]
 
 #: The controller FMU's ``reference_source`` parameter (an Integer) -> where r(k..k+Hp) comes from
 #: (fmu_controller.controller_slave explains each).
@@ -138,7 +138,14 @@ class FunctionReference:
     def at(self, k: int) -> float:
         """``r(k)`` [mm]; ``ValueError`` naming the time if the function returns a non-finite value."""
         t = k * self.ts_s
-        r = float(self.function(t))
+        value = self.function(t)
+        if np.ndim(value) != 0:
+            raise ValueError(f"reference r(t = {t:g} s) returned an array of shape {np.shape(value)}, not one "
+                             f"number [mm]")
+        try:
+            r = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"reference r(t = {t:g} s) = {value!r} is not a number [mm]") from None
         if not math.isfinite(r):
             raise ValueError(f"reference r(t = {t:g} s) = {r!r} is not finite")
         return r
@@ -146,3 +153,42 @@ class FunctionReference:
     def preview(self, k: int, n: int) -> np.ndarray:
         """``[r(k), ..., r(k+n)]`` [mm]."""
         return np.array([self.at(i) for i in range(k, k + n + 1)])
+
+
+def as_reference(reference: "Reference | Callable[[float], float] | np.ndarray | None", ts_s: float) -> Reference:
+    """The reference a loop sampled every ``ts_s`` runs on, from any form a caller gives.
+
+    Parameters
+    ----------
+    reference : Reference, callable, array_like or None
+        A reference object (its ``ts_s`` must be the loop's); ``r(t)`` [mm] of the time [s]
+        (:class:`FunctionReference`); one value per sample [mm] (:class:`ArrayReference`); None: the
+        paper's ``35 + 30 sin(2 pi 0.1 t)`` mm (:class:`SineReference`, section 4.1).
+    ts_s : float
+        The loop's sampling period [s].
+
+    Raises
+    ------
+    ValueError
+        A reference object on another grid, or samples that are not a non-empty 1-D array of finite
+        numbers.
+    TypeError
+        A string, or anything else that is none of the above.
+    """
+    if reference is None:
+        return SineReference(ts_s=ts_s)
+    if isinstance(reference, (SineReference, ArrayReference, FunctionReference)) or (
+            hasattr(reference, "ts_s") and hasattr(reference, "preview") and hasattr(reference, "at")):
+        if abs(reference.ts_s - ts_s) > 1e-12 * ts_s:
+            raise ValueError(f"the reference's ts_s = {reference.ts_s!r} s differs from the loop's ts_s = {ts_s!r} s")
+        return reference
+    if callable(reference):
+        return FunctionReference(reference, ts_s)
+    if isinstance(reference, (str, bytes)) or not np.iterable(reference):
+        raise TypeError(f"reference must be a function r(t) [mm], samples r(k) [mm], a Reference or None; got "
+                        f"{type(reference).__name__} {reference!r}")
+    try:
+        values = np.asarray(reference, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"reference samples must be numbers [mm], got {reference!r}") from None
+    return ArrayReference(values, ts_s)

@@ -17,7 +17,7 @@ import numpy as np
 
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
-from fmu_controller.reference import ArrayReference, FunctionReference, Reference, SineReference
+from fmu_controller.reference import as_reference
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
@@ -100,18 +100,6 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
                          ts_s=ts)
 
 
-def _reference(reference: Any, ts_s: float) -> Reference:
-    if reference is None:
-        return SineReference(ts_s=ts_s)
-    if isinstance(reference, (SineReference, ArrayReference, FunctionReference)):
-        if abs(reference.ts_s - ts_s) > 1e-12 * ts_s:
-            raise ValueError(f"the reference's ts_s = {reference.ts_s!r} s differs from ts_s = {ts_s!r} s")
-        return reference
-    if callable(reference):
-        return FunctionReference(reference, ts_s)
-    return ArrayReference(np.asarray(reference, dtype=float), ts_s)
-
-
 def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, duration_s: float = 45.0,
                 ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
                 params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
@@ -178,10 +166,10 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     elif settings.method != method or abs(settings.ts_s - ts) > 1e-12 * ts:
         raise ValueError(f"settings.method = {settings.method!r}, settings.ts_s = {settings.ts_s!r} s disagree "
                          f"with method = {method!r}, ts_s = {ts!r} s")
-    ref = _reference(reference, ts)
+    ref = as_reference(reference, ts)
     plant = _plant(params, None if callable(load_n) else load_n, seed)
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
-    return run_closed_loop(plant, controller, ref, duration_s=_check_positive("duration_s", duration_s),
+    return run_closed_loop(plant, controller, ref, duration_s=duration_s,
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples)
 
 

@@ -8,13 +8,15 @@ Eq. (1). Row ``k`` of the result holds ``t_k, r(k), l(k), u(k)``.
 
 from __future__ import annotations
 
+import math
+import numbers
 from typing import Callable
 
 import numpy as np
 
 from fmu_controller.displacement_control import DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.reference import Reference
+from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "command_tv_excess", "EQ21_WINDOW"]
@@ -78,15 +80,15 @@ def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1
     return float(np.sum(np.abs(np.diff(u))) / (2.0 * np.ptp(u) * frequency_hz * (k1 - k0) * ts_s) - 1.0)
 
 
-def run_closed_loop(plant: Plant, controller: DisplacementController, reference: Reference, *,
+def run_closed_loop(plant: Plant, controller: DisplacementController,
+                    reference: Reference | Callable[[float], float] | np.ndarray | None, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
                     loop_delay_samples: int = 0,
                     progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Run the loop for ``duration_s`` from the plant's and controller's current state.
 
-    ``reference`` is any :class:`fmu_controller.reference.Reference` (a sine, given samples, a function
-    of time); the controller sees its preview ``r(k..k+Hp)`` at every sample, and the loop runs on
-    its grid ``reference.ts_s``.
+    The loop runs on the controller's grid ``controller.settings.ts_s``; the controller sees the
+    reference's preview ``r(k..k+Hp)`` at every sample.
 
     Parameters
     ----------
@@ -94,10 +96,12 @@ def run_closed_loop(plant: Plant, controller: DisplacementController, reference:
         The simulated rig, advanced in place.
     controller : DisplacementController
         One of the paper's four controllers; reset to the plant's displacement first.
-    reference : Reference
-        ``r(k)`` with preview on the loop's grid (see above).
+    reference : Reference, callable, array_like or None
+        A :class:`fmu_controller.reference.Reference` on the loop's grid (a sine, given samples, a
+        function of time); ``r(t)`` [mm] of the time [s]; one value per sample ``r(k)`` [mm]; None:
+        the paper's ``35 + 30 sin(2 pi 0.1 t)`` mm (:func:`fmu_controller.reference.as_reference`).
     duration_s : float
-        Length of the run [s]; ``round(duration_s / ts) + 1`` samples.
+        Length of the run [s], finite and > 0; ``round(duration_s / ts) + 1`` samples.
     load_n : float or callable, optional
         Hanging load [N], constant or as a function of time [s].
     loop_delay_samples : {0, 1}
@@ -113,9 +117,18 @@ def run_closed_loop(plant: Plant, controller: DisplacementController, reference:
         ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
         ``pred_error_mm``, ``uc_v``, ``h_mm``, ``xs_mm`` and ``theta_<name>`` for the 15 parameters.
     """
+    if not isinstance(plant, Plant):
+        raise TypeError(f"plant must be a Plant (tm.Plant(params)), got {type(plant).__name__}")
+    if not isinstance(controller, DisplacementController):
+        raise TypeError(f"controller must be a DisplacementController (tm.DisplacementController(settings, "
+                        f"theta0)), got {type(controller).__name__}")
     if loop_delay_samples not in (0, 1) or isinstance(loop_delay_samples, bool):
         raise ValueError(f"loop_delay_samples must be 0 or 1, got {loop_delay_samples!r}")
-    ts = reference.ts_s
+    if (isinstance(duration_s, bool) or not isinstance(duration_s, numbers.Real) or not math.isfinite(duration_s)
+            or duration_s <= 0):
+        raise ValueError(f"duration_s must be a finite number > 0 [s], got {duration_s!r}")
+    ts = controller.settings.ts_s
+    reference = as_reference(reference, ts)
     n = int(round(duration_s / ts)) + 1
     in_flight = 0.0
     names = ASYMMETRIC.names

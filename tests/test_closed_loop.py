@@ -50,3 +50,55 @@ def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():
         eq21_error_mm(r, l, window=(300, 200))
     with pytest.raises(ValueError, match=r"needs samples k = 0..401 \(402 samples\), the run has 401"):
         eq21_error_mm(r[:401], l[:401])
+
+
+def _parts(ts_s: float = 0.1):
+    from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+    from fmu_controller.preliminary_model import THETA0_44N
+    from fmu_plant import Plant
+
+    return Plant(seed=0), DisplacementController(ControllerSettings(method="mpc_servo", ts_s=ts_s), THETA0_44N)
+
+
+def test_the_loop_takes_a_reference_in_any_form_the_api_does():
+    """A function of time, samples and None run the same loop as the equivalent reference objects."""
+    from fmu_controller.reference import ArrayReference, FunctionReference, SineReference
+    from tapmuscle.closed_loop import run_closed_loop
+
+    step = np.repeat([30.0, 45.0], 15)
+    for given, same in ((None, SineReference()), (step, ArrayReference(step)),
+                        (lambda t: 30.0 + 5.0 * (t > 1.0), FunctionReference(lambda t: 30.0 + 5.0 * (t > 1.0)))):
+        a = run_closed_loop(*_parts(), given, duration_s=3.0)
+        b = run_closed_loop(*_parts(), same, duration_s=3.0)
+        assert np.array_equal(a["r_mm"], b["r_mm"]) and np.array_equal(a["u_v"], b["u_v"])
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(reference=None, duration_s=float("nan")), ValueError, r"duration_s must be a finite number > 0 \[s\], got nan"),
+    (dict(reference=None, duration_s=-1.0), ValueError, r"duration_s must be a finite number > 0 \[s\], got -1.0"),
+    (dict(reference="sine", duration_s=3.0), TypeError, r"reference must be a function r\(t\) \[mm\], .* got str 'sine'"),
+    (dict(reference=np.ones((3, 2)), duration_s=3.0), ValueError, r"values_mm must be a non-empty 1-D array, got shape \(3, 2\)"),
+    (dict(reference=lambda t: np.array([35.0]), duration_s=3.0), ValueError,
+     r"r\(t = 0 s\) returned an array of shape \(1,\), not one number"),
+    (dict(reference=lambda t: None, duration_s=3.0), ValueError, r"r\(t = 0 s\) = None is not a number"),
+])
+def test_bad_loop_input_is_named_before_the_loop_runs(kwargs, error, match):
+    from tapmuscle.closed_loop import run_closed_loop
+
+    with pytest.raises(error, match=match):
+        run_closed_loop(*_parts(), **kwargs)
+
+
+def test_a_reference_on_another_grid_than_the_controllers_is_refused():
+    """The controller's model and horizons are for its own Ts: a reference sampled at another period
+    would run the loop on the wrong grid without a word."""
+    from fmu_controller.reference import SineReference
+    from tapmuscle.closed_loop import run_closed_loop
+
+    with pytest.raises(ValueError, match=r"reference's ts_s = 0.05 s differs from the loop's ts_s = 0.1 s"):
+        run_closed_loop(*_parts(), SineReference(ts_s=0.05), duration_s=3.0)
+    plant, controller = _parts()
+    with pytest.raises(TypeError, match=r"plant must be a Plant .* got PlantParams"):
+        run_closed_loop(plant.params, controller, None, duration_s=3.0)
+    with pytest.raises(TypeError, match=r"controller must be a DisplacementController .* got ControllerSettings"):
+        run_closed_loop(plant, controller.settings, None, duration_s=3.0)
