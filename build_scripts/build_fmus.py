@@ -185,13 +185,16 @@ def _pythonfmu_build(entry: Path, package: Path, dest: Path) -> Path:
         sys.modules.update(loaded)
 
 
-def build_fmus(out: str | Path, names: tuple[str, ...] | None = None) -> list[Path]:
-    """Build the FMUs ``names`` (default: all of :data:`FMUS`) into ``out``; returns their paths."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+def build_fmus(out: str | Path, names: str | tuple[str, ...] | None = None) -> list[Path]:
+    """Build the FMUs ``names`` (default: all of :data:`FMUS`; one name alone counts as one) into
+    ``out``; returns their paths."""
+    if isinstance(names, str):
+        names = (names,)
     unknown = [n for n in names or () if n not in FMUS]
     if unknown:
         raise ValueError(f"unknown FMU {unknown[0]!r}; known: {', '.join(FMUS)}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     built, version = [], project_version()
     for name in names or tuple(FMUS):
         script, packages = FMUS[name]

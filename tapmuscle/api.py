@@ -173,15 +173,15 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples)
 
 
-def build_fmus(out: str | Path, names: Sequence[str] | None = None) -> list[Path]:
+def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> list[Path]:
     """Build ``MusclePlant.fmu`` and ``AMPCController.fmu`` (FMI 2.0 co-simulation), reproducibly.
 
     Parameters
     ----------
     out : path
         Folder to write the FMUs into (created if missing).
-    names : sequence of str, optional
-        A subset of ``("MusclePlant", "AMPCController")``; default both.
+    names : str or sequence of str, optional
+        One of ``"MusclePlant"``, ``"AMPCController"`` or a subset of both; default both.
 
     Returns
     -------
@@ -190,7 +190,7 @@ def build_fmus(out: str | Path, names: Sequence[str] | None = None) -> list[Path
     """
     from build_scripts.build_fmus import build_fmus as _build
 
-    return _build(out, tuple(names) if names is not None else None)
+    return _build(out, names if isinstance(names, str) or names is None else tuple(names))
 
 
 def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, out: str | Path | None = None,

@@ -72,6 +72,9 @@ def test_the_model_descriptions_name_the_release_that_built_them(built_fmus):
 def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
     with pytest.raises(ValueError, match="unknown FMU 'Pump'"):
         build_fmus(tmp_path, ("Pump",))
+    with pytest.raises(ValueError, match="unknown FMU 'Pump'"):  # one name, not its letters
+        build_fmus(tmp_path / "new", "Pump")
+    assert not (tmp_path / "new").exists()  # refused before anything is written
     xml = ('<fmiModelDescription fmiVersion="2.0" guid="x"><CoSimulation modelIdentifier="m"/><ModelVariables>'
            '<ScalarVariable name="q" valueReference="0" causality="output"><Real/></ScalarVariable>'
            '</ModelVariables><ModelStructure/></fmiModelDescription>')
@@ -237,3 +240,10 @@ def test_the_fmu_cache_keeps_the_recently_used_builds(tmp_path):
     kept = [d for d in folders if d.exists()]
     assert kept == folders[:CACHE_KEEP] + [just_built]
     assert all(d.exists() for d, age in zip(folders, ages_h) if age * 3600 < CACHE_IN_USE_S)
+
+
+def test_one_fmu_named_alone_is_built_alone(tmp_path):
+    import tapmuscle as tm
+
+    assert [p.name for p in tm.build_fmus(tmp_path, names="MusclePlant")] == ["MusclePlant.fmu"]
+    assert [p.name for p in tmp_path.iterdir()] == ["MusclePlant.fmu"]

@@ -884,6 +884,26 @@ def test_demo_mismatch_refuses_an_empty_or_unknown_list(tmp_path, capsys, flag, 
     assert not out.exists()
 
 
+def test_effects_and_constants_are_chosen_by_name_or_object():
+    """A name, a list of names or of objects: the same selection; a single name is one name, not its
+    letters; what is neither is named before any fit."""
+    from tapmuscle.diagnosis.diagnose import by_name
+
+    delay, play = candidate("transport_delay"), candidate("backlash")
+    assert by_name("transport_delay", CANDIDATES, "candidates", "effect") == [delay]
+    assert by_name(["transport_delay", play], CANDIDATES, "candidates", "effect") == [delay, play]
+    assert by_name(("valve.cv_max",), NOMINAL_PARAMETERS, "calibration", "nominal parameter") == [NOMINAL_PARAMETERS[0]]
+    cols = record(DEMO_MODEL, "sine", 2)
+    args = (cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)
+    with pytest.raises(ValueError, match=r"candidates: unknown effect 'delay'; known: rate_dependent_hysteresis, "):
+        diagnose(*args, candidates=["delay"])
+    with pytest.raises(ValueError, match=r"calibration: unknown nominal parameter 'none'; known: valve.cv_max, .*"
+                                         r"calibration=None: no calibration"):
+        diagnose(*args, calibration="none")
+    with pytest.raises(TypeError, match=r"candidates: 3 must be a Candidate or the name of one"):
+        diagnose(*args, candidates=[delay, 3])
+
+
 def test_a_constant_displacement_is_named_before_any_fit():
     """A disconnected encoder (l_mm constant) used to end in 'DeadZoneParams.width_v must be <= 5.0'."""
     cols = record(DEMO_MODEL, "sine", 2)

@@ -239,9 +239,9 @@ class _Model:
 
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
              load_n: np.ndarray | None = None, p_mpa: np.ndarray | None = None, block_s: float | None = None,
-             fit_segment_s: float = 120.0, candidates: Sequence[Candidate] = CANDIDATES, max_effects: int = 3,
+             fit_segment_s: float = 120.0, candidates: Sequence[Candidate | str] = CANDIDATES, max_effects: int = 3,
              alpha: float = 1e-3, min_reduction: float = 0.10,
-             calibration: Sequence[NominalParameter] | None = NOMINAL_PARAMETERS,
+             calibration: Sequence[NominalParameter | str] | None = NOMINAL_PARAMETERS,
              progress: Callable[[int, int], None] | None = None, workers: int = 1,
              executor: Executor | None = None, use_pressure: bool = False,
              left_out: np.ndarray | None = None) -> Diagnosis:
@@ -264,16 +264,17 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         report's ``split.block_s``.
     fit_segment_s : float
         The calibration and the stationary effects are fitted on the first this many seconds.
-    candidates : sequence of Candidate
-        Effects to try (default: all of :data:`CANDIDATES`).
+    candidates : sequence of Candidate or str
+        Effects to try, as objects or by name (``"transport_delay"``; a single name counts as one;
+        default: all of :data:`CANDIDATES`).
     max_effects : int
         Most effects combined.
     alpha, min_reduction : float
         Significance level; least held-out SSE reduction of an accepted effect (module docstring).
-    calibration : sequence of NominalParameter or None
-        Nominal constants to re-estimate before the search (default
-        :data:`~tapmuscle.diagnosis.calibration.NOMINAL_PARAMETERS`); None or empty: no calibration (the model
-        is taken as exact apart from left-out effects).
+    calibration : sequence of NominalParameter or str, or None
+        Nominal constants to re-estimate before the search, as objects or by key (``"valve.cv_max"``;
+        default :data:`~tapmuscle.diagnosis.calibration.NOMINAL_PARAMETERS`); None or empty: no calibration
+        (the model is taken as exact apart from left-out effects).
     progress : callable, optional
         ``progress(done, total)`` after each fit.
     workers : int
@@ -317,6 +318,10 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         raise ValueError(f"alpha (the significance level) must be in 0..1 (exclusive), got {alpha!r}")
     if isinstance(max_effects, bool) or not isinstance(max_effects, numbers.Integral) or max_effects < 0:
         raise ValueError(f"max_effects must be an integer >= 0, got {max_effects!r}")
+    candidates = by_name(candidates, CANDIDATES, "candidates", "effect")
+    if calibration is not None:
+        calibration = by_name(calibration, NOMINAL_PARAMETERS, "calibration", "nominal parameter",
+                              hint="; calibration=None: no calibration")
     if progress is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
@@ -333,6 +338,38 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                     use_pressure=use_pressure, left_out=left_out)
     d.notes[:0] = notes + displacement_scale_notes(y, d.y_before_mm)
     return d
+
+
+def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str = "") -> list[Any]:
+    """``items`` as objects of the type of ``known``'s: each one as given, or its name (``name``, or
+    ``key`` for a nominal parameter) looked up in ``known``; a single name or object counts as one.
+
+    Raises
+    ------
+    ValueError
+        An unknown name (the known ones listed).
+    TypeError
+        An item that is neither a name nor an object of ``known``'s type.
+    """
+    cls = type(known[0])
+    attr = "key" if hasattr(known[0], "key") else "name"
+    if isinstance(items, (str, cls)):
+        items = (items,)
+    elif not isinstance(items, Sequence):
+        raise TypeError(f"{what} must be a sequence of {kind} names or {cls.__name__} objects, got "
+                        f"{type(items).__name__} {items!r:.60}")
+    table = {getattr(k, attr): k for k in known}
+    out = []
+    for item in items:
+        if isinstance(item, cls):
+            out.append(item)
+        elif isinstance(item, str):
+            if item not in table:
+                raise ValueError(f"{what}: unknown {kind} {item!r}; known: {', '.join(table)}{hint}")
+            out.append(table[item])
+        else:
+            raise TypeError(f"{what}: {item!r:.60} must be a {cls.__name__} or the name of one")
+    return out
 
 
 def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:

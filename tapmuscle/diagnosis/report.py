@@ -17,7 +17,6 @@ from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text, read_recording
 
-from tapmuscle.diagnosis.candidates import candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE
@@ -375,7 +374,7 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
     if effects is not None:
-        options["candidates"] = [candidate(e) for e in effects]
+        options["candidates"] = effects  # names, checked by diagnose
     cols = rec.columns
     try:
         if "ts_s" in rec.metadata:
