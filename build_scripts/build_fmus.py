@@ -194,6 +194,8 @@ def build_fmus(out: str | Path, names: str | tuple[str, ...] | None = None) -> l
     if unknown:
         raise ValueError(f"unknown FMU {unknown[0]!r}; known: {', '.join(FMUS)}")
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out} is a file, not a folder for the FMUs")
     out.mkdir(parents=True, exist_ok=True)
     built, version = [], project_version()
     for name in names or tuple(FMUS):

@@ -260,3 +260,23 @@ def test_theta0_is_taken_in_both_forms_an_identification_gives():
                                 theta0={n: v for n, v in named.items() if n != "xi32"})
     with pytest.raises(TypeError, match=r"theta0 must be a mapping .* got str"):
         tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, theta0="THETA0_44N")
+
+
+def test_every_bad_input_error_is_a_tapmuscle_error():
+    """``except tm.TapmuscleError`` catches every error class the package defines for bad input (the
+    ``ValueError`` kinds): a recording's sampling, a signal map, a foreign FMU, a scenario, a plant file."""
+    import importlib
+    import pkgutil
+
+    found = {}
+    for info in pkgutil.walk_packages(tm.__path__, "tapmuscle."):
+        if ".foreign_fmus." in info.name or info.name.endswith("__main__"):
+            continue  # FMU sources (built, not imported) and entry points
+        module = importlib.import_module(info.name)
+        for obj in vars(module).values():
+            if (inspect.isclass(obj) and issubclass(obj, ValueError) and obj.__module__ == info.name
+                    and not obj.__name__.startswith("_")):
+                found[f"{info.name}.{obj.__name__}"] = obj
+    assert {"tapmuscle.io.sampling.SamplingError", "tapmuscle.diagnosis.signal_map.SignalMapError",
+            "tapmuscle.io.recording.RecordingError"} <= set(found)
+    assert [name for name, cls in found.items() if not issubclass(cls, tm.TapmuscleError)] == []

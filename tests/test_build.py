@@ -75,6 +75,9 @@ def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
     with pytest.raises(ValueError, match="unknown FMU 'Pump'"):  # one name, not its letters
         build_fmus(tmp_path / "new", "Pump")
     assert not (tmp_path / "new").exists()  # refused before anything is written
+    (tmp_path / "taken").write_text("a file")
+    with pytest.raises(NotADirectoryError, match="taken is a file, not a folder for the FMUs"):
+        build_fmus(tmp_path / "taken")
     xml = ('<fmiModelDescription fmiVersion="2.0" guid="x"><CoSimulation modelIdentifier="m"/><ModelVariables>'
            '<ScalarVariable name="q" valueReference="0" causality="output"><Real/></ScalarVariable>'
            '</ModelVariables><ModelStructure/></fmiModelDescription>')

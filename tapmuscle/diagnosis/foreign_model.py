@@ -34,11 +34,12 @@ from tapmuscle.cosim.model_exchange import ModelExchangeStepper
 from tapmuscle.cosim.spec import ScenarioError
 from tapmuscle.diagnosis.boundary_effects import apply_input_effects, apply_output_effects, window_profile
 from tapmuscle.diagnosis.fit_problem import SimulationError
+from tapmuscle.errors import TapmuscleError
 
 __all__ = ["FmuVariable", "FmuInterface", "ModelValues", "ForeignSimulator", "read_interface", "ForeignFmuError"]
 
 
-class ForeignFmuError(ValueError):
+class ForeignFmuError(TapmuscleError):
     """An FMU the diagnosis cannot use (unreadable, neither co-simulation nor model exchange, fails to
     instantiate or to run with its own start values); the message names the file and the reason."""
 

@@ -31,11 +31,12 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from tapmuscle.diagnosis.foreign_model import FmuInterface
+from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Signal", "SignalMap", "SignalMapError", "read_signal_map", "match_by_name"]
 
 
-class SignalMapError(ValueError):
+class SignalMapError(TapmuscleError):
     """A mapping that cannot be used; the message names the file and key (or the column/variable)."""
 
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapmuscle.errors import TapmuscleError
+
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE"]
 
 #: Largest distance of a sample's time from its slot on the uniform grid, as a fraction of the period.
@@ -25,7 +27,7 @@ JITTER_TOLERANCE = 0.25
 STRICT_TOLERANCE = 1e-3
 
 
-class SamplingError(ValueError):
+class SamplingError(TapmuscleError):
     """A time column that is not uniformly sampled; the message names the sample and its time, and
     :attr:`sample` is its index (None: no one sample is to blame)."""
 
