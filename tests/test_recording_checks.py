@@ -12,7 +12,7 @@ import pytest
 from tapmuscle.diagnosis import diagnose
 from tapmuscle.diagnosis.demo import DEMO_MODEL, record
 from tapmuscle.diagnosis.recording_checks import (DISPLACEMENT_PLAUSIBLE_MM, check_muscle_recording,
-                                                  displacement_scale_notes, muscle_recording_notes)
+                                                  check_displacement_scale, muscle_recording_notes)
 
 TS = 0.1
 
@@ -44,18 +44,21 @@ def test_a_command_in_percent_or_times_in_milliseconds_are_refused_by_sample():
         check_muscle_recording(u, 100.0)
 
 
-def test_a_displacement_in_micrometres_is_refused_and_one_in_metres_is_said():
+def test_a_displacement_in_micrometres_or_in_metres_is_refused():
     t, u, l, _ = _clean()
     check_muscle_recording(u, TS, l)
     check_muscle_recording(u, TS, l - DISPLACEMENT_PLAUSIBLE_MM)  # an encoder zeroed at the far end: still mm
     with pytest.raises(ValueError, match=r"column l_mm, sample 10: 598.003 mm is further from 0 than the muscle's 500 mm "
                                          r".*\(micrometres\)\? Scale it to millimetres"):
         check_muscle_recording(u, TS, 1000.0 * l)
-    assert displacement_scale_notes(l, l) == [] and displacement_scale_notes(0.5 * l, l) == []  # a rig half as stiff
-    (note,) = displacement_scale_notes(l / 1000.0, l)
-    assert "spans 0.06 mm where the nominal model" in note and "1e+03 times" in note and "metres" in note
-    assert "metres" in displacement_scale_notes(np.zeros_like(l), l)[0]  # a stuck encoder is said too
-    assert displacement_scale_notes(l, np.zeros_like(l)) == []  # a model that does not move says nothing
+    check_displacement_scale(l, l)
+    check_displacement_scale(0.5 * l, l)  # a rig half as stiff
+    check_displacement_scale(l, np.zeros_like(l))  # a model that does not move: nothing to compare with
+    with pytest.raises(ValueError, match=r"column l_mm spans 0.06 mm where the nominal model.* spans 60 mm \(1e\+03 "
+                                         r"times as much\): is the displacement logged in metres"):
+        check_displacement_scale(l / 1000.0, l)
+    with pytest.raises(ValueError, match=r"the encoder stuck"):
+        check_displacement_scale(np.full_like(l, 3.0), l)
 
 
 def test_a_pressure_in_kpa_is_refused_where_the_fits_weigh_it():
@@ -135,3 +138,10 @@ def test_a_delay_behind_a_mid_run_start_is_found(excitation, seed):
     assert d.findings[0].parameters["delay.delay_s"] == pytest.approx(0.3, abs=TS / 2)
     assert d.fit_after_percent > 99.5 > 90.0 > d.fit_before_percent
     assert d.findings[1].located[0][0] < 1.0 and d.findings[1].located[0][1] < 6.0
+
+
+def test_a_diagnosis_of_a_displacement_in_metres_is_refused_before_any_fit():
+    """Compared as millimetres it named backlash with a 0.48 mm play and a 278-point gain."""
+    cols = record(DEMO_MODEL, "steps", 2)
+    with pytest.raises(ValueError, match=r"column l_mm spans .* mm where the nominal model.* logged in metres"):
+        diagnose(cols["t_s"], cols["u_v"], cols["l_mm"] / 1000.0, DEMO_MODEL)

@@ -113,7 +113,7 @@ from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
-from tapmuscle.diagnosis.recording_checks import check_muscle_recording, displacement_scale_notes, muscle_recording_notes
+from tapmuscle.diagnosis.recording_checks import check_displacement_scale, check_muscle_recording, muscle_recording_notes
 from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
@@ -330,13 +330,14 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     block_s = split_length_s(u, ts, block_s)
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
+    check_displacement_scale(y, sim.run(model)[0])
     with ExitStack() as stack:
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
                     calibration=calibration, progress=progress, started=started, space=MUSCLE,
                     use_pressure=use_pressure, left_out=left_out)
-    d.notes[:0] = notes + displacement_scale_notes(y, d.y_before_mm)
+    d.notes[:0] = notes
     return d
 
 

@@ -1,8 +1,8 @@
 """What in a rig's recording of the muscle would make its diagnosis meaningless, checked before any
 simulation runs: a command outside the valve's range, a displacement beyond the muscle's length or a
-sampling period no muscle recording has (refused), and a start away from rest, jittered timestamps,
-a pressure column in another unit or a displacement a thousand times smaller than the model's
-(said, in the report's notes).
+sampling period no muscle recording has, or a displacement that barely moves where the nominal model
+moves a lot (metres logged as millimetres; refused), and a start away from rest, jittered timestamps
+or a pressure column in another unit (said, in the report's notes).
 
 A real rig's log differs from `tapmuscle record`'s in ways that leave every column a finite number
 and yet make the diagnosis compare the wrong things: a command logged in percent, times in
@@ -16,7 +16,7 @@ import numpy as np
 
 from tapmuscle.io.sampling import uniform_sampling
 
-__all__ = ["check_muscle_recording", "muscle_recording_notes", "displacement_scale_notes", "COMMAND_RANGE_V",
+__all__ = ["check_muscle_recording", "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
            "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA"]
 
@@ -121,12 +121,24 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
     return notes
 
 
-def displacement_scale_notes(l_mm: np.ndarray, l_model_mm: np.ndarray) -> list[str]:
-    """A note when the recorded displacement spans less than :data:`SPAN_RATIO_PLAUSIBLE` of what the
-    nominal model ``l_model_mm`` does for the same command (metres logged as mm); empty otherwise."""
+def check_displacement_scale(l_mm: np.ndarray, l_model_mm: np.ndarray) -> None:
+    """Refuse a recorded displacement that spans less than :data:`SPAN_RATIO_PLAUSIBLE` of what the
+    nominal model ``l_model_mm`` does for the same command.
+
+    No rig a few tens of percent off its nominal constants moves 20 times less than the model: the
+    displacement is in another unit (metres: a thousandth), the encoder is stuck, or the supply was
+    closed. Compared as millimetres, any candidate effect that shrinks the motion would be named with
+    confidence, which is worse than no diagnosis.
+
+    Raises
+    ------
+    ValueError
+        Naming both spans, their ratio and what to check.
+    """
     span, model_span = float(np.ptp(l_mm)), float(np.ptp(l_model_mm))
     if model_span <= 0.0 or span >= SPAN_RATIO_PLAUSIBLE * model_span:
-        return []
-    return [f"Column l_mm spans {span:.4g} mm where the nominal model, driven by the same command, spans "
-            f"{model_span:.4g} mm ({model_span / max(span, 1e-300):.3g} times as much): is the displacement logged in "
-            "another unit (metres)? The diagnosis compares it as millimetres (a stuck encoder reads so too)"]
+        return
+    raise ValueError(f"column l_mm spans {span:.4g} mm where the nominal model, driven by the same command, spans "
+                     f"{model_span:.4g} mm ({model_span / max(span, 1e-300):.3g} times as much): is the displacement "
+                     "logged in metres (scale it to millimetres), the encoder stuck, or the supply closed? A "
+                     "diagnosis would blame whichever effect shrinks the motion")
