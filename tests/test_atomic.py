@@ -97,3 +97,55 @@ def test_without_owned_patterns_the_folder_is_replaced_whole(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["a.json"]
     with pytest.raises(NotADirectoryError, match="is a file"):
         _run_into(out / "a.json", {"x": "1"})
+
+
+def _not_writable(monkeypatch, *paths) -> None:
+    """chmod 0444; under root, which may write any file, ``os.access`` answers as for another user."""
+    for p in paths:
+        p.chmod(0o444)
+    if os.geteuid() == 0:
+        real = os.access
+        denied = {os.path.realpath(p) for p in paths}
+        monkeypatch.setattr(os, "access", lambda p, mode, **kw: (not mode & os.W_OK or os.path.realpath(p) not in denied)
+                            and real(p, mode, **kw))
+
+
+def test_a_write_leaves_what_open_would_an_existing_files_mode_and_a_links_target(tmp_path):
+    """As ``open(path, "w")``: an existing file keeps its mode (0640 stays 0640), and a symbolic link is
+    followed: its target gets the content, the link stays a link."""
+    kept = tmp_path / "kept.csv"
+    kept.write_text("old")
+    kept.chmod(0o640)
+    atomic_write_text(kept, "new")
+    assert kept.read_text() == "new" and stat.S_IMODE(kept.stat().st_mode) == 0o640
+    (tmp_path / "elsewhere").mkdir()
+    real = tmp_path / "elsewhere" / "real.csv"
+    real.write_text("old")
+    link = tmp_path / "link.csv"
+    link.symlink_to(real)
+    atomic_write_text(link, "new")
+    assert link.is_symlink() and real.read_text() == "new"
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1"}, owned=("*.json",))
+    (out / "a.json").unlink()
+    (out / "a.json").symlink_to(real)
+    _run_into(out, {"a.json": "2"}, owned=("*.json",))
+    assert (out / "a.json").is_symlink() and real.read_text() == "2"
+    assert sorted(p.name for p in (tmp_path / "elsewhere").iterdir()) == ["real.csv"]  # no temporary left
+
+
+def test_a_read_only_file_is_refused_before_the_work_and_kept(tmp_path, monkeypatch):
+    ro = tmp_path / "ro.csv"
+    ro.write_text("keep")
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1", "b.json": "1"}, owned=("*.json",))
+    _not_writable(monkeypatch, ro, out / "b.json")
+    ran = []
+    with pytest.raises(PermissionError, match="ro.csv is read-only: not replaced"):
+        with atomic_path(ro) as tmp:
+            ran.append(tmp)
+    assert ran == [] and ro.read_text() == "keep" and stat.S_IMODE(ro.stat().st_mode) == 0o444
+    with pytest.raises(PermissionError, match="b.json is read-only"):
+        _run_into(out, {"a.json": "2", "b.json": "2"}, owned=("*.json",))
+    assert (out / "a.json").read_text() == "1" and (out / "b.json").read_text() == "1"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "ro.csv"]

@@ -6,9 +6,10 @@ an output folder never holds half of a run or a mix of two runs.
 
 Every file tapmuscle writes goes through :func:`atomic_path`: the content is written to a temporary
 file in the target's folder, which is renamed over the target only once complete (a crash or an
-error leaves the old file, or none, and no temporary file). ``tempfile.mkstemp`` creates its file
-with mode 0600; the rename would carry that over, so the file gets the mode an ordinary
-``open(path, "w")`` would give, ``0666 & ~umask``, before the rename.
+error leaves the old file, or none, and no temporary file). Otherwise the result is what an ordinary
+``open(path, "w")`` gives: a new file gets ``0666 & ~umask`` (``tempfile.mkstemp``'s 0600 would
+carry over through the rename), an existing file keeps its mode, a symbolic link is followed (its
+target is replaced, the link stays), and a file this process may not write is refused.
 """
 
 from __future__ import annotations
@@ -34,6 +35,27 @@ def default_file_mode() -> int:
     return 0o666 & ~_umask()
 
 
+def _target(path: Path) -> tuple[Path, int]:
+    """The file a write of ``path`` replaces (a symbolic link's target) and the mode it gets, as
+    ``open(path, "w")`` would leave them (module docstring).
+
+    Raises
+    ------
+    IsADirectoryError
+        ``path`` is a directory.
+    PermissionError
+        ``path`` is a file this process may not write.
+    """
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    if target.is_dir():
+        raise IsADirectoryError(f"{path} is a directory, not a file to write")
+    if not target.exists():
+        return target, default_file_mode()
+    if not os.access(target, os.W_OK):
+        raise PermissionError(f"{path} is read-only: not replaced")
+    return target, os.stat(target).st_mode & 0o7777
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Path]:
     """A temporary path next to ``path``; renamed to ``path`` when the block ends without error.
@@ -48,20 +70,19 @@ def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Pa
     Raises
     ------
     OSError
-        The folder cannot be created or written, or ``path`` is a directory; the temporary file is
-        removed and nothing at ``path`` changes.
+        The folder cannot be created or written, ``path`` is a directory or a file this process may
+        not write (before the block runs); the temporary file is removed and nothing at ``path``
+        changes.
     """
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    folder.mkdir(parents=True, exist_ok=True)
-    if path.is_dir():
-        raise IsADirectoryError(f"{path} is a directory, not a file to write")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=folder)
+    (path.parent if str(path.parent) else Path(".")).mkdir(parents=True, exist_ok=True)
+    target, mode = _target(path)  # before the caller's work: a file that cannot be written is named first
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix, dir=target.parent)
     os.close(fd)
     try:
         yield Path(tmp)
-        os.chmod(tmp, default_file_mode())
-        os.replace(tmp, path)
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -86,10 +107,10 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
     Raises
     ------
     OSError
-        ``out`` is a file, or a staged file's place in ``out`` is a directory (checked before anything
-        in ``out`` changes).
+        ``out`` is a file, or a staged file's place in ``out`` is a directory or a file this process
+        may not write (checked before anything in ``out`` changes).
     """
-    out = Path(out)
+    out = Path(os.path.realpath(out)) if Path(out).is_symlink() else Path(out)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out} is a file, not a folder for the outputs")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -108,13 +129,17 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
                 tmp.rename(out)
             return
         new = sorted(p.relative_to(tmp) for p in tmp.rglob("*") if p.is_file())
-        for rel in new:  # before any rename: one failing half-way would leave two runs mixed
-            if (out / rel).is_dir():
-                raise IsADirectoryError(f"{out / rel} is a directory, not a file to write")
+        # before any rename: one failing half-way would leave two runs mixed
+        targets = {rel: _target(out / rel) for rel in new}
         out.mkdir(exist_ok=True)
-        for rel in new:
-            (out / rel).parent.mkdir(parents=True, exist_ok=True)
-            os.replace(tmp / rel, out / rel)
+        for rel, (target, mode) in targets.items():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if target == out / rel:
+                os.chmod(tmp / rel, mode)
+                os.replace(tmp / rel, target)
+            else:  # a link's target, maybe on another file system: written beside it, then renamed
+                with atomic_path(target) as t:
+                    shutil.copyfile(tmp / rel, t)
         for pattern in owned:
             for p in out.glob(pattern):
                 if p.is_file() and p.relative_to(out) not in new:
