@@ -61,7 +61,14 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
         t = t0 + k * ts_s
         if load_fn is not None:
             plant.update(load_n=load_fn(t))
-        u = float(signal(t))
+        value = signal(t)
+        if np.ndim(value) != 0:
+            raise ValueError(f"input signal u(t = {t:g} s) returned an array of shape {np.shape(value)}, not one "
+                             f"command [V]")
+        try:
+            u = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"input signal u(t = {t:g} s) = {value!r:.60} is not a number [V]") from None
         if not math.isfinite(u):
             raise ValueError(f"input signal gave a non-finite command {u!r} at t = {t:g} s")
         out["t_s"][k], out["u_v"][k], out["l_mm"][k], out["p_mpa"][k] = t, u, l_now, p_now

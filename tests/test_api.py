@@ -280,3 +280,12 @@ def test_every_bad_input_error_is_a_tapmuscle_error():
     assert {"tapmuscle.io.sampling.SamplingError", "tapmuscle.diagnosis.signal_map.SignalMapError",
             "tapmuscle.io.recording.RecordingError"} <= set(found)
     assert [name for name, cls in found.items() if not issubclass(cls, tm.TapmuscleError)] == []
+
+
+@pytest.mark.parametrize("command, match", [
+    (lambda t: np.array([5.0]), r"u\(t = 0 s\) returned an array of shape \(1,\), not one command \[V\]"),
+    (lambda t: None, r"u\(t = 0 s\) = None is not a number \[V\]"),
+])
+def test_a_command_function_that_returns_no_number_is_named(command, match):
+    with pytest.raises(ValueError, match=match):
+        tm.simulate(command, duration_s=1.0)

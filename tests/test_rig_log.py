@@ -375,3 +375,13 @@ def test_day_first_dotted_dates_as_a_german_locale_writes_them(tmp_path):
                                              r"\(or day.month.year\) time"):
         read_rig_log(log, time="Zeit:iso", u="u", l="l")
     assert tm.read_rig_log is read_rig_log
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(decimal=",,"), r"decimal = ',,' is not a decimal mark \('.' or ','\)"),
+    (dict(fill_gaps_s=-1.0), r"fill_gaps_s = -1.0 is not a number of seconds >= 0"),
+    (dict(fill_gaps_s=float("nan")), r"fill_gaps_s = nan is not a number"),
+])
+def test_reading_options_are_checked_before_the_file_is_read(tmp_path, kwargs, match):
+    with pytest.raises(RecordingError, match=match):
+        read_rig_log(tmp_path / "not_read.csv", time="t", u="u", l="l", **kwargs)

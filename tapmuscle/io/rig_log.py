@@ -312,6 +312,11 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         raise RecordingError(f"{path}: load_n = {load_n!r} is not a positive number of newtons")
     if ambient_kpa is not None and not (isinstance(ambient_kpa, (int, float)) and 30.0 <= ambient_kpa <= 120.0):
         raise RecordingError(f"{path}: ambient_kpa = {ambient_kpa!r} is not an atmosphere's pressure (30..120 kPa)")
+    if decimal is not None and decimal not in (".", ","):
+        raise RecordingError(f"{path}: decimal = {decimal!r} is not a decimal mark ('.' or ',')")
+    if (isinstance(fill_gaps_s, bool) or not isinstance(fill_gaps_s, (int, float)) or not math.isfinite(fill_gaps_s)
+            or fill_gaps_s < 0):
+        raise RecordingError(f"{path}: fill_gaps_s = {fill_gaps_s!r} is not a number of seconds >= 0 (0: refuse gaps)")
     given = {"t_s": time, "u_v": u, "l_mm": l, "p_mpa": p, "load_n": load}
     try:
         mapping = {target: parse_column_spec(col, target) if isinstance(col, str) else col
