@@ -69,6 +69,8 @@ from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
+from .argument_checks import number_array
+
 __all__ = [
     "PARAMETER_NAMES_ASYMMETRIC",
     "PARAMETER_NAMES_STANDARD",
@@ -200,13 +202,8 @@ class ModelStructure:
                 bad = next(n for n in values if not _is_number(values[n]))
                 raise ValueError(f"{what}[{bad!r}] = {values[bad]!r} is not a number") from None
         else:
-            if isinstance(values, (str, bytes)) or values is None or not np.iterable(values):
-                raise TypeError(f"{what} must be a mapping name -> value or {self.n_params} values in the "
-                                f"order {', '.join(self.names)}; got {type(values).__name__} {values!r}")
-            try:
-                theta = np.asarray(values, dtype=float)
-            except (TypeError, ValueError):
-                raise ValueError(f"{what} must hold numbers, got {values!r}") from None
+            theta = number_array(values, what=what, expected=f"a mapping name -> value or {self.n_params} values "
+                                                               f"in the order {', '.join(self.names)}")
             if theta.shape != (self.n_params,):
                 raise ValueError(f"{what} must be {self.n_params} values ({', '.join(self.names)}) for the "
                                  f"{self.kind} model, got shape {theta.shape}")

@@ -14,6 +14,8 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from .argument_checks import number_array
+
 __all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES", "as_reference"]
 
 #: The controller FMU's ``reference_source`` parameter (an Integer) -> where r(k..k+Hp) comes from
@@ -184,11 +186,5 @@ def as_reference(reference: "Reference | Callable[[float], float] | np.ndarray |
         return reference
     if callable(reference):
         return FunctionReference(reference, ts_s)
-    if isinstance(reference, (str, bytes)) or not np.iterable(reference):
-        raise TypeError(f"reference must be a function r(t) [mm], samples r(k) [mm], a Reference or None; got "
-                        f"{type(reference).__name__} {reference!r}")
-    try:
-        values = np.asarray(reference, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"reference samples must be numbers [mm], got {reference!r}") from None
-    return ArrayReference(values, ts_s)
+    return ArrayReference(number_array(reference, what="reference", expected="a function r(t) [mm], samples "
+                                       "r(k) [mm], a Reference or None"), ts_s)
