@@ -243,6 +243,24 @@ def test_sweep_records_failures_resumes_and_summarises(built_fmus, tmp_path):
     _same_results(rows, _rows(out))
 
 
+def test_a_narrowed_sweep_keeps_the_other_rows_says_so_and_leaves_no_stale_figure(built_fmus, tmp_path):
+    """The sweep file edited to one load and rerun into its folder: ``results.csv`` keeps the dropped
+    runs' rows after its own (finished work is not thrown away), the summary and the report say how many,
+    and the load map, which one load no longer draws, is gone rather than showing the earlier runs."""
+    out = tmp_path / "out"
+    text = SMALL_SWEEP.replace('["mpc_servo", "ampc_servo"]', '["ampc_servo"]') + '"load.initial_n" = [44, 68]\n'
+    run_sweep(parse_sweep(tomllib.loads(text), source="small.toml"), out, built_fmus, run_serial)
+    assert {p.name for p in out.iterdir()} == {"results.csv", "summary.md", "mae_by_method.png", "mae_map.png"}
+    narrowed = parse_sweep(tomllib.loads(text.replace("[44, 68]", "[44]")), source="small.toml")
+    report = run_sweep(narrowed, out, built_fmus, run_serial)
+    assert (report.total, report.skipped, report.other_rows) == (2, 2, 2)
+    assert [r["run_id"] for r in _rows(out)][:2] == [r.run_id for r in narrowed.runs] and len(_rows(out)) == 4
+    assert "also keeps, after this sweep's rows, 2 rows of runs the sweep no longer has" in (out / "summary.md").read_text()
+    assert {p.name for p in out.iterdir()} == {"results.csv", "summary.md", "mae_by_method.png"}
+    run_sweep(narrowed, out, built_fmus, run_serial, plots=False)
+    assert {p.name for p in out.iterdir()} == {"results.csv", "summary.md"}
+
+
 def test_interrupted_sweep_resumes_without_recomputing(built_fmus, tmp_path):
     sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
     full = tmp_path / "full"

@@ -87,6 +87,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     print(text[start:text.find("\n\n", text.index("|", start))].strip())
     print(f"{report.total} runs: {report.skipped} already done, {report.ran} run now; {report.failed} failed, "
           f"{report.violated} missed their expectations")
+    if report.other_rows:
+        print(f"results.csv also keeps {report.other_rows} rows of runs this sweep no longer has (after its own; "
+              "not summarised)")
     print(f"wrote {Path(out) / 'results.csv'}, {Path(out) / 'summary.md'}"
           + ("" if args.no_plots else f" and {Path(out) / '*.png'}"))
     return 1 if report.failed or report.violated else 0

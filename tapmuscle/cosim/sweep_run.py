@@ -9,7 +9,7 @@ Outputs in ``DIR``:
   of the FMU files' SHA-256). While the sweep runs the file is a log: each finished run appends its row
   (flushed and fsynced), so an interrupted sweep loses nothing it finished. At the end it is rewritten
   (atomically) with one row per run, the last one logged, in the sweep's order; rows of run ids the
-  sweep no longer has are kept after them.
+  sweep no longer has are kept after them (``summary.md`` and the command's last lines say how many).
 * ``summary.md``: per method, runs, failures, expectation violations and the Eq. (21) error's mean,
   median and maximum; per grid cell where the sweep varies a few discrete values; the failed runs.
 * ``mae_by_method.png`` and, when load, reference frequency, supply or another numeric field varies,
@@ -38,7 +38,7 @@ from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 from tapmuscle.cosim.sweep import Sweep, SweepRun
 
-__all__ = ["DESCRIPTIVE", "SweepReport", "ResultsLog", "result_columns", "run_sweep", "summary_markdown",
+__all__ = ["DESCRIPTIVE", "SUMMARY_FILES", "SweepReport", "ResultsLog", "result_columns", "run_sweep", "summary_markdown",
            "describe_scenario"]
 
 #: Columns that describe every run, whether swept or not.
@@ -157,6 +157,9 @@ class SweepReport:
     """Runs that finished but miss their expectations."""
     rows: tuple[dict[str, str], ...]
     """The final row of every run of the sweep, in its order."""
+    other_rows: int = 0
+    """Rows of runs this sweep no longer has (an earlier version of the file), kept in ``results.csv``
+    after its own and left out of the summary."""
 
 
 def _expect_cell(expect: Expectations | None, metrics: Mapping[str, float]) -> str:
@@ -222,16 +225,18 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
         failed += result.status != "ok"
         if progress is not None:
             progress(done, total, f"{done - skipped - failed} ok, {failed} failed, {total - done} remaining")
-    final = _compact(log, sweep)
+    final, other = _compact(log, sweep)
     report = SweepReport(total=total, skipped=skipped, ran=done - skipped,
                          failed=sum(r["status"] != "ok" for r in final),
-                         violated=sum(r["expect"].startswith("fail") for r in final), rows=tuple(final))
-    _write_summary(sweep, out, final, plots)
+                         violated=sum(r["expect"].startswith("fail") for r in final), rows=tuple(final),
+                         other_rows=other)
+    _write_summary(sweep, out, final, plots, other)
     return report
 
 
-def _compact(log: ResultsLog, sweep: Sweep) -> list[dict[str, str]]:
-    """Rewrite the log with one row per run (expectations re-checked); the sweep's rows in its order."""
+def _compact(log: ResultsLog, sweep: Sweep) -> tuple[list[dict[str, str]], int]:
+    """Rewrite the log with one row per run (expectations re-checked); the sweep's rows in its order,
+    and how many rows of other runs follow them."""
     latest = log.latest()
     final = []
     for run in sweep.runs:
@@ -240,8 +245,9 @@ def _compact(log: ResultsLog, sweep: Sweep) -> list[dict[str, str]]:
             row["expect"] = _expect_cell(run.scenario.expect, _metrics_of(row))
         final.append(row)
     ids = {run.run_id for run in sweep.runs}
-    log.rewrite(final + [row for rid, row in latest.items() if rid not in ids])
-    return final
+    other = [row for rid, row in latest.items() if rid not in ids]
+    log.rewrite(final + other)
+    return final, len(other)
 
 
 # ------------------------------------------------------------------------------------------ summary
@@ -288,16 +294,20 @@ def _cell_fields(rows: Sequence[Mapping[str, str]], sweep: Sweep) -> list[str]:
     return out
 
 
-def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]]) -> str:
-    """``summary.md``: tables per method (and per grid cell), failed runs (module docstring)."""
+def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows: int = 0) -> str:
+    """``summary.md``: tables per method (and per grid cell), failed runs (module docstring);
+    ``other_rows``: rows of runs ``results.csv`` keeps that this sweep no longer has."""
     methods = sorted({row["method"] for row in rows})
     lines = [f"# Sweep {sweep.name}", ""]
     if sweep.description:
         lines += [sweep.description, ""]
     n_failed = sum(row["status"] != "ok" for row in rows)
     lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm] "
-              "over the runs that finished.", "",
-              "## Per method", "",
+              "over the runs that finished.", ""]
+    if other_rows:
+        lines += [f"`results.csv` also keeps, after this sweep's rows, {other_rows} rows of runs the sweep no longer "
+                  "has (an earlier version of its file); they are not summarised here.", ""]
+    lines += ["## Per method", "",
               "| method | runs | failed | expectations missed | mae mean | mae median | mae max |",
               "|---|---:|---:|---:|---:|---:|---:|"]
     for m in methods:
@@ -337,14 +347,21 @@ def _sort_key(text: str) -> tuple[int, float, str]:
     return (1, math.inf, text) if isinstance(value, str) else (0, value, text)
 
 
-def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool) -> None:
+#: What :func:`run_sweep` writes at the end beside ``results.csv`` (together: a figure an earlier sweep
+#: into the folder drew and this one does not is removed).
+SUMMARY_FILES = ("summary.md", "mae_by_method.png", "mae_map.png")
+
+
+def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool, other_rows: int) -> None:
+    from tapmuscle.io.atomic import staged_folder
     from tapmuscle.io.recording import atomic_write_text
 
-    atomic_write_text(out / "summary.md", summary_markdown(sweep, rows))
-    if plots:
-        from tapmuscle.plots.sweep_figures import plot_mae_by_method, plot_mae_map
+    with staged_folder(out, owned=SUMMARY_FILES) as tmp:
+        atomic_write_text(tmp / "summary.md", summary_markdown(sweep, rows, other_rows))
+        if plots:
+            from tapmuscle.plots.sweep_figures import plot_mae_by_method, plot_mae_map
 
-        numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + _swept_fields(sweep))
-        plot_mae_by_method(rows, out / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method")
-        plot_mae_map(rows, numeric, out / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
+            numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + _swept_fields(sweep))
+            plot_mae_by_method(rows, tmp / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method")
+            plot_mae_map(rows, numeric, tmp / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
 
