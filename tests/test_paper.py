@@ -41,6 +41,30 @@ def test_outputs(paper):
     assert len(list(out.glob("fig*_tracking_*.png"))) == 6 and len(list(out.glob("fig*_prediction_error_*.png"))) == 6
 
 
+@pytest.mark.slow
+def test_an_interrupted_rerun_leaves_the_earlier_outputs_whole(paper, tmp_path):
+    """Ctrl-C half-way through a rerun into the same folder: every file is the earlier run's (no CSV of
+    the new seed beside figures of the old one), and no staging folder is left."""
+    import hashlib
+    import shutil
+
+    from tapmuscle.paper.reproduce import run_paper
+
+    out = tmp_path / "paper"
+    shutil.copytree(paper[0], out)
+    before = {p.relative_to(out): hashlib.sha256(p.read_bytes()).hexdigest() for p in out.rglob("*") if p.is_file()}
+
+    def interrupt(done, total):
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with open(tmp_path / "log.txt", "w") as log, pytest.raises(KeyboardInterrupt):
+        run_paper(out, seeds=(7,), progress=interrupt, stream=log)
+    after = {p.relative_to(out): hashlib.sha256(p.read_bytes()).hexdigest() for p in out.rglob("*") if p.is_file()}
+    assert after == before and len(before) >= 25
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "paper"]
+
+
 @pytest.mark.parametrize("load", ["44", "68"])
 def test_servo_beats_unique_coincidence_point(paper, load):
     _, d = paper

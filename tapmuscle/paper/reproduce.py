@@ -10,7 +10,8 @@
    (Table 9, with Table 8's P(0)); each cell the mean over three noise seeds. The FMU loop gives the
    direct Python loop's numbers bit for bit (tests/test_scenarios.py).
 3. Outputs: ``paper.json`` (Tables 6, 7, 9), one CSV per run in ``runs/``, tracking and
-   prediction-error PNGs like Figs. 8-19, and the tables printed beside the paper's.
+   prediction-error PNGs like Figs. 8-19 (:data:`PAPER_FILES`, put in place together once all are
+   written), and the tables printed beside the paper's.
 """
 
 from __future__ import annotations
@@ -33,11 +34,15 @@ from fmu_plant.open_loop import run_open_loop
 
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.plots.figures import plot_prediction_errors, plot_tracking
+from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.io.signals import parse_input_spec
 
-__all__ = ["PaperRun", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables", "preliminary_theta",
+__all__ = ["PaperRun", "PAPER_FILES", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables", "preliminary_theta",
            "run_paper"]
+
+#: What ``tapmuscle paper`` writes into its folder; other files there are left alone.
+PAPER_FILES = ("paper.json", "runs/*.csv", "fig*_tracking_*.png", "fig*_prediction_error_*.png")
 
 #: The paper's measured Eq. (21) errors [mm]: table -> load -> method.
 PAPER_TABLES = {
@@ -139,47 +144,49 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
         theta_params["hysteresis_notch"] = 0
     if faithful_start:
         theta_params["startup_s"] = 0.0
-    results: dict[str, dict] = {}
-    for run in PAPER_RUNS:
-        scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
-        errors, first = [], None
-        for seed in seeds:
-            cols = co_simulate(dataclasses.replace(scenario, seed=seed), fmus, controller_parameters=theta_params)
-            cols.pop("wall_time_s")
-            errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"], scenario.evaluation_samples))
-            if first is None:
-                first = cols
-                meta = {"ts_s": "0.1", "load_n": f"{run.load_n:g}", "seed": str(seed), "method": run.method,
-                        "reference": f"35 + 30 sin(2 pi {run.frequency_hz:g} t) mm",
-                        "eq21_error_mm": f"{errors[0]:.4f}",
-                        "source": f"tapmuscle paper (simulated rig, FMU co-simulation of scenarios/paper/{run.name}.toml)"}
-                write_recording(out / "runs" / f"{run.name}.csv", Recording(cols, meta))
-            done += 1
-            if progress is not None:
-                progress(done, total)
-        err = float(np.mean(errors))
-        results[run.name] = {"run": run, "cols": first, "error": err, "errors": errors}
-        print(f"  {run.name:<24} Eq. (21) error {err:6.3f} mm (seeds {', '.join(f'{e:.3f}' for e in errors)}), "
-              f"u in [{first['u_v'].min():.2f}, {first['u_v'].max():.2f}] V", file=stream)
+    # every output at once: an interrupted or failed run leaves the folder as it was, never half of two runs
+    with staged_folder(out, owned=PAPER_FILES) as tmp:
+        results: dict[str, dict] = {}
+        for run in PAPER_RUNS:
+            scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
+            errors, first = [], None
+            for seed in seeds:
+                cols = co_simulate(dataclasses.replace(scenario, seed=seed), fmus, controller_parameters=theta_params)
+                cols.pop("wall_time_s")
+                errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"], scenario.evaluation_samples))
+                if first is None:
+                    first = cols
+                    meta = {"ts_s": "0.1", "load_n": f"{run.load_n:g}", "seed": str(seed), "method": run.method,
+                            "reference": f"35 + 30 sin(2 pi {run.frequency_hz:g} t) mm",
+                            "eq21_error_mm": f"{errors[0]:.4f}",
+                            "source": f"tapmuscle paper (simulated rig, FMU co-simulation of scenarios/paper/{run.name}.toml)"}
+                    write_recording(tmp / "runs" / f"{run.name}.csv", Recording(cols, meta))
+                done += 1
+                if progress is not None:
+                    progress(done, total)
+            err = float(np.mean(errors))
+            results[run.name] = {"run": run, "cols": first, "error": err, "errors": errors}
+            print(f"  {run.name:<24} Eq. (21) error {err:6.3f} mm (seeds {', '.join(f'{e:.3f}' for e in errors)}), "
+                  f"u in [{first['u_v'].min():.2f}, {first['u_v'].max():.2f}] V", file=stream)
 
-    tables = paper_tables({name: r["error"] for name, r in results.items()})
-    per_seed = paper_tables({name: r["errors"] for name, r in results.items()})
-    cols_by_table = paper_tables({name: r["cols"] for name, r in results.items()})
-    for table, freq, _, figs in _TABLES:
-        for load in (44, 68):
-            runs = cols_by_table[table][str(load)]
-            fig_t, fig_p = figs[load]
-            plot_tracking(runs, out / f"fig{fig_t:02d}_tracking_{load}N_{freq:g}Hz.png",
-                          title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]})")
-            plot_prediction_errors(runs, out / f"fig{fig_p:02d}_prediction_error_{load}N_{freq:g}Hz.png",
-                                   title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]})")
-    document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
-                "findings": paper_findings(tables), "paper": PAPER_TABLES,
-                "theta0": ASYMMETRIC.to_dict(theta0),
-                "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default",
-                "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
-                "eq21_window_s": [10.0, 40.0]}
-    atomic_write_text(out / "paper.json", json.dumps(document, indent=2) + "\n")
+        tables = paper_tables({name: r["error"] for name, r in results.items()})
+        per_seed = paper_tables({name: r["errors"] for name, r in results.items()})
+        cols_by_table = paper_tables({name: r["cols"] for name, r in results.items()})
+        for table, freq, _, figs in _TABLES:
+            for load in (44, 68):
+                runs = cols_by_table[table][str(load)]
+                fig_t, fig_p = figs[load]
+                plot_tracking(runs, tmp / f"fig{fig_t:02d}_tracking_{load}N_{freq:g}Hz.png",
+                              title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]})")
+                plot_prediction_errors(runs, tmp / f"fig{fig_p:02d}_prediction_error_{load}N_{freq:g}Hz.png",
+                                       title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]})")
+        document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
+                    "findings": paper_findings(tables), "paper": PAPER_TABLES,
+                    "theta0": ASYMMETRIC.to_dict(theta0),
+                    "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default",
+                    "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
+                    "eq21_window_s": [10.0, 40.0]}
+        atomic_write_text(tmp / "paper.json", json.dumps(document, indent=2) + "\n")
     print_tables(tables, stream)
     return document
 
