@@ -13,6 +13,7 @@
    parameter, which the slave logs as an error). */
 #include <ctype.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include "fmi2Functions.h"
 
@@ -24,6 +25,8 @@ typedef struct {
     fmi2Status worst;                     /* worst status logged during the current call */
     char name[256];
     char reason[1024];                    /* the first error logged (why an instantiation failed) */
+    fmi2FMUstate *states;                 /* the states this instance gave out and has not freed */
+    size_t n_states, cap_states;
 } Shim;
 
 static const char *category_of(fmi2Status status) {
@@ -159,6 +162,13 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
     s->mine.componentEnvironment = s;
     s->logging_on = loggingOn;
     snprintf(s->name, sizeof s->name, "%s", name ? name : "");
+    if (!name || !*name || type != fmi2CoSimulation) {
+        snprintf(s->reason, sizeof s->reason, !name || !*name
+                 ? "instanceName is NULL or empty: FMI 2.0 asks for a name that identifies the instance"
+                 : "fmuType %d: this FMU is for co-simulation only (fmi2CoSimulation = 1)", (int)type);
+        to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+        return s;
+    }
     if (!inst) {
         snprintf(s->reason, sizeof s->reason, "the FMU's pythonfmu library %s could not be loaded: %s", PYTHONFMU_LIBRARY,
                  library_error());
@@ -218,6 +228,7 @@ FMI2_Export void fmi2FreeInstance(fmi2Component c) {
     Shim *s = (Shim *)c;
     if (!s) return;
     if (s->inner) ((fmi2FreeInstanceTYPE *)real("fmi2FreeInstance"))(s->inner);
+    free(s->states);
     free(s);
 }
 
@@ -273,9 +284,60 @@ FORWARD(fmi2SetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t 
         (s->inner, vr, n, v), fmi2Warning, NOTHING)
 FORWARD(fmi2SetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]),
         (s->inner, vr, n, v), fmi2Warning, NOTHING)
-FORWARD(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate st), (s->inner, st), fmi2Error, NOTHING)
-FORWARD(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate st, size_t *n), (s->inner, st, n), fmi2Error, NOTHING)
-FORWARD(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t n), (s->inner, st, b, n), fmi2Error, NOTHING)
+/* The states an instance gave out (fmi2GetFMUstate, fmi2DeSerializeFMUstate) and has not freed: a NULL,
+   freed or foreign state handed to pythonfmu ends in a crash of the host process later (it builds a
+   Python object from the pointer), so every call that takes a state checks it here first. */
+static int state_index(const Shim *s, fmi2FMUstate st) {
+    for (size_t i = 0; st && i < s->n_states; i++)
+        if (s->states[i] == st) return (int)i;
+    return -1;
+}
+
+static void state_given(Shim *s, fmi2FMUstate st) {
+    if (!st || state_index(s, st) >= 0) return;
+    if (s->n_states == s->cap_states) {
+        size_t cap = s->cap_states ? 2 * s->cap_states : 8;
+        fmi2FMUstate *grown = realloc(s->states, cap * sizeof *grown);
+        if (!grown) return;  /* unknown to the check: refused later rather than crashing */
+        s->states = grown;
+        s->cap_states = cap;
+    }
+    s->states[s->n_states++] = st;
+}
+
+static void state_freed(Shim *s, fmi2FMUstate st) {
+    int i = state_index(s, st);
+    if (i >= 0) s->states[i] = s->states[--s->n_states];
+}
+
+static int state_refused(Shim *s, const char *call, fmi2FMUstate st) {
+    char text[400];
+    if (state_index(s, st) >= 0) return 0;
+    snprintf(text, sizeof text, "%s refused: %s", call, st ? "the FMU state is not one this instance gave out "
+             "(freed already, or another instance's: fmi2SerializeFMUstate and fmi2DeSerializeFMUstate move a state "
+             "between instances)" : "the FMU state is NULL");
+    to_host(s, s->name, fmi2Error, "logStatusError", text);
+    return 1;
+}
+
+/* fmi2X(fmi2Component c, fmi2FMUstate st, ...) forwarded as FORWARD does, with the state checked. */
+#define FORWARD_STATE(X, PARAMS, ARGS)                                                  \
+    FMI2_Export fmi2Status X PARAMS {                                                   \
+        Shim *s = (Shim *)c;                                                            \
+        static X##TYPE *fn;                                                             \
+        if (!s) return fmi2Error;                                                       \
+        if (!s->inner) return refuse(s, #X, fmi2Error);                                 \
+        if (state_refused(s, #X, st)) return fmi2Error;                                 \
+        if (!fn) fn = (X##TYPE *)real(#X);                                              \
+        if (!fn) return refuse(s, #X, fmi2Error);                                       \
+        pin_thread();                                                                   \
+        s->worst = fmi2OK;                                                              \
+        return settle(s, fn ARGS);                                                      \
+    }
+
+FORWARD_STATE(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate st), (s->inner, st))
+FORWARD_STATE(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate st, size_t *n), (s->inner, st, n))
+FORWARD_STATE(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate st, fmi2Byte b[], size_t n), (s->inner, st, b, n))
 
 /* FMU states as FMI 2.0 (2.1.8) has them; pythonfmu always makes a new state and never clears a freed
    pointer. fmi2FreeFMUstate sets *st to NULL and ignores a NULL state (a host may free twice). */
@@ -286,12 +348,24 @@ FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *st) {
     if (!s) return fmi2Error;
     if (!s->inner) return refuse(s, "fmi2FreeFMUstate", fmi2Error);
     if (!st || !*st) return fmi2OK;
+    if (state_index(s, *st) < 0) {  /* a copy of a pointer freed already: nothing to free */
+        to_host(s, s->name, fmi2Warning, "logStatusWarning",
+                "fmi2FreeFMUstate ignored: the FMU state is not one this instance holds (freed already?)");
+        *st = NULL;
+        return fmi2Warning;
+    }
     if (!fn) fn = (fmi2FreeFMUstateTYPE *)real("fmi2FreeFMUstate");
     if (!fn) return refuse(s, "fmi2FreeFMUstate", fmi2Error);
     pin_thread();
     s->worst = fmi2OK;
-    status = settle(s, fn(s->inner, st));
-    if (status <= fmi2Warning) *st = NULL;
+    {
+        fmi2FMUstate freed = *st;
+        status = settle(s, fn(s->inner, st));
+        if (status <= fmi2Warning) {
+            state_freed(s, freed);
+            *st = NULL;
+        }
+    }
     return status;
 }
 
@@ -300,11 +374,15 @@ FMI2_Export fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *st) {
    such call leaks a state; masters that rewind reuse one pointer). */
 static fmi2Status replace_state(Shim *s, fmi2FMUstate *st, fmi2FMUstate old, fmi2Status status) {
     static fmi2FreeFMUstateTYPE *release;
-    if (status > fmi2Warning || !old || old == *st) return status;
+    if (status > fmi2Warning) return status;
+    state_given(s, *st);
+    /* only a state this instance holds is freed: a host's stale pointer in *st is not ours to free */
+    if (!old || old == *st || state_index(s, old) < 0) return status;
     if (!release) release = (fmi2FreeFMUstateTYPE *)real("fmi2FreeFMUstate");
     if (release) {
         s->worst = fmi2OK;
         settle(s, release(s->inner, &old));
+        state_freed(s, old);
     }
     return status;
 }

@@ -299,3 +299,113 @@ def test_percent_encoded_folder_names_reach_pythonfmu_decoded(built_fmus, tmp_pa
     else:
         # '%%': without fmpy's logging helper (aarch64) the host prints the shim's format unformatted
         assert "refused 3" in proc.stdout and re.search(r'holds "%%?20" in a name', proc.stdout + proc.stderr)
+
+
+STATES = r'''
+import gc, sys
+import fmpy
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2FMUstate)
+path = sys.argv[1]
+md = read_model_description(path)
+folder = extract(path)
+log = []
+cb = fmi2CallbackFunctions()
+cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(msg.decode()))
+cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+def make(name):
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    f.instantiate(callbacks=cb, loggingOn=False)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    f.doStep(0.0, 0.1)
+    return f
+a, b = make("a"), make("b")
+kept = a.getFMUstate()
+state = a.getFMUstate()
+freed = fmi2FMUstate(state.value)  # a host's copy of the pointer: freeing clears only the one passed
+a.freeFMUstate(state)
+statuses = []
+for call in (lambda: a.setFMUstate(fmi2FMUstate()), lambda: a.setFMUstate(freed),
+             lambda: b.setFMUstate(kept), lambda: a.serializeFMUstate(fmi2FMUstate()),
+             lambda: a.serializeFMUstate(freed)):
+    try:
+        call()
+        statuses.append("ok")
+    except Exception as exc:
+        statuses.append(type(exc).__name__)
+junk = [[i] for i in range(200000)]
+gc.collect()
+a.setFMUstate(kept)  # the state the instance holds still restores
+a.doStep(0.1, 0.1)
+a.freeFMUstate(kept)
+for f in (a, b):
+    f.terminate()
+    f.freeInstance()
+gc.collect()
+print(statuses)
+print(sum("the FMU state is NULL" in m for m in log), sum("not one this instance gave out" in m for m in log))
+'''
+
+
+@pytest.mark.parametrize("name", ["MusclePlant", "AMPCController"])
+def test_a_null_freed_or_other_instances_state_is_refused_and_the_host_lives_on(built_fmus, tmp_path, name):
+    """pythonfmu builds a Python object from whatever state pointer it gets: a NULL, freed or other
+    instance's state crashed the host a few calls later (segfault in the garbage collector). The shim
+    refuses each with fmi2Error and a message; the states the instance holds keep working."""
+    script = tmp_path / "states.py"
+    script.write_text(STATES)
+    run = subprocess.run([sys.executable, str(script), str(built_fmus[name])], capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    statuses, counts = run.stdout.strip().splitlines()[-2:]
+    assert statuses == str(["FMICallException"] * 5)
+    assert counts == "2 3"
+
+
+NAMELESS = r'''
+import sys
+from ctypes import byref
+import fmpy
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+from pathlib import Path
+path = sys.argv[1]
+md = read_model_description(path)
+folder = extract(path)
+log = []
+cb = fmi2CallbackFunctions()
+cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(msg.decode()))
+cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier)
+uri = (Path(folder) / "resources").as_uri().encode()
+for name, kind in ((None, 1), (b"", 1), (b"me", 0)):
+    c = f.fmi2Instantiate(name, kind, md.guid.encode(), uri, byref(cb), 0, 0)
+    try:
+        status = f.fmi2DoStep(c, 0.0, 0.1, 1)
+    except Exception as exc:
+        status = exc.status
+    print(bool(c), status)
+    f.fmi2FreeInstance(c)
+print(log[0]); print(log[-2])
+'''
+
+
+def test_an_instance_without_a_name_or_for_model_exchange_is_refused(built_fmus, tmp_path):
+    """A NULL instanceName aborted the host (C++ std::string from NULL); a model-exchange request got a
+    working co-simulation instance. Both now get the shim's refusing instance, with the reason."""
+    script = tmp_path / "nameless.py"
+    script.write_text(NAMELESS)
+    run = subprocess.run([sys.executable, str(script), str(built_fmus["MusclePlant"])], capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    lines = run.stdout.strip().splitlines()
+    assert lines[:3] == ["True 3"] * 3  # an instance, refusing to step with fmi2Error
+    assert "instanceName is NULL or empty" in lines[3]
+    assert "fmuType 0: this FMU is for co-simulation only" in lines[4]
