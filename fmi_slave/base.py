@@ -511,9 +511,18 @@ class SafeSlave(Fmi2Slave):
         time_s = float(state["time"])
         if not math.isfinite(time_s):
             raise ValueError(f"time = {time_s!r} is not finite")
+        current = super()._get_fmu_state()
+        # a state of an instance with other parameters (a rig of another length, another method): the
+        # numerics are built again from the state's, or they would step this instance's
+        rebuild = state["numerics"] is not None and self.numerics_state() is not None and any(
+            state["variables"].get(v.name) != current[v.name]
+            for v in self.vars.values() if v.causality == Fmi2Causality.parameter)
         initialised, self._initialised = self._initialised, False  # a state sets the fixed parameters too
         try:
             super()._set_fmu_state(state["variables"])
+            if rebuild:
+                self.initialize_numerics()
+                super()._set_fmu_state(state["variables"])  # the outputs as saved, not as just built
         finally:
             self._initialised = initialised
         self.restore_numerics_state(state["numerics"])

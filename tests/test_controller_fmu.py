@@ -131,6 +131,31 @@ def test_state_rewind_and_serialisation_are_bit_identical(fmu, ints):
     _free(f)
 
 
+def test_a_state_of_an_instance_with_another_method_steps_with_it(fmu):
+    """A state of an MPC-UCP instance restored into an AMPC-servo one: refused before with a TypeError
+    about its content; the controller is built again from the state's parameters and runs as the
+    instance it came from, bit for bit."""
+    vr = fmu[3]
+    a = _instance(fmu, "a", ints={"method": 1})
+    b = _instance(fmu, "b")
+
+    def run(f, k0):
+        out = []
+        for k in range(k0, k0 + 30):
+            f.setReal([vr["l"]], [_l(k)])
+            f.doStep(k * 0.1, 0.1)
+            out.append(f.getReal([vr["u"], vr["xs"]]))
+        return out
+
+    run(a, 0)
+    run(b, 0)
+    state = a.serializeFMUstate(a.getFMUstate())
+    expected = run(a, 30)
+    b.setFMUstate(b.deSerializeFMUstate(state))
+    assert run(b, 30) == expected
+    _free(a, b)
+
+
 def test_steps_shorter_than_ts_hold_the_outputs_and_sample_on_the_grid(fmu):
     vr = fmu[3]
     coarse, fine = _instance(fmu, "coarse"), _instance(fmu, "fine")
