@@ -20,6 +20,11 @@ Decisions the paper leaves open:
 * **Small step response.** If the model's ``|S(Hp)|`` falls below ``min_step_response_mm`` (a
   degenerate estimate), the linear part's ``b1 (1 + a1 + ...)`` step response is used instead, so
   Eq. (13) never divides by ~0.
+* **A prediction that diverges.** Held for a long horizon (``Hp`` = 20 and more), the adapted
+  nonlinear model's prediction can grow without bound (its cubic ``g(l)`` outside the range it was
+  fitted on) and overflow. The move is then taken on the linear part ``a1, a2, b1`` alone, the model
+  Eq. (1) reduces to without hysteresis, rather than failing the step; if that diverges too, the
+  command is held.
 """
 
 from __future__ import annotations
@@ -135,12 +140,28 @@ def ucp_move(settings: UCPSettings, state: ModelState, theta: np.ndarray, *, u_p
     r_target_mm : float
         ``r(k+Hp|k)`` [mm].
     """
-    hp = settings.hp
     theta = np.asarray(theta, dtype=float)
     if theta.shape != (state.structure.n_params,):
         raise ValueError(f"theta must have shape ({state.structure.n_params},), got {theta.shape}")
-    lin = theta[:3].tolist()
     u_prev_v = float(u_prev_v)
+    linear = np.concatenate([theta[:3], np.zeros(theta.size - 3)])
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is caught as a non-finite value
+        for predictor in (theta, linear):
+            try:
+                return _move(settings, state, predictor, u_prev_v, r_target_mm)
+            except ValueError:  # diverged (module docstring)
+                continue
+    # an unstable linear part as well: the command is held, the prediction is the reading
+    held = min(max(u_prev_v, settings.u_min_v), settings.u_max_v) if math.isfinite(u_prev_v) else settings.u_min_v
+    l_now = state.history[2]
+    return UCPResult(held, l_now, settings.min_step_response_mm, np.full(settings.hp, l_now), held != u_prev_v)
+
+
+def _move(settings: UCPSettings, state: ModelState, theta: np.ndarray, u_prev_v: float,
+          r_target_mm: float) -> UCPResult:
+    """:func:`ucp_move` with the predictor ``theta``; ``ValueError`` if its prediction diverges."""
+    hp = settings.hp
+    lin = theta[:3].tolist()
     free = _held(state, theta, lin, u_prev_v, hp)
     stepped = _held(state, theta, lin, u_prev_v + 1.0, hp)
     s = stepped[-1] - free[-1]

@@ -72,3 +72,26 @@ def test_held_input_prediction_equals_stepping_the_model():
         assert predict_held_input(s, THETA, u, 4).tolist() == want
     with pytest.raises(ValueError, match="u must be finite"):
         predict_held_input(_state(), THETA, float("nan"), 2)
+
+
+@pytest.mark.parametrize("a1", [0.9, 3.0])  # a stable linear part; an unstable one as well
+def test_a_prediction_that_diverges_still_gives_a_finite_move_within_the_limits(a1):
+    """A long horizon with a cubic g(l) far outside its fitted range overflows (the controller FMU
+    stopped with 'l must be finite, got nan' at ucp.Hp = 20): the move falls back on the linear part,
+    and with that unstable too, holds the command."""
+    theta = ASYMMETRIC.from_dict({"a1": a1, "a2": 0.0, "b1": 0.5, "xi31": 5.0, "xi32": 5.0})
+    settings = UCPSettings(hp=50)
+    with np.errstate(all="raise"):  # no overflow warning reaches the host either
+        res = ucp_move(settings, _state(), theta, u_prev_v=5.0, r_target_mm=40.0)
+    assert 0.0 <= res.u_v <= 10.0 and np.all(np.isfinite(res.predicted_mm)) and res.predicted_mm.shape == (50,)
+    assert np.isfinite(res.free_response_mm) and np.isfinite(res.step_response_mm_per_v)
+    if a1 < 1.0:  # the linear part's move: r reached at Hp in the linear model
+        assert res.predicted_mm[-1] == pytest.approx(40.0, abs=1e-6) or res.saturated
+
+
+def test_ampc_ucp_with_a_long_horizon_runs_through():
+    import tapmuscle as tm
+
+    s = tm.ControllerSettings(method="ampc_ucp", ucp=UCPSettings(hp=20), input_delay_samples=-1)
+    run = tm.simulate_closed_loop("ampc_ucp", None, duration_s=45.0, settings=s)
+    assert np.all(np.isfinite(run["u_v"])) and run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
