@@ -420,3 +420,13 @@ def test_a_corrupt_results_file_is_named(tmp_path, content):
     path.write_bytes(content)
     with pytest.raises(ScenarioError, match=f"{path}"):
         ResultsLog(path, ("run_id", "status")).rows()
+
+
+def test_a_whole_number_is_the_same_run_however_it_is_written():
+    """``68`` and ``68.0`` are one load: the same run id (a resume after editing one into the other
+    recomputes nothing), and both in one grid are the duplicate the sweep refuses."""
+    ints = parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [44, 68]}}, source="a")
+    floats = parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [44.0, 68.0]}}, source="b")
+    assert [r.run_id for r in ints.runs] == [r.run_id for r in floats.runs]
+    with pytest.raises(ScenarioError, match=r"the same scenario as run 0"):
+        parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [68, 68.0]}}, source="c")

@@ -121,9 +121,22 @@ def set_field(data: dict[str, Any], field: str, value: Any) -> None:
     node[leaf] = value
 
 
+def _canonical(value: Any) -> Any:
+    """``value`` with a whole float written as the integer TOML reads for it (``68.0`` as ``68``):
+    the same number is the same scenario however the file spells it."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, Mapping):
+        return {k: _canonical(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    return value
+
+
 def run_id_of(data: Mapping[str, Any]) -> str:
-    """The run id of a raw scenario table: 12 hex digits of SHA-256 over its canonical JSON."""
-    core = {k: v for k, v in data.items() if k not in ("name", "description", "expect")}
+    """The run id of a raw scenario table: 12 hex digits of SHA-256 over its canonical JSON (whole
+    numbers written alike, :func:`_canonical`)."""
+    core = {k: _canonical(v) for k, v in data.items() if k not in ("name", "description", "expect")}
     text = json.dumps(core, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:12]
 
