@@ -430,3 +430,14 @@ def test_a_whole_number_is_the_same_run_however_it_is_written():
     assert [r.run_id for r in ints.runs] == [r.run_id for r in floats.runs]
     with pytest.raises(ScenarioError, match=r"the same scenario as run 0"):
         parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [68, 68.0]}}, source="c")
+
+
+def test_seeds_are_sampled_over_the_whole_unsigned_64_bit_range():
+    """Seeds are unsigned 64-bit: ``integers = [0, 2**64 - 1]`` gave numpy's bare 'high is out of
+    bounds for int64'; a range beyond 64 bits is named with its key."""
+    mc = {"n": 20, "sample_seed": 1, "seed": {"integers": [0, 2**64 - 1]}}
+    sweep = parse_sweep({"base": dict(SHORT), "monte_carlo": mc}, source="big")
+    seeds = [r.scenario.seed for r in sweep.runs]
+    assert all(0 <= s < 2**64 for s in seeds) and max(seeds) >= 2**63  # the upper half is reached (20 draws)
+    with pytest.raises(ScenarioError, match=r"big: key 'monte_carlo.seed.integers': .* is beyond 64-bit integers"):
+        parse_sweep({"base": dict(SHORT), "monte_carlo": {**mc, "seed": {"integers": [-1, 2**64 - 1]}}}, source="big")

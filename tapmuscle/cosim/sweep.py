@@ -232,8 +232,13 @@ def _monte_carlo(data: Mapping[str, Any], source: str) -> tuple[list[str], list[
             lo, hi = (_number(source, f"{key}.{kind}", v, integer=integer) for v in arg)
             if lo > hi or (not integer and lo == hi):
                 raise _error(source, f"{key}.{kind}", f"needs lo < hi, got {arg!r}")
-            column = ([int(v) for v in rng.integers(lo, hi + 1, n)] if integer
-                      else [float(v) for v in rng.uniform(lo, hi, n)])
+            if integer and not (-2**63 <= lo and hi < 2**63 or 0 <= lo and hi < 2**64):
+                raise _error(source, f"{key}.{kind}", f"{arg!r} is beyond 64-bit integers (seeds: 0 .. 2**64 - 1)")
+            if integer and hi >= 2**63:  # unsigned 64-bit seeds
+                column = [int(v) for v in rng.integers(lo, hi, n, dtype=np.uint64, endpoint=True)]
+            else:
+                column = ([int(v) for v in rng.integers(lo, hi + 1, n)] if integer
+                          else [float(v) for v in rng.uniform(lo, hi, n)])
         fields.append(field)
         columns.append(column)
     if not fields:
