@@ -35,3 +35,20 @@ def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
 def test_version_from_the_installed_command_needs_no_subcommand():
     done = subprocess.run([sys.executable, "-m", "tapmuscle", "--version"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.startswith(f"tapmuscle {tapmuscle.__version__} (Python "), done
+
+
+def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):
+    """``tapmuscle record ... | head -0``: the reader is gone when the summary line is printed. The file
+    is written; the exit is 141 (a closed pipe), quietly, not 'error: [Errno 32] Broken pipe' and 2."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "rec.csv"
+    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "record", "--input", "const:value=5",
+                             "--duration", "2", "--out", str(out), "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # the reader goes away before anything is printed
+    stderr = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait(timeout=120) == 141, stderr
+    assert stderr == "" and out.is_file()

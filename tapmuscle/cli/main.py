@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -436,6 +437,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader of the printed lines went away (tapmuscle ... | head): not bad input, and the
+        # files are written; stdout to /dev/null so that the exit's flush raises nothing either
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (OSError, ValueError, AttributeError):
+            pass
+        return 141  # 128 + SIGPIPE, as a shell reports a command ended by a closed pipe
     except (OSError, ValueError) as exc:
         print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
         return 2
