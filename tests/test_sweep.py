@@ -441,3 +441,23 @@ def test_seeds_are_sampled_over_the_whole_unsigned_64_bit_range():
     assert all(0 <= s < 2**64 for s in seeds) and max(seeds) >= 2**63  # the upper half is reached (20 draws)
     with pytest.raises(ScenarioError, match=r"big: key 'monte_carlo.seed.integers': .* is beyond 64-bit integers"):
         parse_sweep({"base": dict(SHORT), "monte_carlo": {**mc, "seed": {"integers": [-1, 2**64 - 1]}}}, source="big")
+
+
+def test_a_local_cluster_gets_no_more_workers_than_runs(capsys):
+    """``--workers 1000`` for two runs started a thousand processes (minutes of start-up, leaked
+    semaphores): the local cluster gets one worker per run at most, and more than the CPUs is said."""
+    import argparse
+    import os
+
+    from tapmuscle.cli.sweep import _local_workers
+
+    args = argparse.Namespace(scheduler=None, workers=1000)
+    _local_workers(args, 2)
+    assert args.workers == 2 and f"--workers 1000 on {os.cpu_count()} CPUs" in capsys.readouterr().err
+    for given, runs, expected in ((0, 5, 0), (1, 5, 1), (1, 0, 1)):
+        args = argparse.Namespace(scheduler=None, workers=given)
+        _local_workers(args, runs)
+        assert args.workers == expected
+    args = argparse.Namespace(scheduler="tcp://host:8786", workers=64)  # a cluster's own size: untouched
+    _local_workers(args, 2)
+    assert args.workers == 64

@@ -29,6 +29,18 @@ def _fmus(fmu_dir: str | None) -> dict[str, Path]:
     return fmus
 
 
+def _local_workers(args: argparse.Namespace, n_runs: int) -> None:
+    """A local cluster of at most one worker per run: a worker process costs seconds to start and
+    memory, and one beyond the runs has nothing to do; beyond the CPUs they share the cores."""
+    if args.scheduler or not args.workers:
+        return
+    cpus = os.cpu_count() or 1
+    if args.workers > cpus:
+        print(f"--workers {args.workers} on {cpus} CPUs: the workers share the cores (no run finishes sooner)",
+              file=sys.stderr)
+    args.workers = max(1, min(args.workers, n_runs))
+
+
 def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     """In this process (``--workers 0`` without ``--scheduler``) or on Dask (a local cluster of
     ``--workers`` processes, or the cluster of ``--scheduler``)."""
@@ -66,6 +78,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if args.workers is None:
         args.workers = os.cpu_count() or 1
+    _local_workers(args, len(sweep.runs))
     fmus = _fmus(args.fmu_dir)
     out = Path(args.out)
     if not args.quiet:
@@ -120,6 +133,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
             tasks = [make_task(str(i), case.scenario, fmus, files) for i, case in enumerate(cases)]
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
+        _local_workers(args, len(tasks))
         execute = _executor(args, stack)
         runs, failed = {}, 0
         try:
