@@ -461,3 +461,13 @@ def test_a_local_cluster_gets_no_more_workers_than_runs(capsys):
     args = argparse.Namespace(scheduler="tcp://host:8786", workers=64)  # a cluster's own size: untouched
     _local_workers(args, 2)
     assert args.workers == 64
+
+
+def test_a_base_file_whose_name_has_brackets_is_that_file(tmp_path):
+    """``base = "run [v2].toml"`` was read as a glob pattern (``[v2]`` a character class) and matched no
+    file although the file exists: an existing file is taken as named."""
+    folder = tmp_path / "rig [v2]"
+    folder.mkdir()
+    (folder / "base [a].toml").write_text('duration_s = 12.0\nevaluation_samples = [20, 120]\n')
+    path = _write(folder, 'base = "base [a].toml"\n[grid]\nseed = [0, 1]\n')
+    assert [r.scenario.duration_s for r in load_sweep(path).runs] == [12.0, 12.0]

@@ -160,7 +160,7 @@ def _bases(data: Mapping[str, Any], source: str, folder: Path | None,
     bases = []
     for item in items:
         pattern = item if Path(item).is_absolute() or folder is None else str(folder / item)
-        if any(c in item for c in "*?["):
+        if any(c in item for c in "*?[") and not Path(pattern).is_file():  # a file named "run [v2].toml" is itself
             paths = sorted(Path(p) for p in glob.glob(pattern))
             if not paths:
                 raise _error(source, "base", f"pattern {item!r} matches no file")
