@@ -301,8 +301,11 @@ def test_percent_encoded_folder_names_reach_pythonfmu_decoded(built_fmus, tmp_pa
         assert "refused 3" in proc.stdout and re.search(r'holds "%%?20" in a name', proc.stdout + proc.stderr)
 
 
-STATES = r'''
+#: A host script's start: the FMU of argv[1] extracted, callbacks whose messages go to ``log``.
+PRELUDE = r'''
 import gc, sys
+from ctypes import byref
+from pathlib import Path
 import fmpy
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
@@ -315,6 +318,9 @@ cb = fmi2CallbackFunctions()
 cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(msg.decode()))
 cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
 cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+'''
+
+STATES = PRELUDE + r'''
 def make(name):
     f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
                   instanceName=name)
@@ -367,22 +373,7 @@ def test_a_null_freed_or_other_instances_state_is_refused_and_the_host_lives_on(
     assert counts == "2 3"
 
 
-NAMELESS = r'''
-import sys
-from ctypes import byref
-import fmpy
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-from pathlib import Path
-path = sys.argv[1]
-md = read_model_description(path)
-folder = extract(path)
-log = []
-cb = fmi2CallbackFunctions()
-cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(msg.decode()))
-cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+NAMELESS = PRELUDE + r'''
 f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier)
 uri = (Path(folder) / "resources").as_uri().encode()
 for name, kind in ((None, 1), (b"", 1), (b"me", 0)):
