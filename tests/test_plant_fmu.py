@@ -69,17 +69,22 @@ def test_a_seed_is_unsigned_64_bit_in_the_fmu_as_directly(fmu):
     assert len({tuple(v) for v in runs.values()}) == len(runs)  # five seeds, five noise sequences
 
 
+def _run(f, vr, k0):
+    """30 samples of the sine command from sample ``k0``: ``[l, p]`` after each step."""
+    out = []
+    for k in range(k0, k0 + 30):
+        f.setReal([vr["u"]], [_sine(k)])
+        f.doStep(k * 0.1, 0.1)
+        out.append(f.getReal([vr["l"], vr["p"]]))
+    return out
+
+
 def test_state_rewind_and_serialisation_are_bit_identical(fmu):
     vr = fmu[3]
     f = _instance(fmu)
 
     def run(k0):
-        out = []
-        for k in range(k0, k0 + 30):
-            f.setReal([vr["u"]], [_sine(k)])
-            f.doStep(k * 0.1, 0.1)
-            out.append(f.getReal([vr["l"], vr["p"]]))
-        return out
+        return _run(f, vr, k0)
 
     run(0)
     state = f.getFMUstate()
@@ -99,22 +104,13 @@ def test_a_state_of_an_instance_with_other_parameters_steps_with_them(fmu):
     vr = fmu[3]
     a = _instance(fmu, "a", reals={"muscle.rest_length_mm": 300.0, "friction.base_n": 20.0})
     b = _instance(fmu, "b")
-
-    def run(f, k0):
-        out = []
-        for k in range(k0, k0 + 30):
-            f.setReal([vr["u"]], [_sine(k)])
-            f.doStep(k * 0.1, 0.1)
-            out.append(f.getReal([vr["l"], vr["p"]]))
-        return out
-
-    run(a, 0)
-    run(b, 0)
+    _run(a, vr, 0)
+    _run(b, vr, 0)
     state = a.serializeFMUstate(a.getFMUstate())
-    expected = run(a, 30)
+    expected = _run(a, vr, 30)
     b.setFMUstate(b.deSerializeFMUstate(state))
     assert b.getReal([vr["muscle.rest_length_mm"]]) == [300.0]
-    assert run(b, 30) == expected
+    assert _run(b, vr, 30) == expected
     for f in (a, b):
         f.terminate()
         f.freeInstance()
