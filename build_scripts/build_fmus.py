@@ -31,7 +31,7 @@ import zipfile
 from importlib import metadata
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 from .model_description import content_guid, finish_model_description
 from .native_host import EXPORT_VARIABLE
@@ -185,7 +185,7 @@ def _pythonfmu_build(entry: Path, package: Path, dest: Path) -> Path:
         sys.modules.update(loaded)
 
 
-def build_fmus(out: str | Path, names: str | tuple[str, ...] | None = None) -> list[Path]:
+def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> list[Path]:
     """Build the FMUs ``names`` (default: all of :data:`FMUS`; one name alone counts as one) into
     ``out``; returns their paths."""
     if isinstance(names, str):

@@ -501,17 +501,19 @@ class SafeSlave(Fmi2Slave):
             return
         before = self._snapshot()
         try:
-            self._restore(state)
+            self._restore(state, before["variables"])
         except Exception as exc:  # noqa: BLE001 - a malformed state: put everything back as it was
             self._restore(before)
             self.log(f"not an FMU state of this FMU ({type(exc).__name__}: {exc}); nothing was changed",
                      status=Fmi2Status.error)
 
-    def _restore(self, state: dict[str, Any]) -> None:
+    def _restore(self, state: dict[str, Any], current: dict[str, Any] | None = None) -> None:
+        """Restore ``state``; ``current``: this instance's variables now, if already read."""
         time_s = float(state["time"])
         if not math.isfinite(time_s):
             raise ValueError(f"time = {time_s!r} is not finite")
-        current = super()._get_fmu_state()
+        if current is None:
+            current = super()._get_fmu_state()
         # a state of an instance with other parameters (a rig of another length, another method): the
         # numerics are built again from the state's, or they would step this instance's
         rebuild = state["numerics"] is not None and self.numerics_state() is not None and any(

@@ -179,8 +179,7 @@ def as_reference(reference: "Reference | Callable[[float], float] | np.ndarray |
     """
     if reference is None:
         return SineReference(ts_s=ts_s)
-    if isinstance(reference, (SineReference, ArrayReference, FunctionReference)) or (
-            hasattr(reference, "ts_s") and hasattr(reference, "preview") and hasattr(reference, "at")):
+    if all(hasattr(reference, a) for a in ("ts_s", "at", "preview")):  # a Reference (the protocol)
         if abs(reference.ts_s - ts_s) > 1e-12 * ts_s:
             raise ValueError(f"the reference's ts_s = {reference.ts_s!r} s differs from the loop's ts_s = {ts_s!r} s")
         return reference

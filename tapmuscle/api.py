@@ -17,7 +17,6 @@ import numpy as np
 
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
-from fmu_controller.reference import as_reference
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
@@ -166,10 +165,9 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     elif settings.method != method or abs(settings.ts_s - ts) > 1e-12 * ts:
         raise ValueError(f"settings.method = {settings.method!r}, settings.ts_s = {settings.ts_s!r} s disagree "
                          f"with method = {method!r}, ts_s = {ts!r} s")
-    ref = as_reference(reference, ts)
     plant = _plant(params, None if callable(load_n) else load_n, seed)
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
-    return run_closed_loop(plant, controller, ref, duration_s=duration_s,
+    return run_closed_loop(plant, controller, reference, duration_s=duration_s,
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples)
 
 
@@ -190,7 +188,7 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
     """
     from build_scripts.build_fmus import build_fmus as _build
 
-    return _build(out, names if isinstance(names, str) or names is None else tuple(names))
+    return _build(out, names)
 
 
 def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, out: str | Path | None = None,
