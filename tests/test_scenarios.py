@@ -131,6 +131,40 @@ def test_paper_scenario_files_match_the_paper_runs():
             assert s.controller.parameters["P0.a1"] == 1000  # Table 8
 
 
+@pytest.mark.parametrize("duration, step, window", [
+    (40.1, 0.1, (101, 401)), (90.0, 0.1, (101, 401)),
+    (40.0, 0.1, (101, 400)),   # ends before 40.1 s: scored from 10.1 s to its end, not from its start
+    (20.0, 0.05, (202, 400)),  # the window is in seconds: 10.1 s is sample 202 at a step of 0.05 s
+    (10.1, 0.1, (0, 101)), (5.0, 0.1, (0, 50)),  # all start-up: every sample
+])
+def test_the_default_evaluation_window_is_eq21s_in_seconds(duration, step, window):
+    s = parse_scenario({"duration_s": duration, "step_s": step}, source="t")
+    assert s.evaluation_samples == window
+
+
+def test_an_evaluation_window_in_seconds_is_on_the_step_grid():
+    s = parse_scenario({"duration_s": 50.0, "step_s": 0.05, "evaluation_window_s": [15.0, 50.0]}, source="t")
+    assert s.evaluation_samples == (300, 1000)
+    summary = summarise(s, {"t_s": np.arange(1001) * 0.05, "r_mm": np.zeros(1001), "l_mm": np.ones(1001),
+                            "u_v": np.zeros(1001), "wall_time_s": np.array(1.0)}, {})
+    assert summary["evaluation_window_s"] == [15.0, 50.0] and summary["mae_mm"] == 1.0
+
+
+def test_the_step_example_steps_after_the_start_up(built_fmus):
+    s = load_scenario(PAPER_SCENARIOS.parent / "examples" / "steps_external.toml")
+    cols = co_simulate(s, built_fmus)
+    t, r, l = cols["t_s"], cols["r_mm"], cols["l_mm"]
+    changes = np.flatnonzero(np.diff(r)) + 1
+    assert t[changes[0]] >= 12.0  # the start-up blend ends at 12 s
+    for k0, k1 in zip(changes, [*changes[1:], len(t)]):
+        step = r[k0] - r[k0 - 1]
+        # each step settles within 0.5 mm and overshoots by less than a quarter of the step (a step
+        # inside the blend overshoots by 90 % of it)
+        assert abs(l[k1 - 10] - r[k0]) < 0.5
+        overshoot = np.max((l[k0:k1] - r[k0]) * np.sign(step))
+        assert overshoot < 0.25 * abs(step), (t[k0], overshoot)
+
+
 @pytest.mark.slow
 def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
     fmu_dir = built_fmus["MusclePlant"].parent
@@ -172,7 +206,13 @@ def test_external_step_reference_is_tracked(built_fmus):
     ("duration_s = 10.0\nspeed = 3\n", "speed", "unknown key"),
     ("duration_s = 'long'\n", "duration_s", "must be a number"),
     ("duration_s = -1.0\n", "duration_s", "is outside"),
-    ("duration_s = 10.0\nevaluation_samples = [101, 401]\n", "evaluation_samples", "past the last sample"),
+    ("duration_s = 10.0\nevaluation_samples = [101, 401]\n", "evaluation_samples", "past the run's last sample"),
+    ("duration_s = 10.0\nevaluation_window_s = [2.0, 10.5]\n", "evaluation_window_s", "past the run's last sample"),
+    ("duration_s = 10.0\nevaluation_window_s = [2.05, 8.0]\n", "evaluation_window_s",
+     "2.05 s is not a sample time of step_s = 0.1 s"),
+    ("duration_s = 10.0\nevaluation_window_s = [8.0, 2.0]\n", "evaluation_window_s", "0 <= t0 <= t1"),
+    ("duration_s = 10.0\nevaluation_window_s = [2.0, 8.0]\nevaluation_samples = [20, 80]\n",
+     "evaluation_window_s", "not both"),
     ("duration_s = 10.0\n[controller]\nmethod = 'pid'\n", "controller.method", "is not one of"),
     ("duration_s = 10.0\n[controller]\nfmu = 'nowhere.fmu'\n", "controller.fmu", "does not exist"),
     ("duration_s = 10.0\n[controller.parameters]\nmethod = 2\n", "controller.parameters.method",

@@ -285,8 +285,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet))
     except ScenarioError as exc:
         raise UsageError(str(exc)) from None
-    print(f"{scenario.name}: Eq. (21) error {summary['mae_mm']:.3f} mm over samples "
-          f"{summary['evaluation_samples'][0]}..{summary['evaluation_samples'][1]}, u in "
+    (k0, k1), (t0, t1) = summary["evaluation_samples"], summary["evaluation_window_s"]
+    print(f"{scenario.name}: Eq. (21) error {summary['mae_mm']:.3f} mm over {t0:g}..{t1:g} s (samples "
+          f"{k0}..{k1}), u in "
           f"[{summary['u_min_v']:.2f}, {summary['u_max_v']:.2f}] V, real-time factor "
           f"{summary['real_time_factor']:.0f}x")
     print(f"wrote {Path(out) / 'result.csv'}, {Path(out) / 'summary.json'} and {Path(out) / '*.png'}")

@@ -9,8 +9,10 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     duration_s = 45.0
     step_s = 0.1                           # macro (communication) step = controller Ts
     seed = 0                               # plant sensor-noise seed
-    evaluation_samples = [101, 401]        # Eq. (21) window k0..k1 (inclusive); default 101..401, or
-                                           # every sample of a run shorter than 40.1 s
+    evaluation_window_s = [10.1, 40.1]     # Eq. (21) window t0..t1 [s] (inclusive), the default: the
+                                           # paper's k = 101..401 at Ts = 0.1 s, ending at the run's end
+                                           # when that comes first (a run of <= 10.1 s: every sample);
+                                           # or evaluation_samples = [k0, k1] (sample numbers)
 
     [plant]
     fmu = "MusclePlant.fmu"                # optional, relative to this file; default: built from the sources
@@ -145,8 +147,50 @@ class Scenario:
 #: Most samples of one scenario run (24 h at Ts = 0.1 s).
 MAX_RUN_SAMPLES = 864_001
 
-_TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "plant", "controller",
-        "reference", "load", "supply", "expect"}
+_TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "evaluation_window_s",
+        "plant", "controller", "reference", "load", "supply", "expect"}
+
+
+#: Eq. (21)'s window in seconds: the paper's samples k = 101..401 at Ts = 0.1 s.
+EQ21_WINDOW_S = (10.1, 40.1)
+
+
+def _evaluation_window(top: "_Reader", data: Mapping[str, Any], n: int, step: float,
+                       duration: float) -> list[int]:
+    """The evaluation window ``[k0, k1]`` (samples, inclusive) of a scenario.
+
+    By default Eq. (21)'s 10.1..40.1 s, in seconds whatever ``step_s`` is, ending at the run's end when
+    that comes first, so a 40.0-s run is scored like a 40.1-s one; a run that ends by 10.1 s (all of it
+    start-up) is evaluated whole. ``evaluation_samples = [k0, k1]`` or ``evaluation_window_s = [t0, t1]``
+    (times on the ``step_s`` grid) choose another.
+    """
+    if "evaluation_samples" in data and "evaluation_window_s" in data:
+        raise top.error("evaluation_window_s", "give the window either in samples (evaluation_samples) or in "
+                                               "seconds (evaluation_window_s), not both")
+    if "evaluation_window_s" in data:
+        key, times = "evaluation_window_s", data["evaluation_window_s"]
+        if (not isinstance(times, list) or len(times) != 2
+                or not all(isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t) for t in times)
+                or not 0 <= times[0] <= times[1]):
+            raise top.error(key, f"must be [t0, t1] with 0 <= t0 <= t1 finite numbers [s], got {times!r}")
+        window = [int(round(t / step)) for t in times]
+        for t, k in zip(times, window):
+            if abs(k * step - t) > 1e-6 * step:
+                raise top.error(key, f"{t:g} s is not a sample time of step_s = {step:g} s (nearest: "
+                                     f"{k * step:.12g} s)")
+    elif "evaluation_samples" in data:
+        key, window = "evaluation_samples", data["evaluation_samples"]
+        if (not isinstance(window, list) or len(window) != 2
+                or not all(isinstance(k, int) and not isinstance(k, bool) for k in window)
+                or not 0 <= window[0] <= window[1]):
+            raise top.error(key, f"must be [k0, k1] with 0 <= k0 <= k1 integers, got {window!r}")
+    else:
+        k0, k1 = (int(round(t / step)) for t in EQ21_WINDOW_S)
+        return [k0, min(k1, n - 1)] if k0 < n - 1 else [0, n - 1]
+    if window[1] >= n:
+        raise top.error(key, f"{window[1] * step:.12g} s (k1 = {window[1]}) is past the run's last sample "
+                             f"k = {n - 1} ({duration:g} s at step {step:g} s)")
+    return window
 
 
 class _Reader:
@@ -279,14 +323,7 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     if n > MAX_RUN_SAMPLES:
         raise top.error("duration_s", f"{duration:g} s at step_s = {step:g} s makes {n} samples; at most "
                                       f"{MAX_RUN_SAMPLES} in one run")
-    # Eq. (21)'s window by default; a run too short for it is evaluated whole.
-    window = data.get("evaluation_samples", [101, 401] if n > 401 else [0, n - 1])
-    if (not isinstance(window, list) or len(window) != 2 or not all(isinstance(k, int) and not isinstance(k, bool)
-                                                                   for k in window) or not 0 <= window[0] <= window[1]):
-        raise top.error("evaluation_samples", f"must be [k0, k1] with 0 <= k0 <= k1 integers, got {window!r}")
-    if window[1] >= n:
-        raise top.error("evaluation_samples", f"k1 = {window[1]} is past the last sample k = {n - 1} of a "
-                                              f"{duration:g} s run at step {step:g} s")
+    window = _evaluation_window(top, data, n, step, duration)
 
     plant_r = top.sub("plant")
     plant_r.check_keys({"fmu", "parameters", "parameters_file"})
