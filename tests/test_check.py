@@ -68,6 +68,35 @@ def test_check_reports_bad_files_and_empty_folders(tmp_path, capsys):
     assert "no such file or folder" in capsys.readouterr().err
 
 
+def test_bad_files_are_all_named_and_reach_the_junit_report(tmp_path, capsys):
+    """A CI looks for the failure in its test view: every file that cannot be read is an error there,
+    and nothing runs (as pytest does with a collection error)."""
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    (folder / "a_bad.toml").write_text('duration_s = 12.0\n[expect]\nmae_mm_maximum = 1\n')
+    (folder / "b_good.toml").write_text('duration_s = 12.0\n[expect]\nmae_mm_max = 5.0\n')
+    (folder / "c_bad.toml").write_text('duration_s = = 12.0\n')
+    junit = tmp_path / "report.xml"
+    junit.write_text("an earlier report")
+    assert main(["check", str(folder), str(tmp_path / "missing"), "--junit", str(junit), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    for name in ("a_bad.toml", "c_bad.toml", "missing"):
+        assert str(tmp_path / "cases" / name) in err or str(tmp_path / name) in err, err
+    assert "3 files could not be read; nothing was run" in err
+    root = ET.parse(junit).getroot()
+    assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("3", "0", "3")
+    errors = {c.get("name"): c.find("error") for c in root.iter("testcase")}
+    assert sorted(errors) == ["a_bad.toml", "c_bad.toml", "missing"]
+    assert "expect.mae_mm_maximum" in errors["a_bad.toml"].get("message")
+    assert errors["c_bad.toml"].get("type") == "ScenarioError" and str(folder / "c_bad.toml") in errors["c_bad.toml"].text
+    # a folder without expectations gets a report too: no tests, and the exit code says why
+    empty = tmp_path / "plain"
+    empty.mkdir()
+    (empty / "plain.toml").write_text('duration_s = 12.0\n')
+    assert main(["check", str(empty), "--junit", str(junit)]) == 2
+    assert ET.parse(junit).getroot().get("tests") == "0"
+
+
 @pytest.mark.slow
 def test_the_long_run_scenario_meets_its_expectation(built_fmus, capsys):
     """The 24-hour soak's CI scenario test: 30 min of AMPC-servo through the FMUs with the long-run

@@ -111,17 +111,24 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------------------------------ check
 def _cmd_check(args: argparse.Namespace) -> int:
     from tapmuscle.cosim import ScenarioError
-    from tapmuscle.cosim.check import collect_cases, evaluate, junit_xml, result_table
+    from tapmuscle.cosim.check import CollectionError, collect_cases, evaluate, junit_xml, result_table
     from tapmuscle.cosim.distributed_sweep import FmuFiles, make_task
 
     from tapmuscle.cli.progress import Progress
     from tapmuscle.io.recording import atomic_write_text
 
-    try:
-        cases, skipped = collect_cases(args.paths)
-    except ScenarioError as exc:
-        raise UsageError(str(exc)) from None
-    if not cases:
+    # As pytest does with a collection error: nothing runs, every bad file is named, and the JUnit
+    # report says so too (a CI's test view is where the failure is looked for).
+    errors: list[CollectionError] = []
+    cases, skipped = collect_cases(args.paths, errors=errors)
+    if errors or not cases:
+        if args.junit:
+            atomic_write_text(args.junit, junit_xml([], errors=errors))
+        for error in errors[:-1]:
+            print(f"error: {error.message}", file=sys.stderr)
+        if errors:
+            raise UsageError(errors[-1].message + (f" ({len(errors)} files could not be read; nothing was run)"
+                                                   if len(errors) > 1 else " (nothing was run)"))
         raise UsageError(f"no scenario with an [expect] table under {', '.join(args.paths)}")
     fmus = _fmus(args.fmu_dir)
     print(f"tapmuscle check: {len(cases)} scenarios with expectations"
@@ -132,6 +139,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
             files = FmuFiles.for_scenarios((c.scenario for c in cases), fmus)
             tasks = [make_task(str(i), case.scenario, fmus, files) for i, case in enumerate(cases)]
         except ScenarioError as exc:
+            if args.junit:
+                atomic_write_text(args.junit, junit_xml([], errors=[CollectionError("FMUs", str(exc))]))
             raise UsageError(str(exc)) from None
         _local_workers(args, len(tasks))
         execute = _executor(args, stack)

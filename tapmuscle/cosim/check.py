@@ -19,7 +19,7 @@ from tapmuscle.cosim.expect import Outcome, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError, parse_scenario, read_toml
 from tapmuscle.cosim.sweep import is_sweep_data, parse_sweep
 
-__all__ = ["CheckCase", "CheckResult", "collect_cases", "evaluate", "result_table", "junit_xml"]
+__all__ = ["CheckCase", "CheckResult", "CollectionError", "collect_cases", "evaluate", "result_table", "junit_xml"]
 
 
 @dataclass(frozen=True)
@@ -57,33 +57,77 @@ def _files(path: Path) -> list[Path]:
     raise ScenarioError(f"{path}: no such file or folder")
 
 
-def collect_cases(paths: Iterable[str | Path]) -> tuple[list[CheckCase], list[str]]:
+@dataclass(frozen=True)
+class CollectionError:
+    """A path whose cases could not be collected: a bad scenario or sweep file, a missing path."""
+
+    file: str
+    message: str
+    """The :class:`ScenarioError`'s message, naming the file and the key."""
+
+
+def collect_cases(paths: Iterable[str | Path], *,
+                  errors: list[CollectionError] | None = None) -> tuple[list[CheckCase], list[str]]:
     """The cases under ``paths`` (files, or folders searched for ``*.toml``), and the files without
-    expectations (skipped). A bad file raises ScenarioError naming it and the key."""
+    expectations (skipped).
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Scenario or sweep files, or folders.
+    errors : list, optional
+        Where a bad file or a missing path is appended as a :class:`CollectionError` and collection
+        goes on with the next file. Without it the first one raises.
+
+    Raises
+    ------
+    ScenarioError
+        A bad file (naming it and the key) or a missing path, without ``errors``.
+    """
     cases: list[CheckCase] = []
     skipped: list[str] = []
     seen: set[Path] = set()
     for path in paths:
-        for file in _files(Path(path)):
+        try:
+            files = _files(Path(path))
+        except ScenarioError as exc:
+            if errors is None:
+                raise
+            errors.append(CollectionError(str(path), str(exc)))
+            continue
+        for file in files:
             if file.resolve() in seen:
                 continue
             seen.add(file.resolve())
-            data = read_toml(file)
-            before = len(cases)
-            if is_sweep_data(data):
-                sweep = parse_sweep(data, source=str(file), folder=file.parent, default_name=file.stem)
-                for run in sweep.runs:
-                    if run.scenario.expect:
-                        label = ", ".join(f"{f}={v!r}" for f, v in run.params)
-                        cases.append(CheckCase(str(file), f"{sweep.name}/{run.scenario.name}"
-                                               + (f" [{label}]" if label else ""), run.scenario))
-            else:
-                scenario = parse_scenario(data, source=str(file), base=file.parent, default_name=file.stem)
-                if scenario.expect:
-                    cases.append(CheckCase(str(file), scenario.name, scenario))
-            if len(cases) == before:
+            try:
+                found = _file_cases(file)
+            except ScenarioError as exc:
+                if errors is None:
+                    raise
+                errors.append(CollectionError(str(file), str(exc)))
+                continue
+            cases += found
+            if not found:
                 skipped.append(str(file))
     return cases, skipped
+
+
+def _file_cases(file: Path) -> list[CheckCase]:
+    """The cases of one scenario or sweep file (those with expectations)."""
+    cases: list[CheckCase] = []
+    data = read_toml(file)
+    if is_sweep_data(data):
+        sweep = parse_sweep(data, source=str(file), folder=file.parent, default_name=file.stem)
+        for run in sweep.runs:
+            if run.scenario.expect:
+                label = ", ".join(f"{f}={v!r}" for f, v in run.params)
+                cases.append(CheckCase(str(file), f"{sweep.name}/{run.scenario.name}"
+                                       + (f" [{label}]" if label else ""), run.scenario))
+    else:
+        scenario = parse_scenario(data, source=str(file), base=file.parent, default_name=file.stem)
+        if scenario.expect:
+            cases.append(CheckCase(str(file), scenario.name, scenario))
+    return cases
 
 
 def evaluate(case: CheckCase, run: RunResult) -> CheckResult:
@@ -112,11 +156,20 @@ def result_table(results: Sequence[CheckResult]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check") -> str:
+def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
+              errors: Sequence[CollectionError] = ()) -> str:
     """The results as JUnit XML: a ``testsuite`` per file, a ``testcase`` per scenario run; a missed
     expectation is a ``failure``, a run that failed an ``error``; the checked bounds and the metrics
-    are in ``system-out``."""
+    are in ``system-out``. Each of ``errors`` (files that could not be collected) is a ``testsuite``
+    of its file with one ``testcase`` whose ``error`` is the file's problem, as pytest reports a
+    collection error."""
     root = ET.Element("testsuites", name=name)
+    for error in errors:
+        suite = ET.SubElement(root, "testsuite", name=error.file, tests="1", failures="0", errors="1",
+                              skipped="0", time="0.000")
+        classname = ".".join(Path(error.file).with_suffix("").parent.parts) or "scenarios"
+        case = ET.SubElement(suite, "testcase", classname=classname, name=Path(error.file).name, time="0.000")
+        ET.SubElement(case, "error", message=error.message[:500], type="ScenarioError").text = error.message
     suites: dict[str, list[CheckResult]] = {}
     for r in results:
         suites.setdefault(r.case.file, []).append(r)
@@ -139,6 +192,9 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check") 
             ET.SubElement(case, "system-out").text = "\n".join(out)
         _count(suite, members)
     _count(root, results)
+    if errors:
+        root.set("tests", str(len(results) + len(errors)))
+        root.set("errors", str(int(root.get("errors")) + len(errors)))
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
