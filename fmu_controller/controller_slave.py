@@ -71,7 +71,10 @@ from fmu_controller.ucp_mpc import UCPSettings
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
 
 
-_L_RANGE_MM = (-100.0, 500.0)
+#: Every contraction [mm] the plant FMU's parameter ranges allow (rest lengths up to 5000 mm, an
+#: encoder offset of +-100 mm, stretch under the load): the controller's l and r inputs and its
+#: built-in sine stay within it.
+_L_RANGE_MM = (-1000.0, 5000.0)
 #: A one-step prediction outside ten times that range [mm], or a QP input u_c beyond this [V] (a
 #: hundred times the valve's span), means the adaptive estimate diverges.
 _DIVERGED_MM = (10.0 * _L_RANGE_MM[0], 10.0 * _L_RANGE_MM[1])
@@ -162,8 +165,10 @@ class AMPCController(SafeSlave):
              "probing signal (a maximum-length sequence, bits of 4 samples) added to the valve command while the "
              "law is on theta0 (t < startup_s/2), so that the estimate is excited; 0 = off (docs/control.md, "
              "Start-up)", 0.0, MAX_PROBING_V),
-            ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35)", None, None),
-            ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", None, None),
+            ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35); offset +- amplitude within "
+             f"{_L_RANGE_MM[0]:g}..{_L_RANGE_MM[1]:g}", *_L_RANGE_MM),
+            ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", 0.0,
+             (_L_RANGE_MM[1] - _L_RANGE_MM[0]) / 2.0),
             ("sine.frequency", 0.1, "Hz", "built-in reference frequency [Hz] (paper: 0.1, 0.2)", 0.0, None),
         ]
         table += [(f"P0.{n}", P0_TABLE5[i], "", f"diagonal of P(0) for {n} (Table 5; Table 8 for 0.2 Hz)",
@@ -228,6 +233,10 @@ class AMPCController(SafeSlave):
         self._diverged = False
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
+        offset, amplitude = self._par["sine.offset"], self._par["sine.amplitude"]
+        if not _L_RANGE_MM[0] <= offset - amplitude <= offset + amplitude <= _L_RANGE_MM[1]:
+            raise SlaveInputError(f"bad parameter: the built-in sine sine.offset +- sine.amplitude = {offset:g} +- "
+                                  f"{amplitude:g} mm leaves {_L_RANGE_MM[0]:g}..{_L_RANGE_MM[1]:g} mm")
         try:
             self._controller = DisplacementController(settings, theta0)
             self._reference = SineReference(offset_mm=self._par["sine.offset"],

@@ -73,10 +73,12 @@ class MusclePlant(SafeSlave):
         self.add_input("supply_pressure", 0.25, "MPa", "tap-water supply gauge pressure [MPa]", lo=0.0, hi=1.0,
                        nominal=0.25)
         # l and p are read from the state (encoder, sensor): no direct feedthrough from any input.
-        # every reading the parameters' ranges allow: a sensor drift of -20 mm and noise below zero, a
-        # 5000-mm muscle's contraction
-        self.add_output("l", 0.0, "mm", "encoder reading of the contraction [mm]", lo=-100.0, hi=5000.0, nominal=50.0)
-        self.add_output("p", 0.0, "MPa", "pressure-sensor reading [MPa(G)]", lo=0.0, hi=1.0, nominal=0.25)
+        # The declared ranges hold every reading the parameters allow: l has none, since an encoder's
+        # drift moves its reading without bound over a long run; p is clipped to the sensor's range
+        # (sensor.pressure_range_mpa, at most 100 MPa).
+        self.add_output("l", 0.0, "mm", "encoder reading of the contraction [mm]", nominal=50.0)
+        self.add_output("p", 0.0, "MPa", "pressure-sensor reading [MPa(G)], 0..sensor.pressure_range_mpa", lo=0.0,
+                        hi=100.0, nominal=0.25)
         self.add_real_parameters(parameter_table())
         self.add_integer_parameter("seed", 0, "seed of the sensor-noise generator: its low 32 bits (bit pattern; "
                                    "a seed below 2**31 needs this alone)")

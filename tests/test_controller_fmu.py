@@ -11,7 +11,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmpy_helpers import instantiate, open_fmu
 
-from fmu_controller.controller_slave import AMPCController
+from fmu_controller.controller_slave import _DIVERGED_MM, _DIVERGED_V, AMPCController
 from fmu_controller.displacement_control import ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
@@ -173,7 +173,7 @@ def test_steps_shorter_than_ts_hold_the_outputs_and_sample_on_the_grid(fmu):
 
 @pytest.mark.parametrize("name, value, message", [("l", math.nan, "l = nan is not finite"),
                                                   ("l", math.inf, "l = inf is not finite"),
-                                                  ("l", 900.0, "l = 900.0 is outside")])
+                                                  ("l", 9000.0, "l = 9000.0 is outside -1000..5000")])
 def test_bad_input_is_discarded_with_a_message_and_state_stays(fmu, capfd, name, value, message):
     vr = fmu[3]
     f, ref = _instance(fmu, "bad"), _instance(fmu, "ref")
@@ -224,6 +224,8 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"servo.R": math.nan}, {}, "parameter servo.R = nan is not finite"),
     ({"box_lower.b1": 2.0}, {}, "box_lower.b1 = 2.0 exceeds box_upper.b1"),
     ({"theta0.b1": 0.0}, {}, "theta0.b1 = 0.0 must not be ~0"),
+    ({"sine.offset": 4000.0, "sine.amplitude": 1500.0}, {}, "sine.offset +- sine.amplitude = 4000 +- 1500 mm leaves"),
+    ({"sine.amplitude": -1.0}, {}, "parameter sine.amplitude = -1.0 is outside its declared range 0..3000"),
 ])
 def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):
     """fmi2Error, not Discard (a host answers Discard with a smaller step, forever); the instance stays
@@ -316,7 +318,7 @@ def test_a_diverging_adaptive_estimate_is_said_once(fmu, capfd, forgetting):
         u.append(u_k)
         uc.append(uc_k)
         l_pred.append(l_k)
-    diverged = max(map(abs, uc)) > 1e3 or not all(-1000.0 <= x <= 5000.0 for x in l_pred)
+    diverged = max(map(abs, uc)) > _DIVERGED_V or not all(_DIVERGED_MM[0] <= x <= _DIVERGED_MM[1] for x in l_pred)
     out = capfd.readouterr().out
     assert out.count("its estimate diverges (forgetting = ") == (1 if diverged else 0), out[-2000:]
     assert "ERROR in osqp" not in out  # the QP's data beyond OSQP's range never reach it

@@ -269,6 +269,39 @@ def test_both_fmus_declare_a_default_experiment(built_fmus):
         assert float(de.stopTime) == 60.0
 
 
+def test_every_output_stays_within_its_declared_range_at_the_parameters_extremes(fmu, built_fmus):
+    """A host may check outputs against their declared min..max: an encoder drifting at the
+    parameters' extreme rate for 20 minutes (l -170 mm), a 100-MPa sensor on a 1-MPa supply (p above 1 MPa
+    with noise) stay inside; the controller FMU accepts such a reading of l."""
+    path, md, _, vr = fmu
+    declared = {v.name: (v.min, v.max) for v in md.modelVariables if v.causality == "output"}
+    f = _instance(fmu, reals={"sensor_drift.offset_mm": -100.0, "sensor_drift.rate_mm_per_min": -10.0,
+                              "sensor.pressure_range_mpa": 100.0, "sensor.pressure_noise_std_mpa": 0.01,
+                              "supply_pressure": 1.0, "u": 10.0})
+    seen = {name: [] for name in declared}
+    for k in range(20):
+        f.doStep(k * 60.0, 60.0)
+        for name, value in zip(declared, f.getReal([vr[n] for n in declared])):
+            seen[name].append(value)
+    f.terminate()
+    f.freeInstance()
+    assert min(seen["l"]) < -150.0 and max(seen["p"]) > 1.0  # beyond the earlier -100..5000 mm, 0..1 MPa
+    for name, (lo, hi) in declared.items():
+        assert lo is None or float(lo) <= min(seen[name]), (name, lo, min(seen[name]))
+        assert hi is None or max(seen[name]) <= float(hi), (name, hi, max(seen[name]))
+    controller = open_fmu(built_fmus["AMPCController"])
+    c = instantiate(controller, "c")
+    for l_mm in (min(seen["l"]), 1200.0):  # a drifted reading, a 5000-mm muscle's contraction
+        c.setReal([controller[3]["l"]], [l_mm])
+        c.doStep(0.0, 0.1)  # fmpy raises on a Discard or an Error
+        c.reset()
+        c.setupExperiment(startTime=0.0)
+        c.enterInitializationMode()
+        c.exitInitializationMode()
+    c.terminate()
+    c.freeInstance()
+
+
 def test_fmi_call_order_and_fixed_parameters_are_enforced(fmu, capfd):
     """A fixed parameter set after initialisation is refused with fmi2Error (the dynamics would ignore
     it) and keeps its value; fmi2DoStep after fmi2Terminate is fmi2Error; fmi2Reset makes both fine."""
