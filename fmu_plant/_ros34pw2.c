@@ -365,6 +365,7 @@ static int advance_core(ModelObject *self, const double a[13], PortsFn ports, vo
     double done = 0.0, left = dt, h_try = 0.0, kink_root = 1.0, h, out[6];
     int first = 1, sampled = 0, retry = 0, last;
     long forced = 0; /* sub-steps accepted at the shortest sub-step although over their tolerances */
+    unsigned long attempts = 0; /* a step of an hour at a 10-us sub-step takes minutes: Ctrl-C must stop it */
     double forced_max = dt / k->h_max;
     if (forced_max < k->forced_max)
         forced_max = k->forced_max;
@@ -395,6 +396,8 @@ static int advance_core(ModelObject *self, const double a[13], PortsFn ports, vo
             h = h_try;
             last = 0;
         }
+        if ((++attempts & 0xFFFF) == 0 && PyErr_CheckSignals() < 0)
+            return -1; /* the caller keeps the step's start */
         attempt(k, x, p, l, v, z, xs, ps, w, h, out);
         double err = out[5];
         if (err <= 1.0 || h <= k->h_min) {

@@ -390,8 +390,12 @@ class Plant:
         return l_mm, p_mpa
 
     def _integrate(self, u_v: float, dt_s: float) -> None:
-        """Advance the state by one step of a checked command and length (:meth:`step`)."""
-        self.u_v = u_v
+        """Advance the state by one step of a checked command and length (:meth:`step`).
+
+        A breakdown (FloatingPointError) or an interrupt (KeyboardInterrupt, checked in the compiled
+        sub-steps too) leaves the state of the step's start; an interrupt also the command before it.
+        """
+        u_before, self.u_v = self.u_v, u_v
         t0 = self.t_s
         t1 = t0 + dt_s
         cuts = [t for f in self._breakpoint_hooks for t in f(t0, t1, u_v)] if self._breakpoint_hooks else ()
@@ -404,12 +408,18 @@ class Plant:
                 for tb in (*cuts, t1):
                     self._advance(ta, tb - ta)
                     ta = tb
-            except FloatingPointError:
+            except (FloatingPointError, KeyboardInterrupt) as exc:
                 self.state, self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate = saved
                 self._set_gate(self._gate)
+                if isinstance(exc, KeyboardInterrupt):
+                    self.u_v = u_before
                 raise
         else:
-            self._advance(t0, dt_s)
+            try:
+                self._advance(t0, dt_s)
+            except KeyboardInterrupt:
+                self.u_v = u_before
+                raise
         self.t_s = t1
 
     # ------------------------------------------------------------------ outputs

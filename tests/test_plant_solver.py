@@ -350,3 +350,35 @@ def test_the_plant_fmu_ends_its_steps_with_extreme_parameters_and_refuses_min_ab
     assert "too many sub-steps of solver.min_substep_s = 1e-05 s" in out and "stiff/extreme parameters?" in out
     assert "Traceback" not in out and "internal error" not in out  # a documented failure, not a bug
     assert "solver.min_substep_s (0.001) must not exceed max_substep_s (0.0001)" in out  # the FMU's name
+
+
+@pytest.mark.skipif(not COMPILED, reason="the Python sub-steps are interruptible anyway")
+@pytest.mark.parametrize("with_cuts", [False, True])
+def test_an_interrupt_stops_a_long_compiled_step_and_leaves_the_steps_start(with_cuts):
+    """An hour's step at 10-us sub-steps takes minutes in the compiled loop: Ctrl-C (here a signal
+    handler raising, as Python's SIGINT handler does) must end it, with the state of the step's start
+    and the command before it, as after a breakdown."""
+    import signal
+
+    class Interrupted(KeyboardInterrupt):
+        pass
+
+    def interrupt(signum, frame):
+        raise Interrupted
+
+    values = {"solver.max_substep_s": 1e-5}
+    if with_cuts:  # an effect's signal jumps within the step: the step is advanced in pieces
+        values.update({"supply_variation.sag_mpa": 0.05, "supply_variation.start_s": 100.0})
+    plant = Plant(PlantParams().with_values(**values), seed=1)
+    plant.step(4.0, 0.5)
+    before = json.dumps(plant.get_state())
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.2)
+        with pytest.raises(Interrupted):
+            plant.step(7.0, 3600.0)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+    assert json.dumps(plant.get_state()) == before  # nothing of the hour's step happened
+    assert plant.step(7.0, 0.1).t_s == pytest.approx(0.6)
