@@ -3,7 +3,8 @@
 Run: ``python benchmarks/startup.py [--seeds 8] [--startup 12] [--out out/startup]`` (about 25 s).
 Every method at 44 and 68 N, 0.1 and 0.2 Hz (P(0) of Table 8 at 0.2 Hz), from rest, with the fixed
 predictor that ``tapmuscle paper`` identifies; noise seeds 0..N-1; 90 s each. The paper's start is
-``startup_s = 0`` with the hysteresis notch by method as the paper start has it (off for AMPC-servo);
+``startup_s = 0`` with the hysteresis notch by method as the paper start has it (off for AMPC-servo)
+and Eq. (18) without the anti-windup hold;
 the start-up mode is ``--startup`` with the defaults. Printed per cell and start, over the seeds and
 the whole 90 s: the largest overshoot above the reference's 65-mm peak, the most full-range
 (0 <-> 10 V) command reversals, how many runs break either limit of the start-up requirement (3 mm,
@@ -45,8 +46,9 @@ def run(method: str, load: float, f: float, seed: int, startup_s: float, theta0:
         probing_v: float = DEFAULT_PROBING_V) -> dict:
     plant = Plant(params, seed=seed)
     plant.update(load_n=load)
+    # the paper's start: Eq. (18) without the anti-windup hold, too
     cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup_s,
-                            input_delay_samples=input_delay, probing_v=probing_v)
+                            input_delay_samples=input_delay, probing_v=probing_v, anti_windup=startup_s > 0)
     return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=90.0,
                            loop_delay_samples=loop_delay)
 

@@ -141,6 +141,9 @@ class AMPCController(SafeSlave):
                                    "ampc_servo on with the start-up mode, off with startup_s = 0), 1 cancel the centred "
                                    "mean (H(k-2) + 3 H(k-1) + 4 H(k) + 3 H(k+1|k) + H(k+2|k))/12 in Eq. (5) (no valve "
                                    "chatter), 0 cancel H(k) as the paper's Eq. (5)", lo=-1, hi=1)
+        self.add_integer_parameter("anti_windup", 1, "servo methods: 1 hold the integrator x_s of Eq. (18) while the "
+                                   "command is at a valve limit the error pushes it further into (no wind-up "
+                                   "when the reference is out of reach), 0 Eq. (18) as the paper writes it", lo=0, hi=1)
         self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
                                    "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
                                    "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)
@@ -225,7 +228,7 @@ class AMPCController(SafeSlave):
             box_lower={n: p[f"box_lower.{n}"] for n in TABLE2_LOWER},
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
             covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"],
-            delay_correction=ip["delay_correction"] == 1,
+            delay_correction=ip["delay_correction"] == 1, anti_windup=ip["anti_windup"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
             startup_s=p["startup_s"], probing_v=p["probing_v"])
 

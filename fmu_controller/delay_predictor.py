@@ -36,6 +36,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .argument_checks import real_number, whole_number
 from .rls import ConstrainedRLS, Regressors, RLSSettings
 
 __all__ = ["DelayPredictor", "DELAY_PREDICTOR_REGRESSORS"]
@@ -64,14 +65,17 @@ class DelayPredictor:
     """
 
     def __init__(self, *, forgetting: float = 0.975, p0: float = 1.0, warmup_samples: int = 20) -> None:
-        if not (isinstance(forgetting, (int, float)) and 0.0 < forgetting < 1.0):
+        forgetting = real_number(forgetting, what="forgetting")
+        p0 = real_number(p0, what="p0")
+        warmup_samples = whole_number(warmup_samples, what="warmup_samples")
+        if not 0.0 < forgetting < 1.0:
             raise ValueError(f"forgetting must be within (0, 1), got {forgetting!r}")
-        if not (isinstance(p0, (int, float)) and math.isfinite(p0) and p0 > 0):
+        if not p0 > 0:
             raise ValueError(f"p0 must be a positive finite number, got {p0!r}")
-        if isinstance(warmup_samples, bool) or not isinstance(warmup_samples, int) or warmup_samples < 0:
+        if warmup_samples < 0:
             raise ValueError(f"warmup_samples must be an integer >= 0, got {warmup_samples!r}")
-        self.forgetting = float(forgetting)
-        self.p0 = float(p0)
+        self.forgetting = forgetting
+        self.p0 = p0
         self.warmup_samples = warmup_samples
         inf = (math.inf,) * _N
         self._rls = ConstrainedRLS(DELAY_PREDICTOR_REGRESSORS, RLSSettings(

@@ -42,6 +42,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .argument_checks import real_number, whole_number
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .probing import probe_v
@@ -171,6 +172,12 @@ class ControllerSettings:
     about 5 s, after at least :data:`DELAY_MIN_SAMPLES` samples; the better one after
     :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
     switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters")."""
+    anti_windup: bool = True
+    """Servo methods: hold the integrator of Eq. (18) while the command is at a valve limit that the
+    error ``r(k) - l(k)`` pushes it further into (conditional integration). A reference out of the
+    muscle's reach otherwise winds ``x_s`` up by thousands of mm and the loop lags for 6-12 s once
+    the reference is back in reach (docs/control.md, "Integrator wind-up"). Where the command never
+    sits at a limit (the paper's runs) it changes nothing. False: Eq. (18) as the paper writes it."""
     delay_correction: bool = True
     """With one sample of input delay (``input_delay_samples`` 1, or -1 once the parallel hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
@@ -180,20 +187,24 @@ class ControllerSettings:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"ControllerSettings.method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if not (isinstance(self.ts_s, (int, float)) and math.isfinite(self.ts_s) and self.ts_s > 0):
+        for name in ("ts_s", "startup_s", "probing_v"):  # numpy numbers as Python floats
+            object.__setattr__(self, name, real_number(getattr(self, name), what=f"ControllerSettings.{name}"))
+        if not self.ts_s > 0:
             raise ValueError(f"ControllerSettings.ts_s must be a positive finite number, got {self.ts_s!r}")
         if len(self.p0) != ASYMMETRIC.n_params or not all(math.isfinite(p) and p > 0 for p in self.p0):
             raise ValueError(f"ControllerSettings.p0 must be {ASYMMETRIC.n_params} positive finite numbers, "
                              f"got {self.p0!r}")
-        if self.input_delay_samples not in (-1, 0, 1) or isinstance(self.input_delay_samples, bool):
+        object.__setattr__(self, "input_delay_samples",
+                           whole_number(self.input_delay_samples, what="ControllerSettings.input_delay_samples"))
+        if self.input_delay_samples not in (-1, 0, 1):
             raise ValueError(f"ControllerSettings.input_delay_samples must be -1 (detect), 0 or 1, "
                              f"got {self.input_delay_samples!r}")
-        if not (isinstance(self.startup_s, (int, float)) and not isinstance(self.startup_s, bool)
-                and math.isfinite(self.startup_s) and 0.0 <= self.startup_s <= MAX_STARTUP_S):
+        if not 0.0 <= self.startup_s <= MAX_STARTUP_S:
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
-        if not (isinstance(self.probing_v, (int, float)) and not isinstance(self.probing_v, bool)
-                and math.isfinite(self.probing_v) and 0.0 <= self.probing_v <= MAX_PROBING_V):
+        if not 0.0 <= self.probing_v <= MAX_PROBING_V:
             raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
+        if not isinstance(self.anti_windup, bool):
+            raise ValueError(f"ControllerSettings.anti_windup must be True or False, got {self.anti_windup!r}")
         if not isinstance(self.delay_correction, bool):
             raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
@@ -244,6 +255,12 @@ class ControlStep:
     """An input limit was active."""
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """``a``, made read-only (it is handed out with every :class:`ControlStep`)."""
+    a.flags.writeable = False
+    return a
+
+
 _new_object = object.__new__
 _set_attribute = object.__setattr__
 
@@ -276,7 +293,7 @@ class DisplacementController:
         if abs(theta0[2]) < 1e-6:
             raise ValueError(f"theta0's b1 must not be ~0 (it divides the hysteresis cancellation, Eq. 5), got {float(theta0[2])!r}")
         self.settings = settings
-        self.theta0 = theta0.copy()
+        self.theta0 = _read_only(theta0.copy())
         self._rls: ConstrainedRLS | None = None
         if settings.adaptive:
             self._rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(
@@ -290,6 +307,7 @@ class DisplacementController:
         self._need = settings.preview_samples + 1
         self._ucp_hp = settings.ucp.hp
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
+        self._anti_windup = settings.anti_windup
         self._auto = settings.input_delay_samples == -1
         notch = settings.hysteresis_notch
         if notch is None:
@@ -309,7 +327,7 @@ class DisplacementController:
         l0 = float(l0_mm)
         if not math.isfinite(l0):
             raise ValueError(f"l0_mm must be finite, got {l0_mm!r}")
-        self.theta = self.theta0.copy()
+        self.theta = _read_only(self.theta0.copy())
         self._theta_list = self.theta.tolist()
         if self._rls is not None:
             self._rls.setup(ASYMMETRIC, self._rls.settings)
@@ -363,7 +381,8 @@ class DisplacementController:
         rl = (r if len(r) == need else r[:need]).tolist()
         if r.dtype.char != "d":  # not float64
             rl = [float(x) for x in rl]
-        if not math.isfinite(sum(rl)):  # a sum is finite only if every term is
+        # a finite sum implies finite terms; the elementwise test only if it is not (1e308s overflow)
+        if not math.isfinite(sum(rl)) and not all(map(math.isfinite, rl)):
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
         error = 0.0 if math.isnan(self._predicted) else l - self._predicted
         state = self._state
@@ -387,7 +406,7 @@ class DisplacementController:
             if j < self._blend_n:
                 w = _smoothstep((j - self._warm_n) / (self._blend_n - self._warm_n)) if j >= self._warm_n else 0.0
                 theta_hat = self.theta0 + w * (theta_hat - self.theta0)
-            self.theta = theta_hat.copy()
+            self.theta = _read_only(theta_hat.copy())
             t = self.theta.tolist()
             if self._servo is not None:
                 self._servo.update_model_unchecked(t[0], t[1], t[2])
@@ -412,7 +431,8 @@ class DisplacementController:
         self._u_out2, self._u_out1 = self._u_out1, u
         self._predicted = predicted
         self._k += 1
-        # theta is never modified in place (a new array every adaptive step), so it can be shared.
+        # theta is read-only and replaced, never modified in place: the step can share it, and a
+        # caller writing into it gets an error instead of changing the law.
         return _control_step(u, predicted, error, uc, h, xs_next, theta, saturated)
 
     def _detect_delay(self, l: float) -> None:
@@ -518,7 +538,16 @@ class DisplacementController:
         elif self._u_max < u:
             u = self._u_max
         saturated = constrained or u != u_raw
-        return self._probed(u), uc, h, xs + rl[0] - l, predicted, saturated  # x_s: Eq. (18)
+        return self._probed(u), uc, h, self._integrate(xs, rl[0], l, u), predicted, saturated
+
+    def _integrate(self, xs: float, r_mm: float, l_mm: float, u: float) -> float:
+        """Eq. (18), ``x_s(k+1) = x_s(k) + r(k) - l(k)``, held while the command ``u`` [V] is at a
+        valve limit that the error pushes it further into (conditional integration): a reference out
+        of the muscle's reach would otherwise wind ``x_s`` up by the thousands and the loop would lag
+        for seconds once the reference is back in reach."""
+        if self._anti_windup and ((r_mm > l_mm and u >= self._u_max) or (r_mm < l_mm and u <= self._u_min)):
+            return xs
+        return xs + r_mm - l_mm  # summed left to right, as Eq. (18) reads: the paper's runs keep their bits
 
     def _probed(self, u: float) -> float:
         """``u`` [V] plus the start-up mode's probing signal during the estimator's warm-up
@@ -552,7 +581,8 @@ class DisplacementController:
                 # rig); it keeps learning meanwhile
                 l_next = corrected
         state.apply(u_now)
-        xs = self._xs + rl[0] - l if self._servo is not None else 0.0  # Eq. (18) with the true l(k)
+        # Eq. (18) with the true l(k), held at a limit the valve has now (_integrate)
+        xs = self._integrate(self._xs, rl[0], l, u_now) if self._servo is not None else 0.0
         saved = state.history
         h_now = state.hysteresis_unchecked(t) if self._notch else math.nan  # H(k), before the scratch step
         state.observe_unchecked(l_next, t[0], t[1], t[2])
@@ -610,7 +640,7 @@ class DisplacementController:
             A field that no controller could have saved (non-finite, wrong length, negative count),
             named. The RLS and QP parts validate their own fields.
         """
-        theta = np.asarray(state["theta"], dtype=float)
+        theta = np.array(state["theta"], dtype=float)  # a copy: the caller's array stays writeable
         if theta.shape != (ASYMMETRIC.n_params,) or not np.all(np.isfinite(theta)) or abs(theta[2]) < 1e-6:
             raise ValueError(f"state field theta must be {ASYMMETRIC.n_params} finite numbers with b1 not ~0, "
                              f"got {state['theta']!r}")
@@ -621,7 +651,7 @@ class DisplacementController:
             raise ValueError(f"state field predicted = {state['predicted']!r} must be finite (or NaN before a step)")
         if int(state["k"]) < 0:
             raise ValueError(f"state field k = {state['k']!r} must be >= 0")
-        self.theta = theta
+        self.theta = _read_only(theta)
         self._theta_list = self.theta.tolist()
         self._state.set_state(state["model"])
         self._k = int(state["k"])

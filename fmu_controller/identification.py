@@ -76,13 +76,15 @@ class FitReport:
     """The free-run output (record units)."""
 
 
-def score_model(theta: np.ndarray, structure: ModelStructure, u: np.ndarray, l: np.ndarray) -> FitReport:
+def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelStructure, u: np.ndarray,
+                l: np.ndarray) -> FitReport:
     """1-, 3-, 5-step-ahead and free-run fits of ``theta`` on ``(u, l)`` (Table 4).
 
     Parameters
     ----------
-    theta : ndarray
-        Eq. (1)'s parameters in the order of ``structure`` (record units).
+    theta : sequence of float or mapping
+        Eq. (1)'s parameters (record units): in the order of ``structure`` (as
+        ``IdentificationReport.theta``) or by name (as its ``theta_dict``).
     structure : ModelStructure
         :data:`~fmu_controller.hysteresis_model.ASYMMETRIC` or ``STANDARD``.
     u, l : ndarray
@@ -93,6 +95,7 @@ def score_model(theta: np.ndarray, structure: ModelStructure, u: np.ndarray, l: 
     FitReport
         NRMSE fits [%] (MATLAB ``compare``) and the free run.
     """
+    theta = structure.as_theta(theta, what="theta")
     u, l = np.asarray(u, dtype=float), np.asarray(l, dtype=float)
     rng = (float(l.min()), float(l.max()))
     percent: dict[str, float] = {}

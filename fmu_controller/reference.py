@@ -14,7 +14,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from .argument_checks import number_array
+from .argument_checks import number_array, real_number
 
 __all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES", "as_reference"]
 
@@ -37,10 +37,8 @@ class SineReference:
     """Sampling period [s] (paper: 0.1)."""
 
     def __post_init__(self) -> None:
-        for name in ("offset_mm", "amplitude_mm", "frequency_hz", "ts_s"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"SineReference.{name} must be a finite number, got {v!r}")
+        for name in ("offset_mm", "amplitude_mm", "frequency_hz", "ts_s"):  # numpy numbers as Python floats
+            object.__setattr__(self, name, real_number(getattr(self, name), what=f"SineReference.{name}"))
         if self.frequency_hz < 0:
             raise ValueError(f"SineReference.frequency_hz must be >= 0, got {self.frequency_hz!r}")
         if self.ts_s <= 0:
@@ -76,9 +74,12 @@ class Reference(Protocol):
         """``[r(k), ..., r(k+n)]`` [mm]."""
 
 
-def _check_ts(owner: str, ts_s: float) -> None:
-    if isinstance(ts_s, bool) or not isinstance(ts_s, (int, float)) or not math.isfinite(ts_s) or ts_s <= 0:
+def _check_ts(owner: str, ts_s: float) -> float:
+    """``ts_s`` as a Python float > 0 [s], naming ``owner`` otherwise."""
+    ts = real_number(ts_s, what=f"{owner}.ts_s")
+    if ts <= 0:
         raise ValueError(f"{owner}.ts_s must be a finite number > 0 [s], got {ts_s!r}")
+    return ts
 
 
 @dataclass(frozen=True)
@@ -103,7 +104,7 @@ class ArrayReference:
         bad = np.nonzero(~np.isfinite(v))[0]
         if bad.size:
             raise ValueError(f"ArrayReference.values_mm[{int(bad[0])}] = {float(v[bad[0]])!r} is not finite")
-        _check_ts("ArrayReference", self.ts_s)
+        object.__setattr__(self, "ts_s", _check_ts("ArrayReference", self.ts_s))
         v.setflags(write=False)
         object.__setattr__(self, "values_mm", v)
 
@@ -135,7 +136,7 @@ class FunctionReference:
     def __post_init__(self) -> None:
         if not callable(self.function):
             raise ValueError(f"FunctionReference.function must be callable r(t) [mm], got {self.function!r}")
-        _check_ts("FunctionReference", self.ts_s)
+        object.__setattr__(self, "ts_s", _check_ts("FunctionReference", self.ts_s))
 
     def at(self, k: int) -> float:
         """``r(k)`` [mm]; ``ValueError`` naming the time if the function returns a non-finite value."""

@@ -8,12 +8,13 @@ discrete integrator of Eq. (18).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
+
+from .argument_checks import real_number, whole_number
 
 #: Longest prediction horizon accepted [samples] (Table 5: 5; 5 s at Ts = 0.1 s); the controller FMU
 #: declares the same range for servo.Hp, servo.Hu and ucp.Hp.
@@ -31,21 +32,16 @@ TABLE5_SERVO: Mapping[str, Any] = MappingProxyType({
 # Settings
 # ---------------------------------------------------------------------------
 def positive_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    if value < 1:
+    """``value`` as an int >= 1 (an int or a numpy integer), naming ``name`` otherwise."""
+    n = whole_number(value, what=name)
+    if n < 1:
         raise ValueError(f"{name} must be >= 1, got {value!r}")
-    return int(value)
+    return n
 
 
 def finite_float(name: str, value: Any) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return x
+    """``value`` as a finite float (:func:`~fmu_controller.argument_checks.real_number`)."""
+    return real_number(value, what=name)
 
 
 def _freeze_weight(name: str, value: Any, n: int, n_name: str, *, strict: bool) -> float | tuple[float, ...]:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .argument_checks import real_number, whole_number
 from .hysteresis_model import ModelState, regressor_terms
 from .servo_settings import MAX_HORIZON
 
@@ -58,12 +59,11 @@ class UCPSettings:
     linear part's step response."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.hp, int) or isinstance(self.hp, bool) or not 1 <= self.hp <= MAX_HORIZON:
+        object.__setattr__(self, "hp", whole_number(self.hp, what="UCPSettings.hp"))
+        if not 1 <= self.hp <= MAX_HORIZON:
             raise ValueError(f"UCPSettings.hp must be an integer in 1..{MAX_HORIZON}, got {self.hp!r}")
-        for name in ("u_min_v", "u_max_v", "min_step_response_mm"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"UCPSettings.{name} must be finite, got {v!r}")
+        for name in ("u_min_v", "u_max_v", "min_step_response_mm"):  # numpy numbers as Python floats
+            object.__setattr__(self, name, real_number(getattr(self, name), what=f"UCPSettings.{name}"))
         if self.u_max_v <= self.u_min_v:
             raise ValueError(f"UCPSettings.u_max_v ({self.u_max_v}) must exceed u_min_v ({self.u_min_v})")
         if self.min_step_response_mm <= 0:

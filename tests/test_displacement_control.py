@@ -22,7 +22,7 @@ from tapmuscle.paper.reproduce import preliminary_theta
 @pytest.fixture(scope="module")
 def theta0():
     """Section 4.2's fixed predictor, identified on the simulated rig."""
-    return preliminary_theta(0)
+    return preliminary_theta(0, refine_hz=0.1)  # refined at the evaluation frequency: a well-fitted fixed model
 
 
 def _same(a, b):
@@ -171,6 +171,8 @@ def test_delay_compensation_on_the_model_gives_the_undelayed_commands(theta0, me
             c.step(l, ref.preview(0, hp - 1))
             st = c.get_state()
             st["u_prev"], st["uc_prev"], st["model"]["u"] = 0.0, 0.0, 0.0
+            if "xs" in st:  # x_s(1) integrated under that 0 V (the anti-windup hold judged the command c chose)
+                st["xs"] = 0.0 + float(ref.preview(0, 0)[0]) - l
             c.set_state(st)
         else:
             undelayed.append(c.step(l, ref.preview(k, hp - 1)).u_v)
@@ -308,7 +310,9 @@ def test_the_default_start_is_clean_for_every_method(paper_theta0, method, load,
         for startup in (DEFAULT_STARTUP_S, 0.0):
             plant = Plant(seed=seed)
             plant.update(load_n=load)
-            cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup)
+            # the paper's start: its controller from the first sample, Eq. (18) without the hold included
+            cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup,
+                                    anti_windup=startup > 0)
             runs[startup] = run_closed_loop(plant, DisplacementController(cs, paper_theta0),
                                             SineReference(frequency_hz=f), duration_s=45.0)
         r = runs[DEFAULT_STARTUP_S]
@@ -411,14 +415,14 @@ def test_probing_is_only_in_the_adaptive_warm_up(theta0):
 def test_probing_is_validated():
     assert ControllerSettings().probing_v == DEFAULT_PROBING_V == 0.5
     for bad in (-0.1, math.nan, 2.6, True, "0.5"):
-        with pytest.raises(ValueError, match="probing_v"):
+        with pytest.raises(TypeError if isinstance(bad, (bool, str)) else ValueError, match="probing_v"):
             ControllerSettings(probing_v=bad)
 
 
 def test_startup_mode_is_on_by_default_and_validated(theta0):
     assert ControllerSettings().startup_s == DEFAULT_STARTUP_S == 12.0
     for bad in (-1.0, math.nan, 601.0, True):
-        with pytest.raises(ValueError, match="startup_s"):
+        with pytest.raises(TypeError if bad is True else ValueError, match="startup_s"):
             ControllerSettings(startup_s=bad)
 
 
@@ -546,3 +550,89 @@ def test_detected_delay_state_round_trip(theta0, saved_at):
         assert json.dumps(a.get_state()) == json.dumps(b.get_state()), k  # the whole state, every bit
         u, in_flight = in_flight, sa.u_v
         l = plant.step(u, 0.1).l_mm
+
+
+@pytest.mark.parametrize("method", ["mpc_servo", "ampc_servo"])
+@pytest.mark.parametrize("far_mm", [120.0, -20.0])
+def test_the_servo_integrator_does_not_wind_up_on_a_reference_out_of_reach(method, far_mm):
+    """A reference the muscle cannot follow (120 mm: the valve open at 10 V for seconds; -20 mm: closed
+    at 0 V) for 20 s, then 40 mm: with the hold the loop is within 2 mm of 40 mm 2-6 s after the step
+    back (measured 2.9-5.5 s), without it 6-11.5 s (x_s wound up to +-3400..3800 mm). Wherever the
+    command sits at a limit the error pushes it into, x_s is held."""
+    from tapmuscle import simulate_closed_loop
+
+    settle = {}
+    for hold in (True, False):
+        run = simulate_closed_loop(method, lambda t: far_mm if t < 20.0 else 40.0, duration_s=45.0,
+                                   settings=ControllerSettings(method=method, anti_windup=hold))
+        t, l, u, xs = run["t_s"], run["l_mm"], run["u_v"], run["xs_mm"]
+        off = (t >= 20.0) & (np.abs(l - 40.0) > 2.0)
+        settle[hold] = t[off].max() - 20.0
+        if hold:
+            e = run["r_mm"] - l
+            # after the start-up's reference lead-in (the law integrates the led-in reference there)
+            pushed = (((u >= 10.0) & (e > 0)) | ((u <= 0.0) & (e < 0))) & (t >= DEFAULT_STARTUP_S)
+            k = np.flatnonzero(pushed[1:]) + 1
+            assert len(k) > 10 and np.array_equal(xs[k], xs[k - 1])  # xs_mm[k] is x_s(k+1)
+    assert settle[True] < 0.7 * settle[False], settle
+    assert settle[True] < 6.5, settle
+
+
+def test_anti_windup_is_validated():
+    assert ControllerSettings().anti_windup is True
+    with pytest.raises(ValueError, match="anti_windup"):
+        ControllerSettings(anti_windup=1)
+
+
+def test_numpy_numbers_of_any_width_are_taken_as_numbers(theta0):
+    """What a notebook's arrays give (np.float32, np.int64) is a number; a bool or a string is a
+    TypeError naming the field."""
+    from fmu_controller.delay_predictor import DelayPredictor
+    from fmu_controller.reference import ArrayReference
+    from fmu_controller.servo_mpc import ServoMPCSettings
+    from fmu_controller.ucp_mpc import UCPSettings
+
+    cs = ControllerSettings(method="ampc_servo", ts_s=np.float32(0.1), startup_s=np.float32(12),
+                            probing_v=np.float64(0.5), input_delay_samples=np.int64(0),
+                            servo=ServoMPCSettings(hp=np.int64(5), hu=np.int32(5), u_max_v=np.float32(10)),
+                            ucp=UCPSettings(hp=np.int16(2), u_min_v=np.int64(0)))
+    assert type(cs.ts_s) is float and cs.ts_s == float(np.float32(0.1)) and type(cs.input_delay_samples) is int
+    assert (cs.startup_s, cs.servo.hp, cs.ucp.hp, cs.ucp.u_min_v) == (12.0, 5, 2, 0.0)
+    ref = SineReference(frequency_hz=np.float32(0.1), ts_s=np.float32(0.1))
+    c = DisplacementController(cs, theta0)
+    assert np.isfinite(c.step(0.0, ref.preview(0, cs.preview_samples)).u_v)
+    assert ArrayReference(np.arange(5.0), ts_s=np.float64(0.1)).ts_s == 0.1
+    assert DelayPredictor(forgetting=np.float32(0.5), p0=np.int64(2), warmup_samples=np.int64(3)).warmup_samples == 3
+    for kwargs, name in [({"ts_s": True}, "ts_s"), ({"startup_s": "12"}, "startup_s"),
+                         ({"input_delay_samples": 1.0}, "input_delay_samples")]:
+        with pytest.raises(TypeError, match=name):
+            ControllerSettings(**kwargs)
+    with pytest.raises(TypeError, match="SineReference.ts_s"):
+        SineReference(ts_s="0.1")
+
+
+def test_the_parameters_a_step_hands_out_cannot_change_the_law(theta0):
+    """A caller rescaling ``step.theta`` for a plot must not change the next commands (it shares the
+    controller's array): it is read-only, for every method, before and after a state restore."""
+    for method in METHODS:
+        c = DisplacementController(ControllerSettings(method=method), theta0)
+        ref = SineReference()
+        for k in range(3):
+            step = c.step(0.0, ref.preview(k, c.settings.preview_samples))
+            with pytest.raises(ValueError, match="read-only"):
+                step.theta[:] = step.theta * 1.05
+        with pytest.raises(ValueError, match="read-only"):
+            c.theta0[0] = 1.0
+        saved = c.get_state()
+        saved["theta"] = np.array(saved["theta"])
+        c.set_state(saved)
+        assert saved["theta"].flags.writeable  # the caller's array is left as it was
+        with pytest.raises(ValueError, match="read-only"):
+            c.step(0.0, ref.preview(3, c.settings.preview_samples)).theta[0] = 0.0
+
+
+def test_a_finite_preview_whose_sum_overflows_is_finite(theta0):
+    c = DisplacementController(ControllerSettings(method="mpc_ucp"), theta0)
+    assert 0.0 <= c.step(0.0, [1e308] * (c.settings.preview_samples + 1)).u_v <= 10.0
+    with pytest.raises(ValueError, match="must be finite"):
+        c.step(0.0, [1e308, math.inf] + [0.0] * (c.settings.preview_samples - 1))

@@ -158,6 +158,18 @@ def test_score_model_reports_divergence():
     assert rep.free_run_diverged and np.all(np.isfinite(rep.simulated_mm))
 
 
+def test_score_model_takes_the_parameters_by_name_too():
+    from fmu_controller.hysteresis_model import ASYMMETRIC
+
+    u = 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(400))
+    l = np.cumsum(u) * 0.01
+    rep = identify_record(u, l, ts_s=0.1)
+    by_order, by_name = score_model(rep.theta, ASYMMETRIC, u, l), score_model(rep.theta_dict, ASYMMETRIC, u, l)
+    assert by_order.percent == by_name.percent
+    with pytest.raises(ValueError, match="theta: unknown parameter 'zz'"):
+        score_model({**rep.theta_dict, "zz": 1.0}, ASYMMETRIC, u, l)
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda t, meta: (np.delete(t, 100), meta), r"sample 100: t = 10.1 s follows 9.9 s, a step of 0.2 s in a recording "
      r"sampled every 0.1 s: a dropped or doubled sample"),

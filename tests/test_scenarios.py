@@ -106,6 +106,23 @@ def test_hysteresis_notch_reaches_the_fmu(built_fmus, fmu_value, notch):
     assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
 
 
+@pytest.mark.parametrize("fmu_value, anti_windup", [(1, True), (0, False)])
+def test_anti_windup_reaches_the_fmu(built_fmus, fmu_value, anti_windup):
+    """The controller FMU's anti_windup gives the direct loop with the same ControllerSettings.anti_windup,
+    bit for bit, on a reference step out of the muscle's reach and back, where it matters."""
+    doc = {"duration_s": 30.0, "step_s": 0.1, "seed": 2, "evaluation_samples": [200, 300],
+           "controller": {"method": "mpc_servo", "parameters": {"anti_windup": fmu_value}},
+           "reference": {"kind": "steps", "times_s": [0.0, 20.0], "values_mm": [-20.0, 40.0], "preview": "advanced"},
+           "load": {"initial_n": 44.0}}
+    cols = co_simulate(parse_scenario(doc, source="test"), built_fmus)
+    plant = Plant(seed=2)
+    plant.update(load_n=44.0)
+    ctrl = DisplacementController(ControllerSettings(method="mpc_servo", anti_windup=anti_windup), THETA0_44N)
+    direct = run_closed_loop(plant, ctrl, np.where(np.arange(301) < 200, -20.0, 40.0), duration_s=30.0)
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    assert (np.min(cols["xs_mm"]) > -1500.0) == anti_windup  # without the hold x_s winds down to -3000
+
+
 def test_startup_mode_reaches_the_fmu(built_fmus):
     """startup_s on the controller FMU gives the direct loop with ControllerSettings.startup_s, bit for bit."""
     doc = {"duration_s": 20.0, "step_s": 0.1, "seed": 4, "evaluation_samples": [100, 199],

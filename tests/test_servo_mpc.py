@@ -121,7 +121,10 @@ def test_defaults_are_table5():
     (dict(always_osqp=1), "always_osqp"),
 ])
 def test_settings_validation_names_field(kwargs, name):
-    with pytest.raises(ValueError, match=name):
+    # a value of the wrong kind (2.5 or True for an integer, a string) is a TypeError, a bad value a ValueError
+    wrong_kind = any(isinstance(v, (bool, str)) or (k in ("hp", "hu") and isinstance(v, float))
+                     for k, v in kwargs.items())
+    with pytest.raises(TypeError if wrong_kind else ValueError, match=name):
         ServoMPCSettings(**kwargs)
 
 

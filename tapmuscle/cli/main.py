@@ -399,8 +399,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "the cycle); default: the controller FMU's hysteresis notch (docs/control.md, Chatter)")
     pap.add_argument("--paper-start", action="store_true",
                      help="start as the paper does: the full reference and the raw adaptive estimate from the first "
-                          "sample (overshoot and valve slamming in the first seconds); default: the controller FMU's "
-                          "start-up mode (docs/control.md, Start-up). With --paper-eq5: the paper's controllers exactly")
+                          "sample (overshoot and valve slamming in the first seconds), and the servo integrator Eq. (18) "
+                          "without the anti-windup hold; default: the controller FMU's start-up mode and hold "
+                          "(docs/control.md, Start-up, Integrator wind-up). With --paper-eq5: the paper's controllers exactly")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
 

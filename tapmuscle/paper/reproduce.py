@@ -79,7 +79,7 @@ _TABLES = (("table6", 0.1, ("mpc_servo", "mpc_ucp"), {44: (8, 9), 68: (10, 11)})
            ("table9", 0.2, ("ampc_servo", "mpc_servo"), {44: (16, 17), 68: (18, 19)}))
 
 
-def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
+def preliminary_theta(seed: int = 0, refine_hz: float = 0.05) -> np.ndarray:
     """Section 4.2's fixed predictor, "obtained by a preliminary identification under 44 N".
 
     The paper does not say on which data. We identify in two stages, both at 44 N:
@@ -88,7 +88,8 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
     2. closed loop: 120 s of AMPC with servo mechanism tracking the reference at ``refine_hz``
        (``tapmuscle paper``: 0.05 Hz, docs/control.md says why), started from stage 1, with its own
        noise seed (``seed + 1000``); the estimate at the end is frozen. The experiment is fixed: the
-       paper's AMPC-servo with the paper's start and Eq. (5), whatever the controller's defaults.
+       paper's AMPC-servo with the paper's start, Eq. (5) and Eq. (18), whatever the controller's
+       defaults.
 
     Stage 1 alone fits the open-loop data well (docs/identification.md) but its polynomial and
     A-terms give the hysteresis cancellation H(k) large, nearly cancelling velocity gains; the fixed
@@ -99,7 +100,7 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.1) -> np.ndarray:
                         duration_s=240.0, ts_s=0.1)
     stage1 = identify_record(rec["u_v"], rec["l_mm"], ts_s=0.1, model="asymmetric").theta
     refine = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5, startup_s=0.0,
-                                                   hysteresis_notch=False), stage1)
+                                                   hysteresis_notch=False, anti_windup=False), stage1)
     cols = run_closed_loop(Plant(PlantParams(), seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz),
                            duration_s=120.0)
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
@@ -122,9 +123,9 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     ``H(k)`` in MPC-servo as the paper's Eq. (5) does (the controller FMU's ``hysteresis_notch = 0``);
     by default the FMU's own setting applies, which removes MPC-servo's valve chatter
     (docs/control.md, "Chatter"). ``faithful_start`` starts every controller as the paper does (the
-    FMU's ``startup_s = 0``: the full reference and the raw estimate from the first sample); by
-    default the FMU's start-up mode applies (docs/control.md, "Start-up"). Both together run the
-    paper's controllers exactly.
+    FMU's ``startup_s = 0``: the full reference and the raw estimate from the first sample), with the
+    integrator of Eq. (18) as written (``anti_windup = 0``); by default the FMU's start-up mode applies (docs/control.md,
+    "Start-up"). Both together run the paper's controllers exactly.
     """
     from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim import PAPER_SCENARIOS, co_simulate, load_scenario
@@ -144,6 +145,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
         theta_params["hysteresis_notch"] = 0
     if faithful_start:
         theta_params["startup_s"] = 0.0
+        theta_params["anti_windup"] = 0
     # every output at once: an interrupted or failed run leaves the folder as it was, never half of two runs
     with staged_folder(out, owned=PAPER_FILES) as tmp:
         results: dict[str, dict] = {}
