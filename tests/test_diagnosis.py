@@ -567,7 +567,9 @@ def test_diagnose_cli_names_the_line_and_column_of_a_malformed_recording(tmp_pat
     assert not out.exists()
     rec.write_text("t_s,u_v,l_mm\n" + "".join(f"{0.1 * k:.1f},{5 + (k % 7)},{k}\n" for k in range(400)).replace("\n20.0,", "\n20.05,"))
     assert main(["diagnose", "--recording", str(rec), "--plant", str(plant), "--out", str(out)]) == 2
-    assert re.search(r"sample 200: t = 20\.05 s lies \+0\.04\d+ s off the uniform grid of 0\.1 s", capsys.readouterr().err)
+    assert re.search(r"bad\.csv: column t_s, line 202 \(sample 200\): t = 20\.05 s lies \+0\.04\d+ s off the uniform grid "
+                     r"of 0\.1 s", capsys.readouterr().err)
+    rec.write_text("t_s,u_v,l_mm\n" + "".join(f"{0.1 * k:.1f},{5 + (k % 7)},{k}\n" for k in range(400)))
     assert main(["diagnose", "--recording", str(rec), "--plant", str(tmp_path / "nope.fmu"), "--out", str(out)]) == 2
     assert "nope.fmu" in capsys.readouterr().err
 

@@ -171,9 +171,10 @@ def test_score_model_takes_the_parameters_by_name_too():
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda t, meta: (np.delete(t, 100), meta), r"sample 100: t = 10.1 s follows 9.9 s, a step of 0.2 s in a recording "
+    (lambda t, meta: (np.delete(t, 100), meta), r"line \d+ \(sample 100\): t = 10.1 s follows 9.9 s, a step of 0.2 s in a recording "
      r"sampled every 0.1 s: a dropped or doubled sample"),
-    (lambda t, meta: (t, {"ts_s": "0.05"}), r"header '# ts_s: 0.05' contradicts the t_s column, sampled every 0.1 s"),
+    (lambda t, meta: (t, {"ts_s": "0.05"}), r"rec\.csv, line \d+: header '# ts_s: 0.05' contradicts the t_s column, sampled every "
+     r"0.1 s"),
     (lambda t, meta: (t, {"ts_s": "1e300"}), r"header '# ts_s: 1e300' contradicts"),
     (lambda t, meta: (t, {"ts_s": "fast"}), r"header '# ts_s: fast' is not a number"),
 ])

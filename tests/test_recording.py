@@ -161,3 +161,15 @@ def test_write_recording_takes_simulate_columns_and_refuses_what_readers_would(t
         with pytest.raises(RecordingError, match=re.escape(message)):
             write_recording(target, columns)
         assert not target.exists(), name
+
+
+def test_a_clock_that_changes_its_period_is_refused_on_reading_with_file_and_line(tmp_path):
+    """Not later, when the sampling is first asked for, without the file's name."""
+    t = np.concatenate([np.arange(0, 90.0, 0.1), 90.0 + np.arange(0, 30.0, 0.2)])
+    path = tmp_path / "clock.csv"
+    path.write_text("t_s,u_v,l_mm\n" + "".join(f"{x:.1f},5,1\n" for x in t))
+    with pytest.raises(RecordingError, match=r"clock\.csv: column t_s, line 903 \(sample 901\): "):
+        read_recording(path)
+    path.write_text("# ts_s: 0.2\nt_s,u_v,l_mm\n" + "".join(f"{0.1 * k:.1f},5,1\n" for k in range(50)))
+    with pytest.raises(RecordingError, match=r"clock\.csv, line 1: header '# ts_s: 0.2' contradicts the t_s column"):
+        read_recording(path)

@@ -137,6 +137,9 @@ def test_every_unit_has_a_factor_and_column_specs_parse():
     ("time;u;l\n0;1;0\n0,1;x;0\n", r"line 3, column 'u': 'x' is not a number"),
     ("time;u;l\n0;1;0\n0;2;0\n", r"line 3, column 'time': time does not increase \('0', then '0'\)"),
     ("time;u;l\n0;1;0\n0,1;2\n", r"line 3: 2 fields, no column 'l'"),
+    # a decimal comma in a comma-separated log: every value after it would be shifted by one column
+    ("time,u,l,p\n0,1,64.9,0.12\n0.1,1,64,9000,0.12\n", r"line 3: 5 fields, the header has 4 \(a decimal comma or a "
+                                                       r"stray ',' in a value\?\): '0.1,1,64,9000,0.12'"),
     ("time;u;pos\n0;1;0\n", r"line 1: no column 'l' for l_mm \(found, separated by ';': time, u, pos\)"),
     ("# only a comment\n\n", r"no header row"),
     ("time;u;l\nms;V;mm\n", r"header but no data rows"),
@@ -146,6 +149,13 @@ def test_a_malformed_log_is_refused_by_line_and_column(tmp_path, body, message):
     log.write_text(body)
     with pytest.raises(RecordingError, match=message):
         read_rig_log(log, time="time", u="u", l="l")
+
+
+def test_empty_trailing_fields_are_a_loggers_habit_not_an_error(tmp_path):
+    log = tmp_path / "trailing.csv"
+    log.write_text("time;u;l;\n0;1;0;\n0,1;2;0,5;;\n")
+    rec = read_rig_log(log, time="time", u="u", l="l")
+    assert rec.columns["l_mm"].tolist() == [0.0, 0.5] and rec.columns["u_v"].tolist() == [1.0, 2.0]
 
 
 def test_iso_stamps_that_cannot_be_compared_and_iso_values_are_refused(tmp_path):

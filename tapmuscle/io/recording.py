@@ -28,6 +28,7 @@ import csv
 import io
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -181,11 +182,23 @@ def read_recording(path: str | os.PathLike) -> Recording:
     ------
     RecordingError
         Missing file, no header, a missing required column, a duplicate column, a row with the
-        wrong number of fields, a value that is not a finite number, or ``t_s`` not increasing;
-        the message names the file, the line and the column.
+        wrong number of fields, a value that is not a finite number, ``t_s`` not increasing, off a
+        uniform grid (a dropped sample, a clock that changes its period) or against a ``# ts_s:``
+        header line; the message names the file, the line and the column.
     """
-    columns, metadata = read_columns(path, REQUIRED_COLUMNS)
-    return Recording(columns, metadata)
+    lines: dict[str, Any] = {}
+    columns, metadata = _read_columns(path, REQUIRED_COLUMNS, "t_s", lines)
+    rec = Recording(columns, metadata)
+    if len(rec) >= 2:  # the period the fits assume: checked where the file can still be named
+        try:
+            rec.ts_s
+        except RecordingError as exc:
+            samples = lines["samples"]
+            message = re.sub(r"\bsample (\d+)\b", lambda m: f"line {samples[int(m[1])]} (sample {m[1]})", str(exc),
+                             count=1)
+            line = f", line {lines['ts_s']}" if message.startswith("header '# ts_s:") else ""
+            raise RecordingError(f"{path}{line}: {message}") from None
+    return rec
 
 
 def read_text(path: Path, what: str, encoding: str = "utf-8-sig", remedy: str = "save it as UTF-8") -> str:
@@ -211,6 +224,13 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
 
     Raises :class:`RecordingError` as :func:`read_recording` does.
     """
+    return _read_columns(path, required, time_column, {})
+
+
+def _read_columns(path: str | os.PathLike, required: tuple[str, ...], time_column: str,
+                  lines_of: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """:func:`read_columns`, storing in ``lines_of`` the line number of each ``# key:`` line (by key)
+    and of each sample (``"samples"``, a list)."""
     path = Path(path)
     text = read_text(path, "recording")
 
@@ -222,6 +242,7 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
         key, sep, value = body.partition(":")
         if sep and key.strip() and " " not in key.strip():
             metadata[key.strip()] = value.strip()
+            lines_of[key.strip()] = i + 1
         i += 1
     if i >= len(lines):
         raise RecordingError(f"{path}: no header row (expected e.g. 't_s,u_v,l_mm')")
@@ -241,7 +262,7 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
         seen.add(name)
 
     data: list[list[float]] = []
-    linenos: list[int] = []
+    linenos = lines_of.setdefault("samples", [])
     for lineno, row in enumerate(csv.reader(lines[i + 1:]), start=header_line + 1):
         if not row or (len(row) == 1 and not row[0].strip()):
             continue

@@ -368,6 +368,12 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         skipped, body = body[0][0], body[1:]  # a units row under the header: text in every mapped column
     if not body:
         raise RecordingError(f"{path}: header but no data rows")
+    for lineno, row in body:
+        # more fields than the header names shift every value after the extra one into the wrong
+        # column (a decimal comma in a comma-separated log); empty trailing fields are a logger's habit
+        if len(row) > len(header) and any(cell.strip() for cell in row[len(header):]):
+            raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, the header has {len(header)} (a decimal "
+                                 f"comma or a stray {sep!r} in a value?): {sep.join(row)[:80]!r}")
     if check_thousands and decimal == ".":  # on the values alone: a units row is text in every column
         _refuse_thousands(path, body, {t: j for t, j in index.items() if factors[t] is not None}, header)
     columns: dict[str, np.ndarray] = {}
