@@ -8,7 +8,7 @@ import stat
 import matplotlib.pyplot as plt
 import pytest
 
-from tapmuscle.io.atomic import atomic_path, staged_folder
+from tapmuscle.io.atomic import atomic_path, staged_folder, probe_output_folder
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.plots.figures import save_figure
 
@@ -149,3 +149,46 @@ def test_a_read_only_file_is_refused_before_the_work_and_kept(tmp_path, monkeypa
         _run_into(out, {"a.json": "2", "b.json": "2"}, owned=("*.json",))
     assert (out / "a.json").read_text() == "1" and (out / "b.json").read_text() == "1"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "ro.csv"]
+
+
+@pytest.fixture
+def unwritable_folder(tmp_path):
+    """A folder nothing can be written into: mode 0555, or immutable under root (whom modes do not stop)."""
+    import subprocess
+
+    folder = tmp_path / "locked"
+    (folder / "out").mkdir(parents=True)
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+        (folder / "out").chmod(0o555)
+        yield folder
+        (folder / "out").chmod(0o755)
+        folder.chmod(0o755)
+        return
+    if subprocess.run(["chattr", "+i", str(folder / "out"), str(folder)], capture_output=True).returncode != 0:
+        pytest.skip("chattr +i is not permitted here (no CAP_LINUX_IMMUTABLE): root writes any folder")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["chattr", "-i", str(folder / "out"), str(folder)], check=True)
+
+
+def test_an_output_folder_that_cannot_be_written_is_named_before_the_work(unwritable_folder, monkeypatch):
+    """A diagnosis of a long recording must not run for minutes to fail on its last rename, naming a
+    hidden staging folder."""
+    from tapmuscle.diagnosis import report
+
+    with pytest.raises(PermissionError, match=r"locked/out: the outputs cannot be written there \(.+\); choose another"):
+        probe_output_folder(unwritable_folder / "out")
+    with pytest.raises(PermissionError, match=r"locked/new: the outputs cannot be written there"):
+        probe_output_folder(unwritable_folder / "new")
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the diagnosis ran")
+
+    monkeypatch.setattr(report, "diagnose", no_work)
+    monkeypatch.setattr(report, "read_recording", lambda path: None)
+    monkeypatch.setattr(report, "load_plant", lambda path: (None, "file"))
+    with pytest.raises(PermissionError, match="locked/out: the outputs cannot be written there"):
+        report.diagnose_files("rec.csv", "plant.json", unwritable_folder / "out")
+    assert [p.name for p in unwritable_folder.iterdir()] == ["out"] and not any((unwritable_folder / "out").iterdir())

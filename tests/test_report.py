@@ -122,3 +122,26 @@ def test_a_value_that_is_not_finite_goes_to_the_json_as_null_by_its_path():
     assert finite_json({"a": [1.0, {"b": 2.0}]}) == ({"a": [1.0, {"b": 2.0}]}, [])
     written = json.loads(json_text({"fit": math.nan, "notes": ["before"]}))
     assert written == {"fit": None, "notes": ["before", "not a finite number, written as null: .fit"]}
+
+
+def _calibration_only(rms_mm: float, noise_mm: float, whiteness_p: float, nominal: float, estimate: float):
+    from types import SimpleNamespace
+
+    row = SimpleNamespace(parameter="supply.compliance_m3_per_mpa", nominal=nominal, estimate=estimate,
+                          identifiable=True, at_bound=False)
+    return SimpleNamespace(verdict="calibration_only", calibration=SimpleNamespace(rows=[row]), named=[], ambiguous=[],
+                           fit_before_percent=80.0, fit_calibrated_percent=99.9, unexplained=None, unit="mm",
+                           tests_after={"rms_mm": rms_mm, "noise_reference_mm": noise_mm, "whiteness_p": whiteness_p})
+
+
+def test_the_summary_says_why_a_residual_counts_as_unstructured():
+    """Not white at p = 1e-209 but within the noise: "at the noise level", never "white"; a constant of
+    1e-5 that moved by 1e-11 is listed as changed."""
+    from tapmuscle.diagnosis.report import summary_lines
+
+    lines = summary_lines(_calibration_only(0.0145, 0.0104, 1.9e-209, 1.2e-5, 1.2e-5 + 3e-11))
+    assert "residual at the noise level: RMS 0.0145 mm against 0.0104 mm of noise, < 1.5 x" in lines[1]
+    assert "white" not in lines[1].split("whiteness p")[0]
+    assert "supply.compliance_m3_per_mpa 1.2e-05 -> 1.2e-05" in lines[0]
+    assert "residual white" in summary_lines(_calibration_only(0.03, 0.0104, 0.2, 1.0, 1.0))[1]
+    assert "none changed" in summary_lines(_calibration_only(0.03, 0.0104, 0.2, 1.0, 1.0))[0]

@@ -20,6 +20,8 @@ from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text,
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE
+from tapmuscle.diagnosis.residual_analysis import STRUCTURE_MATERIALITY
+from tapmuscle.io.atomic import probe_output_folder
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
 
@@ -50,7 +52,8 @@ def summary_lines(d: Diagnosis) -> list[str]:
     if d.calibration is not None:
         changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}{' (at its bound)' if r.at_bound else ''}"
                             for r in d.calibration.rows
-                            if r.identifiable and abs(r.estimate - r.nominal) > 1e-9 * max(1.0, abs(r.nominal)))
+                            # relative: a constant of 1e-5 (a compliance in m^3/MPa) moves by less than 1e-9
+                            if r.identifiable and abs(r.estimate - r.nominal) > 1e-9 * abs(r.nominal))
         # the constants are the final model's (re-fitted with the effects found); the fit is the first
         # calibration's, before any effect: said so, as the two can differ much
         final = " (in the final model, re-fitted with the effects)" if d.named or d.ambiguous else ""
@@ -63,7 +66,14 @@ def summary_lines(d: Diagnosis) -> list[str]:
                   f"{rem['noise_mm']:.4f} {d.unit} of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
                   f"initial excess; reported, not claimed"])
     if d.verdict == "calibration_only":
-        white = ("residual white" if rem is None else "residual within the materiality level")
+        after = d.tests_after
+        if rem is not None:
+            white = "residual within the materiality level"
+        elif after["rms_mm"] > STRUCTURE_MATERIALITY * after["noise_reference_mm"]:
+            white = "residual white"  # material, so unstructured only as white noise
+        else:  # not structured for being at the noise level, white or not
+            white = (f"residual at the noise level: RMS {after['rms_mm']:.4f} {d.unit} against "
+                     f"{after['noise_reference_mm']:.4f} {d.unit} of noise, < {STRUCTURE_MATERIALITY:g} x")
         return out + [f"calibration only: the recalibrated plant explains the recording ({white}, "
                       f"whiteness p = {d.tests_after['whiteness_p']:.2g}); no left-out effect is claimed"] + remainder
     for group in d.ambiguous:
@@ -373,6 +383,7 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     """
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
+    probe_output_folder(out)  # before the work, not after it
     if effects is not None:
         options["candidates"] = effects  # names, checked by diagnose
     cols = rec.columns

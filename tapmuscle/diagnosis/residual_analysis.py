@@ -14,7 +14,7 @@ from scipy import stats
 
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
 
-__all__ = ["block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
+__all__ = ["STRUCTURE_MATERIALITY", "block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
            "cross_correlation_test", "is_structured", "mean_test", "located_windows", "regime_summary",
            "interleaved_split", "iou", "dominant_frequency_hz"]
 
@@ -93,8 +93,12 @@ def cross_correlation_test(u: np.ndarray, e: np.ndarray, max_lag: int = MAX_LAG)
     return Correlation(lags, r, z / math.sqrt(n), float(stats.chi2.sf(q, len(lags))))
 
 
+#: How many times the noise level a residual's RMS must exceed to count as structured (is_structured).
+STRUCTURE_MATERIALITY = 1.5
+
+
 def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha: float = 1e-3,
-                  materiality: float = 1.5) -> tuple[bool, dict]:
+                  materiality: float = STRUCTURE_MATERIALITY) -> tuple[bool, dict]:
     """Does ``e`` hold structure beyond white noise? Both must hold:
 
     * the Ljung-Box whiteness test rejects white noise at level ``alpha``, or the residual's mean is

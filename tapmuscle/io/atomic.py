@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Sequence
 
-__all__ = ["atomic_path", "default_file_mode", "staged_folder"]
+__all__ = ["atomic_path", "default_file_mode", "probe_output_folder", "staged_folder"]
 
 
 def _umask() -> int:
@@ -88,6 +88,31 @@ def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Pa
         raise
 
 
+def probe_output_folder(out: str | os.PathLike) -> None:
+    """Fail now, naming ``out``, where :func:`staged_folder` would fail once the work is done: ``out``
+    a file, or ``out`` or the folder it is in not writable (an immutable or read-only mount; as root,
+    permission bits do not stop a write, so the folder is tried, not its mode read).
+
+    Raises
+    ------
+    OSError
+        ``NotADirectoryError`` or ``PermissionError`` naming ``out`` and why.
+    """
+    out = Path(os.path.realpath(out)) if Path(out).is_symlink() else Path(out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out} is a file, not a folder for the outputs")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))  # the staging folder's place
+        if out.is_dir():  # the outputs are renamed into it
+            fd, name = tempfile.mkstemp(prefix=".probe.", dir=out)
+            os.close(fd)
+            os.unlink(name)
+    except OSError as exc:
+        raise PermissionError(f"{out}: the outputs cannot be written there ({exc.strerror or exc}); "
+                              "choose another output folder") from None
+
+
 @contextmanager
 def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None) -> Iterator[Path]:
     """A temporary folder next to ``out`` to write a run's outputs into, put in place when the block
@@ -111,9 +136,7 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
         may not write (checked before anything in ``out`` changes).
     """
     out = Path(os.path.realpath(out)) if Path(out).is_symlink() else Path(out)
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out} is a file, not a folder for the outputs")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    probe_output_folder(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         yield tmp
