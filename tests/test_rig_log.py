@@ -189,6 +189,31 @@ def test_import_writes_the_recording_and_says_what_diagnose_would(tmp_path, trut
     assert "the diagnosis would refuse it: column u_v, sample 0: 50 V" in capsys.readouterr().err
 
 
+def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_path, truth, capsys):
+    """Millimetres declared as micrometres are refused (a span 1000 times below the nominal plant's);
+    volts declared as percent (a tenth of them) and a load in kN are noted."""
+    log = tmp_path / "logger.csv"
+
+    log.write_text("t_s;u;l\n" + "".join(f"{0.1 * k:.1f};{u:.5f};{l:.3f}\n"
+                                         for k, (u, l) in enumerate(zip(truth["u_v"], truth["l_mm"]))))
+    base = ["import", str(log), "--time", "t_s", "--u", "u"]
+    out = tmp_path / "mm_as_um.csv"
+    assert main(base + ["--out", str(out), "--l", "l:um", "--load-n", "44"]) == 2
+    err = capsys.readouterr().err
+    assert "column l_mm spans" in err and "where the nominal model, driven by the same command, spans" in err
+    assert not out.exists()
+    assert main(base + ["--out", str(out), "--l", "l", "--load-n", "44"]) == 0  # right: nothing said of units
+    err = capsys.readouterr().err
+    assert "another unit" not in err and "kN" not in err
+    # volts declared as percent: read as a tenth of them
+    assert main(["import", str(log), "--out", str(tmp_path / "tenth.csv"), "--time", "t_s", "--u", "u:%",
+                 "--l", "l", "--load-n", "44"]) == 0
+    assert "is the command in another unit (volts imported as percent are a tenth of them)?" in capsys.readouterr().err
+    assert main(base + ["--out", str(out), "--l", "l", "--load-n", "0.044"]) == 0
+    err = capsys.readouterr().err
+    assert "The load never exceeds 0.044 N" in err and "kN?" in err
+
+
 def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):
     log = tmp_path / "logger.csv"
     _logger(log, truth, units_row=False)

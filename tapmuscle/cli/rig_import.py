@@ -41,8 +41,11 @@ def _run_outputs(out: Path, runs: int) -> list[Path]:
 
 def _converted(args: argparse.Namespace, run: int | None):
     """The recording of run ``run`` of the log, checked as the diagnosis would, and its notes."""
-    from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, DRAINED_MPA, check_muscle_recording,
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, DRAINED_MPA, check_displacement_scale,
+                                                      check_muscle_recording, displacement_scale_note,
                                                       muscle_recording_notes)
+    from tapmuscle.diagnosis.simulation import Simulator, noise_free
     from tapmuscle.io.recording import RecordingError
     from tapmuscle.io.rig_log import STANDARD_ATMOSPHERE_KPA, read_rig_log
     from tapmuscle.io.sampling import SamplingError
@@ -53,17 +56,25 @@ def _converted(args: argparse.Namespace, run: int | None):
                            fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines, encoding=args.encoding,
                            run=run, ambient_kpa=args.ambient_kpa)
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
+        load = rec.load_n
     except (RecordingError, SamplingError) as exc:
         raise UsageError(str(exc)) from None
     # the units were declared: values no muscle recording has mean a wrong one (percent given as V)
+    scale_note = None
     try:
         check_muscle_recording(rec.u_v, sampling.ts_s, rec.l_mm)
+        # the units against the nominal plant driven by the same command, as the diagnosis does it
+        l_nominal = Simulator(rec.u_v, sampling.ts_s, load).run(noise_free(PlantParams()))[0]
+        check_displacement_scale(rec.l_mm, l_nominal)
+        scale_note = displacement_scale_note(rec.l_mm, l_nominal)
         problems = []
     except ValueError as exc:
         if not args.no_checks:
             raise UsageError(f"{args.log}: {exc} (--no-checks writes it as it is)") from None
         problems = [f"the diagnosis would refuse it: {exc}"]
-    notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, rec.columns.get("p_mpa"))
+    notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, rec.columns.get("p_mpa"), load_n=load)
+    if scale_note:
+        notes.append(scale_note)
     if "ambient_kpa" in rec.metadata and abs(rec.l_mm[0]) <= AT_REST_MM:
         p0_kpa = 1e3 * float(rec.columns["p_mpa"][0])
         ambient = args.ambient_kpa or STANDARD_ATMOSPHERE_KPA

@@ -113,7 +113,8 @@ from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
-from tapmuscle.diagnosis.recording_checks import check_displacement_scale, check_muscle_recording, muscle_recording_notes
+from tapmuscle.diagnosis.recording_checks import (check_displacement_scale, check_muscle_recording,
+                                                  displacement_scale_note, muscle_recording_notes)
 from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.reproducible import dot, norm, sse
 
@@ -326,11 +327,13 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
     check_muscle_recording(u, ts, y, np.asarray(p_mpa, float) if use_pressure and p_mpa is not None else None)
-    notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float))
+    notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float), load_n=load_n)
     block_s = split_length_s(u, ts, block_s)
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
-    check_displacement_scale(y, sim.run(model)[0])
+    y_nominal = sim.run(model)[0]
+    check_displacement_scale(y, y_nominal)
+    notes += [n for n in [displacement_scale_note(y, y_nominal)] if n]
     with ExitStack() as stack:
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,

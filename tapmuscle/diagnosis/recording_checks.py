@@ -18,7 +18,7 @@ from tapmuscle.io.sampling import uniform_sampling
 
 __all__ = ["check_muscle_recording", "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
-           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA"]
+           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "displacement_scale_note"]
 
 #: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
 #: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
@@ -42,6 +42,8 @@ DRAINED_MPA = 0.02
 AMBIENT_MPA_RANGE = (0.06, 0.11)
 #: A tap-water rig's muscle pressure stays below this [MPa(G)] (the supply is 0.25 MPa); above: kPa?
 PRESSURE_PLAUSIBLE_MPA = 2.0
+#: A hanging load that never reaches this [N] but is not zero is in another unit (kN: 0.044 for 44 N).
+LOAD_PLAUSIBLE_N = 1.0
 
 
 def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None,
@@ -82,14 +84,16 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
                              "--use-pressure the fits weigh it: is it logged in kPa? Scale it to MPa")
 
 
-def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray | None) -> list[str]:
+def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray | None, *,
+                           load_n: np.ndarray | float | None = None) -> list[str]:
     """What the report should say about the recording before its findings (empty: nothing).
 
     * the first reading away from rest (the model starts drained at ``l = 0``);
     * a pressure that starts at the atmosphere's (:data:`AMBIENT_MPA_RANGE`) with the muscle at rest
       and never drains below it: an absolute sensor's;
     * timestamps that scatter about the uniform grid (taken as on it);
-    * a pressure column beyond :data:`PRESSURE_PLAUSIBLE_MPA` (another unit).
+    * a pressure column beyond :data:`PRESSURE_PLAUSIBLE_MPA` (another unit);
+    * a load ``load_n`` [N] that is not zero but never reaches :data:`LOAD_PLAUSIBLE_N` (kN?).
     """
     notes = []
     l0 = float(l_mm[0])
@@ -118,7 +122,29 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
         notes.append(f"Column p_mpa reaches {float(np.max(p_mpa)):g} MPa, far above a tap-water rig's (supply "
                      "0.25 MPa): is it logged in kPa? It only enters the regime breakdown here (--use-pressure, "
                      "which weighs it in the fits, refuses it)")
+    if load_n is not None:
+        top = float(np.max(np.abs(load_n)))
+        if 0.0 < top < LOAD_PLAUSIBLE_N:
+            notes.append(f"The load never exceeds {top:g} N, where a muscle lifts tens of newtons (the rig's 44 and "
+                         "68 N): is it logged in kN? The diagnosis takes it as given, and a wrong load shows as "
+                         "load_mismatch")
     return notes
+
+
+def displacement_scale_note(l_mm: np.ndarray, l_model_mm: np.ndarray) -> str | None:
+    """A note when the recorded displacement spans more than ``1 / SPAN_RATIO_PLAUSIBLE`` times what
+    the nominal model ``l_model_mm`` does for the same command (None otherwise).
+
+    Not refused, as the opposite is (:func:`check_displacement_scale`): a valve that opens where the
+    model's does not moves the rig while the model stands still. But the usual cause is a command in
+    another unit (volts imported as percent are a tenth).
+    """
+    span, model_span = float(np.ptp(l_mm)), float(np.ptp(l_model_mm))
+    if span <= model_span / SPAN_RATIO_PLAUSIBLE:
+        return None
+    return (f"Column l_mm spans {span:.4g} mm where the nominal model, driven by the same command (u within "
+            f"the recording's), spans {model_span:.4g} mm: is the command in another unit (volts imported as "
+            "percent are a tenth of them)? A valve that opens far below the model's would do it as well")
 
 
 def check_displacement_scale(l_mm: np.ndarray, l_model_mm: np.ndarray) -> None:
