@@ -241,6 +241,11 @@ def test_external_step_reference_is_tracked(built_fmus):
      "has 2 entries"),
     ("duration_s = 10.0\n[plant]\nparameters = { 'friction.rate_gain' = true }\n",
      "plant.parameters.friction.rate_gain", "must be a number"),
+    ("duration_s = 10.0\n[plant]\nparameters = { 'load.load_n' = 68 }\n", "plant.parameters.load.load_n",
+     "set [load] initial_n"),
+    ("duration_s = 10.0\n[plant.parameters]\n'supply.supply_pressure_mpa' = 0.2\n",
+     "plant.parameters.supply.supply_pressure_mpa", "set [supply] initial_mpa"),
+    ("duration_s = 10.0\n[plant]\nparameters_file = '.'\n", "plant.parameters_file", "is a folder, not a file"),
 ])
 def test_bad_scenarios_name_file_and_key(tmp_path, text, key, message):
     path = tmp_path / "bad.toml"

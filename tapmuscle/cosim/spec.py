@@ -258,6 +258,8 @@ class _Reader:
             return None
         p = Path(self.string(key))
         p = p if p.is_absolute() or base is None else base / p
+        if p.is_dir():
+            raise self.error(key, f"{str(p)!r} is a folder, not a file")
         if not p.is_file():
             raise self.error(key, f"file {str(p)!r} does not exist")
         return p
@@ -339,6 +341,11 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
                 key, "is set by the scenario itself (controller.method, step_s, [reference]); set it there")
     if "seed" in plant.parameters:
         raise _Reader(source, plant.parameters, "plant.parameters.").error("seed", "set the top-level key 'seed'")
+    for key, where in (("load.load_n", "[load] initial_n (and steps)"),
+                       ("supply.supply_pressure_mpa", "[supply] initial_mpa (and steps)")):
+        if key in plant.parameters:  # the FMU's inputs load and supply_pressure set them (a file's are left out)
+            raise _Reader(source, plant.parameters, "plant.parameters.").error(
+                key, f"is set by the plant FMU's input, which the scenario drives: set {where}")
 
     ref_r = top.sub("reference")
     kind = ref_r.string("kind", "sine", ("sine", "steps"))

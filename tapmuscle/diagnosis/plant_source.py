@@ -27,6 +27,8 @@ class PlantSourceError(PlantFileError):
 def load_plant(path: str | Path) -> tuple[PlantParams, str]:
     """``(parameters, kind)`` of a plant file (``kind`` is ``"fmu"`` or ``"json"``)."""
     path = Path(path)
+    if path.is_dir():
+        raise PlantSourceError(f"--plant {path}: a folder, not a MusclePlant .fmu or a plant .json")
     if not path.is_file():
         raise PlantSourceError(f"--plant {path}: no such file (a MusclePlant .fmu or a plant .json)")
     if path.suffix.lower() == ".fmu":

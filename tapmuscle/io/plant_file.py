@@ -33,6 +33,9 @@ def read_plant_file(path: str | Path, option: str) -> PlantParams:
                              f"{exc.msg}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise PlantFileError(f"{option} {path}: cannot read: {exc}") from None
+    if isinstance(data, dict) and "plant" not in data and {"verdict", "findings"} <= set(data):
+        raise PlantFileError(f"{option} {path}: a diagnosis report, not a plant parameter file (the calibrated plant "
+                             f"is {Path(path).with_name('calibrated_plant.json')})")
     try:
         return PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data)
     except ValueError as exc:
