@@ -341,12 +341,6 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
                 key, "is set by the scenario itself (controller.method, step_s, [reference]); set it there")
     if "seed" in plant.parameters:
         raise _Reader(source, plant.parameters, "plant.parameters.").error("seed", "set the top-level key 'seed'")
-    for key, where in (("load.load_n", "[load] initial_n (and steps)"),
-                       ("supply.supply_pressure_mpa", "[supply] initial_mpa (and steps)")):
-        if key in plant.parameters:  # the FMU's inputs load and supply_pressure set them (a file's are left out)
-            raise _Reader(source, plant.parameters, "plant.parameters.").error(
-                key, f"is set by the plant FMU's input, which the scenario drives: set {where}")
-
     ref_r = top.sub("reference")
     kind = ref_r.string("kind", "sine", ("sine", "steps"))
     if kind == "sine":
@@ -376,6 +370,14 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     supply_r = top.sub("supply")
     supply_r.check_keys({"initial_mpa", "steps"})
     supply = supply_r.profile("initial_mpa", "pressure_mpa", 0.25, 0.0, 1.0)
+    for key, profile, where in (("load.load_n", load, "[load] initial_n (and steps)"),
+                                ("supply.supply_pressure_mpa", supply, "[supply] initial_mpa (and steps)")):
+        # the FMU's inputs load and supply_pressure set them (a parameters_file's are left out); the
+        # same value is harmless, another would be silently unused
+        if key in plant.parameters and plant.parameters[key] != profile.initial:
+            raise _Reader(source, plant.parameters, "plant.parameters.").error(
+                key, f"= {plant.parameters[key]!r} is set by the plant FMU's input, which the scenario drives "
+                     f"(now {profile.initial:g}): set {where}")
     from tapmuscle.cosim.expect import parse_expectations  # noqa: PLC0415 - expect imports this module
 
     expect = parse_expectations(data["expect"], source=source) if "expect" in data else None
