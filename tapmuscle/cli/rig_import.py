@@ -45,6 +45,8 @@ def _converted(args: argparse.Namespace, run: int | None):
     from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, DRAINED_MPA, check_displacement_scale,
                                                       check_muscle_recording, displacement_scale_note,
                                                       muscle_recording_notes)
+    import numpy as np
+
     from tapmuscle.diagnosis.simulation import Simulator, noise_free
     from tapmuscle.io.recording import RecordingError
     from tapmuscle.io.rig_log import STANDARD_ATMOSPHERE_KPA, read_rig_log
@@ -76,11 +78,16 @@ def _converted(args: argparse.Namespace, run: int | None):
     if scale_note:
         notes.append(scale_note)
     if "ambient_kpa" in rec.metadata and abs(rec.l_mm[0]) <= AT_REST_MM:
-        p0_kpa = 1e3 * float(rec.columns["p_mpa"][0])
+        # the median of the readings while the muscle stays at rest (up to 1 s): one reading carries the
+        # sensor's noise into the proposed ambient
+        rest = np.flatnonzero(np.abs(rec.l_mm) > AT_REST_MM)
+        n = min(int(rest[0]) if rest.size else len(rec), max(1, int(round(1.0 / sampling.ts_s))))
+        p0_kpa = 1e3 * float(np.median(rec.columns["p_mpa"][:n]))
         ambient = args.ambient_kpa or STANDARD_ATMOSPHERE_KPA
         if 1.0 < abs(p0_kpa) and abs(p0_kpa) <= 1e3 * DRAINED_MPA:  # a few kPa off: the day's atmosphere
-            notes.append(f"At rest, the first pressure reads {p0_kpa:+.3g} kPa against the ambient {ambient:g} kPa; if "
-                         f"the muscle was drained there, --ambient-kpa {ambient + p0_kpa:.5g} (that reading) makes it 0")
+            notes.append(f"At rest, the pressure reads {p0_kpa:+.3g} kPa (median of the first {n} samples) against the "
+                         f"ambient {ambient:g} kPa; if the muscle was drained there, --ambient-kpa {ambient + p0_kpa:.5g} "
+                         "(that reading) makes it 0")
     if "filled" in rec.metadata:
         notes.insert(0, rec.metadata["filled"][0].upper() + rec.metadata["filled"][1:])
     return rec, sampling, notes
