@@ -292,6 +292,15 @@ class DisplacementController:
         theta0 = ASYMMETRIC.as_theta(theta0, what="theta0")
         if abs(theta0[2]) < 1e-6:
             raise ValueError(f"theta0's b1 must not be ~0 (it divides the hysteresis cancellation, Eq. 5), got {float(theta0[2])!r}")
+        if settings.adaptive:
+            # Algorithm 1 keeps the estimate in C; a start outside it would be in the law, outside C,
+            # for the start-up mode's 12 s
+            for name, lo in settings.box_lower.items():
+                hi, v = settings.box_upper[name], float(theta0[ASYMMETRIC.index(name)])
+                if not lo - 1e-9 * max(1.0, abs(lo)) <= v <= hi + 1e-9 * max(1.0, abs(hi)):
+                    raise ValueError(f"theta0's {name} = {v!r} lies outside the constraint region C, {lo!r}..{hi!r} "
+                                     "(Table 2 unless box_lower/box_upper say otherwise): start the adaptive "
+                                     "controller inside it, or widen the box")
         self.settings = settings
         self.theta0 = _read_only(theta0.copy())
         self._rls: ConstrainedRLS | None = None

@@ -17,6 +17,7 @@ import numpy as np
 
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.identification import PAPER_TS_S
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
@@ -132,7 +133,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     theta0 : sequence of 15 floats or mapping, optional
         The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
         (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``); default the 44 N
-        preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2).
+        preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2),
+        identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it.
     settings : ControllerSettings, optional
         Full controller settings (horizons, weights, P(0), box); its ``method`` and ``ts_s`` must
         agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's.
@@ -165,6 +167,11 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     elif settings.method != method or abs(settings.ts_s - ts) > 1e-12 * ts:
         raise ValueError(f"settings.method = {settings.method!r}, settings.ts_s = {settings.ts_s!r} s disagree "
                          f"with method = {method!r}, ts_s = {ts!r} s")
+    if theta0 is None and abs(ts - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
+        # a discrete model's parameters belong to its sampling period (the 0.1-s predictor at 0.2 s:
+        # 13 mm of error and the valve slamming)
+        raise ValueError(f"ts_s = {ts:g} s needs a theta0 identified at that period: the default THETA0_44N is "
+                         f"the paper's, identified at Ts = {PAPER_TS_S:g} s (tm.identify(..., ts_s={ts:g}) gives one)")
     plant = _plant(params, None if callable(load_n) else load_n, seed)
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
     return run_closed_loop(plant, controller, reference, duration_s=duration_s,

@@ -262,6 +262,17 @@ def test_theta0_is_taken_in_both_forms_an_identification_gives():
         tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, theta0="THETA0_44N")
 
 
+def test_another_sampling_period_needs_its_own_predictor():
+    """THETA0_44N is a 0.1-s model: at 0.2 s it gives 13 mm of error, so the default is refused there;
+    a theta0 given is the caller's (identified at that period, say)."""
+    with pytest.raises(ValueError, match=r"ts_s = 0.2 s needs a theta0 identified at that period: the default "
+                                         r"THETA0_44N is the paper's, identified at Ts = 0.1 s"):
+        tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.2)
+    run = tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.2, theta0=tm.THETA0_44N)
+    assert len(run["t_s"]) == 16
+    assert len(tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.10000001)["t_s"]) == 31
+
+
 def test_every_bad_input_error_is_a_tapmuscle_error():
     """``except tm.TapmuscleError`` catches every error class the package defines for bad input (the
     ``ValueError`` kinds): a recording's sampling, a signal map, a foreign FMU, a scenario, a plant file."""

@@ -8,6 +8,7 @@ import pytest
 
 from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, METHODS, P0_TABLE5, P0_TABLE8,
                                                  ControllerSettings, DisplacementController)
+from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
 from fmu_controller.reference import SineReference
@@ -213,7 +214,7 @@ def test_the_delayed_loop_applies_the_previous_command(delayed_runs):
     comp = delayed_runs[1]
     assert comp["u_v"][0] == 0.0  # nothing computed before t_0 reaches the valve
     with pytest.raises(ValueError, match="loop_delay_samples"):
-        run_closed_loop(Plant(seed=0), DisplacementController(ControllerSettings(), np.ones(15)), SineReference(),
+        run_closed_loop(Plant(seed=0), DisplacementController(ControllerSettings(), THETA0_44N), SineReference(),
                         duration_s=1.0, loop_delay_samples=2)
 
 
@@ -636,3 +637,14 @@ def test_a_finite_preview_whose_sum_overflows_is_finite(theta0):
     assert 0.0 <= c.step(0.0, [1e308] * (c.settings.preview_samples + 1)).u_v <= 10.0
     with pytest.raises(ValueError, match="must be finite"):
         c.step(0.0, [1e308, math.inf] + [0.0] * (c.settings.preview_samples - 1))
+
+
+def test_an_adaptive_controller_starts_inside_its_constraint_region(theta0):
+    """Algorithm 1 keeps the estimate in C: a theta0 outside it would stay in the law, outside C,
+    through the start-up mode; a fixed-predictor MPC has no C."""
+    outside = dict(zip(ASYMMETRIC.names, theta0)) | {"a1": 1.10, "b1": 0.30}
+    with pytest.raises(ValueError, match=r"theta0's a1 = 1.1 lies outside the constraint region C, 1.208..1.26"):
+        DisplacementController(ControllerSettings(method="ampc_servo"), outside)
+    DisplacementController(ControllerSettings(method="mpc_servo"), outside)
+    wide = ControllerSettings(method="ampc_ucp", box_lower={"a1": 1.0, "a2": -0.4, "b1": 0.2})
+    assert DisplacementController(wide, outside).theta0[0] == 1.10
