@@ -135,8 +135,9 @@ def _direct_tables(theta0, seeds=(0, 1, 2)):
     """Tables 6, 7, 9 as `tapmuscle paper --paper-eq5 --paper-start` computes them from
     scenarios/paper/*.toml, on the direct loop (equal to the FMU loop, tests/test_scenarios.py), for a
     given fixed predictor: the paper's controllers, MPC-servo with the paper's Eq. (5), all with the
-    paper's start. (With the hysteresis notch, MPC-servo ties AMPC-servo at 68 N, 0.1 Hz for two of
-    these identifications, within 0.006 mm either way: docs/control.md, "Chatter".)"""
+    paper's start and Eq. (18) without the anti-windup hold. (With the hysteresis notch, MPC-servo
+    ties AMPC-servo at 68 N, 0.1 Hz for two of these identifications, within 0.006 mm either way:
+    docs/control.md, "Chatter".)"""
     errors = {}
     for run in PAPER_RUNS:
         parameters = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml").controller.parameters  # P0: Table 8 at 0.2 Hz
@@ -144,7 +145,7 @@ def _direct_tables(theta0, seeds=(0, 1, 2)):
         runs = []
         for seed in seeds:
             ctrl = DisplacementController(ControllerSettings(method=run.method, p0=p0, hysteresis_notch=False,
-                                                          startup_s=0.0), theta0)
+                                                          startup_s=0.0, anti_windup=False), theta0)
             cols = run_closed_loop(Plant(PlantParams(), seed=seed), ctrl, SineReference(frequency_hz=run.frequency_hz),
                                    duration_s=45.0, load_n=run.load_n)
             runs.append(eq21_error_mm(cols["r_mm"], cols["l_mm"]))

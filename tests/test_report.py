@@ -65,7 +65,7 @@ def test_samples_put_back_by_the_import_are_said(tmp_path):
                                          ({"ts_s": "0.2"}, "'# ts_s: 0.2' contradicts the t_s column")])
 def test_a_header_that_is_wrong_is_named_with_the_file(tmp_path, meta, match):
     rec, plant = _files(tmp_path, DEMO_MODEL, drop=("load_n",), metadata=meta)
-    with pytest.raises(RecordingError, match=f"rec.csv: header {match}"):
+    with pytest.raises(RecordingError, match=rf"rec\.csv(, line \d+)?: header {match}"):
         diagnose_files(rec, plant, tmp_path / "out", plots=False)
     assert not (tmp_path / "out").exists()
 

@@ -387,9 +387,7 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     if effects is not None:
         options["candidates"] = effects  # names, checked by diagnose
     cols = rec.columns
-    try:
-        if "ts_s" in rec.metadata:
-            rec.ts_s  # the header must agree with the t_s column
+    try:  # (read_recording has checked the sampling and a '# ts_s:' header)
         load = rec.load_n  # the column, else the '# load_n:' header
     except RecordingError as e:
         raise RecordingError(f"{recording}: {e}") from None
