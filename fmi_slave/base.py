@@ -294,7 +294,7 @@ class SafeSlave(Fmi2Slave):
             if missing:
                 self._wrong_reference(missing[0], Real, vrs, None)
                 return
-            if self._refused_set("fmi2SetReal", vrs):
+            if self._refused_set("fmi2SetReal", vrs) or self._refused_output_start(vrs, values):
                 return
             for vr, value in zip(vrs, values):
                 setters[vr](value)
@@ -317,6 +317,24 @@ class SafeSlave(Fmi2Slave):
             if out:
                 self.log(f"{call}: {self.vars[out[0]].name} is an output: after initialisation only inputs can be "
                          "set; nothing was written", status=Fmi2Status.error)
+                return True
+        return False
+
+    def _refused_output_start(self, vrs: list[int], values: list[float]) -> bool:
+        """True (and logged as an error, nothing written) if an output's value set before
+        initialisation (FMI 2.0 allows it for ``initial = exact``: its start value) is not finite or
+        outside its declared range: an output is never NaN, and never outside what it declares."""
+        for vr, value in zip(vrs, values):
+            if vr not in self._outputs:
+                continue
+            name = self.vars[vr].name
+            meta = self.variable_meta.get(name, {})
+            lo = -math.inf if meta.get("min") is None else meta["min"]
+            hi = math.inf if meta.get("max") is None else meta["max"]
+            if not (math.isfinite(value) and lo <= value <= hi):
+                bounds = f"within {lo:g}..{hi:g}" if (lo, hi) != (-math.inf, math.inf) else "finite"
+                self.log(f"fmi2SetReal: output {name} = {value!r} as its start value: it must be {bounds}; nothing was "
+                         "written", status=Fmi2Status.error)
                 return True
         return False
 

@@ -53,7 +53,7 @@ import math
 
 import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts
 from fmi_slave import SafeSlave
-from fmi_slave.base import SlaveInputError
+from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
@@ -271,7 +271,9 @@ class AMPCController(SafeSlave):
 
     def step_numerics(self, t_s: float, dt_s: float) -> None:
         ts = self._controller.settings.ts_s
-        tol = 1e-9 * max(1.0, abs(t_s) / ts) * ts
+        # within a step too short to integrate (MIN_STEP_S, accepted as a no-op) of a sample time is at it:
+        # a master's rounding remainder there must not make the next step skip the sample
+        tol = max(MIN_STEP_S, 1e-9 * max(1.0, abs(t_s) / ts) * ts)
         if dt_s > ts + tol:
             raise SlaveInputError(f"step size {dt_s:g} s exceeds the sampling period Ts = {ts:g} s; the "
                                   "controller would skip samples (use a communication step <= Ts)")
@@ -294,12 +296,16 @@ class AMPCController(SafeSlave):
         if not self._diverged and (not _DIVERGED_MM[0] <= step.predicted_next_mm <= _DIVERGED_MM[1]
                                    or abs(step.uc_v) > _DIVERGED_V):
             self._diverged = True  # said once: a host's log is not flooded every sample
-            self.log(f"t = {t_s:g} s: the adaptive model predicts l_pred = {step.predicted_next_mm:.3g} mm and asks "
-                     f"for u_c = {step.uc_v:.3g} V, far outside the rig's: its estimate diverges "
-                     f"(forgetting = {self._par['forgetting']:g}, "
-                     f"covariance_ceiling = {self._int_par['covariance_ceiling']}; a forgetting factor below 1 needs "
-                     "covariance_ceiling = 1 or a value closer to 1, docs/control.md). The command stays within "
-                     "u_min..u_max.", status=Fmi2Status.warning)
+            asks = (f"predicts l_pred = {step.predicted_next_mm:.3g} mm and asks for u_c = {step.uc_v:.3g} V, far "
+                    "outside the rig's")
+            if self._controller.settings.adaptive:
+                why = (f"the adaptive model {asks}: its estimate diverges (forgetting = {self._par['forgetting']:g}, "
+                       f"covariance_ceiling = {self._int_par['covariance_ceiling']}; a forgetting factor below 1 "
+                       "needs covariance_ceiling = 1 or a value closer to 1, docs/control.md)")
+            else:  # a fixed model does not diverge: what it is asked to do is out of reach
+                why = (f"the fixed model {asks}: the reference is out of the rig's reach from the readings l "
+                       f"(now {l:g} mm: an encoder offset or drift?), or the readings are far from the model's")
+            self.log(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.", status=Fmi2Status.warning)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

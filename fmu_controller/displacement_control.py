@@ -51,6 +51,7 @@ from .servo_mpc import ServoMPC, ServoMPCSettings
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
+           "HOLD_AFTER_SAMPLES",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -70,6 +71,10 @@ DELAY_FORGET = 0.02
 DELAY_RATIO = 1.25
 #: ... after at least this many samples compared.
 DELAY_MIN_SAMPLES = 50
+
+#: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
+#: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
+HOLD_AFTER_SAMPLES = 5
 #: ``input_delay_samples = -1``: if neither hypothesis has won by :data:`DELAY_RATIO` after this many
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
 #: is taken.
@@ -349,6 +354,7 @@ class DisplacementController:
         self._u_prev = 0.0
         self._uc_prev = 0.0
         self._xs = 0.0
+        self._limit_run = 0  # samples in a row at a valve limit the error pushes into (_integrate)
         self._h_prev = self._h_prev2 = math.nan  # H(k-1), H(k-2) for hysteresis_notch (NaN: none yet)
         self._predicted = math.nan
         # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
@@ -428,10 +434,11 @@ class DisplacementController:
         if self._auto:  # decided for a sequential master: the preview holds one sample more than the law takes
             rl = rl[:-1]
 
-        u, uc, h, xs_next, predicted, saturated = self._decide(l, rl, t, theta, self._xs, self._u_prev,
-                                                               self._uc_prev, self._h_prev2, self._h_prev)
+        u, uc, h, xs_next, predicted, saturated, pushed = self._decide(l, rl, t, theta, self._xs, self._u_prev,
+                                                                       self._uc_prev, self._h_prev2, self._h_prev)
         if self._servo is not None:
             self._xs = xs_next
+            self._limit_run = self._limit_run + 1 if pushed else 0
             self._uc_prev = uc
             if self._notch:
                 self._h_prev2, self._h_prev = self._h_prev, state.hysteresis_unchecked(t)
@@ -523,14 +530,15 @@ class DisplacementController:
         return [x if k + i >= n else l0 + _smoothstep((k + i) / n) * (x - l0) for i, x in enumerate(rl)]
 
     def _decide(self, l: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float, u_prev: float,
-                uc_prev: float, h_prev2: float, h_prev: float) -> tuple[float, float, float, float, float, bool]:
+                uc_prev: float, h_prev2: float, h_prev: float) -> tuple[float, float, float, float, float, bool, bool]:
         """The control law at a sample whose ``l`` the state has observed: ``(u, u_c, H, x_s(k+1),
-        l(k+1|k), saturated)`` for the preview ``rl = r(k..k+Hp)``; changes no state (but the QP's
+        l(k+1|k), saturated, pushed)`` for the preview ``rl = r(k..k+Hp)`` (``pushed``: the command at
+        a valve limit the error pushes it into, :meth:`_integrate`); changes no state (but the QP's
         warm start)."""
         if self._servo is None:
             res = ucp_move(self.settings.ucp, self._state, theta, u_prev_v=u_prev, r_target_mm=rl[self._ucp_hp])
             u = self._probed(res.u_v)
-            return u, u, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated
+            return u, u, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated, False
         h = self._state.hysteresis_unchecked(t)
         if self._notch and h_prev == h_prev:  # not NaN: a previous H exists
             h_next, h_next2 = self._future_hysteresis(t, theta, u_prev)
@@ -547,16 +555,21 @@ class DisplacementController:
         elif self._u_max < u:
             u = self._u_max
         saturated = constrained or u != u_raw
-        return self._probed(u), uc, h, self._integrate(xs, rl[0], l, u), predicted, saturated
+        xs_next, pushed = self._integrate(xs, rl[0], l, u)
+        return self._probed(u), uc, h, xs_next, predicted, saturated, pushed
 
-    def _integrate(self, xs: float, r_mm: float, l_mm: float, u: float) -> float:
-        """Eq. (18), ``x_s(k+1) = x_s(k) + r(k) - l(k)``, held while the command ``u`` [V] is at a
-        valve limit that the error pushes it further into (conditional integration): a reference out
-        of the muscle's reach would otherwise wind ``x_s`` up by the thousands and the loop would lag
-        for seconds once the reference is back in reach."""
-        if self._anti_windup and ((r_mm > l_mm and u >= self._u_max) or (r_mm < l_mm and u <= self._u_min)):
-            return xs
-        return xs + r_mm - l_mm  # summed left to right, as Eq. (18) reads: the paper's runs keep their bits
+    def _integrate(self, xs: float, r_mm: float, l_mm: float, u: float) -> tuple[float, bool]:
+        """Eq. (18), ``x_s(k+1) = x_s(k) + r(k) - l(k)``, and whether the command ``u`` [V] sits at a
+        valve limit that the error pushes it further into. Once it has for :data:`HOLD_AFTER_SAMPLES`
+        samples in a row, ``x_s`` is held (conditional integration): a reference out of the muscle's
+        reach would otherwise wind it up by the thousands and the loop would lag for seconds once the
+        reference is back in reach. A shorter stay at a limit (the valve closed for a few samples at the
+        bottom of a fast cycle) is integrated as Eq. (18) says: holding there costs tracking."""
+        # at a limit within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it
+        pushed = (r_mm > l_mm and u >= self._u_max - 1e-9) or (r_mm < l_mm and u <= self._u_min + 1e-9)
+        if pushed and self._anti_windup and self._limit_run + 1 >= HOLD_AFTER_SAMPLES:
+            return xs, True
+        return xs + r_mm - l_mm, pushed  # summed left to right, as Eq. (18) reads: the paper's runs keep their bits
 
     def _probed(self, u: float) -> float:
         """``u`` [V] plus the start-up mode's probing signal during the estimator's warm-up
@@ -591,14 +604,15 @@ class DisplacementController:
                 l_next = corrected
         state.apply(u_now)
         # Eq. (18) with the true l(k), held at a limit the valve has now (_integrate)
-        xs = self._integrate(self._xs, rl[0], l, u_now) if self._servo is not None else 0.0
+        xs, pushed = self._integrate(self._xs, rl[0], l, u_now) if self._servo is not None else (0.0, False)
         saved = state.history
         h_now = state.hysteresis_unchecked(t) if self._notch else math.nan  # H(k), before the scratch step
         state.observe_unchecked(l_next, t[0], t[1], t[2])
-        u, uc, h, _, _, saturated = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, self._h_prev, h_now)
+        u, uc, h, _, _, saturated, _ = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, self._h_prev, h_now)
         state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
+        self._limit_run = self._limit_run + 1 if pushed else 0
         self._u_next, self._uc_next = u, uc
         self._u_out2, self._u_out1 = self._u_out1, u
         self._h_prev2, self._h_prev = self._h_prev, h_now
@@ -628,7 +642,8 @@ class DisplacementController:
             rls["theta"], rls["P"] = rls["theta"].tolist(), rls["P"].tolist()
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
-            "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "predicted": self._predicted,
+            "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "limit_run": self._limit_run,
+            "predicted": self._predicted,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
             "delayed": self._delayed, "decided": self._decided, "u_out": [self._u_out1, self._u_out2],
@@ -665,6 +680,7 @@ class DisplacementController:
         self._state.set_state(state["model"])
         self._k = int(state["k"])
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
+        self._limit_run = int(state.get("limit_run", 0))
         self._predicted = float(state["predicted"])
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         for name in ("h_prev", "h_prev2"):

@@ -301,6 +301,25 @@ def test_a_rounding_remainder_step_is_accepted(fmu):
     _free(f)
 
 
+@pytest.mark.parametrize("k", [0, 1, 2, 5])
+@pytest.mark.parametrize("tiny", [2e-10, 5e-10, 9.9e-10])
+def test_a_step_too_short_to_integrate_at_a_sample_time_leaves_the_sample_to_the_next(fmu, k, tiny):
+    """Any step below 1e-9 s is an accepted no-op: the next regular step, starting that much after the
+    sample time, takes the sample (it was refused as skipping it, for good)."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    f.setReal([vr["l"]], [10.0])
+    t = 0.0
+    for _ in range(k):
+        f.doStep(t, 0.1)
+        t += 0.1
+    f.doStep(t, tiny)
+    assert f.getInteger([vr["samples"]])[0] == k
+    f.doStep(t + tiny, 0.1)  # fmpy raises on a Discard
+    assert f.getInteger([vr["samples"]])[0] == k + 1
+    _free(f)
+
+
 @pytest.mark.parametrize("forgetting", [0.5, 1.0])
 def test_a_diverging_adaptive_estimate_is_said_once(fmu, capfd, forgetting):
     """forgetting = 0.5 (its declared minimum) without the covariance ceiling: on this project's CPU the
@@ -350,3 +369,25 @@ def test_the_divergence_warning_names_its_figures_and_parameters():
     assert "t = 0.3 s" in msgs[0][1] and "l_pred = 1e+09 mm" in msgs[0][1]
     assert "forgetting = 0.9, covariance_ceiling = 0" in msgs[0][1]
     assert slave.l_pred == 30.0 and 0.0 <= slave.u <= 10.0
+
+
+@pytest.mark.parametrize("name, value, message", [("u", math.nan, "it must be within 0..10"),
+                                                  ("u", 42.0, "it must be within 0..10"),
+                                                  ("l_pred", math.inf, "it must be finite")])
+def test_an_outputs_start_value_is_finite_and_within_its_range(fmu, capfd, name, value, message):
+    """FMI 2.0 lets a host set an output's start value before initialisation (initial = exact); a parallel
+    master passes it on at t = 0, so a NaN there stopped the run. Refused with an error naming it;
+    a valid start value is taken."""
+    from fmpy.fmi2 import FMU2Slave
+
+    path, md, folder, vr = fmu
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="start")
+    f.instantiate(loggingOn=True)
+    with pytest.raises(FMICallException, match="error"):
+        f.setReal([vr[name]], [value])
+    assert f"output {name} = {value!r} as its start value: {message}; nothing was written" in capfd.readouterr().out
+    assert f.getReal([vr[name]]) == [0.0]
+    f.setReal([vr["u"]], [5.0])
+    assert f.getReal([vr["u"]]) == [5.0]
+    f.freeInstance()

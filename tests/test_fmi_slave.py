@@ -29,7 +29,10 @@ def test_get_and_set_real_agree_with_pythonfmu_on_random_lists(cls):
             assert slave.get_real(vrs) == Fmi2Slave.get_real(slave, vrs)
         # an input or output written through set_real is read back exactly
         vr = rng.choice(attribute_backed)
-        value = rng.uniform(-5.0, 5.0)
+        meta = slave.variable_meta.get(slave.vars[vr].name, {})  # an output's start value must be in range
+        lo = -5.0 if meta.get("min") is None else max(-5.0, meta["min"])
+        hi = 5.0 if meta.get("max") is None else min(5.0, meta["max"])
+        value = rng.uniform(lo, hi - 1.0)
         for _ in range(2):
             slave.set_real([vr], [value])
             assert slave.get_real([vr]) == [value] == Fmi2Slave.get_real(slave, [vr])

@@ -505,8 +505,8 @@ def record_case(case: FieldCase, *, signal: Callable[[float], float] | None = No
         from tapmuscle.closed_loop import run_closed_loop
 
         p = dict(case.excitation_params)
-        # the recordings' controller is part of the suite's definition: Eq. (18) without the
-        # anti-windup hold (the hold would change 4 of seed 0's 25 closed-loop recordings)
+        # the recordings' controller is part of the suite's definition (Eq. (18) without the
+        # anti-windup hold): a later change of the controller's defaults does not change its data
         ctrl = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5, ts_s=ts_s,
                                                          anti_windup=False), THETA0_44N)
         ref = SineReference(offset_mm=p["offset_mm"], amplitude_mm=p["amplitude_mm"],
