@@ -236,6 +236,10 @@ class AMPCController(SafeSlave):
         self._diverged = False
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
+        if self._int_par["reference_source"] == 1 and self._par["sine.frequency"] > 0.5 / self._par["Ts"]:
+            # sampled at Ts, a sine above the Nyquist frequency aliases to a slower one (a constant at 1/Ts)
+            raise SlaveInputError(f"bad parameter: sine.frequency = {self._par['sine.frequency']:g} Hz is above the "
+                                  f"Nyquist frequency 0.5/Ts = {0.5 / self._par['Ts']:g} Hz")
         offset, amplitude = self._par["sine.offset"], self._par["sine.amplitude"]
         if not _L_RANGE_MM[0] <= offset - amplitude <= offset + amplitude <= _L_RANGE_MM[1]:
             raise SlaveInputError(f"bad parameter: the built-in sine sine.offset +- sine.amplitude = {offset:g} +- "

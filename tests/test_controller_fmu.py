@@ -227,6 +227,7 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"sine.offset": 4000.0, "sine.amplitude": 1500.0}, {}, "sine.offset +- sine.amplitude = 4000 +- 1500 mm leaves"),
     ({"sine.amplitude": -1.0}, {}, "parameter sine.amplitude = -1.0 is outside its declared range 0..3000"),
     ({"theta0.a1": 1.1}, {"method": 4}, "theta0's a1 = 1.1 lies outside the constraint region C, 1.208..1.26"),
+    ({"sine.frequency": 6.0}, {}, "sine.frequency = 6 Hz is above the Nyquist frequency 0.5/Ts = 5 Hz"),
 ])
 def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):
     """fmi2Error, not Discard (a host answers Discard with a smaller step, forever); the instance stays
