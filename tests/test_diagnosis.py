@@ -1453,3 +1453,6 @@ def test_diagnose_names_bad_arguments_before_any_work():
                             ({"max_effects": -1}, "max_effects must be an integer >= 0, got -1")):
         with pytest.raises(ValueError, match=message):
             diagnose(t, u, l, PlantParams(), **kwargs)
+    with pytest.raises(ValueError, match=r"column l_mm must be one-dimensional \(one value per sample\), got shape "
+                                         r"\(600, 1\)"):
+        diagnose(t, u, l[:, None], PlantParams())

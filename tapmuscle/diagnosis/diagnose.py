@@ -106,7 +106,7 @@ from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Pro
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.residual_analysis import (Correlation, balanced_block_s, block_index, autocorrelation_test,
+from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation, balanced_block_s, block_index, autocorrelation_test,
                                 cross_correlation_test, fit_percent, interleaved_split, is_structured, located_windows, regime_summary,
                                 white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
@@ -397,6 +397,9 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
     u = np.asarray(u_v, float)
     y = np.asarray(y, float)
     tn, un, yn = names
+    for name, arr in ((tn, t), (un, u), (yn, y)):
+        if arr.ndim != 1:  # a column vector would broadcast into a matrix further on
+            raise ValueError(f"column {name} must be one-dimensional (one value per sample), got shape {arr.shape}")
     for name, arr in ((un, u), (yn, y)) + ((("load_n", load_n),) if load_n is not None else ()):
         if len(arr) != len(t):
             raise ValueError(f"column {name} has {len(arr)} samples, {tn} has {len(t)}")
@@ -1014,7 +1017,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             current = _Model(p1, (name,), y1, {name: values}, q1)
             converged = p1
             first_values = values
-    structured = tests0["structured"] and is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
+    gate_structured, gate = is_structured(y - current.y, sensor_noise_mm=sensor_mm)
+    structured = tests0["structured"] and gate_structured
     pool = [c for c in candidates if c.name not in current.effects]
     done = 0
     round_no = 0
@@ -1378,7 +1382,13 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "
             f"{tests1['rms_mm']:.3f} {unit} against {noise:.3f} {unit} of noise, {100.0 * remainder['share']:.1f} % of the "
-            f"initial excess) that neither the calibration nor any candidate effect explains",
+            f"initial excess) that neither the calibration nor any candidate effect explains"
+            + ("" if round_no or not tests0["structured"] or gate_structured else
+               f"; no candidate effect was tried: right after the calibration the search's test did not find the "
+               f"residual structured (whiteness p = {gate['ljung_box_p']:.2g}, mean p = {gate['mean_p']:.2g}, both "
+               f"above the level {STRUCTURE_ALPHA:g}), the final test on the held-out blocks does. A longer or more finely "
+               "sampled recording gives the search more to judge; without the calibration (calibration=None) the "
+               "candidates are tried against the nominal plant"),
             {}, 0.0, located, regime, {"remaining_excess_share": remainder["share"]}))
     return Diagnosis(verdict, fit_before, fit_percent(y, y_base, test), findings, base, t, u, y, y0, y_base,
                      train, test, tests0, tests1, {"autocorrelation_before": ac0, "cross_correlation_before": xc0,

@@ -20,7 +20,7 @@ from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text,
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE
-from tapmuscle.diagnosis.residual_analysis import STRUCTURE_MATERIALITY
+from tapmuscle.diagnosis.residual_analysis import STRUCTURE_ALPHA, STRUCTURE_MATERIALITY
 from tapmuscle.io.atomic import probe_output_folder
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
@@ -150,7 +150,9 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
               f"| {ta['autocorrelation_lags_outside']} / 25 |",
               f"| input cross-correlation lags outside the band | {tb['cross_correlation_lags_outside']} / 51 "
               f"| {ta['cross_correlation_lags_outside']} / 51 |",
-              f"| structured (whiteness rejected and RMS > 1.5 x noise) | {tb['structured']} | {ta['structured']} |", ""]
+              f"| structured (whiteness or zero mean rejected at p < {STRUCTURE_ALPHA:g}, and RMS > "
+              f"{STRUCTURE_MATERIALITY:g} x the smaller of its own white-noise level and the sensor's) | "
+              f"{tb['structured']} | {ta['structured']} |", ""]
     lines += ["## Candidates tried", "", "| round | effect | held-out gain [points] | SSE reduction | p |", "|---|---|---|---|---|"]
     for c in d.candidates:
         if c.get("joint"):

@@ -14,7 +14,8 @@ from scipy import stats
 
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
 
-__all__ = ["STRUCTURE_MATERIALITY", "block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
+__all__ = ["STRUCTURE_ALPHA", "STRUCTURE_MATERIALITY",
+           "block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
            "cross_correlation_test", "is_structured", "mean_test", "located_windows", "regime_summary",
            "interleaved_split", "iou", "dominant_frequency_hz"]
 
@@ -95,9 +96,11 @@ def cross_correlation_test(u: np.ndarray, e: np.ndarray, max_lag: int = MAX_LAG)
 
 #: How many times the noise level a residual's RMS must exceed to count as structured (is_structured).
 STRUCTURE_MATERIALITY = 1.5
+#: The level of is_structured's whiteness and zero-mean tests.
+STRUCTURE_ALPHA = 1e-3
 
 
-def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha: float = 1e-3,
+def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha: float = STRUCTURE_ALPHA,
                   materiality: float = STRUCTURE_MATERIALITY) -> tuple[bool, dict]:
     """Does ``e`` hold structure beyond white noise? Both must hold:
 
