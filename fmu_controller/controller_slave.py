@@ -141,9 +141,10 @@ class AMPCController(SafeSlave):
                                    "ampc_servo on with the start-up mode, off with startup_s = 0), 1 cancel the centred "
                                    "mean (H(k-2) + 3 H(k-1) + 4 H(k) + 3 H(k+1|k) + H(k+2|k))/12 in Eq. (5) (no valve "
                                    "chatter), 0 cancel H(k) as the paper's Eq. (5)", lo=-1, hi=1)
-        self.add_integer_parameter("anti_windup", 1, "servo methods: 1 hold the integrator x_s of Eq. (18) while the "
-                                   "command is at a valve limit the error pushes it further into (no wind-up "
-                                   "when the reference is out of reach), 0 Eq. (18) as the paper writes it", lo=0, hi=1)
+        self.add_integer_parameter("anti_windup", 1, "servo methods: 1 hold the integrator x_s of Eq. (18) once the "
+                                   "command has sat at a valve limit the error pushes it further into for 5 samples "
+                                   "in a row (no wind-up when the reference is out of reach), 0 Eq. (18) as the paper "
+                                   "writes it", lo=0, hi=1)
         self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
                                    "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
                                    "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)

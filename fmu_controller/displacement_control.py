@@ -178,11 +178,12 @@ class ControllerSettings:
     :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
     switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters")."""
     anti_windup: bool = True
-    """Servo methods: hold the integrator of Eq. (18) while the command is at a valve limit that the
-    error ``r(k) - l(k)`` pushes it further into (conditional integration). A reference out of the
-    muscle's reach otherwise winds ``x_s`` up by thousands of mm and the loop lags for 6-12 s once
-    the reference is back in reach (docs/control.md, "Integrator wind-up"). Where the command never
-    sits at a limit (the paper's runs) it changes nothing. False: Eq. (18) as the paper writes it."""
+    """Servo methods: hold the integrator of Eq. (18) once the command has sat at a valve limit that
+    the error ``r(k) - l(k)`` pushes it further into for :data:`HOLD_AFTER_SAMPLES` samples in a row
+    (conditional integration). A reference out of the muscle's reach otherwise winds ``x_s`` up by
+    thousands of mm and the loop lags for 6-12 s once the reference is back in reach (docs/control.md,
+    "Integrator wind-up"). Shorter stays at a limit are integrated: the paper's runs keep their bits.
+    False: Eq. (18) as the paper writes it."""
     delay_correction: bool = True
     """With one sample of input delay (``input_delay_samples`` 1, or -1 once the parallel hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
