@@ -741,8 +741,9 @@ CANDIDATES: tuple[Candidate, ...] = (
         "Gauss-Newton on friction.rate_gain (the friction level's growth at the reference speed), "
         "simulating the first fit_segment_s seconds per evaluation.",
         _scalar_fit("friction.rate_gain", 0.2, 0.0, 3.0),
-        lambda v: (f"the hysteresis grows with speed: friction level x (1 + {v['friction.rate_gain']:.2f} "
-                   f"|v| / v_ref), faster motion lags more than the model says")),
+        # in either direction: against a plant file whose rate_gain is above the rig's, the fit is lower
+        lambda v: (f"the hysteresis grows with speed other than the model says: friction level x (1 + "
+                   f"{v['friction.rate_gain']:.2f} |v| / v_ref) fits the recording")),
     Candidate(
         "valve_dead_zone",
         "A band of valve commands in which the valves pass no flow (an overlapped or worn spool): while "
