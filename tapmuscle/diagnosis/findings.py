@@ -31,7 +31,9 @@ class Finding:
     parameters: dict[str, float]
     """Fitted plant parameters (``group.field``: value, as the plant FMU names them)."""
     fit_gain_points: float
-    """Held-out fit gained by adding this effect [percentage points]."""
+    """Held-out fit gained by adding this effect [percentage points], on all the held-out blocks; the
+    acceptance (``evidence``) is judged on the blocks its significance test uses, which can leave some
+    out, so the two can disagree in sign for an effect that acts in a short window."""
     located: list[tuple[float, float]]
     """Time windows [s] where it acts."""
     regime: str

@@ -84,7 +84,9 @@ def summary_lines(d: Diagnosis) -> list[str]:
                f"{', '.join(d.named) or 'no candidate effect claimed'}")
     for i, f in enumerate(d.findings, 1):
         where = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in f.located) or "nowhere in particular"
-        gain = f" (+{f.fit_gain_points:.2f} points)" if f.effect != "unexplained" else ""
+        # signed: on all held-out blocks it can be below 0 where the acceptance, judged on the blocks
+        # its significance test uses, was clear
+        gain = f" ({f.fit_gain_points:+.2f} points)" if f.effect != "unexplained" else ""
         out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
     return out + remainder
 
