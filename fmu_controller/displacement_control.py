@@ -47,7 +47,7 @@ from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .probing import probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
-from .servo_mpc import ServoMPC, ServoMPCSettings
+from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
@@ -71,18 +71,19 @@ DELAY_FORGET = 0.02
 DELAY_RATIO = 1.25
 #: ... after at least this many samples compared.
 DELAY_MIN_SAMPLES = 50
-
-#: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
-#: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
-HOLD_AFTER_SAMPLES = 5
 #: ``input_delay_samples = -1``: if neither hypothesis has won by :data:`DELAY_RATIO` after this many
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
 #: is taken.
 DELAY_DECIDE_BY_SAMPLES = 300
+
 #: ``input_delay_samples = -1``, undecided: the delayed law uses the corrected one-step prediction
 #: (:class:`~fmu_controller.delay_predictor.DelayPredictor`) once this many samples are compared and
 #: the parallel hypothesis leads.
 DELAY_LEAD_SAMPLES = 20
+
+#: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
+#: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
+HOLD_AFTER_SAMPLES = 5
 
 #: Longest start-up mode ``ControllerSettings.startup_s`` [s].
 MAX_STARTUP_S = 600.0
@@ -570,7 +571,7 @@ class DisplacementController:
         pushed = (r_mm > l_mm and u >= self._u_max - 1e-9) or (r_mm < l_mm and u <= self._u_min + 1e-9)
         if pushed and self._anti_windup and self._limit_run + 1 >= HOLD_AFTER_SAMPLES:
             return xs, True
-        return xs + r_mm - l_mm, pushed  # summed left to right, as Eq. (18) reads: the paper's runs keep their bits
+        return integrator_step(xs, r_mm, l_mm), pushed
 
     def _probed(self, u: float) -> float:
         """``u`` [V] plus the start-up mode's probing signal during the estimator's warm-up

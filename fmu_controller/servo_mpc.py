@@ -75,7 +75,8 @@ import scipy.sparse as sp
 from scipy.linalg.lapack import dgesv as _dgesv
 
 from .servo_qp import CondensedServoQP
-from .servo_settings import TABLE5_SERVO, ServoMPCResult, ServoMPCSettings, finite_float, integrator_step
+from .argument_checks import real_number
+from .servo_settings import TABLE5_SERVO, ServoMPCResult, ServoMPCSettings, integrator_step
 
 _cumsum = np.add.accumulate  # = np.cumsum for 1-d arrays, less call overhead
 
@@ -240,9 +241,9 @@ class ServoMPC:
 
     @staticmethod
     def _check_model(a1: float, a2: float, b1: float) -> tuple[float, float, float]:
-        a1 = finite_float("a1", a1)
-        a2 = finite_float("a2", a2)
-        b1 = finite_float("b1", b1)
+        a1 = real_number(a1, what="a1")
+        a2 = real_number(a2, what="a2")
+        b1 = real_number(b1, what="b1")
         if abs(b1) < _B1_MIN:
             raise ValueError(f"b1 must satisfy |b1| >= {_B1_MIN:g}, got {b1!r}")
         return a1, a2, b1
@@ -284,11 +285,11 @@ class ServoMPC:
         """Validated data: ``v = [D slot (Hu, uninitialised); z]``, ``uc_prev``, ``offset``."""
         h = self._hu
         v = np.empty(h + self._nz)
-        v[h] = finite_float("l_mm", l_mm)
-        v[h + 1] = finite_float("l_prev_mm", l_prev_mm)
-        v[h + 2] = uc_prev = finite_float("uc_prev_v", uc_prev_v)
-        v[h + 3] = finite_float("xs", xs)
-        offset = finite_float("offset_v", offset_v)
+        v[h] = real_number(l_mm, what="l_mm")
+        v[h + 1] = real_number(l_prev_mm, what="l_prev_mm")
+        v[h + 2] = uc_prev = real_number(uc_prev_v, what="uc_prev_v")
+        v[h + 3] = real_number(xs, what="xs")
+        offset = real_number(offset_v, what="offset_v")
         try:
             r = np.asarray(r_future_mm, dtype=float)  # no copy for a float array (the caller's case)
         except (TypeError, ValueError):

@@ -20,7 +20,7 @@ from .argument_checks import real_number, whole_number
 #: declares the same range for servo.Hp, servo.Hu and ucp.Hp.
 MAX_HORIZON = 50
 
-__all__ = ["MAX_HORIZON", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "finite_float", "positive_int"]
+__all__ = ["MAX_HORIZON", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "positive_int"]
 
 #: Table 5, "MPC/AMPC with servo mechanism" column.
 TABLE5_SERVO: Mapping[str, Any] = MappingProxyType({
@@ -39,15 +39,10 @@ def positive_int(name: str, value: Any) -> int:
     return n
 
 
-def finite_float(name: str, value: Any) -> float:
-    """``value`` as a finite float (:func:`~fmu_controller.argument_checks.real_number`)."""
-    return real_number(value, what=name)
-
-
 def _freeze_weight(name: str, value: Any, n: int, n_name: str, *, strict: bool) -> float | tuple[float, ...]:
     """Scalar weight or per-step tuple of length ``n``; >= 0 (> 0 if ``strict``)."""
     if np.ndim(value) == 0:
-        w = finite_float(name, value)
+        w = real_number(value, what=name)
         if w < 0 or (strict and w == 0):
             raise ValueError(f"{name} must be {'> 0' if strict else '>= 0'}, got {value!r}")
         return w
@@ -119,14 +114,14 @@ class ServoMPCSettings:
         object.__setattr__(self, "qs", _freeze_weight("qs", self.qs, hp, "hp", strict=False))
         # R > 0 keeps the QP Hessian positive definite for every model
         object.__setattr__(self, "r", _freeze_weight("r", self.r, hu, "hu", strict=True))
-        u_min = finite_float("u_min_v", self.u_min_v)
-        u_max = finite_float("u_max_v", self.u_max_v)
+        u_min = real_number(self.u_min_v, what="u_min_v")
+        u_max = real_number(self.u_max_v, what="u_max_v")
         if not u_min < u_max:
             raise ValueError(f"u_max_v must be > u_min_v = {u_min}, got {self.u_max_v!r}")
         object.__setattr__(self, "u_min_v", u_min)
         object.__setattr__(self, "u_max_v", u_max)
         for name in ("eps_abs", "eps_rel"):
-            eps = finite_float(name, getattr(self, name))
+            eps = real_number(getattr(self, name), what=name)
             if eps < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
             object.__setattr__(self, name, eps)

@@ -401,25 +401,23 @@ class Plant:
         cuts = [t for f in self._breakpoint_hooks for t in f(t0, t1, u_v)] if self._breakpoint_hooks else ()
         if len(cuts) > 1:
             cuts = sorted(set(cuts))
-        if cuts:  # end sub-steps exactly where an effect's port signal jumps
-            saved = (list(self.state), self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate)
-            try:
-                ta = t0
-                for tb in (*cuts, t1):
-                    self._advance(ta, tb - ta)
-                    ta = tb
-            except (FloatingPointError, KeyboardInterrupt) as exc:
-                self.state, self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate = saved
-                self._set_gate(self._gate)
-                if isinstance(exc, KeyboardInterrupt):
-                    self.u_v = u_before
-                raise
-        else:
-            try:
+        try:
+            if cuts:  # end sub-steps exactly where an effect's port signal jumps
+                saved = (list(self.state), self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate)
+                try:
+                    ta = t0
+                    for tb in (*cuts, t1):
+                        self._advance(ta, tb - ta)
+                        ta = tb
+                except (FloatingPointError, KeyboardInterrupt):
+                    self.state, self._xs_last, self._kink_scale, self._last_supply_mpa, self._gate = saved
+                    self._set_gate(self._gate)
+                    raise
+            else:
                 self._advance(t0, dt_s)
-            except KeyboardInterrupt:
-                self.u_v = u_before
-                raise
+        except KeyboardInterrupt:
+            self.u_v = u_before
+            raise
         self.t_s = t1
 
     # ------------------------------------------------------------------ outputs
