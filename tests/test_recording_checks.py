@@ -11,6 +11,7 @@ import pytest
 
 from tapmuscle.diagnosis import diagnose
 from tapmuscle.diagnosis.demo import DEMO_MODEL, record
+from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.recording_checks import (DISPLACEMENT_PLAUSIBLE_MM, check_muscle_recording,
                                                   check_displacement_scale, muscle_recording_notes)
 
@@ -42,6 +43,21 @@ def test_a_command_in_percent_or_times_in_milliseconds_are_refused_by_sample():
         check_muscle_recording(noisy, TS)
     with pytest.raises(ValueError, match=r"the sampling period is 100 s, outside the 0.001..10 s .*milliseconds"):
         check_muscle_recording(u, 100.0)
+
+
+def test_the_bounding_periods_pass_as_read_back_from_written_times():
+    """``tapmuscle record --ts 0.001`` writes times whose differences' median is a few ulps below the
+    period (0.99999999999989 ms): still a period a muscle recording may have; so is 10 s a few ulps
+    above. A period really outside is still refused."""
+    t = np.array([float(repr(k * 1e-3)) for k in range(20001)])
+    period = uniform_sampling(t).ts_s
+    assert period < 1e-3  # the rounding the check has to allow for is really there
+    u = np.full(t.size, 5.0)
+    check_muscle_recording(u, period)
+    check_muscle_recording(u, 10.0 * (1.0 + 4e-16))
+    for outside in (0.999e-3, 10.01):
+        with pytest.raises(ValueError, match="the sampling period is"):
+            check_muscle_recording(u, outside)
 
 
 def test_a_displacement_in_micrometres_or_in_metres_is_refused():

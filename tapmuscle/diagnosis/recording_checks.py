@@ -64,7 +64,9 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
         raise ValueError(f"column u_v, sample {k}: {float(u_v[k]):g} V is outside the -1..11 V the plant takes (the "
                          f"valve's 0..10 V command; {bad.size} samples are outside, range {float(np.min(u_v)):g}..{float(np.max(u_v)):g}): "
                          "is the command logged in another unit (percent, mV)? Scale it to volts")
-    if not TS_RANGE_S[0] <= ts_s <= TS_RANGE_S[1]:
+    # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
+    # out as 0.99999999999989 ms, which is still 1 ms
+    if not TS_RANGE_S[0] * (1.0 - 1e-9) <= ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
                          "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
     if l_mm is not None:
