@@ -869,6 +869,19 @@ def test_blocks_shorter_than_the_sampling_period_are_refused(tmp_path, capsys):
     assert split_length_s(u, 20.0, None) == 20.0 and split_length_s(slow["u_v"], 1.0, None) == 10.0
 
 
+def test_a_quarter_of_the_recording_is_a_block_at_1_ms_too():
+    """20 s recorded at 1 ms (``tapmuscle record --ts 0.001``, times written as text) reads back as a
+    period of 0.99999999999989 ms, so its duration as 19.9999999999978 s: 5-s blocks, a quarter of
+    it, were refused as 'at most 5 s'. A block really too long still is."""
+    from tapmuscle.diagnosis.diagnose import validated_recording
+
+    t = np.array([float(repr(k * 1e-3)) for k in range(20001)])
+    u = 5.0 + 3.0 * np.sin(0.6 * t)
+    validated_recording(t, u, u, 5.0)
+    with pytest.raises(ValueError, match=r"--block\) = 5.01 s: a 20-s recording needs blocks of .* at most 5 s"):
+        validated_recording(t, u, u, 5.01)
+
+
 @pytest.mark.parametrize("flag, value, pattern", [
     ("--effects", "", "--effects '' names no effect"),
     ("--effects", " , ", "names no effect"),

@@ -424,7 +424,9 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
         # falls in a training block: no held-out sample, every fit NaN
         raise ValueError(f"block_s (--block) = {block_s!r} s is shorter than the sampling period {ts:g} s: every "
                          "training and held-out block must hold a sample")
-    if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0):
+    # the duration comes from the period read back from written times, a few ulps off: 20 s at 1 ms
+    # is 19.9999999999978 s, and 5-s blocks still fit four times
+    if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0 * (1.0 + 1e-9)):
         raise ValueError(f"block_s (--block) = {block_s!r} s: a {duration:g}-s recording needs blocks of more than 0 and at "
                          f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")
     return t, u, y, ts
