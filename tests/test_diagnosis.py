@@ -19,7 +19,7 @@ from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS
 from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, distinguishable
 from tapmuscle.diagnosis.candidates import _command_cuts, _edge_scan, _edge_search, _midway_edges, _tightest, candidate
 from tapmuscle.diagnosis.demo import DEMO_MODEL, Case, run_case, record
-from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, fit_percent, interleaved_split, iou,
+from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, unstructured_reason, fit_percent, interleaved_split, iou,
                                          located_windows)
 from tapmuscle.cli.main import main
 
@@ -57,6 +57,9 @@ def test_clean_recordings_are_judged_noise(excitation, seed):
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)
     assert d.verdict == "no_significant_mismatch" and d.findings == []
     assert d.fit_after_percent == d.fit_before_percent > 99.5
+    # why the calibration did not run, as the residual tests say it (white, or within the noise)
+    assert d.to_json()["calibration"] == {"skipped": f"nothing to calibrate (the nominal plant's "
+                                                     f"{unstructured_reason(d.tests_before)})"}
 
 
 CONCEALED = [
@@ -400,6 +403,7 @@ def test_a_structured_remainder_is_reported_and_claimed_only_when_material(ampli
     assert ("unexplained" in [f.effect for f in d.findings]) is material
     assert d.verdict == ("mismatch" if material else "no_significant_mismatch")
     assert d.to_json()["unexplained"]["material"] is material
+    assert d.to_json()["calibration"] == {"skipped": "off (calibration=None, --no-calibration)"}
 
 
 def test_every_effect_of_the_library_is_a_candidate():

@@ -131,7 +131,13 @@ def _calibration_only(rms_mm: float, noise_mm: float, whiteness_p: float, nomina
                           identifiable=True, at_bound=False)
     return SimpleNamespace(verdict="calibration_only", calibration=SimpleNamespace(rows=[row]), named=[], ambiguous=[],
                            fit_before_percent=80.0, fit_calibrated_percent=99.9, unexplained=None, unit="mm",
-                           tests_after={"rms_mm": rms_mm, "noise_reference_mm": noise_mm, "whiteness_p": whiteness_p})
+                           tests_after=_tests(rms_mm, noise_mm, whiteness_p))
+
+
+def _tests(rms_mm: float, noise_mm: float, whiteness_p: float, structured: bool = False) -> dict:
+    """A residual test's numbers (``is_structured``'s and ``whiteness_p``), its mean zero (p = 0.5)."""
+    return {"rms_mm": rms_mm, "noise_reference_mm": noise_mm, "white_noise_mm": noise_mm, "whiteness_p": whiteness_p,
+            "ljung_box_p": whiteness_p, "mean_p": 0.5, "structured": structured}
 
 
 def test_the_summary_says_why_a_residual_counts_as_unstructured():
@@ -145,3 +151,25 @@ def test_the_summary_says_why_a_residual_counts_as_unstructured():
     assert "supply.compliance_m3_per_mpa 1.2e-05 -> 1.2e-05" in lines[0]
     assert "residual white" in summary_lines(_calibration_only(0.03, 0.0104, 0.2, 1.0, 1.0))[1]
     assert "none changed" in summary_lines(_calibration_only(0.03, 0.0104, 0.2, 1.0, 1.0))[0]
+
+
+def test_no_significant_mismatch_says_white_only_of_a_white_residual():
+    """A re-diagnosis with the calibrated plant left RMS 0.0130 mm against 0.0104 mm of noise, not
+    white at p = 1.5e-264: "no significant mismatch" for being within the noise, not "the residual
+    is white noise"; a structured residual below a finding's materiality (no calibration) is said as
+    such; a white one is white."""
+    from types import SimpleNamespace
+
+    from tapmuscle.diagnosis.report import summary_lines
+
+    def line(tests):
+        return summary_lines(SimpleNamespace(verdict="no_significant_mismatch", tests_before=tests, unit="mm",
+                                             fit_before_percent=99.95))[0]
+
+    small = line(_tests(0.0130, 0.0104, 1.5e-264))
+    assert small.startswith("no significant mismatch: residual at the noise level: RMS 0.0130 mm against 0.0104 mm "
+                            "of noise, < 1.5 x (whiteness p = 1.5e-264)") and "white" not in small.split("whiteness")[0]
+    assert line(_tests(0.0105, 0.0105, 0.42)).startswith("no significant mismatch: residual white (whiteness p = 0.42, "
+                                                         "RMS 0.0105 mm, noise 0.0105 mm); held-out fit 99.95 %")
+    below = line(_tests(0.025, 0.0104, 1e-30, structured=True))
+    assert "structured residual below the materiality level" in below and "< 3 x" in below

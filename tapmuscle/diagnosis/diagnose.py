@@ -108,7 +108,7 @@ from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
 from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation, balanced_block_s, block_index, autocorrelation_test,
                                 cross_correlation_test, fit_percent, interleaved_split, is_structured, located_windows, regime_summary,
-                                white_noise_level_mm)
+                                unstructured_reason, white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
@@ -1392,6 +1392,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                "sampled recording gives the search more to judge; without the calibration (calibration=None) the "
                "candidates are tried against the nominal plant"),
             {}, 0.0, located, regime, {"remaining_excess_share": remainder["share"]}))
+    if cal is None and skipped is None:
+        skipped = ("off (calibration=None, --no-calibration)" if not calibration else
+                   f"nothing to calibrate (the nominal plant's {unstructured_reason(tests0, output_unit(output))})")
     return Diagnosis(verdict, fit_before, fit_percent(y, y_base, test), findings, base, t, u, y, y0, y_base,
                      train, test, tests0, tests1, {"autocorrelation_before": ac0, "cross_correlation_before": xc0,
                                                    "autocorrelation_after": ac1, "cross_correlation_after": xc1},

@@ -155,8 +155,9 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     """What the reader should know before the findings: about the recording (a start away from rest,
     jittered timestamps, a pressure in another unit) and a calibration not kept."""
-    calibration_skipped: str = "the residual is white noise: nothing to calibrate"
-    """Why :attr:`calibration` is None (``diagnosis.json``'s ``calibration.skipped``)."""
+    calibration_skipped: str = "off"
+    """Why :attr:`calibration` is None (``diagnosis.json``'s ``calibration.skipped``): it was off, the
+    residual was white or within the noise, or the calibrated model was not kept."""
 
     @property
     def unit(self) -> str:

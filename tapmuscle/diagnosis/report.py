@@ -20,7 +20,7 @@ from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text,
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE
-from tapmuscle.diagnosis.residual_analysis import STRUCTURE_ALPHA, STRUCTURE_MATERIALITY
+from tapmuscle.diagnosis.residual_analysis import STRUCTURE_ALPHA, STRUCTURE_MATERIALITY, unstructured_reason
 from tapmuscle.io.atomic import probe_output_folder
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
@@ -45,9 +45,17 @@ def summary_lines(d: Diagnosis) -> list[str]:
     """The short human summary ``tapmuscle diagnose`` prints."""
     if d.verdict == "no_significant_mismatch":
         t = d.tests_before
-        return [f"no significant mismatch: the residual is white noise (whiteness p = {t['whiteness_p']:.2g}, "
-                f"RMS {t['rms_mm']:.4f} {d.unit}, noise {t['white_noise_mm']:.4f} {d.unit}); held-out fit "
-                f"{d.fit_before_percent:.2f} %"]
+        if t["structured"]:
+            # the model taken as it is (no calibration, or none kept) leaves a structure below the
+            # materiality level of a finding
+            why = (f"a structured residual below the materiality level remains (whiteness p = {t['whiteness_p']:.2g}, "
+                   f"RMS {t['rms_mm']:.4f} {d.unit} against {t['noise_reference_mm']:.4f} {d.unit} of noise, "
+                   f"< {MATERIAL_FACTOR:g} x); reported, not claimed")
+        else:
+            why = unstructured_reason(t, d.unit)
+            sizes = f", RMS {t['rms_mm']:.4f} {d.unit}, noise {t['white_noise_mm']:.4f} {d.unit}" if why == "residual white" else ""
+            why = f"{why} (whiteness p = {t['whiteness_p']:.2g}{sizes})"
+        return [f"no significant mismatch: {why}; held-out fit {d.fit_before_percent:.2f} %"]
     out = []
     if d.calibration is not None:
         changed = ", ".join(f"{r.parameter} {r.nominal:.4g} -> {r.estimate:.4g}{' (at its bound)' if r.at_bound else ''}"
@@ -69,11 +77,8 @@ def summary_lines(d: Diagnosis) -> list[str]:
         after = d.tests_after
         if rem is not None:
             white = "residual within the materiality level"
-        elif after["rms_mm"] > STRUCTURE_MATERIALITY * after["noise_reference_mm"]:
-            white = "residual white"  # material, so unstructured only as white noise
-        else:  # not structured for being at the noise level, white or not
-            white = (f"residual at the noise level: RMS {after['rms_mm']:.4f} {d.unit} against "
-                     f"{after['noise_reference_mm']:.4f} {d.unit} of noise, < {STRUCTURE_MATERIALITY:g} x")
+        else:
+            white = unstructured_reason(after, d.unit)
         return out + [f"calibration only: the recalibrated plant explains the recording ({white}, "
                       f"whiteness p = {d.tests_after['whiteness_p']:.2g}); no left-out effect is claimed"] + remainder
     for group in d.ambiguous:

@@ -16,7 +16,7 @@ from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
 
 __all__ = ["STRUCTURE_ALPHA", "STRUCTURE_MATERIALITY",
            "block_index", "fit_percent", "white_noise_level_mm", "Correlation", "autocorrelation_test",
-           "cross_correlation_test", "is_structured", "mean_test", "located_windows", "regime_summary",
+           "cross_correlation_test", "is_structured", "unstructured_reason", "mean_test", "located_windows", "regime_summary",
            "interleaved_split", "iou", "dominant_frequency_hz"]
 
 #: Lags of the whiteness and cross-correlation tests (MATLAB's resid default is 25).
@@ -123,6 +123,16 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
     return structured, {"ljung_box_p": ac.p_value, "lags_outside_band": ac.outside, "rms_mm": rms,
                         "white_noise_mm": sigma, "noise_reference_mm": ref, "mean_mm": math.fsum(np.asarray(e, float).tolist()) / len(e),
                         "mean_p": mean_p}
+
+
+def unstructured_reason(numbers: dict, unit: str = "mm") -> str:
+    """Why :func:`is_structured` (at its default levels) found no structure, in words, from the numbers
+    it returned: a white, zero-mean residual, or one that is not but lies within
+    :data:`STRUCTURE_MATERIALITY` times the noise level (a structure too small to matter)."""
+    if numbers["ljung_box_p"] >= STRUCTURE_ALPHA and numbers["mean_p"] >= STRUCTURE_ALPHA:
+        return "residual white"
+    return (f"residual at the noise level: RMS {numbers['rms_mm']:.4f} {unit} against "
+            f"{numbers['noise_reference_mm']:.4f} {unit} of noise, < {STRUCTURE_MATERIALITY:g} x")
 
 
 def mean_test(e: np.ndarray) -> float:
