@@ -217,6 +217,25 @@ class ControllerSettings:
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
             raise ValueError(f"ControllerSettings.hysteresis_notch must be None, True or False, "
                              f"got {self.hysteresis_notch!r}")
+        if not (isinstance(self.box_lower, Mapping) and isinstance(self.box_upper, Mapping)):
+            raise ValueError("ControllerSettings.box_lower and box_upper must be mappings of parameter name to bound "
+                             f"(e.g. {{'b1': 0.6}}; a name left out is unbounded), got {type(self.box_lower).__name__} "
+                             f"and {type(self.box_upper).__name__}")
+        try:  # the estimator's own checks: names of Eq. (1), no NaN, lower <= upper
+            lower, upper = self.constraint_region()
+        except ValueError as exc:
+            raise ValueError(f"ControllerSettings: {exc}") from None
+        object.__setattr__(self, "box_lower", {n: float(lower[i]) for i, n in enumerate(ASYMMETRIC.names)
+                                               if n in self.box_lower})
+        object.__setattr__(self, "box_upper", {n: float(upper[i]) for i, n in enumerate(ASYMMETRIC.names)
+                                               if n in self.box_upper})
+
+    def constraint_region(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box C of Algorithm 1 as lower and upper bounds on Eq. (1)'s parameters, in
+        :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s order (-inf / +inf: unbounded)."""
+        _, _, lower, upper = RLSSettings(p0=self.p0, box_lower=self.box_lower,
+                                         box_upper=self.box_upper).resolve(ASYMMETRIC)
+        return lower, upper
 
     @property
     def adaptive(self) -> bool:
@@ -302,8 +321,8 @@ class DisplacementController:
         if settings.adaptive:
             # Algorithm 1 keeps the estimate in C; a start outside it would be in the law, outside C,
             # for the start-up mode's 12 s
-            for name, lo in settings.box_lower.items():
-                hi, v = settings.box_upper[name], float(theta0[ASYMMETRIC.index(name)])
+            for name, lo, hi in zip(ASYMMETRIC.names, *settings.constraint_region()):
+                v, lo, hi = float(theta0[ASYMMETRIC.index(name)]), float(lo), float(hi)
                 if not lo - 1e-9 * max(1.0, abs(lo)) <= v <= hi + 1e-9 * max(1.0, abs(hi)):
                     raise ValueError(f"theta0's {name} = {v!r} lies outside the constraint region C, {lo!r}..{hi!r} "
                                      "(Table 2 unless box_lower/box_upper say otherwise): start the adaptive "

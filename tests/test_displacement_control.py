@@ -650,3 +650,22 @@ def test_an_adaptive_controller_starts_inside_its_constraint_region(theta0):
     DisplacementController(ControllerSettings(method="mpc_servo"), outside)
     wide = ControllerSettings(method="ampc_ucp", box_lower={"a1": 1.0, "a2": -0.4, "b1": 0.2})
     assert DisplacementController(wide, outside).theta0[0] == 1.10
+
+
+def test_the_constraint_region_is_checked_when_the_settings_are_made(theta0):
+    """A bound on one side only is a half-open C (it raised a bare KeyError: 'b1'); an inverted box,
+    an unknown name or a NaN is refused by ControllerSettings, naming it (an inverted one was
+    reported as theta0 lying outside C)."""
+    lower_only = ControllerSettings(method="ampc_servo", box_lower={"b1": 0.01}, box_upper={})
+    lo, hi = lower_only.constraint_region()
+    assert lo[ASYMMETRIC.index("b1")] == 0.01 and np.isinf(hi).all() and np.isneginf(np.delete(lo, 2)).all()
+    far = dict(zip(ASYMMETRIC.names, theta0)) | {"b1": 5.0}
+    assert DisplacementController(lower_only, far).theta0[2] == 5.0
+    with pytest.raises(ValueError, match=r"theta0's b1 = 0.005 lies outside the constraint region C, 0.01..inf"):
+        DisplacementController(lower_only, far | {"b1": 0.005})
+    for lower, upper, message in (({"b1": 1.0}, {"b1": 0.1}, r"box_lower\['b1'\]=1.0 > box_upper\['b1'\]=0.1"),
+                                  ({"b2": 1.0}, {}, "box_lower names unknown parameter 'b2'"),
+                                  ({"b1": math.nan}, {}, r"box_lower\['b1'\] must not be NaN"),
+                                  ([0.0] * 15, [1.0] * 15, "must be mappings of parameter name to bound")):
+        with pytest.raises(ValueError, match=message):
+            ControllerSettings(method="ampc_servo", box_lower=lower, box_upper=upper)
