@@ -21,6 +21,31 @@ def test_record_writes_csv_and_png(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
 
 
+def test_the_load_is_given_once(tmp_path, capsys):
+    """``--set load.load_n=68`` was silently replaced by --load's default 44 N (and a --params file's
+    load too): without --load the file's or --set's load is recorded; --load overrides the file;
+    --load and a different --set load.load_n are refused."""
+    from tapmuscle.io.plant_file import plant_file_text
+    from fmu_plant import PlantParams
+
+    common = ["record", "--input", "const:value=6", "--duration", "2", "--quiet"]
+    assert main([*common, "--out", str(tmp_path / "set.csv"), "--set", "load.load_n=68"]) == 0
+    assert read_recording(tmp_path / "set.csv").metadata["load_n"] == "68"
+    assert read_recording(tmp_path / "set.csv").columns["load_n"][-1] == 68.0
+    (tmp_path / "p.json").write_text(plant_file_text(PlantParams().with_values(**{"load.load_n": 30.0}), "rig"))
+    assert main([*common, "--out", str(tmp_path / "file.csv"), "--params", str(tmp_path / "p.json")]) == 0
+    assert read_recording(tmp_path / "file.csv").metadata["load_n"] == "30"
+    assert main([*common, "--out", str(tmp_path / "over.csv"), "--params", str(tmp_path / "p.json"), "--load", "44"]) == 0
+    assert read_recording(tmp_path / "over.csv").metadata["load_n"] == "44"
+    assert main([*common, "--out", str(tmp_path / "plain.csv")]) == 0
+    assert read_recording(tmp_path / "plain.csv").metadata["load_n"] == "44"
+    capsys.readouterr()
+    assert main([*common, "--out", str(tmp_path / "both.csv"), "--load", "30", "--set", "load.load_n=44"]) == 2
+    assert "--load 30 and --set load.load_n=44 name two loads" in capsys.readouterr().err
+    assert not (tmp_path / "both.csv").exists()
+    assert main([*common, "--out", str(tmp_path / "same.csv"), "--load", "30", "--set", "load.load_n=30"]) == 0
+
+
 def test_parameter_overrides_change_the_rig(tmp_path):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     common = ["--input", "const:value=6", "--duration", "20", "--quiet", "--no-noise"]

@@ -78,7 +78,12 @@ def _cmd_record(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UsageError(f"--input: {exc}") from None
     params = _load_plant_params(args.params, args.set)
-    overrides = {"load.load_n": args.load}
+    set_load = any(item.partition("=")[0].strip() == "load.load_n" for item in args.set)
+    if args.load is not None and set_load and args.load != params.load.load_n:
+        raise UsageError(f"--load {args.load:g} and --set load.load_n={params.load.load_n:g} name two loads: give it once")
+    # --load overrides the --params file's load; without it the file's (or --set's) load is recorded
+    load_n = params.load.load_n if args.load is None else args.load
+    overrides = {"load.load_n": load_n}
     if args.no_noise:
         overrides.update({"sensor.encoder_noise_std_mm": 0.0, "sensor.pressure_noise_std_mpa": 0.0})
     params = params.with_values(**overrides)
@@ -102,7 +107,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
                              progress=Progress("record", enabled=not args.quiet))
     except (ValueError, FloatingPointError) as exc:
         raise UsageError(str(exc)) from None
-    meta = {"ts_s": f"{args.ts:g}", "load_n": f"{args.load:g}", "seed": str(args.seed),
+    meta = {"ts_s": f"{args.ts:g}", "load_n": f"{load_n:g}", "seed": str(args.seed),
             "input": args.input, "source": "tapmuscle record (simulated rig)",
             "command": " ".join(["tapmuscle"] + list(args.argv))}
     rec = Recording(data, meta)
@@ -114,7 +119,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
         if args.plot:
             with atomic_path(png, suffix=".png") as tmp_png:
                 plot_recording(rec.t_s, rec.u_v, rec.l_mm, tmp_png, p_mpa=data["p_mpa"],
-                               title=f"{args.input}, load {args.load:g} N, seed {args.seed}",
+                               title=f"{args.input}, load {load_n:g} N, seed {args.seed}",
                                settle_s=min(30.0, args.duration / 2))
     print(f"wrote {out} ({len(rec)} samples, l {rec.l_mm.min():.2f}..{rec.l_mm.max():.2f} mm)")
     if args.plot:
@@ -346,8 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec = sub.add_parser("record", help="run the simulated rig open-loop and write a recording CSV",
                          description="Run the simulated rig open-loop with a valve-command signal and "
                                      "write a recording (docs/recordings.md).")
-    rec.add_argument("--load", type=number_within("--load", 1e-9, 500.0), default=44.0,
-                     help="hanging load [N], 0 < load <= 500 (paper: 44, 68)")
+    rec.add_argument("--load", type=number_within("--load", 1e-9, 500.0), default=None,
+                     help="hanging load [N], 0 < load <= 500 (paper: 44, 68); default: the --params file's "
+                          "load.load_n, else 44")
     rec.add_argument("--input", required=True,
                      help="command spec, e.g. sine:bias=5,amp=3,freq=0.1 | step:initial=4,final=6,at=10 | "
                           "steps:levels=3/7/5,period=20 | chirp:f0=0.01,f1=0.5 | random:lo=2,hi=8,seed=1 | const:value=5 | "
