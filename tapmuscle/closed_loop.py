@@ -19,34 +19,51 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
 
-__all__ = ["run_closed_loop", "eq21_error_mm", "command_tv_excess", "EQ21_WINDOW"]
+__all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
 
 #: Samples of Eq. (21): k = 101..401 (10 s to 40 s at Ts = 0.1 s).
 EQ21_WINDOW = (101, 401)
+#: Eq. (21)'s window in seconds, 10.1 s to 40.1 s: the samples 101..401 at the paper's Ts = 0.1 s.
+EQ21_WINDOW_S = (10.1, 40.1)
 
 
-def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = EQ21_WINDOW) -> float:
+def eq21_window(ts_s: float) -> tuple[int, int]:
+    """The samples ``(k0, k1)`` (inclusive) of Eq. (21)'s 10.1..40.1 s at a sampling period ``ts_s``
+    [s]: ``(101, 401)`` at the paper's 0.1 s, ``(202, 802)`` at 0.05 s."""
+    ts_s = float(ts_s)
+    if not (math.isfinite(ts_s) and ts_s > 0):
+        raise ValueError(f"ts_s must be a positive finite sampling period [s], got {ts_s!r}")
+    k0, k1 = (int(round(t / ts_s)) for t in EQ21_WINDOW_S)
+    return k0, k1
+
+
+def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] | None = None, *,
+                  ts_s: float | None = None) -> float:
     """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] (inclusive window).
 
     Parameters
     ----------
     r_mm, l_mm : ndarray
         Reference and displacement [mm], one value per sample ``k``.
-    window : (int, int)
-        First and last sample of the mean, inclusive (paper: 101..401, 10 s to 40 s at Ts = 0.1 s).
+    window : (int, int), optional
+        First and last sample of the mean, inclusive. Default: the paper's 10 s to 40 s, the samples
+        101..401 at Ts = 0.1 s, or :func:`eq21_window` of ``ts_s`` when that is given.
+    ts_s : float, optional
+        The run's sampling period [s], which puts the default window at 10.1..40.1 s whatever the
+        period (at 0.05 s the samples 101..401 are 5.05..20.05 s, the start-up included).
 
     Raises
     ------
     ValueError
         ``r_mm`` and ``l_mm`` not one-dimensional or of different lengths (a column vector against a
-        row broadcast to a matrix and gave a wrong number), a window that is not ``0 <= k0 <= k1``, or
-        a run that ends before ``k1``.
+        row broadcast to a matrix and gave a wrong number), a window that is not ``0 <= k0 <= k1``,
+        both ``window`` and ``ts_s``, or a run that ends before ``k1``.
     """
     r, l = np.asarray(r_mm, dtype=float), np.asarray(l_mm, dtype=float)
     if r.ndim != 1 or l.ndim != 1 or r.shape != l.shape:
         raise ValueError(f"r_mm and l_mm must be 1-D arrays of the same length (one value per sample k), got "
                          f"shapes {r.shape} and {l.shape}")
-    k0, k1 = (int(k) for k in window)
+    k0, k1 = (int(k) for k in _window(window, ts_s))
     if not 0 <= k0 <= k1:
         raise ValueError(f"window must be (k0, k1) with 0 <= k0 <= k1, got {tuple(window)}")
     if len(r) <= k1:
@@ -54,8 +71,18 @@ def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] = 
     return float(np.mean(np.abs(r[k0:k1 + 1] - l[k0:k1 + 1])))
 
 
+def _window(window: tuple[int, int] | None, ts_s: float | None) -> tuple[int, int]:
+    """The window of :func:`eq21_error_mm` / :func:`command_tv_excess` (one of the two, or the paper's)."""
+    if window is not None and ts_s is not None:
+        raise ValueError(f"give the window in samples (window = {tuple(window)}) or the sampling period ts_s = "
+                         f"{ts_s!r} for Eq. (21)'s 10.1..40.1 s, not both")
+    if window is not None:
+        return window
+    return EQ21_WINDOW if ts_s is None else eq21_window(ts_s)
+
+
 def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1,
-                      window: tuple[int, int] = EQ21_WINDOW) -> float:
+                      window: tuple[int, int] | None = None) -> float:
     """How far the command's total variation in the Eq. (21) window exceeds a smooth command's [-].
 
     A command that follows a sine reference of ``frequency_hz`` without ripple travels its range twice
@@ -70,10 +97,11 @@ def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1
         Frequency of the reference [Hz].
     ts_s : float
         Sampling period [s].
-    window : (int, int)
-        First and last sample, inclusive (default: Eq. (21)'s 101..401).
+    window : (int, int), optional
+        First and last sample, inclusive (default: Eq. (21)'s 10.1..40.1 s at ``ts_s``,
+        :func:`eq21_window`; 101..401 at 0.1 s).
     """
-    k0, k1 = window
+    k0, k1 = window if window is not None else eq21_window(ts_s)
     if len(u_v) <= k1:
         raise ValueError(f"the Eq. (21) window needs samples up to k = {k1}, the run has {len(u_v)}")
     u = np.asarray(u_v, dtype=float)[k0:k1 + 1]

@@ -102,3 +102,28 @@ def test_a_reference_on_another_grid_than_the_controllers_is_refused():
         run_closed_loop(plant.params, controller, None, duration_s=3.0)
     with pytest.raises(TypeError, match=r"controller must be a DisplacementController .* got ControllerSettings"):
         run_closed_loop(plant, controller.settings, None, duration_s=3.0)
+
+
+def test_eq21_at_another_period_scores_the_same_seconds():
+    """At 0.05 s the samples 101..401 are 5.05..20.05 s, start-up included: with ``ts_s`` the default
+    window is Eq. (21)'s 10.1..40.1 s (samples 202..802), the same seconds as at 0.1 s; at 0.1 s it is
+    the paper's 101..401. The chatter figure's window follows its ts_s the same way."""
+    from tapmuscle.closed_loop import eq21_window
+
+    assert eq21_window(0.1) == EQ21_WINDOW and eq21_window(0.05) == (202, 802) and eq21_window(0.2) == (50, 200)
+    t = np.arange(1001) * 0.05
+    err = np.where(t < 10.0, 30.0, 0.5)  # a 30-mm start-up, then 0.5 mm
+    r, l = np.zeros_like(t), err
+    assert eq21_error_mm(r, l, ts_s=0.05) == 0.5
+    assert eq21_error_mm(r, l) > 10.0  # samples 101..401: the paper's numbering, whatever the period
+    assert eq21_error_mm(r, l, ts_s=0.1) == eq21_error_mm(r, l)
+    with pytest.raises(ValueError, match=r"needs samples k = 0..802 \(803 samples\), the run has 401"):
+        eq21_error_mm(r[:401], l[:401], ts_s=0.05)
+    with pytest.raises(ValueError, match="not both"):
+        eq21_error_mm(r, l, (0, 10), ts_s=0.05)
+    with pytest.raises(ValueError, match="ts_s must be a positive finite sampling period"):
+        eq21_window(0.0)
+    u = 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * t)
+    u[t < 10.0] += np.where(np.arange((t < 10.0).sum()) % 2, 1.0, -1.0)  # chatter in the start-up only
+    assert abs(command_tv_excess(u, 0.1, ts_s=0.05)) < 0.01
+    assert command_tv_excess(u, 0.1, ts_s=0.05, window=(101, 401)) > 1.0

@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 from fmu_controller.displacement_control import METHODS
 from fmu_plant.seed import SEED_MAX
+from tapmuscle.closed_loop import eq21_window
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.plant_file import PlantFileError, read_plant_file
 
@@ -151,10 +152,6 @@ _TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_sampl
         "plant", "controller", "reference", "load", "supply", "expect"}
 
 
-#: Eq. (21)'s window in seconds: the paper's samples k = 101..401 at Ts = 0.1 s.
-EQ21_WINDOW_S = (10.1, 40.1)
-
-
 def _evaluation_window(top: "_Reader", data: Mapping[str, Any], n: int, step: float,
                        duration: float) -> list[int]:
     """The evaluation window ``[k0, k1]`` (samples, inclusive) of a scenario.
@@ -185,7 +182,7 @@ def _evaluation_window(top: "_Reader", data: Mapping[str, Any], n: int, step: fl
                 or not 0 <= window[0] <= window[1]):
             raise top.error(key, f"must be [k0, k1] with 0 <= k0 <= k1 integers, got {window!r}")
     else:
-        k0, k1 = (int(round(t / step)) for t in EQ21_WINDOW_S)
+        k0, k1 = eq21_window(step)
         return [k0, min(k1, n - 1)] if k0 < n - 1 else [0, n - 1]
     if window[1] >= n:
         raise top.error(key, f"{window[1] * step:.12g} s (k1 = {window[1]}) is past the run's last sample "
