@@ -57,7 +57,7 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, MAX_PROBING_V, MAX_STARTUP_S,
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_PROBING_V, MAX_STARTUP_S,
                                                  METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
                                                  DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
@@ -145,6 +145,10 @@ class AMPCController(SafeSlave):
                                    "command has sat at a valve limit the error pushes it further into for 5 samples "
                                    "in a row (no wind-up when the reference is out of reach), 0 Eq. (18) as the paper "
                                    "writes it", lo=0, hi=1)
+        self.add_integer_parameter("startup_guard", 1, "adaptive methods with the start-up mode: 1 end its warm-up "
+                                   "and blend on theta0 early once the valve command has jumped across 90 % of its "
+                                   f"range {GUARD_JUMPS} times (theta0 a poor fixed law on this rig: the law takes the estimate, as "
+                                   "with startup_s = 0, and the probing stops), 0 let them run their course", lo=0, hi=1)
         self.add_integer_parameter("covariance_ceiling", 0, "1: keep the RLS covariance P at or below P(0), "
                                    "which stops covariance wind-up under forgetting (set with forgetting = 0.999 "
                                    "for runs of hours); 0: the paper's Eq. (4)", lo=0, hi=1)
@@ -230,6 +234,7 @@ class AMPCController(SafeSlave):
             box_upper={n: p[f"box_upper.{n}"] for n in TABLE2_UPPER}, forgetting=p["forgetting"],
             covariance_ceiling=ip["covariance_ceiling"] == 1, input_delay_samples=ip["input_delay_samples"],
             delay_correction=ip["delay_correction"] == 1, anti_windup=ip["anti_windup"] == 1,
+            startup_guard=ip["startup_guard"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
             startup_s=p["startup_s"], probing_v=p["probing_v"])
 
@@ -303,7 +308,11 @@ class AMPCController(SafeSlave):
             self._diverged = True  # said once: a host's log is not flooded every sample
             asks = (f"predicts l_pred = {step.predicted_next_mm:.3g} mm and asks for u_c = {step.uc_v:.3g} V, far "
                     "outside the rig's")
-            if self._controller.settings.adaptive:
+            if self._controller.settings.adaptive and self._controller.law_on_theta0:
+                why = (f"the prior model theta0, which the start-up mode's warm-up runs the law on, {asks}: "
+                       f"the readings l (now {l:g} mm) are far from what theta0 predicts (their unit? an encoder "
+                       "offset?), or theta0 is a poor fixed law on this rig")
+            elif self._controller.settings.adaptive:
                 why = (f"the adaptive model {asks}: its estimate diverges (forgetting = {self._par['forgetting']:g}, "
                        f"covariance_ceiling = {self._int_par['covariance_ceiling']}; a forgetting factor below 1 "
                        "needs covariance_ceiling = 1 or a value closer to 1, docs/control.md)")
@@ -311,6 +320,11 @@ class AMPCController(SafeSlave):
                 why = (f"the fixed model {asks}: the reference is out of the rig's reach from the readings l "
                        f"(now {l:g} mm: an encoder offset or drift?), or the readings are far from the model's")
             self.log(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.", status=Fmi2Status.warning)
+        if self._controller.startup_guarded_at == self._k:
+            self.log(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up mode, whose law "
+                     "runs on theta0: theta0 is a poor fixed law on this rig (an open-loop identification's, or another "
+                     "rig's?). The law takes the adaptive estimate from the next sample, as with startup_s = 0 "
+                     "(startup_guard = 1; docs/control.md, \"Start-up\")", status=Fmi2Status.warning)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

@@ -51,7 +51,7 @@ from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
-           "HOLD_AFTER_SAMPLES",
+           "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -94,6 +94,14 @@ DEFAULT_STARTUP_S = 12.0
 DEFAULT_PROBING_V = 0.5
 #: Largest ``ControllerSettings.probing_v`` [V]: a quarter of the valve's 0-10 V range.
 MAX_PROBING_V = 2.5
+
+#: ``ControllerSettings.startup_guard``: the start-up mode leaves ``theta0`` for the estimate once the
+#: command has jumped across this fraction of the valve's range in one sample ...
+GUARD_JUMP_FRACTION = 0.9
+#: ... this many times since the estimator started: a law that slams the valve end to end. (Two
+#: happen in a sound start: the delayed law that ``input_delay_samples = -1`` starts with, one sample
+#: early in a sequential master, can jump twice before the delay is decided.)
+GUARD_JUMPS = 3
 
 #: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
 P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
@@ -163,6 +171,16 @@ class ControllerSettings:
     it the gentle start leaves the closed-loop estimate unexcited and ``b1`` drifts to C's lower
     bound, where the servo law ripples at the cycle's turning points (docs/control.md, "Start-up").
     0 turns it off; at most 2.5 V (a quarter of the valve's range)."""
+    startup_guard: bool = True
+    """Adaptive methods with the start-up mode: end the warm-up and the blend early once the valve
+    command has jumped across :data:`GUARD_JUMP_FRACTION` of its range in one sample
+    :data:`GUARD_JUMPS` times since the estimator started. ``theta0`` is then a poor fixed law on this
+    rig: typically one identified open loop on another rig, whose hysteresis cancellation (Eq. 5)
+    feeds the measured increments back to the valve with a gain above 1, so that the valve slams end
+    to end and the cancellation grows to thousands of mm (a 0.3-MPa rig at 30 N: Eq. (21) 6.65 mm
+    instead of 0.29). From the next sample the law takes the estimate as the paper's start does, and
+    the probing stops. It does not fire on the paper's runs, whose ``theta0`` comes from a closed loop
+    (their bits are kept). False: the warm-up runs its course whatever the valve does."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
@@ -210,6 +228,8 @@ class ControllerSettings:
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
         if not 0.0 <= self.probing_v <= MAX_PROBING_V:
             raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
+        if not isinstance(self.startup_guard, bool):
+            raise ValueError(f"ControllerSettings.startup_guard must be True or False, got {self.startup_guard!r}")
         if not isinstance(self.anti_windup, bool):
             raise ValueError(f"ControllerSettings.anti_windup must be True or False, got {self.anti_windup!r}")
         if not isinstance(self.delay_correction, bool):
@@ -353,6 +373,8 @@ class DisplacementController:
         self._warm_n = int(round(0.5 * settings.startup_s / settings.ts_s))
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
+        self._guard = settings.startup_guard and settings.adaptive and self._blend_n > 0
+        self._jump_v = GUARD_JUMP_FRACTION * (self._u_max - self._u_min)
         self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
 
@@ -371,6 +393,8 @@ class DisplacementController:
         self._state = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
         self._k = 0
         self._est_from = 0  # the sample the estimator (re)started at: the start-up mode's clock
+        self._jumps = 0  # full-range jumps of the command in the start-up mode (startup_guard)
+        self._guarded_at: int | None = None  # the sample the guard ended the start-up mode's law at
         self._l_start = l0
         self._u_prev = 0.0
         self._uc_prev = 0.0
@@ -439,7 +463,7 @@ class DisplacementController:
                 raise ValueError(f"phi must be finite, got {phi}")
             theta_hat = self._rls.update_unchecked(np.array(phi), l)
             j = k - self._est_from
-            if j < self._blend_n:
+            if j < self._blend_n and self._guarded_at is None:
                 w = _smoothstep((j - self._warm_n) / (self._blend_n - self._warm_n)) if j >= self._warm_n else 0.0
                 theta_hat = self.theta0 + w * (theta_hat - self.theta0)
             self.theta = _read_only(theta_hat.copy())
@@ -465,6 +489,7 @@ class DisplacementController:
                 self._h_prev2, self._h_prev = self._h_prev, state.hysteresis_unchecked(t)
         state.apply(u)
         self._u_prev = u
+        self._watch_jump(u)
         self._u_out2, self._u_out1 = self._u_out1, u
         self._predicted = predicted
         self._k += 1
@@ -509,6 +534,9 @@ class DisplacementController:
                 # from theta0 and P(0), and the start-up mode's warm-up and blend with it
                 self._rls.setup(ASYMMETRIC, self._rls.settings)
                 self._est_from = self._k
+                # the valve's jumps so far may have come from the wrong delay hypothesis: the guard
+                # starts over with the start-up mode
+                self._jumps, self._guarded_at = 0, None
 
     @property
     def input_delay_decision(self) -> int | None:
@@ -592,11 +620,35 @@ class DisplacementController:
             return xs, True
         return integrator_step(xs, r_mm, l_mm), pushed
 
+    def _watch_jump(self, u: float) -> None:
+        """``ControllerSettings.startup_guard``: count the output ``u`` [V] if it jumps across
+        :data:`GUARD_JUMP_FRACTION` of the valve's range from the last one while the start-up mode's
+        law still holds ``theta0``; at :data:`GUARD_JUMPS` the law leaves it for the estimate."""
+        if (self._guard and self._guarded_at is None and abs(u - self._u_out1) >= self._jump_v
+                and self._k - self._est_from < self._blend_n):
+            self._jumps += 1
+            if self._jumps >= GUARD_JUMPS:
+                self._guarded_at = self._k
+
+    @property
+    def startup_guarded_at(self) -> int | None:
+        """The sample ``k`` at which ``ControllerSettings.startup_guard`` ended the start-up mode's law
+        on ``theta0`` (from ``k + 1`` the law takes the estimate); None while it has not."""
+        return self._guarded_at
+
+    @property
+    def law_on_theta0(self) -> bool:
+        """Whether the last step's law ran on ``theta0`` alone: always for the fixed-predictor MPCs; for
+        the adaptive ones in the start-up mode's warm-up (until the guard, ``startup_guard``, ends it)."""
+        if self._rls is None:
+            return True
+        return self._guarded_at is None and self._k - 1 - self._est_from < self._warm_n
+
     def _probed(self, u: float) -> float:
         """``u`` [V] plus the start-up mode's probing signal during the estimator's warm-up
         (``ControllerSettings.probing_v``), within the valve's range."""
         j = self._k - self._est_from
-        if self._probing_v and 0 < j < self._warm_n:
+        if self._probing_v and 0 < j < self._warm_n and self._guarded_at is None:
             u += probe_v(j, self._probing_v)
             return min(max(u, self._u_min), self._u_max)
         return u
@@ -635,6 +687,7 @@ class DisplacementController:
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._limit_run = self._limit_run + 1 if pushed else 0
         self._u_next, self._uc_next = u, uc
+        self._watch_jump(u)
         self._u_out2, self._u_out1 = self._u_out1, u
         self._h_prev2, self._h_prev = self._h_prev, h_now
         self._predicted = l_next
@@ -670,6 +723,7 @@ class DisplacementController:
             "delayed": self._delayed, "decided": self._decided, "u_out": [self._u_out1, self._u_out2],
             "delay_scores": [self._ms_seq, self._ms_par],
             "compared": self._compared, "est_from": self._est_from,
+            "guard": [self._jumps, self._guarded_at],
             "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
             "delay_predictor": None if self._delay_predictor is None else self._delay_predictor.get_state(),
             "rls": rls,
@@ -735,6 +789,12 @@ class DisplacementController:
                     raise ValueError(f"state field delay_models must hold 2 model states, got {len(models)}")
                 self._shadow_seq.set_state(models[0])
                 self._shadow_par.set_state(models[1])
+        jumps, guarded_at = state.get("guard", (0, None))  # states saved before the guard: not fired
+        if (isinstance(jumps, bool) or int(jumps) != jumps or jumps < 0
+                or (guarded_at is not None and not (int(guarded_at) == guarded_at and 0 <= guarded_at <= self._k))):
+            raise ValueError(f"state field guard = {state.get('guard')!r} must be [jumps >= 0, None or a sample "
+                             f"within 0 .. k = {self._k}]")
+        self._jumps, self._guarded_at = int(jumps), None if guarded_at is None else int(guarded_at)
         predictor = state.get("delay_predictor")
         if "delay_predictor" in state and (predictor is None) != (self._delay_predictor is None):
             raise ValueError(f"state field delay_predictor = {'None' if predictor is None else 'a predictor'} "

@@ -349,15 +349,48 @@ def test_a_diverging_adaptive_estimate_is_said_once(fmu, capfd, forgetting):
     f.freeInstance()
 
 
-def test_the_divergence_warning_names_its_figures_and_parameters():
-    """The warning's rule on a step whose prediction is far off (made so: deterministic on any CPU)."""
+@pytest.mark.parametrize("guard", [1, 0])
+def test_the_startup_guard_parameter_reaches_the_controller_and_its_firing_is_logged(guard):
+    """``startup_guard`` is the controller's ``ControllerSettings.startup_guard``; when the guard ends
+    the warm-up on theta0 the host's log says so once, as a warning, with the time."""
+    from fmu_controller.controller_slave import AMPCController
+
+    slave = AMPCController(instance_name="guarded")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["startup_guard"]], [guard])
+    slave.exit_initialization_mode()
+    assert slave._controller.settings.startup_guard is bool(guard)
+    real_step = slave._controller.step
+
+    def step(l, r):
+        out = real_step(l, r)
+        if slave._k == 3 and guard:
+            slave._controller._guarded_at = 3  # as _watch_jump does on the third full-range jump
+        return out
+
+    slave._controller.step = step
+    for k in range(6):
+        slave.l = 30.0
+        assert slave.do_step(k * 0.1, 0.1)
+    msgs = [(m.status, m.msg) for m in slave.log_queue if "jumped across its range" in m.msg]
+    assert len(msgs) == guard
+    if guard:
+        assert msgs[0][0] == Fmi2Status.warning and msgs[0][1].startswith("t = 0.3 s: the valve command jumped "
+                                                                          "across its range 3 times")
+
+
+@pytest.mark.parametrize("startup_s", [0.0, 12.0])
+def test_the_divergence_warning_names_its_figures_and_parameters(startup_s):
+    """The warning's rule on a step whose prediction is far off (made so: deterministic on any CPU).
+    In the start-up mode's warm-up the law runs on theta0, not on the estimate: the warning says so
+    (it blamed the estimate and the forgetting factor for a theta0 or readings in another unit)."""
     import dataclasses
 
     from fmu_controller.controller_slave import AMPCController
 
     slave = AMPCController(instance_name="diverging")
     vr = {var.name: v for v, var in slave.vars.items()}
-    slave.set_real([vr["forgetting"]], [0.9])
+    slave.set_real([vr["forgetting"], vr["startup_s"]], [0.9, startup_s])
     slave.exit_initialization_mode()
     real_step = slave._controller.step
     far = {3: 1e9, 4: -2e4}  # k -> predicted_next_mm
@@ -365,10 +398,14 @@ def test_the_divergence_warning_names_its_figures_and_parameters():
     for k in range(6):
         slave.l = 30.0
         assert slave.do_step(k * 0.1, 0.1)
-    msgs = [(m.status, m.msg) for m in slave.log_queue if "diverges" in m.msg]
+    msgs = [(m.status, m.msg) for m in slave.log_queue if "far outside the rig's" in m.msg]
     assert len(msgs) == 1 and msgs[0][0] == Fmi2Status.warning  # once, at k = 3
     assert "t = 0.3 s" in msgs[0][1] and "l_pred = 1e+09 mm" in msgs[0][1]
-    assert "forgetting = 0.9, covariance_ceiling = 0" in msgs[0][1]
+    if startup_s == 0.0:
+        assert "its estimate diverges" in msgs[0][1] and "forgetting = 0.9, covariance_ceiling = 0" in msgs[0][1]
+    else:
+        assert "the prior model theta0, which the start-up mode's warm-up runs the law on" in msgs[0][1]
+        assert "diverges" not in msgs[0][1] and "(now 30 mm)" in msgs[0][1]
     assert slave.l_pred == 30.0 and 0.0 <= slave.u <= 10.0
 
 

@@ -13,7 +13,7 @@ from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
 from fmu_controller.reference import SineReference
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
-from fmu_plant import Plant
+from fmu_plant import Plant, PlantParams
 from tapmuscle.closed_loop import command_tv_excess, eq21_error_mm, run_closed_loop
 
 from tapmuscle.paper.reproduce import preliminary_theta
@@ -314,8 +314,9 @@ def test_the_default_start_is_clean_for_every_method(paper_theta0, method, load,
             # the paper's start: its controller from the first sample, Eq. (18) without the hold included
             cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup,
                                     anti_windup=startup > 0)
-            runs[startup] = run_closed_loop(plant, DisplacementController(cs, paper_theta0),
-                                            SineReference(frequency_hz=f), duration_s=45.0)
+            ctrl = DisplacementController(cs, paper_theta0)
+            runs[startup] = run_closed_loop(plant, ctrl, SineReference(frequency_hz=f), duration_s=45.0)
+            assert ctrl.startup_guarded_at is None  # the guard never fires on a sound theta0 (bits kept)
         r = runs[DEFAULT_STARTUP_S]
         assert np.max(r["l_mm"]) <= 65.0 + 3.0, (seed, np.max(r["l_mm"]))
         assert _reversals(r["u_v"]) <= 2
@@ -669,3 +670,58 @@ def test_the_constraint_region_is_checked_when_the_settings_are_made(theta0):
                                   ([0.0] * 15, [1.0] * 15, "must be mappings of parameter name to bound")):
         with pytest.raises(ValueError, match=message):
             ControllerSettings(method="ampc_servo", box_lower=lower, box_upper=upper)
+
+
+@pytest.fixture(scope="module")
+def open_loop_theta_03mpa():
+    """theta0 identified open loop (``tm.identify`` on a 240-s sine) on a 0.3-MPa rig at 30 N, and
+    that rig: a poor fixed law for the start-up mode's warm-up."""
+    from fmu_controller.identification import identify_record as identify
+    from tapmuscle.api import simulate
+
+    rig = PlantParams().with_values(**{"supply.supply_pressure_mpa": 0.3})
+    rec = simulate("sine:bias=5,amp=3,freq=0.1", duration_s=240.0, ts_s=0.1, load_n=30.0, params=rig, seed=0)
+    return identify(rec["u_v"], rec["l_mm"], ts_s=0.1).theta, rig
+
+
+@pytest.mark.parametrize("input_delay", [0, -1])
+def test_the_startup_guard_hands_a_slamming_law_to_the_estimate(open_loop_theta_03mpa, input_delay):
+    """With an open-loop theta0 of a 0.3-MPa rig, AMPC-servo's warm-up on theta0 slammed the valve end
+    to end and the cancelled H grew to thousands of mm: Eq. (21) 6.65 mm (12.5 with -1). The guard
+    hands the law to the estimate after GUARD_JUMPS full-range jumps (measured 0.29 and 0.25 mm)."""
+    theta, rig = open_loop_theta_03mpa
+    errors, fired = {}, {}
+    for guard in (True, False):
+        plant = Plant(rig, seed=0)
+        plant.update(load_n=30.0)
+        ctrl = DisplacementController(ControllerSettings(method="ampc_servo", startup_guard=guard,
+                                                         input_delay_samples=input_delay), theta)
+        run = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.1), duration_s=45.0)
+        errors[guard], fired[guard] = eq21_error_mm(run["r_mm"], run["l_mm"]), ctrl.startup_guarded_at
+        assert np.all(np.isfinite(run["u_v"])) and run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
+    assert fired[False] is None
+    if input_delay == 0:  # with -1 the guard starts over when the delay is decided (at 5 s), unfired since
+        assert fired[True] is not None and 30 <= fired[True] <= 60  # t = 3-6 s
+    assert errors[True] < 0.5 and errors[False] > 3.0, errors
+
+
+def test_the_startup_guard_is_validated_and_kept_in_the_state(theta0):
+    """A setting of True/False only; the jumps counted and the firing sample go through
+    get_state/set_state (a rewind continues bit for bit)."""
+    with pytest.raises(ValueError, match="startup_guard must be True or False"):
+        ControllerSettings(startup_guard=1)
+    c = DisplacementController(ControllerSettings(method="ampc_servo"), theta0)
+    c.reset(0.0)
+    slam = [0.0, 60.0, 0.0, 60.0, 0.0, 60.0, 0.0, 60.0]  # readings that make the warm-up law jump
+    for k, l in enumerate(slam):
+        c.step(l, [30.0] * c.settings.preview_samples + [30.0])
+    saved = c.get_state()
+    twin = DisplacementController(ControllerSettings(method="ampc_servo"), theta0)
+    twin.set_state(saved)
+    assert twin.startup_guarded_at == c.startup_guarded_at and twin.get_state()["guard"] == saved["guard"]
+    for l in (10.0, 20.0, 30.0):
+        a, b = c.step(l, [30.0] * 7), twin.step(l, [30.0] * 7)
+        assert a.u_v == b.u_v and np.array_equal(a.theta, b.theta)
+    for bad in ([-1, None], [0, 10 ** 6], [1.5, None]):
+        with pytest.raises(ValueError, match="state field guard"):
+            twin.set_state(saved | {"guard": bad})

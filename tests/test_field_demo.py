@@ -479,7 +479,7 @@ def test_the_closed_loop_recording_is_the_fmus_bit_for_bit(tmp_path, built_fmus,
     path.write_text("\n".join([
         'duration_s = 30.0', 'step_s = 0.1', f'seed = {case.noise_seed}',
         '[plant]', "parameters = { " + ", ".join(f'"{k}" = {v!r}' for k, v in params.items()) + " }",
-        '[controller]', 'method = "ampc_servo"', 'parameters = { input_delay_samples = 0, anti_windup = 0 }',
+        '[controller]', 'method = "ampc_servo"', 'parameters = { input_delay_samples = 0, anti_windup = 0, startup_guard = 0 }',
         '[reference]', 'kind = "sine"', f'offset_mm = {p["offset_mm"]!r}', f'amplitude_mm = {p["amplitude_mm"]!r}',
         f'frequency_hz = {p["frequency_hz"]!r}', '[load]', f'initial_n = {case.load_n!r}']) + "\n")
     cols = co_simulate(load_scenario(path), built_fmus)

@@ -506,9 +506,10 @@ def record_case(case: FieldCase, *, signal: Callable[[float], float] | None = No
 
         p = dict(case.excitation_params)
         # the recordings' controller is part of the suite's definition (Eq. (18) without the
-        # anti-windup hold): a later change of the controller's defaults does not change its data
+        # anti-windup hold, no start-up guard): a later change of the controller's defaults does not
+        # change its data
         ctrl = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5, ts_s=ts_s,
-                                                         anti_windup=False), THETA0_44N)
+                                                         anti_windup=False, startup_guard=False), THETA0_44N)
         ref = SineReference(offset_mm=p["offset_mm"], amplitude_mm=p["amplitude_mm"],
                             frequency_hz=p["frequency_hz"], ts_s=ts_s)
         cols = run_closed_loop(plant, ctrl, ref, duration_s=duration)
