@@ -40,6 +40,18 @@ def _check_positive(name: str, value: float) -> float:
     return float(value)
 
 
+def _check_period(ts_s: float) -> float:
+    """A sampling period [s] the rig is simulated at: within ``tapmuscle record --ts``'s 1 ms..10 s
+    (50 is milliseconds meant)."""
+    from tapmuscle.diagnosis.recording_checks import TS_RANGE_S
+
+    ts = _check_positive("ts_s", ts_s)
+    if not TS_RANGE_S[0] <= ts <= TS_RANGE_S[1]:
+        raise ValueError(f"ts_s = {ts_s!r} s is outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s of the muscle's "
+                         "sampling (tapmuscle record --ts): a period in milliseconds? Give it in seconds")
+    return ts
+
+
 def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | str, *,
              duration_s: float | None = None, ts_s: float = 0.1, load_n: float | None = None,
              params: PlantParams | None = None, seed: int = 0) -> dict[str, np.ndarray]:
@@ -75,7 +87,7 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
     >>> rec["l_mm"].shape
     (201,)
     """
-    ts = _check_positive("ts_s", ts_s)
+    ts = _check_period(ts_s)
     if isinstance(command, str):
         signal = parse_input_spec(command, run_duration_s=duration_s)
     elif callable(command):
@@ -159,7 +171,7 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    ts = _check_positive("ts_s", ts_s)
+    ts = _check_period(ts_s)
     if settings is None:
         settings = ControllerSettings(method=method, ts_s=ts)
     elif not isinstance(settings, ControllerSettings):

@@ -271,6 +271,11 @@ def test_another_sampling_period_needs_its_own_predictor():
     run = tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.2, theta0=tm.THETA0_44N)
     assert len(run["t_s"]) == 16
     assert len(tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.10000001)["t_s"]) == 31
+    # a period in milliseconds is refused as tapmuscle record --ts refuses it (it ran 2 samples)
+    for call in (lambda: tm.simulate_closed_loop("mpc_ucp", None, ts_s=50.0, theta0=tm.THETA0_44N),
+                 lambda: tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=100.0, ts_s=50.0)):
+        with pytest.raises(ValueError, match=r"ts_s = 50.0 s is outside the 0.001..10 s .*milliseconds"):
+            call()
 
 
 def test_every_bad_input_error_is_a_tapmuscle_error():

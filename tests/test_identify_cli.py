@@ -267,3 +267,18 @@ def test_a_non_finite_sample_is_named_as_the_diagnosis_names_it(records):
         identify_record(rec.u_v, l, ts_s=0.1)
     with pytest.raises(ValueError, match=message):
         diagnose(rec.t_s, rec.u_v, l, DEMO_MODEL)
+
+
+def test_a_recording_timed_in_milliseconds_is_refused(records, tmp_path, capsys):
+    """t_s written in milliseconds (a 100-s period) was identified "at Ts = 100 s" without a word;
+    refused as the import and the diagnosis refuse it, naming the file."""
+    _, paths = records
+    rec = read_recording(paths["train", 44])
+    ms = tmp_path / "ms.csv"
+    write_recording(ms, Recording(rec.columns | {"t_s": 1000.0 * rec.t_s}))
+    assert main(["identify", str(ms), "--json", str(tmp_path / "id.json")]) == 2
+    err = capsys.readouterr().err
+    assert f"{ms}: column t_s: the sampling period is 100 s, outside the 0.001..10 s" in err
+    assert not (tmp_path / "id.json").exists()
+    assert main(["identify", str(paths["train", 44]), "--validate", str(ms), "--json", str(tmp_path / "id.json")]) == 2
+    assert f"{ms}: column t_s: the sampling period is 100 s" in capsys.readouterr().err

@@ -161,8 +161,16 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from tapmuscle.io.recording import atomic_write_text, read_recording
     from tapmuscle.io.sampling import STRICT_TOLERANCE
 
+    from tapmuscle.diagnosis.recording_checks import check_sampling_period
+
     rec = read_recording(args.recording)
     val = read_recording(args.validate) if args.validate else None
+    for path, r in ((args.recording, rec), (args.validate, val)):
+        try:
+            if r is not None:
+                check_sampling_period(r.ts_s)
+        except ValueError as exc:
+            raise UsageError(f"{path}: {exc}") from None
     try:
         report = identify_record(rec.u_v, rec.l_mm, ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box),
                                  constraint_start_s=args.constraint_start, forgetting=args.forgetting)

@@ -16,7 +16,7 @@ import numpy as np
 
 from tapmuscle.io.sampling import uniform_sampling
 
-__all__ = ["check_muscle_recording", "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
+__all__ = ["check_muscle_recording", "check_sampling_period", "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
            "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "displacement_scale_note"]
 
@@ -46,6 +46,21 @@ PRESSURE_PLAUSIBLE_MPA = 2.0
 LOAD_PLAUSIBLE_N = 1.0
 
 
+def check_sampling_period(ts_s: float) -> None:
+    """Refuse a sampling period [s] outside :data:`TS_RANGE_S` (times in milliseconds?).
+
+    Raises
+    ------
+    ValueError
+        Naming the period and the column ``t_s``.
+    """
+    # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
+    # out as 0.99999999999989 ms, which is still 1 ms
+    if not TS_RANGE_S[0] * (1.0 - 1e-9) <= ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
+        raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
+                         "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
+
+
 def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None,
                            p_fitted_mpa: np.ndarray | None = None) -> None:
     """Refuse a command outside :data:`COMMAND_RANGE_V`, a period outside :data:`TS_RANGE_S`, a
@@ -64,11 +79,7 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
         raise ValueError(f"column u_v, sample {k}: {float(u_v[k]):g} V is outside the -1..11 V the plant takes (the "
                          f"valve's 0..10 V command; {bad.size} samples are outside, range {float(np.min(u_v)):g}..{float(np.max(u_v)):g}): "
                          "is the command logged in another unit (percent, mV)? Scale it to volts")
-    # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
-    # out as 0.99999999999989 ms, which is still 1 ms
-    if not TS_RANGE_S[0] * (1.0 - 1e-9) <= ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
-        raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
-                         "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
+    check_sampling_period(ts_s)
     if l_mm is not None:
         far = np.nonzero(np.abs(l_mm) > DISPLACEMENT_PLAUSIBLE_MM)[0]
         if far.size:
