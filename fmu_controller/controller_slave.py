@@ -184,9 +184,9 @@ class AMPCController(SafeSlave):
         table += [(f"theta0.{n}", float(THETA0_44N[i]), "", f"initial/fixed Eq. (1) parameter {n} "
                    "(default: preliminary identification at 44 N, fmu_controller.preliminary_model)", None, None)
                   for i, n in enumerate(ASYMMETRIC.names)]
-        table += [(f"box_lower.{n}", TABLE2_LOWER[n], "", f"lower bound of {n} in C (Table 2)", None, None)
+        table += [(f"box_lower.{n}", TABLE2_LOWER[n], "", f"lower bound of {n} in C (Table 2; -inf: none)", None, None)
                   for n in TABLE2_LOWER]
-        table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2)", None, None)
+        table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2; inf: none)", None, None)
                   for n in TABLE2_UPPER]
         self.add_real_parameters(table)
         self._diverged = False
@@ -208,6 +208,9 @@ class AMPCController(SafeSlave):
         for name, (lo, hi) in {"Ts": (1e-4, 60.0), "forgetting": (0.5, 1.0)}.items():
             self.finite(f"parameter {name}", p[name], lo, hi)
         for name, value in p.items():
+            # an infinite bound of C on its own side is no bound (an unconstrained identification's)
+            if (name.startswith("box_lower.") and value == -math.inf) or (name.startswith("box_upper.") and value == math.inf):
+                continue
             self.finite(f"parameter {name}", value)
             if name.startswith("P0.") and value <= 0:
                 raise SlaveInputError(f"parameter {name} = {value!r} must be > 0")

@@ -57,6 +57,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "read_rig_log": ("tapmuscle.io.rig_log", "read_rig_log"),
     "rig_log_runs": ("tapmuscle.io.rig_log", "rig_log_runs"),
     "LogColumn": ("tapmuscle.io.rig_log", "LogColumn"),
+    "read_identification": ("tapmuscle.io.identification_file", "read_identification"),
     # mismatch diagnosis
     "diagnose": ("tapmuscle.diagnosis", "diagnose"),
     "Diagnosis": ("tapmuscle.diagnosis", "Diagnosis"),

@@ -429,3 +429,22 @@ def test_an_outputs_start_value_is_finite_and_within_its_range(fmu, capfd, name,
     f.setReal([vr["u"]], [5.0])
     assert f.getReal([vr["u"]]) == [5.0]
     f.freeInstance()
+
+
+def test_an_infinite_bound_on_its_own_side_is_no_bound():
+    """box_lower.* = -inf and box_upper.* = inf leave C open (an unconstrained identification's theta0,
+    which the FMU could not take: it refused every infinity); an infinity on the wrong side is refused."""
+    from fmu_controller.controller_slave import AMPCController
+
+    slave = AMPCController(instance_name="open")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    names = [f"box_{side}.{n}" for side in ("lower", "upper") for n in ("a1", "a2", "b1")]
+    slave.set_real([vr[n] for n in names], [-math.inf] * 3 + [math.inf] * 3)
+    slave.exit_initialization_mode()
+    lower, upper = slave._controller.settings.constraint_region()
+    assert np.isneginf(lower).all() and np.isposinf(upper).all()
+    wrong = AMPCController(instance_name="wrong")
+    wrong.set_real([vr["box_upper.b1"]], [-math.inf])
+    wrong.exit_initialization_mode()
+    assert wrong._controller is None
+    assert any("parameter box_upper.b1 = -inf is not finite" in m.msg for m in wrong.log_queue)

@@ -159,7 +159,11 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
             raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
         number: int | float = int(value)
     elif var.type == "Real":
-        if not finite:
+        # an infinity only where the model description leaves that side open (the controller's
+        # box_lower.* = -inf: no bound); the FMU refuses one where it means nothing
+        open_side = math.isinf(value) and (var.min is None if value < 0 else var.max is None) \
+            if isinstance(value, numbers.Real) and not isinstance(value, bool) else False
+        if not finite and not open_side:
             raise ScenarioError(f"{where}{name}': must be a finite number, got {value!r}")
         number = float(value)
     else:

@@ -22,7 +22,9 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     [controller]
     fmu = "AMPCController.fmu"             # optional, as above
     method = "ampc_servo"                  # mpc_ucp | mpc_servo | ampc_ucp | ampc_servo
-    parameters = { "servo.R" = 15.0 }      # any AMPCController parameter
+    identification = "id.json"             # optional: theta0 and the box C from `tapmuscle identify --json`
+                                           # (its ts_s must be step_s; mm and V)
+    parameters = { "servo.R" = 15.0 }      # any AMPCController parameter (over the file's)
 
     [reference]                            # kind = "sine": the controller's built-in generator, exact preview
     kind = "sine"
@@ -54,9 +56,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
 from fmu_controller.displacement_control import METHODS
+from fmu_controller.rls import TABLE2_LOWER
 from fmu_plant.seed import SEED_MAX
 from tapmuscle.closed_loop import eq21_window
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.identification_file import IdentificationFileError, read_identification
 from tapmuscle.io.plant_file import PlantFileError, read_plant_file
 
 if TYPE_CHECKING:
@@ -147,6 +151,9 @@ class Scenario:
 
 #: Most samples of one scenario run (24 h at Ts = 0.1 s).
 MAX_RUN_SAMPLES = 864_001
+
+#: The parameters the controller FMU's constraint region C bounds (``box_lower.*``, ``box_upper.*``).
+CONTROLLER_BOX = tuple(TABLE2_LOWER)
 
 _TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "evaluation_window_s",
         "plant", "controller", "reference", "load", "supply", "expect"}
@@ -291,6 +298,27 @@ def _parameters(r: _Reader) -> dict[str, Any]:
     return dict(params)
 
 
+def _identification_parameters(r: _Reader, base: Path | None, step_s: float) -> dict[str, Any]:
+    """The AMPCController parameters ``theta0.*`` and ``box_lower.*``/``box_upper.*`` of the
+    ``tapmuscle identify --json`` file ``identification`` names (its box, -inf/inf where it has none),
+    checked for the scenario's period ``step_s`` and for mm and V; empty without one."""
+    path = r.path("identification", base)
+    if path is None:
+        return {}
+    try:
+        model = read_identification(path)
+        model.check_period(step_s)
+    except IdentificationFileError as exc:
+        raise r.error("identification", str(exc)) from None
+    extra = sorted((set(model.box_lower) | set(model.box_upper)) - set(CONTROLLER_BOX))
+    if extra:
+        raise r.error("identification", f"{path}: its constraint region bounds {', '.join(extra)}; the controller FMU's "
+                                        f"C bounds only {', '.join(CONTROLLER_BOX)}")
+    return ({f"theta0.{n}": v for n, v in model.theta.items()}
+            | {f"box_lower.{n}": model.box_lower.get(n, -math.inf) for n in CONTROLLER_BOX}
+            | {f"box_upper.{n}": model.box_upper.get(n, math.inf) for n in CONTROLLER_BOX})
+
+
 def _plant_file_parameters(r: _Reader, base: Path | None) -> dict[str, Any]:
     """The MusclePlant parameters of the plant parameter file ``parameters_file`` names (e.g. the
     ``calibrated_plant.json`` that ``tapmuscle diagnose`` writes), by FMU variable name; empty
@@ -329,9 +357,10 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     plant = FmuSpec(plant_r.path("fmu", base), {**_plant_file_parameters(plant_r, base), **_parameters(plant_r)},
                     plant_r.path("parameters_file", base))
     ctrl_r = top.sub("controller")
-    ctrl_r.check_keys({"fmu", "parameters", "method"})
+    ctrl_r.check_keys({"fmu", "parameters", "method", "identification"})
     method = ctrl_r.string("method", "ampc_servo", METHODS)
-    controller = FmuSpec(ctrl_r.path("fmu", base), _parameters(ctrl_r))
+    controller = FmuSpec(ctrl_r.path("fmu", base), {**_identification_parameters(ctrl_r, base, step),
+                                                    **_parameters(ctrl_r)})
     for key in ("method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency"):
         if key in controller.parameters:
             raise _Reader(source, controller.parameters, "controller.parameters.").error(

@@ -1,0 +1,126 @@
+"""The identification file ``tapmuscle identify --json`` writes, read back as a controller's ``theta0``.
+
+A controller needs Eq. (1) in millimetres and volts at its own sampling period, and an adaptive one
+a ``theta0`` inside its constraint region C. The file says all three: ``theta`` (by name), ``ts_s``,
+``scaling`` (the powers of ten the identification divided the recording by: 1 and 1 for mm and V)
+and ``constraint`` (the box it used, empty off Ts = 0.1 s). :func:`read_identification` refuses a
+file whose model another unit or structure gives, and :meth:`IdentifiedModel.check_period` one
+identified at another period than the controller's: a theta0 at 0.05 s used at 0.2 s gave 9 mm of
+Eq. (21) error instead of 0.19, one in metres 31 mm, both without a word.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from tapmuscle.errors import TapmuscleError
+
+__all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification"]
+
+#: Relative difference of two sampling periods taken as the same (a period read back from times).
+_SAME_PERIOD = 1e-6
+
+
+class IdentificationFileError(TapmuscleError):
+    """An identification file that cannot serve as a controller's theta0; the message names the file
+    and the key."""
+
+
+@dataclass(frozen=True)
+class IdentifiedModel:
+    """Eq. (1) as ``tapmuscle identify`` identified it, in mm and V."""
+
+    theta: dict[str, float]
+    """The 15 parameters by name (:data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s)."""
+    ts_s: float
+    """The sampling period [s] of the recording it was identified on: the controller's Ts."""
+    box_lower: dict[str, float]
+    """Lower bounds of the constraint region C it was identified in (empty: none)."""
+    box_upper: dict[str, float]
+    """Upper bounds of C (empty: none)."""
+    path: str
+    """The file it was read from."""
+
+    def check_period(self, ts_s: float) -> None:
+        """Refuse a controller period ``ts_s`` [s] other than :attr:`ts_s`: Eq. (1) is a model of one
+        sampling period.
+
+        Raises
+        ------
+        IdentificationFileError
+            Naming both periods and the file.
+        """
+        if abs(ts_s - self.ts_s) > _SAME_PERIOD * self.ts_s:
+            raise IdentificationFileError(f"{self.path}: identified at ts_s = {self.ts_s:g} s, the controller samples "
+                                          f"at {ts_s:g} s: Eq. (1) is a model of one sampling period (identify on a "
+                                          f"recording at {ts_s:g} s)")
+
+
+def read_identification(path: str | Path) -> IdentifiedModel:
+    """Read a ``tapmuscle identify --json`` file as a controller's ``theta0``.
+
+    Parameters
+    ----------
+    path : path
+        The JSON file.
+
+    Returns
+    -------
+    IdentifiedModel
+        ``theta`` (pass it as ``theta0``), ``ts_s``, and the box ``box_lower``/``box_upper`` for an
+        adaptive controller's :class:`~fmu_controller.displacement_control.ControllerSettings`.
+
+    Raises
+    ------
+    IdentificationFileError
+        No such file, not JSON, a missing or non-finite key, the standard model (the controllers use
+        the asymmetric one), or a model identified in other units than mm and V (``scaling`` not 1).
+    """
+    where = str(path)
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise IdentificationFileError(f"{where}: no such identification file") from None
+    except json.JSONDecodeError as exc:
+        raise IdentificationFileError(f"{where}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
+                                      f"{exc.msg}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise IdentificationFileError(f"{where}: cannot be read ({exc})") from None
+    if not isinstance(data, dict) or not {"model", "ts_s", "theta"} <= set(data):
+        raise IdentificationFileError(f"{where}: not a `tapmuscle identify --json` file (it has keys model, ts_s, "
+                                      "theta, scaling, constraint)")
+    if data["model"] != "asymmetric":
+        raise IdentificationFileError(f"{where}: key 'model' is {data['model']!r}; the controllers use the asymmetric "
+                                      "model of Eq. (1) (identify with --model asymmetric, the default)")
+    scaling = data.get("scaling") or {}
+    for key, unit in (("l_scale", "l in mm"), ("u_scale", "u in V")):
+        if scaling.get(key, 1.0) != 1.0:
+            raise IdentificationFileError(f"{where}: key 'scaling.{key}' is {scaling[key]!r}: identified on a recording "
+                                          f"in other units, while the controllers need {unit}; convert the recording "
+                                          "(tapmuscle import) and identify again")
+    ts = data["ts_s"]
+    if isinstance(ts, bool) or not isinstance(ts, (int, float)) or not math.isfinite(ts) or ts <= 0:
+        raise IdentificationFileError(f"{where}: key 'ts_s' must be a positive number of seconds, got {ts!r}")
+    theta = data["theta"]
+    if not isinstance(theta, dict) or set(theta) != set(ASYMMETRIC.names):
+        missing = sorted(set(ASYMMETRIC.names) - set(theta)) if isinstance(theta, dict) else ASYMMETRIC.names
+        raise IdentificationFileError(f"{where}: key 'theta' must map the 15 names of Eq. (1) to numbers "
+                                      f"(missing: {', '.join(missing) or 'none'}; extra: "
+                                      f"{', '.join(sorted(set(theta) - set(ASYMMETRIC.names))) if isinstance(theta, dict) else '-'})")
+    for name in ASYMMETRIC.names:
+        v = theta[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise IdentificationFileError(f"{where}: key 'theta.{name}' must be a finite number, got {v!r}")
+    box = data.get("constraint") or {}
+    bounds = []
+    for side in ("lower", "upper"):
+        b = box.get(side) or {}
+        if not isinstance(b, dict) or not all(isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+                                              for k, v in b.items()):
+            raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers, got {b!r}")
+        bounds.append({k: float(v) for k, v in b.items()})
+    return IdentifiedModel({n: float(theta[n]) for n in ASYMMETRIC.names}, float(ts), bounds[0], bounds[1], where)

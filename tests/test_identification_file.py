@@ -1,0 +1,93 @@
+"""``tapmuscle identify --json`` read back as a controller's theta0 (tapmuscle/io/identification_file.py):
+its period, units and model are checked, and a scenario's ``controller.identification`` runs the
+controller FMU on it as the direct loop runs on the same model."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import tapmuscle as tm
+from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.reference import SineReference
+from fmu_plant import Plant
+from tapmuscle.cli.main import main
+from tapmuscle.closed_loop import run_closed_loop
+from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario
+from tapmuscle.io.identification_file import IdentificationFileError, read_identification
+
+
+@pytest.fixture(scope="module")
+def id_files(tmp_path_factory):
+    """Identification files at 0.05 s (no box: off Ts = 0.1 s) and 0.1 s (Table 2's box)."""
+    folder = tmp_path_factory.mktemp("idfile")
+    out = {}
+    for ts in (0.05, 0.1):
+        rec = folder / f"rec{ts}.csv"
+        assert main(["record", "--input", "sine:bias=5,amp=3,freq=0.1", "--duration", "240", "--ts", str(ts),
+                     "--out", str(rec), "--quiet"]) == 0
+        out[ts] = folder / f"id{ts}.json"
+        assert main(["identify", str(rec), "--json", str(out[ts])]) == 0
+    return out
+
+
+def test_the_file_gives_theta_period_and_box(id_files):
+    m = read_identification(id_files[0.1])
+    doc = json.loads(id_files[0.1].read_text())
+    assert m.ts_s == 0.1 and m.theta == doc["theta"] and list(m.theta) == list(ASYMMETRIC.names)
+    assert m.box_lower == doc["constraint"]["lower"] and m.box_lower["b1"] == 0.607 and m.box_upper["b1"] == 1.184
+    m05 = tm.read_identification(id_files[0.05])
+    assert m05.ts_s == 0.05 and m05.box_lower == {} and m05.box_upper == {}
+    m05.check_period(0.05)
+    m05.check_period(0.05 * (1 + 1e-9))
+    with pytest.raises(IdentificationFileError, match=r"identified at ts_s = 0.05 s, the controller samples at 0.2 s"):
+        m05.check_period(0.2)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d | {"model": "standard"}, "the controllers use the asymmetric model"),
+    (lambda d: d | {"scaling": {"l_scale": 0.001, "u_scale": 1.0}}, r"scaling.l_scale' is 0.001: .*l in mm"),
+    (lambda d: d | {"theta": {k: v for k, v in d["theta"].items() if k != "xi32"}}, "missing: xi32"),
+    (lambda d: d | {"theta": d["theta"] | {"b1": "0.6"}}, r"theta.b1' must be a finite number, got '0.6'"),
+    (lambda d: d | {"ts_s": -0.1}, "'ts_s' must be a positive number of seconds"),
+    (lambda d: {"verdict": "mismatch"}, "not a `tapmuscle identify --json` file"),
+])
+def test_a_file_that_cannot_be_a_theta0_is_refused_naming_the_key(id_files, tmp_path, change, message):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(change(json.loads(id_files[0.1].read_text()))))
+    with pytest.raises(IdentificationFileError, match=message):
+        read_identification(bad)
+
+
+def test_no_file_or_no_json_is_named(tmp_path):
+    with pytest.raises(IdentificationFileError, match="no such identification file"):
+        read_identification(tmp_path / "none.json")
+    (tmp_path / "x.json").write_text("{\n oops")
+    with pytest.raises(IdentificationFileError, match=r"x.json: not valid JSON \(line 2"):
+        read_identification(tmp_path / "x.json")
+    assert issubclass(IdentificationFileError, tm.TapmuscleError)
+
+
+def test_a_scenario_runs_the_controller_on_the_identified_model(built_fmus, id_files, tmp_path):
+    """``controller.identification`` at 0.05 s (no box: the FMU's box_* = -inf/inf) gives the direct
+    loop with that theta0 and an empty box, bit for bit; another step_s is refused naming both."""
+    path = tmp_path / "own_rig.toml"
+    path.write_text(f'duration_s = 20.0\nstep_s = 0.05\nseed = 1\n[controller]\nmethod = "ampc_servo"\n'
+                    f'identification = "{id_files[0.05]}"\n')
+    scenario = load_scenario(path)
+    assert scenario.controller.parameters["box_lower.b1"] == -math.inf
+    cols = co_simulate(scenario, built_fmus)
+    model = read_identification(id_files[0.05])
+    plant = Plant(seed=1)
+    settings = ControllerSettings(method="ampc_servo", ts_s=0.05, box_lower={}, box_upper={})
+    direct = run_closed_loop(plant, DisplacementController(settings, model.theta),
+                             SineReference(frequency_hz=0.1, ts_s=0.05), duration_s=20.0)
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    path.write_text(path.read_text().replace("step_s = 0.05", "step_s = 0.1"))
+    with pytest.raises(ScenarioError, match=r"controller.identification': .*identified at ts_s = 0.05 s, the "
+                                            r"controller samples at 0.1 s"):
+        load_scenario(path)
