@@ -61,6 +61,7 @@ from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STAR
                                                  METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
                                                  DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
@@ -260,12 +261,32 @@ class AMPCController(SafeSlave):
                                             frequency_hz=self._par["sine.frequency"], ts_s=settings.ts_s)
         except ValueError as exc:
             raise SlaveInputError(f"bad parameter: {exc}") from None
+        self._warn_paper_defaults_off_period(settings, theta0)
         self._hp = settings.preview_samples
         self._source = REFERENCE_SOURCES[self._int_par["reference_source"]]
         self._k = 0
         self._buffer = []
         self._set_theta([float(v) for v in theta0])
         self.samples = 0
+
+    def _warn_paper_defaults_off_period(self, settings: ControllerSettings, theta0: list[float]) -> None:
+        """Log a warning when ``Ts`` is not the paper's 0.1 s but ``theta0.*`` are still THETA0_44N, or (for
+        an adaptive method) the box C still Table 2's: both hold for Ts = 0.1 s only (at 0.2 s the
+        default theta0 gave 2.7 mm of Eq. (21) error and a valve hitting both limits, without a word)."""
+        if abs(settings.ts_s - PAPER_TS_S) <= 1e-6 * PAPER_TS_S:
+            return
+        stale = []
+        if theta0 == [float(v) for v in THETA0_44N]:
+            stale.append("theta0.* are THETA0_44N, identified at Ts = 0.1 s (set them to a model identified at "
+                         f"Ts = {settings.ts_s:g} s: tapmuscle identify)")
+        p = self._par
+        if settings.adaptive and all(p[f"box_lower.{n}"] == TABLE2_LOWER[n] and p[f"box_upper.{n}"] == TABLE2_UPPER[n]
+                                     for n in TABLE2_LOWER):
+            stale.append("box_lower.*/box_upper.* are Table 2's, for Ts = 0.1 s in mm and V (set your model's "
+                         "box, or -inf/inf for none)")
+        if stale:
+            self.log(f"Ts = {settings.ts_s:g} s, not the paper's 0.1 s, but " + "; and ".join(stale),
+                     status=Fmi2Status.warning)
 
     def _set_theta(self, theta: list[float]) -> None:
         """The ``theta.*`` outputs from the Python floats ``theta`` (Eq. (1) order)."""

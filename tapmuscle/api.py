@@ -149,7 +149,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it.
     settings : ControllerSettings, optional
         Full controller settings (horizons, weights, P(0), box); its ``method`` and ``ts_s`` must
-        agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's.
+        agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's,
+        with Table 2's box C at Ts = 0.1 s and none at another ``ts_s`` (as :func:`identify` does).
     seed : int
         Seed of the encoder noise.
     loop_delay_samples : {0, 1}
@@ -173,7 +174,9 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     ts = _check_period(ts_s)
     if settings is None:
-        settings = ControllerSettings(method=method, ts_s=ts)
+        # Table 2's box holds for Ts = 0.1 s; elsewhere none, as tm.identify applies none there
+        paper_ts = abs(ts - PAPER_TS_S) <= 1e-3 * PAPER_TS_S
+        settings = ControllerSettings(method=method, ts_s=ts, **({} if paper_ts else {"box_lower": {}, "box_upper": {}}))
     elif not isinstance(settings, ControllerSettings):
         raise ValueError(f"settings must be a ControllerSettings, got {type(settings).__name__}")
     elif settings.method != method or abs(settings.ts_s - ts) > 1e-12 * ts:

@@ -271,6 +271,13 @@ def test_another_sampling_period_needs_its_own_predictor():
     run = tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.2, theta0=tm.THETA0_44N)
     assert len(run["t_s"]) == 16
     assert len(tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.10000001)["t_s"]) == 31
+    # off 0.1 s the default settings have no box (Table 2's is for 0.1 s, as tm.identify applies none
+    # there): a theta0 identified at 0.2 s with b1 below Table 2's 0.607 starts an adaptive controller
+    from fmu_controller.hysteresis_model import ASYMMETRIC
+
+    theta = dict(zip(ASYMMETRIC.names, tm.THETA0_44N))
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=3.0, ts_s=0.2, theta0=theta | {"b1": 0.3})
+    assert len(run["t_s"]) == 16
     # a period in milliseconds is refused as tapmuscle record --ts refuses it (it ran 2 samples)
     for call in (lambda: tm.simulate_closed_loop("mpc_ucp", None, ts_s=50.0, theta0=tm.THETA0_44N),
                  lambda: tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=100.0, ts_s=50.0)):

@@ -448,3 +448,25 @@ def test_an_infinite_bound_on_its_own_side_is_no_bound():
     wrong.exit_initialization_mode()
     assert wrong._controller is None
     assert any("parameter box_upper.b1 = -inf is not finite" in m.msg for m in wrong.log_queue)
+
+
+def test_the_paper_defaults_at_another_period_are_warned_of():
+    """THETA0_44N and Table 2's box hold for Ts = 0.1 s; at 0.2 s they ran without a word (2.7 mm of
+    Eq. (21) error, the valve hitting both limits). A warning names both while they are the defaults."""
+    from fmu_controller.controller_slave import AMPCController
+
+    def messages(reals):
+        slave = AMPCController(instance_name="ts")
+        vr = {var.name: v for v, var in slave.vars.items()}
+        slave.set_real([vr[k] for k in reals], list(reals.values()))
+        slave.exit_initialization_mode()
+        assert slave._controller is not None
+        return [m for m in slave.log_queue if "not the paper's 0.1 s" in m.msg]
+
+    assert messages({"Ts": 0.1}) == []
+    (both,) = messages({"Ts": 0.2})
+    assert both.status == Fmi2Status.warning and "theta0.* are THETA0_44N" in both.msg and "Table 2's" in both.msg
+    (box,) = messages({"Ts": 0.2, "theta0.b1": 0.7})
+    assert "THETA0_44N" not in box.msg and "box_lower.*/box_upper.* are Table 2's" in box.msg
+    opened = {f"box_{s}.{n}": (-math.inf if s == "lower" else math.inf) for s in ("lower", "upper") for n in ("a1", "a2", "b1")}
+    assert messages({"Ts": 0.2, "theta0.b1": 0.7, **opened}) == []
