@@ -79,7 +79,8 @@ _TABLES = (("table6", 0.1, ("mpc_servo", "mpc_ucp"), {44: (8, 9), 68: (10, 11)})
            ("table9", 0.2, ("ampc_servo", "mpc_servo"), {44: (16, 17), 68: (18, 19)}))
 
 
-def preliminary_theta(seed: int = 0, refine_hz: float = 0.05) -> np.ndarray:
+def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantParams | None = None,
+                      load_n: float | None = None, ts_s: float = 0.1) -> np.ndarray:
     """Section 4.2's fixed predictor, "obtained by a preliminary identification under 44 N".
 
     The paper does not say on which data. We identify in two stages, both at 44 N:
@@ -95,13 +96,37 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05) -> np.ndarray:
     A-terms give the hysteresis cancellation H(k) large, nearly cancelling velocity gains; the fixed
     servo loop then oscillates at the Nyquist rate (measured: 3.7 mm Eq. (21) error at 44 N).
     Stage 2 gives the estimate the closed loop sees. docs/control.md has the numbers.
+
+    Parameters
+    ----------
+    seed : int
+        Noise seed of stage 1 (stage 2: ``seed + 1000``).
+    refine_hz : float
+        Frequency [Hz] of stage 2's sine reference.
+    params : PlantParams, optional
+        Another simulated rig to make the fixed predictor of (default: the calibrated rig).
+    load_n : float, optional
+        Its load [N] (default: that of ``params``, 44 N).
+    ts_s : float
+        The sampling period [s] of both stages: the controller's. Off 0.1 s both run without a box
+        (Table 2 is for 0.1 s, as :func:`~fmu_controller.identification.identify_record` decides).
+
+    Returns
+    -------
+    ndarray
+        The 15 parameters of Eq. (1) in :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s order.
     """
-    rec = run_open_loop(Plant(PlantParams(), seed=seed), parse_input_spec("sine:bias=5,amp=3,freq=0.1"),
-                        duration_s=240.0, ts_s=0.1)
-    stage1 = identify_record(rec["u_v"], rec["l_mm"], ts_s=0.1, model="asymmetric").theta
-    refine = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5, startup_s=0.0,
-                                                   hysteresis_notch=False, anti_windup=False), stage1)
-    cols = run_closed_loop(Plant(PlantParams(), seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz),
+    rig = PlantParams() if params is None else params
+    if load_n is not None:
+        rig = rig.with_values(**{"load.load_n": float(load_n)})
+    rec = run_open_loop(Plant(rig, seed=seed), parse_input_spec("sine:bias=5,amp=3,freq=0.1"),
+                        duration_s=240.0, ts_s=ts_s)
+    report = identify_record(rec["u_v"], rec["l_mm"], ts_s=ts_s, model="asymmetric")
+    settings = ControllerSettings(method="ampc_servo", ts_s=ts_s, p0=P0_TABLE5, startup_s=0.0,
+                                  hysteresis_notch=False, anti_windup=False,
+                                  box_lower=report.box_lower, box_upper=report.box_upper)
+    refine = DisplacementController(settings, report.theta)
+    cols = run_closed_loop(Plant(rig, seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz, ts_s=ts_s),
                            duration_s=120.0)
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
 
