@@ -80,6 +80,10 @@ _L_RANGE_MM = (-1000.0, 5000.0)
 #: hundred times the valve's span), means the adaptive estimate diverges.
 _DIVERGED_MM = (10.0 * _L_RANGE_MM[0], 10.0 * _L_RANGE_MM[1])
 _DIVERGED_V = 1000.0
+#: A command held at a valve limit that the error pushes it further into for this long [s] is logged
+#: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
+#: pinned open while the reading barely moves).
+_PINNED_S = 10.0
 
 
 class AMPCController(SafeSlave):
@@ -191,6 +195,7 @@ class AMPCController(SafeSlave):
                   for n in TABLE2_UPPER]
         self.add_real_parameters(table)
         self._diverged = False
+        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
         self._controller: DisplacementController | None = None
         self._reference: SineReference | None = None
         self._hp = 0
@@ -244,6 +249,7 @@ class AMPCController(SafeSlave):
 
     def initialize_numerics(self) -> None:
         self._diverged = False
+        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
         if self._int_par["reference_source"] == 1 and self._par["sine.frequency"] > 0.5 / self._par["Ts"]:
@@ -268,6 +274,22 @@ class AMPCController(SafeSlave):
         self._buffer = []
         self._set_theta([float(v) for v in theta0])
         self.samples = 0
+
+    def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
+        """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
+        into for :data:`_PINNED_S` seconds in a row."""
+        if self._pinned_n < 0:
+            return
+        s = self._controller.settings.servo
+        pushed = (r > l and u >= s.u_max_v - 1e-9) or (r < l and u <= s.u_min_v + 1e-9)
+        self._pinned_n = self._pinned_n + 1 if pushed else 0
+        if self._pinned_n * self._par["Ts"] >= _PINNED_S - 1e-9:
+            self._pinned_n = -1
+            limit = s.u_max_v if r > l else s.u_min_v
+            self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {_PINNED_S:g} s while the "
+                     f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the rig's "
+                     f"reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?)",
+                     status=Fmi2Status.warning)
 
     def _warn_paper_defaults_off_period(self, settings: ControllerSettings, theta0: list[float]) -> None:
         """Log a warning when ``Ts`` is not the paper's 0.1 s but ``theta0.*`` are still THETA0_44N, or (for
@@ -349,6 +371,7 @@ class AMPCController(SafeSlave):
                      "runs on theta0: theta0 is a poor fixed law on this rig (an open-loop identification's, or another "
                      "rig's?). The law takes the adaptive estimate from the next sample, as with startup_s = 0 "
                      "(startup_guard = 1; docs/control.md, \"Start-up\")", status=Fmi2Status.warning)
+        self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

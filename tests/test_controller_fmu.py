@@ -470,3 +470,28 @@ def test_the_paper_defaults_at_another_period_are_warned_of():
     assert "THETA0_44N" not in box.msg and "box_lower.*/box_upper.* are Table 2's" in box.msg
     opened = {f"box_{s}.{n}": (-math.inf if s == "lower" else math.inf) for s in ("lower", "upper") for n in ("a1", "a2", "b1")}
     assert messages({"Ts": 0.2, "theta0.b1": 0.7, **opened}) == []
+
+
+def test_a_command_pinned_at_a_valve_limit_is_logged_once():
+    """Readings in metres (0.03 for 30 mm) left the valve at 10 V for the whole run without a word;
+    after 10 s at a limit the error pushes into, a warning says so once, naming r, l and the unit."""
+    from fmu_controller.controller_slave import AMPCController
+
+    slave = AMPCController(instance_name="metres")
+    slave.exit_initialization_mode()
+    for k in range(300):
+        slave.l = 0.03
+        assert slave.do_step(k * 0.1, 0.1)
+    msgs = [m for m in slave.log_queue if "has sat at the valve's" in m.msg]
+    assert len(msgs) == 1 and msgs[0].status == Fmi2Status.warning
+    assert "10 V for 10 s" in msgs[0].msg and "(now 0.03 mm)" in msgs[0].msg and "metres?" in msgs[0].msg
+    tracked = AMPCController(instance_name="mm")  # a reachable reference: never pinned that long
+    tracked.exit_initialization_mode()
+    from fmu_plant import Plant
+
+    plant = Plant(seed=0)
+    for k in range(450):
+        tracked.l = plant.measurement.l_mm
+        assert tracked.do_step(k * 0.1, 0.1)
+        plant.step(tracked.u, 0.1)
+    assert not [m for m in tracked.log_queue if "has sat at the valve's" in m.msg]
