@@ -11,13 +11,13 @@ Eq. (21) error instead of 0.19, one in metres 31 mm, both without a word.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.json_file import read_json
 
 __all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification"]
 
@@ -81,15 +81,7 @@ def read_identification(path: str | Path) -> IdentifiedModel:
         the asymmetric one), or a model identified in other units than mm and V (``scaling`` not 1).
     """
     where = str(path)
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise IdentificationFileError(f"{where}: no such identification file") from None
-    except json.JSONDecodeError as exc:
-        raise IdentificationFileError(f"{where}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
-                                      f"{exc.msg}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise IdentificationFileError(f"{where}: cannot be read ({exc})") from None
+    data = read_json(path, IdentificationFileError, where=where, missing=f"{where}: no such identification file")
     if not isinstance(data, dict) or not {"model", "ts_s", "theta"} <= set(data):
         raise IdentificationFileError(f"{where}: not a `tapmuscle identify --json` file (it has keys model, ts_s, "
                                       "theta, scaling, constraint)")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from fmu_plant import PlantParams
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.json_file import read_json
 
 __all__ = ["PlantFileError", "read_plant_file", "plant_file_text"]
 
@@ -24,15 +25,7 @@ def read_plant_file(path: str | Path, option: str) -> PlantParams:
 
     Raises :class:`PlantFileError` prefixed by ``option`` (e.g. ``--params``).
     """
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise PlantFileError(f"{option}: no such file {str(path)!r}") from None
-    except json.JSONDecodeError as exc:
-        raise PlantFileError(f"{option} {path}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
-                             f"{exc.msg}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PlantFileError(f"{option} {path}: cannot read: {exc}") from None
+    data = read_json(path, PlantFileError, where=f"{option} {path}", missing=f"{option}: no such file {str(path)!r}")
     if isinstance(data, dict) and "plant" not in data and {"verdict", "findings"} <= set(data):
         raise PlantFileError(f"{option} {path}: a diagnosis report, not a plant parameter file (the calibrated plant "
                              f"is {Path(path).with_name('calibrated_plant.json')})")
