@@ -267,7 +267,6 @@ class AMPCController(SafeSlave):
                                             frequency_hz=self._par["sine.frequency"], ts_s=settings.ts_s)
         except ValueError as exc:
             raise SlaveInputError(f"bad parameter: {exc}") from None
-        self._warn_paper_defaults_off_period(settings, theta0)
         self._hp = settings.preview_samples
         self._source = REFERENCE_SOURCES[self._int_par["reference_source"]]
         self._k = 0
@@ -344,6 +343,8 @@ class AMPCController(SafeSlave):
         preview = self._preview(self._k)  # validates r first: a refused step changes nothing
         if self._k == 0:
             self._controller.reset(l)
+            # at the first step, not at initialisation, where a warning means rejected parameters to a host
+            self._warn_paper_defaults_off_period(self._controller.settings, self._controller.theta0.tolist())
         step: ControlStep = self._controller.step(l, preview)
         if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
@@ -369,8 +370,9 @@ class AMPCController(SafeSlave):
         if self._controller.startup_guarded_at == self._k:
             self.log(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up mode, whose law "
                      "runs on theta0: theta0 is a poor fixed law on this rig (an open-loop identification's, or another "
-                     "rig's?). The law takes the adaptive estimate from the next sample, as with startup_s = 0 "
-                     "(startup_guard = 1; docs/control.md, \"Start-up\")", status=Fmi2Status.warning)
+                     "rig's?), or a large reference step came during the start-up. The law takes the adaptive estimate "
+                     "from the next sample, as with startup_s = 0 (startup_guard = 1; docs/control.md, \"Start-up\")",
+                     status=Fmi2Status.warning)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm

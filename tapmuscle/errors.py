@@ -8,7 +8,7 @@ the standard library would say), so ``except ValueError`` catches them too.
 
 from __future__ import annotations
 
-__all__ = ["TapmuscleError", "UsageError"]
+__all__ = ["TapmuscleError", "UsageError", "FmuLogWarning"]
 
 
 class TapmuscleError(ValueError):
@@ -17,3 +17,9 @@ class TapmuscleError(ValueError):
 
 class UsageError(TapmuscleError):
     """A problem with the user's input (an argument, a file it names); reported without a traceback."""
+
+
+class FmuLogWarning(UserWarning):
+    """A warning an FMU logged during a co-simulation run (a start-up guard that fired, a command pinned
+    at a valve limit, a model far off): the run went on, and its results may not mean what they seem.
+    ``tapmuscle run`` prints these and lists them in ``summary.json`` (``fmu_warnings``)."""

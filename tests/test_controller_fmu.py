@@ -452,7 +452,8 @@ def test_an_infinite_bound_on_its_own_side_is_no_bound():
 
 def test_the_paper_defaults_at_another_period_are_warned_of():
     """THETA0_44N and Table 2's box hold for Ts = 0.1 s; at 0.2 s they ran without a word (2.7 mm of
-    Eq. (21) error, the valve hitting both limits). A warning names both while they are the defaults."""
+    Eq. (21) error, the valve hitting both limits). A warning at the first step names both while they
+    are the defaults (not at initialisation, where hosts take a warning for rejected parameters)."""
     from fmu_controller.controller_slave import AMPCController
 
     def messages(reals):
@@ -461,6 +462,9 @@ def test_the_paper_defaults_at_another_period_are_warned_of():
         slave.set_real([vr[k] for k in reals], list(reals.values()))
         slave.exit_initialization_mode()
         assert slave._controller is not None
+        assert not [m for m in slave.log_queue if "not the paper's" in m.msg]  # a warning there means rejected
+        slave.l = 0.0
+        assert slave.do_step(0.0, reals["Ts"])
         return [m for m in slave.log_queue if "not the paper's 0.1 s" in m.msg]
 
     assert messages({"Ts": 0.1}) == []

@@ -72,6 +72,7 @@ def test_no_file_or_no_json_is_named(tmp_path):
     assert issubclass(IdentificationFileError, tm.TapmuscleError)
 
 
+@pytest.mark.filterwarnings("ignore::tapmuscle.errors.FmuLogWarning")  # whether the guard fires: CPU-dependent
 def test_a_scenario_runs_the_controller_on_the_identified_model(built_fmus, id_files, tmp_path):
     """``controller.identification`` at 0.05 s (no box: the FMU's box_* = -inf/inf) gives the direct
     loop with that theta0 and an empty box, bit for bit; another step_s is refused naming both."""

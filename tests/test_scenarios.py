@@ -1,6 +1,7 @@
 """Scenario files and the co-simulation master: the FMU loop is the direct loop; bad files are named."""
 
 import json
+from pathlib import Path
 import re
 
 import numpy as np
@@ -114,7 +115,10 @@ def test_anti_windup_reaches_the_fmu(built_fmus, fmu_value, anti_windup):
            "controller": {"method": "mpc_servo", "parameters": {"anti_windup": fmu_value}},
            "reference": {"kind": "steps", "times_s": [0.0, 20.0], "values_mm": [-20.0, 40.0], "preview": "advanced"},
            "load": {"initial_n": 44.0}}
-    cols = co_simulate(parse_scenario(doc, source="test"), built_fmus)
+    from tapmuscle.errors import FmuLogWarning
+
+    with pytest.warns(FmuLogWarning, match=r"has sat at the valve's 0 V for 10 s .*r = -20 mm\) is out of the rig's reach"):
+        cols = co_simulate(parse_scenario(doc, source="test"), built_fmus)
     plant = Plant(seed=2)
     plant.update(load_n=44.0)
     ctrl = DisplacementController(ControllerSettings(method="mpc_servo", anti_windup=anti_windup), THETA0_44N)
@@ -202,6 +206,7 @@ def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
         assert (out / png).stat().st_size > 10_000
 
 
+@pytest.mark.filterwarnings("ignore::tapmuscle.errors.FmuLogWarning")  # whether the guard fires: CPU-dependent
 def test_external_step_reference_is_tracked(built_fmus):
     s = parse_scenario({"duration_s": 30.0, "evaluation_samples": [0, 300], "controller": {"method": "ampc_servo"},
                         "reference": {"kind": "steps", "times_s": [0.0, 10.0, 20.0], "values_mm": [20.0, 50.0, 30.0],
@@ -366,3 +371,27 @@ def test_parameters_are_checked_against_the_model_description_before_a_run(built
     with pytest.raises(ScenarioError) as err:
         check_parameters(s, built_fmus)
     assert str(err.value).startswith(f"s.toml: key 'controller.parameters.{key}': ") and message in str(err.value)
+
+
+def test_what_the_fmus_warn_of_during_a_run_reaches_the_user(built_fmus, tmp_path, capsys):
+    """The controller FMU's run-time warnings (here: Ts = 0.2 s on the paper's 0.1-s theta0 and box)
+    were dropped by the master: co_simulate warns with them (FmuLogWarning), tapmuscle run prints them
+    and summary.json lists them; a run without any has an empty list."""
+    from tapmuscle.cosim import run_scenario
+    from tapmuscle.errors import FmuLogWarning
+
+    doc = {"duration_s": 3.0, "step_s": 0.2, "controller": {"method": "ampc_servo"},
+           "reference": {"kind": "sine", "frequency_hz": 0.1}}
+    with pytest.warns(FmuLogWarning, match=r"controller FMU: Ts = 0.2 s, not the paper's 0.1 s, but theta0.\* are "
+                                           r"THETA0_44N"):
+        co_simulate(parse_scenario(doc, source="test"), built_fmus)
+    summary = run_scenario(parse_scenario(doc, source="test"), tmp_path / "r", built_fmus, plots=False)
+    assert len(summary["fmu_warnings"]) == 1 and "Table 2's" in summary["fmu_warnings"][0]
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["fmu_warnings"] == summary["fmu_warnings"]
+    quiet = run_scenario(parse_scenario(doc | {"step_s": 0.1}, source="test"), tmp_path / "q", built_fmus, plots=False)
+    assert quiet["fmu_warnings"] == []
+    path = tmp_path / "s.toml"
+    path.write_text('duration_s = 3.0\nstep_s = 0.2\n[reference]\nfrequency_hz = 0.1\n')
+    assert main(["run", str(path), "--out", str(tmp_path / "cli"), "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent),
+                 "--quiet"]) == 0
+    assert "warning: controller FMU: Ts = 0.2 s, not the paper's 0.1 s" in capsys.readouterr().err

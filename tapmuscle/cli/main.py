@@ -303,6 +303,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
           f"{k0}..{k1}), u in "
           f"[{summary['u_min_v']:.2f}, {summary['u_max_v']:.2f}] V, real-time factor "
           f"{summary['real_time_factor']:.0f}x")
+    for text in summary["fmu_warnings"]:
+        print(f"warning: {text}", file=sys.stderr)
     print(f"wrote {Path(out) / 'result.csv'}, {Path(out) / 'summary.json'} and {Path(out) / '*.png'}")
     return 0
 

@@ -36,6 +36,7 @@ import numbers
 import re
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -53,6 +54,7 @@ from fmu_plant.seed import split_seed
 from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.held_interrupt import held_interrupts
+from tapmuscle.errors import FmuLogWarning
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
 __all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameters", "co_simulate"]
@@ -406,7 +408,13 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                 hp += ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0] != 0  # -1 (detect) may need it too
             plant.start()
             ctrl.start()
+            logged = [len(plant.messages), len(ctrl.messages)]
             cols = _loop(scenario, plant, ctrl, hp, record, progress, held)
+            # what the FMUs warned of during the run reaches the caller (a failed run's error names it)
+            for inst, n0 in zip((plant, ctrl), logged):
+                for m in inst.messages[n0:]:
+                    if m.startswith(("[WARNING]", "[ERROR]")):
+                        warnings.warn(FmuLogWarning(f"{inst.role} FMU: {_reason(m)}"), stacklevel=2)
             done = True
             return cols
         finally:
