@@ -202,6 +202,9 @@ class ModelStructure:
                 bad = next(n for n in values if not _is_number(values[n]))
                 raise ValueError(f"{what}[{bad!r}] = {values[bad]!r} is not a number") from None
         else:
+            if isinstance(getattr(values, "theta", None), Mapping):  # a model object that holds theta
+                raise TypeError(f"{what} must be a mapping name -> value or {self.n_params} values, got "
+                                f"{type(values).__name__} (pass its .theta)")
             theta = number_array(values, what=what, expected=f"a mapping name -> value or {self.n_params} values "
                                                                f"in the order {', '.join(self.names)}")
             if theta.shape != (self.n_params,):

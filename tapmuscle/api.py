@@ -21,6 +21,7 @@ from fmu_controller.identification import PAPER_TS_S
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
+from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.signals import parse_input_spec
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "build_fmus"]
@@ -142,15 +143,18 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         Hanging load [N], constant or ``load(t)``; default that of ``params`` (44 N).
     params : PlantParams, optional
         The simulated rig (default: the calibrated rig of docs/plant.md).
-    theta0 : sequence of 15 floats or mapping, optional
+    theta0 : sequence of 15 floats, mapping or IdentifiedModel, optional
         The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
-        (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``); default the 44 N
+        (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``), or what
+        :func:`~tapmuscle.io.identification_file.read_identification` read (its period checked against
+        ``ts_s``, its box the default settings'); default the 44 N
         preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2),
         identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it.
     settings : ControllerSettings, optional
         Full controller settings (horizons, weights, P(0), box); its ``method`` and ``ts_s`` must
         agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's,
-        with Table 2's box C at Ts = 0.1 s and none at another ``ts_s`` (as :func:`identify` does).
+        with the box C of an ``IdentifiedModel`` ``theta0``, else Table 2's at Ts = 0.1 s and none at
+        another ``ts_s`` (as :func:`identify` does).
     seed : int
         Seed of the encoder noise.
     loop_delay_samples : {0, 1}
@@ -173,10 +177,16 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     ts = _check_period(ts_s)
-    if settings is None:
+    box: dict[str, Any] = {}
+    if isinstance(theta0, IdentifiedModel):  # read_identification's: its period and its box
+        theta0.check_period(ts)
+        box = {"box_lower": theta0.box_lower, "box_upper": theta0.box_upper}
+        theta0 = theta0.theta
+    elif abs(ts - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
         # Table 2's box holds for Ts = 0.1 s; elsewhere none, as tm.identify applies none there
-        paper_ts = abs(ts - PAPER_TS_S) <= 1e-3 * PAPER_TS_S
-        settings = ControllerSettings(method=method, ts_s=ts, **({} if paper_ts else {"box_lower": {}, "box_upper": {}}))
+        box = {"box_lower": {}, "box_upper": {}}
+    if settings is None:
+        settings = ControllerSettings(method=method, ts_s=ts, **box)
     elif not isinstance(settings, ControllerSettings):
         raise ValueError(f"settings must be a ControllerSettings, got {type(settings).__name__}")
     elif settings.method != method or abs(settings.ts_s - ts) > 1e-12 * ts:

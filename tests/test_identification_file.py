@@ -48,13 +48,21 @@ def test_the_file_gives_theta_period_and_box(id_files):
         m05.check_period(0.2)
 
 
+def test_a_small_stroke_in_mm_is_read(id_files, tmp_path):
+    """identify normalises by magnitude: a stroke under about 19 mm gets l_scale 0.1, its theta still in
+    mm (it was refused as 'other units')."""
+    doc = json.loads(id_files[0.1].read_text()) | {"scaling": {"l_scale": 0.1, "u_scale": 1.0}}
+    (tmp_path / "small.json").write_text(json.dumps(doc))
+    assert read_identification(tmp_path / "small.json").theta == doc["theta"]
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda d: d | {"model": "standard"}, "the controllers use the asymmetric model"),
-    (lambda d: d | {"scaling": {"l_scale": 0.001, "u_scale": 1.0}}, r"scaling.l_scale' is 0.001: .*l in mm"),
+    (lambda d: {k: v for k, v in d.items() if k != "ts_s"}, r"key 'ts_s' missing: not a `tapmuscle identify --json` file"),
     (lambda d: d | {"theta": {k: v for k, v in d["theta"].items() if k != "xi32"}}, "missing: xi32"),
     (lambda d: d | {"theta": d["theta"] | {"b1": "0.6"}}, r"theta.b1' must be a finite number, got '0.6'"),
     (lambda d: d | {"ts_s": -0.1}, "'ts_s' must be a positive number of seconds"),
-    (lambda d: {"verdict": "mismatch"}, "not a `tapmuscle identify --json` file"),
+    (lambda d: {"verdict": "mismatch"}, "keys 'model', 'theta', 'ts_s' missing: not a `tapmuscle identify --json` file"),
 ])
 def test_a_file_that_cannot_be_a_theta0_is_refused_naming_the_key(id_files, tmp_path, change, message):
     bad = tmp_path / "bad.json"
@@ -92,3 +100,19 @@ def test_a_scenario_runs_the_controller_on_the_identified_model(built_fmus, id_f
     with pytest.raises(ScenarioError, match=r"controller.identification': .*identified at ts_s = 0.05 s, the "
                                             r"controller samples at 0.1 s"):
         load_scenario(path)
+
+
+def test_the_model_itself_is_a_theta0_for_the_simulated_loop(id_files):
+    """``simulate_closed_loop(theta0=model)`` checks the period (a 0.05-s model at 0.1 s ran silently:
+    26 mm of MPC-servo error) and takes the model's box; a controller given the model object is told
+    to pass its .theta."""
+    model = read_identification(id_files[0.05])
+    with pytest.raises(IdentificationFileError, match="identified at ts_s = 0.05 s, the controller samples at 0.1 s"):
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=3.0, theta0=model)
+    run = tm.simulate_closed_loop("ampc_servo", None, ts_s=0.05, duration_s=10.0, theta0=model, seed=2)
+    settings = ControllerSettings(method="ampc_servo", ts_s=0.05, box_lower=model.box_lower, box_upper=model.box_upper)
+    same = tm.simulate_closed_loop("ampc_servo", None, ts_s=0.05, duration_s=10.0, theta0=model.theta,
+                                   settings=settings, seed=2)
+    assert np.array_equal(run["u_v"], same["u_v"])
+    with pytest.raises(TypeError, match=r"got IdentifiedModel \(pass its .theta\)"):
+        DisplacementController(settings, model)

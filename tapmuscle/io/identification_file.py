@@ -1,12 +1,13 @@
 """The identification file ``tapmuscle identify --json`` writes, read back as a controller's ``theta0``.
 
-A controller needs Eq. (1) in millimetres and volts at its own sampling period, and an adaptive one
-a ``theta0`` inside its constraint region C. The file says all three: ``theta`` (by name), ``ts_s``,
-``scaling`` (the powers of ten the identification divided the recording by: 1 and 1 for mm and V)
-and ``constraint`` (the box it used, empty off Ts = 0.1 s). :func:`read_identification` refuses a
-file whose model another unit or structure gives, and :meth:`IdentifiedModel.check_period` one
-identified at another period than the controller's: a theta0 at 0.05 s used at 0.2 s gave 9 mm of
-Eq. (21) error instead of 0.19, one in metres 31 mm, both without a word.
+A controller needs Eq. (1) at its own sampling period, in millimetres and volts, and an adaptive one
+a ``theta0`` inside its constraint region C. The file has ``theta`` (by name, in the units of the
+recording it was identified on: mm and V in the recording format), ``ts_s`` and ``constraint`` (the box
+it used, empty off Ts = 0.1 s). :func:`read_identification` refuses the standard model (the controllers
+use the asymmetric one), and :meth:`IdentifiedModel.check_period` a model identified at another period
+than the controller's: one at 0.05 s used at 0.2 s gave 9 mm of Eq. (21) error instead of 0.19, without
+a word. (Its ``scaling`` is how the identification normalised the data internally, by magnitude: a
+recording with a small stroke in mm has ``l_scale`` 0.1, so it says nothing about the unit.)
 """
 
 from __future__ import annotations
@@ -77,23 +78,19 @@ def read_identification(path: str | Path) -> IdentifiedModel:
     Raises
     ------
     IdentificationFileError
-        No such file, not JSON, a missing or non-finite key, the standard model (the controllers use
-        the asymmetric one), or a model identified in other units than mm and V (``scaling`` not 1).
+        No such file, not JSON, a missing or non-finite key, or the standard model (the controllers use
+        the asymmetric one).
     """
     where = str(path)
     data = read_json(path, IdentificationFileError, where=where, missing=f"{where}: no such identification file")
     if not isinstance(data, dict) or not {"model", "ts_s", "theta"} <= set(data):
-        raise IdentificationFileError(f"{where}: not a `tapmuscle identify --json` file (it has keys model, ts_s, "
-                                      "theta, scaling, constraint)")
+        missing = sorted({"model", "ts_s", "theta"} - set(data)) if isinstance(data, dict) else ["model", "ts_s", "theta"]
+        raise IdentificationFileError(f"{where}: key{'s' if len(missing) > 1 else ''} {', '.join(repr(k) for k in missing)} "
+                                      "missing: not a `tapmuscle identify --json` file (which has model, ts_s, theta, "
+                                      "constraint)")
     if data["model"] != "asymmetric":
         raise IdentificationFileError(f"{where}: key 'model' is {data['model']!r}; the controllers use the asymmetric "
                                       "model of Eq. (1) (identify with --model asymmetric, the default)")
-    scaling = data.get("scaling") or {}
-    for key, unit in (("l_scale", "l in mm"), ("u_scale", "u in V")):
-        if scaling.get(key, 1.0) != 1.0:
-            raise IdentificationFileError(f"{where}: key 'scaling.{key}' is {scaling[key]!r}: identified on a recording "
-                                          f"in other units, while the controllers need {unit}; convert the recording "
-                                          "(tapmuscle import) and identify again")
     ts = data["ts_s"]
     if isinstance(ts, bool) or not isinstance(ts, (int, float)) or not math.isfinite(ts) or ts <= 0:
         raise IdentificationFileError(f"{where}: key 'ts_s' must be a positive number of seconds, got {ts!r}")
