@@ -80,6 +80,11 @@ _L_RANGE_MM = (-1000.0, 5000.0)
 #: hundred times the valve's span), means the adaptive estimate diverges.
 _DIVERGED_MM = (10.0 * _L_RANGE_MM[0], 10.0 * _L_RANGE_MM[1])
 _DIVERGED_V = 1000.0
+#: This many full-range jumps of the command (90 % of u_min..u_max in one sample) within
+#: :data:`_SLAM_WINDOW_S` are logged once: a law that slams the valve end to end (a sound start makes
+#: none; a large reference step a few within a second).
+_SLAM_JUMPS = 20
+_SLAM_WINDOW_S = 10.0
 #: A command held at a valve limit that the error pushes it further into for this long [s] is logged
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
@@ -196,6 +201,7 @@ class AMPCController(SafeSlave):
         self.add_real_parameters(table)
         self._diverged = False
         self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
+        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
         self._controller: DisplacementController | None = None
         self._reference: SineReference | None = None
         self._hp = 0
@@ -250,6 +256,7 @@ class AMPCController(SafeSlave):
     def initialize_numerics(self) -> None:
         self._diverged = False
         self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
+        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
         if self._int_par["reference_source"] == 1 and self._par["sine.frequency"] > 0.5 / self._par["Ts"]:
@@ -273,6 +280,23 @@ class AMPCController(SafeSlave):
         self._buffer = []
         self._set_theta([float(v) for v in theta0])
         self.samples = 0
+
+    def _watch_slamming(self, t_s: float, u: float) -> None:
+        """Log once when the command has jumped across 90 % of the valve's range :data:`_SLAM_JUMPS`
+        times within :data:`_SLAM_WINDOW_S`."""
+        if self._jump_ks is None:
+            return
+        s = self._controller.settings.servo
+        if self._k > 0 and abs(u - self.u) >= 0.9 * (s.u_max_v - s.u_min_v):
+            window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
+            self._jump_ks = [k for k in self._jump_ks if k > self._k - window] + [self._k]
+            if len(self._jump_ks) >= _SLAM_JUMPS:
+                self._jump_ks = None
+                law = ("the fixed predictor theta0 (an open-loop identification's? refine it in closed loop: "
+                       "docs/python-api.md, tapmuscle.paper.preliminary_theta)" if not self._controller.settings.adaptive
+                       else "the adaptive law (theta0 or the box C poor for this rig?)")
+                self.log(f"t = {t_s:g} s: the command has jumped across the valve's range {_SLAM_JUMPS} times in "
+                         f"{_SLAM_WINDOW_S:g} s: {law} slams the valve end to end", status=Fmi2Status.warning)
 
     def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
         """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
@@ -359,13 +383,17 @@ class AMPCController(SafeSlave):
                 why = (f"the prior model theta0, which the start-up mode's warm-up runs the law on, {asks}: "
                        f"the readings l (now {l:g} mm) are far from what theta0 predicts (their unit? an encoder "
                        "offset?), or theta0 is a poor fixed law on this rig")
-            elif self._controller.settings.adaptive:
+            elif self._controller.settings.adaptive and self._par["forgetting"] < 1.0:
                 why = (f"the adaptive model {asks}: its estimate diverges (forgetting = {self._par['forgetting']:g}, "
                        f"covariance_ceiling = {self._int_par['covariance_ceiling']}; a forgetting factor below 1 "
                        "needs covariance_ceiling = 1 or a value closer to 1, docs/control.md)")
+            elif self._controller.settings.adaptive:
+                why = (f"the adaptive model {asks}: its estimate diverges (theta0 or the box C far from this rig, "
+                       f"or the readings l, now {l:g} mm, in another unit?)")
             else:  # a fixed model does not diverge: what it is asked to do is out of reach
                 why = (f"the fixed model {asks}: the reference is out of the rig's reach from the readings l "
-                       f"(now {l:g} mm: an encoder offset or drift?), or the readings are far from the model's")
+                       f"(now {l:g} mm: an encoder offset or drift?), the readings are far from the model's, or "
+                       "theta0 is a poor fixed law for this rig")
             self.log(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.", status=Fmi2Status.warning)
         if self._controller.startup_guarded_at == self._k:
             self.log(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up mode, whose law "
@@ -374,6 +402,7 @@ class AMPCController(SafeSlave):
                      "from the next sample, as with startup_s = 0 (startup_guard = 1; docs/control.md, \"Start-up\")",
                      status=Fmi2Status.warning)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
+        self._watch_slamming(t_s, step.u_v)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

@@ -499,3 +499,37 @@ def test_a_command_pinned_at_a_valve_limit_is_logged_once():
         assert tracked.do_step(k * 0.1, 0.1)
         plant.step(tracked.u, 0.1)
     assert not [m for m in tracked.log_queue if "has sat at the valve's" in m.msg]
+
+
+def test_a_law_that_slams_the_valve_is_logged_once():
+    """A fixed predictor from an open-loop identification made the MPCs slam the valve end to end for a
+    whole run at Ts != 0.1 s without a word; 20 full-range jumps within 10 s are logged once. A divergence
+    at forgetting = 1 no longer advises on forgetting factors."""
+    import dataclasses
+
+    from fmu_controller.controller_slave import AMPCController
+
+    for method, who in ((2, "the fixed predictor theta0"), (4, "the adaptive law")):
+        slave = AMPCController(instance_name="slam")
+        vr = {var.name: v for v, var in slave.vars.items()}
+        slave.set_integer([vr["method"]], [method])
+        slave.exit_initialization_mode()
+        real_step = slave._controller.step
+        slave._controller.step = lambda l, r: dataclasses.replace(real_step(l, r), u_v=10.0 * (slave._k % 2))
+        for k in range(100):
+            slave.l = 30.0
+            assert slave.do_step(k * 0.1, 0.1)
+        msgs = [m for m in slave.log_queue if "jumped across the valve's range" in m.msg]
+        assert len(msgs) == 1 and msgs[0].status == Fmi2Status.warning
+        assert msgs[0].msg.startswith("t = 2 s: the command has jumped across the valve's range 20 times in 10 s")
+        assert who in msgs[0].msg
+    slave = AMPCController(instance_name="paper_rls")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_real([vr["startup_s"]], [0.0])
+    slave.exit_initialization_mode()
+    real_step = slave._controller.step
+    slave._controller.step = lambda l, r: dataclasses.replace(real_step(l, r), predicted_next_mm=1e9)
+    slave.l = 30.0
+    assert slave.do_step(0.0, 0.1)
+    (msg,) = [m.msg for m in slave.log_queue if "far outside the rig's" in m.msg]
+    assert "its estimate diverges (theta0 or the box C far from this rig" in msg and "forgetting" not in msg
