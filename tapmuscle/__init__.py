@@ -58,6 +58,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "rig_log_runs": ("tapmuscle.io.rig_log", "rig_log_runs"),
     "LogColumn": ("tapmuscle.io.rig_log", "LogColumn"),
     "read_identification": ("tapmuscle.io.identification_file", "read_identification"),
+    "write_identification": ("tapmuscle.io.identification_file", "write_identification"),
     # mismatch diagnosis
     "diagnose": ("tapmuscle.diagnosis", "diagnose"),
     "Diagnosis": ("tapmuscle.diagnosis", "Diagnosis"),

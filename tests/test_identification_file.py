@@ -116,3 +116,22 @@ def test_the_model_itself_is_a_theta0_for_the_simulated_loop(id_files):
     assert np.array_equal(run["u_v"], same["u_v"])
     with pytest.raises(TypeError, match=r"got IdentifiedModel \(pass its .theta\)"):
         DisplacementController(settings, model)
+
+
+def test_a_model_refined_in_closed_loop_is_written_for_the_controller(tmp_path):
+    """write_identification writes what read_identification and a scenario read (there was no way to
+    hand a refined theta to a scenario but 15 theta0.* keys), bit for bit; a bad theta or period is
+    refused naming the file, and nothing is written."""
+    from tapmuscle.io.identification_file import write_identification
+
+    theta = np.array(tm.THETA0_44N) * (1.0 + 1e-3 * np.arange(15))
+    path = tmp_path / "refined.json"
+    write_identification(path, theta, ts_s=0.05, box_lower={"b1": 0.01}, note="refined in closed loop")
+    model = read_identification(path)
+    assert np.array_equal(np.array(list(model.theta.values())), theta) and model.ts_s == 0.05
+    assert model.box_lower == {"b1": 0.01} and model.box_upper == {}
+    assert json.loads(path.read_text())["notes"] == ["refined in closed loop"]
+    for bad_theta, ts, message in ((theta[:14], 0.1, "must be 15 values"), (theta, 0.0, "ts_s must be a positive")):
+        with pytest.raises(IdentificationFileError, match=message):
+            write_identification(tmp_path / "bad.json", bad_theta, ts_s=ts)
+    assert not (tmp_path / "bad.json").exists()

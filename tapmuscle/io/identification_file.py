@@ -13,14 +13,17 @@ recording with a small stroke in mm has ``l_scale`` 0.1, so it says nothing abou
 from __future__ import annotations
 
 import math
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Mapping, Sequence
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
 
-__all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification"]
+__all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification"]
 
 #: Relative difference of two sampling periods taken as the same (a period read back from times).
 _SAME_PERIOD = 1e-6
@@ -113,3 +116,41 @@ def read_identification(path: str | Path) -> IdentifiedModel:
             raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers, got {b!r}")
         bounds.append({k: float(v) for k, v in b.items()})
     return IdentifiedModel({n: float(theta[n]) for n in ASYMMETRIC.names}, float(ts), bounds[0], bounds[1], where)
+
+
+def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,
+                         box_lower: Mapping[str, float] | None = None, box_upper: Mapping[str, float] | None = None,
+                         note: str = "") -> None:
+    """Write a model as ``tapmuscle identify --json`` does, for :func:`read_identification` and a
+    scenario's ``[controller] identification``: a ``theta`` refined in closed loop
+    (:func:`tapmuscle.paper.preliminary_theta`, or a controller FMU's final ``theta.*``), say.
+
+    Parameters
+    ----------
+    path : path
+        The JSON file, written atomically.
+    theta : mapping or sequence of 15 floats
+        Eq. (1)'s parameters by name or in :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s order
+        [mm, V].
+    ts_s : float
+        The sampling period [s] it holds for.
+    box_lower, box_upper : mapping, optional
+        The constraint region C for an adaptive controller started from it (default: none).
+    note : str
+        Where it comes from (the file's ``notes``).
+
+    Raises
+    ------
+    IdentificationFileError
+        A theta that is not 15 finite numbers, or a period that is not a positive number of seconds.
+    """
+    try:
+        values = ASYMMETRIC.as_theta(theta, what="theta")
+    except (TypeError, ValueError) as exc:
+        raise IdentificationFileError(f"{path}: {exc}") from None
+    if isinstance(ts_s, bool) or not isinstance(ts_s, (int, float)) or not math.isfinite(ts_s) or ts_s <= 0:
+        raise IdentificationFileError(f"{path}: ts_s must be a positive number of seconds, got {ts_s!r}")
+    doc = {"model": "asymmetric", "ts_s": float(ts_s), "theta": dict(zip(ASYMMETRIC.names, values.tolist())),
+           "constraint": {"lower": dict(box_lower or {}), "upper": dict(box_upper or {})},
+           "notes": [note] if note else []}
+    atomic_write_text(Path(path), json.dumps(doc, indent=2) + "\n")
