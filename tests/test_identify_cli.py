@@ -1,6 +1,7 @@
 """On the simulated rig, `tapmuscle identify` reaches the Table-4-like targets; bad data is refused."""
 
 import json
+from pathlib import Path
 import re
 
 import numpy as np
@@ -48,6 +49,9 @@ def test_json_has_the_documented_keys(results):
                                 "xi21", "xi22", "xi31", "xi32"]
     assert set(r["fit_percent"]) == set(r["validation_fit_percent"]) == {"1", "3", "5", "sim"}
     assert len(results[44, "standard"]["theta"]) == 11
+    # the load it holds for (from the recording's header) and the recording wherever identify ran
+    assert r["load_n"] == 44.0 and results[68, "asymmetric"]["load_n"] == 68.0
+    assert Path(r["recording_path"]).is_absolute() and Path(r["recording_path"]).name == "train44.csv"
 
 
 def test_asymmetric_model_at_44n_meets_table4_targets(results):

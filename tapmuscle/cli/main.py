@@ -176,7 +176,15 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                  constraint_start_s=args.constraint_start, forgetting=args.forgetting)
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
-    out = report.to_dict() | {"recording": str(args.recording)}
+    # the recording as given and as an absolute path (the first is relative to where identify ran), and
+    # its load: a model holds for the load it was identified at
+    load = rec.metadata.get("load_n")
+    try:
+        load = float(load) if load is not None else None
+    except ValueError:  # free text in the header: kept as written
+        pass
+    out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
+                              "load_n": load}
     val_fit = None
     if val is not None:
         # the periods of two jittered logs (each a least-squares grid) agree as closely as a header must
