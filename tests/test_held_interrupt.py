@@ -21,6 +21,24 @@ from tapmuscle.cosim.held_interrupt import HELD, held_interrupts
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="SIGINT sent to a child process (POSIX)")
 
 
+def _default_sigint() -> None:
+    """SIGINT's default disposition, in a child process (Python then installs its own handler)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture(autouse=True)
+def python_sigint_handler():
+    """These tests are about Python's own SIGINT handler; a test run started with SIGINT ignored
+    (nohup, a shell's background job, some CI runners) has none. Installed for each test and the
+    inherited disposition restored after, and children start with the default (``_default_sigint``)."""
+    inherited = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+
+
 def test_a_sigint_in_the_block_is_held_then_raised_where_asked_and_the_handler_restored():
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     reached = []
@@ -117,7 +135,7 @@ def test_an_interrupt_inside_a_slaves_step_is_an_error_not_a_crash(built_fmus):
     KeyboardInterrupt reaching pythonfmu's C++ layer was fmi2Fatal, and freeing the instance then
     crashed the host)."""
     proc = subprocess.run([sys.executable, "-c", _INTERRUPTED_STEP, str(built_fmus["MusclePlant"]), "20"],
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=300, preexec_fn=_default_sigint)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     lines = [line for line in proc.stdout.splitlines() if line.startswith(("status", "done"))]
     assert lines == ["status 3"] * 20 + ["done"], proc.stdout[-2000:]
@@ -134,7 +152,8 @@ def test_tapmuscle_run_interrupted_mid_run_exits_130_and_frees_the_fmus(built_fm
     for attempt in range(3):
         out = tmp_path / f"out{attempt}"
         proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "run", str(scenario), "--out", str(out),
-                                 "--fmu-dir", str(fmu_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                 "--fmu-dir", str(fmu_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                preexec_fn=_default_sigint)
         with proc:
             deadline = time.monotonic() + 120
             for line in proc.stderr:  # progress goes to stderr
