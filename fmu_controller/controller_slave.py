@@ -415,7 +415,9 @@ class AMPCController(SafeSlave):
         if self._controller is None:
             return None
         return {"controller": self._controller.get_state(), "k": self._k, "buffer": list(self._buffer),
-                "theta": [getattr(self, name) for name in self._theta_outputs]}
+                "theta": [getattr(self, name) for name in self._theta_outputs],
+                # what the log has said: a rewind says it again only where the run does again
+                "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks)]}
 
     def restore_numerics_state(self, state) -> None:
         if state is not None:
@@ -423,3 +425,6 @@ class AMPCController(SafeSlave):
             self._k = int(state["k"])
             self._buffer = [float(v) for v in state["buffer"]]
             self._set_theta([float(v) for v in state["theta"]])
+            diverged, pinned, jumps = state.get("said", (False, 0, []))
+            self._diverged, self._pinned_n = bool(diverged), int(pinned)
+            self._jump_ks = None if jumps is None else [int(k) for k in jumps]

@@ -533,3 +533,30 @@ def test_a_law_that_slams_the_valve_is_logged_once():
     assert slave.do_step(0.0, 0.1)
     (msg,) = [m.msg for m in slave.log_queue if "far outside the rig's" in m.msg]
     assert "its estimate diverges (theta0 or the box C far from this rig" in msg and "forgetting" not in msg
+
+
+def test_a_rewind_logs_what_the_run_from_there_logs():
+    """The monitors' memory is part of the FMU state: restored before the pinned command was said, it
+    is said again on the way; restored after, not twice."""
+    from fmu_controller.controller_slave import AMPCController
+
+    slave = AMPCController(instance_name="rewind")
+    slave.exit_initialization_mode()
+
+    def run(k0, k1):
+        for k in range(k0, k1):
+            slave.l = 0.03  # metres: pinned at 10 V
+            assert slave.do_step(k * 0.1, 0.1)
+
+    run(0, 50)
+    early = slave.numerics_state()
+    run(50, 200)
+    late = slave.numerics_state()
+    said = lambda: len([m for m in slave.log_queue if "has sat at the valve's" in m.msg])  # noqa: E731
+    assert said() == 1
+    slave.restore_numerics_state(early)
+    run(50, 200)
+    assert said() == 2
+    slave.restore_numerics_state(late)
+    run(200, 300)
+    assert said() == 2
