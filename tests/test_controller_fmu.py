@@ -549,14 +549,14 @@ def test_a_rewind_logs_what_the_run_from_there_logs():
             assert slave.do_step(k * 0.1, 0.1)
 
     run(0, 50)
-    early = slave.numerics_state()
+    early = slave._get_fmu_state()
     run(50, 200)
-    late = slave.numerics_state()
+    late = slave._get_fmu_state()
     said = lambda: len([m for m in slave.log_queue if "has sat at the valve's" in m.msg])  # noqa: E731
     assert said() == 1
-    slave.restore_numerics_state(early)
+    slave._set_fmu_state(early)
     run(50, 200)
     assert said() == 2
-    slave.restore_numerics_state(late)
+    slave._set_fmu_state(late)
     run(200, 300)
     assert said() == 2
