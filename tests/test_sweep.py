@@ -471,3 +471,37 @@ def test_a_base_file_whose_name_has_brackets_is_that_file(tmp_path):
     (folder / "base [a].toml").write_text('duration_s = 12.0\nevaluation_samples = [20, 120]\n')
     path = _write(folder, 'base = "base [a].toml"\n[grid]\nseed = [0, 1]\n')
     assert [r.scenario.duration_s for r in load_sweep(path).runs] == [12.0, 12.0]
+
+
+def test_what_the_fmus_warn_of_reaches_the_sweeps_and_checks_reports(built_fmus, tmp_path, capsys):
+    """A run at Ts = 0.2 s on the paper's 0.1-s theta0 and box (the controller FMU warns at its first
+    step): the sweep's summary.md lists it under 'FMU warnings' and the command says so on stderr;
+    tapmuscle check adds it to the case's line and to the JUnit case's system-err. Runs without a
+    warning get none."""
+    import xml.etree.ElementTree as ET
+
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    path = _write(tmp_path, 'name = "ts"\n[base]\nduration_s = 6.0\n[base.reference]\nfrequency_hz = 0.1\n'
+                            '[grid]\nstep_s = [0.1, 0.2]\n"controller.method" = ["ampc_servo"]\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--workers", "0", "--fmu-dir", fmu_dir, "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the FMUs logged 1 warnings in 1 runs (summary.md, 'FMU warnings')" in err
+    summary = (out / "summary.md").read_text()
+    section = summary[summary.index("## FMU warnings"):]
+    assert "controller FMU: Ts = 0.2 s, not the paper's 0.1 s" in section and section.count("\n- `") == 1
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    for ts in (0.1, 0.2):
+        (cases / f"ts{ts}.toml").write_text(f'duration_s = 6.0\nstep_s = {ts}\n[reference]\nfrequency_hz = 0.1\n'
+                                            '[expect]\nu_within = [0, 10]\n')
+    junit = tmp_path / "report.xml"
+    assert main(["check", str(cases), "--junit", str(junit), "--fmu-dir", fmu_dir, "--workers", "0", "--quiet"]) == 0
+    table = capsys.readouterr().out
+    line = next(x for x in table.splitlines() if "ts0.2" in x)
+    assert "(1 FMU warnings: controller FMU: Ts = 0.2 s" in line
+    assert "FMU warnings" not in next(x for x in table.splitlines() if "ts0.1" in x)
+    root = ET.parse(junit).getroot()
+    by_name = {c.get("name"): c for c in root.iter("testcase")}
+    assert by_name["ts0.2"].find("system-err").text.startswith("FMU warning: controller FMU: Ts = 0.2 s")
+    assert by_name["ts0.1"].find("system-err") is None

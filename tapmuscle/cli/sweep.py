@@ -103,6 +103,11 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if report.other_rows:
         print(f"results.csv also keeps {report.other_rows} rows of runs this sweep no longer has (after its own; "
               "not summarised)")
+    if report.fmu_warnings:
+        runs = len({rid for rid, _ in report.fmu_warnings})
+        print(f"warning: the FMUs logged {len(report.fmu_warnings)} warnings in {runs} runs (summary.md, "
+              f"'FMU warnings'); the first, run {report.fmu_warnings[0][0]}: {report.fmu_warnings[0][1]}",
+              file=sys.stderr)
     print(f"wrote {Path(out) / 'results.csv'}, {Path(out) / 'summary.md'}"
           + ("" if args.no_plots else f" and {Path(out) / '*.png'}"))
     return 1 if report.failed or report.violated else 0

@@ -149,6 +149,8 @@ def result_table(results: Sequence[CheckResult]) -> str:
             detail = "; ".join(r.outcome.violations)
         else:
             detail = f"{len(r.outcome.checked)} bounds met"
+        if r.run.fmu_warnings:
+            detail += f" ({len(r.run.fmu_warnings)} FMU warnings: {r.run.fmu_warnings[0]})"
         lines.append(f"{r.status.upper():<6}  {r.case.name:<{width}}  {r.case.scenario.method:<10}  {mae}  {detail}")
     counts = {s: sum(r.status == s for r in results) for s in ("pass", "fail", "error")}
     lines.append(f"{len(results)} scenarios: {counts['pass']} passed, {counts['fail']} failed, "
@@ -160,9 +162,9 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
               errors: Sequence[CollectionError] = ()) -> str:
     """The results as JUnit XML: a ``testsuite`` per file, a ``testcase`` per scenario run; a missed
     expectation is a ``failure``, a run that failed an ``error``; the checked bounds and the metrics
-    are in ``system-out``. Each of ``errors`` (files that could not be collected) is a ``testsuite``
-    of its file with one ``testcase`` whose ``error`` is the file's problem, as pytest reports a
-    collection error."""
+    are in ``system-out``, what the FMUs warned of during the run in ``system-err``. Each of
+    ``errors`` (files that could not be collected) is a ``testsuite`` of its file with one
+    ``testcase`` whose ``error`` is the file's problem, as pytest reports a collection error."""
     root = ET.Element("testsuites", name=name)
     for error in errors:
         suite = ET.SubElement(root, "testsuite", name=error.file, tests="1", failures="0", errors="1",
@@ -190,6 +192,8 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
                 out += ["bounds:"] + [f"  {c}" for c in r.outcome.checked]
             out += ["metrics:"] + [f"  {k} = {v:.6g}" for k, v in r.run.metrics.items()]
             ET.SubElement(case, "system-out").text = "\n".join(out)
+            if r.run.fmu_warnings:  # what the FMUs warned of: a CI's test view shows it beside the case
+                ET.SubElement(case, "system-err").text = "\n".join(f"FMU warning: {w}" for w in r.run.fmu_warnings)
         _count(suite, members)
     _count(root, results)
     if errors:

@@ -70,6 +70,8 @@ class RunResult:
     """``ExceptionType: message`` of a failed run."""
     worker: str = ""
     """``host:pid`` of the process that ran it."""
+    fmu_warnings: tuple[str, ...] = ()
+    """What the FMUs warned of during the run (:func:`tapmuscle.cosim.master.co_simulate`)."""
 
 
 @dataclass(frozen=True)
@@ -159,8 +161,10 @@ def execute_run(task: RunTask, files: FmuFiles, pool: InstancePool | None = None
     """Run one task; any exception becomes a ``failed`` result with its text."""
     try:
         paths = {name: files.path(digest, use_local=use_local) for name, digest in task.fmus}
-        cols = co_simulate(task.scenario, paths, record="minimal", pool=pool)
-        return RunResult(task.run_id, "ok", scenario_metrics(task.scenario, cols), worker=_where())
+        said: list[str] = []
+        cols = co_simulate(task.scenario, paths, record="minimal", pool=pool, fmu_warnings=said)
+        return RunResult(task.run_id, "ok", scenario_metrics(task.scenario, cols), worker=_where(),
+                         fmu_warnings=tuple(said))
     except Exception as exc:  # noqa: BLE001 - a failing run is recorded, the sweep goes on
         text = " | ".join(str(exc).splitlines()) or repr(exc)
         return RunResult(task.run_id, "failed", error=f"{type(exc).__name__}: {text}", worker=_where())

@@ -347,7 +347,7 @@ class InstancePool:
 def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: str = "all",
                 controller_parameters: Mapping[str, Any] | None = None,
                 progress: Callable[[int, int], None] | None = None,
-                pool: InstancePool | None = None) -> dict[str, np.ndarray]:
+                pool: InstancePool | None = None, fmu_warnings: list[str] | None = None) -> dict[str, np.ndarray]:
     """Run ``scenario`` with the master algorithm of the module docstring.
 
     Parameters
@@ -365,6 +365,10 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
     pool : InstancePool, optional
         Take the FMU instances from (and give them back to) this pool instead of instantiating and
         freeing them; same results.
+    fmu_warnings : list, optional
+        Where to append what the FMUs warned of during the run (``"controller FMU: ..."``). Without
+        it each is issued as a :class:`~tapmuscle.errors.FmuLogWarning` (Python's warnings, which are
+        process-wide: a worker running runs in threads passes a list).
 
     Returns
     -------
@@ -414,7 +418,11 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             for inst, n0 in zip((plant, ctrl), logged):
                 for m in inst.messages[n0:]:
                     if m.startswith(("[WARNING]", "[ERROR]")):
-                        warnings.warn(FmuLogWarning(f"{inst.role} FMU: {_reason(m)}"), stacklevel=2)
+                        text = f"{inst.role} FMU: {_reason(m)}"
+                        if fmu_warnings is None:
+                            warnings.warn(FmuLogWarning(text), stacklevel=2)
+                        else:
+                            fmu_warnings.append(text)
             done = True
             return cols
         finally:

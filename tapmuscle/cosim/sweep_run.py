@@ -11,7 +11,8 @@ Outputs in ``DIR``:
   (atomically) with one row per run, the last one logged, in the sweep's order; rows of run ids the
   sweep no longer has are kept after them (``summary.md`` and the command's last lines say how many).
 * ``summary.md``: per method, runs, failures, expectation violations and the Eq. (21) error's mean,
-  median and maximum; per grid cell where the sweep varies a few discrete values; the failed runs.
+  median and maximum; per grid cell where the sweep varies a few discrete values; the failed runs; what
+  the FMUs warned of in the runs made this time.
 * ``mae_by_method.png`` and, when load, reference frequency, supply or another numeric field varies,
   ``mae_map.png`` (:mod:`tapmuscle.plots.sweep_figures`).
 
@@ -160,6 +161,8 @@ class SweepReport:
     other_rows: int = 0
     """Rows of runs this sweep no longer has (an earlier version of the file), kept in ``results.csv``
     after its own and left out of the summary."""
+    fmu_warnings: tuple[tuple[str, str], ...] = ()
+    """``(run_id, message)``: what the FMUs warned of in the runs this call ran (``summary.md`` lists them)."""
 
 
 def _expect_cell(expect: Expectations | None, metrics: Mapping[str, float]) -> str:
@@ -219,8 +222,10 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     done, failed = skipped, 0
     if progress is not None:
         progress(done, total, f"{skipped} already done, {len(todo)} to run")
+    warned: list[tuple[str, str]] = []
     for result in execute(todo, files):
         log.append(_row(by_id[result.run_id], tasks[result.run_id], result))
+        warned += [(result.run_id, text) for text in result.fmu_warnings]
         done += 1
         failed += result.status != "ok"
         if progress is not None:
@@ -229,8 +234,8 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     report = SweepReport(total=total, skipped=skipped, ran=done - skipped,
                          failed=sum(r["status"] != "ok" for r in final),
                          violated=sum(r["expect"].startswith("fail") for r in final), rows=tuple(final),
-                         other_rows=other)
-    _write_summary(sweep, out, final, plots, other)
+                         other_rows=other, fmu_warnings=tuple(warned))
+    _write_summary(sweep, out, final, plots, other, warned)
     return report
 
 
@@ -294,9 +299,11 @@ def _cell_fields(rows: Sequence[Mapping[str, str]], sweep: Sweep) -> list[str]:
     return out
 
 
-def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows: int = 0) -> str:
+def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows: int = 0,
+                     fmu_warnings: Sequence[tuple[str, str]] = ()) -> str:
     """``summary.md``: tables per method (and per grid cell), failed runs (module docstring);
-    ``other_rows``: rows of runs ``results.csv`` keeps that this sweep no longer has."""
+    ``other_rows``: rows of runs ``results.csv`` keeps that this sweep no longer has;
+    ``fmu_warnings``: ``(run_id, message)`` the FMUs logged in the runs made this time."""
     methods = sorted({row["method"] for row in rows})
     lines = [f"# Sweep {sweep.name}", ""]
     if sweep.description:
@@ -339,6 +346,13 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
     if missed:
         lines += ["", "## Expectations missed", ""]
         lines += [f"- `{row['run_id']}` ({row['scenario']}, {row['method']}): {row['expect'][6:]}" for row in missed[:50]]
+    if fmu_warnings:
+        runs = len({rid for rid, _ in fmu_warnings})
+        lines += ["", "## FMU warnings", "", f"What the FMUs logged as warnings in {runs} of the runs made this time (a run "
+                  "resumed from `results.csv` is not run again, so its warnings are not here):", ""]
+        lines += [f"- `{rid}`: {text}" for rid, text in fmu_warnings[:50]]
+        if len(fmu_warnings) > 50:
+            lines.append(f"- ... and {len(fmu_warnings) - 50} more")
     return "\n".join(lines) + "\n"
 
 
@@ -352,12 +366,13 @@ def _sort_key(text: str) -> tuple[int, float, str]:
 SUMMARY_FILES = ("summary.md", "mae_by_method.png", "mae_map.png")
 
 
-def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool, other_rows: int) -> None:
+def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool, other_rows: int,
+                   fmu_warnings: Sequence[tuple[str, str]] = ()) -> None:
     from tapmuscle.io.atomic import staged_folder
     from tapmuscle.io.recording import atomic_write_text
 
     with staged_folder(out, owned=SUMMARY_FILES) as tmp:
-        atomic_write_text(tmp / "summary.md", summary_markdown(sweep, rows, other_rows))
+        atomic_write_text(tmp / "summary.md", summary_markdown(sweep, rows, other_rows, fmu_warnings))
         if plots:
             from tapmuscle.plots.sweep_figures import plot_mae_by_method, plot_mae_map
 
