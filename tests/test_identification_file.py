@@ -89,6 +89,7 @@ def test_a_scenario_runs_the_controller_on_the_identified_model(built_fmus, id_f
                     f'identification = "{id_files[0.05]}"\n')
     scenario = load_scenario(path)
     assert scenario.controller.parameters["box_lower.b1"] == -math.inf
+    assert scenario.controller.parameters_file == id_files[0.05]  # summary.json's scenario_spec names it
     cols = co_simulate(scenario, built_fmus)
     model = read_identification(id_files[0.05])
     plant = Plant(seed=1)

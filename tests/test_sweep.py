@@ -331,6 +331,33 @@ def test_a_sweep_over_plant_files_reruns_a_run_whose_file_changed(built_fmus, tm
     assert rows[2]["mae_mm"] == maes["rigB.json"]
 
 
+def test_a_sweep_over_identification_files_reruns_a_run_whose_file_changed(built_fmus, tmp_path):
+    """Controller models as identification files (``controller.identification``): as for plant files,
+    a run's id follows the file's values, so a rerun runs only the run whose model changed."""
+    import numpy as np
+
+    from fmu_controller.preliminary_model import THETA0_44N
+    from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
+    from tapmuscle.io.identification_file import write_identification
+
+    def model(name, b1):
+        theta = np.array(THETA0_44N)
+        theta[2] = b1
+        write_identification(tmp_path / name, theta, ts_s=0.1, box_lower=TABLE2_LOWER, box_upper=TABLE2_UPPER)
+
+    model("idA.json", 0.80)
+    model("idB.json", 0.90)
+    path = _write(tmp_path, SMALL_SWEEP.replace('"controller.method" = ["mpc_servo", "ampc_servo"]\nseed = [0, 1]',
+                                                '"controller.identification" = ["idA.json", "idB.json"]'))
+    sweep = load_sweep(path)
+    assert [r.scenario.controller.parameters["theta0.b1"] for r in sweep.runs] == [0.80, 0.90]
+    out = tmp_path / "out"
+    assert run_sweep(sweep, out, built_fmus, run_serial, plots=False).ran == 2
+    model("idB.json", 0.95)  # re-identified
+    again = run_sweep(load_sweep(path), out, built_fmus, run_serial, plots=False)
+    assert (again.skipped, again.ran) == (1, 1)
+
+
 def test_summary_groups_grid_cells():
     sweep = parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [44.0, 68.0], "seed": [0, 1]}}, source="s")
     rows = [{"run_id": str(i), "status": "ok", "scenario": "s", "method": "ampc_servo", "load_n": load,

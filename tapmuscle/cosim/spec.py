@@ -118,8 +118,9 @@ class FmuSpec:
     parameters: Mapping[str, Any] = field(default_factory=dict)
     """FMU variable name -> value (float, int, or an enumeration item name)."""
     parameters_file: Path | None = None
-    """The plant parameter file whose values ``parameters`` holds (``[plant] parameters_file``), kept so
-    that a run's ``summary.json`` says where its plant came from; None without one."""
+    """The file whose values ``parameters`` holds (``[plant] parameters_file``, ``[controller]
+    identification``), kept so that a run's ``summary.json`` says where its plant or its controller's
+    model came from; None without one."""
 
 
 @dataclass(frozen=True)
@@ -360,7 +361,7 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     ctrl_r.check_keys({"fmu", "parameters", "method", "identification"})
     method = ctrl_r.string("method", "ampc_servo", METHODS)
     controller = FmuSpec(ctrl_r.path("fmu", base), {**_identification_parameters(ctrl_r, base, step),
-                                                    **_parameters(ctrl_r)})
+                                                    **_parameters(ctrl_r)}, ctrl_r.path("identification", base))
     for key in ("method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency"):
         if key in controller.parameters:
             raise _Reader(source, controller.parameters, "controller.parameters.").error(

@@ -297,9 +297,11 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
                         raise ScenarioError(f"{where}: {exc}") from None
                 scenario = parse_scenario(raw, source=where, base=base_folder, default_name=base_name)
                 hashed = raw
-                if "parameters_file" in raw.get("plant", {}):
-                    # the file's values, not its name: a rerun after the file changed runs anew
-                    hashed = {**raw, "plant": {**raw["plant"], "parameters_file": dict(scenario.plant.parameters)}}
+                for role, key in (("plant", "parameters_file"), ("controller", "identification")):
+                    if key in raw.get(role, {}):
+                        # the file's values, not its name: a rerun after the file changed runs anew
+                        spec = getattr(scenario, role)
+                        hashed = {**hashed, role: {**hashed[role], key: dict(spec.parameters)}}
                 run_id = run_id_of(hashed)
                 if run_id in seen:
                     raise ScenarioError(f"{where}: the same scenario as run {seen[run_id]} (duplicate values in "
