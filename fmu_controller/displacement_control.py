@@ -180,7 +180,8 @@ class ControllerSettings:
     to end and the cancellation grows to thousands of mm (a 0.3-MPa rig at 30 N: Eq. (21) 6.65 mm
     instead of 0.29). From the next sample the law takes the estimate as the paper's start does, and
     the probing stops. It does not fire on the paper's runs, whose ``theta0`` comes from a closed loop
-    (their bits are kept). False: the warm-up runs its course whatever the valve does."""
+    (their bits are kept); a large reference step inside the start-up can fire it too (docs/control.md,
+    "Start-up"). False: the warm-up runs its course whatever the valve does."""
     input_delay_samples: int = 0
     """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
     drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
