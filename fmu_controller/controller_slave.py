@@ -223,6 +223,9 @@ class AMPCController(SafeSlave):
             # an infinite bound of C on its own side is no bound (an unconstrained identification's)
             if (name.startswith("box_lower.") and value == -math.inf) or (name.startswith("box_upper.") and value == math.inf):
                 continue
+            if name.startswith(("box_lower.", "box_upper.")) and math.isinf(value):
+                side = "-inf (no lower bound)" if name.startswith("box_lower.") else "inf (no upper bound)"
+                raise SlaveInputError(f"parameter {name} = {value!r} is not a bound: a finite number, or {side}")
             self.finite(f"parameter {name}", value)
             if name.startswith("P0.") and value <= 0:
                 raise SlaveInputError(f"parameter {name} = {value!r} must be > 0")

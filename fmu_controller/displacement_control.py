@@ -643,7 +643,8 @@ class DisplacementController:
         the adaptive ones in the start-up mode's warm-up (until the guard, ``startup_guard``, ends it)."""
         if self._rls is None:
             return True
-        return self._guarded_at is None and self._k - 1 - self._est_from < self._warm_n
+        # the guard fires at a step whose command still came from theta0
+        return (self._guarded_at is None or self._guarded_at == self._k - 1) and self._k - 1 - self._est_from < self._warm_n
 
     def _probed(self, u: float) -> float:
         """``u`` [V] plus the start-up mode's probing signal during the estimator's warm-up

@@ -447,7 +447,8 @@ def test_an_infinite_bound_on_its_own_side_is_no_bound():
     wrong.set_real([vr["box_upper.b1"]], [-math.inf])
     wrong.exit_initialization_mode()
     assert wrong._controller is None
-    assert any("parameter box_upper.b1 = -inf is not finite" in m.msg for m in wrong.log_queue)
+    assert any("parameter box_upper.b1 = -inf is not a bound: a finite number, or inf (no upper bound)" in m.msg
+               for m in wrong.log_queue)
 
 
 def test_the_paper_defaults_at_another_period_are_warned_of():

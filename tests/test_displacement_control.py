@@ -725,3 +725,23 @@ def test_the_startup_guard_is_validated_and_kept_in_the_state(theta0):
     for bad in ([-1, None], [0, 10 ** 6], [1.5, None]):
         with pytest.raises(ValueError, match="state field guard"):
             twin.set_state(saved | {"guard": bad})
+
+
+def test_the_step_that_fires_the_guard_ran_on_theta0(open_loop_theta_03mpa):
+    """law_on_theta0 (which the FMU's divergence warning reads) is True for the step at which the guard
+    fires (its command came from theta0) and False from the next: the warning blamed the estimate."""
+    theta, rig = open_loop_theta_03mpa
+    plant = Plant(rig, seed=0)
+    plant.update(load_n=30.0)
+    ctrl = DisplacementController(ControllerSettings(method="ampc_servo"), theta)
+    ref = SineReference(frequency_hz=0.1)
+    ctrl.reset(plant.measurement.l_mm)
+    meas = plant.measurement
+    for k in range(200):
+        u = ctrl.step(meas.l_mm, ref.preview(k, ctrl.settings.preview_samples)).u_v
+        if k < 60:  # the warm-up (T/2 = 6 s), where the guard fires on this rig (t = 3-6 s)
+            assert ctrl.law_on_theta0 is (ctrl.startup_guarded_at in (None, k))
+        if ctrl.startup_guarded_at is not None and k > ctrl.startup_guarded_at:
+            break
+        meas = plant.step(u, 0.1)
+    assert ctrl.startup_guarded_at is not None and not ctrl.law_on_theta0
