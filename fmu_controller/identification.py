@@ -246,8 +246,13 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
             lower, upper = dict(TABLE2_LOWER), dict(TABLE2_UPPER)
         else:
             lower, upper = {}, {}
+            paper_ts = abs(ts_s - PAPER_TS_S) <= 1e-3 * PAPER_TS_S
+            # the scales are chosen by magnitude: a stroke of a few mm is scaled like one in cm
+            hint = ("if it is in mm and V (a small stroke or command), pass Table 2 itself: --box "
+                    + ",".join(f"{n}={TABLE2_LOWER[n]:g}:{TABLE2_UPPER[n]:g}" for n in TABLE2_LOWER)
+                    if paper_ts else "pass a box explicitly (docs/identification.md, 'A box at another sampling period')")
             notes.append(f"no constraint region: Table 2's box is for mm, V and Ts = 0.1 s, this record has "
-                         f"Ts = {ts_s:.6g} s and unit scales l/{l_scale:g}, u/{u_scale:g}; pass a box explicitly")
+                         f"Ts = {ts_s:.6g} s and magnitudes normalised by l/{l_scale:g}, u/{u_scale:g}; {hint}")
     elif box is None:
         lower, upper = {}, {}
     else:

@@ -106,7 +106,12 @@ def test_other_sampling_period_and_no_box_note(records):
     rec = read_recording(paths["train", 44])
     half = identify_record(rec.u_v[::2], rec.l_mm[::2], ts_s=0.2)
     assert half.box_lower == {} and "no constraint region" in half.notes[0]
+    assert "pass a box explicitly (docs/identification.md, 'A box at another sampling period')" in half.notes[0]
     assert half.fit.percent["1"] > 95.0
+    # at 0.1 s a small stroke and command in mm and V are normalised as other units are: no box, and the
+    # note gives Table 2 to pass
+    small = identify_record(0.2 * rec.u_v, 0.1 * rec.l_mm, ts_s=0.1)
+    assert small.box_lower == {} and "--box a1=1.208:1.26,a2=-0.334:-0.278,b1=0.607:1.184" in small.notes[0]
     # a period known as exactly as a recording tells it (0.1 %: jittered or Unix-time stamps) keeps Table 2's
     # box, and gives the estimate of 0.1 s (the constraint's start, 120 s, may fall one sample earlier)
     exact = identify_record(rec.u_v, rec.l_mm, ts_s=0.1).theta
