@@ -57,9 +57,10 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_PROBING_V, MAX_STARTUP_S,
-                                                 METHOD_CODES, P0_TABLE5, ControllerSettings, ControlStep,
-                                                 DisplacementController)
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_PROBING_V,
+                                                 MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
+                                                 ControlStep, DisplacementController, full_range_jump,
+                                                 pushed_at_limit)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.preliminary_model import THETA0_44N
@@ -199,9 +200,7 @@ class AMPCController(SafeSlave):
         table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2; inf: none)", None, None)
                   for n in TABLE2_UPPER]
         self.add_real_parameters(table)
-        self._diverged = False
-        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
-        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
+        self._reset_monitors()
         self._controller: DisplacementController | None = None
         self._reference: SineReference | None = None
         self._hp = 0
@@ -257,9 +256,7 @@ class AMPCController(SafeSlave):
             startup_s=p["startup_s"], probing_v=p["probing_v"])
 
     def initialize_numerics(self) -> None:
-        self._diverged = False
-        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
-        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
+        self._reset_monitors()
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
         if self._int_par["reference_source"] == 1 and self._par["sine.frequency"] > 0.5 / self._par["Ts"]:
@@ -284,13 +281,19 @@ class AMPCController(SafeSlave):
         self._set_theta([float(v) for v in theta0])
         self.samples = 0
 
+    def _reset_monitors(self) -> None:
+        """What the log has said of this run: nothing yet."""
+        self._diverged = False
+        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
+        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
+
     def _watch_slamming(self, t_s: float, u: float) -> None:
-        """Log once when the command has jumped across 90 % of the valve's range :data:`_SLAM_JUMPS`
-        times within :data:`_SLAM_WINDOW_S`."""
+        """Log once when the command has jumped across the valve's range (``full_range_jump``)
+        :data:`_SLAM_JUMPS` times within :data:`_SLAM_WINDOW_S`."""
         if self._jump_ks is None:
             return
         s = self._controller.settings.servo
-        if self._k > 0 and abs(u - self.u) >= 0.9 * (s.u_max_v - s.u_min_v):
+        if self._k > 0 and full_range_jump(u, self.u, s.u_min_v, s.u_max_v):
             window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
             self._jump_ks = [k for k in self._jump_ks if k > self._k - window] + [self._k]
             if len(self._jump_ks) >= _SLAM_JUMPS:
@@ -307,8 +310,7 @@ class AMPCController(SafeSlave):
         if self._pinned_n < 0:
             return
         s = self._controller.settings.servo
-        pushed = (r > l and u >= s.u_max_v - 1e-9) or (r < l and u <= s.u_min_v + 1e-9)
-        self._pinned_n = self._pinned_n + 1 if pushed else 0
+        self._pinned_n = self._pinned_n + 1 if pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v) else 0
         if self._pinned_n * self._par["Ts"] >= _PINNED_S - 1e-9:
             self._pinned_n = -1
             limit = s.u_max_v if r > l else s.u_min_v

@@ -51,7 +51,7 @@ from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
-           "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS",
+           "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "full_range_jump",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -273,6 +273,18 @@ class ControllerSettings:
         return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + (self.input_delay_samples != 0)
 
 
+def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
+    """Whether the command ``u_v`` [V] sits at a valve limit that the error ``r - l`` [mm] pushes it
+    further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it)."""
+    return (r_mm > l_mm and u_v >= u_max_v - 1e-9) or (r_mm < l_mm and u_v <= u_min_v + 1e-9)
+
+
+def full_range_jump(u_v: float, u_prev_v: float, u_min_v: float, u_max_v: float) -> bool:
+    """Whether the command moved across :data:`GUARD_JUMP_FRACTION` of the valve's range [V] in one
+    sample: the valve slammed end to end."""
+    return abs(u_v - u_prev_v) >= GUARD_JUMP_FRACTION * (u_max_v - u_min_v)
+
+
 def _smoothstep(x: float) -> float:
     """``3x^2 - 2x^3`` on [0, 1] (0 below, 1 above): 0 -> 1 with zero slope at both ends."""
     x = min(max(x, 0.0), 1.0)
@@ -375,7 +387,6 @@ class DisplacementController:
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
         self._guard = settings.startup_guard and settings.adaptive and self._blend_n > 0
-        self._jump_v = GUARD_JUMP_FRACTION * (self._u_max - self._u_min)
         self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
 
@@ -615,8 +626,7 @@ class DisplacementController:
         reach would otherwise wind it up by the thousands and the loop would lag for seconds once the
         reference is back in reach. A shorter stay at a limit (the valve closed for a few samples at the
         bottom of a fast cycle) is integrated as Eq. (18) says: holding there costs tracking."""
-        # at a limit within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it
-        pushed = (r_mm > l_mm and u >= self._u_max - 1e-9) or (r_mm < l_mm and u <= self._u_min + 1e-9)
+        pushed = pushed_at_limit(r_mm, l_mm, u, self._u_min, self._u_max)
         if pushed and self._anti_windup and self._limit_run + 1 >= HOLD_AFTER_SAMPLES:
             return xs, True
         return integrator_step(xs, r_mm, l_mm), pushed
@@ -625,7 +635,7 @@ class DisplacementController:
         """``ControllerSettings.startup_guard``: count the output ``u`` [V] if it jumps across
         :data:`GUARD_JUMP_FRACTION` of the valve's range from the last one while the start-up mode's
         law still holds ``theta0``; at :data:`GUARD_JUMPS` the law leaves it for the estimate."""
-        if (self._guard and self._guarded_at is None and abs(u - self._u_out1) >= self._jump_v
+        if (self._guard and self._guarded_at is None and full_range_jump(u, self._u_out1, self._u_min, self._u_max)
                 and self._k - self._est_from < self._blend_n):
             self._jumps += 1
             if self._jumps >= GUARD_JUMPS:

@@ -163,9 +163,8 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
     elif var.type == "Real":
         # an infinity only where the model description leaves that side open (the controller's
         # box_lower.* = -inf: no bound); the FMU refuses one where it means nothing
-        open_side = math.isinf(value) and (var.min is None if value < 0 else var.max is None) \
-            if isinstance(value, numbers.Real) and not isinstance(value, bool) else False
-        if not finite and not open_side:
+        infinite = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isinf(value)
+        if not finite and not (infinite and (var.min if value < 0 else var.max) is None):
             raise ScenarioError(f"{where}{name}': must be a finite number, got {value!r}")
         number = float(value)
     else:

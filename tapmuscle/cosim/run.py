@@ -7,7 +7,7 @@ leaves the folder as it was, and a figure of an earlier run that this run does n
   :func:`tapmuscle.closed_loop.run_closed_loop`), with the scenario in its header;
 * ``summary.json``: the metrics of :data:`tapmuscle.cosim.expect.METRICS` (``mae_mm`` = Eq. 21 over
   ``evaluation_samples``, command range, wall time, real-time factor, ...), the FMUs' GUIDs, the scenario,
-  and ``fmu_warnings``: what the FMUs warned of during the run (:class:`~tapmuscle.errors.FmuLogWarning`);
+  and ``fmu_warnings``: what the FMUs warned of during the run;
 * ``tracking.png`` (r, l, error, u; load if it changes), ``prediction_error.png`` and, for the adaptive
   methods, ``parameters.png`` (theta-hat over time).
 """
@@ -15,7 +15,6 @@ leaves the folder as it was, and a figure of an earlier run that this run does n
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -30,7 +29,6 @@ from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.cosim.master import co_simulate, unpack
 from tapmuscle.cosim.spec import Scenario
-from tapmuscle.errors import FmuLogWarning
 
 __all__ = ["RUN_FILES", "run_scenario", "summarise"]
 
@@ -65,14 +63,11 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
             "AMPCController": Path(scenario.controller.path or fmus["AMPCController"])}
     # staged before the run: an output folder that cannot be written is named before the run, not after
     with staged_folder(out, owned=RUN_FILES) as tmp:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", FmuLogWarning)
-            cols = co_simulate(scenario, used, controller_parameters=controller_parameters, progress=progress)
-        for w in caught:  # others go on to the caller's filters
-            if not issubclass(w.category, FmuLogWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        said: list[str] = []
+        cols = co_simulate(scenario, used, controller_parameters=controller_parameters, progress=progress,
+                           fmu_warnings=said)
         summary = summarise(scenario, cols, used)
-        summary["fmu_warnings"] = [str(w.message) for w in caught if issubclass(w.category, FmuLogWarning)]
+        summary["fmu_warnings"] = said
         table = {k: v for k, v in cols.items() if k != "wall_time_s"}
         meta = {"scenario": scenario.name, "method": scenario.method, "seed": str(scenario.seed),
                 "ts_s": f"{scenario.step_s:g}", "mae_mm": f"{summary['mae_mm']:.4f}",
