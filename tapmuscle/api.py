@@ -22,6 +22,7 @@ from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.io.identification_file import IdentifiedModel
+from tapmuscle.io.sampling import TS_RANGE_S
 from tapmuscle.io.signals import parse_input_spec
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "build_fmus"]
@@ -44,8 +45,6 @@ def _check_positive(name: str, value: float) -> float:
 def _check_period(ts_s: float) -> float:
     """A sampling period [s] the rig is simulated at: within ``tapmuscle record --ts``'s 1 ms..10 s
     (50 is milliseconds meant)."""
-    from tapmuscle.diagnosis.recording_checks import TS_RANGE_S
-
     ts = _check_positive("ts_s", ts_s)
     if not TS_RANGE_S[0] <= ts <= TS_RANGE_S[1]:
         raise ValueError(f"ts_s = {ts_s!r} s is outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s of the muscle's "

@@ -159,9 +159,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
     from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.recording import atomic_write_text, read_recording
-    from tapmuscle.io.sampling import STRICT_TOLERANCE
-
-    from tapmuscle.diagnosis.recording_checks import check_sampling_period
+    from tapmuscle.io.sampling import STRICT_TOLERANCE, check_sampling_period
 
     rec = read_recording(args.recording)
     val = read_recording(args.validate) if args.validate else None

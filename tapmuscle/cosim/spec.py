@@ -23,7 +23,7 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     fmu = "AMPCController.fmu"             # optional, as above
     method = "ampc_servo"                  # mpc_ucp | mpc_servo | ampc_ucp | ampc_servo
     identification = "id.json"             # optional: theta0 and the box C from `tapmuscle identify --json`
-                                           # (its ts_s must be step_s; mm and V)
+                                           # (its ts_s must be step_s; theta in mm and V)
     parameters = { "servo.R" = 15.0 }      # any AMPCController parameter (over the file's)
 
     [reference]                            # kind = "sine": the controller's built-in generator, exact preview
@@ -302,7 +302,7 @@ def _parameters(r: _Reader) -> dict[str, Any]:
 def _identification_parameters(r: _Reader, base: Path | None, step_s: float) -> dict[str, Any]:
     """The AMPCController parameters ``theta0.*`` and ``box_lower.*``/``box_upper.*`` of the
     ``tapmuscle identify --json`` file ``identification`` names (its box, -inf/inf where it has none),
-    checked for the scenario's period ``step_s`` and for mm and V; empty without one."""
+    checked for the scenario's period ``step_s``; empty without one."""
     path = r.path("identification", base)
     if path is None:
         return {}

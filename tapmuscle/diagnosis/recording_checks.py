@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tapmuscle.io.sampling import uniform_sampling
+from tapmuscle.io.sampling import TS_RANGE_S, check_sampling_period, uniform_sampling
 
 __all__ = ["check_muscle_recording", "check_sampling_period", "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
@@ -24,8 +24,6 @@ __all__ = ["check_muscle_recording", "check_sampling_period", "muscle_recording_
 #: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
 #: outside: another unit.
 COMMAND_RANGE_V = (-1.0, 11.0)
-#: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
-TS_RANGE_S = (1e-3, 10.0)
 #: No reading of the 400-mm muscle's contraction lies further than this from 0 [mm]: its length and
 #: an encoder zeroed anywhere in its stroke (``sensor_drift.offset_mm``'s 100-mm bound); beyond: µm?
 DISPLACEMENT_PLAUSIBLE_MM = 500.0
@@ -44,21 +42,6 @@ AMBIENT_MPA_RANGE = (0.06, 0.11)
 PRESSURE_PLAUSIBLE_MPA = 2.0
 #: A hanging load that never reaches this [N] but is not zero is in another unit (kN: 0.044 for 44 N).
 LOAD_PLAUSIBLE_N = 1.0
-
-
-def check_sampling_period(ts_s: float) -> None:
-    """Refuse a sampling period [s] outside :data:`TS_RANGE_S` (times in milliseconds?).
-
-    Raises
-    ------
-    ValueError
-        Naming the period and the column ``t_s``.
-    """
-    # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
-    # out as 0.99999999999989 ms, which is still 1 ms
-    if not TS_RANGE_S[0] * (1.0 - 1e-9) <= ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
-        raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
-                         "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
 
 
 def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None,

@@ -18,13 +18,31 @@ import numpy as np
 
 from tapmuscle.errors import TapmuscleError
 
-__all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE"]
+__all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
+           "check_sampling_period"]
 
 #: Largest distance of a sample's time from its slot on the uniform grid, as a fraction of the period.
 JITTER_TOLERANCE = 0.25
 #: Steps within this fraction of the median step count as exactly uniform (a recording written with
 #: rounded times): the period is then the median step, as written.
 STRICT_TOLERANCE = 1e-3
+#: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
+TS_RANGE_S = (1e-3, 10.0)
+
+
+def check_sampling_period(ts_s: float) -> None:
+    """Refuse a sampling period [s] outside :data:`TS_RANGE_S` (times in milliseconds?).
+
+    Raises
+    ------
+    ValueError
+        Naming the period and the column ``t_s``.
+    """
+    # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
+    # out as 0.99999999999989 ms, which is still 1 ms
+    if not TS_RANGE_S[0] * (1.0 - 1e-9) <= ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
+        raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
+                         "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
 
 
 class SamplingError(TapmuscleError):
