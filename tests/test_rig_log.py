@@ -422,3 +422,39 @@ def test_day_first_dotted_dates_as_a_german_locale_writes_them(tmp_path):
 def test_reading_options_are_checked_before_the_file_is_read(tmp_path, kwargs, match):
     with pytest.raises(RecordingError, match=match):
         read_rig_log(tmp_path / "not_read.csv", time="t", u="u", l="l", **kwargs)
+
+
+@pytest.mark.parametrize("sep,decimal", [(",", "."), (";", ",")])
+def test_every_number_reads_to_the_bit_as_float_reads_its_text(tmp_path, sep, decimal):
+    """The columns are read all at once: the values are float()'s of the cells, in any notation."""
+    rng = np.random.default_rng(5)
+    n = 3000
+    t_text = [f"{0.01 * k:.2f}" for k in range(n)]
+    x = (rng.standard_normal(n) * 10.0 ** rng.integers(-8, 9, n)).tolist()
+    notations = [repr, lambda v: f"{v:.17g}", lambda v: f"{v:.3f}", lambda v: f"{v:.20e}", lambda v: f"{v:+.1E}"]
+    u_text = [notations[k % len(notations)](v) for k, v in enumerate(x)]
+    log = tmp_path / "numbers.csv"
+    with open(log, "w") as f:
+        f.write(sep.join(["t", "u", "l"]) + "\n")
+        for tk, uk in zip(t_text, u_text):
+            f.write(sep.join(c.replace(".", decimal) for c in (tk, uk, " 1.5 ")) + "\n")
+    rec = read_rig_log(log, time="t", u="u", l="l")
+    expected = np.array([float(c) for c in u_text])
+    assert np.array_equal(rec.columns["u_v"].view(np.int64), expected.view(np.int64))
+    assert rec.columns["l_mm"].tolist() == [1.5] * n
+
+
+@pytest.mark.parametrize("cell,message", [
+    ("1e999", r"line 5003, column 'u': '1e999' is not finite"),
+    ("nan", r"line 5003, column 'u': 'nan' is not finite"),
+    ("0x1p3", r"line 5003, column 'u': '0x1p3' is not a number"),
+    ("1.5", r"line 5003, column 'u': '1.5' is not a number with the decimal mark ','"),
+])
+def test_the_first_bad_cell_of_a_long_column_is_named(tmp_path, cell, message):
+    rows = [f"{0.1 * k:.1f};{k % 7}.5;{k}".replace(".", ",") for k in range(8000)]
+    rows[5000] = rows[5000].split(";")[0] + f";{cell};0"
+    rows[7000] = rows[7000].split(";")[0] + ";x;0"  # a later bad cell is not the one named
+    log = tmp_path / "late.csv"
+    log.write_text("t;u;l\n# a remark\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RecordingError, match=message):
+        read_rig_log(log, time="t", u="u", l="l")

@@ -38,6 +38,7 @@ import numpy as np
 from fmu_plant.parameters import LoadParams
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import atomic_path
+from tapmuscle.io.gc_paused import gc_paused
 from tapmuscle.io.sampling import Sampling, SamplingError, uniform_sampling
 
 __all__ = ["Recording", "RecordingError", "read_recording", "read_columns", "write_recording", "atomic_write_text",
@@ -227,6 +228,7 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
     return _read_columns(path, required, time_column, {})
 
 
+@gc_paused()
 def _read_columns(path: str | os.PathLike, required: tuple[str, ...], time_column: str,
                   lines_of: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """:func:`read_columns`, storing in ``lines_of`` the line number of each ``# key:`` line (by key)

@@ -30,7 +30,6 @@ that is empty or not a number is refused with its file, line and column.
 from __future__ import annotations
 
 import csv
-import io
 import math
 import os
 import re
@@ -40,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tapmuscle.io.gc_paused import gc_paused
 from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
@@ -133,7 +133,7 @@ def _refuse_thousands(path: Path, body: list, index: dict[str, int], header: lis
     for j in index.values():
         cells = [(lineno, row[j].strip()) for lineno, row in body if j < len(row)]
         dotted = [(lineno, c) for lineno, c in cells if "." in c]
-        if (dotted and len(dotted) < len(cells) and all(_THOUSANDS.match(c) for _, c in dotted)
+        if (0 < len(dotted) < len(cells) and all(_THOUSANDS.match(c) for _, c in dotted)
                 and all(_INTEGER.match(c) for _, c in cells if "." not in c)):
             lineno, cell = dotted[0]
             raise RecordingError(f"{path}, line {lineno}, column {header[j]!r}: {cell!r} reads as a thousands separator "
@@ -182,18 +182,23 @@ def _header_and_rows(path: Path, delimiter: str | None, skip_lines: int,
         raise RecordingError(f"{path}: no header row")
     header_line = i + 1
     sep = delimiter or _separator(lines[i])
-    rows = list(csv.reader(io.StringIO("\n".join(lines[i:])), delimiter=sep))
-    header = [h.strip() for h in rows[0]]
-    # blank rows dropped; a '#' line among the data is a logger's remark (an operator's marker)
-    body = [(header_line + 1 + k, row) for k, row in enumerate(rows[1:]) if any(cell.strip() for cell in row)]
+    rows = csv.reader(lines[i:], delimiter=sep)
+    header = [h.strip() for h in next(rows)]
+    # blank rows dropped (the first cell decides for most rows); a '#' line among the data is a
+    # logger's remark (an operator's marker)
+    body = [(lineno, row) for lineno, row in enumerate(rows, header_line + 1)
+            if any(row) and (row[0].strip() or any(cell.strip() for cell in row))]
     return sep, header, header_line, body
 
 
 def _run_starts(body: list, header: list[str]) -> list[int]:
     """Indices into ``body`` of the rows that repeat ``header``: a logger restarted into the file."""
-    return [k for k, (_, row) in enumerate(body) if [c.strip() for c in row] == header]
+    n, first = len(header), header[0] if header else None
+    return [k for k, (_, row) in enumerate(body)
+            if len(row) == n and row[0].strip() == first and [c.strip() for c in row] == header]
 
 
+@gc_paused()
 def rig_log_runs(path: str | os.PathLike, *, delimiter: str | None = None, skip_lines: int = 0,
                  encoding: str = "utf-8-sig") -> int:
     """How many runs a log holds: 1, plus one per row among the data that repeats the header (a
@@ -251,6 +256,72 @@ def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: floa
     return out, np.insert(line_of, at, line_of[at]), note
 
 
+def _number(cell: str, decimal: str) -> float:
+    """A cell as a number with the decimal mark ``decimal``; ``ValueError`` otherwise. A mark of the
+    other kind is a thousands separator (1.350,5 or 1,350.5): refused, not read as a decimal (1.350 um
+    read as 1.35 mm, off by a thousand)."""
+    if ("." if decimal == "," else ",") in cell:
+        raise ValueError(cell)
+    return float(cell.replace(decimal, ".") if decimal != "." else cell)
+
+
+def _is_number(cell: str, decimal: str) -> bool:
+    try:
+        _number(cell.strip(), decimal)
+    except ValueError:
+        return False
+    return True
+
+
+def _numbers(path: Path, lines: list[int], cells: list[str], column: str, decimal: str) -> np.ndarray:
+    """The cells (of the log's ``lines``) of ``column`` as finite numbers, or a :class:`RecordingError`
+    naming the first cell that is not one. All at once (numpy reads text as :func:`float` does, to
+    the bit); cell by cell only to find the offending one."""
+    other_mark = "." if decimal == "," else ","
+    if not any(other_mark in cell for cell in cells):
+        try:
+            values = np.array(cells if decimal == "." else [c.replace(decimal, ".") for c in cells], dtype=float)
+        except ValueError:
+            pass
+        else:
+            bad = np.flatnonzero(~np.isfinite(values))
+            if not bad.size:
+                return values
+            k = int(bad[0])
+            raise RecordingError(f"{path}, line {lines[k]}, column {column!r}: {cells[k]!r} is not finite")
+    values = np.empty(len(cells))
+    for k, (lineno, cell) in enumerate(zip(lines, cells)):
+        try:
+            values[k] = v = _number(cell, decimal)
+        except ValueError:
+            hint = ""
+            if other_mark in cell:
+                hint = (" with the decimal mark '.': a decimal comma (--decimal ',') or a thousands separator "
+                        "(remove it)?" if other_mark == "," else
+                        " with the decimal mark ',': '.' as a thousands separator? Remove it")
+            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not a number{hint}") from None
+        if not math.isfinite(v):
+            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not finite")
+    return values
+
+
+def _seconds_from_text(path: Path, lines: list[int], cells: list[str], column: str) -> np.ndarray:
+    """Time stamps written as text (:func:`parse_time_text`) as seconds from the first, or a
+    :class:`RecordingError` naming the first that is not one or not comparable with the first."""
+    values = np.empty(len(cells))
+    first = None
+    for k, (lineno, cell) in enumerate(zip(lines, cells)):
+        try:
+            stamp = parse_time_text(cell)
+            first = first or stamp
+            values[k] = (stamp - first).total_seconds()
+        except (ValueError, TypeError) as exc:
+            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not an ISO 8601 "
+                                 f"(or day.month.year) time comparable with the first ({exc})") from None
+    return values
+
+
+@gc_paused()
 def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn | str, l: LogColumn | str,  # noqa: E741
                  p: LogColumn | str | None = None, load: LogColumn | str | None = None, load_n: float | None = None,
                  delimiter: str | None = None, decimal: str | None = None, fill_gaps_s: float = 0.0,
@@ -346,25 +417,9 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             cells = (row[j].strip() for _, row in body[:50] for j in index.values() if j < len(row))
             decimal = "," if any(_DECIMAL_COMMA.match(c) for c in cells) else "."
 
-    other_mark = "." if decimal == "," else ","
-
-    def number(cell: str) -> float:
-        # a mark of the other kind is a thousands separator (1.350,5 or 1,350.5): refused, not read as
-        # a decimal (1.350 um read as 1.35 mm off by a thousand)
-        if other_mark in cell:
-            raise ValueError(other_mark)
-        return float(cell.replace(decimal, ".") if decimal != "." else cell)
-
-    def is_number(cell: str) -> bool:
-        try:
-            number(cell.strip())
-        except ValueError:
-            return False
-        return True
-
     skipped = None
     first = [body[0][1][j].strip() for target, j in index.items() if target != "t_s" and j < len(body[0][1])] if body else []
-    if first and all(cell and not is_number(cell) for cell in first):
+    if first and all(cell and not _is_number(cell, decimal) for cell in first):
         skipped, body = body[0][0], body[1:]  # a units row under the header: text in every mapped column
     if not body:
         raise RecordingError(f"{path}: header but no data rows")
@@ -378,36 +433,19 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         _refuse_thousands(path, body, {t: j for t, j in index.items() if factors[t] is not None}, header)
     columns: dict[str, np.ndarray] = {}
     start = ""
+    line_numbers = [lineno for lineno, _ in body]
     for target, j in index.items():
         col = mapping[target]
-        values = np.empty(len(body))
-        first_dt = None
-        for k, (lineno, row) in enumerate(body):
-            if j >= len(row):
-                raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, no column {col.column!r} "
-                                     f"(header has {len(header)})")
-            cell = row[j].strip()
-            if factors[target] is None:
-                try:
-                    dt = parse_time_text(cell)
-                    first_dt = first_dt or dt
-                    values[k] = (dt - first_dt).total_seconds()
-                except (ValueError, TypeError) as exc:
-                    raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not an ISO 8601 "
-                                         f"(or day.month.year) time comparable with the first ({exc})") from None
-                continue
-            try:
-                v = number(cell)
-            except ValueError:
-                hint = ""
-                if other_mark in cell:
-                    hint = (" with the decimal mark '.': a decimal comma (--decimal ',') or a thousands separator "
-                            "(remove it)?" if other_mark == "," else
-                            " with the decimal mark ',': '.' as a thousands separator? Remove it")
-                raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not a number{hint}") from None
-            if not math.isfinite(v):
-                raise RecordingError(f"{path}, line {lineno}, column {col.column!r}: {cell!r} is not finite")
-            values[k] = v
+        try:
+            cells = [row[j].strip() for _, row in body]
+        except IndexError:
+            lineno, row = next((lineno, row) for lineno, row in body if j >= len(row))
+            raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, no column {col.column!r} "
+                                 f"(header has {len(header)})") from None
+        if factors[target] is None:
+            values = _seconds_from_text(path, line_numbers, cells, col.column)
+        else:
+            values = _numbers(path, line_numbers, cells, col.column, decimal)
         if target != "t_s":
             columns[target] = values * factors[target]
             if target == "p_mpa" and absolute:  # the recording holds gauge pressure
