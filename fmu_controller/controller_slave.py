@@ -23,8 +23,8 @@ Reference and preview (``reference_source``)
 2. ``external_held``: the input ``r`` is ``r(k)``; with no knowledge of the future the controller
    assumes ``r(k+i|k) = r(k)``, which costs tracking lag on a moving reference.
 3. ``external_advanced``: the host feeds ``r(t + Hp Ts)`` (the reference ``Hp`` samples ahead; ``Hp``
-   of the chosen method, plus 1 unless ``input_delay_samples = 0``: the default -1 starts with the
-   delayed law, which needs one sample more); the controller keeps the last ``Hp + 1``
+   of the chosen method, plus the input delay ``input_delay_samples``, and 1 for the default -1, which
+   starts with the delayed law: ``ControllerSettings.preview_samples``); the controller keeps the last ``Hp + 1``
    values, which are exactly ``r(k..k+Hp)``. Before ``Hp`` samples have arrived the missing past is
    filled with the first value.
 
@@ -42,7 +42,9 @@ commands then equal those of the undelayed loop bit for bit; on the rig the one-
 is what is left (docs/fmu.md has the figures). The default -1 starts with the delayed law (safe in
 both kinds of master) and decides the master's kind from the data within about 5 s: it keeps the
 delayed law in a parallel master and switches to the undelayed one (as 0) in a sequential one. The
-project's own master sets 0.
+project's own master sets 0. A rig whose valve acts on the command later still (a transport delay,
+docs/control.md "Transport delay") takes ``input_delay_samples = 2 .. 5``: the prediction is carried
+on through the commands in flight; -1 tells these apart as well.
 
 The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) in any mode.
 """
@@ -57,7 +59,7 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_PROBING_V,
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
                                                  pushed_at_limit)
@@ -142,10 +144,12 @@ class AMPCController(SafeSlave):
                                    "0 when the master steps the controller before the plant (fmpy scenarios, a "
                                    "sequential container); 1 when it steps both on the previous outputs (libcosim, "
                                    "Ecos, OMSimulator: one macro step h = Ts late); with 1 the output after the step "
-                                   "at t_k is u(k+1), computed from l(k) and the prediction l(k+1|k)",
-                                   lo=-1, hi=1)
-        self.add_integer_parameter("delay_correction", 1, "with one sample of input delay (input_delay_samples 1, "
-                                   "or -1 deciding for a parallel master): 1 predict l(k+1|k) with Eq. (1) plus a residual "
+                                   "at t_k is u(k+1), computed from l(k) and the prediction l(k+1|k); "
+                                   f"2 .. {MAX_INPUT_DELAY_SAMPLES} a rig's transport delay as well (the samples "
+                                   "from computing u to the valve acting on it, rounded; -1 also tells these apart)",
+                                   lo=-1, hi=MAX_INPUT_DELAY_SAMPLES)
+        self.add_integer_parameter("delay_correction", 1, "with an input delay (input_delay_samples >= 1, "
+                                   "or -1 deciding for one): 1 predict l(k+1|k) with Eq. (1) plus a residual "
                                    "correction fitted online by RLS (halves the delayed loop's error), 0 with "
                                    "Eq. (1) alone", lo=0, hi=1)
         self.add_integer_parameter("hysteresis_notch", -1, "servo methods: -1 by method (on for mpc_servo; for "

@@ -50,14 +50,18 @@ from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
-__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
-           "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "full_range_jump",
+__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
+           "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "full_range_jump", "preview_lead",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
 METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
 #: The controller FMU's ``method`` parameter (an Integer) -> method name.
 METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
+
+#: Largest ``ControllerSettings.input_delay_samples`` (0.5 s at Ts = 0.1 s: a rig's transport delay
+#: of up to 0.4 s in a parallel master); ``-1`` tells every delay from 0 to it apart.
+MAX_INPUT_DELAY_SAMPLES = 5
 
 #: ``input_delay_samples = -1``: weight of the newest squared one-step error in the running means
 #: (a memory of about 50 samples, 5 s at Ts = 0.1 s: over one second the two hypotheses' errors
@@ -196,7 +200,14 @@ class ControllerSettings:
     parallel one); once one explains the data :data:`DELAY_RATIO` times better (mean squares over
     about 5 s, after at least :data:`DELAY_MIN_SAMPLES` samples; the better one after
     :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
-    switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters")."""
+    switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters").
+    2 .. :data:`MAX_INPUT_DELAY_SAMPLES`: a rig whose valve acts on the command later still (a
+    transport delay, docs/control.md "Transport delay"; in a parallel master one sample more): the
+    controller computes ``u(k+d)`` at sample ``k``, carrying Eq. (1)'s prediction on to ``l(k+d|k)``
+    through the commands in flight, and needs ``r(k..k+d+Hp)``. -1 compares those delays too and
+    switches to one of them (restarting the estimator) once it explains the data
+    :data:`DELAY_RATIO` times better than both 0 and 1; its preview is still one sample long, so
+    the law's last ``d - 1`` reference samples are then the preview's last one held."""
     anti_windup: bool = True
     """Servo methods: hold the integrator of Eq. (18) once the command has sat at a valve limit that
     the error ``r(k) - l(k)`` pushes it further into for :data:`HOLD_AFTER_SAMPLES` samples in a row
@@ -205,7 +216,7 @@ class ControllerSettings:
     "Integrator wind-up"). Shorter stays at a limit are integrated: the paper's runs keep their bits.
     False: Eq. (18) as the paper writes it."""
     delay_correction: bool = True
-    """With one sample of input delay (``input_delay_samples`` 1, or -1 once the parallel hypothesis leads): predict
+    """With an input delay (``input_delay_samples`` 1 or more, or -1 once a delay hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
     (:class:`~fmu_controller.delay_predictor.DelayPredictor`), which halves the delayed loop's
     tracking error; False: Eq. (1) alone. No effect on the undelayed law."""
@@ -222,9 +233,9 @@ class ControllerSettings:
                              f"got {self.p0!r}")
         object.__setattr__(self, "input_delay_samples",
                            whole_number(self.input_delay_samples, what="ControllerSettings.input_delay_samples"))
-        if self.input_delay_samples not in (-1, 0, 1):
-            raise ValueError(f"ControllerSettings.input_delay_samples must be -1 (detect), 0 or 1, "
-                             f"got {self.input_delay_samples!r}")
+        if not -1 <= self.input_delay_samples <= MAX_INPUT_DELAY_SAMPLES:
+            raise ValueError(f"ControllerSettings.input_delay_samples must be -1 (detect) or a number of samples "
+                             f"0 .. {MAX_INPUT_DELAY_SAMPLES}, got {self.input_delay_samples!r}")
         if not 0.0 <= self.startup_s <= MAX_STARTUP_S:
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
         if not 0.0 <= self.probing_v <= MAX_PROBING_V:
@@ -268,9 +279,16 @@ class ControllerSettings:
 
     @property
     def preview_samples(self) -> int:
-        """How many future reference samples the method needs (``Hp``, plus one for an input delay of 1
-        or -1)."""
-        return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + (self.input_delay_samples != 0)
+        """How many future reference samples the method needs: ``Hp``, plus the input delay (one for
+        -1, which starts with a delay of one sample; should it decide for more, the preview's last
+        value is held for the samples beyond it)."""
+        return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + preview_lead(self.input_delay_samples)
+
+
+def preview_lead(input_delay_samples: int) -> int:
+    """The reference samples beyond ``Hp`` that a controller with ``input_delay_samples`` needs: the
+    delay, and one for -1 (:attr:`ControllerSettings.preview_samples`)."""
+    return 1 if input_delay_samples == -1 else input_delay_samples
 
 
 def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
@@ -373,6 +391,7 @@ class DisplacementController:
             if settings.servo_mechanism else None
         # per-step constants (the settings are frozen)
         self._need = settings.preview_samples + 1
+        self._law_n = self._need - preview_lead(settings.input_delay_samples)  # r(k..k+Hp) the law takes
         self._ucp_hp = settings.ucp.hp
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
         self._anti_windup = settings.anti_windup
@@ -414,21 +433,26 @@ class DisplacementController:
         self._limit_run = 0  # samples in a row at a valve limit the error pushes into (_integrate)
         self._h_prev = self._h_prev2 = math.nan  # H(k-1), H(k-2) for hysteresis_notch (NaN: none yet)
         self._predicted = math.nan
-        # input_delay_samples = 1: the command (u, u_c) computed last, which the valve gets next
-        self._u_next = 0.0
-        self._uc_next = 0.0
         # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
         # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
-        self._delayed = self.settings.input_delay_samples != 0
+        self._lag = 1 if self._auto else self.settings.input_delay_samples  # the delay the law runs for
+        self._delayed = self._lag != 0
         self._decided = not self._auto
-        # input_delay_samples = -1: the last two outputs and the mean squared one-step errors of Eq. (1)
-        # under each (sequential, parallel master); samples compared so far
-        self._u_out1 = self._u_out2 = 0.0
-        self._ms_seq = self._ms_par = 0.0
+        # an input delay: the commands (u, u_c) computed but not at the valve yet, the one it gets next
+        # first (_u_next, _uc_next), then those of later samples (a delay of 2 or more)
+        self._u_next = 0.0
+        self._uc_next = 0.0
+        self._later = [(0.0, 0.0)] * max(self._lag - 1, 0)
+        # the outputs (u, u_c) of the last samples, newest first: y(k-1), y(k-2), ...
+        self._outs = [(0.0, 0.0)] * (MAX_INPUT_DELAY_SAMPLES + 1)
+        # input_delay_samples = -1: the mean squared one-step errors of Eq. (1) under each delay
+        # 0 .. MAX_INPUT_DELAY_SAMPLES (0: a sequential master, 1: a parallel one, more: a transport
+        # delay too), each with its own model state; samples compared so far
+        self._ms = [0.0] * (MAX_INPUT_DELAY_SAMPLES + 1)
         self._compared = 0
         self._lin0 = self.theta0[:3].tolist()
-        self._shadow_seq = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
-        self._shadow_par = ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
+        self._shadows = [ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
+                         for _ in range(MAX_INPUT_DELAY_SAMPLES + 1)]
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
 
@@ -464,7 +488,7 @@ class DisplacementController:
 
         if self._auto and not self._decided:
             if k == 0:  # the shadow models start from the first measurement
-                for shadow in (self._shadow_seq, self._shadow_par):
+                for shadow in self._shadows:
                     shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
             else:
                 self._detect_delay(l)
@@ -502,7 +526,7 @@ class DisplacementController:
         state.apply(u)
         self._u_prev = u
         self._watch_jump(u)
-        self._u_out2, self._u_out1 = self._u_out1, u
+        self._outs = [(u, uc)] + self._outs[:-1]
         self._predicted = predicted
         self._k += 1
         # theta is read-only and replaced, never modified in place: the step can share it, and a
@@ -511,52 +535,65 @@ class DisplacementController:
 
     def _detect_delay(self, l: float) -> None:
         """``input_delay_samples = -1``: score the fixed prior model ``theta0``'s prediction of ``l(k)``
-        (Eq. (1)) under the last output (a sequential master applied it over ``[t_k-1, t_k)``) and
-        under the one before (a parallel master did), each hypothesis with its own model state. The
-        controller starts with the delayed law; once the parallel hypothesis is :data:`DELAY_RATIO`
-        times better it keeps it, once the sequential one is, it switches to the undelayed law (the
-        model's input over ``[t_k-1, t_k)`` corrected to the command the valve really had), and after
-        :data:`DELAY_DECIDE_BY_SAMPLES` samples the better one is taken. (The prior, not the adaptive
-        estimate: in the first seconds the estimate can be far off.)"""
-        th0, lin0 = self.theta0, self._lin0
-        scores = []
-        for shadow, u in ((self._shadow_seq, self._u_out1), (self._shadow_par, self._u_out2)):
+        (Eq. (1)) under each delay ``d = 0 .. MAX_INPUT_DELAY_SAMPLES``: the valve had the output
+        ``y(k-1-d)`` over ``[t_k-1, t_k)`` (0: a sequential master, 1: a parallel one, more: a rig's
+        transport delay as well), each hypothesis with its own model state. The controller starts with
+        the delayed law (``d = 1``). Once the best delay of 2 or more is :data:`DELAY_RATIO` times better
+        than both 0 and 1, the law switches to it; else once the parallel hypothesis is that much
+        better than the sequential one it keeps the delayed law, once the sequential one is, it
+        switches to the undelayed law; after :data:`DELAY_DECIDE_BY_SAMPLES` samples the best is
+        taken. A switch corrects the model's input over ``[t_k-1, t_k)`` to the command the valve had
+        under the delay decided. (The prior, not the adaptive estimate: in the first seconds the
+        estimate can be far off.)"""
+        th0, lin0, outs, ms = self.theta0, self._lin0, self._outs, self._ms
+        for d, shadow in enumerate(self._shadows):
+            u = outs[d][0]
             shadow.apply(u)
             e = l - _held(shadow, th0, lin0, u, 1)[0]
             shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
-            scores.append(e * e)
-        self._ms_seq += DELAY_FORGET * (scores[0] - self._ms_seq)
-        self._ms_par += DELAY_FORGET * (scores[1] - self._ms_par)
+            ms[d] += DELAY_FORGET * (e * e - ms[d])
         self._compared += 1
         if self._compared < DELAY_MIN_SAMPLES:
             return
-        ms_seq, ms_par = self._ms_seq, self._ms_par
+        ms_seq, ms_par = ms[0], ms[1]
         late = self._compared >= DELAY_DECIDE_BY_SAMPLES
-        if DELAY_RATIO * ms_par < ms_seq or (late and ms_par <= ms_seq):
-            self._decided = True  # a parallel master (or a rig's delay): the delayed law stays
+        far = min(range(2, len(ms)), key=ms.__getitem__)
+        if DELAY_RATIO * ms[far] < min(ms_seq, ms_par) or (late and ms[far] < min(ms_seq, ms_par)):
+            self._decide_delay(far)  # a rig's transport delay: the valve gets each command far samples on
+        elif DELAY_RATIO * ms_par < ms_seq or (late and ms_par <= ms_seq):
+            self._decided = True  # a parallel master (or a rig's delay of about a sample): the delayed law stays
         elif DELAY_RATIO * ms_seq < ms_par or late:
             # a sequential master: the valve had the last output over [t_k-1, t_k), not the one
             # before; the law runs undelayed from now on
-            self._decided = True
-            self._delayed = False
-            self._state.apply(self._u_out1)
-            self._u_prev, self._uc_prev = self._u_out1, self._uc_next
-            if self._rls is not None:
-                # every regressor so far held the command one sample off: start the estimator again
-                # from theta0 and P(0), and the start-up mode's warm-up and blend with it
-                self._rls.setup(ASYMMETRIC, self._rls.settings)
-                self._est_from = self._k
-                # the valve's jumps so far may have come from the wrong delay hypothesis: the guard
-                # starts over with the start-up mode
-                self._jumps, self._guarded_at = 0, None
+            self._decide_delay(0)
+
+    def _decide_delay(self, d: int) -> None:
+        """``input_delay_samples = -1`` decided for the delay ``d`` other than the delayed law's 1 it ran
+        with: the model's input over ``[t_k-1, t_k)`` becomes ``y(k-1-d)``, the outputs since are the
+        commands in flight, and the adaptive estimator, whose regressors all held a command off by
+        ``d - 1`` samples, starts again from ``theta0`` and ``P(0)`` with the start-up mode's warm-up and
+        blend (and the guard, whose jumps may have come from the wrong hypothesis)."""
+        outs = self._outs
+        self._decided = True
+        self._lag, self._delayed = d, d != 0
+        self._state.apply(outs[d][0])
+        self._u_prev, self._uc_prev = outs[d]
+        if d:
+            (self._u_next, self._uc_next), self._later = outs[d - 1], outs[d - 2::-1] if d > 1 else []
+            if self._delay_predictor is not None:  # fitted to the residuals under the wrong commands
+                self._delay_predictor.reset(self._state.history[2], outs[d][0])
+        if self._rls is not None:
+            self._rls.setup(ASYMMETRIC, self._rls.settings)
+            self._est_from = self._k
+            self._jumps, self._guarded_at = 0, None
 
     @property
     def input_delay_decision(self) -> int | None:
-        """The delay the controller runs its law for: 0 or 1; None while ``input_delay_samples = -1``
-        is still undecided (the delayed law runs then)."""
+        """The delay [samples] the controller runs its law for; None while ``input_delay_samples = -1``
+        is still undecided (the delayed law, a delay of 1, runs then)."""
         if not self._decided:
             return None
-        return 1 if self._delayed else 0
+        return self._lag
 
     @property
     def input_delay_detected(self) -> bool:
@@ -616,10 +653,10 @@ class DisplacementController:
         elif self._u_max < u:
             u = self._u_max
         saturated = constrained or u != u_raw
-        xs_next, pushed = self._integrate(xs, rl[0], l, u)
+        xs_next, pushed = self._integrate(xs, rl[0], l, u, self._limit_run)
         return self._probed(u), uc, h, xs_next, predicted, saturated, pushed
 
-    def _integrate(self, xs: float, r_mm: float, l_mm: float, u: float) -> tuple[float, bool]:
+    def _integrate(self, xs: float, r_mm: float, l_mm: float, u: float, limit_run: int) -> tuple[float, bool]:
         """Eq. (18), ``x_s(k+1) = x_s(k) + r(k) - l(k)``, and whether the command ``u`` [V] sits at a
         valve limit that the error pushes it further into. Once it has for :data:`HOLD_AFTER_SAMPLES`
         samples in a row, ``x_s`` is held (conditional integration): a reference out of the muscle's
@@ -627,7 +664,7 @@ class DisplacementController:
         reference is back in reach. A shorter stay at a limit (the valve closed for a few samples at the
         bottom of a fast cycle) is integrated as Eq. (18) says: holding there costs tracking."""
         pushed = pushed_at_limit(r_mm, l_mm, u, self._u_min, self._u_max)
-        if pushed and self._anti_windup and self._limit_run + 1 >= HOLD_AFTER_SAMPLES:
+        if pushed and self._anti_windup and limit_run + 1 >= HOLD_AFTER_SAMPLES:
             return xs, True
         return integrator_step(xs, r_mm, l_mm), pushed
 
@@ -635,7 +672,7 @@ class DisplacementController:
         """``ControllerSettings.startup_guard``: count the output ``u`` [V] if it jumps across
         :data:`GUARD_JUMP_FRACTION` of the valve's range from the last one while the start-up mode's
         law still holds ``theta0``; at :data:`GUARD_JUMPS` the law leaves it for the estimate."""
-        if (self._guard and self._guarded_at is None and full_range_jump(u, self._u_out1, self._u_min, self._u_max)
+        if (self._guard and self._guarded_at is None and full_range_jump(u, self._outs[0][0], self._u_min, self._u_max)
                 and self._k - self._est_from < self._blend_n):
             self._jumps += 1
             if self._jumps >= GUARD_JUMPS:
@@ -681,7 +718,7 @@ class DisplacementController:
         l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         if self._delay_predictor is not None:
             corrected = self._delay_predictor.predict(l, u_now, l_next)
-            if self._decided or (self._compared >= DELAY_LEAD_SAMPLES and self._ms_par < self._ms_seq):
+            if self._decided or (self._compared >= DELAY_LEAD_SAMPLES and self._ms[1] < self._ms[0]):
                 # while -1 is undecided, only where the parallel hypothesis leads: in a sequential
                 # master the command in flight is not the one the valve has, and a correction fitted
                 # to that wrong record destabilises the loop (an overshoot of 19 mm on an off-nominal
@@ -689,22 +726,56 @@ class DisplacementController:
                 l_next = corrected
         state.apply(u_now)
         # Eq. (18) with the true l(k), held at a limit the valve has now (_integrate)
-        xs, pushed = self._integrate(self._xs, rl[0], l, u_now) if self._servo is not None else (0.0, False)
+        xs, pushed = self._integrate(self._xs, rl[0], l, u_now, self._limit_run) if self._servo is not None else (0.0, False)
         saved = state.history
         h_now = state.hysteresis_unchecked(t) if self._notch else math.nan  # H(k), before the scratch step
         state.observe_unchecked(l_next, t[0], t[1], t[2])
-        u, uc, h, _, _, saturated, _ = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, self._h_prev, h_now)
+        if self._later:
+            u, uc, h, saturated = self._decide_ahead(l_next, rl, t, theta, xs, u_now, uc_now, h_now,
+                                                     self._limit_run + 1 if pushed else 0)
+        else:
+            u, uc, h, _, _, saturated, _ = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, self._h_prev, h_now)
         state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._limit_run = self._limit_run + 1 if pushed else 0
-        self._u_next, self._uc_next = u, uc
+        if self._later:
+            (self._u_next, self._uc_next), self._later = self._later[0], self._later[1:] + [(u, uc)]
+        else:
+            self._u_next, self._uc_next = u, uc
         self._watch_jump(u)
-        self._u_out2, self._u_out1 = self._u_out1, u
+        self._outs = [(u, uc)] + self._outs[:-1]
         self._h_prev2, self._h_prev = self._h_prev, h_now
         self._predicted = l_next
         self._k += 1
         return _control_step(u, l_next, error, uc, h, xs, theta, saturated)
+
+    def _decide_ahead(self, l_next: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float,
+                      u_now: float, uc_now: float, h_now: float, limit_run: int) -> tuple[float, float, float, bool]:
+        """The control law ``d = input delay`` samples ahead (``d >= 2``), on the scratch history that has
+        observed ``l(k+1|k)``: Eq. (1) carries the prediction on to ``l(k+d|k)`` under the commands still
+        in flight, Eq. (18) integrates the predicted errors ``r(k+i) - l(k+i|k)`` (with its hold, counting
+        on from ``limit_run`` samples at a limit up to ``k``), and the law is evaluated
+        there with ``r(k+d..k+d+Hp)`` (the preview's last value held where it is shorter: -1 deciding
+        for ``d >= 2``). Returns ``(u, u_c, H, saturated)`` of the command that reaches the valve at
+        ``t_k+d``."""
+        state = self._state
+        l_ahead, u_prev, uc_prev = l_next, u_now, uc_now
+        h_prev2, h_prev = self._h_prev, h_now
+        for i, (u_i, uc_i) in enumerate(self._later, start=1):
+            if self._servo is not None:  # Eq. (18) with its hold, as the loop will integrate at k + i
+                xs, pushed = self._integrate(xs, rl[i], l_ahead, u_i, limit_run)
+                limit_run = limit_run + 1 if pushed else 0
+            if self._notch:
+                h_prev2, h_prev = h_prev, state.hysteresis_unchecked(t)
+            l_ahead = _held(state, theta, t[:3], u_i, 1)[0]
+            state.apply(u_i)
+            state.observe_unchecked(l_ahead, t[0], t[1], t[2])
+            u_prev, uc_prev = u_i, uc_i
+        d = len(self._later) + 1
+        ahead = rl[d:] + [rl[-1]] * (self._law_n - len(rl[d:]))
+        u, uc, h, _, _, saturated, _ = self._decide(l_ahead, ahead, t, theta, xs, u_prev, uc_prev, h_prev2, h_prev)
+        return u, uc, h, saturated
 
     # ------------------------------------------------------------------ estimator
     @property
@@ -732,11 +803,13 @@ class DisplacementController:
             "predicted": self._predicted,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
-            "delayed": self._delayed, "decided": self._decided, "u_out": [self._u_out1, self._u_out2],
-            "delay_scores": [self._ms_seq, self._ms_par],
+            "delayed": self._delayed, "decided": self._decided, "lag": self._lag,
+            "in_flight": [list(pair) for pair in self._later],
+            "u_out": [u for u, _ in self._outs], "uc_out": [uc for _, uc in self._outs],
+            "delay_scores": list(self._ms),
             "compared": self._compared, "est_from": self._est_from,
             "guard": [self._jumps, self._guarded_at],
-            "delay_models": [self._shadow_seq.get_state(), self._shadow_par.get_state()],
+            "delay_models": [shadow.get_state() for shadow in self._shadows],
             "delay_predictor": None if self._delay_predictor is None else self._delay_predictor.get_state(),
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
@@ -776,31 +849,47 @@ class DisplacementController:
         self._h_prev, self._h_prev2 = float(state.get("h_prev", math.nan)), float(state.get("h_prev2", math.nan))
         self._l_start = float(state.get("l_start", self._state.history[2]))
         if "delayed" in state:
-            if state["delayed"] not in (True, False) or (state["delayed"] is False and self.settings.input_delay_samples == 1) \
-                    or (state["delayed"] is True and self.settings.input_delay_samples == 0):
-                raise ValueError(f"state field delayed = {state['delayed']!r} contradicts input_delay_samples = "
-                                 f"{self.settings.input_delay_samples}")
-            values = [float(x) for x in (*state["u_out"], *state["delay_scores"])]
-            if len(values) != 4 or not all(map(math.isfinite, values)) or min(values[2:]) < 0 or int(state["compared"]) < 0:
-                raise ValueError(f"state fields u_out, delay_scores, compared must be finite (scores >= 0), got "
-                                 f"{state['u_out']!r}, {state['delay_scores']!r}, {state['compared']!r}")
+            d = self.settings.input_delay_samples
+            if state["delayed"] not in (True, False) or (state["delayed"] is False and d >= 1) \
+                    or (state["delayed"] is True and d == 0):
+                raise ValueError(f"state field delayed = {state['delayed']!r} contradicts input_delay_samples = {d}")
+            lag = state.get("lag", 1 if state["delayed"] else 0)
+            if (isinstance(lag, bool) or int(lag) != lag or not 0 <= lag <= MAX_INPUT_DELAY_SAMPLES
+                    or (lag != 0) != state["delayed"] or (d != -1 and lag != d)):
+                raise ValueError(f"state field lag = {lag!r} contradicts input_delay_samples = {d} with delayed = "
+                                 f"{state['delayed']!r}")
+            lag = int(lag)
+            n = MAX_INPUT_DELAY_SAMPLES + 1
+            try:
+                outs = [(float(u), float(uc)) for u, uc in zip(state["u_out"], state["uc_out"], strict=True)]
+                later = [(float(u), float(uc)) for u, uc in state.get("in_flight", [])]
+                scores = [float(x) for x in state["delay_scores"]]
+            except (KeyError, TypeError, ValueError):
+                outs, later, scores = [], [], []
+            values = [x for pair in outs + later for x in pair] + scores
+            if (len(outs) != n or len(scores) != n or len(later) != max(lag - 1, 0) or not all(map(math.isfinite, values))
+                    or min(scores, default=0.0) < 0 or int(state["compared"]) < 0):
+                raise ValueError(f"state fields u_out, uc_out ({n} finite numbers each), in_flight ({max(lag - 1, 0)} "
+                                 f"finite pairs), delay_scores ({n}, >= 0) and compared (>= 0) do not fit, got "
+                                 f"{state.get('u_out')!r}, {state.get('uc_out')!r}, {state.get('in_flight')!r}, "
+                                 f"{state.get('delay_scores')!r}, {state.get('compared')!r}")
             decided = state.get("decided", True)  # states saved before the field: decided
-            if decided not in (True, False) or (not decided and not self._auto) or (not decided and not state["delayed"]):
+            if decided not in (True, False) or (not decided and not self._auto) or (not decided and lag != 1):
                 raise ValueError(f"state field decided = {decided!r} contradicts input_delay_samples = "
-                                 f"{self.settings.input_delay_samples} with delayed = {state['delayed']!r}")
-            self._delayed = bool(state["delayed"])
+                                 f"{d} with lag = {lag!r}")
+            self._delayed, self._lag = bool(state["delayed"]), lag
             self._decided = bool(decided)
-            self._u_out1, self._u_out2, self._ms_seq, self._ms_par = values
+            self._outs, self._later, self._ms = outs, later, scores
             self._compared = int(state["compared"])
             self._est_from = int(state.get("est_from", 0))
             if not 0 <= self._est_from <= self._k:
                 raise ValueError(f"state field est_from = {state['est_from']!r} must be within 0 .. k = {self._k}")
             models = state.get("delay_models")
             if models is not None:
-                if len(models) != 2:
-                    raise ValueError(f"state field delay_models must hold 2 model states, got {len(models)}")
-                self._shadow_seq.set_state(models[0])
-                self._shadow_par.set_state(models[1])
+                if len(models) != n:
+                    raise ValueError(f"state field delay_models must hold {n} model states, got {len(models)}")
+                for shadow, model in zip(self._shadows, models):
+                    shadow.set_state(model)
         jumps, guarded_at = state.get("guard", (0, None))  # states saved before the guard: not fired
         if (isinstance(jumps, bool) or int(jumps) != jumps or jumps < 0
                 or (guarded_at is not None and not (int(guarded_at) == guarded_at and 0 <= guarded_at <= self._k))):

@@ -83,14 +83,15 @@ def test_fmu_equals_the_direct_controller_bit_for_bit(fmu, method_code, method):
     _free(f)
 
 
+@pytest.mark.parametrize("delay", [1, 3])
 @pytest.mark.parametrize("correction", [0, 1])
-def test_delay_correction_parameter_is_the_direct_controllers(fmu, correction):
-    """``input_delay_samples = 1`` with ``delay_correction`` 0 or 1: the FMU's commands are the direct
-    controller's with ``delay_correction`` False or True, bit for bit (the correction acts from the
-    21st sample, so 60 samples compare both)."""
+def test_delay_correction_parameter_is_the_direct_controllers(fmu, correction, delay):
+    """``input_delay_samples = 1`` or 3 (a rig's transport delay) with ``delay_correction`` 0 or 1: the
+    FMU's commands are the direct controller's with ``delay_correction`` False or True, bit for bit
+    (the correction acts from the 21st sample, so 60 samples compare both)."""
     vr = fmu[3]
-    f = _instance(fmu, ints={"input_delay_samples": 1, "delay_correction": correction})
-    direct = DisplacementController(ControllerSettings(input_delay_samples=1, delay_correction=bool(correction)),
+    f = _instance(fmu, ints={"input_delay_samples": delay, "delay_correction": correction})
+    direct = DisplacementController(ControllerSettings(input_delay_samples=delay, delay_correction=bool(correction)),
                                     THETA0_44N)
     ref = SineReference()
     direct.reset(_l(0))
@@ -105,10 +106,10 @@ def test_delay_correction_parameter_is_the_direct_controllers(fmu, correction):
     _free(f)
 
 
-@pytest.mark.parametrize("ints", [{}, {"input_delay_samples": 1}])
+@pytest.mark.parametrize("ints", [{}, {"input_delay_samples": 1}, {"input_delay_samples": 4}])
 def test_state_rewind_and_serialisation_are_bit_identical(fmu, ints):
-    """ampc_servo: theta-hat, P, Bouc-Wen state, integrator, QP warm start; with one sample of input
-    delay also the command in flight and the delay predictor's correction (active after 20 samples)."""
+    """ampc_servo: theta-hat, P, Bouc-Wen state, integrator, QP warm start; with an input delay also
+    the commands in flight and the delay predictor's correction (active after 20 samples)."""
     vr = fmu[3]
     f = _instance(fmu, ints=ints)
 
@@ -217,6 +218,7 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
 @pytest.mark.parametrize("reals, ints, message", [
     ({}, {"method": 7}, "parameter method = 7 is outside its declared range 1..4 (controller: 1 mpc_ucp"),
     ({}, {"servo.Hp": 51}, "parameter servo.Hp = 51 is outside its declared range 1..50"),
+    ({}, {"input_delay_samples": 6}, "parameter input_delay_samples = 6 is outside its declared range -1..5"),
     ({}, {"servo.Hp": 5000}, "parameter servo.Hp = 5000 is outside"),  # would take minutes to set up
     ({}, {"servo.Hu": 9}, "hu must be <= hp"),
     ({"P0.a1": -1.0}, {}, "parameter P0.a1 = -1.0 is outside its declared range 0..inf"),
@@ -260,11 +262,10 @@ def test_several_instances_and_reinstantiation(fmu):
     _free(c)
 
 
-@pytest.mark.parametrize("delay", [0, -1, 1])
+@pytest.mark.parametrize("delay", [0, -1, 1, 3])
 def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay):
-    """Fed r(t + H Ts), H = Hp plus one unless input_delay_samples = 0 (-1, the default, may switch to
-    the delayed law, which needs it), the controller's preview is exactly r(k..k+H) once H samples
-    have arrived."""
+    """Fed r(t + H Ts), H = Hp plus the input delay (one for -1, the default, which starts with the
+    delayed law), the controller's preview is exactly r(k..k+H) once H samples have arrived."""
     seen = []
     original = DisplacementController.step
 
@@ -278,7 +279,7 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay)
     slave._int_par["input_delay_samples"] = delay
     slave.exit_initialization_mode()
     ref = SineReference(frequency_hz=0.1)
-    ahead = 5 + (delay != 0)
+    ahead = 5 + {0: 0, -1: 1, 1: 1, 3: 3}[delay]
     for k in range(20):
         slave.l, slave.r = _l(k), float(ref.at(k + ahead))
         assert slave.do_step(k * 0.1, 0.1)
