@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HOLD_AFTER_SAMPLES,
+                                                 MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
                                                  ControllerSettings, DisplacementController)
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
