@@ -24,9 +24,10 @@ Reference and preview (``reference_source``)
    assumes ``r(k+i|k) = r(k)``, which costs tracking lag on a moving reference.
 3. ``external_advanced``: the host feeds ``r(t + Hp Ts)`` (the reference ``Hp`` samples ahead; ``Hp``
    of the chosen method, plus the input delay ``input_delay_samples``, and 1 for the default -1, which
-   starts with the delayed law: ``ControllerSettings.preview_samples``); the controller keeps the last ``Hp + 1``
-   values, which are exactly ``r(k..k+Hp)``. Before ``Hp`` samples have arrived the missing past is
-   filled with the first value.
+   starts with the delayed law: :func:`fmu_controller.reference.advanced_lead`); the controller keeps
+   the last ``Hp + 1`` values, which are exactly ``r(k..k+Hp)`` (should -1 decide for a delay of 2 or
+   more, the law's samples beyond the last one fed are that one, held). Before ``Hp`` samples have
+   arrived the missing past is filled with the first value.
 
 Parallel masters (``input_delay_samples``, default -1: decided from the data)
 -----------------------------------------------------------------------------
@@ -62,11 +63,11 @@ from pythonfmu.enums import Fmi2Status
 from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
-                                                 pushed_at_limit)
+                                                 preview_lead, pushed_at_limit)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.preliminary_model import THETA0_44N
-from fmu_controller.reference import REFERENCE_SOURCES, SineReference
+from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
 from fmu_controller.servo_settings import MAX_HORIZON
@@ -279,6 +280,9 @@ class AMPCController(SafeSlave):
         except ValueError as exc:
             raise SlaveInputError(f"bad parameter: {exc}") from None
         self._hp = settings.preview_samples
+        # external_advanced: the last values fed, r(k..k+fed) (the host feeds r(t + fed Ts))
+        self._fed = settings.preview_samples - preview_lead(settings.input_delay_samples) \
+            + advanced_lead(settings.input_delay_samples)
         self._source = REFERENCE_SOURCES[self._int_par["reference_source"]]
         self._k = 0
         self._buffer = []
@@ -354,8 +358,10 @@ class AMPCController(SafeSlave):
         r = self.finite("r", self.r, *_L_RANGE_MM)
         if source == "external_held":
             return [r] * (self._hp + 1)
-        buf = self._buffer or [r] * (self._hp + 1)
-        return buf[1:] + [r] if self._buffer else buf
+        buf = self._buffer or [r] * (self._fed + 1)
+        if self._buffer:
+            buf = buf[1:] + [r]
+        return buf + [buf[-1]] * (self._hp - self._fed)  # -1: r(k+fed) held for the longer delays it may take
 
     def step_numerics(self, t_s: float, dt_s: float) -> None:
         ts = self._controller.settings.ts_s
@@ -382,7 +388,7 @@ class AMPCController(SafeSlave):
         if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
         if self._source == "external_advanced":
-            self._buffer = list(preview)
+            self._buffer = list(preview[:self._fed + 1])
         if not self._diverged and (not _DIVERGED_MM[0] <= step.predicted_next_mm <= _DIVERGED_MM[1]
                                    or abs(step.uc_v) > _DIVERGED_V):
             self._diverged = True  # said once: a host's log is not flooded every sample

@@ -206,8 +206,7 @@ class ControllerSettings:
     controller computes ``u(k+d)`` at sample ``k``, carrying Eq. (1)'s prediction on to ``l(k+d|k)``
     through the commands in flight, and needs ``r(k..k+d+Hp)``. -1 compares those delays too and
     switches to one of them (restarting the estimator) once it explains the data
-    :data:`DELAY_RATIO` times better than both 0 and 1; its preview is still one sample long, so
-    the law's last ``d - 1`` reference samples are then the preview's last one held."""
+    :data:`DELAY_RATIO` times better than both 0 and 1; it takes ``r(k..k+5+Hp)``, for any."""
     anti_windup: bool = True
     """Servo methods: hold the integrator of Eq. (18) once the command has sat at a valve limit that
     the error ``r(k) - l(k)`` pushes it further into for :data:`HOLD_AFTER_SAMPLES` samples in a row
@@ -279,16 +278,15 @@ class ControllerSettings:
 
     @property
     def preview_samples(self) -> int:
-        """How many future reference samples the method needs: ``Hp``, plus the input delay (one for
-        -1, which starts with a delay of one sample; should it decide for more, the preview's last
-        value is held for the samples beyond it)."""
+        """How many future reference samples the method needs: ``Hp``, plus the input delay
+        (:data:`MAX_INPUT_DELAY_SAMPLES` for -1, which may decide for any)."""
         return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + preview_lead(self.input_delay_samples)
 
 
 def preview_lead(input_delay_samples: int) -> int:
     """The reference samples beyond ``Hp`` that a controller with ``input_delay_samples`` needs: the
-    delay, and one for -1 (:attr:`ControllerSettings.preview_samples`)."""
-    return 1 if input_delay_samples == -1 else input_delay_samples
+    delay, and :data:`MAX_INPUT_DELAY_SAMPLES` for -1 (:attr:`ControllerSettings.preview_samples`)."""
+    return MAX_INPUT_DELAY_SAMPLES if input_delay_samples == -1 else input_delay_samples
 
 
 def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
@@ -512,8 +510,8 @@ class DisplacementController:
         state.observe_unchecked(l, t[0], t[1], t[2])
         if self._delayed:
             return self._step_ahead(l, rl, t, theta, error)
-        if self._auto:  # decided for a sequential master: the preview holds one sample more than the law takes
-            rl = rl[:-1]
+        if self._auto:  # decided for a sequential master: the preview holds more than the law takes
+            rl = rl[:self._law_n]
 
         u, uc, h, xs_next, predicted, saturated, pushed = self._decide(l, rl, t, theta, self._xs, self._u_prev,
                                                                        self._uc_prev, self._h_prev2, self._h_prev)
@@ -734,7 +732,8 @@ class DisplacementController:
             u, uc, h, saturated = self._decide_ahead(l_next, rl, t, theta, xs, u_now, uc_now, h_now,
                                                      self._limit_run + 1 if pushed else 0)
         else:
-            u, uc, h, _, _, saturated, _ = self._decide(l_next, rl[1:], t, theta, xs, u_now, uc_now, self._h_prev, h_now)
+            u, uc, h, _, _, saturated, _ = self._decide(l_next, rl[1:1 + self._law_n], t, theta, xs, u_now, uc_now,
+                                                        self._h_prev, h_now)
         state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
@@ -755,9 +754,8 @@ class DisplacementController:
         """The control law ``d = input delay`` samples ahead (``d >= 2``), on the scratch history that has
         observed ``l(k+1|k)``: Eq. (1) carries the prediction on to ``l(k+d|k)`` under the commands still
         in flight, Eq. (18) integrates the predicted errors ``r(k+i) - l(k+i|k)`` (with its hold, counting
-        on from ``limit_run`` samples at a limit up to ``k``), and the law is evaluated
-        there with ``r(k+d..k+d+Hp)`` (the preview's last value held where it is shorter: -1 deciding
-        for ``d >= 2``). Returns ``(u, u_c, H, saturated)`` of the command that reaches the valve at
+        on from ``limit_run`` samples at a limit up to ``k``), and the law is evaluated there with
+        ``r(k+d..k+d+Hp)``. Returns ``(u, u_c, H, saturated)`` of the command that reaches the valve at
         ``t_k+d``."""
         state = self._state
         l_ahead, u_prev, uc_prev = l_next, u_now, uc_now
@@ -773,8 +771,8 @@ class DisplacementController:
             state.observe_unchecked(l_ahead, t[0], t[1], t[2])
             u_prev, uc_prev = u_i, uc_i
         d = len(self._later) + 1
-        ahead = rl[d:] + [rl[-1]] * (self._law_n - len(rl[d:]))
-        u, uc, h, _, _, saturated, _ = self._decide(l_ahead, ahead, t, theta, xs, u_prev, uc_prev, h_prev2, h_prev)
+        u, uc, h, _, _, saturated, _ = self._decide(l_ahead, rl[d:d + self._law_n], t, theta, xs, u_prev, uc_prev,
+                                                    h_prev2, h_prev)
         return u, uc, h, saturated
 
     # ------------------------------------------------------------------ estimator

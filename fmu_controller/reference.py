@@ -16,11 +16,19 @@ import numpy as np
 
 from .argument_checks import number_array, real_number
 
-__all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES", "as_reference"]
+__all__ = ["Reference", "SineReference", "ArrayReference", "FunctionReference", "REFERENCE_SOURCES", "as_reference",
+           "advanced_lead"]
 
 #: The controller FMU's ``reference_source`` parameter (an Integer) -> where r(k..k+Hp) comes from
 #: (fmu_controller.controller_slave explains each).
 REFERENCE_SOURCES: dict[int, str] = {1: "builtin_sine", 2: "external_held", 3: "external_advanced"}
+
+
+def advanced_lead(input_delay_samples: int) -> int:
+    """``external_advanced``: how many samples beyond ``Hp`` ahead the host feeds the reference, for the
+    controller FMU's ``input_delay_samples``: the delay, and 1 for -1 (which starts with the delayed
+    law; should it decide for a longer delay, the samples beyond are the last one fed, held)."""
+    return 1 if input_delay_samples == -1 else input_delay_samples
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -12,7 +12,7 @@ from fmpy.validation import validate_fmu
 from fmpy_helpers import instantiate, open_fmu
 
 from fmu_controller.controller_slave import _DIVERGED_MM, _DIVERGED_V, AMPCController
-from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+from fmu_controller.displacement_control import MAX_INPUT_DELAY_SAMPLES, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
@@ -265,7 +265,7 @@ def test_several_instances_and_reinstantiation(fmu):
 @pytest.mark.parametrize("delay", [0, -1, 1, 3])
 def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay):
     """Fed r(t + H Ts), H = Hp plus the input delay (one for -1, the default, which starts with the
-    delayed law), the controller's preview is exactly r(k..k+H) once H samples have arrived."""
+    delayed law), the controller's preview holds exactly r(k..k+H) once H samples have arrived."""
     seen = []
     original = DisplacementController.step
 
@@ -284,7 +284,10 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay)
         slave.l, slave.r = _l(k), float(ref.at(k + ahead))
         assert slave.do_step(k * 0.1, 0.1)
     for k in range(ahead, 20):
-        np.testing.assert_array_equal(seen[k], ref.preview(k, ahead))
+        np.testing.assert_array_equal(seen[k][:ahead + 1], ref.preview(k, ahead))
+        # -1 takes a preview for any delay it may decide: beyond what the host feeds, its last value held
+        assert len(seen[k]) == 6 + (MAX_INPUT_DELAY_SAMPLES if delay == -1 else delay)
+        assert set(seen[k][ahead:]) == {seen[k][ahead]}
     assert slave.r_k == float(ref.at(19))
 
 

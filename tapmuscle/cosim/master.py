@@ -46,9 +46,9 @@ import numpy as np
 # resources/ (no builder binaries), and a later build in this process would use that copy.
 import pythonfmu  # noqa: F401
 
-from fmu_controller.displacement_control import METHOD_CODES, preview_lead
+from fmu_controller.displacement_control import METHOD_CODES
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.reference import REFERENCE_SOURCES
+from fmu_controller.reference import REFERENCE_SOURCES, advanced_lead
 
 from fmu_plant.seed import split_seed
 from tapmuscle.cosim.extraction_folder import claimed_folder
@@ -408,7 +408,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
             hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
             if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
-                hp += preview_lead(ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0])
+                hp += advanced_lead(ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0])
             plant.start()
             ctrl.start()
             logged = [len(plant.messages), len(ctrl.messages)]
