@@ -762,7 +762,9 @@ def open_loop_theta_03mpa():
 def test_the_startup_guard_hands_a_slamming_law_to_the_estimate(open_loop_theta_03mpa, input_delay):
     """With an open-loop theta0 of a 0.3-MPa rig, AMPC-servo's warm-up on theta0 slammed the valve end
     to end and the cancelled H grew to thousands of mm: Eq. (21) 6.65 mm (12.5 with -1). The guard
-    hands the law to the estimate after GUARD_JUMPS full-range jumps (measured 0.29 and 0.25 mm)."""
+    hands the law to the estimate after GUARD_JUMPS full-range jumps (measured 0.29 mm; with -1, whose
+    guard starts over at the delay's decision, 0.25-0.81 mm by the BLAS's last bits: OpenBLAS 0.3.30
+    or 0.3.31, Nehalem or Haswell kernels)."""
     theta, rig = open_loop_theta_03mpa
     errors, fired = {}, {}
     for guard in (True, False):
@@ -776,7 +778,7 @@ def test_the_startup_guard_hands_a_slamming_law_to_the_estimate(open_loop_theta_
     assert fired[False] is None
     if input_delay == 0:  # with -1 the guard starts over when the delay is decided (at 5 s), unfired since
         assert fired[True] is not None and 30 <= fired[True] <= 60  # t = 3-6 s
-    assert errors[True] < 0.5 and errors[False] > 3.0, errors
+    assert errors[True] < 1.5 and errors[False] > 3.0 and errors[True] < 0.25 * errors[False], errors
 
 
 def test_the_startup_guard_is_validated_and_kept_in_the_state(theta0):
