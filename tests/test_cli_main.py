@@ -43,10 +43,15 @@ def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):
     import subprocess
     import sys
 
+    import os
+
     out = tmp_path / "rec.csv"
+    # as a user's shell starts it: stdout block-buffered (PYTHONUNBUFFERED unset), so that the line
+    # meets the closed pipe only at the flush on the way out
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
     proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "record", "--input", "const:value=5",
                              "--duration", "2", "--out", str(out), "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
     proc.stdout.close()  # the reader goes away before anything is printed
     stderr = proc.stderr.read().decode()
     proc.stderr.close()

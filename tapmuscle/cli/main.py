@@ -457,7 +457,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = argv
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # here, so that a reader gone by now is met by the handler below, not at exit
+        return code
     except UsageError as exc:
         print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
         return 2
