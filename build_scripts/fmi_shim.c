@@ -99,6 +99,13 @@ FMI2_Export const char *fmi2GetVersion(void) { return fmi2Version; }
 #else
 #define PATH_BACKSLASH 0
 #endif
+/* The value of a hexadecimal digit. By hand, not strtol: built against glibc 2.38 or newer with
+   _GNU_SOURCE, strtol binds to __isoc23_strtol@GLIBC_2.38, and the FMU would not load on an older
+   Linux (Debian 12, Ubuntu 22.04). */
+static int hex_digit(char c) {
+    return c <= '9' ? c - '0' : (c | 0x20) - 'a' + 10;
+}
+
 static int resource_path(const char *resources, char *path, size_t size) {
     const char *p = resources;
     size_t j = 0;
@@ -120,8 +127,7 @@ static int resource_path(const char *resources, char *path, size_t size) {
     for (; *p; p++) {
         if (j + 1 >= size) return 0;
         if (uri && *p == '%' && isxdigit((unsigned char)p[1]) && isxdigit((unsigned char)p[2])) {
-            char hex[3] = {p[1], p[2], 0};
-            path[j++] = (char)strtol(hex, NULL, 16);
+            path[j++] = (char)(hex_digit(p[1]) << 4 | hex_digit(p[2]));
             p += 2;
         } else path[j++] = *p;
     }

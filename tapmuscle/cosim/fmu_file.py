@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import platform
+import re
 import signal
 import struct
 import subprocess
@@ -87,7 +88,17 @@ def _load_in_child(binaries: dict[str, bytes], main: str) -> str | None:
     if proc.returncode < 0:
         return f"the dynamic loader died of {signal.Signals(-proc.returncode).name} loading it"
     last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-    return f"the dynamic loader refused it: {last[:200]}"
+    return f"the dynamic loader refused it: {last[:200]}" + _remedy(last)
+
+
+def _remedy(loader_message: str) -> str:
+    """What to do about a dynamic loader's refusal, where its message tells (else "")."""
+    newer = re.search(r"version .?GLIBC_(\d+\.\d+).? not found", loader_message)
+    if newer:
+        here = platform.libc_ver()[1]
+        return (f" (built on a newer Linux: it needs glibc {newer.group(1)}, this machine has "
+                f"{here or 'an older one'}; build the FMUs on this machine: tapmuscle build)")
+    return ""
 
 
 def check_fmu_file(path: str | Path) -> None:
