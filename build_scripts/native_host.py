@@ -147,7 +147,7 @@ def build_environment() -> dict:
         soname = ""
     return {
         "format": 1,
-        "platform": sys.platform,
+        "platform": _building_os(),
         "python": _building_python(),
         "base_python": str(_base_python()),
         "python_version": ".".join(map(str, sys.version_info[:3])),
@@ -279,8 +279,8 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
     if found is None:
         return
     bindir, fmu_lib, real_name = found
-    if not sys.platform.startswith("linux"):
-        return _skip(f"the loader for Linux hosts is built on Linux (this build runs on {sys.platform})",
+    if not _building_os().startswith("linux"):
+        return _skip(f"the loader for Linux hosts is built on Linux (this build runs on {_building_os()})",
                      "linux64 binary left as pythonfmu made it (Python hosts only)")
     env = build_environment()
     shared = bool(env["libpython_soname"])  # a libpython for hosts that run no Python
@@ -325,6 +325,11 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
     config = {**env, "model_identifier": model_id, "fmi_export": export, "python_hosts_only": not shared}
     (tree / "resources" / CONFIG_NAME).write_text(json.dumps(config, indent=1, sort_keys=True) + "\n",
                                                    encoding="utf-8")
+
+
+def _building_os() -> str:
+    """``sys.platform`` of the build (one place for the tests to stand in another system)."""
+    return sys.platform
 
 
 def _win64_compiler() -> list[str]:

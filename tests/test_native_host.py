@@ -161,7 +161,8 @@ def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(
 def test_built_on_another_system_the_linux64_binary_is_left_with_a_warning(tree, tmp_path, monkeypatch):
     raw = _as_pythonfmu_made_it(tree, tmp_path, "linux64")
     before = _digest(raw)
-    monkeypatch.setattr(build_native_host.sys, "platform", "win32")  # tapmuscle build in a Windows Python
+    # tapmuscle build in a Windows Python (not sys.platform itself: shutil and others read it too)
+    monkeypatch.setattr(build_native_host, "_building_os", lambda: "win32")
     with pytest.warns(NativeHostWarning, match=r"linux64 binary left as pythonfmu made it.*runs on win32"):
         prepare_for_native_hosts(raw)
     assert _digest(raw) == before
