@@ -89,6 +89,11 @@ _DIVERGED_V = 1000.0
 #: none; a large reference step a few within a second).
 _SLAM_JUMPS = 20
 _SLAM_WINDOW_S = 10.0
+#: After the start-up, this many swings of the command from one valve limit to the other within
+#: :data:`_SLAM_WINDOW_S` (samples between the limits not counted) are logged once: a limit cycle, the
+#: loop having more delay than the law compensates (a rig's transport delay with
+#: ``input_delay_samples`` 0: 8-26 swings in 10 s; a sound loop, with its delay set or decided: 0-2).
+_SWINGS = 6
 #: A command held at a valve limit that the error pushes it further into for this long [s] is logged
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
@@ -294,6 +299,8 @@ class AMPCController(SafeSlave):
         self._diverged = False
         self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
         self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
+        self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
+        self._last_limit = 0  # the valve limit the command sat at last: -1 lower, 1 upper, 0 none yet
 
     def _watch_slamming(self, t_s: float, u: float) -> None:
         """Log once when the command has jumped across the valve's range (``full_range_jump``)
@@ -311,6 +318,32 @@ class AMPCController(SafeSlave):
                        else "the adaptive law (theta0 or the box C poor for this rig?)")
                 self.log(f"t = {t_s:g} s: the command has jumped across the valve's range {_SLAM_JUMPS} times in "
                          f"{_SLAM_WINDOW_S:g} s: {law} slams the valve end to end", status=Fmi2Status.warning)
+
+    def _watch_swings(self, t_s: float, u: float) -> None:
+        """Log once when, after the start-up, the command has swung from one valve limit to the other
+        :data:`_SWINGS` times within :data:`_SLAM_WINDOW_S` (a limit cycle)."""
+        if self._swing_ks is None:
+            return
+        s = self._controller.settings
+        side = -1 if u <= s.servo.u_min_v + 1e-9 else 1 if u >= s.servo.u_max_v - 1e-9 else 0
+        if not side:
+            return
+        swung, self._last_limit = side == -self._last_limit, side
+        if not swung or self._controller.in_startup:
+            return
+        window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
+        self._swing_ks = [k for k in self._swing_ks if k > self._k - window] + [self._k]
+        if len(self._swing_ks) >= _SWINGS:
+            self._swing_ks = None
+            decided = self._controller.input_delay_decision
+            self.log(f"t = {t_s:g} s: the valve command has swung from one limit to the other {_SWINGS} times in "
+                     f"{_SLAM_WINDOW_S:g} s, a limit cycle: the loop has more delay than the law compensates "
+                     f"(input_delay_samples = {s.input_delay_samples}" + (f", decided {decided}" if
+                                                                         s.input_delay_samples == -1 else "")
+                     + "): a rig's transport delay, or a parallel master? Set input_delay_samples to the loop's "
+                     "delay in samples, or -1 to decide it; with the delay set, a fixed theta0 identified without "
+                     "it, or a law too aggressive for it (raise servo.R; docs/control.md, \"Transport delay\")",
+                     status=Fmi2Status.warning)
 
     def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
         """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
@@ -418,6 +451,7 @@ class AMPCController(SafeSlave):
                      status=Fmi2Status.warning)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
+        self._watch_swings(t_s, step.u_v)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)
@@ -432,7 +466,8 @@ class AMPCController(SafeSlave):
         return {"controller": self._controller.get_state(), "k": self._k, "buffer": list(self._buffer),
                 "theta": [getattr(self, name) for name in self._theta_outputs],
                 # what the log has said: a rewind says it again only where the run does again
-                "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks)]}
+                "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
+                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit]}
 
     def restore_numerics_state(self, state) -> None:
         if state is not None:
@@ -440,6 +475,8 @@ class AMPCController(SafeSlave):
             self._k = int(state["k"])
             self._buffer = [float(v) for v in state["buffer"]]
             self._set_theta([float(v) for v in state["theta"]])
-            diverged, pinned, jumps = state.get("said", (False, 0, []))
+            diverged, pinned, jumps, swings, last_limit = state.get("said", (False, 0, [], [], 0))
             self._diverged, self._pinned_n = bool(diverged), int(pinned)
             self._jump_ks = None if jumps is None else [int(k) for k in jumps]
+            self._swing_ks = None if swings is None else [int(k) for k in swings]
+            self._last_limit = int(last_limit)

@@ -683,6 +683,13 @@ class DisplacementController:
         return self._guarded_at
 
     @property
+    def in_startup(self) -> bool:
+        """Whether the last step came before the law's own start was over: ``input_delay_samples = -1``
+        still deciding, or within ``startup_s`` of the estimator's (re)start (the start-up mode's
+        lead-in, warm-up and blend)."""
+        return not self._decided or self._k - 1 - self._est_from < self._blend_n
+
+    @property
     def law_on_theta0(self) -> bool:
         """Whether the last step's law ran on ``theta0`` alone: always for the fixed-predictor MPCs; for
         the adaptive ones in the start-up mode's warm-up (until the guard, ``startup_guard``, ends it)."""

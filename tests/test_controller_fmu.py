@@ -540,6 +540,31 @@ def test_a_law_that_slams_the_valve_is_logged_once():
     assert "its estimate diverges (theta0 or the box C far from this rig" in msg and "forgetting" not in msg
 
 
+@pytest.mark.parametrize("delay, said", [(0, 1), (2, 0), (-1, 0)])
+def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
+    """A rig whose valve acts 0.2 s late made the undelayed law swing the valve between its limits
+    17-19 times in 10 s (Eq. (21) 7.4 mm) without a word: after the start-up, 6 swings within 10 s
+    are logged once, naming input_delay_samples; with the delay set (2) or decided (-1) the loop
+    tracks and nothing is said."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant, PlantParams
+
+    slave = AMPCController(instance_name="delayed")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["input_delay_samples"]], [delay])
+    slave.exit_initialization_mode()
+    plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.2}), seed=0)
+    for k in range(600):
+        slave.l = plant.measurement.l_mm
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    msgs = [m for m in slave.log_queue if "a limit cycle" in m.msg]
+    assert len(msgs) == said, [m.msg for m in msgs]
+    if said:
+        assert msgs[0].status == Fmi2Status.warning and "input_delay_samples = 0)" in msgs[0].msg
+        assert 12.0 <= float(msgs[0].msg.split(" ")[2]) <= 20.0  # just after the 12-s start-up
+
+
 def test_a_rewind_logs_what_the_run_from_there_logs():
     """The monitors' memory is part of the FMU state: restored before the pinned command was said, it
     is said again on the way; restored after, not twice."""
