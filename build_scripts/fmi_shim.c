@@ -24,7 +24,7 @@ typedef struct {
     fmi2Boolean logging_on;
     fmi2Status worst;                     /* worst status logged during the current call */
     char name[256];
-    char reason[1024];                    /* the first error logged (why an instantiation failed) */
+    char reason[1600];                    /* the first error logged (why an instantiation failed) */
     fmi2FMUstate *states;                 /* the states this instance gave out and has not freed */
     size_t n_states, cap_states;
 } Shim;
@@ -70,7 +70,7 @@ static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2S
 /* A call on an instance whose instantiation failed: logged with the reason and answered with `status`
    (fmi2Warning before the first step, fmi2Error from fmi2DoStep on; see FORWARD). */
 static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
-    char text[1400];
+    char text[1800];
     snprintf(text, sizeof text, "%s %s: the instance failed to instantiate (%s)", call,
              status >= fmi2Error ? "refused" : "ignored", s->reason[0] ? s->reason : "see the earlier messages");
     to_host(s, s->name, status, category_of(status), text);
@@ -221,7 +221,7 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
         }
     }
     if (!s->inner) {
-        char text[1400];
+        char text[1800];
         snprintf(text, sizeof text, "fmi2Instantiate failed%s%s; every later call of this instance returns fmi2Error",
                  s->reason[0] ? ": " : "", s->reason);
         to_host(s, s->name, fmi2Error, "logStatusError", text);

@@ -312,7 +312,9 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
         source.write_text(_loader_source(_LINUX_LOADER_C, PYTHONFMU_LIBRARY=real_name,
                                          LIBPYTHON_PATH=env["libpython"], LIBPYTHON_SONAME=env["libpython_soname"],
                                          NO_PYTHON_REASON=_no_python_reason(), BUILD_PYTHON=env["python"],
-                                         BASE_PYTHON=env["base_python"]), encoding="utf-8")
+                                         BASE_PYTHON=env["base_python"],
+                                         BUILD_PYTHON_VERSION=env["python_version"].rsplit(".", 1)[0]),
+                              encoding="utf-8")
         loader = tmp / f"{model_id}.so"
         # nodelete: like pythonfmu's binary (which has STB_GNU_UNIQUE symbols), never unloaded, so the exit
         # handler stays valid

@@ -3,7 +3,7 @@
    PYTHONFMU_LIBRARY (pythonfmu's library beside it, <id>_pythonfmu.so), LIBPYTHON_PATH and
    LIBPYTHON_SONAME (the building Python's shared libpython; "" where it has none), NO_PYTHON_REASON
    (what a host without Python is told then), BUILD_PYTHON and BASE_PYTHON (the interpreter a C host
-   starts), and with fmi_shim.c appended, which uses real(), library_error(), readable(),
+   starts), BUILD_PYTHON_VERSION (its major.minor), and with fmi_shim.c appended, which uses real(), library_error(), readable(),
    local_path(), instantiate_lock()/instantiate_unlock() and pin_thread() from here. */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -54,7 +54,7 @@ static int bind_python(void) {
 static int python_running(void) { return py.IsInitialized && py.IsInitialized(); }
 
 static void *pythonfmu_lib;
-static char load_failure[900];   /* why pythonfmu's library is not loaded */
+static char load_failure[1400];   /* why pythonfmu's library is not loaded */
 static void (*finalize_interpreter)(void);   /* pythonfmu's finalizePythonInterpreter, where it has one */
 
 static void failed(const char *what, const char *why) {
@@ -78,9 +78,11 @@ static int open_libpython(void) {
     }
     why = dlerror();
     snprintf(load_failure, sizeof load_failure, "this process runs no Python, and the FMU cannot load %s (%s) to "
-             "start one: %s. Set LD_LIBRARY_PATH to the folder of the %s of a CPython built with --enable-shared, "
-             "and TAPMUSCLE_PYTHON to its python (docs/fmu-native-hosts.md)", LIBPYTHON_SONAME,
-             LIBPYTHON_PATH[0] ? LIBPYTHON_PATH : "not recorded", why ? why : "not found", LIBPYTHON_SONAME);
+             "start one: %s. The FMU was built by CPython %s: set LD_LIBRARY_PATH to the folder of the %s of a "
+             "CPython %s built with --enable-shared, and TAPMUSCLE_PYTHON to its python; or build the FMUs with a "
+             "Python of yours (tapmuscle build; docs/fmu-native-hosts.md)", LIBPYTHON_SONAME,
+             LIBPYTHON_PATH[0] ? LIBPYTHON_PATH : "not recorded", why ? why : "not found", BUILD_PYTHON_VERSION,
+             LIBPYTHON_SONAME, BUILD_PYTHON_VERSION);
     return 0;
 }
 

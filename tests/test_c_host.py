@@ -479,4 +479,7 @@ def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_host
     assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr
     assert ("this process runs no Python, and the FMU cannot load libpython-gone.so.1.0 "
             "(/nonexistent/lib/libpython-gone.so) to start one" in proc.stderr), proc.stderr
-    assert "Set LD_LIBRARY_PATH to the folder of the libpython-gone.so.1.0 of a CPython" in proc.stderr
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    assert (f"The FMU was built by CPython {version}: set LD_LIBRARY_PATH to the folder of the libpython-gone.so.1.0 "
+            f"of a CPython {version} built with --enable-shared" in proc.stderr), proc.stderr
+    assert "or build the FMUs with a Python of yours (tapmuscle build" in proc.stderr
