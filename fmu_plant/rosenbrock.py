@@ -47,6 +47,20 @@ _ros34pw2 = _compiled_module()
 COMPILED = _ros34pw2 is not None
 
 
+def _compiled_for_another_python() -> str | None:
+    """The compiled sub-step's file beside this one when it is another interpreter's (an FMU built by
+    CPython 3.11 in a 3.13 host), which this one cannot load: the Python sub-step runs instead."""
+    if COMPILED or os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1":
+        return None
+    here = os.path.dirname(os.path.abspath(__file__))
+    found = sorted(f for f in os.listdir(here) if f.startswith("_ros34pw2.") and f.endswith((".so", ".pyd")))
+    return found[0] if found else None
+
+
+#: The compiled sub-step shipped beside this file for another interpreter (None: none, or it is in use).
+COMPILED_FOR_ANOTHER_PYTHON = _compiled_for_another_python()
+
+
 # ---------------------------------------------------------------------------------------- solver
 # ROS34PW2 (Rang & Angermann, BIT 45 (2005) 761-787): a 4-stage, 3rd-order, L-stable, stiffly
 # accurate Rosenbrock-W method with an embedded 2nd-order solution. "W": it keeps its order with any

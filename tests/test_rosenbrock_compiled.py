@@ -110,3 +110,35 @@ def test_a_broken_down_step_returns_the_start_and_the_time_as_the_python_loop_do
     state = (0.5, math.nan, 10.0, 0.0, 0.0, 0.5, 0.004, 0.25, 5.0, 0.25, 44.0, 1.0, 0.1, None)
     got, expected = advance_c(*state), advance_py(*state)
     assert _same(got, expected) and got[-1] == 1.0 and math.isnan(got[1]), (got, expected)
+
+
+def test_a_sub_step_built_for_another_python_is_named_and_the_plant_fmu_says_so(tmp_path, monkeypatch):
+    """An FMU built by CPython 3.11 in a 3.13 host: the shipped binary is not this interpreter's, the
+    Python sub-step runs (2.5 times slower, silently before). The package notices the foreign binary,
+    and the plant FMU says so once at initialisation, as an information (the results are the same)."""
+    import shutil
+    import subprocess
+    import sys
+
+    from pythonfmu.enums import Fmi2Status
+
+    from fmu_plant import plant_slave
+
+    pkg = tmp_path / "fmu_plant"
+    shutil.copytree(os.path.dirname(rosenbrock.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    (own,) = [p for p in pkg.iterdir() if p.name.startswith("_ros34pw2.") and p.suffix in (".so", ".pyd")]
+    foreign = "_ros34pw2.cpython-399-x86_64-linux-gnu.so"
+    own.rename(pkg / foreign)
+    probe = ("import fmu_plant.rosenbrock as r; print(r.COMPILED, r.COMPILED_FOR_ANOTHER_PYTHON, "
+             "r.__file__.startswith(sys.argv[1]))")
+    out = subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); " + probe, str(tmp_path)],
+                         capture_output=True, text=True, check=True, env={**os.environ, "PYTHONPATH": ""}).stdout
+    assert out.split() == ["False", foreign, "True"]
+    assert rosenbrock.COMPILED_FOR_ANOTHER_PYTHON is None  # this installation's own is in use
+
+    monkeypatch.setattr(plant_slave, "COMPILED_FOR_ANOTHER_PYTHON", foreign)
+    slave = plant_slave.MusclePlant(instance_name="foreign")
+    slave.exit_initialization_mode()
+    (msg,) = [m for m in slave.log_queue if foreign in m.msg]
+    assert msg.status == Fmi2Status.ok and "the same results, about 2.5 times slower" in msg.msg
+    assert f"CPython {sys.version_info.major}.{sys.version_info.minor}" in msg.msg
