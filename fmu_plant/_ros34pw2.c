@@ -586,6 +586,9 @@ static int add_cut(Rig *r, double t) {
     return 0;
 }
 
+/* effect_library._SAME_INSTANT_S: instants closer than this [s] are one */
+#define SAME_INSTANT_S 1e-12
+
 /* TransportDelay.breakpoints, appended to the step's cuts */
 static int delay_breakpoints(Rig *r, double t0, double t1, double u) {
     if (u != r->values[r->n_hist - 1] && delay_record_change(r, t0, u) < 0)
@@ -594,9 +597,9 @@ static int delay_breakpoints(Rig *r, double t0, double t1, double u) {
     Py_ssize_t first = r->n_cuts;
     for (Py_ssize_t j = r->n_hist - 1; j >= 0; j--) {
         double seen = r->times[j] + d;
-        if (seen <= t0)
+        if (seen <= t0 + SAME_INSTANT_S)
             break;
-        if (seen < t1 && add_cut(r, seen) < 0)
+        if (seen < t1 - SAME_INSTANT_S && add_cut(r, seen) < 0)
             return -1;
     }
     for (Py_ssize_t i = first, j = r->n_cuts - 1; i < j; i++, j--) { /* out.reverse() */
@@ -611,7 +614,7 @@ static int delay_breakpoints(Rig *r, double t0, double t1, double u) {
 static int delay_command(Rig *r, double t, double *u) {
     if (*u != r->values[r->n_hist - 1] && delay_record_change(r, t, *u) < 0)
         return -1;
-    Py_ssize_t i = bisect_right(r->times, r->n_hist, t - r->delay_s + 1e-12) - 1;
+    Py_ssize_t i = bisect_right(r->times, r->n_hist, t - r->delay_s + SAME_INSTANT_S) - 1;
     *u = r->values[i >= 0 ? i : 0];
     return 0;
 }

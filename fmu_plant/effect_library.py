@@ -34,6 +34,11 @@ __all__ = ["TransportDelay", "InputMap", "ValveDeadZone", "SupplyPressureVariati
            "SensorDrift", "effects_from_params", "input_map_v"]
 
 
+#: Instants closer than this [s] are one (rounding of a time's last bits), far below the plant's
+#: shortest sub-step (1e-9 s).
+_SAME_INSTANT_S = 1e-12
+
+
 class TransportDelay(Effect):
     """The valve receives the command ``delay_s`` late: ``u_valve(t) = u(t - delay_s)``.
 
@@ -67,13 +72,16 @@ class TransportDelay(Effect):
             self._record_change(t0_s, u_v)
         d = self.delay_s
         # from the newest change back: the times are in order, so the first change seen at or before
-        # t0_s ends the search (the step is called for every sample)
+        # t0_s ends the search (the step is called for every sample). Within the 1e-12-s guard of
+        # valve_command an instant is the step's start or the next step's: t_change + delay computed
+        # as 0.30000000000000004 against a master's 0.3 would otherwise split off a sub-step of 4e-17 s,
+        # and a run's last bits would follow how its master adds up time
         out = []
         for t in reversed(self._times):
             seen_s = t + d
-            if seen_s <= t0_s:
+            if seen_s <= t0_s + _SAME_INSTANT_S:
                 break
-            if seen_s < t1_s:
+            if seen_s < t1_s - _SAME_INSTANT_S:
                 out.append(seen_s)
         out.reverse()
         return out
@@ -86,8 +94,8 @@ class TransportDelay(Effect):
     def valve_command(self, t_s: float, u_v: float) -> float:
         if u_v != self._values[-1]:
             self._record_change(t_s, u_v)
-        # 1e-12 s guard: a sub-step starting at t_change + delay sees the new value despite rounding
-        i = bisect.bisect_right(self._times, t_s - self.delay_s + 1e-12) - 1
+        # the guard: a sub-step starting at t_change + delay sees the new value despite rounding
+        i = bisect.bisect_right(self._times, t_s - self.delay_s + _SAME_INSTANT_S) - 1
         return self._values[i if i >= 0 else 0]
 
     def get_state(self) -> dict[str, Any]:

@@ -21,7 +21,7 @@ from fmu_container import build_parallel_container  # noqa: E402
 from fmu_controller.displacement_control import ControllerSettings, DisplacementController  # noqa: E402
 from fmu_controller.preliminary_model import THETA0_44N  # noqa: E402
 from fmu_controller.reference import SineReference  # noqa: E402
-from fmu_plant import Plant  # noqa: E402
+from fmu_plant import Plant, PlantParams  # noqa: E402
 from tapmuscle.closed_loop import run_closed_loop  # noqa: E402
 from tracking import tracking_error_mm  # noqa: E402
 
@@ -53,12 +53,15 @@ class _Libcosim:
         return self.obs.last_real_values(self.slaves[fmu], [self.vrs[fmu][var]])[0]
 
 
-def _closed_loop(fmus, input_delay_samples: int | None, duration_s: float = 45.0) -> dict[str, np.ndarray]:
+def _closed_loop(fmus, input_delay_samples: int | None, duration_s: float = 45.0,
+                 transport_delay_s: float = 0.0) -> dict[str, np.ndarray]:
     sim = _Libcosim(TS_S)
     sim.add("plant", fmus["MusclePlant"])
     sim.add("ctrl", fmus["AMPCController"])
     sim.connect("plant.l", "ctrl.l")
     sim.connect("ctrl.u", "plant.u")
+    if transport_delay_s:
+        assert sim.ex.real_initial_value(sim.slaves["plant"], sim.vrs["plant"]["delay.delay_s"], transport_delay_s)
     if input_delay_samples is not None:  # None: the FMU's default (-1, detected)
         assert sim.ex.integer_initial_value(sim.slaves["ctrl"], sim.vrs["ctrl"]["input_delay_samples"],
                                             input_delay_samples)
@@ -88,6 +91,21 @@ def test_libcosim_closed_loop_is_the_direct_loop_with_one_sample_of_delay(libcos
     None: nothing set, the FMU's default (-1: the controller detects the delay)."""
     run, direct = libcosim_runs[delay], _direct(-1 if delay is None else delay)
     n = len(run["l_mm"])
+    np.testing.assert_allclose(run["l_mm"], direct["l_mm"][1:n + 1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(run["u_v"], direct["u_v"][:n], rtol=0, atol=1e-9)
+
+
+def test_libcosim_on_a_rig_with_a_transport_delay_is_the_direct_loop(built_fmus):
+    """A 0.2-s transport delay in the plant and the parallel master's sample: 3 samples, set. libcosim
+    counts time in nanoseconds, so t_change + 0.2 s fell 4e-17 s past its step's start (0.3 against
+    0.30000000000000004), the plant split off a sub-step that short, and the run left the direct
+    loop's at the sixth sample (8.8 mm apart later); such instants are one now, and the runs are one."""
+    run = _closed_loop(built_fmus, 3, duration_s=30.0, transport_delay_s=0.2)
+    c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=3), THETA0_44N)
+    rig = PlantParams().with_values(**{"delay.delay_s": 0.2})
+    direct = run_closed_loop(Plant(rig, seed=0), c, SineReference(), duration_s=30.0, loop_delay_samples=1)
+    n = len(run["l_mm"])
+    assert np.ptp(run["l_mm"]) > 20.0  # it moves: the comparison is not between constants
     np.testing.assert_allclose(run["l_mm"], direct["l_mm"][1:n + 1], rtol=0, atol=1e-9)
     np.testing.assert_allclose(run["u_v"], direct["u_v"][:n], rtol=0, atol=1e-9)
 
