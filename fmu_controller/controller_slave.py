@@ -131,6 +131,9 @@ class AMPCController(SafeSlave):
                         kind=Boolean, variability=Fmi2Variability.discrete)
         self.add_output("samples", 0, "", "number of samples taken so far", kind=Integer,
                         variability=Fmi2Variability.discrete)
+        self.add_output("input_delay", -1, "", "the input delay [samples] the law runs for: input_delay_samples, or "
+                        "what -1 decided (-1 before the first sample and while it decides)", kind=Integer,
+                        variability=Fmi2Variability.discrete)
         #: output names of theta-hat, in Eq. (1) order; the values are attributes of these names
         self._theta_outputs = tuple(f"theta.{name}" for name in ASYMMETRIC.names)
         for i, name in enumerate(ASYMMETRIC.names):
@@ -293,6 +296,7 @@ class AMPCController(SafeSlave):
         self._buffer = []
         self._set_theta([float(v) for v in theta0])
         self.samples = 0
+        self.input_delay = -1
 
     def _reset_monitors(self) -> None:
         """What the log has said of this run: nothing yet."""
@@ -336,14 +340,18 @@ class AMPCController(SafeSlave):
         if len(self._swing_ks) >= _SWINGS:
             self._swing_ks = None
             decided = self._controller.input_delay_decision
+            runs = (f"input_delay_samples = {s.input_delay_samples}" if s.input_delay_samples != -1
+                    else f"input_delay_samples = -1, decided {decided}")
+            if (decided or 0) >= 1:  # a delay set or decided: it may be off, or the law too aggressive for it
+                why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
+                       "it: check the delay (-1 decides it), raise servo.R, and with a fixed theta0 make one under "
+                       "the delay (docs/control.md, \"Transport delay\")")
+            else:
+                why = ("the loop has more delay than the law compensates: a rig's transport delay, or a parallel "
+                       "master? Set input_delay_samples to the loop's delay in samples, or -1 to decide it "
+                       "(docs/control.md, \"Transport delay\")")
             self.log(f"t = {t_s:g} s: the valve command has swung from one limit to the other {_SWINGS} times in "
-                     f"{_SLAM_WINDOW_S:g} s, a limit cycle: the loop has more delay than the law compensates "
-                     f"(input_delay_samples = {s.input_delay_samples}" + (f", decided {decided}" if
-                                                                         s.input_delay_samples == -1 else "")
-                     + "): a rig's transport delay, or a parallel master? Set input_delay_samples to the loop's "
-                     "delay in samples, or -1 to decide it; with the delay set, a fixed theta0 identified without "
-                     "it, or a law too aggressive for it (raise servo.R; docs/control.md, \"Transport delay\")",
-                     status=Fmi2Status.warning)
+                     f"{_SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}", status=Fmi2Status.warning)
 
     def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
         """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
@@ -458,6 +466,12 @@ class AMPCController(SafeSlave):
         self._set_theta(step.theta.tolist())
         self._k += 1
         self.samples = self._k
+        self._show_input_delay()
+
+    def _show_input_delay(self) -> None:
+        """The ``input_delay`` output: the delay the law runs for (-1 before a sample, or undecided)."""
+        decided = self._controller.input_delay_decision
+        self.input_delay = -1 if decided is None or self._k == 0 else decided
 
     # ------------------------------------------------------------------ state
     def numerics_state(self):
@@ -480,3 +494,4 @@ class AMPCController(SafeSlave):
             self._jump_ks = None if jumps is None else [int(k) for k in jumps]
             self._swing_ks = None if swings is None else [int(k) for k in swings]
             self._last_limit = int(last_limit)
+            self._show_input_delay()

@@ -455,13 +455,14 @@ class DisplacementController:
             self._delay_predictor.reset(l0, 0.0)
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
-        """One control sample: measured ``l(k)`` [mm] and ``r(k), ..., r(k+Hp)`` [mm] -> ``u(k)``.
+        """One control sample: measured ``l(k)`` [mm] and the preview ``r(k), ..., r(k+n)`` [mm] ->
+        ``u(k)``, with ``n = settings.preview_samples`` (``Hp`` plus the input delay: 5 for -1).
 
         Raises
         ------
         ValueError
-            Non-finite ``l_mm`` or reference, or a preview shorter than ``Hp + 1`` samples. The
-            controller's state is unchanged then.
+            Non-finite ``l_mm`` or reference, or a preview shorter than ``preview_samples + 1``
+            samples. The controller's state is unchanged then.
         """
         # Per-sample hot path (docs/control.md, "Compute time per step"): python floats for
         # the scalars, each numpy call on the small arrays only where it does the arithmetic.
@@ -471,7 +472,8 @@ class DisplacementController:
         r = r_preview_mm if isinstance(r_preview_mm, np.ndarray) else np.asarray(r_preview_mm, dtype=float)
         need = self._need
         if r.ndim != 1 or len(r) < need:
-            raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}) ({need} samples), got {r.shape}")
+            raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}) ({need} samples: settings.preview_samples "
+                             f"+ 1, Hp plus the input delay, 5 for -1), got {r.shape}")
         rl = (r if len(r) == need else r[:need]).tolist()
         if r.dtype.char != "d":  # not float64
             rl = [float(x) for x in rl]

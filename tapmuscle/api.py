@@ -271,5 +271,5 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
                 "AMPCController": Path(sc.controller.path or given["AMPCController"])}
         cols = co_simulate(sc, used)
         summary = summarise(sc, cols, used)
-    return {"columns": {k: v for k, v in cols.items() if k != "wall_time_s"}, "mae_mm": summary["mae_mm"],
+    return {"columns": {k: v for k, v in cols.items() if np.ndim(v) == 1}, "mae_mm": summary["mae_mm"],
             "summary": summary}

@@ -553,6 +553,7 @@ def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["input_delay_samples"]], [delay])
     slave.exit_initialization_mode()
+    assert slave.input_delay == -1  # before the first sample
     plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.2}), seed=0)
     for k in range(600):
         slave.l = plant.measurement.l_mm
@@ -560,9 +561,33 @@ def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
         plant.step(slave.u, 0.1)
     msgs = [m for m in slave.log_queue if "a limit cycle" in m.msg]
     assert len(msgs) == said, [m.msg for m in msgs]
+    assert slave.input_delay == (2 if delay == -1 else delay)  # the output says what the law ran for
     if said:
         assert msgs[0].status == Fmi2Status.warning and "input_delay_samples = 0)" in msgs[0].msg
         assert 12.0 <= float(msgs[0].msg.split(" ")[2]) <= 20.0  # just after the 12-s start-up
+
+
+def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensation():
+    """With a delay set (or decided), swings between the limits mean that delay is off or the law too
+    aggressive for it: the message says so, not to set the delay the user has set."""
+    import dataclasses
+
+    from fmu_controller.controller_slave import AMPCController
+
+    slave = AMPCController(instance_name="set")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["input_delay_samples"]], [3])
+    slave.set_real([vr["startup_s"]], [0.0])
+    slave.exit_initialization_mode()
+    real_step = slave._controller.step
+    # limit to limit every 4 samples, passing through 5 V: no full-range jump, a swing each time
+    slave._controller.step = lambda l, r: dataclasses.replace(real_step(l, r), u_v=(0.0, 5.0, 10.0, 5.0)[slave._k % 4])
+    for k in range(40):
+        slave.l = 30.0
+        assert slave.do_step(k * 0.1, 0.1)
+    (msg,) = [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
+    assert "a limit cycle (input_delay_samples = 3): the loop's delay differs from the one the law compensates" in msg
+    assert "raise servo.R" in msg
 
 
 def test_a_rewind_logs_what_the_run_from_there_logs():

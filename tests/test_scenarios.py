@@ -395,3 +395,30 @@ def test_what_the_fmus_warn_of_during_a_run_reaches_the_user(built_fmus, tmp_pat
     assert main(["run", str(path), "--out", str(tmp_path / "cli"), "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent),
                  "--quiet"]) == 0
     assert "warning: controller FMU: Ts = 0.2 s, not the paper's 0.1 s" in capsys.readouterr().err
+
+
+def test_the_input_delay_the_controller_decided_is_reported(built_fmus, tmp_path, capsys):
+    """A rig whose valve acts 0.2 s late, the controller left to decide (-1): what it decided could
+    not be seen. The FMU's output input_delay says it (-1 before a sample and while deciding),
+    summary.json has it as input_delay_samples_used, and tapmuscle run prints it; the project's
+    master's own 0 is reported as 0, without a line."""
+    from tapmuscle.cosim import run_scenario
+
+    doc = {"duration_s": 8.0, "step_s": 0.1, "plant": {"parameters": {"delay.delay_s": 0.2}},
+           "controller": {"method": "ampc_servo", "parameters": {"input_delay_samples": -1}},
+           "reference": {"kind": "sine", "frequency_hz": 0.1}}
+    cols = co_simulate(parse_scenario(doc, source="test"), built_fmus, fmu_warnings=[])
+    assert int(cols["input_delay"]) == 2
+    summary = run_scenario(parse_scenario(doc, source="test"), tmp_path / "r", built_fmus, plots=False)
+    assert summary["input_delay_samples_used"] == 2
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["input_delay_samples_used"] == 2
+    plain = run_scenario(parse_scenario({**doc, "controller": {"method": "ampc_servo"}}, source="test"),
+                         tmp_path / "p", built_fmus, plots=False)
+    assert plain["input_delay_samples_used"] == 0
+    path = tmp_path / "d.toml"
+    path.write_text('duration_s = 8.0\n[plant]\nparameters = { "delay.delay_s" = 0.2 }\n[controller]\n'
+                    'parameters = { input_delay_samples = -1 }\n[reference]\nfrequency_hz = 0.1\n')
+    assert main(["run", str(path), "--out", str(tmp_path / "cli"), "--quiet",
+                 "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent)]) == 0
+    assert ("the controller compensated an input delay of 2 samples (input_delay_samples decided)"
+            in capsys.readouterr().out)

@@ -309,6 +309,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
           f"{k0}..{k1}), u in "
           f"[{summary['u_min_v']:.2f}, {summary['u_max_v']:.2f}] V, real-time factor "
           f"{summary['real_time_factor']:.0f}x")
+    used = summary.get("input_delay_samples_used", 0)
+    if used != 0:
+        how = "decided" if scenario.controller.parameters.get("input_delay_samples") == -1 else "set"
+        print(f"the controller compensated an input delay of {used} sample{'s' if used > 1 else ''} "
+              f"(input_delay_samples {how})" if used > 0 else "the controller had not decided the input delay "
+              "(input_delay_samples = -1) by the end")
     for text in summary["fmu_warnings"]:
         print(f"warning: {text}", file=sys.stderr)
     print(f"wrote {Path(out) / 'result.csv'}, {Path(out) / 'summary.json'} and {Path(out) / '*.png'}")

@@ -372,7 +372,9 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
     Returns
     -------
     dict of ndarray
-        One row per sample ``k`` (module docstring), plus ``wall_time_s`` (a 0-d array).
+        One row per sample ``k`` (module docstring), plus ``wall_time_s`` (a 0-d array) and the
+        controller's ``input_delay`` at the end (a 0-d array: the delay its law ran for, what
+        ``input_delay_samples = -1`` decided).
     """
     if record not in ("all", "minimal"):
         raise ValueError(f"record must be 'all' or 'minimal', got {record!r}")
@@ -413,6 +415,8 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             ctrl.start()
             logged = [len(plant.messages), len(ctrl.messages)]
             cols = _loop(scenario, plant, ctrl, hp, record, progress, held)
+            if "input_delay" in ctrl.unpacked.variables:  # an FMU built before the output existed has none
+                cols["input_delay"] = np.asarray(ctrl.fmu.getInteger([ctrl.vr("input_delay")])[0])
             # what the FMUs warned of during the run reaches the caller (a failed run's error names it)
             for inst, n0 in zip((plant, ctrl), logged):
                 for m in inst.messages[n0:]:

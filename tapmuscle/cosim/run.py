@@ -48,6 +48,8 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
         "evaluation_samples": [k0, k1], "evaluation_window_s": [float(f"{k * scenario.step_s:.12g}") for k in (k0, k1)],
         "fmus": {name: {"path": str(p), "guid": unpack(p).model_description.guid} for name, p in fmus.items()},
         "scenario_spec": json.loads(json.dumps(asdict(scenario), default=str)),
+        # the delay the controller's law ran for at the end (what input_delay_samples = -1 decided)
+        **({"input_delay_samples_used": int(cols["input_delay"])} if "input_delay" in cols else {}),
     }
 
 
@@ -68,7 +70,7 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
                            fmu_warnings=said)
         summary = summarise(scenario, cols, used)
         summary["fmu_warnings"] = said
-        table = {k: v for k, v in cols.items() if k != "wall_time_s"}
+        table = {k: v for k, v in cols.items() if np.ndim(v) == 1}
         meta = {"scenario": scenario.name, "method": scenario.method, "seed": str(scenario.seed),
                 "ts_s": f"{scenario.step_s:g}", "mae_mm": f"{summary['mae_mm']:.4f}",
                 "source": f"tapmuscle run {scenario.source} (FMU co-simulation)"}
