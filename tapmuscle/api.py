@@ -248,7 +248,7 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
     """
     from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim import load_scenario
-    from tapmuscle.cosim.master import co_simulate
+    from tapmuscle.cosim.master import co_simulate, sample_columns
     from tapmuscle.cosim.run import run_scenario, summarise
     from tapmuscle.cosim.spec import Scenario
 
@@ -271,5 +271,5 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
                 "AMPCController": Path(sc.controller.path or given["AMPCController"])}
         cols = co_simulate(sc, used)
         summary = summarise(sc, cols, used)
-    return {"columns": {k: v for k, v in cols.items() if np.ndim(v) == 1}, "mae_mm": summary["mae_mm"],
+    return {"columns": sample_columns(cols), "mae_mm": summary["mae_mm"],
             "summary": summary}

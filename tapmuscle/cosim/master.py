@@ -343,6 +343,12 @@ class InstancePool:
             inst.free()
 
 
+def sample_columns(cols: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The per-sample columns of :func:`co_simulate`'s result (without its 0-d ``wall_time_s`` and
+    ``input_delay``): what a recording holds."""
+    return {k: v for k, v in cols.items() if np.ndim(v) == 1}
+
+
 def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: str = "all",
                 controller_parameters: Mapping[str, Any] | None = None,
                 progress: Callable[[int, int], None] | None = None,

@@ -27,7 +27,7 @@ from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 
 from tapmuscle.cosim.expect import scenario_metrics
-from tapmuscle.cosim.master import co_simulate, unpack
+from tapmuscle.cosim.master import co_simulate, sample_columns, unpack
 from tapmuscle.cosim.spec import Scenario
 
 __all__ = ["RUN_FILES", "run_scenario", "summarise"]
@@ -70,7 +70,7 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
                            fmu_warnings=said)
         summary = summarise(scenario, cols, used)
         summary["fmu_warnings"] = said
-        table = {k: v for k, v in cols.items() if np.ndim(v) == 1}
+        table = sample_columns(cols)
         meta = {"scenario": scenario.name, "method": scenario.method, "seed": str(scenario.seed),
                 "ts_s": f"{scenario.step_s:g}", "mae_mm": f"{summary['mae_mm']:.4f}",
                 "source": f"tapmuscle run {scenario.source} (FMU co-simulation)"}

@@ -164,6 +164,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     """
     from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim import PAPER_SCENARIOS, co_simulate, load_scenario
+    from tapmuscle.cosim.master import sample_columns
 
     if not seeds:
         raise ValueError("seeds must name at least one noise seed")
@@ -188,8 +189,8 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
             scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
             errors, first = [], None
             for seed in seeds:
-                cols = co_simulate(dataclasses.replace(scenario, seed=seed), fmus, controller_parameters=theta_params)
-                cols.pop("wall_time_s")
+                cols = sample_columns(co_simulate(dataclasses.replace(scenario, seed=seed), fmus,
+                                                  controller_parameters=theta_params))
                 errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"], scenario.evaluation_samples))
                 if first is None:
                     first = cols
