@@ -324,8 +324,9 @@ class AMPCController(SafeSlave):
                          f"{_SLAM_WINDOW_S:g} s: {law} slams the valve end to end", status=Fmi2Status.warning)
 
     def _watch_swings(self, t_s: float, u: float) -> None:
-        """Log once when, after the start-up, the command has swung from one valve limit to the other
-        :data:`_SWINGS` times within :data:`_SLAM_WINDOW_S` (a limit cycle)."""
+        """Log once when, after the start-up and the first :data:`_SLAM_WINDOW_S` of the estimator, the
+        command has swung from one valve limit to the other :data:`_SWINGS` times within
+        :data:`_SLAM_WINDOW_S` (a limit cycle)."""
         if self._swing_ks is None:
             return
         s = self._controller.settings
@@ -333,9 +334,11 @@ class AMPCController(SafeSlave):
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side
-        if not swung or self._controller.in_startup:
-            return
         window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
+        # not in the law's own start, nor in the first window after it: the paper's start (startup_s = 0)
+        # swings the valve 6 times in its first 1-1.5 s, without any delay
+        if not swung or self._controller.in_startup or self._controller.samples_since_start <= window:
+            return
         self._swing_ks = [k for k in self._swing_ks if k > self._k - window] + [self._k]
         if len(self._swing_ks) >= _SWINGS:
             self._swing_ks = None

@@ -685,6 +685,12 @@ class DisplacementController:
         return self._guarded_at
 
     @property
+    def samples_since_start(self) -> int:
+        """Samples since the estimator's (re)start: the first sample, or -1's decision for a delay other
+        than the delayed law's 1 it starts with."""
+        return self._k - self._est_from
+
+    @property
     def in_startup(self) -> bool:
         """Whether the last step came before the law's own start was over: ``input_delay_samples = -1``
         still deciding, or within ``startup_s`` of the estimator's (re)start (the start-up mode's

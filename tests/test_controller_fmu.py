@@ -567,6 +567,30 @@ def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
         assert 12.0 <= float(msgs[0].msg.split(" ")[2]) <= 20.0  # just after the 12-s start-up
 
 
+@pytest.mark.parametrize("method", [3, 4])
+def test_the_papers_start_is_not_taken_for_a_limit_cycle(method):
+    """The paper's start (startup_s = 0) of the adaptive methods swings the valve between its limits 6
+    times in its first 1-1.5 s on the rig without any delay: that transient is no limit cycle, and
+    nothing is said (it was, at t = 0.9-1.6 s, in every cell)."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    slave = AMPCController(instance_name="paper_start")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["method"], vr["input_delay_samples"]], [method, 0])
+    slave.set_real([vr["startup_s"]], [0.0])
+    slave.exit_initialization_mode()
+    plant = Plant(seed=0)
+    swings = 0
+    for k in range(300):
+        slave.l = plant.measurement.l_mm
+        assert slave.do_step(k * 0.1, 0.1)
+        swings += k < 20 and slave.u in (0.0, 10.0)
+        plant.step(slave.u, 0.1)
+    assert swings >= 6  # the start does hit the limits: the case is not vacuous
+    assert not [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
+
+
 def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensation():
     """With a delay set (or decided), swings between the limits mean that delay is off or the law too
     aggressive for it: the message says so, not to set the delay the user has set."""
@@ -582,10 +606,11 @@ def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensatio
     real_step = slave._controller.step
     # limit to limit every 4 samples, passing through 5 V: no full-range jump, a swing each time
     slave._controller.step = lambda l, r: dataclasses.replace(real_step(l, r), u_v=(0.0, 5.0, 10.0, 5.0)[slave._k % 4])
-    for k in range(40):
+    for k in range(140):
         slave.l = 30.0
         assert slave.do_step(k * 0.1, 0.1)
     (msg,) = [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
+    assert msg.startswith("t = 11 s: ")  # the first 10 s after the estimator's start are not judged
     assert "a limit cycle (input_delay_samples = 3): the loop's delay differs from the one the law compensates" in msg
     assert "raise servo.R" in msg
 
