@@ -334,10 +334,12 @@ class AMPCController(SafeSlave):
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side
+        if not swung:
+            return
         window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
         # not in the law's own start, nor in the first window after it: the paper's start (startup_s = 0)
         # swings the valve 6 times in its first 1-1.5 s, without any delay
-        if not swung or self._controller.in_startup or self._controller.samples_since_start <= window:
+        if self._controller.in_startup or self._controller.samples_since_start <= window:
             return
         self._swing_ks = [k for k in self._swing_ks if k > self._k - window] + [self._k]
         if len(self._swing_ks) >= _SWINGS:

@@ -434,7 +434,6 @@ class DisplacementController:
         # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
         # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
         self._lag = 1 if self._auto else self.settings.input_delay_samples  # the delay the law runs for
-        self._delayed = self._lag != 0
         self._decided = not self._auto
         # an input delay: the commands (u, u_c) computed but not at the valve yet, the one it gets next
         # first (_u_next, _uc_next), then those of later samples (a delay of 2 or more)
@@ -510,7 +509,7 @@ class DisplacementController:
             t = self._theta_list
         theta = self.theta
         state.observe_unchecked(l, t[0], t[1], t[2])
-        if self._delayed:
+        if self._lag:
             return self._step_ahead(l, rl, t, theta, error)
         if self._auto:  # decided for a sequential master: the preview holds more than the law takes
             rl = rl[:self._law_n]
@@ -575,7 +574,7 @@ class DisplacementController:
         blend (and the guard, whose jumps may have come from the wrong hypothesis)."""
         outs = self._outs
         self._decided = True
-        self._lag, self._delayed = d, d != 0
+        self._lag = d
         self._state.apply(outs[d][0])
         self._u_prev, self._uc_prev = outs[d]
         if d:
@@ -600,7 +599,7 @@ class DisplacementController:
         """``input_delay_samples = -1``: whether the controller has decided for the delayed law (a
         parallel master); False while undecided and after deciding for a sequential one. Always True
         for 1, False for 0."""
-        return self._delayed and self._decided
+        return self._lag != 0 and self._decided
 
     def _future_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> tuple[float, float]:
         """``(H(k+1|k), H(k+2|k))`` [mm]: the Eq. (1) hysteresis term one and two samples ahead, on the
@@ -695,7 +694,7 @@ class DisplacementController:
         """Whether the last step came before the law's own start was over: ``input_delay_samples = -1``
         still deciding, or within ``startup_s`` of the estimator's (re)start (the start-up mode's
         lead-in, warm-up and blend)."""
-        return not self._decided or self._k - 1 - self._est_from < self._blend_n
+        return not self._decided or self.samples_since_start - 1 < self._blend_n
 
     @property
     def law_on_theta0(self) -> bool:
@@ -743,20 +742,14 @@ class DisplacementController:
         saved = state.history
         h_now = state.hysteresis_unchecked(t) if self._notch else math.nan  # H(k), before the scratch step
         state.observe_unchecked(l_next, t[0], t[1], t[2])
-        if self._later:
-            u, uc, h, saturated = self._decide_ahead(l_next, rl, t, theta, xs, u_now, uc_now, h_now,
-                                                     self._limit_run + 1 if pushed else 0)
-        else:
-            u, uc, h, _, _, saturated, _ = self._decide(l_next, rl[1:1 + self._law_n], t, theta, xs, u_now, uc_now,
-                                                        self._h_prev, h_now)
+        u, uc, h, saturated = self._decide_ahead(l_next, rl, t, theta, xs, u_now, uc_now, h_now,
+                                                 self._limit_run + 1 if pushed else 0)
         state.restore_history(saved)
         state.apply(u_now)
         self._xs, self._u_prev, self._uc_prev = xs, u_now, uc_now
         self._limit_run = self._limit_run + 1 if pushed else 0
-        if self._later:
-            (self._u_next, self._uc_next), self._later = self._later[0], self._later[1:] + [(u, uc)]
-        else:
-            self._u_next, self._uc_next = u, uc
+        # the commands in flight move up one sample; this one joins them last
+        (self._u_next, self._uc_next), *self._later = *self._later, (u, uc)
         self._watch_jump(u)
         self._outs = [(u, uc)] + self._outs[:-1]
         self._h_prev2, self._h_prev = self._h_prev, h_now
@@ -766,8 +759,8 @@ class DisplacementController:
 
     def _decide_ahead(self, l_next: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float,
                       u_now: float, uc_now: float, h_now: float, limit_run: int) -> tuple[float, float, float, bool]:
-        """The control law ``d = input delay`` samples ahead (``d >= 2``), on the scratch history that has
-        observed ``l(k+1|k)``: Eq. (1) carries the prediction on to ``l(k+d|k)`` under the commands still
+        """The control law ``d = input delay`` samples ahead, on the scratch history that has observed
+        ``l(k+1|k)``: for ``d >= 2`` Eq. (1) carries the prediction on to ``l(k+d|k)`` under the commands still
         in flight, Eq. (18) integrates the predicted errors ``r(k+i) - l(k+i|k)`` (with its hold, counting
         on from ``limit_run`` samples at a limit up to ``k``), and the law is evaluated there with
         ``r(k+d..k+d+Hp)``. Returns ``(u, u_c, H, saturated)`` of the command that reaches the valve at
@@ -816,7 +809,7 @@ class DisplacementController:
             "predicted": self._predicted,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
-            "delayed": self._delayed, "decided": self._decided, "lag": self._lag,
+            "delayed": self._lag != 0, "decided": self._decided, "lag": self._lag,
             "in_flight": [list(pair) for pair in self._later],
             "u_out": [u for u, _ in self._outs], "uc_out": [uc for _, uc in self._outs],
             "delay_scores": list(self._ms),
@@ -890,7 +883,7 @@ class DisplacementController:
             if decided not in (True, False) or (not decided and not self._auto) or (not decided and lag != 1):
                 raise ValueError(f"state field decided = {decided!r} contradicts input_delay_samples = "
                                  f"{d} with lag = {lag!r}")
-            self._delayed, self._lag = bool(state["delayed"]), lag
+            self._lag = lag
             self._decided = bool(decided)
             self._outs, self._later, self._ms = outs, later, scores
             self._compared = int(state["compared"])

@@ -19,8 +19,14 @@ from typing import Any, Callable, Iterable
 from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
-__all__ = ["build_model", "compiled_step_loop", "COMPILED", "SAFETY", "GROWTH", "SHRINK", "ERR_FLOOR", "STRETCH",
+__all__ = ["build_model", "compiled_step_loop", "COMPILED", "COMPILED_FOR_ANOTHER_PYTHON", "SAFETY", "GROWTH", "SHRINK",
+           "ERR_FLOOR", "STRETCH",
            "KINK_SCALE_INITIAL", "KINK_FLOOR", "FORCED_MAX", "adaptive_steps"]
+
+
+#: Where the compiled sub-step lies (this file's folder), and whether it is asked away.
+_HERE = os.path.dirname(os.path.abspath(__file__))
+_PURE_PYTHON = os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1"
 
 
 def _compiled_module() -> ModuleType | None:
@@ -31,9 +37,7 @@ def _compiled_module() -> ModuleType | None:
     finder does) must not load that one into the FMU's code. ``TAPMUSCLE_PURE_PYTHON=1`` asks for
     the Python sub-step (the same bits, slower).
     """
-    here = os.path.dirname(os.path.abspath(__file__))
-    if os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1" or not any(
-            os.path.isfile(os.path.join(here, "_ros34pw2" + suffix)) for suffix in EXTENSION_SUFFIXES):
+    if _PURE_PYTHON or not any(os.path.isfile(os.path.join(_HERE, "_ros34pw2" + suffix)) for suffix in EXTENSION_SUFFIXES):
         return None
     try:
         return importlib.import_module("._ros34pw2", __package__)
@@ -50,10 +54,9 @@ COMPILED = _ros34pw2 is not None
 def _compiled_for_another_python() -> str | None:
     """The compiled sub-step's file beside this one when it is another interpreter's (an FMU built by
     CPython 3.11 in a 3.13 host), which this one cannot load: the Python sub-step runs instead."""
-    if COMPILED or os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1":
+    if COMPILED or _PURE_PYTHON:
         return None
-    here = os.path.dirname(os.path.abspath(__file__))
-    found = sorted(f for f in os.listdir(here) if f.startswith("_ros34pw2.") and f.endswith((".so", ".pyd")))
+    found = sorted(f for f in os.listdir(_HERE) if f.startswith("_ros34pw2.") and f.endswith((".so", ".pyd")))
     return found[0] if found else None
 
 
