@@ -45,6 +45,7 @@ import numpy as np
 from .argument_checks import real_number, whole_number
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
+from .prediction import guard_bounds
 from .probing import probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
@@ -601,12 +602,14 @@ class DisplacementController:
         for 1, False for 0."""
         return self._lag != 0 and self._decided
 
-    def _future_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float) -> tuple[float, float]:
+    def _future_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float,
+                           bounds: tuple[float, float] | None) -> tuple[float, float]:
         """``(H(k+1|k), H(k+2|k))`` [mm]: the Eq. (1) hysteresis term one and two samples ahead, on the
-        predictions ``l(k+1|k), l(k+2|k)`` with the last command held (for ``hysteresis_notch``); the
-        state is left as it was but for its input, which the caller sets next."""
+        predictions ``l(k+1|k), l(k+2|k)`` with the last command held (for ``hysteresis_notch``;
+        clamped into ``bounds``, if given, as :func:`_held` does); the state is left as it was but
+        for its input, which the caller sets next."""
         state = self._state
-        l1, l2 = _held(state, theta, t[:3], u_prev, 2)
+        l1, l2 = _held(state, theta, t[:3], u_prev, 2, bounds)
         saved = state.history
         state.apply(u_prev)
         state.observe_unchecked(l1, t[0], t[1], t[2])
@@ -627,10 +630,12 @@ class DisplacementController:
         return [x if k + i >= n else l0 + _smoothstep((k + i) / n) * (x - l0) for i, x in enumerate(rl)]
 
     def _decide(self, l: float, rl: list[float], t: list[float], theta: np.ndarray, xs: float, u_prev: float,
-                uc_prev: float, h_prev2: float, h_prev: float) -> tuple[float, float, float, float, float, bool, bool]:
+                uc_prev: float, h_prev2: float, h_prev: float, bounds: tuple[float, float] | None = None
+                ) -> tuple[float, float, float, float, float, bool, bool]:
         """The control law at a sample whose ``l`` the state has observed: ``(u, u_c, H, x_s(k+1),
         l(k+1|k), saturated, pushed)`` for the preview ``rl = r(k..k+Hp)`` (``pushed``: the command at
-        a valve limit the error pushes it into, :meth:`_integrate`); changes no state (but the QP's
+        a valve limit the error pushes it into, :meth:`_integrate`; ``bounds``: those of the
+        predictions through the commands in flight, for the notch's); changes no state (but the QP's
         warm start)."""
         if self._servo is None:
             res = ucp_move(self.settings.ucp, self._state, theta, u_prev_v=u_prev, r_target_mm=rl[self._ucp_hp])
@@ -638,7 +643,7 @@ class DisplacementController:
             return u, u, 0.0, 0.0, float(res.predicted_mm[0]), res.saturated, False
         h = self._state.hysteresis_unchecked(t)
         if self._notch and h_prev == h_prev:  # not NaN: a previous H exists
-            h_next, h_next2 = self._future_hysteresis(t, theta, u_prev)
+            h_next, h_next2 = self._future_hysteresis(t, theta, u_prev, bounds)
             if h_prev2 != h_prev2:  # the second sample: H(k-2) does not exist yet
                 h_prev2 = h_prev
             # the centred 5-point mean (1, 3, 4, 3, 1)/12 of H(k-2) .. H(k+2|k)
@@ -768,19 +773,24 @@ class DisplacementController:
         state = self._state
         l_ahead, u_prev, uc_prev = l_next, u_now, uc_now
         h_prev2, h_prev = self._h_prev, h_now
+        # an estimate made under another delay than the rig's can predict without bound through the
+        # commands in flight (to a float's overflow within a sample); clamped as the free run of
+        # Eq. (1) is, around l(k-1), l(k), l(k+1|k) and the reference the loop drives to (from rest
+        # the displacements alone span ~0 mm)
+        bounds = guard_bounds(None, (*state.history[:3], min(rl), max(rl)), widen=True) if self._later else None
         for i, (u_i, uc_i) in enumerate(self._later, start=1):
             if self._servo is not None:  # Eq. (18) with its hold, as the loop will integrate at k + i
                 xs, pushed = self._integrate(xs, rl[i], l_ahead, u_i, limit_run)
                 limit_run = limit_run + 1 if pushed else 0
             if self._notch:
                 h_prev2, h_prev = h_prev, state.hysteresis_unchecked(t)
-            l_ahead = _held(state, theta, t[:3], u_i, 1)[0]
+            l_ahead = _held(state, theta, t[:3], u_i, 1, bounds)[0]
             state.apply(u_i)
             state.observe_unchecked(l_ahead, t[0], t[1], t[2])
             u_prev, uc_prev = u_i, uc_i
         d = len(self._later) + 1
         u, uc, h, _, _, saturated, _ = self._decide(l_ahead, rl[d:d + self._law_n], t, theta, xs, u_prev, uc_prev,
-                                                    h_prev2, h_prev)
+                                                    h_prev2, h_prev, bounds)
         return u, uc, h, saturated
 
     # ------------------------------------------------------------------ estimator

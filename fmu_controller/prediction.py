@@ -31,6 +31,7 @@ from .rls import ConstrainedRLS, RLSSettings
 
 __all__ = [
     "N_INITIAL",
+    "guard_bounds",
     "PredictionResult",
     "IdentificationResult",
     "simulate",
@@ -125,9 +126,26 @@ def _theta(theta, structure: ModelStructure) -> np.ndarray:
     return _vector("theta", theta, structure.n_params)
 
 
-def _guard_bounds(output_range, fallback: np.ndarray, widen: bool) -> tuple[float, float]:
+def guard_bounds(output_range: tuple[float, float] | None, fallback: Sequence[float] | np.ndarray,
+                 widen: bool) -> tuple[float, float]:
+    """The divergence guard's interval ``[lo - 10 span, hi + 10 span]`` [mm] for predictions of Eq. (1).
+
+    A prediction of the model outside it (or non-finite) is clamped into it: an estimate that is not
+    physical, chained through its bilinear hysteresis terms, otherwise grows without bound (to the
+    overflow of a float within a few samples).
+
+    Parameters
+    ----------
+    output_range : (float, float) or None
+        ``(lo, hi)`` [mm], typically a measured record's min and max; None: from ``fallback``.
+    fallback : sequence of float
+        Measured displacements [mm] that set ``(lo, hi)`` when ``output_range`` is None.
+    widen : bool
+        With ``fallback``: ``span`` at least ``max(|lo|, |hi|, 1 mm)`` (a few samples say little
+        about the operating range), else ``hi - lo``.
+    """
     if output_range is None:
-        lo, hi = float(fallback.min()), float(fallback.max())
+        lo, hi = float(np.min(fallback)), float(np.max(fallback))
         if widen:
             # a few initial samples say little about the operating range
             span = max(hi - lo, abs(lo), abs(hi), 1.0)
@@ -223,7 +241,7 @@ def simulate(
     N = u.size
     if N <= N_INITIAL:
         raise ValueError(f"u must have more than {N_INITIAL} samples, got {N}")
-    bounds = _guard_bounds(output_range, l_init, widen=True)
+    bounds = guard_bounds(output_range, l_init, widen=True)
     v = virtual_hysteresis_sequence(theta, l_init, u[:N_INITIAL])
     o = N_INITIAL - 1
     li, vi = l_init.tolist(), v.tolist()
@@ -283,7 +301,7 @@ def predict_ahead(
     start = N_INITIAL - 1 + h
     if N <= start:
         raise ValueError(f"l has {N} samples, need more than {start} for horizon {h}")
-    bounds = _guard_bounds(output_range, l, widen=False)
+    bounds = guard_bounds(output_range, l, widen=False)
     v = virtual_hysteresis_sequence(theta, l, u)
     o = np.arange(N_INITIAL - 1, N - h)
     u_steps = [u[o + j] for j in range(h)]

@@ -97,12 +97,15 @@ def predict_held_input(state: ModelState, theta: np.ndarray, u_v: float, steps: 
     return np.array(_held(state, theta, theta[:3].tolist(), float(u_v), steps))
 
 
-def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, steps: int) -> list[float]:
+def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, steps: int,
+          bounds: tuple[float, float] | None = None) -> list[float]:
     """:func:`predict_held_input` as a list, for a float ``theta`` array of the right length and
     its linear part ``lin = [a1, a2, b1]`` as python floats.
 
     The same arithmetic as stepping a copy of ``state`` by ``phi() @ theta``, ``observe`` and
     ``apply`` (one BLAS dot per step, the rest in python floats), without building the copy.
+    ``bounds`` ``(lo, hi)`` [mm]: each prediction clamped into them (the divergence guard of
+    :func:`~fmu_controller.prediction.guard_bounds`) before it is carried on.
     """
     if not math.isfinite(u):
         raise ValueError(f"u must be finite, got {u}")
@@ -115,6 +118,8 @@ def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, step
         nxt = float(_dot(_array(terms if n == 15 else terms[:n]), theta))
         if not math.isfinite(nxt):
             raise ValueError(f"l must be finite, got {nxt}")
+        if bounds is not None:
+            nxt = min(max(nxt, bounds[0]), bounds[1])
         v = nxt - (a1 * l0 + a2 * l1 + b1 * u)
         if not math.isfinite(v):
             raise ValueError(f"theta gives a non-finite v: {v}")

@@ -2,6 +2,7 @@
 
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -289,6 +290,22 @@ def test_a_fixed_predictor_made_under_the_delay_tracks_on_the_delayed_rig():
     assert errors["delayed"] < 5.0 and errors["paper"] > 2 * errors["delayed"], errors
     with pytest.raises(ValueError, match="input_delay_samples must be a number of samples 0 .. 5, got 6"):
         preliminary_theta(0, input_delay_samples=6)
+
+
+def test_a_delay_set_where_the_rig_has_none_keeps_the_prediction_through_the_commands_in_flight_bounded():
+    """AMPC-servo told of 4 samples of delay on a rig without one: its estimate, made under the wrong
+    delay, once predicted l(k+4|k) = 8e11 mm at 1.9 s through the bilinear hysteresis terms, and the
+    cancellation offset H/b1 reached 1e285 V (numpy's overflow warning in the QP's cost). The
+    predictions are clamped as Eq. (1)'s free run is, within 10 spans of the last displacements and
+    the reference (about -600..700 mm here): H's bilinear terms then stay below ~1e6 (measured max
+    |u_c| 3.1e5 V, a garbage cancellation at the wrong delay, but a number), and the valve's commands
+    stay in 0..10 V."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=4), THETA0_44N)
+        r = run_closed_loop(Plant(PlantParams(), seed=0), c, SineReference(), duration_s=10.0, load_n=44.0)
+    assert np.abs(r["uc_v"]).max() < 1e7, np.abs(r["uc_v"]).max()
+    assert r["u_v"].min() >= 0.0 and r["u_v"].max() <= 10.0
 
 
 @pytest.mark.parametrize("delay_s, expected", [(0.0, 0), (0.1, 1), (0.2, 2), (0.3, 3), (0.4, 4)])
