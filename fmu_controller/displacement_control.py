@@ -45,7 +45,7 @@ import numpy as np
 from .argument_checks import real_number, whole_number
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
-from .prediction import guard_bounds
+from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
@@ -59,10 +59,6 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_INPUT_DELAY_SAMPLES"
 METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
 #: The controller FMU's ``method`` parameter (an Integer) -> method name.
 METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
-
-#: Largest ``ControllerSettings.input_delay_samples`` (0.5 s at Ts = 0.1 s: a rig's transport delay
-#: of up to 0.4 s in a parallel master); ``-1`` tells every delay from 0 to it apart.
-MAX_INPUT_DELAY_SAMPLES = 5
 
 #: ``input_delay_samples = -1``: weight of the newest squared one-step error in the running means
 #: (a memory of about 50 samples, 5 s at Ts = 0.1 s: over one second the two hypotheses' errors

@@ -32,7 +32,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
-from .prediction import (IdentificationResult, fit_percent, predict_ahead, rescale_theta, run_rls,
+from .prediction import (IdentificationResult, delayed_input, fit_percent, predict_ahead, rescale_theta, run_rls,
                          simulate, theta_scale_factors)
 from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
 
@@ -77,7 +77,7 @@ class FitReport:
 
 
 def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelStructure, u: np.ndarray,
-                l: np.ndarray) -> FitReport:
+                l: np.ndarray, *, input_delay_samples: int = 0) -> FitReport:
     """1-, 3-, 5-step-ahead and free-run fits of ``theta`` on ``(u, l)`` (Table 4).
 
     Parameters
@@ -89,6 +89,9 @@ def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelSt
         :data:`~fmu_controller.hysteresis_model.ASYMMETRIC` or ``STANDARD``.
     u, l : ndarray
         Command [V] and displacement [mm] of a record, one sample per period.
+    input_delay_samples : int
+        The rig's transport delay ``d`` [samples] that ``theta`` was identified under: Eq. (1)'s
+        input is ``u(k - d)`` (:func:`~fmu_controller.prediction.delayed_input`).
 
     Returns
     -------
@@ -96,7 +99,7 @@ def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelSt
         NRMSE fits [%] (MATLAB ``compare``) and the free run.
     """
     theta = structure.as_theta(theta, what="theta")
-    u, l = np.asarray(u, dtype=float), np.asarray(l, dtype=float)
+    u, l = delayed_input(u, input_delay_samples), np.asarray(l, dtype=float)
     rng = (float(l.min()), float(l.max()))
     percent: dict[str, float] = {}
     for h in HORIZONS:
@@ -141,6 +144,8 @@ class IdentificationReport:
     """Times the covariance was reset (kept positive definite)."""
     notes: tuple[str, ...]
     """What the user should know (e.g. why no box was applied)."""
+    input_delay_samples: int = 0
+    """The transport delay [samples] Eq. (1) was identified under: its input is ``u(k - d)``."""
 
     @property
     def theta_dict(self) -> dict[str, float]:
@@ -161,7 +166,8 @@ class IdentificationReport:
             ``fit_percent`` (``"1"``, ``"3"``, ``"5"``, ``"sim"``: Table 4's fits [%]),
             ``free_run_diverged``, ``identifiable_combinations``, ``constraint`` (Algorithm 1's box
             ``lower``/``upper``, ``start_s`` [s], ``n_projections``), ``scaling`` (``l_scale``,
-            ``u_scale``) and ``notes``. The histories (``theta_history``, the free run) are left out.
+            ``u_scale``), ``input_delay_samples`` and ``notes``. The histories (``theta_history``,
+            the free run) are left out.
         """
         return {
             "model": self.model, "ts_s": self.ts_s, "n_samples": self.n_samples,
@@ -171,6 +177,7 @@ class IdentificationReport:
             "constraint": {"lower": dict(self.box_lower), "upper": dict(self.box_upper),
                            "start_s": self.constraint_start_s, "n_projections": self.n_projections},
             "scaling": {"l_scale": self.l_scale, "u_scale": self.u_scale},
+            "input_delay_samples": self.input_delay_samples,
             "notes": list(self.notes),
         }
 
@@ -198,7 +205,8 @@ def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
 def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: str = "asymmetric",
                     box: str | Mapping[str, tuple[float, float]] | None = "auto",
                     constraint_start_s: float = 120.0, p0: float = 1e3, forgetting: float = 1.0,
-                    theta0: Mapping[str, float] | Sequence[float] | None = None) -> IdentificationReport:
+                    theta0: Mapping[str, float] | Sequence[float] | None = None,
+                    input_delay_samples: int = 0) -> IdentificationReport:
     """Identify Eq. (1) on a record by (constrained) RLS and score it (section 2.3, Table 4).
 
     Parameters
@@ -221,12 +229,18 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         Initial estimate, record units: by name (names left out start at 0, as
         ``report.theta_dict``) or every parameter in ``structure.names`` order (as ``report.theta``).
         Default zeros (section 2.4).
+    input_delay_samples : int
+        A rig's transport delay ``d`` [samples], 0 .. 5: Eq. (1) is identified on the command the
+        valve had, ``u(k - d)`` (:func:`~fmu_controller.prediction.delayed_input`), the model that
+        the controller's ``input_delay_samples = d`` predicts with (docs/control.md, "Transport
+        delay"). Open loop, a random or step input's 1-step fit is highest at the rig's delay; a
+        sine's rises past it (its phase lag takes up a delay, too).
 
     Raises
     ------
     ValueError
         Unknown model; data that cannot support identification (constant input or output, fewer
-        than ``MIN_SAMPLES`` samples, non-finite values); a bad box.
+        than ``MIN_SAMPLES`` samples, non-finite values); a bad box or delay.
     """
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
@@ -234,6 +248,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     u = np.asarray(u_v, dtype=float)
     l = np.asarray(l_mm, dtype=float)
     _check_record(u, l, float(ts_s))
+    u = delayed_input(u, input_delay_samples)
     l_scale, u_scale = decade_scale(l, 60.0), decade_scale(u, 6.0)
     f = theta_scale_factors(structure, l_scale, u_scale)
     notes: list[str] = []
@@ -279,4 +294,5 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         model=model, structure=structure, ts_s=float(ts_s), n_samples=len(l), theta=theta,
         theta_history=history, fit=score_model(theta, structure, u, l), l_scale=l_scale, u_scale=u_scale,
         box_lower=lower, box_upper=upper, constraint_start_s=float(constraint_start_s),
-        n_projections=result.n_projections, n_resets=result.n_resets, notes=tuple(notes))
+        n_projections=result.n_projections, n_resets=result.n_resets, notes=tuple(notes),
+        input_delay_samples=int(input_delay_samples))

@@ -31,6 +31,9 @@ from .rls import ConstrainedRLS, RLSSettings
 
 __all__ = [
     "N_INITIAL",
+    "MAX_INPUT_DELAY_SAMPLES",
+    "checked_input_delay",
+    "delayed_input",
     "guard_bounds",
     "PredictionResult",
     "IdentificationResult",
@@ -47,6 +50,41 @@ N_INITIAL = 4
 
 # Divergence guard: outputs are clamped to [lo - G*span, hi + G*span].
 _GUARD_SPANS = 10.0
+
+#: Largest input delay [samples] of Eq. (1)'s input (0.5 s at Ts = 0.1 s: a rig's transport delay of
+#: up to 0.4 s in a parallel master): the controller's ``input_delay_samples`` and the identification's.
+MAX_INPUT_DELAY_SAMPLES = 5
+
+
+def checked_input_delay(delay_samples: int) -> int:
+    """``delay_samples`` if it is a whole number of samples 0 .. :data:`MAX_INPUT_DELAY_SAMPLES`.
+
+    Raises
+    ------
+    ValueError
+        Anything else, named as ``input_delay_samples``.
+    """
+    d = delay_samples
+    if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= d <= MAX_INPUT_DELAY_SAMPLES:
+        raise ValueError(f"input_delay_samples must be a number of samples 0 .. {MAX_INPUT_DELAY_SAMPLES}, got {d!r}")
+    return int(d)
+
+
+def delayed_input(u: np.ndarray, delay_samples: int) -> np.ndarray:
+    """The command the valve had at each sample, ``u(k - d)`` [V], for a loop that applies each
+    command ``d`` samples late (a rig's transport delay): Eq. (1)'s input on such a rig. The first
+    ``d`` samples repeat ``u(0)`` (the record holds nothing earlier).
+
+    Raises
+    ------
+    ValueError
+        ``delay_samples`` not a whole number 0 .. :data:`MAX_INPUT_DELAY_SAMPLES`.
+    """
+    d = checked_input_delay(delay_samples)
+    u = np.asarray(u, dtype=float)
+    if d == 0:
+        return u
+    return np.concatenate([np.full(d, u[0]), u[:len(u) - d]])
 
 
 @dataclass(frozen=True)

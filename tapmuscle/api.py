@@ -146,7 +146,7 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
         (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``), or what
         :func:`~tapmuscle.io.identification_file.read_identification` read (its period checked against
-        ``ts_s``, its box the default settings'); default the 44 N
+        ``ts_s``, its box and a transport delay it was identified under the default settings'); default the 44 N
         preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2),
         identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it.
     settings : ControllerSettings, optional
@@ -177,9 +177,11 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     ts = _check_period(ts_s)
     box: dict[str, Any] = {}
-    if isinstance(theta0, IdentifiedModel):  # read_identification's: its period and its box
+    if isinstance(theta0, IdentifiedModel):  # read_identification's: its period, its box and its delay
         theta0.check_period(ts)
         box = {"box_lower": theta0.box_lower, "box_upper": theta0.box_upper}
+        if theta0.input_delay_samples:
+            box["input_delay_samples"] = theta0.input_delay_samples
         theta0 = theta0.theta
     elif abs(ts - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
         # Table 2's box holds for Ts = 0.1 s; elsewhere none, as tm.identify applies none there

@@ -136,3 +136,38 @@ def test_a_model_refined_in_closed_loop_is_written_for_the_controller(tmp_path):
         with pytest.raises(IdentificationFileError, match=message):
             write_identification(tmp_path / "bad.json", bad_theta, ts_s=ts)
     assert not (tmp_path / "bad.json").exists()
+
+
+def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(tmp_path):
+    """identify --input-delay-samples 2 writes the delay; read back, a scenario's controller and
+    simulate_closed_loop's default settings take it as input_delay_samples (a scenario's own
+    parameter overrides it: a parallel master adds a sample); files without the key read as 0, and a
+    delay outside 0..5 is refused naming the key."""
+    from tapmuscle.io.identification_file import write_identification
+
+    path = tmp_path / "delayed.json"
+    write_identification(path, tm.THETA0_44N, ts_s=0.1, input_delay_samples=2)
+    model = read_identification(path)
+    assert model.input_delay_samples == 2
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model)
+    settings = ControllerSettings(method="ampc_servo", input_delay_samples=2, box_lower={}, box_upper={})
+    same = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model.theta, settings=settings)
+    assert np.array_equal(run["u_v"], same["u_v"])
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(f'duration_s = 5.0\n[controller]\nidentification = "{path}"\n')
+    assert load_scenario(scenario).controller.parameters["input_delay_samples"] == 2
+    scenario.write_text(scenario.read_text() + "[controller.parameters]\ninput_delay_samples = 3\n")
+    assert load_scenario(scenario).controller.parameters["input_delay_samples"] == 3
+    doc = json.loads(path.read_text())
+    del doc["input_delay_samples"]
+    path.write_text(json.dumps(doc))
+    assert read_identification(path).input_delay_samples == 0
+    scenario.write_text(f'duration_s = 5.0\n[controller]\nidentification = "{path}"\n')
+    assert "input_delay_samples" not in load_scenario(scenario).controller.parameters  # the FMU's default
+    path.write_text(json.dumps(doc | {"input_delay_samples": 7}))
+    with pytest.raises(IdentificationFileError, match=r"key 'input_delay_samples': input_delay_samples must be a "
+                                                      r"number of samples 0 .. 5, got 7"):
+        read_identification(path)
+    with pytest.raises(IdentificationFileError, match="got 1.5"):
+        write_identification(tmp_path / "bad.json", tm.THETA0_44N, ts_s=0.1, input_delay_samples=1.5)
+    assert not (tmp_path / "bad.json").exists()

@@ -31,6 +31,10 @@ MAX_SAMPLES = 864_001
 #: time); tests/test_cli_record.py checks that they agree.
 _SEED_MAX = 2 ** 64 - 1
 
+#: fmu_controller.prediction.MAX_INPUT_DELAY_SAMPLES, written out for the same reason;
+#: tests/test_identify_cli.py checks that they agree.
+_INPUT_DELAY_MAX = 5
+
 
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
     from fmu_plant import PlantParams
@@ -171,7 +175,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             raise UsageError(f"{path}: {exc}") from None
     try:
         report = identify_record(rec.u_v, rec.l_mm, ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box),
-                                 constraint_start_s=args.constraint_start, forgetting=args.forgetting)
+                                 constraint_start_s=args.constraint_start, forgetting=args.forgetting,
+                                 input_delay_samples=args.input_delay_samples)
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
     # the recording as given and as an absolute path (the first is relative to where identify ran), and
@@ -189,7 +194,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         if abs(val.ts_s - rec.ts_s) > STRICT_TOLERANCE * rec.ts_s:
             raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
                              f"identification record's {rec.ts_s:g} s (by more than {100 * STRICT_TOLERANCE:g} %)")
-        val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm)
+        val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm,
+                              input_delay_samples=report.input_delay_samples)
         out["validation_fit_percent"] = val_fit.percent
         out["validation_free_run_diverged"] = val_fit.free_run_diverged
         out["validation_recording"] = str(args.validate)
@@ -411,6 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="time from which the constraint applies [s] (paper: 120)")
     idf.add_argument("--forgetting", type=number_within("--forgetting", 1e-6, 1.0), default=1.0,
                      help="forgetting factor lambda in (0, 1] (1 = off, the paper)")
+    idf.add_argument("--input-delay-samples", type=integer_at_least("--input-delay-samples", 0, _INPUT_DELAY_MAX),
+                     default=0, metavar="D",
+                     help=f"the rig's transport delay in samples (0..{_INPUT_DELAY_MAX}): identify on the command "
+                          "the valve had, u(k-D), for a controller with input_delay_samples = D (docs/control.md, "
+                          "Transport delay)")
     idf.set_defaults(func=_cmd_identify)
 
     pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",

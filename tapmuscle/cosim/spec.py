@@ -302,7 +302,9 @@ def _parameters(r: _Reader) -> dict[str, Any]:
 def _identification_parameters(r: _Reader, base: Path | None, step_s: float) -> dict[str, Any]:
     """The AMPCController parameters ``theta0.*`` and ``box_lower.*``/``box_upper.*`` of the
     ``tapmuscle identify --json`` file ``identification`` names (its box, -inf/inf where it has none),
-    checked for the scenario's period ``step_s``; empty without one."""
+    checked for the scenario's period ``step_s``, and ``input_delay_samples`` where it was identified
+    under a transport delay (the scenario's own parameters override it: a parallel master at h = Ts
+    adds a sample to the rig's delay); empty without one."""
     path = r.path("identification", base)
     if path is None:
         return {}
@@ -317,7 +319,8 @@ def _identification_parameters(r: _Reader, base: Path | None, step_s: float) -> 
                                         f"C bounds only {', '.join(CONTROLLER_BOX)}")
     return ({f"theta0.{n}": v for n, v in model.theta.items()}
             | {f"box_lower.{n}": model.box_lower.get(n, -math.inf) for n in CONTROLLER_BOX}
-            | {f"box_upper.{n}": model.box_upper.get(n, math.inf) for n in CONTROLLER_BOX})
+            | {f"box_upper.{n}": model.box_upper.get(n, math.inf) for n in CONTROLLER_BOX}
+            | ({"input_delay_samples": model.input_delay_samples} if model.input_delay_samples else {}))
 
 
 def _plant_file_parameters(r: _Reader, base: Path | None) -> dict[str, Any]:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.prediction import checked_input_delay
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
@@ -48,6 +49,9 @@ class IdentifiedModel:
     """Upper bounds of C (empty: none)."""
     path: str
     """The file it was read from."""
+    input_delay_samples: int = 0
+    """The rig's transport delay [samples] it was identified under (``tapmuscle identify
+    --input-delay-samples``): the controller's ``input_delay_samples`` it predicts for."""
 
     def check_period(self, ts_s: float) -> None:
         """Refuse a controller period ``ts_s`` [s] other than :attr:`ts_s`: Eq. (1) is a model of one
@@ -75,8 +79,9 @@ def read_identification(path: str | Path) -> IdentifiedModel:
     Returns
     -------
     IdentifiedModel
-        ``theta`` (pass it as ``theta0``), ``ts_s``, and the box ``box_lower``/``box_upper`` for an
-        adaptive controller's :class:`~fmu_controller.displacement_control.ControllerSettings`.
+        ``theta`` (pass it as ``theta0``), ``ts_s``, the box ``box_lower``/``box_upper`` for an
+        adaptive controller's :class:`~fmu_controller.displacement_control.ControllerSettings`, and
+        ``input_delay_samples`` (0 in a file without the key).
 
     Raises
     ------
@@ -115,12 +120,18 @@ def read_identification(path: str | Path) -> IdentifiedModel:
                                               for k, v in b.items()):
             raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers, got {b!r}")
         bounds.append({k: float(v) for k, v in b.items()})
-    return IdentifiedModel({n: float(theta[n]) for n in ASYMMETRIC.names}, float(ts), bounds[0], bounds[1], where)
+    delay = data.get("input_delay_samples", 0)  # files written before the key: identified without a delay
+    try:
+        delay = checked_input_delay(delay)
+    except ValueError as exc:
+        raise IdentificationFileError(f"{where}: key 'input_delay_samples': {exc}") from None
+    return IdentifiedModel({n: float(theta[n]) for n in ASYMMETRIC.names}, float(ts), bounds[0], bounds[1], where,
+                           delay)
 
 
 def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,
                          box_lower: Mapping[str, float] | None = None, box_upper: Mapping[str, float] | None = None,
-                         note: str = "") -> None:
+                         note: str = "", input_delay_samples: int = 0) -> None:
     """Write a model as ``tapmuscle identify --json`` does, for :func:`read_identification` and a
     scenario's ``[controller] identification``: a ``theta`` refined in closed loop
     (:func:`tapmuscle.paper.preliminary_theta`, or a controller FMU's final ``theta.*``), say.
@@ -138,11 +149,15 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
         The constraint region C for an adaptive controller started from it (default: none).
     note : str
         Where it comes from (the file's ``notes``).
+    input_delay_samples : int
+        The transport delay [samples] it was identified under (0 .. 5; a scenario's controller
+        takes it as its ``input_delay_samples``).
 
     Raises
     ------
     IdentificationFileError
-        A theta that is not 15 finite numbers, or a period that is not a positive number of seconds.
+        A theta that is not 15 finite numbers, a period that is not a positive number of seconds, or
+        a delay outside 0 .. 5 samples.
     """
     try:
         values = ASYMMETRIC.as_theta(theta, what="theta")
@@ -150,7 +165,11 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
         raise IdentificationFileError(f"{path}: {exc}") from None
     if isinstance(ts_s, bool) or not isinstance(ts_s, (int, float)) or not math.isfinite(ts_s) or ts_s <= 0:
         raise IdentificationFileError(f"{path}: ts_s must be a positive number of seconds, got {ts_s!r}")
+    try:
+        delay = checked_input_delay(input_delay_samples)
+    except ValueError as exc:
+        raise IdentificationFileError(f"{path}: {exc}") from None
     doc = {"model": "asymmetric", "ts_s": float(ts_s), "theta": dict(zip(ASYMMETRIC.names, values.tolist())),
            "constraint": {"lower": dict(box_lower or {}), "upper": dict(box_upper or {})},
-           "notes": [note] if note else []}
+           "input_delay_samples": delay, "notes": [note] if note else []}
     atomic_write_text(Path(path), json.dumps(doc, indent=2) + "\n")

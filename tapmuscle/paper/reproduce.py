@@ -25,10 +25,10 @@ from typing import Callable, Mapping, TextIO, TypeVar
 
 import numpy as np
 
-from fmu_controller.displacement_control import (MAX_INPUT_DELAY_SAMPLES, P0_TABLE5, ControllerSettings,
-                                                 DisplacementController)
+from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import identify_record
+from fmu_controller.prediction import checked_input_delay
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
@@ -126,13 +126,10 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
     rig = PlantParams() if params is None else params
     if load_n is not None:
         rig = rig.with_values(**{"load.load_n": float(load_n)})
-    d = input_delay_samples
-    if isinstance(d, bool) or not (isinstance(d, int) and 0 <= d <= MAX_INPUT_DELAY_SAMPLES):
-        raise ValueError(f"input_delay_samples must be a number of samples 0 .. {MAX_INPUT_DELAY_SAMPLES}, got {d!r}")
+    d = checked_input_delay(input_delay_samples)  # before the open-loop run
     rec = run_open_loop(Plant(rig, seed=seed), parse_input_spec("sine:bias=5,amp=3,freq=0.1"),
                         duration_s=240.0, ts_s=ts_s)
-    u_valve = np.concatenate([np.full(d, rec["u_v"][0]), rec["u_v"][:len(rec["u_v"]) - d]])  # u(k - d)
-    report = identify_record(u_valve, rec["l_mm"], ts_s=ts_s, model="asymmetric")
+    report = identify_record(rec["u_v"], rec["l_mm"], ts_s=ts_s, model="asymmetric", input_delay_samples=d)
     settings = ControllerSettings(method="ampc_servo", ts_s=ts_s, p0=P0_TABLE5, startup_s=0.0,
                                   hysteresis_notch=False, anti_windup=False, input_delay_samples=d,
                                   box_lower=report.box_lower, box_upper=report.box_upper)
