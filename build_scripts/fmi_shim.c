@@ -136,6 +136,33 @@ static int resource_path(const char *resources, char *path, size_t size) {
     return 1;
 }
 
+/* The offset of the first byte of ``text`` that is not part of well-formed UTF-8, -1 if none. */
+static long not_utf8_at(const char *text) {
+    const unsigned char *p = (const unsigned char *)text;
+    while (*p) {
+        int n = *p < 0x80 ? 0 : (*p & 0xE0) == 0xC0 && *p >= 0xC2 ? 1 : (*p & 0xF0) == 0xE0 ? 2
+              : (*p & 0xF8) == 0xF0 && *p <= 0xF4 ? 3 : -1;
+        int i;
+        if (n < 0) return (long)(p - (const unsigned char *)text);
+        for (i = 1; i <= n; i++)
+            if ((p[i] & 0xC0) != 0x80) return (long)(p - (const unsigned char *)text);
+        p += n + 1;
+    }
+    return -1;
+}
+
+/* ``text`` with every byte outside printable ASCII written as \xHH (a message the host's logger can
+   show whatever it decodes with). */
+static void escaped(const char *text, char *out, size_t size) {
+    size_t j = 0;
+    const unsigned char *p = (const unsigned char *)text;
+    for (; *p && j + 5 < size; p++) {
+        if (*p >= 0x20 && *p < 0x7F) out[j++] = (char)*p;
+        else j += (size_t)snprintf(out + j, size - j, "\\x%02X", *p);
+    }
+    out[j] = 0;
+}
+
 /* The GUID in the unzipped FMU's modelDescription.xml (resources/../modelDescription.xml); 0 if it
    cannot be read. */
 static int model_guid(const char *resources_dir, char *guid, size_t size) {
@@ -193,6 +220,17 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
             snprintf(s->reason, sizeof s->reason, "the FMU's folder %.900s has a non-ASCII character and no short "
                      "(8.3) name, which pythonfmu cannot open on Windows: extract the FMU into a folder whose path "
                      "is ASCII", dir);
+            to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
+            return s;
+        }
+        if (not_utf8_at(dir) >= 0) {
+            /* pythonfmu hands the path to Python as UTF-8, and on a failure there its error path
+               segfaulted (a folder named in Latin-1, from a Windows zip or an old home folder) */
+            char shown[1000];
+            escaped(dir, shown, sizeof shown);
+            snprintf(s->reason, sizeof s->reason, "the FMU's folder %s has a name that is not UTF-8 (byte 0x%02X at "
+                     "%ld), which the FMU's Python cannot open: extract the FMU into a folder whose name is UTF-8 (or "
+                     "ASCII)", shown, (unsigned char)dir[not_utf8_at(dir)], not_utf8_at(dir));
             to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
             return s;
         }

@@ -7,6 +7,8 @@
    local_path(), instantiate_lock()/instantiate_unlock() and pin_thread() from here. */
 #define _GNU_SOURCE
 #include <dlfcn.h>
+#include <langinfo.h>
+#include <locale.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -86,6 +88,46 @@ static int open_libpython(void) {
     return 0;
 }
 
+/* A PYTHONHOME without the standard library stops Python's start with a fatal error, which exits the
+   host process inside the dynamic loader (before any FMI call, past the host's logger): checked
+   first, and the instances then fail naming it. */
+static int python_home_usable(void) {
+    const char *home = getenv("PYTHONHOME");
+    char stdlib[4200];
+    if (!home || !*home) return 1;
+    snprintf(stdlib, sizeof stdlib, "%.*s/lib/python%s/encodings/__init__.py", (int)strcspn(home, ":"), home,
+             BUILD_PYTHON_VERSION);
+    if (access(stdlib, R_OK) == 0) return 1;
+    snprintf(load_failure, sizeof load_failure, "PYTHONHOME=%.600s has no standard library of CPython %s (no %.600s), "
+             "so the FMU cannot start its Python: unset PYTHONHOME in this host's environment, or point it at "
+             "a CPython %s installation", home, BUILD_PYTHON_VERSION, stdlib, BUILD_PYTHON_VERSION);
+    return 0;
+}
+
+/* Python's UTF-8 mode where the environment gives the process no encoding (LANG unset, or a locale
+   that is not installed: the C/POSIX locale of containers, services, cron and CI runners), as the
+   python executable switches it on there (PEP 540), and where PYTHONUTF8=1 asks for it:
+   Py_InitializeEx's legacy configuration does neither, and decoded file names as ASCII, so an FMU in
+   a folder "Müller" could not import its own module. Python's legacy flag Py_UTF8Mode is the one
+   setting that configuration reads; PYTHONUTF8=0 keeps the locale's encoding. */
+static void python_utf8_mode_where_needed(void) {
+    const char *asked = getenv("PYTHONUTF8"), *now;
+    char saved[256];
+    int ascii = 1, *mode;
+    if (asked && !strcmp(asked, "0")) return;
+    if (!asked || strcmp(asked, "1")) {
+        now = setlocale(LC_CTYPE, NULL);   /* the host's, put back below: Python sets its own at start */
+        snprintf(saved, sizeof saved, "%s", now ? now : "C");
+        if (setlocale(LC_CTYPE, "")) {
+            const char *codeset = nl_langinfo(CODESET);
+            ascii = !strcmp(codeset, "ANSI_X3.4-1968") || !strcmp(codeset, "ASCII");
+        }
+        setlocale(LC_CTYPE, saved);
+        if (!ascii) return;
+    }
+    if ((mode = (int *)dlsym(RTLD_DEFAULT, "Py_UTF8Mode"))) *mode = 1;
+}
+
 static void release_pythonfmu_interpreter(void) {
     /* Runs before pythonfmu's static destructor (registered later than it, at_exit order is LIFO):
        releases the interpreter holder once, properly; pythonfmu's own two releases then find it empty. */
@@ -101,6 +143,8 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
     /* (b) in a host that is not Python, start the building environment's interpreter (a venv's python:
            Python then reads its pyvenv.cfg), else its base installation, not the first python3 on PATH. */
     if (!py.IsInitialized()) {
+        if (!python_home_usable()) return;
+        python_utf8_mode_where_needed();
         python = getenv("TAPMUSCLE_PYTHON");
         if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
         if (access(python, X_OK) == 0) {

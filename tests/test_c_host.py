@@ -114,17 +114,19 @@ def controller(built_fmus, tmp_path_factory) -> Fmu:
 NUMERICS_VARIABLES = ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
 
 
-def plain_env(tmp: Path, **extra: str) -> dict[str, str]:
+def plain_env(tmp: Path, **extra: str | None) -> dict[str, str]:
     """What a user's C host would have: no Python variables, no LD_PRELOAD, no venv on PATH (only the
-    floating-point kernel choice of this process, :data:`NUMERICS_VARIABLES`)."""
+    floating-point kernel choice of this process, :data:`NUMERICS_VARIABLES`); ``extra`` adds
+    variables, or with None removes one (``LANG=None``: the C locale of a container or a service)."""
     numerics = {k: os.environ[k] for k in NUMERICS_VARIABLES if k in os.environ}
     env = {"PATH": PLAIN_PATH, "HOME": str(tmp), "LANG": "C.UTF-8", **numerics, **extra}
+    env = {k: v for k, v in env.items() if v is not None}
     venv_bin = os.path.dirname(sys.executable)
     assert venv_bin not in env["PATH"].split(os.pathsep)
     return env
 
 
-def run_host(host: Path, tmp: Path, *args: str, env_extra: dict[str, str] | None = None, check=True):
+def run_host(host: Path, tmp: Path, *args: str, env_extra: dict[str, str | None] | None = None, check=True):
     proc = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=180,
                           env=plain_env(tmp, **(env_extra or {})))
     if check:
@@ -170,13 +172,17 @@ def test_open_loop_equals_fmpy(host, plant, tmp_path):
     assert max(ls) - min(ls) > 10.0  # the muscle really moved: the comparison is not of constants
 
 
-def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_path):
+@pytest.mark.parametrize("locale", [{}, {"LANG": None}, {"LANG": None, "LC_ALL": "POSIX"},
+                                    {"LANG": "xx_YY.UTF-8"}], ids=["C.UTF-8", "no-LANG", "POSIX", "not-installed"])
+def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_path, locale):
     """The FMU extracted into a user's folder such as "Müller Straße": the C host passes the path as
     it is (file:// and UTF-8 bytes), fmpy percent-encodes it (file:///...M%C3%BCller%20Stra%C3%9Fe);
-    both load and step the FMU and read the same displacement."""
+    both load and step the FMU and read the same displacement. Also where the host's environment has
+    no encoding (no LANG: containers, services, CI runners; a locale that is not installed): the
+    FMU's Python runs in UTF-8 mode there (it failed with "UnicodeEncodeError('ascii', ...)")."""
     plant = Fmu(built_fmus["MusclePlant"], tmp_path / "Müller Straße" / "日本")
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l", p="p"), "steps=30", f"dt={TS}",
-                    "sine=5,3,0.1")
+                    "sine=5,3,0.1", env_extra=locale)
     rows = table(proc.stdout)
     f = plant.fmpy_instance("fmpy")
     for k, row in enumerate(rows):
@@ -186,6 +192,36 @@ def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_pat
     f.terminate()
     f.freeInstance()
     assert len(rows) == 30 and rows[-1]["l"] > 10.0  # it moved
+
+
+def test_a_folder_named_in_latin_1_fails_the_instance_naming_it(host, plant, built_fmus, tmp_path):
+    """A folder whose name is not UTF-8 (M\xfcller: Latin-1 bytes from a Windows zip or an old home
+    folder) segfaulted the host in fmi2Instantiate (pythonfmu's error path); the instance now fails
+    with the folder named (its bytes escaped), the host ends at its first step."""
+    folder = bytes(tmp_path) + b"/M\xfcller"
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        z.extractall(os.fsdecode(folder))
+    args = [b"P.dir=" + folder if a.startswith("P.dir=") else os.fsencode(a) for a in plant.args("P", u="u", l="l")]
+    proc = subprocess.run([os.fsencode(host), b"open", *args, b"steps=5", f"dt={TS}".encode()], capture_output=True,
+                          timeout=180, env=plain_env(tmp_path))
+    stderr = proc.stderr.decode("utf-8", "backslashreplace")
+    assert proc.returncode == 2 and "fmi2DoStep" in stderr, (proc.returncode, stderr[-3000:])
+    assert (f"the FMU's folder {tmp_path}/M\\xFCller/resources has a name that is not UTF-8 (byte 0xFC at "
+            f"{len(bytes(tmp_path)) + 2}), which the FMU's Python cannot open: extract the FMU into a folder whose "
+            "name is UTF-8") in stderr, stderr[-3000:]
+
+
+def test_a_pythonhome_without_the_standard_library_fails_the_instance_naming_it(host, plant, tmp_path):
+    """PYTHONHOME=/nonexistent (left over from another tool) stopped Python's start with a fatal error
+    that exited the host inside dlopen, before any FMI call; the instance now fails naming it."""
+    version = "%d.%d" % sys.version_info[:2]
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
+                    env_extra={"PYTHONHOME": str(tmp_path / "nonexistent")})
+    assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, (proc.returncode, proc.stderr[-3000:])
+    assert (f"PYTHONHOME={tmp_path}/nonexistent has no standard library of CPython {version} (no {tmp_path}/nonexistent"
+            f"/lib/python{version}/encodings/__init__.py), so the FMU cannot start its Python: unset PYTHONHOME"
+            in proc.stderr), proc.stderr[-3000:]
+    assert "Fatal Python error" not in proc.stderr
 
 
 @pytest.mark.slow

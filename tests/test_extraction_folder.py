@@ -124,9 +124,35 @@ def test_a_temporary_directory_mounted_noexec_sends_the_folders_to_the_cache(tmp
     assert extraction_folder.extraction_root() == str(tmp_path / "cache" / "tapmuscle" / "extracted")
     assert claimed_folder("tm_test_").startswith(str(tmp_path / "cache" / "tapmuscle" / "extracted" / "tm_test_"))
     noexec.add(str(tmp_path / "cache" / "tapmuscle" / "extracted"))
-    with pytest.raises(OSError, match=r"temporary directory .*/tmp and the cache .*/extracted are on file systems "
-                                      r"mounted noexec: .*set TMPDIR"):
+    with pytest.raises(OSError, match=r"temporary directory .*/tmp is mounted noexec \(no FMU binary can be loaded "
+                                      r"from it\), and the cache .*/extracted is mounted noexec .*: set TMPDIR"):
         extraction_folder.extraction_root()
+
+
+def test_a_temporary_directory_named_in_latin_1_sends_the_folders_to_the_cache(built_fmus, tmp_path, monkeypatch):
+    """TMPDIR /tmp/M\xfcller (bytes that are not UTF-8: a Windows zip's or an old home folder's name): the
+    FMUs' Python cannot open a path there (pythonfmu's constructor failed with "PyList_Insert: bad
+    argument to internal function"), so the folders go to the cache, and a scenario runs."""
+    from tapmuscle.cosim import extraction_folder
+
+    latin = os.fsdecode(bytes(tmp_path) + b"/M\xfcller")
+    os.mkdir(latin)
+    monkeypatch.setenv("TMPDIR", latin)
+    monkeypatch.setattr(extraction_folder.tempfile, "tempdir", None)  # read TMPDIR again
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    assert extraction_folder.extraction_root() == str(tmp_path / "cache" / "tapmuscle" / "extracted")
+    monkeypatch.setenv("XDG_CACHE_HOME", os.path.join(latin, "cache"))
+    with pytest.raises(OSError, match=r"temporary directory .*/M\\xfcller has a name that is not UTF-8 .*and the "
+                                      r"cache .*/M\\xfcller/cache/tapmuscle/extracted has a name that is not UTF-8"):
+        extraction_folder.extraction_root()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    scenario = tmp_path / "s.toml"
+    scenario.write_text("duration_s = 2.0\n")
+    proc = subprocess.run([sys.executable, "-m", "tapmuscle", "run", str(scenario), "--out", str(tmp_path / "out"),
+                           "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet"],
+                          capture_output=True, text=True, timeout=600, env=os.environ.copy())
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert os.listdir(latin) == ["cache"]  # nothing was extracted there (the cache folder made above)
 
 
 NOEXEC_RUN = textwrap.dedent("""

@@ -14,9 +14,10 @@ locked, and only then renamed to its final name, so no removal can see it unlock
 (Windows), the folders are removed at exit only.
 
 The folders hold libraries to load, and a file system mounted ``noexec`` (a hardened system's
-``/tmp``) refuses to map one ("failed to map segment from shared object"). So they go to the
-temporary directory unless it is mounted so, and then to the user's tapmuscle cache
-(:func:`extraction_root`).
+``/tmp``) refuses to map one ("failed to map segment from shared object"); and the FMUs' Python
+opens its resources by a UTF-8 path, which a folder named in another encoding (Latin-1 bytes, from
+a Windows zip or an old home folder) does not have. So they go to the temporary directory unless it
+is either, and then to the user's tapmuscle cache (:func:`extraction_root`).
 """
 
 from __future__ import annotations
@@ -49,33 +50,47 @@ def _noexec(folder: str | Path) -> bool:
         return False
 
 
+def _unusable(folder: str | Path) -> str | None:
+    """Why no FMU can run from ``folder`` (None: it can): a name that is not UTF-8, or ``noexec``."""
+    try:
+        os.fsencode(folder).decode("utf-8")
+    except UnicodeDecodeError:
+        return "has a name that is not UTF-8 (the FMUs' Python cannot open it)"
+    if _noexec(folder):
+        return "is mounted noexec (no FMU binary can be loaded from it)"
+    return None
+
+
 def extraction_root() -> str:
     """Where FMUs are extracted to load their binaries: the temporary directory (``TMPDIR``), unless it
-    is on a file system mounted ``noexec``, where no library can be loaded; then ``extracted/`` in the
-    user's tapmuscle cache (``$XDG_CACHE_HOME/tapmuscle``, else ``~/.cache/tapmuscle``).
+    is on a file system mounted ``noexec``, where no library can be loaded, or has a name that is not
+    UTF-8; then ``extracted/`` in the user's tapmuscle cache (``$XDG_CACHE_HOME/tapmuscle``, else
+    ``~/.cache/tapmuscle``).
 
     Raises
     ------
     OSError
-        Both are mounted ``noexec``, or the cache folder cannot be made; the message names them and
+        Neither can hold them, or the cache folder cannot be made; the message names them, why, and
         what to set.
     """
     temp = tempfile.gettempdir()
-    if not _noexec(temp):
+    why = _unusable(temp)
+    if why is None:
         return temp
     from build_scripts.build_fmus import user_cache_root
 
+    shown = os.fsencode(temp).decode("utf-8", "backslashreplace")
     cache = user_cache_root() / "extracted"
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OSError(f"the temporary directory {temp} is mounted noexec (no FMU binary can be loaded from it), "
-                      f"and {cache} cannot be made ({exc.strerror or exc}): set TMPDIR to a folder on a file "
-                      "system that allows executing") from None
-    if _noexec(cache):
-        raise OSError(f"the temporary directory {temp} and the cache {cache} are on file systems mounted noexec: "
-                      "no FMU binary can be loaded from them; set TMPDIR (or XDG_CACHE_HOME) to a folder on a "
-                      "file system that allows executing")
+        raise OSError(f"the temporary directory {shown} {why}, and {cache} cannot be made ({exc.strerror or exc}): "
+                      "set TMPDIR to a folder on a file system that allows executing, with a UTF-8 name") from None
+    why_cache = _unusable(cache)
+    if why_cache is not None:
+        raise OSError(f"the temporary directory {shown} {why}, and the cache "
+                      f"{os.fsencode(cache).decode('utf-8', 'backslashreplace')} {why_cache}: set TMPDIR (or "
+                      "XDG_CACHE_HOME) to a folder on a file system that allows executing, with a UTF-8 name")
     return str(cache)
 
 
