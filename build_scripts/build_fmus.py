@@ -261,8 +261,23 @@ def _source_digest() -> str:
 
 
 def user_cache_root() -> Path:
-    """``$XDG_CACHE_HOME/tapmuscle``, else ``~/.cache/tapmuscle``: this user's tapmuscle cache."""
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "tapmuscle"
+    """``$XDG_CACHE_HOME/tapmuscle``, else ``~/.cache/tapmuscle``: this user's tapmuscle cache.
+
+    Raises
+    ------
+    OSError
+        Neither is set nor can be found (HOME unset and a user id without a passwd entry: a container
+        run as an arbitrary user); the message says what to set.
+    """
+    cache = os.environ.get("XDG_CACHE_HOME")
+    if not cache:
+        try:
+            cache = Path.home() / ".cache"
+        except RuntimeError:  # pathlib's "Could not determine home directory."
+            raise OSError(f"no home folder for the FMU cache (HOME is unset and user id {os.getuid()} has no "
+                          "passwd entry): set XDG_CACHE_HOME (or HOME) to a writable folder, or give run, sweep "
+                          "and check --fmu-dir DIR with the FMUs of tapmuscle build --out DIR") from None
+    return Path(cache) / "tapmuscle"
 
 
 def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:

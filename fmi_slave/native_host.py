@@ -85,12 +85,65 @@ def python_command() -> str:
     return executable or "python3"
 
 
+def _venv_version(python: str) -> str | None:
+    """The ``major.minor`` of the virtual environment ``python`` belongs to (its ``pyvenv.cfg``), or None."""
+    try:
+        with open(os.path.join(os.path.dirname(os.path.dirname(python)), "pyvenv.cfg"), encoding="utf-8") as f:
+            for line in f:
+                key, _, value = line.partition("=")
+                if key.strip() in ("version", "version_info"):
+                    return ".".join(value.strip().split(".")[:2])
+    except OSError:
+        pass
+    return None
+
+
+def _install_advice(python: str, name: str) -> str:
+    """How to install ``name`` into ``python``: pip, or where the interpreter has no pip (a uv
+    environment) uv's, or where it is the system's (PEP 668 refuses pip there) a venv of its own."""
+    import sysconfig
+
+    if sys.prefix == sys.base_prefix and os.path.isfile(os.path.join(sysconfig.get_path("stdlib"),
+                                                                      "EXTERNALLY-MANAGED")):
+        return (f"this Python is the system's, which refuses pip (externally managed, PEP 668): make an "
+                f"environment of your own, python{sys.version_info[0]}.{sys.version_info[1]} -m venv DIR && DIR/bin/pip "
+                f"install {' '.join(DEPENDENCIES)}, and set TAPMUSCLE_PYTHON=DIR/bin/python")
+    if not any(os.path.isdir(os.path.join(d, "pip")) for d in site.getsitepackages()):
+        return (f"this Python has no pip (an environment made by uv?): uv pip install --python {python} {name}, "
+                f"or {python} -m ensurepip first")
+    return f"{python} -m pip install {name}"
+
+
+def _context(config: dict) -> str:
+    """Why a package may be missing in an interpreter the FMU started (a C host): the environment that
+    built the FMU is gone or is now another Python version, or PYTHONHOME points elsewhere."""
+    if not config or not is_embedded():
+        return ""
+    version = "%d.%d" % sys.version_info[:2]
+    built, notes = config.get("python", ""), []
+    fix = (f"set TAPMUSCLE_PYTHON to a CPython {version} python with {', '.join(DEPENDENCIES)}, or build the FMUs "
+           "again in your environment (tapmuscle build)")
+    if built and not os.path.exists(built):
+        notes.append(f"The Python that built this FMU, {built}, is gone (an environment moved or deleted, or a "
+                     f"cache cleaned); this host started {python_command()} instead: {fix}.")
+    elif built and _venv_version(built) not in (None, version):
+        notes.append(f"The environment that built this FMU, {os.path.dirname(os.path.dirname(built))}, is now "
+                     f"CPython {_venv_version(built)}, and the FMU runs CPython {version}, whose packages it does "
+                     f"not have: {fix}.")
+    if os.environ.get("PYTHONHOME"):
+        notes.append(f"PYTHONHOME={os.environ['PYTHONHOME']} is set: the FMU's Python takes its standard library "
+                     "and packages from there.")
+    return " " + " ".join(notes) if notes else ""
+
+
 class MissingDependencyFinder:
     """Last entry of ``sys.meta_path``: asked only when no other finder has the module. For the
-    top-level packages in ``names`` it raises ModuleNotFoundError with what to install."""
+    top-level packages in ``names`` it raises ModuleNotFoundError with what to install, and, in an
+    interpreter the FMU started, why it may be missing (``config``: the FMU's recorded build)."""
 
-    def __init__(self, names: tuple[str, ...] = DEPENDENCIES) -> None:
+    def __init__(self, names: tuple[str, ...] = DEPENDENCIES, config: dict | None = None) -> None:
         self.names = tuple(names)
+        self.config = dict(config or {})
 
     def find_spec(self, fullname, path=None, target=None):
         if path is not None or fullname not in self.names:
@@ -98,8 +151,9 @@ class MissingDependencyFinder:
         python = python_command()
         raise ModuleNotFoundError(
             f"tapmuscle FMU: cannot import {fullname}; install it into the Python the FMU uses: "
-            f"{python} -m pip install {fullname} (or set {SITE_ENV} to site-packages directories that have "
-            f"it, separated by '{os.pathsep}'; searched: {os.pathsep.join(p for p in sys.path if p)})",
+            f"{_install_advice(python, fullname)} (or set {SITE_ENV} to site-packages directories that have "
+            f"it, separated by '{os.pathsep}'; searched: {os.pathsep.join(p for p in sys.path if p)})"
+            f"{_context(self.config)}",
             name=fullname)
 
     def invalidate_caches(self) -> None:
@@ -137,4 +191,4 @@ def setup() -> None:
         config = json.load(f)
     _add_site_dirs(_site_dirs(config) or ())
     if not any(isinstance(f, MissingDependencyFinder) for f in sys.meta_path):
-        sys.meta_path.append(MissingDependencyFinder())
+        sys.meta_path.append(MissingDependencyFinder(config=config))

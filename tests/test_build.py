@@ -219,6 +219,28 @@ def test_an_unwritable_cache_is_named_with_its_remedy(tmp_path, monkeypatch):
     assert not (tmp_path / "tapmuscle").exists()
 
 
+def test_no_home_folder_is_named_with_its_remedy(tmp_path, monkeypatch):
+    """HOME unset and a user id without a passwd entry (a container run as an arbitrary user):
+    `tapmuscle run` and `paper` ended in pathlib's RuntimeError traceback; now the CLI's error names what
+    to set, and XDG_CACHE_HOME alone is enough."""
+    import pwd
+
+    from build_scripts.build_fmus import user_cache_root
+
+    monkeypatch.delenv("HOME")
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+
+    def no_entry(uid):
+        raise KeyError(f"getpwuid(): uid not found: {uid}")
+
+    monkeypatch.setattr(pwd, "getpwuid", no_entry)
+    with pytest.raises(OSError, match=r"no home folder for the FMU cache \(HOME is unset and user id \d+ has no passwd "
+                                      r"entry\): set XDG_CACHE_HOME \(or HOME\) to a writable folder"):
+        user_cache_root()
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert user_cache_root() == tmp_path / "tapmuscle"
+
+
 def test_the_fmu_cache_keeps_the_recently_used_builds(tmp_path):
     """Each source state of a checkout gets a build in the cache: beyond CACHE_KEEP the least recently
     used ones go, but never the one just built nor one used within the hour (another process)."""

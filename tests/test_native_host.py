@@ -211,6 +211,53 @@ def test_missing_dependency_finder_names_what_to_install(monkeypatch):
     assert finder.find_spec("json") is None and finder.find_spec("tapmuscle_not_installed.x", ["p"]) is None
 
 
+def test_the_advice_in_a_c_host_says_why_the_package_is_missing(tmp_path, monkeypatch):
+    """In an interpreter the FMU started: the building environment deleted (a venv moved, uv's cache
+    cleaned) or made again with another Python, a PYTHONHOME, a Python without pip (a uv venv), the
+    system's Python (PEP 668 refuses pip): each named with what to do (the advice was "python -m pip
+    install numpy" in each, which failed or did not help)."""
+    version = "%d.%d" % sys.version_info[:2]
+    monkeypatch.setattr(native_host, "is_embedded", lambda: True)
+    monkeypatch.delenv("PYTHONHOME", raising=False)
+
+    def message(config):
+        finder = native_host.MissingDependencyFinder(("tapmuscle_not_installed",), config=config)
+        with pytest.raises(ModuleNotFoundError) as err:
+            finder.find_spec("tapmuscle_not_installed")
+        return str(err.value)
+
+    gone = str(tmp_path / "venv" / "bin" / "python")
+    assert (f"The Python that built this FMU, {gone}, is gone (an environment moved or deleted, or a cache "
+            f"cleaned); this host started {native_host.python_command()} instead: set TAPMUSCLE_PYTHON to a "
+            f"CPython {version} python with numpy, scipy, osqp, or build the FMUs again") in message({"python": gone})
+    (tmp_path / "venv" / "bin").mkdir(parents=True)
+    Path(gone).write_text("")
+    (tmp_path / "venv" / "pyvenv.cfg").write_text("home = /usr/bin\nversion = 3.99.1\n")
+    assert (f"The environment that built this FMU, {tmp_path / 'venv'}, is now CPython 3.99, and the FMU runs "
+            f"CPython {version}") in message({"python": gone})
+    (tmp_path / "venv" / "pyvenv.cfg").write_text(f"home = /usr/bin\nversion = {version}.1\n")
+    assert message({"python": gone}).endswith(")")  # the environment is there and right: nothing to add
+    monkeypatch.setenv("PYTHONHOME", "/opt/elsewhere")
+    assert message({"python": gone}).endswith("PYTHONHOME=/opt/elsewhere is set: the FMU's Python takes its "
+                                              "standard library and packages from there.")
+    monkeypatch.setattr(native_host, "is_embedded", lambda: False)  # a Python host: its own environment rules
+    assert message({"python": str(tmp_path / "nothing")}).endswith(")")
+
+    python = native_host.python_command()
+    monkeypatch.setattr(native_host.site, "getsitepackages", lambda: [str(tmp_path / "site-packages-without-pip")])
+    assert (f"uses: this Python has no pip (an environment made by uv?): uv pip install --python {python} "
+            f"tapmuscle_not_installed, or {python} -m ensurepip first") in message({})
+    stdlib = tmp_path / "stdlib"
+    stdlib.mkdir()
+    (stdlib / "EXTERNALLY-MANAGED").write_text("[externally-managed]\n")
+    real_get_path = sysconfig.get_path
+    monkeypatch.setattr(sysconfig, "get_path", lambda name, *a: str(stdlib) if name == "stdlib" else real_get_path(name, *a))
+    monkeypatch.setattr(native_host.sys, "base_prefix", sys.prefix)  # not a venv
+    assert (f"uses: this Python is the system's, which refuses pip (externally managed, PEP 668): make an "
+            f"environment of your own, python{version} -m venv DIR && DIR/bin/pip install numpy scipy osqp, and "
+            "set TAPMUSCLE_PYTHON=DIR/bin/python") in message({})
+
+
 @pytest.mark.parametrize("system, name", [("linux", "bin/python3"), ("win32", "python.exe")])
 def test_the_pip_advice_names_the_interpreter_not_the_host_program(tmp_path, monkeypatch, system, name):
     # An interpreter started by the FMU in a Windows C host has the host's program as sys.executable
