@@ -8,6 +8,7 @@
 #define _GNU_SOURCE
 #include <dlfcn.h>
 #include <langinfo.h>
+#include <limits.h>
 #include <locale.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -66,13 +67,29 @@ static void failed(const char *what, const char *why) {
 /* (a) In a host that runs no Python: the building Python's libpython (recorded path, else its soname on
        the library path: LD_LIBRARY_PATH), global, so that pythonfmu's library and the extension modules
        Python imports (not linked to libpython on Linux) find its symbols. */
+/* The libpython of the interpreter TAPMUSCLE_PYTHON names (through a venv's symlink to its base): in
+   its prefix's lib/, else by soname on the system's library path (Debian's /usr/bin/python3.11 has its
+   libpython in /usr/lib/<triplet>). A libpython of another build than the interpreter's standard
+   library (the recorded one beside Debian's stdlib) fails at its first import ("No module named
+   '_struct'"). */
+static int open_named_libpython(void) {
+    const char *named = getenv("TAPMUSCLE_PYTHON");
+    char real[4096], lib[4200], *slash;
+    if (!named || !*named || !realpath(named, real)) return 0;
+    if ((slash = strrchr(real, '/'))) *slash = 0;      /* <prefix>/bin */
+    if ((slash = strrchr(real, '/'))) *slash = 0;      /* <prefix> */
+    snprintf(lib, sizeof lib, "%s/lib/%s", real, LIBPYTHON_SONAME);
+    return (access(lib, R_OK) == 0 && dlopen(lib, RTLD_NOW | RTLD_GLOBAL)) ||
+           dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_GLOBAL);
+}
+
 static int open_libpython(void) {
     const char *why;
     if (!LIBPYTHON_SONAME[0]) {
         failed(NO_PYTHON_REASON, NULL);
         return 0;
     }
-    if ((LIBPYTHON_PATH[0] && dlopen(LIBPYTHON_PATH, RTLD_NOW | RTLD_GLOBAL)) ||
+    if (open_named_libpython() || (LIBPYTHON_PATH[0] && dlopen(LIBPYTHON_PATH, RTLD_NOW | RTLD_GLOBAL)) ||
         dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_GLOBAL)) {
         if (bind_python()) return 1;
         failed("libpython lacks Python's embedding API: ", LIBPYTHON_SONAME);

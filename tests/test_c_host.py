@@ -320,6 +320,26 @@ def test_packages_come_from_the_recorded_or_named_site_packages(host, plant, tmp
     assert moved.stdout == run_host(host, tmp_path, *args).stdout
 
 
+def test_tapmuscle_python_of_another_installation_runs_on_its_own_libpython(host, plant, tmp_path):
+    """TAPMUSCLE_PYTHON naming a venv of another CPython installation of the same version (the
+    system's /usr/bin/python3.11 beside a pyenv build): the loader opens that installation's libpython,
+    not the recorded one, whose build does not match the other standard library ("No module named
+    '_struct'"); numpy comes from the recorded site-packages, the numbers are the default run's."""
+    version = "%d.%d" % sys.version_info[:2]
+    other = Path(f"/usr/bin/python{version}")
+    if not other.exists() or other.resolve() == Path(sys.executable).resolve() or \
+            Path(sys.base_prefix).resolve() == Path("/usr"):
+        pytest.skip(f"no other CPython {version} installation at {other} than the building one")
+    soname = json.loads((plant.dir / "resources" / CONFIG_NAME).read_text())["libpython_soname"]
+    if not any(Path(d, soname).exists() for d in ("/usr/lib", f"/usr/lib/{sysconfig.get_config_var('MULTIARCH')}")):
+        pytest.skip(f"{other} has no shared {soname}")
+    venv = tmp_path / "system-python-venv"
+    subprocess.run([str(other), "-m", "venv", "--without-pip", str(venv)], check=True)
+    args = ["open", *plant.args("P", u="u", l="l", p="p"), "steps=20"]
+    moved = run_host(host, tmp_path, *args, env_extra={"TAPMUSCLE_PYTHON": str(venv / "bin" / "python")})
+    assert moved.stdout == run_host(host, tmp_path, *args).stdout and len(table(moved.stdout)) == 20
+
+
 FMPY_RUN = textwrap.dedent("""
     import sys
     from fmpy import read_model_description
