@@ -274,6 +274,18 @@ def _unprepared(tree: Path, platform: str, suffix: str, model_id: str) -> tuple[
     return bindir, fmu_lib, real_name
 
 
+def uv_cache_environment(prefix: str | Path | None = None) -> Path | None:
+    """uv's cache folder if the environment ``prefix`` (default ``sys.prefix``) lies in it (``uvx``,
+    ``uv run --with``: an environment that ``uv cache clean`` removes), else None."""
+    cache = os.environ.get("UV_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "uv")
+    try:
+        Path(prefix or sys.prefix).resolve().relative_to(Path(cache).resolve())
+    except ValueError:
+        return None
+    return Path(cache)
+
+
 def _prepare_linux64(tree: Path, model_id: str) -> None:
     found = _unprepared(tree, _PLATFORM, ".so", model_id)
     if found is None:
@@ -283,6 +295,13 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
         return _skip(f"the loader for Linux hosts is built on Linux (this build runs on {_building_os()})",
                      "linux64 binary left as pythonfmu made it (Python hosts only)")
     env = build_environment()
+    cache = uv_cache_environment()
+    if cache is not None:
+        # C hosts start the recorded environment: there it lasts until uv's next clean-up
+        warnings.warn(f"the FMUs record the Python environment {sys.prefix} for hosts that run no Python, and it "
+                      f"lies in uv's cache ({cache}): after `uv cache clean` such hosts fall back to "
+                      f"{env['base_python']}; for FMUs that last, build them in an environment of your own "
+                      "(uv venv; uv pip install tapmuscle; tapmuscle build)", NativeHostWarning, stacklevel=3)
     shared = bool(env["libpython_soname"])  # a libpython for hosts that run no Python
     cc = shlex.split(os.environ.get("CC", "")) or [c for c in (shutil.which("gcc") or shutil.which("cc"),) if c]
     if not cc:

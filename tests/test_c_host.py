@@ -514,6 +514,15 @@ def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_t
         assert proc.stdout.splitlines() == ["t,u,l,p"]
 
 
+def test_a_build_in_an_environment_in_uvs_cache_warns_that_it_is_temporary(built_fmus, tmp_path, monkeypatch):
+    """`uvx --from tapmuscle tapmuscle build` records uv's cached environment for C hosts; after `uv
+    cache clean` they silently fell back to another Python. The build says so."""
+    monkeypatch.setattr(native_host, "uv_cache_environment", lambda: tmp_path / "uv")
+    with pytest.warns(NativeHostWarning, match=r"lies in uv's cache \(.*/uv\): after `uv cache clean` such hosts "
+                                               r"fall back to .*build them in an environment of your own"):
+        _prepared_as(built_fmus, tmp_path / "tree", monkeypatch)
+
+
 def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_hosts_find_it_on_the_library_path(
         host, built_fmus, tmp_path, monkeypatch):
     """The FMU copied to another machine: its building Python's libpython is not at the recorded path.

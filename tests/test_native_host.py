@@ -308,3 +308,23 @@ def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_
 def test_setup_outside_an_fmu_does_nothing():
     assert not (ROOT / CONFIG_NAME).exists()
     assert not any(isinstance(f, native_host.MissingDependencyFinder) for f in sys.meta_path)
+
+
+def test_an_environment_in_uvs_cache_is_told_apart(tmp_path, monkeypatch):
+    """`uvx --from tapmuscle tapmuscle build` records an environment inside uv's cache, which `uv cache
+    clean` removes: the build warns (tests/test_c_host.py); this is how it tells."""
+    monkeypatch.setenv("UV_CACHE_DIR", str(tmp_path / "uvcache"))
+    inside = tmp_path / "uvcache" / "archive-v0" / "abc123"
+    inside.mkdir(parents=True)
+    assert build_native_host.uv_cache_environment(inside) == tmp_path / "uvcache"
+    assert build_native_host.uv_cache_environment(tmp_path / "venv") is None
+    monkeypatch.delenv("UV_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    (tmp_path / "uv" / "builds-v0" / "x").mkdir(parents=True)
+    assert build_native_host.uv_cache_environment(tmp_path / "uv" / "builds-v0" / "x") == tmp_path / "uv"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    (tmp_path / "home" / ".cache" / "uv" / "y").mkdir(parents=True)
+    assert build_native_host.uv_cache_environment(tmp_path / "home" / ".cache" / "uv" / "y") == \
+        tmp_path / "home" / ".cache" / "uv"
+    assert build_native_host.uv_cache_environment() is None  # this test's own environment
