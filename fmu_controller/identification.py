@@ -289,6 +289,16 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
                            constraint_start_s=constraint_start_s, ts_s=float(ts_s))
     result: IdentificationResult = run_rls(structure, u / u_scale, l / l_scale, settings)
     theta = rescale_theta(result.theta, structure, l_scale, u_scale)
+    outside = [f"{n} = {theta[idx[n]]:.4g} not in [{lower.get(n, -math.inf):g}, {upper.get(n, math.inf):g}]"
+               for n in structure.names if not lower.get(n, -math.inf) <= theta[idx[n]] <= upper.get(n, math.inf)]
+    if outside:
+        # the controllers refuse a theta0 outside its region C: said here, where it can be mended
+        duration = (len(l) - 1) * float(ts_s)
+        why = (f"the record ({duration:g} s) ends before the constraint starts ({constraint_start_s:g} s): give "
+               f"--constraint-start (constraint_start_s) below {duration:g} s"
+               if duration < constraint_start_s else "the projection of Algorithm 1 did not bring it inside")
+        notes.append(f"the final estimate lies outside the constraint region ({'; '.join(outside)}): {why}; a "
+                     "controller refuses it as theta0 with this box")
     history = result.theta_history * f
     return IdentificationReport(
         model=model, structure=structure, ts_s=float(ts_s), n_samples=len(l), theta=theta,

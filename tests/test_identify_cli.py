@@ -324,3 +324,22 @@ def test_a_rigs_transport_delay_is_identified_on_the_command_the_valve_had(tmp_p
     assert "--input-delay-samples must be within 0..5, got 6" in capsys.readouterr().err
     with pytest.raises(ValueError, match="input_delay_samples must be a number of samples 0 .. 5, got -1"):
         identify_record(val.u_v, val.l_mm, ts_s=0.1, input_delay_samples=-1)
+
+
+def test_a_record_shorter_than_the_constraint_start_says_its_estimate_lies_outside_the_box(tmp_path, capsys):
+    """A 60-s record with the paper's constraint start (120 s) was never projected: its theta lay outside
+    the box the file records, and only a scenario using the file refused it later ("theta0's a1 lies
+    outside the constraint region C"). identify says so and how to mend it; with an earlier start the
+    estimate is inside and nothing is said."""
+    rec = tmp_path / "short.csv"
+    assert main(["record", "--load", "44", "--input", SINE, "--duration", "60", "--out", str(rec), "--quiet"]) == 0
+    assert main(["identify", str(rec), "--json", str(tmp_path / "a.json")]) == 0
+    notes = json.loads((tmp_path / "a.json").read_text())["notes"]
+    assert len(notes) == 1 and re.match(r"the final estimate lies outside the constraint region \(.*b1 = [-\d.e]+ not "
+                                        r"in \[0.607, 1.184\].*\): the record \(60 s\) ends before the constraint "
+                                        r"starts \(120 s\): give --constraint-start", notes[0]), notes
+    assert "note: the final estimate lies outside" in capsys.readouterr().err
+    assert main(["identify", str(rec), "--constraint-start", "30", "--json", str(tmp_path / "b.json")]) == 0
+    r = json.loads((tmp_path / "b.json").read_text())
+    assert r["notes"] == []
+    assert all(TABLE2_LOWER[n] <= r["theta"][n] <= TABLE2_UPPER[n] for n in TABLE2_LOWER)
