@@ -275,6 +275,22 @@ def test_unknown_fmu_parameter_and_bad_toml_are_named(built_fmus, tmp_path, caps
     assert "does not exist" in capsys.readouterr().err
 
 
+def test_a_shipped_scenario_named_outside_the_checkout_is_pointed_to(tmp_path, monkeypatch, capsys):
+    """`tapmuscle run paper/ampc_servo_44N_0.1Hz.toml` (as the docs name it) from another folder after a
+    non-editable install said only "does not exist"; the shipped copy is named (with or without the
+    checkout's scenarios/), and nothing is run from it unasked."""
+    from tapmuscle.cosim import PAPER_SCENARIOS
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("paper/ampc_servo_44N_0.1Hz.toml", "scenarios/paper/ampc_servo_44N_0.1Hz.toml"):
+        assert main(["run", name, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+        assert (f"{name}: scenario file does not exist in {tmp_path}; tapmuscle ships one by that name: "
+                f"{PAPER_SCENARIOS / 'ampc_servo_44N_0.1Hz.toml'}") in capsys.readouterr().err
+    assert main(["run", "paper/nothing.toml", "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert capsys.readouterr().err.rstrip().endswith("paper/nothing.toml: scenario file does not exist")
+    assert not (tmp_path / "o").exists()
+
+
 def test_bad_fmu_parameter_value_stops_the_run_with_the_fmus_message(built_fmus):
     s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
                         "controller": {"method": "ampc_servo", "parameters": {"servo.Hu": 9}}}, source="s.toml")

@@ -423,13 +423,27 @@ def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: {what} file does not exist") from None
+        raise ScenarioError(f"{path}: {what} file does not exist{_shipped_hint(path)}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ScenarioError(f"{path}: cannot read: {exc}") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+
+
+def _shipped_hint(path: Path) -> str:
+    """Where tapmuscle ships a file of that relative name (``paper/...``, ``scenarios/paper/...``: a
+    name from the docs, typed outside the checkout), as a hint; else empty."""
+    if path.is_absolute():
+        return ""
+    from tapmuscle.cosim import SCENARIO_FILES  # noqa: PLC0415 - the package imports this module
+
+    parts = path.parts[1:] if path.parts[:1] == ("scenarios",) else path.parts
+    shipped = SCENARIO_FILES.joinpath(*parts) if parts else None
+    if shipped is None or not shipped.is_file():
+        return ""
+    return f" in {Path.cwd()}; tapmuscle ships one by that name: {shipped}"
 
 
 def load_scenario(path: str | Path) -> Scenario:
