@@ -7,7 +7,8 @@ tables assume none (docs/control.md, "Transport delay"). Each method at 44 N, 0.
 nominal rig with a transport delay of 0-0.4 s (``delay.delay_s``), 90 s from rest, noise seeds
 0..N-1, with ``input_delay_samples`` 0 (the paper's law), the delay in samples (rounded to the
 nearest) and -1 (decided from the data); ``--servo-r R`` sets the servo methods' move weight R
-(Table 5: 15). Printed per
+(Table 5: 15) and ``--delay-move-weight F`` the factor on it for delays of 2 samples or more
+(``ControllerSettings.delay_move_weight``, default 4; 1 keeps R). Printed per
 method, delay and setting, over the cells and seeds: Eq. (21) over 10-40 s, the mean |r - l| over
 50-90 s (after -1's restart of the estimator and its start-up mode), the share of 10-90 s the valve
 sits at 0 or 10 V, and -1's decisions. ``--off-nominal N``: N rigs drawn as docs/diagnosis.md's
@@ -47,6 +48,7 @@ def samples_of(delay_s: float) -> int:
 
 
 SERVO = ServoMPCSettings()
+DELAY_MOVE_WEIGHT = ControllerSettings().delay_move_weight
 
 
 def run(method: str, load: float, f: float, seed: int, theta0: np.ndarray, params: PlantParams,
@@ -54,7 +56,7 @@ def run(method: str, load: float, f: float, seed: int, theta0: np.ndarray, param
     plant = Plant(params, seed=seed)
     plant.update(load_n=load)
     cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, input_delay_samples=input_delay,
-                            servo=SERVO)
+                            servo=SERVO, delay_move_weight=DELAY_MOVE_WEIGHT)
     ctrl = DisplacementController(cs, theta0)
     r = run_closed_loop(plant, ctrl, SineReference(frequency_hz=f), duration_s=90.0)
     return r, ctrl.input_delay_decision
@@ -121,7 +123,8 @@ def figure(theta0: np.ndarray, out: Path) -> None:
         ax2.set_ylabel("u [V]", color="tab:red")
         title = {0: "input_delay_samples = 0 (the paper's law)", 3: "input_delay_samples = 3",
                  -1: f"input_delay_samples = -1 (decided {dec})"}[d]
-        ax.set_title(f"AMPC-servo (R = {SERVO.r:g}), 44 N, 0.1 Hz, transport delay 0.3 s: {title}; Eq. (21) "
+        ax.set_title(f"AMPC-servo (R = {SERVO.r:g}, x {DELAY_MOVE_WEIGHT:g} for a delay of 2 or more), 44 N, 0.1 Hz, "
+                     f"transport delay 0.3 s: {title}; Eq. (21) "
                      f"{eq21_error_mm(r['r_mm'], r['l_mm']):.2f} mm", fontsize=9)
         ax.set_ylabel("l [mm]")
         ax.set_ylim(-5, 80)
@@ -137,11 +140,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--off-nominal", type=int, default=0, metavar="N")
     ap.add_argument("--servo-r", type=float, default=None, metavar="R")
+    ap.add_argument("--delay-move-weight", type=float, default=None, metavar="F")
     ap.add_argument("--out", type=Path, default=Path("out/transport_delay"))
     args = ap.parse_args(argv)
-    global SERVO
+    global SERVO, DELAY_MOVE_WEIGHT
     if args.servo_r is not None:
         SERVO = ServoMPCSettings(r=args.servo_r)
+    if args.delay_move_weight is not None:
+        DELAY_MOVE_WEIGHT = args.delay_move_weight
     theta0 = preliminary_theta(0, refine_hz=0.05)
     table(args.seeds, theta0)
     if args.off_nominal:

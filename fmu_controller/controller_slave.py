@@ -60,7 +60,8 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
+                                                 MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
                                                  preview_lead, pushed_at_limit)
@@ -187,6 +188,10 @@ class AMPCController(SafeSlave):
             ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
             ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
             ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5)", 0.0, None),
+            ("delay_move_weight", 4.0, "", "servo methods: factor on servo.R while the law compensates a delay of "
+             "2 samples or more (input_delay_samples 2 .. 5, or -1 deciding for one: a rig's transport delay, whose "
+             "prediction errors a larger R feeds back less); 1 keeps servo.R; delays 0 and 1 always do "
+             "(docs/control.md, Transport delay)", 0.0, MAX_DELAY_MOVE_WEIGHT),
             ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", 0.0, 10.0),
             ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", 0.0, 10.0),
             ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", 0.5, 1.0),
@@ -266,7 +271,7 @@ class AMPCController(SafeSlave):
             delay_correction=ip["delay_correction"] == 1, anti_windup=ip["anti_windup"] == 1,
             startup_guard=ip["startup_guard"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
-            startup_s=p["startup_s"], probing_v=p["probing_v"])
+            startup_s=p["startup_s"], probing_v=p["probing_v"], delay_move_weight=p["delay_move_weight"])
 
     def initialize_numerics(self) -> None:
         self._reset_monitors()
@@ -349,8 +354,9 @@ class AMPCController(SafeSlave):
                     else f"input_delay_samples = -1, decided {decided}")
             if (decided or 0) >= 1:  # a delay set or decided: it may be off, or the law too aggressive for it
                 why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
-                       "it: check the delay (-1 decides it), raise servo.R, and with a fixed theta0 make one under "
-                       "the delay (docs/control.md, \"Transport delay\")")
+                       "it: check the delay (-1 decides it), raise delay_move_weight (servo.R times it for a delay "
+                       "of 2 or more), and with a fixed theta0 make one under the delay (docs/control.md, "
+                       "\"Transport delay\")")
             else:
                 why = ("the loop has more delay than the law compensates: a rig's transport delay, or a parallel "
                        "master? Set input_delay_samples to the loop's delay in samples, or -1 to decide it "

@@ -37,7 +37,7 @@ sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -51,7 +51,8 @@ from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
-__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
+__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S",
+           "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "full_range_jump", "preview_lead",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
@@ -85,6 +86,9 @@ DELAY_LEAD_SAMPLES = 20
 #: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
 #: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
 HOLD_AFTER_SAMPLES = 5
+
+#: Largest ``ControllerSettings.delay_move_weight``.
+MAX_DELAY_MOVE_WEIGHT = 1000.0
 
 #: Longest start-up mode ``ControllerSettings.startup_s`` [s].
 MAX_STARTUP_S = 600.0
@@ -211,6 +215,14 @@ class ControllerSettings:
     thousands of mm and the loop lags for 6-12 s once the reference is back in reach (docs/control.md,
     "Integrator wind-up"). Shorter stays at a limit are integrated: the paper's runs keep their bits.
     False: Eq. (18) as the paper writes it."""
+    delay_move_weight: float = 4.0
+    """Servo methods: the factor on Eq. (15)'s move weight R (``servo.r``) while the law compensates a
+    delay of 2 samples or more (``input_delay_samples`` 2 .. 5, or -1 once it decided for one: a rig's
+    transport delay). The law's prediction through the commands in flight is only as good as Eq. (1),
+    and a larger R lowers the gain with which its errors come back to the valve (measured with 4, R = 60:
+    AMPC-servo 0.88 / 1.99 / 2.81 mm at 0.2 / 0.3 / 0.4 s against 1.16 / 2.37 / 3.62 with Table 5's 15,
+    MPC-servo 1.5 against 3.9 mm at 0.2 s; docs/control.md, "Transport delay"). 1 keeps ``servo.r``;
+    delays of 0 and 1 always do (the paper's runs and the parallel master keep their bits)."""
     delay_correction: bool = True
     """With an input delay (``input_delay_samples`` 1 or more, or -1 once a delay hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
@@ -240,6 +252,11 @@ class ControllerSettings:
             raise ValueError(f"ControllerSettings.startup_guard must be True or False, got {self.startup_guard!r}")
         if not isinstance(self.anti_windup, bool):
             raise ValueError(f"ControllerSettings.anti_windup must be True or False, got {self.anti_windup!r}")
+        object.__setattr__(self, "delay_move_weight", real_number(self.delay_move_weight,
+                                                                  what="ControllerSettings.delay_move_weight"))
+        if not 0.0 < self.delay_move_weight <= MAX_DELAY_MOVE_WEIGHT:
+            raise ValueError(f"ControllerSettings.delay_move_weight must be within 0 .. {MAX_DELAY_MOVE_WEIGHT:g} "
+                             f"(0 excluded; 1: servo.r as it is), got {self.delay_move_weight!r}")
         if not isinstance(self.delay_correction, bool):
             raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
@@ -264,6 +281,15 @@ class ControllerSettings:
         _, _, lower, upper = RLSSettings(p0=self.p0, box_lower=self.box_lower,
                                          box_upper=self.box_upper).resolve(ASYMMETRIC)
         return lower, upper
+
+    def servo_for_delay(self, delay_samples: int) -> ServoMPCSettings:
+        """The servo settings the law runs with for a delay of ``delay_samples`` samples: ``servo``, its
+        move weight R times :attr:`delay_move_weight` from 2 samples on."""
+        f = self.delay_move_weight
+        if delay_samples < 2 or f == 1.0:
+            return self.servo
+        r = self.servo.r
+        return replace(self.servo, r=tuple(x * f for x in r) if isinstance(r, tuple) else r * f)
 
     @property
     def adaptive(self) -> bool:
@@ -382,8 +408,8 @@ class DisplacementController:
                 covariance_ceiling=settings.covariance_ceiling,
                 box_lower=dict(settings.box_lower), box_upper=dict(settings.box_upper),
                 constraint_start_s=0.0, ts_s=settings.ts_s))
-        self._servo = ServoMPC(settings.servo, a1=theta0[0], a2=theta0[1], b1=theta0[2]) \
-            if settings.servo_mechanism else None
+        self._servo = ServoMPC(settings.servo_for_delay(settings.input_delay_samples), a1=theta0[0], a2=theta0[1],
+                               b1=theta0[2]) if settings.servo_mechanism else None
         # per-step constants (the settings are frozen)
         self._need = settings.preview_samples + 1
         self._law_n = self._need - preview_lead(settings.input_delay_samples)  # r(k..k+Hp) the law takes
@@ -431,6 +457,7 @@ class DisplacementController:
         # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
         # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
         self._lag = 1 if self._auto else self.settings.input_delay_samples  # the delay the law runs for
+        self._fit_servo_to_lag()
         self._decided = not self._auto
         # an input delay: the commands (u, u_c) computed but not at the valve yet, the one it gets next
         # first (_u_next, _uc_next), then those of later samples (a delay of 2 or more)
@@ -572,6 +599,7 @@ class DisplacementController:
         outs = self._outs
         self._decided = True
         self._lag = d
+        self._fit_servo_to_lag()
         self._state.apply(outs[d][0])
         self._u_prev, self._uc_prev = outs[d]
         if d:
@@ -582,6 +610,16 @@ class DisplacementController:
             self._rls.setup(ASYMMETRIC, self._rls.settings)
             self._est_from = self._k
             self._jumps, self._guarded_at = 0, None
+
+    def _fit_servo_to_lag(self) -> None:
+        """The servo QP with the move weight for the delay the law runs for
+        (:meth:`ControllerSettings.servo_for_delay`), set up again from its model if that changed it."""
+        if self._servo is None:
+            return
+        wanted = self.settings.servo_for_delay(self._lag)
+        if self._servo.settings != wanted:
+            a1, a2, b1 = self._servo.model
+            self._servo = ServoMPC(wanted, a1=a1, a2=a2, b1=b1)
 
     @property
     def input_delay_decision(self) -> int | None:
@@ -890,6 +928,7 @@ class DisplacementController:
                 raise ValueError(f"state field decided = {decided!r} contradicts input_delay_samples = "
                                  f"{d} with lag = {lag!r}")
             self._lag = lag
+            self._fit_servo_to_lag()
             self._decided = bool(decided)
             self._outs, self._later, self._ms = outs, later, scores
             self._compared = int(state["compared"])

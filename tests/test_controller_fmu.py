@@ -84,15 +84,17 @@ def test_fmu_equals_the_direct_controller_bit_for_bit(fmu, method_code, method):
 
 
 @pytest.mark.parametrize("delay", [1, 3])
-@pytest.mark.parametrize("correction", [0, 1])
-def test_delay_correction_parameter_is_the_direct_controllers(fmu, correction, delay):
-    """``input_delay_samples = 1`` or 3 (a rig's transport delay) with ``delay_correction`` 0 or 1: the
-    FMU's commands are the direct controller's with ``delay_correction`` False or True, bit for bit
-    (the correction acts from the 21st sample, so 60 samples compare both)."""
+@pytest.mark.parametrize("correction, weight", [(0, 4.0), (1, 4.0), (1, 1.0)])
+def test_delay_correction_parameter_is_the_direct_controllers(fmu, correction, weight, delay):
+    """``input_delay_samples = 1`` or 3 (a rig's transport delay) with ``delay_correction`` 0 or 1 and
+    ``delay_move_weight`` 4 (the default) or 1: the FMU's commands are the direct controller's with
+    the same settings, bit for bit (the correction acts from the 21st sample, so 60 samples compare
+    both)."""
     vr = fmu[3]
-    f = _instance(fmu, ints={"input_delay_samples": delay, "delay_correction": correction})
-    direct = DisplacementController(ControllerSettings(input_delay_samples=delay, delay_correction=bool(correction)),
-                                    THETA0_44N)
+    f = _instance(fmu, reals={"delay_move_weight": weight},
+                  ints={"input_delay_samples": delay, "delay_correction": correction})
+    direct = DisplacementController(ControllerSettings(input_delay_samples=delay, delay_correction=bool(correction),
+                                                       delay_move_weight=weight), THETA0_44N)
     ref = SineReference()
     direct.reset(_l(0))
     got, want = [], []
@@ -224,6 +226,8 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"P0.a1": -1.0}, {}, "parameter P0.a1 = -1.0 is outside its declared range 0..inf"),
     ({"Ts": 0.0}, {}, "parameter Ts = 0.0 is outside"),
     ({"servo.R": math.nan}, {}, "parameter servo.R = nan is not finite"),
+    ({"delay_move_weight": 0.0}, {}, "delay_move_weight must be within 0 .. 1000 (0 excluded"),
+    ({"delay_move_weight": 2000.0}, {}, "parameter delay_move_weight = 2000.0 is outside its declared range 0..1000"),
     ({"box_lower.b1": 2.0}, {}, "box_lower.b1 = 2.0 exceeds box_upper.b1"),
     ({"theta0.b1": 0.0}, {}, "theta0.b1 = 0.0 must not be ~0"),
     ({"sine.offset": 4000.0, "sine.amplitude": 1500.0}, {}, "sine.offset +- sine.amplitude = 4000 +- 1500 mm leaves"),
@@ -612,7 +616,7 @@ def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensatio
     (msg,) = [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
     assert msg.startswith("t = 11 s: ")  # the first 10 s after the estimator's start are not judged
     assert "a limit cycle (input_delay_samples = 3): the loop's delay differs from the one the law compensates" in msg
-    assert "raise servo.R" in msg
+    assert "raise delay_move_weight (servo.R times it" in msg
 
 
 def test_a_rewind_logs_what_the_run_from_there_logs():

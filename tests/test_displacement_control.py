@@ -14,6 +14,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
 from fmu_controller.reference import SineReference
+from fmu_controller.servo_settings import ServoMPCSettings
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_plant import Plant, PlantParams
 from tapmuscle.closed_loop import command_tv_excess, eq21_error_mm, run_closed_loop
@@ -159,9 +160,10 @@ def test_delay_compensation_on_the_model_gives_the_undelayed_commands(theta0, me
     """On a plant that is the Eq. (1) model, the predictions l(k+1|k) .. l(k+d|k) are exact: the
     controller with ``input_delay_samples = d`` must output at sample k the command the undelayed
     controller computes at k+d (after both have had 0 V on the valve over the first d samples), so
-    the delayed loop is the undelayed one."""
+    the delayed loop is the undelayed one (with the same move weight R: ``delay_move_weight = 1``)."""
     # the paper's start: the start-up mode's lead-in counts its own samples, d apart in the two loops
-    d = DisplacementController(ControllerSettings(method=method, input_delay_samples=delay, startup_s=0.0), theta0)
+    d = DisplacementController(ControllerSettings(method=method, input_delay_samples=delay, startup_s=0.0,
+                                                  delay_move_weight=1.0), theta0)
     c = DisplacementController(ControllerSettings(method=method, startup_s=0.0), theta0)
     hp = d.settings.preview_samples
     assert hp == c.settings.preview_samples + delay
@@ -306,6 +308,34 @@ def test_a_delay_set_where_the_rig_has_none_keeps_the_prediction_through_the_com
         r = run_closed_loop(Plant(PlantParams(), seed=0), c, SineReference(), duration_s=10.0, load_n=44.0)
     assert np.abs(r["uc_v"]).max() < 1e7, np.abs(r["uc_v"]).max()
     assert r["u_v"].min() >= 0.0 and r["u_v"].max() <= 10.0
+
+
+def test_the_servo_is_detuned_for_a_transport_delay_set_or_decided(theta0):
+    """delay_move_weight (default 4) multiplies Table 5's R = 15 while the law runs for a delay of 2 or
+    more: set, or decided by -1 (and back to 15 at a reset, whose law runs for 1 again); 0 and 1 keep
+    R. On a rig with a 0.3-s delay, AMPC-servo with 3 set tracks better than with the factor 1
+    (measured Eq. (21) 1.11 against 1.87 mm; MPC-servo 7.9 against 11.6)."""
+    assert ControllerSettings().servo_for_delay(1).r == 15.0 and ControllerSettings().servo_for_delay(2).r == 60.0
+    tup = ControllerSettings(servo=ServoMPCSettings(r=(1.0, 2.0, 3.0, 4.0, 5.0)), delay_move_weight=2.0)
+    assert tup.servo_for_delay(5).r == (2.0, 4.0, 6.0, 8.0, 10.0) and tup.servo_for_delay(0).r == tup.servo.r
+    for bad in (0.0, -1.0, 1001.0, math.nan):
+        with pytest.raises(ValueError, match="delay_move_weight"):
+            ControllerSettings(delay_move_weight=bad)
+    rig = PlantParams().with_values(**{"delay.delay_s": 0.3})
+    errors = {}
+    for factor in (1.0, 4.0):
+        c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=3,
+                                                      delay_move_weight=factor), theta0)
+        assert c._servo.settings.r == 15.0 * factor
+        r = run_closed_loop(Plant(rig, seed=0), c, SineReference(), duration_s=45.0, load_n=44.0)
+        errors[factor] = eq21_error_mm(r["r_mm"], r["l_mm"])
+    assert errors[4.0] < 0.8 * errors[1.0], errors
+    c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=-1), theta0)
+    assert c._servo.settings.r == 15.0
+    run_closed_loop(Plant(rig, seed=1), c, SineReference(), duration_s=8.0, load_n=44.0)
+    assert c.input_delay_decision == 3 and c._servo.settings.r == 60.0
+    c.reset(0.0)
+    assert c._servo.settings.r == 15.0
 
 
 @pytest.mark.parametrize("delay_s, expected", [(0.0, 0), (0.1, 1), (0.2, 2), (0.3, 3), (0.4, 4)])
