@@ -9,6 +9,7 @@ import textwrap
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
 from matplotlib.image import imread
 
 from tapmuscle.plots.figures import plot_recording, plot_tracking
@@ -77,3 +78,39 @@ def test_figures_drawn_in_threads_at_once_are_those_drawn_one_by_one(tmp_path):
         for kind in ("", "_rec"):
             a, b = imread(tmp_path / f"serial{kind}{i}.png"), imread(tmp_path / f"threaded{kind}{i}.png")
             assert a.shape == b.shape and np.array_equal(a, b), f"{kind or 'tracking'} {i}"
+
+
+def test_characters_no_font_draws_are_said_once(tmp_path):
+    """A scenario named in Chinese with no CJK font installed: matplotlib warned per character and per
+    drawing pass (four "Glyph ... missing from font(s) DejaVu Sans." for two characters, printed even
+    under --quiet); save_figure says once which characters show as boxes. Other warnings pass through."""
+    import warnings
+
+    from matplotlib import font_manager
+
+    from tapmuscle.plots.figures import MissingGlyphWarning, new_figure, save_figure
+
+    font = font_manager.FontProperties(family="DejaVu Sans")
+    if "模" in {chr(c) for c in font_manager.get_font(font_manager.findfont(font)).get_charmap()}:
+        pytest.skip("the default font draws CJK characters here")
+    fig, ax = new_figure(figsize=(3, 2))
+    ax.set_title("模型 1 Müller")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        save_figure(fig, tmp_path / "a.png")
+    assert [(w.category, str(w.message)) for w in caught] == [
+        (MissingGlyphWarning, "a.png: no installed font draws '模型', shown as boxes (install a font that has them, "
+                              "e.g. Debian's fonts-noto-cjk)")]
+    assert (tmp_path / "a.png").stat().st_size > 1000
+    from matplotlib.artist import Artist
+
+    class Warns(Artist):
+        def draw(self, renderer):
+            warnings.warn("drawn", RuntimeWarning)
+
+    fig, ax = new_figure(figsize=(3, 2))
+    fig.add_artist(Warns())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        save_figure(fig, tmp_path / "b.png")
+    assert caught and {(w.category, str(w.message)) for w in caught} == {(RuntimeWarning, "drawn")}

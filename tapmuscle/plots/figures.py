@@ -13,6 +13,8 @@ leaves a truncated PNG behind.
 from __future__ import annotations
 
 import os
+import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +23,7 @@ from matplotlib.figure import Figure
 
 from tapmuscle.io.atomic import atomic_path
 
-__all__ = ["new_figure", "save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
+__all__ = ["MissingGlyphWarning", "new_figure", "save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
            "plot_loop_comparison", "plot_tracking", "plot_prediction_errors"]
 
 
@@ -46,12 +48,35 @@ def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], 
     return fig, fig.subplots(nrows, ncols, **subplots)
 
 
+class MissingGlyphWarning(UserWarning):
+    """A figure's text has characters that no font matplotlib uses draws (they show as boxes)."""
+
+
+_GLYPH = re.compile(r"Glyph (\d+) .*missing from font")
+
+
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:
-    """Save ``fig`` as PNG to ``path`` atomically; a figure that pyplot made is closed there too."""
+    """Save ``fig`` as PNG to ``path`` atomically; a figure that pyplot made is closed there too.
+
+    Characters of its text that the font lacks (a scenario named in Chinese or Japanese, with no CJK
+    font installed) are said once, as one :class:`MissingGlyphWarning` naming them, instead of
+    matplotlib's warning per character and drawing pass."""
     path = Path(path)
     try:
-        with atomic_path(path, suffix=".png") as tmp:
-            fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with atomic_path(path, suffix=".png") as tmp:
+                fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+        missing = []
+        for w in caught:
+            glyph = _GLYPH.match(str(w.message))
+            if glyph is None:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+            elif chr(int(glyph.group(1))) not in missing:
+                missing.append(chr(int(glyph.group(1))))
+        if missing:
+            warnings.warn(f"{path.name}: no installed font draws {''.join(missing)!r}, shown as boxes (install a font "
+                          "that has them, e.g. Debian's fonts-noto-cjk)", MissingGlyphWarning, stacklevel=2)
     finally:
         if getattr(fig.canvas, "manager", None) is not None:
             # only pyplot gives a figure a manager, so pyplot is already loaded here
