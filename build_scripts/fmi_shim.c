@@ -1,6 +1,7 @@
 /* ---- FMI shim: every FMI function of the FMU goes through here to pythonfmu's ----
    Compiled appended to a loader (native_loader_linux64.c, native_loader_win64.c), which provides
    real(symbol) (pythonfmu's function), library_error() (why pythonfmu's library is not loaded),
+   python_home_hint() (what a failed instantiation adds about PYTHONHOME),
    readable(path), local_path(path, size), instantiate_lock()/instantiate_unlock() and pin_thread().
    Why: (1) some hosts do not check a NULL from fmi2Instantiate (libcosim dereferences it, Ecos crashes
    in fmi2SetupExperiment): a failed instantiation returns an instance that answers every later call
@@ -259,9 +260,9 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
         }
     }
     if (!s->inner) {
-        char text[1800];
-        snprintf(text, sizeof text, "fmi2Instantiate failed%s%s; every later call of this instance returns fmi2Error",
-                 s->reason[0] ? ": " : "", s->reason);
+        char text[2600];
+        snprintf(text, sizeof text, "fmi2Instantiate failed%s%s%s; every later call of this instance returns fmi2Error",
+                 s->reason[0] ? ": " : "", s->reason, python_home_hint());
         to_host(s, s->name, fmi2Error, "logStatusError", text);
     }
     s->worst = fmi2OK;

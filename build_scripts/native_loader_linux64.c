@@ -57,6 +57,7 @@ static int bind_python(void) {
 static int python_running(void) { return py.IsInitialized && py.IsInitialized(); }
 
 static void *pythonfmu_lib;
+static int started_python;                   /* this library started the process's Python (a C host) */
 static char load_failure[1400];   /* why pythonfmu's library is not loaded */
 static void (*finalize_interpreter)(void);   /* pythonfmu's finalizePythonInterpreter, where it has one */
 
@@ -67,20 +68,48 @@ static void failed(const char *what, const char *why) {
 /* (a) In a host that runs no Python: the building Python's libpython (recorded path, else its soname on
        the library path: LD_LIBRARY_PATH), global, so that pythonfmu's library and the extension modules
        Python imports (not linked to libpython on Linux) find its symbols. */
-/* The libpython of the interpreter TAPMUSCLE_PYTHON names (through a venv's symlink to its base): in
-   its prefix's lib/, else by soname on the system's library path (Debian's /usr/bin/python3.11 has its
-   libpython in /usr/lib/<triplet>). A libpython of another build than the interpreter's standard
-   library (the recorded one beside Debian's stdlib) fails at its first import ("No module named
-   '_struct'"). */
+/* The folder of the base interpreter behind ``python`` (a path): a venv's pyvenv.cfg names it
+   ("home = <dir>", also for a venv made with --copies), else the folder of the file it resolves to. */
+static int base_bin_dir(const char *python, char *dir, size_t size) {
+    char cfg[4200], line[4200], real[4096], *slash;
+    FILE *f;
+    int found = 0;
+    snprintf(cfg, sizeof cfg, "%s", python);
+    if ((slash = strrchr(cfg, '/'))) *slash = 0;      /* <venv>/bin */
+    if ((slash = strrchr(cfg, '/'))) {
+        snprintf(slash, sizeof cfg - (size_t)(slash - cfg), "/pyvenv.cfg");
+        if ((f = fopen(cfg, "r"))) {
+            while (!found && fgets(line, sizeof line, f)) {
+                char *key = line + strspn(line, " \t"), *value = strchr(key, '=');
+                if (!value || strncmp(key, "home", 4) || strspn(key + 4, " \t") != (size_t)(value - key - 4)) continue;
+                value += 1 + strspn(value + 1, " \t");
+                value[strcspn(value, "\r\n")] = 0;
+                while (*value && value[strlen(value) - 1] == ' ') value[strlen(value) - 1] = 0;
+                found = snprintf(dir, size, "%s", value) < (int)size;
+            }
+            fclose(f);
+            if (found) return 1;
+        }
+    }
+    if (!realpath(python, real) || !(slash = strrchr(real, '/'))) return 0;
+    *slash = 0;
+    return snprintf(dir, size, "%s", real) < (int)size;
+}
+
+/* The libpython of the interpreter TAPMUSCLE_PYTHON names, where it is that interpreter's own: in
+   its installation's lib/, or, for the system's (/usr/bin/python3.11: Debian keeps libpython in
+   /usr/lib/<triplet>), by soname on the system's library path. A libpython of another build than the
+   interpreter's standard library (the recorded one beside Debian's) fails at its first import ("No
+   module named '_struct'"). Anything else (a shim script, an interpreter without a shared libpython)
+   keeps the recorded one. */
 static int open_named_libpython(void) {
     const char *named = getenv("TAPMUSCLE_PYTHON");
-    char real[4096], lib[4200], *slash;
-    if (!named || !*named || !realpath(named, real)) return 0;
-    if ((slash = strrchr(real, '/'))) *slash = 0;      /* <prefix>/bin */
-    if ((slash = strrchr(real, '/'))) *slash = 0;      /* <prefix> */
-    snprintf(lib, sizeof lib, "%s/lib/%s", real, LIBPYTHON_SONAME);
-    return (access(lib, R_OK) == 0 && dlopen(lib, RTLD_NOW | RTLD_GLOBAL)) ||
-           dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_GLOBAL);
+    char bin[4096], lib[4300], *slash;
+    if (!named || !*named || !base_bin_dir(named, bin, sizeof bin) || !(slash = strrchr(bin, '/'))) return 0;
+    *slash = 0;                                          /* the installation's prefix */
+    snprintf(lib, sizeof lib, "%s/lib/%s", bin, LIBPYTHON_SONAME);
+    if (access(lib, R_OK) == 0) return dlopen(lib, RTLD_NOW | RTLD_GLOBAL) != NULL;
+    return (!strcmp(bin, "/usr") || !strcmp(bin, "/usr/local")) && dlopen(LIBPYTHON_SONAME, RTLD_NOW | RTLD_GLOBAL);
 }
 
 static int open_libpython(void) {
@@ -109,12 +138,17 @@ static int open_libpython(void) {
    host process inside the dynamic loader (before any FMI call, past the host's logger): checked
    first, and the instances then fail naming it. */
 static int python_home_usable(void) {
-    const char *home = getenv("PYTHONHOME");
+    const char *home = getenv("PYTHONHOME"), *exec_part;
     char stdlib[4200];
     if (!home || !*home) return 1;
     snprintf(stdlib, sizeof stdlib, "%.*s/lib/python%s/encodings/__init__.py", (int)strcspn(home, ":"), home,
              BUILD_PYTHON_VERSION);
-    if (access(stdlib, R_OK) == 0) return 1;
+    if (access(stdlib, R_OK) == 0) {
+        exec_part = strchr(home, ':');   /* PYTHONHOME=prefix:exec_prefix: the compiled modules' folder */
+        if (!exec_part) return 1;
+        snprintf(stdlib, sizeof stdlib, "%s/lib/python%s/lib-dynload", exec_part + 1, BUILD_PYTHON_VERSION);
+        if (access(stdlib, R_OK) == 0) return 1;
+    }
     snprintf(load_failure, sizeof load_failure, "PYTHONHOME=%.600s has no standard library of CPython %s (no %.600s), "
              "so the FMU cannot start its Python: unset PYTHONHOME in this host's environment, or point it at "
              "a CPython %s installation", home, BUILD_PYTHON_VERSION, stdlib, BUILD_PYTHON_VERSION);
@@ -177,6 +211,7 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
                this thread may be gone by then). */
         py.InitializeEx(0);
         py.SaveThread();
+        started_python = 1;
     }
     /* pythonfmu's library, beside this one, now that Python's symbols are in the process */
     located = dladdr((void *)&tapmuscle_fmu_loader, &self) && self.dli_fname;
@@ -199,6 +234,18 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
 }
 
 static void *real(const char *symbol) { return pythonfmu_lib ? dlsym(pythonfmu_lib, symbol) : NULL; }
+
+/* What a failed instantiation adds when this library started Python with PYTHONHOME set: a standard
+   library there of another build than the libpython ("No module named '_struct'") says nothing of it. */
+static const char *python_home_hint(void) {
+    static char hint[900];
+    const char *home = getenv("PYTHONHOME");
+    if (!started_python || !home || !*home) return "";
+    snprintf(hint, sizeof hint, " (PYTHONHOME=%.600s is set: the FMU's Python took its standard library from there; "
+             "unset it unless it is the CPython %s installation the FMU's libpython belongs to)", home,
+             BUILD_PYTHON_VERSION);
+    return hint;
+}
 
 static const char *library_error(void) { return load_failure; }
 

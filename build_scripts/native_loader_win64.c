@@ -142,6 +142,9 @@ static void *real(const char *symbol) {
 
 static const char *library_error(void) { return load_error; }
 
+/* (Linux: a hint on PYTHONHOME after a failed instantiation; Windows hosts get Python's own message.) */
+static const char *python_home_hint(void) { return ""; }
+
 static int readable(const char *path) { return _access(path, 4) == 0; }
 
 /* pythonfmu puts the resources path on sys.path as UTF-8 but opens files in it with the narrow C++

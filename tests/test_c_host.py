@@ -340,6 +340,54 @@ def test_tapmuscle_python_of_another_installation_runs_on_its_own_libpython(host
     assert moved.stdout == run_host(host, tmp_path, *args).stdout and len(table(moved.stdout)) == 20
 
 
+def _libpythons_loaded(stderr: str) -> set[str]:
+    """The libpython files the dynamic loader opened (``LD_DEBUG=files`` output)."""
+    return {line.split("file=")[1].split()[0] for line in stderr.splitlines()
+            if "file=" in line and Path(line.split("file=")[1].split()[0]).name.startswith("libpython")}
+
+
+def test_tapmuscle_python_of_a_copied_venv_or_a_shim_keeps_the_building_libpython(host, plant, tmp_path):
+    """Only an interpreter's own libpython replaces the recorded one: a venv made with --copies (its
+    pyvenv.cfg names its base) and a shim script (pyenv's shims/python, which `which python` gives)
+    keep the building installation's; taken from their folder they had loaded the system's libpython
+    of the same version beside the other build's standard library (or run the system's Python)."""
+    config = json.loads((plant.dir / "resources" / CONFIG_NAME).read_text())
+    base = config["base_python"]
+    venv = tmp_path / "copied"
+    subprocess.run([base, "-m", "venv", "--copies", "--without-pip", str(venv)], check=True)
+    shim = tmp_path / "shims" / "python"
+    shim.parent.mkdir()
+    shim.write_text(f'#!/bin/sh\nexec {base} "$@"\n')
+    shim.chmod(0o755)
+    args = ["open", *plant.args("P", u="u", l="l"), "steps=5"]
+    expected = run_host(host, tmp_path, *args).stdout
+    for python in (venv / "bin" / "python", shim):
+        proc = run_host(host, tmp_path, *args, env_extra={"TAPMUSCLE_PYTHON": str(python), "LD_DEBUG": "files"})
+        assert _libpythons_loaded(proc.stderr) == {config["libpython"]}, (python, _libpythons_loaded(proc.stderr))
+        assert proc.stdout == expected
+
+
+def test_a_pythonhome_of_another_build_is_named_when_the_instance_fails(host, plant, tmp_path):
+    """PYTHONHOME=/usr beside an FMU built by another CPython installation: the standard library is
+    there (the loader's check passes) but of another build, and the import fails ("No module named
+    '_struct'") without a word about PYTHONHOME; the failure now names it. A prefix:exec_prefix whose
+    second part has no compiled modules is refused before Python starts."""
+    version = "%d.%d" % sys.version_info[:2]
+    config = json.loads((plant.dir / "resources" / CONFIG_NAME).read_text())
+    if not Path(f"/usr/lib/python{version}/encodings/__init__.py").exists() or config["libdir"].startswith("/usr/lib"):
+        pytest.skip(f"no other CPython {version} standard library in /usr than the building one")
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
+                    env_extra={"PYTHONHOME": "/usr"})
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert ("(PYTHONHOME=/usr is set: the FMU's Python took its standard library from there; unset it unless it is "
+            f"the CPython {version} installation the FMU's libpython belongs to)") in proc.stderr, proc.stderr[-3000:]
+    home = f"{Path(config['libdir']).parent}:{tmp_path / 'nowhere'}"
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
+                    env_extra={"PYTHONHOME": home})
+    assert (f"PYTHONHOME={home} has no standard library of CPython {version} (no {tmp_path / 'nowhere'}/lib/python"
+            f"{version}/lib-dynload)") in proc.stderr, proc.stderr[-3000:]
+
+
 FMPY_RUN = textwrap.dedent("""
     import sys
     from fmpy import read_model_description
