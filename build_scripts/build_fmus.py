@@ -23,6 +23,7 @@ import hashlib
 import importlib.util
 import os
 import shutil
+import stat
 import sys
 import tempfile
 import time
@@ -119,7 +120,12 @@ def _shipped(folder: str, names: list[str]) -> set[str]:
 
 
 def _clean_copy(src: Path, dst: Path) -> None:
-    shutil.copytree(src, dst, ignore=_shipped)
+    """``src`` copied to ``dst`` without what an FMU does not carry (:func:`_shipped`), every copy
+    writable by its owner: the build rewrites the copies' imports, and a read-only checkout or install
+    (a Nix store, a read-only CI workspace, ``chmod a-w``) would lend them its modes."""
+    shutil.copytree(src, dst, ignore=_shipped, copy_function=shutil.copyfile)
+    for path in (dst, *dst.rglob("*")):
+        path.chmod(path.stat().st_mode | stat.S_IWUSR)
 
 
 def slave_metadata(name: str) -> dict[str, dict[str, Any]]:

@@ -272,3 +272,28 @@ def test_one_fmu_named_alone_is_built_alone(tmp_path):
 
     assert [p.name for p in tm.build_fmus(tmp_path, names="MusclePlant")] == ["MusclePlant.fmu"]
     assert [p.name for p in tmp_path.iterdir()] == ["MusclePlant.fmu"]
+
+
+def test_the_build_copies_a_read_only_checkout_writable(tmp_path):
+    """A checkout or install without write bits (a Nix store, a read-only CI workspace, chmod a-w):
+    the build's copies kept its modes and rewriting their imports failed with PermissionError for any
+    user but root (tapmuscle run: "[Errno 13] Permission denied: .../fmi_slave/__init__.py"). The
+    copies are the owner's to write; what is not shipped stays out."""
+    import stat
+
+    from build_scripts.build_fmus import _clean_copy
+
+    src = tmp_path / "src"
+    (src / "pkg").mkdir(parents=True)
+    (src / "pkg" / "mod.py").write_text("X = 1\n")
+    (src / "pkg" / "mod.pyc").write_text("")
+    for path in (src / "pkg" / "mod.py", src / "pkg", src):
+        path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH | (0 if path.is_file() else 0o111))
+    try:
+        _clean_copy(src, tmp_path / "dst")
+    finally:
+        for path in (src, src / "pkg", src / "pkg" / "mod.py"):
+            path.chmod(path.stat().st_mode | stat.S_IWUSR)
+    copied = [tmp_path / "dst", tmp_path / "dst" / "pkg", tmp_path / "dst" / "pkg" / "mod.py"]
+    assert all(p.stat().st_mode & stat.S_IWUSR for p in copied), [oct(p.stat().st_mode) for p in copied]
+    assert not (tmp_path / "dst" / "pkg" / "mod.pyc").exists()

@@ -17,13 +17,19 @@ CASES = tomllib.loads((HOSTILE / "cases.toml").read_text())["case"]
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
-def test_hostile_input_gets_one_line_and_leaves_nothing(case, tmp_path, monkeypatch, capsys):
+def test_hostile_input_gets_one_line_and_leaves_nothing(case, tmp_path, monkeypatch, capsys, request):
     work = tmp_path / "work"
-    shutil.copytree(HOSTILE, work)
+    # the folder the outputs would go to is the test's, whatever the checkout's modes (read-only: a
+    # copy2 would lend them)
+    shutil.copytree(HOSTILE, work, copy_function=shutil.copyfile)
+    work.chmod(0o755)
     monkeypatch.chdir(work)
     before = sorted(p.name for p in work.iterdir())
+    argv = list(case["argv"])
+    if argv[0] == "run" and "--fmu-dir" not in argv:  # the session's FMUs, not a build into the user's cache
+        argv += ["--fmu-dir", str(request.getfixturevalue("built_fmus")["MusclePlant"].parent)]
     try:
-        code = main(list(case["argv"]))
+        code = main(argv)
     except SystemExit as exc:  # argparse's own errors
         code = exc.code
     err = capsys.readouterr().err.strip()

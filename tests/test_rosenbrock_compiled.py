@@ -125,7 +125,9 @@ def test_a_sub_step_built_for_another_python_is_named_and_the_plant_fmu_says_so(
     from fmu_plant import plant_slave
 
     pkg = tmp_path / "fmu_plant"
-    shutil.copytree(os.path.dirname(rosenbrock.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(os.path.dirname(rosenbrock.__file__), pkg, ignore=shutil.ignore_patterns("__pycache__"),
+                    copy_function=shutil.copyfile)
+    pkg.chmod(0o755)  # writable whatever the checkout's modes
     (own,) = [p for p in pkg.iterdir() if p.name.startswith("_ros34pw2.") and p.suffix in (".so", ".pyd")]
     foreign = "_ros34pw2.cpython-399-x86_64-linux-gnu.so"
     own.rename(pkg / foreign)

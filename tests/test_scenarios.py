@@ -363,7 +363,8 @@ def test_a_controller_fmu_as_the_plant_is_named_as_such(built_fmus, tmp_path, ca
     """It used to fail with "key 'seed': not a parameter of AMPCController"."""
     path = tmp_path / "s.toml"
     path.write_text(f"duration_s = 2.0\nevaluation_samples = [0, 10]\n[plant]\nfmu = '{built_fmus['AMPCController']}'\n")
-    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", str(built_fmus["MusclePlant"].parent),
+                 "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "this AMPCController FMU cannot be the plant: it lacks input u, output l" in err
     assert len(err.splitlines()) == 1

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario, parse_scenario
+from tapmuscle.cosim import SCENARIO_FILES, ScenarioError, co_simulate, load_scenario, parse_scenario
 from tapmuscle.cosim.distributed_sweep import FmuFiles, make_task, run_serial
 from tapmuscle.cosim.expect import check_expectations, parse_expectations, scenario_metrics
 from tapmuscle.cosim.master import InstancePool
@@ -88,22 +88,22 @@ seed = { integers = [0, 3] }
 
 
 def test_base_glob_crosses_each_file_with_the_grid(tmp_path):
-    sweep = load_sweep("scenarios/sweeps/paper_grid.toml")
+    sweep = load_sweep(SCENARIO_FILES / "sweeps" / "paper_grid.toml")
     assert len(sweep.runs) == 12 * 3
     names = {r.base for r in sweep.runs}
     assert len(names) == 12 and "ampc_servo_44N_0.2Hz" in names
     run = next(r for r in sweep.runs if r.base == "ampc_servo_44N_0.2Hz" and r.scenario.seed == 2)
     assert run.scenario.controller.parameters["P0.a1"] == 1000 and run.scenario.reference.frequency_hz == 0.2
-    base = load_scenario("scenarios/paper/ampc_servo_44N_0.2Hz.toml")
+    base = load_scenario(SCENARIO_FILES / "paper" / "ampc_servo_44N_0.2Hz.toml")
     assert run.scenario.expect.bounds == base.expect.bounds and base.expect.bounds  # the base file's [expect]
-    mc = load_sweep("scenarios/sweeps/robustness_mc.toml")
+    mc = load_sweep(SCENARIO_FILES / "sweeps" / "robustness_mc.toml")
     assert len(mc.runs) == 200
     assert {r.scenario.method for r in mc.runs} == {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
     assert all(30.0 <= r.scenario.load.initial <= 90.0 and 0.2 <= r.scenario.supply.initial <= 0.3
                for r in mc.runs)
 
 
-@pytest.mark.parametrize("path", sorted(Path("scenarios/sweeps").glob("*.toml")), ids=lambda p: p.name)
+@pytest.mark.parametrize("path", sorted((SCENARIO_FILES / "sweeps").glob("*.toml")), ids=lambda p: p.name)
 def test_every_shipped_sweep_loads(path):
     sweep = load_sweep(path)
     assert sweep.runs and sweep.name == path.stem
@@ -111,7 +111,7 @@ def test_every_shipped_sweep_loads(path):
 
 
 def test_the_box_sweep_keeps_the_papers_corner_among_its_rows():
-    sweep = load_sweep("scenarios/sweeps/ucp_box.toml")
+    sweep = load_sweep(SCENARIO_FILES / "sweeps" / "ucp_box.toml")
     assert len(sweep.runs) == 48
     corners = {(r.scenario.controller.parameters["box_lower.a1"], r.scenario.controller.parameters["box_lower.a2"])
                for r in sweep.runs}
