@@ -353,9 +353,14 @@ class AMPCController(SafeSlave):
             runs = (f"input_delay_samples = {s.input_delay_samples}" if s.input_delay_samples != -1
                     else f"input_delay_samples = -1, decided {decided}")
             if (decided or 0) >= 1:  # a delay set or decided: it may be off, or the law too aggressive for it
+                # what makes this law gentler: the servo's move weight (times delay_move_weight from a
+                # delay of 2 on), the unique coincidence point's horizon
+                gentler = ("ucp.Hp (a later coincidence point)" if not s.servo_mechanism
+                           else "delay_move_weight (servo.R times it for a delay of 2 or more)" if decided >= 2
+                           else "servo.R")
+                fixed = "" if s.adaptive else ", and make the fixed theta0 under the delay"
                 why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
-                       "it: check the delay (-1 decides it), raise delay_move_weight (servo.R times it for a delay "
-                       "of 2 or more), and with a fixed theta0 make one under the delay (docs/control.md, "
+                       f"it: check the delay (-1 decides it), raise {gentler}{fixed} (docs/control.md, "
                        "\"Transport delay\")")
             else:
                 why = ("the loop has more delay than the law compensates: a rig's transport delay, or a parallel "

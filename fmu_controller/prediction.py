@@ -65,7 +65,8 @@ def checked_input_delay(delay_samples: int) -> int:
         Anything else, named as ``input_delay_samples``.
     """
     d = delay_samples
-    if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= d <= MAX_INPUT_DELAY_SAMPLES:
+    whole = not isinstance(d, bool) and isinstance(d, (int, float, np.integer, np.floating)) and float(d).is_integer()
+    if not whole or not 0 <= d <= MAX_INPUT_DELAY_SAMPLES:  # 2.0 (a JSON writer's) is 2
         raise ValueError(f"input_delay_samples must be a number of samples 0 .. {MAX_INPUT_DELAY_SAMPLES}, got {d!r}")
     return int(d)
 

@@ -146,7 +146,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
         (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``), or what
         :func:`~tapmuscle.io.identification_file.read_identification` read (its period checked against
-        ``ts_s``, its box and a transport delay it was identified under the default settings'); default the 44 N
+        ``ts_s``, its box and a transport delay it was identified under the default settings', the
+        delay with ``loop_delay_samples`` added; given ``settings``, theirs apply); default the 44 N
         preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2),
         identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it.
     settings : ControllerSettings, optional
@@ -181,7 +182,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         theta0.check_period(ts)
         box = {"box_lower": theta0.box_lower, "box_upper": theta0.box_upper}
         if theta0.input_delay_samples:
-            box["input_delay_samples"] = theta0.input_delay_samples
+            # the rig's delay and, in a loop run as a parallel master does, its sample on top
+            box["input_delay_samples"] = theta0.input_delay_samples + (loop_delay_samples == 1)
         theta0 = theta0.theta
     elif abs(ts - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
         # Table 2's box holds for Ts = 0.1 s; elsewhere none, as tm.identify applies none there

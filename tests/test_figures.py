@@ -102,6 +102,14 @@ def test_characters_no_font_draws_are_said_once(tmp_path):
         (MissingGlyphWarning, "a.png: no installed font draws '模型', shown as boxes (install a font that has them, "
                               "e.g. Debian's fonts-noto-cjk)")]
     assert (tmp_path / "a.png").stat().st_size > 1000
+    # also for a figure laid out tightly (which drew it, and warned, before save_figure)
+    from tapmuscle.plots.figures import plot_parameter_convergence
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        plot_parameter_convergence(np.arange(10) * 0.1, np.ones((10, 2)), ["a1", "b1"], tmp_path / "c.png",
+                                   title="延迟")
+    assert [w.category for w in caught] == [MissingGlyphWarning], [str(w.message) for w in caught]
     from matplotlib.artist import Artist
 
     class Warns(Artist):

@@ -153,6 +153,12 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     settings = ControllerSettings(method="ampc_servo", input_delay_samples=2, box_lower={}, box_upper={})
     same = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model.theta, settings=settings)
     assert np.array_equal(run["u_v"], same["u_v"])
+    # run as a parallel master does, the loop has a sample more: 3 (with 2 it ran at 8.3 mm on a 0.2-s rig)
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model, loop_delay_samples=1)
+    same = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model.theta, loop_delay_samples=1,
+                                   settings=ControllerSettings(method="ampc_servo", input_delay_samples=3,
+                                                               box_lower={}, box_upper={}))
+    assert np.array_equal(run["u_v"], same["u_v"])
     scenario = tmp_path / "s.toml"
     scenario.write_text(f'duration_s = 5.0\n[controller]\nidentification = "{path}"\n')
     assert load_scenario(scenario).controller.parameters["input_delay_samples"] == 2
@@ -164,6 +170,8 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     assert read_identification(path).input_delay_samples == 0
     scenario.write_text(f'duration_s = 5.0\n[controller]\nidentification = "{path}"\n')
     assert "input_delay_samples" not in load_scenario(scenario).controller.parameters  # the FMU's default
+    path.write_text(json.dumps(doc | {"input_delay_samples": 2.0}))  # a JSON writer's number for 2
+    assert read_identification(path).input_delay_samples == 2
     path.write_text(json.dumps(doc | {"input_delay_samples": 7}))
     with pytest.raises(IdentificationFileError, match=r"key 'input_delay_samples': input_delay_samples must be a "
                                                       r"number of samples 0 .. 5, got 7"):

@@ -313,6 +313,8 @@ def test_a_rigs_transport_delay_is_identified_on_the_command_the_valve_had(tmp_p
                      "--input-delay-samples", str(d), "--json", str(out)]) == 0
         r = json.loads(out.read_text())
         assert r["input_delay_samples"] == d
+        said = capsys.readouterr().out
+        assert (f"on the command {d} samples earlier (--input-delay-samples)" in said) == (d > 0), said
         fits[d] = r["validation_fit_percent"]["1"]
         val = read_recording(tmp_path / "val.csv")
         again = score_model(r["theta"], ASYMMETRIC, val.u_v, val.l_mm, input_delay_samples=d)

@@ -224,7 +224,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     for note in list(report.notes) + ([jitter] if jitter else []):
         print(f"note: {note}", file=sys.stderr)
     fits = report.fit.percent
-    print(f"{report.model} model, {report.n_samples} samples at Ts {report.ts_s:g} s -> {args.json}")
+    delay = (f", on the command {report.input_delay_samples} sample{'s' if report.input_delay_samples > 1 else ''} "
+             "earlier (--input-delay-samples)" if report.input_delay_samples else "")
+    print(f"{report.model} model, {report.n_samples} samples at Ts {report.ts_s:g} s{delay} -> {args.json}")
     print("fit [%]      1-step  3-step  5-step  free run")
     print(f"identif.    {fits['1']:7.1f} {fits['3']:7.1f} {fits['5']:7.1f} {fits['sim']:9.1f}"
           + ("  (diverged)" if report.fit.free_run_diverged else ""))

@@ -266,7 +266,7 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
     a2.set_xlabel("lag [samples]")
-    fig.tight_layout()
+    fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     save_figure(fig, out / "residual_tests.png")
 
 

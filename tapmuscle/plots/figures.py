@@ -168,7 +168,7 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
         if i >= n - cols:
             ax.set_xlabel("t [s]", fontsize=8)
     fig.suptitle(title or "parameter convergence (dashed: constraint starts)")
-    fig.tight_layout()
+    fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     return save_figure(fig, path)
 
 

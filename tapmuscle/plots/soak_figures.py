@@ -62,5 +62,5 @@ def plot_soak(runs: Mapping[str, Mapping[str, np.ndarray]], names: Sequence[str]
     for a in ax:
         a.grid(True, alpha=0.3)
         a.legend(fontsize=8)
-    fig.tight_layout()
+    fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     return save_figure(fig, path)
