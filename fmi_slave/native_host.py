@@ -109,8 +109,8 @@ def _install_advice(python: str, name: str) -> str:
                 f"environment of your own, python{sys.version_info[0]}.{sys.version_info[1]} -m venv DIR && DIR/bin/pip "
                 f"install {' '.join(DEPENDENCIES)}, and set TAPMUSCLE_PYTHON=DIR/bin/python")
     if not any(os.path.isdir(os.path.join(d, "pip")) for d in site.getsitepackages()):
-        return (f"this Python has no pip (an environment made by uv?): uv pip install --python {python} {name}, "
-                f"or {python} -m ensurepip first")
+        return (f"this Python has no pip (a uv environment, an embeddable distribution): uv pip install --python "
+                f"{python} {name}, or {python} -m ensurepip and then -m pip install {name}")
     return f"{python} -m pip install {name}"
 
 

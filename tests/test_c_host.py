@@ -297,8 +297,8 @@ def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plan
     assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr  # fmi_host: an FMI call failed
     assert "tapmuscle FMU: cannot import numpy; install it into the Python the FMU uses: " in proc.stderr
     # a venv made without pip, as uv makes them: pip's advice would fail ("No module named pip")
-    assert (f"this Python has no pip (an environment made by uv?): uv pip install --python {python} numpy, or "
-            f"{python} -m ensurepip first") in proc.stderr, proc.stderr
+    assert (f"this Python has no pip (a uv environment, an embeddable distribution): uv pip install --python {python} "
+            f"numpy, or {python} -m ensurepip and then -m pip install numpy") in proc.stderr, proc.stderr
     assert "[Fatal] plant" in proc.stderr  # through the host's logger callback
     assert proc.stdout.splitlines() == ["t,u,l,p"]  # the header, no row
 

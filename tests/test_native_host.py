@@ -245,8 +245,9 @@ def test_the_advice_in_a_c_host_says_why_the_package_is_missing(tmp_path, monkey
 
     python = native_host.python_command()
     monkeypatch.setattr(native_host.site, "getsitepackages", lambda: [str(tmp_path / "site-packages-without-pip")])
-    assert (f"uses: this Python has no pip (an environment made by uv?): uv pip install --python {python} "
-            f"tapmuscle_not_installed, or {python} -m ensurepip first") in message({})
+    assert (f"uses: this Python has no pip (a uv environment, an embeddable distribution): uv pip install --python "
+            f"{python} tapmuscle_not_installed, or {python} -m ensurepip and then -m pip install "
+            "tapmuscle_not_installed") in message({})
     stdlib = tmp_path / "stdlib"
     stdlib.mkdir()
     (stdlib / "EXTERNALLY-MANAGED").write_text("[externally-managed]\n")

@@ -310,10 +310,12 @@ def test_a_windows_c_host_without_python_on_path_is_told_what_to_put_there(c_hos
 
 def test_a_windows_c_host_whose_python_lacks_osqp_is_told_how_to_install_it_there(c_host_runs):
     # The interpreter the FMU started reports the host's program as sys.executable; the advice names
-    # the Python's own python.exe ("...\\fmi_host.exe -m pip install osqp" before)
+    # the Python's own python.exe ("...\\fmi_host.exe -m pip install osqp" before), and, as this
+    # embeddable distribution has no pip, an installer that works without it
     returncode, python, stderr = c_host_runs["no_osqp"]
     assert returncode == 2, stderr
-    assert f"install it into the Python the FMU uses: {python} -m pip install osqp".replace("\\", "\\\\") in stderr
+    assert (f"install it into the Python the FMU uses: this Python has no pip (a uv environment, an embeddable "
+            f"distribution): uv pip install --python {python} osqp".replace("\\", "\\\\")) in stderr, stderr
 
 
 def test_the_plant_in_a_windows_c_host_reads_as_in_the_linux_one(c_host_runs):
