@@ -439,3 +439,25 @@ def test_the_input_delay_the_controller_decided_is_reported(built_fmus, tmp_path
                  "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent)]) == 0
     assert ("the controller compensated an input delay of 2 samples (input_delay_samples decided)"
             in capsys.readouterr().out)
+
+
+def test_python_warnings_during_a_command_are_one_line_like_the_fmus(built_fmus, tmp_path, capsys):
+    """A scenario named in Chinese on a machine without a CJK font: the figures' MissingGlyphWarning came
+    out with the library's file, line and source line ("return save_figure(fig, path)"); the CLI prints
+    it as it prints the FMUs' warnings, and Python's own display is back after the command."""
+    import warnings
+
+    from matplotlib import font_manager
+
+    font = font_manager.FontProperties(family="DejaVu Sans")
+    if "延" in {chr(c) for c in font_manager.get_font(font_manager.findfont(font)).get_charmap()}:
+        pytest.skip("the default font draws CJK characters here")
+    shown = warnings.showwarning
+    path = tmp_path / "s.toml"
+    path.write_text('name = "延迟测试"\nduration_s = 2.0\n', encoding="utf-8")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert "warning: tracking.png: no installed font draws '延迟测试', shown as boxes" in err[0], err
+    assert not any("save_figure" in line or "figures.py" in line for line in err), err
+    assert warnings.showwarning is shown

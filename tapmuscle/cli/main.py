@@ -12,6 +12,7 @@ import json
 import math
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -469,6 +470,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                      file: Any = None, line: str | None = None) -> None:
+    """A warning during a command as the FMUs' are printed: one line, without the library's source line."""
+    print(f"warning: {message}", file=file or sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tapmuscle`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -476,7 +483,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.argv = argv
     try:
-        code = int(args.func(args) or 0)
+        with warnings.catch_warnings():  # restores Python's own display for an in-process caller
+            warnings.showwarning = _one_line_warning
+            code = int(args.func(args) or 0)
         sys.stdout.flush()  # here, so that a reader gone by now is met by the handler below, not at exit
         return code
     except UsageError as exc:
