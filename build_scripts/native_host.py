@@ -277,8 +277,14 @@ def _unprepared(tree: Path, platform: str, suffix: str, model_id: str) -> tuple[
 def uv_cache_environment(prefix: str | Path | None = None) -> Path | None:
     """uv's cache folder if the environment ``prefix`` (default ``sys.prefix``) lies in it (``uvx``,
     ``uv run --with``: an environment that ``uv cache clean`` removes), else None."""
-    cache = os.environ.get("UV_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "uv")
+    from .build_fmus import user_cache_root  # noqa: PLC0415 - build_fmus imports this module
+
+    cache = os.environ.get("UV_CACHE_DIR")
+    if not cache:
+        try:
+            cache = user_cache_root().parent / "uv"  # uv's default beside ours: $XDG_CACHE_HOME, ~/.cache
+        except OSError:  # no home folder: no default cache of uv's either
+            return None
     try:
         Path(prefix or sys.prefix).resolve().relative_to(Path(cache).resolve())
     except ValueError:

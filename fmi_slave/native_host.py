@@ -123,13 +123,13 @@ def _context(config: dict) -> str:
     built, notes = config.get("python", ""), []
     fix = (f"set TAPMUSCLE_PYTHON to a CPython {version} python with {', '.join(DEPENDENCIES)}, or build the FMUs "
            "again in your environment (tapmuscle build)")
+    now = _venv_version(built) if built else None
     if built and not os.path.exists(built):
         notes.append(f"The Python that built this FMU, {built}, is gone (an environment moved or deleted, or a "
                      f"cache cleaned); this host started {python_command()} instead: {fix}.")
-    elif built and _venv_version(built) not in (None, version):
+    elif now not in (None, version):
         notes.append(f"The environment that built this FMU, {os.path.dirname(os.path.dirname(built))}, is now "
-                     f"CPython {_venv_version(built)}, and the FMU runs CPython {version}, whose packages it does "
-                     f"not have: {fix}.")
+                     f"CPython {now}, and the FMU runs CPython {version}, whose packages it does not have: {fix}.")
     if os.environ.get("PYTHONHOME"):
         notes.append(f"PYTHONHOME={os.environ['PYTHONHOME']} is set: the FMU's Python takes its standard library "
                      "and packages from there.")

@@ -16,6 +16,7 @@ Conventions (``l`` in mm, ``u`` in V, sample index ``k``, period ``Ts``):
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -65,8 +66,7 @@ def checked_input_delay(delay_samples: int) -> int:
         Anything else, named as ``input_delay_samples``.
     """
     d = delay_samples
-    whole = not isinstance(d, bool) and isinstance(d, (int, float, np.integer, np.floating)) and float(d).is_integer()
-    if not whole or not 0 <= d <= MAX_INPUT_DELAY_SAMPLES:  # 2.0 (a JSON writer's) is 2
+    if isinstance(d, (bool, np.bool_)) or not isinstance(d, numbers.Integral) or not 0 <= d <= MAX_INPUT_DELAY_SAMPLES:
         raise ValueError(f"input_delay_samples must be a number of samples 0 .. {MAX_INPUT_DELAY_SAMPLES}, got {d!r}")
     return int(d)
 
@@ -184,7 +184,9 @@ def guard_bounds(output_range: tuple[float, float] | None, fallback: Sequence[fl
         about the operating range), else ``hi - lo``.
     """
     if output_range is None:
-        lo, hi = float(np.min(fallback)), float(np.max(fallback))
+        # a record's array, or a controller's few measured values at every sample (no array made there)
+        lo, hi = ((float(fallback.min()), float(fallback.max())) if isinstance(fallback, np.ndarray)
+                  else (float(min(fallback)), float(max(fallback))))
         if widen:
             # a few initial samples say little about the operating range
             span = max(hi - lo, abs(lo), abs(hi), 1.0)

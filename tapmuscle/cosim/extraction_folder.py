@@ -79,17 +79,18 @@ def extraction_root() -> str:
         return temp
     from build_scripts.build_fmus import user_cache_root
 
-    shown = os.fsencode(temp).decode("utf-8", "backslashreplace")
+    def shown(path: str | Path) -> str:  # a name that is not UTF-8, printable
+        return os.fsencode(path).decode("utf-8", "backslashreplace")
+
     cache = user_cache_root() / "extracted"
     try:
         cache.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OSError(f"the temporary directory {shown} {why}, and {cache} cannot be made ({exc.strerror or exc}): "
+        raise OSError(f"the temporary directory {shown(temp)} {why}, and {cache} cannot be made ({exc.strerror or exc}): "
                       "set TMPDIR to a folder on a file system that allows executing, with a UTF-8 name") from None
     why_cache = _unusable(cache)
     if why_cache is not None:
-        raise OSError(f"the temporary directory {shown} {why}, and the cache "
-                      f"{os.fsencode(cache).decode('utf-8', 'backslashreplace')} {why_cache}: set TMPDIR (or "
+        raise OSError(f"the temporary directory {shown(temp)} {why}, and the cache {shown(cache)} {why_cache}: set TMPDIR (or "
                       "XDG_CACHE_HOME) to a folder on a file system that allows executing, with a UTF-8 name")
     return str(cache)
 

@@ -121,6 +121,8 @@ def read_identification(path: str | Path) -> IdentifiedModel:
             raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers, got {b!r}")
         bounds.append({k: float(v) for k, v in b.items()})
     delay = data.get("input_delay_samples", 0)  # files written before the key: identified without a delay
+    if isinstance(delay, float) and delay.is_integer():
+        delay = int(delay)  # a JSON writer's 2.0
     try:
         delay = checked_input_delay(delay)
     except ValueError as exc:
