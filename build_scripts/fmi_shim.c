@@ -224,14 +224,15 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
             to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
             return s;
         }
-        if (not_utf8_at(dir) >= 0) {
+        long bad = not_utf8_at(dir);
+        if (bad >= 0) {
             /* pythonfmu hands the path to Python as UTF-8, and on a failure there its error path
                segfaulted (a folder named in Latin-1, from a Windows zip or an old home folder) */
             char shown[1000];
             escaped(dir, shown, sizeof shown);
             snprintf(s->reason, sizeof s->reason, "the FMU's folder %s has a name that is not UTF-8 (byte 0x%02X at "
                      "%ld), which the FMU's Python cannot open: extract the FMU into a folder whose name is UTF-8 (or "
-                     "ASCII)", shown, (unsigned char)dir[not_utf8_at(dir)], not_utf8_at(dir));
+                     "ASCII)", shown, (unsigned char)dir[bad], bad);
             to_host(s, s->name, fmi2Error, "logStatusError", s->reason);
             return s;
         }
