@@ -54,6 +54,7 @@ from fmu_plant.seed import split_seed
 from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.held_interrupt import held_interrupts
+from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 from tapmuscle.errors import FmuLogWarning
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
@@ -244,6 +245,8 @@ class FmuInstance:
                                 f"{'model-exchange' if model_exchange else 'co-simulation'} interface")
         self.fmu = kind(guid=md.guid, unzipDirectory=self.unpacked.folder,
                         modelIdentifier=interface.modelIdentifier, instanceName=instance_name)
+        # an FMU on pythonfmu's own binary would otherwise corrupt this process's heap as it exits
+        release_at_exit(self.unpacked.folder, interface.modelIdentifier)
         self._call("instantiate", lambda: self.fmu.instantiate(callbacks=_callbacks(), loggingOn=True))
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()
