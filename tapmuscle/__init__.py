@@ -32,6 +32,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "identify": ("fmu_controller.identification", "identify_record"),
     "IdentificationReport": ("fmu_controller.identification", "IdentificationReport"),
     "score_model": ("fmu_controller.identification", "score_model"),
+    "choose_input_delay": ("fmu_controller.input_delay_choice", "choose_input_delay"),
     "ASYMMETRIC": ("fmu_controller.hysteresis_model", "ASYMMETRIC"),
     "STANDARD": ("fmu_controller.hysteresis_model", "STANDARD"),
     # control (section 3, Eqs. (3)-(5), (15)-(21))

@@ -328,6 +328,40 @@ def test_a_rigs_transport_delay_is_identified_on_the_command_the_valve_had(tmp_p
         identify_record(val.u_v, val.l_mm, ts_s=0.1, input_delay_samples=-1)
 
 
+def test_auto_chooses_the_rigs_delay_and_refuses_a_sine(tmp_path, capsys):
+    """--input-delay-samples auto: the fits under D = 0..5 printed and in the JSON, the best one's D
+    (the rig's 2 samples) used and recorded; a sine command is refused with why."""
+    for kind, seed, command in (("train", 0, "random:seed=7"), ("val", 1, "random:seed=8"), ("sine", 0, SINE)):
+        assert main(["record", "--input", command, "--duration", "120", "--seed", str(seed), "--set",
+                     "delay.delay_s=0.2", "--out", str(tmp_path / f"{kind}.csv"), "--quiet"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "auto.json"
+    assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),
+                 "--input-delay-samples", "auto", "--constraint-start", "60", "--json", str(out)]) == 0
+    said = capsys.readouterr().out
+    r = json.loads(out.read_text())
+    fits = r["input_delay_choice"]["fit_percent_1_step"]
+    assert r["input_delay_choice"]["scored_on"] == "validation" and len(fits) == 6
+    assert r["input_delay_samples"] == 2 == int(np.argmax(fits))
+    assert re.search(r"1-step fit \[%\], validation\s+" + r"\s+".join(f"{f:.2f}" for f in fits)
+                     + r"\s+-> D = 2 \(0.2 s\)", said), said
+    assert "on the command 2 samples earlier" in said
+    # the same as identifying under D = 2 directly
+    again = tmp_path / "d2.json"
+    assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),
+                 "--input-delay-samples", "2", "--constraint-start", "60", "--json", str(again)]) == 0
+    assert json.loads(again.read_text())["theta"] == r["theta"]
+    capsys.readouterr()
+    assert main(["identify", str(tmp_path / "sine.csv"), "--input-delay-samples", "auto",
+                 "--json", str(tmp_path / "sine.json")]) == 2
+    err = capsys.readouterr().err
+    assert "sine.csv: the identification record's command is one frequency (about 0.1 Hz, a sine)" in err, err
+    assert not (tmp_path / "sine.json").exists()
+    with pytest.raises(SystemExit):
+        main(["identify", str(tmp_path / "train.csv"), "--input-delay-samples", "best", "--json", str(out)])
+    assert "--input-delay-samples must be an integer or 'auto', got 'best'" in capsys.readouterr().err
+
+
 def test_a_record_shorter_than_the_constraint_start_says_its_estimate_lies_outside_the_box(tmp_path, capsys):
     """A 60-s record with the paper's constraint start (120 s) was never projected: its theta lay outside
     the box the file records, and only a scenario using the file refused it later ("theta0's a1 lies

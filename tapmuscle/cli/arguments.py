@@ -23,13 +23,18 @@ def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
     return parse
 
 
-def integer_at_least(name: str, lo: int, hi: int | None = None) -> Callable[[str], int]:
-    """Parser of an integer >= ``lo`` (and <= ``hi`` if given) for option ``name``."""
-    def parse(text: str) -> int:
+def integer_at_least(name: str, lo: int, hi: int | None = None, *,
+                     words: tuple[str, ...] = ()) -> Callable[[str], int | str]:
+    """Parser of an integer >= ``lo`` (and <= ``hi`` if given) for option ``name``, or one of ``words``
+    (returned as given)."""
+    def parse(text: str) -> int | str:
+        if text in words:
+            return text
         try:
             v = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
+            alternatives = "".join(f" or {w!r}" for w in words)
+            raise argparse.ArgumentTypeError(f"{name} must be an integer{alternatives}, got {text!r}") from None
         if hi is not None and not lo <= v <= hi:
             raise argparse.ArgumentTypeError(f"{name} must be within {lo}..{hi}, got {v}")
         if v < lo:

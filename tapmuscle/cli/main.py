@@ -160,6 +160,7 @@ def _parse_box(text: str):
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
+    from fmu_controller.input_delay_choice import choose_input_delay
 
     from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
     from tapmuscle.io.atomic import atomic_path
@@ -174,10 +175,20 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                 check_sampling_period(r.ts_s)
         except ValueError as exc:
             raise UsageError(f"{path}: {exc}") from None
+    # the periods of two jittered logs (each a least-squares grid) agree as closely as a header must
+    if val is not None and abs(val.ts_s - rec.ts_s) > STRICT_TOLERANCE * rec.ts_s:
+        raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
+                         f"identification record's {rec.ts_s:g} s (by more than {100 * STRICT_TOLERANCE:g} %)")
+    options = dict(ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box), constraint_start_s=args.constraint_start,
+                   forgetting=args.forgetting)
+    choice = None
     try:
-        report = identify_record(rec.u_v, rec.l_mm, ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box),
-                                 constraint_start_s=args.constraint_start, forgetting=args.forgetting,
-                                 input_delay_samples=args.input_delay_samples)
+        if args.input_delay_samples == "auto":
+            choice = choose_input_delay(rec.u_v, rec.l_mm, validation=None if val is None else (val.u_v, val.l_mm),
+                                        **options)
+            report = choice.report
+        else:
+            report = identify_record(rec.u_v, rec.l_mm, input_delay_samples=args.input_delay_samples, **options)
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
     # the recording as given and as an absolute path (the first is relative to where identify ran), and
@@ -189,12 +200,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         pass
     out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
                               "load_n": load}
+    if choice is not None:
+        out["input_delay_choice"] = {"fit_percent_1_step": list(choice.fits_percent), "scored_on": choice.scored_on}
     val_fit = None
     if val is not None:
-        # the periods of two jittered logs (each a least-squares grid) agree as closely as a header must
-        if abs(val.ts_s - rec.ts_s) > STRICT_TOLERANCE * rec.ts_s:
-            raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
-                             f"identification record's {rec.ts_s:g} s (by more than {100 * STRICT_TOLERANCE:g} %)")
         val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm,
                               input_delay_samples=report.input_delay_samples)
         out["validation_fit_percent"] = val_fit.percent
@@ -224,6 +233,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     jitter = rec.sampling.note()
     for note in list(report.notes) + ([jitter] if jitter else []):
         print(f"note: {note}", file=sys.stderr)
+    if choice is not None:
+        print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
+        print(f"{f'1-step fit [%], {choice.scored_on}':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
+              + f"  -> D = {choice.input_delay_samples} ({choice.input_delay_samples * rec.ts_s:g} s)")
+        if choice.at_largest:
+            print(f"note: the fit is best at the largest delay tried ({choice.input_delay_samples} samples): the "
+                  "rig's delay may be larger still (the controllers take at most that)", file=sys.stderr)
     fits = report.fit.percent
     delay = (f", on the command {report.input_delay_samples} sample{'s' if report.input_delay_samples > 1 else ''} "
              "earlier (--input-delay-samples)" if report.input_delay_samples else "")
@@ -420,11 +436,13 @@ def build_parser() -> argparse.ArgumentParser:
                      help="time from which the constraint applies [s] (paper: 120)")
     idf.add_argument("--forgetting", type=number_within("--forgetting", 1e-6, 1.0), default=1.0,
                      help="forgetting factor lambda in (0, 1] (1 = off, the paper)")
-    idf.add_argument("--input-delay-samples", type=integer_at_least("--input-delay-samples", 0, _INPUT_DELAY_MAX),
+    idf.add_argument("--input-delay-samples", type=integer_at_least("--input-delay-samples", 0, _INPUT_DELAY_MAX,
+                                                                    words=("auto",)),
                      default=0, metavar="D",
                      help=f"the rig's transport delay in samples (0..{_INPUT_DELAY_MAX}): identify on the command "
                           "the valve had, u(k-D), for a controller with input_delay_samples = D (docs/control.md, "
-                          "Transport delay)")
+                          "Transport delay); auto: the D whose model fits best one step ahead (on --validate's "
+                          "record if given; not on a sine)")
     idf.set_defaults(func=_cmd_identify)
 
     pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",
