@@ -108,7 +108,7 @@ class AMPCController(SafeSlave):
     description = ("Displacement controller of a tap-water McKibben muscle: MPC/AMPC with unique coincidence "
                    "point or servo mechanism, constrained RLS (Algorithm 1), hysteresis cancellation (Eq. 5)")
     #: Tells hosts the communication step (the controller's Ts = 0.1 s) and a run as long as the paper's
-    #: 60 s experiments; the internal solvers are fixed-step, so no tolerance.
+    #: 60 s experiments; no tolerance: a sampled controller integrates nothing.
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=60.0, step_size=0.1)
 
     def __init__(self, **kwargs):
@@ -387,7 +387,7 @@ class AMPCController(SafeSlave):
     def _warn_paper_defaults_off_period(self, settings: ControllerSettings, theta0: list[float]) -> None:
         """Log a warning when ``Ts`` is not the paper's 0.1 s but ``theta0.*`` are still THETA0_44N, or (for
         an adaptive method) the box C still Table 2's: both hold for Ts = 0.1 s only (at 0.2 s the
-        default theta0 gave 2.7 mm of Eq. (21) error and a valve hitting both limits, without a word)."""
+        default theta0 gives 2.7 mm of Eq. (21) error and a valve hitting both limits)."""
         if abs(settings.ts_s - PAPER_TS_S) <= 1e-6 * PAPER_TS_S:
             return
         stale = []

@@ -24,11 +24,14 @@ Per sample ``k`` (:meth:`DisplacementController.step`)::
            u(k) = u_c(k) - H(k)/b1                           Eq. (5)
            x_s(k+1) = x_s(k) + r(k) - l(k)                   Eq. (18)
 
-Two departures from the paper are on by default, each documented on its setting and measured in
+Three departures from the paper are on by default, each documented on its setting and measured in
 docs/control.md: the start-up mode (``ControllerSettings.startup_s``: reference lead-in, estimator
-warm-up and blend) and the hysteresis notch (``ControllerSettings.hysteresis_notch``: the servo
-methods cancel a centred 5-point mean of ``H`` instead of ``H(k)``). ``startup_s=0`` with
-``hysteresis_notch=False`` is the paper's controller.
+warm-up and blend), the hysteresis notch (``ControllerSettings.hysteresis_notch``: the servo
+methods cancel a centred 5-point mean of ``H`` instead of ``H(k)``) and conditional integration
+(``ControllerSettings.anti_windup``: the servo integrator of Eq. (18) holds while the command sits
+at a valve limit the error pushes it into). ``startup_s=0``, ``hysteresis_notch=False`` and
+``anti_windup=False`` (with ``input_delay_samples=0``, this class's default) is the paper's
+controller.
 
 Lifecycle as osqp's: construct (setup), :meth:`reset` with the first measurement, :meth:`step` every
 sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
@@ -346,7 +349,7 @@ class ControlStep:
     hysteresis_mm: float
     """``H(k)`` [mm], the cancelled hysteresis term (0 for UCP)."""
     xs_mm: float
-    """Integrator state ``x_s(k+1)`` [mm s/s] (Eq. 18; 0 for UCP)."""
+    """Integrator state ``x_s(k+1)`` [mm]: the sum of the errors ``r - l``, one per sample (Eq. 18; 0 for UCP)."""
     theta: np.ndarray
     """Predictor parameters used at this step."""
     saturated: bool
@@ -631,9 +634,9 @@ class DisplacementController:
 
     @property
     def input_delay_detected(self) -> bool:
-        """``input_delay_samples = -1``: whether the controller has decided for the delayed law (a
-        parallel master); False while undecided and after deciding for a sequential one. Always True
-        for 1, False for 0."""
+        """Whether the law runs for an input delay: ``input_delay_samples`` 1..5 set, or -1 decided for
+        a delay of 1 or more (a parallel master, a rig's transport delay); False for 0, while -1 is
+        undecided, and after it decided for a sequential master."""
         return self._lag != 0 and self._decided
 
     def _future_hysteresis(self, t: list[float], theta: np.ndarray, u_prev: float,
@@ -755,14 +758,16 @@ class DisplacementController:
 
     def _step_ahead(self, l: float, rl: list[float], t: list[float], theta: np.ndarray,
                     error: float) -> ControlStep:
-        """One sample with one sample of input delay (``ControllerSettings.input_delay_samples``).
+        """One sample with an input delay of ``d >= 1`` samples (``ControllerSettings.input_delay_samples``
+        set, or decided by -1, which runs ``d = 1`` until it decides).
 
-        The valve receives over ``[t_k, t_k+1)`` the command computed at ``k - 1``. It is recorded
+        The valve receives over ``[t_k, t_k+1)`` the command computed at ``k - d``. It is recorded
         as ``u(k)`` (with the true ``l(k)`` the state has observed, and ``x_s`` integrating the true
         error); the Eq. (1) model predicts ``l(k+1|k)`` under it; the control law is then evaluated
-        one sample ahead on that prediction with ``r(k+1..k+1+Hp)``, on a scratch copy of the
-        history, and its command is returned (it reaches the valve at ``t_k+1``). With
-        ``delay_correction`` the prediction is :class:`~fmu_controller.delay_predictor.DelayPredictor`'s.
+        ``d`` samples ahead (:meth:`_decide_ahead`: on to ``l(k+d|k)`` through the commands in flight,
+        with ``r(k+d..k+d+Hp)``) on a scratch copy of the history, and its command is returned (it
+        reaches the valve at ``t_k+d``). With ``delay_correction`` the prediction is
+        :class:`~fmu_controller.delay_predictor.DelayPredictor`'s.
         """
         state = self._state
         u_now, uc_now = self._u_next, self._uc_next
@@ -923,7 +928,7 @@ class DisplacementController:
                                  f"finite pairs), delay_scores ({n}, >= 0) and compared (>= 0) do not fit, got "
                                  f"{state.get('u_out')!r}, {state.get('uc_out')!r}, {state.get('in_flight')!r}, "
                                  f"{state.get('delay_scores')!r}, {state.get('compared')!r}")
-            decided = state.get("decided", True)  # states saved before the field: decided
+            decided = state.get("decided", True)  # a state without it (an older FMU's): decided
             if decided not in (True, False) or (not decided and not self._auto) or (not decided and lag != 1):
                 raise ValueError(f"state field decided = {decided!r} contradicts input_delay_samples = "
                                  f"{d} with lag = {lag!r}")
@@ -941,7 +946,7 @@ class DisplacementController:
                     raise ValueError(f"state field delay_models must hold {n} model states, got {len(models)}")
                 for shadow, model in zip(self._shadows, models):
                     shadow.set_state(model)
-        jumps, guarded_at = state.get("guard", (0, None))  # states saved before the guard: not fired
+        jumps, guarded_at = state.get("guard", (0, None))  # a state without it (an older FMU's): not fired
         if (isinstance(jumps, bool) or int(jumps) != jumps or jumps < 0
                 or (guarded_at is not None and not (int(guarded_at) == guarded_at and 0 <= guarded_at <= self._k))):
             raise ValueError(f"state field guard = {state.get('guard')!r} must be [jumps >= 0, None or a sample "

@@ -99,8 +99,6 @@ PARAMETER_NAMES_STANDARD: tuple[str, ...] = PARAMETER_NAMES_ASYMMETRIC[:11]
 #: Parameters of the linear part of Eq. (1) / the linearised plant Eq. (2).
 LINEAR_NAMES: tuple[str, ...] = ("a1", "a2", "b1")
 
-_N_LINEAR = 3
-
 
 @dataclass(frozen=True, kw_only=True)
 class ModelStructure:

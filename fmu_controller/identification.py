@@ -52,7 +52,8 @@ HORIZONS = (1, 3, 5)
 
 
 def decade_scale(x: np.ndarray, typical: float) -> float:
-    """Power of ten that brings ``max |x|`` closest to ``typical`` (1 when already within 3x)."""
+    """Power of ten that brings ``max |x|`` closest to ``typical`` on a log scale (1 when ``max |x|``
+    lies within a factor ``sqrt(10) = 3.16`` of ``typical``)."""
     peak = float(np.max(np.abs(x)))
     if peak == 0.0:
         return 1.0

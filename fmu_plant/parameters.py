@@ -148,7 +148,10 @@ class FrictionParams(_Validated):
     grows with the sliding speed (rate dependent, paper section 4.4 / Fig. 20). Level while moving at
     speed ``|v|`` in direction ``s``::
 
-        F_s = (f0 + mu * p) * (1 + s * asym) * (1 + rate * (|v| / v_ref)^rate_exponent)
+        F_s = (f0 + mu * p * c(l)) * (1 + s * asym) * (1 + rate * (|v| / v_ref)^rate_exponent)
+
+    with ``c(l) = (r/r0)(L/L0)`` the braid-bladder contact area relative to rest
+    (:meth:`~fmu_plant.muscle.MuscleGeometry.contact_factor`).
     """
 
     base_n: float = _f(8.0, "Pressure-independent friction level f0 [N]; calibration.", lo=0.0, hi=1000.0)

@@ -16,10 +16,12 @@ Equations (docs/plant.md derives them and lists every parameter's source)::
     C dp/dt = Q_in - Q_out - A(l) v                 (water volume balance, hose/bladder compliance C)
     Q_in  = k_in(x)  sign(ps - p) sqrt(|ps - p|)     (supply valve, opening x)
     Q_out = k_out(x) sign(p - pd) sqrt(|p - pd|)     (drain valve, opening 1 - x)
-    m dv/dt = F_muscle(p, l) - k_r l - W - c v - z  (hanging load W = m_load g)
+    m dv/dt = F_muscle(p, l) + F_lock(l) - k_r l - W - c v - z  (hanging load W = m_load g)
     dz/dt = |v|/delta (sign(v) F_s(p, l, |v|) - z)  (friction, friction.py)
 
-``A(l) = dV/dl`` is the Tondu-Lopez piston area (muscle.py) and ``F_muscle = (p - p_th)+ A(l)``.
+``A(l) = dV/dl`` is the Tondu-Lopez piston area (muscle.py), ``F_muscle = softplus_w(p - p_th) A(l)``
+(the bladder takes the first ``p_th``) and ``F_lock = F_lock0 exp(-l / l_lock)`` the braid lock near
+full extension; ``k_in(x) = K (e + (1 - e) g x^n)`` (valve.py).
 The fully extended braid is a rigid stop at ``l = 0``.
 
 Integration: the command is held over a communication step (zero-order hold), so the spool follows

@@ -126,8 +126,8 @@ _CROSS_MIN_H = 1e-4  # [s] below this a spurious stage reversal is accepted (it 
 #: Sub-steps of ``solver.min_substep_s`` accepted over their tolerances (to get past a kink) that one
 #: communication step may take: this many, or ``dt / max_substep_s`` if more. Beyond that the
 #: tolerances cannot be met at all (stiff/extreme parameters): ``FloatingPointError`` rather than a
-#: long run of inaccurate sub-steps. With no floor on the proposals, such parameters (a presliding
-#: length of 1e-9 mm) settled the step size at 1e-10 s, and a communication step never ended.
+#: long run of inaccurate sub-steps. Without a floor on the proposals such parameters (a presliding
+#: length of 1e-9 mm) would settle the step size at 1e-10 s, and a communication step would never end.
 FORCED_MAX = 1000
 
 #: First sub-step of a communication step: ``h = kink_scale / |change of spool target|^(1/3)``.

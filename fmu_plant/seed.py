@@ -2,7 +2,7 @@
 
 FMI 2.0 Integers are 32-bit signed, so the plant FMU takes a seed as ``seed`` (its low 32 bits) and
 ``seed_high`` (its high 32 bits), each the *bit pattern* of an FMI Integer: a seed of 2**31 sets
-``seed = -2147483648``. A seed below 2**31 needs ``seed`` alone, as before. The same seed gives the
+``seed = -2147483648``. A seed below 2**31 needs ``seed`` alone (``seed_high`` stays 0). The same seed gives the
 same noise in the FMU and in :class:`fmu_plant.Plant` directly (``Plant(seed=...)``).
 """
 

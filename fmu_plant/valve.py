@@ -37,7 +37,7 @@ def orifice_flow(k_m3_s_pa05: float, dp_pa: float, laminar_dp_pa: float) -> floa
     """Turbulent orifice flow ``Q = k sign(dp) sqrt(|dp|)`` [m^3/s], regularised near ``dp = 0``.
 
     Below ``laminar_dp_pa`` the flow is made linear in ``dp`` (laminar), which keeps the derivative
-    finite so fixed-step integration does not chatter when the two sides equalise.
+    finite (the Rosenbrock sub-steps' Jacobian) where the two sides equalise.
     """
     adp = abs(dp_pa)
     if adp >= laminar_dp_pa:
