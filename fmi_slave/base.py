@@ -50,6 +50,16 @@ __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
 
 _BAD_STATE = "tapmuscle: bad FMU state"
 
+#: The keys of an FMU state (:meth:`SafeSlave._snapshot`), and those of the mode it was saved in, which
+#: a state of an FMU built before they were kept lacks (its numerics tell whether it was initialised).
+_STATE_KEYS = frozenset({"variables", "numerics", "failed", "time"})
+_STATE_MODE_KEYS = frozenset({"initialised", "terminated"})
+
+
+def _saved_initialised(state: dict[str, Any]) -> bool:
+    """Whether the FMU state ``state`` was saved after fmi2ExitInitializationMode."""
+    return bool(state.get("initialised", state["numerics"] is not None or state["failed"]))
+
 #: A Ctrl-C in a Python host lands in whatever Python code runs, most often a slave's step. It cannot
 #: pass through FMI as an exception, and reaching pythonfmu's C++ layer it became fmi2Fatal after
 #: which freeing the instance crashed the host: the slave answers fmi2Error with this instead.
@@ -130,8 +140,11 @@ class SafeSlave(Fmi2Slave):
         #: the last completed step (module docstring)
         self._start_s = 0.0
         self._time_s = 0.0
-        #: fixed parameters are settable until fmi2ExitInitializationMode; steps until fmi2Terminate
+        #: FMI 2.0's co-simulation states: instantiated (neither flag), initialization mode, step mode
+        #: (initialised) and terminated. Fixed parameters are settable until fmi2ExitInitializationMode,
+        #: steps until fmi2Terminate; each fmi2Reset makes a new slave object (pythonfmu), instantiated.
         self._initialised = False
+        self._in_initialization = False
         self._terminated = False
         self.variable_meta: dict[str, VariableMeta] = {}
         #: Real variables whose value is the instance attribute of the same name (inputs, outputs without
@@ -375,6 +388,9 @@ class SafeSlave(Fmi2Slave):
         if self._terminated:
             self._after_terminate("fmi2SetupExperiment")
             return
+        if self._initialised:
+            self._after_initialisation("fmi2SetupExperiment")
+            return
         try:
             t0 = float(start_time)
         except (TypeError, ValueError):
@@ -392,7 +408,10 @@ class SafeSlave(Fmi2Slave):
         if self._terminated:
             self._after_terminate("fmi2EnterInitializationMode")
             return
-        self._initialised = False
+        if self._initialised:
+            self._after_initialisation("fmi2EnterInitializationMode")
+            return
+        self._in_initialization = True
         Fmi2Slave.enter_initialization_mode(self)
 
     def _after_terminate(self, call: str) -> None:
@@ -400,6 +419,14 @@ class SafeSlave(Fmi2Slave):
         fmi2Reset and fmi2FreeInstance there); the loader returns fmi2Error."""
         self.log(f"{call} after fmi2Terminate: call fmi2Reset first (after fmi2Terminate FMI 2.0 allows only "
                  "the getters, fmi2Reset and fmi2FreeInstance); nothing was done", status=Fmi2Status.error)
+
+    def _after_initialisation(self, call: str) -> None:
+        """Log the refusal of ``call``, which FMI 2.0 allows only before fmi2ExitInitializationMode, on an
+        initialised instance (initialising it again would start the next run from this one's outputs);
+        the loader returns fmi2Error."""
+        self.log(f"{call} after fmi2ExitInitializationMode: the instance is initialised (step mode); to run "
+                 "again from the start call fmi2Reset first (or restore an FMU state saved at the start); "
+                 "nothing was done", status=Fmi2Status.error)
 
     @_to_host
     def terminate(self) -> None:
@@ -445,7 +472,10 @@ class SafeSlave(Fmi2Slave):
         if self._terminated:
             self._after_terminate("fmi2ExitInitializationMode")
             return
-        self._initialised = True
+        if self._initialised:
+            self._after_initialisation("fmi2ExitInitializationMode")
+            return
+        self._initialised, self._in_initialization = True, False
         self._time_s = self._start_s
         try:
             self._check_parameter_ranges()
@@ -504,7 +534,8 @@ class SafeSlave(Fmi2Slave):
         # pythonfmu serialises the state as JSON: numpy arrays and scalars become lists and floats
         # (exact: JSON keeps the shortest repr, which round-trips every double).
         return {"variables": super()._get_fmu_state(), "numerics": _plain(self.numerics_state()),
-                "failed": self._failed, "time": self._time_s}
+                "failed": self._failed, "time": self._time_s, "initialised": self._initialised,
+                "terminated": self._terminated}
 
     _get_fmu_state = _to_host(_snapshot)
 
@@ -512,12 +543,25 @@ class SafeSlave(Fmi2Slave):
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
         # A foreign or corrupted state leaves the instance as it was and usable: an error, logged (the
         # loader returns fmi2Error), not an exception (pythonfmu would answer fmi2Fatal).
-        if not isinstance(state, dict) or set(state) != {"variables", "numerics", "failed", "time"}:
+        if not isinstance(state, dict) or not _STATE_KEYS <= set(state) <= _STATE_KEYS | _STATE_MODE_KEYS:
             reason = state.get(_BAD_STATE) if isinstance(state, dict) else None
             self.log(f"not an FMU state of this FMU ({reason or 'unexpected content'}); nothing was changed",
                      status=Fmi2Status.error)
             return
+        # a state from before fmi2ExitInitializationMode holds no model: a host in step mode would step none
+        if not _saved_initialised(state) and self._initialised:
+            self.log("fmi2SetFMUstate: this FMU state was saved before fmi2ExitInitializationMode (it holds "
+                     "parameters, no model yet) and this instance is initialised; restore it into an instance "
+                     "that is not, or save a state after fmi2ExitInitializationMode; nothing was changed",
+                     status=Fmi2Status.error)
+            return
         before = self._snapshot()
+        if isinstance(state["variables"], dict) and set(state["variables"]) != set(before["variables"]):
+            theirs, ours = set(state["variables"]), set(before["variables"])
+            self.log(f"not an FMU state of this FMU: a state of an FMU with other variables (it has "
+                     f"{', '.join(sorted(theirs - ours)[:3]) or 'none of its own'}; lacks "
+                     f"{', '.join(sorted(ours - theirs)[:3]) or 'none'}); nothing was changed", status=Fmi2Status.error)
+            return
         try:
             self._restore(state, before["variables"])
         except Exception as exc:  # noqa: BLE001 - a malformed state: put everything back as it was
@@ -532,11 +576,12 @@ class SafeSlave(Fmi2Slave):
             raise ValueError(f"time = {time_s!r} is not finite")
         if current is None:
             current = super()._get_fmu_state()
-        # a state of an instance with other parameters (a rig of another length, another method): the
-        # numerics are built again from the state's, or they would step this instance's
-        rebuild = state["numerics"] is not None and self.numerics_state() is not None and any(
+        # a state of an instance with other parameters (a rig of another length, another method), or one
+        # restored before initialisation (fmpy's simulate_fmu(fmu_state=...) does): the numerics are
+        # built from the state's parameters, or they would step this instance's, or none
+        rebuild = state["numerics"] is not None and (self.numerics_state() is None or any(
             state["variables"].get(v.name) != current[v.name]
-            for v in self.vars.values() if v.causality == Fmi2Causality.parameter)
+            for v in self.vars.values() if v.causality == Fmi2Causality.parameter))
         initialised, self._initialised = self._initialised, False  # a state sets the fixed parameters too
         try:
             super()._set_fmu_state(state["variables"])
@@ -548,6 +593,11 @@ class SafeSlave(Fmi2Slave):
         self.restore_numerics_state(state["numerics"])
         self._failed = bool(state["failed"])
         self._time_s = time_s
+        # the state's mode: a state from step mode steps on (also in a terminated instance or one not yet
+        # initialised), a terminated one stays terminated
+        if _saved_initialised(state):
+            self._initialised, self._in_initialization = True, False
+        self._terminated = bool(state.get("terminated", False))
 
     @staticmethod
     def _fmu_state_from_bytes(state: bytes) -> dict[str, Any]:

@@ -14,7 +14,8 @@ to it: the output after that step is the command to hold over ``[t_k, t_k + Ts)`
 before the plant in each macro step (the master of :mod:`tapmuscle.cosim.master`) therefore applies
 ``u(k)`` over the same interval as the direct loop, with no extra sample of delay. Steps shorter than
 ``Ts`` are allowed (the outputs hold between samples); a step longer than ``Ts`` would skip samples
-and is refused with fmi2Discard, as is a step that starts past a missed sample time.
+and is refused with fmi2Discard, as are a step that passes a sample time without ending there and one
+that starts past a missed sample time.
 
 Reference and preview (``reference_source``)
 --------------------------------------------
@@ -53,6 +54,7 @@ The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) 
 from __future__ import annotations
 
 import math
+import re
 
 import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts
 from fmi_slave import SafeSlave
@@ -99,6 +101,19 @@ _SWINGS = 6
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
 _PINNED_S = 10.0
+
+
+
+#: ServoMPCSettings' and UCPSettings' field names as the FMU's parameters: their errors name these
+#: (``r`` would read as the reference input).
+_SERVO_NAMES = {"hp": "servo.Hp", "hu": "servo.Hu", "qs": "servo.Qs", "q": "servo.Q", "r": "servo.R",
+                "u_min_v": "u_min", "u_max_v": "u_max"}
+_UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
+
+
+def _fmu_names(message: str, names: dict[str, str]) -> str:
+    """``message`` of a settings class with its field names written as the FMU's parameter names."""
+    return re.sub(r"\b(" + "|".join(names) + r")\b(?=[ (])", lambda m: names[m[1]], message)
 
 
 class AMPCController(SafeSlave):
@@ -252,12 +267,11 @@ class AMPCController(SafeSlave):
             servo = ServoMPCSettings(hp=ip["servo.Hp"], hu=ip["servo.Hu"], q=p["servo.Q"], qs=p["servo.Qs"],
                                      r=p["servo.R"], u_min_v=p["u_min"], u_max_v=p["u_max"])
         except ValueError as exc:
-            raise SlaveInputError(f"servo parameters (servo.Hp, servo.Hu, servo.Q, servo.Qs, servo.R, u_min, "
-                                  f"u_max): {exc}") from None
+            raise SlaveInputError(f"parameter {_fmu_names(str(exc), _SERVO_NAMES)}") from None
         try:
             ucp = UCPSettings(hp=ip["ucp.Hp"], u_min_v=p["u_min"], u_max_v=p["u_max"])
         except ValueError as exc:
-            raise SlaveInputError(f"ucp parameters (ucp.Hp, u_min, u_max): {exc}") from None
+            raise SlaveInputError(f"parameter {_fmu_names(str(exc).removeprefix('UCPSettings.'), _UCP_NAMES)}") from None
         for n in TABLE2_LOWER:
             if not p[f"box_lower.{n}"] <= p[f"box_upper.{n}"]:
                 raise SlaveInputError(f"parameter box_lower.{n} = {p[f'box_lower.{n}']!r} exceeds "
@@ -430,6 +444,11 @@ class AMPCController(SafeSlave):
                                   "controller would skip samples (use a communication step <= Ts)")
         t_next = self._start_s + self._k * ts  # at start time 0: k*Ts, bit for bit
         if t_s < t_next - tol:
+            if t_s + dt_s > t_next + tol:  # refused here, where a host can still step to the sample time
+                raise SlaveInputError(f"the step from t = {t_s:g} s to {t_s + dt_s:g} s passes the sample time "
+                                      f"{t_next:g} s (k = {self._k}) without ending there; end the step at "
+                                      f"{t_next:g} s (every t0 + k*Ts = {self._start_s:g} + k*{ts:g} s must be a "
+                                      "communication point)")
             return  # between samples: the outputs hold
         if t_s > t_next + tol:
             raise SlaveInputError(f"the step starting at t = {t_s:g} s skips the sample time {t_next:g} s "

@@ -100,15 +100,24 @@ class MusclePlant(SafeSlave):
         self._plant = Plant(params, seed=seed)
         if self._start_s != 0.0:
             self._plant.reset(t_s=self._start_s)
-        load = self.finite("load", self.load, 0.0, 500.0)
-        supply = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
-        # the inputs set the load and the supply pressure; the parameters of the same physics are the
-        # plant files' (tapmuscle record --params): one set to another value than its input is unused
-        for name, value, inp in (("load.load_n", load, "load"), ("supply.supply_pressure_mpa", supply, "supply_pressure")):
-            if self._par[name] != value and self._par[name] != _DEFAULTS[name]:
-                self.log(f"parameter {name} = {self._par[name]!r} is not used: the input {inp} (= {value!r}) sets it in "
-                         f"the FMU; set the input instead", status=Fmi2Status.warning)
-        self._plant.update(load_n=load, supply_pressure_mpa=supply)
+        try:
+            load = self.finite("load", self.load, 0.0, 500.0)
+            supply = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
+        except SlaveInputError as exc:
+            # an input, not a parameter: a bad one is refused where it acts, at the steps (fmi2Discard, which
+            # a host may retry with it mended); the rig at rest on its stop is the same under any load and
+            # supply, so the run is then the one with the mended input from the start
+            self.log(f"input {exc} at fmi2ExitInitializationMode: the plant starts at rest, and every fmi2DoStep "
+                     "returns fmi2Discard until the input is in range", status=Fmi2Status.warning)
+        else:
+            # the inputs set the load and the supply pressure; the parameters of the same physics are the
+            # plant files' (tapmuscle record --params): one set to another value than its input is unused
+            for name, value, inp in (("load.load_n", load, "load"),
+                                     ("supply.supply_pressure_mpa", supply, "supply_pressure")):
+                if self._par[name] != value and self._par[name] != _DEFAULTS[name]:
+                    self.log(f"parameter {name} = {self._par[name]!r} is not used: the input {inp} (= {value!r}) sets "
+                             f"it in the FMU; set the input instead", status=Fmi2Status.warning)
+            self._plant.update(load_n=load, supply_pressure_mpa=supply)
         self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
         if COMPILED_FOR_ANOTHER_PYTHON:  # said, not warned: the results are the same, only slower
             self.log(f"the plant's compiled integrator sub-step {COMPILED_FOR_ANOTHER_PYTHON} was built for another "

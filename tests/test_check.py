@@ -53,7 +53,7 @@ def test_a_missed_expectation_fails_the_check(built_fmus, tmp_path, capsys):
     assert failure is not None and failure.get("message").startswith("mae_mm = ")
     assert "> 0.01 (mae_mm_max)" in failure.get("message")
     broken = next(c for c in root.iter("testcase") if c.get("name") == "broken")
-    assert "hu must be <= hp" in broken.find("error").get("message")
+    assert "servo.Hu must be <= servo.Hp" in broken.find("error").get("message")
 
 
 def test_check_reports_bad_files_and_empty_folders(tmp_path, capsys):

@@ -222,7 +222,9 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({}, {"servo.Hp": 51}, "parameter servo.Hp = 51 is outside its declared range 1..50"),
     ({}, {"input_delay_samples": 6}, "parameter input_delay_samples = 6 is outside its declared range -1..5"),
     ({}, {"servo.Hp": 5000}, "parameter servo.Hp = 5000 is outside"),  # would take minutes to set up
-    ({}, {"servo.Hu": 9}, "hu must be <= hp"),
+    ({}, {"servo.Hu": 9}, "parameter servo.Hu must be <= servo.Hp = 5, got 9"),
+    ({"servo.R": 0.0}, {}, "parameter servo.R must be > 0, got 0.0"),
+    ({"u_min": 6.0, "u_max": 5.0}, {}, "parameter u_max must be > u_min = 6.0, got 5.0"),
     ({"P0.a1": -1.0}, {}, "parameter P0.a1 = -1.0 is outside its declared range 0..inf"),
     ({"Ts": 0.0}, {}, "parameter Ts = 0.0 is outside"),
     ({"servo.R": math.nan}, {}, "parameter servo.R = nan is not finite"),
@@ -652,3 +654,96 @@ def test_a_rewind_logs_what_the_run_from_there_logs():
     slave._set_fmu_state(late)
     run(200, 300)
     assert said() == 2
+
+
+def test_a_step_that_passes_a_sample_time_is_discarded_and_the_host_can_step_to_it(fmu, capfd):
+    """A step over [0.07, 0.14] s contains the sample time 0.1 s: refused with fmi2Discard at once
+    (accepted, it left the command of k = 0 over the sample and stuck every later step), the state
+    unchanged; stepping to 0.1 s and on gives the commands of steps on the grid."""
+    vr = fmu[3]
+    f, g = _instance(fmu, "f"), _instance(fmu, "g")
+    f.setReal([vr["l"]], [_l(0)])
+    f.doStep(0.0, 0.07)
+    capfd.readouterr()
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.07, 0.07)
+    assert ("the step from t = 0.07 s to 0.14 s passes the sample time 0.1 s (k = 1) without ending there; end "
+            "the step at 0.1 s") in capfd.readouterr().out
+    f.doStep(0.07, 0.03)
+    for k in range(1, 20):
+        f.setReal([vr["l"]], [_l(k)])
+        f.doStep(k * 0.1, 0.1)
+    for k in range(20):
+        g.setReal([vr["l"]], [_l(k)])
+        g.doStep(k * 0.1, 0.1)
+    assert f.getReal([vr["u"], vr["xs"]]) == g.getReal([vr["u"], vr["xs"]])
+    assert f.getInteger([vr["samples"]]) == [20]
+    _free(f, g)
+
+
+def test_fmpy_starts_a_run_from_a_saved_state_in_a_fresh_instance(fmu):
+    """simulate_fmu(fmu_state=...) restores the state into an instance that was never initialised
+    (it was refused: "'NoneType' object has no attribute 'set_state'"): the run goes on as the saved
+    instance's, bit for bit, with the state's method."""
+    import fmpy
+
+    vr = fmu[3]
+    a = _instance(fmu, "a", ints={"method": 2})
+    for k in range(80):
+        a.setReal([vr["l"]], [_l(k)])
+        a.doStep(k * 0.1, 0.1)
+    state = a.serializeFMUstate(a.getFMUstate())
+    expected = []
+    for k in range(80, 90):
+        a.setReal([vr["l"]], [_l(k)])
+        a.doStep(k * 0.1, 0.1)
+        expected.append(tuple(a.getReal([vr["u"], vr["xs"]])))
+    times = np.round(np.arange(80, 90) * 0.1, 10)
+    signal = np.array(list(zip(times, [_l(k) for k in range(80, 90)])), dtype=[("time", float), ("l", float)])
+    result = fmpy.simulate_fmu(str(fmu[0]), fmu_state=state, start_time=8.0, stop_time=9.0, output_interval=0.1,
+                               input=signal, output=["u", "xs", "method"])
+    assert list(zip(result["u"][1:], result["xs"][1:])) == expected  # row i: after the step at 8.0 + (i - 1) 0.1 s
+    assert len({xs for _, xs in expected}) > 5  # a state that moves
+    assert set(result["method"]) == {2}
+    _free(a)
+
+
+def test_a_stepping_controller_is_not_initialised_again_and_keeps_its_outputs(fmu, capfd):
+    """A second initialisation without fmi2Reset is refused (it returned OK and the next run's first row
+    held the last run's u and x_s)."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    for k in range(10):
+        f.setReal([vr["l"]], [_l(k)])
+        f.doStep(k * 0.1, 0.1)
+    before = f.getReal([vr["u"], vr["xs"]])
+    capfd.readouterr()
+    for call in (lambda: f.setupExperiment(startTime=0.0), f.enterInitializationMode, f.exitInitializationMode):
+        with pytest.raises(FMICallException, match="error"):
+            call()
+    assert capfd.readouterr().out.count("call fmi2Reset first") == 3
+    assert f.getReal([vr["u"], vr["xs"]]) == before and f.getInteger([vr["samples"]]) == [10]
+    _free(f)
+
+
+def test_another_fmus_state_is_refused_naming_its_variables(fmu, built_fmus, capfd):
+    """The plant's state (serialised) into the controller: fmi2Error saying whose variables it has
+    (it said "KeyError: 'controller'"), and the controller steps on unchanged."""
+    plant = open_fmu(built_fmus["MusclePlant"])
+    p = instantiate(plant, "p")
+    p.doStep(0.0, 0.1)
+    foreign = p.serializeFMUstate(p.getFMUstate())
+    vr = fmu[3]
+    f, g = _instance(fmu, "f"), _instance(fmu, "g")
+    capfd.readouterr()
+    with pytest.raises(FMICallException, match="error"):
+        f.setFMUstate(f.deSerializeFMUstate(foreign))
+    out = capfd.readouterr().out
+    assert "not an FMU state of this FMU: a state of an FMU with other variables (it has " in out, out
+    assert "backlash.slack_mm" in out and "lacks H, P0.A1" in out
+    for k in range(20):
+        for h in (f, g):
+            h.setReal([vr["l"]], [_l(k)])
+            h.doStep(k * 0.1, 0.1)
+    assert f.getReal([vr["u"], vr["xs"]]) == g.getReal([vr["u"], vr["xs"]])
+    _free(f, g, p)

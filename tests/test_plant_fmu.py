@@ -21,6 +21,17 @@ def _instance(fmu, name="i", reals=None, ints=None, **kw):
     return instantiate(fmu, name, reals, ints, **kw)
 
 
+def open_fresh(fmu, name):
+    """An instantiated FMU2Slave of ``fmu``: no fmi2SetupExperiment, no initialisation."""
+    from fmpy.fmi2 import FMU2Slave
+
+    path, md, folder, _ = fmu
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    f.instantiate(loggingOn=True)
+    return f
+
+
 def _sine(k):
     return 5 + 3 * math.sin(2 * math.pi * 0.1 * k * 0.1)
 
@@ -412,3 +423,102 @@ def test_a_load_or_supply_parameter_the_input_overrides_is_said_unused(fmu, capf
     g.terminate()
     g.freeInstance()
     assert vr[inp] != vr[parameter]
+
+
+def test_an_initialised_instance_is_not_initialised_again_without_reset(fmu, capfd):
+    """FMI 2.0 allows fmi2SetupExperiment and the initialisation calls only before step mode: a host
+    that initialises a stepping instance again (fmpy's simulate_fmu(fmu_instance=..., terminate=False)
+    twice) gets fmi2Error naming fmi2Reset, and the instance steps on where it was."""
+    vr = fmu[3]
+    f, g = _instance(fmu, "f"), _instance(fmu, "g")
+    first = _run(f, vr, 0)
+    assert _run(g, vr, 0) == first
+    capfd.readouterr()
+    for call in (lambda: f.setupExperiment(startTime=0.0), f.enterInitializationMode, f.exitInitializationMode):
+        with pytest.raises(FMICallException, match="error"):
+            call()
+    out = capfd.readouterr().out
+    assert out.count("after fmi2ExitInitializationMode: the instance is initialised (step mode); to run again "
+                     "from the start call fmi2Reset first") == 3, out
+    assert _run(f, vr, 30) == _run(g, vr, 30)  # nothing was done
+    for h in (f, g):
+        h.terminate()
+        h.freeInstance()
+
+
+def test_a_state_from_step_mode_restores_into_an_instance_not_yet_initialised(fmu):
+    """fmpy's simulate_fmu(fmu_state=...) restores a state into a fresh instance instead of
+    initialising it (FMI 2.0 allows fmi2SetFMUstate there): the plant is built from the state's
+    parameters and steps on bit for bit; so after fmi2Reset, and in a terminated instance."""
+    vr = fmu[3]
+    a = _instance(fmu, "a", reals={"friction.base_n": 20.0})
+    _run(a, vr, 0)
+    state = a.serializeFMUstate(a.getFMUstate())
+    expected = _run(a, vr, 30)
+    fresh = open_fresh(fmu, "fresh")
+    fresh.setFMUstate(fresh.deSerializeFMUstate(state))
+    assert fresh.getReal([vr["friction.base_n"]]) == [20.0]
+    assert _run(fresh, vr, 30) == expected
+    fresh.reset()  # instantiated again
+    fresh.setFMUstate(fresh.deSerializeFMUstate(state))
+    assert _run(fresh, vr, 30) == expected
+    fresh.terminate()  # and from terminated: the state's mode is step mode
+    fresh.setFMUstate(fresh.deSerializeFMUstate(state))
+    assert _run(fresh, vr, 30) == expected
+    for f in (a, fresh):
+        f.terminate()
+        f.freeInstance()
+
+
+def test_a_state_from_before_initialisation_is_refused_in_step_mode(fmu, capfd):
+    """A state saved in initialization mode holds parameters and no plant: restored into a stepping
+    instance it is refused with fmi2Error (a host rewinding to it stepped the plant on from where it
+    was, with the outputs and time of the start: 42.94 mm at 0.1 s instead of 3.68); restored into an
+    instance before initialisation it sets the parameters, and that instance runs as any."""
+    vr = fmu[3]
+    f = open_fresh(fmu, "f")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setReal([vr["friction.base_n"]], [20.0])
+    early = f.getFMUstate()
+    f.exitInitializationMode()
+    expected = _run(f, vr, 0)
+    capfd.readouterr()
+    with pytest.raises(FMICallException, match="error"):
+        f.setFMUstate(early)
+    assert "this FMU state was saved before fmi2ExitInitializationMode" in capfd.readouterr().out
+    g = _instance(fmu, "g", reals={"friction.base_n": 20.0})
+    _run(g, vr, 0)
+    assert _run(f, vr, 30) == _run(g, vr, 30)  # nothing was changed
+    h = open_fresh(fmu, "h")
+    h.setFMUstate(h.deSerializeFMUstate(f.serializeFMUstate(early)))
+    h.setupExperiment(startTime=0.0)
+    h.enterInitializationMode()
+    assert h.getReal([vr["friction.base_n"]]) == [20.0]
+    assert h.exitInitializationMode() == 0
+    assert _run(h, vr, 0) == expected
+    f.freeFMUstate(early)
+    for x in (f, g, h):
+        x.terminate()
+        x.freeInstance()
+
+
+@pytest.mark.parametrize("name, value", [("load", -5.0), ("supply_pressure", 1.5)])
+def test_a_bad_load_or_supply_input_at_initialisation_is_refused_at_the_steps(fmu, capfd, name, value):
+    """An input out of range at fmi2ExitInitializationMode is an input's error, not a parameter's: a
+    warning there, fmi2Discard from the steps until it is mended, and then the run of a mended input
+    from the start, bit for bit (the rig at rest on its stop is the same under any load)."""
+    vr = fmu[3]
+    good = {"load": 68.0, "supply_pressure": 0.3}
+    f = _instance(fmu, "f", reals=good | {name: value}, rejected=True)
+    out = capfd.readouterr().out
+    assert (f"input {name} = {value!r} is outside" in out and "every fmi2DoStep returns fmi2Discard until the "
+            "input is in range" in out), out
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.0, 0.1)
+    f.setReal([vr[name]], [good[name]])
+    g = _instance(fmu, "g", reals=good)
+    assert _run(f, vr, 0) == _run(g, vr, 0)
+    for x in (f, g):
+        x.terminate()
+        x.freeInstance()

@@ -294,7 +294,7 @@ def test_a_shipped_scenario_named_outside_the_checkout_is_pointed_to(tmp_path, m
 def test_bad_fmu_parameter_value_stops_the_run_with_the_fmus_message(built_fmus):
     s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
                         "controller": {"method": "ampc_servo", "parameters": {"servo.Hu": 9}}}, source="s.toml")
-    with pytest.raises(ScenarioError, match="hu must be <= hp"):
+    with pytest.raises(ScenarioError, match="servo.Hu must be <= servo.Hp"):
         co_simulate(s, built_fmus)
 
 

@@ -221,7 +221,7 @@ def test_sweep_records_failures_resumes_and_summarises(built_fmus, tmp_path):
     assert len(rows) == 8 and [r["run_id"] for r in rows] == [r.run_id for r in sweep.runs]
     failed = [r for r in rows if r["status"] == "failed"]
     assert {r["controller.parameters.servo.Hu"] for r in failed} == {"9"}
-    assert all("hu must be <= hp" in r["error"] and r["mae_mm"] == "" for r in failed)
+    assert all("servo.Hu must be <= servo.Hp" in r["error"] and r["mae_mm"] == "" for r in failed)
     ok = [r for r in rows if r["status"] == "ok"]
     assert all(0.0 < float(r["mae_mm"]) < 5.0 and 5.0 < float(r["u_max_v"]) <= 10.0 for r in ok)
     summary = (out / "summary.md").read_text()
