@@ -140,11 +140,10 @@ class SafeSlave(Fmi2Slave):
         #: the last completed step (module docstring)
         self._start_s = 0.0
         self._time_s = 0.0
-        #: FMI 2.0's co-simulation states: instantiated (neither flag), initialization mode, step mode
-        #: (initialised) and terminated. Fixed parameters are settable until fmi2ExitInitializationMode,
-        #: steps until fmi2Terminate; each fmi2Reset makes a new slave object (pythonfmu), instantiated.
+        #: FMI 2.0's co-simulation states: before initialisation (neither flag), step mode (initialised)
+        #: and terminated. Fixed parameters are settable until fmi2ExitInitializationMode, steps until
+        #: fmi2Terminate; each fmi2Reset makes a new slave object (pythonfmu), not initialised.
         self._initialised = False
-        self._in_initialization = False
         self._terminated = False
         self.variable_meta: dict[str, VariableMeta] = {}
         #: Real variables whose value is the instance attribute of the same name (inputs, outputs without
@@ -411,7 +410,6 @@ class SafeSlave(Fmi2Slave):
         if self._initialised:
             self._after_initialisation("fmi2EnterInitializationMode")
             return
-        self._in_initialization = True
         Fmi2Slave.enter_initialization_mode(self)
 
     def _after_terminate(self, call: str) -> None:
@@ -475,7 +473,7 @@ class SafeSlave(Fmi2Slave):
         if self._initialised:
             self._after_initialisation("fmi2ExitInitializationMode")
             return
-        self._initialised, self._in_initialization = True, False
+        self._initialised = True
         self._time_s = self._start_s
         try:
             self._check_parameter_ranges()
@@ -596,7 +594,7 @@ class SafeSlave(Fmi2Slave):
         # the state's mode: a state from step mode steps on (also in a terminated instance or one not yet
         # initialised), a terminated one stays terminated
         if _saved_initialised(state):
-            self._initialised, self._in_initialization = True, False
+            self._initialised = True
         self._terminated = bool(state.get("terminated", False))
 
     @staticmethod
