@@ -107,13 +107,65 @@ static int choose_python(void) {
     return 1;
 }
 
+/* Whether a file matching `pattern` (wildcards) lies in `folder`. */
+static int has_file(const wchar_t *folder, const wchar_t *pattern) {
+    wchar_t probe[4200];
+    WIN32_FIND_DATAW entry;
+    HANDLE found;
+    _snwprintf(probe, 4200, L"%ls\\%ls", folder, pattern);
+    probe[4199] = 0;
+    found = FindFirstFileW(probe, &entry);
+    if (found == INVALID_HANDLE_VALUE) return 0;
+    FindClose(found);
+    return 1;
+}
+
+/* PYTHONHOME as the Python that pythonfmu starts in a host without Python takes it: NULL where it is
+   not set, where there is no python3.dll to start (its own message follows), or where a
+   python3XY._pth beside that Python's DLL makes it ignore PYTHONHOME (the embeddable distribution's).
+   `home` receives it, empty if longer than 4095 characters. */
+static const wchar_t *python_home_taken(wchar_t home[4096]) {
+    wchar_t dll[4096], *slash;
+    HMODULE python;
+    DWORD n = GetEnvironmentVariableW(L"PYTHONHOME", home, 4096);
+    if (n == 0) return NULL;
+    if (n >= 4096) home[0] = 0;
+    python = LoadLibraryExW(L"python3.dll", NULL, 0);   /* TAPMUSCLE_PYTHON's, loaded first, or the search path's */
+    if (!python || GetModuleFileNameW(python, dll, 4096) >= 4096 || !(slash = wcsrchr(dll, L'\\'))) return NULL;
+    *slash = 0;
+    return has_file(dll, L"python3*._pth") ? NULL : home;
+}
+
+/* Whether this process had no Python when pythonfmu's library was loaded: pythonfmu then starts one. */
+static int starts_python;
+
+/* In a host without Python: a PYTHONHOME without a standard library (an installation's Lib\\encodings,
+   the embeddable distribution's python3XY.zip) cannot start the FMU's Python; checked first, the
+   instances fail naming it, rather than later at whichever module Python cannot find. */
+static int python_home_usable(void) {
+    wchar_t home[4096], probe[4200];
+    if (!python_home_taken(home)) return 1;
+    if (!home[0]) {
+        snprintf(load_error, sizeof load_error, "PYTHONHOME is longer than 4095 characters");
+        return 0;
+    }
+    _snwprintf(probe, 4200, L"%ls\\Lib\\encodings", home);
+    probe[4199] = 0;
+    if (has_file(probe, L"__init__.py") || has_file(home, L"python3*.zip")) return 1;
+    snprintf(load_error, sizeof load_error, "PYTHONHOME=%ls has no Python standard library (no Lib\\encodings, "
+             "no python3*.zip), so the FMU cannot start its Python: unset PYTHONHOME in this host's environment, "
+             "or point it at a Python 3 installation", home);
+    return 0;
+}
+
 /* pythonfmu's library from this library's own folder (not the host's search path); once, whichever
    thread comes first (a parallel master's may come together). */
 static INIT_ONCE load_once = INIT_ONCE_STATIC_INIT;
 
 static BOOL CALLBACK load_pythonfmu(PINIT_ONCE once, void *parameter, void **context) {
     (void)once, (void)parameter, (void)context;
-    if (choose_python()) {
+    starts_python = !python_in_process();
+    if (choose_python() && (!starts_python || python_home_usable())) {
         wchar_t path[4096];
         HMODULE self = NULL;
         DWORD n = 0;
@@ -142,8 +194,16 @@ static void *real(const char *symbol) {
 
 static const char *library_error(void) { return load_error; }
 
-/* (Linux: a hint on PYTHONHOME after a failed instantiation; Windows hosts get Python's own message.) */
-static const char *python_home_hint(void) { return ""; }
+/* What a failed instantiation adds when the Python this library had pythonfmu start took a PYTHONHOME:
+   a standard library there of another Python ("No module named '_ctypes'") says nothing of it. */
+static const char *python_home_hint(void) {
+    static char hint[900];
+    wchar_t home[4096];
+    if (!starts_python || !python_home_taken(home)) return "";
+    snprintf(hint, sizeof hint, " (PYTHONHOME=%.600ls is set: the FMU's Python took its standard library from "
+             "there; unset it unless it is the home of the Python whose python3.dll the FMU loaded)", home);
+    return hint;
+}
 
 static int readable(const char *path) { return _access(path, 4) == 0; }
 

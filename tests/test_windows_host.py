@@ -263,6 +263,21 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
     missing = _windows_path(lacking / "nothing" / "python.exe")
     wrong = _run_windows(windows, str(hosts["windows"]), *args(True, "open"), env_extra={"TAPMUSCLE_PYTHON": missing})
     runs["named_wrong"] = (wrong.returncode, missing, wrong.stderr[-3000:])
+    # PYTHONHOME, which a Python without a ._pth file takes (an installation's; the embeddable
+    # distribution's ._pth makes it ignore PYTHONHOME): a folder without a standard library, for this
+    # Python without its ._pth and with it; and one with a standard library that does not fit
+    unpinned = tmp_path_factory.mktemp("windows-python-without-pth") / "python"
+    shutil.copytree(windows["python"].parent, unpinned, ignore=shutil.ignore_patterns("*._pth"))
+    nowhere = _windows_path(lacking / "nothing")
+    zip_only = tmp_path_factory.mktemp("windows-home-zip-only")
+    for archive in windows["python"].parent.glob("python3*.zip"):
+        shutil.copy(archive, zip_only)
+    for key, python, home in (("bad_home", unpinned, nowhere), ("bad_home_pinned", windows["python"].parent, nowhere),
+                              ("other_home", unpinned, _windows_path(unpinned)),
+                              ("zip_only_home", unpinned, _windows_path(zip_only))):
+        done = _run_windows(windows, str(hosts["windows"]), *args(True, "open"),
+                            env_extra={"WINEPATH": _windows_path(python), "PYTHONHOME": home})
+        runs[key] = (done.returncode, home, _table(done.stdout) if done.returncode == 0 else [], done.stderr[-3000:])
     return runs
 
 
@@ -284,6 +299,27 @@ def test_tapmuscle_python_names_the_python_of_a_windows_c_host(c_host_runs):
     rc, missing, err = c_host_runs["named_wrong"]
     assert rc == 2, err
     assert f"could not be loaded: TAPMUSCLE_PYTHON={missing} is not a file" in err
+
+
+def test_a_pythonhome_without_a_standard_library_is_named_by_the_windows_host(c_host_runs):
+    # The FMU's Python took it and failed at "No module named '_ctypes'", naming nothing: checked
+    # before, the instances fail naming PYTHONHOME, and the host refuses cleanly; where the Python's
+    # ._pth makes it ignore PYTHONHOME (the embeddable distribution), the FMU runs; and the failure of
+    # a Python that took a PYTHONHOME with a standard library names it too (here: no numpy there)
+    returncode, home, _rows, stderr = c_host_runs["bad_home"]
+    assert returncode == 2, stderr
+    assert f"PYTHONHOME={home} has no Python standard library (no Lib\\encodings, no python3*.zip)" in stderr, stderr
+    assert "fmi2DoStep refused" in stderr
+    returncode, _home, rows, stderr = c_host_runs["bad_home_pinned"]
+    assert returncode == 0 and len(rows) == 100, stderr
+    returncode, home, _rows, stderr = c_host_runs["other_home"]
+    assert returncode == 2, stderr
+    assert f"PYTHONHOME={home} is set: the FMU's Python t" in stderr.replace("\\\\", "\\"), stderr
+    # a standard library without its extension modules: Python fails before any of the FMU's code runs
+    returncode, home, _rows, stderr = c_host_runs["zip_only_home"]
+    assert returncode == 2, stderr
+    assert "No module named" in stderr and f"(PYTHONHOME={home} is set: the FMU's Python took its standard library " \
+        "from there; unset it unless it is the home of the Python whose python3.dll the FMU loaded)" in stderr, stderr
 
 
 def test_a_windows_c_host_frees_reloads_and_instantiates_again(c_host_runs):
