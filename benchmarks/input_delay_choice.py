@@ -19,8 +19,7 @@ import math
 
 import numpy as np
 
-from fmu_controller.identification import identify_record, score_model
-from fmu_controller.input_delay_choice import choose_input_delay
+from fmu_controller.input_delay_choice import OneFrequencyCommandError, choose_input_delay, fits_by_delay
 from fmu_plant.parameters import PlantParams
 from tapmuscle.api import simulate
 from tapmuscle.diagnosis.field_cases import draw_parameter_errors, off_nominal
@@ -38,17 +37,6 @@ COMMANDS = {
 OPTIONS = {"constraint_start_s": 60.0}
 
 
-def fits_without_refusal(rec: dict, val: dict) -> list[float]:
-    """The 1-step validation fits under D = 0..5, as choose_input_delay computes them, for a command
-    it refuses."""
-    out = []
-    for d in range(6):
-        report = identify_record(rec["u_v"], rec["l_mm"], ts_s=TS_S, input_delay_samples=d, **OPTIONS)
-        out.append(score_model(report.theta, report.structure, val["u_v"], val["l_mm"],
-                               input_delay_samples=d).percent["1"])
-    return out
-
-
 def one(params: PlantParams, command: str, validation: str, delay_s: float, label: str) -> bool | None:
     """Print one rig's choice; True/False whether it is the rig's delay (a delay between two samples:
     either), None where refused."""
@@ -59,14 +47,15 @@ def one(params: PlantParams, command: str, validation: str, delay_s: float, labe
     try:
         choice = choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=TS_S, validation=(val["u_v"], val["l_mm"]),
                                     **OPTIONS)
-        fits, chosen, note = list(choice.fits_percent), choice.input_delay_samples, ""
-    except ValueError:
-        fits = fits_without_refusal(rec, val)
+        fits, chosen = list(choice.fits_percent), choice.input_delay_samples
+        note = f"  lead {choice.margin_percent:.4f} %" if choice.margin_percent < 0.1 else ""
+    except OneFrequencyCommandError:
+        fits = fits_by_delay(rec["u_v"], rec["l_mm"], ts_s=TS_S, validation=(val["u_v"], val["l_mm"]), **OPTIONS)[0]
         chosen, note = int(np.argmax(fits)), "  refused (one frequency); the best fit's D shown"
     right = chosen in truth
     print(f"{label:<46} rig D {'/'.join(map(str, sorted(truth))):3s} chosen {chosen} {'ok  ' if right else 'MISS'} "
           + " ".join(f"{f:6.2f}" for f in fits) + note, flush=True)
-    return None if note else right
+    return None if "refused" in note else right
 
 
 def main() -> None:

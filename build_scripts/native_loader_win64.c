@@ -11,6 +11,13 @@
 static HMODULE pythonfmu_lib;
 static char load_error[1024];
 
+/* `wide` (a path, an environment variable) as UTF-8, the encoding of FMI's log messages, in `out`. */
+static const char *utf8(const wchar_t *wide, char *out, int size) {
+    if (!WideCharToMultiByte(CP_UTF8, 0, wide, -1, out, size, NULL, NULL))
+        snprintf(out, (size_t)size, "(a name longer than this message holds)");
+    return out;
+}
+
 /* Why pythonfmu's library at `path` did not load (`error`, GetLastError's): mostly because the
    python3.dll it imports is not on the DLL search path, which Windows reports only as "module not
    found" (126), the same code as for the library itself. */
@@ -33,8 +40,9 @@ static void explain_load_error(const wchar_t *path, DWORD error) {
     }
     python = LoadLibraryExW(L"python3.dll", NULL, 0);
     if (!python && GetLastError() == ERROR_BAD_EXE_FORMAT) {
-        snprintf(load_error, sizeof load_error, "the python3.dll on the DLL search path is not a 64-bit one (%ls): "
-                 "put the folder of a 64-bit Python 3 first on PATH", found);
+        char name[600];
+        snprintf(load_error, sizeof load_error, "the python3.dll on the DLL search path is not a 64-bit one (%s): "
+                 "put the folder of a 64-bit Python 3 first on PATH", utf8(found, name, sizeof name));
         return;
     }
     if (python) FreeLibrary(python);
@@ -60,6 +68,7 @@ static int python_in_process(void) {
    0 if the variable names no usable Python (load_error says why). */
 static int choose_python(void) {
     wchar_t program[4096], dll[4096], *slash;
+    char name[400];
     DWORD n = GetEnvironmentVariableW(L"TAPMUSCLE_PYTHON", program, 4096), attributes;
     HMODULE python;
     HANDLE found;
@@ -71,15 +80,16 @@ static int choose_python(void) {
     }
     attributes = GetFileAttributesW(program);
     if (attributes == INVALID_FILE_ATTRIBUTES || (attributes & FILE_ATTRIBUTE_DIRECTORY)) {
-        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%ls is not a file (name the python.exe of a "
-                 "64-bit Python 3 with numpy, scipy and osqp)", program);
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%s is not a file (name the python.exe of a "
+                 "64-bit Python 3 with numpy, scipy and osqp)", utf8(program, name, sizeof name));
         return 0;
     }
     wcscpy(dll, program);
     slash = wcsrchr(dll, L'\\');
     if (!slash) slash = wcsrchr(dll, L'/');
     if (!slash || (size_t)(slash + 1 - dll) + 12 > 4096) {
-        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%ls is not an absolute path", program);
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%s is not an absolute path",
+                 utf8(program, name, sizeof name));
         return 0;
     }
     /* python3.dll only forwards to the full python3XY.dll beside it, which the loader would look for
@@ -98,10 +108,13 @@ static int choose_python(void) {
     wcscpy(slash + 1, L"python3.dll");
     python = LoadLibraryExW(dll, NULL, LOAD_WITH_ALTERED_SEARCH_PATH);
     if (!python) {
-        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%ls: %ls could not be loaded (Windows error %lu); "
+        DWORD error = GetLastError();
+        char dll_name[400];
+        snprintf(load_error, sizeof load_error, "TAPMUSCLE_PYTHON=%s: %s could not be loaded (Windows error %lu); "
                  "name the python.exe of a Python installation (a venv's Scripts\\python.exe has no python3.dll "
                  "beside it: name its base Python's and set TAPMUSCLE_SITE_PACKAGES to the venv's "
-                 "Lib\\site-packages)", program, dll, (unsigned long)GetLastError());
+                 "Lib\\site-packages)", utf8(program, name, sizeof name), utf8(dll, dll_name, sizeof dll_name),
+                 (unsigned long)error);
         return 0;
     }
     return 1;
@@ -120,41 +133,53 @@ static int has_file(const wchar_t *folder, const wchar_t *pattern) {
     return 1;
 }
 
-/* PYTHONHOME as the Python that pythonfmu starts in a host without Python takes it: NULL where it is
-   not set, where there is no python3.dll to start (its own message follows), or where a
-   python3XY._pth beside that Python's DLL makes it ignore PYTHONHOME (the embeddable distribution's).
-   `home` receives it, empty if longer than 4095 characters. */
+/* Whether this process had no Python when pythonfmu's library was loaded: pythonfmu then starts one. */
+static int starts_python;
+
+/* PYTHONHOME as the Python that pythonfmu starts takes it, once pythonfmu's library has loaded its
+   python3.dll: NULL where it is not set, or where a python3XY._pth beside that Python's DLL makes it
+   ignore PYTHONHOME (the embeddable distribution's). `home` receives it, empty if longer than 4095
+   characters. */
 static const wchar_t *python_home_taken(wchar_t home[4096]) {
     wchar_t dll[4096], *slash;
-    HMODULE python;
-    DWORD n = GetEnvironmentVariableW(L"PYTHONHOME", home, 4096);
-    if (n == 0) return NULL;
+    HMODULE python = GetModuleHandleW(L"python3.dll");
+    DWORD n = GetEnvironmentVariableW(L"PYTHONHOME", home, 4096), m;
+    if (n == 0 || !python) return NULL;
     if (n >= 4096) home[0] = 0;
-    python = LoadLibraryExW(L"python3.dll", NULL, 0);   /* TAPMUSCLE_PYTHON's, loaded first, or the search path's */
-    if (!python || GetModuleFileNameW(python, dll, 4096) >= 4096 || !(slash = wcsrchr(dll, L'\\'))) return NULL;
+    m = GetModuleFileNameW(python, dll, 4096);
+    if (m == 0 || m >= 4096 || !(slash = wcsrchr(dll, L'\\'))) return home;   /* unknown: as taken */
     *slash = 0;
     return has_file(dll, L"python3*._pth") ? NULL : home;
 }
 
-/* Whether this process had no Python when pythonfmu's library was loaded: pythonfmu then starts one. */
-static int starts_python;
+/* What a failed instantiation adds when the Python pythonfmu starts takes a PYTHONHOME (set once, in
+   load_pythonfmu): a standard library there of another Python ("No module named '_ctypes'") says
+   nothing of it. */
+static char home_hint[900];
 
 /* In a host without Python: a PYTHONHOME without a standard library (an installation's Lib\\encodings,
-   the embeddable distribution's python3XY.zip) cannot start the FMU's Python; checked first, the
-   instances fail naming it, rather than later at whichever module Python cannot find. */
+   the embeddable distribution's python3XY.zip) cannot start the FMU's Python; checked before Python
+   starts (at the first fmi2Instantiate), the instances fail naming it, rather than later at whichever
+   module Python cannot find. */
 static int python_home_usable(void) {
     wchar_t home[4096], probe[4200];
+    char name[600];
     if (!python_home_taken(home)) return 1;
     if (!home[0]) {
         snprintf(load_error, sizeof load_error, "PYTHONHOME is longer than 4095 characters");
         return 0;
     }
+    utf8(home, name, sizeof name);
     _snwprintf(probe, 4200, L"%ls\\Lib\\encodings", home);
     probe[4199] = 0;
-    if (has_file(probe, L"__init__.py") || has_file(home, L"python3*.zip")) return 1;
-    snprintf(load_error, sizeof load_error, "PYTHONHOME=%ls has no Python standard library (no Lib\\encodings, "
+    if (has_file(probe, L"__init__.py") || has_file(home, L"python3*.zip")) {
+        snprintf(home_hint, sizeof home_hint, " (PYTHONHOME=%s is set: the FMU's Python took its standard library "
+                 "from there; unset it unless it is the home of the Python whose python3.dll the FMU loaded)", name);
+        return 1;
+    }
+    snprintf(load_error, sizeof load_error, "PYTHONHOME=%s has no Python standard library (no Lib\\encodings, "
              "no python3*.zip), so the FMU cannot start its Python: unset PYTHONHOME in this host's environment, "
-             "or point it at a Python 3 installation", home);
+             "or point it at a Python 3 installation", name);
     return 0;
 }
 
@@ -165,7 +190,7 @@ static INIT_ONCE load_once = INIT_ONCE_STATIC_INIT;
 static BOOL CALLBACK load_pythonfmu(PINIT_ONCE once, void *parameter, void **context) {
     (void)once, (void)parameter, (void)context;
     starts_python = !python_in_process();
-    if (choose_python() && (!starts_python || python_home_usable())) {
+    if (choose_python()) {
         wchar_t path[4096];
         HMODULE self = NULL;
         DWORD n = 0;
@@ -178,6 +203,10 @@ static BOOL CALLBACK load_pythonfmu(PINIT_ONCE once, void *parameter, void **con
             if (slash && MultiByteToWideChar(CP_UTF8, 0, PYTHONFMU_LIBRARY, -1, slash + 1, (int)room) > 0) {
                 pythonfmu_lib = LoadLibraryExW(path, NULL, LOAD_WITH_ALTERED_SEARCH_PATH);
                 if (!pythonfmu_lib) explain_load_error(path, GetLastError());
+                else if (starts_python && !python_home_usable()) {   /* Python starts at fmi2Instantiate */
+                    FreeLibrary(pythonfmu_lib);
+                    pythonfmu_lib = NULL;
+                }
             }
         }
         if (!pythonfmu_lib && !load_error[0])
@@ -194,16 +223,7 @@ static void *real(const char *symbol) {
 
 static const char *library_error(void) { return load_error; }
 
-/* What a failed instantiation adds when the Python this library had pythonfmu start took a PYTHONHOME:
-   a standard library there of another Python ("No module named '_ctypes'") says nothing of it. */
-static const char *python_home_hint(void) {
-    static char hint[900];
-    wchar_t home[4096];
-    if (!starts_python || !python_home_taken(home)) return "";
-    snprintf(hint, sizeof hint, " (PYTHONHOME=%.600ls is set: the FMU's Python took its standard library from "
-             "there; unset it unless it is the home of the Python whose python3.dll the FMU loaded)", home);
-    return hint;
-}
+static const char *python_home_hint(void) { return home_hint; }
 
 static int readable(const char *path) { return _access(path, 4) == 0; }
 

@@ -50,10 +50,11 @@ __all__ = ["SafeSlave", "SlaveInputError", "VariableMeta"]
 
 _BAD_STATE = "tapmuscle: bad FMU state"
 
-#: The keys of an FMU state (:meth:`SafeSlave._snapshot`), and those of the mode it was saved in, which
-#: a state of an FMU built before they were kept lacks (its numerics tell whether it was initialised).
+#: The keys of an FMU state (:meth:`SafeSlave._snapshot`), and those of the mode it was saved in and its
+#: run's start time, which a state of an FMU built before they were kept lacks (its numerics tell
+#: whether it was initialised; the restoring instance's start time stands in).
 _STATE_KEYS = frozenset({"variables", "numerics", "failed", "time"})
-_STATE_MODE_KEYS = frozenset({"initialised", "terminated"})
+_STATE_MODE_KEYS = frozenset({"initialised", "terminated", "start"})
 
 
 def _saved_initialised(state: dict[str, Any]) -> bool:
@@ -533,7 +534,7 @@ class SafeSlave(Fmi2Slave):
         # (exact: JSON keeps the shortest repr, which round-trips every double).
         return {"variables": super()._get_fmu_state(), "numerics": _plain(self.numerics_state()),
                 "failed": self._failed, "time": self._time_s, "initialised": self._initialised,
-                "terminated": self._terminated}
+                "terminated": self._terminated, "start": self._start_s}
 
     _get_fmu_state = _to_host(_snapshot)
 
@@ -546,19 +547,19 @@ class SafeSlave(Fmi2Slave):
             self.log(f"not an FMU state of this FMU ({reason or 'unexpected content'}); nothing was changed",
                      status=Fmi2Status.error)
             return
+        before = self._snapshot()
+        if isinstance(state["variables"], dict) and set(state["variables"]) != set(before["variables"]):
+            theirs, ours = set(state["variables"]), set(before["variables"])
+            self.log(f"not an FMU state of this FMU: a state of another FMU or another build of this one (it has "
+                     f"{', '.join(sorted(theirs - ours)[:3]) or 'none of its own'}; lacks "
+                     f"{', '.join(sorted(ours - theirs)[:3]) or 'none'}); nothing was changed", status=Fmi2Status.error)
+            return
         # a state from before fmi2ExitInitializationMode holds no model: a host in step mode would step none
         if not _saved_initialised(state) and self._initialised:
             self.log("fmi2SetFMUstate: this FMU state was saved before fmi2ExitInitializationMode (it holds "
                      "parameters, no model yet) and this instance is initialised; restore it into an instance "
                      "that is not, or save a state after fmi2ExitInitializationMode; nothing was changed",
                      status=Fmi2Status.error)
-            return
-        before = self._snapshot()
-        if isinstance(state["variables"], dict) and set(state["variables"]) != set(before["variables"]):
-            theirs, ours = set(state["variables"]), set(before["variables"])
-            self.log(f"not an FMU state of this FMU: a state of an FMU with other variables (it has "
-                     f"{', '.join(sorted(theirs - ours)[:3]) or 'none of its own'}; lacks "
-                     f"{', '.join(sorted(ours - theirs)[:3]) or 'none'}); nothing was changed", status=Fmi2Status.error)
             return
         try:
             self._restore(state, before["variables"])
@@ -569,9 +570,9 @@ class SafeSlave(Fmi2Slave):
 
     def _restore(self, state: dict[str, Any], current: dict[str, Any] | None = None) -> None:
         """Restore ``state``; ``current``: this instance's variables now, if already read."""
-        time_s = float(state["time"])
-        if not math.isfinite(time_s):
-            raise ValueError(f"time = {time_s!r} is not finite")
+        time_s, start_s = float(state["time"]), float(state.get("start", self._start_s))
+        if not math.isfinite(time_s) or not math.isfinite(start_s):
+            raise ValueError(f"time = {time_s!r} and start = {start_s!r} must be finite")
         if current is None:
             current = super()._get_fmu_state()
         # a state of an instance with other parameters (a rig of another length, another method), or one
@@ -580,6 +581,7 @@ class SafeSlave(Fmi2Slave):
         rebuild = state["numerics"] is not None and (self.numerics_state() is None or any(
             state["variables"].get(v.name) != current[v.name]
             for v in self.vars.values() if v.causality == Fmi2Causality.parameter))
+        self._start_s = start_s  # the sample times count from the saving run's start (also in a rebuild)
         initialised, self._initialised = self._initialised, False  # a state sets the fixed parameters too
         try:
             super()._set_fmu_state(state["variables"])

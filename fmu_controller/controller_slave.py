@@ -103,7 +103,6 @@ _SWINGS = 6
 _PINNED_S = 10.0
 
 
-
 #: ServoMPCSettings' and UCPSettings' field names as the FMU's parameters: their errors name these
 #: (``r`` would read as the reference input).
 _SERVO_NAMES = {"hp": "servo.Hp", "hu": "servo.Hu", "qs": "servo.Qs", "q": "servo.Q", "r": "servo.R",

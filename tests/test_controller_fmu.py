@@ -316,7 +316,7 @@ def test_a_rounding_remainder_step_is_accepted(fmu):
 @pytest.mark.parametrize("tiny", [2e-10, 5e-10, 9.9e-10])
 def test_a_step_too_short_to_integrate_at_a_sample_time_leaves_the_sample_to_the_next(fmu, k, tiny):
     """Any step below 1e-9 s is an accepted no-op: the next regular step, starting that much after the
-    sample time, takes the sample (it was refused as skipping it, for good)."""
+    sample time, takes the sample (refused as skipping it, the instance could not go on)."""
     vr = fmu[3]
     f = _instance(fmu)
     f.setReal([vr["l"]], [10.0])
@@ -657,8 +657,8 @@ def test_a_rewind_logs_what_the_run_from_there_logs():
 
 
 def test_a_step_that_passes_a_sample_time_is_discarded_and_the_host_can_step_to_it(fmu, capfd):
-    """A step over [0.07, 0.14] s contains the sample time 0.1 s: refused with fmi2Discard at once
-    (accepted, it left the command of k = 0 over the sample and stuck every later step), the state
+    """A step over [0.07, 0.14] s contains the sample time 0.1 s: refused with fmi2Discard at once, where
+    the host can still step to the sample (once past it, every later step would be refused), the state
     unchanged; stepping to 0.1 s and on gives the commands of steps on the grid."""
     vr = fmu[3]
     f, g = _instance(fmu, "f"), _instance(fmu, "g")
@@ -682,9 +682,8 @@ def test_a_step_that_passes_a_sample_time_is_discarded_and_the_host_can_step_to_
 
 
 def test_fmpy_starts_a_run_from_a_saved_state_in_a_fresh_instance(fmu):
-    """simulate_fmu(fmu_state=...) restores the state into an instance that was never initialised
-    (it was refused: "'NoneType' object has no attribute 'set_state'"): the run goes on as the saved
-    instance's, bit for bit, with the state's method."""
+    """simulate_fmu(fmu_state=...) restores the state into an instance that was never initialised (FMI
+    2.0 allows it there): the run goes on as the saved instance's, bit for bit, with the state's method."""
     import fmpy
 
     vr = fmu[3]
@@ -709,8 +708,8 @@ def test_fmpy_starts_a_run_from_a_saved_state_in_a_fresh_instance(fmu):
 
 
 def test_a_stepping_controller_is_not_initialised_again_and_keeps_its_outputs(fmu, capfd):
-    """A second initialisation without fmi2Reset is refused (it returned OK and the next run's first row
-    held the last run's u and x_s)."""
+    """A second initialisation without fmi2Reset is refused with fmi2Error (FMI 2.0 allows it only before
+    step mode; a next run would start from this one's u and x_s), and the instance keeps its outputs."""
     vr = fmu[3]
     f = _instance(fmu)
     for k in range(10):
@@ -727,8 +726,8 @@ def test_a_stepping_controller_is_not_initialised_again_and_keeps_its_outputs(fm
 
 
 def test_another_fmus_state_is_refused_naming_its_variables(fmu, built_fmus, capfd):
-    """The plant's state (serialised) into the controller: fmi2Error saying whose variables it has
-    (it said "KeyError: 'controller'"), and the controller steps on unchanged."""
+    """The plant's state (serialised) into the controller: fmi2Error naming variables it has and lacks,
+    and the controller steps on unchanged."""
     plant = open_fmu(built_fmus["MusclePlant"])
     p = instantiate(plant, "p")
     p.doStep(0.0, 0.1)
@@ -739,7 +738,7 @@ def test_another_fmus_state_is_refused_naming_its_variables(fmu, built_fmus, cap
     with pytest.raises(FMICallException, match="error"):
         f.setFMUstate(f.deSerializeFMUstate(foreign))
     out = capfd.readouterr().out
-    assert "not an FMU state of this FMU: a state of an FMU with other variables (it has " in out, out
+    assert "not an FMU state of this FMU: a state of another FMU or another build of this one (it has " in out, out
     assert "backlash.slack_mm" in out and "lacks H, P0.A1" in out
     for k in range(20):
         for h in (f, g):
@@ -747,3 +746,39 @@ def test_another_fmus_state_is_refused_naming_its_variables(fmu, built_fmus, cap
             h.doStep(k * 0.1, 0.1)
     assert f.getReal([vr["u"], vr["xs"]]) == g.getReal([vr["u"], vr["xs"]])
     _free(f, g, p)
+
+
+def test_a_state_keeps_its_runs_start_time(fmu):
+    """The sample times t0 + k Ts count from the start time of the run that saved the state, also in an
+    instance restored without fmi2SetupExperiment (fmpy's fmu_state=) or set up with another start."""
+    from fmpy.fmi2 import FMU2Slave
+
+    path, md, folder, vr = fmu
+
+    def fresh(name, start=None):
+        f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName=name)
+        f.instantiate(loggingOn=True)
+        if start is not None:
+            f.setupExperiment(startTime=start)
+            f.enterInitializationMode()
+            f.exitInitializationMode()
+        return f
+
+    def run(f, k0, n=10):
+        out = []
+        for k in range(k0, k0 + n):
+            f.setReal([vr["l"]], [_l(k)])
+            f.doStep(2.0 + k * 0.1, 0.1)
+            out.append(f.getReal([vr["u"], vr["xs"]]))
+        return out
+
+    a = fresh("a", start=2.0)
+    run(a, 0, 30)
+    state = a.serializeFMUstate(a.getFMUstate())
+    expected = run(a, 30)
+    for b in (fresh("b"), fresh("c", start=7.0)):
+        b.setFMUstate(b.deSerializeFMUstate(state))
+        assert run(b, 30) == expected
+        _free(b)
+    _free(a)

@@ -43,6 +43,8 @@ class Host:
         self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
         self.slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
                                instanceName=name)
+        # this test process hosts it: without the release pythonfmu's binary may corrupt the heap at exit
+        release_at_exit(folder, md.coSimulation.modelIdentifier)
         self.slave.instantiate(callbacks=self._callbacks, loggingOn=True)
 
     def initialise(self, **parameters: float) -> int:
@@ -84,10 +86,7 @@ def fmu(tmp_path_factory):
     path = build_thermal_fmu(out)
     assert path == out / FMU_NAME and path.is_file()
     assert sorted(p.name for p in out.iterdir()) == [FMU_NAME]  # the temporary build folder is gone
-    md, folder = fmpy.read_model_description(str(path)), fmpy.extract(str(path), unzipdir=str(out / "x"))
-    # this test process hosts it: without the release pythonfmu's binary may corrupt the heap at exit
-    release_at_exit(folder, md.coSimulation.modelIdentifier)
-    return path, md, folder
+    return path, fmpy.read_model_description(str(path)), fmpy.extract(str(path), unzipdir=str(out / "x"))
 
 
 @pytest.fixture
@@ -225,12 +224,12 @@ from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 path = sys.argv[1]
 md = fmpy.read_model_description(path)
 folder = fmpy.extract(path)
-# pythonfmu's binary corrupts the heap at exit otherwise (rarely an abort, unrelated to the calls below)
-release_at_exit(folder, md.coSimulation.modelIdentifier)
 statuses = set()
 for i in range(40):
     f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
                   instanceName="x")
+    # pythonfmu's binary corrupts the heap at exit otherwise (rarely an abort, unrelated to the calls below)
+    release_at_exit(folder, md.coSimulation.modelIdentifier)
     f.instantiate()
     for call in (lambda: f.getReal([99]), lambda: f.setReal([99], [1.0]), lambda: f.getInteger([0])):
         try:

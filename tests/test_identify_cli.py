@@ -357,6 +357,9 @@ def test_auto_chooses_the_rigs_delay_and_refuses_a_sine(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "sine.csv: the identification record's command is one frequency (about 0.1 Hz, a sine)" in err, err
     assert not (tmp_path / "sine.json").exists()
+    assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "sine.csv"),
+                 "--input-delay-samples", "auto", "--json", str(tmp_path / "sine.json")]) == 2
+    assert "sine.csv: the validation record's command is one frequency" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["identify", str(tmp_path / "train.csv"), "--input-delay-samples", "best", "--json", str(out)])
     assert "--input-delay-samples must be an integer or 'auto', got 'best'" in capsys.readouterr().err

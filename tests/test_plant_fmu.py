@@ -472,9 +472,9 @@ def test_a_state_from_step_mode_restores_into_an_instance_not_yet_initialised(fm
 
 def test_a_state_from_before_initialisation_is_refused_in_step_mode(fmu, capfd):
     """A state saved in initialization mode holds parameters and no plant: restored into a stepping
-    instance it is refused with fmi2Error (a host rewinding to it stepped the plant on from where it
-    was, with the outputs and time of the start: 42.94 mm at 0.1 s instead of 3.68); restored into an
-    instance before initialisation it sets the parameters, and that instance runs as any."""
+    instance it is refused with fmi2Error (the host would step a plant that is not there, or go on from
+    where it was with the outputs and time of the start); restored into an instance before
+    initialisation it sets the parameters, and that instance runs as any."""
     vr = fmu[3]
     f = open_fresh(fmu, "f")
     f.setupExperiment(startTime=0.0)

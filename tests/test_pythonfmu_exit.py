@@ -7,6 +7,7 @@ tests skip unless ``TAPMUSCLE_REQUIRE_VALGRIND=1``.
 
 from __future__ import annotations
 
+import ctypes
 import os
 import re
 import shutil
@@ -16,9 +17,11 @@ from pathlib import Path
 
 import fmpy
 import pytest
+from fmpy.fmi2 import FMU2Slave
 
 from tapmuscle.cosim import pythonfmu_exit
 from tapmuscle.cosim.pythonfmu_exit import RELEASE_SYMBOL, release_at_exit
+from tapmuscle.diagnosis.foreign_fmus.dc_motor import build_dc_motor_fmu
 from tapmuscle.diagnosis.foreign_fmus.thermal import FMU_NAME, build_thermal_fmu
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="pythonfmu's exit defect is in its Linux binary")
@@ -29,24 +32,39 @@ def thermal(tmp_path_factory) -> Path:
     return build_thermal_fmu(tmp_path_factory.mktemp("thermal"))
 
 
+def _loaded(path: Path) -> bool:
+    """Whether the library ``path`` is mapped into this process."""
+    return str(path) in Path("/proc/self/maps").read_text()
+
+
 def test_registers_pythonfmus_release_once_per_library(thermal, tmp_path, monkeypatch):
     folder = fmpy.extract(str(thermal), unzipdir=str(tmp_path / "x"))
     registered = []
     monkeypatch.setattr(pythonfmu_exit.atexit, "register", registered.append)
     monkeypatch.setattr(pythonfmu_exit, "_registered", {})
+    assert not release_at_exit(folder, "ThermalTwoMass")  # not loaded: nothing is loaded here
+    binary = Path(folder, "binaries", fmpy.platform, "ThermalTwoMass" + fmpy.sharedLibraryExtension).resolve()
+    assert not _loaded(binary)
+    md = fmpy.read_model_description(str(thermal))
+    FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="ThermalTwoMass", instanceName="x")  # loads it
     assert release_at_exit(folder, "ThermalTwoMass")
     assert release_at_exit(Path(folder, "binaries", "..", "."), "ThermalTwoMass")  # the same binary, another path
     assert [f.__name__ for f in registered] == [RELEASE_SYMBOL]
 
 
-def test_other_libraries_are_left_alone(built_fmus, tmp_path, monkeypatch):
-    """The project's FMUs (their loader releases pythonfmu's holder itself), a missing file and a
-    library without pythonfmu's symbol: nothing is registered."""
+def test_other_libraries_are_left_alone(tmp_path, monkeypatch):
+    """A C FMU's library without pythonfmu's symbol: nothing registered, and the probe leaves it as it was,
+    so the host can unload it (its globals start afresh in the next instance); a missing or broken binary."""
     registered = []
     monkeypatch.setattr(pythonfmu_exit.atexit, "register", registered.append)
     monkeypatch.setattr(pythonfmu_exit, "_registered", {})
-    folder = fmpy.extract(str(built_fmus["MusclePlant"]), unzipdir=str(tmp_path / "plant"))
-    assert not release_at_exit(folder, "MusclePlant")
+    folder = fmpy.extract(str(build_dc_motor_fmu(tmp_path / "dc")), unzipdir=str(tmp_path / "dc" / "x"))
+    binary = Path(folder, "binaries", fmpy.platform, "DcMotor" + fmpy.sharedLibraryExtension).resolve()
+    host = ctypes.CDLL(str(binary))
+    assert _loaded(binary)
+    assert not release_at_exit(folder, "DcMotor")
+    pythonfmu_exit._dlclose(host._handle)
+    assert not _loaded(binary)  # the probe's reference is gone with it
     assert not release_at_exit(folder, "NoSuchModel")  # no binary
     (tmp_path / "text" / "binaries" / fmpy.platform).mkdir(parents=True)
     (tmp_path / "text" / "binaries" / fmpy.platform / f"Text{fmpy.sharedLibraryExtension}").write_text("not a library")

@@ -302,8 +302,8 @@ def test_tapmuscle_python_names_the_python_of_a_windows_c_host(c_host_runs):
 
 
 def test_a_pythonhome_without_a_standard_library_is_named_by_the_windows_host(c_host_runs):
-    # The FMU's Python took it and failed at "No module named '_ctypes'", naming nothing: checked
-    # before, the instances fail naming PYTHONHOME, and the host refuses cleanly; where the Python's
+    # Taken by the FMU's Python it fails at a module it cannot find ("No module named '_ctypes'"),
+    # naming nothing: checked before, the instances fail naming PYTHONHOME, and the host refuses cleanly; where the Python's
     # ._pth makes it ignore PYTHONHOME (the embeddable distribution), the FMU runs; and the failure of
     # a Python that took a PYTHONHOME with a standard library names it too (here: no numpy there)
     returncode, home, _rows, stderr = c_host_runs["bad_home"]

@@ -160,7 +160,7 @@ def _parse_box(text: str):
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
-    from fmu_controller.input_delay_choice import choose_input_delay
+    from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT, OneFrequencyCommandError, choose_input_delay
 
     from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
     from tapmuscle.io.atomic import atomic_path
@@ -189,6 +189,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             report = choice.report
         else:
             report = identify_record(rec.u_v, rec.l_mm, input_delay_samples=args.input_delay_samples, **options)
+    except OneFrequencyCommandError as exc:
+        raise UsageError(f"{args.validate if exc.record == 'validation' else args.recording}: {exc}") from None
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
     # the recording as given and as an absolute path (the first is relative to where identify ran), and
@@ -237,6 +239,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
         print(f"{f'1-step fit [%], {choice.scored_on}':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
               + f"  -> D = {choice.input_delay_samples} ({choice.input_delay_samples * rec.ts_s:g} s)")
+        if choice.margin_percent < THIN_MARGIN_PERCENT:
+            print(f"note: the best fit leads the next by {choice.margin_percent:.4f} % only: this record hardly tells "
+                  "those delays apart (a longer record, or a random command of another seed, may)", file=sys.stderr)
         if choice.at_largest:
             print(f"note: the fit is best at the largest delay tried ({choice.input_delay_samples} samples): the "
                   "rig's delay may be larger still (the controllers take at most that)", file=sys.stderr)
