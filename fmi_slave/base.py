@@ -146,6 +146,9 @@ class SafeSlave(Fmi2Slave):
         #: fmi2Terminate; each fmi2Reset makes a new slave object (pythonfmu), not initialised.
         self._initialised = False
         self._terminated = False
+        #: a step-mode FMU state restored before initialisation: the initialisation calls a host may still
+        #: make before its first step (FMI 2.0's state machine asks for them) keep the restored run
+        self._restored_before_init = False
         self.variable_meta: dict[str, VariableMeta] = {}
         #: Real variables whose value is the instance attribute of the same name (inputs, outputs without
         #: a getter): read and written through ``self.__dict__`` by :meth:`get_real` / :meth:`set_real`.
@@ -388,6 +391,8 @@ class SafeSlave(Fmi2Slave):
         if self._terminated:
             self._after_terminate("fmi2SetupExperiment")
             return
+        if self._restored_before_init:
+            return  # the restored state's start time stands
         if self._initialised:
             self._after_initialisation("fmi2SetupExperiment")
             return
@@ -407,6 +412,8 @@ class SafeSlave(Fmi2Slave):
         # mistake: its outputs would start from the last run's values
         if self._terminated:
             self._after_terminate("fmi2EnterInitializationMode")
+            return
+        if self._restored_before_init:
             return
         if self._initialised:
             self._after_initialisation("fmi2EnterInitializationMode")
@@ -471,6 +478,9 @@ class SafeSlave(Fmi2Slave):
         if self._terminated:
             self._after_terminate("fmi2ExitInitializationMode")
             return
+        if self._restored_before_init:
+            self._restored_before_init = False  # the model is the restored one: nothing to build
+            return
         if self._initialised:
             self._after_initialisation("fmi2ExitInitializationMode")
             return
@@ -495,6 +505,7 @@ class SafeSlave(Fmi2Slave):
             if self._failed:
                 return self.fail("the FMU was not initialised (see the previous error); fix the parameters and "
                                  "instantiate again", Fmi2Status.error)
+            self._restored_before_init = False
             if self._terminated or not self._initialised:
                 return self.fail(f"fmi2DoStep {'after fmi2Terminate' if self._terminated else 'before fmi2ExitInitializationMode'}"
                                  "; instantiate (or fmi2Reset) and initialise again", Fmi2Status.error)
@@ -594,7 +605,10 @@ class SafeSlave(Fmi2Slave):
         self._failed = bool(state["failed"])
         self._time_s = time_s
         # the state's mode: a state from step mode steps on (also in a terminated instance or one not yet
-        # initialised), a terminated one stays terminated
+        # initialised, which either steps at once, as fmpy's simulate_fmu(fmu_state=...) does, or is taken
+        # through the initialisation calls first), a terminated one stays terminated
+        self._restored_before_init = (_saved_initialised(state) and not self._terminated
+                                      and (not initialised or self._restored_before_init))
         if _saved_initialised(state):
             self._initialised = True
         self._terminated = bool(state.get("terminated", False))

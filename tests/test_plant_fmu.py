@@ -449,7 +449,8 @@ def test_an_initialised_instance_is_not_initialised_again_without_reset(fmu, cap
 def test_a_state_from_step_mode_restores_into_an_instance_not_yet_initialised(fmu):
     """fmpy's simulate_fmu(fmu_state=...) restores a state into a fresh instance instead of
     initialising it (FMI 2.0 allows fmi2SetFMUstate there): the plant is built from the state's
-    parameters and steps on bit for bit; so after fmi2Reset, and in a terminated instance."""
+    parameters and steps on bit for bit; so after fmi2Reset, in a terminated instance, and where the
+    host then makes the initialisation calls, which keep the restored run."""
     vr = fmu[3]
     a = _instance(fmu, "a", reals={"friction.base_n": 20.0})
     _run(a, vr, 0)
@@ -465,6 +466,17 @@ def test_a_state_from_step_mode_restores_into_an_instance_not_yet_initialised(fm
     fresh.terminate()  # and from terminated: the state's mode is step mode
     fresh.setFMUstate(fresh.deSerializeFMUstate(state))
     assert _run(fresh, vr, 30) == expected
+    by_the_book = open_fresh(fmu, "book")  # restored, then taken through FMI 2.0's initialisation calls
+    by_the_book.setFMUstate(by_the_book.deSerializeFMUstate(state))
+    by_the_book.setupExperiment(startTime=3.0)
+    by_the_book.enterInitializationMode()
+    by_the_book.setFMUstate(by_the_book.deSerializeFMUstate(state))  # again, in initialization mode
+    assert by_the_book.exitInitializationMode() == 0
+    assert _run(by_the_book, vr, 30) == expected
+    with pytest.raises(FMICallException, match="error"):  # once stepping, as any stepping instance
+        by_the_book.enterInitializationMode()
+    by_the_book.terminate()
+    by_the_book.freeInstance()
     for f in (a, fresh):
         f.terminate()
         f.freeInstance()
