@@ -63,6 +63,7 @@ def test_other_libraries_are_left_alone(tmp_path, monkeypatch):
     host = ctypes.CDLL(str(binary))
     assert _loaded(binary)
     assert not release_at_exit(folder, "DcMotor")
+    assert not release_at_exit(folder, "DcMotor")  # the answer kept
     pythonfmu_exit._dlclose(host._handle)
     assert not _loaded(binary)  # the probe's reference is gone with it
     assert not release_at_exit(folder, "NoSuchModel")  # no binary

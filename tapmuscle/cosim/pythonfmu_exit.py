@@ -32,8 +32,9 @@ __all__ = ["RELEASE_SYMBOL", "release_at_exit"]
 RELEASE_SYMBOL = "finalizePythonInterpreter"
 
 _lock = threading.Lock()
-#: library path -> its release function (whose ctypes library object keeps the library loaded)
-_registered: dict[str, ctypes._CFuncPtr] = {}  # type: ignore[name-defined]
+#: library path -> its release function (whose ctypes library object keeps the library loaded), or
+#: None for a library found without one (not probed again: the master loads the same FMUs many times)
+_registered: dict[str, ctypes._CFuncPtr | None] = {}  # type: ignore[name-defined]
 
 
 def release_at_exit(folder: str | Path, model_identifier: str) -> bool:
@@ -69,7 +70,7 @@ def release_at_exit(folder: str | Path, model_identifier: str) -> bool:
     key = str(Path(folder, "binaries", platform, model_identifier + sharedLibraryExtension).resolve())
     with _lock:
         if key in _registered:
-            return True
+            return _registered[key] is not None
         try:  # a reference to the host's copy only: nothing is loaded here
             library = ctypes.CDLL(key, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)
         except OSError:
@@ -77,6 +78,7 @@ def release_at_exit(folder: str | Path, model_identifier: str) -> bool:
         release = getattr(library, RELEASE_SYMBOL, None)
         if release is None:
             _dlclose(library._handle)
+            _registered[key] = None
             return False
         release.argtypes, release.restype = [], None
         _registered[key] = release
