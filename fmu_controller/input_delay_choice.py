@@ -1,56 +1,80 @@
-"""Choose a rig's transport delay for Eq. (1) from its recordings.
+"""Choose a rig's transport delay for Eq. (1) from its recording.
 
 A valve that acts ``d`` samples late makes Eq. (1) hold on ``u(k - d)``
 (:func:`~fmu_controller.identification.identify_record`'s ``input_delay_samples``). Identified under
-each delay ``D = 0 .. MAX_INPUT_DELAY_SAMPLES``, the model's 1-step fit (Table 4) is highest at the
-rig's delay: a smaller ``D`` credits the command with an effect it has not had yet, a larger one hides
-the command that already acts (the fit then drops sharply). Measured on the simulated rig with delays
-of 0 to 0.4 s under random, step and chirp commands, 20 of 20 recordings peak at the rig's delay, and
-30 of 30 off-nominal rigs under random commands within a sample of it (benchmarks/input_delay_choice.py).
+each delay ``D = 0 .. MAX_INPUT_DELAY_SAMPLES``, the model's 1-step fit (Table 4) on the record is
+highest at the rig's delay: a smaller ``D`` credits the command with an effect it has not had yet, a
+larger one hides the command that already acts (the fit then drops sharply). Measured on simulated
+rigs (benchmarks/input_delay_choice.py): 120-s random, step and chirp records of nominal rigs with
+delays of 0 to 0.4 s peak at the rig's delay in 20 of 20, off-nominal rigs under random commands
+within a sample of it in 30 of 30.
 
-A single sine cannot tell a delay: at one frequency a delay is a phase lag, which Eq. (1)'s dynamics
-take up as well, and the fit keeps rising past the rig's delay (the same rigs under a 0.1-Hz sine peak
-at 3-5 samples for delays of 0-3). :func:`choose_input_delay` refuses a command that is one
-frequency over at least 3 of its periods; the delay is then the user's to give. (A slower swing, less
-than 3 periods in the record, is not refused: it is a ramp more than a tone.)
+The fits are those of the identification record itself. Scored on another record instead, the choice
+went wrong where that record differed (another command kind, another load: one sample short in about
+7 of 10 such cases), and a validation score of the best of six models is no longer a held-out one.
+
+Algorithm 1's box matters for the choice: where the record ends before the box would apply
+(``constraint_start_s``, the paper's 120 s, on a 120-s record), the unconstrained estimates chose one
+sample short in 4 of 20 nominal cases; the choice therefore applies the box from half the record then
+(and says so), and only the identification it returns is the one asked for.
+
+A command of one or two sines cannot tell a delay: at a few frequencies a delay is a phase lag, which
+Eq. (1)'s dynamics take up as well (a 0.1-Hz sine's fit keeps rising past the rig's delay to 3-5
+samples; two sines chose one sample short or 2-4 long). :func:`choose_input_delay` refuses such a
+command (:func:`tone_frequencies_hz`); the delay is then the user's to give.
 """
 
 from __future__ import annotations
 
+import inspect
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
-from .identification import IdentificationReport, identify_record, score_model
+from .identification import IdentificationReport, identify_record
 from .prediction import MAX_INPUT_DELAY_SAMPLES
 
-__all__ = ["InputDelayChoice", "OneFrequencyCommandError", "choose_input_delay", "fits_by_delay", "one_frequency_hz",
-           "ONE_FREQUENCY_SHARE", "MIN_PERIODS", "THIN_MARGIN_PERCENT"]
+__all__ = ["InputDelayChoice", "ToneCommandError", "choose_input_delay", "fits_by_delay", "tone_frequencies_hz",
+           "TONE_SHARE", "THIN_MARGIN_PERCENT"]
 
-#: Share of a command's variance within a few periodogram bins of its strongest frequency at or above
-#: which the command counts as one frequency. Measured on 120-s commands: a sine 0.998-1.000; a square
-#: wave (``steps`` between two levels) 0.81; steps among five levels 0.45, random 0.61, a chirp 0.22.
-ONE_FREQUENCY_SHARE = 0.9
+#: Share of a command's variance that one or two fitted sinusoids must explain for the command to be
+#: taken as tones. Measured on 120-s commands: a sine 1.000 (any number of periods), two sines 0.997-1.000,
+#: a sine with a +-0.5 V dither 0.982; two sinusoids explain 0.90 of a square wave, 0.93 of a single step
+#: at mid-record, 0.71 of steps among five levels, 0.55 of a chirp over 0.08-0.12 Hz, 0.38 of a random
+#: command.
+TONE_SHARE = 0.99
 
-#: Fewest periods of that frequency in the record: a single step's variance lies in the lowest bins
-#: (0.95 of it for a step at 10 s of 120 s), a frequency the record holds less than 3 periods of.
-MIN_PERIODS = 3
+_DEFAULT_CONSTRAINT_START_S = inspect.signature(identify_record).parameters["constraint_start_s"].default
 
-#: A lead of the best fit over the next smaller than this [% of fit] is reported as thin: on the
-#: simulated rigs of benchmarks/input_delay_choice.py the rig's delay led by 0.03-1.0 %, and once by
-#: 0.0005 % (a 0.4-s rig under random:seed=3, between 3 and 4 samples), all 50 chosen right.
-THIN_MARGIN_PERCENT = 0.01
-
-#: Half-width of the band of periodogram bins around the strongest one that counts as its frequency
-#: (a window's leakage where a record holds a non-integer number of periods).
-_BAND_BINS = 2
+#: A lead of the best fit over the next smaller than this [% of fit] is reported as thin. On the
+#: simulated rigs of benchmarks/input_delay_choice.py right choices led by 0.0005-1.0 %; choices gone
+#: wrong (short records, long holds, other conditions) led by a median of 0.06 %.
+THIN_MARGIN_PERCENT = 0.1
 
 
-def one_frequency_hz(u: np.ndarray, ts_s: float) -> float | None:
-    """The frequency [Hz] of a command that is one frequency (at least :data:`ONE_FREQUENCY_SHARE` of
-    its variance within two periodogram bins of its strongest one, Hann window, and at least
-    :data:`MIN_PERIODS` periods of it in the record), else None.
+def _best_sinusoid(x: np.ndarray, t: np.ndarray, ts_s: float) -> tuple[np.ndarray, float]:
+    """``x`` less the sinusoid (and offset) that fits it best, and its frequency [Hz], refined within a
+    periodogram bin of the strongest one (Hann window)."""
+    power = np.abs(np.fft.rfft((x - x.mean()) * np.hanning(len(x)))) ** 2
+    power[0] = 0.0
+    bin_hz = 1.0 / (len(x) * ts_s)
+    f0 = int(np.argmax(power)) * bin_hz
+
+    def residual(f: float) -> np.ndarray:
+        basis = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
+        return x - basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
+
+    f = minimize_scalar(lambda f: float(residual(f) @ residual(f)), bounds=(max(f0 - bin_hz, 0.1 * bin_hz),
+                        f0 + bin_hz), method="bounded").x
+    return residual(f), float(f)
+
+
+def tone_frequencies_hz(u: np.ndarray, ts_s: float) -> tuple[float, ...] | None:
+    """The frequencies [Hz] of a command that is one or two sines (fitted sinusoids explain at least
+    :data:`TONE_SHARE` of its variance), else None (also for a constant command).
 
     Parameters
     ----------
@@ -60,15 +84,30 @@ def one_frequency_hz(u: np.ndarray, ts_s: float) -> float | None:
         Sampling period [s].
     """
     x = np.asarray(u, dtype=float)
-    x = (x - x.mean()) * np.hanning(len(x))
-    power = np.abs(np.fft.rfft(x)) ** 2
-    power[0] = 0.0  # what is left of the mean after the window
-    total = float(power.sum())
-    if total == 0.0:
+    x = x - x.mean()
+    total = float(x @ x)
+    if len(x) < 8 or not math.isfinite(total) or total == 0.0:
         return None
-    k = int(np.argmax(power))  # periods of the strongest frequency in the record
-    share = float(power[max(k - _BAND_BINS, 0):k + _BAND_BINS + 1].sum()) / total
-    return k / (len(x) * ts_s) if k >= MIN_PERIODS and share >= ONE_FREQUENCY_SHARE else None
+    t = np.arange(len(x)) * ts_s
+    found = []
+    for _ in range(2):
+        x, f = _best_sinusoid(x, t, ts_s)
+        found.append(float(f))
+        if 1.0 - float(x @ x) / total >= TONE_SHARE:
+            return tuple(found)
+    return None
+
+
+class ToneCommandError(ValueError):
+    """The identification record's command is one or two sines (:func:`tone_frequencies_hz`)."""
+
+    def __init__(self, frequencies_hz: tuple[float, ...]) -> None:
+        what = (f"one sine ({frequencies_hz[0]:.2g} Hz)" if len(frequencies_hz) == 1 else
+                f"two sines ({frequencies_hz[0]:.2g} and {frequencies_hz[1]:.2g} Hz)")
+        super().__init__(f"the record's command is {what}: at a few frequencies a transport delay is a phase lag "
+                         "that Eq. (1)'s dynamics take up too, so its fits cannot tell the delay; record a random, "
+                         "step or chirp command, or give the delay yourself")
+        self.frequencies_hz = frequencies_hz
 
 
 @dataclass(frozen=True)
@@ -78,18 +117,19 @@ class InputDelayChoice:
     input_delay_samples: int
     """The delay ``D`` [samples] whose model fits best one step ahead."""
     fits_percent: tuple[float, ...]
-    """The 1-step fit [%] of the model identified under each ``D = 0, 1, ...`` (Table 4's NRMSE)."""
-    scored_on: str
-    """``"validation"`` (the fits are on the validation record) or ``"identification"``."""
+    """The 1-step fit [%] on the record of the model identified under each ``D = 0, 1, ...``."""
+    constraint_start_s: float
+    """When Algorithm 1's box applied in the identifications the choice compared [s]: the one asked
+    for, or half the record where that lies beyond its end."""
     report: IdentificationReport
-    """The identification under the chosen delay."""
+    """The identification under the chosen delay, with the options asked for."""
 
     @property
     def margin_percent(self) -> float:
         """How much better [% of fit] the chosen delay fits than the next best (inf with one delay
         tried); below :data:`THIN_MARGIN_PERCENT` the record hardly tells the two apart."""
-        rest = [f for d, f in enumerate(self.fits_percent) if d != self.input_delay_samples and np.isfinite(f)]
-        return self.fits_percent[self.input_delay_samples] - max(rest) if rest else float("inf")
+        rest = [f for d, f in enumerate(self.fits_percent) if d != self.input_delay_samples and math.isfinite(f)]
+        return self.fits_percent[self.input_delay_samples] - max(rest) if rest else math.inf
 
     @property
     def at_largest(self) -> bool:
@@ -97,54 +137,33 @@ class InputDelayChoice:
         return self.input_delay_samples == len(self.fits_percent) - 1
 
 
-class OneFrequencyCommandError(ValueError):
-    """A record whose command is one frequency (:func:`one_frequency_hz`); ``record`` names which,
-    ``"identification"`` or ``"validation"``."""
-
-    def __init__(self, record: str, frequency_hz: float) -> None:
-        super().__init__(f"the {record} record's command is one frequency (about {frequency_hz:.2g} Hz, a sine): "
-                         "at one frequency a transport delay is a phase lag that Eq. (1)'s dynamics take up too, "
-                         "so its fits cannot tell the delay; record a random, step or chirp command, or give the "
-                         "delay yourself")
-        self.record = record
-
-
-def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
-                  validation: tuple[np.ndarray, np.ndarray] | None = None,
-                  max_samples: int = MAX_INPUT_DELAY_SAMPLES,
+def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples: int = MAX_INPUT_DELAY_SAMPLES,
                   **identify: Any) -> tuple[list[float], list[IdentificationReport]]:
-    """The 1-step fits [%] (on ``validation`` if given, else on the identification record) of Eq. (1)
-    identified under each input delay ``D = 0 .. max_samples``, and those identifications; the
-    arguments as :func:`choose_input_delay`'s, whatever the command (no check of its frequencies)."""
+    """The 1-step fits [%] on the record of Eq. (1) identified under each input delay
+    ``D = 0 .. max_samples``, and those identifications; the arguments as :func:`choose_input_delay`'s,
+    whatever the command (its frequencies are not checked) and with the options as given."""
     if isinstance(max_samples, bool) or not isinstance(max_samples, (int, np.integer)) \
             or not 0 <= max_samples <= MAX_INPUT_DELAY_SAMPLES:
         raise ValueError(f"max_samples must be an integer in 0..{MAX_INPUT_DELAY_SAMPLES}, got {max_samples!r}")
     if "input_delay_samples" in identify:
         raise ValueError("input_delay_samples is what choose_input_delay chooses; do not pass it")
-    reports, fits = [], []
-    for d in range(int(max_samples) + 1):
-        report = identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=d, **identify)
-        fit = report.fit if validation is None else score_model(report.theta, report.structure, *validation,
-                                                                input_delay_samples=d)
-        reports.append(report)
-        fits.append(fit.percent["1"])
-    return fits, reports
+    reports = [identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=d, **identify)
+               for d in range(int(max_samples) + 1)]
+    return [r.fit.percent["1"] for r in reports], reports
 
 
 def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
-                       validation: tuple[np.ndarray, np.ndarray] | None = None,
                        max_samples: int = MAX_INPUT_DELAY_SAMPLES, **identify: Any) -> InputDelayChoice:
-    """Identify Eq. (1) under each input delay ``D = 0 .. max_samples`` and keep the best 1-step fit.
+    """Identify Eq. (1) under each input delay ``D = 0 .. max_samples`` and keep the best 1-step fit
+    on the record (module docstring).
 
     Parameters
     ----------
     u_v, l_mm : ndarray
-        Command [V] and displacement [mm] of the identification record, one sample per period.
+        Command [V] and displacement [mm] of the record, one sample per period (120 s or more, a
+        random, step or chirp command: module docstring).
     ts_s : float
         Sampling period [s].
-    validation : (ndarray, ndarray), optional
-        ``(u_v, l_mm)`` of a second record of the rig to score on (recommended); default the
-        identification record itself.
     max_samples : int
         The largest delay tried [samples], 0 .. ``MAX_INPUT_DELAY_SAMPLES`` (5).
     **identify
@@ -154,24 +173,27 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
     Returns
     -------
     InputDelayChoice
-        The delay, the fits under every delay and the identification under the chosen one.
+        The delay, the fits under every delay and the identification under the chosen one. Score it
+        on another record of the rig (:func:`~fmu_controller.identification.score_model`) to check it.
 
     Raises
     ------
-    OneFrequencyCommandError
-        A command (of either record) that is one frequency (:func:`one_frequency_hz`): its fits cannot
-        tell a delay.
+    ToneCommandError
+        A command of one or two sines: its fits cannot tell a delay.
     ValueError
         ``max_samples`` out of range; ``input_delay_samples`` among ``identify``; anything
         :func:`identify_record` refuses.
     """
-    records = {"identification": u_v} | ({"validation": validation[0]} if validation is not None else {})
-    for which, u in records.items():
-        f_hz = one_frequency_hz(u, ts_s)
-        if f_hz is not None:
-            raise OneFrequencyCommandError(which, f_hz)
-    fits, reports = fits_by_delay(u_v, l_mm, ts_s=ts_s, validation=validation, max_samples=max_samples, **identify)
+    tones = tone_frequencies_hz(u_v, ts_s)
+    if tones is not None:
+        raise ToneCommandError(tones)
+    duration_s = (len(np.asarray(l_mm)) - 1) * float(ts_s)
+    asked = float(identify.get("constraint_start_s", _DEFAULT_CONSTRAINT_START_S))
+    start = asked if asked < duration_s else duration_s / 2.0
+    fits, reports = fits_by_delay(u_v, l_mm, ts_s=ts_s, max_samples=max_samples,
+                                  **(identify | {"constraint_start_s": start}))
     # a fit that is not a number (a diverged prediction) is the worst, not the best (argmax takes NaN)
-    best = int(np.argmax([f if np.isfinite(f) else -np.inf for f in fits]))
-    return InputDelayChoice(best, tuple(fits), "validation" if validation is not None else "identification",
-                            reports[best])
+    best = int(np.argmax([f if math.isfinite(f) else -math.inf for f in fits]))
+    report = reports[best] if start == asked else identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=best,
+                                                                   **identify)
+    return InputDelayChoice(best, tuple(fits), start, report)

@@ -329,37 +329,37 @@ def test_a_rigs_transport_delay_is_identified_on_the_command_the_valve_had(tmp_p
 
 
 def test_auto_chooses_the_rigs_delay_and_refuses_a_sine(tmp_path, capsys):
-    """--input-delay-samples auto: the fits under D = 0..5 printed and in the JSON, the best one's D
-    (the rig's 2 samples) used and recorded; a sine command is refused with why."""
-    for kind, seed, command in (("train", 0, "random:seed=7"), ("val", 1, "random:seed=8"), ("sine", 0, SINE)):
+    """--input-delay-samples auto: the fits under D = 0..5 on the record printed and in the JSON, the best
+    one's D (the rig's 2 samples) used and recorded, the box moved to half the 120-s record for the
+    comparison (said), --validate scoring the chosen model as any; a sine command is refused with why."""
+    for kind, seed, command in (("train", 0, "random:seed=7"), ("val", 1, "chirp:f0=0.01,f1=0.5"), ("sine", 0, SINE)):
         assert main(["record", "--input", command, "--duration", "120", "--seed", str(seed), "--set",
                      "delay.delay_s=0.2", "--out", str(tmp_path / f"{kind}.csv"), "--quiet"]) == 0
     capsys.readouterr()
     out = tmp_path / "auto.json"
     assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),
-                 "--input-delay-samples", "auto", "--constraint-start", "60", "--json", str(out)]) == 0
-    said = capsys.readouterr().out
+                 "--input-delay-samples", "auto", "--json", str(out)]) == 0
+    said = capsys.readouterr()
     r = json.loads(out.read_text())
     fits = r["input_delay_choice"]["fit_percent_1_step"]
-    assert r["input_delay_choice"]["scored_on"] == "validation" and len(fits) == 6
+    assert r["input_delay_choice"]["constraint_start_s"] == 60.0 and len(fits) == 6
     assert r["input_delay_samples"] == 2 == int(np.argmax(fits))
-    assert re.search(r"1-step fit \[%\], validation\s+" + r"\s+".join(f"{f:.2f}" for f in fits)
-                     + r"\s+-> D = 2 \(0.2 s\)", said), said
-    assert "on the command 2 samples earlier" in said
-    # the same as identifying under D = 2 directly
+    assert re.search(r"1-step fit \[%\] on the record\s+" + r"\s+".join(f"{f:.2f}" for f in fits)
+                     + r"\s+-> D = 2 \(0.2 s\)", said.out), said.out
+    assert "on the command 2 samples earlier" in said.out
+    assert "compared with Algorithm 1's box from 60 s (half the record): --constraint-start 120 lies beyond" in said.err
+    # the same as identifying under D = 2 directly, and scored on the chirp record as any model
     again = tmp_path / "d2.json"
     assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),
-                 "--input-delay-samples", "2", "--constraint-start", "60", "--json", str(again)]) == 0
-    assert json.loads(again.read_text())["theta"] == r["theta"]
+                 "--input-delay-samples", "2", "--json", str(again)]) == 0
+    direct = json.loads(again.read_text())
+    assert direct["theta"] == r["theta"] and direct["validation_fit_percent"] == r["validation_fit_percent"]
     capsys.readouterr()
     assert main(["identify", str(tmp_path / "sine.csv"), "--input-delay-samples", "auto",
                  "--json", str(tmp_path / "sine.json")]) == 2
     err = capsys.readouterr().err
-    assert "sine.csv: the identification record's command is one frequency (about 0.1 Hz, a sine)" in err, err
+    assert "sine.csv: the record's command is one sine (0.1 Hz)" in err, err
     assert not (tmp_path / "sine.json").exists()
-    assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "sine.csv"),
-                 "--input-delay-samples", "auto", "--json", str(tmp_path / "sine.json")]) == 2
-    assert "sine.csv: the validation record's command is one frequency" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["identify", str(tmp_path / "train.csv"), "--input-delay-samples", "best", "--json", str(out)])
     assert "--input-delay-samples must be an integer or 'auto', got 'best'" in capsys.readouterr().err

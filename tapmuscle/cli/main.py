@@ -160,7 +160,7 @@ def _parse_box(text: str):
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
-    from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT, OneFrequencyCommandError, choose_input_delay
+    from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT, choose_input_delay
 
     from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
     from tapmuscle.io.atomic import atomic_path
@@ -184,13 +184,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     choice = None
     try:
         if args.input_delay_samples == "auto":
-            choice = choose_input_delay(rec.u_v, rec.l_mm, validation=None if val is None else (val.u_v, val.l_mm),
-                                        **options)
+            choice = choose_input_delay(rec.u_v, rec.l_mm, **options)
             report = choice.report
         else:
             report = identify_record(rec.u_v, rec.l_mm, input_delay_samples=args.input_delay_samples, **options)
-    except OneFrequencyCommandError as exc:
-        raise UsageError(f"{args.validate if exc.record == 'validation' else args.recording}: {exc}") from None
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
     # the recording as given and as an absolute path (the first is relative to where identify ran), and
@@ -203,7 +200,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
                               "load_n": load}
     if choice is not None:
-        out["input_delay_choice"] = {"fit_percent_1_step": list(choice.fits_percent), "scored_on": choice.scored_on}
+        out["input_delay_choice"] = {"fit_percent_1_step": list(choice.fits_percent),
+                                     "constraint_start_s": choice.constraint_start_s}
     val_fit = None
     if val is not None:
         val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm,
@@ -237,11 +235,16 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     if choice is not None:
         print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
-        print(f"{f'1-step fit [%], {choice.scored_on}':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
+        print(f"{'1-step fit [%] on the record':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
               + f"  -> D = {choice.input_delay_samples} ({choice.input_delay_samples * rec.ts_s:g} s)")
+        if choice.constraint_start_s != args.constraint_start:
+            print(f"note: the delays were compared with Algorithm 1's box from {choice.constraint_start_s:g} s (half "
+                  f"the record): --constraint-start {args.constraint_start:g} lies beyond its end, and unconstrained "
+                  "estimates tell delays apart less well", file=sys.stderr)
         if choice.margin_percent < THIN_MARGIN_PERCENT:
-            print(f"note: the best fit leads the next by {choice.margin_percent:.4f} % only: this record hardly tells "
-                  "those delays apart (a longer record, or a random command of another seed, may)", file=sys.stderr)
+            print(f"note: the best fit leads the next by {choice.margin_percent:.3f} % only: this record hardly tells "
+                  "those delays apart; check the choice on another record (--validate), or record a longer random "
+                  "command", file=sys.stderr)
         if choice.at_largest:
             print(f"note: the fit is best at the largest delay tried ({choice.input_delay_samples} samples): the "
                   "rig's delay may be larger still (the controllers take at most that)", file=sys.stderr)
@@ -446,8 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
                      default=0, metavar="D",
                      help=f"the rig's transport delay in samples (0..{_INPUT_DELAY_MAX}): identify on the command "
                           "the valve had, u(k-D), for a controller with input_delay_samples = D (docs/control.md, "
-                          "Transport delay); auto: the D whose model fits best one step ahead (on --validate's "
-                          "record if given; not on a sine)")
+                          "Transport delay); auto: the D whose model fits best one step ahead on the record (a random, "
+                          "step or chirp command; not one or two sines)")
     idf.set_defaults(func=_cmd_identify)
 
     pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",
