@@ -338,8 +338,10 @@ def test_auto_chooses_the_rigs_delay_and_refuses_a_sine(tmp_path, capsys):
     capsys.readouterr()
     out = tmp_path / "auto.json"
     assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),
-                 "--input-delay-samples", "auto", "--json", str(out)]) == 0
+                 "--input-delay-samples", "auto", "--json", str(out), "--plot", str(tmp_path / "plots")]) == 0
     said = capsys.readouterr()
+    assert (tmp_path / "plots" / "input_delay_fits.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "hysteresis_loop.png, input_delay_fits.png" in said.out
     r = json.loads(out.read_text())
     fits = r["input_delay_choice"]["fit_percent_1_step"]
     assert r["input_delay_choice"]["constraint_start_s"] == 60.0 and len(fits) == 6

@@ -162,7 +162,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
     from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT, choose_input_delay
 
-    from tapmuscle.plots.figures import plot_loop_comparison, plot_model_vs_measured, plot_parameter_convergence
+    from tapmuscle.plots.figures import (plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
+                                         plot_parameter_convergence)
     from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.recording import atomic_write_text, read_recording
     from tapmuscle.io.sampling import STRICT_TOLERANCE, check_sampling_period
@@ -230,6 +231,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             skip = int(len(shown.t_s) // 4)
             plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
                                  skip=skip)
+            if choice is not None:
+                plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
+                                      folder / "input_delay_fits.png",
+                                      title=f"1-step fit under each input delay ({Path(args.recording).name})")
     jitter = rec.sampling.note()
     for note in list(report.notes) + ([jitter] if jitter else []):
         print(f"note: {note}", file=sys.stderr)
@@ -260,7 +265,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"validation  {v['1']:7.1f} {v['3']:7.1f} {v['5']:7.1f} {v['sim']:9.1f}"
               + ("  (diverged)" if val_fit.free_run_diverged else ""))
     if args.plot:
-        print(f"wrote {Path(args.plot) / 'convergence.png'}, model_vs_measured.png, hysteresis_loop.png")
+        print(f"wrote {Path(args.plot) / 'convergence.png'}, model_vs_measured.png, hysteresis_loop.png"
+              + (", input_delay_fits.png" if choice is not None else ""))
     return 0
 
 

@@ -23,7 +23,8 @@ from matplotlib.figure import Figure
 
 from tapmuscle.io.atomic import atomic_path
 
-__all__ = ["MissingGlyphWarning", "new_figure", "save_figure", "plot_recording", "plot_parameter_convergence", "plot_model_vs_measured",
+__all__ = ["MissingGlyphWarning", "new_figure", "save_figure", "plot_recording", "plot_parameter_convergence",
+           "plot_input_delay_fits", "plot_model_vs_measured",
            "plot_loop_comparison", "plot_tracking", "plot_prediction_errors"]
 
 
@@ -196,6 +197,24 @@ def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, m
     ax_e.set_xlabel("time t [s]")
     ax_e.grid(alpha=0.3)
     fig.suptitle(title or "free-run model output against measurement (cf. paper Fig. 4)")
+    return save_figure(fig, path)
+
+
+def plot_input_delay_fits(fits_percent: list[float] | tuple[float, ...], chosen: int, ts_s: float,
+                          path: str | os.PathLike, *, title: str = "") -> Path:
+    """The 1-step fit [%] of Eq. (1) identified under each input delay ``D`` [samples], the chosen one
+    marked (``tapmuscle identify --input-delay-samples auto``)."""
+    fig, ax = new_figure(figsize=(7, 4.5))
+    d = np.arange(len(fits_percent))
+    ax.plot(d, fits_percent, "o-", color="tab:blue", lw=1.2)
+    ax.plot([chosen], [fits_percent[chosen]], "o", color="tab:red", ms=11, mfc="none", mew=2,
+            label=f"chosen: D = {chosen} ({chosen * ts_s:g} s)")
+    ax.set_xticks(d, [f"{k}\n{k * ts_s:g} s" for k in d])
+    ax.set_xlabel("input delay D [samples] (time)")
+    ax.set_ylabel("1-step fit on the record [%]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=9)
+    fig.suptitle(title or "1-step fit of Eq. (1) identified under each input delay")
     return save_figure(fig, path)
 
 
