@@ -67,8 +67,11 @@ def _best_sinusoid(x: np.ndarray, t: np.ndarray, ts_s: float) -> tuple[np.ndarra
         basis = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
         return x - basis @ np.linalg.lstsq(basis, x, rcond=None)[0]
 
-    f = minimize_scalar(lambda f: float(residual(f) @ residual(f)), bounds=(max(f0 - bin_hz, 0.1 * bin_hz),
-                        f0 + bin_hz), method="bounded").x
+    def squares(f: float) -> float:
+        r = residual(f)
+        return float(r @ r)
+
+    f = minimize_scalar(squares, bounds=(max(f0 - bin_hz, 0.1 * bin_hz), f0 + bin_hz), method="bounded").x
     return residual(f), float(f)
 
 
