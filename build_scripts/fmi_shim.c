@@ -8,7 +8,8 @@
    with fmi2Error and the reason; (2) pythonfmu passes category NULL on its exception path (OMSimulator
    aborts on it): the shim names the category after the status; (3) with loggingOn = false pythonfmu
    logs nothing, so a Discard or an Error came without its reason: pythonfmu always logs to the shim,
-   which passes on OK/info messages only if the host asked for logging and every other one always;
+   which passes on OK/info messages only if the host asked for logging (and, where fmi2SetDebugLogging
+   listed categories, only those in them) and every other one always;
    (4) a call returns at least the worst status the FMU logged during it, so the status a host sees
    is the one in the message (pythonfmu returns OK from fmi2ExitInitializationMode after a rejected
    parameter, which the slave logs as an error). */
@@ -18,11 +19,21 @@
 #include <string.h>
 #include "fmi2Functions.h"
 
+/* The FMUs' log categories (SafeSlave.log_categories in fmi_slave/base.py): a category that
+   fmi2SetDebugLogging lists must be one of them (FMI 2.0). */
+static const char *const KNOWN_CATEGORIES[] = {"logStatusWarning", "logStatusDiscard", "logStatusError",
+                                               "logStatusFatal", "logAll", "logEvents"};
+#define N_KNOWN (sizeof KNOWN_CATEGORIES / sizeof KNOWN_CATEGORIES[0])
+#define MAX_CATEGORIES N_KNOWN
+#define CATEGORY_CHARS 32
+
 typedef struct {
     fmi2Component inner;                  /* pythonfmu's instance; NULL: instantiation failed */
     fmi2CallbackFunctions host;           /* the host's callbacks */
     fmi2CallbackFunctions mine;           /* what pythonfmu gets: our logger, our instance as environment */
     fmi2Boolean logging_on;
+    char categories[MAX_CATEGORIES][CATEGORY_CHARS];   /* OK messages passed on with logging on; */
+    size_t n_categories;                               /* 0: every category */
     fmi2Status worst;                     /* worst status logged during the current call */
     char name[256];
     char reason[1600];                    /* the first error logged (why an instantiation failed) */
@@ -56,6 +67,14 @@ static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String 
                        category && *category ? category : category_of(status), escaped);
 }
 
+/* Whether a message of `category` is one the host asked for (every one if it listed none). */
+static int listed(const Shim *s, fmi2String category) {
+    if (!s->n_categories) return 1;
+    for (size_t i = 0; i < s->n_categories; i++)
+        if (category && !strcmp(s->categories[i], category)) return 1;
+    return 0;
+}
+
 /* pythonfmu passes its text as the format with no arguments: it is taken literally here (formatting a
    '%' in it would read arguments that were never passed). */
 static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
@@ -64,7 +83,7 @@ static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2S
     const char *text = message ? message : "";
     if (status > s->worst) s->worst = status;
     if (status >= fmi2Error && !s->reason[0]) snprintf(s->reason, sizeof s->reason, "%s", text);
-    if (status == fmi2OK && !s->logging_on) return;
+    if (status == fmi2OK && !(s->logging_on && listed(s, category))) return;
     to_host(s, instance, status, category, text);
 }
 
@@ -281,11 +300,36 @@ FMI2_Export void fmi2FreeInstance(fmi2Component c) {
 FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]) {
     Shim *s = (Shim *)c;
     if (!s) return fmi2Error;
+    fmi2Status status = fmi2OK;
+    int every = 0;   /* logAll listed */
     s->logging_on = on;
-    if (!s->inner) return fmi2OK;
-    /* pythonfmu keeps logging to the shim, which filters */
-    s->worst = fmi2OK;
-    return settle(s, ((fmi2SetDebugLoggingTYPE *)real("fmi2SetDebugLogging"))(s->inner, fmi2True, n, cats));
+    s->n_categories = 0;
+    for (size_t i = 0; on && cats && i < n; i++) {
+        size_t j = 0;
+        while (j < N_KNOWN && !(cats[i] && !strcmp(cats[i], KNOWN_CATEGORIES[j]))) j++;
+        if (j == N_KNOWN) {
+            /* a warning, not an error: a host's logging set-up should not stop its run */
+            char text[400];
+            snprintf(text, sizeof text, "fmi2SetDebugLogging: category %.100s is not one of this FMU's (logEvents, "
+                     "logStatusWarning, logStatusDiscard, logStatusError, logStatusFatal, logAll): ignored",
+                     cats[i] ? cats[i] : "(NULL)");
+            to_host(s, s->name, fmi2Warning, "logStatusWarning", text);
+            status = fmi2Warning;
+        } else if (!strcmp(KNOWN_CATEGORIES[j], "logAll")) {
+            every = 1;
+        } else {
+            int seen = 0;
+            for (size_t k = 0; k < s->n_categories; k++) seen |= !strcmp(s->categories[k], KNOWN_CATEGORIES[j]);
+            if (!seen) snprintf(s->categories[s->n_categories++], CATEGORY_CHARS, "%s", KNOWN_CATEGORIES[j]);
+        }
+    }
+    if (every) s->n_categories = 0;
+    if (on && cats && n && !s->n_categories && !every)
+        s->logging_on = fmi2False;   /* none of the categories listed is this FMU's: none is logged */
+    if (!s->inner) return status;
+    /* pythonfmu keeps logging every category to the shim, which filters */
+    s->worst = status;
+    return settle(s, ((fmi2SetDebugLoggingTYPE *)real("fmi2SetDebugLogging"))(s->inner, fmi2True, 0, NULL));
 }
 
 /* fmi2Status fmi2X(fmi2Component c, PARAMS) forwarded to pythonfmu's with ARGS. On an instance whose

@@ -128,6 +128,13 @@ def _drop_repeated_path(resources: str | None) -> None:
 class SafeSlave(Fmi2Slave):
     """Base of the project's FMU slaves (see module docstring)."""
 
+    #: FMI 2.0's status categories (pythonfmu's) and ``logEvents``: the run's set-up, a slave's changes of
+    #: mode and a summary at fmi2Terminate, logged with status OK, so a host sees them with logging on
+    #: (its fmi2SetDebugLogging may list the categories it wants; the FMU's loader library filters).
+    log_categories = {**Fmi2Slave.log_categories,
+                      "logEvents": "What the run is set up with (the parameters set away from their start values), "
+                                   "the FMU's changes of mode during it, and a summary at fmi2Terminate"}
+
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         _drop_repeated_path(kwargs.get("resources"))
@@ -136,6 +143,8 @@ class SafeSlave(Fmi2Slave):
         self._export_keeps_references = kwargs.get("fmi_export") == "tapmuscle"
         self._par: dict[str, float] = {}
         self._int_par: dict[str, int] = {}
+        #: every parameter's start value, by name (what the set-up event compares with)
+        self._start_values: dict[str, float | int] = {}
         self._failed = False
         #: the start time of fmi2SetupExperiment [s] and the FMU's time: the start time, then the end of
         #: the last completed step (module docstring)
@@ -168,7 +177,7 @@ class SafeSlave(Fmi2Slave):
         """Register fixed Real parameters ``(name, start, unit, description[, min, max])``."""
         for name, start, unit, description, *bounds in table:
             lo, hi = (bounds + [None, None])[:2]
-            self._par[name] = float(start)
+            self._par[name] = self._start_values[name] = float(start)
             self.register_variable(Real(
                 name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                 description=description,
@@ -180,7 +189,7 @@ class SafeSlave(Fmi2Slave):
                               hi: int | None = None) -> None:
         """Register a fixed Integer parameter (a choice is an Integer whose description lists the codes:
         libcosim cannot set FMI Enumerations)."""
-        self._int_par[name] = int(start)
+        self._int_par[name] = self._start_values[name] = int(start)
         self.register_variable(Integer(
             name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed, description=description,
             getter=lambda: self._int_par[name],
@@ -436,8 +445,37 @@ class SafeSlave(Fmi2Slave):
 
     @_to_host
     def terminate(self) -> None:
+        if self._initialised and not self._failed and not self._terminated:
+            self._summary_event(f"fmi2Terminate at t = {self._time_s:g} s", self.run_summary)
         self._terminated = True
         Fmi2Slave.terminate(self)
+
+    # ------------------------------------------------------------------ events (category logEvents)
+    def event(self, message: str) -> None:
+        """Log ``message`` in the category ``logEvents`` with status OK (passed on to a host with logging on)."""
+        self.log(message, status=Fmi2Status.ok, category="logEvents")
+
+    def _summary_event(self, prefix: str, summary: Callable[[], str]) -> None:
+        """The event ``prefix: summary()``; a summary that fails says so (it is not worth failing the call)."""
+        try:
+            text = summary()
+        except Exception as exc:  # noqa: BLE001 - never raised into the host
+            text = f"(no summary: {type(exc).__name__}: {exc})"
+        self.event(f"{prefix}: {text}")
+
+    def changed_parameters(self) -> str:
+        """``name = value, ...`` of the parameters set away from their start values ("none" if none is)."""
+        changed = [f"{name} = {value:g}" for table in (self._par, self._int_par) for name, value in table.items()
+                   if value != self._start_values[name]]
+        return ", ".join(changed) or "none"
+
+    def setup_summary(self) -> str:
+        """What the run is set up with, logged as an event once the numerics are built."""
+        return f"parameters away from their start values: {self.changed_parameters()}"
+
+    def run_summary(self) -> str:
+        """What the run did, logged as an event at fmi2Terminate (after an initialisation that succeeded)."""
+        return f"{self._time_s - self._start_s:g} s from t = {self._start_s:g} s"
 
     def _keep_references(self) -> None:
         """Add the references pythonfmu's C++ layer drops once too often when an exception reaches it
@@ -499,6 +537,8 @@ class SafeSlave(Fmi2Slave):
         except KeyboardInterrupt:
             self._failed = True
             self.log(_INTERRUPTED.format(where="during initialisation"), status=Fmi2Status.error)
+        else:
+            self._summary_event(f"initialised at t = {self._start_s:g} s", self.setup_summary)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:

@@ -315,6 +315,7 @@ class AMPCController(SafeSlave):
         self._set_theta([float(v) for v in theta0])
         self.samples = 0
         self.input_delay = -1
+        self._tally = _Tally()
 
     def _reset_monitors(self) -> None:
         """What the log has said of this run: nothing yet."""
@@ -459,7 +460,9 @@ class AMPCController(SafeSlave):
             self._controller.reset(l)
             # at the first step, not at initialisation, where a warning means rejected parameters to a host
             self._warn_paper_defaults_off_period(self._controller.settings, self._controller.theta0.tolist())
-        step: ControlStep = self._controller.step(l, preview)
+        ctrl = self._controller
+        before = (ctrl.input_delay_decision, ctrl.law_on_theta0, ctrl.in_startup)
+        step: ControlStep = ctrl.step(l, preview)
         if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
         if self._source == "external_advanced":
@@ -491,6 +494,8 @@ class AMPCController(SafeSlave):
                      "rig's?), or a large reference step came during the start-up. The law takes the adaptive estimate "
                      "from the next sample, as with startup_s = 0 (startup_guard = 1; docs/control.md, \"Start-up\")",
                      status=Fmi2Status.warning)
+        self._say_changes(t_s, before)
+        self._tally.add(step, first=self._k == 0)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
         self._watch_swings(t_s, step.u_v)
@@ -501,6 +506,53 @@ class AMPCController(SafeSlave):
         self._k += 1
         self.samples = self._k
         self._show_input_delay()
+
+    def _say_changes(self, t_s: float, before: tuple[int | None, bool, bool]) -> None:
+        """Events (logEvents) of the controller's changes of mode at this sample: -1's decision of the
+        input delay, the end of the start-up mode's law on theta0, the end of the start-up mode."""
+        ctrl = self._controller
+        decided, on_theta0, in_startup = before
+        if decided is None and ctrl.input_delay_decision is not None:
+            d = ctrl.input_delay_decision
+            what = {0: "the undelayed law from now (a sequential master)",
+                    1: "the delayed law it started with (a parallel master, or a rig's delay of about a sample)"}
+            # any other delay than the delayed law's 1 restarts the estimator with the start-up mode's warm-up
+            restart = ("; the adaptive estimate starts again from theta0, with the start-up mode's warm-up"
+                       if d != 1 and ctrl.settings.adaptive else "")
+            self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {d} samples: "
+                       f"{what.get(d, 'a rig transport delay as well, the law on from now')}{restart}")
+        if (on_theta0 and not ctrl.law_on_theta0 and ctrl.settings.adaptive and ctrl.startup_guarded_at is None
+                and ctrl.settings.startup_s > 0):
+            self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "
+                       "blended in from the next sample")
+        if in_startup and not ctrl.in_startup:
+            law = "the adaptive estimate" if ctrl.settings.adaptive else "theta0 (a fixed predictor)"
+            self.event(f"t = {t_s:g} s: the start-up is over: the law runs on {law}, tracking r itself")
+
+    def setup_summary(self) -> str:
+        settings = self._controller.settings
+        code = next(c for c, name in METHOD_CODES.items() if name == settings.method)
+        horizons = (f"servo.Hp = {settings.servo.hp}, servo.Hu = {settings.servo.hu}" if settings.servo_mechanism
+                    else f"ucp.Hp = {settings.ucp.hp}")
+        delay = ("decided from the data (input_delay_samples = -1)" if settings.input_delay_samples == -1
+                 else f"{settings.input_delay_samples} samples")
+        if self._source == "builtin_sine":
+            reference = (f"the built-in sine {self._par['sine.offset']:g} +- {self._par['sine.amplitude']:g} mm at "
+                         f"{self._par['sine.frequency']:g} Hz")
+        else:
+            reference = f"the input r ({self._source})"
+        return (f"method {code} {settings.method}, Ts = {settings.ts_s:g} s, {horizons}; input delay {delay}; "
+                f"start-up mode {settings.startup_s:g} s; reference {reference}; " + super().setup_summary())
+
+    def run_summary(self) -> str:
+        projected, resets, ceilings = self._controller.estimator_counts
+        estimator = (f"; Algorithm 1 since the estimator's start: the estimate projected onto the box C in {projected} "
+                     f"updates, {resets} covariance resets, {ceilings} covariance ceilings"
+                     if self._controller.settings.adaptive else "")
+        delay = self._controller.input_delay_decision
+        law = ("the delayed law (1 sample), input_delay_samples = -1 still undecided" if delay is None
+               else f"the law for an input delay of {delay} samples")
+        return f"{super().run_summary()}: {self._tally}; {law}{estimator}"
 
     def _show_input_delay(self) -> None:
         """The ``input_delay`` output: the delay the law runs for (-1 before a sample, or undecided)."""
@@ -515,7 +567,8 @@ class AMPCController(SafeSlave):
                 "theta": [getattr(self, name) for name in self._theta_outputs],
                 # what the log has said: a rewind says it again only where the run does again
                 "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
-                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit]}
+                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit],
+                "tally": self._tally.as_list()}
 
     def restore_numerics_state(self, state) -> None:
         if state is not None:
@@ -528,4 +581,34 @@ class AMPCController(SafeSlave):
             self._jump_ks = None if jumps is None else [int(k) for k in jumps]
             self._swing_ks = None if swings is None else [int(k) for k in swings]
             self._last_limit = int(last_limit)
+            self._tally = _Tally(*state.get("tally", ()))  # a state of a build without it: starts over
             self._show_input_delay()
+
+
+class _Tally:
+    """What the controller's run summary says: samples, samples at an input limit, prediction errors."""
+
+    def __init__(self, samples: int = 0, saturated: int = 0, errors: int = 0, sum_squares_mm2: float = 0.0,
+                 largest_mm: float = 0.0) -> None:
+        self.samples, self.saturated, self.errors = int(samples), int(saturated), int(errors)
+        self.sum_squares_mm2, self.largest_mm = float(sum_squares_mm2), float(largest_mm)
+
+    def add(self, step: ControlStep, *, first: bool) -> None:
+        self.samples += 1
+        self.saturated += bool(step.saturated)
+        if not first:  # the first sample has no prediction to compare with
+            e = step.prediction_error_mm
+            self.errors += 1
+            self.sum_squares_mm2 += e * e
+            self.largest_mm = max(self.largest_mm, abs(e))
+
+    def as_list(self) -> list:
+        return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm]
+
+    def __str__(self) -> str:
+        if not self.samples:
+            return "no sample"
+        rms = math.sqrt(self.sum_squares_mm2 / self.errors) if self.errors else 0.0
+        return (f"{self.samples} samples; an input limit (0-10 V or Eq. 19) active in {self.saturated} "
+                f"({100.0 * self.saturated / self.samples:.3g} %); one-step prediction error l(k) - l(k|k-1): RMS "
+                f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm")

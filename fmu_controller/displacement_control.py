@@ -844,6 +844,14 @@ class DisplacementController:
         (the estimator's documented rule; 0 for the fixed-predictor MPCs)."""
         return 0 if self._rls is None else self._rls.n_resets
 
+    @property
+    def estimator_counts(self) -> tuple[int, int, int]:
+        """Algorithm 1 since the estimator's (re)start: updates whose estimate it projected onto the box C,
+        covariance resets (:attr:`covariance_resets`) and updates whose covariance ``covariance_ceiling``
+        clipped; zeros for the fixed-predictor MPCs."""
+        rls = self._rls
+        return (0, 0, 0) if rls is None else (rls.n_projections, rls.n_resets, rls.n_ceilings)
+
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
         """Everything needed to continue bit-identically, as plain data (JSON-serialisable:

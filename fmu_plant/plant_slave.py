@@ -19,6 +19,7 @@ must start at the plant's time (:class:`fmi_slave.SafeSlave`: a gap or a step ba
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from dataclasses import fields
@@ -28,7 +29,7 @@ from fmi_slave.base import SlaveInputError
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 from fmu_plant import Plant, PlantParams
-from fmu_plant.rosenbrock import COMPILED_FOR_ANOTHER_PYTHON
+from fmu_plant.rosenbrock import COMPILED, COMPILED_FOR_ANOTHER_PYTHON
 from fmu_plant.seed import join_seed
 
 __all__ = ["MusclePlant", "parameter_table"]
@@ -87,6 +88,7 @@ class MusclePlant(SafeSlave):
         self.add_integer_parameter("seed_high", 0, "high 32 bits of the sensor-noise seed (bit pattern; seeds are "
                                    "unsigned 64-bit)")
         self._plant: Plant | None = None
+        self._tally = _Tally()
 
     def initialize_numerics(self) -> None:
         try:
@@ -119,6 +121,7 @@ class MusclePlant(SafeSlave):
                              f"it in the FMU; set the input instead", status=Fmi2Status.warning)
             self._plant.update(load_n=load, supply_pressure_mpa=supply)
         self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
+        self._tally = _Tally()
         if COMPILED_FOR_ANOTHER_PYTHON:  # said, not warned: the results are the same, only slower
             self.log(f"the plant's compiled integrator sub-step {COMPILED_FOR_ANOTHER_PYTHON} was built for another "
                      f"Python than this host's CPython {sys.version_info.major}.{sys.version_info.minor}: its Python "
@@ -134,11 +137,53 @@ class MusclePlant(SafeSlave):
             plant.update(load_n=load, supply_pressure_mpa=ps)
         m = plant.step(u, dt_s)
         self.l, self.p = m.l_mm, m.p_mpa
+        self._tally.add(u, m.l_mm, m.p_mpa)
+
+    def setup_summary(self) -> str:
+        plant = self._plant
+        effects = ", ".join(e.name.replace("_", " ") for e in plant.effects) or "none"
+        sub_step = "compiled" if COMPILED and not COMPILED_FOR_ANOTHER_PYTHON else "Python"
+        return (f"load {plant.load_n:g} N, supply pressure {plant.supply_pressure_mpa:g} MPa (the inputs); "
+                f"left-out effects switched on: {effects}; integrator sub-step: {sub_step}; "
+                + super().setup_summary())
+
+    def run_summary(self) -> str:
+        return f"{super().run_summary()}: {self._tally}"
 
     def numerics_state(self):
-        return None if self._plant is None else self._plant.get_state()
+        if self._plant is None:
+            return None
+        return {**self._plant.get_state(), "fmu_tally": self._tally.as_list()}
 
     def restore_numerics_state(self, state) -> None:
         if state is not None:
+            state = dict(state)
+            tally = state.pop("fmu_tally", None)  # a state of a build without it: the tally starts over
             self._plant.set_state(state)
+            self._tally = _Tally(*tally) if tally else _Tally()
+
+
+class _Tally:
+    """What the plant's run summary says: steps, ranges of the readings, saturated commands."""
+
+    def __init__(self, steps: int = 0, l_lo: float = math.inf, l_hi: float = -math.inf, p_lo: float = math.inf,
+                 p_hi: float = -math.inf, saturated: int = 0) -> None:
+        self.steps, self.saturated = int(steps), int(saturated)
+        self.l_lo, self.l_hi, self.p_lo, self.p_hi = float(l_lo), float(l_hi), float(p_lo), float(p_hi)
+
+    def add(self, u_v: float, l_mm: float, p_mpa: float) -> None:
+        self.steps += 1
+        self.saturated += not 0.0 <= u_v <= 10.0
+        self.l_lo, self.l_hi = min(self.l_lo, l_mm), max(self.l_hi, l_mm)
+        self.p_lo, self.p_hi = min(self.p_lo, p_mpa), max(self.p_hi, p_mpa)
+
+    def as_list(self) -> list:
+        """Plain data for an FMU state (strict JSON: no infinities before the first step)."""
+        return [self.steps, self.l_lo, self.l_hi, self.p_lo, self.p_hi, self.saturated] if self.steps else []
+
+    def __str__(self) -> str:
+        if not self.steps:
+            return "no step"
+        return (f"{self.steps} steps; readings l {self.l_lo:.4g}..{self.l_hi:.4g} mm, p {self.p_lo:.4g}..{self.p_hi:.4g} "
+                f"MPa; command outside the amplifier's 0..10 V (saturated there) in {self.saturated} steps")
 

@@ -400,3 +400,83 @@ def test_an_instance_without_a_name_or_for_model_exchange_is_refused(built_fmus,
     assert lines[:3] == ["True 3"] * 3  # an instance, refusing to step with fmi2Error
     assert "instanceName is NULL or empty" in lines[3]
     assert "fmuType 0: this FMU is for co-simulation only" in lines[4]
+
+
+DEBUG_HOST = r'''
+import json, sys
+import fmpy
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+path, configs = sys.argv[1], json.loads(sys.argv[2])
+md = read_model_description(path)
+folder = extract(path)
+vr = {v.name: v.valueReference for v in md.modelVariables}
+log = []
+cb = fmi2CallbackFunctions()
+cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(
+    [status, None if cat is None else cat.decode(), msg.decode()]))
+cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+out = []
+for logging_on, categories in configs:
+    log.clear()
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="d")
+    f.instantiate(callbacks=cb, loggingOn=logging_on)
+    status = None
+    if categories is not None:  # fmpy's wrapper returns nothing: the status is the C function's
+        from ctypes import c_char_p
+        names = (c_char_p * max(len(categories), 1))(*[c.encode() for c in categories])
+        status = f.fmi2SetDebugLogging(f.component, logging_on, len(categories), names)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    for k in range(3):
+        f.setReal([vr["u"]], [12.0 if k == 1 else 5.0])  # 12 V: a Discard at the second step
+        try:
+            f.doStep(k * 0.1 if k < 2 else 0.1, 0.1)
+        except FMICallException:
+            pass
+    f.terminate()
+    f.freeInstance()
+    out.append({"status": status, "log": list(log)})
+print(json.dumps(out))
+'''
+
+
+def test_logging_on_passes_the_events_and_fmi2SetDebugLogging_picks_the_categories(built_fmus):
+    """With logging on the plant's events (category logEvents, status OK: its set-up and a summary at
+    fmi2Terminate) reach the host; fmi2SetDebugLogging's categories pick the OK messages passed on (FMI
+    2.0: none listed, or logAll, is every one), while a Discard's message always arrives with its
+    reason; a category the FMU does not declare is a warning naming it."""
+    configs = [[False, None], [True, None], [True, []], [True, ["logEvents"]], [True, ["logStatusDiscard"]],
+               [True, ["logAll", "logStatusError"]], [True, ["logFoo"]], [True, ["logFoo", "logEvents"]],
+               [False, ["logEvents"]]]
+    proc = subprocess.run([sys.executable, "-c", DEBUG_HOST, str(built_fmus["MusclePlant"]), json.dumps(configs)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    runs = json.loads(proc.stdout.strip().splitlines()[-1])
+    md = {}
+    with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
+        md = z.read("modelDescription.xml").decode()
+    assert '<Category name="logEvents"' in md  # declared, as FMI 2.0 asks of a category the FMU logs
+
+    def kinds(run):
+        return [(status, cat) for status, cat, msg in run["log"] if "logFoo" not in msg]
+
+    discard = (2, "logStatusDiscard")
+    events = [(0, "logEvents"), discard, (0, "logEvents")]
+    expected = [[discard], events, events, events, [discard], events, [discard], events, [discard]]
+    assert [kinds(run) for run in runs] == expected
+    assert [run["status"] for run in runs] == [None, None, 0, 0, 0, 0, 1, 1, 0]
+    for run in (runs[6], runs[7]):
+        assert run["log"][0][:2] == [1, "logStatusWarning"] and "category logFoo is not one of this FMU's" in \
+            run["log"][0][2]
+    setup, summary = runs[1]["log"][0][2], runs[1]["log"][2][2]
+    assert setup.startswith("initialised at t = 0 s: load 44 N, supply pressure 0.25 MPa")
+    assert "u = 12.0 is outside" in runs[1]["log"][1][2]  # the Discard names its input
+    # the refused step is not counted: two steps of 0.1 s
+    assert summary.startswith("fmi2Terminate at t = 0.2 s: 0.2 s from t = 0 s: 2 steps; readings l ")

@@ -226,4 +226,6 @@ def test_the_start_time_must_be_finite_and_takes_effect_at_initialisation():
         after_reset.setup_experiment(7.0, None, None)
         after_reset.enter_initialization_mode()
         after_reset.exit_initialization_mode()
+        assert [m.category for m in after_reset.log_queue] == ["logEvents"]  # its set-up, status OK
+        after_reset.log_queue.clear()
         assert after_reset.do_step(7.0, H) and not after_reset.log_queue

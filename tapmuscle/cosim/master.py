@@ -258,8 +258,12 @@ class FmuInstance:
     def error(self, what: str, detail: Any, t_s: float | None = None) -> ScenarioError:
         """A ScenarioError for a failed FMI call, with the FMU's last logged messages."""
         at = "" if t_s is None else f" at t = {t_s:g} s"
-        log = "; ".join(self.messages[-3:]) or "no message logged"
+        log = "; ".join(self.said(3)) or "no message logged"
         return ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {detail}: {log}")
+
+    def said(self, n: int) -> list[str]:
+        """The FMU's last ``n`` messages with a status other than OK (its events, status OK, left out)."""
+        return [m for m in self.messages if not m.startswith("[OK]")][-n:]
 
     def _call(self, what: str, fn: Callable[[], Any], t_s: float | None = None) -> Any:
         try:

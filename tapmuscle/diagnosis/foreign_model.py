@@ -281,7 +281,7 @@ class ForeignSimulator:
                 get_real(comp, vr_out, 1, got)
                 y[k + 1] = got[0]
         except Exception as exc:  # noqa: BLE001 - FMICallException, ModelExchangeError; the instance is re-made
-            logged = [m for m in inst.messages[-2:] if str(exc) not in m]
+            logged = [m for m in inst.said(2) if str(exc) not in m]
             self.close()
             said = f" (the FMU logged: {'; '.join(logged)})" if logged else ""
             raise SimulationError(f"{self.interface.model_name} with {_short(values)}: {exc}{said}") from None
