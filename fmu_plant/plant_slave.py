@@ -32,7 +32,7 @@ from fmu_plant import Plant, PlantParams
 from fmu_plant.rosenbrock import COMPILED, COMPILED_FOR_ANOTHER_PYTHON
 from fmu_plant.seed import join_seed
 
-__all__ = ["MusclePlant", "parameter_table"]
+__all__ = ["MusclePlant", "SET_BY_INPUT", "parameter_table"]
 
 #: every parameter's default, by the FMU's name
 _DEFAULTS = PlantParams().dotted()
@@ -45,14 +45,23 @@ def _fmu_names(message: str) -> str:
     return re.sub(r"\b(\w+Params)\.(\w+)", lambda m: f"{_GROUP_OF.get(m[1], m[1])}.{m[2]}", message)
 
 
+#: The parameters whose physics an input of the FMU sets (the parameters stay for plant files, which set
+#: every one): the input's name.
+SET_BY_INPUT = {"load.load_n": "load", "supply.supply_pressure_mpa": "supply_pressure"}
+
+
 def parameter_table() -> list[tuple[str, float, str, str, float | None, float | None]]:
-    """``(name, default, unit, description, min, max)`` of every plant parameter, from the dataclasses."""
+    """``(name, default, unit, description, min, max)`` of every plant parameter, from the dataclasses;
+    the description of one in :data:`SET_BY_INPUT` says that the FMU does not use it (a tool's
+    parameter dialog shows it beside the others)."""
     rows = []
     defaults = PlantParams()
     for group in fields(defaults):
         sub = getattr(defaults, group.name)
         for f in fields(sub):
             doc = f.metadata.get("doc", "")
+            if f"{group.name}.{f.name}" in SET_BY_INPUT:
+                doc = f"{doc.rstrip('. ')}; not used in the FMU: its input {SET_BY_INPUT[f'{group.name}.{f.name}']} sets it"
             unit = doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
             rows.append((f"{group.name}.{f.name}", float(getattr(sub, f.name)), unit, doc,
                          f.metadata.get("lo"), f.metadata.get("hi")))
@@ -114,8 +123,9 @@ class MusclePlant(SafeSlave):
         else:
             # the inputs set the load and the supply pressure; the parameters of the same physics are the
             # plant files' (tapmuscle record --params): one set to another value than its input is unused
-            for name, value, inp in (("load.load_n", load, "load"),
-                                     ("supply.supply_pressure_mpa", supply, "supply_pressure")):
+            inputs = {"load": load, "supply_pressure": supply}
+            for name, inp in SET_BY_INPUT.items():
+                value = inputs[inp]
                 if self._par[name] != value and self._par[name] != _DEFAULTS[name]:
                     self.log(f"parameter {name} = {self._par[name]!r} is not used: the input {inp} (= {value!r}) sets "
                              f"it in the FMU; set the input instead", status=Fmi2Status.warning)

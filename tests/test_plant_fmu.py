@@ -534,3 +534,13 @@ def test_a_bad_load_or_supply_input_at_initialisation_is_refused_at_the_steps(fm
     for x in (f, g):
         x.terminate()
         x.freeInstance()
+
+
+def test_the_parameters_an_input_sets_say_so_in_the_model_description(fmu):
+    """A tool's parameter dialog shows load.load_n beside the others: its description names the input that
+    sets it in the FMU, and every other parameter's does not claim to be unused."""
+    _, md, _, _ = fmu
+    unused = {v.name: v.description for v in md.modelVariables if "not used in the FMU" in (v.description or "")}
+    assert unused.keys() == {"load.load_n", "supply.supply_pressure_mpa"}
+    assert unused["load.load_n"].endswith("; not used in the FMU: its input load sets it")
+    assert unused["supply.supply_pressure_mpa"].endswith("its input supply_pressure sets it")
