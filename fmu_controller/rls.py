@@ -138,8 +138,10 @@ class RLSSettings:
     ts_s : float
         Sampling period in s (0.1 s in the paper).
     on_covariance_loss : {"reset", "raise"}
-        What to do if ``P`` loses positive definiteness (non-finite entry or
-        a diagonal <= 0) or ``theta`` becomes non-finite after an update:
+        What to do if ``P`` loses positive definiteness (non-finite entry,
+        a diagonal <= 0, or a block Algorithm 1's projection must invert that
+        is singular in floating point: forgetting without the ceiling winds
+        ``P`` up so far) or ``theta`` becomes non-finite after an update:
         ``"reset"`` discards that update, keeps ``theta(k-1)`` and resets
         ``P`` to ``P(-1)``; ``"raise"`` raises ``FloatingPointError``. Either
         way numpy's error handling in the caller (``np.seterr``) plays no part:
@@ -492,28 +494,33 @@ class ConstrainedRLS:
         th = theta.tolist()
         total = _dot(P_new.reshape(-1), self._ones_nn) + sum(th)
         if not (math.isfinite(total) and min(P_new.diagonal().tolist()) > 0.0):
-            if self.settings.on_covariance_loss == "raise":
-                raise FloatingPointError(
-                    f"RLS covariance lost positive definiteness at step k={self._k + 1} "
-                    f"(min diag {P_new.diagonal().min()!r}); rescale the data or reduce p0"
-                )
-            # documented rule: drop this update, restart P from P(-1)
-            self._k += 1
-            self._P = self._P0.copy()
-            self._n_resets += 1
-            return self._theta
+            return self._covariance_lost(f"min diag {P_new.diagonal().min()!r}")
         if self._ceiling and lam != 1.0:  # a valid P only; with lambda = 1, P only shrinks from P(-1)
             P_new = self._limit(P_new)
 
-        self._k += 1
-        if self._boxed and self._k >= self._start and not self._projector.inside(th):
+        if self._boxed and self._k + 1 >= self._start and not self._projector.inside(th):
             # the active set usually persists from sample to sample: try the one the
             # previous estimate sits on first (a function of theta(k-1), so of the state)
-            theta = self._projector.project(theta, P_new, th, self._projector.hint_from(self._theta))
+            try:
+                theta = self._projector.project(theta, P_new, th, self._projector.hint_from(self._theta))
+            except np.linalg.LinAlgError:
+                return self._covariance_lost("the projection's block of P is singular")
             self._n_projections += 1
+        self._k += 1
         self._theta = theta
         self._P = P_new
         return theta
+
+    def _covariance_lost(self, why: str) -> np.ndarray:
+        """``on_covariance_loss`` for the update at step ``k + 1``: raise, or drop it and restart ``P``
+        from ``P(-1)`` (the documented rule), keeping ``theta(k-1)``."""
+        if self.settings.on_covariance_loss == "raise":
+            raise FloatingPointError(f"RLS covariance lost positive definiteness at step k={self._k + 1} "
+                                     f"({why}); rescale the data or reduce p0")
+        self._k += 1
+        self._P = self._P0.copy()
+        self._n_resets += 1
+        return self._theta
 
     def _limit(self, P: np.ndarray) -> np.ndarray:
         """``P`` kept at or below ``P(-1)`` (``covariance_ceiling``), exactly symmetric.

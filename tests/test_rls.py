@@ -194,6 +194,30 @@ def test_covariance_loss_reset_and_raise(numpy_errors):
             strict.update(phi, 1.0)
 
 
+
+@pytest.mark.parametrize("rule", ["reset", "raise"])
+def test_a_covariance_too_singular_to_weigh_the_projection_is_a_covariance_loss(rule):
+    """Forgetting without the ceiling winds P up until the block of P that Algorithm 1's projection
+    (Eq. 6) inverts is singular in floating point (a closed loop with forgetting = 0.95 failed there
+    with numpy's LinAlgError): that is the covariance lost, handled by the documented rule."""
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=2.0, on_covariance_loss=rule, constraint_start_s=0.0))
+    P = np.eye(15)
+    P[:3, :3] = 1.0  # a1, a2, b1 (the boxed ones) move together only: their block has rank 1
+    theta = np.array(rls.theta)
+    theta[:3] = (1.5, -0.1, 1.5)  # outside Table 2's box
+    rls.set_state({"theta": theta, "P": P, "k": 5})
+    phi = np.zeros(15)  # no information: theta stays outside, P is P
+    if rule == "raise":
+        with pytest.raises(FloatingPointError, match="the projection's block of P is singular"):
+            rls.update(phi, 0.0)
+        return
+    out = rls.update(phi, 0.0)
+    assert rls.n_resets == 1 and rls.n_projections == 0 and rls.step == 6
+    assert np.array_equal(out, theta) and np.array_equal(rls.P, 2.0 * np.eye(15))
+    # the next update projects with P(-1): back inside the box
+    inside = rls.update(phi, 0.0)
+    assert rls.n_projections == 1 and 1.208 <= inside[0] <= 1.260 and 0.607 <= inside[2] <= 1.184
+
 def test_get_set_state_round_trip_is_bit_identical():
     theta_true = ASYMMETRIC.from_dict(TABLE3)
     u = excitation(1000, seed=5)
