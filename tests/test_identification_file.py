@@ -18,6 +18,7 @@ from fmu_plant import Plant
 from tapmuscle.cli.main import main
 from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario
+from tapmuscle.cosim.run import run_scenario
 from tapmuscle.io.identification_file import IdentificationFileError, read_identification
 
 
@@ -97,6 +98,11 @@ def test_a_scenario_runs_the_controller_on_the_identified_model(built_fmus, id_f
     direct = run_closed_loop(plant, DisplacementController(settings, model.theta),
                              SineReference(frequency_hz=0.1, ts_s=0.05), duration_s=20.0)
     assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    # summary.json is strict JSON (a JavaScript or jq reader refuses Python's -Infinity): no box is "-inf"
+    run_scenario(scenario, tmp_path / "run", built_fmus, plots=False)
+    doc = json.loads((tmp_path / "run" / "summary.json").read_text(),
+                     parse_constant=lambda name: pytest.fail(f"summary.json holds {name}"))
+    assert doc["scenario_spec"]["controller"]["parameters"]["box_lower.b1"] == "-inf"
     path.write_text(path.read_text().replace("step_s = 0.05", "step_s = 0.1"))
     with pytest.raises(ScenarioError, match=r"controller.identification': .*identified at ts_s = 0.05 s, the "
                                             r"controller samples at 0.1 s"):

@@ -165,6 +165,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     from tapmuscle.plots.figures import (plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
                                          plot_parameter_convergence)
     from tapmuscle.io.atomic import atomic_path
+    from tapmuscle.io.json_file import json_text
     from tapmuscle.io.recording import atomic_write_text, read_recording
     from tapmuscle.io.sampling import STRICT_TOLERANCE, check_sampling_period
 
@@ -213,7 +214,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     # the JSON is renamed into place only once the plots are written: a plot folder that cannot be
     # written leaves no JSON behind
     with atomic_path(args.json) as tmp_json:
-        atomic_write_text(tmp_json, json.dumps(out, indent=2) + "\n")
+        atomic_write_text(tmp_json, json_text(out, indent=2))
         if args.plot:
             folder = Path(args.plot)
             folder.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ import numpy as np
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from tapmuscle.plots.figures import plot_parameter_convergence, plot_prediction_errors, plot_tracking
 from tapmuscle.io.atomic import staged_folder
+from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 
 from tapmuscle.cosim.expect import scenario_metrics
@@ -75,7 +76,7 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
                 "ts_s": f"{scenario.step_s:g}", "mae_mm": f"{summary['mae_mm']:.4f}",
                 "source": f"tapmuscle run {scenario.source} (FMU co-simulation)"}
         write_recording(tmp / "result.csv", Recording(table, meta))
-        atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2) + "\n")
+        atomic_write_text(tmp / "summary.json", json_text(summary, indent=2))
         if plots:
             k0, k1 = scenario.evaluation_samples
             window = (k0 * scenario.step_s, k1 * scenario.step_s)

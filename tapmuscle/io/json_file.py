@@ -1,12 +1,14 @@
-"""Reading a JSON document from a file, every failure an error that names the file."""
+"""JSON documents: reading one from a file (every failure an error that names the file) and writing
+one as every JSON reader takes it."""
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
-__all__ = ["read_json"]
+__all__ = ["json_text", "read_json"]
 
 
 def read_json(path: str | Path, error: type[Exception], *, where: str, missing: str) -> Any:
@@ -26,3 +28,23 @@ def read_json(path: str | Path, error: type[Exception], *, where: str, missing: 
         raise error(f"{where}: not valid JSON (line {exc.lineno}, column {exc.colno}): {exc.msg}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{where}: cannot read: {exc}") from None
+
+
+def _finite_or_named(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, dict):
+        return {k: _finite_or_named(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_named(v) for v in value]
+    return value
+
+
+def json_text(document: Any, **options: Any) -> str:
+    """``document`` as strict JSON text (``json.dumps`` with ``options``), a newline at its end.
+
+    A non-finite float (an unbounded box entry, ``-inf``) is written as the string ``"inf"``,
+    ``"-inf"`` or ``"nan"``: Python's ``json`` would write ``Infinity``, which is not JSON (JavaScript's
+    ``JSON.parse`` refuses it, jq turns it into 1.8e308). Python reads the strings back with ``float()``.
+    """
+    return json.dumps(_finite_or_named(document), allow_nan=False, **options) + "\n"

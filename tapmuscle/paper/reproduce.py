@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +35,7 @@ from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.plots.figures import plot_prediction_errors, plot_tracking
 from tapmuscle.io.atomic import staged_folder
+from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.io.signals import parse_input_spec
 
@@ -222,7 +222,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
                     "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default",
                     "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
                     "eq21_window_s": [10.0, 40.0]}
-        atomic_write_text(tmp / "paper.json", json.dumps(document, indent=2) + "\n")
+        atomic_write_text(tmp / "paper.json", json_text(document, indent=2))
     print_tables(tables, stream)
     return document
 
