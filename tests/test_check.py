@@ -97,6 +97,29 @@ def test_bad_files_are_all_named_and_reach_the_junit_report(tmp_path, capsys):
     assert ET.parse(junit).getroot().get("tests") == "0"
 
 
+
+def test_every_bad_fmu_parameter_of_every_file_is_named_before_anything_runs(built_fmus, tmp_path, capsys):
+    """Parameters checked against the FMUs' model descriptions: all of a file's bad ones in one message,
+    every file with one named, each an error case of its own file in the JUnit report."""
+    folder = tmp_path / "cases"
+    folder.mkdir()
+    head = 'duration_s = 12.0\n[expect]\nmae_mm_max = 5.0\n'
+    (folder / "a.toml").write_text(head + '[controller]\nparameters = { "servo.Rr" = 15.0, "u_max" = 12.0 }\n'
+                                   '[plant]\nparameters = { "friction.rate_gain" = -1.0 }\n')
+    (folder / "b.toml").write_text(head + '[controller]\nparameters = { "u_min" = -1.0 }\n')
+    (folder / "c.toml").write_text(head)
+    junit = tmp_path / "report.xml"
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    assert main(["check", str(folder), "--junit", str(junit), "--fmu-dir", fmu_dir, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    for said in ("'controller.parameters.servo.Rr': not a parameter", "'controller.parameters.u_max': 12.0 is outside",
+                 "'plant.parameters.friction.rate_gain': -1.0 is outside", "'controller.parameters.u_min': -1.0 is outside",
+                 "2 files set FMU parameters wrongly; nothing was run"):
+        assert said in err, err
+    errors = {c.get("name"): c.find("error") for c in ET.parse(junit).getroot().iter("testcase")}
+    assert sorted(errors) == ["a.toml", "b.toml"]
+    assert "friction.rate_gain" in errors["a.toml"].get("message") and "u_min" in errors["b.toml"].get("message")
+
 @pytest.mark.slow
 def test_the_long_run_scenario_meets_its_expectation(built_fmus, capsys):
     """The 24-hour soak's CI scenario test: 30 min of AMPC-servo through the FMUs with the long-run

@@ -142,11 +142,26 @@ def _cmd_check(args: argparse.Namespace) -> int:
     with ExitStack() as stack:
         try:
             files = FmuFiles.for_scenarios((c.scenario for c in cases), fmus)
-            tasks = [make_task(str(i), case.scenario, fmus, files) for i, case in enumerate(cases)]
         except ScenarioError as exc:
             if args.junit:
                 atomic_write_text(args.junit, junit_xml([], errors=[CollectionError("FMUs", str(exc))]))
             raise UsageError(str(exc)) from None
+        # every file's parameters checked against the FMUs before anything runs, each bad one named
+        # under its own file (a sweep's runs that share a bad value once)
+        tasks, bad = [], {}
+        for i, case in enumerate(cases):
+            try:
+                tasks.append(make_task(str(i), case.scenario, fmus, files))
+            except ScenarioError as exc:
+                bad.setdefault((case.file, str(exc)), CollectionError(case.file, str(exc)))
+        if bad:
+            errors = list(bad.values())
+            if args.junit:
+                atomic_write_text(args.junit, junit_xml([], errors=errors))
+            for error in errors[:-1]:
+                print(f"error: {error.message}", file=sys.stderr)
+            raise UsageError(errors[-1].message + (f" ({len(errors)} files set FMU parameters wrongly; nothing was run)"
+                                                   if len(errors) > 1 else " (nothing was run)"))
         _local_workers(args, len(tasks))
         execute = _executor(args, stack)
         runs, failed = {}, 0

@@ -180,16 +180,23 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
 
 def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None:
     """Raise ScenarioError (naming file and key) if ``scenario`` sets a parameter its FMUs do not have, or
-    a value of the wrong type or outside the range their model descriptions declare; reads only the
-    model descriptions (no instance), to check a whole sweep before it runs. (Rules between parameters,
-    such as ``servo.Hu <= servo.Hp``, are the FMU's, checked when a run starts.)"""
+    a value of the wrong type or outside the range their model descriptions declare, every such
+    parameter in one message (a user mends them in one go); reads only the model descriptions (no
+    instance), to check a whole sweep before it runs. (Rules between parameters, such as
+    ``servo.Hu <= servo.Hp``, are the FMU's, checked when a run starts.)"""
+    problems = []
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
                              ("AMPCController", "controller", scenario.controller)):
         unpacked = unpack(spec.path or fmus[name])
         check_role(unpacked, role)
         where = f"{scenario.source}: key '{role}.parameters."
         for key, value in spec.parameters.items():
-            _declared_value(_settable(unpacked, key, where), key, value, where)
+            try:
+                _declared_value(_settable(unpacked, key, where), key, value, where)
+            except ScenarioError as exc:
+                problems.append(str(exc))
+    if problems:
+        raise ScenarioError("; ".join(problems))
 
 
 #: The interface each role of the closed loop needs: (inputs, outputs) by name.
