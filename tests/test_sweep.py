@@ -166,17 +166,21 @@ def test_expectations_are_checked_against_the_metrics(tmp_path):
                                                                          "u_max_v <= 10"]
 
 
-@pytest.mark.parametrize("table, key, message", [
-    ({"mae_max": 1}, "expect.mae_max", "unknown expectation"),
-    ({"mae_mm_below": 1}, "expect.mae_mm_below", "unknown expectation"),
-    ({"mae_mm_max": "low"}, "expect.mae_mm_max", "finite number"),
-    ({"u_within": [10, 0]}, "expect.u_within", "lo 10 > hi 0"),
-    ({"u_within": 5}, "expect.u_within", "[lo, hi]"),
+@pytest.mark.parametrize("table, named, message", [
+    ({"mae_max": 1}, "key 'expect.mae_max'", "unknown expectation"),
+    ({"mae_mm_below": 1}, "key 'expect.mae_mm_below'", "unknown expectation"),
+    ({"mae_mm_max": "low"}, "key 'expect.mae_mm_max'", "finite number"),
+    ({"u_within": [10, 0]}, "key 'expect.u_within'", "lo 10 > hi 0"),
+    ({"u_within": 5}, "key 'expect.u_within'", "[lo, hi]"),
+    ({"mae_mm_max": 1, "mae_mm_min": 2}, "keys 'expect.mae_mm_min' = 2 and 'expect.mae_mm_max' = 1",
+     "no mae_mm can meet both"),
+    ({"u_within": [0, 10], "u_max_v_min": 11}, "keys 'expect.u_max_v_min' = 11 and 'expect.u_within' = 10",
+     "no u_max_v can meet both"),
 ])
-def test_bad_expectations_name_file_and_key(table, key, message):
+def test_bad_expectations_name_file_and_key(table, named, message):
     with pytest.raises(ScenarioError) as err:
         parse_expectations(table, source="some.toml")
-    assert str(err.value).startswith(f"some.toml: key '{key}'") and message in str(err.value)
+    assert str(err.value).startswith(f"some.toml: {named}") and message in str(err.value)
 
 
 def test_metrics_of_a_run():

@@ -130,6 +130,12 @@ def parse_expectations(table: Any, *, source: str) -> Expectations:
                                 f"<metric>_max / <metric>_min with metric one of {', '.join(METRICS)}")
         bound = _bound_value(source, key, value)
         bounds.append(Bound(metric, lo=bound, key=key) if side == "min" else Bound(metric, hi=bound, key=key))
+    # a lower bound above an upper one on the same metric (u_within's included) no run can meet
+    for low in (b for b in bounds if b.lo is not None):
+        for high in (b for b in bounds if b.hi is not None and b.metric == low.metric):
+            if low.lo > high.hi:
+                raise ScenarioError(f"{source}: keys 'expect.{low.key}' = {low.lo:g} and 'expect.{high.key}' = "
+                                    f"{high.hi:g}: no {low.metric} can meet both")
     return Expectations(tuple(bounds), source)
 
 
