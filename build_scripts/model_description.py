@@ -10,7 +10,8 @@ fixes all of that from the slave's :attr:`fmi_slave.SafeSlave.variable_meta`:
   ``nominal`` on Real variables, ``min``/``max`` on Integers;
 * no ``Enumeration`` variables: choices are Integers whose description lists the codes, because
   libcosim ignores Enumeration parameters and its SSP loader aborts on them;
-* ``Outputs`` and ``InitialUnknowns`` with explicit ``dependencies`` (ours: none);
+* ``Outputs`` with explicit ``dependencies`` (ours: none) and ``InitialUnknowns`` for the outputs
+  computed at initialisation, with the parameters they are computed from;
 * ``canGetAndSetFMUstate``/``canSerializeFMUstate`` true (the slaves keep all dynamic state);
 * the model ``version`` and ``generationTool`` name the tapmuscle release;
 * no ``generationDateAndTime``, and a GUID derived from a hash of the FMU's content, so the same
@@ -139,7 +140,10 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
             deps = " ".join(str(index[d]) for d in meta[name].get("depends_on", ()))
             ET.SubElement(node, "Unknown", index=str(index[name]), dependencies=deps)
             if sv.get("initial") in ("approx", "calculated"):
-                ET.SubElement(initial, "Unknown", index=str(index[name]), dependencies=deps)
+                # at initialisation: the parameters it is computed from (FMI 2.0 lists knowns there)
+                known = meta[name].get("initial_depends_on", meta[name].get("depends_on", ()))
+                ET.SubElement(initial, "Unknown", index=str(index[name]),
+                              dependencies=" ".join(str(index[d]) for d in sorted(known, key=index.get)))
         if len(initial):
             structure.append(initial)
     ET.indent(root, space="\t")

@@ -165,8 +165,11 @@ class SafeSlave(Fmi2Slave):
         #: ``tuple(vrs) -> reader(self.__dict__)`` / ``-> names`` for vr lists of attribute Reals only
         self._readers: dict[tuple[int, ...], Callable[[dict], list[float]]] = {}
         self._writers: dict[tuple[int, ...], tuple[str, ...]] = {}
-        #: value references of the outputs (any type): settable only before initialisation
+        #: value references of the outputs (any type): settable only before initialisation, and then only
+        #: those with an exact start value
         self._outputs: set[int] = set()
+        #: value references of the outputs computed at initialisation (``initial = calculated``)
+        self._calculated: set[int] = set()
 
     # ------------------------------------------------------------------ registration
     def _meta(self, name: str, unit: str = "", lo: float | None = None, hi: float | None = None,
@@ -241,16 +244,26 @@ class SafeSlave(Fmi2Slave):
     def add_output(self, name: str, start: float | bool | int, unit: str, description: str, *,
                    lo: float | None = None, hi: float | None = None, nominal: float | None = None,
                    depends_on: tuple[str, ...] = (), kind: type = Real,
-                   variability: Fmi2Variability = Fmi2Variability.continuous, getter=None) -> None:
-        """Register an output (attribute ``name`` unless a ``getter`` is given) with an exact start
-        value: the outputs are defined before the first step, which also gives hosts a correct
-        InitialUnknowns list (PythonFMU#193). ``depends_on`` lists the inputs the output depends on
-        directly at a communication point (none for ours, so hosts see no algebraic loop, PythonFMU#258)."""
+                   variability: Fmi2Variability = Fmi2Variability.continuous, getter=None,
+                   calculated_from: tuple[str, ...] | None = None) -> None:
+        """Register an output (attribute ``name`` unless a ``getter`` is given), defined before the first
+        step (which also gives hosts a correct InitialUnknowns list, PythonFMU#193). ``depends_on``
+        lists the inputs the output depends on directly at a communication point (none for ours, so
+        hosts see no algebraic loop, PythonFMU#258).
+
+        With ``calculated_from`` (the parameters its value at initialisation is computed from) the
+        output is ``initial = calculated``: no start value in modelDescription.xml (``start`` is only
+        the value before initialisation), an InitialUnknowns entry with those dependencies, and a
+        host may not set it. Without, its ``start`` is exact: the value it has until the first step
+        computes it, which a host may set before initialisation (FMI 2.0)."""
         accessors = {"getter": getter} if getter is not None else self._attribute_accessors(name, start, kind)
+        calculated = calculated_from is not None
         self.register_variable(kind(name, causality=Fmi2Causality.output, variability=variability,
-                                    initial=Fmi2Initial.exact, start=start, description=description, **accessors),
+                                    initial=Fmi2Initial.calculated if calculated else Fmi2Initial.exact,
+                                    start=None if calculated else start, description=description, **accessors),
                                nested=False)
-        self._meta(name, unit, lo, hi, nominal, depends_on=tuple(depends_on))
+        self._meta(name, unit, lo, hi, nominal, depends_on=tuple(depends_on),
+                   **({"initial_depends_on": tuple(calculated_from)} if calculated else {}))
 
     # ------------------------------------------------------------------ Real I/O (hot path)
     #: ``({vr: getter}, {vr: setter}, {vr: attribute name})`` of the Real variables; None: rebuild.
@@ -265,6 +278,8 @@ class SafeSlave(Fmi2Slave):
         self._readers, self._writers = {}, {}
         if var.causality == Fmi2Causality.output:
             self._outputs.add(var.value_reference)
+            if var.initial == Fmi2Initial.calculated:
+                self._calculated.add(var.value_reference)
 
     def _real_tables(self) -> tuple[dict[int, Any], dict[int, Any], dict[int, str]]:
         reals = [(vr, var) for vr, var in self.vars.items() if isinstance(var, Real)]
@@ -332,8 +347,9 @@ class SafeSlave(Fmi2Slave):
             raise
 
     def _refused_set(self, call: str, vrs: list[int]) -> bool:
-        """True (and logged as an error) if setting ``vrs`` now is not allowed: after fmi2Terminate, or
-        an output after fmi2ExitInitializationMode (FMI 2.0: then only inputs and tunable parameters)."""
+        """True (and logged as an error) if setting ``vrs`` now is not allowed: after fmi2Terminate, an
+        output after fmi2ExitInitializationMode (FMI 2.0: then only inputs and tunable parameters), or
+        an output computed at initialisation (``initial = calculated``) before it."""
         if self._terminated:
             self._after_terminate(call)
             return True
@@ -343,6 +359,12 @@ class SafeSlave(Fmi2Slave):
                 self.log(f"{call}: {self.vars[out[0]].name} is an output: after initialisation only inputs can be "
                          "set; nothing was written", status=Fmi2Status.error)
                 return True
+        calculated = [vr for vr in vrs if vr in self._calculated]
+        if calculated:
+            self.log(f"{call}: output {self.vars[calculated[0]].name} is computed at initialisation (initial = "
+                     "calculated): before it, a host may set only inputs, parameters and the outputs' exact start "
+                     "values; nothing was written", status=Fmi2Status.error)
+            return True
         return False
 
     def _refused_output_start(self, vrs: list[int], values: list[float]) -> bool:

@@ -144,17 +144,18 @@ class AMPCController(SafeSlave):
         self.add_output("r_k", 0.0, "mm", "reference r(k) used at the last sample [mm]", nominal=35.0)
         self.add_output("saturated", False, "", "an input limit (0-10 V or Eq. 19) was active at the last sample",
                         kind=Boolean, variability=Fmi2Variability.discrete)
+        # counters and what the run decided: computed at initialisation (0, -1), not start values a host sets
         self.add_output("samples", 0, "", "number of samples taken so far", kind=Integer,
-                        variability=Fmi2Variability.discrete)
+                        variability=Fmi2Variability.discrete, calculated_from=())
         self.add_output("input_delay", -1, "", "the input delay [samples] the law runs for: input_delay_samples, or "
                         "what -1 decided (-1 before the first sample and while it decides)", kind=Integer,
-                        variability=Fmi2Variability.discrete)
+                        variability=Fmi2Variability.discrete, calculated_from=())
         #: output names of theta-hat, in Eq. (1) order; the values are attributes of these names
         self._theta_outputs = tuple(f"theta.{name}" for name in ASYMMETRIC.names)
         for i, name in enumerate(ASYMMETRIC.names):
             self.add_output(self._theta_outputs[i], float(THETA0_44N[i]), "",
                             f"predictor parameter {name} of Eq. (1) in use (AMPC: theta-hat as the law uses it, "
-                            "theta0 in the start-up mode's warm-up)")
+                            "theta0 in the start-up mode's warm-up)", calculated_from=(f"theta0.{name}",))
 
         self.add_integer_parameter("method", 4, "controller: 1 mpc_ucp, 2 mpc_servo, 3 ampc_ucp, 4 ampc_servo",
                                    lo=1, hi=4)

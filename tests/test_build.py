@@ -69,6 +69,30 @@ def test_the_model_descriptions_name_the_release_that_built_them(built_fmus):
         assert root.get("generationTool") == f"tapmuscle {tapmuscle.__version__} (PythonFMU {pythonfmu.__version__})"
 
 
+
+def test_outputs_computed_at_initialisation_have_no_start_and_list_their_parameters(built_fmus):
+    """FMI 2.0, section 2.2.8: an output whose initial value the FMU computes is initial = calculated,
+    without a start value, and an InitialUnknown whose dependencies are what it is computed from; the
+    others (u, ...) have an exact start value and no InitialUnknown."""
+    from fmpy import read_model_description
+
+    from fmu_controller.hysteresis_model import ASYMMETRIC
+
+    for name, calculated in (("MusclePlant", {"l", "p"}),
+                             ("AMPCController", {"samples", "input_delay"} | {f"theta.{n}" for n in ASYMMETRIC.names})):
+        md = read_model_description(str(built_fmus[name]))
+        outputs = [v for v in md.modelVariables if v.causality == "output"]
+        assert {v.name for v in outputs if v.initial == "calculated"} == calculated
+        assert all(v.start is None for v in outputs if v.initial == "calculated")
+        assert all(v.initial == "exact" and v.start is not None for v in outputs if v.name not in calculated)
+        unknowns = {u.variable.name: {d.name for d in u.dependencies} for u in md.initialUnknowns}
+        assert unknowns.keys() == calculated
+        if name == "AMPCController":
+            assert unknowns["theta.b1"] == {"theta0.b1"} and unknowns["samples"] == set()
+        else:
+            assert {"sensor_drift.offset_mm", "seed", "sensor.encoder_noise_std_mm"} <= unknowns["l"]
+            assert not {"u", "load", "supply_pressure"} & unknowns["l"]  # at rest, whatever the inputs
+
 def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
     with pytest.raises(ValueError, match="unknown FMU 'Pump'"):
         build_fmus(tmp_path, ("Pump",))

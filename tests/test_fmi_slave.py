@@ -21,8 +21,10 @@ def test_get_and_set_real_agree_with_pythonfmu_on_random_lists(cls):
     pythonfmu's generic Fmi2Slave.get_real, so a reader never returns stale values."""
     slave = cls(instance_name="io")
     reals, rng = _reals(slave), random.Random(3)
-    attribute_backed = [vr for vr in reals if slave.vars[vr].name in slave._attribute_reals]
-    assert len(attribute_backed) >= 3  # inputs and outputs; the plant has 5, the controller 22
+    # a host may set these (the outputs computed at initialisation it may not: refused, below)
+    attribute_backed = [vr for vr in reals if slave.vars[vr].name in slave._attribute_reals
+                        and vr not in slave._calculated]
+    assert len(attribute_backed) >= 3  # inputs and outputs; the plant has 3, the controller 7
     for _ in range(200):
         vrs = rng.choices(attribute_backed if rng.random() < 0.7 else reals, k=rng.randint(1, 6))
         for _ in range(2):
@@ -97,3 +99,31 @@ def test_the_compiled_lists_are_bounded_and_later_lists_still_read_right():
     # lists with an output are written through the checked path (an output is settable only before
     # initialisation), so only the input-only lists are compiled
     assert set(slave._writers) == {tuple(v) for v in lists if not set(v) & slave._outputs}
+
+
+def test_outputs_computed_at_initialisation_cannot_be_set_and_take_their_parameters():
+    """theta.* (from theta0.*), samples, input_delay and the plant's readings are initial = calculated:
+    a host setting one before initialisation gets an error naming it and nothing is written; after
+    initialisation each holds what its parameters give (a declared start value would be wrong)."""
+    ctrl = AMPCController(instance_name="c")
+    vr = {var.name: v for v, var in ctrl.vars.items()}
+    assert {ctrl.vars[v].name for v in ctrl._calculated} == {"samples", "input_delay", *ctrl._theta_outputs}
+    ctrl.setup_experiment(0.0, None, None)
+    ctrl.enter_initialization_mode()
+    ctrl.set_real([vr["theta0.a1"]], [1.23])
+    ctrl.set_real([vr["u"], vr["theta.a1"]], [4.0, 9.0])
+    ctrl.set_integer([vr["samples"]], [7])
+    said = [m.msg for m in ctrl.log_queue if m.status == Fmi2Status.error]
+    assert len(said) == 2 and "output theta.a1 is computed at initialisation" in said[0] and "output samples" in said[1]
+    assert ctrl.get_real([vr["u"], vr["theta.a1"]]) != [4.0, 9.0]  # the refused call wrote nothing
+    ctrl.set_real([vr["u"]], [4.0])  # an exact start value: taken
+    ctrl.exit_initialization_mode()
+    assert ctrl.get_real([vr["u"], vr["theta.a1"]]) == [4.0, 1.23] and ctrl.get_integer([vr["samples"]]) == [0]
+    plant = MusclePlant(instance_name="p")
+    vr = {var.name: v for v, var in plant.vars.items()}
+    assert {plant.vars[v].name for v in plant._calculated} == {"l", "p"}
+    plant.setup_experiment(0.0, None, None)
+    plant.enter_initialization_mode()
+    plant.set_real([vr["sensor_drift.offset_mm"]], [5.0])
+    plant.exit_initialization_mode()
+    assert abs(plant.get_real([vr["l"]])[0] - 5.0) < 0.05  # the offset, within the encoder's noise
