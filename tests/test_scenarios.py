@@ -268,6 +268,21 @@ def test_unknown_fmu_parameter_and_bad_toml_are_named(built_fmus, tmp_path, caps
     err = capsys.readouterr().err
     assert str(path) in err and "plant.parameters.friction.rate_gian" in err and "not a parameter" in err
     assert not (tmp_path / "o" / "result.csv").exists()
+    assert err.rstrip().endswith(f"(nothing was written to {tmp_path / 'o'})")
+    # a run that fails after an earlier one into the same folder: the folder's files are the earlier
+    # run's, said so (a CI looking at the folder is not misled into reading them as this run's)
+    path.write_text("duration_s = 2.0\nevaluation_samples = [0, 10]\n")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", fmu_dir, "--quiet"]) == 0
+    before = (tmp_path / "o" / "summary.json").read_bytes()
+    capsys.readouterr()
+    path.write_text("duration_s = 2.0\nevaluation_samples = [0, 10]\n[controller]\nmethod = 'ampc_servo'\n"
+                    "[controller.parameters]\n'servo.Hu' = 9\n")
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", fmu_dir, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "servo.Hu must be <= servo.Hp" in err, err
+    assert (f"(nothing was written to {tmp_path / 'o'}; result.csv, summary.json, tracking.png, prediction_error.png, "
+            "parameters.png there are an earlier run's, as they were)") in err, err
+    assert (tmp_path / "o" / "summary.json").read_bytes() == before
     path.write_text("duration_s = = 3\n")
     assert main(["run", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert "not valid TOML" in capsys.readouterr().err

@@ -325,6 +325,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from build_scripts.build_fmus import FMUS, cached_fmus
     from tapmuscle.cosim import ScenarioError, load_scenario, run_scenario
+    from tapmuscle.cosim.run import RUN_FILES
 
     from tapmuscle.cli.progress import Progress
 
@@ -343,7 +344,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet))
     except ScenarioError as exc:
-        raise UsageError(str(exc)) from None
+        # the outputs are staged and moved in only after a complete run: say what the folder holds
+        earlier = [name for name in RUN_FILES if (out / name).exists()]
+        raise UsageError(f"{exc} (nothing was written to {out}"
+                         + (f"; {', '.join(earlier)} there are an earlier run's, as they were)" if earlier else ")")) from None
     (k0, k1), (t0, t1) = summary["evaluation_samples"], summary["evaluation_window_s"]
     print(f"{scenario.name}: Eq. (21) error {summary['mae_mm']:.3f} mm over {t0:g}..{t1:g} s (samples "
           f"{k0}..{k1}), u in "
