@@ -1,5 +1,6 @@
 """`tapmuscle check`: the project's CI scenario tests on the paper scenarios, JUnit XML, failures."""
 
+import json
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -42,16 +43,22 @@ def test_a_missed_expectation_fails_the_check(built_fmus, tmp_path, capsys):
     (folder / "plain.toml").write_text('duration_s = 12.0\n')  # no [expect]: skipped
     junit = tmp_path / "report.xml"
     fmu_dir = str(built_fmus["MusclePlant"].parent)
-    assert main(["check", str(folder), "--junit", str(junit), "--fmu-dir", fmu_dir, "--quiet"]) == 1
-    out = capsys.readouterr().out
+    kept = tmp_path / "kept"
+    assert main(["check", str(folder), "--junit", str(junit), "--fmu-dir", fmu_dir, "--quiet", "--out", str(kept)]) == 1
+    out, err = capsys.readouterr()
     assert "3 scenarios with expectations (1 files without [expect] skipped)" in out
+    # --out: what did not pass is run again and kept as `tapmuscle run` writes it, the same run
+    assert sorted(str(p.relative_to(kept)) for p in kept.glob("*/*")) == ["tight/tight"]
+    assert f"wrote {kept / 'tight' / 'tight'} (fail: " in out
+    assert "broken: the run failed again, nothing written:" in err and "servo.Hu must be <= servo.Hp" in err
+    mae = json.loads((kept / "tight" / "tight" / "summary.json").read_text())["mae_mm"]
+    assert {p.name for p in (kept / "tight" / "tight").iterdir()} >= {"result.csv", "summary.json", "tracking.png"}
     assert "3 scenarios: 1 passed, 1 failed, 1 errors" in out
     root = ET.parse(junit).getroot()
     assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("3", "1", "1")
     tight = next(c for c in root.iter("testcase") if c.get("name") == "tight")
     failure = tight.find("failure")
-    assert failure is not None and failure.get("message").startswith("mae_mm = ")
-    assert "> 0.01 (mae_mm_max)" in failure.get("message")
+    assert failure is not None and failure.get("message").startswith(f"mae_mm = {mae:g} > 0.01 (mae_mm_max)")
     broken = next(c for c in root.iter("testcase") if c.get("name") == "broken")
     assert "servo.Hu must be <= servo.Hp" in broken.find("error").get("message")
 

@@ -168,6 +168,9 @@ def test_an_empty_output_path_is_refused_in_one_line(capsys, argv):
     (["diagnose", "--recording", "r.csv", "--plant", "p.json", "--out", "FILE"], "--out FILE: a file, not a folder"),
     (["record", "--load", "44", "--input", "const:value=5", "--duration", "1", "--out", "FILE/r.csv"],
      "--out FILE/r.csv: FILE is a file, not a folder"),
+    # a folder no one may write into (another process's: also for root), found before the runs
+    (["check", "s.toml", "--junit", "/proc/1/report.xml"], "--junit /proc/1/report.xml: the folder /proc/1 cannot be "
+     "written"),
 ])
 def test_an_output_path_of_the_wrong_kind_is_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, said):
     monkeypatch.chdir(tmp_path)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 from typing import Callable
 
@@ -60,6 +61,10 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
             if parent.exists():
                 if not parent.is_dir():
                     raise argparse.ArgumentTypeError(f"{name} {text}: {parent} is a file, not a folder")
+                # the outputs are written beside their place and renamed in: the folder must take files
+                if not os.access(parent, os.W_OK | os.X_OK):
+                    raise argparse.ArgumentTypeError(f"{name} {text}: the folder {parent} cannot be written "
+                                                     "(no permission, or a read-only file system)")
                 break
         return text
     return parse

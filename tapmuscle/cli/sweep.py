@@ -178,7 +178,35 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.junit:
         atomic_write_text(args.junit, junit_xml(results))
         print(f"wrote {args.junit}")
+    if args.out:
+        _keep_what_did_not_pass(results, Path(args.out), fmus)
     return 0 if all(r.status == "pass" for r in results) else 1
+
+
+def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> None:
+    """``check --out``: each case that did not pass run again here, its files written into
+    ``out/<file>/<case>/`` as ``tapmuscle run`` writes them (on one machine the run is the same bit
+    for bit, wherever the check ran it)."""
+    import re
+
+    from tapmuscle.cosim import ScenarioError, run_scenario
+
+    used: set[Path] = set()
+    for result in results:
+        if result.status == "pass":
+            continue
+        case = result.case
+        folder = out / Path(case.file).stem / (re.sub(r"[^A-Za-z0-9._=+-]+", "_", case.name).strip("_") or "case")
+        n = 1
+        while folder in used:  # two cases of one name
+            n += 1
+            folder = folder.with_name(f"{folder.name}-{n}")
+        used.add(folder)
+        try:
+            run_scenario(case.scenario, folder, fmus)
+            print(f"wrote {folder} ({result.status}: result.csv, summary.json, the PNGs)")
+        except ScenarioError as exc:
+            print(f"{folder}: the run failed again, nothing written: {exc}", file=sys.stderr)
 
 
 # ------------------------------------------------------------------------------------------ parser
@@ -217,5 +245,8 @@ def register(sub: Any) -> None:
                                     "write JUnit XML; exit status 1 on any missed expectation or failed run.")
     ck.add_argument("paths", nargs="+", metavar="PATH", help="scenario/sweep files or folders (searched for *.toml)")
     ck.add_argument("--junit", type=output_path("--junit", "file"), metavar="FILE", help="write a JUnit XML report (for CI test reports)")
+    ck.add_argument("--out", type=output_path("--out", "folder"), metavar="DIR",
+                    help="run each case that did not pass again in this process and write its result.csv, "
+                         "summary.json and PNGs into DIR/<file>/<case>/ (CI artefacts of a failure)")
     _common(ck, "zero")
     ck.set_defaults(func=_cmd_check)
