@@ -348,6 +348,9 @@ def test_a_seed_beyond_64_bits_is_named():
 @pytest.mark.parametrize("doc, key, pattern", [
     ({"duration_s": 20.0, "step_s": 60.0}, "step_s", "leaves no step in duration_s = 20 s"),
     ({"duration_s": 1e6, "step_s": 0.01}, "duration_s", "makes 100000001 samples; at most 864001"),
+    # a run ends on its step grid: 20.03 s would be reported and 20 s run
+    ({"duration_s": 20.03, "step_s": 0.1}, "duration_s", r"20.03 s is not a whole number of steps of step_s = 0.1 s "
+     r"\(200.3\); the nearest: 20 s"),
     ({"duration_s": 10.0, "reference": {"amplitude_mm": 1e300}}, "reference.amplitude_mm", r"outside \[0, 400\]"),
     ({"duration_s": 10.0, "reference": {"offset_mm": -1e4}}, "reference.offset_mm", r"outside \[-400, 400\]"),
     ({"duration_s": 10.0, "reference": {"frequency_hz": 50.0}}, "reference.frequency_hz", r"outside \[0, 5\]"),

@@ -6,7 +6,7 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
 
     name = "ampc_servo_44N_0.1Hz"          # optional, default: the file name
     description = "Table 7, 44 N"          # optional
-    duration_s = 45.0
+    duration_s = 45.0                      # a whole number of steps
     step_s = 0.1                           # macro (communication) step = controller Ts
     seed = 0                               # plant sensor-noise seed
     evaluation_window_s = [10.1, 40.1]     # Eq. (21) window t0..t1 [s] (inclusive), the default: the
@@ -351,6 +351,10 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     if n < 2:
         raise top.error("step_s", f"{step:g} s leaves no step in duration_s = {duration:g} s (step_s must be <= "
                                   "duration_s)")
+    if abs((n - 1) * step - duration) > 1e-9 * max(duration, step):
+        # the run ends on the step grid: a duration between two samples would be reported but not run
+        raise top.error("duration_s", f"{duration:g} s is not a whole number of steps of step_s = {step:g} s "
+                                      f"({duration / step:.6g}); the nearest: {(n - 1) * step:.12g} s")
     if n > MAX_RUN_SAMPLES:
         raise top.error("duration_s", f"{duration:g} s at step_s = {step:g} s makes {n} samples; at most "
                                       f"{MAX_RUN_SAMPLES} in one run")
