@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 
 import pytest
 
@@ -114,7 +115,105 @@ def test_unreachable_scheduler_is_a_usage_error(tmp_path, capsys):
     sweep.write_text(SWEEP)
     assert main(["sweep", str(sweep), "--scheduler", "tcp://127.0.0.1:9", "--timeout", "2", "--out", str(tmp_path / "o"),
                  "--quiet"]) == 2
-    assert "--scheduler tcp://127.0.0.1:9: cannot start or connect" in capsys.readouterr().err
+    assert ("--scheduler tcp://127.0.0.1:9: tcp://127.0.0.1:9: nothing listens on port 9 of 127.0.0.1"
+            in capsys.readouterr().err)
+
+
+def _server(reply: bytes | None):
+    """A listener on loopback that answers each connection with ``reply`` (None: says nothing, as an HTTP
+    server waiting for a request does); ``(port, stop)``."""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)
+    held = []
+
+    def serve():
+        while True:
+            try:
+                conn, _ = srv.accept()
+            except OSError:
+                return
+            held.append(conn)
+            if reply is not None:
+                conn.sendall(reply)
+
+    threading.Thread(target=serve, daemon=True).start()
+
+    def stop():
+        srv.close()
+        for conn in held:
+            conn.close()
+    return srv.getsockname()[1], stop
+
+
+@pytest.mark.parametrize("reply, said", [
+    (None, "no Dask scheduler answered within 1.5 s"),  # the dashboard's port: distributed waited for ever
+    (b"HTTP/1.1 400 Bad Request\r\n\r\n", "an HTTP server answers there, not a Dask scheduler"),  # a proxy: 3 EiB
+])
+def test_a_port_that_is_no_schedulers_is_named_within_the_timeout(tmp_path, capsys, reply, said):
+    port, stop = _server(reply)
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(SWEEP)
+    try:
+        started = time.monotonic()
+        assert main(["sweep", str(sweep), "--scheduler", f"tcp://127.0.0.1:{port}", "--timeout", "1.5", "--out",
+                     str(tmp_path / "o"), "--quiet"]) == 2
+        assert time.monotonic() - started < 30
+    finally:
+        stop()
+    err = capsys.readouterr().err
+    assert f"--scheduler tcp://127.0.0.1:{port}: " in err and said in err, err
+    assert not (tmp_path / "o").exists()
+
+
+def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
+    """A worker without osqp (or another tapmuscle) failed each run it took, or hung the sweep on the FMU
+    files it could not unpack; each is named, with what it lacks."""
+    from tapmuscle.cosim.distributed_sweep import ClusterError, check_workers
+
+    class Client:
+        def run(self, function, argument, on_error):
+            assert on_error == "return"
+            if function is exec:
+                return {"tcp://a:1": None, "tcp://b:2": ModuleNotFoundError("No module named 'osqp'"),
+                        "tcp://c:3": None}
+            return {"tcp://a:1": function(argument), "tcp://b:2": function(argument), "tcp://c:3": "0.0.1"}
+
+    with pytest.raises(ClusterError) as err:
+        check_workers(Client())
+    said = str(err.value)
+    assert "worker tcp://b:2 cannot import tapmuscle's run code: ModuleNotFoundError: No module named 'osqp'" in said
+    assert "worker tcp://c:3 has tapmuscle 0.0.1, the client tapmuscle " in said and "tcp://a:1" not in said
+
+
+def test_the_runs_outlive_the_loss_of_the_only_worker(built_fmus, tmp_path):
+    """Its nanny restarts a killed worker; the FMU files, the input of a task the scheduler keeps, are
+    sent again, and every run finishes (scattered, they were lost with the worker, and the runs not yet
+    done failed as "already forgotten")."""
+    import signal
+
+    from tapmuscle.cosim import load_scenario
+    from tapmuscle.cosim.distributed_sweep import DaskExecutor, FmuFiles, dask_client, make_task
+
+    (tmp_path / "case.toml").write_text("duration_s = 3.0\n")
+    scenario = load_scenario(tmp_path / "case.toml")
+    folder = built_fmus["MusclePlant"].parent
+    fmus = {name: folder / f"{name}.fmu" for name in ("MusclePlant", "AMPCController")}
+    files = FmuFiles.for_scenarios([scenario], fmus)
+    tasks = [make_task(str(seed), replace(scenario, seed=seed), fmus, files) for seed in range(6)]
+    with dask_client(1) as client:
+        results, killed = [], False
+        for result in DaskExecutor(client)(tasks, files):
+            results.append(result)
+            if not killed:
+                pid = next(iter(client.run(os.getpid).values()))
+                os.kill(pid, signal.SIGKILL)
+                killed = True
+    assert killed and sorted(r.run_id for r in results) == [str(i) for i in range(6)]
+    assert [r.status for r in results] == ["ok"] * 6, [r.error for r in results]
 
 
 @pytest.mark.slow
@@ -126,3 +225,29 @@ def test_check_on_a_local_cluster(built_fmus, tmp_path, capsys):
     assert main(["check", str(case), "--workers", "1", "--fmu-dir", fmu_dir]) == 0
     captured = capsys.readouterr()
     assert "Dask: 1 workers at tcp://127.0.0.1:" in captured.err and "PASS    case" in captured.out
+
+
+def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_path):
+    """A terminal's Ctrl-C reaches the whole foreground group: the local cluster's worker processes
+    ignore it (the command stops them) and print nothing; the command says what it kept and exits 130
+    (the workers' KeyboardInterrupt tracebacks buried that line, and the command exited 1)."""
+    import signal
+
+    sweep = tmp_path / "long.toml"
+    sweep.write_text('name = "long"\nbase = { duration_s = 2000.0 }\ngrid = { seed = [0, 1, 2, 3, 4, 5, 6, 7] }\n')
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", "2", "--out", str(out),
+                             "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet", "--no-plots"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "results.csv").is_file():  # a run finished: the cluster is up and running
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert err.strip() == f"interrupted: finished runs are in {out}/results.csv; rerun the same command to go on"

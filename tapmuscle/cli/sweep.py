@@ -44,7 +44,7 @@ def _local_workers(args: argparse.Namespace, n_runs: int) -> None:
 def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     """In this process (``--workers 0`` without ``--scheduler``) or on Dask (a local cluster of
     ``--workers`` processes, or the cluster of ``--scheduler``)."""
-    from tapmuscle.cosim.distributed_sweep import DaskExecutor, dask_client, run_serial
+    from tapmuscle.cosim.distributed_sweep import ClusterError, DaskExecutor, dask_client, run_serial
 
     if not args.scheduler and args.workers == 0:
         return run_serial
@@ -53,10 +53,12 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     except ImportError:
         raise UsageError("needs dask.distributed: pip install 'tapmuscle[dist]' (or run in this process with "
                          "--workers 0)") from None
+    where = f"--scheduler {args.scheduler}" if args.scheduler else f"local cluster of {args.workers} workers"
     try:
         client = stack.enter_context(dask_client(args.workers, args.scheduler, wait_s=args.timeout))
+    except ClusterError as exc:  # what is wrong, said
+        raise UsageError(f"{where}: {exc}") from None
     except OSError as exc:  # includes TimeoutError
-        where = f"--scheduler {args.scheduler}" if args.scheduler else f"local cluster of {args.workers} workers"
         raise UsageError(f"{where}: cannot start or connect: {exc}") from None
     if not args.quiet:
         workers = len(client.scheduler_info().get("workers", {}))
@@ -92,8 +94,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
         except KeyboardInterrupt:
-            print(f"\ninterrupted: finished runs are in {out}/results.csv; rerun the same command to go on",
-                  file=sys.stderr)
+            done = (out / "results.csv").is_file()
+            print(f"\ninterrupted: {f'finished runs are in {out}/results.csv' if done else 'no run had finished'}; "
+                  "rerun the same command to go on", file=sys.stderr)
             return 130
     text = summary_markdown(sweep, report.rows)
     start = text.index("## Per method")

@@ -6,8 +6,10 @@ and returns a :class:`RunResult` with :func:`tapmuscle.cosim.expect.scenario_met
 ``failed`` result with the error's text; it never stops the others.
 
 **FMUs on the workers.** Workers need not share a file system with the client: the FMU files
-(:class:`FmuFiles`, a few hundred kB) are scattered to every worker once per sweep
-(``Client.scatter(broadcast=True)``), and each worker process writes each file once into its own
+(:class:`FmuFiles`, a few hundred kB) go to the cluster once per sweep as plain data, the input of
+one task the runs depend on (not scattered: the scheduler keeps its input, so the files outlive the
+loss of every worker that held them, and a worker that cannot import tapmuscle fails its own runs, not
+the files' transfer), and each worker process writes each file once into its own
 cache folder, named by the file's SHA-256 (:meth:`FmuFiles.path`), and extracts it once
 (:func:`tapmuscle.cosim.master.unpack` caches per process). A worker process keeps its FMU instances in an
 :class:`~tapmuscle.cosim.master.InstancePool` and resets them (fmi2Reset) between runs instead of
@@ -23,8 +25,10 @@ import getpass
 import hashlib
 import logging
 import os
+import signal
 import socket
 import tempfile
+import threading
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -37,7 +41,7 @@ from tapmuscle.cosim.master import InstancePool, check_parameters, co_simulate
 from tapmuscle.cosim.spec import FmuSpec, Scenario
 
 __all__ = ["RunTask", "RunResult", "FmuFiles", "make_task", "execute_run", "run_serial", "DaskExecutor",
-           "dask_client"]
+           "ClusterError", "check_workers", "dask_client", "probe_scheduler"]
 
 _ROLES = (("MusclePlant", "plant"), ("AMPCController", "controller"))
 
@@ -184,19 +188,31 @@ def run_serial(tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]
 _WORKER_POOL: list[InstancePool] = []
 
 
-def _worker_run(task: RunTask, files: FmuFiles) -> RunResult:
-    """The Dask task: runs on a worker, with that worker process's instance pool."""
+def _worker_run(task: RunTask, files: Mapping[str, Any]) -> RunResult:
+    """The Dask task: runs on a worker, with that worker process's instance pool; ``files`` is
+    :meth:`FmuFiles.without_local`'s fields as a plain dict."""
     if not _WORKER_POOL:
         _WORKER_POOL.append(InstancePool())
-    return execute_run(task, files, _WORKER_POOL[0], use_local=False)
+    return execute_run(task, FmuFiles(**files), _WORKER_POOL[0], use_local=False)
+
+
+def _error_text(value: Any) -> str:
+    """``Type: message`` of what an erred Dask future gave back (the exception, or Dask's
+    ``(type, exception, traceback)`` of a task whose worker died)."""
+    if isinstance(value, tuple) and len(value) == 3 and isinstance(value[1], BaseException):
+        value = value[1]
+    if type(value).__name__ == "KilledWorker":
+        return (f"KilledWorker: every worker that ran it died (Dask's allowed failures spent): {value.args[0] if value.args else value}")
+    return f"{type(value).__name__}: {value}"
 
 
 class DaskExecutor:
     """Runs tasks on a ``distributed.Client``'s cluster, yielding results as they finish.
 
-    The FMU files go to every worker once (scattered, broadcast); one Dask task per run (``client.map``).
-    A task whose worker died (``KilledWorker`` after Dask's retries) or that was cancelled is a
-    ``failed`` result. Leaving the iteration early cancels the tasks not yet finished.
+    The FMU files go to the cluster once, as the input of a task the runs depend on (module
+    docstring); one Dask task per run (``client.map``). A task whose worker died (``KilledWorker``
+    after Dask's retries) or that was cancelled is a ``failed`` result. Leaving the iteration early
+    cancels the tasks not yet finished.
     """
 
     def __init__(self, client: Any) -> None:
@@ -207,8 +223,11 @@ class DaskExecutor:
 
         if not tasks:
             return
-        shipped = self.client.scatter(files.without_local(), broadcast=True, hash=False)
         tag = uuid.uuid4().hex[:8]
+        shipped = files.without_local()
+        # dict, a builtin: the files' task runs on any worker, whatever it can import
+        shipped = self.client.submit(dict, {"data": dict(shipped.data), "names": dict(shipped.names)}, pure=False,
+                                     key=f"tapmuscle-fmus-{tag}")
         submitted = self.client.map(_worker_run, tasks, [shipped] * len(tasks), pure=False,
                                     key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in tasks])
         futures = dict(zip(submitted, tasks))
@@ -219,7 +238,7 @@ class DaskExecutor:
                 if future.status == "finished":
                     result = value
                 else:  # worker died (KilledWorker), cancelled: recorded as failed
-                    result = RunResult(task.run_id, "failed", error=f"{type(value).__name__}: {value}")
+                    result = RunResult(task.run_id, "failed", error=_error_text(value))
                 future.release()
                 yield result
         finally:
@@ -227,28 +246,119 @@ class DaskExecutor:
             shipped.release()
 
 
+class ClusterError(OSError):
+    """A scheduler that is not one, or workers that cannot run tapmuscle's runs (named, with why)."""
+
+
+def probe_scheduler(address: str, wait_s: float) -> None:
+    """Check that a Dask scheduler answers at ``address`` (``tcp://host:port`` or ``host:port``) within
+    ``wait_s`` seconds, before ``distributed`` connects: a scheduler greets a new connection with a
+    message frame; an HTTP server (the dashboard's port, a proxy) waits or answers text, on which
+    ``distributed``'s client waits without its timeout or misreads the text as a frame length.
+    Other schemes (``tls://``, ``inproc://``) are left to ``distributed``.
+
+    Raises
+    ------
+    ClusterError
+        Nothing listens there, the host is unknown, no greeting comes within ``wait_s``, or the
+        greeting is not a Dask frame (an HTTP server's, named as such).
+    """
+    scheme, _, rest = address.rpartition("://")
+    if scheme not in ("", "tcp"):
+        return
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit():
+        raise ClusterError(f"{address}: not a scheduler address tcp://HOST:PORT")
+    host = host.strip("[]")
+    try:
+        with socket.create_connection((host, int(port)), timeout=wait_s) as sock:
+            sock.settimeout(wait_s)
+            greeting = b""
+            while len(greeting) < 16:
+                chunk = sock.recv(16 - len(greeting))
+                if not chunk:
+                    break
+                greeting += chunk
+    except socket.gaierror as exc:
+        raise ClusterError(f"{address}: unknown host {host} ({exc.strerror})") from None
+    except ConnectionRefusedError:
+        raise ClusterError(f"{address}: nothing listens on port {port} of {host} (is the scheduler started?)") from None
+    except (socket.timeout, TimeoutError):
+        raise ClusterError(f"{address}: no Dask scheduler answered within {wait_s:g} s (a scheduler greets at once; "
+                           "the dashboard's HTTP port, 8787 by default, waits: the scheduler's own is 8786 by "
+                           "default)") from None
+    except OSError as exc:
+        raise ClusterError(f"{address}: cannot connect: {exc}") from None
+    if greeting.startswith(b"HTTP") or greeting[:1].isalpha():
+        raise ClusterError(f"{address}: an HTTP server answers there, not a Dask scheduler (the dashboard's port, "
+                           f"or a proxy: {greeting[:16]!r}); the scheduler's own port is 8786 by default")
+    # a frame: its length (little-endian 64 bits) and its number of parts, both small
+    if len(greeting) < 16 or not (0 < int.from_bytes(greeting[:8], "little") < 1 << 30
+                                  and 0 < int.from_bytes(greeting[8:16], "little") < 1 << 16):
+        raise ClusterError(f"{address}: the answer is not a Dask scheduler's ({greeting[:16]!r})")
+
+
+def check_workers(client: Any) -> None:
+    """Check that every worker of ``client``'s cluster imports tapmuscle's run code, in the client's
+    version, before any run: a worker without osqp (say) would fail each run it took, and one of
+    another version could compute other numbers.
+
+    Raises
+    ------
+    ClusterError
+        Each worker that cannot, with what it lacks or the version it has.
+    """
+    import importlib.metadata
+
+    # builtins and the standard library's functions: they reach a worker whatever it can import
+    imported = client.run(exec, "import tapmuscle.cosim.distributed_sweep", on_error="return")
+    versions = client.run(importlib.metadata.version, "tapmuscle", on_error="return")
+    mine = importlib.metadata.version("tapmuscle")
+    problems = []
+    for worker in sorted(imported):
+        error, version = imported[worker], versions.get(worker)
+        if isinstance(error, BaseException):
+            problems.append(f"worker {worker} cannot import tapmuscle's run code: {type(error).__name__}: {error}")
+        elif isinstance(version, BaseException) or version != mine:
+            has = f"{type(version).__name__}: {version}" if isinstance(version, BaseException) else f"tapmuscle {version}"
+            problems.append(f"worker {worker} has {has}, the client tapmuscle {mine}")
+    if problems:
+        raise ClusterError("; ".join(problems) + " (every worker needs the client's tapmuscle and its dependencies: "
+                           "docs/sweeps.md, 'Pointing a sweep at a real cluster')")
+
+
 @contextmanager
 def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 60.0) -> Iterator[Any]:
     """A ``distributed.Client``: on a new local cluster of ``workers`` single-threaded worker processes,
     or connected to the running scheduler at ``scheduler`` (``tcp://host:port``), which must get at
-    least one worker within ``wait_s`` seconds. Raises OSError/TimeoutError if it cannot connect.
+    least one worker within ``wait_s`` seconds; its workers checked (:func:`check_workers`).
+    Raises OSError/TimeoutError if it cannot connect (:class:`ClusterError` naming why).
     """
     import dask
     from distributed import Client, LocalCluster
 
     if scheduler:
+        probe_scheduler(scheduler, wait_s)
         client = Client(scheduler, timeout=f"{wait_s}s")
         try:
             client.wait_for_workers(1, timeout=wait_s)
+            check_workers(client)
             yield client
         finally:
             client.close()
         return
-    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms)
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
-                               silence_logs=logging.ERROR)
+    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms).
+    # The worker processes ignore Ctrl-C (inherited SIG_IGN): the client stops them, and they print no
+    # tracebacks of their own over its message.
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
+    try:
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
+                                   silence_logs=logging.ERROR)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
     try:
         client = Client(cluster)
         try:
@@ -257,3 +367,7 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
             client.close()
     finally:
         cluster.close()
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
