@@ -535,3 +535,28 @@ def test_what_the_fmus_warn_of_reaches_the_sweeps_and_checks_reports(built_fmus,
     by_name = {c.get("name"): c for c in root.iter("testcase")}
     assert by_name["ts0.2"].find("system-err").text.startswith("FMU warning: controller FMU: Ts = 0.2 s")
     assert by_name["ts0.1"].find("system-err") is None
+
+
+def test_a_file_named_in_the_grid_is_relative_to_the_sweep_file(tmp_path):
+    """Two bases in two folders, each beside an identification file of its own, and the grid naming
+    "id.json": both runs take the sweep file's neighbour (it was each base's, silently two models under
+    one label)."""
+    from fmu_controller.preliminary_model import THETA0_44N
+    from tapmuscle.io.identification_file import write_identification
+
+    for folder, scale in (("sweeps", 1.0), ("scen", 0.99), ("scen2", 0.98)):
+        (tmp_path / folder).mkdir()
+        write_identification(tmp_path / folder / "id.json", [v * scale for v in THETA0_44N], ts_s=0.1,
+                             note=folder)
+    for folder, duration in (("scen", 5.0), ("scen2", 6.0)):
+        (tmp_path / folder / "case.toml").write_text(f'duration_s = {duration}\n[controller]\nmethod = "mpc_ucp"\n')
+    sweep = tmp_path / "sweeps" / "s.toml"
+    sweep.write_text('base = ["../scen/case.toml", "../scen2/case.toml"]\n[grid]\n"controller.identification" = '
+                     '["id.json"]\n')
+    runs = load_sweep(sweep).runs
+    assert [r.scenario.controller.parameters_file for r in runs] == [tmp_path / "sweeps" / "id.json"] * 2
+    assert runs[0].scenario.controller.parameters["theta0.a1"] == THETA0_44N[0]
+    assert runs[0].params == (("controller.identification", "id.json"),)  # the label is what the file says
+    sweep.write_text(sweep.read_text().replace('["id.json"]', '["../scen/id.json", "nothing.json"]'))
+    with pytest.raises(ScenarioError, match=r"nothing.json"):
+        load_sweep(sweep)

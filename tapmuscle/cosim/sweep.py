@@ -32,7 +32,9 @@ naming the file and the key::
 ``plant.parameters.`` and ``controller.parameters.`` the rest is one FMU variable name
 (``controller.parameters.servo.R``, ``plant.parameters.friction.rate_gain``). A value may be any TOML
 value the scenario key accepts (e.g. ``"load.steps"`` = an array of step tables). Each run is checked as
-a scenario; a bad value is reported with the run's values.
+a scenario; a bad value is reported with the run's values. A file named in the grid or the sample
+(``plant.fmu``, ``plant.parameters_file``, ``controller.fmu``, ``controller.identification``) is relative
+to the sweep file, where it is written (a base's own files are relative to the base's file).
 
 **Run ids** are the first 12 hex digits of a SHA-256 of the run's complete scenario (the base with the
 run's values; name, description and expectations left out), so the same run has the same id in every
@@ -66,6 +68,8 @@ __all__ = ["SweepRun", "Sweep", "load_sweep", "parse_sweep", "is_sweep_data", "r
 MAX_MONTE_CARLO = 100_000
 
 _TOP = {"name", "description", "base", "grid", "monte_carlo", "expect"}
+#: Fields that name a file (module docstring: relative to the sweep file when the grid or sample sets them).
+_FILE_FIELDS = frozenset({"plant.fmu", "plant.parameters_file", "controller.fmu", "controller.identification"})
 _SWEEP_KEYS = ("base", "grid", "monte_carlo")
 _PARAMETER_TABLES = ("plant", "controller")
 _DISTRIBUTIONS = ("uniform", "integers", "choice")
@@ -291,6 +295,10 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
                 raw = copy.deepcopy(base)
                 where = f"{source} [run of {base_name}: {_describe(params)}]"
                 for field, value in params:
+                    if field in _FILE_FIELDS and isinstance(value, str) and folder is not None \
+                            and not Path(value).is_absolute():
+                        # written in the sweep file: relative to it, whatever folder the base is in
+                        value = str(folder / value)
                     try:
                         set_field(raw, field, value)
                     except ScenarioError as exc:
