@@ -49,6 +49,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     # FMUs and co-simulation
     "build_fmus": ("tapmuscle.api", "build_fmus"),
     "cosimulate": ("tapmuscle.api", "cosimulate"),
+    "sweep": ("tapmuscle.api", "sweep"),
     "load_scenario": ("tapmuscle.cosim", "load_scenario"),
     "PAPER_SCENARIOS": ("tapmuscle.cosim", "PAPER_SCENARIOS"),
     # recordings

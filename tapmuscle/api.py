@@ -25,7 +25,7 @@ from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
 from tapmuscle.io.signals import parse_input_spec
 
-__all__ = ["simulate", "simulate_closed_loop", "cosimulate", "build_fmus"]
+__all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus"]
 
 
 def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant:
@@ -224,6 +224,65 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
     from build_scripts.build_fmus import build_fmus as _build
 
     return _build(out, names)
+
+
+def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None = None, client: Any = None,
+          workers: int = 0, plots: bool = True, progress: Callable[[int, int, str], None] | None = None) -> Any:
+    """Run a sweep's runs not yet finished in ``out`` and write its summary (what ``tapmuscle sweep`` does).
+
+    Parameters
+    ----------
+    sweep : path or Sweep
+        A sweep TOML file (docs/sweeps.md; e.g. ``scenarios/sweeps/paper_grid.toml``) or a parsed
+        :class:`~tapmuscle.cosim.sweep.Sweep`.
+    out : path
+        The output folder: ``results.csv`` (one row per run, appended as runs finish: a rerun goes on
+        where one stopped), ``summary.md`` and the PNGs.
+    fmus : mapping, optional
+        ``{"MusclePlant": path, "AMPCController": path}``; default the FMUs built from this installation.
+    client : distributed.Client, optional
+        Run on this Dask client's cluster (a notebook's own; its workers are checked first, and it is left
+        open and usable). Default: ``workers``.
+    workers : int
+        Without ``client``: 0 runs every run in this process; N > 0 on a local cluster of N worker
+        processes, closed at the end.
+    plots : bool
+        Write the PNGs.
+    progress : callable, optional
+        ``progress(done, total, detail)`` after each run.
+
+    Returns
+    -------
+    SweepReport
+        Runs in total, already done, run now, failed, missing their expectations, and every run's row.
+
+    Raises
+    ------
+    ScenarioError
+        A bad sweep file or parameter (named), or ``out`` holding another sweep's results.
+    ClusterError
+        ``client``'s workers cannot run tapmuscle (each named, with what it lacks).
+    """
+    from contextlib import ExitStack
+
+    from build_scripts.build_fmus import cached_fmus
+    from tapmuscle.cosim.distributed_sweep import DaskExecutor, check_workers, dask_client, run_serial
+    from tapmuscle.cosim.sweep import Sweep, load_sweep
+    from tapmuscle.cosim.sweep_run import run_sweep
+
+    sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be an integer >= 0, got {workers!r}")
+    given = dict(fmus) if fmus is not None else cached_fmus()
+    with ExitStack() as stack:
+        if client is not None:
+            check_workers(client)
+            execute = DaskExecutor(client)
+        elif workers:
+            execute = DaskExecutor(stack.enter_context(dask_client(workers)))
+        else:
+            execute = run_serial
+        return run_sweep(sw, out, given, execute, plots=plots, progress=progress)
 
 
 def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, out: str | Path | None = None,

@@ -251,3 +251,26 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
     assert err.strip() == f"interrupted: finished runs are in {out}/results.csv; rerun the same command to go on"
+
+
+def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_path):
+    """tm.sweep(client=...): the runs go to the user's cluster (its workers checked first), the same
+    numbers as in this process, and the client and its other work are left as they were."""
+    import tapmuscle as tm
+    from distributed import Client, LocalCluster
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(SWEEP)
+    folder = built_fmus["MusclePlant"].parent
+    fmus = {name: folder / f"{name}.fmu" for name in ("MusclePlant", "AMPCController")}
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        mine = client.submit(sum, [1, 2, 3])
+        report = tm.sweep(sweep, tmp_path / "dask", fmus=fmus, client=client, plots=False)
+        assert client.status == "running" and mine.result() == 6 and client.submit(len, "abc").result() == 3
+        worker_pid = next(iter(client.run(os.getpid).values()))
+    local = tm.sweep(sweep, tmp_path / "here", fmus=fmus, plots=False)
+    assert (report.total, report.ran, report.failed) == (4, 4, 0)
+    for row, here in zip(report.rows, local.rows):
+        assert row["run_id"] == here["run_id"] and row["mae_mm"] == here["mae_mm"]
+        assert int(row["worker"].rsplit(":", 1)[1]) == worker_pid
