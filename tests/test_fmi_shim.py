@@ -23,7 +23,9 @@ from fmpy_helpers import host_lines
 
 pytestmark = pytest.mark.c_host
 
-HOST = r'''
+#: A host script's start: the FMU of argv[1] extracted, and callbacks whose logger keeps every message in
+#: ``log`` as ``[status, category, text]``.
+HOST_START = r'''
 import json, sys
 import fmpy
 from fmpy import extract, read_model_description
@@ -31,7 +33,7 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
-path, reps, logging_on = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "1"
+path = sys.argv[1]
 md = read_model_description(path)
 folder = extract(path)
 log = []
@@ -40,6 +42,10 @@ cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.appen
     [status, None if cat is None else cat.decode(), msg.decode()]))
 cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
 cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+'''
+
+HOST = HOST_START + r'''
+reps, logging_on = int(sys.argv[2]), sys.argv[3] == "1"
 out = []
 for _ in range(reps):
     log.clear()
@@ -402,24 +408,9 @@ def test_an_instance_without_a_name_or_for_model_exchange_is_refused(built_fmus,
     assert "fmuType 0: this FMU is for co-simulation only" in lines[4]
 
 
-DEBUG_HOST = r'''
-import json, sys
-import fmpy
-from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
-path, configs = sys.argv[1], json.loads(sys.argv[2])
-md = read_model_description(path)
-folder = extract(path)
+DEBUG_HOST = HOST_START + r'''
+configs = json.loads(sys.argv[2])
 vr = {v.name: v.valueReference for v in md.modelVariables}
-log = []
-cb = fmi2CallbackFunctions()
-cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(
-    [status, None if cat is None else cat.decode(), msg.decode()]))
-cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
 out = []
 for logging_on, categories in configs:
     log.clear()
