@@ -138,3 +138,14 @@ def test_the_long_run_scenario_meets_its_expectation(built_fmus, capsys):
     out = capsys.readouterr().out
     assert code == 0, out
     assert "1 scenarios: 1 passed, 0 failed, 0 errors" in out, out
+
+
+def test_a_junit_class_is_the_files_folder_dotted_without_the_root(tmp_path, monkeypatch):
+    """A CI's test view groups cases by class: `scenarios.paper`, relative to the working folder; an
+    absolute path elsewhere keeps its folders without the root (it was `/.tmp...`)."""
+    from tapmuscle.cosim.check import CollectionError, junit_xml
+
+    monkeypatch.chdir(tmp_path)
+    files = [str(tmp_path / "scenarios" / "paper" / "a.toml"), "/elsewhere/rig/b.toml", "c.toml"]
+    root = ET.fromstring(junit_xml([], errors=[CollectionError(f, "bad") for f in files]))
+    assert [c.get("classname") for c in root.iter("testcase")] == ["scenarios.paper", "elsewhere.rig", "scenarios"]

@@ -351,6 +351,9 @@ def test_a_seed_beyond_64_bits_is_named():
     # a run ends on its step grid: 20.03 s would be reported and 20 s run
     ({"duration_s": 20.03, "step_s": 0.1}, "duration_s", r"20.03 s is not a whole number of steps of step_s = 0.1 s "
      r"\(200.3\); the nearest: 20 s"),
+    # a step the file promises but the run never reaches
+    ({"duration_s": 10.0, "load": {"steps": [{"t_s": 12.0, "load_n": 60.0}]}}, "load.steps[0].t_s",
+     "12.0 s is not within the run, which ends at duration_s = 10 s"),
     ({"duration_s": 10.0, "reference": {"amplitude_mm": 1e300}}, "reference.amplitude_mm", r"outside \[0, 400\]"),
     ({"duration_s": 10.0, "reference": {"offset_mm": -1e4}}, "reference.offset_mm", r"outside \[-400, 400\]"),
     ({"duration_s": 10.0, "reference": {"frequency_hz": 50.0}}, "reference.frequency_hz", r"outside \[0, 5\]"),
@@ -479,3 +482,17 @@ def test_python_warnings_during_a_command_are_one_line_like_the_fmus(built_fmus,
     assert "warning: tracking.png: no installed font draws '延迟测试', shown as boxes" in err[0], err
     assert not any("save_figure" in line or "figures.py" in line for line in err), err
     assert warnings.showwarning is shown
+
+
+def test_the_parameter_figure_names_the_estimator_the_run_had(tmp_path):
+    """parameters.png's title: Algorithm 1 with Table 2's box (the default, or one bound of it left), Eq. (4)'s
+    plain RLS once every bound is infinite (an identification at another Ts than 0.1 s gives no box)."""
+    from tapmuscle.cosim.run import estimator_name
+
+    path = tmp_path / "s.toml"
+    no_box = ", ".join(f'"box_{side}.{n}" = {sign}inf' for side, sign in (("lower", "-"), ("upper", "")) for n in
+                       ("a1", "a2", "b1"))
+    for parameters, name in (("", "constrained RLS, Algorithm 1"), ('"box_lower.a1" = -inf', "constrained RLS, Algorithm 1"),
+                             (no_box, "RLS, Eq. (4)")):
+        path.write_text(f"duration_s = 2.0\n[controller]\nparameters = {{ {parameters} }}\n")
+        assert estimator_name(load_scenario(path)) == name

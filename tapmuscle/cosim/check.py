@@ -158,6 +158,18 @@ def result_table(results: Sequence[CheckResult]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _classname(file: str) -> str:
+    """A test case's class: its file's folder, dotted, as a CI's test view groups it (``scenarios.paper``);
+    relative to the working folder where it lies under it, else without the root (no ``/.work...``)."""
+    folder = Path(file).parent
+    if folder.is_absolute():
+        try:
+            folder = folder.relative_to(Path.cwd())
+        except ValueError:
+            folder = folder.relative_to(folder.anchor)
+    return ".".join(part for part in folder.parts if part not in (".", "..")) or "scenarios"
+
+
 def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
               errors: Sequence[CollectionError] = ()) -> str:
     """The results as JUnit XML: a ``testsuite`` per file, a ``testcase`` per scenario run; a missed
@@ -169,15 +181,15 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
     for error in errors:
         suite = ET.SubElement(root, "testsuite", name=error.file, tests="1", failures="0", errors="1",
                               skipped="0", time="0.000")
-        classname = ".".join(Path(error.file).with_suffix("").parent.parts) or "scenarios"
-        case = ET.SubElement(suite, "testcase", classname=classname, name=Path(error.file).name, time="0.000")
+        case = ET.SubElement(suite, "testcase", classname=_classname(error.file), name=Path(error.file).name,
+                             time="0.000")
         ET.SubElement(case, "error", message=error.message[:500], type="ScenarioError").text = error.message
     suites: dict[str, list[CheckResult]] = {}
     for r in results:
         suites.setdefault(r.case.file, []).append(r)
     for file, members in suites.items():
         suite = ET.SubElement(root, "testsuite", name=file)
-        classname = ".".join(Path(file).with_suffix("").parent.parts) or "scenarios"
+        classname = _classname(file)
         for r in members:
             wall = r.run.metrics.get("wall_time_s", 0.0)
             case = ET.SubElement(suite, "testcase", classname=classname, name=r.case.name, time=f"{wall:.3f}")

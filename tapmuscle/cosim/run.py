@@ -15,6 +15,7 @@ leaves the folder as it was, and a figure of an earlier run that this run does n
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -22,6 +23,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from tapmuscle.plots.figures import plot_parameter_convergence, plot_prediction_errors, plot_tracking
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
@@ -52,6 +54,15 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
         # the delay the controller's law ran for at the end (what input_delay_samples = -1 decided)
         **({"input_delay_samples_used": int(cols["input_delay"])} if "input_delay" in cols else {}),
     }
+
+
+def estimator_name(scenario: Scenario) -> str:
+    """What the adaptive controller's estimator is in ``scenario``: Algorithm 1's constrained RLS, or
+    Eq. (4)'s RLS where every bound of the box is infinite (a bound not set is Table 2's)."""
+    bounds = {**{f"box_lower.{n}": v for n, v in TABLE2_LOWER.items()},
+              **{f"box_upper.{n}": v for n, v in TABLE2_UPPER.items()}}
+    bounds.update((k, v) for k, v in scenario.controller.parameters.items() if k in bounds)
+    return "RLS, Eq. (4)" if all(math.isinf(v) for v in bounds.values()) else "constrained RLS, Algorithm 1"
 
 
 def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | Path], *,
@@ -87,6 +98,6 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
             if scenario.method.startswith("ampc") and "theta_a1" in table:
                 history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
                 plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / "parameters.png",
-                                           title=f"{scenario.name}: theta-hat (constrained RLS, Algorithm 1)")
+                                           title=f"{scenario.name}: theta-hat ({estimator_name(scenario)})")
     summary["cols"] = cols
     return summary
