@@ -166,7 +166,7 @@ class IdentificationReport:
             ``model``, ``ts_s`` [s], ``n_samples``, ``theta`` (name -> value, record units),
             ``fit_percent`` (``"1"``, ``"3"``, ``"5"``, ``"sim"``: Table 4's fits [%]),
             ``free_run_diverged``, ``identifiable_combinations``, ``constraint`` (Algorithm 1's box
-            ``lower``/``upper``, ``start_s`` [s], ``n_projections``), ``scaling`` (``l_scale``,
+            ``lower``/``upper``, its finite bounds only, ``start_s`` [s], ``n_projections``), ``scaling`` (``l_scale``,
             ``u_scale``), ``input_delay_samples`` and ``notes``. The histories (``theta_history``,
             the free run) are left out.
         """
@@ -175,7 +175,9 @@ class IdentificationReport:
             "theta": self.theta_dict, "fit_percent": dict(self.fit.percent),
             "free_run_diverged": self.fit.free_run_diverged,
             "identifiable_combinations": self.identifiable,
-            "constraint": {"lower": dict(self.box_lower), "upper": dict(self.box_upper),
+            # an infinite bound is no bound, which the file leaves out (its readers take a missing one so)
+            "constraint": {"lower": {k: v for k, v in self.box_lower.items() if math.isfinite(v)},
+                           "upper": {k: v for k, v in self.box_upper.items() if math.isfinite(v)},
                            "start_s": self.constraint_start_s, "n_projections": self.n_projections},
             "scaling": {"l_scale": self.l_scale, "u_scale": self.u_scale},
             "input_delay_samples": self.input_delay_samples,

@@ -49,6 +49,27 @@ def test_the_file_gives_theta_period_and_box(id_files):
         m05.check_period(0.2)
 
 
+
+def test_a_one_sided_box_goes_from_identify_to_the_controller(id_files, tmp_path):
+    """`identify --box a1=-inf:1.26`: the file keeps the finite bound only (strict JSON, read back as the
+    one-sided box), and a strict-JSON writer's "-inf" / "inf" is read as no bound on that side."""
+    rec = id_files[0.1].parent / "rec0.1.csv"
+    path = tmp_path / "one_sided.json"
+    assert main(["identify", str(rec), "--box", "a1=-inf:1.26", "--json", str(path)]) == 0
+    doc = json.loads(path.read_text(), parse_constant=lambda name: pytest.fail(f"not strict JSON: {name}"))
+    assert doc["constraint"]["lower"] == {} and doc["constraint"]["upper"] == {"a1": 1.26}
+    model = read_identification(path)
+    assert model.box_lower == {} and model.box_upper == {"a1": 1.26}
+    doc["constraint"]["lower"] = {"a1": "-inf", "b1": 0.6}
+    doc["constraint"]["upper"] = {"a1": 1.26, "b1": "inf"}
+    path.write_text(json.dumps(doc))
+    model = read_identification(path)
+    assert model.box_lower == {"b1": 0.6} and model.box_upper == {"a1": 1.26}
+    doc["constraint"]["lower"] = {"a1": "inf"}  # the wrong side's infinity is no bound of any kind
+    path.write_text(json.dumps(doc))
+    with pytest.raises(IdentificationFileError, match=r"'constraint.lower' must map parameter names to numbers"):
+        read_identification(path)
+
 def test_a_small_stroke_in_mm_is_read(id_files, tmp_path):
     """identify normalises by magnitude: a stroke under about 19 mm gets l_scale 0.1, its theta still in
     mm (it was refused as 'other units')."""

@@ -537,10 +537,12 @@ def test_what_the_fmus_warn_of_reaches_the_sweeps_and_checks_reports(built_fmus,
     assert by_name["ts0.1"].find("system-err") is None
 
 
-def test_a_file_named_in_the_grid_is_relative_to_the_sweep_file(tmp_path):
+def test_a_file_named_in_the_grid_is_relative_to_the_sweep_file(tmp_path, monkeypatch):
     """Two bases in two folders, each beside an identification file of its own, and the grid naming
-    "id.json": both runs take the sweep file's neighbour (it was each base's, silently two models under
-    one label)."""
+    "id.json": both runs take the sweep file's neighbour, one model under one label. A run's id is
+    made of the run as written (and the files' values), so the project moved elsewhere resumes."""
+    import shutil
+
     from fmu_controller.preliminary_model import THETA0_44N
     from tapmuscle.io.identification_file import write_identification
 
@@ -550,13 +552,20 @@ def test_a_file_named_in_the_grid_is_relative_to_the_sweep_file(tmp_path):
                              note=folder)
     for folder, duration in (("scen", 5.0), ("scen2", 6.0)):
         (tmp_path / folder / "case.toml").write_text(f'duration_s = {duration}\n[controller]\nmethod = "mpc_ucp"\n')
+    (tmp_path / "sweeps" / "own.fmu").write_bytes(b"not read here")
     sweep = tmp_path / "sweeps" / "s.toml"
     sweep.write_text('base = ["../scen/case.toml", "../scen2/case.toml"]\n[grid]\n"controller.identification" = '
-                     '["id.json"]\n')
-    runs = load_sweep(sweep).runs
+                     '["id.json"]\n"plant.fmu" = ["own.fmu"]\n')
+    monkeypatch.chdir(tmp_path)  # named relative to the working folder, as on a command line
+    runs = load_sweep("sweeps/s.toml").runs
     assert [r.scenario.controller.parameters_file for r in runs] == [tmp_path / "sweeps" / "id.json"] * 2
+    assert [r.scenario.plant.path for r in runs] == [tmp_path / "sweeps" / "own.fmu"] * 2
     assert runs[0].scenario.controller.parameters["theta0.a1"] == THETA0_44N[0]
-    assert runs[0].params == (("controller.identification", "id.json"),)  # the label is what the file says
+    assert runs[0].params == (("controller.identification", "id.json"), ("plant.fmu", "own.fmu"))  # as written
+    for folder in ("sweeps", "scen", "scen2"):
+        shutil.copytree(tmp_path / folder, tmp_path / "moved" / folder)
+    monkeypatch.chdir(tmp_path / "moved" / "sweeps")
+    assert [r.run_id for r in load_sweep("s.toml").runs] == [r.run_id for r in runs]
     sweep.write_text(sweep.read_text().replace('["id.json"]', '["../scen/id.json", "nothing.json"]'))
-    with pytest.raises(ScenarioError, match=r"nothing.json"):
+    with pytest.raises(ScenarioError, match=r"sweeps/nothing.json"):
         load_sweep(sweep)

@@ -292,18 +292,20 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
         for point in itertools.product(*(values for _, values in grid)):
             for sample in samples:
                 params = tuple(zip(fields, point + tuple(sample)))
-                raw = copy.deepcopy(base)
+                raw = copy.deepcopy(base)  # the run as written: what its id is made of
+                resolved = copy.deepcopy(base)  # the same, its files found
                 where = f"{source} [run of {base_name}: {_describe(params)}]"
                 for field, value in params:
-                    if field in _FILE_FIELDS and isinstance(value, str) and folder is not None \
-                            and not Path(value).is_absolute():
-                        # written in the sweep file: relative to it, whatever folder the base is in
-                        value = str(folder / value)
                     try:
                         set_field(raw, field, value)
+                        if field in _FILE_FIELDS and isinstance(value, str) and folder is not None \
+                                and not Path(value).is_absolute():
+                            # written in the sweep file: relative to it, whatever folder the base is in
+                            value = str(folder.resolve() / value)
+                        set_field(resolved, field, value)
                     except ScenarioError as exc:
                         raise ScenarioError(f"{where}: {exc}") from None
-                scenario = parse_scenario(raw, source=where, base=base_folder, default_name=base_name)
+                scenario = parse_scenario(resolved, source=where, base=base_folder, default_name=base_name)
                 hashed = raw
                 for role, key in (("plant", "parameters_file"), ("controller", "identification")):
                     if key in raw.get(role, {}):

@@ -114,11 +114,14 @@ def read_identification(path: str | Path) -> IdentifiedModel:
             raise IdentificationFileError(f"{where}: key 'theta.{name}' must be a finite number, got {v!r}")
     box = data.get("constraint") or {}
     bounds = []
-    for side in ("lower", "upper"):
+    for side, unbounded in (("lower", "-inf"), ("upper", "inf")):
         b = box.get(side) or {}
+        # a strict-JSON writer's "-inf" / "inf" (tapmuscle.io.json_file.json_text) is no bound on that side
+        b = {k: v for k, v in b.items() if v != unbounded} if isinstance(b, dict) else b
         if not isinstance(b, dict) or not all(isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
                                               for k, v in b.items()):
-            raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers, got {b!r}")
+            raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers "
+                                          f"(or \"{unbounded}\": none), got {box.get(side)!r}")
         bounds.append({k: float(v) for k, v in b.items()})
     delay = data.get("input_delay_samples", 0)  # files written before the key: identified without a delay
     if isinstance(delay, float) and delay.is_integer():

@@ -45,6 +45,9 @@ def json_text(document: Any, **options: Any) -> str:
 
     A non-finite float (an unbounded box entry, ``-inf``) is written as the string ``"inf"``,
     ``"-inf"`` or ``"nan"``: Python's ``json`` would write ``Infinity``, which is not JSON (JavaScript's
-    ``JSON.parse`` refuses it, jq turns it into 1.8e308). Python reads the strings back with ``float()``.
+    ``JSON.parse`` refuses it, jq turns it into 1.8e308). ``float()`` reads the strings back, and
+    :func:`~tapmuscle.io.identification_file.read_identification` takes a box's ``"-inf"`` / ``"inf"`` as
+    no bound. (The diagnosis reports, whose numbers are measured values, write null and a note instead:
+    :func:`tapmuscle.diagnosis.report.json_text`.)
     """
     return json.dumps(_finite_or_named(document), allow_nan=False, **options) + "\n"
