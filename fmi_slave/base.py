@@ -158,6 +158,9 @@ class SafeSlave(Fmi2Slave):
         #: a step-mode FMU state restored before initialisation: the initialisation calls a host may still
         #: make before its first step (FMI 2.0's state machine asks for them) keep the restored run
         self._restored_before_init = False
+        #: between fmi2EnterInitializationMode and fmi2ExitInitializationMode: the outputs computed at
+        #: initialisation (``initial = calculated``) are computed from the parameters when read
+        self._in_init_mode = False
         self.variable_meta: dict[str, VariableMeta] = {}
         #: Real variables whose value is the instance attribute of the same name (inputs, outputs without
         #: a getter): read and written through ``self.__dict__`` by :meth:`get_real` / :meth:`set_real`.
@@ -296,6 +299,8 @@ class SafeSlave(Fmi2Slave):
         Other lists go through a value-reference table (no ABC ``isinstance`` per value as pythonfmu's).
         """
         try:  # inline rather than @_to_host: one Python frame less on the hot path
+            if self._in_init_mode:
+                self.refresh_calculated()
             reader = self._readers.get(tuple(vrs))
             if reader is not None:
                 return reader(self.__dict__)
@@ -449,6 +454,7 @@ class SafeSlave(Fmi2Slave):
         if self._initialised:
             self._after_initialisation("fmi2EnterInitializationMode")
             return
+        self._in_init_mode = True
         Fmi2Slave.enter_initialization_mode(self)
 
     def _after_terminate(self, call: str) -> None:
@@ -535,6 +541,7 @@ class SafeSlave(Fmi2Slave):
         return False
 
     def exit_initialization_mode(self) -> None:
+        self._in_init_mode = False
         if self._terminated:
             self._after_terminate("fmi2ExitInitializationMode")
             return
@@ -692,6 +699,12 @@ class SafeSlave(Fmi2Slave):
     def step_numerics(self, t_s: float, dt_s: float) -> None:
         """Validate inputs (raise SlaveInputError naming a bad one), advance, set outputs."""
         raise NotImplementedError  # abstract
+
+    def refresh_calculated(self) -> None:
+        """Set the outputs computed at initialisation (``add_output(calculated_from=...)``) from the
+        parameters as they are now, in Initialization Mode, where FMI 2.0 lets a host read them
+        before fmi2ExitInitializationMode computes them for the run; parameters that cannot make a
+        run leave them as they are (fmi2ExitInitializationMode names the problem)."""
 
     def numerics_state(self) -> Any:
         """JSON-serialisable snapshot of everything dynamic."""

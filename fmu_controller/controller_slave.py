@@ -418,6 +418,9 @@ class AMPCController(SafeSlave):
             self.log(f"Ts = {settings.ts_s:g} s, not the paper's 0.1 s, but " + "; and ".join(stale),
                      status=Fmi2Status.warning)
 
+    def refresh_calculated(self) -> None:
+        self._set_theta([self._par[f"theta0.{n}"] for n in ASYMMETRIC.names])
+
     def _set_theta(self, theta: list[float]) -> None:
         """The ``theta.*`` outputs from the Python floats ``theta`` (Eq. (1) order)."""
         self.__dict__.update(zip(self._theta_outputs, theta))

@@ -102,8 +102,10 @@ class MusclePlant(SafeSlave):
                                    "unsigned 64-bit)")
         self._plant: Plant | None = None
         self._tally = _Tally()
+        self._rest_key: tuple | None = None  # the set-up refresh_calculated computed l and p for
 
-    def initialize_numerics(self) -> None:
+    def _plant_at_rest(self) -> Plant:
+        """The rig the parameters describe, at rest at the start time (SlaveInputError naming a bad one)."""
         try:
             params = PlantParams().with_values(**self._par)
         except ValueError as exc:
@@ -112,9 +114,24 @@ class MusclePlant(SafeSlave):
             seed = join_seed(self._int_par["seed"], self._int_par["seed_high"])
         except ValueError as exc:
             raise SlaveInputError(str(exc)) from None
-        self._plant = Plant(params, seed=seed)
+        plant = Plant(params, seed=seed)
         if self._start_s != 0.0:
-            self._plant.reset(t_s=self._start_s)
+            plant.reset(t_s=self._start_s)
+        return plant
+
+    def refresh_calculated(self) -> None:
+        key = (tuple(self._par.values()), tuple(self._int_par.values()), self._start_s)
+        if key != self._rest_key:  # a host reads the outputs every call: the rig is built once per set-up
+            self._rest_key = key
+            try:
+                rest = self._plant_at_rest().measurement
+            except (SlaveInputError, ValueError):
+                return
+            self.l, self.p = rest.l_mm, rest.p_mpa
+
+    def initialize_numerics(self) -> None:
+        self._plant = self._plant_at_rest()
+        self._refused_input: str | None = None
         try:
             load = self.finite("load", self.load, 0.0, 500.0)
             supply = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
@@ -124,6 +141,7 @@ class MusclePlant(SafeSlave):
             # supply, so the run is then the one with the mended input from the start
             self.log(f"input {exc} at fmi2ExitInitializationMode: the plant starts at rest, and every fmi2DoStep "
                      "returns fmi2Discard until the input is in range", status=Fmi2Status.warning)
+            self._refused_input = str(exc)
         else:
             # the inputs set the load and the supply pressure; the parameters of the same physics are the
             # plant files' (tapmuscle record --params): one set to another value than its input is unused
@@ -157,7 +175,10 @@ class MusclePlant(SafeSlave):
         plant = self._plant
         effects = ", ".join(e.name.replace("_", " ") for e in plant.effects) or "none"
         sub_step = "compiled" if COMPILED and not COMPILED_FOR_ANOTHER_PYTHON else "Python"
-        return (f"load {plant.load_n:g} N, supply pressure {plant.supply_pressure_mpa:g} MPa (the inputs); "
+        inputs = (f"input {self._refused_input} (refused: fmi2Discard from each step until it is in range)"
+                  if self._refused_input else
+                  f"load {plant.load_n:g} N, supply pressure {plant.supply_pressure_mpa:g} MPa (the inputs)")
+        return (f"{inputs}; "
                 f"left-out effects switched on: {effects}; integrator sub-step: {sub_step}; "
                 + super().setup_summary())
 

@@ -353,7 +353,9 @@ def test_a_seed_beyond_64_bits_is_named():
      r"\(200.3\); the nearest: 20 s"),
     # a step the file promises but the run never reaches
     ({"duration_s": 10.0, "load": {"steps": [{"t_s": 12.0, "load_n": 60.0}]}}, "load.steps[0].t_s",
-     "12.0 s is not within the run, which ends at duration_s = 10 s"),
+     "12.0 s comes after the start of the run's last step, 9.9 s"),
+    ({"duration_s": 10.0, "supply": {"steps": [{"t_s": 9.95, "pressure_mpa": 0.2}]}}, "supply.steps[0].t_s",
+     r"9.95 s comes after .* \(duration_s - step_s\): it would never act"),
     ({"duration_s": 10.0, "reference": {"amplitude_mm": 1e300}}, "reference.amplitude_mm", r"outside \[0, 400\]"),
     ({"duration_s": 10.0, "reference": {"offset_mm": -1e4}}, "reference.offset_mm", r"outside \[-400, 400\]"),
     ({"duration_s": 10.0, "reference": {"frequency_hz": 50.0}}, "reference.frequency_hz", r"outside \[0, 5\]"),

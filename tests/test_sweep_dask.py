@@ -185,6 +185,12 @@ def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
     with pytest.raises(ClusterError) as err:
         check_workers(Client())
     said = str(err.value)
+
+    class Empty:
+        def run(self, *args, **kwargs):
+            return {}
+    with pytest.raises(ClusterError, match="the cluster has no worker"):
+        check_workers(Empty())
     assert "worker tcp://b:2 cannot import tapmuscle's run code: ModuleNotFoundError: No module named 'osqp'" in said
     assert "worker tcp://c:3 has tapmuscle 0.0.1, the client tapmuscle " in said and "tcp://a:1" not in said
 

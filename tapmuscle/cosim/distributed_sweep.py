@@ -312,14 +312,19 @@ def check_workers(client: Any) -> None:
 
     # builtins and the standard library's functions: they reach a worker whatever it can import
     imported = client.run(exec, "import tapmuscle.cosim.distributed_sweep", on_error="return")
+    if not imported:  # the runs would wait for ever
+        raise ClusterError("the cluster has no worker: start one (dask worker SCHEDULER_ADDRESS --nthreads 1)")
     versions = client.run(importlib.metadata.version, "tapmuscle", on_error="return")
-    mine = importlib.metadata.version("tapmuscle")
+    try:
+        mine = importlib.metadata.version("tapmuscle")
+    except importlib.metadata.PackageNotFoundError:  # a checkout on sys.path, not installed: no version to hold
+        mine = None
     problems = []
     for worker in sorted(imported):
         error, version = imported[worker], versions.get(worker)
         if isinstance(error, BaseException):
             problems.append(f"worker {worker} cannot import tapmuscle's run code: {type(error).__name__}: {error}")
-        elif isinstance(version, BaseException) or version != mine:
+        elif mine is not None and (isinstance(version, BaseException) or version != mine):
             has = f"{type(version).__name__}: {version}" if isinstance(version, BaseException) else f"tapmuscle {version}"
             problems.append(f"worker {worker} has {has}, the client tapmuscle {mine}")
     if problems:
@@ -347,21 +352,17 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         finally:
             client.close()
         return
-    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms).
-    # The worker processes ignore Ctrl-C (inherited SIG_IGN): the client stops them, and they print no
-    # tracebacks of their own over its message.
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if _main_thread() else None
-    try:
-        with dask.config.set({"distributed.worker.profile.enabled": False}):
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
-                                   silence_logs=logging.ERROR)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms)
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
+                               silence_logs=logging.ERROR)
     try:
         client = Client(cluster)
         try:
+            # a terminal's Ctrl-C reaches these worker processes too (one process group): they ignore
+            # it, also once a nanny restarts one, and the client stops them and says what it kept
+            client.register_plugin(_ignore_interrupts())
             yield client
         finally:
             client.close()
@@ -369,5 +370,16 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         cluster.close()
 
 
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
+def _ignore_interrupts() -> Any:
+    """A worker plugin that makes its worker process ignore SIGINT (set in the process's main thread,
+    where the worker runs; made here, as ``distributed`` is imported only for a cluster)."""
+    from distributed import WorkerPlugin
+
+    class IgnoreInterrupts(WorkerPlugin):
+        name = "tapmuscle-ignore-interrupts"
+
+        def setup(self, worker: Any) -> None:
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return IgnoreInterrupts()

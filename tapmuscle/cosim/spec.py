@@ -270,8 +270,10 @@ class _Reader:
         return p
 
     def profile(self, initial_key: str, value_key: str, default: float, lo: float, hi: float, *,
-                end_s: float) -> Profile:
-        """The initial value and the steps, each at a time within the run (before ``end_s`` [s])."""
+                last_step_s: float) -> Profile:
+        """The initial value and the steps, each at a time a step of the run can act on: at or before
+        ``last_step_s`` [s], the start of the run's last step (a step acts from the first communication
+        point at or after its time)."""
         initial = self.number(initial_key, default, lo=lo, hi=hi)
         raw = self.table.get("steps", [])
         if not isinstance(raw, list):
@@ -285,8 +287,9 @@ class _Reader:
             t = r.number("t_s", lo=0.0)
             if t <= last:
                 raise r.error("t_s", f"{t!r} must be later than the previous step ({last!r})")
-            if t >= end_s:  # never applied: a step the file promises must act
-                raise r.error("t_s", f"{t!r} s is not within the run, which ends at duration_s = {end_s:g} s")
+            if t > last_step_s + 1e-9:  # a step the file promises must act
+                raise r.error("t_s", f"{t!r} s comes after the start of the run's last step, {last_step_s:.12g} s "
+                                     "(duration_s - step_s): it would never act")
             steps.append((t, r.number(value_key, lo=lo, hi=hi)))
             last = t
         return Profile(initial, tuple(steps))
@@ -404,10 +407,10 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
 
     load_r = top.sub("load")
     load_r.check_keys({"initial_n", "steps"})
-    load = load_r.profile("initial_n", "load_n", 44.0, 0.0, 500.0, end_s=duration)
+    load = load_r.profile("initial_n", "load_n", 44.0, 0.0, 500.0, last_step_s=(n - 2) * step)
     supply_r = top.sub("supply")
     supply_r.check_keys({"initial_mpa", "steps"})
-    supply = supply_r.profile("initial_mpa", "pressure_mpa", 0.25, 0.0, 1.0, end_s=duration)
+    supply = supply_r.profile("initial_mpa", "pressure_mpa", 0.25, 0.0, 1.0, last_step_s=(n - 2) * step)
     for key, profile, where in (("load.load_n", load, "[load] initial_n (and steps)"),
                                 ("supply.supply_pressure_mpa", supply, "[supply] initial_mpa (and steps)")):
         # the FMU's inputs load and supply_pressure set them (a parameters_file's are left out); the
