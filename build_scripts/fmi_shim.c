@@ -309,10 +309,11 @@ FMI2_Export fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size
         while (j < N_KNOWN && !(cats[i] && !strcmp(cats[i], KNOWN_CATEGORIES[j]))) j++;
         if (j == N_KNOWN) {
             /* a warning, not an error: a host's logging set-up should not stop its run */
-            char text[400];
-            snprintf(text, sizeof text, "fmi2SetDebugLogging: category %.100s is not one of this FMU's (logEvents, "
-                     "logStatusWarning, logStatusDiscard, logStatusError, logStatusFatal, logAll): ignored",
-                     cats[i] ? cats[i] : "(NULL)");
+            char text[600], known[200] = "";
+            for (size_t k = 0; k < N_KNOWN; k++)
+                snprintf(known + strlen(known), sizeof known - strlen(known), "%s%s", k ? ", " : "", KNOWN_CATEGORIES[k]);
+            snprintf(text, sizeof text, "fmi2SetDebugLogging: category %.100s is not one of this FMU's (%s): ignored",
+                     cats[i] ? cats[i] : "(NULL)", known);
             to_host(s, s->name, fmi2Warning, "logStatusWarning", text);
             status = fmi2Warning;
         } else if (!strcmp(KNOWN_CATEGORIES[j], "logAll")) {

@@ -493,7 +493,7 @@ class SafeSlave(Fmi2Slave):
 
     def changed_parameters(self) -> str:
         """``name = value, ...`` of the parameters set away from their start values ("none" if none is)."""
-        changed = [f"{name} = {value:g}" for table in (self._par, self._int_par) for name, value in table.items()
+        changed = [f"{name} = {value!r}" for table in (self._par, self._int_par) for name, value in table.items()
                    if value != self._start_values[name]]
         return ", ".join(changed) or "none"
 

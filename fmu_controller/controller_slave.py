@@ -521,7 +521,8 @@ class AMPCController(SafeSlave):
             what = {0: "the undelayed law from now (a sequential master)",
                     1: "the delayed law it started with (a parallel master, or a rig's delay of about a sample)"}
             # any other delay than the delayed law's 1 restarts the estimator with the start-up mode's warm-up
-            restart = ("; the adaptive estimate starts again from theta0, with the start-up mode's warm-up"
+            restart = ("; the adaptive estimate starts again from theta0"
+                       + (", with the start-up mode's warm-up" if ctrl.settings.startup_s > 0 else "")
                        if d != 1 and ctrl.settings.adaptive else "")
             self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {d} samples: "
                        f"{what.get(d, 'a rig transport delay as well, the law on from now')}{restart}")
@@ -585,7 +586,8 @@ class AMPCController(SafeSlave):
             self._jump_ks = None if jumps is None else [int(k) for k in jumps]
             self._swing_ks = None if swings is None else [int(k) for k in swings]
             self._last_limit = int(last_limit)
-            self._tally = _Tally(*state.get("tally", ()))  # a state of a build without it: starts over
+            # a state of a build without the tally: counted from here, and the summary says so
+            self._tally = _Tally(*state["tally"]) if "tally" in state else _Tally(partial=True)
             self._show_input_delay()
 
 
@@ -593,9 +595,10 @@ class _Tally:
     """What the controller's run summary says: samples, samples at an input limit, prediction errors."""
 
     def __init__(self, samples: int = 0, saturated: int = 0, errors: int = 0, sum_squares_mm2: float = 0.0,
-                 largest_mm: float = 0.0) -> None:
+                 largest_mm: float = 0.0, partial: bool = False) -> None:
         self.samples, self.saturated, self.errors = int(samples), int(saturated), int(errors)
         self.sum_squares_mm2, self.largest_mm = float(sum_squares_mm2), float(largest_mm)
+        self.partial = bool(partial)  # counted from a restored state that carried no tally
 
     def add(self, step: ControlStep, *, first: bool) -> None:
         self.samples += 1
@@ -607,12 +610,12 @@ class _Tally:
             self.largest_mm = max(self.largest_mm, abs(e))
 
     def as_list(self) -> list:
-        return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm]
+        return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm, self.partial]
 
     def __str__(self) -> str:
         if not self.samples:
             return "no sample"
         rms = math.sqrt(self.sum_squares_mm2 / self.errors) if self.errors else 0.0
-        return (f"{self.samples} samples; an input limit (0-10 V or Eq. 19) active in {self.saturated} "
+        return (f"{self.samples} samples{' since a restored state' if self.partial else ''}; an input limit (0-10 V or Eq. 19) active in {self.saturated} "
                 f"({100.0 * self.saturated / self.samples:.3g} %); one-step prediction error l(k) - l(k|k-1): RMS "
                 f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm")

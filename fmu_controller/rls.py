@@ -495,6 +495,7 @@ class ConstrainedRLS:
         total = _dot(P_new.reshape(-1), self._ones_nn) + sum(th)
         if not (math.isfinite(total) and min(P_new.diagonal().tolist()) > 0.0):
             return self._covariance_lost(f"min diag {P_new.diagonal().min()!r}")
+        ceilings = self._n_ceilings  # an update dropped below is not counted as clipped either
         if self._ceiling and lam != 1.0:  # a valid P only; with lambda = 1, P only shrinks from P(-1)
             P_new = self._limit(P_new)
 
@@ -504,6 +505,7 @@ class ConstrainedRLS:
             try:
                 theta = self._projector.project(theta, P_new, th, self._projector.hint_from(self._theta))
             except np.linalg.LinAlgError:
+                self._n_ceilings = ceilings
                 return self._covariance_lost("the projection's block of P is singular")
             self._n_projections += 1
         self._k += 1

@@ -193,18 +193,20 @@ class MusclePlant(SafeSlave):
     def restore_numerics_state(self, state) -> None:
         if state is not None:
             state = dict(state)
-            tally = state.pop("fmu_tally", None)  # a state of a build without it: the tally starts over
+            # a state of a build without the tally: counted from here, and the summary says so
+            tally = state.pop("fmu_tally", None)
             self._plant.set_state(state)
-            self._tally = _Tally(*tally) if tally else _Tally()
+            self._tally = _Tally(*tally) if tally else _Tally(partial=tally is None)
 
 
 class _Tally:
     """What the plant's run summary says: steps, ranges of the readings, saturated commands."""
 
     def __init__(self, steps: int = 0, l_lo: float = math.inf, l_hi: float = -math.inf, p_lo: float = math.inf,
-                 p_hi: float = -math.inf, saturated: int = 0) -> None:
+                 p_hi: float = -math.inf, saturated: int = 0, partial: bool = False) -> None:
         self.steps, self.saturated = int(steps), int(saturated)
         self.l_lo, self.l_hi, self.p_lo, self.p_hi = float(l_lo), float(l_hi), float(p_lo), float(p_hi)
+        self.partial = bool(partial)  # counted from a restored state that carried no tally
 
     def add(self, u_v: float, l_mm: float, p_mpa: float) -> None:
         self.steps += 1
@@ -214,11 +216,12 @@ class _Tally:
 
     def as_list(self) -> list:
         """Plain data for an FMU state (strict JSON: no infinities before the first step)."""
-        return [self.steps, self.l_lo, self.l_hi, self.p_lo, self.p_hi, self.saturated] if self.steps else []
+        return [self.steps, self.l_lo, self.l_hi, self.p_lo, self.p_hi, self.saturated, self.partial] if self.steps \
+            else []
 
     def __str__(self) -> str:
         if not self.steps:
             return "no step"
-        return (f"{self.steps} steps; readings l {self.l_lo:.4g}..{self.l_hi:.4g} mm, p {self.p_lo:.4g}..{self.p_hi:.4g} "
+        return (f"{self.steps} steps{' since a restored state' if self.partial else ''}; readings l {self.l_lo:.4g}..{self.l_hi:.4g} mm, p {self.p_lo:.4g}..{self.p_hi:.4g} "
                 f"MPa; command outside the amplifier's 0..10 V (saturated there) in {self.saturated} steps")
 

@@ -142,7 +142,7 @@ def test_the_long_run_scenario_meets_its_expectation(built_fmus, capsys):
 
 def test_a_junit_class_is_the_files_folder_dotted_without_the_root(tmp_path, monkeypatch):
     """A CI's test view groups cases by class: `scenarios.paper`, relative to the working folder; an
-    absolute path elsewhere keeps its folders without the root (it was `/.tmp...`)."""
+    absolute path elsewhere keeps its folders without the root (no `/.tmp...`)."""
     from tapmuscle.cosim.check import CollectionError, junit_xml
 
     monkeypatch.chdir(tmp_path)

@@ -471,3 +471,15 @@ def test_logging_on_passes_the_events_and_fmi2SetDebugLogging_picks_the_categori
     assert "u = 12.0 is outside" in runs[1]["log"][1][2]  # the Discard names its input
     # the refused step is not counted: two steps of 0.1 s
     assert summary.startswith("fmi2Terminate at t = 0.2 s: 0.2 s from t = 0 s: 2 steps; readings l ")
+
+
+def test_the_loaders_known_categories_are_the_ones_the_fmus_declare(built_fmus):
+    """The shim checks fmi2SetDebugLogging's categories against its own list: the model descriptions'."""
+    import re
+
+    source = (Path(__file__).parents[1] / "build_scripts" / "fmi_shim.c").read_text()
+    known = re.findall(r'"(\w+)"', re.search(r"KNOWN_CATEGORIES\[\] = \{(.*?)\};", source, re.S).group(1))
+    for path in built_fmus.values():
+        with zipfile.ZipFile(path) as z:
+            declared = re.findall(r'<Category name="(\w+)"', z.read("modelDescription.xml").decode())
+        assert sorted(known) == sorted(declared)

@@ -47,7 +47,7 @@ def test_a_closed_loop_logs_its_set_up_its_changes_of_mode_and_a_summary_that_ag
     (c_setup,), (p_setup,) = _events(ctrl), _events(plant)
     assert c_setup.startswith("initialised at t = 0 s: method 4 ampc_servo, Ts = 0.1 s, servo.Hp = 5, servo.Hu = 5; "
                               "input delay decided from the data (input_delay_samples = -1); start-up mode 12 s;")
-    assert c_setup.endswith("parameters away from their start values: servo.R = 20")
+    assert c_setup.endswith("parameters away from their start values: servo.R = 20.0")
     # delay.delay_s = 0 is its start value: not listed, and no transport delay is switched on
     assert "left-out effects switched on: none" in p_setup
     assert p_setup.endswith("parameters away from their start values: friction.rate_gain = 1.1")
@@ -116,3 +116,19 @@ def test_a_refused_input_is_what_the_set_up_says_not_the_default():
     (setup,) = _events(plant)
     assert setup.startswith("initialised at t = 0 s: input load = 600") and "(refused: fmi2Discard" in setup, setup
     assert "44 N" not in setup
+
+
+def test_a_state_of_a_build_without_the_tally_counts_from_the_restore_and_says_so():
+    ctrl, plant = _start(AMPCController(instance_name="c")), _start(MusclePlant(instance_name="p"))
+    _loop(ctrl, plant, 0, 30, [])
+    states = ctrl._get_fmu_state(), plant._get_fmu_state()
+    del states[0]["numerics"]["tally"], states[1]["numerics"]["fmu_tally"]  # as an earlier build saved them
+    ctrl, plant = AMPCController(instance_name="c2"), MusclePlant(instance_name="p2")
+    ctrl._set_fmu_state(states[0])
+    plant._set_fmu_state(states[1])
+    _loop(ctrl, plant, 30, 40, [])
+    _events(ctrl), _events(plant)
+    ctrl.terminate()
+    plant.terminate()
+    (c_end,), (p_end,) = _events(ctrl), _events(plant)
+    assert ": 10 samples since a restored state; " in c_end and ": 10 steps since a restored state; " in p_end

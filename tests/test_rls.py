@@ -198,8 +198,8 @@ def test_covariance_loss_reset_and_raise(numpy_errors):
 @pytest.mark.parametrize("rule", ["reset", "raise"])
 def test_a_covariance_too_singular_to_weigh_the_projection_is_a_covariance_loss(rule):
     """Forgetting without the ceiling winds P up until the block of P that Algorithm 1's projection
-    (Eq. 6) inverts is singular in floating point (a closed loop with forgetting = 0.95 failed there
-    with numpy's LinAlgError): that is the covariance lost, handled by the documented rule."""
+    (Eq. 6) inverts is singular in floating point (a closed loop with forgetting = 0.95 gets there):
+    that is the covariance lost, handled by the documented rule, not numpy's LinAlgError."""
     rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=2.0, on_covariance_loss=rule, constraint_start_s=0.0))
     P = np.eye(15)
     P[:3, :3] = 1.0  # a1, a2, b1 (the boxed ones) move together only: their block has rank 1

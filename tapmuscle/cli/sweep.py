@@ -156,9 +156,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
             try:
                 tasks.append(make_task(str(i), case.scenario, fmus, files))
             except ScenarioError as exc:
-                bad.setdefault((case.file, str(exc)), CollectionError(case.file, str(exc)))
+                said = bad.setdefault(case.file, [])
+                if str(exc) not in said:
+                    said.append(str(exc))
         if bad:
-            errors = list(bad.values())
+            errors = [CollectionError(file, "; ".join(said)) for file, said in bad.items()]
             if args.junit:
                 atomic_write_text(args.junit, junit_xml([], errors=errors))
             for error in errors[:-1]:

@@ -29,6 +29,7 @@ import signal
 import socket
 import tempfile
 import threading
+import time
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -270,11 +271,12 @@ def probe_scheduler(address: str, wait_s: float) -> None:
     if not host or not port.isdigit():
         raise ClusterError(f"{address}: not a scheduler address tcp://HOST:PORT")
     host = host.strip("[]")
+    deadline = time.monotonic() + wait_s  # connecting and the greeting together
     try:
         with socket.create_connection((host, int(port)), timeout=wait_s) as sock:
-            sock.settimeout(wait_s)
             greeting = b""
             while len(greeting) < 16:
+                sock.settimeout(max(deadline - time.monotonic(), 1e-3))
                 chunk = sock.recv(16 - len(greeting))
                 if not chunk:
                     break
@@ -289,13 +291,14 @@ def probe_scheduler(address: str, wait_s: float) -> None:
                            "default)") from None
     except OSError as exc:
         raise ClusterError(f"{address}: cannot connect: {exc}") from None
-    if greeting.startswith(b"HTTP") or greeting[:1].isalpha():
+    # a frame: its length (little-endian 64 bits) and its number of parts, both small
+    if len(greeting) == 16 and 0 < int.from_bytes(greeting[:8], "little") < 1 << 30 \
+            and 0 < int.from_bytes(greeting[8:16], "little") < 1 << 16:
+        return
+    if greeting.startswith(b"HTTP") or greeting[:4].isascii() and greeting[:4].isalpha():
         raise ClusterError(f"{address}: an HTTP server answers there, not a Dask scheduler (the dashboard's port, "
                            f"or a proxy: {greeting[:16]!r}); the scheduler's own port is 8786 by default")
-    # a frame: its length (little-endian 64 bits) and its number of parts, both small
-    if len(greeting) < 16 or not (0 < int.from_bytes(greeting[:8], "little") < 1 << 30
-                                  and 0 < int.from_bytes(greeting[8:16], "little") < 1 << 16):
-        raise ClusterError(f"{address}: the answer is not a Dask scheduler's ({greeting[:16]!r})")
+    raise ClusterError(f"{address}: the answer is not a Dask scheduler's ({greeting[:16]!r})")
 
 
 def check_workers(client: Any) -> None:
