@@ -616,6 +616,7 @@ class _Tally:
         if not self.samples:
             return "no sample"
         rms = math.sqrt(self.sum_squares_mm2 / self.errors) if self.errors else 0.0
-        return (f"{self.samples} samples{' since a restored state' if self.partial else ''}; an input limit (0-10 V or Eq. 19) active in {self.saturated} "
+        since = " since a restored state" if self.partial else ""
+        return (f"{self.samples} samples{since}; an input limit (0-10 V or Eq. 19) active in {self.saturated} "
                 f"({100.0 * self.saturated / self.samples:.3g} %); one-step prediction error l(k) - l(k|k-1): RMS "
                 f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm")

@@ -222,6 +222,7 @@ class _Tally:
     def __str__(self) -> str:
         if not self.steps:
             return "no step"
-        return (f"{self.steps} steps{' since a restored state' if self.partial else ''}; readings l {self.l_lo:.4g}..{self.l_hi:.4g} mm, p {self.p_lo:.4g}..{self.p_hi:.4g} "
+        since = " since a restored state" if self.partial else ""
+        return (f"{self.steps} steps{since}; readings l {self.l_lo:.4g}..{self.l_hi:.4g} mm, p {self.p_lo:.4g}..{self.p_hi:.4g} "
                 f"MPa; command outside the amplifier's 0..10 V (saturated there) in {self.saturated} steps")
 
