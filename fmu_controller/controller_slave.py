@@ -317,6 +317,7 @@ class AMPCController(SafeSlave):
         self.samples = 0
         self.input_delay = -1
         self._tally = _Tally()
+        self._modes_open = True  # the start-up's changes of mode still to come (_say_changes)
 
     def _reset_monitors(self) -> None:
         """What the log has said of this run: nothing yet."""
@@ -465,7 +466,8 @@ class AMPCController(SafeSlave):
             # at the first step, not at initialisation, where a warning means rejected parameters to a host
             self._warn_paper_defaults_off_period(self._controller.settings, self._controller.theta0.tolist())
         ctrl = self._controller
-        before = (ctrl.input_delay_decision, ctrl.law_on_theta0, ctrl.in_startup)
+        # the modes change only until the start-up is over (the delay decided by then): not looked at after
+        before = (ctrl.input_delay_decision, ctrl.law_on_theta0, True) if self._modes_open else None
         step: ControlStep = ctrl.step(l, preview)
         if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
@@ -498,8 +500,20 @@ class AMPCController(SafeSlave):
                      "rig's?), or a large reference step came during the start-up. The law takes the adaptive estimate "
                      "from the next sample, as with startup_s = 0 (startup_guard = 1; docs/control.md, \"Start-up\")",
                      status=Fmi2Status.warning)
-        self._say_changes(t_s, before)
-        self._tally.add(step, first=self._k == 0)
+        if before is not None:
+            self._say_changes(t_s, before)
+            self._modes_open = ctrl.in_startup
+        # the run summary's tally, inline: this runs every sample (the first has no prediction to compare with)
+        tally = self._tally
+        tally.samples += 1
+        if step.saturated:
+            tally.saturated += 1
+        if self._k:
+            e = step.prediction_error_mm
+            tally.errors += 1
+            tally.sum_squares_mm2 += e * e
+            if abs(e) > tally.largest_mm:
+                tally.largest_mm = abs(e)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
         self._watch_swings(t_s, step.u_v)
@@ -588,26 +602,21 @@ class AMPCController(SafeSlave):
             self._last_limit = int(last_limit)
             # a state of a build without the tally: counted from here, and the summary says so
             self._tally = _Tally(*state["tally"]) if "tally" in state else _Tally(partial=True)
+            self._modes_open = self._controller.in_startup  # as after the restored sample
             self._show_input_delay()
 
 
 class _Tally:
-    """What the controller's run summary says: samples, samples at an input limit, prediction errors."""
+    """What the controller's run summary says: samples, samples at an input limit, prediction errors
+    (counted in :meth:`AMPCController.step_numerics`)."""
+
+    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial")
 
     def __init__(self, samples: int = 0, saturated: int = 0, errors: int = 0, sum_squares_mm2: float = 0.0,
                  largest_mm: float = 0.0, partial: bool = False) -> None:
         self.samples, self.saturated, self.errors = int(samples), int(saturated), int(errors)
         self.sum_squares_mm2, self.largest_mm = float(sum_squares_mm2), float(largest_mm)
         self.partial = bool(partial)  # counted from a restored state that carried no tally
-
-    def add(self, step: ControlStep, *, first: bool) -> None:
-        self.samples += 1
-        self.saturated += bool(step.saturated)
-        if not first:  # the first sample has no prediction to compare with
-            e = step.prediction_error_mm
-            self.errors += 1
-            self.sum_squares_mm2 += e * e
-            self.largest_mm = max(self.largest_mm, abs(e))
 
     def as_list(self) -> list:
         return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm, self.partial]

@@ -169,7 +169,19 @@ class MusclePlant(SafeSlave):
             plant.update(load_n=load, supply_pressure_mpa=ps)
         m = plant.step(u, dt_s)
         self.l, self.p = m.l_mm, m.p_mpa
-        self._tally.add(u, m.l_mm, m.p_mpa)
+        # the run summary's tally, inline: this runs every step
+        tally, l, p = self._tally, m.l_mm, m.p_mpa
+        tally.steps += 1
+        if not 0.0 <= u <= 10.0:
+            tally.saturated += 1
+        if l < tally.l_lo:
+            tally.l_lo = l
+        if l > tally.l_hi:
+            tally.l_hi = l
+        if p < tally.p_lo:
+            tally.p_lo = p
+        if p > tally.p_hi:
+            tally.p_hi = p
 
     def setup_summary(self) -> str:
         plant = self._plant
@@ -200,19 +212,16 @@ class MusclePlant(SafeSlave):
 
 
 class _Tally:
-    """What the plant's run summary says: steps, ranges of the readings, saturated commands."""
+    """What the plant's run summary says: steps, ranges of the readings, saturated commands (counted in
+    :meth:`MusclePlant.step_numerics`)."""
+
+    __slots__ = ("steps", "l_lo", "l_hi", "p_lo", "p_hi", "saturated", "partial")
 
     def __init__(self, steps: int = 0, l_lo: float = math.inf, l_hi: float = -math.inf, p_lo: float = math.inf,
                  p_hi: float = -math.inf, saturated: int = 0, partial: bool = False) -> None:
         self.steps, self.saturated = int(steps), int(saturated)
         self.l_lo, self.l_hi, self.p_lo, self.p_hi = float(l_lo), float(l_hi), float(p_lo), float(p_hi)
         self.partial = bool(partial)  # counted from a restored state that carried no tally
-
-    def add(self, u_v: float, l_mm: float, p_mpa: float) -> None:
-        self.steps += 1
-        self.saturated += not 0.0 <= u_v <= 10.0
-        self.l_lo, self.l_hi = min(self.l_lo, l_mm), max(self.l_hi, l_mm)
-        self.p_lo, self.p_hi = min(self.p_lo, p_mpa), max(self.p_hi, p_mpa)
 
     def as_list(self) -> list:
         """Plain data for an FMU state (strict JSON: no infinities before the first step)."""
