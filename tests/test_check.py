@@ -149,3 +149,17 @@ def test_a_junit_class_is_the_files_folder_dotted_without_the_root(tmp_path, mon
     files = [str(tmp_path / "scenarios" / "paper" / "a.toml"), "/elsewhere/rig/b.toml", "c.toml"]
     root = ET.fromstring(junit_xml([], errors=[CollectionError(f, "bad") for f in files]))
     assert [c.get("classname") for c in root.iter("testcase")] == ["scenarios.paper", "elsewhere.rig", "scenarios"]
+
+
+def test_cases_of_one_name_in_two_files_are_told_apart_in_the_table():
+    from tapmuscle.cosim import parse_scenario
+    from tapmuscle.cosim.check import CheckCase, CheckResult, result_table
+    from tapmuscle.cosim.distributed_sweep import RunResult
+    from tapmuscle.cosim.expect import Outcome
+
+    scenario = parse_scenario({"duration_s": 2.0}, source="x")
+    results = [CheckResult(CheckCase(file, name, scenario), RunResult("0", "ok", {"mae_mm": 0.5}), Outcome((), ("b",)))
+               for file, name in (("a/rig.toml", "rig"), ("b/rig.toml", "rig"), ("c.toml", "other"))]
+    lines = result_table(results).splitlines()
+    assert "rig (a/rig.toml)" in lines[1] and "rig (b/rig.toml)" in lines[2]
+    assert lines[3].split()[1] == "other"  # a name of its own stands alone

@@ -138,10 +138,14 @@ def evaluate(case: CheckCase, run: RunResult) -> CheckResult:
 
 
 def result_table(results: Sequence[CheckResult]) -> str:
-    """A plain-text pass/fail table, one line per case, and a count."""
-    width = max([len(r.case.name) for r in results] + [8])
+    """A plain-text pass/fail table, one line per case, and a count. A name that several files give
+    their cases is followed by the file, which tells them apart."""
+    shared = {name for name in (r.case.name for r in results)
+              if len({r.case.file for r in results if r.case.name == name}) > 1}
+    names = [f"{r.case.name} ({r.case.file})" if r.case.name in shared else r.case.name for r in results]
+    width = max([len(n) for n in names] + [8])
     lines = [f"{'result':<6}  {'scenario':<{width}}  {'method':<10}  {'mae_mm':>7}  details"]
-    for r in results:
+    for r, name in zip(results, names):
         mae = f"{r.run.metrics['mae_mm']:7.3f}" if "mae_mm" in r.run.metrics else f"{'-':>7}"
         if r.status == "error":
             detail = r.run.error
@@ -151,7 +155,7 @@ def result_table(results: Sequence[CheckResult]) -> str:
             detail = f"{len(r.outcome.checked)} bounds met"
         if r.run.fmu_warnings:
             detail += f" ({len(r.run.fmu_warnings)} FMU warnings: {r.run.fmu_warnings[0]})"
-        lines.append(f"{r.status.upper():<6}  {r.case.name:<{width}}  {r.case.scenario.method:<10}  {mae}  {detail}")
+        lines.append(f"{r.status.upper():<6}  {name:<{width}}  {r.case.scenario.method:<10}  {mae}  {detail}")
     counts = {s: sum(r.status == s for r in results) for s in ("pass", "fail", "error")}
     lines.append(f"{len(results)} scenarios: {counts['pass']} passed, {counts['fail']} failed, "
                  f"{counts['error']} errors")
