@@ -201,6 +201,7 @@ def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
     assert summary["mae_mm"] == pytest.approx(eq21_error_mm(rec.columns["r_mm"], rec.columns["l_mm"], (20, 120)), rel=1e-6)  # CSV rounding
     assert 0.0 < summary["mae_mm"] < 2.0
     assert summary["fmus"]["AMPCController"]["guid"] and summary["real_time_factor"] > 1
+    assert set(summary["scenario_spec"]["reference"]) == {"kind", "offset_mm", "amplitude_mm", "frequency_hz"}
     assert rec.columns["load_n"][59] == 68.0 and rec.columns["load_n"][60] == 44.0
     for png in ("tracking.png", "prediction_error.png", "parameters.png"):
         assert (out / png).stat().st_size > 10_000
@@ -213,6 +214,9 @@ def test_external_step_reference_is_tracked(built_fmus):
                                       "preview": "advanced"}}, source="t")
     cols = co_simulate(s, built_fmus)
     assert cols["r_mm"][99] == 20.0 and cols["r_mm"][100] == 50.0 and cols["r_mm"][200] == 30.0
+    # summary.json's scenario: a steps reference with the fields it has, no sine's
+    from tapmuscle.cosim.run import summarise
+    assert set(summarise(s, cols, built_fmus)["scenario_spec"]["reference"]) == {"kind", "steps", "preview"}
     for k in (95, 195, 295):  # settled on each level before the next step
         assert abs(cols["l_mm"][k] - cols["r_mm"][k]) < 1.0
     held = co_simulate(parse_scenario({**{"duration_s": 30.0, "evaluation_samples": [0, 300]},

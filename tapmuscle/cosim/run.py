@@ -40,6 +40,16 @@ __all__ = ["RUN_FILES", "run_scenario", "summarise"]
 RUN_FILES = ("result.csv", "summary.json", "tracking.png", "prediction_error.png", "parameters.png")
 
 
+def _spec(scenario: Scenario) -> dict[str, Any]:
+    """The scenario as plain data, its reference with the fields of its kind only (a steps reference
+    has no sine offset, amplitude, frequency; a sine none of the steps' fields)."""
+    spec = json.loads(json.dumps(asdict(scenario), default=str))
+    unused = ("steps", "preview") if scenario.reference.kind == "sine" else ("offset_mm", "amplitude_mm", "frequency_hz")
+    for key in unused:
+        spec["reference"].pop(key, None)
+    return spec
+
+
 def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[str, Path]) -> dict[str, Any]:
     """The ``summary.json`` document of a run."""
     k0, k1 = scenario.evaluation_samples
@@ -50,7 +60,7 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
         # the window's times as decimals: 10.1, not 10.100000000000001
         "evaluation_samples": [k0, k1], "evaluation_window_s": [float(f"{k * scenario.step_s:.12g}") for k in (k0, k1)],
         "fmus": {name: {"path": str(p), "guid": unpack(p).model_description.guid} for name, p in fmus.items()},
-        "scenario_spec": json.loads(json.dumps(asdict(scenario), default=str)),
+        "scenario_spec": _spec(scenario),
         # the delay the controller's law ran for at the end (what input_delay_samples = -1 decided)
         **({"input_delay_samples_used": int(cols["input_delay"])} if "input_delay" in cols else {}),
     }
