@@ -26,6 +26,7 @@ says so. An explicit box is given in the record's units.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -248,9 +249,12 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     if model not in MODELS:
         raise ValueError(f"unknown model {model!r}; expected one of {', '.join(MODELS)}")
     structure = MODELS[model]
+    if isinstance(ts_s, bool) or not isinstance(ts_s, numbers.Real):
+        raise TypeError(f"ts_s must be a number of seconds, got {type(ts_s).__name__} {ts_s!r}")
+    ts_s = float(ts_s)
     u = np.asarray(u_v, dtype=float)
     l = np.asarray(l_mm, dtype=float)
-    _check_record(u, l, float(ts_s))
+    _check_record(u, l, ts_s)
     u = delayed_input(u, input_delay_samples)
     l_scale, u_scale = decade_scale(l, 60.0), decade_scale(u, 6.0)
     f = theta_scale_factors(structure, l_scale, u_scale)

@@ -31,6 +31,9 @@ __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmu
 def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant:
     """The rig at ``load_n``; :class:`Plant` checks ``params`` and ``seed`` (unsigned 64-bit)."""
     p = PlantParams() if params is None else params
+    if load_n is not None and (isinstance(load_n, bool) or not isinstance(load_n, numbers.Real)):
+        raise TypeError(f"load_n must be a number of newtons (or a function of time, closed loop), got "
+                        f"{type(load_n).__name__} {load_n!r}")
     if load_n is not None and isinstance(p, PlantParams):
         p = p.with_values(**{"load.load_n": float(load_n)})
     return Plant(p, seed=seed)
@@ -226,6 +229,27 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
     return _build(out, names)
 
 
+def _fmus_argument(fmus: Any, scenarios: list) -> dict[str, Path]:
+    """The ``fmus`` argument of :func:`cosimulate` and :func:`sweep` checked: a mapping (default the FMUs
+    built from this installation) with an existing FMU file for each role a scenario names no file for."""
+    from build_scripts.build_fmus import cached_fmus
+
+    if fmus is not None and not isinstance(fmus, Mapping):
+        raise TypeError(f"fmus must be a mapping {{'MusclePlant': path, 'AMPCController': path}}, got a "
+                        f"{type(fmus).__name__}")
+    given = {name: Path(path) for name, path in fmus.items()} if fmus is not None else cached_fmus()
+    needed = {name for sc in scenarios for name, own in (("MusclePlant", sc.plant.path),
+                                                          ("AMPCController", sc.controller.path)) if not own}
+    missing = sorted(needed - set(given))
+    if missing:
+        raise ValueError(f"fmus has no {' and no '.join(repr(m) for m in missing)} (and the scenario names no "
+                         f"path for it); given: {', '.join(map(repr, given)) or 'none'}")
+    absent = [f"{name}: {given[name]}" for name in sorted(needed) if not given[name].is_file()]
+    if absent:
+        raise ValueError(f"fmus names no FMU file for {'; '.join(absent)} (tm.build_fmus(folder) writes them)")
+    return given
+
+
 def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None = None, client: Any = None,
           workers: int = 0, plots: bool = True, progress: Callable[[int, int, str], None] | None = None) -> Any:
     """Run a sweep's runs not yet finished in ``out`` and write its summary (what ``tapmuscle sweep`` does).
@@ -265,15 +289,23 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
     """
     from contextlib import ExitStack
 
-    from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim.distributed_sweep import DaskExecutor, check_workers, dask_client, run_serial
     from tapmuscle.cosim.sweep import Sweep, load_sweep
     from tapmuscle.cosim.sweep_run import run_sweep
 
-    sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
+    if not isinstance(sweep, (str, Path, Sweep)):
+        raise TypeError(f"sweep must be a sweep file's path or a Sweep, got a {type(sweep).__name__}")
+    if not isinstance(out, (str, Path)) or Path(out).exists() and not Path(out).is_dir():
+        raise ValueError(f"out must be a folder to write into, got {out!r}"
+                         + (" (an existing file)" if isinstance(out, (str, Path)) else ""))
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ValueError(f"workers must be an integer >= 0, got {workers!r}")
-    given = dict(fmus) if fmus is not None else cached_fmus()
+    if client is not None and (not callable(getattr(client, "run", None)) or getattr(client, "status", "running")
+                               in ("closing", "closed")):
+        raise ValueError(f"client must be a running distributed.Client, got {client!r}"
+                         + (" (for a scheduler's address: distributed.Client(address))" if isinstance(client, str) else ""))
+    sw = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
+    given = _fmus_argument(fmus, [run.scenario for run in sw.runs])
     with ExitStack() as stack:
         if client is not None:
             check_workers(client)
@@ -309,22 +341,13 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
         and the controller's diagnostics) and ``mae_mm`` (Eq. (21) over the scenario's evaluation
         window [mm]).
     """
-    from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim import load_scenario
     from tapmuscle.cosim.master import co_simulate, sample_columns
     from tapmuscle.cosim.run import run_scenario, summarise
     from tapmuscle.cosim.spec import Scenario
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    if fmus is not None and not isinstance(fmus, Mapping):
-        raise TypeError(f"fmus must be a mapping {{'MusclePlant': path, 'AMPCController': path}}, got a "
-                        f"{type(fmus).__name__}")
-    given = dict(fmus) if fmus is not None else cached_fmus()
-    missing = [name for name, own in (("MusclePlant", sc.plant.path), ("AMPCController", sc.controller.path))
-               if not own and name not in given]
-    if missing:
-        raise ValueError(f"fmus has no {' and no '.join(repr(m) for m in missing)} (and the scenario names no "
-                         f"path for it); given: {', '.join(map(repr, given)) or 'none'}")
+    given = _fmus_argument(fmus, [sc])
     if out is not None:
         summary = run_scenario(sc, out, given, plots=plots)
         cols = summary.pop("cols")

@@ -167,6 +167,7 @@ def test_the_documented_examples_run(tmp_path, monkeypatch):
 
 
 _PAPER_SCENARIO = tm.PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml"
+SWEEP_FILE = ROOT / "scenarios" / "sweeps" / "paper_grid.toml"
 
 
 @pytest.mark.parametrize("call, error, match", [
@@ -179,6 +180,17 @@ _PAPER_SCENARIO = tm.PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml"
      r"fmus must be a mapping .* got a list"),
     (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlant": "MusclePlant.fmu"}), ValueError,
      r"fmus has no 'AMPCController' .*given: 'MusclePlant'"),
+    (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlant": "nope.fmu", "AMPCController": "no.fmu"}), ValueError,
+     r"fmus names no FMU file for AMPCController: no.fmu; MusclePlant: nope.fmu"),
+    (lambda: tm.sweep(SWEEP_FILE, "o", fmus=["MusclePlant.fmu", "AMPCController.fmu"]), TypeError,
+     r"fmus must be a mapping .* got a list"),
+    (lambda: tm.sweep(SWEEP_FILE, "o", fmus={"MusclePlant": "MusclePlant.fmu"}), ValueError, r"fmus has no 'AMPCController'"),
+    (lambda: tm.sweep(SWEEP_FILE, "o", client="tcp://127.0.0.1:1"), ValueError,
+     r"client must be a running distributed.Client, got 'tcp://127.0.0.1:1' \(for a scheduler's address"),
+    (lambda: tm.sweep(SWEEP_FILE, SWEEP_FILE), ValueError, r"out must be a folder to write into, .* \(an existing file\)"),
+    (lambda: tm.sweep(123, "o"), TypeError, r"sweep must be a sweep file's path or a Sweep, got a int"),
+    (lambda: tm.simulate("const:value=5", duration_s=2.0, load_n="68"), TypeError, r"load_n must be a number of newtons"),
+    (lambda: tm.identify(np.ones(50), np.ones(50), ts_s="0.1"), TypeError, r"ts_s must be a number of seconds, got str"),
 ])
 def test_a_wrong_argument_is_named(call, error, match):
     with pytest.raises(error, match=match):
