@@ -247,11 +247,10 @@ def test_an_output_folder_holds_one_run(built_fmus, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no staging folder left
 
 
-def test_an_output_path_that_is_a_file_is_refused_before_the_run(tmp_path):
+def test_an_output_path_that_is_a_file_is_refused_before_the_run(built_fmus, tmp_path):
     (tmp_path / "taken").write_text("a file")
-    fmus = {"MusclePlant": tmp_path / "none.fmu", "AMPCController": tmp_path / "none.fmu"}
     with pytest.raises(NotADirectoryError, match="taken is a file, not a folder"):
-        tm.cosimulate(_PAPER_SCENARIO, fmus=fmus, out=tmp_path / "taken")
+        tm.cosimulate(_PAPER_SCENARIO, fmus=built_fmus, out=tmp_path / "taken")
     assert (tmp_path / "taken").read_text() == "a file"
 
 
