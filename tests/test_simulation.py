@@ -47,6 +47,18 @@ def test_an_interrupt_stops_the_pools_processes_and_its_queued_work(tmp_path):
     assert not list(tmp_path.glob("done_*"))  # no task ran to its end
 
 
+
+def test_an_interrupt_while_the_pool_starts_its_feeding_thread_stays_an_interrupt():
+    """Ctrl-C can land while the executor starts the thread that feeds its processes (inside
+    Thread.start): the clean-up must not try to join that thread, which is not started, and turn the
+    interrupt into a RuntimeError (exit 1 and a traceback instead of 130)."""
+    import threading
+
+    with pytest.raises(KeyboardInterrupt):
+        with process_pool(1, "jobs=1") as pool:
+            pool._executor_manager_thread = threading.Thread(target=lambda: None)  # created, not started
+            raise KeyboardInterrupt
+
 def test_ctrl_c_on_a_diagnosis_with_workers_ends_it_without_tracebacks_or_output(tmp_path):
     from tapmuscle.diagnosis.demo import DEMO_MODEL, record
     from tapmuscle.io.recording import Recording, write_recording

@@ -187,7 +187,7 @@ def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
             process.terminate()
         for process in processes:
             process.join()
-        if manager is not None:
+        if manager is not None and manager.ident is not None:  # an interrupt can come while it starts
             manager.join()
         raise
     pool.shutdown(wait=True)
