@@ -79,6 +79,22 @@ def test_a_closed_loop_logs_its_set_up_its_changes_of_mode_and_a_summary_that_ag
                      "there) in 0 steps")
 
 
+def _restored(states) -> tuple:
+    """A fresh controller and plant with ``states`` (theirs, from ``_get_fmu_state``) set."""
+    ctrl, plant = AMPCController(instance_name="c2"), MusclePlant(instance_name="p2")
+    ctrl._set_fmu_state(states[0])
+    plant._set_fmu_state(states[1])
+    return ctrl, plant
+
+
+def _ends(ctrl, plant) -> tuple[list[str], list[str]]:
+    """The events of fmi2Terminate of both (earlier ones dropped)."""
+    _events(ctrl), _events(plant)
+    ctrl.terminate()
+    plant.terminate()
+    return _events(ctrl), _events(plant)
+
+
 def test_a_state_restored_into_another_instance_carries_what_the_summary_counts():
     """Rewind: the summary of a run continued from a state in a fresh instance is the straight run's."""
     ends = []
@@ -86,15 +102,9 @@ def test_a_state_restored_into_another_instance_carries_what_the_summary_counts(
         ctrl, plant = _start(AMPCController(instance_name="c")), _start(MusclePlant(instance_name="p"))
         _loop(ctrl, plant, 0, 80, [])
         if restore:
-            states = ctrl._get_fmu_state(), plant._get_fmu_state()
-            ctrl, plant = AMPCController(instance_name="c2"), MusclePlant(instance_name="p2")
-            ctrl._set_fmu_state(states[0])
-            plant._set_fmu_state(states[1])
+            ctrl, plant = _restored((ctrl._get_fmu_state(), plant._get_fmu_state()))
         _loop(ctrl, plant, 80, 150, [])
-        _events(ctrl), _events(plant)
-        ctrl.terminate()
-        plant.terminate()
-        ends.append((_events(ctrl), _events(plant)))
+        ends.append(_ends(ctrl, plant))
     assert ends[0] == ends[1]
     assert re.search(r": 150 samples; .*: 150 steps;", " ".join(ends[1][0] + ends[1][1]))
 
@@ -123,12 +133,7 @@ def test_a_state_of_a_build_without_the_tally_counts_from_the_restore_and_says_s
     _loop(ctrl, plant, 0, 30, [])
     states = ctrl._get_fmu_state(), plant._get_fmu_state()
     del states[0]["numerics"]["tally"], states[1]["numerics"]["fmu_tally"]  # as an earlier build saved them
-    ctrl, plant = AMPCController(instance_name="c2"), MusclePlant(instance_name="p2")
-    ctrl._set_fmu_state(states[0])
-    plant._set_fmu_state(states[1])
+    ctrl, plant = _restored(states)
     _loop(ctrl, plant, 30, 40, [])
-    _events(ctrl), _events(plant)
-    ctrl.terminate()
-    plant.terminate()
-    (c_end,), (p_end,) = _events(ctrl), _events(plant)
+    (c_end,), (p_end,) = _ends(ctrl, plant)
     assert ": 10 samples since a restored state; " in c_end and ": 10 steps since a restored state; " in p_end
