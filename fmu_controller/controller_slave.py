@@ -544,7 +544,8 @@ class AMPCController(SafeSlave):
                 and ctrl.settings.startup_s > 0):
             self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "
                        "blended in from the next sample")
-        if in_startup and not ctrl.in_startup:
+        # without a start-up mode or a delay to decide there is no start-up to end
+        if in_startup and not ctrl.in_startup and (ctrl.settings.startup_s > 0 or ctrl.settings.input_delay_samples == -1):
             law = "the adaptive estimate" if ctrl.settings.adaptive else "theta0 (a fixed predictor)"
             self.event(f"t = {t_s:g} s: the start-up is over: the law runs on {law}, tracking r itself")
 

@@ -137,3 +137,11 @@ def test_a_state_of_a_build_without_the_tally_counts_from_the_restore_and_says_s
     _loop(ctrl, plant, 30, 40, [])
     (c_end,), (p_end,) = _ends(ctrl, plant)
     assert ": 10 samples since a restored state; " in c_end and ": 10 steps since a restored state; " in p_end
+
+
+def test_a_run_without_a_start_up_mode_and_with_its_delay_set_reports_no_change_of_mode():
+    ctrl = _start(AMPCController(instance_name="c"), startup_s=0.0, input_delay_samples=0)
+    plant = _start(MusclePlant(instance_name="p"))
+    _events(ctrl)
+    _loop(ctrl, plant, 0, 50, [])
+    assert _events(ctrl) == []
