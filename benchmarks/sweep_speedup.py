@@ -43,7 +43,7 @@ def _warm_up(client, tasks, files) -> None:
     """Every worker runs one task of each controller method, untimed: its imports (the servo methods'
     OSQP and SciPy among them), FMU extraction and pooled instances are then in place, as in the
     process that runs the in-process set-up."""
-    shipped = client.scatter(files.without_local(), broadcast=True, hash=False)
+    shipped = DaskExecutor(client).ship(files, "warm-up")
     first = {}
     for task in tasks:
         first.setdefault(task.scenario.method, task)

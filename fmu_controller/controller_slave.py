@@ -467,7 +467,7 @@ class AMPCController(SafeSlave):
             self._warn_paper_defaults_off_period(self._controller.settings, self._controller.theta0.tolist())
         ctrl = self._controller
         # the modes change only until the start-up is over (the delay decided by then): not looked at after
-        before = (ctrl.input_delay_decision, ctrl.law_on_theta0, True) if self._modes_open else None
+        before = (ctrl.input_delay_decision, ctrl.law_on_theta0) if self._modes_open else None
         step: ControlStep = ctrl.step(l, preview)
         if not all(map(math.isfinite, (step.u_v, step.uc_v, step.predicted_next_mm, step.hysteresis_mm))):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
@@ -525,11 +525,12 @@ class AMPCController(SafeSlave):
         self.samples = self._k
         self._show_input_delay()
 
-    def _say_changes(self, t_s: float, before: tuple[int | None, bool, bool]) -> None:
-        """Events (logEvents) of the controller's changes of mode at this sample: -1's decision of the
-        input delay, the end of the start-up mode's law on theta0, the end of the start-up mode."""
+    def _say_changes(self, t_s: float, before: tuple[int | None, bool]) -> None:
+        """Events (logEvents) of the controller's changes of mode at a sample taken in the start-up:
+        -1's decision of the input delay, the end of the start-up mode's law on theta0, the end of the
+        start-up. ``before``: the delay decided and whether the law ran on theta0, before the sample."""
         ctrl = self._controller
-        decided, on_theta0, in_startup = before
+        decided, on_theta0 = before
         if decided is None and ctrl.input_delay_decision is not None:
             d = ctrl.input_delay_decision
             what = {0: "the undelayed law from now (a sequential master)",
@@ -545,7 +546,7 @@ class AMPCController(SafeSlave):
             self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "
                        "blended in from the next sample")
         # without a start-up mode or a delay to decide there is no start-up to end
-        if in_startup and not ctrl.in_startup and (ctrl.settings.startup_s > 0 or ctrl.settings.input_delay_samples == -1):
+        if not ctrl.in_startup and (ctrl.settings.startup_s > 0 or ctrl.settings.input_delay_samples == -1):
             law = "the adaptive estimate" if ctrl.settings.adaptive else "theta0 (a fixed predictor)"
             self.event(f"t = {t_s:g} s: the start-up is over: the law runs on {law}, tracking r itself")
 

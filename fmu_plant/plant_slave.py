@@ -87,15 +87,15 @@ class MusclePlant(SafeSlave):
         # l and p are read from the state (encoder, sensor): no direct feedthrough from any input.
         # The declared ranges hold every reading the parameters allow: l has none, since an encoder's
         # drift moves its reading without bound over a long run; p is clipped to the sensor's range
-        # (sensor.pressure_range_mpa, at most 100 MPa).
-        # the readings at rest, computed at initialisation from the parameters (a sensor offset, the seed
-        # of the noise), not a start value a host could set
-        parameters = tuple(row[0] for row in parameter_table()) + ("seed", "seed_high")
+        # (sensor.pressure_range_mpa, at most 100 MPa). At initialisation they are the readings at rest,
+        # computed from the parameters (a sensor offset, the noise's seed), not start values a host sets.
+        table = parameter_table()
+        parameters = tuple(row[0] for row in table) + ("seed", "seed_high")
         self.add_output("l", 0.0, "mm", "encoder reading of the contraction [mm]", nominal=50.0,
                         calculated_from=parameters)
         self.add_output("p", 0.0, "MPa", "pressure-sensor reading [MPa(G)], 0..sensor.pressure_range_mpa", lo=0.0,
                         hi=100.0, nominal=0.25, calculated_from=parameters)
-        self.add_real_parameters(parameter_table())
+        self.add_real_parameters(table)
         self.add_integer_parameter("seed", 0, "seed of the sensor-noise generator: its low 32 bits (bit pattern; "
                                    "a seed below 2**31 needs this alone)")
         self.add_integer_parameter("seed_high", 0, "high 32 bits of the sensor-noise seed (bit pattern; seeds are "

@@ -129,14 +129,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
     # report says so too (a CI's test view is where the failure is looked for).
     errors: list[CollectionError] = []
     cases, skipped = collect_cases(args.paths, errors=errors)
-    if errors or not cases:
+    if errors:
+        _refuse_files(args, errors, "could not be read")
+    if not cases:
         if args.junit:
-            atomic_write_text(args.junit, junit_xml([], errors=errors))
-        for error in errors[:-1]:
-            print(f"error: {error.message}", file=sys.stderr)
-        if errors:
-            raise UsageError(errors[-1].message + (f" ({len(errors)} files could not be read; nothing was run)"
-                                                   if len(errors) > 1 else " (nothing was run)"))
+            atomic_write_text(args.junit, junit_xml([]))
         raise UsageError(f"no scenario with an [expect] table under {', '.join(args.paths)}")
     fmus = _fmus(args.fmu_dir)
     print(f"tapmuscle check: {len(cases)} scenarios with expectations"
@@ -160,13 +157,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
                 if str(exc) not in said:
                     said.append(str(exc))
         if bad:
-            errors = [CollectionError(file, "; ".join(said)) for file, said in bad.items()]
-            if args.junit:
-                atomic_write_text(args.junit, junit_xml([], errors=errors))
-            for error in errors[:-1]:
-                print(f"error: {error.message}", file=sys.stderr)
-            raise UsageError(errors[-1].message + (f" ({len(errors)} files set FMU parameters wrongly; nothing was run)"
-                                                   if len(errors) > 1 else " (nothing was run)"))
+            _refuse_files(args, [CollectionError(file, "; ".join(said)) for file, said in bad.items()],
+                          "set FMU parameters wrongly")
         _local_workers(args, len(tasks))
         execute = _executor(args, stack)
         runs, failed = {}, 0
@@ -186,6 +178,20 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.out:
         _keep_what_did_not_pass(results, Path(args.out), fmus)
     return 0 if all(r.status == "pass" for r in results) else 1
+
+
+def _refuse_files(args: argparse.Namespace, errors: list, what: str) -> None:
+    """Stop the check before anything runs, as pytest does on a collection error: every bad file named
+    on stderr (the last in the UsageError), and each an error case of its own in the JUnit report."""
+    from tapmuscle.cosim.check import junit_xml
+    from tapmuscle.io.recording import atomic_write_text
+
+    if args.junit:
+        atomic_write_text(args.junit, junit_xml([], errors=errors))
+    for error in errors[:-1]:
+        print(f"error: {error.message}", file=sys.stderr)
+    raise UsageError(errors[-1].message + (f" ({len(errors)} files {what}; nothing was run)" if len(errors) > 1
+                                           else " (nothing was run)"))
 
 
 def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> None:

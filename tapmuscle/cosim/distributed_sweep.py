@@ -190,8 +190,8 @@ _WORKER_POOL: list[InstancePool] = []
 
 
 def _worker_run(task: RunTask, files: Mapping[str, Any]) -> RunResult:
-    """The Dask task: runs on a worker, with that worker process's instance pool; ``files`` is
-    :meth:`FmuFiles.without_local`'s fields as a plain dict."""
+    """The Dask task: runs on a worker, with that worker process's instance pool; ``files`` is an
+    :class:`FmuFiles`' ``data`` and ``names`` as a plain dict."""
     if not _WORKER_POOL:
         _WORKER_POOL.append(InstancePool())
     return execute_run(task, FmuFiles(**files), _WORKER_POOL[0], use_local=False)
@@ -219,16 +219,19 @@ class DaskExecutor:
     def __init__(self, client: Any) -> None:
         self.client = client
 
+    def ship(self, files: FmuFiles, tag: str) -> Any:
+        """The future of ``files`` on the cluster, what :func:`_worker_run` takes (module docstring)."""
+        # dict, a builtin: the files' task runs on any worker, whatever it can import (no client paths)
+        return self.client.submit(dict, {"data": dict(files.data), "names": dict(files.names)}, pure=False,
+                                  key=f"tapmuscle-fmus-{tag}")
+
     def __call__(self, tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]:
         from distributed import as_completed
 
         if not tasks:
             return
         tag = uuid.uuid4().hex[:8]
-        shipped = files.without_local()
-        # dict, a builtin: the files' task runs on any worker, whatever it can import
-        shipped = self.client.submit(dict, {"data": dict(shipped.data), "names": dict(shipped.names)}, pure=False,
-                                     key=f"tapmuscle-fmus-{tag}")
+        shipped = self.ship(files, tag)
         submitted = self.client.map(_worker_run, tasks, [shipped] * len(tasks), pure=False,
                                     key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in tasks])
         futures = dict(zip(submitted, tasks))
