@@ -14,6 +14,7 @@ fixes all of that from the slave's :attr:`fmi_slave.SafeSlave.variable_meta`:
   computed at initialisation, with the parameters they are computed from;
 * ``canGetAndSetFMUstate``/``canSerializeFMUstate`` true (the slaves keep all dynamic state);
 * the model ``version`` and ``generationTool`` name the tapmuscle release;
+* structured names that form a tree (:func:`refuse_parent_names`: no variable is another's parent);
 * no ``generationDateAndTime``, and a GUID derived from a hash of the FMU's content, so the same
   sources give the same FMU byte for byte.
 """
@@ -23,7 +24,7 @@ from __future__ import annotations
 import math
 import uuid
 import xml.etree.ElementTree as ET
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 __all__ = ["UNITS", "UNIT_ALIASES", "finish_model_description", "content_guid"]
 
@@ -63,6 +64,24 @@ def _unit(name: str) -> str:
 def content_guid(digest: bytes) -> str:
     """A GUID (UUID version 5 form) from a content hash."""
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "tapmuscle:" + digest.hex()))
+
+
+def refuse_parent_names(names: Iterable[str]) -> None:
+    """ValueError naming a variable whose name is also the parent of another's (``load`` beside
+    ``load.load_n``, or ``v`` beside ``v[1]``).
+
+    Under the structured naming convention (FMI 2.0, section 2.2.9) the names form a tree, which
+    Modelica importers map to a hierarchy of records: one node cannot be both a variable and a record.
+    Quoted names (``'a.b'``) are not split; the FMUs declare none.
+    """
+    names = set(names)
+    for name in sorted(names):
+        if name.startswith("'"):
+            continue
+        for i, char in enumerate(name):
+            if char in ".[" and name[:i] in names:
+                raise ValueError(f"variable {name[:i]!r} is also the parent of {name!r} under the structured "
+                                 "naming convention: rename one of them")
 
 
 def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]], *, guid: str,
@@ -115,6 +134,9 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
                 typed.set(key, str(int(value)))
             else:
                 typed.set(key, repr(float(value)))
+
+    if root.get("variableNamingConvention") == "structured":
+        refuse_parent_names(index)
 
     if units_used:
         defs = ET.Element("UnitDefinitions")

@@ -39,7 +39,7 @@ for _prefix, _uri in _NS.items():
 #: connected: fmpy's SSP runner (``fmpy.ssp.simulation.simulate_ssp``) wires an unconnected one to the
 #: source of the connection found before it (the plant's load and supply pressure to the command in
 #: volts, the controller's reference to the displacement). The plant's other inputs keep their start
-#: values or take the bound parameter set's (``load``), which the SSP tools apply by variable name.
+#: values or take the bound parameter set's (``load_force``), which the SSP tools apply by variable name.
 _COMPONENTS = {
     "plant": ("MusclePlant", (("u", "input"), ("l", "output"), ("p", "output"))),
     "controller": ("AMPCController", (("l", "input"), ("u", "output"), ("r_k", "output"),
@@ -69,7 +69,7 @@ def _parameter_set(name: str, values: Mapping[str, float | int]) -> str:
 
 def ssv_files() -> dict[str, str]:
     """``resources/<file>.ssv`` -> text: the plant's load sets and the controller's parallel-master set."""
-    files = {f"resources/load_{load:g}N.ssv": _parameter_set(f"load_{load:g}N", {"load": float(load)})
+    files = {f"resources/load_{load:g}N.ssv": _parameter_set(f"load_{load:g}N", {"load_force": float(load)})
              for load in LOADS_N}
     # SSP tools step the components in parallel: the controller compensates that sample of delay
     files["resources/parallel_master.ssv"] = _parameter_set("parallel_master", {"input_delay_samples": 1})

@@ -1,6 +1,6 @@
 """``MusclePlant``: the simulated rig (fmu_plant.Plant) as an FMI 2.0 co-simulation slave.
 
-Inputs ``u`` [V], ``load`` [N], ``supply_pressure`` [MPa(G)]; outputs ``l`` [mm] (encoder) and ``p``
+Inputs ``u`` [V], ``load_force`` [N], ``supply_pressure`` [MPa(G)]; outputs ``l`` [mm] (encoder) and ``p``
 [MPa(G)] (pressure sensor); every physical parameter of docs/plant.md as a fixed parameter named
 ``group.field`` (e.g. ``friction.rate_gain``), plus ``seed``. A thin shell: the numerics are
 :class:`fmu_plant.Plant`; the FMI behaviour (errors, state) is :class:`fmi_slave.SafeSlave`'s.
@@ -47,7 +47,7 @@ def _fmu_names(message: str) -> str:
 
 #: The parameters whose physics an input of the FMU sets (the parameters stay for plant files, which set
 #: every one): the input's name.
-SET_BY_INPUT = {"load.load_n": "load", "supply.supply_pressure_mpa": "supply_pressure"}
+SET_BY_INPUT = {"load.load_n": "load_force", "supply.supply_pressure_mpa": "supply_pressure"}
 
 
 def parameter_table() -> list[tuple[str, float, str, str, float | None, float | None]]:
@@ -81,7 +81,9 @@ class MusclePlant(SafeSlave):
         super().__init__(**kwargs)
         self.add_input("u", 0.0, "V", "valve command [V], 0..10 (saturates in the amplifier)", lo=-1.0, hi=11.0,
                        nominal=5.0)
-        self.add_input("load", 44.0, "N", "hanging load [N]", lo=0.0, hi=500.0, nominal=50.0)
+        # not "load": under the structured naming convention that name is the parent of the parameters
+        # load.load_n and load.moving_mass_kg, and a tool mapping names to a hierarchy cannot make it both
+        self.add_input("load_force", 44.0, "N", "force of the hanging load on the muscle [N]", lo=0.0, hi=500.0, nominal=50.0)
         self.add_input("supply_pressure", 0.25, "MPa", "tap-water supply gauge pressure [MPa]", lo=0.0, hi=1.0,
                        nominal=0.25)
         # l and p are read from the state (encoder, sensor): no direct feedthrough from any input.
@@ -133,7 +135,7 @@ class MusclePlant(SafeSlave):
         self._plant = self._plant_at_rest()
         self._refused_input: str | None = None
         try:
-            load = self.finite("load", self.load, 0.0, 500.0)
+            load = self.finite("load_force", self.load_force, 0.0, 500.0)
             supply = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
         except SlaveInputError as exc:
             # an input, not a parameter: a bad one is refused where it acts, at the steps (fmi2Discard, which
@@ -145,7 +147,7 @@ class MusclePlant(SafeSlave):
         else:
             # the inputs set the load and the supply pressure; the parameters of the same physics are the
             # plant files' (tapmuscle record --params): one set to another value than its input is unused
-            inputs = {"load": load, "supply_pressure": supply}
+            inputs = {"load_force": load, "supply_pressure": supply}
             for name, inp in SET_BY_INPUT.items():
                 value = inputs[inp]
                 if self._par[name] != value and self._par[name] != _DEFAULTS[name]:
@@ -162,7 +164,7 @@ class MusclePlant(SafeSlave):
 
     def step_numerics(self, t_s: float, dt_s: float) -> None:
         u = self.finite("u", self.u, -1.0, 11.0)
-        load = self.finite("load", self.load, 0.0, 500.0)
+        load = self.finite("load_force", self.load_force, 0.0, 500.0)
         ps = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
         plant = self._plant
         if load != plant.load_n or ps != plant.supply_pressure_mpa:

@@ -1,6 +1,7 @@
 """`tapmuscle build`: both FMUs, reproducibly, and a content-derived GUID."""
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -91,7 +92,28 @@ def test_outputs_computed_at_initialisation_have_no_start_and_list_their_paramet
             assert unknowns["theta.b1"] == {"theta0.b1"} and unknowns["samples"] == set()
         else:
             assert {"sensor_drift.offset_mm", "seed", "sensor.encoder_noise_std_mm"} <= unknowns["l"]
-            assert not {"u", "load", "supply_pressure"} & unknowns["l"]  # at rest, whatever the inputs
+            assert not {"u", "load_force", "supply_pressure"} & unknowns["l"]  # at rest, whatever the inputs
+
+def test_no_variable_of_either_fmu_is_the_parent_of_another(built_fmus):
+    """Under the structured naming convention a Modelica importer maps ``load.load_n`` to a record
+    ``load``: a variable ``load`` beside it cannot be mapped, so the build refuses such names."""
+    from build_scripts.model_description import refuse_parent_names
+
+    for name, path in built_fmus.items():
+        with zipfile.ZipFile(path) as z:
+            root = ET.fromstring(z.read("modelDescription.xml"))
+        assert root.get("variableNamingConvention") == "structured"
+        names = [v.get("name") for v in root.iter("ScalarVariable")]
+        refuse_parent_names(names)
+        if name == "MusclePlant":
+            assert {"load_force", "load.load_n", "load.moving_mass_kg"} <= set(names)
+    for names, parent, child in ((["u", "load", "load.load_n"], "load", "load.load_n"),
+                                 (["v", "v[1]"], "v", "v[1]"), (["a.b", "a.b.c", "a"], "a", "a.b")):
+        with pytest.raises(ValueError, match=rf"variable '{re.escape(parent)}' is also the parent of "
+                                             rf"'{re.escape(child)}'"):
+            refuse_parent_names(names)
+    refuse_parent_names(["load_force", "load.load_n", "loads", "'load.x'", "load_x.y"])  # none a parent
+
 
 def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
     with pytest.raises(ValueError, match="unknown FMU 'Pump'"):

@@ -149,7 +149,7 @@ def test_plain_environment_really_is_plain(tmp_path):
 
 
 def test_open_loop_equals_fmpy(host, plant, tmp_path):
-    params = {"load": 68.0, "friction.rate_gain": 0.3}
+    params = {"load_force": 68.0, "friction.rate_gain": 0.3}
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l", p="p"),
                     *(f"P.real={plant.vr[k]}:{v!r}" for k, v in params.items()), f"P.int={plant.vr['seed']}:5",
                     "steps=200", f"dt={TS}", "sine=5,3,0.1")
@@ -257,7 +257,7 @@ def test_closed_loop_equals_fmpy(host, plant, controller, tmp_path, method):
 @pytest.mark.parametrize("unload", [0, 1])
 def test_two_instances_at_once_then_free_and_instantiate_again(host, plant, tmp_path, unload):
     """unload=1: between the frees and the new instance the host also dlclose()s and re-loads the FMU."""
-    proc = run_host(host, tmp_path, "instances", *plant.args("P", u="u", l="l", load="load"),
+    proc = run_host(host, tmp_path, "instances", *plant.args("P", u="u", l="l", load="load_force"),
                     "load_a=44", "load_b=68", "u_const=6", "steps=100", f"dt={TS}", f"unload={unload}")
     l_mm = {row["name"]: float(row["l"]) for row in csv.DictReader(io.StringIO(proc.stdout))}
     assert set(l_mm) == {"a", "b", "c"}
@@ -457,7 +457,7 @@ def test_fmpy_missing_dependency_message(controller, tmp_path):
 
 def _threaded(threaded_host, plant, controller, tmp, mode, **keys) -> subprocess.CompletedProcess:
     """threaded_host MODE in a fresh plain process (Python started by the FMUs, not yet running)."""
-    args = [str(threaded_host), mode, *plant.args("P", u="u", l="l", load="load"),
+    args = [str(threaded_host), mode, *plant.args("P", u="u", l="l", load="load_force"),
             *controller.args("C", l="l", u="u"), *(f"{k}={v}" for k, v in keys.items())]
     return subprocess.run(args, capture_output=True, text=True, timeout=180, env=plain_env(tmp))
 

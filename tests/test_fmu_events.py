@@ -121,10 +121,10 @@ def test_a_refused_input_is_what_the_set_up_says_not_the_default():
     plant = MusclePlant(instance_name="p")
     plant.setup_experiment(0.0, None, None)
     plant.enter_initialization_mode()
-    plant.load = 600.0
+    plant.load_force = 600.0
     plant.exit_initialization_mode()
     (setup,) = _events(plant)
-    assert setup.startswith("initialised at t = 0 s: input load = 600") and "(refused: fmi2Discard" in setup, setup
+    assert setup.startswith("initialised at t = 0 s: input load_force = 600") and "(refused: fmi2Discard" in setup, setup
     assert "44 N" not in setup
 
 

@@ -24,7 +24,7 @@ def _values(rng, good_lo, good_hi):
 
 
 @pytest.mark.parametrize("name, inputs, outputs", [
-    ("MusclePlant", {"u": (0.0, 10.0), "load": (30.0, 80.0)}, ["l", "p"]),
+    ("MusclePlant", {"u": (0.0, 10.0), "load_force": (30.0, 80.0)}, ["l", "p"]),
     ("AMPCController", {"l": (0.0, 80.0), "r": (5.0, 65.0)}, ["u"]),
 ])
 @pytest.mark.parametrize("seed", range(3))

@@ -42,11 +42,11 @@ def test_fmpy_validation_reports_no_problems(fmu):
 
 def test_fmu_equals_the_direct_plant_bit_for_bit(fmu):
     vr = fmu[3]
-    f = _instance(fmu, reals={"load": 68.0, "friction.rate_gain": 0.3}, ints={"seed": 5})
+    f = _instance(fmu, reals={"load_force": 68.0, "friction.rate_gain": 0.3}, ints={"seed": 5})
     direct = Plant(PlantParams().with_values(**{"friction.rate_gain": 0.3}), seed=5)
     direct.update(load_n=68.0)
     for k in range(200):
-        f.setReal([vr["u"], vr["load"]], [_sine(k), 68.0])
+        f.setReal([vr["u"], vr["load_force"]], [_sine(k), 68.0])
         f.doStep(k * 0.1, 0.1)
         m = direct.step(_sine(k), 0.1)
         assert f.getReal([vr["l"], vr["p"]]) == [m.l_mm, m.p_mpa]
@@ -130,7 +130,7 @@ def test_a_state_of_an_instance_with_other_parameters_steps_with_them(fmu):
 @pytest.mark.parametrize("name, value, message", [("u", math.nan, "u = nan is not finite"),
                                                   ("u", math.inf, "u = inf is not finite"),
                                                   ("u", 50.0, "u = 50.0 is outside"),
-                                                  ("load", -3.0, "load = -3.0 is outside"),
+                                                  ("load_force", -3.0, "load_force = -3.0 is outside"),
                                                   ("supply_pressure", 7.0, "supply_pressure = 7.0 is outside")])
 def test_bad_input_is_discarded_with_a_message_and_outputs_stay(fmu, capfd, name, value, message):
     vr = fmu[3]
@@ -143,7 +143,7 @@ def test_bad_input_is_discarded_with_a_message_and_outputs_stay(fmu, capfd, name
         f.doStep(0.5, 0.1)
     assert message in capfd.readouterr().out
     assert f.getReal([vr["l"], vr["p"]]) == before and all(math.isfinite(x) for x in before)
-    f.setReal([vr["u"], vr["load"], vr["supply_pressure"]], [6.0, 44.0, 0.25])
+    f.setReal([vr["u"], vr["load_force"], vr["supply_pressure"]], [6.0, 44.0, 0.25])
     f.doStep(0.5, 0.1)  # recovers
     f.terminate()
     f.freeInstance()
@@ -166,7 +166,7 @@ def test_bad_step_size_and_bad_parameter(fmu, capfd):
 
 def test_several_instances_and_reinstantiation(fmu):
     vr = fmu[3]
-    a, b = _instance(fmu, "a"), _instance(fmu, "b", reals={"load": 68.0})
+    a, b = _instance(fmu, "a"), _instance(fmu, "b", reals={"load_force": 68.0})
     for k in range(100):
         a.setReal([vr["u"]], [6.0])
         b.setReal([vr["u"]], [6.0])
@@ -193,9 +193,9 @@ def _live_slaves():
 
 def test_real_access_to_a_non_real_variable_is_an_fmi_error(fmu):
     vr = fmu[3]
-    f = _instance(fmu, reals={"load": 50.0, "friction.rate_gain": 0.3})
+    f = _instance(fmu, reals={"load_force": 50.0, "friction.rate_gain": 0.3})
     # parameters, inputs and outputs all read back through the value-reference table
-    assert f.getReal([vr["friction.rate_gain"], vr["load"], vr["u"]]) == [0.3, 50.0, 0.0]
+    assert f.getReal([vr["friction.rate_gain"], vr["load_force"], vr["u"]]) == [0.3, 50.0, 0.0]
     f.setReal([vr["u"]], [4.5])
     assert f.getReal([vr["u"]]) == [4.5]
     f.terminate()
@@ -259,7 +259,7 @@ def test_a_rounding_remainder_step_is_accepted_and_changes_nothing(fmu):
     fmi2OK, outputs unchanged; the next regular step continues."""
     vr = fmu[3]
     f = _instance(fmu)
-    f.setReal([vr["u"], vr["load"], vr["supply_pressure"]], [6.0, 44.0, 0.25])
+    f.setReal([vr["u"], vr["load_force"], vr["supply_pressure"]], [6.0, 44.0, 0.25])
     f.doStep(0.0, 0.1)
     before = f.getReal([vr["l"], vr["p"]])
     for h in (1e-14, 2e-12, 9.9e-10):
@@ -408,7 +408,7 @@ def test_a_rejected_plant_parameter_is_named_as_the_fmu_names_it(fmu, capfd, nam
 
 
 @pytest.mark.parametrize("parameter, value, inp, inp_value", [
-    ("load.load_n", 68.0, "load", 44.0), ("supply.supply_pressure_mpa", 0.15, "supply_pressure", 0.25)])
+    ("load.load_n", 68.0, "load_force", 44.0), ("supply.supply_pressure_mpa", 0.15, "supply_pressure", 0.25)])
 def test_a_load_or_supply_parameter_the_input_overrides_is_said_unused(fmu, capfd, parameter, value, inp, inp_value):
     """The inputs ``load`` and ``supply_pressure`` set these in the FMU (they change during a run); the
     parameters of the same names (a plant file's) would silently do nothing: a warning names the input."""
@@ -515,13 +515,13 @@ def test_a_state_from_before_initialisation_is_refused_in_step_mode(fmu, capfd):
         x.freeInstance()
 
 
-@pytest.mark.parametrize("name, value", [("load", -5.0), ("supply_pressure", 1.5)])
+@pytest.mark.parametrize("name, value", [("load_force", -5.0), ("supply_pressure", 1.5)])
 def test_a_bad_load_or_supply_input_at_initialisation_is_refused_at_the_steps(fmu, capfd, name, value):
     """An input out of range at fmi2ExitInitializationMode is an input's error, not a parameter's: a
     warning there, fmi2Discard from the steps until it is mended, and then the run of a mended input
     from the start, bit for bit (the rig at rest on its stop is the same under any load)."""
     vr = fmu[3]
-    good = {"load": 68.0, "supply_pressure": 0.3}
+    good = {"load_force": 68.0, "supply_pressure": 0.3}
     f = _instance(fmu, "f", reals=good | {name: value}, rejected=True)
     out = capfd.readouterr().out
     assert (f"input {name} = {value!r} is outside" in out and "every fmi2DoStep returns fmi2Discard until the "
@@ -542,5 +542,5 @@ def test_the_parameters_an_input_sets_say_so_in_the_model_description(fmu):
     _, md, _, _ = fmu
     unused = {v.name: v.description for v in md.modelVariables if "not used in the FMU" in (v.description or "")}
     assert unused.keys() == {"load.load_n", "supply.supply_pressure_mpa"}
-    assert unused["load.load_n"].endswith("; not used in the FMU: its input load sets it")
+    assert unused["load.load_n"].endswith("; not used in the FMU: its input load_force sets it")
     assert unused["supply.supply_pressure_mpa"].endswith("its input supply_pressure sets it")

@@ -326,7 +326,7 @@ def test_an_fmu_that_refuses_a_step_mid_run_stops_the_run_naming_call_time_and_m
 
     s = dataclasses.replace(_scenario("ampc_servo"), load=Profile(44.0, ((1.0, 600.0),)))
     with pytest.raises(ScenarioError, match=r"plant FMU \(MusclePlant.fmu\) fmi2DoStep at t = 1 s failed: "
-                                            r"status DISCARD: .*load = 600.0 is outside 0..500"):
+                                            r"status DISCARD: .*load_force = 600.0 is outside 0..500"):
         co_simulate(s, built_fmus)
 
 
@@ -393,7 +393,7 @@ def test_a_controller_fmu_as_the_plant_is_named_as_such(built_fmus, tmp_path, ca
     assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", str(built_fmus["MusclePlant"].parent),
                  "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "this AMPCController FMU cannot be the plant: it lacks input u, output l" in err
+    assert "this AMPCController FMU cannot be the plant: it lacks input load_force, input supply_pressure, input u, output l" in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
 

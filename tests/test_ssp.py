@@ -45,7 +45,7 @@ def test_libcosim_runs_the_ssp_and_tracks(ssp):
     rows = []
     for _ in range(300):
         assert ex.step(1)
-        rows.append(obs.last_real_values(idx["plant"], [pv["l"], pv["load"], pv["u"]]))
+        rows.append(obs.last_real_values(idx["plant"], [pv["l"], pv["load_force"], pv["u"]]))
     a = np.array(rows)
     t = (np.arange(len(a)) + 1) * 0.1
     err = tracking_error_mm(t, a[:, 0])
@@ -73,7 +73,7 @@ def test_a_load_set_bound_in_the_ssd_reaches_the_plant_which_declares_no_load_co
     idx = {s.name.decode(): s.index for s in ex.slave_infos()}
     pv = {v.name.decode(): v.reference for v in ex.slave_variables(idx["plant"])}
     assert ex.step(3)
-    assert obs.last_real_values(idx["plant"], [pv["load"]]) == [68.0]
+    assert obs.last_real_values(idx["plant"], [pv["load_force"]]) == [68.0]
 
 
 def test_fmpys_ssp_runner_runs_the_ssp_and_tracks(ssp):

@@ -239,7 +239,7 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
                       "windows": (win.returncode, _table(win.stdout), win.stderr[-3000:])}
     # two plant instances at once, both freed, the DLL freed and loaded again, a third instance
     again = _run_windows(windows, str(hosts["windows"]), "instances",
-                         *_host_args(extracted, True, {"P": {"u": "u", "l": "l", "load": "load"}}),
+                         *_host_args(extracted, True, {"P": {"u": "u", "l": "l", "load": "load_force"}}),
                          "load_a=44", "load_b=68", "u_const=6", "steps=100", "dt=0.1", "unload=1", env_extra=path)
     runs["instances"] = (again.returncode, again.stdout, again.stderr[-3000:])
     # and as a user's C host may start: no Python on PATH (Wine's PATH has no python3.dll of its own)
@@ -381,7 +381,7 @@ def threaded(windows, extracted, tmp_path_factory):
     """Runs threaded_host.exe MODE under Wine on the plant and the controller, in a fresh process each
     time (Python started by the FMUs, not yet running); returns the CompletedProcess."""
     exe = _compile_c_host("threaded_host.c", tmp_path_factory.mktemp("windows-threaded-host"), "gnu11")["windows"]
-    roles = {"P": {"u": "u", "l": "l", "load": "load"}, "C": {"l": "l", "u": "u"}}
+    roles = {"P": {"u": "u", "l": "l", "load": "load_force"}, "C": {"l": "l", "u": "u"}}
     path = {"WINEPATH": _windows_path(windows["python"].parent)}
 
     def run(mode: str, **keys) -> subprocess.CompletedProcess:

@@ -7,7 +7,7 @@ for ``k = 0 .. N-1``, ``t_k = k h``::
     controller.l <- l(k);  controller.r <- r(.)       (r only for an external reference)
     controller.doStep(t_k, h)                         samples l(k), r(k..k+Hp): u(k)
     u(k), diagnostics <- controller outputs
-    plant.u <- u(k);  plant.load <- load(t_k);  plant.supply_pressure <- supply(t_k)
+    plant.u <- u(k);  plant.load_force <- load(t_k);  plant.supply_pressure <- supply(t_k)
     plant.doStep(t_k, h)                              holds u(k) over [t_k, t_k + h): l(k+1)
 
 Timing diagram (one row of the result per ``k``)::
@@ -200,7 +200,7 @@ def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None
 
 
 #: The interface each role of the closed loop needs: (inputs, outputs) by name.
-ROLE_INTERFACE = {"plant": ({"u"}, {"l"}), "controller": ({"l"}, {"u"})}
+ROLE_INTERFACE = {"plant": ({"u", "load_force", "supply_pressure"}, {"l"}), "controller": ({"l"}, {"u"})}
 
 
 def check_role(unpacked: Unpacked, role: str) -> None:
@@ -215,8 +215,10 @@ def check_role(unpacked: Unpacked, role: str) -> None:
     outs = {n for n, v in variables.items() if v.causality == "output"}
     missing = [f"input {n}" for n in sorted(need_in - ins)] + [f"output {n}" for n in sorted(need_out - outs)]
     if missing:
+        renamed = ("; its input load is the plant's load_force as an earlier tapmuscle named it: build the FMU "
+                   "again (tapmuscle build)" if role == "plant" and "load" in ins and "load_force" not in ins else "")
         raise ScenarioError(f"{unpacked.path}: this {unpacked.model_description.modelName} FMU cannot be the {role}: "
-                            f"it lacks {', '.join(missing)}")
+                            f"it lacks {', '.join(missing)}{renamed}")
 
 
 def _reason(message: str) -> str:
@@ -411,7 +413,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
             h = scenario.step_s
             ref = scenario.reference
-            plant.set_parameters({"load": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
+            plant.set_parameters({"load_force": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
                                  where=f"{src}: key '[load]/[supply] ")
             ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
             if ref.kind == "sine":
@@ -521,7 +523,7 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
     ctrl_out = [ctrl.vr(v) for v in (diag if full else ["u", "r_k"])]
     plant_out = [plant.vr("l"), plant.vr("p")] if full else [plant.vr("l")]
     ctrl_in = [ctrl.vr("l"), ctrl.vr("r")] if external else [ctrl.vr("l")]
-    plant_in = [plant.vr("u"), plant.vr("load"), plant.vr("supply_pressure")]
+    plant_in = [plant.vr("u"), plant.vr("load_force"), plant.vr("supply_pressure")]
     rows_p = np.empty((n, len(plant_out)))
     rows_c = np.empty((n, len(ctrl_out)))
     plant_io, ctrl_io = _RealPort(plant, plant_out, plant_in, h), _RealPort(ctrl, ctrl_out, ctrl_in, h)

@@ -70,12 +70,12 @@ def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.nd
         try:
             inst.set_parameters(dict(values), where=f"{path}: parameter '")
             # the FMU's inputs set the load and the supply pressure (its parameters of the same names are unused)
-            inputs = {"load": float(load_n[0]) if load_n is not None else values.get("load.load_n"),
+            inputs = {"load_force": float(load_n[0]) if load_n is not None else values.get("load.load_n"),
                       "supply_pressure": values.get("supply.supply_pressure_mpa")}
             inst.set_parameters({k: float(v) for k, v in inputs.items() if v is not None}, where=f"{path}: input '")
             inst.start()
             fmu = inst.fmu
-            vr_u, vr_l, vr_w = inst.vr("u"), inst.vr("l"), inst.vr("load")
+            vr_u, vr_l, vr_w = inst.vr("u"), inst.vr("l"), inst.vr("load_force")
             n = len(u_v)
             out = np.empty(n)
             out[0] = fmu.getReal([vr_l])[0]

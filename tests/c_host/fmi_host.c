@@ -20,7 +20,7 @@
  *                   reference (100000), one step, free; the host must survive; CSV: i,get,set,l
  * FMU keys (P = plant, C = ctrl):
  *   P.dir=DIR P.id=MODEL_ID P.guid=GUID        extracted FMU folder, modelIdentifier, guid
- *   P.u=VR P.l=VR P.p=VR P.load=VR             value references (plant: input u, outputs l, p, input load)
+ *   P.u=VR P.l=VR P.p=VR P.load=VR             value references (plant: input u, outputs l, p, input load_force)
  *   C.l=VR C.u=VR                              controller: input l, output u
  *   P.real=VR:VALUE  P.int=VR:VALUE            parameters set in initialization mode (repeatable)
  * Run keys: steps=N dt=TS sine=OFFSET,AMP,FREQ u_const=V load_a=N load_b=N
