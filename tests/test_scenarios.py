@@ -398,6 +398,24 @@ def test_a_controller_fmu_as_the_plant_is_named_as_such(built_fmus, tmp_path, ca
     assert not (tmp_path / "o").exists()
 
 
+def test_a_plant_fmu_with_the_input_load_is_told_to_be_built_again(tmp_path):
+    """The plant's input is load_force; a plant FMU with an input ``load`` instead is named with the remedy."""
+    from types import SimpleNamespace
+
+    from tapmuscle.cosim.master import Unpacked, check_role
+
+    def fmu(*inputs):
+        variables = {n: SimpleNamespace(causality="input") for n in inputs} | {"l": SimpleNamespace(causality="output")}
+        return Unpacked(tmp_path / "MusclePlant.fmu", SimpleNamespace(modelName="MusclePlant"), str(tmp_path), variables)
+
+    check_role(fmu("u", "load_force", "supply_pressure"), "plant")
+    with pytest.raises(ScenarioError, match=r"it lacks input load_force; its input load is the plant's load_force as "
+                                            r"an earlier tapmuscle named it: build the FMU again \(tapmuscle build\)"):
+        check_role(fmu("u", "load", "supply_pressure"), "plant")
+    with pytest.raises(ScenarioError, match=r"it lacks input load_force$"):
+        check_role(fmu("u", "supply_pressure"), "plant")
+
+
 @pytest.mark.parametrize("key, value, message", [
     ("servo.R", -1.0, "-1.0 is outside its declared range 0.0..inf"),
     ("servo.Hp", 5.5, "must be an integer, got 5.5"),
