@@ -593,6 +593,9 @@ class SafeSlave(Fmi2Slave):
         except FloatingPointError as exc:  # a documented breakdown of the numerics (extreme parameters): no bug
             return self.fail(f"t = {current_time:g} s: {exc}; the state and outputs are those of the step's start",
                              Fmi2Status.error)
+        except OverflowError as exc:  # Python float arithmetic past 1.8e308: parameters far out, not a bug
+            return self.fail(f"t = {current_time:g} s: numerical overflow ({exc}): {self.overflow_hint()}; the "
+                             "outputs keep their last values; restore an FMU state or reset", Fmi2Status.error)
         except Exception as exc:  # noqa: BLE001
             return self.fail(f"t = {current_time:g} s: internal error {type(exc).__name__}: {exc}\n"
                              f"{traceback.format_exc(limit=3)}", Fmi2Status.error)
@@ -699,6 +702,10 @@ class SafeSlave(Fmi2Slave):
     def step_numerics(self, t_s: float, dt_s: float) -> None:
         """Validate inputs (raise SlaveInputError naming a bad one), advance, set outputs."""
         raise NotImplementedError  # abstract
+
+    def overflow_hint(self) -> str:
+        """What drives the numerics past floating point, for the message of a step that overflowed."""
+        return "the parameters drive the model beyond floating point"
 
     def refresh_calculated(self) -> None:
         """Set the outputs computed at initialisation (``add_output(calculated_from=...)``) from the

@@ -108,6 +108,22 @@ _PINNED_S = 10.0
 _SERVO_NAMES = {"hp": "servo.Hp", "hu": "servo.Hu", "qs": "servo.Qs", "q": "servo.Q", "r": "servo.R",
                 "u_min_v": "u_min", "u_max_v": "u_max"}
 _UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
+#: ControllerSettings' field names as the FMU's parameters (``servo.r`` is ServoMPCSettings' ``r``).
+_SETTINGS_NAMES = {"ControllerSettings.ts_s": "Ts", "ControllerSettings.p0": "P0.*",
+                   "ControllerSettings.input_delay_samples": "input_delay_samples", "servo.r": "servo.R",
+                   **{f"ControllerSettings.{n}": n for n in ("startup_s", "probing_v", "delay_move_weight")}}
+#: Largest |theta0.*|: Eq. (1)'s coefficients multiply displacements [mm] and commands [V]; a
+#: preliminary identification's are below 2 (THETA0_44N), and beyond this the predictions over the
+#: horizon overflow floating point instead of failing a check that names the parameter.
+THETA0_LIMIT = 1e6
+#: Parameters that only some methods use: (names or group prefixes, the methods that use them).
+_METHOD_ONLY = (
+    (("ucp.",), "the unique-coincidence-point methods 1, 3", lambda s: not s.servo_mechanism),
+    (("servo.", "hysteresis_notch", "anti_windup", "delay_move_weight"), "the servo methods 2, 4",
+     lambda s: s.servo_mechanism),
+    (("P0.", "forgetting", "covariance_ceiling", "box_lower.", "box_upper.", "probing_v", "startup_guard"),
+     "the adaptive methods 3, 4", lambda s: s.adaptive),
+)
 
 
 def _fmu_names(message: str, names: dict[str, str]) -> str:
@@ -226,7 +242,8 @@ class AMPCController(SafeSlave):
         table += [(f"P0.{n}", P0_TABLE5[i], "", f"diagonal of P(0) for {n} (Table 5; Table 8 for 0.2 Hz)",
                    0.0, None) for i, n in enumerate(ASYMMETRIC.names)]
         table += [(f"theta0.{n}", float(THETA0_44N[i]), "", f"initial/fixed Eq. (1) parameter {n} "
-                   "(default: preliminary identification at 44 N, fmu_controller.preliminary_model)", None, None)
+                   "(default: preliminary identification at 44 N, fmu_controller.preliminary_model)", -THETA0_LIMIT,
+                   THETA0_LIMIT)
                   for i, n in enumerate(ASYMMETRIC.names)]
         table += [(f"box_lower.{n}", TABLE2_LOWER[n], "", f"lower bound of {n} in C (Table 2; -inf: none)", None, None)
                   for n in TABLE2_LOWER]
@@ -258,7 +275,10 @@ class AMPCController(SafeSlave):
             if name.startswith(("box_lower.", "box_upper.")) and math.isinf(value):
                 side = "-inf (no lower bound)" if name.startswith("box_lower.") else "inf (no upper bound)"
                 raise SlaveInputError(f"parameter {name} = {value!r} is not a bound: a finite number, or {side}")
-            self.finite(f"parameter {name}", value)
+            if name.startswith("theta0."):
+                self.finite(f"parameter {name}", value, -THETA0_LIMIT, THETA0_LIMIT)
+            else:
+                self.finite(f"parameter {name}", value)
             if name.startswith("P0.") and value <= 0:
                 raise SlaveInputError(f"parameter {name} = {value!r} must be > 0")
         if abs(p["theta0.b1"]) < 1e-6:
@@ -276,6 +296,16 @@ class AMPCController(SafeSlave):
             if not p[f"box_lower.{n}"] <= p[f"box_upper.{n}"]:
                 raise SlaveInputError(f"parameter box_lower.{n} = {p[f'box_lower.{n}']!r} exceeds "
                                       f"box_upper.{n} = {p[f'box_upper.{n}']!r}")
+        try:
+            return self._controller_settings(servo, ucp)
+        except ValueError as exc:
+            message = str(exc)
+            for name, fmu_name in _SETTINGS_NAMES.items():
+                message = message.replace(name, fmu_name)
+            raise SlaveInputError(f"parameter {message}") from None
+
+    def _controller_settings(self, servo: ServoMPCSettings, ucp: UCPSettings) -> ControllerSettings:
+        p, ip = self._par, self._int_par
         return ControllerSettings(
             method=METHOD_CODES[ip["method"]], ts_s=p["Ts"], ucp=ucp, servo=servo,
             p0=tuple(p[f"P0.{n}"] for n in ASYMMETRIC.names),
@@ -286,6 +316,25 @@ class AMPCController(SafeSlave):
             startup_guard=ip["startup_guard"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
             startup_s=p["startup_s"], probing_v=p["probing_v"], delay_move_weight=p["delay_move_weight"])
+
+    def overflow_hint(self) -> str:
+        changed = [n for n in ASYMMETRIC.names if self._par[f"theta0.{n}"] != self._start_values[f"theta0.{n}"]]
+        return ("the model's predictions grow past floating point: theta0 is far from a model of a muscle"
+                + (f" (set away from its start: {', '.join(f'theta0.{n}' for n in changed)})" if changed else ""))
+
+    def _warn_unused(self, settings: ControllerSettings) -> None:
+        """Log a warning naming the parameters set away from their start values that ``settings.method``
+        does not use (tuning ``servo.Hp`` for an UCP method changes nothing)."""
+        unused = []
+        for names, users, uses in _METHOD_ONLY:
+            if not uses(settings):
+                unused += [f"{name} = {value!r} ({users})" for table in (self._par, self._int_par)
+                           for name, value in table.items()
+                           if name.startswith(names) and value != self._start_values[name]]
+        if unused:
+            code = next(c for c, name in METHOD_CODES.items() if name == settings.method)
+            self.log(f"parameters not used by method {code} ({settings.method}), which the run has: "
+                     f"{', '.join(unused)}", status=Fmi2Status.warning)
 
     def initialize_numerics(self) -> None:
         self._reset_monitors()
@@ -465,6 +514,7 @@ class AMPCController(SafeSlave):
             self._controller.reset(l)
             # at the first step, not at initialisation, where a warning means rejected parameters to a host
             self._warn_paper_defaults_off_period(self._controller.settings, self._controller.theta0.tolist())
+            self._warn_unused(self._controller.settings)
         ctrl = self._controller
         # the modes change only until the start-up is over (the delay decided by then): not looked at after
         before = (ctrl.input_delay_decision, ctrl.law_on_theta0) if self._modes_open else None
@@ -628,6 +678,7 @@ class _Tally:
             return "no sample"
         rms = math.sqrt(self.sum_squares_mm2 / self.errors) if self.errors else 0.0
         since = " since a restored state" if self.partial else ""
-        return (f"{self.samples} samples{since}; an input limit (0-10 V or Eq. 19) active in {self.saturated} "
-                f"({100.0 * self.saturated / self.samples:.3g} %); one-step prediction error l(k) - l(k|k-1): RMS "
+        # no percent sign: hosts that print the message as it arrives (fmpy) would show it doubled
+        return (f"{self.samples} samples{since}; an input limit (0-10 V or Eq. 19) active in {self.saturated} of "
+                f"them; one-step prediction error l(k) - l(k|k-1): RMS "
                 f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm")

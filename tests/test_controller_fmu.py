@@ -236,6 +236,11 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"sine.amplitude": -1.0}, {}, "parameter sine.amplitude = -1.0 is outside its declared range 0..3000"),
     ({"theta0.a1": 1.1}, {"method": 4}, "theta0's a1 = 1.1 lies outside the constraint region C, 1.208..1.26"),
     ({"sine.frequency": 6.0}, {}, "sine.frequency = 6 Hz is above the Nyquist frequency 0.5/Ts = 5 Hz"),
+    # beyond the limit the predictions overflowed at the second step (an internal error with a traceback)
+    ({"theta0.A1": 1e50}, {}, "parameter theta0.A1 = 1e+50 is outside its declared range -1e+06..1e+06"),
+    ({"theta0.a2": -2e6}, {"method": 2}, "parameter theta0.a2 = -2000000.0 is outside its declared range"),
+    # the settings' errors name the FMU's parameters, not ControllerSettings' fields
+    ({"startup_s": 1e4}, {}, "parameter startup_s = 10000.0 is outside its declared range"),
 ])
 def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):
     """fmi2Error, not Discard (a host answers Discard with a smaller step, forever); the instance stays
@@ -459,6 +464,83 @@ def test_an_infinite_bound_on_its_own_side_is_no_bound():
     assert wrong._controller is None
     assert any("parameter box_upper.b1 = -inf is not a bound: a finite number, or inf (no upper bound)" in m.msg
                for m in wrong.log_queue)
+
+
+def test_a_model_whose_predictions_overflow_is_an_error_naming_theta0_not_a_traceback():
+    """theta0.xi31 within its declared range still makes the servo law's predicted hysteresis overflow
+    (it multiplies l**3): fmi2Error naming theta0, no traceback, finite outputs."""
+    slave = AMPCController(instance_name="overflow")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["method"]], [2])
+    slave.set_real([vr["theta0.xi31"]], [1e6])
+    slave.exit_initialization_mode()
+    slave.l = 35.0
+    assert not slave.do_step(0.0, 0.1)
+    (message,) = [m for m in slave.log_queue if m.status == Fmi2Status.error]
+    assert message.msg.startswith("t = 0 s: numerical overflow (") and "Traceback" not in message.msg
+    assert "theta0 is far from a model of a muscle (set away from its start: theta0.xi31)" in message.msg
+    assert all(math.isfinite(x) for x in (slave.u, slave.l_pred, slave.uc))
+
+
+def test_a_settings_error_names_the_fmu_parameters():
+    """ControllerSettings' checks run after the declared ranges: their messages name the FMU's
+    parameters (delay_move_weight, servo.R), not the Python fields (ControllerSettings.delay_move_weight)."""
+    slave = AMPCController(instance_name="names")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_real([vr["delay_move_weight"]], [0.0])
+    slave.exit_initialization_mode()
+    (message,) = [m.msg for m in slave.log_queue if "initialisation failed" in m.msg]
+    assert "parameter delay_move_weight must be within 0 .. 1000 (0 excluded; 1: servo.R as it is), got 0.0" in message
+    assert "ControllerSettings" not in message and "servo.r " not in message
+
+
+#: Valid values away from the start values of the parameters only some methods use.
+_METHOD_ONLY_VALUES = {"ucp.Hp": 3, "servo.Hp": 8, "servo.Hu": 3, "servo.Q": 2.0, "servo.Qs": 1.0, "servo.R": 30.0,
+                       "hysteresis_notch": 0, "anti_windup": 0, "delay_move_weight": 2.0, "P0.a1": 1.0,
+                       "forgetting": 0.98, "covariance_ceiling": 1, "box_lower.a1": 1.0, "box_upper.b1": 1.5,
+                       "probing_v": 0.1, "startup_guard": 0}
+_USED_BY = {"ucp.Hp": {1, 3}, **dict.fromkeys(("servo.Hp", "servo.Hu", "servo.Q", "servo.Qs", "servo.R",
+                                               "hysteresis_notch", "anti_windup", "delay_move_weight"), {2, 4})}
+
+
+@pytest.mark.parametrize("method", [1, 2, 3, 4])
+def test_a_parameter_the_method_does_not_use_is_named_and_changes_nothing(method):
+    """Tuning servo.Hp for an UCP method, or the estimator for a fixed one, did nothing without a word. At
+    the first step a warning names each such parameter; setting it leaves every command bit for bit as
+    it was (which proves the list), and a parameter the method uses is not named (some of those only act
+    later, under forgetting or at the box's edge: the commands are compared for those that act at once)."""
+    from fmu_controller.controller_slave import AMPCController
+
+    def run(name=None):
+        slave = AMPCController(instance_name="unused")
+        vr = {var.name: v for v, var in slave.vars.items()}
+        slave.set_integer([vr["method"]], [method])
+        slave.set_integer([vr["input_delay_samples"]], [2])  # so that delay_move_weight acts where it is used
+        if name is not None:
+            value = _METHOD_ONLY_VALUES[name]
+            (slave.set_integer if isinstance(value, int) else slave.set_real)([vr[name]], [value])
+        slave.exit_initialization_mode()
+        commands = []
+        for k in range(40):
+            slave.l = _l(k)
+            assert slave.do_step(k * 0.1, 0.1)
+            commands.append(slave.u)
+        warned = [m.msg for m in slave.log_queue if "not used by method" in m.msg]
+        return commands, warned
+
+    default, warned = run()
+    assert warned == []
+    for name, value in _METHOD_ONLY_VALUES.items():
+        used = method in _USED_BY.get(name, {3, 4})
+        commands, warned = run(name)
+        if used:
+            assert warned == [], name
+            if name in ("ucp.Hp", "servo.Hp", "servo.R", "probing_v"):  # those that act within 4 s
+                assert commands != default, name
+        else:
+            (message,) = warned
+            assert f"method {method} " in message and f"{name} = {value!r} (the " in message, message
+            assert commands == default, name
 
 
 def test_the_paper_defaults_at_another_period_are_warned_of():

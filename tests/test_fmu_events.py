@@ -17,6 +17,8 @@ TS = 0.1
 def _events(slave) -> list[str]:
     got = [m.msg for m in slave.log_queue if m.category == "logEvents"]
     assert all(m.status == Fmi2Status.ok for m in slave.log_queue if m.category == "logEvents")
+    # no percent sign in any message: fmpy prints the text as it arrives, where a C host formats it
+    assert not [m.msg for m in slave.log_queue if "%" in m.msg]
     slave.log_queue.clear()
     return got
 
@@ -70,7 +72,7 @@ def test_a_closed_loop_logs_its_set_up_its_changes_of_mode_and_a_summary_that_ag
     l, p, e, sat = (list(c) for c in zip(*rows))
     rms = math.sqrt(sum(x * x for x in e[1:]) / (len(e) - 1))
     assert c_end.startswith(f"fmi2Terminate at t = 30 s: 30 s from t = 0 s: 300 samples; an input limit (0-10 V or "
-                            f"Eq. 19) active in {sum(sat)} ({100 * sum(sat) / 300:.3g} %); one-step prediction error "
+                            f"Eq. 19) active in {sum(sat)} of them; one-step prediction error "
                             f"l(k) - l(k|k-1): RMS {rms:.3g} mm, largest {max(map(abs, e)):.3g} mm; the law for an "
                             "input delay of 0 samples; Algorithm 1 since the estimator's start: the estimate projected "
                             "onto the box C in "), c_end

@@ -410,7 +410,7 @@ def test_a_rejected_plant_parameter_is_named_as_the_fmu_names_it(fmu, capfd, nam
 @pytest.mark.parametrize("parameter, value, inp, inp_value", [
     ("load.load_n", 68.0, "load_force", 44.0), ("supply.supply_pressure_mpa", 0.15, "supply_pressure", 0.25)])
 def test_a_load_or_supply_parameter_the_input_overrides_is_said_unused(fmu, capfd, parameter, value, inp, inp_value):
-    """The inputs ``load`` and ``supply_pressure`` set these in the FMU (they change during a run); the
+    """The inputs ``load_force`` and ``supply_pressure`` set these in the FMU (they change during a run); the
     parameters of the same names (a plant file's) would silently do nothing: a warning names the input."""
     vr = fmu[3]
     f = _instance(fmu, reals={parameter: value}, rejected=True)  # fmi2Warning at fmi2ExitInitializationMode
