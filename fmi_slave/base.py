@@ -561,8 +561,8 @@ class SafeSlave(Fmi2Slave):
             # A warning here and fmi2Error from every fmi2DoStep: libcosim terminates the process on an
             # error during its initialisation phase, but stops cleanly on an error from a step.
             self._failed = True
-            self.log(f"initialisation failed: {exc}; every fmi2DoStep will return fmi2Error (set valid "
-                     "parameters and instantiate again)", status=Fmi2Status.warning)
+            self.log(f"initialisation failed: {exc}; every fmi2DoStep will return fmi2Error (fmi2Reset or "
+                     "instantiate again, and set valid parameters)", status=Fmi2Status.warning)
         except KeyboardInterrupt:
             self._failed = True
             self.log(_INTERRUPTED.format(where="during initialisation"), status=Fmi2Status.error)
@@ -572,8 +572,8 @@ class SafeSlave(Fmi2Slave):
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
             if self._failed:
-                return self.fail("the FMU was not initialised (see the previous error); fix the parameters and "
-                                 "instantiate again", Fmi2Status.error)
+                return self.fail("the FMU was not initialised (see the previous error); fmi2Reset or instantiate "
+                                 "again, and set valid parameters", Fmi2Status.error)
             self._restored_before_init = False
             if self._terminated or not self._initialised:
                 return self.fail(f"fmi2DoStep {'after fmi2Terminate' if self._terminated else 'before fmi2ExitInitializationMode'}"

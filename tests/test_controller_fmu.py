@@ -466,6 +466,21 @@ def test_an_infinite_bound_on_its_own_side_is_no_bound():
                for m in wrong.log_queue)
 
 
+def test_after_rejected_parameters_a_reset_and_valid_ones_run(fmu, capfd):
+    """The rejection names both ways out (fmi2Reset or a new instance), and fmi2Reset works."""
+    f = _instance(fmu, ints={"servo.Hu": 9}, rejected=True)
+    assert "(fmi2Reset or instantiate again, and set valid parameters)" in capfd.readouterr().out
+    f.reset()
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setInteger([fmu[3]["servo.Hu"]], [3])
+    assert f.exitInitializationMode() == 0
+    f.setReal([fmu[3]["l"]], [35.0])
+    f.doStep(0.0, 0.1)
+    assert 0.0 <= f.getReal([fmu[3]["u"]])[0] <= 10.0
+    _free(f)
+
+
 def test_a_model_whose_predictions_overflow_is_an_error_naming_theta0_not_a_traceback():
     """theta0.xi31 within its declared range still makes the servo law's predicted hysteresis overflow
     (it multiplies l**3): fmi2Error naming theta0, no traceback, finite outputs."""
