@@ -117,6 +117,15 @@ P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
 P0_TABLE8 = (1000.0, 1000.0, 1000.0) + (250.0,) * 8 + (150.0,) * 4
 
 
+#: ``hysteresis_notch``: the predicted H(k+1|k), H(k+2|k) stay within one and two times
+#: ``NOTCH_RATE_FACTOR x`` (the larger of H's last two changes) ``+ NOTCH_FLOOR_MM`` of H(k) [mm].
+#: In tracking (the paper's sines, both loads) the predictions move under 0.5 mm per sample and the
+#: bound never acts; after a large reference step the adaptive estimate's jump made them hundreds
+#: to thousands of mm, the QP input u_c thousands of volts and the valve slam shut for a sample.
+NOTCH_RATE_FACTOR = 2.0
+NOTCH_FLOOR_MM = 1.0
+
+
 @dataclass(frozen=True, kw_only=True)
 class ControllerSettings:
     """Settings of a :class:`DisplacementController`."""
@@ -683,6 +692,11 @@ class DisplacementController:
             h_next, h_next2 = self._future_hysteresis(t, theta, u_prev, bounds)
             if h_prev2 != h_prev2:  # the second sample: H(k-2) does not exist yet
                 h_prev2 = h_prev
+            # the predictions move H(k) ahead no faster than NOTCH_RATE_FACTOR times its last two changes,
+            # plus NOTCH_FLOOR_MM per sample: after a large step the estimate's jump made them thousands of mm
+            d = NOTCH_RATE_FACTOR * max(abs(h - h_prev), abs(h_prev - h_prev2)) + NOTCH_FLOOR_MM
+            h_next = min(max(h_next, h - d), h + d)
+            h_next2 = min(max(h_next2, h - 2.0 * d), h + 2.0 * d)
             # the centred 5-point mean (1, 3, 4, 3, 1)/12 of H(k-2) .. H(k+2|k)
             h = (h_prev2 + h_next2) / 12.0 + (h_prev + h_next) / 4.0 + h / 3.0
         offset = h / t[2]
