@@ -108,6 +108,8 @@ _PINNED_S = 10.0
 _SERVO_NAMES = {"hp": "servo.Hp", "hu": "servo.Hu", "qs": "servo.Qs", "q": "servo.Q", "r": "servo.R",
                 "u_min_v": "u_min", "u_max_v": "u_max"}
 _UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
+#: The servo MPC's prediction horizon of Table 5 [samples].
+_TABLE5_HP = ServoMPCSettings().hp
 #: ControllerSettings' field names as the FMU's parameters (``servo.r`` is ServoMPCSettings' ``r``).
 _SETTINGS_NAMES = {"ControllerSettings.ts_s": "Ts", "ControllerSettings.p0": "P0.*",
                    "ControllerSettings.input_delay_samples": "input_delay_samples", "servo.r": "servo.R",
@@ -393,7 +395,7 @@ class AMPCController(SafeSlave):
                 self.log(f"t = {t_s:g} s: the command has jumped across the valve's range {_SLAM_JUMPS} times in "
                          f"{_SLAM_WINDOW_S:g} s: {law} slams the valve end to end", status=Fmi2Status.warning)
 
-    def _watch_swings(self, t_s: float, u: float) -> None:
+    def _watch_swings(self, t_s: float, u: float, l: float) -> None:
         """Log once when, after the start-up and the first :data:`_SLAM_WINDOW_S` of the estimator, the
         command has swung from one valve limit to the other :data:`_SWINGS` times within
         :data:`_SLAM_WINDOW_S` (a limit cycle)."""
@@ -428,11 +430,30 @@ class AMPCController(SafeSlave):
                        f"it: check the delay (-1 decides it), raise {gentler}{fixed} (docs/control.md, "
                        "\"Transport delay\")")
             else:
-                why = ("the loop has more delay than the law compensates: a rig's transport delay, or a parallel "
-                       "master? Set input_delay_samples to the loop's delay in samples, or -1 to decide it "
-                       "(docs/control.md, \"Transport delay\")")
+                why = "; ".join(self._limit_cycle_causes(l))
             self.log(f"t = {t_s:g} s: the valve command has swung from one limit to the other {_SWINGS} times in "
                      f"{_SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}", status=Fmi2Status.warning)
+
+    def _limit_cycle_causes(self, l: float) -> list[str]:
+        """What may make a law that compensates no delay swing the valve limit to limit, each with its
+        remedy, as far as the settings tell them apart (``l``: the reading now [mm])."""
+        s = self._controller.settings
+        causes = []
+        if s.input_delay_samples == 0:  # -1 deciding 0 saw none: no delay to suggest
+            causes.append("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
+                          "master?): set input_delay_samples to it in samples, or -1 to decide it (docs/control.md, "
+                          "\"Transport delay\")")
+        if not s.adaptive:
+            causes.append(f"the fixed predictor theta0 poor where the loop runs now (l = {l:.4g} mm; the default "
+                          "THETA0_44N was identified on the paper's 5..65 mm sine): an adaptive method (3, 4), or "
+                          "theta0 identified over this range")
+        if s.servo_mechanism and s.servo.hp > _TABLE5_HP:
+            causes.append(f"a long prediction horizon servo.Hp = {s.servo.hp} on an imperfect model (Table 5: "
+                          f"{_TABLE5_HP}; 30 and more swung the valve in measured runs)")
+        if not causes:
+            causes.append("a model poor for this rig (theta0, the box C) or a delay the law does not compensate "
+                          "(docs/control.md, \"Transport delay\")")
+        return causes
 
     def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
         """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
@@ -566,7 +587,7 @@ class AMPCController(SafeSlave):
                 tally.largest_mm = abs(e)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
-        self._watch_swings(t_s, step.u_v)
+        self._watch_swings(t_s, step.u_v, l)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

@@ -643,6 +643,30 @@ def test_a_law_that_slams_the_valve_is_logged_once():
     assert "its estimate diverges (theta0 or the box C far from this rig" in msg and "forgetting" not in msg
 
 
+@pytest.mark.parametrize("delay", [0, -1])
+def test_a_fixed_predictors_limit_cycle_names_the_predictor_and_no_delay_the_data_ruled_out(delay):
+    """MPC-servo on THETA0_44N after a step 35 -> 80 mm swings the valve limit to limit for good
+    (Eq. (21) 9.3 mm; AMPC-servo tracks it to 0.01 mm). The warning blamed an uncompensated delay and
+    advised -1, which decides 0 and changes nothing: it names the fixed predictor, and the delay only
+    where 0 was set rather than decided."""
+    from fmu_plant import Plant, PlantParams
+
+    slave = AMPCController(instance_name="fixed")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["method"], vr["input_delay_samples"], vr["reference_source"]], [2, delay, 2])
+    slave.exit_initialization_mode()
+    plant = Plant(PlantParams(), seed=0)
+    for k in range(450):
+        slave.l, slave.r = plant.measurement.l_mm, 35.0 if k < 200 else 80.0
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    (msg,) = [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
+    assert "the fixed predictor theta0 poor where the loop runs now (l = " in msg
+    assert "an adaptive method (3, 4), or theta0 identified over this range" in msg
+    assert ("more delay in the loop than the 0 samples set" in msg) == (delay == 0), msg
+    assert "servo.Hp" not in msg
+
+
 @pytest.mark.parametrize("delay, said", [(0, 1), (2, 0), (-1, 0)])
 def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
     """A rig whose valve acts 0.2 s late made the undelayed law swing the valve between its limits
