@@ -62,7 +62,8 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
+from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, DELAY_DECIDE_BY_SAMPLES,
+                                                 GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
@@ -434,6 +435,24 @@ class AMPCController(SafeSlave):
             self.log(f"t = {t_s:g} s: the valve command has swung from one limit to the other {_SWINGS} times in "
                      f"{_SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}", status=Fmi2Status.warning)
 
+    def _check_delay(self, t_s: float) -> None:
+        """Log a warning when the set ``input_delay_samples`` is not the delay the first samples show
+        (:attr:`DisplacementController.delay_evidence`): the commonest mistake of a master's author,
+        whose loop then tracks several times worse without a limit cycle to warn of."""
+        evidence = self._controller.delay_evidence
+        if evidence is None:
+            return
+        d, ratio = evidence
+        what = {0: "a sequential master (the controller stepped before the plant, as fmpy's scenarios and a "
+                   "sequential container do)",
+                1: "a parallel master (libcosim, Ecos, OMSimulator, SSP tools: every FMU stepped on the previous "
+                   "outputs, u one macro step late at h = Ts)"}.get(d, f"a rig's transport delay of about {d} Ts")
+        set_ = self._controller.settings.input_delay_samples
+        self.log(f"t = {t_s:g} s: the measurements show an input delay of {d} samples, not the {set_} set "
+                 f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
+                 f"mean square under it, as in {what}; set input_delay_samples = {d}, or -1 to decide it "
+                 "(docs/control.md, \"Transport delay\")", status=Fmi2Status.warning)
+
     def _limit_cycle_causes(self, l: float) -> list[str]:
         """What may make a law that compensates no delay swing the valve limit to limit, each with its
         remedy, as far as the settings tell them apart (``l``: the reading now [mm])."""
@@ -588,6 +607,8 @@ class AMPCController(SafeSlave):
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
         self._watch_swings(t_s, step.u_v, l)
+        if self._k == DELAY_DECIDE_BY_SAMPLES:
+            self._check_delay(t_s)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)

@@ -521,12 +521,14 @@ class DisplacementController:
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
 
-        if self._auto and not self._decided:
+        if (self._auto and not self._decided) or (not self._auto and self._compared < DELAY_DECIDE_BY_SAMPLES):
             if k == 0:  # the shadow models start from the first measurement
                 for shadow in self._shadows:
                     shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
-            else:
+            elif self._auto:
                 self._detect_delay(l)
+            else:  # a delay set: scored over the first samples as -1 would, to tell a wrong one (delay_evidence)
+                self._score_delays(l)
 
         if self._rls is not None and k > 0:
             phi = state.phi_list()
@@ -580,14 +582,8 @@ class DisplacementController:
         taken. A switch corrects the model's input over ``[t_k-1, t_k)`` to the command the valve had
         under the delay decided. (The prior, not the adaptive estimate: in the first seconds the
         estimate can be far off.)"""
-        th0, lin0, outs, ms = self.theta0, self._lin0, self._outs, self._ms
-        for d, shadow in enumerate(self._shadows):
-            u = outs[d][0]
-            shadow.apply(u)
-            e = l - _held(shadow, th0, lin0, u, 1)[0]
-            shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
-            ms[d] += DELAY_FORGET * (e * e - ms[d])
-        self._compared += 1
+        self._score_delays(l)
+        ms = self._ms
         if self._compared < DELAY_MIN_SAMPLES:
             return
         ms_seq, ms_par = ms[0], ms[1]
@@ -601,6 +597,32 @@ class DisplacementController:
             # a sequential master: the valve had the last output over [t_k-1, t_k), not the one
             # before; the law runs undelayed from now on
             self._decide_delay(0)
+
+    def _score_delays(self, l: float) -> None:
+        """One sample of :meth:`_detect_delay`'s scores: ``theta0``'s one-step prediction error of ``l(k)``
+        [mm] under each delay, into the running mean squares."""
+        th0, lin0, outs, ms = self.theta0, self._lin0, self._outs, self._ms
+        for d, shadow in enumerate(self._shadows):
+            u = outs[d][0]
+            shadow.apply(u)
+            e = l - _held(shadow, th0, lin0, u, 1)[0]
+            shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
+            ms[d] += DELAY_FORGET * (e * e - ms[d])
+        self._compared += 1
+
+    @property
+    def delay_evidence(self) -> tuple[int, float] | None:
+        """With ``input_delay_samples`` set (0 .. 5): once the first :data:`DELAY_DECIDE_BY_SAMPLES`
+        samples are scored as -1 scores them (:meth:`_detect_delay`), ``(d, ratio)`` when another delay
+        ``d`` explains the measurements :data:`DELAY_RATIO` times better or more (``ratio``: the set
+        delay's mean squared one-step error over ``d``'s), else None (also before, and with -1)."""
+        if self._auto or self._compared < DELAY_DECIDE_BY_SAMPLES:
+            return None
+        ms, lag = self._ms, self._lag
+        best = min(range(len(ms)), key=ms.__getitem__)
+        if best != lag and DELAY_RATIO * ms[best] < ms[lag]:
+            return best, ms[lag] / ms[best]
+        return None
 
     def _decide_delay(self, d: int) -> None:
         """``input_delay_samples = -1`` decided for the delay ``d`` other than the delayed law's 1 it ran
