@@ -23,7 +23,7 @@ from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
-from tapmuscle.io.signals import parse_input_spec
+from tapmuscle.io.signals import Replay, parse_input_spec
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus"]
 
@@ -65,9 +65,12 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
     command : callable, array_like or str
         The valve command [V]: ``u(t)`` of the time [s]; or one value per sample ``u(k)``, held over
         ``[t_k, t_k+1)`` (the last one held to the end); or a ``tapmuscle record --input`` spec such as
-        ``"sine:bias=5,amp=3,freq=0.1"`` (docs/recordings.md). The valve takes 0..10 V.
+        ``"sine:bias=5,amp=3,freq=0.1"`` (docs/recordings.md). The valve takes 0..10 V. A
+        ``csv:PATH`` spec replays a recording sample by sample, at its own period and for at most its
+        length (another ``ts_s``, or a longer ``duration_s``, is refused).
     duration_s : float, optional
-        Length of the run [s]; required for a callable or a spec, default ``(len - 1) ts_s`` for samples.
+        Length of the run [s]; required for a callable or a spec other than ``csv:``, default
+        ``(len - 1) ts_s`` for samples and the recording's length for ``csv:``.
     ts_s : float
         Sampling period [s] (paper: 0.1).
     load_n : float, optional
@@ -92,7 +95,9 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
     """
     ts = _check_period(ts_s)
     if isinstance(command, str):
-        signal = parse_input_spec(command, run_duration_s=duration_s)
+        signal = parse_input_spec(command, run_duration_s=duration_s, run_ts_s=ts)
+        if duration_s is None and isinstance(signal, Replay):  # a recording replayed whole
+            duration_s = signal.duration_s
     elif callable(command):
         signal = command
     else:

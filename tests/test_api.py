@@ -323,3 +323,21 @@ def test_every_bad_input_error_is_a_tapmuscle_error():
 def test_a_command_function_that_returns_no_number_is_named(command, match):
     with pytest.raises(ValueError, match=match):
         tm.simulate(command, duration_s=1.0)
+
+
+def test_simulate_replays_a_recording_as_the_command_line_does(tmp_path):
+    """``csv:PATH`` in Python: the recording's commands sample by sample from its first sample (its
+    times here start at 1000 s: the run held one command), over its whole length unless told, and a
+    run at another period or past its end is refused."""
+    from tapmuscle.io.recording import Recording, write_recording
+
+    u = np.round(np.repeat([3.0, 7.0, 5.0, 6.5], 50), 6)
+    path = tmp_path / "late.csv"
+    write_recording(path, Recording({"t_s": 1000.0 + 0.1 * np.arange(u.size), "u_v": u, "l_mm": 0 * u}))
+    assert np.array_equal(tm.simulate(f"csv:{path}", duration_s=10.0)["u_v"], u[:101])
+    rec = tm.simulate(f"csv:{path}")
+    assert np.array_equal(rec["u_v"], u) and rec["t_s"][-1] == pytest.approx(19.9)
+    with pytest.raises(ValueError, match=r"the run's duration 30 s \(301 samples\) is longer than .*late\.csv's 19\.9 s"):
+        tm.simulate(f"csv:{path}", duration_s=30.0)
+    with pytest.raises(ValueError, match=r"late\.csv is sampled every 0\.1 s, the run every 0\.05 s"):
+        tm.simulate(f"csv:{path}", duration_s=10.0, ts_s=0.05)

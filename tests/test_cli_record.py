@@ -187,3 +187,64 @@ def test_an_effect_given_twice_is_refused(capsys):
     assert main(["diagnose", "--recording", "r.csv", "--plant", "p.json", "--out", "o",
                  "--effects", "transport_delay,backlash,transport_delay"]) == 2
     assert "'transport_delay' is given twice" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """A 60-s noise-free recording of random steps, and copies of it with its times shifted by 1000 s
+    and with a logger's +-3 ms jitter."""
+    import numpy as np
+
+    from tapmuscle.io.recording import Recording, write_recording
+
+    d = tmp_path_factory.mktemp("replay")
+    assert main(["record", "--input", "random:lo=2,hi=8,hold_min=0.2,hold_max=1,seed=3", "--duration", "60",
+                 "--no-noise", "--out", str(d / "a.csv"), "--quiet"]) == 0
+    a = read_recording(d / "a.csv")
+    shifts = {"shifted": np.full(len(a), 1000.0), "jittered": np.random.default_rng(1).uniform(-0.003, 0.003, len(a))}
+    for name, dt in shifts.items():
+        write_recording(d / f"{name}.csv", Recording({**a.columns, "t_s": a.t_s + dt}, {}))
+    return d, a
+
+
+def _replay(d, name):
+    out = d / f"b_{name}.csv"
+    if not out.exists():
+        assert main(["record", "--input", f"csv:{d / name}.csv", "--duration", "60", "--no-noise", "--out", str(out),
+                     "--quiet"]) == 0
+    return read_recording(out)
+
+
+@pytest.mark.parametrize("name", ["shifted", "jittered"])
+def test_a_replay_runs_the_recorded_commands_sample_by_sample(recorded, name):
+    """Replaying a recording that starts at 1000 s ran one constant command; one with logger jitter
+    ran some commands a period late (l off by several mm): both now run as the recording itself."""
+    import numpy as np
+
+    d, a = recorded
+    b, b0 = _replay(d, name), _replay(d, "a")
+    assert np.array_equal(b.u_v, a.u_v) and np.array_equal(b.t_s, a.t_s)
+    assert np.array_equal(b.l_mm, b0.l_mm)
+    # the response too, but for the 0.01-mm quantisation (the file keeps the commands to 1 uV)
+    assert np.max(np.abs(b.l_mm - a.l_mm)) <= 0.0100001
+
+
+@pytest.mark.parametrize("extra, pattern", [
+    (["--duration", "220"], r"the run's duration 220 s \(2201 samples\) is longer than \S*shifted\.csv's 60 s \(601 "
+                            r"samples every 0\.1 s\): there is no command after its end; run for at most 60 s"),
+    (["--duration", "60", "--ts", "0.05"], r"shifted\.csv is sampled every 0\.1 s, the run every 0\.05 s: a replay "
+                                           r"goes sample by sample; run it at 0\.1 s"),
+])
+def test_a_replay_is_not_resampled_silently(recorded, tmp_path, capsys, extra, pattern):
+    """A run longer than the recording held its last command, and another --ts resampled it, with no
+    word: both are refused, naming both values, and nothing is written."""
+    d, _ = recorded
+    out = tmp_path / "refused.csv"
+    assert main(["record", "--input", f"csv:{d / 'shifted.csv'}", "--out", str(out), "--quiet", *extra]) == 2
+    err = capsys.readouterr().err
+    assert re.search(pattern, err) and len(err.splitlines()) == 1, err
+    assert not out.exists()
+    # a shorter run replays the recording's start
+    assert main(["record", "--input", f"csv:{d / 'shifted.csv'}", "--duration", "30", "--no-noise", "--out", str(out),
+                 "--quiet"]) == 0
+    assert len(read_recording(out)) == 301

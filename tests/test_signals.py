@@ -35,7 +35,56 @@ def test_csv_replays_the_u_column(tmp_path):
     t = np.arange(10) * 0.5
     write_recording(path, Recording({"t_s": t, "u_v": t + 1, "l_mm": 0 * t}))
     s = parse_input_spec(f"csv:{path}")
-    assert s(0.0) == 1.0 and s(0.6) == 1.5 and s(100.0) == 5.5
+    assert s(0.0) == 1.0 and s(0.6) == 1.5 and s(4.9) == 5.5
+    with pytest.raises(ValueError, match=r"u\.csv holds 10 commands every 0\.5 s, from 0 to 4\.5 s .*none at t = 5 s"):
+        s(5.0)
+
+
+def _replayed(path, ts_s, n):
+    """The commands a run of ``n`` samples every ``ts_s`` takes from ``csv:path``."""
+    s = parse_input_spec(f"csv:{path}", run_duration_s=(n - 1) * ts_s, run_ts_s=ts_s)
+    return np.array([s(k * ts_s) for k in range(n)])
+
+
+def _random_commands(n, seed=0):
+    # written as the recording writes them (6 decimals), so that a replay gives them back exactly
+    return np.round(np.repeat(np.random.default_rng(seed).uniform(2.0, 8.0, n // 5 + 1), 5)[:n], 6)
+
+
+def test_csv_replay_counts_time_from_the_first_sample(tmp_path):
+    """Times that start at 1000 s (a mid-run time; Unix time) replay the same commands as from 0 s:
+    they replayed the first command alone, throughout the run."""
+    u = _random_commands(601)
+    for start in (0.0, 1000.0, 1.7e9):
+        path = tmp_path / f"from_{start:g}.csv"
+        write_recording(path, Recording({"t_s": start + np.arange(601) * 0.1, "u_v": u, "l_mm": 0 * u}))
+        assert np.array_equal(_replayed(path, 0.1, 601), u), start
+
+
+def test_csv_replay_takes_jittered_times_as_on_the_grid(tmp_path):
+    """A logger's +-3 ms jitter about a 0.1-s grid: sample k is the grid's k-th, as the diagnosis
+    takes it (a sample stamped early was replayed a period late)."""
+    u = _random_commands(601, seed=1)
+    t = np.arange(601) * 0.1 + np.random.default_rng(2).uniform(-0.003, 0.003, 601)
+    write_recording(tmp_path / "jit.csv", Recording({"t_s": t, "u_v": u, "l_mm": 0 * u}))
+    assert np.array_equal(_replayed(tmp_path / "jit.csv", 0.1, 601), u)
+    # and a run of part of it replays its start
+    assert np.array_equal(_replayed(tmp_path / "jit.csv", 0.1, 301), u[:301])
+
+
+@pytest.mark.parametrize("duration, ts, match", [
+    (220.0, 0.1, r"the run's duration 220 s \(2201 samples\) is longer than .*r\.csv's 60 s \(601 samples every "
+                 r"0\.1 s\): there is no command after its end; run for at most 60 s"),
+    (60.0, 0.05, r"r\.csv is sampled every 0\.1 s, the run every 0\.05 s: a replay goes sample by sample; run it at "
+                 r"0\.1 s, or resample"),
+    (60.0, 0.2, r"r\.csv is sampled every 0\.1 s, the run every 0\.2 s"),
+])
+def test_csv_replay_refuses_a_run_it_has_no_commands_for(tmp_path, duration, ts, match):
+    """A longer run held the last command, another period resampled the recording: both silently."""
+    t = 1000.0 + np.arange(601) * 0.1
+    write_recording(tmp_path / "r.csv", Recording({"t_s": t, "u_v": 0 * t + 5, "l_mm": 0 * t}))
+    with pytest.raises(ValueError, match=match):
+        parse_input_spec(f"csv:{tmp_path / 'r.csv'}", run_duration_s=duration, run_ts_s=ts)
 
 
 @pytest.mark.parametrize("spec, match", [

@@ -79,7 +79,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     if args.ts > args.duration:
         raise UsageError(f"--ts ({args.ts:g} s) must not exceed --duration ({args.duration:g} s)")
     try:
-        signal = parse_input_spec(args.input, run_duration_s=args.duration)
+        signal = parse_input_spec(args.input, run_duration_s=args.duration, run_ts_s=args.ts)
     except ValueError as exc:
         raise UsageError(f"--input: {exc}") from None
     params = _load_plant_params(args.params, args.set)

@@ -198,7 +198,8 @@ def _rediagnosed(case: FieldCase, path: Path | None, plant: Path, sub: Path, alt
     stim = read_recording(path)
     ts = stim.ts_s
     duration = float(stim.t_s[-1] - stim.t_s[0])
-    cols = record_case(case, signal=parse_input_spec(f"csv:{path}"), duration_s=duration, ts_s=ts,
+    signal = parse_input_spec(f"csv:{path}", run_duration_s=duration, run_ts_s=ts)
+    cols = record_case(case, signal=signal, duration_s=duration, ts_s=ts,
                        noise_seed=case.noise_seed + 1 + index, end_stop_mm=end_stop_mm)
     rec = sub / "recording.csv"
     write_recording(rec, Recording(cols, {"ts_s": f"{ts:g}", "source": "tapmuscle demo-mismatch (discriminating input)"}))

@@ -16,12 +16,20 @@ kind        meaning                                                    keys (def
                                                                         run's, else 240)
 ``random``  random steps: a new level uniform in ``lo..hi`` every      ``lo`` (2), ``hi`` (8), ``hold_min`` (2),
             hold drawn uniform in ``hold_min..hold_max`` seconds       ``hold_max`` (10), ``seed`` (0)
-``csv``     replay the ``u_v`` column of a recording (``csv:PATH``);   (the path)
-            held between its samples, last value after its end
+``csv``     replay the ``u_v`` column of a recording (``csv:PATH``)    (the path)
+            sample by sample (:class:`Replay`)
 ==========  =========================================================  ==============================
 
 Values are in volts and seconds. :func:`parse_input_spec` validates the spec and raises
 ``ValueError`` naming the bad kind, key or value.
+
+*Decided:* a replay goes sample by sample, on the recording's uniform grid, with time counted from
+its first sample: command ``u_k`` of row ``k`` is applied from ``k Ts`` to ``(k+1) Ts``, as the
+diagnosis simulates the recording (times that start anywhere, a logger's jitter taken as on the
+grid, docs/recordings.md). A run that would need another command than the recorded ones is refused,
+naming both values: a sampling period other than the recording's (a resampled command is not the
+recorded one: decimation drops commands and moves edges by up to a period), or a run longer than the
+recording (there is no command after its end).
 """
 
 from __future__ import annotations
@@ -31,7 +39,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["InputSignal", "parse_input_spec", "SPEC_KINDS"]
+__all__ = ["InputSignal", "Replay", "parse_input_spec", "SPEC_KINDS"]
 
 InputSignal = Callable[[float], float]
 """A command as a function of time: ``u_v = signal(t_s)``."""
@@ -56,7 +64,8 @@ def _number(spec: str, key: str, text: str) -> float:
     return value
 
 
-def parse_input_spec(spec: str, *, run_duration_s: float | None = None) -> InputSignal:
+def parse_input_spec(spec: str, *, run_duration_s: float | None = None,
+                     run_ts_s: float | None = None) -> InputSignal:
     """Turn a spec string into a command signal ``u(t)`` [V].
 
     Parameters
@@ -65,21 +74,27 @@ def parse_input_spec(spec: str, *, run_duration_s: float | None = None) -> Input
         See the module docstring, e.g. ``"sine:bias=5,amp=3,freq=0.1"`` or ``"csv:run.csv"``.
     run_duration_s : float, optional
         The length of the run the signal is for [s]: a ``chirp`` without ``duration=`` sweeps over
-        it, so that it reaches ``f1`` by the end (without it, over 240 s).
+        it, so that it reaches ``f1`` by the end (without it, over 240 s); a ``csv`` replay must
+        hold a command for each of its samples.
+    run_ts_s : float, optional
+        The sampling period of the run the signal is for [s]: a ``csv`` replay must be run at its
+        recording's period (to 0.1 %), and then counts its samples on the run's grid.
 
     Raises
     ------
     ValueError
         Unknown kind or key, a value that is not a finite number, or an impossible combination
-        (negative frequency, ``lo > hi``, a period <= 0, an empty ``levels`` list). A missing or
-        malformed ``csv:`` file raises the recording reader's error, which names file and line.
+        (negative frequency, ``lo > hi``, a period <= 0, an empty ``levels`` list). A ``csv``
+        replay for a run at another sampling period than its recording's, or longer than it, naming
+        both. A missing or malformed ``csv:`` file raises the recording reader's error, which names
+        file and line.
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"input spec must be a non-empty string like 'sine:bias=5,amp=3,freq=0.1', got {spec!r}")
     kind, _, rest = spec.strip().partition(":")
     kind = kind.strip().lower()
     if kind == "csv":
-        return _csv_signal(rest.strip(), spec)
+        return _csv_signal(rest.strip(), spec, run_duration_s, run_ts_s)
     if kind not in SPEC_KINDS:
         raise ValueError(f"input spec {spec!r}: unknown kind {kind!r}; expected one of "
                          f"{', '.join(list(SPEC_KINDS) + ['csv'])}")
@@ -173,18 +188,71 @@ def _random(spec: str, v: dict) -> InputSignal:
     return random_steps
 
 
-def _csv_signal(path: str, spec: str) -> InputSignal:
+class Replay:
+    """The ``u_v`` column of a recording as a command signal, sample by sample.
+
+    ``u(t) = u_k`` for ``k Ts <= t < (k+1) Ts``: time counts from the recording's first sample, and
+    its samples are taken as on a uniform grid of period ``Ts``, as the recording reader and the
+    diagnosis take them (a recording whose times start anywhere, a logger's jitter).
+
+    Parameters
+    ----------
+    u_v : array_like
+        The recorded commands [V], one per sample.
+    ts_s : float
+        The grid's period [s].
+    source : str
+        What the commands are (a file name), for the messages.
+
+    Raises
+    ------
+    ValueError
+        On a call at a time before the first sample or past the last one's period (there is no
+        command there), naming the time and the recording's span.
+    """
+
+    def __init__(self, u_v: np.ndarray, ts_s: float, source: str) -> None:
+        self.u_v = np.asarray(u_v, dtype=float)
+        self.ts_s = float(ts_s)
+        self.source = source
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first sample to the last [s]: ``(len - 1) ts_s``."""
+        return (len(self.u_v) - 1) * self.ts_s
+
+    def __call__(self, t: float) -> float:
+        k = math.floor(t / self.ts_s + 1e-6)  # a time on the grid, to rounding, is its sample's
+        if not 0 <= k < len(self.u_v):
+            raise ValueError(f"{self.source} holds {len(self.u_v)} commands every {self.ts_s:g} s, from 0 to "
+                             f"{self.duration_s:g} s (time from its first sample): none at t = {t:g} s")
+        return float(self.u_v[k])
+
+
+def _csv_signal(path: str, spec: str, run_duration_s: float | None, run_ts_s: float | None) -> Replay:
     from tapmuscle.io.recording import read_recording  # recording imports nothing from here
+    from tapmuscle.io.sampling import STRICT_TOLERANCE
 
     if not path:
         raise ValueError(f"input spec {spec!r}: csv needs a path, e.g. csv:run.csv")
     rec = read_recording(path)
-    t, u = rec.t_s, rec.u_v
-
-    def replay(tq: float) -> float:
-        i = int(np.searchsorted(t, tq + 1e-9, side="right")) - 1
-        return float(u[min(max(i, 0), len(u) - 1)])
-
+    try:
+        ts = rec.ts_s  # the grid its samples are taken on, as every tool takes them
+    except ValueError as exc:
+        raise ValueError(f"input spec {spec!r}: {path}: {exc}") from None
+    if run_ts_s is not None:
+        if abs(run_ts_s - ts) > STRICT_TOLERANCE * ts:
+            raise ValueError(f"input spec {spec!r}: {path} is sampled every {ts:g} s, the run every {run_ts_s:g} s: "
+                             f"a replay goes sample by sample; run it at {ts:g} s, or resample the recording "
+                             "to the run's period first")
+        ts = run_ts_s  # the run's grid: its k-th sample is the recording's k-th
+    replay = Replay(rec.u_v, ts, str(path))
+    if run_duration_s is not None:
+        n = int(round(run_duration_s / ts)) + 1
+        if n > len(rec):
+            raise ValueError(f"input spec {spec!r}: the run's duration {run_duration_s:g} s ({n} samples) is longer "
+                             f"than {path}'s {replay.duration_s:g} s ({len(rec)} samples every {ts:g} s): there is "
+                             f"no command after its end; run for at most {replay.duration_s:g} s")
     return replay
 
 
