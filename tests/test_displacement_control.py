@@ -862,13 +862,37 @@ def open_loop_theta_03mpa():
     return identify(rec["u_v"], rec["l_mm"], ts_s=0.1).theta, rig
 
 
+@pytest.fixture
+def unbounded_notch(monkeypatch):
+    """The notch's predictions without their bound: a law that slams the valve in the warm-up on the
+    open-loop theta0 below (the bound alone tames that one:
+    test_the_notchs_bound_tames_an_open_loop_theta0_without_the_guard), for the guard to act on."""
+    import fmu_controller.displacement_control as dc
+
+    monkeypatch.setattr(dc, "NOTCH_FLOOR_MM", 1e300)
+
+
+def test_the_notchs_bound_tames_an_open_loop_theta0_without_the_guard(open_loop_theta_03mpa):
+    """On the open-loop theta0 of a 0.3-MPa rig the warm-up's notch predicted H of thousands of mm and
+    slammed the valve (21 full-range jumps in 12 s, Eq. (21) 6.65 mm without the guard); with the
+    bound, 2 jumps and 0.24 mm (seeds 0-2: 0.241-0.256), and the guard has nothing to fire on."""
+    theta, rig = open_loop_theta_03mpa
+    plant = Plant(rig, seed=0)
+    plant.update(load_n=30.0)
+    ctrl = DisplacementController(ControllerSettings(method="ampc_servo", startup_guard=False, input_delay_samples=0),
+                                  theta)
+    run = run_closed_loop(plant, ctrl, SineReference(frequency_hz=0.1), duration_s=45.0)
+    assert eq21_error_mm(run["r_mm"], run["l_mm"]) < 0.5 and np.abs(run["h_mm"]).max() < 200.0
+    assert np.count_nonzero(np.abs(np.diff(run["u_v"][:120])) > 9.0) <= 4
+
+
 @pytest.mark.parametrize("input_delay", [0, -1])
-def test_the_startup_guard_hands_a_slamming_law_to_the_estimate(open_loop_theta_03mpa, input_delay):
-    """With an open-loop theta0 of a 0.3-MPa rig, AMPC-servo's warm-up on theta0 slammed the valve end
-    to end and the cancelled H grew to thousands of mm: Eq. (21) 6.65 mm (12.5 with -1). The guard
-    hands the law to the estimate after GUARD_JUMPS full-range jumps (measured 0.29 mm; with -1, whose
-    guard starts over at the delay's decision, 0.25-0.81 mm by the BLAS's last bits: OpenBLAS 0.3.30
-    or 0.3.31, Nehalem or Haswell kernels)."""
+def test_the_startup_guard_hands_a_slamming_law_to_the_estimate(open_loop_theta_03mpa, unbounded_notch, input_delay):
+    """With an open-loop theta0 of a 0.3-MPa rig and the notch unbounded, AMPC-servo's warm-up on
+    theta0 slammed the valve end to end and the cancelled H grew to thousands of mm: Eq. (21) 6.65 mm
+    (12.5 with -1). The guard hands the law to the estimate after GUARD_JUMPS full-range jumps
+    (measured 0.29 mm; with -1, whose guard starts over at the delay's decision, 0.25-0.81 mm by the
+    BLAS's last bits: OpenBLAS 0.3.30 or 0.3.31, Nehalem or Haswell kernels)."""
     theta, rig = open_loop_theta_03mpa
     errors, fired = {}, {}
     for guard in (True, False):
@@ -907,7 +931,7 @@ def test_the_startup_guard_is_validated_and_kept_in_the_state(theta0):
             twin.set_state(saved | {"guard": bad})
 
 
-def test_the_step_that_fires_the_guard_ran_on_theta0(open_loop_theta_03mpa):
+def test_the_step_that_fires_the_guard_ran_on_theta0(open_loop_theta_03mpa, unbounded_notch):
     """law_on_theta0 (which the FMU's divergence warning reads) is True for the step at which the guard
     fires (its command came from theta0) and False from the next: the warning blamed the estimate."""
     theta, rig = open_loop_theta_03mpa

@@ -487,7 +487,8 @@ def test_the_closed_loop_recording_is_the_fmus_bit_for_bit(tmp_path, built_fmus,
     direct = record_case(case, duration_s=30.0)
     assert np.array_equal(cols["l_mm"], direct["l_mm"]) and np.array_equal(cols["u_v"], direct["u_v"])
     # that timing on a rig with a transport delay: the controller FMU says what the recording shows
-    assert all("a limit cycle" in m for m in said), said
+    # (a limit cycle; and at 30 s the delay the measurements show, as that test's rig has one)
+    assert said and all("a limit cycle" in m or "the measurements show an input delay of" in m for m in said), said
 
 
 def test_the_cli_keeps_each_suites_flags_to_it(tmp_path, capsys):
