@@ -128,10 +128,30 @@ def test_every_unit_has_a_factor_and_column_specs_parse():
     assert UNITS["u_v"]["pwm"] * 255.0 == pytest.approx(10.0, rel=1e-15)  # a full 8-bit duty cycle too
     assert parse_column_spec("pos", "l_mm") == LogColumn("pos", "mm")
     assert parse_column_spec("a:b:um", "l_mm") == LogColumn("a:b", "um")
-    with pytest.raises(ValueError, match=r"column 'a': unknown unit 'b' for l_mm \(known: mm, um, cm, m\)"):
+    with pytest.raises(ValueError, match=r"column 'a': unknown unit 'b' for l_mm \(known: mm, um \(or µm\), cm, m\)"):
         parse_column_spec("a:b", "l_mm")
     with pytest.raises(ValueError, match="no column name"):
         parse_column_spec(":ms", "t_s")
+
+
+@pytest.mark.parametrize("micro", ["\u00b5", "\u03bc"], ids=["micro-sign", "greek-mu"])
+def test_micro_is_read_as_loggers_write_it(tmp_path, truth, capsys, micro):
+    """``µm`` and ``µs`` (the micro sign or the Greek mu) are ``um`` and ``us``: by the reader and the
+    command line; a micro prefix on a unit that has none is refused as written."""
+    assert parse_column_spec(f"Weg:{micro}m", "l_mm").factor("l_mm") == UNITS["l_mm"]["um"]
+    assert LogColumn("Zeit", f"{micro}s").factor("t_s") == UNITS["t_s"]["us"]
+    with pytest.raises(ValueError, match=f"unknown unit '{micro}V' for u_v"):
+        parse_column_spec(f"u:{micro}V", "u_v")
+    log = tmp_path / "logger.csv"
+    log.write_text(f"Zeit;Ventil;Weg\n{micro}s;V;{micro}m\n"
+                   + "".join(f"{100_000 * k};{u:.5f};{1e3 * l:.0f}\n" for k, (u, l) in enumerate(zip(truth["u_v"], truth["l_mm"]))),
+                   encoding="utf-8")
+    out = tmp_path / "rec.csv"
+    assert main(["import", str(log), "--out", str(out), "--time", f"Zeit:{micro}s", "--u", "Ventil",
+                 "--l", f"Weg:{micro}m", "--load-n", "44"]) == 0
+    rec = read_recording(out)
+    assert rec.ts_s == pytest.approx(0.1) and np.max(np.abs(rec.l_mm - truth["l_mm"])) <= 0.5e-3 + 1e-12
+    assert f"l_mm <- Weg [{micro}m]" in rec.metadata["source"]
 
 
 @pytest.mark.parametrize("body,message", [

@@ -139,10 +139,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp = sub.add_parser("import", help="convert a rig's data-acquisition log into a recording CSV",
                          description="Read a rig's log (any column names; units, separator and decimal mark as "
                                      "given or detected; text columns ignored) and write it as a recording "
-                                     "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
+                                     "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us (or µs), "
                                      "min, h or iso (ISO 8601 or day.month.year text); "
                                      "command V, mV, % (of 0..10 V) or pwm (0..255 of 0..10 V); "
-                                     "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
+                                     "displacement mm, um (or µm), cm or m; pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
                                      "bar_abs, Pa_abs or psi_abs (absolute, read against --ambient-kpa); load N or kN.")
     imp.add_argument("log", help="the logger's file")
     imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
