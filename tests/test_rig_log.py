@@ -236,6 +236,24 @@ def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_pa
     assert "The load never exceeds 0.044 N" in err and "kN?" in err
 
 
+@pytest.mark.parametrize("repeated", [["--u", "valve_pct:%", "--u", "position_um"], ["--p", "p_kpa:kPa", "--p", "p_kpa:bar"],
+                                      ["--skip-lines", "0", "--skip-lines", "2"]])
+def test_an_option_given_twice_is_refused_naming_both(tmp_path, truth, capsys, repeated):
+    """argparse takes the last of a repeated option in silence (``--u A --u B`` read B)."""
+    log = tmp_path / "logger.csv"
+    _logger(log, truth)
+    out = tmp_path / "rec.csv"
+    argv = ["import", str(log), "--out", str(out), "--time", "time_ms:ms", "--l", "position_um:um", *repeated]
+    if "--u" not in repeated:
+        argv += ["--u", "valve_pct:%"]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2 and not out.exists()
+    option, first, _, second = repeated
+    assert (f"tapmuscle import: error: argument {option}: given twice, {first!r} and {second!r}: give it once"
+            in capsys.readouterr().err)
+
+
 def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):
     log = tmp_path / "logger.csv"
     _logger(log, truth, units_row=False)

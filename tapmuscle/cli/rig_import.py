@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
+from tapmuscle.cli.arguments import Once, integer_at_least, number_within, output_path
 from tapmuscle.errors import UsageError
 
 __all__ = ["register"]
@@ -145,40 +145,40 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "displacement mm, um (or µm), cm or m; pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
                                      "bar_abs, Pa_abs or psi_abs (absolute, read against --ambient-kpa); load N or kN.")
     imp.add_argument("log", help="the logger's file")
-    imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
-    imp.add_argument("--time", type=_column("t_s", "--time"), required=True, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--out", action=Once, type=output_path("--out", "file"), required=True, help="output recording CSV")
+    imp.add_argument("--time", action=Once, type=_column("t_s", "--time"), required=True, metavar="COLUMN[:UNIT]",
                      help="time column and unit (default unit s), e.g. time_ms:ms or stamp:iso")
-    imp.add_argument("--u", type=_column("u_v", "--u"), required=True, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--u", action=Once, type=_column("u_v", "--u"), required=True, metavar="COLUMN[:UNIT]",
                      help="valve command column (default unit V), e.g. valve_pct:%%")
-    imp.add_argument("--l", type=_column("l_mm", "--l"), required=True, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--l", action=Once, type=_column("l_mm", "--l"), required=True, metavar="COLUMN[:UNIT]",
                      help="encoder displacement column (default unit mm), e.g. position_um:um")
-    imp.add_argument("--p", type=_column("p_mpa", "--p"), default=None, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--p", action=Once, type=_column("p_mpa", "--p"), default=None, metavar="COLUMN[:UNIT]",
                      help="muscle pressure column (default unit MPa), e.g. p_kpa:kPa")
-    imp.add_argument("--ambient-kpa", type=number_within("--ambient-kpa", 30.0, 120.0), default=None, metavar="KPA",
+    imp.add_argument("--ambient-kpa", action=Once, type=number_within("--ambient-kpa", 30.0, 120.0), default=None, metavar="KPA",
                      help="with an absolute pressure unit (e.g. --p p_abs:bar_abs): the ambient pressure subtracted "
                           "to give the recording's gauge pressure, the local barometric pressure or the sensor's "
                           "reading of the drained muscle (default: the standard atmosphere, 101.325 kPa)")
-    imp.add_argument("--load", type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--load", action=Once, type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
                      help="load column (default unit N)")
-    imp.add_argument("--load-n", type=number_within("--load-n", 1e-9, 500.0), default=None,
+    imp.add_argument("--load-n", action=Once, type=number_within("--load-n", 1e-9, 500.0), default=None,
                      help="the hanging load [N] when it is not a column (written as the recording's load_n)")
-    imp.add_argument("--delimiter", default=None, help="field separator: one character, or 'tab' (default: the one "
+    imp.add_argument("--delimiter", action=Once, default=None, help="field separator: one character, or 'tab' (default: the one "
                                                        "of ';', tab, ',' the header row holds most of)")
-    imp.add_argument("--fill-gaps", type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
+    imp.add_argument("--fill-gaps", action=Once, type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
                      help="put back samples the logger dropped, in gaps of up to S seconds (every column "
                           "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")
-    imp.add_argument("--skip-lines", type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
+    imp.add_argument("--skip-lines", action=Once, type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
                      help="lines before the header to skip (a program's preamble, boot messages)")
-    imp.add_argument("--run", type=_run_number, default=None, metavar="K|all",
+    imp.add_argument("--run", action=Once, type=_run_number, default=None, metavar="K|all",
                      help="of a log a restarted logger wrote on (the header repeated among the data), read run "
                           "K (1 = the first), or every run, each to its own OUT_runK file (all written, or none "
                           "when one is refused); default: a log of several runs is refused, naming where they start")
-    imp.add_argument("--encoding", default="utf-8-sig",
+    imp.add_argument("--encoding", action=Once, default="utf-8-sig",
                      help="the file's text encoding (default UTF-8; e.g. latin-1, cp1252, utf-16)")
     imp.add_argument("--no-checks", action="store_true",
                      help="write values no muscle recording has (a command outside -1..11 V, a displacement beyond "
                           "500 mm, a period outside 1 ms..10 s) instead of refusing them, e.g. for identify on "
                           "another rig's units")
-    imp.add_argument("--decimal", choices=(".", ","), default=None,
+    imp.add_argument("--decimal", action=Once, choices=(".", ","), default=None,
                      help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
     imp.set_defaults(func=_cmd_import)
