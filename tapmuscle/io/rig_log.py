@@ -377,7 +377,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     -------
     Recording
         Columns ``t_s, u_v, l_mm`` (and ``p_mpa``, ``load_n``); metadata ``source`` (the file and the
-        conversions), ``start`` (the first time stamp as written) and ``load_n`` when given.
+        conversions), ``start`` (the first time stamp as written) and ``load_n`` when given; the log's
+        line of each sample as ``lines`` (a filled sample: the line after its gap).
 
     Raises
     ------
@@ -496,4 +497,4 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
                                    + ("" if ambient_kpa else " (the standard atmosphere)"))
     if load_n is not None:
         metadata["load_n"] = f"{load_n:g}"
-    return Recording(columns, metadata)
+    return Recording(columns, metadata, lines=line_of)
