@@ -411,6 +411,9 @@ class PlantParams:
         """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
         if not isinstance(data, dict):
             raise ValueError(f"plant parameters must be a mapping of groups, got {type(data).__name__}")
+        if isinstance(data.get("plant"), dict) and "plant" not in {f.name for f in fields(cls)}:
+            raise ValueError("a plant parameter file's whole document: its groups are in its 'plant' mapping "
+                             "(from_dict(document['plant']))")
         flat = {}
         for group, values in data.items():
             if not isinstance(values, dict):

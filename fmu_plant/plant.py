@@ -164,14 +164,15 @@ def _step_length(dt_s: Any) -> float:
     return dt_s
 
 
-def _finite_array(name: str, values: Any) -> np.ndarray:
-    """``values`` as a 1-D float array, every entry finite (else a ValueError naming the first bad one)."""
+def _finite_array(name: str, values: Any, takes: str = "a sequence of numbers") -> np.ndarray:
+    """``values`` as a 1-D float array, every entry finite (else a ValueError naming the first bad one,
+    or what ``name`` ``takes``)."""
     try:
         a = np.asarray(values, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a sequence of numbers, got {values!r}") from None
+        raise ValueError(f"{name} must be {takes}, got {values!r}") from None
     if a.ndim != 1:
-        raise ValueError(f"{name} must be one-dimensional, got shape {a.shape}")
+        raise ValueError(f"{name} must be {takes} (one-dimensional), got shape {a.shape}")
     bad = np.flatnonzero(~np.isfinite(a))
     if bad.size:
         raise ValueError(f"{name}[{bad[0]}] must be finite, got {float(a[bad[0]])!r}")
@@ -306,7 +307,7 @@ class Plant:
         return self.measurement
 
     def step_many(self, u_v: Sequence[float] | np.ndarray, dt_s: float, *,
-                  load_n: Sequence[float] | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  load_n: float | Sequence[float] | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Hold each command of ``u_v`` [V] for ``dt_s`` [s] in turn; the readings after each step.
 
         The same, bit for bit, as calling :meth:`step` once per command (and :meth:`update` before a
@@ -321,8 +322,10 @@ class Plant:
             Valve commands [V], one per step.
         dt_s : float
             Length of every step [s], within (0, 3600].
-        load_n : sequence of float, optional
-            Hanging load [N] during each step, within 0..500 (default: the current load throughout).
+        load_n : float or sequence of float, optional
+            Hanging load [N], within 0..500: one value held throughout (the plant's load from the first
+            step on, as :meth:`update` sets it), or one value per step (default: the current load
+            throughout).
 
         Returns
         -------
@@ -342,7 +345,16 @@ class Plant:
         dt_s = _step_length(dt_s)
         loads = None
         if load_n is not None:
-            w = _finite_array("load_n", load_n)
+            takes = "a number, or one number per command"
+            if np.ndim(load_n) == 0:  # one load throughout
+                if isinstance(load_n, (str, bytes, bool, np.bool_)):
+                    raise ValueError(f"load_n must be {takes}, got {load_n!r}")
+                w0 = float(load_n)
+                if not (math.isfinite(w0) and 0.0 <= w0 <= 500.0):
+                    raise ValueError(f"load_n must be within 0..500 N, got {w0!r}")
+                w = np.full(len(u), w0)
+            else:
+                w = _finite_array("load_n", load_n, takes)
             if len(w) != len(u):
                 raise ValueError(f"load_n has {len(w)} values for {len(u)} commands in u_v")
             out = np.flatnonzero((w < 0.0) | (w > 500.0))

@@ -27,6 +27,8 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     # the simulated rig (section 2.4, Table 1)
     "Plant": ("fmu_plant", "Plant"),
     "PlantParams": ("fmu_plant", "PlantParams"),
+    "read_plant_file": ("tapmuscle.io.plant_file", "read_plant_file"),
+    "write_plant_file": ("tapmuscle.io.plant_file", "write_plant_file"),
     "simulate": ("tapmuscle.api", "simulate"),
     # identification of Eq. (1) (section 2.3, Algorithm 1, Table 4)
     "identify": ("fmu_controller.identification", "identify_record"),

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
@@ -29,7 +30,12 @@ __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmu
 
 
 def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant:
-    """The rig at ``load_n``; :class:`Plant` checks ``params`` and ``seed`` (unsigned 64-bit)."""
+    """The rig at ``load_n``; :class:`Plant` checks ``seed`` (unsigned 64-bit)."""
+    if params is not None and not isinstance(params, PlantParams):
+        # a file is read by its reader, as a recording or an identification is: the numerics take objects
+        hint = (": a plant parameter file is read by tm.read_plant_file(path)"
+                if isinstance(params, (str, os.PathLike)) else "")
+        raise TypeError(f"params must be a PlantParams, got {type(params).__name__} {params!r:.60}{hint}")
     p = PlantParams() if params is None else params
     if load_n is not None and (isinstance(load_n, bool) or not isinstance(load_n, numbers.Real)):
         raise TypeError(f"load_n must be a number of newtons (or a function of time, closed loop), got "
@@ -76,7 +82,8 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
     load_n : float, optional
         Hanging load [N] (section 4.1: 44 or 68); default that of ``params`` (44 N).
     params : PlantParams, optional
-        The rig's parameters (default: the calibrated rig of docs/plant.md).
+        The rig's parameters (default: the calibrated rig of docs/plant.md); a plant parameter file
+        (``calibrated_plant.json``) is read by :func:`~tapmuscle.io.plant_file.read_plant_file`.
     seed : int
         Seed of the encoder noise.
 
@@ -149,7 +156,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     load_n : float or callable, optional
         Hanging load [N], constant or ``load(t)``; default that of ``params`` (44 N).
     params : PlantParams, optional
-        The simulated rig (default: the calibrated rig of docs/plant.md).
+        The simulated rig (default: the calibrated rig of docs/plant.md); a plant parameter file is
+        read by :func:`~tapmuscle.io.plant_file.read_plant_file`.
     theta0 : sequence of 15 floats, mapping or IdentifiedModel, optional
         The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
         (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``), or what

@@ -191,6 +191,14 @@ SWEEP_FILE = ROOT / "scenarios" / "sweeps" / "paper_grid.toml"
     (lambda: tm.sweep(123, "o"), TypeError, r"sweep must be a sweep file's path or a Sweep, got a int"),
     (lambda: tm.simulate("const:value=5", duration_s=2.0, load_n="68"), TypeError, r"load_n must be a number of newtons"),
     (lambda: tm.identify(np.ones(50), np.ones(50), ts_s="0.1"), TypeError, r"ts_s must be a number of seconds, got str"),
+    # a plant file is read by its reader, as a recording or an identification is
+    (lambda: tm.simulate("const:value=5", duration_s=2.0, params="calibrated_plant.json"), TypeError,
+     r"params must be a PlantParams, got str 'calibrated_plant.json': a plant parameter file is read by "
+     r"tm.read_plant_file\(path\)"),
+    (lambda: tm.simulate_closed_loop("mpc_ucp", None, duration_s=2.0, params=Path("calibrated_plant.json")), TypeError,
+     r"params must be a PlantParams, got \w+Path .*tm.read_plant_file\(path\)"),
+    (lambda: tm.simulate("const:value=5", duration_s=2.0, params={"plant": {}}), TypeError,
+     r"params must be a PlantParams, got dict \{'plant': \{\}\}$"),
 ])
 def test_a_wrong_argument_is_named(call, error, match):
     with pytest.raises(error, match=match):

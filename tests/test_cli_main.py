@@ -57,3 +57,16 @@ def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):
     proc.stderr.close()
     assert proc.wait(timeout=120) == 141, stderr
     assert stderr == "" and out.is_file()
+
+
+@pytest.mark.parametrize("argv, command, unknown", [
+    (["identify", "rec.csv", "--json", "id.json", "--quiet"], "identify", "--quiet"),  # it shows no progress
+    (["build", "--out", "fmus", "--bogus", "1"], "build", "--bogus 1"),
+])
+def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, argv, command, unknown):
+    """Not by ``tapmuscle``, whose help does not list the command's options."""
+    with pytest.raises(SystemExit) as ended:
+        main(argv)
+    assert ended.value.code == 2
+    assert capsys.readouterr().err == (f"tapmuscle {command}: error: unrecognized arguments: {unknown} "
+                                       f"(see tapmuscle {command} --help)\n")

@@ -254,7 +254,7 @@ def test_step_many_is_step_in_a_loop_bit_for_bit(values):
 
 @pytest.mark.parametrize("kw,match", [
     ({"u_v": [5.0, math.nan]}, r"u_v\[1\] must be finite, got nan"),
-    ({"u_v": [[5.0]]}, r"u_v must be one-dimensional"),
+    ({"u_v": [[5.0]]}, r"u_v must be a sequence of numbers \(one-dimensional\), got shape \(1, 1\)"),
     ({"u_v": ["five"]}, r"u_v must be a sequence of numbers"),
     ({"dt_s": 0.0}, r"dt_s must be within"),
     ({"load_n": [44.0, 44.0, 600.0]}, r"load_n\[2\] must be within 0..500 N, got 600.0"),
@@ -269,6 +269,27 @@ def test_step_many_refuses_bad_input_by_index_and_leaves_the_plant_alone(kw, mat
     with pytest.raises(ValueError, match=match):
         plant.step_many(args.pop("u_v"), args.pop("dt_s"), **args)
     assert plant.get_state() == before
+
+
+def test_step_many_holds_one_load_given_as_a_number():
+    """``load_n=68.0`` is 68 N throughout, bit for bit as one value per command; what is neither a
+    number nor one per command is refused saying what it takes."""
+    u = np.linspace(3.0, 8.0, 60)
+    by_number = Plant(seed=4)
+    l_mm, p_mpa = by_number.step_many(u, 0.1, load_n=68.0)
+    by_values = Plant(seed=4)
+    l2, p2 = by_values.step_many(u, 0.1, load_n=np.full(60, 68.0))
+    assert by_number.load_n == 68.0 and np.array_equal(l_mm, l2) and np.array_equal(p_mpa, p2)
+    assert not np.array_equal(l_mm, Plant(seed=4).step_many(u, 0.1, load_n=44.0)[0])  # the load acts
+    plant = Plant(seed=4)
+    for bad, match in ((np.ones((60, 1)), r"load_n must be a number, or one number per command \(one-dimensional\), "
+                                          r"got shape \(60, 1\)"),
+                       ("44", r"load_n must be a number, or one number per command, got '44'"),
+                       (600.0, r"load_n must be within 0..500 N, got 600.0"),
+                       (math.nan, r"load_n must be within 0..500 N, got nan")):
+        with pytest.raises(ValueError, match=match):
+            plant.step_many(u, 0.1, load_n=bad)
+    assert plant.t_s == 0.0
 
 
 def test_step_many_of_no_commands_changes_nothing():

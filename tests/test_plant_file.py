@@ -1,6 +1,7 @@
 """Plant parameter files: a folder, a diagnosis report or a missing file where a plant file is expected is named."""
 
 import json
+import re
 
 import pytest
 
@@ -27,3 +28,63 @@ def test_the_wrong_file_where_a_plant_file_is_expected_is_named(tmp_path):
         load_plant(report.parent)
     with pytest.raises(PlantSourceError, match="no such file"):
         load_plant(tmp_path / "nowhere.json")
+
+
+@pytest.fixture(scope="module")
+def real_report(tmp_path_factory):
+    """A report as ``tapmuscle diagnose`` writes it: its "plant" names the plant file it diagnosed."""
+    from tapmuscle.cli.main import main
+
+    folder = tmp_path_factory.mktemp("real")
+    (folder / "nominal.json").write_text('{"plant": {}}')
+    assert main(["record", "--input", "sine:bias=5,amp=3,freq=0.1", "--duration", "60", "--out",
+                 str(folder / "r.csv"), "--quiet"]) == 0
+    assert main(["diagnose", "--recording", str(folder / "r.csv"), "--plant", str(folder / "nominal.json"),
+                 "--out", str(folder / "diag"), "--quiet", "--no-plots"]) == 0
+    report = folder / "diag" / "diagnosis.json"
+    assert json.loads(report.read_text())["plant"] == str(folder / "nominal.json")  # the plant file as given
+    return report
+
+
+def test_a_real_diagnosis_report_where_a_plant_file_is_expected_is_named(real_report, capsys):
+    from tapmuscle.cli.main import main
+
+    message = (r"diagnosis\.json: a diagnosis report, not a plant parameter file \(the calibrated plant is "
+               r".*diag/calibrated_plant\.json; the plant it diagnosed is .*real\d*/nominal\.json\)")
+    with pytest.raises(PlantFileError, match=r"--params .*" + message):
+        read_plant_file(real_report, "--params")
+    assert main(["record", "--input", "const:value=5", "--duration", "1", "--out", str(real_report.parent / "x.csv"),
+                 "--params", str(real_report)]) == 2
+    assert re.search(r"tapmuscle record: error: --params .*" + message, capsys.readouterr().err)
+    assert main(["diagnose", "--recording", str(real_report.parent.parent / "r.csv"), "--plant", str(real_report),
+                 "--out", str(real_report.parent.parent / "again"), "--quiet"]) == 2
+    assert re.search(r"tapmuscle diagnose: error: --plant .*" + message, capsys.readouterr().err)
+    # the calibrated plant beside it is the plant file meant
+    assert read_plant_file(real_report.with_name("calibrated_plant.json")) == PlantParams()
+
+
+def test_the_public_api_reads_and_writes_plant_files_with_their_effects(tmp_path):
+    import tapmuscle as tm
+    from fmu_plant import Plant
+
+    rig = tm.PlantParams().with_values(**{"delay.delay_s": 0.3, "friction.base_n": 7.0})
+    tm.write_plant_file(tmp_path / "rig.json", rig, note="a rig with a delay")
+    doc = json.loads((tmp_path / "rig.json").read_text())
+    assert doc["note"] == "a rig with a delay" and doc["plant"]["delay"]["delay_s"] == 0.3
+    back = tm.read_plant_file(tmp_path / "rig.json")
+    assert back == rig and [type(e).__name__ for e in Plant(back).effects] == [type(e).__name__ for e in Plant(rig).effects]
+    assert Plant(back).effects  # the delay the file switches on
+    # a file holds what differs from the nominal plant; {"plant": {}} is the nominal plant
+    (tmp_path / "nominal.json").write_text('{"plant": {}}')
+    assert tm.read_plant_file(tmp_path / "nominal.json") == tm.PlantParams()
+    (tmp_path / "some.json").write_text('{"plant": {"load": {"load_n": 68}}}')
+    assert tm.read_plant_file(tmp_path / "some.json") == tm.PlantParams().with_values(**{"load.load_n": 68})
+    with pytest.raises(PlantFileError, match=r"^.*nowhere\.json'?: no such file|no such file .*nowhere\.json"):
+        tm.read_plant_file(tmp_path / "nowhere.json")
+    with pytest.raises(TypeError, match=r"params must be a PlantParams, got dict"):
+        tm.write_plant_file(tmp_path / "bad.json", rig.to_dict())
+    assert not (tmp_path / "bad.json").exists()
+    # the whole document is not a mapping of groups: said, with where the groups are
+    with pytest.raises(ValueError, match=r"a plant parameter file's whole document: its groups are in its 'plant' mapping"):
+        tm.PlantParams.from_dict(doc)
+    assert tm.PlantParams.from_dict(doc["plant"]) == rig

@@ -27,6 +27,13 @@ def test_reads_a_hand_written_file_with_extra_columns(tmp_path):
     path.write_text("# from the real rig\n# ts_s: 0.05\nt_s, u_v, l_mm, temp_c\n0,1,2,20\n0.05,1,2.5,20\n")
     rec = read_recording(path)
     assert rec.ts_s == 0.05 and list(rec.l_mm) == [2.0, 2.5] and "temp_c" in rec.columns
+    assert rec.lines.tolist() == [4, 5]  # each sample's line in the file
+
+
+def test_the_lines_of_a_recording_are_one_per_sample():
+    assert Recording({"t_s": [0.0, 0.1], "u_v": [1, 1], "l_mm": [0, 0]}).lines is None  # made in memory
+    with pytest.raises(RecordingError, match=r"recording lines has shape \(3,\): one file line per sample \(2\)"):
+        Recording({"t_s": [0.0, 0.1], "u_v": [1, 1], "l_mm": [0, 0]}, lines=[3, 4, 5])
 
 
 @pytest.mark.parametrize("body, match", [

@@ -12,8 +12,10 @@ import pytest
 from tapmuscle.diagnosis import diagnose
 from tapmuscle.diagnosis.demo import DEMO_MODEL, record
 from tapmuscle.io.sampling import uniform_sampling
-from tapmuscle.diagnosis.recording_checks import (DISPLACEMENT_PLAUSIBLE_MM, check_muscle_recording,
-                                                  check_displacement_scale, muscle_recording_notes)
+from tapmuscle.diagnosis.recording_checks import (DISPLACEMENT_PLAUSIBLE_MM, PRESSURE_PLAUSIBLE_MPA,
+                                                  RecordingCheckError, check_displacement_scale,
+                                                  check_muscle_recording, check_pressure_scale,
+                                                  muscle_recording_notes)
 
 TS = 0.1
 
@@ -84,6 +86,21 @@ def test_a_pressure_in_kpa_is_refused_where_the_fits_weigh_it():
     with pytest.raises(ValueError, match=r"column p_mpa, sample 11: 2.41026 MPa is far above .*--use-pressure .*kPa\? "
                                          r"Scale it to MPa"):
         check_muscle_recording(u, TS, l, 1000.0 * p)
+
+
+def test_a_pressure_no_tap_water_rig_has_is_refused_at_its_largest_value():
+    """Above the bound, named at the largest value (where the unit mistake shows most), with the
+    sample an importer names by its line."""
+    t, u, l, p = _clean()
+    check_pressure_scale(p)
+    check_pressure_scale(np.full(3, PRESSURE_PLAUSIBLE_MPA))  # the bound itself is a pressure
+    with pytest.raises(RecordingCheckError, match=r"column p_mpa, sample 157: 200 MPa, the largest pressure, is no "
+                                                  r"tap-water rig's .*1130 samples above 2 MPa\): .*kPa\)\? Scale it to MPa") as exc:
+        check_pressure_scale(1000.0 * p)
+    assert (exc.value.column, exc.value.sample) == ("p_mpa", int(np.argmax(p))) == ("p_mpa", 157)
+    with pytest.raises(RecordingCheckError) as exc:  # the other checks name their sample the same way
+        check_muscle_recording(10.0 * u, TS)
+    assert (exc.value.column, exc.value.sample) == ("u_v", 0) and exc.value.detail.startswith("50 V is outside")
 
 
 def test_a_start_away_from_rest_jitter_and_kpa_are_said():

@@ -61,6 +61,7 @@ def test_a_pc_loggers_file_reads_back_as_the_recording_it_came_from(tmp_path, tr
     assert set(rec.columns) == {"t_s", "u_v", "l_mm", "p_mpa"}  # the text status is not a column
     assert rec.metadata["start"] == _comma(1.7e12 + 1e3 * jitter[0], ".1f")
     assert rec.metadata["load_n"] == "44" and rec.metadata["units_row"] == "line 4, skipped"
+    assert rec.lines.tolist() == list(range(5, 5 + len(rec)))  # each sample's line in the log
     assert "u_v <- valve_pct [%]" in rec.metadata["source"]
 
 
@@ -128,10 +129,30 @@ def test_every_unit_has_a_factor_and_column_specs_parse():
     assert UNITS["u_v"]["pwm"] * 255.0 == pytest.approx(10.0, rel=1e-15)  # a full 8-bit duty cycle too
     assert parse_column_spec("pos", "l_mm") == LogColumn("pos", "mm")
     assert parse_column_spec("a:b:um", "l_mm") == LogColumn("a:b", "um")
-    with pytest.raises(ValueError, match=r"column 'a': unknown unit 'b' for l_mm \(known: mm, um, cm, m\)"):
+    with pytest.raises(ValueError, match=r"column 'a': unknown unit 'b' for l_mm \(known: mm, um \(or µm\), cm, m\)"):
         parse_column_spec("a:b", "l_mm")
     with pytest.raises(ValueError, match="no column name"):
         parse_column_spec(":ms", "t_s")
+
+
+@pytest.mark.parametrize("micro", ["\u00b5", "\u03bc"], ids=["micro-sign", "greek-mu"])
+def test_micro_is_read_as_loggers_write_it(tmp_path, truth, capsys, micro):
+    """``µm`` and ``µs`` (the micro sign or the Greek mu) are ``um`` and ``us``: by the reader and the
+    command line; a micro prefix on a unit that has none is refused as written."""
+    assert parse_column_spec(f"Weg:{micro}m", "l_mm").factor("l_mm") == UNITS["l_mm"]["um"]
+    assert LogColumn("Zeit", f"{micro}s").factor("t_s") == UNITS["t_s"]["us"]
+    with pytest.raises(ValueError, match=f"unknown unit '{micro}V' for u_v"):
+        parse_column_spec(f"u:{micro}V", "u_v")
+    log = tmp_path / "logger.csv"
+    log.write_text(f"Zeit;Ventil;Weg\n{micro}s;V;{micro}m\n"
+                   + "".join(f"{100_000 * k};{u:.5f};{1e3 * l:.0f}\n" for k, (u, l) in enumerate(zip(truth["u_v"], truth["l_mm"]))),
+                   encoding="utf-8")
+    out = tmp_path / "rec.csv"
+    assert main(["import", str(log), "--out", str(out), "--time", f"Zeit:{micro}s", "--u", "Ventil",
+                 "--l", f"Weg:{micro}m", "--load-n", "44"]) == 0
+    rec = read_recording(out)
+    assert rec.ts_s == pytest.approx(0.1) and np.max(np.abs(rec.l_mm - truth["l_mm"])) <= 0.5e-3 + 1e-12
+    assert f"l_mm <- Weg [{micro}m]" in rec.metadata["source"]
 
 
 @pytest.mark.parametrize("body,message", [
@@ -185,10 +206,51 @@ def test_import_writes_the_recording_and_says_what_diagnose_would(tmp_path, trut
     pct = ["import", str(log), "--out", str(tmp_path / "pct.csv"), "--time", "time_ms:ms", "--u", "valve_pct",
            "--l", "position_um:um"]
     assert main(pct) == 2
-    assert "column u_v, sample 0: 50 V is outside the -1..11 V" in capsys.readouterr().err
+    # named by the log's line and column, as every other refusal of a log (line 5 holds sample 0)
+    assert "logger.csv, line 5, column 'valve_pct' (u_v): 50 V is outside the -1..11 V" in capsys.readouterr().err
     assert not (tmp_path / "pct.csv").exists()
     assert main(pct + ["--no-checks"]) == 0
-    assert "the diagnosis would refuse it: column u_v, sample 0: 50 V" in capsys.readouterr().err
+    assert "the diagnosis would refuse it: " + str(log) + ", line 5, column 'valve_pct' (u_v): 50 V" in capsys.readouterr().err
+
+
+def test_a_value_in_a_wrong_unit_is_named_by_its_line_not_its_sample(tmp_path, truth, capsys):
+    """Micrometres declared as millimetres: the first reading beyond 500 mm is named by the log's line
+    (the units row and the remarks before the header are lines, not samples)."""
+    log = tmp_path / "logger.csv"
+    _logger(log, truth)
+    k = int(np.argmax(1e3 * truth["l_mm"] > 500.0))
+    assert k > 0
+    argv = ["import", str(log), "--out", str(tmp_path / "rec.csv"), "--time", "time_ms:ms", "--u", "valve_pct:%",
+            "--l", "position_um"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"logger.csv, line {5 + k}, column 'position_um' (l_mm): {1e3 * truth['l_mm'][k]:.0f} mm is further from 0" in err
+    assert "sample" not in err.partition("(l_mm)")[0]
+
+
+def test_a_pressure_no_tap_water_rig_has_is_refused_with_the_unit_it_likely_is(tmp_path, truth, capsys):
+    """kPa declared as MPa (or as bar) reads 200 MPa: refused as a command or a length in a wrong unit
+    is, naming the column, the unit given, the largest value and its line, and the unit that reads it
+    as a rig's pressure; --no-checks writes it with a note."""
+    log = tmp_path / "logger.csv"
+    _logger(log, truth)
+    k = int(np.argmax(truth["p_mpa"]))
+    largest = f"{1e3 * truth['p_mpa'][k]:.3f}".rstrip("0")
+    out = tmp_path / "rec.csv"
+    base = ["import", str(log), "--time", "time_ms:ms", "--u", "valve_pct:%", "--l", "position_um:um", "--out"]
+    base_out = base + [str(out)]
+    assert main(base_out + ["--p", "p_kpa:MPa"]) == 2
+    err = capsys.readouterr().err
+    assert (f"logger.csv, line {5 + k}, column 'p_kpa' (p_mpa, given in MPa): its largest value, {largest} MPa, is no "
+            "tap-water rig's pressure" in err)
+    assert f"the column is likely in kPa ({largest} kPa is 0.2" in err and "--p p_kpa:kPa" in err
+    assert not out.exists()
+    assert main(base_out + ["--p", "p_kpa:bar"]) == 2
+    err = capsys.readouterr().err
+    assert f"(p_mpa, given in bar): its largest value, {largest} bar (" in err and "--p p_kpa:kPa" in err
+    assert main(base_out + ["--p", "p_kpa:MPa", "--no-checks"]) == 0
+    assert "Column p_mpa reaches" in capsys.readouterr().err and out.exists()
+    assert main(base + [str(tmp_path / "right.csv"), "--p", "p_kpa:kPa"]) == 0  # the right unit passes
 
 
 def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_path, truth, capsys):
@@ -214,6 +276,24 @@ def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_pa
     assert main(base + ["--out", str(out), "--l", "l", "--load-n", "0.044"]) == 0
     err = capsys.readouterr().err
     assert "The load never exceeds 0.044 N" in err and "kN?" in err
+
+
+@pytest.mark.parametrize("repeated", [["--u", "valve_pct:%", "--u", "position_um"], ["--p", "p_kpa:kPa", "--p", "p_kpa:bar"],
+                                      ["--skip-lines", "0", "--skip-lines", "2"]])
+def test_an_option_given_twice_is_refused_naming_both(tmp_path, truth, capsys, repeated):
+    """argparse takes the last of a repeated option in silence (``--u A --u B`` read B)."""
+    log = tmp_path / "logger.csv"
+    _logger(log, truth)
+    out = tmp_path / "rec.csv"
+    argv = ["import", str(log), "--out", str(out), "--time", "time_ms:ms", "--l", "position_um:um", *repeated]
+    if "--u" not in repeated:
+        argv += ["--u", "valve_pct:%"]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2 and not out.exists()
+    option, first, _, second = repeated
+    assert (f"tapmuscle import: error: argument {option}: given twice, {first!r} and {second!r}: give it once"
+            in capsys.readouterr().err)
 
 
 def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):

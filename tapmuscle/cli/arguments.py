@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["number_within", "integer_at_least", "output_path"]
+__all__ = ["number_within", "integer_at_least", "output_path", "Once"]
 
 
 def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
@@ -68,3 +68,27 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
                 break
         return text
     return parse
+
+
+class Once(argparse.Action):
+    """Store an option given once; given again it is refused naming both values (argparse would take
+    the last in silence: ``--u A --u B`` read B). ``type`` parses each value as written, as argparse's
+    own ``type`` does."""
+
+    def __init__(self, option_strings: list[str], dest: str, type: Callable[[str], object] | None = None,
+                 **kwargs: object) -> None:
+        super().__init__(option_strings, dest, **kwargs)  # no type here: the value arrives as written
+        self.parse = type
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: object,
+                 option_string: str | None = None) -> None:
+        given = namespace.__dict__.setdefault("_given_once", {})
+        if self.dest in given:
+            raise argparse.ArgumentError(self, f"given twice, {given[self.dest]!r} and {values!r}: give it once")
+        given[self.dest] = values
+        if self.parse is not None:
+            try:
+                values = self.parse(values)
+            except argparse.ArgumentTypeError as exc:
+                raise argparse.ArgumentError(self, str(exc)) from None
+        setattr(namespace, self.dest, values)

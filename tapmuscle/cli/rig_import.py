@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
+from tapmuscle.cli.arguments import Once, integer_at_least, number_within, output_path
 from tapmuscle.errors import UsageError
 
 __all__ = ["register"]
@@ -39,11 +39,59 @@ def _run_outputs(out: Path, runs: int) -> list[Path]:
     return [out.with_name(f"{out.stem}_run{k}{out.suffix}") for k in range(1, runs + 1)]
 
 
+def _log_column(args: argparse.Namespace, target: str):
+    """The log's column (a LogColumn) read into the recording's column ``target``."""
+    return {"t_s": args.time, "u_v": args.u, "l_mm": args.l, "p_mpa": args.p, "load_n": args.load}[target]
+
+
+def _located(args: argparse.Namespace, rec, exc: ValueError) -> str:
+    """A check's refusal of one sample (``column u_v, sample 3: ...``) named as the other refusals of a
+    log are: by the log's file, line and column (``log.csv, line 8, column 'valve' (u_v): ...``)."""
+    from tapmuscle.diagnosis.recording_checks import RecordingCheckError
+
+    if not isinstance(exc, RecordingCheckError):
+        return f"{args.log}: {exc}"
+    return (f"{args.log}, line {rec.lines[exc.sample]}, column {_log_column(args, exc.column).column!r} "
+            f"({exc.column}): {exc.detail}")
+
+
+def _pressure_refusal(args: argparse.Namespace, rec, k: int) -> str:
+    """Why the pressure column, whose largest value is at sample ``k``, is refused: that value as
+    written in the unit given, its line, and the unit that reads it nearest the rig's supply."""
+    import math
+
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.recording_checks import PRESSURE_PLAUSIBLE_MPA
+    from tapmuscle.io.rig_log import ABSOLUTE_UNITS, STANDARD_ATMOSPHERE_KPA, UNITS, unit_key
+
+    col, p = args.p, rec.columns["p_mpa"]
+    units, given = UNITS["p_mpa"], unit_key(args.p.unit)
+    absolute = given in ABSOLUTE_UNITS
+    ambient = 1e-3 * (args.ambient_kpa or STANDARD_ATMOSPHERE_KPA) if absolute else 0.0
+    written = (float(p[k]) + ambient) / units[given]  # the largest value as the log holds it
+    # the units of the same kind (gauge or absolute) that read it as a pressure a tap-water rig has
+    readings = {u: written * f - ambient for u, f in units.items() if u != given and (u in ABSOLUTE_UNITS) == absolute}
+    fitting = {u: r for u, r in readings.items() if 0.0 < r <= PRESSURE_PLAUSIBLE_MPA}
+    supply = PlantParams().supply.supply_pressure_mpa
+    value = f"{written:g} {col.unit}" + ("" if units[given] == 1.0 and not absolute else f" ({float(p[k]):g} MPa(G))")
+    above = int((p > PRESSURE_PLAUSIBLE_MPA).sum())
+    if fitting:
+        best = min(fitting, key=lambda u: abs(math.log(fitting[u] / supply)))
+        likely = (f"the column is likely in {best} ({written:g} {best} is {fitting[best]:.3g} MPa(G)): "
+                  f"--p {col.column}:{best}")
+    else:
+        likely = "is the column in another unit? Give its unit with --p"
+    return (f"{args.log}, line {rec.lines[k]}, column {col.column!r} (p_mpa, given in {col.unit}): its largest value, "
+            f"{value}, is no tap-water rig's pressure (mains water is at most about 1 MPa, the rig's supply "
+            f"{supply:g} MPa; {above} sample{'s' if above > 1 else ''} above {PRESSURE_PLAUSIBLE_MPA:g} MPa): {likely}")
+
+
 def _converted(args: argparse.Namespace, run: int | None):
     """The recording of run ``run`` of the log, checked as the diagnosis would, and its notes."""
     from fmu_plant import PlantParams
-    from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, DRAINED_MPA, check_displacement_scale,
-                                                      check_muscle_recording, displacement_scale_note,
+    from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, DRAINED_MPA, RecordingCheckError,
+                                                      check_displacement_scale, check_muscle_recording,
+                                                      check_pressure_scale, displacement_scale_note,
                                                       muscle_recording_notes)
     import numpy as np
 
@@ -71,9 +119,15 @@ def _converted(args: argparse.Namespace, run: int | None):
         scale_note = displacement_scale_note(rec.l_mm, l_nominal)
         problems = []
     except ValueError as exc:
+        message = _located(args, rec, exc)
         if not args.no_checks:
-            raise UsageError(f"{args.log}: {exc} (--no-checks writes it as it is)") from None
-        problems = [f"the diagnosis would refuse it: {exc}"]
+            raise UsageError(f"{message} (--no-checks writes it as it is)") from None
+        problems = [f"the diagnosis would refuse it: {message}"]
+    if "p_mpa" in rec.columns and not args.no_checks:  # said below otherwise, as the diagnosis says it
+        try:
+            check_pressure_scale(rec.columns["p_mpa"])
+        except RecordingCheckError as exc:
+            raise UsageError(f"{_pressure_refusal(args, rec, exc.sample)} (--no-checks writes it as it is)") from None
     notes = problems + muscle_recording_notes(rec.t_s, rec.l_mm, rec.columns.get("p_mpa"), load_n=load)
     if scale_note:
         notes.append(scale_note)
@@ -139,46 +193,47 @@ def register(sub: argparse._SubParsersAction) -> None:
     imp = sub.add_parser("import", help="convert a rig's data-acquisition log into a recording CSV",
                          description="Read a rig's log (any column names; units, separator and decimal mark as "
                                      "given or detected; text columns ignored) and write it as a recording "
-                                     "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us, "
+                                     "(docs/recordings.md) that identify and diagnose read. Units: time s, ms, us (or µs), "
                                      "min, h or iso (ISO 8601 or day.month.year text); "
                                      "command V, mV, % (of 0..10 V) or pwm (0..255 of 0..10 V); "
-                                     "displacement mm, um, cm or m; pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
+                                     "displacement mm, um (or µm), cm or m; "
+                                     "pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
                                      "bar_abs, Pa_abs or psi_abs (absolute, read against --ambient-kpa); load N or kN.")
     imp.add_argument("log", help="the logger's file")
-    imp.add_argument("--out", type=output_path("--out", "file"), required=True, help="output recording CSV")
-    imp.add_argument("--time", type=_column("t_s", "--time"), required=True, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--out", action=Once, type=output_path("--out", "file"), required=True, help="output recording CSV")
+    imp.add_argument("--time", action=Once, type=_column("t_s", "--time"), required=True, metavar="COLUMN[:UNIT]",
                      help="time column and unit (default unit s), e.g. time_ms:ms or stamp:iso")
-    imp.add_argument("--u", type=_column("u_v", "--u"), required=True, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--u", action=Once, type=_column("u_v", "--u"), required=True, metavar="COLUMN[:UNIT]",
                      help="valve command column (default unit V), e.g. valve_pct:%%")
-    imp.add_argument("--l", type=_column("l_mm", "--l"), required=True, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--l", action=Once, type=_column("l_mm", "--l"), required=True, metavar="COLUMN[:UNIT]",
                      help="encoder displacement column (default unit mm), e.g. position_um:um")
-    imp.add_argument("--p", type=_column("p_mpa", "--p"), default=None, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--p", action=Once, type=_column("p_mpa", "--p"), default=None, metavar="COLUMN[:UNIT]",
                      help="muscle pressure column (default unit MPa), e.g. p_kpa:kPa")
-    imp.add_argument("--ambient-kpa", type=number_within("--ambient-kpa", 30.0, 120.0), default=None, metavar="KPA",
+    imp.add_argument("--ambient-kpa", action=Once, type=number_within("--ambient-kpa", 30.0, 120.0), default=None, metavar="KPA",
                      help="with an absolute pressure unit (e.g. --p p_abs:bar_abs): the ambient pressure subtracted "
                           "to give the recording's gauge pressure, the local barometric pressure or the sensor's "
                           "reading of the drained muscle (default: the standard atmosphere, 101.325 kPa)")
-    imp.add_argument("--load", type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
+    imp.add_argument("--load", action=Once, type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
                      help="load column (default unit N)")
-    imp.add_argument("--load-n", type=number_within("--load-n", 1e-9, 500.0), default=None,
+    imp.add_argument("--load-n", action=Once, type=number_within("--load-n", 1e-9, 500.0), default=None,
                      help="the hanging load [N] when it is not a column (written as the recording's load_n)")
-    imp.add_argument("--delimiter", default=None, help="field separator: one character, or 'tab' (default: the one "
+    imp.add_argument("--delimiter", action=Once, default=None, help="field separator: one character, or 'tab' (default: the one "
                                                        "of ';', tab, ',' the header row holds most of)")
-    imp.add_argument("--fill-gaps", type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
+    imp.add_argument("--fill-gaps", action=Once, type=number_within("--fill-gaps", 1e-9, 3600.0), default=None, metavar="S",
                      help="put back samples the logger dropped, in gaps of up to S seconds (every column "
                           "interpolated linearly, marked in a column 'filled'); default: a dropped sample is refused")
-    imp.add_argument("--skip-lines", type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
+    imp.add_argument("--skip-lines", action=Once, type=integer_at_least("--skip-lines", 0, 10 ** 6), default=0, metavar="N",
                      help="lines before the header to skip (a program's preamble, boot messages)")
-    imp.add_argument("--run", type=_run_number, default=None, metavar="K|all",
+    imp.add_argument("--run", action=Once, type=_run_number, default=None, metavar="K|all",
                      help="of a log a restarted logger wrote on (the header repeated among the data), read run "
                           "K (1 = the first), or every run, each to its own OUT_runK file (all written, or none "
                           "when one is refused); default: a log of several runs is refused, naming where they start")
-    imp.add_argument("--encoding", default="utf-8-sig",
+    imp.add_argument("--encoding", action=Once, default="utf-8-sig",
                      help="the file's text encoding (default UTF-8; e.g. latin-1, cp1252, utf-16)")
     imp.add_argument("--no-checks", action="store_true",
                      help="write values no muscle recording has (a command outside -1..11 V, a displacement beyond "
                           "500 mm, a period outside 1 ms..10 s) instead of refusing them, e.g. for identify on "
                           "another rig's units")
-    imp.add_argument("--decimal", choices=(".", ","), default=None,
+    imp.add_argument("--decimal", action=Once, choices=(".", ","), default=None,
                      help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
     imp.set_defaults(func=_cmd_import)

@@ -307,8 +307,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     """
     started = time.perf_counter()
     if not isinstance(model, PlantParams):
-        raise TypeError(f"model must be a PlantParams (tapmuscle.diagnosis.plant_source.load_plant(path)[0] "
-                        f"reads one from a plant file or FMU), got {type(model).__name__} {model!r:.60}")
+        raise TypeError(f"model must be a PlantParams (tm.read_plant_file(path) reads a plant parameter file, "
+                        f"tapmuscle.diagnosis.plant_source.load_plant(path)[0] that or a MusclePlant FMU), "
+                        f"got {type(model).__name__} {model!r:.60}")
     if load_n is not None and np.ndim(load_n) == 0:  # one load for the whole recording, as elsewhere
         load_n = np.full(np.shape(np.asarray(t_s)), float(load_n))
     if p_mpa is not None and np.shape(p_mpa) != np.shape(np.asarray(t_s)):

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.sampling import TS_RANGE_S, check_sampling_period, uniform_sampling
 
-__all__ = ["check_muscle_recording", "check_sampling_period", "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
+__all__ = ["RecordingCheckError", "check_muscle_recording", "check_pressure_scale", "check_sampling_period",
+           "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
            "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "displacement_scale_note"]
 
@@ -38,10 +40,31 @@ DRAINED_MPA = 0.02
 #: at 4000 m. A drained muscle reads this on an absolute sensor, 0 on the gauge sensor the recording
 #: format asks for.
 AMBIENT_MPA_RANGE = (0.06, 0.11)
-#: A tap-water rig's muscle pressure stays below this [MPa(G)] (the supply is 0.25 MPa); above: kPa?
+#: A tap-water rig's muscle pressure stays below this [MPa(G)]; above: another unit (kPa?). Mains water
+#: reaches a building at 0.2-0.6 MPa (the rig's supply is 0.25 MPa), and the domestic pipes and fittings
+#: a muscle is fed through are rated to 1 MPa (PN 10): 2 MPa is twice what any tap can give, while a
+#: supply of 0.25 MPa logged in kPa, psi or bar and read as MPa is 250, 36 or 2.5.
 PRESSURE_PLAUSIBLE_MPA = 2.0
 #: A hanging load that never reaches this [N] but is not zero is in another unit (kN: 0.044 for 44 N).
 LOAD_PLAUSIBLE_N = 1.0
+
+
+class RecordingCheckError(TapmuscleError):
+    """A recorded value no muscle recording has (a unit mistake), at one sample.
+
+    Attributes
+    ----------
+    column : str
+        The recording's column (``u_v``, ``l_mm``, ``p_mpa``).
+    sample : int
+        The sample's index (a file's line: ``Recording.lines[sample]``).
+    detail : str
+        What is wrong with it, and what to check; the message is ``column C, sample K: detail``.
+    """
+
+    def __init__(self, column: str, sample: int, detail: str) -> None:
+        super().__init__(f"column {column}, sample {sample}: {detail}")
+        self.column, self.sample, self.detail = column, sample, detail
 
 
 def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None,
@@ -52,32 +75,56 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
 
     Raises
     ------
+    RecordingCheckError
+        Naming the first sample outside the range (and its value).
     ValueError
-        Naming the first sample outside the range (and its value), or the period.
+        Naming the period.
     """
     lo, hi = COMMAND_RANGE_V
     bad = np.nonzero((u_v < lo) | (u_v > hi))[0]
     if bad.size:
         k = int(bad[0])
-        raise ValueError(f"column u_v, sample {k}: {float(u_v[k]):g} V is outside the -1..11 V the plant takes (the "
-                         f"valve's 0..10 V command; {bad.size} samples are outside, range {float(np.min(u_v)):g}..{float(np.max(u_v)):g}): "
-                         "is the command logged in another unit (percent, mV)? Scale it to volts")
+        raise RecordingCheckError("u_v", k, f"{float(u_v[k]):g} V is outside the -1..11 V the plant takes (the "
+                                  f"valve's 0..10 V command; {bad.size} samples are outside, range {float(np.min(u_v)):g}.."
+                                  f"{float(np.max(u_v)):g}): is the command logged in another unit (percent, mV)? "
+                                  "Scale it to volts")
     check_sampling_period(ts_s)
     if l_mm is not None:
         far = np.nonzero(np.abs(l_mm) > DISPLACEMENT_PLAUSIBLE_MM)[0]
         if far.size:
             k = int(far[0])
-            raise ValueError(f"column l_mm, sample {k}: {float(l_mm[k]):g} mm is further from 0 than the muscle's "
-                             f"{DISPLACEMENT_PLAUSIBLE_MM:g} mm (its 400-mm length and an encoder zeroed anywhere in its "
-                             f"stroke; {far.size} samples are, range {float(np.min(l_mm)):g}..{float(np.max(l_mm)):g}): is "
-                             "the displacement logged in another unit (micrometres)? Scale it to millimetres")
+            raise RecordingCheckError("l_mm", k, f"{float(l_mm[k]):g} mm is further from 0 than the muscle's "
+                                      f"{DISPLACEMENT_PLAUSIBLE_MM:g} mm (its 400-mm length and an encoder zeroed anywhere in "
+                                      f"its stroke; {far.size} samples are, range {float(np.min(l_mm)):g}.."
+                                      f"{float(np.max(l_mm)):g}): is the displacement logged in another unit "
+                                      "(micrometres)? Scale it to millimetres")
     if p_fitted_mpa is not None:
         high = np.nonzero(p_fitted_mpa > PRESSURE_PLAUSIBLE_MPA)[0]
         if high.size:
             k = int(high[0])
-            raise ValueError(f"column p_mpa, sample {k}: {float(p_fitted_mpa[k]):g} MPa is far above a tap-water rig's "
-                             f"(supply 0.25 MPa; {high.size} samples above {PRESSURE_PLAUSIBLE_MPA:g} MPa), and with "
-                             "--use-pressure the fits weigh it: is it logged in kPa? Scale it to MPa")
+            raise RecordingCheckError("p_mpa", k, f"{float(p_fitted_mpa[k]):g} MPa is far above a tap-water rig's "
+                                      f"(supply 0.25 MPa; {high.size} samples above {PRESSURE_PLAUSIBLE_MPA:g} MPa), and "
+                                      "with --use-pressure the fits weigh it: is it logged in kPa? Scale it to MPa")
+
+
+def check_pressure_scale(p_mpa: np.ndarray) -> None:
+    """Refuse a pressure [MPa(G)] above :data:`PRESSURE_PLAUSIBLE_MPA`, which no tap-water rig has: a
+    column in another unit (kPa declared as MPa).
+
+    Raises
+    ------
+    RecordingCheckError
+        Naming the sample of the largest pressure, its value and how many samples are above the bound.
+    """
+    p = np.asarray(p_mpa, dtype=float)
+    if not p.size or float(np.max(p)) <= PRESSURE_PLAUSIBLE_MPA:
+        return
+    k = int(np.argmax(p))
+    above = int(np.count_nonzero(p > PRESSURE_PLAUSIBLE_MPA))
+    raise RecordingCheckError("p_mpa", k, f"{float(p[k]):g} MPa, the largest pressure, is no tap-water rig's (mains "
+                                          f"water is at most about 1 MPa, the rig's supply 0.25 MPa; {above} samples "
+                                          f"above {PRESSURE_PLAUSIBLE_MPA:g} MPa): is it logged in another unit (kPa)? "
+                                          "Scale it to MPa")
 
 
 def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray | None, *,

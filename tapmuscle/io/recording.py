@@ -64,10 +64,15 @@ class Recording:
         ``load_n`` [N], ``r_mm`` [mm] and any other column.
     metadata : dict of str to str
         From the ``# key: value`` lines.
+    lines : ndarray of int, optional
+        The file's line of each sample, for a recording read from a file (:func:`read_recording`,
+        :func:`~tapmuscle.io.rig_log.read_rig_log`): what a message about a sample names. None for
+        one made in memory.
     """
 
     columns: dict[str, np.ndarray]
     metadata: dict[str, str] = field(default_factory=dict)
+    lines: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in REQUIRED_COLUMNS:
@@ -82,6 +87,11 @@ class Recording:
         if len(n) != 1:
             raise RecordingError(f"recording columns differ in length: "
                                  f"{ {k: len(v) for k, v in self.columns.items()} }")
+        if self.lines is not None:
+            self.lines = np.asarray(self.lines, dtype=int)
+            if self.lines.shape != (len(self),):
+                raise RecordingError(f"recording lines has shape {self.lines.shape}: one file line per sample "
+                                     f"({len(self)}) expected")
 
     @property
     def t_s(self) -> np.ndarray:
@@ -189,7 +199,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
     """
     lines: dict[str, Any] = {}
     columns, metadata = _read_columns(path, REQUIRED_COLUMNS, "t_s", lines)
-    rec = Recording(columns, metadata)
+    rec = Recording(columns, metadata, lines=np.array(lines["samples"]))
     if len(rec) >= 2:  # the period the fits assume: checked where the file can still be named
         try:
             rec.ts_s

@@ -43,8 +43,8 @@ from tapmuscle.io.gc_paused import gc_paused
 from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
-__all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "STANDARD_ATMOSPHERE_KPA", "LogColumn", "read_rig_log",
-           "rig_log_runs", "parse_column_spec", "parse_time_text"]
+__all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "STANDARD_ATMOSPHERE_KPA", "MICRO_SIGNS", "LogColumn",
+           "read_rig_log", "rig_log_runs", "parse_column_spec", "parse_time_text", "unit_key"]
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
 #: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
@@ -61,6 +61,9 @@ UNITS: dict[str, dict[str, float | None]] = {
 #: ambient (``ambient_kpa``, the standard atmosphere's 101.325 kPa unless given).
 ABSOLUTE_UNITS = frozenset(unit for unit in UNITS["p_mpa"] if unit.endswith("_abs"))
 STANDARD_ATMOSPHERE_KPA = 101.325
+#: The micro prefix as loggers write it, the micro sign (U+00B5) and the Greek mu (U+03BC): read as
+#: the ``u`` of :data:`UNITS` (``µm`` is ``um``, ``µs`` is ``us``).
+MICRO_SIGNS = ("\u00b5", "\u03bc")
 #: The unit assumed when a column is named without one: the recording format's.
 DEFAULT_UNITS = {"t_s": "s", "u_v": "V", "l_mm": "mm", "p_mpa": "MPa", "load_n": "N"}
 
@@ -71,6 +74,11 @@ _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$")
 _THOUSANDS = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+$")
 _INTEGER = re.compile(r"^[+-]?\d+$")
 _DOTTED_DATE = re.compile(r"^(\d{1,2})\.(\d{1,2})\.(\d{4})[ T]+(\d{1,2}):(\d{2})(?::(\d{2})(?:[.,](\d{1,6}))?)?$")
+
+
+def unit_key(unit: str) -> str:
+    """``unit`` as :data:`UNITS` spells it: a leading micro sign or Greek mu (:data:`MICRO_SIGNS`) as ``u``."""
+    return "u" + unit[1:] if unit[:1] in MICRO_SIGNS else unit
 
 
 def parse_time_text(cell: str) -> datetime:
@@ -95,7 +103,8 @@ class LogColumn:
         The column's name in the log's header row.
     unit : str
         Its unit, a key of :data:`UNITS` for the recording column it is read into (``"ms"``, ``"%"``,
-        ``"um"``, ``"kPa"``, ``"iso"`` for time text, :func:`parse_time_text`, ...).
+        ``"um"``, ``"kPa"``, ``"iso"`` for time text, :func:`parse_time_text`, ...); ``µm`` and ``µs``
+        (a micro sign or a Greek mu, :data:`MICRO_SIGNS`) are ``um`` and ``us``.
     """
 
     column: str
@@ -104,10 +113,11 @@ class LogColumn:
     def factor(self, target: str) -> float | None:
         """The factor to ``target``'s unit (None: ISO date-time text); ``ValueError`` naming the units known."""
         units = UNITS[target]
-        if self.unit not in units:
-            raise ValueError(f"column {self.column!r}: unknown unit {self.unit!r} for {target} "
-                             f"(known: {', '.join(units)})")
-        return units[self.unit]
+        key = unit_key(self.unit)
+        if key not in units:
+            known = ", ".join(f"{u} (or µ{u[1:]})" if u.startswith("u") and len(u) > 1 else u for u in units)
+            raise ValueError(f"column {self.column!r}: unknown unit {self.unit!r} for {target} (known: {known})")
+        return units[key]
 
 
 def parse_column_spec(text: str, target: str) -> LogColumn:
@@ -367,7 +377,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     -------
     Recording
         Columns ``t_s, u_v, l_mm`` (and ``p_mpa``, ``load_n``); metadata ``source`` (the file and the
-        conversions), ``start`` (the first time stamp as written) and ``load_n`` when given.
+        conversions), ``start`` (the first time stamp as written) and ``load_n`` when given; the log's
+        line of each sample as ``lines`` (a filled sample: the line after its gap).
 
     Raises
     ------
@@ -486,4 +497,4 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
                                    + ("" if ambient_kpa else " (the standard atmosphere)"))
     if load_n is not None:
         metadata["load_n"] = f"{load_n:g}"
-    return Recording(columns, metadata)
+    return Recording(columns, metadata, lines=line_of)
