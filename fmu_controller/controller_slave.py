@@ -74,7 +74,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
-from fmu_controller.servo_settings import MAX_HORIZON
+from fmu_controller.servo_settings import MAX_HORIZON, MAX_WEIGHT
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
@@ -219,9 +219,9 @@ class AMPCController(SafeSlave):
                                    hi=MAX_HORIZON)
         table = [
             ("Ts", 0.1, "s", "sampling period Ts [s] (paper: 0.1)", 1e-4, 60.0),
-            ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
-            ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, None),
-            ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5)", 0.0, None),
+            ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, MAX_WEIGHT),
+            ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, MAX_WEIGHT),
+            ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5)", 0.0, MAX_WEIGHT),
             ("delay_move_weight", 4.0, "", "servo methods: factor on servo.R while the law compensates a delay of "
              "2 samples or more (input_delay_samples 2 .. 5, or -1 deciding for one: a rig's transport delay, whose "
              "prediction errors a larger R feeds back less); 1 keeps servo.R; delays 0 and 1 always do "

@@ -19,6 +19,10 @@ from .argument_checks import real_number, whole_number
 #: Longest prediction horizon accepted [samples] (Table 5: 5; 5 s at Ts = 0.1 s); the controller FMU
 #: declares the same range for servo.Hp, servo.Hu and ucp.Hp.
 MAX_HORIZON = 50
+#: Largest weight Q, Qs or R of Eq. (15) (Table 5: 2-15). Their ratios set the law; far beyond Table
+#: 5's scale the QP is ill-conditioned (R = 1e300 held the command at 0 V for a whole run without a
+#: word, Qs = 1e300 failed the QP's set-up); the controller FMU declares the same range.
+MAX_WEIGHT = 1e6
 
 __all__ = ["MAX_HORIZON", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "positive_int"]
 
@@ -40,11 +44,13 @@ def positive_int(name: str, value: Any) -> int:
 
 
 def _freeze_weight(name: str, value: Any, n: int, n_name: str, *, strict: bool) -> float | tuple[float, ...]:
-    """Scalar weight or per-step tuple of length ``n``; >= 0 (> 0 if ``strict``)."""
+    """Scalar weight or per-step tuple of length ``n``; >= 0 (> 0 if ``strict``), <= :data:`MAX_WEIGHT`."""
     if np.ndim(value) == 0:
         w = real_number(value, what=name)
         if w < 0 or (strict and w == 0):
             raise ValueError(f"{name} must be {'> 0' if strict else '>= 0'}, got {value!r}")
+        if w > MAX_WEIGHT:
+            raise ValueError(f"{name} must be <= {MAX_WEIGHT:g}, got {value!r}")
         return w
     try:
         arr = np.asarray(value, dtype=float)
@@ -56,6 +62,8 @@ def _freeze_weight(name: str, value: Any, n: int, n_name: str, *, strict: bool) 
         raise ValueError(f"{name} must be finite, got {arr.tolist()}")
     if (arr < 0).any() or (strict and (arr == 0).any()):
         raise ValueError(f"{name} must be {'> 0' if strict else '>= 0'} elementwise, got {arr.tolist()}")
+    if (arr > MAX_WEIGHT).any():
+        raise ValueError(f"{name} must be <= {MAX_WEIGHT:g} elementwise, got {arr.tolist()}")
     return tuple(float(x) for x in arr)
 
 

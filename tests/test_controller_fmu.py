@@ -241,6 +241,8 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"theta0.a2": -2e6}, {"method": 2}, "parameter theta0.a2 = -2000000.0 is outside its declared range"),
     # the settings' errors name the FMU's parameters, not ControllerSettings' fields
     ({"startup_s": 1e4}, {}, "parameter startup_s = 10000.0 is outside its declared range"),
+    # R = 1e300 held the command at 0 V for the whole run without a word
+    ({"servo.R": 1e300}, {}, "parameter servo.R = 1e+300 is outside its declared range 0..1e+06"),
 ])
 def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):
     """fmi2Error, not Discard (a host answers Discard with a smaller step, forever); the instance stays

@@ -115,6 +115,7 @@ def test_defaults_are_table5():
     (dict(hp=0), "hp"), (dict(hp=2.5), "hp"), (dict(hp=True), "hp"), (dict(hu=6), "hu"),
     (dict(q=(5.0, 5.0)), "q"), (dict(q=-1.0), "q"), (dict(qs=float("nan")), "qs"),
     (dict(r=0.0), "r"), (dict(r=(1.0, 1.0, 1.0, 1.0, 0.0)), "r"), (dict(r="x"), "r"),
+    (dict(r=1e300), "r must be <= 1e"), (dict(qs=2e6), "qs must be <= 1e"), (dict(q=[1.0, 1.0, 1.0, 1.0, 1e7]), "q must be <= 1e"),
     (dict(u_min_v=10.0), "u_max_v"), (dict(u_max_v=math.inf), "u_max_v"),
     (dict(eps_abs=-1e-3), "eps_abs"), (dict(eps_abs=0.0, eps_rel=0.0), "eps_abs"),
     (dict(max_iter=0), "max_iter"), (dict(warm_start=1), "warm_start"), (dict(refine=None), "refine"),
