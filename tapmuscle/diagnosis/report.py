@@ -230,16 +230,28 @@ def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title:
 def _figures(d: Diagnosis, out: Path, title: str) -> None:
     t = d.t_s
     e0, e1 = d.y_mm - d.y_before_mm, d.y_mm - d.y_after_mm
-    fig, ax = new_figure(figsize=(10, 3.6))
+    # below the residuals before, the final one on its own scale: a remainder of a few hundredths of a
+    # millimetre (what "unexplained" reports) cannot be seen beside a residual of millimetres
+    fig, (ax, zoom) = new_figure(2, 1, figsize=(10, 6.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     ax.plot(t, e0, lw=0.8, color="0.3", label="before")
     if d.y_calibrated_mm is not None:
         ax.plot(t, d.y_mm - d.y_calibrated_mm, lw=0.8, color="tab:green", label="after calibration")
     if d.named or d.ambiguous:
         ax.plot(t, e1, lw=0.8, color="tab:blue", label="after calibration and effects")
     _shade(ax, d)
-    ax.set(xlabel="time [s]", ylabel="residual l_meas - l_sim [mm]", title=f"{title}: residual, located windows shaded")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.set(ylabel="residual l_meas - l_sim [mm]", title=f"{title}: residual, located windows shaded")
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.08), ncol=3, fontsize=8, frameon=False)
     ax.grid(alpha=0.3)
+    final = "after calibration and effects" if d.named or d.ambiguous else (
+        "after calibration" if d.y_calibrated_mm is not None else "before")
+    noise = float(d.tests_after.get("noise_reference_mm", d.tests_after.get("white_noise_mm", 0.0)))
+    zoom.plot(t, e1, lw=0.7, color="tab:blue")
+    if noise > 0:
+        zoom.axhspan(-2.0 * noise, 2.0 * noise, color="0.85", lw=0, label=f"+-2 x the noise level ({noise:.3g} mm)")
+        zoom.legend(loc="upper right", fontsize=8)
+    _shade(zoom, d)
+    zoom.set(xlabel="time [s]", ylabel=f"{final} [mm]")
+    zoom.grid(alpha=0.3)
     save_figure(fig, out / "residual.png")
 
     overlay_figure(d, out / "overlay.png", quantity="displacement l", unit="mm",
