@@ -80,6 +80,12 @@ DELAY_MIN_SAMPLES = 50
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
 #: is taken.
 DELAY_DECIDE_BY_SAMPLES = 300
+#: ``input_delay_samples`` set (0 .. 5): the first this many samples are scored as -1 scores them, to
+#: tell a set delay the measurements contradict (:attr:`DisplacementController.delay_evidence`): as
+#: long as -1 may take to decide. 100 samples missed AMPC-servo's 0 in a parallel master, which the
+#: start-up mode hides for its first seconds; the scores cost about 20 us a sample (measured over a
+#: 40-s run: 77 -> 93 us a sample in the direct loop, benchmarks/fmu_cosim.py).
+DELAY_CHECK_SAMPLES = DELAY_DECIDE_BY_SAMPLES
 
 #: ``input_delay_samples = -1``, undecided: the delayed law uses the corrected one-step prediction
 #: (:class:`~fmu_controller.delay_predictor.DelayPredictor`) once this many samples are compared and
@@ -521,7 +527,7 @@ class DisplacementController:
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
 
-        if (self._auto and not self._decided) or (not self._auto and self._compared < DELAY_DECIDE_BY_SAMPLES):
+        if (self._auto and not self._decided) or (not self._auto and self._compared < DELAY_CHECK_SAMPLES):
             if k == 0:  # the shadow models start from the first measurement
                 for shadow in self._shadows:
                     shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
@@ -612,11 +618,11 @@ class DisplacementController:
 
     @property
     def delay_evidence(self) -> tuple[int, float] | None:
-        """With ``input_delay_samples`` set (0 .. 5): once the first :data:`DELAY_DECIDE_BY_SAMPLES`
+        """With ``input_delay_samples`` set (0 .. 5): once the first :data:`DELAY_CHECK_SAMPLES`
         samples are scored as -1 scores them (:meth:`_detect_delay`), ``(d, ratio)`` when another delay
         ``d`` explains the measurements :data:`DELAY_RATIO` times better or more (``ratio``: the set
         delay's mean squared one-step error over ``d``'s), else None (also before, and with -1)."""
-        if self._auto or self._compared < DELAY_DECIDE_BY_SAMPLES:
+        if self._auto or self._compared < DELAY_CHECK_SAMPLES:
             return None
         ms, lag = self._ms, self._lag
         best = min(range(len(ms)), key=ms.__getitem__)
