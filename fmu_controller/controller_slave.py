@@ -131,7 +131,7 @@ _METHOD_ONLY = (
 
 def _fmu_names(message: str, names: dict[str, str]) -> str:
     """``message`` of a settings class with its field names written as the FMU's parameter names."""
-    return re.sub(r"\b(" + "|".join(names) + r")\b(?=[ (])", lambda m: names[m[1]], message)
+    return re.sub(r"\b(" + "|".join(map(re.escape, names)) + r")\b(?=[ (])", lambda m: names[m[1]], message)
 
 
 class AMPCController(SafeSlave):
@@ -302,10 +302,7 @@ class AMPCController(SafeSlave):
         try:
             return self._controller_settings(servo, ucp)
         except ValueError as exc:
-            message = str(exc)
-            for name, fmu_name in _SETTINGS_NAMES.items():
-                message = message.replace(name, fmu_name)
-            raise SlaveInputError(f"parameter {message}") from None
+            raise SlaveInputError(f"parameter {_fmu_names(str(exc), _SETTINGS_NAMES)}") from None
 
     def _controller_settings(self, servo: ServoMPCSettings, ucp: UCPSettings) -> ControllerSettings:
         p, ip = self._par, self._int_par

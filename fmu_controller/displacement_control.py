@@ -52,6 +52,7 @@ from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
+from .servo_settings import MAX_WEIGHT
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S",
@@ -82,9 +83,9 @@ DELAY_MIN_SAMPLES = 50
 DELAY_DECIDE_BY_SAMPLES = 300
 #: ``input_delay_samples`` set (0 .. 5): the first this many samples are scored as -1 scores them, to
 #: tell a set delay the measurements contradict (:attr:`DisplacementController.delay_evidence`): as
-#: long as -1 may take to decide. 100 samples missed AMPC-servo's 0 in a parallel master, which the
-#: start-up mode hides for its first seconds; the scores cost about 20 us a sample (measured over a
-#: 40-s run: 77 -> 93 us a sample in the direct loop, benchmarks/fmu_cosim.py).
+#: long as -1 may take to decide, since the start-up mode hides a wrong delay for its first seconds
+#: (100 samples do not tell AMPC-servo's 0 in a parallel master); the scores cost about 20 us a sample
+#: (the direct loop of benchmarks/fmu_cosim.py: 77 and 93 us a sample over 40 s without and with).
 DELAY_CHECK_SAMPLES = DELAY_DECIDE_BY_SAMPLES
 
 #: ``input_delay_samples = -1``, undecided: the delayed law uses the corrected one-step prediction
@@ -126,8 +127,9 @@ P0_TABLE8 = (1000.0, 1000.0, 1000.0) + (250.0,) * 8 + (150.0,) * 4
 #: ``hysteresis_notch``: the predicted H(k+1|k), H(k+2|k) stay within one and two times
 #: ``NOTCH_RATE_FACTOR x`` (the larger of H's last two changes) ``+ NOTCH_FLOOR_MM`` of H(k) [mm].
 #: In tracking (the paper's sines, both loads) the predictions move under 0.5 mm per sample and the
-#: bound never acts; after a large reference step the adaptive estimate's jump made them hundreds
-#: to thousands of mm, the QP input u_c thousands of volts and the valve slam shut for a sample.
+#: bound never acts; after a large reference step, unbounded on the adaptive estimate's jump, they
+#: reach hundreds to thousands of mm, the QP input u_c thousands of volts, and the valve slams shut
+#: for a sample.
 NOTCH_RATE_FACTOR = 2.0
 NOTCH_FLOOR_MM = 1.0
 
@@ -275,6 +277,13 @@ class ControllerSettings:
         if not 0.0 < self.delay_move_weight <= MAX_DELAY_MOVE_WEIGHT:
             raise ValueError(f"ControllerSettings.delay_move_weight must be within 0 .. {MAX_DELAY_MOVE_WEIGHT:g} "
                              f"(0 excluded; 1: servo.r as it is), got {self.delay_move_weight!r}")
+        if self.method.endswith("servo") and self.input_delay_samples not in (0, 1):
+            # the law may run with R times the factor (servo_for_delay): within the servo QP's range too
+            r = max(self.servo.r) if isinstance(self.servo.r, tuple) else self.servo.r
+            if r * self.delay_move_weight > MAX_WEIGHT:
+                raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {self.delay_move_weight:g} "
+                                 f"exceeds {MAX_WEIGHT:g}, the largest move weight (the law's for a delay of 2 samples "
+                                 "or more): lower either")
         if not isinstance(self.delay_correction, bool):
             raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
@@ -627,7 +636,7 @@ class DisplacementController:
         ms, lag = self._ms, self._lag
         best = min(range(len(ms)), key=ms.__getitem__)
         if best != lag and DELAY_RATIO * ms[best] < ms[lag]:
-            return best, ms[lag] / ms[best]
+            return best, ms[lag] / ms[best] if ms[best] > 0.0 else math.inf
         return None
 
     def _decide_delay(self, d: int) -> None:
@@ -721,7 +730,7 @@ class DisplacementController:
             if h_prev2 != h_prev2:  # the second sample: H(k-2) does not exist yet
                 h_prev2 = h_prev
             # the predictions move H(k) ahead no faster than NOTCH_RATE_FACTOR times its last two changes,
-            # plus NOTCH_FLOOR_MM per sample: after a large step the estimate's jump made them thousands of mm
+            # plus NOTCH_FLOOR_MM per sample (unbounded, an estimate's jump takes them to thousands of mm)
             d = NOTCH_RATE_FACTOR * max(abs(h - h_prev), abs(h_prev - h_prev2)) + NOTCH_FLOOR_MM
             h_next = min(max(h_next, h - d), h + d)
             h_next2 = min(max(h_next2, h - 2.0 * d), h + 2.0 * d)

@@ -19,12 +19,12 @@ from .argument_checks import real_number, whole_number
 #: Longest prediction horizon accepted [samples] (Table 5: 5; 5 s at Ts = 0.1 s); the controller FMU
 #: declares the same range for servo.Hp, servo.Hu and ucp.Hp.
 MAX_HORIZON = 50
-#: Largest weight Q, Qs or R of Eq. (15) (Table 5: 2-15). Their ratios set the law; far beyond Table
-#: 5's scale the QP is ill-conditioned (R = 1e300 held the command at 0 V for a whole run without a
-#: word, Qs = 1e300 failed the QP's set-up); the controller FMU declares the same range.
+#: Largest weight Q, Qs or R of Eq. (15) (Table 5: 2-15), six decades above Table 5's scale: their
+#: ratios set the law, and far beyond it the QP is ill-conditioned (an R of 1e300 holds the command at
+#: 0 V, a Qs of 1e300 fails the QP's set-up). The controller FMU declares the same range.
 MAX_WEIGHT = 1e6
 
-__all__ = ["MAX_HORIZON", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "positive_int"]
+__all__ = ["MAX_HORIZON", "MAX_WEIGHT", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "positive_int"]
 
 #: Table 5, "MPC/AMPC with servo mechanism" column.
 TABLE5_SERVO: Mapping[str, Any] = MappingProxyType({

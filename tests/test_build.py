@@ -94,6 +94,7 @@ def test_outputs_computed_at_initialisation_have_no_start_and_list_their_paramet
             assert {"sensor_drift.offset_mm", "seed", "sensor.encoder_noise_std_mm"} <= unknowns["l"]
             assert not {"u", "load_force", "supply_pressure"} & unknowns["l"]  # at rest, whatever the inputs
 
+
 def test_no_variable_of_either_fmu_is_the_parent_of_another(built_fmus):
     """Under the structured naming convention a Modelica importer maps ``load.load_n`` to a record
     ``load``: a variable ``load`` beside it cannot be mapped, so the build refuses such names."""
@@ -113,6 +114,23 @@ def test_no_variable_of_either_fmu_is_the_parent_of_another(built_fmus):
                                              rf"'{re.escape(child)}'"):
             refuse_parent_names(names)
     refuse_parent_names(["load_force", "load.load_n", "loads", "'load.x'", "load_x.y"])  # none a parent
+
+
+@pytest.mark.parametrize("convention, refused", [("structured", True), ("flat", False)])
+def test_the_build_refuses_a_variable_that_is_anothers_parent(convention, refused):
+    """finish_model_description, which every build runs, applies the check under the structured
+    naming convention (under the flat one a name is a plain string)."""
+    xml = (f'<fmiModelDescription fmiVersion="2.0" guid="x" variableNamingConvention="{convention}">'
+           '<CoSimulation modelIdentifier="m"/><ModelVariables>'
+           '<ScalarVariable name="load" valueReference="0" causality="input"><Real start="44"/></ScalarVariable>'
+           '<ScalarVariable name="load.load_n" valueReference="1" causality="parameter" variability="fixed">'
+           '<Real start="44"/></ScalarVariable></ModelVariables><ModelStructure/></fmiModelDescription>')
+    meta = {"load": {"unit": "N"}, "load.load_n": {"unit": "N"}}
+    if refused:
+        with pytest.raises(ValueError, match="variable 'load' is also the parent of 'load.load_n'"):
+            finish_model_description(xml, meta, guid="g")
+    else:
+        assert 'name="load.load_n"' in finish_model_description(xml, meta, guid="g")
 
 
 def test_unknown_fmu_name_and_unit_are_refused(tmp_path):

@@ -70,3 +70,15 @@ def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, 
     assert ended.value.code == 2
     assert capsys.readouterr().err == (f"tapmuscle {command}: error: unrecognized arguments: {unknown} "
                                        f"(see tapmuscle {command} --help)\n")
+
+
+@pytest.mark.parametrize("argv, unknown", [
+    (["--quiet", "record", "--input", "const:value=5", "--duration", "1", "--out", "o.csv"], "--quiet"),
+    (["--bogus", "identify", "rec.csv", "--json", "id.json"], "--bogus"),
+])
+def test_an_argument_before_the_command_is_tapmuscles_to_refuse(capsys, argv, unknown):
+    """record takes --quiet after its name; given before it, it is tapmuscle's unknown argument."""
+    with pytest.raises(SystemExit) as ended:
+        main(argv)
+    assert ended.value.code == 2
+    assert capsys.readouterr().err == f"tapmuscle: error: unrecognized arguments: {unknown} (see tapmuscle --help)\n"

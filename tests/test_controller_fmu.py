@@ -243,6 +243,9 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"startup_s": 1e4}, {}, "parameter startup_s = 10000.0 is outside its declared range"),
     # R = 1e300 held the command at 0 V for the whole run without a word
     ({"servo.R": 1e300}, {}, "parameter servo.R = 1e+300 is outside its declared range 0..1e+06"),
+    # the law for a delay of 2 or more (-1 may decide one) runs with R x delay_move_weight: refused here,
+    # not as an internal error at the decision
+    ({"servo.R": 3e5}, {}, "parameter servo.R x delay_move_weight = 300000 x 4 exceeds 1e+06"),
 ])
 def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):
     """fmi2Error, not Discard (a host answers Discard with a smaller step, forever); the instance stays
@@ -671,6 +674,32 @@ def test_an_input_delay_set_wrong_for_the_master_is_warned_of(set_delay, paralle
             f"t = 30 s: the measurements show an input delay of {shown} samples, not the {set_delay} set")
         assert f"set input_delay_samples = {shown}, or -1 to decide it" in message.msg
         assert ("a parallel master" if shown == 1 else "a sequential master") in message.msg
+
+
+@pytest.mark.parametrize("ints, said, not_said", [
+    ({"method": 4, "input_delay_samples": -1}, ["a model poor for this rig (theta0, the box C) or a delay"],
+     ["fixed predictor", "servo.Hp", "0 samples set"]),
+    ({"method": 4, "input_delay_samples": 0, "servo.Hp": 40},
+     ["more delay in the loop than the 0 samples set", "a long prediction horizon servo.Hp = 40"], ["fixed predictor"]),
+    ({"method": 1, "input_delay_samples": -1, "servo.Hp": 40}, ["the fixed predictor theta0 poor"],
+     ["servo.Hp", "0 samples set", "a model poor"]),
+])
+def test_a_limit_cycles_causes_are_those_the_settings_leave_possible(ints, said, not_said):
+    """What the limit-cycle warning lists once the law compensates no delay (0 set, or -1 decided 0):
+    the delay only where 0 was set, the fixed predictor for methods 1 and 2, a servo horizon longer
+    than Table 5's for a servo method; else the generic cause."""
+    slave = AMPCController(instance_name="causes")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr[k] for k in ints], list(ints.values()))
+    slave.exit_initialization_mode()
+    causes = "; ".join(slave._limit_cycle_causes(42.0))
+    assert all(s in causes for s in said) and not any(s in causes for s in not_said), causes
+
+
+def test_an_overflow_names_theta0_only_where_it_was_set():
+    slave = AMPCController(instance_name="hint")
+    slave.exit_initialization_mode()
+    assert slave.overflow_hint().endswith("theta0 is far from a model of a muscle")
 
 
 @pytest.mark.parametrize("delay", [0, -1])

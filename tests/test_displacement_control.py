@@ -949,3 +949,21 @@ def test_the_step_that_fires_the_guard_ran_on_theta0(open_loop_theta_03mpa, unbo
             break
         meas = plant.step(u, 0.1)
     assert ctrl.startup_guarded_at is not None and not ctrl.law_on_theta0
+
+
+def test_a_move_weight_the_delayed_law_would_scale_past_the_qp_range_is_refused_up_front():
+    """servo_for_delay runs a delay of 2 or more with R x delay_move_weight: an R within its own range
+    (3e5 <= MAX_WEIGHT) times the default 4 failed the decision of -1 mid-run; it is refused when the
+    settings are made, where a delay of 2 or more is possible and the method is a servo one."""
+    from fmu_controller.servo_settings import MAX_WEIGHT
+
+    servo = ServoMPCSettings(r=3e5)
+    for delay in (-1, 2, 5):
+        with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 4 exceeds 1e\+06"):
+            ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=delay)
+    # no delay of 2 or more (0, 1), no servo law (UCP), or a product within the range: accepted
+    for settings in (dict(method="ampc_servo", input_delay_samples=0), dict(method="mpc_servo", input_delay_samples=1),
+                     dict(method="ampc_ucp", input_delay_samples=-1)):
+        ControllerSettings(servo=servo, **settings)
+    s = ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=-1, delay_move_weight=3.0)
+    assert s.servo_for_delay(2).r == 9e5 <= MAX_WEIGHT

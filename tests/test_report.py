@@ -173,3 +173,26 @@ def test_no_significant_mismatch_says_white_only_of_a_white_residual():
                                                          "RMS 0.0105 mm, noise 0.0105 mm); held-out fit 99.95 %")
     below = line(_tests(0.025, 0.0104, 1e-30, structured=True))
     assert "structured residual below the materiality level" in below and "< 3 x" in below
+
+
+def test_the_residual_figure_shows_the_final_residual_on_its_own_scale(tmp_path, monkeypatch):
+    """residual.png: the residuals before above; below, the final one alone with the band of twice the
+    noise level, so that a remainder of hundredths of a millimetre is seen beside millimetres."""
+    import tapmuscle.diagnosis.report as report
+
+    rig = DEMO_MODEL.with_values(**{"delay.delay_s": 0.2})
+    rec, plant = _files(tmp_path, rig)
+    drawn = {}
+    monkeypatch.setattr(report, "save_figure", lambda fig, path: drawn.setdefault(path.name, fig))
+    d, _ = diagnose_files(rec, plant, tmp_path / "out")
+    fig = drawn["residual.png"]
+    top, zoom = fig.axes
+    final = d.y_mm - d.y_after_mm
+    assert np.array_equal(zoom.lines[0].get_ydata(), final)
+    assert len(top.lines) >= 2 and np.ptp(top.lines[0].get_ydata()) > 10 * np.ptp(final)
+    noise = d.tests_after["noise_reference_mm"]
+    (band,) = [p for p in zoom.patches if (p.get_label() or "").startswith("+-2 x the noise level")]
+    # a Rectangle (matplotlib >= 3.9) or a Polygon, in data coordinates along y
+    lo, hi = ((band.get_y(), band.get_y() + band.get_height()) if hasattr(band, "get_height")
+              else (band.get_xy()[:, 1].min(), band.get_xy()[:, 1].max()))
+    assert np.isclose(lo, -2 * noise) and np.isclose(hi, 2 * noise)

@@ -419,7 +419,7 @@ def test_a_plant_fmu_with_the_input_load_is_told_to_be_built_again(tmp_path):
 
 
 @pytest.mark.parametrize("key, value, message", [
-    ("servo.R", -1.0, "-1.0 is outside its declared range 0.0..inf"),
+    ("servo.R", -1.0, "-1.0 is outside its declared range 0.0..1000000.0"),
     ("servo.Hp", 5.5, "must be an integer, got 5.5"),
     ("servo.Hp", 0, "0 is outside its declared range 1..50"),
     ("servo.Rr", 1.0, "not a parameter of AMPCController (did you mean 'servo.R'"),

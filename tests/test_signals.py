@@ -122,3 +122,16 @@ def test_record_sweeps_a_chirp_over_its_duration(tmp_path):
     u = read_recording(out).u_v
     expected = parse_input_spec("chirp:f0=0.01,f1=0.5,duration=60")
     assert np.allclose(u, [expected(k * 0.1) for k in range(len(u))], atol=1e-6)
+
+
+def test_a_replay_is_made_of_commands_on_a_period_and_has_none_before_its_first_sample():
+    from tapmuscle.io.signals import Replay
+
+    replay = Replay([1.0, 2.0, 3.0], 0.1, "rec.csv")
+    assert [replay(t) for t in (0.0, 0.1, 0.25)] == [1.0, 2.0, 3.0] and replay.duration_s == pytest.approx(0.2)
+    with pytest.raises(ValueError, match=r"rec.csv holds 3 commands every 0.1 s, from 0 to 0.2 s .*none at t = -0.1 s"):
+        replay(-0.1)
+    with pytest.raises(ValueError, match=r"x.csv: the replay's period must be a finite number of seconds > 0, got 0.0"):
+        Replay([1.0], 0.0, "x.csv")
+    with pytest.raises(ValueError, match=r"x.csv: a replay needs one command per sample, got shape \(0,\)"):
+        Replay([], 0.1, "x.csv")

@@ -376,10 +376,14 @@ class _Parser(argparse.ArgumentParser):
                    namespace: argparse.Namespace | None = None) -> argparse.Namespace:
         """argparse's, but an argument no subcommand takes is refused by that subcommand's parser
         (``tapmuscle identify: error: unrecognized arguments: --quiet``), not by ``tapmuscle``'s."""
-        parsed, extras = self.parse_known_args(args, namespace)
+        argv = list(sys.argv[1:] if args is None else args)
+        parsed, extras = self.parse_known_args(argv, namespace)
         if extras:
             commands = next((a.choices for a in self._actions if isinstance(a, argparse._SubParsersAction)), {})
-            command = commands.get(getattr(parsed, "command", None), self)
+            name = getattr(parsed, "command", None)
+            # the subcommand's only where every extra came after its name (before it: tapmuscle's own)
+            at = argv.index(name) if name in argv else len(argv)
+            command = commands.get(name, self) if not set(extras) & set(argv[:at]) else self
             command.error(f"unrecognized arguments: {' '.join(extras)}")
         return parsed
 

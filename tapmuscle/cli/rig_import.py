@@ -58,32 +58,26 @@ def _located(args: argparse.Namespace, rec, exc: ValueError) -> str:
 def _pressure_refusal(args: argparse.Namespace, rec, k: int) -> str:
     """Why the pressure column, whose largest value is at sample ``k``, is refused: that value as
     written in the unit given, its line, and the unit that reads it nearest the rig's supply."""
-    import math
-
     from fmu_plant import PlantParams
     from tapmuscle.diagnosis.recording_checks import PRESSURE_PLAUSIBLE_MPA
-    from tapmuscle.io.rig_log import ABSOLUTE_UNITS, STANDARD_ATMOSPHERE_KPA, UNITS, unit_key
+    from tapmuscle.io.rig_log import ABSOLUTE_UNITS, STANDARD_ATMOSPHERE_KPA, UNITS, likely_pressure_unit, unit_key
 
     col, p = args.p, rec.columns["p_mpa"]
-    units, given = UNITS["p_mpa"], unit_key(args.p.unit)
-    absolute = given in ABSOLUTE_UNITS
-    ambient = 1e-3 * (args.ambient_kpa or STANDARD_ATMOSPHERE_KPA) if absolute else 0.0
-    written = (float(p[k]) + ambient) / units[given]  # the largest value as the log holds it
-    # the units of the same kind (gauge or absolute) that read it as a pressure a tap-water rig has
-    readings = {u: written * f - ambient for u, f in units.items() if u != given and (u in ABSOLUTE_UNITS) == absolute}
-    fitting = {u: r for u, r in readings.items() if 0.0 < r <= PRESSURE_PLAUSIBLE_MPA}
+    given = unit_key(args.p.unit)
+    ambient = 1e-3 * (args.ambient_kpa or STANDARD_ATMOSPHERE_KPA) if given in ABSOLUTE_UNITS else 0.0
+    written = (float(p[k]) + ambient) / UNITS["p_mpa"][given]  # the largest value as the log holds it
     supply = PlantParams().supply.supply_pressure_mpa
-    value = f"{written:g} {col.unit}" + ("" if units[given] == 1.0 and not absolute else f" ({float(p[k]):g} MPa(G))")
+    value = f"{written:g} {col.unit}" + ("" if UNITS["p_mpa"][given] == 1.0 and not ambient else f" ({float(p[k]):g} MPa(G))")
     above = int((p > PRESSURE_PLAUSIBLE_MPA).sum())
-    if fitting:
-        best = min(fitting, key=lambda u: abs(math.log(fitting[u] / supply)))
-        likely = (f"the column is likely in {best} ({written:g} {best} is {fitting[best]:.3g} MPa(G)): "
-                  f"--p {col.column}:{best}")
+    likely = likely_pressure_unit(written, given, near_mpa=supply, within_mpa=PRESSURE_PLAUSIBLE_MPA, ambient_mpa=ambient)
+    if likely is not None:
+        best, reading = likely
+        likely_text = f"the column is likely in {best} ({written:g} {best} is {reading:.3g} MPa(G)): --p {col.column}:{best}"
     else:
-        likely = "is the column in another unit? Give its unit with --p"
+        likely_text = "is the column in another unit? Give its unit with --p"
     return (f"{args.log}, line {rec.lines[k]}, column {col.column!r} (p_mpa, given in {col.unit}): its largest value, "
             f"{value}, is no tap-water rig's pressure (mains water is at most about 1 MPa, the rig's supply "
-            f"{supply:g} MPa; {above} sample{'s' if above > 1 else ''} above {PRESSURE_PLAUSIBLE_MPA:g} MPa): {likely}")
+            f"{supply:g} MPa; {above} sample{'s' if above > 1 else ''} above {PRESSURE_PLAUSIBLE_MPA:g} MPa): {likely_text}")
 
 
 def _converted(args: argparse.Namespace, run: int | None):

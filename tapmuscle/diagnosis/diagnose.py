@@ -824,7 +824,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             return None
         runs0 = sim.runs
         p, values, c = current.params, dict(current.values), cal
-        for _ in range(FROM_NOMINAL_ROUNDS):
+        # with no search to alternate with, one calibration is the whole alternation
+        for _ in range(FROM_NOMINAL_ROUNDS if names else 1):
             c = calibrated(model.with_values(**{k: p.value(k) for vals in values.values() for k in vals}))
             p = c.params
             for name in names:

@@ -44,7 +44,7 @@ from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
 __all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "STANDARD_ATMOSPHERE_KPA", "MICRO_SIGNS", "LogColumn",
-           "read_rig_log", "rig_log_runs", "parse_column_spec", "parse_time_text", "unit_key"]
+           "read_rig_log", "rig_log_runs", "parse_column_spec", "parse_time_text", "unit_key", "likely_pressure_unit"]
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
 #: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
@@ -79,6 +79,22 @@ _DOTTED_DATE = re.compile(r"^(\d{1,2})\.(\d{1,2})\.(\d{4})[ T]+(\d{1,2}):(\d{2})
 def unit_key(unit: str) -> str:
     """``unit`` as :data:`UNITS` spells it: a leading micro sign or Greek mu (:data:`MICRO_SIGNS`) as ``u``."""
     return "u" + unit[1:] if unit[:1] in MICRO_SIGNS else unit
+
+
+def likely_pressure_unit(written: float, given: str, *, near_mpa: float, within_mpa: float,
+                         ambient_mpa: float = 0.0) -> tuple[str, float] | None:
+    """The pressure unit of :data:`UNITS` that reads the value ``written`` (as the log holds it, in the
+    unit ``given``) nearest ``near_mpa`` [MPa(G)] (a rig's supply) within ``0 < p <= within_mpa``, and
+    that reading [MPa(G)]; units of the same kind only (gauge, or absolute less ``ambient_mpa``).
+    None if no unit reads it so."""
+    units, absolute = UNITS["p_mpa"], unit_key(given) in ABSOLUTE_UNITS
+    readings = {u: written * f - (ambient_mpa if absolute else 0.0) for u, f in units.items()
+                if u != unit_key(given) and (u in ABSOLUTE_UNITS) == absolute}
+    fitting = {u: r for u, r in readings.items() if 0.0 < r <= within_mpa}
+    if not fitting:
+        return None
+    best = min(fitting, key=lambda u: abs(math.log(fitting[u] / near_mpa)))
+    return best, fitting[best]
 
 
 def parse_time_text(cell: str) -> datetime:

@@ -207,13 +207,18 @@ class Replay:
     Raises
     ------
     ValueError
-        On a call at a time before the first sample or past the last one's period (there is no
-        command there), naming the time and the recording's span.
+        No command or a period that is not > 0 (naming ``source``); on a call at a time before the
+        first sample or past the last one's period (there is no command there), naming the time and
+        the recording's span.
     """
 
     def __init__(self, u_v: np.ndarray, ts_s: float, source: str) -> None:
         self.u_v = np.asarray(u_v, dtype=float)
+        if self.u_v.ndim != 1 or not self.u_v.size:
+            raise ValueError(f"{source}: a replay needs one command per sample, got shape {self.u_v.shape}")
         self.ts_s = float(ts_s)
+        if not (math.isfinite(self.ts_s) and self.ts_s > 0.0):
+            raise ValueError(f"{source}: the replay's period must be a finite number of seconds > 0, got {ts_s!r}")
         self.source = source
 
     @property
