@@ -196,3 +196,16 @@ def test_the_residual_figure_shows_the_final_residual_on_its_own_scale(tmp_path,
     lo, hi = ((band.get_y(), band.get_y() + band.get_height()) if hasattr(band, "get_height")
               else (band.get_xy()[:, 1].min(), band.get_xy()[:, 1].max()))
     assert np.isclose(lo, -2 * noise) and np.isclose(hi, 2 * noise)
+
+
+@pytest.mark.parametrize("calibration, says", [
+    ("default", "with the constants tapmuscle diagnose recalibrated and the effects it fitted to"),
+    (None, "with the effects tapmuscle diagnose fitted to")])
+def test_the_calibrated_plant_files_note_says_what_was_fitted(tmp_path, calibration, says):
+    import json
+
+    rec, plant = _files(tmp_path, DEMO_MODEL.with_values(**{"delay.delay_s": 0.2}))
+    options = {} if calibration == "default" else {"calibration": None}
+    diagnose_files(rec, plant, tmp_path / "out", plots=False, **options)
+    note = json.loads((tmp_path / "out" / "calibrated_plant.json").read_text())["note"]
+    assert note == f"{plant} {says} {rec}"

@@ -327,8 +327,9 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
                          experiment=experiments[-1])
         atomic_write_text(tmp / "diagnosis.json", json_text(doc))
         atomic_write_text(tmp / "calibrated_plant.json", plant_file_text(
-            d.calibrated, f"{plant} with the effects tapmuscle diagnose fitted to {recording}"
-            + (f" ({model_note})" if model_note else "")))
+            d.calibrated, (f"{plant} with the constants tapmuscle diagnose recalibrated and the effects it fitted to "
+                           if d.calibration is not None else f"{plant} with the effects tapmuscle diagnose fitted to ")
+            + str(recording) + (f" ({model_note})" if model_note else "")))
         atomic_write_text(tmp / "report.md", _report_md(d, recording, plant, fmu_check, experiments, plots))
         if plots:
             _figures(d, tmp, Path(recording).stem)
