@@ -572,7 +572,8 @@ class SafeSlave(Fmi2Slave):
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
             if self._failed:
-                return self.fail("the FMU was not initialised (see the previous error); fmi2Reset or instantiate "
+                return self.fail("the FMU was not initialised (see the message of fmi2ExitInitializationMode); "
+                                 "fmi2Reset or instantiate "
                                  "again, and set valid parameters", Fmi2Status.error)
             self._restored_before_init = False
             if self._terminated or not self._initialised:

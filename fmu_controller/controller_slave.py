@@ -129,6 +129,11 @@ _METHOD_ONLY = (
 )
 
 
+def _samples(n: int) -> str:
+    """``n`` samples, in words a log reads (``1 sample``, ``2 samples``)."""
+    return f"{n} sample" if n == 1 else f"{n} samples"
+
+
 def _fmu_names(message: str, names: dict[str, str]) -> str:
     """``message`` of a settings class with its field names written as the FMU's parameter names."""
     return re.sub(r"\b(" + "|".join(map(re.escape, names)) + r")\b(?=[ (])", lambda m: names[m[1]], message)
@@ -440,12 +445,14 @@ class AMPCController(SafeSlave):
         if evidence is None:
             return
         d, ratio = evidence
-        what = {0: "a sequential master (the controller stepped before the plant, as fmpy's scenarios and a "
-                   "sequential container do)",
-                1: "a parallel master (libcosim, Ecos, OMSimulator, SSP tools: every FMU stepped on the previous "
-                   "outputs, u one macro step late at h = Ts)"}.get(d, f"a rig's transport delay of about {d} Ts")
+        what = {0: "u reaching the valve within its sample, as in a sequential master (the controller stepped "
+                   "before the plant, as fmpy's scenarios and a sequential container do) or a parallel one at a "
+                   "macro step below Ts",
+                1: "u reaching the valve one sample late, as in a parallel master at h = Ts (libcosim, Ecos, "
+                   "OMSimulator, SSP tools: every FMU stepped on the previous outputs)"}.get(
+            d, f"a rig's transport delay of about {d} Ts")
         set_ = self._controller.settings.input_delay_samples
-        self.log(f"t = {t_s:g} s: the measurements show an input delay of {d} samples, not the {set_} set "
+        self.log(f"t = {t_s:g} s: the measurements show an input delay of {_samples(d)}, not the {set_} set "
                  f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
                  f"mean square under it, as in {what}; set input_delay_samples = {d}, or -1 to decide it "
                  "(docs/control.md, \"Transport delay\")", status=Fmi2Status.warning)
@@ -628,7 +635,7 @@ class AMPCController(SafeSlave):
             restart = ("; the adaptive estimate starts again from theta0"
                        + (", with the start-up mode's warm-up" if ctrl.settings.startup_s > 0 else "")
                        if d != 1 and ctrl.settings.adaptive else "")
-            self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {d} samples: "
+            self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)}: "
                        f"{what.get(d, 'a rig transport delay as well, the law on from now')}{restart}")
         if (on_theta0 and not ctrl.law_on_theta0 and ctrl.settings.adaptive and ctrl.startup_guarded_at is None
                 and ctrl.settings.startup_s > 0):
@@ -645,7 +652,7 @@ class AMPCController(SafeSlave):
         horizons = (f"servo.Hp = {settings.servo.hp}, servo.Hu = {settings.servo.hu}" if settings.servo_mechanism
                     else f"ucp.Hp = {settings.ucp.hp}")
         delay = ("decided from the data (input_delay_samples = -1)" if settings.input_delay_samples == -1
-                 else f"{settings.input_delay_samples} samples")
+                 else _samples(settings.input_delay_samples))
         if self._source == "builtin_sine":
             reference = (f"the built-in sine {self._par['sine.offset']:g} +- {self._par['sine.amplitude']:g} mm at "
                          f"{self._par['sine.frequency']:g} Hz")
@@ -661,7 +668,7 @@ class AMPCController(SafeSlave):
                      if self._controller.settings.adaptive else "")
         delay = self._controller.input_delay_decision
         law = ("the delayed law (1 sample), input_delay_samples = -1 still undecided" if delay is None
-               else f"the law for an input delay of {delay} samples")
+               else f"the law for an input delay of {_samples(delay)}")
         return f"{super().run_summary()}: {self._tally}; {law}{estimator}"
 
     def _show_input_delay(self) -> None:

@@ -598,3 +598,22 @@ def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_host
     assert (f"The FMU was built by CPython {version}: set LD_LIBRARY_PATH to the folder of the libpython-gone.so.1.0 "
             f"of a CPython {version} built with --enable-shared" in proc.stderr), proc.stderr
     assert "or build the FMUs with a Python of yours (tapmuscle build" in proc.stderr
+
+
+def test_the_value_references_of_the_docs_c_host_example_are_the_builds(built_fmus):
+    """docs/fmu-native-hosts.md, "Running the C host by hand", sets the controller's method and delay by
+    value reference; a change of the variables' order left them naming other variables."""
+    import re
+
+    text = (Path(__file__).parents[1] / "docs" / "fmu-native-hosts.md").read_text()
+    refs = {}
+    for name, path in (("MusclePlant", built_fmus["MusclePlant"]), ("AMPCController", built_fmus["AMPCController"])):
+        refs[name] = {v.name: v.valueReference for v in read_model_description(str(path)).modelVariables}
+    example = re.search(r"MusclePlant u=(\d+) l=(\d+) p=(\d+); AMPCController l=(\d+) u=(\d+) method=(\d+) "
+                        r"input_delay_samples=(\d+)", text)
+    assert example is not None
+    pu, pl, pp, cl, cu, method, delay = map(int, example.groups())
+    assert (refs["MusclePlant"]["u"], refs["MusclePlant"]["l"], refs["MusclePlant"]["p"]) == (pu, pl, pp)
+    assert (refs["AMPCController"]["l"], refs["AMPCController"]["u"]) == (cl, cu)
+    assert (refs["AMPCController"]["method"], refs["AMPCController"]["input_delay_samples"]) == (method, delay)
+    assert f"C.int={method}:4" in text and f"C.int={delay}:0" in text

@@ -671,9 +671,11 @@ def test_an_input_delay_set_wrong_for_the_master_is_warned_of(set_delay, paralle
     else:
         (message,) = said
         assert message.status == Fmi2Status.warning and message.msg.startswith(
-            f"t = 30 s: the measurements show an input delay of {shown} samples, not the {set_delay} set")
+            f"t = 30 s: the measurements show an input delay of {shown} sample{'s' if shown != 1 else ''}, not the "
+            f"{set_delay} set")
         assert f"set input_delay_samples = {shown}, or -1 to decide it" in message.msg
-        assert ("a parallel master" if shown == 1 else "a sequential master") in message.msg
+        assert ("one sample late, as in a parallel master at h = Ts" if shown == 1
+                else "within its sample, as in a sequential master") in message.msg
 
 
 @pytest.mark.parametrize("ints, said, not_said", [

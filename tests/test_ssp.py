@@ -55,7 +55,7 @@ def test_libcosim_runs_the_ssp_and_tracks(ssp):
 
 def test_a_load_set_bound_in_the_ssd_reaches_the_plant_which_declares_no_load_connector(ssp, tmp_path):
     """docs/fmu.md: for 68 N, bind ``load_68N.ssv`` to the plant in the SSD instead; libcosim applies
-    a set's values by variable name, so the plant's ``load`` needs no connector."""
+    a set's values by variable name, so the plant's ``load_force`` needs no connector."""
     libcosim = pytest.importorskip("libcosimpy.CosimExecution")
     from libcosimpy.CosimObserver import CosimObserver
 
