@@ -572,7 +572,7 @@ class SafeSlave(Fmi2Slave):
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
             if self._failed:
-                return self.fail("the FMU was not initialised (see the message of fmi2ExitInitializationMode); "
+                return self.fail("the FMU was not initialised (see the initialisation's message); "
                                  "fmi2Reset or instantiate "
                                  "again, and set valid parameters", Fmi2Status.error)
             self._restored_before_init = False

@@ -226,7 +226,8 @@ class AMPCController(SafeSlave):
             ("Ts", 0.1, "s", "sampling period Ts [s] (paper: 0.1)", 1e-4, 60.0),
             ("servo.Q", 5.0, "", "tracking weight Q of Eq. (15) [1/mm^2] (Table 5)", 0.0, MAX_WEIGHT),
             ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, MAX_WEIGHT),
-            ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5)", 0.0, MAX_WEIGHT),
+            ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5); servo.R x delay_move_weight "
+             f"at most {MAX_WEIGHT:g} too where a delay of 2 or more may be compensated", 0.0, MAX_WEIGHT),
             ("delay_move_weight", 4.0, "", "servo methods: factor on servo.R while the law compensates a delay of "
              "2 samples or more (input_delay_samples 2 .. 5, or -1 deciding for one: a rig's transport delay, whose "
              "prediction errors a larger R feeds back less); 1 keeps servo.R; delays 0 and 1 always do "
@@ -445,16 +446,16 @@ class AMPCController(SafeSlave):
         if evidence is None:
             return
         d, ratio = evidence
-        what = {0: "u reaching the valve within its sample, as in a sequential master (the controller stepped "
-                   "before the plant, as fmpy's scenarios and a sequential container do) or a parallel one at a "
-                   "macro step below Ts",
-                1: "u reaching the valve one sample late, as in a parallel master at h = Ts (libcosim, Ecos, "
+        what = {0: "u reaching the valve within its sample: a sequential master (the controller stepped before "
+                   "the plant, as fmpy's scenarios and a sequential container do), or a parallel one sub-stepping "
+                   "at a fraction of Ts (Ts/4)",
+                1: "u reaching the valve one sample late: a parallel master at h = Ts (libcosim, Ecos, "
                    "OMSimulator, SSP tools: every FMU stepped on the previous outputs)"}.get(
             d, f"a rig's transport delay of about {d} Ts")
         set_ = self._controller.settings.input_delay_samples
         self.log(f"t = {t_s:g} s: the measurements show an input delay of {_samples(d)}, not the {set_} set "
                  f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
-                 f"mean square under it, as in {what}; set input_delay_samples = {d}, or -1 to decide it "
+                 f"mean square under it ({what}); set input_delay_samples = {d}, or -1 to decide it "
                  "(docs/control.md, \"Transport delay\")", status=Fmi2Status.warning)
 
     def _limit_cycle_causes(self, l: float) -> list[str]:

@@ -52,7 +52,6 @@ from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
-from .servo_settings import MAX_WEIGHT
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S",
@@ -277,13 +276,15 @@ class ControllerSettings:
         if not 0.0 < self.delay_move_weight <= MAX_DELAY_MOVE_WEIGHT:
             raise ValueError(f"ControllerSettings.delay_move_weight must be within 0 .. {MAX_DELAY_MOVE_WEIGHT:g} "
                              f"(0 excluded; 1: servo.r as it is), got {self.delay_move_weight!r}")
-        if self.method.endswith("servo") and self.input_delay_samples not in (0, 1):
-            # the law may run with R times the factor (servo_for_delay): within the servo QP's range too
-            r = max(self.servo.r) if isinstance(self.servo.r, tuple) else self.servo.r
-            if r * self.delay_move_weight > MAX_WEIGHT:
-                raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {self.delay_move_weight:g} "
-                                 f"exceeds {MAX_WEIGHT:g}, the largest move weight (the law's for a delay of 2 samples "
-                                 "or more): lower either")
+        if self.servo_mechanism and self.input_delay_samples not in (0, 1):
+            # the law may run with R times the factor (servo_for_delay): valid servo settings too
+            try:
+                self.servo_for_delay(2)
+            except ValueError as exc:
+                r = max(self.servo.r) if isinstance(self.servo.r, tuple) else self.servo.r
+                raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {self.delay_move_weight:g}, "
+                                 f"the move weight of the law for a delay of 2 samples or more, is not one: {exc}"
+                                 ) from None
         if not isinstance(self.delay_correction, bool):
             raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")
         if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):

@@ -205,9 +205,9 @@ class Plant:
         self.params = params if params is not None else PlantParams()
         if not isinstance(self.params, PlantParams):
             # a file is read by its reader (tapmuscle.read_plant_file); the plant takes the parameters
-            hint = (": a plant parameter file is read by tapmuscle's read_plant_file(path)"
+            hint = (": a plant parameter file is read by tm.read_plant_file(path)"
                     if isinstance(self.params, (str, os.PathLike)) else "")
-            raise ValueError(f"params must be a PlantParams, got {type(self.params).__name__}{hint}")
+            raise TypeError(f"params must be a PlantParams, got {type(self.params).__name__}{hint}")
         # the effects switched on in the parameters (effect_library.py), then the caller's own
         self.effects: tuple[Effect, ...] = tuple(effects_from_params(self.params)) + tuple(effects)
         for e in self.effects:

@@ -75,6 +75,7 @@ def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, 
 @pytest.mark.parametrize("argv, unknown", [
     (["--quiet", "record", "--input", "const:value=5", "--duration", "1", "--out", "o.csv"], "--quiet"),
     (["--bogus", "identify", "rec.csv", "--json", "id.json"], "--bogus"),
+    (["--bogus", "identify", "rec.csv", "--json", "id.json", "--quiet"], "--bogus"),  # the one before first
 ])
 def test_an_argument_before_the_command_is_tapmuscles_to_refuse(capsys, argv, unknown):
     """record takes --quiet after its name; given before it, it is tapmuscle's unknown argument."""

@@ -959,11 +959,41 @@ def test_a_move_weight_the_delayed_law_would_scale_past_the_qp_range_is_refused_
 
     servo = ServoMPCSettings(r=3e5)
     for delay in (-1, 2, 5):
-        with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 4 exceeds 1e\+06"):
+        with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 4, the move "
+                                             r"weight of the law for a delay of 2 samples or more, is not one: r must be "
+                                             r"<= 1e\+06, got 1200000.0"):
             ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=delay)
+    # a product that rounds to 0 is not a move weight either (R > 0), nor is a per-step one too large
+    with pytest.raises(ValueError, match=r"= 1e-300 x 1e-30, .* is not one: r must be > 0"):
+        ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=1e-300), delay_move_weight=1e-30,
+                           input_delay_samples=-1)
+    with pytest.raises(ValueError, match=r"= 400000 x 4, .* is not one: r must be <= 1e\+06 elementwise"):
+        ControllerSettings(method="mpc_servo", servo=ServoMPCSettings(hu=2, r=(1.0, 4e5)), input_delay_samples=2)
     # no delay of 2 or more (0, 1), no servo law (UCP), or a product within the range: accepted
     for settings in (dict(method="ampc_servo", input_delay_samples=0), dict(method="mpc_servo", input_delay_samples=1),
                      dict(method="ampc_ucp", input_delay_samples=-1)):
         ControllerSettings(servo=servo, **settings)
     s = ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=-1, delay_move_weight=3.0)
     assert s.servo_for_delay(2).r == 9e5 <= MAX_WEIGHT
+
+
+def test_the_delay_evidence_of_a_set_delay():
+    """With input_delay_samples set, delay_evidence is None before DELAY_CHECK_SAMPLES samples are scored
+    and with -1; then the delay DELAY_RATIO times better than the set one and the ratio of their mean
+    squares, inf where the better one predicts without error."""
+    from fmu_controller.displacement_control import DELAY_CHECK_SAMPLES, DELAY_RATIO
+
+    c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=0), THETA0_44N)
+    c.reset(0.0)
+    assert c.delay_evidence is None
+    c._compared = DELAY_CHECK_SAMPLES
+    c._ms = [1.0, 0.5, 2.0, 2.0, 2.0, 2.0]
+    assert c.delay_evidence == (1, 2.0)
+    c._ms = [1.0, 1.0 / DELAY_RATIO, 2.0, 2.0, 2.0, 2.0]  # not better by the ratio
+    assert c.delay_evidence is None
+    c._ms = [1.0, 0.0, 2.0, 2.0, 2.0, 2.0]
+    assert c.delay_evidence == (1, math.inf)
+    auto = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=-1), THETA0_44N)
+    auto.reset(0.0)
+    auto._compared = DELAY_CHECK_SAMPLES
+    assert auto.delay_evidence is None

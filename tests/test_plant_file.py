@@ -93,6 +93,6 @@ def test_the_public_api_reads_and_writes_plant_files_with_their_effects(tmp_path
 def test_a_path_given_to_the_plant_names_the_reader(tmp_path):
     import tapmuscle as tm
 
-    with pytest.raises(ValueError, match=r"params must be a PlantParams, got PosixPath: a plant parameter file is "
-                                         r"read by tapmuscle's read_plant_file\(path\)"):
+    with pytest.raises(TypeError, match=r"params must be a PlantParams, got PosixPath: a plant parameter file is "
+                                        r"read by tm.read_plant_file\(path\)"):
         tm.Plant(tmp_path / "calibrated_plant.json")

@@ -198,13 +198,15 @@ def test_the_residual_figure_shows_the_final_residual_on_its_own_scale(tmp_path,
     assert np.isclose(lo, -2 * noise) and np.isclose(hi, 2 * noise)
 
 
-@pytest.mark.parametrize("calibration, says", [
-    ("default", "with the constants tapmuscle diagnose recalibrated and the effects it fitted to"),
-    (None, "with the effects tapmuscle diagnose fitted to")])
-def test_the_calibrated_plant_files_note_says_what_was_fitted(tmp_path, calibration, says):
+@pytest.mark.parametrize("rig, calibration, says", [
+    ({"delay.delay_s": 0.2}, "default", "with the constants tapmuscle diagnose recalibrated and the effects it fitted to"),
+    ({"delay.delay_s": 0.2}, None, "with the effects tapmuscle diagnose fitted to"),
+    ({"friction.base_n": 5.0}, "default", "with the constants tapmuscle diagnose recalibrated to"),
+    ({}, None, "as given: tapmuscle diagnose recalibrated and fitted nothing on")])
+def test_the_calibrated_plant_files_note_says_what_was_fitted(tmp_path, rig, calibration, says):
     import json
 
-    rec, plant = _files(tmp_path, DEMO_MODEL.with_values(**{"delay.delay_s": 0.2}))
+    rec, plant = _files(tmp_path, DEMO_MODEL.with_values(**rig))
     options = {} if calibration == "default" else {"calibration": None}
     diagnose_files(rec, plant, tmp_path / "out", plots=False, **options)
     note = json.loads((tmp_path / "out" / "calibrated_plant.json").read_text())["note"]

@@ -538,3 +538,16 @@ def test_the_first_bad_cell_of_a_long_column_is_named(tmp_path, cell, message):
     log.write_text("t;u;l\n# a remark\n" + "\n".join(rows) + "\n")
     with pytest.raises(RecordingError, match=message):
         read_rig_log(log, time="t", u="u", l="l")
+
+
+def test_the_likely_pressure_unit_is_the_one_reading_nearest_the_supply():
+    from tapmuscle.io.rig_log import likely_pressure_unit
+
+    # a 0.25-MPa supply logged in kPa but declared MPa; in psi declared kPa; gauge units only
+    assert likely_pressure_unit(250.0, "MPa", near_mpa=0.25, within_mpa=2.0) == ("kPa", pytest.approx(0.25))
+    assert likely_pressure_unit(36.26, "kPa", near_mpa=0.25, within_mpa=2.0) == ("psi", pytest.approx(0.25, rel=1e-3))
+    # an absolute sensor: the ambient taken off (the standard atmosphere unless given), absolute units only
+    unit, reading = likely_pressure_unit(3.5, "MPa_abs", near_mpa=0.25, within_mpa=2.0)
+    assert unit == "bar_abs" and reading == pytest.approx(0.35 - 0.101325)
+    assert likely_pressure_unit(3.5, "MPa_abs", near_mpa=0.25, within_mpa=2.0, ambient_mpa=0.09)[1] == pytest.approx(0.26)
+    assert likely_pressure_unit(1e12, "MPa", near_mpa=0.25, within_mpa=2.0) is None  # no unit reads it so

@@ -383,8 +383,10 @@ class _Parser(argparse.ArgumentParser):
             name = getattr(parsed, "command", None)
             # the subcommand's only where every extra came after its name (before it: tapmuscle's own)
             at = argv.index(name) if name in argv else len(argv)
-            command = commands.get(name, self) if not set(extras) & set(argv[:at]) else self
-            command.error(f"unrecognized arguments: {' '.join(extras)}")
+            before = [x for x in extras if x in argv[:at]]
+            if before:  # tapmuscle's own options come before the command: those are its to refuse
+                self.error(f"unrecognized arguments: {' '.join(before)}")
+            commands.get(name, self).error(f"unrecognized arguments: {' '.join(extras)}")
         return parsed
 
 

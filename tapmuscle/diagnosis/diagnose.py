@@ -807,7 +807,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
 
     def from_nominal(round_no: int | str, names: Sequence[str] | None = None) -> _Model | None:
         """The own searches of ``names`` (default: the profiled effects) alternated with the
-        calibration from the nominal constants (:data:`FROM_NOMINAL_ROUNDS` times), the result
+        calibration from the nominal constants (:data:`FROM_NOMINAL_ROUNDS` times; the calibration
+        once for ``round_no = "final"`` without a search), the result
         re-fitted jointly to convergence and kept if it fits the training blocks better; returned when
         it is not kept (None otherwise), as a further start for the next round's candidates.
 

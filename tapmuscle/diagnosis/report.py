@@ -326,10 +326,15 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
             entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
                          experiment=experiments[-1])
         atomic_write_text(tmp / "diagnosis.json", json_text(doc))
+        # what the file holds beyond the plant given: recalibrated constants, fitted effects (an ambiguous
+        # verdict's best alternative among them), either, or neither
+        fitted = {(True, True): "with the constants tapmuscle diagnose recalibrated and the effects it fitted to",
+                  (True, False): "with the constants tapmuscle diagnose recalibrated to",
+                  (False, True): "with the effects tapmuscle diagnose fitted to",
+                  (False, False): "as given: tapmuscle diagnose recalibrated and fitted nothing on"}[
+            (d.calibration is not None and bool(d.calibration.changed), bool(d.named or d.ambiguous))]
         atomic_write_text(tmp / "calibrated_plant.json", plant_file_text(
-            d.calibrated, (f"{plant} with the constants tapmuscle diagnose recalibrated and the effects it fitted to "
-                           if d.calibration is not None else f"{plant} with the effects tapmuscle diagnose fitted to ")
-            + str(recording) + (f" ({model_note})" if model_note else "")))
+            d.calibrated, f"{plant} {fitted} {recording}" + (f" ({model_note})" if model_note else "")))
         atomic_write_text(tmp / "report.md", _report_md(d, recording, plant, fmu_check, experiments, plots))
         if plots:
             _figures(d, tmp, Path(recording).stem)

@@ -82,13 +82,14 @@ def unit_key(unit: str) -> str:
 
 
 def likely_pressure_unit(written: float, given: str, *, near_mpa: float, within_mpa: float,
-                         ambient_mpa: float = 0.0) -> tuple[str, float] | None:
+                         ambient_mpa: float | None = None) -> tuple[str, float] | None:
     """The pressure unit of :data:`UNITS` that reads the value ``written`` (as the log holds it, in the
     unit ``given``) nearest ``near_mpa`` [MPa(G)] (a rig's supply) within ``0 < p <= within_mpa``, and
-    that reading [MPa(G)]; units of the same kind only (gauge, or absolute less ``ambient_mpa``).
-    None if no unit reads it so."""
+    that reading [MPa(G)]; units of the same kind only (gauge, or absolute less the ambient
+    ``ambient_mpa``, default the standard atmosphere). None if no unit reads it so."""
     units, absolute = UNITS["p_mpa"], unit_key(given) in ABSOLUTE_UNITS
-    readings = {u: written * f - (ambient_mpa if absolute else 0.0) for u, f in units.items()
+    ambient = (1e-3 * STANDARD_ATMOSPHERE_KPA if ambient_mpa is None else ambient_mpa) if absolute else 0.0
+    readings = {u: written * f - ambient for u, f in units.items()
                 if u != unit_key(given) and (u in ABSOLUTE_UNITS) == absolute}
     fitting = {u: r for u, r in readings.items() if 0.0 < r <= within_mpa}
     if not fitting:
