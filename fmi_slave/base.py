@@ -572,9 +572,8 @@ class SafeSlave(Fmi2Slave):
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
             if self._failed:
-                return self.fail("the FMU was not initialised (see the initialisation's message); "
-                                 "fmi2Reset or instantiate "
-                                 "again, and set valid parameters", Fmi2Status.error)
+                return self.fail("the FMU was not initialised (see the initialisation's message); fmi2Reset or "
+                                 "instantiate again, and set valid parameters", Fmi2Status.error)
             self._restored_before_init = False
             if self._terminated or not self._initialised:
                 return self.fail(f"fmi2DoStep {'after fmi2Terminate' if self._terminated else 'before fmi2ExitInitializationMode'}"

@@ -74,7 +74,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
-from fmu_controller.servo_settings import MAX_HORIZON, MAX_WEIGHT
+from fmu_controller.servo_settings import MAX_HORIZON, MAX_WEIGHT, TABLE5_SERVO
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
@@ -109,8 +109,6 @@ _PINNED_S = 10.0
 _SERVO_NAMES = {"hp": "servo.Hp", "hu": "servo.Hu", "qs": "servo.Qs", "q": "servo.Q", "r": "servo.R",
                 "u_min_v": "u_min", "u_max_v": "u_max"}
 _UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
-#: The servo MPC's prediction horizon of Table 5 [samples].
-_TABLE5_HP = ServoMPCSettings().hp
 #: ControllerSettings' field names as the FMU's parameters (``servo.r`` is ServoMPCSettings' ``r``).
 _SETTINGS_NAMES = {"ControllerSettings.ts_s": "Ts", "ControllerSettings.p0": "P0.*",
                    "ControllerSettings.input_delay_samples": "input_delay_samples", "servo.r": "servo.R",
@@ -284,10 +282,7 @@ class AMPCController(SafeSlave):
             if name.startswith(("box_lower.", "box_upper.")) and math.isinf(value):
                 side = "-inf (no lower bound)" if name.startswith("box_lower.") else "inf (no upper bound)"
                 raise SlaveInputError(f"parameter {name} = {value!r} is not a bound: a finite number, or {side}")
-            if name.startswith("theta0."):
-                self.finite(f"parameter {name}", value, -THETA0_LIMIT, THETA0_LIMIT)
-            else:
-                self.finite(f"parameter {name}", value)
+            self.finite(f"parameter {name}", value)
             if name.startswith("P0.") and value <= 0:
                 raise SlaveInputError(f"parameter {name} = {value!r} must be > 0")
         if abs(p["theta0.b1"]) < 1e-6:
@@ -471,9 +466,9 @@ class AMPCController(SafeSlave):
             causes.append(f"the fixed predictor theta0 poor where the loop runs now (l = {l:.4g} mm; the default "
                           "THETA0_44N was identified on the paper's 5..65 mm sine): an adaptive method (3, 4), or "
                           "theta0 identified over this range")
-        if s.servo_mechanism and s.servo.hp > _TABLE5_HP:
+        if s.servo_mechanism and s.servo.hp > TABLE5_SERVO["hp"]:
             causes.append(f"a long prediction horizon servo.Hp = {s.servo.hp} on an imperfect model (Table 5: "
-                          f"{_TABLE5_HP}; 30 and more swung the valve in measured runs)")
+                          f"{TABLE5_SERVO['hp']}; 30 and more swung the valve in measured runs)")
         if not causes:
             causes.append("a model poor for this rig (theta0, the box C) or a delay the law does not compensate "
                           "(docs/control.md, \"Transport delay\")")

@@ -537,7 +537,8 @@ class DisplacementController:
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
 
-        if (self._auto and not self._decided) or (not self._auto and self._compared < DELAY_CHECK_SAMPLES):
+        # -1 scores the delays until it decides; a set delay over DELAY_CHECK_SAMPLES (delay_evidence)
+        if (not self._decided) if self._auto else self._compared < DELAY_CHECK_SAMPLES:
             if k == 0:  # the shadow models start from the first measurement
                 for shadow in self._shadows:
                     shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
