@@ -371,9 +371,20 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
             client.register_plugin(_ignore_interrupts())
             yield client
         finally:
+            try:  # the workers' log lines from here on are shutdown races (a heartbeat to a closed scheduler)
+                client.run(_quiet_logs)
+            except Exception:  # noqa: BLE001 - a cluster that cannot be reached has nothing left to say
+                pass
             client.close()
     finally:
         cluster.close()
+
+
+def _quiet_logs() -> None:
+    """On a worker of the command's own local cluster about to close: its ``distributed`` loggers say
+    nothing more (a heartbeat racing the scheduler's close logged an error and a traceback over the
+    command's last line; every run's failure reaches the client, which reports it)."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL + 1)
 
 
 def _ignore_interrupts() -> Any:
