@@ -5,7 +5,8 @@ coordinates, Table 2) by
 
 .. math::  \theta = \arg\\min_{\theta \\in C} (\theta - \\hat\theta)^T P^{-1} (\theta - \\hat\theta)
 
-(the Eq. (6) distance). Only the boxed coordinates need a small quadratic program: with the others
+(the metric of Eq. (6): the Euclidean distance in Remark 1's coordinates ``rho = P^-1/2 theta``,
+Eq. (7), where Algorithm 1 projects orthogonally). Only the boxed coordinates need a small quadratic program: with the others
 free, the minimiser of the rest is the conditional mean given the boxed ones, so the problem reduces
 to the Schur complement on the boxed coordinates. :class:`BoxProjector` solves that small QP
 exactly (active-set iterations warm-started from the last active set, enumeration of the 3^m

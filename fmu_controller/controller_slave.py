@@ -161,7 +161,8 @@ class AMPCController(SafeSlave):
                         "UCP: equal to u", nominal=5.0)
         self.add_output("l_pred", 0.0, "mm", "one-step prediction l(k+1|k) [mm]", nominal=35.0)
         self.add_output("pred_error", 0.0, "mm", "prediction error l(k) - l(k|k-1) [mm]", nominal=1.0)
-        self.add_output("H", 0.0, "mm", "cancelled hysteresis term H(k) of Eq. (5) [mm] (0 for UCP)", nominal=1.0)
+        self.add_output("H", 0.0, "mm", "hysteresis term cancelled by Eq. (5) [mm]: H(k), or with the hysteresis notch its "
+                        "5-point mean about k (0 for UCP)", nominal=1.0)
         self.add_output("xs", 0.0, "mm", "servo integrator state x_s(k+1), Eq. (18) [mm] (0 for UCP)", nominal=10.0)
         self.add_output("r_k", 0.0, "mm", "reference r(k) used at the last sample [mm]", nominal=35.0)
         self.add_output("saturated", False, "", "an input limit (0-10 V or Eq. 19) was active at the last sample",

@@ -178,11 +178,14 @@ class ControllerSettings:
     * the reference is led in from the displacement ``l0`` measured at the first sample: over
       ``t < T/4`` the law sees ``l0 + s(4t/T) (r(t) - l0)`` (its preview too), with the smoothstep
       ``s(x) = 3x^2 - 2x^3``;
-    * the adaptive controllers run Algorithm 1 unchanged from the first sample, but their law uses
+    * the adaptive controllers run Algorithm 1 from the first sample, but their law uses
       ``theta0`` for ``t < T/2`` (the estimator's warm-up) and ``theta0 + s(2t/T - 1) (theta_hat -
       theta0)`` over ``T/2 <= t < T``: the first estimates, taken while ``l`` is near 0 and the cubic
       terms of Eq. (1) take most of ``P(0)``'s gain, and those of the first full-amplitude cycle, do
-      not reach the valve at full weight.
+      not reach the valve at full weight. The hysteresis state ``v(k)`` of Eq. (1) (section 2.3's
+      ``y_hy``) is computed with the law's parameters, and Algorithm 1's regressor takes it from
+      there: until ``T`` it is not the raw estimate's, as section 2.3 has it, whose errors would
+      enter the regressor that estimates them (docs/control.md, "What the gentle start costs").
 
     The default 12 s starts every method from rest within 3 mm of the reference's envelope and
     without repeated 0 <-> 10 V reversals, at 44 and 68 N, 0.1 and 0.2 Hz (benchmarks/startup.py);
@@ -372,7 +375,8 @@ class ControlStep:
     uc_v: float
     """Servo: ``u_c(k)`` [V]; UCP: equal to ``u(k)``."""
     hysteresis_mm: float
-    """``H(k)`` [mm], the cancelled hysteresis term (0 for UCP)."""
+    """The hysteresis term [mm] that Eq. (5) cancels: ``H(k)``, or with the hysteresis notch
+    (:attr:`ControllerSettings.hysteresis_notch`) its 5-point mean about ``k``; 0 for UCP."""
     xs_mm: float
     """Integrator state ``x_s(k+1)`` [mm]: the sum of the errors ``r - l``, one per sample (Eq. 18; 0 for UCP)."""
     theta: np.ndarray
@@ -563,6 +567,8 @@ class DisplacementController:
         else:
             t = self._theta_list
         theta = self.theta
+        # v(k) with the law's parameters: the estimator's next regressor takes it too (during the
+        # start-up the blend's, not the raw young estimate's; docs/control.md, "What the gentle start costs")
         state.observe_unchecked(l, t[0], t[1], t[2])
         if self._lag:
             return self._step_ahead(l, rl, t, theta, error)

@@ -141,7 +141,7 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     Parameters
     ----------
     method : {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
-        MPC with unique coincidence point (Eq. (3)) or with servo mechanism (Eqs. (15)-(20)), with a
+        MPC with unique coincidence point (Eqs. (11)-(14)) or with servo mechanism (Eqs. (15)-(20)), with a
         fixed predictor (MPC) or adapted online by Algorithm 1 (AMPC).
     reference : callable, array_like, Reference or None
         ``r(t)`` [mm] of the time [s]; or one value per sample ``r(k)`` [mm] (the last held beyond
@@ -150,7 +150,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         :class:`~fmu_controller.reference.FunctionReference`. Default: the paper's
         ``35 + 30 sin(2 pi 0.1 t)`` mm (section 4.1).
     duration_s : float
-        Length of the run [s] (the paper's: 45).
+        Length of the run [s]. The default 45 s holds Eq. (21)'s window (10-40 s; the paper does not
+        give its runs' length).
     ts_s : float
         Sampling period [s] (paper: 0.1).
     load_n : float or callable, optional

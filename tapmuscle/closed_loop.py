@@ -21,7 +21,10 @@ from fmu_plant import Plant
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
 
-#: Samples of Eq. (21): k = 101..401 (10 s to 40 s at Ts = 0.1 s).
+#: Samples of Eq. (21): k = 101..401, with the sample k at t = k Ts as in Eq. (1), so 10.1-40.1 s at
+#: Ts = 0.1 s. The paper's text says "from 10 to 40 s", the same 301 samples counted from 1 (MATLAB's
+#: indices); the equation's indices are kept (the samples 100..400 change the paper's cells by at most
+#: 0.003 mm).
 EQ21_WINDOW = (101, 401)
 #: Eq. (21)'s window in seconds, 10.1 s to 40.1 s: the samples 101..401 at the paper's Ts = 0.1 s.
 EQ21_WINDOW_S = (10.1, 40.1)
