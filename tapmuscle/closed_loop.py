@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Mapping
 from typing import Callable
 
 import numpy as np
@@ -40,14 +41,18 @@ def eq21_window(ts_s: float) -> tuple[int, int]:
     return k0, k1
 
 
-def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] | None = None, *,
-                  ts_s: float | None = None) -> float:
+def eq21_error_mm(r_mm: np.ndarray | Mapping[str, np.ndarray], l_mm: np.ndarray | None = None,
+                  window: tuple[int, int] | None = None, *, ts_s: float | None = None) -> float:
     """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] (inclusive window).
 
     Parameters
     ----------
-    r_mm, l_mm : ndarray
-        Reference and displacement [mm], one value per sample ``k``.
+    r_mm : ndarray or mapping
+        Reference [mm], one value per sample ``k``; or a whole run (what
+        :func:`run_closed_loop` and ``tm.simulate_closed_loop`` return: ``t_s``, ``r_mm``, ``l_mm``),
+        whose sampling period then places the default window (``l_mm`` not given).
+    l_mm : ndarray
+        Displacement [mm], one value per sample ``k`` (with the reference as an array).
     window : (int, int), optional
         First and last sample of the mean, inclusive. Default: the paper's 10 s to 40 s, the samples
         101..401 at Ts = 0.1 s, or :func:`eq21_window` of ``ts_s`` when that is given.
@@ -62,6 +67,18 @@ def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] | 
         row broadcast to a matrix and gave a wrong number), a window that is not ``0 <= k0 <= k1``,
         both ``window`` and ``ts_s``, or a run that ends before ``k1``.
     """
+    if isinstance(r_mm, Mapping):
+        run = r_mm
+        missing = [k for k in ("t_s", "r_mm", "l_mm") if k not in run]
+        if l_mm is not None or missing:
+            raise ValueError("give Eq. (21) a run (a mapping with t_s, r_mm and l_mm) alone, or the arrays r_mm and "
+                             "l_mm" + (f"; the run has no {', '.join(missing)}" if missing else ""))
+        r_mm, l_mm = run["r_mm"], run["l_mm"]
+        t = np.asarray(run["t_s"], dtype=float)
+        if window is None and ts_s is None and t.size > 1:
+            ts_s = float(t[-1] - t[0]) / (t.size - 1)
+    elif l_mm is None:
+        raise ValueError("Eq. (21) needs the displacement l_mm beside the reference r_mm (or a whole run)")
     r, l = np.asarray(r_mm, dtype=float), np.asarray(l_mm, dtype=float)
     if r.ndim != 1 or l.ndim != 1 or r.shape != l.shape:
         raise ValueError(f"r_mm and l_mm must be 1-D arrays of the same length (one value per sample k), got "
@@ -70,7 +87,9 @@ def eq21_error_mm(r_mm: np.ndarray, l_mm: np.ndarray, window: tuple[int, int] | 
     if not 0 <= k0 <= k1:
         raise ValueError(f"window must be (k0, k1) with 0 <= k0 <= k1, got {tuple(window)}")
     if len(r) <= k1:
-        raise ValueError(f"Eq. (21) needs samples k = 0..{k1} ({k1 + 1} samples), the run has {len(r)}")
+        raise ValueError(f"Eq. (21) needs samples k = 0..{k1} ({k1 + 1} samples), the run has {len(r)}"
+                         + ("; a run at another period than 0.1 s: give ts_s, or the run itself "
+                            "(eq21_error_mm(run))" if window is None and ts_s is None else ""))
     return float(np.mean(np.abs(r[k0:k1 + 1] - l[k0:k1 + 1])))
 
 

@@ -121,6 +121,17 @@ def test_eq21_at_another_period_scores_the_same_seconds():
         eq21_error_mm(r[:401], l[:401], ts_s=0.05)
     with pytest.raises(ValueError, match="not both"):
         eq21_error_mm(r, l, (0, 10), ts_s=0.05)
+    # a whole run places the window by its own period; a short run without ts_s is told to give one
+    run = {"t_s": t, "r_mm": r, "l_mm": l}
+    assert eq21_error_mm(run) == 0.5 and eq21_error_mm(run, window=(101, 401)) == eq21_error_mm(r, l)
+    with pytest.raises(ValueError, match=r"the run has 301; a run at another period than 0.1 s: give ts_s"):
+        eq21_error_mm(r[::2][:301], l[::2][:301])
+    with pytest.raises(ValueError, match=r"alone, or the arrays r_mm and l_mm; the run has no t_s"):
+        eq21_error_mm({"r_mm": r, "l_mm": l})
+    with pytest.raises(ValueError, match=r"alone"):
+        eq21_error_mm(run, l)
+    with pytest.raises(ValueError, match=r"needs the displacement l_mm"):
+        eq21_error_mm(r)
     with pytest.raises(ValueError, match="ts_s must be a positive finite sampling period"):
         eq21_window(0.0)
     u = 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * t)

@@ -1504,3 +1504,25 @@ def test_the_final_model_leaves_the_valley_the_search_left_it_in(tmp_path):
 
     assert sse(d.calibrated) < 1.5 * sse(rig)
     assert any(s["step"] == "search and calibrate from the nominal constants" and s["kept"] for s in d.selection)
+
+
+def test_the_calibrated_plant_carries_the_recordings_load():
+    """A recording at another load than the plant file's is re-simulated at the recording's, and the
+    calibrated plant says so: ``load.load_n`` is the recording's where one number can hold it (a
+    constant load), else the plant's with a note; the same load needs no note."""
+    rig = DEMO_MODEL.with_values(**{"load.load_n": 68.0})
+    cols = record(rig, "steps", 0)
+    assert np.all(cols["load_n"] == 68.0)
+    heavy = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, load_n=cols["load_n"],
+                     candidates=[], calibration=None)
+    assert DEMO_MODEL.load.load_n == 44.0 and heavy.calibrated.load.load_n == 68.0
+    assert any("load is 68 N, the plant's 44 N" in n for n in heavy.notes), heavy.notes
+    # the re-simulation was at 68 N: the exact rig at its load is within the noise
+    assert heavy.verdict == "no_significant_mismatch" and heavy.fit_after_percent > 99.0
+    same = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], rig, load_n=68.0, candidates=[], calibration=None)
+    assert same.calibrated.load.load_n == 68.0 and not any("load" in n for n in same.notes), same.notes
+    varying = cols["load_n"].copy()
+    varying[len(varying) // 2:] = 70.0
+    mixed = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], rig, load_n=varying, candidates=[], calibration=None)
+    assert mixed.calibrated.load.load_n == 68.0
+    assert any("load varies (68..70 N)" in n for n in mixed.notes), mixed.notes

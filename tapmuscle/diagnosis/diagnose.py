@@ -342,7 +342,24 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
                     calibration=calibration, progress=progress, started=started, space=MUSCLE,
                     use_pressure=use_pressure, left_out=left_out)
     d.notes[:0] = notes
+    if load is not None:
+        d.notes += _recorded_load(d, load, model.load.load_n)
     return d
+
+
+def _recorded_load(d: Diagnosis, load: np.ndarray, plant_load_n: float) -> list[str]:
+    """The calibrated plant carries the load the recording was re-simulated at, where one number
+    can (a constant load column or ``# load_n:`` line); the note says so, or that it cannot."""
+    lo, hi = float(np.min(load)), float(np.max(load))
+    if lo == hi == plant_load_n:
+        return []
+    if lo == hi:
+        d.calibrated = d.calibrated.with_values(**{"load.load_n": lo})
+        return [f"The recording's load is {lo:g} N, the plant's {plant_load_n:g} N: the diagnosis re-simulated the "
+                f"recording's, and the calibrated plant's load.load_n is {lo:g} N"]
+    return [f"The recording's load varies ({lo:g}..{hi:g} N): the diagnosis re-simulated it sample by sample; the "
+            f"calibrated plant keeps the plant's load.load_n = {plant_load_n:g} N (a plant file holds one load), "
+            "which re-simulates another run than the recording's"]
 
 
 def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str = "") -> list[Any]:

@@ -333,8 +333,10 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
                   (False, True): "with the effects tapmuscle diagnose fitted to",
                   (False, False): "as given: tapmuscle diagnose recalibrated and fitted nothing on"}[
             (d.calibration is not None and bool(d.calibration.changed), bool(d.named or d.ambiguous))]
+        loaded = (d.nominal is not None and d.calibrated.load.load_n != d.nominal.load.load_n)
         atomic_write_text(tmp / "calibrated_plant.json", plant_file_text(
-            d.calibrated, f"{plant} {fitted} {recording}" + (f" ({model_note})" if model_note else "")))
+            d.calibrated, f"{plant} {fitted} {recording}" + (f" ({model_note})" if model_note else "")
+            + (f", at the recording's load ({d.calibrated.load.load_n:g} N)" if loaded else "")))
         atomic_write_text(tmp / "report.md", _report_md(d, recording, plant, fmu_check, experiments, plots))
         if plots:
             _figures(d, tmp, Path(recording).stem)
