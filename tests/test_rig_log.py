@@ -328,8 +328,8 @@ def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth
     keep = [i for i in range(len(lines)) if i not in (header_at + 1 + 50, header_at + 1 + 120, header_at + 1 + 121)]
     log.write_text("\n".join(lines[i] for i in keep) + "\n")
     spec = {"time": "time_ms:ms", "u": "valve_pct:%", "l": "position_um:um"}
-    # the longer gap, named by the line of the sample after it (line 4 + k holds sample k; 120, 121 gone)
-    with pytest.raises(RecordingError, match=r"logger.csv, line 123: column time_ms, sample 119: .*a dropped or doubled "
+    # the first gap in the file, named by the line of the sample after it (line 4 + k holds sample k; 50 gone)
+    with pytest.raises(RecordingError, match=r"logger.csv, line 54: column time_ms, sample 50: .*a dropped or doubled "
                                              r"sample.*; or --fill-gaps S\)"):
         read_rig_log(log, **spec)
     with pytest.raises(RecordingError, match=r"line 123, column 'time_ms': 0.2\d* s of samples are missing after "
@@ -551,3 +551,28 @@ def test_the_likely_pressure_unit_is_the_one_reading_nearest_the_supply():
     assert unit == "bar_abs" and reading == pytest.approx(0.35 - 0.101325)
     assert likely_pressure_unit(3.5, "MPa_abs", near_mpa=0.25, within_mpa=2.0, ambient_mpa=0.09)[1] == pytest.approx(0.26)
     assert likely_pressure_unit(1e12, "MPa", near_mpa=0.25, within_mpa=2.0) is None  # no unit reads it so
+
+
+@pytest.mark.parametrize("gap, double, nan", [(100, 300, 200), (300, 100, 200), (300, 200, 100)])
+def test_the_first_problem_in_the_file_is_named_with_the_others(tmp_path, gap, double, nan):
+    """A dropped sample, a doubled row and a NaN: the error names whichever comes first in the file and
+    lists the lines of the others, so that the log is mended in one pass."""
+    rows = [[f"{0.1 * k:.1f}", f"{k % 7}.5", f"{k}"] for k in range(400)]
+    rows[nan][2] = "nan"
+    rows[gap] = None
+    rows.insert(double, list(rows[double - 1] or rows[double - 2]))
+    rows = [r for r in rows if r is not None]
+    t = [float(r[0]) for r in rows]
+    line = {"nan": next(k for k, r in enumerate(rows) if r[2] == "nan") + 2,  # the header is line 1
+            "double": next(k for k in range(1, len(t)) if t[k] <= t[k - 1]) + 2,
+            "gap": next(k for k in range(1, len(t)) if t[k] - t[k - 1] > 0.15) + 2}
+    log = tmp_path / "log.csv"
+    log.write_text("t;u;l\n" + "\n".join(";".join(r) for r in rows) + "\n")
+    first = min(line, key=line.get)
+    with pytest.raises(RecordingError) as info:
+        read_rig_log(log, time="t", u="u", l="l")
+    assert info.value.line == line[first]
+    message = str(info.value)
+    assert re.search(rf"line {line[first]}\b", message.split("(further")[0]), message
+    others = sorted(v for k, v in line.items() if k != first)
+    assert f"further problems at lines {others[0]}, {others[1]})" in message

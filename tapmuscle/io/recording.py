@@ -50,7 +50,12 @@ MAGIC = "tapmuscle recording v1"
 
 
 class RecordingError(TapmuscleError):
-    """A recording file that cannot be read; the message names file, line and column."""
+    """A recording file that cannot be read; the message names file, line and column, and
+    :attr:`line` is the file's line where one is to blame (None: the whole file)."""
+
+    def __init__(self, message: str, line: int | None = None) -> None:
+        super().__init__(message)
+        self.line = line
 
 
 @dataclass

@@ -315,7 +315,7 @@ def _numbers(path: Path, lines: list[int], cells: list[str], column: str, decima
             if not bad.size:
                 return values
             k = int(bad[0])
-            raise RecordingError(f"{path}, line {lines[k]}, column {column!r}: {cells[k]!r} is not finite")
+            raise RecordingError(f"{path}, line {lines[k]}, column {column!r}: {cells[k]!r} is not finite", lines[k])
     values = np.empty(len(cells))
     for k, (lineno, cell) in enumerate(zip(lines, cells)):
         try:
@@ -326,9 +326,10 @@ def _numbers(path: Path, lines: list[int], cells: list[str], column: str, decima
                 hint = (" with the decimal mark '.': a decimal comma (--decimal ',') or a thousands separator "
                         "(remove it)?" if other_mark == "," else
                         " with the decimal mark ',': '.' as a thousands separator? Remove it")
-            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not a number{hint}") from None
+            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not a number{hint}",
+                                 lineno) from None
         if not math.isfinite(v):
-            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not finite")
+            raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not finite", lineno)
     return values
 
 
@@ -344,7 +345,7 @@ def _seconds_from_text(path: Path, lines: list[int], cells: list[str], column: s
             values[k] = (stamp - first).total_seconds()
         except (ValueError, TypeError) as exc:
             raise RecordingError(f"{path}, line {lineno}, column {column!r}: {cell!r} is not an ISO 8601 "
-                                 f"(or day.month.year) time comparable with the first ({exc})") from None
+                                 f"(or day.month.year) time comparable with the first ({exc})", lineno) from None
     return values
 
 
@@ -462,6 +463,10 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     columns: dict[str, np.ndarray] = {}
     start = ""
     line_numbers = [lineno for lineno, _ in body]
+    # every column's first problem, so that the one reported is the first in the file (fixing the
+    # log in one pass rather than one error per try)
+    problems: list[RecordingError] = []
+    times = None  # the time column's seconds, once read
     for target, j in index.items():
         col = mapping[target]
         try:
@@ -470,10 +475,14 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
             lineno, row = next((lineno, row) for lineno, row in body if j >= len(row))
             raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, no column {col.column!r} "
                                  f"(header has {len(header)})") from None
-        if factors[target] is None:
-            values = _seconds_from_text(path, line_numbers, cells, col.column)
-        else:
-            values = _numbers(path, line_numbers, cells, col.column, decimal)
+        try:
+            if factors[target] is None:
+                values = _seconds_from_text(path, line_numbers, cells, col.column)
+            else:
+                values = _numbers(path, line_numbers, cells, col.column, decimal)
+        except RecordingError as exc:
+            problems.append(exc)
+            continue
         if target != "t_s":
             columns[target] = values * factors[target]
             if target == "p_mpa" and absolute:  # the recording holds gauge pressure
@@ -485,9 +494,29 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
         bad = np.nonzero(np.diff(values) <= 0)[0]
         if bad.size:
             k = int(bad[0]) + 1
-            raise RecordingError(f"{path}, line {body[k][0]}, column {col.column!r}: time does not increase "
-                                 f"({body[k - 1][1][j].strip()!r}, then {body[k][1][j].strip()!r})")
-        columns[target] = values
+            problems.append(RecordingError(f"{path}, line {body[k][0]}, column {col.column!r}: time does not "
+                                           f"increase ({body[k - 1][1][j].strip()!r}, then "
+                                           f"{body[k][1][j].strip()!r})", body[k][0]))
+            times = values
+            continue
+        columns[target] = times = values
+    if problems and times is not None and not fill_gaps_s:  # a dropped sample among them
+        # the stamps that go beyond all before them: a doubled or backward one left out, the grid stays
+        keep = np.flatnonzero(times > np.maximum.accumulate(np.concatenate([[-np.inf], times[:-1]])))
+        try:
+            uniform_sampling(times[keep], column=mapping["t_s"].column)
+        except SamplingError as exc:
+            if exc.sample is not None:
+                lineno = body[int(keep[exc.sample])][0]
+                problems.append(RecordingError(f"{path}, line {lineno}: {exc} (times from the first stamp; or "
+                                               "--fill-gaps S)", lineno))
+    if problems:
+        first = min(problems, key=lambda e: e.line)
+        others = sorted({e.line for e in problems} - {first.line})
+        if others:
+            raise RecordingError(f"{first} (further problems at line{'s' if len(others) > 1 else ''} "
+                                 f"{', '.join(map(str, others))})", first.line)
+        raise first
     line_of = np.array([lineno for lineno, _ in body])
     filled = None
     if fill_gaps_s:
@@ -497,7 +526,8 @@ def read_rig_log(path: str | os.PathLike, *, time: LogColumn | str, u: LogColumn
     except SamplingError as exc:
         where = "" if exc.sample is None else f", line {line_of[exc.sample]}"
         raise RecordingError(f"{path}{where}: {exc} (times from the first stamp"
-                             + ("; or --fill-gaps S" if not fill_gaps_s else "") + ")") from None
+                             + ("; or --fill-gaps S" if not fill_gaps_s else "") + ")",
+                             None if exc.sample is None else int(line_of[exc.sample])) from None
     used = ", ".join(f"{target} <- {col.column} [{col.unit}]" for target, col in mapping.items())
     metadata = {"source": f"tapmuscle import {path.name}: {used}", "start": start}
     if run_note:
