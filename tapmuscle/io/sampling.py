@@ -114,10 +114,12 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s") -> Sampling:
     slope, intercept = np.polyfit(index, t - t[0], 1)  # from the first time: Unix stamps keep their digits
     slot = t[0] + intercept + slope * index
     dev = np.abs(t - slot)
-    # the first step in the file that goes back or is off the period by more than half of it
-    bad = np.nonzero((dt <= 0.0) | (np.abs(dt - slope) > 0.5 * slope))[0]
-    if bad.size:
-        j = int(bad[0])
+    back = np.nonzero(dt <= 0.0)[0]
+    j = int(back[0]) if back.size else int(np.argmax(np.abs(dt - ts)))  # else the step furthest from the median
+    if dt[j] <= 0.0 or abs(dt[j] - slope) > 0.5 * slope:
+        # a dropped or doubled sample: named by the first such step in the file (the one the decision
+        # rests on is among them)
+        j = int(np.nonzero((dt <= 0.0) | (np.abs(dt - slope) > 0.5 * slope))[0][0])
         raise SamplingError(
             f"column {column}, sample {j + 1}: t = {float(t[j + 1])!r} s follows {float(t[j])!r} s, a step of "
             f"{float(dt[j]):.6g} s in a recording sampled every {ts:.6g} s: a dropped or doubled sample; "
