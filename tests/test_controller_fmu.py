@@ -12,7 +12,7 @@ from fmpy.validation import validate_fmu
 from fmpy_helpers import instantiate, open_fmu
 
 from fmu_controller.controller_slave import _DIVERGED_MM, _DIVERGED_V, AMPCController
-from fmu_controller.displacement_control import MAX_INPUT_DELAY_SAMPLES, ControllerSettings, DisplacementController
+from fmu_controller.displacement_control import AUTO_INPUT_DELAY_SAMPLES, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
@@ -220,7 +220,7 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
 @pytest.mark.parametrize("reals, ints, message", [
     ({}, {"method": 7}, "parameter method = 7 is outside its declared range 1..4 (controller: 1 mpc_ucp"),
     ({}, {"servo.Hp": 51}, "parameter servo.Hp = 51 is outside its declared range 1..50"),
-    ({}, {"input_delay_samples": 6}, "parameter input_delay_samples = 6 is outside its declared range -1..5"),
+    ({}, {"input_delay_samples": 26}, "parameter input_delay_samples = 26 is outside its declared range -1..25"),
     ({}, {"servo.Hp": 5000}, "parameter servo.Hp = 5000 is outside"),  # would take minutes to set up
     ({}, {"servo.Hu": 9}, "parameter servo.Hu must be <= servo.Hp = 5, got 9"),
     ({"servo.R": 0.0}, {}, "parameter servo.R must be > 0, got 0.0"),
@@ -303,7 +303,7 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay)
     for k in range(ahead, 20):
         np.testing.assert_array_equal(seen[k][:ahead + 1], ref.preview(k, ahead))
         # -1 takes a preview for any delay it may decide: beyond what the host feeds, its last value held
-        assert len(seen[k]) == 6 + (MAX_INPUT_DELAY_SAMPLES if delay == -1 else delay)
+        assert len(seen[k]) == 6 + (AUTO_INPUT_DELAY_SAMPLES if delay == -1 else delay)
         assert set(seen[k][ahead:]) == {seen[k][ahead]}
     assert slave.r_k == float(ref.at(19))
 

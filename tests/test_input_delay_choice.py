@@ -10,8 +10,7 @@ import pytest
 import fmu_controller.input_delay_choice as module
 from fmu_controller.identification import identify_record
 from fmu_controller.input_delay_choice import (THIN_MARGIN_PERCENT, InputDelayChoice, ToneCommandError,
-                                               choose_input_delay, tone_frequencies_hz)
-from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
+                                               choose_input_delay, search_samples, tone_frequencies_hz)
 from fmu_plant.parameters import PlantParams
 from tapmuscle.api import simulate
 
@@ -65,7 +64,7 @@ def test_the_rigs_delay_is_chosen(delay_s, command):
     rec = _rig(delay_s, command)
     choice = choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=TS)
     d = round(delay_s / TS)
-    assert isinstance(choice, InputDelayChoice) and len(choice.fits_percent) == MAX_INPUT_DELAY_SAMPLES + 1
+    assert isinstance(choice, InputDelayChoice) and len(choice.fits_percent) == search_samples(TS) + 1 == 6
     assert choice.input_delay_samples == d and choice.at_largest is False
     others = [f for i, f in enumerate(choice.fits_percent) if i != d]
     assert choice.fits_percent[d] > max(others) + 0.15, choice.fits_percent
@@ -111,8 +110,8 @@ def test_a_sine_is_refused(command, match):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"max_samples": 6}, r"max_samples must be an integer in 0..5, got 6"),
-    ({"max_samples": 2.0}, r"max_samples must be an integer in 0..5, got 2.0"),
+    ({"max_samples": 26}, r"max_samples must be an integer in 0..25, got 26"),
+    ({"max_samples": 2.0}, r"max_samples must be an integer in 0..25, got 2.0"),
     ({"max_samples": True}, r"got True"),
     ({"input_delay_samples": 2}, "input_delay_samples is what choose_input_delay chooses"),
     ({"model": "cubic"}, "unknown model 'cubic'"),
