@@ -86,6 +86,20 @@ def test_a_constraint_start_within_the_record_is_kept_and_max_samples_bounds_the
     assert short.input_delay_samples == 2 and short.at_largest  # the rig's delay may be larger still
 
 
+def test_the_search_spans_half_a_second_at_the_records_period():
+    """The delays tried by default: 0.5 s at the record's period, at least 5 samples (the whole search
+    at Ts = 0.1 s and above), at most the cap (25 at 0.02 s). At Ts = 0.05 s a rig whose valve acts
+    0.35 s late, 7 samples, beyond the 5 searched at 0.1 s, peaks there, inside the 10 searched."""
+    assert [search_samples(ts) for ts in (0.01, 0.02, 0.0200001, 0.03, 0.05, 0.1, 0.2)] == [25, 25, 25, 17, 10, 5, 5]
+    with pytest.raises(ValueError, match="ts_s must be a positive finite number of seconds, got 0.0"):
+        search_samples(0.0)
+    ts = 0.05
+    rec = simulate("random:lo=2,hi=8,seed=7", duration_s=120.0, ts_s=ts,
+                   params=PlantParams().with_values(**{"delay.delay_s": 0.35}), seed=0)
+    choice = choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=ts)
+    assert len(choice.fits_percent) == 11 and choice.input_delay_samples == 7 and not choice.at_largest, choice.fits_percent
+
+
 def test_a_diverged_fit_is_never_chosen(monkeypatch):
     rec = _rig(0.2, "random:lo=2,hi=8,seed=7")
     real = module.fits_by_delay
