@@ -427,13 +427,17 @@ class AMPCController(SafeSlave):
                 gentler = ("ucp.Hp (a later coincidence point)" if not s.servo_mechanism
                            else "delay_move_weight (servo.R times it for a delay of 2 or more)" if decided >= 2
                            else "servo.R")
-                fixed = "" if s.adaptive else ", and make the fixed theta0 under the delay"
+                more = "" if s.adaptive else ", and make the fixed theta0 under the delay"
+                # a servo horizon shorter than the delay (Table 5's 5 samples at a short Ts): AMPC-servo on a
+                # 0.15-s delay at Ts = 0.02 s with 8 set, 6.9 mm over 40-120 s with Hp = 5, 0.44 with Hp = 12
+                if s.servo_mechanism and s.servo.hp < decided:
+                    more += f", and raise servo.Hp to the delay or more (now {s.servo.hp} < {decided} samples)"
                 # -1 cannot tell a delay beyond the longest it scores: it is set then
                 check = ("-1 decides it" if decided < AUTO_INPUT_DELAY_SAMPLES else
                          f"-1 decides delays up to {_samples(AUTO_INPUT_DELAY_SAMPLES)}: a longer one is set, the "
                          f"rig's delay over Ts rounded, up to {MAX_INPUT_DELAY_SAMPLES}")
                 why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
-                       f"it: check the delay ({check}), raise {gentler}{fixed} (docs/control.md, "
+                       f"it: check the delay ({check}), raise {gentler}{more} (docs/control.md, "
                        "\"Transport delay\")")
             else:
                 why = "; ".join(self._limit_cycle_causes(l))

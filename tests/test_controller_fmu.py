@@ -841,7 +841,8 @@ def test_the_papers_start_is_not_taken_for_a_limit_cycle(method):
 
 @pytest.mark.parametrize("method, delay, gentler", [
     (4, 3, "raise delay_move_weight (servo.R times it for a delay of 2 or more) (docs"),
-    (4, 8, "raise delay_move_weight (servo.R times it for a delay of 2 or more) (docs"),
+    (4, 8, "raise delay_move_weight (servo.R times it for a delay of 2 or more), and raise servo.Hp to the delay "
+           "or more (now 5 < 8 samples) (docs"),
     (4, 1, "raise servo.R (docs"),
     (2, 3, "raise delay_move_weight (servo.R times it for a delay of 2 or more), and make the fixed theta0 under"),
     (1, 3, "raise ucp.Hp (a later coincidence point), and make the fixed theta0 under the delay (docs")])
