@@ -45,8 +45,9 @@ is what is left (docs/fmu.md has the figures). The default -1 starts with the de
 both kinds of master) and decides the master's kind from the data within about 5 s: it keeps the
 delayed law in a parallel master and switches to the undelayed one (as 0) in a sequential one. The
 project's own master sets 0. A rig whose valve acts on the command later still (a transport delay,
-docs/control.md "Transport delay") takes ``input_delay_samples = 2 .. 5``: the prediction is carried
-on through the commands in flight; -1 tells these apart as well.
+docs/control.md "Transport delay") takes ``input_delay_samples = 2 .. 25``, the delay over ``Ts``
+rounded: the prediction is carried on through the commands in flight; -1 tells those up to 5 apart
+as well, and warns when it decides 5, beyond which it cannot see.
 
 The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) in any mode.
 """
@@ -62,8 +63,8 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, DELAY_CHECK_SAMPLES,
-                                                 GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
+from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
+                                                 DELAY_CHECK_SAMPLES, GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
@@ -194,7 +195,8 @@ class AMPCController(SafeSlave):
                                    "Ecos, OMSimulator: one macro step h = Ts late); with 1 the output after the step "
                                    "at t_k is u(k+1), computed from l(k) and the prediction l(k+1|k); "
                                    f"2 .. {MAX_INPUT_DELAY_SAMPLES} a rig's transport delay as well (the samples "
-                                   "from computing u to the valve acting on it, rounded; -1 also tells these apart)",
+                                   "from computing u to the valve acting on it, the delay over Ts rounded; -1 also "
+                                   f"tells those up to {AUTO_INPUT_DELAY_SAMPLES} apart)",
                                    lo=-1, hi=MAX_INPUT_DELAY_SAMPLES)
         self.add_integer_parameter("delay_correction", 1, "with an input delay (input_delay_samples >= 1, "
                                    "or -1 deciding for one): 1 predict l(k+1|k) with Eq. (1) plus a residual "
@@ -228,7 +230,7 @@ class AMPCController(SafeSlave):
             ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5); servo.R x delay_move_weight "
              f"at most {MAX_WEIGHT:g} too where a delay of 2 or more may be compensated", 0.0, MAX_WEIGHT),
             ("delay_move_weight", 4.0, "", "servo methods: factor on servo.R while the law compensates a delay of "
-             "2 samples or more (input_delay_samples 2 .. 5, or -1 deciding for one: a rig's transport delay, whose "
+             "2 samples or more (input_delay_samples 2 or more, or -1 deciding for one: a rig's transport delay, whose "
              "prediction errors a larger R feeds back less); 1 keeps servo.R; delays 0 and 1 always do "
              "(docs/control.md, Transport delay)", 0.0, MAX_DELAY_MOVE_WEIGHT),
             ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", 0.0, 10.0),
@@ -425,9 +427,17 @@ class AMPCController(SafeSlave):
                 gentler = ("ucp.Hp (a later coincidence point)" if not s.servo_mechanism
                            else "delay_move_weight (servo.R times it for a delay of 2 or more)" if decided >= 2
                            else "servo.R")
-                fixed = "" if s.adaptive else ", and make the fixed theta0 under the delay"
+                more = "" if s.adaptive else ", and make the fixed theta0 under the delay"
+                # a servo horizon shorter than the delay (Table 5's 5 samples at a short Ts): AMPC-servo on a
+                # 0.15-s delay at Ts = 0.02 s with 8 set, 6.9 mm over 40-120 s with Hp = 5, 0.44 with Hp = 12
+                if s.servo_mechanism and s.servo.hp < decided:
+                    more += f", and raise servo.Hp to the delay or more (now {s.servo.hp} < {decided} samples)"
+                # -1 cannot tell a delay beyond the longest it scores: it is set then
+                check = ("-1 decides it" if decided < AUTO_INPUT_DELAY_SAMPLES else
+                         f"-1 decides delays up to {_samples(AUTO_INPUT_DELAY_SAMPLES)}: a longer one is set, the "
+                         f"rig's delay over Ts rounded, up to {MAX_INPUT_DELAY_SAMPLES}")
                 why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
-                       f"it: check the delay (-1 decides it), raise {gentler}{fixed} (docs/control.md, "
+                       f"it: check the delay ({check}), raise {gentler}{more} (docs/control.md, "
                        "\"Transport delay\")")
             else:
                 why = "; ".join(self._limit_cycle_causes(l))
@@ -449,10 +459,18 @@ class AMPCController(SafeSlave):
                    "OMSimulator, SSP tools: every FMU stepped on the previous outputs)"}.get(
             d, f"a rig's transport delay of about {d} Ts")
         set_ = self._controller.settings.input_delay_samples
-        self.log(f"t = {t_s:g} s: the measurements show an input delay of {_samples(d)}, not the {set_} set "
+        if d == self._controller.largest_scored_delay:  # the longest scored: the rig's may be longer
+            shown = f"{_samples(d)} or more (the longest scored)"
+            advice = (f"set input_delay_samples to the rig's delay over Ts, rounded ({d} or more, up to "
+                      f"{MAX_INPUT_DELAY_SAMPLES}; tapmuscle identify --input-delay-samples auto finds it from a "
+                      "recording)")
+        else:
+            shown = _samples(d)
+            advice = f"set input_delay_samples = {d}" + (", or -1 to decide it" if d <= AUTO_INPUT_DELAY_SAMPLES else "")
+        self.log(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
                  f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
-                 f"mean square under it ({what}); set input_delay_samples = {d}, or -1 to decide it "
-                 "(docs/control.md, \"Transport delay\")", status=Fmi2Status.warning)
+                 f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")",
+                 status=Fmi2Status.warning)
 
     def _limit_cycle_causes(self, l: float) -> list[str]:
         """What may make a law that compensates no delay swing the valve limit to limit, each with its
@@ -461,7 +479,8 @@ class AMPCController(SafeSlave):
         causes = []
         if s.input_delay_samples == 0:  # -1 deciding 0 saw none: no delay to suggest
             causes.append("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
-                          "master?): set input_delay_samples to it in samples, or -1 to decide it (docs/control.md, "
+                          f"master?): set input_delay_samples to it in samples (up to {MAX_INPUT_DELAY_SAMPLES}), or "
+                          f"-1 to decide it (up to {_samples(AUTO_INPUT_DELAY_SAMPLES)}; docs/control.md, "
                           "\"Transport delay\")")
         if not s.adaptive:
             causes.append(f"the fixed predictor theta0 poor where the loop runs now (l = {l:.4g} mm; the default "
@@ -634,6 +653,13 @@ class AMPCController(SafeSlave):
                        if d != 1 and ctrl.settings.adaptive else "")
             self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)}: "
                        f"{what.get(d, 'a rig transport delay as well, the law on from now')}{restart}")
+            if d == AUTO_INPUT_DELAY_SAMPLES:  # -1 scores no longer delay: the rig's may be one
+                ts = ctrl.settings.ts_s
+                self.log(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)} ({d * ts:g} s), the "
+                         "longest it decides: the valve may act later still. Set input_delay_samples to the rig's "
+                         f"delay over Ts = {ts:g} s, rounded (up to {MAX_INPUT_DELAY_SAMPLES}, "
+                         f"{MAX_INPUT_DELAY_SAMPLES * ts:g} s; tapmuscle identify --input-delay-samples auto finds it "
+                         "from a recording; docs/control.md, \"Transport delay\")", status=Fmi2Status.warning)
         if (on_theta0 and not ctrl.law_on_theta0 and ctrl.settings.adaptive and ctrl.startup_guarded_at is None
                 and ctrl.settings.startup_s > 0):
             self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "

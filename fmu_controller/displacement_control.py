@@ -54,8 +54,8 @@ from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
-__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S",
-           "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
+__all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
+           "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "full_range_jump", "preview_lead",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
@@ -63,6 +63,13 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S",
 METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
 #: The controller FMU's ``method`` parameter (an Integer) -> method name.
 METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
+
+#: ``input_delay_samples = -1``: the largest delay [samples] it scores and may decide, and the
+#: reference samples beyond ``Hp`` it takes (:func:`preview_lead`): 0.5 s at the paper's Ts = 0.1 s. At a
+#: shorter Ts a longer delay is set (up to :data:`MAX_INPUT_DELAY_SAMPLES`): -1's decision rule below was
+#: measured over these six hypotheses, and each costs a model state and a prediction a sample until it
+#: decides.
+AUTO_INPUT_DELAY_SAMPLES = 5
 
 #: ``input_delay_samples = -1``: weight of the newest squared one-step error in the running means
 #: (a memory of about 50 samples, 5 s at Ts = 0.1 s: over one second the two hypotheses' errors
@@ -80,8 +87,8 @@ DELAY_MIN_SAMPLES = 50
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
 #: is taken.
 DELAY_DECIDE_BY_SAMPLES = 300
-#: ``input_delay_samples`` set (0 .. 5): the first this many samples are scored as -1 scores them, to
-#: tell a set delay the measurements contradict (:attr:`DisplacementController.delay_evidence`): as
+#: ``input_delay_samples`` set: the first this many samples are scored as -1 scores them (the delays
+#: 0 .. max(:data:`AUTO_INPUT_DELAY_SAMPLES`, the delay set)), to tell a set delay the measurements contradict (:attr:`DisplacementController.delay_evidence`): as
 #: long as -1 may take to decide, since the start-up mode hides a wrong delay for its first seconds
 #: (100 samples do not tell AMPC-servo's 0 in a parallel master); the scores cost about 20 us a sample
 #: (the direct loop of benchmarks/fmu_cosim.py: 77 and 93 us a sample over 40 s without and with).
@@ -224,12 +231,14 @@ class ControllerSettings:
     about 5 s, after at least :data:`DELAY_MIN_SAMPLES` samples; the better one after
     :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
     switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters").
-    2 .. :data:`MAX_INPUT_DELAY_SAMPLES`: a rig whose valve acts on the command later still (a
-    transport delay, docs/control.md "Transport delay"; in a parallel master one sample more): the
-    controller computes ``u(k+d)`` at sample ``k``, carrying Eq. (1)'s prediction on to ``l(k+d|k)``
-    through the commands in flight, and needs ``r(k..k+d+Hp)``. -1 compares those delays too and
-    switches to one of them (restarting the estimator) once it explains the data
-    :data:`DELAY_RATIO` times better than both 0 and 1; it takes ``r(k..k+5+Hp)``, for any."""
+    2 .. :data:`MAX_INPUT_DELAY_SAMPLES` (25): a rig whose valve acts on the command later still (a
+    transport delay, docs/control.md "Transport delay"; in a parallel master one sample more), the delay
+    over ``Ts``, rounded: the controller computes ``u(k+d)`` at sample ``k``, carrying Eq. (1)'s
+    prediction on to ``l(k+d|k)`` through the commands in flight, and needs ``r(k..k+d+Hp)``. -1
+    compares the delays 2 .. :data:`AUTO_INPUT_DELAY_SAMPLES` (5) too and switches to one of them
+    (restarting the estimator) once it explains the data :data:`DELAY_RATIO` times better than both 0
+    and 1; it takes ``r(k..k+5+Hp)``, for any. A longer delay (0.15 s at Ts = 0.02 s: 8 samples) is
+    set, not decided."""
     anti_windup: bool = True
     """Servo methods: hold the integrator of Eq. (18) once the command has sat at a valve limit that
     the error ``r(k) - l(k)`` pushes it further into for :data:`HOLD_AFTER_SAMPLES` samples in a row
@@ -239,7 +248,7 @@ class ControllerSettings:
     False: Eq. (18) as the paper writes it."""
     delay_move_weight: float = 4.0
     """Servo methods: the factor on Eq. (15)'s move weight R (``servo.r``) while the law compensates a
-    delay of 2 samples or more (``input_delay_samples`` 2 .. 5, or -1 once it decided for one: a rig's
+    delay of 2 samples or more (``input_delay_samples`` 2 or more, or -1 once it decided for one: a rig's
     transport delay). The law's prediction through the commands in flight is only as good as Eq. (1),
     and a larger R lowers the gain with which its errors come back to the valve (measured with 4, R = 60:
     AMPC-servo 0.88 / 1.99 / 2.81 mm at 0.2 / 0.3 / 0.4 s against 1.16 / 2.37 / 3.62 with Table 5's 15,
@@ -333,14 +342,14 @@ class ControllerSettings:
     @property
     def preview_samples(self) -> int:
         """How many future reference samples the method needs: ``Hp``, plus the input delay
-        (:data:`MAX_INPUT_DELAY_SAMPLES` for -1, which may decide for any)."""
+        (:data:`AUTO_INPUT_DELAY_SAMPLES` for -1, which may decide for any up to it)."""
         return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + preview_lead(self.input_delay_samples)
 
 
 def preview_lead(input_delay_samples: int) -> int:
     """The reference samples beyond ``Hp`` that a controller with ``input_delay_samples`` needs: the
-    delay, and :data:`MAX_INPUT_DELAY_SAMPLES` for -1 (:attr:`ControllerSettings.preview_samples`)."""
-    return MAX_INPUT_DELAY_SAMPLES if input_delay_samples == -1 else input_delay_samples
+    delay, and :data:`AUTO_INPUT_DELAY_SAMPLES` for -1 (:attr:`ControllerSettings.preview_samples`)."""
+    return AUTO_INPUT_DELAY_SAMPLES if input_delay_samples == -1 else input_delay_samples
 
 
 def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
@@ -449,6 +458,10 @@ class DisplacementController:
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
         self._anti_windup = settings.anti_windup
         self._auto = settings.input_delay_samples == -1
+        # the largest delay scored (-1's hypotheses, a set delay's check): a set delay beyond -1's reach
+        # is scored too, so that delay_evidence can weigh it against the others
+        self._scored = AUTO_INPUT_DELAY_SAMPLES if self._auto else max(AUTO_INPUT_DELAY_SAMPLES,
+                                                                        settings.input_delay_samples)
         notch = settings.hysteresis_notch
         if notch is None:
             notch = not settings.adaptive or settings.startup_s > 0
@@ -497,21 +510,22 @@ class DisplacementController:
         self._uc_next = 0.0
         self._later = [(0.0, 0.0)] * max(self._lag - 1, 0)
         # the outputs (u, u_c) of the last samples, newest first: y(k-1), y(k-2), ...
-        self._outs = [(0.0, 0.0)] * (MAX_INPUT_DELAY_SAMPLES + 1)
-        # input_delay_samples = -1: the mean squared one-step errors of Eq. (1) under each delay
-        # 0 .. MAX_INPUT_DELAY_SAMPLES (0: a sequential master, 1: a parallel one, more: a transport
-        # delay too), each with its own model state; samples compared so far
-        self._ms = [0.0] * (MAX_INPUT_DELAY_SAMPLES + 1)
+        self._outs = [(0.0, 0.0)] * (self._scored + 1)
+        # the mean squared one-step errors of Eq. (1) under each delay 0 .. _scored (0: a sequential
+        # master, 1: a parallel one, more: a transport delay too), each with its own model state;
+        # samples compared so far
+        self._ms = [0.0] * (self._scored + 1)
         self._compared = 0
         self._lin0 = self.theta0[:3].tolist()
         self._shadows = [ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
-                         for _ in range(MAX_INPUT_DELAY_SAMPLES + 1)]
+                         for _ in range(self._scored + 1)]
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
         """One control sample: measured ``l(k)`` [mm] and the preview ``r(k), ..., r(k+n)`` [mm] ->
-        ``u(k)``, with ``n = settings.preview_samples`` (``Hp`` plus the input delay: 5 for -1).
+        ``u(k)``, with ``n = settings.preview_samples`` (``Hp`` plus the input delay: 5 for -1,
+        :data:`AUTO_INPUT_DELAY_SAMPLES`).
 
         Raises
         ------
@@ -595,7 +609,7 @@ class DisplacementController:
 
     def _detect_delay(self, l: float) -> None:
         """``input_delay_samples = -1``: score the fixed prior model ``theta0``'s prediction of ``l(k)``
-        (Eq. (1)) under each delay ``d = 0 .. MAX_INPUT_DELAY_SAMPLES``: the valve had the output
+        (Eq. (1)) under each delay ``d = 0 .. AUTO_INPUT_DELAY_SAMPLES``: the valve had the output
         ``y(k-1-d)`` over ``[t_k-1, t_k)`` (0: a sequential master, 1: a parallel one, more: a rig's
         transport delay as well), each hypothesis with its own model state. The controller starts with
         the delayed law (``d = 1``). Once the best delay of 2 or more is :data:`DELAY_RATIO` times better
@@ -635,10 +649,11 @@ class DisplacementController:
 
     @property
     def delay_evidence(self) -> tuple[int, float] | None:
-        """With ``input_delay_samples`` set (0 .. 5): once the first :data:`DELAY_CHECK_SAMPLES`
-        samples are scored as -1 scores them (:meth:`_detect_delay`), ``(d, ratio)`` when another delay
-        ``d`` explains the measurements :data:`DELAY_RATIO` times better or more (``ratio``: the set
-        delay's mean squared one-step error over ``d``'s), else None (also before, and with -1)."""
+        """With ``input_delay_samples`` set: once the first :data:`DELAY_CHECK_SAMPLES` samples are
+        scored as -1 scores them (:meth:`_detect_delay`, the delays 0 .. :attr:`largest_scored_delay`),
+        ``(d, ratio)`` when another delay ``d`` explains the measurements :data:`DELAY_RATIO` times better
+        or more (``ratio``: the set delay's mean squared one-step error over ``d``'s), else None (also
+        before, and with -1)."""
         if self._auto or self._compared < DELAY_CHECK_SAMPLES:
             return None
         ms, lag = self._ms, self._lag
@@ -679,6 +694,13 @@ class DisplacementController:
             self._servo = ServoMPC(wanted, a1=a1, a2=a2, b1=b1)
 
     @property
+    def largest_scored_delay(self) -> int:
+        """The largest delay [samples] the controller scores: :data:`AUTO_INPUT_DELAY_SAMPLES` for -1
+        (the longest it may decide), else the larger of that and the delay set. Evidence for it may mean a
+        longer delay still."""
+        return self._scored
+
+    @property
     def input_delay_decision(self) -> int | None:
         """The delay [samples] the controller runs its law for; None while ``input_delay_samples = -1``
         is still undecided (the delayed law, a delay of 1, runs then)."""
@@ -688,7 +710,7 @@ class DisplacementController:
 
     @property
     def input_delay_detected(self) -> bool:
-        """Whether the law runs for an input delay: ``input_delay_samples`` 1..5 set, or -1 decided for
+        """Whether the law runs for an input delay: ``input_delay_samples`` 1 or more set, or -1 decided for
         a delay of 1 or more (a parallel master, a rig's transport delay); False for 0, while -1 is
         undecided, and after it decided for a sequential master."""
         return self._lag != 0 and self._decided
@@ -976,12 +998,12 @@ class DisplacementController:
                     or (state["delayed"] is True and d == 0):
                 raise ValueError(f"state field delayed = {state['delayed']!r} contradicts input_delay_samples = {d}")
             lag = state.get("lag", 1 if state["delayed"] else 0)
-            if (isinstance(lag, bool) or int(lag) != lag or not 0 <= lag <= MAX_INPUT_DELAY_SAMPLES
+            if (isinstance(lag, bool) or int(lag) != lag or not 0 <= lag <= self._scored
                     or (lag != 0) != state["delayed"] or (d != -1 and lag != d)):
                 raise ValueError(f"state field lag = {lag!r} contradicts input_delay_samples = {d} with delayed = "
                                  f"{state['delayed']!r}")
             lag = int(lag)
-            n = MAX_INPUT_DELAY_SAMPLES + 1
+            n = self._scored + 1
             try:
                 outs = [(float(u), float(uc)) for u, uc in zip(state["u_out"], state["uc_out"], strict=True)]
                 later = [(float(u), float(uc)) for u, uc in state.get("in_flight", [])]

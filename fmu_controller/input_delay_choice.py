@@ -2,12 +2,14 @@
 
 A valve that acts ``d`` samples late makes Eq. (1) hold on ``u(k - d)``
 (:func:`~fmu_controller.identification.identify_record`'s ``input_delay_samples``). Identified under
-each delay ``D = 0 .. MAX_INPUT_DELAY_SAMPLES``, the model's 1-step fit (Table 4) on the record is
-highest at the rig's delay: a smaller ``D`` credits the command with an effect it has not had yet, a
-larger one hides the command that already acts (the fit then drops sharply). Measured on simulated
-rigs (benchmarks/input_delay_choice.py): 120-s random, step and chirp records of nominal rigs with
-delays of 0 to 0.4 s peak at the rig's delay in 20 of 20, off-nominal rigs under random commands
-within a sample of it in 30 of 30.
+each delay ``D`` from 0 to :func:`search_samples` (0.5 s at the record's period, at least 5 samples),
+the model's 1-step fit (Table 4) on the record is highest at the rig's delay: a smaller ``D`` credits
+the command with an effect it has not had yet, a larger one hides the command that already acts (the
+fit then drops sharply). Measured on simulated rigs (benchmarks/input_delay_choice.py): 120-s random,
+step and chirp records of nominal rigs with delays of 0 to 0.4 s peak at the rig's delay in 20 of 20,
+off-nominal rigs under random commands within a sample of it in 30 of 30. At Ts = 0.02 s a 300-s
+random record of a rig with a 0.15-s valve delay (and the valve spool's 0.03-s lag) peaks at 8
+samples, 0.16 s.
 
 The fits are those of the identification record itself. Scored on another record instead, the choice
 went wrong where that record differed (another command kind, another load: one sample short in about
@@ -38,7 +40,7 @@ from .identification import IdentificationReport, identify_record
 from .prediction import MAX_INPUT_DELAY_SAMPLES
 
 __all__ = ["InputDelayChoice", "ToneCommandError", "choose_input_delay", "fits_by_delay", "tone_frequencies_hz",
-           "TONE_SHARE", "THIN_MARGIN_PERCENT"]
+           "search_samples", "TONE_SHARE", "THIN_MARGIN_PERCENT", "SEARCH_S", "MIN_SEARCH_SAMPLES"]
 
 #: Share of a command's variance that one or two fitted sinusoids must explain for the command to be
 #: taken as tones. Measured on 120-s commands: a sine 1.000 (any number of periods), two sines 0.997-1.000,
@@ -53,6 +55,30 @@ _DEFAULT_CONSTRAINT_START_S = inspect.signature(identify_record).parameters["con
 #: simulated rigs of benchmarks/input_delay_choice.py right choices led by 0.0005-1.0 %; choices gone
 #: wrong (short records, long holds, other conditions) led by a median of 0.06 %.
 THIN_MARGIN_PERCENT = 0.1
+
+#: :func:`choose_input_delay` tries the delays up to this long [s] (the field rigs' transport delays
+#: reach 0.35 s) ...
+SEARCH_S = 0.5
+#: ... and at least this many samples (the whole search at the paper's Ts = 0.1 s and above, and the
+#: delays ``input_delay_samples = -1`` decides), at most :data:`~fmu_controller.prediction.MAX_INPUT_DELAY_SAMPLES`.
+MIN_SEARCH_SAMPLES = 5
+
+
+def search_samples(ts_s: float) -> int:
+    """The largest delay [samples] :func:`choose_input_delay` tries by default at the sampling period
+    ``ts_s`` [s]: :data:`SEARCH_S` rounded to samples, within :data:`MIN_SEARCH_SAMPLES` ..
+    :data:`~fmu_controller.prediction.MAX_INPUT_DELAY_SAMPLES` (25 at 0.02 s, 5 at 0.1 s and above).
+
+    Raises
+    ------
+    ValueError
+        ``ts_s`` not a positive finite number.
+    """
+    ts = float(ts_s)
+    if not (math.isfinite(ts) and ts > 0.0):
+        raise ValueError(f"ts_s must be a positive finite number of seconds, got {ts_s!r}")
+    # rounded, not floored: a jittered log's least-squares period (0.0200000001 s) is 0.02 s
+    return min(max(round(SEARCH_S / ts), MIN_SEARCH_SAMPLES), MAX_INPUT_DELAY_SAMPLES)
 
 
 def _best_sinusoid(x: np.ndarray, t: np.ndarray, ts_s: float) -> tuple[np.ndarray, float]:
@@ -140,11 +166,13 @@ class InputDelayChoice:
         return self.input_delay_samples == len(self.fits_percent) - 1
 
 
-def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples: int = MAX_INPUT_DELAY_SAMPLES,
+def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples: int | None = None,
                   **identify: Any) -> tuple[list[float], list[IdentificationReport]]:
     """The 1-step fits [%] on the record of Eq. (1) identified under each input delay
     ``D = 0 .. max_samples``, and those identifications; the arguments as :func:`choose_input_delay`'s,
     whatever the command (its frequencies are not checked) and with the options as given."""
+    if max_samples is None:
+        max_samples = search_samples(ts_s)
     if isinstance(max_samples, bool) or not isinstance(max_samples, (int, np.integer)) \
             or not 0 <= max_samples <= MAX_INPUT_DELAY_SAMPLES:
         raise ValueError(f"max_samples must be an integer in 0..{MAX_INPUT_DELAY_SAMPLES}, got {max_samples!r}")
@@ -156,7 +184,7 @@ def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples
 
 
 def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
-                       max_samples: int = MAX_INPUT_DELAY_SAMPLES, **identify: Any) -> InputDelayChoice:
+                       max_samples: int | None = None, **identify: Any) -> InputDelayChoice:
     """Identify Eq. (1) under each input delay ``D = 0 .. max_samples`` and keep the best 1-step fit
     on the record (module docstring).
 
@@ -167,8 +195,10 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
         random, step or chirp command: module docstring).
     ts_s : float
         Sampling period [s].
-    max_samples : int
-        The largest delay tried [samples], 0 .. ``MAX_INPUT_DELAY_SAMPLES`` (5).
+    max_samples : int, optional
+        The largest delay tried [samples], 0 .. ``MAX_INPUT_DELAY_SAMPLES`` (25); by default
+        :func:`search_samples`: 0.5 s at ``ts_s``, at least 5 samples (identifications cost about 0.35 s
+        each on a 300-s record at 0.02 s).
     **identify
         Keyword arguments of :func:`~fmu_controller.identification.identify_record` (``model``,
         ``box``, ``constraint_start_s``, ``p0``, ``forgetting``, ``theta0``), the same under each delay.

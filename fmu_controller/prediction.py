@@ -52,9 +52,10 @@ N_INITIAL = 4
 # Divergence guard: outputs are clamped to [lo - G*span, hi + G*span].
 _GUARD_SPANS = 10.0
 
-#: Largest input delay [samples] of Eq. (1)'s input (0.5 s at Ts = 0.1 s: a rig's transport delay of
-#: up to 0.4 s in a parallel master): the controller's ``input_delay_samples`` and the identification's.
-MAX_INPUT_DELAY_SAMPLES = 5
+#: Largest input delay [samples] of Eq. (1)'s input: the controller's ``input_delay_samples`` set and
+#: the identification's. 0.5 s at Ts = 0.02 s, a rig logged at 50 Hz (the field rigs' transport delays
+#: reach 0.35 s; a 0.15-s valve delay at that Ts is 8 samples), and 2.5 s at the paper's 0.1 s.
+MAX_INPUT_DELAY_SAMPLES = 25
 
 
 def checked_input_delay(delay_samples: int) -> int:

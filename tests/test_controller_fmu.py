@@ -12,7 +12,7 @@ from fmpy.validation import validate_fmu
 from fmpy_helpers import instantiate, open_fmu
 
 from fmu_controller.controller_slave import _DIVERGED_MM, _DIVERGED_V, AMPCController
-from fmu_controller.displacement_control import MAX_INPUT_DELAY_SAMPLES, ControllerSettings, DisplacementController
+from fmu_controller.displacement_control import AUTO_INPUT_DELAY_SAMPLES, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import SineReference
@@ -220,7 +220,7 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
 @pytest.mark.parametrize("reals, ints, message", [
     ({}, {"method": 7}, "parameter method = 7 is outside its declared range 1..4 (controller: 1 mpc_ucp"),
     ({}, {"servo.Hp": 51}, "parameter servo.Hp = 51 is outside its declared range 1..50"),
-    ({}, {"input_delay_samples": 6}, "parameter input_delay_samples = 6 is outside its declared range -1..5"),
+    ({}, {"input_delay_samples": 26}, "parameter input_delay_samples = 26 is outside its declared range -1..25"),
     ({}, {"servo.Hp": 5000}, "parameter servo.Hp = 5000 is outside"),  # would take minutes to set up
     ({}, {"servo.Hu": 9}, "parameter servo.Hu must be <= servo.Hp = 5, got 9"),
     ({"servo.R": 0.0}, {}, "parameter servo.R must be > 0, got 0.0"),
@@ -303,7 +303,7 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay)
     for k in range(ahead, 20):
         np.testing.assert_array_equal(seen[k][:ahead + 1], ref.preview(k, ahead))
         # -1 takes a preview for any delay it may decide: beyond what the host feeds, its last value held
-        assert len(seen[k]) == 6 + (MAX_INPUT_DELAY_SAMPLES if delay == -1 else delay)
+        assert len(seen[k]) == 6 + (AUTO_INPUT_DELAY_SAMPLES if delay == -1 else delay)
         assert set(seen[k][ahead:]) == {seen[k][ahead]}
     assert slave.r_k == float(ref.at(19))
 
@@ -679,6 +679,65 @@ def test_an_input_delay_set_wrong_for_the_master_is_warned_of(set_delay, paralle
                 else "within its sample: a sequential master") in message.msg
 
 
+def test_minus_one_deciding_the_longest_delay_it_scores_says_the_valve_may_act_later_still():
+    """-1 scores the delays 0..5 only: on a rig whose valve acts 0.7 s late (7 samples) it decides 5 at
+    5 s, and says once that the delay may be longer and how to set it (up to 25); a rig it can tell
+    (0.2 s, 2 samples) is not warned of."""
+    from fmu_plant import Plant, PlantParams
+
+    for delay_s, warned in ((0.7, True), (0.2, False)):
+        slave = AMPCController(instance_name="long")
+        slave.exit_initialization_mode()
+        plant = Plant(PlantParams().with_values(**{"delay.delay_s": delay_s}), seed=0)
+        for k in range(120):
+            slave.l = plant.measurement.l_mm
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+        said = [m for m in slave.log_queue if "the valve may act later still" in m.msg]
+        assert slave.input_delay == (5 if warned else 2)
+        assert len(said) == warned
+        if warned:
+            assert said[0].status == Fmi2Status.warning and said[0].msg.startswith(
+                "t = 5 s: input_delay_samples = -1 decided for 5 samples (0.5 s), the longest it decides")
+            assert "Set input_delay_samples to the rig's delay over Ts = 0.1 s, rounded (up to 25, 2.5 s" in said[0].msg
+
+
+def test_a_set_delay_shown_short_by_the_longest_delay_scored_is_not_told_to_take_that_one():
+    """input_delay_samples = 0 on a rig whose valve acts 0.7 s late: the first 30 s show the longest delay
+    scored, 5 samples, which the rig's may exceed; the warning says so and asks for the rig's delay
+    over Ts, not for 5 or -1 (which decides 5 at most)."""
+    from fmu_plant import Plant, PlantParams
+
+    slave = AMPCController(instance_name="short")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["input_delay_samples"]], [0])
+    slave.exit_initialization_mode()
+    plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.7}), seed=0)
+    for k in range(310):
+        slave.l = plant.measurement.l_mm
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    (msg,) = [m.msg for m in slave.log_queue if "the measurements show an input delay" in m.msg]
+    assert "an input delay of 5 samples or more (the longest scored), not the 0 set" in msg, msg
+    assert "set input_delay_samples to the rig's delay over Ts, rounded (5 or more, up to 25;" in msg, msg
+    assert "-1 to decide it" not in msg
+
+
+def test_a_set_delay_of_the_cap_runs():
+    """input_delay_samples = 25 (0.5 s at Ts = 0.02 s) is within the declared range and runs; the
+    preview of the built-in sine is Hp + 25 samples long."""
+    slave = AMPCController(instance_name="cap")
+    vr = {var.name: v for v, var in slave.vars.items()}
+    slave.set_integer([vr["input_delay_samples"]], [25])
+    slave.set_real([vr["Ts"]], [0.02])
+    slave.exit_initialization_mode()
+    assert slave._hp == 5 + 25
+    for k in range(60):
+        slave.l = 30.0
+        assert slave.do_step(k * 0.02, 0.02)
+    assert slave.input_delay == 25 and 0.0 <= slave.u <= 10.0
+
+
 @pytest.mark.parametrize("ints, said, not_said", [
     ({"method": 4, "input_delay_samples": -1}, ["a model poor for this rig (theta0, the box C) or a delay"],
      ["fixed predictor", "servo.Hp", "0 samples set"]),
@@ -782,6 +841,8 @@ def test_the_papers_start_is_not_taken_for_a_limit_cycle(method):
 
 @pytest.mark.parametrize("method, delay, gentler", [
     (4, 3, "raise delay_move_weight (servo.R times it for a delay of 2 or more) (docs"),
+    (4, 8, "raise delay_move_weight (servo.R times it for a delay of 2 or more), and raise servo.Hp to the delay "
+           "or more (now 5 < 8 samples) (docs"),
     (4, 1, "raise servo.R (docs"),
     (2, 3, "raise delay_move_weight (servo.R times it for a delay of 2 or more), and make the fixed theta0 under"),
     (1, 3, "raise ucp.Hp (a later coincidence point), and make the fixed theta0 under the delay (docs")])
@@ -810,6 +871,10 @@ def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensatio
     assert (f"a limit cycle (input_delay_samples = {delay}): the loop's delay differs from the one the law "
             "compensates") in msg
     assert gentler in msg, msg
+    # -1 decides no delay beyond 5 samples: from 5 on it is not offered as the check
+    assert ("check the delay (-1 decides it)" in msg) == (delay < 5), msg
+    assert ("check the delay (-1 decides delays up to 5 samples: a longer one is set, the rig's delay over Ts "
+            "rounded, up to 25)" in msg) == (delay >= 5), msg
 
 
 def test_a_rewind_logs_what_the_run_from_there_logs():

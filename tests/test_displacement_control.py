@@ -7,8 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from fmu_controller.displacement_control import (DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HOLD_AFTER_SAMPLES,
-                                                 MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
+from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
+                                                 HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
                                                  ControllerSettings, DisplacementController)
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
@@ -273,6 +273,72 @@ def test_a_rigs_transport_delay_is_compensated_when_set_or_decided(transport_del
         assert r["u_v"].min() >= 0.0 and r["u_v"].max() <= 10.0
 
 
+def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
+    """A rig logged at Ts = 0.02 s whose valve acts 0.15 s late (7.5 samples): AMPC-servo compensating
+    5 samples (the model identified under D = 5) slams the valve (Eq. (21) measured 57.8 mm, at a limit
+    53 % of the time); with 8, round(0.15 / 0.02), and the model identified under it, it tracks: 0.32 mm
+    over 20-40 s, after the start-up mode that the Eq. (21) window holds (2.0 mm there). servo.Hp = 12
+    spans 0.24 s, as Table 5's 5 samples do at Ts = 0.05 s, where this rig tracks with 3 samples set;
+    5 samples at 0.02 s span less than the delay (8.4 mm with 8 set)."""
+    from dataclasses import replace
+
+    from fmu_controller.identification import identify_record
+    from tapmuscle.api import simulate
+
+    ts = 0.02
+    rig = PlantParams().with_values(**{"delay.delay_s": 0.15})
+    record = simulate("random:lo=2,hi=8,seed=3", duration_s=120.0, ts_s=ts, params=rig, seed=0)
+    runs, scored = {}, {}
+    for d in (5, 8):
+        theta = identify_record(record["u_v"], record["l_mm"], ts_s=ts, input_delay_samples=d).theta
+        settings = ControllerSettings(method="ampc_servo", ts_s=ts, input_delay_samples=d, box_lower={}, box_upper={},
+                                      servo=replace(ControllerSettings().servo, hp=12))
+        c = DisplacementController(settings, theta)
+        runs[d] = run_closed_loop(Plant(rig, seed=0), c, SineReference(ts_s=ts), duration_s=40.0, load_n=44.0)
+        scored[d] = len(c.get_state()["delay_scores"])
+    late = {d: float(np.mean(np.abs(r["r_mm"][1000:] - r["l_mm"][1000:]))) for d, r in runs.items()}
+    at_limit = {d: float(np.mean((r["u_v"][500:] <= 0.0) | (r["u_v"][500:] >= 10.0))) for d, r in runs.items()}
+    assert late[8] < 1.0 and eq21_error_mm(runs[8]["r_mm"], runs[8]["l_mm"]) < 4.0, late
+    assert late[5] > 20.0 and at_limit[5] > 0.3 and at_limit[8] < 0.05, (late, at_limit)
+    assert scored == {5: 6, 8: 9}  # the set delay's check scores 0 .. max(5, d)
+
+
+@pytest.mark.parametrize("delay", [6, MAX_INPUT_DELAY_SAMPLES])
+def test_a_long_set_delay_sizes_its_buffers_and_state_and_replays(theta0, delay):
+    """Everything sized by the delay follows a set one up to the cap: the preview (Hp + d), the commands
+    in flight, the scores of 0 .. d, the FMU state that round-trips through JSON; a rewind continues
+    bit-identically."""
+    c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=delay), theta0)
+    n = c.settings.preview_samples
+    assert n == c.settings.servo.hp + delay and c.largest_scored_delay == delay
+    ref = SineReference()
+    l_seq = 35 + 20 * np.sin(np.arange(200) * 0.06) + np.random.default_rng(1).normal(0, 0.05, 200)
+    with pytest.raises(ValueError, match=rf"r\(k\)..r\(k\+{n}\) \({n + 1} samples"):
+        c.step(l_seq[0], ref.preview(0, n - 1))
+    for k in range(100):
+        c.step(l_seq[k], ref.preview(k, n))
+    saved = json.loads(json.dumps(c.get_state()))
+    assert len(saved["in_flight"]) == delay - 1 and len(saved["delay_scores"]) == len(saved["u_out"]) == delay + 1
+    a = [c.step(l_seq[k], ref.preview(k, n)).u_v for k in range(100, 200)]
+    c.set_state(saved)
+    b = [c.step(l_seq[k], ref.preview(k, n)).u_v for k in range(100, 200)]
+    assert a == b
+    short = json.loads(json.dumps(saved))
+    short["delay_scores"] = short["delay_scores"][:6]
+    with pytest.raises(ValueError, match=rf"delay_scores \({delay + 1}, >= 0\)"):
+        c.set_state(short)
+
+
+def test_minus_one_and_a_short_set_delay_score_six_delays(theta0):
+    """-1 scores (and may decide) 0..5 whatever the cap, and takes a preview of Hp + 5; a set delay of
+    5 or less scores the same six: their cost and their state are those of a cap of 5."""
+    for delay in (-1, 0, 1, 5):
+        c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=delay), theta0)
+        assert c.largest_scored_delay == AUTO_INPUT_DELAY_SAMPLES == 5
+        assert len(c.get_state()["delay_scores"]) == 6 and len(c.get_state()["delay_models"]) == 6
+    assert ControllerSettings(input_delay_samples=-1).preview_samples == ControllerSettings().servo.hp + 5
+
+
 def test_a_fixed_predictor_made_under_the_delay_tracks_on_the_delayed_rig():
     """The fixed-predictor MPC-servo with the delay set keeps the paper's theta0, identified on the rig
     without the delay: on a 0.3-s delay it oscillates again (measured 11.2 mm). preliminary_theta with
@@ -290,8 +356,8 @@ def test_a_fixed_predictor_made_under_the_delay_tracks_on_the_delayed_rig():
         r = run_closed_loop(plant, c, SineReference(), duration_s=45.0)
         errors[label] = eq21_error_mm(r["r_mm"], r["l_mm"])
     assert errors["delayed"] < 5.0 and errors["paper"] > 2 * errors["delayed"], errors
-    with pytest.raises(ValueError, match="input_delay_samples must be a number of samples 0 .. 5, got 6"):
-        preliminary_theta(0, input_delay_samples=6)
+    with pytest.raises(ValueError, match="input_delay_samples must be a number of samples 0 .. 25, got 26"):
+        preliminary_theta(0, input_delay_samples=26)
 
 
 def test_a_delay_set_where_the_rig_has_none_keeps_the_prediction_through_the_commands_in_flight_bounded():

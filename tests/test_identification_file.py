@@ -169,7 +169,7 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     """identify --input-delay-samples 2 writes the delay; read back, a scenario's controller and
     simulate_closed_loop's default settings take it as input_delay_samples (a scenario's own
     parameter overrides it: a parallel master adds a sample); files without the key read as 0, and a
-    delay outside 0..5 is refused naming the key."""
+    delay outside 0..25 is refused naming the key."""
     from tapmuscle.io.identification_file import write_identification
 
     path = tmp_path / "delayed.json"
@@ -199,9 +199,9 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     assert "input_delay_samples" not in load_scenario(scenario).controller.parameters  # the FMU's default
     path.write_text(json.dumps(doc | {"input_delay_samples": 2.0}))  # a JSON writer's number for 2
     assert read_identification(path).input_delay_samples == 2
-    path.write_text(json.dumps(doc | {"input_delay_samples": 7}))
+    path.write_text(json.dumps(doc | {"input_delay_samples": 26}))
     with pytest.raises(IdentificationFileError, match=r"key 'input_delay_samples': input_delay_samples must be a "
-                                                      r"number of samples 0 .. 5, got 7"):
+                                                      r"number of samples 0 .. 25, got 26"):
         read_identification(path)
     with pytest.raises(IdentificationFileError, match="got 1.5"):
         write_identification(tmp_path / "bad.json", tm.THETA0_44N, ts_s=0.1, input_delay_samples=1.5)

@@ -322,9 +322,9 @@ def test_a_rigs_transport_delay_is_identified_on_the_command_the_valve_had(tmp_p
     assert fits[2] > max(fits[0], fits[4]) + 0.2, fits
     capsys.readouterr()
     with pytest.raises(SystemExit):
-        main(["identify", str(tmp_path / "train.csv"), "--input-delay-samples", "6", "--json", str(tmp_path / "x.json")])
-    assert "--input-delay-samples must be within 0..5, got 6" in capsys.readouterr().err
-    with pytest.raises(ValueError, match="input_delay_samples must be a number of samples 0 .. 5, got -1"):
+        main(["identify", str(tmp_path / "train.csv"), "--input-delay-samples", "26", "--json", str(tmp_path / "x.json")])
+    assert "--input-delay-samples must be within 0..25, got 26" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="input_delay_samples must be a number of samples 0 .. 25, got -1"):
         identify_record(val.u_v, val.l_mm, ts_s=0.1, input_delay_samples=-1)
 
 

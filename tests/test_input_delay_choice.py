@@ -10,8 +10,7 @@ import pytest
 import fmu_controller.input_delay_choice as module
 from fmu_controller.identification import identify_record
 from fmu_controller.input_delay_choice import (THIN_MARGIN_PERCENT, InputDelayChoice, ToneCommandError,
-                                               choose_input_delay, tone_frequencies_hz)
-from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
+                                               choose_input_delay, search_samples, tone_frequencies_hz)
 from fmu_plant.parameters import PlantParams
 from tapmuscle.api import simulate
 
@@ -65,7 +64,7 @@ def test_the_rigs_delay_is_chosen(delay_s, command):
     rec = _rig(delay_s, command)
     choice = choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=TS)
     d = round(delay_s / TS)
-    assert isinstance(choice, InputDelayChoice) and len(choice.fits_percent) == MAX_INPUT_DELAY_SAMPLES + 1
+    assert isinstance(choice, InputDelayChoice) and len(choice.fits_percent) == search_samples(TS) + 1 == 6
     assert choice.input_delay_samples == d and choice.at_largest is False
     others = [f for i, f in enumerate(choice.fits_percent) if i != d]
     assert choice.fits_percent[d] > max(others) + 0.15, choice.fits_percent
@@ -85,6 +84,20 @@ def test_a_constraint_start_within_the_record_is_kept_and_max_samples_bounds_the
     short = choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=TS, constraint_start_s=50.0, max_samples=2)
     assert short.fits_percent == choice.fits_percent[:3]
     assert short.input_delay_samples == 2 and short.at_largest  # the rig's delay may be larger still
+
+
+def test_the_search_spans_half_a_second_at_the_records_period():
+    """The delays tried by default: 0.5 s at the record's period, at least 5 samples (the whole search
+    at Ts = 0.1 s and above), at most the cap (25 at 0.02 s). At Ts = 0.05 s a rig whose valve acts
+    0.35 s late, 7 samples, beyond the 5 searched at 0.1 s, peaks there, inside the 10 searched."""
+    assert [search_samples(ts) for ts in (0.01, 0.02, 0.0200001, 0.03, 0.05, 0.1, 0.2)] == [25, 25, 25, 17, 10, 5, 5]
+    with pytest.raises(ValueError, match="ts_s must be a positive finite number of seconds, got 0.0"):
+        search_samples(0.0)
+    ts = 0.05
+    rec = simulate("random:lo=2,hi=8,seed=7", duration_s=120.0, ts_s=ts,
+                   params=PlantParams().with_values(**{"delay.delay_s": 0.35}), seed=0)
+    choice = choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=ts)
+    assert len(choice.fits_percent) == 11 and choice.input_delay_samples == 7 and not choice.at_largest, choice.fits_percent
 
 
 def test_a_diverged_fit_is_never_chosen(monkeypatch):
@@ -111,8 +124,8 @@ def test_a_sine_is_refused(command, match):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"max_samples": 6}, r"max_samples must be an integer in 0..5, got 6"),
-    ({"max_samples": 2.0}, r"max_samples must be an integer in 0..5, got 2.0"),
+    ({"max_samples": 26}, r"max_samples must be an integer in 0..25, got 26"),
+    ({"max_samples": 2.0}, r"max_samples must be an integer in 0..25, got 2.0"),
     ({"max_samples": True}, r"got True"),
     ({"input_delay_samples": 2}, "input_delay_samples is what choose_input_delay chooses"),
     ({"model": "cubic"}, "unknown model 'cubic'"),

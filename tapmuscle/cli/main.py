@@ -34,7 +34,7 @@ _SEED_MAX = 2 ** 64 - 1
 
 #: fmu_controller.prediction.MAX_INPUT_DELAY_SAMPLES, written out for the same reason;
 #: tests/test_identify_cli.py checks that they agree.
-_INPUT_DELAY_MAX = 5
+_INPUT_DELAY_MAX = 25
 
 
 def _load_plant_params(path: str | None, overrides: Sequence[str]):
@@ -252,8 +252,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                   "those delays apart; check the choice on another record (--validate), or record a longer random "
                   "command", file=sys.stderr)
         if choice.at_largest:
-            print(f"note: the fit is best at the largest delay tried ({choice.input_delay_samples} samples): the "
-                  "rig's delay may be larger still (the controllers take at most that)", file=sys.stderr)
+            d = choice.input_delay_samples
+            further = ("the controllers take at most that" if d >= _INPUT_DELAY_MAX else
+                       f"identify with --input-delay-samples N for a longer one, up to {_INPUT_DELAY_MAX}, and compare "
+                       "the 1-step fits")
+            print(f"note: the fit is best at the largest delay tried ({d} samples, {d * rec.ts_s:g} s): the rig's "
+                  f"delay may be larger still ({further})", file=sys.stderr)
     fits = report.fit.percent
     delay = (f", on the command {report.input_delay_samples} sample{'s' if report.input_delay_samples > 1 else ''} "
              "earlier (--input-delay-samples)" if report.input_delay_samples else "")
@@ -477,8 +481,8 @@ def build_parser() -> argparse.ArgumentParser:
                      default=0, metavar="D",
                      help=f"the rig's transport delay in samples (0..{_INPUT_DELAY_MAX}): identify on the command "
                           "the valve had, u(k-D), for a controller with input_delay_samples = D (docs/control.md, "
-                          "Transport delay); auto: the D whose model fits best one step ahead on the record (a random, "
-                          "step or chirp command; not one or two sines)")
+                          "Transport delay); auto: the D up to 0.5 s (at least 5 samples) whose model fits best one step "
+                          "ahead on the record (a random, step or chirp command; not one or two sines)")
     idf.set_defaults(func=_cmd_identify)
 
     pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",

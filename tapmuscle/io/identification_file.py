@@ -155,14 +155,14 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
     note : str
         Where it comes from (the file's ``notes``).
     input_delay_samples : int
-        The transport delay [samples] it was identified under (0 .. 5; a scenario's controller
+        The transport delay [samples] it was identified under (0 .. 25; a scenario's controller
         takes it as its ``input_delay_samples``).
 
     Raises
     ------
     IdentificationFileError
         A theta that is not 15 finite numbers, a period that is not a positive number of seconds, or
-        a delay outside 0 .. 5 samples.
+        a delay outside 0 .. 25 samples.
     """
     try:
         values = ASYMMETRIC.as_theta(theta, what="theta")
