@@ -64,7 +64,7 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 DELAY_CHECK_SAMPLES, GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
+                                                 GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
@@ -627,7 +627,7 @@ class AMPCController(SafeSlave):
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
         self._watch_swings(t_s, step.u_v, l)
-        if self._k == DELAY_CHECK_SAMPLES:
+        if self._k == self._controller.delay_check_samples:
             self._check_delay(t_s)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm

@@ -88,16 +88,20 @@ DELAY_MIN_SAMPLES = 50
 #: is taken.
 DELAY_DECIDE_BY_SAMPLES = 300
 #: ``input_delay_samples`` set: the first this many samples are scored as -1 scores them (the delays
-#: 0 .. max(:data:`AUTO_INPUT_DELAY_SAMPLES`, the delay set)), to tell a set delay the measurements contradict (:attr:`DisplacementController.delay_evidence`): as
-#: long as -1 may take to decide, since the start-up mode hides a wrong delay for its first seconds
-#: (100 samples do not tell AMPC-servo's 0 in a parallel master); the scores cost about 20 us a sample
-#: (the direct loop of benchmarks/fmu_cosim.py: 77 and 93 us a sample over 40 s without and with).
+#: 0 .. max(:data:`AUTO_INPUT_DELAY_SAMPLES`, the delay set)), to tell a set delay the measurements
+#: contradict (:attr:`DisplacementController.delay_evidence`): as long as -1 may take to decide,
+#: since the start-up mode hides a wrong delay for its first seconds (100 samples do not tell
+#: AMPC-servo's 0 in a parallel master); the scores cost about 20 us a sample (the direct loop of
+#: benchmarks/fmu_cosim.py: 77 and 93 us a sample over 40 s without and with).
 DELAY_CHECK_SAMPLES = DELAY_DECIDE_BY_SAMPLES
 
 #: ``input_delay_samples = -1``, undecided: the delayed law uses the corrected one-step prediction
 #: (:class:`~fmu_controller.delay_predictor.DelayPredictor`) once this many samples are compared and
 #: the parallel hypothesis leads.
 DELAY_LEAD_SAMPLES = 20
+#: The sampling period [s] at which the delay scores' memory and sample counts above were measured:
+#: at another ``Ts`` they span the same seconds (:meth:`DisplacementController.delay_check_samples`).
+DELAY_SCORES_TS_S = 0.1
 
 #: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
 #: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
@@ -462,6 +466,14 @@ class DisplacementController:
         # is scored too, so that delay_evidence can weigh it against the others
         self._scored = AUTO_INPUT_DELAY_SAMPLES if self._auto else max(AUTO_INPUT_DELAY_SAMPLES,
                                                                         settings.input_delay_samples)
+        # the scores' memory and windows span the seconds they were measured over at DELAY_SCORES_TS_S:
+        # at Ts = 0.02 s 300 samples are 6 s, inside the start-up mode, where a set delay that was right
+        # was scored wrong (exactly the constants at 0.1 s: the scale is 1.0)
+        scale = settings.ts_s / DELAY_SCORES_TS_S
+        self._forget = DELAY_FORGET * scale if scale < 1.0 / DELAY_FORGET else 1.0
+        self._min_n, self._decide_n, self._check_n, self._lead_n = (
+            max(1, round(n / scale)) for n in (DELAY_MIN_SAMPLES, DELAY_DECIDE_BY_SAMPLES, DELAY_CHECK_SAMPLES,
+                                               DELAY_LEAD_SAMPLES))
         notch = settings.hysteresis_notch
         if notch is None:
             notch = not settings.adaptive or settings.startup_s > 0
@@ -556,7 +568,7 @@ class DisplacementController:
             rl = self._lead_in(rl, l)
 
         # -1 scores the delays until it decides; a set delay over DELAY_CHECK_SAMPLES (delay_evidence)
-        if (not self._decided) if self._auto else self._compared < DELAY_CHECK_SAMPLES:
+        if (not self._decided) if self._auto else self._compared < self._check_n:
             if k == 0:  # the shadow models start from the first measurement
                 for shadow in self._shadows:
                     shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
@@ -621,10 +633,10 @@ class DisplacementController:
         estimate can be far off.)"""
         self._score_delays(l)
         ms = self._ms
-        if self._compared < DELAY_MIN_SAMPLES:
+        if self._compared < self._min_n:
             return
         ms_seq, ms_par = ms[0], ms[1]
-        late = self._compared >= DELAY_DECIDE_BY_SAMPLES
+        late = self._compared >= self._decide_n
         far = min(range(2, len(ms)), key=ms.__getitem__)
         if DELAY_RATIO * ms[far] < min(ms_seq, ms_par) or (late and ms[far] < min(ms_seq, ms_par)):
             self._decide_delay(far)  # a rig's transport delay: the valve gets each command far samples on
@@ -638,13 +650,13 @@ class DisplacementController:
     def _score_delays(self, l: float) -> None:
         """One sample of :meth:`_detect_delay`'s scores: ``theta0``'s one-step prediction error of ``l(k)``
         [mm] under each delay, into the running mean squares."""
-        th0, lin0, outs, ms = self.theta0, self._lin0, self._outs, self._ms
+        th0, lin0, outs, ms, forget = self.theta0, self._lin0, self._outs, self._ms, self._forget
         for d, shadow in enumerate(self._shadows):
             u = outs[d][0]
             shadow.apply(u)
             e = l - _held(shadow, th0, lin0, u, 1)[0]
             shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
-            ms[d] += DELAY_FORGET * (e * e - ms[d])
+            ms[d] += forget * (e * e - ms[d])
         self._compared += 1
 
     @property
@@ -654,7 +666,7 @@ class DisplacementController:
         ``(d, ratio)`` when another delay ``d`` explains the measurements :data:`DELAY_RATIO` times better
         or more (``ratio``: the set delay's mean squared one-step error over ``d``'s), else None (also
         before, and with -1)."""
-        if self._auto or self._compared < DELAY_CHECK_SAMPLES:
+        if self._auto or self._compared < self._check_n:
             return None
         ms, lag = self._ms, self._lag
         best = min(range(len(ms)), key=ms.__getitem__)
@@ -692,6 +704,12 @@ class DisplacementController:
         if self._servo.settings != wanted:
             a1, a2, b1 = self._servo.model
             self._servo = ServoMPC(wanted, a1=a1, a2=a2, b1=b1)
+
+    @property
+    def delay_check_samples(self) -> int:
+        """How many samples a set delay is scored over before :attr:`delay_evidence` speaks:
+        :data:`DELAY_CHECK_SAMPLES` at Ts = :data:`DELAY_SCORES_TS_S`, the same seconds at another Ts."""
+        return self._check_n
 
     @property
     def largest_scored_delay(self) -> int:
@@ -855,7 +873,7 @@ class DisplacementController:
         l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         if self._delay_predictor is not None:
             corrected = self._delay_predictor.predict(l, u_now, l_next)
-            if self._decided or (self._compared >= DELAY_LEAD_SAMPLES and self._ms[1] < self._ms[0]):
+            if self._decided or (self._compared >= self._lead_n and self._ms[1] < self._ms[0]):
                 # while -1 is undecided, only where the parallel hypothesis leads: in a sequential
                 # master the command in flight is not the one the valve has, and a correction fitted
                 # to that wrong record destabilises the loop (an overshoot of 19 mm on an off-nominal

@@ -237,8 +237,9 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         A rig's transport delay ``d`` [samples], 0 .. 25 (``MAX_INPUT_DELAY_SAMPLES``): Eq. (1) is
         identified on the command the valve had, ``u(k - d)``
         (:func:`~fmu_controller.prediction.delayed_input`), the model that the controller's
-        ``input_delay_samples = d`` predicts with (docs/control.md, "Transport delay"). Open loop, a random or step input's 1-step fit is highest at the rig's delay; a
-        sine's rises past it (its phase lag takes up a delay, too).
+        ``input_delay_samples = d`` predicts with (docs/control.md, "Transport delay"). Open loop,
+        a random or step input's 1-step fit is highest at the rig's delay; a sine's rises past it (its
+        phase lag takes up a delay, too).
 
     Raises
     ------

@@ -275,11 +275,11 @@ def test_a_rigs_transport_delay_is_compensated_when_set_or_decided(transport_del
 
 def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
     """A rig logged at Ts = 0.02 s whose valve acts 0.15 s late (7.5 samples): AMPC-servo compensating
-    5 samples (the model identified under D = 5) slams the valve (Eq. (21) measured 57.8 mm, at a limit
-    53 % of the time); with 8, round(0.15 / 0.02), and the model identified under it, it tracks: 0.32 mm
-    over 20-40 s, after the start-up mode that the Eq. (21) window holds (2.0 mm there). servo.Hp = 12
-    spans 0.24 s, as Table 5's 5 samples do at Ts = 0.05 s, where this rig tracks with 3 samples set;
-    5 samples at 0.02 s span less than the delay (8.4 mm with 8 set)."""
+    5 samples (the model identified under D = 5) slams the valve (63 mm over 20-40 s, at a limit 53 %
+    of the time); with 8, round(0.15 / 0.02), and the model identified under it, it tracks: Eq. (21)
+    over its 10.1-40.1 s 0.32 mm, and the set delay's check (over 30 s, 1500 samples here) finds no
+    better delay. servo.Hp = 12 spans 0.24 s, as Table 5's 5 samples do at Ts = 0.05 s, where this rig
+    tracks with 3 samples set; 5 samples at 0.02 s span less than the delay (8.4 mm with 8 set)."""
     from dataclasses import replace
 
     from fmu_controller.identification import identify_record
@@ -288,17 +288,19 @@ def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
     ts = 0.02
     rig = PlantParams().with_values(**{"delay.delay_s": 0.15})
     record = simulate("random:lo=2,hi=8,seed=3", duration_s=120.0, ts_s=ts, params=rig, seed=0)
-    runs, scored = {}, {}
+    runs, scored, evidence = {}, {}, {}
     for d in (5, 8):
         theta = identify_record(record["u_v"], record["l_mm"], ts_s=ts, input_delay_samples=d).theta
         settings = ControllerSettings(method="ampc_servo", ts_s=ts, input_delay_samples=d, box_lower={}, box_upper={},
                                       servo=replace(ControllerSettings().servo, hp=12))
         c = DisplacementController(settings, theta)
-        runs[d] = run_closed_loop(Plant(rig, seed=0), c, SineReference(ts_s=ts), duration_s=40.0, load_n=44.0)
+        runs[d] = run_closed_loop(Plant(rig, seed=0), c, SineReference(ts_s=ts), duration_s=40.1, load_n=44.0)
         scored[d] = len(c.get_state()["delay_scores"])
+        assert c.delay_check_samples == 1500  # DELAY_CHECK_SAMPLES' 30 s at Ts = 0.1 s
+        evidence[d] = c.delay_evidence
     late = {d: float(np.mean(np.abs(r["r_mm"][1000:] - r["l_mm"][1000:]))) for d, r in runs.items()}
     at_limit = {d: float(np.mean((r["u_v"][500:] <= 0.0) | (r["u_v"][500:] >= 10.0))) for d, r in runs.items()}
-    assert late[8] < 1.0 and eq21_error_mm(runs[8]["r_mm"], runs[8]["l_mm"]) < 4.0, late
+    assert late[8] < 1.0 and eq21_error_mm(runs[8]) < 1.0 and evidence[8] is None, (late, evidence)
     assert late[5] > 20.0 and at_limit[5] > 0.3 and at_limit[8] < 0.05, (late, at_limit)
     assert scored == {5: 6, 8: 9}  # the set delay's check scores 0 .. max(5, d)
 
