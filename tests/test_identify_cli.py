@@ -350,6 +350,9 @@ def test_auto_chooses_the_rigs_delay_and_refuses_a_sine(tmp_path, capsys):
                      + r"\s+-> D = 2 \(0.2 s\)", said.out), said.out
     assert "on the command 2 samples earlier" in said.out
     assert "compared with Algorithm 1's box from 60 s (half the record): --constraint-start 120 lies beyond" in said.err
+    # what is printed is in the JSON too, and the period as written (not the grid fit's last digits)
+    assert any("compared with Algorithm 1's box from 60 s" in note for note in r["notes"]), r["notes"]
+    assert r["ts_s"] == 0.1
     # the same as identifying under D = 2 directly, and scored on the chirp record as any model
     again = tmp_path / "d2.json"
     assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),

@@ -158,9 +158,36 @@ def _parse_box(text: str):
     return box
 
 
+def _identify_notes(args: argparse.Namespace, rec, report, choice) -> list[str]:
+    """What ``identify`` says beside its figures: the identification's notes, the recording's jitter,
+    and with ``--input-delay-samples auto`` what the delays' fits leave open (printed and in the JSON)."""
+    from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT
+
+    jitter = rec.sampling.note()
+    notes = list(report.notes) + ([jitter] if jitter else [])
+    if choice is None:
+        return notes
+    if choice.constraint_start_s != args.constraint_start:
+        notes.append(f"the delays were compared with Algorithm 1's box from {choice.constraint_start_s:g} s (half the "
+                     f"record): --constraint-start {args.constraint_start:g} lies beyond its end, and unconstrained "
+                     "estimates tell delays apart less well")
+    if choice.margin_percent < THIN_MARGIN_PERCENT:
+        notes.append(f"the best fit leads the next by {choice.margin_percent:.3f} % only: this record hardly tells "
+                     "those delays apart; check the choice on another record (--validate), or record a longer random "
+                     "command")
+    if choice.at_largest:
+        d = choice.input_delay_samples
+        further = ("the controllers take at most that" if d >= _INPUT_DELAY_MAX else
+                   f"identify with --input-delay-samples N for a longer one, up to {_INPUT_DELAY_MAX}, and compare "
+                   "the 1-step fits")
+        notes.append(f"the fit is best at the largest delay tried ({d} samples, {d * rec.ts_s:g} s): the rig's "
+                     f"delay may be larger still ({further})")
+    return notes
+
+
 def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
-    from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT, choose_input_delay
+    from fmu_controller.input_delay_choice import choose_input_delay
 
     from tapmuscle.plots.figures import (plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
                                          plot_parameter_convergence)
@@ -181,7 +208,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if val is not None and abs(val.ts_s - rec.ts_s) > STRICT_TOLERANCE * rec.ts_s:
         raise UsageError(f"--validate {args.validate}: sampling period {val.ts_s:g} s differs from the "
                          f"identification record's {rec.ts_s:g} s (by more than {100 * STRICT_TOLERANCE:g} %)")
-    options = dict(ts_s=rec.ts_s, model=args.model, box=_parse_box(args.box), constraint_start_s=args.constraint_start,
+    # the period as the grid's least-squares slope carries the written times' rounding (0.05000000000000071):
+    # nine digits are far inside the tolerance two periods must agree to
+    options = dict(ts_s=float(f"{rec.ts_s:.9g}"), model=args.model, box=_parse_box(args.box), constraint_start_s=args.constraint_start,
                    forgetting=args.forgetting)
     choice = None
     try:
@@ -201,6 +230,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         pass
     out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
                               "load_n": load}
+    notes = _identify_notes(args, rec, report, choice)
+    out["notes"] = notes
     if choice is not None:
         out["input_delay_choice"] = {"fit_percent_1_step": list(choice.fits_percent),
                                      "constraint_start_s": choice.constraint_start_s}
@@ -225,10 +256,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                              f"({Path(args.recording).name})")
             shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
             label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
+            shown_path = args.validate if val is not None else args.recording
+            shown_load = shown.metadata.get("load_n")
             plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
                                    folder / "model_vs_measured.png",
                                    title=f"free run against {'validation' if val is not None else 'identification'} "
-                                         f"record (cf. Fig. 4)")
+                                         f"record {Path(shown_path).name}"
+                                         + (f", {shown_load} N" if shown_load else "") + " (cf. Fig. 4)")
             skip = int(len(shown.t_s) // 4)
             plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
                                  skip=skip)
@@ -236,28 +270,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                 plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
                                       folder / "input_delay_fits.png",
                                       title=f"1-step fit under each input delay ({Path(args.recording).name})")
-    jitter = rec.sampling.note()
-    for note in list(report.notes) + ([jitter] if jitter else []):
-        print(f"note: {note}", file=sys.stderr)
     if choice is not None:
         print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
         print(f"{'1-step fit [%] on the record':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
               + f"  -> D = {choice.input_delay_samples} ({choice.input_delay_samples * rec.ts_s:g} s)")
-        if choice.constraint_start_s != args.constraint_start:
-            print(f"note: the delays were compared with Algorithm 1's box from {choice.constraint_start_s:g} s (half "
-                  f"the record): --constraint-start {args.constraint_start:g} lies beyond its end, and unconstrained "
-                  "estimates tell delays apart less well", file=sys.stderr)
-        if choice.margin_percent < THIN_MARGIN_PERCENT:
-            print(f"note: the best fit leads the next by {choice.margin_percent:.3f} % only: this record hardly tells "
-                  "those delays apart; check the choice on another record (--validate), or record a longer random "
-                  "command", file=sys.stderr)
-        if choice.at_largest:
-            d = choice.input_delay_samples
-            further = ("the controllers take at most that" if d >= _INPUT_DELAY_MAX else
-                       f"identify with --input-delay-samples N for a longer one, up to {_INPUT_DELAY_MAX}, and compare "
-                       "the 1-step fits")
-            print(f"note: the fit is best at the largest delay tried ({d} samples, {d * rec.ts_s:g} s): the rig's "
-                  f"delay may be larger still ({further})", file=sys.stderr)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     fits = report.fit.percent
     delay = (f", on the command {report.input_delay_samples} sample{'s' if report.input_delay_samples > 1 else ''} "
              "earlier (--input-delay-samples)" if report.input_delay_samples else "")
