@@ -353,6 +353,7 @@ def test_auto_chooses_the_rigs_delay_and_refuses_a_sine(tmp_path, capsys):
     # what is printed is in the JSON too, and the period as written (not the grid fit's last digits)
     assert any("compared with Algorithm 1's box from 60 s" in note for note in r["notes"]), r["notes"]
     assert r["ts_s"] == 0.1
+    assert not any("validation record" in note for note in r["notes"])  # both at the default 44 N
     # the same as identifying under D = 2 directly, and scored on the chirp record as any model
     again = tmp_path / "d2.json"
     assert main(["identify", str(tmp_path / "train.csv"), "--validate", str(tmp_path / "val.csv"),
@@ -387,3 +388,15 @@ def test_a_record_shorter_than_the_constraint_start_says_its_estimate_lies_outsi
     r = json.loads((tmp_path / "b.json").read_text())
     assert r["notes"] == []
     assert all(TABLE2_LOWER[n] <= r["theta"][n] <= TABLE2_UPPER[n] for n in TABLE2_LOWER)
+
+
+def test_a_validation_record_at_another_load_is_said(records, tmp_path, capsys):
+    """A model identified at 44 N and validated on a 68-N record: the fits score the load change too,
+    which a note says (printed and in the JSON)."""
+    _, paths = records
+    out = tmp_path / "cross.json"
+    capsys.readouterr()
+    assert main(["identify", str(paths["train", 44]), "--validate", str(paths["val", 68]), "--json", str(out)]) == 0
+    note = "the validation record val68.csv was taken at 68 N, the identification record at 44 N"
+    assert note in capsys.readouterr().err
+    assert any(n.startswith(note) for n in json.loads(out.read_text())["notes"])

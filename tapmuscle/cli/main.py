@@ -158,13 +158,20 @@ def _parse_box(text: str):
     return box
 
 
-def _identify_notes(args: argparse.Namespace, rec, report, choice) -> list[str]:
-    """What ``identify`` says beside its figures: the identification's notes, the recording's jitter,
-    and with ``--input-delay-samples auto`` what the delays' fits leave open (printed and in the JSON)."""
+def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[str]:
+    """What ``identify`` says beside its figures: the identification's notes, the recording's jitter, a
+    validation record at another load, and with ``--input-delay-samples auto`` what the delays' fits
+    leave open (printed and in the JSON)."""
     from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT
 
     jitter = rec.sampling.note()
     notes = list(report.notes) + ([jitter] if jitter else [])
+    if val is not None:
+        loads = [r.metadata.get("load_n") for r in (rec, val)]
+        if None not in loads and loads[0] != loads[1]:
+            notes.append(f"the validation record {Path(args.validate).name} was taken at {loads[1]} N, the identification "
+                         f"record at {loads[0]} N: Eq. (1) holds for the load it was identified at, so the validation "
+                         "fits score the load change too")
     if choice is None:
         return notes
     if choice.constraint_start_s != args.constraint_start:
@@ -230,7 +237,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         pass
     out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
                               "load_n": load}
-    notes = _identify_notes(args, rec, report, choice)
+    notes = _identify_notes(args, rec, val, report, choice)
     out["notes"] = notes
     if choice is not None:
         out["input_delay_choice"] = {"fit_percent_1_step": list(choice.fits_percent),
