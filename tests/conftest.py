@@ -2,7 +2,7 @@
 
 The FMUs are built once per test session (about 3 s). Every test that uses them is marked ``fmu``
 here, so ``pytest -m "not fmu"`` runs the pure numerics without building anything; ``pytest -m "not
-slow"`` is the quick run (under 30 s here). The other markers
+slow"`` is the quick run (about 1-2 min on two cores). The other markers
 (``slow``, ``dask``, ``c_host``) are set in the test modules; all four are registered in
 ``pyproject.toml``.
 """

@@ -230,7 +230,7 @@ def test_a_replay_runs_the_recorded_commands_sample_by_sample(recorded, name):
 
 
 @pytest.mark.parametrize("extra, pattern", [
-    (["--duration", "220"], r"the run's duration 220 s \(2201 samples\) is longer than \S*shifted\.csv's 60 s \(601 "
+    (["--duration", "220"], r"the run's duration 220 s \(2201 samples\) is longer than .*shifted\.csv's 60 s \(601 "
                             r"samples every 0\.1 s\): there is no command after its end; run for at most 60 s"),
     (["--duration", "60", "--ts", "0.05"], r"shifted\.csv is sampled every 0\.1 s, the run every 0\.05 s: a replay "
                                            r"goes sample by sample; run it at 0\.1 s"),

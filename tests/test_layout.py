@@ -126,5 +126,5 @@ def test_a_checkout_imported_without_its_install_finds_its_scenario_files():
     """)
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0, done.stderr
-    folder, n_paper = host_lines(done.stdout)[-1].split()
+    folder, n_paper = host_lines(done.stdout)[-1].rsplit(maxsplit=1)  # the checkout's path may hold spaces
     assert Path(folder) == ROOT / "scenarios" and int(n_paper) >= 10

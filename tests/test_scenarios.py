@@ -499,15 +499,26 @@ def test_python_warnings_during_a_command_are_one_line_like_the_fmus(built_fmus,
     font = font_manager.FontProperties(family="DejaVu Sans")
     if "延" in {chr(c) for c in font_manager.get_font(font_manager.findfont(font)).get_charmap()}:
         pytest.skip("the default font draws CJK characters here")
-    shown = warnings.showwarning
     path = tmp_path / "s.toml"
     path.write_text('name = "延迟测试"\nduration_s = 2.0\n', encoding="utf-8")
-    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent),
-                 "--quiet"]) == 0
+    command = ["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", str(Path(built_fmus["MusclePlant"]).parent),
+               "--quiet"]
+    with warnings.catch_warnings():  # Python's default filters, whatever PYTHONWARNINGS the suite runs under
+        warnings.simplefilter("default")
+        shown = warnings.showwarning
+        assert main(command) == 0
+        assert warnings.showwarning is shown
     err = capsys.readouterr().err.splitlines()
     assert "warning: tracking.png: no installed font draws '延迟测试', shown as boxes" in err[0], err
     assert not any("save_figure" in line or "figures.py" in line for line in err), err
-    assert warnings.showwarning is shown
+    # warnings made errors (PYTHONWARNINGS=error): one line and exit status 1, no traceback, nothing written
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main([*command[:2], "--out", str(tmp_path / "e"), *command[4:]]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("tapmuscle run: error: MissingGlyphWarning, a warning that the warning "
+                                               "filters raise as an error"), err
+    assert not (tmp_path / "e").exists()
 
 
 def test_the_parameter_figure_names_the_estimator_the_run_had(tmp_path):

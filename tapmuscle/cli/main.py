@@ -585,6 +585,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"tapmuscle {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except Warning as exc:  # the warning filters made a warning an error (PYTHONWARNINGS=error, -W error)
+        print(f"tapmuscle {args.command}: error: {type(exc).__name__}, a warning that the warning filters raise as an "
+              f"error (PYTHONWARNINGS, -W): {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         # every output is written whole or not at all (tapmuscle.io.atomic): say so, not a traceback
         field_run = args.command == "demo-mismatch" and getattr(args, "suite", None) == "field"
