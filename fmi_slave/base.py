@@ -72,6 +72,12 @@ _INTERRUPTED = ("interrupted {where} (KeyboardInterrupt: Ctrl-C in the host proc
 #: and changes nothing (the outputs hold), since no physics happens in it.
 MIN_STEP_S = 1e-9
 
+#: An input this far beyond a bound of its range (relative, absolute below 1) is taken as the bound: a
+#: host that interpolates a signal held at the bound computes it with a rounding error (fmpy's
+#: ``simulate_fmu`` gave 500.00000000000006 for a load held at 500 N, and ended the run early at the
+#: fmi2Discard). Far above a double's rounding, far below any physical difference.
+BOUND_ROUNDING = 1e-9
+
 #: A step's ``currentCommunicationPoint`` may differ from the FMU's time (the start time, or the end of
 #: the last step) by ``TIME_TOLERANCE * max(step size, |time|)`` or by :data:`MIN_STEP_S`, whichever is
 #: larger: a master that computes its time as ``tStart + n h`` rather than by summing the steps differs
@@ -517,7 +523,8 @@ class SafeSlave(Fmi2Slave):
     # ------------------------------------------------------------------ guards
     @staticmethod
     def finite(name: str, value: float, lo: float = -math.inf, hi: float = math.inf) -> float:
-        """``value`` as float, or :class:`SlaveInputError` naming ``name`` if not finite or outside lo..hi."""
+        """``value`` as float, or :class:`SlaveInputError` naming ``name`` if not finite or outside lo..hi
+        (within :data:`BOUND_ROUNDING` of a bound, relative, or absolute below 1: that bound)."""
         # fast path (every input, every step): NaN fails the comparison, +-inf fails v - v == 0
         if value.__class__ is float and lo <= value <= hi and value - value == 0.0:
             return value
@@ -528,6 +535,12 @@ class SafeSlave(Fmi2Slave):
         if not math.isfinite(v):
             raise SlaveInputError(f"{name} = {v!r} is not finite")
         if not lo <= v <= hi:
+            # a host's interpolation of a signal held at a bound lands an ulp or so beyond it
+            # (fmpy: 500.00000000000006 for 500): taken as the bound, not refused mid-run
+            if lo - BOUND_ROUNDING * max(1.0, abs(lo)) <= v < lo:
+                return lo
+            if hi < v <= hi + BOUND_ROUNDING * max(1.0, abs(hi)):
+                return hi
             raise SlaveInputError(f"{name} = {v!r} is outside {lo:g}..{hi:g}")
         return v
 

@@ -544,3 +544,28 @@ def test_the_parameters_an_input_sets_say_so_in_the_model_description(fmu):
     assert unused.keys() == {"load.load_n", "supply.supply_pressure_mpa"}
     assert unused["load.load_n"].endswith("; not used in the FMU: its input load_force sets it")
     assert unused["supply.supply_pressure_mpa"].endswith("its input supply_pressure sets it")
+
+
+@pytest.mark.parametrize("name, bound, outward", [("load_force", 500.0, 1.0), ("u", 11.0, 1.0), ("u", -1.0, -1.0),
+                                                   ("supply_pressure", 0.0, -1.0)])
+def test_an_input_a_rounding_beyond_its_bound_is_the_bound(fmu, capfd, name, bound, outward):
+    """A host interpolating a signal held at a bound computes it an ulp or so beyond (fmpy gave
+    500.00000000000006 for 500 N and ended the run at the fmi2Discard): the step is taken at the bound,
+    the same to the bit; a value a millionth beyond is still refused."""
+    vr = fmu[3]
+    runs = {}
+    for value in (bound, math.nextafter(bound, outward * math.inf), bound + outward * 1e-10 * max(1.0, abs(bound))):
+        f = _instance(fmu)
+        f.setReal([vr[name]], [value])
+        f.doStep(0.0, 0.5)
+        runs[value] = tuple(f.getReal([vr["l"], vr["p"]]))
+        f.terminate()
+        f.freeInstance()
+    assert len(runs) == 3 and len(set(runs.values())) == 1, runs
+    f = _instance(fmu)
+    f.setReal([vr[name]], [bound + outward * 1e-6])
+    with pytest.raises(FMICallException, match="discard"):
+        f.doStep(0.0, 0.5)
+    assert f"{name} = " in capfd.readouterr().out
+    f.terminate()
+    f.freeInstance()
