@@ -39,6 +39,7 @@ typedef struct {
     PyObject_HEAD
     Constants k;
     double kq_open_full; /* kq_open at full gate (set_gate scales it) */
+    long long forced_total; /* sub-steps accepted over their tolerances since construction (forced_substeps) */
 } ModelObject;
 
 /* rhs(x, p, l, v, z, ps, w, inv_mass) of build_model; writes (dp, dl, dv, dz). */
@@ -408,6 +409,7 @@ static int advance_core(ModelObject *self, const double a[13], PortsFn ports, vo
             }
             if (err > 1.0) { /* accepted only for being the shortest sub-step */
                 forced += 1;
+                self->forced_total += 1;
                 if ((double)forced > forced_max) {
                     too_many_substeps(t0 + done, k->h_min, forced);
                     return -1;
@@ -1036,6 +1038,18 @@ static PyMethodDef Model_methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
+static PyObject *Model_forced_substeps(ModelObject *self, void *closure) {
+    (void)closure;
+    return PyLong_FromLongLong(self->forced_total);
+}
+
+static PyGetSetDef Model_getset[] = {
+    {"forced_substeps", (getter)Model_forced_substeps, NULL,
+     "Sub-steps of solver.min_substep_s accepted over their error tolerances since construction "
+     "(rosenbrock.forced_substeps).", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
 static PyTypeObject ModelType = {
     PyVarObject_HEAD_INIT(NULL, 0)
     .tp_name = "fmu_plant._ros34pw2.Model",
@@ -1045,6 +1059,7 @@ static PyTypeObject ModelType = {
     .tp_new = PyType_GenericNew,
     .tp_init = (initproc)Model_init,
     .tp_methods = Model_methods,
+    .tp_getset = Model_getset,
 };
 
 static struct PyModuleDef module = {

@@ -89,8 +89,9 @@ class ValveParams(_Validated):
     """
 
     cv_max: float = _f(1.5, "Effective flow coefficient of each valve at full command [US gpm/psi^0.5]; calibration (2 % settling of a few seconds, the paper's slow dominant pole, Table 3), bounded by the datasheet rating 1.6 (Table 1).", lo=0.0, lo_open=True, hi=1.6)
-    u_min_v: float = _f(0.0, "Lowest valve command [V]; datasheet (Table 1).", lo=-100.0, hi=100.0)
-    u_max_v: float = _f(10.0, "Highest valve command [V]; datasheet (Table 1).", lo=-100.0, hi=100.0)
+    # within the -1..11 V that the plant FMU's input u takes: a valve range beyond it could not be reached
+    u_min_v: float = _f(0.0, "Lowest valve command [V]; datasheet (Table 1).", lo=-1.0, hi=11.0)
+    u_max_v: float = _f(10.0, "Highest valve command [V]; datasheet (Table 1).", lo=-1.0, hi=11.0)
     spool_time_constant_s: float = _f(0.03, "First-order spool response time constant [s]; calibration (typical of proportional valves).", lo=0.0, lo_open=True, hi=10.0)
     characteristic_exponent: float = _f(0.5, "Flow characteristic: flow coefficient proportional to opening^n (1 linear, 0.5 quick-opening) [-]; calibration: 0.5 makes the bleed circuit's steady pressure proportional to the command.", lo=0.1, hi=3.0)
     leak_fraction: float = _f(0.01, "Opening of a closed valve as a fraction of full opening (spool underlap/leak) [-]; calibration.", lo=0.0, hi=1.0)

@@ -55,7 +55,7 @@ from .effect_library import effects_from_params
 from .effects import Effect
 from .muscle import MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
-from .rosenbrock import KINK_SCALE_INITIAL, build_model, compiled_step_loop
+from .rosenbrock import KINK_SCALE_INITIAL, build_model, compiled_step_loop, forced_substeps
 from .seed import check_seed
 from .sensors import quantise
 from .valve import flow_coefficient, orifice_flow, valve_opening
@@ -437,6 +437,24 @@ class Plant:
             self.u_v = u_before
             raise
         self.t_s = t1
+
+    # ------------------------------------------------------------------ accuracy
+    @property
+    def forced_substeps(self) -> int:
+        """Sub-steps of ``solver.min_substep_s`` accepted over their error tolerances since the plant was
+        built (every step, :meth:`step_many` too; a reset does not clear it): with any, the trajectory is
+        not integrated to the solver's tolerances (stiff parameters, docs/plant.md "Integration")."""
+        return forced_substeps(self._advance_substeps)
+
+    def accuracy_note(self) -> str | None:
+        """What :attr:`forced_substeps` means for the run, in one sentence (None when it is 0)."""
+        n = self.forced_substeps
+        if not n:
+            return None
+        return (f"the plant's integration accepted {n} sub-step{'s' if n > 1 else ''} of solver.min_substep_s = "
+                f"{self.params.solver.min_substep_s:g} s over their error tolerances, so its trajectory may be far "
+                "off (stiff parameters: a friction.presliding_mm far below 1 um, say); a smaller "
+                "solver.min_substep_s integrates it accurately (docs/plant.md, Integration)")
 
     # ------------------------------------------------------------------ outputs
     #: The latest sensor readings (from :meth:`reset` or :meth:`step`).

@@ -155,7 +155,9 @@ class MusclePlant(SafeSlave):
                              f"it in the FMU; set the input instead", status=Fmi2Status.warning)
             self._plant.update(load_n=load, supply_pressure_mpa=supply)
         self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
-        self._tally = _Tally()
+        self._tally = _Tally(u_range=(self._plant.params.valve.u_min_v, self._plant.params.valve.u_max_v))
+        self._u_lo, self._u_hi = self._tally.u_range
+        self._inaccurate_said = False
         if COMPILED_FOR_ANOTHER_PYTHON:  # said, not warned: the results are the same, only slower
             self.log(f"the plant's compiled integrator sub-step {COMPILED_FOR_ANOTHER_PYTHON} was built for another "
                      f"Python than this host's CPython {sys.version_info.major}.{sys.version_info.minor}: its Python "
@@ -171,10 +173,13 @@ class MusclePlant(SafeSlave):
             plant.update(load_n=load, supply_pressure_mpa=ps)
         m = plant.step(u, dt_s)
         self.l, self.p = m.l_mm, m.p_mpa
+        if not self._inaccurate_said and plant.forced_substeps:  # once: outputs that look fine may be far off
+            self._inaccurate_said = True
+            self.log(f"t = {t_s + dt_s:g} s: {plant.accuracy_note()}", status=Fmi2Status.warning)
         # the run summary's tally, inline: this runs every step
         tally, l, p = self._tally, m.l_mm, m.p_mpa
         tally.steps += 1
-        if not 0.0 <= u <= 10.0:
+        if not self._u_lo <= u <= self._u_hi:
             tally.saturated += 1
         if l < tally.l_lo:
             tally.l_lo = l
@@ -210,20 +215,23 @@ class MusclePlant(SafeSlave):
             # a state of a build without the tally: counted from here, and the summary says so
             tally = state.pop("fmu_tally", None)
             self._plant.set_state(state)
-            self._tally = _Tally(*tally) if tally else _Tally(partial=tally is None)
+            u_range = self._tally.u_range
+            self._tally = _Tally(*tally, u_range=u_range) if tally else _Tally(partial=tally is None, u_range=u_range)
 
 
 class _Tally:
     """What the plant's run summary says: steps, ranges of the readings, saturated commands (counted in
     :meth:`MusclePlant.step_numerics`)."""
 
-    __slots__ = ("steps", "l_lo", "l_hi", "p_lo", "p_hi", "saturated", "partial")
+    __slots__ = ("steps", "l_lo", "l_hi", "p_lo", "p_hi", "saturated", "partial", "u_range")
 
     def __init__(self, steps: int = 0, l_lo: float = math.inf, l_hi: float = -math.inf, p_lo: float = math.inf,
-                 p_hi: float = -math.inf, saturated: int = 0, partial: bool = False) -> None:
+                 p_hi: float = -math.inf, saturated: int = 0, partial: bool = False, *,
+                 u_range: tuple[float, float] = (0.0, 10.0)) -> None:
         self.steps, self.saturated = int(steps), int(saturated)
         self.l_lo, self.l_hi, self.p_lo, self.p_hi = float(l_lo), float(l_hi), float(p_lo), float(p_hi)
         self.partial = bool(partial)  # counted from a restored state that carried no tally
+        self.u_range = u_range  # the valve's command range [V] (valve.u_min_v, valve.u_max_v)
 
     def as_list(self) -> list:
         """Plain data for an FMU state (strict JSON: no infinities before the first step)."""
@@ -235,5 +243,6 @@ class _Tally:
             return "no step"
         since = " since a restored state" if self.partial else ""
         return (f"{self.steps} steps{since}; readings l {self.l_lo:.4g}..{self.l_hi:.4g} mm, p {self.p_lo:.4g}..{self.p_hi:.4g} "
-                f"MPa; command outside the amplifier's 0..10 V (saturated there) in {self.saturated} steps")
+                f"MPa; command outside the amplifier's {self.u_range[0]:g}..{self.u_range[1]:g} V (saturated there) in "
+                f"{self.saturated} steps")
 

@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterable
 from .muscle import LOCK_EXPONENT_MAX, MuscleGeometry
 from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 
-__all__ = ["build_model", "compiled_step_loop", "COMPILED", "COMPILED_FOR_ANOTHER_PYTHON", "SAFETY", "GROWTH", "SHRINK",
+__all__ = ["build_model", "compiled_step_loop", "forced_substeps", "COMPILED", "COMPILED_FOR_ANOTHER_PYTHON", "SAFETY", "GROWTH", "SHRINK",
            "ERR_FLOOR", "STRETCH",
            "KINK_SCALE_INITIAL", "KINK_FLOOR", "FORCED_MAX", "adaptive_steps"]
 
@@ -160,6 +160,7 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
     u_min, u_span, h_max, h_min = c["u_min"], c["u_span"], c["h_max"], c["h_min"]
     forced_max_floor = c["forced_max"]
     inf = math.inf
+    forced_total = [0]  # sub-steps accepted over their tolerances since the loop was built (forced_substeps)
 
     def advance(x, p, l, v, z, xs_last, kink_scale, last_ps, u, ps, w, t0, dt, ports):
         x0, p0, l0, v0, z0 = x, p, l, v, z
@@ -210,6 +211,7 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
                     return x0, p0, l0, v0, z0, xs_last, kink_scale, last_ps, t0 + done
                 if err > 1.0:  # accepted only for being the shortest sub-step
                     forced += 1
+                    forced_total[0] += 1
                     if forced > forced_max:
                         raise FloatingPointError(
                             f"plant integration failed at t = {t0 + done:.6g} s: too many sub-steps of "
@@ -241,7 +243,21 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
                 h_try = h * (fac if fac > SHRINK else SHRINK)
                 retry = True
 
+    advance.forced_total = forced_total
     return advance
+
+
+def forced_substeps(advance: Callable[..., tuple[float, ...]]) -> int:
+    """How many sub-steps of ``solver.min_substep_s`` the ``advance`` of :func:`build_model` (or of
+    :func:`adaptive_steps`) has accepted over their error tolerances since it was built, over every
+    call and the compiled step loop's: a run with any is not integrated to the solver's tolerances
+    (stiff parameters; a smaller ``min_substep_s`` makes it accurate). 0 for an ``advance`` that keeps
+    no count (a benchmark's wrapper)."""
+    model = getattr(advance, "__self__", None)
+    if _ros34pw2 is not None and isinstance(model, _ros34pw2.Model):
+        return int(model.forced_substeps)
+    cell = getattr(advance, "forced_total", None)
+    return 0 if cell is None else int(cell[0])
 
 
 def compiled_step_loop(advance: Callable[..., tuple[float, ...]]) -> Callable[..., tuple[Any, ...]] | None:

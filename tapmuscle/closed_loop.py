@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from collections.abc import Mapping
 from typing import Callable
 
@@ -213,4 +214,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
             progress(k + 1, n)
     for i, name in enumerate(names):
         cols[f"theta_{name}"] = theta_hist[:, i]
+    note = plant.accuracy_note()
+    if note:
+        warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
     return cols

@@ -3,6 +3,7 @@
 import gc
 import json
 import math
+import re
 
 import pytest
 from fmpy.fmi1 import FMICallException
@@ -569,3 +570,25 @@ def test_an_input_a_rounding_beyond_its_bound_is_the_bound(fmu, capfd, name, bou
     assert f"{name} = " in capfd.readouterr().out
     f.terminate()
     f.freeInstance()
+
+
+def test_a_stiff_rig_says_once_that_its_trajectory_may_be_far_off(fmu, capfd):
+    """friction.presliding_mm = 1e-7 (in range) is stiffer than solver.min_substep_s resolves: the steps
+    return fmi2OK with a trajectory 0.33 mm off (3e-8 mm: frozen at 0 mm; 1e-9 mm: readings of kilometres
+    before the breakdown's fmi2Error), so the FMU warns once, at the first such sub-step; the summary
+    counts saturated commands against the valve's own range."""
+    vr = fmu[3]
+    said = {}
+    for name, reals in (("nominal", {"valve.u_max_v": 5.0}), ("stiff", {"friction.presliding_mm": 1e-7})):
+        f = _instance(fmu, reals=reals)
+        for k in range(100):
+            f.setReal([vr["u"]], [8.0 if k < 50 else 0.0])
+            f.doStep(0.1 * k, 0.1)
+        f.terminate()
+        f.freeInstance()
+        said[name] = capfd.readouterr().out
+    assert "over their error tolerances" not in said["nominal"]
+    assert said["stiff"].count("over their error tolerances") == 1, said["stiff"]
+    assert re.search(r"t = \d+(\.\d+)? s: the plant's integration accepted \d+ sub-steps? of solver\.min_substep_s = "
+                     r"1e-05 s over their error tolerances", said["stiff"]), said["stiff"]
+    assert "command outside the amplifier's 0..5 V (saturated there) in 50 steps" in said["nominal"], said["nominal"]

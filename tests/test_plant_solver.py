@@ -382,3 +382,33 @@ def test_an_interrupt_stops_a_long_compiled_step_and_leaves_the_steps_start(with
         signal.signal(signal.SIGALRM, previous)
     assert json.dumps(plant.get_state()) == before  # nothing of the hour's step happened
     assert plant.step(7.0, 0.1).t_s == pytest.approx(0.6)
+
+
+_COUNT_FORCED = r"""
+import sys
+from fmu_plant import Plant, PlantParams, rosenbrock
+assert rosenbrock.COMPILED == (sys.argv[1] == "compiled"), (sys.argv[1], rosenbrock.COMPILED)
+for pre in (1.5, 1e-7):
+    plant = Plant(PlantParams().with_values(**{"friction.presliding_mm": pre}), seed=0)
+    for k in range(100):
+        plant.step(10.0 if k < 50 else 0.0, 0.1)
+    print(pre, plant.forced_substeps, plant.accuracy_note() is None)
+"""
+
+
+def test_sub_steps_accepted_over_their_tolerances_are_counted_and_said():
+    """A presliding length of 1e-7 mm (in range) is stiffer than solver.min_substep_s resolves: sub-steps
+    of that length are accepted over their tolerances and the run completes 0.33 mm off (3e-8 mm: frozen at
+    0 mm under a full supply), with no error. The plant counts them, the same in Python and compiled, and
+    says what they mean; the nominal rig has none."""
+    paths = ["python", "compiled"] if COMPILED else ["python"]
+    out = {path: _isolated(_COUNT_FORCED, path, pure_python=path == "python") for path in paths}
+    nominal, stiff = (line.split() for line in out["python"].splitlines())
+    assert nominal == ["1.5", "0", "True"] and int(stiff[1]) > 0 and stiff[2] == "False", out
+    if COMPILED:
+        assert out["compiled"] == out["python"]
+    plant = Plant(PlantParams().with_values(**{"friction.presliding_mm": 1e-7}), seed=0)
+    plant.step_many([10.0] * 50 + [0.0] * 50, 0.1)
+    assert plant.forced_substeps == int(stiff[1])  # step_many's loop counts them too
+    assert plant.accuracy_note().startswith(f"the plant's integration accepted {stiff[1]} sub-steps of "
+                                            "solver.min_substep_s = 1e-05 s over their error tolerances")
