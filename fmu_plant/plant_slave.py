@@ -158,6 +158,7 @@ class MusclePlant(SafeSlave):
         self._tally = _Tally(u_range=(self._plant.params.valve.u_min_v, self._plant.params.valve.u_max_v))
         self._u_lo, self._u_hi = self._tally.u_range
         self._inaccurate_said = False
+        self._lock_n, self._light_said = self._plant.params.muscle.braid_lock_force_n, False
         if COMPILED_FOR_ANOTHER_PYTHON:  # said, not warned: the results are the same, only slower
             self.log(f"the plant's compiled integrator sub-step {COMPILED_FOR_ANOTHER_PYTHON} was built for another "
                      f"Python than this host's CPython {sys.version_info.major}.{sys.version_info.minor}: its Python "
@@ -173,6 +174,13 @@ class MusclePlant(SafeSlave):
             plant.update(load_n=load, supply_pressure_mpa=ps)
         m = plant.step(u, dt_s)
         self.l, self.p = m.l_mm, m.p_mpa
+        if load < self._lock_n and not self._light_said:  # once: the unpowered muscle then contracts by itself
+            self._light_said = True
+            self.log(f"t = {t_s:g} s: load_force = {load:g} N is below the braid lock's {self._lock_n:g} N "
+                     "(muscle.braid_lock_force_n): the model's muscle contracts without pressure then (9.6 mm at 0 N, "
+                     "2.1 mm at 20 N, from rest at 0 V), as no rig at rest does; the lock was calibrated for the "
+                     "paper's 44 and 68 N: for a lighter load set muscle.braid_lock_force_n below it "
+                     "(docs/plant.md)", status=Fmi2Status.warning)
         if not self._inaccurate_said and plant.forced_substeps:  # once: outputs that look fine may be far off
             self._inaccurate_said = True
             self.log(f"t = {t_s + dt_s:g} s: {plant.accuracy_note()}", status=Fmi2Status.warning)

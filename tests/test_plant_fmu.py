@@ -592,3 +592,21 @@ def test_a_stiff_rig_says_once_that_its_trajectory_may_be_far_off(fmu, capfd):
     assert re.search(r"t = \d+(\.\d+)? s: the plant's integration accepted \d+ sub-steps? of solver\.min_substep_s = "
                      r"1e-05 s over their error tolerances", said["stiff"]), said["stiff"]
     assert "command outside the amplifier's 0..5 V (saturated there) in 50 steps" in said["nominal"], said["nominal"]
+    assert "braid lock" not in said["nominal"] + said["stiff"]  # at 44 N
+
+
+def test_a_load_below_the_braid_lock_is_said_once(fmu, capfd):
+    """Below muscle.braid_lock_force_n (40 N) the model's unpowered muscle contracts by itself (2.1 mm at
+    20 N from rest at 0 V): said once, at the first step with such a load, and not while the load is
+    above it."""
+    vr = fmu[3]
+    f = _instance(fmu)
+    for k in range(60):
+        f.setReal([vr["u"], vr["load_force"]], [0.0, 44.0 if k < 20 else 20.0])
+        f.doStep(0.1 * k, 0.1)
+    l_end = f.getReal([vr["l"]])[0]
+    f.terminate()
+    f.freeInstance()
+    out = capfd.readouterr().out
+    assert out.count("braid lock") == 1 and "t = 2 s: load_force = 20 N is below the braid lock's 40 N" in out, out
+    assert 1.0 < l_end < 3.0  # contracting towards 2.1 mm at 0 V
