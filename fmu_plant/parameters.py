@@ -236,7 +236,7 @@ class SupplyVariationParams(_Validated):
 
     sag_mpa: float = _f(0.0, "Drop of the supply gauge pressure during the sag [MPa]; 0 switches the sag off.", lo=0.0, hi=0.2)
     start_s: float = _f(0.0, "Time the sag starts [s].", lo=0.0, hi=1.0e6)
-    end_s: float = _f(1.0e6, "Time the supply starts to recover [s] (the default: never).", lo=0.0, hi=1.0e6)
+    end_s: float = _f(1.0e6, "Time the supply starts to recover [s] (the default, 1e6 s or 11.6 days: never in a run from t = 0; the times are the run's clock, a host's epoch times cannot schedule a sag).", lo=0.0, hi=1.0e6)
     ramp_s: float = _f(1.0, "Duration of the fall, and of the recovery unless recovery_ramp_s is set [s].", lo=0.0, hi=60.0)
     recovery_ramp_s: float = _f(-1.0, "Duration of the recovery [s]; negative (the default): ramp_s, as long as the fall.", lo=-1.0, hi=60.0)
     ripple_mpa: float = _f(0.0, "Amplitude of a periodic fluctuation of the supply pressure [MPa]; 0 switches it off.", lo=0.0, hi=0.1)
