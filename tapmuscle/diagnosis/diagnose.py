@@ -111,7 +111,7 @@ from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation,
                                 unstructured_reason, white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
-from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
+from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, ModelSpace, MuscleSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
 from tapmuscle.diagnosis.recording_checks import (check_displacement_scale, check_muscle_recording,
                                                   displacement_scale_note, muscle_recording_notes)
@@ -339,7 +339,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                    calibration=calibration, progress=progress, started=started, space=MUSCLE,
+                    calibration=calibration, progress=progress, started=started, space=MuscleSpace(model),
                     use_pressure=use_pressure, left_out=left_out)
     d.notes[:0] = notes
     if load is not None:
@@ -790,7 +790,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         """The findings' values, and the words that state them, become ``p``'s (the model kept)."""
         for f in findings:
             f.parameters = {k: float(v) for k, v in p.dotted().items() if k in f.parameters}
-            f.explanation = by_name[f.effect].explain(f.parameters)
+            f.explanation = by_name[f.effect].words(f.parameters, model)
 
     def linearise(params: PlantParams, y_hat: np.ndarray, cands: Sequence[Candidate]) -> None:
         """The calibrated constants' linearised step at ``params`` as far as the own searches of
@@ -1031,7 +1031,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if kept:
             contribution = y1 - current.y
             regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution, output=output)
-            findings.append(Finding(name, by_name[name].explain(values), values,
+            findings.append(Finding(name, by_name[name].words(values, model), values,
                                     fit_percent(y, y1, test) - fit_percent(y, current.y, test),
                                     located_windows(contribution, ts, noise_mm=noise), regime, dict(sig)))
             cal, coords = c1, coords1
@@ -1222,7 +1222,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
                           "contribution_rms_mm": round(contribution_rms, 6),
                           "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
-            alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1,
+            alts.append(Alternative(cand.name, cand.words(values, model), values, p1, y1,
                                     sse((y - y1)[test]), fit_percent(y, y1, test),
                                     {k: v for k, v in sig.items()}, q_hat=q1))
         # ranked on the evidence of both channels (the displacement's alone without a pressure)

@@ -567,5 +567,6 @@ def _effect_values(case: FieldCase, effect: str) -> dict[str, float]:
     """The plant parameters of one of the case's effects."""
     groups = {"rate_dependent_hysteresis": "friction", "valve_dead_zone": "dead_zone", "transport_delay": "delay",
               "supply_pressure_variation": "supply_variation", "load_mismatch": "load_mismatch",
-              "sensor_drift": "sensor_drift", "backlash": "backlash", "input_map": "input_map"}
+              "sensor_drift": "sensor_drift", "backlash": "backlash", "input_map": "input_map",
+              "supply_pressure_offset": "supply"}
     return {k: v for k, v in case.effect_values if k.partition(".")[0] == groups[effect]}
