@@ -669,16 +669,26 @@ def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[Fitt
                       effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
     """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction
     (displacement [mm], pressure [MPa] or None). When the newest effect has joint starts
-    (:attr:`ModelSpace.joint_starts`), the re-fit also starts from ``start`` with each of them set,
-    and the one that fits the training blocks best is kept (the first on a tie)."""
+    (:attr:`ModelSpace.joint_starts`), the re-fit also starts from ``start`` with each of them set
+    (and, for an effect of :attr:`ModelSpace.starts_from_nominal`, with the constants ``coords`` at
+    their prior's centre as well), and the one that fits the training blocks best is kept (the first
+    on a tie)."""
     p1, _ = _joint_refit(problem, space, coords, sigma, start, effects, start_jac)
     best = (p1, *problem.sim.run(p1))
     if not coords or not effects:
         return best
     best_sse = sse(problem.stacked_residual(best[1], best[2]))
-    for st in (start.with_values(**values) for values in space.joint_starts.get(effects[-1], ())):
+    further = space.joint_starts.get(effects[-1], ())
+    starts = [(start.with_values(**values), start_jac) for values in further]
+    if effects[-1] in space.starts_from_nominal:
+        # the constants at their prior's centre, with a Jacobian taken there (the calibrated one is
+        # another point's): the calibrated constants took the effect up along a valley that a short
+        # re-fit from them does not leave
+        centre = {c.key: c.center for c in coords}
+        starts += [(start.with_values(**centre, **values), None) for values in further]
+    for st, jac in starts:
         try:
-            p2, _ = _joint_refit(problem, space, coords, sigma, st, effects, start_jac)
+            p2, _ = _joint_refit(problem, space, coords, sigma, st, effects, jac)
             out = (p2, *problem.sim.run(p2))
         except SimulationError:  # a start the model cannot run from: the others still count
             continue
