@@ -409,7 +409,7 @@ def test_a_structured_remainder_is_reported_and_claimed_only_when_material(ampli
 def test_every_effect_of_the_library_is_a_candidate():
     names = {c.name for c in CANDIDATES}
     assert names == {"rate_dependent_hysteresis", "valve_dead_zone", "transport_delay", "supply_pressure_variation",
-                     "load_mismatch", "sensor_drift", "backlash", "input_map"}
+                     "load_mismatch", "sensor_drift", "backlash", "input_map", "supply_pressure_offset"}
     for c in CANDIDATES:  # every fitted parameter is a plant (FMU) parameter; all at their bounds at once
         DEMO_MODEL.with_values(**{p.key: p.lo for p in c.parameters})
         DEMO_MODEL.with_values(**{p.key: p.hi for p in c.parameters})
@@ -1532,6 +1532,7 @@ def _named_or_alternative(d) -> set[str]:
     return set(d.named) | {a.effect for g in d.ambiguous for a in g}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("supply_mpa", [0.22, 0.30])
 def test_a_supply_at_another_constant_pressure_is_named_with_its_pressure_not_as_a_load(supply_mpa):
     """A building's supply at another constant pressure than the plant file's, on a rig whose constants
@@ -1549,6 +1550,7 @@ def test_a_supply_at_another_constant_pressure_is_named_with_its_pressure_not_as
     assert d.fit_after_percent > 99.0
 
 
+@pytest.mark.slow
 def test_a_load_mismatch_is_still_named_with_the_supply_offset_in_the_vocabulary():
     """A heavier load is not taken for a supply offset: the load shifts the muscle's equilibrium by a
     force (most at low pressure), a supply offset scales the pressure (most at high commands)."""
@@ -1559,6 +1561,7 @@ def test_a_load_mismatch_is_still_named_with_the_supply_offset_in_the_vocabulary
     assert d.calibrated.supply.supply_pressure_mpa == pytest.approx(0.25, abs=0.01)
 
 
+@pytest.mark.slow
 def test_a_plant_file_at_0_3_mpa_is_the_supply_offsets_reference(tmp_path):
     """The supply offset is stated against the plant file's pressure (0.3 MPa here, not the default
     plant's 0.25): a rig at 0.25 MPa is 0.05 MPa low, and the words say which pressure it is

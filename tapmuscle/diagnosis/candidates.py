@@ -105,7 +105,6 @@ class Candidate:
     the other effects (docs/diagnosis.md, step 5): where an edge lies inside a held-out block, the
     training blocks do not place it, and the prediction error there is the edge's."""
 
-
     def words(self, values: dict[str, float], nominal: object | None = None) -> str:
         """Plain-words explanation of ``values``, against ``nominal`` (the model diagnosed against, any
         model family) where the candidate states one (:attr:`explain_against`)."""
@@ -740,6 +739,7 @@ def _explain_sag(v: dict[str, float]) -> str:
 
 # ------------------------------------------------------------------------------------ catalogue
 def _explain_supply(v: dict[str, float], nominal: PlantParams | None = None) -> str:
+    """The supply pressure found [MPa], against the nominal model's where it is known."""
     ps = v["supply.supply_pressure_mpa"]
     plant = "the plant file's value" if nominal is None else f"the plant's {nominal.supply.supply_pressure_mpa:.3f} MPa"
     return f"the supply delivers {ps:.3f} MPa, not {plant}, throughout the recording"
@@ -857,7 +857,8 @@ CANDIDATES: tuple[Candidate, ...] = (
         "the more so the higher the command.",
         (ParameterSpec("supply.supply_pressure_mpa", "MPa", *SUPPLY_PRESSURE_MPA),),
         "Gauss-Newton on the supply pressure, simulating the first fit_segment_s seconds per evaluation; "
-        "re-fitted jointly with the constants, also from pressures 20 % below to 25 % above the plant's.",
+        "re-fitted jointly with the constants, also from pressures 20 % below to 25 % above the plant's, "
+        "each from the calibrated constants and from the nominal ones.",
         _scalar_fit("supply.supply_pressure_mpa", 0.01, *SUPPLY_PRESSURE_MPA),
         _explain_supply, explain_against=_explain_supply),
 )
