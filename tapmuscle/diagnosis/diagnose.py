@@ -610,6 +610,11 @@ def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], s
     return LinearisedConstants(params, jac, x, np.array([c.prior for c in coords], bool), lower, upper, sigma)
 
 
+def _excluded(space: ModelSpace, name: str, effects: tuple[str, ...]) -> bool:
+    """Whether an accepted effect excludes the candidate ``name`` (:attr:`ModelSpace.exclusive`)."""
+    return any(name in group and any(e in group for e in effects if e != name) for group in space.exclusive)
+
+
 def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
                      values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
     """``params`` with ``cand``'s own search run again on its constants (the effect switched off
@@ -1051,7 +1056,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             first_values = values
     gate_structured, gate = is_structured(y - current.y, sensor_noise_mm=sensor_mm)
     structured = tests0["structured"] and gate_structured
-    pool = [c for c in candidates if c.name not in current.effects]
+    pool = [c for c in candidates if c.name not in current.effects and not _excluded(space, c.name, current.effects)]
     done = 0
     round_no = 0
     while tests0["structured"] and structured and pool and len(current.effects) < max_effects:
@@ -1280,7 +1285,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated
-        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect]
+        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect
+                and not _excluded(space, c.name, current.effects)]
 
     def polished(p: PlantParams, f: Any, y_p: np.ndarray, q_p: np.ndarray | None) -> tuple:
         """The final joint re-fit ``p`` (its fit ``f`` and predictions), or, where the training blocks

@@ -28,7 +28,7 @@ from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
 
 __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "JOINT_STARTS", "OFF_VALUES",
-           "OPERATING_CONDITIONS", "SUPPLY_STARTS", "STARTS_FROM_NOMINAL", "sensor_noise_mm"]
+           "OPERATING_CONDITIONS", "SUPPLY_STARTS", "STARTS_FROM_NOMINAL", "EXCLUSIVE", "sensor_noise_mm"]
 
 #: Effect parameters re-fitted jointly with the calibrated constants (smooth in the prediction), with
 #: the scale of their coordinate. The others keep the value their candidate's own search found (a
@@ -110,6 +110,12 @@ SUPPLY_STARTS: tuple[float, ...] = (0.8, 0.9, 1.1, 1.25)
 #: against 12).
 STARTS_FROM_NOMINAL: frozenset[str] = frozenset({"supply_pressure_offset"})
 
+#: The operating conditions' mismatches (:attr:`ModelSpace.exclusive`): a load off and a supply pressure
+#: off both move the muscle's equilibrium under every command, and with the constants re-fitted the two
+#: trade along a valley. Accepted together on field recordings they named a pair where the truth had
+#: neither (seed 1 case 020, a rate dependence: both added, 99.64 -> 99.88 %) or one (seed 2 case 069).
+EXCLUSIVE: tuple[frozenset[str], ...] = (frozenset({"load_mismatch", "supply_pressure_offset"}),)
+
 
 def sensor_noise_mm(model: PlantParams) -> float:
     """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
@@ -134,6 +140,11 @@ class ModelSpace(ABC):
     """Effects whose joint starts are also tried with the calibrated constants back at their prior's
     centre (the nominal values): for an effect the calibration takes up along a long valley of the
     constants, which a short joint re-fit from the calibrated constants does not leave."""
+    exclusive: tuple[frozenset[str], ...] = ()
+    """Groups of effects of which a model holds one at most: explanations of the same mismatch whose
+    parameters trade along a valley (accepted together they compensate each other and fit what neither
+    is). Once one is accepted the others leave the search's pool; they remain its alternatives where the
+    data cannot tell them apart (an ``ambiguous`` verdict)."""
     combinations: bool = False
     """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
     constant's MAP estimate, for models whose constants the data pin only in combinations."""
@@ -179,6 +190,7 @@ class MuscleSpace(ModelSpace):
     joint_parameters = JOINT_PARAMETERS
     profiled = PROFILED
     starts_from_nominal = STARTS_FROM_NOMINAL
+    exclusive = EXCLUSIVE
 
     def __init__(self, nominal: PlantParams | None = None) -> None:
         self.nominal = nominal
