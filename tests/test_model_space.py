@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace
+from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace, MuscleSpace
 from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
 
 REST = np.zeros(5)
