@@ -83,7 +83,11 @@ def test_category_mix_effects_excitations_and_disturbances(cases120):
 
 
 def test_every_candidate_of_the_diagnosis_can_be_drawn():
-    assert {c.name for c in CANDIDATES} <= set(vocabulary())
+    # but those left out so that the seeds' draws stay those of the documented tables
+    from tapmuscle.diagnosis.field_cases import NOT_DRAWN
+
+    assert {c.name for c in CANDIDATES} - NOT_DRAWN == set(vocabulary())
+    assert NOT_DRAWN <= {c.name for c in CANDIDATES} and not NOT_DRAWN & set(vocabulary())
     if "input_map" in {f for f in PlantParams().to_dict()}:
         assert "input_map" in vocabulary()
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace
+from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace, MuscleSpace
 from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
 
 REST = np.zeros(5)
@@ -57,3 +57,34 @@ def test_a_recording_starts_mid_run_when_its_first_pressure_is_above_a_drained_m
     assert not MUSCLE.starts_mid_run(y, np.full(5, DRAINED_MPA))
     assert not MUSCLE.starts_mid_run(y, None)  # without a pressure: an offset or a mid-run start (first_reading)
     assert not MUSCLE.starts_mid_run(REST, np.zeros(5))
+
+
+def test_the_supply_offsets_off_value_is_the_nominal_models_pressure_not_the_default_plants():
+    """Switched off (the backward step, the discriminating experiment's plant), the supply offset gives
+    back the plant file's supply pressure, here 0.3 MPa; every other effect is off as before."""
+    from fmu_plant import PlantParams
+
+    from tapmuscle.diagnosis.model_space import JOINT_STARTS, MuscleSpace
+
+    at_03 = PlantParams().with_values(**{"supply.supply_pressure_mpa": 0.3, "load_mismatch.extra_n": 5.0})
+    keys = ["supply.supply_pressure_mpa", "load_mismatch.extra_n", "friction.rate_gain", "delay.delay_s"]
+    assert MuscleSpace(at_03).off_values(keys) == {"supply.supply_pressure_mpa": 0.3, "load_mismatch.extra_n": 0.0,
+                                                   "friction.rate_gain": 0.0, "delay.delay_s": 0.0}
+    assert MUSCLE.off_values(keys) == {"supply.supply_pressure_mpa": 0.25, "load_mismatch.extra_n": 0.0,
+                                       "friction.rate_gain": 0.0, "delay.delay_s": 0.0}
+    # the joint re-fit's further starts lie either side of the plant file's pressure; the others are shared
+    starts = [st["supply.supply_pressure_mpa"] for st in MuscleSpace(at_03).joint_starts["supply_pressure_offset"]]
+    assert min(starts) < 0.3 < max(starts) and all(0.2 <= p <= 0.4 for p in starts)
+    assert {k: v for k, v in MuscleSpace(at_03).joint_starts.items() if k != "supply_pressure_offset"} == JOINT_STARTS
+
+
+def test_a_load_and_a_supply_mismatch_exclude_each_other():
+    """Once one operating condition's mismatch is accepted the other leaves the search's pool (they trade
+    along a valley of the constants); other effects are not excluded by either."""
+    from tapmuscle.diagnosis.diagnose import _excluded
+
+    space = MuscleSpace()
+    assert _excluded(space, "supply_pressure_offset", ("load_mismatch",))
+    assert _excluded(space, "load_mismatch", ("backlash", "supply_pressure_offset"))
+    assert not _excluded(space, "backlash", ("load_mismatch", "supply_pressure_offset"))
+    assert not _excluded(space, "load_mismatch", ("backlash",)) and not _excluded(space, "load_mismatch", ())

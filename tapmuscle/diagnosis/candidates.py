@@ -95,11 +95,22 @@ class Candidate:
     step leaves (:attr:`Problem.constants`, set by the search when there are calibrated constants):
     ``(problem, y_base) ->`` the number of samples from the start that search looks at on a base
     whose prediction is ``y_base`` (the constants' Jacobian is simulated that far)."""
+    explain_against: Callable[[dict[str, float], PlantParams], str] | None = None
+    """Set when the words state a value against the nominal model's (an operating condition the plant
+    file gives): ``(values, nominal) ->`` the explanation, used by :meth:`words` when the nominal model
+    is known."""
     edges: Callable[[dict[str, float]], list[tuple[float, float]]] | None = None
     """Set for an effect present only for a while: ``values ->`` the stretches [s] its edges cover as
     fitted (a sag's fall and recovery). The held-out blocks they touch are left out of the tests of
     the other effects (docs/diagnosis.md, step 5): where an edge lies inside a held-out block, the
     training blocks do not place it, and the prediction error there is the edge's."""
+
+    def words(self, values: dict[str, float], nominal: object | None = None) -> str:
+        """Plain-words explanation of ``values``, against ``nominal`` (the model diagnosed against, any
+        model family) where the candidate states one (:attr:`explain_against`)."""
+        if self.explain_against is not None and isinstance(nominal, PlantParams):
+            return self.explain_against(values, nominal)
+        return self.explain(values)
 
 
 # --------------------------------------------------------------------------------------- helpers
@@ -727,8 +738,20 @@ def _explain_sag(v: dict[str, float]) -> str:
 
 
 # ------------------------------------------------------------------------------------ catalogue
+def _explain_supply(v: dict[str, float], nominal: PlantParams | None = None) -> str:
+    """The supply pressure found [MPa], against the nominal model's where it is known."""
+    ps = v["supply.supply_pressure_mpa"]
+    plant = "the plant file's value" if nominal is None else f"the plant's {nominal.supply.supply_pressure_mpa:.3f} MPa"
+    return f"the supply delivers {ps:.3f} MPa, not {plant}, throughout the recording"
+
+
 def _fmt(v: float, unit: str, digits: int = 3) -> str:
     return f"{v:.{digits}g} {unit}"
+
+
+#: Where the supply offset's own fit searches the supply pressure [MPa]: the plant field's bounds,
+#: above a pressure too low to fill the muscle past its threshold (no building delivers that).
+SUPPLY_PRESSURE_MPA = (0.05, field_bounds("supply.supply_pressure_mpa")[1])
 
 
 CANDIDATES: tuple[Candidate, ...] = (
@@ -827,6 +850,17 @@ CANDIDATES: tuple[Candidate, ...] = (
         "is down to the noise. The straight line closest to the fitted map replaces it when it fits as well.",
         fit_input_map,
         explain_input_map),
+    Candidate(
+        "supply_pressure_offset",
+        "The tap-water supply is at another constant pressure than the plant file states (buildings "
+        "deliver 0.2-0.6 MPa): the muscle's pressure, and so its contraction, differs for every command, "
+        "the more so the higher the command.",
+        (ParameterSpec("supply.supply_pressure_mpa", "MPa", *SUPPLY_PRESSURE_MPA),),
+        "Gauss-Newton on the supply pressure, simulating the first fit_segment_s seconds per evaluation; "
+        "re-fitted jointly with the constants, also from pressures 20 % below to 25 % above the plant's, "
+        "each from the calibrated constants and from the nominal ones.",
+        _scalar_fit("supply.supply_pressure_mpa", 0.01, *SUPPLY_PRESSURE_MPA),
+        _explain_supply, explain_against=_explain_supply),
 )
 
 

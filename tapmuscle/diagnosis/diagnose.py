@@ -111,7 +111,7 @@ from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation,
                                 unstructured_reason, white_noise_level_mm)
 from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
-from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, MUSCLE, ModelSpace, sensor_noise_mm
+from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, ModelSpace, MuscleSpace, sensor_noise_mm
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
 from tapmuscle.diagnosis.recording_checks import (check_displacement_scale, check_muscle_recording,
                                                   displacement_scale_note, muscle_recording_notes)
@@ -339,7 +339,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                    calibration=calibration, progress=progress, started=started, space=MUSCLE,
+                    calibration=calibration, progress=progress, started=started, space=MuscleSpace(model),
                     use_pressure=use_pressure, left_out=left_out)
     d.notes[:0] = notes
     if load is not None:
@@ -610,6 +610,11 @@ def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], s
     return LinearisedConstants(params, jac, x, np.array([c.prior for c in coords], bool), lower, upper, sigma)
 
 
+def _excluded(space: ModelSpace, name: str, effects: tuple[str, ...]) -> bool:
+    """Whether an accepted effect excludes the candidate ``name`` (:attr:`ModelSpace.exclusive`)."""
+    return any(name in group and any(e in group for e in effects if e != name) for group in space.exclusive)
+
+
 def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
                      values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
     """``params`` with ``cand``'s own search run again on its constants (the effect switched off
@@ -669,16 +674,26 @@ def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[Fitt
                       effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
     """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction
     (displacement [mm], pressure [MPa] or None). When the newest effect has joint starts
-    (:attr:`ModelSpace.joint_starts`), the re-fit also starts from ``start`` with each of them set,
-    and the one that fits the training blocks best is kept (the first on a tie)."""
+    (:attr:`ModelSpace.joint_starts`), the re-fit also starts from ``start`` with each of them set
+    (and, for an effect of :attr:`ModelSpace.starts_from_nominal`, with the constants ``coords`` at
+    their prior's centre as well), and the one that fits the training blocks best is kept (the first
+    on a tie)."""
     p1, _ = _joint_refit(problem, space, coords, sigma, start, effects, start_jac)
     best = (p1, *problem.sim.run(p1))
     if not coords or not effects:
         return best
     best_sse = sse(problem.stacked_residual(best[1], best[2]))
-    for st in (start.with_values(**values) for values in space.joint_starts.get(effects[-1], ())):
+    further = space.joint_starts.get(effects[-1], ())
+    starts = [(start.with_values(**values), start_jac) for values in further]
+    if effects[-1] in space.starts_from_nominal:
+        # the constants at their prior's centre, with a Jacobian taken there (the calibrated one is
+        # another point's): the calibrated constants took the effect up along a valley that a short
+        # re-fit from them does not leave
+        centre = {c.key: c.center for c in coords}
+        starts += [(start.with_values(**centre, **values), None) for values in further]
+    for st, jac in starts:
         try:
-            p2, _ = _joint_refit(problem, space, coords, sigma, st, effects, start_jac)
+            p2, _ = _joint_refit(problem, space, coords, sigma, st, effects, jac)
             out = (p2, *problem.sim.run(p2))
         except SimulationError:  # a start the model cannot run from: the others still count
             continue
@@ -790,7 +805,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         """The findings' values, and the words that state them, become ``p``'s (the model kept)."""
         for f in findings:
             f.parameters = {k: float(v) for k, v in p.dotted().items() if k in f.parameters}
-            f.explanation = by_name[f.effect].explain(f.parameters)
+            f.explanation = by_name[f.effect].words(f.parameters, model)
 
     def linearise(params: PlantParams, y_hat: np.ndarray, cands: Sequence[Candidate]) -> None:
         """The calibrated constants' linearised step at ``params`` as far as the own searches of
@@ -1031,7 +1046,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if kept:
             contribution = y1 - current.y
             regime, _ = regime_summary(contribution ** 2, y, ts, p_mpa, signal=contribution, output=output)
-            findings.append(Finding(name, by_name[name].explain(values), values,
+            findings.append(Finding(name, by_name[name].words(values, model), values,
                                     fit_percent(y, y1, test) - fit_percent(y, current.y, test),
                                     located_windows(contribution, ts, noise_mm=noise), regime, dict(sig)))
             cal, coords = c1, coords1
@@ -1041,7 +1056,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             first_values = values
     gate_structured, gate = is_structured(y - current.y, sensor_noise_mm=sensor_mm)
     structured = tests0["structured"] and gate_structured
-    pool = [c for c in candidates if c.name not in current.effects]
+    pool = [c for c in candidates if c.name not in current.effects and not _excluded(space, c.name, current.effects)]
     done = 0
     round_no = 0
     while tests0["structured"] and structured and pool and len(current.effects) < max_effects:
@@ -1222,7 +1237,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
                           "contribution_rms_mm": round(contribution_rms, 6),
                           "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
-            alts.append(Alternative(cand.name, cand.explain(values), values, p1, y1,
+            alts.append(Alternative(cand.name, cand.words(values, model), values, p1, y1,
                                     sse((y - y1)[test]), fit_percent(y, y1, test),
                                     {k: v for k, v in sig.items()}, q_hat=q1))
         # ranked on the evidence of both channels (the displacement's alone without a pressure)
@@ -1270,7 +1285,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated
-        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect]
+        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect
+                and not _excluded(space, c.name, current.effects)]
 
     def polished(p: PlantParams, f: Any, y_p: np.ndarray, q_p: np.ndarray | None) -> tuple:
         """The final joint re-fit ``p`` (its fit ``f`` and predictions), or, where the training blocks

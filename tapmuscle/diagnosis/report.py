@@ -19,7 +19,7 @@ from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text,
 
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
-from tapmuscle.diagnosis.model_space import MUSCLE
+from tapmuscle.diagnosis.model_space import MUSCLE, MuscleSpace
 from tapmuscle.diagnosis.residual_analysis import STRUCTURE_ALPHA, STRUCTURE_MATERIALITY, unstructured_reason
 from tapmuscle.io.atomic import probe_output_folder
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
@@ -365,7 +365,9 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     # The re-diagnosis starts from the constants this recording identified: the experiment's recording
     # was designed to separate the alternatives, not to pin the constants, and recalibrated from the
     # nominal plant on it they would take up again what the alternatives differ in.
-    base = d.calibrated.with_values(**MUSCLE.off_values([k for a in group for k in a.parameters]))
+    # the effects off at the nominal model's operating conditions (the plant file's supply pressure)
+    space = MUSCLE if d.nominal is None else MuscleSpace(d.nominal)
+    base = d.calibrated.with_values(**space.off_values([k for a in group for k in a.parameters]))
     atomic_write_text(out / plant_name, plant_file_text(
         base, f"the calibrated plant without {', '.join(effects)}: re-diagnose the recording of {name} with it"))
     command = (f"tapmuscle diagnose --recording NEW.csv --plant {plant_name} --effects {','.join(effects)} "
