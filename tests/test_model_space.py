@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace, MuscleSpace
+from tapmuscle.diagnosis.model_space import MUSCLE, ModelSpace
 from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
 
 REST = np.zeros(5)
@@ -77,14 +77,3 @@ def test_the_supply_offsets_off_value_is_the_nominal_models_pressure_not_the_def
     assert min(starts) < 0.3 < max(starts) and all(0.2 <= p <= 0.4 for p in starts)
     assert {k: v for k, v in MuscleSpace(at_03).joint_starts.items() if k != "supply_pressure_offset"} == JOINT_STARTS
 
-
-def test_a_load_and_a_supply_mismatch_exclude_each_other():
-    """Once one operating condition's mismatch is accepted the other leaves the search's pool (they trade
-    along a valley of the constants); other effects are not excluded by either."""
-    from tapmuscle.diagnosis.diagnose import _excluded
-
-    space = MuscleSpace()
-    assert _excluded(space, "supply_pressure_offset", ("load_mismatch",))
-    assert _excluded(space, "load_mismatch", ("backlash", "supply_pressure_offset"))
-    assert not _excluded(space, "backlash", ("load_mismatch", "supply_pressure_offset"))
-    assert not _excluded(space, "load_mismatch", ("backlash",)) and not _excluded(space, "load_mismatch", ())

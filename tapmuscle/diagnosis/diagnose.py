@@ -610,11 +610,6 @@ def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], s
     return LinearisedConstants(params, jac, x, np.array([c.prior for c in coords], bool), lower, upper, sigma)
 
 
-def _excluded(space: ModelSpace, name: str, effects: tuple[str, ...]) -> bool:
-    """Whether an accepted effect excludes the candidate ``name`` (:attr:`ModelSpace.exclusive`)."""
-    return any(name in group and any(e in group for e in effects if e != name) for group in space.exclusive)
-
-
 def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
                      values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
     """``params`` with ``cand``'s own search run again on its constants (the effect switched off
@@ -987,6 +982,28 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         nonlocal current, converged, findings
         current = refitted(current.params) or current
         converged = current.params
+        for group in space.exclusive:
+            present = [e for e in current.effects if e in group]
+            if len(present) < 2:
+                continue
+            # one of the group at most: the other may be tried on top of the first (it may explain the
+            # data better), but together they trade along the constants' valley; the model keeps the
+            # one whose removal leaves the worse fit on the training blocks
+            without = {}
+            for name in present:
+                rest = tuple(e for e in current.effects if e != name)
+                p_wo, _ = joint(current.params.with_values(**space.off_values(current.values[name])), rest, cal_jac,
+                                final=True)
+                y_wo, q_wo = sim.run(p_wo)
+                without[name] = (sensors_sse(y_wo, _used(q_wo)), rest, p_wo, y_wo, _used(q_wo))
+            for name in sorted(present, key=lambda e: without[e][0])[:-1]:
+                _, rest, p_wo, y_wo, q_wo = without[name]
+                rest = tuple(e for e in current.effects if e != name)
+                selection.append({"step": "drop", "round": round_no, "effect": name,
+                                  "excluded_by": [e for e in current.effects if e in group and e != name]})
+                findings = [f for f in findings if f.effect != name]
+                current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
+                converged = current.params
         for name in list(current.effects):
             if len(current.effects) == 1 and not last_too:
                 break
@@ -1056,7 +1073,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             first_values = values
     gate_structured, gate = is_structured(y - current.y, sensor_noise_mm=sensor_mm)
     structured = tests0["structured"] and gate_structured
-    pool = [c for c in candidates if c.name not in current.effects and not _excluded(space, c.name, current.effects)]
+    pool = [c for c in candidates if c.name not in current.effects]
     done = 0
     round_no = 0
     while tests0["structured"] and structured and pool and len(current.effects) < max_effects:
@@ -1285,8 +1302,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         structured = is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]
         # every effect not yet in the model is tried again: a second effect's own fit in the first round
         # was judged against a residual that the first effect dominated
-        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect
-                and not _excluded(space, c.name, current.effects)]
+        pool = [c for c in pool if c.name not in current.effects and c.name != best.effect]
 
     def polished(p: PlantParams, f: Any, y_p: np.ndarray, q_p: np.ndarray | None) -> tuple:
         """The final joint re-fit ``p`` (its fit ``f`` and predictions), or, where the training blocks

@@ -143,8 +143,9 @@ class ModelSpace(ABC):
     exclusive: tuple[frozenset[str], ...] = ()
     """Groups of effects of which a model holds one at most: explanations of the same mismatch whose
     parameters trade along a valley (accepted together they compensate each other and fit what neither
-    is). Once one is accepted the others leave the search's pool; they remain its alternatives where the
-    data cannot tell them apart (an ``ambiguous`` verdict)."""
+    is). Another of a group may be accepted on top of one (it may explain the data better); the
+    backward step then keeps the one whose removal costs the training blocks most. They remain each
+    other's alternatives where the data cannot tell them apart (an ``ambiguous`` verdict)."""
     combinations: bool = False
     """Calibrate with ``combinations=True`` (:func:`~tapmuscle.diagnosis.calibration.calibrate`): keep every
     constant's MAP estimate, for models whose constants the data pin only in combinations."""
