@@ -3,6 +3,7 @@ command outside 0..10 V is diagnosed, and an output folder holds one diagnosis w
 
 from __future__ import annotations
 
+import json
 import numpy as np
 import pytest
 
@@ -34,8 +35,13 @@ def test_the_load_of_the_header_is_used_without_a_load_column(tmp_path):
     rig = DEMO_MODEL.with_values(**{"load.load_n": 68.0})
     rec, plant = _files(tmp_path, rig, drop=("load_n",), metadata={"load_n": "68"})
     d, doc = diagnose_files(rec, plant, tmp_path / "out", plots=False)
-    assert np.all(d.load_n == 68.0) and doc["notes"] == []
+    assert np.all(d.load_n == 68.0) and doc["notes"] == [
+        "The recording's load is 68 N, the plant's 44 N: the diagnosis re-simulated the recording's, and the "
+        "calibrated plant's load.load_n is 68 N"]
     assert doc["verdict"] == "no_significant_mismatch" and doc["fit_after_percent"] > 99.0
+    # the calibrated plant file is the rig: at the recording's load, which its note says
+    cal = json.loads((tmp_path / "out" / "calibrated_plant.json").read_text())
+    assert cal["plant"]["load"]["load_n"] == 68.0 and cal["note"].endswith("at the recording's load (68 N)")
 
 
 def test_a_recording_without_its_load_says_which_load_was_assumed(tmp_path):
