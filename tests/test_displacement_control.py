@@ -275,8 +275,9 @@ def test_a_rigs_transport_delay_is_compensated_when_set_or_decided(transport_del
 
 def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
     """A rig logged at Ts = 0.02 s whose valve acts 0.15 s late (7.5 samples): AMPC-servo compensating
-    5 samples (the model identified under D = 5) slams the valve (63 mm over 20-40 s, at a limit 53 %
-    of the time); with 8, round(0.15 / 0.02), and the model identified under it, it tracks: Eq. (21)
+    5 samples (the model identified under D = 5) slams the valve (at a limit 53 % of the time, 63 mm
+    over 20-40 s; on another BLAS path 40 % and 4.0 mm: the slamming loop is chaotic, so the test asks
+    for the contrast, not the size); with 8, round(0.15 / 0.02), and the model identified under it, it tracks: Eq. (21)
     over its 10.1-40.1 s 0.32 mm, and the set delay's check (over 30 s, 1500 samples here) finds no
     better delay. servo.Hp = 12 spans 0.24 s, as Table 5's 5 samples do at Ts = 0.05 s, where this rig
     tracks with 3 samples set; 5 samples at 0.02 s span less than the delay (8.4 mm with 8 set)."""
@@ -301,7 +302,7 @@ def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
     late = {d: float(np.mean(np.abs(r["r_mm"][1000:] - r["l_mm"][1000:]))) for d, r in runs.items()}
     at_limit = {d: float(np.mean((r["u_v"][500:] <= 0.0) | (r["u_v"][500:] >= 10.0))) for d, r in runs.items()}
     assert late[8] < 1.0 and eq21_error_mm(runs[8]) < 1.0 and evidence[8] is None, (late, evidence)
-    assert late[5] > 20.0 and at_limit[5] > 0.3 and at_limit[8] < 0.05, (late, at_limit)
+    assert late[5] > 10.0 * late[8] and at_limit[5] > 0.3 and at_limit[8] < 0.05, (late, at_limit)
     assert scored == {5: 6, 8: 9}  # the set delay's check scores 0 .. max(5, d)
 
 
