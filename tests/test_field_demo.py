@@ -536,3 +536,21 @@ def test_a_tidied_case_says_which_of_its_files_are_gone(tmp_path):
             assert report.startswith("# report\nsee discriminating_input.csv\n") and report.endswith(
                 "demo-mismatch deleted this case's other files (calibrated_plant.json, discriminating_input.csv, "
                 "recording.csv) to save space; `tapmuscle demo-mismatch --keep-files` keeps them.\n")
+
+
+@pytest.mark.slow
+def test_a_load_and_a_supply_offset_are_never_both_in_the_model(tmp_path):
+    """Seed 2 case 069 (a load and an amplifier map under one sine): a load mismatch and a supply offset
+    were both accepted, trading along the constants' valley; the model now holds one of them at most,
+    the other staying its alternative where the data cannot tell them apart."""
+    case = field_cases(100, seed=2)[69]
+    assert case.name.startswith("069_pair_load_mismatch")
+    run_field_case(case, tmp_path, keep=True)
+    folder = tmp_path / case.name
+    doc = json.loads((folder / "diagnosis.json").read_text())
+    plant = json.loads((folder / "calibrated_plant.json").read_text())["plant"]
+    accepted = {f["effect"] for f in doc["findings"]}
+    assert not {"load_mismatch", "supply_pressure_offset"} <= accepted, accepted
+    load_on = plant.get("load_mismatch", {}).get("extra_n", 0.0) != 0.0
+    supply_on = plant["supply"]["supply_pressure_mpa"] != 0.25
+    assert not (load_on and supply_on), plant

@@ -995,9 +995,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 p_wo, _ = joint(current.params.with_values(**space.off_values(current.values[name])), rest, cal_jac,
                                 final=True)
                 y_wo, q_wo = sim.run(p_wo)
-                without[name] = (sensors_sse(y_wo, _used(q_wo)), rest, p_wo, y_wo, _used(q_wo))
+                without[name] = (sensors_sse(y_wo, _used(q_wo)), p_wo, y_wo, _used(q_wo))
             for name in sorted(present, key=lambda e: without[e][0])[:-1]:
-                _, rest, p_wo, y_wo, q_wo = without[name]
+                _, p_wo, y_wo, q_wo = without[name]
                 rest = tuple(e for e in current.effects if e != name)
                 selection.append({"step": "drop", "round": round_no, "effect": name,
                                   "excluded_by": [e for e in current.effects if e in group and e != name]})
