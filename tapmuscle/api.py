@@ -19,6 +19,7 @@ import numpy as np
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.identification import PAPER_TS_S
+from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
@@ -200,7 +201,13 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         box = {"box_lower": theta0.box_lower, "box_upper": theta0.box_upper}
         if theta0.input_delay_samples:
             # the rig's delay and, in a loop run as a parallel master does, its sample on top
-            box["input_delay_samples"] = theta0.input_delay_samples + (loop_delay_samples == 1)
+            delay = theta0.input_delay_samples + (loop_delay_samples == 1)
+            if delay > MAX_INPUT_DELAY_SAMPLES and settings is None:
+                raise ValueError(f"{theta0.path}: identified under a transport delay of {theta0.input_delay_samples} "
+                                 f"samples, and loop_delay_samples = 1 adds one: {delay} samples, beyond the "
+                                 f"{MAX_INPUT_DELAY_SAMPLES} the controller compensates (input_delay_samples); run "
+                                 "the loop with loop_delay_samples = 0, or identify at a longer Ts")
+            box["input_delay_samples"] = delay
         theta0 = theta0.theta
     elif abs(ts - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
         # Table 2's box holds for Ts = 0.1 s; elsewhere none, as tm.identify applies none there

@@ -186,6 +186,12 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
                                    settings=ControllerSettings(method="ampc_servo", input_delay_samples=3,
                                                                box_lower={}, box_upper={}))
     assert np.array_equal(run["u_v"], same["u_v"])
+    # at the longest delay compensated, the parallel master's sample is one too many: said so, by file
+    write_identification(tmp_path / "longest.json", tm.THETA0_44N, ts_s=0.02, input_delay_samples=25)
+    with pytest.raises(ValueError, match=r"longest.json: identified under a transport delay of 25 samples, and "
+                                         r"loop_delay_samples = 1 adds one: 26 samples, beyond the 25"):
+        tm.simulate_closed_loop("ampc_servo", None, ts_s=0.02, duration_s=1.0,
+                                theta0=read_identification(tmp_path / "longest.json"), loop_delay_samples=1)
     scenario = tmp_path / "s.toml"
     scenario.write_text(f'duration_s = 5.0\n[controller]\nidentification = "{path}"\n')
     assert load_scenario(scenario).controller.parameters["input_delay_samples"] == 2
