@@ -255,7 +255,9 @@ class AMPCController(SafeSlave):
                    "(default: preliminary identification at 44 N, fmu_controller.preliminary_model)", -THETA0_LIMIT,
                    THETA0_LIMIT)
                   for i, n in enumerate(ASYMMETRIC.names)]
-        table += [(f"box_lower.{n}", TABLE2_LOWER[n], "", f"lower bound of {n} in C (Table 2; -inf: none)", None, None)
+        table += [(f"box_lower.{n}", TABLE2_LOWER[n], "", f"lower bound of {n} in C (Table 2; -inf: none)"
+                   + ("; whatever it is, b1 keeps theta0's sign and a quarter of its size (B1_KEPT_FRACTION)"
+                      if n == "b1" else ""), None, None)
                   for n in TABLE2_LOWER]
         table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2; inf: none)", None, None)
                   for n in TABLE2_UPPER]

@@ -56,7 +56,8 @@ from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
-           "HOLD_AFTER_SAMPLES", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "full_range_jump", "preview_lead",
+           "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
+           "full_range_jump", "preview_lead",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -106,6 +107,14 @@ DELAY_SCORES_TS_S = 0.1
 #: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
 #: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
 HOLD_AFTER_SAMPLES = 5
+
+#: The adaptive estimate of ``b1`` keeps theta0's sign and at least this fraction of its size, whatever
+#: the box C: more valve opening contracts the muscle more, and an estimate that crosses zero inverts
+#: the law, which then holds the valve at the wrong limit for good (a loop run under a wrong
+#: transport delay at Ts = 0.05 s, where C is unbounded by default: 39 mm of Eq. (21) error, the
+#: valve at 10 V from 2.5 s on). Table 2's lower bound is 0.75 of THETA0_44N's b1, so under the
+#: paper's C this bound never acts.
+B1_KEPT_FRACTION = 0.25
 
 #: Largest ``ControllerSettings.delay_move_weight``.
 MAX_DELAY_MOVE_WEIGHT = 1000.0
@@ -362,6 +371,18 @@ def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_
     return (r_mm > l_mm and u_v >= u_max_v - 1e-9) or (r_mm < l_mm and u_v <= u_min_v + 1e-9)
 
 
+def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, float], dict[str, float]]:
+    """The box C that Algorithm 1 projects on: ``settings``' box, with ``b1`` kept on the side of
+    :data:`B1_KEPT_FRACTION` times theta0's ``b1`` [mm/V] away from zero (its sign kept)."""
+    lower, upper = dict(settings.box_lower), dict(settings.box_upper)
+    kept = B1_KEPT_FRACTION * b1
+    if b1 > 0.0:
+        lower["b1"] = max(lower.get("b1", -math.inf), kept)
+    else:
+        upper["b1"] = min(upper.get("b1", math.inf), kept)
+    return lower, upper
+
+
 def full_range_jump(u_v: float, u_prev_v: float, u_min_v: float, u_max_v: float) -> bool:
     """Whether the command moved across :data:`GUARD_JUMP_FRACTION` of the valve's range [V] in one
     sample: the valve slammed end to end."""
@@ -448,10 +469,10 @@ class DisplacementController:
         self.theta0 = _read_only(theta0.copy())
         self._rls: ConstrainedRLS | None = None
         if settings.adaptive:
+            lower, upper = _keep_gain_sign(settings, float(theta0[2]))
             self._rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(
                 p0=settings.p0, theta0=tuple(theta0), forgetting=settings.forgetting,
-                covariance_ceiling=settings.covariance_ceiling,
-                box_lower=dict(settings.box_lower), box_upper=dict(settings.box_upper),
+                covariance_ceiling=settings.covariance_ceiling, box_lower=lower, box_upper=upper,
                 constraint_start_s=0.0, ts_s=settings.ts_s))
         self._servo = ServoMPC(settings.servo_for_delay(settings.input_delay_samples), a1=theta0[0], a2=theta0[1],
                                b1=theta0[2]) if settings.servo_mechanism else None
