@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import warnings
 
 import numpy as np
 import pytest
@@ -212,3 +214,29 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     with pytest.raises(IdentificationFileError, match="got 1.5"):
         write_identification(tmp_path / "bad.json", tm.THETA0_44N, ts_s=0.1, input_delay_samples=1.5)
     assert not (tmp_path / "bad.json").exists()
+
+
+@pytest.mark.parametrize("scaling, said", [({"l_scale": 0.001, "u_scale": 1.0}, r"largest displacement is under 1\.9 "
+                                            r"\(scaling\.l_scale = 0\.001: metres\?\)"),
+                                           ({"l_scale": 1000.0, "u_scale": 1.0}, r"over 1900 .*micrometres\?"),
+                                           ({"l_scale": 1.0, "u_scale": 1000.0}, r"largest command is over 1900 .*millivolts\?"),
+                                           ({"l_scale": 0.1, "u_scale": 0.1}, None), ({"l_scale": 10.0}, None)])
+def test_a_model_identified_off_mm_and_v_is_read_with_a_warning_naming_the_file(tmp_path, scaling, said):
+    """identify normalises any unit and writes its powers of ten as ``scaling``; the controllers need
+    mm and V. A file whose scaling says metres, micrometres or millivolts is read with a warning that
+    names it (an MPC-servo loop on a model in metres: 22 mm of Eq. (21) error, its warnings blaming the
+    readings); a small stroke in mm (scale 0.1) or an absolute position (10) is read without one."""
+    from tapmuscle.io.identification_file import write_identification
+
+    path = tmp_path / "model.json"
+    write_identification(path, tm.THETA0_44N, ts_s=0.1)
+    path.write_text(json.dumps(json.loads(path.read_text()) | {"scaling": scaling}))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read_identification(path)
+    texts = [str(w.message) for w in caught]
+    if said is None:
+        assert texts == []
+    else:
+        assert len(texts) == 1 and texts[0].startswith(f"{path}: identified on a recording whose "), texts
+        assert re.search(said, texts[0]) and "the controllers need Eq. (1) in mm and V" in texts[0]

@@ -7,13 +7,16 @@ it used, empty off Ts = 0.1 s). :func:`read_identification` refuses the standard
 use the asymmetric one), and :meth:`IdentifiedModel.check_period` a model identified at another period
 than the controller's: one at 0.05 s used at 0.2 s gave 9 mm of Eq. (21) error instead of 0.19, without
 a word. (Its ``scaling`` is how the identification normalised the data internally, by magnitude: a
-recording with a small stroke in mm has ``l_scale`` 0.1, so it says nothing about the unit.)
+recording with a small stroke in mm has ``l_scale`` 0.1, so it tells the unit only at the extremes,
+where :func:`read_identification` warns: a largest displacement under 1.9 or over 1900, a command
+under 0.19 or over 190, as in metres, micrometres or millivolts.)
 """
 
 from __future__ import annotations
 
 import math
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -130,8 +133,31 @@ def read_identification(path: str | Path) -> IdentifiedModel:
         delay = checked_input_delay(delay)
     except ValueError as exc:
         raise IdentificationFileError(f"{where}: key 'input_delay_samples': {exc}") from None
+    _warn_if_not_mm_and_v(data.get("scaling"), where)
     return IdentifiedModel({n: float(theta[n]) for n in ASYMMETRIC.names}, float(ts), bounds[0], bounds[1], where,
                            delay)
+
+
+def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
+    """Warn when the file's ``scaling`` (the powers of ten that brought the recording's largest
+    displacement near 60 and command near 6, :func:`~fmu_controller.identification.decade_scale`) says
+    the recording was not in mm and V as the controllers need: a largest displacement under 1.9 or over
+    1900, a largest command under 0.19 or over 190. A model identified on displacements in metres ran
+    the MPC-servo loop at 22 mm of Eq. (21) error against 0.11 mm in mm, its warnings blaming the readings."""
+    if not isinstance(scaling, dict):
+        return
+    odd = []
+    for key, unit, what in (("l_scale", "mm", "displacement"), ("u_scale", "V", "command")):
+        scale = scaling.get(key)
+        if isinstance(scale, (int, float)) and not isinstance(scale, bool) and not 0.01 < scale < 100.0:
+            guess = ("metres?" if unit == "mm" else "a normalised 0..1 command?") if scale <= 0.01 else (
+                "micrometres?" if unit == "mm" else "millivolts?")
+            odd.append(f"largest {what} is {'under' if scale <= 0.01 else 'over'} {1.9 if scale <= 0.01 else 1900:g} "
+                       f"(scaling.{key} = {scale:g}: {guess})")
+    if odd:
+        warnings.warn(f"{where}: identified on a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in "
+                      "mm and V, as their readings l and command u are: identify on the recording in mm and V",
+                      UserWarning, stacklevel=3)
 
 
 def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,
