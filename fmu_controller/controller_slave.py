@@ -103,6 +103,11 @@ _SWINGS = 6
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
 _PINNED_S = 10.0
+#: A sampling period ``Ts`` of this many seconds or more, stepped by a host at a tenth of it or less, is
+#: logged at the first step: the muscle's responses take tenths of a second, so it is most likely ``Ts``
+#: typed in milliseconds (``Ts = 50``), with which the controller samples once and holds its command for
+#: 50 s while the host steps on.
+_SLOW_TS_S = 1.0
 
 
 #: ServoMPCSettings' and UCPSettings' field names as the FMU's parameters: their errors name these
@@ -503,10 +508,12 @@ class AMPCController(SafeSlave):
             return
         s = self._controller.settings.servo
         self._pinned_n = self._pinned_n + 1 if pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v) else 0
-        if self._pinned_n * self._par["Ts"] >= _PINNED_S - 1e-9:
+        # from the first sample at the limit to this one: with a long Ts, a held command is no time sat yet
+        sat_s = (self._pinned_n - 1) * self._par["Ts"]
+        if sat_s >= _PINNED_S - 1e-9:
             self._pinned_n = -1
             limit = s.u_max_v if r > l else s.u_min_v
-            self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {_PINNED_S:g} s while the "
+            self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
                      f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the rig's "
                      f"reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?)",
                      status=Fmi2Status.warning)
@@ -577,6 +584,12 @@ class AMPCController(SafeSlave):
             # at the first step, not at initialisation, where a warning means rejected parameters to a host
             self._warn_paper_defaults_off_period(self._controller.settings, self._controller.theta0.tolist())
             self._warn_unused(self._controller.settings)
+            ts_set = self._controller.settings.ts_s
+            if ts_set >= _SLOW_TS_S and dt_s <= ts_set / 10.0:
+                self.log(f"t = {t_s:g} s: Ts = {ts_set:g} s, and the host steps at {dt_s:g} s: the controller samples l "
+                         f"once every {ts_set:g} s and holds its command in between ({ts_set / dt_s:.0f} steps a sample); Ts is "
+                         f"in seconds (the paper's 0.1 s): is it {ts_set / 1000:g} s typed in milliseconds?",
+                         status=Fmi2Status.warning)
         ctrl = self._controller
         # the modes change only until the start-up is over (the delay decided by then): not looked at after
         before = (ctrl.input_delay_decision, ctrl.law_on_theta0) if self._modes_open else None

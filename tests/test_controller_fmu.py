@@ -615,6 +615,34 @@ def test_a_command_pinned_at_a_valve_limit_is_logged_once():
     assert not [m for m in tracked.log_queue if "has sat at the valve's" in m.msg]
 
 
+def test_a_sampling_period_typed_in_milliseconds_is_logged_and_the_time_at_a_limit_is_true():
+    """Ts = 50 (meant: 50 ms) stepped by a host at 0.05 s sampled once and held its command for 50 s;
+    the only message claimed at t = 0 that the command had sat at 10 V for 10 s. The first step now
+    says Ts is in seconds and asks about milliseconds; the time at a limit counts from the first sample
+    there to the present one (50 s, said at t = 50 s). Ts = 0.1 s stepped at 1 ms (a fast FMU beside
+    it in the host) and Ts = 2 s stepped at 0.5 s are said nothing of."""
+    from fmu_controller.controller_slave import AMPCController
+
+    def run(ts, h, n):
+        slave = AMPCController(instance_name="ms")
+        slave._par["Ts"] = ts
+        slave._int_par["reference_source"] = 2  # external_held: the built-in sine refuses Ts = 50 s (Nyquist)
+        slave.exit_initialization_mode()
+        for k in range(n):
+            slave.l, slave.r = 1.0, 60.0
+            assert slave.do_step(k * h, h)
+        return [m for m in slave.log_queue if m.status == Fmi2Status.warning]
+
+    said = run(50.0, 0.05, 1001)
+    ms = [m.msg for m in said if "typed in milliseconds" in m.msg]
+    assert len(ms) == 1 and ms[0].startswith("t = 0 s: Ts = 50 s, and the host steps at 0.05 s") and "(1000 steps a sample)" in ms[0]
+    assert "is it 0.05 s typed in milliseconds?" in ms[0]
+    pinned = [m.msg for m in said if "has sat at the valve's" in m.msg]
+    assert len(pinned) == 1 and pinned[0].startswith("t = 50 s: the command has sat at the valve's 10 V for 50 s"), pinned
+    for ts, h, n in ((0.1, 0.001, 200), (2.0, 0.5, 8)):
+        assert not [m.msg for m in run(ts, h, n) if "milliseconds" in m.msg]
+
+
 def test_a_law_that_slams_the_valve_is_logged_once():
     """A fixed predictor from an open-loop identification made the MPCs slam the valve end to end for a
     whole run at Ts != 0.1 s without a word; 20 full-range jumps within 10 s are logged once. A divergence
