@@ -132,6 +132,40 @@ def test_a_scenario_runs_the_controller_on_the_identified_model(built_fmus, id_f
         load_scenario(path)
 
 
+def test_the_models_start_values_put_it_in_the_controller_fmu_in_fmpy(built_fmus, id_files, tmp_path):
+    """``model.fmu_start_values()`` is what a user of fmpy or of a master of their own sets: fed the
+    readings of the direct loop run on the same model, the controller FMU in ``fmpy.simulate_fmu`` gives
+    that loop's commands bit for bit (one process). A fixed method takes no box (a scenario with one
+    warned of box_* it had set itself, "not used by method 2"); a box on other parameters than a1, a2,
+    b1 is refused naming the file."""
+    from fmpy import simulate_fmu
+
+    model = read_identification(id_files[0.05])
+    values = model.fmu_start_values()
+    assert values["Ts"] == 0.05 and values["box_lower.b1"] == -math.inf and values["box_upper.a1"] == math.inf
+    assert {k for k in values if k.startswith("theta0.")} == {f"theta0.{n}" for n in ASYMMETRIC.names}
+    assert not any(k.startswith("box_") for k in model.fmu_start_values("mpc_servo"))
+    direct = tm.simulate_closed_loop("ampc_servo", None, ts_s=0.05, duration_s=12.0, theta0=model, seed=3)
+    readings = np.array(list(zip(direct["t_s"], direct["l_mm"])), dtype=[("time", float), ("l", float)])
+    res = simulate_fmu(str(built_fmus["AMPCController"]), start_values={**values, "input_delay_samples": 0},
+                       input=readings, stop_time=12.0, output_interval=0.05, output=["u"])
+    # fmpy records a co-simulation FMU's outputs at the end of each step: u(k), set in the step from t_k,
+    # is its row of t_k+1
+    assert len(res) == len(direct["u_v"]) and np.array_equal(res["u"][1:], direct["u_v"][:-1])
+    path = tmp_path / "s.toml"
+    path.write_text(f'duration_s = 5.0\nstep_s = 0.05\n[controller]\nmethod = "mpc_servo"\nidentification = "{id_files[0.05]}"\n')
+    assert not any(k.startswith("box_") for k in load_scenario(path).controller.parameters)
+    doc = json.loads(id_files[0.05].read_text())
+    wide = tmp_path / "wide.json"
+    wide.write_text(json.dumps(doc | {"constraint": {"lower": {"A1": -1.0}, "upper": {}}}))
+    with pytest.raises(IdentificationFileError, match=r"wide.json: its constraint region bounds A1; the controller "
+                                                      r"FMU's C bounds only a1, a2, b1"):
+        read_identification(wide).fmu_start_values()
+    assert not any(k.startswith("box_") for k in read_identification(wide).fmu_start_values("mpc_ucp"))
+    with pytest.raises(IdentificationFileError, match="unknown method 'ampc'"):
+        model.fmu_start_values("ampc")
+
+
 def test_the_model_itself_is_a_theta0_for_the_simulated_loop(id_files):
     """``simulate_closed_loop(theta0=model)`` checks the period (a 0.05-s model at 0.1 s ran silently:
     26 mm of MPC-servo error) and takes the model's box; a controller given the model object is told

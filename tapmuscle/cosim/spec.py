@@ -56,7 +56,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
 from fmu_controller.displacement_control import METHODS
-from fmu_controller.rls import TABLE2_LOWER
 from fmu_plant.seed import SEED_MAX
 from tapmuscle.closed_loop import eq21_window
 from tapmuscle.errors import TapmuscleError
@@ -152,9 +151,6 @@ class Scenario:
 
 #: Most samples of one scenario run (24 h at Ts = 0.1 s).
 MAX_RUN_SAMPLES = 864_001
-
-#: The parameters the controller FMU's constraint region C bounds (``box_lower.*``, ``box_upper.*``).
-CONTROLLER_BOX = tuple(TABLE2_LOWER)
 
 _TOP = {"name", "description", "duration_s", "step_s", "seed", "evaluation_samples", "evaluation_window_s",
         "plant", "controller", "reference", "load", "supply", "expect"}
@@ -306,28 +302,22 @@ def _parameters(r: _Reader) -> dict[str, Any]:
     return dict(params)
 
 
-def _identification_parameters(r: _Reader, base: Path | None, step_s: float) -> dict[str, Any]:
-    """The AMPCController parameters ``theta0.*`` and ``box_lower.*``/``box_upper.*`` of the
-    ``tapmuscle identify --json`` file ``identification`` names (its box, -inf/inf where it has none),
-    checked for the scenario's period ``step_s``, and ``input_delay_samples`` where it was identified
-    under a transport delay (the scenario's own parameters override it: a parallel master at h = Ts
-    adds a sample to the rig's delay); empty without one."""
+def _identification_parameters(r: _Reader, base: Path | None, step_s: float, method: str) -> dict[str, Any]:
+    """The AMPCController parameters of the ``tapmuscle identify --json`` file ``identification`` names
+    (:meth:`~tapmuscle.io.identification_file.IdentifiedModel.fmu_start_values` for ``method``, but
+    ``Ts``: the scenario's ``step_s``), checked for that period; the scenario's own parameters override
+    them (a parallel master at h = Ts adds a sample to the rig's delay). Empty without one."""
     path = r.path("identification", base)
     if path is None:
         return {}
     try:
         model = read_identification(path)
         model.check_period(step_s)
+        values = model.fmu_start_values(method)
     except IdentificationFileError as exc:
         raise r.error("identification", str(exc)) from None
-    extra = sorted((set(model.box_lower) | set(model.box_upper)) - set(CONTROLLER_BOX))
-    if extra:
-        raise r.error("identification", f"{path}: its constraint region bounds {', '.join(extra)}; the controller FMU's "
-                                        f"C bounds only {', '.join(CONTROLLER_BOX)}")
-    return ({f"theta0.{n}": v for n, v in model.theta.items()}
-            | {f"box_lower.{n}": model.box_lower.get(n, -math.inf) for n in CONTROLLER_BOX}
-            | {f"box_upper.{n}": model.box_upper.get(n, math.inf) for n in CONTROLLER_BOX}
-            | ({"input_delay_samples": model.input_delay_samples} if model.input_delay_samples else {}))
+    del values["Ts"]
+    return values
 
 
 def _plant_file_parameters(r: _Reader, base: Path | None) -> dict[str, Any]:
@@ -374,7 +364,7 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     ctrl_r = top.sub("controller")
     ctrl_r.check_keys({"fmu", "parameters", "method", "identification"})
     method = ctrl_r.string("method", "ampc_servo", METHODS)
-    controller = FmuSpec(ctrl_r.path("fmu", base), {**_identification_parameters(ctrl_r, base, step),
+    controller = FmuSpec(ctrl_r.path("fmu", base), {**_identification_parameters(ctrl_r, base, step, method),
                                                     **_parameters(ctrl_r)}, ctrl_r.path("identification", base))
     for key in ("method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency"):
         if key in controller.parameters:

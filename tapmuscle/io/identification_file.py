@@ -21,7 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
+from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.rls import TABLE2_LOWER
 from fmu_controller.prediction import checked_input_delay
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
@@ -55,6 +57,42 @@ class IdentifiedModel:
     input_delay_samples: int = 0
     """The rig's transport delay [samples] it was identified under (``tapmuscle identify
     --input-delay-samples``): the controller's ``input_delay_samples`` it predicts for."""
+
+    def fmu_start_values(self, method: str = "ampc_servo") -> dict[str, float | int]:
+        """The AMPCController FMU's parameters that put this model in it, by FMU variable name.
+
+        ``Ts`` (the model's period), ``theta0.*``, for an adaptive method the box C on
+        ``a1, a2, b1`` (``box_lower.*``/``box_upper.*``, -inf/inf where this model has none: left unset,
+        the FMU keeps Table 2's, for Ts = 0.1 s in mm and V), and ``input_delay_samples`` where it was
+        identified under a transport delay (a parallel master at h = Ts adds one sample to it). Set them
+        before ``fmi2ExitInitializationMode``; in fmpy, ``simulate_fmu(..., start_values=
+        model.fmu_start_values(), output_interval=model.ts_s)``. A scenario's ``[controller]
+        identification`` sets the same (its ``step_s`` is ``Ts``).
+
+        Parameters
+        ----------
+        method : {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
+            The controller's method: a fixed one (MPC) takes no box.
+
+        Raises
+        ------
+        IdentificationFileError
+            An unknown method, or a box on other parameters than ``a1, a2, b1`` (the FMU's C bounds
+            only these).
+        """
+        if method not in METHODS:
+            raise IdentificationFileError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+        values: dict[str, float | int] = {"Ts": self.ts_s, **{f"theta0.{n}": v for n, v in self.theta.items()}}
+        if method.startswith("ampc"):
+            extra = sorted((set(self.box_lower) | set(self.box_upper)) - set(TABLE2_LOWER))
+            if extra:
+                raise IdentificationFileError(f"{self.path}: its constraint region bounds {', '.join(extra)}; the "
+                                              f"controller FMU's C bounds only {', '.join(TABLE2_LOWER)}")
+            values |= {f"box_lower.{n}": self.box_lower.get(n, -math.inf) for n in TABLE2_LOWER}
+            values |= {f"box_upper.{n}": self.box_upper.get(n, math.inf) for n in TABLE2_LOWER}
+        if self.input_delay_samples:
+            values["input_delay_samples"] = self.input_delay_samples
+        return values
 
     def check_period(self, ts_s: float) -> None:
         """Refuse a controller period ``ts_s`` [s] other than :attr:`ts_s`: Eq. (1) is a model of one
