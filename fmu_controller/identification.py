@@ -260,6 +260,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     l_scale, u_scale = decade_scale(l, 60.0), decade_scale(u, 6.0)
     f = theta_scale_factors(structure, l_scale, u_scale)
     notes: list[str] = []
+    table2 = False  # box="auto" took Table 2's
 
     if isinstance(box, str):
         if box != "auto":
@@ -267,6 +268,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         # Ts as exact as a recording's period can be told (tapmuscle.io.recording: 0.1 %)
         if l_scale == 1.0 and u_scale == 1.0 and abs(ts_s - PAPER_TS_S) <= 1e-3 * PAPER_TS_S:
             lower, upper = dict(TABLE2_LOWER), dict(TABLE2_UPPER)
+            table2 = True
         else:
             lower, upper = {}, {}
             paper_ts = abs(ts_s - PAPER_TS_S) <= 1e-3 * PAPER_TS_S
@@ -307,6 +309,14 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
                if duration < constraint_start_s else "the projection of Algorithm 1 did not bring it inside")
         notes.append(f"the final estimate lies outside the constraint region ({'; '.join(outside)}): {why}; a "
                      "controller refuses it as theta0 with this box")
+    elif table2:
+        # the paper's rig's box, taken for any record in mm and V at 0.1 s: said, with what it held
+        held = [f"{n} = {theta[idx[n]]:.4g} at its {'lower' if theta[idx[n]] <= lower[n] else 'upper'} bound"
+                for n in lower if theta[idx[n]] <= lower[n] or theta[idx[n]] >= upper[n]]
+        notes.append("constraint region: Table 2's box on " + ", ".join(lower) + " (the paper's rig at Ts = 0.1 s; "
+                     f"Algorithm 1 projected at {result.n_projections} samples)" + (f"; the final estimate has {', '.join(held)}"
+                                                                     if held else "")
+                     + "; for another rig, --box none (box=None) or its own box")
     history = result.theta_history * f
     return IdentificationReport(
         model=model, structure=structure, ts_s=float(ts_s), n_samples=len(l), theta=theta,

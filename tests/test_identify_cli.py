@@ -375,7 +375,8 @@ def test_a_record_shorter_than_the_constraint_start_says_its_estimate_lies_outsi
     """A 60-s record with the paper's constraint start (120 s) was never projected: its theta lay outside
     the box the file records, and only a scenario using the file refused it later ("theta0's a1 lies
     outside the constraint region C"). identify says so and how to mend it; with an earlier start the
-    estimate is inside and nothing is said."""
+    estimate is inside, and the note says only which box was taken (Table 2's, the paper's rig's) and how
+    often it projected; with an estimate on a bound, which one."""
     rec = tmp_path / "short.csv"
     assert main(["record", "--load", "44", "--input", SINE, "--duration", "60", "--out", str(rec), "--quiet"]) == 0
     assert main(["identify", str(rec), "--json", str(tmp_path / "a.json")]) == 0
@@ -386,8 +387,15 @@ def test_a_record_shorter_than_the_constraint_start_says_its_estimate_lies_outsi
     assert "note: the final estimate lies outside" in capsys.readouterr().err
     assert main(["identify", str(rec), "--constraint-start", "30", "--json", str(tmp_path / "b.json")]) == 0
     r = json.loads((tmp_path / "b.json").read_text())
-    assert r["notes"] == []
+    assert len(r["notes"]) == 1 and r["notes"][0].startswith("constraint region: Table 2's box on a1, a2, b1 (the "
+                                                              "paper's rig at Ts = 0.1 s; Algorithm 1 projected at "
+                                                              f"{r['constraint']['n_projections']} samples)")
+    assert r["notes"][0].endswith("for another rig, --box none (box=None) or its own box")
     assert all(TABLE2_LOWER[n] <= r["theta"][n] <= TABLE2_UPPER[n] for n in TABLE2_LOWER)
+    on_bound = [n for n in TABLE2_LOWER if r["theta"][n] in (TABLE2_LOWER[n], TABLE2_UPPER[n])]
+    assert all(f"{n} = {r['theta'][n]:.4g} at its" in r["notes"][0] for n in on_bound)
+    assert main(["identify", str(rec), "--box", "none", "--json", str(tmp_path / "c.json")]) == 0
+    assert json.loads((tmp_path / "c.json").read_text())["notes"] == []
 
 
 def test_a_validation_record_at_another_load_is_said(records, tmp_path, capsys):
