@@ -79,7 +79,7 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
             l_now, p_now = meas.l_mm, meas.p_mpa
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
-    note = plant.accuracy_note()
-    if note:
-        warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
+    for note in (plant.accuracy_note(), plant.light_load_note(float(np.min(out["load_n"])))):
+        if note:
+            warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
     return out

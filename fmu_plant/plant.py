@@ -456,6 +456,17 @@ class Plant:
                 "off (stiff parameters: a friction.presliding_mm far below 1 um, say); a smaller "
                 "solver.min_substep_s integrates it accurately (docs/plant.md, Integration)")
 
+    def light_load_note(self, load_n: float, name: str = "load_n") -> str | None:
+        """What a hanging load of ``load_n`` [N] below the braid lock (``muscle.braid_lock_force_n``)
+        means for the model, in one sentence naming the load ``name`` (None at or above the lock)."""
+        lock = self.params.muscle.braid_lock_force_n
+        if not load_n < lock:
+            return None
+        return (f"{name} = {load_n:g} N is below the braid lock's {lock:g} N (muscle.braid_lock_force_n): the model's "
+                "muscle contracts without pressure then (9.6 mm at 0 N, 2.1 mm at 20 N, from rest at 0 V), as no rig "
+                "at rest does; the lock was calibrated for the paper's 44 and 68 N: for a lighter load set "
+                "muscle.braid_lock_force_n below it (docs/plant.md)")
+
     # ------------------------------------------------------------------ outputs
     #: The latest sensor readings (from :meth:`reset` or :meth:`step`).
     measurement: Measurement

@@ -176,11 +176,7 @@ class MusclePlant(SafeSlave):
         self.l, self.p = m.l_mm, m.p_mpa
         if load < self._lock_n and not self._light_said:  # once: the unpowered muscle then contracts by itself
             self._light_said = True
-            self.log(f"t = {t_s:g} s: load_force = {load:g} N is below the braid lock's {self._lock_n:g} N "
-                     "(muscle.braid_lock_force_n): the model's muscle contracts without pressure then (9.6 mm at 0 N, "
-                     "2.1 mm at 20 N, from rest at 0 V), as no rig at rest does; the lock was calibrated for the "
-                     "paper's 44 and 68 N: for a lighter load set muscle.braid_lock_force_n below it "
-                     "(docs/plant.md)", status=Fmi2Status.warning)
+            self.log(f"t = {t_s:g} s: {plant.light_load_note(load, 'load_force')}", status=Fmi2Status.warning)
         if not self._inaccurate_said and plant.forced_substeps:  # once: outputs that look fine may be far off
             self._inaccurate_said = True
             self.log(f"t = {t_s + dt_s:g} s: {plant.accuracy_note()}", status=Fmi2Status.warning)

@@ -214,7 +214,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
             progress(k + 1, n)
     for i, name in enumerate(names):
         cols[f"theta_{name}"] = theta_hist[:, i]
-    note = plant.accuracy_note()
-    if note:
-        warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
+    for note in (plant.accuracy_note(), plant.light_load_note(float(np.min(cols["load_n"])))):
+        if note:
+            warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
     return cols

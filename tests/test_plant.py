@@ -309,3 +309,26 @@ def test_with_values_takes_numpy_scalars_as_the_numbers_they_hold():
     assert (p.load.load_n, p.valve.cv_max, p.friction.base_n) == (68, 1.25, 7.5)
     assert type(p.load.load_n) is int and type(p.valve.cv_max) is float
     assert p == PlantParams().with_values(**{"load.load_n": 68, "valve.cv_max": 1.25, "friction.base_n": 7.5})
+
+
+def test_a_load_below_the_braid_lock_is_warned_by_the_direct_runs_as_by_the_plant_fmu():
+    """The plant FMU said that a load under muscle.braid_lock_force_n makes the model's muscle contract
+    by itself; `tapmuscle record --load 25` and tm.simulate said nothing. Every direct run now warns once
+    at its end, naming the lightest load, and not at the paper's loads or with a lock set below the load."""
+    import warnings
+
+    import tapmuscle as tm
+
+    def said(**kwargs):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            run = kwargs.pop("run")(**kwargs)
+        return [str(w.message) for w in caught if "braid lock" in str(w.message)], run
+
+    light, _ = said(run=tm.simulate, command="step", duration_s=2.0, load_n=25.0)
+    assert len(light) == 1 and light[0].startswith("Load_n = 25 N is below the braid lock's 40 N"), light
+    closed, _ = said(run=tm.simulate_closed_loop, duration_s=2.0, load_n=lambda t: 44.0 if t < 1.0 else 30.0)
+    assert len(closed) == 1 and "30 N is below the braid lock's 40 N" in closed[0]
+    assert said(run=tm.simulate, command="step", duration_s=1.0, load_n=44.0)[0] == []
+    unlocked = PlantParams().with_values(**{"muscle.braid_lock_force_n": 20.0})
+    assert said(run=tm.simulate, command="step", duration_s=1.0, load_n=25.0, params=unlocked)[0] == []
