@@ -473,7 +473,11 @@ class AMPCController(SafeSlave):
                       "recording)")
         else:
             shown = _samples(d)
-            advice = f"set input_delay_samples = {d}" + (", or -1 to decide it" if d <= AUTO_INPUT_DELAY_SAMPLES else "")
+            # -1 first: it decides from the start-up's probe, where a loop run under a wrong delay scores
+            # neighbouring delays alike (a 3-sample rig with 0 set: 2 and 3 within 0.3 % of each other)
+            advice = (f"set input_delay_samples = -1 to decide it from the start, or {d} (scores from a loop run "
+                      f"under a wrong delay can be a sample off)" if d <= AUTO_INPUT_DELAY_SAMPLES
+                      else f"set input_delay_samples = {d}")
         self.log(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
                  f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
                  f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")",
