@@ -296,6 +296,31 @@ def test_interrupted_sweep_resumes_without_recomputing(built_fmus, tmp_path):
     _same_results(final, _rows(full))
 
 
+def test_an_output_folder_removed_mid_sweep_is_written_again_whole(built_fmus, tmp_path):
+    """The folder removed while the runs went on (an over-eager clean-up): the sweep ended in a KeyError
+    traceback, status 1, no summary, the results of the runs before the removal lost. It now writes the
+    whole results.csv again from the rows it read and wrote, and the summary, as an undisturbed sweep."""
+    import shutil
+
+    sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
+    full = tmp_path / "full"
+    run_sweep(sweep, full, built_fmus, run_serial, plots=False)
+    out = tmp_path / "out"
+    run_sweep(parse_sweep(tomllib.loads(SMALL_SWEEP.replace("seed = [0, 1]", "seed = [0]")), source="s.toml"),
+              out, built_fmus, run_serial, plots=False)  # two runs done before
+
+    def removing(tasks, files):
+        for i, result in enumerate(run_serial(tasks, files)):
+            if i == 1:
+                shutil.rmtree(out)
+            yield result
+
+    report = run_sweep(sweep, out, built_fmus, removing, plots=False)
+    assert (report.skipped, report.ran, report.failed) == (2, 2, 0)
+    assert (out / "summary.md").is_file()
+    _same_results(_rows(out), _rows(full))
+
+
 def test_results_of_another_sweep_are_refused(built_fmus, tmp_path):
     out = tmp_path / "out"
     other = parse_sweep({"base": dict(SHORT), "grid": {"load.initial_n": [44.0]}}, source="other.toml")

@@ -107,6 +107,10 @@ class ResultsLog:
         """run_id -> its last row."""
         return {row["run_id"]: row for row in self.rows()}
 
+    def cells(self, row: Mapping[str, Any]) -> dict[str, str]:
+        """``row`` as :meth:`rows` reads it back: every column, as its text."""
+        return {c: _cell(row.get(c)) for c in self.columns}
+
     def append(self, row: Mapping[str, Any]) -> None:
         """Append one row (the header first if the file is new), flushed to disk."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -117,7 +121,7 @@ class ResultsLog:
             writer = csv.writer(fh, lineterminator="\n")
             if new:
                 writer.writerow(self.columns)
-            writer.writerow([_cell(row.get(c)) for c in self.columns])
+            writer.writerow(self.cells(row).values())
             fh.flush()
             os.fsync(fh.fileno())
 
@@ -224,13 +228,15 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
         progress(done, total, f"{skipped} already done, {len(todo)} to run")
     warned: list[tuple[str, str]] = []
     for result in execute(todo, files):
-        log.append(_row(by_id[result.run_id], tasks[result.run_id], result))
+        row = _row(by_id[result.run_id], tasks[result.run_id], result)
+        log.append(row)
+        latest[result.run_id] = log.cells(row)
         warned += [(result.run_id, text) for text in result.fmu_warnings]
         done += 1
         failed += result.status != "ok"
         if progress is not None:
             progress(done, total, f"{done - skipped - failed} ok, {failed} failed, {total - done} remaining")
-    final, other = _compact(log, sweep)
+    final, other = _compact(log, sweep, latest)
     report = SweepReport(total=total, skipped=skipped, ran=done - skipped,
                          failed=sum(r["status"] != "ok" for r in final),
                          violated=sum(r["expect"].startswith("fail") for r in final), rows=tuple(final),
@@ -239,10 +245,11 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     return report
 
 
-def _compact(log: ResultsLog, sweep: Sweep) -> tuple[list[dict[str, str]], int]:
+def _compact(log: ResultsLog, sweep: Sweep, held: Mapping[str, Mapping[str, Any]]) -> tuple[list[dict[str, str]], int]:
     """Rewrite the log with one row per run (expectations re-checked); the sweep's rows in its order,
-    and how many rows of other runs follow them."""
-    latest = log.latest()
+    and how many rows of other runs follow them. ``held``: the rows this sweep read at its start and
+    wrote since, which keep a run whose row the file lost meanwhile (its folder removed mid-sweep)."""
+    latest = {**held, **log.latest()}
     final = []
     for run in sweep.runs:
         row = dict(latest[run.run_id])
