@@ -72,6 +72,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     # errors
     "TapmuscleError": ("tapmuscle.errors", "TapmuscleError"),
     "UsageError": ("tapmuscle.errors", "UsageError"),
+    "ClusterError": ("tapmuscle.cosim.distributed_sweep", "ClusterError"),
 }
 
 __all__ = sorted(_EXPORTS)

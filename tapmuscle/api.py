@@ -306,7 +306,10 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
     ScenarioError
         A bad sweep file or parameter (named), or ``out`` holding another sweep's results.
     ClusterError
-        ``client``'s workers cannot run tapmuscle (each named, with what it lacks).
+        ``client``'s workers cannot run tapmuscle (each named, with what it lacks), a local cluster's
+        processes did not start (a script calling this outside ``if __name__ == "__main__":``), or the
+        cluster was lost mid-sweep (its scheduler, or every worker for a minute): the finished runs
+        are kept in ``results.csv``, and calling again goes on.
     """
     from contextlib import ExitStack
 

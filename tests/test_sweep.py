@@ -594,3 +594,16 @@ def test_a_file_named_in_the_grid_is_relative_to_the_sweep_file(tmp_path, monkey
     sweep.write_text(sweep.read_text().replace('["id.json"]', '["../scen/id.json", "nothing.json"]'))
     with pytest.raises(ScenarioError, match=r"sweeps/nothing.json"):
         load_sweep(sweep)
+
+
+@pytest.mark.parametrize("command", ["sweep", "check"])
+def test_cluster_options_that_exclude_each_other_are_refused(tmp_path, capsys, command):
+    """--workers N beside --scheduler, and --timeout without it, were silently ignored."""
+    target = _write(tmp_path, SMALL_SWEEP) if command == "sweep" else tmp_path
+    out = ["--out", str(tmp_path / "o")] if command == "sweep" else []
+    for extra, said in ((["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"],
+                         "--workers 2 and --scheduler exclude each other"),
+                        (["--timeout", "5"], "--timeout 5 is for --scheduler")):
+        assert main([command, str(target), *out, *extra]) == 2
+        assert said in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -3,6 +3,7 @@
 import csv
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -280,3 +281,90 @@ def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_
     for row, here in zip(report.rows, local.rows):
         assert row["run_id"] == here["run_id"] and row["mae_mm"] == here["mae_mm"]
         assert int(row["worker"].rsplit(":", 1)[1]) == worker_pid
+
+
+def _cluster_processes(tmp, workers=1):
+    """A `dask scheduler` and ``workers`` `dask worker` processes without a nanny (a killed worker stays
+    dead): ``(address, [scheduler, worker...])``."""
+    scheduler_file = tmp / "scheduler.json"
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0",
+                               "--no-dashboard", "--scheduler-file", str(scheduler_file)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    deadline = time.monotonic() + 60
+    while not scheduler_file.is_file() or not scheduler_file.read_text().strip():
+        assert time.monotonic() < deadline and procs[0].poll() is None, "the dask scheduler did not start"
+        time.sleep(0.1)
+    time.sleep(0.2)
+    address = json.loads(scheduler_file.read_text())["address"]
+    for i in range(workers):
+        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--no-nanny",
+                                       "--no-dashboard", "--local-directory", str(tmp / f"w{i}")],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    return address, procs
+
+
+@pytest.mark.parametrize("lost", ["scheduler", "workers"])
+def test_a_cluster_lost_mid_sweep_stops_it_in_one_line_keeping_the_finished_runs(built_fmus, tmp_path, lost):
+    """The scheduler killed mid-sweep recorded every unfinished run as failed, with 40 lines of the
+    client's tracebacks; every worker killed left the sweep waiting for ever ("still running"). Both now
+    end the command with one line and status 3 (CLUSTER_LOST), the runs finished before kept, none
+    recorded as failed; a rerun on a cluster again runs only the others."""
+    import signal
+
+    from tapmuscle.cli.sweep import CLUSTER_LOST
+
+    sweep = tmp_path / "long.toml"
+    sweep.write_text('name = "long"\nbase = { duration_s = 300.0 }\ngrid = { seed = [0, 1, 2, 3, 4, 5] }\n')
+    out = tmp_path / "o"
+    address, procs = _cluster_processes(tmp_path)
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    try:
+        cmd = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--scheduler", address,
+                                "--timeout", "3", "--out", str(out), "--fmu-dir", fmu_dir, "--quiet", "--no-plots"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 120
+        while not (out / "results.csv").is_file():  # a run finished
+            assert cmd.poll() is None and time.monotonic() < deadline, cmd.communicate()
+            time.sleep(0.1)
+        (procs[0] if lost == "scheduler" else procs[1]).send_signal(signal.SIGKILL)
+        _, err = cmd.communicate(timeout=120)
+    finally:
+        for proc in procs:
+            _stop(proc)
+    assert cmd.returncode == CLUSTER_LOST, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("tapmuscle sweep: the cluster was lost: "), err
+    assert ("lost the connection to the scheduler" if lost == "scheduler"
+            else "no worker has been connected to the scheduler") in lines[0]
+    assert "rerun the same command to go on" in lines[0]
+    rows = _rows(out / "results.csv")
+    assert rows and all(r["status"] == "ok" for r in rows.values()) and len(rows) < 6
+    assert re.search(rf"\b{len(rows)} runs? finished here, kept; the {6 - len(rows)} others are not recorded as "
+                     "failed", lines[0]), lines[0]
+
+
+def test_a_script_that_sweeps_on_workers_without_the_main_guard_is_told_so(built_fmus, tmp_path):
+    """tm.sweep(workers=2) at a script's top level: each spawned worker imports the script again and
+    would start a cluster of its own; that printed about 500 lines of the nannies' tracebacks. Each
+    worker now ends with one line naming the script and the guard, and the script gets a ClusterError;
+    the same script under ``if __name__ == "__main__":`` runs."""
+    (tmp_path / "s.toml").write_text('name = "s"\nbase = { duration_s = 5.0, evaluation_samples = [10, 50] }\n'
+                                     'grid = { seed = [0, 1] }\n')
+    folder = built_fmus["MusclePlant"].parent
+    call = (f'tm.sweep("s.toml", "out", workers=2, plots=False, fmus={{"MusclePlant": r"{folder}/MusclePlant.fmu", '
+            f'"AMPCController": r"{folder}/AMPCController.fmu"}})')
+    for guarded in (False, True):
+        script = tmp_path / "run.py"
+        body = f"r = {call}\nprint('done', r.total, r.failed)\n"
+        script.write_text("import tapmuscle as tm\n" + (body if not guarded else
+                                                         "if __name__ == '__main__':\n" + "".join(
+                                                             f"    {line}\n" for line in body.splitlines())))
+        proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        if guarded:
+            assert proc.returncode == 0 and "done 2 0" in proc.stdout, proc.stderr
+            continue
+        assert proc.returncode == 1 and len(proc.stderr.splitlines()) < 40, proc.stderr
+        assert f"tapmuscle: workers=2 starts worker processes, and each imports {script} again" in proc.stderr
+        assert 'put it under if __name__ == "__main__":' in proc.stderr
+        assert proc.stderr.rstrip().endswith("worker processes did not start (Nanny failed to start.); their message "
+                                             "is above"), proc.stderr[-500:]

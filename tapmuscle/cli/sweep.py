@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from contextlib import ExitStack
@@ -27,6 +28,24 @@ def _fmus(fmu_dir: str | None) -> dict[str, Path]:
     if missing:
         raise UsageError(f"--fmu-dir {fmu_dir}: {', '.join(missing)} missing (tapmuscle build --out DIR)")
     return fmus
+
+
+#: Exit status of ``sweep`` and ``check`` when the cluster was lost mid-way (the scheduler's connection,
+#: or every worker for ``--timeout`` seconds): the finished runs kept, a rerun goes on.
+CLUSTER_LOST = 3
+
+
+def _cluster_options(args: argparse.Namespace, default_workers: int) -> None:
+    """``--workers``, ``--scheduler`` and ``--timeout`` as one choice of where to run: a local cluster
+    (``--workers``, default ``default_workers``) or the cluster of ``--scheduler`` (``--timeout``)."""
+    if args.scheduler and args.workers is not None:
+        raise UsageError(f"--workers {args.workers} and --scheduler exclude each other: --workers starts a local "
+                         "cluster (or, 0, runs in this process), --scheduler runs on the cluster at its address")
+    if args.timeout is not None and not args.scheduler:
+        raise UsageError(f"--timeout {args.timeout:g} is for --scheduler (the wait for the scheduler and its workers); "
+                         "a local cluster is started and waited for without one")
+    args.timeout = 60.0 if args.timeout is None else args.timeout
+    args.workers = default_workers if args.workers is None else args.workers
 
 
 def _local_workers(args: argparse.Namespace, n_runs: int) -> None:
@@ -54,6 +73,12 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
         raise UsageError("needs dask.distributed: pip install 'tapmuscle[dist]' (or run in this process with "
                          "--workers 0)") from None
     where = f"--scheduler {args.scheduler}" if args.scheduler else f"local cluster of {args.workers} workers"
+    if args.scheduler:
+        # a lost connection is said in one line (ClusterError), not as the client's log of tracebacks,
+        # also while the client closes (restored after it: the stack unwinds in reverse)
+        client_log = logging.getLogger("distributed.client")
+        stack.callback(client_log.setLevel, client_log.level)
+        client_log.setLevel(logging.CRITICAL)
     try:
         client = stack.enter_context(dask_client(args.workers, args.scheduler, wait_s=args.timeout))
     except ClusterError as exc:  # what is wrong, said
@@ -63,13 +88,14 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     if not args.quiet:
         workers = len(client.scheduler_info().get("workers", {}))
         print(f"Dask: {workers} workers at {client.scheduler.address}", file=sys.stderr)
-    return DaskExecutor(client)
+    return DaskExecutor(client, no_worker_s=args.timeout)
 
 
 # ------------------------------------------------------------------------------------------ sweep
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from tapmuscle.cosim import ScenarioError
     from tapmuscle.cosim.sweep import load_sweep
+    from tapmuscle.cosim.distributed_sweep import ClusterError
     from tapmuscle.cosim.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
 
     from tapmuscle.cli.progress import Progress
@@ -78,8 +104,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         sweep = load_sweep(args.sweep)
     except ScenarioError as exc:
         raise UsageError(str(exc)) from None
-    if args.workers is None:
-        args.workers = os.cpu_count() or 1
+    _cluster_options(args, os.cpu_count() or 1)
     _local_workers(args, len(sweep.runs))
     fmus = _fmus(args.fmu_dir)
     out = Path(args.out)
@@ -93,6 +118,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                                progress=Progress("sweep", enabled=not args.quiet, min_total=1))
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
+        except ClusterError as exc:
+            print(f"tapmuscle sweep: the cluster was lost: {exc}", file=sys.stderr)
+            return CLUSTER_LOST
         except KeyboardInterrupt:
             done = (out / "results.csv").is_file()
             print(f"\ninterrupted: {f'finished runs are in {out}/results.csv' if done else 'no run had finished'}; "
@@ -120,11 +148,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_check(args: argparse.Namespace) -> int:
     from tapmuscle.cosim import ScenarioError
     from tapmuscle.cosim.check import CollectionError, collect_cases, evaluate, junit_xml, result_table
-    from tapmuscle.cosim.distributed_sweep import FmuFiles, make_task
+    from tapmuscle.cosim.distributed_sweep import ClusterError, FmuFiles, make_task
 
     from tapmuscle.cli.progress import Progress
     from tapmuscle.io.recording import atomic_write_text
 
+    _cluster_options(args, 0)
     # As pytest does with a collection error: nothing runs, every bad file is named, and the JUnit
     # report says so too (a CI's test view is where the failure is looked for).
     errors: list[CollectionError] = []
@@ -167,6 +196,9 @@ def _cmd_check(args: argparse.Namespace) -> int:
                 runs[int(run.run_id)] = run
                 failed += run.status != "ok"
                 progress(len(runs), len(tasks), f"{failed} failed, {len(tasks) - len(runs)} remaining")
+        except ClusterError as exc:
+            print(f"tapmuscle check: the cluster was lost: {exc}; no report written", file=sys.stderr)
+            return CLUSTER_LOST
         except KeyboardInterrupt:
             print("\ninterrupted: no report written", file=sys.stderr)
             return 130
@@ -222,14 +254,15 @@ def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> 
 
 # ------------------------------------------------------------------------------------------ parser
 def _common(p: argparse.ArgumentParser, default_workers: str) -> None:
-    p.add_argument("--workers", type=integer_at_least("--workers", 0, 4096), default=None if default_workers == "cpus" else 0,
+    p.add_argument("--workers", type=integer_at_least("--workers", 0, 4096), default=None,
                    help="worker processes of a local Dask cluster (default: "
                         + ("the number of CPUs" if default_workers == "cpus" else "0")
                         + "); 0 runs everything in this process, without Dask")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                    help="run on the Dask cluster of this scheduler instead of a local one (docs/sweeps.md)")
-    p.add_argument("--timeout", type=number_within("--timeout", 1e-3, 86400.0), default=60.0, metavar="S",
-                   help="with --scheduler: seconds to wait for the scheduler and its first worker (default 60)")
+    p.add_argument("--timeout", type=number_within("--timeout", 1e-3, 86400.0), default=None, metavar="S",
+                   help="with --scheduler: seconds to wait for the scheduler and its first worker, and for a worker "
+                        "when none is left mid-sweep (default 60)")
     p.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
                                      "(default: built from the sources, cached)")
     p.add_argument("--quiet", action="store_true", help="no progress output")

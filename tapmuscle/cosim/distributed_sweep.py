@@ -24,6 +24,7 @@ from __future__ import annotations
 import getpass
 import hashlib
 import logging
+import math
 import os
 import signal
 import socket
@@ -40,6 +41,7 @@ from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.io.atomic import atomic_path
 from tapmuscle.cosim.master import InstancePool, check_parameters, co_simulate
 from tapmuscle.cosim.spec import FmuSpec, Scenario
+from tapmuscle.cosim.worker_start import check_workers_can_start
 
 __all__ = ["RunTask", "RunResult", "FmuFiles", "make_task", "execute_run", "run_serial", "DaskExecutor",
            "ClusterError", "check_workers", "dask_client", "probe_scheduler"]
@@ -212,12 +214,15 @@ class DaskExecutor:
 
     The FMU files go to the cluster once, as the input of a task the runs depend on (module
     docstring); one Dask task per run (``client.map``). A task whose worker died (``KilledWorker``
-    after Dask's retries) or that was cancelled is a ``failed`` result. Leaving the iteration early
-    cancels the tasks not yet finished.
+    after Dask's retries) or that was cancelled is a ``failed`` result. A cluster lost mid-sweep is
+    not a run's failure: the scheduler's connection lost, or no worker connected for ``no_worker_s``
+    seconds (every worker stopped, none restarted), raises :class:`ClusterError`, after the results
+    yielded so far. Leaving the iteration early cancels the tasks not yet finished.
     """
 
-    def __init__(self, client: Any) -> None:
+    def __init__(self, client: Any, *, no_worker_s: float = 60.0) -> None:
         self.client = client
+        self.no_worker_s = no_worker_s
 
     def ship(self, files: FmuFiles, tag: str) -> Any:
         """The future of ``files`` on the cluster, what :func:`_worker_run` takes (module docstring)."""
@@ -235,19 +240,62 @@ class DaskExecutor:
         submitted = self.client.map(_worker_run, tasks, [shipped] * len(tasks), pure=False,
                                     key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in tasks])
         futures = dict(zip(submitted, tasks))
+        watch = _ClusterWatch(self.client, self.no_worker_s, len(tasks))
         try:
             # results gathered in batches by the event loop; errors returned, not raised
-            for future, value in as_completed(submitted, with_results=True, raise_errors=False):
-                task = futures.pop(future)
-                if future.status == "finished":
-                    result = value
-                else:  # worker died (KilledWorker), cancelled: recorded as failed
-                    result = RunResult(task.run_id, "failed", error=_error_text(value))
-                future.release()
-                yield result
+            pending = as_completed(submitted, with_results=True, raise_errors=False)
+            while not pending.is_empty():
+                batch = pending.next_batch(block=False)
+                if not batch:
+                    watch.check(len(futures))  # nothing finished: is there still a cluster to finish it?
+                    time.sleep(0.05)
+                    continue
+                for future, value in batch:
+                    task = futures.pop(future)
+                    if future.status == "finished":
+                        result = value
+                    else:  # worker died (KilledWorker), cancelled: recorded as failed
+                        watch.check(len(futures) + 1, at_once=True)  # unless the scheduler is gone
+                        result = RunResult(task.run_id, "failed", error=_error_text(value))
+                    future.release()
+                    yield result
         finally:
             self.client.cancel(list(futures))
             shipped.release()
+
+
+class _ClusterWatch:
+    """Whether a client still has a cluster to run on: its scheduler connected and, within
+    ``no_worker_s`` seconds of the last one leaving, a worker (asked at most once a second)."""
+
+    def __init__(self, client: Any, no_worker_s: float, n_tasks: int) -> None:
+        self.client, self.no_worker_s, self.n_tasks = client, no_worker_s, n_tasks
+        self._asked, self._alone_since = -math.inf, None
+
+    def check(self, unfinished: int, *, at_once: bool = False) -> None:
+        """Raise :class:`ClusterError` if the cluster is gone (``unfinished``: runs without a result)."""
+        done = self.n_tasks - unfinished
+        kept = (f"{done} run{'s' if done != 1 else ''} finished here, kept; the {unfinished} others are not "
+                "recorded as failed")
+        if self.client.status != "running":
+            raise ClusterError(f"lost the connection to the scheduler {self.client.scheduler.address} ({kept}): "
+                               "start it and its workers again, and rerun the same command to go on")
+        now = time.monotonic()
+        if not at_once and now - self._asked < 1.0:
+            return
+        self._asked = now
+        try:
+            workers = len(self.client.scheduler_info().get("workers", {}))
+        except Exception:  # noqa: BLE001 - the connection went while asking: said at the next check
+            return
+        if workers:
+            self._alone_since = None
+            return
+        self._alone_since = self._alone_since or now
+        if now - self._alone_since >= self.no_worker_s:
+            raise ClusterError(f"no worker has been connected to the scheduler {self.client.scheduler.address} for "
+                               f"{self.no_worker_s:g} s ({kept}): start workers (dask worker "
+                               f"{self.client.scheduler.address}) and rerun the same command to go on")
 
 
 class ClusterError(OSError):
@@ -358,11 +406,16 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         finally:
             client.close()
         return
+    check_workers_can_start(f"workers={workers}")  # the nannies spawn the worker processes
     # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms)
     with dask.config.set({"distributed.worker.profile.enabled": False}):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
-                               silence_logs=logging.ERROR)
+        try:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
+                                   silence_logs=logging.ERROR)
+        except RuntimeError as exc:  # "Nanny failed to start": the processes said why, on stderr
+            raise ClusterError(f"the local cluster's {workers} worker processes did not start ({exc}); their "
+                               "message is above") from None
     try:
         client = Client(cluster)
         try:

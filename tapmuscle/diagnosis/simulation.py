@@ -10,10 +10,7 @@ load when the recording has a ``load_n`` column.
 
 from __future__ import annotations
 
-import multiprocessing
-import os
 import signal
-import sys
 from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -23,10 +20,9 @@ import numpy as np
 
 from fmu_plant import Plant, PlantParams
 
-from tapmuscle.errors import UsageError
+from tapmuscle.cosim.worker_start import spawn_context
 
-__all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "process_pool",
-           "spawn_context"]
+__all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "process_pool"]
 
 #: Recording time between the checkpoints a baseline run keeps [s]: a window fit continues from the
 #: last one before its window, so it simulates at most this much more than the window.
@@ -159,7 +155,7 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
 
 @contextmanager
 def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
-    """``workers`` spawned processes (:func:`spawn_context`) that leave an interrupt to this one.
+    """``workers`` spawned processes (:func:`~tapmuscle.cosim.worker_start.spawn_context`) that leave an interrupt to this one.
 
     On an interrupt or any other exception in the ``with`` block, the work not started is cancelled
     and the processes are stopped at once. A terminal's Ctrl-C and Jupyter's interrupt reach every
@@ -196,30 +192,6 @@ def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
 def _leave_interrupts_to_parent() -> None:
     """A worker ignores SIGINT: the parent stops it (:func:`process_pool`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def spawn_context(what: str) -> multiprocessing.context.SpawnContext:
-    """The ``spawn`` multiprocessing context, refused with a clear error where it cannot start.
-
-    A spawned process re-imports the parent's ``__main__`` from its file. A script read from stdin
-    (``python - < script.py``) has the file name ``<stdin>``, and every process would die at start
-    with a bare ``BrokenProcessPool``; a notebook or ``python -c`` has no file and is fine.
-
-    Parameters
-    ----------
-    what : str
-        The setting that asked for processes, named in the error (``"workers=2"``).
-
-    Raises
-    ------
-    tapmuscle.errors.UsageError
-        The main module names a file that does not exist.
-    """
-    path = getattr(sys.modules.get("__main__"), "__file__", None)
-    if path is not None and not os.path.exists(path):
-        raise UsageError(f"{what} starts worker processes, which re-import the main script {path!r}, and that is "
-                         "not a file; run the script from a file, or with 1 worker")
-    return multiprocessing.get_context("spawn")
 
 
 def _run_copy(sim: Simulator, params: PlantParams, stop: int | None, pressure: bool = False) -> Any:
