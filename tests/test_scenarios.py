@@ -250,6 +250,8 @@ def test_external_step_reference_is_tracked(built_fmus):
      "load.steps[1].t_s", "must be later"),
     ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [10]\n", "reference.times_s",
      "has 2 entries"),
+    ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [20, 5000]\n", "reference.values_mm",
+     "holds 5000, outside [-400, 400] mm"),
     ("duration_s = 10.0\n[plant]\nparameters = { 'friction.rate_gain' = true }\n",
      "plant.parameters.friction.rate_gain", "must be a number"),
     ("duration_s = 10.0\n[plant]\nparameters = { 'load.load_n' = 68 }\n", "plant.parameters.load.load_n",

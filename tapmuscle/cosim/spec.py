@@ -32,7 +32,8 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     amplitude_mm = 30.0
     frequency_hz = 0.1
     # kind = "steps": values_mm = [20, 50], times_s = [0, 15], preview = "advanced" | "held"
-    # (fed through the input r; "advanced" feeds r(t + Hp Ts), giving the exact preview)
+    # (fed through the input r; "advanced" feeds r(t + Hp Ts), giving the exact preview; the values
+    # within -400..400 mm, as the sine's offset and amplitude)
 
     [load]
     initial_n = 44.0
@@ -387,6 +388,10 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
             if not isinstance(seq, list) or not seq or not all(
                     isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in seq):
                 raise ref_r.error(key, f"must be a non-empty array of numbers, got {seq!r}")
+        far = [v for v in values if not -400.0 <= v <= 400.0]
+        if far:  # as the sine's offset and amplitude: a unit mistake
+            raise ref_r.error("values_mm", f"holds {far[0]!r}, outside [-400, 400] mm (the muscle contracts at most "
+                                           "150 mm of its 400: a value far beyond is in another unit)")
         if len(values) != len(times):
             raise ref_r.error("times_s", f"has {len(times)} entries, values_mm has {len(values)}")
         if times[0] != 0 or any(b <= a for a, b in zip(times, times[1:])):
