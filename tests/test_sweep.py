@@ -607,3 +607,38 @@ def test_cluster_options_that_exclude_each_other_are_refused(tmp_path, capsys, c
         assert main([command, str(target), *out, *extra]) == 2
         assert said in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_full_disk_while_appending_a_row_names_the_results_file(tmp_path, monkeypatch):
+    """A write refused for space said only "[Errno 28] No space left on device"; it now names
+    results.csv and what to do, and the row cut short is dropped at the next append (a rerun)."""
+    import errno
+
+    import tapmuscle.cosim.sweep_run as sweep_run
+
+    log = ResultsLog(tmp_path / "results.csv", ["run_id", "status"])
+    log.append({"run_id": "a", "status": "ok"})
+
+    class Full:
+        def __init__(self, fh):
+            self.fh = fh
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+        def write(self, text):
+            self.fh.write(text[:3])  # part of the row reaches the disk
+            self.fh.flush()
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(sweep_run, "open", lambda path, mode, **k: Full(open(path, mode, **k)) if mode == "a"
+                        else open(path, mode, **k), raising=False)
+    with pytest.raises(OSError, match=r"No space left on device, appending a run's row \(that run is not kept: free "
+                                      r"space and rerun the same command to go on\): .*results.csv'"):
+        log.append({"run_id": "b", "status": "ok"})
+    monkeypatch.undo()
+    log.append({"run_id": "c", "status": "ok"})
+    assert [r["run_id"] for r in log.rows()] == ["a", "c"]

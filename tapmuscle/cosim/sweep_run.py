@@ -113,17 +113,24 @@ class ResultsLog:
 
     def append(self, row: Mapping[str, Any]) -> None:
         """Append one row (the header first if the file is new), flushed to disk."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        new = not self.path.is_file() or self.path.stat().st_size == 0
-        if not new:
-            self._drop_partial_line()
-        with open(self.path, "a", encoding="utf-8", newline="") as fh:
-            writer = csv.writer(fh, lineterminator="\n")
-            if new:
-                writer.writerow(self.columns)
-            writer.writerow(self.cells(row).values())
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            new = not self.path.is_file() or self.path.stat().st_size == 0
+            if not new:
+                self._drop_partial_line()
+            with open(self.path, "a", encoding="utf-8", newline="") as fh:
+                writer = csv.writer(fh, lineterminator="\n")
+                if new:
+                    writer.writerow(self.columns)
+                writer.writerow(self.cells(row).values())
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as exc:  # a full disk says only "No space left on device": the file is named
+            if exc.filename is not None:
+                raise
+            raise type(exc)(exc.errno, f"{exc.strerror}, appending a run's row (that run is not kept: free space and rerun the "
+                            "same command to go on)",
+                            str(self.path)) from None
 
     def _drop_partial_line(self) -> None:
         with open(self.path, "rb+") as fh:
