@@ -171,6 +171,8 @@ def test_an_empty_output_path_is_refused_in_one_line(capsys, argv):
     # a folder no one may write into (another process's: also for root), found before the runs
     (["check", "s.toml", "--junit", "/proc/1/report.xml"], "--junit /proc/1/report.xml: the folder /proc/1 cannot be "
      "written"),
+    # an existing output folder that cannot take files is named itself, not its parent
+    (["sweep", "s.toml", "--out", "/proc/1"], "--out /proc/1: the folder /proc/1 cannot be written"),
 ])
 def test_an_output_path_of_the_wrong_kind_is_refused_before_any_work(tmp_path, monkeypatch, capsys, argv, said):
     monkeypatch.chdir(tmp_path)

@@ -57,7 +57,8 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
             raise argparse.ArgumentTypeError(f"{name} {text}: a folder, not a file to write")
         if kind == "folder" and path.exists() and not path.is_dir():
             raise argparse.ArgumentTypeError(f"{name} {text}: a file, not a folder to write into")
-        for parent in path.parents:
+        # an existing folder to write into is the one that must take files, not its parent
+        for parent in ([path] if kind == "folder" and path.is_dir() else []) + list(path.parents):
             if parent.exists():
                 if not parent.is_dir():
                     raise argparse.ArgumentTypeError(f"{name} {text}: {parent} is a file, not a folder")
