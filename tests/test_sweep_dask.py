@@ -368,3 +368,20 @@ def test_a_script_that_sweeps_on_workers_without_the_main_guard_is_told_so(built
         assert 'put it under if __name__ == "__main__":' in proc.stderr
         assert proc.stderr.rstrip().endswith("worker processes did not start (Nanny failed to start.); their message "
                                              "is above"), proc.stderr[-500:]
+
+
+def test_a_scheduler_without_workers_is_said_in_the_commands_words(built_fmus, tmp_path, capsys):
+    """A scheduler that gets no worker within --timeout: Dask's "Only 0/1 workers arrived after 2" is
+    said as tm.sweep(client=...) says it, with the command that starts one."""
+    address, procs = _cluster_processes(tmp_path, workers=0)
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(SWEEP)
+    try:
+        assert main(["sweep", str(sweep), "--scheduler", address, "--timeout", "2", "--out", str(tmp_path / "o"),
+                     "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet"]) == 2
+    finally:
+        for proc in procs:
+            _stop(proc)
+    err = capsys.readouterr().err
+    assert f"the cluster has no worker after 2 s: start one (dask worker {address} --nthreads 1)" in err, err
+    assert "Only 0/1" not in err and not (tmp_path / "o").exists()

@@ -400,7 +400,11 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         probe_scheduler(scheduler, wait_s)
         client = Client(scheduler, timeout=f"{wait_s}s")
         try:
-            client.wait_for_workers(1, timeout=wait_s)
+            try:
+                client.wait_for_workers(1, timeout=wait_s)
+            except TimeoutError:  # Dask's "Only 0/1 workers arrived after 60": said as check_workers does
+                raise ClusterError(f"the cluster has no worker after {wait_s:g} s: start one (dask worker "
+                                   f"{scheduler} --nthreads 1), or wait longer (--timeout)") from None
             check_workers(client)
             yield client
         finally:
