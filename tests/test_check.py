@@ -49,11 +49,12 @@ def test_a_missed_expectation_fails_the_check(built_fmus, tmp_path, capsys):
     assert "3 scenarios with expectations (1 files without [expect] skipped)" in out
     # --out: what did not pass is run again and kept as `tapmuscle run` writes it, the same run
     assert sorted(str(p.relative_to(kept)) for p in kept.glob("*/*")) == ["tight/tight"]
+    assert [p.name for p in kept.iterdir()] == ["tight"]  # "nothing written" for broken: not an empty folder
     assert f"wrote {kept / 'tight' / 'tight'} (fail: " in out
     assert "broken: the run failed again, nothing written:" in err and "servo.Hu must be <= servo.Hp" in err
     mae = json.loads((kept / "tight" / "tight" / "summary.json").read_text())["mae_mm"]
     assert {p.name for p in (kept / "tight" / "tight").iterdir()} >= {"result.csv", "summary.json", "tracking.png"}
-    assert "3 scenarios: 1 passed, 1 failed, 1 errors" in out
+    assert "3 scenarios: 1 passed, 1 failed, 1 errors" in out and "1 bound met" in out
     root = ET.parse(junit).getroot()
     assert (root.get("tests"), root.get("failures"), root.get("errors")) == ("3", "1", "1")
     tight = next(c for c in root.iter("testcase") if c.get("name") == "tight")

@@ -190,12 +190,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
                           "set FMU parameters wrongly")
         _local_workers(args, len(tasks))
         execute = _executor(args, stack)
-        runs, failed = {}, 0
+        runs, said = {}, {"pass": 0, "fail": 0, "error": 0}
         try:
             for run in execute(tasks, files):
                 runs[int(run.run_id)] = run
-                failed += run.status != "ok"
-                progress(len(runs), len(tasks), f"{failed} failed, {len(tasks) - len(runs)} remaining")
+                said[evaluate(cases[int(run.run_id)], run).status] += 1  # counted as the final table counts
+                progress(len(runs), len(tasks), f"{said['pass']} passed, {said['fail']} failed, {said['error']} "
+                                                f"errors, {len(tasks) - len(runs)} remaining")
         except ClusterError as exc:
             print(f"tapmuscle check: the cluster was lost: {exc}; no report written", file=sys.stderr)
             return CLUSTER_LOST
@@ -249,6 +250,9 @@ def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> 
             run_scenario(case.scenario, folder, fmus)
             print(f"wrote {folder} ({result.status}: result.csv, summary.json, the PNGs)")
         except ScenarioError as exc:
+            for empty in (folder, folder.parent):  # as said: nothing written, no empty folders either
+                if empty != out and empty.is_dir() and not any(empty.iterdir()):
+                    empty.rmdir()
             print(f"{folder}: the run failed again, nothing written: {exc}", file=sys.stderr)
 
 

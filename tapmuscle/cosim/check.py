@@ -152,7 +152,8 @@ def result_table(results: Sequence[CheckResult]) -> str:
         elif r.status == "fail":
             detail = "; ".join(r.outcome.violations)
         else:
-            detail = f"{len(r.outcome.checked)} bounds met"
+            n = len(r.outcome.checked)
+            detail = f"{n} bound{'s' if n != 1 else ''} met"
         if r.run.fmu_warnings:
             detail += f" ({len(r.run.fmu_warnings)} FMU warnings: {r.run.fmu_warnings[0]})"
         lines.append(f"{r.status.upper():<6}  {name:<{width}}  {r.case.scenario.method:<10}  {mae}  {detail}")
