@@ -642,3 +642,19 @@ def test_a_full_disk_while_appending_a_row_names_the_results_file(tmp_path, monk
     monkeypatch.undo()
     log.append({"run_id": "c", "status": "ok"})
     assert [r["run_id"] for r in log.rows()] == ["a", "c"]
+
+
+def test_lines_of_results_csv_that_are_not_whole_rows_are_said(built_fmus, tmp_path):
+    """A results.csv line edited into fewer columns was dropped in silence and its run redone; the
+    sweep now warns once naming the file and the lines (a line a crash cut short is not said: the
+    sweep itself leaves those)."""
+    sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
+    out = tmp_path / "out"
+    run_sweep(sweep, out, built_fmus, run_serial, plots=False)
+    lines = (out / "results.csv").read_text().splitlines(keepends=True)
+    lines[2] = "x,y\n"
+    (out / "results.csv").write_text("".join(lines) + "cut,short")
+    with pytest.warns(UserWarning, match=r"results.csv: 1 line \(3\) not a whole row of \d+ columns, ignored: their "
+                                         r"runs are run again"):
+        report = run_sweep(sweep, out, built_fmus, run_serial, plots=False)
+    assert (report.skipped, report.ran) == (3, 1)

@@ -30,6 +30,7 @@ import json
 import math
 import os
 import statistics
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
@@ -77,6 +78,8 @@ class ResultsLog:
 
     def __init__(self, path: str | Path, columns: Sequence[str]) -> None:
         self.path, self.columns = Path(path), tuple(columns)
+        #: The lines of the last :meth:`rows` that were not a whole row (an edit gone wrong): ignored.
+        self.malformed: list[int] = []
 
     def rows(self) -> list[dict[str, str]]:
         """Every complete row, in file order (a line cut short by a crash is ignored)."""
@@ -98,7 +101,13 @@ class ResultsLog:
                 extra = sorted(set(header) ^ set(self.columns))
                 raise ScenarioError(f"{self.path}: holds results of another sweep (columns differ: "
                                     f"{', '.join(extra)[:120] or 'order'}); write into another --out folder")
-            return [dict(zip(header, row)) for row in reader if len(row) == len(header)]
+            whole, self.malformed = [], []
+            for row in reader:
+                if len(row) == len(header):
+                    whole.append(dict(zip(header, row)))
+                else:
+                    self.malformed.append(reader.line_num)
+            return whole
         except csv.Error as exc:
             raise ScenarioError(f"{self.path}, line {reader.line_num}: not a results file ({exc}); move it away "
                                 "or write into another --out folder") from None
@@ -223,6 +232,10 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     out = Path(out)
     log = ResultsLog(out / "results.csv", result_columns(sweep))
     latest = log.latest()  # refuses another sweep's file before anything runs
+    if log.malformed:
+        lines = ", ".join(map(str, log.malformed[:5])) + (" ..." if len(log.malformed) > 5 else "")
+        warnings.warn(f"{log.path}: {len(log.malformed)} line{'s' if len(log.malformed) > 1 else ''} ({lines}) not a "
+                      f"whole row of {len(log.columns)} columns, ignored: their runs are run again", stacklevel=2)
     files = FmuFiles.for_scenarios((r.scenario for r in sweep.runs), fmus)
     tasks = {run.run_id: make_task(run.run_id, run.scenario, fmus, files) for run in sweep.runs}
     by_id = {run.run_id: run for run in sweep.runs}
