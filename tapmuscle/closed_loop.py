@@ -136,17 +136,22 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
                     loop_delay_samples: int = 0,
                     progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
-    """Run the loop for ``duration_s`` from the plant's and controller's current state.
+    """Run a new loop for ``duration_s`` from the plant's current physical state.
 
     The loop runs on the controller's grid ``controller.settings.ts_s``; the controller sees the
-    reference's preview ``r(k..k+Hp)`` at every sample.
+    reference's preview ``r(k..k+Hp)`` at every sample. It is a new run: the controller is reset
+    (theta0, P(0), its start-up mode), the reference and the returned ``t_s`` start at sample 0,
+    whatever the plant's clock says. To continue a run instead, restore both objects' states
+    (``get_state``/``set_state``) and step them yourself: ``controller.step(l, reference.preview(k,
+    controller.settings.preview_samples))``, then ``plant.step(u, ts)``.
 
     Parameters
     ----------
     plant : Plant
         The simulated rig, advanced in place.
     controller : DisplacementController
-        One of the paper's four controllers; reset to the plant's displacement first.
+        One of the paper's four controllers; reset to the plant's displacement first (its state,
+        estimate and start-up mode anew).
     reference : Reference, callable, array_like or None
         A :class:`fmu_controller.reference.Reference` on the loop's grid (a sine, given samples, a
         function of time); ``r(t)`` [mm] of the time [s]; one value per sample ``r(k)`` [mm]; None:
