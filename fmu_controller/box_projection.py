@@ -370,18 +370,54 @@ class BoxProjector:
         return theta
 
     def _bvls(self, theta_hat: np.ndarray, P: np.ndarray, Pcc: np.ndarray) -> np.ndarray:
+        """Beyond ``m = 4``: BVLS on the boxed block, its fixed coordinates (lower == upper) taken out.
+
+        With ``x_f`` fixed, the nearest ``x_r`` in the ``Pcc^{-1}`` metric is that of the conditional
+        problem, centre ``t_r + P_rf P_ff^{-1} (x_f - t_f)`` and metric ``S^{-1}``, ``S = P_rr - P_rf
+        P_ff^{-1} P_fr`` (a Schur complement): BVLS then has strict bounds only (a fixed coordinate's
+        one-ulp box made ``lsq_linear`` stop early, off the optimum). A result that fails the KKT
+        conditions is solved again by ``lsq_linear``'s ``trf`` method, and the cheaper one kept.
+        """
         c = self.c
-        L = np.linalg.cholesky(Pcc)
-        Linv = np.linalg.solve(L, np.eye(c.size))          # |L^{-1} d|^2 = d^T Pcc^{-1} d
-        # lsq_linear needs lb < ub strictly; a pinned parameter gets a 1-ulp box
-        ub = np.where(self.upper_c > self.lower_c, self.upper_c,
-                      np.nextafter(self.lower_c, np.inf))
-        res = lsq_linear(Linv, Linv @ theta_hat[c], bounds=(self.lower_c, ub),
-                         method="bvls", tol=1e-14)
-        d_c = res.x - theta_hat[c]
+        fixed = np.array(self._fixed)
+        t = theta_hat[c]
+        x = np.empty(c.size)
+        x[fixed] = self.lower_c[fixed]
+        r = ~fixed
+        if r.any():
+            centre, S = t[r], Pcc[np.ix_(r, r)]
+            if fixed.any():
+                gain = np.linalg.solve(Pcc[np.ix_(fixed, fixed)], Pcc[np.ix_(fixed, r)]).T   # P_rf P_ff^-1
+                centre = centre + gain @ (x[fixed] - t[fixed])
+                S = S - gain @ Pcc[np.ix_(fixed, r)]
+            L = np.linalg.cholesky(S)
+            Linv = np.linalg.solve(L, np.eye(S.shape[0]))   # |L^{-1} d|^2 = d^T S^{-1} d
+            lo, hi = self.lower_c[r], self.upper_c[r]
+            best = None
+            for method in ("bvls", "trf"):  # trf where BVLS stops off the optimum (its tolerance on the cost)
+                xr = np.clip(lsq_linear(Linv, Linv @ centre, bounds=(lo, hi), method=method, tol=1e-14).x, lo, hi)
+                resid = Linv @ (xr - centre)
+                if best is None or resid @ resid < best[0]:
+                    best = (float(resid @ resid), xr)
+                if _kkt_holds(Linv.T @ resid, xr, lo, hi):
+                    break
+            x[r] = best[1]
+        d_c = x - t
         theta = theta_hat + P[:, c] @ np.linalg.solve(Pcc, d_c)
-        theta[c] = np.clip(res.x, self.lower_c, self.upper_c)
+        theta[c] = np.clip(x, self.lower_c, self.upper_c)
         return theta
+
+
+def _kkt_holds(grad: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """KKT conditions of ``min f`` over ``lo <= x <= hi`` at ``x`` with gradient ``grad`` (to rounding):
+    zero where ``x`` is inside, pointing out of the box where it is on a bound."""
+    scale = 1e-9 * (1.0 + float(np.max(np.abs(grad))))
+    with np.errstate(invalid="ignore"):  # an infinite bound: inf - inf, compared False as it should
+        at_lo = x <= np.where(np.isfinite(lo), lo + 1e-12 * (1.0 + np.abs(lo)), lo)  # BVLS ends ulps inside
+        at_hi = x >= np.where(np.isfinite(hi), hi - 1e-12 * (1.0 + np.abs(hi)), hi)
+    inside = ~(at_lo | at_hi)
+    return bool(np.all(np.abs(grad[inside]) <= scale) and np.all(grad[at_lo] >= -scale)
+                and np.all(grad[at_hi] <= scale))
 
 
 def _check_box(lower, upper, n) -> tuple[np.ndarray, np.ndarray]:
