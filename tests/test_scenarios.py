@@ -409,15 +409,36 @@ def test_a_plant_fmu_with_the_input_load_is_told_to_be_built_again(tmp_path):
     from tapmuscle.cosim.master import Unpacked, check_role
 
     def fmu(*inputs):
-        variables = {n: SimpleNamespace(causality="input") for n in inputs} | {"l": SimpleNamespace(causality="output")}
+        variables = ({n: SimpleNamespace(causality="input") for n in inputs}
+                     | {n: SimpleNamespace(causality="output") for n in ("l", "p")}
+                     | {n: SimpleNamespace(causality="parameter") for n in ("seed", "seed_high")})
         return Unpacked(tmp_path / "MusclePlant.fmu", SimpleNamespace(modelName="MusclePlant"), str(tmp_path), variables)
 
     check_role(fmu("u", "load_force", "supply_pressure"), "plant")
     with pytest.raises(ScenarioError, match=r"it lacks input load_force; its input load is the plant's load_force as "
                                             r"an earlier tapmuscle named it: build the FMU again \(tapmuscle build\)"):
         check_role(fmu("u", "load", "supply_pressure"), "plant")
-    with pytest.raises(ScenarioError, match=r"it lacks input load_force$"):
+    with pytest.raises(ScenarioError, match=r"it lacks input load_force; a scenario runs the project's MusclePlant "
+                                            r"interface, which it sets and reads: run an FMU of your own in fmpy or a "
+                                            r"master of your own \(docs/fmu.md\)$"):
         check_role(fmu("u", "supply_pressure"), "plant")
+
+
+def test_a_controller_fmu_of_ones_own_is_told_what_a_scenario_needs(tmp_path):
+    """A user's PI controller FMU (input l, output u) passed the role check, which asked for those two,
+    and then failed on 'controller.parameters.method', a key the user never wrote. The role check now
+    asks for everything the master sets and reads, and says where an FMU of one's own runs."""
+    from types import SimpleNamespace
+
+    from tapmuscle.cosim.master import Unpacked, check_role
+
+    variables = {"l": SimpleNamespace(causality="input"), "u": SimpleNamespace(causality="output"),
+                 "kp": SimpleNamespace(causality="parameter")}
+    mine = Unpacked(tmp_path / "MyPI.fmu", SimpleNamespace(modelName="MyPI"), str(tmp_path), variables)
+    with pytest.raises(ScenarioError, match=r"MyPI.fmu: this MyPI FMU cannot be the controller: it lacks input r, "
+                                            r"output H, output input_delay, .* and \d+ more; a scenario runs the "
+                                            r"project's AMPCController interface"):
+        check_role(mine, "controller")
 
 
 @pytest.mark.parametrize("key, value, message", [

@@ -199,26 +199,41 @@ def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None
         raise ScenarioError("; ".join(problems))
 
 
-#: The interface each role of the closed loop needs: (inputs, outputs) by name.
-ROLE_INTERFACE = {"plant": ({"u", "load_force", "supply_pressure"}, {"l"}), "controller": ({"l"}, {"u"})}
+#: The interface each role of the closed loop needs: (inputs, outputs, parameters) by name, everything
+#: :func:`co_simulate` sets or reads (the diagnostics and ``theta.*`` for ``record="all"``).
+ROLE_INTERFACE = {
+    "plant": ({"u", "load_force", "supply_pressure"}, {"l", "p"}, {"seed", "seed_high"}),
+    "controller": ({"l", "r"},
+                   {"u", "r_k", "uc", "l_pred", "pred_error", "H", "xs", "input_delay"}
+                   | {f"theta.{n}" for n in ASYMMETRIC.names},
+                   {"method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency",
+                    "servo.Hp", "ucp.Hp", "input_delay_samples"}),
+}
 
 
 def check_role(unpacked: Unpacked, role: str) -> None:
-    """ScenarioError unless the FMU has the inputs and outputs its ``role`` in the loop needs (a
-    controller FMU given as the plant is named as such, not by a parameter it lacks). A role outside
-    the closed loop (:data:`ROLE_INTERFACE`), such as a foreign plant FMU, has no fixed interface."""
+    """ScenarioError unless the FMU has the inputs, outputs and parameters its ``role`` in the loop
+    needs (a controller FMU given as the plant is named as such, not by a parameter it lacks; an FMU
+    of one's own as the controller is told that the master runs the project's). A role outside the
+    closed loop (:data:`ROLE_INTERFACE`), such as a foreign plant FMU, has no fixed interface."""
     if role not in ROLE_INTERFACE:
         return
-    need_in, need_out = ROLE_INTERFACE[role]
+    need_in, need_out, need_par = ROLE_INTERFACE[role]
     variables = unpacked.variables
-    ins = {n for n, v in variables.items() if v.causality == "input"}
-    outs = {n for n, v in variables.items() if v.causality == "output"}
-    missing = [f"input {n}" for n in sorted(need_in - ins)] + [f"output {n}" for n in sorted(need_out - outs)]
+    has = {kind: {n for n, v in variables.items() if v.causality == kind} for kind in ("input", "output", "parameter")}
+    missing = ([f"input {n}" for n in sorted(need_in - has["input"])]
+               + [f"output {n}" for n in sorted(need_out - has["output"])]
+               + [f"parameter {n}" for n in sorted(need_par - has["parameter"])])
     if missing:
         renamed = ("; its input load is the plant's load_force as an earlier tapmuscle named it: build the FMU "
-                   "again (tapmuscle build)" if role == "plant" and "load" in ins and "load_force" not in ins else "")
+                   "again (tapmuscle build)" if role == "plant" and "load" in has["input"]
+                   and "load_force" not in has["input"] else "")
+        own = (f"; a scenario runs the project's {'MusclePlant' if role == 'plant' else 'AMPCController'} "
+               "interface, which it sets and reads: run an FMU of your own in fmpy or a master of your own "
+               "(docs/fmu.md)" if not renamed else "")
+        shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
         raise ScenarioError(f"{unpacked.path}: this {unpacked.model_description.modelName} FMU cannot be the {role}: "
-                            f"it lacks {', '.join(missing)}{renamed}")
+                            f"it lacks {shown}{renamed}{own}")
 
 
 def _reason(message: str) -> str:
