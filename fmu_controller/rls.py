@@ -282,7 +282,10 @@ class RLSSettings:
             arr = np.full(n, fill)
             for key, x in bound.items():
                 if key not in structure.names:
-                    raise ValueError(f"{name} names unknown parameter {key!r} for the {structure.kind} model")
+                    table2 = (" (RLSSettings' default box is Table 2's on a1, a2, b1: for a model without them pass "
+                              "box_lower={}, box_upper={})" if dict(bound) in (TABLE2_LOWER, TABLE2_UPPER) else "")
+                    raise ValueError(f"{name} names unknown parameter {key!r} for the {structure.kind} model "
+                                     f"(its parameters: {', '.join(structure.names)}){table2}")
                 arr[structure.index(key)] = x
             return arr
         if len(bound) != n:
@@ -400,21 +403,25 @@ class ConstrainedRLS:
     @property
     def lower(self) -> np.ndarray:
         """Lower bounds of ``C`` (copy; -inf = unbounded)."""
+        self._check_ready()
         return self._lower.copy()
 
     @property
     def upper(self) -> np.ndarray:
         """Upper bounds of ``C`` (copy; +inf = unbounded)."""
+        self._check_ready()
         return self._upper.copy()
 
     @property
     def n_projections(self) -> int:
         """Number of updates where the projection changed ``theta``."""
+        self._check_ready()
         return self._n_projections
 
     @property
     def n_resets(self) -> int:
         """Number of covariance resets (``on_covariance_loss="reset"``)."""
+        self._check_ready()
         return self._n_resets
 
     def constraint_active(self, k: int | None = None) -> bool:
@@ -432,7 +439,8 @@ class ConstrainedRLS:
         phi : array_like, shape (n_params,)
             Regressor ``phi(k-1)`` (section 2.3).
         y : float
-            Measurement ``l(k)`` in mm.
+            Measurement ``y(k)`` the regressors explain (Eq. (1): ``l(k)``, in the data's unit, mm on
+            the rig).
 
         Returns
         -------

@@ -19,6 +19,7 @@ from fmu_controller.rls import (
     TABLE2_LOWER,
     TABLE2_UPPER,
     ConstrainedRLS,
+    Regressors,
     RLSSettings,
     BoxProjector,
     project_onto_box,
@@ -602,3 +603,18 @@ def test_update_projects_with_updated_covariance():
         expected = project_onto_box(theta_free, free.P, constrained.lower, constrained.upper)
         np.testing.assert_allclose(theta, expected, rtol=0, atol=1e-12)
     assert constrained.n_projections > 0
+
+
+def test_an_estimator_of_ones_own_regressors_is_told_about_the_default_box_and_the_set_up():
+    """RLSSettings() bounds a1, a2, b1 by name (Table 2): with a model of other parameters the error
+    now says so and how to drop it; an estimator not set up answers lower/upper/n_projections with
+    the set-up's RuntimeError (a bare AttributeError before), as theta does."""
+    with pytest.raises(ValueError, match=r"box_lower names unknown parameter 'a1' for the regressor model \(its "
+                                         r"parameters: x, y\) \(RLSSettings' default box is Table 2's .* pass "
+                                         r"box_lower=\{\}, box_upper=\{\}\)"):
+        ConstrainedRLS(Regressors(("x", "y")), RLSSettings())
+    rls = ConstrainedRLS(Regressors(("x", "y")), RLSSettings(box_lower={}, box_upper={}))
+    assert np.isneginf(rls.lower).all() and rls.n_projections == 0
+    for name in ("lower", "upper", "n_projections", "n_resets", "theta"):
+        with pytest.raises(RuntimeError, match=r"setup\(structure, settings\) has not been called"):
+            getattr(ConstrainedRLS(), name)
