@@ -574,8 +574,15 @@ class DisplacementController:
         r = r_preview_mm if isinstance(r_preview_mm, np.ndarray) else np.asarray(r_preview_mm, dtype=float)
         need = self._need
         if r.ndim != 1 or len(r) < need:
-            raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}) ({need} samples: settings.preview_samples "
-                             f"+ 1, Hp plus the input delay, 5 for -1), got {r.shape}")
+            s = self.settings
+            hp = s.servo.hp if s.servo_mechanism else s.ucp.hp
+            d = s.input_delay_samples
+            delay = (f" + the {AUTO_INPUT_DELAY_SAMPLES} samples input_delay_samples = -1 may decide" if d == -1
+                     else f" + input_delay_samples = {d}" if d else "")
+            got = (f"a single value {float(r):g}" if r.ndim == 0 else f"{len(r)} samples" if r.ndim == 1
+                   else f"an array of shape {r.shape}")
+            raise ValueError(f"reference preview must hold r(k)..r(k+{need - 1}), {need} samples ({'servo' if s.servo_mechanism else 'ucp'}"
+                             f".hp = {hp}{delay}, + 1), got {got}")
         rl = (r if len(r) == need else r[:need]).tolist()
         if r.dtype.char != "d":  # not float64
             rl = [float(x) for x in rl]

@@ -359,7 +359,8 @@ def test_a_long_set_delay_sizes_its_buffers_and_state_and_replays(theta0, delay)
     assert n == c.settings.servo.hp + delay and c.largest_scored_delay == delay
     ref = SineReference()
     l_seq = 35 + 20 * np.sin(np.arange(200) * 0.06) + np.random.default_rng(1).normal(0, 0.05, 200)
-    with pytest.raises(ValueError, match=rf"r\(k\)..r\(k\+{n}\) \({n + 1} samples"):
+    with pytest.raises(ValueError, match=rf"r\(k\)..r\(k\+{n}\), {n + 1} samples \(servo.hp = 5 \+ "
+                                         rf"input_delay_samples = {delay}, \+ 1\), got {n} samples"):
         c.step(l_seq[0], ref.preview(0, n - 1))
     for k in range(100):
         c.step(l_seq[k], ref.preview(k, n))
