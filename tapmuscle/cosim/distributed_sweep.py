@@ -299,7 +299,8 @@ class _ClusterWatch:
 
 
 class ClusterError(OSError):
-    """A scheduler that is not one, or workers that cannot run tapmuscle's runs (named, with why)."""
+    """A scheduler that is not one, workers that cannot run tapmuscle's runs or did not start, or a
+    cluster lost mid-sweep (named, with why and what was kept)."""
 
 
 def probe_scheduler(address: str, wait_s: float) -> None:
