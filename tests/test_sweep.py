@@ -658,3 +658,15 @@ def test_lines_of_results_csv_that_are_not_whole_rows_are_said(built_fmus, tmp_p
                                          r"runs are run again"):
         report = run_sweep(sweep, out, built_fmus, run_serial, plots=False)
     assert (report.skipped, report.ran) == (3, 1)
+
+
+def test_a_sweep_reports_repr_shows_the_counts_not_every_row():
+    """A notebook cell ending in tm.sweep(...) showed every row of the report (thousands); its repr is
+    the counts, the rows stay in .rows."""
+    from tapmuscle.cosim.sweep_run import SweepReport
+
+    report = SweepReport(total=1000, skipped=0, ran=1000, failed=2, violated=1,
+                         rows=tuple({"run_id": f"r{i}", "status": "ok"} for i in range(1000)),
+                         fmu_warnings=(("r1", "a warning"),))
+    assert repr(report) == "SweepReport(total=1000, skipped=0, ran=1000, failed=2, violated=1, other_rows=0)"
+    assert len(report.rows) == 1000

@@ -31,7 +31,7 @@ import math
 import os
 import statistics
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
@@ -176,12 +176,13 @@ class SweepReport:
     """Runs of the sweep whose last row is ``failed``."""
     violated: int
     """Runs that finished but miss their expectations."""
-    rows: tuple[dict[str, str], ...]
-    """The final row of every run of the sweep, in its order."""
+    rows: tuple[dict[str, str], ...] = field(repr=False)
+    """The final row of every run of the sweep, in its order (not in the repr: a notebook's cell shows
+    the counts, not a thousand rows)."""
     other_rows: int = 0
     """Rows of runs this sweep no longer has (an earlier version of the file), kept in ``results.csv``
     after its own and left out of the summary."""
-    fmu_warnings: tuple[tuple[str, str], ...] = ()
+    fmu_warnings: tuple[tuple[str, str], ...] = field(default=(), repr=False)
     """``(run_id, message)``: what the FMUs warned of in the runs this call ran (``summary.md`` lists them)."""
 
 
