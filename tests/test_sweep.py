@@ -670,3 +670,24 @@ def test_a_sweep_reports_repr_shows_the_counts_not_every_row():
                          fmu_warnings=(("r1", "a warning"),))
     assert repr(report) == "SweepReport(total=1000, skipped=0, ran=1000, failed=2, violated=1, other_rows=0)"
     assert len(report.rows) == 1000
+
+
+def test_a_second_sweep_into_a_folder_in_use_is_refused(built_fmus, tmp_path):
+    """Two sweeps into one folder at once (two terminals, two CI jobs) each ran every run; the second is
+    now refused while the first writes, naming the folder, and runs once it has ended (its runs skipped)."""
+    sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
+    out = tmp_path / "out"
+    second = []
+
+    def meanwhile(tasks, files):
+        for i, result in enumerate(run_serial(tasks, files)):
+            if i == 0:
+                with pytest.raises(ScenarioError, match=rf"{out}: another sweep writes into this folder now"):
+                    run_sweep(sweep, out, built_fmus, run_serial, plots=False)
+                second.append(True)
+            yield result
+
+    first = run_sweep(sweep, out, built_fmus, meanwhile, plots=False)
+    assert second == [True] and (first.ran, first.failed) == (4, 0)
+    again = run_sweep(sweep, out, built_fmus, run_serial, plots=False)
+    assert (again.skipped, again.ran) == (4, 0)

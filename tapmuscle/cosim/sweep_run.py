@@ -35,6 +35,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
+try:  # POSIX: the output folder's lock
+    import fcntl
+except ImportError:  # Windows
+    fcntl = None  # type: ignore[assignment]
+
 from tapmuscle.cosim.distributed_sweep import FmuFiles, RunResult, RunTask, make_task
 from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError
@@ -228,17 +233,29 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     Raises
     ------
     ScenarioError
-        ``results.csv`` holds another sweep's results.
+        ``results.csv`` holds another sweep's results, or another sweep writes into ``out`` now.
     """
     out = Path(out)
+    lock = _FolderLock(out)
+    try:
+        return _run_sweep(sweep, out, fmus, execute, progress, plots, lock)
+    finally:
+        lock.release()
+
+
+def _run_sweep(sweep: Sweep, out: Path, fmus: Mapping[str, str | Path], execute: Executor,
+               progress: Callable[..., None] | None, plots: bool, lock: "_FolderLock") -> SweepReport:
+    """:func:`run_sweep`'s work: everything checked, then the output folder made and locked."""
     log = ResultsLog(out / "results.csv", result_columns(sweep))
-    latest = log.latest()  # refuses another sweep's file before anything runs
+    log.latest()  # refuses another sweep's file before anything runs
+    files = FmuFiles.for_scenarios((r.scenario for r in sweep.runs), fmus)
+    tasks = {run.run_id: make_task(run.run_id, run.scenario, fmus, files) for run in sweep.runs}
+    lock.acquire()
+    latest = log.latest()  # again: a sweep into the folder may have ended since
     if log.malformed:
         lines = ", ".join(map(str, log.malformed[:5])) + (" ..." if len(log.malformed) > 5 else "")
         warnings.warn(f"{log.path}: {len(log.malformed)} line{'s' if len(log.malformed) > 1 else ''} ({lines}) not a "
-                      f"whole row of {len(log.columns)} columns, ignored: their runs are run again", stacklevel=2)
-    files = FmuFiles.for_scenarios((r.scenario for r in sweep.runs), fmus)
-    tasks = {run.run_id: make_task(run.run_id, run.scenario, fmus, files) for run in sweep.runs}
+                      f"whole row of {len(log.columns)} columns, ignored: their runs are run again", stacklevel=3)
     by_id = {run.run_id: run for run in sweep.runs}
     todo = [tasks[r.run_id] for r in sweep.runs
             if not (latest.get(r.run_id, {}).get("status") == "ok"
@@ -264,6 +281,35 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
                          other_rows=other, fmu_warnings=tuple(warned))
     _write_summary(sweep, out, final, plots, other, warned)
     return report
+
+
+class _FolderLock:
+    """An exclusive lock on a sweep's output folder (``flock`` on the folder itself: no file of its
+    own) from :meth:`acquire`, which makes the folder, to :meth:`release`: a second sweep into the
+    same folder (another terminal, a CI job beside this one) is refused, instead of running every run
+    a second time. Where ``fcntl`` is missing (Windows) there is no lock."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder, self._fd = folder, None
+
+    def acquire(self) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if fcntl is None:
+            return
+        fd = os.open(self.folder, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise ScenarioError(f"{self.folder}: another sweep writes into this folder now (another terminal, a CI "
+                                "job?); wait for it to end and run again (its finished runs are then skipped), or "
+                                "give another output folder") from None
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
 
 def _compact(log: ResultsLog, sweep: Sweep, held: Mapping[str, Mapping[str, Any]]) -> tuple[list[dict[str, str]], int]:
