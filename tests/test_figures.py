@@ -64,12 +64,12 @@ def test_figures_drawn_in_threads_at_once_are_those_drawn_one_by_one(tmp_path):
     # out as it does alone, pixel for pixel (same process, same Agg: a contract, not a tolerance).
     phases = [0.0, 0.7, 1.4, 2.1]
     for i, ph in enumerate(phases):
-        plot_tracking(_runs(ph), tmp_path / f"serial{i}.png", title=f"run {i}")
+        plot_tracking(_runs(ph), tmp_path / f"serial{i}.png", title=f"run {i}", window_s=(10.1, 40.1))
         plot_recording(*(_runs(ph)["ampc_servo"][k] for k in ("t_s", "u_v", "l_mm")), tmp_path / f"serial_rec{i}.png")
 
     def draw(i: int) -> None:
         ph = phases[i]
-        plot_tracking(_runs(ph), tmp_path / f"threaded{i}.png", title=f"run {i}")
+        plot_tracking(_runs(ph), tmp_path / f"threaded{i}.png", title=f"run {i}", window_s=(10.1, 40.1))
         plot_recording(*(_runs(ph)["ampc_servo"][k] for k in ("t_s", "u_v", "l_mm")), tmp_path / f"threaded_rec{i}.png")
 
     with ThreadPoolExecutor(4) as pool:
@@ -122,3 +122,57 @@ def test_characters_no_font_draws_are_said_once(tmp_path):
         warnings.simplefilter("always")
         save_figure(fig, tmp_path / "b.png")
     assert caught and {(w.category, str(w.message)) for w in caught} == {(RuntimeWarning, "drawn")}
+
+
+def _drawn(monkeypatch):
+    """The figures the plotting functions save, captured (their axes to look at)."""
+    import tapmuscle.plots.figures as figures
+
+    saved = []
+    real = figures.save_figure
+    monkeypatch.setattr(figures, "save_figure", lambda fig, path, **kw: (saved.append(fig), real(fig, path, **kw))[1])
+    return saved
+
+
+def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_path):
+    """MPC-servo was red beside MPC-UCP (Figs. 8-11) and blue beside AMPC-servo (Figs. 16-19); each method
+    now has one colour in every figure, and the legends sit above the axes, where they hid the peaks
+    and troughs a reader compares."""
+    from tapmuscle.plots.figures import plot_prediction_errors
+
+    saved = _drawn(monkeypatch)
+    t = np.arange(451) * 0.1
+    run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 29 * np.sin(t), "u_v": 5 + np.sin(t),
+           "pred_error_mm": 0.1 * np.sin(3 * t)}
+    pairs = (("mpc_servo", "mpc_ucp"), ("ampc_servo", "mpc_servo"), ("ampc_ucp", "mpc_ucp"))
+    colours: dict[str, set] = {}
+    for i, pair in enumerate(pairs):
+        plot_tracking({m: run for m in pair}, tmp_path / f"t{i}.png", window_s=(10.1, 40.1))
+        plot_prediction_errors({m: run for m in pair}, tmp_path / f"p{i}.png", window_s=(10.1, 40.1))
+    for fig in saved:
+        ax = fig.axes[0]
+        for line in ax.get_lines():
+            if line.get_label().startswith(("MPC", "AMPC")):
+                colours.setdefault(line.get_label().split(" (mean")[0], set()).add(line.get_color())
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        renderer = FigureCanvasAgg(fig).get_renderer()
+        legend = ax.get_legend().get_window_extent(renderer)
+        assert legend.y0 >= ax.get_window_extent(renderer).y1 - 1  # above the plotting area
+    assert len(colours) == 4 and all(len(c) == 1 for c in colours.values()), colours
+    assert len({next(iter(c)) for c in colours.values()}) == 4  # four colours for four methods
+
+
+def test_the_model_error_panel_is_scaled_to_the_errors(monkeypatch, tmp_path):
+    """identify's free-run figure drew a 2-mm residual on a +-22-mm axis (flat); the error panel is now
+    scaled to the largest error, and never beyond the data's scale."""
+    from tapmuscle.plots.figures import plot_model_vs_measured
+
+    saved = _drawn(monkeypatch)
+    t = np.arange(600) * 0.1
+    l = 40 + 40 * np.sin(0.2 * t)
+    plot_model_vs_measured(t, 5 + np.sin(t), l, {"model": l + 2.0 * np.sin(t)}, tmp_path / "m.png")
+    lo, hi = saved[0].axes[1].get_ylim()
+    assert 2.0 < hi < 2.5 and lo == -hi
+    plot_model_vs_measured(t, 5 + np.sin(t), l, {"diverging": l + np.exp(0.2 * t)}, tmp_path / "d.png")
+    assert saved[1].axes[1].get_ylim()[1] <= 0.25 * 80 + 1e-6  # the data's range, as before

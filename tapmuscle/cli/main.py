@@ -272,7 +272,9 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                          + (f", {shown_load} N" if shown_load else "") + " (cf. Fig. 4)")
             skip = int(len(shown.t_s) // 4)
             plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
-                                 skip=skip)
+                                 skip=skip, title=f"hysteresis loop of {Path(shown_path).name}"
+                                 + (f", {shown_load} N" if shown_load else "")
+                                 + f" (t >= {shown.t_s[skip]:g} s; cf. Fig. 5)")
             if choice is not None:
                 plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
                                       folder / "input_delay_fits.png",

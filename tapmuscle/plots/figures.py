@@ -168,7 +168,10 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
             ax.axvline(constraint_start_s, color="grey", ls="--", lw=0.8)
         if i >= n - cols:
             ax.set_xlabel("t [s]", fontsize=8)
-    fig.suptitle(title or "parameter convergence (dashed: constraint starts)")
+            ax.tick_params(labelbottom=True)  # the last panel of its column: shared x, its own tick labels
+    dashed = (" (dashed: the constraint starts)" if constraint_start_s is not None and constraint_start_s < t_s[-1]
+              else "")
+    fig.suptitle((title or "parameter convergence") + dashed)
     fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     return save_figure(fig, path)
 
@@ -180,6 +183,7 @@ def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, m
     ax.plot(t_s, l_mm, color="black", lw=1.2, label="measured")
     lo, hi = float(np.min(l_mm)), float(np.max(l_mm))
     pad = 0.25 * (hi - lo) + 1e-9
+    worst = 0.0
     for (label, y), color in zip(models.items(), ("tab:red", "tab:blue", "tab:green")):
         # A diverged model is drawn until it leaves the chart, then marked, so it cannot hide the data.
         y, gone = _until_divergence(y, lo - pad, hi + pad)
@@ -188,8 +192,11 @@ def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, m
             ax.axvline(t_s[gone], color=color, lw=0.8, ls=":")
         ax.plot(t_s, y, color=color, lw=1, ls="--", label=label)
         ax_e.plot(t_s, l_mm - y, color=color, lw=0.8, label=label)
+        error = np.abs(l_mm - y)
+        worst = max(worst, float(np.max(error[np.isfinite(error)], initial=0.0)))
     ax.set_ylim(lo - pad, hi + pad)
-    ax_e.set_ylim(-pad, pad)
+    # scaled to the errors (at the data's scale a 2-mm residual drew flat), at most the data's
+    ax_e.set_ylim(-min(1.15 * worst, pad) - 1e-9, min(1.15 * worst, pad) + 1e-9)
     ax.set_ylabel("displacement l [mm]")
     ax.legend(loc="upper right", fontsize=8)
     ax.grid(alpha=0.3)
@@ -240,21 +247,28 @@ def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np
     return save_figure(fig, path)
 
 
+#: One colour per method in every figure (a reader flipping from Fig. 10 to Fig. 18 reads a colour as
+#: the same controller): the unique coincidence point in blues, the servo mechanism in reds, the
+#: adaptive version the darker.
 _METHOD_STYLE = {"mpc_ucp": ("tab:blue", "MPC, unique coincidence point"),
-                 "ampc_ucp": ("tab:blue", "AMPC, unique coincidence point"),
-                 "mpc_servo": ("tab:red", "MPC with servo mechanism"),
+                 "ampc_ucp": ("navy", "AMPC, unique coincidence point"),
+                 "mpc_servo": ("tab:orange", "MPC with servo mechanism"),
                  "ampc_servo": ("tab:red", "AMPC with servo mechanism")}
 
 
 def _style(method: str, index: int) -> tuple[str, str]:
-    color, label = _METHOD_STYLE.get(method, (f"C{index}", method))
-    if method == "mpc_servo" and index > 0:  # MPC vs AMPC, both servo (Figs. 16-19)
-        color = "tab:blue"
-    return color, label
+    return _METHOD_STYLE.get(method, (f"C{index}", method))
+
+
+def _legend_above(ax: Any, ncol: int) -> None:
+    """The legend in a row above the axes, where it covers no data (inside, it hid the peaks and
+    troughs a reader compares)."""
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=ncol, fontsize=8, frameon=False,
+              borderaxespad=0.0)
 
 
 def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
-                  window_s: tuple[float, float] = (10.0, 40.0)) -> Path:
+                  window_s: tuple[float, float]) -> Path:
     """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18)."""
     fig, (ax, ax_e, ax_u) = new_figure(3, 1, figsize=(11, 8), sharex=True,
                                        gridspec_kw={"height_ratios": (2.2, 1, 1)})
@@ -272,17 +286,18 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
     emax = max(float(np.max(np.abs(c["r_mm"][keep] - c["l_mm"][keep]))) for c in runs.values())
     ax_e.set_ylim(-1.2 * emax, 1.2 * emax)  # the start-up transient would hide the steady state
     ax.set_ylabel("displacement l [mm]")
-    ax_e.set_ylabel("error r - l [mm]")
+    ax_e.set_ylabel("error r - l [mm]\n(scaled to the window)")
     ax_u.set_ylabel("valve input u [V]")
     ax_u.set_xlabel("time t [s] (shaded: Eq. (21) window)")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.suptitle(title)
+    _legend_above(ax, len(runs) + 1)
+    fig.suptitle(title, y=0.995)
     return save_figure(fig, path)
 
 
 def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *,
-                           title: str = "", window_s: tuple[float, float] = (10.0, 40.0)) -> Path:
-    """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over 10-40 s (Figs. 9-19)."""
+                           title: str = "", window_s: tuple[float, float]) -> Path:
+    """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over ``window_s`` [s]
+    (Eq. (21)'s 10.1-40.1 s in Figs. 9-19)."""
     fig, ax = new_figure(figsize=(11, 4))
     for i, (method, cols) in enumerate(runs.items()):
         keep = (cols["t_s"] >= window_s[0]) & (cols["t_s"] <= window_s[1])
@@ -293,6 +308,6 @@ def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | o
     ax.set_xlabel("time t [s]")
     ax.set_ylabel("prediction error l(k) - l(k|k-1) [mm]")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.suptitle(title)
+    _legend_above(ax, len(runs))
+    fig.suptitle(title, y=0.995)
     return save_figure(fig, path)
