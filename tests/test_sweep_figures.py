@@ -85,3 +85,25 @@ def test_a_monte_carlo_sample_with_a_third_field_says_so(drawn, tmp_path):
     assert fig._suptitle.get_text() == "mc (points at all values of plant friction.rate_gain)"
     (panel,) = [ax for ax in fig.axes if ax.get_title()]
     assert len(panel.collections[0].get_offsets()) == 40  # every run is a point
+
+
+def test_a_monte_carlo_sample_has_a_colour_scale_per_method_and_readable_log_ticks(drawn, tmp_path):
+    """One scale for all methods drew the servo methods (0.15-0.27 mm beside 0.7-3 mm) one hue each;
+    each method's points now span their own scale, and a log scale labels 1, 2 and 5 of each decade
+    (only 0.1 and 1 were)."""
+    rng = np.random.default_rng(2)
+    rows = [{"method": m, "status": "ok", "mae_mm": repr(float(rng.uniform(lo, hi))),
+             "load_n": repr(float(rng.uniform(30, 90))), "supply_mpa": repr(float(rng.uniform(0.2, 0.3)))}
+            for m, lo, hi in (("mpc_ucp", 0.7, 3.0), ("ampc_servo", 0.07, 0.2)) for _ in range(30)]
+    sweep_figures.plot_mae_map(rows, ["load_n", "supply_mpa"], tmp_path / "map.png")
+    sweep_figures.plot_mae_by_method(rows, tmp_path / "box.png", title="t", pooled=["load_n", "supply_mpa"])
+    (fig, box) = drawn
+    for ax in (ax for ax in fig.axes if ax.get_title()):
+        points = ax.collections[0]
+        values = [float(r["mae_mm"]) for r in rows if r["method"] == ax.get_title()]
+        assert (points.norm.vmin, points.norm.vmax) == (min(values), max(values))
+    (ax,) = box.axes
+    assert ax.get_yscale() == "log"
+    labels = {t.get_text() for t in ax.get_yticklabels()}
+    assert {"0.1", "0.2", "0.5", "1", "2"} <= labels, labels
+    assert ax.get_title() == "t\n(each box pools every load [N], supply pressure [MPa])"

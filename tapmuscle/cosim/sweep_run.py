@@ -451,6 +451,7 @@ def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], p
             from tapmuscle.plots.sweep_figures import plot_mae_by_method, plot_mae_map
 
             numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + _swept_fields(sweep))
-            plot_mae_by_method(rows, tmp / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method")
+            plot_mae_by_method(rows, tmp / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method",
+                               pooled=numeric)
             plot_mae_map(rows, numeric, tmp / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
 

@@ -43,11 +43,27 @@ def _norm(values: np.ndarray):
     return LogNorm(lo, hi) if lo > 0 and hi / lo > 10 else Normalize(lo, hi if hi > lo else lo + 1e-9)
 
 
-def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLike, *, title: str = "") -> Path | None:
-    """Box plot and points of ``mae_mm`` per method (runs that finished); None if there are none."""
+def _log_ticks(axis) -> None:
+    """Ticks at 1, 2 and 5 times the powers of ten, as plain numbers, on a log axis (only 0.1 and 1
+    were labelled, so 0.09 and 0.18 could not be read)."""
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FormatStrFormatter("%g"))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLike, *, title: str = "",
+                       pooled: Sequence[str] = ()) -> Path | None:
+    """Box plot and points of ``mae_mm`` per method (runs that finished); None if there are none.
+    ``pooled``: the columns that vary among the runs of a box, named in the title (a box of two
+    loads has a median no run has)."""
     ok = _ok(rows)
     if not ok:
         return None
+    varying = [name for name in pooled if len({row.get(name, "") for row in ok}) > 1]
+    if varying:
+        title = f"{title}\n(each box pools every {', '.join(_label(n) for n in varying)})".strip()
     methods = _methods(ok)
     data = [np.array([float(r["mae_mm"]) for r in ok if r["method"] == m]) for m in methods]
     fig, ax = new_figure(figsize=(1.8 + 1.6 * len(methods), 4.5))
@@ -59,6 +75,7 @@ def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLik
     every = np.concatenate(data)
     if every.min() > 0 and every.max() / every.min() > 20:
         ax.set_yscale("log")
+        _log_ticks(ax.yaxis)
     ax.set_ylabel("Eq. (21) error [mm]")
     ax.grid(True, axis="y", alpha=0.3)
     ax.set_title(title)
@@ -114,6 +131,9 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
             title = f"{title} ({'mean over' if grid else 'points at all values of'} {others})".strip()
     fig, panels = new_figure(len(facets), len(methods), figsize=(0.8 + 3.6 * len(methods), 0.4 + 3.4 * len(facets)),
                              squeeze=False, sharex=True, sharey=True)
+    # a Monte-Carlo sample's points: one colour scale per method, so that the dependence within each
+    # shows (a shared scale left the servo methods one hue each); a grid's cells carry their numbers
+    own_scale = y is not None and not grid
     norm = _norm(mae)
     image = None
     for r, (row, (label, in_facet)) in enumerate(zip(panels, facets)):
@@ -136,13 +156,19 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
                 ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])
                 ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
             else:
-                image = ax.scatter(x[sel], y[sel], c=mae[sel], cmap="viridis", norm=norm, s=18)
+                own = _norm(mae[sel]) if sel.any() else norm
+                points = ax.scatter(x[sel], y[sel], c=mae[sel], cmap="viridis", norm=own, s=18)
+                bar = fig.colorbar(points, ax=ax, label="Eq. (21) error [mm]" if ax is row[-1] else None)
+                if own.__class__.__name__ == "LogNorm":
+                    _log_ticks(bar.ax.yaxis)
             ax.set_title(f"{m}\n{label}" if label else m, fontsize=9 if label else None)
             if r == len(facets) - 1:
                 ax.set_xlabel(_label(xname))
             if y is not None and ax is row[0]:
                 ax.set_ylabel(_label(yname))
-    if image is not None:
-        fig.colorbar(image, ax=panels.ravel().tolist(), label="Eq. (21) error [mm]" + (" (mean)" if grid else ""))
+    if image is not None and not own_scale:
+        bar = fig.colorbar(image, ax=panels.ravel().tolist(), label="Eq. (21) error [mm]" + (" (mean)" if grid else ""))
+        if norm.__class__.__name__ == "LogNorm":
+            _log_ticks(bar.ax.yaxis)
     fig.suptitle(title)
     return save_figure(fig, path)
