@@ -127,7 +127,7 @@ class MuscleParams(_Validated):
     rubber_stiffness_n_per_mm: float = _f(1.2, "Axial stiffness of the rubber bladder against contraction [N/mm]; calibration.", lo=0.0, hi=1000.0)
     threshold_pressure_mpa: float = _f(0.04, "Pressure the bladder needs before the braid is loaded [MPa]; calibration.", lo=0.0, hi=1.0)
     threshold_width_mpa: float = _f(0.01, "Width over which the bladder threshold is passed (smooth onset of the braid force) [MPa]; calibration.", lo=0.0, lo_open=True, hi=1.0)
-    braid_lock_force_n: float = _f(40.0, "Passive force of the braid near full extension at l = 0, decaying as exp(-l/lock_length) (braid lock); 0 disables it [N]; calibration.", lo=0.0, hi=1e4)
+    braid_lock_force_n: float = _f(40.0, "Passive force of the braid near full extension at l = 0, decaying as exp(-l/lock_length) (braid lock), 0 disables it [N]; calibration.", lo=0.0, hi=1e4)
     braid_lock_length_mm: float = _f(20.0, "Decay length of the braid-lock force [mm]; calibration.", lo=0.0, lo_open=True, hi=1000.0)
     damping_n_s_per_mm: float = _f(0.08, "Viscous damping of muscle and load [N s/mm]; calibration.", lo=0.0, hi=100.0)
 
