@@ -710,7 +710,7 @@ def confusion_figure(s: dict[str, Any], path: str | Path) -> Path:
         if want in cols:
             j = cols.index(want)
             ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="tab:orange", lw=1.6))
-    ax.set_xlabel("claimed by the diagnosis (orange box: the right answer)")
+    ax.set_xlabel("claimed by the diagnosis (orange box: the right answer; the pair row's two differ by case)")
     ax.set_ylabel("truth (cases)")
     t = s["targets"]
     ax.set_title(f"Field recordings: {s['recordings']}; named {_pct(t['single_named']['rate_percent'])}, "

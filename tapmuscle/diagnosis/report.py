@@ -258,10 +258,11 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
                    title=f"{title}: before / after (held-out fit in brackets)")
 
     fig, ax = new_figure(figsize=(6, 5))
-    ax.plot(d.u_v, d.y_mm, color="k", lw=0.8, label="recording")
-    ax.plot(d.u_v, d.y_before_mm, color="0.5", lw=0.8, ls="--", label="model before")
-    ax.plot(d.u_v, d.y_after_mm, color="tab:blue", lw=0.8, ls=":", label="model after")
-    ax.set(xlabel="command u [V]", ylabel="displacement l [mm]", title=f"{title}: hysteresis loops")
+    # the recording on top: a model after that fits it drew over it and hid it
+    ax.plot(d.u_v, d.y_before_mm, color="0.5", lw=0.8, ls="--", label="model before", zorder=2)
+    ax.plot(d.u_v, d.y_after_mm, color="tab:blue", lw=1.6, alpha=0.6, label="model after", zorder=2)
+    ax.plot(d.u_v, d.y_mm, color="k", lw=0.6, label="recording", zorder=3)
+    ax.set(xlabel="valve input u [V]", ylabel="displacement l [mm]", title=f"{title}: hysteresis loops")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     save_figure(fig, out / "hysteresis.png")
@@ -274,10 +275,10 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     for ax, c, name in ((a1, d.correlations["autocorrelation_before"], "autocorrelation of the residual"),
                         (a2, d.correlations["cross_correlation_before"], "cross-correlation input u -> residual")):
         ax.axhspan(-c.band, c.band, color="tab:orange", alpha=0.2, label="99 % band (white)")
-        ax.set(title=name, ylabel="normalised")
+        ax.set(title=name, ylabel="normalised", xlabel="lag [samples]")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
-    a2.set_xlabel("lag [samples]")
+    fig.suptitle(f"{title}: residual tests, before (the plant given) and after (the final model)", fontsize=10)
     fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     save_figure(fig, out / "residual_tests.png")
 
