@@ -1573,3 +1573,19 @@ def test_a_plant_file_at_0_3_mpa_is_the_supply_offsets_reference(tmp_path):
     f = d.findings[0]
     assert f.parameters["supply.supply_pressure_mpa"] == pytest.approx(0.25, abs=0.005)
     assert f.explanation == "the supply delivers 0.250 MPa, not the plant's 0.300 MPa, throughout the recording"
+
+
+@pytest.mark.slow
+def test_an_effect_acting_all_along_is_located_all_along():
+    """A rate-dependent friction at 0.2 Hz checked against a plant without it: the effect acts in every
+    cycle, but only the start-up transient (0-3.3 s) was shaded, the floor of the location being the
+    noise level taken before the effect was in (0.34 mm there: the mismatch's own sample-to-sample
+    change, against 0.01 mm after). Now the whole record is located."""
+    import tapmuscle as tm
+    from fmu_plant import PlantParams
+
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.2", duration_s=180.0, load_n=44.0, seed=2)
+    d = tm.diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], PlantParams().with_values(**{"friction.rate_gain": 0.0}))
+    (finding,) = [f for f in d.findings if f.effect == "rate_dependent_hysteresis"]
+    covered = sum(b - a for a, b in finding.located)
+    assert covered >= 0.9 * 180.0, finding.located
