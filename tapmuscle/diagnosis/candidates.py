@@ -753,6 +753,22 @@ def _fmt(v: float, unit: str, digits: int = 3) -> str:
 #: above a pressure too low to fill the muscle past its threshold (no building delivers that).
 SUPPLY_PRESSURE_MPA = (0.05, field_bounds("supply.supply_pressure_mpa")[1])
 
+#: A supply pressure within this fraction of the plant file's is not claimed as an offset: a
+#: building's supply wanders by a few per cent, and the valve's calibrated constants take up such a
+#: difference as well (beside a delay or a drift on the field suite's rigs, offsets of 4-5 % were
+#: accepted with 0.03-0.06 mm of contribution, an effect the rigs did not have; a user's rig at
+#: 0.23 MPa against 0.25, 8 % off, is named).
+SUPPLY_MATERIAL_FRACTION = 0.06
+
+
+def material_value(effect: str, values: dict[str, float], nominal: PlantParams) -> bool:
+    """Whether ``effect``'s fitted ``values`` are far enough from ``nominal``'s to be claimed: every
+    effect, but a supply offset within :data:`SUPPLY_MATERIAL_FRACTION` of the plant's pressure."""
+    if effect != "supply_pressure_offset":
+        return True
+    ps0 = nominal.supply.supply_pressure_mpa
+    return abs(values["supply.supply_pressure_mpa"] - ps0) >= SUPPLY_MATERIAL_FRACTION * ps0
+
 
 CANDIDATES: tuple[Candidate, ...] = (
     Candidate(

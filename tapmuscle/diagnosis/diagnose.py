@@ -102,7 +102,7 @@ from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
                           FD_STEP, calibration_rows, effective_sigma, fit_parameters, nominal_coords)
-from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem
+from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
@@ -1051,7 +1051,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         on = judged()
         contribution_rms = on.contribution_rms_mm(y1, q1, current.y, current.q)
         sig = significance(current.y, y1, current.q, q1, on=on) | {"contribution_rms_mm": contribution_rms}
-        kept = passes(sig)
+        kept = passes(sig) and material_value(name, values, model)
         tried.append({"round": 0, "effect": name, "joint": True, "from": "the first reading",
                       "start": dict(start), "held_out_sse_reduction": round(sig["reduction"], 4),
                       "p_value": sig["p_value"], "contribution_rms_mm": round(contribution_rms, 6),
@@ -1253,12 +1253,14 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             tried.append({"round": round_no, "effect": cand.name, "joint": True,
                           "held_out_sse_reduction": round(sig["reduction"], 4), "p_value": sig["p_value"],
                           "contribution_rms_mm": round(contribution_rms, 6),
+                          "material_value": material_value(cand.name, values, model),
                           "prior_cost": round(prior_cost(p1), 3), "parameters": values} | cost)
             alts.append(Alternative(cand.name, cand.words(values, model), values, p1, y1,
                                     sse((y - y1)[test]), fit_percent(y, y1, test),
                                     {k: v for k, v in sig.items()}, q_hat=q1))
         # ranked on the evidence of both channels (the displacement's alone without a pressure)
-        accepted = sorted((a for a in alts if passes(a.evidence)), key=lambda a: a.evidence["sse_after_mm2"])
+        accepted = sorted((a for a in alts if passes(a.evidence) and material_value(a.effect, a.parameters, model)),
+                          key=lambda a: a.evidence["sse_after_mm2"])
         if not accepted:
             selection.append({"step": "stop", "round": round_no, "reason": "no candidate passes the held-out test "
                               "against the recalibrated model"} | left_out(on))
