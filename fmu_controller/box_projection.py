@@ -138,6 +138,7 @@ class BoxProjector:
         self._lo_tol = self.lower_tol.tolist()
         self._hi_tol = self.upper_tol.tolist()
         self._fixed = [lo == hi for lo, hi in zip(self._lo, self._hi)]
+        self._fixed_mask = np.array(self._fixed, dtype=bool)  # BVLS takes these out
         # rows P[c, :] (= columns, P symmetric) as a cheap view if c is a range
         contiguous = m > 0 and self._cl == list(range(self._cl[0], self._cl[0] + m))
         self._contiguous = contiguous
@@ -379,7 +380,7 @@ class BoxProjector:
         conditions is solved again by ``lsq_linear``'s ``trf`` method, and the cheaper one kept.
         """
         c = self.c
-        fixed = np.array(self._fixed)
+        fixed = self._fixed_mask
         t = theta_hat[c]
         x = np.empty(c.size)
         x[fixed] = self.lower_c[fixed]

@@ -110,6 +110,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
     them; beyond that, or off a grid, the title names the fields the cells average over (the points
     do not tell apart). None (nothing written) if no candidate varies.
     """
+    from matplotlib.colors import LogNorm
+
     ok = _ok(rows)
     axes = _numeric_axes(ok, candidates) if ok else []
     if not axes:
@@ -159,7 +161,7 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
                 own = _norm(mae[sel]) if sel.any() else norm
                 points = ax.scatter(x[sel], y[sel], c=mae[sel], cmap="viridis", norm=own, s=18)
                 bar = fig.colorbar(points, ax=ax, label="Eq. (21) error [mm]" if ax is row[-1] else None)
-                if own.__class__.__name__ == "LogNorm":
+                if isinstance(own, LogNorm):
                     _log_ticks(bar.ax.yaxis)
             ax.set_title(f"{m}\n{label}" if label else m, fontsize=9 if label else None)
             if r == len(facets) - 1:
@@ -168,7 +170,7 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
                 ax.set_ylabel(_label(yname))
     if image is not None and not own_scale:
         bar = fig.colorbar(image, ax=panels.ravel().tolist(), label="Eq. (21) error [mm]" + (" (mean)" if grid else ""))
-        if norm.__class__.__name__ == "LogNorm":
+        if isinstance(norm, LogNorm):
             _log_ticks(bar.ax.yaxis)
     fig.suptitle(title)
     return save_figure(fig, path)
