@@ -65,7 +65,7 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
                                                  GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
-                                                 MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V,
+                                                 MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V, MIN_FORGETTING, VALVE_MAX_V, VALVE_MIN_V,
                                                  MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
                                                  ControlStep, DisplacementController, full_range_jump,
                                                  preview_lead, pushed_at_limit)
@@ -99,10 +99,19 @@ _SLAM_WINDOW_S = 10.0
 #: loop having more delay than the law compensates (a rig's transport delay with
 #: ``input_delay_samples`` 0: 8-26 swings in 10 s; a sound loop, with its delay set or decided: 0-2).
 _SWINGS = 6
+#: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
+#: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
+#: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
+_HEAVY_MOVE_WEIGHT = 1000.0
 #: A command held at a valve limit that the error pushes it further into for this long [s] is logged
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
 _PINNED_S = 10.0
+#: A command held for :data:`_PINNED_S` at a valve limit that the error pushes it away from, by at least
+#: this much [mm] (the encoder's noise and a resting muscle's sag are hundredths), is logged once: a
+#: law that opened (closed) the valve would move ``l`` towards ``r``, so the law's gain has the wrong
+#: sign for the rig (a negative ``theta0.b1``: the valve shut for a whole run without a word).
+_HELD_AGAINST_MM = 2.0
 #: A sampling period ``Ts`` of this many seconds or more, stepped by a host at a tenth of it or less, is
 #: logged at the first step: the muscle's responses take tenths of a second, so it is most likely ``Ts``
 #: typed in milliseconds (``Ts = 50``), with which the controller samples once and holds its command for
@@ -238,9 +247,9 @@ class AMPCController(SafeSlave):
              "2 samples or more (input_delay_samples 2 or more, or -1 deciding for one: a rig's transport delay, whose "
              "prediction errors a larger R feeds back less); 1 keeps servo.R; delays 0 and 1 always do "
              "(docs/control.md, Transport delay)", 0.0, MAX_DELAY_MOVE_WEIGHT),
-            ("u_min", 0.0, "V", "lowest valve command [V] (Eq. 19)", 0.0, 10.0),
-            ("u_max", 10.0, "V", "highest valve command [V] (Eq. 19)", 0.0, 10.0),
-            ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", 0.5, 1.0),
+            ("u_min", VALVE_MIN_V, "V", "lowest valve command [V] (Eq. 19)", VALVE_MIN_V, VALVE_MAX_V),
+            ("u_max", VALVE_MAX_V, "V", "highest valve command [V] (Eq. 19)", VALVE_MIN_V, VALVE_MAX_V),
+            ("forgetting", 1.0, "", "RLS forgetting factor (1 = none, as the paper)", MIN_FORGETTING, 1.0),
             ("startup_s", DEFAULT_STARTUP_S, "s", "start-up mode T [s]: the reference led in from the measured "
              "position over T/4, the adaptive law on theta0 until T/2 and the estimate blended in by T; 0 = the "
              "paper's start (docs/control.md, Start-up)", 0.0, MAX_STARTUP_S),
@@ -283,7 +292,7 @@ class AMPCController(SafeSlave):
             if ip[name] not in codes:
                 raise SlaveInputError(f"parameter {name} = {ip[name]} must be one of "
                                       + ", ".join(f"{k} ({v})" for k, v in codes.items()))
-        for name, (lo, hi) in {"Ts": (1e-4, 60.0), "forgetting": (0.5, 1.0)}.items():
+        for name, (lo, hi) in {"Ts": (1e-4, 60.0), "forgetting": (MIN_FORGETTING, 1.0)}.items():
             self.finite(f"parameter {name}", p[name], lo, hi)
         for name, value in p.items():
             # an infinite bound of C on its own side is no bound (an unconstrained identification's)
@@ -383,6 +392,7 @@ class AMPCController(SafeSlave):
         """What the log has said of this run: nothing yet."""
         self._diverged = False
         self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
+        self._held_n = 0  # samples in a row at a valve limit the error pushes away from (-1: said)
         self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
         self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
         self._last_limit = 0  # the valve limit the command sat at last: -1 lower, 1 upper, 0 none yet
@@ -500,6 +510,12 @@ class AMPCController(SafeSlave):
         if s.servo_mechanism and s.servo.hp > TABLE5_SERVO["hp"]:
             causes.append(f"a long prediction horizon servo.Hp = {s.servo.hp} on an imperfect model (Table 5: "
                           f"{TABLE5_SERVO['hp']}; 30 and more swung the valve in measured runs)")
+        r = max(s.servo.r) if isinstance(s.servo.r, tuple) else s.servo.r
+        if s.servo_mechanism and r > _HEAVY_MOVE_WEIGHT:
+            causes.append(f"a heavy move weight servo.R = {r:g} (Table 5: {TABLE5_SERVO['r']:g}): over the short horizon "
+                          "the QP moves the valve only once the integrator's cost has grown, and the integrator then "
+                          "swings the loop; lower servo.R, or servo.Qs with it, or lengthen servo.Hp (docs/control.md, "
+                          "\"Tuning the servo law\")")
         if not causes:
             causes.append("a model poor for this rig (theta0, the box C) or a delay the law does not compensate "
                           "(docs/control.md, \"Transport delay\")")
@@ -521,6 +537,27 @@ class AMPCController(SafeSlave):
                      f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the rig's "
                      f"reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?)",
                      status=Fmi2Status.warning)
+
+    def _watch_held(self, t_s: float, l: float, r: float, u: float) -> None:
+        """Log once when the command has sat at a valve limit for :data:`_PINNED_S` seconds in a row
+        while the error ``r - l``, :data:`_HELD_AGAINST_MM` or more, pushes it away from the limit."""
+        if self._held_n < 0:
+            return
+        s = self._controller.settings.servo
+        held = ((r - l >= _HELD_AGAINST_MM and u <= s.u_min_v + 1e-9)
+                or (l - r >= _HELD_AGAINST_MM and u >= s.u_max_v - 1e-9))
+        self._held_n = self._held_n + 1 if held else 0
+        sat_s = (self._held_n - 1) * self._par["Ts"]
+        if sat_s >= _PINNED_S - 1e-9:
+            self._held_n = -1
+            limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
+            b1 = self._par["theta0.b1"]
+            why = (f"theta0.b1 = {b1:g} < 0 inverts the law: more valve opening contracts the muscle, so b1 > 0 "
+                   "(a model identified with u or l of the other sign?)" if b1 < 0 else
+                   "the law's model (theta0, the box C) has the valve's effect the wrong way round for this rig")
+            self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the reading "
+                     f"l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the other way would "
+                     f"close the gap: {why}", status=Fmi2Status.warning)
 
     def _warn_paper_defaults_off_period(self, settings: ControllerSettings, theta0: list[float]) -> None:
         """Log a warning when ``Ts`` is not the paper's 0.1 s but ``theta0.*`` are still THETA0_44N, or (for
@@ -644,6 +681,7 @@ class AMPCController(SafeSlave):
             if abs(e) > tally.largest_mm:
                 tally.largest_mm = abs(e)
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
+        self._watch_held(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
         self._watch_swings(t_s, step.u_v, l)
         if self._k == self._controller.delay_check_samples:
@@ -726,7 +764,7 @@ class AMPCController(SafeSlave):
                 "theta": [getattr(self, name) for name in self._theta_outputs],
                 # what the log has said: a rewind says it again only where the run does again
                 "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
-                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit],
+                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n],
                 "tally": self._tally.as_list()}
 
     def restore_numerics_state(self, state) -> None:
@@ -735,8 +773,9 @@ class AMPCController(SafeSlave):
             self._k = int(state["k"])
             self._buffer = [float(v) for v in state["buffer"]]
             self._set_theta([float(v) for v in state["theta"]])
-            diverged, pinned, jumps, swings, last_limit = state.get("said", (False, 0, [], [], 0))
-            self._diverged, self._pinned_n = bool(diverged), int(pinned)
+            # a state of a build that watched no held command: watched from here
+            diverged, pinned, jumps, swings, last_limit, held = (*state.get("said", (False, 0, [], [], 0)), 0)[:6]
+            self._diverged, self._pinned_n, self._held_n = bool(diverged), int(pinned), int(held)
             self._jump_ks = None if jumps is None else [int(k) for k in jumps]
             self._swing_ks = None if swings is None else [int(k) for k in swings]
             self._last_limit = int(last_limit)

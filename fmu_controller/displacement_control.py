@@ -57,7 +57,7 @@ from .ucp_mpc import UCPSettings, _held, ucp_move
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
-           "full_range_jump", "preview_lead",
+           "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -128,6 +128,16 @@ DEFAULT_STARTUP_S = 12.0
 DEFAULT_PROBING_V = 0.5
 #: Largest ``ControllerSettings.probing_v`` [V]: a quarter of the valve's 0-10 V range.
 MAX_PROBING_V = 2.5
+
+#: The proportional valve's command range [V] (section 4.1): the servo's and UCP's ``u_min_v`` and
+#: ``u_max_v`` lie within it. A bound beyond it is a command the valve clips, and the adaptive
+#: estimator, which sees the command, would learn from inputs the valve never received.
+VALVE_MIN_V, VALVE_MAX_V = 0.0, 10.0
+
+#: Smallest ``ControllerSettings.forgetting``: below it Algorithm 1 forgets half its information
+#: every sample and its estimate follows the measurement noise (0.3: ``u_c`` at thousands of V,
+#: 9 mm of Eq. (21) error).
+MIN_FORGETTING = 0.5
 
 #: ``ControllerSettings.startup_guard``: the start-up mode leaves ``theta0`` for the estimate once the
 #: command has jumped across this fraction of the valve's range in one sample ...
@@ -276,7 +286,7 @@ class ControllerSettings:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"ControllerSettings.method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        for name in ("ts_s", "startup_s", "probing_v"):  # numpy numbers as Python floats
+        for name in ("ts_s", "startup_s", "probing_v", "forgetting"):  # numpy numbers as Python floats
             object.__setattr__(self, name, real_number(getattr(self, name), what=f"ControllerSettings.{name}"))
         if not self.ts_s > 0:
             raise ValueError(f"ControllerSettings.ts_s must be a positive finite number, got {self.ts_s!r}")
@@ -288,6 +298,15 @@ class ControllerSettings:
         if not -1 <= self.input_delay_samples <= MAX_INPUT_DELAY_SAMPLES:
             raise ValueError(f"ControllerSettings.input_delay_samples must be -1 (detect) or a number of samples "
                              f"0 .. {MAX_INPUT_DELAY_SAMPLES}, got {self.input_delay_samples!r}")
+        if not MIN_FORGETTING <= self.forgetting <= 1.0:
+            raise ValueError(f"ControllerSettings.forgetting must be within {MIN_FORGETTING:g} .. 1 (1: none, as the "
+                             f"paper), got {self.forgetting!r}")
+        for part in ("servo", "ucp"):
+            bounds = getattr(self, part)
+            for name, value in (("u_min_v", bounds.u_min_v), ("u_max_v", bounds.u_max_v)):
+                if not VALVE_MIN_V <= value <= VALVE_MAX_V:
+                    raise ValueError(f"ControllerSettings.{part}.{name} must be within the valve's range "
+                                     f"{VALVE_MIN_V:g} .. {VALVE_MAX_V:g} V, got {value!r}")
         if not 0.0 <= self.startup_s <= MAX_STARTUP_S:
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
         if not 0.0 <= self.probing_v <= MAX_PROBING_V:

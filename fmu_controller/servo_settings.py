@@ -120,6 +120,10 @@ class ServoMPCSettings:
         object.__setattr__(self, "hu", hu)
         object.__setattr__(self, "q", _freeze_weight("q", self.q, hp, "hp", strict=False))
         object.__setattr__(self, "qs", _freeze_weight("qs", self.qs, hp, "hp", strict=False))
+        if not (np.any(self.q) or np.any(self.qs)):
+            # Eq. (15) without a tracking term: the QP's optimum is never to move, the valve stays shut
+            raise ValueError(f"q and qs must not both be 0: Eq. (15) would have no tracking term (q = {self.q!r}, "
+                             f"qs = {self.qs!r})")
         # R > 0 keeps the QP Hessian positive definite for every model
         object.__setattr__(self, "r", _freeze_weight("r", self.r, hu, "hu", strict=True))
         u_min = real_number(self.u_min_v, what="u_min_v")

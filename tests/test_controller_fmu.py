@@ -615,6 +615,37 @@ def test_a_command_pinned_at_a_valve_limit_is_logged_once():
     assert not [m for m in tracked.log_queue if "has sat at the valve's" in m.msg]
 
 
+@pytest.mark.parametrize("method", [1, 2, 3, 4])
+def test_a_command_held_at_a_limit_against_the_error_is_logged_once(method):
+    """A negative theta0.b1 (a fixed method; an adaptive one without a box, whose b1 keeps theta0's sign)
+    held the valve at 0 V for a whole run while l stayed 35 mm below r, with no message: after 10 s at a
+    limit the error pushes away from (from 5 s on for the adaptive ones, whose start-up probes), a
+    warning names theta0.b1 once. The same loop with the default
+    theta0 says nothing of it at either load."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    def run(load_n, **par):
+        slave = AMPCController(instance_name="held")
+        slave._int_par["method"] = method
+        slave._par.update(par)
+        slave.exit_initialization_mode()
+        plant = Plant(seed=0)
+        plant.reset(seed=0, load_n=load_n)
+        for k in range(300):
+            slave.l = plant.measurement.l_mm
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+        return [m for m in slave.log_queue if "where the other way would close the gap" in m.msg]
+
+    open_box = {f"box_{s}.{n}": (-math.inf if s == "lower" else math.inf) for s in ("lower", "upper") for n in ("a1", "a2", "b1")}
+    (held,) = run(44.0, **{"theta0.b1": -0.8, **open_box})
+    assert held.status == Fmi2Status.warning and "theta0.b1 = -0.8 < 0 inverts the law" in held.msg
+    assert 10.0 <= float(held.msg.split()[2]) <= 20.0  # after the adaptive start-up's probing, if any
+    assert "valve's 0 V for 10 s" in held.msg and "below the reference" in held.msg
+    assert run(44.0) == [] and run(68.0) == []
+
+
 def test_a_sampling_period_typed_in_milliseconds_is_logged_and_the_time_at_a_limit_is_true():
     """Ts = 50 (meant: 50 ms) stepped by a host at 0.05 s sampled once and held its command for 50 s;
     the only message claimed at t = 0 that the command had sat at 10 V for 10 s. The first step now
@@ -784,6 +815,33 @@ def test_a_limit_cycles_causes_are_those_the_settings_leave_possible(ints, said,
     slave.exit_initialization_mode()
     causes = "; ".join(slave._limit_cycle_causes(42.0))
     assert all(s in causes for s in said) and not any(s in causes for s in not_said), causes
+
+
+def test_a_heavy_move_weight_is_named_among_a_limit_cycles_causes():
+    """MPC-servo with servo.R = 10^4 (Table 5: 15) swings the valve limit to limit (17 mm of Eq. (21)
+    error): the QP moves the valve only once the integrator's cost has grown. The warning named a delay
+    and the fixed predictor only; it names servo.R, which Table 5's R does not make it do."""
+    from fmu_plant import Plant
+
+    def causes(r):
+        slave = AMPCController(instance_name="heavy")
+        slave._int_par["method"] = 2
+        slave._par["servo.R"] = r
+        slave.exit_initialization_mode()
+        plant = Plant(seed=0)
+        for k in range(700):  # said at 61 s (the delay decided at 26.5 s, then a window of 10 s)
+            slave.l = plant.measurement.l_mm
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+        return [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
+
+    (msg,) = causes(1e4)
+    assert "a heavy move weight servo.R = 10000 (Table 5: 15)" in msg and "lower servo.R" in msg
+    assert causes(15.0) == []
+    table5 = AMPCController(instance_name="t5")
+    table5._int_par["method"] = 2
+    table5.exit_initialization_mode()
+    assert not any("heavy move weight" in c for c in table5._limit_cycle_causes(42.0))
 
 
 def test_an_overflow_names_theta0_only_where_it_was_set():

@@ -15,6 +15,7 @@ from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
 from fmu_controller.reference import SineReference
 from fmu_controller.servo_settings import ServoMPCSettings
+from fmu_controller.ucp_mpc import UCPSettings
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_plant import Plant, PlantParams
 from tapmuscle.closed_loop import command_tv_excess, eq21_error_mm, run_closed_loop
@@ -151,6 +152,16 @@ def test_bad_settings_and_theta(theta0):
         with pytest.raises(ValueError, match=rf"input_delay_samples must be -1 \(detect\) or a number of samples "
                                              rf"0 \.\. {MAX_INPUT_DELAY_SAMPLES}, got {delay}"):
             ControllerSettings(input_delay_samples=delay)
+    # the FMU's ranges: a forgetting factor that follows the noise, valve bounds the valve clips
+    for forgetting in (0.3, 1.1, math.nan):
+        with pytest.raises(ValueError, match=r"ControllerSettings\.forgetting must be"):
+            ControllerSettings(forgetting=forgetting)
+    for kwargs in (dict(servo=ServoMPCSettings(u_min_v=-5.0)), dict(servo=ServoMPCSettings(u_max_v=15.0)),
+                   dict(ucp=UCPSettings(u_max_v=20.0))):
+        (part, bounds), = kwargs.items()
+        name = "u_min_v" if bounds.u_min_v < 0 else "u_max_v"
+        with pytest.raises(ValueError, match=rf"ControllerSettings\.{part}\.{name} must be within the valve's range 0 \.\. 10 V"):
+            ControllerSettings(**kwargs)
 
 
 # ------------------------------------------------------------------ input delay
@@ -888,7 +899,6 @@ def test_numpy_numbers_of_any_width_are_taken_as_numbers(theta0):
     from fmu_controller.delay_predictor import DelayPredictor
     from fmu_controller.reference import ArrayReference
     from fmu_controller.servo_mpc import ServoMPCSettings
-    from fmu_controller.ucp_mpc import UCPSettings
 
     cs = ControllerSettings(method="ampc_servo", ts_s=np.float32(0.1), startup_s=np.float32(12),
                             probing_v=np.float64(0.5), input_delay_samples=np.int64(0),

@@ -120,6 +120,7 @@ def test_defaults_are_table5():
     (dict(eps_abs=-1e-3), "eps_abs"), (dict(eps_abs=0.0, eps_rel=0.0), "eps_abs"),
     (dict(max_iter=0), "max_iter"), (dict(warm_start=1), "warm_start"), (dict(refine=None), "refine"),
     (dict(always_osqp=1), "always_osqp"),
+    (dict(q=0.0, qs=0.0), "q and qs must not both be 0"), (dict(q=(0.0,) * 5, qs=0.0), "q and qs must not both be 0"),
 ])
 def test_settings_validation_names_field(kwargs, name):
     # a value of the wrong kind (2.5 or True for an integer, a string) is a TypeError, a bad value a ValueError
