@@ -114,7 +114,7 @@ def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelSt
 
 @dataclass(frozen=True)
 class IdentificationReport:
-    """Result of :func:`identify_record` (all in the record's units); :meth:`to_dict` for JSON."""
+    """Result of :func:`identify_record` (``tm.identify``; all in the record's units); :meth:`to_dict` for JSON."""
 
     model: str
     """``"asymmetric"`` or ``"standard"`` (Eq. (1) with or without ``g(l)``)."""
@@ -126,7 +126,7 @@ class IdentificationReport:
     """Samples in the record."""
     theta: np.ndarray
     """Final estimate, record units (``theta[structure.index(name)]``)."""
-    theta_history: np.ndarray
+    theta_history: np.ndarray = field(repr=False)
     """Estimate at every sample, shape ``(n_samples, n_params)``, record units."""
     fit: FitReport
     """Fits on the identification record itself."""

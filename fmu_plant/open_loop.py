@@ -8,7 +8,6 @@ So ``l(k)`` depends on ``u(k-1)``, as in the paper's Eq. (1).
 from __future__ import annotations
 
 import math
-import warnings
 from typing import Callable
 
 import numpy as np
@@ -79,7 +78,5 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
             l_now, p_now = meas.l_mm, meas.p_mpa
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
-    for note in (plant.accuracy_note(), plant.light_load_note(float(np.min(out["load_n"])))):
-        if note:
-            warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
+    plant.warn_run_notes(float(np.min(out["load_n"])))
     return out

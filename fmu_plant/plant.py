@@ -58,6 +58,7 @@ from .parameters import CV_TO_SI_WATER, GRAVITY_M_S2, PlantParams
 from .rosenbrock import KINK_SCALE_INITIAL, build_model, compiled_step_loop, forced_substeps
 from .seed import check_seed
 from .sensors import quantise
+from .user_warning import warn_at_caller
 from .valve import flow_coefficient, orifice_flow, valve_opening
 
 __all__ = ["Plant", "Measurement", "STATE_NAMES", "MAX_STEP_S"]
@@ -466,6 +467,13 @@ class Plant:
                 "muscle contracts without pressure then (9.6 mm at 0 N, 2.1 mm at 20 N, from rest at 0 V), as no rig "
                 "at rest does; the lock was calibrated for the paper's 44 and 68 N: for a lighter load set "
                 "muscle.braid_lock_force_n below it (docs/plant.md)")
+
+    def warn_run_notes(self, lightest_load_n: float) -> None:
+        """After a run whose lightest load was ``lightest_load_n`` [N]: :meth:`accuracy_note` and
+        :meth:`light_load_note` as ``RuntimeWarning``, at the user's line."""
+        for note in (self.accuracy_note(), self.light_load_note(lightest_load_n)):
+            if note:
+                warn_at_caller(note, RuntimeWarning)
 
     # ------------------------------------------------------------------ outputs
     #: The latest sensor readings (from :meth:`reset` or :meth:`step`).

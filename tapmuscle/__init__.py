@@ -15,10 +15,9 @@ under the root, bottom to top: :mod:`tapmuscle.errors`, :mod:`tapmuscle.io`, :mo
 top-level packages ``fmu_plant`` and ``fmu_controller``.
 """
 
-from __future__ import annotations
-
-import importlib
-from typing import Any
+# underscored: dir(tm) and a notebook's tab completion offer the API alone
+import importlib as _importlib
+from typing import Any as _Any
 
 __version__ = "0.1.0"
 
@@ -78,12 +77,12 @@ _EXPORTS: dict[str, tuple[str, str]] = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> _Any:
     try:
         module, attribute = _EXPORTS[name]
     except KeyError:
         raise AttributeError(f"module 'tapmuscle' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module), attribute)
+    value = getattr(_importlib.import_module(module), attribute)
     globals()[name] = value  # later look-ups skip __getattr__
     return value
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import numbers
-import warnings
 from collections.abc import Mapping
 from typing import Callable
 
@@ -219,7 +218,5 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
             progress(k + 1, n)
     for i, name in enumerate(names):
         cols[f"theta_{name}"] = theta_hist[:, i]
-    for note in (plant.accuracy_note(), plant.light_load_note(float(np.min(cols["load_n"])))):
-        if note:
-            warnings.warn(note[0].upper() + note[1:], RuntimeWarning, stacklevel=2)
+    plant.warn_run_notes(float(np.min(cols["load_n"])))
     return cols

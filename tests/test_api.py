@@ -133,6 +133,69 @@ def test_import_is_lazy_and_names_resolve():
         assert issubclass(error, tm.TapmuscleError), error
 
 
+def test_a_notebooks_tab_completion_and_help_show_the_api_alone():
+    """dir(tm) offered the package's own imports (annotations, Any, importlib) beside the API, and
+    help(tm.diagnose) / Shift-Tab wrote out every default candidate and constant, functions and
+    paragraphs of physics (9,464 characters of signature): the defaults show as their names."""
+    import inspect
+    import types
+
+    assert [n for n in dir(tm) if not n.startswith("_") and n not in tm.__all__
+            and not isinstance(getattr(tm, n), types.ModuleType)] == []  # its submodules, once imported
+    signatures = {name: str(inspect.signature(getattr(tm, name))) for name in tm.__all__
+                  if inspect.isfunction(getattr(tm, name))}
+    assert max(map(len, signatures.values())) < 1500, {n: len(s) for n, s in signatures.items() if len(s) >= 1500}
+    assert "candidates: 'Sequence[Candidate | str]' = CANDIDATES (" in signatures["diagnose"]
+    assert "= NOMINAL_PARAMETERS (12)" in signatures["diagnose"]
+
+
+def test_a_result_shown_in_a_notebook_leaves_its_arrays_out():
+    """A Diagnosis displayed in a cell wrote out every array (13 kB), an IdentificationReport its whole
+    theta history, a sweep every run's scenario (225 kB for 200 runs): no public result's repr shows an
+    array field but the identified theta, and a sweep counts its runs."""
+    import dataclasses
+    import typing
+
+    from tapmuscle.cosim.sweep import load_sweep
+
+    for name in tm.__all__:
+        cls = getattr(tm, name)
+        if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+            continue
+        hints = typing.get_type_hints(cls)
+        shown = [f.name for f in dataclasses.fields(cls) if f.repr and "ndarray" in str(hints[f.name])]
+        assert shown == (["theta"] if name == "IdentificationReport" else []), (name, shown)  # Eq. (1)'s 15 numbers
+    sweep = load_sweep(ROOT / "scenarios" / "sweeps" / "robustness_mc.toml")
+    assert len(repr(sweep)) < 1000 and f"runs=<{len(sweep.runs)} runs>" in repr(sweep)
+    t = np.arange(3001) * 0.1
+    recording = tm.Recording(columns={"t_s": t, "u_v": np.zeros_like(t), "l_mm": np.zeros_like(t)}, metadata={"rig": "A"})
+    assert repr(recording) == "Recording(3001 samples, 300 s, columns t_s, u_v, l_mm, metadata={'rig': 'A'})"
+
+
+def test_a_warning_points_at_the_callers_line():
+    """The braid-lock note pointed at tapmuscle/api.py (a notebook showed the package's line, and hid the
+    warning when the cell ran again) and spelt the parameter "Load_n": it points at the line that
+    called the API, naming load_n as it is."""
+    with pytest.warns(RuntimeWarning) as caught:
+        tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, load_n=30.0)
+    (w,) = [w for w in caught if "braid lock" in str(w.message)]
+    assert w.filename == __file__ and str(w.message).startswith("load_n = 30 N is below the braid lock's")
+
+
+def test_a_scenario_shortened_in_code_is_refused_before_its_run():
+    """dataclasses.replace(scenario, duration_s=20.0) ran the whole co-simulation and then failed on
+    Eq. (21)'s window: the replaced scenario is refused at once, naming evaluation_samples."""
+    import dataclasses
+
+    from tapmuscle.cosim.spec import ScenarioError
+
+    scenario = tm.load_scenario(ROOT / "scenarios" / "paper" / "ampc_servo_44N_0.1Hz.toml")
+    with pytest.raises(ScenarioError, match=r"evaluation_samples = \(101, 401\) is not within the run's samples "
+                                            r"k = 0 \.\. 200 \(20 s at step 0\.1 s\)"):
+        dataclasses.replace(scenario, duration_s=20.0)
+    assert dataclasses.replace(scenario, duration_s=20.0, evaluation_samples=(0, 200)).n_samples == 201
+
+
 def _examples() -> list[tuple[str, str]]:
     """The ``python`` code blocks of docs/python-api.md, with the heading each stands under."""
     out: list[tuple[str, str]] = []

@@ -326,7 +326,7 @@ def test_a_load_below_the_braid_lock_is_warned_by_the_direct_runs_as_by_the_plan
         return [str(w.message) for w in caught if "braid lock" in str(w.message)], run
 
     light, _ = said(run=tm.simulate, command="step", duration_s=2.0, load_n=25.0)
-    assert len(light) == 1 and light[0].startswith("Load_n = 25 N is below the braid lock's 40 N"), light
+    assert len(light) == 1 and light[0].startswith("load_n = 25 N is below the braid lock's 40 N"), light
     closed, _ = said(run=tm.simulate_closed_loop, duration_s=2.0, load_n=lambda t: 44.0 if t < 1.0 else 30.0)
     assert len(closed) == 1 and "30 N is below the braid lock's 40 N" in closed[0]
     assert said(run=tm.simulate, command="step", duration_s=1.0, load_n=44.0)[0] == []

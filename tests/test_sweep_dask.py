@@ -283,6 +283,25 @@ def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_
         assert int(row["worker"].rsplit(":", 1)[1]) == worker_pid
 
 
+def test_a_notebooks_cluster_without_workers_is_told_how_to_make_it_again(built_fmus, tmp_path):
+    """A LocalCluster whose workers an interrupt killed (it restarts none) was told to start one with
+    `dask worker SCHEDULER_ADDRESS`: the message names the cluster's address and the remedy for a
+    cluster made in the notebook, and nothing is written."""
+    import tapmuscle as tm
+    from distributed import Client, LocalCluster
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(SWEEP)
+    folder = built_fmus["MusclePlant"].parent
+    fmus = {name: folder / f"{name}.fmu" for name in ("MusclePlant", "AMPCController")}
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
+        with pytest.raises(tm.ClusterError, match=rf"the cluster has no worker: start one \(dask worker "
+                                                  rf"{cluster.scheduler_address} --nthreads 1\), or, for a LocalCluster "
+                                                  "made in this process, close it and make it again"):
+            tm.sweep(sweep, tmp_path / "o", fmus=fmus, client=client, plots=False)
+    assert not (tmp_path / "o").exists()
+
+
 def _cluster_processes(tmp, workers=1):
     """A `dask scheduler` and ``workers`` `dask worker` processes without a nanny (a killed worker stays
     dead): ``(address, [scheduler, worker...])``."""

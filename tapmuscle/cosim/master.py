@@ -36,7 +36,6 @@ import numbers
 import re
 import threading
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -51,6 +50,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import REFERENCE_SOURCES, advanced_lead
 
 from fmu_plant.seed import split_seed
+from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.held_interrupt import held_interrupts
@@ -460,7 +460,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                     if m.startswith(("[WARNING]", "[ERROR]")):
                         text = f"{inst.role} FMU: {_reason(m)}"
                         if fmu_warnings is None:
-                            warnings.warn(FmuLogWarning(text), stacklevel=2)
+                            warn_at_caller(FmuLogWarning(text), FmuLogWarning)
                         else:
                             fmu_warnings.append(text)
             done = True

@@ -144,6 +144,16 @@ class Scenario:
     expect: "Expectations | None" = None
     """The ``[expect]`` table (:mod:`tapmuscle.cosim.expect`), None without one."""
 
+    def __post_init__(self) -> None:
+        # a scenario changed in code (dataclasses.replace with a shorter duration_s) is refused here,
+        # not after its whole run
+        k0, k1 = self.evaluation_samples
+        if self.step_s > 0 and not 0 <= k0 <= k1 < self.n_samples:
+            raise ScenarioError(f"{self.source}: evaluation_samples = ({k0}, {k1}) is not within the run's samples "
+                                f"k = 0 .. {self.n_samples - 1} ({self.duration_s:g} s at step {self.step_s:g} s): "
+                                "change evaluation_samples with duration_s (dataclasses.replace(scenario, "
+                                "duration_s=..., evaluation_samples=(k0, k1)))")
+
     @property
     def n_samples(self) -> int:
         """Rows of the result: ``t_k = k step_s`` for ``k = 0 .. duration_s / step_s``."""

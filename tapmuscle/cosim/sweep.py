@@ -103,6 +103,11 @@ class Sweep:
     expect: Expectations | None = None
     """The sweep's own ``[expect]`` (each run's scenario carries the expectations that apply to it)."""
 
+    def __repr__(self) -> str:
+        # a sweep's runs are hundreds of whole scenarios: counted, not written out
+        return (f"Sweep(name={self.name!r}, source={self.source!r}, fields={self.fields!r}, "
+                f"runs=<{len(self.runs)} runs>, expect={self.expect!r})")
+
 
 def is_sweep_data(data: Mapping[str, Any]) -> bool:
     """Whether a parsed TOML file is a sweep (has ``base``, ``grid`` or ``monte_carlo``), not a scenario."""

@@ -30,7 +30,6 @@ import json
 import math
 import os
 import statistics
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
@@ -40,6 +39,7 @@ try:  # POSIX: the output folder's lock
 except ImportError:  # Windows
     fcntl = None  # type: ignore[assignment]
 
+from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.cosim.distributed_sweep import FmuFiles, RunResult, RunTask, make_task
 from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError
@@ -254,8 +254,8 @@ def _run_sweep(sweep: Sweep, out: Path, fmus: Mapping[str, str | Path], execute:
     latest = log.latest()  # again: a sweep into the folder may have ended since
     if log.malformed:
         lines = ", ".join(map(str, log.malformed[:5])) + (" ..." if len(log.malformed) > 5 else "")
-        warnings.warn(f"{log.path}: {len(log.malformed)} line{'s' if len(log.malformed) > 1 else ''} ({lines}) not a "
-                      f"whole row of {len(log.columns)} columns, ignored: their runs are run again", stacklevel=3)
+        warn_at_caller(f"{log.path}: {len(log.malformed)} line{'s' if len(log.malformed) > 1 else ''} ({lines}) not a "
+                       f"whole row of {len(log.columns)} columns, ignored: their runs are run again")
     by_id = {run.run_id: run for run in sweep.runs}
     todo = [tasks[r.run_id] for r in sweep.runs
             if not (latest.get(r.run_id, {}).get("status") == "ok"

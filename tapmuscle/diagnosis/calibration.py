@@ -60,6 +60,7 @@ from scipy import optimize
 
 from fmu_plant import PlantParams
 
+from tapmuscle.diagnosis.catalogue import Catalogue
 from tapmuscle.diagnosis.reproducible import broyden_update, dot, snap, snap_relative, sse
 
 
@@ -97,7 +98,7 @@ class NominalParameter:
 
 
 #: The rig's physical constants the calibration re-estimates (docs/diagnosis.md, step 4).
-NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = (
+NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = Catalogue("NOMINAL_PARAMETERS", (
     NominalParameter("valve.cv_max", "US gpm/psi^0.5"),
     NominalParameter("valve.leak_fraction", "-"),
     NominalParameter("supply.compliance_m3_per_mpa", "m^3/MPa"),
@@ -110,7 +111,7 @@ NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = (
     NominalParameter("friction.per_mpa_n", "N/MPa"),
     NominalParameter("friction.asymmetry", "-"),
     NominalParameter("friction.presliding_mm", "mm"),
-)
+))
 
 
 def field_bounds(key: str) -> tuple[float, float]:

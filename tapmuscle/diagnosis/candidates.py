@@ -51,6 +51,7 @@ from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.boundary_effects import backlash
 from tapmuscle.diagnosis.calibration import field_bounds
+from tapmuscle.diagnosis.catalogue import Catalogue
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
 from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
@@ -104,6 +105,10 @@ class Candidate:
     fitted (a sag's fall and recovery). The held-out blocks they touch are left out of the tests of
     the other effects (docs/diagnosis.md, step 5): where an edge lies inside a held-out block, the
     training blocks do not place it, and the prediction error there is the edge's."""
+
+    def __repr__(self) -> str:
+        # its functions and paragraphs of physics are the module's: a list of candidates stays readable
+        return f"Candidate({self.name!r})"
 
     def words(self, values: dict[str, float], nominal: object | None = None) -> str:
         """Plain-words explanation of ``values``, against ``nominal`` (the model diagnosed against, any
@@ -770,7 +775,7 @@ def material_value(effect: str, values: dict[str, float], nominal: PlantParams) 
     return abs(values["supply.supply_pressure_mpa"] - ps0) >= SUPPLY_MATERIAL_FRACTION * ps0
 
 
-CANDIDATES: tuple[Candidate, ...] = (
+CANDIDATES: tuple[Candidate, ...] = Catalogue("CANDIDATES", (
     Candidate(
         "rate_dependent_hysteresis",
         "The muscle's hysteresis grows with the speed of motion: braid-bladder friction is higher when "
@@ -877,7 +882,7 @@ CANDIDATES: tuple[Candidate, ...] = (
         "each from the calibrated constants and from the nominal ones.",
         _scalar_fit("supply.supply_pressure_mpa", 0.01, *SUPPLY_PRESSURE_MPA),
         _explain_supply, explain_against=_explain_supply),
-)
+))
 
 
 def candidate(name: str) -> Candidate:

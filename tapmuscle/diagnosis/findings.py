@@ -87,30 +87,30 @@ class Diagnosis:
     """Held-out fit of the final model (calibration and accepted effects) [%]."""
     findings: list[Finding]
     """The effects named, ordered by evidence, and ``unexplained`` for a remaining structured residual."""
-    calibrated: PlantParams
+    calibrated: PlantParams = field(repr=False)
     """The model with the calibrated constants and the accepted effects' parameters (for an
     ``ambiguous`` verdict: with the best-scoring alternative)."""
-    t_s: np.ndarray
+    t_s: np.ndarray = field(repr=False)
     """The recording's time [s]."""
-    u_v: np.ndarray
+    u_v: np.ndarray = field(repr=False)
     """The recording's command [V]."""
-    y_mm: np.ndarray
+    y_mm: np.ndarray = field(repr=False)
     """The recording's displacement [mm]."""
-    y_before_mm: np.ndarray
+    y_before_mm: np.ndarray = field(repr=False)
     """The nominal model's re-simulation [mm]."""
-    y_after_mm: np.ndarray
+    y_after_mm: np.ndarray = field(repr=False)
     """The final model's re-simulation [mm]."""
-    train: np.ndarray
+    train: np.ndarray = field(repr=False)
     """Indices of the training blocks."""
-    test: np.ndarray
+    test: np.ndarray = field(repr=False)
     """Indices of the held-out blocks."""
-    tests_before: dict[str, Any]
+    tests_before: dict[str, Any] = field(repr=False)
     """Residual tests of the nominal model (whiteness, RMS, noise level, ``structured``)."""
-    tests_after: dict[str, Any]
+    tests_after: dict[str, Any] = field(repr=False)
     """Residual tests of the final model."""
-    correlations: dict[str, Correlation]
+    correlations: dict[str, Correlation] = field(repr=False)
     """Autocorrelation and input cross-correlation of the residual, before and after."""
-    candidates: list[dict[str, Any]]
+    candidates: list[dict[str, Any]] = field(repr=False)
     """Every candidate tried, per round: name, held-out gain, SSE reduction, significance."""
     simulations: int
     """Plant simulations the diagnosis ran."""
@@ -120,15 +120,15 @@ class Diagnosis:
     """The final calibration (re-fitted jointly with the accepted effects); None when not run."""
     fit_calibrated_percent: float | None = None
     """Held-out fit of the calibrated plant without any effect [%]."""
-    y_calibrated_mm: np.ndarray | None = None
+    y_calibrated_mm: np.ndarray | None = field(default=None, repr=False)
     """The calibrated plant's re-simulation without effects [mm]; None without calibration."""
     ambiguous: list[list[Alternative]] = field(default_factory=list)
     """Groups of statistically indistinguishable explanations."""
-    selection: list[dict[str, Any]] = field(default_factory=list)
+    selection: list[dict[str, Any]] = field(default_factory=list, repr=False)
     """The forward and backward steps taken, in order."""
-    nominal: PlantParams | None = None
+    nominal: PlantParams | None = field(default=None, repr=False)
     """The nominal model the diagnosis started from."""
-    load_n: np.ndarray | None = None
+    load_n: np.ndarray | None = field(default=None, repr=False)
     """The recorded load [N], if the recording had one."""
     ts_s: float = 0.0
     """Sampling period [s]."""

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import json
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -25,6 +24,7 @@ from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.rls import TABLE2_LOWER
 from fmu_controller.prediction import checked_input_delay
+from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
@@ -193,9 +193,9 @@ def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
             odd.append(f"largest {what} is {'under' if scale <= 0.01 else 'over'} {1.9 if scale <= 0.01 else 1900:g} "
                        f"(scaling.{key} = {scale:g}: {guess})")
     if odd:
-        warnings.warn(f"{where}: identified on a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in "
-                      "mm and V, as their readings l and command u are: identify on the recording in mm and V",
-                      UserWarning, stacklevel=3)
+        warn_at_caller(f"{where}: identified on a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in "
+                       "mm and V, as their readings l and command u are: identify on the recording in mm and V",
+                       UserWarning)
 
 
 def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,

@@ -75,9 +75,15 @@ class Recording:
         one made in memory.
     """
 
-    columns: dict[str, np.ndarray]
+    columns: dict[str, np.ndarray] = field(repr=False)
     metadata: dict[str, str] = field(default_factory=dict)
     lines: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        # its columns are thousands of samples: their names and the run's length stand for them
+        t = self.columns["t_s"]
+        span = f", {t[-1] - t[0]:g} s" if len(t) else ""
+        return f"Recording({len(t)} samples{span}, columns {', '.join(self.columns)}, metadata={self.metadata!r})"
 
     def __post_init__(self) -> None:
         for name in REQUIRED_COLUMNS:

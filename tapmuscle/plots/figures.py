@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.io.atomic import atomic_path
 
 __all__ = ["MissingGlyphWarning", "new_figure", "save_figure", "plot_recording", "plot_parameter_convergence",
@@ -76,8 +77,8 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
             elif chr(int(glyph.group(1))) not in missing:
                 missing.append(chr(int(glyph.group(1))))
         if missing:
-            warnings.warn(f"{path.name}: no installed font draws {''.join(missing)!r}, shown as boxes (install a font "
-                          "that has them, e.g. Debian's fonts-noto-cjk)", MissingGlyphWarning, stacklevel=2)
+            warn_at_caller(f"{path.name}: no installed font draws {''.join(missing)!r}, shown as boxes (install a font "
+                           "that has them, e.g. Debian's fonts-noto-cjk)", MissingGlyphWarning)
     finally:
         if getattr(fig.canvas, "manager", None) is not None:
             # only pyplot gives a figure a manager, so pyplot is already loaded here

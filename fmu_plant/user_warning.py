@@ -1,0 +1,35 @@
+"""Warnings shown at the user's line, not at the package's.
+
+A warning raised deep in a run (``tm.simulate`` -> ``run_open_loop`` -> here) with a fixed
+``stacklevel`` points at a line of the package; a notebook shows that line, and the warnings filter's
+"once per location" rule then hides it when the same cell is run again. :func:`warn_at_caller` points
+at the first frame outside this project's packages.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+
+__all__ = ["PROJECT_PACKAGES", "warn_at_caller"]
+
+#: The top-level packages whose frames a warning skips (this project's).
+PROJECT_PACKAGES = ("fmu_plant", "fmu_controller", "fmi_slave", "build_scripts", "tapmuscle")
+
+
+def _stacklevel() -> int:
+    """``warnings.warn``'s stacklevel, counted from its caller's caller, of the first frame outside
+    :data:`PROJECT_PACKAGES` (the outermost frame if every one is inside)."""
+    frame, level = sys._getframe(2), 1
+    while frame.f_back is not None:
+        name = frame.f_globals.get("__name__", "")
+        if name.split(".", 1)[0] not in PROJECT_PACKAGES:
+            break
+        frame, level = frame.f_back, level + 1
+    return level
+
+
+def warn_at_caller(message: str | Warning, category: type[Warning] = UserWarning) -> None:
+    """``warnings.warn(message, category)`` located at the first line outside this project's packages
+    (the user's script or notebook cell)."""
+    warnings.warn(message, category, stacklevel=_stacklevel() + 1)
