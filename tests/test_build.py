@@ -361,3 +361,26 @@ def test_the_build_copies_a_read_only_checkout_writable(tmp_path):
     copied = [tmp_path / "dst", tmp_path / "dst" / "pkg", tmp_path / "dst" / "pkg" / "mod.py"]
     assert all(p.stat().st_mode & stat.S_IWUSR for p in copied), [oct(p.stat().st_mode) for p in copied]
     assert not (tmp_path / "dst" / "pkg" / "mod.pyc").exists()
+
+
+def test_an_interrupt_in_the_build_folders_removal_leaves_nothing_behind(monkeypatch):
+    """Ctrl-C landing in the removal of a build's temporary folder left 2 MB in $TMPDIR (one of five
+    interrupts of tm.build_fmus in a notebook): the removal finishes, then the interrupt is raised."""
+    import build_scripts.build_fmus as build
+
+    real, calls = shutil.rmtree, []
+
+    def interrupted_once(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 1:
+            real(next(p for p in sorted(os.scandir(path), key=lambda e: e.name)).path)  # removed in part
+            raise KeyboardInterrupt
+        real(path, *args, **kwargs)
+
+    monkeypatch.setattr(build.shutil, "rmtree", interrupted_once)
+    with pytest.raises(KeyboardInterrupt):
+        with build._build_folder() as folder:
+            for name in ("a", "b"):
+                (folder / name).mkdir()
+                (folder / name / "f.bin").write_bytes(b"x" * 1000)
+    assert len(calls) == 2 and not folder.exists()

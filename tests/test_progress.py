@@ -55,3 +55,30 @@ def test_the_heartbeat_ends_with_its_command(monkeypatch):
 
 def test_no_stream_is_left_quiet_for_more_than_5_s():
     assert progress_module.HEARTBEAT_TTY_S <= 5.0 and progress_module.HEARTBEAT_LOG_S <= 5.0
+
+
+def test_the_heartbeat_ends_with_an_interrupted_call_though_its_progress_is_kept(monkeypatch):
+    """In a notebook, a Progress passed to tm.run_closed_loop and kept in a variable kept writing
+    "(still running)" into later cells after the call was interrupted: the heartbeat lasts as long as
+    the call that reports."""
+    import pytest
+
+    import tapmuscle as tm
+
+    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.05)
+    out = io.StringIO()
+    kept = Progress("loop", stream=out, min_total=1)
+
+    def reference(t):
+        if t > 5.0:
+            raise KeyboardInterrupt  # the notebook's interrupt, inside the run
+        return 30.0
+
+    controller = tm.DisplacementController(tm.ControllerSettings(method="mpc_ucp"), tm.THETA0_44N)
+    with pytest.raises(KeyboardInterrupt):
+        tm.run_closed_loop(tm.Plant(seed=0), controller, reference, duration_s=60.0, progress=kept)
+    time.sleep(0.3)
+    written = out.getvalue()
+    time.sleep(0.3)
+    assert out.getvalue() == written and written.startswith("loop:")  # reported while it ran, silent after
+    assert not [t for t in threading.enumerate() if t.name == "progress-loop"]

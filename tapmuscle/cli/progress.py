@@ -3,6 +3,10 @@
 A run never goes quiet for more than 5 s: besides each update, a heartbeat re-reports the last state
 with the elapsed time when nothing has been written for :data:`HEARTBEAT_TTY_S` (a terminal: the
 bar's clock keeps moving) or :data:`HEARTBEAT_LOG_S` (a log file or CI: a "still running" line).
+The heartbeat lasts as long as the call that reports: the outermost of this project's functions on
+the reporting thread's stack at the first report (the command's ``main``, or ``tm.run_closed_loop``
+called from a notebook). A call ended by an exception (a notebook's interrupt) stops it, though the
+notebook still holds the ``Progress``.
 """
 
 from __future__ import annotations
@@ -11,7 +15,9 @@ import sys
 import threading
 import time
 import weakref
-from typing import TextIO
+from typing import Any, TextIO
+
+from fmu_plant.user_warning import PROJECT_PACKAGES
 
 __all__ = ["Progress", "HEARTBEAT_TTY_S", "HEARTBEAT_LOG_S"]
 
@@ -39,6 +45,7 @@ class Progress:
         self._state: tuple[int, int, str] | None = None
         self._last_write = self._t0
         self._heart: threading.Thread | None = None
+        self._owner: tuple[int, int, object] | None = None  # (thread, frame id, code) of the reporting call
 
     @property
     def heartbeat_s(self) -> float:
@@ -53,6 +60,7 @@ class Progress:
             self._state = (done, total, detail)
             self._render(done, total, detail, heartbeat=False)
         if self._heart is None and done < total:
+            self._owner = _reporting_call(sys._getframe(1))
             # the thread holds only a weak reference: when the command is over and its Progress is
             # gone, the heartbeat stops too (a run that ends early never reaches done == total)
             self._heart = threading.Thread(target=_beat, args=(weakref.ref(self),), name=f"progress-{self.label}",
@@ -66,7 +74,7 @@ class Progress:
         if self._tty:
             bar = "#" * int(30 * frac)
             self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% {elapsed:6.1f} s{extra}\033[K")
-            if done >= total:
+            if done >= total or not _running(self._owner):
                 self.stream.write("\n")
         else:
             decile = int(10 * frac)
@@ -85,11 +93,36 @@ class Progress:
             if self._state is None:
                 return True
             done, total, detail = self._state
-            if done >= total:
+            if done >= total or not _running(self._owner):
                 return False
             if time.monotonic() - self._last_write >= self.heartbeat_s:
                 self._render(done, total, detail, heartbeat=True)
         return True
+
+
+def _reporting_call(frame: Any) -> tuple[int, int, object]:
+    """``(thread id, frame id, code)`` of the outermost frame of this project's packages above
+    ``frame`` (``frame`` itself if there is none), on the current thread. Ids, not the frame: holding
+    a frame would keep its locals (a run's arrays) alive."""
+    owner = frame
+    while frame is not None:
+        if frame.f_globals.get("__name__", "").split(".", 1)[0] in PROJECT_PACKAGES:
+            owner = frame
+        frame = frame.f_back
+    return threading.get_ident(), id(owner), owner.f_code
+
+
+def _running(owner: tuple[int, int, object] | None) -> bool:
+    """Whether the call :func:`_reporting_call` named is still on its thread's stack."""
+    if owner is None:
+        return True
+    thread, frame_id, code = owner
+    frame = sys._current_frames().get(thread)
+    while frame is not None:
+        if id(frame) == frame_id and frame.f_code is code:
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _beat(ref: "weakref.ReferenceType[Progress]") -> None:
