@@ -21,7 +21,9 @@ predictions and plan of any moves are one matrix-vector product.  ``B`` is
 affine in the step response and the rows ``C A^n``; that map is tabulated at
 construction, so a new model costs one matrix-vector product for ``B`` (only
 its model-dependent entries are rewritten, in place), one small matrix product
-for ``P``, ``K`` and one Cholesky solve for ``-P^{-1} K``.
+for ``P``, ``K`` and one Cholesky solve for ``-P^{-1} K``. For long horizons
+(a map of more than :data:`MAX_TABULATED` entries) ``B`` is formed from the step
+response directly instead.
 The constraint matrix is the cumulative-sum matrix ``S`` (``u_c(k+i|k) =
 u_c(k-1) + (S D)_i``).  ``P`` and ``K`` depend on ``(a1, a2, b1)`` only, ``S``
 never changes.
@@ -32,7 +34,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg.lapack import dposv as _dposv
 
-__all__ = ["CondensedServoQP"]
+__all__ = ["CondensedServoQP", "MAX_TABULATED"]
+
+#: Largest tabulated map ``T`` [entries] (:class:`CondensedServoQP`): beyond it (horizons of about
+#: 30 and more) ``B`` is formed from the model's step response directly.
+MAX_TABULATED = 200_000
 
 
 class CondensedServoQP:
@@ -76,8 +82,8 @@ class CondensedServoQP:
         B0[nres + hp:nres + 2 * hp] = B0[hp:2 * hp]                 # x_s again, unweighted
         B0[nres + 2 * hp:, :hu] = S                                 # u_c(k-1) + S D
         B0[nres + 2 * hp:, c + 2] = 1.0
-        M = np.tril(np.ones((hp, hp)), -1)  # x_s(k+i) sums l_hat(k+1..k+i-1)
-        Lmap = np.vstack([np.eye(hp), -M, np.zeros((hu, hp)), np.eye(hp), -M, np.zeros((hu, hp))])
+        # Lmap = [I; -M; 0; I; -M; 0] (M strictly lower-triangular ones: x_s(k+i) sums
+        # l_hat(k+1..k+i-1)), applied by its blocks (_unweighted)
         # [G | F] = [0, x][gf_idx]: G[i-1, m] = s_{max(i-m, 0)} (s_0 = 0),
         # F[i-1, :3] = [p_i, q_i, s_i], other columns of F zero
         gf_idx = np.zeros((hp, hu + nz), dtype=np.intp)
@@ -87,32 +93,54 @@ class CondensedServoQP:
         gf_idx[:, c + 1] = 2 * hp + np.arange(1, hp + 1)
         gf_idx[:, c + 2] = np.arange(1, hp + 1)
 
-        def unweighted(x: np.ndarray) -> np.ndarray:
-            return B0 + Lmap @ np.concatenate([[0.0], x])[gf_idx]
-
-        # B is affine in x: tabulate it once (exact: integer entries) so that a
-        # model update is a single matrix-vector product, B = T @ [x; 1]
-        nx = 3 * hp
-        base = unweighted(np.zeros(nx))
-        cols = [(unweighted(e) - base).ravel() for e in np.eye(nx)] + [base.ravel()]
-        row_scale = np.concatenate([np.sqrt(Q), np.sqrt(Qs), np.sqrt(R), np.ones(2 * hp + hu)])
-        self._T = np.stack(cols, axis=1) * np.repeat(row_scale, hu + nz)[:, None]
-        # Most entries of B do not depend on the model (104 of 450 for Table 5): keep B as
-        # one buffer holding the constant ones and rewrite only the rows of T that have a
-        # model coefficient (the same row-times-[x; 1] products, ~2x cheaper than all of T).
-        self._B_var = np.flatnonzero(np.any(self._T[:, :-1] != 0.0, axis=1))
-        self._T_var = np.ascontiguousarray(self._T[self._B_var])
-        self._B = self._T[:, -1].reshape(B0.shape).copy()  # x = 0: the constant entries
-        self._B_flat = self._B.reshape(-1)                  # a view: writes go to self._B
+        self._B0, self._gf_idx = B0, gf_idx
+        self._row_scale = np.concatenate([np.sqrt(Q), np.sqrt(Qs), np.sqrt(R), np.ones(2 * hp + hu)])
+        self._T: np.ndarray | None = None
+        # B is affine in x: tabulated once (exact: integer entries), a model update is a single
+        # matrix-vector product, B = T @ [x; 1]. T has (3 Hp + 1) times B's entries: 7,200 for
+        # Table 5, 4.7 million (38 MB, 1.1 s to build, tens of ms a product) at Hp = Hu = 50,
+        # where B is formed from x directly instead.
+        self.tabulated = B0.size * (3 * hp + 1) <= MAX_TABULATED
+        if self.tabulated:
+            T = self.T
+            # Most entries of B do not depend on the model (104 of 450 for Table 5): keep B as
+            # one buffer holding the constant ones and rewrite only the rows of T that have a
+            # model coefficient (the same row-times-[x; 1] products, ~2x cheaper than all of T).
+            self._B_var = np.flatnonzero(np.any(T[:, :-1] != 0.0, axis=1))
+            self._T_var = np.ascontiguousarray(T[self._B_var])
+            self._B = T[:, -1].reshape(B0.shape).copy()  # x = 0: the constant entries
+        else:
+            self._B = self._weighted(np.zeros(3 * hp))
+        self._B_flat = self._B.reshape(-1)  # a view: writes go to self._B
 
         self.H: np.ndarray | None = None
         self.K_unc: np.ndarray | None = None
         self._P: np.ndarray | None = None
         self._K: np.ndarray | None = None
 
+    def _unweighted(self, x: np.ndarray) -> np.ndarray:
+        """Unweighted ``B`` for ``x = [s_1..s_Hp, p_1..p_Hp, q_1..q_Hp]``: ``B0 + Lmap [G | F]``."""
+        gf = np.concatenate([[0.0], x])[self._gf_idx]
+        # Lmap's blocks: M a shifted running sum, no matrix product (which a multi-threaded BLAS
+        # makes a hundred times slower on a busy machine)
+        summed = np.zeros_like(gf)
+        np.cumsum(gf[:-1], axis=0, out=summed[1:])
+        zeros = np.zeros((self.hu, gf.shape[1]))
+        return self._B0 + np.concatenate([gf, -summed, zeros, gf, -summed, zeros])
+
+    def _weighted(self, x: np.ndarray) -> np.ndarray:
+        """``B`` for ``x``, formed directly: :meth:`_unweighted` with the rows weighted."""
+        return self._unweighted(x) * self._row_scale[:, None]
+
     @property
     def T(self) -> np.ndarray:
-        """The tabulated affine map: ``B.ravel() = T @ [s_1..s_Hp, p_1..p_Hp, q_1..q_Hp, 1]``."""
+        """The tabulated affine map: ``B.ravel() = T @ [s_1..s_Hp, p_1..p_Hp, q_1..q_Hp, 1]`` (built
+        on first use where :attr:`tabulated` is False)."""
+        if self._T is None:
+            nx = 3 * self.hp
+            base = self._unweighted(np.zeros(nx))
+            cols = [(self._unweighted(e) - base).ravel() for e in np.eye(nx)] + [base.ravel()]
+            self._T = np.stack(cols, axis=1) * np.repeat(self._row_scale, self.hu + self.nz)[:, None]
         return self._T
 
     @property
@@ -153,7 +181,10 @@ class CondensedServoQP:
         # B = T [x; 1] (reshaped), in place: only the model-dependent entries change.
         # Nothing keeps a view of the old B (results hold products of it, not views).
         B = self._B
-        self._B_flat[self._B_var] = self._T_var.dot(x)
+        if self.tabulated:
+            self._B_flat[self._B_var] = self._T_var.dot(x)
+        else:
+            B[...] = self._weighted(np.array(x[:-1]))
         # [P/2 | K/2] = Gall^T [Gall | W] with [Gall | W] the weighted residual rows
         Gall = B[:nres, :hu]
         H = Gall.T.dot(B[:nres])

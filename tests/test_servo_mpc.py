@@ -300,6 +300,33 @@ def test_model_update_in_place_leaves_no_stale_entries():
         np.testing.assert_allclose(qp.B.ravel(), qp.T @ x, rtol=1e-14, atol=1e-14)
 
 
+@pytest.mark.parametrize("hp, hu", [(20, 20), (50, 5), (50, 50)])
+def test_long_horizons_form_b_directly_as_the_tabulated_map_would(monkeypatch, hp, hu):
+    """Beyond MAX_TABULATED the map T (4.7 million entries at Hp = Hu = 50: 1.1 s and 115 MB to build,
+    and tens of ms a product under a multi-threaded BLAS on a busy machine, 16 s for a 45-s AMPC-servo
+    run) is not built: B is formed from the step response directly, and equals the tabulated B to
+    rounding, as do the unconstrained moves."""
+    import fmu_controller.servo_qp as servo_qp
+
+    rng = np.random.default_rng(3)
+    weights = (rng.uniform(1, 10, hp), rng.uniform(0, 5, hp), rng.uniform(5, 50, hu))
+    direct = CondensedServoQP(hp, hu, *weights)
+    assert not direct.tabulated and direct._T is None
+    monkeypatch.setattr(servo_qp, "MAX_TABULATED", 10 ** 9)
+    tabulated = CondensedServoQP(hp, hu, *weights)
+    assert tabulated.tabulated
+    for model in [MODEL, (1.25, -0.31, 0.7), (0.9, 0.05, 0.2)]:
+        direct.set_model(*model)
+        tabulated.set_model(*model)
+        scale = np.abs(tabulated.B).max()
+        np.testing.assert_allclose(direct.B, tabulated.B, rtol=0, atol=1e-13 * scale)
+        # -P^{-1} K: B's rounding times P's condition number (2.6e6 at Hu = 50, Table 5's weights), against the gains' size
+        gain = np.abs(tabulated.K_unc).max()
+        cond = np.linalg.cond(tabulated.H[:, :hu])
+        np.testing.assert_allclose(direct.K_unc, tabulated.K_unc, rtol=0, atol=100 * cond * 1e-16 * gain)
+    np.testing.assert_array_equal(direct.T, tabulated.T)  # built on demand: the same integer map, weighted
+
+
 def test_update_model_does_not_depend_on_warm_start_much():
     # warm vs cold start land on the same optimum (refined on the active set)
     rng = np.random.default_rng(6)
