@@ -4,10 +4,10 @@ The compiled loop is :meth:`~fmu_plant.Plant.step_many`'s Python loop (``_integr
 ``_ports``, ``_readings``) with the arithmetic of the effects in ``effect_library.py`` inlined,
 operation for operation, so it gives the same bits (``tests/test_compiled_run.py`` checks them). It
 runs only what it inlines: a plant whose effects are exactly the library's classes (no subclass, no hook
-replaced on the instance), each at most once and in the order :func:`effects_from_params` gives them,
-and whose sensors draw no noise; :meth:`Plant.step_many` keeps its Python loop otherwise. This module
-packs such an effect list into the run's arguments and writes back the memory the run changed (the
-delay's command history, the backlash's slider).
+replaced on the instance, none of the class's functions replaced), each at most once and in the order
+:func:`effects_from_params` gives them, and whose sensors draw no noise; :meth:`Plant.step_many` keeps
+its Python loop otherwise. This module packs such an effect list into the run's arguments and writes
+back the memory the run changed (the delay's command history, the backlash's slider).
 """
 
 from __future__ import annotations
@@ -29,6 +29,16 @@ LIBRARY_ORDER = (TransportDelay, InputMap, ValveDeadZone, SupplyPressureVariatio
 #: Every method of Effect: one replaced on an instance is code the compiled loop does not have.
 _EFFECT_METHODS = tuple(name for name, v in vars(Effect).items() if callable(v) and not name.startswith("__"))
 
+#: The library classes' own functions as imported: one changed on the class (a patch in a notebook)
+#: is code the compiled loop does not have either.
+_AS_IMPORTED = {cls: {name: v for name, v in vars(cls).items() if callable(v)} for cls in LIBRARY_ORDER}
+
+
+def _as_imported(cls: type) -> bool:
+    """Whether the library class ``cls`` has the functions it was imported with, and no others."""
+    now = {name: v for name, v in vars(cls).items() if callable(v)}
+    return now.keys() == _AS_IMPORTED[cls].keys() and all(now[n] is v for n, v in _AS_IMPORTED[cls].items())
+
 
 def runnable(effects: Sequence[Effect], sensor: SensorParams) -> bool:
     """Whether the compiled loop gives the Python loop's bits for a plant with ``effects`` and ``sensor``."""
@@ -36,7 +46,7 @@ def runnable(effects: Sequence[Effect], sensor: SensorParams) -> bool:
         return False
     last = -1
     for e in effects:
-        if type(e) not in LIBRARY_ORDER or any(m in vars(e) for m in _EFFECT_METHODS):
+        if type(e) not in LIBRARY_ORDER or any(m in vars(e) for m in _EFFECT_METHODS) or not _as_imported(type(e)):
             return False
         slot = LIBRARY_ORDER.index(type(e))
         if slot <= last:

@@ -13,6 +13,7 @@ naming the field and the value.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -35,6 +36,7 @@ __all__ = [
     "PlantParams",
     "GRAVITY_M_S2",
     "CV_TO_SI_WATER",
+    "dotted_names",
 ]
 
 #: Standard gravity [m/s^2], converts the hanging load's weight to its mass.
@@ -391,7 +393,10 @@ class PlantParams:
             if getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
                 value = value.item()  # a numpy scalar (np.int64 from np.arange, np.float32) as Python's number
             groups.setdefault(group, {})[name] = value
-        return replace(self, **{g: replace(getattr(self, g), **kv) for g, kv in groups.items()})
+        try:
+            return replace(self, **{g: replace(getattr(self, g), **kv) for g, kv in groups.items()})
+        except ValueError as exc:  # a group's check names its class: said with the dotted name given
+            raise ValueError(dotted_names(str(exc))) from None
 
     def value(self, key: str) -> float:
         """The value of one parameter by dotted name (``"group.field"``); ``AttributeError`` if unknown."""
@@ -422,3 +427,10 @@ class PlantParams:
             for name, value in values.items():
                 flat[f"{group}.{name}"] = value
         return cls().with_values(**flat)
+
+
+def dotted_names(message: str) -> str:
+    """``message`` with ``ValveParams.cv_max`` written as the dotted name ``valve.cv_max`` (the plant
+    FMU's parameter, a plant file's key)."""
+    groups = {type(getattr(PlantParams(), f.name)).__name__: f.name for f in fields(PlantParams)}
+    return re.sub(r"\b(\w+Params)\.(\w+)", lambda m: f"{groups.get(m[1], m[1])}.{m[2]}", message)

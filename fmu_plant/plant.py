@@ -190,8 +190,10 @@ class Plant:
         Physical parameters (defaults reproduce the paper's rig at 44 N).
     seed : int, optional
         Seed of the sensor-noise generator.
-    effects : sequence of Effect, optional
-        Extra physics plugged into the plant's ports (effects.py), applied in order.
+    effects : Effect or sequence of Effect, optional
+        Extra physics plugged into the plant's ports (effects.py), applied in order after the effects
+        ``params`` switch on. They act in this process only: a plant FMU carries the parameters'
+        effects alone (docs/plant.md, "Effects of your own").
 
     Examples
     --------
@@ -202,18 +204,24 @@ class Plant:
     """
 
     def __init__(self, params: PlantParams | None = None, *, seed: int = 0,
-                 effects: Sequence[Effect] = ()) -> None:
+                 effects: Sequence[Effect] | Effect = ()) -> None:
         self.params = params if params is not None else PlantParams()
         if not isinstance(self.params, PlantParams):
             # a file is read by its reader (tapmuscle.read_plant_file); the plant takes the parameters
             hint = (": a plant parameter file is read by tm.read_plant_file(path)"
                     if isinstance(self.params, (str, os.PathLike)) else "")
             raise TypeError(f"params must be a PlantParams, got {type(self.params).__name__}{hint}")
-        # the effects switched on in the parameters (effect_library.py), then the caller's own
+        # the effects switched on in the parameters (effect_library.py), then the caller's own (one
+        # counts as one)
+        if isinstance(effects, Effect):
+            effects = (effects,)
+        elif not isinstance(effects, Iterable):
+            raise TypeError(f"effects must be a sequence of Effect instances, got {type(effects).__name__}")
         self.effects: tuple[Effect, ...] = tuple(effects_from_params(self.params)) + tuple(effects)
         for e in self.effects:
             if not isinstance(e, Effect):
-                raise ValueError(f"effects must be Effect instances, got {type(e).__name__}")
+                raise TypeError(f"effects must be Effect instances (subclasses of fmu_plant.Effect), got "
+                                f"{type(e).__name__}")
         # Each port calls only the effects that act on it: a base hook is the identity (and a gate of
         # 1.0 multiplies exactly), so leaving it out changes no bit, and a sub-step of a plant whose
         # effects act on no port is integrated as the effect-free plant's.

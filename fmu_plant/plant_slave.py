@@ -20,7 +20,6 @@ must start at the plant's time (:class:`fmi_slave.SafeSlave`: a gap or a step ba
 from __future__ import annotations
 
 import math
-import re
 import sys
 from dataclasses import fields
 
@@ -29,6 +28,7 @@ from fmi_slave.base import SlaveInputError
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 from fmu_plant import Plant, PlantParams
+from fmu_plant.parameters import dotted_names
 from fmu_plant.rosenbrock import COMPILED, COMPILED_FOR_ANOTHER_PYTHON
 from fmu_plant.seed import join_seed
 
@@ -36,13 +36,6 @@ __all__ = ["MusclePlant", "SET_BY_INPUT", "parameter_table"]
 
 #: every parameter's default, by the FMU's name
 _DEFAULTS = PlantParams().dotted()
-#: ``ValveParams`` -> ``valve``: the FMU's names for the parameter groups in PlantParams' messages
-_GROUP_OF = {type(getattr(PlantParams(), f.name)).__name__: f.name for f in fields(PlantParams)}
-
-
-def _fmu_names(message: str) -> str:
-    """``message`` with ``ValveParams.cv_max`` written as the FMU's parameter name ``valve.cv_max``."""
-    return re.sub(r"\b(\w+Params)\.(\w+)", lambda m: f"{_GROUP_OF.get(m[1], m[1])}.{m[2]}", message)
 
 
 #: The parameters whose physics an input of the FMU sets (the parameters stay for plant files, which set
@@ -111,7 +104,7 @@ class MusclePlant(SafeSlave):
         try:
             params = PlantParams().with_values(**self._par)
         except ValueError as exc:
-            raise SlaveInputError(f"bad parameter: {_fmu_names(str(exc))}") from None
+            raise SlaveInputError(f"bad parameter: {dotted_names(str(exc))}") from None
         try:
             seed = join_seed(self._int_par["seed"], self._int_par["seed_high"])
         except ValueError as exc:

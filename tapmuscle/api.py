@@ -20,7 +20,7 @@ from fmu_controller.displacement_control import METHODS, ControllerSettings, Dis
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
-from fmu_plant import Plant, PlantParams
+from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.io.identification_file import IdentifiedModel
@@ -30,8 +30,9 @@ from tapmuscle.io.signals import Replay, parse_input_spec
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus"]
 
 
-def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant:
-    """The rig at ``load_n``; :class:`Plant` checks ``seed`` (unsigned 64-bit)."""
+def _plant(params: PlantParams | None, load_n: float | None, seed: int, effects: Sequence[Effect] | Effect = ()) -> Plant:
+    """The rig at ``load_n`` with ``effects`` of the caller's own; :class:`Plant` checks ``seed`` (unsigned
+    64-bit) and ``effects``."""
     if params is not None and not isinstance(params, PlantParams):
         # a file is read by its reader, as a recording or an identification is: the numerics take objects
         hint = (": a plant parameter file is read by tm.read_plant_file(path)"
@@ -43,7 +44,7 @@ def _plant(params: PlantParams | None, load_n: float | None, seed: int) -> Plant
                         f"{type(load_n).__name__} {load_n!r}")
     if load_n is not None and isinstance(p, PlantParams):
         p = p.with_values(**{"load.load_n": float(load_n)})
-    return Plant(p, seed=seed)
+    return Plant(p, seed=seed, effects=effects)
 
 
 def _check_positive(name: str, value: float) -> float:
@@ -64,7 +65,8 @@ def _check_period(ts_s: float) -> float:
 
 def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | str, *,
              duration_s: float | None = None, ts_s: float = 0.1, load_n: float | None = None,
-             params: PlantParams | None = None, seed: int = 0) -> dict[str, np.ndarray]:
+             params: PlantParams | None = None, seed: int = 0,
+             effects: Sequence[Effect] | Effect = ()) -> dict[str, np.ndarray]:
     """Run the simulated rig open loop from rest (what ``tapmuscle record`` records).
 
     Parameters
@@ -87,6 +89,10 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
         (``calibrated_plant.json``) is read by :func:`~tapmuscle.io.plant_file.read_plant_file`.
     seed : int
         Seed of the encoder noise.
+    effects : Effect or sequence of Effect
+        Physics of your own (:class:`fmu_plant.Effect` subclasses, docs/plant.md "Effects of your
+        own") beside the effects ``params`` switch on. They act in this process only: a plant FMU,
+        ``tapmuscle record`` and the diagnosis know the parameters' effects alone.
 
     Returns
     -------
@@ -124,7 +130,7 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
             return float(u[min(int(round(t / ts)), u.size - 1)])
     if duration_s is None:
         raise ValueError("duration_s is required when the command is a function or a spec")
-    return run_open_loop(_plant(params, load_n, seed), signal, duration_s=_check_positive("duration_s", duration_s),
+    return run_open_loop(_plant(params, load_n, seed, effects), signal, duration_s=_check_positive("duration_s", duration_s),
                          ts_s=ts)
 
 
@@ -132,7 +138,7 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
                 ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
                 params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
                 settings: ControllerSettings | None = None, seed: int = 0,
-                loop_delay_samples: int = 0) -> dict[str, np.ndarray]:
+                loop_delay_samples: int = 0, effects: Sequence[Effect] | Effect = ()) -> dict[str, np.ndarray]:
     """Track a reference with one of the paper's four controllers on the simulated rig (no FMU).
 
     The loop of :func:`tapmuscle.closed_loop.run_closed_loop`: at ``t_k`` the controller reads
@@ -177,6 +183,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         Seed of the encoder noise.
     loop_delay_samples : {0, 1}
         1: each command acts one sample late, as in a parallel co-simulation master at h = Ts.
+    effects : Effect or sequence of Effect
+        Physics of your own on the simulated rig, as :func:`simulate` takes them (this process only).
 
     Returns
     -------
@@ -224,7 +232,7 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         # 13 mm of error and the valve slamming)
         raise ValueError(f"ts_s = {ts:g} s needs a theta0 identified at that period: the default THETA0_44N is "
                          f"the paper's, identified at Ts = {PAPER_TS_S:g} s (tm.identify(..., ts_s={ts:g}) gives one)")
-    plant = _plant(params, None if callable(load_n) else load_n, seed)
+    plant = _plant(params, None if callable(load_n) else load_n, seed, effects)
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
     return run_closed_loop(plant, controller, reference, duration_s=duration_s,
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples)

@@ -412,3 +412,23 @@ def test_simulate_replays_a_recording_as_the_command_line_does(tmp_path):
         tm.simulate(f"csv:{path}", duration_s=30.0)
     with pytest.raises(ValueError, match=r"late\.csv is sampled every 0\.1 s, the run every 0\.05 s"):
         tm.simulate(f"csv:{path}", duration_s=10.0, ts_s=0.05)
+
+
+def test_an_effect_of_ones_own_runs_in_simulate_and_the_closed_loop():
+    """tm.simulate and tm.simulate_closed_loop took no effect of one's own (TypeError: unexpected
+    keyword 'effects'); they take one, or several, as Plant does, and a non-Effect is a TypeError."""
+    from fmu_plant import Effect
+
+    class HalfSupply(Effect):
+        name = "half_supply"
+
+        def supply_pressure(self, t_s, p_mpa):
+            return 0.5 * p_mpa
+
+    plain = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=20.0)
+    halved = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=20.0, effects=HalfSupply())
+    assert plain["l_mm"].max() - halved["l_mm"].max() > 5.0  # half the supply: much less contraction
+    loop = tm.simulate_closed_loop("mpc_ucp", None, duration_s=20.0, effects=[HalfSupply()])
+    assert np.all(np.isfinite(loop["l_mm"]))
+    with pytest.raises(TypeError, match=r"effects must be Effect instances \(subclasses of fmu_plant\.Effect\), got dict"):
+        tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, effects=[{"supply": 0.5}])

@@ -16,7 +16,7 @@ import pytest
 
 from fmu_plant import Plant, PlantParams
 from fmu_plant.compiled_run import LIBRARY_ORDER, runnable
-from fmu_plant.effect_library import Backlash, SensorDrift, TransportDelay, effects_from_params
+from fmu_plant.effect_library import Backlash, SensorDrift, TransportDelay, ValveDeadZone, effects_from_params
 from fmu_plant.parameters import BacklashParams, DelayParams, SensorDriftParams
 from fmu_plant.rosenbrock import COMPILED
 
@@ -186,3 +186,19 @@ def test_the_compiled_loop_runs_only_what_it_inlines():
     assert Plant(PlantParams().with_values(**NOISE_FREE), effects=[patched])._run is None
     assert Plant(PlantParams())._run is None  # the default rig's sensors are noisy
     assert (Plant(PlantParams().with_values(**NOISE_FREE))._run is not None) == COMPILED
+
+
+def test_a_library_effect_changed_on_its_class_runs_the_python_loop(monkeypatch):
+    """A notebook's patch of ValveDeadZone.valve_gate on the class reached step but not the compiled
+    step_many, which still inlined the library's gate (13.7 mm apart): a library class whose functions
+    are not those it was imported with runs the Python loop, so both give the patched physics."""
+    quiet = PlantParams().with_values(**NOISE_FREE, **{"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.0})
+    assert runnable(effects_from_params(quiet), quiet.sensor)
+    monkeypatch.setattr(ValveDeadZone, "valve_gate", lambda self, t_s, u_v: 0.5)
+    assert not runnable(effects_from_params(quiet), quiet.sensor)
+    u = np.linspace(2.0, 8.0, 60)
+    stepped = Plant(quiet)
+    one_by_one = np.array([stepped.step(v, 0.1).l_mm for v in u])
+    np.testing.assert_array_equal(Plant(quiet).step_many(u, 0.1)[0], one_by_one)
+    monkeypatch.undo()
+    assert runnable(effects_from_params(quiet), quiet.sensor)

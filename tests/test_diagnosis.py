@@ -1605,3 +1605,43 @@ def test_a_supply_within_a_few_per_cent_of_the_plant_files_is_not_claimed():
     assert material_value("supply_pressure_offset", {"supply.supply_pressure_mpa": 0.25}, at_03)
     assert not material_value("supply_pressure_offset", {"supply.supply_pressure_mpa": 0.29}, at_03)
     assert material_value("load_mismatch", {"load_mismatch.extra_n": 0.1}, nominal)
+
+
+def test_a_candidate_of_ones_own_is_refused_where_the_search_could_not_carry_it():
+    """A researcher's candidate that simulated its own physics (no plant parameter) was fitted, scored
+    +54 points, then silently dropped from every joint model (named nothing, or a wrong effect); one
+    with a key of its own failed late with 'unknown plant parameter'; one named 'transport_delay' took
+    the built-in's joint re-fit; a fitted value outside its own bounds was used. Each is refused,
+    naming the candidate (the first three before any simulation)."""
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.candidates import Candidate, FitResult, ParameterSpec, full_prediction
+
+    import tapmuscle as tm
+
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=60.0, params=PlantParams().with_values(**{"delay.delay_s": 0.3}))
+    t, u, y = rec["t_s"], rec["u_v"], rec["l_mm"]
+
+    def own(name, parameters, value=0.8):
+        def fit(problem, base, y_base):
+            values = {spec.key: value for spec in parameters}
+            return FitResult(values, full_prediction(problem, base, values))
+        return Candidate(name, "physics of my own", tuple(parameters), "a constant", fit, lambda values: "mine")
+
+    asym = ParameterSpec("friction.asymmetry", "-", 0.5, 1.0)
+    refused = {
+        "sets no plant parameter": own("stiffness_drift", ()),
+        "sets 'rubber_drift.frac_per_min', which is not a plant parameter":
+            own("stiffness_drift", (ParameterSpec("rubber_drift.frac_per_min", "1/min", 0.0, 1.0),)),
+        "a candidate of your own is named 'transport_delay', a built-in candidate's name":
+            own("transport_delay", (ParameterSpec("delay.delay_s", "s", 0.0, 2.0),)),
+    }
+    for said, cand in refused.items():
+        with pytest.raises(ValueError, match=re.escape(said)):
+            diagnose(t, u, y, PlantParams(), candidates=[cand], calibration=None)
+    with pytest.raises(ValueError, match=r"'transport_delay' is given twice"):
+        diagnose(t, u, y, PlantParams(), candidates=["transport_delay", "transport_delay"], calibration=None)
+    with pytest.raises(ValueError, match=r"candidate 'asym': its fit set friction\.asymmetry = 0\.3, outside its "
+                                         r"bounds 0\.5 \.\. 1"):
+        diagnose(t, u, y, PlantParams(), candidates=[own("asym", (asym,), value=0.3)], calibration=None)
+    fine = diagnose(t, u, y, PlantParams(), candidates=[own("asym", (asym,)), "transport_delay"], calibration=None)
+    assert {c["effect"] for c in fine.candidates} >= {"asym", "transport_delay"} and fine.named == ["transport_delay"]

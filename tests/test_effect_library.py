@@ -239,7 +239,7 @@ def test_input_map_parameters_are_validated_naming_the_field():
                              ({"input_map.knot1_out_v": 8.0}, "knot2_out_v"),
                              ({"input_map.out_at_10_v": 6.0}, "out_at_10_v"),
                              ({"input_map.out_at_0_v": float("nan")}, "out_at_0_v")]:
-        with pytest.raises(ValueError, match=f"InputMapParams.{field}"):
+        with pytest.raises(ValueError, match=rf"input_map\.{field}"):
             PlantParams().with_values(**overrides)
     PlantParams().with_values(**BAND)  # a flat stretch is monotone (non-decreasing)
 

@@ -96,3 +96,26 @@ def test_a_path_given_to_the_plant_names_the_reader(tmp_path):
     with pytest.raises(TypeError, match=r"params must be a PlantParams, got PosixPath: a plant parameter file is "
                                         r"read by tm.read_plant_file\(path\)"):
         tm.Plant(tmp_path / "calibrated_plant.json")
+
+
+def test_a_value_in_another_unit_is_named_by_its_key_and_unit(tmp_path):
+    """A file's out-of-range value was named by the Python class (SupplyParams.supply_pressure_mpa), and
+    lengths in metres (rest length 0.4, radius 0.01) or an encoder step in micrometres simulated
+    without a word: the key is the file's, and the small side is warned of with the likely unit."""
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps({"plant": {"supply": {"supply_pressure_mpa": 250}}}))
+    with pytest.raises(PlantFileError, match=r"rig\.json: supply\.supply_pressure_mpa must be <= 1\.0, got 250"):
+        read_plant_file(path)
+    for group, key, value, said in (("muscle", "rest_length_mm", 0.4, "under 10 mm.*metres or centimetres"),
+                                    ("muscle", "radius_mm", 0.01, "under 1 mm.*metres or centimetres"),
+                                    ("sensor", "encoder_resolution_mm", 10.0, "over 1 mm.*micrometres")):
+        path.write_text(json.dumps({"plant": {group: {key: value}}}))
+        with pytest.warns(UserWarning, match=rf"rig\.json: {group}\.{key} = {value:g} mm is {said}") as caught:
+            params = read_plant_file(path)
+        assert params.value(f"{group}.{key}") == value and caught[0].filename == __file__
+    path.write_text(json.dumps({"plant": {"muscle": {"rest_length_mm": 250.0, "radius_mm": 8.0}}}))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_plant_file(path)

@@ -297,7 +297,7 @@ def test_no_sub_step_is_shorter_than_min_substep_but_those_ending_a_communicatio
 
 
 def test_min_substep_longer_than_max_substep_is_refused():
-    with pytest.raises(ValueError, match=r"SolverParams\.min_substep_s \(0\.001\) must not exceed "
+    with pytest.raises(ValueError, match=r"solver\.min_substep_s \(0\.001\) must not exceed "
                                          r"max_substep_s \(0\.0001\)"):
         PlantParams().with_values(**{"solver.min_substep_s": 1e-3, "solver.max_substep_s": 1e-4})
     with pytest.raises(ValueError, match="min_substep_s"):

@@ -321,6 +321,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if isinstance(max_effects, bool) or not isinstance(max_effects, numbers.Integral) or max_effects < 0:
         raise ValueError(f"max_effects must be an integer >= 0, got {max_effects!r}")
     candidates = by_name(candidates, CANDIDATES, "candidates", "effect")
+    check_own_candidates(candidates, model)
     if calibration is not None:
         calibration = by_name(calibration, NOMINAL_PARAMETERS, "calibration", "nominal parameter",
                               hint="; calibration=None: no calibration")
@@ -392,6 +393,41 @@ def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str
         else:
             raise TypeError(f"{what}: {item!r:.60} must be a {cls.__name__} or the name of one")
     return out
+
+
+def check_own_candidates(candidates: Sequence[Candidate], model: PlantParams) -> None:
+    """Refuse candidates the search could not carry: the diagnosis re-simulates an accepted effect
+    through the plant parameters its fit sets (each :class:`~tapmuscle.diagnosis.candidates.ParameterSpec`'s
+    ``key``), so a candidate of one's own must set some of ``model``'s parameters (an effect the plant
+    has: ``fmu_plant/effect_library.py``), and must not take a built-in candidate's name, by which the
+    joint re-fits and the report know the built-ins (docs/diagnosis.md, "A candidate of your own").
+
+    Raises
+    ------
+    ValueError
+        Naming the candidate and what it lacks.
+    """
+    builtin = {c.name: c for c in CANDIDATES}
+    keys = model.dotted()
+    seen: set[str] = set()
+    for c in candidates:
+        if c.name in seen:
+            raise ValueError(f"candidates: {c.name!r} is given twice")
+        seen.add(c.name)
+        if builtin.get(c.name) is c:
+            continue
+        if c.name in builtin:
+            raise ValueError(f"candidates: a candidate of your own is named {c.name!r}, a built-in candidate's name, "
+                             "by which the joint re-fits and the report would take it for the built-in: name it otherwise")
+        if not c.parameters:
+            raise ValueError(f"candidates: {c.name!r} sets no plant parameter: the diagnosis re-simulates an accepted "
+                             "effect through the plant parameters its fit sets, so an effect the plant does not have "
+                             "is dropped from every model it is in (docs/diagnosis.md, \"A candidate of your own\")")
+        unknown = [spec.key for spec in c.parameters if spec.key not in keys]
+        if unknown:
+            raise ValueError(f"candidates: {c.name!r} sets {unknown[0]!r}, which is not a plant parameter ('group.field' "
+                             "of PlantParams; the plant's own effects are in fmu_plant/effect_library.py, docs/diagnosis.md, "
+                             "\"A candidate of your own\")")
 
 
 def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:
@@ -515,7 +551,20 @@ _BUILTIN = {c.name: c for c in CANDIDATES}
 def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Candidate | str) -> FitResult | None:
     """A candidate's own fit on ``base`` (a built-in one by name: candidates hold lambdas, which do not
     pickle)."""
-    return (_BUILTIN[cand] if isinstance(cand, str) else cand).fit(problem, base, y_base)
+    if isinstance(cand, str):
+        return _BUILTIN[cand].fit(problem, base, y_base)
+    result = cand.fit(problem, base, y_base)
+    if result is not None:  # a candidate of one's own: its values are what the re-simulations set
+        specs = {spec.key: spec for spec in cand.parameters}
+        for key, value in result.values.items():
+            spec = specs.get(key)
+            if spec is None:
+                raise ValueError(f"candidate {cand.name!r}: its fit set {key!r}, not one of its parameters "
+                                 f"({', '.join(specs)})")
+            if not spec.lo <= value <= spec.hi:
+                raise ValueError(f"candidate {cand.name!r}: its fit set {key} = {value!r}, outside its bounds "
+                                 f"{spec.lo:g} .. {spec.hi:g}")
+    return result
 
 
 def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,

@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 
 from fmu_plant import PlantParams
+from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.json_file import read_json
 from tapmuscle.io.recording import atomic_write_text
@@ -58,9 +59,32 @@ def read_plant_file(path: str | os.PathLike, option: str | None = None) -> Plant
         raise PlantFileError(f"{where}: a diagnosis report, not a plant parameter file (the calibrated plant "
                              f"is {Path(path).with_name('calibrated_plant.json')}{diagnosed})")
     try:
-        return PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data)
+        params = PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data)
     except ValueError as exc:
         raise PlantFileError(f"{where}: {exc}") from None
+    _warn_if_another_unit(params, where)
+    return params
+
+
+#: Sizes no McKibben muscle rig has, which a value in another unit gives: ``(key, lo, hi, guess)``.
+#: The parameters' bounds (fmu_plant/parameters.py) refuse values too large by orders of magnitude;
+#: these catch the small side, where a value in metres or micrometres still simulates (a 0.4-mm
+#: muscle contracting 0.17 mm).
+IMPLAUSIBLE = (
+    ("muscle.rest_length_mm", 10.0, None, "metres or centimetres?"),
+    ("muscle.radius_mm", 1.0, None, "metres or centimetres?"),
+    ("sensor.encoder_resolution_mm", None, 1.0, "micrometres?"),
+)
+
+
+def _warn_if_another_unit(params: PlantParams, where: str) -> None:
+    """Warn of each :data:`IMPLAUSIBLE` value in ``params``, read from ``where``."""
+    for key, lo, hi, guess in IMPLAUSIBLE:
+        value = params.value(key)
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            bound = f"under {lo:g}" if lo is not None and value < lo else f"over {hi:g}"
+            warn_at_caller(f"{where}: {key} = {value:g} mm is {bound} mm, which no muscle rig has: {guess} "
+                           "(the file's lengths are in mm)", UserWarning)
 
 
 def plant_file_text(params: PlantParams, note: str) -> str:
