@@ -64,11 +64,11 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 GUARD_JUMPS, MAX_DELAY_MOVE_WEIGHT,
-                                                 MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V, MIN_FORGETTING, VALVE_MAX_V, VALVE_MIN_V,
-                                                 MAX_STARTUP_S, METHOD_CODES, P0_TABLE5, ControllerSettings,
-                                                 ControlStep, DisplacementController, full_range_jump,
-                                                 preview_lead, pushed_at_limit)
+                                                 GUARD_JUMPS, HELD_WARN_S, MAX_DELAY_MOVE_WEIGHT, MAX_INPUT_DELAY_SAMPLES,
+                                                 MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
+                                                 VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
+                                                 DisplacementController, full_range_jump, held_against_cause,
+                                                 held_against_error, preview_lead, pushed_at_limit)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.preliminary_model import THETA0_44N
@@ -107,11 +107,6 @@ _HEAVY_MOVE_WEIGHT = 1000.0
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
 _PINNED_S = 10.0
-#: A command held for :data:`_PINNED_S` at a valve limit that the error pushes it away from, by at least
-#: this much [mm] (the encoder's noise and a resting muscle's sag are hundredths), is logged once: a
-#: law that opened (closed) the valve would move ``l`` towards ``r``, so the law's gain has the wrong
-#: sign for the rig (a negative ``theta0.b1``: the valve shut for a whole run without a word).
-_HELD_AGAINST_MM = 2.0
 #: A sampling period ``Ts`` of this many seconds or more, stepped by a host at a tenth of it or less, is
 #: logged at the first step: the muscle's responses take tenths of a second, so it is most likely ``Ts``
 #: typed in milliseconds (``Ts = 50``), with which the controller samples once and holds its command for
@@ -539,22 +534,18 @@ class AMPCController(SafeSlave):
                      status=Fmi2Status.warning)
 
     def _watch_held(self, t_s: float, l: float, r: float, u: float) -> None:
-        """Log once when the command has sat at a valve limit for :data:`_PINNED_S` seconds in a row
-        while the error ``r - l``, :data:`_HELD_AGAINST_MM` or more, pushes it away from the limit."""
+        """Log once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held
+        against the error (:func:`~fmu_controller.displacement_control.held_against_error`: a negative
+        ``theta0.b1`` held the valve shut for a whole run without a word)."""
         if self._held_n < 0:
             return
         s = self._controller.settings.servo
-        held = ((r - l >= _HELD_AGAINST_MM and u <= s.u_min_v + 1e-9)
-                or (l - r >= _HELD_AGAINST_MM and u >= s.u_max_v - 1e-9))
-        self._held_n = self._held_n + 1 if held else 0
+        self._held_n = self._held_n + 1 if held_against_error(r, l, u, s.u_min_v, s.u_max_v) else 0
         sat_s = (self._held_n - 1) * self._par["Ts"]
-        if sat_s >= _PINNED_S - 1e-9:
+        if sat_s >= HELD_WARN_S - 1e-9:
             self._held_n = -1
             limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
-            b1 = self._par["theta0.b1"]
-            why = (f"theta0.b1 = {b1:g} < 0 inverts the law: more valve opening contracts the muscle, so b1 > 0 "
-                   "(a model identified with u or l of the other sign?)" if b1 < 0 else
-                   "the law's model (theta0, the box C) has the valve's effect the wrong way round for this rig")
+            why = held_against_cause(self._par["theta0.b1"])
             self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the reading "
                      f"l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the other way would "
                      f"close the gap: {why}", status=Fmi2Status.warning)

@@ -57,7 +57,8 @@ from .ucp_mpc import UCPSettings, _held, ucp_move
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
-           "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING",
+           "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
+           "HELD_WARN_S", "held_against_error", "held_against_cause",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -388,6 +389,33 @@ def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_
     """Whether the command ``u_v`` [V] sits at a valve limit that the error ``r - l`` [mm] pushes it
     further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it)."""
     return (r_mm > l_mm and u_v >= u_max_v - 1e-9) or (r_mm < l_mm and u_v <= u_min_v + 1e-9)
+
+
+#: A command held at a valve limit while the error ``r - l`` pushes it away from that limit by at least
+#: this much [mm] (the encoder's noise and a resting muscle's sag are hundredths) is held against the
+#: error (:func:`held_against_error`).
+HELD_AGAINST_MM = 2.0
+#: A command held against the error this long [s] in a row is reported (the controller FMU's log, a
+#: closed loop's warning).
+HELD_WARN_S = 10.0
+
+
+def held_against_error(r_mm: Any, l_mm: Any, u_v: Any, u_min_v: float, u_max_v: float) -> Any:
+    """Whether the command ``u_v`` [V] sits at a valve limit while the error ``r - l`` [mm], by
+    :data:`HELD_AGAINST_MM` or more, pushes it away from it: a law that opened (closed) the valve would
+    move ``l`` towards ``r``, so the law's gain has the wrong sign for the rig. Floats or arrays
+    (element-wise)."""
+    return (((r_mm - l_mm >= HELD_AGAINST_MM) & (u_v <= u_min_v + 1e-9))
+            | ((l_mm - r_mm >= HELD_AGAINST_MM) & (u_v >= u_max_v - 1e-9)))
+
+
+def held_against_cause(theta0_b1: float, name: str = "theta0.b1") -> str:
+    """Why a command is held against the error (:func:`held_against_error`), in words, for a law on a
+    ``theta0`` with this ``b1`` [mm/V] (``name``: how the caller names it)."""
+    if theta0_b1 < 0:
+        return (f"{name} = {theta0_b1:g} < 0 inverts the law: more valve opening contracts the muscle, so b1 > 0 "
+                "(a model identified with u or l of the other sign?)")
+    return "the law's model (theta0, the box C) has the valve's effect the wrong way round for this rig"
 
 
 def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, float], dict[str, float]]:

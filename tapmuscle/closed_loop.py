@@ -15,10 +15,12 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_controller.displacement_control import DisplacementController
+from fmu_controller.displacement_control import (HELD_AGAINST_MM, HELD_WARN_S, DisplacementController,
+                                                 held_against_cause, held_against_error)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
+from fmu_plant.user_warning import warn_at_caller
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
 
@@ -219,4 +221,28 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     for i, name in enumerate(names):
         cols[f"theta_{name}"] = theta_hist[:, i]
     plant.warn_run_notes(float(np.min(cols["load_n"])))
+    _warn_if_held_against_error(cols, controller)
     return cols
+
+
+def _warn_if_held_against_error(cols: Mapping[str, np.ndarray], controller: DisplacementController) -> None:
+    """Warn when the run's command sat at a valve limit held against the error
+    (:func:`~fmu_controller.displacement_control.held_against_error`) for :data:`HELD_WARN_S` or more
+    in a row, as the controller FMU logs it."""
+    s = controller.settings.servo
+    held = held_against_error(cols["r_mm"], cols["l_mm"], cols["u_v"], s.u_min_v, s.u_max_v)
+    # the longest stretch of held samples: its start and its length
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], held.astype(np.int8), [0]])))
+    if not edges.size:
+        return
+    starts, ends = edges[::2], edges[1::2]
+    i = int(np.argmax(ends - starts))
+    t = cols["t_s"]
+    held_s = t[ends[i] - 1] - t[starts[i]]
+    if held_s < HELD_WARN_S - 1e-9:
+        return
+    k = starts[i]
+    limit, side = (s.u_min_v, "below") if cols["r_mm"][k] > cols["l_mm"][k] else (s.u_max_v, "above")
+    warn_at_caller(f"the command sat at the valve's {limit:g} V for {held_s:.4g} s (from t = {t[k]:g} s) while l "
+                   f"stayed {HELD_AGAINST_MM:g} mm or more {side} the reference, where the other way would close "
+                   f"the gap: {held_against_cause(float(controller.theta0[2]), 'theta0 b1')}", RuntimeWarning)

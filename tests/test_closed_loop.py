@@ -138,3 +138,23 @@ def test_eq21_at_another_period_scores_the_same_seconds():
     u[t < 10.0] += np.where(np.arange((t < 10.0).sum()) % 2, 1.0, -1.0)  # chatter in the start-up only
     assert abs(command_tv_excess(u, 0.1, ts_s=0.05)) < 0.01
     assert command_tv_excess(u, 0.1, ts_s=0.05, window=(101, 401)) > 1.0
+
+
+def test_a_law_holding_the_valve_against_the_error_is_warned_of_after_the_run():
+    """A fixed method on theta0 with a negative b1 held the valve at 0 V for the whole run while l stayed
+    35 mm below r, and the Python loop said nothing (the FMU now logs it): the run warns, at the
+    caller's line, naming theta0's b1; the same loop on THETA0_44N does not."""
+    import warnings
+
+    import tapmuscle as tm
+
+    theta = list(tm.THETA0_44N)
+    theta[2] = -0.8
+    with pytest.warns(RuntimeWarning, match=r"the command sat at the valve's 0 V for 4\d\.?\d* s \(from t = 0 s\) while l "
+                                            r"stayed 2 mm or more below the reference.*theta0 b1 = -0\.8 < 0 inverts the "
+                                            r"law") as caught:
+        run = tm.simulate_closed_loop("mpc_servo", None, theta0=theta, duration_s=45.0)
+    assert run["u_v"].max() < 1e-9 and caught[0].filename == __file__  # the QP's bound, to rounding
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=45.0)
