@@ -516,17 +516,22 @@ class AMPCController(SafeSlave):
                           "(docs/control.md, \"Transport delay\")")
         return causes
 
+    def _in_a_row(self, count: int, now: bool, long_s: float) -> tuple[int, float | None]:
+        """The samples in a row a condition held, ``count`` before this one, and, once they span
+        ``long_s`` seconds, that span [s] (the count then -1: said). The span runs from the first sample
+        of the stretch to this one: with a long Ts, a held command is no time sat yet."""
+        count = count + 1 if now else 0
+        span_s = (count - 1) * self._par["Ts"]
+        return (-1, span_s) if span_s >= long_s - 1e-9 else (count, None)
+
     def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
         """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
         into for :data:`_PINNED_S` seconds in a row."""
         if self._pinned_n < 0:
             return
         s = self._controller.settings.servo
-        self._pinned_n = self._pinned_n + 1 if pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v) else 0
-        # from the first sample at the limit to this one: with a long Ts, a held command is no time sat yet
-        sat_s = (self._pinned_n - 1) * self._par["Ts"]
-        if sat_s >= _PINNED_S - 1e-9:
-            self._pinned_n = -1
+        self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v), _PINNED_S)
+        if sat_s is not None:
             limit = s.u_max_v if r > l else s.u_min_v
             self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
                      f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the rig's "
@@ -540,10 +545,9 @@ class AMPCController(SafeSlave):
         if self._held_n < 0:
             return
         s = self._controller.settings.servo
-        self._held_n = self._held_n + 1 if held_against_error(r, l, u, s.u_min_v, s.u_max_v) else 0
-        sat_s = (self._held_n - 1) * self._par["Ts"]
-        if sat_s >= HELD_WARN_S - 1e-9:
-            self._held_n = -1
+        self._held_n, sat_s = self._in_a_row(self._held_n, held_against_error(r, l, u, s.u_min_v, s.u_max_v),
+                                             HELD_WARN_S)
+        if sat_s is not None:
             limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
             why = held_against_cause(self._par["theta0.b1"])
             self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the reading "
