@@ -174,7 +174,7 @@ def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[
                          "fits score the load change too")
     if choice is None:
         return notes
-    if choice.constraint_start_s != args.constraint_start:
+    if choice.constraint_start_s != args.constraint_start and (report.box_lower or report.box_upper):  # a box to start
         notes.append(f"the delays were compared with Algorithm 1's box from {choice.constraint_start_s:g} s (half the "
                      f"record): --constraint-start {args.constraint_start:g} lies beyond its end, and unconstrained "
                      "estimates tell delays apart less well")
