@@ -368,7 +368,7 @@ def check_workers(client: Any) -> None:
     # builtins and the standard library's functions: they reach a worker whatever it can import
     imported = client.run(exec, "import tapmuscle.cosim.distributed_sweep", on_error="return")
     if not imported:  # the runs would wait for ever
-        address = getattr(client.scheduler, "address", None) or "SCHEDULER_ADDRESS"
+        address = getattr(getattr(client, "scheduler", None), "address", None) or "SCHEDULER_ADDRESS"
         # a cluster made in the same script or notebook (a LocalCluster) restarts no worker it lost to
         # an interrupt: it is made again
         raise ClusterError(f"the cluster has no worker: start one (dask worker {address} --nthreads 1), or, for a "
