@@ -8,6 +8,7 @@ slow"`` is the quick run (about 1-2 min on two cores). The other markers
 """
 
 import os
+import sys
 import tempfile
 
 import pytest
@@ -47,11 +48,19 @@ def built_fmus(tmp_path_factory):
 _FIXTURE_MARKS = {"built_fmus": "fmu", "paper": "slow"}
 
 
+#: Whether file names with non-ASCII characters can be made here: under a Latin-1 locale Python
+#: encodes paths in it, and a test's folder named "日本" cannot exist.
+UTF8_PATHS = sys.getfilesystemencoding().lower().replace("-", "") == "utf8"
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
         for fixture, mark in _FIXTURE_MARKS.items():
             if fixture in getattr(item, "fixturenames", ()):
                 item.add_marker(getattr(pytest.mark, mark))
+        if item.get_closest_marker("utf8_paths") is not None and not UTF8_PATHS:
+            item.add_marker(pytest.mark.skip(reason=f"non-ASCII folder names under a {sys.getfilesystemencoding()} "
+                                                    "file-system encoding (a UTF-8 locale runs it)"))
     # The slow tests first (stable otherwise): with `-n auto` the long diagnosis runs start early and the
     # quick tests fill the gaps, instead of a long one starting last while the other core idles.
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)

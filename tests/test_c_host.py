@@ -174,6 +174,7 @@ def test_open_loop_equals_fmpy(host, plant, tmp_path):
 
 @pytest.mark.parametrize("locale", [{}, {"LANG": None}, {"LANG": None, "LC_ALL": "POSIX"},
                                     {"LANG": "xx_YY.UTF-8"}], ids=["C.UTF-8", "no-LANG", "POSIX", "not-installed"])
+@pytest.mark.utf8_paths
 def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_path, locale):
     """The FMU extracted into a user's folder such as "Müller Straße": the C host passes the path as
     it is (file:// and UTF-8 bytes), fmpy percent-encodes it (file:///...M%C3%BCller%20Stra%C3%9Fe);

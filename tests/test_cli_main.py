@@ -59,12 +59,31 @@ def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):
     assert stderr == "" and out.is_file()
 
 
+def test_a_recording_without_a_plot_does_not_load_matplotlib(tmp_path):
+    """Where HOME is not writable (a distribution's build, a CI box), importing matplotlib writes
+    'mkdir -p failed ... created a temporary cache directory' to stderr: `tapmuscle record` without
+    --plot imported it, so its stderr was not empty there (the test above failed alone): it no longer
+    imports it."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "MPLCONFIGDIR"}
+    env["HOME"] = str(tmp_path / "nonexistent")
+    probe = ("import sys; from tapmuscle.cli.main import main; "
+             f"code = main(['record', '--input', 'const:value=5', '--duration', '2', '--out', {str(tmp_path / 'r.csv')!r}, "
+             "'--quiet']); print(code, 'matplotlib' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120)
+    assert done.stdout.split()[-2:] == ["0", "False"] and done.stderr == "", (done.stdout, done.stderr)
+
+
 @pytest.mark.parametrize("argv, command, unknown", [
     (["identify", "rec.csv", "--json", "id.json", "--quiet"], "identify", "--quiet"),  # it shows no progress
     (["build", "--out", "fmus", "--bogus", "1"], "build", "--bogus 1"),
 ])
-def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, argv, command, unknown):
+def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, monkeypatch, tmp_path, argv, command, unknown):
     """Not by ``tapmuscle``, whose help does not list the command's options."""
+    monkeypatch.chdir(tmp_path)  # its relative outputs: a source tree may be read-only
     with pytest.raises(SystemExit) as ended:
         main(argv)
     assert ended.value.code == 2
@@ -77,8 +96,9 @@ def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, 
     (["--bogus", "identify", "rec.csv", "--json", "id.json"], "--bogus"),
     (["--bogus", "identify", "rec.csv", "--json", "id.json", "--quiet"], "--bogus"),  # the one before first
 ])
-def test_an_argument_before_the_command_is_tapmuscles_to_refuse(capsys, argv, unknown):
+def test_an_argument_before_the_command_is_tapmuscles_to_refuse(capsys, monkeypatch, tmp_path, argv, unknown):
     """record takes --quiet after its name; given before it, it is tapmuscle's unknown argument."""
+    monkeypatch.chdir(tmp_path)  # its relative outputs: a source tree may be read-only
     with pytest.raises(SystemExit) as ended:
         main(argv)
     assert ended.value.code == 2

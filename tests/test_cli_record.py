@@ -185,7 +185,8 @@ def test_an_output_path_of_the_wrong_kind_is_refused_before_any_work(tmp_path, m
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DIR", "FILE"] and (tmp_path / "FILE").read_text() == "keep"
 
 
-def test_an_effect_given_twice_is_refused(capsys):
+def test_an_effect_given_twice_is_refused(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # its relative output: a source tree may be read-only
     assert main(["diagnose", "--recording", "r.csv", "--plant", "p.json", "--out", "o",
                  "--effects", "transport_delay,backlash,transport_delay"]) == 2
     assert "'transport_delay' is given twice" in capsys.readouterr().err

@@ -141,6 +141,7 @@ def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):
     assert abs(sim.real("plant.l") - float(res["l"][-1])) <= 1e-9
 
 
+@pytest.mark.utf8_paths
 def test_plant_in_libcosim_from_a_folder_with_non_ascii_characters(built_fmus, tmp_path):
     """A user's FMU folder and temporary folder named "Müller Straße": libcosim extracts the FMU there
     and passes a percent-encoded resource URI, which pythonfmu alone does not decode (it segfaulted).

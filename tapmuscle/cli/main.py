@@ -68,7 +68,6 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from fmu_plant import Plant
     from fmu_plant.open_loop import run_open_loop
 
-    from tapmuscle.plots.figures import plot_recording
     from tapmuscle.cli.progress import Progress
     import numpy as np
 
@@ -122,6 +121,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
     with atomic_path(out) as tmp_csv:
         write_recording(tmp_csv, rec)
         if args.plot:
+            # matplotlib only when plotting: its import alone writes to stderr where HOME is not writable
+            from tapmuscle.plots.figures import plot_recording
+
             with atomic_path(png, suffix=".png") as tmp_png:
                 plot_recording(rec.t_s, rec.u_v, rec.l_mm, tmp_png, p_mpa=data["p_mpa"],
                                title=f"{args.input}, load {load_n:g} N, seed {args.seed}",
