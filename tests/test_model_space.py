@@ -69,11 +69,29 @@ def test_the_supply_offsets_off_value_is_the_nominal_models_pressure_not_the_def
     at_03 = PlantParams().with_values(**{"supply.supply_pressure_mpa": 0.3, "load_mismatch.extra_n": 5.0})
     keys = ["supply.supply_pressure_mpa", "load_mismatch.extra_n", "friction.rate_gain", "delay.delay_s"]
     assert MuscleSpace(at_03).off_values(keys) == {"supply.supply_pressure_mpa": 0.3, "load_mismatch.extra_n": 0.0,
-                                                   "friction.rate_gain": 0.0, "delay.delay_s": 0.0}
+                                                   "friction.rate_gain": 0.8, "delay.delay_s": 0.0}
     assert MUSCLE.off_values(keys) == {"supply.supply_pressure_mpa": 0.25, "load_mismatch.extra_n": 0.0,
-                                       "friction.rate_gain": 0.0, "delay.delay_s": 0.0}
+                                       "friction.rate_gain": 0.8, "delay.delay_s": 0.0}
     # the joint re-fit's further starts lie either side of the plant file's pressure; the others are shared
     starts = [st["supply.supply_pressure_mpa"] for st in MuscleSpace(at_03).joint_starts["supply_pressure_offset"]]
     assert min(starts) < 0.3 < max(starts) and all(0.2 <= p <= 0.4 for p in starts)
     assert {k: v for k, v in MuscleSpace(at_03).joint_starts.items() if k != "supply_pressure_offset"} == JOINT_STARTS
+
+
+def test_the_rate_dependences_off_value_is_the_nominal_models_gain():
+    """Every plant has a rate dependence (the default 0.8): switched off at 0, the backward step and the
+    discriminating experiment's plant took it away, and an experiment between a rate dependence and an
+    input map then named the rate dependence (0.85) on a rig whose truth was the map. Off is the plant
+    file's gain: 0.8 for the default plant, 0 for the demos' model calibrated without it; and the
+    finding's words state the gain against the model's."""
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.candidates import CANDIDATES
+    from tapmuscle.diagnosis.demo import DEMO_MODEL
+    from tapmuscle.diagnosis.model_space import MuscleSpace
+
+    assert MuscleSpace(PlantParams()).off_values(["friction.rate_gain"]) == {"friction.rate_gain": 0.8}
+    assert MuscleSpace(DEMO_MODEL).off_values(["friction.rate_gain"]) == {"friction.rate_gain": 0.0}
+    rate = next(c for c in CANDIDATES if c.name == "rate_dependent_hysteresis")
+    said = rate.words({"friction.rate_gain": 1.2}, PlantParams())
+    assert said.endswith("(1 + 1.20 |v| / v_ref) fits the recording, against the model's 0.80"), said
 

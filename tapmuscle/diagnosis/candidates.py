@@ -743,6 +743,15 @@ def _explain_sag(v: dict[str, float]) -> str:
 
 
 # ------------------------------------------------------------------------------------ catalogue
+def _explain_rate(v: dict[str, float], nominal: PlantParams | None = None) -> str:
+    """The rate dependence found, in either direction (against a plant file whose ``rate_gain`` is above
+    the rig's, the fit is lower), against the nominal model's gain where it is known: every plant has
+    one (the default 0.8), so a gain is a finding only by its distance from the model's."""
+    against = "" if nominal is None else f", against the model's {nominal.friction.rate_gain:.2f}"
+    return (f"the hysteresis grows with speed other than the model says: friction level x (1 + "
+            f"{v['friction.rate_gain']:.2f} |v| / v_ref) fits the recording{against}")
+
+
 def _explain_supply(v: dict[str, float], nominal: PlantParams | None = None) -> str:
     """The supply pressure found [MPa], against the nominal model's where it is known."""
     ps = v["supply.supply_pressure_mpa"]
@@ -785,9 +794,7 @@ CANDIDATES: tuple[Candidate, ...] = Catalogue("CANDIDATES", (
         "Gauss-Newton on friction.rate_gain (the friction level's growth at the reference speed), "
         "simulating the first fit_segment_s seconds per evaluation.",
         _scalar_fit("friction.rate_gain", 0.2, 0.0, 3.0),
-        # in either direction: against a plant file whose rate_gain is above the rig's, the fit is lower
-        lambda v: (f"the hysteresis grows with speed other than the model says: friction level x (1 + "
-                   f"{v['friction.rate_gain']:.2f} |v| / v_ref) fits the recording")),
+        _explain_rate, explain_against=_explain_rate),
     Candidate(
         "valve_dead_zone",
         "A band of valve commands in which the valves pass no flow (an overlapped or worn spool): while "
