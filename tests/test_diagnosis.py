@@ -769,7 +769,20 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
     lo, hi = float(np.min(cols["u_v"])), float(np.max(cols["u_v"]))
     assert 0.0 <= lo and hi <= 10.0
     assert all(lo <= signal(t) <= hi for t in np.arange(0.0, 60.0, 0.1))
-    assert "Discriminating experiment" in (tmp_path / "report.md").read_text()
+    report = (tmp_path / "report.md").read_text()
+    assert "Discriminating experiment" in report
+    # what the calibrated plant holds of the group is said (its joint re-fit can move the value), and an
+    # empty findings table says why no cause is named, by the residual's numbers
+    kept = ("the calibrated plant file and the headline fit hold transport_delay as re-fitted jointly with the "
+            "constants and the other effects (delay.delay_s = 0.1)")
+    assert f"In the table, each alternative as fitted alone; {kept}." in report
+    from tapmuscle.diagnosis.report import summary_lines
+
+    import dataclasses
+
+    said = summary_lines(dataclasses.replace(d, verdict="ambiguous"))
+    assert any(line.endswith(kept) for line in said if line.startswith("ambiguous: transport_delay")), said
+    assert "None: no cause is named (residual " in report and "consistent with sensor noise" not in report
     # the plant to re-diagnose its recording with: the calibrated one with both alternatives off
     from tapmuscle.io.plant_file import read_plant_file
 

@@ -84,7 +84,7 @@ def summary_lines(d: Diagnosis) -> list[str]:
     for group in d.ambiguous:
         out.append(f"ambiguous: {' / '.join(a.effect for a in group)} explain the recording equally well on "
                    f"held-out data (fits {', '.join(f'{a.fit_after_percent:.2f} %' for a in group)}); "
-                   f"see discriminating_input.csv")
+                   f"see discriminating_input.csv; {_kept_alternative(d, group)}")
     out.append(f"{d.verdict}: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_after_percent:.2f} % with "
                f"{', '.join(d.named) or 'no candidate effect claimed'}")
     for i, f in enumerate(d.findings, 1):
@@ -94,6 +94,15 @@ def summary_lines(d: Diagnosis) -> list[str]:
         gain = f" ({f.fit_gain_points:+.2f} points)" if f.effect != "unexplained" else ""
         out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
     return out + remainder
+
+
+def _kept_alternative(d: Diagnosis, group: list) -> str:
+    """What the calibrated plant file holds of an ambiguous group: its best-scoring alternative, as the
+    final joint re-fit left it (its value can differ from the alternative's own, in the table)."""
+    best = next((a for a in group if not a.evidence.get("versus_best")), group[0])
+    values = ", ".join(f"{k} = {d.calibrated.value(k):.4g}" for k in best.parameters)
+    return (f"the calibrated plant file and the headline fit hold {best.effect} as re-fitted jointly with the "
+            f"constants and the other effects ({values})")
 
 
 def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
@@ -126,7 +135,7 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             vs = a.evidence.get("versus_best")
             lines.append(f"| `{a.effect}` | {a.explanation} | {a.fit_after_percent:.2f} | {a.held_out_sse_mm2:.4g} | "
                          + (f"{vs['sse_ratio']:.3f}, {vs['p_value']:.2g} |" if vs else "best |"))
-        lines.append("")
+        lines += ["In the table, each alternative as fitted alone; " + _kept_alternative(d, group) + ".", ""]
         if experiments and i - 1 < len(experiments):
             e = experiments[i - 1]
             lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
@@ -136,7 +145,7 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                       f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}`.", ""]
     lines += ["## Findings", ""]
     if not d.findings:
-        lines += ["None: the residual is consistent with sensor noise, so no cause is named.", ""]
+        lines += [f"None: no cause is named ({unstructured_reason(d.tests_after, d.unit)}).", ""]
     else:
         lines += ["| # | effect | explanation | held-out gain [points] | located | regime |", "|---|---|---|---|---|---|"]
         for i, f in enumerate(d.findings, 1):
