@@ -1660,3 +1660,16 @@ def test_a_candidate_of_ones_own_is_refused_where_the_search_could_not_carry_it(
         diagnose(t, u, y, PlantParams(), candidates=[own("asym", (asym,), value=0.3)], calibration=None)
     fine = diagnose(t, u, y, PlantParams(), candidates=[own("asym", (asym,)), "transport_delay"], calibration=None)
     assert {c["effect"] for c in fine.candidates} >= {"asym", "transport_delay"} and fine.named == ["transport_delay"]
+
+
+def test_an_input_maps_words_give_the_fitted_map_at_its_ends():
+    """A gain-and-offset map was said as the line through its knots alone ("0.98 x the command +0.09 V")
+    while the fitted map passed 0.0003 V at 0 V and 9.83 V at 10 V (its outer gains within the
+    tolerance of the middle one): the words give the map's own values at 0, 5 and 10 V."""
+    from tapmuscle.diagnosis.input_map_fit import explain_input_map
+
+    fitted = {"input_map.out_at_0_v": 0.000335, "input_map.knot1_in_v": 3.3333333, "input_map.knot1_out_v": 3.3545,
+              "input_map.knot2_in_v": 6.6666667, "input_map.knot2_out_v": 6.6216, "input_map.out_at_10_v": 9.8319}
+    said = explain_input_map(fitted)
+    assert said.startswith("the valve sees 0.98 x the command +0.09 V (amplifier gain and offset error; ")
+    assert said.endswith("commands of 0, 5 and 10 V act as 0.00, 4.99 and 9.83 V)"), said

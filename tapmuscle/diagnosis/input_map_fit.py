@@ -187,8 +187,12 @@ def explain_input_map(v: dict[str, float]) -> str:
     g_lo, g_mid, g_hi = (v1 - o0) / k1, (v2 - v1) / (k2 - k1), (o10 - v2) / (10.0 - k2)
     offset = v1 - g_mid * k1  # of the line through the knots
     if g_mid > _FLAT_GAIN and max(g_lo, g_mid, g_hi) - min(g_lo, g_mid, g_hi) <= _SAME_GAIN:
+        # the line through the knots, and the map's own values at the ends, where its outer gains
+        # (within _SAME_GAIN of the middle one) can leave it a tenth of a volt off that line
+        at_5 = (v1 + (5.0 - k1) * g_mid if k1 <= 5.0 <= k2 else
+                o0 + 5.0 * g_lo if 5.0 < k1 else v2 + (5.0 - k2) * g_hi)
         return (f"the valve sees {g_mid:.2f} x the command {offset:+.2f} V (amplifier gain and offset error; "
-                f"a command of 5 V acts as {offset + 5.0 * g_mid:.2f} V)")
+                f"commands of 0, 5 and 10 V act as {o0:.2f}, {at_5:.2f} and {o10:.2f} V)")
     if g_mid <= _FLAT_GAIN < min(g_lo, g_hi):
         return (f"the valve sees a command dead band {k1:.2f}-{k2:.2f} V (held at {0.5 * (v1 + v2):.2f} V), "
                 f"gain {g_lo:.2f} below ({v1 - k1:+.2f} V at the band) / {g_hi:.2f} above "
