@@ -39,6 +39,9 @@ def test_designed_input_separates_two_explanations_better_than_the_paper_sine(tm
     write_experiment(exp, path, alternatives=["none", "transport_delay"], ts_s=0.1)
     replay = parse_input_spec(f"csv:{path}")
     assert [replay(t) for t in exp.t_s[:50]] == pytest.approx(exp.u_v[:50], abs=1e-6)
+    # its times as a reader writes them: 0.3, not 0.30000000000000004
+    rows = [line.split(",")[0] for line in path.read_text().splitlines() if line[:1].isdigit()]
+    assert [float(r) for r in rows[:4]] == [0.0, 0.1, 0.2, 0.3] and rows[3] == "0.3" and float(rows[-1]) == 60.0
 
 
 def test_design_input_refuses_fewer_than_two_alternatives():

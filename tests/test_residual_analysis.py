@@ -96,3 +96,16 @@ def test_a_constant_offset_is_structure_though_white_about_its_mean(seed):
     # significant (t about 24) but its RMS within 1.5 noise levels: immaterial
     assert mean_test(e + 0.005) < 1e-3 and not is_structured(e + 0.005, sensor_noise_mm=0.01)[0]
     assert mean_test(np.zeros(10)) == 1.0 and mean_test(np.full(10, 2.0)) == 0.0
+
+
+def test_regime_ranges_read_as_numbers():
+    """A displacement range from -0.3 mm read "low (-0-54 mm)": a bound that rounds to zero is 0, and a
+    negative one is joined with "to"."""
+    from tapmuscle.diagnosis.residual_analysis import regime_summary
+
+    def displacement_regimes(l_mm):
+        return list(regime_summary(np.ones(len(l_mm)), l_mm, 0.1)[1]["displacement"])
+
+    assert displacement_regimes(np.linspace(-0.3, 80.0, 600))[0].startswith("low (0-")
+    assert displacement_regimes(np.linspace(-5.0, 60.0, 600)) == ["low (-5 to 17 mm)", "middle (17-38 mm)",
+                                                                 "high (38-60 mm)"]

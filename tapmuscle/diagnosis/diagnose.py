@@ -1492,8 +1492,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         findings.append(Finding(
             "unexplained",
             f"a structured residual remains (whiteness p = {tests1['whiteness_p']:.1e}, RMS "
-            f"{tests1['rms_mm']:.3f} {unit} against {noise:.3f} {unit} of noise, {100.0 * remainder['share']:.1f} % of the "
-            f"initial excess) that neither the calibration nor the candidate effects as fitted explain (also what an "
+            f"{tests1['rms_mm']:.3f} {unit} against {noise:.3f} {unit} of noise, {100.0 * remainder['share']:.1f} % of the nominal "
+            f"model's excess over the noise) that neither the calibration nor the candidate effects as fitted explain (also what an "
             f"effect's edge inside a held-out block can leave: docs/diagnosis.md, its known blind spots)"
             + ("" if round_no or not tests0["structured"] or gate_structured else
                f"; no candidate effect was tried: right after the calibration the search's test did not find the "

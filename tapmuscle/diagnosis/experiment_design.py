@@ -79,7 +79,8 @@ class Experiment:
         """Recording columns: ``t_s, u_v, l_mm`` (the first alternative's prediction) and one
         ``l_<name>_mm`` per alternative."""
         first = next(iter(self.predictions.values()))
-        cols = {"t_s": self.t_s, "u_v": self.u_v, "l_mm": first}
+        # k Ts to the nanosecond: the file reads 0.1, not 0.0999999999999979 (a period taken from a recording)
+        cols = {"t_s": np.round(self.t_s, 9), "u_v": self.u_v, "l_mm": first}
         for name, y in self.predictions.items():
             cols[f"l_{name}_mm"] = y
         return cols

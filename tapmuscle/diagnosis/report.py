@@ -72,7 +72,7 @@ def summary_lines(d: Diagnosis) -> list[str]:
     remainder = ([] if rem is None or rem["material"] else
                  [f"  a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} {d.unit} against "
                   f"{rem['noise_mm']:.4f} {d.unit} of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
-                  f"initial excess; reported, not claimed"])
+                  f"nominal model's excess over the noise; reported, not claimed"])
     if d.verdict == "calibration_only":
         after = d.tests_after
         if rem is not None:

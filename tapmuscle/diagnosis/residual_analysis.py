@@ -312,11 +312,17 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
         (quantity, unit), (up, down, still) = output, ("rising", "falling", "steady")
     axes: dict[str, dict[str, np.ndarray]] = {"direction": {up: v > hold, down: v < -hold, still: np.abs(v) <= hold}}
 
+    def span(a: float, b: float, fmt: str) -> str:
+        # "-0" is 0; a negative bound is joined with "to" ("-3 to 54", not "-3-54")
+        lo, hi = (fmt.format(x) for x in (a, b))
+        lo, hi = ("0" + t[2:] if t.startswith("-0") and float(t) == 0.0 else t for t in (lo, hi))
+        return f"{lo} to {hi}" if lo.startswith("-") or hi.startswith("-") else f"{lo}-{hi}"
+
     def terciles(x: np.ndarray, unit: str, fmt: str) -> dict[str, np.ndarray]:
         q1, q2 = np.percentile(x, [100 / 3, 200 / 3])
-        return {f"low ({fmt.format(x.min())}-{fmt.format(q1)} {unit})": x <= q1,
-                f"middle ({fmt.format(q1)}-{fmt.format(q2)} {unit})": (x > q1) & (x <= q2),
-                f"high ({fmt.format(q2)}-{fmt.format(x.max())} {unit})": x > q2}
+        return {f"low ({span(x.min(), q1, fmt)} {unit})": x <= q1,
+                f"middle ({span(q1, q2, fmt)} {unit})": (x > q1) & (x <= q2),
+                f"high ({span(q2, x.max(), fmt)} {unit})": x > q2}
 
     axes["speed"] = terciles(np.abs(v), f"{unit or '1'}/s", "{:.1f}" if output is None else "{:.3g}")
     axes["displacement"] = terciles(np.asarray(l_mm, float), unit or "-", "{:.0f}" if output is None else "{:.3g}")
