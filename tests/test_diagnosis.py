@@ -390,6 +390,26 @@ def test_unexplained_when_no_candidate_fits():
     assert d.findings[-1].located and "explain (" in d.findings[-1].explanation
 
 
+def test_a_report_with_nothing_named_says_what_to_do_next(tmp_path):
+    """A mismatch with only an unexplained residual left its reader without a next step: the report
+    says what such a residual usually means and which recording separates the causes. A report that
+    names an effect does not."""
+    from tapmuscle.diagnosis.report import write_outputs
+
+    rig = DEMO_MODEL.with_values(**{"load_mismatch.extra_n": 8.0})
+    cols = record(rig, "sine", 4, duration_s=60.0)
+    d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, candidates=[candidate("backlash")],
+                 calibration=None)
+    assert d.named == [] and [f.effect for f in d.findings] == ["unexplained"]
+    write_outputs(d, tmp_path / "a", recording="rec.csv", plant="plant.json", plots=False)
+    assert "Next: nothing in the vocabulary explains what is left." in (tmp_path / "a" / "report.md").read_text()
+    named = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, candidates=[candidate("load_mismatch")],
+                     calibration=None)
+    assert named.named == ["load_mismatch"]
+    write_outputs(named, tmp_path / "b", recording="rec.csv", plant="plant.json", plots=False)
+    assert "Next: nothing" not in (tmp_path / "b" / "report.md").read_text()
+
+
 @pytest.mark.parametrize("amplitude_mm, material", [(0.025, False), (0.3, True)])
 def test_a_structured_remainder_is_reported_and_claimed_only_when_material(amplitude_mm, material):
     """The exact model and a slow ripple on the reading that no candidate describes: reported as

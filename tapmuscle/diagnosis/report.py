@@ -156,6 +156,13 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             if f.parameters:
                 lines.append(f"* `{f.effect}` parameters: " + ", ".join(f"`{k}` = {v:.6g}" for k, v in f.parameters.items()))
         lines.append("")
+        if not d.named and not d.ambiguous:
+            # a residual no candidate explains: what the reader can do next
+            lines += ["Next: nothing in the vocabulary explains what is left. Its location and regime above say where "
+                      "the model departs from the rig; physics outside the vocabulary, or constants the recording "
+                      "cannot pin there, are the usual causes. A recording that moves through that regime in other "
+                      "ways (held levels, random steps, another load) separates the two; with a guess at the physics, "
+                      "a candidate of your own can be tried (docs/diagnosis.md, \"A candidate of your own\").", ""]
     tb, ta = d.tests_before, d.tests_after
     lines += ["## Residual tests", "",
               "| | before | after |", "|---|---|---|",
