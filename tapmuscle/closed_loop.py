@@ -229,7 +229,8 @@ def _warn_if_held_against_error(cols: Mapping[str, np.ndarray], controller: Disp
     """Warn when the run's command sat at a valve limit held against the error
     (:func:`~fmu_controller.displacement_control.held_against_error`) for :data:`HELD_WARN_S` or more
     in a row, as the controller FMU logs it."""
-    s = controller.settings.servo
+    settings = controller.settings
+    s = settings.servo if settings.servo_mechanism else settings.ucp  # the law's own valve bounds
     held = held_against_error(cols["r_mm"], cols["l_mm"], cols["u_v"], s.u_min_v, s.u_max_v)
     # the longest stretch of held samples: its start and its length
     edges = np.flatnonzero(np.diff(np.concatenate([[0], held.astype(np.int8), [0]])))
