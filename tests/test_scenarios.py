@@ -252,6 +252,9 @@ def test_external_step_reference_is_tracked(built_fmus):
      "has 2 entries"),
     ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [20, 5000]\n", "reference.values_mm",
      "holds 5000, outside [-400, 400] mm"),
+    # between two samples, it would act at the next one without a word
+    ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5.05]\nvalues_mm = [20, 50]\n", "reference.times_s",
+     "5.05 s is not a sample time of step_s = 0.1 s (nearest: 5 and 5.1 s)"),
     ("duration_s = 10.0\n[plant]\nparameters = { 'friction.rate_gain' = true }\n",
      "plant.parameters.friction.rate_gain", "must be a number"),
     ("duration_s = 10.0\n[plant]\nparameters = { 'load.load_n' = 68 }\n", "plant.parameters.load.load_n",

@@ -406,6 +406,12 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
             raise ref_r.error("times_s", f"has {len(times)} entries, values_mm has {len(values)}")
         if times[0] != 0 or any(b <= a for a, b in zip(times, times[1:])):
             raise ref_r.error("times_s", f"must start at 0 and increase, got {times!r}")
+        # the controller samples r at k step_s: a step between two samples would act at the next one
+        off_grid = [t for t in times if abs(round(t / step) * step - t) > 1e-6 * step]
+        if off_grid:
+            t = off_grid[0]
+            raise ref_r.error("times_s", f"{t:g} s is not a sample time of step_s = {step:g} s (nearest: "
+                                         f"{math.floor(t / step) * step:.12g} and {math.ceil(t / step) * step:.12g} s)")
         profile = Profile(float(values[0]), tuple((float(t), float(v)) for t, v in zip(times[1:], values[1:])))
         reference = Reference("steps", steps=profile, preview=ref_r.string("preview", "advanced",
                                                                            ("advanced", "held")))
