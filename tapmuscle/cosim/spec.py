@@ -31,7 +31,7 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     offset_mm = 35.0
     amplitude_mm = 30.0
     frequency_hz = 0.1
-    # kind = "steps": values_mm = [20, 50], times_s = [0, 15], preview = "advanced" | "held"
+    # kind = "steps": values_mm = [20, 50], times_s = [0, 15] (on the step_s grid), preview = "advanced" | "held"
     # (fed through the input r; "advanced" feeds r(t + Hp Ts), giving the exact preview; the values
     # within -400..400 mm, as the sine's offset and amplitude)
 
