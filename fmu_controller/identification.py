@@ -311,9 +311,9 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
                      "controller refuses it as theta0 with this box")
     elif table2:
         # the paper's rig's box, taken for any record in mm and V at 0.1 s: said, with what it held
-        # at a bound: within a thousandth of the box's span (an update after the last projection moves
-        # the estimate off it by ulps to 1e-4: Table 4's b1 = 0.60709 on 0.607)
-        near = {n: 1e-3 * (upper[n] - lower[n]) for n in lower}
+        # at a bound: within a thousandth of the box's span, or 2e-4 (an update after the last projection
+        # moves the estimate off it by ulps to 1e-4: Table 4's b1 = 0.60709 on 0.607)
+        near = {n: max(1e-3 * (upper[n] - lower[n]), 2e-4) for n in lower}
         held = [f"{n} = {theta[idx[n]]:.5g} at its {'lower' if theta[idx[n]] <= lower[n] + near[n] else 'upper'} bound"
                 for n in lower if theta[idx[n]] <= lower[n] + near[n] or theta[idx[n]] >= upper[n] - near[n]]
         notes.append("constraint region: Table 2's box on " + ", ".join(lower) + " (the paper's rig at Ts = 0.1 s; "

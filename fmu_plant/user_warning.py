@@ -10,21 +10,24 @@ from __future__ import annotations
 
 import sys
 import warnings
+from types import FrameType
 
-__all__ = ["PROJECT_PACKAGES", "warn_at_caller"]
+__all__ = ["PROJECT_PACKAGES", "in_project", "warn_at_caller"]
 
 #: The top-level packages whose frames a warning skips (this project's).
 PROJECT_PACKAGES = ("fmu_plant", "fmu_controller", "fmi_slave", "build_scripts", "tapmuscle")
+
+
+def in_project(frame: FrameType) -> bool:
+    """Whether ``frame`` runs code of :data:`PROJECT_PACKAGES`."""
+    return frame.f_globals.get("__name__", "").split(".", 1)[0] in PROJECT_PACKAGES
 
 
 def _stacklevel() -> int:
     """``warnings.warn``'s stacklevel, counted from its caller's caller, of the first frame outside
     :data:`PROJECT_PACKAGES` (the outermost frame if every one is inside)."""
     frame, level = sys._getframe(2), 1
-    while frame.f_back is not None:
-        name = frame.f_globals.get("__name__", "")
-        if name.split(".", 1)[0] not in PROJECT_PACKAGES:
-            break
+    while frame.f_back is not None and in_project(frame):
         frame, level = frame.f_back, level + 1
     return level
 

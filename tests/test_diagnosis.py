@@ -411,9 +411,11 @@ def test_a_report_with_nothing_named_says_what_to_do_next(tmp_path):
 
 
 @pytest.mark.parametrize("amplitude_mm, material", [(0.025, False), (0.3, True)])
-def test_a_structured_remainder_is_reported_and_claimed_only_when_material(amplitude_mm, material):
+def test_a_structured_remainder_is_reported_and_claimed_only_when_material(amplitude_mm, material, tmp_path):
     """The exact model and a slow ripple on the reading that no candidate describes: reported as
-    ``unexplained`` with its share however small, a finding only at >= MATERIAL_FACTOR x the noise."""
+    ``unexplained`` with its share however small, a finding only at >= MATERIAL_FACTOR x the noise; a
+    report with no finding says the remainder is there (it said "at the noise level ... < 1.5 x" of a
+    residual at 2 x)."""
     cols = record(DEMO_MODEL, "sine", 5)
     y = cols["l_mm"] + amplitude_mm * np.sin(2 * np.pi * 0.37 * cols["t_s"])
     d = diagnose(cols["t_s"], cols["u_v"], y, DEMO_MODEL, candidates=[candidate("backlash")], calibration=None)
@@ -424,6 +426,12 @@ def test_a_structured_remainder_is_reported_and_claimed_only_when_material(ampli
     assert d.verdict == ("mismatch" if material else "no_significant_mismatch")
     assert d.to_json()["unexplained"]["material"] is material
     assert d.to_json()["calibration"] == {"skipped": "off (calibration=None, --no-calibration)"}
+    if not material:
+        from tapmuscle.diagnosis.report import write_outputs
+
+        write_outputs(d, tmp_path, recording="rec.csv", plant="plant.json", plots=False)
+        assert "None: no cause is named (a structured remainder below the materiality level: RMS " in \
+            (tmp_path / "report.md").read_text()
 
 
 def test_every_effect_of_the_library_is_a_candidate():

@@ -82,3 +82,22 @@ def test_the_heartbeat_ends_with_an_interrupted_call_though_its_progress_is_kept
     time.sleep(0.3)
     assert out.getvalue() == written and written.startswith("loop:")  # reported while it ran, silent after
     assert not [t for t in threading.enumerate() if t.name == "progress-loop"]
+
+
+def test_a_progress_given_to_a_second_run_counts_it_afresh(monkeypatch):
+    """The same Progress passed to two runs in a script on a terminal: the second run's bar stays one
+    line (its own clock from 0), and it gets a heartbeat of its own."""
+    import tapmuscle as tm
+
+    monkeypatch.setattr(progress_module, "HEARTBEAT_TTY_S", 0.05)
+    out = _Tty()
+    p = Progress("loop", stream=out, min_total=1)
+    for _ in range(2):
+        before = out.getvalue().count("\n")
+        controller = tm.DisplacementController(tm.ControllerSettings(method="mpc_ucp"), tm.THETA0_44N)
+        tm.run_closed_loop(tm.Plant(seed=0), controller, None, duration_s=20.0, progress=p)
+        assert out.getvalue().count("\n") - before == 1
+    assert out.getvalue().split("\n")[1].startswith("\rloop [")
+    p(1, 10)  # a third, slow one: its heartbeat runs
+    time.sleep(0.3)
+    assert out.getvalue().rstrip("\n").count("\r", out.getvalue().rfind("\n")) >= 3

@@ -17,7 +17,7 @@ import time
 import weakref
 from typing import Any, TextIO
 
-from fmu_plant.user_warning import PROJECT_PACKAGES
+from fmu_plant.user_warning import in_project
 
 __all__ = ["Progress", "HEARTBEAT_TTY_S", "HEARTBEAT_LOG_S"]
 
@@ -56,11 +56,19 @@ class Progress:
         """Report ``done`` of ``total`` units; ``detail`` (e.g. ``3 failed, 10 remaining``) is appended."""
         if not self.enabled or total < self.min_total:
             return
+        before = self._state
+        # the same Progress given to another run, which counts from below the last report: afresh (a
+        # diagnosis's rounds count on, with a larger total)
+        again = before is not None and done < before[0]
+        beating = self._heart is not None and self._heart.is_alive()
+        if again:
+            self._t0, self._last_decile = time.monotonic(), -1
         with self._lock:
             self._state = (done, total, detail)
             self._render(done, total, detail, heartbeat=False)
-        if self._heart is None and done < total:
+        if done < total and (again or not beating):
             self._owner = _reporting_call(sys._getframe(1))
+        if done < total and not beating:
             # the thread holds only a weak reference: when the command is over and its Progress is
             # gone, the heartbeat stops too (a run that ends early never reaches done == total)
             self._heart = threading.Thread(target=_beat, args=(weakref.ref(self),), name=f"progress-{self.label}",
@@ -74,7 +82,7 @@ class Progress:
         if self._tty:
             bar = "#" * int(30 * frac)
             self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% {elapsed:6.1f} s{extra}\033[K")
-            if done >= total or not _running(self._owner):
+            if done >= total:
                 self.stream.write("\n")
         else:
             decile = int(10 * frac)
@@ -106,7 +114,7 @@ def _reporting_call(frame: Any) -> tuple[int, int, object]:
     a frame would keep its locals (a run's arrays) alive."""
     owner = frame
     while frame is not None:
-        if frame.f_globals.get("__name__", "").split(".", 1)[0] in PROJECT_PACKAGES:
+        if in_project(frame):
             owner = frame
         frame = frame.f_back
     return threading.get_ident(), id(owner), owner.f_code

@@ -148,7 +148,7 @@ class Scenario:
         # a scenario changed in code (dataclasses.replace with a shorter duration_s) is refused here,
         # not after its whole run
         k0, k1 = self.evaluation_samples
-        if self.step_s > 0 and not 0 <= k0 <= k1 < self.n_samples:
+        if self.step_s > 0 and math.isfinite(self.duration_s) and not 0 <= k0 <= k1 < self.n_samples:
             raise ScenarioError(f"{self.source}: evaluation_samples = ({k0}, {k1}) is not within the run's samples "
                                 f"k = 0 .. {self.n_samples - 1} ({self.duration_s:g} s at step {self.step_s:g} s): "
                                 "change evaluation_samples with duration_s (dataclasses.replace(scenario, "

@@ -15,7 +15,7 @@ __all__ = ["Catalogue"]
 
 
 class Catalogue(tuple):
-    """A tuple shown as its name and length (``CANDIDATES (13)``); equal to, and used as, the plain
+    """A tuple shown as its name and length (``CANDIDATES (9)``); equal to, and used as, the plain
     tuple of its items."""
 
     _name: str

@@ -554,7 +554,7 @@ def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Cand
     if isinstance(cand, str):
         return _BUILTIN[cand].fit(problem, base, y_base)
     result = cand.fit(problem, base, y_base)
-    if result is not None:  # a candidate of one's own: its values are what the re-simulations set
+    if result is not None and _BUILTIN.get(cand.name) is not cand:  # one's own: its values are what is re-simulated
         specs = {spec.key: spec for spec in cand.parameters}
         for key, value in result.values.items():
             spec = specs.get(key)

@@ -185,10 +185,10 @@ class MuscleSpace(ModelSpace):
     Parameters
     ----------
     nominal : PlantParams, optional
-        The nominal model the diagnosis compares with (the user's plant file). Its operating
-        conditions (:data:`OPERATING_CONDITIONS`: the supply pressure [MPa]) are their effects' "off"
-        values, and the supply offset's joint starts are taken around its supply pressure. Default:
-        the default plant's.
+        The nominal model the diagnosis compares with (the user's plant file). Its values of
+        :data:`OFF_AT_NOMINAL` (the supply pressure [MPa], the friction's rate gain [-]) are their
+        effects' "off" values, and the supply offset's joint starts are taken around its supply
+        pressure. Default: the default plant's.
     """
 
     joint_parameters = JOINT_PARAMETERS

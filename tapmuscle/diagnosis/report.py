@@ -68,11 +68,8 @@ def summary_lines(d: Diagnosis) -> list[str]:
         out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
                    f"without any effect; constants{final}: {changed or 'none changed'}; not identifiable: "
                    f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'}")
+    remainder = [] if _immaterial_remainder(d) is None else [f"  {_immaterial_remainder(d)}"]
     rem = d.unexplained
-    remainder = ([] if rem is None or rem["material"] else
-                 [f"  a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} {d.unit} against "
-                  f"{rem['noise_mm']:.4f} {d.unit} of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
-                  f"nominal model's excess over the noise; reported, not claimed"])
     if d.verdict == "calibration_only":
         after = d.tests_after
         if rem is not None:
@@ -94,6 +91,17 @@ def summary_lines(d: Diagnosis) -> list[str]:
         gain = f" ({f.fit_gain_points:+.2f} points)" if f.effect != "unexplained" else ""
         out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
     return out + remainder
+
+
+def _immaterial_remainder(d: Diagnosis) -> str | None:
+    """The structured remainder below the materiality level that no finding claims, in words (None
+    when there is none)."""
+    rem = d.unexplained
+    if rem is None or rem["material"]:
+        return None
+    return (f"a structured remainder below the materiality level: RMS {rem['rms_mm']:.4f} {d.unit} against "
+            f"{rem['noise_mm']:.4f} {d.unit} of noise (< {MATERIAL_FACTOR:g} x), {100.0 * rem['share']:.4f} % of the "
+            f"nominal model's excess over the noise; reported, not claimed")
 
 
 def _kept_alternative(d: Diagnosis, group: list) -> str:
@@ -145,7 +153,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                       f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}`.", ""]
     lines += ["## Findings", ""]
     if not d.findings:
-        lines += [f"None: no cause is named ({unstructured_reason(d.tests_after, d.unit)}).", ""]
+        lines += [f"None: no cause is named ({_immaterial_remainder(d) or unstructured_reason(d.tests_after, d.unit)}).",
+                  ""]
     else:
         lines += ["| # | effect | explanation | held-out gain [points] | located | regime |", "|---|---|---|---|---|---|"]
         for i, f in enumerate(d.findings, 1):
