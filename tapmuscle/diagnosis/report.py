@@ -241,13 +241,14 @@ def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title:
                 label=f"calibrated, no effect ({d.fit_calibrated_percent:.2f} %)")
     a1.plot(t, d.y_after_mm, color="tab:blue", lw=1.0, ls=":", label=f"{model} after ({d.fit_after_percent:.2f} %)")
     a1.set(ylabel=f"{quantity} [{unit}]", title=title)
-    a1.legend(loc="upper right", fontsize=8)
+    # above the title, as the residual figure's: inside, it covered the peaks compared
+    a1.legend(loc="lower left", bbox_to_anchor=(0.0, 1.08), ncol=4, fontsize=8, frameon=False)
     a1.grid(alpha=0.3)
     held = np.where(d.test, 1.0, np.nan)
     a2.plot(t, (d.y_mm - d.y_before_mm) * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
     a2.plot(t, (d.y_mm - d.y_after_mm) * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
     a2.set(xlabel="time [s]", ylabel=f"residual [{unit}]")
-    a2.legend(loc="upper right", fontsize=8)
+    a2.legend(loc="best", fontsize=8)
     a2.grid(alpha=0.3)
     save_figure(fig, path)
 
