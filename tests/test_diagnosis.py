@@ -811,6 +811,8 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
     said = summary_lines(dataclasses.replace(d, verdict="ambiguous"))
     assert any(line.endswith(kept) for line in said if line.startswith("ambiguous: transport_delay")), said
     assert "None: no cause is named (residual " in report and "consistent with sensor noise" not in report
+    # the candidates' two measures, which can differ in sign, are told apart under their table
+    assert "so the two can differ in sign" in report.split("## Candidates tried")[1]
     # the plant to re-diagnose its recording with: the calibrated one with both alternatives off
     from tapmuscle.io.plant_file import read_plant_file
 

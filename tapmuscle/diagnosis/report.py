@@ -198,7 +198,12 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                          f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
         else:
             lines.append(f"| {c['round']} | `{c['effect']}` | not fitted (not applicable) | | |")
-    lines += ["", "An effect is accepted when, re-fitted jointly with the calibrated constants, it removes >= 10 % of "
+    lines += ["", "Columns: the held-out gain is the candidate's own fit on the model of that round, in points of "
+              "held-out fit over all held-out blocks; the SSE reduction (negative: the error grew) and p are over "
+              "the held-out blocks its test uses (those no accepted effect's edge touches), so the two can differ "
+              "in sign; p is that of 'the held-out residual's projection on the effect's contribution is only "
+              "noise'.",
+              "", "An effect is accepted when, re-fitted jointly with the calibrated constants, it removes >= 10 % of "
               "the held-out squared error of the model re-fitted without it, the held-out residual's projection on "
               f"its contribution rejects 'only noise' at p < 0.001, and its contribution exceeds {MATERIAL_EFFECT_FACTOR:g} x "
               "the noise "
