@@ -68,7 +68,8 @@ def summary_lines(d: Diagnosis) -> list[str]:
         out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
                    f"without any effect; constants{final}: {changed or 'none changed'}; not identifiable: "
                    f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'}")
-    remainder = [] if _immaterial_remainder(d) is None else [f"  {_immaterial_remainder(d)}"]
+    immaterial = _immaterial_remainder(d)
+    remainder = [] if immaterial is None else [f"  {immaterial}"]
     rem = d.unexplained
     if d.verdict == "calibration_only":
         after = d.tests_after
