@@ -130,7 +130,7 @@ DEFAULT_PROBING_V = 0.5
 #: Largest ``ControllerSettings.probing_v`` [V]: a quarter of the valve's 0-10 V range.
 MAX_PROBING_V = 2.5
 
-#: The proportional valve's command range [V] (section 4.1): the servo's and UCP's ``u_min_v`` and
+#: The proportional valve's command range [V] (Table 1, "Range of input voltage"; Eq. (19)): the servo's and UCP's ``u_min_v`` and
 #: ``u_max_v`` lie within it. A bound beyond it is a command the valve clips, and the adaptive
 #: estimator, which sees the command, would learn from inputs the valve never received.
 VALVE_MIN_V, VALVE_MAX_V = 0.0, 10.0
@@ -520,6 +520,8 @@ class DisplacementController:
             self._rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(
                 p0=settings.p0, theta0=tuple(theta0), forgetting=settings.forgetting,
                 covariance_ceiling=settings.covariance_ceiling, box_lower=lower, box_upper=upper,
+                # the box from the first step (the identification's waits 120 s): the estimate starts
+                # inside it, and Eq. (5) divides by b1 from the first sample
                 constraint_start_s=0.0, ts_s=settings.ts_s))
         self._servo = ServoMPC(settings.servo_for_delay(settings.input_delay_samples), a1=theta0[0], a2=theta0[1],
                                b1=theta0[2]) if settings.servo_mechanism else None

@@ -53,11 +53,14 @@ Sign convention
 
 Identifiability
 ---------------
-``phi[3] = phi[0] - phi[1]`` identically, so from ``l`` alone only
-``a1 + A1`` and ``a2 - A1`` are identifiable; the direction
-``n = -e_a1 + e_a2 + e_A1`` (:func:`null_direction`) is invisible to the
-regression.  The constraint box of Algorithm 1 (Table 2) and the RLS prior
-``(theta(0), P(-1))`` pin it.  :func:`identifiable_combinations` reports the
+``phi[3] = phi[0] - phi[1]`` identically, so for given regressors ``a1``,
+``a2`` and ``A1`` enter the one-step prediction only as ``a1 + A1`` and
+``a2 - A1``: the direction ``n = -e_a1 + e_a2 + e_A1`` (:func:`null_direction`)
+is invisible to the regression.  The regressors themselves move along it a
+little (the Bouc-Wen state ``v`` is the linear part's residual, computed with
+``a1, a2, b1``), so the data pin the split only weakly (docs/identification.md,
+"Identifiability").  The constraint box of Algorithm 1 (Table 2) and the RLS
+prior ``(theta(0), P(-1))`` pin it.  :func:`identifiable_combinations` reports the
 identifiable quantities.
 """
 

@@ -312,7 +312,8 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     elif table2:
         # the paper's rig's box, taken for any record in mm and V at 0.1 s: said, with what it held
         # at a bound: within a thousandth of the box's span, or 2e-4 (an update after the last projection
-        # moves the estimate off it by ulps to 1e-4: Table 4's b1 = 0.60709 on 0.607)
+        # moves the estimate off it by ulps to 1e-4: the simulated rig's identification ends with
+        # b1 = 0.60709 on Table 2's 0.607)
         near = {n: max(1e-3 * (upper[n] - lower[n]), 2e-4) for n in lower}
         held = [f"{n} = {theta[idx[n]]:.5g} at its {'lower' if theta[idx[n]] <= lower[n] + near[n] else 'upper'} bound"
                 for n in lower if theta[idx[n]] <= lower[n] + near[n] or theta[idx[n]] >= upper[n] - near[n]]

@@ -15,9 +15,14 @@ current state (a secant sensitivity, exact for the linear part).
 
 Decisions the paper leaves open:
 
+* **Reference trajectory.** Section 3.1 leaves ``r(k+Hp|k)`` to the designer (a trajectory from the
+  current output ``l(k)`` towards the set-point is the classic choice). We take the reference itself,
+  ``r(k+Hp|k) = r(k+Hp)``: the references here are known ahead (a sine, steps), and a trajectory
+  from ``l(k)`` would add its own time constant to the tracking of a moving reference. The servo
+  law takes ``r(k+i|k) = r(k+i)`` in Eq. (15) for the same reason.
 * **Input limits.** ``u(k)`` is clipped to the valve's 0-10 V. The clipped value is what ``u(k-1)``
   means at the next step (it is what the valve got), so there is no wind-up.
-* **Small step response.** If the model's ``|S(Hp)|`` falls below ``min_step_response_mm`` (a
+* **Small step response.** If the model's ``|S(Hp)|`` falls below ``min_step_response_mm_per_v`` (a
   degenerate estimate), the linear part's ``b1 (1 + a1 + ...)`` step response is used instead, so
   Eq. (13) never divides by ~0.
 * **A prediction that diverges.** Held for a long horizon (``Hp`` = 20 and more), the adapted
@@ -54,7 +59,7 @@ class UCPSettings:
     """Lowest valve command [V]."""
     u_max_v: float = 10.0
     """Highest valve command [V]."""
-    min_step_response_mm: float = 1e-3
+    min_step_response_mm_per_v: float = 1e-3
     """Smallest ``|S(Hp)|`` [mm/V] accepted from the nonlinear model before falling back to the
     linear part's step response."""
 
@@ -62,12 +67,12 @@ class UCPSettings:
         object.__setattr__(self, "hp", whole_number(self.hp, what="UCPSettings.hp"))
         if not 1 <= self.hp <= MAX_HORIZON:
             raise ValueError(f"UCPSettings.hp must be an integer in 1..{MAX_HORIZON}, got {self.hp!r}")
-        for name in ("u_min_v", "u_max_v", "min_step_response_mm"):  # numpy numbers as Python floats
+        for name in ("u_min_v", "u_max_v", "min_step_response_mm_per_v"):  # numpy numbers as Python floats
             object.__setattr__(self, name, real_number(getattr(self, name), what=f"UCPSettings.{name}"))
         if self.u_max_v <= self.u_min_v:
             raise ValueError(f"UCPSettings.u_max_v ({self.u_max_v}) must exceed u_min_v ({self.u_min_v})")
-        if self.min_step_response_mm <= 0:
-            raise ValueError(f"UCPSettings.min_step_response_mm must be > 0, got {self.min_step_response_mm!r}")
+        if self.min_step_response_mm_per_v <= 0:
+            raise ValueError(f"UCPSettings.min_step_response_mm_per_v must be > 0, got {self.min_step_response_mm_per_v!r}")
 
 
 @dataclass(frozen=True)
@@ -159,7 +164,7 @@ def ucp_move(settings: UCPSettings, state: ModelState, theta: np.ndarray, *, u_p
     # an unstable linear part as well: the command is held, the prediction is the reading
     held = min(max(u_prev_v, settings.u_min_v), settings.u_max_v) if math.isfinite(u_prev_v) else settings.u_min_v
     l_now = state.history[2]
-    return UCPResult(held, l_now, settings.min_step_response_mm, np.full(settings.hp, l_now), held != u_prev_v)
+    return UCPResult(held, l_now, settings.min_step_response_mm_per_v, np.full(settings.hp, l_now), held != u_prev_v)
 
 
 def _move(settings: UCPSettings, state: ModelState, theta: np.ndarray, u_prev_v: float,
@@ -170,13 +175,13 @@ def _move(settings: UCPSettings, state: ModelState, theta: np.ndarray, u_prev_v:
     free = _held(state, theta, lin, u_prev_v, hp)
     stepped = _held(state, theta, lin, u_prev_v + 1.0, hp)
     s = stepped[-1] - free[-1]
-    if not math.isfinite(s) or abs(s) < settings.min_step_response_mm:
+    if not math.isfinite(s) or abs(s) < settings.min_step_response_mm_per_v:
         # Linear part's unit step response at Hp: sum of its impulse response.
         a1, a2, b1 = float(theta[0]), float(theta[1]), float(theta[2])
         y1, y0, s = 0.0, 0.0, 0.0
         for _ in range(hp):
             y1, y0 = a1 * y1 + a2 * y0 + b1, y1
-        s = y1 if abs(y1) >= settings.min_step_response_mm else math.copysign(settings.min_step_response_mm, y1 or 1.0)
+        s = y1 if abs(y1) >= settings.min_step_response_mm_per_v else math.copysign(settings.min_step_response_mm_per_v, y1 or 1.0)
     du = (r_target_mm - free[-1]) / s
     u = u_prev_v + du
     clipped = min(max(u, settings.u_min_v), settings.u_max_v)

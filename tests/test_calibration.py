@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, FittedParameter, NominalParameter, calibrate,
-                                   effective_sigma, field_bounds, fit_parameters)
+                                   effective_sigma, field_bounds, fit_covariance, fit_parameters, fitted_intervals)
 from tapmuscle.diagnosis.demo import record
 from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split, is_structured
 from tapmuscle.diagnosis.simulation import Simulator
@@ -136,6 +136,50 @@ def test_an_interval_covers_the_truth_when_a_constant_it_trades_with_is_left_nom
     # and the widening is what the left-out constant's prior gives, not a blanket inflation:
     # 0.02 x 20 % = 0.4 % sd of the first constant, against about 0.06 % from the noise
     assert np.median(widths) == pytest.approx(2 * 1.96 * math.hypot(0.02 * 0.2, sigma / np.linalg.norm(a0)), rel=0.1)
+
+
+def test_an_effect_s_interval_covers_the_truth_when_it_trades_with_a_constant():
+    """An effect parameter (flat within its bounds) fitted jointly with a constant whose column it
+    nearly repeats: its 95 % interval from the joint covariance covers the truth about 95 % of the
+    time over noise draws, where the interval with the constant held (the effect's column alone)
+    is several times too narrow."""
+    rng = np.random.default_rng(11)
+    n, sigma = 300, 0.01
+    a0 = rng.normal(size=n)
+    a1 = 0.95 * a0 + 0.3 * rng.normal(size=n)
+    nom = NOMINAL.dotted()["friction.base_n"]
+    coords = [FittedParameter("friction.base_n", nom, 0.2 * nom, True, *field_bounds("friction.base_n")),
+              FittedParameter("load_mismatch.extra_n", 0.0, 2.0, False, *field_bounds("load_mismatch.extra_n"))]
+    truth = {"friction.base_n": 1.1 * nom, "load_mismatch.extra_n": 3.0}
+    x_true = np.array([(truth[c.key] - c.center) / c.scale for c in coords])
+    joint = alone = 0
+    draws = 60
+    for _ in range(draws):
+        b = a0 * x_true[0] + a1 * x_true[1] + sigma * rng.normal(size=n)
+
+        def residual(p: PlantParams) -> np.ndarray:
+            x = [(p.value(c.key) - c.center) / c.scale for c in coords]
+            return b - a0 * x[0] - a1 * x[1]
+        f = fit_parameters(residual, NOMINAL, coords, sigma)
+        lo, hi = fitted_intervals(coords, f.values, fit_covariance(f.jacobian, f.residual, sigma))["load_mismatch.extra_n"]
+        joint += lo <= truth["load_mismatch.extra_n"] <= hi
+        lo1, hi1 = fitted_intervals(coords[1:], f.values, fit_covariance(f.jacobian[:, 1:], f.residual, sigma))[
+            "load_mismatch.extra_n"]
+        alone += lo1 <= truth["load_mismatch.extra_n"] <= hi1
+        # the joint interval is wider by the trade: 1 / sqrt(1 - rho^2) with rho the columns' correlation
+        rho = np.corrcoef(a0, a1)[0, 1]
+        assert (hi - lo) / (hi1 - lo1) == pytest.approx(1.0 / math.sqrt(1.0 - rho ** 2), rel=0.02)
+    # binomial(60, 0.95): 51 or more with probability 0.997
+    assert joint >= 51, f"{joint} of {draws} joint intervals cover the truth"
+    assert alone <= 40, f"{alone} of {draws} intervals with the constant held cover the truth"
+
+
+def test_an_effect_s_interval_stays_within_its_bounds():
+    """A play [mm] cannot be negative: an interval from a flat residual reaching below 0 is clipped."""
+    coords = [FittedParameter("backlash.slack_mm", 0.0, 0.5, False, *field_bounds("backlash.slack_mm"))]
+    lo_b, hi_b = field_bounds("backlash.slack_mm")
+    ci = fitted_intervals(coords, {"backlash.slack_mm": 0.1}, np.array([[1.0]]))["backlash.slack_mm"]
+    assert ci == (max(lo_b, 0.1 - 1.96 * 0.5), min(hi_b, 0.1 + 1.96 * 0.5)) and ci[0] >= 0.0
 
 
 def test_effective_sigma_inflates_for_autocorrelation():

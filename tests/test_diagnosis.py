@@ -702,6 +702,15 @@ def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
     assert d.findings[0].parameters["delay.delay_s"] == pytest.approx(0.3, abs=0.03)
     assert d.findings[0].explanation == candidate("transport_delay").explain(d.findings[0].parameters)
     assert d.fit_calibrated_percent < 95.0 < d.fit_after_percent
+    # the delay's 95 % interval (joint with the calibrated constants) holds the rig's, and says so in the files
+    lo, hi = d.findings[0].ci95["delay.delay_s"]
+    assert lo <= 0.3 <= hi and hi - lo < 0.01
+    assert d.to_json()["findings"][0]["ci95"]["delay.delay_s"] == [pytest.approx(lo, rel=1e-5), pytest.approx(hi, rel=1e-5)]
+    # without the calibration, on the rig's own constants: the interval from the effect's own Jacobian
+    d0 = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL.with_values(**OFF), calibration=None,
+                  candidates=[candidate("transport_delay")])
+    lo0, hi0 = d0.findings[0].ci95["delay.delay_s"]
+    assert d0.named == ["transport_delay"] and lo0 <= 0.3 <= hi0 and hi0 - lo0 < 0.01
 
 
 @pytest.mark.slow

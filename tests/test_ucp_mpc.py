@@ -50,7 +50,7 @@ def test_degenerate_step_response_falls_back_to_linear_part():
 
 
 @pytest.mark.parametrize("kw, match", [({"hp": 0}, "hp"), ({"u_min_v": 5, "u_max_v": 1}, "u_max_v"),
-                                       ({"min_step_response_mm": -1.0}, "min_step_response_mm")])
+                                       ({"min_step_response_mm_per_v": -1.0}, "min_step_response_mm_per_v")])
 def test_bad_settings(kw, match):
     with pytest.raises(ValueError, match=match):
         UCPSettings(**kw)

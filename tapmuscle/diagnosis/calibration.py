@@ -66,7 +66,7 @@ from tapmuscle.diagnosis.reproducible import broyden_update, dot, snap, snap_rel
 
 __all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "CalibrationRow",
            "Calibration", "fit_parameters", "calibrate", "calibration_rows", "nominal_coords", "field_bounds",
-           "effective_sigma", "PRIOR_BOUND_SDS", "AT_BOUND_SDS"]
+           "effective_sigma", "fit_covariance", "fitted_intervals", "PRIOR_BOUND_SDS", "AT_BOUND_SDS"]
 
 #: The solver keeps a nominal constant within this many prior sds of its nominal value (80 % of it at a
 #: 20 % prior). A constant at this bound stands in for an effect the model lacks (a valve band taken up
@@ -496,6 +496,38 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
                        map_params=None if ident.all() else base.with_values(**first.values))
 
 
+def fit_covariance(jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float, prior_columns: int = 0,
+                   consider: np.ndarray | None = None) -> np.ndarray:
+    """Covariance of a fit's scaled coordinates (module docstring, "Intervals").
+
+    ``(J'J / sigma_eff^2 + P)^-1`` with ``sigma_eff`` the residual's autocorrelation-inflated level
+    (at least ``sigma_mm``) and ``P`` the prior's information (one per scaled unit) on the leading
+    ``prior_columns`` columns, plus the consider term ``A A'`` of the constants left nominal
+    (``consider``: the residual's Jacobian in them, same rows as ``jacobian``, prior sd units).
+    """
+    sig = max(effective_sigma(residual), sigma_mm)
+    info = jacobian.T @ jacobian / sig ** 2
+    info = info + np.diag([1.0] * prior_columns + [0.0] * (info.shape[0] - prior_columns))
+    cov = np.linalg.pinv(info)
+    if consider is not None and consider.size:  # same rows as ``jacobian``: the same training residual
+        a = cov @ (jacobian.T @ consider) / sig ** 2
+        cov = cov + a @ a.T
+    return cov
+
+
+def fitted_intervals(coords: Sequence[FittedParameter], values: dict[str, float], cov: np.ndarray,
+                     bounds: Callable[[str], tuple[float, float]] = field_bounds) -> dict[str, tuple[float, float]]:
+    """95 % intervals ``value +- 1.96 sd`` [the parameters' units] of the fitted ``coords`` (the
+    columns of ``cov``, :func:`fit_covariance`, in order), clipped to each parameter's ``bounds``."""
+    out = {}
+    for j, c in enumerate(coords):
+        half = 1.96 * math.sqrt(max(float(cov[j, j]), 0.0)) * c.scale
+        lo, hi = bounds(c.key)
+        v = values[c.key]
+        out[c.key] = (max(lo, v - half), min(hi, v + half))
+    return out
+
+
 def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
                      identifiable: Sequence[str], jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float,
                      sd_shrink: Sequence[float],
@@ -515,19 +547,12 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
     include the prior (the data alone leave some directions free).
     """
     coords = {c.key: c for c in nominal_coords(nominal, parameters, bounds)}
-    sig = max(effective_sigma(residual), sigma_mm)
     fitted = list(identifiable if fitted is None else fitted)
     k = len(fitted)
     cov = None
     if jacobian.size and k:
-        info = jacobian.T @ jacobian / sig ** 2
-        if set(fitted) != set(identifiable):
-            info = info + np.diag([1.0] * k + [0.0] * (info.shape[0] - k))
-        full = np.linalg.pinv(info)
-        cov = full[:k, :k]
-        if consider is not None and consider.size:  # same rows as ``jacobian``: the same training residual
-            a = full @ (jacobian.T @ consider) / sig ** 2
-            cov = cov + (a @ a.T)[:k, :k]
+        cov = fit_covariance(jacobian, residual, sigma_mm, k if set(fitted) != set(identifiable) else 0,
+                             consider)[:k, :k]
     rows = []
     for p_, s in zip(parameters, sd_shrink):
         c = coords[p_.key]

@@ -101,7 +101,8 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          FD_STEP, calibration_rows, effective_sigma, fit_parameters, nominal_coords)
+                          FD_STEP, calibration_rows, effective_sigma, fit_covariance, fit_parameters,
+                          fitted_intervals, nominal_coords)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.diagnosis.held_out import HeldOut
@@ -576,16 +577,38 @@ def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
                       parallel=builtin)
 
 
+def _effect_coords(space: ModelSpace, effects: Sequence[str]) -> list[FittedParameter]:
+    """The coordinates of the ``effects``' parameters re-fitted jointly with the constants (flat
+    within their bounds), in the order of the joint re-fit's columns after the constants'."""
+    return [FittedParameter(key, 0.0, scale, False, *space.bounds(key))
+            for e in effects for key, scale in space.joint_parameters.get(e, ())]
+
+
+def _effect_intervals(problem: Problem, space: ModelSpace, params: PlantParams, effects: Sequence[str],
+                      sigma: float) -> dict[str, tuple[float, float]]:
+    """95 % intervals of the ``effects``' joint parameters at ``params`` with the constants held: a
+    forward-difference Jacobian (one simulation of the training blocks per parameter, all at once)
+    and :func:`~tapmuscle.diagnosis.calibration.fit_covariance` (for a model without calibrated
+    constants; with them, the final joint re-fit's covariance holds both)."""
+    extra = _effect_coords(space, effects)
+    if not extra:
+        return {}
+    r = problem.sensor_residual(params)
+    steps = [_stepped(params, c.key, c.scale, c.hi) for c in extra]
+    cols = problem.sensor_residuals([p for _, p in steps])
+    jac = np.column_stack([(col - r) / h for (h, _), col in zip(steps, cols)])
+    return fitted_intervals(extra, params.dotted(), fit_covariance(jac, r, sigma), space.bounds)
+
+
 def _joint_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
                  params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None,
                  final: bool = False) -> tuple[PlantParams, Any]:
     """Re-fit the calibrated constants ``coords`` jointly with the effects' smooth parameters (a short
     warm start with secant updates during the search; the final model with fresh Jacobians)."""
-    extra = [FittedParameter(key, 0.0, scale, False, *space.bounds(key))
-             for e in effects for key, scale in space.joint_parameters.get(e, ())]
-    if not coords and not extra:
+    joint_coords = list(coords) + _effect_coords(space, effects)
+    if not joint_coords:
         return params, None
-    f = fit_parameters(problem.sensor_residual, params, list(coords) + extra, sigma,
+    f = fit_parameters(problem.sensor_residual, params, joint_coords, sigma,
                        max_iterations=30 if final else 12, jacobian0=start_jac,
                        refresh_every=5 if final else None, residual_many=problem.sensor_residuals)
     return params.with_values(**f.values), f
@@ -1386,6 +1409,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                               "simulations": sim.runs - runs0, "kept": kept})
         return p, f, y_p, q_p, values
 
+    effect_ci: dict[str, tuple[float, float]] | None = None
     # the final model: the calibrated constants re-fitted jointly with the accepted effects; the
     # report's calibration rows are those of this joint fit
     if do_calibrate and cal is not None:
@@ -1426,6 +1450,15 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                                                sigma, cal.shrink, space.bounds,
                                                                fitted=list(cal.changed), consider=cal.consider_jacobian),
                               cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept, cal.consider_jacobian)
+            # the effects' intervals from the same covariance: a constant that trades with an effect
+            # widens the effect's interval as much as the effect widens the constant's
+            extra = _effect_coords(space, current.effects)
+            if extra and f_final.jacobian.shape[1] == len(coords) + len(extra):
+                cov = fit_covariance(f_final.jacobian, f_final.residual, sigma,
+                                     len(coords) if set(cal.changed) != set(cal.identifiable) else 0,
+                                     cal.consider_jacobian)
+                effect_ci = fitted_intervals(extra, current.params.dotted(), cov[len(coords):, len(coords):],
+                                             space.bounds)
     notes: list[str] = []
     skipped = None
     fit_kept = fit_percent(y, current.y, test)
@@ -1448,6 +1481,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         findings = []
         cal, y_cal, fit_cal = None, None, None
     base, y_base = current.params, current.y
+    if current.effects and effect_ci is None:
+        effect_ci = _effect_intervals(problem, space, base, current.effects, sigma)
+    for f in findings:
+        f.ci95 = {k: effect_ci[k] for k in f.parameters if effect_ci and k in effect_ci}
 
     e_after = y - y_base
     tests1, ac1, xc1 = _residual_tests(u, e_after, sensor_mm)

@@ -39,12 +39,18 @@ class Finding:
     regime: str
     evidence: dict[str, Any] = field(default_factory=dict)
     """Numbers behind the acceptance (held-out SSE before/after, z-test p-value, ...)."""
+    ci95: dict[str, tuple[float, float]] = field(default_factory=dict)
+    """95 % intervals of the parameters re-fitted jointly with the calibrated constants (same units as
+    ``parameters``; from the final joint fit's covariance, clipped to the parameter's bounds). A
+    parameter only its candidate's own search fits (a band's edges, a sag's window, a map's knot
+    inputs) has none: its cost is piecewise constant."""
 
     def to_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "explanation": self.explanation, "parameters": self.parameters,
                 "fit_gain_points": round(self.fit_gain_points, 3),
                 "located": [{"t_start_s": round(a, 2), "t_end_s": round(b, 2)} for a, b in self.located],
-                "regime": self.regime, "evidence": self.evidence}
+                "regime": self.regime, "evidence": self.evidence,
+                "ci95": {k: [float(f"{lo:.6g}"), float(f"{hi:.6g}")] for k, (lo, hi) in self.ci95.items()}}
 
 
 @dataclass

@@ -164,8 +164,13 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
         lines.append("")
         for f in d.findings:
             if f.parameters:
-                lines.append(f"* `{f.effect}` parameters: " + ", ".join(f"`{k}` = {v:.6g}" for k, v in f.parameters.items()))
+                lines.append(f"* `{f.effect}` parameters: " + ", ".join(
+                    f"`{k}` = {v:.6g}" + (f" (95 %: {f.ci95[k][0]:.4g} to {f.ci95[k][1]:.4g})" if k in f.ci95 else "")
+                    for k, v in f.parameters.items()))
         lines.append("")
+        if any(k not in f.ci95 for f in d.findings for k in f.parameters):
+            lines += ["A parameter without an interval is one only its effect's own search fits (a band's edges, a "
+                      "sag's window, a map's knot inputs: the fit is piecewise constant in them).", ""]
         if not d.named and not d.ambiguous:
             # a residual no candidate explains: what the reader can do next
             lines += ["Next: nothing in the vocabulary explains what is left. Its location and regime above say where "
