@@ -706,6 +706,10 @@ def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
     lo, hi = d.findings[0].ci95["delay.delay_s"]
     assert lo <= 0.3 <= hi and hi - lo < 0.01
     assert d.to_json()["findings"][0]["ci95"]["delay.delay_s"] == [pytest.approx(lo, rel=1e-5), pytest.approx(hi, rel=1e-5)]
+    from tapmuscle.diagnosis.report import _report_md
+    text = _report_md(d, "rec.csv", "plant.json", None)
+    assert f"`delay.delay_s` = {d.findings[0].parameters['delay.delay_s']:.6g} (95 %: {lo:.4g} to {hi:.4g})" in text
+    assert "linearised at the final model" in text
     # without the calibration, on the rig's own constants: the interval from the effect's own Jacobian
     d0 = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL.with_values(**OFF), calibration=None,
                   candidates=[candidate("transport_delay")])

@@ -171,6 +171,10 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
         if any(k not in f.ci95 for f in d.findings for k in f.parameters):
             lines += ["A parameter without an interval is one only its effect's own search fits (a band's edges, a "
                       "sag's window, a map's knot inputs: the fit is piecewise constant in them).", ""]
+        if any(f.ci95 for f in d.findings):
+            lines += ["The 95 % intervals are linearised at the final model, jointly with the calibrated constants; "
+                      "on a rig whose constants are off they can be too narrow (docs/diagnosis.md, step 9, "
+                      "\"Intervals of the effects' parameters\").", ""]
         if not d.named and not d.ambiguous:
             # a residual no candidate explains: what the reader can do next
             lines += ["Next: nothing in the vocabulary explains what is left. Its location and regime above say where "
