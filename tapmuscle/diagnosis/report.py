@@ -263,7 +263,8 @@ def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title:
     a2.plot(t, (d.y_mm - d.y_before_mm) * held, color="0.4", lw=0.8, label="residual before (held-out blocks)")
     a2.plot(t, (d.y_mm - d.y_after_mm) * held, color="tab:blue", lw=0.8, label="residual after (held-out blocks)")
     a2.set(xlabel="time [s]", ylabel=f"residual [{unit}]")
-    a2.legend(loc="best", fontsize=8)
+    # above the panel, between the two: inside, "best" still covered a trough where both residuals ran
+    a2.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=8, frameon=False)
     a2.grid(alpha=0.3)
     save_figure(fig, path)
 
