@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <wchar.h>
 
@@ -154,6 +155,19 @@ static int python_home_usable(void) {
     return 0;
 }
 
+/* A TAPMUSCLE_PYTHON that names no executable file (a typo, a venv deleted since) would leave Python
+   to its own search (the first python3 on PATH: another installation, or none with the packages),
+   silently: the instances fail naming it instead, as on Windows. */
+static int named_python_usable(const char *python) {
+    struct stat st;
+    if (!python || !*python || (stat(python, &st) == 0 && S_ISREG(st.st_mode) && access(python, X_OK) == 0)) return 1;
+    snprintf(load_failure, sizeof load_failure, "TAPMUSCLE_PYTHON=%.900s is not an executable file (name the "
+             "python of a CPython %s that has numpy, scipy and osqp: a venv's bin/python, or an installation's "
+             "bin/python%s; or unset it for the Python that built the FMU)", python, BUILD_PYTHON_VERSION,
+             BUILD_PYTHON_VERSION);
+    return 0;
+}
+
 /* Python's UTF-8 mode where the environment gives the process no encoding (LANG unset, or a locale
    that is not installed: the C/POSIX locale of containers, services, cron and CI runners), as the
    python executable switches it on there (PEP 540), and where PYTHONUTF8=1 asks for it:
@@ -196,6 +210,7 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
         if (!python_home_usable()) return;
         python_utf8_mode_where_needed();
         python = getenv("TAPMUSCLE_PYTHON");
+        if (!named_python_usable(python)) return;
         if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
         if (access(python, X_OK) == 0) {
             wchar_t *name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */

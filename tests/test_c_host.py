@@ -225,6 +225,22 @@ def test_a_pythonhome_without_the_standard_library_fails_the_instance_naming_it(
     assert "Fatal Python error" not in proc.stderr
 
 
+@pytest.mark.parametrize("what", ["missing", "folder"])
+def test_a_tapmuscle_python_that_is_no_executable_fails_the_instance_naming_it(host, plant, tmp_path, what):
+    """TAPMUSCLE_PYTHON naming no executable file (a typo, a venv deleted since; a folder) was ignored
+    without a word, and Python searched its own (the first python3 on PATH); the instances now fail
+    naming it, as on Windows, through the host's logger, and the host ends at its first step."""
+    version = "%d.%d" % sys.version_info[:2]
+    named = tmp_path / "deleted-venv" / "bin" / "python" if what == "missing" else tmp_path
+    proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
+                    env_extra={"TAPMUSCLE_PYTHON": str(named)})
+    assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, (proc.returncode, proc.stderr[-3000:])
+    assert (f"[Error] plant logStatusError: the FMU's pythonfmu library {plant.id}_pythonfmu.so could not be loaded: "
+            f"TAPMUSCLE_PYTHON={named} is not an executable file (name the python of a CPython {version} that has "
+            "numpy, scipy and osqp: a venv's bin/python, or an installation's bin/python") in proc.stderr, proc.stderr[-3000:]
+    assert "Fatal Python error" not in proc.stderr and proc.stdout.splitlines() == ["t,u,l,p"]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("method", [3, 4])  # ampc_ucp; ampc_servo (OSQP)
 def test_closed_loop_equals_fmpy(host, plant, controller, tmp_path, method):
@@ -610,11 +626,12 @@ def test_the_value_references_of_the_docs_c_host_example_are_the_builds(built_fm
     refs = {}
     for name, path in (("MusclePlant", built_fmus["MusclePlant"]), ("AMPCController", built_fmus["AMPCController"])):
         refs[name] = {v.name: v.valueReference for v in read_model_description(str(path)).modelVariables}
-    example = re.search(r"MusclePlant u=(\d+) l=(\d+) p=(\d+); AMPCController l=(\d+) u=(\d+) method=(\d+) "
-                        r"input_delay_samples=(\d+)", text)
+    example = re.search(r"MusclePlant u=(\d+) load_force=(\d+) l=(\d+) p=(\d+); AMPCController l=(\d+) u=(\d+) "
+                        r"method=(\d+) input_delay_samples=(\d+)", text)
     assert example is not None
-    pu, pl, pp, cl, cu, method, delay = map(int, example.groups())
+    pu, pload, pl, pp, cl, cu, method, delay = map(int, example.groups())
     assert (refs["MusclePlant"]["u"], refs["MusclePlant"]["l"], refs["MusclePlant"]["p"]) == (pu, pl, pp)
+    assert refs["MusclePlant"]["load_force"] == pload and f"P.load={pload} " in text
     assert (refs["AMPCController"]["l"], refs["AMPCController"]["u"]) == (cl, cu)
     assert (refs["AMPCController"]["method"], refs["AMPCController"]["input_delay_samples"]) == (method, delay)
     assert f"C.int={method}:4" in text and f"C.int={delay}:0" in text

@@ -222,7 +222,7 @@ int main(int argc, char **argv) {
     const char *mode;
     int i;
 
-    if (argc < 2) die(1, "usage: fmi_host open|closed|instances key=value ... (see the comment in fmi_host.c)");
+    if (argc < 2) die(1, "usage: fmi_host open|closed|instances|badvr key=value ... (see the comment in fmi_host.c)");
     mode = argv[1];
     for (i = 2; i < argc; i++) {
         char *arg = argv[i], *eq = strchr(arg, '='), *dot;
