@@ -103,9 +103,11 @@ def loop_seconds(run, steps: int, repeat: int) -> float:
 def libcosim_seconds(fmus: dict[str, Path], steps: int) -> float | None:
     try:
         from libcosimpy.CosimExecution import CosimExecution
+        from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
         from libcosimpy.CosimSlave import CosimLocalSlave
     except ImportError:
         return None
+    log_output_level(CosimLogLevel.WARNING)  # not its FMI Library's debug lines (about 75 per FMU loaded)
     ex = CosimExecution.from_step_size(step_size=int(round(TS_S * 1e9)))
     p = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmus["MusclePlant"]), instance_name="plant"))
     c = ex.add_local_slave(CosimLocalSlave(fmu_path=str(fmus["AMPCController"]), instance_name="ctrl"))
