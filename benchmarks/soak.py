@@ -29,7 +29,7 @@ import numpy as np
 from fmu_controller.displacement_control import ControllerSettings
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
-from tapmuscle.cli.progress import Progress
+from tapmuscle.progress import Progress
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.plots.soak_figures import plot_soak
 from tapmuscle.soak import SoakSettings, run_soak

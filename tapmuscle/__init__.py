@@ -68,6 +68,8 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "diagnose_files": ("tapmuscle.diagnosis.report", "diagnose_files"),
     "diagnose_foreign": ("tapmuscle.diagnosis.foreign_diagnose", "diagnose_foreign"),
     "diagnose_foreign_outputs": ("tapmuscle.diagnosis.foreign_diagnose", "diagnose_foreign_outputs"),
+    # progress reports of long calls (``progress=True``)
+    "Progress": ("tapmuscle.progress", "Progress"),
     # errors
     "TapmuscleError": ("tapmuscle.errors", "TapmuscleError"),
     "UsageError": ("tapmuscle.errors", "UsageError"),

@@ -23,6 +23,7 @@ from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
+from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
 from tapmuscle.io.signals import Replay, parse_input_spec
@@ -138,7 +139,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
                 ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
                 params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
                 settings: ControllerSettings | None = None, seed: int = 0,
-                loop_delay_samples: int = 0, effects: Sequence[Effect] | Effect = ()) -> dict[str, np.ndarray]:
+                loop_delay_samples: int = 0, effects: Sequence[Effect] | Effect = (),
+                progress: bool | Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Track a reference with one of the paper's four controllers on the simulated rig (no FMU).
 
     The loop of :func:`tapmuscle.closed_loop.run_closed_loop`: at ``t_k`` the controller reads
@@ -185,6 +187,9 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         1: each command acts one sample late, as in a parallel co-simulation master at h = Ts.
     effects : Effect or sequence of Effect
         Physics of your own on the simulated rig, as :func:`simulate` takes them (this process only).
+    progress : bool or callable, optional
+        ``progress(done, total)`` about every 1 % of the run; True: a report on stderr
+        (:class:`tapmuscle.progress.Progress`).
 
     Returns
     -------
@@ -235,7 +240,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     plant = _plant(params, None if callable(load_n) else load_n, seed, effects)
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
     return run_closed_loop(plant, controller, reference, duration_s=duration_s,
-                           load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples)
+                           load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples,
+                           progress=reporter(progress, "simulate_closed_loop"))
 
 
 def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> list[Path]:
@@ -280,7 +286,7 @@ def _fmus_argument(fmus: Any, scenarios: list) -> dict[str, Path]:
 
 
 def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None = None, client: Any = None,
-          workers: int = 0, plots: bool = True, progress: Callable[[int, int, str], None] | None = None) -> Any:
+          workers: int = 0, plots: bool = True, progress: bool | Callable[[int, int, str], None] | None = None) -> Any:
     """Run a sweep's runs not yet finished in ``out`` and write its summary (what ``tapmuscle sweep`` does).
 
     Parameters
@@ -301,8 +307,9 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
         processes, closed at the end.
     plots : bool
         Write the PNGs.
-    progress : callable, optional
-        ``progress(done, total, detail)`` after each run.
+    progress : bool or callable, optional
+        ``progress(done, total, detail)`` after each run; True: a report on stderr
+        (:class:`tapmuscle.progress.Progress`).
 
     Returns
     -------
@@ -325,6 +332,7 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
     from tapmuscle.cosim.sweep import Sweep, load_sweep
     from tapmuscle.cosim.sweep_run import run_sweep
 
+    progress = reporter(progress, "sweep")
     if not isinstance(sweep, (str, Path, Sweep)):
         raise TypeError(f"sweep must be a sweep file's path or a Sweep, got a {type(sweep).__name__}")
     if not isinstance(out, (str, Path)) or Path(out).exists() and not Path(out).is_dir():

@@ -21,6 +21,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
 from fmu_plant.user_warning import warn_at_caller
+from tapmuscle.progress import reporter
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
 
@@ -136,7 +137,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
                     reference: Reference | Callable[[float], float] | np.ndarray | None, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
                     loop_delay_samples: int = 0,
-                    progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+                    progress: bool | Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Run a new loop for ``duration_s`` from the plant's current physical state.
 
     The loop runs on the controller's grid ``controller.settings.ts_s``; the controller sees the
@@ -165,8 +166,9 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         1 applies each command one sample late (``u`` computed at ``t_k`` drives the valve over
         ``[t_k+1, t_k+2)``, 0 V at first), as a parallel co-simulation master does at a macro step
         of ``Ts``; ``u_v`` then records the command the valve received.
-    progress : callable, optional
-        ``progress(done, total)`` about every 1 % of the run.
+    progress : bool or callable, optional
+        ``progress(done, total)`` about every 1 % of the run; True: a report on stderr
+        (:class:`tapmuscle.progress.Progress`).
 
     Returns
     -------
@@ -184,6 +186,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     if (isinstance(duration_s, bool) or not isinstance(duration_s, numbers.Real) or not math.isfinite(duration_s)
             or duration_s <= 0):
         raise ValueError(f"duration_s must be a finite number > 0 [s], got {duration_s!r}")
+    progress = reporter(progress, "run_closed_loop")
     ts = controller.settings.ts_s
     reference = as_reference(reference, ts)
     n = int(round(duration_s / ts)) + 1

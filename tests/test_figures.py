@@ -176,3 +176,13 @@ def test_the_model_error_panel_is_scaled_to_the_errors(monkeypatch, tmp_path):
     assert 2.0 < hi < 2.5 and lo == -hi
     plot_model_vs_measured(t, 5 + np.sin(t), l, {"diverging": l + np.exp(0.2 * t)}, tmp_path / "d.png")
     assert saved[1].axes[1].get_ylim()[1] <= 0.25 * 80 + 1e-6  # the data's range, as before
+
+
+def test_the_missing_glyph_warning_is_recognised_in_every_supported_matplotlib_s_words():
+    """matplotlib 3.8 (the lowest pyproject.toml allows) says "missing from current font.", 3.9 and
+    later "missing from font(s) DejaVu Sans.": both are combined into one MissingGlyphWarning."""
+    from tapmuscle.plots.figures import _GLYPH
+
+    for text in ("Glyph 27169 (\\N{CJK UNIFIED IDEOGRAPH-6A21}) missing from current font.",
+                 "Glyph 27169 (\\N{CJK UNIFIED IDEOGRAPH-6A21}) missing from font(s) DejaVu Sans."):
+        assert _GLYPH.search(text).group(1) == "27169"

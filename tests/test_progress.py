@@ -1,4 +1,4 @@
-"""Progress reports (tapmuscle/cli/progress.py): no run goes quiet for longer than the heartbeat."""
+"""Progress reports (tapmuscle/progress.py): no run goes quiet for longer than the heartbeat."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import io
 import threading
 import time
 
-import tapmuscle.cli.progress as progress_module
-from tapmuscle.cli.progress import Progress
+import tapmuscle.progress as progress_module
+from tapmuscle.progress import Progress
 
 
 class _Tty(io.StringIO):
@@ -101,3 +101,34 @@ def test_a_progress_given_to_a_second_run_counts_it_afresh(monkeypatch):
     p(1, 10)  # a third, slow one: its heartbeat runs
     time.sleep(0.3)
     assert out.getvalue().rstrip("\n").count("\r", out.getvalue().rfind("\n")) >= 3
+
+
+def test_progress_true_reports_the_api_s_long_calls_on_stderr(capsys):
+    """A notebook's ``progress=True``: the command line's report, labelled with the call, to the end."""
+    import numpy as np
+
+    import tapmuscle as tm
+
+    tm.simulate_closed_loop(duration_s=5.0, progress=True)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("simulate_closed_loop:") and lines[-1].startswith("simulate_closed_loop: 100% (51/51")
+    rec = tm.simulate(lambda t: 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * t), duration_s=40.0, seed=1)
+    tm.diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], tm.PlantParams(), calibration=None, progress=True)
+    err = capsys.readouterr().err.splitlines()
+    assert err[0].startswith("diagnose:   0% (0/") and err[-1].startswith("diagnose: 100%"), err
+    # False and None report nothing; a callable is called as given
+    calls = []
+    tm.simulate_closed_loop(duration_s=2.0, progress=False)
+    tm.simulate_closed_loop(duration_s=2.0, progress=lambda done, total: calls.append((done, total)))
+    assert capsys.readouterr().err == "" and calls[-1] == (21, 21)
+
+
+def test_a_progress_that_is_neither_a_flag_nor_a_callable_is_refused_naming_it():
+    import pytest
+
+    import tapmuscle as tm
+
+    for call in (lambda: tm.simulate_closed_loop(duration_s=1.0, progress="yes"),
+                 lambda: tm.sweep("no_such.toml", "out", progress=1)):
+        with pytest.raises(TypeError, match=r"progress must be True, False, None or a callable .*got ('yes'|1)"):
+            call()

@@ -26,7 +26,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.report import diagnose_files, summary_lines
 
     from tapmuscle.io.plant_file import PlantFileError
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
     from tapmuscle.io.recording import RecordingError
 
     from tapmuscle.diagnosis.candidates import CANDIDATES
@@ -86,7 +86,7 @@ def _is_foreign(plant: str) -> bool:
 
 
 def _diagnose_foreign(args: argparse.Namespace) -> int:
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
     from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_foreign_outputs
     from tapmuscle.diagnosis.foreign_model import ForeignFmuError
     from tapmuscle.diagnosis.report import summary_lines
@@ -119,7 +119,7 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
 
     field_only = {"--recordings": args.recordings, "--seed": args.seed, "--resume": args.resume or None,
                   "--use-pressure": args.use_pressure or None, "--keep-files": args.keep_files or None}

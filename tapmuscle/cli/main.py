@@ -68,7 +68,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     from fmu_plant import Plant
     from fmu_plant.open_loop import run_open_loop
 
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
     import numpy as np
 
     from tapmuscle.io.atomic import atomic_path
@@ -307,7 +307,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------- paper
 def _cmd_paper(args: argparse.Namespace) -> int:
     from tapmuscle.paper.reproduce import PAPER_RUNS, run_paper
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
 
     out = Path(args.out)
     print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {out}/")
@@ -360,7 +360,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from tapmuscle.cosim import ScenarioError, load_scenario, run_scenario
     from tapmuscle.cosim.run import RUN_FILES
 
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
 
     try:
         scenario = load_scenario(args.scenario)

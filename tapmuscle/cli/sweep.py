@@ -98,7 +98,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from tapmuscle.cosim.distributed_sweep import ClusterError
     from tapmuscle.cosim.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
 
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
 
     try:
         sweep = load_sweep(args.sweep)
@@ -150,7 +150,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from tapmuscle.cosim.check import CollectionError, collect_cases, evaluate, junit_xml, result_table
     from tapmuscle.cosim.distributed_sweep import ClusterError, FmuFiles, make_task
 
-    from tapmuscle.cli.progress import Progress
+    from tapmuscle.progress import Progress
     from tapmuscle.io.recording import atomic_write_text
 
     _cluster_options(args, 0)

@@ -105,6 +105,7 @@ from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, Fi
                           fitted_intervals, nominal_coords)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
+from tapmuscle.progress import reporter
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
 from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation, balanced_block_s, block_index, autocorrelation_test,
@@ -277,8 +278,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         Nominal constants to re-estimate before the search, as objects or by key (``"valve.cv_max"``;
         default :data:`~tapmuscle.diagnosis.calibration.NOMINAL_PARAMETERS`); None or empty: no calibration
         (the model is taken as exact apart from left-out effects).
-    progress : callable, optional
-        ``progress(done, total)`` after each fit.
+    progress : bool or callable, optional
+        ``progress(done, total)`` after each fit; True: a report on stderr
+        (:class:`tapmuscle.progress.Progress`).
     workers : int
         Processes for the independent work (the candidates' own fits, the joint re-fits, the
         forward-difference Jacobians); 1: all in this process. The diagnosis is the same, bit for bit,
@@ -326,7 +328,13 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if calibration is not None:
         calibration = by_name(calibration, NOMINAL_PARAMETERS, "calibration", "nominal parameter",
                               hint="; calibration=None: no calibration")
-    if progress is not None:
+    report = reporter(progress, "diagnose")
+    last = [0, len(candidates)]  # the latest (done, total): a search that stops early ends its report at total
+
+    def progress(done: int, total: int) -> None:
+        last[:] = done, total
+        report(done, total)
+    if report is not None:
         progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
     check_muscle_recording(u, ts, y, np.asarray(p_mpa, float) if use_pressure and p_mpa is not None else None)
@@ -341,8 +349,10 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                    calibration=calibration, progress=progress, started=started, space=MuscleSpace(model),
-                    use_pressure=use_pressure, left_out=left_out)
+                    calibration=calibration, progress=progress if report is not None else None, started=started,
+                    space=MuscleSpace(model), use_pressure=use_pressure, left_out=left_out)
+    if report is not None and last[0] < last[1]:
+        report(last[1], last[1])
     d.notes[:0] = notes
     if load is not None:
         d.notes += _recorded_load(d, load, model.load.load_n)

@@ -54,7 +54,8 @@ class MissingGlyphWarning(UserWarning):
     """A figure's text has characters that no font matplotlib uses draws (they show as boxes)."""
 
 
-_GLYPH = re.compile(r"Glyph (\d+) .*missing from font")
+# matplotlib >= 3.9: "missing from font(s) DejaVu Sans."; 3.8: "missing from current font."
+_GLYPH = re.compile(r"Glyph (\d+) .*missing from (?:current )?font")
 
 
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:

@@ -1,4 +1,8 @@
-"""Progress reports on stderr for long runs: a bar on a terminal, lines in a log.
+"""Progress reports on stderr for long runs: a bar on a terminal, lines in a log or a notebook.
+
+The command line reports every long run with a :class:`Progress`; the Python API's long calls
+(``tm.diagnose``, ``tm.sweep``, ``tm.run_closed_loop``, ``tm.simulate_closed_loop``) take
+``progress=True`` for the same report (:func:`reporter`), or any callable ``progress(done, total)``.
 
 A run never goes quiet for more than 5 s: besides each update, a heartbeat re-reports the last state
 with the elapsed time when nothing has been written for :data:`HEARTBEAT_TTY_S` (a terminal: the
@@ -19,7 +23,7 @@ from typing import Any, TextIO
 
 from fmu_plant.user_warning import in_project
 
-__all__ = ["Progress", "HEARTBEAT_TTY_S", "HEARTBEAT_LOG_S"]
+__all__ = ["Progress", "reporter", "HEARTBEAT_TTY_S", "HEARTBEAT_LOG_S"]
 
 #: Longest silence on a terminal [s].
 HEARTBEAT_TTY_S = 5.0
@@ -32,6 +36,18 @@ class Progress:
 
     Silent when ``enabled`` is false or the run is short (fewer than ``min_total`` units). The
     heartbeat (module docstring) runs in a daemon thread from the first report to the last.
+
+    Parameters
+    ----------
+    label : str
+        What the report lines start with (``diagnose:  40% (4/9, 12.3 s)``).
+    enabled : bool
+        False: report nothing (``--quiet``).
+    stream : text stream, optional
+        Where to write (default ``sys.stderr``): a bar where it is a terminal, a line every 10 % and a
+        "still running" line after :data:`HEARTBEAT_LOG_S` without one elsewhere (a log, a notebook).
+    min_total : int
+        Runs of fewer units than this report nothing.
     """
 
     def __init__(self, label: str, *, enabled: bool = True, stream: TextIO | None = None,
@@ -106,6 +122,19 @@ class Progress:
             if time.monotonic() - self._last_write >= self.heartbeat_s:
                 self._render(done, total, detail, heartbeat=True)
         return True
+
+
+def reporter(progress: Any, label: str) -> Any:
+    """What a ``progress=`` argument of the Python API stands for: ``True`` is a :class:`Progress`
+    labelled ``label`` on stderr, reporting from the first unit; ``None`` or ``False`` none; a callable
+    is called as it is (``progress(done, total)``). Anything else is refused, naming it."""
+    if progress is None or progress is False:
+        return None
+    if progress is True:
+        return Progress(label, min_total=1)
+    if callable(progress):
+        return progress
+    raise TypeError(f"progress must be True, False, None or a callable progress(done, total), got {progress!r}")
 
 
 def _reporting_call(frame: Any) -> tuple[int, int, object]:
