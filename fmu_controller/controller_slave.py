@@ -63,8 +63,10 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 GUARD_JUMPS, HELD_WARN_S, MAX_DELAY_MOVE_WEIGHT, MAX_INPUT_DELAY_SAMPLES,
+from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_MAX_SPEED_MM_PER_S,
+                                                 DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
+                                                 GUARD_JUMPS, HELD_READINGS_MAX, HELD_WARN_S, MAX_DELAY_MOVE_WEIGHT,
+                                                 MAX_INPUT_DELAY_SAMPLES,
                                                  MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
                                                  VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
                                                  DisplacementController, full_range_jump, held_against_cause,
@@ -107,6 +109,8 @@ _HEAVY_MOVE_WEIGHT = 1000.0
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
 _PINNED_S = 10.0
+#: Readings held by the glitch guard that the log states one by one (the run summary counts them all).
+_HELD_READINGS_LOGGED = 10
 #: A sampling period ``Ts`` of this many seconds or more, stepped by a host at a tenth of it or less, is
 #: logged at the first step: the muscle's responses take tenths of a second, so it is most likely ``Ts``
 #: typed in milliseconds (``Ts = 50``), with which the controller samples once and holds its command for
@@ -252,6 +256,10 @@ class AMPCController(SafeSlave):
              "probing signal (a maximum-length sequence, bits of 4 samples) added to the valve command while the "
              "law is on theta0 (t < startup_s/2), so that the estimate is excited; 0 = off (docs/control.md, "
              "Start-up)", 0.0, MAX_PROBING_V),
+            ("max_speed", DEFAULT_MAX_SPEED_MM_PER_S, "mm/s", "glitch guard: a reading l further from the last one "
+             "used than max_speed x Ts (the muscle cannot move that far in a sample) is taken for a sensor glitch and "
+             f"the one-step prediction used instead, at most {HELD_READINGS_MAX} in a row (logged); 0 = off "
+             "(docs/control.md, Sensor glitches)", 0.0, None),
             ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35); offset +- amplitude within "
              f"{_L_RANGE_MM[0]:g}..{_L_RANGE_MM[1]:g}", *_L_RANGE_MM),
             ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", 0.0,
@@ -330,7 +338,8 @@ class AMPCController(SafeSlave):
             delay_correction=ip["delay_correction"] == 1, anti_windup=ip["anti_windup"] == 1,
             startup_guard=ip["startup_guard"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
-            startup_s=p["startup_s"], probing_v=p["probing_v"], delay_move_weight=p["delay_move_weight"])
+            startup_s=p["startup_s"], probing_v=p["probing_v"], delay_move_weight=p["delay_move_weight"],
+            max_speed_mm_per_s=p["max_speed"])
 
     def overflow_hint(self) -> str:
         changed = [n for n in ASYMMETRIC.names if self._par[f"theta0.{n}"] != self._start_values[f"theta0.{n}"]]
@@ -669,6 +678,8 @@ class AMPCController(SafeSlave):
         tally.samples += 1
         if step.saturated:
             tally.saturated += 1
+        if ctrl.reading_held is not None:
+            self._say_held_reading(t_s, *ctrl.reading_held)
         if self._k:
             e = step.prediction_error_mm
             tally.errors += 1
@@ -688,6 +699,23 @@ class AMPCController(SafeSlave):
         self._k += 1
         self.samples = self._k
         self._show_input_delay()
+
+    def _say_held_reading(self, t_s: float, reading: float, used: float, last: float) -> None:
+        """Log a reading the glitch guard held (the first :data:`_HELD_READINGS_LOGGED`; all are counted
+        in the run summary)."""
+        tally = self._tally
+        tally.held += 1
+        if tally.held > _HELD_READINGS_LOGGED:
+            return
+        s = self._controller.settings
+        more = ("; further ones are counted in the run summary, not logged" if tally.held == _HELD_READINGS_LOGGED
+                else "")
+        self.log(f"t = {t_s:g} s: the reading l = {reading:g} mm is {abs(reading - last):.3g} mm "
+                 f"from the last one used, more than the muscle moves in a sample (max_speed x Ts = "
+                 f"{s.max_speed_mm_per_s:g} x {s.ts_s:g} = {s.max_speed_mm_per_s * s.ts_s:g} mm): taken for a sensor "
+                 f"glitch, the law and the estimator used the prediction {used:.4g} mm instead (after "
+                 f"{HELD_READINGS_MAX} in a row the reading is taken as the new level; max_speed = 0 turns this off){more}",
+                 status=Fmi2Status.warning)
 
     def _say_changes(self, t_s: float, before: tuple[int | None, bool]) -> None:
         """Events (logEvents) of the controller's changes of mode at a sample taken in the start-up:
@@ -784,16 +812,18 @@ class _Tally:
     """What the controller's run summary says: samples, samples at an input limit, prediction errors
     (counted in :meth:`AMPCController.step_numerics`)."""
 
-    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial")
+    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial", "held")
 
     def __init__(self, samples: int = 0, saturated: int = 0, errors: int = 0, sum_squares_mm2: float = 0.0,
-                 largest_mm: float = 0.0, partial: bool = False) -> None:
+                 largest_mm: float = 0.0, partial: bool = False, held: int = 0) -> None:
         self.samples, self.saturated, self.errors = int(samples), int(saturated), int(errors)
         self.sum_squares_mm2, self.largest_mm = float(sum_squares_mm2), float(largest_mm)
         self.partial = bool(partial)  # counted from a restored state that carried no tally
+        self.held = int(held)  # readings the glitch guard held (a state saved without it: none)
 
     def as_list(self) -> list:
-        return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm, self.partial]
+        return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm, self.partial,
+                self.held]
 
     def __str__(self) -> str:
         if not self.samples:
@@ -803,4 +833,5 @@ class _Tally:
         # no percent sign: hosts that print the message as it arrives (fmpy) would show it doubled
         return (f"{self.samples} samples{since}; an input limit (0-10 V or Eq. 19) active in {self.saturated} of "
                 f"them; one-step prediction error l(k) - l(k|k-1): RMS "
-                f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm")
+                f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm"
+                + (f"; {self.held} readings taken for sensor glitches and held (max_speed)" if self.held else ""))

@@ -58,7 +58,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
-           "HELD_WARN_S", "held_against_error", "held_against_cause",
+           "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX", "HELD_WARN_S", "held_against_error", "held_against_cause",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -124,6 +124,14 @@ MAX_DELAY_MOVE_WEIGHT = 1000.0
 MAX_STARTUP_S = 600.0
 #: Default start-up mode ``ControllerSettings.startup_s`` [s] (docs/control.md, "Start-up").
 DEFAULT_STARTUP_S = 12.0
+
+#: Fastest the muscle moves [mm/s] as far as the glitch guard is concerned
+#: (``ControllerSettings.max_speed_mm_per_s``): twice the simulated rig's fastest, about 200 mm/s
+#: from rest to 10 V and back at 0.25 MPa and 10-100 N.
+DEFAULT_MAX_SPEED_MM_PER_S = 400.0
+#: Readings held in a row, at most, before one that stays as far from the last used is taken as the new
+#: level (an encoder re-zeroed, a real step): a glitch lasts a sample or two.
+HELD_READINGS_MAX = 3
 
 #: Default amplitude [V] of the start-up mode's probing signal (``ControllerSettings.probing_v``).
 DEFAULT_PROBING_V = 0.5
@@ -278,6 +286,14 @@ class ControllerSettings:
     AMPC-servo 0.88 / 1.99 / 2.81 mm at 0.2 / 0.3 / 0.4 s against 1.16 / 2.37 / 3.62 with Table 5's 15,
     MPC-servo 1.5 against 3.9 mm at 0.2 s; docs/control.md, "Transport delay"). 1 keeps ``servo.r``;
     delays of 0 and 1 always do (the paper's runs and the parallel master keep their bits)."""
+    max_speed_mm_per_s: float = DEFAULT_MAX_SPEED_MM_PER_S
+    """Glitch guard: a reading ``l(k)`` further from the last one used than the muscle can move in one
+    sample (``max_speed_mm_per_s * ts_s``; 40 mm at the default 400 mm/s and 0.1 s) is taken for a
+    sensor glitch: the law and the estimator use the one-step prediction ``l(k|k-1)`` instead (the
+    estimator then learns nothing from it), and :attr:`DisplacementController.reading_held` says so.
+    After :data:`HELD_READINGS_MAX` such readings in a row the next one is used as the new level.
+    Without it one reading 50 mm off sent AMPC-servo's valve to 10 V for four samples and the adaptive
+    estimate learnt from it (docs/control.md, "Sensor glitches"). 0: off (every reading used)."""
     delay_correction: bool = True
     """With an input delay (``input_delay_samples`` 1 or more, or -1 once a delay hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
@@ -287,7 +303,7 @@ class ControllerSettings:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"ControllerSettings.method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        for name in ("ts_s", "startup_s", "probing_v", "forgetting"):  # numpy numbers as Python floats
+        for name in ("ts_s", "startup_s", "probing_v", "forgetting", "max_speed_mm_per_s"):  # numpy numbers as Python floats
             object.__setattr__(self, name, real_number(getattr(self, name), what=f"ControllerSettings.{name}"))
         if not self.ts_s > 0:
             raise ValueError(f"ControllerSettings.ts_s must be a positive finite number, got {self.ts_s!r}")
@@ -310,6 +326,9 @@ class ControllerSettings:
                                      f"{VALVE_MIN_V:g} .. {VALVE_MAX_V:g} V, got {value!r}")
         if not 0.0 <= self.startup_s <= MAX_STARTUP_S:
             raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
+        if not 0.0 <= self.max_speed_mm_per_s < math.inf:
+            raise ValueError(f"ControllerSettings.max_speed_mm_per_s must be a finite number >= 0 [mm/s] (0: no glitch "
+                             f"guard), got {self.max_speed_mm_per_s!r}")
         if not 0.0 <= self.probing_v <= MAX_PROBING_V:
             raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
         if not isinstance(self.startup_guard, bool):
@@ -554,6 +573,7 @@ class DisplacementController:
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
         self._guard = settings.startup_guard and settings.adaptive and self._blend_n > 0
+        self._max_jump = settings.max_speed_mm_per_s * settings.ts_s  # 0: no glitch guard
         self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
 
@@ -581,6 +601,10 @@ class DisplacementController:
         self._limit_run = 0  # samples in a row at a valve limit the error pushes into (_integrate)
         self._h_prev = self._h_prev2 = math.nan  # H(k-1), H(k-2) for hysteresis_notch (NaN: none yet)
         self._predicted = math.nan
+        self._held_in_a_row = 0  # readings the glitch guard held in a row
+        self.reading_held: tuple[float, float, float] | None = None
+        """The last step's reading taken for a glitch, the value used instead and the last one used
+        before [mm]; None where the reading was used."""
         # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
         # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
         self._lag = 1 if self._auto else self.settings.input_delay_samples  # the delay the law runs for
@@ -638,9 +662,19 @@ class DisplacementController:
         # a finite sum implies finite terms; the elementwise test only if it is not (1e308s overflow)
         if not math.isfinite(sum(rl)) and not all(map(math.isfinite, rl)):
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
-        error = 0.0 if math.isnan(self._predicted) else l - self._predicted
         state = self._state
         k = self._k
+        self.reading_held = None
+        if self._max_jump and k > 0:
+            last = state.last_l
+            if abs(l - last) <= self._max_jump or self._held_in_a_row >= HELD_READINGS_MAX:
+                self._held_in_a_row = 0
+            else:  # further than the muscle moves in a sample: a glitch, the prediction used instead
+                self._held_in_a_row += 1
+                used = self._predicted if math.isfinite(self._predicted) else last
+                self.reading_held = (l, used, last)
+                l = used
+        error = 0.0 if math.isnan(self._predicted) else l - self._predicted
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
 
@@ -1039,7 +1073,7 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "limit_run": self._limit_run,
-            "predicted": self._predicted,
+            "predicted": self._predicted, "held_in_a_row": self._held_in_a_row,
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
             "delayed": self._lag != 0, "decided": self._decided, "lag": self._lag,
@@ -1081,6 +1115,10 @@ class DisplacementController:
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
         self._limit_run = int(state.get("limit_run", 0))
         self._predicted = float(state["predicted"])
+        held = state.get("held_in_a_row", 0)  # a state saved without the guard: none held
+        if isinstance(held, bool) or int(held) != held or not 0 <= held <= HELD_READINGS_MAX:
+            raise ValueError(f"state field held_in_a_row = {held!r} must be a count 0 .. {HELD_READINGS_MAX}")
+        self._held_in_a_row = int(held)
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         for name in ("h_prev", "h_prev2"):
             if math.isinf(float(state.get(name, math.nan))):

@@ -551,6 +551,11 @@ class ModelState:
         return h
 
     @property
+    def last_l(self) -> float:
+        """``l(k)`` [mm], the latest displacement observed (the initial one before any)."""
+        return self._l0
+
+    @property
     def history(self) -> tuple[float, float, float, float, float, float]:
         """``(l(k-2), l(k-1), l(k), v(k-2), v(k-1), v(k))`` [mm]: the displacements and virtual
         hysteresis outputs the state holds (the controller's one-sample-ahead evaluation saves

@@ -202,6 +202,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     meas = plant.measurement
     controller.reset(meas.l_mm)
     pred_prev = meas.l_mm
+    held_at: list[float] = []  # sample times of the readings the glitch guard held
     every = max(1, n // 100)
     for k in range(n):
         t = k * ts
@@ -216,6 +217,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
         cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
         theta_hist[k] = step.theta
+        if controller.reading_held is not None:
+            held_at.append(t)
         pred_prev = step.predicted_next_mm
         if k + 1 < n:
             meas = plant.step(u, ts)
@@ -225,6 +228,12 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         cols[f"theta_{name}"] = theta_hist[:, i]
     plant.warn_run_notes(float(np.min(cols["load_n"])))
     _warn_if_held_against_error(cols, controller)
+    if held_at:
+        s = controller.settings
+        warn_at_caller(f"{len(held_at)} readings (the first at t = {held_at[0]:g} s) were further from the last one used "
+                       f"than the muscle moves in a sample (max_speed_mm_per_s x ts_s = {s.max_speed_mm_per_s:g} x "
+                       f"{s.ts_s:g} mm) and were taken for sensor glitches: the controller used its prediction instead "
+                       "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", RuntimeWarning)
     return cols
 
 

@@ -1116,3 +1116,28 @@ def test_a_state_keeps_its_runs_start_time(fmu):
         assert run(b, 30) == expected
         _free(b)
     _free(a)
+
+
+def test_a_reading_taken_for_a_sensor_glitch_is_logged_and_counted():
+    """A reading 50 mm off for one sample: the FMU logs it as a warning naming the reading, the bound
+    and the prediction used; the run summary counts it; with max_speed = 0 it is used and not said."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    def run(**par):
+        slave = AMPCController(instance_name="glitch")
+        slave._par.update(par)
+        slave.exit_initialization_mode()
+        plant = Plant(seed=0)
+        for k in range(400):
+            slave.l = plant.measurement.l_mm + (50.0 if k == 300 else 0.0)
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+        return slave, [m for m in slave.log_queue if "taken for a sensor glitch" in m.msg]
+
+    slave, (msg,) = run()
+    assert msg.status == Fmi2Status.warning and msg.msg.startswith("t = 30 s: the reading l = ")
+    assert "max_speed x Ts = 400 x 0.1 = 40 mm" in msg.msg and "the prediction" in msg.msg
+    assert "1 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()
+    off, said = run(max_speed=0.0)
+    assert said == [] and "sensor glitches" not in off.run_summary()

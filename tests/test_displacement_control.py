@@ -7,7 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, B1_KEPT_FRACTION, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
+from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, B1_KEPT_FRACTION, DEFAULT_MAX_SPEED_MM_PER_S,
+                                                 DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HELD_READINGS_MAX,
                                                  HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
                                                  ControllerSettings, DisplacementController)
 from fmu_controller.preliminary_model import THETA0_44N
@@ -500,7 +501,7 @@ def test_the_commands_in_flight_are_part_of_the_state(theta0, settings):
 
 
 @pytest.mark.parametrize("key, value", [("theta", [1.0] * 3), ("xs", math.inf), ("k", -1), ("u_next", math.nan),
-                                        ("predicted", math.inf)])
+                                        ("predicted", math.inf), ("held_in_a_row", -1), ("held_in_a_row", 9)])
 def test_a_corrupted_state_is_refused_naming_the_field(theta0, key, value):
     c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=1), theta0)
     for k in range(5):
@@ -1123,3 +1124,80 @@ def test_the_delay_evidence_of_a_set_delay():
     auto.reset(0.0)
     auto._compared = DELAY_CHECK_SAMPLES
     assert auto.delay_evidence is None
+
+
+# ------------------------------------------------------------------ glitch guard
+def _spiked_run(theta0, method, spike_mm, *, guard=True, k_spike=300, width=1, n=601, seed=0, save_at=None):
+    """A loop on the simulated rig whose readings are ``spike_mm`` off for ``width`` samples from
+    ``k_spike``: the real displacement, the commands and the samples the guard held."""
+    plant = Plant(seed=seed)
+    s = ControllerSettings(method=method, max_speed_mm_per_s=DEFAULT_MAX_SPEED_MM_PER_S if guard else 0.0)
+    c = DisplacementController(s, theta0)
+    ref = SineReference()
+    l = plant.measurement.l_mm
+    c.reset(l)
+    ls, us, held, saved = [], [], [], None
+    for k in range(n):
+        if k == save_at:
+            saved = c.get_state()
+        step = c.step(l + (spike_mm if k_spike <= k < k_spike + width else 0.0), ref.preview(k, s.preview_samples))
+        if c.reading_held is not None:
+            held.append(k)
+        ls.append(l)
+        us.append(step.u_v)
+        plant.step(step.u_v, s.ts_s)
+        l = plant.measurement.l_mm
+    return np.array(ls), np.array(us), held, saved, c
+
+
+@pytest.mark.parametrize("method", ["ampc_servo", "ampc_ucp", "mpc_servo"])
+def test_a_reading_50_mm_off_for_one_sample_is_held_and_the_loop_does_not_notice(theta0, method):
+    """Without the guard the valve goes to a limit and the muscle really moves 15 mm or more in a sample;
+    with it the sample's reading is replaced by the prediction, and the real motion and commands stay
+    within what the undisturbed loop does."""
+    ls0, us0, held0, _, _ = _spiked_run(theta0, method, 0.0)
+    ls, us, held, _, _ = _spiked_run(theta0, method, 50.0)
+    lsx, usx, heldx, _, _ = _spiked_run(theta0, method, 50.0, guard=False)
+    assert held0 == [] and held == [300] and heldx == []
+    window = slice(299, 320)
+    assert np.max(np.abs(np.diff(lsx[window]))) > 10.0  # the unguarded loop jumps
+    assert np.max(np.abs(np.diff(ls[window]))) < np.max(np.abs(np.diff(ls0[window]))) + 1.0
+    assert np.max(np.abs(us[300:310] - us0[300:310])) < 1.0
+    # 10-30 s after it the guarded loop tracks as the undisturbed one (within 20 %), the unguarded adaptive ones not
+    ref = np.array([SineReference().at(k) for k in range(len(ls))])
+    after = slice(400, 600)
+    e0, e, ex = (float(np.mean(np.abs(ref - x)[after])) for x in (ls0, ls, lsx))
+    assert e <= 1.2 * e0 + 0.005
+    if method.startswith("ampc"):
+        assert ex > 2.0 * e0
+
+
+def test_a_lasting_offset_is_taken_as_the_new_level_after_three_held_readings(theta0):
+    """An encoder re-zeroed by +60 mm is not a glitch: three readings are held, the fourth is used, and
+    the controller follows the readings from then on (every later one is used)."""
+    _, _, held, _, c = _spiked_run(theta0, "ampc_servo", 60.0, width=10_000)
+    assert held == [300, 301, 302] and HELD_READINGS_MAX == 3
+
+
+def test_the_guard_is_off_at_zero_and_validated(theta0):
+    assert ControllerSettings().max_speed_mm_per_s == DEFAULT_MAX_SPEED_MM_PER_S == 400.0
+    for bad in (-1.0, math.inf, math.nan, "fast"):
+        with pytest.raises((ValueError, TypeError), match="max_speed_mm_per_s"):
+            ControllerSettings(max_speed_mm_per_s=bad)
+    # the paper's run never comes near the bound: every reading used, bit for bit the run without the guard
+    _, us, held, _, _ = _spiked_run(theta0, "ampc_servo", 0.0)
+    _, us_off, _, _, _ = _spiked_run(theta0, "ampc_servo", 0.0, guard=False)
+    assert held == [] and np.array_equal(us, us_off)
+
+
+def test_a_state_saved_while_readings_are_held_replays_bit_identically(theta0):
+    """The count of readings held in a row is part of the state: restored mid-hold, the controller
+    holds the same readings and gives the same commands."""
+    plant_ls, us, held, saved, c = _spiked_run(theta0, "ampc_servo", 60.0, width=10_000, save_at=301)
+    assert saved["held_in_a_row"] == 1
+    c2 = DisplacementController(c.settings, theta0)
+    c2.reset(0.0)
+    c2.set_state(saved)
+    ref = SineReference()
+    again = [c2.step(plant_ls[k] + 60.0, ref.preview(k, c.settings.preview_samples)).u_v for k in range(301, 320)]
+    assert again == us[301:320].tolist()
