@@ -77,7 +77,7 @@ from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
-from fmu_controller.servo_settings import MAX_HORIZON, MAX_WEIGHT, TABLE5_SERVO
+from fmu_controller.servo_settings import DEFAULT_OSQP_ITER, MAX_HORIZON, MAX_OSQP_ITER, MAX_WEIGHT, TABLE5_SERVO
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
@@ -121,7 +121,7 @@ _SLOW_TS_S = 1.0
 #: ServoMPCSettings' and UCPSettings' field names as the FMU's parameters: their errors name these
 #: (``r`` would read as the reference input).
 _SERVO_NAMES = {"hp": "servo.Hp", "hu": "servo.Hu", "qs": "servo.Qs", "q": "servo.Q", "r": "servo.R",
-                "u_min_v": "u_min", "u_max_v": "u_max"}
+                "max_iter": "servo.max_iter", "u_min_v": "u_min", "u_max_v": "u_max"}
 _UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
 #: ControllerSettings' field names as the FMU's parameters (``servo.r`` is ServoMPCSettings' ``r``).
 _SETTINGS_NAMES = {"ControllerSettings.ts_s": "Ts", "ControllerSettings.p0": "P0.*",
@@ -234,6 +234,11 @@ class AMPCController(SafeSlave):
                                    hi=MAX_HORIZON)
         self.add_integer_parameter("servo.Hu", 5, "servo MPC control horizon Hu <= Hp [samples] (Table 5)",
                                    lo=1, hi=MAX_HORIZON)
+        self.add_integer_parameter("servo.max_iter", DEFAULT_OSQP_ITER, "servo MPC: OSQP iterations per sample at "
+                                   "most, which bounds a step's worst-case compute time (a QP with active bounds at "
+                                   "Hp = 50 took up to 18 ms at the default, 3.4 ms at 400); on reaching it the last "
+                                   "iterate is used where feasible and no worse than the clipped unconstrained plan, "
+                                   "else that plan (docs/control.md, In a real-time loop)", lo=1, hi=MAX_OSQP_ITER)
         self.add_integer_parameter("ucp.Hp", 2, "unique coincidence point Hp [samples] (Table 5)", lo=1,
                                    hi=MAX_HORIZON)
         table = [
@@ -311,7 +316,8 @@ class AMPCController(SafeSlave):
             raise SlaveInputError(f"parameter theta0.b1 = {p['theta0.b1']!r} must not be ~0 (it divides Eq. 5)")
         try:
             servo = ServoMPCSettings(hp=ip["servo.Hp"], hu=ip["servo.Hu"], q=p["servo.Q"], qs=p["servo.Qs"],
-                                     r=p["servo.R"], u_min_v=p["u_min"], u_max_v=p["u_max"])
+                                     r=p["servo.R"], u_min_v=p["u_min"], u_max_v=p["u_max"],
+                                     max_iter=ip["servo.max_iter"])
         except ValueError as exc:
             raise SlaveInputError(f"parameter {_fmu_names(str(exc), _SERVO_NAMES)}") from None
         try:

@@ -23,8 +23,14 @@ MAX_HORIZON = 50
 #: ratios set the law, and far beyond it the QP is ill-conditioned (an R of 1e300 holds the command at
 #: 0 V, a Qs of 1e300 fails the QP's set-up). The controller FMU declares the same range.
 MAX_WEIGHT = 1e6
+#: OSQP iterations per solve by default (``ServoMPCSettings.max_iter``) and at most (the controller FMU's
+#: ``servo.max_iter`` range): far more than a warm-started Table 5 QP takes; the bound of a step's
+#: worst-case compute time at long horizons (docs/control.md, "In a real-time loop").
+DEFAULT_OSQP_ITER = 4000
+MAX_OSQP_ITER = 100_000
 
-__all__ = ["MAX_HORIZON", "MAX_WEIGHT", "TABLE5_SERVO", "ServoMPCSettings", "ServoMPCResult", "integrator_step", "positive_int"]
+__all__ = ["MAX_HORIZON", "MAX_WEIGHT", "DEFAULT_OSQP_ITER", "MAX_OSQP_ITER", "TABLE5_SERVO", "ServoMPCSettings",
+           "ServoMPCResult", "integrator_step", "positive_int"]
 
 #: Table 5, "MPC/AMPC with servo mechanism" column.
 TABLE5_SERVO: Mapping[str, Any] = MappingProxyType({
@@ -93,8 +99,11 @@ class ServoMPCSettings:
     """OSQP absolute tolerance (>= 0; not both tolerances 0)."""
     eps_rel: float = 1e-7
     """OSQP relative tolerance (>= 0)."""
-    max_iter: int = 4000
-    """OSQP iteration limit per solve; on hitting it the fallback rules of :meth:`ServoMPC.solve` apply."""
+    max_iter: int = DEFAULT_OSQP_ITER
+    """OSQP iteration limit per solve, 1 .. :data:`MAX_OSQP_ITER`; on hitting it the fallback rules of
+    :meth:`ServoMPC.solve` apply (the last iterate where feasible and no worse than the clipped
+    unconstrained plan, else that plan). It bounds a step's worst-case compute time: at Hp = Hu = 50,
+    18 ms at 4000 and 3.4 ms at 400 (docs/control.md, "In a real-time loop")."""
     warm_start: bool = True
     """Warm-start OSQP from the previous solution (primal and dual)."""
     refine: bool = True
@@ -140,6 +149,8 @@ class ServoMPCSettings:
         if self.eps_abs == 0 and self.eps_rel == 0:
             raise ValueError(f"eps_abs must be > 0 when eps_rel is 0, got {self.eps_abs!r}")
         object.__setattr__(self, "max_iter", positive_int("max_iter", self.max_iter))
+        if self.max_iter > MAX_OSQP_ITER:
+            raise ValueError(f"max_iter must be at most {MAX_OSQP_ITER}, got {self.max_iter!r}")
         if not isinstance(self.warm_start, (bool, np.bool_)):
             raise ValueError(f"warm_start must be a bool, got {self.warm_start!r}")
         object.__setattr__(self, "warm_start", bool(self.warm_start))

@@ -39,6 +39,8 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     # control (section 3, Eqs. (3)-(5), (15)-(21))
     "METHODS": ("fmu_controller.displacement_control", "METHODS"),
     "ControllerSettings": ("fmu_controller.displacement_control", "ControllerSettings"),
+    "ServoMPCSettings": ("fmu_controller.servo_settings", "ServoMPCSettings"),
+    "UCPSettings": ("fmu_controller.ucp_mpc", "UCPSettings"),
     "DisplacementController": ("fmu_controller.displacement_control", "DisplacementController"),
     "THETA0_44N": ("fmu_controller.preliminary_model", "THETA0_44N"),
     "SineReference": ("fmu_controller.reference", "SineReference"),

@@ -1141,3 +1141,18 @@ def test_a_reading_taken_for_a_sensor_glitch_is_logged_and_counted():
     assert "1 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()
     off, said = run(max_speed=0.0)
     assert said == [] and "sensor glitches" not in off.run_summary()
+
+
+def test_servo_max_iter_bounds_the_qp_and_reaches_the_law():
+    """The FMU's servo.max_iter is ServoMPCSettings.max_iter (the bound of a step's worst-case time);
+    the declared range is the settings' own."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_controller.servo_settings import DEFAULT_OSQP_ITER, MAX_OSQP_ITER, ServoMPCSettings
+
+    slave = AMPCController(instance_name="iter")
+    slave._int_par.update({"servo.max_iter": 400, "servo.Hp": 50, "servo.Hu": 50})
+    slave.exit_initialization_mode()
+    assert slave._controller.settings.servo.max_iter == 400
+    assert AMPCController(instance_name="d")._int_par["servo.max_iter"] == DEFAULT_OSQP_ITER == ServoMPCSettings().max_iter
+    with pytest.raises(ValueError, match="max_iter must be at most 100000"):
+        ServoMPCSettings(max_iter=MAX_OSQP_ITER + 1)
