@@ -101,6 +101,9 @@ _SLAM_WINDOW_S = 10.0
 #: loop having more delay than the law compensates (a rig's transport delay with
 #: ``input_delay_samples`` 0: 8-26 swings in 10 s; a sound loop, with its delay set or decided: 0-2).
 _SWINGS = 6
+#: A reference moving faster than this [mm/s] (about the simulated muscle's fastest) in a sample is a
+#: step: the swings of the transient after it (25 mm at 0.1 s: six swings in AMPC-UCP) are not counted.
+_REF_STEP_MM_PER_S = 200.0
 #: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
 #: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
 #: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
@@ -406,6 +409,8 @@ class AMPCController(SafeSlave):
         self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
         self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
         self._last_limit = 0  # the valve limit the command sat at last: -1 lower, 1 upper, 0 none yet
+        self._r_last = math.nan  # r(k-1) [mm], for the reference steps that restart the swings' watch
+        self._swings_from = 0  # the sample swings count from: a window after the last reference step
 
     def _watch_slamming(self, t_s: float, u: float) -> None:
         """Log once when the command has jumped across the valve's range (``full_range_jump``)
@@ -424,20 +429,27 @@ class AMPCController(SafeSlave):
                 self.log(f"t = {t_s:g} s: the command has jumped across the valve's range {_SLAM_JUMPS} times in "
                          f"{_SLAM_WINDOW_S:g} s: {law} slams the valve end to end", status=Fmi2Status.warning)
 
-    def _watch_swings(self, t_s: float, u: float, l: float) -> None:
+    def _watch_swings(self, t_s: float, u: float, l: float, r: float) -> None:
         """Log once when, after the start-up and the first :data:`_SLAM_WINDOW_S` of the estimator, the
         command has swung from one valve limit to the other :data:`_SWINGS` times within
-        :data:`_SLAM_WINDOW_S` (a limit cycle)."""
+        :data:`_SLAM_WINDOW_S` (a limit cycle). A reference step (``r`` moving further in a sample than
+        the muscle can, :data:`_REF_STEP_MM_PER_S`) restarts the watch a window later: the swings of
+        its transient are not a limit cycle."""
         if self._swing_ks is None:
             return
         s = self._controller.settings
+        window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
+        if abs(r - self._r_last) > _REF_STEP_MM_PER_S * s.ts_s:
+            self._swings_from, self._swing_ks = self._k + window, []
+        self._r_last = r
+        if self._k < self._swings_from:
+            return
         side = -1 if u <= s.servo.u_min_v + 1e-9 else 1 if u >= s.servo.u_max_v - 1e-9 else 0
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side
         if not swung:
             return
-        window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
         # not in the law's own start, nor in the first window after it: the paper's start (startup_s = 0)
         # swings the valve 6 times in its first 1-1.5 s, without any delay
         if self._controller.in_startup or self._controller.samples_since_start <= window:
@@ -695,7 +707,7 @@ class AMPCController(SafeSlave):
         self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
         self._watch_held(t_s, l, float(preview[0]), step.u_v)
         self._watch_slamming(t_s, step.u_v)
-        self._watch_swings(t_s, step.u_v, l)
+        self._watch_swings(t_s, step.u_v, l, float(preview[0]))
         if self._k == self._controller.delay_check_samples:
             self._check_delay(t_s)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
@@ -793,7 +805,8 @@ class AMPCController(SafeSlave):
                 "theta": [getattr(self, name) for name in self._theta_outputs],
                 # what the log has said: a rewind says it again only where the run does again
                 "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
-                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n],
+                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
+                         self._r_last, self._swings_from],
                 "tally": self._tally.as_list()}
 
     def restore_numerics_state(self, state) -> None:
@@ -808,6 +821,8 @@ class AMPCController(SafeSlave):
             self._jump_ks = None if jumps is None else [int(k) for k in jumps]
             self._swing_ks = None if swings is None else [int(k) for k in swings]
             self._last_limit = int(last_limit)
+            said = state.get("said", ())
+            self._r_last, self._swings_from = (float(said[6]), int(said[7])) if len(said) >= 8 else (math.nan, 0)
             # a state of a build without the tally: counted from here, and the summary says so
             self._tally = _Tally(*state["tally"]) if "tally" in state else _Tally(partial=True)
             self._modes_open = self._controller.in_startup  # as after the restored sample

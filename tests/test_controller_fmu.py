@@ -1156,3 +1156,28 @@ def test_servo_max_iter_bounds_the_qp_and_reaches_the_law():
     assert AMPCController(instance_name="d")._int_par["servo.max_iter"] == DEFAULT_OSQP_ITER == ServoMPCSettings().max_iter
     with pytest.raises(ValueError, match="max_iter must be at most 100000"):
         ServoMPCSettings(max_iter=MAX_OSQP_ITER + 1)
+
+
+def test_the_transient_of_a_reference_step_is_not_called_a_limit_cycle():
+    """A 25-mm step of r (35 -> 60 mm at 30 s): AMPC-UCP's transient swung the valve limit to limit six
+    times, and the log called it a limit cycle blaming the model; the swings of a reference step's
+    transient are not counted for a window after it. A loop that keeps swinging after that window is
+    still told (MPC-servo at 80 mm, where the fixed predictor is poor: 25 swings in 10 s, logged)."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    def swings_said(method, r_after):
+        slave = AMPCController(instance_name="step")
+        slave._int_par.update({"method": method, "reference_source": 2})  # external_held
+        slave.exit_initialization_mode()
+        plant = Plant(seed=0)
+        for k in range(900):
+            slave.l = plant.measurement.l_mm
+            slave.r = 35.0 if k < 300 else r_after
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+        return [m.msg for m in slave.log_queue if "a limit cycle" in m.msg]
+
+    assert swings_said(3, 60.0) == []
+    (said,) = swings_said(2, 80.0)
+    assert float(said.split()[2]) > 40.0 and "the fixed predictor theta0 poor where the loop runs now" in said
