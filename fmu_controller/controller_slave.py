@@ -65,7 +65,7 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_MAX_SPEED_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 GUARD_JUMPS, HELD_READINGS_MAX, HELD_WARN_S, MAX_DELAY_MOVE_WEIGHT,
+                                                 GUARD_JUMPS, HELD_READINGS_MAX, HELD_WARN_S, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES,
                                                  MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
                                                  VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
@@ -83,10 +83,7 @@ from fmu_controller.ucp_mpc import UCPSettings
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
 
 
-#: Every contraction [mm] the plant FMU's parameter ranges allow (rest lengths up to 5000 mm, an
-#: encoder offset of +-100 mm, stretch under the load): the controller's l and r inputs and its
-#: built-in sine stay within it.
-_L_RANGE_MM = (-1000.0, 5000.0)
+_L_RANGE_MM = L_RANGE_MM
 #: A one-step prediction outside ten times that range [mm], or a QP input u_c beyond this [V] (a
 #: hundred times the valve's span), means the adaptive estimate diverges.
 _DIVERGED_MM = (10.0 * _L_RANGE_MM[0], 10.0 * _L_RANGE_MM[1])

@@ -58,7 +58,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
-           "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX", "HELD_WARN_S", "held_against_error", "held_against_cause",
+           "L_RANGE_MM", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX", "HELD_WARN_S", "held_against_error", "held_against_cause",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -124,6 +124,12 @@ MAX_DELAY_MOVE_WEIGHT = 1000.0
 MAX_STARTUP_S = 600.0
 #: Default start-up mode ``ControllerSettings.startup_s`` [s] (docs/control.md, "Start-up").
 DEFAULT_STARTUP_S = 12.0
+
+#: Every contraction [mm] the plant FMU's parameter ranges allow (rest lengths up to 5000 mm, an
+#: encoder offset of +-100 mm, stretch under the load): a reading ``l`` outside is refused (by the
+#: controller FMU and :meth:`DisplacementController.step` alike), and its ``r`` inputs and built-in
+#: sine stay within it.
+L_RANGE_MM = (-1000.0, 5000.0)
 
 #: Fastest the muscle moves [mm/s] as far as the glitch guard is concerned
 #: (``ControllerSettings.max_speed_mm_per_s``): twice the simulated rig's fastest, about 200 mm/s
@@ -636,14 +642,15 @@ class DisplacementController:
         Raises
         ------
         ValueError
-            Non-finite ``l_mm`` or reference, or a preview shorter than ``preview_samples + 1``
+            ``l_mm`` non-finite or outside :data:`L_RANGE_MM`, a non-finite reference, or a preview shorter than ``preview_samples + 1``
             samples. The controller's state is unchanged then.
         """
         # Per-sample hot path (docs/control.md, "Compute time per step"): python floats for
         # the scalars, each numpy call on the small arrays only where it does the arithmetic.
         l = float(l_mm)
-        if not math.isfinite(l):
-            raise ValueError(f"measured l_mm must be finite, got {l_mm!r}")
+        if not L_RANGE_MM[0] <= l <= L_RANGE_MM[1]:  # NaN fails it too
+            raise ValueError(f"measured l_mm must be a finite reading within {L_RANGE_MM[0]:g}..{L_RANGE_MM[1]:g} mm "
+                             f"(every contraction the plant allows; a reading in micrometres?), got {l_mm!r}")
         r = r_preview_mm if isinstance(r_preview_mm, np.ndarray) else np.asarray(r_preview_mm, dtype=float)
         need = self._need
         if r.ndim != 1 or len(r) < need:

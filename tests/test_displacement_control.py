@@ -130,7 +130,10 @@ def test_state_survives_json_and_replays_bit_identically(theta0):
 
 
 @pytest.mark.parametrize("l, preview, match", [(math.nan, [35.0] * 6, "l_mm"), (30.0, [35.0] * 3, "preview"),
-                                               (30.0, [35.0, math.inf] + [35.0] * 4, "finite")])
+                                               (30.0, [35.0, math.inf] + [35.0] * 4, "finite"),
+                                               # a reading in micrometres: refused as the controller FMU refuses it
+                                               (35000.0, [35.0] * 6, r"within -1000\.\.5000 mm .*got 35000\.0"),
+                                               (-1000.5, [35.0] * 6, "l_mm")])
 def test_bad_measurements_raise_and_leave_state(theta0, l, preview, match):
     c = DisplacementController(ControllerSettings(method="ampc_servo"), theta0)
     c.step(30.0, [35.0] * 6)
