@@ -77,3 +77,23 @@ def test_a_recording_with_jittered_stamps_has_the_grid_period_and_a_header_must_
     assert Recording(dict(cols), {"ts_s": "0.1"}).ts_s == 0.1  # as written
     with pytest.raises(RecordingError, match="contradicts the t_s column"):
         _ = Recording(dict(cols), {"ts_s": "0.1002"}).ts_s
+
+
+def test_a_long_gap_is_named_by_its_own_step_not_the_first_sample():
+    """A 1-hour gap pulls a least-squares slope through the times to 2 s, which made every 0.1-s step
+    look off and named sample 1: steps are measured against the median step."""
+    t = np.arange(1801) * TS
+    t[900:] += 3600.0
+    with pytest.raises(SamplingError, match=r"sample 900: t = 3690\.0\d* s follows 89\.9\d* s, a step of 3600\.1 s in a "
+                                            r"recording sampled every 0\.1 s: a gap of 3600\.1 s, about 36000 samples "
+                                            r"missing") as info:
+        uniform_sampling(t)
+    assert (info.value.sample, info.value.steps, info.value.largest) == (900, (900,), 900)
+
+
+def test_every_step_off_the_period_is_counted_and_the_largest_named():
+    t = np.delete(_grid(), [400, 900, 901, 1500])
+    with pytest.raises(SamplingError, match=r"sample 400: .*a step of 0\.2 s .*a dropped or doubled sample; 3 such steps "
+                                            r"in all, the largest 0\.3 s at line 901;") as info:
+        uniform_sampling(t, where=lambda k: f"line {k + 2}")
+    assert info.value.steps == (400, 899, 1497) and info.value.largest == 899

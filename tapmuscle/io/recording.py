@@ -154,8 +154,9 @@ class Recording:
         RecordingError
             Fewer than 2 rows, or a sample off the uniform sampling (naming the sample and its time).
         """
+        lines = self.lines
         try:
-            return uniform_sampling(self.t_s)
+            return uniform_sampling(self.t_s, where=None if lines is None else (lambda k: f"line {lines[k]}"))
         except SamplingError as exc:
             raise RecordingError(str(exc)) from None
 

@@ -13,13 +13,14 @@ lies (it moves the later samples a whole period off the grid fitted through all 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
-           "check_sampling_period"]
+           "GAP_PERIODS", "check_sampling_period", "step_kind"]
 
 #: Largest distance of a sample's time from its slot on the uniform grid, as a fraction of the period.
 JITTER_TOLERANCE = 0.25
@@ -45,13 +46,23 @@ def check_sampling_period(ts_s: float) -> None:
                          "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
 
 
+#: A step this many periods long or more is a gap (a paused logger, a clock that jumped), not a
+#: sample or two dropped.
+GAP_PERIODS = 10
+
+
 class SamplingError(TapmuscleError):
     """A time column that is not uniformly sampled; the message names the sample and its time, and
-    :attr:`sample` is its index (None: no one sample is to blame)."""
+    :attr:`sample` is its index (None: no one sample is to blame). :attr:`steps` holds every sample
+    that follows a step off the period (a dropped or doubled sample, a gap), in order, and
+    :attr:`largest` the one after the largest of them (empty and None for a drifting clock)."""
 
-    def __init__(self, message: str, sample: int | None = None) -> None:
+    def __init__(self, message: str, sample: int | None = None, steps: tuple[int, ...] = (),
+                 largest: int | None = None) -> None:
         super().__init__(message)
         self.sample = sample
+        self.steps = steps
+        self.largest = largest
 
 
 @dataclass(frozen=True)
@@ -83,7 +94,15 @@ class Sampling:
                 "(logger jitter); the samples are taken as on it")
 
 
-def uniform_sampling(t_s: np.ndarray, column: str = "t_s") -> Sampling:
+def step_kind(step_s: float, ts_s: float) -> str:
+    """What a step of ``step_s`` [s] in times sampled every ``ts_s`` [s] likely is."""
+    if step_s > 0.0 and step_s >= GAP_PERIODS * ts_s:
+        return (f"a gap of {step_s:.6g} s, about {round(step_s / ts_s) - 1} samples missing (a paused logger, or a "
+                "clock that jumped)")
+    return "a dropped or doubled sample"
+
+
+def uniform_sampling(t_s: np.ndarray, column: str = "t_s", where: Callable[[int], str] | None = None) -> Sampling:
     """The uniform grid of the times ``t_s`` [s], or a :class:`SamplingError` naming the sample off it.
 
     Parameters
@@ -92,14 +111,19 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s") -> Sampling:
         Sample times [s], strictly increasing, at least 2.
     column : str
         The column's name, for the messages.
+    where : callable, optional
+        Names sample ``k`` in a message about steps other than the first (default ``"sample k"``; a
+        file's reader names its line).
 
     Raises
     ------
     SamplingError
-        Fewer than 2 times; a step off the period by more than half of it (a dropped or doubled
-        sample); or a time more than a quarter period (:data:`JITTER_TOLERANCE`) from its slot (a
-        drifting clock, late samples).
+        Fewer than 2 times; a step off the median step by more than half of it (a dropped or doubled
+        sample, a gap: the first such step named, and the largest when it is another); or a time
+        more than a quarter period (:data:`JITTER_TOLERANCE`) from its slot (a drifting clock, late
+        samples).
     """
+    where = where or (lambda k: f"sample {k}")
     t = np.asarray(t_s, dtype=float)
     if len(t) < 2:
         raise SamplingError(f"column {column}: cannot tell the sampling period of fewer than 2 samples")
@@ -110,20 +134,25 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s") -> Sampling:
     off = np.abs(dt - ts) > STRICT_TOLERANCE * ts
     if not off.any():
         return Sampling(ts, 0.0)
+    # steps against the median, which a gap leaves where it is (a least-squares slope through the
+    # times is pulled by it: a 1-h gap in 3 min of 0.1-s samples makes it 2 s)
+    bad = np.flatnonzero((dt <= 0.0) | (np.abs(dt - ts) > 0.5 * ts))
+    if bad.size:
+        # named by the first such step in the file, the largest said too
+        j, big = int(bad[0]), int(bad[np.argmax(np.abs(dt[bad] - ts))])
+        more = ""
+        if bad.size > 1:
+            more = f"; {bad.size} such steps in all"
+            if big != j:
+                more += f", the largest {float(dt[big]):.6g} s at {where(big + 1)}"
+        raise SamplingError(
+            f"column {column}, sample {j + 1}: t = {float(t[j + 1])!r} s follows {float(t[j])!r} s, a step of "
+            f"{float(dt[j]):.6g} s in a recording sampled every {ts:.6g} s: {step_kind(float(dt[j]), ts)}{more}; "
+            f"resample the recording onto a uniform grid first", j + 1, tuple(int(k) + 1 for k in bad), big + 1)
     index = np.arange(len(t), dtype=float)
     slope, intercept = np.polyfit(index, t - t[0], 1)  # from the first time: Unix stamps keep their digits
     slot = t[0] + intercept + slope * index
     dev = np.abs(t - slot)
-    back = np.nonzero(dt <= 0.0)[0]
-    j = int(back[0]) if back.size else int(np.argmax(np.abs(dt - ts)))  # else the step furthest from the median
-    if dt[j] <= 0.0 or abs(dt[j] - slope) > 0.5 * slope:
-        # a dropped or doubled sample: named by the first such step in the file (the one the decision
-        # rests on is among them)
-        j = int(np.nonzero((dt <= 0.0) | (np.abs(dt - slope) > 0.5 * slope))[0][0])
-        raise SamplingError(
-            f"column {column}, sample {j + 1}: t = {float(t[j + 1])!r} s follows {float(t[j])!r} s, a step of "
-            f"{float(dt[j]):.6g} s in a recording sampled every {ts:.6g} s: a dropped or doubled sample; "
-            f"resample the recording onto a uniform grid first", j + 1)
     if float(np.max(dev)) > JITTER_TOLERANCE * slope:
         k = int(np.argmax(dev))
         raise SamplingError(
