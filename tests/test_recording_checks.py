@@ -15,6 +15,7 @@ from tapmuscle.io.sampling import uniform_sampling
 from tapmuscle.diagnosis.recording_checks import (DISPLACEMENT_PLAUSIBLE_MM, PRESSURE_PLAUSIBLE_MPA,
                                                   RecordingCheckError, check_displacement_scale,
                                                   check_muscle_recording, check_pressure_scale,
+                                                  displacement_fault_notes, displacement_scale_note,
                                                   muscle_recording_notes)
 
 TS = 0.1
@@ -178,3 +179,39 @@ def test_a_diagnosis_of_a_displacement_in_metres_is_refused_before_any_fit():
     cols = record(DEMO_MODEL, "steps", 2)
     with pytest.raises(ValueError, match=r"column l_mm spans .* mm where the nominal model.* logged in metres"):
         diagnose(cols["t_s"], cols["u_v"], cols["l_mm"] / 1000.0, DEMO_MODEL)
+
+
+def test_a_span_a_few_times_off_the_models_is_noted_with_the_unit_that_matches():
+    """Centimetres read as millimetres span a tenth of the model's: within the 20 times refused, noted
+    with the unit that reads them as the model moves; a rig a few tens of percent off is not."""
+    _, _, l, _ = _clean()
+    note = displacement_scale_note(l / 10, l)
+    assert note.startswith("Column l_mm spans 6 mm where the nominal model, driven by the same command, spans 60 mm "
+                           "(10 times as much): is it in cm rather than mm (read in cm, it spans 60 mm)?")
+    assert "is it in mm rather than cm" in displacement_scale_note(l * 10, l, unit="cm")
+    assert "is it in another unit?" in displacement_scale_note(l / 4, l)  # no unit is a quarter
+    for ratio in (0.5, 1.0, 2.5):
+        assert displacement_scale_note(l * ratio, l) is None
+    assert displacement_scale_note(l / 10, l / 20) is None  # a model that hardly moves: nothing to compare
+
+
+def test_jumps_a_wrap_and_a_clipped_or_stuck_reading_are_said():
+    _, _, l, _ = _clean()
+    assert displacement_fault_notes(l, TS) == []
+    spiked = l.copy()
+    spiked[50] += 60.0
+    (note,) = displacement_fault_notes(spiked, TS)
+    assert note.startswith("Column l_mm jumps in one sample, faster than the muscle moves (500 mm/s, 50 mm a sample): "
+                           "at sample 50 (+") and "sample 51 (-" in note and "A spike" in note
+    (note,) = displacement_fault_notes(np.mod(l, 55.0), TS, where=lambda k: f"line {k + 2}")
+    assert re.match(r"Column l_mm jumps by about 5\d\.\d+ mm \d+ times in one sample", note)
+    assert "at line " in note and "An encoder's count wrapping at" in note
+    (note,) = displacement_fault_notes(np.minimum(l, 40.0), TS)
+    assert note.startswith("Column l_mm is held at exactly 40 mm, its largest reading, 4 times, each reached at speed")
+    stuck = l.copy()
+    stuck[100:130] = stuck[100]
+    (note,) = displacement_fault_notes(stuck, TS)
+    assert note.startswith("Column l_mm stops dead and holds one reading exactly 1 time: from sample 100 (30 samples")
+    # a muscle coming to rest under a steady command (noise-free, quantised) reaches its level slowly
+    rest = np.round(50.0 * (1.0 - np.exp(-np.arange(300) * TS)), 2)
+    assert displacement_fault_notes(rest, TS) == []

@@ -1,8 +1,10 @@
 """What in a rig's recording of the muscle would make its diagnosis meaningless, checked before any
 simulation runs: a command outside the valve's range, a displacement beyond the muscle's length or a
 sampling period no muscle recording has, or a displacement that barely moves where the nominal model
-moves a lot (metres logged as millimetres; refused), and a start away from rest, jittered timestamps
-or a pressure column in another unit (said, in the report's notes).
+moves a lot (metres logged as millimetres; refused), and a start away from rest, jittered timestamps,
+a pressure column in another unit or a displacement that spans a few times more or less than the
+model's (centimetres as millimetres) (said, in the report's notes). An importer also says what looks
+like a sensor's fault: a jump faster than the muscle moves, a reading clipped at its range, a wrap.
 
 A real rig's log differs from `tapmuscle record`'s in ways that leave every column a finite number
 and yet make the diagnosis compare the wrong things: a command logged in percent, times in
@@ -20,7 +22,8 @@ from tapmuscle.io.sampling import TS_RANGE_S, check_sampling_period, uniform_sam
 __all__ = ["RecordingCheckError", "check_muscle_recording", "check_pressure_scale", "check_sampling_period",
            "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
-           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "displacement_scale_note"]
+           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "displacement_scale_note",
+           "SPAN_RATIO_NOTED", "SPAN_NOTED_MIN_MM", "JUMP_MM_PER_S", "HELD_S", "displacement_fault_notes"]
 
 #: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
 #: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
@@ -32,6 +35,27 @@ DISPLACEMENT_PLAUSIBLE_MM = 500.0
 #: A recorded displacement whose span is below this fraction of the nominal model's for the same
 #: command is in another unit (metres: a thousandth), not a rig a few tens of percent off.
 SPAN_RATIO_PLAUSIBLE = 0.05
+#: A recorded displacement whose span is this many times below or above the nominal model's for the
+#: same command is noted: a rig a few tens of percent off its constants stays well within it, a
+#: length in centimetres read as millimetres (a tenth) does not.
+SPAN_RATIO_NOTED = 3.0
+#: Spans compared so only where the nominal model moves at least this much [mm]: a command that
+#: barely crosses the threshold pressure moves it a few millimetres, which any offset doubles.
+SPAN_NOTED_MIN_MM = 10.0
+#: No reading of the muscle moves faster than this [mm/s]: the nominal muscle's fastest, a full
+#: 0->10 V step, is about 200 mm/s; a faster step between two samples is a sensor's jump.
+JUMP_MM_PER_S = 500.0
+#: Jumps whose sizes are all within this fraction of their median are one wrap repeated: the
+#: modulus less the muscle's motion in that sample.
+WRAP_TOLERANCE = 0.15
+#: A reading held exactly (to the bit) for this long [s], entered at speed, is a sensor's: a muscle
+#: slows down before it stops, and its noise moves the last digit.
+HELD_S = 0.5
+#: The speed [mm/s] at which a held reading must be entered to count, and the least step [mm] (five
+#: 0.01-mm encoder counts): a muscle coming to rest under a steady command creeps to its level, its
+#: last steps a count or two.
+HELD_ENTRY_MM_PER_S = 5.0
+HELD_ENTRY_MIN_MM = 0.05
 #: A first reading further than this from 0 [mm] is not a muscle at rest with its encoder zeroed there.
 AT_REST_MM = 0.5
 #: A first pressure above this [MPa(G)] is not a drained muscle.
@@ -60,11 +84,14 @@ class RecordingCheckError(TapmuscleError):
         The sample's index (a file's line: ``Recording.lines[sample]``).
     detail : str
         What is wrong with it, and what to check; the message is ``column C, sample K: detail``.
+    finding : str
+        What is wrong with it alone (``detail`` without the remedy), for a caller that knows a
+        better one (an importer names the ``COLUMN:UNIT`` that fits).
     """
 
-    def __init__(self, column: str, sample: int, detail: str) -> None:
-        super().__init__(f"column {column}, sample {sample}: {detail}")
-        self.column, self.sample, self.detail = column, sample, detail
+    def __init__(self, column: str, sample: int, detail: str, remedy: str = "") -> None:
+        super().__init__(f"column {column}, sample {sample}: {detail}{remedy}")
+        self.column, self.sample, self.detail, self.finding = column, sample, detail + remedy, detail
 
 
 def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None = None,
@@ -86,7 +113,7 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
         k = int(bad[0])
         raise RecordingCheckError("u_v", k, f"{float(u_v[k]):g} V is outside the -1..11 V the plant takes (the "
                                   f"valve's 0..10 V command; {bad.size} samples are outside, range {float(np.min(u_v)):g}.."
-                                  f"{float(np.max(u_v)):g}): is the command logged in another unit (percent, mV)? "
+                                  f"{float(np.max(u_v)):g})", ": is the command logged in another unit (percent, mV)? "
                                   "Scale it to volts")
     check_sampling_period(ts_s)
     if l_mm is not None:
@@ -96,7 +123,7 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
             raise RecordingCheckError("l_mm", k, f"{float(l_mm[k]):g} mm is further from 0 than the muscle's "
                                       f"{DISPLACEMENT_PLAUSIBLE_MM:g} mm (its 400-mm length and an encoder zeroed anywhere in "
                                       f"its stroke; {far.size} samples are, range {float(np.min(l_mm)):g}.."
-                                      f"{float(np.max(l_mm)):g}): is the displacement logged in another unit "
+                                      f"{float(np.max(l_mm)):g})", ": is the displacement logged in another unit "
                                       "(micrometres)? Scale it to millimetres")
     if p_fitted_mpa is not None:
         high = np.nonzero(p_fitted_mpa > PRESSURE_PLAUSIBLE_MPA)[0]
@@ -174,20 +201,96 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
     return notes
 
 
-def displacement_scale_note(l_mm: np.ndarray, l_model_mm: np.ndarray) -> str | None:
+def displacement_scale_note(l_mm: np.ndarray, l_model_mm: np.ndarray, *, column: str = "l_mm",
+                            unit: str = "mm") -> str | None:
     """A note when the recorded displacement spans more than ``1 / SPAN_RATIO_PLAUSIBLE`` times what
-    the nominal model ``l_model_mm`` does for the same command (None otherwise).
+    the nominal model ``l_model_mm`` does for the same command, or :data:`SPAN_RATIO_NOTED` times
+    less or more (where the model moves :data:`SPAN_NOTED_MIN_MM` or more); None otherwise.
 
-    Not refused, as the opposite is (:func:`check_displacement_scale`): a valve that opens where the
-    model's does not moves the rig while the model stands still. But the usual cause is a command in
-    another unit (volts imported as percent are a tenth).
+    Not refused, as a span below ``SPAN_RATIO_PLAUSIBLE`` is (:func:`check_displacement_scale`): a
+    valve that opens where the model's does not moves the rig while the model stands still. But the
+    usual cause of a span twenty times the model's is a command in another unit (volts imported as
+    percent are a tenth), and of one a few times off a length in another unit (centimetres as
+    millimetres), named as the unit of the log's ``column`` (given in ``unit``) that matches.
     """
     span, model_span = float(np.ptp(l_mm)), float(np.ptp(l_model_mm))
-    if span <= model_span / SPAN_RATIO_PLAUSIBLE:
+    if span > model_span / SPAN_RATIO_PLAUSIBLE:
+        return (f"Column {column} spans {span:.4g} mm where the nominal model, driven by the same command (u within "
+                f"the recording's), spans {model_span:.4g} mm: is the command in another unit (volts imported as "
+                "percent are a tenth of them)? A valve that opens far below the model's would do it as well")
+    if model_span < SPAN_NOTED_MIN_MM or span <= 0.0 or 1.0 / SPAN_RATIO_NOTED < span / model_span < SPAN_RATIO_NOTED:
         return None
-    return (f"Column l_mm spans {span:.4g} mm where the nominal model, driven by the same command (u within "
-            f"the recording's), spans {model_span:.4g} mm: is the command in another unit (volts imported as "
-            "percent are a tenth of them)? A valve that opens far below the model's would do it as well")
+    from tapmuscle.io.rig_log import UNITS, unit_key  # the units a log's length may be in
+
+    ratio = model_span / span  # what the values would have to be multiplied by
+    units = UNITS["l_mm"]
+    given = units.get(unit_key(unit), 1.0)
+    likely = min(units, key=lambda u: abs(np.log(units[u] / given / ratio)))
+    fits = abs(np.log(units[likely] / given / ratio)) < np.log(SPAN_RATIO_NOTED) / 2 and likely != unit_key(unit)
+    what = (f"is it in {likely} rather than {unit} (read in {likely}, it spans {span * units[likely] / given:.4g} mm)?"
+            if fits else "is it in another unit?")
+    return (f"Column {column} spans {span:.4g} mm where the nominal model, driven by the same command, spans "
+            f"{model_span:.4g} mm ({'%.3g times as much' % ratio if ratio > 1 else '%.3g times less' % (1 / ratio)}): "
+            f"{what} A rig that far from the nominal plant (a much weaker valve, a much heavier load) would do it as "
+            "well, and the diagnosis would take the difference as the rig's")
+
+
+def displacement_fault_notes(l_mm: np.ndarray, ts_s: float, *, column: str = "l_mm",
+                             where=None) -> list[str]:
+    """What in a displacement looks like a sensor's fault rather than the muscle (empty: nothing).
+
+    * a step between two samples faster than :data:`JUMP_MM_PER_S` (a spike, a re-zeroed or slipping
+      encoder); several of about the same size are a wrap of the encoder's count;
+    * a reading held exactly for :data:`HELD_S` or longer that was entered at speed: at the run's
+      largest reading, the sensor's range clipping it (or a hard stop); elsewhere, a stuck sensor.
+
+    ``where(k)`` names sample ``k`` (default ``"sample k"``; an importer names the log's line).
+    """
+    where = where or (lambda k: f"sample {k}")
+    l = np.asarray(l_mm, dtype=float)  # noqa: E741
+    notes = []
+    step = np.diff(l)
+    jumps = np.flatnonzero(np.abs(step) > JUMP_MM_PER_S * ts_s)
+    if jumps.size:
+        sizes = np.abs(step[jumps])
+        listed = ", ".join(f"{where(int(k) + 1)} ({step[k]:+.4g} mm)" for k in jumps[:10])
+        listed += f" and {jumps.size - 10} more" if jumps.size > 10 else ""
+        fast = f"faster than the muscle moves ({JUMP_MM_PER_S:g} mm/s, {JUMP_MM_PER_S * ts_s:.3g} mm a sample)"
+        size = float(np.median(sizes))
+        # a spike is a jump and its way back; a wrap's jump is its modulus less what the muscle moved
+        # in that sample, and comes back only where the muscle moves back across it
+        back = np.isin(jumps + 1, jumps) & (np.sign(step[np.minimum(jumps + 1, step.size - 1)]) == -np.sign(step[jumps]))
+        paired = np.isin(jumps, jumps[back] + 1) | back
+        if jumps.size >= 2 and not paired.all() and np.all(np.abs(sizes - size) <= WRAP_TOLERANCE * size):
+            notes.append(f"Column {column} jumps by about {size:.4g} mm {jumps.size} times in one sample, {fast}: at "
+                         f"{listed}. An encoder's count wrapping at {size:.4g} mm? Unwrap it (add or subtract "
+                         f"{size:.4g} mm after each jump) before the diagnosis, which takes every jump as the muscle's")
+        else:
+            notes.append(f"Column {column} jumps in one sample, {fast}: at {listed}. A spike, a re-zeroed or a "
+                         "slipping encoder? The diagnosis takes every jump as the muscle's")
+    held = max(5, int(round(HELD_S / ts_s)))
+    same = np.concatenate([[False], step == 0.0, [False]])
+    edges = np.flatnonzero(np.diff(same.astype(np.int8)))  # runs of equal steps: [start, end) in steps
+    top = float(np.max(l)) if l.size else 0.0
+    clipped, stuck = [], []
+    for a, b in zip(edges[::2], edges[1::2]):
+        # samples a..b hold l[a]; the speed it was entered at is the step before (a reading clipped
+        # within a sample steps in by a part of it)
+        entry = max(abs(l[a] - l[a - 1]), abs(l[a - 1] - l[a - 2])) if a >= 2 else 0.0
+        if b - a + 1 < held or entry < max(HELD_ENTRY_MM_PER_S * ts_s, HELD_ENTRY_MIN_MM):
+            continue
+        (clipped if l[a] == top else stuck).append((int(a), int(b - a + 1)))
+    if clipped:
+        runs = ", ".join(f"{where(a)} ({n} samples)" for a, n in clipped[:10])
+        notes.append(f"Column {column} is held at exactly {top:g} mm, its largest reading, {len(clipped)} time"
+                     f"{'s' if len(clipped) > 1 else ''}, each reached at speed: from {runs}. A sensor clipped at its "
+                     "range (or a hard stop)? The diagnosis would take the flat top as the muscle's")
+    if stuck:
+        runs = ", ".join(f"{where(a)} ({n} samples at {l[a]:g} mm)" for a, n in stuck[:10])
+        notes.append(f"Column {column} stops dead and holds one reading exactly {len(stuck)} time"
+                     f"{'s' if len(stuck) > 1 else ''}: from {runs}. A stuck sensor? The diagnosis would take it as "
+                     "the muscle's")
+    return notes
 
 
 def check_displacement_scale(l_mm: np.ndarray, l_model_mm: np.ndarray) -> None:
