@@ -30,14 +30,19 @@ def _comma(x: float, fmt: str) -> str:
     return format(x, fmt).replace(".", ",")
 
 
-def _logger(path, cols, *, jitter_s=0.004, epoch_ms=1.7e12, units_row=True, seed=0):
+_NAMES = ["time_ms", "valve_pct", "position_um", "p_kpa", "status"]
+#: Names that say nothing of a unit: a log whose units only the caller knows.
+_PLAIN = ["time_ms", "valve", "position", "p", "status"]
+
+
+def _logger(path, cols, *, jitter_s=0.004, epoch_ms=1.7e12, units_row=True, seed=0, names=_NAMES):
     """What a PC logger writes: ';' and a decimal comma, epoch milliseconds with jitter, the command
     in percent, the position in micrometres, the pressure in kPa, a text status and a units row."""
     jitter = np.random.default_rng(seed).uniform(-jitter_s, jitter_s, len(cols["t_s"]))
     with open(path, "w", newline="", encoding="utf-8-sig") as f:
         f.write("# DAQ export, rig 2\n\n")
         w = csv.writer(f, delimiter=";")
-        w.writerow(["time_ms", "valve_pct", "position_um", "p_kpa", "status"])
+        w.writerow(names)
         if units_row:
             w.writerow(["ms", "%", "um", "kPa", "-"])
         for t, u, l, p in zip(epoch_ms + 1e3 * (cols["t_s"] + jitter), cols["u_v"], cols["l_mm"], cols["p_mpa"]):
@@ -202,30 +207,35 @@ def test_import_writes_the_recording_and_says_what_diagnose_would(tmp_path, trut
     assert "scatter by up to" in io.err  # the logger's jitter, taken as on the grid
     rec = read_recording(out)
     assert rec.metadata["load_n"] == "44" and len(rec) == len(truth["t_s"])
-    # the command left in percent (its unit not given): refused, unless written as it is on purpose
-    pct = ["import", str(log), "--out", str(tmp_path / "pct.csv"), "--time", "time_ms:ms", "--u", "valve_pct",
-           "--l", "position_um:um"]
+    # the command left in percent (its unit given nowhere): refused, unless written as it is on purpose
+    _logger(log, truth, units_row=False, names=_PLAIN)
+    pct = ["import", str(log), "--out", str(tmp_path / "pct.csv"), "--time", "time_ms:ms", "--u", "valve",
+           "--l", "position:um"]
     assert main(pct) == 2
-    # named by the log's line and column, as every other refusal of a log (line 5 holds sample 0)
-    assert "logger.csv, line 5, column 'valve_pct' (u_v): 50 V is outside the -1..11 V" in capsys.readouterr().err
+    # named by the log's line and column, as every other refusal of a log (line 4 holds sample 0), with
+    # the COLUMN:UNIT that reads it as a command
+    err = capsys.readouterr().err
+    assert "logger.csv, line 4, column 'valve' (u_v): 50 V is outside the -1..11 V" in err
+    assert "the column is likely in % (--u valve:%)" in err and "Scale it" not in err
     assert not (tmp_path / "pct.csv").exists()
     assert main(pct + ["--no-checks"]) == 0
-    assert "the diagnosis would refuse it: " + str(log) + ", line 5, column 'valve_pct' (u_v): 50 V" in capsys.readouterr().err
+    assert "the diagnosis would refuse it: " + str(log) + ", line 4, column 'valve' (u_v): 50 V" in capsys.readouterr().err
 
 
 def test_a_value_in_a_wrong_unit_is_named_by_its_line_not_its_sample(tmp_path, truth, capsys):
     """Micrometres declared as millimetres: the first reading beyond 500 mm is named by the log's line
     (the units row and the remarks before the header are lines, not samples)."""
     log = tmp_path / "logger.csv"
-    _logger(log, truth)
+    _logger(log, truth, names=_PLAIN, units_row=False)
     k = int(np.argmax(1e3 * truth["l_mm"] > 500.0))
     assert k > 0
-    argv = ["import", str(log), "--out", str(tmp_path / "rec.csv"), "--time", "time_ms:ms", "--u", "valve_pct:%",
-            "--l", "position_um"]
+    argv = ["import", str(log), "--out", str(tmp_path / "rec.csv"), "--time", "time_ms:ms", "--u", "valve:%",
+            "--l", "position"]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert f"logger.csv, line {5 + k}, column 'position_um' (l_mm): {1e3 * truth['l_mm'][k]:.0f} mm is further from 0" in err
+    assert f"logger.csv, line {4 + k}, column 'position' (l_mm): {1e3 * truth['l_mm'][k]:.0f} mm is further from 0" in err
     assert "sample" not in err.partition("(l_mm)")[0]
+    assert "the column is likely in um (--l position:um)" in err
 
 
 def test_a_pressure_no_tap_water_rig_has_is_refused_with_the_unit_it_likely_is(tmp_path, truth, capsys):
@@ -233,24 +243,24 @@ def test_a_pressure_no_tap_water_rig_has_is_refused_with_the_unit_it_likely_is(t
     is, naming the column, the unit given, the largest value and its line, and the unit that reads it
     as a rig's pressure; --no-checks writes it with a note."""
     log = tmp_path / "logger.csv"
-    _logger(log, truth)
+    _logger(log, truth, names=_PLAIN, units_row=False)
     k = int(np.argmax(truth["p_mpa"]))
     largest = f"{1e3 * truth['p_mpa'][k]:.3f}".rstrip("0")
     out = tmp_path / "rec.csv"
-    base = ["import", str(log), "--time", "time_ms:ms", "--u", "valve_pct:%", "--l", "position_um:um", "--out"]
+    base = ["import", str(log), "--time", "time_ms:ms", "--u", "valve:%", "--l", "position:um", "--out"]
     base_out = base + [str(out)]
-    assert main(base_out + ["--p", "p_kpa:MPa"]) == 2
+    assert main(base_out + ["--p", "p:MPa"]) == 2
     err = capsys.readouterr().err
-    assert (f"logger.csv, line {5 + k}, column 'p_kpa' (p_mpa, given in MPa): its largest value, {largest} MPa, is no "
+    assert (f"logger.csv, line {4 + k}, column 'p' (p_mpa, given in MPa): its largest value, {largest} MPa, is no "
             "tap-water rig's pressure" in err)
-    assert f"the column is likely in kPa ({largest} kPa is 0.2" in err and "--p p_kpa:kPa" in err
+    assert f"the column is likely in kPa ({largest} kPa is 0.2" in err and "--p p:kPa" in err
     assert not out.exists()
-    assert main(base_out + ["--p", "p_kpa:bar"]) == 2
+    assert main(base_out + ["--p", "p:bar"]) == 2
     err = capsys.readouterr().err
-    assert f"(p_mpa, given in bar): its largest value, {largest} bar (" in err and "--p p_kpa:kPa" in err
-    assert main(base_out + ["--p", "p_kpa:MPa", "--no-checks"]) == 0
+    assert f"(p_mpa, given in bar): its largest value, {largest} bar (" in err and "--p p:kPa" in err
+    assert main(base_out + ["--p", "p:MPa", "--no-checks"]) == 0
     assert "Column p_mpa reaches" in capsys.readouterr().err and out.exists()
-    assert main(base + [str(tmp_path / "right.csv"), "--p", "p_kpa:kPa"]) == 0  # the right unit passes
+    assert main(base + [str(tmp_path / "right.csv"), "--p", "p:kPa"]) == 0  # the right unit passes
 
 
 def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_path, truth, capsys):
@@ -264,7 +274,8 @@ def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_pa
     out = tmp_path / "mm_as_um.csv"
     assert main(base + ["--out", str(out), "--l", "l:um", "--load-n", "44"]) == 2
     err = capsys.readouterr().err
-    assert "column l_mm spans" in err and "where the nominal model, driven by the same command, spans" in err
+    assert "column 'l' (l_mm, given in um) spans" in err and "where the nominal model, driven by the same command, spans" in err
+    assert "the column is likely in mm (--l l:mm)" in err  # the COLUMN:UNIT that fits, not "scale it"
     assert not out.exists()
     assert main(base + ["--out", str(out), "--l", "l", "--load-n", "44"]) == 0  # right: nothing said of units
     err = capsys.readouterr().err
@@ -397,10 +408,11 @@ def test_a_preamble_and_another_encoding(tmp_path):
     for encoding in ("latin-1", "utf-16"):
         log = tmp_path / f"{encoding}.lvm"
         log.write_bytes(text.encode(encoding))
-        with pytest.raises(RecordingError, match=r"(line 3: not utf-8 text \(byte 0xb0\): give its encoding"
-                                                 r"|line 1: not utf-8 text)"):
-            read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um")
-        with pytest.raises(RecordingError, match=r"line 1: no column 'Time \[s\]' for t_s .*--skip-lines N skips it"):
+        if encoding == "latin-1":  # UTF-16 is told by its byte-order mark
+            with pytest.raises(RecordingError, match=r"line 3: not utf-8 text \(byte 0xb0\): give its encoding"):
+                read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um")
+        with pytest.raises(RecordingError, match=r"line 1: no column 'Time \[s\]' for t_s .*; line 5 holds every column "
+                                                 r"named: --skip-lines 4 reads the header there"):
             read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um", encoding=encoding)
         rec = read_rig_log(log, time="Time [s]", u="Valve [V]", l="Position [µm]:um", encoding=encoding, skip_lines=4)
         np.testing.assert_allclose(rec.l_mm, [0.0, 0.01, 0.025], rtol=1e-12)
@@ -555,12 +567,12 @@ def test_the_likely_pressure_unit_is_the_one_reading_nearest_the_supply():
 
 @pytest.mark.parametrize("gap, double, nan", [(100, 300, 200), (300, 100, 200), (300, 200, 100)])
 def test_the_first_problem_in_the_file_is_named_with_the_others(tmp_path, gap, double, nan):
-    """A dropped sample, a doubled row and a NaN: the error names whichever comes first in the file and
-    lists the lines of the others, so that the log is mended in one pass."""
+    """A dropped sample, a doubled time and a NaN: the error names whichever comes first in the file and
+    lists the lines of the others, by column, so that the log is mended in one pass."""
     rows = [[f"{0.1 * k:.1f}", f"{k % 7}.5", f"{k}"] for k in range(400)]
     rows[nan][2] = "nan"
     rows[gap] = None
-    rows.insert(double, list(rows[double - 1] or rows[double - 2]))
+    rows.insert(double, list(rows[double - 1] or rows[double - 2])[:2] + ["-1"])  # its time again, not its row
     rows = [r for r in rows if r is not None]
     t = [float(r[0]) for r in rows]
     line = {"nan": next(k for k, r in enumerate(rows) if r[2] == "nan") + 2,  # the header is line 1
@@ -574,5 +586,7 @@ def test_the_first_problem_in_the_file_is_named_with_the_others(tmp_path, gap, d
     assert info.value.line == line[first]
     message = str(info.value)
     assert re.search(rf"line {line[first]}\b", message.split("(further")[0]), message
-    others = sorted(v for k, v in line.items() if k != first)
-    assert f"further problems at lines {others[0]}, {others[1]})" in message
+    column = {"nan": "l", "double": "t", "gap": "t"}
+    for k, v in line.items():
+        if k != first:
+            assert re.search(rf"further problems: .*column '{column[k]}' at lines? [\d, ]*\b{v}\b", message), message
