@@ -48,16 +48,25 @@ def test_a_units_row_and_units_in_names_are_read_where_none_is_given(tmp_path, t
     rec = read_rig_log(log, time="Zeit", u="Ventil", l="Position", p="Druck")
     assert np.max(np.abs(rec.l_mm - truth["l_mm"])) <= 0.5e-3 + 1e-12
     assert np.max(np.abs(rec.columns["p_mpa"] - truth["p_mpa"])) <= 0.5e-6 + 1e-12
-    assert rec.metadata["units"] == ("the log's own where none was given: l_mm in cm ('Position': the units row, line "
-                                     "2); p_mpa in bar ('Druck': the units row, line 2)")
+    assert rec.metadata["units"] == ("l_mm in cm, as the log says ('Position': the units row, line 2; no unit given); "
+                                     "p_mpa in bar, as the log says ('Druck': the units row, line 2; no unit given)")
     assert "l_mm <- Position [cm]" in rec.metadata["source"]
     assert _import(log, tmp_path / "rec.csv", "--time", "Zeit", "--u", "Ventil", "--l", "Position", "--p", "Druck") == 0
-    assert "note: Units: the log's own where none was given: l_mm in cm" in capsys.readouterr().err
+    assert "note: Units: l_mm in cm, as the log says ('Position': the units row, line 2; no unit given)" in (
+        capsys.readouterr().err)
     names = _write(tmp_path / "names.csv", ["t", "u", "Position_mm", "Druck [bar]"], _rows(truth, p=lambda p: f"{10 * p:.5f}"))
     rec = read_rig_log(names, time="t", u="u", l="Position_mm", p="Druck [bar]")
     assert np.max(np.abs(rec.columns["p_mpa"] - truth["p_mpa"])) <= 0.5e-6 + 1e-12
-    assert rec.metadata["units"].endswith("p_mpa in bar ('Druck [bar]': its name)")  # mm is the default: not said
+    assert rec.metadata["units"] == "p_mpa in bar, as the log says ('Druck [bar]': its name; no unit given)"  # mm: the default
     assert "units" not in read_rig_log(names, time="t", u="u", l="Position_mm:mm", p="Druck [bar]:bar").metadata
+    # a name's suffix is a weaker claim than brackets or a units row: a column renamed to the
+    # recording's t_s and left in ms is read as given, and the difference said
+    ms = _write(tmp_path / "ms.csv", ["t_s", "u_v", "l_mm"], [[f"{100 * k}"] + r[1:3] for k, r in enumerate(_rows(truth))],
+                sep=",")
+    rec = read_rig_log(ms, time="t_s:ms", u="u_v", l="l_mm")
+    assert rec.ts_s == pytest.approx(0.1) and rec.metadata["units"] == "t_s in ms as given, though its name 't_s' says s"
+    assert _import(ms, tmp_path / "rec.csv", "--time", "t_s", "--u", "u_v", "--l", "l_mm") == 2  # so the remedy is
+    assert "the column is likely in ms (--time t_s:ms)" in capsys.readouterr().err
     # a name's suffix counts only where it is a unit: Valve_cmd is no unit, and nothing is said of it
     cmd = _write(tmp_path / "cmd.csv", ["t", "Valve_cmd", "l"], [r[:3] for r in _rows(truth)])
     assert "units_unknown" not in read_rig_log(cmd, time="t", u="Valve_cmd", l="l").metadata

@@ -69,7 +69,7 @@ def _fitting_unit(col, target: str, values, score) -> str | None:
     takes the values so read and gives a misfit (smaller is better), or None where they cannot be."""
     import numpy as np
 
-    from tapmuscle.io.rig_log import LINEAR_UNITS, MA_RANGE, UNITS, LogColumn, unit_key
+    from tapmuscle.io.rig_log import LINEAR_UNITS, MA_RANGE, NAME_SUFFIX, UNITS, LogColumn, unit_key
 
     written = _written(col, target, np.asarray(values, dtype=float))
     fits = {}
@@ -86,9 +86,9 @@ def _fitting_unit(col, target: str, values, score) -> str | None:
     if best == unit_key(col.unit):
         return None
     flag = {"t_s": "--time", "u_v": "--u", "l_mm": "--l", "p_mpa": "--p", "load_n": "--load"}[target]
-    if not col.origin:
+    if col.origin in ("", NAME_SUFFIX):
         return f"the column is likely in {best} ({flag} {_quoted(col, best)})"
-    # a unit the log gives cannot be given otherwise: only a map overrides it
+    # a unit the log gives in brackets or a units row cannot be given otherwise: only a map overrides it
     scale, offset = LogColumn(col.column, best).conversion(target)
     linear = f"scale={scale:.10g}" + (f",offset={offset:.10g}" if offset else "")
     return (f"the log gives its unit as {col.unit} ({col.origin}); if the values are in {best} nonetheless, "

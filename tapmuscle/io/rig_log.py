@@ -54,7 +54,7 @@ from tapmuscle.io.gc_paused import gc_paused
 from tapmuscle.io.recording import Recording, RecordingError, read_text
 from tapmuscle.io.sampling import SamplingError, uniform_sampling
 
-__all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "LINEAR_UNITS", "MA_RANGE", "UNIT_ALIASES", "MISSING_CELLS",
+__all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "LINEAR_UNITS", "MA_RANGE", "UNIT_ALIASES", "MISSING_CELLS", "NAME_SUFFIX",
            "STANDARD_ATMOSPHERE_KPA", "MICRO_SIGNS", "LogColumn", "read_rig_log", "read_rig_log_columns",
            "rig_log_runs", "parse_column_spec", "parse_time_text", "unit_key", "unit_from_text",
            "likely_pressure_unit"]
@@ -196,8 +196,8 @@ class LogColumn:
     declared : bool
         Whether the caller gave the unit (False: the default, which a unit the log gives replaces).
     origin : str
-        Where in the log a unit not given was read (``"its name"``, ``"the units row, line 2"``);
-        empty for a unit given or the default.
+        Where in the log a unit not given was read (``"its name"``, ``"the units row, line 2"``, or
+        :data:`NAME_SUFFIX`, which a unit given overrides); empty for a unit given or the default.
     """
 
     column: str
@@ -557,8 +557,13 @@ def _file_units(path: Path, mapping: dict[str, LogColumn], header_line: int, uni
             found.append((m[1], unit_from_text(m[1], target), "its name", header_line))
         elif "_" in col.column.strip("_"):
             suffix = col.column.rpartition("_")[2]
-            if unit_from_text(suffix, target) is not None:  # a name's suffix counts only as a unit known
-                found.append((suffix, unit_from_text(suffix, target), "its name", header_line))
+            key = unit_from_text(suffix, target)  # a name's suffix counts only as a unit known
+            if key is not None and col.declared and key.removesuffix("_abs") != unit_key(col.unit).removesuffix("_abs"):
+                # a weaker claim than brackets (t_s may be a column renamed to the recording's name
+                # and left in ms): the unit given is read, and the difference said
+                used.append(f"{target} in {col.unit} as given, though its name {col.column!r} says {key}")
+            elif key is not None:
+                found.append((suffix, key, NAME_SUFFIX, header_line))
         if units_row is not None:
             line, cells = units_row
             cell = cells[index[target]].strip() if index[target] < len(cells) else ""
@@ -587,10 +592,13 @@ def _file_units(path: Path, mapping: dict[str, LogColumn], header_line: int, uni
             text, key, where, _ = known[-1]
             out[target] = LogColumn(col.column, key, False, where)
             if key != col.unit:
-                used.append(f"{target} in {key} ({col.column!r}: {where})")
+                used.append(f"{target} in {key}, as the log says ({col.column!r}: {where}; no unit given)")
     return out, used, unknown
 
 
+#: Where a unit read from a name's ``_suffix`` came from (:attr:`LogColumn.origin`): a weaker claim
+#: than brackets or a units row, which a unit given overrides.
+NAME_SUFFIX = "its name's suffix"
 _BRACKETED = re.compile(r"[\[(]\s*([^\[\]()]*?)\s*[\])]\s*$")
 
 
@@ -937,7 +945,7 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
     if units_row is not None:
         metadata["units_row"] = f"line {units_row[0]}, skipped"
     if units_used:
-        metadata["units"] = "the log's own where none was given: " + "; ".join(units_used)
+        metadata["units"] = "; ".join(units_used)
     if units_unknown:
         metadata["units_unknown"] = "; ".join(units_unknown)
     if renamed:
