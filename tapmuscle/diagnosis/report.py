@@ -114,6 +114,12 @@ def _kept_alternative(d: Diagnosis, group: list) -> str:
             f"constants and the other effects ({values})")
 
 
+def _interval_text(lo: float, hi: float) -> str:
+    """``lo to hi`` with as many significant digits (4 to 8) as tell the two ends apart."""
+    digits = next((k for k in range(4, 9) if f"{lo:.{k}g}" != f"{hi:.{k}g}"), 8)
+    return f"{lo:.{digits}g} to {hi:.{digits}g}"
+
+
 def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, Any] | None,
                experiments: list[dict[str, Any]] | None = None, plots: bool = True) -> str:
     lines = [f"# Mismatch diagnosis of `{recording}`", "",
@@ -165,7 +171,7 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
         for f in d.findings:
             if f.parameters:
                 lines.append(f"* `{f.effect}` parameters: " + ", ".join(
-                    f"`{k}` = {v:.6g}" + (f" (95 %: {f.ci95[k][0]:.4g} to {f.ci95[k][1]:.4g})" if k in f.ci95 else "")
+                    f"`{k}` = {v:.6g}" + (f" (95 %: {_interval_text(*f.ci95[k])})" if k in f.ci95 else "")
                     for k, v in f.parameters.items()))
         lines.append("")
         if any(k not in f.ci95 for f in d.findings for k in f.parameters):
