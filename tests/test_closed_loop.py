@@ -158,3 +158,22 @@ def test_a_law_holding_the_valve_against_the_error_is_warned_of_after_the_run():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         tm.simulate_closed_loop("mpc_servo", None, duration_s=45.0)
+
+
+def test_a_glitch_in_the_readings_is_warned_of_after_the_run():
+    """run_closed_loop says after the run how many readings the glitch guard held, and when the first was."""
+    import pytest
+
+    import tapmuscle as tm
+
+    class GlitchingPlant(tm.Plant):
+        """The rig whose encoder reads 60 mm high at every 50th sample from t = 10 s."""
+
+        def step(self, u_v, dt_s):
+            m = super().step(u_v, dt_s)
+            k = round(m.t_s / dt_s)
+            return m._replace(l_mm=m.l_mm + 60.0) if k >= 100 and k % 50 == 0 else m
+
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method="ampc_servo"), tm.THETA0_44N)
+    with pytest.warns(RuntimeWarning, match=r"^5 readings \(the first at t = 10 s\) were further from the last one used .* 400 x 0\.1 mm"):
+        tm.run_closed_loop(GlitchingPlant(seed=0), ctrl, tm.SineReference(), duration_s=30.0)

@@ -1181,3 +1181,22 @@ def test_the_transient_of_a_reference_step_is_not_called_a_limit_cycle():
     assert swings_said(3, 60.0) == []
     (said,) = swings_said(2, 80.0)
     assert float(said.split()[2]) > 40.0 and "the fixed predictor theta0 poor where the loop runs now" in said
+
+
+def test_a_sensor_that_keeps_glitching_is_logged_ten_times_and_counted_in_full():
+    """Twelve glitches: the first ten are logged one by one (the tenth says further ones are not), the
+    run summary counts all twelve."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    slave = AMPCController(instance_name="glitches")
+    slave.exit_initialization_mode()
+    plant = Plant(seed=0)
+    for k in range(400):
+        slave.l = plant.measurement.l_mm + (50.0 if k >= 100 and k % 20 == 0 and k < 340 else 0.0)
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    said = [m.msg for m in slave.log_queue if "taken for a sensor glitch" in m.msg]
+    assert len(said) == 10 and "further ones are counted in the run summary" in said[-1]
+    assert not any("further ones" in m for m in said[:-1])
+    assert "12 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()

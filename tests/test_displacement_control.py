@@ -1204,3 +1204,23 @@ def test_a_state_saved_while_readings_are_held_replays_bit_identically(theta0):
     ref = SineReference()
     again = [c2.step(plant_ls[k] + 60.0, ref.preview(k, c.settings.preview_samples)).u_v for k in range(301, 320)]
     assert again == us[301:320].tolist()
+
+
+@pytest.mark.parametrize("jump_mm, held", [(39.0, False), (41.0, True)])
+def test_the_glitch_guard_bound_is_max_speed_times_ts(jump_mm, held):
+    """The bound is max_speed_mm_per_s x ts_s (40 mm at the defaults), and a held reading is replaced by
+    the one-step prediction made at the sample before."""
+    from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+    from fmu_controller.reference import SineReference
+    from fmu_controller.preliminary_model import THETA0_44N
+    s = ControllerSettings(method="mpc_servo")          # 400 mm/s x 0.1 s = 40 mm
+    c = DisplacementController(s, THETA0_44N)
+    ref = SineReference()
+    c.reset(20.0)
+    for k in range(50):
+        prediction = c.step(20.0, ref.preview(k, s.preview_samples)).predicted_next_mm
+    c.step(20.0 + jump_mm, ref.preview(50, s.preview_samples))
+    assert (c.reading_held is not None) == held
+    if held:
+        reading, used, last = c.reading_held
+        assert reading == 20.0 + jump_mm and last == 20.0 and used == prediction

@@ -332,3 +332,15 @@ def test_a_load_below_the_braid_lock_is_warned_by_the_direct_runs_as_by_the_plan
     assert said(run=tm.simulate, command="step", duration_s=1.0, load_n=44.0)[0] == []
     unlocked = PlantParams().with_values(**{"muscle.braid_lock_force_n": 20.0})
     assert said(run=tm.simulate, command="step", duration_s=1.0, load_n=25.0, params=unlocked)[0] == []
+
+
+@pytest.mark.parametrize("u_v", [3.0, 7.0])
+def test_the_valve_flows_balance_the_pressure_at_rest(u_v):
+    """Settled under a held command the muscle's pressure is steady: what the supply side lets in the
+    drain side lets out (mass balance; 3 and 7 V, where the spool is not symmetric)."""
+    from fmu_plant import Plant
+    p = Plant(seed=0)
+    for _ in range(600):
+        p.step(u_v, 0.1)                                 # settled: dp/dt = 0, dl/dt = 0
+    q_in, q_out = p.flows_l_min()
+    assert q_in > 0 and q_in == pytest.approx(q_out, rel=1e-3)

@@ -43,6 +43,8 @@ def test_the_lines_of_a_recording_are_one_per_sample():
     ("t_s,u_v,l_mm\n0,1,2\n0.1,1,abc\n", r"line 3, column 'l_mm': 'abc' is not a number"),
     ("t_s,u_v,l_mm\n0,1,2\n0.1,nan,2\n", r"line 3, column 'u_v': 'nan' is not finite"),
     ("t_s,u_v,l_mm\n0,1,2\n0.1,1\n", r"line 3: 2 fields, header has 3"),
+    # a row with a field too many is refused too, not cut to the header's length
+    ("t_s,u_v,l_mm\n0,1,2,9\n", r"line 2: 4 fields, header has 3"),
     ("# meta: x\nt_s,u_v,l_mm\n0,1,2\n0,1,2\n", r"line 4, column 't_s': time 0.0 does not increase"),
     ("t_s,u_v,l_mm,l_mm\n0,1,2,3\n", r"column 'l_mm' appears twice"),
     ("# only comments\n", r"no header row"),

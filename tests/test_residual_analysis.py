@@ -12,6 +12,7 @@ from tapmuscle.diagnosis.demo import DEMO_MODEL
 from tapmuscle.diagnosis.residual_analysis import (BLOCK_CHOICES, SPLIT_BALANCE, balanced_block_s, direction_imbalance,
                                                    held_command, regime_summary)
 from tapmuscle.diagnosis.simulation import Simulator
+from scipy import stats
 
 TS = 0.1
 
@@ -109,3 +110,12 @@ def test_regime_ranges_read_as_numbers():
     assert displacement_regimes(np.linspace(-0.3, 80.0, 600))[0].startswith("low (0-")
     assert displacement_regimes(np.linspace(-5.0, 60.0, 600)) == ["low (-5 to 17 mm)", "middle (17-38 mm)",
                                                                  "high (38-60 mm)"]
+
+
+def test_mean_test_is_the_one_sample_t_test():
+    """Two-sided, as its docstring says: scipy's one-sample t test."""
+    from tapmuscle.diagnosis.residual_analysis import mean_test
+    rng = np.random.default_rng(1)
+    for n, shift in ((10, 0.3), (300, 0.05), (2400, 0.0)):
+        e = rng.normal(shift, 1.0, n)
+        assert mean_test(e) == pytest.approx(stats.ttest_1samp(e, 0.0).pvalue, rel=1e-9)

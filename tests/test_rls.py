@@ -618,3 +618,25 @@ def test_an_estimator_of_ones_own_regressors_is_told_about_the_default_box_and_t
     for name in ("lower", "upper", "n_projections", "n_resets", "theta"):
         with pytest.raises(RuntimeError, match=r"setup\(structure, settings\) has not been called"):
             getattr(ConstrainedRLS(), name)
+
+
+def test_rls_with_forgetting_is_exponentially_weighted_regularised_least_squares():
+    """Eq. (4) with a forgetting factor lambda < 1 is the batch least squares whose samples weigh
+    lambda^(N-1-k) and whose prior weighs lambda^N P(0)^-1 (theta and P both; the batch tests above
+    hold at lambda = 1 only)."""
+    from fmu_controller.hysteresis_model import ASYMMETRIC
+    from fmu_controller.rls import ConstrainedRLS, RLSSettings
+    rng = np.random.default_rng(5)
+    n, N, lam = 15, 300, 0.97
+    phi = rng.normal(size=(N, n))
+    y = phi @ rng.normal(size=n) + 0.1 * rng.normal(size=N)
+    p0, theta0 = rng.uniform(0.5, 50.0, n), rng.normal(size=n)
+    rls = ConstrainedRLS(ASYMMETRIC, RLSSettings(p0=p0, theta0=theta0, forgetting=lam, box_lower={}, box_upper={},
+                                                  constraint_start_s=math.inf))
+    for p, yy in zip(phi, y):
+        rls.update(p, yy)
+    w = lam ** np.arange(N - 1, -1, -1)           # lambda^(N-1-k)
+    info = lam ** N * np.diag(1 / p0) + (phi * w[:, None]).T @ phi
+    theta = np.linalg.solve(info, lam ** N * theta0 / p0 + (phi * w[:, None]).T @ y)
+    np.testing.assert_allclose(rls.theta, theta, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(rls.P, np.linalg.inv(info), rtol=1e-8, atol=1e-12)

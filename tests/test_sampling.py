@@ -97,3 +97,16 @@ def test_every_step_off_the_period_is_counted_and_the_largest_named():
                                             r"in all, the largest 0\.3 s at line 901;") as info:
         uniform_sampling(t, where=lambda k: f"line {k + 2}")
     assert info.value.steps == (400, 899, 1497) and info.value.largest == 899
+
+
+@pytest.mark.parametrize("late, dropped", [(0.49, False), (0.5, False), (0.51, True)])
+def test_a_step_half_a_period_off_is_the_boundary_of_a_dropped_sample(late, dropped):
+    """One sample written ``late`` periods after its slot (times as a logger writes them, to 0.1 ms):
+    up to half a period, written exactly, it is a late sample (the grid check's business, here a
+    refusal of a time off its slot by more than the jitter allowed, not a dropped sample); beyond it,
+    a dropped or doubled sample."""
+    t = np.round(_grid(), 4)
+    t[200] = round(t[200] + late * TS, 4)
+    with pytest.raises(SamplingError) as err:
+        uniform_sampling(t)
+    assert ("dropped or doubled" in str(err.value)) == dropped, str(err.value)
