@@ -215,3 +215,8 @@ def test_jumps_a_wrap_and_a_clipped_or_stuck_reading_are_said():
     # a muscle coming to rest under a steady command (noise-free, quantised) reaches its level slowly
     rest = np.round(50.0 * (1.0 - np.exp(-np.arange(300) * TS)), 2)
     assert displacement_fault_notes(rest, TS) == []
+    # sampled once a second, a muscle stepped from rest settles within a sample and holds its reading
+    # exactly (a noise-free log): not a stuck sensor
+    steps = np.repeat([0.0, 98.05, 1.86, 98.05, 20.0], 15)
+    assert displacement_fault_notes(steps, 1.0) == []
+    assert len(displacement_fault_notes(steps, 0.1)) == 3  # at 0.1 s the same log is a sensor's: jumps, clipped, stuck

@@ -213,6 +213,22 @@ def test_a_sample_counter_is_said_and_ts_builds_the_times(tmp_path, truth, capsy
         read_rig_log(log, time="Sample:s", u="u", l="l", ts_s=0.1)
     assert _import(log, tmp_path / "rec.csv", "--u", "u", "--l", "l") == 2
     assert "--time COLUMN[:UNIT] or --ts S" in capsys.readouterr().err
+    # whole seconds given as seconds (a 1-s recording, --time t:s) are not taken for a counter
+    assert "time_counter" not in read_rig_log(log, time="Sample:s", u="u", l="l").metadata
+
+
+def test_a_row_with_a_missing_value_keeps_its_slot_when_times_are_row_numbers(tmp_path, truth):
+    """--ts without a time column and --fill-gaps: the row is put back in its own slot (the rows after
+    it keep their times), and one at the log's end is said not to be put back."""
+    rows = [r[1:3] for r in _rows(truth)]
+    rows[20][1] = "#VALUE!"
+    rows[-1][1] = ""
+    log = _write(tmp_path / "notime.csv", ["u", "l"], rows, sep=",")
+    rec = read_rig_log(log, u="u", l="l", ts_s=0.1, fill_gaps_s=1.0)
+    np.testing.assert_allclose(rec.t_s, truth["t_s"][:-1], atol=1e-9)
+    assert rec.columns["l_mm"][21] == pytest.approx(truth["l_mm"][21], abs=1e-3)  # line 23's reading at 2.1 s
+    assert rec.columns["filled"][20] == 1.0
+    assert re.search(r"at the log's end, not put back .*: the recording starts or ends there", rec.metadata["missing"])
 
 
 # -- 7. sensor faults -----------------------------------------------------------------------------------

@@ -55,6 +55,10 @@ HELD_S = 0.5
 #: 0.01-mm encoder counts): a muscle coming to rest under a steady command creeps to its level, its
 #: last steps a count or two.
 HELD_ENTRY_MM_PER_S = 5.0
+#: A held (stuck or clipped) reading is told only at sampling periods up to this [s]: sampled once a
+#: second, a muscle stepped from rest settles within a sample, and a noise-free log holds its reading
+#: exactly.
+HELD_TS_MAX_S = 0.2
 HELD_ENTRY_MIN_MM = 0.05
 #: A first reading further than this from 0 [mm] is not a muscle at rest with its encoder zeroed there.
 AT_REST_MM = 0.5
@@ -277,7 +281,8 @@ def displacement_fault_notes(l_mm: np.ndarray, ts_s: float, *, column: str = "l_
         # samples a..b hold l[a]; the speed it was entered at is the step before (a reading clipped
         # within a sample steps in by a part of it)
         entry = max(abs(l[a] - l[a - 1]), abs(l[a - 1] - l[a - 2])) if a >= 2 else 0.0
-        if b - a + 1 < held or entry < max(HELD_ENTRY_MM_PER_S * ts_s, HELD_ENTRY_MIN_MM):
+        # sampled slower than HELD_TS_MAX_S, a muscle settles within a sample and holds its reading
+        if b - a + 1 < held or entry < max(HELD_ENTRY_MM_PER_S * ts_s, HELD_ENTRY_MIN_MM) or ts_s > HELD_TS_MAX_S:
             continue
         (clipped if l[a] == top else stuck).append((int(a), int(b - a + 1)))
     if clipped:

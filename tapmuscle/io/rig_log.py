@@ -854,6 +854,8 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
     if check_thousands and decimal == ".":  # on the values alone: a units row is text in every column
         _refuse_thousands(path, body, {t: j for t, j in index.items() if conversions[t] is not None}, header)
     missing = []
+    # each row's place among the data rows: times built from row numbers keep a dropped row's slot
+    position = {lineno: i for i, (lineno, _) in enumerate(body)}
     if fill_gaps_s:  # a row with a missing value is a dropped sample, put back with the others
         missing = [lineno for lineno, row in body if any(_missing(row[j]) for j in index.values())]
         drop = set(missing)
@@ -900,7 +902,8 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
                     f"(ts_s builds the times from a column that counts samples)")))
             values = (values - origin) * ts_s
         elif conversion is not None:  # from the first sample in the log's own unit, then scaled:
-            if conversion == (1.0, 0.0):
+            if conversion == (1.0, 0.0) and not col.declared and not col.origin:
+                # seconds by default only: a unit given or written in the log is the log's word for it
                 time_note = _counter_note(col.column, values)
             values = (values - origin) * conversion[0]  # epoch stamps keep their digits
         step = np.diff(values)
@@ -911,7 +914,7 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
                 f"({body[k - 1][1][j].strip()!r}, then {body[k][1][j].strip()!r})" + (f": {_DST}" if back else ""))))
         times = values
     if "t_s" not in mapping:
-        times = np.arange(len(body)) * float(ts_s)
+        times = np.array([position[lineno] for lineno in line_numbers], float) * float(ts_s)
     if problems and times is not None and not fill_gaps_s and np.isfinite(times).sum() >= 2:  # a dropped sample among them
         # the stamps that go beyond all before them: a doubled or backward one left out, the grid
         # stays; a stamp that is not one is taken between its neighbours, not as a gap
@@ -958,9 +961,14 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
                                   f"exactly (the time too) dropped: line{'s' if len(duplicates) > 1 else ''} "
                                   f"{_lines_text(duplicates)}")
     if missing:
+        # only a row between two kept ones is put back; one before the first or after the last is not
+        ends = [m for m in missing if m < line_numbers[0] or m > line_numbers[-1]]
         metadata["missing"] = (f"{len(missing)} row{'s' if len(missing) > 1 else ''} with a missing value dropped "
-                               f"(line{'s' if len(missing) > 1 else ''} {_lines_text(missing)}), put back as dropped "
-                               "samples")
+                               f"(line{'s' if len(missing) > 1 else ''} {_lines_text(missing)})"
+                               + (", put back as dropped samples" if len(ends) < len(missing) else "")
+                               + (f"; line{'s' if len(ends) > 1 else ''} {_lines_text(ends)} at the log's "
+                                  f"{'ends' if len(ends) > 1 else 'end'}, not put back (nothing to interpolate from "
+                                  "on that side): the recording starts or ends there" if ends else ""))
     if time_note:
         metadata["time_counter"] = time_note
     if filled is not None:
