@@ -99,8 +99,10 @@ _SLAM_WINDOW_S = 10.0
 #: ``input_delay_samples`` 0: 8-26 swings in 10 s; a sound loop, with its delay set or decided: 0-2).
 _SWINGS = 6
 #: A reference moving faster than this [mm/s] (about the simulated muscle's fastest) in a sample is a
-#: step: the swings of the transient after it (25 mm at 0.1 s: six swings in AMPC-UCP) are not counted.
+#: step: the swings of the transient in the :data:`_REF_STEP_SETTLE_S` after it (25 mm at 0.1 s: six
+#: swings in AMPC-UCP) are not counted; those before and after it are.
 _REF_STEP_MM_PER_S = 200.0
+_REF_STEP_SETTLE_S = 3.0
 #: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
 #: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
 #: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
@@ -429,24 +431,22 @@ class AMPCController(SafeSlave):
     def _watch_swings(self, t_s: float, u: float, l: float, r: float) -> None:
         """Log once when, after the start-up and the first :data:`_SLAM_WINDOW_S` of the estimator, the
         command has swung from one valve limit to the other :data:`_SWINGS` times within
-        :data:`_SLAM_WINDOW_S` (a limit cycle). A reference step (``r`` moving further in a sample than
-        the muscle can, :data:`_REF_STEP_MM_PER_S`) restarts the watch a window later: the swings of
-        its transient are not a limit cycle."""
+        :data:`_SLAM_WINDOW_S` (a limit cycle). The swings in the :data:`_REF_STEP_SETTLE_S` after a
+        reference step (``r`` moving further in a sample than the muscle can, :data:`_REF_STEP_MM_PER_S`)
+        are not counted: its transient is not a limit cycle."""
         if self._swing_ks is None:
             return
         s = self._controller.settings
-        window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
         if abs(r - self._r_last) > _REF_STEP_MM_PER_S * s.ts_s:
-            self._swings_from, self._swing_ks = self._k + window, []
+            self._swings_from = self._k + int(round(_REF_STEP_SETTLE_S / s.ts_s))
         self._r_last = r
-        if self._k < self._swings_from:
-            return
         side = -1 if u <= s.servo.u_min_v + 1e-9 else 1 if u >= s.servo.u_max_v - 1e-9 else 0
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side
-        if not swung:
+        if not swung or self._k < self._swings_from:
             return
+        window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
         # not in the law's own start, nor in the first window after it: the paper's start (startup_s = 0)
         # swings the valve 6 times in its first 1-1.5 s, without any delay
         if self._controller.in_startup or self._controller.samples_since_start <= window:
