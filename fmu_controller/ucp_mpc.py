@@ -35,7 +35,8 @@ Decisions the paper leaves open:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import warnings
+from dataclasses import InitVar, dataclass
 
 import numpy as np
 
@@ -62,8 +63,14 @@ class UCPSettings:
     min_step_response_mm_per_v: float = 1e-3
     """Smallest ``|S(Hp)|`` [mm/V] accepted from the nonlinear model before falling back to the
     linear part's step response."""
+    min_step_response_mm: InitVar[float | None] = None
+    """The same under its former name (its unit is mm/V): accepted with a DeprecationWarning."""
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, min_step_response_mm: float | None) -> None:
+        if min_step_response_mm is not None:
+            warnings.warn("UCPSettings(min_step_response_mm=...) is min_step_response_mm_per_v (its unit is mm/V)",
+                          DeprecationWarning, stacklevel=3)
+            object.__setattr__(self, "min_step_response_mm_per_v", min_step_response_mm)
         object.__setattr__(self, "hp", whole_number(self.hp, what="UCPSettings.hp"))
         if not 1 <= self.hp <= MAX_HORIZON:
             raise ValueError(f"UCPSettings.hp must be an integer in 1..{MAX_HORIZON}, got {self.hp!r}")

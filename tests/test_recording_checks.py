@@ -193,6 +193,8 @@ def test_a_span_a_few_times_off_the_models_is_noted_with_the_unit_that_matches()
     for ratio in (0.5, 1.0, 2.5):
         assert displacement_scale_note(l * ratio, l) is None
     assert displacement_scale_note(l / 10, l / 20) is None  # a model that hardly moves: nothing to compare
+    # nor noise on a still muscle, where the model does not move at all (a command below the threshold)
+    assert displacement_scale_note(np.random.default_rng(0).normal(0.0, 0.02, l.size), np.zeros(l.size)) is None
 
 
 def test_jumps_a_wrap_and_a_clipped_or_stuck_reading_are_said():

@@ -339,3 +339,11 @@ def test_a_utf16_log_is_told_by_its_byte_order_mark(tmp_path, truth):
                  _rows(truth, l=lambda v: f"{1e3 * v:.0f}"), sep="\t", encoding="utf-16")
     rec = read_rig_log(log, time="Zeit", u="Ventil", l="Weg [µm]")
     assert np.max(np.abs(rec.l_mm - truth["l_mm"])) <= 0.5e-3 + 1e-12 and "l_mm in um" in rec.metadata["units"]
+
+
+def test_a_channel_named_in_brackets_is_not_taken_for_a_unit(tmp_path, truth):
+    rows = [r[:3] for r in _rows(truth)]
+    log = _write(tmp_path / "chan.csv", ["time", "valve (ch1)", "pos [AI0]"], rows, sep=",")
+    rec = read_rig_log(log, time="time", u="valve (ch1)", l="pos [AI0]")
+    assert "units_unknown" not in rec.metadata and "units" not in rec.metadata
+    np.testing.assert_allclose(rec.columns["l_mm"], truth["l_mm"], atol=1e-3)

@@ -95,3 +95,9 @@ def test_ampc_ucp_with_a_long_horizon_runs_through():
     s = tm.ControllerSettings(method="ampc_ucp", ucp=UCPSettings(hp=20), input_delay_samples=-1)
     run = tm.simulate_closed_loop("ampc_ucp", None, duration_s=45.0, settings=s)
     assert np.all(np.isfinite(run["u_v"])) and run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
+
+
+def test_the_former_name_of_the_step_response_floor_is_accepted_with_a_deprecation_warning():
+    with pytest.warns(DeprecationWarning, match="min_step_response_mm_per_v"):
+        s = UCPSettings(min_step_response_mm=0.02)
+    assert s.min_step_response_mm_per_v == 0.02 and s == UCPSettings(min_step_response_mm_per_v=0.02)

@@ -50,7 +50,7 @@ class Finding:
                 "fit_gain_points": round(self.fit_gain_points, 3),
                 "located": [{"t_start_s": round(a, 2), "t_end_s": round(b, 2)} for a, b in self.located],
                 "regime": self.regime, "evidence": self.evidence,
-                "ci95": {k: [float(f"{lo:.6g}"), float(f"{hi:.6g}")] for k, (lo, hi) in self.ci95.items()}}
+                "ci95": {k: [float(lo), float(hi)] for k, (lo, hi) in self.ci95.items()}}
 
 
 @dataclass

@@ -218,7 +218,9 @@ def displacement_scale_note(l_mm: np.ndarray, l_model_mm: np.ndarray, *, column:
     millimetres), named as the unit of the log's ``column`` (given in ``unit``) that matches.
     """
     span, model_span = float(np.ptp(l_mm)), float(np.ptp(l_model_mm))
-    if span > model_span / SPAN_RATIO_PLAUSIBLE:
+    # a recording that moves where the model does not (a command read as a tenth of itself); a still
+    # muscle's noise over a model that does not move at all is no such thing
+    if span >= SPAN_NOTED_MIN_MM and span > model_span / SPAN_RATIO_PLAUSIBLE:
         return (f"Column {column} spans {span:.4g} mm where the nominal model, driven by the same command (u within "
                 f"the recording's), spans {model_span:.4g} mm: is the command in another unit (volts imported as "
                 "percent are a tenth of them)? A valve that opens far below the model's would do it as well")

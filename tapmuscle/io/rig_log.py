@@ -553,7 +553,8 @@ def _file_units(path: Path, mapping: dict[str, LogColumn], header_line: int, uni
             continue  # a map given for this log: its own unit is what it maps from
         found = []  # (as written, the unit it names or None, where, line)
         m = _BRACKETED.search(col.column)
-        if m and m[1] and len(m[1]) <= 12 and not any(c.isspace() for c in m[1]):
+        # a unit has no digits (none this log's columns take does): "(ch1)", "[AI0]" name a channel
+        if m and m[1] and len(m[1]) <= 12 and not any(c.isspace() or c.isdigit() for c in m[1]):
             found.append((m[1], unit_from_text(m[1], target), "its name", header_line))
         elif "_" in col.column.strip("_"):
             suffix = col.column.rpartition("_")[2]
