@@ -590,3 +590,11 @@ def test_the_first_problem_in_the_file_is_named_with_the_others(tmp_path, gap, d
     for k, v in line.items():
         if k != first:
             assert re.search(rf"further problems: .*column '{column[k]}' at lines? [\d, ]*\b{v}\b", message), message
+
+
+def test_a_linear_map_is_a_conversion_with_an_offset_not_a_factor():
+    col = LogColumn("Ventil", "mA")
+    assert col.conversion("u_v") == pytest.approx((0.625, -2.5))  # 4..20 mA -> 0..10 V
+    with pytest.raises(ValueError, match="'mA' is a linear map with an offset, not a factor"):
+        col.factor("u_v")
+    assert LogColumn("Weg", "cm").factor("l_mm") == 10.0

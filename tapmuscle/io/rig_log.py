@@ -208,23 +208,24 @@ class LogColumn:
     def conversion(self, target: str) -> tuple[float, float] | None:
         """``(scale, offset)`` to ``target``'s unit (None: ISO date-time text); ``ValueError`` naming
         the units known."""
-        linear = _linear_spec(self.unit)
+        linear = self._linear(target)
         if linear is not None:
             return linear
-        key = unit_key(self.unit)
-        if key in LINEAR_UNITS.get(target, {}):
-            return LINEAR_UNITS[target][key]
         factor = self.factor(target)
         return None if factor is None else (factor, 0.0)
 
+    def _linear(self, target: str) -> tuple[float, float] | None:
+        """The linear map (``scale=A,offset=B``, or a unit such as ``mA`` that is one), else None."""
+        return _linear_spec(self.unit) or LINEAR_UNITS.get(target, {}).get(unit_key(self.unit))
+
     def factor(self, target: str) -> float | None:
-        """The factor to ``target``'s unit (None: ISO date-time text; a linear map's scale);
-        ``ValueError`` naming the units known."""
+        """The factor to ``target``'s unit of a plain unit (None: ISO date-time text); ``ValueError``
+        naming the units known, or for a linear map, which has an offset too (:meth:`conversion`)."""
         units = UNITS[target]
         key = unit_key(self.unit)
-        linear = _linear_spec(self.unit) or LINEAR_UNITS.get(target, {}).get(key)
-        if linear is not None:
-            return linear[0]
+        if self._linear(target) is not None:
+            raise ValueError(f"column {self.column!r}: {self.unit!r} is a linear map with an offset, not a factor "
+                             "(LogColumn.conversion gives its scale and offset)")
         if key not in units:
             known = ", ".join(f"{u} (or µ{u[1:]})" if u.startswith("u") and len(u) > 1 else u for u in units)
             extra = "".join(f"; {u} ({_LINEAR_MEANING[target, u]})" for u in LINEAR_UNITS.get(target, {}))
