@@ -95,6 +95,11 @@ def test_ampc_ucp_with_a_long_horizon_runs_through():
     s = tm.ControllerSettings(method="ampc_ucp", ucp=UCPSettings(hp=20), input_delay_samples=-1)
     run = tm.simulate_closed_loop("ampc_ucp", None, duration_s=45.0, settings=s)
     assert np.all(np.isfinite(run["u_v"])) and run["u_v"].min() >= 0.0 and run["u_v"].max() <= 10.0
+    # the loop is poor at this horizon (docs/control.md: UCP's error grows with Hp; 16 mm measured, the
+    # valve limit to limit), but it stays on the muscle: within its stroke and below the reference's
+    # own 30-mm amplitude (a generous bound: a limit-to-limit loop differs from CPU to CPU)
+    assert np.all(np.isfinite(run["l_mm"])) and -5.0 < run["l_mm"].min() and run["l_mm"].max() < 110.0
+    assert tm.eq21_error_mm(run["r_mm"], run["l_mm"]) < 30.0
 
 
 def test_the_former_name_of_the_step_response_floor_is_accepted_with_a_deprecation_warning():
