@@ -64,6 +64,7 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_MAX_SPEED_MM_PER_S,
+                                                 FASTEST_MUSCLE_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
                                                  GUARD_JUMPS, HELD_READINGS_MAX, HELD_WARN_S, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES,
@@ -101,7 +102,7 @@ _SWINGS = 6
 #: A reference moving faster than this [mm/s] (about the simulated muscle's fastest) in a sample is a
 #: step: the swings of the transient in the :data:`_REF_STEP_SETTLE_S` after it (25 mm at 0.1 s: six
 #: swings in AMPC-UCP) are not counted; those before and after it are.
-_REF_STEP_MM_PER_S = 200.0
+_REF_STEP_MM_PER_S = FASTEST_MUSCLE_MM_PER_S
 _REF_STEP_SETTLE_S = 3.0
 #: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
 #: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4

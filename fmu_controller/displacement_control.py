@@ -58,7 +58,8 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
-           "L_RANGE_MM", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX", "HELD_WARN_S", "held_against_error", "held_against_cause",
+           "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
+           "HELD_WARN_S", "held_against_error", "held_against_cause",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -131,10 +132,11 @@ DEFAULT_STARTUP_S = 12.0
 #: sine stay within it.
 L_RANGE_MM = (-1000.0, 5000.0)
 
+#: The simulated rig's fastest move [mm/s]: from rest to 10 V and back at 0.25 MPa and 10-100 N.
+FASTEST_MUSCLE_MM_PER_S = 200.0
 #: Fastest the muscle moves [mm/s] as far as the glitch guard is concerned
-#: (``ControllerSettings.max_speed_mm_per_s``): twice the simulated rig's fastest, about 200 mm/s
-#: from rest to 10 V and back at 0.25 MPa and 10-100 N.
-DEFAULT_MAX_SPEED_MM_PER_S = 400.0
+#: (``ControllerSettings.max_speed_mm_per_s``): twice the simulated rig's fastest, room for a faster rig.
+DEFAULT_MAX_SPEED_MM_PER_S = 2.0 * FASTEST_MUSCLE_MM_PER_S
 #: Readings held in a row, at most, before one that stays as far from the last used is taken as the new
 #: level (an encoder re-zeroed, a real step): a glitch lasts a sample or two.
 HELD_READINGS_MAX = 3
