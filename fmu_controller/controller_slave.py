@@ -71,7 +71,8 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAU
                                                  MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
                                                  VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
                                                  DisplacementController, full_range_jump, held_against_cause,
-                                                 held_against_error, preview_lead, pushed_at_limit)
+                                                 held_against_error, preview_lead, pushed_at_limit,
+                                                 stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.preliminary_model import THETA0_44N
@@ -696,6 +697,9 @@ class AMPCController(SafeSlave):
             tally.saturated += 1
         if ctrl.reading_held is not None:
             self._say_held_reading(t_s, *ctrl.reading_held)
+        if ctrl.reading_stuck is not None:
+            tally.stuck += 1
+            self.log(stuck_reading_message(t_s, *ctrl.reading_stuck), status=Fmi2Status.warning)
         if self._k:
             e = step.prediction_error_mm
             tally.errors += 1
@@ -831,18 +835,19 @@ class _Tally:
     """What the controller's run summary says: samples, samples at an input limit, prediction errors
     (counted in :meth:`AMPCController.step_numerics`)."""
 
-    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial", "held")
+    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial", "held", "stuck")
 
     def __init__(self, samples: int = 0, saturated: int = 0, errors: int = 0, sum_squares_mm2: float = 0.0,
-                 largest_mm: float = 0.0, partial: bool = False, held: int = 0) -> None:
+                 largest_mm: float = 0.0, partial: bool = False, held: int = 0, stuck: int = 0) -> None:
         self.samples, self.saturated, self.errors = int(samples), int(saturated), int(errors)
         self.sum_squares_mm2, self.largest_mm = float(sum_squares_mm2), float(largest_mm)
         self.partial = bool(partial)  # counted from a restored state that carried no tally
         self.held = int(held)  # readings the glitch guard held (a state saved without it: none)
+        self.stuck = int(stuck)  # stretches of a stuck reading told (reading_stuck; a state saved without it: none)
 
     def as_list(self) -> list:
         return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm, self.partial,
-                self.held]
+                self.held, self.stuck]
 
     def __str__(self) -> str:
         if not self.samples:
@@ -853,4 +858,6 @@ class _Tally:
         return (f"{self.samples} samples{since}; an input limit (0-10 V or Eq. 19) active in {self.saturated} of "
                 f"them; one-step prediction error l(k) - l(k|k-1): RMS "
                 f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm"
-                + (f"; {self.held} readings taken for sensor glitches and held (max_speed)" if self.held else ""))
+                + (f"; {self.held} readings taken for sensor glitches and held (max_speed)" if self.held else "")
+                + (f"; the reading stuck in {self.stuck} stretches (unchanged while the valve went end to end)"
+                   if self.stuck else ""))

@@ -59,6 +59,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
+           "STUCK_AT_LIMIT_S", "stuck_reading_message",
            "HELD_WARN_S", "held_against_error", "held_against_cause",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
@@ -140,6 +141,11 @@ DEFAULT_MAX_SPEED_MM_PER_S = 2.0 * FASTEST_MUSCLE_MM_PER_S
 #: Readings held in a row, at most, before one that stays as far from the last used is taken as the new
 #: level (an encoder re-zeroed, a real step): a glitch lasts a sample or two.
 HELD_READINGS_MAX = 3
+#: Seconds the command sits at each of the valve's limits, within one stretch of readings that have not
+#: changed at all, that tell a stuck sensor: the valve held open, then shut (or the other way round),
+#: moves a working muscle by millimetres within a second, whatever its transport delay (at most 0.5 s
+#: here) or end stop; the encoder resolves 0.01 mm (:attr:`DisplacementController.reading_stuck`).
+STUCK_AT_LIMIT_S = 2.0
 
 #: Default amplitude [V] of the start-up mode's probing signal (``ControllerSettings.probing_v``).
 DEFAULT_PROBING_V = 0.5
@@ -457,6 +463,15 @@ def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, 
     return lower, upper
 
 
+def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> str:
+    """What to tell of a reading :attr:`DisplacementController.reading_stuck` reported at ``t_s`` [s]:
+    ``reading_mm`` [mm], unchanged for ``unchanged_s`` [s]."""
+    return (f"t = {t_s:g} s: the reading l = {reading_mm:g} mm has not changed at all for {unchanged_s:.4g} s while "
+            f"the command sat at each of the valve's limits for {STUCK_AT_LIMIT_S:g} s or more, which moves a working "
+            "muscle by millimetres: the sensor is stuck or disconnected (a DAQ holding its last value?), or the supply "
+            "is shut with the muscle at rest. The controller goes on with the reading")
+
+
 def full_range_jump(u_v: float, u_prev_v: float, u_min_v: float, u_max_v: float) -> bool:
     """Whether the command moved across :data:`GUARD_JUMP_FRACTION` of the valve's range [V] in one
     sample: the valve slammed end to end."""
@@ -511,6 +526,21 @@ def _control_step(u_v, predicted_next_mm, prediction_error_mm, uc_v, hysteresis_
         "u_v": u_v, "predicted_next_mm": predicted_next_mm, "prediction_error_mm": prediction_error_mm,
         "uc_v": uc_v, "hysteresis_mm": hysteresis_mm, "xs_mm": xs_mm, "theta": theta, "saturated": saturated})
     return step
+
+
+def _valid_still(still: Any) -> bool:
+    """Whether ``still`` is a stretch of identical readings that :meth:`DisplacementController.get_state`
+    could have saved: ``[reading or NaN, samples, samples after the lower limit, after the upper, said]``."""
+    try:
+        if not isinstance(still, (list, tuple)) or len(still) != 5 or still[4] not in (True, False):
+            return False
+        reading, counts = float(still[0]), still[1:4]
+        if any(isinstance(n, bool) or int(n) != n or int(n) < 0 for n in counts):
+            return False
+        return ((math.isnan(reading) or L_RANGE_MM[0] <= reading <= L_RANGE_MM[1])
+                and int(counts[1]) + int(counts[2]) <= int(counts[0]))
+    except (TypeError, ValueError, OverflowError):
+        return False
 
 
 class DisplacementController:
@@ -582,6 +612,7 @@ class DisplacementController:
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
         self._guard = settings.startup_guard and settings.adaptive and self._blend_n > 0
         self._max_jump = settings.max_speed_mm_per_s * settings.ts_s  # 0: no glitch guard
+        self._stuck_n = max(1, int(math.ceil(STUCK_AT_LIMIT_S / settings.ts_s - 1e-9)))
         self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
 
@@ -613,6 +644,15 @@ class DisplacementController:
         self.reading_held: tuple[float, float, float] | None = None
         """The last step's reading taken for a glitch, the value used instead and the last one used
         before [mm]; None where the reading was used."""
+        # the stretch of identical readings: its reading (NaN before the first), its samples, the
+        # samples of it that followed a command at the lower and at the upper valve limit, and whether
+        # reading_stuck has said it
+        self._still = [math.nan, 0, 0, 0, False]
+        self.reading_stuck: tuple[float, float] | None = None
+        """On the step that tells it, once a stretch: the reading [mm] that has not changed at all
+        while the command sat at each of the valve's limits for :data:`STUCK_AT_LIMIT_S` or more, and
+        how long it has not changed [s] (a stuck or disconnected sensor, a DAQ holding its last value,
+        or the supply shut with the muscle at rest); None otherwise. The law goes on with the reading."""
         # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
         # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
         self._lag = 1 if self._auto else self.settings.input_delay_samples  # the delay the law runs for
@@ -674,6 +714,12 @@ class DisplacementController:
         state = self._state
         k = self._k
         self.reading_held = None
+        self.reading_stuck = None
+        still = self._still
+        if l == still[0]:
+            self._watch_still(still)
+        else:
+            still[:] = [l, 0, 0, 0, False]
         if self._max_jump and k > 0:
             last = state.last_l
             if abs(l - last) <= self._max_jump or self._held_in_a_row >= HELD_READINGS_MAX:
@@ -1071,6 +1117,19 @@ class DisplacementController:
         rls = self._rls
         return (0, 0, 0) if rls is None else (rls.n_projections, rls.n_resets, rls.n_ceilings)
 
+    def _watch_still(self, still: list) -> None:
+        """Count a reading equal to the last one: after a command at a valve limit, towards that
+        limit's time; set :attr:`reading_stuck` when both reach :data:`STUCK_AT_LIMIT_S`."""
+        still[1] += 1
+        u = self._outs[0][0]  # the command that followed the last reading
+        if u <= self._u_min + 1e-9:
+            still[2] += 1
+        elif u >= self._u_max - 1e-9:
+            still[3] += 1
+        if not still[4] and still[2] >= self._stuck_n and still[3] >= self._stuck_n:
+            still[4] = True
+            self.reading_stuck = (still[0], still[1] * self.settings.ts_s)
+
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
         """Everything needed to continue bit-identically, as plain data (JSON-serialisable:
@@ -1082,7 +1141,7 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "limit_run": self._limit_run,
-            "predicted": self._predicted, "held_in_a_row": self._held_in_a_row,
+            "predicted": self._predicted, "held_in_a_row": self._held_in_a_row, "still": list(self._still),
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
             "delayed": self._lag != 0, "decided": self._decided, "lag": self._lag,
@@ -1128,6 +1187,12 @@ class DisplacementController:
         if isinstance(held, bool) or int(held) != held or not 0 <= held <= HELD_READINGS_MAX:
             raise ValueError(f"state field held_in_a_row = {held!r} must be a count 0 .. {HELD_READINGS_MAX}")
         self._held_in_a_row = int(held)
+        still = state.get("still", [math.nan, 0, 0, 0, False])  # a state saved without the watch: a new stretch
+        if not _valid_still(still):
+            raise ValueError(f"state field still = {still!r} must be [reading within {L_RANGE_MM[0]:g}..{L_RANGE_MM[1]:g} "
+                             "mm or NaN, samples >= 0, samples after the lower limit and after the upper one (together "
+                             "at most the samples), said true/false]")
+        self._still = [float(still[0]), int(still[1]), int(still[2]), int(still[3]), bool(still[4])]
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         for name in ("h_prev", "h_prev2"):
             if math.isinf(float(state.get(name, math.nan))):

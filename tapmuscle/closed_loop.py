@@ -16,7 +16,7 @@ from typing import Callable
 import numpy as np
 
 from fmu_controller.displacement_control import (HELD_AGAINST_MM, HELD_WARN_S, DisplacementController,
-                                                 held_against_cause, held_against_error)
+                                                 held_against_cause, held_against_error, stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
@@ -203,6 +203,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     controller.reset(meas.l_mm)
     pred_prev = meas.l_mm
     held_at: list[float] = []  # sample times of the readings the glitch guard held
+    stuck_at: list[tuple[float, float, float]] = []  # (t [s], reading [mm], unchanged for [s]) of stuck readings
     every = max(1, n // 100)
     for k in range(n):
         t = k * ts
@@ -219,6 +220,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         theta_hist[k] = step.theta
         if controller.reading_held is not None:
             held_at.append(t)
+        if controller.reading_stuck is not None:
+            stuck_at.append((t, *controller.reading_stuck))
         pred_prev = step.predicted_next_mm
         if k + 1 < n:
             meas = plant.step(u, ts)
@@ -234,6 +237,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
                        f"than the muscle moves in a sample (max_speed_mm_per_s x ts_s = {s.max_speed_mm_per_s:g} x "
                        f"{s.ts_s:g} mm) and were taken for sensor glitches: the controller used its prediction instead "
                        "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", RuntimeWarning)
+    for t, reading, still_s in stuck_at:
+        warn_at_caller(stuck_reading_message(t, reading, still_s), RuntimeWarning)
     return cols
 
 

@@ -177,3 +177,33 @@ def test_a_glitch_in_the_readings_is_warned_of_after_the_run():
     ctrl = tm.DisplacementController(tm.ControllerSettings(method="ampc_servo"), tm.THETA0_44N)
     with pytest.warns(RuntimeWarning, match=r"^5 readings \(the first at t = 10 s\) were further from the last one used .* 400 x 0\.1 mm"):
         tm.run_closed_loop(GlitchingPlant(seed=0), ctrl, tm.SineReference(), duration_s=30.0)
+
+
+def test_a_stuck_reading_is_warned_of_after_the_run():
+    """run_closed_loop says after the run where the readings stopped changing while the valve went end
+    to end (the encoder frozen from t = 20 s), with the reading and how long it had not changed."""
+    import pytest
+
+    import tapmuscle as tm
+
+    class FrozenEncoderPlant(tm.Plant):
+        """The rig whose encoder holds its reading from t = 20 s."""
+
+        frozen = None
+
+        def step(self, u_v, dt_s):
+            m = super().step(u_v, dt_s)
+            if m.t_s >= 20.0 - 1e-9:
+                self.frozen = m.l_mm if self.frozen is None else self.frozen
+                return m._replace(l_mm=self.frozen)
+            return m
+
+    plant = FrozenEncoderPlant(seed=0)
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method="ampc_servo"), tm.THETA0_44N)
+    with pytest.warns(RuntimeWarning, match=r"^t = 2\d\.?\d* s: the reading l = [\d.]+ mm has not changed at all for "
+                                            r"[\d.]+ s while the command sat at each of the valve's limits for 2 s or "
+                                            r"more.*the sensor is stuck") as caught:
+        run = tm.run_closed_loop(plant, ctrl, tm.SineReference(), duration_s=40.0)
+    said = [w for w in caught if "has not changed at all" in str(w.message)]
+    assert len(said) == 1 and f"l = {plant.frozen:g} mm" in str(said[0].message)
+    assert np.all(run["l_mm"][200:] == plant.frozen)

@@ -1143,6 +1143,35 @@ def test_a_reading_taken_for_a_sensor_glitch_is_logged_and_counted():
     assert said == [] and "sensor glitches" not in off.run_summary()
 
 
+def test_a_stuck_reading_is_logged_once_and_counted():
+    """Readings frozen from t = 20 s: the FMU logs one warning naming the reading and how long it has
+    not changed, the run summary counts the stretch; an unfrozen run says neither."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    def run(freeze):
+        slave = AMPCController(instance_name="stuck")
+        slave.exit_initialization_mode()
+        plant = Plant(seed=0)
+        frozen = None
+        for k in range(400):
+            reading = plant.measurement.l_mm
+            if freeze and k >= 200:
+                frozen = reading if frozen is None else frozen
+                reading = frozen
+            slave.l = reading
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+        return slave, frozen, [m for m in slave.log_queue if "has not changed at all" in m.msg]
+
+    slave, frozen, (msg,) = run(True)
+    assert msg.status == Fmi2Status.warning and f"the reading l = {frozen:g} mm has not changed" in msg.msg
+    assert "the sensor is stuck" in msg.msg
+    assert "the reading stuck in 1 stretches" in slave.run_summary()
+    healthy, _, said = run(False)
+    assert said == [] and "stuck" not in healthy.run_summary()
+
+
 def test_servo_max_iter_bounds_the_qp_and_reaches_the_law():
     """The FMU's servo.max_iter is ServoMPCSettings.max_iter (the bound of a step's worst-case time);
     the declared range is the settings' own."""

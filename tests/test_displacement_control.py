@@ -10,11 +10,11 @@ import pytest
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, B1_KEPT_FRACTION, DEFAULT_MAX_SPEED_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HELD_READINGS_MAX,
                                                  HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
-                                                 ControllerSettings, DisplacementController)
+                                                 STUCK_AT_LIMIT_S, ControllerSettings, DisplacementController)
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
-from fmu_controller.reference import SineReference
+from fmu_controller.reference import ArrayReference, SineReference
 from fmu_controller.servo_settings import ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
@@ -1224,3 +1224,98 @@ def test_the_glitch_guard_bound_is_max_speed_times_ts(jump_mm, held):
     if held:
         reading, used, last = c.reading_held
         assert reading == 20.0 + jump_mm and last == 20.0 and used == prediction
+
+
+# ------------------------------------------------------------------ stuck reading
+def _frozen_run(method, *, freeze_at=200, n=500, params=None, reference=None, save_at=None):
+    """A loop on the simulated rig whose readings stop changing from sample ``freeze_at`` on (None:
+    never): the samples where ``reading_stuck`` was set with what it said, the commands, and the
+    controller's state saved before sample ``save_at``."""
+    plant = Plant(params, seed=0)
+    s = ControllerSettings(method=method)
+    c = DisplacementController(s, THETA0_44N)
+    ref = SineReference() if reference is None else reference
+    l = plant.measurement.l_mm
+    c.reset(l)
+    told, us, readings, saved = [], [], [], None
+    for k in range(n):
+        if k == save_at:
+            saved = c.get_state()
+        reading = readings[freeze_at] if freeze_at is not None and k > freeze_at else l
+        readings.append(reading)
+        step = c.step(reading, ref.preview(k, s.preview_samples))
+        if c.reading_stuck is not None:
+            told.append((k, c.reading_stuck))
+        us.append(step.u_v)
+        plant.step(step.u_v, s.ts_s)
+        l = plant.measurement.l_mm
+    return told, np.array(us), readings, saved, c
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_reading_that_stops_changing_is_told_once_as_stuck(method):
+    """Readings frozen at t = 20 s under the paper's sine: every controller's valve goes end to end
+    (the error never closes) and the muscle swings over its whole range unseen; once the command has
+    sat at each limit for STUCK_AT_LIMIT_S within the unchanged stretch, reading_stuck says the reading
+    and how long it has not changed, once."""
+    told, us, readings, _, _ = _frozen_run(method)
+    (k, (reading, unchanged_s)), = told
+    assert reading == readings[200]
+    assert unchanged_s == pytest.approx((k - 200) * 0.1)
+    # each limit for 2 s or more: at least 4 s after the freeze; the sine's 5-s half periods bound it
+    assert 2 * STUCK_AT_LIMIT_S <= unchanged_s <= 12.0
+    assert np.mean((us[200:] <= 1e-9) | (us[200:] >= 10.0 - 1e-9)) > 0.6
+
+
+@pytest.mark.parametrize("method", ["ampc_servo", "mpc_ucp"])
+@pytest.mark.parametrize("case", ["out_of_reach", "below_rest", "delay_0.3_s", "backlash_2_mm", "68_N_steps"])
+def test_a_muscle_that_really_stays_still_is_not_stuck(method, case):
+    """No stuck reading where the muscle really does not move under a command held at a limit, with an
+    encoder without noise (a still muscle reads the same to the bit): a reference beyond full
+    contraction (10 V for 40 s at the end stop), one below the rest length (0 V at rest), a 0.3-s
+    transport delay and a 2-mm backlash in the encoder (readings that lag the valve), steps at 68 N."""
+    quiet = {"sensor.encoder_noise_std_mm": 0.0}
+    params, reference = PlantParams().with_values(**quiet), None
+    if case == "out_of_reach":
+        reference = ArrayReference(np.full(700, 150.0))
+    elif case == "below_rest":
+        reference = ArrayReference(np.full(700, -20.0))
+    elif case == "delay_0.3_s":
+        params = params.with_values(**{"delay.delay_s": 0.3})
+    elif case == "backlash_2_mm":
+        params = params.with_values(**{"backlash.slack_mm": 2.0})
+    else:
+        params = params.with_values(**{"load.load_n": 68.0})
+        reference = ArrayReference(np.repeat([10.0, 80.0, 0.0, 60.0, 150.0, 20.0, 20.0], 100))
+    told, us, readings, _, _ = _frozen_run(method, freeze_at=None, n=600, params=params, reference=reference)
+    assert told == []
+    if case == "out_of_reach":  # the case is what it says: the valve held open, the reading unchanged
+        assert np.all(us[200:] >= 10.0 - 1e-9) and len(set(readings[300:])) == 1
+    if case == "below_rest":
+        assert np.all(us[100:] <= 1e-9) and len(set(readings[100:])) == 1
+
+
+def test_a_state_saved_in_a_stuck_stretch_tells_it_at_the_same_sample():
+    """The stretch of unchanged readings is part of the state: restored within it, the controller tells
+    the stuck reading at the same sample; a state saved without it starts a new stretch; a stretch no
+    controller could have saved is refused by name."""
+    told, us, readings, saved, c = _frozen_run("ampc_servo", save_at=230)
+    assert saved["still"][0] == readings[200] and saved["still"][1] == 29
+    c2 = DisplacementController(c.settings, THETA0_44N)
+    c2.reset(0.0)
+    c2.set_state(saved)
+    again, ref = [], SineReference()
+    for k in range(230, 500):
+        u = c2.step(readings[k], ref.preview(k, c.settings.preview_samples)).u_v
+        assert u == us[k]
+        if c2.reading_stuck is not None:
+            again.append((k, c2.reading_stuck))
+    assert again == told
+    old = {key: value for key, value in saved.items() if key != "still"}
+    c2.set_state(old)
+    assert c2.get_state()["still"][1:] == [0, 0, 0, False]
+    for bad in ([math.nan, 3, 2, 2, False], [1e9, 3, 1, 1, False], [20.0, -1, 0, 0, False], [20.0, 3, 1, 1, "no"],
+                [20.0, 3.5, 1, 1, False], [20.0, 3, 1], "still"):
+        with pytest.raises(ValueError, match="state field still"):
+            c2.set_state({**saved, "still": bad})
+    c2.set_state({**saved, "still": [math.nan, 0, 0, 0, False]})  # before the first step
