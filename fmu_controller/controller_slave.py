@@ -64,55 +64,27 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_MAX_SPEED_MM_PER_S,
-                                                 FASTEST_MUSCLE_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 GUARD_JUMPS, HELD_READINGS_MAX, HELD_WARN_S, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
+                                                 GUARD_JUMPS, HELD_READINGS_MAX, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES,
                                                  MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
                                                  VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
-                                                 DisplacementController, full_range_jump, held_against_cause,
-                                                 held_against_error, preview_lead, pushed_at_limit,
-                                                 stuck_reading_message)
+                                                 DisplacementController, preview_lead)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
+from fmu_controller.loop_watch import LoopWatch
+from fmu_controller.loop_watch import samples_in_words as _samples
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
-from fmu_controller.servo_settings import DEFAULT_OSQP_ITER, MAX_HORIZON, MAX_OSQP_ITER, MAX_WEIGHT, TABLE5_SERVO
+from fmu_controller.servo_settings import DEFAULT_OSQP_ITER, MAX_HORIZON, MAX_OSQP_ITER, MAX_WEIGHT
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["AMPCController", "METHOD_CODES", "REFERENCE_SOURCES"]
 
 
 _L_RANGE_MM = L_RANGE_MM
-#: A one-step prediction outside ten times that range [mm], or a QP input u_c beyond this [V] (a
-#: hundred times the valve's span), means the adaptive estimate diverges.
-_DIVERGED_MM = (10.0 * _L_RANGE_MM[0], 10.0 * _L_RANGE_MM[1])
-_DIVERGED_V = 1000.0
-#: This many full-range jumps of the command (90 % of u_min..u_max in one sample) within
-#: :data:`_SLAM_WINDOW_S` are logged once: a law that slams the valve end to end (a sound start makes
-#: none; a large reference step a few within a second).
-_SLAM_JUMPS = 20
-_SLAM_WINDOW_S = 10.0
-#: After the start-up, this many swings of the command from one valve limit to the other within
-#: :data:`_SLAM_WINDOW_S` (samples between the limits not counted) are logged once: a limit cycle, the
-#: loop having more delay than the law compensates (a rig's transport delay with
-#: ``input_delay_samples`` 0: 8-26 swings in 10 s; a sound loop, with its delay set or decided: 0-2).
-_SWINGS = 6
-#: A reference moving faster than this [mm/s] (about the simulated muscle's fastest) in a sample is a
-#: step: the swings of the transient in the :data:`_REF_STEP_SETTLE_S` after it (25 mm at 0.1 s: six
-#: swings in AMPC-UCP) are not counted; those before and after it are.
-_REF_STEP_MM_PER_S = FASTEST_MUSCLE_MM_PER_S
-_REF_STEP_SETTLE_S = 3.0
-#: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
-#: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
-#: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
-_HEAVY_MOVE_WEIGHT = 1000.0
-#: A command held at a valve limit that the error pushes it further into for this long [s] is logged
-#: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
-#: pinned open while the reading barely moves).
-_PINNED_S = 10.0
 #: Readings held by the glitch guard that the log states one by one (the run summary counts them all).
 _HELD_READINGS_LOGGED = 10
 #: A sampling period ``Ts`` of this many seconds or more, stepped by a host at a tenth of it or less, is
@@ -143,11 +115,6 @@ _METHOD_ONLY = (
     (("P0.", "forgetting", "covariance_ceiling", "box_lower.", "box_upper.", "probing_v", "startup_guard"),
      "the adaptive methods 3, 4", lambda s: s.adaptive),
 )
-
-
-def _samples(n: int) -> str:
-    """``n`` samples, in words a log reads (``1 sample``, ``2 samples``)."""
-    return f"{n} sample" if n == 1 else f"{n} samples"
 
 
 def _fmu_names(message: str, names: dict[str, str]) -> str:
@@ -288,7 +255,7 @@ class AMPCController(SafeSlave):
         table += [(f"box_upper.{n}", TABLE2_UPPER[n], "", f"upper bound of {n} in C (Table 2; inf: none)", None, None)
                   for n in TABLE2_UPPER]
         self.add_real_parameters(table)
-        self._reset_monitors()
+        self._watch: LoopWatch | None = None  # the run's supervision, with its controller
         self._controller: DisplacementController | None = None
         self._reference: SineReference | None = None
         self._hp = 0
@@ -371,7 +338,6 @@ class AMPCController(SafeSlave):
                      f"{', '.join(unused)}", status=Fmi2Status.warning)
 
     def initialize_numerics(self) -> None:
-        self._reset_monitors()
         settings = self._settings()
         theta0 = [self._par[f"theta0.{n}"] for n in ASYMMETRIC.names]
         if self._int_par["reference_source"] == 1 and self._par["sine.frequency"] > 0.5 / self._par["Ts"]:
@@ -389,6 +355,7 @@ class AMPCController(SafeSlave):
                                             frequency_hz=self._par["sine.frequency"], ts_s=settings.ts_s)
         except ValueError as exc:
             raise SlaveInputError(f"bad parameter: {exc}") from None
+        self._watch = LoopWatch(self._controller)
         self._hp = settings.preview_samples
         # external_advanced: the last values fed, r(k..k+fed) (the host feeds r(t + fed Ts))
         self._fed = settings.preview_samples - preview_lead(settings.input_delay_samples) \
@@ -401,184 +368,6 @@ class AMPCController(SafeSlave):
         self.input_delay = -1
         self._tally = _Tally()
         self._modes_open = True  # the start-up's changes of mode still to come (_say_changes)
-
-    def _reset_monitors(self) -> None:
-        """What the log has said of this run: nothing yet."""
-        self._diverged = False
-        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
-        self._held_n = 0  # samples in a row at a valve limit the error pushes away from (-1: said)
-        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
-        self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
-        self._last_limit = 0  # the valve limit the command sat at last: -1 lower, 1 upper, 0 none yet
-        self._r_last = math.nan  # r(k-1) [mm], for the reference steps that restart the swings' watch
-        self._swings_from = 0  # the sample swings count from: a window after the last reference step
-
-    def _watch_slamming(self, t_s: float, u: float) -> None:
-        """Log once when the command has jumped across the valve's range (``full_range_jump``)
-        :data:`_SLAM_JUMPS` times within :data:`_SLAM_WINDOW_S`."""
-        if self._jump_ks is None:
-            return
-        s = self._controller.settings.servo
-        if self._k > 0 and full_range_jump(u, self.u, s.u_min_v, s.u_max_v):
-            window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
-            self._jump_ks = [k for k in self._jump_ks if k > self._k - window] + [self._k]
-            if len(self._jump_ks) >= _SLAM_JUMPS:
-                self._jump_ks = None
-                law = ("the fixed predictor theta0 (an open-loop identification's? refine it in closed loop: "
-                       "docs/python-api.md, tapmuscle.paper.preliminary_theta)" if not self._controller.settings.adaptive
-                       else "the adaptive law (theta0 or the box C poor for this rig?)")
-                self.log(f"t = {t_s:g} s: the command has jumped across the valve's range {_SLAM_JUMPS} times in "
-                         f"{_SLAM_WINDOW_S:g} s: {law} slams the valve end to end", status=Fmi2Status.warning)
-
-    def _watch_swings(self, t_s: float, u: float, l: float, r: float) -> None:
-        """Log once when, after the start-up and the first :data:`_SLAM_WINDOW_S` of the estimator, the
-        command has swung from one valve limit to the other :data:`_SWINGS` times within
-        :data:`_SLAM_WINDOW_S` (a limit cycle). The swings in the :data:`_REF_STEP_SETTLE_S` after a
-        reference step (``r`` moving further in a sample than the muscle can, :data:`_REF_STEP_MM_PER_S`)
-        are not counted: its transient is not a limit cycle."""
-        if self._swing_ks is None:
-            return
-        s = self._controller.settings
-        if abs(r - self._r_last) > _REF_STEP_MM_PER_S * s.ts_s:
-            self._swings_from = self._k + int(round(_REF_STEP_SETTLE_S / s.ts_s))
-        self._r_last = r
-        side = -1 if u <= s.servo.u_min_v + 1e-9 else 1 if u >= s.servo.u_max_v - 1e-9 else 0
-        if not side:
-            return
-        swung, self._last_limit = side == -self._last_limit, side
-        if not swung or self._k < self._swings_from:
-            return
-        window = int(round(_SLAM_WINDOW_S / self._par["Ts"]))
-        # not in the law's own start, nor in the first window after it: the paper's start (startup_s = 0)
-        # swings the valve 6 times in its first 1-1.5 s, without any delay
-        if self._controller.in_startup or self._controller.samples_since_start <= window:
-            return
-        self._swing_ks = [k for k in self._swing_ks if k > self._k - window] + [self._k]
-        if len(self._swing_ks) >= _SWINGS:
-            self._swing_ks = None
-            decided = self._controller.input_delay_decision
-            runs = (f"input_delay_samples = {s.input_delay_samples}" if s.input_delay_samples != -1
-                    else f"input_delay_samples = -1, decided {decided}")
-            if (decided or 0) >= 1:  # a delay set or decided: it may be off, or the law too aggressive for it
-                # what makes this law gentler: the servo's move weight (times delay_move_weight from a
-                # delay of 2 on), the unique coincidence point's horizon
-                gentler = ("ucp.Hp (a later coincidence point)" if not s.servo_mechanism
-                           else "delay_move_weight (servo.R times it for a delay of 2 or more)" if decided >= 2
-                           else "servo.R")
-                more = "" if s.adaptive else ", and make the fixed theta0 under the delay"
-                # a servo horizon shorter than the delay (Table 5's 5 samples at a short Ts): AMPC-servo on a
-                # 0.15-s delay at Ts = 0.02 s with 8 set, 6.9 mm over 40-120 s with Hp = 5, 0.44 with Hp = 12
-                if s.servo_mechanism and s.servo.hp < decided:
-                    more += f", and raise servo.Hp to the delay or more (now {s.servo.hp} < {decided} samples)"
-                # -1 cannot tell a delay beyond the longest it scores: it is set then
-                check = ("-1 decides it" if decided < AUTO_INPUT_DELAY_SAMPLES else
-                         f"-1 decides delays up to {_samples(AUTO_INPUT_DELAY_SAMPLES)}: a longer one is set, the "
-                         f"rig's delay over Ts rounded, up to {MAX_INPUT_DELAY_SAMPLES}")
-                why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
-                       f"it: check the delay ({check}), raise {gentler}{more} (docs/control.md, "
-                       "\"Transport delay\")")
-            else:
-                why = "; ".join(self._limit_cycle_causes(l))
-            self.log(f"t = {t_s:g} s: the valve command has swung from one limit to the other {_SWINGS} times in "
-                     f"{_SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}", status=Fmi2Status.warning)
-
-    def _check_delay(self, t_s: float) -> None:
-        """Log a warning when the set ``input_delay_samples`` is not the delay the first samples show
-        (:attr:`DisplacementController.delay_evidence`): the commonest mistake of a master's author,
-        whose loop then tracks several times worse without a limit cycle to warn of."""
-        evidence = self._controller.delay_evidence
-        if evidence is None:
-            return
-        d, ratio = evidence
-        what = {0: "u reaching the valve within its sample: a sequential master (the controller stepped before "
-                   "the plant, as fmpy's scenarios and a sequential container do), or a parallel one sub-stepping "
-                   "at a fraction of Ts (Ts/4)",
-                1: "u reaching the valve one sample late: a parallel master at h = Ts (libcosim, Ecos, "
-                   "OMSimulator, SSP tools: every FMU stepped on the previous outputs)"}.get(
-            d, f"a rig's transport delay of about {d} Ts")
-        set_ = self._controller.settings.input_delay_samples
-        if d == self._controller.largest_scored_delay:  # the longest scored: the rig's may be longer
-            shown = f"{_samples(d)} or more (the longest scored)"
-            advice = (f"set input_delay_samples to the rig's delay over Ts, rounded ({d} or more, up to "
-                      f"{MAX_INPUT_DELAY_SAMPLES}; tapmuscle identify --input-delay-samples auto finds it from a "
-                      "recording)")
-        else:
-            shown = _samples(d)
-            # -1 first: it decides from the start-up's probe, where a loop run under a wrong delay scores
-            # neighbouring delays alike (a 3-sample rig with 0 set: 2 and 3 within 0.3 % of each other)
-            advice = (f"set input_delay_samples = -1 to decide it from the start, or {d} (scores from a loop run "
-                      f"under a wrong delay can be a sample off)" if d <= AUTO_INPUT_DELAY_SAMPLES
-                      else f"set input_delay_samples = {d}")
-        self.log(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
-                 f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
-                 f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")",
-                 status=Fmi2Status.warning)
-
-    def _limit_cycle_causes(self, l: float) -> list[str]:
-        """What may make a law that compensates no delay swing the valve limit to limit, each with its
-        remedy, as far as the settings tell them apart (``l``: the reading now [mm])."""
-        s = self._controller.settings
-        causes = []
-        if s.input_delay_samples == 0:  # -1 deciding 0 saw none: no delay to suggest
-            causes.append("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
-                          f"master?): set input_delay_samples to it in samples (up to {MAX_INPUT_DELAY_SAMPLES}), or "
-                          f"-1 to decide it (up to {_samples(AUTO_INPUT_DELAY_SAMPLES)}; docs/control.md, "
-                          "\"Transport delay\")")
-        if not s.adaptive:
-            causes.append(f"the fixed predictor theta0 poor where the loop runs now (l = {l:.4g} mm; the default "
-                          "THETA0_44N was identified on the paper's 5..65 mm sine): an adaptive method (3, 4), or "
-                          "theta0 identified over this range")
-        if s.servo_mechanism and s.servo.hp > TABLE5_SERVO["hp"]:
-            causes.append(f"a long prediction horizon servo.Hp = {s.servo.hp} on an imperfect model (Table 5: "
-                          f"{TABLE5_SERVO['hp']}; 30 and more swung the valve in measured runs)")
-        r = max(s.servo.r) if isinstance(s.servo.r, tuple) else s.servo.r
-        if s.servo_mechanism and r > _HEAVY_MOVE_WEIGHT:
-            causes.append(f"a heavy move weight servo.R = {r:g} (Table 5: {TABLE5_SERVO['r']:g}): over the short horizon "
-                          "the QP moves the valve only once the integrator's cost has grown, and the integrator then "
-                          "swings the loop; lower servo.R, or servo.Qs with it, or lengthen servo.Hp (docs/control.md, "
-                          "\"Tuning the servo law\")")
-        if not causes:
-            causes.append("a model poor for this rig (theta0, the box C) or a delay the law does not compensate "
-                          "(docs/control.md, \"Transport delay\")")
-        return causes
-
-    def _in_a_row(self, count: int, now: bool, long_s: float) -> tuple[int, float | None]:
-        """The samples in a row a condition held, ``count`` before this one, and, once they span
-        ``long_s`` seconds, that span [s] (the count then -1: said). The span runs from the first sample
-        of the stretch to this one: with a long Ts, a held command is no time sat yet."""
-        count = count + 1 if now else 0
-        span_s = (count - 1) * self._par["Ts"]
-        return (-1, span_s) if span_s >= long_s - 1e-9 else (count, None)
-
-    def _watch_pinned(self, t_s: float, l: float, r: float, u: float) -> None:
-        """Log once when the command has sat at a valve limit that the error ``r - l`` pushes it further
-        into for :data:`_PINNED_S` seconds in a row."""
-        if self._pinned_n < 0:
-            return
-        s = self._controller.settings.servo
-        self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v), _PINNED_S)
-        if sat_s is not None:
-            limit = s.u_max_v if r > l else s.u_min_v
-            self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
-                     f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the rig's "
-                     f"reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?)",
-                     status=Fmi2Status.warning)
-
-    def _watch_held(self, t_s: float, l: float, r: float, u: float) -> None:
-        """Log once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held
-        against the error (:func:`~fmu_controller.displacement_control.held_against_error`: a negative
-        ``theta0.b1`` held the valve shut for a whole run without a word)."""
-        if self._held_n < 0:
-            return
-        s = self._controller.settings.servo
-        self._held_n, sat_s = self._in_a_row(self._held_n, held_against_error(r, l, u, s.u_min_v, s.u_max_v),
-                                             HELD_WARN_S)
-        if sat_s is not None:
-            limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
-            why = held_against_cause(self._par["theta0.b1"])
-            self.log(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the reading "
-                     f"l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the other way would "
-                     f"close the gap: {why}", status=Fmi2Status.warning)
 
     def _warn_paper_defaults_off_period(self, settings: ControllerSettings, theta0: list[float]) -> None:
         """Log a warning when ``Ts`` is not the paper's 0.1 s but ``theta0.*`` are still THETA0_44N, or (for
@@ -660,33 +449,6 @@ class AMPCController(SafeSlave):
             raise RuntimeError(f"the controller produced a non-finite value at k = {self._k}")
         if self._source == "external_advanced":
             self._buffer = list(preview[:self._fed + 1])
-        if not self._diverged and (not _DIVERGED_MM[0] <= step.predicted_next_mm <= _DIVERGED_MM[1]
-                                   or abs(step.uc_v) > _DIVERGED_V):
-            self._diverged = True  # said once: a host's log is not flooded every sample
-            asks = (f"predicts l_pred = {step.predicted_next_mm:.3g} mm and asks for u_c = {step.uc_v:.3g} V, far "
-                    "outside the rig's")
-            if self._controller.settings.adaptive and self._controller.law_on_theta0:
-                why = (f"the prior model theta0, which the start-up mode's warm-up runs the law on, {asks}: "
-                       f"the readings l (now {l:g} mm) are far from what theta0 predicts (their unit? an encoder "
-                       "offset?), or theta0 is a poor fixed law on this rig")
-            elif self._controller.settings.adaptive and self._par["forgetting"] < 1.0:
-                why = (f"the adaptive model {asks}: its estimate diverges (forgetting = {self._par['forgetting']:g}, "
-                       f"covariance_ceiling = {self._int_par['covariance_ceiling']}; a forgetting factor below 1 "
-                       "needs covariance_ceiling = 1 or a value closer to 1, docs/control.md)")
-            elif self._controller.settings.adaptive:
-                why = (f"the adaptive model {asks}: its estimate diverges (theta0 or the box C far from this rig, "
-                       f"or the readings l, now {l:g} mm, in another unit?)")
-            else:  # a fixed model does not diverge: what it is asked to do is out of reach
-                why = (f"the fixed model {asks}: the reference is out of the rig's reach from the readings l "
-                       f"(now {l:g} mm: an encoder offset or drift?), the readings are far from the model's, or "
-                       "theta0 is a poor fixed law for this rig")
-            self.log(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.", status=Fmi2Status.warning)
-        if self._controller.startup_guarded_at == self._k:
-            self.log(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up mode, whose law "
-                     "runs on theta0: theta0 is a poor fixed law on this rig (an open-loop identification's, or another "
-                     "rig's?), or a large reference step came during the start-up. The law takes the adaptive estimate "
-                     "from the next sample, as with startup_s = 0 (startup_guard = 1; docs/control.md, \"Start-up\")",
-                     status=Fmi2Status.warning)
         if before is not None:
             self._say_changes(t_s, before)
             self._modes_open = ctrl.in_startup
@@ -698,20 +460,15 @@ class AMPCController(SafeSlave):
         if ctrl.reading_held is not None:
             self._say_held_reading(t_s, *ctrl.reading_held)
         if ctrl.reading_stuck is not None:
-            tally.stuck += 1
-            self.log(stuck_reading_message(t_s, *ctrl.reading_stuck), status=Fmi2Status.warning)
+            tally.stuck += 1  # logged by the watch
         if self._k:
             e = step.prediction_error_mm
             tally.errors += 1
             tally.sum_squares_mm2 += e * e
             if abs(e) > tally.largest_mm:
                 tally.largest_mm = abs(e)
-        self._watch_pinned(t_s, l, float(preview[0]), step.u_v)
-        self._watch_held(t_s, l, float(preview[0]), step.u_v)
-        self._watch_slamming(t_s, step.u_v)
-        self._watch_swings(t_s, step.u_v, l, float(preview[0]))
-        if self._k == self._controller.delay_check_samples:
-            self._check_delay(t_s)
+        for message in self._watch.observe(self._k, t_s, l, float(preview[0]), step, self.u):
+            self.log(message, status=Fmi2Status.warning)
         self.u, self.uc, self.l_pred = step.u_v, step.uc_v, step.predicted_next_mm
         self.pred_error, self.H, self.xs = step.prediction_error_mm, step.hysteresis_mm, step.xs_mm
         self.r_k, self.saturated = float(preview[0]), bool(step.saturated)
@@ -806,9 +563,7 @@ class AMPCController(SafeSlave):
         return {"controller": self._controller.get_state(), "k": self._k, "buffer": list(self._buffer),
                 "theta": [getattr(self, name) for name in self._theta_outputs],
                 # what the log has said: a rewind says it again only where the run does again
-                "said": [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
-                         None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
-                         self._r_last, self._swings_from],
+                "said": self._watch.get_state(),
                 "tally": self._tally.as_list()}
 
     def restore_numerics_state(self, state) -> None:
@@ -817,14 +572,7 @@ class AMPCController(SafeSlave):
             self._k = int(state["k"])
             self._buffer = [float(v) for v in state["buffer"]]
             self._set_theta([float(v) for v in state["theta"]])
-            # a state of a build that watched no held command: watched from here
-            diverged, pinned, jumps, swings, last_limit, held = (*state.get("said", (False, 0, [], [], 0)), 0)[:6]
-            self._diverged, self._pinned_n, self._held_n = bool(diverged), int(pinned), int(held)
-            self._jump_ks = None if jumps is None else [int(k) for k in jumps]
-            self._swing_ks = None if swings is None else [int(k) for k in swings]
-            self._last_limit = int(last_limit)
-            said = state.get("said", ())
-            self._r_last, self._swings_from = (float(said[6]), int(said[7])) if len(said) >= 8 else (math.nan, 0)
+            self._watch.set_state(state.get("said", ()))  # a build's that watched less: watched from here
             # a state of a build without the tally: counted from here, and the summary says so
             self._tally = _Tally(*state["tally"]) if "tally" in state else _Tally(partial=True)
             self._modes_open = self._controller.in_startup  # as after the restored sample

@@ -42,6 +42,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "ServoMPCSettings": ("fmu_controller.servo_settings", "ServoMPCSettings"),
     "UCPSettings": ("fmu_controller.ucp_mpc", "UCPSettings"),
     "DisplacementController": ("fmu_controller.displacement_control", "DisplacementController"),
+    "LoopWatch": ("fmu_controller.loop_watch", "LoopWatch"),
     "THETA0_44N": ("fmu_controller.preliminary_model", "THETA0_44N"),
     "SineReference": ("fmu_controller.reference", "SineReference"),
     "ArrayReference": ("fmu_controller.reference", "ArrayReference"),

@@ -15,9 +15,9 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_controller.displacement_control import (HELD_AGAINST_MM, HELD_WARN_S, DisplacementController,
-                                                 held_against_cause, held_against_error, stuck_reading_message)
+from fmu_controller.displacement_control import DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
 from fmu_plant.user_warning import warn_at_caller
@@ -137,7 +137,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
                     reference: Reference | Callable[[float], float] | np.ndarray | None, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
                     loop_delay_samples: int = 0,
-                    progress: bool | Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+                    progress: bool | Callable[[int, int], None] | None = None,
+                    watch: bool = True) -> dict[str, np.ndarray]:
     """Run a new loop for ``duration_s`` from the plant's current physical state.
 
     The loop runs on the controller's grid ``controller.settings.ts_s``; the controller sees the
@@ -169,6 +170,12 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     progress : bool or callable, optional
         ``progress(done, total)`` about every 1 % of the run; True: a report on stderr
         (:class:`tapmuscle.progress.Progress`).
+    watch : bool, default True
+        Warn (``RuntimeWarning``, after the run) of what the controller FMU logs of a loop
+        (:class:`fmu_controller.loop_watch.LoopWatch`: a limit cycle, a valve pinned at a limit or
+        held against the error, a law slamming the valve, a diverging estimate, a set input delay the
+        first 30 s contradict, a stuck reading), each with its time; False: not (a loop run to make
+        data). Glitches the guard held and the plant's own notes are warned of either way.
 
     Returns
     -------
@@ -201,16 +208,21 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         plant.update(load_n=load_n)
     meas = plant.measurement
     controller.reset(meas.l_mm)
+    supervision = LoopWatch(controller) if watch else None
+    told: list[str] = []  # what the watch told, as the controller FMU logs it
+    u_prev = 0.0
     pred_prev = meas.l_mm
     held_at: list[float] = []  # sample times of the readings the glitch guard held
-    stuck_at: list[tuple[float, float, float]] = []  # (t [s], reading [mm], unchanged for [s]) of stuck readings
     every = max(1, n // 100)
     for k in range(n):
         t = k * ts
         if load_fn is not None:
             plant.update(load_n=load_fn(t))
-        step = controller.step(meas.l_mm, reference.preview(k, hp))
-        u = step.u_v
+        preview = reference.preview(k, hp)
+        step = controller.step(meas.l_mm, preview)
+        if supervision is not None:
+            told += supervision.observe(k, t, meas.l_mm, float(preview[0]), step, u_prev)
+        u = u_prev = step.u_v
         if loop_delay_samples:
             u, in_flight = in_flight, u
         cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, u
@@ -220,8 +232,6 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         theta_hist[k] = step.theta
         if controller.reading_held is not None:
             held_at.append(t)
-        if controller.reading_stuck is not None:
-            stuck_at.append((t, *controller.reading_stuck))
         pred_prev = step.predicted_next_mm
         if k + 1 < n:
             meas = plant.step(u, ts)
@@ -230,37 +240,12 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     for i, name in enumerate(names):
         cols[f"theta_{name}"] = theta_hist[:, i]
     plant.warn_run_notes(float(np.min(cols["load_n"])))
-    _warn_if_held_against_error(cols, controller)
+    for message in told:
+        warn_at_caller(message, RuntimeWarning)
     if held_at:
         s = controller.settings
         warn_at_caller(f"{len(held_at)} readings (the first at t = {held_at[0]:g} s) were further from the last one used "
                        f"than the muscle moves in a sample (max_speed_mm_per_s x ts_s = {s.max_speed_mm_per_s:g} x "
                        f"{s.ts_s:g} mm) and were taken for sensor glitches: the controller used its prediction instead "
                        "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", RuntimeWarning)
-    for t, reading, still_s in stuck_at:
-        warn_at_caller(stuck_reading_message(t, reading, still_s), RuntimeWarning)
     return cols
-
-
-def _warn_if_held_against_error(cols: Mapping[str, np.ndarray], controller: DisplacementController) -> None:
-    """Warn when the run's command sat at a valve limit held against the error
-    (:func:`~fmu_controller.displacement_control.held_against_error`) for :data:`HELD_WARN_S` or more
-    in a row, as the controller FMU logs it."""
-    settings = controller.settings
-    s = settings.servo if settings.servo_mechanism else settings.ucp  # the law's own valve bounds
-    held = held_against_error(cols["r_mm"], cols["l_mm"], cols["u_v"], s.u_min_v, s.u_max_v)
-    # the longest stretch of held samples: its start and its length
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], held.astype(np.int8), [0]])))
-    if not edges.size:
-        return
-    starts, ends = edges[::2], edges[1::2]
-    i = int(np.argmax(ends - starts))
-    t = cols["t_s"]
-    held_s = t[ends[i] - 1] - t[starts[i]]
-    if held_s < HELD_WARN_S - 1e-9:
-        return
-    k = starts[i]
-    limit, side = (s.u_min_v, "below") if cols["r_mm"][k] > cols["l_mm"][k] else (s.u_max_v, "above")
-    warn_at_caller(f"the command sat at the valve's {limit:g} V for {held_s:.4g} s (from t = {t[k]:g} s) while l "
-                   f"stayed {HELD_AGAINST_MM:g} mm or more {side} the reference, where the other way would close "
-                   f"the gap: {held_against_cause(float(controller.theta0[2]), 'theta0 b1')}", RuntimeWarning)

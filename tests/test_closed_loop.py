@@ -142,17 +142,18 @@ def test_eq21_at_another_period_scores_the_same_seconds():
 
 def test_a_law_holding_the_valve_against_the_error_is_warned_of_after_the_run():
     """A fixed method on theta0 with a negative b1 held the valve at 0 V for the whole run while l stayed
-    35 mm below r, and the Python loop said nothing (the FMU now logs it): the run warns, at the
-    caller's line, naming theta0's b1; the same loop on THETA0_44N does not."""
+    35 mm below r, and the Python loop said nothing: the run warns as the FMU logs it, at the caller's
+    line, naming theta0's b1; the same loop on THETA0_44N does not."""
     import warnings
 
     import tapmuscle as tm
 
     theta = list(tm.THETA0_44N)
     theta[2] = -0.8
-    with pytest.warns(RuntimeWarning, match=r"the command sat at the valve's 0 V for 4\d\.?\d* s \(from t = 0 s\) while l "
-                                            r"stayed 2 mm or more below the reference.*theta0 b1 = -0\.8 < 0 inverts the "
-                                            r"law") as caught:
+    with pytest.warns(RuntimeWarning, match=r"^t = 10 s: the command has sat at the valve's 0 V for 10 s while the "
+                                            r"reading l = -?[\d.]+ mm stays [\d.]+ mm below the reference r = [\d.]+ mm, "
+                                            r"where the other way would close the gap: theta0\.b1 = -0\.8 < 0 inverts "
+                                            r"the law") as caught:
         run = tm.simulate_closed_loop("mpc_servo", None, theta0=theta, duration_s=45.0)
     assert run["u_v"].max() < 1e-9 and caught[0].filename == __file__  # the QP's bound, to rounding
     with warnings.catch_warnings():
@@ -207,3 +208,35 @@ def test_a_stuck_reading_is_warned_of_after_the_run():
     said = [w for w in caught if "has not changed at all" in str(w.message)]
     assert len(said) == 1 and f"l = {plant.frozen:g} mm" in str(said[0].message)
     assert np.all(run["l_mm"][200:] == plant.frozen)
+
+
+def test_the_python_loop_tells_what_the_controller_fmu_logs():
+    """A rig with a 0.2-s transport delay and a law that compensates none (input_delay_samples = 0):
+    the loop swings limit to limit and the first 30 s show the delay. run_closed_loop warns of both,
+    word for word as the controller FMU logs them on the same rig (the FMU's law is the direct loop's
+    bit for bit), and the delay named is the rig's."""
+    import pytest
+
+    import tapmuscle as tm
+    from fmu_controller.controller_slave import AMPCController
+    from pythonfmu.enums import Fmi2Status
+
+    rig = tm.PlantParams().with_values(**{"delay.delay_s": 0.2})
+    settings = tm.ControllerSettings(method="ampc_servo", input_delay_samples=0)
+    with pytest.warns(RuntimeWarning) as caught:
+        tm.run_closed_loop(tm.Plant(rig, seed=0), tm.DisplacementController(settings, tm.THETA0_44N), None,
+                           duration_s=40.0)
+    said = [str(w.message) for w in caught if "limit cycle" in str(w.message) or "input delay of" in str(w.message)]
+    slave = AMPCController(instance_name="delayed")
+    slave._int_par["input_delay_samples"] = 0
+    slave.exit_initialization_mode()
+    plant = tm.Plant(rig, seed=0)
+    for k in range(401):
+        slave.l = plant.measurement.l_mm
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    logged = [m.msg for m in slave.log_queue if m.status == Fmi2Status.warning
+              and ("limit cycle" in m.msg or "input delay of" in m.msg)]
+    assert said == logged and len(said) == 2
+    assert "a limit cycle (input_delay_samples = 0)" in said[0]
+    assert said[1].startswith("t = 30 s: the measurements show an input delay of 2 samples, not the 0 set")

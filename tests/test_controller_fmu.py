@@ -11,7 +11,8 @@ from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmpy_helpers import instantiate, open_fmu
 
-from fmu_controller.controller_slave import _DIVERGED_MM, _DIVERGED_V, AMPCController
+from fmu_controller.controller_slave import AMPCController
+from fmu_controller.loop_watch import DIVERGED_MM as _DIVERGED_MM, DIVERGED_V as _DIVERGED_V
 from fmu_controller.displacement_control import AUTO_INPUT_DELAY_SAMPLES, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.preliminary_model import THETA0_44N
@@ -813,7 +814,7 @@ def test_a_limit_cycles_causes_are_those_the_settings_leave_possible(ints, said,
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr[k] for k in ints], list(ints.values()))
     slave.exit_initialization_mode()
-    causes = "; ".join(slave._limit_cycle_causes(42.0))
+    causes = "; ".join(slave._watch.limit_cycle_causes(42.0))
     assert all(s in causes for s in said) and not any(s in causes for s in not_said), causes
 
 
@@ -841,7 +842,7 @@ def test_a_heavy_move_weight_is_named_among_a_limit_cycles_causes():
     table5 = AMPCController(instance_name="t5")
     table5._int_par["method"] = 2
     table5.exit_initialization_mode()
-    assert not any("heavy move weight" in c for c in table5._limit_cycle_causes(42.0))
+    assert not any("heavy move weight" in c for c in table5._watch.limit_cycle_causes(42.0))
 
 
 def test_an_overflow_names_theta0_only_where_it_was_set():

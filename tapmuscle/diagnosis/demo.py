@@ -182,7 +182,7 @@ def record(rig: PlantParams, excitation: str, seed: int, *, frequency_hz: float 
         # start-up guard
         ctrl = DisplacementController(ControllerSettings(method="ampc_servo", p0=P0_TABLE5, anti_windup=False,
                                                          startup_guard=False), THETA0_44N)
-        cols = run_closed_loop(plant, ctrl, SineReference(frequency_hz=frequency_hz), duration_s=duration_s)
+        cols = run_closed_loop(plant, ctrl, SineReference(frequency_hz=frequency_hz), duration_s=duration_s, watch=False)
         return {k: cols[k] for k in ("t_s", "u_v", "l_mm", "p_mpa", "load_n", "r_mm")}
     raise ValueError(f"unknown excitation {excitation!r}; known: {', '.join(EXCITATIONS)}")
 

@@ -519,7 +519,7 @@ def record_case(case: FieldCase, *, signal: Callable[[float], float] | None = No
                                                          anti_windup=False, startup_guard=False), THETA0_44N)
         ref = SineReference(offset_mm=p["offset_mm"], amplitude_mm=p["amplitude_mm"],
                             frequency_hz=p["frequency_hz"], ts_s=ts_s)
-        cols = run_closed_loop(plant, ctrl, ref, duration_s=duration)
+        cols = run_closed_loop(plant, ctrl, ref, duration_s=duration, watch=False)
         return {k: cols[k] for k in ("t_s", "u_v", "l_mm", "p_mpa", "load_n", "r_mm")}
     return run_open_loop(plant, signal if signal is not None else _excitation_signal(case),
                          duration_s=duration, ts_s=ts_s)

@@ -1,0 +1,324 @@
+"""``LoopWatch``: what a closed loop's supervision tells of a run, sample by sample.
+
+The paper's controllers act on every reading without a word; a loop on a real rig goes wrong in ways
+that a user should hear of while it runs: a limit cycle (more delay in the loop than the law
+compensates, a servo horizon or move weight the model cannot carry), a valve pinned at a limit (a
+reference out of reach, readings in metres), a command held against the error (a law of the wrong
+sign), a law slamming the valve end to end, an estimate that diverges, a set input delay that the
+measurements contradict, a reading that has stopped changing (a stuck sensor). :class:`LoopWatch` watches one
+:class:`~fmu_controller.displacement_control.DisplacementController` and returns each of these as a
+message, once a run; the controller FMU logs them as warnings and
+:func:`tapmuscle.closed_loop.run_closed_loop` warns of them, so both say the same.
+
+Parameters are named as the FMU names them (``input_delay_samples``, ``servo.R``, ``theta0.b1``),
+which are :class:`~fmu_controller.displacement_control.ControllerSettings`' fields with the servo's
+and UCP's weights in the paper's capitals (``servo.R`` is ``ServoMPCSettings.r``).
+"""
+
+from __future__ import annotations
+
+import math
+
+from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTEST_MUSCLE_MM_PER_S, GUARD_JUMPS,
+                                                 HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES,
+                                                 ControlStep, DisplacementController, full_range_jump, held_against_cause,
+                                                 held_against_error, pushed_at_limit, stuck_reading_message)
+from fmu_controller.servo_settings import TABLE5_SERVO
+
+__all__ = ["LoopWatch", "samples_in_words", "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
+           "PINNED_S", "HEAVY_MOVE_WEIGHT"]
+
+#: A one-step prediction outside ten times the readings' range [mm], or a QP input u_c beyond this [V]
+#: (a hundred times the valve's span), means the adaptive estimate diverges.
+DIVERGED_MM = (10.0 * L_RANGE_MM[0], 10.0 * L_RANGE_MM[1])
+DIVERGED_V = 1000.0
+#: This many full-range jumps of the command (90 % of u_min..u_max in one sample) within
+#: :data:`SLAM_WINDOW_S` are told once: a law that slams the valve end to end (a sound start makes
+#: none; a large reference step a few within a second).
+SLAM_JUMPS = 20
+SLAM_WINDOW_S = 10.0
+#: After the start-up, this many swings of the command from one valve limit to the other within
+#: :data:`SLAM_WINDOW_S` (samples between the limits not counted) are told once: a limit cycle, the
+#: loop having more delay than the law compensates (a rig's transport delay with
+#: ``input_delay_samples`` 0: 8-26 swings in 10 s; a sound loop, with its delay set or decided: 0-2).
+SWINGS = 6
+#: A reference moving faster than this [mm/s] (about the simulated muscle's fastest) in a sample is a
+#: step: the swings of the transient in the :data:`REF_STEP_SETTLE_S` after it (25 mm at 0.1 s: six
+#: swings in AMPC-UCP) are not counted; those before and after it are.
+REF_STEP_MM_PER_S = FASTEST_MUSCLE_MM_PER_S
+REF_STEP_SETTLE_S = 3.0
+#: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
+#: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
+#: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
+HEAVY_MOVE_WEIGHT = 1000.0
+#: A command held at a valve limit that the error pushes it further into for this long [s] is told
+#: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
+#: pinned open while the reading barely moves).
+PINNED_S = 10.0
+
+
+def samples_in_words(n: int) -> str:
+    """``n`` samples, in words a log reads (``1 sample``, ``2 samples``)."""
+    return f"{n} sample" if n == 1 else f"{n} samples"
+
+
+class LoopWatch:
+    """The supervision of one controller's closed loop: :meth:`observe` after each
+    :meth:`DisplacementController.step <fmu_controller.displacement_control.DisplacementController.step>`
+    returns what to tell of the run so far (each kind once a run).
+
+    Parameters
+    ----------
+    controller : DisplacementController
+        The controller watched; its settings and ``theta0`` word the messages.
+    """
+
+    def __init__(self, controller: DisplacementController) -> None:
+        self.controller = controller
+        self.reset()
+
+    def reset(self) -> None:
+        """A new run: nothing said yet."""
+        self._diverged = False
+        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
+        self._held_n = 0  # samples in a row at a valve limit the error pushes away from (-1: said)
+        self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
+        self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
+        self._last_limit = 0  # the valve limit the command sat at last: -1 lower, 1 upper, 0 none yet
+        self._r_last = math.nan  # r(k-1) [mm], for the reference steps that restart the swings' watch
+        self._swings_from = 0  # the sample swings count from: a window after the last reference step
+
+    # ------------------------------------------------------------------ the sample
+    def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, step: ControlStep, u_prev_v: float) -> list[str]:
+        """What to tell after sample ``k`` at ``t_s`` [s]: the reading ``l_mm`` and reference ``r(k)``
+        ``r_mm`` [mm] the controller stepped on, the ``step`` it returned and the command of the sample
+        before, ``u_prev_v`` [V] (0 before the first). Each message starts with ``t = ... s:``."""
+        said: list[str] = []
+        u_v = step.u_v
+        self._watch_diverged(said, t_s, l_mm, step.uc_v, step.predicted_next_mm)
+        if self.controller.startup_guarded_at == k:
+            said.append(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up "
+                        "mode, whose law runs on theta0: theta0 is a poor fixed law on this rig (an open-loop "
+                        "identification's, or another rig's?), or a large reference step came during the start-up. The "
+                        "law takes the adaptive estimate from the next sample, as with startup_s = 0 (startup_guard = "
+                        "1; docs/control.md, \"Start-up\")")
+        if self.controller.reading_stuck is not None:
+            said.append(stuck_reading_message(t_s, *self.controller.reading_stuck))
+        self._watch_pinned(said, t_s, l_mm, r_mm, u_v)
+        self._watch_held(said, t_s, l_mm, r_mm, u_v)
+        self._watch_slamming(said, k, t_s, u_v, u_prev_v)
+        self._watch_swings(said, k, t_s, u_v, l_mm, r_mm)
+        if k == self.controller.delay_check_samples:
+            self._check_delay(said, t_s)
+        return said
+
+    def _watch_diverged(self, said: list[str], t_s: float, l: float, uc: float, predicted: float) -> None:
+        """Tell once when the one-step prediction or the QP's input leaves :data:`DIVERGED_MM` /
+        :data:`DIVERGED_V` (a host's log is not flooded every sample)."""
+        if self._diverged or (DIVERGED_MM[0] <= predicted <= DIVERGED_MM[1] and abs(uc) <= DIVERGED_V):
+            return
+        self._diverged = True
+        c, s = self.controller, self.controller.settings
+        asks = f"predicts l_pred = {predicted:.3g} mm and asks for u_c = {uc:.3g} V, far outside the rig's"
+        if s.adaptive and c.law_on_theta0:
+            why = (f"the prior model theta0, which the start-up mode's warm-up runs the law on, {asks}: the readings l "
+                   f"(now {l:g} mm) are far from what theta0 predicts (their unit? an encoder offset?), or theta0 is a "
+                   "poor fixed law on this rig")
+        elif s.adaptive and s.forgetting < 1.0:
+            why = (f"the adaptive model {asks}: its estimate diverges (forgetting = {s.forgetting:g}, "
+                   f"covariance_ceiling = {int(s.covariance_ceiling)}; a forgetting factor below 1 needs "
+                   "covariance_ceiling = 1 or a value closer to 1, docs/control.md)")
+        elif s.adaptive:
+            why = (f"the adaptive model {asks}: its estimate diverges (theta0 or the box C far from this rig, or the "
+                   f"readings l, now {l:g} mm, in another unit?)")
+        else:  # a fixed model does not diverge: what it is asked to do is out of reach
+            why = (f"the fixed model {asks}: the reference is out of the rig's reach from the readings l (now {l:g} mm: "
+                   "an encoder offset or drift?), the readings are far from the model's, or theta0 is a poor fixed law "
+                   "for this rig")
+        said.append(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.")
+
+    def _in_a_row(self, count: int, now: bool, long_s: float) -> tuple[int, float | None]:
+        """The samples in a row a condition held, ``count`` before this one, and, once they span
+        ``long_s`` seconds, that span [s] (the count then -1: said). The span runs from the first sample
+        of the stretch to this one: with a long Ts, a held command is no time sat yet."""
+        count = count + 1 if now else 0
+        span_s = (count - 1) * self.controller.settings.ts_s
+        return (-1, span_s) if span_s >= long_s - 1e-9 else (count, None)
+
+    def _watch_pinned(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
+        """Tell once when the command has sat at a valve limit that the error ``r - l`` pushes it further
+        into for :data:`PINNED_S` seconds in a row."""
+        if self._pinned_n < 0:
+            return
+        s = self.controller.settings.servo
+        self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v), PINNED_S)
+        if sat_s is not None:
+            limit = s.u_max_v if r > l else s.u_min_v
+            said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
+                        f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the "
+                        f"rig's reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?)")
+
+    def _watch_held(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
+        """Tell once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held
+        against the error (:func:`~fmu_controller.displacement_control.held_against_error`: a negative
+        ``theta0.b1`` held the valve shut for a whole run without a word)."""
+        if self._held_n < 0:
+            return
+        s = self.controller.settings.servo
+        self._held_n, sat_s = self._in_a_row(self._held_n, held_against_error(r, l, u, s.u_min_v, s.u_max_v),
+                                             HELD_WARN_S)
+        if sat_s is not None:
+            limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
+            why = held_against_cause(float(self.controller.theta0[2]))
+            said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
+                        f"reading l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the "
+                        f"other way would close the gap: {why}")
+
+    def _watch_slamming(self, said: list[str], k: int, t_s: float, u: float, u_prev: float) -> None:
+        """Tell once when the command has jumped across the valve's range (``full_range_jump``)
+        :data:`SLAM_JUMPS` times within :data:`SLAM_WINDOW_S`."""
+        if self._jump_ks is None:
+            return
+        settings = self.controller.settings
+        s = settings.servo
+        if k > 0 and full_range_jump(u, u_prev, s.u_min_v, s.u_max_v):
+            window = int(round(SLAM_WINDOW_S / settings.ts_s))
+            self._jump_ks = [j for j in self._jump_ks if j > k - window] + [k]
+            if len(self._jump_ks) >= SLAM_JUMPS:
+                self._jump_ks = None
+                law = ("the fixed predictor theta0 (an open-loop identification's? refine it in closed loop: "
+                       "docs/python-api.md, tapmuscle.paper.preliminary_theta)" if not settings.adaptive
+                       else "the adaptive law (theta0 or the box C poor for this rig?)")
+                said.append(f"t = {t_s:g} s: the command has jumped across the valve's range {SLAM_JUMPS} times in "
+                            f"{SLAM_WINDOW_S:g} s: {law} slams the valve end to end")
+
+    def _watch_swings(self, said: list[str], k: int, t_s: float, u: float, l: float, r: float) -> None:
+        """Tell once when, after the start-up and the first :data:`SLAM_WINDOW_S` of the estimator, the
+        command has swung from one valve limit to the other :data:`SWINGS` times within
+        :data:`SLAM_WINDOW_S` (a limit cycle). The swings in the :data:`REF_STEP_SETTLE_S` after a
+        reference step (``r`` moving further in a sample than the muscle can, :data:`REF_STEP_MM_PER_S`)
+        are not counted: its transient is not a limit cycle."""
+        if self._swing_ks is None:
+            return
+        c = self.controller
+        s = c.settings
+        if abs(r - self._r_last) > REF_STEP_MM_PER_S * s.ts_s:
+            self._swings_from = k + int(round(REF_STEP_SETTLE_S / s.ts_s))
+        self._r_last = r
+        side = -1 if u <= s.servo.u_min_v + 1e-9 else 1 if u >= s.servo.u_max_v - 1e-9 else 0
+        if not side:
+            return
+        swung, self._last_limit = side == -self._last_limit, side
+        if not swung or k < self._swings_from:
+            return
+        window = int(round(SLAM_WINDOW_S / s.ts_s))
+        # not in the law's own start, nor in the first window after it: the paper's start (startup_s = 0)
+        # swings the valve 6 times in its first 1-1.5 s, without any delay
+        if c.in_startup or c.samples_since_start <= window:
+            return
+        self._swing_ks = [j for j in self._swing_ks if j > k - window] + [k]
+        if len(self._swing_ks) < SWINGS:
+            return
+        self._swing_ks = None
+        decided = c.input_delay_decision
+        runs = (f"input_delay_samples = {s.input_delay_samples}" if s.input_delay_samples != -1
+                else f"input_delay_samples = -1, decided {decided}")
+        if (decided or 0) >= 1:  # a delay set or decided: it may be off, or the law too aggressive for it
+            # what makes this law gentler: the servo's move weight (times delay_move_weight from a
+            # delay of 2 on), the unique coincidence point's horizon
+            gentler = ("ucp.Hp (a later coincidence point)" if not s.servo_mechanism
+                       else "delay_move_weight (servo.R times it for a delay of 2 or more)" if decided >= 2
+                       else "servo.R")
+            more = "" if s.adaptive else ", and make the fixed theta0 under the delay"
+            # a servo horizon shorter than the delay (Table 5's 5 samples at a short Ts): AMPC-servo on a
+            # 0.15-s delay at Ts = 0.02 s with 8 set, 6.9 mm over 40-120 s with Hp = 5, 0.44 with Hp = 12
+            if s.servo_mechanism and s.servo.hp < decided:
+                more += f", and raise servo.Hp to the delay or more (now {s.servo.hp} < {decided} samples)"
+            # -1 cannot tell a delay beyond the longest it scores: it is set then
+            check = ("-1 decides it" if decided < AUTO_INPUT_DELAY_SAMPLES else
+                     f"-1 decides delays up to {samples_in_words(AUTO_INPUT_DELAY_SAMPLES)}: a longer one is set, the "
+                     f"rig's delay over Ts rounded, up to {MAX_INPUT_DELAY_SAMPLES}")
+            why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
+                   f"it: check the delay ({check}), raise {gentler}{more} (docs/control.md, \"Transport delay\")")
+        else:
+            why = "; ".join(self.limit_cycle_causes(l))
+        said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
+                    f"{SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}")
+
+    def _check_delay(self, said: list[str], t_s: float) -> None:
+        """Tell when the set ``input_delay_samples`` is not the delay the first samples show
+        (:attr:`DisplacementController.delay_evidence`): the commonest mistake of a master's author,
+        whose loop then tracks several times worse without a limit cycle to warn of."""
+        c = self.controller
+        evidence = c.delay_evidence
+        if evidence is None:
+            return
+        d, ratio = evidence
+        what = {0: "u reaching the valve within its sample: a sequential master (the controller stepped before "
+                   "the plant, as fmpy's scenarios and a sequential container do), or a parallel one sub-stepping "
+                   "at a fraction of Ts (Ts/4)",
+                1: "u reaching the valve one sample late: a parallel master at h = Ts (libcosim, Ecos, "
+                   "OMSimulator, SSP tools: every FMU stepped on the previous outputs)"}.get(
+            d, f"a rig's transport delay of about {d} Ts")
+        set_ = c.settings.input_delay_samples
+        if d == c.largest_scored_delay:  # the longest scored: the rig's may be longer
+            shown = f"{samples_in_words(d)} or more (the longest scored)"
+            advice = (f"set input_delay_samples to the rig's delay over Ts, rounded ({d} or more, up to "
+                      f"{MAX_INPUT_DELAY_SAMPLES}; tapmuscle identify --input-delay-samples auto finds it from a "
+                      "recording)")
+        else:
+            shown = samples_in_words(d)
+            # -1 first: it decides from the start-up's probe, where a loop run under a wrong delay scores
+            # neighbouring delays alike (a 3-sample rig with 0 set: 2 and 3 within 0.3 % of each other)
+            advice = (f"set input_delay_samples = -1 to decide it from the start, or {d} (scores from a loop run "
+                      f"under a wrong delay can be a sample off)" if d <= AUTO_INPUT_DELAY_SAMPLES
+                      else f"set input_delay_samples = {d}")
+        said.append(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
+                    f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
+                    f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")")
+
+    def limit_cycle_causes(self, l_mm: float) -> list[str]:
+        """What may make a law that compensates no delay swing the valve limit to limit, each with its
+        remedy, as far as the settings tell them apart (``l_mm``: the reading now [mm])."""
+        s = self.controller.settings
+        causes = []
+        if s.input_delay_samples == 0:  # -1 deciding 0 saw none: no delay to suggest
+            causes.append("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
+                          f"master?): set input_delay_samples to it in samples (up to {MAX_INPUT_DELAY_SAMPLES}), or "
+                          f"-1 to decide it (up to {samples_in_words(AUTO_INPUT_DELAY_SAMPLES)}; docs/control.md, "
+                          "\"Transport delay\")")
+        if not s.adaptive:
+            causes.append(f"the fixed predictor theta0 poor where the loop runs now (l = {l_mm:.4g} mm; the default "
+                          "THETA0_44N was identified on the paper's 5..65 mm sine): an adaptive method (3, 4), or "
+                          "theta0 identified over this range")
+        if s.servo_mechanism and s.servo.hp > TABLE5_SERVO["hp"]:
+            causes.append(f"a long prediction horizon servo.Hp = {s.servo.hp} on an imperfect model (Table 5: "
+                          f"{TABLE5_SERVO['hp']}; 30 and more swung the valve in measured runs)")
+        r = max(s.servo.r) if isinstance(s.servo.r, tuple) else s.servo.r
+        if s.servo_mechanism and r > HEAVY_MOVE_WEIGHT:
+            causes.append(f"a heavy move weight servo.R = {r:g} (Table 5: {TABLE5_SERVO['r']:g}): over the short horizon "
+                          "the QP moves the valve only once the integrator's cost has grown, and the integrator then "
+                          "swings the loop; lower servo.R, or servo.Qs with it, or lengthen servo.Hp (docs/control.md, "
+                          "\"Tuning the servo law\")")
+        if not causes:
+            causes.append("a model poor for this rig (theta0, the box C) or a delay the law does not compensate "
+                          "(docs/control.md, \"Transport delay\")")
+        return causes
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> list:
+        """What has been said and the counts towards what may be, as plain data."""
+        return [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
+                None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
+                self._r_last, self._swings_from]
+
+    def set_state(self, said: list | tuple) -> None:
+        """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
+        missing watches anew (the held command, the reference steps)."""
+        diverged, pinned, jumps, swings, last_limit, held = (*said, 0)[:6] if len(said) >= 5 else \
+            (False, 0, [], [], 0, 0)
+        self._diverged, self._pinned_n, self._held_n = bool(diverged), int(pinned), int(held)
+        self._jump_ks = None if jumps is None else [int(k) for k in jumps]
+        self._swing_ks = None if swings is None else [int(k) for k in swings]
+        self._last_limit = int(last_limit)
+        self._r_last, self._swings_from = (float(said[6]), int(said[7])) if len(said) >= 8 else (math.nan, 0)

@@ -1,0 +1,79 @@
+"""The closed loop's supervision (fmu_controller.loop_watch): what it tells, once, and its state."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tapmuscle as tm
+from fmu_controller.loop_watch import LoopWatch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _delayed_loop(n, *, save_at=None, restore=None):
+    """AMPC-servo with input_delay_samples = 0 on a rig with a 0.2-s transport delay, watched: the
+    messages told and the watch's state before sample ``save_at``; ``restore``: (k, state) to set the
+    watch to at sample k, the run before it not watched."""
+    rig = tm.PlantParams().with_values(**{"delay.delay_s": 0.2})
+    ctrl = tm.DisplacementController(tm.ControllerSettings(input_delay_samples=0), tm.THETA0_44N)
+    plant = tm.Plant(rig, seed=0)
+    ref = tm.SineReference()
+    watch = LoopWatch(ctrl)
+    ctrl.reset(plant.measurement.l_mm)
+    told, saved, u_prev = [], None, 0.0
+    for k in range(n):
+        if k == save_at:
+            saved = watch.get_state()
+        if restore is not None and k == restore[0]:
+            watch.set_state(restore[1])
+        l, preview = plant.measurement.l_mm, ref.preview(k, ctrl.settings.preview_samples)
+        step = ctrl.step(l, preview)
+        said = watch.observe(k, k * 0.1, l, preview[0], step, u_prev)
+        if restore is None or k >= restore[0]:
+            told += said
+        u_prev = step.u_v
+        plant.step(step.u_v, 0.1)
+    return told, saved
+
+
+def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
+    """Over 60 s the limit cycle and the contradicted delay are told once each (the cycle keeps going);
+    a watch restored from a state saved at 12 s tells what the uninterrupted one tells from there; a
+    state of a build that watched less (five fields) starts the later watches anew."""
+    told, saved = _delayed_loop(601, save_at=120)
+    kinds = [m for m in told if "a limit cycle" in m], [m for m in told if "the measurements show an input delay" in m]
+    assert [len(k) for k in kinds] == [1, 1], told
+    assert all(re.match(r"t = \d+(\.\d+)? s: ", m) for m in told)
+    again, _ = _delayed_loop(601, restore=(120, saved))
+    assert again == [m for m in told if float(m.split()[2]) >= 12.0]
+    watch = LoopWatch(tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N))
+    watch.set_state(saved[:5])
+    assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0]
+
+
+def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
+    """docs/control.md's loop of one's own ("In a real-time loop"), run on the simulated rig whose
+    encoder freezes at 20 s (no sleeping): the watch's message reaches the log it names, once."""
+    text = (ROOT / "docs" / "control.md").read_text()
+    block = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "tm.LoopWatch(ctrl)" in b)
+    plant = tm.Plant(seed=0)
+    frozen: list[float] = []
+    logged: list[str] = []
+
+    def read_encoder_mm():
+        if plant.t_s >= 20.0 - 1e-9:
+            frozen[:] = frozen or [plant.measurement.l_mm]
+            return frozen[0]
+        return plant.measurement.l_mm
+
+    class NoSleep:
+        monotonic = staticmethod(lambda: 0.0)
+        sleep = staticmethod(lambda s: None)
+
+    namespace = {"read_encoder_mm": read_encoder_mm, "write_valve_v": lambda u: plant.step(u, 0.1),
+                 "log_warning": logged.append}
+    code = block.replace("import time\n", "")
+    exec(compile(code, "docs/control.md", "exec"), {**namespace, "time": NoSleep})
+    assert len(logged) == 1 and "has not changed at all" in logged[0] and "the sensor is stuck" in logged[0]
