@@ -1319,3 +1319,21 @@ def test_a_state_saved_in_a_stuck_stretch_tells_it_at_the_same_sample():
         with pytest.raises(ValueError, match="state field still"):
             c2.set_state({**saved, "still": bad})
     c2.set_state({**saved, "still": [math.nan, 0, 0, 0, False]})  # before the first step
+
+
+def test_the_start_on_a_delayed_rig_overshoots_on_a_theta0_made_without_the_delay():
+    """A 0.3-s transport delay, 3 samples set: on THETA0_44N (identified without the delay) the start
+    overshoots the reference by about 30 mm at the end of its lead-in; on a theta0 identified under
+    the delay (docs/control.md, "Transport delay") by a few mm, and the loop tracks better after it."""
+    rig = PlantParams().with_values(**{"delay.delay_s": 0.3})
+    settings = ControllerSettings(method="ampc_servo", input_delay_samples=3)
+
+    def run(theta):
+        cols = run_closed_loop(Plant(rig, seed=0), DisplacementController(settings, theta), None, duration_s=45.0,
+                               watch=False)
+        return float(np.max(cols["l_mm"] - cols["r_mm"])), eq21_error_mm(cols)
+
+    (excess0, eq21_0), (excess, eq21) = run(THETA0_44N), run(preliminary_theta(0, refine_hz=0.1, params=rig,
+                                                                                  input_delay_samples=3))
+    assert excess0 > 20.0 and excess < 8.0
+    assert eq21 < eq21_0

@@ -136,8 +136,9 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
                                   hysteresis_notch=False, anti_windup=False, input_delay_samples=d,
                                   box_lower=report.box_lower, box_upper=report.box_upper)
     refine = DisplacementController(settings, report.theta)
+    # a loop run for its final estimate, not its tracking: unwatched
     cols = run_closed_loop(Plant(rig, seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz, ts_s=ts_s),
-                           duration_s=120.0)
+                           duration_s=120.0, watch=False)
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
 
 
