@@ -234,10 +234,17 @@ class LoopWatch:
             # 0.15-s delay at Ts = 0.02 s with 8 set, 6.9 mm over 40-120 s with Hp = 5, 0.44 with Hp = 12
             if s.servo_mechanism and s.servo.hp < decided:
                 more += f", and raise servo.Hp to the delay or more (now {s.servo.hp} < {decided} samples)"
-            # -1 cannot tell a delay beyond the longest it scores: it is set then
-            check = ("-1 decides it" if decided < AUTO_INPUT_DELAY_SAMPLES else
-                     f"-1 decides delays up to {samples_in_words(AUTO_INPUT_DELAY_SAMPLES)}: a longer one is set, the "
-                     f"rig's delay over Ts rounded, up to {MAX_INPUT_DELAY_SAMPLES}")
+            # -1 cannot tell a delay beyond the longest it scores: it is set then; a decision of -1's
+            # own is final, and a delay between two samples can make it a sample off
+            if decided >= AUTO_INPUT_DELAY_SAMPLES:
+                check = (f"-1 decides delays up to {samples_in_words(AUTO_INPUT_DELAY_SAMPLES)}: a longer one is set, "
+                         f"the rig's delay over Ts rounded, up to {MAX_INPUT_DELAY_SAMPLES}")
+            elif s.input_delay_samples == -1:
+                check = (f"-1 decided {decided} for good, and a rig's delay between two samples can make it one off: "
+                         f"try {decided + 1} or {decided - 1} set, or the rig's delay from a recording, tapmuscle identify "
+                         "--input-delay-samples auto")
+            else:
+                check = "-1 decides it"
             why = ("the loop's delay differs from the one the law compensates, or the law is too aggressive for "
                    f"it: check the delay ({check}), raise {gentler}{more} (docs/control.md, \"Transport delay\")")
         else:

@@ -77,3 +77,27 @@ def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
     code = block.replace("import time\n", "")
     exec(compile(code, "docs/control.md", "exec"), {**namespace, "time": NoSleep})
     assert len(logged) == 1 and "has not changed at all" in logged[0] and "the sensor is stuck" in logged[0]
+
+
+def test_a_limit_cycle_after_minus_one_decided_does_not_send_the_user_back_to_minus_one():
+    """-1 decides once and for good; a rig's delay between two samples (or an encoder offset) can make
+    it a sample off, and the loop then swings. The message said "check the delay (-1 decides it)",
+    which sends the user back to what went wrong; it names the decision and the neighbours to try."""
+    import dataclasses
+
+    class Decided(tm.DisplacementController):
+        input_delay_decision = 2
+        in_startup = False
+        samples_since_start = 10_000
+
+    ctrl = Decided(tm.ControllerSettings(input_delay_samples=-1), tm.THETA0_44N)
+    ctrl.reset(30.0)
+    step = ctrl.step(30.0, tm.SineReference().preview(0, ctrl.settings.preview_samples))
+    watch = LoopWatch(ctrl)
+    told = []
+    for k in range(1, 40):  # limit to limit every 2 samples through 5 V: a swing each time, no jump
+        u = (0.0, 5.0, 10.0, 5.0)[k % 4]
+        told += watch.observe(k, k * 0.1, 30.0, 35.0, dataclasses.replace(step, u_v=u), 5.0)
+    (msg,) = told
+    assert "a limit cycle (input_delay_samples = -1, decided 2)" in msg
+    assert "-1 decided 2 for good" in msg and "try 3 or 1 set" in msg and "-1 decides it" not in msg
