@@ -180,7 +180,9 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     Returns
     -------
     dict of ndarray
-        ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
+        ``t_s, r_mm, l_mm`` (the reading the controller had), ``l_true_mm`` (the muscle's displacement
+        itself, before the encoder's noise, resolution, drift or backlash: what the reading hides),
+        ``u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
         ``pred_error_mm``, ``uc_v``, ``h_mm``, ``xs_mm`` and ``theta_<name>`` for the 15 parameters.
     """
     if not isinstance(plant, Plant):
@@ -199,7 +201,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     n = int(round(duration_s / ts)) + 1
     in_flight = 0.0
     names = ASYMMETRIC.names
-    cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "u_v", "p_mpa", "load_n", "l_pred_mm",
+    cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "l_true_mm", "u_v", "p_mpa", "load_n", "l_pred_mm",
                                       "pred_error_mm", "uc_v", "h_mm", "xs_mm")}
     theta_hist = np.empty((n, len(names)))
     hp = controller.settings.preview_samples
@@ -226,7 +228,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         if loop_delay_samples:
             u, in_flight = in_flight, u
         cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, u
-        cols["p_mpa"][k], cols["load_n"][k] = meas.p_mpa, plant.load_n
+        cols["p_mpa"][k], cols["load_n"][k], cols["l_true_mm"][k] = meas.p_mpa, plant.load_n, plant.l_mm
         cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
         cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
         theta_hist[k] = step.theta

@@ -240,3 +240,18 @@ def test_the_python_loop_tells_what_the_controller_fmu_logs():
     assert said == logged and len(said) == 2
     assert "a limit cycle (input_delay_samples = 0)" in said[0]
     assert said[1].startswith("t = 30 s: the measurements show an input delay of 2 samples, not the 0 set")
+
+
+def test_the_run_holds_the_muscles_displacement_beside_the_reading():
+    """Under a sensor drift of 1 mm/min the loop tracks the reading (Eq. (21) on l_mm small) while the
+    muscle itself drifts away from the reference: l_true_mm shows it, the drift's offset to 0.05 mm."""
+    import tapmuscle as tm
+
+    rig = tm.PlantParams().with_values(**{"sensor_drift.rate_mm_per_min": 1.0})
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=60.0, params=rig)
+    late = slice(500, 601)
+    assert tm.eq21_error_mm(run) < 0.3
+    drift = run["l_mm"][late] - run["l_true_mm"][late]
+    assert np.all(np.abs(drift - run["t_s"][late] / 60.0) < 0.05)
+    clean = tm.simulate_closed_loop("ampc_servo", None, duration_s=10.0)
+    assert np.max(np.abs(clean["l_mm"] - clean["l_true_mm"])) < 0.06  # noise 0.01 mm and the 0.01-mm steps
