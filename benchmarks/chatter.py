@@ -32,7 +32,7 @@ def run(method: str, notch: bool | None, load: float, f: float, seed: int, theta
     plant = Plant(seed=seed)
     plant.update(load_n=load)
     cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, hysteresis_notch=notch)
-    return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=45.0)
+    return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=45.0, watch=False)
 
 
 def figures(r: dict, f: float) -> tuple[float, float, float]:

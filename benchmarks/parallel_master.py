@@ -39,7 +39,7 @@ def run(method: str, load_n: float, frequency_hz: float, input_delay: int, corre
     plant = Plant(PlantParams().with_values(**{"load.load_n": load_n}), seed=0)
     return run_closed_loop(plant, DisplacementController(settings, THETA0_44N),
                            SineReference(frequency_hz=frequency_hz), duration_s=duration_s,
-                           loop_delay_samples=loop_delay)
+                           loop_delay_samples=loop_delay, watch=False)
 
 
 def main(argv: list[str] | None = None) -> int:

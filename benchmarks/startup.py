@@ -50,7 +50,7 @@ def run(method: str, load: float, f: float, seed: int, startup_s: float, theta0:
     cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, startup_s=startup_s,
                             input_delay_samples=input_delay, probing_v=probing_v, anti_windup=startup_s > 0)
     return run_closed_loop(plant, DisplacementController(cs, theta0), SineReference(frequency_hz=f), duration_s=90.0,
-                           loop_delay_samples=loop_delay)
+                           loop_delay_samples=loop_delay, watch=False)
 
 
 def off_nominal_rigs(n: int, startup_s: float, theta0: np.ndarray, input_delay: int, loop_delay: int,

@@ -54,7 +54,7 @@ def run(regressor: str, seed: int, load_n: float, probing_v: float) -> tuple[flo
     plant.update(load_n=load_n)
     cls = DisplacementController if regressor == "as coded" else _SectionTwoThreeController
     controller = cls(ControllerSettings(method="ampc_servo", probing_v=probing_v), THETA0_44N)
-    out = run_closed_loop(plant, controller, SineReference(frequency_hz=0.1), duration_s=45.0)
+    out = run_closed_loop(plant, controller, SineReference(frequency_hz=0.1), duration_s=45.0, watch=False)
     return eq21_error_mm(out["r_mm"], out["l_mm"]), np.asarray(controller.theta[:3])
 
 

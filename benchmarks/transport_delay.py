@@ -58,7 +58,7 @@ def run(method: str, load: float, f: float, seed: int, theta0: np.ndarray, param
     cs = ControllerSettings(method=method, p0=P0_TABLE8 if f == 0.2 else P0_TABLE5, input_delay_samples=input_delay,
                             servo=SERVO, delay_move_weight=DELAY_MOVE_WEIGHT)
     ctrl = DisplacementController(cs, theta0)
-    r = run_closed_loop(plant, ctrl, SineReference(frequency_hz=f), duration_s=90.0)
+    r = run_closed_loop(plant, ctrl, SineReference(frequency_hz=f), duration_s=90.0, watch=False)
     return r, ctrl.input_delay_decision
 
 
