@@ -8,7 +8,7 @@ nominal rig with a transport delay of 0-0.4 s (``delay.delay_s``), 90 s from res
 0..N-1, with ``input_delay_samples`` 0 (the paper's law), the delay in samples (rounded to the
 nearest) and -1 (decided from the data); ``--servo-r R`` sets the servo methods' move weight R
 (Table 5: 15) and ``--delay-move-weight F`` the factor on it for delays of 2 samples or more
-(``ControllerSettings.delay_move_weight``, default 4; 1 keeps R). Printed per
+(``ControllerSettings.delay_move_weight``, default 16; 1 keeps R). Printed per
 method, delay and setting, over the cells and seeds: Eq. (21) over 10-40 s, the mean |r - l| over
 50-90 s (after -1's restart of the estimator and its start-up mode), the share of 10-90 s the valve
 sits at 0 or 10 V, and -1's decisions. ``--off-nominal N``: N rigs drawn as docs/diagnosis.md's

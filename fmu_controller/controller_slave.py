@@ -63,7 +63,8 @@ from fmi_slave.base import MIN_STEP_S, SlaveInputError
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
-from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_MAX_SPEED_MM_PER_S,
+from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_DELAY_MOVE_WEIGHT,
+                                                 DEFAULT_MAX_SPEED_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
                                                  GUARD_JUMPS, HELD_READINGS_MAX, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES,
@@ -218,7 +219,7 @@ class AMPCController(SafeSlave):
             ("servo.Qs", 2.0, "", "integrator weight Qs of Eq. (15) [1/mm^2] (Table 5)", 0.0, MAX_WEIGHT),
             ("servo.R", 15.0, "", "move weight R of Eq. (15) [1/V^2], > 0 (Table 5); servo.R x delay_move_weight "
              f"at most {MAX_WEIGHT:g} too where a delay of 2 or more may be compensated", 0.0, MAX_WEIGHT),
-            ("delay_move_weight", 4.0, "", "servo methods: factor on servo.R while the law compensates a delay of "
+            ("delay_move_weight", DEFAULT_DELAY_MOVE_WEIGHT, "", "servo methods: factor on servo.R while the law compensates a delay of "
              "2 samples or more (input_delay_samples 2 or more, or -1 deciding for one: a rig's transport delay, whose "
              "prediction errors a larger R feeds back less); 1 keeps servo.R; delays 0 and 1 always do "
              "(docs/control.md, Transport delay)", 0.0, MAX_DELAY_MOVE_WEIGHT),

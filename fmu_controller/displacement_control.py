@@ -59,7 +59,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
-           "STUCK_AT_LIMIT_S", "stuck_reading_message",
+           "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
            "HELD_WARN_S", "held_against_error", "held_against_cause",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
@@ -146,6 +146,11 @@ HELD_READINGS_MAX = 3
 #: moves a working muscle by millimetres within a second, whatever its transport delay (at most 0.5 s
 #: here) or end stop; the encoder resolves 0.01 mm (:attr:`DisplacementController.reading_stuck`).
 STUCK_AT_LIMIT_S = 2.0
+
+#: Default ``ControllerSettings.delay_move_weight``: 16 tracked better than 4 and 32 in most cells of
+#: benchmarks/transport_delay.py (every servo cell better than 4; 10 of 16 off-nominal delayed rigs
+#: within 2 mm against 8 with 4 and 9 with 32), and 4 left AMPC-servo limit-cycling at 0.35 s.
+DEFAULT_DELAY_MOVE_WEIGHT = 16.0
 
 #: Default amplitude [V] of the start-up mode's probing signal (``ControllerSettings.probing_v``).
 DEFAULT_PROBING_V = 0.5
@@ -292,14 +297,15 @@ class ControllerSettings:
     thousands of mm and the loop lags for 6-12 s once the reference is back in reach (docs/control.md,
     "Integrator wind-up"). Shorter stays at a limit are integrated: the paper's runs keep their bits.
     False: Eq. (18) as the paper writes it."""
-    delay_move_weight: float = 4.0
+    delay_move_weight: float = DEFAULT_DELAY_MOVE_WEIGHT
     """Servo methods: the factor on Eq. (15)'s move weight R (``servo.r``) while the law compensates a
     delay of 2 samples or more (``input_delay_samples`` 2 or more, or -1 once it decided for one: a rig's
     transport delay). The law's prediction through the commands in flight is only as good as Eq. (1),
-    and a larger R lowers the gain with which its errors come back to the valve (measured with 4, R = 60:
-    AMPC-servo 0.88 / 1.99 / 2.81 mm at 0.2 / 0.3 / 0.4 s against 1.16 / 2.37 / 3.62 with Table 5's 15,
-    MPC-servo 1.5 against 3.9 mm at 0.2 s; docs/control.md, "Transport delay"). 1 keeps ``servo.r``;
-    delays of 0 and 1 always do (the paper's runs and the parallel master keep their bits)."""
+    and a larger R lowers the gain with which its errors come back to the valve (Eq. (21) with the delay
+    set, 16 against Table 5's 15 alone: AMPC-servo 0.65 / 1.56 / 2.60 mm at 0.2 / 0.3 / 0.4 s against
+    1.16 / 2.37 / 3.62, MPC-servo 1.20 / 3.87 / 7.26 against 3.9 / 11.2 / 13.6; docs/control.md,
+    "Transport delay"). 1 keeps ``servo.r``; delays of 0 and 1 always do (the paper's runs and the
+    parallel master keep their bits)."""
     max_speed_mm_per_s: float = DEFAULT_MAX_SPEED_MM_PER_S
     """Glitch guard: a reading ``l(k)`` further from the last one used than the muscle can move in one
     sample (``max_speed_mm_per_s * ts_s``; 40 mm at the default 400 mm/s and 0.1 s) is taken for a

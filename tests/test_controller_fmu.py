@@ -246,7 +246,7 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"servo.R": 1e300}, {}, "parameter servo.R = 1e+300 is outside its declared range 0..1e+06"),
     # the law for a delay of 2 or more (-1 may decide one) runs with R x delay_move_weight: refused here,
     # not as an internal error at the decision
-    ({"servo.R": 3e5}, {}, "parameter servo.R x delay_move_weight = 300000 x 4, the move weight of the law for a "
+    ({"servo.R": 3e5}, {}, "parameter servo.R x delay_move_weight = 300000 x 16, the move weight of the law for a "
                             "delay of 2 samples or more, is not one: r must be <= 1e+06"),
 ])
 def test_bad_parameters_are_an_error_and_every_step_too(fmu, capfd, reals, ints, message):

@@ -10,7 +10,8 @@ import pytest
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, B1_KEPT_FRACTION, DEFAULT_MAX_SPEED_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HELD_READINGS_MAX,
                                                  HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
-                                                 STUCK_AT_LIMIT_S, ControllerSettings, DisplacementController)
+                                                 DEFAULT_DELAY_MOVE_WEIGHT, STUCK_AT_LIMIT_S, ControllerSettings,
+                                                 DisplacementController)
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
@@ -290,12 +291,11 @@ def test_a_rigs_transport_delay_is_compensated_when_set_or_decided(transport_del
 
 def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
     """A rig logged at Ts = 0.02 s whose valve acts 0.15 s late (7.5 samples): AMPC-servo compensating
-    5 samples (the model identified under D = 5) slams the valve (at a limit 21-22 % of the time, 3.1-3.2
-    mm over 20-40 s, its b1 held at B1_KEPT_FRACTION of theta0's; the slamming loop is chaotic, so the
-    test asks for the contrast, 9-13 times on two BLAS paths, not the size); with 8, round(0.15 / 0.02),
-    and the model identified under it, it tracks: Eq. (21)
-    over its 10.1-40.1 s 0.32 mm, and the set delay's check (over 30 s, 1500 samples here) finds no
-    better delay. servo.Hp = 12 spans 0.24 s, as Table 5's 5 samples do at Ts = 0.05 s, where this rig
+    5 samples (the model identified under D = 5) tracks 5.5 times worse over 20-40 s (1.47 mm, where
+    delay_move_weight 4 slammed the valve: 3.1-3.2 mm, at a limit 21-22 % of the time; the loop under a
+    wrong delay is chaotic, so the test asks for the contrast, not the size); with 8, round(0.15 /
+    0.02), and the model identified under it, it tracks: 0.27 mm, and the set delay's check (over 30 s,
+    1500 samples here) finds no better delay. servo.Hp = 12 spans 0.24 s, as Table 5's 5 samples do at Ts = 0.05 s, where this rig
     tracks with 3 samples set; 5 samples at 0.02 s span less than the delay (8.4 mm with 8 set)."""
     from dataclasses import replace
 
@@ -318,7 +318,7 @@ def test_a_transport_delay_longer_than_five_samples_is_compensated_when_set():
     late = {d: float(np.mean(np.abs(r["r_mm"][1000:] - r["l_mm"][1000:]))) for d, r in runs.items()}
     at_limit = {d: float(np.mean((r["u_v"][500:] <= 0.0) | (r["u_v"][500:] >= 10.0))) for d, r in runs.items()}
     assert late[8] < 1.0 and eq21_error_mm(runs[8]) < 1.0 and evidence[8] is None, (late, evidence)
-    assert late[5] > 5.0 * late[8] and at_limit[5] > 0.1 and at_limit[8] < 0.05, (late, at_limit)
+    assert late[5] > 3.0 * late[8] and at_limit[8] < 0.05, (late, at_limit)
     assert scored == {5: 6, 8: 9}  # the set delay's check scores 0 .. max(5, d)
 
 
@@ -439,11 +439,12 @@ def test_a_delay_set_where_the_rig_has_none_keeps_the_prediction_through_the_com
 
 
 def test_the_servo_is_detuned_for_a_transport_delay_set_or_decided(theta0):
-    """delay_move_weight (default 4) multiplies Table 5's R = 15 while the law runs for a delay of 2 or
+    """delay_move_weight (default 16) multiplies Table 5's R = 15 while the law runs for a delay of 2 or
     more: set, or decided by -1 (and back to 15 at a reset, whose law runs for 1 again); 0 and 1 keep
     R. On a rig with a 0.3-s delay, AMPC-servo with 3 set tracks better than with the factor 1
-    (measured Eq. (21) 1.11 against 1.87 mm; MPC-servo 7.9 against 11.6)."""
-    assert ControllerSettings().servo_for_delay(1).r == 15.0 and ControllerSettings().servo_for_delay(2).r == 60.0
+    (measured Eq. (21) 0.71 against 1.91 mm, 1.00 with 4; MPC-servo 1.71 against 8.51, 4.30 with 4)."""
+    assert DEFAULT_DELAY_MOVE_WEIGHT == 16.0
+    assert ControllerSettings().servo_for_delay(1).r == 15.0 and ControllerSettings().servo_for_delay(2).r == 240.0
     tup = ControllerSettings(servo=ServoMPCSettings(r=(1.0, 2.0, 3.0, 4.0, 5.0)), delay_move_weight=2.0)
     assert tup.servo_for_delay(5).r == (2.0, 4.0, 6.0, 8.0, 10.0) and tup.servo_for_delay(0).r == tup.servo.r
     for bad in (0.0, -1.0, 1001.0, math.nan):
@@ -451,17 +452,17 @@ def test_the_servo_is_detuned_for_a_transport_delay_set_or_decided(theta0):
             ControllerSettings(delay_move_weight=bad)
     rig = PlantParams().with_values(**{"delay.delay_s": 0.3})
     errors = {}
-    for factor in (1.0, 4.0):
+    for factor in (1.0, DEFAULT_DELAY_MOVE_WEIGHT):
         c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=3,
                                                       delay_move_weight=factor), theta0)
         assert c._servo.settings.r == 15.0 * factor
         r = run_closed_loop(Plant(rig, seed=0), c, SineReference(), duration_s=45.0, load_n=44.0)
         errors[factor] = eq21_error_mm(r["r_mm"], r["l_mm"])
-    assert errors[4.0] < 0.8 * errors[1.0], errors
+    assert errors[DEFAULT_DELAY_MOVE_WEIGHT] < 0.8 * errors[1.0], errors
     c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=-1), theta0)
     assert c._servo.settings.r == 15.0
     run_closed_loop(Plant(rig, seed=1), c, SineReference(), duration_s=8.0, load_n=44.0)
-    assert c.input_delay_decision == 3 and c._servo.settings.r == 60.0
+    assert c.input_delay_decision == 3 and c._servo.settings.r == 240.0
     c.reset(0.0)
     assert c._servo.settings.r == 15.0
 
@@ -1083,21 +1084,21 @@ def test_the_step_that_fires_the_guard_ran_on_theta0(open_loop_theta_03mpa, unbo
 
 def test_a_move_weight_the_delayed_law_would_scale_past_the_qp_range_is_refused_up_front():
     """servo_for_delay runs a delay of 2 or more with R x delay_move_weight: an R within its own range
-    (3e5 <= MAX_WEIGHT) times the default 4 failed the decision of -1 mid-run; it is refused when the
+    (3e5 <= MAX_WEIGHT) times the default 16 failed the decision of -1 mid-run; it is refused when the
     settings are made, where a delay of 2 or more is possible and the method is a servo one."""
     from fmu_controller.servo_settings import MAX_WEIGHT
 
     servo = ServoMPCSettings(r=3e5)
     for delay in (-1, 2, 5):
-        with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 4, the move "
+        with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 16, the move "
                                              r"weight of the law for a delay of 2 samples or more, is not one: r must be "
-                                             r"<= 1e\+06, got 1200000.0"):
+                                             r"<= 1e\+06, got 4800000.0"):
             ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=delay)
     # a product that rounds to 0 is not a move weight either (R > 0), nor is a per-step one too large
     with pytest.raises(ValueError, match=r"= 1e-300 x 1e-30, .* is not one: r must be > 0"):
         ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=1e-300), delay_move_weight=1e-30,
                            input_delay_samples=-1)
-    with pytest.raises(ValueError, match=r"= 400000 x 4, .* is not one: r must be <= 1e\+06 elementwise"):
+    with pytest.raises(ValueError, match=r"= 400000 x 16, .* is not one: r must be <= 1e\+06 elementwise"):
         ControllerSettings(method="mpc_servo", servo=ServoMPCSettings(hu=2, r=(1.0, 4e5)), input_delay_samples=2)
     # no delay of 2 or more (0, 1), no servo law (UCP), or a product within the range: accepted
     for settings in (dict(method="ampc_servo", input_delay_samples=0), dict(method="mpc_servo", input_delay_samples=1),
