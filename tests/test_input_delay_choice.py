@@ -134,3 +134,24 @@ def test_bad_arguments_are_named(kwargs, match):
     rec = _rig(0.0, "random:lo=2,hi=8,seed=3", duration_s=30.0)
     with pytest.raises(ValueError, match=match):
         choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=TS, **kwargs)
+
+
+def test_a_short_sampling_period_is_noted_where_it_limits_the_search_and_the_fit():
+    """At Ts = 0.01 s the 25 samples the controllers compensate span 0.25 s, not the 0.5 s searched at
+    0.02 s and above, and the 1-step fit is near 100 % whatever the model: the choice's identification
+    says both, with the merge that lifts them; at 0.1 s neither is said."""
+    import tapmuscle as tm
+    from fmu_controller.identification import SHORT_TS_S, identify_record
+
+    fast = tm.simulate("random:lo=2,hi=8,seed=1", duration_s=40.0, ts_s=0.01, seed=0)
+    choice = choose_input_delay(fast["u_v"], fast["l_mm"], ts_s=0.01)
+    notes = " | ".join(choice.report.notes)
+    assert len(choice.fits_percent) == 26
+    assert "the delays were searched only up to 25 samples, 0.25 s at Ts = 0.01 s" in notes
+    assert "merge the record to Ts = 0.02 s or more" in notes and "--decimate" in notes
+    assert "Ts = 0.01 s is short for Eq. (1)" in notes and choice.report.fit.percent["1"] > 99.0
+    slow = tm.simulate("random:lo=2,hi=8,seed=1", duration_s=150.0, ts_s=0.1, seed=0)
+    report = identify_record(slow["u_v"], slow["l_mm"], ts_s=0.1)
+    assert not any("short for Eq. (1)" in n or "searched only" in n for n in report.notes)
+    at_limit = identify_record(fast["u_v"][::2], fast["l_mm"][::2], ts_s=SHORT_TS_S)
+    assert not any("short for Eq. (1)" in n for n in at_limit.notes)

@@ -189,13 +189,22 @@ def _converted(args: argparse.Namespace, run: int | None):
     from tapmuscle.diagnosis.simulation import Simulator, noise_free
     from tapmuscle.io.recording import RecordingError
     from tapmuscle.io.rig_log import STANDARD_ATMOSPHERE_KPA, read_rig_log_columns
-    from tapmuscle.io.sampling import SamplingError
+    from tapmuscle.io.decimation import decimated
+    from tapmuscle.io.rig_log import unit_key
+    from tapmuscle.io.sampling import SamplingError, decimation_factor
 
     try:
         rec, cols = read_rig_log_columns(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
                                          load_n=args.load_n, delimiter=args.delimiter, decimal=args.decimal,
                                          fill_gaps_s=args.fill_gaps or 0.0, skip_lines=args.skip_lines,
                                          encoding=args.encoding, run=run, ambient_kpa=args.ambient_kpa, ts_s=args.ts)
+        merged = None
+        if args.decimate > 1:
+            before = rec.sampling.ts_s  # the log's own grid checked first: a dropped sample is named by its line
+            rec, moved = decimated(rec, args.decimate)
+            merged = (f"Decimated: every {args.decimate} samples merged into one (Ts {before:.6g} -> "
+                      f"{before * args.decimate:.6g} s; the first sample's readings, the block's mean command)"
+                      + (f"; {moved}" if moved else ""))
         sampling = rec.sampling  # a dropped or doubled sample, a drifting clock: refused before writing
         load = rec.load_n
     except (RecordingError, SamplingError) as exc:
@@ -211,8 +220,14 @@ def _converted(args: argparse.Namespace, run: int | None):
     try:
         try:
             check_sampling_period(ts)
-        except ValueError:
+        except ValueError as exc:
             col = cols.get("t_s")
+            if ts < TS_RANGE_S[0] and (col is None or args.ts is not None or col.conversion("t_s") is None
+                                       or unit_key(col.unit) == "s"):
+                # seconds as given: a data acquisition faster than the muscle needs, most likely (2 kHz),
+                # not minutes written to a ten-thousandth: merge samples, as the check says
+                name = "the rows" if col is None else f"column {col.column!r} (t_s, given in {col.unit})"
+                raise ValueError(f"{name}: {str(exc).removeprefix('column t_s: ')}") from None
             outside = (f"the sampling period is {ts:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s of a "
                        "muscle recording")
             if col is None or args.ts is not None or col.conversion("t_s") is None:  # no unit to name
@@ -221,8 +236,13 @@ def _converted(args: argparse.Namespace, run: int | None):
             hint = _fitting_unit(col, "t_s", np.array([0.0, ts]), lambda t: _log_ratio(
                 t[1] - t[0], 0.1) if TS_RANGE_S[0] <= t[1] - t[0] <= TS_RANGE_S[1] else None)
             outside = outside.replace(" s,", f" s ({written:g} {col.unit}),", 1)
+            faster = ""
+            if ts < TS_RANGE_S[0]:  # another unit, or the unit right and a fast acquisition
+                n = decimation_factor(ts)
+                faster = (f"; or, if {col.unit} is right, a data acquisition faster than the muscle needs: merge every "
+                          f"{n} samples into one (--decimate {n}: Ts = {n * ts:g} s)")
             raise ValueError(f"column {col.column!r} (t_s, given in {col.unit}): {outside}: " + (
-                hint or "is the time in another unit? Give its unit with --time, or the period with --ts")) from None
+                hint or "is the time in another unit? Give its unit with --time, or the period with --ts") + faster) from None
         try:
             check_muscle_recording(rec.u_v, ts, rec.l_mm)
         except RecordingCheckError as exc:
@@ -265,7 +285,7 @@ def _converted(args: argparse.Namespace, run: int | None):
         except RecordingCheckError as exc:
             raise UsageError(f"{_pressure_refusal(args, rec, cols['p_mpa'], exc.sample)} (--no-checks writes it as it "
                              "is)") from None
-    notes = [_NOTED[key].format(rec.metadata[key]) for key in _NOTED if key in rec.metadata]
+    notes = [_NOTED[key].format(rec.metadata[key]) for key in _NOTED if key in rec.metadata] + ([merged] if merged else [])
     notes += problems + muscle_recording_notes(rec.t_s, rec.l_mm, rec.columns.get("p_mpa"), load_n=load)
     if scale_note:
         notes.append(scale_note)
@@ -389,6 +409,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="write values no muscle recording has (a command outside -1..11 V, a displacement beyond "
                           "500 mm, a period outside 1 ms..10 s) instead of refusing them, e.g. for identify on "
                           "another rig's units")
+    imp.add_argument("--decimate", action=Once, type=integer_at_least("--decimate", 1, 1000), default=1,
+                     metavar="N", help="merge every N samples into one (a log taken faster than the muscle needs: "
+                          "1 kHz with N = 20 gives Ts = 0.02 s): the first sample's time and readings, the block's "
+                          "mean command (docs/recordings.md, \"Fast data acquisition\"); default 1")
     imp.add_argument("--decimal", action=Once, choices=(".", ","), default=None,
                      help="decimal mark (default: ',' when the separator is not and a value reads 12,5)")
     imp.set_defaults(func=_cmd_import)
