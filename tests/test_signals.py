@@ -30,6 +30,42 @@ def test_step_steps_chirp_random_const():
     assert parse_input_spec("const:value=7.5")(123.0) == 7.5
 
 
+def _random_reference(lo, hi, hold_min, hold_max, seed, t_end):
+    """A ``random`` command as its definition reads: the first level at 0 s, then (hold, level) pairs
+    drawn in that order from the seed's generator, the whole table at once up to ``t_end`` [s];
+    the level of the last switching time at or before ``t`` (the first level before 0 s)."""
+    rng = np.random.default_rng(seed)
+    times, levels = [0.0], [float(rng.uniform(lo, hi))]
+    while times[-1] <= t_end:
+        times.append(times[-1] + float(rng.uniform(hold_min, hold_max)))
+        levels.append(float(rng.uniform(lo, hi)))
+
+    def level(t):
+        k = 0
+        while k + 1 < len(times) and times[k + 1] <= t:
+            k += 1
+        return levels[k]
+
+    return level, times
+
+
+@pytest.mark.parametrize("lo, hi, hold_min, hold_max, seed", [
+    (2.0, 8.0, 2.0, 10.0, 0), (2.0, 8.0, 2.0, 10.0, 1), (0.0, 10.0, 0.5, 1.0, 3),
+    (3.0, 3.5, 0.001, 0.002, 12345),  # the shortest holds: many levels per query step
+])
+def test_random_command_is_its_definition_wherever_it_is_asked(lo, hi, hold_min, hold_max, seed):
+    """The lazily extended table gives the same bits as the table drawn at once: on a run's grid, at
+    the switching times themselves (the new level from there on), before 0 s and when asked again for
+    an earlier time."""
+    t_end = 60.0
+    ref, switches = _random_reference(lo, hi, hold_min, hold_max, seed, t_end)
+    signal = parse_input_spec(f"random:lo={lo},hi={hi},hold_min={hold_min},hold_max={hold_max},seed={seed}")
+    grid = list(np.arange(0.0, t_end, 0.01))
+    at_switches = [s for s in switches[1:40] if s <= t_end]
+    asked = [-1.0] + grid + at_switches + [np.nextafter(s, -np.inf) for s in at_switches] + [0.0, 30.0, -0.5]
+    assert [signal(t) for t in asked] == [ref(t) for t in asked]
+
+
 def test_csv_replays_the_u_column(tmp_path):
     path = tmp_path / "u.csv"
     t = np.arange(10) * 0.5

@@ -34,6 +34,7 @@ recording (there is no command after its end).
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import Callable
 
@@ -182,7 +183,9 @@ def _random(spec: str, v: dict) -> InputSignal:
         while times[-1] <= t:
             times.append(times[-1] + float(rng.uniform(hmin, hmax)))
             levels.append(float(rng.uniform(lo, hi)))
-        i = int(np.searchsorted(times, t, side="right")) - 1
+        # bisect on the list itself: np.searchsorted would copy the whole table into an array at every
+        # call, which made a long run quadratic in its number of holds
+        i = bisect.bisect_right(times, t) - 1
         return levels[max(i, 0)]
 
     return random_steps
