@@ -159,6 +159,31 @@ def test_the_summary_says_why_a_residual_counts_as_unstructured():
     assert "none changed" in summary_lines(_calibration_only(0.03, 0.0104, 0.2, 1.0, 1.0))[0]
 
 
+def test_the_summary_lists_the_first_located_windows_and_counts_the_rest():
+    """A delay on a 4-h recording is located in hundreds of windows: the console line names the first
+    ten and how many more diagnosis.json holds, not all of them (a 5.6-kB line); a few are all named."""
+    from types import SimpleNamespace
+
+    from tapmuscle.diagnosis.report import SUMMARY_WINDOWS, summary_lines
+
+    def finding_line(n_windows):
+        located = [(30.0 * k, 30.0 * k + 5.0) for k in range(n_windows)]
+        finding = SimpleNamespace(effect="transport_delay", fit_gain_points=9.11, located=located,
+                                  explanation="the valve acts 300 ms after the command", regime="while contracting")
+        d = SimpleNamespace(verdict="mismatch", calibration=None, named=["transport_delay"], ambiguous=[],
+                            fit_before_percent=84.15, fit_after_percent=99.94, unexplained=None, unit="mm",
+                            findings=[finding])
+        return summary_lines(d)[-1]
+
+    assert SUMMARY_WINDOWS == 10
+    long = finding_line(399)
+    assert "located 0-5 s, 30-35 s, " in long and "270-275 s, ... +389 more in diagnosis.json; while contracting" in long
+    assert "300-305 s" not in long and len(long) < 300
+    short = finding_line(10)
+    assert "located 0-5 s, " in short and "270-275 s; while contracting" in short and "more" not in short
+    assert "located nowhere in particular;" in finding_line(0)
+
+
 def test_no_significant_mismatch_says_white_only_of_a_white_residual():
     """A re-diagnosis with the calibrated plant left RMS 0.0130 mm against 0.0104 mm of noise, not
     white at p = 1.5e-264: "no significant mismatch" for being within the noise, not "the residual

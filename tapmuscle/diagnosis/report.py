@@ -38,6 +38,9 @@ EXPERIMENT_PLANT_FILE = "discriminate_plant.json"
 #: The files of an output folder that a diagnosis owns: written anew or removed by each diagnosis into it.
 OWNED_FILES = OUTPUT_FILES + ("discriminating_input*.csv", "discriminate_plant*.json")
 
+#: Located windows of a finding the console summary lists, at most (the rest are in ``diagnosis.json``).
+SUMMARY_WINDOWS = 10
+
 _COLOURS = ("tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
 
 
@@ -86,12 +89,21 @@ def summary_lines(d: Diagnosis) -> list[str]:
     out.append(f"{d.verdict}: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_after_percent:.2f} % with "
                f"{', '.join(d.named) or 'no candidate effect claimed'}")
     for i, f in enumerate(d.findings, 1):
-        where = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in f.located) or "nowhere in particular"
+        where = _windows_text(f.located)
         # signed: on all held-out blocks it can be below 0 where the acceptance, judged on the blocks
         # its significance test uses, was clear
         gain = f" ({f.fit_gain_points:+.2f} points)" if f.effect != "unexplained" else ""
         out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
     return out + remainder
+
+
+def _windows_text(located: Sequence[tuple[float, float]]) -> str:
+    """The first :data:`SUMMARY_WINDOWS` of a finding's located windows [s], and how many more
+    ``diagnosis.json`` lists: a long recording's effect is located in hundreds of windows, which on
+    one console line would bury the verdict."""
+    shown = ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in located[:SUMMARY_WINDOWS]) or "nowhere in particular"
+    more = len(located) - SUMMARY_WINDOWS
+    return shown + (f", ... +{more} more in diagnosis.json" if more > 0 else "")
 
 
 def _immaterial_remainder(d: Diagnosis) -> str | None:
