@@ -477,6 +477,26 @@ def test_minus_one_decides_the_transport_delay_in_samples(theta0, delay_s, expec
     assert c.input_delay_decision == expected
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_delay_between_two_samples_is_decided_as_the_longer_for_the_servo_law(seed):
+    """0.15 s at Ts = 0.1 s scores delays 1 and 2 within a few percent (DELAY_TIE_RATIO): the servo
+    methods decide 2 (MPC-servo decided 1 and swung the valve limit to limit, 2.3-2.5 mm over 40-90 s;
+    with 2, 0.53), the coincidence point keeps the better scored; a whole number of samples (0.2 s, or
+    no delay in a parallel master) is decided as before."""
+    def decided(method, delay_s, loop=0):
+        rig = PlantParams().with_values(**{"delay.delay_s": delay_s})
+        c = DisplacementController(ControllerSettings(method=method, input_delay_samples=-1), THETA0_44N)
+        run = run_closed_loop(Plant(rig, seed=seed), c, SineReference(), duration_s=90.0 if method == "mpc_servo" else 6.0,
+                              load_n=44.0, loop_delay_samples=loop, watch=False)
+        return c.input_delay_decision, run
+
+    (d, run) = decided("mpc_servo", 0.15)
+    assert d == 2 and float(np.mean(np.abs(run["r_mm"] - run["l_mm"])[400:901])) < 1.0
+    assert decided("ampc_servo", 0.15)[0] == 2 and decided("ampc_servo", 0.35)[0] == 4
+    assert decided("mpc_ucp", 0.15)[0] == 1
+    assert decided("ampc_servo", 0.2)[0] == 2 and decided("ampc_servo", 0.0, loop=1)[0] == 1
+
+
 @pytest.mark.parametrize("settings", [dict(method="ampc_servo", input_delay_samples=3),
                                       dict(method="mpc_ucp", input_delay_samples=5),
                                       dict(method="ampc_servo", input_delay_samples=-1)])
