@@ -608,5 +608,5 @@ class _Tally:
                 f"them; one-step prediction error l(k) - l(k|k-1): RMS "
                 f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm"
                 + (f"; {self.held} readings taken for sensor glitches and held (max_speed)" if self.held else "")
-                + (f"; the reading stuck in {self.stuck} stretches (unchanged while the valve went end to end)"
-                   if self.stuck else ""))
+                + (f"; the reading stuck {self.stuck} time{'s' if self.stuck > 1 else ''} (unchanged while the valve "
+                   "went end to end)" if self.stuck else ""))

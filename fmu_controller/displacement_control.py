@@ -94,7 +94,7 @@ DELAY_MIN_SAMPLES = 50
 #: against 0.68 mm, MPC-servo 0.53 against 2.3-2.5, swinging; 0.35 s: AMPC-servo 0.98 against 3.55;
 #: MPC-servo's fixed predictor is poor either way there, 9.2 against 4.3-5.9). The coincidence point
 #: tracked a little worse with the longer one and keeps the better scored (AMPC-UCP at 0.15 s: 2, 0.64-0.70
-#: mm; 1, which -1 kept while 2 was not DELAY_RATIO better, 0.63).
+#: mm; 1 set, 0.63).
 DELAY_TIE_RATIO = 1.05
 #: ``input_delay_samples = -1``: if neither hypothesis has won by :data:`DELAY_RATIO` after this many
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
@@ -602,6 +602,8 @@ class DisplacementController:
         self._law_n = self._need - preview_lead(settings.input_delay_samples)  # r(k..k+Hp) the law takes
         self._ucp_hp = settings.ucp.hp
         self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
+        law = settings.servo if settings.servo_mechanism else settings.ucp
+        self._law_bounds = (law.u_min_v, law.u_max_v)  # the valve limits the method's own law keeps
         self._anti_windup = settings.anti_windup
         self._auto = settings.input_delay_samples == -1
         # the largest delay scored (-1's hypotheses, a set delay's check): a set delay beyond -1's reach
@@ -807,9 +809,11 @@ class DisplacementController:
         transport delay as well), each hypothesis with its own model state. The controller starts with
         the delayed law (``d = 1``). Once the best delay of 2 or more is :data:`DELAY_RATIO` times better
         than both 0 and 1, the law switches to it; else once the parallel hypothesis is that much
-        better than the sequential one it keeps the delayed law, once the sequential one is, it
-        switches to the undelayed law; after :data:`DELAY_DECIDE_BY_SAMPLES` samples the best is
-        taken. A switch corrects the model's input over ``[t_k-1, t_k)`` to the command the valve had
+        better than the sequential one it keeps the delayed law (or switches to a longer delay that
+        scores better still), once the sequential one is, it switches to the undelayed law; after
+        :data:`DELAY_DECIDE_BY_SAMPLES` samples the best is taken. A servo method takes the longer of
+        two neighbouring delays that score within :data:`DELAY_TIE_RATIO` (a rig's delay between
+        them). A switch corrects the model's input over ``[t_k-1, t_k)`` to the command the valve had
         under the delay decided. (The prior, not the adaptive estimate: in the first seconds the
         estimate can be far off.)"""
         self._score_delays(l)
@@ -1150,9 +1154,10 @@ class DisplacementController:
         limit's time; set :attr:`reading_stuck` when both reach :data:`STUCK_AT_LIMIT_S`."""
         still[1] += 1
         u = self._outs[0][0]  # the command that followed the last reading
-        if u <= self._u_min + 1e-9:
+        u_min, u_max = self._law_bounds
+        if u <= u_min + 1e-9:
             still[2] += 1
-        elif u >= self._u_max - 1e-9:
+        elif u >= u_max - 1e-9:
             still[3] += 1
         if not still[4] and still[2] >= self._stuck_n and still[3] >= self._stuck_n:
             still[4] = True

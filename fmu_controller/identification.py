@@ -67,6 +67,7 @@ def decade_scale(x: np.ndarray, typical: float) -> float:
 #: were run at (docs/control.md, "A short Ts").
 SHORT_TS_S = 0.02
 
+
 @dataclass(frozen=True)
 class FitReport:
     """Fit percentages of Table 4 on one record (MATLAB ``compare``: NRMSE fit).
@@ -336,7 +337,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         notes.append(f"Ts = {ts_s:g} s is short for Eq. (1): the muscle moves little from one sample to the next, so "
                      f"the 1-step fit ({fit.percent['1']:.2f} %) says little and the free run ({free}) is the figure "
                      f"to judge; compare it with the record merged to {SHORT_TS_S:g}-{PAPER_TS_S:g} s (tapmuscle "
-                     "import --decimate N; docs/identification.md, \"Fast data acquisition\")")
+                     "import --decimate N, tm.decimated; docs/identification.md, \"Fast data acquisition\")")
     return IdentificationReport(
         model=model, structure=structure, ts_s=float(ts_s), n_samples=len(l), theta=theta,
         theta_history=history, fit=fit, l_scale=l_scale, u_scale=u_scale,

@@ -230,12 +230,12 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
     report = reports[best] if start == asked else identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=best,
                                                                    **identify)
     tried = len(fits) - 1
-    if max_samples is None and tried * float(ts_s) < SEARCH_S * (1.0 - 1e-9):
+    if max_samples is None and round(SEARCH_S / float(ts_s)) > MAX_INPUT_DELAY_SAMPLES:
         # the controllers compensate at most MAX_INPUT_DELAY_SAMPLES: at a short Ts they span less than
         # the delays a rig has (0.15 s is 150 samples at 1 ms)
         note = (f"the delays were searched only up to {tried} samples, {tried * float(ts_s):g} s at Ts = {float(ts_s):g} s "
                 f"(the controllers compensate at most {MAX_INPUT_DELAY_SAMPLES}), not the {SEARCH_S:g} s a rig's delay "
                 f"may reach: merge the record to Ts = {SEARCH_S / MAX_INPUT_DELAY_SAMPLES:g} s or more to search that far "
-                "(tapmuscle import --decimate N)")
+                "(tapmuscle import --decimate N, tm.decimated)")
         report = replace(report, notes=report.notes + (note,))
     return InputDelayChoice(best, tuple(fits), start, report)

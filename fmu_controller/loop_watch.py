@@ -23,7 +23,8 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTE
                                                  HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES,
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
                                                  held_against_error, pushed_at_limit, stuck_reading_message)
-from fmu_controller.servo_settings import TABLE5_SERVO
+from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
+from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["LoopWatch", "samples_in_words", "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
            "PINNED_S", "HEAVY_MOVE_WEIGHT"]
@@ -65,7 +66,7 @@ def samples_in_words(n: int) -> str:
 class LoopWatch:
     """The supervision of one controller's closed loop: :meth:`observe` after each
     :meth:`DisplacementController.step <fmu_controller.displacement_control.DisplacementController.step>`
-    returns what to tell of the run so far (each kind once a run).
+    returns what to tell of the run so far (each kind once a run; a stuck reading once a stretch).
 
     Parameters
     ----------
@@ -112,6 +113,12 @@ class LoopWatch:
             self._check_delay(said, t_s)
         return said
 
+    def _law(self) -> ServoMPCSettings | UCPSettings:
+        """The settings of the method's own law, whose ``u_min_v``, ``u_max_v`` are the valve limits it
+        keeps (the servo's or the coincidence point's)."""
+        s = self.controller.settings
+        return s.servo if s.servo_mechanism else s.ucp
+
     def _watch_diverged(self, said: list[str], t_s: float, l: float, uc: float, predicted: float) -> None:
         """Tell once when the one-step prediction or the QP's input leaves :data:`DIVERGED_MM` /
         :data:`DIVERGED_V` (a host's log is not flooded every sample)."""
@@ -150,7 +157,7 @@ class LoopWatch:
         into for :data:`PINNED_S` seconds in a row."""
         if self._pinned_n < 0:
             return
-        s = self.controller.settings.servo
+        s = self._law()
         self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v), PINNED_S)
         if sat_s is not None:
             limit = s.u_max_v if r > l else s.u_min_v
@@ -164,7 +171,7 @@ class LoopWatch:
         ``theta0.b1`` held the valve shut for a whole run without a word)."""
         if self._held_n < 0:
             return
-        s = self.controller.settings.servo
+        s = self._law()
         self._held_n, sat_s = self._in_a_row(self._held_n, held_against_error(r, l, u, s.u_min_v, s.u_max_v),
                                              HELD_WARN_S)
         if sat_s is not None:
@@ -180,7 +187,7 @@ class LoopWatch:
         if self._jump_ks is None:
             return
         settings = self.controller.settings
-        s = settings.servo
+        s = self._law()
         if k > 0 and full_range_jump(u, u_prev, s.u_min_v, s.u_max_v):
             window = int(round(SLAM_WINDOW_S / settings.ts_s))
             self._jump_ks = [j for j in self._jump_ks if j > k - window] + [k]
@@ -205,7 +212,8 @@ class LoopWatch:
         if abs(r - self._r_last) > REF_STEP_MM_PER_S * s.ts_s:
             self._swings_from = k + int(round(REF_STEP_SETTLE_S / s.ts_s))
         self._r_last = r
-        side = -1 if u <= s.servo.u_min_v + 1e-9 else 1 if u >= s.servo.u_max_v - 1e-9 else 0
+        law = self._law()
+        side = -1 if u <= law.u_min_v + 1e-9 else 1 if u >= law.u_max_v - 1e-9 else 0
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side

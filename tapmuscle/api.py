@@ -140,7 +140,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
                 params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
                 settings: ControllerSettings | None = None, seed: int = 0,
                 loop_delay_samples: int = 0, effects: Sequence[Effect] | Effect = (),
-                progress: bool | Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+                progress: bool | Callable[[int, int], None] | None = None,
+                watch: bool = True) -> dict[str, np.ndarray]:
     """Track a reference with one of the paper's four controllers on the simulated rig (no FMU).
 
     The loop of :func:`tapmuscle.closed_loop.run_closed_loop`: at ``t_k`` the controller reads
@@ -190,6 +191,9 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     progress : bool or callable, optional
         ``progress(done, total)`` about every 1 % of the run; True: a report on stderr
         (:class:`tapmuscle.progress.Progress`).
+    watch : bool, default True
+        Warn after the run of what the controller FMU would log of it (a limit cycle, a set input
+        delay the first 30 s contradict, a stuck reading, ...: :func:`run_closed_loop`); False: not.
 
     Returns
     -------
@@ -241,7 +245,7 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
     return run_closed_loop(plant, controller, reference, duration_s=duration_s,
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples,
-                           progress=reporter(progress, "simulate_closed_loop"))
+                           progress=reporter(progress, "simulate_closed_loop"), watch=watch)
 
 
 def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> list[Path]:

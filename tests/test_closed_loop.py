@@ -141,9 +141,9 @@ def test_eq21_at_another_period_scores_the_same_seconds():
 
 
 def test_a_law_holding_the_valve_against_the_error_is_warned_of_after_the_run():
-    """A fixed method on theta0 with a negative b1 held the valve at 0 V for the whole run while l stayed
-    35 mm below r, and the Python loop said nothing: the run warns as the FMU logs it, at the caller's
-    line, naming theta0's b1; the same loop on THETA0_44N does not."""
+    """A fixed method on theta0 with a negative b1 holds the valve at 0 V for the whole run while l stays
+    35 mm below r: the run warns as the FMU logs it, at the caller's line, naming theta0's b1; the same
+    loop on THETA0_44N does not."""
     import warnings
 
     import tapmuscle as tm

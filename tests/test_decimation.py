@@ -45,11 +45,15 @@ def test_one_is_the_recording_itself_and_a_bad_factor_is_refused():
 
 
 def test_a_period_shorter_than_a_millisecond_asks_to_merge_samples_not_for_another_unit():
-    """A 2-kHz log in seconds was refused as "likely in min (--time time_s:min)", and following that
-    wrote a 50-s log as 3000 s; a period too long still asks about milliseconds."""
+    """A 2-kHz log in seconds asks for a merge, not for minutes (which would write a 50-s log as
+    3000 s); one beyond the largest merge says so; a period too long asks about milliseconds."""
     with pytest.raises(ValueError, match=r"0.0005 s \(2000 Hz\), shorter than the 0.001 s .* Merge every 40 samples "
-                                         r"into one \(tapmuscle import --decimate 40: Ts = 0.02 s"):
+                                         r"into one \(tapmuscle import --decimate 40, tm.decimated: Ts = 0.02 s\)"):
         check_sampling_period(0.0005)
+    with pytest.raises(ValueError, match=r"Merge every 1000 samples into one \(.*Ts = 0.001 s\)"):
+        check_sampling_period(1e-6)  # 1000 x 1 us: not below the bound, the largest merge
+    with pytest.raises(ValueError, match=r"Ts = 0.0005 s, still shorter than 0.001 s: resample the log before"):
+        check_sampling_period(5e-7)
     with pytest.raises(ValueError, match="milliseconds"):
         check_sampling_period(50.0)
     check_sampling_period(TS_RANGE_S[0])
@@ -85,4 +89,35 @@ def test_a_period_too_short_in_a_unit_other_than_seconds_offers_both_remedies(tm
                  "--load-n", "44"]) == 2
     err = capsys.readouterr().err
     assert re.search(r"the column is likely in s \(--time t:s\); or, if ms is right, a data acquisition faster than the "
-                     r"muscle needs: merge every 200 samples into one \(--decimate 200: Ts = 0.02 s\)", err), err
+                     r"muscle needs: merge every 200 samples into one \(tapmuscle import --decimate 200, tm.decimated: Ts = 0.02 s\)",
+                     err), err
+
+
+def test_a_period_header_is_the_merged_one_and_merging_twice_counts_the_product():
+    rec = _fast()
+    rec = Recording(rec.columns, {"ts_s": "0.0005", "load_n": "44"}, rec.lines)
+    once, _ = decimated(rec, 20)
+    assert once.metadata["ts_s"] == "0.01" and once.ts_s == pytest.approx(0.01)
+    twice, _ = decimated(once, 5)
+    assert twice.metadata["decimated"] == "100" and twice.ts_s == pytest.approx(0.05)
+    np.testing.assert_array_equal(twice.l_mm, rec.l_mm[::100])
+
+
+def test_a_merge_too_small_for_the_log_names_the_logs_own_period_and_the_total(tmp_path, capsys):
+    """A 10-kHz log with --decimate 5 (0.5 ms) was told the merged period and a factor for it (40),
+    where the log needs 200 in all; a merge beyond 10 s is told to merge fewer."""
+    t = np.arange(20001) * 0.0001
+    log = tmp_path / "daq.csv"
+    log.write_text("time_s,valve_v,pos_mm\n" + "".join(f"{a:.4f},{5.0 + np.sin(a):.4f},{3.0 * np.sin(a):.3f}\n"
+                                                         for a in t))
+    base = ["import", str(log), "--out", str(tmp_path / "r.csv"), "--time", "time_s:s", "--u", "valve_v", "--l",
+            "pos_mm", "--load-n", "44"]
+    assert main(base + ["--decimate", "5"]) == 2
+    err = capsys.readouterr().err
+    assert ("the log is sampled every 0.0001 s (10000 Hz), and --decimate 5 gives 0.0005 s, still shorter than 0.001 s: "
+            "merge every 200 samples into one (tapmuscle import --decimate 200") in err, err
+    slow = tmp_path / "slow.csv"
+    slow.write_text("time_s,valve_v,pos_mm\n" + "".join(f"{a:.1f},{5.0 + np.sin(a):.4f},{3.0 * np.sin(a):.3f}\n"
+                                                          for a in np.arange(3001) * 0.1))
+    assert main([base[0], str(slow), *base[2:], "--decimate", "200"]) == 2
+    assert "--decimate 200 merges the log's 0.1-s samples to 20 s, longer than the 10 s" in capsys.readouterr().err

@@ -1248,12 +1248,12 @@ def test_the_glitch_guard_bound_is_max_speed_times_ts(jump_mm, held):
 
 
 # ------------------------------------------------------------------ stuck reading
-def _frozen_run(method, *, freeze_at=200, n=500, params=None, reference=None, save_at=None):
+def _frozen_run(method, *, freeze_at=200, n=500, params=None, reference=None, save_at=None, **settings):
     """A loop on the simulated rig whose readings stop changing from sample ``freeze_at`` on (None:
     never): the samples where ``reading_stuck`` was set with what it said, the commands, and the
     controller's state saved before sample ``save_at``."""
     plant = Plant(params, seed=0)
-    s = ControllerSettings(method=method)
+    s = ControllerSettings(method=method, **settings)
     c = DisplacementController(s, THETA0_44N)
     ref = SineReference() if reference is None else reference
     l = plant.measurement.l_mm
@@ -1358,3 +1358,13 @@ def test_the_start_on_a_delayed_rig_overshoots_on_a_theta0_made_without_the_dela
                                                                                   input_delay_samples=3))
     assert excess0 > 20.0 and excess < 8.0
     assert eq21 < eq21_0
+
+
+def test_a_stuck_reading_is_told_at_the_coincidence_points_own_valve_limits():
+    """AMPC-UCP keeping the valve within 1..8 V (UCPSettings' bounds, not the servo's 0..10 V): a reading
+    frozen at 20 s is told as with the full range (the watch looked at the servo's limits, which this
+    law never reaches, and said nothing)."""
+    told, us, _, _, _ = _frozen_run("ampc_ucp", ucp=UCPSettings(u_min_v=1.0, u_max_v=8.0))
+    assert np.mean((us[200:] <= 1.0 + 1e-9) | (us[200:] >= 8.0 - 1e-9)) > 0.6 and us.max() <= 8.0
+    (k, _), = told
+    assert 240 <= k <= 320

@@ -30,9 +30,8 @@ def _delayed_loop(n, *, save_at=None, restore=None):
             watch.set_state(restore[1])
         l, preview = plant.measurement.l_mm, ref.preview(k, ctrl.settings.preview_samples)
         step = ctrl.step(l, preview)
-        said = watch.observe(k, k * 0.1, l, preview[0], step, u_prev)
-        if restore is None or k >= restore[0]:
-            told += said
+        if restore is None or k >= restore[0]:  # before it, the restored watch has seen nothing
+            told += watch.observe(k, k * 0.1, l, preview[0], step, u_prev)
         u_prev = step.u_v
         plant.step(step.u_v, 0.1)
     return told, saved
@@ -48,6 +47,10 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
     assert all(re.match(r"t = \d+(\.\d+)? s: ", m) for m in told)
     again, _ = _delayed_loop(601, restore=(120, saved))
     assert again == [m for m in told if float(m.split()[2]) >= 12.0]
+    # unrestored, the watch that saw nothing before 12 s tells the limit cycle later, or not at all
+    fresh, _ = _delayed_loop(601, restore=(120, LoopWatch(tm.DisplacementController(tm.ControllerSettings(),
+                                                                                   tm.THETA0_44N)).get_state()))
+    assert fresh != again
     watch = LoopWatch(tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N))
     watch.set_state(saved[:5])
     assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0]
@@ -81,8 +84,8 @@ def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
 
 def test_a_limit_cycle_after_minus_one_decided_does_not_send_the_user_back_to_minus_one():
     """-1 decides once and for good; a rig's delay between two samples (or an encoder offset) can make
-    it a sample off, and the loop then swings. The message said "check the delay (-1 decides it)",
-    which sends the user back to what went wrong; it names the decision and the neighbours to try."""
+    it a sample off, and the loop then swings: the message names the decision and the neighbours to
+    try, not "-1 decides it", which would send the user back to what went wrong."""
     import dataclasses
 
     class Decided(tm.DisplacementController):

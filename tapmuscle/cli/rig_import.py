@@ -191,7 +191,7 @@ def _converted(args: argparse.Namespace, run: int | None):
     from tapmuscle.io.rig_log import STANDARD_ATMOSPHERE_KPA, read_rig_log_columns
     from tapmuscle.io.decimation import decimated
     from tapmuscle.io.rig_log import unit_key
-    from tapmuscle.io.sampling import SamplingError, decimation_factor
+    from tapmuscle.io.sampling import SamplingError, merge_advice
 
     try:
         rec, cols = read_rig_log_columns(args.log, time=args.time, u=args.u, l=args.l, p=args.p, load=args.load,
@@ -222,6 +222,15 @@ def _converted(args: argparse.Namespace, run: int | None):
             check_sampling_period(ts)
         except ValueError as exc:
             col = cols.get("t_s")
+            if args.decimate > 1:  # the merge's period: what the log's own period needs instead
+                log_ts = ts / args.decimate
+                if ts > TS_RANGE_S[1]:
+                    raise ValueError(f"--decimate {args.decimate} merges the log's {log_ts:g}-s samples to {ts:g} s, longer "
+                                     f"than the {TS_RANGE_S[1]:g} s of a muscle recording: merge fewer ("
+                                     f"{merge_advice(log_ts)})") from None
+                raise ValueError(f"the log is sampled every {log_ts:g} s ({1.0 / log_ts:g} Hz), and --decimate "
+                                 f"{args.decimate} gives {ts:g} s, still shorter than {TS_RANGE_S[0]:g} s: "
+                                 f"{merge_advice(log_ts)}") from None
             if ts < TS_RANGE_S[0] and (col is None or args.ts is not None or col.conversion("t_s") is None
                                        or unit_key(col.unit) == "s"):
                 # seconds as given: a data acquisition faster than the muscle needs, most likely (2 kHz),
@@ -238,9 +247,7 @@ def _converted(args: argparse.Namespace, run: int | None):
             outside = outside.replace(" s,", f" s ({written:g} {col.unit}),", 1)
             faster = ""
             if ts < TS_RANGE_S[0]:  # another unit, or the unit right and a fast acquisition
-                n = decimation_factor(ts)
-                faster = (f"; or, if {col.unit} is right, a data acquisition faster than the muscle needs: merge every "
-                          f"{n} samples into one (--decimate {n}: Ts = {n * ts:g} s)")
+                faster = f"; or, if {col.unit} is right, a data acquisition faster than the muscle needs: {merge_advice(ts)}"
             raise ValueError(f"column {col.column!r} (t_s, given in {col.unit}): {outside}: " + (
                 hint or "is the time in another unit? Give its unit with --time, or the period with --ts") + faster) from None
         try:

@@ -15,11 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 from tapmuscle.io.recording import Recording
+from tapmuscle.io.sampling import MAX_DECIMATION
 
 __all__ = ["decimated", "MAX_DECIMATION"]
-
-#: Most samples merged into one (a 100-kHz log to 0.01 s).
-MAX_DECIMATION = 1000
 
 
 def decimated(rec: Recording, n: int) -> tuple[Recording, str | None]:
@@ -37,7 +35,8 @@ def decimated(rec: Recording, n: int) -> tuple[Recording, str | None]:
     Returns
     -------
     Recording, str or None
-        The merged recording (metadata ``decimated``: ``n``) and the note.
+        The merged recording (metadata ``decimated``: the samples of the original in one, ``n`` times
+        what ``rec`` says; a ``ts_s`` header the merged period) and the note.
 
     Raises
     ------
@@ -61,4 +60,9 @@ def decimated(rec: Recording, n: int) -> tuple[Recording, str | None]:
         note = (f"the command moved within {moved} of the {len(starts)} blocks of {n} samples (by up to "
                 f"{float(swing.max()):.3g} V): each merged sample holds its block's mean command")
     lines = None if rec.lines is None else rec.lines[starts]
-    return Recording(columns, {**rec.metadata, "decimated": str(n)}, lines), note
+    metadata = dict(rec.metadata)
+    if "ts_s" in metadata:  # the header states the period: the merged one
+        metadata["ts_s"] = f"{rec.ts_s * n:.12g}"
+    before = metadata.get("decimated", "1")
+    metadata["decimated"] = str(n * int(before)) if before.isdigit() else str(n)  # merged again: the product
+    return Recording(columns, metadata, lines), note

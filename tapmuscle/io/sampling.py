@@ -20,7 +20,8 @@ import numpy as np
 from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
-           "GAP_PERIODS", "check_sampling_period", "step_kind", "DECIMATED_TS_S", "decimation_factor"]
+           "GAP_PERIODS", "check_sampling_period", "step_kind", "DECIMATED_TS_S", "decimation_factor", "merge_advice",
+           "MAX_DECIMATION"]
 
 #: Largest distance of a sample's time from its slot on the uniform grid, as a fraction of the period.
 JITTER_TOLERANCE = 0.25
@@ -39,10 +40,25 @@ TS_RANGE_S = (1e-3, 10.0)
 DECIMATED_TS_S = 0.02
 
 
+#: Most samples ``tapmuscle import --decimate`` merges into one (a 50-kHz log to 0.02 s).
+MAX_DECIMATION = 1000
+
+
 def decimation_factor(ts_s: float, target_s: float = DECIMATED_TS_S) -> int:
     """Samples to merge into one so that a log sampled every ``ts_s`` [s] has a period of about
-    ``target_s`` [s] (at least 1)."""
-    return max(1, round(target_s / ts_s))
+    ``target_s`` [s]: 1 .. :data:`MAX_DECIMATION`."""
+    return min(max(1, round(target_s / ts_s)), MAX_DECIMATION)
+
+
+def merge_advice(ts_s: float) -> str:
+    """How to merge a log sampled every ``ts_s`` [s] (shorter than :data:`TS_RANGE_S` allows) to about
+    :data:`DECIMATED_TS_S`, in words: the option, the period it gives, and where even the largest
+    merge is not enough."""
+    n = decimation_factor(ts_s)
+    advice = f"merge every {n} samples into one (tapmuscle import --decimate {n}, tm.decimated: Ts = {n * ts_s:g} s"
+    if n * ts_s < TS_RANGE_S[0]:
+        advice += f", still shorter than {TS_RANGE_S[0]:g} s: resample the log before, it is beyond the merge's {MAX_DECIMATION}"
+    return advice + ")"
 
 
 def check_sampling_period(ts_s: float) -> None:
@@ -57,12 +73,10 @@ def check_sampling_period(ts_s: float) -> None:
     # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
     # out as 0.99999999999989 ms, which is still 1 ms
     if ts_s < TS_RANGE_S[0] * (1.0 - 1e-9):
-        n = decimation_factor(ts_s)
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s ({1.0 / ts_s:g} Hz), shorter than the "
                          f"{TS_RANGE_S[0]:g} s the tools sample at least: a data acquisition faster than the muscle "
-                         f"needs? Merge every {n} samples into one (tapmuscle import --decimate {n}: Ts = "
-                         f"{n * ts_s:g} s; docs/recordings.md, \"Fast data acquisition\"); else the times are in "
-                         "a unit larger than seconds")
+                         f"needs? {merge_advice(ts_s)[0].upper()}{merge_advice(ts_s)[1:]}; docs/recordings.md, "
+                         "\"Fast data acquisition\"; else the times are in a unit larger than seconds")
     if not ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
                          "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
