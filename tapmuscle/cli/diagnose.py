@@ -25,9 +25,7 @@ def _effect_list(text: str) -> list[str]:
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.report import diagnose_files, summary_lines
 
-    from tapmuscle.io.plant_file import PlantFileError
     from tapmuscle.progress import Progress
-    from tapmuscle.io.recording import RecordingError
 
     from tapmuscle.diagnosis.candidates import CANDIDATES
 
@@ -56,10 +54,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                               fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
                               effects=effects,
                               workers=args.workers or os.cpu_count() or 1, **options)
-    except (RecordingError, PlantFileError) as exc:
+    except ValueError as exc:  # each names the recording or plant file at fault
         raise UsageError(str(exc)) from None
-    except ValueError as exc:
-        raise UsageError(f"{args.recording}: {exc}") from None
     if args.use_pressure and d.pressure_noise_mpa is None:
         print("--use-pressure: the recording has no usable p_mpa column (missing, constant, short or not "
               "finite); judged on the displacement alone")

@@ -300,7 +300,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     Raises
     ------
     ValueError
-        Arrays of different lengths, fewer than :data:`MIN_SAMPLES` samples, non-uniform sampling
+        Arrays of different lengths, a recording too short (four blocks of ``block_s``, 40 s with the
+        default ones, and :data:`MIN_SAMPLES` samples: said as a duration), non-uniform sampling
         (naming the first offending sample), non-finite values, a command that never changes, or
         values no muscle recording has (a command outside -1..11 V, a displacement beyond 500 mm, a
         period outside 1 ms..10 s: :func:`~tapmuscle.diagnosis.recording_checks.check_muscle_recording`);
@@ -334,12 +335,14 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     def progress(done: int, total: int) -> None:
         last[:] = done, total
         report(done, total)
-    if report is not None:
-        progress(0, len(candidates))  # reported from the start: the calibration comes before the first fit
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
     check_muscle_recording(u, ts, y, np.asarray(p_mpa, float) if use_pressure and p_mpa is not None else None)
     notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float), load_n=load_n)
     block_s = split_length_s(u, ts, block_s)
+    # reported from the start of the work (the calibration comes before the first fit), once the
+    # recording is known to be usable: a refusal is not preceded by a report of 0 %
+    if report is not None:
+        progress(0, len(candidates))
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
     y_nominal = sim.run(model)[0]
@@ -468,33 +471,58 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
     for name, arr in ((un, u), (yn, y)) + ((("load_n", load_n),) if load_n is not None else ()):
         if len(arr) != len(t):
             raise ValueError(f"column {name} has {len(arr)} samples, {tn} has {len(t)}")
-    if len(t) < MIN_SAMPLES:
-        raise ValueError(f"the recording has {len(t)} samples; the diagnosis needs at least {MIN_SAMPLES}")
+    if len(t) < 2:  # no sampling period, so no duration to state
+        raise ValueError(f"the recording has {len(t)} sample(s); the diagnosis needs at least {MIN_SAMPLES}")
     for name, arr in ((tn, t), (un, u), (yn, y)):
         bad = np.nonzero(~np.isfinite(arr))[0]
         if bad.size:
             raise ValueError(f"column {name}, sample {int(bad[0])}: {float(arr[bad[0]])!r} is not finite")
     ts = uniform_sampling(t, tn).ts_s
+    # the duration comes from the period read back from written times, a few ulps off: 20 s at 1 ms
+    # is 19.9999999999978 s, and 5-s blocks still fit four times
+    duration = (len(t) - 1) * ts
+    too_short = _too_short(len(t), ts, duration, block_s)
+    if too_short:
+        raise ValueError(too_short)
     if float(np.ptp(u)) == 0.0:
         raise ValueError(f"column {un}: the command is constant ({u[0]:g} {units[0]}); nothing excites the plant")
     if float(np.ptp(y)) == 0.0:
         what = "displacement" if yn == "l_mm" else "output"
         raise ValueError(f"column {yn}: the {what} is constant ({y[0]:g} {units[1]}); the recording shows no "
                          "response to compare with the model (a disconnected sensor?)")
-    duration = (len(t) - 1) * ts
     if block_s is None:
-        block_s = max(BLOCK_S, ts)
-    elif math.isfinite(block_s) and 0.0 < block_s < ts:
+        return t, u, y, ts  # the default blocks fit: _too_short
+    if math.isfinite(block_s) and 0.0 < block_s < ts:
         # shorter blocks skip block numbers, and with a period of two blocks or more every sample
         # falls in a training block: no held-out sample, every fit NaN
         raise ValueError(f"block_s (--block) = {block_s!r} s is shorter than the sampling period {ts:g} s: every "
                          "training and held-out block must hold a sample")
-    # the duration comes from the period read back from written times, a few ulps off: 20 s at 1 ms
-    # is 19.9999999999978 s, and 5-s blocks still fit four times
     if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0 * (1.0 + 1e-9)):
         raise ValueError(f"block_s (--block) = {block_s!r} s: a {duration:g}-s recording needs blocks of more than 0 and at "
                          f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")
     return t, u, y, ts
+
+
+def _too_short(n: int, ts: float, duration: float, block_s: float | None) -> str | None:
+    """Why a recording of ``n`` samples every ``ts`` [s], ``duration`` [s] long, is too short for the
+    diagnosis, as a duration (None: long enough). It needs :data:`MIN_SAMPLES` samples (the residual
+    tests) and, with the default blocks (``block_s`` None), four of them (two training, two held-out);
+    a ``block_s`` given is checked by :func:`validated_recording`, which names it."""
+    floor_s = (MIN_SAMPLES - 1) * ts
+    what = f"the recording lasts {duration:g} s ({n} samples at {ts:g} s)"
+    tests = f"{MIN_SAMPLES} samples, for the residual tests"
+    if block_s is not None or floor_s >= 4.0 * max(BLOCK_S, ts):  # the blocks do not set the minimum
+        if n >= MIN_SAMPLES:
+            return None
+        return f"{what}; the diagnosis needs at least {floor_s:g} s at this sampling period ({tests})"
+    block = max(BLOCK_S, ts)
+    if n >= MIN_SAMPLES and duration >= 4.0 * block * (1.0 - 1e-9):
+        return None
+    why = (f"{what}; the diagnosis needs at least {4.0 * block:g} s with its default {block:g}-s blocks (two training "
+           "and two held-out blocks at least); shorter blocks (block_s, --block) lower that to four times their length")
+    if n >= MIN_SAMPLES:
+        return f"{why}: this recording takes blocks of at most {duration / 4.0:g} s"
+    return f"{why}, but not below {floor_s:g} s at this sampling period ({tests})"
 
 
 def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, model: Any, *,

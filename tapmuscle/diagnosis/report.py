@@ -13,6 +13,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from tapmuscle.plots.figures import new_figure, save_figure
+from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text, read_recording
@@ -471,7 +472,8 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
         The diagnosis and the ``diagnosis.json`` document.
 
     Raises ``tapmuscle.io.recording.RecordingError`` (file, line, column) for a malformed recording,
-    ``PlantSourceError`` for a bad plant, ``ValueError`` for a recording the diagnosis cannot use.
+    ``PlantSourceError`` for a bad plant, ``ValueError`` naming the recording file for a recording the
+    diagnosis cannot use (too short, a constant command, ...) or an option it refuses.
     """
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
@@ -486,8 +488,13 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     with worker_pool(workers) as pool:
         put_back = cols["filled"] != 0 if "filled" in cols else None  # tapmuscle import --fill-gaps
         filled = np.zeros(0, int) if put_back is None else np.flatnonzero(put_back)
-        d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
-                     progress=progress, executor=pool, left_out=put_back if filled.size else None, **options)
+        try:
+            d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], model, load_n=load, p_mpa=cols.get("p_mpa"),
+                         progress=progress, executor=pool, left_out=put_back if filled.size else None, **options)
+        except TapmuscleError:  # names its file already
+            raise
+        except ValueError as exc:  # about the recording's columns: which recording
+            raise ValueError(f"{recording}: {exc}") from exc
         if load is None:
             d.notes.append(f"The recording gives no load (no load_n column, no '# load_n:' line): the plant's "
                            f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch)")
