@@ -48,11 +48,15 @@ class Progress:
         "still running" line after :data:`HEARTBEAT_LOG_S` without one elsewhere (a log, a notebook).
     min_total : int
         Runs of fewer units than this report nothing.
+    counts : bool
+        Show ``done/total`` in a log's lines (``diagnose:  40% (4/9, 12.3 s)``); False: the percentage,
+        the time and the detail only (``diagnose:  24% (61.2 s)  round 1 of at most 3: own fits 9/18``),
+        for units that mean nothing to the reader (a diagnosis's thousandths of its work).
     """
 
     def __init__(self, label: str, *, enabled: bool = True, stream: TextIO | None = None,
-                 min_total: int = 500) -> None:
-        self.label, self.enabled, self.min_total = label, enabled, min_total
+                 min_total: int = 500, counts: bool = True) -> None:
+        self.label, self.enabled, self.min_total, self.counts = label, enabled, min_total, counts
         self.stream = stream if stream is not None else sys.stderr
         self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self._last_decile = -1
@@ -73,8 +77,8 @@ class Progress:
         if not self.enabled or total < self.min_total:
             return
         before = self._state
-        # the same Progress given to another run, which counts from below the last report: afresh (a
-        # diagnosis's rounds count on, with a larger total)
+        # the same Progress given to another run, which counts from below the last report: afresh (one
+        # run's count never decreases)
         again = before is not None and done < before[0]
         beating = self._heart is not None and self._heart.is_alive()
         if again:
@@ -105,7 +109,8 @@ class Progress:
             if decile > self._last_decile or heartbeat:
                 self._last_decile = max(decile, self._last_decile)
                 still = "  (still running)" if heartbeat else ""
-                self.stream.write(f"{self.label}: {100 * frac:3.0f}% ({done}/{total}, {elapsed:.1f} s){extra}{still}\n")
+                count = f"{done}/{total}, " if self.counts else ""
+                self.stream.write(f"{self.label}: {100 * frac:3.0f}% ({count}{elapsed:.1f} s){extra}{still}\n")
             else:
                 return
         self.stream.flush()
@@ -124,14 +129,15 @@ class Progress:
         return True
 
 
-def reporter(progress: Any, label: str) -> Any:
+def reporter(progress: Any, label: str, *, counts: bool = True) -> Any:
     """What a ``progress=`` argument of the Python API stands for: ``True`` is a :class:`Progress`
-    labelled ``label`` on stderr, reporting from the first unit; ``None`` or ``False`` none; a callable
-    is called as it is (``progress(done, total)``). Anything else is refused, naming it."""
+    labelled ``label`` on stderr, reporting from the first unit (showing ``done/total`` if ``counts``);
+    ``None`` or ``False`` none; a callable is called as it is (``progress(done, total)``). Anything else
+    is refused, naming it."""
     if progress is None or progress is False:
         return None
     if progress is True:
-        return Progress(label, min_total=1)
+        return Progress(label, min_total=1, counts=counts)
     if callable(progress):
         return progress
     raise TypeError(f"progress must be True, False, None or a callable progress(done, total), got {progress!r}")

@@ -115,7 +115,8 @@ def test_progress_true_reports_the_api_s_long_calls_on_stderr(capsys):
     rec = tm.simulate(lambda t: 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * t), duration_s=40.0, seed=1)
     tm.diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], tm.PlantParams(), calibration=None, progress=True)
     err = capsys.readouterr().err.splitlines()
-    assert err[0].startswith("diagnose:   0% (0/") and err[-1].startswith("diagnose: 100%"), err
+    assert err[0].startswith("diagnose:   0% (") and err[0].endswith(" s)  the nominal run"), err
+    assert err[-1].startswith("diagnose: 100%"), err
     # False and None report nothing; a callable is called as given
     calls = []
     tm.simulate_closed_loop(duration_s=2.0, progress=False)
@@ -132,3 +133,14 @@ def test_a_progress_that_is_neither_a_flag_nor_a_callable_is_refused_naming_it()
                  lambda: tm.sweep("no_such.toml", "out", progress=1)):
         with pytest.raises(TypeError, match=r"progress must be True, False, None or a callable .*got ('yes'|1)"):
             call()
+
+
+def test_a_log_line_without_counts_shows_the_percentage_the_time_and_the_detail():
+    """For units that mean nothing to the reader (a diagnosis's thousandths of its work)."""
+    out = io.StringIO()
+    p = Progress("diagnose", stream=out, min_total=1, counts=False)
+    p(240, 1000, "round 1 of at most 3: own fits 9/18")
+    p(1000, 1000, "done")
+    first, last = out.getvalue().splitlines()
+    assert first.startswith("diagnose:  24% (") and first.endswith(" s)  round 1 of at most 3: own fits 9/18")
+    assert "240/1000" not in first and last.startswith("diagnose: 100% (") and last.endswith(" s)  done")

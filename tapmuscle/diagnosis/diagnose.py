@@ -106,6 +106,7 @@ from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, Fi
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.progress import reporter
+from tapmuscle.diagnosis.search_progress import JOINT_REFITS, OWN_FITS, TESTS, SearchProgress
 from tapmuscle.diagnosis.held_out import HeldOut
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
 from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation, balanced_block_s, block_index, autocorrelation_test,
@@ -279,8 +280,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         default :data:`~tapmuscle.diagnosis.calibration.NOMINAL_PARAMETERS`); None or empty: no calibration
         (the model is taken as exact apart from left-out effects).
     progress : bool or callable, optional
-        ``progress(done, total)`` after each fit; True: a report on stderr
-        (:class:`tapmuscle.progress.Progress`).
+        ``progress(done, total)`` as the diagnosis goes, ``done`` thousandths of the whole, never
+        decreasing, ``total`` at the end (:mod:`~tapmuscle.diagnosis.search_progress`); True: a report
+        on stderr with the phase (:class:`tapmuscle.progress.Progress`).
     workers : int
         Processes for the independent work (the candidates' own fits, the joint re-fits, the
         forward-difference Jacobians); 1: all in this process. The diagnosis is the same, bit for bit,
@@ -329,20 +331,14 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     if calibration is not None:
         calibration = by_name(calibration, NOMINAL_PARAMETERS, "calibration", "nominal parameter",
                               hint="; calibration=None: no calibration")
-    report = reporter(progress, "diagnose")
-    last = [0, len(candidates)]  # the latest (done, total): a search that stops early ends its report at total
-
-    def progress(done: int, total: int) -> None:
-        last[:] = done, total
-        report(done, total)
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)
     check_muscle_recording(u, ts, y, np.asarray(p_mpa, float) if use_pressure and p_mpa is not None else None)
     notes = muscle_recording_notes(t, y, None if p_mpa is None else np.asarray(p_mpa, float), load_n=load_n)
     block_s = split_length_s(u, ts, block_s)
-    # reported from the start of the work (the calibration comes before the first fit), once the
-    # recording is known to be usable: a refusal is not preceded by a report of 0 %
-    if report is not None:
-        progress(0, len(candidates))
+    # reported from the start of the work, once the recording is known to be usable: a refusal is
+    # not preceded by a report of 0 %
+    tracker = SearchProgress(reporter(progress, "diagnose", counts=False), calibrating=bool(calibration))
+    tracker.start()
     load = None if load_n is None else np.asarray(load_n, float)
     sim = Simulator(u, ts, load)
     y_nominal = sim.run(model)[0]
@@ -352,10 +348,9 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         sim.executor = executor if executor is not None else stack.enter_context(worker_pool(workers))
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                    calibration=calibration, progress=progress if report is not None else None, started=started,
+                    calibration=calibration, progress=tracker, started=started,
                     space=MuscleSpace(model), use_pressure=use_pressure, left_out=left_out)
-    if report is not None and last[0] < last[1]:
-        report(last[1], last[1])
+    tracker.finish()
     d.notes[:0] = notes
     if load is not None:
         d.notes += _recorded_load(d, load, model.load.load_n)
@@ -537,15 +532,18 @@ def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     :func:`validated_recording` (``u``: the input the residual is cross-correlated with; ``output``: the
     measured output's ``(name, unit)``, in which the findings are worded)."""
     started = time.perf_counter()
-    if progress is not None:
-        progress(0, len(candidates))
-    return _search(sim, t, u, y, ts, None, None, model, block_s=block_s, fit_segment_s=fit_segment_s,
-                   candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
-                   calibration=calibration, progress=progress, started=started, space=space, output=output)
+    tracker = SearchProgress(progress, calibrating=bool(calibration))
+    tracker.start()
+    d = _search(sim, t, u, y, ts, None, None, model, block_s=block_s, fit_segment_s=fit_segment_s,
+                candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
+                calibration=calibration, progress=tracker, started=started, space=space, output=output)
+    tracker.finish()
+    return d
 
 
 def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: Sequence[tuple], *,
-               parallel: bool = True) -> list[Callable[[], tuple[Any, int, float]]]:
+               parallel: bool = True, each_done: Callable[[], None] | None = None
+               ) -> list[Callable[[], tuple[Any, int, float]]]:
     """``fn(problem, *shared, *task)`` for each of ``tasks``: one handle per task, in order, that
     returns ``(result, simulations, seconds)``.
 
@@ -553,10 +551,16 @@ def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: S
     submitted now, each on a copy of ``(problem, shared)`` taken now (a later baseline run changes the
     checkpoints), so that tasks on two bases can run at once; otherwise they run here and now. The
     results are the same either way (``fn`` must be a module-level function to go to a worker).
+    ``each_done`` is called as each task's result is had: here as it ends, from a worker as its
+    handle collects it (in both cases once per task, in order).
     """
     pool = problem.sim.executor
     if pool is None or not parallel or len(tasks) < 2:
-        done = [_timed(fn, problem, shared, task) for task in tasks]
+        done = []
+        for task in tasks:
+            done.append(_timed(fn, problem, shared, task))
+            if each_done is not None:
+                each_done()
         return [lambda out=out: out for out in done]
     blob = pickle.dumps((problem, shared))
     futures = [pool.submit(_timed_on_copy, fn, blob, task) for task in tasks]
@@ -564,6 +568,8 @@ def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: S
     def collect(fut: Future) -> tuple[Any, int, float]:
         out = fut.result()
         problem.sim.runs += out[1]  # the worker's copy counted them
+        if each_done is not None:
+            each_done()
         return out
     return [lambda fut=fut: collect(fut) for fut in futures]
 
@@ -607,12 +613,13 @@ def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Cand
 
 
 def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
-                y_base: np.ndarray) -> list[Callable[[], tuple[Any, int, float]]]:
+                y_base: np.ndarray, each_done: Callable[[], None] | None = None
+                ) -> list[Callable[[], tuple[Any, int, float]]]:
     """Each candidate's own fit on ``base`` (whose run left the checkpoints) by :func:`_on_copies`;
     in worker processes for the built-in candidates only."""
     builtin = all(_BUILTIN.get(c.name) is c for c in cands)
     return _on_copies(problem, _own_fit, (base, y_base), [(c.name if builtin else c,) for c in cands],
-                      parallel=builtin)
+                      parallel=builtin, each_done=each_done)
 
 
 def _effect_coords(space: ModelSpace, effects: Sequence[str]) -> list[FittedParameter]:
@@ -811,7 +818,7 @@ def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[Fitt
 def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, load: np.ndarray | None,
             p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
             candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
-            calibration: Sequence[NominalParameter] | None, progress: Callable[[int, int], None] | None,
+            calibration: Sequence[NominalParameter] | None, progress: SearchProgress,
             started: float, space: ModelSpace, use_pressure: bool = False, left_out: np.ndarray | None = None,
             output: tuple[str, str] | None = None) -> Diagnosis:
     """The calibration and the effect search of :func:`diagnose` on its validated recording."""
@@ -1184,10 +1191,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     gate_structured, gate = is_structured(y - current.y, sensor_noise_mm=sensor_mm)
     structured = tests0["structured"] and gate_structured
     pool = [c for c in candidates if c.name not in current.effects]
-    done = 0
+    searching = tests0["structured"] and structured
+    progress.plan(min(len(pool), max_effects - len(current.effects)) if searching else 0)
     round_no = 0
     while tests0["structured"] and structured and pool and len(current.effects) < max_effects:
         round_no += 1
+        progress.begin_round(round_no)
         # the reference: the current model re-fitted to convergence, so that a candidate's extra freedom
         # is not mistaken for evidence (and the search stops if recalibration alone whitens the residual)
         better = refitted(current.params) if current.params is not converged else None
@@ -1236,10 +1245,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 selection.append({"step": "stop", "round": round_no, "reason": "the recalibrated model "
                                   "leaves a white residual"})
                 break
-        total = done + len(pool)
         fitted: list[tuple[Candidate, FitResult, dict[str, float]]] = []
         fit_base = fit_percent(y, current.y, test)
         nominal_fits: dict[str, FitResult] = {}
+        from_nominal_too = (round_no == 1 and bool(coords)) or (nominal_start is not None
+                                                                 and nominal_start.effects == current.effects)
+        fit_done = progress.counter(round_no, OWN_FITS, len(pool) * (2 if from_nominal_too else 1))
         if round_no == 1 and coords:
             # A large effect that the constants can partly mimic pulls the first calibration into its
             # own valley, and a start from there stays in it: every candidate also starts from the
@@ -1248,18 +1259,18 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # (with the first reading's effect, when kept, at its values)
             start_n = model.with_values(**first_values) if first_values else model
             y_n = sim.run(start_n, checkpoint_every=checkpoint_every)[0]  # window fits continue from checkpoints of their base
-            nominal_jobs = _start_fits(pool, problem, start_n, y_n if first_values else y0)
+            nominal_jobs = _start_fits(pool, problem, start_n, y_n if first_values else y0, fit_done)
         elif nominal_start is not None and nominal_start.effects == current.effects:
             # (a start made before the backward step dropped an effect would switch it on again)
             start_n = nominal_start.params
             sim.run(start_n, checkpoint_every=checkpoint_every)
-            nominal_jobs = _start_fits(pool, problem, start_n, nominal_start.y)
+            nominal_jobs = _start_fits(pool, problem, start_n, nominal_start.y, fit_done)
         else:
             nominal_jobs = []
         nominal_start = None
         linearise(current.params, current.y, pool)
         sim.run(current.params, checkpoint_every=checkpoint_every)
-        jobs = _start_fits(pool, problem, current.params, current.y)
+        jobs = _start_fits(pool, problem, current.params, current.y, fit_done)
         for cand, job in zip(pool, nominal_jobs):
             res_n = job()[0]
             if isinstance(res_n, FitResult):
@@ -1267,9 +1278,6 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         for cand, job in zip(pool, jobs):
             res, sims_used, secs = job()
             cost = {"simulations": sims_used, "seconds": round(secs, 2)}
-            done += 1
-            if progress is not None:
-                progress(done, total)
             if not isinstance(res, FitResult):
                 tried.append({"round": round_no, "effect": cand.name, "fitted": False} | cost
                              | ({"rejected": res.reason} if isinstance(res, Rejected) else {}))
@@ -1324,7 +1332,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         ref_y, ref_q = current.y, current.q
         alts: list[Alternative] = []
         tasks = [(start.with_values(**res.values), current.effects + (cand.name,)) for cand, res, start, _ in promising]
-        jobs = _on_copies(problem, _joint_prediction, (space, list(coords), sigma, cal_jac), tasks)
+        jobs = _on_copies(problem, _joint_prediction, (space, list(coords), sigma, cal_jac), tasks,
+                          each_done=progress.counter(round_no, JOINT_REFITS, len(tasks)))
         joints = []
         for (cand, res, _, _), job in zip(promising, jobs):
             out, sims_used, secs = job()
@@ -1336,6 +1345,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # An effect with parameters that are not re-fitted jointly (a band's edges, a map's knots, a
         # drift, a sag's window) was fitted on constants that had absorbed part of it: fit it afresh on
         # the re-fitted constants, and re-fit those once more. Chosen on the training blocks only.
+        progress.round(round_no, TESTS)
         ref_train = sensors_sse(ref_y, ref_q)
         joint_sse = [sensors_sse(j[3], j[4]) for j in joints]  # [cand, res, params, y, q, simulations, seconds]
         order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and _own_parameters(space, joints[i][0])]
@@ -1447,6 +1457,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                               "simulations": sim.runs - runs0, "kept": kept})
         return p, f, y_p, q_p, values
 
+    progress.final()
     effect_ci: dict[str, tuple[float, float]] | None = None
     # the final model: the calibrated constants re-fitted jointly with the accepted effects; the
     # report's calibration rows are those of this joint fit

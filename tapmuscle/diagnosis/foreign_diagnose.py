@@ -152,7 +152,9 @@ def diagnose_foreign(recording: str | Path, plant: str | Path, out: str | Path, 
     plots : bool
         Write ``overlay.png``.
     progress : callable, optional
-        ``progress(done, total)`` after each candidate fit.
+        ``progress(done, total)`` as the diagnosis goes, in thousandths of the whole, never decreasing
+        (:mod:`~tapmuscle.diagnosis.search_progress`); a :class:`~tapmuscle.progress.Progress` is also
+        told the phase.
     echo : callable
         Where the mapping and the simulation time are printed.
 

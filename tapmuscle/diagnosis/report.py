@@ -455,7 +455,9 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     plots : bool
         Write the PNGs.
     progress : callable, optional
-        ``progress(done, total)`` after each candidate fit.
+        ``progress(done, total)`` as the diagnosis goes, in thousandths of the whole, never decreasing
+        (:mod:`~tapmuscle.diagnosis.search_progress`); a :class:`~tapmuscle.progress.Progress` is also
+        told the phase.
     effects : sequence of str, optional
         Limit the candidates to these names (e.g. the alternatives of an ambiguous verdict,
         re-diagnosed on the recording of the discriminating experiment).
