@@ -78,7 +78,7 @@ def test_a_recording_without_a_plot_does_not_load_matplotlib(tmp_path):
 
 
 @pytest.mark.parametrize("argv, command, unknown", [
-    (["identify", "rec.csv", "--json", "id.json", "--quiet"], "identify", "--quiet"),  # it shows no progress
+    (["build", "--out", "fmus", "--quiet"], "build", "--quiet"),  # it shows no progress
     (["build", "--out", "fmus", "--bogus", "1"], "build", "--bogus 1"),
 ])
 def test_an_argument_a_command_does_not_take_is_refused_by_that_command(capsys, monkeypatch, tmp_path, argv, command, unknown):

@@ -428,3 +428,47 @@ def test_an_estimate_an_update_moved_just_off_its_bound_is_said_to_be_on_it(tmp_
     assert TABLE2_LOWER["b1"] < b1 < TABLE2_LOWER["b1"] + 1e-3 * (TABLE2_UPPER["b1"] - TABLE2_LOWER["b1"]), b1
     assert f"b1 = {b1:.5g} at its lower bound" in r["notes"][0], r["notes"]
 
+
+
+def test_identify_reports_its_steps_on_stderr_as_each_starts_and_quiet_silences_it(records, tmp_path, capsys,
+                                                                                    monkeypatch):
+    """An identification of a long record, and ``auto``'s delays, ran for minutes without a word:
+    each step is reported before it runs (the heartbeat then keeps the report going), to 100 % at
+    the end; ``--quiet`` reports nothing."""
+    import fmu_controller.identification as identification
+    import fmu_controller.input_delay_choice  # noqa: F401  (imported before the patch: it reads the signature)
+
+    _, paths = records
+    seen_before = []
+    real = identification.identify_record
+
+    def watched(*args, **kwargs):
+        seen_before.append(capsys.readouterr().err)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(identification, "identify_record", watched)
+    out = tmp_path / "id.json"
+    assert main(["identify", str(paths["train", 44]), "--validate", str(paths["val", 44]), "--json", str(out),
+                 "--plot", str(tmp_path / "plots")]) == 0
+    err = seen_before[0] + capsys.readouterr().err
+    assert seen_before[0].startswith("identify:   0% (0/3, ") and \
+        seen_before[0].rstrip("\n").endswith("s)  identifying Eq. (1) on 2401 samples")
+    lines = [line for line in err.splitlines() if line.startswith("identify:")]
+    assert [line.split(")  ", 1)[1] for line in lines] == [
+        "identifying Eq. (1) on 2401 samples", f"scoring the model on {paths['val', 44]}",
+        f"plotting into {tmp_path / 'plots'}", f"wrote {out}"]
+    assert lines[-1].startswith("identify: 100% (3/3, ")
+    assert main(["identify", str(paths["train", 44]), "--json", str(out), "--quiet"]) == 0
+    assert not [line for line in capsys.readouterr().err.splitlines() if line.startswith("identify:")]
+
+
+def test_auto_reports_the_delays_it_identifies_under(tmp_path, capsys):
+    """The delays are identified in one call of the numerics: the report says how many, before them."""
+    rec = tmp_path / "train.csv"
+    assert main(["record", "--input", "random:seed=7", "--duration", "60", "--out", str(rec), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(rec), "--input-delay-samples", "auto", "--json", str(tmp_path / "a.json")]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("identify:")]
+    assert lines[0].startswith("identify:   0% (0/1, ") and lines[0].endswith(
+        "s)  identifying Eq. (1) on 601 samples under each input delay 0..5 samples (6 identifications)")
+    assert lines[-1].startswith("identify: 100% (1/1, ")

@@ -196,7 +196,9 @@ def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[
 
 def _cmd_identify(args: argparse.Namespace) -> int:
     from fmu_controller.identification import identify_record, score_model
-    from fmu_controller.input_delay_choice import choose_input_delay
+    from fmu_controller.input_delay_choice import choose_input_delay, search_samples
+
+    from tapmuscle.progress import Progress
 
     from tapmuscle.plots.figures import (plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
                                          plot_parameter_convergence)
@@ -221,12 +223,24 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     # nine digits are far inside the tolerance two periods must agree to
     options = dict(ts_s=float(f"{rec.ts_s:.9g}"), model=args.model, box=_parse_box(args.box), constraint_start_s=args.constraint_start,
                    forgetting=args.forgetting)
+    # the work's steps, reported as each starts (the inputs checked first: a refusal comes alone); an
+    # identification of a long record, and the delays of auto, take minutes, through which the
+    # report's heartbeat says the command is still running
+    progress = Progress("identify", enabled=not args.quiet, min_total=1)
+    steps = ["identify"] + (["validate"] if val is not None else []) + (["plot"] if args.plot else [])
+
+    def step(name: str, what: str) -> None:
+        progress(steps.index(name), len(steps), what)
     choice = None
     try:
         if args.input_delay_samples == "auto":
+            delays = search_samples(options["ts_s"])
+            step("identify", f"identifying Eq. (1) on {len(rec)} samples under each input delay 0..{delays} "
+                             f"samples ({delays + 1} identifications)")
             choice = choose_input_delay(rec.u_v, rec.l_mm, **options)
             report = choice.report
         else:
+            step("identify", f"identifying Eq. (1) on {len(rec)} samples")
             report = identify_record(rec.u_v, rec.l_mm, input_delay_samples=args.input_delay_samples, **options)
     except ValueError as exc:
         raise UsageError(f"{args.recording}: {exc}") from None
@@ -246,6 +260,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                      "constraint_start_s": choice.constraint_start_s}
     val_fit = None
     if val is not None:
+        step("validate", f"scoring the model on {args.validate}")
         val_fit = score_model(report.theta, report.structure, val.u_v, val.l_mm,
                               input_delay_samples=report.input_delay_samples)
         out["validation_fit_percent"] = val_fit.percent
@@ -256,6 +271,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     with atomic_path(args.json) as tmp_json:
         atomic_write_text(tmp_json, json_text(out, indent=2))
         if args.plot:
+            step("plot", f"plotting into {args.plot}")
             folder = Path(args.plot)
             folder.mkdir(parents=True, exist_ok=True)
             t = rec.t_s
@@ -281,6 +297,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                 plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
                                       folder / "input_delay_fits.png",
                                       title=f"1-step fit under each input delay ({Path(args.recording).name})")
+    progress(len(steps), len(steps), f"wrote {args.json}")
     if choice is not None:
         print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
         print(f"{'1-step fit [%] on the record':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
@@ -512,6 +529,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "the valve had, u(k-D), for a controller with input_delay_samples = D (docs/control.md, "
                           "Transport delay); auto: the D up to 0.5 s (at least 5 samples) whose model fits best one step "
                           "ahead on the record (a random, step or chirp command; not one or two sines)")
+    idf.add_argument("--quiet", action="store_true", help="no progress output")
     idf.set_defaults(func=_cmd_identify)
 
     pap = sub.add_parser("paper", help="run the paper's section 4 experiments and print Tables 6, 7, 9",
