@@ -40,7 +40,7 @@ class Progress:
     Parameters
     ----------
     label : str
-        What the report lines start with (``diagnose:  40% (4/9, 12.3 s)``).
+        What the report lines start with (``sweep:  40% (4/10, 12.3 s)``).
     enabled : bool
         False: report nothing (``--quiet``).
     stream : text stream, optional
@@ -49,7 +49,7 @@ class Progress:
     min_total : int
         Runs of fewer units than this report nothing.
     counts : bool
-        Show ``done/total`` in a log's lines (``diagnose:  40% (4/9, 12.3 s)``); False: the percentage,
+        Show ``done/total`` in a log's lines (``sweep:  40% (4/10, 12.3 s)``); False: the percentage,
         the time and the detail only (``diagnose:  24% (61.2 s)  round 1 of at most 3: own fits 9/18``),
         for units that mean nothing to the reader (a diagnosis's thousandths of its work).
     """
