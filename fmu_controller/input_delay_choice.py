@@ -31,7 +31,7 @@ from __future__ import annotations
 import inspect
 import math
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -167,6 +167,7 @@ class InputDelayChoice:
 
 
 def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples: int | None = None,
+                  on_delay: Callable[[int, int], None] | None = None,
                   **identify: Any) -> tuple[list[float], list[IdentificationReport]]:
     """The 1-step fits [%] on the record of Eq. (1) identified under each input delay
     ``D = 0 .. max_samples``, and those identifications; the arguments as :func:`choose_input_delay`'s,
@@ -178,13 +179,17 @@ def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples
         raise ValueError(f"max_samples must be an integer in 0..{MAX_INPUT_DELAY_SAMPLES}, got {max_samples!r}")
     if "input_delay_samples" in identify:
         raise ValueError("input_delay_samples is what choose_input_delay chooses; do not pass it")
-    reports = [identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=d, **identify)
-               for d in range(int(max_samples) + 1)]
+    reports = []
+    for d in range(int(max_samples) + 1):
+        reports.append(identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=d, **identify))
+        if on_delay is not None:
+            on_delay(d + 1, int(max_samples) + 1)
     return [r.fit.percent["1"] for r in reports], reports
 
 
 def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
-                       max_samples: int | None = None, **identify: Any) -> InputDelayChoice:
+                       max_samples: int | None = None, on_delay: Callable[[int, int], None] | None = None,
+                       **identify: Any) -> InputDelayChoice:
     """Identify Eq. (1) under each input delay ``D = 0 .. max_samples`` and keep the best 1-step fit
     on the record (module docstring).
 
@@ -199,6 +204,9 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
         The largest delay tried [samples], 0 .. ``MAX_INPUT_DELAY_SAMPLES`` (25); by default
         :func:`search_samples`: 0.5 s at ``ts_s``, at least 5 samples (identifications cost about 0.35 s
         each on a 300-s record at 0.02 s).
+    on_delay : callable, optional
+        ``on_delay(done, total)`` after each delay's identification (``total`` = ``max_samples + 1``;
+        a progress report's hook: a long record takes seconds a delay).
     **identify
         Keyword arguments of :func:`~fmu_controller.identification.identify_record` (``model``,
         ``box``, ``constraint_start_s``, ``p0``, ``forgetting``, ``theta0``), the same under each delay.
@@ -223,7 +231,7 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
     duration_s = (len(np.asarray(l_mm)) - 1) * float(ts_s)
     asked = float(identify.get("constraint_start_s", _DEFAULT_CONSTRAINT_START_S))
     start = asked if asked < duration_s else duration_s / 2.0
-    fits, reports = fits_by_delay(u_v, l_mm, ts_s=ts_s, max_samples=max_samples,
+    fits, reports = fits_by_delay(u_v, l_mm, ts_s=ts_s, max_samples=max_samples, on_delay=on_delay,
                                   **(identify | {"constraint_start_s": start}))
     # a fit that is not a number (a diverged prediction) is the worst, not the best (argmax takes NaN)
     best = int(np.argmax([f if math.isfinite(f) else -math.inf for f in fits]))

@@ -462,13 +462,17 @@ def test_identify_reports_its_steps_on_stderr_as_each_starts_and_quiet_silences_
     assert not [line for line in capsys.readouterr().err.splitlines() if line.startswith("identify:")]
 
 
-def test_auto_reports_the_delays_it_identifies_under(tmp_path, capsys):
-    """The delays are identified in one call of the numerics: the report says how many, before them."""
+def test_auto_reports_each_delay_it_identifies_under(tmp_path, capsys):
+    """auto's report says how many delays before them and moves with each one identified
+    (choose_input_delay's on_delay), reaching 100 % only once the file is written."""
     rec = tmp_path / "train.csv"
     assert main(["record", "--input", "random:seed=7", "--duration", "60", "--out", str(rec), "--quiet"]) == 0
     capsys.readouterr()
-    assert main(["identify", str(rec), "--input-delay-samples", "auto", "--json", str(tmp_path / "a.json")]) == 0
+    out = tmp_path / "a.json"
+    assert main(["identify", str(rec), "--input-delay-samples", "auto", "--json", str(out)]) == 0
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("identify:")]
-    assert lines[0].startswith("identify:   0% (0/1, ") and lines[0].endswith(
+    assert lines[0].startswith("identify:   0% (0/7, ") and lines[0].endswith(
         "s)  identifying Eq. (1) on 601 samples under each input delay 0..5 samples (6 identifications)")
-    assert lines[-1].startswith("identify: 100% (1/1, ")
+    assert [line.split(")  ", 1)[1] for line in lines[1:-1]] == [
+        f"identified under delays 0..{d} of 0..5" for d in range(6)]
+    assert lines[-1].startswith("identify: 100% (7/7, ") and lines[-1].endswith(f"wrote {out}")

@@ -228,16 +228,19 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     # report's heartbeat says the command is still running
     progress = Progress("identify", enabled=not args.quiet, min_total=1)
     steps = ["identify"] + (["validate"] if val is not None else []) + (["plot"] if args.plot else [])
+    # auto's identifications each a unit of the identify step, so that its report moves with them, and
+    # one more for the choice (a re-identification where the box's start moved) and the writing
+    per_step = search_samples(options["ts_s"]) + 2 if args.input_delay_samples == "auto" else 1
 
     def step(name: str, what: str) -> None:
-        progress(steps.index(name), len(steps), what)
+        progress(steps.index(name) * per_step, len(steps) * per_step, what)
     choice = None
     try:
         if args.input_delay_samples == "auto":
-            delays = search_samples(options["ts_s"])
-            step("identify", f"identifying Eq. (1) on {len(rec)} samples under each input delay 0..{delays} "
-                             f"samples ({delays + 1} identifications)")
-            choice = choose_input_delay(rec.u_v, rec.l_mm, **options)
+            step("identify", f"identifying Eq. (1) on {len(rec)} samples under each input delay 0..{per_step - 2} "
+                             f"samples ({per_step - 1} identifications)")
+            choice = choose_input_delay(rec.u_v, rec.l_mm, **options, on_delay=lambda done, total: progress(
+                done, len(steps) * per_step, f"identified under delays 0..{done - 1} of 0..{total - 1}"))
             report = choice.report
         else:
             step("identify", f"identifying Eq. (1) on {len(rec)} samples")
@@ -297,7 +300,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                 plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
                                       folder / "input_delay_fits.png",
                                       title=f"1-step fit under each input delay ({Path(args.recording).name})")
-    progress(len(steps), len(steps), f"wrote {args.json}")
+    progress(len(steps) * per_step, len(steps) * per_step, f"wrote {args.json}")
     if choice is not None:
         print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
         print(f"{'1-step fit [%] on the record':32s}" + "".join(f"{f:7.2f}" for f in choice.fits_percent)
