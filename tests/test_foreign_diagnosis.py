@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -175,6 +177,13 @@ def test_bad_inputs_fail_cleanly_and_leave_no_output(fmus, tmp_path):
     m3.write_text(m.read_text() + "\n[parameters]\nR = -1.0\n")
     with pytest.raises(ForeignFmuError, match="cannot re-simulate .* R = -1"):
         diagnose_foreign(rec, fmus["DcMotor"], out, map_path=m3, echo=lambda s: None)
+    # a recording too short for the held-out blocks: the error names the file, as the command line does
+    lines = Path(rec).read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines[:head + 201]) + "\n")
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(short))}: .*the diagnosis needs at least"):
+        diagnose_foreign(short, fmus["DcMotor"], out, map_path=m, echo=lambda s: None)
     assert not out.exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
 

@@ -101,8 +101,9 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
             d, _ = diagnose_foreign(args.recording, args.plant, args.out, output=args.output, **options)
     except (RecordingError, SignalMapError, ForeignFmuError) as exc:
         raise UsageError(str(exc)) from None
-    except ValueError as exc:
-        raise UsageError(f"{args.recording}: {exc}") from None
+    except ValueError as exc:  # the API names the recording where the fault is its own
+        named = str(exc).startswith(str(args.recording))
+        raise UsageError(str(exc) if named else f"{args.recording}: {exc}") from None
     if args.output == "all":
         print((Path(args.out) / "summary.md").read_text(), end="")
         print(f"wrote {args.out}/summary.md, summary.json and {', '.join(f'{v}/' for v in results)}")

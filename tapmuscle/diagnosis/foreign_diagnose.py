@@ -76,9 +76,12 @@ class ForeignSetup:
         else:
             raise SignalMapError(f"--output {output!r}: not a mapped output (mapped: {', '.join(outs)})")
         first = smap.inputs[0]
-        t, u, y, ts = validated_recording(columns[smap.time_column], columns[first.column], columns[out_sig.column],
-                                          block_s, names=(smap.time_column, first.column, out_sig.column),
-                                          units=(first.unit or "", out_sig.unit or ""))
+        try:
+            t, u, y, ts = validated_recording(columns[smap.time_column], columns[first.column], columns[out_sig.column],
+                                              block_s, names=(smap.time_column, first.column, out_sig.column),
+                                              units=(first.unit or "", out_sig.unit or ""))
+        except ValueError as exc:  # about the recording's columns: which recording, as the command line says it
+            raise ValueError(f"{recording}: {exc}") from exc
         #: Length of the training / held-out blocks [s]: as given, or balanced on the first input as
         #: for the muscle.
         self.block_s = split_length_s(u, ts, block_s)
@@ -90,7 +93,8 @@ class ForeignSetup:
             col = columns[s.column]
             bad = np.nonzero(~np.isfinite(col))[0]
             if bad.size:
-                raise ValueError(f"column {s.column}, sample {int(bad[0])}: {float(col[bad[0]])!r} is not finite")
+                raise ValueError(f"{recording}: column {s.column}, sample {int(bad[0])}: {float(col[bad[0]])!r} is not "
+                                 "finite")
             inputs[s.variable] = col
             lo, hi = float(np.min(col)), float(np.max(col))
             if hi - lo <= 0.0:
