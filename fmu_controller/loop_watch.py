@@ -82,6 +82,8 @@ class LoopWatch:
         """A new run: nothing said yet."""
         self._diverged = False
         self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
+        self._pinned_l = math.nan  # the reading that stretch started from [mm] ...
+        self._pinned_moved = True  # ... and whether one since differed from it
         self._held_n = 0  # samples in a row at a valve limit the error pushes away from (-1: said)
         self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
         self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
@@ -158,12 +160,20 @@ class LoopWatch:
         if self._pinned_n < 0:
             return
         s = self._law()
-        self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v), PINNED_S)
+        pushed = pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v)
+        if pushed and self._pinned_n == 0:  # a stretch starts: the reading it starts from
+            self._pinned_l, self._pinned_moved = l, False
+        elif pushed and l != self._pinned_l:
+            self._pinned_moved = True
+        self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed, PINNED_S)
         if sat_s is not None:
             limit = s.u_max_v if r > l else s.u_min_v
+            # a reading that stayed the same to the bit: at an end stop, or a sensor that froze while the
+            # command stayed at one limit, which reading_stuck (both limits) cannot tell
+            stuck = "" if self._pinned_moved else ", or the sensor is stuck (l has not changed at all in that time)"
             said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
                         f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the "
-                        f"rig's reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?)")
+                        f"rig's reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?){stuck}")
 
     def _watch_held(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held
@@ -325,11 +335,11 @@ class LoopWatch:
         """What has been said and the counts towards what may be, as plain data."""
         return [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
                 None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
-                self._r_last, self._swings_from]
+                self._r_last, self._swings_from, self._pinned_l, self._pinned_moved]
 
     def set_state(self, said: list | tuple) -> None:
         """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
-        missing watches anew (the held command, the reference steps)."""
+        missing watches anew (the held command, the reference steps, the pinned stretch's reading)."""
         diverged, pinned, jumps, swings, last_limit, held = (*said, 0)[:6] if len(said) >= 5 else \
             (False, 0, [], [], 0, 0)
         self._diverged, self._pinned_n, self._held_n = bool(diverged), int(pinned), int(held)
@@ -337,3 +347,5 @@ class LoopWatch:
         self._swing_ks = None if swings is None else [int(k) for k in swings]
         self._last_limit = int(last_limit)
         self._r_last, self._swings_from = (float(said[6]), int(said[7])) if len(said) >= 8 else (math.nan, 0)
+        # a stretch restored without its reading: not claimed unchanged
+        self._pinned_l, self._pinned_moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)

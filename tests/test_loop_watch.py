@@ -53,7 +53,8 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
     assert fresh != again
     watch = LoopWatch(tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N))
     watch.set_state(saved[:5])
-    assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0]
+    assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0, pytest.approx(np.nan, nan_ok=True),
+                                     True]
 
 
 def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
@@ -104,3 +105,37 @@ def test_a_limit_cycle_after_minus_one_decided_does_not_send_the_user_back_to_mi
     (msg,) = told
     assert "a limit cycle (input_delay_samples = -1, decided 2)" in msg
     assert "-1 decided 2 for good" in msg and "try 3 or 1 set" in msg and "-1 decides it" not in msg
+
+
+def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
+    """A reading frozen at 20 s as the reference steps from 40 to 60 mm: the command sits at 10 V for good (one
+    limit: reading_stuck, which needs both, cannot tell it); the pinned-valve warning then adds a stuck
+    sensor to its causes. A reference out of the muscle's reach with a noisy encoder, whose reading
+    moves at the end stop, is told without it; a restored pinned stretch keeps what it saw."""
+    def pinned(after_mm, freeze_at, n=500, restore_at=None):
+        plant = tm.Plant(seed=0)
+        ctrl = tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N)
+        watch = LoopWatch(ctrl)
+        ctrl.reset(plant.measurement.l_mm)
+        told, frozen, u_prev, saved = [], None, 0.0, None
+        for k in range(n):
+            l = plant.measurement.l_mm
+            if freeze_at is not None and k >= freeze_at:
+                frozen = l if frozen is None else frozen
+                l = frozen
+            if k == restore_at:  # the watch saved and restored mid-stretch
+                saved = watch.get_state()
+                watch = LoopWatch(ctrl)
+                watch.set_state(saved)
+            r = 40.0 if k < 200 else after_mm
+            step = ctrl.step(l, [r] * (ctrl.settings.preview_samples + 1))
+            told += [m for m in watch.observe(k, k * 0.1, l, r, step, u_prev) if "pushes it further" in m]
+            u_prev = step.u_v
+            plant.step(step.u_v, 0.1)
+        return told
+
+    (msg,) = pinned(60.0, 200)
+    assert msg.endswith("or the sensor is stuck (l has not changed at all in that time)")
+    assert pinned(60.0, 200, restore_at=250) == [msg]
+    (reach,) = pinned(150.0, None)
+    assert "stuck" not in reach and "out of the rig's reach" in reach
