@@ -121,3 +121,15 @@ def test_a_merge_too_small_for_the_log_names_the_logs_own_period_and_the_total(t
                                                           for a in np.arange(3001) * 0.1))
     assert main([base[0], str(slow), *base[2:], "--decimate", "200"]) == 2
     assert "--decimate 200 merges the log's 0.1-s samples to 20 s, longer than the 10 s" in capsys.readouterr().err
+
+
+def test_the_import_option_takes_what_the_merge_takes(tmp_path, capsys):
+    """--decimate's range is MAX_DECIMATION's (the command line states it without importing numpy)."""
+    from tapmuscle.io.sampling import MAX_DECIMATION
+
+    args = ["import", str(tmp_path / "none.csv"), "--out", str(tmp_path / "r.csv"), "--u", "u", "--l", "l", "--ts", "0.1"]
+    with pytest.raises(SystemExit):
+        main(args + ["--decimate", str(MAX_DECIMATION + 1)])
+    assert "--decimate" in capsys.readouterr().err
+    assert main(args + ["--decimate", str(MAX_DECIMATION)]) == 2  # accepted; then the missing file is refused
+    assert "none.csv" in capsys.readouterr().err

@@ -73,9 +73,10 @@ def check_sampling_period(ts_s: float) -> None:
     # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
     # out as 0.99999999999989 ms, which is still 1 ms
     if ts_s < TS_RANGE_S[0] * (1.0 - 1e-9):
+        merge = merge_advice(ts_s)
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s ({1.0 / ts_s:g} Hz), shorter than the "
                          f"{TS_RANGE_S[0]:g} s the tools sample at least: a data acquisition faster than the muscle "
-                         f"needs? {merge_advice(ts_s)[0].upper()}{merge_advice(ts_s)[1:]}; docs/recordings.md, "
+                         f"needs? {merge[0].upper()}{merge[1:]}; docs/recordings.md, "
                          "\"Fast data acquisition\"; else the times are in a unit larger than seconds")
     if not ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
