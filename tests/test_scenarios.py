@@ -63,8 +63,8 @@ def test_long_run_estimator_settings_reach_the_fmu(built_fmus):
 
 def test_a_plant_parameter_file_sets_the_plant_fmu(built_fmus, tmp_path):
     """``plant.parameters_file`` (a calibrated_plant.json) gives the direct loop on a Plant with the
-    file's parameters, bit for bit, at the scenario's load (the file's load_n left out, its load
-    mismatch kept); ``parameters`` keys win over the file's; a bad file is named by the key."""
+    file's parameters, bit for bit, at the scenario's load (the file's load_n the default of [load],
+    its load mismatch kept); ``parameters`` keys win over the file's; a bad file is named by the key."""
     rig = PlantParams().with_values(**{"muscle.radius_mm": 10.8, "friction.base_n": 6.5, "valve.cv_max": 1.35,
                                        "load_mismatch.extra_n": 4.0, "delay.delay_s": 0.1, "load.load_n": 68.0})
     plant_file = tmp_path / "calibrated_plant.json"
@@ -85,6 +85,15 @@ def test_a_plant_parameter_file_sets_the_plant_fmu(built_fmus, tmp_path):
     assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
     nominal = co_simulate(parse_scenario({**doc, "plant": {}}, source="test"), built_fmus)
     assert np.max(np.abs(nominal["l_mm"] - cols["l_mm"])) > 1.0  # the file's rig is another rig
+
+    # without [load] and [supply], the file's rig runs at its own load and supply pressure
+    alone = parse_scenario({k: v for k, v in doc.items() if k != "load"}, source="test", base=tmp_path)
+    assert alone.load.initial == 68.0 and alone.supply.initial == rig.supply.supply_pressure_mpa
+    at_its_pressure = rig.with_values(**{"supply.supply_pressure_mpa": 0.4})
+    plant_file.write_text(json.dumps({"plant": at_its_pressure.to_dict()}))
+    assert parse_scenario(doc, source="test", base=tmp_path).supply.initial == 0.4
+    assert parse_scenario({**doc, "supply": {"initial_mpa": 0.3}}, source="test", base=tmp_path).supply.initial == 0.3
+    assert parse_scenario({**doc, "plant": {}}, source="test").load.initial == 44.0  # no file: the paper's
 
     (tmp_path / "bad.json").write_text('{"plant": {"muscle": {"radius_mm": -1}}}')
     with pytest.raises(ScenarioError, match=r"test: key 'plant.parameters_file' .*bad.json: .*radius_mm"):

@@ -36,11 +36,11 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     # within -400..400 mm, as the sine's offset and amplitude)
 
     [load]
-    initial_n = 44.0
+    initial_n = 44.0                       # default: the parameters_file's load.load_n, else 44
     steps = [ { t_s = 20.0, load_n = 68.0 } ]   # optional
 
     [supply]                               # optional
-    initial_mpa = 0.25
+    initial_mpa = 0.25                     # default: the parameters_file's supply pressure, else 0.25
     steps = [ { t_s = 30.0, pressure_mpa = 0.22 } ]
 
     [expect]                               # optional: bounds for `tapmuscle check` (tapmuscle/cosim/expect.py)
@@ -331,21 +331,25 @@ def _identification_parameters(r: _Reader, base: Path | None, step_s: float, met
     return values
 
 
-def _plant_file_parameters(r: _Reader, base: Path | None) -> dict[str, Any]:
+def _plant_file_parameters(r: _Reader, base: Path | None) -> tuple[dict[str, Any], dict[str, float]]:
     """The MusclePlant parameters of the plant parameter file ``parameters_file`` names (e.g. the
-    ``calibrated_plant.json`` that ``tapmuscle diagnose`` writes), by FMU variable name; empty
-    without one. The load and the supply pressure are the scenario's (``[load]``, ``[supply]``: the
-    plant FMU's inputs), so the file's ``load.load_n`` and ``supply.supply_pressure_mpa`` are left out;
-    its effects (a ``load_mismatch`` on top of the load, a timed supply sag) are kept."""
+    ``calibrated_plant.json`` that ``tapmuscle diagnose`` writes), by FMU variable name, and the file's
+    load and supply pressure; both empty without a file. The load and the supply pressure are the plant
+    FMU's inputs, which the scenario drives (``[load]``, ``[supply]``): the file's ``load.load_n`` and
+    ``supply.supply_pressure_mpa`` are returned apart, as those sections' defaults (a rig file at
+    100 N run at the scenario's default 44 N would be another rig); its effects (a ``load_mismatch`` on
+    top of the load, a timed supply sag) are kept."""
     path = r.path("parameters_file", base)
     if path is None:
-        return {}
+        return {}, {}
     try:
         params = read_plant_file(path, f"{r.source}: key '{r.prefix}parameters_file'")
     except PlantFileError as exc:
         raise ScenarioError(str(exc)) from None
-    return {name: value for name, value in params.dotted().items()
-            if name not in ("load.load_n", "supply.supply_pressure_mpa")}
+    inputs = ("load.load_n", "supply.supply_pressure_mpa")
+    dotted = params.dotted()
+    return ({name: value for name, value in dotted.items() if name not in inputs},
+            {name: float(dotted[name]) for name in inputs})
 
 
 def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base: Path | None = None,
@@ -370,7 +374,8 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
 
     plant_r = top.sub("plant")
     plant_r.check_keys({"fmu", "parameters", "parameters_file"})
-    plant = FmuSpec(plant_r.path("fmu", base), {**_plant_file_parameters(plant_r, base), **_parameters(plant_r)},
+    file_parameters, file_inputs = _plant_file_parameters(plant_r, base)
+    plant = FmuSpec(plant_r.path("fmu", base), {**file_parameters, **_parameters(plant_r)},
                     plant_r.path("parameters_file", base))
     ctrl_r = top.sub("controller")
     ctrl_r.check_keys({"fmu", "parameters", "method", "identification"})
@@ -418,14 +423,17 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
 
     load_r = top.sub("load")
     load_r.check_keys({"initial_n", "steps"})
-    load = load_r.profile("initial_n", "load_n", 44.0, 0.0, 500.0, last_step_s=(n - 2) * step)
+    # without a value of the scenario's own, the plant file's rig at its own load and supply pressure
+    load = load_r.profile("initial_n", "load_n", file_inputs.get("load.load_n", 44.0), 0.0, 500.0,
+                          last_step_s=(n - 2) * step)
     supply_r = top.sub("supply")
     supply_r.check_keys({"initial_mpa", "steps"})
-    supply = supply_r.profile("initial_mpa", "pressure_mpa", 0.25, 0.0, 1.0, last_step_s=(n - 2) * step)
+    supply = supply_r.profile("initial_mpa", "pressure_mpa", file_inputs.get("supply.supply_pressure_mpa", 0.25),
+                              0.0, 1.0, last_step_s=(n - 2) * step)
     for key, profile, where in (("load.load_n", load, "[load] initial_n (and steps)"),
                                 ("supply.supply_pressure_mpa", supply, "[supply] initial_mpa (and steps)")):
-        # the FMU's inputs load and supply_pressure set them (a parameters_file's are left out); the
-        # same value is harmless, another would be silently unused
+        # the FMU's inputs load and supply_pressure set them (a parameters_file's are those inputs'
+        # defaults); the same value is harmless, another would be silently unused
         if key in plant.parameters and plant.parameters[key] != profile.initial:
             raise _Reader(source, plant.parameters, "plant.parameters.").error(
                 key, f"= {plant.parameters[key]!r} is set by the plant FMU's input, which the scenario drives "
