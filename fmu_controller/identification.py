@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -193,6 +193,26 @@ class IdentificationReport:
         }
 
 
+def _diverged_note(structure: ModelStructure, u_scaled: np.ndarray, l_scaled: np.ndarray, settings: RLSSettings,
+                   l_scale: float, u_scale: float, u: np.ndarray, l: np.ndarray, boxed: bool) -> str:
+    """What to say of an identification whose free run diverged: the model is unstable, what a fixed
+    law on it does, and (where a box held the estimate) the free run of the estimate without the box.
+    ``u_scaled``, ``l_scaled`` and ``settings``: the normalised record and the RLS run it was fitted with;
+    ``u``, ``l`` the record."""
+    said = ("the free run diverged: Eq. (1) with these parameters fits one step ahead but runs away on its own "
+            "outputs")
+    if boxed:
+        free = run_rls(structure, u_scaled, l_scaled, replace(settings, box_lower={}, box_upper={}))
+        theta = rescale_theta(free.theta, structure, l_scale, u_scale)
+        fit = score_model(theta, structure, u, l)
+        said += (", held in a box C that does not hold this rig (without it, --box none or box=None, the free run "
+                 + ("diverges as well" if fit.free_run_diverged else f"fits {fit.percent['sim']:.1f} %")
+                 + f", with b1 = {theta[structure.names.index('b1')]:.3g} mm/V, which Eq. (5) divides by)")
+    return said + (". A fixed MPC on it as theta0 holds the valve at a limit (the controllers warn of a theta0 that "
+                   "runs away): refine a fixed model in closed loop (docs/python-api.md, "
+                   "tapmuscle.paper.preliminary_theta); an adaptive controller's estimate starts from it")
+
+
 def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
     if u.shape != l.shape or u.ndim != 1:
         raise ValueError(f"u and l must be 1-D arrays of equal length, got shapes {u.shape} and {l.shape}")
@@ -327,9 +347,12 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         notes.append("constraint region: Table 2's box on " + ", ".join(lower) + " (the paper's rig at Ts = 0.1 s; "
                      f"Algorithm 1 projected at {result.n_projections} samples)" + (f"; the final estimate has {', '.join(held)}"
                                                                      if held else "")
-                     + "; for another rig, --box none (box=None) or its own box")
+                     + "; on another rig a diverged free run says that the box does not hold it")
     history = result.theta_history * f
     fit = score_model(theta, structure, u, l)
+    if fit.free_run_diverged:
+        notes.append(_diverged_note(structure, u / u_scale, l / l_scale, settings, l_scale, u_scale, u, l,
+                                    bool(lower or upper)))
     if ts_s < SHORT_TS_S:
         # the muscle moves a few hundredths of a mm a sample: any model predicts the next sample from
         # the last, and the dynamics Eq. (1) is meant to hold are in its last digits

@@ -18,16 +18,19 @@ and UCP's weights in the paper's capitals (``servo.R`` is ``ServoMPCSettings.r``
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTEST_MUSCLE_MM_PER_S, GUARD_JUMPS,
                                                  HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES,
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
                                                  held_against_error, pushed_at_limit, stuck_reading_message)
+from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.prediction import RUNAWAY_RANGE_MM, held_command_runaway
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["LoopWatch", "samples_in_words", "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
-           "PINNED_S", "HEAVY_MOVE_WEIGHT"]
+           "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S"]
 
 #: A one-step prediction outside ten times the readings' range [mm], or a QP input u_c beyond this [V]
 #: (a hundred times the valve's span), means the adaptive estimate diverges.
@@ -56,6 +59,15 @@ HEAVY_MOVE_WEIGHT = 1000.0
 #: once: the reference is out of the rig's reach, or ``l`` is in another unit (metres: the valve
 #: pinned open while the reading barely moves).
 PINNED_S = 10.0
+#: The law's model is checked at the first sample for a free run that runs away from rest
+#: (:func:`~fmu_controller.prediction.held_command_runaway`) under the command held at these
+#: fractions of the valve's range for :data:`RUNAWAY_S`: within the range a model is identified on
+#: (the paper's 5 +- 3 V). Beyond it a sound model's cubic g(l) may run away: THETA0_44N does at 8 V,
+#: from 70 mm on, which it was never fitted to; at 2 and 5 V every closed-loop refined model of 10
+#: simulated rigs (250-600 mm, 0.15-0.4 MPa, 20-100 N) stays, and every identification whose free run
+#: diverged runs away at 2 V.
+RUNAWAY_COMMANDS = (0.2, 0.5)
+RUNAWAY_S = 30.0
 
 
 def samples_in_words(n: int) -> str:
@@ -98,6 +110,8 @@ class LoopWatch:
         before, ``u_prev_v`` [V] (0 before the first). Each message starts with ``t = ... s:``."""
         said: list[str] = []
         u_v = step.u_v
+        if k == 0:
+            self._check_theta0(said, t_s)
         self._watch_diverged(said, t_s, l_mm, step.uc_v, step.predicted_next_mm)
         if self.controller.startup_guarded_at == k:
             said.append(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up "
@@ -120,6 +134,37 @@ class LoopWatch:
         keeps (the servo's or the coincidence point's)."""
         s = self.controller.settings
         return s.servo if s.servo_mechanism else s.ucp
+
+    def runaway(self, theta: Sequence[float]) -> str | None:
+        """Whether Eq. (1) with ``theta`` runs away from rest under a command held within the law's valve
+        range (:data:`RUNAWAY_COMMANDS`, :data:`RUNAWAY_S`), in words (None where it does not)."""
+        law = self._law()
+        span = law.u_max_v - law.u_min_v
+        n = max(int(round(RUNAWAY_S / self.controller.settings.ts_s)), 10)
+        u = held_command_runaway(theta, ASYMMETRIC, [law.u_min_v + f * span for f in RUNAWAY_COMMANDS], n)
+        if u is None:
+            return None
+        lo, hi = RUNAWAY_RANGE_MM
+        return (f"from rest, with the command held at {u:g} V for {RUNAWAY_S:g} s, its free run of Eq. (1) leaves "
+                f"{lo - 10 * (hi - lo):g}..{hi + 10 * (hi - lo):g} mm")
+
+    def _check_theta0(self, said: list[str], t_s: float) -> None:
+        """Tell at the first sample when ``theta0``'s model runs away (:meth:`runaway`): an identification
+        whose free run diverged, which a fixed law predicts with throughout."""
+        c = self.controller
+        how = self.runaway(c.theta0)
+        if how is None:
+            return
+        s = c.settings
+        if s.adaptive:
+            uses = ("the start-up mode's law runs on it" + (f" for up to {s.startup_s:g} s" if s.startup_s > 0 else "")
+                    + " and the adaptive estimate starts from it" + (", held in the box C" if s.box_lower or s.box_upper
+                                                                      else ""))
+        else:
+            uses = ("the fixed law predicts with it throughout and will hold the valve at a limit or swing it; refine "
+                    "a fixed model in closed loop (docs/python-api.md, tapmuscle.paper.preliminary_theta)")
+        said.append(f"t = {t_s:g} s: theta0 runs away: {how} (an unstable model, which can fit one step ahead well: "
+                    f"tapmuscle identify notes a free run that diverged on its record); {uses}")
 
     def _watch_diverged(self, said: list[str], t_s: float, l: float, uc: float, predicted: float) -> None:
         """Tell once when the one-step prediction or the QP's input leaves :data:`DIVERGED_MM` /
@@ -186,7 +231,16 @@ class LoopWatch:
                                              HELD_WARN_S)
         if sat_s is not None:
             limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
-            why = held_against_cause(float(self.controller.theta0[2]))
+            c = self.controller
+            why = held_against_cause(float(c.theta0[2]))
+            if c.theta0[2] >= 0.0:  # of the right sign: the law's model may run away
+                model, name = (c.theta, "the adaptive estimate") if c.settings.adaptive else (c.theta0, "theta0")
+                how = self.runaway(model)
+                if how is not None:
+                    why = (f"{name} runs away ({how}), so the law's predictions have the valve's effect the wrong way "
+                           "round here" + ("" if c.settings.adaptive else
+                                           "; refine a fixed model in closed loop (docs/python-api.md, "
+                                           "tapmuscle.paper.preliminary_theta)"))
             said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
                         f"reading l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the "
                         f"other way would close the gap: {why}")

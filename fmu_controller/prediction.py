@@ -39,6 +39,8 @@ __all__ = [
     "PredictionResult",
     "IdentificationResult",
     "simulate",
+    "RUNAWAY_RANGE_MM",
+    "held_command_runaway",
     "predict_ahead",
     "fit_percent",
     "run_rls",
@@ -296,6 +298,46 @@ def simulate(
     l_hat[:N_INITIAL] = l_init
     l_hat[N_INITIAL:] = out
     return PredictionResult(l_hat=l_hat, start=N_INITIAL, horizon=None, diverged=diverged)
+
+
+#: The free run of a model of the muscle from rest under a held command stays within ten spans of this
+#: range [mm] either side, -1000..1100 mm (a McKibben muscle contracts by a fraction of its length: the
+#: simulated 600-mm muscle at 0.4 MPa and 20 N by 163 mm); a model whose free run leaves it runs away.
+RUNAWAY_RANGE_MM = (0.0, 100.0)
+
+
+def held_command_runaway(theta: Sequence[float] | np.ndarray, structure: ModelStructure,
+                         commands_v: Sequence[float], n_samples: int) -> float | None:
+    """The first command of ``commands_v`` [V] under which Eq. (1)'s free run from rest runs away.
+
+    From rest (``l = 0``, ``u = 0`` for the :data:`N_INITIAL` initial samples) the command is held for
+    ``n_samples`` samples; the model runs away where its free run (:func:`simulate`) leaves the
+    divergence guard of :data:`RUNAWAY_RANGE_MM`. A model identified with a box C that does not hold the
+    rig can fit the data one step ahead to 99 % and still run away (its free run a meaningless fit): as
+    a fixed law's predictor it inverts the valve's effect at rest and holds the valve at a limit.
+
+    Parameters
+    ----------
+    theta : array_like, shape (n_params,)
+        Eq. (1)'s parameters [mm, V].
+    structure : ModelStructure
+        Model variant.
+    commands_v : sequence of float
+        The held commands to try [V], in order.
+    n_samples : int
+        Samples of each held command (more than :data:`N_INITIAL`).
+
+    Returns
+    -------
+    float or None
+        The first command under which the free run ran away; None where none did.
+    """
+    for u_v in commands_v:
+        u = np.full(int(n_samples), float(u_v))
+        u[:N_INITIAL] = 0.0
+        if simulate(theta, structure, u, np.zeros(N_INITIAL), output_range=RUNAWAY_RANGE_MM).diverged:
+            return float(u_v)
+    return None
 
 
 def predict_ahead(

@@ -139,3 +139,40 @@ def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_
     assert pinned(60.0, 200, restore_at=250) == [msg]
     (reach,) = pinned(150.0, None)
     assert "stuck" not in reach and "out of the rig's reach" in reach
+
+
+def test_a_theta0_that_runs_away_is_told_from_its_identification_to_the_first_sample_and_the_held_valve():
+    """On a rig at 0.15 MPa, Table 2's box gives a model that fits one step ahead (98.6 %) and runs away
+    on its own outputs: identify notes it. MPC-UCP on it is told at t = 0 that theta0 runs away, and the
+    valve it then holds shut is blamed on that, not on the sign of b1 (0.607 > 0). An adaptive law is
+    told what it does with such a theta0; the paper's theta0 runs away under neither law's commands."""
+    rig = tm.PlantParams().with_values(**{"supply.supply_pressure_mpa": 0.15})
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=240.0, params=rig, seed=0)
+    report = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1)
+    assert report.fit.free_run_diverged and report.fit.percent["1"] > 95.0
+    assert any(re.match(r"the free run diverged: .* held in a box C that does not hold this rig \(without it, --box "
+                        r"none or box=None, the free run (diverges as well|fits -?[\d.]+ %), with b1 = [-\d.e]+ mm/V",
+                        n) for n in report.notes), report.notes
+    nominal = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=240.0, seed=0)
+    assert not any("free run diverged" in n for n in tm.identify(nominal["u_v"], nominal["l_mm"], ts_s=0.1).notes)
+
+    with pytest.warns(RuntimeWarning) as told:
+        run = tm.simulate_closed_loop("mpc_ucp", None, duration_s=12.0, theta0=report.theta, params=rig)
+    said = [str(w.message) for w in told]
+    assert said[0].startswith("t = 0 s: theta0 runs away: from rest, with the command held at 2 V for 30 s, its free "
+                              "run of Eq. (1) leaves -1000..1100 mm") and "the fixed law predicts with it" in said[0]
+    held = [m for m in said if "other way would close the gap" in m]
+    assert len(held) == 1 and "theta0 runs away" in held[0] and "wrong way round for this rig" not in held[0]
+    assert np.all(run["u_v"][20:] == 0.0)  # what it tells of: the valve held shut below the reference
+
+    steeper = np.array(tm.THETA0_44N)
+    steeper[0] += 0.1  # a1 1.308: runs away at 2 V
+    unboxed = tm.ControllerSettings(method="ampc_servo", box_lower={}, box_upper={})
+    ctrl = tm.DisplacementController(unboxed, steeper)
+    ctrl.reset(0.0)
+    first = LoopWatch(ctrl).observe(0, 0.0, 0.0, 35.0, ctrl.step(0.0, [35.0] * 6), 0.0)
+    assert len(first) == 1 and first[0].endswith("the start-up mode's law runs on it for up to "
+                                                 f"{unboxed.startup_s:g} s and the adaptive estimate starts from it")
+    for method in tm.METHODS:
+        assert LoopWatch(tm.DisplacementController(tm.ControllerSettings(method=method), tm.THETA0_44N)).runaway(
+            tm.THETA0_44N) is None

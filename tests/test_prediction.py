@@ -11,8 +11,10 @@ from fmu_controller.hysteresis_model import (
     regressor,
     virtual_hysteresis_sequence,
 )
+from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.prediction import (
     N_INITIAL,
+    held_command_runaway,
     fit_percent,
     run_rls,
     predict_ahead,
@@ -138,6 +140,23 @@ def test_simulate_divergence_guard():
     # default range from l_init is widened: span >= max(|lo|, |hi|, 1 mm)
     ok = simulate(THETA, ASYMMETRIC, u, [20.0, 20.0, 20.0, 20.0])
     assert not ok.diverged
+
+
+def test_a_model_runs_away_under_the_first_held_command_whose_free_run_leaves_the_guard():
+    """The paper's fixed predictor stays from rest at 2 and 5 V held for 30 s (the range it was identified
+    on) and runs away at 8 V, beyond it (its cubic g(l) past 70 mm); a larger a1 runs away at 2 V
+    already; the first command of those given that runs away is named; a stable linear model (l -> 10 u,
+    100 mm at 10 V) never runs away."""
+    assert held_command_runaway(THETA0_44N, ASYMMETRIC, (2.0, 5.0), 300) is None
+    assert held_command_runaway(THETA0_44N, ASYMMETRIC, (2.0, 5.0, 8.0), 300) == 8.0
+    steeper = np.array(THETA0_44N)
+    steeper[0] += 0.1
+    assert held_command_runaway(steeper, ASYMMETRIC, (2.0, 5.0, 8.0), 300) == 2.0
+    assert held_command_runaway(steeper, ASYMMETRIC, (8.0, 2.0), 300) == 8.0
+    linear = ASYMMETRIC.from_dict({"a1": 0.9, "a2": 0.0, "b1": 1.0})
+    assert held_command_runaway(linear, ASYMMETRIC, np.linspace(0.0, 10.0, 11), 3000) is None
+    # the guard is ten spans of RUNAWAY_RANGE_MM either side, up to 1100 mm: 100 mm at 10 V stays, 1200 at 120 V not
+    assert held_command_runaway(linear, ASYMMETRIC, (10.0, 120.0), 3000) == 120.0
 
 
 def test_prediction_input_validation(record):
