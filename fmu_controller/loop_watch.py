@@ -26,11 +26,13 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTE
                                                  held_against_error, pushed_at_limit, stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.prediction import RUNAWAY_RANGE_MM, held_command_runaway
+from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["LoopWatch", "samples_in_words", "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
-           "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S"]
+           "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
+           "TRACKING_MM", "TRACKING_SHARE"]
 
 #: A one-step prediction outside ten times the readings' range [mm], or a QP input u_c beyond this [V]
 #: (a hundred times the valve's span), means the adaptive estimate diverges.
@@ -61,13 +63,35 @@ HEAVY_MOVE_WEIGHT = 1000.0
 PINNED_S = 10.0
 #: The law's model is checked at the first sample for a free run that runs away from rest
 #: (:func:`~fmu_controller.prediction.held_command_runaway`) under the command held at these
-#: fractions of the valve's range for :data:`RUNAWAY_S`: within the range a model is identified on
-#: (the paper's 5 +- 3 V). Beyond it a sound model's cubic g(l) may run away: THETA0_44N does at 8 V,
-#: from 70 mm on, which it was never fitted to; at 2 and 5 V every closed-loop refined model of 10
-#: simulated rigs (250-600 mm, 0.15-0.4 MPa, 20-100 N) stays, and every identification whose free run
-#: diverged runs away at 2 V.
-RUNAWAY_COMMANDS = (0.2, 0.5)
+#: fractions of the valve's range for :data:`RUNAWAY_S`: low, within the range any model is identified
+#: on. Beyond it a sound model's cubic g(l) may run away: THETA0_44N does at 8 V, from 70 mm on, and
+#: models refined in closed loop over a small rig's 4..44 mm at 4 V and more. At 2 V every model
+#: refined in closed loop on 10 simulated rigs (250-600 mm, 0.15-0.4 MPa, 20-100 N; over the paper's
+#: range or the rig's own) stays, and every identification whose free run diverged runs away.
+RUNAWAY_COMMANDS = (0.2,)
 RUNAWAY_S = 30.0
+#: The fixed servo loop on THETA0_44N (identified on the paper's 5..65 mm sine) tracks references up to
+#: this [mm]: beyond, Eq. (1)'s g(l) feeds the motion back with the other sign (steps to 50-70 mm on the
+#: paper's rig: 0.01 mm; to 75-90 mm a limit cycle for good; a 600-mm muscle's 8..88 mm sine: 6.6 mm,
+#: 35 mm of overshoot at its start, 5-6 swings in 10 s, too few for the limit-cycle watch). MPC-servo
+#: is told once when the reference passes it.
+THETA0_44N_HOLDS_MM = 70.0
+#: Evidence of another input delay than the one set (``DisplacementController.delay_evidence``) below
+#: this ratio may come from ``theta0`` rather than the rig: with THETA0_44N on 24 simulated rigs with
+#: 3-6 constants 5-20 % off and no delay, 2 showed 3-4 samples at 1.31-1.62 (setting them: MPC-servo
+#: 0.22 -> 0.70 mm), where a recording's ``identify --input-delay-samples auto`` chose 0; real
+#: delays of 1-3 samples showed 1.24-5.3 (MPC-servo the lowest).
+DELAY_SURE_RATIO = 2.0
+#: The loop is told once that it does not track when, over a block of :data:`TRACKING_BLOCK_S` after
+#: the start-up and the estimator's first :data:`SLAM_WINDOW_S`, the mean |r - l| exceeds the larger of
+#: :data:`TRACKING_MM` and :data:`TRACKING_SHARE` of the reference's range in the block. Not counted:
+#: the :data:`REF_STEP_SETTLE_S` after a reference step, and samples with the valve at the limit the
+#: error pushes it into (a reference out of reach, told apart). The paper's runs keep under 2 mm (MPC-UCP
+#: at 0.2 Hz the most); fixed predictors from another rig left steady offsets of 5-6 mm and a predictor
+#: refined over another range 31 mm, silently (docs/control.md, "A theta0 for another rig").
+TRACKING_BLOCK_S = 20.0
+TRACKING_MM = 3.0
+TRACKING_SHARE = 0.1
 
 
 def samples_in_words(n: int) -> str:
@@ -102,6 +126,10 @@ class LoopWatch:
         self._last_limit = 0  # the valve limit the command sat at last: -1 lower, 1 upper, 0 none yet
         self._r_last = math.nan  # r(k-1) [mm], for the reference steps that restart the swings' watch
         self._swings_from = 0  # the sample swings count from: a window after the last reference step
+        self._beyond_said = False  # a reference beyond THETA0_44N_HOLDS_MM told
+        # the tracking block: samples, samples counted, sum |r - l| [mm], r's least and largest [mm]
+        # (samples -1: said)
+        self._block = [0, 0, 0.0, math.inf, -math.inf]
 
     # ------------------------------------------------------------------ the sample
     def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, step: ControlStep, u_prev_v: float) -> list[str]:
@@ -121,10 +149,15 @@ class LoopWatch:
                         "1; docs/control.md, \"Start-up\")")
         if self.controller.reading_stuck is not None:
             said.append(stuck_reading_message(t_s, *self.controller.reading_stuck))
+        self._watch_beyond_theta0(said, t_s, r_mm)
         self._watch_pinned(said, t_s, l_mm, r_mm, u_v)
         self._watch_held(said, t_s, l_mm, r_mm, u_v)
         self._watch_slamming(said, k, t_s, u_v, u_prev_v)
+        if abs(r_mm - self._r_last) > REF_STEP_MM_PER_S * self.controller.settings.ts_s:
+            self._swings_from = k + int(round(REF_STEP_SETTLE_S / self.controller.settings.ts_s))
+        self._r_last = r_mm
         self._watch_swings(said, k, t_s, u_v, l_mm, r_mm)
+        self._watch_tracking(said, k, t_s, l_mm, r_mm, u_v)
         if k == self.controller.delay_check_samples:
             self._check_delay(said, t_s)
         return said
@@ -165,6 +198,59 @@ class LoopWatch:
                     "a fixed model in closed loop (docs/python-api.md, tapmuscle.paper.preliminary_theta)")
         said.append(f"t = {t_s:g} s: theta0 runs away: {how} (an unstable model, which can fit one step ahead well: "
                     f"tapmuscle identify notes a free run that diverged on its record); {uses}")
+
+    def _watch_beyond_theta0(self, said: list[str], t_s: float, r: float) -> None:
+        """Tell once when MPC-servo on the paper's fixed predictor THETA0_44N is asked for more than
+        :data:`THETA0_44N_HOLDS_MM`."""
+        c = self.controller
+        if self._beyond_said or r <= THETA0_44N_HOLDS_MM or c.settings.method != "mpc_servo":
+            return
+        self._beyond_said = True
+        if list(c.theta0) != list(THETA0_44N):
+            return
+        said.append(f"t = {t_s:g} s: the reference r = {r:g} mm is above the {THETA0_44N_HOLDS_MM:g} mm up to which "
+                    "the fixed predictor THETA0_44N holds (identified on the paper's 5..65 mm sine): beyond, its "
+                    "g(l) feeds the motion back with the other sign, and MPC-servo overshoots or swings (on the "
+                    "paper's rig a step to 75-90 mm limit-cycles for good; docs/control.md, \"MPC-servo outside its "
+                    "predictor's range\"): identify theta0 over the range the loop runs in, or use an adaptive "
+                    "method (ampc_servo)")
+
+    def _watch_tracking(self, said: list[str], k: int, t_s: float, l: float, r: float, u: float) -> None:
+        """Tell once when the mean |r - l| over a block of :data:`TRACKING_BLOCK_S` exceeds the larger of
+        :data:`TRACKING_MM` and :data:`TRACKING_SHARE` of the reference's range in it."""
+        block = self._block
+        c = self.controller
+        s = c.settings
+        if block[0] < 0 or c.in_startup or c.samples_since_start <= int(round(SLAM_WINDOW_S / s.ts_s)):
+            return
+        block[0] += 1
+        law = self._law()
+        if k >= self._swings_from and not pushed_at_limit(r, l, u, law.u_min_v, law.u_max_v):
+            block[1] += 1
+            block[2] += abs(r - l)
+            block[3], block[4] = min(block[3], r), max(block[4], r)
+        if block[0] < max(int(round(TRACKING_BLOCK_S / s.ts_s)), 1):
+            return
+        counted, total, r_lo, r_hi = block[1:]
+        self._block = [0, 0, 0.0, math.inf, -math.inf]
+        # a block mostly after reference steps or out of reach says little of the law
+        if not counted or counted < block[0] // 2:
+            return
+        mean = total / counted
+        limit = max(TRACKING_MM, TRACKING_SHARE * (r_hi - r_lo))
+        if mean <= limit:
+            return
+        self._block[0] = -1
+        if s.adaptive:
+            why = ("the adaptive estimate is poor here: theta0 or the box C far from this rig (docs/control.md, \"A theta0 "
+                   "for another rig\"), or a delay the law does not compensate")
+        else:
+            why = ("the fixed predictor theta0 is poor for this rig or for this range of r: refine it in closed loop over "
+                   "the range the loop runs in (tapmuscle.paper.preliminary_theta with refine_offset_mm and "
+                   "refine_amplitude_mm; docs/control.md, \"A theta0 for another rig\"), or use an adaptive method")
+        said.append(f"t = {t_s:g} s: the loop does not track: over the last {TRACKING_BLOCK_S:g} s the reading l was "
+                    f"{mean:.3g} mm from the reference on average (r over {r_lo:.4g}..{r_hi:.4g} mm; more than "
+                    f"{limit:.3g} mm, the larger of {TRACKING_MM:g} mm and {100 * TRACKING_SHARE:g} % of that range): {why}")
 
     def _watch_diverged(self, said: list[str], t_s: float, l: float, uc: float, predicted: float) -> None:
         """Tell once when the one-step prediction or the QP's input leaves :data:`DIVERGED_MM` /
@@ -273,9 +359,6 @@ class LoopWatch:
             return
         c = self.controller
         s = c.settings
-        if abs(r - self._r_last) > REF_STEP_MM_PER_S * s.ts_s:
-            self._swings_from = k + int(round(REF_STEP_SETTLE_S / s.ts_s))
-        self._r_last = r
         law = self._law()
         side = -1 if u <= law.u_min_v + 1e-9 else 1 if u >= law.u_max_v - 1e-9 else 0
         if not side:
@@ -352,6 +435,10 @@ class LoopWatch:
             advice = (f"set input_delay_samples = -1 to decide it from the start, or {d} (scores from a loop run "
                       f"under a wrong delay can be a sample off)" if d <= AUTO_INPUT_DELAY_SAMPLES
                       else f"set input_delay_samples = {d}")
+        if ratio < DELAY_SURE_RATIO:
+            # a theta0 off for the rig shifts the scores too
+            what += (", or a theta0 whose dynamics are slower than this rig's, which looks alike at this ratio; "
+                     "confirm it on a recording first (tapmuscle identify --input-delay-samples auto)")
         said.append(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
                     f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
                     f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")")
@@ -389,11 +476,12 @@ class LoopWatch:
         """What has been said and the counts towards what may be, as plain data."""
         return [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
                 None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
-                self._r_last, self._swings_from, self._pinned_l, self._pinned_moved]
+                self._r_last, self._swings_from, self._pinned_l, self._pinned_moved, self._beyond_said, list(self._block)]
 
     def set_state(self, said: list | tuple) -> None:
         """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
-        missing watches anew (the held command, the reference steps, the pinned stretch's reading)."""
+        missing watches anew (the held command, the reference steps, the pinned stretch's reading, the
+        reference beyond THETA0_44N's range, the tracking block)."""
         diverged, pinned, jumps, swings, last_limit, held = (*said, 0)[:6] if len(said) >= 5 else \
             (False, 0, [], [], 0, 0)
         self._diverged, self._pinned_n, self._held_n = bool(diverged), int(pinned), int(held)
@@ -403,3 +491,6 @@ class LoopWatch:
         self._r_last, self._swings_from = (float(said[6]), int(said[7])) if len(said) >= 8 else (math.nan, 0)
         # a stretch restored without its reading: not claimed unchanged
         self._pinned_l, self._pinned_moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)
+        self._beyond_said = bool(said[10]) if len(said) >= 11 else False
+        self._block = ([int(said[11][0]), int(said[11][1]), float(said[11][2]), float(said[11][3]), float(said[11][4])]
+                       if len(said) >= 12 else [0, 0, 0.0, math.inf, -math.inf])

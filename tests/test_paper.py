@@ -238,3 +238,25 @@ def test_the_fixed_predictor_of_another_rig_and_period():
     default = preliminary_theta(0, 0.05)
     assert np.array_equal(default, preliminary_theta(0, 0.05, params=PlantParams(), load_n=44.0, ts_s=0.1))
     assert np.max(np.abs(default - np.array(THETA0_44N))) < 0.01  # the shipped table, up to the CPU's rounding
+
+
+def test_a_fixed_predictor_refined_over_a_rigs_own_range_tracks_there():
+    """A 600-mm muscle at 0.4 MPa and 20 N reaches 163 mm at 10 V. Refined over the paper's 35 +- 30 mm,
+    the fixed predictor leaves MPC-UCP 31 mm and MPC-servo 1.2 mm from a sine over the same fractions of
+    this rig's reach (59 +- 49 mm); refined over that sine (refine_offset_mm, refine_amplitude_mm),
+    0.73 and 0.16 mm. A refinement reference that is not a number is refused before the stages run."""
+    rig = PlantParams().with_values(**{"muscle.rest_length_mm": 600.0, "supply.supply_pressure_mpa": 0.4,
+                                       "load.load_n": 20.0, "muscle.braid_lock_force_n": 15.0})
+    offset, amplitude = 0.36 * 163.0, 0.30 * 163.0
+    ref = SineReference(offset_mm=offset, amplitude_mm=amplitude)
+    errors = {}
+    for label, kw in (("paper's", {}), ("rig's", {"refine_offset_mm": offset, "refine_amplitude_mm": amplitude})):
+        theta = preliminary_theta(0, params=rig, **kw)
+        for method in ("mpc_ucp", "mpc_servo"):
+            ctrl = DisplacementController(ControllerSettings(method=method), theta)
+            run = run_closed_loop(Plant(rig, seed=0), ctrl, ref, duration_s=60.0, watch=False)
+            errors[label, method] = float(np.mean(np.abs(run["r_mm"] - run["l_mm"])[50:]))
+    assert errors["rig's", "mpc_ucp"] < 1.5 < 10.0 < errors["paper's", "mpc_ucp"], errors
+    assert errors["rig's", "mpc_servo"] < 0.4 < 0.8 < errors["paper's", "mpc_servo"], errors
+    with pytest.raises(ValueError, match="refine_amplitude_mm must be finite, got nan"):
+        preliminary_theta(0, refine_amplitude_mm=float("nan"))

@@ -24,6 +24,7 @@ from typing import Callable, Mapping, TextIO, TypeVar
 
 import numpy as np
 
+from fmu_controller.argument_checks import real_number
 from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import identify_record
@@ -81,7 +82,8 @@ _TABLES = (("table6", 0.1, ("mpc_servo", "mpc_ucp"), {44: (8, 9), 68: (10, 11)})
 
 
 def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantParams | None = None,
-                      load_n: float | None = None, ts_s: float = 0.1, input_delay_samples: int = 0) -> np.ndarray:
+                      load_n: float | None = None, ts_s: float = 0.1, input_delay_samples: int = 0,
+                      refine_offset_mm: float = 35.0, refine_amplitude_mm: float = 30.0) -> np.ndarray:
     """Section 4.2's fixed predictor, "obtained by a preliminary identification under 44 N".
 
     The paper does not say on which data. We identify in two stages, both at 44 N:
@@ -89,8 +91,9 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
     1. open loop: Eq. (1) by the constrained RLS on 5 + 3 sin(2 pi 0.1 t) V (Fig. 3's input) for
        240 s (our choice: the paper gives no length, only that the estimate settles and the box
        acts after 120 s);
-    2. closed loop: 120 s of AMPC with servo mechanism tracking the reference at ``refine_hz``
-       (``tapmuscle paper``: 0.05 Hz, docs/control.md says why), started from stage 1, with its own
+    2. closed loop: 120 s of AMPC with servo mechanism tracking the sine ``refine_offset_mm +
+       refine_amplitude_mm sin(2 pi refine_hz t)`` (the paper's 35 + 30 mm at ``tapmuscle paper``'s
+       0.05 Hz, docs/control.md says why), started from stage 1, with its own
        noise seed (``seed + 1000``); the estimate at the end is frozen. The experiment is fixed: the
        paper's AMPC-servo with the paper's start, Eq. (5) and Eq. (18), whatever the controller's
        defaults.
@@ -113,6 +116,13 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
     ts_s : float
         The sampling period [s] of both stages: the controller's. Off 0.1 s both run without a box
         (Table 2 is for 0.1 s, as :func:`~fmu_controller.identification.identify_record` decides).
+    refine_offset_mm, refine_amplitude_mm : float
+        Stage 2's sine [mm]: the range the fixed predictor will hold over (it holds where it was
+        identified, docs/control.md "MPC-servo outside its predictor's range"). The paper's 35 and 30
+        span 5..65 mm of the simulated rig's 98 mm at 10 V; for a rig of another reach, the same
+        fractions of it (0.36 and 0.30 times the reach): on 10 simulated rigs of 28-163 mm, fixed
+        MPC-servo on that predictor tracked the same fractions to 0.06-0.19 mm, where the paper's
+        35 + 30 mm gave up to 1.2 mm (docs/control.md, "A theta0 for another rig").
     input_delay_samples : int
         The controller's input delay d (a rig's transport delay, docs/control.md "Transport delay"):
         stage 1 identifies Eq. (1) on the command the valve had, ``u(k-d)``, and stage 2 runs with the
@@ -126,6 +136,10 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
         The 15 parameters of Eq. (1) in :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s order.
     """
     rig = PlantParams() if params is None else params
+    # checked before the stages run
+    reference = SineReference(offset_mm=real_number(refine_offset_mm, what="refine_offset_mm"),
+                              amplitude_mm=real_number(refine_amplitude_mm, what="refine_amplitude_mm"),
+                              frequency_hz=refine_hz, ts_s=ts_s)
     if load_n is not None:
         rig = rig.with_values(**{"load.load_n": float(load_n)})
     d = checked_input_delay(input_delay_samples)  # before the open-loop run
@@ -137,8 +151,7 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
                                   box_lower=report.box_lower, box_upper=report.box_upper)
     refine = DisplacementController(settings, report.theta)
     # a loop run for its final estimate, not its tracking: unwatched
-    cols = run_closed_loop(Plant(rig, seed=seed + 1000), refine, SineReference(frequency_hz=refine_hz, ts_s=ts_s),
-                           duration_s=120.0, watch=False)
+    cols = run_closed_loop(Plant(rig, seed=seed + 1000), refine, reference, duration_s=120.0, watch=False)
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
 
 
