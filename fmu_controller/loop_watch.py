@@ -208,7 +208,7 @@ class LoopWatch:
         self._beyond_said = True
         if list(c.theta0) != list(THETA0_44N):
             return
-        said.append(f"t = {t_s:g} s: the reference r = {r:g} mm is above the {THETA0_44N_HOLDS_MM:g} mm up to which "
+        said.append(f"t = {t_s:g} s: the reference r = {r:.4g} mm is above the {THETA0_44N_HOLDS_MM:g} mm up to which "
                     "the fixed predictor THETA0_44N holds (identified on the paper's 5..65 mm sine): beyond, its "
                     "g(l) feeds the motion back with the other sign, and MPC-servo overshoots or swings (on the "
                     "paper's rig a step to 75-90 mm limit-cycles for good; docs/control.md, \"MPC-servo outside its "

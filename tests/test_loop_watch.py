@@ -194,7 +194,7 @@ def test_mpc_servo_on_the_papers_predictor_is_told_once_when_the_reference_leave
     beyond = [str(w.message) for w in told if "up to which the fixed predictor THETA0_44N holds" in str(w.message)]
     assert len(beyond) == 1, beyond
     k = int(np.argmax(run["r_mm"] > THETA0_44N_HOLDS_MM))
-    assert beyond[0].startswith(f"t = {run['t_s'][k]:g} s: the reference r = {run['r_mm'][k]:g} mm is above the 70 mm")
+    assert beyond[0].startswith(f"t = {run['t_s'][k]:g} s: the reference r = {run['r_mm'][k]:.4g} mm is above the 70 mm")
     assert np.max(run["l_mm"] - run["r_mm"]) > 10.0  # what it tells of: the overshoot beyond the range
     other = np.array(tm.THETA0_44N)
     other[-1] *= 1.0 + 1e-9
