@@ -181,6 +181,15 @@ class LoopWatch:
         return (f"from rest, with the command held at {u:g} V for {RUNAWAY_S:g} s, its free run of Eq. (1) leaves "
                 f"{lo - 10 * (hi - lo):g}..{hi + 10 * (hi - lo):g} mm")
 
+    def _no_box(self) -> str:
+        """What to say of an adaptive law without a box C on ``a1``, ``a2``, ``b1``: its estimate wanders
+        where ``b1`` is near 0, which Eq. (5) divides by."""
+        s = self.controller.settings
+        if any(n in s.box_lower or n in s.box_upper for n in ("a1", "a2", "b1")):
+            return ""
+        return ("; the estimate has no box C to hold it: at Ts = 0.1 s keep Table 2's (AMPC-servo tracked with it on rigs "
+                "of 150-600 mm, 0.15-0.4 MPa, 20-100 N; docs/control.md, \"A theta0 for another rig\")")
+
     def _check_theta0(self, said: list[str], t_s: float) -> None:
         """Tell at the first sample when ``theta0``'s model runs away (:meth:`runaway`): an identification
         whose free run diverged, which a fixed law predicts with throughout."""
@@ -243,7 +252,7 @@ class LoopWatch:
         self._block[0] = -1
         if s.adaptive:
             why = ("the adaptive estimate is poor here: theta0 or the box C far from this rig (docs/control.md, \"A theta0 "
-                   "for another rig\"), or a delay the law does not compensate")
+                   "for another rig\"), or a delay the law does not compensate" + self._no_box())
         else:
             why = ("the fixed predictor theta0 is poor for this rig or for this range of r: refine it in closed loop over "
                    "the range the loop runs in (tapmuscle.paper.preliminary_theta with refine_offset_mm and "
@@ -324,7 +333,7 @@ class LoopWatch:
                 how = self.runaway(model)
                 if how is not None:
                     why = (f"{name} runs away ({how}), so the law's predictions have the valve's effect the wrong way "
-                           "round here" + ("" if c.settings.adaptive else
+                           "round here" + (self._no_box() if c.settings.adaptive else
                                            "; refine a fixed model in closed loop (docs/python-api.md, "
                                            "tapmuscle.paper.preliminary_theta)"))
             said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "

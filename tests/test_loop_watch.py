@@ -262,3 +262,26 @@ def test_modest_evidence_of_a_delay_asks_for_a_recording_and_strong_evidence_doe
         ratio = float(re.search(r"errors are ([\d.]+) times smaller", said)[1])
         assert (ratio < DELAY_SURE_RATIO) == doubt, said
         assert ("confirm it on a recording first (tapmuscle identify --input-delay-samples auto)" in said) == doubt, said
+
+
+def test_an_adaptive_estimate_without_a_box_that_runs_away_is_blamed_and_the_box_named():
+    """AMPC-servo without a box C, from an unconstrained identification of a 250-mm muscle at 0.15 MPa
+    and 100 N: the estimate runs away and holds the valve shut below the reference (14 mm of error).
+    The held valve is blamed on the estimate, and both it and the loop that does not track name the
+    missing box; with Table 2's box (and THETA0_44N inside it) AMPC-servo tracks there."""
+    rig = tm.PlantParams().with_values(**{"muscle.rest_length_mm": 250.0, "supply.supply_pressure_mpa": 0.15,
+                                          "load.load_n": 100.0})
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=240.0, params=rig, seed=0)
+    theta = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, box=None).theta
+    ref = tm.SineReference(offset_mm=0.36 * 42.0, amplitude_mm=0.30 * 42.0)
+    unboxed = tm.ControllerSettings(method="ampc_servo", box_lower={}, box_upper={})
+    with pytest.warns(RuntimeWarning) as told:
+        run = tm.simulate_closed_loop("ampc_servo", ref, duration_s=60.0, params=rig, theta0=theta, settings=unboxed)
+    said = [str(w.message) for w in told]
+    assert np.mean(np.abs(run["r_mm"] - run["l_mm"])[50:]) > 5.0
+    held = [m for m in said if "other way would close the gap" in m]
+    assert len(held) == 1 and "the adaptive estimate runs away" in held[0], said
+    for m in held + [m for m in said if "does not track" in m]:
+        assert "the estimate has no box C to hold it: at Ts = 0.1 s keep Table 2's" in m, m
+    boxed = tm.simulate_closed_loop("ampc_servo", ref, duration_s=60.0, params=rig, watch=False)  # THETA0_44N
+    assert np.mean(np.abs(boxed["r_mm"] - boxed["l_mm"])[50:]) < 0.5
