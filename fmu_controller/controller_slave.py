@@ -66,7 +66,7 @@ from pythonfmu.enums import Fmi2Status
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_DELAY_MOVE_WEIGHT,
                                                  DEFAULT_MAX_SPEED_MM_PER_S,
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 GUARD_JUMPS, HELD_READINGS_MAX, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
+                                                 GUARD_JUMPS, HELD_READINGS_MAX, L_RANGE_MM, held_reading_message, MAX_DELAY_MOVE_WEIGHT,
                                                  MAX_INPUT_DELAY_SAMPLES,
                                                  MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
                                                  VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
@@ -235,7 +235,8 @@ class AMPCController(SafeSlave):
              "Start-up)", 0.0, MAX_PROBING_V),
             ("max_speed", DEFAULT_MAX_SPEED_MM_PER_S, "mm/s", "glitch guard: a reading l further from the last one "
              "used than max_speed x Ts (the muscle cannot move that far in a sample) is taken for a sensor glitch and "
-             f"the one-step prediction used instead, at most {HELD_READINGS_MAX} in a row (logged); 0 = off "
+             f"the one-step prediction used instead, at most {HELD_READINGS_MAX} in a row (logged); from 5 s after the "
+             "start-up, so is a one-sample spike far beyond the prediction's usual error; 0 = both off "
              "(docs/control.md, Sensor glitches)", 0.0, None),
             ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35); offset +- amplitude within "
              f"{_L_RANGE_MM[0]:g}..{_L_RANGE_MM[1]:g}", *_L_RANGE_MM),
@@ -459,7 +460,7 @@ class AMPCController(SafeSlave):
         if step.saturated:
             tally.saturated += 1
         if ctrl.reading_held is not None:
-            self._say_held_reading(t_s, *ctrl.reading_held)
+            self._say_held_reading(t_s, *ctrl.reading_held, ctrl.spike_limit_mm)
         if ctrl.reading_stuck is not None:
             tally.stuck += 1  # logged by the watch
         if self._k:
@@ -478,21 +479,17 @@ class AMPCController(SafeSlave):
         self.samples = self._k
         self._show_input_delay()
 
-    def _say_held_reading(self, t_s: float, reading: float, used: float, last: float) -> None:
+    def _say_held_reading(self, t_s: float, reading: float, used: float, last: float, spike_mm: float | None) -> None:
         """Log a reading the glitch guard held (the first :data:`_HELD_READINGS_LOGGED`; all are counted
         in the run summary)."""
         tally = self._tally
         tally.held += 1
         if tally.held > _HELD_READINGS_LOGGED:
             return
-        s = self._controller.settings
         more = ("; further ones are counted in the run summary, not logged" if tally.held == _HELD_READINGS_LOGGED
                 else "")
-        self.log(f"t = {t_s:g} s: the reading l = {reading:g} mm is {abs(reading - last):.3g} mm "
-                 f"from the last one used, more than the muscle moves in a sample (max_speed x Ts = "
-                 f"{s.max_speed_mm_per_s:g} x {s.ts_s:g} = {s.max_speed_mm_per_s * s.ts_s:g} mm): taken for a sensor "
-                 f"glitch, the law and the estimator used the prediction {used:.4g} mm instead (after "
-                 f"{HELD_READINGS_MAX} in a row the reading is taken as the new level; max_speed = 0 turns this off){more}",
+        self.log(f"t = {t_s:g} s: "
+                 + held_reading_message(self._controller.settings, reading, used, last, spike_mm) + more,
                  status=Fmi2Status.warning)
 
     def _say_changes(self, t_s: float, before: tuple[int | None, bool]) -> None:

@@ -58,9 +58,10 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
+           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REF_STEP_SETTLE_S",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
-           "HELD_WARN_S", "held_against_error", "held_against_cause",
+           "HELD_WARN_S", "held_against_error", "held_against_cause", "held_reading_message",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
@@ -150,6 +151,22 @@ DEFAULT_MAX_SPEED_MM_PER_S = 2.0 * FASTEST_MUSCLE_MM_PER_S
 #: Readings held in a row, at most, before one that stays as far from the last used is taken as the new
 #: level (an encoder re-zeroed, a real step): a glitch lasts a sample or two.
 HELD_READINGS_MAX = 3
+#: After the start-up and the estimator's first :data:`SPIKE_AFTER_S`, a reading further from the
+#: one-step prediction than the larger of :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running
+#: mean |prediction error| (:data:`SPIKE_FORGET`) is taken for a one-sample spike of the sensor (a
+#: potentiometer's wiper lifting, an ADC's bad conversion) when the sample before was not: the
+#: prediction is used instead, once. A spike under the max_speed guard's bound (40 mm) was used as a
+#: reading, and the readings after it, that far from it, were held: one 30-mm spike moved the muscle
+#: by 36-40 mm. Not in the :data:`REF_STEP_SETTLE_S` after a reference step (the fixed predictors'
+#: errors reach 7.5 mm there); on 68 runs without spikes (the paper's cells, load steps, delayed rigs,
+#: 0.5-mm sensor noise, off-nominal rigs) it holds none.
+SPIKE_MM = 5.0
+SPIKE_SPREAD = 10.0
+SPIKE_FORGET = 0.02
+SPIKE_AFTER_S = 5.0
+#: A reference moving further than the muscle can in a sample is a step; the first seconds after one are
+#: its transient (the spike guard waits them out, and the loop's watch does not count their swings).
+REF_STEP_SETTLE_S = 3.0
 #: Seconds the command sits at each of the valve's limits, within one stretch of readings that have not
 #: changed at all, that tell a stuck sensor: the valve held open, then shut (or the other way round),
 #: moves a working muscle by millimetres within a second, whatever its transport delay (at most 0.5 s
@@ -322,7 +339,9 @@ class ControllerSettings:
     estimator then learns nothing from it), and :attr:`DisplacementController.reading_held` says so.
     After :data:`HELD_READINGS_MAX` such readings in a row the next one is used as the new level.
     Without it one reading 50 mm off sent AMPC-servo's valve to 10 V for four samples and the adaptive
-    estimate learnt from it (docs/control.md, "Sensor glitches"). 0: off (every reading used)."""
+    estimate learnt from it (docs/control.md, "Sensor glitches"). From :data:`SPIKE_AFTER_S` after the
+    start-up, a one-sample spike within that bound is held too (:data:`SPIKE_MM`,
+    :attr:`DisplacementController.spike_limit_mm`). 0: both off (every reading used)."""
     delay_correction: bool = True
     """With an input delay (``input_delay_samples`` 1 or more, or -1 once a delay hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
@@ -476,6 +495,25 @@ def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, 
     else:
         upper["b1"] = min(upper.get("b1", math.inf), kept)
     return lower, upper
+
+
+def held_reading_message(settings: ControllerSettings, reading_mm: float, used_mm: float, last_mm: float,
+                         spike_mm: float | None) -> str:
+    """What to tell of a reading :attr:`DisplacementController.reading_held` reports (without the time):
+    the ``reading_mm`` [mm], the prediction ``used_mm`` instead, the last reading used ``last_mm``, and
+    ``spike_mm``, its :attr:`~DisplacementController.spike_limit_mm` (None: a jump beyond ``max_speed``)."""
+    if spike_mm is not None:
+        return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - used_mm):.3g} mm from the one-step prediction "
+                f"{used_mm:.4g} mm, more than the {spike_mm:.3g} mm it has lately come within (the larger of "
+                f"{SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times the mean error): taken for a one-sample spike of the sensor, "
+                "the law and the estimator used the prediction instead (the next reading is used whatever it is; "
+                "max_speed = 0 turns this off)")
+    s = settings
+    return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - last_mm):.3g} mm from the last one used, more than "
+            f"the muscle moves in a sample (max_speed x Ts = {s.max_speed_mm_per_s:g} x {s.ts_s:g} = "
+            f"{s.max_speed_mm_per_s * s.ts_s:g} mm): taken for a sensor glitch, the law and the estimator used the "
+            f"prediction {used_mm:.4g} mm instead (after {HELD_READINGS_MAX} in a row the reading is taken as the new "
+            "level; max_speed = 0 turns this off)")
 
 
 def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> str:
@@ -661,6 +699,14 @@ class DisplacementController:
         self.reading_held: tuple[float, float, float] | None = None
         """The last step's reading taken for a glitch, the value used instead and the last one used
         before [mm]; None where the reading was used."""
+        self.spike_limit_mm: float | None = None
+        """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
+        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
+        None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
+        # the spike guard: the running mean |one-step prediction error| [mm] (NaN before one), whether
+        # the last sample was held as a spike, the sample it acts from (after a reference step's
+        # transient), the last r(k) [mm]
+        self._spike = [math.nan, False, 0, math.nan]
         # the stretch of identical readings: its reading (NaN before the first), its samples, the
         # samples of it that followed a command at the lower and at the upper valve limit, and whether
         # reading_stuck has said it
@@ -692,6 +738,41 @@ class DisplacementController:
                          for _ in range(self._scored + 1)]
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
+
+    def _spike_guard(self, l: float, r: float) -> float:
+        """The reading ``l`` [mm] to use: the one-step prediction where ``l`` is a one-sample spike
+        (:data:`SPIKE_MM`; ``r``: the preview's last sample [mm], whose steps pause the guard from when
+        the law first sees them), else ``l``, the running mean of the prediction errors updated with it."""
+        spike = self._spike
+        ts = self.settings.ts_s
+        if abs(r - spike[3]) > FASTEST_MUSCLE_MM_PER_S * ts:  # a step at the preview's end: the law acts on it now
+            spike[2] = self._k + self._need + int(round(REF_STEP_SETTLE_S / ts))
+        spike[3] = r
+        predicted = self._predicted
+        if not math.isfinite(predicted):
+            return l
+        error = abs(l - predicted)
+        mean = spike[0]
+        limit = max(SPIKE_MM, SPIKE_SPREAD * mean) if mean == mean else math.inf
+        # the prediction used instead must itself be a reading the muscle could give
+        # not in the start-up, whose estimate is still learning (an open-loop theta0 at 0.3 MPa missed by
+        # 60 mm there), nor in the first seconds after it
+        if (error > limit and not spike[1] and self._k >= spike[2] and not self.in_startup
+                and self.samples_since_start > int(round(SPIKE_AFTER_S / ts)) + self._blend_n
+                and abs(predicted - self._state.last_l) <= self._max_jump):
+            spike[1] = True
+            self.spike_limit_mm = limit
+            self.reading_held = (l, predicted, self._state.last_l)
+            return predicted
+        if spike[1] and error > limit:
+            # the reading after a held one as far off: no spike but a model that predicts this badly
+            # now; the guard waits a transient out and takes the error in whole
+            spike[2] = self._k + int(round(REF_STEP_SETTLE_S / ts))
+            limit = error
+        spike[1] = False
+        # an error beyond the limit (a transient the guard waits out) counts as the limit
+        spike[0] = error if mean != mean else mean + SPIKE_FORGET * (min(error, limit) - mean)
+        return l
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
         """One control sample: measured ``l(k)`` [mm] and the preview ``r(k), ..., r(k+n)`` [mm] ->
@@ -737,10 +818,19 @@ class DisplacementController:
             self._watch_still(still)
         else:
             still[:] = [l, 0, 0, 0, False]
+        self.spike_limit_mm = None
         if self._max_jump and k > 0:
             last = state.last_l
-            if abs(l - last) <= self._max_jump or self._held_in_a_row >= HELD_READINGS_MAX:
+            if abs(l - last) <= self._max_jump:
                 self._held_in_a_row = 0
+                l = self._spike_guard(l, rl[-1])
+            elif self._held_in_a_row >= HELD_READINGS_MAX or (not self._held_in_a_row
+                                                              and abs(l - state.l_prev_mm) <= self._max_jump):
+                # the new level; or within reach of the reading before the last one used, which was then
+                # the glitch (a spike under the bound, used): the readings after it are not held. The
+                # model's state has jumped: its predictions are no guide for a while
+                self._held_in_a_row = 0
+                self._spike[2:] = [k + int(round(REF_STEP_SETTLE_S / self.settings.ts_s)), rl[-1]]
             else:  # further than the muscle moves in a sample: a glitch, the prediction used instead
                 self._held_in_a_row += 1
                 used = self._predicted if math.isfinite(self._predicted) else last
@@ -1175,6 +1265,7 @@ class DisplacementController:
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "limit_run": self._limit_run,
             "predicted": self._predicted, "held_in_a_row": self._held_in_a_row, "still": list(self._still),
+            "spike": list(self._spike),
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
             "delayed": self._lag != 0, "decided": self._decided, "lag": self._lag,
@@ -1226,6 +1317,13 @@ class DisplacementController:
                              "mm or NaN, samples >= 0, samples after the lower limit and after the upper one (together "
                              "at most the samples), said true/false]")
         self._still = [float(still[0]), int(still[1]), int(still[2]), int(still[3]), bool(still[4])]
+        spike = state.get("spike", [math.nan, False, 0, math.nan])  # saved without the spike guard: a new one
+        if (not isinstance(spike, (list, tuple)) or len(spike) != 4 or not (math.isnan(float(spike[0]))
+                                                                            or 0.0 <= float(spike[0]) < math.inf)
+                or isinstance(spike[2], bool) or int(spike[2]) != spike[2]):
+            raise ValueError(f"state field spike = {spike!r} must be [mean |prediction error| >= 0 mm or NaN, held "
+                             "true/false, the sample it acts from, the last reference or NaN]")
+        self._spike = [float(spike[0]), bool(spike[1]), int(spike[2]), float(spike[3])]
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         for name in ("h_prev", "h_prev2"):
             if math.isinf(float(state.get(name, math.nan))):

@@ -21,7 +21,7 @@ import math
 from typing import Sequence
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTEST_MUSCLE_MM_PER_S, GUARD_JUMPS,
-                                                 HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES,
+                                                 HELD_WARN_S, REF_STEP_SETTLE_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES,
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
                                                  held_against_error, pushed_at_limit, stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
@@ -52,7 +52,6 @@ SWINGS = 6
 #: step: the swings of the transient in the :data:`REF_STEP_SETTLE_S` after it (25 mm at 0.1 s: six
 #: swings in AMPC-UCP) are not counted; those before and after it are.
 REF_STEP_MM_PER_S = FASTEST_MUSCLE_MM_PER_S
-REF_STEP_SETTLE_S = 3.0
 #: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
 #: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
 #: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).

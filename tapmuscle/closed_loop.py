@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_controller.displacement_control import DisplacementController
+from fmu_controller.displacement_control import SPIKE_MM, SPIKE_SPREAD, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
@@ -214,7 +214,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     told: list[str] = []  # what the watch told, as the controller FMU logs it
     u_prev = 0.0
     pred_prev = meas.l_mm
-    held_at: list[float] = []  # sample times of the readings the glitch guard held
+    held_at: list[float] = []  # sample times of the readings the glitch guard held: jumps beyond max_speed ...
+    spiked_at: list[float] = []  # ... and one-sample spikes from the prediction
     every = max(1, n // 100)
     for k in range(n):
         t = k * ts
@@ -233,7 +234,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
         theta_hist[k] = step.theta
         if controller.reading_held is not None:
-            held_at.append(t)
+            (spiked_at if controller.spike_limit_mm is not None else held_at).append(t)
         pred_prev = step.predicted_next_mm
         if k + 1 < n:
             meas = plant.step(u, ts)
@@ -250,4 +251,9 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
                        f"than the muscle moves in a sample (max_speed_mm_per_s x ts_s = {s.max_speed_mm_per_s:g} x "
                        f"{s.ts_s:g} mm) and were taken for sensor glitches: the controller used its prediction instead "
                        "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", RuntimeWarning)
+    if spiked_at:
+        warn_at_caller(f"{len(spiked_at)} readings (the first at t = {spiked_at[0]:g} s) were further from the one-step "
+                       f"prediction than the larger of {SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times its mean error, with the "
+                       "sample before within it, and were taken for one-sample spikes of the sensor: the controller used "
+                       "its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)", RuntimeWarning)
     return cols

@@ -1,6 +1,7 @@
 """The AMPCController FMU in fmpy: the direct controller's numbers, FMI errors not crashes, exact state."""
 
 import math
+import re
 import xml.etree.ElementTree as ET
 import zipfile
 
@@ -1142,6 +1143,26 @@ def test_a_reading_taken_for_a_sensor_glitch_is_logged_and_counted():
     assert "1 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()
     off, said = run(max_speed=0.0)
     assert said == [] and "sensor glitches" not in off.run_summary()
+
+
+def test_a_spike_under_the_speed_bound_is_logged_as_a_spike_and_counted():
+    """A reading 25 mm off for one sample, within the 40 mm the muscle could move: the FMU holds it as a
+    one-sample spike, logs the reading, the prediction used and the limit it exceeded, and counts it."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    slave = AMPCController(instance_name="spike")
+    slave.exit_initialization_mode()
+    plant = Plant(seed=0)
+    for k in range(400):
+        slave.l = plant.measurement.l_mm + (-25.0 if k == 300 else 0.0)
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    (msg,) = [m.msg for m in slave.log_queue if "spike" in m.msg]
+    assert re.match(r"t = 30 s: the reading l = [\d.]+ mm is 2[45]\.\d+ mm from the one-step prediction [\d.]+ mm, more than "
+                    r"the 5 mm it has lately come within \(the larger of 5 mm and 10 times the mean error\): taken for a "
+                    r"one-sample spike of the sensor", msg), msg
+    assert "1 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()
 
 
 def test_a_stuck_reading_is_logged_once_and_counted():
