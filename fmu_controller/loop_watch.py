@@ -456,6 +456,12 @@ class LoopWatch:
         remedy, as far as the settings tell them apart (``l_mm``: the reading now [mm])."""
         s = self.controller.settings
         causes = []
+        if s.input_delay_samples == -1 and not s.adaptive and not s.servo_mechanism:
+            # MPC-UCP has no probe: with a sensor noisier than 0.3 mm -1's scores of 0 and 2 samples tie, and
+            # it decided 0 on 2-8 of 20 rigs with a 0.15-0.2-s delay
+            causes.append("a delay -1 did not see: it decided 0 from the start's scores, which a noisy sensor (0.3 mm "
+                          "and more) blurs for this law: set input_delay_samples to the rig's delay in samples "
+                          "(tapmuscle identify --input-delay-samples auto finds it from a recording)")
         if s.input_delay_samples == 0:  # -1 deciding 0 saw none: no delay to suggest
             causes.append("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
                           f"master?): set input_delay_samples to it in samples (up to {MAX_INPUT_DELAY_SAMPLES}), or "

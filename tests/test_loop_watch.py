@@ -285,3 +285,17 @@ def test_an_adaptive_estimate_without_a_box_that_runs_away_is_blamed_and_the_box
         assert "the estimate has no box C to hold it: at Ts = 0.1 s keep Table 2's" in m, m
     boxed = tm.simulate_closed_loop("ampc_servo", ref, duration_s=60.0, params=rig, watch=False)  # THETA0_44N
     assert np.mean(np.abs(boxed["r_mm"] - boxed["l_mm"])[50:]) < 0.5
+
+
+def test_a_limit_cycle_of_mpc_ucp_after_minus_one_decided_0_names_a_delay_it_did_not_see():
+    """MPC-UCP has no probe: on a 0.2-s rig with a 0.5-mm noisy sensor -1 decided 0 (seed 1) and the
+    loop limit-cycled at 9 mm, the warning blaming only the fixed predictor. It names the delay -1 did
+    not see and how to find it."""
+    rig = tm.PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.5, "sensor.encoder_resolution_mm": 0.1,
+                                          "delay.delay_s": 0.2})
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method="mpc_ucp", input_delay_samples=-1), tm.THETA0_44N)
+    with pytest.warns(RuntimeWarning) as told:
+        tm.run_closed_loop(tm.Plant(rig, seed=1), ctrl, tm.SineReference(), duration_s=40.0)
+    assert ctrl.input_delay_decision == 0
+    (cycle,) = [str(w.message) for w in told if "a limit cycle" in str(w.message)]
+    assert "a delay -1 did not see: it decided 0" in cycle and "--input-delay-samples auto" in cycle
