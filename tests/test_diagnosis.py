@@ -1805,3 +1805,24 @@ def test_distinguishable_z_is_shifted_standard_normal():
     z = [distinguishable(e, e + delta, 0.01, min_ratio=0.0)[1]["z"] - shift
          for e in (0.01 * rng.standard_normal(900) for _ in range(400))]
     assert abs(np.mean(z)) < 0.2 and 0.85 < np.std(z) < 1.15
+
+
+def test_a_sensor_much_noisier_than_the_models_is_noted_and_still_no_mismatch():
+    """The exact rig read through 0.5 mm of sensor noise (a potentiometer; the plant states the encoder's
+    0.0104 mm) is no mismatch, and the report says that the recording is about 50 times noisier than
+    the plant's sensor and what that means for its findings; the encoder's recording says nothing of it."""
+    from fmu_plant import PlantParams
+    from tapmuscle.api import simulate
+    from tapmuscle.diagnosis.diagnose import NOISIER_SENSOR_FACTOR
+
+    for noise, noted in ((0.5, True), (0.01, False)):
+        rec = simulate("random", duration_s=150.0, params=PlantParams().with_values(
+            **{"sensor.encoder_noise_std_mm": noise}), seed=1)
+        d = diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], PlantParams())
+        assert d.verdict == "no_significant_mismatch"
+        said = [n for n in d.notes if "times the sensor noise the plant states" in n]
+        assert bool(said) == noted, d.notes
+        if noted:
+            m = re.match(r"The recording's white noise \(([\d.]+) mm\) is (\d+) times the sensor noise the plant "
+                         r"states \(0\.0104 mm", said[0])
+            assert m and 0.45 < float(m[1]) < 0.55 and int(m[2]) > NOISIER_SENSOR_FACTOR, said
