@@ -1536,7 +1536,8 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                    f"fits the held-out blocks worse ({fit_kept:.{digits}f} %) than the nominal plant "
                    f"({fit_before:.{digits}f} %)")
         notes.append(f"The calibration was {skipped}: what the training blocks bent the constants to is not in the "
-                     "held-out blocks (a start-up transient of a recording that does not start at rest?), so the "
+                     "held-out blocks (a start-up transient of a recording that does not start at rest, or a slow "
+                     "disturbance of the sensor, such as mains hum aliased to a drift?), so the "
                      "nominal plant is kept and no effect is claimed")
         selection.append({"step": "calibration not kept", "fit_calibrated_percent": round(fit_kept, 3),
                           "fit_nominal_percent": round(fit_before, 3), "effects_dropped": list(current.effects)})
