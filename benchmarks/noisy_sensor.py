@@ -1,6 +1,6 @@
 """The four controllers with a noisier sensor than the paper's encoder, and what a user can do about it.
 
-Run: ``python benchmarks/noisy_sensor.py [--seeds 3]`` (about 1 min).
+Run: ``python benchmarks/noisy_sensor.py [--seeds 3]`` (about 10 s).
 The paper's rig at 44 N and its 35 + 30 sin(2 pi 0.1 t) mm, 90 s from rest, with the encoder's
 0.01 mm of white noise or a potentiometer's 0.2 and 0.5 mm (``sensor.encoder_noise_std_mm``; 0.1-mm
 resolution for those), ``THETA0_44N``. Variants: the defaults; the servo's move weight R at 60 and 240

@@ -1,6 +1,6 @@
 """The four controllers on rigs other than the paper's, from each source of a fixed predictor ``theta0``.
 
-Run: ``python benchmarks/other_rigs.py [--seconds 60] [--rigs L600 ps015 ...]`` (about 2 min).
+Run: ``python benchmarks/other_rigs.py [--seconds 60] [--rigs L600 ps015 ...]`` (about 15 s).
 Ten simulated rigs: muscles of 250 and 600 mm (``muscle.rest_length_mm``), supplies of 0.15 and 0.4 MPa,
 loads of 20 and 100 N, three of these together, and the paper's rig. At 20 N the braid lock is set to
 15 N, as the plant's light-load warning advises. Each rig's reach is the displacement after 30 s at 10 V;

@@ -58,7 +58,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
-           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REF_STEP_SETTLE_S",
+           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REF_STEP_SETTLE_S", "settle_samples",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
            "HELD_WARN_S", "held_against_error", "held_against_cause", "held_reading_message",
@@ -151,22 +151,39 @@ DEFAULT_MAX_SPEED_MM_PER_S = 2.0 * FASTEST_MUSCLE_MM_PER_S
 #: Readings held in a row, at most, before one that stays as far from the last used is taken as the new
 #: level (an encoder re-zeroed, a real step): a glitch lasts a sample or two.
 HELD_READINGS_MAX = 3
-#: After the start-up and the estimator's first :data:`SPIKE_AFTER_S`, a reading further from the
-#: one-step prediction than the larger of :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running
-#: mean |prediction error| (:data:`SPIKE_FORGET`) is taken for a one-sample spike of the sensor (a
-#: potentiometer's wiper lifting, an ADC's bad conversion) when the sample before was not: the
-#: prediction is used instead, once. A spike under the max_speed guard's bound (40 mm) was used as a
-#: reading, and the readings after it, that far from it, were held: one 30-mm spike moved the muscle
-#: by 36-40 mm. Not in the :data:`REF_STEP_SETTLE_S` after a reference step (the fixed predictors'
-#: errors reach 7.5 mm there); on 68 runs without spikes (the paper's cells, load steps, delayed rigs,
-#: 0.5-mm sensor noise, off-nominal rigs) it holds none.
+#: From :data:`SPIKE_AFTER_S` after the start-up on, a reading further from the one-step prediction
+#: than the larger of :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running mean |prediction
+#: error| (weight :data:`SPIKE_FORGET` a sample: about 50 samples, 5 s at Ts = 0.1 s) is taken for a
+#: one-sample spike of the sensor (a potentiometer's wiper lifting, an ADC's bad conversion) where the
+#: two readings before came within half that (a loop whose errors swing already is not told from a
+#: spike): the prediction is used instead, once. Without it a spike
+#: under the max_speed bound (40 mm) is used as a reading, and one 30 mm low moves the muscle by 36-40
+#: mm. The guard waits :data:`REF_STEP_SETTLE_S` after the preview moves by more than
+#: :data:`SPIKE_MM` in a sample (a step: the fixed predictors miss by 7.5 mm in its transient, which
+#: starts as the step enters the preview), and as long after a reading as far off follows a held one
+#: (a model that predicts badly just then). On 68 runs without spikes (the paper's cells, load steps,
+#: staircases, delayed rigs, 0.5-mm sensor noise, rigs with constants off) it holds none.
 SPIKE_MM = 5.0
 SPIKE_SPREAD = 10.0
 SPIKE_FORGET = 0.02
 SPIKE_AFTER_S = 5.0
-#: A reference moving further than the muscle can in a sample is a step; the first seconds after one are
-#: its transient (the spike guard waits them out, and the loop's watch does not count their swings).
+#: The first seconds after a reference step are its transient: the spike guard waits them out, and the
+#: loop's watch does not count their swings.
 REF_STEP_SETTLE_S = 3.0
+
+
+#: The spike guard's state at the start: the running mean |one-step prediction error| [mm], the last
+#: reading's |error| [mm] (NaN: none yet), the sample the guard acts from (after a reference step's
+#: transient), the preview's last sample at the last step [mm], the |error| of the reading before the
+#: last [mm].
+_NEW_SPIKE_GUARD = (math.nan, math.nan, 0, math.nan, math.nan)
+
+
+def settle_samples(ts_s: float) -> int:
+    """:data:`REF_STEP_SETTLE_S` in samples of ``ts_s`` [s]."""
+    return int(round(REF_STEP_SETTLE_S / ts_s))
+
+
 #: Seconds the command sits at each of the valve's limits, within one stretch of readings that have not
 #: changed at all, that tell a stuck sensor: the valve held open, then shut (or the other way round),
 #: moves a working muscle by millimetres within a second, whatever its transport delay (at most 0.5 s
@@ -506,7 +523,7 @@ def held_reading_message(settings: ControllerSettings, reading_mm: float, used_m
         return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - used_mm):.3g} mm from the one-step prediction "
                 f"{used_mm:.4g} mm, more than the {spike_mm:.3g} mm it has lately come within (the larger of "
                 f"{SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times the mean error): taken for a one-sample spike of the sensor, "
-                "the law and the estimator used the prediction instead (the next reading is used whatever it is; "
+                "the law and the estimator used the prediction instead (the next reading is not held as a spike; "
                 "max_speed = 0 turns this off)")
     s = settings
     return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - last_mm):.3g} mm from the last one used, more than "
@@ -579,6 +596,20 @@ def _control_step(u_v, predicted_next_mm, prediction_error_mm, uc_v, hysteresis_
         "u_v": u_v, "predicted_next_mm": predicted_next_mm, "prediction_error_mm": prediction_error_mm,
         "uc_v": uc_v, "hysteresis_mm": hysteresis_mm, "xs_mm": xs_mm, "theta": theta, "saturated": saturated})
     return step
+
+
+def _valid_spike_guard(spike: Any) -> bool:
+    """Whether ``spike`` is a spike guard's state (``_NEW_SPIKE_GUARD``'s fields) a controller could save."""
+    if not isinstance(spike, (list, tuple)) or len(spike) != 5:
+        return False
+    try:
+        mean, last, acts_from, r, earlier = (float(spike[0]), float(spike[1]), spike[2], float(spike[3]),
+                                             float(spike[4]))
+    except (TypeError, ValueError):
+        return False
+    errors_ok = all(x != x or 0.0 <= x < math.inf for x in (mean, last, earlier))
+    whole = not isinstance(acts_from, bool) and isinstance(acts_from, (int, float)) and int(acts_from) == acts_from >= 0
+    return errors_ok and whole and (r != r or math.isfinite(r))
 
 
 def _valid_still(still: Any) -> bool:
@@ -703,10 +734,7 @@ class DisplacementController:
         """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
         :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
         None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
-        # the spike guard: the running mean |one-step prediction error| [mm] (NaN before one), whether
-        # the last sample was held as a spike, the sample it acts from (after a reference step's
-        # transient), the last r(k) [mm]
-        self._spike = [math.nan, False, 0, math.nan]
+        self._spike = list(_NEW_SPIKE_GUARD)
         # the stretch of identical readings: its reading (NaN before the first), its samples, the
         # samples of it that followed a command at the lower and at the upper valve limit, and whether
         # reading_stuck has said it
@@ -739,39 +767,45 @@ class DisplacementController:
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
 
+    def _spike_limit(self) -> float:
+        """How far [mm] a reading may lie from its one-step prediction before it is a spike: the larger of
+        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running mean error (inf before one)."""
+        mean = self._spike[0]
+        return max(SPIKE_MM, SPIKE_SPREAD * mean) if mean == mean else math.inf
+
     def _spike_guard(self, l: float, r: float) -> float:
         """The reading ``l`` [mm] to use: the one-step prediction where ``l`` is a one-sample spike
         (:data:`SPIKE_MM`; ``r``: the preview's last sample [mm], whose steps pause the guard from when
         the law first sees them), else ``l``, the running mean of the prediction errors updated with it."""
         spike = self._spike
         ts = self.settings.ts_s
-        if abs(r - spike[3]) > FASTEST_MUSCLE_MM_PER_S * ts:  # a step at the preview's end: the law acts on it now
-            spike[2] = self._k + self._need + int(round(REF_STEP_SETTLE_S / ts))
+        if abs(r - spike[3]) > SPIKE_MM:  # a step at the preview's end: the law acts on it now
+            spike[2] = self._k + self._need + settle_samples(ts)
         spike[3] = r
         predicted = self._predicted
         if not math.isfinite(predicted):
             return l
         error = abs(l - predicted)
-        mean = spike[0]
-        limit = max(SPIKE_MM, SPIKE_SPREAD * mean) if mean == mean else math.inf
-        # the prediction used instead must itself be a reading the muscle could give
-        # not in the start-up, whose estimate is still learning (an open-loop theta0 at 0.3 MPa missed by
-        # 60 mm there), nor in the first seconds after it
-        if (error > limit and not spike[1] and self._k >= spike[2] and not self.in_startup
+        limit = self._spike_limit()
+        before = spike[1]
+        # a reading after two ordinary ones (within half the limit); not in the start-up, whose estimate is
+        # still learning (an open-loop theta0 at 0.3 MPa missed by 60 mm there), nor in the seconds after
+        # it; and the prediction used instead must itself be a reading the muscle could give
+        if (error > limit and before <= 0.5 * limit and spike[4] <= 0.5 * limit and self._k >= spike[2] and not self.in_startup
                 and self.samples_since_start > int(round(SPIKE_AFTER_S / ts)) + self._blend_n
                 and abs(predicted - self._state.last_l) <= self._max_jump):
-            spike[1] = True
+            spike[1], spike[4] = error, before
             self.spike_limit_mm = limit
             self.reading_held = (l, predicted, self._state.last_l)
             return predicted
-        if spike[1] and error > limit:
-            # the reading after a held one as far off: no spike but a model that predicts this badly
-            # now; the guard waits a transient out and takes the error in whole
-            spike[2] = self._k + int(round(REF_STEP_SETTLE_S / ts))
+        if before > limit and error > limit:
+            # a reading as far off after a held (or far-off) one: no spike but a model that predicts this
+            # badly now; the guard waits a transient out and takes the error in whole
+            spike[2] = self._k + settle_samples(ts)
             limit = error
-        spike[1] = False
-        # an error beyond the limit (a transient the guard waits out) counts as the limit
-        spike[0] = error if mean != mean else mean + SPIKE_FORGET * (min(error, limit) - mean)
+        spike[1], spike[4] = error, before
+        # an error beyond the limit counts as the limit: a transient does not blunt the guard
+        spike[0] = error if spike[0] != spike[0] else spike[0] + SPIKE_FORGET * (min(error, limit) - spike[0])
         return l
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
@@ -824,13 +858,16 @@ class DisplacementController:
             if abs(l - last) <= self._max_jump:
                 self._held_in_a_row = 0
                 l = self._spike_guard(l, rl[-1])
-            elif self._held_in_a_row >= HELD_READINGS_MAX or (not self._held_in_a_row
-                                                              and abs(l - state.l_prev_mm) <= self._max_jump):
-                # the new level; or within reach of the reading before the last one used, which was then
-                # the glitch (a spike under the bound, used): the readings after it are not held. The
-                # model's state has jumped: its predictions are no guide for a while
+            elif self._held_in_a_row >= HELD_READINGS_MAX or (
+                    not self._held_in_a_row and abs(l - state.l_prev_mm) <= self._max_jump
+                    and self._spike[1] > self._spike_limit()):
+                # the new level; or, after a used reading that was far from its prediction, within reach of
+                # the reading before it: that one was a spike under the bound, and the readings after it
+                # are the muscle's. The model's state has jumped: its predictions are no guide for a while
                 self._held_in_a_row = 0
-                self._spike[2:] = [k + int(round(REF_STEP_SETTLE_S / self.settings.ts_s)), rl[-1]]
+                spike = self._spike
+                spike[1], spike[4] = abs(l - self._predicted) if math.isfinite(self._predicted) else math.nan, spike[1]
+                spike[2], spike[3] = k + settle_samples(self.settings.ts_s), rl[-1]
             else:  # further than the muscle moves in a sample: a glitch, the prediction used instead
                 self._held_in_a_row += 1
                 used = self._predicted if math.isfinite(self._predicted) else last
@@ -1317,13 +1354,12 @@ class DisplacementController:
                              "mm or NaN, samples >= 0, samples after the lower limit and after the upper one (together "
                              "at most the samples), said true/false]")
         self._still = [float(still[0]), int(still[1]), int(still[2]), int(still[3]), bool(still[4])]
-        spike = state.get("spike", [math.nan, False, 0, math.nan])  # saved without the spike guard: a new one
-        if (not isinstance(spike, (list, tuple)) or len(spike) != 4 or not (math.isnan(float(spike[0]))
-                                                                            or 0.0 <= float(spike[0]) < math.inf)
-                or isinstance(spike[2], bool) or int(spike[2]) != spike[2]):
-            raise ValueError(f"state field spike = {spike!r} must be [mean |prediction error| >= 0 mm or NaN, held "
-                             "true/false, the sample it acts from, the last reference or NaN]")
-        self._spike = [float(spike[0]), bool(spike[1]), int(spike[2]), float(spike[3])]
+        spike = state.get("spike", _NEW_SPIKE_GUARD)  # saved without the spike guard: a new one
+        if not _valid_spike_guard(spike):
+            raise ValueError(f"state field spike = {spike!r} must be [mean |prediction error| >= 0 mm or NaN, the last "
+                             "reading's |error| >= 0 mm or NaN, the sample the guard acts from >= 0, the preview's last "
+                             "sample (finite) or NaN, the |error| before >= 0 mm or NaN]")
+        self._spike = [float(spike[0]), float(spike[1]), int(spike[2]), float(spike[3]), float(spike[4])]
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         for name in ("h_prev", "h_prev2"):
             if math.isinf(float(state.get(name, math.nan))):

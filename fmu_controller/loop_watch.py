@@ -21,11 +21,11 @@ import math
 from typing import Sequence
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTEST_MUSCLE_MM_PER_S, GUARD_JUMPS,
-                                                 HELD_WARN_S, REF_STEP_SETTLE_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES,
+                                                 HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES, settle_samples,
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
                                                  held_against_error, pushed_at_limit, stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.prediction import RUNAWAY_RANGE_MM, held_command_runaway
+from fmu_controller.prediction import N_INITIAL, RUNAWAY_RANGE_MM, held_command_runaway
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
@@ -86,9 +86,12 @@ DELAY_SURE_RATIO = 2.0
 #: :data:`TRACKING_MM` and :data:`TRACKING_SHARE` of the reference's range in the block. Not counted:
 #: the :data:`REF_STEP_SETTLE_S` after a reference step, and samples with the valve at the limit the
 #: error pushes it into (a reference out of reach, told apart). The paper's runs keep under 2 mm (MPC-UCP
-#: at 0.2 Hz the most); fixed predictors from another rig left steady offsets of 5-6 mm and a predictor
-#: refined over another range 31 mm, silently (docs/control.md, "A theta0 for another rig").
+#: at 0.2 Hz the most); fixed predictors from another rig leave steady offsets of 5-6 mm and a predictor
+#: refined over another range 31 mm, which no other watch names (docs/control.md, "A theta0 for another
+#: rig").
 TRACKING_BLOCK_S = 20.0
+#: A tracking block at its start: samples, samples counted, sum |r - l| [mm], r's least and largest [mm].
+_NEW_BLOCK = (0, 0, 0.0, math.inf, -math.inf)
 TRACKING_MM = 3.0
 TRACKING_SHARE = 0.1
 
@@ -128,7 +131,7 @@ class LoopWatch:
         self._beyond_said = False  # a reference beyond THETA0_44N_HOLDS_MM told
         # the tracking block: samples, samples counted, sum |r - l| [mm], r's least and largest [mm]
         # (samples -1: said)
-        self._block = [0, 0, 0.0, math.inf, -math.inf]
+        self._block = list(_NEW_BLOCK)
 
     # ------------------------------------------------------------------ the sample
     def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, step: ControlStep, u_prev_v: float) -> list[str]:
@@ -153,7 +156,7 @@ class LoopWatch:
         self._watch_held(said, t_s, l_mm, r_mm, u_v)
         self._watch_slamming(said, k, t_s, u_v, u_prev_v)
         if abs(r_mm - self._r_last) > REF_STEP_MM_PER_S * self.controller.settings.ts_s:
-            self._swings_from = k + int(round(REF_STEP_SETTLE_S / self.controller.settings.ts_s))
+            self._swings_from = k + settle_samples(self.controller.settings.ts_s)
         self._r_last = r_mm
         self._watch_swings(said, k, t_s, u_v, l_mm, r_mm)
         self._watch_tracking(said, k, t_s, l_mm, r_mm, u_v)
@@ -172,12 +175,14 @@ class LoopWatch:
         range (:data:`RUNAWAY_COMMANDS`, :data:`RUNAWAY_S`), in words (None where it does not)."""
         law = self._law()
         span = law.u_max_v - law.u_min_v
-        n = max(int(round(RUNAWAY_S / self.controller.settings.ts_s)), 10)
-        u = held_command_runaway(theta, ASYMMETRIC, [law.u_min_v + f * span for f in RUNAWAY_COMMANDS], n)
+        ts = self.controller.settings.ts_s
+        held = math.ceil(RUNAWAY_S / ts - 1e-9)  # samples of the held command, after the rest of N_INITIAL
+        u = held_command_runaway(theta, ASYMMETRIC, [law.u_min_v + f * span for f in RUNAWAY_COMMANDS],
+                                 N_INITIAL + held)
         if u is None:
             return None
         lo, hi = RUNAWAY_RANGE_MM
-        return (f"from rest, with the command held at {u:g} V for {RUNAWAY_S:g} s, its free run of Eq. (1) leaves "
+        return (f"from rest, with the command held at {u:g} V for {held * ts:g} s, its free run of Eq. (1) leaves "
                 f"{lo - 10 * (hi - lo):g}..{hi + 10 * (hi - lo):g} mm")
 
     def _no_box(self) -> str:
@@ -229,7 +234,8 @@ class LoopWatch:
         block = self._block
         c = self.controller
         s = c.settings
-        if block[0] < 0 or c.in_startup or c.samples_since_start <= int(round(SLAM_WINDOW_S / s.ts_s)):
+        # from the estimator's first SLAM_WINDOW_S on, in seconds (a long Ts is few samples)
+        if block[0] < 0 or c.in_startup or c.samples_since_start * s.ts_s <= SLAM_WINDOW_S:
             return
         block[0] += 1
         law = self._law()
@@ -237,10 +243,10 @@ class LoopWatch:
             block[1] += 1
             block[2] += abs(r - l)
             block[3], block[4] = min(block[3], r), max(block[4], r)
-        if block[0] < max(int(round(TRACKING_BLOCK_S / s.ts_s)), 1):
+        if block[0] < math.ceil(TRACKING_BLOCK_S / s.ts_s - 1e-9):
             return
         counted, total, r_lo, r_hi = block[1:]
-        self._block = [0, 0, 0.0, math.inf, -math.inf]
+        self._block = list(_NEW_BLOCK)
         # a block mostly after reference steps or out of reach says little of the law
         if not counted or counted < block[0] // 2:
             return
@@ -256,7 +262,7 @@ class LoopWatch:
             why = ("the fixed predictor theta0 is poor for this rig or for this range of r: refine it in closed loop over "
                    "the range the loop runs in (tapmuscle.paper.preliminary_theta with refine_offset_mm and "
                    "refine_amplitude_mm; docs/control.md, \"A theta0 for another rig\"), or use an adaptive method")
-        said.append(f"t = {t_s:g} s: the loop does not track: over the last {TRACKING_BLOCK_S:g} s the reading l was "
+        said.append(f"t = {t_s:g} s: the loop does not track: over the last {block[0] * s.ts_s:g} s the reading l was "
                     f"{mean:.3g} mm from the reference on average (r over {r_lo:.4g}..{r_hi:.4g} mm; more than "
                     f"{limit:.3g} mm, the larger of {TRACKING_MM:g} mm and {100 * TRACKING_SHARE:g} % of that range): {why}")
 
@@ -506,5 +512,9 @@ class LoopWatch:
         # a stretch restored without its reading: not claimed unchanged
         self._pinned_l, self._pinned_moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)
         self._beyond_said = bool(said[10]) if len(said) >= 11 else False
-        self._block = ([int(said[11][0]), int(said[11][1]), float(said[11][2]), float(said[11][3]), float(said[11][4])]
-                       if len(said) >= 12 else [0, 0, 0.0, math.inf, -math.inf])
+        block = said[11] if len(said) >= 12 else _NEW_BLOCK
+        if not (isinstance(block, (list, tuple)) and len(block) == 5 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in block)):
+            raise ValueError(f"watch state's tracking block = {block!r} must be [samples, samples counted, sum |r - l| "
+                             "mm, least r, largest r]")
+        self._block = [int(block[0]), int(block[1]), float(block[2]), float(block[3]), float(block[4])]

@@ -1376,20 +1376,19 @@ def test_a_stuck_reading_is_told_at_the_coincidence_points_own_valve_limits():
 @pytest.mark.parametrize("spike_mm", [-30.0, 12.0])
 def test_a_spike_under_the_speed_bound_is_held_as_a_spike(theta0, method, spike_mm):
     """A potentiometer's one-sample spike of 12 or 30 mm is within the 40 mm the muscle could move in a
-    sample: it was used as a reading, and the readings after a 30-mm one, that far from it, were held,
-    which moved the muscle by 30-40 mm. From 5 s after the start-up on it is further from the one-step
-    prediction than SPIKE_MM and SPIKE_SPREAD times the usual error: held once as a spike, the real
-    motion stays within 0.5 mm of the undisturbed loop's."""
+    sample, which the max_speed bound lets through (a 30-mm one, used, moves the muscle by 30-40 mm).
+    From 5 s after the start-up on it is further from the one-step prediction than SPIKE_MM and
+    SPIKE_SPREAD times the usual error: held once as a spike, the real motion stays within 0.5 mm of
+    the undisturbed loop's."""
     from fmu_controller.displacement_control import SPIKE_MM
 
     ls0, us0, _, _, _ = _spiked_run(theta0, method, 0.0)
     ls, us, held, _, c = _spiked_run(theta0, method, spike_mm)
-    assert held == [300]
+    assert held == [300] and abs(spike_mm) > SPIKE_MM  # a spike the max_speed bound lets through
     assert np.max(np.abs(ls - ls0)) < 0.5
-    assert abs(spike_mm) > SPIKE_MM
-    # in the start-up and the 5 s after it (the estimate still learning) a spike is used; a 39-mm one at 2.4 s, the muscle rising,
-    # leaves the next reading more than 40 mm from it: that reading, within reach of the one before the
-    # spike, is used too (it was held, with two more after it, as the spike had been the true level)
+    # in the start-up and the 5 s after it (the estimate still learning) a spike is used; a 39-mm one at
+    # 2.4 s, the muscle rising, leaves the next reading more than 40 mm from it: that reading, within
+    # reach of the one before the spike, is used too, not held as if the spike were the level
     ls0, _, _, _, _ = _spiked_run(theta0, method, 0.0, n=40)
     assert abs(ls0[25] - (ls0[24] - 39.0)) > DEFAULT_MAX_SPEED_MM_PER_S * 0.1
     _, _, held_early, _, _ = _spiked_run(theta0, method, -39.0, k_spike=24, n=40)
@@ -1397,16 +1396,26 @@ def test_a_spike_under_the_speed_bound_is_held_as_a_spike(theta0, method, spike_
 
 
 def test_the_spike_guard_holds_nothing_in_the_papers_runs_and_its_state_restores(theta0):
-    """No reading of the paper's runs (every method, 45 s) nor of a staircase stepping every 5 s is held;
-    the guard's running error is part of the state, and a state saved without it starts it anew."""
+    """No reading of the paper's runs (every method, 45 s) nor of staircases stepping every 5 s by 15-30
+    mm (steps under the muscle's 20 mm a sample among them) is held; the guard's state is part of the
+    controller's, and a state saved without it starts it anew."""
     for method in METHODS:
         _, _, held, _, _ = _spiked_run(theta0, method, 0.0, n=451)
         assert held == [], method
-    ref = np.repeat([20.0, 50.0, 35.0, 60.0, 10.0, 45.0], 50)
-    for method in METHODS:
-        c = DisplacementController(ControllerSettings(method=method), theta0)
-        run_closed_loop(Plant(seed=1), c, ref, duration_s=29.9, watch=False)
-        assert c.get_state()["spike"][0] > 0.0
+    for step_mm in (15.0, 19.0, 20.0, 30.0):
+        ref = np.repeat([30.0, 30.0 + step_mm] * 5, 50)
+        for method in METHODS:
+            c = DisplacementController(ControllerSettings(method=method), theta0)
+            plant = Plant(seed=1)
+            c.reset(plant.measurement.l_mm)
+            held = []
+            for k in range(len(ref) - c.settings.preview_samples):
+                step = c.step(plant.measurement.l_mm, ref[k:k + c.settings.preview_samples + 1])
+                if c.reading_held is not None:
+                    held.append(k)
+                plant.step(step.u_v, 0.1)
+            assert held == [], (step_mm, method, held)
+            assert c.get_state()["spike"][0] > 0.0
     plant_ls, us, held, saved, c = _spiked_run(theta0, "ampc_servo", -30.0, save_at=290)
     c2 = DisplacementController(c.settings, theta0)
     c2.reset(0.0)
@@ -1414,9 +1423,43 @@ def test_the_spike_guard_holds_nothing_in_the_papers_runs_and_its_state_restores
     ref = SineReference()
     again = [c2.step(plant_ls[k] + (-30.0 if k == 300 else 0.0), ref.preview(k, c.settings.preview_samples)).u_v
              for k in range(290, 320)]
-    assert again == us[290:320].tolist() and c2.reading_held is None
-    old = {k: v for k, v in saved.items() if k != "spike"}
-    c2.set_state(old)
-    assert _same(c2.get_state()["spike"], [math.nan, False, 0, math.nan])
-    with pytest.raises(ValueError, match="state field spike"):
-        c2.set_state({**saved, "spike": [-1.0, False, 0, 0.0]})
+    assert again == us[290:320].tolist() and held == [300]
+    c2.set_state({k: v for k, v in saved.items() if k != "spike"})
+    assert _same(c2.get_state()["spike"], [math.nan, math.nan, 0, math.nan, math.nan])
+    for bad in ([-1.0, 0.0, 0, 0.0, 0.0], [0.1, 0.1, 0, math.inf, 0.0], [0.1, 0.1, 1.5, 0.0, 0.0], [0.1, 0.1, 0, 0.0]):
+        with pytest.raises(ValueError, match="state field spike"):
+            c2.set_state({**saved, "spike": bad})
+
+
+@pytest.mark.parametrize("method", ["mpc_servo", "ampc_servo"])
+def test_a_glitch_beyond_the_bound_during_a_fast_move_is_held(theta0, method):
+    """Steps 30 <-> 70 mm: at the fastest sample of the move (10-13 mm a sample) a reading 50-55 mm behind
+    the motion is beyond the 40-mm bound from the last reading but within it of the one before. The
+    last reading was its prediction's, no spike: the glitch is held, and the muscle stays within a
+    few millimetres of its undisturbed run."""
+    ref = np.repeat([30.0, 70.0, 30.0, 70.0], 100)
+
+    def run(glitch_k: int, glitch_mm: float):
+        c = DisplacementController(ControllerSettings(method=method), theta0)
+        p = Plant(seed=0)
+        c.reset(p.measurement.l_mm)
+        ls, held = [], []
+        for k in range(300):
+            step = c.step(p.measurement.l_mm + (glitch_mm if k == glitch_k else 0.0),
+                          ref[k:k + c.settings.preview_samples + 1])
+            if c.reading_held is not None:
+                held.append(k)
+            ls.append(p.l_mm)
+            p.step(step.u_v, 0.1)
+        return np.array(ls), held
+
+    base, _ = run(-1, 0.0)
+    d = np.diff(base[195:215])
+    k = 195 + int(np.argmax(np.abs(d))) + 1
+    move, bound = base[k] - base[k - 1], DEFAULT_MAX_SPEED_MM_PER_S * 0.1
+    # between the bound from the last reading and the bound from the one before (50-55 mm)
+    glitch = -np.sign(move) * (bound + 0.5 * (abs(move) + abs(base[k] - base[k - 2])))
+    assert abs(move) > 8.0 and abs(base[k] + glitch - base[k - 1]) > bound >= abs(base[k] + glitch - base[k - 2])
+    ls, held = run(k, glitch)
+    assert held == [k]
+    assert np.max(np.abs(ls - base)) < 9.0

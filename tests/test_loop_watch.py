@@ -216,7 +216,7 @@ def test_mpc_servo_on_the_papers_predictor_is_told_once_when_the_reference_leave
 def test_a_loop_that_does_not_track_is_told_once_and_the_papers_hardest_run_is_not():
     """MPC-UCP on the default THETA0_44N on a 150-mm muscle at 0.15 MPa and 100 N (28 mm of reach), its
     reference the paper's fractions of that reach, stays ~5 mm off without a limit cycle or a pinned
-    valve, silently before: told once, after the start-up and the first 10 s. MPC-UCP at 0.2 Hz on the
+    valve, which no other message names: told once, after the start-up and the first 10 s. MPC-UCP at 0.2 Hz on the
     paper's rig (Table 8's runs, the largest of the paper's errors) is not told."""
     rig = tm.PlantParams().with_values(**{"muscle.rest_length_mm": 150.0, "supply.supply_pressure_mpa": 0.15,
                                           "load.load_n": 100.0})
@@ -288,9 +288,9 @@ def test_an_adaptive_estimate_without_a_box_that_runs_away_is_blamed_and_the_box
 
 
 def test_a_limit_cycle_of_mpc_ucp_after_minus_one_decided_0_names_a_delay_it_did_not_see():
-    """MPC-UCP has no probe: on a 0.2-s rig with a 0.5-mm noisy sensor -1 decided 0 (seed 1) and the
-    loop limit-cycled at 9 mm, the warning blaming only the fixed predictor. It names the delay -1 did
-    not see and how to find it."""
+    """MPC-UCP has no probe: on a 0.2-s rig with a 0.5-mm noisy sensor -1 decides 0 (seed 1) and the loop
+    limit-cycles at 9 mm. The limit-cycle warning names, beside the fixed predictor, the delay -1 did not
+    see and how to find it."""
     rig = tm.PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.5, "sensor.encoder_resolution_mm": 0.1,
                                           "delay.delay_s": 0.2})
     ctrl = tm.DisplacementController(tm.ControllerSettings(method="mpc_ucp", input_delay_samples=-1), tm.THETA0_44N)
