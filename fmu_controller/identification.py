@@ -35,6 +35,7 @@ import numpy as np
 from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
 from .prediction import (IdentificationResult, delayed_input, fit_percent, predict_ahead, rescale_theta, run_rls,
                          simulate, theta_scale_factors)
+from .preliminary_model import REFINE_IN_CLOSED_LOOP
 from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
 
 __all__ = ["MODELS", "FitReport", "IdentificationReport", "identify_record", "score_model",
@@ -209,8 +210,7 @@ def _diverged_note(structure: ModelStructure, u_scaled: np.ndarray, l_scaled: np
                  + ("diverges as well" if fit.free_run_diverged else f"fits {fit.percent['sim']:.1f} %")
                  + f", with b1 = {theta[structure.names.index('b1')]:.3g} mm/V, which Eq. (5) divides by)")
     return said + (". A fixed MPC on it as theta0 holds the valve at a limit (the controllers warn of a theta0 that "
-                   "runs away): refine a fixed model in closed loop (docs/python-api.md, "
-                   "tapmuscle.paper.preliminary_theta); an adaptive controller's estimate starts from it")
+                   f"runs away): {REFINE_IN_CLOSED_LOOP}; an adaptive controller's estimate starts from it")
 
 
 def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:

@@ -26,7 +26,7 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTE
                                                  held_against_error, pushed_at_limit, stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.prediction import N_INITIAL, RUNAWAY_RANGE_MM, held_command_runaway
-from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.preliminary_model import REFINE_IN_CLOSED_LOOP, THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
@@ -207,8 +207,7 @@ class LoopWatch:
                     + " and the adaptive estimate starts from it" + (", held in the box C" if s.box_lower or s.box_upper
                                                                       else ""))
         else:
-            uses = ("the fixed law predicts with it throughout and will hold the valve at a limit or swing it; refine "
-                    "a fixed model in closed loop (docs/python-api.md, tapmuscle.paper.preliminary_theta)")
+            uses = f"the fixed law predicts with it throughout and will hold the valve at a limit or swing it; {REFINE_IN_CLOSED_LOOP}"
         said.append(f"t = {t_s:g} s: theta0 runs away: {how} (an unstable model, which can fit one step ahead well: "
                     f"tapmuscle identify notes a free run that diverged on its record); {uses}")
 
@@ -338,9 +337,7 @@ class LoopWatch:
                 how = self.runaway(model)
                 if how is not None:
                     why = (f"{name} runs away ({how}), so the law's predictions have the valve's effect the wrong way "
-                           "round here" + (self._no_box() if c.settings.adaptive else
-                                           "; refine a fixed model in closed loop (docs/python-api.md, "
-                                           "tapmuscle.paper.preliminary_theta)"))
+                           "round here" + (self._no_box() if c.settings.adaptive else f"; {REFINE_IN_CLOSED_LOOP}"))
             said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
                         f"reading l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the "
                         f"other way would close the gap: {why}")

@@ -12,7 +12,10 @@ estimate does; the plant then changed, and this table is regenerated with::
 
 from __future__ import annotations
 
-__all__ = ["THETA0_44N"]
+__all__ = ["THETA0_44N", "REFINE_IN_CLOSED_LOOP"]
+
+#: How a fixed predictor is made for a rig, in the words the controllers' messages use.
+REFINE_IN_CLOSED_LOOP = "refine a fixed model in closed loop (docs/python-api.md, tapmuscle.paper.preliminary_theta)"
 
 #: Eq. (1) parameters in :data:`fmu_controller.hysteresis_model.ASYMMETRIC` order
 #: (a1, a2, b1, A1, A2, beta1, beta2, gamma1, gamma2, c1, c2, xi21, xi22, xi31, xi32); l in mm, u in V.
