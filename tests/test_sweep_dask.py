@@ -241,7 +241,9 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
     import signal
 
     sweep = tmp_path / "long.toml"
-    sweep.write_text('name = "long"\nbase = { duration_s = 2000.0 }\ngrid = { seed = [0, 1, 2, 3, 4, 5, 6, 7] }\n')
+    # 32 runs of about a second each: the sweep outlasts a loaded machine's poll for its first result
+    sweep.write_text('name = "long"\nbase = { duration_s = 2000.0 }\ngrid = { seed = [' + ", ".join(map(str, range(32)))
+                     + '] }\n')
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", "2", "--out", str(out),
                              "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet", "--no-plots"],
