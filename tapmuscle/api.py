@@ -176,7 +176,10 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
         ``ts_s``, its box and a transport delay it was identified under the default settings', the
         delay with ``loop_delay_samples`` added; given ``settings``, theirs apply); default the 44 N
         preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2),
-        identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it.
+        identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it; for another
+        ``params`` it is the paper's rig's still, which fixed MPC-UCP on rigs of other reach tracks with
+        offsets of 2-6 mm (``tapmuscle.paper.preliminary_theta(params=...)`` makes the rig's own;
+        docs/control.md, "A theta0 for another rig").
     settings : ControllerSettings, optional
         Full controller settings (horizons, weights, P(0), box); its ``method`` and ``ts_s`` must
         agree with ``method`` and ``ts_s``. Default: the paper's (Table 5), as the controller FMU's,
