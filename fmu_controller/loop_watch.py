@@ -90,10 +90,10 @@ DELAY_SURE_RATIO = 2.0
 #: refined over another range 31 mm, which no other watch names (docs/control.md, "A theta0 for another
 #: rig").
 TRACKING_BLOCK_S = 20.0
-#: A tracking block at its start: samples, samples counted, sum |r - l| [mm], r's least and largest [mm].
-_NEW_BLOCK = (0, 0, 0.0, math.inf, -math.inf)
 TRACKING_MM = 3.0
 TRACKING_SHARE = 0.1
+#: A tracking block at its start: samples, samples counted, sum |r - l| [mm], r's least and largest [mm].
+_NEW_BLOCK = (0, 0, 0.0, math.inf, -math.inf)
 
 
 def samples_in_words(n: int) -> str:

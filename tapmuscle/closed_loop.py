@@ -253,7 +253,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
                        "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", RuntimeWarning)
     if spiked_at:
         warn_at_caller(f"{len(spiked_at)} readings (the first at t = {spiked_at[0]:g} s) were further from the one-step "
-                       f"prediction than the larger of {SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times its mean error, with the "
-                       "sample before within it, and were taken for one-sample spikes of the sensor: the controller used "
-                       "its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)", RuntimeWarning)
+                       f"prediction than the larger of {SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times its mean error, the two "
+                       "readings before within half of that, and were taken for one-sample spikes of the sensor: the "
+                       "controller used its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)",
+                       RuntimeWarning)
     return cols
