@@ -934,8 +934,9 @@ class DisplacementController:
         (Eq. (1)) under each delay ``d = 0 .. AUTO_INPUT_DELAY_SAMPLES``: the valve had the output
         ``y(k-1-d)`` over ``[t_k-1, t_k)`` (0: a sequential master, 1: a parallel one, more: a rig's
         transport delay as well), each hypothesis with its own model state. The controller starts with
-        the delayed law (``d = 1``). Once the best delay of 2 or more is :data:`DELAY_RATIO` times better
-        than both 0 and 1, the law switches to it; else once the parallel hypothesis is that much
+        the delayed law (``d = 1``). Once the best delay of 2 or more that the scores fall towards from 1
+        (:meth:`_valley_beyond_one`) is :data:`DELAY_RATIO` times better than both 0 and 1, the law switches
+        to it; else once the parallel hypothesis is that much
         better than the sequential one it keeps the delayed law (or switches to a longer delay that
         scores better still), once the sequential one is, it switches to the undelayed law; after
         :data:`DELAY_DECIDE_BY_SAMPLES` samples the best is taken. A servo method takes the longer of
@@ -949,13 +950,13 @@ class DisplacementController:
             return
         ms_seq, ms_par = ms[0], ms[1]
         late = self._compared >= self._decide_n
-        far = min(range(2, len(ms)), key=ms.__getitem__)
-        if DELAY_RATIO * ms[far] < min(ms_seq, ms_par) or (late and ms[far] < min(ms_seq, ms_par)):
+        far = min(self._valley_beyond_one(), key=ms.__getitem__, default=None)
+        if far is not None and (DELAY_RATIO * ms[far] < min(ms_seq, ms_par) or (late and ms[far] < min(ms_seq, ms_par))):
             self._decide_delay(self._longer_if_tied(far))  # a rig's transport delay: each command far samples on
         elif DELAY_RATIO * ms_par < ms_seq or (late and ms_par <= ms_seq):
             # a parallel master (or a rig's delay of about a sample): the delayed law stays, unless a longer
             # delay scores better still (a rig's delay between 1 and 2 samples)
-            d = self._longer_if_tied(far if ms[far] < ms_par else 1)
+            d = self._longer_if_tied(far if far is not None and ms[far] < ms_par else 1)
             if d == 1:
                 self._decided = True
             else:
@@ -964,6 +965,19 @@ class DisplacementController:
             # a sequential master: the valve had the last output over [t_k-1, t_k), not the one
             # before; the law runs undelayed from now on
             self._decide_delay(0)
+
+    def _valley_beyond_one(self) -> range:
+        """The delays of 2 samples or more that a rig's transport delay can be on the scores: those reached
+        from 1 while each next one scores no worse than :data:`DELAY_TIE_RATIO` times the one before. A
+        transport delay's scores fall towards it from the shorter delays. A loop that chatters with a period
+        of a few samples (the delayed law on a rig whose command acts within a fraction of a sample: a
+        parallel master sub-stepping at Ts/4) repeats its command every period, so the delay of one period
+        scores as well as 0 whatever lies between (0.025 s at 68 N, 0.2 Hz: 1.68, 3.68, 6.98, 1 times the
+        best for 0 .. 3 samples, where 3 was decided and MPC-servo tracked to 2.0 mm instead of 0.42)."""
+        ms, d = self._ms, 1
+        while d + 1 < len(ms) and ms[d + 1] <= DELAY_TIE_RATIO * ms[d]:
+            d += 1
+        return range(2, d + 1)
 
     def _longer_if_tied(self, d: int) -> int:
         """``d``, or for a servo method ``d + 1`` where that one scores within :data:`DELAY_TIE_RATIO` of
