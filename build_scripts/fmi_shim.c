@@ -53,17 +53,22 @@ static const char *category_of(fmi2Status status) {
 
 /* The message goes to the host as a format without arguments, '%' doubled: hosts that format it
    (vsnprintf) print the text, and hosts that cannot take C varargs (fmpy's ctypes logger) get the
-   text rather than a bare "%s". */
+   text rather than a bare "%s". The text is led by "[instance name] ": the logger gets the name apart,
+   but fmpy's default logger, libcosim and Ecos print the text alone, and in a master with several
+   instances of one FMU (a rig of several muscles) the name says which one spoke. */
 static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String category, const char *text) {
-    char escaped[16384];
+    char led[16384], escaped[16384];
+    const char *name = instance ? instance : s->name;
     size_t j = 0;
-    for (const char *p = text; *p && j + 2 < sizeof escaped; p++) {
+    if (*name) snprintf(led, sizeof led, "[%s] %s", name, text);
+    else snprintf(led, sizeof led, "%s", text);
+    for (const char *p = led; *p && j + 2 < sizeof escaped; p++) {
         if (*p == '%') escaped[j++] = '%';
         escaped[j++] = *p;
     }
     escaped[j] = 0;
     if (s->host.logger)
-        s->host.logger(s->host.componentEnvironment, instance ? instance : s->name, status,
+        s->host.logger(s->host.componentEnvironment, name, status,
                        category && *category ? category : category_of(status), escaped);
 }
 

@@ -235,7 +235,7 @@ def test_a_tapmuscle_python_that_is_no_executable_fails_the_instance_naming_it(h
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
                     env_extra={"TAPMUSCLE_PYTHON": str(named)})
     assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, (proc.returncode, proc.stderr[-3000:])
-    assert (f"[Error] plant logStatusError: the FMU's pythonfmu library {plant.id}_pythonfmu.so could not be loaded: "
+    assert (f"[Error] plant logStatusError: [plant] the FMU's pythonfmu library {plant.id}_pythonfmu.so could not be loaded: "
             f"TAPMUSCLE_PYTHON={named} is not an executable file (name the python of a CPython {version} that has "
             "numpy, scipy and osqp: a venv's bin/python, or an installation's bin/python") in proc.stderr, proc.stderr[-3000:]
     assert "Fatal Python error" not in proc.stderr and proc.stdout.splitlines() == ["t,u,l,p"]

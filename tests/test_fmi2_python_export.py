@@ -219,7 +219,7 @@ def test_every_call_of_a_small_slave_goes_through_the_projects_export(probe_tree
     # a format without arguments: '%' doubled)
     assert out["failing_step"] == 4
     fatal = [m for m in out["failing_log"] if m[0] == 4]
-    assert fatal == [[4, "logStatusFatal", "fmi2DoStep: Python RuntimeError: probe failed at t = 0.2 s, 100%% on "
+    assert fatal == [[4, "logStatusFatal", "[probe] fmi2DoStep: Python RuntimeError: probe failed at t = 0.2 s, 100%% on "
                       "purpose"]]
 
 
@@ -231,7 +231,7 @@ def test_a_module_without_a_slave_class_is_named(probe_tree, tmp_path):
     proc = subprocess.run([sys.executable, "-c", HOST, str(broken), "1"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 3, proc.stderr[-2000:]  # fmpy raised at the first step, nothing crashed
     log = json.loads(proc.stdout.splitlines()[-1])["log"]
-    assert [4, "logStatusFatal", f"fmi2Instantiate: Python TypeError: module {module} has no class derived from "
+    assert [4, "logStatusFatal", f"[probe] fmi2Instantiate: Python TypeError: module {module} has no class derived from "
             "pythonfmu's Fmi2Slave"] in log
 
 

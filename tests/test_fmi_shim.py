@@ -103,7 +103,7 @@ def test_a_failed_instantiation_is_an_instance_that_refuses_to_step(broken_contr
                                 "doStep": 3}
         assert all(cat for _, cat, _ in run["log"]), run["log"]
         assert any("tapmuscle_missing_package_xyz" in msg and status >= 3 for status, _, msg in run["log"])
-        step_msgs = [msg for status, _, msg in run["log"] if status == 3 and msg.startswith("fmi2DoStep refused")]
+        step_msgs = [msg for status, _, msg in run["log"] if status == 3 and msg.startswith("[c] fmi2DoStep refused")]
         assert step_msgs and "tapmuscle_missing_package_xyz" in step_msgs[0]
 
 
@@ -467,7 +467,9 @@ def test_logging_on_passes_the_events_and_fmi2SetDebugLogging_picks_the_categori
     for run in (runs[6], runs[7]):
         assert run["log"][0][:2] == [1, "logStatusWarning"] and "category logFoo is not one of this FMU's" in \
             run["log"][0][2]
-    setup, summary = runs[1]["log"][0][2], runs[1]["log"][2][2]
+    # each text led by the instance's name: fmpy's default logger, libcosim and Ecos print the text alone
+    assert all(msg.startswith("[d] ") for run in runs for _, _, msg in run["log"])
+    setup, summary = (runs[1]["log"][i][2].removeprefix("[d] ") for i in (0, 2))
     assert setup.startswith("initialised at t = 0 s: load 44 N, supply pressure 0.25 MPa")
     assert "u = 12.0 is outside" in runs[1]["log"][1][2]  # the Discard names its input
     # the refused step is not counted: two steps of 0.1 s
@@ -484,3 +486,48 @@ def test_the_loaders_known_categories_are_the_ones_the_fmus_declare(built_fmus):
         with zipfile.ZipFile(path) as z:
             declared = re.findall(r'<Category name="(\w+)"', z.read("modelDescription.xml").decode())
         assert sorted(known) == sorted(declared)
+
+
+TWO_PLANTS = r'''
+import sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+path = sys.argv[1]
+md = read_model_description(path)
+folder = extract(path)
+vr = {v.name: v.valueReference for v in md.modelVariables}
+plants = {}
+for name, load in (("left", 600.0), ("right", 44.0)):
+    f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    f.instantiate()  # fmpy's default logger: it prints the status and the text, not the instance's name
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setReal([vr["load_force"]], [load])
+    f.exitInitializationMode()
+    plants[name] = f
+for f in plants.values():
+    f.setReal([vr["u"]], [5.0])
+    try:
+        f.doStep(currentCommunicationPoint=0.0, communicationStepSize=0.1)
+    except Exception:  # left's fmi2Discard
+        pass
+for f in plants.values():
+    f.terminate()
+    f.freeInstance()
+print("done", flush=True)
+'''
+
+
+def test_each_message_names_the_instance_that_spoke_where_the_host_prints_the_text_alone(built_fmus):
+    """Two plant instances of one FMU in fmpy with its default logger, which prints a message's status and
+    text and drops the instance name the FMI logger gets apart: the text leads with ``[name]``, so the
+    message of the instance whose load is out of range is told from the other's (a rig of several
+    muscles in libcosim or Ecos prints alike)."""
+    proc = subprocess.run([sys.executable, "-c", TWO_PLANTS, str(built_fmus["MusclePlant"])], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0 and host_lines(proc.stdout)[-1] == "done", proc.stderr[-2000:]
+    said = [line for line in host_lines(proc.stdout) if "load_force = 600" in line]
+    assert said and all(line.startswith(("[WARNING] [left] ", "[DISCARD] [left] ")) for line in said), said
+    assert not [line for line in host_lines(proc.stdout) if "[right]" in line]  # the other had nothing to say

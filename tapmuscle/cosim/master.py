@@ -96,8 +96,8 @@ def _log(_env, name, status, _category, message) -> None:
     sink = _LOG_SINKS.get(key)
     if sink is None:  # an instance that is not ours: print as fmpy's default logger does
         print(f"[{label}] {text}")
-    else:
-        sink.append(f"[{label}] {text}")
+    else:  # ours: the role says which one spoke, not the name the FMU leads its text with
+        sink.append(f"[{label}] {text.removeprefix(f'[{key}] ')}")
 
 
 def _callbacks() -> Any:
