@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import pytest
 from fmpy_helpers import host_lines
@@ -95,20 +96,24 @@ def test_an_fmu_extracted_by_a_killed_process_is_removed_by_the_next(built_fmus,
         if sys.argv[2] == "_exit":
             os._exit(0)
     """)
-    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    # the cache too, where a temporary folder named beyond ASCII sends the extraction (extraction_root)
+    env = {**os.environ, "TMPDIR": str(tmp_path), "XDG_CACHE_HOME": str(tmp_path / "cache")}
     plant = str(built_fmus["MusclePlant"])
 
     def run(how):
         out = subprocess.run([sys.executable, "-c", code, plant, how], env=env, capture_output=True, text=True,
                              timeout=120)
         assert out.returncode == 0, out.stderr
-        return os.path.basename(host_lines(out.stdout)[-1].strip())
+        return host_lines(out.stdout)[-1].strip()
 
     left = run("_exit")
-    assert _folders(tmp_path, "tapmuscle_") == [left]
-    assert (tmp_path / left / "modelDescription.xml").is_file()
+    root, name = os.path.split(left)
+    root = Path(root)
+    assert root in (tmp_path, tmp_path / "cache" / "tapmuscle" / "extracted")
+    assert _folders(root, "tapmuscle_") == [name]
+    assert os.path.isfile(os.path.join(left, "modelDescription.xml"))
     run("exit")  # removes the abandoned folder, and its own at its exit
-    assert _folders(tmp_path, "tapmuscle_") == []
+    assert _folders(root, "tapmuscle_") == []
 
 
 def test_a_temporary_directory_mounted_noexec_sends_the_folders_to_the_cache(tmp_path, monkeypatch):
@@ -153,6 +158,47 @@ def test_a_temporary_directory_named_in_latin_1_sends_the_folders_to_the_cache(b
                           capture_output=True, text=True, timeout=600, env=os.environ.copy())
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert os.listdir(latin) == ["cache"]  # nothing was extracted there (the cache folder made above)
+
+
+FOREIGN_RUN = textwrap.dedent("""
+    import sys
+    from tapmuscle.cosim.master import FmuInstance
+    from tapmuscle.diagnosis.foreign_fmus.thermal import build_thermal_fmu
+
+    inst = FmuInstance(build_thermal_fmu(sys.argv[1]), "thermal", role="foreign plant")
+    inst.start()
+    inst.fmu.setReal([inst.vr("P1")], [50.0])
+    inst.fmu.doStep(currentCommunicationPoint=0.0, communicationStepSize=10.0)
+    print(inst.unpacked.folder, inst.fmu.getReal([inst.vr("T1")])[0], flush=True)
+    inst.free()
+""")
+
+
+def test_a_temporary_directory_named_beyond_ascii_sends_the_folders_to_an_ascii_cache(tmp_path, monkeypatch):
+    """TMPDIR /tmp/.../Zürich (UTF-8): the project's FMUs open it, but an FMU on pythonfmu's own binary
+    (the foreign demo ThermalTwoMass, or a user's) decodes only %20 of its resource URI and crashed the
+    process in fmi2Instantiate; the folders go to an ASCII cache, and that FMU runs through the master.
+    Where the cache is not ASCII either, the temporary directory is used."""
+    from tapmuscle.cosim import extraction_folder
+
+    if not str(tmp_path).isascii():
+        pytest.skip(f"the test's ASCII cache would be in pytest's temporary folder {tmp_path}, named beyond ASCII")
+    zurich = tmp_path / "Z\u00fcrich"
+    zurich.mkdir()
+    monkeypatch.setenv("TMPDIR", str(zurich))
+    monkeypatch.setattr(extraction_folder.tempfile, "tempdir", None)  # read TMPDIR again
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    cache = str(tmp_path / "cache" / "tapmuscle" / "extracted")
+    assert extraction_folder.extraction_root() == cache
+    monkeypatch.setenv("XDG_CACHE_HOME", str(zurich / "cache"))
+    assert extraction_folder.extraction_root() == str(zurich)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    proc = subprocess.run([sys.executable, "-c", FOREIGN_RUN, str(tmp_path / "fmu")], capture_output=True, text=True,
+                          timeout=300, env=os.environ.copy())
+    assert proc.returncode == 0, (proc.returncode, proc.stderr[-3000:])
+    folder, t1 = host_lines(proc.stdout)[-1].rsplit(" ", 1)
+    assert folder.startswith(cache) and 20.5 < float(t1) < 22.0  # 10 s of 50 W into 500 J/K: about +1 K
+    assert not any(name.startswith("tapmuscle_") for name in os.listdir(zurich))
 
 
 NOEXEC_RUN = textwrap.dedent("""

@@ -20,6 +20,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
 from fmpy.validation import validate_fmu
 from scipy.integrate import solve_ivp
 
+from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 from tapmuscle.diagnosis.foreign_fmus.thermal import FMU_NAME, build_thermal_fmu
 
@@ -86,7 +87,8 @@ def fmu(tmp_path_factory):
     path = build_thermal_fmu(out)
     assert path == out / FMU_NAME and path.is_file()
     assert sorted(p.name for p in out.iterdir()) == [FMU_NAME]  # the temporary build folder is gone
-    return path, fmpy.read_model_description(str(path)), fmpy.extract(str(path), unzipdir=str(out / "x"))
+    # where the project extracts FMUs: pythonfmu's own binary cannot open a folder named beyond ASCII
+    return path, fmpy.read_model_description(str(path)), fmpy.extract(str(path), claimed_folder("tm_thermal_test_"))
 
 
 @pytest.fixture
@@ -220,10 +222,12 @@ HOSTILE = r'''
 import sys, gc, fmpy
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
+from tapmuscle.cosim.extraction_folder import claimed_folder
+from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 path = sys.argv[1]
 md = fmpy.read_model_description(path)
-folder = fmpy.extract(path)
+folder = fmpy.extract(path, claimed_folder("tm_thermal_test_"))
 statuses = set()
 for i in range(40):
     f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,

@@ -17,7 +17,12 @@ The folders hold libraries to load, and a file system mounted ``noexec`` (a hard
 ``/tmp``) refuses to map one ("failed to map segment from shared object"); and the FMUs' Python
 opens its resources by a UTF-8 path, which a folder named in another encoding (Latin-1 bytes, from
 a Windows zip or an old home folder) does not have. So they go to the temporary directory unless it
-is either, and then to the user's tapmuscle cache (:func:`extraction_root`).
+is either, and then to the user's tapmuscle cache (:func:`extraction_root`). A UTF-8 name with
+letters beyond ASCII (``/tmp/Zürich``) the project's FMUs can open (their loader decodes the resource
+URI), but an FMU built with pythonfmu's own binary cannot: that binary decodes only ``%20`` in the URI,
+gets a folder that does not exist and crashes the process in ``fmi2Instantiate`` (the foreign demo
+``ThermalTwoMass``, or a user's own pythonfmu FMU, under ``diagnose``). So an ASCII cache is preferred
+to such a temporary directory.
 """
 
 from __future__ import annotations
@@ -50,6 +55,11 @@ def _noexec(folder: str | Path) -> bool:
         return False
 
 
+def _ascii(folder: str | Path) -> bool:
+    """Whether ``folder``'s name is ASCII (module docstring: what pythonfmu's own binary can open)."""
+    return os.fsencode(folder).isascii()
+
+
 def _unusable(folder: str | Path) -> str | None:
     """Why no FMU can run from ``folder`` (None: it can): a name that is not UTF-8, or ``noexec``."""
     try:
@@ -65,7 +75,8 @@ def extraction_root() -> str:
     """Where FMUs are extracted to load their binaries: the temporary directory (``TMPDIR``), unless it
     is on a file system mounted ``noexec``, where no library can be loaded, or has a name that is not
     UTF-8; then ``extracted/`` in the user's tapmuscle cache (``$XDG_CACHE_HOME/tapmuscle``, else
-    ``~/.cache/tapmuscle``).
+    ``~/.cache/tapmuscle``). A temporary directory named beyond ASCII gives way to a cache named in
+    ASCII (module docstring: FMUs built with pythonfmu's own binary), else it is used.
 
     Raises
     ------
@@ -75,9 +86,19 @@ def extraction_root() -> str:
     """
     temp = tempfile.gettempdir()
     why = _unusable(temp)
-    if why is None:
-        return temp
     from build_scripts.build_fmus import user_cache_root
+
+    if why is None:
+        if not _ascii(temp):
+            try:
+                cache = user_cache_root() / "extracted"
+                if _ascii(cache):
+                    cache.mkdir(parents=True, exist_ok=True)
+                    if _unusable(cache) is None:
+                        return str(cache)
+            except OSError:  # no cache to be had: the temporary directory serves the project's FMUs
+                pass
+        return temp
 
     def shown(path: str | Path) -> str:  # a name that is not UTF-8, printable
         return os.fsencode(path).decode("utf-8", "backslashreplace")
