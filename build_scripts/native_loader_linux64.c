@@ -213,7 +213,16 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
         if (!named_python_usable(python)) return;
         if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
         if (access(python, X_OK) == 0) {
-            wchar_t *name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */
+            /* decoded in the environment's locale, the one Python starts in: in the host's (a C host's is
+               "C", ASCII) a path named beyond ASCII (/tmp/Zürich/venv) became Z\udcc3\udcbcrich in
+               sys.executable and in the messages that name it (it still opened: the escapes round-trip) */
+            char saved[256];
+            const char *now = setlocale(LC_CTYPE, NULL);
+            wchar_t *name;
+            snprintf(saved, sizeof saved, "%s", now ? now : "C");
+            setlocale(LC_CTYPE, "");
+            name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */
+            setlocale(LC_CTYPE, saved);
             if (name) py.SetProgramName(name);
         }
         /* (d) and start it here. Each pythonfmu binary starts Python at its first fmi2Instantiate under a

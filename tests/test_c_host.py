@@ -207,7 +207,9 @@ def test_a_folder_named_in_latin_1_fails_the_instance_naming_it(host, plant, bui
                           timeout=180, env=plain_env(tmp_path))
     stderr = proc.stderr.decode("utf-8", "backslashreplace")
     assert proc.returncode == 2 and "fmi2DoStep" in stderr, (proc.returncode, stderr[-3000:])
-    assert (f"the FMU's folder {tmp_path}/M\\xFCller/resources has a name that is not UTF-8 (byte 0xFC at "
+    # every byte beyond printable ASCII escaped, those of pytest's temporary folder too (TMPDIR=/tmp/Zürich)
+    shown = "".join(chr(b) if 0x20 <= b < 0x7F else f"\\x{b:02X}" for b in bytes(tmp_path))
+    assert (f"the FMU's folder {shown}/M\\xFCller/resources has a name that is not UTF-8 (byte 0xFC at "
             f"{len(bytes(tmp_path)) + 2}), which the FMU's Python cannot open: extract the FMU into a folder whose "
             "name is UTF-8") in stderr, stderr[-3000:]
 
@@ -302,11 +304,13 @@ def test_bad_value_reference_is_reported_and_the_host_survives_freeing(host, pla
     assert len({r["l"] for r in rows}) == 1 and 0.0 < float(rows[0]["l"]) < 400.0  # each fresh, the same
     assert "is not a variable of type Real" in proc.stderr
 
-def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plant, tmp_path):
+@pytest.mark.parametrize("folder", ["empty-venv", pytest.param("Z\u00fcrich venv", marks=pytest.mark.utf8_paths)])
+def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plant, tmp_path, folder):
     """A Python without numpy (an empty venv, recorded site-packages switched off): fmi2Instantiate
     returns an instance that refuses to step (some hosts do not check NULL), the host's logger got
-    the message, and the host ends at the first fmi2DoStep with fmi2Error."""
-    empty = tmp_path / "empty-venv"
+    the message, and the host ends at the first fmi2DoStep with fmi2Error. A venv named beyond ASCII
+    is named as it is spelled (the host runs in the "C" locale: it was Z\\udcc3\\udcbcrich)."""
+    empty = tmp_path / folder
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(empty)], check=True)
     python = str(empty / "bin" / "python")
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
@@ -622,7 +626,7 @@ def test_the_value_references_of_the_docs_c_host_example_are_the_builds(built_fm
     value reference; a change of the variables' order left them naming other variables."""
     import re
 
-    text = (Path(__file__).parents[1] / "docs" / "fmu-native-hosts.md").read_text()
+    text = (Path(__file__).parents[1] / "docs" / "fmu-native-hosts.md").read_text(encoding="utf-8")
     refs = {}
     for name, path in (("MusclePlant", built_fmus["MusclePlant"]), ("AMPCController", built_fmus["AMPCController"])):
         refs[name] = {v.name: v.valueReference for v in read_model_description(str(path)).modelVariables}

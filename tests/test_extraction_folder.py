@@ -174,6 +174,7 @@ FOREIGN_RUN = textwrap.dedent("""
 """)
 
 
+@pytest.mark.utf8_paths
 def test_a_temporary_directory_named_beyond_ascii_sends_the_folders_to_an_ascii_cache(tmp_path, monkeypatch):
     """TMPDIR /tmp/.../Zürich (UTF-8): the project's FMUs open it, but an FMU on pythonfmu's own binary
     (the foreign demo ThermalTwoMass, or a user's) decodes only %20 of its resource URI and crashed the

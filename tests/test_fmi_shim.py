@@ -480,7 +480,7 @@ def test_the_loaders_known_categories_are_the_ones_the_fmus_declare(built_fmus):
     """The shim checks fmi2SetDebugLogging's categories against its own list: the model descriptions'."""
     import re
 
-    source = (Path(__file__).parents[1] / "build_scripts" / "fmi_shim.c").read_text()
+    source = (Path(__file__).parents[1] / "build_scripts" / "fmi_shim.c").read_text(encoding="utf-8")
     known = re.findall(r'"(\w+)"', re.search(r"KNOWN_CATEGORIES\[\] = \{(.*?)\};", source, re.S).group(1))
     for path in built_fmus.values():
         with zipfile.ZipFile(path) as z:

@@ -39,7 +39,7 @@ def _imports(path: Path, source: str | None = None) -> list[tuple[int, str]]:
     name = _module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = []
-    for node in ast.walk(ast.parse(path.read_text() if source is None else source, str(path))):
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8") if source is None else source, str(path))):
         if isinstance(node, ast.Import):
             out += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):

@@ -211,7 +211,7 @@ def test_docs_list_every_parameter_with_its_value():
     from dataclasses import fields
     from pathlib import Path
 
-    text = Path(__file__).resolve().parents[1].joinpath("docs", "plant.md").read_text()
+    text = Path(__file__).resolve().parents[1].joinpath("docs", "plant.md").read_text(encoding="utf-8")
     p = PlantParams()
     for group in fields(p):
         sub = getattr(p, group.name)

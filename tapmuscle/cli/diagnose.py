@@ -105,7 +105,7 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
         named = str(exc).startswith(str(args.recording))
         raise UsageError(str(exc) if named else f"{args.recording}: {exc}") from None
     if args.output == "all":
-        print((Path(args.out) / "summary.md").read_text(), end="")
+        print((Path(args.out) / "summary.md").read_text(encoding="utf-8"), end="")
         print(f"wrote {args.out}/summary.md, summary.json and {', '.join(f'{v}/' for v in results)}")
         return 0
     for line in summary_lines(d):

@@ -284,7 +284,7 @@ def _stored_result(case: FieldCase, workdir: Path, use_pressure: bool = False) -
     ``use_pressure`` (else None)."""
     path = workdir / case.name / RESULT_FILE
     try:
-        stored = json.loads(path.read_text())
+        stored = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     truth = json.loads(json.dumps(case.describe(), default=_json_default))

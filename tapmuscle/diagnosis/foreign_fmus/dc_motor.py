@@ -275,7 +275,7 @@ def build_dc_motor_fmu(out_dir: str | Path, *, interfaces: Sequence[str] = ("CoS
         ``interfaces`` names none or an unknown one.
     """
     _check_platform()
-    description = model_description(_guid(SOURCE.read_text()), interfaces)  # checks interfaces first
+    description = model_description(_guid(SOURCE.read_text(encoding="utf-8")), interfaces)  # checks interfaces first
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="dc_motor_fmu_") as tmp:
