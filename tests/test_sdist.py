@@ -6,6 +6,7 @@ links to, is a broken release. check-manifest builds the sdist from the tracked 
 two lists; it runs with this environment's setuptools (the test extra pins the build's), offline.
 """
 
+import os
 import shutil
 import subprocess
 import sys
@@ -18,10 +19,24 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
 
 
-def test_the_sdist_holds_every_tracked_file_but_the_ci_scripts():
-    if not (ROOT / ".git").exists() or shutil.which("git") is None:
-        pytest.skip(f"{ROOT} is not a git checkout (an unpacked sdist?): no list of tracked files to compare with")
-    proc = subprocess.run([sys.executable, "-m", "check_manifest", "--no-build-isolation", str(ROOT)],
+def _tracked_copy(folder: Path) -> Path:
+    """The tracked files of the checkout, as they are in the working tree, and its ``.git``, copied into
+    ``folder``: check-manifest builds a first sdist where it is run, writing ``tapmuscle.egg-info`` there,
+    and the tests write only under pytest's temporary folders (the tree may be read-only)."""
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    for name in filter(None, listed.split(b"\0")):
+        source, target = ROOT / os.fsdecode(name), folder / os.fsdecode(name)
+        if source.is_file():  # a tracked file deleted from the tree is check-manifest's to name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target)
+    shutil.copytree(ROOT / ".git", folder / ".git", symlinks=True)
+    return folder
+
+
+def test_the_sdist_holds_every_tracked_file_but_the_ci_scripts(tmp_path):
+    if not (ROOT / ".git").is_dir() or shutil.which("git") is None:
+        pytest.skip(f"{ROOT} is not a git checkout (an unpacked sdist, a worktree?): no tracked files to compare with")
+    proc = subprocess.run([sys.executable, "-m", "check_manifest", "--no-build-isolation", str(_tracked_copy(tmp_path / "src"))],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "lists of files in version control and sdist match" in proc.stdout, proc.stdout
