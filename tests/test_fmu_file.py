@@ -4,6 +4,7 @@ no traceback, no temporary folder left behind."""
 from __future__ import annotations
 
 import glob
+import os
 import subprocess
 import sys
 import tempfile
@@ -123,7 +124,9 @@ def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_p
         argv = ["diagnose", "--recording", str(rec), "--plant", str(fmu_dir / "MusclePlant.fmu"),
                 "--out", str(tmp_path / "out"), "--no-calibration", "--no-plots", "--quiet"]
     proc = subprocess.run([sys.executable, "-m", "tapmuscle.cli", *argv], capture_output=True, text=True,
-                          env={"TMPDIR": str(scratch), "PATH": "/usr/bin:/bin"}, timeout=600)
+                          env={"TMPDIR": str(scratch), "PATH": "/usr/bin:/bin", **{
+                              k: os.environ[k] for k in ("PYTHONPATH", "PYTHONDONTWRITEBYTECODE") if k in os.environ}},
+                          timeout=600)
     assert proc.returncode == 2, proc.stderr
     assert "is not a loadable FMU" in proc.stderr and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
