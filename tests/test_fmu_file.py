@@ -52,6 +52,13 @@ def _newer_glibc(src: Path, dst: Path) -> Path:
     return _rewrite(src, dst, edit)
 
 
+def _invalid_description(src: Path, dst: Path) -> Path:
+    """A variable's unit that the description does not define (a hand-made FMU's mistake)."""
+    def edit(name: str, data: bytes) -> bytes:
+        return data.replace(b'unit="mm"', b'unit="millimetre"', 1) if name == "modelDescription.xml" else data
+    return _rewrite(src, dst, edit)
+
+
 def _not_a_zip(src: Path, dst: Path) -> Path:
     dst.write_bytes(b"PK\x03\x04 not really a zip")
     return dst
@@ -61,6 +68,9 @@ CASES = [(_truncated, r"binaries/linux64/MusclePlant.so is truncated: \d+ bytes,
          (_bad_crc, r"the archive is damaged \(modelDescription.xml: "),
          (_no_binary, r"it has no binaries/linux64/MusclePlant.so for this platform"),
          (_not_a_zip, r"not a zip archive"),
+         # fmpy's reason is on the lines under its first, which alone said only "Failed to validate"
+         (_invalid_description, r"Failed to validate modelDescription.xml: The unit \"millimetre\" of variable \"l\" "
+                                r"\(line \d+\) is not defined\.$"),
          (_newer_glibc, r"binaries/linux64/MusclePlant.so: the dynamic loader refused it: .*version .GLIBC_2\.99. "
                         r"not found.* \(built on a newer Linux: it needs glibc 2\.99, this machine has 2\.\d+; "
                         r"build the FMUs on this machine: tapmuscle build\)")]

@@ -91,6 +91,16 @@ def _load_in_child(binaries: dict[str, bytes], main: str) -> str | None:
     return f"the dynamic loader refused it: {last[:200]}" + _remedy(last)
 
 
+def _reader_failure(exc: Exception, shown: int = 3) -> str:
+    """fmpy's reason for refusing a modelDescription.xml, on one line: its first line, then the first
+    ``shown`` problems it lists under it (a ValidationError's first line alone says only that there
+    are some)."""
+    lines = [line.strip().removeprefix("- ") for line in str(exc).splitlines() if line.strip()] or [type(exc).__name__]
+    head, problems = lines[0][:200], [p[:300] for p in lines[1:]]
+    more = f"; and {len(problems) - shown} more" if len(problems) > shown else ""
+    return f"{head} {'; '.join(problems[:shown])}{more}".strip()
+
+
 def _remedy(loader_message: str) -> str:
     """What to do about a dynamic loader's refusal, where its message tells (else "")."""
     newer = re.search(r"version .?GLIBC_(\d+\.\d+).? not found", loader_message)
@@ -134,7 +144,7 @@ def check_fmu_file(path: str | Path) -> None:
             try:
                 md = read_model_description(str(path))
             except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU
-                raise ScenarioError(f"{where} {str(exc).splitlines()[0][:200]}") from None
+                raise ScenarioError(f"{where} {_reader_failure(exc)}") from None
             interface = md.coSimulation or md.modelExchange
             if interface is None:
                 raise ScenarioError(f"{where} it offers neither co-simulation nor model exchange")
