@@ -150,6 +150,9 @@ def _breakdown(failed_at_s: float, state: Sequence[float]) -> FloatingPointError
 
 
 def _finite(name: str, value: Any) -> float:
+    # float() would take "68" for 68 N and True for 1 N
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise ValueError(f"{name} must be a number, got {type(value).__name__} {value!r}")
     try:
         f = float(value)
     except (TypeError, ValueError):
