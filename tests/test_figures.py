@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
+import tapmuscle as tm
 from tapmuscle.plots.figures import plot_recording, plot_tracking
 
 # A notebook's session as a fresh interpreter: its own backend (here pdf, a non-Agg backend that
@@ -161,6 +162,18 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
         assert legend.y0 >= ax.get_window_extent(renderer).y1 - 1  # above the plotting area
     assert len(colours) == 4 and all(len(c) == 1 for c in colours.values()), colours
     assert len({next(iter(c)) for c in colours.values()}) == 4  # four colours for four methods
+
+
+def test_a_run_of_ones_own_takes_no_methods_colour(monkeypatch, tmp_path):
+    """A run named otherwise (a user's own law beside the methods) took matplotlib's C0, C1, ...: the
+    first drawn in MPC-UCP's blue, the second in MPC-servo's orange."""
+    saved = _drawn(monkeypatch)
+    t = np.arange(451) * 0.1
+    run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 29 * np.sin(t), "u_v": 5 + np.sin(t)}
+    plot_tracking({"pid": run, "pi": run, **{m: run for m in tm.METHODS}}, tmp_path / "t.png", window_s=(10.1, 40.1))
+    lines = {line.get_label(): line.get_color() for line in saved[0].axes[0].get_lines()}
+    ours, methods = {lines["pid"], lines["pi"]}, {c for label, c in lines.items() if label.startswith(("MPC", "AMPC"))}
+    assert len(ours) == 2 and len(methods) == 4 and not ours & methods, lines
 
 
 def test_the_model_error_panel_is_scaled_to_the_errors(monkeypatch, tmp_path):

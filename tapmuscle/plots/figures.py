@@ -12,11 +12,12 @@ leaves a truncated PNG behind.
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -258,8 +259,15 @@ _METHOD_STYLE = {"mpc_ucp": ("tab:blue", "MPC, unique coincidence point"),
                  "ampc_servo": ("tab:red", "AMPC with servo mechanism")}
 
 
-def _style(method: str, index: int) -> tuple[str, str]:
-    return _METHOD_STYLE.get(method, (f"C{index}", method))
+#: Colours of runs that are not one of the four methods (a law of the user's own), none of theirs.
+_OTHER_COLORS = ("tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
+
+
+def _styles(names: Iterable[str]) -> list[tuple[str, str]]:
+    """Each run's colour and label: a method's own, else the next of :data:`_OTHER_COLORS` (a run named
+    otherwise took matplotlib's C0, C1, ..., the colours of MPC-UCP and MPC-servo)."""
+    others = itertools.cycle(_OTHER_COLORS)
+    return [_METHOD_STYLE.get(name) or (next(others), name) for name in names]
 
 
 def _legend_above(ax: Any, ncol: int) -> None:
@@ -276,8 +284,7 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
                                        gridspec_kw={"height_ratios": (2.2, 1, 1)})
     first = next(iter(runs.values()))
     ax.plot(first["t_s"], first["r_mm"], color="black", lw=1.2, ls="--", label="reference r")
-    for i, (method, cols) in enumerate(runs.items()):
-        color, label = _style(method, i)
+    for (color, label), cols in zip(_styles(runs), runs.values()):
         ax.plot(cols["t_s"], cols["l_mm"], color=color, lw=1, label=label)
         ax_e.plot(cols["t_s"], cols["r_mm"] - cols["l_mm"], color=color, lw=0.9, label=label)
         ax_u.plot(cols["t_s"], cols["u_v"], color=color, lw=0.9, label=label)
@@ -301,9 +308,8 @@ def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | o
     """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over ``window_s`` [s]
     (Eq. (21)'s 10.1-40.1 s in Figs. 9-19)."""
     fig, ax = new_figure(figsize=(11, 4))
-    for i, (method, cols) in enumerate(runs.items()):
+    for (color, label), cols in zip(_styles(runs), runs.values()):
         keep = (cols["t_s"] >= window_s[0]) & (cols["t_s"] <= window_s[1])
-        color, label = _style(method, i)
         err = cols["pred_error_mm"][keep]
         ax.plot(cols["t_s"][keep], err, color=color, lw=0.9,
                 label=f"{label} (mean |e| {np.mean(np.abs(err)):.3f} mm)")
