@@ -171,7 +171,9 @@ def test_a_run_of_ones_own_takes_no_methods_colour(monkeypatch, tmp_path):
     t = np.arange(451) * 0.1
     run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 29 * np.sin(t), "u_v": 5 + np.sin(t)}
     plot_tracking({"pid": run, "pi": run, **{m: run for m in tm.METHODS}}, tmp_path / "t.png", window_s=(10.1, 40.1))
-    lines = {line.get_label(): line.get_color() for line in saved[0].axes[0].get_lines()}
+    from matplotlib.colors import to_hex
+
+    lines = {line.get_label(): to_hex(line.get_color()) for line in saved[0].axes[0].get_lines()}
     ours, methods = {lines["pid"], lines["pi"]}, {c for label, c in lines.items() if label.startswith(("MPC", "AMPC"))}
     assert len(ours) == 2 and len(methods) == 4 and not ours & methods, lines
 
