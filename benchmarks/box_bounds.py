@@ -18,7 +18,7 @@ import numpy as np
 
 import tapmuscle as tm
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
-from other_rigs import AMPLITUDE, OFFSET, RIGS, reach_mm
+from other_rigs import RIGS, rig_and_reference
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -27,9 +27,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     print(f"{'rig':16s} {'method':10s} {'mae':>6s}  share on lower/upper bound, second half")
     for i, (name, values) in enumerate(RIGS.items()):
-        rig = tm.PlantParams().with_values(**values)
-        hi = reach_mm(rig)
-        ref = tm.SineReference(offset_mm=OFFSET * hi, amplitude_mm=AMPLITUDE * hi)
+        rig, _, ref = rig_and_reference(values)
         for method in ("ampc_ucp", "ampc_servo"):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")

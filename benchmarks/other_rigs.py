@@ -55,6 +55,14 @@ def reach_mm(rig: tm.PlantParams) -> float:
     return float(tm.simulate(np.full(301, 10.0), ts_s=0.1, params=rig, seed=0)["l_mm"][-1])
 
 
+def rig_and_reference(values: dict[str, float]) -> tuple[tm.PlantParams, float, tm.SineReference]:
+    """The rig of ``values`` (a :data:`RIGS` entry), its reach [mm] and its own reference: the paper's
+    sine as fractions of the paper's rig's reach (:data:`OFFSET`, :data:`AMPLITUDE`)."""
+    rig = tm.PlantParams().with_values(**values)
+    hi = reach_mm(rig)
+    return rig, hi, tm.SineReference(offset_mm=OFFSET * hi, amplitude_mm=AMPLITUDE * hi)
+
+
 def sources(rig: tm.PlantParams, offset_mm: float, amplitude_mm: float) -> dict[str, tuple[np.ndarray, str]]:
     """Each source's theta0 and a mark (``*``: the identification's free run diverged)."""
     rec = run_open_loop(tm.Plant(rig, seed=0), parse_input_spec("sine:bias=5,amp=3,freq=0.1"), duration_s=240.0,
@@ -75,9 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     print(f"{'rig':16s} {'reach':>6s} {'theta0':15s} " + " ".join(f"{m:>11s}" for m in tm.METHODS))
     for i, name in enumerate(args.rigs):
-        rig = tm.PlantParams().with_values(**RIGS[name])
-        hi = reach_mm(rig)
-        ref = tm.SineReference(offset_mm=OFFSET * hi, amplitude_mm=AMPLITUDE * hi)
+        rig, hi, ref = rig_and_reference(RIGS[name])
         for source, (theta0, mark) in sources(rig, OFFSET * hi, AMPLITUDE * hi).items():
             cells = []
             for method in tm.METHODS:

@@ -69,7 +69,7 @@ class PID:
         u = min(max(v, 0.0), 10.0)
         if not ((v > 10.0 and e > 0.0) or (v < 0.0 and e < 0.0)):  # no integration further into a limit
             self.integral += self.ki * self.ts_s * e
-        self.integral += self.ts_s * (u - v) / self.ki  # back-calculation, time constant Ti = 1/Ki
+        self.integral += self.ts_s * (u - v) / self.ki  # back-calculation: d(integral)/dt = (u - v) / Ki, as tuned
         return u
 
 

@@ -57,14 +57,24 @@ static const char *category_of(fmi2Status status) {
    but fmpy's default logger, libcosim and Ecos print the text alone, and in a master with several
    instances of one FMU (a rig of several muscles) the name says which one spoke. */
 static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String category, const char *text) {
-    char led[16384], escaped[16384];
+    char escaped[16384];
     const char *name = instance ? instance : s->name;
+    const char *parts[4] = {"[", name, "] ", text};
     size_t j = 0;
-    if (*name) snprintf(led, sizeof led, "[%s] %s", name, text);
-    else snprintf(led, sizeof led, "%s", text);
-    for (const char *p = led; *p && j + 2 < sizeof escaped; p++) {
-        if (*p == '%') escaped[j++] = '%';
-        escaped[j++] = *p;
+    int cut = 0;
+    for (int i = *name ? 0 : 3; i < 4 && !cut; i++) {
+        for (const char *p = parts[i]; *p; p++) {
+            if (j + 3 > sizeof escaped) {
+                cut = 1;
+                break;
+            }
+            if (*p == '%') escaped[j++] = '%';
+            escaped[j++] = *p;
+        }
+    }
+    if (cut) {   /* a cut text ends on a whole UTF-8 character: a host decoding strictly would drop it */
+        while (j > 0 && ((unsigned char)escaped[j - 1] & 0xC0) == 0x80) j--;
+        if (j > 0 && ((unsigned char)escaped[j - 1] & 0xC0) == 0xC0) j--;
     }
     escaped[j] = 0;
     if (s->host.logger)

@@ -174,19 +174,15 @@ static int named_python_usable(const char *python) {
    Py_InitializeEx's legacy configuration does neither, and decoded file names as ASCII, so an FMU in
    a folder "Müller" could not import its own module. Python's legacy flag Py_UTF8Mode is the one
    setting that configuration reads; PYTHONUTF8=0 keeps the locale's encoding. */
-static void python_utf8_mode_where_needed(void) {
-    const char *asked = getenv("PYTHONUTF8"), *now;
-    char saved[256];
+static void python_utf8_mode_where_needed(locale_t environment) {
+    const char *asked = getenv("PYTHONUTF8");
     int ascii = 1, *mode;
     if (asked && !strcmp(asked, "0")) return;
     if (!asked || strcmp(asked, "1")) {
-        now = setlocale(LC_CTYPE, NULL);   /* the host's, put back below: Python sets its own at start */
-        snprintf(saved, sizeof saved, "%s", now ? now : "C");
-        if (setlocale(LC_CTYPE, "")) {
-            const char *codeset = nl_langinfo(CODESET);
+        if (environment) {
+            const char *codeset = nl_langinfo_l(CODESET, environment);
             ascii = !strcmp(codeset, "ANSI_X3.4-1968") || !strcmp(codeset, "ASCII");
         }
-        setlocale(LC_CTYPE, saved);
         if (!ascii) return;
     }
     if ((mode = (int *)dlsym(RTLD_DEFAULT, "Py_UTF8Mode"))) *mode = 1;
@@ -207,24 +203,28 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
     /* (b) in a host that is not Python, start the building environment's interpreter (a venv's python:
            Python then reads its pyvenv.cfg), else its base installation, not the first python3 on PATH. */
     if (!py.IsInitialized()) {
+        locale_t environment;
         if (!python_home_usable()) return;
-        python_utf8_mode_where_needed();
+        /* the environment's LC_CTYPE, the one Python starts in, read without setlocale: the host's own
+           (a C host's is "C", ASCII) stays as it is for its other threads */
+        environment = newlocale(LC_CTYPE_MASK, "", (locale_t)0);
+        python_utf8_mode_where_needed(environment);
         python = getenv("TAPMUSCLE_PYTHON");
-        if (!named_python_usable(python)) return;
+        if (!named_python_usable(python)) {
+            if (environment) freelocale(environment);
+            return;
+        }
         if (!python || !*python) python = access(BUILD_PYTHON, X_OK) == 0 ? BUILD_PYTHON : BASE_PYTHON;
         if (access(python, X_OK) == 0) {
-            /* decoded in the environment's locale, the one Python starts in: in the host's (a C host's is
-               "C", ASCII) a path named beyond ASCII (/tmp/Zürich/venv) became Z\udcc3\udcbcrich in
-               sys.executable and in the messages that name it (it still opened: the escapes round-trip) */
-            char saved[256];
-            const char *now = setlocale(LC_CTYPE, NULL);
-            wchar_t *name;
-            snprintf(saved, sizeof saved, "%s", now ? now : "C");
-            setlocale(LC_CTYPE, "");
-            name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */
-            setlocale(LC_CTYPE, saved);
+            /* decoded as Python will encode it, in the environment's locale: in the host's "C" a path
+               named beyond ASCII (/tmp/Zürich/venv) would read Z\udcc3\udcbcrich in sys.executable and
+               in every message that names it */
+            locale_t host = environment ? uselocale(environment) : (locale_t)0;
+            wchar_t *name = py.DecodeLocale(python, NULL);   /* kept for the life of the process */
+            if (environment) uselocale(host);
             if (name) py.SetProgramName(name);
         }
+        if (environment) freelocale(environment);
         /* (d) and start it here. Each pythonfmu binary starts Python at its first fmi2Instantiate under a
                lock of its own, so a parallel master instantiating the plant and the controller at once
                ran two Py_Initialize together (a segfault); constructors run under the dynamic loader's

@@ -973,7 +973,7 @@ class DisplacementController:
         of a few samples (the delayed law on a rig whose command acts within a fraction of a sample: a
         parallel master sub-stepping at Ts/4) repeats its command every period, so the delay of one period
         scores as well as 0 whatever lies between (0.025 s at 68 N, 0.2 Hz: 1.68, 3.68, 6.98, 1 times the
-        best for 0 .. 3 samples, where 3 was decided and MPC-servo tracked to 2.0 mm instead of 0.42)."""
+        best for 0 .. 3 samples; deciding 3 tracks MPC-servo to 2.0 mm, 0 to 0.42)."""
         ms, d = self._ms, 1
         while d + 1 < len(ms) and ms[d + 1] <= DELAY_TIE_RATIO * ms[d]:
             d += 1

@@ -150,8 +150,9 @@ def _breakdown(failed_at_s: float, state: Sequence[float]) -> FloatingPointError
 
 
 def _finite(name: str, value: Any) -> float:
-    # float() would take "68" for 68 N and True for 1 N
-    if isinstance(value, (str, bytes, bool, np.bool_)):
+    # a number only: float() also takes "68", b"68" and a bool (True is 1 N)
+    if type(value) is not float and (isinstance(value, (str, bytes, bytearray, memoryview, bool))
+                                     or np.asarray(value).dtype.kind not in "iuf"):
         raise ValueError(f"{name} must be a number, got {type(value).__name__} {value!r}")
     try:
         f = float(value)

@@ -309,7 +309,7 @@ def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plan
     """A Python without numpy (an empty venv, recorded site-packages switched off): fmi2Instantiate
     returns an instance that refuses to step (some hosts do not check NULL), the host's logger got
     the message, and the host ends at the first fmi2DoStep with fmi2Error. A venv named beyond ASCII
-    is named as it is spelled (the host runs in the "C" locale: it was Z\\udcc3\\udcbcrich)."""
+    is named as it is spelled, though the host runs in the "C" locale (not Z\\udcc3\\udcbcrich)."""
     empty = tmp_path / folder
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(empty)], check=True)
     python = str(empty / "bin" / "python")

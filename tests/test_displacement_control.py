@@ -483,7 +483,7 @@ def test_minus_one_decides_the_transport_delay_in_samples(theta0, delay_s, expec
 def test_a_loop_chattering_with_a_period_of_samples_is_not_taken_for_a_transport_delay(method):
     """A rig whose command acts a quarter sample late (0.025 s: a parallel master sub-stepping at Ts/4)
     at 68 N, 0.2 Hz: the delayed law -1 starts with chatters with a period of 3 samples, so delay 3
-    scores best with 1 and 2 far worse; -1 decided 3 and tracked 5-6 times worse than 0 set. The
+    scores best with 1 and 2 far worse, and deciding 3 tracks 5-6 times worse than 0 set. The
     scores that a transport delay gives fall towards it from 1 sample on (a real 0.3 s delay still
     decides 3)."""
     def run(delay_s, input_delay):
@@ -495,7 +495,7 @@ def test_a_loop_chattering_with_a_period_of_samples_is_not_taken_for_a_transport
 
     auto, mae_auto = run(0.025, -1)
     ms = np.array(auto._ms)
-    assert ms[3] < ms[0] < ms[1] < ms[2]  # the chatter's aliased delay scores best, as it did
+    assert ms[3] < ms[0] < ms[1] < ms[2]  # the chatter's aliased delay scores best
     assert auto.input_delay_decision == 0
     assert mae_auto < 2.0 * run(0.025, 0)[1]  # deciding 3: 4.8 (MPC-servo) and 6 (AMPC-servo) times
     assert run(0.3, -1)[0].input_delay_decision == 3

@@ -177,9 +177,10 @@ FOREIGN_RUN = textwrap.dedent("""
 @pytest.mark.utf8_paths
 def test_a_temporary_directory_named_beyond_ascii_sends_the_folders_to_an_ascii_cache(tmp_path, monkeypatch):
     """TMPDIR /tmp/.../Zürich (UTF-8): the project's FMUs open it, but an FMU on pythonfmu's own binary
-    (the foreign demo ThermalTwoMass, or a user's) decodes only %20 of its resource URI and crashed the
-    process in fmi2Instantiate; the folders go to an ASCII cache, and that FMU runs through the master.
-    Where the cache is not ASCII either, the temporary directory is used."""
+    (the foreign demo ThermalTwoMass, or a user's) decodes only %20 of its resource URI and crashes the
+    process in fmi2Instantiate there; the folders go to an ASCII cache, and that FMU runs through the
+    master. Where the cache is not ASCII either, cannot take a folder or cannot be had, the temporary
+    directory is used."""
     from tapmuscle.cosim import extraction_folder
 
     if not str(tmp_path).isascii():
@@ -192,6 +193,18 @@ def test_a_temporary_directory_named_beyond_ascii_sends_the_folders_to_an_ascii_
     cache = str(tmp_path / "cache" / "tapmuscle" / "extracted")
     assert extraction_folder.extraction_root() == cache
     monkeypatch.setenv("XDG_CACHE_HOME", str(zurich / "cache"))
+    assert extraction_folder.extraction_root() == str(zurich)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    # a cache that cannot take a folder (a read-only HOME), or none to be had: the temporary directory
+    monkeypatch.setattr(extraction_folder.os, "access", lambda path, mode: path != Path(cache))
+    assert extraction_folder.extraction_root() == str(zurich)
+    monkeypatch.undo()
+    monkeypatch.setenv("TMPDIR", str(zurich))
+    monkeypatch.setattr(extraction_folder.tempfile, "tempdir", None)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    (tmp_path / "home").mkdir()
+    (tmp_path / "home" / ".cache").write_text("a file where the cache folder would be\n")
     assert extraction_folder.extraction_root() == str(zurich)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     proc = subprocess.run([sys.executable, "-c", FOREIGN_RUN, str(tmp_path / "fmu")], capture_output=True, text=True,

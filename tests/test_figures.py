@@ -165,8 +165,8 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
 
 
 def test_a_run_of_ones_own_takes_no_methods_colour(monkeypatch, tmp_path):
-    """A run named otherwise (a user's own law beside the methods) took matplotlib's C0, C1, ...: the
-    first drawn in MPC-UCP's blue, the second in MPC-servo's orange."""
+    """A run named otherwise (a user's own law beside the methods) takes a colour none of the four
+    methods has, not matplotlib's C0, C1, ... (MPC-UCP's blue, MPC-servo's orange)."""
     saved = _drawn(monkeypatch)
     t = np.arange(451) * 0.1
     run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 29 * np.sin(t), "u_v": 5 + np.sin(t)}

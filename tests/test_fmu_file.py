@@ -68,7 +68,7 @@ CASES = [(_truncated, r"binaries/linux64/MusclePlant.so is truncated: \d+ bytes,
          (_bad_crc, r"the archive is damaged \(modelDescription.xml: "),
          (_no_binary, r"it has no binaries/linux64/MusclePlant.so for this platform"),
          (_not_a_zip, r"not a zip archive"),
-         # fmpy's reason is on the lines under its first, which alone said only "Failed to validate"
+         # fmpy's reasons are on the lines under its first, "Failed to validate modelDescription.xml:"
          (_invalid_description, r"Failed to validate modelDescription.xml: The unit \"millimetre\" of variable \"l\" "
                                 r"\(line \d+\) is not defined\.$"),
          (_newer_glibc, r"binaries/linux64/MusclePlant.so: the dynamic loader refused it: .*version .GLIBC_2\.99. "

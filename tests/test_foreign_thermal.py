@@ -223,7 +223,6 @@ import sys, gc, fmpy
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 from tapmuscle.cosim.extraction_folder import claimed_folder
-from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 path = sys.argv[1]
 md = fmpy.read_model_description(path)

@@ -187,10 +187,13 @@ def test_bad_step_arguments_raise_and_leave_the_state_alone(u, dt, match):
 
 @pytest.mark.parametrize("kw, match", [({"load_n": -1.0}, "load_n"), ({"load_n": math.nan}, "load_n"),
                                        ({"supply_pressure_mpa": 2.0}, "supply_pressure_mpa"),
-                                       # float() took "68" for 68 N and True for 1 N, without a word
+                                       # numbers only: float() also takes "68" (68 N) and True (1 N)
                                        ({"load_n": "68"}, "load_n must be a number, got str '68'"),
                                        ({"load_n": True}, "load_n must be a number, got bool True"),
-                                       ({"supply_pressure_mpa": np.bool_(True)}, "supply_pressure_mpa must be a number")])
+                                       ({"load_n": bytearray(b"68")}, "load_n must be a number, got bytearray"),
+                                       ({"load_n": np.array("68")}, "load_n must be a number, got ndarray"),
+                                       ({"supply_pressure_mpa": np.bool_(True)}, "supply_pressure_mpa must be a number"),
+                                       ({"supply_pressure_mpa": np.array(True)}, "supply_pressure_mpa must be a number")])
 def test_bad_updates_raise(kw, match):
     with pytest.raises(ValueError, match=match):
         Plant().update(**kw)

@@ -94,7 +94,7 @@ def extraction_root() -> str:
                 cache = user_cache_root() / "extracted"
                 if _ascii(cache):
                     cache.mkdir(parents=True, exist_ok=True)
-                    if _unusable(cache) is None:
+                    if _unusable(cache) is None and os.access(cache, os.W_OK | os.X_OK):
                         return str(cache)
             except OSError:  # no cache to be had: the temporary directory serves the project's FMUs
                 pass

@@ -264,8 +264,8 @@ _OTHER_COLORS = ("tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive"
 
 
 def _styles(names: Iterable[str]) -> list[tuple[str, str]]:
-    """Each run's colour and label: a method's own, else the next of :data:`_OTHER_COLORS` (a run named
-    otherwise took matplotlib's C0, C1, ..., the colours of MPC-UCP and MPC-servo)."""
+    """Each run's colour and label: a method's own, else the next of :data:`_OTHER_COLORS` (matplotlib's
+    C0, C1, ... are MPC-UCP's and MPC-servo's colours)."""
     others = itertools.cycle(_OTHER_COLORS)
     return [_METHOD_STYLE.get(name) or (next(others), name) for name in names]
 
