@@ -150,9 +150,12 @@ def _breakdown(failed_at_s: float, state: Sequence[float]) -> FloatingPointError
 
 
 def _finite(name: str, value: Any) -> float:
-    # a number only: float() also takes "68", b"68" and a bool (True is 1 N)
-    if type(value) is not float and (isinstance(value, (str, bytes, bytearray, memoryview, bool))
-                                     or np.asarray(value).dtype.kind not in "iuf"):
+    # a number only: float() also takes "68", b"68" and a bool (True is 1 N); the common scalars are
+    # told by their type (this runs every step), anything else by its array's kind
+    scalar = type(value) is float or (isinstance(value, (float, int, np.floating, np.integer))
+                                      and not isinstance(value, bool))
+    if not scalar and (isinstance(value, (str, bytes, bytearray, memoryview, bool, np.bool_))
+                       or np.asarray(value).dtype.kind not in "iuf"):
         raise ValueError(f"{name} must be a number, got {type(value).__name__} {value!r}")
     try:
         f = float(value)
