@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 import tapmuscle as tm
-from fmu_controller.reference import as_reference
 from tapmuscle.plots.figures import plot_tracking
 
 TS_S = 0.1
@@ -47,12 +46,16 @@ def static_map(load_n: float = 44.0) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 class PID:
-    """PI with the static map's feed-forward (module docstring); ``step(l_mm, preview_mm) -> u_v``."""
+    """PI with the static map's feed-forward (module docstring): a law of one's own
+    (``tm.ControlLaw``: ``step(l_mm, preview_mm) -> u_v``, ``reset()`` before each run, ``ts_s``)."""
 
     def __init__(self, levels: np.ndarray, up: np.ndarray, down: np.ndarray, *, kp: float = 0.8, ki: float = 5.0,
                  k_rate: float = 0.05, ts_s: float = TS_S) -> None:
         self.levels, self.up, self.down = levels, up, down
         self.kp, self.ki, self.k_rate, self.ts_s = kp, ki, k_rate, ts_s
+        self.integral = 0.0
+
+    def reset(self) -> None:
         self.integral = 0.0
 
     def feedforward(self, r_mm: float, r_next_mm: float) -> float:
@@ -75,18 +78,9 @@ class PID:
 
 def run_pid(pid: PID, reference: tm.SineReference, *, duration_s: float, seed: int, load_n: float,
             delay_s: float = 0.0) -> dict[str, np.ndarray]:
-    """The PID's closed loop on the rig, timed as ``run_closed_loop`` (u(k) from l(k), held to t_k+1)."""
-    plant = tm.Plant(tm.PlantParams().with_values(**{"load.load_n": load_n, "delay.delay_s": delay_s}), seed=seed)
-    ref = as_reference(reference, TS_S)
-    n = int(round(duration_s / TS_S)) + 1
-    run = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "u_v")}
-    meas = plant.measurement
-    for k in range(n):
-        u = pid.step(meas.l_mm, ref.preview(k, 1))
-        run["t_s"][k], run["r_mm"][k], run["l_mm"][k], run["u_v"][k] = k * TS_S, ref.at(k), meas.l_mm, u
-        if k + 1 < n:
-            meas = plant.step(u, TS_S)
-    return run
+    """The PID's closed loop on the rig, in the loop the paper's methods run in (``simulate_closed_loop``)."""
+    rig = tm.PlantParams().with_values(**{"load.load_n": load_n, "delay.delay_s": delay_s})
+    return tm.simulate_closed_loop(pid, reference, duration_s=duration_s, seed=seed, params=rig, ts_s=TS_S)
 
 
 def mae_mm(run: dict[str, np.ndarray], from_s: float) -> float:

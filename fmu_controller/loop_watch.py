@@ -30,7 +30,8 @@ from fmu_controller.preliminary_model import REFINE_IN_CLOSED_LOOP, THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
-__all__ = ["LoopWatch", "samples_in_words", "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
+__all__ = ["LoopWatch", "samples_in_words", "in_a_row", "pinned_message",
+           "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
            "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
            "TRACKING_MM", "TRACKING_SHARE"]
 
@@ -94,6 +95,27 @@ TRACKING_MM = 3.0
 TRACKING_SHARE = 0.1
 #: A tracking block at its start: samples, samples counted, sum |r - l| [mm], r's least and largest [mm].
 _NEW_BLOCK = (0, 0, 0.0, math.inf, -math.inf)
+
+
+def in_a_row(count: int, now: bool, long_s: float, ts_s: float) -> tuple[int, float | None]:
+    """The samples in a row a condition held, ``count`` before this one, and, once they span ``long_s``
+    seconds at the sampling period ``ts_s`` [s], that span [s] (the count then -1: said). The span runs
+    from the first sample of the stretch to this one: with a long Ts, a held command is no time sat yet."""
+    count = count + 1 if now else 0
+    span_s = (count - 1) * ts_s
+    return (-1, span_s) if span_s >= long_s - 1e-9 else (count, None)
+
+
+def pinned_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: float, moved: bool) -> str:
+    """What to tell of a command that has sat at the valve limit ``limit_v`` [V] for ``sat_s`` [s] while
+    the error ``r - l`` [mm] pushes it further (:func:`~fmu_controller.displacement_control.pushed_at_limit`);
+    ``moved``: whether any reading of that stretch differed from its first."""
+    # a reading that stayed the same to the bit: at an end stop, or a sensor that froze while the command
+    # stayed at one limit, which a stuck-reading check on both limits cannot tell
+    stuck = "" if moved else ", or the sensor is stuck (l has not changed at all in that time)"
+    return (f"t = {t_s:g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the error "
+            f"r - l = {r_mm - l_mm:.4g} mm pushes it further: the reference (r = {r_mm:g} mm) is out of the rig's "
+            f"reach, or the readings l (now {l_mm:g} mm) are in another unit than mm (metres?){stuck}")
 
 
 def samples_in_words(n: int) -> str:
@@ -291,12 +313,8 @@ class LoopWatch:
         said.append(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.")
 
     def _in_a_row(self, count: int, now: bool, long_s: float) -> tuple[int, float | None]:
-        """The samples in a row a condition held, ``count`` before this one, and, once they span
-        ``long_s`` seconds, that span [s] (the count then -1: said). The span runs from the first sample
-        of the stretch to this one: with a long Ts, a held command is no time sat yet."""
-        count = count + 1 if now else 0
-        span_s = (count - 1) * self.controller.settings.ts_s
-        return (-1, span_s) if span_s >= long_s - 1e-9 else (count, None)
+        """:func:`in_a_row` on the controller's sampling period."""
+        return in_a_row(count, now, long_s, self.controller.settings.ts_s)
 
     def _watch_pinned(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the command has sat at a valve limit that the error ``r - l`` pushes it further
@@ -311,13 +329,7 @@ class LoopWatch:
             self._pinned_moved = True
         self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed, PINNED_S)
         if sat_s is not None:
-            limit = s.u_max_v if r > l else s.u_min_v
-            # a reading that stayed the same to the bit: at an end stop, or a sensor that froze while the
-            # command stayed at one limit, which reading_stuck (both limits) cannot tell
-            stuck = "" if self._pinned_moved else ", or the sensor is stuck (l has not changed at all in that time)"
-            said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
-                        f"error r - l = {r - l:.4g} mm pushes it further: the reference (r = {r:g} mm) is out of the "
-                        f"rig's reach, or the readings l (now {l:g} mm) are in another unit than mm (metres?){stuck}")
+            said.append(pinned_message(t_s, s.u_max_v if r > l else s.u_min_v, sat_s, r, l, self._pinned_moved))
 
     def _watch_held(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held

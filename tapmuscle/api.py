@@ -23,6 +23,7 @@ from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
+from tapmuscle.own_law import ControlLaw
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
@@ -135,7 +136,7 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
                          ts_s=ts)
 
 
-def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, duration_s: float = 45.0,
+def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any = None, *, duration_s: float = 45.0,
                 ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
                 params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
                 settings: ControllerSettings | None = None, seed: int = 0,
@@ -150,9 +151,12 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
 
     Parameters
     ----------
-    method : {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"}
+    method : {"mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo"} or ControlLaw
         MPC with unique coincidence point (Eqs. (11)-(14)) or with servo mechanism (Eqs. (15)-(20)), with a
-        fixed predictor (MPC) or adapted online by Algorithm 1 (AMPC).
+        fixed predictor (MPC) or adapted online by Algorithm 1 (AMPC). Or a law of your own, an object
+        with ``step(l_mm, preview_mm)`` returning the valve command [V]
+        (:class:`tapmuscle.own_law.ControlLaw`; ``theta0`` and ``settings`` are then not taken), run
+        on the same rig and loop at ``ts_s`` (its own ``ts_s`` attribute, if it has one, must agree).
     reference : callable, array_like, Reference or None
         ``r(t)`` [mm] of the time [s]; or one value per sample ``r(k)`` [mm] (the last held beyond
         its end, also in the preview); or a :class:`~fmu_controller.reference.SineReference`,
@@ -202,7 +206,8 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     -------
     dict of ndarray
         ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm, pred_error_mm, uc_v, h_mm, xs_mm`` and
-        ``theta_<name>`` for Eq. (1)'s 15 parameters; one row per sample. Score with
+        ``theta_<name>`` for Eq. (1)'s 15 parameters; one row per sample (a law of your own's: ``t_s,
+        r_mm, l_mm, l_true_mm, u_v, p_mpa, load_n``). Score with
         :func:`tapmuscle.closed_loop.eq21_error_mm` (Eq. (21)).
 
     Examples
@@ -212,8 +217,18 @@ def simulate_closed_loop(method: str = "ampc_servo", reference: Any = None, *, d
     >>> bool(abs(run["l_mm"][-1] - 50.0) < 2.0)
     True
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if not isinstance(method, str) and callable(getattr(method, "step", None)):
+        ts = _check_period(ts_s)
+        if theta0 is not None or settings is not None:
+            raise ValueError(f"theta0 and settings set the paper's controllers; the law {type(method).__name__} of "
+                             "your own takes neither (give it its own parameters)")
+        plant = _plant(params, None if callable(load_n) else load_n, seed, effects)
+        return run_closed_loop(plant, method, reference, duration_s=duration_s, ts_s=ts,
+                               load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples,
+                               progress=reporter(progress, "simulate_closed_loop"), watch=watch)
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
+                         "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw)")
     ts = _check_period(ts_s)
     box: dict[str, Any] = {}
     if isinstance(theta0, IdentifiedModel):  # read_identification's: its period, its box and its delay

@@ -21,6 +21,7 @@ from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
 from fmu_plant.user_warning import warn_at_caller
+from tapmuscle.own_law import ControlLaw, ValveWatch, law_command, law_period, law_preview_samples, reset_law
 from tapmuscle.progress import reporter
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
@@ -133,12 +134,13 @@ def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1
     return float(np.sum(np.abs(np.diff(u))) / (2.0 * np.ptp(u) * frequency_hz * (k1 - k0) * ts_s) - 1.0)
 
 
-def run_closed_loop(plant: Plant, controller: DisplacementController,
+def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLaw,
                     reference: Reference | Callable[[float], float] | np.ndarray | None, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
                     loop_delay_samples: int = 0,
                     progress: bool | Callable[[int, int], None] | None = None,
-                    watch: bool = True) -> dict[str, np.ndarray]:
+                    watch: bool = True, ts_s: float | None = None,
+                    preview_samples: int | None = None) -> dict[str, np.ndarray]:
     """Run a new loop for ``duration_s`` from the plant's current physical state.
 
     The loop runs on the controller's grid ``controller.settings.ts_s``; the controller sees the
@@ -148,13 +150,19 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
     (``get_state``/``set_state``) and step them yourself: ``controller.step(l, reference.preview(k,
     controller.settings.preview_samples))``, then ``plant.step(u, ts)``.
 
+    A law of your own runs the same way (:class:`tapmuscle.own_law.ControlLaw`: an object with
+    ``step(l_mm, preview_mm)`` returning the command [V]; ``reset``, ``ts_s`` and
+    ``preview_samples`` used when it has them), so that it is timed, loaded, delayed and scored as
+    the paper's methods are.
+
     Parameters
     ----------
     plant : Plant
         The simulated rig, advanced in place.
-    controller : DisplacementController
-        One of the paper's four controllers; reset to the plant's displacement first (its state,
-        estimate and start-up mode anew).
+    controller : DisplacementController or ControlLaw
+        One of the paper's four controllers, reset to the plant's displacement first (its state,
+        estimate and start-up mode anew); or a law of your own, whose ``reset(l_mm)`` (or
+        ``reset()``), if it has one, is called with the plant's reading first.
     reference : Reference, callable, array_like or None
         A :class:`fmu_controller.reference.Reference` on the loop's grid (a sine, given samples, a
         function of time); ``r(t)`` [mm] of the time [s]; one value per sample ``r(k)`` [mm]; None:
@@ -175,7 +183,17 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         (:class:`fmu_controller.loop_watch.LoopWatch`: a limit cycle, a valve pinned at a limit or
         held against the error, a law slamming the valve, a diverging estimate, a set input delay the
         first 30 s contradict, a stuck reading), each with its time; False: not (a loop run to make
-        data). Glitches the guard held and the plant's own notes are warned of either way.
+        data). Glitches the guard held and the plant's own notes are warned of either way. A law of
+        your own is watched without a model (:class:`tapmuscle.own_law.ValveWatch`: a valve pinned at
+        a limit or held against the error, slammed end to end, a limit cycle).
+    ts_s : float, optional
+        The loop's sampling period [s] for a law of your own (default: its ``ts_s`` attribute; one of
+        the two is needed). For the paper's controllers, if given, it must be their
+        ``settings.ts_s``.
+    preview_samples : int, optional
+        A law of your own's preview ``r(k..k+n)``: ``n`` future samples (default: its
+        ``preview_samples`` attribute, else :data:`tapmuscle.own_law.LAW_PREVIEW_SAMPLES`, 5). Not
+        for the paper's controllers, whose settings decide it.
 
     Returns
     -------
@@ -184,33 +202,58 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         itself, before the encoder's noise, resolution, drift or backlash: what the reading hides),
         ``u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
         ``pred_error_mm``, ``uc_v``, ``h_mm``, ``xs_mm`` and ``theta_<name>`` for the 15 parameters.
+        A law of your own's run has ``t_s, r_mm, l_mm, l_true_mm, u_v, p_mpa, load_n`` (``u_v`` the
+        command it returned; the valve itself saturates at ``valve.u_min_v..u_max_v``).
+
+    Raises
+    ------
+    TypeError
+        ``controller`` is neither (no ``step`` method), or its ``step`` returned no number.
+    ValueError
+        A law's ``step`` returned NaN or an infinite command (with its sample and time), a period or
+        preview that is not one (see ``ts_s``, ``preview_samples``).
     """
     if not isinstance(plant, Plant):
         raise TypeError(f"plant must be a Plant (tm.Plant(params)), got {type(plant).__name__}")
-    if not isinstance(controller, DisplacementController):
+    own = not isinstance(controller, DisplacementController)
+    if own and not callable(getattr(controller, "step", None)):
         raise TypeError(f"controller must be a DisplacementController (tm.DisplacementController(settings, "
-                        f"theta0)), got {type(controller).__name__}")
+                        f"theta0)) or a law of your own with a step(l_mm, preview_mm) method returning the valve "
+                        f"command [V] (tapmuscle.own_law.ControlLaw), got {type(controller).__name__}")
+    if own:
+        ts = law_period(controller, ts_s)
+        hp = law_preview_samples(controller, preview_samples)
+    else:
+        ts, hp = controller.settings.ts_s, controller.settings.preview_samples
+        if preview_samples is not None:
+            raise ValueError(f"preview_samples = {preview_samples!r} is for a law of your own: the paper's controllers "
+                             f"see the preview their settings need ({hp} samples)")
+        if ts_s is not None and not (isinstance(ts_s, numbers.Real) and abs(ts_s - ts) <= 1e-12 * ts):
+            raise ValueError(f"ts_s = {ts_s!r} s disagrees with the controller's settings.ts_s = {ts!r} s")
     if loop_delay_samples not in (0, 1) or isinstance(loop_delay_samples, bool):
         raise ValueError(f"loop_delay_samples must be 0 or 1, got {loop_delay_samples!r}")
     if (isinstance(duration_s, bool) or not isinstance(duration_s, numbers.Real) or not math.isfinite(duration_s)
             or duration_s <= 0):
         raise ValueError(f"duration_s must be a finite number > 0 [s], got {duration_s!r}")
     progress = reporter(progress, "run_closed_loop")
-    ts = controller.settings.ts_s
     reference = as_reference(reference, ts)
     n = int(round(duration_s / ts)) + 1
     in_flight = 0.0
     names = ASYMMETRIC.names
-    cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "l_true_mm", "u_v", "p_mpa", "load_n", "l_pred_mm",
-                                      "pred_error_mm", "uc_v", "h_mm", "xs_mm")}
-    theta_hist = np.empty((n, len(names)))
-    hp = controller.settings.preview_samples
+    cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "l_true_mm", "u_v", "p_mpa", "load_n") + (
+        () if own else ("l_pred_mm", "pred_error_mm", "uc_v", "h_mm", "xs_mm"))}
+    theta_hist = np.empty((n, 0 if own else len(names)))
     load_fn = load_n if callable(load_n) else None
     if load_n is not None and load_fn is None:
         plant.update(load_n=load_n)
     meas = plant.measurement
-    controller.reset(meas.l_mm)
-    supervision = LoopWatch(controller) if watch else None
+    valve = plant.params.valve
+    if own:
+        reset_law(controller, meas.l_mm)
+        valve_watch = ValveWatch(ts, valve.u_min_v, valve.u_max_v) if watch else None
+    else:
+        controller.reset(meas.l_mm)
+    supervision = LoopWatch(controller) if watch and not own else None
     told: list[str] = []  # what the watch told, as the controller FMU logs it
     u_prev = 0.0
     pred_prev = meas.l_mm
@@ -222,25 +265,31 @@ def run_closed_loop(plant: Plant, controller: DisplacementController,
         if load_fn is not None:
             plant.update(load_n=load_fn(t))
         preview = reference.preview(k, hp)
-        step = controller.step(meas.l_mm, preview)
-        if supervision is not None:
-            told += supervision.observe(k, t, meas.l_mm, float(preview[0]), step, u_prev)
-        u = u_prev = step.u_v
+        if own:
+            u = law_command(controller.step(meas.l_mm, preview), k, t)
+            if valve_watch is not None:
+                told += valve_watch.observe(k, t, meas.l_mm, float(preview[0]), u, u_prev)
+        else:
+            step = controller.step(meas.l_mm, preview)
+            if supervision is not None:
+                told += supervision.observe(k, t, meas.l_mm, float(preview[0]), step, u_prev)
+            u = step.u_v
+            cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
+            cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
+            theta_hist[k] = step.theta
+            if controller.reading_held is not None:
+                (spiked_at if controller.spike_limit_mm is not None else held_at).append(t)
+            pred_prev = step.predicted_next_mm
+        u_prev = u
         if loop_delay_samples:
             u, in_flight = in_flight, u
         cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, u
         cols["p_mpa"][k], cols["load_n"][k], cols["l_true_mm"][k] = meas.p_mpa, plant.load_n, plant.l_mm
-        cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
-        cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
-        theta_hist[k] = step.theta
-        if controller.reading_held is not None:
-            (spiked_at if controller.spike_limit_mm is not None else held_at).append(t)
-        pred_prev = step.predicted_next_mm
         if k + 1 < n:
             meas = plant.step(u, ts)
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
-    for i, name in enumerate(names):
+    for i, name in enumerate(() if own else names):
         cols[f"theta_{name}"] = theta_hist[:, i]
     plant.warn_run_notes(float(np.min(cols["load_n"])))
     for message in told:

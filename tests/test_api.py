@@ -58,6 +58,13 @@ def _attribute_docstrings(cls: type) -> set[str]:
 
 def undocumented(obj) -> list[str]:
     """Parameters of ``obj`` (a function, or a class's constructor) that its documentation omits."""
+    if inspect.isclass(obj) and getattr(obj, "_is_protocol", False):
+        # a protocol is not constructed: what it asks for is its methods, documented with it
+        documented = _documented_names(obj.__doc__)
+        return [f"{name}({p})" for name, method in vars(obj).items() if inspect.isfunction(method)
+                and not name.startswith("_")
+                for p in inspect.signature(method).parameters
+                if p not in ("self", "cls") and p not in documented | _documented_names(method.__doc__)]
     if inspect.isclass(obj):
         if dataclasses.is_dataclass(obj):
             documented = _documented_names(obj.__doc__) | _attribute_docstrings(obj)

@@ -1,0 +1,234 @@
+"""A control law of your own in the project's closed loop: what it must offer, and a watch of its valve.
+
+:func:`tapmuscle.closed_loop.run_closed_loop` and ``tm.simulate_closed_loop`` run the paper's four
+controllers; they run any object with a ``step(l_mm, preview_mm)`` method the same way (the
+:class:`ControlLaw` protocol), so that a law of one's own is timed, loaded, delayed, recorded and
+scored (Eq. (21)) exactly as the paper's methods are, and plotted beside them.
+
+The paper's controllers are watched by :class:`fmu_controller.loop_watch.LoopWatch`, whose messages
+name their settings. A law of one's own is watched by :class:`ValveWatch` for what needs no model: a
+valve pinned at a limit the error pushes it into, a command held against the error, a valve slammed
+end to end, a limit cycle. A PID tuned on the rig without delay limit-cycles under a 0.1-s transport
+delay and sits at a valve limit most of the time (docs/control.md, "A PID baseline"); the watch tells it.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import numbers
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from fmu_controller.displacement_control import (HELD_WARN_S, full_range_jump, held_against_error, pushed_at_limit,
+                                                 settle_samples)
+from fmu_controller.loop_watch import (PINNED_S, REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, in_a_row,
+                                       pinned_message)
+from fmu_controller.servo_settings import TABLE5_SERVO
+
+__all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "law_period", "law_preview_samples", "law_command",
+           "reset_law"]
+
+#: Future reference samples a law of one's own sees by default, ``[r(k), ..., r(k+5)]``: Table 5's
+#: servo horizon ``Hp``, what the paper's default law looks ahead.
+LAW_PREVIEW_SAMPLES = int(TABLE5_SERVO["hp"])
+
+
+@runtime_checkable
+class ControlLaw(Protocol):
+    """What the closed loop needs of a control law: a valve command for each reading.
+
+    ``step(l_mm, preview_mm)`` gets the encoder reading ``l(k)`` [mm] and the reference's preview
+    ``[r(k), ..., r(k+n)]`` [mm] (a new array each sample) and returns the command ``u(k)`` [V], held
+    until ``t_{k+1}``; a float, or an object with a ``u_v`` attribute (the paper's controllers'
+    :class:`~fmu_controller.displacement_control.ControlStep`).
+
+    Optional attributes the loop uses when present: ``reset(l_mm)`` (or ``reset()``), called once
+    before the first sample with the plant's reading [mm]; ``ts_s``, the law's sampling period [s];
+    ``preview_samples``, the ``n`` of its preview (default :data:`LAW_PREVIEW_SAMPLES`).
+    """
+
+    def step(self, l_mm: float, preview_mm: np.ndarray) -> Any:
+        """The command ``u(k)`` [V] for this sample.
+
+        Parameters
+        ----------
+        l_mm : float
+            The encoder reading ``l(k)`` [mm].
+        preview_mm : ndarray
+            The reference ``[r(k), ..., r(k+n)]`` [mm].
+
+        Returns
+        -------
+        float or object with ``u_v``
+            The valve command [V].
+        """
+
+
+def _attribute(law: Any, name: str, given: Any) -> Any:
+    """``given`` when not None, else the law's attribute ``name`` (None when it has none)."""
+    return given if given is not None else getattr(law, name, None)
+
+
+def law_period(law: Any, ts_s: float | None) -> float:
+    """The loop's sampling period [s] for ``law``: ``ts_s`` when given, else the law's ``ts_s``.
+
+    Raises
+    ------
+    ValueError
+        Neither gives one, or the one given is not a finite number > 0, or both give different ones.
+    """
+    own = getattr(law, "ts_s", None)
+    if ts_s is None and own is None:
+        raise ValueError(f"the law {type(law).__name__} has no ts_s attribute: give the loop's sampling period, "
+                         "ts_s=... [s]")
+    for what, value in (("ts_s", ts_s), (f"{type(law).__name__}.ts_s", own)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                                  or not math.isfinite(value) or value <= 0):
+            raise ValueError(f"{what} must be a finite number > 0 [s], got {value!r}")
+    if ts_s is not None and own is not None and abs(float(own) - float(ts_s)) > 1e-12 * float(ts_s):
+        raise ValueError(f"ts_s = {ts_s!r} s disagrees with the law's own {type(law).__name__}.ts_s = {own!r} s")
+    return float(_attribute(law, "ts_s", ts_s))
+
+
+def law_preview_samples(law: Any, preview_samples: int | None) -> int:
+    """The ``n`` of the preview ``r(k..k+n)`` the law gets: ``preview_samples`` when given, else the
+    law's ``preview_samples``, else :data:`LAW_PREVIEW_SAMPLES`; an integer >= 0 or a ValueError."""
+    n = _attribute(law, "preview_samples", preview_samples)
+    if n is None:
+        return LAW_PREVIEW_SAMPLES
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 0:
+        raise ValueError(f"preview_samples must be an integer >= 0 (the future reference samples the law sees), "
+                         f"got {n!r}")
+    return int(n)
+
+
+def reset_law(law: Any, l_mm: float) -> None:
+    """Call the law's ``reset`` before a run, with the plant's reading [mm] if it takes an argument."""
+    reset = getattr(law, "reset", None)
+    if not callable(reset):
+        return
+    try:
+        takes_reading = bool(inspect.signature(reset).parameters)
+    except (TypeError, ValueError):  # a builtin without a signature: given the reading
+        takes_reading = True
+    if takes_reading:
+        reset(l_mm)
+    else:
+        reset()
+
+
+def law_command(result: Any, k: int, t_s: float) -> float:
+    """The command [V] a law's ``step`` returned at sample ``k`` (``t_s`` [s]): a finite real number,
+    or an object whose ``u_v`` is one.
+
+    Raises
+    ------
+    TypeError
+        Not a number (a string, None, an array of more than one value ...).
+    ValueError
+        NaN or infinite: the loop stops there, the plant is not driven with it.
+    """
+    u = getattr(result, "u_v", result)
+    if isinstance(u, np.ndarray) and u.size == 1:
+        u = u.reshape(())[()]
+    if isinstance(u, bool) or not isinstance(u, numbers.Real):
+        raise TypeError(f"the law's step returned {result!r} at sample k = {k} (t = {t_s:g} s): expected the valve "
+                        "command u [V], a float (or an object with a u_v attribute)")
+    u = float(u)
+    if not math.isfinite(u):
+        raise ValueError(f"the law's step returned u = {u!r} V at sample k = {k} (t = {t_s:g} s): a valve command "
+                         "must be finite; the loop stops before driving the plant with it")
+    return u
+
+
+class ValveWatch:
+    """What a run of a law of one's own tells without a model, sample by sample (each once a run).
+
+    :meth:`observe` after each sample returns its messages, each starting with ``t = ... s:``: the
+    command pinned at a valve limit that the error pushes it further into for
+    :data:`~fmu_controller.loop_watch.PINNED_S`; held at a limit against an error of 2 mm or more for
+    :data:`~fmu_controller.displacement_control.HELD_WARN_S` (a law of the wrong sign); jumping across
+    the valve's range :data:`~fmu_controller.loop_watch.SLAM_JUMPS` times within
+    :data:`~fmu_controller.loop_watch.SLAM_WINDOW_S`; swinging from one limit to the other
+    :data:`~fmu_controller.loop_watch.SWINGS` times within it (a limit cycle; not in the first window
+    of the run, nor in the settling time after a reference step). The thresholds are those of the
+    paper's controllers' :class:`~fmu_controller.loop_watch.LoopWatch`.
+
+    Parameters
+    ----------
+    ts_s : float
+        The loop's sampling period [s].
+    u_min_v, u_max_v : float
+        The valve's command range [V] (the plant's ``valve.u_min_v``, ``valve.u_max_v``).
+    """
+
+    def __init__(self, ts_s: float, u_min_v: float, u_max_v: float) -> None:
+        self.ts_s, self.u_min_v, self.u_max_v = float(ts_s), float(u_min_v), float(u_max_v)
+        self._window = int(round(SLAM_WINDOW_S / self.ts_s))
+        self.reset()
+
+    def reset(self) -> None:
+        """A new run: nothing said yet."""
+        self._pinned_n, self._pinned_l, self._pinned_moved = 0, math.nan, True
+        self._held_n = 0
+        self._jump_ks: list[int] | None = []
+        self._swing_ks: list[int] | None = []
+        self._last_limit = 0
+        self._r_last = math.nan
+        self._swings_from = self._window  # not in the run's first window: any law's start-up transient
+
+    def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, u_v: float, u_prev_v: float) -> list[str]:
+        """What to tell after sample ``k`` at ``t_s`` [s]: the reading ``l(k)`` and reference ``r(k)``
+        [mm] the law stepped on, its command ``u(k)`` and the one before ``u(k-1)`` [V]."""
+        said: list[str] = []
+        lo, hi = self.u_min_v, self.u_max_v
+        if self._pinned_n >= 0:
+            pushed = pushed_at_limit(r_mm, l_mm, u_v, lo, hi)
+            if pushed and self._pinned_n == 0:
+                self._pinned_l, self._pinned_moved = l_mm, False
+            elif pushed and l_mm != self._pinned_l:
+                self._pinned_moved = True
+            self._pinned_n, sat_s = in_a_row(self._pinned_n, pushed, PINNED_S, self.ts_s)
+            if sat_s is not None:
+                said.append(pinned_message(t_s, hi if r_mm > l_mm else lo, sat_s, r_mm, l_mm, self._pinned_moved))
+        if self._held_n >= 0:
+            self._held_n, sat_s = in_a_row(self._held_n, bool(held_against_error(r_mm, l_mm, u_v, lo, hi)),
+                                           HELD_WARN_S, self.ts_s)
+            if sat_s is not None:
+                limit, away = (lo, "below") if r_mm > l_mm else (hi, "above")
+                said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while "
+                            f"the reading l = {l_mm:g} mm stays {abs(r_mm - l_mm):.4g} mm {away} the reference r = "
+                            f"{r_mm:g} mm, where the other way would close the gap: the law acts with the wrong sign "
+                            "(on this rig more command contracts the muscle further: l grows with u)")
+        if self._jump_ks is not None and k > 0 and full_range_jump(u_v, u_prev_v, lo, hi):
+            self._jump_ks = [j for j in self._jump_ks if j > k - self._window] + [k]
+            if len(self._jump_ks) >= SLAM_JUMPS:
+                self._jump_ks = None
+                said.append(f"t = {t_s:g} s: the command has jumped across the valve's range {SLAM_JUMPS} times in "
+                            f"{SLAM_WINDOW_S:g} s: the law slams the valve end to end (a gain too high for the rig?)")
+        if abs(r_mm - self._r_last) > REF_STEP_MM_PER_S * self.ts_s:
+            self._swings_from = max(self._swings_from, k + settle_samples(self.ts_s))
+        self._r_last = r_mm
+        self._watch_swings(said, k, t_s, u_v)
+        return said
+
+    def _watch_swings(self, said: list[str], k: int, t_s: float, u_v: float) -> None:
+        """Count the command's swings from one valve limit to the other; tell the :data:`SWINGS`-th
+        within :data:`SLAM_WINDOW_S`."""
+        if self._swing_ks is None:
+            return
+        side = -1 if u_v <= self.u_min_v + 1e-9 else 1 if u_v >= self.u_max_v - 1e-9 else 0
+        if not side:
+            return
+        swung, self._last_limit = side == -self._last_limit, side
+        if not swung or k < self._swings_from:
+            return
+        self._swing_ks = [j for j in self._swing_ks if j > k - self._window] + [k]
+        if len(self._swing_ks) >= SWINGS:
+            self._swing_ks = None
+            said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
+                        f"{SLAM_WINDOW_S:g} s, a limit cycle: the loop has more delay than the law tolerates (a "
+                        "transport delay on the rig, or loop_delay_samples = 1, a parallel master's sample), or its "
+                        "gain is too high for the rig (docs/control.md, \"A PID baseline\")")

@@ -1,0 +1,223 @@
+"""A law of one's own in the project's closed loop (tapmuscle/own_law.py, run_closed_loop, simulate_closed_loop)."""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+
+import numpy as np
+import pytest
+
+import tapmuscle as tm
+from tapmuscle.own_law import LAW_PREVIEW_SAMPLES, ValveWatch, law_command
+
+
+class PI:
+    """A PI law with conditional integration at the valve's 0..10 V (Kp [V/mm], Ki [V/(mm s)])."""
+
+    ts_s = 0.1
+
+    def __init__(self, kp: float = 0.5, ki: float = 2.0) -> None:
+        self.kp, self.ki = kp, ki
+        self.integral = 0.0
+        self.resets: list[float] = []
+        self.previews: list[np.ndarray] = []
+
+    def reset(self, l_mm: float) -> None:
+        self.integral = 0.0
+        self.resets.append(l_mm)
+
+    def step(self, l_mm: float, preview_mm: np.ndarray) -> float:
+        self.previews.append(preview_mm)
+        e = float(preview_mm[0]) - l_mm
+        v = self.kp * e + self.integral
+        u = min(max(v, 0.0), 10.0)
+        if u == v:  # no integration into a valve limit
+            self.integral += self.ki * self.ts_s * e
+        return u
+
+
+def _delayed(delay_s: float) -> tm.PlantParams:
+    return tm.PlantParams().with_values(**{"delay.delay_s": delay_s})
+
+
+def _run_quietly(*args, **kwargs) -> tuple[dict, list[str]]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = tm.simulate_closed_loop(*args, **kwargs)
+    return run, [str(w.message) for w in caught]
+
+
+def test_a_law_of_ones_own_runs_as_a_hand_written_loop_bit_for_bit():
+    # the timing contract of run_closed_loop: u(k) from l(k) and r(k..k+n), held until t_k+1
+    ref = tm.SineReference(frequency_hz=0.1)
+    law = PI()
+    run = tm.run_closed_loop(tm.Plant(seed=3), law, ref, duration_s=20.0, load_n=lambda t: 44.0 + (t > 10.0) * 24.0)
+    plant, mine = tm.Plant(seed=3), PI()
+    meas, rows = plant.measurement, []
+    for k in range(201):
+        plant.update(load_n=44.0 + (k * 0.1 > 10.0) * 24.0)
+        u = mine.step(meas.l_mm, ref.preview(k, LAW_PREVIEW_SAMPLES))
+        rows.append((k * 0.1, ref.at(k), meas.l_mm, u, meas.p_mpa, plant.load_n, plant.l_mm))
+        if k < 200:
+            meas = plant.step(u, 0.1)
+    expected = np.array(rows)
+    got = np.column_stack([run[c] for c in ("t_s", "r_mm", "l_mm", "u_v", "p_mpa", "load_n", "l_true_mm")])
+    np.testing.assert_array_equal(got, expected)
+    assert sorted(run) == sorted(["t_s", "r_mm", "l_mm", "l_true_mm", "u_v", "p_mpa", "load_n"])
+    assert law.resets == [run["l_mm"][0]] and len(law.previews[0]) == LAW_PREVIEW_SAMPLES + 1
+
+
+def test_simulate_closed_loop_scores_a_law_beside_the_methods():
+    # measured: 0.41 mm (Eq. (21), seed 0, the paper's sine at 44 N), between MPC-UCP and MPC-servo;
+    # 1 mm leaves room for another CPU's rounding, a P law alone (ki = 0) tracks far worse
+    run, said = _run_quietly(PI(), None)
+    assert tm.eq21_error_mm(run) < 1.0 and said == []
+    p_only, _ = _run_quietly(PI(ki=0.0), None)
+    assert tm.eq21_error_mm(p_only) > 3.0 * tm.eq21_error_mm(run)
+    again, _ = _run_quietly(PI(), None)  # a new run resets nothing the law does not reset itself: a new law
+    np.testing.assert_array_equal(again["l_mm"], run["l_mm"])
+
+
+def test_the_same_law_object_is_reset_between_runs():
+    law = PI()
+    first, _ = _run_quietly(law, None, duration_s=20.0)
+    second, _ = _run_quietly(law, None, duration_s=20.0)
+    np.testing.assert_array_equal(first["u_v"], second["u_v"])
+    assert len(law.resets) == 2
+
+
+def test_a_reset_without_argument_is_called_without_one():
+    class NoArgReset(PI):
+        def reset(self) -> None:  # type: ignore[override]
+            self.integral = 0.0
+            self.resets.append(math.nan)
+
+    law = NoArgReset()
+    _run_quietly(law, None, duration_s=2.0)
+    assert len(law.resets) == 1
+
+
+def test_a_law_limit_cycling_under_a_delay_is_told_and_one_without_is_not():
+    # measured: 6.2 mm and the valve swung limit to limit from t = 12.7 s under 0.1 s (one sample at
+    # Ts = 0.1 s); 0.41 mm without a word on the rig without delay
+    run, said = _run_quietly(PI(), None, params=_delayed(0.1))
+    assert tm.eq21_error_mm(run) > 3.0
+    assert len(said) == 1 and "a limit cycle" in said[0] and "transport delay" in said[0]
+    t_said = float(said[0].split("t = ")[1].split(" s")[0])
+    assert 10.0 <= t_said <= 20.0  # not in the run's first 10 s, soon after
+    _, quiet = _run_quietly(PI(), None, params=_delayed(0.1), watch=False)
+    assert quiet == []
+
+
+def test_a_law_of_the_wrong_sign_is_told():
+    run, said = _run_quietly(PI(kp=-0.5, ki=0.0), None, duration_s=30.0)
+    assert any("wrong sign" in m for m in said), said
+    assert np.mean(run["u_v"] == 0.0) > 0.5
+
+
+def test_a_reference_out_of_reach_is_told_as_for_the_paper_controllers():
+    _, said = _run_quietly(PI(), lambda t: 300.0, duration_s=20.0)
+    assert any("out of the rig's reach" in m and "10 V" in m for m in said), said
+
+
+def test_loop_delay_samples_applies_the_laws_command_a_sample_late():
+    law_now, law_late = PI(), PI()
+    late, _ = _run_quietly(law_late, None, duration_s=5.0, loop_delay_samples=1)
+    assert late["u_v"][0] == 0.0
+    # the command recorded at k is what the law said at k - 1, computed from the readings it had
+    outputs = [law_now.step(l, p) for l, p in zip(late["l_mm"], law_late.previews)]
+    np.testing.assert_array_equal(late["u_v"][1:], outputs[:-1])
+
+
+@pytest.mark.parametrize("bad, error, words", [
+    (math.nan, ValueError, "u = nan V at sample k = 7 (t = 0.7 s)"),
+    (math.inf, ValueError, "must be finite"),
+    ("5", TypeError, "returned '5' at sample k = 7"),
+    (None, TypeError, "returned None"),
+    (np.array([1.0, 2.0]), TypeError, "expected the valve command"),
+])
+def test_a_command_that_is_no_number_stops_the_run_naming_its_sample(bad, error, words):
+    class Breaks(PI):
+        def step(self, l_mm, preview_mm):
+            u = super().step(l_mm, preview_mm)
+            return bad if len(self.previews) == 8 else u
+
+    with pytest.raises(error, match=re.escape(words)):
+        tm.simulate_closed_loop(Breaks(), None, duration_s=2.0)
+
+
+def test_the_command_may_come_as_a_numpy_number_or_a_step_object():
+    class Step:
+        u_v = np.float32(2.5)
+
+    assert law_command(np.float64(1.5), 0, 0.0) == 1.5 and law_command(np.array([3.0]), 0, 0.0) == 3.0
+    assert law_command(Step(), 0, 0.0) == 2.5
+    with pytest.raises(TypeError):
+        law_command(True, 0, 0.0)
+
+
+def test_the_period_comes_from_the_law_or_the_call_and_must_agree():
+    class NoPeriod:
+        def step(self, l_mm, preview_mm):
+            return 2.0
+
+    with pytest.raises(ValueError, match="has no ts_s attribute: give the loop's sampling period"):
+        tm.run_closed_loop(tm.Plant(), NoPeriod(), None, duration_s=1.0)
+    run = tm.run_closed_loop(tm.Plant(), NoPeriod(), None, duration_s=1.0, ts_s=0.05)
+    assert len(run["t_s"]) == 21 and run["t_s"][-1] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match=r"ts_s = 0.05 s disagrees with the law's own PI.ts_s = 0.1 s"):
+        tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, ts_s=0.05)
+    with pytest.raises(ValueError, match=r"ts_s = 0.05 s disagrees"):
+        tm.simulate_closed_loop(PI(), None, duration_s=1.0, ts_s=0.05)
+    with pytest.raises(ValueError, match="must be a finite number > 0"):
+        tm.run_closed_loop(tm.Plant(), NoPeriod(), None, duration_s=1.0, ts_s=-0.1)
+
+
+def test_the_preview_length_is_the_laws_or_the_calls():
+    law = PI()
+    tm.run_closed_loop(tm.Plant(), law, None, duration_s=1.0, preview_samples=0)
+    assert {len(p) for p in law.previews} == {1}
+    law = PI()
+    law.preview_samples = 12
+    tm.run_closed_loop(tm.Plant(), law, None, duration_s=1.0)
+    assert {len(p) for p in law.previews} == {13}
+    with pytest.raises(ValueError, match="preview_samples must be an integer >= 0"):
+        tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, preview_samples=1.5)
+
+
+def test_the_paper_controllers_refuse_a_preview_or_another_period():
+    ctrl = tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N)
+    with pytest.raises(ValueError, match="preview_samples = 3 is for a law of your own"):
+        tm.run_closed_loop(tm.Plant(), ctrl, None, duration_s=1.0, preview_samples=3)
+    with pytest.raises(ValueError, match="ts_s = 0.05 s disagrees with the controller's settings.ts_s = 0.1 s"):
+        tm.run_closed_loop(tm.Plant(), ctrl, None, duration_s=1.0, ts_s=0.05)
+    same = tm.run_closed_loop(tm.Plant(seed=1), ctrl, None, duration_s=3.0, ts_s=0.1)
+    without = tm.run_closed_loop(tm.Plant(seed=1), ctrl, None, duration_s=3.0)
+    np.testing.assert_array_equal(same["l_mm"], without["l_mm"])
+
+
+def test_a_law_takes_no_theta0_or_settings_and_an_object_without_step_is_refused():
+    with pytest.raises(ValueError, match="takes neither"):
+        tm.simulate_closed_loop(PI(), None, theta0=tm.THETA0_44N)
+    with pytest.raises(ValueError, match="or a law of your own with a step"):
+        tm.simulate_closed_loop(object(), None)
+    with pytest.raises(TypeError, match="a law of your own with a step"):
+        tm.run_closed_loop(tm.Plant(), object(), None, duration_s=1.0)
+    assert isinstance(PI(), tm.ControlLaw) and not isinstance(object(), tm.ControlLaw)
+
+
+def test_the_valve_watch_counts_no_swing_in_the_first_window_nor_after_a_reference_step():
+    watch = ValveWatch(0.1, 0.0, 10.0)
+    # a bang-bang command, limit to limit every sample, over the first 10 s: nothing
+    said = [m for k in range(100) for m in watch.observe(k, k * 0.1, 30.0, 30.0, 10.0 * (k % 2), 10.0 * (1 - k % 2))]
+    assert len(said) == 1 and "slams the valve end to end" in said[0]  # the jumps are told, not a limit cycle
+    # a reference step at 10 s restarts the count for its settling time (3 s), then it is told
+    said = []
+    for k in range(100, 200):
+        r = 30.0 if k < 100 else 60.0
+        said += watch.observe(k, k * 0.1, 30.0, r if k > 100 else 30.0, 10.0 * (k % 2), 10.0 * (1 - k % 2))
+    swings = [m for m in said if "limit cycle" in m]
+    assert len(swings) == 1
+    assert float(swings[0].split("t = ")[1].split(" s")[0]) >= 13.0
