@@ -23,7 +23,7 @@ from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
-from tapmuscle.own_law import ControlLaw
+from tapmuscle.own_law import ControlLaw, as_law
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
@@ -155,8 +155,9 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         MPC with unique coincidence point (Eqs. (11)-(14)) or with servo mechanism (Eqs. (15)-(20)), with a
         fixed predictor (MPC) or adapted online by Algorithm 1 (AMPC). Or a law of your own, an object
         with ``step(l_mm, preview_mm)`` returning the valve command [V]
-        (:class:`tapmuscle.own_law.ControlLaw`; ``theta0`` and ``settings`` are then not taken), run
-        on the same rig and loop at ``ts_s`` (its own ``ts_s`` attribute, if it has one, must agree).
+        (:class:`tapmuscle.own_law.ControlLaw`; ``theta0`` and ``settings`` are then not taken), or
+        a function ``u = f(l_mm, preview_mm)``, run on the same rig and loop at ``ts_s`` (its own
+        ``ts_s`` attribute, if it has one, must agree).
     reference : callable, array_like, Reference or None
         ``r(t)`` [mm] of the time [s]; or one value per sample ``r(k)`` [mm] (the last held beyond
         its end, also in the preview); or a :class:`~fmu_controller.reference.SineReference`,
@@ -217,8 +218,9 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
     >>> bool(abs(run["l_mm"][-1] - 50.0) < 2.0)
     True
     """
-    if not isinstance(method, str) and callable(getattr(method, "step", None)):
+    if not isinstance(method, str) and (callable(method) or callable(getattr(method, "step", None))):
         ts = _check_period(ts_s)
+        method = as_law(method)
         if theta0 is not None or settings is not None:
             raise ValueError(f"theta0 and settings set the paper's controllers; the law {type(method).__name__} of "
                              "your own takes neither (give it its own parameters)")
@@ -228,7 +230,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
                                progress=reporter(progress, "simulate_closed_loop"), watch=watch)
     if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
-                         "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw)")
+                         "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
+                         "f(l_mm, preview_mm)")
     ts = _check_period(ts_s)
     box: dict[str, Any] = {}
     if isinstance(theta0, IdentifiedModel):  # read_identification's: its period, its box and its delay

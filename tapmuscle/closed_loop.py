@@ -21,7 +21,7 @@ from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
 from fmu_plant.user_warning import warn_at_caller
-from tapmuscle.own_law import ControlLaw, ValveWatch, law_command, law_period, law_preview_samples, reset_law
+from tapmuscle.own_law import ControlLaw, ValveWatch, as_law, law_command, law_period, law_preview_samples, reset_law
 from tapmuscle.progress import reporter
 
 __all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
@@ -152,17 +152,18 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
 
     A law of your own runs the same way (:class:`tapmuscle.own_law.ControlLaw`: an object with
     ``step(l_mm, preview_mm)`` returning the command [V]; ``reset``, ``ts_s`` and
-    ``preview_samples`` used when it has them), so that it is timed, loaded, delayed and scored as
-    the paper's methods are.
+    ``preview_samples`` used when it has them; or a function ``u = f(l_mm, preview_mm)``), so that
+    it is timed, loaded, delayed and scored as the paper's methods are.
 
     Parameters
     ----------
     plant : Plant
         The simulated rig, advanced in place.
-    controller : DisplacementController or ControlLaw
+    controller : DisplacementController, ControlLaw or callable
         One of the paper's four controllers, reset to the plant's displacement first (its state,
         estimate and start-up mode anew); or a law of your own, whose ``reset(l_mm)`` (or
-        ``reset()``), if it has one, is called with the plant's reading first.
+        ``reset()``), if it has one, is called with the plant's reading first; or a function
+        ``u = f(l_mm, preview_mm)`` [V] (its period given as ``ts_s``).
     reference : Reference, callable, array_like or None
         A :class:`fmu_controller.reference.Reference` on the loop's grid (a sine, given samples, a
         function of time); ``r(t)`` [mm] of the time [s]; one value per sample ``r(k)`` [mm]; None:
@@ -208,7 +209,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
     Raises
     ------
     TypeError
-        ``controller`` is neither (no ``step`` method), or its ``step`` returned no number.
+        ``controller`` is none of these (no ``step`` method, not callable), or its ``step`` returned
+        no number.
     ValueError
         A law's ``step`` returned NaN or an infinite command (with its sample and time), a period or
         preview that is not one (see ``ts_s``, ``preview_samples``).
@@ -216,11 +218,12 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
     if not isinstance(plant, Plant):
         raise TypeError(f"plant must be a Plant (tm.Plant(params)), got {type(plant).__name__}")
     own = not isinstance(controller, DisplacementController)
-    if own and not callable(getattr(controller, "step", None)):
-        raise TypeError(f"controller must be a DisplacementController (tm.DisplacementController(settings, "
-                        f"theta0)) or a law of your own with a step(l_mm, preview_mm) method returning the valve "
-                        f"command [V] (tapmuscle.own_law.ControlLaw), got {type(controller).__name__}")
     if own:
+        try:
+            controller = as_law(controller)
+        except TypeError as exc:
+            raise TypeError(f"controller must be a DisplacementController (tm.DisplacementController(settings, "
+                            f"theta0)) or {exc}") from None
         ts = law_period(controller, ts_s)
         hp = law_preview_samples(controller, preview_samples)
     else:

@@ -27,8 +27,8 @@ from fmu_controller.loop_watch import (PINNED_S, REF_STEP_MM_PER_S, SLAM_JUMPS, 
                                        pinned_message)
 from fmu_controller.servo_settings import TABLE5_SERVO
 
-__all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "law_period", "law_preview_samples", "law_command",
-           "reset_law"]
+__all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "as_law", "law_period", "law_preview_samples",
+           "law_command", "reset_law"]
 
 #: Future reference samples a law of one's own sees by default, ``[r(k), ..., r(k+5)]``: Table 5's
 #: servo horizon ``Hp``, what the paper's default law looks ahead.
@@ -66,6 +66,36 @@ class ControlLaw(Protocol):
         """
 
 
+class _FunctionLaw:
+    """A function ``u = f(l_mm, preview_mm)`` as a :class:`ControlLaw` (no reset, no period of its own)."""
+
+    def __init__(self, function: Any) -> None:
+        self.function = function
+
+    def step(self, l_mm: float, preview_mm: np.ndarray) -> Any:
+        return self.function(l_mm, preview_mm)
+
+
+def as_law(law: Any) -> ControlLaw:
+    """``law`` as a :class:`ControlLaw`: an object with a ``step`` method as it is, a function
+    ``u = f(l_mm, preview_mm)`` wrapped (its period then given as ``ts_s``).
+
+    Raises
+    ------
+    TypeError
+        Neither: no ``step`` method and not callable.
+    """
+    if isinstance(law, type):
+        raise TypeError(f"got the class {law.__name__} itself: give the law, an instance ({law.__name__}(...))")
+    if callable(getattr(law, "step", None)):
+        return law
+    if callable(law):
+        return _FunctionLaw(law)
+    raise TypeError(f"a law of your own: an object with a step(l_mm, preview_mm) method returning the valve command "
+                    f"[V] (tapmuscle.own_law.ControlLaw), or a function u = f(l_mm, preview_mm); got "
+                    f"{type(law).__name__}")
+
+
 def _attribute(law: Any, name: str, given: Any) -> Any:
     """``given`` when not None, else the law's attribute ``name`` (None when it has none)."""
     return given if given is not None else getattr(law, name, None)
@@ -80,15 +110,15 @@ def law_period(law: Any, ts_s: float | None) -> float:
         Neither gives one, or the one given is not a finite number > 0, or both give different ones.
     """
     own = getattr(law, "ts_s", None)
+    name = getattr(law.function, "__name__", "function") if isinstance(law, _FunctionLaw) else type(law).__name__
     if ts_s is None and own is None:
-        raise ValueError(f"the law {type(law).__name__} has no ts_s attribute: give the loop's sampling period, "
-                         "ts_s=... [s]")
-    for what, value in (("ts_s", ts_s), (f"{type(law).__name__}.ts_s", own)):
+        raise ValueError(f"the law {name} has no ts_s attribute: give the loop's sampling period, ts_s=... [s]")
+    for what, value in (("ts_s", ts_s), (f"{name}.ts_s", own)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
                                   or not math.isfinite(value) or value <= 0):
             raise ValueError(f"{what} must be a finite number > 0 [s], got {value!r}")
     if ts_s is not None and own is not None and abs(float(own) - float(ts_s)) > 1e-12 * float(ts_s):
-        raise ValueError(f"ts_s = {ts_s!r} s disagrees with the law's own {type(law).__name__}.ts_s = {own!r} s")
+        raise ValueError(f"ts_s = {ts_s!r} s disagrees with the law's own {name}.ts_s = {own!r} s")
     return float(_attribute(law, "ts_s", ts_s))
 
 

@@ -203,9 +203,20 @@ def test_a_law_takes_no_theta0_or_settings_and_an_object_without_step_is_refused
         tm.simulate_closed_loop(PI(), None, theta0=tm.THETA0_44N)
     with pytest.raises(ValueError, match="or a law of your own with a step"):
         tm.simulate_closed_loop(object(), None)
-    with pytest.raises(TypeError, match="a law of your own with a step"):
+    with pytest.raises(TypeError, match="or a law of your own: an object with a step"):
         tm.run_closed_loop(tm.Plant(), object(), None, duration_s=1.0)
+    with pytest.raises(TypeError, match=re.escape("got the class PI itself: give the law, an instance (PI(...))")):
+        tm.simulate_closed_loop(PI, None)
     assert isinstance(PI(), tm.ControlLaw) and not isinstance(object(), tm.ControlLaw)
+
+
+def test_a_function_is_a_law_on_the_period_given():
+    gains = PI()
+    run, said = _run_quietly(lambda l_mm, preview_mm: gains.step(l_mm, preview_mm), None, ts_s=0.1)
+    law, _ = _run_quietly(PI(), None)
+    np.testing.assert_array_equal(run["u_v"], law["u_v"])
+    with pytest.raises(ValueError, match="the law <lambda> has no ts_s attribute"):
+        tm.run_closed_loop(tm.Plant(), lambda l_mm, preview_mm: 2.0, None, duration_s=1.0)
 
 
 def test_the_valve_watch_counts_no_swing_in_the_first_window_nor_after_a_reference_step():
