@@ -76,6 +76,7 @@ from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.loop_watch import samples_in_words as _samples
 from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.probing import MLS_LENGTH
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.servo_mpc import ServoMPCSettings
@@ -103,7 +104,7 @@ _UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
 #: ControllerSettings' field names as the FMU's parameters (``servo.r`` is ServoMPCSettings' ``r``).
 _SETTINGS_NAMES = {"ControllerSettings.ts_s": "Ts", "ControllerSettings.p0": "P0.*",
                    "ControllerSettings.input_delay_samples": "input_delay_samples", "servo.r": "servo.R",
-                   **{f"ControllerSettings.{n}": n for n in ("startup_s", "probing_v", "delay_move_weight")}}
+                   **{f"ControllerSettings.{n}": n for n in ("startup_s", "probing_v", "probing_phase", "delay_move_weight")}}
 #: Largest |theta0.*|: Eq. (1)'s coefficients multiply displacements [mm] and commands [V]; a
 #: preliminary identification's are below 2 (THETA0_44N), and beyond this the predictions over the
 #: horizon overflow floating point instead of failing a check that names the parameter.
@@ -113,7 +114,8 @@ _METHOD_ONLY = (
     (("ucp.",), "the unique-coincidence-point methods 1, 3", lambda s: not s.servo_mechanism),
     (("servo.", "hysteresis_notch", "anti_windup", "delay_move_weight"), "the servo methods 2, 4",
      lambda s: s.servo_mechanism),
-    (("P0.", "forgetting", "covariance_ceiling", "box_lower.", "box_upper.", "probing_v", "startup_guard"),
+    (("P0.", "forgetting", "covariance_ceiling", "box_lower.", "box_upper.", "probing_v", "probing_phase",
+      "startup_guard"),
      "the adaptive methods 3, 4", lambda s: s.adaptive),
 )
 
@@ -195,6 +197,10 @@ class AMPCController(SafeSlave):
                                    "command has sat at a valve limit the error pushes it further into for 5 samples "
                                    "in a row (no wind-up when the reference is out of reach), 0 Eq. (18) as the paper "
                                    "writes it", lo=0, hi=1)
+        self.add_integer_parameter("probing_phase", 0, "adaptive methods with the start-up mode: the bit of the "
+                                   f"probing signal's {MLS_LENGTH}-bit sequence it starts at; controllers started "
+                                   "together on one rig probe in phase at the same value: give each its own (a pair: "
+                                   "0 and 64) for uncorrelated probes", lo=0, hi=MLS_LENGTH - 1)
         self.add_integer_parameter("startup_guard", 1, "adaptive methods with the start-up mode: 1 end its warm-up "
                                    "and blend on theta0 early once the valve command has jumped across 90 % of its "
                                    f"range {GUARD_JUMPS} times (theta0 a poor fixed law on this rig: the law takes the estimate, as "
@@ -317,7 +323,8 @@ class AMPCController(SafeSlave):
             delay_correction=ip["delay_correction"] == 1, anti_windup=ip["anti_windup"] == 1,
             startup_guard=ip["startup_guard"] == 1,
             hysteresis_notch=None if ip["hysteresis_notch"] == -1 else ip["hysteresis_notch"] == 1,
-            startup_s=p["startup_s"], probing_v=p["probing_v"], delay_move_weight=p["delay_move_weight"],
+            startup_s=p["startup_s"], probing_v=p["probing_v"], probing_phase=ip["probing_phase"],
+            delay_move_weight=p["delay_move_weight"],
             max_speed_mm_per_s=p["max_speed"])
 
     def overflow_hint(self) -> str:

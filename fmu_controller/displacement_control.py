@@ -49,7 +49,7 @@ from .argument_checks import real_number, whole_number
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
-from .probing import probe_v
+from .probing import MLS_LENGTH, probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .ucp_mpc import UCPSettings, _held, ucp_move
@@ -299,6 +299,12 @@ class ControllerSettings:
     it the gentle start leaves the closed-loop estimate unexcited and ``b1`` drifts to C's lower
     bound, where the servo law ripples at the cycle's turning points (docs/control.md, "Start-up").
     0 turns it off; at most 2.5 V (a quarter of the valve's range)."""
+    probing_phase: int = 0
+    """The bit of the probing signal's 127-bit sequence it starts at, 0 .. 126. Controllers started
+    together on one rig (several muscles in one master, an antagonistic pair) probe in phase at the
+    same setting, a common-mode excitation; give each its own (a pair: 0 and 64) and their probes
+    are uncorrelated shifts of one sequence. Each phase excites the estimate alike (docs/control.md,
+    "Start-up")."""
     startup_guard: bool = True
     """Adaptive methods with the start-up mode: end the warm-up and the blend early once the valve
     command has jumped across :data:`GUARD_JUMP_FRACTION` of its range in one sample
@@ -396,6 +402,10 @@ class ControllerSettings:
                              f"guard), got {self.max_speed_mm_per_s!r}")
         if not 0.0 <= self.probing_v <= MAX_PROBING_V:
             raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
+        object.__setattr__(self, "probing_phase", whole_number(self.probing_phase, what="ControllerSettings.probing_phase"))
+        if not 0 <= self.probing_phase < MLS_LENGTH:
+            raise ValueError(f"ControllerSettings.probing_phase must be a bit of the probe's sequence, 0 .. {MLS_LENGTH - 1}, "
+                             f"got {self.probing_phase!r}")
         if not isinstance(self.startup_guard, bool):
             raise ValueError(f"ControllerSettings.startup_guard must be True or False, got {self.startup_guard!r}")
         if not isinstance(self.anti_windup, bool):
@@ -696,6 +706,7 @@ class DisplacementController:
         self._warm_n = int(round(0.5 * settings.startup_s / settings.ts_s))
         self._blend_n = int(round(settings.startup_s / settings.ts_s))
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
+        self._probing_phase = settings.probing_phase
         self._guard = settings.startup_guard and settings.adaptive and self._blend_n > 0
         self._max_jump = settings.max_speed_mm_per_s * settings.ts_s  # 0: no glitch guard
         self._stuck_n = max(1, int(math.ceil(STUCK_AT_LIMIT_S / settings.ts_s - 1e-9)))
@@ -1190,7 +1201,7 @@ class DisplacementController:
         (``ControllerSettings.probing_v``), within the valve's range."""
         j = self._k - self._est_from
         if self._probing_v and 0 < j < self._warm_n and self._guarded_at is None:
-            u += probe_v(j, self._probing_v)
+            u += probe_v(j, self._probing_v, self._probing_phase)
             return min(max(u, self._u_min), self._u_max)
         return u
 

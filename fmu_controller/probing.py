@@ -19,7 +19,9 @@ per instantiation).
 
 from __future__ import annotations
 
-__all__ = ["MLS_BITS", "PROBING_HOLD_SAMPLES", "max_length_sequence", "probe_v"]
+import math
+
+__all__ = ["MLS_BITS", "MLS_LENGTH", "PROBING_HOLD_SAMPLES", "max_length_sequence", "probe_v", "probing_phases"]
 
 #: Register length of the sequence: 2**7 - 1 = 127 bits, longer than any warm-up at the default clock.
 MLS_BITS = 7
@@ -28,6 +30,9 @@ MLS_BITS = 7
 #: frequency. Measured (docs/control.md, "Start-up"): held 4 samples, the cure of the ripple does not
 #: depend on where the sequence starts (2-5 % above smooth for three starting bits); held 3, it does.
 PROBING_HOLD_SAMPLES = 4
+#: Bits of the sequence before it repeats: ``2**MLS_BITS - 1``; a probe may start at any of them
+#: (``ControllerSettings.probing_phase``, 0 .. ``MLS_LENGTH - 1``).
+MLS_LENGTH = 2 ** MLS_BITS - 1
 
 
 def max_length_sequence(nbits: int = MLS_BITS) -> tuple[int, ...]:
@@ -64,10 +69,54 @@ def max_length_sequence(nbits: int = MLS_BITS) -> tuple[int, ...]:
 _SIGNS = tuple(2.0 * b - 1.0 for b in max_length_sequence())
 
 
-def probe_v(sample: int, amplitude_v: float) -> float:
+def probe_v(sample: int, amplitude_v: float, phase_bits: int = 0) -> float:
     """The probing signal [V] at ``sample`` (0, 1, ... from the start of the warm-up).
 
     ``amplitude_v`` times the sequence's sign (+-1), each bit held for :data:`PROBING_HOLD_SAMPLES`
-    samples, the sequence repeated after its 127 bits.
+    samples, starting at bit ``phase_bits`` of the sequence and repeated after its 127 bits. Two
+    probes of different phases are two shifts of one maximum-length sequence, whose correlation over
+    the whole period is -1/127: controllers of one rig given different phases excite their muscles
+    independently.
     """
-    return amplitude_v * _SIGNS[(sample // PROBING_HOLD_SAMPLES) % len(_SIGNS)]
+    return amplitude_v * _SIGNS[(sample // PROBING_HOLD_SAMPLES + phase_bits) % len(_SIGNS)]
+
+
+def probing_phases(count: int, warm_samples: int = 60) -> tuple[int, ...]:
+    """Phases for ``count`` controllers started together whose probes are least alike over the warm-up.
+
+    Over a whole period two shifts of the sequence correlate at -1/127, but a warm-up sees only a few
+    bits of it (the default 6 s at Ts = 0.1 s: 60 samples, 15 bits), over which a shift may repeat
+    much of the probe (phases 0 and 96: 0.66). Greedy, from phase 0: each next phase is the one whose
+    probe's largest absolute correlation with those chosen is least, over the warm-up's samples 1 ..
+    ``warm_samples - 1`` (where the controller probes).
+
+    Parameters
+    ----------
+    count : int
+        Controllers, 1 .. 127.
+    warm_samples : int
+        The warm-up in samples: ``round(startup_s / 2 / ts_s)`` (60 at the defaults), at least 3.
+
+    Returns
+    -------
+    tuple of int
+        ``count`` phases (``ControllerSettings.probing_phase``, the FMU's ``probing_phase``), 0 first.
+    """
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MLS_LENGTH:
+        raise ValueError(f"count must be an integer 1 .. {MLS_LENGTH}, got {count!r}")
+    if isinstance(warm_samples, bool) or not isinstance(warm_samples, int) or warm_samples < 3:
+        raise ValueError(f"warm_samples must be an integer >= 3 (the warm-up in samples), got {warm_samples!r}")
+    probes = [[probe_v(j, 1.0, phase) for j in range(1, warm_samples)] for phase in range(MLS_LENGTH)]
+
+    def corr(a: list[float], b: list[float]) -> float:
+        n = len(a)
+        ma, mb = sum(a) / n, sum(b) / n
+        cov = sum((x - ma) * (y - mb) for x, y in zip(a, b))
+        va, vb = sum((x - ma) ** 2 for x in a), sum((y - mb) ** 2 for y in b)
+        return cov / math.sqrt(va * vb) if va > 0 and vb > 0 else 1.0
+
+    chosen = [0]
+    while len(chosen) < count:
+        rest = [p for p in range(MLS_LENGTH) if p not in chosen]
+        chosen.append(min(rest, key=lambda p: (max(abs(corr(probes[p], probes[c])) for c in chosen), p)))
+    return tuple(chosen)

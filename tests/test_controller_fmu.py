@@ -521,7 +521,7 @@ def test_a_settings_error_names_the_fmu_parameters():
 _METHOD_ONLY_VALUES = {"ucp.Hp": 3, "servo.Hp": 8, "servo.Hu": 3, "servo.Q": 2.0, "servo.Qs": 1.0, "servo.R": 30.0,
                        "hysteresis_notch": 0, "anti_windup": 0, "delay_move_weight": 2.0, "P0.a1": 1.0,
                        "forgetting": 0.98, "covariance_ceiling": 1, "box_lower.a1": 1.0, "box_upper.b1": 1.5,
-                       "probing_v": 0.1, "startup_guard": 0}
+                       "probing_v": 0.1, "probing_phase": 111, "startup_guard": 0}
 _USED_BY = {"ucp.Hp": {1, 3}, **dict.fromkeys(("servo.Hp", "servo.Hu", "servo.Q", "servo.Qs", "servo.R",
                                                "hysteresis_notch", "anti_windup", "delay_move_weight"), {2, 4})}
 
@@ -558,7 +558,7 @@ def test_a_parameter_the_method_does_not_use_is_named_and_changes_nothing(method
         commands, warned = run(name)
         if used:
             assert warned == [], name
-            if name in ("ucp.Hp", "servo.Hp", "servo.R", "probing_v"):  # those that act within 4 s
+            if name in ("ucp.Hp", "servo.Hp", "servo.R", "probing_v", "probing_phase"):  # those that act within 4 s
                 assert commands != default, name
         else:
             (message,) = warned

@@ -773,6 +773,33 @@ def test_probing_is_validated():
     for bad in (-0.1, math.nan, 2.6, True, "0.5"):
         with pytest.raises(TypeError if isinstance(bad, (bool, str)) else ValueError, match="probing_v"):
             ControllerSettings(probing_v=bad)
+    assert ControllerSettings().probing_phase == 0 and ControllerSettings(probing_phase=np.int64(126)).probing_phase == 126
+    for bad in (-1, 127, 1.0, True):
+        with pytest.raises(TypeError if isinstance(bad, (bool, float)) else ValueError, match="probing_phase"):
+            ControllerSettings(probing_phase=bad)
+
+
+def test_the_probing_phase_shifts_the_probe_and_nothing_else(theta0):
+    """The phase moves the probe along the sequence: fed the same measurements, controllers of phases
+    0 and 111 command differently in the warm-up; without a probe (probing_v = 0) the phase changes
+    nothing."""
+    c0, c1 = (DisplacementController(ControllerSettings(method="ampc_servo", probing_phase=p), theta0) for p in (0, 111))
+    c0._k = c1._k = 7
+    assert c1._probed(5.0) - c0._probed(5.0) == probe_v(7, DEFAULT_PROBING_V, 111) - probe_v(7, DEFAULT_PROBING_V)
+    ref = SineReference()
+    meas = 35.0 + 30.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(150)) * np.minimum(1.0, np.arange(150) / 30)
+    u = []
+    for c in (c0, c1):
+        c.reset(meas[0])
+        u.append(np.array([c.step(l, ref.preview(k, c.settings.preview_samples)).u_v for k, l in enumerate(meas)]))
+    warm = int(round(0.5 * DEFAULT_STARTUP_S / 0.1))
+    assert np.abs(u[1] - u[0])[1:warm].max() > 0.5  # the probes differ: +0.5 against -0.5 V on some bits
+    quiet = []
+    for p in (0, 111):
+        c = DisplacementController(ControllerSettings(method="ampc_servo", probing_v=0.0, probing_phase=p), theta0)
+        c.reset(meas[0])
+        quiet.append([c.step(l, ref.preview(k, c.settings.preview_samples)).u_v for k, l in enumerate(meas)])
+    assert quiet[0] == quiet[1]
 
 
 def test_startup_mode_is_on_by_default_and_validated(theta0):

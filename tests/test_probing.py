@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.signal import max_len_seq
 
-from fmu_controller.probing import MLS_BITS, PROBING_HOLD_SAMPLES, max_length_sequence, probe_v
+from fmu_controller.probing import MLS_BITS, MLS_LENGTH, PROBING_HOLD_SAMPLES, max_length_sequence, probe_v, probing_phases
 
 
 def test_the_sequence_is_scipys_maximum_length_sequence():
@@ -38,3 +38,35 @@ def test_each_bit_is_held_and_the_sequence_repeats():
 def test_only_the_tabulated_register_length():
     with pytest.raises(ValueError, match="nbits"):
         max_length_sequence(8)
+
+
+def test_a_phase_starts_the_sequence_at_another_bit():
+    for phase in (1, 13, 111, MLS_LENGTH - 1):
+        shifted = [probe_v(j, 0.5, phase) for j in range(4 * MLS_LENGTH)]
+        assert shifted == [probe_v(j + PROBING_HOLD_SAMPLES * phase, 0.5) for j in range(4 * MLS_LENGTH)]
+    assert [probe_v(j, 0.5, MLS_LENGTH) for j in range(40)] == [probe_v(j, 0.5) for j in range(40)]
+
+
+def _correlation(phases, warm):
+    probes = np.array([[probe_v(j, 1.0, p) for j in range(1, warm)] for p in phases])
+    c = np.corrcoef(probes)
+    return np.max(np.abs(c - np.eye(len(phases))))
+
+
+@pytest.mark.parametrize("warm", [60, 120, 30])
+def test_the_phases_chosen_probe_unlike_each_other_over_the_warm_up(warm):
+    # a phase at random repeats much of another over a short warm-up (0 and 96 over 60 samples: 0.66);
+    # the chosen pair is the least alike of all 126 (greedy from 0, so the pair is exact)
+    pair = probing_phases(2, warm)
+    assert pair[0] == 0 and len(set(pair)) == 2
+    assert _correlation(pair, warm) == pytest.approx(min(_correlation((0, p), warm) for p in range(1, MLS_LENGTH)))
+    assert _correlation(pair, warm) < 0.1
+    four = probing_phases(4, warm)
+    assert len(set(four)) == 4 and _correlation(four, warm) < 0.25
+    assert _correlation((0, 96), 60) > 0.6  # why a phase is not any phase
+
+
+@pytest.mark.parametrize("count, warm", [(0, 60), (128, 60), (2.0, 60), (True, 60), (2, 2), (2, 60.0)])
+def test_probing_phases_refuses_what_is_no_count_or_warm_up(count, warm):
+    with pytest.raises(ValueError, match="must be an integer"):
+        probing_phases(count, warm)
