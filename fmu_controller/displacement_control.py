@@ -56,7 +56,7 @@ from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
-           "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit",
+           "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "pinned_side",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
            "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REF_STEP_SETTLE_S", "settle_samples",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
@@ -483,6 +483,17 @@ def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_
     """Whether the command ``u_v`` [V] sits at a valve limit that the error ``r - l`` [mm] pushes it
     further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it)."""
     return (r_mm > l_mm and u_v >= u_max_v - 1e-9) or (r_mm < l_mm and u_v <= u_min_v + 1e-9)
+
+
+def pinned_side(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> int:
+    """Which valve limit the command sits at with the error pushing it further in
+    (:func:`pushed_at_limit`): 1 the upper (``r > l``), -1 the lower (``r < l``), 0 neither. A command
+    switching between the two limits is not pinned at either."""
+    if r_mm > l_mm and u_v >= u_max_v - 1e-9:
+        return 1
+    if r_mm < l_mm and u_v <= u_min_v + 1e-9:
+        return -1
+    return 0
 
 
 #: A command held at a valve limit while the error ``r - l`` pushes it away from that limit by at least

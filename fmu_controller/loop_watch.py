@@ -23,14 +23,15 @@ from typing import Sequence
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTEST_MUSCLE_MM_PER_S, GUARD_JUMPS,
                                                  HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES, settle_samples,
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
-                                                 held_against_error, pushed_at_limit, stuck_reading_message)
+                                                 held_against_error, pinned_side, pushed_at_limit,
+                                                 stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.prediction import N_INITIAL, RUNAWAY_RANGE_MM, held_command_runaway
 from fmu_controller.preliminary_model import REFINE_IN_CLOSED_LOOP, THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
-__all__ = ["LoopWatch", "samples_in_words", "in_a_row", "pinned_message",
+__all__ = ["LoopWatch", "PinnedStretch", "samples_in_words", "in_a_row", "pinned_message",
            "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
            "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
            "TRACKING_MM", "TRACKING_SHARE"]
@@ -118,6 +119,47 @@ def pinned_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: 
             f"reach, or the readings l (now {l_mm:g} mm) are in another unit than mm (metres?){stuck}")
 
 
+class PinnedStretch:
+    """The command sitting at one valve limit that the error ``r - l`` pushes it further into
+    (:func:`~fmu_controller.displacement_control.pinned_side`), counted in a row and told once after
+    :data:`PINNED_S`. A command at the other limit starts a stretch anew: a law switching between the
+    two is not pinned (a bang-bang law on a reachable reference was told "out of the rig's reach").
+
+    Attributes
+    ----------
+    n : int
+        Samples of the stretch so far (-1: told).
+    l : float
+        The reading the stretch started from [mm].
+    moved : bool
+        Whether a reading of the stretch differed from its first.
+    side : int
+        The limit of the stretch: 1 upper, -1 lower, 0 none.
+    """
+
+    def __init__(self) -> None:
+        self.n, self.l, self.moved, self.side = 0, math.nan, True, 0
+
+    def observe(self, t_s: float, l_mm: float, r_mm: float, u_v: float, u_min_v: float, u_max_v: float,
+                ts_s: float) -> str | None:
+        """The message to tell after this sample (``t_s`` [s], the reading, reference [mm], command and
+        valve range [V], sampling period [s]), or None."""
+        if self.n < 0:
+            return None
+        side = pinned_side(r_mm, l_mm, u_v, u_min_v, u_max_v)
+        if side and not self.side and self.n > 0:  # a stretch restored without its limit: this one
+            self.side = side
+        if side and side != self.side:  # a stretch starts: the reading it starts from
+            self.n, self.l, self.moved = 0, l_mm, False
+        elif side and l_mm != self.l:
+            self.moved = True
+        self.side = side
+        self.n, sat_s = in_a_row(self.n, bool(side), PINNED_S, ts_s)
+        if sat_s is None:
+            return None
+        return pinned_message(t_s, u_max_v if side > 0 else u_min_v, sat_s, r_mm, l_mm, self.moved)
+
+
 def samples_in_words(n: int) -> str:
     """``n`` samples, in words a log reads (``1 sample``, ``2 samples``)."""
     return f"{n} sample" if n == 1 else f"{n} samples"
@@ -141,9 +183,7 @@ class LoopWatch:
     def reset(self) -> None:
         """A new run: nothing said yet."""
         self._diverged = False
-        self._pinned_n = 0  # samples in a row at a valve limit the error pushes into (-1: said)
-        self._pinned_l = math.nan  # the reading that stretch started from [mm] ...
-        self._pinned_moved = True  # ... and whether one since differed from it
+        self._pinned = PinnedStretch()  # the command at a valve limit the error pushes into
         self._held_n = 0  # samples in a row at a valve limit the error pushes away from (-1: said)
         self._jump_ks: list[int] | None = []  # samples of the last full-range jumps (None: said)
         self._swing_ks: list[int] | None = []  # samples of the last limit-to-limit swings (None: said)
@@ -318,18 +358,11 @@ class LoopWatch:
 
     def _watch_pinned(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the command has sat at a valve limit that the error ``r - l`` pushes it further
-        into for :data:`PINNED_S` seconds in a row."""
-        if self._pinned_n < 0:
-            return
+        into for :data:`PINNED_S` seconds in a row (:class:`PinnedStretch`)."""
         s = self._law()
-        pushed = pushed_at_limit(r, l, u, s.u_min_v, s.u_max_v)
-        if pushed and self._pinned_n == 0:  # a stretch starts: the reading it starts from
-            self._pinned_l, self._pinned_moved = l, False
-        elif pushed and l != self._pinned_l:
-            self._pinned_moved = True
-        self._pinned_n, sat_s = self._in_a_row(self._pinned_n, pushed, PINNED_S)
-        if sat_s is not None:
-            said.append(pinned_message(t_s, s.u_max_v if r > l else s.u_min_v, sat_s, r, l, self._pinned_moved))
+        message = self._pinned.observe(t_s, l, r, u, s.u_min_v, s.u_max_v, self.controller.settings.ts_s)
+        if message is not None:
+            said.append(message)
 
     def _watch_held(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held
@@ -503,9 +536,10 @@ class LoopWatch:
     # ------------------------------------------------------------------ state
     def get_state(self) -> list:
         """What has been said and the counts towards what may be, as plain data."""
-        return [self._diverged, self._pinned_n, None if self._jump_ks is None else list(self._jump_ks),
+        p = self._pinned
+        return [self._diverged, p.n, None if self._jump_ks is None else list(self._jump_ks),
                 None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
-                self._r_last, self._swings_from, self._pinned_l, self._pinned_moved, self._beyond_said, list(self._block)]
+                self._r_last, self._swings_from, p.l, p.moved, self._beyond_said, list(self._block), p.side]
 
     def set_state(self, said: list | tuple) -> None:
         """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
@@ -513,13 +547,16 @@ class LoopWatch:
         reference beyond THETA0_44N's range, the tracking block)."""
         diverged, pinned, jumps, swings, last_limit, held = (*said, 0)[:6] if len(said) >= 5 else \
             (False, 0, [], [], 0, 0)
-        self._diverged, self._pinned_n, self._held_n = bool(diverged), int(pinned), int(held)
+        self._diverged, self._held_n = bool(diverged), int(held)
+        self._pinned.n = int(pinned)
         self._jump_ks = None if jumps is None else [int(k) for k in jumps]
         self._swing_ks = None if swings is None else [int(k) for k in swings]
         self._last_limit = int(last_limit)
         self._r_last, self._swings_from = (float(said[6]), int(said[7])) if len(said) >= 8 else (math.nan, 0)
         # a stretch restored without its reading: not claimed unchanged
-        self._pinned_l, self._pinned_moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)
+        self._pinned.l, self._pinned.moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)
+        # a stretch restored without its limit goes on at the limit of the next sample
+        self._pinned.side = int(said[12]) if len(said) >= 13 else 0
         self._beyond_said = bool(said[10]) if len(said) >= 11 else False
         block = said[11] if len(said) >= 12 else _NEW_BLOCK
         if not (isinstance(block, (list, tuple)) and len(block) == 5 and all(

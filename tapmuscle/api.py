@@ -23,7 +23,7 @@ from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
-from tapmuscle.own_law import ControlLaw, as_law
+from tapmuscle.own_law import ControlLaw, as_law, law_period
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
@@ -137,7 +137,7 @@ def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | 
 
 
 def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any = None, *, duration_s: float = 45.0,
-                ts_s: float = 0.1, load_n: float | Callable[[float], float] | None = None,
+                ts_s: float | None = None, load_n: float | Callable[[float], float] | None = None,
                 params: PlantParams | None = None, theta0: Sequence[float] | Mapping[str, float] | None = None,
                 settings: ControllerSettings | None = None, seed: int = 0,
                 loop_delay_samples: int = 0, effects: Sequence[Effect] | Effect = (),
@@ -156,8 +156,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         fixed predictor (MPC) or adapted online by Algorithm 1 (AMPC). Or a law of your own, an object
         with ``step(l_mm, preview_mm)`` returning the valve command [V]
         (:class:`tapmuscle.own_law.ControlLaw`; ``theta0`` and ``settings`` are then not taken), or
-        a function ``u = f(l_mm, preview_mm)``, run on the same rig and loop at ``ts_s`` (its own
-        ``ts_s`` attribute, if it has one, must agree).
+        a function ``u = f(l_mm, preview_mm)``, run on the same rig and loop at ``ts_s`` (default
+        its own ``ts_s`` attribute; given both, they must agree).
     reference : callable, array_like, Reference or None
         ``r(t)`` [mm] of the time [s]; or one value per sample ``r(k)`` [mm] (the last held beyond
         its end, also in the preview); or a :class:`~fmu_controller.reference.SineReference`,
@@ -167,8 +167,9 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
     duration_s : float
         Length of the run [s]. The default 45 s holds Eq. (21)'s window (10-40 s; the paper does not
         give its runs' length).
-    ts_s : float
-        Sampling period [s] (paper: 0.1).
+    ts_s : float, optional
+        Sampling period [s]; default that of ``settings`` or of a law of your own (its ``ts_s``
+        attribute), else the paper's 0.1.
     load_n : float or callable, optional
         Hanging load [N], constant or ``load(t)``; default that of ``params`` (44 N).
     params : PlantParams, optional
@@ -219,8 +220,9 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
     True
     """
     if not isinstance(method, str) and (callable(method) or callable(getattr(method, "step", None))):
-        ts = _check_period(ts_s)
         method = as_law(method)
+        ts = _check_period(law_period(method, PAPER_TS_S if ts_s is None and getattr(method, "ts_s", None) is None
+                                      else ts_s))
         if theta0 is not None or settings is not None:
             raise ValueError(f"theta0 and settings set the paper's controllers; the law {type(method).__name__} of "
                              "your own takes neither (give it its own parameters)")
@@ -232,6 +234,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
                          "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
                          "f(l_mm, preview_mm)")
+    if ts_s is None:
+        ts_s = settings.ts_s if isinstance(settings, ControllerSettings) else PAPER_TS_S
     ts = _check_period(ts_s)
     box: dict[str, Any] = {}
     if isinstance(theta0, IdentifiedModel):  # read_identification's: its period, its box and its delay

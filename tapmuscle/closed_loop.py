@@ -134,6 +134,19 @@ def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1
     return float(np.sum(np.abs(np.diff(u))) / (2.0 * np.ptp(u) * frequency_hz * (k1 - k0) * ts_s) - 1.0)
 
 
+def _update_load(plant: Plant, load_fn: Callable[[float], float], t_s: float) -> None:
+    """The hanging load ``load_fn(t_s)`` [N] on the plant, or an error naming the time."""
+    value = load_fn(t_s)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"load_n(t) returned {value!r} at t = {t_s:g} s: expected the hanging load [N], a number (a "
+                        "function that reaches no return gives None)")
+    try:
+        plant.update(load_n=value)
+    except ValueError as exc:
+        exc.add_note(f"load_n(t) at t = {t_s:g} s")
+        raise
+
+
 def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLaw,
                     reference: Reference | Callable[[float], float] | np.ndarray | None, *,
                     duration_s: float, load_n: Callable[[float], float] | float | None = None,
@@ -263,35 +276,46 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
     held_at: list[float] = []  # sample times of the readings the glitch guard held: jumps beyond max_speed ...
     spiked_at: list[float] = []  # ... and one-sample spikes from the prediction
     every = max(1, n // 100)
-    for k in range(n):
-        t = k * ts
-        if load_fn is not None:
-            plant.update(load_n=load_fn(t))
-        preview = reference.preview(k, hp)
-        if own:
-            u = law_command(controller.step(meas.l_mm, preview), k, t)
-            if valve_watch is not None:
-                told += valve_watch.observe(k, t, meas.l_mm, float(preview[0]), u, u_prev)
-        else:
-            step = controller.step(meas.l_mm, preview)
-            if supervision is not None:
-                told += supervision.observe(k, t, meas.l_mm, float(preview[0]), step, u_prev)
-            u = step.u_v
-            cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
-            cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
-            theta_hist[k] = step.theta
-            if controller.reading_held is not None:
-                (spiked_at if controller.spike_limit_mm is not None else held_at).append(t)
-            pred_prev = step.predicted_next_mm
-        u_prev = u
-        if loop_delay_samples:
-            u, in_flight = in_flight, u
-        cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, u
-        cols["p_mpa"][k], cols["load_n"][k], cols["l_true_mm"][k] = meas.p_mpa, plant.load_n, plant.l_mm
-        if k + 1 < n:
-            meas = plant.step(u, ts)
-        if progress is not None and (k % every == 0 or k + 1 == n):
-            progress(k + 1, n)
+    try:
+        for k in range(n):
+            t = k * ts
+            if load_fn is not None:
+                _update_load(plant, load_fn, t)
+            preview = reference.preview(k, hp)
+            if own:
+                try:
+                    result = controller.step(meas.l_mm, preview)
+                except Exception as exc:
+                    exc.add_note(f"in the law's step at sample k = {k} (t = {t:g} s, l = {meas.l_mm:g} mm, "
+                                 f"r = {float(preview[0]):g} mm)")
+                    raise
+                u = law_command(result, k, t, meas.l_mm, float(preview[0]))
+                if valve_watch is not None:
+                    told += valve_watch.observe(k, t, meas.l_mm, float(preview[0]), u, u_prev)
+            else:
+                step = controller.step(meas.l_mm, preview)
+                if supervision is not None:
+                    told += supervision.observe(k, t, meas.l_mm, float(preview[0]), step, u_prev)
+                u = step.u_v
+                cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
+                cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
+                theta_hist[k] = step.theta
+                if controller.reading_held is not None:
+                    (spiked_at if controller.spike_limit_mm is not None else held_at).append(t)
+                pred_prev = step.predicted_next_mm
+            u_prev = u
+            if loop_delay_samples:
+                u, in_flight = in_flight, u
+            cols["t_s"][k], cols["r_mm"][k], cols["l_mm"][k], cols["u_v"][k] = t, reference.at(k), meas.l_mm, u
+            cols["p_mpa"][k], cols["load_n"][k], cols["l_true_mm"][k] = meas.p_mpa, plant.load_n, plant.l_mm
+            if k + 1 < n:
+                meas = plant.step(u, ts)
+            if progress is not None and (k % every == 0 or k + 1 == n):
+                progress(k + 1, n)
+    except Exception:
+        for message in told:  # what the watch saw before the run broke off
+            warn_at_caller(message, RuntimeWarning)
+        raise
     for i, name in enumerate(() if own else names):
         cols[f"theta_{name}"] = theta_hist[:, i]
     plant.warn_run_notes(float(np.min(cols["load_n"])))

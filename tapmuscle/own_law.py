@@ -21,10 +21,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from fmu_controller.displacement_control import (HELD_WARN_S, full_range_jump, held_against_error, pushed_at_limit,
-                                                 settle_samples)
-from fmu_controller.loop_watch import (PINNED_S, REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, in_a_row,
-                                       pinned_message)
+from fmu_controller.displacement_control import HELD_WARN_S, full_range_jump, held_against_error, settle_samples
+from fmu_controller.loop_watch import REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, PinnedStretch, in_a_row
 from fmu_controller.servo_settings import TABLE5_SERVO
 
 __all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "as_law", "law_period", "law_preview_samples",
@@ -67,13 +65,26 @@ class ControlLaw(Protocol):
 
 
 class _FunctionLaw:
-    """A function ``u = f(l_mm, preview_mm)`` as a :class:`ControlLaw` (no reset, no period of its own)."""
+    """A function ``u = f(l_mm, preview_mm)`` as a :class:`ControlLaw`; the function's own ``ts_s``,
+    ``preview_samples`` and ``reset`` attributes, if it has them, are the law's."""
 
     def __init__(self, function: Any) -> None:
         self.function = function
 
     def step(self, l_mm: float, preview_mm: np.ndarray) -> Any:
         return self.function(l_mm, preview_mm)
+
+    def __getattr__(self, name: str) -> Any:
+        if name in ("ts_s", "preview_samples", "reset"):
+            return getattr(self.function, name)
+        raise AttributeError(name)
+
+
+def law_name(law: Any) -> str:
+    """How messages name a law: its class's name, or the wrapped function's (``<lambda>``)."""
+    if isinstance(law, _FunctionLaw):
+        return getattr(law.function, "__name__", type(law.function).__name__)
+    return type(law).__name__
 
 
 def as_law(law: Any) -> ControlLaw:
@@ -110,14 +121,15 @@ def law_period(law: Any, ts_s: float | None) -> float:
         Neither gives one, or the one given is not a finite number > 0, or both give different ones.
     """
     own = getattr(law, "ts_s", None)
-    name = getattr(law.function, "__name__", "function") if isinstance(law, _FunctionLaw) else type(law).__name__
+    name = law_name(law)
     if ts_s is None and own is None:
         raise ValueError(f"the law {name} has no ts_s attribute: give the loop's sampling period, ts_s=... [s]")
     for what, value in (("ts_s", ts_s), (f"{name}.ts_s", own)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
                                   or not math.isfinite(value) or value <= 0):
             raise ValueError(f"{what} must be a finite number > 0 [s], got {value!r}")
-    if ts_s is not None and own is not None and abs(float(own) - float(ts_s)) > 1e-12 * float(ts_s):
+    # a period given in single precision (np.float32(0.1)) is the same period
+    if ts_s is not None and own is not None and abs(float(own) - float(ts_s)) > 1e-6 * float(ts_s):
         raise ValueError(f"ts_s = {ts_s!r} s disagrees with the law's own {name}.ts_s = {own!r} s")
     return float(_attribute(law, "ts_s", ts_s))
 
@@ -140,7 +152,8 @@ def reset_law(law: Any, l_mm: float) -> None:
     if not callable(reset):
         return
     try:
-        takes_reading = bool(inspect.signature(reset).parameters)
+        takes_reading = any(p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
+                            for p in inspect.signature(reset).parameters.values())
     except (TypeError, ValueError):  # a builtin without a signature: given the reading
         takes_reading = True
     if takes_reading:
@@ -149,9 +162,10 @@ def reset_law(law: Any, l_mm: float) -> None:
         reset()
 
 
-def law_command(result: Any, k: int, t_s: float) -> float:
-    """The command [V] a law's ``step`` returned at sample ``k`` (``t_s`` [s]): a finite real number,
-    or an object whose ``u_v`` is one.
+def law_command(result: Any, k: int, t_s: float, l_mm: float = math.nan, r_mm: float = math.nan) -> float:
+    """The command [V] a law's ``step`` returned at sample ``k`` (``t_s`` [s], on the reading ``l_mm``
+    and the reference ``r_mm`` [mm], named in the errors): a finite real number, or an object whose
+    ``u_v`` is one.
 
     Raises
     ------
@@ -163,13 +177,16 @@ def law_command(result: Any, k: int, t_s: float) -> float:
     u = getattr(result, "u_v", result)
     if isinstance(u, np.ndarray) and u.size == 1:
         u = u.reshape(())[()]
+    where = f"at sample k = {k} (t = {t_s:g} s, l = {l_mm:g} mm, r = {r_mm:g} mm)"
     if isinstance(u, bool) or not isinstance(u, numbers.Real):
-        raise TypeError(f"the law's step returned {result!r} at sample k = {k} (t = {t_s:g} s): expected the valve "
-                        "command u [V], a float (or an object with a u_v attribute)")
+        what = f"u_v = {u!r}" if u is not result else repr(result)
+        hint = " (a list or tuple of one: return its element)" if isinstance(u, (list, tuple)) and len(u) == 1 else ""
+        raise TypeError(f"the law's step returned {what} {where}: expected the valve command u [V], a float (or an "
+                        f"object with a u_v attribute){hint}")
     u = float(u)
     if not math.isfinite(u):
-        raise ValueError(f"the law's step returned u = {u!r} V at sample k = {k} (t = {t_s:g} s): a valve command "
-                         "must be finite; the loop stops before driving the plant with it")
+        raise ValueError(f"the law's step returned u = {u!r} V {where}: a valve command must be finite; the loop "
+                         "stops before driving the plant with it")
     return u
 
 
@@ -196,12 +213,17 @@ class ValveWatch:
 
     def __init__(self, ts_s: float, u_min_v: float, u_max_v: float) -> None:
         self.ts_s, self.u_min_v, self.u_max_v = float(ts_s), float(u_min_v), float(u_max_v)
+        if not (math.isfinite(self.ts_s) and self.ts_s > 0):
+            raise ValueError(f"ts_s must be a finite number > 0 [s], got {ts_s!r}")
+        if not (math.isfinite(self.u_min_v) and math.isfinite(self.u_max_v) and self.u_min_v < self.u_max_v):
+            raise ValueError(f"the valve's range u_min_v .. u_max_v must be finite and increasing [V], got "
+                             f"{u_min_v!r} .. {u_max_v!r}")
         self._window = int(round(SLAM_WINDOW_S / self.ts_s))
         self.reset()
 
     def reset(self) -> None:
         """A new run: nothing said yet."""
-        self._pinned_n, self._pinned_l, self._pinned_moved = 0, math.nan, True
+        self._pinned = PinnedStretch()
         self._held_n = 0
         self._jump_ks: list[int] | None = []
         self._swing_ks: list[int] | None = []
@@ -211,18 +233,14 @@ class ValveWatch:
 
     def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, u_v: float, u_prev_v: float) -> list[str]:
         """What to tell after sample ``k`` at ``t_s`` [s]: the reading ``l(k)`` and reference ``r(k)``
-        [mm] the law stepped on, its command ``u(k)`` and the one before ``u(k-1)`` [V]."""
+        [mm] the law stepped on, its command ``u(k)`` and the one before ``u(k-1)`` [V], each as the
+        valve takes it (clipped to its range: a law asking 15 V and 45 V in turn holds it at 10 V)."""
         said: list[str] = []
         lo, hi = self.u_min_v, self.u_max_v
-        if self._pinned_n >= 0:
-            pushed = pushed_at_limit(r_mm, l_mm, u_v, lo, hi)
-            if pushed and self._pinned_n == 0:
-                self._pinned_l, self._pinned_moved = l_mm, False
-            elif pushed and l_mm != self._pinned_l:
-                self._pinned_moved = True
-            self._pinned_n, sat_s = in_a_row(self._pinned_n, pushed, PINNED_S, self.ts_s)
-            if sat_s is not None:
-                said.append(pinned_message(t_s, hi if r_mm > l_mm else lo, sat_s, r_mm, l_mm, self._pinned_moved))
+        u_v, u_prev_v = min(max(u_v, lo), hi), min(max(u_prev_v, lo), hi)
+        message = self._pinned.observe(t_s, l_mm, r_mm, u_v, lo, hi, self.ts_s)
+        if message is not None:
+            said.append(message)
         if self._held_n >= 0:
             self._held_n, sat_s = in_a_row(self._held_n, bool(held_against_error(r_mm, l_mm, u_v, lo, hi)),
                                            HELD_WARN_S, self.ts_s)
@@ -261,4 +279,5 @@ class ValveWatch:
             said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
                         f"{SLAM_WINDOW_S:g} s, a limit cycle: the loop has more delay than the law tolerates (a "
                         "transport delay on the rig, or loop_delay_samples = 1, a parallel master's sample), or its "
-                        "gain is too high for the rig (docs/control.md, \"A PID baseline\")")
+                        "gain is too high for the rig (docs/control.md, \"A PID baseline\"); or the reference moves "
+                        "faster than the muscle can follow, and the valve swings with it")

@@ -178,6 +178,31 @@ def test_a_run_of_ones_own_takes_no_methods_colour(monkeypatch, tmp_path):
     assert len(ours) == 2 and len(methods) == 4 and not ours & methods, lines
 
 
+def test_runs_of_other_lengths_and_periods_plot_beside_each_other(monkeypatch, tmp_path):
+    """A 0.05-s run and a 60-s run beside a 45-s one: each run's own samples scale the error axis (the
+    first run's mask was applied to all: an IndexError); the window defaults to Eq. (21)'s; a law's
+    commands of hundreds of volts leave the valve's range in view."""
+    from tapmuscle.closed_loop import EQ21_WINDOW_S
+
+    saved = _drawn(monkeypatch)
+
+    def run(ts, duration, err, u_scale=1.0):
+        t = np.arange(int(round(duration / ts)) + 1) * ts
+        return {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 30 * np.sin(t) - err * np.cos(t),
+                "u_v": u_scale * (5 + np.sin(t))}
+
+    plot_tracking({"ampc_servo": run(0.1, 45.0, 0.1), "fast": run(0.05, 45.0, 0.3),
+                   "long": run(0.1, 60.0, 0.2, u_scale=300.0)}, tmp_path / "t.png")
+    _, ax_e, ax_u = saved[0].axes[:3]
+    assert ax_e.get_ylim() == pytest.approx((-1.2 * 0.3, 1.2 * 0.3), rel=1e-3)
+    assert ax_u.get_ylim() == (-1.0, 11.0)
+    shaded = [p for p in ax_e.patches]
+    assert shaded and shaded[0].get_x() == pytest.approx(EQ21_WINDOW_S[0])
+    with pytest.raises(ValueError, match="at least one run"):
+        plot_tracking({}, tmp_path / "none.png")
+    assert not (tmp_path / "none.png").exists()
+
+
 def test_the_model_error_panel_is_scaled_to_the_errors(monkeypatch, tmp_path):
     """identify's free-run figure drew a 2-mm residual on a +-22-mm axis (flat); the error panel is now
     scaled to the largest error, and never beyond the data's scale."""

@@ -56,7 +56,7 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
     watch = LoopWatch(tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N))
     watch.set_state(saved[:5])
     assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0, pytest.approx(np.nan, nan_ok=True),
-                                     True, False, [0, 0, 0.0, np.inf, -np.inf]]
+                                     True, False, [0, 0, 0.0, np.inf, -np.inf], 0]
 
 
 def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
@@ -299,3 +299,22 @@ def test_a_limit_cycle_of_mpc_ucp_after_minus_one_decided_0_names_a_delay_it_did
     assert ctrl.input_delay_decision == 0
     (cycle,) = [str(w.message) for w in told if "a limit cycle" in str(w.message)]
     assert "a delay -1 did not see: it decided 0" in cycle and "--input-delay-samples auto" in cycle
+
+
+def test_a_pinned_stretch_is_one_limit_in_a_row():
+    """A command switching between the valve's limits, the error pushing it into each, is not pinned (a
+    bang-bang law was told "out of the rig's reach"); ten seconds at one limit are, once; a stretch
+    restored from a state without its limit goes on at the next sample's."""
+    from fmu_controller.loop_watch import PINNED_S, PinnedStretch
+
+    stretch = PinnedStretch()
+    n = int(round(PINNED_S / 0.1))
+    for k in range(3 * n):  # 10 V with r > l, then 0 V with r < l, in turn
+        up = k % 2 == 0
+        assert stretch.observe(k * 0.1, 30.0, 40.0 if up else 20.0, 10.0 if up else 0.0, 0.0, 10.0, 0.1) is None
+    said = [stretch.observe(k * 0.1, 30.0, 40.0, 10.0, 0.0, 10.0, 0.1) for k in range(3 * n, 5 * n)]
+    told = [(k, m) for k, m in enumerate(said) if m is not None]
+    assert len(told) == 1 and told[0][0] == n and "the valve's 10 V for 10 s" in told[0][1]
+    restored = PinnedStretch()
+    restored.n = n  # a state of a build that kept no limit: one more sample spans 10 s
+    assert restored.observe(0.0, 30.0, 20.0, 0.0, 0.0, 10.0, 0.1) is not None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 import warnings
@@ -132,7 +133,7 @@ def test_loop_delay_samples_applies_the_laws_command_a_sample_late():
 
 
 @pytest.mark.parametrize("bad, error, words", [
-    (math.nan, ValueError, "u = nan V at sample k = 7 (t = 0.7 s)"),
+    (math.nan, ValueError, "u = nan V at sample k = 7 (t = 0.7 s, l = "),
     (math.inf, ValueError, "must be finite"),
     ("5", TypeError, "returned '5' at sample k = 7"),
     (None, TypeError, "returned None"),
@@ -232,3 +233,90 @@ def test_the_valve_watch_counts_no_swing_in_the_first_window_nor_after_a_referen
     swings = [m for m in said if "limit cycle" in m]
     assert len(swings) == 1
     assert float(swings[0].split("t = ")[1].split(" s")[0]) >= 13.0
+
+
+def test_a_law_switching_between_the_limits_is_not_pinned():
+    # a bang-bang law on a reachable reference: the valve never sat at one limit for long (measured: at
+    # most 0.2 s), so neither limit is "out of the rig's reach"
+    run, said = _run_quietly(lambda l_mm, p: 10.0 if p[0] > l_mm else 0.0, lambda t: 40.0, duration_s=30.0)
+    assert not any("out of the rig's reach" in m for m in said), said
+    assert abs(np.mean(run["l_mm"][100:]) - 40.0) < 2.0
+
+
+def test_the_watch_judges_the_command_the_valve_takes():
+    # 15 and 45 V in turn hold the valve at 10 V: nothing slams (and the reference at 300 mm is out of
+    # reach, told once)
+    commands = itertools.cycle((15.0, 45.0))
+    run, said = _run_quietly(lambda l_mm, p: next(commands), lambda t: 300.0, duration_s=20.0, ts_s=0.1)
+    assert set(run["u_v"]) == {15.0, 45.0}  # recorded as the law gave them
+    assert not any("slams the valve" in m for m in said), said
+    assert sum("out of the rig's reach" in m for m in said) == 1
+
+
+def test_a_functions_own_period_preview_and_reset_are_the_laws():
+    seen: list[int] = []
+
+    def law(l_mm, preview_mm):
+        seen.append(len(preview_mm))
+        return 3.0
+
+    law.ts_s, law.preview_samples = 0.05, 10
+    law.reset = lambda: seen.clear()
+    seen.append(-1)
+    run = tm.run_closed_loop(tm.Plant(), law, None, duration_s=1.0)
+    assert len(run["t_s"]) == 21 and set(seen) == {11}
+    assert len(tm.simulate_closed_loop(law, None, duration_s=1.0)["t_s"]) == 21  # its period, not 0.1 s
+
+
+def test_simulate_closed_loop_takes_the_laws_period_and_single_precision_agrees():
+    class Fast(PI):
+        ts_s = 0.05
+
+    assert len(tm.simulate_closed_loop(Fast(), None, duration_s=2.0)["t_s"]) == 41
+    single = PI()
+    single.ts_s = np.float32(0.1)
+    assert len(tm.simulate_closed_loop(single, None, duration_s=2.0, ts_s=0.1)["t_s"]) == 21
+    settings = tm.ControllerSettings(method="ampc_servo", ts_s=0.05, box_lower={}, box_upper={})
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=1.0, settings=settings, theta0=tm.THETA0_44N,
+                                  watch=False)
+    assert len(run["t_s"]) == 21  # the settings' period when none is given
+
+
+def test_a_load_function_that_returns_no_load_is_named_with_its_time():
+    with pytest.raises(TypeError, match=r"load_n\(t\) returned None at t = 2 s"):
+        tm.simulate_closed_loop(PI(), None, duration_s=5.0, load_n=lambda t: 44.0 if t < 2.0 else None)
+    with pytest.raises(ValueError, match="load_n") as caught:
+        tm.simulate_closed_loop(PI(), None, duration_s=5.0, load_n=lambda t: 44.0 if t < 3.0 else math.nan)
+    assert "load_n(t) at t = 3 s" in caught.value.__notes__
+
+
+def test_an_error_in_the_law_names_its_sample_and_the_watch_still_speaks():
+    class Breaks(PI):
+        def step(self, l_mm, preview_mm):
+            if len(self.previews) == 300:
+                raise IndexError("my bug")
+            return super().step(l_mm, preview_mm)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(IndexError, match="my bug") as err:
+            tm.simulate_closed_loop(Breaks(kp=-0.5, ki=0.0), None, duration_s=45.0)
+    assert err.value.__notes__[0].startswith("in the law's step at sample k = 300 (t = 30 s, l = ")
+    assert any("wrong sign" in str(w.message) for w in caught)  # told before 30 s, not lost with the run
+
+
+def test_a_reset_with_keyword_options_only_is_called_without_the_reading():
+    class Hard(PI):
+        def reset(self, *, hard: bool = False) -> None:  # type: ignore[override]
+            self.integral = 0.0
+            self.resets.append(math.nan)
+
+    law = Hard()
+    _run_quietly(law, None, duration_s=1.0)
+    assert len(law.resets) == 1
+
+
+@pytest.mark.parametrize("args", [(0.0, 0.0, 10.0), (math.nan, 0.0, 10.0), (0.1, 10.0, 0.0), (0.1, 0.0, math.inf)])
+def test_the_valve_watch_refuses_a_period_or_range_that_is_none(args):
+    with pytest.raises(ValueError, match="ts_s must be|the valve's range"):
+        ValveWatch(*args)

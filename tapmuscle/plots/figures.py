@@ -277,9 +277,29 @@ def _legend_above(ax: Any, ncol: int) -> None:
               borderaxespad=0.0)
 
 
+#: Eq. (21)'s window [s], 10.1..40.1 s (``tapmuscle.closed_loop.EQ21_WINDOW_S``, a layer above): shaded.
+_EQ21_WINDOW_S = (10.1, 40.1)
+
+
 def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
-                  window_s: tuple[float, float]) -> Path:
-    """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18)."""
+                  window_s: tuple[float, float] | None = None) -> Path:
+    """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18).
+
+    Parameters
+    ----------
+    runs : dict
+        Label (a method's name takes its colour) -> a run with ``t_s``, ``r_mm``, ``l_mm``, ``u_v``;
+        runs may differ in length and period. The first run's reference is drawn.
+    path : path
+        The PNG to write (atomically).
+    title : str
+        The figure's title.
+    window_s : (float, float), optional
+        The window shaded and the error axis scaled to [s]; default Eq. (21)'s 10.1..40.1 s.
+    """
+    if not runs:
+        raise ValueError("plot_tracking needs at least one run")
+    window_s = _EQ21_WINDOW_S if window_s is None else window_s
     fig, (ax, ax_e, ax_u) = new_figure(3, 1, figsize=(11, 8), sharex=True,
                                        gridspec_kw={"height_ratios": (2.2, 1, 1)})
     first = next(iter(runs.values()))
@@ -291,9 +311,21 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
     for a in (ax, ax_e, ax_u):
         a.axvspan(*window_s, color="grey", alpha=0.07)
         a.grid(alpha=0.3)
-    keep = (first["t_s"] >= window_s[0]) & (first["t_s"] <= window_s[1])
-    emax = max(float(np.max(np.abs(c["r_mm"][keep] - c["l_mm"][keep]))) for c in runs.values())
-    ax_e.set_ylim(-1.2 * emax, 1.2 * emax)  # the start-up transient would hide the steady state
+    errors = []
+    for c in runs.values():  # each run's own samples in the window (runs of other lengths or periods)
+        t = np.asarray(c["t_s"])
+        keep = (t >= window_s[0]) & (t <= window_s[1])
+        e = np.abs(np.asarray(c["r_mm"]) - np.asarray(c["l_mm"]))[keep if keep.any() else slice(None)]
+        errors.append(float(np.max(e)) if e.size else 0.0)
+    emax = max(errors)
+    if emax > 0 and np.isfinite(emax):
+        ax_e.set_ylim(-1.2 * emax, 1.2 * emax)  # the start-up transient would hide the steady state
+    u_all = np.concatenate([np.asarray(c["u_v"], dtype=float) for c in runs.values()])
+    if u_all.size and (np.nanmin(u_all) < -1.0 or np.nanmax(u_all) > 11.0):
+        # a law's unclipped commands would flatten every other trace: the valve's range in view
+        ax_u.set_ylim(-1.0, 11.0)
+        ax_u.text(0.99, 0.02, "commands beyond -1..11 V cut off in view", transform=ax_u.transAxes, ha="right",
+                  va="bottom", fontsize=7, color="grey")
     ax.set_ylabel("displacement l [mm]")
     ax_e.set_ylabel("error r - l [mm]\n(scaled to the window)")
     ax_u.set_ylabel("valve input u [V]")
