@@ -56,7 +56,7 @@ from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
-           "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "pinned_side",
+           "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "pinned_side", "limit_side",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
            "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REF_STEP_SETTLE_S", "settle_samples",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
@@ -561,6 +561,11 @@ def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> 
             f"the command sat at each of the valve's limits for {STUCK_AT_LIMIT_S:g} s or more, which moves a working "
             "muscle by millimetres: the sensor is stuck or disconnected (a DAQ holding its last value?), or the supply "
             "is shut with the muscle at rest. The controller goes on with the reading")
+
+
+def limit_side(u_v: float, u_min_v: float, u_max_v: float) -> int:
+    """The valve limit the command ``u_v`` [V] sits at (within 1 nV): -1 the lower, 1 the upper, 0 neither."""
+    return -1 if u_v <= u_min_v + 1e-9 else 1 if u_v >= u_max_v - 1e-9 else 0
 
 
 def full_range_jump(u_v: float, u_prev_v: float, u_min_v: float, u_max_v: float) -> bool:

@@ -23,7 +23,7 @@ from typing import Sequence
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTEST_MUSCLE_MM_PER_S, GUARD_JUMPS,
                                                  HELD_WARN_S, L_RANGE_MM, MAX_INPUT_DELAY_SAMPLES, settle_samples,
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
-                                                 held_against_error, pinned_side, pushed_at_limit,
+                                                 held_against_error, limit_side, pinned_side, pushed_at_limit,
                                                  stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.prediction import N_INITIAL, RUNAWAY_RANGE_MM, held_command_runaway
@@ -416,7 +416,7 @@ class LoopWatch:
         c = self.controller
         s = c.settings
         law = self._law()
-        side = -1 if u <= law.u_min_v + 1e-9 else 1 if u >= law.u_max_v - 1e-9 else 0
+        side = limit_side(u, law.u_min_v, law.u_max_v)
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side

@@ -21,7 +21,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from fmu_controller.displacement_control import HELD_WARN_S, full_range_jump, held_against_error, settle_samples
+from fmu_controller.displacement_control import (HELD_WARN_S, full_range_jump, held_against_error, limit_side,
+                                                 settle_samples)
 from fmu_controller.loop_watch import REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, PinnedStretch, in_a_row
 from fmu_controller.servo_settings import TABLE5_SERVO
 
@@ -267,7 +268,7 @@ class ValveWatch:
         within :data:`SLAM_WINDOW_S`."""
         if self._swing_ks is None:
             return
-        side = -1 if u_v <= self.u_min_v + 1e-9 else 1 if u_v >= self.u_max_v - 1e-9 else 0
+        side = limit_side(u_v, self.u_min_v, self.u_max_v)
         if not side:
             return
         swung, self._last_limit = side == -self._last_limit, side
