@@ -202,7 +202,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         (:class:`tapmuscle.progress.Progress`).
     watch : bool, default True
         Warn after the run of what the controller FMU would log of it (a limit cycle, a set input
-        delay the first 30 s contradict, a stuck reading, ...: :func:`run_closed_loop`); False: not.
+        delay the first 30 s contradict, a stuck reading, ...: :func:`run_closed_loop`); for a law of
+        your own, of what needs no model (:class:`tapmuscle.own_law.ValveWatch`); False: not.
 
     Returns
     -------
