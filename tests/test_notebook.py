@@ -29,7 +29,7 @@ def test_the_notebook_runs_in_a_jupyter_kernel_with_its_figures_inline(tmp_path)
     assert all(not c.outputs for c in code), "commit the notebook without outputs"
     # raises CellExecutionError, naming the cell, on any error
     NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
-    rig, diagnosis, files, loop, fmus = code[1:]
+    rig, diagnosis, files, loop, fmus, own = code[1:]
     assert _images(rig) == 1  # the user's own plot, inline
     m = re.search(r"mismatch \['transport_delay'\] delay ([0-9.]+) s fit ([0-9.]+) %", _text(diagnosis))
     assert m, _text(diagnosis)  # workers=2: spawned from the kernel
@@ -45,3 +45,9 @@ def test_the_notebook_runs_in_a_jupyter_kernel_with_its_figures_inline(tmp_path)
     # the FMUs loaded into the kernel's process, twice: the direct loop bit for bit (a contract: one process)
     runs = re.findall(r"FMUs, run (\d): Eq\. \(21\) error ([0-9.]+) mm, the direct loop's bit for bit: (\w+)", _text(fmus))
     assert [(n, same) for n, _, same in runs] == [("1", "True"), ("2", "True")], _text(fmus)
+    # a law of one's own in the methods' loop: scored beside AMPC-servo, its delayed loop's limit cycle told
+    m = re.search(r"PI: Eq\. \(21\) error ([0-9.]+) mm, AMPC-servo ([0-9.]+) mm", _text(own))
+    assert m and float(m.group(1)) < 1.0 and float(m.group(2)) < 0.5, _text(own)  # 0.41 and 0.084 mm measured
+    late = re.search(r"PI under a 0\.1-s delay: ([0-9.]+) mm; the watch: (.*)", _text(own))
+    assert late and float(late.group(1)) > 3.0 and "a limit cycle" in late.group(2), _text(own)
+    assert _images(own) == 1
