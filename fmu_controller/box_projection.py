@@ -1,9 +1,9 @@
-"""The projection of Algorithm 1: the RLS estimate onto the constraint box, in the P^-1 metric.
+r"""The projection of Algorithm 1: the RLS estimate onto the constraint box, in the P^-1 metric.
 
 Algorithm 1 replaces an estimate ``theta_hat`` outside the constraint region ``C`` (a box on some
 coordinates, Table 2) by
 
-.. math::  \theta = \arg\\min_{\theta \\in C} (\theta - \\hat\theta)^T P^{-1} (\theta - \\hat\theta)
+.. math::  \theta = \arg\min_{\theta \in C} (\theta - \hat\theta)^T P^{-1} (\theta - \hat\theta)
 
 (the metric of Eq. (6): the Euclidean distance in Remark 1's coordinates ``rho = P^-1/2 theta``,
 Eq. (7), where Algorithm 1 projects orthogonally). Only the boxed coordinates need a small quadratic program: with the others

@@ -31,7 +31,9 @@ methods cancel a centred 5-point mean of ``H`` instead of ``H(k)``) and conditio
 (``ControllerSettings.anti_windup``: the servo integrator of Eq. (18) holds while the command sits
 at a valve limit the error pushes it into). ``startup_s=0``, ``hysteresis_notch=False`` and
 ``anti_windup=False`` (with ``input_delay_samples=0``, this class's default) is the paper's
-controller.
+controller. Its sensor guards (``max_speed_mm_per_s``) stay on: they act only on a reading the muscle
+cannot make (a glitch, a one-sample spike), never on the paper's runs (the 16 runs of 4 methods, 44
+and 68 N, 0.1 and 0.2 Hz give the same commands bit for bit with ``max_speed_mm_per_s=0``).
 
 Lifecycle as osqp's: construct (setup), :meth:`reset` with the first measurement, :meth:`step` every
 sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
@@ -247,7 +249,8 @@ class ControllerSettings:
     servo: ServoMPCSettings = field(default_factory=ServoMPCSettings)
     """Servo-MPC settings (Table 5: Hp = Hu = 5, Q = 5, Qs = 2, R = 15)."""
     p0: tuple[float, ...] = P0_TABLE5
-    """Diagonal of the AMPC's initial covariance ``P(0)`` (Table 5; Table 8 for 0.2 Hz)."""
+    """Diagonal of the AMPC's initial covariance ``P(0)`` (Table 5; Table 8 for 0.2 Hz), which
+    Algorithm 1 calls ``P(-1)`` (:class:`fmu_controller.rls.RLSSettings`' ``p0``)."""
     box_lower: Mapping[str, float] = field(default_factory=lambda: dict(TABLE2_LOWER))
     """Lower bounds of the constraint region C by parameter name (Table 2)."""
     box_upper: Mapping[str, float] = field(default_factory=lambda: dict(TABLE2_UPPER))
@@ -294,8 +297,9 @@ class ControllerSettings:
     probing_v: float = DEFAULT_PROBING_V
     """Adaptive methods with the start-up mode: amplitude [V] of the probing signal added to the valve
     command during the estimator's warm-up (``t < startup_s/2``): a 127-bit maximum-length sequence,
-    each bit held 4 samples (:mod:`fmu_controller.probing`). The law does not see it (the servo's ``u_c``
-    and the integrator are the law's own); the estimator does, through the applied command. Without
+    each bit held 4 samples (:mod:`fmu_controller.probing`). The servo law does not see it (its ``u_c``
+    and the integrator are its own); the coincidence-point law does, through ``u(k-1)`` of Eq. (14),
+    the applied command; the estimator does, through the applied command. Without
     it the gentle start leaves the closed-loop estimate unexcited and ``b1`` drifts to C's lower
     bound, where the servo law ripples at the cycle's turning points (docs/control.md, "Start-up").
     0 turns it off; at most 2.5 V (a quarter of the valve's range)."""
@@ -588,7 +592,9 @@ class ControlStep:
     """Valve command ``u(k)`` [V], within 0-10 V."""
     predicted_next_mm: float
     """The predictor's one-step prediction ``l(k+1|k)`` [mm] (servo: linear model Eq. (2) with
-    ``u_c``; UCP: Eq. (1) with ``u``)."""
+    ``u_c``; UCP: Eq. (1) with ``u``). Under an input delay (``input_delay_samples`` >= 1, or -1 once
+    it decided for one) Eq. (1) under the commands in flight, plus the residual correction with
+    ``delay_correction`` (:class:`~fmu_controller.delay_predictor.DelayPredictor`)."""
     prediction_error_mm: float
     """``l(k) - l(k|k-1)`` [mm] (0 at the first step)."""
     uc_v: float
@@ -696,7 +702,7 @@ class DisplacementController:
         self._need = settings.preview_samples + 1
         self._law_n = self._need - preview_lead(settings.input_delay_samples)  # r(k..k+Hp) the law takes
         self._ucp_hp = settings.ucp.hp
-        self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v
+        self._u_min, self._u_max = settings.servo.u_min_v, settings.servo.u_max_v  # the servo law's, Eq. (19)
         law = settings.servo if settings.servo_mechanism else settings.ucp
         self._law_bounds = (law.u_min_v, law.u_max_v)  # the valve limits the method's own law keeps
         self._anti_windup = settings.anti_windup
@@ -1178,7 +1184,7 @@ class DisplacementController:
         """``ControllerSettings.startup_guard``: count the output ``u`` [V] if it jumps across
         :data:`GUARD_JUMP_FRACTION` of the valve's range from the last one while the start-up mode's
         law still holds ``theta0``; at :data:`GUARD_JUMPS` the law leaves it for the estimate."""
-        if (self._guard and self._guarded_at is None and full_range_jump(u, self._outs[0][0], self._u_min, self._u_max)
+        if (self._guard and self._guarded_at is None and full_range_jump(u, self._outs[0][0], *self._law_bounds)
                 and self._k - self._est_from < self._blend_n):
             self._jumps += 1
             if self._jumps >= GUARD_JUMPS:
@@ -1218,7 +1224,8 @@ class DisplacementController:
         j = self._k - self._est_from
         if self._probing_v and 0 < j < self._warm_n and self._guarded_at is None:
             u += probe_v(j, self._probing_v, self._probing_phase)
-            return min(max(u, self._u_min), self._u_max)
+            u_min, u_max = self._law_bounds  # the method's own limits (the coincidence point's may be narrower)
+            return min(max(u, u_min), u_max)
         return u
 
     def _step_ahead(self, l: float, rl: list[float], t: list[float], theta: np.ndarray,
@@ -1300,7 +1307,8 @@ class DisplacementController:
     # ------------------------------------------------------------------ estimator
     @property
     def covariance(self) -> np.ndarray | None:
-        """The AMPC's RLS covariance ``P(k)`` (a copy, 15 x 15); None for the fixed-predictor MPCs."""
+        """The AMPC's RLS covariance after the last update, ``P(k-1)`` of Eq. (4) (a copy, 15 x 15;
+        :attr:`fmu_controller.rls.ConstrainedRLS.P`); None for the fixed-predictor MPCs."""
         return None if self._rls is None else self._rls.P
 
     @property

@@ -5,7 +5,9 @@ Conventions (``l`` in mm, ``u`` in V, sample index ``k``, period ``Ts``):
 * The first :data:`N_INITIAL` = 4 samples ``l(0..3)`` are initial conditions.
   The virtual hysteresis variable (section 2.3) is ``v(k) = l(k) - [a1 l(k-1)
   + a2 l(k-2) + b1 u(k-1)]`` for ``k >= 2`` and ``v(0) = v(1) = 0`` (no data
-  before ``k = 0``).  Hence the first model output is ``l(4)``.
+  before ``k = 0``).  The first model output is ``l(4)``, whose regressor ``phi(3)``
+  (``v(2)``, ``v(1)``) holds one of those placeholders; from ``l(5)`` on every ``v`` is
+  the data's.  Starting at ``l(4)`` keeps at most one placeholder in a regressor.
 * Inside a prediction, ``v`` is computed from *predicted* ``l`` with the same
   formula, which within the model equals the hysteresis term ``H(k-1)``.
 * Results are full-length arrays; entries before ``start`` hold the measured

@@ -243,7 +243,7 @@ class RLSSettings:
             return tuple(sorted(b.items())) if isinstance(b, Mapping) else b
         return hash((self.p0, self.theta0, self.forgetting, key(self.box_lower),
                      key(self.box_upper), self.constraint_start_s, self.ts_s,
-                     self.on_covariance_loss))
+                     self.on_covariance_loss, self.covariance_ceiling))
 
     @property
     def constraint_start_index(self) -> float:
@@ -390,7 +390,8 @@ class ConstrainedRLS:
 
     @property
     def P(self) -> np.ndarray:
-        """Current covariance ``P(k-1)`` (copy)."""
+        """Current covariance ``P(k-1)`` (copy): after the update of sample ``k-1``, the one the next
+        update's gain takes (Eq. (4); Algorithm 1 names the start ``P(-1)``, Tables 5 and 8 ``P(0)``)."""
         self._check_ready()
         return self._P.copy()
 

@@ -8,7 +8,7 @@ l(k)``.  The decision variables are the input moves ``Delta u_c(k+i|k)``,
 
     J = sum_{i=1..Hp} Q(i)  (l_hat(k+i|k) - r(k+i))^2
       + sum_{i=0..Hu-1} R(i) Delta u_c(k+i|k)^2
-      + sum_{i=1..Hp} Qs(i) x_s(k+i|k)^2
+      + sum_{i=1..Hp} Qs(i) x_s(k+i|k)^2         (Eq. (15)'s Q_c; Table 5's Qs)
 
 with ``x_s(k+i|k) = x_s(k) + sum_{j=0..i-1} (r(k+j) - l_hat(k+j|k))`` and
 ``l_hat(k|k) = l(k)`` (measured).  Input constraint Eq. (19)::
@@ -170,7 +170,7 @@ class ServoMPC:
         try:
             with np.errstate(over="ignore", invalid="ignore"):  # an overflow is the error below, not a warning
                 self._set_model(self._a1, self._a2, self._b1)
-            if not np.all(np.isfinite(self._qp.H)):
+            if not np.all(np.isfinite(self._qp.gram)):
                 raise ValueError("its matrices overflow")
             # OSQP's factorisation needs P positive definite in floating point; a model whose
             # predictions dwarf the move weight R loses R to rounding (OSQP would print "non-convex")

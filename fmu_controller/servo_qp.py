@@ -8,12 +8,12 @@ response ``h_n = C A^n B`` and step response ``s_i = sum_{n<i} h_n``::
 
     l_hat(k+i|k) = C A^i x(k) + s_i u_c(k-1) + sum_{m<min(i,Hu)} s_{i-m} D_m
     L   = F z + G D                      (Hp predictions, G[i-1, m] = s_{i-m})
-    X_s = S0 z - H D,   H = M G          (M: strictly lower-triangular ones)
+    X_s = S0 z - N D,   N = M G          (M: strictly lower-triangular ones; not Eq. (5)'s H)
 
 so ``J = 0.5 D^T P D + (K z)^T D + const`` with
-``P = 2 (G^T Q G + R + H^T Qs H)`` and ``K = 2 (G^T Q E0 - H^T Qs S0)``
+``P = 2 (G^T Q G + R + N^T Qs N)`` and ``K = 2 (G^T Q E0 - N^T Qs S0)``
 (``E0 = F - [r(k+1..k+Hp) selector]``).  Internally Eq. (15) is kept as the
-sum of squares of the stacked residual ``[E0 z + G D; S0 z - H D; D]`` with
+sum of squares of the stacked residual ``[E0 z + G D; S0 z - N D; D]`` with
 rows scaled by ``sqrt([Q; Qs; R])``, from which ``P``, ``K`` (as Gram blocks)
 and the cost are formed.  One matrix ``B`` maps ``[D; z]`` to that residual
 followed by the predictions ``L``, ``X_s`` and the input plan, so cost,
@@ -114,7 +114,7 @@ class CondensedServoQP:
             self._B = self._weighted(np.zeros(3 * hp))
         self._B_flat = self._B.reshape(-1)  # a view: writes go to self._B
 
-        self.H: np.ndarray | None = None
+        self.gram: np.ndarray | None = None  # [P/2 | K/2], the Gram blocks of the weighted residual
         self.K_unc: np.ndarray | None = None
         self._P: np.ndarray | None = None
         self._K: np.ndarray | None = None
@@ -188,20 +188,20 @@ class CondensedServoQP:
             B[...] = self._weighted(np.array(x[:-1]))
         # [P/2 | K/2] = Gall^T [Gall | W] with [Gall | W] the weighted residual rows
         Gall = B[:nres, :hu]
-        H = Gall.T.dot(B[:nres])
+        gram = Gall.T.dot(B[:nres])
         # unconstrained minimiser D* = -P^{-1} K z; P is SPD (R > 0): Cholesky
-        _, X, info = _dposv(H[:, :hu], H[:, hu:])
+        _, X, info = _dposv(gram[:, :hu], gram[:, hu:])
         if info != 0:  # not numerically positive definite: general LU solve
-            X = np.linalg.solve(H[:, :hu], H[:, hu:])
+            X = np.linalg.solve(gram[:, :hu], gram[:, hu:])
         self.K_unc = np.negative(X)
-        self.H = H
+        self.gram = gram
         self._P = self._K = None  # OSQP-path matrices, built on demand by matrices()
 
 
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """``(P, K)`` of the module docstring for the current model (cached until the next model)."""
         if self._P is None:
-            Ph = self.H[:, :self.hu]
+            Ph = self.gram[:, :self.hu]
             self._P = Ph + Ph.T                    # = 2 * sym(P/2), bit-symmetric for OSQP
-            self._K = 2.0 * self.H[:, self.hu:]
+            self._K = 2.0 * self.gram[:, self.hu:]
         return self._P, self._K

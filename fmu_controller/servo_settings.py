@@ -88,7 +88,8 @@ class ServoMPCSettings:
     q: float | tuple[float, ...] = 5.0
     """Tracking weight ``Q(i)`` [1/mm^2], scalar or ``Hp`` values for i = 1..Hp; Table 5: {5, 5, 5, 5, 5}."""
     qs: float | tuple[float, ...] = 2.0
-    """Integrator weight ``Qs(i)`` [1/mm^2], scalar or ``Hp`` values for i = 1..Hp; Table 5: 2."""
+    """Integrator weight ``Qs(i)`` [1/mm^2] (Eq. (15)'s ``Q_c(i)``), scalar or ``Hp`` values for i = 1..Hp;
+    Table 5: 2."""
     r: float | tuple[float, ...] = 15.0
     """Move weight ``R(i)`` [1/V^2], > 0, scalar or ``Hu`` values for i = 0..Hu-1; Table 5: 15."""
     u_min_v: float = 0.0

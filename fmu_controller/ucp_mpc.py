@@ -143,7 +143,8 @@ def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, step
 
 def ucp_move(settings: UCPSettings, state: ModelState, theta: np.ndarray, *, u_prev_v: float,
              r_target_mm: float) -> UCPResult:
-    """Eq. (11)-(14): the input ``u(k)`` that puts the prediction on ``r(k+Hp)``.
+    """Eq. (11)-(14): the input ``u(k)`` that puts the prediction on ``r(k+Hp)`` (to the accuracy of
+    the step response's secant under the nonlinear model).
 
     Parameters
     ----------

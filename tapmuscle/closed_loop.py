@@ -47,7 +47,8 @@ def eq21_window(ts_s: float) -> tuple[int, int]:
 
 def eq21_error_mm(r_mm: np.ndarray | Mapping[str, np.ndarray], l_mm: np.ndarray | None = None,
                   window: tuple[int, int] | None = None, *, ts_s: float | None = None) -> float:
-    """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] (inclusive window).
+    """Eq. (21): ``(1/301) sum_{k=101}^{401} |r(k) - l(k)|`` [mm] at Ts = 0.1 s, the mean of
+    ``|r(k) - l(k)|`` over the inclusive window ``k0..k1`` in general.
 
     Parameters
     ----------

@@ -286,7 +286,7 @@ def test_model_update_in_place_leaves_no_stale_entries():
         qp.set_model(*model)
         fresh = CondensedServoQP(5, 5, *weights)
         fresh.set_model(*model)
-        for name in ("B", "H", "K_unc"):
+        for name in ("B", "gram", "K_unc"):
             assert np.array_equal(getattr(qp, name), getattr(fresh, name)), (model, name)
         assert all(np.array_equal(a, b) for a, b in zip(qp.matrices(), fresh.matrices()))
         # and B is the tabulated affine map of the step response and the rows C A^n
@@ -322,7 +322,7 @@ def test_long_horizons_form_b_directly_as_the_tabulated_map_would(monkeypatch, h
         np.testing.assert_allclose(direct.B, tabulated.B, rtol=0, atol=1e-13 * scale)
         # -P^{-1} K: B's rounding times P's condition number (2.6e6 at Hu = 50, Table 5's weights), against the gains' size
         gain = np.abs(tabulated.K_unc).max()
-        cond = np.linalg.cond(tabulated.H[:, :hu])
+        cond = np.linalg.cond(tabulated.gram[:, :hu])
         np.testing.assert_allclose(direct.K_unc, tabulated.K_unc, rtol=0, atol=100 * cond * 1e-16 * gain)
     np.testing.assert_array_equal(direct.T, tabulated.T)  # built on demand: the same integer map, weighted
 
