@@ -515,13 +515,6 @@ class AMPCController(SafeSlave):
                        if d != 1 and ctrl.settings.adaptive else "")
             self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)}: "
                        f"{what.get(d, 'a rig transport delay as well, the law on from now')}{restart}")
-            if d == AUTO_INPUT_DELAY_SAMPLES:  # -1 scores no longer delay: the rig's may be one
-                ts = ctrl.settings.ts_s
-                self.log(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)} ({d * ts:g} s), the "
-                         "longest it decides: the valve may act later still. Set input_delay_samples to the rig's "
-                         f"delay over Ts = {ts:g} s, rounded (up to {MAX_INPUT_DELAY_SAMPLES}, "
-                         f"{MAX_INPUT_DELAY_SAMPLES * ts:g} s; tapmuscle identify --input-delay-samples auto finds it "
-                         "from a recording; docs/control.md, \"Transport delay\")", status=Fmi2Status.warning)
         if (on_theta0 and not ctrl.law_on_theta0 and ctrl.settings.adaptive and ctrl.startup_guarded_at is None
                 and ctrl.settings.startup_s > 0):
             self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "

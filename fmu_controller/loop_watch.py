@@ -194,6 +194,7 @@ class LoopWatch:
         # the tracking block: samples, samples counted, sum |r - l| [mm], r's least and largest [mm]
         # (samples -1: said)
         self._block = list(_NEW_BLOCK)
+        self._decision_seen: int | None = None  # -1's decision of the input delay, once told
 
     # ------------------------------------------------------------------ the sample
     def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, step: ControlStep, u_prev_v: float) -> list[str]:
@@ -224,6 +225,11 @@ class LoopWatch:
         self._watch_tracking(said, k, t_s, l_mm, r_mm, u_v)
         if k == self.controller.delay_check_samples:
             self._check_delay(said, t_s)
+        decided = self.controller.input_delay_decision if self.controller.settings.input_delay_samples == -1 else None
+        if decided is not None and decided != self._decision_seen:
+            self._decision_seen = decided
+            if decided >= 2:
+                said.append(self.decision_message(t_s, decided))
         return said
 
     def _law(self) -> ServoMPCSettings | UCPSettings:
@@ -463,6 +469,28 @@ class LoopWatch:
         said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
                     f"{SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}")
 
+    def decision_message(self, t_s: float, d: int) -> str:
+        """What to tell when ``input_delay_samples = -1`` has decided for a delay ``d`` of 2 samples or
+        more at ``t_s`` [s]: a transport delay, which the law compensates from now on a ``theta0``
+        identified without it. On off-nominal rigs with a 0.2-0.27-s delay AMPC-servo tracked to a median
+        1.8 mm (Eq. (21)) after such a decision, 0.97 with the delay set and 0.82 with a ``theta0`` made
+        under it (docs/control.md, "Transport delay"); on rigs whose constants are off, scores that
+        ``theta0`` fits poorly can show a delay the rig does not have (16 of 432 delay-free runs, the
+        fixed-predictor methods and AMPC-UCP)."""
+        ts = self.controller.settings.ts_s
+        head = f"t = {t_s:g} s: input_delay_samples = -1 decided for {samples_in_words(d)} ({d * ts:g} s)"
+        if d >= AUTO_INPUT_DELAY_SAMPLES:  # -1 scores no longer delay: the rig's may be one
+            return (f"{head}, the longest it decides: the valve may act later still. Set input_delay_samples to the "
+                    f"rig's delay over Ts = {ts:g} s, rounded (up to {MAX_INPUT_DELAY_SAMPLES}, "
+                    f"{MAX_INPUT_DELAY_SAMPLES * ts:g} s; tapmuscle identify --input-delay-samples auto finds it from a "
+                    "recording; docs/control.md, \"Transport delay\")")
+        return (f"{head}: a transport delay, which the law compensates from now on theta0, identified without it, "
+                "and the start may overshoot. If the rig has no such delay (theta0 far from this rig can score one), "
+                "set input_delay_samples = 0 or 1; if it has, set it and a theta0 identified under it "
+                f"(tapmuscle.paper.preliminary_theta(params=..., input_delay_samples={d}), or tapmuscle identify "
+                "--input-delay-samples auto on a recording), which tracks better (docs/control.md, \"Transport "
+                "delay\")")
+
     def _check_delay(self, said: list[str], t_s: float) -> None:
         """Tell when the set ``input_delay_samples`` is not the delay the first samples show
         (:attr:`DisplacementController.delay_evidence`): the commonest mistake of a master's author,
@@ -539,7 +567,8 @@ class LoopWatch:
         p = self._pinned
         return [self._diverged, p.n, None if self._jump_ks is None else list(self._jump_ks),
                 None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
-                self._r_last, self._swings_from, p.l, p.moved, self._beyond_said, list(self._block), p.side]
+                self._r_last, self._swings_from, p.l, p.moved, self._beyond_said, list(self._block), p.side,
+                self._decision_seen]
 
     def set_state(self, said: list | tuple) -> None:
         """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
@@ -557,6 +586,10 @@ class LoopWatch:
         self._pinned.l, self._pinned.moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)
         # a stretch restored without its limit goes on at the limit of the next sample
         self._pinned.side = int(said[12]) if len(said) >= 13 else 0
+        # a state without the decision told: one the controller holds was told before
+        c = self.controller
+        seen = said[13] if len(said) >= 14 else c.input_delay_decision if c.settings.input_delay_samples == -1 else None
+        self._decision_seen = None if seen is None else int(seen)
         self._beyond_said = bool(said[10]) if len(said) >= 11 else False
         block = said[11] if len(said) >= 12 else _NEW_BLOCK
         if not (isinstance(block, (list, tuple)) and len(block) == 5 and all(
