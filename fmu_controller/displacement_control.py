@@ -1001,13 +1001,15 @@ class DisplacementController:
 
     def _valley_beyond_one(self) -> range:
         """The delays of 2 samples or more that a rig's transport delay can be on the scores: those reached
-        from 1 while each next one scores no worse than :data:`DELAY_TIE_RATIO` times the one before. A
-        transport delay's scores fall towards it from the shorter delays. A loop that chatters with a period
-        of a few samples (the delayed law on a rig whose command acts within a fraction of a sample: a
-        parallel master sub-stepping at Ts/4) repeats its command every period, so the delay of one period
-        scores as well as 0 whatever lies between (0.025 s at 68 N, 0.2 Hz: 1.68, 3.68, 6.98, 1 times the
-        best for 0 .. 3 samples; deciding 3 tracks MPC-servo to 2.0 mm, 0 to 0.42)."""
-        ms, d = self._ms, 1
+        from 0, through 1, while each next one scores no worse than :data:`DELAY_TIE_RATIO` times the one
+        before. A transport delay's scores fall towards it from the shorter delays. A loop that chatters
+        with a period of a few samples (the delayed law on a rig whose command acts within a fraction of a
+        sample: a parallel master sub-stepping at Ts/4; the delayed law of a fixed predictor on a rig whose
+        constants are off) repeats its command every period, so the delay of one period scores as well as
+        0 whatever lies between (0.025 s at 68 N, 0.2 Hz: 1.68, 3.68, 6.98, 1 times the best for 0 .. 3
+        samples; deciding 3 tracks MPC-servo to 2.0 mm, 0 to 0.42; MPC-UCP on an off-nominal rig without a
+        delay: 1.31, 1.86, 1.0, deciding 2 tracked to 1.60 mm, 0 to 1.18)."""
+        ms, d = self._ms, 0
         while d + 1 < len(ms) and ms[d + 1] <= DELAY_TIE_RATIO * ms[d]:
             d += 1
         return range(2, d + 1)

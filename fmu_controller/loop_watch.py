@@ -475,7 +475,7 @@ class LoopWatch:
         identified without it. On off-nominal rigs with a 0.2-0.27-s delay AMPC-servo tracked to a median
         1.8 mm (Eq. (21)) after such a decision, 0.97 with the delay set and 0.82 with a ``theta0`` made
         under it (docs/control.md, "Transport delay"); on rigs whose constants are off, scores that
-        ``theta0`` fits poorly can show a delay the rig does not have (16 of 432 delay-free runs, the
+        ``theta0`` fits poorly can show a delay the rig does not have (24 of 864 delay-free runs, the
         fixed-predictor methods and AMPC-UCP)."""
         ts = self.controller.settings.ts_s
         head = f"t = {t_s:g} s: input_delay_samples = -1 decided for {samples_in_words(d)} ({d * ts:g} s)"

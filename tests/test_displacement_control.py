@@ -1522,3 +1522,25 @@ def test_the_coincidence_points_own_valve_limits_bound_the_probe(theta0):
     run = run_closed_loop(Plant(seed=0), DisplacementController(settings, theta0), SineReference(), duration_s=12.0,
                           watch=False)
     assert run["u_v"].max() <= 4.0 and np.sum(run["u_v"] == 4.0) > 10  # at its limit, and not beyond
+
+
+def test_minus_one_takes_a_delay_of_two_or_more_only_where_the_scores_fall_to_it_from_zero(theta0):
+    """A transport delay's scores fall from 0 through 1 to it. Where 1 scores worse than 0 and a longer
+    delay best, the loop repeats its command (a chatter of that period): on a rig with constants off,
+    a valve band and a drift, MPC-UCP at 68 N, 0.1 Hz decided 2 there (scores 1.31, 1.86, 1.0 times the
+    best for 0, 1, 2) and tracked to 1.60 mm against 1.18 with 0, the rig having no delay (a rig owner's
+    study, 2026-12-06); on 256 nominal runs (4 methods, 44/68 N, 0.1/0.2 Hz, delays 0-0.35 s, sequential
+    and parallel) no decision moved."""
+    c = DisplacementController(ControllerSettings(method="mpc_ucp", input_delay_samples=-1), theta0)
+    c._ms = [1.31, 1.86, 1.0, 1.39, 1.24, 1.42]
+    assert list(c._valley_beyond_one()) == []
+    c._ms = [1.54, 1.21, 1.0, 1.36, 2.04, 2.69]  # a rig's 0.21-s delay
+    assert list(c._valley_beyond_one()) == [2]
+    rig = PlantParams().with_values(**{
+        "friction.asymmetry": 0.369248, "valve.cv_max": 1.281181, "load.moving_mass_kg": 0.338404,
+        "muscle.braid_angle_deg": 19.752245, "valve.spool_time_constant_s": 0.027425,
+        "friction.presliding_mm": 1.61815, "sensor_drift.offset_mm": -1.404, "sensor_drift.rate_mm_per_min": 2.825,
+        "dead_zone.center_v": 3.868, "dead_zone.width_v": 1.238, "load.load_n": 68.0})
+    ctrl = DisplacementController(ControllerSettings(method="mpc_ucp", input_delay_samples=-1), theta0)
+    run_closed_loop(Plant(rig, seed=4), ctrl, SineReference(frequency_hz=0.1), duration_s=10.0, watch=False)
+    assert ctrl.input_delay_decision == 0
