@@ -199,8 +199,9 @@ class AMPCController(SafeSlave):
                                    "writes it", lo=0, hi=1)
         self.add_integer_parameter("probing_phase", 0, "adaptive methods with the start-up mode: the bit of the "
                                    f"probing signal's {MLS_LENGTH}-bit sequence it starts at; controllers started "
-                                   "together on one rig probe in phase at the same value: give each its own (a pair: "
-                                   "0 and 64) for uncorrelated probes", lo=0, hi=MLS_LENGTH - 1)
+                                   "together on one rig probe in phase at the same value: give each its own, chosen "
+                                   "by fmu_controller.probing.probing_phases (a pair at the default warm-up: 0 and "
+                                   "109, probes uncorrelated over it)", lo=0, hi=MLS_LENGTH - 1)
         self.add_integer_parameter("startup_guard", 1, "adaptive methods with the start-up mode: 1 end its warm-up "
                                    "and blend on theta0 early once the valve command has jumped across 90 % of its "
                                    f"range {GUARD_JUMPS} times (theta0 a poor fixed law on this rig: the law takes the estimate, as "

@@ -306,9 +306,11 @@ class ControllerSettings:
     probing_phase: int = 0
     """The bit of the probing signal's 127-bit sequence it starts at, 0 .. 126. Controllers started
     together on one rig (several muscles in one master, an antagonistic pair) probe in phase at the
-    same setting, a common-mode excitation; give each its own (a pair: 0 and 64) and their probes
-    are uncorrelated shifts of one sequence. Each phase excites the estimate alike (docs/control.md,
-    "Start-up")."""
+    same setting, a common-mode excitation; give each its own from
+    :func:`fmu_controller.probing.probing_phases` (a pair at the default warm-up: 0 and 109), shifts of
+    one sequence least alike over the warm-up (not any two: 0 and 96 correlate at 0.66 over its 60
+    samples). Tracking moves with the phase as with the seed (docs/fmu.md, "Several muscles in one
+    master")."""
     startup_guard: bool = True
     """Adaptive methods with the start-up mode: end the warm-up and the blend early once the valve
     command has jumped across :data:`GUARD_JUMP_FRACTION` of its range in one sample
@@ -486,13 +488,12 @@ def preview_lead(input_delay_samples: int) -> int:
 def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
     """Whether the command ``u_v`` [V] sits at a valve limit that the error ``r - l`` [mm] pushes it
     further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it)."""
-    return (r_mm > l_mm and u_v >= u_max_v - 1e-9) or (r_mm < l_mm and u_v <= u_min_v + 1e-9)
+    return pinned_side(r_mm, l_mm, u_v, u_min_v, u_max_v) != 0
 
 
 def pinned_side(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> int:
-    """Which valve limit the command sits at with the error pushing it further in
-    (:func:`pushed_at_limit`): 1 the upper (``r > l``), -1 the lower (``r < l``), 0 neither. A command
-    switching between the two limits is not pinned at either."""
+    """Which valve limit the command ``u_v`` [V] sits at (within 1 nV) with the error ``r - l`` [mm]
+    pushing it further in: 1 the upper (``r > l``), -1 the lower (``r < l``), 0 neither."""
     if r_mm > l_mm and u_v >= u_max_v - 1e-9:
         return 1
     if r_mm < l_mm and u_v <= u_min_v + 1e-9:

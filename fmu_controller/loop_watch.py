@@ -31,7 +31,7 @@ from fmu_controller.preliminary_model import REFINE_IN_CLOSED_LOOP, THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
-__all__ = ["LoopWatch", "PinnedStretch", "samples_in_words", "in_a_row", "pinned_message",
+__all__ = ["LoopWatch", "PinnedStretch", "samples_in_words", "in_a_row", "pinned_message", "held_message",
            "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
            "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
            "TRACKING_MM", "TRACKING_SHARE"]
@@ -123,7 +123,7 @@ class PinnedStretch:
     """The command sitting at one valve limit that the error ``r - l`` pushes it further into
     (:func:`~fmu_controller.displacement_control.pinned_side`), counted in a row and told once after
     :data:`PINNED_S`. A command at the other limit starts a stretch anew: a law switching between the
-    two is not pinned (a bang-bang law on a reachable reference was told "out of the rig's reach").
+    two is not pinned (a bang-bang law on a reachable reference is not out of the rig's reach).
 
     Attributes
     ----------
@@ -158,6 +158,16 @@ class PinnedStretch:
         if sat_s is None:
             return None
         return pinned_message(t_s, u_max_v if side > 0 else u_min_v, sat_s, r_mm, l_mm, self.moved)
+
+
+def held_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: float, why: str) -> str:
+    """What to tell of a command that has sat at the valve limit ``limit_v`` [V] for ``sat_s`` [s]
+    against the error ``r - l`` [mm] (:func:`~fmu_controller.displacement_control.held_against_error`),
+    with its likely cause ``why``."""
+    away = "below" if r_mm > l_mm else "above"
+    return (f"t = {t_s:g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the reading "
+            f"l = {l_mm:g} mm stays {abs(r_mm - l_mm):.4g} mm {away} the reference r = {r_mm:g} mm, where the other "
+            f"way would close the gap: {why}")
 
 
 def samples_in_words(n: int) -> str:
@@ -380,7 +390,7 @@ class LoopWatch:
         self._held_n, sat_s = self._in_a_row(self._held_n, held_against_error(r, l, u, s.u_min_v, s.u_max_v),
                                              HELD_WARN_S)
         if sat_s is not None:
-            limit, away = (s.u_min_v, "below") if r > l else (s.u_max_v, "above")
+            limit = s.u_min_v if r > l else s.u_max_v
             c = self.controller
             why = held_against_cause(float(c.theta0[2]))
             if c.theta0[2] >= 0.0:  # of the right sign: the law's model may run away
@@ -389,9 +399,7 @@ class LoopWatch:
                 if how is not None:
                     why = (f"{name} runs away ({how}), so the law's predictions have the valve's effect the wrong way "
                            "round here" + (self._no_box() if c.settings.adaptive else f"; {REFINE_IN_CLOSED_LOOP}"))
-            said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while the "
-                        f"reading l = {l:g} mm stays {abs(r - l):.4g} mm {away} the reference r = {r:g} mm, where the "
-                        f"other way would close the gap: {why}")
+            said.append(held_message(t_s, limit, sat_s, r, l, why))
 
     def _watch_slamming(self, said: list[str], k: int, t_s: float, u: float, u_prev: float) -> None:
         """Tell once when the command has jumped across the valve's range (``full_range_jump``)
@@ -472,14 +480,14 @@ class LoopWatch:
     def decision_message(self, t_s: float, d: int) -> str:
         """What to tell when ``input_delay_samples = -1`` has decided for a delay ``d`` of 2 samples or
         more at ``t_s`` [s]: a transport delay, which the law compensates from now on a ``theta0``
-        identified without it. On off-nominal rigs with a 0.2-0.27-s delay AMPC-servo tracked to a median
+        identified without it. On off-nominal rigs with a 0.1-0.27-s delay AMPC-servo tracked to a median
         1.8 mm (Eq. (21)) after such a decision, 0.97 with the delay set and 0.82 with a ``theta0`` made
         under it (docs/control.md, "Transport delay"); on rigs whose constants are off, scores that
         ``theta0`` fits poorly can show a delay the rig does not have (24 of 864 delay-free runs, the
         fixed-predictor methods and AMPC-UCP)."""
         ts = self.controller.settings.ts_s
         head = f"t = {t_s:g} s: input_delay_samples = -1 decided for {samples_in_words(d)} ({d * ts:g} s)"
-        if d >= AUTO_INPUT_DELAY_SAMPLES:  # -1 scores no longer delay: the rig's may be one
+        if d >= AUTO_INPUT_DELAY_SAMPLES:  # the longest -1 scores: the rig's delay may be longer
             return (f"{head}, the longest it decides: the valve may act later still. Set input_delay_samples to the "
                     f"rig's delay over Ts = {ts:g} s, rounded (up to {MAX_INPUT_DELAY_SAMPLES}, "
                     f"{MAX_INPUT_DELAY_SAMPLES * ts:g} s; tapmuscle identify --input-delay-samples auto finds it from a "
@@ -586,7 +594,7 @@ class LoopWatch:
         self._pinned.l, self._pinned.moved = (float(said[8]), bool(said[9])) if len(said) >= 10 else (math.nan, True)
         # a stretch restored without its limit goes on at the limit of the next sample
         self._pinned.side = int(said[12]) if len(said) >= 13 else 0
-        # a state without the decision told: one the controller holds was told before
+        # a state without the decision told: one the controller already holds is taken as told
         c = self.controller
         seen = said[13] if len(said) >= 14 else c.input_delay_decision if c.settings.input_delay_samples == -1 else None
         self._decision_seen = None if seen is None else int(seen)

@@ -19,7 +19,9 @@ per instantiation).
 
 from __future__ import annotations
 
-import math
+import numbers
+
+import numpy as np
 
 __all__ = ["MLS_BITS", "MLS_LENGTH", "PROBING_HOLD_SAMPLES", "max_length_sequence", "probe_v", "probing_phases"]
 
@@ -75,8 +77,8 @@ def probe_v(sample: int, amplitude_v: float, phase_bits: int = 0) -> float:
     ``amplitude_v`` times the sequence's sign (+-1), each bit held for :data:`PROBING_HOLD_SAMPLES`
     samples, starting at bit ``phase_bits`` of the sequence and repeated after its 127 bits. Two
     probes of different phases are two shifts of one maximum-length sequence, whose correlation over
-    the whole period is -1/127: controllers of one rig given different phases excite their muscles
-    independently.
+    the whole period is -1/127; over a warm-up of a few bits it may be large (:func:`probing_phases`
+    picks phases that are not).
     """
     return amplitude_v * _SIGNS[(sample // PROBING_HOLD_SAMPLES + phase_bits) % len(_SIGNS)]
 
@@ -95,28 +97,34 @@ def probing_phases(count: int, warm_samples: int = 60) -> tuple[int, ...]:
     count : int
         Controllers, 1 .. 127.
     warm_samples : int
-        The warm-up in samples: ``round(startup_s / 2 / ts_s)`` (60 at the defaults), at least 3.
+        The warm-up in samples: ``round(startup_s / 2 / ts_s)`` (60 at the defaults), at least 5 (a
+        shorter one probes within one bit, the same for every phase). Over a warm-up of a few bits a
+        probe may be constant: such probes are compared by the share of samples of one sign.
 
     Returns
     -------
     tuple of int
         ``count`` phases (``ControllerSettings.probing_phase``, the FMU's ``probing_phase``), 0 first.
     """
-    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MLS_LENGTH:
+    if isinstance(count, bool) or not isinstance(count, numbers.Integral) or not 1 <= count <= MLS_LENGTH:
         raise ValueError(f"count must be an integer 1 .. {MLS_LENGTH}, got {count!r}")
-    if isinstance(warm_samples, bool) or not isinstance(warm_samples, int) or warm_samples < 3:
-        raise ValueError(f"warm_samples must be an integer >= 3 (the warm-up in samples), got {warm_samples!r}")
-    probes = [[probe_v(j, 1.0, phase) for j in range(1, warm_samples)] for phase in range(MLS_LENGTH)]
-
-    def corr(a: list[float], b: list[float]) -> float:
-        n = len(a)
-        ma, mb = sum(a) / n, sum(b) / n
-        cov = sum((x - ma) * (y - mb) for x, y in zip(a, b))
-        va, vb = sum((x - ma) ** 2 for x in a), sum((y - mb) ** 2 for y in b)
-        return cov / math.sqrt(va * vb) if va > 0 and vb > 0 else 1.0
-
+    least = PROBING_HOLD_SAMPLES + 1  # samples 1 .. least - 1 reach the sequence's second bit
+    if isinstance(warm_samples, bool) or not isinstance(warm_samples, numbers.Integral) or warm_samples < least:
+        raise ValueError(f"warm_samples must be an integer >= {least} (the warm-up in samples; a shorter one probes "
+                         f"within one bit, the same for every phase), got {warm_samples!r}")
+    probes = np.array([[probe_v(j, 1.0, phase) for j in range(1, int(warm_samples))] for phase in range(MLS_LENGTH)])
+    centred = probes - probes.mean(axis=1, keepdims=True)
+    spread = np.linalg.norm(centred, axis=1)
+    varies = spread > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        correlation = np.abs(centred @ centred.T) / np.outer(spread, spread)
+    # a probe constant over a short warm-up has no correlation: alike by the share of samples of one sign
+    agreement = np.abs(probes @ probes.T) / probes.shape[1]
+    likeness = np.where(np.outer(varies, varies), correlation, agreement)
     chosen = [0]
     while len(chosen) < count:
-        rest = [p for p in range(MLS_LENGTH) if p not in chosen]
-        chosen.append(min(rest, key=lambda p: (max(abs(corr(probes[p], probes[c])) for c in chosen), p)))
+        worst = likeness[:, chosen].max(axis=1)
+        worst[chosen] = np.inf
+        # equals (to rounding: shifts of one sequence tie exactly) to the lowest phase
+        chosen.append(int(np.argmin(np.round(worst, 12))))
     return tuple(chosen)

@@ -23,7 +23,7 @@ from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
-from tapmuscle.own_law import ControlLaw, as_law, law_period
+from tapmuscle.own_law import ControlLaw, as_law, law_name, law_period
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
 from tapmuscle.io.sampling import TS_RANGE_S
@@ -168,8 +168,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         Length of the run [s]. The default 45 s holds Eq. (21)'s window (10-40 s; the paper does not
         give its runs' length).
     ts_s : float, optional
-        Sampling period [s]; default that of ``settings`` or of a law of your own (its ``ts_s``
-        attribute), else the paper's 0.1.
+        Sampling period [s]; default that of ``settings``, of an ``IdentifiedModel`` ``theta0`` or of a
+        law of your own (its ``ts_s`` attribute), else the paper's 0.1.
     load_n : float or callable, optional
         Hanging load [N], constant or ``load(t)``; default that of ``params`` (44 N).
     params : PlantParams, optional
@@ -225,7 +225,7 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         ts = _check_period(law_period(method, PAPER_TS_S if ts_s is None and getattr(method, "ts_s", None) is None
                                       else ts_s))
         if theta0 is not None or settings is not None:
-            raise ValueError(f"theta0 and settings set the paper's controllers; the law {type(method).__name__} of "
+            raise ValueError(f"theta0 and settings set the paper's controllers; the law {law_name(method)} of "
                              "your own takes neither (give it its own parameters)")
         plant = _plant(params, None if callable(load_n) else load_n, seed, effects)
         return run_closed_loop(plant, method, reference, duration_s=duration_s, ts_s=ts,
@@ -236,7 +236,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
                          "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
                          "f(l_mm, preview_mm)")
     if ts_s is None:
-        ts_s = settings.ts_s if isinstance(settings, ControllerSettings) else PAPER_TS_S
+        ts_s = (settings.ts_s if isinstance(settings, ControllerSettings)
+                else theta0.ts_s if isinstance(theta0, IdentifiedModel) else PAPER_TS_S)
     ts = _check_period(ts_s)
     box: dict[str, Any] = {}
     if isinstance(theta0, IdentifiedModel):  # read_identification's: its period, its box and its delay

@@ -138,6 +138,8 @@ def command_tv_excess(u_v: np.ndarray, frequency_hz: float, *, ts_s: float = 0.1
 def _update_load(plant: Plant, load_fn: Callable[[float], float], t_s: float) -> None:
     """The hanging load ``load_fn(t_s)`` [N] on the plant, or an error naming the time."""
     value = load_fn(t_s)
+    if isinstance(value, np.ndarray) and value.size == 1:  # np.where(t > 1, 68.0, 44.0) gives a 0-d array
+        value = value.reshape(())[()]
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"load_n(t) returned {value!r} at t = {t_s:g} s: expected the hanging load [N], a number (a "
                         "function that reaches no return gives None)")
@@ -218,7 +220,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
         ``u_v, p_mpa, load_n, l_pred_mm`` (the predictor's ``l(k|k-1)``),
         ``pred_error_mm``, ``uc_v``, ``h_mm``, ``xs_mm`` and ``theta_<name>`` for the 15 parameters.
         A law of your own's run has ``t_s, r_mm, l_mm, l_true_mm, u_v, p_mpa, load_n`` (``u_v`` the
-        command it returned; the valve itself saturates at ``valve.u_min_v..u_max_v``).
+        command the valve received: the law's, or with ``loop_delay_samples = 1`` the one of the
+        sample before; as given, the valve itself saturating at ``valve.u_min_v..u_max_v``).
 
     Raises
     ------
@@ -233,6 +236,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
         raise TypeError(f"plant must be a Plant (tm.Plant(params)), got {type(plant).__name__}")
     own = not isinstance(controller, DisplacementController)
     if own:
+        if isinstance(controller, type):
+            controller = as_law(controller)  # as_law's own refusal, which names the class
         try:
             controller = as_law(controller)
         except TypeError as exc:

@@ -23,8 +23,10 @@ import numpy as np
 
 from fmu_controller.displacement_control import (HELD_WARN_S, full_range_jump, held_against_error, limit_side,
                                                  settle_samples)
-from fmu_controller.loop_watch import REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, PinnedStretch, in_a_row
+from fmu_controller.loop_watch import (REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, PinnedStretch, held_message,
+                                       in_a_row)
 from fmu_controller.servo_settings import TABLE5_SERVO
+from tapmuscle.io.sampling import TS_RANGE_S
 
 __all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "as_law", "law_period", "law_preview_samples",
            "law_command", "reset_law"]
@@ -125,10 +127,12 @@ def law_period(law: Any, ts_s: float | None) -> float:
     name = law_name(law)
     if ts_s is None and own is None:
         raise ValueError(f"the law {name} has no ts_s attribute: give the loop's sampling period, ts_s=... [s]")
+    lo, hi = TS_RANGE_S
     for what, value in (("ts_s", ts_s), (f"{name}.ts_s", own)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
-                                  or not math.isfinite(value) or value <= 0):
-            raise ValueError(f"{what} must be a finite number > 0 [s], got {value!r}")
+                                  or not math.isfinite(value) or not lo <= value <= hi):
+            raise ValueError(f"{what} must be a finite number within {lo:g} .. {hi:g} s (the muscle's sampling "
+                             f"periods), got {value!r}")
     # a period given in single precision (np.float32(0.1)) is the same period
     if ts_s is not None and own is not None and abs(float(own) - float(ts_s)) > 1e-6 * float(ts_s):
         raise ValueError(f"ts_s = {ts_s!r} s disagrees with the law's own {name}.ts_s = {own!r} s")
@@ -246,11 +250,9 @@ class ValveWatch:
             self._held_n, sat_s = in_a_row(self._held_n, bool(held_against_error(r_mm, l_mm, u_v, lo, hi)),
                                            HELD_WARN_S, self.ts_s)
             if sat_s is not None:
-                limit, away = (lo, "below") if r_mm > l_mm else (hi, "above")
-                said.append(f"t = {t_s:g} s: the command has sat at the valve's {limit:g} V for {sat_s:.6g} s while "
-                            f"the reading l = {l_mm:g} mm stays {abs(r_mm - l_mm):.4g} mm {away} the reference r = "
-                            f"{r_mm:g} mm, where the other way would close the gap: the law acts with the wrong sign "
-                            "(on this rig more command contracts the muscle further: l grows with u)")
+                said.append(held_message(t_s, lo if r_mm > l_mm else hi, sat_s, r_mm, l_mm,
+                                         "the law acts with the wrong sign (on this rig more command contracts the "
+                                         "muscle further: l grows with u)"))
         if self._jump_ks is not None and k > 0 and full_range_jump(u_v, u_prev_v, lo, hi):
             self._jump_ks = [j for j in self._jump_ks if j > k - self._window] + [k]
             if len(self._jump_ks) >= SLAM_JUMPS:

@@ -49,6 +49,9 @@ def test_the_file_gives_theta_period_and_box(id_files):
     m05.check_period(0.05 * (1 + 1e-9))
     with pytest.raises(IdentificationFileError, match=r"identified at ts_s = 0.05 s, the controller samples at 0.2 s"):
         m05.check_period(0.2)
+    # simulate_closed_loop without ts_s runs at the file's period (it said "the controller samples at 0.1 s")
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=1.0, theta0=m05, watch=False)
+    assert run["t_s"][1] == pytest.approx(0.05)
 
 
 
@@ -167,12 +170,12 @@ def test_the_models_start_values_put_it_in_the_controller_fmu_in_fmpy(built_fmus
 
 
 def test_the_model_itself_is_a_theta0_for_the_simulated_loop(id_files):
-    """``simulate_closed_loop(theta0=model)`` checks the period (a 0.05-s model at 0.1 s ran silently:
-    26 mm of MPC-servo error) and takes the model's box; a controller given the model object is told
-    to pass its .theta."""
+    """``simulate_closed_loop(theta0=model)`` checks a period given against the model's (a 0.05-s model
+    at 0.1 s ran silently: 26 mm of MPC-servo error), takes the model's period when none is given, and
+    its box; a controller given the model object is told to pass its .theta."""
     model = read_identification(id_files[0.05])
     with pytest.raises(IdentificationFileError, match="identified at ts_s = 0.05 s, the controller samples at 0.1 s"):
-        tm.simulate_closed_loop("mpc_servo", None, duration_s=3.0, theta0=model)
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=3.0, theta0=model, ts_s=0.1)
     run = tm.simulate_closed_loop("ampc_servo", None, ts_s=0.05, duration_s=10.0, theta0=model, seed=2)
     settings = ControllerSettings(method="ampc_servo", ts_s=0.05, box_lower=model.box_lower, box_upper=model.box_upper)
     same = tm.simulate_closed_loop("ampc_servo", None, ts_s=0.05, duration_s=10.0, theta0=model.theta,

@@ -304,7 +304,7 @@ def test_a_limit_cycle_of_mpc_ucp_after_minus_one_decided_0_names_a_delay_it_did
 
 def test_a_pinned_stretch_is_one_limit_in_a_row():
     """A command switching between the valve's limits, the error pushing it into each, is not pinned (a
-    bang-bang law was told "out of the rig's reach"); ten seconds at one limit are, once; a stretch
+    bang-bang law on a reachable reference is not out of its reach); ten seconds at one limit are, once; a stretch
     restored from a state without its limit goes on at the next sample's."""
     from fmu_controller.loop_watch import PINNED_S, PinnedStretch
 
@@ -337,3 +337,27 @@ def test_minus_ones_decision_for_a_transport_delay_is_told_once_and_none_for_a_s
     assert msg.startswith("t = 5 s: input_delay_samples = -1 decided for 2 samples (0.2 s): a transport delay")
     assert "input_delay_samples=2" in msg and "set input_delay_samples = 0 or 1" in msg
     assert told(0.0) == []
+
+
+def test_a_state_saved_without_the_decision_does_not_tell_a_decision_again():
+    """A watch state of a build that kept no decision (13 items), restored beside a controller that has
+    decided 2: the decision is taken as told; a fresh watch tells it at its first sample."""
+    rig = tm.PlantParams().with_values(**{"delay.delay_s": 0.2})
+    ctrl = tm.DisplacementController(tm.ControllerSettings(input_delay_samples=-1), tm.THETA0_44N)
+    plant = tm.Plant(rig, seed=0)
+    meas = plant.measurement
+    ctrl.reset(meas.l_mm)
+    ref = tm.SineReference()
+    watch = LoopWatch(ctrl)
+    told = []
+    for k in range(80):
+        step = ctrl.step(meas.l_mm, ref.preview(k, ctrl.settings.preview_samples))
+        told += watch.observe(k, k * 0.1, meas.l_mm, ref.at(k), step, 0.0)
+        meas = plant.step(step.u_v, 0.1)
+    assert ctrl.input_delay_decision == 2 and sum("decided for 2 samples" in m for m in told) == 1
+    old = LoopWatch(ctrl)
+    old.set_state(watch.get_state()[:13])
+    fresh = LoopWatch(ctrl)
+    step = ctrl.step(meas.l_mm, ref.preview(80, ctrl.settings.preview_samples))
+    assert old.observe(80, 8.0, meas.l_mm, ref.at(80), step, 0.0) == []
+    assert any("decided for 2 samples" in m for m in fresh.observe(80, 8.0, meas.l_mm, ref.at(80), step, 0.0))

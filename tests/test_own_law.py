@@ -172,8 +172,9 @@ def test_the_period_comes_from_the_law_or_the_call_and_must_agree():
         tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, ts_s=0.05)
     with pytest.raises(ValueError, match=r"ts_s = 0.05 s disagrees"):
         tm.simulate_closed_loop(PI(), None, duration_s=1.0, ts_s=0.05)
-    with pytest.raises(ValueError, match="must be a finite number > 0"):
-        tm.run_closed_loop(tm.Plant(), NoPeriod(), None, duration_s=1.0, ts_s=-0.1)
+    for bad in (-0.1, 100.0, math.nan):  # 100 s gave a run of one sample without a word
+        with pytest.raises(ValueError, match=r"must be a finite number within 0.001 .. 10 s"):
+            tm.run_closed_loop(tm.Plant(), NoPeriod(), None, duration_s=1.0, ts_s=bad)
 
 
 def test_the_preview_length_is_the_laws_or_the_calls():
@@ -320,3 +321,19 @@ def test_a_reset_with_keyword_options_only_is_called_without_the_reading():
 def test_the_valve_watch_refuses_a_period_or_range_that_is_none(args):
     with pytest.raises(ValueError, match="ts_s must be|the valve's range"):
         ValveWatch(*args)
+
+
+def test_a_load_function_may_return_a_0d_array():
+    # np.where(t > 1, 68.0, 44.0) gives array(44.): the loop took it before it checked loads by type
+    run = tm.simulate_closed_loop(PI(), None, duration_s=2.0, load_n=lambda t: np.where(t > 1.0, 68.0, 44.0))
+    assert run["load_n"][0] == 44.0 and run["load_n"][-1] == 68.0
+
+
+def test_the_error_names_the_function_not_its_wrapper():
+    def my_law(l_mm, preview_mm):
+        return 3.0
+
+    with pytest.raises(ValueError, match="the law my_law of your own takes neither"):
+        tm.simulate_closed_loop(my_law, None, theta0=tm.THETA0_44N)
+    with pytest.raises(TypeError, match=r"^got the class PI itself"):
+        tm.run_closed_loop(tm.Plant(), PI, None, duration_s=1.0)

@@ -66,7 +66,17 @@ def test_the_phases_chosen_probe_unlike_each_other_over_the_warm_up(warm):
     assert _correlation((0, 96), 60) > 0.6  # why a phase is not any phase
 
 
-@pytest.mark.parametrize("count, warm", [(0, 60), (128, 60), (2.0, 60), (True, 60), (2, 2), (2, 60.0)])
+def test_short_warm_ups_take_phases_whose_probes_differ():
+    # over 4 or 8 samples (two or three bits) many probes are constant: compared by sign, the first two
+    # chosen differ
+    for warm in (5, 9):
+        phases = probing_phases(3, warm)
+        probes = [[probe_v(j, 1.0, p) for j in range(1, warm)] for p in phases]
+        assert probes[0] != probes[1]
+    assert probing_phases(2, np.int64(60)) == probing_phases(2) == (0, 109)
+
+
+@pytest.mark.parametrize("count, warm", [(0, 60), (128, 60), (2.0, 60), (True, 60), (2, 4), (2, 60.0)])
 def test_probing_phases_refuses_what_is_no_count_or_warm_up(count, warm):
     with pytest.raises(ValueError, match="must be an integer"):
         probing_phases(count, warm)
