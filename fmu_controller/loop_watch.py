@@ -30,7 +30,7 @@ from fmu_controller.preliminary_model import REFINE_IN_CLOSED_LOOP, THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
 from fmu_controller.ucp_mpc import UCPSettings
 
-__all__ = ["LoopWatch", "PinnedStretch", "samples_in_words", "in_a_row", "pinned_message", "held_message",
+__all__ = ["LoopWatch", "PinnedStretch", "ReachWatch", "samples_in_words", "in_a_row", "pinned_message", "held_message",
            "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
            "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
            "TRACKING_MM", "TRACKING_SHARE"]
@@ -108,9 +108,7 @@ _NEW_BLOCK = (0, 0, 0.0, math.inf, -math.inf)
 #: takes the reference's peak out of reach are told (a rig owner's study, 2026-12-06).
 REACH_SHARE = 0.1
 REACH_STILL_MM_PER_S = 3.0
-#: The reach watch at its start: samples short of ``r`` at a still reading, the largest shortfall [mm] and
-#: the valve limit [V] it was at, the last reading ``l(k-1)`` [mm] (NaN: none), whether it was told.
-_NEW_REACH = (0, 0.0, 0.0, math.nan, False)
+
 
 
 def in_a_row(count: int, now: bool, long_s: float, ts_s: float) -> tuple[int, float | None]:
@@ -175,6 +173,68 @@ class PinnedStretch:
         return pinned_message(t_s, u_max_v if side > 0 else u_min_v, sat_s, r_mm, l_mm, self.moved)
 
 
+class ReachWatch:
+    """The reference out of the rig's reach for seconds of every cycle, counted over blocks of samples and
+    told once (:data:`REACH_SHARE`): the command at the valve limit the error pushes it into (``side``
+    of :func:`~fmu_controller.displacement_control.pinned_side`), the reading :data:`TRACKING_MM` or
+    more short of ``r`` and still (moving less than :data:`REACH_STILL_MM_PER_S`, but not frozen: a
+    reading equal to the last to the bit is a stuck sensor's, told apart).
+
+    Attributes
+    ----------
+    short : int
+        Samples of the block so far short of ``r`` at a still reading.
+    gap_mm : float
+        The largest shortfall of the block [mm], at the valve limit ``limit_v`` [V], the upper one
+        (``upper``) or the lower.
+    l_last_mm : float
+        The last reading [mm] (NaN: none).
+    told : bool
+        Whether it was told.
+    """
+
+    def __init__(self) -> None:
+        self.short, self.gap_mm, self.limit_v, self.upper, self.l_last_mm, self.told = 0, 0.0, 0.0, True, math.nan, False
+
+    def observe(self, side: int, r_mm: float, l_mm: float, u_min_v: float, u_max_v: float, ts_s: float) -> None:
+        """One sample: the limit ``side`` the command sits at pushed (0: none), the reference and reading
+        [mm], the valve's range [V], the sampling period [s]."""
+        gap = abs(r_mm - l_mm)
+        if side and gap >= TRACKING_MM and 0.0 < abs(l_mm - self.l_last_mm) < REACH_STILL_MM_PER_S * ts_s:
+            self.short += 1
+            if gap > self.gap_mm:
+                self.gap_mm, self.limit_v, self.upper = gap, u_max_v if side > 0 else u_min_v, side > 0
+        self.l_last_mm = l_mm
+
+    def end_block(self, t_s: float, samples: int, ts_s: float, *, told_pinned: bool) -> str | None:
+        """At the end of a block of ``samples``: the message, once, when :data:`REACH_SHARE` of them were
+        short (not where the pinned-valve message told it, ``told_pinned``); the counts start anew."""
+        short, gap, limit = self.short, self.gap_mm, self.limit_v
+        self.short, self.gap_mm = 0, 0.0
+        if self.told or told_pinned or short < REACH_SHARE * samples:
+            return None
+        self.told = True
+        why = ("the rig reaches less far than the reference asks there (a supply pressure below the plant's, a "
+               "heavier load, a stiffer muscle)" if self.upper else
+               "the rig does not come back as far as the reference asks there (a load or friction holding it, the "
+               "muscle's rest)")
+        return (f"t = {t_s:g} s: the reference is out of the rig's reach at times: over the last {samples * ts_s:g} s "
+                f"the command sat at the valve's {limit:g} V for {short * ts_s:.3g} s with the reading still, up to "
+                f"{gap:.3g} mm short of r: {why}; narrow the reference to the range the rig reaches")
+
+    def get_state(self) -> list:
+        """The counts and whether it was told, as plain data."""
+        return [self.short, self.gap_mm, self.limit_v, self.upper, self.l_last_mm, self.told]
+
+    def set_state(self, state: list | tuple) -> None:
+        """Restore :meth:`get_state`'s list."""
+        if not (isinstance(state, (list, tuple)) and len(state) == 6):
+            raise ValueError(f"watch state's reach = {state!r} must be [samples short, largest shortfall mm, valve "
+                             "limit V, upper limit, last reading mm, told]")
+        self.short, self.gap_mm, self.limit_v = int(state[0]), float(state[1]), float(state[2])
+        self.upper, self.l_last_mm, self.told = bool(state[3]), float(state[4]), bool(state[5])
+
+
 def held_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: float, why: str) -> str:
     """What to tell of a command that has sat at the valve limit ``limit_v`` [V] for ``sat_s`` [s]
     against the error ``r - l`` [mm] (:func:`~fmu_controller.displacement_control.held_against_error`),
@@ -220,7 +280,7 @@ class LoopWatch:
         # (samples -1: said)
         self._block = list(_NEW_BLOCK)
         self._decision_seen: int | None = None  # -1's decision of the input delay, once told
-        self._reach = list(_NEW_REACH)  # the reference out of reach at times (REACH_SHARE)
+        self._reach = ReachWatch()  # the reference out of reach at times
 
     # ------------------------------------------------------------------ the sample
     def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, step: ControlStep, u_prev_v: float) -> list[str]:
@@ -337,18 +397,14 @@ class LoopWatch:
             block[1] += 1
             block[2] += abs(r - l)
             block[3], block[4] = min(block[3], r), max(block[4], r)
-        reach = self._reach
-        # still, but not frozen: a reading equal to the last to the bit is a stuck sensor's (told apart)
-        if side and abs(r - l) >= TRACKING_MM and 0.0 < abs(l - reach[3]) < REACH_STILL_MM_PER_S * s.ts_s:
-            reach[0] += 1
-            if abs(r - l) > reach[1]:
-                reach[1], reach[2] = abs(r - l), law.u_max_v if side > 0 else law.u_min_v
-        reach[3] = l
+        self._reach.observe(side, r, l, law.u_min_v, law.u_max_v, s.ts_s)
         if block[0] < math.ceil(TRACKING_BLOCK_S / s.ts_s - 1e-9):
             return
         counted, total, r_lo, r_hi = block[1:]
         self._block = list(_NEW_BLOCK)
-        self._watch_reach(said, t_s, block[0])
+        message = self._reach.end_block(t_s, block[0], s.ts_s, told_pinned=self._pinned.n < 0)
+        if message is not None:
+            said.append(message)
         # a block mostly after reference steps or out of reach says little of the law
         if not counted or counted < block[0] // 2:
             return
@@ -367,25 +423,6 @@ class LoopWatch:
         said.append(f"t = {t_s:g} s: the loop does not track: over the last {block[0] * s.ts_s:g} s the reading l was "
                     f"{mean:.3g} mm from the reference on average (r over {r_lo:.4g}..{r_hi:.4g} mm; more than "
                     f"{limit:.3g} mm, the larger of {TRACKING_MM:g} mm and {100 * TRACKING_SHARE:g} % of that range): {why}")
-
-    def _watch_reach(self, said: list[str], t_s: float, samples: int) -> None:
-        """At the end of a tracking block of ``samples``: tell once when :data:`REACH_SHARE` of them had the
-        reference out of the rig's reach."""
-        reach = self._reach
-        short, gap, limit = reach[0], reach[1], reach[2]
-        reach[0], reach[1] = 0, 0.0
-        if reach[4] or self._pinned.n < 0 or short < REACH_SHARE * samples:  # not where the pinned valve is told
-            return
-        reach[4] = True
-        ts = self.controller.settings.ts_s
-        why = ("the rig reaches less far than the reference asks there (a supply pressure below the plant's, a "
-               "heavier load, a stiffer muscle)" if limit >= self._law().u_max_v else
-               "the rig does not come back as far as the reference asks there (a load or friction holding it, the "
-               "muscle's rest)")
-        said.append(f"t = {t_s:g} s: the reference is out of the rig's reach at times: over the last "
-                    f"{samples * ts:g} s the command sat at the valve's {limit:g} V for {short * ts:.3g} s with the "
-                    f"reading still, up to {gap:.3g} mm short of r: {why}; narrow the reference to the range the rig "
-                    "reaches")
 
     def _watch_diverged(self, said: list[str], t_s: float, l: float, uc: float, predicted: float) -> None:
         """Tell once when the one-step prediction or the QP's input leaves :data:`DIVERGED_MM` /
@@ -620,7 +657,7 @@ class LoopWatch:
         return [self._diverged, p.n, None if self._jump_ks is None else list(self._jump_ks),
                 None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
                 self._r_last, self._swings_from, p.l, p.moved, self._beyond_said, list(self._block), p.side,
-                self._decision_seen, list(self._reach)]
+                self._decision_seen, self._reach.get_state()]
 
     def set_state(self, said: list | tuple) -> None:
         """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
@@ -642,11 +679,9 @@ class LoopWatch:
         c = self.controller
         seen = said[13] if len(said) >= 14 else c.input_delay_decision if c.settings.input_delay_samples == -1 else None
         self._decision_seen = None if seen is None else int(seen)
-        reach = said[14] if len(said) >= 15 else _NEW_REACH
-        if not (isinstance(reach, (list, tuple)) and len(reach) == 5):
-            raise ValueError(f"watch state's reach = {reach!r} must be [samples short, largest shortfall mm, valve limit "
-                             "V, last reading mm, told]")
-        self._reach = [int(reach[0]), float(reach[1]), float(reach[2]), float(reach[3]), bool(reach[4])]
+        self._reach = ReachWatch()
+        if len(said) >= 15:
+            self._reach.set_state(said[14])
         self._beyond_said = bool(said[10]) if len(said) >= 11 else False
         block = said[11] if len(said) >= 12 else _NEW_BLOCK
         if not (isinstance(block, (list, tuple)) and len(block) == 5 and all(

@@ -22,9 +22,9 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from fmu_controller.displacement_control import (HELD_WARN_S, full_range_jump, held_against_error, limit_side,
-                                                 settle_samples)
-from fmu_controller.loop_watch import (REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, PinnedStretch, held_message,
-                                       in_a_row)
+                                                 pinned_side, settle_samples)
+from fmu_controller.loop_watch import (REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, TRACKING_BLOCK_S,
+                                       PinnedStretch, ReachWatch, held_message, in_a_row)
 from fmu_controller.servo_settings import TABLE5_SERVO
 from tapmuscle.io.sampling import TS_RANGE_S
 
@@ -205,7 +205,8 @@ class ValveWatch:
     the valve's range :data:`~fmu_controller.loop_watch.SLAM_JUMPS` times within
     :data:`~fmu_controller.loop_watch.SLAM_WINDOW_S`; swinging from one limit to the other
     :data:`~fmu_controller.loop_watch.SWINGS` times within it (a limit cycle; not in the first window
-    of the run, nor in the settling time after a reference step). The thresholds are those of the
+    of the run, nor in the settling time after a reference step); the reference out of the rig's reach
+    for seconds of every cycle (:class:`~fmu_controller.loop_watch.ReachWatch`, over 20-s blocks). The thresholds are those of the
     paper's controllers' :class:`~fmu_controller.loop_watch.LoopWatch`.
 
     Parameters
@@ -229,6 +230,8 @@ class ValveWatch:
     def reset(self) -> None:
         """A new run: nothing said yet."""
         self._pinned = PinnedStretch()
+        self._reach = ReachWatch()
+        self._block_n = 0  # samples of the reach watch's block (after the run's first window)
         self._held_n = 0
         self._jump_ks: list[int] | None = []
         self._swing_ks: list[int] | None = []
@@ -246,6 +249,14 @@ class ValveWatch:
         message = self._pinned.observe(t_s, l_mm, r_mm, u_v, lo, hi, self.ts_s)
         if message is not None:
             said.append(message)
+        if k > self._window:  # in blocks after the run's first window, as the paper controllers' watch
+            self._reach.observe(pinned_side(r_mm, l_mm, u_v, lo, hi), r_mm, l_mm, lo, hi, self.ts_s)
+            self._block_n += 1
+            if self._block_n >= math.ceil(TRACKING_BLOCK_S / self.ts_s - 1e-9):
+                message = self._reach.end_block(t_s, self._block_n, self.ts_s, told_pinned=self._pinned.n < 0)
+                self._block_n = 0
+                if message is not None:
+                    said.append(message)
         if self._held_n >= 0:
             self._held_n, sat_s = in_a_row(self._held_n, bool(held_against_error(r_mm, l_mm, u_v, lo, hi)),
                                            HELD_WARN_S, self.ts_s)

@@ -57,7 +57,7 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
     watch.set_state(saved[:5])
     assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0, pytest.approx(np.nan, nan_ok=True),
                                      True, False, [0, 0, 0.0, np.inf, -np.inf], 0, None,
-                                     [0, 0.0, 0.0, pytest.approx(np.nan, nan_ok=True), False]]
+                                     [0, 0.0, 0.0, True, pytest.approx(np.nan, nan_ok=True), False]]
 
 
 def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():

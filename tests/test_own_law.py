@@ -337,3 +337,15 @@ def test_the_error_names_the_function_not_its_wrapper():
         tm.simulate_closed_loop(my_law, None, theta0=tm.THETA0_44N)
     with pytest.raises(TypeError, match=r"^got the class PI itself"):
         tm.run_closed_loop(tm.Plant(), PI, None, duration_s=1.0)
+
+
+def test_a_reference_out_of_reach_at_every_peak_is_told_for_a_law_too():
+    # the sag rig of the paper controllers' test: the valve at 10 V at each peak, the reading flat short
+    rig = tm.PlantParams().with_values(**{
+        "supply.supply_pressure_mpa": 0.209981, "muscle.rubber_stiffness_n_per_mm": 1.342857,
+        "load_mismatch.extra_n": 11.01, "supply_variation.sag_mpa": 0.079, "supply_variation.start_s": 38.0,
+        "supply_variation.end_s": 61.3, "supply_variation.ramp_s": 3.69})
+    _, said = _run_quietly(PI(), None, duration_s=90.0, params=rig, load_n=68.0)
+    assert sum("out of the rig's reach at times" in m for m in said) == 1, said
+    _, quiet = _run_quietly(PI(), None, duration_s=90.0, load_n=68.0)
+    assert quiet == []
