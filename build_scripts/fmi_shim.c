@@ -36,10 +36,13 @@ typedef struct {
     size_t n_categories;                               /* 0: every category */
     fmi2Status worst;                     /* worst status logged during the current call */
     char name[256];
+    char lead[300];                       /* the name messages lead with (numbered where a path: below) */
     char reason[1600];                    /* the first error logged (why an instantiation failed) */
     fmi2FMUstate *states;                 /* the states this instance gave out and has not freed */
     size_t n_states, cap_states;
 } Shim;
+
+static long path_named = 0;              /* instances made with a path for a name (see fmi2Instantiate) */
 
 static const char *category_of(fmi2Status status) {
     switch (status) {
@@ -59,10 +62,10 @@ static const char *category_of(fmi2Status status) {
 static void to_host(Shim *s, fmi2String instance, fmi2Status status, fmi2String category, const char *text) {
     char escaped[16384];
     const char *name = instance ? instance : s->name;
-    const char *parts[4] = {"[", name, "] ", text};
+    const char *parts[4] = {"[", s->lead, "] ", text};
     size_t j = 0;
     int cut = 0;
-    for (int i = *name ? 0 : 3; i < 4 && !cut; i++) {
+    for (int i = *s->lead ? 0 : 3; i < 4 && !cut; i++) {
         for (const char *p = parts[i]; *p; p++) {
             if (j + 3 > sizeof escaped) {
                 cut = 1;
@@ -230,6 +233,13 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
     s->mine.componentEnvironment = s;
     s->logging_on = loggingOn;
     snprintf(s->name, sizeof s->name, "%s", name ? name : "");
+    /* Ecos names every instance by its FMU's path, so the instances of one FMU share their name: a name
+       that is a path is numbered in the order this library made them ("[/x/AMPCController.fmu #2]"),
+       and a message still says which instance spoke. */
+    if (strchr(s->name, '/') || strchr(s->name, '\\'))
+        snprintf(s->lead, sizeof s->lead, "%s #%ld", s->name, __atomic_add_fetch(&path_named, 1, __ATOMIC_SEQ_CST));
+    else
+        snprintf(s->lead, sizeof s->lead, "%s", s->name);
     if (!name || !*name || type != fmi2CoSimulation) {
         snprintf(s->reason, sizeof s->reason, !name || !*name
                  ? "instanceName is NULL or empty: FMI 2.0 asks for a name that identifies the instance"

@@ -514,8 +514,8 @@ class AMPCController(SafeSlave):
             restart = ("; the adaptive estimate starts again from theta0"
                        + (", with the start-up mode's warm-up" if ctrl.settings.startup_s > 0 else "")
                        if d != 1 and ctrl.settings.adaptive else "")
-            self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)}: "
-                       f"{what.get(d, 'a rig transport delay as well, the law on from now')}{restart}")
+            if d in what:  # a longer delay is the watch's warning, with what to set (logged once, not twice)
+                self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)}: {what[d]}{restart}")
         if (on_theta0 and not ctrl.law_on_theta0 and ctrl.settings.adaptive and ctrl.startup_guarded_at is None
                 and ctrl.settings.startup_s > 0):
             self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "

@@ -498,7 +498,8 @@ md = read_model_description(path)
 folder = extract(path)
 vr = {v.name: v.valueReference for v in md.modelVariables}
 plants = {}
-for name, load in (("left", 600.0), ("right", 44.0)):
+names = sys.argv[2:] or ["left", "right"]
+for name, load in zip(names, (600.0, 44.0)):
     f = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
                   instanceName=name)
     f.instantiate()  # fmpy's default logger: it prints the status and the text, not the instance's name
@@ -531,3 +532,14 @@ def test_each_message_names_the_instance_that_spoke_where_the_host_prints_the_te
     said = [line for line in host_lines(proc.stdout) if "load_force = 600" in line]
     assert said and all(line.startswith(("[WARNING] [left] ", "[DISCARD] [left] ")) for line in said), said
     assert not [line for line in host_lines(proc.stdout) if "[right]" in line]  # the other had nothing to say
+
+
+def test_instances_named_by_their_fmus_path_are_numbered_in_the_messages(built_fmus):
+    """Ecos names every instance by its FMU's path, so two controllers' messages led with the same name: a
+    name that is a path is numbered in the order the instances were made ("[/rig/MusclePlant.fmu #1]")."""
+    path = "/rig/MusclePlant.fmu"
+    proc = subprocess.run([sys.executable, "-c", TWO_PLANTS, str(built_fmus["MusclePlant"]), path, path],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and host_lines(proc.stdout)[-1] == "done", proc.stderr[-2000:]
+    said = [line for line in host_lines(proc.stdout) if "load_force = 600" in line]
+    assert said and all(f"] [{path} #1] " in line for line in said), said

@@ -57,7 +57,7 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
     watch.set_state(saved[:5])
     assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0, pytest.approx(np.nan, nan_ok=True),
                                      True, False, [0, 0, 0.0, np.inf, -np.inf], 0, None,
-                                     [0, 0.0, 0.0, True, pytest.approx(np.nan, nan_ok=True), False]]
+                                     [0, False, 0.0, 0.0, 0.0, 0.0, True, pytest.approx(np.nan, nan_ok=True), False]]
 
 
 def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
@@ -336,7 +336,7 @@ def test_minus_ones_decision_for_a_transport_delay_is_told_once_and_none_for_a_s
 
     (msg,) = told(0.2)
     assert msg.startswith("t = 5 s: input_delay_samples = -1 decided for 2 samples (0.2 s): a transport delay")
-    assert "input_delay_samples=2" in msg and "set input_delay_samples = 0 or 1" in msg
+    assert "set input_delay_samples = 2 and a theta0" in msg and "= 0 in a sequential master, 1 in a parallel" in msg
     assert told(0.0) == []
 
 
@@ -366,8 +366,9 @@ def test_a_state_saved_without_the_decision_does_not_tell_a_decision_again():
 
 def test_a_reference_out_of_reach_for_seconds_of_every_cycle_is_told_once():
     """A supply at 0.21 MPa sagging by 0.08 from 38 s, the load 11 N heavier: the valve sits at 10 V for
-    2-5 s of each 20 with the reading flat 10-16 mm short of the peaks, and the pinned-valve message
-    (10 s in a row) never fires. Told once; the paper's rig at 68 N, 0.2 Hz (its hardest cell) is not."""
+    about 7 s over two 20-s blocks with the reading flat 10-16 mm short of the peaks, and the pinned-valve
+    message (10 s in a row) never fires. Told once, whatever the seed and the master's kind; the paper's
+    rig at 68 N, 0.2 Hz (its hardest cell) is not."""
     def told(params, frequency_hz=0.1):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -382,7 +383,13 @@ def test_a_reference_out_of_reach_for_seconds_of_every_cycle_is_told_once():
         "supply_variation.sag_mpa": 0.079, "supply_variation.start_s": 38.0, "supply_variation.end_s": 61.3,
         "supply_variation.ramp_s": 3.69})
     (msg,) = told(rig)
-    assert "out of the rig's reach at times" in msg and "the valve's 10 V" in msg
+    assert "out of the rig's reach at times" in msg and "the valve's 10 V" in msg and "where r asked" in msg
+    for seed in (1, 3):  # 10 % of a block missed seed 3 (the 7 s at 10 V split over two blocks)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            tm.simulate_closed_loop("ampc_servo", None, duration_s=90.0, params=rig, load_n=68.0, seed=seed,
+                                    loop_delay_samples=1)
+        assert sum("at times" in str(w.message) for w in caught) == 1
     gap = float(msg.split("up to ")[1].split(" mm")[0])
     assert 8.0 < gap < 20.0
     assert told(tm.PlantParams(), 0.2) == []
