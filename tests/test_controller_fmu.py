@@ -992,6 +992,41 @@ def test_a_rewind_logs_what_the_run_from_there_logs():
     assert said() == 2
 
 
+def test_minus_ones_decision_of_a_delay_is_logged_once_a_run_and_again_after_a_rewind_before_it():
+    """The controller slave and a plant with a 0.2-s delay, stepped as a sequential master: -1 decides 2
+    samples at 5 s and logs it once, as a warning, with no event beside it; restored to a state before
+    the decision the run logs it again, restored after it not."""
+    from fmu_plant import Plant, PlantParams
+
+    slave = AMPCController(instance_name="delay")
+    slave.exit_initialization_mode()
+    plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.2}), seed=0)
+
+    def run(k0, k1):
+        for k in range(k0, k1):
+            slave.l = plant.measurement.l_mm
+            assert slave.do_step(k * 0.1, 0.1)
+            plant.step(slave.u, 0.1)
+
+    def decided():
+        return [m for m in slave.log_queue if "input_delay_samples = -1 decided for" in m.msg]
+
+    run(0, 40)
+    early, plant_early = slave._get_fmu_state(), plant.get_state()
+    run(40, 80)
+    late, plant_late = slave._get_fmu_state(), plant.get_state()
+    (msg,) = decided()
+    assert msg.status == Fmi2Status.warning and "decided for 2 samples (0.2 s): a transport delay" in msg.msg
+    slave._set_fmu_state(early)
+    plant.set_state(plant_early)
+    run(40, 80)
+    assert len(decided()) == 2
+    slave._set_fmu_state(late)
+    plant.set_state(plant_late)
+    run(80, 120)
+    assert len(decided()) == 2
+
+
 def test_a_step_that_passes_a_sample_time_is_discarded_and_the_host_can_step_to_it(fmu, capfd):
     """A step over [0.07, 0.14] s contains the sample time 0.1 s: refused with fmi2Discard at once, where
     the host can still step to the sample (once past it, every later step would be refused), the state
