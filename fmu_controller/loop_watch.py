@@ -214,9 +214,11 @@ class ReachWatch:
                 self.limit_v, self.upper = u_max_v if side > 0 else u_min_v, side > 0
         self.l_last_mm = l_mm
 
-    def end_block(self, t_s: float, samples: int, ts_s: float, *, told_pinned: bool) -> str | None:
+    def end_block(self, t_s: float, samples: int, ts_s: float, *, told_pinned: bool,
+                  reference: str = "the controller FMU's sine.offset and sine.amplitude, or the input r") -> str | None:
         """At the end of a block of ``samples``: the message, once, when :data:`REACH_SHARE` of them were
-        short (not where the pinned-valve message told it, ``told_pinned``); the counts start anew."""
+        short (not where the pinned-valve message told it, ``told_pinned``); the counts start anew.
+        ``reference`` names where the reference is set, for the remedy."""
         short, moved = self.short, self.moved
         self.short, self.moved, gap = 0, False, self.gap_mm
         self.gap_mm = 0.0
@@ -232,8 +234,8 @@ class ReachWatch:
                     "(a load or friction holding it, the muscle's rest)")
         return (f"t = {t_s:g} s: the reference is out of the rig's reach at times: over the last {samples * ts_s:g} s "
                 f"the command sat at the valve's {self.limit_v:g} V for {short * ts_s:.3g} s with the reading "
-                f"still, up to {gap:.3g} mm short: {what}; keep the reference within what the rig reaches (the "
-                "controller FMU's sine.offset and sine.amplitude, or the input r)")
+                f"still, up to {gap:.3g} mm short: {what}; keep the reference within what the rig reaches "
+                f"({reference})")
 
     def get_state(self) -> list:
         """The counts and whether it was told, as plain data."""

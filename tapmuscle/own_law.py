@@ -253,7 +253,8 @@ class ValveWatch:
             self._reach.observe(pinned_side(r_mm, l_mm, u_v, lo, hi), r_mm, l_mm, lo, hi, self.ts_s)
             self._block_n += 1
             if self._block_n >= math.ceil(TRACKING_BLOCK_S / self.ts_s - 1e-9):
-                message = self._reach.end_block(t_s, self._block_n, self.ts_s, told_pinned=self._pinned.n < 0)
+                message = self._reach.end_block(t_s, self._block_n, self.ts_s, told_pinned=self._pinned.n < 0,
+                                                reference="the reference the loop is given")
                 self._block_n = 0
                 if message is not None:
                     said.append(message)
