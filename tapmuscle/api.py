@@ -142,7 +142,7 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
                 settings: ControllerSettings | None = None, seed: int = 0,
                 loop_delay_samples: int = 0, effects: Sequence[Effect] | Effect = (),
                 progress: bool | Callable[[int, int], None] | None = None,
-                watch: bool = True) -> dict[str, np.ndarray]:
+                watch: bool = True, preview_samples: int | None = None) -> dict[str, np.ndarray]:
     """Track a reference with one of the paper's four controllers on the simulated rig (no FMU).
 
     The loop of :func:`tapmuscle.closed_loop.run_closed_loop`: at ``t_k`` the controller reads
@@ -204,6 +204,9 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         Warn after the run of what the controller FMU would log of it (a limit cycle, a set input
         delay the first 30 s contradict, a stuck reading, ...: :func:`run_closed_loop`); for a law of
         your own, of what needs no model (:class:`tapmuscle.own_law.ValveWatch`); False: not.
+    preview_samples : int, optional
+        A law of your own's preview ``r(k..k+n)``: ``n`` (default its ``preview_samples`` attribute,
+        else 5, Table 5's servo horizon); the paper's controllers take theirs from ``settings``.
 
     Returns
     -------
@@ -230,7 +233,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         plant = _plant(params, None if callable(load_n) else load_n, seed, effects)
         return run_closed_loop(plant, method, reference, duration_s=duration_s, ts_s=ts,
                                load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples,
-                               progress=reporter(progress, "simulate_closed_loop"), watch=watch)
+                               progress=reporter(progress, "simulate_closed_loop"), watch=watch,
+                               preview_samples=preview_samples)
     if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
                          "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
@@ -272,7 +276,8 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
     controller = DisplacementController(settings, THETA0_44N if theta0 is None else theta0)
     return run_closed_loop(plant, controller, reference, duration_s=duration_s,
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples,
-                           progress=reporter(progress, "simulate_closed_loop"), watch=watch)
+                           progress=reporter(progress, "simulate_closed_loop"), watch=watch,
+                           preview_samples=preview_samples)
 
 
 def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> list[Path]:

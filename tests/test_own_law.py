@@ -187,6 +187,11 @@ def test_the_preview_length_is_the_laws_or_the_calls():
     assert {len(p) for p in law.previews} == {13}
     with pytest.raises(ValueError, match="preview_samples must be an integer >= 0"):
         tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, preview_samples=1.5)
+    law = PI()
+    tm.simulate_closed_loop(law, None, duration_s=1.0, preview_samples=2)
+    assert {len(p) for p in law.previews} == {3}
+    with pytest.raises(ValueError, match="preview_samples = 2 is for a law of your own"):
+        tm.simulate_closed_loop("ampc_servo", None, duration_s=1.0, preview_samples=2)
 
 
 def test_the_paper_controllers_refuse_a_preview_or_another_period():
