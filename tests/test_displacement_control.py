@@ -1516,7 +1516,7 @@ def test_a_glitch_beyond_the_bound_during_a_fast_move_is_held(theta0, method):
 
 def test_the_coincidence_points_own_valve_limits_bound_the_probe(theta0):
     """The start-up probe and the guard's jumps are judged against the method's own limits: AMPC-UCP
-    with ucp.u_max_v = 4 V must not send more (the probe clipped to the servo's 10 V gave 4.5 V on 22
+    with ucp.u_max_v = 4 V must not send more (the probe clipped to the servo's 10 V gives 4.5 V on 22
     of its first 60 samples)."""
     settings = ControllerSettings(method="ampc_ucp", ucp=UCPSettings(u_max_v=4.0))
     run = run_closed_loop(Plant(seed=0), DisplacementController(settings, theta0), SineReference(), duration_s=12.0,

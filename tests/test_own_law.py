@@ -329,7 +329,7 @@ def test_the_valve_watch_refuses_a_period_or_range_that_is_none(args):
 
 
 def test_a_load_function_may_return_a_0d_array():
-    # np.where(t > 1, 68.0, 44.0) gives array(44.): the loop took it before it checked loads by type
+    # np.where(t > 1, 68.0, 44.0) gives array(44.), a load as good as a float
     run = tm.simulate_closed_loop(PI(), None, duration_s=2.0, load_n=lambda t: np.where(t > 1.0, 68.0, 44.0))
     assert run["load_n"][0] == 44.0 and run["load_n"][-1] == 68.0
 
