@@ -99,6 +99,13 @@ DELAY_MIN_SAMPLES = 50
 #: tracked a little worse with the longer one and keeps the better scored (AMPC-UCP at 0.15 s: 2, 0.64-0.70
 #: mm; 1 set, 0.63).
 DELAY_TIE_RATIO = 1.05
+#: A delay of 2 samples or more that the scores do not fall towards from 0 (outside
+#: ``DisplacementController._valley_beyond_one``) is still decided where it explains the data this many
+#: times better than both 0 and 1: a rig's 0.4-s delay under MPC-UCP at 68 N, 0.2 Hz scored 5.31, 3.67,
+#: 4.77, 2.86, 1, 3.0 times the best for 0..5 (a bump at 2), where 1 tracked to 11 mm and 4 to 3.8; a
+#: loop chattering with a period of a few samples, which scores that period like 0, reached 1.68
+#: (h = Ts/4 in a parallel master) and 1.31 (a fixed predictor on an off-nominal rig).
+DELAY_CLEAR_RATIO = 2.0
 #: ``input_delay_samples = -1``: if neither hypothesis has won by :data:`DELAY_RATIO` after this many
 #: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
 #: is taken.
@@ -984,7 +991,9 @@ class DisplacementController:
             return
         ms_seq, ms_par = ms[0], ms[1]
         late = self._compared >= self._decide_n
-        far = min(self._valley_beyond_one(), key=ms.__getitem__, default=None)
+        # the valley's delays, and any other that explains the data DELAY_CLEAR_RATIO times better than 0 and 1
+        clear = [d for d in range(2, len(ms)) if DELAY_CLEAR_RATIO * ms[d] < min(ms_seq, ms_par)]
+        far = min((*self._valley_beyond_one(), *clear), key=ms.__getitem__, default=None)
         if far is not None and (DELAY_RATIO * ms[far] < min(ms_seq, ms_par) or (late and ms[far] < min(ms_seq, ms_par))):
             self._decide_delay(self._longer_if_tied(far))  # a rig's transport delay: each command far samples on
         elif DELAY_RATIO * ms_par < ms_seq or (late and ms_par <= ms_seq):
