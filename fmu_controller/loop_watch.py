@@ -589,7 +589,8 @@ class LoopWatch:
             return (f"{head}, the longest it decides: the valve may act later still. Set input_delay_samples to the "
                     f"rig's delay over Ts = {ts:g} s, rounded (up to {MAX_INPUT_DELAY_SAMPLES}, "
                     f"{MAX_INPUT_DELAY_SAMPLES * ts:g} s; tapmuscle identify --input-delay-samples auto finds it from a "
-                    "recording; docs/control.md, \"Transport delay\")")
+                    "recording); where the rig has no delay (a theta0 far from this rig can score one), set 0 in a "
+                    "sequential master, 1 in a parallel one (docs/control.md, \"Transport delay\")")
         return (f"{head}: a transport delay, the valve acting on a command that much later (in a parallel master, "
                 "libcosim, Ecos or OMSimulator at h = Ts, one of those samples is the master's: the rig's own delay is "
                 "then one less). The law compensates it from now on theta0, identified without it, so the start may "
