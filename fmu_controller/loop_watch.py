@@ -219,9 +219,8 @@ class ReachWatch:
         """At the end of a block of ``samples``: the message, once, when :data:`REACH_SHARE` of them were
         short (not where the pinned-valve message told it, ``told_pinned``); the counts start anew.
         ``reference`` names where the reference is set, for the remedy."""
-        short, moved = self.short, self.moved
-        self.short, self.moved, gap = 0, False, self.gap_mm
-        self.gap_mm = 0.0
+        short, moved, gap = self.short, self.moved, self.gap_mm
+        self.short, self.moved, self.gap_mm = 0, False, 0.0
         if self.told or told_pinned or not moved or short < REACH_SHARE * samples:
             return None
         self.told = True

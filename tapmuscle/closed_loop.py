@@ -236,13 +236,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
         raise TypeError(f"plant must be a Plant (tm.Plant(params)), got {type(plant).__name__}")
     own = not isinstance(controller, DisplacementController)
     if own:
-        if isinstance(controller, type):
-            controller = as_law(controller)  # as_law's own refusal, which names the class
-        try:
-            controller = as_law(controller)
-        except TypeError as exc:
-            raise TypeError(f"controller must be a DisplacementController (tm.DisplacementController(settings, "
-                            f"theta0)) or {exc}") from None
+        controller = as_law(controller)
         ts = law_period(controller, ts_s)
         hp = law_preview_samples(controller, preview_samples)
     else:

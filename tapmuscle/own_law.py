@@ -105,7 +105,8 @@ def as_law(law: Any) -> ControlLaw:
         return law
     if callable(law):
         return _FunctionLaw(law)
-    raise TypeError(f"a law of your own: an object with a step(l_mm, preview_mm) method returning the valve command "
+    raise TypeError(f"controller must be a DisplacementController (tm.DisplacementController(settings, theta0)) or "
+                    f"a law of your own: an object with a step(l_mm, preview_mm) method returning the valve command "
                     f"[V] (tapmuscle.own_law.ControlLaw), or a function u = f(l_mm, preview_mm); got "
                     f"{type(law).__name__}")
 
