@@ -82,6 +82,7 @@ __all__ = [
     "ASYMMETRIC",
     "STANDARD",
     "regressor",
+    "linear_residual",
     "virtual_hysteresis",
     "virtual_hysteresis_sequence",
     "hysteresis_term",
@@ -294,6 +295,39 @@ def regressor(
     return np.stack(np.broadcast_arrays(*terms), axis=-1)
 
 
+def linear_residual(
+    l_new: float | np.ndarray,
+    l0: float | np.ndarray,
+    l1: float | np.ndarray,
+    u0: float | np.ndarray,
+    a1: float,
+    a2: float,
+    b1: float,
+) -> float | np.ndarray:
+    """What the linear part of Eq. (1) leaves of a displacement: ``l_new - (a1 l0 + a2 l1 + b1 u0)``.
+
+    The one expression of the virtual hysteresis variable of section 2.3 that the estimator, the
+    predictors and the controllers all evaluate, so that they agree bit for bit.
+
+    Parameters
+    ----------
+    l_new : float or ndarray
+        The displacement the linear part is to explain, ``l(k+1)`` [mm].
+    l0, l1 : float or ndarray
+        ``l(k)``, ``l(k-1)`` [mm].
+    u0 : float or ndarray
+        ``u(k)`` [V].
+    a1, a2, b1 : float
+        The linear part of ``theta`` (Eq. (1)'s first three parameters).
+
+    Returns
+    -------
+    float or ndarray
+        ``v(k+1)`` [mm], of the inputs' broadcast shape.
+    """
+    return l_new - (a1 * l0 + a2 * l1 + b1 * u0)
+
+
 def virtual_hysteresis(
     theta: Sequence[float] | np.ndarray,
     l0: float,
@@ -320,7 +354,7 @@ def virtual_hysteresis(
     float
         ``v(k)`` in mm.
     """
-    return float(l0 - (theta[0] * l1 + theta[1] * l2 + theta[2] * u1))
+    return float(linear_residual(l0, l1, l2, u1, theta[0], theta[1], theta[2]))
 
 
 def virtual_hysteresis_sequence(
@@ -346,7 +380,7 @@ def virtual_hysteresis_sequence(
     l = np.asarray(l, dtype=float)
     u = np.asarray(u, dtype=float)
     v = np.zeros_like(l)
-    v[2:] = l[2:] - (theta[0] * l[1:-1] + theta[1] * l[:-2] + theta[2] * u[1:-1])
+    v[2:] = linear_residual(l[2:], l[1:-1], l[:-2], u[1:-1], theta[0], theta[1], theta[2])
     return v
 
 
@@ -495,16 +529,7 @@ class ModelState:
         l = float(l)
         if not math.isfinite(l):
             raise ValueError(f"l must be finite, got {l}")
-        if not self._has_u:
-            raise RuntimeError("apply(u) must be called before observe(l)")
-        v = l - (theta[0] * self._l0 + theta[1] * self._l1 + theta[2] * self._u)
-        v = float(v)
-        if not math.isfinite(v):
-            raise ValueError(f"theta gives a non-finite v: {v}")
-        self._l2, self._l1, self._l0 = self._l1, self._l0, l
-        self._v2, self._v1, self._v0 = self._v1, self._v0, v
-        self._has_u = False
-        return v
+        return self.observe_unchecked(l, float(theta[0]), float(theta[1]), float(theta[2]))
 
     def apply(self, u: float) -> None:
         """Record the input ``u(k)`` in V applied after the latest ``l(k)``."""
@@ -525,7 +550,7 @@ class ModelState:
         python float and ``a1, a2, b1`` the linear part of ``theta``; same arithmetic, bit for bit."""
         if not self._has_u:
             raise RuntimeError("apply(u) must be called before observe(l)")
-        v = l - (a1 * self._l0 + a2 * self._l1 + b1 * self._u)
+        v = linear_residual(l, self._l0, self._l1, self._u, a1, a2, b1)
         if not math.isfinite(v):
             raise ValueError(f"theta gives a non-finite v: {v}")
         self._l2, self._l1, self._l0 = self._l1, self._l0, l

@@ -27,6 +27,7 @@ import numpy as np
 from .hysteresis_model import (
     ModelState,
     ModelStructure,
+    linear_residual,
     regressor_terms,
     virtual_hysteresis_sequence,
 )
@@ -233,7 +234,7 @@ def _propagate(theta, n, l0, l1, l2, v0, v1, v2, u_steps, bounds, record):
         elif not ((l_new >= lo) & (l_new <= hi)).all():
             diverged = True
             l_new = np.where(np.isnan(l_new), mid, np.clip(l_new, lo, hi))
-        v_new = l_new - (a1 * l0 + a2 * l1 + b1 * u0)
+        v_new = linear_residual(l_new, l0, l1, u0, a1, a2, b1)
         l2, l1, l0 = l1, l0, l_new
         v2, v1, v0 = v1, v0, v_new
         if record:

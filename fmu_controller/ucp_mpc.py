@@ -41,7 +41,7 @@ from dataclasses import InitVar, dataclass
 import numpy as np
 
 from .argument_checks import real_number, whole_number
-from .hysteresis_model import ModelState, regressor_terms
+from .hysteresis_model import ModelState, linear_residual, regressor_terms
 from .servo_settings import MAX_HORIZON
 
 _dot = np.dot
@@ -132,7 +132,7 @@ def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, step
             raise ValueError(f"l must be finite, got {nxt}")
         if bounds is not None:
             nxt = min(max(nxt, bounds[0]), bounds[1])
-        v = nxt - (a1 * l0 + a2 * l1 + b1 * u)
+        v = linear_residual(nxt, l0, l1, u, a1, a2, b1)
         if not math.isfinite(v):
             raise ValueError(f"theta gives a non-finite v: {v}")
         l2, l1, l0 = l1, l0, nxt

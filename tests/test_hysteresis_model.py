@@ -14,6 +14,7 @@ from fmu_controller.hysteresis_model import (
     ModelStructure,
     hysteresis_term,
     identifiable_combinations,
+    linear_residual,
     null_direction,
     regressor,
     virtual_hysteresis,
@@ -102,8 +103,14 @@ def test_virtual_hysteresis_sequence_matches_scalar():
     l, u = rng.uniform(0, 40, 30), rng.uniform(0, 10, 30)
     v = virtual_hysteresis_sequence(theta, l, u)
     assert v[0] == 0.0 and v[1] == 0.0
+    # one expression (linear_residual) serves the record, the scalar and the model state: equal bit for bit
+    state = ModelState(ASYMMETRIC, l_init=(l[0], l[0], l[1]), u_init=float(u[1]))
     for k in range(2, 30):
-        assert v[k] == pytest.approx(virtual_hysteresis(theta, l[k], l[k - 1], l[k - 2], u[k - 1]), abs=1e-12)
+        assert v[k] == virtual_hysteresis(theta, l[k], l[k - 1], l[k - 2], u[k - 1])
+        assert v[k] == state.observe(l[k], theta)
+        state.apply(float(u[k]))
+    assert np.array_equal(linear_residual(l[2:], l[1:-1], l[:-2], u[1:-1], *theta[:3]), v[2:])
+    assert linear_residual(3.0, 2.0, 1.0, 5.0, 0.5, 0.25, 0.1) == 3.0 - (1.0 + 0.25 + 0.5)
 
 
 @pytest.mark.parametrize("structure", [ASYMMETRIC, STANDARD])
