@@ -104,6 +104,9 @@ def _window(window: tuple[int, int] | None, ts_s: float | None) -> tuple[int, in
         raise ValueError(f"give the window in samples (window = {tuple(window)}) or the sampling period ts_s = "
                          f"{ts_s!r} for Eq. (21)'s 10.1..40.1 s, not both")
     if window is not None:
+        if isinstance(window, numbers.Real):  # eq21_error_mm(r, l, 0.1): the period where the window goes
+            raise ValueError(f"window must be the samples (k0, k1), got the number {window!r}; for Eq. (21)'s "
+                             f"10.1..40.1 s at a sampling period give it by name: ts_s={window!r}")
         return window
     return EQ21_WINDOW if ts_s is None else eq21_window(ts_s)
 

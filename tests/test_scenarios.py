@@ -432,15 +432,14 @@ def test_a_plant_fmu_with_the_input_load_is_told_to_be_built_again(tmp_path):
                                             r"an earlier tapmuscle named it: build the FMU again \(tapmuscle build\)"):
         check_role(fmu("u", "load", "supply_pressure"), "plant")
     with pytest.raises(ScenarioError, match=r"it lacks input load_force; a scenario runs the project's MusclePlant "
-                                            r"interface, which it sets and reads: run an FMU of your own in fmpy or a "
-                                            r"master of your own \(docs/fmu.md\)$"):
+                                            r"interface, which it sets and reads: run a plant FMU of your own in fmpy "
+                                            r"or a master of your own \(docs/fmu.md\)$"):
         check_role(fmu("u", "supply_pressure"), "plant")
 
 
 def test_a_controller_fmu_of_ones_own_is_told_what_a_scenario_needs(tmp_path):
-    """A user's PI controller FMU (input l, output u) passed the role check, which asked for those two,
-    and then failed on 'controller.parameters.method', a key the user never wrote. The role check now
-    asks for everything the master sets and reads, and says where an FMU of one's own runs."""
+    """A user's PI controller FMU (input l, output u) given as the project's controller is told that
+    it lacks the project controller's interface and how to name its own ([controller] interface)."""
     from types import SimpleNamespace
 
     from tapmuscle.cosim.master import Unpacked, check_role
@@ -449,8 +448,9 @@ def test_a_controller_fmu_of_ones_own_is_told_what_a_scenario_needs(tmp_path):
                  "kp": SimpleNamespace(causality="parameter")}
     mine = Unpacked(tmp_path / "MyPI.fmu", SimpleNamespace(modelName="MyPI"), str(tmp_path), variables)
     with pytest.raises(ScenarioError, match=r"MyPI.fmu: this MyPI FMU cannot be the controller: it lacks input r, "
-                                            r"output H, output input_delay, .* and \d+ more; a scenario runs the "
-                                            r"project's AMPCController interface"):
+                                            r"output H, output input_delay, .* and \d+ more; a controller FMU of "
+                                            r"one's own runs with \[controller\] interface = \{ measurement = \.\.\., "
+                                            r"reference = \.\.\., command = \.\.\. \} naming its variables"):
         check_role(mine, "controller")
 
 

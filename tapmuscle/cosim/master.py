@@ -47,7 +47,7 @@ import pythonfmu  # noqa: F401
 
 from fmu_controller.displacement_control import METHOD_CODES
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.reference import REFERENCE_SOURCES, advanced_lead
+from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 
 from fmu_plant.seed import split_seed
 from fmu_plant.user_warning import warn_at_caller
@@ -142,12 +142,14 @@ def _settable(unpacked: Unpacked, name: str, where: str) -> Any:
         known = sorted(n for n, v in unpacked.variables.items() if v.causality in ("parameter", "input"))
         close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
         hint = f"did you mean {' or '.join(repr(c) for c in close)}? " if close else ""
-        raise ScenarioError(f"{where}{name}': not a parameter of {unpacked.model_description.modelName} "
-                            f"({hint}known: {', '.join(known[:8])}, ...; docs/fmu.md lists all)")
+        model = unpacked.model_description.modelName
+        listed = "docs/fmu.md lists all" if model in ("MusclePlant", "AMPCController") else "its modelDescription.xml lists all"
+        raise ScenarioError(f"{where}{name}': not a parameter of {model} "
+                            f"({hint}known: {', '.join(known[:8])}, ...; {listed})")
     return var
 
 
-def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
+def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float | bool:
     """``value`` as FMI sets the variable ``var`` (an Enumeration's item name as its number); ScenarioError
     (prefixed by ``where``) if it has the wrong type, is not finite, or lies outside the range the model
     description declares, so that a whole sweep is checked before it runs."""
@@ -156,7 +158,13 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
         if value not in items:
             raise ScenarioError(f"{where}{name}': {value!r} is not one of {', '.join(items)}")
         value = items[value]
-    finite = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+    if var.type == "Boolean":  # a controller FMU of one's own may have switches
+        if not isinstance(value, bool):
+            raise ScenarioError(f"{where}{name}': must be true or false, got {value!r}")
+        return value
+    if isinstance(value, bool):
+        raise ScenarioError(f"{where}{name}': must be a number ({var.type}), got {value!r}")
+    finite = isinstance(value, numbers.Real) and math.isfinite(value)
     if var.type in ("Enumeration", "Integer"):
         if not finite or int(value) != value:
             raise ScenarioError(f"{where}{name}': must be an integer, got {value!r}")
@@ -164,7 +172,7 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float:
     elif var.type == "Real":
         # an infinity only where the model description leaves that side open (the controller's
         # box_lower.* = -inf: no bound); the FMU refuses one where it means nothing
-        infinite = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isinf(value)
+        infinite = isinstance(value, numbers.Real) and math.isinf(value)
         if not finite and not (infinite and (var.min if value < 0 else var.max) is None):
             raise ScenarioError(f"{where}{name}': must be a finite number, got {value!r}")
         number = float(value)
@@ -188,7 +196,7 @@ def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
                              ("AMPCController", "controller", scenario.controller)):
         unpacked = unpack(spec.path or fmus[name])
-        check_role(unpacked, role)
+        check_role(unpacked, role, spec.interface)
         where = f"{scenario.source}: key '{role}.parameters."
         for key, value in spec.parameters.items():
             try:
@@ -211,11 +219,16 @@ ROLE_INTERFACE = {
 }
 
 
-def check_role(unpacked: Unpacked, role: str) -> None:
+def check_role(unpacked: Unpacked, role: str, interface: Mapping[str, str] | None = None) -> None:
     """ScenarioError unless the FMU has the inputs, outputs and parameters its ``role`` in the loop
     needs (a controller FMU given as the plant is named as such, not by a parameter it lacks; an FMU
-    of one's own as the controller is told that the master runs the project's). A role outside the
-    closed loop (:data:`ROLE_INTERFACE`), such as a foreign plant FMU, has no fixed interface."""
+    of one's own as the controller without an ``interface`` is told how to give one). A controller
+    of one's own needs the Real variables its ``interface`` names (:attr:`FmuSpec.interface`). A role
+    outside the closed loop (:data:`ROLE_INTERFACE`), such as a foreign plant FMU, has no fixed
+    interface."""
+    if interface is not None:
+        _check_interface(unpacked, interface)
+        return
     if role not in ROLE_INTERFACE:
         return
     need_in, need_out, need_par = ROLE_INTERFACE[role]
@@ -228,12 +241,33 @@ def check_role(unpacked: Unpacked, role: str) -> None:
         renamed = ("; its input load is the plant's load_force as an earlier tapmuscle named it: build the FMU "
                    "again (tapmuscle build)" if role == "plant" and "load" in has["input"]
                    and "load_force" not in has["input"] else "")
-        own = (f"; a scenario runs the project's {'MusclePlant' if role == 'plant' else 'AMPCController'} "
-               "interface, which it sets and reads: run an FMU of your own in fmpy or a master of your own "
-               "(docs/fmu.md)" if not renamed else "")
+        own = ("; a scenario runs the project's MusclePlant interface, which it sets and reads: run a plant FMU "
+               "of your own in fmpy or a master of your own (docs/fmu.md)" if role == "plant" else
+               "; a controller FMU of one's own runs with [controller] interface = { measurement = ..., "
+               "reference = ..., command = ... } naming its variables (docs/fmu.md)") if not renamed else ""
         shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
         raise ScenarioError(f"{unpacked.path}: this {unpacked.model_description.modelName} FMU cannot be the {role}: "
                             f"it lacks {shown}{renamed}{own}")
+
+
+def _check_interface(unpacked: Unpacked, interface: Mapping[str, str]) -> None:
+    """ScenarioError unless each variable ``interface`` names exists as a Real of the causality its
+    role needs (``measurement``, ``reference``: input; ``command``: output), naming every one that
+    does not, with the FMU's Real inputs and outputs."""
+    variables, problems = unpacked.variables, []
+    for role, name in interface.items():
+        causality = "output" if role == "command" else "input"
+        var = variables.get(name)
+        if var is None:
+            problems.append(f"{role} = {name!r}: no such variable")
+        elif var.causality != causality or var.type != "Real":
+            problems.append(f"{role} = {name!r}: a {var.type} {var.causality}, not a Real {causality}")
+    if problems:
+        have = {c: sorted(n for n, v in variables.items() if v.causality == c and v.type == "Real")
+                for c in ("input", "output")}
+        raise ScenarioError(f"{unpacked.path}: [controller] interface does not fit this "
+                            f"{unpacked.model_description.modelName} FMU: {'; '.join(problems)} (its Real inputs: "
+                            f"{', '.join(have['input']) or 'none'}; its Real outputs: {', '.join(have['output']) or 'none'})")
 
 
 def _reason(message: str) -> str:
@@ -252,14 +286,16 @@ class FmuInstance:
     :class:`tapmuscle.cosim.model_exchange.ModelExchangeStepper` steps it.
     """
 
-    def __init__(self, path: str | Path, instance_name: str, *, role: str, model_exchange: bool = False) -> None:
+    def __init__(self, path: str | Path, instance_name: str, *, role: str, model_exchange: bool = False,
+                 interface: Mapping[str, str] | None = None) -> None:
         from fmpy.fmi2 import FMU2Model, FMU2Slave
 
         self.unpacked = unpack(path)
         self.role = role
         self.messages: list[str] = []
         md = self.unpacked.model_description
-        check_role(self.unpacked, role)
+        self.interface = interface
+        check_role(self.unpacked, role, interface)
         instance_name = f"{instance_name}#{next(_INSTANCE_COUNTER)}"  # unique: messages are routed by name
         _LOG_SINKS[instance_name] = self.messages
         self._name = instance_name
@@ -303,12 +339,16 @@ class FmuInstance:
             number = _declared_value(var, name, value, where)
             if var.type == "Real":
                 self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [number]))
+            elif var.type == "Boolean":
+                self._call(f"setting {name}", lambda: self.fmu.setBoolean([var.valueReference], [number]))
             else:
                 self._call(f"setting {name}", lambda: self.fmu.setInteger([var.valueReference], [number]))
 
     def start(self) -> None:
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
-        bad = ("[WARNING]", "[ERROR]", "[FATAL]")  # a rejected parameter is a warning at this call
+        # the project's FMUs log a rejected parameter as a warning at this call; an FMU of one's own
+        # may warn of anything here, and its warnings reach the caller with the run's
+        bad = ("[ERROR]", "[FATAL]") if self.interface is not None else ("[WARNING]", "[ERROR]", "[FATAL]")
         if any(m.startswith(bad) for m in self.messages):
             # the reason only: the log's level and its advice to FMI hosts mean nothing to a scenario's user
             reasons = [_reason(m) for m in self.messages if m.startswith(bad)]
@@ -332,6 +372,11 @@ class FmuInstance:
             _LOG_SINKS.pop(self._name, None)
 
 
+def _interface_key(interface: Mapping[str, str] | None) -> tuple[tuple[str, str], ...] | None:
+    """A controller of one's own's interface as a hashable key (instances checked for one are kept apart)."""
+    return None if interface is None else tuple(sorted(interface.items()))
+
+
 class InstancePool:
     """Idle FMU instances of one process, reused by :func:`co_simulate` (``pool=``) across runs.
 
@@ -346,14 +391,15 @@ class InstancePool:
         self._idle: dict[tuple[Path, str], list[FmuInstance]] = {}
         self._lock = threading.Lock()
 
-    def acquire(self, path: str | Path, instance_name: str, *, role: str) -> FmuInstance:
+    def acquire(self, path: str | Path, instance_name: str, *, role: str,
+                interface: Mapping[str, str] | None = None) -> FmuInstance:
         """An instance of ``path`` in initialization mode: a reset idle one, or a new one."""
-        key = (unpack(path).path, role)
+        key = (unpack(path).path, role, _interface_key(interface))
         with self._lock:
             idle = self._idle.get(key)
             inst = idle.pop() if idle else None
         if inst is None:
-            return FmuInstance(path, instance_name, role=role)
+            return FmuInstance(path, instance_name, role=role, interface=interface)
         try:
             inst.reset()
         except BaseException:
@@ -364,7 +410,7 @@ class InstancePool:
     def release(self, inst: FmuInstance) -> None:
         """Keep ``inst`` (after a run that ended normally) for a later :meth:`acquire`."""
         with self._lock:
-            self._idle.setdefault((inst.unpacked.path, inst.role), []).append(inst)
+            self._idle.setdefault((inst.unpacked.path, inst.role, _interface_key(inst.interface)), []).append(inst)
 
     def close(self) -> None:
         """Free every idle instance."""
@@ -420,39 +466,26 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
     with held_interrupts() as held:  # Ctrl-C ends the run between FMI calls, not inside an FMU
         plant = new(scenario.plant.path or fmus["MusclePlant"], f"{scenario.name}.plant", role="plant")
         ctrl, done = None, False
+        own = scenario.controller.interface
         try:
             ctrl = new(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
-                       role="controller")
+                       role="controller", interface=own)
             plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
             low, high = split_seed(scenario.seed)  # FMI Integers are 32-bit: the seed travels as two
             plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
-            h = scenario.step_s
-            ref = scenario.reference
             plant.set_parameters({"load_force": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
                                  where=f"{src}: key '[load]/[supply] ")
-            ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
-            if ref.kind == "sine":
-                ctrl_params.update({"reference_source": _CODE["builtin_sine"], "sine.offset": ref.offset_mm,
-                                    "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
+            if own is not None:  # its own law and parameters; the master feeds it r(k), no preview
+                ctrl_params: dict[str, Any] = {**scenario.controller.parameters, **(controller_parameters or {})}
+                ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
+                hp = 0
             else:
-                ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
-                                                        else "external_held"]
-            if "input_delay_samples" in ctrl.unpacked.variables:
-                # this master steps the controller before the plant: no delay to detect (the FMU's
-                # default -1 would start with the delayed law); a scenario may still set -1 or 1
-                ctrl_params["input_delay_samples"] = 0
-            ctrl_params.update(scenario.controller.parameters)
-            ctrl_params.update(controller_parameters or {})
-            ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
-            hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
-            hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
-            if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
-                hp += advanced_lead(ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0])
+                hp = _set_up_project_controller(ctrl, scenario, controller_parameters)
+            logged = [len(plant.messages), len(ctrl.messages)]
             plant.start()
             ctrl.start()
-            logged = [len(plant.messages), len(ctrl.messages)]
             cols = _loop(scenario, plant, ctrl, hp, record, progress, held)
-            if "input_delay" in ctrl.unpacked.variables:  # an FMU built before the output existed has none
+            if "input_delay" in ctrl.unpacked.variables and own is None:  # an FMU built before the output existed has none
                 cols["input_delay"] = np.asarray(ctrl.fmu.getInteger([ctrl.vr("input_delay")])[0])
             # what the FMUs warned of during the run reaches the caller (a failed run's error names it)
             for inst, n0 in zip((plant, ctrl), logged):
@@ -472,6 +505,33 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                         pool.release(inst)
                     else:
                         inst.free()
+
+
+def _set_up_project_controller(ctrl: FmuInstance, scenario: Scenario,
+                               controller_parameters: Mapping[str, Any] | None) -> int:
+    """Set the project's AMPCController up for ``scenario`` (its method, ``Ts``, reference source and
+    the scenario's parameters) and return the samples ``Hp`` of preview it reads (plus the lead of a
+    delayed law), which the master's advanced reference feeds ahead."""
+    src, h, ref = scenario.source, scenario.step_s, scenario.reference
+    ctrl_params: dict[str, Any] = {"method": _CODE[scenario.method], "Ts": h}
+    if ref.kind == "sine":
+        ctrl_params.update({"reference_source": _CODE["builtin_sine"], "sine.offset": ref.offset_mm,
+                            "sine.amplitude": ref.amplitude_mm, "sine.frequency": ref.frequency_hz})
+    else:
+        ctrl_params["reference_source"] = _CODE["external_advanced" if ref.preview == "advanced"
+                                                else "external_held"]
+    if "input_delay_samples" in ctrl.unpacked.variables:
+        # this master steps the controller before the plant: no delay to detect (the FMU's
+        # default -1 would start with the delayed law); a scenario may still set -1 or 1
+        ctrl_params["input_delay_samples"] = 0
+    ctrl_params.update(scenario.controller.parameters)
+    ctrl_params.update(controller_parameters or {})
+    ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
+    hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
+    hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
+    if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
+        hp += advanced_lead(ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0])
+    return hp
 
 
 def _holding_gil(fmu: Any, names: tuple[str, ...]) -> list[Any]:
@@ -531,13 +591,24 @@ class _RealPort:
 def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, record: str,
           progress: Callable[[int, int], None] | None, held: Any) -> dict[str, np.ndarray]:
     n, h, ref = scenario.n_samples, scenario.step_s, scenario.reference
-    external = ref.kind != "sine"
+    own = ctrl.interface
+    # a controller of one's own reads r(k) from the master and writes its command only; the project's
+    # reads r (an external reference) or makes it (the sine), and gives r(k) back with its diagnostics
+    external = own is not None or ref.kind != "sine"
     advance = hp * h if external and ref.preview == "advanced" else 0.0
     full = record == "all"
     diag = ["u", "r_k", "uc", "l_pred", "pred_error", "H", "xs"] + [f"theta.{n_}" for n_ in ASYMMETRIC.names]
-    ctrl_out = [ctrl.vr(v) for v in (diag if full else ["u", "r_k"])]
+    if own is not None:
+        ctrl_out = [ctrl.vr(own["command"])]
+        ctrl_in = [ctrl.vr(own["measurement"]), ctrl.vr(own["reference"])]
+        # r(k) as the project's controller makes its built-in sine, so both kinds of run see one r
+        sine = (SineReference(offset_mm=ref.offset_mm, amplitude_mm=ref.amplitude_mm, frequency_hz=ref.frequency_hz,
+                              ts_s=h) if ref.kind == "sine" else None)
+        r_fed = np.array([sine.at(k) if sine is not None else ref.at(k * h) for k in range(n)])
+    else:
+        ctrl_out = [ctrl.vr(v) for v in (diag if full else ["u", "r_k"])]
+        ctrl_in = [ctrl.vr("l"), ctrl.vr("r")] if external else [ctrl.vr("l")]
     plant_out = [plant.vr("l"), plant.vr("p")] if full else [plant.vr("l")]
-    ctrl_in = [ctrl.vr("l"), ctrl.vr("r")] if external else [ctrl.vr("l")]
     plant_in = [plant.vr("u"), plant.vr("load_force"), plant.vr("supply_pressure")]
     rows_p = np.empty((n, len(plant_out)))
     rows_c = np.empty((n, len(ctrl_out)))
@@ -555,7 +626,9 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
         if status := p_get(*p_get_args):
             plant_io.check(status, "fmi2GetReal", t)
         c_in[0] = p_out[0]
-        if external:
+        if own is not None:
+            c_in[1] = r_fed[k]
+        elif external:
             c_in[1] = ref.at(t + advance)
         if status := c_set(*c_set_args):
             ctrl_io.check(status, "fmi2SetReal", t)
@@ -577,9 +650,11 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
         if progress is not None and (k % every == 0 or k + 1 == n):
             progress(k + 1, n)
     wall = time.perf_counter() - start
-    cols = {"t_s": np.arange(n) * h, "r_mm": rows_c[:, 1].copy(), "l_mm": rows_p[:, 0].copy(),
-            "u_v": rows_c[:, 0].copy()}
-    if full:
+    cols = {"t_s": np.arange(n) * h, "r_mm": rows_c[:, 1].copy() if own is None else r_fed,
+            "l_mm": rows_p[:, 0].copy(), "u_v": rows_c[:, 0].copy()}
+    if full and own is not None:
+        cols.update({"p_mpa": rows_p[:, 1].copy(), "load_n": np.array(load_k)})
+    elif full:
         pred_next = rows_c[:, 3]
         cols.update({"p_mpa": rows_p[:, 1].copy(), "load_n": np.array(load_k),
                      "l_pred_mm": np.concatenate(([rows_p[0, 0]], pred_next[:-1])),

@@ -8,8 +8,8 @@ leaves the folder as it was, and a figure of an earlier run that this run does n
 * ``summary.json``: the metrics of :data:`tapmuscle.cosim.expect.METRICS` (``mae_mm`` = Eq. 21 over
   ``evaluation_samples``, command range, wall time, real-time factor, ...), the FMUs' GUIDs, the scenario,
   and ``fmu_warnings``: what the FMUs warned of during the run;
-* ``tracking.png`` (r, l, error, u; load if it changes), ``prediction_error.png`` and, for the adaptive
-  methods, ``parameters.png`` (theta-hat over time).
+* ``tracking.png`` (r, l, error, u), ``prediction_error.png`` (not for a
+  controller FMU of one's own) and, for the adaptive methods, ``parameters.png`` (theta-hat over time).
 """
 
 from __future__ import annotations
@@ -59,7 +59,10 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
         **metrics, "real_time_factor": metrics["real_time_factor"] if metrics["wall_time_s"] > 0 else None,
         # the window's times as decimals: 10.1, not 10.100000000000001
         "evaluation_samples": [k0, k1], "evaluation_window_s": [float(f"{k * scenario.step_s:.12g}") for k in (k0, k1)],
-        "fmus": {name: {"path": str(p), "guid": unpack(p).model_description.guid} for name, p in fmus.items()},
+        # by model name: a controller FMU of one's own is named as what it is
+        "fmus": {unpack(p).model_description.modelName: {"path": str(p), "guid": unpack(p).model_description.guid}
+                 for p in fmus.values()},
+        **({"controller_interface": dict(scenario.controller.interface)} if scenario.controller.own else {}),
         "scenario_spec": _spec(scenario),
         # the delay the controller's law ran for at the end (what input_delay_samples = -1 decided)
         **({"input_delay_samples_used": int(cols["input_delay"])} if "input_delay" in cols else {}),
@@ -103,8 +106,9 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
             window = (k0 * scenario.step_s, k1 * scenario.step_s)
             title = f"{scenario.name}: {scenario.method}, Eq. (21) error {summary['mae_mm']:.3f} mm"
             plot_tracking({scenario.method: table}, tmp / "tracking.png", title=title, window_s=window)
-            plot_prediction_errors({scenario.method: table}, tmp / "prediction_error.png",
-                                   title=f"{scenario.name}: one-step prediction error", window_s=window)
+            if "pred_error_mm" in table:  # a controller FMU of one's own has no prediction to show
+                plot_prediction_errors({scenario.method: table}, tmp / "prediction_error.png",
+                                       title=f"{scenario.name}: one-step prediction error", window_s=window)
             if scenario.method.startswith("ampc") and "theta_a1" in table:
                 history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
                 plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / "parameters.png",

@@ -26,6 +26,13 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
                                            # (its ts_s must be step_s; theta in mm and V)
     parameters = { "servo.R" = 15.0 }      # any AMPCController parameter (over the file's)
 
+    # or a controller FMU of one's own (any FMI 2.0 co-simulation FMU): its law, its parameters; the
+    # master feeds it the reading l(k) and the reference r(k) and applies its command, as the paper's
+    # [controller]
+    # fmu = "PIController.fmu"
+    # interface = { measurement = "y", reference = "r", command = "u" }   # its variables' names
+    # parameters = { "Kp" = 0.4 }          # any of its parameters (no method, no identification)
+
     [reference]                            # kind = "sine": the controller's built-in generator, exact preview
     kind = "sine"
     offset_mm = 35.0
@@ -67,7 +74,7 @@ if TYPE_CHECKING:
     from tapmuscle.cosim.expect import Expectations
 
 __all__ = ["ScenarioError", "Profile", "Reference", "FmuSpec", "Scenario", "load_scenario", "parse_scenario",
-           "read_toml"]
+           "read_toml", "INTERFACE_ROLES", "OWN_METHOD_PREFIX"]
 
 
 class ScenarioError(TapmuscleError):
@@ -121,6 +128,16 @@ class FmuSpec:
     """The file whose values ``parameters`` holds (``[plant] parameters_file``, ``[controller]
     identification``), kept so that a run's ``summary.json`` says where its plant or its controller's
     model came from; None without one."""
+    interface: Mapping[str, str] | None = None
+    """For a controller FMU of one's own (``[controller] interface``): the names of its variables for
+    the roles :data:`INTERFACE_ROLES` (``measurement``: the input that reads ``l`` [mm];
+    ``reference``: the input that reads ``r`` [mm]; ``command``: the output the plant's valve takes
+    as ``u`` [V]); None for the project's controller, whose interface the master knows."""
+
+    @property
+    def own(self) -> bool:
+        """True for a controller FMU of one's own (one with an :attr:`interface`)."""
+        return self.interface is not None
 
 
 @dataclass(frozen=True)
@@ -136,6 +153,8 @@ class Scenario:
     plant: FmuSpec
     controller: FmuSpec
     method: str
+    """The project controller's method (:data:`~fmu_controller.displacement_control.METHODS`), or for a
+    controller FMU of one's own ``own:<the FMU file's stem>`` (:data:`OWN_METHOD_PREFIX`)."""
     reference: Reference
     load: Profile
     supply: Profile
@@ -159,6 +178,13 @@ class Scenario:
         """Rows of the result: ``t_k = k step_s`` for ``k = 0 .. duration_s / step_s``."""
         return int(round(self.duration_s / self.step_s)) + 1
 
+
+#: The roles of a controller FMU of one's own's variables (``[controller] interface``), as
+#: :attr:`FmuSpec.interface` describes them.
+INTERFACE_ROLES = ("measurement", "reference", "command")
+
+#: :attr:`Scenario.method` of a run with a controller FMU of one's own: this, then the FMU file's stem.
+OWN_METHOD_PREFIX = "own:"
 
 #: Most samples of one scenario run (24 h at Ts = 0.1 s).
 MAX_RUN_SAMPLES = 864_001
@@ -302,14 +328,17 @@ class _Reader:
         return Profile(initial, tuple(steps))
 
 
-def _parameters(r: _Reader) -> dict[str, Any]:
+def _parameters(r: _Reader, *, booleans: bool = False) -> dict[str, Any]:
+    """The ``parameters`` table: numbers and enumeration names, and with ``booleans`` true/false (a
+    controller FMU of one's own may have Boolean parameters; the project's FMUs have none)."""
     params = r.table.get("parameters", {})
     if not isinstance(params, dict):
         raise r.error("parameters", f"must be a table of FMU variable name = value, got {params!r}")
     for key, value in params.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        if (isinstance(value, bool) and not booleans) or not isinstance(value, (int, float, str)):
+            kinds = "a number, true/false or an enumeration name" if booleans else "a number or an enumeration name"
             raise _Reader(r.source, params, f"{r.prefix}parameters.").error(
-                key, f"must be a number or an enumeration name, got {type(value).__name__} {value!r}")
+                key, f"must be {kinds}, got {type(value).__name__} {value!r}")
     return dict(params)
 
 
@@ -329,6 +358,30 @@ def _identification_parameters(r: _Reader, base: Path | None, step_s: float, met
         raise r.error("identification", str(exc)) from None
     del values["Ts"]
     return values
+
+
+def _own_controller(r: _Reader, base: Path | None) -> FmuSpec:
+    """The ``[controller]`` table of a controller FMU of one's own: its file (required), the names of
+    its variables in ``interface`` (every one of :data:`INTERFACE_ROLES`, a non-empty string) and its
+    parameters; the project controller's keys ``method`` and ``identification`` refused."""
+    for key in ("method", "identification"):
+        if key in r.table:
+            raise r.error(key, "chooses the project's AMPCController's law or model; a controller FMU of one's own "
+                               "([controller] interface) runs its own: remove the key, or the interface to run the "
+                               "project's controller")
+    if "fmu" not in r.table:
+        raise r.error("fmu", "missing: a controller with an interface is an FMU of one's own; name its file")
+    iface = r.sub("interface")
+    iface.check_keys(set(INTERFACE_ROLES))
+    names = {}
+    for role in INTERFACE_ROLES:
+        name = iface.string(role)
+        if not name.strip():
+            raise iface.error(role, "must name a variable of the FMU, got an empty string")
+        names[role] = name
+    if len(set(names.values())) < len(names):
+        raise iface.error("command", f"names a variable twice ({names}): each role is a variable of its own")
+    return FmuSpec(r.path("fmu", base), _parameters(r, booleans=True), interface=names)
 
 
 def _plant_file_parameters(r: _Reader, base: Path | None) -> tuple[dict[str, Any], dict[str, float]]:
@@ -378,14 +431,18 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     plant = FmuSpec(plant_r.path("fmu", base), {**file_parameters, **_parameters(plant_r)},
                     plant_r.path("parameters_file", base))
     ctrl_r = top.sub("controller")
-    ctrl_r.check_keys({"fmu", "parameters", "method", "identification"})
-    method = ctrl_r.string("method", "ampc_servo", METHODS)
-    controller = FmuSpec(ctrl_r.path("fmu", base), {**_identification_parameters(ctrl_r, base, step, method),
-                                                    **_parameters(ctrl_r)}, ctrl_r.path("identification", base))
-    for key in ("method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency"):
-        if key in controller.parameters:
-            raise _Reader(source, controller.parameters, "controller.parameters.").error(
-                key, "is set by the scenario itself (controller.method, step_s, [reference]); set it there")
+    ctrl_r.check_keys({"fmu", "parameters", "method", "identification", "interface"})
+    if "interface" in ctrl_r.table:
+        controller = _own_controller(ctrl_r, base)
+        method = OWN_METHOD_PREFIX + controller.path.stem
+    else:
+        method = ctrl_r.string("method", "ampc_servo", METHODS)
+        controller = FmuSpec(ctrl_r.path("fmu", base), {**_identification_parameters(ctrl_r, base, step, method),
+                                                        **_parameters(ctrl_r)}, ctrl_r.path("identification", base))
+        for key in ("method", "Ts", "reference_source", "sine.offset", "sine.amplitude", "sine.frequency"):
+            if key in controller.parameters:
+                raise _Reader(source, controller.parameters, "controller.parameters.").error(
+                    key, "is set by the scenario itself (controller.method, step_s, [reference]); set it there")
     if "seed" in plant.parameters:
         raise _Reader(source, plant.parameters, "plant.parameters.").error("seed", "set the top-level key 'seed'")
     ref_r = top.sub("reference")
@@ -418,8 +475,13 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
             raise ref_r.error("times_s", f"{t:g} s is not a sample time of step_s = {step:g} s (nearest: "
                                          f"{math.floor(t / step) * step:.12g} and {math.ceil(t / step) * step:.12g} s)")
         profile = Profile(float(values[0]), tuple((float(t), float(v)) for t, v in zip(times[1:], values[1:])))
-        reference = Reference("steps", steps=profile, preview=ref_r.string("preview", "advanced",
-                                                                           ("advanced", "held")))
+        preview = ref_r.string("preview", "held" if controller.own else "advanced", ("advanced", "held"))
+        if controller.own and preview == "advanced":
+            # r(t + Hp Ts) is the project controller's way to rebuild its preview r(k..k+Hp)
+            raise ref_r.error("preview", "'advanced' feeds r(t + Hp Ts) for the project's controller to rebuild "
+                                         "its preview; a controller FMU of one's own reads r(k) at sample k: "
+                                         "'held' (the default for it)")
+        reference = Reference("steps", steps=profile, preview=preview)
 
     load_r = top.sub("load")
     load_r.check_keys({"initial_n", "steps"})

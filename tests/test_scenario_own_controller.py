@@ -1,0 +1,181 @@
+"""A controller FMU of one's own in a scenario (``[controller] interface``): the shipped example
+PIController.fmu on the project's plant FMU is the same loop as the same PI law driving the plant
+in Python, bit for bit; its inputs, output and parameters are checked before a run and named."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_plant import Plant, PlantParams
+from fmu_controller.reference import SineReference
+from tapmuscle.cli.main import main
+from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
+from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario, parse_scenario
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "scenarios" / "examples"
+IFACE = {"measurement": "y", "reference": "r", "command": "u"}
+
+pytestmark = pytest.mark.fmu
+
+
+@pytest.fixture(scope="module")
+def pi_fmu(tmp_path_factory) -> Path:
+    """PIController.fmu built from the example script as its docstring says (pythonfmu build)."""
+    from pythonfmu.builder import FmuBuilder
+
+    out = tmp_path_factory.mktemp("own")
+    saved = list(sys.path)
+    try:
+        built = FmuBuilder.build_FMU(EXAMPLES / "pi_controller.py", dest=out)
+    finally:  # the builder puts the script's folder first on sys.path and imports it
+        sys.path[:] = saved
+        sys.modules.pop("pi_controller", None)
+    return Path(built)
+
+
+class PI:
+    """The example FMU's law (scenarios/examples/pi_controller.py) as a law of one's own in Python:
+    the same arithmetic in the same order."""
+
+    def __init__(self, kp=0.15, ki=0.6, u_bias=5.0, u_min=0.0, u_max=10.0, anti_windup=True, ts_s=0.1):
+        self.kp, self.ki, self.u_bias, self.u_min, self.u_max = kp, ki, u_bias, u_min, u_max
+        self.anti_windup, self.ts_s, self.integral = anti_windup, ts_s, 0.0
+
+    def step(self, l_mm, preview_mm):
+        e = float(preview_mm[0]) - l_mm
+        v = self.u_bias + self.kp * e + self.integral
+        u = min(max(v, self.u_min), self.u_max)
+        pushed = (v > self.u_max and e > 0.0) or (v < self.u_min and e < 0.0)
+        if not (self.anti_windup and pushed):
+            self.integral += self.ki * self.ts_s * e
+        return u
+
+
+def _scenario(fmu, *, parameters=None, reference=None, load_steps=((20.0, 68.0),), record_seed=4):
+    return parse_scenario({
+        "duration_s": 30.0, "step_s": 0.1, "seed": record_seed,
+        "controller": {"fmu": str(fmu), "interface": IFACE, "parameters": parameters or {}},
+        "reference": reference or {"kind": "sine", "frequency_hz": 0.1},
+        "load": {"initial_n": 44.0, "steps": [{"t_s": t, "load_n": v} for t, v in load_steps]}}, source="test")
+
+
+@pytest.mark.parametrize("parameters, law", [
+    ({}, {}),
+    ({"Kp": 0.3, "Ki": 0.2, "u_max": 8.0, "anti_windup": False}, {"kp": 0.3, "ki": 0.2, "u_max": 8.0,
+                                                                   "anti_windup": False}),
+])
+def test_a_controller_fmu_of_ones_own_is_the_same_loop_as_its_law_in_python(built_fmus, pi_fmu, parameters, law):
+    """The master feeds y <- l(k), r <- r(k) before the controller's step and applies u(k) over
+    [t_k, t_k+1), as for the project's controller: the plant FMU driven by the PI FMU gives the plant
+    driven by the same PI in Python, bit for bit (one process), with the load step at the same sample
+    and the FMU's parameters (a Boolean among them) in effect."""
+    cols = co_simulate(_scenario(pi_fmu, parameters=parameters), built_fmus)
+    plant = Plant(PlantParams(), seed=4)
+    plant.update(load_n=44.0)
+    direct = run_closed_loop(plant, PI(**law), SineReference(frequency_hz=0.1), duration_s=30.0,
+                             load_n=lambda t: 68.0 if t + 1e-9 >= 20.0 else 44.0)
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    assert np.array_equal(cols["r_mm"], direct["r_mm"])
+    assert cols["load_n"][199] == 44.0 and cols["load_n"][200] == 68.0
+    assert set(cols) == {"t_s", "r_mm", "l_mm", "u_v", "p_mpa", "load_n", "wall_time_s"}  # no diagnostics it lacks
+    if law.get("u_max"):
+        assert cols["u_v"].max() == 8.0  # the parameter reached the FMU: the command is capped there
+    # a law that tracks at all: the error over Eq. (21)'s window a few mm, not the 30-mm swing
+    assert 0.2 < eq21_error_mm(cols["r_mm"], cols["l_mm"], window=(101, 300)) < 6.0
+
+
+def test_the_shipped_example_runs_as_documented(built_fmus, pi_fmu, tmp_path, capsys):
+    """scenarios/examples/own_controller.toml beside its built FMU: `tapmuscle run` writes the result,
+    the summary (the FMU named by its model name, the interface) and the tracking figure (no prediction
+    figure: the FMU has no prediction), and `tapmuscle check` passes its [expect]."""
+    shutil.copy(EXAMPLES / "own_controller.toml", tmp_path)
+    shutil.copy(pi_fmu, tmp_path)
+    fmu_dir = str(built_fmus["MusclePlant"].parent)
+    assert main(["run", str(tmp_path / "own_controller.toml"), "--out", str(tmp_path / "out"), "--fmu-dir", fmu_dir,
+                 "--quiet"]) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["method"] == "own:PIController"
+    assert set(summary["fmus"]) == {"MusclePlant", "PIController"}
+    assert summary["controller_interface"] == IFACE
+    assert summary["mae_mm"] < 5.0 and 0.0 <= summary["u_min_v"] <= summary["u_max_v"] <= 10.0
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["result.csv", "summary.json", "tracking.png"]
+    capsys.readouterr()
+    assert main(["check", str(tmp_path / "own_controller.toml"), "--fmu-dir", fmu_dir]) == 0
+    assert "PASS" in capsys.readouterr().out
+
+
+def test_a_step_reference_reaches_it_as_r_k(built_fmus, pi_fmu):
+    """A step reference is fed as r(k) at sample k (no preview: a controller of one's own has no
+    horizon); 'advanced' preview is refused with the reason."""
+    ref = {"kind": "steps", "times_s": [0.0, 15.0], "values_mm": [20.0, 50.0]}
+    cols = co_simulate(_scenario(pi_fmu, reference=ref, load_steps=()), built_fmus, record="minimal")
+    assert cols["r_mm"][149] == 20.0 and cols["r_mm"][150] == 50.0
+    assert abs(cols["l_mm"][140] - 20.0) < 2.0 and abs(cols["l_mm"][-1] - 50.0) < 2.0  # settled on each
+    with pytest.raises(ScenarioError, match=r"key 'reference.preview': 'advanced' feeds r\(t \+ Hp Ts\) .* a "
+                                            r"controller FMU of one's own reads r\(k\) at sample k: 'held'"):
+        _scenario(pi_fmu, reference={**ref, "preview": "advanced"})
+
+
+@pytest.mark.parametrize("controller, key, message", [
+    ({"interface": IFACE}, "controller.fmu", "missing: a controller with an interface is an FMU of one's own"),
+    ({"fmu": "{fmu}", "interface": IFACE, "method": "ampc_servo"}, "controller.method",
+     "chooses the project's AMPCController's law or model; a controller FMU of one's own"),
+    ({"fmu": "{fmu}", "interface": {"measurement": "y", "command": "u"}}, "controller.interface.reference",
+     "missing"),
+    ({"fmu": "{fmu}", "interface": {**IFACE, "gain": "Kp"}}, "controller.interface.gain", "unknown key"),
+    ({"fmu": "{fmu}", "interface": {**IFACE, "reference": "y"}}, "controller.interface.command",
+     "names a variable twice"),
+    ({"fmu": "{fmu}", "interface": {**IFACE, "reference": " "}}, "controller.interface.reference",
+     "must name a variable"),
+])
+def test_a_controller_table_of_ones_own_is_checked_when_read(pi_fmu, controller, key, message):
+    table = {k: (v.format(fmu=pi_fmu) if isinstance(v, str) else v) for k, v in controller.items()}
+    with pytest.raises(ScenarioError, match=re.escape(f"key '{key}': {message}")):
+        parse_scenario({"duration_s": 5.0, "controller": table}, source="test")
+
+
+@pytest.mark.parametrize("interface, parameters, message", [
+    ({**IFACE, "measurement": "l"}, {}, "interface does not fit this PIController FMU: measurement = 'l': no such "
+                                        "variable (its Real inputs: r, y; its Real outputs: u)"),
+    ({**IFACE, "measurement": "u", "command": "Kp"}, {}, "measurement = 'u': a Real output, not a Real input; "
+                                                        "command = 'Kp': a Real parameter, not a Real output"),
+    ({**IFACE, "measurement": "Kp"}, {}, "measurement = 'Kp': a Real parameter, not a Real input"),
+    (IFACE, {"Kpp": 1.0}, "key 'controller.parameters.Kpp': not a parameter of PIController (did you mean 'Kp'? "),
+    (IFACE, {"anti_windup": 1}, "key 'controller.parameters.anti_windup': must be true or false, got 1"),
+    (IFACE, {"Kp": True}, "key 'controller.parameters.Kp': must be a number (Real), got True"),
+])
+def test_what_does_not_fit_the_fmu_is_named_before_a_run(built_fmus, pi_fmu, interface, parameters, message):
+    scenario = parse_scenario({"duration_s": 5.0, "controller": {"fmu": str(pi_fmu), "interface": interface,
+                                                                 "parameters": parameters}}, source="test")
+    with pytest.raises(ScenarioError, match=re.escape(message)):
+        co_simulate(scenario, built_fmus)
+
+
+def test_the_command_a_controller_of_ones_own_sends_is_what_the_plant_takes(built_fmus, pi_fmu):
+    """The plant FMU takes a command within -1..11 V as its valve does (saturated at 0..10 V: 10.5 V
+    moves the muscle as 10 V does, and the recorded command is what the controller sent); a command
+    beyond stops the run with the plant's message naming the value and the time."""
+    def run(u_bias, u_max=10.0):
+        return co_simulate(_scenario(pi_fmu, parameters={"Kp": 0.0, "Ki": 0.0, "u_bias": u_bias, "u_max": u_max},
+                                     load_steps=()), built_fmus, record="minimal")
+
+    above, ten = run(10.5, 11.0), run(10.0)
+    assert np.all(above["u_v"] == 10.5) and np.all(ten["u_v"] == 10.0)
+    assert np.array_equal(above["l_mm"], ten["l_mm"])
+    assert ten["l_mm"][-1] > 50.0  # the valve fully open lifts the 44-N load
+    with pytest.raises(ScenarioError, match=r"plant FMU \(MusclePlant.fmu\) fmi2DoStep at t = 0 s failed: status "
+                                            r"DISCARD: .*u = 12.0 is outside -1..11"):
+        run(12.0, 20.0)
+
+
+def test_the_example_scenario_file_reads_without_its_fmu_only_as_a_missing_file():
+    with pytest.raises(ScenarioError, match=r"key 'controller.fmu': file '.*PIController.fmu' does not exist"):
+        load_scenario(EXAMPLES / "own_controller.toml")
+
