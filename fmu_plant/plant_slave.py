@@ -56,6 +56,8 @@ def parameter_table() -> list[tuple[str, float, str, str, float | None, float | 
             if f"{group.name}.{f.name}" in SET_BY_INPUT:
                 doc = f"{doc.rstrip('. ')}; not used in the FMU: its input {SET_BY_INPUT[f'{group.name}.{f.name}']} sets it"
             unit = doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
+            if f.metadata.get("lo_open"):  # FMI's min cannot be open: the description says the limit is refused
+                doc = f"{doc.rstrip('. ')}; must be > {f.metadata['lo']:g} (the declared min itself is refused)"
             rows.append((f"{group.name}.{f.name}", float(getattr(sub, f.name)), unit, doc,
                          f.metadata.get("lo"), f.metadata.get("hi")))
     return rows

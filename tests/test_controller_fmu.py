@@ -67,6 +67,44 @@ def test_model_description_declares_units_ranges_integer_choices_and_no_feedthro
     assert cs.get("canGetAndSetFMUstate") == "true" and cs.get("canSerializeFMUstate") == "true"
 
 
+def test_the_documented_table_gives_every_declared_range(fmu):
+    """docs/fmu.md's AMPCController table: each row's "declared range" is its variables' min..max in
+    modelDescription.xml (several distinct ranges in the row's order, joined by commas; none where
+    nothing is declared), and every parameter and input of the FMU is in some row."""
+    from pathlib import Path
+
+    variables = {v.name: v for v in fmu[1].modelVariables}
+
+    def names(cell):
+        out = []
+        for n in re.findall(r"`([^`]+)`", cell):
+            head, _, tail = n.rpartition(".")
+            out += [f"{head}.{t}" for t in tail.split("/")] if "/" in tail else [n]
+        return [n for n in out if n in variables]
+
+    def declared(v):
+        if v.type not in ("Real", "Integer") or (v.min is None and v.max is None):
+            return ""
+        return f"{'-inf' if v.min is None else f'{float(v.min):g}'}..{'inf' if v.max is None else f'{float(v.max):g}'}"
+
+    lines = (Path(__file__).resolve().parents[1] / "docs" / "fmu.md").read_text().splitlines()
+    start = lines.index("| variable | causality | unit | start | declared range | meaning |")
+    rows, covered = 0, set()
+    for line in lines[start + 2:]:
+        if not line.startswith("| "):
+            break
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]]  # "\|" inside a cell is text
+        listed = names(cells[0])
+        assert listed, f"a row naming no variable of the FMU: {cells[0]}"
+        expected = ", ".join(dict.fromkeys(declared(variables[n]) for n in listed))
+        assert cells[4] == ("" if expected.strip(", ") == "" else expected), cells[0]
+        covered |= {n.split(".")[0] for n in listed}
+        rows += 1
+    assert rows >= 35
+    settable = {v.name.split(".")[0] for v in variables.values() if v.causality in ("parameter", "input")}
+    assert settable <= covered, sorted(settable - covered)
+
+
 @pytest.mark.parametrize("method_code, method", [(1, "mpc_ucp"), (2, "mpc_servo"), (3, "ampc_ucp"), (4, "ampc_servo")])
 def test_fmu_equals_the_direct_controller_bit_for_bit(fmu, method_code, method):
     vr = fmu[3]

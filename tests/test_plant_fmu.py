@@ -547,6 +547,26 @@ def test_the_parameters_an_input_sets_say_so_in_the_model_description(fmu):
     assert unused["supply.supply_pressure_mpa"].endswith("its input supply_pressure sets it")
 
 
+def test_an_open_lower_bound_is_said_in_the_description(fmu):
+    """FMI's min cannot be open: a parameter that must be above its declared min (the bladder's radius,
+    the valve's Cv) says so in its description, which a tool's dialog shows beside the range, and the
+    set of such parameters is exactly those whose check refuses the limit itself."""
+    from dataclasses import fields
+
+    from fmu_plant import PlantParams
+
+    _, md, _, _ = fmu
+    said = {v.name for v in md.modelVariables if "(the declared min itself is refused)" in (v.description or "")}
+    defaults = PlantParams()
+    open_lo = {f"{g.name}.{f.name}" for g in fields(defaults) for f in fields(getattr(defaults, g.name))
+               if f.metadata.get("lo_open")}
+    assert said == open_lo and {"muscle.radius_mm", "valve.cv_max"} <= said
+    radius = next(v for v in md.modelVariables if v.name == "muscle.radius_mm")
+    assert float(radius.min) == 0.0 and radius.description.endswith("; must be > 0 (the declared min itself is refused)")
+    with pytest.raises(ValueError, match="radius_mm must be > 0"):
+        PlantParams().with_values(**{"muscle.radius_mm": 0.0})
+
+
 @pytest.mark.parametrize("name, bound, outward", [("load_force", 500.0, 1.0), ("u", 11.0, 1.0), ("u", -1.0, -1.0),
                                                    ("supply_pressure", 0.0, -1.0)])
 def test_an_input_a_rounding_beyond_its_bound_is_the_bound(fmu, capfd, name, bound, outward):
