@@ -359,6 +359,23 @@ def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth
     assert rec.metadata["filled"].startswith("3 dropped samples in 2 gaps put back")
 
 
+def test_a_log_whose_period_changes_is_not_filled_as_dropped_samples(tmp_path):
+    """A logger switched from 10 to 20 Hz at 30 s: --fill-gaps would have put 300 "dropped" samples
+    back and interpolated the first 30 s onto the faster grid; it names the change and its line."""
+    t = np.concatenate([np.arange(300) * 0.1, 30.0 + np.arange(600) * 0.05])
+    log = tmp_path / "logger.csv"
+    log.write_text("time,cmd,pos\n" + "".join(f"{x:.3f},{5 + 3 * np.sin(0.6 * x):.4f},{20 + 10 * np.sin(0.6 * x):.4f}\n"
+                                               for x in t))
+    spec = {"time": "time", "u": "cmd", "l": "pos"}
+    with pytest.raises(RecordingError, match=r"logger.csv, line 303, column 'time': the sampling period changes at "
+                                             r"t = 30 s .* from 0.1 s to 0.05 s; --fill-gaps puts back samples a "
+                                             r"logger dropped and does not resample: split the log there"):
+        read_rig_log(log, **spec, fill_gaps_s=1.0)
+    with pytest.raises(RecordingError, match=r"line 303: column time, sample 301: the sampling period changes") as info:
+        read_rig_log(log, **spec)
+    assert "--fill-gaps" not in str(info.value)
+
+
 @pytest.mark.parametrize("body,options,message", [
     # integers with '.' thousands separators (a German export): read with a decimal point, 1.350 um was 1.35
     ("t;u;pos\n0;5;12\n1;5;999\n2;5;1.350\n3;5;2.001\n", {},

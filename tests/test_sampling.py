@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from tapmuscle.io.recording import Recording, RecordingError
-from tapmuscle.io.sampling import JITTER_TOLERANCE, SamplingError, uniform_sampling
+from tapmuscle.io.sampling import (JITTER_TOLERANCE, PERIOD_CHANGE_MIN_STEPS, SamplingError, period_change,
+                                   uniform_sampling)
 
 TS = 0.1
 N = 2401
@@ -42,6 +43,36 @@ def test_a_dropped_sample_is_named_wherever_it_lies_even_under_jitter(seed, wher
     t = np.delete(_grid() + rng.uniform(-0.2, 0.2, N) * TS, where)
     with pytest.raises(SamplingError, match=rf"sample {where}: t = .* a dropped or doubled sample"):
         uniform_sampling(t)
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("first, second, split", [(0.1, 0.05, 300), (0.05, 0.1, 900), (0.1, 0.2, 40), (0.01, 0.1, 1700)])
+def test_a_period_that_changes_part_way_is_named_as_such_even_under_jitter(seed, first, second, split):
+    """(Stamps jittered by up to a tenth of their period.) A logger set to another rate part way (or
+    two recordings appended) is one change of period at one sample, not hundreds of dropped or
+    doubled samples; no sample is missing, so filling gaps cannot mend it (period_change)."""
+    rng = np.random.default_rng(seed)
+    t = np.concatenate([np.arange(split) * first, split * first + np.arange(N - split) * second])
+    t = t + rng.uniform(-0.1, 0.1, N) * np.where(np.arange(N) < split, first, second)
+    # the sample after the first step at the second period (jitter may move the split by one step)
+    k, got_first, got_second = period_change(t)
+    # each period a median of jittered steps: within a few per cent for the 39 steps of the shortest side
+    assert k in (split, split + 1, split + 2) and (got_first, got_second) == pytest.approx((first, second), rel=0.05)
+    with pytest.raises(SamplingError, match=rf"sample {k}: the sampling period changes at t = [\d.]+ s, from "
+                                            r".* one recording has one period; split it there") as info:
+        uniform_sampling(t)
+    assert info.value.period_change and info.value.sample == k and info.value.steps == ()
+
+
+def test_dropped_samples_here_and_there_and_a_short_stretch_are_not_a_change_of_period():
+    t = _grid()
+    assert period_change(np.delete(t, [100, 900, 1500])) is None  # drops in the middle
+    assert period_change(np.delete(t, np.arange(N - 2 * (PERIOD_CHANGE_MIN_STEPS - 1), N, 2))) is None  # 9 at the end
+    ten = np.delete(t, np.arange(N - 2 * PERIOD_CHANGE_MIN_STEPS, N, 2))  # every other one of the last 20: 10 steps
+    assert period_change(ten) == (len(ten) - PERIOD_CHANGE_MIN_STEPS, pytest.approx(TS), pytest.approx(2 * TS))
+    with pytest.raises(SamplingError, match="a dropped or doubled sample") as info:
+        uniform_sampling(np.delete(t, [100, 900, 1500]))
+    assert not info.value.period_change
 
 
 def test_a_doubled_sample_and_a_backward_step_are_named():

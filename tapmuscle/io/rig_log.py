@@ -52,7 +52,7 @@ import numpy as np
 
 from tapmuscle.io.gc_paused import gc_paused
 from tapmuscle.io.recording import Recording, RecordingError, read_text
-from tapmuscle.io.sampling import SamplingError, uniform_sampling
+from tapmuscle.io.sampling import SamplingError, period_change, uniform_sampling
 
 __all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "LINEAR_UNITS", "MA_RANGE", "UNIT_ALIASES", "MISSING_CELLS", "NAME_SUFFIX",
            "STANDARD_ATMOSPHERE_KPA", "MICRO_SIGNS", "LogColumn", "read_rig_log", "read_rig_log_columns",
@@ -407,6 +407,12 @@ def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: floa
     gaps = np.nonzero(dt > 1.5 * ts)[0]
     if not gaps.size:
         return columns, line_of, None
+    change = period_change(t)
+    if change is not None:  # the samples of the longer period are not dropped ones: filling would resample
+        k, first, second = change
+        raise RecordingError(f"{where.format(line_of[k])}: the sampling period changes at t = {t[k - 1]:.6g} s (from the "
+                             f"first stamp), from {first:.6g} s to {second:.6g} s; --fill-gaps puts back samples a "
+                             "logger dropped and does not resample: split the log there into two recordings")
     missing_s = dt[gaps] - ts
     if float(np.max(missing_s)) > longest_s + 0.5 * ts:
         g = int(gaps[np.argmax(missing_s > longest_s + 0.5 * ts)])
@@ -672,7 +678,7 @@ def _sampling_problems(path: Path, times: np.ndarray, line_of: np.ndarray, colum
                 raise RecordingError(f"{path}: {exc} (times from the first stamp)") from None
             return []
         message = f"{path}, line {line_of[exc.sample]}: {exc} (times from the first stamp" + (
-            "; or --fill-gaps S)" if not fill_gaps_s else ")")
+            "; or --fill-gaps S)" if not fill_gaps_s and not exc.period_change else ")")
         steps = np.array(exc.steps or (exc.sample,))
         if local:
             dt = times[steps] - times[steps - 1]

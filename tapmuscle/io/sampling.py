@@ -21,7 +21,7 @@ from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
            "GAP_PERIODS", "check_sampling_period", "step_kind", "DECIMATED_TS_S", "decimation_factor", "merge_advice",
-           "MAX_DECIMATION"]
+           "MAX_DECIMATION", "period_change", "PERIOD_CHANGE_MIN_STEPS", "PERIOD_CHANGE_STRAY"]
 
 #: Largest distance of a sample's time from its slot on the uniform grid, as a fraction of the period.
 JITTER_TOLERANCE = 0.25
@@ -92,14 +92,17 @@ class SamplingError(TapmuscleError):
     """A time column that is not uniformly sampled; the message names the sample and its time, and
     :attr:`sample` is its index (None: no one sample is to blame). :attr:`steps` holds every sample
     that follows a step off the period (a dropped or doubled sample, a gap), in order, and
-    :attr:`largest` the one after the largest of them (empty and None for a drifting clock)."""
+    :attr:`largest` the one after the largest of them (empty and None for a drifting clock).
+    :attr:`period_change` is True where the period changes part way (:attr:`sample` the first sample
+    of the second period, :attr:`steps` empty): no sample is missing, so filling gaps cannot mend it."""
 
     def __init__(self, message: str, sample: int | None = None, steps: tuple[int, ...] = (),
-                 largest: int | None = None) -> None:
+                 largest: int | None = None, *, period_change: bool = False) -> None:
         super().__init__(message)
         self.sample = sample
         self.steps = steps
         self.largest = largest
+        self.period_change = period_change
 
 
 @dataclass(frozen=True)
@@ -137,6 +140,60 @@ def step_kind(step_s: float, ts_s: float) -> str:
         return (f"a gap of {step_s:.6g} s, about {round(step_s / ts_s) - 1} samples missing (a paused logger, or a "
                 "clock that jumped)")
     return "a dropped or doubled sample"
+
+
+#: Fewest steps at another period that :func:`uniform_sampling` calls a change of period rather than
+#: samples dropped or doubled.
+PERIOD_CHANGE_MIN_STEPS = 10
+#: Largest share of one side's steps that may lie nearer the other side's period in a change of
+#: period (a jittered stamp now and then).
+PERIOD_CHANGE_STRAY = 0.01
+
+
+def period_change(t_s: np.ndarray) -> tuple[int, float, float] | None:
+    """Where the sampling period of the times ``t_s`` [s] changes part way, as ``(k, first_s,
+    second_s)``, or None: ``k`` is the sample after the first step at the second period, the two
+    periods are the medians of the steps on either side.
+
+    The cumulative sum of the steps about their mean peaks near a change of mean (a logger's jitter
+    is zero-mean); the two sides' medians there are the candidate periods, and the split is then the
+    one that leaves the fewest steps nearer the other side's period. It is a change when each side
+    has at least :data:`PERIOD_CHANGE_MIN_STEPS` steps, at most :data:`PERIOD_CHANGE_STRAY` of them
+    nearer the other side's period, the two medians differ by more than a quarter of the smaller,
+    and each side's steps lie within half of their own median of it, as jittered stamps do: a logger
+    set to another rate part way, or two recordings appended. Samples dropped or doubled here and
+    there, or one long gap, are not one.
+    """
+    t = np.asarray(t_s, dtype=float)
+    dt = np.diff(t)
+    n = dt.size
+    if n < 2 * PERIOD_CHANGE_MIN_STEPS + 1:
+        return None
+    lo, hi = PERIOD_CHANGE_MIN_STEPS, n - PERIOD_CHANGE_MIN_STEPS
+    drift = np.cumsum(dt - np.mean(dt))
+    j = int(np.argmax(np.abs(drift[lo - 1:hi]))) + lo  # roughly: steps 0..j-1 before, j.. after
+    first, second = float(np.median(dt[:j])), float(np.median(dt[j:]))
+    if not (first > 0.0 and second > 0.0) or abs(first - second) <= 0.25 * min(first, second):
+        return None
+    # exactly: the split that leaves the fewest steps nearer the other side's period (the cumulative
+    # sum's peak drifts by many steps where one side is short and its mean near the whole one's)
+    nearer_second = np.abs(dt - second) < np.abs(dt - first)
+    wrong = np.concatenate(([0], np.cumsum(nearer_second))) + (np.count_nonzero(~nearer_second)
+                                                              - np.concatenate(([0], np.cumsum(~nearer_second))))
+    j = int(np.argmin(wrong[lo:hi + 1])) + lo  # dt[j] is the first step at the second period
+    before, after = dt[:j], dt[j:]
+    # each side at its own period: hardly a step nearer the other's (a few dropped samples at the end
+    # would be a short side with one step of the old period in it), and none beyond half its own
+    if (np.count_nonzero(nearer_second[:j]) > PERIOD_CHANGE_STRAY * j
+            or np.count_nonzero(~nearer_second[j:]) > PERIOD_CHANGE_STRAY * (n - j)):
+        return None
+    first, second = float(np.median(before)), float(np.median(after))
+    if abs(first - second) <= 0.25 * min(first, second):
+        return None
+    # the two steps at the change left out: their stamps carry either period's jitter
+    if np.any(np.abs(before[:-1] - first) > 0.5 * first) or np.any(np.abs(after[1:] - second) > 0.5 * second):
+        return None
+    return j + 1, first, second
 
 
 def uniform_sampling(t_s: np.ndarray, column: str = "t_s", where: Callable[[int], str] | None = None) -> Sampling:
@@ -177,6 +234,13 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s", where: Callable[[int]
     # written times' rounding puts it a few ulps either side of the bound)
     bad = np.flatnonzero((dt <= 0.0) | (np.abs(dt - ts) > 0.5 * ts * (1.0 + 1e-9)))
     if bad.size:
+        change = period_change(t)
+        if change is not None:  # no sample is missing: "dropped or doubled" would misname it
+            k, first, second = change
+            raise SamplingError(
+                f"column {column}, sample {k}: the sampling period changes at t = {float(t[k - 1])!r} s, from "
+                f"{first:.6g} s to {second:.6g} s: one recording has one period; split it there into two "
+                "recordings, or resample it onto one grid", k, period_change=True)
         # named by the first such step in the file, the largest said too
         j, big = int(bad[0]), int(bad[np.argmax(np.abs(dt[bad] - ts))])
         more = ""
