@@ -848,6 +848,8 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
 
     printed = re.search(r"`(tapmuscle record [^`]*)`", (tmp_path / "report.md").read_text()).group(1)
     assert printed == group["experiment"]["record"]
+    # as printed it records the nominal plant: the report says what a simulated rig of one's own adds
+    assert "with the `--params` or `--set` options that made this recording added" in (tmp_path / "report.md").read_text()
     monkeypatch.chdir(tmp_path)
     assert main(shlex.split(printed)[1:] + ["--quiet"]) == 0
     new = read_recording(tmp_path / "NEW.csv")

@@ -238,7 +238,8 @@ def record_command(file: str, *, duration_s: float, ts_s: float, load_n: float |
                    out: str = "NEW.csv") -> str:
     """The ``tapmuscle record`` command that runs the experiment file ``file`` on the simulated rig at
     the diagnosed recording's load [N] and sampling period [s] (``LOAD_N`` where it had no load), into
-    ``out``: as printed, it runs."""
+    ``out``: as printed, it runs, on the nominal plant; a simulated rig that made the recording needs
+    that recording's ``--params`` or ``--set`` options added (which the diagnosis cannot know)."""
     load = "LOAD_N" if load_n is None else f"{load_n:g}"
     return (f"tapmuscle record --load {load} --ts {ts_s:g} --input csv:{file} --duration {duration_s:g} "
             f"--out {out}")
@@ -253,7 +254,8 @@ def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequenc
     command = record_command(Path(path).name, duration_s=exp.duration_s, ts_s=ts_s, load_n=load_n)
     meta = {"ts_s": f"{ts_s:g}", "source": "tapmuscle diagnose: discriminating experiment",
             "alternatives": ", ".join(alternatives),
-            "note": f"apply it to the rig, or to the simulated rig with: {command}; "
+            "note": f"apply it to the rig, or to a simulated rig with: {command} plus the --params or --set "
+                    "options that made the diagnosed recording; "
                     f"predicted separation {exp.separation_sigma:.0f} sigma"}
     if load_n is not None:
         meta["load_n"] = f"{load_n:g}"

@@ -169,7 +169,9 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
             lines += [f"Discriminating experiment: `{e['file']}`, {e['duration_s']:g} s of {e['input']}; the "
                       f"alternatives' predictions differ by at least {e['separation_sigma']:.0f} noise sd "
                       f"({e['min_rms_difference_mm']:.3f} mm RMS). Apply it to the rig at this recording's load "
-                      f"(the simulated rig: `{e['record']}`) and diagnose the new recording with `{e['plant']}` "
+                      f"(a simulated rig: `{e['record']}`, with the `--params` or `--set` options that made "
+                      "this recording added: without them it records the nominal plant, not your rig) and "
+                      f"diagnose the new recording with `{e['plant']}` "
                       f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}`.", ""]
     lines += ["## Findings", ""]
     if not d.findings:
