@@ -8,9 +8,10 @@ library's pure-Python modules.
   ``build_scripts/native_host.py`` already made libpython's symbols global and chose the building
   environment's interpreter, a venv's ``bin/python``, whose site-packages Python then adds itself).
   The site-packages recorded at build time in ``resources/tapmuscle_native.json`` are added too, with
-  ``site.addsitedir`` (those that exist and are not on sys.path yet; ``.pth`` files are honoured),
-  ahead of the interpreter's own (that matters when another interpreter runs: the venv is gone, or
-  ``TAPMUSCLE_PYTHON`` names another one).
+  ``site.addsitedir`` (those that exist and are not on sys.path yet; ``.pth`` files are honoured):
+  ahead of the interpreter's own when the FMU chose the interpreter (the building venv, or its base
+  interpreter when the venv is gone), after them when ``TAPMUSCLE_PYTHON`` names one: a user naming
+  a venv gets that venv's numpy, scipy, osqp, and the recorded ones only for a package it lacks.
 * ``TAPMUSCLE_SITE_PACKAGES`` (directories separated by ``os.pathsep``) replaces the recorded list, in
   any host; set but empty, it adds none.
 * In a Python host (fmpy) without the override nothing is added: the host's own environment rules;
@@ -29,11 +30,13 @@ import os
 import site
 import sys
 
-__all__ = ["CONFIG_NAME", "DEPENDENCIES", "SITE_ENV", "MissingDependencyFinder", "is_embedded", "python_command",
+__all__ = ["CONFIG_NAME", "DEPENDENCIES", "PYTHON_ENV", "SITE_ENV", "MissingDependencyFinder", "is_embedded", "python_command",
            "setup"]
 
 CONFIG_NAME = "tapmuscle_native.json"
 SITE_ENV = "TAPMUSCLE_SITE_PACKAGES"
+#: The interpreter a C host's FMU starts, where the user names it (read by the loader library).
+PYTHON_ENV = "TAPMUSCLE_PYTHON"
 #: Third-party packages the FMUs' numerics import (module name = pip name).
 DEPENDENCIES = ("numpy", "scipy", "osqp")
 
@@ -160,15 +163,22 @@ class MissingDependencyFinder:
         pass
 
 
-def _add_site_dirs(dirs) -> None:
-    """``site.addsitedir`` each existing directory (``.pth`` files honoured), then move what was added
-    ahead of the interpreter's own site-packages: the named environment takes precedence."""
+def _recorded_first() -> bool:
+    """Whether the directories :func:`_site_dirs` gives go ahead of the interpreter's own: the
+    override always (it names what to use); the recorded ones unless the user named the interpreter
+    (``TAPMUSCLE_PYTHON``), whose own packages are what the user asked for."""
+    return os.environ.get(SITE_ENV) is not None or not os.environ.get(PYTHON_ENV)
+
+
+def _add_site_dirs(dirs, ahead: bool = True) -> None:
+    """``site.addsitedir`` each existing directory (``.pth`` files honoured), then, if ``ahead``, move
+    what was added ahead of the interpreter's own site-packages (else they stay after them)."""
     before = set(sys.path)
     for d in dirs:
         if os.path.isdir(d) and d not in sys.path:
             site.addsitedir(d)
     added = [p for p in sys.path if p not in before]
-    if not added:
+    if not added or not ahead:
         return
     rest = [p for p in sys.path if p in before]
     own = set(site.getsitepackages())
@@ -189,6 +199,6 @@ def setup() -> None:
         return  # not inside a prepared FMU
     with open(config_path, encoding="utf-8") as f:
         config = json.load(f)
-    _add_site_dirs(_site_dirs(config) or ())
+    _add_site_dirs(_site_dirs(config) or (), ahead=_recorded_first())
     if not any(isinstance(f, MissingDependencyFinder) for f in sys.meta_path):
         sys.meta_path.append(MissingDependencyFinder(config=config))

@@ -341,6 +341,26 @@ def test_packages_come_from_the_recorded_or_named_site_packages(host, plant, tmp
     assert moved.stdout == run_host(host, tmp_path, *args).stdout
 
 
+def test_the_packages_of_the_python_tapmuscle_python_names_come_first(host, plant, tmp_path):
+    """A venv of its own named by TAPMUSCLE_PYTHON (for other numpy, scipy, osqp versions) on the
+    building machine: its packages win over the site-packages recorded at build, which ran the loop on
+    the build's numpy. Here the venv's numpy fails at import, and the FMU says so; TAPMUSCLE_SITE_PACKAGES
+    naming the recorded ones still puts them first."""
+    venv = tmp_path / "own-numpy"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    site_dir = Path(subprocess.run([str(venv / "bin" / "python"), "-c", "import sysconfig; print(sysconfig.get_path("
+                                    "'purelib'))"], check=True, capture_output=True, text=True).stdout.strip())
+    (site_dir / "numpy").mkdir(parents=True)
+    (site_dir / "numpy" / "__init__.py").write_text("raise ImportError('the named venv numpy, broken on purpose')\n")
+    args = ["open", *plant.args("P", u="u", l="l", p="p"), "steps=20"]
+    env = {"TAPMUSCLE_PYTHON": str(venv / "bin" / "python")}
+    proc = run_host(host, tmp_path, *args, check=False, env_extra=env)
+    assert proc.returncode == 2 and "the named venv numpy, broken on purpose" in proc.stderr, proc.stderr[-3000:]
+    recorded = json.loads((plant.dir / "resources" / CONFIG_NAME).read_text())["site_packages"]
+    forced = run_host(host, tmp_path, *args, env_extra={**env, "TAPMUSCLE_SITE_PACKAGES": os.pathsep.join(recorded)})
+    assert forced.stdout == run_host(host, tmp_path, *args).stdout and len(table(forced.stdout)) == 20
+
+
 def test_tapmuscle_python_of_another_installation_runs_on_its_own_libpython(host, plant, tmp_path):
     """TAPMUSCLE_PYTHON naming a venv of another CPython installation of the same version (the
     system's /usr/bin/python3.11 beside a pyenv build): the loader opens that installation's libpython,

@@ -299,8 +299,12 @@ def test_the_pip_advice_names_the_interpreter_not_the_host_program(tmp_path, mon
     assert native_host.python_command() == "/usr/bin/python3.11"
 
 
-def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_path, monkeypatch):
-    """fmi_slave.native_host as it runs from an FMU's resources/, embedded in a C host."""
+@pytest.mark.parametrize("named, override", [(False, False), (True, False), (True, True)])
+def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_path, monkeypatch, named, override):
+    """fmi_slave.native_host as it runs from an FMU's resources/, embedded in a C host: the recorded
+    site-packages go ahead of the interpreter's own, but after them where TAPMUSCLE_PYTHON names the
+    interpreter (a user naming a venv for its numpy got the build's); TAPMUSCLE_SITE_PACKAGES, which
+    names them, goes ahead in any case."""
     resources = tmp_path / "resources"
     (resources / "fmi_slave").mkdir(parents=True)
     shutil.copy(ROOT / "fmi_slave" / "native_host.py", resources / "fmi_slave" / "native_host.py")
@@ -315,12 +319,19 @@ def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_
     monkeypatch.setattr(sys, "path", list(sys.path))
     monkeypatch.setattr(sys, "meta_path", list(sys.meta_path))
     monkeypatch.delenv(module.SITE_ENV, raising=False)
+    monkeypatch.delenv(module.PYTHON_ENV, raising=False)
+    if named:
+        monkeypatch.setenv(module.PYTHON_ENV, sys.executable)
+    if override:
+        monkeypatch.setenv(module.SITE_ENV, os.pathsep.join([str(tmp_path / "gone"), str(site_dir)]))
     monkeypatch.setattr(module, "is_embedded", lambda: True)
     module.setup()
     assert str(site_dir) in sys.path and str(extra) in sys.path
     assert str(tmp_path / "gone") not in sys.path  # only those that exist
     own = [p for p in sys.path if p in site.getsitepackages()]
-    assert own and sys.path.index(str(extra)) < sys.path.index(own[0])  # ahead of the interpreter's own
+    assert own
+    ahead = sys.path.index(str(extra)) < sys.path.index(own[0])  # ahead of the interpreter's own
+    assert ahead == (override or not named)
     assert isinstance(sys.meta_path[-1], module.MissingDependencyFinder)
     module.setup()  # once only
     assert sum(isinstance(f, module.MissingDependencyFinder) for f in sys.meta_path) == 1
