@@ -105,12 +105,35 @@ static void shim_logger(fmi2ComponentEnvironment env, fmi2String instance, fmi2S
     to_host(s, instance, status, category, text);
 }
 
-/* A call on an instance whose instantiation failed: logged with the reason and answered with `status`
-   (fmi2Warning before the first step, fmi2Error from fmi2DoStep on; see FORWARD). */
+/* The reason shortened for the messages that repeat it: the host logged it whole once (a message of
+   several hundred characters on every later call buried the rest of a host's log). Line breaks become
+   spaces; a cut ends on a whole UTF-8 character, marked "...". */
+#define SUMMARY_CHARS 200
+static void summary(const char *reason, char *out, size_t size) {
+    size_t j = 0, limit = size - 4 < SUMMARY_CHARS ? size - 4 : SUMMARY_CHARS;
+    const char *p = reason;
+    for (; *p && j < limit; p++) {
+        if (*p == '\r' || *p == '\n') {
+            if (j && out[j - 1] != ' ') out[j++] = ' ';
+        } else out[j++] = *p;
+    }
+    if (*p) {
+        while (j > 0 && ((unsigned char)out[j - 1] & 0xC0) == 0x80) j--;
+        if (j > 0 && ((unsigned char)out[j - 1] & 0xC0) == 0xC0) j--;
+        memcpy(out + j, "...", 3);
+        j += 3;
+    }
+    out[j] = 0;
+}
+
+/* A call on an instance whose instantiation failed: logged with the reason in short and answered with
+   `status` (fmi2Warning before the first step, fmi2Error from fmi2DoStep on; see FORWARD). */
 static fmi2Status refuse(Shim *s, const char *call, fmi2Status status) {
-    char text[1800];
-    snprintf(text, sizeof text, "%s %s: the instance failed to instantiate (%s)", call,
-             status >= fmi2Error ? "refused" : "ignored", s->reason[0] ? s->reason : "see the earlier messages");
+    char text[600], shown[SUMMARY_CHARS + 8];
+    summary(s->reason, shown, sizeof shown);
+    snprintf(text, sizeof text, "%s %s: the instance failed at instantiation (%s; the whole reason is in the "
+             "instance's first message)", call, status >= fmi2Error ? "refused" : "ignored",
+             shown[0] ? shown : "no reason was logged");
     to_host(s, s->name, status, category_of(status), text);
     return status;
 }
@@ -305,9 +328,11 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
         }
     }
     if (!s->inner) {
-        char text[2600];
+        /* the reason reached the host just now, from pythonfmu's own message: named here in short */
+        char text[2600], shown[SUMMARY_CHARS + 8];
+        summary(s->reason, shown, sizeof shown);
         snprintf(text, sizeof text, "fmi2Instantiate failed%s%s%s; every later call of this instance returns fmi2Error",
-                 s->reason[0] ? ": " : "", s->reason, python_home_hint());
+                 shown[0] ? ": " : "", shown, python_home_hint());
         to_host(s, s->name, fmi2Error, "logStatusError", text);
     }
     s->worst = fmi2OK;

@@ -17,7 +17,8 @@ library's pure-Python modules.
 * In a Python host (fmpy) without the override nothing is added: the host's own environment rules;
   nor in a host on another operating system than the build's (a Windows C host: its Python's own).
 * In every host, a finder of last resort on ``sys.meta_path`` turns "No module named 'numpy'" (or
-  scipy, osqp) into a message saying what to install and where it looked; the exception makes
+  scipy, osqp) into a message saying what to install (every one of the three that is missing, located
+  without importing them) and where it looked; the exception makes
   pythonfmu's ``fmi2Instantiate`` log it through the host's logger and return NULL.
 
 Outside an FMU (no ``tapmuscle_native.json`` beside the ``fmi_slave`` package) nothing happens.
@@ -144,6 +145,10 @@ class MissingDependencyFinder:
     top-level packages in ``names`` it raises ModuleNotFoundError with what to install, and, in an
     interpreter the FMU started, why it may be missing (``config``: the FMU's recorded build)."""
 
+    #: Marks every copy of this class: each FMU carries its own package (fmu.md, "One Python per
+    #: process"), so two FMUs in one process add finders of two classes, which must not ask each other.
+    tapmuscle_last_resort = True
+
     def __init__(self, names: tuple[str, ...] = DEPENDENCIES, config: dict | None = None) -> None:
         self.names = tuple(names)
         self.config = dict(config or {})
@@ -151,13 +156,35 @@ class MissingDependencyFinder:
     def find_spec(self, fullname, path=None, target=None):
         if path is not None or fullname not in self.names:
             return None
+        # every package missing now, not only the first imported: one round of installing, not three
+        missing = [fullname, *(n for n in self.names if n != fullname and not self._findable(n))]
+        names, them = ", ".join(missing), "it" if len(missing) == 1 else "them"
         python = python_command()
+        advice, context = _install_advice(python, " ".join(missing)), _context(self.config)
+        named = ""
+        if is_embedded() and PYTHON_ENV not in advice + context:
+            # the interpreter a C host starts can be chosen; in a Python host it is the host's own
+            named = (f"set {PYTHON_ENV} to the python of a CPython {sys.version_info[0]}.{sys.version_info[1]} "
+                     f"environment that has {them}, or ")
         raise ModuleNotFoundError(
-            f"tapmuscle FMU: cannot import {fullname}; install it into the Python the FMU uses: "
-            f"{_install_advice(python, fullname)} (or set {SITE_ENV} to site-packages directories that have "
-            f"it, separated by '{os.pathsep}'; searched: {os.pathsep.join(p for p in sys.path if p)})"
-            f"{_context(self.config)}",
+            f"tapmuscle FMU: cannot import {names}; install {them} into the Python the FMU uses: {advice} (or "
+            f"{named}set {SITE_ENV} to site-packages directories that have {them}, separated by '{os.pathsep}'; "
+            f"searched: {os.pathsep.join(p for p in sys.path if p)}){context}",
             name=fullname)
+
+    def _findable(self, name: str) -> bool:
+        """Whether a finder ahead of this one locates top-level ``name`` (without importing it)."""
+        if name in sys.modules:
+            return True
+        for finder in sys.meta_path:
+            if getattr(finder, "tapmuscle_last_resort", False) or not hasattr(finder, "find_spec"):
+                continue
+            try:
+                if finder.find_spec(name, None) is not None:
+                    return True
+            except (ImportError, ValueError, OSError):
+                continue
+        return False
 
     def invalidate_caches(self) -> None:
         pass

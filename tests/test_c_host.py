@@ -316,12 +316,22 @@ def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plan
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
                     env_extra={"TAPMUSCLE_PYTHON": python, "TAPMUSCLE_SITE_PACKAGES": ""})
     assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr  # fmi_host: an FMI call failed
-    assert "tapmuscle FMU: cannot import numpy; install it into the Python the FMU uses: " in proc.stderr
+    # all three named at once (it took three rounds of installing: numpy, then scipy, then osqp)
+    assert "tapmuscle FMU: cannot import numpy, scipy, osqp; install them into the Python the FMU uses: " in proc.stderr
     # a venv made without pip, as uv makes them: pip's advice would fail ("No module named pip")
     assert (f"this Python has no pip (a uv environment, an embeddable distribution): uv pip install --python {python} "
-            f"numpy, or {python} -m ensurepip and then -m pip install numpy") in proc.stderr, proc.stderr
+            f"numpy scipy osqp, or {python} -m ensurepip and then -m pip install numpy scipy osqp") in proc.stderr, \
+        proc.stderr
+    version = "%d.%d" % sys.version_info[:2]
+    assert f"(or set TAPMUSCLE_PYTHON to the python of a CPython {version} environment that has them, or set " \
+           "TAPMUSCLE_SITE_PACKAGES to " in proc.stderr  # the way the docs recommend, too
     assert "[Fatal] plant" in proc.stderr  # through the host's logger callback
     assert proc.stdout.splitlines() == ["t,u,l,p"]  # the header, no row
+    # the whole message once; each later call (seven messages in all) names it in short
+    assert proc.stderr.count("searched: ") == 1, proc.stderr
+    refused = [line for line in proc.stderr.splitlines() if "the instance failed at instantiation (" in line]
+    assert len(refused) >= 5 and all(len(line) < 400 and "cannot import numpy" in line for line in refused), refused
+    assert all(line.endswith("; the whole reason is in the instance's first message)") for line in refused)
 
 
 @pytest.mark.parametrize("override", [False, True])

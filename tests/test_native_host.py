@@ -231,6 +231,48 @@ def test_missing_dependency_finder_names_what_to_install(monkeypatch):
     assert finder.find_spec("json") is None and finder.find_spec("tapmuscle_not_installed.x", ["p"]) is None
 
 
+def test_every_missing_package_is_named_at_once(monkeypatch):
+    """Three packages missing were found one per round (numpy; after installing it, scipy; then osqp):
+    the first import's message names each one missing, located without importing it; in a C host it
+    also offers TAPMUSCLE_PYTHON, which a Python host does not read."""
+    names = ("tapmuscle_not_installed_a", "json", "tapmuscle_not_installed_b")
+    finder = native_host.MissingDependencyFinder(names)
+    monkeypatch.setattr(sys, "meta_path", [*sys.meta_path, finder])
+    monkeypatch.delitem(sys.modules, "json")  # found by a finder ahead, not because it is imported
+    with pytest.raises(ModuleNotFoundError) as err:
+        import tapmuscle_not_installed_b  # noqa: F401
+    message = str(err.value)
+    assert message.startswith("tapmuscle FMU: cannot import tapmuscle_not_installed_b, tapmuscle_not_installed_a; "
+                              f"install them into the Python the FMU uses: {sys.executable} -m pip install "
+                              "tapmuscle_not_installed_b tapmuscle_not_installed_a (or set TAPMUSCLE_SITE_PACKAGES to "
+                              "site-packages directories that have them"), message
+    assert "json" not in sys.modules and err.value.name == "tapmuscle_not_installed_b"
+    assert "TAPMUSCLE_PYTHON" not in message
+    monkeypatch.setattr(native_host, "is_embedded", lambda: True)
+    with pytest.raises(ModuleNotFoundError) as err:
+        finder.find_spec("tapmuscle_not_installed_a")
+    version = "%d.%d" % sys.version_info[:2]
+    assert (f"(or set TAPMUSCLE_PYTHON to the python of a CPython {version} environment that has them, or set "
+            "TAPMUSCLE_SITE_PACKAGES to site-packages directories that have them") in str(err.value), str(err.value)
+
+
+def test_the_finders_of_two_fmus_in_one_process_do_not_ask_each_other(monkeypatch):
+    """Each FMU carries its own copy of the package, so the plant's and the controller's finders are of
+    two classes: asked for the other missing packages, each asked the other, and the second FMU to
+    instantiate in one process (Ecos, both FMUs' numpy missing) got "RecursionError('maximum recursion
+    depth exceeded')" instead of what to install."""
+    copies = []
+    for name in ("_nh_plant_copy", "_nh_controller_copy"):
+        spec = importlib.util.spec_from_file_location(name, ROOT / "fmi_slave" / "native_host.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        copies.append(module.MissingDependencyFinder(("tapmuscle_not_installed_a", "tapmuscle_not_installed_b")))
+    monkeypatch.setattr(sys, "meta_path", [*sys.meta_path, *copies])
+    with pytest.raises(ModuleNotFoundError) as err:
+        import tapmuscle_not_installed_b  # noqa: F401
+    assert str(err.value).startswith("tapmuscle FMU: cannot import tapmuscle_not_installed_b, tapmuscle_not_installed_a; ")
+
+
 def test_the_advice_in_a_c_host_says_why_the_package_is_missing(tmp_path, monkeypatch):
     """In an interpreter the FMU started: the building environment deleted (a venv moved, uv's cache
     cleaned) or made again with another Python, a PYTHONHOME, a Python without pip (a uv venv), the
