@@ -2,15 +2,15 @@
 
 * C host: ``tests/c_host/fmi_host.c`` (gcc, dlopen RTLD_LOCAL), ``closed`` mode, plant and AMPC-servo
   controller at h = Ts = 0.1 s, run in a plain environment as a user's C master would be. The stepping
-  time is the run of N + 10 steps minus the run of 10 steps (start-up, about 1.5 s, is Python's and
-  the FMUs' instantiation), so the real-time factor is that of the loop.
+  time is the host's own (a monotonic clock around its loop, printed to stderr as "fmi_host: stepping
+  loop: N steps in S s"): the process's start-up, Python's and the FMUs' instantiation, varies by more
+  than the loop costs (process times minus a 10-step run gave 3644x, 460x and 763x on three runs).
 * libcosim (``libcosimpy``, if installed): the same loop in a parallel master; its worker threads are
   not Python threads either.
 * With ``--windows DIR``: the same C host cross-compiled with MinGW-w64 and run under Wine, with the
   Windows Python that ``tests/windows_host/prepare_python.py DIR`` prepared (python3.dll on its PATH),
   on the FMUs' win64 binaries. Wine is not Windows: the figure compares builds of the shim, not
-  operating systems. Wine's start-up varies by about as much as 2400 steps cost: take
-  ``--steps 12000`` for a steady figure.
+  operating systems.
 
 Goal: >= 300x real time in the C host. Best of ``--repeat`` runs (the machine may be shared). Then the
 fmpy figures of today, those of ``python benchmarks/fmu_cosim.py`` (goals FMU/direct <= 1.3, >= 500x),
@@ -22,6 +22,7 @@ so that the C host's work is seen not to slow the Python hosts (``--no-fmpy`` sk
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import subprocess
 import sys
@@ -36,6 +37,16 @@ from build_scripts.build_fmus import cached_fmus
 
 HOST_SOURCE = Path(__file__).resolve().parents[1] / "tests" / "c_host" / "fmi_host.c"
 TS_S = 0.1
+#: The line fmi_host prints to stderr after its open or closed loop.
+LOOP_LINE = re.compile(r"^fmi_host: stepping loop: (\d+) steps in ([0-9.eE+-]+) s\r?$", re.MULTILINE)
+
+
+def stepping_seconds(stderr: str, steps: int) -> float:
+    """The duration of the host's loop of ``steps`` steps, as the host measured it."""
+    found = LOOP_LINE.findall(stderr)
+    if len(found) != 1 or int(found[0][0]) != steps:
+        raise SystemExit(f"fmi_host printed no stepping time for {steps} steps:\n{stderr[-2000:]}")
+    return float(found[0][1])
 
 
 def _host(folder: Path, windows: bool = False) -> Path:
@@ -79,25 +90,21 @@ def _wine_command(python_dir: Path) -> tuple[list[str], dict]:
 
 
 def c_host_seconds(exe: Path, args: list[str], steps: int, wine: tuple[list[str], dict] | None = None) -> float:
+    """The stepping time of one run of the C host's closed loop (its own clock, start-up left out)."""
     env = {"PATH": "/usr/bin:/bin", "HOME": tempfile.gettempdir(), "LANG": "C.UTF-8"}
     prefix: list[str] = []
     if wine:
         prefix, env = wine
-    t0 = time.perf_counter()
     proc = subprocess.run([*prefix, str(exe), "closed", *args, f"steps={steps}"], capture_output=True, text=True,
                           env=env)
     if proc.returncode != 0:
         raise SystemExit(f"fmi_host failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
-    return time.perf_counter() - t0
+    return stepping_seconds(proc.stderr, steps)
 
 
 def loop_seconds(run, steps: int, repeat: int) -> float:
-    """The stepping time of ``steps`` steps: the best of ``repeat`` runs of ``steps + 10`` steps minus
-    the best of as many runs of 10 (start-up varies from run to run, by more than the loop costs
-    under Wine: the best of the differences would be biased low)."""
-    long = min(run(steps + 10) for _ in range(repeat))
-    short = min(run(10) for _ in range(repeat))
-    return long - short
+    """The best of ``repeat`` runs' stepping times (the machine may be shared)."""
+    return min(run(steps) for _ in range(repeat))
 
 
 def libcosim_seconds(fmus: dict[str, Path], steps: int) -> float | None:
