@@ -414,8 +414,9 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
     -------
     dict
         ``columns`` (one array per recorded variable, one row per sample: ``t_s, r_mm, l_mm, u_v``
-        and the controller's diagnostics), ``mae_mm`` (Eq. (21) over the scenario's evaluation
-        window [mm]) and ``summary`` (what ``summary.json`` holds: every metric, the FMUs, the scenario).
+        and the controller's diagnostics, which a controller FMU of one's own has none of),
+        ``mae_mm`` (Eq. (21) over the scenario's evaluation window [mm]) and ``summary`` (what
+        ``summary.json`` holds: every metric, the FMUs, the scenario).
     """
     from tapmuscle.cosim import load_scenario
     from tapmuscle.cosim.master import co_simulate, sample_columns
