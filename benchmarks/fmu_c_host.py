@@ -4,7 +4,7 @@
   controller at h = Ts = 0.1 s, run in a plain environment as a user's C master would be. The stepping
   time is the host's own (a monotonic clock around its loop, printed to stderr as "fmi_host: stepping
   loop: N steps in S s"): the process's start-up, Python's and the FMUs' instantiation, varies by more
-  than the loop costs (process times minus a 10-step run gave 3644x, 460x and 763x on three runs).
+  than the loop costs (three runs' process times less a 10-step run's gave 3644x, 460x and 763x).
 * libcosim (``libcosimpy``, if installed): the same loop in a parallel master; its worker threads are
   not Python threads either.
 * With ``--windows DIR``: the same C host cross-compiled with MinGW-w64 and run under Wine, with the

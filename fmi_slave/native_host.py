@@ -182,7 +182,7 @@ class MissingDependencyFinder:
             try:
                 if finder.find_spec(name, None) is not None:
                     return True
-            except (ImportError, ValueError, OSError):
+            except Exception:  # noqa: BLE001 - another finder's failure must not replace the install advice
                 continue
         return False
 

@@ -288,9 +288,8 @@ def test_two_instances_at_once_then_free_and_instantiate_again(host, plant, tmp_
 
 
 def test_the_host_times_its_own_stepping_loop(host, plant, controller, tmp_path):
-    """benchmarks/fmu_c_host.py took the loop's time as process times minus a 10-step run's, and the
-    start-up varies by more than 2400 steps cost (3644x, 460x, 763x on three runs): the host prints the
-    time of its loop alone, which the benchmark reads."""
+    """The host prints the time of its stepping loop alone, which benchmarks/fmu_c_host.py reads: the
+    process's start-up varies by more than 2400 steps cost, so process times cannot give it."""
     spec = importlib.util.spec_from_file_location("_fmu_c_host", ROOT / "benchmarks" / "fmu_c_host.py")
     benchmark = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(benchmark)
@@ -336,7 +335,7 @@ def test_missing_dependency_fails_the_first_step_with_what_to_install(host, plan
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
                     env_extra={"TAPMUSCLE_PYTHON": python, "TAPMUSCLE_SITE_PACKAGES": ""})
     assert proc.returncode == 2 and "fmi2DoStep" in proc.stderr, proc.stderr  # fmi_host: an FMI call failed
-    # all three named at once (it took three rounds of installing: numpy, then scipy, then osqp)
+    # all three named at once: one round of installing
     assert "tapmuscle FMU: cannot import numpy, scipy, osqp; install them into the Python the FMU uses: " in proc.stderr
     # a venv made without pip, as uv makes them: pip's advice would fail ("No module named pip")
     assert (f"this Python has no pip (a uv environment, an embeddable distribution): uv pip install --python {python} "

@@ -50,7 +50,7 @@ def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():
         eq21_error_mm(r, l, window=(300, 200))
     with pytest.raises(ValueError, match=r"needs samples k = 0..401 \(402 samples\), the run has 401"):
         eq21_error_mm(r[:401], l[:401])
-    # the period given where the window goes (a TypeError from deep inside before)
+    # the period given where the window goes is named as such
     with pytest.raises(ValueError, match=r"window must be the samples \(k0, k1\), got the number 0.1; .* give it by "
                                          r"name: ts_s=0.1"):
         eq21_error_mm(r, l, 0.1)

@@ -232,9 +232,9 @@ def test_missing_dependency_finder_names_what_to_install(monkeypatch):
 
 
 def test_every_missing_package_is_named_at_once(monkeypatch):
-    """Three packages missing were found one per round (numpy; after installing it, scipy; then osqp):
-    the first import's message names each one missing, located without importing it; in a C host it
-    also offers TAPMUSCLE_PYTHON, which a Python host does not read."""
+    """Every package missing is named in the first import's message, each located without importing
+    it (one round of installing, not one per package); in a C host it also offers TAPMUSCLE_PYTHON,
+    which a Python host does not read."""
     names = ("tapmuscle_not_installed_a", "json", "tapmuscle_not_installed_b")
     finder = native_host.MissingDependencyFinder(names)
     monkeypatch.setattr(sys, "meta_path", [*sys.meta_path, finder])
@@ -258,9 +258,9 @@ def test_every_missing_package_is_named_at_once(monkeypatch):
 
 def test_the_finders_of_two_fmus_in_one_process_do_not_ask_each_other(monkeypatch):
     """Each FMU carries its own copy of the package, so the plant's and the controller's finders are of
-    two classes: asked for the other missing packages, each asked the other, and the second FMU to
-    instantiate in one process (Ecos, both FMUs' numpy missing) got "RecursionError('maximum recursion
-    depth exceeded')" instead of what to install."""
+    two classes: asked for the other missing packages, they must not ask each other, or the second FMU
+    to instantiate in one process (Ecos, both FMUs' numpy missing) gets a RecursionError instead of
+    what to install."""
     copies = []
     for name in ("_nh_plant_copy", "_nh_controller_copy"):
         spec = importlib.util.spec_from_file_location(name, ROOT / "fmi_slave" / "native_host.py")
@@ -345,7 +345,7 @@ def test_the_pip_advice_names_the_interpreter_not_the_host_program(tmp_path, mon
 def test_setup_inside_an_fmu_adds_the_recorded_site_packages_with_their_pth(tmp_path, monkeypatch, named, override):
     """fmi_slave.native_host as it runs from an FMU's resources/, embedded in a C host: the recorded
     site-packages go ahead of the interpreter's own, but after them where TAPMUSCLE_PYTHON names the
-    interpreter (a user naming a venv for its numpy got the build's); TAPMUSCLE_SITE_PACKAGES, which
+    interpreter (a user naming a venv for its numpy gets that venv's); TAPMUSCLE_SITE_PACKAGES, which
     names them, goes ahead in any case."""
     resources = tmp_path / "resources"
     (resources / "fmi_slave").mkdir(parents=True)

@@ -360,15 +360,15 @@ def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth
 
 
 def test_a_log_whose_period_changes_is_not_filled_as_dropped_samples(tmp_path):
-    """A logger switched from 10 to 20 Hz at 30 s: --fill-gaps would have put 300 "dropped" samples
-    back and interpolated the first 30 s onto the faster grid; it names the change and its line."""
+    """A logger switched from 10 to 20 Hz at 30 s: --fill-gaps must not put 300 "dropped" samples back
+    (the first 30 s interpolated onto the faster grid); it names the change and its line."""
     t = np.concatenate([np.arange(300) * 0.1, 30.0 + np.arange(600) * 0.05])
     log = tmp_path / "logger.csv"
     log.write_text("time,cmd,pos\n" + "".join(f"{x:.3f},{5 + 3 * np.sin(0.6 * x):.4f},{20 + 10 * np.sin(0.6 * x):.4f}\n"
                                                for x in t))
     spec = {"time": "time", "u": "cmd", "l": "pos"}
-    with pytest.raises(RecordingError, match=r"logger.csv, line 303, column 'time': the sampling period changes at "
-                                             r"t = 30 s .* from 0.1 s to 0.05 s; --fill-gaps puts back samples a "
+    with pytest.raises(RecordingError, match=r"logger.csv, line 303, column 'time': the sampling period changes between "
+                                             r"t = 30 and 30.05 s .* from 0.1 s to 0.05 s; --fill-gaps puts back samples a "
                                              r"logger dropped and does not resample: split the log there"):
         read_rig_log(log, **spec, fill_gaps_s=1.0)
     with pytest.raises(RecordingError, match=r"line 303: column time, sample 301: the sampling period changes") as info:

@@ -58,10 +58,30 @@ def test_a_period_that_changes_part_way_is_named_as_such_even_under_jitter(seed,
     k, got_first, got_second = period_change(t)
     # each period a median of jittered steps: within a few per cent for the 39 steps of the shortest side
     assert k in (split, split + 1, split + 2) and (got_first, got_second) == pytest.approx((first, second), rel=0.05)
-    with pytest.raises(SamplingError, match=rf"sample {k}: the sampling period changes at t = [\d.]+ s, from "
+    with pytest.raises(SamplingError, match=rf"sample {k}: the sampling period changes between t = [\d.]+ and [\d.]+ s, "
+                                            r"from "
                                             r".* one recording has one period; split it there") as info:
         uniform_sampling(t)
     assert info.value.period_change and info.value.sample == k and info.value.steps == ()
+
+
+@pytest.mark.parametrize("first, second, n_first, n_second", [(0.1, 0.05, 1000, 600), (0.1, 0.2, 300, 500),
+                                                              (0.1, 0.13, 500, 500), (0.1, 0.077, 500, 500)])
+def test_a_change_of_period_that_no_step_flags_as_dropped_is_named_too(first, second, n_first, n_second):
+    """Steps within half the median of it (the faster rate the minority, or a change of a third or
+    less) were taken for a drifting clock at the first sample off the grid; the change is named."""
+    t = np.round(np.concatenate([np.arange(n_first) * first, n_first * first + np.arange(n_second) * second]), 3)
+    with pytest.raises(SamplingError, match=r"the sampling period changes between t = ") as info:
+        uniform_sampling(t)
+    assert info.value.period_change and info.value.sample in (n_first, n_first + 1)
+
+
+def test_a_clock_that_restarts_between_two_appended_recordings_is_named_as_going_back():
+    t = np.concatenate([np.arange(300) * 0.1, np.arange(600) * 0.05])
+    assert period_change(t) is None
+    with pytest.raises(SamplingError, match=r"sample 300: t = 0.0 s follows 29.9\d* s") as info:
+        uniform_sampling(t)
+    assert not info.value.period_change
 
 
 def test_dropped_samples_here_and_there_and_a_short_stretch_are_not_a_change_of_period():

@@ -130,10 +130,12 @@ def test_a_step_reference_reaches_it_as_r_k(built_fmus, pi_fmu):
     ({"fmu": "{fmu}", "interface": {"measurement": "y", "command": "u"}}, "controller.interface.reference",
      "missing"),
     ({"fmu": "{fmu}", "interface": {**IFACE, "gain": "Kp"}}, "controller.interface.gain", "unknown key"),
-    ({"fmu": "{fmu}", "interface": {**IFACE, "reference": "y"}}, "controller.interface.command",
-     "names a variable twice"),
+    ({"fmu": "{fmu}", "interface": {**IFACE, "reference": "y"}}, "controller.interface.reference",
+     "names 'y', as measurement does"),
     ({"fmu": "{fmu}", "interface": {**IFACE, "reference": " "}}, "controller.interface.reference",
      "must name a variable"),
+    ({"fmu": "{fmu}", "interface": IFACE, "parameters": {"r": 3.0}}, "controller.parameters.r",
+     "is the controller's reference (interface), which the master sets every sample"),
 ])
 def test_a_controller_table_of_ones_own_is_checked_when_read(pi_fmu, controller, key, message):
     table = {k: (v.format(fmu=pi_fmu) if isinstance(v, str) else v) for k, v in controller.items()}
@@ -142,7 +144,8 @@ def test_a_controller_table_of_ones_own_is_checked_when_read(pi_fmu, controller,
 
 
 @pytest.mark.parametrize("interface, parameters, message", [
-    ({**IFACE, "measurement": "l"}, {}, "interface does not fit this PIController FMU: measurement = 'l': no such "
+    ({**IFACE, "measurement": "l"}, {}, "test: key 'controller.interface' does not fit "),
+    ({**IFACE, "measurement": "l"}, {}, "PIController.fmu, a PIController FMU: measurement = 'l': no such "
                                         "variable (its Real inputs: r, y; its Real outputs: u)"),
     ({**IFACE, "measurement": "u", "command": "Kp"}, {}, "measurement = 'u': a Real output, not a Real input; "
                                                         "command = 'Kp': a Real parameter, not a Real output"),
@@ -158,10 +161,68 @@ def test_what_does_not_fit_the_fmu_is_named_before_a_run(built_fmus, pi_fmu, int
         co_simulate(scenario, built_fmus)
 
 
+def test_the_projects_controller_is_refused_with_an_interface(built_fmus, tmp_path):
+    """Run through an interface, the scenario would not set its method, Ts and reference source: the
+    fed reference would be ignored for the built-in sine."""
+    scenario = parse_scenario({"duration_s": 5.0, "controller": {"fmu": str(built_fmus["AMPCController"]),
+                                                                 "interface": {"measurement": "l", "reference": "r",
+                                                                               "command": "u"}}}, source="test")
+    with pytest.raises(ScenarioError, match=r"the project's AMPCController runs without \[controller\] interface"):
+        co_simulate(scenario, built_fmus)
+
+
+def test_what_it_warns_of_from_its_instantiation_on_reaches_the_user(built_fmus, tmp_path, capsys):
+    """A controller of one's own that warns as it is set up (at fmi2EnterInitializationMode and
+    fmi2ExitInitializationMode) and at every step from 2 s on: every warning is passed on, none taken
+    as a rejection of its parameters; the command line says a repeated one once, with its count. A
+    DefaultExperiment step other than the scenario's is said (a fixed-step export's law is for it)."""
+    from pythonfmu.builder import FmuBuilder
+
+    script = tmp_path / "warning_pi.py"
+    script.write_text((EXAMPLES / "pi_controller.py").read_text().replace("class PIController(Fmi2Slave):",
+                                                                          "class _PI(Fmi2Slave):").replace(
+        "from pythonfmu import Boolean", "from pythonfmu import DefaultExperiment, Boolean") + """
+
+class PIController(_PI):
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=0.05)
+
+    def enter_initialization_mode(self):
+        self.log("entering: a warning", status=Fmi2Status.warning)
+
+    def exit_initialization_mode(self):
+        self.log("leaving: a warning", status=Fmi2Status.warning)
+
+    def do_step(self, current_time, step_size):
+        if current_time >= 2.0 - 1e-9:
+            self.log("late: a warning", status=Fmi2Status.warning)
+        return super().do_step(current_time, step_size)
+""")
+    saved = list(sys.path)
+    try:
+        fmu = Path(FmuBuilder.build_FMU(script, dest=tmp_path))
+    finally:
+        sys.path[:] = saved
+        sys.modules.pop("warning_pi", None)
+    said: list[str] = []
+    cols = co_simulate(_scenario(fmu, load_steps=()), built_fmus, fmu_warnings=said, record="minimal")
+    assert len(cols["u_v"]) == 301
+    assert said == (["controller FMU: entering: a warning",
+                     "controller FMU: its DefaultExperiment step is 0.05 s; the scenario steps it every step_s = 0.1 s",
+                     "controller FMU: leaving: a warning"]
+                    + ["controller FMU: late: a warning"] * 281)  # t = 2.0 .. 30.0 s
+    # tapmuscle run says each once, with how often
+    (tmp_path / "s.toml").write_text(f"duration_s = 3.0\n[controller]\nfmu = '{fmu}'\n"
+                                     "interface = { measurement = 'y', reference = 'r', command = 'u' }\n")
+    assert main(["run", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o"), "--fmu-dir",
+                 str(built_fmus["MusclePlant"].parent), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: controller FMU: late: a warning (11 times)" in err and err.count("late: a warning") == 1
+
+
 def test_the_command_a_controller_of_ones_own_sends_is_what_the_plant_takes(built_fmus, pi_fmu):
     """The plant FMU takes a command within -1..11 V as its valve does (saturated at 0..10 V: 10.5 V
     moves the muscle as 10 V does, and the recorded command is what the controller sent); a command
-    beyond stops the run with the plant's message naming the value and the time."""
+    beyond, or NaN, stops the run naming the controller FMU, its output, the value and the time."""
     def run(u_bias, u_max=10.0):
         return co_simulate(_scenario(pi_fmu, parameters={"Kp": 0.0, "Ki": 0.0, "u_bias": u_bias, "u_max": u_max},
                                      load_steps=()), built_fmus, record="minimal")
@@ -170,9 +231,15 @@ def test_the_command_a_controller_of_ones_own_sends_is_what_the_plant_takes(buil
     assert np.all(above["u_v"] == 10.5) and np.all(ten["u_v"] == 10.0)
     assert np.array_equal(above["l_mm"], ten["l_mm"])
     assert ten["l_mm"][-1] > 50.0  # the valve fully open lifts the 44-N load
-    with pytest.raises(ScenarioError, match=r"plant FMU \(MusclePlant.fmu\) fmi2DoStep at t = 0 s failed: status "
-                                            r"DISCARD: .*u = 12.0 is outside -1..11"):
+    with pytest.raises(ScenarioError, match=r"controller FMU \(PIController.fmu\) output u = 12.0 at t = 0 s is not a "
+                                            r"command the plant's valve takes \(-1.0..11.0 V, saturated at 0..10 V\)"):
         run(12.0, 20.0)
+    # also at the last sample, whose command the plant never receives
+    last = parse_scenario({"duration_s": 5.0, "step_s": 0.1, "controller": {
+        "fmu": str(pi_fmu), "interface": IFACE, "parameters": {"Kp": 1.0, "Ki": 0.0, "u_max": 20.0, "u_min": -20.0}},
+        "reference": {"kind": "steps", "times_s": [0.0, 5.0], "values_mm": [0.0, 400.0]}}, source="test")
+    with pytest.raises(ScenarioError, match=r"output u = \d+\.\d+ at t = 5 s is not a command"):
+        co_simulate(last, built_fmus, record="minimal")
 
 
 def test_the_example_scenario_file_reads_without_its_fmu_only_as_a_missing_file():

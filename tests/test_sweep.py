@@ -214,6 +214,34 @@ def test_reused_instances_give_the_same_runs_bit_for_bit(built_fmus):
     assert not np.array_equal(fresh[0]["u_v"], fresh[1]["u_v"])  # servo.R mattered, and was reset
 
 
+def test_an_fmu_whose_reset_fails_gets_a_new_instance_every_run(built_fmus, monkeypatch):
+    """fmi2Reset is not implemented by every export: where it fails, the run takes a new instance (the
+    user never asked for a reset), the same run as a fresh one, and that FMU's instances are freed,
+    not kept; the other FMU's are still reused."""
+    from tapmuscle.cosim.master import FmuInstance
+
+    cases = [parse_scenario({**SHORT, "seed": seed}, source=str(seed)) for seed in (1, 2, 3)]
+    fresh = [co_simulate(s, built_fmus, record="minimal") for s in cases]
+    reset, resets = FmuInstance.reset, []
+
+    def failing_reset(self):
+        resets.append(self.role)
+        if self.role == "controller":
+            raise ScenarioError(f"controller FMU ({self.unpacked.path.name}) fmi2Reset failed: not supported")
+        reset(self)
+
+    monkeypatch.setattr(FmuInstance, "reset", failing_reset)
+    pool = InstancePool()
+    try:
+        pooled = [co_simulate(s, built_fmus, record="minimal", pool=pool) for s in cases]
+        assert [inst.role for v in pool._idle.values() for inst in v] == ["plant"]
+    finally:
+        pool.close()
+    assert resets == ["plant", "controller", "plant"]  # the controller's tried once, then never kept
+    for f, p in zip(fresh, pooled):
+        assert np.array_equal(f["l_mm"], p["l_mm"]) and np.array_equal(f["u_v"], p["u_v"])
+
+
 # ------------------------------------------------------------------------------------- run_sweep
 def test_sweep_records_failures_resumes_and_summarises(built_fmus, tmp_path):
     text = SMALL_SWEEP + '"controller.parameters.servo.Hu" = [5, 9]\n'  # Hu = 9 > Hp = 5: the FMU refuses

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from dataclasses import replace
+from types import SimpleNamespace
 
 import pytest
 
@@ -222,6 +223,57 @@ def test_the_runs_outlive_the_loss_of_the_only_worker(built_fmus, tmp_path):
     assert killed and sorted(r.run_id for r in results) == [str(i) for i in range(6)]
     assert [r.status for r in results] == ["ok"] * 6, [r.error for r in results]
     assert len({r.worker for r in results}) == 2  # runs done after the loss, by the restarted worker
+
+
+def test_a_result_that_came_back_is_kept_whatever_its_futures_status_became(monkeypatch):
+    """A worker that another run's FMU crashes after a run finished there changes that future's status
+    from "finished": the run's result, already back, is what counts (it was recorded as failed, with
+    the RunResult as its error); what came back as an error is a failed run."""
+    import distributed
+
+    from tapmuscle.cosim.distributed_sweep import DaskExecutor, FmuFiles, RunResult
+
+    class Future:
+        def __init__(self, status):
+            self.status = status
+
+        def release(self):
+            pass
+
+    ok = RunResult("a", "ok", {"mae_mm": 0.1})
+    futures = [Future("lost"), Future("error")]
+    back = [(futures[0], ok), (futures[1], ValueError("the FMU crashed"))]
+
+    class Client:
+        status = "running"
+
+        def submit(self, *args, **kwargs):
+            return Future("finished")
+
+        def map(self, fn, tasks, *args, **kwargs):
+            return futures
+
+        def cancel(self, futures):
+            pass
+
+        def scheduler_info(self):
+            return {"workers": {"w": {}}}
+
+    class AsCompleted:
+        def __init__(self, *args, **kwargs):
+            self.batches = [back]
+
+        def is_empty(self):
+            return not self.batches
+
+        def next_batch(self, block=False):
+            return self.batches.pop()
+
+    monkeypatch.setattr(distributed, "as_completed", AsCompleted)
+    tasks = [SimpleNamespace(run_id="a"), SimpleNamespace(run_id="b")]
+    results = list(DaskExecutor(Client())(tasks, FmuFiles({}, {})))
+    assert results[0] is ok
+    assert results[1].status == "failed" and results[1].error == "ValueError: the FMU crashed"
 
 
 @pytest.mark.slow

@@ -13,6 +13,7 @@ import math
 import os
 import sys
 import warnings
+from collections import Counter
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -412,8 +413,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print(f"the controller compensated an input delay of {used} sample{'s' if used > 1 else ''} "
               f"(input_delay_samples {how})" if used > 0 else "the controller had not decided the input delay "
               "(input_delay_samples = -1) by the end")
-    for text in summary["fmu_warnings"]:
-        print(f"warning: {text}", file=sys.stderr)
+    # each warning once, with how often it came (an FMU of one's own may warn every sample)
+    for text, times in Counter(summary["fmu_warnings"]).items():
+        print(f"warning: {text}" + (f" ({times} times)" if times > 1 else ""), file=sys.stderr)
     print(f"wrote {Path(out) / 'result.csv'}, {Path(out) / 'summary.json'} and {Path(out) / '*.png'}")
     return 0
 

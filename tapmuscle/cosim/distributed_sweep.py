@@ -252,7 +252,9 @@ class DaskExecutor:
                     continue
                 for future, value in batch:
                     task = futures.pop(future)
-                    if future.status == "finished":
+                    # by what came back, not the future's status: a worker that dies after a run
+                    # finished (another run crashed it) changes the status of a result already here
+                    if isinstance(value, RunResult):
                         result = value
                     else:  # worker died (KilledWorker), cancelled: recorded as failed
                         watch.check(len(futures) + 1, at_once=True)  # unless the scheduler is gone

@@ -1,4 +1,5 @@
-"""The co-simulation master: MusclePlant and AMPCController coupled at a fixed macro step in fmpy.
+"""The co-simulation master: MusclePlant and AMPCController (or a controller FMU of one's own)
+coupled at a fixed macro step in fmpy.
 
 Master algorithm (Gauss-Seidel, controller first), macro step ``h`` = the controller's ``Ts``;
 for ``k = 0 .. N-1``, ``t_k = k h``::
@@ -7,6 +8,11 @@ for ``k = 0 .. N-1``, ``t_k = k h``::
     controller.l <- l(k);  controller.r <- r(.)       (r only for an external reference)
     controller.doStep(t_k, h)                         samples l(k), r(k..k+Hp): u(k)
     u(k), diagnostics <- controller outputs
+
+A controller FMU of one's own (``[controller] interface``, :attr:`~tapmuscle.cosim.spec.FmuSpec.interface`)
+takes the same place: its measurement input gets l(k), its reference input r(k) (the sine as the
+project's controller makes it, or the steps' value at t_k), and its command output is u(k); it has no
+diagnostics.
     plant.u <- u(k);  plant.load_force <- load(t_k);  plant.supply_pressure <- supply(t_k)
     plant.doStep(t_k, h)                              holds u(k) over [t_k, t_k + h): l(k+1)
 
@@ -196,7 +202,7 @@ def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
                              ("AMPCController", "controller", scenario.controller)):
         unpacked = unpack(spec.path or fmus[name])
-        check_role(unpacked, role, spec.interface)
+        check_role(unpacked, role, spec.interface, source=scenario.source)
         where = f"{scenario.source}: key '{role}.parameters."
         for key, value in spec.parameters.items():
             try:
@@ -219,15 +225,20 @@ ROLE_INTERFACE = {
 }
 
 
-def check_role(unpacked: Unpacked, role: str, interface: Mapping[str, str] | None = None) -> None:
+def check_role(unpacked: Unpacked, role: str, interface: Mapping[str, str] | None = None, *,
+               source: str = "") -> None:
     """ScenarioError unless the FMU has the inputs, outputs and parameters its ``role`` in the loop
     needs (a controller FMU given as the plant is named as such, not by a parameter it lacks; an FMU
     of one's own as the controller without an ``interface`` is told how to give one). A controller
     of one's own needs the Real variables its ``interface`` names (:attr:`FmuSpec.interface`). A role
     outside the closed loop (:data:`ROLE_INTERFACE`), such as a foreign plant FMU, has no fixed
-    interface."""
+    interface. ``source`` (the scenario file) leads an interface's messages."""
     if interface is not None:
-        _check_interface(unpacked, interface)
+        if unpacked.model_description.modelName == "AMPCController":
+            # its method, Ts and reference source are set by the scenario only without an interface
+            raise ScenarioError(f"{unpacked.path}: the project's AMPCController runs without [controller] interface "
+                                "(the scenario sets its method, Ts and reference source then): remove the interface")
+        _check_interface(unpacked, interface, source)
         return
     if role not in ROLE_INTERFACE:
         return
@@ -250,7 +261,7 @@ def check_role(unpacked: Unpacked, role: str, interface: Mapping[str, str] | Non
                             f"it lacks {shown}{renamed}{own}")
 
 
-def _check_interface(unpacked: Unpacked, interface: Mapping[str, str]) -> None:
+def _check_interface(unpacked: Unpacked, interface: Mapping[str, str], source: str = "") -> None:
     """ScenarioError unless each variable ``interface`` names exists as a Real of the causality its
     role needs (``measurement``, ``reference``: input; ``command``: output), naming every one that
     does not, with the FMU's Real inputs and outputs."""
@@ -265,9 +276,10 @@ def _check_interface(unpacked: Unpacked, interface: Mapping[str, str]) -> None:
     if problems:
         have = {c: sorted(n for n, v in variables.items() if v.causality == c and v.type == "Real")
                 for c in ("input", "output")}
-        raise ScenarioError(f"{unpacked.path}: [controller] interface does not fit this "
-                            f"{unpacked.model_description.modelName} FMU: {'; '.join(problems)} (its Real inputs: "
-                            f"{', '.join(have['input']) or 'none'}; its Real outputs: {', '.join(have['output']) or 'none'})")
+        raise ScenarioError(f"{source + ': ' if source else ''}key 'controller.interface' does not fit "
+                            f"{unpacked.path}, a {unpacked.model_description.modelName} FMU: {'; '.join(problems)} "
+                            f"(its Real inputs: {', '.join(have['input']) or 'none'}; its Real outputs: "
+                            f"{', '.join(have['output']) or 'none'})")
 
 
 def _reason(message: str) -> str:
@@ -287,7 +299,7 @@ class FmuInstance:
     """
 
     def __init__(self, path: str | Path, instance_name: str, *, role: str, model_exchange: bool = False,
-                 interface: Mapping[str, str] | None = None) -> None:
+                 interface: Mapping[str, str] | None = None, source: str = "") -> None:
         from fmpy.fmi2 import FMU2Model, FMU2Slave
 
         self.unpacked = unpack(path)
@@ -295,7 +307,7 @@ class FmuInstance:
         self.messages: list[str] = []
         md = self.unpacked.model_description
         self.interface = interface
-        check_role(self.unpacked, role, interface)
+        check_role(self.unpacked, role, interface, source=source)
         instance_name = f"{instance_name}#{next(_INSTANCE_COUNTER)}"  # unique: messages are routed by name
         _LOG_SINKS[instance_name] = self.messages
         self._name = instance_name
@@ -388,20 +400,31 @@ class InstancePool:
     """
 
     def __init__(self) -> None:
-        self._idle: dict[tuple[Path, str], list[FmuInstance]] = {}
+        self._idle: dict[tuple[Path, str, tuple[tuple[str, str], ...] | None], list[FmuInstance]] = {}
+        self._fresh_only: set[tuple[Path, str, tuple[tuple[str, str], ...] | None]] = set()
         self._lock = threading.Lock()
 
     def acquire(self, path: str | Path, instance_name: str, *, role: str,
-                interface: Mapping[str, str] | None = None) -> FmuInstance:
+                interface: Mapping[str, str] | None = None, source: str = "") -> FmuInstance:
         """An instance of ``path`` in initialization mode: a reset idle one, or a new one."""
         key = (unpack(path).path, role, _interface_key(interface))
         with self._lock:
             idle = self._idle.get(key)
             inst = idle.pop() if idle else None
         if inst is None:
-            return FmuInstance(path, instance_name, role=role, interface=interface)
+            return FmuInstance(path, instance_name, role=role, interface=interface, source=source)
         try:
             inst.reset()
+        except ScenarioError:
+            # an FMU whose fmi2Reset fails (an export that does not implement it): a new instance
+            # instead, and this FMU's instances are not kept for another run
+            with self._lock:
+                self._fresh_only.add(key)
+            try:
+                inst.free()
+            except Exception:  # noqa: BLE001 - freeing what failed to reset: the new instance matters
+                pass
+            return FmuInstance(path, instance_name, role=role, interface=interface, source=source)
         except BaseException:
             inst.free()
             raise
@@ -410,7 +433,11 @@ class InstancePool:
     def release(self, inst: FmuInstance) -> None:
         """Keep ``inst`` (after a run that ended normally) for a later :meth:`acquire`."""
         with self._lock:
-            self._idle.setdefault((inst.unpacked.path, inst.role, _interface_key(inst.interface)), []).append(inst)
+            key = (inst.unpacked.path, inst.role, _interface_key(inst.interface))
+            if key not in self._fresh_only:
+                self._idle.setdefault(key, []).append(inst)
+                return
+        inst.free()
 
     def close(self) -> None:
         """Free every idle instance."""
@@ -469,7 +496,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         own = scenario.controller.interface
         try:
             ctrl = new(scenario.controller.path or fmus["AMPCController"], f"{scenario.name}.controller",
-                       role="controller", interface=own)
+                       role="controller", interface=own, source=src)
             plant.set_parameters(scenario.plant.parameters, where=f"{src}: key 'plant.parameters.")
             low, high = split_seed(scenario.seed)  # FMI Integers are 32-bit: the seed travels as two
             plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
@@ -479,9 +506,16 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                 ctrl_params: dict[str, Any] = {**scenario.controller.parameters, **(controller_parameters or {})}
                 ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
                 hp = 0
+                step = _default_step(ctrl)
+                if step is not None and abs(step - scenario.step_s) > 1e-9 * scenario.step_s:
+                    # a fixed-step export computes its law for its own step: a user should know
+                    ctrl.messages.append(f"[WARNING] its DefaultExperiment step is {step:g} s; the scenario "
+                                         f"steps it every step_s = {scenario.step_s:g} s")
             else:
                 hp = _set_up_project_controller(ctrl, scenario, controller_parameters)
-            logged = [len(plant.messages), len(ctrl.messages)]
+            # an own controller's warnings from its instantiation on (the project's FMUs say nothing
+            # there that a run should pass on; a rejected parameter of theirs stops the run at start)
+            logged = [len(plant.messages), 0 if own is not None else len(ctrl.messages)]
             plant.start()
             ctrl.start()
             cols = _loop(scenario, plant, ctrl, hp, record, progress, held)
@@ -505,6 +539,16 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                         pool.release(inst)
                     else:
                         inst.free()
+
+
+def _default_step(inst: FmuInstance) -> float | None:
+    """The ``stepSize`` [s] of the FMU's DefaultExperiment, None without one."""
+    experiment = inst.unpacked.model_description.defaultExperiment
+    step = getattr(experiment, "stepSize", None) if experiment is not None else None
+    try:
+        return float(step) if step is not None else None
+    except (TypeError, ValueError):
+        return None
 
 
 def _set_up_project_controller(ctrl: FmuInstance, scenario: Scenario,
@@ -599,6 +643,13 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
     full = record == "all"
     diag = ["u", "r_k", "uc", "l_pred", "pred_error", "H", "xs"] + [f"theta.{n_}" for n_ in ASYMMETRIC.names]
     if own is not None:
+        # the command the plant's valve takes (its input u's declared range): one outside is the
+        # controller's, named as such, also at the last sample, which the plant never receives
+        u_var = plant.unpacked.variables["u"]
+        u_lo = -math.inf if u_var.min is None else float(u_var.min)
+        u_hi = math.inf if u_var.max is None else float(u_var.max)
+        # as the plant takes an ulp beyond its bound (a host's rounding) as the bound
+        u_lo, u_hi = u_lo - 1e-9 * max(1.0, abs(u_lo)), u_hi + 1e-9 * max(1.0, abs(u_hi))
         ctrl_out = [ctrl.vr(own["command"])]
         ctrl_in = [ctrl.vr(own["measurement"]), ctrl.vr(own["reference"])]
         # r(k) as the project's controller makes its built-in sine, so both kinds of run see one r
@@ -637,6 +688,10 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
             ctrl_io.check(status, "fmi2DoStep", t)
         if status := c_get(*c_get_args):
             ctrl_io.check(status, "fmi2GetReal", t)
+        if own is not None and not u_lo <= c_out[0] <= u_hi:  # also NaN
+            raise ScenarioError(f"controller FMU ({ctrl.unpacked.path.name}) output {own['command']} = {float(c_out[0])!r} "
+                                f"at t = {t:g} s is not a command the plant's valve takes ({u_var.min}..{u_var.max} V, "
+                                "saturated at 0..10 V)")
         if k + 1 < n:
             p_in[0], p_in[1], p_in[2] = c_out[0], load_k[k], supply_k[k]
             if status := p_set(*p_set_args):

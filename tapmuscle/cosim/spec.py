@@ -379,9 +379,16 @@ def _own_controller(r: _Reader, base: Path | None) -> FmuSpec:
         if not name.strip():
             raise iface.error(role, "must name a variable of the FMU, got an empty string")
         names[role] = name
-    if len(set(names.values())) < len(names):
-        raise iface.error("command", f"names a variable twice ({names}): each role is a variable of its own")
-    return FmuSpec(r.path("fmu", base), _parameters(r, booleans=True), interface=names)
+    for i, role in enumerate(INTERFACE_ROLES):
+        earlier = [r for r in INTERFACE_ROLES[:i] if names[r] == names[role]]
+        if earlier:
+            raise iface.error(role, f"names {names[role]!r}, as {earlier[0]} does: each role is a variable of its own")
+    params = _parameters(r, booleans=True)
+    for role, name in names.items():
+        if name in params:
+            raise _Reader(r.source, params, f"{r.prefix}parameters.").error(
+                name, f"is the controller's {role} (interface), which the master sets every sample: remove it")
+    return FmuSpec(r.path("fmu", base), params, interface=names)
 
 
 def _plant_file_parameters(r: _Reader, base: Path | None) -> tuple[dict[str, Any], dict[str, float]]:

@@ -410,8 +410,8 @@ def _filled(columns: dict[str, np.ndarray], line_of: np.ndarray, longest_s: floa
     change = period_change(t)
     if change is not None:  # the samples of the longer period are not dropped ones: filling would resample
         k, first, second = change
-        raise RecordingError(f"{where.format(line_of[k])}: the sampling period changes at t = {t[k - 1]:.6g} s (from the "
-                             f"first stamp), from {first:.6g} s to {second:.6g} s; --fill-gaps puts back samples a "
+        raise RecordingError(f"{where.format(line_of[k])}: the sampling period changes between t = {t[k - 1]:.6g} and "
+                             f"{t[k]:.6g} s (from the first stamp), from {first:.6g} s to {second:.6g} s; --fill-gaps puts back samples a "
                              "logger dropped and does not resample: split the log there into two recordings")
     missing_s = dt[gaps] - ts
     if float(np.max(missing_s)) > longest_s + 0.5 * ts:

@@ -190,8 +190,12 @@ def period_change(t_s: np.ndarray) -> tuple[int, float, float] | None:
     first, second = float(np.median(before)), float(np.median(after))
     if abs(first - second) <= 0.25 * min(first, second):
         return None
-    # the two steps at the change left out: their stamps carry either period's jitter
+    # the two steps at the change left out: their stamps carry either period's jitter; but time must go
+    # on across it by no more than a step of the longer period and its jitter (a clock that restarts
+    # or a gap there is named as what it is)
     if np.any(np.abs(before[:-1] - first) > 0.5 * first) or np.any(np.abs(after[1:] - second) > 0.5 * second):
+        return None
+    if not np.all((dt[j - 1:j + 1] > 0.0) & (dt[j - 1:j + 1] <= 1.5 * max(first, second))):
         return None
     return j + 1, first, second
 
@@ -228,21 +232,23 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s", where: Callable[[int]
     off = np.abs(dt - ts) > STRICT_TOLERANCE * ts
     if not off.any():
         return Sampling(ts, 0.0)
+    change = period_change(t)
+    if change is not None:  # no sample is missing, nor is the clock late: either name would mislead
+        k, first, second = change
+        raise SamplingError(
+            f"column {column}, sample {k}: the sampling period changes between t = {float(t[k - 1])!r} and "
+            f"{float(t[k])!r} s, from {first:.6g} s to {second:.6g} s: one recording has one period; split it "
+            "there into two recordings, or resample it onto one grid", k, period_change=True)
     # steps against the median, which a gap leaves where it is (a least-squares slope through the
     # times is pulled by it: a 1-h gap in 3 min of 0.1-s samples makes it 2 s)
     # (a step exactly half a period off, as written, is a late sample for the grid check below: the
     # written times' rounding puts it a few ulps either side of the bound)
     bad = np.flatnonzero((dt <= 0.0) | (np.abs(dt - ts) > 0.5 * ts * (1.0 + 1e-9)))
     if bad.size:
-        change = period_change(t)
-        if change is not None:  # no sample is missing: "dropped or doubled" would misname it
-            k, first, second = change
-            raise SamplingError(
-                f"column {column}, sample {k}: the sampling period changes at t = {float(t[k - 1])!r} s, from "
-                f"{first:.6g} s to {second:.6g} s: one recording has one period; split it there into two "
-                "recordings, or resample it onto one grid", k, period_change=True)
-        # named by the first such step in the file, the largest said too
-        j, big = int(bad[0]), int(bad[np.argmax(np.abs(dt[bad] - ts))])
+        # named by the first such step in the file (the first that goes back, if one does: two files
+        # appended with a clock that restarts), the largest said too
+        back = bad[dt[bad] <= 0.0]
+        j, big = int(back[0] if back.size else bad[0]), int(bad[np.argmax(np.abs(dt[bad] - ts))])
         more = ""
         if bad.size > 1:
             more = f"; {bad.size} such steps in all"
