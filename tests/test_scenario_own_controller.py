@@ -246,3 +246,36 @@ def test_the_example_scenario_file_reads_without_its_fmu_only_as_a_missing_file(
     with pytest.raises(ScenarioError, match=r"key 'controller.fmu': file '.*PIController.fmu' does not exist"):
         load_scenario(EXAMPLES / "own_controller.toml")
 
+
+
+def test_a_sweep_compares_it_with_the_projects_controller(built_fmus, pi_fmu, tmp_path):
+    """A grid over the whole [controller] table: every load with the project's controller and with the
+    one of one's own, one method each in results.csv and summary.md (the table itself no axis: the
+    method column names it); each run the same as it alone."""
+    import csv
+
+    from tapmuscle.cosim.distributed_sweep import run_serial
+    from tapmuscle.cosim.sweep import load_sweep
+    from tapmuscle.cosim.sweep_run import run_sweep
+
+    shutil.copy(pi_fmu, tmp_path)
+    text = ('name = "pi_vs_ampc"\nbase = { duration_s = 12.0, evaluation_samples = [20, 120] }\n[grid]\n'
+            'controller = [ { method = "ampc_servo" }, { fmu = "PIController.fmu", interface = { measurement = "y", '
+            'reference = "r", command = "u" } } ]\n"load.initial_n" = [44.0, 68.0]\n')
+    (tmp_path / "cmp.toml").write_text(text)
+    sweep = load_sweep(tmp_path / "cmp.toml")
+    report = run_sweep(sweep, tmp_path / "out", built_fmus, run_serial)
+    assert (report.total, report.failed) == (4, 0)
+    with open(tmp_path / "out" / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert sorted((r["method"], r["load_n"]) for r in rows) == [
+        ("ampc_servo", "44.0"), ("ampc_servo", "68.0"), ("own:PIController", "44.0"), ("own:PIController", "68.0")]
+    alone = co_simulate(parse_scenario(
+        {"duration_s": 12.0, "evaluation_samples": [20, 120], "load": {"initial_n": 68.0},
+         "controller": {"fmu": str(pi_fmu), "interface": IFACE}}, source="alone"), built_fmus)
+    mine = next(r for r in rows if r["method"] == "own:PIController" and r["load_n"] == "68.0")
+    assert float(mine["mae_mm"]) == pytest.approx(eq21_error_mm(alone["r_mm"], alone["l_mm"], window=(20, 120)),
+                                                  rel=1e-9)
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    assert "| own:PIController | 2 | 0 |" in summary and "| ampc_servo | 2 | 0 |" in summary
+    assert "| method | load_n | runs |" in summary  # the controller table is no column of its own

@@ -357,8 +357,9 @@ def _distinct(rows: Sequence[Mapping[str, str]], columns: Sequence[str]) -> list
 
 
 def _swept_fields(sweep: Sweep) -> list[str]:
-    """The sweep's own fields that may be an axis of the summary (method and seed are not)."""
-    return [f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method")]
+    """The sweep's own fields that may be an axis of the summary (method and seed are not, nor the
+    whole ``controller`` table, whose values the method column names)."""
+    return [f for f in sweep.fields if f not in DESCRIPTIVE and not f.endswith("method") and f != "controller"]
 
 
 def _cell_fields(rows: Sequence[Mapping[str, str]], sweep: Sweep) -> list[str]:
