@@ -279,3 +279,68 @@ def test_a_sweep_compares_it_with_the_projects_controller(built_fmus, pi_fmu, tm
     summary = (tmp_path / "out" / "summary.md").read_text()
     assert "| own:PIController | 2 | 0 |" in summary and "| ampc_servo | 2 | 0 |" in summary
     assert "| method | load_n | runs |" in summary  # the controller table is no column of its own
+
+
+# ------------------------------------------------------------------------ a controller FMU in C
+C_FMU = Path(__file__).resolve().parent / "c_fmu" / "pi_controller.c"
+C_VARIABLES = (("y", "input", "continuous", "0"), ("r", "input", "continuous", "0"),
+               ("u", "output", "continuous", None), ("Kp", "parameter", "fixed", "0.15"),
+               ("Ki", "parameter", "fixed", "0.6"), ("u_bias", "parameter", "fixed", "5"),
+               ("u_min", "parameter", "fixed", "0"), ("u_max", "parameter", "fixed", "10"))
+
+
+@pytest.fixture(scope="module")
+def c_pi_fmu(tmp_path_factory) -> Path:
+    """tests/c_fmu/pi_controller.c built as a C export is: gcc, a hand-written modelDescription.xml."""
+    import subprocess
+    import zipfile
+
+    import fmpy
+
+    if shutil.which("gcc") is None:
+        pytest.skip("no gcc to build the C controller FMU")
+    out = tmp_path_factory.mktemp("c_pi")
+    library = out / "CPIController.so"
+    subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-ffp-contract=off", "-fno-fast-math",
+                    f"-I{Path(fmpy.__file__).parent / 'c-code'}", str(C_FMU), "-o", str(library), "-lm"], check=True)
+    variables = "".join(
+        f'<ScalarVariable name="{name}" valueReference="{i}" causality="{causality}" variability="{variability}"'
+        + (' initial="exact"' if causality == "parameter" else ' initial="calculated"' if start is None else "")
+        + f"><Real{f' start={chr(34)}{start}{chr(34)}' if start is not None else ''}/></ScalarVariable>"
+        for i, (name, causality, variability, start) in enumerate(C_VARIABLES))
+    variables += ('<ScalarVariable name="anti_windup" valueReference="0" causality="parameter" variability="fixed" '
+                  'initial="exact"><Boolean start="true"/></ScalarVariable>')
+    xml = ('<?xml version="1.0" encoding="UTF-8"?><fmiModelDescription fmiVersion="2.0" modelName="CPIController" '
+           'guid="{7c1f0a52-6c1e-4c55-9d7e-0c0ffee00001}" generationTool="hand-written C" '
+           'numberOfEventIndicators="0"><CoSimulation modelIdentifier="CPIController"/>'
+           f'<ModelVariables>{variables}</ModelVariables><ModelStructure><Outputs><Unknown index="3"/></Outputs>'
+           '<InitialUnknowns><Unknown index="3"/></InitialUnknowns></ModelStructure></fmiModelDescription>')
+    fmu = out / "CPIController.fmu"
+    with zipfile.ZipFile(fmu, "w") as z:
+        z.writestr("modelDescription.xml", xml)
+        z.write(library, "binaries/linux64/CPIController.so")
+    return fmu
+
+
+def test_a_controller_fmu_in_c_is_the_same_loop_as_its_law_in_python(built_fmus, c_pi_fmu):
+    """Not every controller of one's own is pythonfmu's: the same PI in C (no Python in it) gives
+    the plant driven by the PI in Python, bit for bit, Boolean parameter and all; its messages,
+    printf formats with arguments as C exports log them, arrive formatted."""
+    params = {"Kp": 0.3, "Ki": 2.0, "u_max": 8.0, "anti_windup": False}
+    said: list[str] = []
+    cols = co_simulate(_scenario(c_pi_fmu, parameters=params), built_fmus, fmu_warnings=said)
+    plant = Plant(PlantParams(), seed=4)
+    plant.update(load_n=44.0)
+    direct = run_closed_loop(plant, PI(kp=0.3, ki=2.0, u_max=8.0, anti_windup=False), SineReference(frequency_hz=0.1),
+                             duration_s=30.0, load_n=lambda t: 68.0 if t + 1e-9 >= 20.0 else 44.0)
+    assert np.array_equal(cols["u_v"], direct["u_v"]) and np.array_equal(cols["l_mm"], direct["l_mm"])
+    assert cols["u_v"].max() == 8.0
+    from tapmuscle.cosim import master
+
+    if master._formatting_logger() is not None:  # compiled (CI requires it): the values formatted in
+        assert said == ["controller FMU: Ki = 2 is 200% of a 1 V/(mm s) ceiling"]
+    with pytest.raises(ScenarioError, match=r"controller FMU \(CPIController.fmu\) exitInitializationMode failed: "
+                                            r"fmi2ExitInitializationMode failed with status 3 \(error\): \[ERROR\] "
+                                            + (r"Kp = -1 must be >= 0 \(1 of 5 parameters checked\)$"
+                                               if master._formatting_logger() is not None else "Kp")):
+        co_simulate(_scenario(c_pi_fmu, parameters={"Kp": -1.0}), built_fmus)

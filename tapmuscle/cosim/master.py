@@ -88,15 +88,26 @@ _UNPACKED: dict[Path, Unpacked] = {}
 # through fmpy's addLoggerProxy: that proxy keeps the Python logger in one process-wide C variable, so a
 # per-instance logger registered there is used by every later FMU, also those created with fmpy's
 # default callbacks, and crashed them once its instance was gone. pythonfmu's messages are plain text
-# (no printf arguments), so the proxy's formatting is not needed.
+# (no printf arguments); another FMU's are formatted by the project's own compiled logger, whose one
+# target is this module's router (_callbacks).
 _LOG_SINKS: dict[str, list[str]] = {}
 _INSTANCE_COUNTER = itertools.count()
-_CALLBACKS: list[Any] = []
+_CALLBACKS: dict[bool, Any] = {}
 
 
 def _log(_env, name, status, _category, message) -> None:
+    """The logger of pythonfmu's FMUs, which send their text as a printf format without arguments."""
     text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
-    text = text.replace("%%", "%")  # the FMUs send their text as a printf format without arguments
+    _route(name, status, text.replace("%%", "%"))
+
+
+def _log_formatted(name: bytes, status: int, _category: bytes, text: bytes) -> None:
+    """What ``tapmuscle.cosim._fmi_log`` formatted of another FMU's message and its arguments."""
+    _route(name, status, text.decode("utf-8", "replace"))
+
+
+def _route(name: Any, status: int, text: str) -> None:
+    """A message to its instance's sink (:data:`_LOG_SINKS`), else printed."""
     key = name.decode("utf-8", "replace") if isinstance(name, bytes) else str(name)
     label = _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
     sink = _LOG_SINKS.get(key)
@@ -106,19 +117,37 @@ def _log(_env, name, status, _category, message) -> None:
         sink.append(f"[{label}] {text.removeprefix(f'[{key}] ')}")
 
 
-def _callbacks() -> Any:
-    """The process-wide fmi2CallbackFunctions (created once)."""
-    if not _CALLBACKS:
+def _callbacks(formatted: bool = False) -> Any:
+    """The process-wide fmi2CallbackFunctions (each kind created once): ``formatted`` for an FMU whose
+    messages are printf formats with arguments (any but pythonfmu's), whose logger formats them where
+    ``tapmuscle.cosim._fmi_log`` is compiled (else the formats are shown as they come)."""
+    formatted = formatted and _formatting_logger() is not None
+    if formatted not in _CALLBACKS:
         from fmpy import calloc, free
         from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
                                fmi2CallbackLoggerTYPE)
 
         cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(_log)
+        cb.logger = fmi2CallbackLoggerTYPE(_formatting_logger().address() if formatted else _log)
         cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        _CALLBACKS.append(cb)
-    return _CALLBACKS[0]
+        _CALLBACKS[formatted] = cb
+    return _CALLBACKS[formatted]
+
+
+def _formatting_logger() -> Any:
+    """The compiled formatting logger with :func:`_log_formatted` as its target, or None."""
+    try:
+        from tapmuscle.cosim import _fmi_log
+    except ImportError:
+        return None
+    _fmi_log.set_target(_log_formatted)
+    return _fmi_log
+
+
+def _sends_plain_text(unpacked: Unpacked) -> bool:
+    """Whether an FMU's messages are plain text (pythonfmu's, the project's among them), not formats."""
+    return "PythonFMU" in (unpacked.model_description.generationTool or "")
 
 
 def unpack(path: str | Path) -> Unpacked:
@@ -319,7 +348,8 @@ class FmuInstance:
                         modelIdentifier=interface.modelIdentifier, instanceName=instance_name)
         # an FMU on pythonfmu's own binary would otherwise corrupt this process's heap as it exits
         release_at_exit(self.unpacked.folder, interface.modelIdentifier)
-        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=_callbacks(), loggingOn=True))
+        callbacks = _callbacks(formatted=not _sends_plain_text(self.unpacked))
+        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=callbacks, loggingOn=True))
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()
 
@@ -331,6 +361,7 @@ class FmuInstance:
         """A ScenarioError for a failed FMI call, with the FMU's last logged messages."""
         at = "" if t_s is None else f" at t = {t_s:g} s"
         log = "; ".join(self.said(3)) or "no message logged"
+        detail = str(detail).rstrip(".")  # fmpy's "... with status 3 (error)." leads the FMU's own text
         return ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {detail}: {log}")
 
     def said(self, n: int) -> list[str]:
