@@ -254,7 +254,8 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
             (lacking / "site" / entry.name).symlink_to(entry)
     no_osqp = _run_windows(windows, str(hosts["windows"]), *args(True, "closed"),
                            env_extra={"WINEPATH": _windows_path(lacking / "python")})
-    runs["no_osqp"] = (no_osqp.returncode, _windows_path(lacking / "python" / "python.exe"), no_osqp.stderr[-3000:])
+    # the whole stderr: the full reason is logged once, first; the messages after it carry its start
+    runs["no_osqp"] = (no_osqp.returncode, _windows_path(lacking / "python" / "python.exe"), no_osqp.stderr)
     # TAPMUSCLE_PYTHON names the Python, ahead of the one on PATH (here the one without osqp)
     named = _run_windows(windows, str(hosts["windows"]), *args(True, "closed"),
                          env_extra={"WINEPATH": _windows_path(lacking / "python"),
@@ -346,7 +347,7 @@ def test_a_windows_c_host_without_python_on_path_is_told_what_to_put_there(c_hos
 
 def test_a_windows_c_host_whose_python_lacks_osqp_is_told_how_to_install_it_there(c_host_runs):
     # The interpreter the FMU started reports the host's program as sys.executable; the advice names
-    # the Python's own python.exe ("...\\fmi_host.exe -m pip install osqp" before), and, as this
+    # the Python's own python.exe (not the host's fmi_host.exe), and, as this
     # embeddable distribution has no pip, an installer that works without it
     returncode, python, stderr = c_host_runs["no_osqp"]
     assert returncode == 2, stderr
