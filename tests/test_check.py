@@ -164,3 +164,22 @@ def test_cases_of_one_name_in_two_files_are_told_apart_in_the_table():
     lines = result_table(results).splitlines()
     assert "rig (a/rig.toml)" in lines[1] and "rig (b/rig.toml)" in lines[2]
     assert lines[3].split()[1] == "other"  # a name of its own stands alone
+
+
+def test_the_table_keeps_its_columns_for_a_long_method_name():
+    """A controller of one's own is method own:<its file's stem>, longer than the paper's names: the
+    mae_mm column stays one column under its heading."""
+    from dataclasses import replace
+
+    from tapmuscle.cosim import parse_scenario
+    from tapmuscle.cosim.check import CheckCase, CheckResult, result_table
+    from tapmuscle.cosim.distributed_sweep import RunResult
+    from tapmuscle.cosim.expect import Outcome
+
+    scenario = parse_scenario({"duration_s": 2.0}, source="x")
+    results = [CheckResult(CheckCase("a.toml", "a", replace(scenario, method=method)),
+                           RunResult("0", "ok", {"mae_mm": 0.5}), Outcome((), ("b",)))
+               for method in ("ampc_servo", "own:MuscleLib.Controllers.PI")]
+    lines = result_table(results).splitlines()
+    column = lines[0].index("mae_mm")
+    assert all(line[column:column + 6].strip() in ("mae_mm", "0.500") for line in lines[:3])

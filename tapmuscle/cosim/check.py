@@ -144,7 +144,9 @@ def result_table(results: Sequence[CheckResult]) -> str:
               if len({r.case.file for r in results if r.case.name == name}) > 1}
     names = [f"{r.case.name} ({r.case.file})" if r.case.name in shared else r.case.name for r in results]
     width = max([len(n) for n in names] + [8])
-    lines = [f"{'result':<6}  {'scenario':<{width}}  {'method':<10}  {'mae_mm':>7}  details"]
+    # a controller of one's own's method (own:<its file>) is as long as its file's name
+    method_width = max([len(r.case.scenario.method) for r in results] + [10])
+    lines = [f"{'result':<6}  {'scenario':<{width}}  {'method':<{method_width}}  {'mae_mm':>7}  details"]
     for r, name in zip(results, names):
         mae = f"{r.run.metrics['mae_mm']:7.3f}" if "mae_mm" in r.run.metrics else f"{'-':>7}"
         if r.status == "error":
@@ -156,7 +158,7 @@ def result_table(results: Sequence[CheckResult]) -> str:
             detail = f"{n} bound{'s' if n != 1 else ''} met"
         if r.run.fmu_warnings:
             detail += f" ({len(r.run.fmu_warnings)} FMU warnings: {r.run.fmu_warnings[0]})"
-        lines.append(f"{r.status.upper():<6}  {name:<{width}}  {r.case.scenario.method:<10}  {mae}  {detail}")
+        lines.append(f"{r.status.upper():<6}  {name:<{width}}  {r.case.scenario.method:<{method_width}}  {mae}  {detail}")
     counts = {s: sum(r.status == s for r in results) for s in ("pass", "fail", "error")}
     lines.append(f"{len(results)} scenarios: {counts['pass']} passed, {counts['fail']} failed, "
                  f"{counts['error']} errors")
