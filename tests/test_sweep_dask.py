@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -313,6 +314,53 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
     assert err.strip() == f"interrupted: finished runs are in {out}/results.csv; rerun the same command to go on"
+
+
+@pytest.mark.slow
+def test_ctrl_c_ends_a_sweep_whose_fmu_hangs_in_a_step(built_fmus, tmp_path):
+    """A controller FMU of one's own that never returns from a step, holding the GIL as a C FMU does:
+    its worker answers nothing, and closing the local cluster waited for it for ever; after Ctrl-C
+    the command kills the worker it cannot close and exits within seconds, with its one line."""
+    import shutil
+    import signal
+
+    from pythonfmu.builder import FmuBuilder
+
+    example = Path(__file__).resolve().parents[1] / "scenarios" / "examples"
+    script = tmp_path / "hanging_pi.py"
+    script.write_text((example / "pi_controller.py").read_text().replace(
+        "    def do_step(self, current_time: float, step_size: float) -> bool:\n",
+        "    def do_step(self, current_time: float, step_size: float) -> bool:\n"
+        "        if current_time >= 1.0:  # a C call that keeps the GIL and never returns\n"
+        "            import ctypes\n"
+        "            ctypes.PyDLL(None).sleep(3600)\n"))
+    saved = list(sys.path)
+    try:
+        FmuBuilder.build_FMU(script, dest=tmp_path)
+    finally:
+        sys.path[:] = saved
+        sys.modules.pop("hanging_pi", None)
+    shutil.copy(example / "own_controller.toml", tmp_path / "base.toml")
+    sweep = tmp_path / "hang.toml"
+    sweep.write_text('name = "hang"\nbase = "base.toml"\ngrid = { seed = [0, 1] }\n')
+    out = tmp_path / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", "1", "--out", str(out),
+                             "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet", "--no-plots"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        time.sleep(20)  # the cluster up and its run inside the step that hangs
+        assert proc.poll() is None, proc.communicate()
+        os.killpg(proc.pid, signal.SIGINT)
+        started = time.monotonic()
+        _, err = proc.communicate(timeout=90)
+        took = time.monotonic() - started
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "interrupted: no run had finished; rerun the same command to go on" in err
+    assert took < 45, took  # the close's 10 s, then the kill and the nanny's own close
 
 
 def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_path):

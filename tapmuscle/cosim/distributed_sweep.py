@@ -427,21 +427,47 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         except RuntimeError as exc:  # "Nanny failed to start": the processes said why, on stderr
             raise ClusterError(f"the local cluster's {workers} worker processes did not start ({exc}); their "
                                "message is above") from None
+    client = None
     try:
         client = Client(cluster)
-        try:
-            # a terminal's Ctrl-C reaches these worker processes too (one process group): they ignore
-            # it, also once a nanny restarts one, and the client stops them and says what it kept
-            client.register_plugin(_ignore_interrupts())
-            yield client
-        finally:
+        # a terminal's Ctrl-C reaches these worker processes too (one process group): they ignore
+        # it, also once a nanny restarts one, and the client stops them and says what it kept
+        client.register_plugin(_ignore_interrupts())
+        yield client
+    finally:
+        _close_local_cluster(client, cluster)
+
+
+#: Seconds the command's own local cluster is given to close before its worker processes are killed.
+LOCAL_CLOSE_S = 10.0
+
+
+def _close_local_cluster(client: Any, cluster: Any, timeout_s: float = LOCAL_CLOSE_S) -> None:
+    """Close ``client`` and ``cluster``, within ``timeout_s`` seconds: a worker inside an FMU's step
+    that never returns (a hung FMU holds the GIL through its call) answers nothing, so the close would
+    wait for it for ever; its process is killed then, and the close finishes."""
+    pids = [nanny.process.process.pid for nanny in cluster.workers.values()
+            if getattr(getattr(nanny, "process", None), "process", None) is not None]
+
+    def close() -> None:
+        if client is not None:
             try:  # the workers' log lines from here on are shutdown races (a heartbeat to a closed scheduler)
                 client.run(_quiet_logs)
             except Exception:  # noqa: BLE001 - a cluster that cannot be reached has nothing left to say
                 pass
             client.close()
-    finally:
         cluster.close()
+
+    closing = threading.Thread(target=close, name="tapmuscle-close-cluster", daemon=True)
+    closing.start()
+    closing.join(timeout_s)
+    if closing.is_alive():
+        for pid in pids:
+            try:
+                os.kill(pid, getattr(signal, "SIGKILL", signal.SIGTERM))
+            except (ProcessLookupError, PermissionError):
+                pass
+        closing.join(timeout_s)
 
 
 def _quiet_logs() -> None:
