@@ -48,14 +48,56 @@ def test_a_message_longer_than_16_kb_is_cut_not_overrun(capsys):
     assert sink == ["[WARNING] " + "x" * 16383]
 
 
-def test_pythonfmus_fmus_keep_the_plain_logger_and_other_fmus_get_the_formatting_one(built_fmus, tmp_path):
+def test_pythonfmus_fmus_keep_the_plain_logger_and_other_fmus_get_the_formatting_one(built_fmus, tmp_path, monkeypatch):
     from tapmuscle.diagnosis.foreign_fmus import build_dc_motor_fmu
+
+    def address(callbacks):
+        return ctypes.cast(callbacks.logger, ctypes.c_void_p).value
 
     ours = master.unpack(built_fmus["MusclePlant"])
     assert master._sends_plain_text(ours)
-    assert master._callbacks(formatted=False).logger is not master._callbacks(formatted=True).logger
+    assert address(master._callbacks(formatted=True)) == master._formatting_logger().address()
+    assert address(master._callbacks(formatted=False)) != master._formatting_logger().address()
     try:
         motor = master.unpack(build_dc_motor_fmu(tmp_path))
     except Exception as exc:  # noqa: BLE001 - no gcc: the plain-text rule alone is checked
         pytest.skip(f"the C demo FMU cannot be built here: {exc}")
     assert not master._sends_plain_text(motor)
+    # an FMU that sends its text as the format (a '%' in it, which FMI forbids): every FMU's as plain text
+    monkeypatch.setenv(master.FMU_LOG_ENV, "plain")
+    assert master._sends_plain_text(motor) and not master._made_by_pythonfmu(motor)
+
+
+def test_a_format_that_would_write_through_an_argument_is_shown_not_formatted():
+    sink: list[str] = []
+    master._LOG_SINKS["n#1"] = sink
+    try:
+        _call(b"n#1", 1, b"wrote %n bytes, %5.2lln more")
+    finally:
+        del master._LOG_SINKS["n#1"]
+    assert sink == ["[WARNING] wrote %n bytes, %5.2lln more"]
+
+
+def test_a_ctrl_c_taken_inside_the_logger_is_raised_once_the_fmi_call_returns():
+    """Python may run its SIGINT handler while the logger's target runs, inside an FMI call; the
+    KeyboardInterrupt is not lost there (printed as unraisable): it is raised after the call."""
+    def interrupted(*_args):
+        raise KeyboardInterrupt
+
+    from tapmuscle.cosim import _fmi_log
+
+    import signal
+
+    # Python's own handler, as in a terminal (a test run in the background ignores SIGINT)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    call = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
+                            ctypes.c_char_p)(_fmi_log.address())
+    _fmi_log.set_target(interrupted)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            call(None, b"x#1", 1, b"logStatusWarning", b"a message")
+            for _ in range(1000):  # the interrupt is checked between bytecodes
+                pass
+    finally:
+        _fmi_log.set_target(master._log_formatted)
+        signal.signal(signal.SIGINT, previous)

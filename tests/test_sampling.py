@@ -69,7 +69,8 @@ def test_a_period_that_changes_part_way_is_named_as_such_even_under_jitter(seed,
                                                               (0.1, 0.13, 500, 500), (0.1, 0.077, 500, 500)])
 def test_a_change_of_period_that_no_step_flags_as_dropped_is_named_too(first, second, n_first, n_second):
     """Steps within half the median of it (the faster rate the minority, or a change of a third or
-    less) were taken for a drifting clock at the first sample off the grid; the change is named."""
+    less) are no dropped samples, and the first sample off the grid is no drifting clock: the change
+    is named."""
     t = np.round(np.concatenate([np.arange(n_first) * first, n_first * first + np.arange(n_second) * second]), 3)
     with pytest.raises(SamplingError, match=r"the sampling period changes between t = ") as info:
         uniform_sampling(t)
@@ -79,7 +80,8 @@ def test_a_change_of_period_that_no_step_flags_as_dropped_is_named_too(first, se
 def test_a_clock_that_restarts_between_two_appended_recordings_is_named_as_going_back():
     t = np.concatenate([np.arange(300) * 0.1, np.arange(600) * 0.05])
     assert period_change(t) is None
-    with pytest.raises(SamplingError, match=r"sample 300: t = 0.0 s follows 29.9\d* s") as info:
+    with pytest.raises(SamplingError, match=r"sample 300: t = 0.0 s follows 29.9\d* s, a step of -29.9 s in a recording "
+                                            r"sampled every 0.05 s: time goes back \(a clock that restarted") as info:
         uniform_sampling(t)
     assert not info.value.period_change
 

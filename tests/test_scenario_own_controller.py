@@ -174,18 +174,14 @@ def test_the_projects_controller_is_refused_with_an_interface(built_fmus, tmp_pa
 def test_what_it_warns_of_from_its_instantiation_on_reaches_the_user(built_fmus, tmp_path, capsys):
     """A controller of one's own that warns as it is set up (at fmi2EnterInitializationMode and
     fmi2ExitInitializationMode) and at every step from 2 s on: every warning is passed on, none taken
-    as a rejection of its parameters; the command line says a repeated one once, with its count. A
-    DefaultExperiment step other than the scenario's is said (a fixed-step export's law is for it)."""
+    as a rejection of its parameters; the command line says a repeated one once, with its count."""
     from pythonfmu.builder import FmuBuilder
 
     script = tmp_path / "warning_pi.py"
     script.write_text((EXAMPLES / "pi_controller.py").read_text().replace("class PIController(Fmi2Slave):",
-                                                                          "class _PI(Fmi2Slave):").replace(
-        "from pythonfmu import Boolean", "from pythonfmu import DefaultExperiment, Boolean") + """
+                                                                          "class _PI(Fmi2Slave):") + """
 
 class PIController(_PI):
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=0.05)
-
     def enter_initialization_mode(self):
         self.log("entering: a warning", status=Fmi2Status.warning)
 
@@ -206,9 +202,7 @@ class PIController(_PI):
     said: list[str] = []
     cols = co_simulate(_scenario(fmu, load_steps=()), built_fmus, fmu_warnings=said, record="minimal")
     assert len(cols["u_v"]) == 301
-    assert said == (["controller FMU: entering: a warning",
-                     "controller FMU: its DefaultExperiment step is 0.05 s; the scenario steps it every step_s = 0.1 s",
-                     "controller FMU: leaving: a warning"]
+    assert said == (["controller FMU: entering: a warning", "controller FMU: leaving: a warning"]
                     + ["controller FMU: late: a warning"] * 281)  # t = 2.0 .. 30.0 s
     # tapmuscle run says each once, with how often
     (tmp_path / "s.toml").write_text(f"duration_s = 3.0\n[controller]\nfmu = '{fmu}'\n"
@@ -251,19 +245,23 @@ def test_the_example_scenario_file_reads_without_its_fmu_only_as_a_missing_file(
 def test_a_sweep_compares_it_with_the_projects_controller(built_fmus, pi_fmu, tmp_path):
     """A grid over the whole [controller] table: every load with the project's controller and with the
     one of one's own, one method each in results.csv and summary.md (the table itself no axis: the
-    method column names it); each run the same as it alone."""
+    method column names it; the FMU the table names found beside the sweep file, where it is written,
+    not beside the base); each run the same as it alone."""
     import csv
 
     from tapmuscle.cosim.distributed_sweep import run_serial
     from tapmuscle.cosim.sweep import load_sweep
     from tapmuscle.cosim.sweep_run import run_sweep
 
-    shutil.copy(pi_fmu, tmp_path)
-    text = ('name = "pi_vs_ampc"\nbase = { duration_s = 12.0, evaluation_samples = [20, 120] }\n[grid]\n'
+    (tmp_path / "sweeps").mkdir()
+    (tmp_path / "bases").mkdir()
+    shutil.copy(pi_fmu, tmp_path / "sweeps")  # beside the sweep file, which names it: found from there
+    (tmp_path / "bases" / "short.toml").write_text("duration_s = 12.0\nevaluation_samples = [20, 120]\n")
+    text = ('name = "pi_vs_ampc"\nbase = "../bases/short.toml"\n[grid]\n'
             'controller = [ { method = "ampc_servo" }, { fmu = "PIController.fmu", interface = { measurement = "y", '
             'reference = "r", command = "u" } } ]\n"load.initial_n" = [44.0, 68.0]\n')
-    (tmp_path / "cmp.toml").write_text(text)
-    sweep = load_sweep(tmp_path / "cmp.toml")
+    (tmp_path / "sweeps" / "cmp.toml").write_text(text)
+    sweep = load_sweep(tmp_path / "sweeps" / "cmp.toml")
     report = run_sweep(sweep, tmp_path / "out", built_fmus, run_serial)
     assert (report.total, report.failed) == (4, 0)
     with open(tmp_path / "out" / "results.csv", newline="") as f:
@@ -313,6 +311,7 @@ def c_pi_fmu(tmp_path_factory) -> Path:
     xml = ('<?xml version="1.0" encoding="UTF-8"?><fmiModelDescription fmiVersion="2.0" modelName="CPIController" '
            'guid="{7c1f0a52-6c1e-4c55-9d7e-0c0ffee00001}" generationTool="hand-written C" '
            'numberOfEventIndicators="0"><CoSimulation modelIdentifier="CPIController"/>'
+           '<DefaultExperiment startTime="0" stopTime="30" stepSize="0.05"/>'
            f'<ModelVariables>{variables}</ModelVariables><ModelStructure><Outputs><Unknown index="3"/></Outputs>'
            '<InitialUnknowns><Unknown index="3"/></InitialUnknowns></ModelStructure></fmiModelDescription>')
     fmu = out / "CPIController.fmu"
@@ -325,7 +324,8 @@ def c_pi_fmu(tmp_path_factory) -> Path:
 def test_a_controller_fmu_in_c_is_the_same_loop_as_its_law_in_python(built_fmus, c_pi_fmu):
     """Not every controller of one's own is pythonfmu's: the same PI in C (no Python in it) gives
     the plant driven by the PI in Python, bit for bit, Boolean parameter and all; its messages,
-    printf formats with arguments as C exports log them, arrive formatted."""
+    printf formats with arguments as C exports log them, arrive formatted; its DefaultExperiment
+    step, which it declares it cannot leave, is said where the scenario's differs."""
     params = {"Kp": 0.3, "Ki": 2.0, "u_max": 8.0, "anti_windup": False}
     said: list[str] = []
     cols = co_simulate(_scenario(c_pi_fmu, parameters=params), built_fmus, fmu_warnings=said)
@@ -337,10 +337,29 @@ def test_a_controller_fmu_in_c_is_the_same_loop_as_its_law_in_python(built_fmus,
     assert cols["u_v"].max() == 8.0
     from tapmuscle.cosim import master
 
+    # it cannot take another step size than its DefaultExperiment's (FMI's default), which is not step_s
+    assert said[0] == "controller FMU: its DefaultExperiment step is 0.05 s; the scenario steps it every step_s = 0.1 s"
     if master._formatting_logger() is not None:  # compiled (CI requires it): the values formatted in
-        assert said == ["controller FMU: Ki = 2 is 200% of a 1 V/(mm s) ceiling"]
+        assert said[1:] == ["controller FMU: Ki = 2 is 200% of a 1 V/(mm s) ceiling"]
     with pytest.raises(ScenarioError, match=r"controller FMU \(CPIController.fmu\) exitInitializationMode failed: "
-                                            r"fmi2ExitInitializationMode failed with status 3 \(error\): \[ERROR\] "
+                                            r"fmi2ExitInitializationMode failed with status 3 \(error\): .*\[ERROR\] "
                                             + (r"Kp = -1 must be >= 0 \(1 of 5 parameters checked\)$"
                                                if master._formatting_logger() is not None else "Kp")):
         co_simulate(_scenario(c_pi_fmu, parameters={"Kp": -1.0}), built_fmus)
+
+
+def test_a_c_fmu_gets_a_new_instance_every_run_of_a_sweep(built_fmus, c_pi_fmu):
+    """An export's fmi2Reset may return OK and keep state (its integral) from the run before, which no
+    call can tell: a sweep keeps only pythonfmu's instances (whose reset builds the slave anew), and
+    a C FMU's run is the run of a fresh instance."""
+    from tapmuscle.cosim.master import InstancePool
+
+    pool = InstancePool()
+    try:
+        runs = [co_simulate(_scenario(c_pi_fmu, parameters=p), built_fmus, record="minimal", pool=pool)
+                for p in ({"Kp": 0.3}, {})]
+        assert [inst.role for idle in pool._idle.values() for inst in idle] == ["plant"]
+    finally:
+        pool.close()
+    fresh = co_simulate(_scenario(c_pi_fmu), built_fmus, record="minimal")
+    assert np.array_equal(runs[1]["u_v"], fresh["u_v"]) and not np.array_equal(runs[0]["u_v"], fresh["u_v"])

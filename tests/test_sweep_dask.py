@@ -228,8 +228,8 @@ def test_the_runs_outlive_the_loss_of_the_only_worker(built_fmus, tmp_path):
 
 def test_a_result_that_came_back_is_kept_whatever_its_futures_status_became(monkeypatch):
     """A worker that another run's FMU crashes after a run finished there changes that future's status
-    from "finished": the run's result, already back, is what counts (it was recorded as failed, with
-    the RunResult as its error); what came back as an error is a failed run."""
+    from "finished": the run's result, already back, is what counts (not a failed run with the
+    RunResult as its error); what came back as an error is a failed run."""
     import distributed
 
     from tapmuscle.cosim.distributed_sweep import DaskExecutor, FmuFiles, RunResult

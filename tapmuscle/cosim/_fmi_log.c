@@ -4,34 +4,61 @@
    exports (OpenModelica, Dymola, Simulink) pass them. ctypes cannot read those arguments, so this
    function formats the message and hands the text to a Python callable (set_target): the master's
    router of messages by instance. The text is cut at 16 kB. pythonfmu's FMUs send plain text, which
-   the master logs without this function (a '%' in it is no format there).
+   the master logs without this function (a '%' in it is no format there). A "%n" (which would write
+   through an argument) is shown, not formatted. An FMU that sends plain text with a '%' in it breaks
+   FMI's rule and shows what its format reads (fmpy's logger does the same); TAPMUSCLE_FMU_LOG=plain
+   takes every FMU's messages as plain text instead.
 */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <string.h>
 
 static PyObject *target = NULL;
+
+/* Whether `format` holds a %n conversion (flags, width, precision and length skipped). */
+static int writes_through_an_argument(const char *format) {
+    for (const char *p = format; *p; p++) {
+        if (*p != '%') continue;
+        p++;
+        if (*p == '%') continue;
+        while (*p && strchr("-+ #0123456789.*'hlLqjzt", *p)) p++;
+        if (*p == 'n') return 1;
+        if (!*p) break;
+    }
+    return 0;
+}
 
 static void log_formatted(void *env, const char *name, int status, const char *category, const char *message, ...) {
     char text[16384];
     va_list args;
     (void)env;
     text[0] = 0;
-    if (message) {
+    if (message && writes_through_an_argument(message)) {
+        snprintf(text, sizeof text, "%s", message);
+    } else if (message) {
         va_start(args, message);
         if (vsnprintf(text, sizeof text, message, args) < 0)
             snprintf(text, sizeof text, "%s", message);  /* a format the C library refuses: as written */
         va_end(args);
     }
     PyGILState_STATE gil = PyGILState_Ensure();  /* an FMU may log from a thread Python does not know */
-    if (target) {
-        PyObject *result = PyObject_CallFunction(target, "yiyy", name ? name : "", status,
+    PyObject *callable = target;
+    if (callable) {
+        Py_INCREF(callable);  /* held through the call: set_target may replace it meanwhile */
+        PyObject *result = PyObject_CallFunction(callable, "yiyy", name ? name : "", status,
                                                  category ? category : "", text);
-        if (result)
+        if (result) {
             Py_DECREF(result);
-        else
-            PyErr_WriteUnraisable(target);  /* an FMI call is in progress: nothing to raise into */
+        } else if (PyErr_ExceptionMatches(PyExc_KeyboardInterrupt)) {
+            /* a Ctrl-C that Python took here, inside an FMI call: raised again once the call returns */
+            PyErr_Clear();
+            PyErr_SetInterrupt();
+        } else {
+            PyErr_WriteUnraisable(callable);  /* an FMI call is in progress: nothing to raise into */
+        }
+        Py_DECREF(callable);
     }
     PyGILState_Release(gil);
 }

@@ -39,6 +39,7 @@ import difflib
 import itertools
 import math
 import numbers
+import os
 import re
 import threading
 import time
@@ -145,9 +146,21 @@ def _formatting_logger() -> Any:
     return _fmi_log
 
 
-def _sends_plain_text(unpacked: Unpacked) -> bool:
-    """Whether an FMU's messages are plain text (pythonfmu's, the project's among them), not formats."""
+#: Environment variable: ``plain`` takes every FMU's messages as plain text (for an FMU that sends its
+#: text as the format, with a '%' in it, which FMI forbids); unset, only pythonfmu's are.
+FMU_LOG_ENV = "TAPMUSCLE_FMU_LOG"
+
+
+def _made_by_pythonfmu(unpacked: Unpacked) -> bool:
+    """Whether pythonfmu made the FMU (the project's among them): its fmi2Reset builds the slave anew,
+    and its messages are plain text."""
     return "PythonFMU" in (unpacked.model_description.generationTool or "")
+
+
+def _sends_plain_text(unpacked: Unpacked) -> bool:
+    """Whether an FMU's messages are plain text (pythonfmu's; every FMU's with ``TAPMUSCLE_FMU_LOG=plain``),
+    not printf formats with arguments."""
+    return _made_by_pythonfmu(unpacked) or os.environ.get(FMU_LOG_ENV, "").strip().lower() == "plain"
 
 
 def unpack(path: str | Path) -> Unpacked:
@@ -426,6 +439,7 @@ class InstancePool:
     A run takes an idle instance of the same FMU file and role, resets it (:meth:`FmuInstance.reset`:
     fmi2Reset, after which pythonfmu creates the slave object anew, so every parameter and all state
     are back at their start values) instead of instantiating (about 12 ms per FMU against 0.5 ms).
+    Only pythonfmu's FMUs are kept; another FMU gets a new instance every run.
     Results are the same bit for bit (tests/test_sweep.py). An instance whose run raised is freed,
     not reused. Thread-safe; :meth:`close` frees the idle instances.
     """
@@ -462,10 +476,12 @@ class InstancePool:
         return inst
 
     def release(self, inst: FmuInstance) -> None:
-        """Keep ``inst`` (after a run that ended normally) for a later :meth:`acquire`."""
+        """Keep ``inst`` (after a run that ended normally) for a later :meth:`acquire`: a pythonfmu FMU's,
+        whose fmi2Reset builds the slave anew; another FMU's is freed (an export's fmi2Reset may keep
+        state from the run before, which no call can tell)."""
         with self._lock:
             key = (inst.unpacked.path, inst.role, _interface_key(inst.interface))
-            if key not in self._fresh_only:
+            if key not in self._fresh_only and _made_by_pythonfmu(inst.unpacked):
                 self._idle.setdefault(key, []).append(inst)
                 return
         inst.free()
@@ -538,8 +554,10 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
                 ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
                 hp = 0
                 step = _default_step(ctrl)
-                if step is not None and abs(step - scenario.step_s) > 1e-9 * scenario.step_s:
-                    # a fixed-step export computes its law for its own step: a user should know
+                variable = getattr(ctrl.unpacked.model_description.coSimulation,
+                                   "canHandleVariableCommunicationStepSize", False)
+                if step is not None and not variable and abs(step - scenario.step_s) > 1e-9 * scenario.step_s:
+                    # an export that cannot take another step size computes its law for its own: say so
                     ctrl.messages.append(f"[WARNING] its DefaultExperiment step is {step:g} s; the scenario "
                                          f"steps it every step_s = {scenario.step_s:g} s")
             else:

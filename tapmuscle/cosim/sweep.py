@@ -70,6 +70,19 @@ MAX_MONTE_CARLO = 100_000
 _TOP = {"name", "description", "base", "grid", "monte_carlo", "expect"}
 #: Fields that name a file (module docstring: relative to the sweep file when the grid or sample sets them).
 _FILE_FIELDS = frozenset({"plant.fmu", "plant.parameters_file", "controller.fmu", "controller.identification"})
+
+
+def _files_from(folder: Path | None, field: str, value: Any) -> Any:
+    """``value`` of ``field`` with the files it names (:data:`_FILE_FIELDS`, also inside a table: a grid
+    over the whole ``controller``) found relative to the sweep file's ``folder``, where they are
+    written, whatever folder the base is in."""
+    if folder is None:
+        return value
+    if isinstance(value, dict):
+        return {key: _files_from(folder, f"{field}.{key}", item) for key, item in value.items()}
+    if field in _FILE_FIELDS and isinstance(value, str) and not Path(value).is_absolute():
+        return str(folder.resolve() / value)
+    return value
 _SWEEP_KEYS = ("base", "grid", "monte_carlo")
 _PARAMETER_TABLES = ("plant", "controller")
 _DISTRIBUTIONS = ("uniform", "integers", "choice")
@@ -303,11 +316,7 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
                 for field, value in params:
                     try:
                         set_field(raw, field, value)
-                        if field in _FILE_FIELDS and isinstance(value, str) and folder is not None \
-                                and not Path(value).is_absolute():
-                            # written in the sweep file: relative to it, whatever folder the base is in
-                            value = str(folder.resolve() / value)
-                        set_field(resolved, field, value)
+                        set_field(resolved, field, _files_from(folder, field, value))
                     except ScenarioError as exc:
                         raise ScenarioError(f"{where}: {exc}") from None
                 scenario = parse_scenario(resolved, source=where, base=base_folder, default_name=base_name)

@@ -139,6 +139,8 @@ def step_kind(step_s: float, ts_s: float) -> str:
     if step_s > 0.0 and step_s >= GAP_PERIODS * ts_s:
         return (f"a gap of {step_s:.6g} s, about {round(step_s / ts_s) - 1} samples missing (a paused logger, or a "
                 "clock that jumped)")
+    if step_s < -0.5 * ts_s:
+        return "time goes back (a clock that restarted: two recordings appended, or a logger restarted into its file)"
     return "a dropped or doubled sample"
 
 

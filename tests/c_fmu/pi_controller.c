@@ -122,7 +122,8 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     return n ? fmi2Error : fmi2OK;
 }
 
-/* The law of pi_controller.py, operation for operation. */
+/* The law of pi_controller.py, operation for operation: fmin/fmax are Python's min/max here, since
+ * v is finite (its inputs are checked, its parameters finite) and a -0.0 command drives the valve as 0. */
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noset) {
     Pi *p = c;
     (void)noset;
