@@ -16,20 +16,23 @@ from tapmuscle.cli.main import main
 
 
 def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
+    from tapmuscle.cosim.master import formats_fmu_messages
+
     with pytest.raises(SystemExit) as ended:
         main(["--version"])
     assert ended.value.code == 0
     out, err = capsys.readouterr()
     assert err == ""
     found = re.fullmatch(r"tapmuscle (\S+) \(Python (\S+); numpy (\S+), scipy (\S+), osqp \S+, pythonfmu \S+, "
-                         r"fmpy \S+; compiled sub-step (yes|no)(; libpython shared|; libpython static: FMUs for "
+                         r"fmpy \S+; compiled sub-step (yes|no); C FMU messages formatted (yes|no)"
+                         r"(; libpython shared|; libpython static: FMUs for "
                          r"Python hosts only)?\)\n", out)
     assert found, out
     shared = bool(sysconfig.get_config_var("Py_ENABLE_SHARED"))
     libpython = None if not sys.platform.startswith("linux") else \
         "; libpython shared" if shared else "; libpython static: FMUs for Python hosts only"
     assert found.groups() == (tapmuscle.__version__, platform.python_version(), np.__version__, scipy.__version__,
-                              "yes" if COMPILED else "no", libpython)
+                              "yes" if COMPILED else "no", "yes" if formats_fmu_messages() else "no", libpython)
 
 
 def test_version_from_the_installed_command_needs_no_subcommand():

@@ -447,7 +447,8 @@ class _Parser(argparse.ArgumentParser):
 
 class _Version(argparse.Action):
     """``tapmuscle --version``: this version, the Python, the packages the numbers come from, whether
-    the plant runs its compiled sub-step and (Linux) whether the Python has a shared libpython, which
+    the plant runs its compiled sub-step, whether a C FMU's messages are formatted (the compiled
+    logger) and (Linux) whether the Python has a shared libpython, which
     the FMUs need in hosts that run no Python: what a bug report needs, as results move by last bits
     between their releases. Looked up only when asked (startup time)."""
 
@@ -473,8 +474,11 @@ class _Version(argparse.Action):
 
             libpython = "; libpython " + ("shared" if build_environment()["libpython_soname"]
                                           else "static: FMUs for Python hosts only")
+        from tapmuscle.cosim.master import formats_fmu_messages
+
         print(f"tapmuscle {version('tapmuscle')} (Python {platform.python_version()}; {packages}; compiled sub-step "
-              f"{'yes' if COMPILED else 'no'}{libpython})")
+              f"{'yes' if COMPILED else 'no'}; C FMU messages formatted {'yes' if formats_fmu_messages() else 'no'}"
+              f"{libpython})")
         parser.exit(0)
 
 

@@ -65,7 +65,8 @@ from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 from tapmuscle.errors import FmuLogWarning
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
-__all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameters", "co_simulate"]
+__all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameters", "co_simulate",
+           "formats_fmu_messages"]
 
 #: The controller FMU's Integer codes of its methods and reference sources, by name.
 _CODE: dict[str, int] = {name: code for codes in (METHOD_CODES, REFERENCE_SOURCES) for code, name in codes.items()}
@@ -149,6 +150,12 @@ def _formatting_logger() -> Any:
 #: Environment variable: ``plain`` takes every FMU's messages as plain text (for an FMU that sends its
 #: text as the format, with a '%' in it, which FMI forbids); unset, only pythonfmu's are.
 FMU_LOG_ENV = "TAPMUSCLE_FMU_LOG"
+
+
+def formats_fmu_messages() -> bool:
+    """Whether the compiled logger that formats an FMU's printf messages with their arguments is built
+    (``tapmuscle/cosim/_fmi_log.c``; without it they show their formats)."""
+    return _formatting_logger() is not None
 
 
 def _made_by_pythonfmu(unpacked: Unpacked) -> bool:
