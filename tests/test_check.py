@@ -183,3 +183,48 @@ def test_the_table_keeps_its_columns_for_a_long_method_name():
     lines = result_table(results).splitlines()
     column = lines[0].index("mae_mm")
     assert all(line[column:column + 6].strip() in ("mae_mm", "0.500") for line in lines[:3])
+
+
+def test_a_check_that_an_fmu_crashes_leaves_a_report_naming_the_case(built_fmus, tmp_path):
+    """A controller FMU of one's own that segfaults in a step takes the check's process with it
+    (--workers 0, the default); the JUnit report, written as runs finish, names the case it was
+    running as not finished and keeps the one that passed."""
+    import subprocess
+    import sys
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+
+    from pythonfmu.builder import FmuBuilder
+
+    example = Path(__file__).resolve().parents[1] / "scenarios" / "examples"
+    script = tmp_path / "crashing_pi.py"
+    script.write_text((example / "pi_controller.py").read_text().replace(
+        "    def do_step(self, current_time: float, step_size: float) -> bool:\n",
+        "    def do_step(self, current_time: float, step_size: float) -> bool:\n"
+        "        if current_time >= 1.0:  # a C FMU's bad pointer\n"
+        "            import ctypes\n"
+        "            ctypes.string_at(0)\n"))
+    saved = list(sys.path)
+    try:
+        FmuBuilder.build_FMU(script, dest=tmp_path)
+        FmuBuilder.build_FMU(example / "pi_controller.py", dest=tmp_path / "good")
+    finally:
+        sys.path[:] = saved
+        for name in ("crashing_pi", "pi_controller"):
+            sys.modules.pop(name, None)
+    text = (example / "own_controller.toml").read_text().replace("duration_s = 45.0", "duration_s = 5.0").replace(
+        "steps = [ { t_s = 30.0, load_n = 68.0 } ]", "")
+    (tmp_path / "a_good.toml").write_text(text.replace('fmu = "PIController.fmu"', 'fmu = "good/PIController.fmu"')
+                                          .replace('name = "own_controller_pi"', 'name = "a_good"'))
+    (tmp_path / "b_crash.toml").write_text(text.replace('name = "own_controller_pi"', 'name = "b_crash"'))
+    junit = tmp_path / "report.xml"
+    proc = subprocess.run([sys.executable, "-m", "tapmuscle", "check", str(tmp_path / "a_good.toml"),
+                           str(tmp_path / "b_crash.toml"), "--junit", str(junit), "--fmu-dir",
+                           str(built_fmus["MusclePlant"].parent), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode < 0, (proc.returncode, proc.stderr)  # killed by the signal
+    cases = {case.get("name"): case for case in ET.parse(junit).getroot().iter("testcase")}
+    assert len(cases) == 2
+    good, crashed = cases["a_good"], cases["b_crash"]
+    assert good.find("failure") is None and good.find("error") is None
+    assert "did not finish: the check ended before this run's result" in ET.tostring(crashed, encoding="unicode")

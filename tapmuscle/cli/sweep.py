@@ -148,7 +148,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_check(args: argparse.Namespace) -> int:
     from tapmuscle.cosim import ScenarioError
     from tapmuscle.cosim.check import CollectionError, collect_cases, evaluate, junit_xml, result_table
-    from tapmuscle.cosim.distributed_sweep import ClusterError, FmuFiles, make_task
+    from tapmuscle.cosim.distributed_sweep import ClusterError, FmuFiles, RunResult, make_task
 
     from tapmuscle.progress import Progress
     from tapmuscle.io.recording import atomic_write_text
@@ -191,17 +191,30 @@ def _cmd_check(args: argparse.Namespace) -> int:
         _local_workers(args, len(tasks))
         execute = _executor(args, stack)
         runs, said = {}, {"pass": 0, "fail": 0, "error": 0}
+
+        def report_so_far() -> None:
+            # the JUnit report as the runs finish: a process that an FMU crashes (in this process,
+            # --workers 0) leaves a report that names the case it was running, not none
+            if args.junit:
+                atomic_write_text(args.junit, junit_xml([
+                    evaluate(case, runs.get(i) or RunResult(str(i), "failed", error=UNFINISHED))
+                    for i, case in enumerate(cases)]))
+
         try:
+            report_so_far()
             for run in execute(tasks, files):
                 runs[int(run.run_id)] = run
                 said[evaluate(cases[int(run.run_id)], run).status] += 1  # counted as the final table counts
+                report_so_far()
                 progress(len(runs), len(tasks), f"{said['pass']} passed, {said['fail']} failed, {said['error']} "
                                                 f"errors, {len(tasks) - len(runs)} remaining")
         except ClusterError as exc:
-            print(f"tapmuscle check: the cluster was lost: {exc}; no report written", file=sys.stderr)
+            print(f"tapmuscle check: the cluster was lost: {exc}" + (f"; {args.junit} holds the runs that "
+                  "finished, the others as not finished" if args.junit else ""), file=sys.stderr)
             return CLUSTER_LOST
         except KeyboardInterrupt:
-            print("\ninterrupted: no report written", file=sys.stderr)
+            print("\ninterrupted" + (f": {args.junit} holds the runs that finished, the others as not finished"
+                                     if args.junit else ""), file=sys.stderr)
             return 130
     results = [evaluate(case, runs[i]) for i, case in enumerate(cases)]
     print(result_table(results), end="")
@@ -211,6 +224,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
     if args.out:
         _keep_what_did_not_pass(results, Path(args.out), fmus)
     return 0 if all(r.status == "pass" for r in results) else 1
+
+
+#: A check case's error in the JUnit report while it has not finished: what the report says of the
+#: case an FMU crashed the process in, and of those after it.
+UNFINISHED = ("did not finish: the check ended before this run's result (an FMU that crashed the process, "
+              "a kill, a time limit); run it alone with tapmuscle run, or the check with --workers N")
 
 
 def _refuse_files(args: argparse.Namespace, errors: list, what: str) -> None:
