@@ -45,7 +45,7 @@ SET_BY_INPUT = {"load.load_n": "load_force", "supply.supply_pressure_mpa": "supp
 
 def parameter_table() -> list[tuple[str, float, str, str, float | None, float | None]]:
     """``(name, default, unit, description, min, max)`` of every plant parameter, from the dataclasses;
-    the description of one in :data:`SET_BY_INPUT` says that the FMU does not use it (a tool's
+    the description of one in :data:`SET_BY_INPUT` says how its input and it share the part (a tool's
     parameter dialog shows it beside the others)."""
     rows = []
     defaults = PlantParams()
@@ -54,7 +54,9 @@ def parameter_table() -> list[tuple[str, float, str, str, float | None, float | 
         for f in fields(sub):
             doc = f.metadata.get("doc", "")
             if f"{group.name}.{f.name}" in SET_BY_INPUT:
-                doc = f"{doc.rstrip('. ')}; not used in the FMU: its input {SET_BY_INPUT[f'{group.name}.{f.name}']} sets it"
+                inp = SET_BY_INPUT[f"{group.name}.{f.name}"]
+                doc = (f"{doc.rstrip('. ')}; in the FMU its input {inp} sets it: this value is used in its place "
+                       f"while {inp} is left at its start value (a plant file's)")
             unit = doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
             if f.metadata.get("lo_open"):  # FMI's min cannot be open: the description says the limit is refused
                 doc = f"{doc.rstrip('. ')}; must be > {f.metadata['lo']:g} (the declared min itself is refused)"
@@ -140,14 +142,24 @@ class MusclePlant(SafeSlave):
                      "returns fmi2Discard until the input is in range", status=Fmi2Status.warning)
             self._refused_input = str(exc)
         else:
-            # the inputs set the load and the supply pressure; the parameters of the same physics are the
-            # plant files' (tapmuscle record --params): one set to another value than its input is unused
+            # the inputs set the load and the supply pressure (they change during a run); the parameters of
+            # the same physics are a plant file's, which a user copies into a host's parameter dialog: set
+            # while its input is left at its start value, the parameter takes the input's place (the rig the
+            # file describes); set against an input set to another value, the input wins and it is said
             inputs = {"load_force": load, "supply_pressure": supply}
             for name, inp in SET_BY_INPUT.items():
-                value = inputs[inp]
-                if self._par[name] != value and self._par[name] != _DEFAULTS[name]:
-                    self.log(f"parameter {name} = {self._par[name]!r} is not used: the input {inp} (= {value!r}) sets "
-                             f"it in the FMU; set the input instead", status=Fmi2Status.warning)
+                value, par = inputs[inp], self._par[name]
+                if par == value or par == _DEFAULTS[name]:
+                    continue
+                if value == _DEFAULTS[name]:
+                    inputs[inp] = par
+                    setattr(self, inp, par)
+                    self.log(f"parameter {name} = {par!r} sets the input {inp}, left at its start value {value!r}: "
+                             "the plant file's rig (an input the host sets later wins)")
+                else:
+                    self.log(f"parameter {name} = {par!r} is not used: the input {inp} (= {value!r}) sets it in the "
+                             "FMU; set the input instead", status=Fmi2Status.warning)
+            load, supply = inputs["load_force"], inputs["supply_pressure"]
             self._plant.update(load_n=load, supply_pressure_mpa=supply)
         self.l, self.p = self._plant.measurement.l_mm, self._plant.measurement.p_mpa
         self._tally = _Tally(u_range=(self._plant.params.valve.u_min_v, self._plant.params.valve.u_max_v))

@@ -410,19 +410,33 @@ def test_a_rejected_plant_parameter_is_named_as_the_fmu_names_it(fmu, capfd, nam
 
 @pytest.mark.parametrize("parameter, value, inp, inp_value", [
     ("load.load_n", 68.0, "load_force", 44.0), ("supply.supply_pressure_mpa", 0.15, "supply_pressure", 0.25)])
-def test_a_load_or_supply_parameter_the_input_overrides_is_said_unused(fmu, capfd, parameter, value, inp, inp_value):
-    """The inputs ``load_force`` and ``supply_pressure`` set these in the FMU (they change during a run); the
-    parameters of the same names (a plant file's) would silently do nothing: a warning names the input."""
+def test_a_load_or_supply_parameter_sets_its_input_left_at_its_start(fmu, capfd, parameter, value, inp, inp_value):
+    """The inputs ``load_force`` and ``supply_pressure`` set these in the FMU (they change during a run).
+    A plant file's value copied into a host's parameter dialog, with the input left at its start value
+    (unconnected): the parameter takes the input's place, as the rig the file describes (an FMU
+    container made that a failure, Ecos ran at the start value without a word). Against an input set
+    to another value, the input wins and a warning names it."""
     vr = fmu[3]
-    f = _instance(fmu, reals={parameter: value}, rejected=True)  # fmi2Warning at fmi2ExitInitializationMode
-    assert f"parameter {parameter} = {value!r} is not used: the input {inp} (= {inp_value!r})" in capfd.readouterr().out
-    f.doStep(0.0, 0.1)  # a warning, not an error: the run goes on, with the input's value
-    f.terminate()
-    f.freeInstance()
-    g = _instance(fmu, reals={parameter: value, inp: value})  # both agree: no warning (status OK)
+
+    def l_after(reals, rejected=False):
+        f = _instance(fmu, reals=reals, rejected=rejected)
+        for k in range(30):
+            f.setReal([vr["u"]], [5.0])
+            f.doStep(0.1 * k, 0.1)
+        l_mm = f.getReal([vr["l"]])[0]
+        f.terminate()
+        f.freeInstance()
+        return l_mm
+
+    copied = l_after({parameter: value})  # status OK: said, not warned
+    out = capfd.readouterr().out
+    assert f"parameter {parameter} = {value!r} sets the input {inp}, left at its start value {inp_value!r}" in out
+    assert copied == l_after({inp: value}) != l_after({})  # the file's rig, not the start value's
+    other = 0.5 * (value + inp_value)  # the input set to a third value: it wins, and the parameter is said unused
+    assert l_after({parameter: value, inp: other}, rejected=True) == l_after({inp: other})
+    assert f"parameter {parameter} = {value!r} is not used: the input {inp} (= {other!r})" in capfd.readouterr().out
+    l_after({parameter: value, inp: value})  # both agree: nothing said
     assert "is not used" not in capfd.readouterr().out
-    g.terminate()
-    g.freeInstance()
     assert vr[inp] != vr[parameter]
 
 
@@ -539,12 +553,13 @@ def test_a_bad_load_or_supply_input_at_initialisation_is_refused_at_the_steps(fm
 
 def test_the_parameters_an_input_sets_say_so_in_the_model_description(fmu):
     """A tool's parameter dialog shows load.load_n beside the others: its description names the input that
-    sets it in the FMU, and every other parameter's does not claim to be unused."""
+    sets it in the FMU and when the parameter takes the input's place; no other parameter's says so."""
     _, md, _, _ = fmu
-    unused = {v.name: v.description for v in md.modelVariables if "not used in the FMU" in (v.description or "")}
-    assert unused.keys() == {"load.load_n", "supply.supply_pressure_mpa"}
-    assert unused["load.load_n"].endswith("; not used in the FMU: its input load_force sets it")
-    assert unused["supply.supply_pressure_mpa"].endswith("its input supply_pressure sets it")
+    shared = {v.name: v.description for v in md.modelVariables if "in the FMU its input" in (v.description or "")}
+    assert shared.keys() == {"load.load_n", "supply.supply_pressure_mpa"}
+    assert shared["load.load_n"].endswith("; in the FMU its input load_force sets it: this value is used in its "
+                                          "place while load_force is left at its start value (a plant file's)")
+    assert "its input supply_pressure sets it" in shared["supply.supply_pressure_mpa"]
 
 
 def test_an_open_lower_bound_is_said_in_the_description(fmu):
