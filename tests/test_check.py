@@ -192,27 +192,12 @@ def test_a_check_that_an_fmu_crashes_leaves_a_report_naming_the_case(built_fmus,
     import subprocess
     import sys
     import xml.etree.ElementTree as ET
-    from pathlib import Path
 
-    from pythonfmu.builder import FmuBuilder
+    from own_controller_fmus import EXAMPLES, build_pi, build_pi_variant
 
-    example = Path(__file__).resolve().parents[1] / "scenarios" / "examples"
-    script = tmp_path / "crashing_pi.py"
-    script.write_text((example / "pi_controller.py").read_text().replace(
-        "    def do_step(self, current_time: float, step_size: float) -> bool:\n",
-        "    def do_step(self, current_time: float, step_size: float) -> bool:\n"
-        "        if current_time >= 1.0:  # a C FMU's bad pointer\n"
-        "            import ctypes\n"
-        "            ctypes.string_at(0)\n"))
-    saved = list(sys.path)
-    try:
-        FmuBuilder.build_FMU(script, dest=tmp_path)
-        FmuBuilder.build_FMU(example / "pi_controller.py", dest=tmp_path / "good")
-    finally:
-        sys.path[:] = saved
-        for name in ("crashing_pi", "pi_controller"):
-            sys.modules.pop(name, None)
-    text = (example / "own_controller.toml").read_text().replace("duration_s = 45.0", "duration_s = 5.0").replace(
+    build_pi_variant(tmp_path, "crashing_pi", do="import ctypes\nctypes.string_at(0)  # a C FMU's bad pointer")
+    build_pi(tmp_path / "good")
+    text = (EXAMPLES / "own_controller.toml").read_text().replace("duration_s = 45.0", "duration_s = 5.0").replace(
         "steps = [ { t_s = 30.0, load_n = 68.0 } ]", "")
     (tmp_path / "a_good.toml").write_text(text.replace('fmu = "PIController.fmu"', 'fmu = "good/PIController.fmu"')
                                           .replace('name = "own_controller_pi"', 'name = "a_good"'))

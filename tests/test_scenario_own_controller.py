@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import re
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,8 +17,8 @@ from fmu_controller.reference import SineReference
 from tapmuscle.cli.main import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario, parse_scenario
+from own_controller_fmus import EXAMPLES, build_pi, build_pi_variant
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "scenarios" / "examples"
 IFACE = {"measurement": "y", "reference": "r", "command": "u"}
 
 pytestmark = pytest.mark.fmu
@@ -28,16 +27,7 @@ pytestmark = pytest.mark.fmu
 @pytest.fixture(scope="module")
 def pi_fmu(tmp_path_factory) -> Path:
     """PIController.fmu built from the example script as its docstring says (pythonfmu build)."""
-    from pythonfmu.builder import FmuBuilder
-
-    out = tmp_path_factory.mktemp("own")
-    saved = list(sys.path)
-    try:
-        built = FmuBuilder.build_FMU(EXAMPLES / "pi_controller.py", dest=out)
-    finally:  # the builder puts the script's folder first on sys.path and imports it
-        sys.path[:] = saved
-        sys.modules.pop("pi_controller", None)
-    return Path(built)
+    return build_pi(tmp_path_factory.mktemp("own"))
 
 
 class PI:
@@ -175,30 +165,12 @@ def test_what_it_warns_of_from_its_instantiation_on_reaches_the_user(built_fmus,
     """A controller of one's own that warns as it is set up (at fmi2EnterInitializationMode and
     fmi2ExitInitializationMode) and at every step from 2 s on: every warning is passed on, none taken
     as a rejection of its parameters; the command line says a repeated one once, with its count."""
-    from pythonfmu.builder import FmuBuilder
-
-    script = tmp_path / "warning_pi.py"
-    script.write_text((EXAMPLES / "pi_controller.py").read_text().replace("class PIController(Fmi2Slave):",
-                                                                          "class _PI(Fmi2Slave):") + """
-
-class PIController(_PI):
-    def enter_initialization_mode(self):
-        self.log("entering: a warning", status=Fmi2Status.warning)
-
-    def exit_initialization_mode(self):
-        self.log("leaving: a warning", status=Fmi2Status.warning)
-
-    def do_step(self, current_time, step_size):
-        if current_time >= 2.0 - 1e-9:
-            self.log("late: a warning", status=Fmi2Status.warning)
-        return super().do_step(current_time, step_size)
-""")
-    saved = list(sys.path)
-    try:
-        fmu = Path(FmuBuilder.build_FMU(script, dest=tmp_path))
-    finally:
-        sys.path[:] = saved
-        sys.modules.pop("warning_pi", None)
+    fmu = build_pi_variant(tmp_path, "warning_pi", from_s=2.0 - 1e-9,
+                           do='self.log("late: a warning", status=Fmi2Status.warning)',
+                           methods=("    def enter_initialization_mode(self):\n"
+                                    '        self.log("entering: a warning", status=Fmi2Status.warning)\n\n'
+                                    "    def exit_initialization_mode(self):\n"
+                                    '        self.log("leaving: a warning", status=Fmi2Status.warning)\n'))
     said: list[str] = []
     cols = co_simulate(_scenario(fmu, load_steps=()), built_fmus, fmu_warnings=said, record="minimal")
     assert len(cols["u_v"]) == 301

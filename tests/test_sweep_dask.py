@@ -8,7 +8,6 @@ import subprocess
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -288,6 +287,18 @@ def test_check_on_a_local_cluster(built_fmus, tmp_path, capsys):
     assert "Dask: 1 workers at tcp://127.0.0.1:" in captured.err and "PASS    case" in captured.out
 
 
+def _sweep_in_a_terminal(sweep, out, built_fmus, *, workers: int) -> subprocess.Popen:
+    """``tapmuscle sweep`` on its own local cluster in a process group of its own, with a terminal's
+    SIGINT disposition (a test run started in the background ignores SIGINT, and its children
+    inherit that), for a test to send Ctrl-C to the whole group."""
+    import signal
+
+    return subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", str(workers),
+                             "--out", str(out), "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet",
+                             "--no-plots"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
 def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_path):
     """A terminal's Ctrl-C reaches the whole foreground group: the local cluster's worker processes
     ignore it (the command stops them) and print nothing over the command's one line; it exits 130."""
@@ -296,12 +307,7 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
     sweep = tmp_path / "long.toml"
     sweep.write_text('name = "long"\nbase = { duration_s = 2000.0 }\ngrid = { seed = [0, 1, 2, 3, 4, 5, 6, 7] }\n')
     out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", "2", "--out", str(out),
-                             "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet", "--no-plots"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            # a terminal's disposition: a test run started in the background ignores SIGINT,
-                            # and its children inherit that
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = _sweep_in_a_terminal(sweep, out, built_fmus, workers=2)
     try:
         deadline = time.monotonic() + 120
         while not (out / "results.csv").is_file():  # a run finished: the cluster is up and running
@@ -324,30 +330,15 @@ def test_ctrl_c_ends_a_sweep_whose_fmu_hangs_in_a_step(built_fmus, tmp_path):
     import shutil
     import signal
 
-    from pythonfmu.builder import FmuBuilder
+    from own_controller_fmus import EXAMPLES, build_pi_variant
 
-    example = Path(__file__).resolve().parents[1] / "scenarios" / "examples"
-    script = tmp_path / "hanging_pi.py"
-    script.write_text((example / "pi_controller.py").read_text().replace(
-        "    def do_step(self, current_time: float, step_size: float) -> bool:\n",
-        "    def do_step(self, current_time: float, step_size: float) -> bool:\n"
-        "        if current_time >= 1.0:  # a C call that keeps the GIL and never returns\n"
-        "            import ctypes\n"
-        "            ctypes.PyDLL(None).sleep(3600)\n"))
-    saved = list(sys.path)
-    try:
-        FmuBuilder.build_FMU(script, dest=tmp_path)
-    finally:
-        sys.path[:] = saved
-        sys.modules.pop("hanging_pi", None)
-    shutil.copy(example / "own_controller.toml", tmp_path / "base.toml")
+    # a C call that keeps the GIL and never returns
+    build_pi_variant(tmp_path, "hanging_pi", do="import ctypes\nctypes.PyDLL(None).sleep(3600)")
+    shutil.copy(EXAMPLES / "own_controller.toml", tmp_path / "base.toml")
     sweep = tmp_path / "hang.toml"
     sweep.write_text('name = "hang"\nbase = "base.toml"\ngrid = { seed = [0, 1] }\n')
     out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", "1", "--out", str(out),
-                             "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet", "--no-plots"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = _sweep_in_a_terminal(sweep, out, built_fmus, workers=1)
     try:
         time.sleep(20)  # the cluster up and its run inside the step that hangs
         assert proc.poll() is None, proc.communicate()
