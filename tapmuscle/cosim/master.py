@@ -36,6 +36,7 @@ logged message. A Ctrl-C is held while FMI calls run and raised between samples
 from __future__ import annotations
 
 import difflib
+import functools
 import itertools
 import math
 import numbers
@@ -52,6 +53,7 @@ import numpy as np
 # resources/ (no builder binaries), and a later build in this process would use that copy.
 import pythonfmu  # noqa: F401
 
+from fmi_slave.base import BOUND_ROUNDING
 from fmu_controller.displacement_control import METHOD_CODES
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
@@ -137,8 +139,9 @@ def _callbacks(formatted: bool = False) -> Any:
     return _CALLBACKS[formatted]
 
 
+@functools.cache
 def _formatting_logger() -> Any:
-    """The compiled formatting logger with :func:`_log_formatted` as its target, or None."""
+    """The compiled formatting logger with :func:`_log_formatted` as its target (set once), or None."""
     try:
         from tapmuscle.cosim import _fmi_log
     except ImportError:
@@ -705,7 +708,7 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
         u_lo = -math.inf if u_var.min is None else float(u_var.min)
         u_hi = math.inf if u_var.max is None else float(u_var.max)
         # as the plant takes an ulp beyond its bound (a host's rounding) as the bound
-        u_lo, u_hi = u_lo - 1e-9 * max(1.0, abs(u_lo)), u_hi + 1e-9 * max(1.0, abs(u_hi))
+        u_lo, u_hi = u_lo - BOUND_ROUNDING * max(1.0, abs(u_lo)), u_hi + BOUND_ROUNDING * max(1.0, abs(u_hi))
         ctrl_out = [ctrl.vr(own["command"])]
         ctrl_in = [ctrl.vr(own["measurement"]), ctrl.vr(own["reference"])]
         # r(k) as the project's controller makes its built-in sine, so both kinds of run see one r
