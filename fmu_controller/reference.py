@@ -1,5 +1,9 @@
 """Reference trajectories with preview (section 4.1: r = 35 + 30 sin(2 pi f t) mm, f = 0.1 or 0.2 Hz).
 
+Section 4.1 gives the offset, amplitude and frequency; the phase (a sine from its mean, rising, with
+the muscle at rest) is this project's reading, and the adaptive controllers' Eq. (21) errors depend
+on it (docs/control.md, "The reference's phase is a decision").
+
 The paper's controllers know the future reference ``r(k+i|k)`` (preview); every reference here gives
 ``at(k)`` (``r(k)`` [mm]) and ``preview(k, n)`` (``r(k..k+n)`` [mm]) on the sampling grid ``ts_s``:
 :class:`SineReference` (the paper's), :class:`ArrayReference` (given samples, e.g. from a file) and
