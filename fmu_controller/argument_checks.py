@@ -8,7 +8,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["number_array", "real_number", "whole_number"]
+__all__ = ["number_array", "real_number", "whole_number", "sampling_period", "MUSCLE_TS_RANGE_S"]
+
+#: Sampling periods [s] of a muscle recording or loop (those of ``tapmuscle record --ts``): the
+#: muscle's responses take tenths of a second, so a period beyond 10 s is milliseconds meant (``100``
+#: for 0.1 s), and one below 1 ms is finer than any sub-step of the simulated rig resolves.
+MUSCLE_TS_RANGE_S = (1e-3, 10.0)
 
 
 def real_number(value: Any, *, what: str) -> float:
@@ -33,6 +38,20 @@ def real_number(value: Any, *, what: str) -> float:
     if not math.isfinite(x):
         raise ValueError(f"{what} must be finite, got {value!r}")
     return float(x)
+
+
+def sampling_period(value: Any, *, what: str = "ts_s") -> float:
+    """``value`` as a sampling period [s] within :data:`MUSCLE_TS_RANGE_S`, or an error naming ``what``
+    (a ``TypeError`` for a non-number, a ``ValueError`` for NaN, <= 0 or outside the range, the latter
+    asking whether milliseconds were meant)."""
+    ts = real_number(value, what=what)
+    lo, hi = MUSCLE_TS_RANGE_S
+    if ts <= 0:
+        raise ValueError(f"{what} must be a positive finite sampling period [s], got {value!r}")
+    if not lo <= ts <= hi:
+        raise ValueError(f"{what} = {value!r} s is outside the {lo:g}..{hi:g} s of the muscle's sampling "
+                         "(tapmuscle record --ts): a period in milliseconds? Give it in seconds")
+    return ts
 
 
 def whole_number(value: Any, *, what: str) -> int:

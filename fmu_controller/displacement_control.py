@@ -856,13 +856,18 @@ class DisplacementController:
 
         Raises
         ------
+        TypeError
+            ``l_mm`` not one number (an array, None). The controller's state is unchanged then.
         ValueError
             ``l_mm`` non-finite or outside :data:`L_RANGE_MM`, a non-finite reference, or a preview shorter than ``preview_samples + 1``
             samples. The controller's state is unchanged then.
         """
         # Per-sample hot path (docs/control.md, "Compute time per step"): python floats for
         # the scalars, each numpy call on the small arrays only where it does the arithmetic.
-        l = float(l_mm)
+        try:
+            l = float(l_mm)
+        except (TypeError, ValueError):  # an array l[k:k+1], None, a string: named, not numpy's words
+            raise TypeError(f"measured l_mm must be one number [mm], got {type(l_mm).__name__} {l_mm!r:.60}") from None
         if not L_RANGE_MM[0] <= l <= L_RANGE_MM[1]:  # NaN fails it too
             raise ValueError(f"measured l_mm must be a finite reading within {L_RANGE_MM[0]:g}..{L_RANGE_MM[1]:g} mm "
                              f"(every contraction the plant allows; a reading in micrometres?), got {l_mm!r}")

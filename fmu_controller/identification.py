@@ -32,13 +32,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .argument_checks import real_number, sampling_period
 from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
 from .prediction import (IdentificationResult, delayed_input, fit_percent, predict_ahead, rescale_theta, run_rls,
                          simulate, theta_scale_factors)
 from .preliminary_model import REFINE_IN_CLOSED_LOOP
 from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
 
-__all__ = ["MODELS", "FitReport", "IdentificationReport", "identify_record", "score_model",
+__all__ = ["MODELS", "FitReport", "IdentificationReport", "identify_record", "check_record", "score_model",
            "decade_scale", "PAPER_TS_S", "MIN_SAMPLES", "SHORT_TS_S"]
 
 #: Model variants by name (Eq. (1) with and without ``g(l)``).
@@ -86,7 +87,7 @@ class FitReport:
     """The free-run output (record units)."""
 
 
-def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelStructure, u: np.ndarray,
+def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelStructure | str, u: np.ndarray,
                 l: np.ndarray, *, input_delay_samples: int = 0) -> FitReport:
     """1-, 3-, 5-step-ahead and free-run fits of ``theta`` on ``(u, l)`` (Table 4).
 
@@ -95,8 +96,9 @@ def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelSt
     theta : sequence of float or mapping
         Eq. (1)'s parameters (record units): in the order of ``structure`` (as
         ``IdentificationReport.theta``) or by name (as its ``theta_dict``).
-    structure : ModelStructure
-        :data:`~fmu_controller.hysteresis_model.ASYMMETRIC` or ``STANDARD``.
+    structure : ModelStructure or str
+        :data:`~fmu_controller.hysteresis_model.ASYMMETRIC` or ``STANDARD``, or its name as
+        :func:`identify_record`'s ``model`` takes it (``"asymmetric"``, ``"standard"``).
     u, l : ndarray
         Command [V] and displacement [mm] of a record, one sample per period.
     input_delay_samples : int
@@ -108,6 +110,13 @@ def score_model(theta: Sequence[float] | Mapping[str, float], structure: ModelSt
     FitReport
         NRMSE fits [%] (MATLAB ``compare``) and the free run.
     """
+    if isinstance(structure, str):
+        if structure not in MODELS:
+            raise ValueError(f"unknown model structure {structure!r}; expected one of {', '.join(MODELS)}")
+        structure = MODELS[structure]
+    elif not isinstance(structure, ModelStructure):
+        raise TypeError(f"structure must be a ModelStructure (ASYMMETRIC or STANDARD) or its name, got "
+                        f"{type(structure).__name__} {structure!r:.60}")
     theta = structure.as_theta(theta, what="theta")
     u, l = delayed_input(u, input_delay_samples), np.asarray(l, dtype=float)
     rng = (float(l.min()), float(l.max()))
@@ -213,11 +222,13 @@ def _diverged_note(structure: ModelStructure, u_scaled: np.ndarray, l_scaled: np
                    f"runs away): {REFINE_IN_CLOSED_LOOP}; an adaptive controller's estimate starts from it")
 
 
-def _check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
+def check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
+    """Refuse a record :func:`identify_record` cannot identify Eq. (1) on, naming what is wrong: ``u``
+    and ``l`` [V, mm] not 1-D of one length, a period outside the muscle's (milliseconds meant), a
+    value that is not finite, too few samples, or a constant command or displacement."""
     if u.shape != l.shape or u.ndim != 1:
         raise ValueError(f"u and l must be 1-D arrays of equal length, got shapes {u.shape} and {l.shape}")
-    if not (math.isfinite(ts_s) and ts_s > 0):
-        raise ValueError(f"sampling period ts_s must be finite and > 0, got {ts_s!r}")
+    sampling_period(ts_s)
     for name, x in (("u_v", u), ("l_mm", l)):
         bad = np.nonzero(~np.isfinite(x))[0]
         if bad.size:
@@ -282,7 +293,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     ts_s = float(ts_s)
     u = np.asarray(u_v, dtype=float)
     l = np.asarray(l_mm, dtype=float)
-    _check_record(u, l, ts_s)
+    check_record(u, l, ts_s)
     u = delayed_input(u, input_delay_samples)
     l_scale, u_scale = decade_scale(l, 60.0), decade_scale(u, 6.0)
     f = theta_scale_factors(structure, l_scale, u_scale)
@@ -312,7 +323,10 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         for name, bounds in box.items():
             if name not in structure.names:
                 raise ValueError(f"box: unknown parameter {name!r} for the {model} model")
-            lo, hi = (float(b) for b in bounds)
+            if isinstance(bounds, (str, bytes)) or not isinstance(bounds, Sequence) or len(bounds) != 2:
+                raise ValueError(f"box: {name} must be a pair (lower, upper) of numbers, got {bounds!r:.60}")
+            lo, hi = (real_number(b, what=f"box: {name}'s bound") if not (isinstance(b, float) and math.isinf(b))
+                      else b for b in bounds)
             if not lo <= hi:
                 raise ValueError(f"box: {name} lower bound {lo} exceeds upper bound {hi}")
             lower[name], upper[name] = lo, hi

@@ -36,7 +36,8 @@ from typing import Any, Callable
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .identification import IdentificationReport, identify_record
+from .argument_checks import real_number
+from .identification import IdentificationReport, check_record, identify_record
 from .prediction import MAX_INPUT_DELAY_SAMPLES
 
 __all__ = ["InputDelayChoice", "ToneCommandError", "choose_input_delay", "fits_by_delay", "tone_frequencies_hz",
@@ -225,6 +226,9 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
         ``max_samples`` out of range; ``input_delay_samples`` among ``identify``; anything
         :func:`identify_record` refuses.
     """
+    # the record's shape, values and period first, as identify_record names them (the tone fit's
+    # numpy error on a column vector names nothing)
+    check_record(np.asarray(u_v, dtype=float), np.asarray(l_mm, dtype=float), real_number(ts_s, what="ts_s"))
     tones = tone_frequencies_hz(u_v, ts_s)
     if tones is not None:
         raise ToneCommandError(tones)

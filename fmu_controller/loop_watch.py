@@ -278,6 +278,9 @@ class LoopWatch:
     """
 
     def __init__(self, controller: DisplacementController) -> None:
+        if not isinstance(controller, DisplacementController):
+            raise TypeError(f"LoopWatch watches a DisplacementController, got {type(controller).__name__} "
+                            f"{controller!r:.60}")
         self.controller = controller
         self.reset()
 

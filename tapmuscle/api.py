@@ -16,6 +16,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from fmu_controller.argument_checks import sampling_period
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.identification import PAPER_TS_S
@@ -26,7 +27,6 @@ from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.own_law import ControlLaw, as_law, law_name, law_period
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
-from tapmuscle.io.sampling import TS_RANGE_S
 from tapmuscle.io.signals import Replay, parse_input_spec
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus"]
@@ -58,11 +58,8 @@ def _check_positive(name: str, value: float) -> float:
 def _check_period(ts_s: float) -> float:
     """A sampling period [s] the rig is simulated at: within ``tapmuscle record --ts``'s 1 ms..10 s
     (50 is milliseconds meant)."""
-    ts = _check_positive("ts_s", ts_s)
-    if not TS_RANGE_S[0] <= ts <= TS_RANGE_S[1]:
-        raise ValueError(f"ts_s = {ts_s!r} s is outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s of the muscle's "
-                         "sampling (tapmuscle record --ts): a period in milliseconds? Give it in seconds")
-    return ts
+    _check_positive("ts_s", ts_s)
+    return sampling_period(ts_s)
 
 
 def simulate(command: Callable[[float], float] | Sequence[float] | np.ndarray | str, *,
@@ -423,6 +420,9 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
     from tapmuscle.cosim.run import run_scenario, summarise
     from tapmuscle.cosim.spec import Scenario
 
+    if not isinstance(scenario, (Scenario, str, os.PathLike)):
+        raise TypeError(f"scenario must be a scenario TOML file's path or a Scenario (tm.load_scenario(path)), got "
+                        f"{type(scenario).__name__} {scenario!r:.60}")
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     given = _fmus_argument(fmus, [sc])
     if out is not None:

@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from fmu_controller.argument_checks import sampling_period, whole_number
 from fmu_controller.displacement_control import SPIKE_MM, SPIKE_SPREAD, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.loop_watch import LoopWatch
@@ -38,9 +39,7 @@ EQ21_WINDOW_S = (10.1, 40.1)
 def eq21_window(ts_s: float) -> tuple[int, int]:
     """The samples ``(k0, k1)`` (inclusive) of Eq. (21)'s 10.1..40.1 s at a sampling period ``ts_s``
     [s]: ``(101, 401)`` at the paper's 0.1 s, ``(202, 802)`` at 0.05 s."""
-    ts_s = float(ts_s)
-    if not (math.isfinite(ts_s) and ts_s > 0):
-        raise ValueError(f"ts_s must be a positive finite sampling period [s], got {ts_s!r}")
+    ts_s = sampling_period(ts_s)  # 100 (ms meant) would put the whole window on sample 0
     k0, k1 = (int(round(t / ts_s)) for t in EQ21_WINDOW_S)
     return k0, k1
 
@@ -81,20 +80,31 @@ def eq21_error_mm(r_mm: np.ndarray | Mapping[str, np.ndarray], l_mm: np.ndarray 
         r_mm, l_mm = run["r_mm"], run["l_mm"]
         t = np.asarray(run["t_s"], dtype=float)
         if window is None and ts_s is None and t.size > 1:
-            ts_s = float(t[-1] - t[0]) / (t.size - 1)
+            step = float(t[-1] - t[0]) / (t.size - 1)
+            try:
+                ts_s = sampling_period(step, what="the run's sampling period (from its t_s)")
+            except ValueError as exc:
+                raise ValueError(f"{exc} (t_s in seconds from the start, or give ts_s)") from None
     elif l_mm is None:
         raise ValueError("Eq. (21) needs the displacement l_mm beside the reference r_mm (or a whole run)")
     r, l = np.asarray(r_mm, dtype=float), np.asarray(l_mm, dtype=float)
     if r.ndim != 1 or l.ndim != 1 or r.shape != l.shape:
         raise ValueError(f"r_mm and l_mm must be 1-D arrays of the same length (one value per sample k), got "
                          f"shapes {r.shape} and {l.shape}")
-    k0, k1 = (int(k) for k in _window(window, ts_s))
+    k0, k1 = _window(window, ts_s)
+    if window is not None:  # (100.5, 200) would be cut to sample 100 without a word
+        k0, k1 = (whole_number(k, what=f"window {tuple(window)}: a sample number") for k in (k0, k1))
     if not 0 <= k0 <= k1:
         raise ValueError(f"window must be (k0, k1) with 0 <= k0 <= k1, got {tuple(window)}")
     if len(r) <= k1:
         raise ValueError(f"Eq. (21) needs samples k = 0..{k1} ({k1 + 1} samples), the run has {len(r)}"
                          + ("; a run at another period than 0.1 s: give ts_s, or the run itself "
                             "(eq21_error_mm(run))" if window is None and ts_s is None else ""))
+    for name, x in (("r_mm", r), ("l_mm", l)):
+        bad = np.flatnonzero(~np.isfinite(x[k0:k1 + 1]))
+        if bad.size:
+            raise ValueError(f"{name}[{k0 + int(bad[0])}] = {float(x[k0 + bad[0]])!r} is not finite: Eq. (21)'s mean "
+                             f"over samples {k0}..{k1} would be NaN")
     return float(np.mean(np.abs(r[k0:k1 + 1] - l[k0:k1 + 1])))
 
 

@@ -240,6 +240,12 @@ _PAPER_SCENARIO = tm.PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml"
 SWEEP_FILE = ROOT / "scenarios" / "sweeps" / "paper_grid.toml"
 
 
+def _RANDOM_RUN():
+    """A 60-s open-loop record's command [V] and displacement [mm] at 0.1 s (601 samples)."""
+    cols = tm.simulate("random:lo=2,hi=8,seed=3", duration_s=59.95)
+    return cols["u_v"], cols["l_mm"]
+
+
 @pytest.mark.parametrize("call, error, match", [
     (lambda: tm.Plant(seed=None), ValueError, r"seed = None must be an integer"),
     (lambda: tm.simulate("const:value=5", duration_s=2.0, seed=None), ValueError, r"seed = None must be an integer"),
@@ -269,6 +275,28 @@ SWEEP_FILE = ROOT / "scenarios" / "sweeps" / "paper_grid.toml"
      r"params must be a PlantParams, got \w+Path .*tm.read_plant_file\(path\)"),
     (lambda: tm.simulate("const:value=5", duration_s=2.0, params={"plant": {}}), TypeError,
      r"params must be a PlantParams, got dict \{'plant': \{\}\}$"),
+    # a notebook user's calls that met a numpy or pathlib error naming nothing, or a period in ms let through
+    (lambda: tm.identify(*_RANDOM_RUN(), ts_s=100), ValueError,
+     r"ts_s = 100(.0)? s is outside the 0.001..10 s of the muscle's sampling .* a period in milliseconds\?"),
+    (lambda: tm.choose_input_delay(*(x[:, None] for x in _RANDOM_RUN()), ts_s=0.1), ValueError,
+     r"u and l must be 1-D arrays of equal length, got shapes \(601, 1\) and \(601, 1\)"),
+    (lambda: tm.choose_input_delay(*_RANDOM_RUN(), ts_s=100), ValueError, r"ts_s = 100(.0)? s is outside"),
+    (lambda: tm.identify(*_RANDOM_RUN(), ts_s=0.1, box={"a1": 1.0}), ValueError,
+     r"box: a1 must be a pair \(lower, upper\) of numbers, got 1.0"),
+    (lambda: tm.score_model(tm.THETA0_44N, "asymetric", *_RANDOM_RUN()), ValueError,
+     r"unknown model structure 'asymetric'; expected one of asymmetric, standard"),
+    (lambda: tm.score_model(tm.THETA0_44N, 3, *_RANDOM_RUN()), TypeError, r"structure must be a ModelStructure"),
+    (lambda: tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N).step(np.array([0.5]), [35.0] * 9),
+     TypeError, r"measured l_mm must be one number \[mm\], got ndarray array\(\[0.5\]\)"),
+    (lambda: tm.LoopWatch(tm.ControllerSettings()), TypeError,
+     r"LoopWatch watches a DisplacementController, got ControllerSettings"),
+    (lambda: tm.decimated({"t_s": [0.0, 0.1]}, 2), TypeError, r"decimated takes a Recording .* got dict"),
+    (lambda: tm.diagnose_files(tm.Recording({"t_s": [0.0, 0.1], "u_v": [1.0, 1.0], "l_mm": [0.0, 0.0]}),
+                               "p.json", "out"), TypeError,
+     r"diagnose_files: recording must be a path .* got Recording .*; tm.diagnose\(rec.t_s, rec.u_v, rec.l_mm"),
+    (lambda: tm.diagnose_files("rig.csv", tm.PlantParams(), "out"), TypeError,
+     r"diagnose_files: plant must be a path .* got PlantParams"),
+    (lambda: tm.cosimulate({"plant": {}}), TypeError, r"scenario must be a scenario TOML file's path or a Scenario"),
 ])
 def test_a_wrong_argument_is_named(call, error, match):
     with pytest.raises(error, match=match):

@@ -57,6 +57,29 @@ def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():
     assert eq21_error_mm(r, l, ts_s=0.1) == eq21_error_mm(r, l)
 
 
+def test_eq21_refuses_a_period_in_milliseconds_a_fractional_window_and_a_gap():
+    """Each gave a number without a word: a period of 100 (ms meant) put the whole window on sample 0
+    and returned |r(0) - l(0)| (35 mm for a 0.18-mm run), also from a run whose t_s is in ms; a window
+    (100.5, 200) was cut to sample 100; a NaN reading made the mean NaN."""
+    r = 35.0 + 30.0 * np.sin(2 * np.pi * 0.1 * 0.1 * np.arange(451))
+    l = r + 0.1
+    run = {"t_s": 0.1 * np.arange(451), "r_mm": r, "l_mm": l}
+    assert eq21_error_mm(run) == eq21_error_mm(r, l)
+    with pytest.raises(ValueError, match=r"ts_s = 100 s is outside the 0.001..10 s .* a period in milliseconds\?"):
+        eq21_error_mm(r, l, ts_s=100)
+    with pytest.raises(ValueError, match=r"the run's sampling period \(from its t_s\) = 100.0 s is outside .* "
+                                         r"milliseconds\? .*\(t_s in seconds from the start, or give ts_s\)"):
+        eq21_error_mm(run | {"t_s": 1e3 * run["t_s"]})
+    with pytest.raises(TypeError, match=r"window \(100.5, 200\): a sample number must be an integer, got float 100.5"):
+        eq21_error_mm(r, l, window=(100.5, 200))
+    assert eq21_error_mm(r, l, window=(np.int64(101), 401)) == eq21_error_mm(r, l)
+    gap = l.copy()
+    gap[150] = np.nan
+    with pytest.raises(ValueError, match=r"l_mm\[150\] = nan is not finite: Eq. \(21\)'s mean over samples 101..401"):
+        eq21_error_mm(r, gap)
+    assert eq21_error_mm(r, gap, window=(151, 401)) == pytest.approx(0.1, abs=1e-12)  # outside the window: no matter
+
+
 def _parts(ts_s: float = 0.1):
     from fmu_controller.displacement_control import ControllerSettings, DisplacementController
     from fmu_controller.preliminary_model import THETA0_44N

@@ -744,6 +744,28 @@ def test_worker_pool_is_validated():
                 pass
 
 
+def test_worker_processes_from_a_script_without_its_main_guard(tmp_path):
+    """A script file that starts the pool at its top level: each worker imports it again and ends
+    with its one line; the caller gets one error naming the setting and the guard, not the pool's
+    BrokenProcessPool traceback through concurrent.futures."""
+    script = tmp_path / "unguarded.py"
+    script.write_text(textwrap.dedent("""
+        import numpy as np
+        from fmu_plant import PlantParams
+        from tapmuscle.diagnosis.simulation import Simulator, worker_pool
+        sim = Simulator(5.0 + 2.0 * np.sin(2 * np.pi * 0.01 * np.arange(101)), 0.1)
+        with worker_pool(2) as pool:
+            sim.executor = pool
+            sim.run_many([PlantParams(), PlantParams().with_values(**{"load.load_n": 60.0})], stop=80)
+    """))
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert out.returncode != 0
+    last = out.stderr.strip().splitlines()[-1]
+    assert last.startswith("tapmuscle.errors.UsageError: workers=2: a worker process ended abruptly"), out.stderr
+    assert f"imports {script} again" in last and 'if __name__ == "__main__":' in last
+    assert "BrokenProcessPool" not in out.stderr
+
+
 @pytest.mark.parametrize("how", ["stdin", "-c"])
 def test_worker_processes_from_a_script_without_a_file(how):
     """Processes spawned from a script read from stdin could not re-import its ``<stdin>`` main and
@@ -1828,3 +1850,16 @@ def test_a_sensor_much_noisier_than_the_models_is_noted_and_still_no_mismatch():
             m = re.match(r"The recording's white noise \(([\d.]+) mm\) is (\d+) times the sensor noise the plant "
                          r"states \(0\.0104 mm", said[0])
             assert m and 0.45 < float(m[1]) < 0.55 and int(m[2]) > NOISIER_SENSOR_FACTOR, said
+
+
+def test_the_diagnosis_keeps_a_copy_of_the_recording():
+    """A notebook's later ``l -= 10`` on its own array changed the diagnosis's recording with it."""
+    cols = record(DEMO_MODEL, "sine", 3, duration_s=60.0)
+    t, u, l = (np.array(cols[k]) for k in ("t_s", "u_v", "l_mm"))
+    d = diagnose(t, u, l, DEMO_MODEL, calibration=None)
+    kept = (d.t_s.copy(), d.u_v.copy(), d.y_mm.copy())
+    assert np.array_equal(kept[2], cols["l_mm"])
+    t += 1.0
+    u *= 2.0
+    l -= 10.0
+    assert all(np.array_equal(a, b) for a, b in zip((d.t_s, d.u_v, d.y_mm), kept))

@@ -206,6 +206,27 @@ def test_runs_of_other_lengths_and_periods_plot_beside_each_other(monkeypatch, t
     assert not (tmp_path / "none.png").exists()
 
 
+def test_a_run_of_lists_is_drawn_and_a_run_it_cannot_draw_is_named(monkeypatch, tmp_path):
+    """A notebook's run as lists met 'list - list' (TypeError), a column vector an IndexError of a
+    mask, a missing column a KeyError; lists draw as arrays, the others are named by run and column,
+    before a figure is made."""
+    import matplotlib.pyplot as plt
+
+    saved = _drawn(monkeypatch)
+    t = np.arange(451) * 0.1
+    run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 30 * np.sin(t) - 0.2, "u_v": 5 + np.sin(t)}
+    plot_tracking({"mine": {k: list(v) for k, v in run.items()}}, tmp_path / "lists.png")
+    plot_tracking({"mine": run}, tmp_path / "arrays.png")
+    (lists_ax, *_), (arrays_ax, *_) = saved[0].axes, saved[1].axes
+    assert np.array_equal(lists_ax.lines[1].get_ydata(), arrays_ax.lines[1].get_ydata())
+    for bad, message in (({**run, "t_s": t[:, None]}, r"run 'mine': column t_s must be one-dimensional .* \(451, 1\)"),
+                         ({**run, "u_v": run["u_v"][:400]}, r"run 'mine': column u_v has 400 samples, t_s 451"),
+                         ({k: v for k, v in run.items() if k != "r_mm"}, r"run 'mine' has no r_mm")):
+        with pytest.raises(ValueError, match=message):
+            plot_tracking({"mine": bad}, tmp_path / "bad.png")
+    assert len(saved) == 2 and plt.get_fignums() == [] and not (tmp_path / "bad.png").exists()
+
+
 def test_the_model_error_panel_is_scaled_to_the_errors(monkeypatch, tmp_path):
     """identify's free-run figure drew a 2-mm residual on a +-22-mm axis (flat); the error panel is now
     scaled to the largest error, and never beyond the data's scale."""

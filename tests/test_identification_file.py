@@ -198,10 +198,46 @@ def test_a_model_refined_in_closed_loop_is_written_for_the_controller(tmp_path):
     assert np.array_equal(np.array(list(model.theta.values())), theta) and model.ts_s == 0.05
     assert model.box_lower == {"b1": 0.01} and model.box_upper == {}
     assert json.loads(path.read_text())["notes"] == ["refined in closed loop"]
-    for bad_theta, ts, message in ((theta[:14], 0.1, "must be 15 values"), (theta, 0.0, "ts_s must be a positive")):
+    for bad_theta, ts, message in ((theta[:14], 0.1, "must be 15 values"), (theta, 0.0, "ts_s must be a positive"),
+                                   (theta, 100, r"ts_s = 100 s is outside the 0.001..10 s .* a period in milliseconds")):
         with pytest.raises(IdentificationFileError, match=message):
             write_identification(tmp_path / "bad.json", bad_theta, ts_s=ts)
     assert not (tmp_path / "bad.json").exists()
+    write_identification(path, theta, ts_s=np.float32(0.1))  # a notebook's number
+    assert read_identification(path).ts_s == float(np.float32(0.1))
+
+
+@pytest.mark.parametrize("lower, upper, message", [
+    ({"a1": (1.0, 2.0)}, {}, r"the lower bound of a1 must be a number, got \(1.0, 2.0\) \(one number a side"),
+    ({"a1": 2.0}, {"a1": 1.0}, r"a lower bound above its upper one: a1 \(2 > 1\)"),
+    ({"zz": 1.0}, {}, r"the lower bound names 'zz', no parameter of Eq. \(1\)"),
+    ({"a1": float("nan")}, {"a1": 2.0}, "the lower bound of a1 must be a number, got nan"),
+    ({}, {"b1": -np.inf}, r"the upper bound of b1 is -inf, which no value satisfies"),
+])
+def test_a_box_that_no_reader_or_controller_takes_is_not_written(tmp_path, lower, upper, message):
+    """Each was written: a pair (tm.identify's box style) made a file read_identification refused; the
+    others read back and failed later in the controller, without the file's name. An infinite bound
+    on its own side is no bound."""
+    from tapmuscle.io.identification_file import write_identification
+
+    path = tmp_path / "id.json"
+    with pytest.raises(IdentificationFileError, match=rf"{path}: box_lower, box_upper: {message}"):
+        write_identification(path, tm.THETA0_44N, ts_s=0.1, box_lower=lower, box_upper=upper)
+    assert not path.exists()
+    write_identification(path, tm.THETA0_44N, ts_s=0.1, box_lower={"a1": -np.inf, "b1": 0.6}, box_upper={"a1": np.inf})
+    model = read_identification(path)
+    assert model.box_lower == {"b1": 0.6} and model.box_upper == {}
+
+
+def test_a_box_in_a_file_is_checked_as_the_controller_would(id_files, tmp_path):
+    """A crossed or unknown bound read from a file is refused naming the file, not at the controller."""
+    doc = json.loads(id_files[0.1].read_text())
+    for box, message in (({"lower": {"a1": 2.0}, "upper": {"a1": 1.0}}, "a lower bound above its upper one: a1"),
+                         ({"lower": {"zz": 1.0}}, "the lower bound names 'zz'")):
+        bad = tmp_path / "bad.json"
+        bad.write_text(json.dumps(doc | {"constraint": box}))
+        with pytest.raises(IdentificationFileError, match=rf"{bad}: key 'constraint': {message}"):
+            read_identification(bad)
 
 
 def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(tmp_path):

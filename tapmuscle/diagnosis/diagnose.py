@@ -459,9 +459,10 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
     """``(t, u, y, Ts)`` of a recording the diagnosis can use, or ``ValueError`` naming the column
     (``names``: the time, input and output columns' names; ``units``: the input's and output's) and
     sample (:func:`diagnose`'s Raises). ``block_s`` None checks the default (:func:`split_length_s`)."""
-    t = np.asarray(t_s, float)
-    u = np.asarray(u_v, float)
-    y = np.asarray(y, float)
+    # copies: the diagnosis keeps them, and a notebook's later `l -= 10` must not change its recording
+    t = np.array(t_s, float)
+    u = np.array(u_v, float)
+    y = np.array(y, float)
     tn, un, yn = names
     for name, arr in ((tn, t), (un, u), (yn, y)):
         if arr.ndim != 1:  # a column vector would broadcast into a matrix further on

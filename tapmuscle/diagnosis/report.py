@@ -6,6 +6,7 @@ and :func:`diagnose_files`, the recording-file-in, report-out entry point ``tapm
 from __future__ import annotations
 
 import json
+import os
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -479,6 +480,13 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     ``PlantSourceError`` for a bad plant, ``ValueError`` naming the recording file for a recording the
     diagnosis cannot use (too short, a constant command, ...) or an option it refuses.
     """
+    for name, value, instead in (("recording", recording, "tm.diagnose(rec.t_s, rec.u_v, rec.l_mm, ...) takes a "
+                                  "Recording's columns"),
+                                 ("plant", plant, "tm.diagnose(..., params) takes a PlantParams"),
+                                 ("out", out, "")):
+        if not isinstance(value, (str, os.PathLike)):
+            raise TypeError(f"diagnose_files: {name} must be a path (it reads and writes files), got "
+                            f"{type(value).__name__} {value!r:.60}" + (f"; {instead}" if instead else ""))
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
     probe_output_folder(out)  # before the work, not after it

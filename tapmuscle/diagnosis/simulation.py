@@ -11,7 +11,9 @@ load when the recording has a ``load_n`` column.
 from __future__ import annotations
 
 import signal
+import sys
 from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Iterator, Sequence
@@ -21,6 +23,7 @@ import numpy as np
 from fmu_plant import Plant, PlantParams
 
 from tapmuscle.cosim.worker_start import spawn_context
+from tapmuscle.errors import UsageError
 
 __all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "process_pool"]
 
@@ -173,7 +176,7 @@ def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
     pool = ProcessPoolExecutor(workers, mp_context=spawn_context(what), initializer=_leave_interrupts_to_parent)
     try:
         yield pool
-    except BaseException:
+    except BaseException as exc:
         # the executor has no public way to stop a task that has started; its shutdown forgets the
         # processes and the thread that feeds them, so both are taken first
         processes = list((getattr(pool, "_processes", None) or {}).values())
@@ -185,6 +188,14 @@ def process_pool(workers: int, what: str) -> Iterator[ProcessPoolExecutor]:
             process.join()
         if manager is not None and manager.ident is not None:  # an interrupt can come while it starts
             manager.join()
+        if isinstance(exc, BrokenProcessPool):
+            # the usual cause prints its own line in each worker; the pool's traceback (40 lines through
+            # concurrent.futures) says only that a process ended
+            script = getattr(sys.modules.get("__main__"), "__file__", None)
+            raise UsageError(f"{what}: a worker process ended abruptly. If each printed that it imports "
+                             f"{script or 'the main script'} again, put the call under if __name__ == \"__main__\": "
+                             "(as for any multiprocessing use); otherwise a worker was killed (out of memory?): "
+                             "use fewer workers, or 1") from None
         raise
     pool.shutdown(wait=True)
 

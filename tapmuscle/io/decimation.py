@@ -40,9 +40,14 @@ def decimated(rec: Recording, n: int) -> tuple[Recording, str | None]:
 
     Raises
     ------
+    TypeError
+        ``rec`` not a :class:`~tapmuscle.io.recording.Recording`.
     ValueError
         ``n`` not an integer within 1 .. :data:`MAX_DECIMATION`.
     """
+    if not isinstance(rec, Recording):
+        raise TypeError(f"decimated takes a Recording (tm.Recording(columns, metadata), or tm.read_recording), got "
+                        f"{type(rec).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_DECIMATION:
         raise ValueError(f"decimation n = {n!r} must be an integer within 1..{MAX_DECIMATION} (samples merged into one)")
     n = int(n)

@@ -14,12 +14,16 @@ under 0.19 or over 190, as in metres, micrometres or millivolts.)
 
 from __future__ import annotations
 
-import math
 import json
+import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
+import numpy as np
+
+from fmu_controller.argument_checks import sampling_period
 from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.rls import TABLE2_LOWER
@@ -29,7 +33,7 @@ from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
 
-__all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification"]
+__all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification", "checked_box"]
 
 #: Relative difference of two sampling periods taken as the same (a period read back from times).
 _SAME_PERIOD = 1e-6
@@ -143,6 +147,10 @@ def read_identification(path: str | Path) -> IdentifiedModel:
     ts = data["ts_s"]
     if isinstance(ts, bool) or not isinstance(ts, (int, float)) or not math.isfinite(ts) or ts <= 0:
         raise IdentificationFileError(f"{where}: key 'ts_s' must be a positive number of seconds, got {ts!r}")
+    try:
+        sampling_period(ts, what="key 'ts_s'")
+    except ValueError as exc:
+        raise IdentificationFileError(f"{where}: {exc}") from None
     theta = data["theta"]
     if not isinstance(theta, dict) or set(theta) != set(ASYMMETRIC.names):
         missing = sorted(set(ASYMMETRIC.names) - set(theta)) if isinstance(theta, dict) else ASYMMETRIC.names
@@ -164,6 +172,10 @@ def read_identification(path: str | Path) -> IdentifiedModel:
             raise IdentificationFileError(f"{where}: key 'constraint.{side}' must map parameter names to numbers "
                                           f"(or \"{unbounded}\": none), got {box.get(side)!r}")
         bounds.append({k: float(v) for k, v in b.items()})
+    try:
+        bounds = list(checked_box(*bounds, what="key 'constraint'"))
+    except ValueError as exc:
+        raise IdentificationFileError(f"{where}: {exc}") from None
     delay = data.get("input_delay_samples", 0)  # files written before the key: identified without a delay
     if isinstance(delay, float) and delay.is_integer():
         delay = int(delay)  # a JSON writer's 2.0
@@ -198,6 +210,38 @@ def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
                        UserWarning)
 
 
+def checked_box(lower: Mapping[str, float], upper: Mapping[str, float], *, what: str
+                ) -> tuple[dict[str, float], dict[str, float]]:
+    """The constraint region C of Algorithm 1 as two maps of Eq. (1)'s parameter names to finite
+    bounds [mm, V units of theta], or a ValueError naming ``what``: a name not among
+    :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s, a bound that is not a number (a pair, as
+    ``tm.identify``'s ``box`` takes them) or is NaN, a lower bound above its upper one. An infinite
+    bound on its own side is no bound and left out."""
+    out = []
+    for side, given, unbounded in (("lower", lower, -math.inf), ("upper", upper, math.inf)):
+        if not isinstance(given, Mapping):
+            raise ValueError(f"{what}: the {side} bounds must map parameter names to numbers, got "
+                             f"{type(given).__name__} {given!r:.60}")
+        bounds = {}
+        for name, value in given.items():
+            if name not in ASYMMETRIC.names:
+                raise ValueError(f"{what}: the {side} bound names {name!r}, no parameter of Eq. (1) (its parameters: "
+                                 f"{', '.join(ASYMMETRIC.names)})")
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or math.isnan(value):
+                pair = " (one number a side: box_lower and box_upper, not tm.identify's (lower, upper) pairs)" \
+                    if isinstance(value, (tuple, list)) else ""
+                raise ValueError(f"{what}: the {side} bound of {name} must be a number, got {value!r:.60}{pair}")
+            if value != unbounded:
+                if math.isinf(value):
+                    raise ValueError(f"{what}: the {side} bound of {name} is {value!r}, which no value satisfies")
+                bounds[name] = float(value)
+        out.append(bounds)
+    crossed = [f"{n} ({out[0][n]:g} > {out[1][n]:g})" for n in out[0] if n in out[1] and out[0][n] > out[1][n]]
+    if crossed:
+        raise ValueError(f"{what}: a lower bound above its upper one: {', '.join(crossed)}")
+    return out[0], out[1]
+
+
 def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,
                          box_lower: Mapping[str, float] | None = None, box_upper: Mapping[str, float] | None = None,
                          note: str = "", input_delay_samples: int = 0) -> None:
@@ -225,20 +269,21 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
     Raises
     ------
     IdentificationFileError
-        A theta that is not 15 finite numbers, a period that is not a positive number of seconds, or
-        a delay outside 0 .. 25 samples.
+        A theta that is not 15 finite numbers, a period outside the muscle's 1 ms .. 10 s (a
+        period in milliseconds), a box that names no parameter of Eq. (1), holds a value that is not
+        a number or NaN, or has a lower bound above its upper one, or a delay outside 0 .. 25 samples.
     """
     try:
         values = ASYMMETRIC.as_theta(theta, what="theta")
     except (TypeError, ValueError) as exc:
         raise IdentificationFileError(f"{path}: {exc}") from None
-    if isinstance(ts_s, bool) or not isinstance(ts_s, (int, float)) or not math.isfinite(ts_s) or ts_s <= 0:
-        raise IdentificationFileError(f"{path}: ts_s must be a positive number of seconds, got {ts_s!r}")
     try:
+        ts_s = sampling_period(ts_s)
+        lower, upper = checked_box(box_lower or {}, box_upper or {}, what="box_lower, box_upper")
         delay = checked_input_delay(input_delay_samples)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise IdentificationFileError(f"{path}: {exc}") from None
-    doc = {"model": "asymmetric", "ts_s": float(ts_s), "theta": dict(zip(ASYMMETRIC.names, values.tolist())),
-           "constraint": {"lower": dict(box_lower or {}), "upper": dict(box_upper or {})},
+    doc = {"model": "asymmetric", "ts_s": ts_s, "theta": dict(zip(ASYMMETRIC.names, values.tolist())),
+           "constraint": {"lower": lower, "upper": upper},
            "input_delay_samples": delay, "notes": [note] if note else []}
     atomic_write_text(Path(path), json.dumps(doc, indent=2) + "\n")

@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 
+from fmu_controller.argument_checks import MUSCLE_TS_RANGE_S
 from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
@@ -29,7 +30,7 @@ JITTER_TOLERANCE = 0.25
 #: rounded times): the period is then the median step, as written.
 STRICT_TOLERANCE = 1e-3
 #: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
-TS_RANGE_S = (1e-3, 10.0)
+TS_RANGE_S = MUSCLE_TS_RANGE_S
 
 
 #: The sampling period [s] to merge a log taken faster than :data:`TS_RANGE_S` allows to: a 10-min

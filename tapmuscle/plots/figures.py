@@ -17,7 +17,7 @@ import os
 import re
 import warnings
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -281,6 +281,25 @@ def _legend_above(ax: Any, ncol: int) -> None:
 _EQ21_WINDOW_S = (10.1, 40.1)
 
 
+def _run_columns(name: str, cols: Mapping[str, Any], keys: Sequence[str]) -> dict[str, np.ndarray]:
+    """A run's ``keys`` as 1-D float arrays of one length (lists, a notebook's columns), or a
+    ValueError naming the run and the column; other columns as given."""
+    missing = [k for k in keys if k not in cols]
+    if missing:
+        raise ValueError(f"run {name!r} has no {', '.join(missing)} (it needs {', '.join(keys)}; "
+                         "tm.simulate_closed_loop returns them)")
+    out = dict(cols)
+    for k in keys:
+        x = np.asarray(cols[k], dtype=float)
+        if x.ndim != 1:
+            raise ValueError(f"run {name!r}: column {k} must be one-dimensional (one value per sample), got shape "
+                             f"{x.shape}")
+        if len(x) != len(out[keys[0]]):
+            raise ValueError(f"run {name!r}: column {k} has {len(x)} samples, {keys[0]} {len(out[keys[0]])}")
+        out[k] = x
+    return out
+
+
 def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
                   window_s: tuple[float, float] | None = None) -> Path:
     """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18).
@@ -299,6 +318,7 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
     """
     if not runs:
         raise ValueError("plot_tracking needs at least one run")
+    runs = {name: _run_columns(name, cols, ("t_s", "r_mm", "l_mm", "u_v")) for name, cols in runs.items()}
     window_s = _EQ21_WINDOW_S if window_s is None else window_s
     fig, (ax, ax_e, ax_u) = new_figure(3, 1, figsize=(11, 8), sharex=True,
                                        gridspec_kw={"height_ratios": (2.2, 1, 1)})
