@@ -63,7 +63,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "read_recording": ("tapmuscle.io.recording", "read_recording"),
     "write_recording": ("tapmuscle.io.recording", "write_recording"),
     "decimated": ("tapmuscle.io.decimation", "decimated"),
-    "read_rig_log": ("tapmuscle.io.rig_log", "read_rig_log"),
+    "read_rig_log": ("tapmuscle.api", "read_rig_log"),
     "rig_log_runs": ("tapmuscle.io.rig_log", "rig_log_runs"),
     "LogColumn": ("tapmuscle.io.rig_log", "LogColumn"),
     "read_identification": ("tapmuscle.io.identification_file", "read_identification"),

@@ -27,9 +27,10 @@ from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.own_law import ControlLaw, as_law, law_name, law_period
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
+from tapmuscle.io.recording import Recording
 from tapmuscle.io.signals import Replay, parse_input_spec
 
-__all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus"]
+__all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus", "read_rig_log"]
 
 
 def _plant(params: PlantParams | None, load_n: float | None, seed: int, effects: Sequence[Effect] | Effect = ()) -> Plant:
@@ -275,6 +276,79 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
                            load_n=load_n if callable(load_n) else None, loop_delay_samples=loop_delay_samples,
                            progress=reporter(progress, "simulate_closed_loop"), watch=watch,
                            preview_samples=preview_samples)
+
+
+def read_rig_log(path: str | os.PathLike, *, time: Any = None, u: Any, l: Any,  # noqa: E741
+                 p: Any = None, load: Any = None, load_n: float | None = None, delimiter: str | None = None,
+                 decimal: str | None = None, fill_gaps_s: float = 0.0, skip_lines: int = 0,
+                 encoding: str = "utf-8-sig", run: int | None = None, ambient_kpa: float | None = None,
+                 ts_s: float | None = None, decimate: int = 1, checks: bool = True) -> Recording:
+    """Read a rig's log as a recording and check it as ``tapmuscle import`` does (docs/recordings.md).
+
+    The log is read by :func:`tapmuscle.io.rig_log.read_rig_log` (any column names, the units given
+    or the log's own, separator and decimal mark detected), then checked as the diagnosis would
+    check it (:func:`tapmuscle.diagnosis.rig_log_checks.checked_rig_log`): a period, command,
+    displacement or pressure that no muscle recording has is refused, naming the line, the column and
+    the unit that would read it as one (``u='valve:%'``: a command in percent given as volts). What
+    may be wrong but is not refused (a start away from rest, a span unlike the nominal model's, a
+    sensor's jump or clipping) is warned of (``UserWarning``).
+
+    Parameters
+    ----------
+    path : path
+        The log file.
+    time, u, l : LogColumn or str
+        The columns of the time [s], the valve command [V] and the displacement [mm], as
+        ``"NAME"`` or ``"NAME:UNIT"`` (units: ``tapmuscle.io.rig_log.UNITS``); ``time`` may be left
+        out with ``ts_s``.
+    p, load : LogColumn or str, optional
+        The muscle pressure [MPa] and load [N] columns.
+    load_n : float, optional
+        The hanging load [N] when it is not a column.
+    delimiter, decimal : str, optional
+        Field separator and decimal mark (default: detected).
+    fill_gaps_s : float
+        Put back the samples a logger dropped in gaps of up to this many seconds (default 0: refused).
+    skip_lines : int
+        Lines before the header to skip.
+    encoding : str
+        The file's text encoding (default UTF-8).
+    run : int, optional
+        Which run (1 = the first) of a log a restarted logger wrote on.
+    ambient_kpa : float, optional
+        The ambient pressure [kPa] an absolute pressure unit is read against.
+    ts_s : float, optional
+        The sampling period [s] of a log without a time column, or with a sample counter for one.
+    decimate : int
+        Merge every ``decimate`` samples into one before the checks (a log taken faster than the
+        muscle needs: 1 kHz with 20 gives 0.02 s; :func:`tapmuscle.io.decimation.decimated`).
+    checks : bool
+        False takes a log the checks refuse as it is, with a warning of what they found (another
+        rig's units, for identification).
+
+    Returns
+    -------
+    Recording
+        As :func:`tapmuscle.io.rig_log.read_rig_log` returns it (merged, with ``decimate``).
+
+    Raises
+    ------
+    tapmuscle.io.recording.RecordingError
+        The log cannot be read as given, or (``checks``) holds values no muscle recording has.
+    """
+    from fmu_plant.user_warning import warn_at_caller
+    from tapmuscle.diagnosis.rig_log_checks import PYTHON, LogOptions, checked_rig_log
+    from tapmuscle.io.recording import RecordingError
+
+    if isinstance(decimate, bool) or not isinstance(decimate, (int, np.integer)) or decimate < 1:
+        raise RecordingError(f"{path}: decimate = {decimate!r} must be an integer >= 1 (samples merged into one)")
+    checked = checked_rig_log(LogOptions(str(path), time=time, u=u, l=l, p=p, load=load, load_n=load_n,
+                                         delimiter=delimiter, decimal=decimal, fill_gaps_s=fill_gaps_s,
+                                         skip_lines=skip_lines, encoding=encoding, ambient_kpa=ambient_kpa,
+                                         ts_s=ts_s, decimate=int(decimate), checks=bool(checks)), run, PYTHON)
+    for finding in checked.findings:
+        warn_at_caller(finding if finding.startswith(str(path)) else f"{path}: {finding}", UserWarning)
+    return checked.recording
 
 
 def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> list[Path]:

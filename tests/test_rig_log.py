@@ -328,7 +328,10 @@ def test_a_failed_import_leaves_the_output_as_it_was(tmp_path, truth):
 
 
 def test_the_package_root_reads_a_log():
-    assert tm.read_rig_log is read_rig_log and tm.LogColumn is LogColumn
+    """tm.read_rig_log is this reader with tapmuscle import's checks (tests/test_rig_log_checks.py)."""
+    from tapmuscle import api
+
+    assert tm.read_rig_log is api.read_rig_log and tm.LogColumn is LogColumn
 
 
 def test_dropped_samples_are_put_back_only_when_asked_and_marked(tmp_path, truth):
@@ -520,7 +523,6 @@ def test_day_first_dotted_dates_as_a_german_locale_writes_them(tmp_path):
     with pytest.raises(RecordingError, match=r"line 2, column 'Zeit': '13.31.2024 10:00:00' is not an ISO 8601 "
                                              r"\(or day.month.year\) time"):
         read_rig_log(log, time="Zeit:iso", u="u", l="l")
-    assert tm.read_rig_log is read_rig_log
 
 
 @pytest.mark.parametrize("kwargs, match", [

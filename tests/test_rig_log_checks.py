@@ -1,0 +1,81 @@
+"""A rig's log checked as the diagnosis would (diagnosis/rig_log_checks.py): ``tm.read_rig_log`` in
+Python refuses what ``tapmuscle import`` refuses, each naming the unit in its own spelling."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import tapmuscle as tm
+from tapmuscle.cli.main import main
+from tapmuscle.io.recording import RecordingError
+
+
+@pytest.fixture(scope="module")
+def rig():
+    """A 120-s random-command run of the simulated rig at 0.1 s."""
+    return tm.simulate("random:lo=2,hi=8,hold_min=2,hold_max=6,seed=3", duration_s=120.0)
+
+
+def _log(path, t, u, l, header=("time", "valve", "pos")):  # noqa: E741
+    rows = "\n".join(f"{a:.6f},{b:.6f},{c:.6f}" for a, b, c in zip(t, u, l))
+    path.write_text(",".join(header) + "\n" + rows + "\n")
+    return path
+
+
+@pytest.mark.parametrize("scale, spec, python_hint, cli_hint", [
+    ((1.0, 10.0, 1.0), {"u": "valve"}, "u='valve:%'", "--u valve:%"),          # percent read as volts
+    ((1e3, 1.0, 1.0), {"time": "time"}, "time='time:ms'", "--time time:ms"),    # milliseconds read as seconds
+    ((1.0, 1.0, 1e3), {"l": "pos"}, "l='pos:um'", "--l pos:um"),               # micrometres read as millimetres
+])
+def test_a_log_in_another_unit_is_refused_in_python_as_on_the_command_line(rig, tmp_path, capsys, scale, spec,
+                                                                           python_hint, cli_hint):
+    """tm.read_rig_log read a command in percent as 78 V, times in ms as a 100-s period and a position
+    in micrometres as 88 m without a word, where tapmuscle import refused them; both refuse the same
+    finding now, each naming the unit as its caller gives one."""
+    log = _log(tmp_path / "log.csv", rig["t_s"] * scale[0], rig["u_v"] * scale[1], rig["l_mm"] * scale[2])
+    columns = {"time": "time", "u": "valve", "l": "pos"} | spec
+    with pytest.raises(RecordingError) as python:
+        tm.read_rig_log(log, **columns)
+    message = str(python.value)
+    assert message.startswith(f"{log}") and python_hint in message and message.endswith("(checks=False reads it as it is)")
+    assert main(["import", str(log), "--out", str(tmp_path / "rec.csv"), "--time", columns["time"], "--u", columns["u"],
+                 "--l", columns["l"]]) == 2
+    cli = capsys.readouterr().err
+    assert cli_hint in cli and "(--no-checks writes it as it is)" in cli
+    said = message.replace(python_hint, cli_hint).replace("(checks=False reads it as it is)", "")
+    assert said.strip() in cli  # the same finding, the same numbers
+    assert not (tmp_path / "rec.csv").exists()
+    with warnings.catch_warnings(record=True) as caught:  # with the sensor notes a unit this far off brings
+        warnings.simplefilter("always")
+        taken = tm.read_rig_log(log, checks=False, **columns)
+    assert any(f"the diagnosis would refuse it: {log}" in str(w.message) and python_hint in str(w.message)
+               for w in caught)
+    assert len(taken) == len(rig["t_s"])
+
+
+def test_a_sound_log_reads_without_a_warning_and_as_the_reader_reads_it(rig, tmp_path):
+    from tapmuscle.io.rig_log import read_rig_log as unchecked
+
+    log = _log(tmp_path / "log.csv", rig["t_s"], rig["u_v"], rig["l_mm"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec = tm.read_rig_log(log, time="time", u="valve", l="pos", load_n=44)
+    plain = unchecked(log, time="time", u="valve", l="pos", load_n=44)
+    assert all(np.array_equal(rec.columns[k], plain.columns[k]) for k in plain.columns) and rec.metadata == plain.metadata
+
+
+def test_a_fast_log_is_merged_before_its_checks(rig, tmp_path):
+    """A 2-kHz log is refused with the merge that makes it a muscle recording, which decimate then does."""
+    t = np.arange(24001) * 5e-4
+    u = np.interp(t, rig["t_s"], rig["u_v"])
+    log = _log(tmp_path / "fast.csv", t, u, np.interp(t, rig["t_s"], rig["l_mm"]))
+    with pytest.raises(RecordingError, match=r"0.0005 s \(2000 Hz\).*Merge every 40 samples into one"):
+        tm.read_rig_log(log, time="time", u="valve", l="pos")
+    rec = tm.read_rig_log(log, time="time", u="valve", l="pos", decimate=40)
+    assert rec.ts_s == pytest.approx(0.02) and len(rec) == 601
+    for bad in (0, 2.5, True):
+        with pytest.raises(RecordingError, match=r"decimate = .* must be an integer >= 1"):
+            tm.read_rig_log(log, time="time", u="valve", l="pos", decimate=bad)
