@@ -243,7 +243,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
         no number.
     ValueError
         A law's ``step`` returned NaN or an infinite command (with its sample and time), a period or
-        preview that is not one (see ``ts_s``, ``preview_samples``).
+        preview that is not one (see ``ts_s``, ``preview_samples``), a period longer than the run.
     """
     if not isinstance(plant, Plant):
         raise TypeError(f"plant must be a Plant (tm.Plant(params)), got {type(plant).__name__}")
@@ -264,6 +264,10 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
     if (isinstance(duration_s, bool) or not isinstance(duration_s, numbers.Real) or not math.isfinite(duration_s)
             or duration_s <= 0):
         raise ValueError(f"duration_s must be a finite number > 0 [s], got {duration_s!r}")
+    if ts > duration_s:
+        # one sample and no loop at all, silently: most likely a period in milliseconds (Ts = 100)
+        raise ValueError(f"the loop's sampling period {ts!r} s is longer than the run (duration_s = {duration_s!r} s): "
+                         "a period in milliseconds? Give it in seconds")
     progress = reporter(progress, "run_closed_loop")
     reference = as_reference(reference, ts)
     n = int(round(duration_s / ts)) + 1

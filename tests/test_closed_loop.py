@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapmuscle.closed_loop import EQ21_WINDOW, command_tv_excess, eq21_error_mm
+from fmu_controller.displacement_control import ControllerSettings, DisplacementController
+from fmu_controller.preliminary_model import THETA0_44N
+from fmu_plant import Plant, PlantParams
+from tapmuscle.closed_loop import EQ21_WINDOW, command_tv_excess, eq21_error_mm, run_closed_loop
 
 
 def _sine_command(f: float, n: int = 451) -> np.ndarray:
@@ -55,6 +58,14 @@ def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():
                                          r"name: ts_s=0.1"):
         eq21_error_mm(r, l, 0.1)
     assert eq21_error_mm(r, l, ts_s=0.1) == eq21_error_mm(r, l)
+
+
+def test_a_loop_whose_period_is_longer_than_the_run_is_refused():
+    """ControllerSettings(ts_s=100) (ms meant) ran a 45-s loop as one sample, without a word."""
+    ctrl = DisplacementController(ControllerSettings(ts_s=100.0), THETA0_44N)
+    with pytest.raises(ValueError, match=r"sampling period 100.0 s is longer than the run \(duration_s = 45.0 s\): a "
+                                         r"period in milliseconds\?"):
+        run_closed_loop(Plant(PlantParams()), ctrl, None, duration_s=45.0)
 
 
 def test_eq21_refuses_a_period_in_milliseconds_a_fractional_window_and_a_gap():
