@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 import tomllib
+import warnings
 import zipfile
 from contextlib import contextmanager
 from importlib import metadata
@@ -36,7 +37,7 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from .model_description import content_guid, finish_model_description
-from .native_host import EXPORT_VARIABLE
+from .native_host import EXPORT_VARIABLE, NativeHostWarning
 
 __all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
            "slave_metadata", "user_cache_root"]
@@ -312,6 +313,11 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     The cache lives in ``cache_root`` (default ``$XDG_CACHE_HOME/tapmuscle`` or ``~/.cache/tapmuscle``)
     under a folder named by a digest of the sources and the interpreter. ``OSError`` naming the
     folder and the remedies when it cannot be written (a read-only home in a container).
+
+    These are the FMUs the project's own commands run in fmpy, a Python host: a tool missing for
+    other hosts' binaries (MinGW-w64, a shared libpython) is not warned of here, where it changes
+    nothing, and where warnings made errors (``PYTHONWARNINGS=error``) it stopped ``tapmuscle
+    paper`` on most Linux machines. ``tapmuscle build``, which writes FMUs to take elsewhere, warns.
     """
     if cache_root is None:
         cache_root = user_cache_root()
@@ -325,7 +331,9 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
             raise OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
                           f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
                           f"tapmuscle build --out DIR)") from None
-        build_fmus(folder, missing)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NativeHostWarning)
+            build_fmus(folder, missing)
         _prune_cache(Path(cache_root), folder)
     else:
         try:

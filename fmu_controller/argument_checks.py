@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["number_array", "real_number", "whole_number", "sampling_period", "MUSCLE_TS_RANGE_S"]
+__all__ = ["number_array", "real_number", "whole_number", "sampling_period", "in_sampling_range", "MUSCLE_TS_RANGE_S"]
 
 #: Sampling periods [s] of a muscle recording or loop (those of ``tapmuscle record --ts``): the
 #: muscle's responses take tenths of a second, so a period beyond 10 s is milliseconds meant (``100``
@@ -40,17 +40,32 @@ def real_number(value: Any, *, what: str) -> float:
     return float(x)
 
 
+def in_sampling_range(ts_s: float) -> int:
+    """Where a period [s] lies against :data:`MUSCLE_TS_RANGE_S`: -1 below, 0 within, 1 above (NaN
+    above). A relative 1e-9 either side is within: a period measured from times written as text
+    (1 ms logged as 0.001, 0.002, ...) comes out a hair short of 1 ms and is still 1 ms."""
+    lo, hi = MUSCLE_TS_RANGE_S
+    if ts_s < lo * (1.0 - 1e-9):
+        return -1
+    return 0 if ts_s <= hi * (1.0 + 1e-9) else 1
+
+
 def sampling_period(value: Any, *, what: str = "ts_s") -> float:
-    """``value`` as a sampling period [s] within :data:`MUSCLE_TS_RANGE_S`, or an error naming ``what``
-    (a ``TypeError`` for a non-number, a ``ValueError`` for NaN, <= 0 or outside the range, the latter
-    asking whether milliseconds were meant)."""
+    """``value`` as a sampling period [s] within :data:`MUSCLE_TS_RANGE_S` (:func:`in_sampling_range`),
+    or an error naming ``what``: a ``TypeError`` for a non-number, a ``ValueError`` for NaN, <= 0 or
+    a period outside the range (above: milliseconds meant? below: samples to merge)."""
     ts = real_number(value, what=what)
     lo, hi = MUSCLE_TS_RANGE_S
     if ts <= 0:
         raise ValueError(f"{what} must be a positive finite sampling period [s], got {value!r}")
-    if not lo <= ts <= hi:
+    where = in_sampling_range(ts)
+    if where > 0:
         raise ValueError(f"{what} = {value!r} s is outside the {lo:g}..{hi:g} s of the muscle's sampling "
                          "(tapmuscle record --ts): a period in milliseconds? Give it in seconds")
+    if where < 0:
+        raise ValueError(f"{what} = {value!r} s is outside the {lo:g}..{hi:g} s of the muscle's sampling "
+                         "(tapmuscle record --ts): a data acquisition faster than the muscle needs? Merge its "
+                         "samples (tapmuscle import --decimate N, tm.read_rig_log(..., decimate=N), tm.decimated)")
     return ts
 
 

@@ -18,12 +18,14 @@ every sample the estimate leaves the box.
 from __future__ import annotations
 
 import itertools
-from typing import Sequence
+import math
+import numbers
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import lsq_linear
 
-__all__ = ["BoxProjector", "project_onto_box", "MAX_ENUMERATED"]
+__all__ = ["BoxProjector", "project_onto_box", "named_box", "box_from_pairs", "MAX_ENUMERATED"]
 
 _dot = np.dot
 
@@ -419,6 +421,54 @@ def _kkt_holds(grad: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) 
     inside = ~(at_lo | at_hi)
     return bool(np.all(np.abs(grad[inside]) <= scale) and np.all(grad[at_lo] >= -scale)
                 and np.all(grad[at_hi] <= scale))
+
+
+def named_box(lower: Mapping[str, Any], upper: Mapping[str, Any], *, names: Sequence[str], what: str
+              ) -> tuple[dict[str, float], dict[str, float]]:
+    """The box C of Algorithm 1 given by parameter name, as two maps of ``names`` to finite bounds,
+    or a ``ValueError`` naming ``what``: a side that is not a mapping, a name not in ``names``, a
+    bound that is not a real number (any numpy width) or is NaN, an infinity on the side it bars
+    every value from, a lower bound above its upper one. An infinity on its own side is no bound
+    and left out."""
+    out = []
+    for side, given, unbounded in (("lower", lower, -math.inf), ("upper", upper, math.inf)):
+        if not isinstance(given, Mapping):
+            raise ValueError(f"{what}: the {side} bounds must map parameter names to numbers, got "
+                             f"{type(given).__name__} {given!r:.60}")
+        bounds = {}
+        for name, value in given.items():
+            if name not in names:
+                raise ValueError(f"{what}: unknown parameter {name!r} in the {side} bounds (the model's parameters: "
+                                 f"{', '.join(names)})")
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or math.isnan(value):
+                pair = (" (one number a side: box_lower and box_upper, not tm.identify's (lower, upper) pairs)"
+                        if isinstance(value, (tuple, list, np.ndarray)) else "")
+                raise ValueError(f"{what}: the {side} bound of {name} must be a number, got {value!r:.60}{pair}")
+            x = float(value)
+            if x != unbounded:
+                if math.isinf(x):
+                    raise ValueError(f"{what}: the {side} bound of {name} is {x!r}, which no value satisfies")
+                bounds[name] = x
+        out.append(bounds)
+    crossed = [f"{n} ({out[0][n]:g} > {out[1][n]:g})" for n in out[0] if n in out[1] and out[0][n] > out[1][n]]
+    if crossed:
+        raise ValueError(f"{what}: a lower bound above its upper one: {', '.join(crossed)}")
+    return out[0], out[1]
+
+
+def box_from_pairs(box: Mapping[str, Any], *, names: Sequence[str], what: str = "box"
+                   ) -> tuple[dict[str, float], dict[str, float]]:
+    """:func:`named_box` of ``{name: (lower, upper)}`` (``tm.identify``'s ``box``; a pair may be a
+    tuple, a list or a numpy array of two numbers)."""
+    if not isinstance(box, Mapping):
+        raise ValueError(f"{what} must map parameter names to (lower, upper) pairs, got {type(box).__name__} {box!r:.60}")
+    lower, upper = {}, {}
+    for name, pair in box.items():
+        values = None if isinstance(pair, (str, bytes)) else np.asarray(pair, dtype=object)
+        if values is None or values.shape != (2,):
+            raise ValueError(f"{what}: {name} must be a pair (lower, upper) of numbers, got {pair!r:.60}")
+        lower[name], upper[name] = values[0], values[1]
+    return named_box(lower, upper, names=names, what=what)
 
 
 def _check_box(lower, upper, n) -> tuple[np.ndarray, np.ndarray]:

@@ -32,7 +32,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .argument_checks import real_number, sampling_period
+from .argument_checks import sampling_period
+from .box_projection import box_from_pairs
 from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
 from .prediction import (IdentificationResult, delayed_input, fit_percent, predict_ahead, rescale_theta, run_rls,
                          simulate, theta_scale_factors)
@@ -319,17 +320,7 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     elif box is None:
         lower, upper = {}, {}
     else:
-        lower, upper = {}, {}
-        for name, bounds in box.items():
-            if name not in structure.names:
-                raise ValueError(f"box: unknown parameter {name!r} for the {model} model")
-            if isinstance(bounds, (str, bytes)) or not isinstance(bounds, Sequence) or len(bounds) != 2:
-                raise ValueError(f"box: {name} must be a pair (lower, upper) of numbers, got {bounds!r:.60}")
-            lo, hi = (real_number(b, what=f"box: {name}'s bound") if not (isinstance(b, float) and math.isinf(b))
-                      else b for b in bounds)
-            if not lo <= hi:
-                raise ValueError(f"box: {name} lower bound {lo} exceeds upper bound {hi}")
-            lower[name], upper[name] = lo, hi
+        lower, upper = box_from_pairs(box, names=structure.names, what=f"box ({model} model)")
     # Box and initial estimate into normalised units: theta_scaled = theta_physical / f.
     idx = {n: i for i, n in enumerate(structure.names)}
     s_lower = {n: v / f[idx[n]] for n, v in lower.items()}

@@ -347,7 +347,7 @@ def read_rig_log(path: str | os.PathLike, *, time: Any = None, u: Any, l: Any,  
                                          skip_lines=skip_lines, encoding=encoding, ambient_kpa=ambient_kpa,
                                          ts_s=ts_s, decimate=int(decimate), checks=bool(checks)), run, PYTHON)
     for finding in checked.findings:
-        warn_at_caller(finding if finding.startswith(str(path)) else f"{path}: {finding}", UserWarning)
+        warn_at_caller(finding if str(path) in finding else f"{path}: {finding}", UserWarning)
     return checked.recording
 
 

@@ -92,8 +92,6 @@ def eq21_error_mm(r_mm: np.ndarray | Mapping[str, np.ndarray], l_mm: np.ndarray 
         raise ValueError(f"r_mm and l_mm must be 1-D arrays of the same length (one value per sample k), got "
                          f"shapes {r.shape} and {l.shape}")
     k0, k1 = _window(window, ts_s)
-    if window is not None:  # (100.5, 200) would be cut to sample 100 without a word
-        k0, k1 = (whole_number(k, what=f"window {tuple(window)}: a sample number") for k in (k0, k1))
     if not 0 <= k0 <= k1:
         raise ValueError(f"window must be (k0, k1) with 0 <= k0 <= k1, got {tuple(window)}")
     if len(r) <= k1:
@@ -117,7 +115,10 @@ def _window(window: tuple[int, int] | None, ts_s: float | None) -> tuple[int, in
         if isinstance(window, numbers.Real):  # eq21_error_mm(r, l, 0.1): the period where the window goes
             raise ValueError(f"window must be the samples (k0, k1), got the number {window!r}; for Eq. (21)'s "
                              f"10.1..40.1 s at a sampling period give it by name: ts_s={window!r}")
-        return window
+        k0, k1 = window
+        # sample numbers: 101.0 is sample 101; 100.5 would be cut to sample 100 without a word
+        return tuple(int(k) if isinstance(k, numbers.Real) and not isinstance(k, bool) and float(k).is_integer()
+                     else whole_number(k, what=f"window {tuple(window)}: a sample number") for k in (k0, k1))
     return EQ21_WINDOW if ts_s is None else eq21_window(ts_s)
 
 

@@ -21,6 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from fmu_controller.argument_checks import in_sampling_range
 from fmu_controller.displacement_control import (HELD_WARN_S, full_range_jump, held_against_error, limit_side,
                                                  pinned_side, settle_samples)
 from fmu_controller.loop_watch import (REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDOW_S, SWINGS, TRACKING_BLOCK_S,
@@ -131,7 +132,7 @@ def law_period(law: Any, ts_s: float | None) -> float:
     lo, hi = TS_RANGE_S
     for what, value in (("ts_s", ts_s), (f"{name}.ts_s", own)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)
-                                  or not math.isfinite(value) or not lo <= value <= hi):
+                                  or not math.isfinite(value) or in_sampling_range(value) != 0):
             raise ValueError(f"{what} must be a finite number within {lo:g} .. {hi:g} s (the muscle's sampling "
                              f"periods), got {value!r}")
     # a period given in single precision (np.float32(0.1)) is the same period

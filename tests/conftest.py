@@ -35,11 +35,18 @@ def _temporary_directory_of_the_run(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def built_fmus(tmp_path_factory):
-    """``{"MusclePlant": path, "AMPCController": path}`` built from this checkout."""
+    """``{"MusclePlant": path, "AMPCController": path}`` built from this checkout (what a tool missing
+    for other hosts' binaries left out is not warned of: the tests of those hosts check it, and
+    ``pytest -W error`` would fail every FMU test here)."""
+    import warnings
+
     from build_scripts.build_fmus import FMUS, build_fmus
+    from build_scripts.native_host import NativeHostWarning
 
     out = tmp_path_factory.mktemp("fmus")
-    paths = build_fmus(out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NativeHostWarning)
+        paths = build_fmus(out)
     return {name: path for name, path in zip(FMUS, paths)}
 
 
@@ -51,6 +58,15 @@ _FIXTURE_MARKS = {"built_fmus": "fmu", "paper": "slow"}
 #: Whether file names with non-ASCII characters can be made here: under a Latin-1 locale Python
 #: encodes paths in it, and a test's folder named "日本" cannot exist.
 UTF8_PATHS = sys.getfilesystemencoding().lower().replace("-", "") == "utf8"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+    """``-n N`` hands out the tests by work stealing (a long test no longer holds back a worker's
+    queue), unless ``--dist`` says otherwise. Set here rather than in addopts, where xdist's option
+    stopped pytest without xdist (``-p no:xdist``, a bare ``pip install pytest``)."""
+    if getattr(config.option, "numprocesses", None) and getattr(config.option, "dist", "no") == "no":
+        config.option.dist = "worksteal"
 
 
 def pytest_collection_modifyitems(config, items):

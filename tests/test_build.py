@@ -7,6 +7,7 @@ import subprocess
 import sys
 import xml.etree.ElementTree as ET
 import zipfile
+from pathlib import Path
 
 import pytest
 import pythonfmu
@@ -45,6 +46,23 @@ def test_the_build_says_when_its_fmus_run_in_python_hosts_only(tmp_path):
         notes[hosts_only] = _linux64_note(fmu)
     assert notes[False] == f" (linux64 for {machine_name(python_machine())}: pythonfmu's FMI library)"
     assert notes[True] == notes[False][:-1] + "; Python hosts only: the building Python has no shared libpython)"
+
+
+@pytest.mark.slow
+def test_warnings_made_errors_stop_no_run_for_a_tool_other_hosts_need(tmp_path):
+    """Under PYTHONWARNINGS=error a missing MinGW-w64 (most Linux machines) stopped tapmuscle run and
+    paper with exit 1 while building their own FMUs, which fmpy (a Python host) runs whatever the win64
+    binary; tapmuscle build, which writes FMUs to take to other hosts, still says what it left out."""
+    env = {**os.environ, "PYTHONWARNINGS": "error", "XDG_CACHE_HOME": str(tmp_path / "cache"),
+           "CC_WIN64": str(tmp_path / "no-mingw-gcc")}
+    scenario = Path(tapmuscle.__file__).resolve().parents[1] / "scenarios" / "examples" / "load_step.toml"
+    run = subprocess.run([sys.executable, "-m", "tapmuscle", "run", str(scenario), "--out", str(tmp_path / "run"),
+                          "--quiet"], env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert "NativeHostWarning" not in run.stderr and (tmp_path / "run" / "summary.json").is_file()
+    build = subprocess.run([sys.executable, "-m", "tapmuscle", "build", "--out", str(tmp_path / "fmus")], env=env,
+                           capture_output=True, text=True, timeout=600)
+    assert build.returncode == 1 and "NativeHostWarning" in build.stderr and "MinGW-w64" in build.stderr
 
 
 def test_guid_follows_the_content(built_fmus):

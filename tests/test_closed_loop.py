@@ -84,6 +84,7 @@ def test_eq21_refuses_a_period_in_milliseconds_a_fractional_window_and_a_gap():
     with pytest.raises(TypeError, match=r"window \(100.5, 200\): a sample number must be an integer, got float 100.5"):
         eq21_error_mm(r, l, window=(100.5, 200))
     assert eq21_error_mm(r, l, window=(np.int64(101), 401)) == eq21_error_mm(r, l)
+    assert eq21_error_mm(r, l, window=(101.0, np.float64(401.0))) == eq21_error_mm(r, l)  # whole numbers as floats
     gap = l.copy()
     gap[150] = np.nan
     with pytest.raises(ValueError, match=r"l_mm\[150\] = nan is not finite: Eq. \(21\)'s mean over samples 101..401"):

@@ -48,7 +48,8 @@ def test_a_period_shorter_than_a_millisecond_asks_to_merge_samples_not_for_anoth
     """A 2-kHz log in seconds asks for a merge, not for minutes (which would write a 50-s log as
     3000 s); one beyond the largest merge says so; a period too long asks about milliseconds."""
     with pytest.raises(ValueError, match=r"0.0005 s \(2000 Hz\), shorter than the 0.001 s .* Merge every 40 samples "
-                                         r"into one \(tapmuscle import --decimate 40, tm.decimated: Ts = 0.02 s\)"):
+                                         r"into one \(tapmuscle import --decimate 40, tm.read_rig_log\(..., decimate=40\), "
+                                         r"tm.decimated: Ts = 0.02 s\)"):
         check_sampling_period(0.0005)
     with pytest.raises(ValueError, match=r"Merge every 1000 samples into one \(.*Ts = 0.001 s\)"):
         check_sampling_period(1e-6)  # 1000 x 1 us: not below the bound, the largest merge
@@ -89,7 +90,8 @@ def test_a_period_too_short_in_a_unit_other_than_seconds_offers_both_remedies(tm
                  "--load-n", "44"]) == 2
     err = capsys.readouterr().err
     assert re.search(r"the column is likely in s \(--time t:s\); or, if ms is right, a data acquisition faster than the "
-                     r"muscle needs: merge every 200 samples into one \(tapmuscle import --decimate 200, tm.decimated: Ts = 0.02 s\)",
+                     r"muscle needs: merge every 200 samples into one \(tapmuscle import --decimate 200, "
+                     r"tm.read_rig_log\(..., decimate=200\), tm.decimated: Ts = 0.02 s\)",
                      err), err
 
 

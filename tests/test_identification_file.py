@@ -205,12 +205,15 @@ def test_a_model_refined_in_closed_loop_is_written_for_the_controller(tmp_path):
     assert not (tmp_path / "bad.json").exists()
     write_identification(path, theta, ts_s=np.float32(0.1))  # a notebook's number
     assert read_identification(path).ts_s == float(np.float32(0.1))
+    # 1 ms as a 1-kHz log's times written to the millisecond give it (a hair short) is 1 ms
+    write_identification(path, theta, ts_s=0.0009999999999994458)
+    assert read_identification(path).ts_s == 0.0009999999999994458
 
 
 @pytest.mark.parametrize("lower, upper, message", [
     ({"a1": (1.0, 2.0)}, {}, r"the lower bound of a1 must be a number, got \(1.0, 2.0\) \(one number a side"),
     ({"a1": 2.0}, {"a1": 1.0}, r"a lower bound above its upper one: a1 \(2 > 1\)"),
-    ({"zz": 1.0}, {}, r"the lower bound names 'zz', no parameter of Eq. \(1\)"),
+    ({"zz": 1.0}, {}, r"unknown parameter 'zz' in the lower bounds \(the model's parameters: a1, a2"),
     ({"a1": float("nan")}, {"a1": 2.0}, "the lower bound of a1 must be a number, got nan"),
     ({}, {"b1": -np.inf}, r"the upper bound of b1 is -inf, which no value satisfies"),
 ])
@@ -233,7 +236,7 @@ def test_a_box_in_a_file_is_checked_as_the_controller_would(id_files, tmp_path):
     """A crossed or unknown bound read from a file is refused naming the file, not at the controller."""
     doc = json.loads(id_files[0.1].read_text())
     for box, message in (({"lower": {"a1": 2.0}, "upper": {"a1": 1.0}}, "a lower bound above its upper one: a1"),
-                         ({"lower": {"zz": 1.0}}, "the lower bound names 'zz'")):
+                         ({"lower": {"zz": 1.0}}, "unknown parameter 'zz' in the lower bounds")):
         bad = tmp_path / "bad.json"
         bad.write_text(json.dumps(doc | {"constraint": box}))
         with pytest.raises(IdentificationFileError, match=rf"{bad}: key 'constraint': {message}"):

@@ -51,8 +51,9 @@ def test_a_log_in_another_unit_is_refused_in_python_as_on_the_command_line(rig, 
     with warnings.catch_warnings(record=True) as caught:  # with the sensor notes a unit this far off brings
         warnings.simplefilter("always")
         taken = tm.read_rig_log(log, checks=False, **columns)
-    assert any(f"the diagnosis would refuse it: {log}" in str(w.message) and python_hint in str(w.message)
-               for w in caught)
+    refused = [str(w.message) for w in caught if "the diagnosis would refuse it" in str(w.message)]
+    assert len(refused) == 1 and refused[0].startswith(f"the diagnosis would refuse it: {log}") \
+        and python_hint in refused[0] and refused[0].count(str(log)) == 1
     assert len(taken) == len(rig["t_s"])
 
 
@@ -79,3 +80,5 @@ def test_a_fast_log_is_merged_before_its_checks(rig, tmp_path):
     for bad in (0, 2.5, True):
         with pytest.raises(RecordingError, match=r"decimate = .* must be an integer >= 1"):
             tm.read_rig_log(log, time="time", u="valve", l="pos", decimate=bad)
+    with pytest.raises(RecordingError, match=rf"{log}: decimation n = 4000 must be an integer within 1..1000"):
+        tm.read_rig_log(log, time="time", u="valve", l="pos", decimate=4000)

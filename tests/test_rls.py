@@ -640,3 +640,36 @@ def test_rls_with_forgetting_is_exponentially_weighted_regularised_least_squares
     theta = np.linalg.solve(info, lam ** N * theta0 / p0 + (phi * w[:, None]).T @ y)
     np.testing.assert_allclose(rls.theta, theta, rtol=0, atol=1e-8)
     np.testing.assert_allclose(rls.P, np.linalg.inv(info), rtol=1e-8, atol=1e-12)
+
+
+def test_a_box_given_by_name_is_checked_once_for_every_caller():
+    """identify's (lower, upper) pairs, an identification file's two maps: one check
+    (box_projection.named_box). A numpy pair and a numpy infinity are numbers; an infinity on its
+    own side is no bound; what no value satisfies, a crossed bound, NaN and an unknown name are
+    refused naming the caller's setting."""
+    from fmu_controller.box_projection import box_from_pairs, named_box
+
+    names = ("a1", "a2", "b1")
+    assert box_from_pairs({"a1": np.array([0.5, 1.5]), "b1": (np.float32(-np.inf), np.float64(1.2))}, names=names) == \
+        ({"a1": 0.5}, {"a1": 1.5, "b1": 1.2})
+    assert named_box({"a1": -np.inf}, {"a1": np.inf}, names=names, what="C") == ({}, {})
+    for lower, upper, message in (({"a1": 2.0}, {"a1": 1.0}, r"C: a lower bound above its upper one: a1 \(2 > 1\)"),
+                                  ({"a1": np.nan}, {}, "C: the lower bound of a1 must be a number, got nan"),
+                                  ({"a1": np.inf}, {}, "C: the lower bound of a1 is inf, which no value satisfies"),
+                                  ({"zz": 1.0}, {}, r"C: unknown parameter 'zz' in the lower bounds \(the model's "
+                                                    r"parameters: a1, a2, b1\)"),
+                                  ({"a1": True}, {}, "C: the lower bound of a1 must be a number, got True")):
+        with pytest.raises(ValueError, match=message):
+            named_box(lower, upper, names=names, what="C")
+    for box, message in (({"a1": 1.0}, r"box: a1 must be a pair \(lower, upper\) of numbers, got 1.0"),
+                         ({"a1": "0:1"}, "box: a1 must be a pair"), ({"a1": (0, 1, 2)}, "box: a1 must be a pair"),
+                         ([("a1", (0, 1))], "box must map parameter names to")):
+        with pytest.raises(ValueError, match=message):
+            box_from_pairs(box, names=names)
+    # a random box's bounds come back as given, each side within the other
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        lo = dict(zip(names, rng.normal(size=3)))
+        hi = {k: v + rng.uniform(0, 2) for k, v in lo.items()}
+        got_lo, got_hi = box_from_pairs({k: (lo[k], hi[k]) for k in names}, names=names)
+        assert got_lo == lo and got_hi == hi and all(got_lo[k] <= got_hi[k] for k in names)

@@ -136,7 +136,10 @@ def checked_rig_log(options: LogOptions, run: int | None = None, spelling: Spell
         merged = None
         if options.decimate > 1:
             before = rec.sampling.ts_s  # the log's own grid checked first: a dropped sample is named by its line
-            rec, moved = decimated(rec, options.decimate)
+            try:
+                rec, moved = decimated(rec, options.decimate)
+            except ValueError as exc:  # beyond the merge's largest
+                raise RecordingError(f"{path}: {exc}") from None
             merged = (f"Decimated: every {options.decimate} samples merged into one (Ts {before:.6g} -> "
                       f"{before * options.decimate:.6g} s; the first sample's readings, the block's mean command)"
                       + (f"; {moved}" if moved else ""))

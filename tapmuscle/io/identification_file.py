@@ -16,14 +16,12 @@ from __future__ import annotations
 
 import json
 import math
-import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
-import numpy as np
-
 from fmu_controller.argument_checks import sampling_period
+from fmu_controller.box_projection import named_box
 from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.rls import TABLE2_LOWER
@@ -212,34 +210,9 @@ def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
 
 def checked_box(lower: Mapping[str, float], upper: Mapping[str, float], *, what: str
                 ) -> tuple[dict[str, float], dict[str, float]]:
-    """The constraint region C of Algorithm 1 as two maps of Eq. (1)'s parameter names to finite
-    bounds [mm, V units of theta], or a ValueError naming ``what``: a name not among
-    :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s, a bound that is not a number (a pair, as
-    ``tm.identify``'s ``box`` takes them) or is NaN, a lower bound above its upper one. An infinite
-    bound on its own side is no bound and left out."""
-    out = []
-    for side, given, unbounded in (("lower", lower, -math.inf), ("upper", upper, math.inf)):
-        if not isinstance(given, Mapping):
-            raise ValueError(f"{what}: the {side} bounds must map parameter names to numbers, got "
-                             f"{type(given).__name__} {given!r:.60}")
-        bounds = {}
-        for name, value in given.items():
-            if name not in ASYMMETRIC.names:
-                raise ValueError(f"{what}: the {side} bound names {name!r}, no parameter of Eq. (1) (its parameters: "
-                                 f"{', '.join(ASYMMETRIC.names)})")
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or math.isnan(value):
-                pair = " (one number a side: box_lower and box_upper, not tm.identify's (lower, upper) pairs)" \
-                    if isinstance(value, (tuple, list)) else ""
-                raise ValueError(f"{what}: the {side} bound of {name} must be a number, got {value!r:.60}{pair}")
-            if value != unbounded:
-                if math.isinf(value):
-                    raise ValueError(f"{what}: the {side} bound of {name} is {value!r}, which no value satisfies")
-                bounds[name] = float(value)
-        out.append(bounds)
-    crossed = [f"{n} ({out[0][n]:g} > {out[1][n]:g})" for n in out[0] if n in out[1] and out[0][n] > out[1][n]]
-    if crossed:
-        raise ValueError(f"{what}: a lower bound above its upper one: {', '.join(crossed)}")
-    return out[0], out[1]
+    """The constraint region C of Algorithm 1 on Eq. (1)'s parameters, checked as the controller
+    checks it (:func:`fmu_controller.box_projection.named_box`; ``ValueError`` naming ``what``)."""
+    return named_box(lower, upper, names=ASYMMETRIC.names, what=what)
 
 
 def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,

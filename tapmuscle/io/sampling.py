@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_controller.argument_checks import MUSCLE_TS_RANGE_S
+from fmu_controller.argument_checks import MUSCLE_TS_RANGE_S, in_sampling_range
 from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
@@ -56,7 +56,8 @@ def merge_advice(ts_s: float) -> str:
     :data:`DECIMATED_TS_S`, in words: the option, the period it gives, and where even the largest
     merge is not enough."""
     n = decimation_factor(ts_s)
-    advice = f"merge every {n} samples into one (tapmuscle import --decimate {n}, tm.decimated: Ts = {n * ts_s:g} s"
+    advice = (f"merge every {n} samples into one (tapmuscle import --decimate {n}, tm.read_rig_log(..., decimate={n}), "
+              f"tm.decimated: Ts = {n * ts_s:g} s")
     if n * ts_s < TS_RANGE_S[0]:
         advice += f", still shorter than {TS_RANGE_S[0]:g} s: resample the log before, it is beyond the merge's {MAX_DECIMATION}"
     return advice + ")"
@@ -71,15 +72,14 @@ def check_sampling_period(ts_s: float) -> None:
     ValueError
         Naming the period and the column ``t_s``, and the remedy.
     """
-    # the period is a median of differences of written times: 1 ms logged at 0.001, 0.002, ... comes
-    # out as 0.99999999999989 ms, which is still 1 ms
-    if ts_s < TS_RANGE_S[0] * (1.0 - 1e-9):
+    where = in_sampling_range(ts_s)
+    if where < 0:
         merge = merge_advice(ts_s)
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s ({1.0 / ts_s:g} Hz), shorter than the "
                          f"{TS_RANGE_S[0]:g} s the tools sample at least: a data acquisition faster than the muscle "
                          f"needs? {merge[0].upper()}{merge[1:]}; docs/recordings.md, "
                          "\"Fast data acquisition\"; else the times are in a unit larger than seconds")
-    if not ts_s <= TS_RANGE_S[1] * (1.0 + 1e-9):
+    if where > 0:
         raise ValueError(f"column t_s: the sampling period is {ts_s:g} s, outside the {TS_RANGE_S[0]:g}..{TS_RANGE_S[1]:g} s "
                          "of a muscle recording: is the time logged in another unit (milliseconds)? Scale it to seconds")
 
