@@ -859,7 +859,7 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
     assert base["delay.delay_s"] == 0.0 and base["load_mismatch.extra_n"] == 0.0
     assert {k: v for k, v in base.items() if k not in ("delay.delay_s", "load_mismatch.extra_n")} == \
         {k: v for k, v in cal.items() if k not in ("delay.delay_s", "load_mismatch.extra_n")}
-    assert ("--plant discriminate_plant.json --effects transport_delay,load_mismatch"
+    assert (f"--plant {tmp_path / 'discriminate_plant.json'} --effects transport_delay,load_mismatch"
             in (tmp_path / "report.md").read_text())
     # the record command the report prints runs as printed, at the recording's load and period
     import re
@@ -872,9 +872,13 @@ def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
     assert printed == group["experiment"]["record"]
     # as printed it records the nominal plant: the report says what a simulated rig of one's own adds
     assert "with the `--params` or `--set` options that made this recording added" in (tmp_path / "report.md").read_text()
-    monkeypatch.chdir(tmp_path)
+    # from the folder the diagnosis ran in, not only from its output folder (the paths are the output
+    # folder's as given: absolute here)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
     assert main(shlex.split(printed)[1:] + ["--quiet"]) == 0
-    new = read_recording(tmp_path / "NEW.csv")
+    new = read_recording(elsewhere / "NEW.csv")
     assert np.all(new.load_n == DEMO_MODEL.load.load_n) and new.t_s[-1] == pytest.approx(60.0)
     assert np.allclose(new.u_v, [signal(t) for t in new.t_s], atol=1e-6)
 
@@ -1850,6 +1854,22 @@ def test_a_sensor_much_noisier_than_the_models_is_noted_and_still_no_mismatch():
             m = re.match(r"The recording's white noise \(([\d.]+) mm\) is (\d+) times the sensor noise the plant "
                          r"states \(0\.0104 mm", said[0])
             assert m and 0.45 < float(m[1]) < 0.55 and int(m[2]) > NOISIER_SENSOR_FACTOR, said
+
+
+@pytest.mark.slow
+def test_a_mismatch_that_jumps_between_samples_is_not_taken_for_a_noisy_sensor():
+    """A 2-mm backlash and a 0.12-s delay under the 0.2-Hz sine: the nominal model's residual changes
+    from sample to sample by tenths of a mm (its white part, from first differences, 0.35 mm), and the
+    report called the rig's encoder a potentiometer; the final model leaves the encoder's 0.0105 mm."""
+    from fmu_plant import PlantParams
+    from tapmuscle.api import simulate
+
+    rig = PlantParams().with_values(**{"backlash.slack_mm": 2.0, "delay.delay_s": 0.12})
+    rec = simulate("sine:bias=5,amp=2.5,freq=0.2", duration_s=150.0, params=rig, seed=9)
+    d = diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], PlantParams(), calibration=None)
+    assert d.tests_before["white_noise_mm"] > 10 * 0.0104 and d.tests_after["white_noise_mm"] < 0.02
+    assert sorted(d.named) == ["backlash", "transport_delay"]
+    assert not [n for n in d.notes if "times the sensor noise the plant states" in n], d.notes
 
 
 def test_the_diagnosis_keeps_a_copy_of_the_recording():

@@ -24,3 +24,18 @@ def test_a_file_that_is_not_json_is_named_with_its_line(tmp_path):
     path.write_text('{\n  "a": Infinity,\n  "b": ]\n}')
     with pytest.raises(ValueError, match=r"x.json: not valid JSON \(line 3, column 8\)"):
         read_json(path, ValueError, where=str(path), missing="no file")
+
+
+def test_a_key_given_twice_in_one_object_is_named_not_lost(tmp_path):
+    """A plant file with its friction group written twice ran with the second's values only, the first's
+    base_n dropped without a word; the same key in two different objects is fine."""
+    from tapmuscle.io.plant_file import PlantFileError, read_plant_file
+
+    path = tmp_path / "plant.json"
+    path.write_text('{"plant": {"friction": {"base_n": 9.4}, "valve": {"cv_max": 1.3}, "friction": {"per_mpa_n": 31}}}')
+    with pytest.raises(PlantFileError, match=rf"{path}.*key 'friction' is given twice in one object; JSON keeps only "
+                                             r"the last"):
+        read_plant_file(path)
+    ok = tmp_path / "ok.json"
+    ok.write_text('{"a": {"x": 1}, "b": {"x": 2}}')
+    assert read_json(ok, ValueError, where="ok", missing="none") == {"a": {"x": 1}, "b": {"x": 2}}

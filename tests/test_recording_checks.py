@@ -116,6 +116,17 @@ def test_a_start_away_from_rest_jitter_and_kpa_are_said():
     assert "reaches 200 MPa" in note and "kPa" in note
 
 
+def test_a_load_in_kn_or_a_mass_in_kg_is_said_and_a_light_load_of_newtons_is_not():
+    """A load logged in kg (4.49 for 44 N) was taken for a 4.49-N load without a word; the diagnosis
+    then bent the constants to their bounds and named made-up effects."""
+    t, u, l, p = _clean()
+    for load, said in ((0.044, "is it logged in kN?"), (4.49, "is it a mass logged in kg (4.49 kg weighs 44 N;"),
+                       (np.full(len(t), 6.93), "(6.93 kg weighs 68 N;"), (44.0, None), (68.0, None),
+                       (1.5, None), (0.0, None)):  # 1.5 kg would weigh 15 N: no load this muscle lifts
+        notes = [n for n in muscle_recording_notes(t, l, p, load_n=load) if "The load never exceeds" in n]
+        assert (said in notes[0] if said else not notes), (load, notes)
+
+
 def test_an_absolute_pressure_is_told_from_a_start_mid_run():
     """A drained muscle reads the atmosphere's pressure on an absolute sensor: a first pressure in
     AMBIENT_MPA_RANGE at rest that never drains below it is said to be absolute (with the import's

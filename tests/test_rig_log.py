@@ -287,6 +287,10 @@ def test_units_declared_wrong_are_refused_or_noted_as_the_diagnosis_would(tmp_pa
     assert main(base + ["--out", str(out), "--l", "l", "--load-n", "0.044"]) == 0
     err = capsys.readouterr().err
     assert "The load never exceeds 0.044 N" in err and "kN?" in err
+    # a mass in kg: noted, and read as its weight in newtons with the unit
+    assert main(base + ["--out", str(out), "--l", "l", "--load-n", "4.49"]) == 0
+    assert "is it a mass logged in kg (4.49 kg weighs 44 N; tapmuscle import --load COLUMN:kg" in \
+        capsys.readouterr().err
 
 
 @pytest.mark.parametrize("repeated", [["--u", "valve_pct:%", "--u", "position_um"], ["--p", "p_kpa:kPa", "--p", "p_kpa:bar"],
@@ -617,3 +621,10 @@ def test_a_linear_map_is_a_conversion_with_an_offset_not_a_factor():
     with pytest.raises(ValueError, match="'mA' is a linear map with an offset, not a factor"):
         col.factor("u_v")
     assert LogColumn("Weg", "cm").factor("l_mm") == 10.0
+
+
+def test_a_load_logged_as_a_mass_in_kg_is_read_as_its_weight(tmp_path):
+    log = tmp_path / "mass.csv"
+    log.write_text("t,u,l,mass\n" + "".join(f"{0.1 * k:.1f},5,{0.01 * k:.2f},4.4868\n" for k in range(50)))
+    rec = read_rig_log(log, time="t", u="u", l="l", load="mass:kg")
+    assert np.allclose(rec.load_n, 4.4868 * 9.80665) and abs(rec.load_n[0] - 44.0) < 0.01

@@ -110,7 +110,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                      "0..10 V); "
                                      "displacement mm, um (or µm), cm or m; "
                                      "pressure MPa, kPa, bar, Pa or psi (gauge), or MPa_abs, kPa_abs, "
-                                     "bar_abs, Pa_abs or psi_abs (absolute, read against --ambient-kpa); load N or kN; "
+                                     "bar_abs, Pa_abs or psi_abs (absolute, read against --ambient-kpa); "
+                                     "load N, kN or kg (a mass: its weight); "
                                      "any column: scale=A,offset=B (A x written + B). A column given without a "
                                      "unit takes the one the log gives (Druck [bar], position_um, a units row).")
     imp.add_argument("log", help="the logger's file")

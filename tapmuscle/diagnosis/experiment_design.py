@@ -31,6 +31,7 @@ the rig where it has already been driven.
 from __future__ import annotations
 
 import math
+import shlex
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -241,17 +242,18 @@ def record_command(file: str, *, duration_s: float, ts_s: float, load_n: float |
     ``out``: as printed, it runs, on the nominal plant; a simulated rig that made the recording needs
     that recording's ``--params`` or ``--set`` options added (which the diagnosis cannot know)."""
     load = "LOAD_N" if load_n is None else f"{load_n:g}"
-    return (f"tapmuscle record --load {load} --ts {ts_s:g} --input csv:{file} --duration {duration_s:g} "
-            f"--out {out}")
+    return (f"tapmuscle record --load {load} --ts {ts_s:g} --input {shlex.quote(f'csv:{file}')} "
+            f"--duration {duration_s:g} --out {shlex.quote(out)}")
 
 
 def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequence[str], ts_s: float,
-                     load_n: float | None = None) -> str:
+                     load_n: float | None = None, shown: str | None = None) -> str:
     """Write ``exp`` as a ``tapmuscle record --input csv:`` file (atomically); ``load_n`` [N] is the
-    load to run it at (the diagnosed recording's). Returns the :func:`record_command` its note gives."""
+    load to run it at (the diagnosed recording's); ``shown``: the file as the command names it (default
+    its name). Returns the :func:`record_command` its note gives."""
     from tapmuscle.io.recording import Recording, write_recording
 
-    command = record_command(Path(path).name, duration_s=exp.duration_s, ts_s=ts_s, load_n=load_n)
+    command = record_command(shown or Path(path).name, duration_s=exp.duration_s, ts_s=ts_s, load_n=load_n)
     meta = {"ts_s": f"{ts_s:g}", "source": "tapmuscle diagnose: discriminating experiment",
             "alternatives": ", ".join(alternatives),
             "note": f"apply it to the rig, or to a simulated rig with: {command} plus the --params or --set "

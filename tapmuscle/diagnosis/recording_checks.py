@@ -22,7 +22,8 @@ from tapmuscle.io.sampling import TS_RANGE_S, check_sampling_period, uniform_sam
 __all__ = ["RecordingCheckError", "check_muscle_recording", "check_pressure_scale", "check_sampling_period",
            "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
-           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "displacement_scale_note",
+           "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "LOAD_KG_NOTED_N", "LOAD_RANGE_N",
+           "STANDARD_GRAVITY", "displacement_scale_note",
            "SPAN_RATIO_NOTED", "SPAN_NOTED_MIN_MM", "JUMP_MM_PER_S", "HELD_S", "displacement_fault_notes"]
 
 #: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
@@ -75,6 +76,13 @@ AMBIENT_MPA_RANGE = (0.06, 0.11)
 PRESSURE_PLAUSIBLE_MPA = 2.0
 #: A hanging load that never reaches this [N] but is not zero is in another unit (kN: 0.044 for 44 N).
 LOAD_PLAUSIBLE_N = 1.0
+#: A hanging load below this [N] whose weight, read as a mass in kg, lies within :data:`LOAD_RANGE_N`
+#: is noted: a mass logged in kg (4.49 for 44 N), which the diagnosis would take for a light load.
+LOAD_KG_NOTED_N = 15.0
+#: The loads a muscle of this kind lifts [N]: the paper's 44 and 68 N, and about half to twice them.
+LOAD_RANGE_N = (20.0, 150.0)
+#: Standard gravity [m/s^2]: a mass in kg weighs this many newtons.
+STANDARD_GRAVITY = 9.80665
 
 
 class RecordingCheckError(TapmuscleError):
@@ -167,7 +175,9 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
       and never drains below it: an absolute sensor's;
     * timestamps that scatter about the uniform grid (taken as on it);
     * a pressure column beyond :data:`PRESSURE_PLAUSIBLE_MPA` (another unit);
-    * a load ``load_n`` [N] that is not zero but never reaches :data:`LOAD_PLAUSIBLE_N` (kN?).
+    * a load ``load_n`` [N] that is not zero but never reaches :data:`LOAD_PLAUSIBLE_N` (kN?), or
+      stays below :data:`LOAD_KG_NOTED_N` where its value in kg would weigh a load the muscle lifts
+      (:data:`LOAD_RANGE_N`; a mass in kg?).
     """
     notes = []
     l0 = float(l_mm[0])
@@ -202,6 +212,11 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
             notes.append(f"The load never exceeds {top:g} N, where a muscle lifts tens of newtons (the rig's 44 and "
                          "68 N): is it logged in kN? The diagnosis takes it as given, and a wrong load shows as "
                          "load_mismatch")
+        elif top < LOAD_KG_NOTED_N and LOAD_RANGE_N[0] <= top * STANDARD_GRAVITY <= LOAD_RANGE_N[1]:
+            notes.append(f"The load never exceeds {top:g} N, where a muscle lifts tens of newtons (the rig's 44 and "
+                         f"68 N): is it a mass logged in kg ({top:g} kg weighs {top * STANDARD_GRAVITY:.3g} N; "
+                         "tapmuscle import --load COLUMN:kg reads it so)? The diagnosis takes it as given, and a "
+                         "wrong load shows as load_mismatch or bends the constants")
     return notes
 
 

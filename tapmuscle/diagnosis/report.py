@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -173,7 +174,8 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                       f"(a simulated rig: `{e['record']}`, with the `--params` or `--set` options that made "
                       "this recording added: without them it records the nominal plant, not your rig) and "
                       f"diagnose the new recording with `{e['plant']}` "
-                      f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}`.", ""]
+                      f"(this calibrated plant without them) among the alternatives: `{e['rediagnose']}` (the "
+                      "commands' paths are from the folder `tapmuscle diagnose` ran in, as the recording's).", ""]
     lines += ["## Findings", ""]
     if not d.findings:
         lines += [f"None: no cause is named ({_immaterial_remainder(d) or unstructured_reason(d.tests_after, d.unit)}).",
@@ -387,7 +389,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     # all or nothing, and no file of an earlier diagnosis left beside these (its figures, its experiments)
     with staged_folder(out, owned=OWNED_FILES) as tmp:
         for i, (group, entry) in enumerate(zip(d.ambiguous, doc["ambiguous"])):
-            experiments.append(_write_experiment(d, group, tmp, i, executor))
+            experiments.append(_write_experiment(d, group, tmp, i, executor, shown=out))
             entry.update(discriminating_input=experiments[-1]["file"], discriminate_plant=experiments[-1]["plant"],
                          experiment=experiments[-1])
         atomic_write_text(tmp / "diagnosis.json", json_text(doc))
@@ -409,10 +411,11 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
 
 
 def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
-                      executor: Executor | None = None) -> dict[str, Any]:
+                      executor: Executor | None = None, shown: Path | None = None) -> dict[str, Any]:
     """Design the experiment that separates an ambiguous group and write it (``discriminating_input.csv``)
     with the plant to re-diagnose its recording with (``discriminate_plant.json``), both numbered from
-    the second group on."""
+    the second group on. The commands name them in ``shown`` (the output folder as given, from where
+    the diagnosis ran: a command copied from the report runs there, as its recording's path does)."""
     suffix = "" if index == 0 else f"_{index + 1}"
     name = EXPERIMENT_FILE.replace(".csv", f"{suffix}.csv")
     plant_name = EXPERIMENT_PLANT_FILE.replace(".json", f"{suffix}.json")
@@ -426,7 +429,8 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
                        noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, u_span_v=span,
                        executor=executor)
     effects = [a.effect for a in group]
-    record = write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s, load_n=load)
+    where = Path("") if shown is None else Path(shown)
+    record = write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s, load_n=load, shown=str(where / name))
     # The re-diagnosis starts from the constants this recording identified: the experiment's recording
     # was designed to separate the alternatives, not to pin the constants, and recalibrated from the
     # nominal plant on it they would take up again what the alternatives differ in.
@@ -435,8 +439,8 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     base = d.calibrated.with_values(**space.off_values([k for a in group for k in a.parameters]))
     atomic_write_text(out / plant_name, plant_file_text(
         base, f"the calibrated plant without {', '.join(effects)}: re-diagnose the recording of {name} with it"))
-    command = (f"tapmuscle diagnose --recording NEW.csv --plant {plant_name} --effects {','.join(effects)} "
-               "--out NEW_DIAGNOSIS")
+    command = (f"tapmuscle diagnose --recording NEW.csv --plant {shlex.quote(str(where / plant_name))} "
+               f"--effects {','.join(effects)} --out NEW_DIAGNOSIS")
     return {"file": name, "plant": plant_name, "record": record, "rediagnose": command} | exp.to_json()
 
 

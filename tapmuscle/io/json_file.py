@@ -11,6 +11,19 @@ from typing import Any
 __all__ = ["json_text", "read_json"]
 
 
+class _RepeatedKeyError(ValueError):
+    """A key given twice in one JSON object."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    seen: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in seen:
+            raise _RepeatedKeyError(key)
+        seen[key] = value
+    return seen
+
+
 def read_json(path: str | Path, error: type[Exception], *, where: str, missing: str) -> Any:
     """The JSON document in ``path``.
 
@@ -18,10 +31,15 @@ def read_json(path: str | Path, error: type[Exception], *, where: str, missing: 
     ------
     error
         ``missing`` when there is no such file; ``where`` followed by the line and column of invalid
-        JSON, or by why the file cannot be read (a folder, no permission, not UTF-8).
+        JSON, by a key given twice in one object (JSON readers keep the last, and a plant file's group
+        written twice lost the first's values without a word), or by why the file cannot be read (a
+        folder, no permission, not UTF-8).
     """
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
+        return json.loads(Path(path).read_text(encoding="utf-8"), object_pairs_hook=_unique_keys)
+    except _RepeatedKeyError as exc:
+        raise error(f"{where}: key {exc.args[0]!r} is given twice in one object; JSON keeps only the last, so "
+                    "the first one's values would be lost: write them once") from None
     except FileNotFoundError:
         raise error(missing) from None
     except json.JSONDecodeError as exc:

@@ -68,7 +68,7 @@ UNITS: dict[str, dict[str, float | None]] = {
     "l_mm": {"mm": 1.0, "um": 1e-3, "cm": 10.0, "m": 1e3},
     "p_mpa": {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6, "psi": 6.894757293168361e-3,
               "MPa_abs": 1.0, "kPa_abs": 1e-3, "bar_abs": 0.1, "Pa_abs": 1e-6, "psi_abs": 6.894757293168361e-3},
-    "load_n": {"N": 1.0, "kN": 1e3},
+    "load_n": {"N": 1.0, "kN": 1e3, "kg": 9.80665},  # kg: a mass hanging, its weight at standard gravity
 }
 #: Pressure units of an absolute sensor: the recording holds gauge pressure, the reading less the
 #: ambient (``ambient_kpa``, the standard atmosphere's 101.325 kPa unless given).
