@@ -106,3 +106,19 @@ def test_an_argument_before_the_command_is_tapmuscles_to_refuse(capsys, monkeypa
         main(argv)
     assert ended.value.code == 2
     assert capsys.readouterr().err == f"tapmuscle: error: unrecognized arguments: {unknown} (see tapmuscle --help)\n"
+
+
+def test_an_interrupt_while_the_command_line_is_read_is_said_in_one_line(monkeypatch, capsys):
+    """Ctrl-C in the first second of a command (its subcommands' modules being imported to build the
+    parser) ended in a KeyboardInterrupt traceback; later it gave the 'interrupted' line and 130."""
+    import importlib
+
+    cli = importlib.import_module("tapmuscle.cli.main")  # the module (tapmuscle.cli.main is also its function)
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["record", "--input", "const:value=5", "--duration", "2", "--out", "never.csv"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "tapmuscle: interrupted before anything ran; nothing is written"

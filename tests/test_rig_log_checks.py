@@ -82,3 +82,26 @@ def test_a_fast_log_is_merged_before_its_checks(rig, tmp_path):
             tm.read_rig_log(log, time="time", u="valve", l="pos", decimate=bad)
     with pytest.raises(RecordingError, match=rf"{log}: decimation n = 4000 must be an integer within 1..1000"):
         tm.read_rig_log(log, time="time", u="valve", l="pos", decimate=4000)
+
+
+def test_spreadsheet_serial_dates_are_named_by_their_line_not_taken_for_a_fast_logger(tmp_path, capsys):
+    """A spreadsheet's serial dates (45356,4166: days since 1899-12-30) read as seconds looked like a
+    1-MHz logger, and the refusal advised merging 1000 samples; a log that does not move named a ratio
+    of 5e299."""
+    rows = [f"{45356.4166 + k * 0.1 / 86400:.9f};{5 + (k % 50) / 25:.3f};{(k % 50) * 0.3:.3f}".replace(".", ",")
+            for k in range(600)]
+    log = tmp_path / "serial.csv"
+    log.write_text("Zeit;Ventil;Weg\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RecordingError, match=r"line 2, column 'Zeit' \(t_s, given in s\): 45356,416600000 looks like a "
+                                             r"spreadsheet's serial date \(2024-03-05 09:59:54: days since 1899-12-30, "
+                                             r"stepping 0.1 s\), not seconds: .* time='Zeit:s' or time='Zeit:iso'"):
+        tm.read_rig_log(log, time="Zeit", u="Ventil", l="Weg")
+    assert main(["import", str(log), "--out", str(tmp_path / "r.csv"), "--time", "Zeit", "--u", "Ventil", "--l", "Weg"]) == 2
+    err = capsys.readouterr().err
+    assert "looks like a spreadsheet's serial date" in err and "--time Zeit:s or --time Zeit:iso" in err
+    assert "Merge every" not in err
+    still = tmp_path / "still.csv"
+    still.write_text("t,u,l\n" + "".join(f"{0.1 * k:.1f},{5 + (k % 50) / 25:.3f},0\n" for k in range(600)))
+    with pytest.raises(RecordingError, match=r"spans 0 mm where the nominal model, driven by the same command, spans "
+                                             r"[\d.]+ mm \(the column does not move at all\)"):
+        tm.read_rig_log(still, time="t", u="u", l="l")

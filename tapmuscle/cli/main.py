@@ -501,8 +501,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "steps:levels=3/7/5,period=20 | chirp:f0=0.01,f1=0.5 | random:lo=2,hi=8,seed=1 | const:value=5 | "
                           "csv:PATH")
     rec.add_argument("--duration", type=number_within("--duration", 1e-3, 86400.0), required=True,
-                     help="length [s]")
-    rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1, help="sampling period [s]")
+                     help="length [s], up to 86400 (a day)")
+    rec.add_argument("--ts", type=number_within("--ts", 1e-3, 10.0), default=0.1,
+                     help="sampling period [s], 0.001..10 (default 0.1, the paper's)")
     rec.add_argument("--seed", type=integer_at_least("--seed", 0, _SEED_MAX), default=0,
                      help="noise seed (0 .. 2**64 - 1)")
     rec.add_argument("--out", type=output_path("--out", "file"), required=True, help="output CSV path")
@@ -594,8 +595,12 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tapmuscle`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser()  # most of a second: its subcommands' modules are imported
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("\ntapmuscle: interrupted before anything ran; nothing is written", file=sys.stderr)
+        return 130
     args.argv = argv
     try:
         with warnings.catch_warnings():  # restores Python's own display for an in-process caller

@@ -231,6 +231,22 @@ def _evaluation_window(top: "_Reader", data: Mapping[str, Any], n: int, step: fl
     return window
 
 
+def _pythonfmu_source_hint(fmu: Path) -> str:
+    """Where a missing ``NAME.fmu`` has its pythonfmu source beside it (a ``.py`` file defining class
+    ``NAME``, as the shipped example's PIController), the command that builds it."""
+    if fmu.suffix.lower() != ".fmu" or not fmu.parent.is_dir():
+        return ""
+    for source in sorted(fmu.parent.glob("*.py")):
+        try:
+            text = source.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            continue
+        if f"class {fmu.stem}(" in text and "pythonfmu" in text:
+            return (f": build it from {source.name} beside it first (pythonfmu build -f {source.name}, in "
+                    f"{fmu.parent})")
+    return ""
+
+
 class _Reader:
     """Typed access to one TOML table that names file and key in every error."""
 
@@ -299,7 +315,7 @@ class _Reader:
         if p.is_dir():
             raise self.error(key, f"{str(p)!r} is a folder, not a file")
         if not p.is_file():
-            raise self.error(key, f"file {str(p)!r} does not exist")
+            raise self.error(key, f"file {str(p)!r} does not exist{_pythonfmu_source_hint(p)}")
         return p
 
     def profile(self, initial_key: str, value_key: str, default: float, lo: float, hi: float, *,

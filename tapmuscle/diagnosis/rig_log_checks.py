@@ -159,7 +159,8 @@ def checked_rig_log(options: LogOptions, run: int | None = None, spelling: Spell
         try:
             check_sampling_period(ts)
         except ValueError as exc:
-            raise ValueError(_period_refusal(options, cols, ts, exc, spelling)) from None
+            raise ValueError(_serial_dates(rec, cols, ts, spelling) or _period_refusal(options, cols, ts, exc, spelling)) \
+                from None
         try:
             check_muscle_recording(rec.u_v, ts, rec.l_mm)
         except RecordingCheckError as exc:
@@ -181,11 +182,12 @@ def checked_rig_log(options: LogOptions, run: int | None = None, spelling: Spell
             hint = _fitting_unit(cols["l_mm"], "l_mm", rec.l_mm, lambda x: _log_ratio(float(np.ptp(x)), model_span)
                                  if float(np.max(np.abs(x))) <= DISPLACEMENT_PLAUSIBLE_MM else None, spelling)
             col = cols["l_mm"]
+            ratio = f"{model_span / span:.3g} times as much" if span > 0 else "the column does not move at all"
+            unit = hint or "give it with " + spelling.column("l_mm", "COLUMN:UNIT")
             raise ValueError(f"column {col.column!r} (l_mm, given in {col.unit}) spans {span:.4g} mm where the nominal "
-                             f"model, driven by the same command, spans {model_span:.4g} mm ({model_span / max(span, 1e-300):.3g} "
-                             f"times as much): is it in another unit ({hint or 'give it with ' + spelling.column('l_mm', 'COLUMN:UNIT')}), "
-                             "the encoder stuck, or the supply closed? A diagnosis would blame whichever effect shrinks the "
-                             "motion") from None
+                             f"model, driven by the same command, spans {model_span:.4g} mm ({ratio}): is it in another "
+                             f"unit ({unit}), the encoder stuck, or the supply closed? A diagnosis would blame whichever "
+                             "effect shrinks the motion") from None
         col = cols["l_mm"]
         scale_note = displacement_scale_note(rec.l_mm, l_nominal, column=f"{col.column!r} (l_mm)", unit=col.unit)
         if scale_note and "rather than" in scale_note:
@@ -228,6 +230,32 @@ def checked_rig_log(options: LogOptions, run: int | None = None, spelling: Spell
         notes.insert(0, filled)
         findings.insert(0, filled)
     return CheckedLog(rec, sampling, notes, findings)
+
+
+#: Spreadsheet serial dates [days since 1899-12-30] of the years 1954 to 2119: a time column that
+#: starts within them and steps by a muscle's period in days holds dates, not seconds.
+SERIAL_DATE_DAYS = (20000.0, 80000.0)
+
+
+def _serial_dates(rec: Recording, cols: dict, ts: float, spelling: Spelling) -> str | None:
+    """Why a time column of spreadsheet serial dates (``45356,4166``: days since 1899-12-30) is
+    refused, or None where it is none: read as seconds it looked like a 1-MHz logger."""
+    col = cols.get("t_s")
+    start = str(rec.metadata.get("start", "")).strip()
+    try:
+        first = float(start.replace(",", "."))
+    except ValueError:
+        return None
+    if col is None or col.conversion("t_s") != (1.0, 0.0) or not SERIAL_DATE_DAYS[0] <= first <= SERIAL_DATE_DAYS[1] \
+            or not TS_RANGE_S[0] <= ts * 86400.0 <= TS_RANGE_S[1]:
+        return None
+    import datetime
+
+    when = datetime.datetime(1899, 12, 30) + datetime.timedelta(days=first)
+    return (f"line {rec.lines[0]}, column {col.column!r} (t_s, given in {col.unit}): {start} looks like a spreadsheet's "
+            f"serial date ({when:%Y-%m-%d %H:%M:%S}: days since 1899-12-30, stepping {ts * 86400.0:.3g} s), not "
+            f"seconds: export the time as seconds from the start, or as ISO 8601 text with the date, and give it "
+            f"with {spelling.column('t_s', f'{col.column}:s')} or {spelling.column('t_s', f'{col.column}:iso')}")
 
 
 def _period_refusal(options: LogOptions, cols: dict, ts: float, exc: ValueError, spelling: Spelling) -> str:
