@@ -12,7 +12,7 @@ __all__ = ["number_array", "real_number", "whole_number", "sampling_period", "in
 
 #: Sampling periods [s] of a muscle recording or loop (those of ``tapmuscle record --ts``): the
 #: muscle's responses take tenths of a second, so a period beyond 10 s is milliseconds meant (``100``
-#: for 0.1 s), and one below 1 ms is finer than any sub-step of the simulated rig resolves.
+#: for 0.1 s), and one below 1 ms a data acquisition faster than the muscle needs (merge its samples).
 MUSCLE_TS_RANGE_S = (1e-3, 10.0)
 
 

@@ -27,7 +27,7 @@ from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.own_law import ControlLaw, as_law, law_name, law_period
 from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel
-from tapmuscle.io.recording import Recording
+from tapmuscle.io.recording import Recording, RecordingError
 from tapmuscle.io.signals import Replay, parse_input_spec
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus", "read_rig_log"]
@@ -338,7 +338,6 @@ def read_rig_log(path: str | os.PathLike, *, time: Any = None, u: Any, l: Any,  
     """
     from fmu_plant.user_warning import warn_at_caller
     from tapmuscle.diagnosis.rig_log_checks import PYTHON, LogOptions, checked_rig_log
-    from tapmuscle.io.recording import RecordingError
 
     if isinstance(decimate, bool) or not isinstance(decimate, (int, np.integer)) or decimate < 1:
         raise RecordingError(f"{path}: decimate = {decimate!r} must be an integer >= 1 (samples merged into one)")
