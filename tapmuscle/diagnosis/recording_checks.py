@@ -17,13 +17,14 @@ from __future__ import annotations
 import numpy as np
 
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.rig_log import STANDARD_GRAVITY
 from tapmuscle.io.sampling import TS_RANGE_S, check_sampling_period, uniform_sampling
 
 __all__ = ["RecordingCheckError", "check_muscle_recording", "check_pressure_scale", "check_sampling_period",
            "muscle_recording_notes", "check_displacement_scale", "COMMAND_RANGE_V",
            "TS_RANGE_S", "DISPLACEMENT_PLAUSIBLE_MM", "SPAN_RATIO_PLAUSIBLE", "AT_REST_MM", "DRAINED_MPA",
            "AMBIENT_MPA_RANGE", "PRESSURE_PLAUSIBLE_MPA", "LOAD_PLAUSIBLE_N", "LOAD_KG_NOTED_N", "LOAD_RANGE_N",
-           "STANDARD_GRAVITY", "displacement_scale_note",
+           "displacement_scale_note",
            "SPAN_RATIO_NOTED", "SPAN_NOTED_MIN_MM", "JUMP_MM_PER_S", "HELD_S", "displacement_fault_notes"]
 
 #: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
@@ -81,8 +82,6 @@ LOAD_PLAUSIBLE_N = 1.0
 LOAD_KG_NOTED_N = 15.0
 #: The loads a muscle of this kind lifts [N]: the paper's 44 and 68 N, and about half to twice them.
 LOAD_RANGE_N = (20.0, 150.0)
-#: Standard gravity [m/s^2]: a mass in kg weighs this many newtons.
-STANDARD_GRAVITY = 9.80665
 
 
 class RecordingCheckError(TapmuscleError):

@@ -12,6 +12,7 @@ units are judged against the nominal plant driven by the same command, as the di
 
 from __future__ import annotations
 
+import datetime
 import math
 import shlex
 from dataclasses import dataclass, field
@@ -249,8 +250,6 @@ def _serial_dates(rec: Recording, cols: dict, ts: float, spelling: Spelling) -> 
     if col is None or col.conversion("t_s") != (1.0, 0.0) or not SERIAL_DATE_DAYS[0] <= first <= SERIAL_DATE_DAYS[1] \
             or not TS_RANGE_S[0] <= ts * 86400.0 <= TS_RANGE_S[1]:
         return None
-    import datetime
-
     when = datetime.datetime(1899, 12, 30) + datetime.timedelta(days=first)
     return (f"line {rec.lines[0]}, column {col.column!r} (t_s, given in {col.unit}): {start} looks like a spreadsheet's "
             f"serial date ({when:%Y-%m-%d %H:%M:%S}: days since 1899-12-30, stepping {ts * 86400.0:.3g} s), not "

@@ -57,7 +57,10 @@ from tapmuscle.io.sampling import SamplingError, period_change, uniform_sampling
 __all__ = ["UNITS", "DEFAULT_UNITS", "ABSOLUTE_UNITS", "LINEAR_UNITS", "MA_RANGE", "UNIT_ALIASES", "MISSING_CELLS", "NAME_SUFFIX",
            "STANDARD_ATMOSPHERE_KPA", "MICRO_SIGNS", "LogColumn", "read_rig_log", "read_rig_log_columns",
            "rig_log_runs", "parse_column_spec", "parse_time_text", "unit_key", "unit_from_text",
-           "likely_pressure_unit"]
+           "likely_pressure_unit", "STANDARD_GRAVITY"]
+
+#: Standard gravity [m/s^2]: a load logged as a mass in kg weighs this many newtons.
+STANDARD_GRAVITY = 9.80665
 
 #: Per recording column, the units a log may hold it in and the factor to the recording's unit
 #: (``None``: ISO 8601 date-time text). A command in percent is of the valve's 0..10 V range, one in
@@ -68,7 +71,7 @@ UNITS: dict[str, dict[str, float | None]] = {
     "l_mm": {"mm": 1.0, "um": 1e-3, "cm": 10.0, "m": 1e3},
     "p_mpa": {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6, "psi": 6.894757293168361e-3,
               "MPa_abs": 1.0, "kPa_abs": 1e-3, "bar_abs": 0.1, "Pa_abs": 1e-6, "psi_abs": 6.894757293168361e-3},
-    "load_n": {"N": 1.0, "kN": 1e3, "kg": 9.80665},  # kg: a mass hanging, its weight at standard gravity
+    "load_n": {"N": 1.0, "kN": 1e3, "kg": STANDARD_GRAVITY},  # kg: a mass hanging, its weight
 }
 #: Pressure units of an absolute sensor: the recording holds gauge pressure, the reading less the
 #: ambient (``ambient_kpa``, the standard atmosphere's 101.325 kPa unless given).
