@@ -20,7 +20,7 @@ from scipy.optimize import brentq
 from tapmuscle.diagnosis.foreign_fmus import build_dc_motor_fmu
 from tapmuscle.diagnosis.foreign_fmus.dc_motor import VARIABLES
 
-pytestmark = pytest.mark.c_host
+pytestmark = [pytest.mark.c_host, pytest.mark.foreign]
 
 H = 0.05  # s, communication step
 DEFAULTS = {v.name: v.start for v in VARIABLES if v.causality == "parameter"}

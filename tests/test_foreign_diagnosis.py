@@ -23,7 +23,7 @@ from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator,
 from tapmuscle.diagnosis.signal_map import SignalMapError, read_signal_map
 from tapmuscle.io.recording import read_columns
 
-pytestmark = pytest.mark.c_host
+pytestmark = [pytest.mark.c_host, pytest.mark.foreign]
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 from tapmuscle.diagnosis.foreign_fmus.thermal import FMU_NAME, build_thermal_fmu
 
-pytestmark = pytest.mark.fmu
+pytestmark = [pytest.mark.fmu, pytest.mark.foreign]
 
 DEFAULTS = {"C1": 500.0, "C2": 800.0, "G12": 2.0, "G1a": 1.0, "G2a": 0.5, "T_amb": 20.0, "T1_0": 20.0, "T2_0": 20.0}
 NAMES = ["P1", "P2", "T1", "T2", *DEFAULTS]  # in value-reference order

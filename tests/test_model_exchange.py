@@ -21,7 +21,7 @@ from tapmuscle.diagnosis.foreign_fmus import build_dc_motor_fmu
 from tapmuscle.diagnosis.foreign_fmus.dc_motor import VARIABLES
 from tapmuscle.diagnosis.foreign_model import read_interface
 
-pytestmark = pytest.mark.c_host
+pytestmark = [pytest.mark.c_host, pytest.mark.foreign]
 
 H = 0.05  # s
 P = {v.name: v.start for v in VARIABLES if v.causality == "parameter"}
