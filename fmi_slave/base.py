@@ -479,6 +479,13 @@ class SafeSlave(Fmi2Slave):
 
     @_to_host
     def terminate(self) -> None:
+        if not self._initialised and not self._terminated:
+            # FMI 2.0 allows fmi2Terminate only once the slave steps; hosts call it in their clean-up of an
+            # instance they only inspected (fmpy raises on an error there), so a warning, and the
+            # instance, which never ran, is not marked terminated: it can still be initialised
+            self.log("fmi2Terminate before fmi2ExitInitializationMode: the instance has not been initialised; "
+                     "nothing was done (fmi2FreeInstance ends it)", status=Fmi2Status.warning)
+            return
         if self._initialised and not self._failed and not self._terminated:
             self._summary_event(f"fmi2Terminate at t = {self._time_s:g} s", self.run_summary)
         self._terminated = True
@@ -554,7 +561,7 @@ class SafeSlave(Fmi2Slave):
         return False
 
     def exit_initialization_mode(self) -> None:
-        self._in_init_mode = False
+        in_init_mode, self._in_init_mode = self._in_init_mode, False
         if self._terminated:
             self._after_terminate("fmi2ExitInitializationMode")
             return
@@ -563,6 +570,11 @@ class SafeSlave(Fmi2Slave):
             return
         if self._initialised:
             self._after_initialisation("fmi2ExitInitializationMode")
+            return
+        if not in_init_mode:
+            # FMI 2.0's order: the parameters a host sets between the two calls are the run's
+            self.log("fmi2ExitInitializationMode before fmi2EnterInitializationMode: call fmi2SetupExperiment and "
+                     "fmi2EnterInitializationMode first; nothing was done", status=Fmi2Status.error)
             return
         self._initialised = True
         self._time_s = self._start_s

@@ -424,21 +424,22 @@ class AMPCController(SafeSlave):
         # within a step too short to integrate (MIN_STEP_S, accepted as a no-op) of a sample time is at it:
         # a master's rounding remainder there must not make the next step skip the sample
         tol = max(MIN_STEP_S, 1e-9 * max(1.0, abs(t_s) / ts) * ts)
+        # twelve digits: a step refused for a rounding's worth (h = 0.10000001 s at Ts = 0.1 s) shows why
         if dt_s > ts + tol:
-            raise SlaveInputError(f"step size {dt_s:g} s exceeds the sampling period Ts = {ts:g} s; the "
+            raise SlaveInputError(f"step size {dt_s:.12g} s exceeds the sampling period Ts = {ts:.12g} s; the "
                                   "controller would skip samples (use a communication step <= Ts)")
         t_next = self._start_s + self._k * ts  # at start time 0: k*Ts, bit for bit
         if t_s < t_next - tol:
             if t_s + dt_s > t_next + tol:  # refused here, where a host can still step to the sample time
-                raise SlaveInputError(f"the step from t = {t_s:g} s to {t_s + dt_s:g} s passes the sample time "
-                                      f"{t_next:g} s (k = {self._k}) without ending there; end the step at "
-                                      f"{t_next:g} s (every t0 + k*Ts = {self._start_s:g} + k*{ts:g} s must be a "
+                raise SlaveInputError(f"the step from t = {t_s:.12g} s to {t_s + dt_s:.12g} s passes the sample time "
+                                      f"{t_next:.12g} s (k = {self._k}) without ending there; end the step at "
+                                      f"{t_next:.12g} s (every t0 + k*Ts = {self._start_s:.12g} + k*{ts:.12g} s must be a "
                                       "communication point)")
             return  # between samples: the outputs hold
         if t_s > t_next + tol:
-            raise SlaveInputError(f"the step starting at t = {t_s:g} s skips the sample time {t_next:g} s "
-                                  f"(k = {self._k}); step so that every t0 + k*Ts = {self._start_s:g} + "
-                                  f"k*{ts:g} s is a communication point")
+            raise SlaveInputError(f"the step starting at t = {t_s:.12g} s skips the sample time {t_next:.12g} s "
+                                  f"(k = {self._k}); step so that every t0 + k*Ts = {self._start_s:.12g} + "
+                                  f"k*{ts:.12g} s is a communication point")
         l = self.finite("l", self.l, *_L_RANGE_MM)
         preview = self._preview(self._k)  # validates r first: a refused step changes nothing
         if self._k == 0:

@@ -251,9 +251,14 @@ def test_external_reference_is_checked(fmu, capfd):
 
 @pytest.mark.parametrize("t0, h, message", [(0.0, 0.0, "step size = 0.0"), (0.0, -1.0, "step size = -1.0"),
                                             (0.0, 0.3, "exceeds the sampling period"),
+                                            # a rounding's worth over Ts: the message shows the difference
+                                            (0.0, 0.10000001, "step size 0.10000001 s exceeds the sampling period Ts = 0.1 s"),
+                                            (0.05, 0.0500001, "from t = 0.05 s to 0.1000001 s passes the sample time 0.1 s"),
                                             (0.0, 1e9, "step size = 1000000000.0")])
 def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     f = _instance(fmu)
+    if t0:
+        f.doStep(0.0, t0)
     with pytest.raises(FMICallException, match="discard"):
         f.doStep(t0, h)
     assert message in capfd.readouterr().out

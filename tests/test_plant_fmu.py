@@ -339,6 +339,34 @@ def test_fmi_call_order_and_fixed_parameters_are_enforced(fmu, capfd):
     f.freeInstance()
 
 
+def test_initialisation_and_termination_out_of_fmi_order_are_refused(fmu, capfd):
+    """FMI 2.0's state machine: fmi2ExitInitializationMode without fmi2EnterInitializationMode is
+    fmi2Error, fmi2Terminate before the instance steps fmi2Warning (hosts' clean-up calls it), and
+    neither changes anything: the instance then initialises and steps as a fresh one."""
+    vr = fmu[3]
+    f = open_fresh(fmu, "order")
+    with pytest.raises(FMICallException, match="error"):
+        f.exitInitializationMode()
+    assert "fmi2ExitInitializationMode before fmi2EnterInitializationMode" in capfd.readouterr().out
+    with pytest.raises(FMICallException, match="error"):
+        f.doStep(0.0, 0.1)  # not initialised by the refused call
+    assert f.terminate() == 1  # fmi2Warning: a host's clean-up of an instance it only inspected
+    assert "fmi2Terminate before fmi2ExitInitializationMode" in capfd.readouterr().out
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    assert f.terminate() == 1  # in initialisation mode; the instance is not marked terminated
+    assert f.exitInitializationMode() == 0
+    g = _instance(fmu, "reference")
+    for k in range(5):
+        for inst in (f, g):
+            inst.setReal([vr["u"]], [_sine(k)])
+            inst.doStep(k * 0.1, 0.1)
+    assert f.getReal([vr["l"], vr["p"]]) == g.getReal([vr["l"], vr["p"]])
+    for inst in (f, g):
+        inst.terminate()
+        inst.freeInstance()
+
+
 def test_a_message_with_a_percent_sign_reaches_the_host_intact(fmu, capfd):
     """The loader passes pythonfmu's text on literally (formatting a '%' in it once crashed the host)."""
     g = _instance(fmu, reals={"valve.cv_max": -1.0}, rejected=True)
