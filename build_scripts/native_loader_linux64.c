@@ -9,6 +9,7 @@
 #include <dlfcn.h>
 #include <langinfo.h>
 #include <locale.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -63,6 +64,36 @@ static void (*finalize_interpreter)(void);   /* pythonfmu's finalizePythonInterp
 
 static void failed(const char *what, const char *why) {
     snprintf(load_failure, sizeof load_failure, "%s%s", what, why ? why : "");
+}
+
+/* Why the shared library at ``path`` is shorter than its own ELF header says (its section-header table
+   must end within the file), or NULL. The dynamic loader maps a library into the process, so a
+   truncated one (a damaged FMU) kills the host with SIGBUS as it reads past the file's end; checked
+   before dlopen, it is a failed instantiation with this reason instead. Anything else (no file, not a
+   64-bit little-endian ELF file) is left to dlopen, which refuses it with a message. */
+static const char *truncated_library(const char *path) {
+    static char why[sizeof load_failure];
+    unsigned char header[64];
+    struct stat st;
+    uint64_t shoff;
+    uint16_t shentsize, shnum;
+    FILE *f = fopen(path, "rb");
+    size_t n;
+    int sized;
+    if (!f) return NULL;
+    n = fread(header, 1, sizeof header, f);
+    sized = fstat(fileno(f), &st) == 0;
+    fclose(f);
+    if (!sized || n < sizeof header || memcmp(header, "\x7f" "ELF", 4) || header[4] != 2 || header[5] != 1)
+        return NULL;
+    memcpy(&shoff, header + 0x28, sizeof shoff);   /* the host is little-endian: x86-64, aarch64 */
+    memcpy(&shentsize, header + 0x3A, sizeof shentsize);
+    memcpy(&shnum, header + 0x3C, sizeof shnum);
+    if (shoff + (uint64_t)shentsize * shnum <= (uint64_t)st.st_size) return NULL;
+    snprintf(why, sizeof why, "%s is truncated: %lld bytes, its ELF header says at least %llu (a damaged FMU: "
+             "unpack it again from an intact copy, or build it again)", path, (long long)st.st_size,
+             (unsigned long long)(shoff + (uint64_t)shentsize * shnum));
+    return why;
 }
 
 /* (a) In a host that runs no Python: the building Python's libpython (recorded path, else its soname on
@@ -242,6 +273,11 @@ __attribute__((constructor)) static void tapmuscle_fmu_loader(void) {
         snprintf(path, sizeof path, "%.*s/%s", (int)(slash - self.dli_fname), self.dli_fname,
                  PYTHONFMU_LIBRARY) >= (int)sizeof path)
         snprintf(path, sizeof path, "%s", PYTHONFMU_LIBRARY);
+    const char *truncated = truncated_library(path);
+    if (truncated) {
+        failed("", truncated);
+        return;
+    }
     if (!(pythonfmu_lib = dlopen(path, RTLD_NOW | RTLD_NODELETE))) {
         failed("", dlerror());
         return;

@@ -12,6 +12,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from fmpy import extract
 
 from tapmuscle.cosim.fmu_file import check_fmu_file
 from tapmuscle.cosim.spec import ScenarioError
@@ -143,3 +144,38 @@ def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_p
     assert not (tmp_path / "out").exists()
     assert glob.glob(str(scratch / "tapmuscle_*")) == []
     assert Path(tempfile.gettempdir()).is_dir()
+
+
+FOREIGN_HOST = r'''
+import sys
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+f = FMU2Slave(guid=md.guid, unzipDirectory=sys.argv[2], modelIdentifier=md.coSimulation.modelIdentifier,
+              instanceName="x")
+f.instantiate(loggingOn=False)  # an Error is logged all the same
+try:
+    f.setupExperiment(startTime=0.0); f.enterInitializationMode(); f.exitInitializationMode(); f.doStep(0.0, 0.1)
+except FMICallException as exc:
+    print("refused:", exc)
+f.freeInstance()
+print("ended")
+'''
+
+
+def test_a_host_that_loads_an_fmu_with_a_truncated_inner_library_is_told_and_survives(built_fmus, tmp_path):
+    """A third-party host checks nothing before it loads the FMU's binary: the loader finds its
+    pythonfmu library shorter than its ELF header says and fails the instantiation with that reason
+    (the dynamic loader mapping it killed the host with SIGBUS)."""
+    folder = Path(extract(str(built_fmus["MusclePlant"]), unzipdir=str(tmp_path / "x")))
+    inner = folder / "binaries" / "linux64" / "MusclePlant_pythonfmu.so"
+    inner.write_bytes(inner.read_bytes()[:20000])
+    script = tmp_path / "host.py"
+    script.write_text(FOREIGN_HOST)
+    proc = subprocess.run([sys.executable, str(script), str(built_fmus["MusclePlant"]), str(folder)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, (proc.returncode, proc.stderr[-2000:])
+    out = proc.stdout + proc.stderr
+    assert "refused:" in out and "ended" in out, out[-2000:]
+    assert "MusclePlant_pythonfmu.so is truncated: 20000 bytes, its ELF header says at least" in out, out[-2000:]
