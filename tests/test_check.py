@@ -166,6 +166,30 @@ def test_cases_of_one_name_in_two_files_are_told_apart_in_the_table():
     assert lines[3].split()[1] == "other"  # a name of its own stands alone
 
 
+def test_a_junit_report_stays_readable_with_control_characters_and_tells_shared_names_apart(tmp_path, monkeypatch):
+    """An FMU's coloured warning (ESC, BEL, a NUL) and a name with a control character are shown as
+    escapes, not written raw (which made the whole file unreadable to a CI's parser); two files of one
+    folder with a case of one name get their file beside it (a CI keys history on class + name)."""
+    from tapmuscle.cosim import parse_scenario
+    from tapmuscle.cosim.check import CheckCase, CheckResult, junit_xml
+    from tapmuscle.cosim.distributed_sweep import RunResult
+    from tapmuscle.cosim.expect import Outcome
+
+    monkeypatch.chdir(tmp_path)
+    scenario = parse_scenario({"duration_s": 2.0}, source="x")
+    warned = RunResult("0", "ok", {"mae_mm": 0.5}, fmu_warnings=("\x1b[31mhot\x1b[0m\x07 and\x00 more",))
+    results = [CheckResult(CheckCase(file, name, scenario), run, Outcome((), ("b",)))
+               for file, name, run in (("s/a.toml", "same", warned), ("s/b.toml", "same", warned),
+                                       ("s/c.toml", "bell\x07", RunResult("1", "ok", {"mae_mm": 0.5})))]
+    path = tmp_path / "report.xml"
+    path.write_text(junit_xml(results), encoding="utf-8")
+    root = ET.parse(path).getroot()
+    cases = list(root.iter("testcase"))
+    assert [(c.get("classname"), c.get("name")) for c in cases] == [("s", "same (a.toml)"), ("s", "same (b.toml)"),
+                                                                     ("s", "bell\\x07")]
+    assert cases[0].find("system-err").text == "FMU warning: \\x1b[31mhot\\x1b[0m\\x07 and\\x00 more"
+
+
 def test_the_table_keeps_its_columns_for_a_long_method_name():
     """A controller of one's own is method own:<its file's stem>, longer than the paper's names: the
     mae_mm column stays one column under its heading."""

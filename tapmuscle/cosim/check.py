@@ -9,6 +9,7 @@ Running the cases is :mod:`tapmuscle.cosim.distributed_sweep`'s; writing files i
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -194,12 +195,17 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
     suites: dict[str, list[CheckResult]] = {}
     for r in results:
         suites.setdefault(r.case.file, []).append(r)
+    # a CI keys its test history on classname + name: a name that files in one folder share gets its file
+    files_of: dict[tuple[str, str], set[str]] = {}
+    for r in results:
+        files_of.setdefault((_classname(r.case.file), r.case.name), set()).add(r.case.file)
     for file, members in suites.items():
         suite = ET.SubElement(root, "testsuite", name=file)
         classname = _classname(file)
         for r in members:
             wall = r.run.metrics.get("wall_time_s", 0.0)
-            case = ET.SubElement(suite, "testcase", classname=classname, name=r.case.name, time=f"{wall:.3f}")
+            shown = r.case.name if len(files_of[classname, r.case.name]) == 1 else f"{r.case.name} ({Path(file).name})"
+            case = ET.SubElement(suite, "testcase", classname=classname, name=shown, time=f"{wall:.3f}")
             if r.status == "error":
                 ET.SubElement(case, "error", message=r.run.error[:500], type="RunFailed").text = r.run.error
             elif r.status == "fail":
@@ -218,8 +224,27 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
     if errors:
         root.set("tests", str(len(results) + len(errors)))
         root.set("errors", str(int(root.get("errors")) + len(errors)))
+    _xml_characters_only(root)
     ET.indent(root)
     return '<?xml version="1.0" encoding="utf-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+#: Characters XML 1.0 does not allow, escaped or not (control characters but tab and line breaks,
+#: lone surrogates, U+FFFE/U+FFFF): one in a report makes the whole file unreadable to a CI.
+_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
+def _xml_characters_only(root: ET.Element) -> None:
+    """Show each character XML cannot carry as ``\\xNN`` (``\\uNNNN``) in every text and attribute
+    of ``root``'s tree: an FMU's coloured message (ESC, BEL) or a name with a control character."""
+    def shown(text: str) -> str:
+        return _NOT_XML.sub(lambda m: f"\\x{ord(m[0]):02x}" if ord(m[0]) < 0x100 else f"\\u{ord(m[0]):04x}", text)
+
+    for element in root.iter():
+        if element.text:
+            element.text = shown(element.text)
+        for key, value in list(element.attrib.items()):
+            element.set(key, shown(value))
 
 
 def _count(element: ET.Element, results: Sequence[CheckResult]) -> None:
