@@ -327,6 +327,17 @@ def test_a_shipped_scenario_named_outside_the_checkout_is_pointed_to(tmp_path, m
     assert not (tmp_path / "o").exists()
 
 
+def test_a_sweep_file_given_to_run_is_named_as_one(tmp_path, capsys):
+    """The mirror of `sweep` given a scenario: `run` given a sweep file says what it is and which command
+    runs it (it said "key 'base': unknown key"), and writes nothing."""
+    sweep = tmp_path / "grid.toml"
+    sweep.write_text('name = "g"\n[base]\nduration_s = 5.0\n[grid]\n"load.value_n" = [44.0, 68.0]\n')
+    assert main(["run", str(sweep), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert (f"{sweep}: a sweep file (it has 'base', 'grid'), not a scenario; run it with tapmuscle sweep"
+            in capsys.readouterr().err)
+    assert not (tmp_path / "o").exists()
+
+
 def test_bad_fmu_parameter_value_stops_the_run_with_the_fmus_message(built_fmus):
     s = parse_scenario({"duration_s": 2.0, "evaluation_samples": [0, 10],
                         "controller": {"method": "ampc_servo", "parameters": {"servo.Hu": 9}}}, source="s.toml")

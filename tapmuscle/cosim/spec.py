@@ -186,6 +186,9 @@ INTERFACE_ROLES = ("measurement", "reference", "command")
 #: :attr:`Scenario.method` of a run with a controller FMU of one's own: this, then the FMU file's stem.
 OWN_METHOD_PREFIX = "own:"
 
+#: The top-level keys that make a TOML file a sweep (docs/sweeps.md), none of them a scenario's.
+SWEEP_KEYS = ("base", "grid", "monte_carlo")
+
 #: Most samples of one scenario run (24 h at Ts = 0.1 s).
 MAX_RUN_SAMPLES = 864_001
 
@@ -579,4 +582,9 @@ def load_scenario(path: str | Path) -> Scenario:
         A missing file, bad TOML, an unknown or out-of-range key (named with the file).
     """
     path = Path(path)
-    return parse_scenario(read_toml(path), source=str(path), base=path.parent, default_name=path.stem)
+    data = read_toml(path)
+    sweep_keys = [key for key in SWEEP_KEYS if key in data]
+    if sweep_keys:
+        raise ScenarioError(f"{path}: a sweep file (it has {', '.join(repr(k) for k in sweep_keys)}), not a scenario; "
+                            "run it with tapmuscle sweep (or tapmuscle check)")
+    return parse_scenario(data, source=str(path), base=path.parent, default_name=path.stem)

@@ -60,7 +60,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from tapmuscle.cosim.expect import Expectations, parse_expectations
-from tapmuscle.cosim.spec import Scenario, ScenarioError, parse_scenario, read_toml
+from tapmuscle.cosim.spec import SWEEP_KEYS, Scenario, ScenarioError, parse_scenario, read_toml
 
 __all__ = ["SweepRun", "Sweep", "load_sweep", "parse_sweep", "is_sweep_data", "run_id_of", "set_field"]
 
@@ -83,7 +83,8 @@ def _files_from(folder: Path | None, field: str, value: Any) -> Any:
     if field in _FILE_FIELDS and isinstance(value, str) and not Path(value).is_absolute():
         return str(folder.resolve() / value)
     return value
-_SWEEP_KEYS = ("base", "grid", "monte_carlo")
+
+
 _PARAMETER_TABLES = ("plant", "controller")
 _DISTRIBUTIONS = ("uniform", "integers", "choice")
 
@@ -124,7 +125,7 @@ class Sweep:
 
 def is_sweep_data(data: Mapping[str, Any]) -> bool:
     """Whether a parsed TOML file is a sweep (has ``base``, ``grid`` or ``monte_carlo``), not a scenario."""
-    return any(key in data for key in _SWEEP_KEYS)
+    return any(key in data for key in SWEEP_KEYS)
 
 
 def set_field(data: dict[str, Any], field: str, value: Any) -> None:
