@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 
@@ -50,6 +51,34 @@ def test_a_directory_as_target_is_refused_by_name(tmp_path):
     with pytest.raises(IsADirectoryError, match="out is a directory"):
         atomic_write_text(tmp_path / "out", "x")
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_a_full_disk_names_what_was_being_written_and_keeps_the_old(tmp_path):
+    """A write that fails for want of room raises an OSError that names no file (``[Errno 28] No
+    space left on device``): the file, or the output folder of a staged run, is named; the old
+    content stays and nothing temporary is left."""
+    target = tmp_path / "out.csv"
+    target.write_text("old\n")
+    with pytest.raises(OSError, match=r"\[Errno 28\] No space left on device: '.*out\.csv'") as caught:
+        with atomic_path(target):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))  # as a write() on a full disk
+    assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(target)
+    assert target.read_text() == "old\n" and [p.name for p in tmp_path.iterdir()] == ["out.csv"]
+    out = tmp_path / "run"
+    for inside, shown in ((False, out), (True, out / "fig" / "a.png")):  # not the hidden staging folder
+        with pytest.raises(OSError, match="No space left on device") as caught:
+            with staged_folder(out) as tmp:
+                (tmp / "result.csv").write_text("half")
+                if inside:
+                    with atomic_path(tmp / "fig" / "a.png"):
+                        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        assert caught.value.filename == str(shown)
+        assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["out.csv"]
+    with pytest.raises(FileNotFoundError, match="elsewhere") as other:  # an error naming its own file is kept
+        with atomic_path(target):
+            raise FileNotFoundError(errno.ENOENT, "no such file", "elsewhere")
+    assert other.value.filename == "elsewhere"
 
 
 def _run_into(out, files, fail=False, owned=None):

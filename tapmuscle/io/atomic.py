@@ -14,6 +14,7 @@ target is replaced, the link stays), and a file this process may not write is re
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -56,6 +57,17 @@ def _target(path: Path) -> tuple[Path, int]:
     return target, os.stat(target).st_mode & 0o7777
 
 
+#: A write that fails for want of room names no file (``[Errno 28] No space left on device``).
+_NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def _named(exc: OSError, written: Path) -> OSError:
+    """``exc`` naming ``written`` where it is a full disk's (or quota's) error that names no file."""
+    if exc.filename is not None or exc.errno not in _NO_ROOM:
+        return exc
+    return type(exc)(exc.errno, exc.strerror, str(written))
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Path]:
     """A temporary path next to ``path``; renamed to ``path`` when the block ends without error.
@@ -83,6 +95,12 @@ def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Pa
         yield Path(tmp)
         os.chmod(tmp, mode)
         os.replace(tmp, target)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        named = _named(exc, path)
+        if named is exc:
+            raise
+        raise named from exc
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -139,7 +157,14 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
     probe_output_folder(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:  # a file of the run's written into the staging folder: named in ``out``
+            if exc.errno not in _NO_ROOM:
+                raise
+            written = Path(exc.filename) if exc.filename is not None else None
+            shown = out / written.relative_to(tmp) if written is not None and written.is_relative_to(tmp) else out
+            raise type(exc)(exc.errno, exc.strerror, str(shown)) from exc
         if owned is None:
             os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0700: the mode mkdir would give the folder
             if out.exists():
