@@ -354,6 +354,34 @@ def test_ctrl_c_ends_a_sweep_whose_fmu_hangs_in_a_step(built_fmus, tmp_path):
     assert took < 45, took  # the close's 10 s, then the kill and the nanny's own close
 
 
+def test_a_run_that_kills_its_worker_fails_no_other_run(built_fmus, tmp_path):
+    """A controller FMU of one's own that ends its process in a step for one Kp: Dask runs that task on
+    other workers until its allowed failures are spent. With one task at a time per single-threaded
+    worker no other run sits on a dying worker, so exactly that run fails (KilledWorker) and every other
+    passes: a crash fails its own runs only (with Dask's default two per worker, a neighbour failed as
+    KilledWorker in 4 of 6 such sweeps)."""
+    import shutil
+
+    from own_controller_fmus import EXAMPLES, build_pi_variant
+
+    build_pi_variant(tmp_path, "crashing_pi", from_s=0.5, do="if self.Kp > 1.0:\n    import os\n    os._exit(3)")
+    shutil.copy(EXAMPLES / "own_controller.toml", tmp_path / "base.toml")
+    gains = [0.1, 5.0, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5]
+    sweep = tmp_path / "crash.toml"
+    sweep.write_text(f'name = "crash"\nbase = "base.toml"\n[grid]\nduration_s = [35.0]\n'
+                     f'"controller.parameters.Kp" = {gains}\n')
+    out = tmp_path / "o"
+    proc = subprocess.run([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--workers", "2", "--out", str(out),
+                           "--fmu-dir", str(built_fmus["MusclePlant"].parent), "--quiet", "--no-plots"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 1, proc.stderr[-3000:]  # a failed run
+    with open(out / "results.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    status = {float(r["controller.parameters.Kp"]): r["status"] for r in rows}
+    assert status == {k: "failed" if k == 5.0 else "ok" for k in gains}, rows
+    assert next(r for r in rows if r["status"] == "failed")["error"].startswith("KilledWorker")
+
+
 def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_path):
     """tm.sweep(client=...): the runs go to the user's cluster (its workers checked first), the same
     numbers as in this process, and the client and its other work are left as they were."""

@@ -418,8 +418,12 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
             client.close()
         return
     check_workers_can_start(f"workers={workers}")  # the nannies spawn the worker processes
-    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms)
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
+    # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms);
+    # one task at a time on each single-threaded worker (Dask queues 2 there by default): a worker that
+    # a run's FMU crashes takes down no other run with it, as the task queued behind it was, counted a
+    # suspect of the crash, and failed as KilledWorker once the crashing run had spent Dask's retries
+    with dask.config.set({"distributed.worker.profile.enabled": False,
+                          "distributed.scheduler.worker-saturation": 1.0}):
         try:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                    scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
