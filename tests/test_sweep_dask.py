@@ -7,6 +7,7 @@ import re
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -444,27 +445,37 @@ def _cluster_processes(tmp, workers=1):
     return address, procs
 
 
-@pytest.mark.parametrize("lost", ["scheduler", "workers"])
-def test_a_cluster_lost_mid_sweep_stops_it_in_one_line_keeping_the_finished_runs(built_fmus, tmp_path, lost):
+@pytest.mark.parametrize("lost, command", [("scheduler", "sweep"), ("workers", "sweep"), ("workers", "check")])
+def test_a_cluster_lost_mid_sweep_stops_it_in_one_line_keeping_the_finished_runs(built_fmus, tmp_path, lost, command):
     """The scheduler killed mid-sweep recorded every unfinished run as failed, with 40 lines of the
     client's tracebacks; every worker killed left the sweep waiting for ever ("still running"). Both now
     end the command with one line and status 3 (CLUSTER_LOST), the runs finished before kept, none
-    recorded as failed; a rerun on a cluster again runs only the others."""
+    recorded as failed; a rerun on a cluster again runs only the others. `check`, which keeps no results
+    between commands, says that its rerun runs every case again, and its report holds the finished runs."""
     import signal
 
     from tapmuscle.cli.sweep import CLUSTER_LOST
 
     sweep = tmp_path / "long.toml"
-    sweep.write_text('name = "long"\nbase = { duration_s = 300.0 }\ngrid = { seed = [0, 1, 2, 3, 4, 5] }\n')
+    sweep.write_text('name = "long"\nbase = { duration_s = 300.0, expect = { mae_mm_max = 100.0 } }\n'
+                     'grid = { seed = [0, 1, 2, 3, 4, 5] }\n')
     out = tmp_path / "o"
     address, procs = _cluster_processes(tmp_path)
     fmu_dir = str(built_fmus["MusclePlant"].parent)
+    junit = tmp_path / "report.xml"
+    options = ["--out", str(out), "--no-plots"] if command == "sweep" else ["--junit", str(junit)]
     try:
-        cmd = subprocess.Popen([sys.executable, "-m", "tapmuscle", "sweep", str(sweep), "--scheduler", address,
-                                "--timeout", "3", "--out", str(out), "--fmu-dir", fmu_dir, "--quiet", "--no-plots"],
+        cmd = subprocess.Popen([sys.executable, "-m", "tapmuscle", command, str(sweep), "--scheduler", address,
+                                "--timeout", "3", "--fmu-dir", fmu_dir, "--quiet", *options],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 120
-        while not (out / "results.csv").is_file():  # a run finished
+
+        def finished() -> bool:
+            if command == "sweep":
+                return (out / "results.csv").is_file()
+            return junit.is_file() and len(ET.parse(junit).getroot().findall("testsuite/testcase/error")) < 6
+
+        while not finished():  # a run finished
             assert cmd.poll() is None and time.monotonic() < deadline, cmd.communicate()
             time.sleep(0.1)
         (procs[0] if lost == "scheduler" else procs[1]).send_signal(signal.SIGKILL)
@@ -474,9 +485,17 @@ def test_a_cluster_lost_mid_sweep_stops_it_in_one_line_keeping_the_finished_runs
             _stop(proc)
     assert cmd.returncode == CLUSTER_LOST, err
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("tapmuscle sweep: the cluster was lost: "), err
+    assert len(lines) == 1 and lines[0].startswith(f"tapmuscle {command}: the cluster was lost: "), err
     assert ("lost the connection to the scheduler" if lost == "scheduler"
             else "no worker has been connected to the scheduler") in lines[0]
+    if command == "check":
+        cases = list(ET.parse(junit).getroot().iter("testcase"))
+        unfinished = sum(c.find("error") is not None and "did not finish" in c.find("error").text for c in cases)
+        assert len(cases) == 6 and 0 < unfinished < 6
+        assert f"({6 - unfinished} of 6 runs finished): start workers" in lines[0], lines[0]
+        assert "rerun the check (it runs every case again)" in lines[0] and "not recorded as failed" not in lines[0]
+        assert f"{junit} holds the runs that finished, the others as errors (did not finish)" in lines[0]
+        return
     assert "rerun the same command to go on" in lines[0]
     rows = _rows(out / "results.csv")
     assert rows and all(r["status"] == "ok" for r in rows.values()) and len(rows) < 6

@@ -209,8 +209,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
                 progress(len(runs), len(tasks), f"{said['pass']} passed, {said['fail']} failed, {said['error']} "
                                                 f"errors, {len(tasks) - len(runs)} remaining")
         except ClusterError as exc:
-            print(f"tapmuscle check: the cluster was lost: {exc}" + (f"; {args.junit} holds the runs that "
-                  "finished, the others as not finished" if args.junit else ""), file=sys.stderr)
+            # a check keeps no results between commands: a rerun runs every case again
+            said_lost = (f"{exc.cause} ({exc.finished} of {len(tasks)} runs finished): {exc.remedy}, and rerun the "
+                         "check (it runs every case again)" if exc.cause else str(exc))
+            print(f"tapmuscle check: the cluster was lost: {said_lost}" + (
+                  f"; {args.junit} holds the runs that finished, the others as errors (did not finish)"
+                  if args.junit else ""), file=sys.stderr)
             return CLUSTER_LOST
         except KeyboardInterrupt:
             print("\ninterrupted" + (f": {args.junit} holds the runs that finished, the others as not finished"

@@ -279,9 +279,15 @@ class _ClusterWatch:
         done = self.n_tasks - unfinished
         kept = (f"{done} run{'s' if done != 1 else ''} finished here, kept; the {unfinished} others are not "
                 "recorded as failed")
+
+        def lost(cause: str, remedy: str) -> ClusterError:
+            error = ClusterError(f"{cause} ({kept}): {remedy}, and rerun the same command to go on")
+            error.cause, error.remedy, error.finished = cause, remedy, done
+            return error
+
         if self.client.status != "running":
-            raise ClusterError(f"lost the connection to the scheduler {self.client.scheduler.address} ({kept}): "
-                               "start it and its workers again, and rerun the same command to go on")
+            raise lost(f"lost the connection to the scheduler {self.client.scheduler.address}",
+                       "start it and its workers again")
         now = time.monotonic()
         if not at_once and now - self._asked < 1.0:
             return
@@ -295,14 +301,21 @@ class _ClusterWatch:
             return
         self._alone_since = self._alone_since or now
         if now - self._alone_since >= self.no_worker_s:
-            raise ClusterError(f"no worker has been connected to the scheduler {self.client.scheduler.address} for "
-                               f"{self.no_worker_s:g} s ({kept}): start workers (dask worker "
-                               f"{self.client.scheduler.address}) and rerun the same command to go on")
+            raise lost(f"no worker has been connected to the scheduler {self.client.scheduler.address} for "
+                       f"{self.no_worker_s:g} s", f"start workers (dask worker {self.client.scheduler.address})")
 
 
 class ClusterError(OSError):
     """A scheduler that is not one, workers that cannot run tapmuscle's runs or did not start, or a
-    cluster lost mid-sweep (named, with why and what was kept)."""
+    cluster lost mid-sweep (named, with why and what was kept).
+
+    A cluster lost mid-sweep also carries its parts, for a caller that words its own message:
+    ``cause`` (what was lost), ``remedy`` (what to start again) and ``finished`` (runs with a result);
+    None otherwise."""
+
+    cause: str | None = None
+    remedy: str | None = None
+    finished: int | None = None
 
 
 def probe_scheduler(address: str, wait_s: float) -> None:
