@@ -212,7 +212,8 @@ def test_the_table_keeps_its_columns_for_a_long_method_name():
 def test_a_check_that_an_fmu_crashes_leaves_a_report_naming_the_case(built_fmus, tmp_path):
     """A controller FMU of one's own that segfaults in a step takes the check's process with it
     (--workers 0, the default); the JUnit report, written as runs finish, names the case it was
-    running as not finished and keeps the one that passed."""
+    running as the one that did not finish, the case after it as not started, and keeps the one that
+    passed."""
     import subprocess
     import sys
     import xml.etree.ElementTree as ET
@@ -226,14 +227,17 @@ def test_a_check_that_an_fmu_crashes_leaves_a_report_naming_the_case(built_fmus,
     (tmp_path / "a_good.toml").write_text(text.replace('fmu = "PIController.fmu"', 'fmu = "good/PIController.fmu"')
                                           .replace('name = "own_controller_pi"', 'name = "a_good"'))
     (tmp_path / "b_crash.toml").write_text(text.replace('name = "own_controller_pi"', 'name = "b_crash"'))
+    (tmp_path / "c_after.toml").write_text(text.replace('fmu = "PIController.fmu"', 'fmu = "good/PIController.fmu"')
+                                           .replace('name = "own_controller_pi"', 'name = "c_after"'))
     junit = tmp_path / "report.xml"
     proc = subprocess.run([sys.executable, "-m", "tapmuscle", "check", str(tmp_path / "a_good.toml"),
-                           str(tmp_path / "b_crash.toml"), "--junit", str(junit), "--fmu-dir",
+                           str(tmp_path / "b_crash.toml"), str(tmp_path / "c_after.toml"), "--junit", str(junit), "--fmu-dir",
                            str(built_fmus["MusclePlant"].parent), "--quiet"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode < 0, (proc.returncode, proc.stderr)  # killed by the signal
     cases = {case.get("name"): case for case in ET.parse(junit).getroot().iter("testcase")}
-    assert len(cases) == 2
-    good, crashed = cases["a_good"], cases["b_crash"]
+    assert len(cases) == 3
+    good, crashed, after = cases["a_good"], cases["b_crash"], cases["c_after"]
     assert good.find("failure") is None and good.find("error") is None
-    assert "did not finish: the check ended before this run's result" in ET.tostring(crashed, encoding="unicode")
+    assert "did not finish: the check ended while it ran this case" in crashed.find("error").text
+    assert "did not finish: not started, the check ended in an earlier case" in after.find("error").text

@@ -148,7 +148,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_check(args: argparse.Namespace) -> int:
     from tapmuscle.cosim import ScenarioError
     from tapmuscle.cosim.check import CollectionError, collect_cases, evaluate, junit_xml, result_table
-    from tapmuscle.cosim.distributed_sweep import ClusterError, FmuFiles, RunResult, make_task
+    from tapmuscle.cosim.distributed_sweep import ClusterError, FmuFiles, RunResult, make_task, run_serial
 
     from tapmuscle.progress import Progress
     from tapmuscle.io.recording import atomic_write_text
@@ -192,12 +192,16 @@ def _cmd_check(args: argparse.Namespace) -> int:
         execute = _executor(args, stack)
         runs, said = {}, {"pass": 0, "fail": 0, "error": 0}
 
+        serial = execute is run_serial  # the cases one after the other, in their order
+
         def report_so_far() -> None:
             # the JUnit report as the runs finish: a process that an FMU crashes (in this process,
             # --workers 0) leaves a report that names the case it was running, not none
             if args.junit:
+                running = next((i for i in range(len(cases)) if i not in runs), None) if serial else None
                 atomic_write_text(args.junit, junit_xml([
-                    evaluate(case, runs.get(i) or RunResult(str(i), "failed", error=UNFINISHED))
+                    evaluate(case, runs.get(i) or RunResult(str(i), "failed", error=RUNNING if i == running else
+                                                            NOT_STARTED if serial else UNFINISHED))
                     for i, case in enumerate(cases)]))
 
         try:
@@ -231,9 +235,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 #: A check case's error in the JUnit report while it has not finished: what the report says of the
-#: case an FMU crashed the process in, and of those after it.
+#: cases a check on Dask ended without, of the case a check in its own process (``--workers 0``)
+#: was running when it ended (an FMU that crashed the process), and of the cases after that one.
 UNFINISHED = ("did not finish: the check ended before this run's result (an FMU that crashed the process, "
               "a kill, a time limit); run it alone with tapmuscle run, or the check with --workers N")
+RUNNING = ("did not finish: the check ended while it ran this case, the one running in its process (an FMU "
+           "that crashed the process, a kill, a time limit); run it alone with tapmuscle run, or the check "
+           "with --workers N, where a crash fails its own run only")
+NOT_STARTED = "did not finish: not started, the check ended in an earlier case (the one still running, above)"
 
 
 def _refuse_files(args: argparse.Namespace, errors: list, what: str) -> None:
