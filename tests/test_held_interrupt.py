@@ -165,3 +165,34 @@ def test_tapmuscle_run_interrupted_mid_run_exits_130_and_frees_the_fmus(built_fm
         assert proc.returncode == 130, (proc.returncode, stdout[-1000:], stderr[-2000:])
         assert "interrupted; nothing is half-written" in stderr and "FATAL" not in stderr and "ERROR" not in stderr
         assert not (out / "result.csv").exists()
+
+
+@pytest.mark.slow
+def test_ctrl_c_held_down_still_exits_130_without_a_traceback(built_fmus, tmp_path):
+    """SIGINT every 2 ms once ``tapmuscle run`` is under way (a key held, hammered): the first ends the
+    run; the others, arriving in its clean-up and in the exit's (the FMUs' extraction folders removed
+    at exit), are ignored. They made the process die by the signal (-2), not exit 130, with
+    "Exception ignored in atexit callback ... KeyboardInterrupt", in 3 of 3 tries."""
+    fmu_dir = Path(built_fmus["MusclePlant"]).parent
+    paper = (PAPER_SCENARIOS / "ampc_servo_44N_0.1Hz.toml").read_text(encoding="utf-8")
+    scenario = tmp_path / "long.toml"
+    scenario.write_text(paper.replace("duration_s = 45.0", "duration_s = 7200.0"), encoding="utf-8")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "tapmuscle", "run", str(scenario), "--out", str(out),
+                             "--fmu-dir", str(fmu_dir)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)
+    with proc:
+        deadline = time.monotonic() + 120
+        for line in proc.stderr:
+            if "%" in line or time.monotonic() > deadline:
+                break
+        while proc.poll() is None and time.monotonic() < deadline:
+            try:
+                proc.send_signal(signal.SIGINT)
+            except ProcessLookupError:
+                break
+            time.sleep(0.002)
+        stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, (proc.returncode, stderr[-2000:])
+    assert "Traceback" not in stderr and "Exception ignored" not in stderr, stderr[-2000:]
+    assert "interrupted; nothing is half-written" in stderr and not (out / "result.csv").exists()

@@ -11,7 +11,9 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import warnings
 from collections import Counter
 from pathlib import Path
@@ -592,13 +594,24 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
     print(f"warning: {message}", file=file or sys.stderr)
 
 
+def _ending_on_interrupt(process: bool) -> None:
+    """After a Ctrl-C that ends the console script's process: further ones (a key held, pressed again)
+    are ignored, or one arriving in the clean-up at exit made it die by the signal, not exit 130, with
+    an "Exception ignored in atexit callback" traceback. An in-process caller (a notebook) keeps its
+    Ctrl-C."""
+    if process and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tapmuscle`` console script."""
+    process = argv is None  # the console script: the process ends with the command
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         parser = build_parser()  # most of a second: its subcommands' modules are imported
         args = parser.parse_args(argv)
     except KeyboardInterrupt:
+        _ending_on_interrupt(process)
         print("\ntapmuscle: interrupted before anything ran; nothing is written", file=sys.stderr)
         return 130
     args.argv = argv
@@ -606,6 +619,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():  # restores Python's own display for an in-process caller
             warnings.showwarning = _one_line_warning
             code = int(args.func(args) or 0)
+        if code == 130:  # a command that said what its interrupt kept (sweep, check)
+            _ending_on_interrupt(process)
         sys.stdout.flush()  # here, so that a reader gone by now is met by the handler below, not at exit
         return code
     except UsageError as exc:
@@ -627,6 +642,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"error (PYTHONWARNINGS, -W): {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        _ending_on_interrupt(process)
         # every output is written whole or not at all (tapmuscle.io.atomic): say so, not a traceback
         field_run = args.command == "demo-mismatch" and getattr(args, "suite", None) == "field"
         resume = "; the same command with --resume goes on from the finished cases" if field_run else ""
