@@ -152,6 +152,18 @@ def test_bad_sweep_files_name_file_and_key(tmp_path, text, key, message):
         assert "load.initial_n=600" in str(err.value)  # the run's values
 
 
+def test_a_sweep_of_too_many_runs_is_refused_before_any_is_made(tmp_path):
+    """Runs counted from the grid's and the sample's sizes first: a grid of 10^6 points spent minutes
+    making its scenarios without a word before the sweep started."""
+    grid = (f"seed = {list(range(1000))}\n'load.initial_n' = {[44.0 + i / 10 for i in range(1000)]}\n")
+    with pytest.raises(ScenarioError, match=r"key 'grid': makes 1,000,000 runs \(1 base x 1000 seed x 1000 "
+                                             r"load.initial_n\), more than a sweep's 100,000: split it"):
+        load_sweep(_write(tmp_path, "base = { duration_s = 10.0 }\n[grid]\n" + grid))
+    with pytest.raises(ScenarioError, match=r"makes 120,000 runs \(1 base x 2 seed x 60000 samples\)"):
+        load_sweep(_write(tmp_path, "base = { duration_s = 10.0 }\n[grid]\nseed = [1, 2]\n[monte_carlo]\nn = 60000\n"
+                                    "'load.initial_n' = { uniform = [40, 70] }\n"))
+
+
 # ------------------------------------------------------------------------------------- expectations
 def test_expectations_are_checked_against_the_metrics(tmp_path):
     exp = parse_expectations({"mae_mm_max": 0.35, "u_within": [0, 10], "real_time_factor_min": 50}, source="f")

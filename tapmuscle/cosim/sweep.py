@@ -66,6 +66,9 @@ __all__ = ["SweepRun", "Sweep", "load_sweep", "parse_sweep", "is_sweep_data", "r
 
 #: Most Monte-Carlo samples of a sweep (per grid point and base): 10^5 runs is days of computing.
 MAX_MONTE_CARLO = 100_000
+#: Most runs of a sweep in all (bases x grid points x samples), refused before they are made: making
+#: 10^6 runs' scenarios took minutes without a word.
+MAX_SWEEP_RUNS = 100_000
 
 _TOP = {"name", "description", "base", "grid", "monte_carlo", "expect"}
 #: Fields that name a file (module docstring: relative to the sweep file when the grid or sample sets them).
@@ -305,6 +308,13 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
         dup = next(f for f in fields if fields.count(f) > 1)
         raise _error(source, f"monte_carlo.{dup}", "is also a grid field")
     samples = list(zip(*mc_columns)) if mc_columns else [()]
+    total = len(bases) * math.prod(len(values) for _, values in grid) * len(samples)
+    if total > MAX_SWEEP_RUNS:
+        counts = [f"{len(bases)} base{'s' if len(bases) != 1 else ''}"] + [f"{len(v)} {f}" for f, v in grid] + \
+            ([f"{len(samples)} samples"] if mc_columns else [])
+        raise _error(source, "grid" if grid else "monte_carlo",
+                     f"makes {total:,} runs ({' x '.join(counts)}), more than a sweep's {MAX_SWEEP_RUNS:,}: split it "
+                     "into several sweeps")
     runs: list[SweepRun] = []
     seen: dict[str, int] = {}
     for base_name, base, base_folder in bases:
