@@ -269,6 +269,7 @@ def test_the_python_loop_tells_what_the_controller_fmu_logs():
     said = [str(w.message) for w in caught if "limit cycle" in str(w.message) or "input delay of" in str(w.message)]
     slave = AMPCController(instance_name="delayed")
     slave._int_par["input_delay_samples"] = 0
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = tm.Plant(rig, seed=0)
     for k in range(401):

@@ -342,6 +342,7 @@ def test_external_advanced_reference_gives_the_exact_preview(monkeypatch, delay)
     slave = AMPCController(instance_name="spy")
     slave._int_par["reference_source"] = 3
     slave._int_par["input_delay_samples"] = delay
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     ref = SineReference(frequency_hz=0.1)
     ahead = 5 + {0: 0, -1: 1, 1: 1, 3: 3}[delay]
@@ -427,6 +428,7 @@ def test_the_startup_guard_parameter_reaches_the_controller_and_its_firing_is_lo
     slave = AMPCController(instance_name="guarded")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["startup_guard"]], [guard])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     assert slave._controller.settings.startup_guard is bool(guard)
     real_step = slave._controller.step
@@ -460,6 +462,7 @@ def test_the_divergence_warning_names_its_figures_and_parameters(startup_s):
     slave = AMPCController(instance_name="diverging")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_real([vr["forgetting"], vr["startup_s"]], [0.9, startup_s])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     real_step = slave._controller.step
     far = {3: 1e9, 4: -2e4}  # k -> predicted_next_mm
@@ -509,11 +512,13 @@ def test_an_infinite_bound_on_its_own_side_is_no_bound():
     vr = {var.name: v for v, var in slave.vars.items()}
     names = [f"box_{side}.{n}" for side in ("lower", "upper") for n in ("a1", "a2", "b1")]
     slave.set_real([vr[n] for n in names], [-math.inf] * 3 + [math.inf] * 3)
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     lower, upper = slave._controller.settings.constraint_region()
     assert np.isneginf(lower).all() and np.isposinf(upper).all()
     wrong = AMPCController(instance_name="wrong")
     wrong.set_real([vr["box_upper.b1"]], [-math.inf])
+    wrong.enter_initialization_mode()
     wrong.exit_initialization_mode()
     assert wrong._controller is None
     assert any("parameter box_upper.b1 = -inf is not a bound: a finite number, or inf (no upper bound)" in m.msg
@@ -542,6 +547,7 @@ def test_a_model_whose_predictions_overflow_is_an_error_naming_theta0_not_a_trac
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["method"]], [2])
     slave.set_real([vr["theta0.xi31"]], [1e6])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     slave.l = 35.0
     assert not slave.do_step(0.0, 0.1)
@@ -557,6 +563,7 @@ def test_a_settings_error_names_the_fmu_parameters():
     slave = AMPCController(instance_name="names")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_real([vr["delay_move_weight"]], [0.0])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     (message,) = [m.msg for m in slave.log_queue if "initialisation failed" in m.msg]
     assert "parameter delay_move_weight must be within 0 .. 1000 (0 excluded; 1: servo.R as it is), got 0.0" in message
@@ -588,6 +595,7 @@ def test_a_parameter_the_method_does_not_use_is_named_and_changes_nothing(method
         if name is not None:
             value = _METHOD_ONLY_VALUES[name]
             (slave.set_integer if isinstance(value, int) else slave.set_real)([vr[name]], [value])
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         commands = []
         for k in range(40):
@@ -622,6 +630,7 @@ def test_the_paper_defaults_at_another_period_are_warned_of():
         slave = AMPCController(instance_name="ts")
         vr = {var.name: v for v, var in slave.vars.items()}
         slave.set_real([vr[k] for k in reals], list(reals.values()))
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         assert slave._controller is not None
         assert not [m for m in slave.log_queue if "not the paper's" in m.msg]  # a warning there means rejected
@@ -644,6 +653,7 @@ def test_a_command_pinned_at_a_valve_limit_is_logged_once():
     from fmu_controller.controller_slave import AMPCController
 
     slave = AMPCController(instance_name="metres")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     for k in range(300):
         slave.l = 0.03
@@ -652,6 +662,7 @@ def test_a_command_pinned_at_a_valve_limit_is_logged_once():
     assert len(msgs) == 1 and msgs[0].status == Fmi2Status.warning
     assert "10 V for 10 s" in msgs[0].msg and "(now 0.03 mm)" in msgs[0].msg and "metres?" in msgs[0].msg
     tracked = AMPCController(instance_name="mm")  # a reachable reference: never pinned that long
+    tracked.enter_initialization_mode()
     tracked.exit_initialization_mode()
     from fmu_plant import Plant
 
@@ -677,6 +688,7 @@ def test_a_command_held_at_a_limit_against_the_error_is_logged_once(method):
         slave = AMPCController(instance_name="held")
         slave._int_par["method"] = method
         slave._par.update(par)
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         plant = Plant(seed=0)
         plant.reset(seed=0, load_n=load_n)
@@ -706,6 +718,7 @@ def test_a_sampling_period_typed_in_milliseconds_is_logged_and_the_time_at_a_lim
         slave = AMPCController(instance_name="ms")
         slave._par["Ts"] = ts
         slave._int_par["reference_source"] = 2  # external_held: the built-in sine refuses Ts = 50 s (Nyquist)
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         for k in range(n):
             slave.l, slave.r = 1.0, 60.0
@@ -734,6 +747,7 @@ def test_a_law_that_slams_the_valve_is_logged_once():
         slave = AMPCController(instance_name="slam")
         vr = {var.name: v for v, var in slave.vars.items()}
         slave.set_integer([vr["method"]], [method])
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         real_step = slave._controller.step
         slave._controller.step = lambda l, r: dataclasses.replace(real_step(l, r), u_v=10.0 * (slave._k % 2))
@@ -747,6 +761,7 @@ def test_a_law_that_slams_the_valve_is_logged_once():
     slave = AMPCController(instance_name="paper_rls")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_real([vr["startup_s"]], [0.0])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     real_step = slave._controller.step
     slave._controller.step = lambda l, r: dataclasses.replace(real_step(l, r), predicted_next_mm=1e9)
@@ -766,6 +781,7 @@ def test_an_input_delay_set_wrong_for_the_master_is_warned_of(set_delay, paralle
     slave = AMPCController(instance_name="set")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["input_delay_samples"]], [set_delay])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant, u_prev = Plant(PlantParams(), seed=0), 0.0
     for k in range(400):
@@ -794,6 +810,7 @@ def test_minus_one_deciding_the_longest_delay_it_scores_says_the_valve_may_act_l
 
     for delay_s, warned in ((0.7, True), (0.2, False)):
         slave = AMPCController(instance_name="long")
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         plant = Plant(PlantParams().with_values(**{"delay.delay_s": delay_s}), seed=0)
         for k in range(120):
@@ -818,6 +835,7 @@ def test_a_set_delay_shown_short_by_the_longest_delay_scored_is_not_told_to_take
     slave = AMPCController(instance_name="short")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["input_delay_samples"]], [0])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.7}), seed=0)
     for k in range(310):
@@ -837,6 +855,7 @@ def test_a_set_delay_of_the_cap_runs():
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["input_delay_samples"]], [25])
     slave.set_real([vr["Ts"]], [0.02])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     assert slave._hp == 5 + 25
     for k in range(60):
@@ -860,6 +879,7 @@ def test_a_limit_cycles_causes_are_those_the_settings_leave_possible(ints, said,
     slave = AMPCController(instance_name="causes")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr[k] for k in ints], list(ints.values()))
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     causes = "; ".join(slave._watch.limit_cycle_causes(42.0))
     assert all(s in causes for s in said) and not any(s in causes for s in not_said), causes
@@ -875,6 +895,7 @@ def test_a_heavy_move_weight_is_named_among_a_limit_cycles_causes():
         slave = AMPCController(instance_name="heavy")
         slave._int_par["method"] = 2
         slave._par["servo.R"] = r
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         plant = Plant(seed=0)
         for k in range(700):  # said at 61 s (the delay decided at 26.5 s, then a window of 10 s)
@@ -888,12 +909,14 @@ def test_a_heavy_move_weight_is_named_among_a_limit_cycles_causes():
     assert causes(15.0) == []
     table5 = AMPCController(instance_name="t5")
     table5._int_par["method"] = 2
+    table5.enter_initialization_mode()
     table5.exit_initialization_mode()
     assert not any("heavy move weight" in c for c in table5._watch.limit_cycle_causes(42.0))
 
 
 def test_an_overflow_names_theta0_only_where_it_was_set():
     slave = AMPCController(instance_name="hint")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     assert slave.overflow_hint().endswith("theta0 is far from a model of a muscle")
 
@@ -909,6 +932,7 @@ def test_a_fixed_predictors_limit_cycle_names_the_predictor_and_no_delay_the_dat
     slave = AMPCController(instance_name="fixed")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["method"], vr["input_delay_samples"], vr["reference_source"]], [2, delay, 2])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(PlantParams(), seed=0)
     for k in range(450):
@@ -934,6 +958,7 @@ def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
     slave = AMPCController(instance_name="delayed")
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["input_delay_samples"]], [delay])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     assert slave.input_delay == -1  # before the first sample
     plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.2}), seed=0)
@@ -961,6 +986,7 @@ def test_the_papers_start_is_not_taken_for_a_limit_cycle(method):
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["method"], vr["input_delay_samples"]], [method, 0])
     slave.set_real([vr["startup_s"]], [0.0])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(seed=0)
     swings = 0
@@ -993,6 +1019,7 @@ def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensatio
     vr = {var.name: v for v, var in slave.vars.items()}
     slave.set_integer([vr["input_delay_samples"], vr["method"]], [delay, method])
     slave.set_real([vr["startup_s"]], [0.0])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     real_step = slave._controller.step
     # limit to limit every 4 samples, passing through 5 V: no full-range jump, a swing each time
@@ -1017,6 +1044,7 @@ def test_a_rewind_logs_what_the_run_from_there_logs():
     from fmu_controller.controller_slave import AMPCController
 
     slave = AMPCController(instance_name="rewind")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
 
     def run(k0, k1):
@@ -1045,6 +1073,7 @@ def test_minus_ones_decision_of_a_delay_is_logged_once_a_run_and_again_after_a_r
     from fmu_plant import Plant, PlantParams
 
     slave = AMPCController(instance_name="delay")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.2}), seed=0)
 
@@ -1210,6 +1239,7 @@ def test_a_reading_taken_for_a_sensor_glitch_is_logged_and_counted():
     def run(**par):
         slave = AMPCController(instance_name="glitch")
         slave._par.update(par)
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         plant = Plant(seed=0)
         for k in range(400):
@@ -1233,6 +1263,7 @@ def test_a_spike_under_the_speed_bound_is_logged_as_a_spike_and_counted():
     from fmu_plant import Plant
 
     slave = AMPCController(instance_name="spike")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(seed=0)
     for k in range(400):
@@ -1254,6 +1285,7 @@ def test_a_stuck_reading_is_logged_once_and_counted():
 
     def run(freeze):
         slave = AMPCController(instance_name="stuck")
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         plant = Plant(seed=0)
         frozen = None
@@ -1283,6 +1315,7 @@ def test_servo_max_iter_bounds_the_qp_and_reaches_the_law():
 
     slave = AMPCController(instance_name="iter")
     slave._int_par.update({"servo.max_iter": 400, "servo.Hp": 50, "servo.Hu": 50})
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     assert slave._controller.settings.servo.max_iter == 400
     assert AMPCController(instance_name="d")._int_par["servo.max_iter"] == DEFAULT_OSQP_ITER == ServoMPCSettings().max_iter
@@ -1302,6 +1335,7 @@ def test_the_transient_of_a_reference_step_is_not_called_a_limit_cycle():
     def swings_said(method, r_after):
         slave = AMPCController(instance_name="step")
         slave._int_par.update({"method": method, "reference_source": 2})  # external_held
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         plant = Plant(seed=0)
         for k in range(900):
@@ -1317,6 +1351,7 @@ def test_the_transient_of_a_reference_step_is_not_called_a_limit_cycle():
     # a limit cycle under a reference that steps every 5 s is told all the same
     slave = AMPCController(instance_name="cycling")
     slave._int_par.update({"input_delay_samples": 0, "reference_source": 2})
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(PlantParams().with_values(**{"delay.delay_s": 0.2}), seed=0)
     for k in range(1200):
@@ -1334,6 +1369,7 @@ def test_a_sensor_that_keeps_glitching_is_logged_ten_times_and_counted_in_full()
     from fmu_plant import Plant
 
     slave = AMPCController(instance_name="glitches")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     plant = Plant(seed=0)
     for k in range(400):

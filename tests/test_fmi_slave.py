@@ -74,6 +74,7 @@ def test_theta_outputs_follow_the_estimate_and_its_saved_state():
     # undelayed: the command of the first sample reaches the first regressor (the delayed law's
     # first regressor holds 0 V, so from l = 0 the second sample would move nothing)
     slave.set_integer([vr["input_delay_samples"]], [0])
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     slave.l = 0.0
     assert slave.do_step(0.0, 0.1)

@@ -215,6 +215,7 @@ def test_the_start_time_must_be_finite_and_takes_effect_at_initialisation():
         assert [m.status for m in slave.log_queue] == [Fmi2Status.error]
         assert "startTime = nan is not finite" in slave.log_queue[0].msg
         slave.setup_experiment(2.5, 10.0, None)
+        slave.enter_initialization_mode()
         slave.exit_initialization_mode()
         slave.log_queue.clear()
         slave.setup_experiment(7.0, None, None)

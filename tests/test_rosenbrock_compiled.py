@@ -140,6 +140,7 @@ def test_a_sub_step_built_for_another_python_is_named_and_the_plant_fmu_says_so(
 
     monkeypatch.setattr(plant_slave, "COMPILED_FOR_ANOTHER_PYTHON", foreign)
     slave = plant_slave.MusclePlant(instance_name="foreign")
+    slave.enter_initialization_mode()
     slave.exit_initialization_mode()
     (msg,) = [m for m in slave.log_queue if foreign in m.msg]
     assert msg.status == Fmi2Status.ok and "the same results, about 2.5 times slower" in msg.msg
