@@ -54,6 +54,7 @@ from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import MLS_LENGTH, probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
+from .servo_settings import MAX_WEIGHT
 from .ucp_mpc import UCPSettings, _held, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
@@ -434,8 +435,12 @@ class ControllerSettings:
                 self.servo_for_delay(2)
             except ValueError as exc:
                 r = max(self.servo.r) if isinstance(self.servo.r, tuple) else self.servo.r
-                raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {self.delay_move_weight:g}, "
-                                 f"the move weight of the law for a delay of 2 samples or more, is not one: {exc}"
+                w = self.delay_move_weight
+                # the bound the user sets is servo.r's, not the product's
+                most = (f" (with this delay_move_weight, servo.r may be at most {MAX_WEIGHT / w:g})"
+                        if r * w > MAX_WEIGHT else "")
+                raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {w:g}, "
+                                 f"the move weight of the law for a delay of 2 samples or more, is not one: {exc}{most}"
                                  ) from None
         if not isinstance(self.delay_correction, bool):
             raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")

@@ -1163,7 +1163,8 @@ def test_a_move_weight_the_delayed_law_would_scale_past_the_qp_range_is_refused_
     for delay in (-1, 2, 5):
         with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 16, the move "
                                              r"weight of the law for a delay of 2 samples or more, is not one: r must be "
-                                             r"<= 1e\+06, got 4800000.0"):
+                                             r"<= 1e\+06, got 4800000.0 \(with this delay_move_weight, servo.r may be at "
+                                             r"most 62500\)"):
             ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=delay)
     # a product that rounds to 0 is not a move weight either (R > 0), nor is a per-step one too large
     with pytest.raises(ValueError, match=r"= 1e-300 x 1e-30, .* is not one: r must be > 0"):
