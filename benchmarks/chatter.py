@@ -6,7 +6,8 @@ of Tables 6 and 9 (44 and 68 N, 0.1 and 0.2 Hz), MPC-servo with the fixed predic
 the notch (the default), noise seeds 0..N-1. Printed per cell, means over the seeds (worst seed in
 brackets): Eq. (21); the command's total variation in the Eq. (21) window above that of a smooth
 command of the same range (2 x range per cycle); local extrema of ``u`` per cycle (a smooth command
-has 2); the same for AMPC-servo (no notch by default) as a reference. Stored: ``chatter.png``, one
+has 2); the same for AMPC-servo with its defaults (the start-up mode, which turns the notch on) as a
+reference. Stored: ``chatter.png``, one
 cycle of ``u`` and of the cancelled ``H`` at 44 N, 0.2 Hz, seed 0.
 """
 
