@@ -331,8 +331,8 @@ FMI2_Export fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2St
         /* the reason reached the host just now, from pythonfmu's own message: named here in short */
         char text[2600], shown[SUMMARY_CHARS + 8];
         summary(s->reason, shown, sizeof shown);
-        snprintf(text, sizeof text, "fmi2Instantiate failed%s%s%s; every later call of this instance is refused "
-                 "(fmi2Warning before the first step, fmi2Error from fmi2DoStep on)",
+        snprintf(text, sizeof text, "fmi2Instantiate failed%s%s%s; every later call of this instance is refused: fmi2Error "
+                 "from fmi2DoStep, fmi2Reset and the state, status and derivative calls, fmi2Warning from the others",
                  shown[0] ? ": " : "", shown, python_home_hint());
         to_host(s, s->name, fmi2Error, "logStatusError", text);
     }

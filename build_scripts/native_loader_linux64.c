@@ -89,10 +89,12 @@ static const char *truncated_library(const char *path) {
     memcpy(&shoff, header + 0x28, sizeof shoff);   /* the host is little-endian: x86-64, aarch64 */
     memcpy(&shentsize, header + 0x3A, sizeof shentsize);
     memcpy(&shnum, header + 0x3C, sizeof shnum);
-    if (shoff + (uint64_t)shentsize * shnum <= (uint64_t)st.st_size) return NULL;
+    /* compared without a sum that a garbage offset could wrap */
+    if (shoff <= (uint64_t)st.st_size && (uint64_t)shentsize * shnum <= (uint64_t)st.st_size - shoff) return NULL;
     snprintf(why, sizeof why, "%s is truncated: %lld bytes, its ELF header says at least %llu (a damaged FMU: "
              "unpack it again from an intact copy, or build it again)", path, (long long)st.st_size,
-             (unsigned long long)(shoff + (uint64_t)shentsize * shnum));
+             shoff > UINT64_MAX - (uint64_t)shentsize * shnum ? (unsigned long long)UINT64_MAX
+                                                               : (unsigned long long)(shoff + (uint64_t)shentsize * shnum));
     return why;
 }
 

@@ -709,6 +709,8 @@ class SafeSlave(Fmi2Slave):
         if _saved_initialised(state):
             self._initialised = True
         self._terminated = bool(state.get("terminated", False))
+        # a state saved before fmi2ExitInitializationMode restores that mode: the host leaves it next
+        self._in_init_mode = not self._initialised and not self._terminated
 
     @staticmethod
     def _fmu_state_from_bytes(state: bytes) -> dict[str, Any]:

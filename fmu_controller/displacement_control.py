@@ -437,7 +437,7 @@ class ControllerSettings:
                 r = max(self.servo.r) if isinstance(self.servo.r, tuple) else self.servo.r
                 w = self.delay_move_weight
                 # the bound the user sets is servo.r's, not the product's
-                most = (f" (with this delay_move_weight, servo.r may be at most {MAX_WEIGHT / w:g})"
+                most = (f" (with this delay_move_weight, servo.r may be at most {_shown_down(MAX_WEIGHT / w)})"
                         if r * w > MAX_WEIGHT else "")
                 raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {w:g}, "
                                  f"the move weight of the law for a delay of 2 samples or more, is not one: {exc}{most}"
@@ -538,6 +538,12 @@ def held_against_cause(theta0_b1: float, name: str = "theta0.b1") -> str:
         return (f"{name} = {theta0_b1:g} < 0 inverts the law: more valve opening contracts the muscle, so b1 > 0 "
                 "(a model identified with u or l of the other sign?)")
     return "the law's model (theta0, the box C) has the valve's effect the wrong way round for this rig"
+
+
+def _shown_down(x: float) -> str:
+    """``x`` > 0 to six significant digits, rounded down: a largest allowed value that is itself allowed."""
+    scale = 10.0 ** (5 - math.floor(math.log10(x)))
+    return f"{math.floor(x * scale) / scale:g}"
 
 
 def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, float], dict[str, float]]:

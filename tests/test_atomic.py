@@ -53,7 +53,7 @@ def test_a_directory_as_target_is_refused_by_name(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
-def test_a_full_disk_names_what_was_being_written_and_keeps_the_old(tmp_path):
+def test_a_full_disk_names_what_was_being_written_and_keeps_the_old(tmp_path, monkeypatch):
     """A write that fails for want of room raises an OSError that names no file (``[Errno 28] No
     space left on device``): the file, or the output folder of a staged run, is named; the old
     content stays and nothing temporary is left."""
@@ -75,6 +75,15 @@ def test_a_full_disk_names_what_was_being_written_and_keeps_the_old(tmp_path):
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         assert caught.value.filename == str(shown)
         assert not out.exists() and [p.name for p in tmp_path.iterdir()] == ["out.csv"]
+    # a full disk elsewhere (an FMU's extraction folder) keeps its own name; a file in the staging folder
+    # named by its absolute path, for an output folder given relative, is named in the output folder
+    monkeypatch.chdir(tmp_path)
+    for raised, shown in (("/elsewhere/x.so", "/elsewhere/x.so"), (None, "rel")):
+        with pytest.raises(OSError, match="No space left on device") as caught:
+            with staged_folder("rel") as tmp:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC),
+                              raised or os.path.abspath(os.path.join(tmp, "a.csv")))
+        assert caught.value.filename == (shown if raised else os.path.join("rel", "a.csv"))
     with pytest.raises(FileNotFoundError, match="elsewhere") as other:  # an error naming its own file is kept
         with atomic_path(target):
             raise FileNotFoundError(errno.ENOENT, "no such file", "elsewhere")

@@ -1166,6 +1166,13 @@ def test_a_move_weight_the_delayed_law_would_scale_past_the_qp_range_is_refused_
                                              r"<= 1e\+06, got 4800000.0 \(with this delay_move_weight, servo.r may be at "
                                              r"most 62500\)"):
             ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=delay)
+    # the largest servo.r named is itself allowed (rounded down, not to the nearest)
+    for w in (1.5, 6.0, 7.0):
+        with pytest.raises(ValueError, match="servo.r may be at most") as refused:
+            ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=MAX_WEIGHT), delay_move_weight=w,
+                               input_delay_samples=-1)
+        most = float(str(refused.value).rsplit("at most ", 1)[1].rstrip(")"))
+        ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=most), delay_move_weight=w, input_delay_samples=-1)
     # a product that rounds to 0 is not a move weight either (R > 0), nor is a per-step one too large
     with pytest.raises(ValueError, match=r"= 1e-300 x 1e-30, .* is not one: r must be > 0"):
         ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=1e-300), delay_move_weight=1e-30,

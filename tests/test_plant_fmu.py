@@ -552,8 +552,13 @@ def test_a_state_from_before_initialisation_is_refused_in_step_mode(fmu, capfd):
     assert h.getReal([vr["friction.base_n"]]) == [20.0]
     assert h.exitInitializationMode() == 0
     assert _run(h, vr, 0) == expected
+    # the state restores its mode: a host may leave initialisation next, without entering it again
+    i = open_fresh(fmu, "i")
+    i.setFMUstate(i.deSerializeFMUstate(f.serializeFMUstate(early)))
+    assert i.exitInitializationMode() == 0
+    assert _run(i, vr, 0) == expected
     f.freeFMUstate(early)
-    for x in (f, g, h):
+    for x in (f, g, h, i):
         x.terminate()
         x.freeInstance()
 

@@ -596,9 +596,9 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
 
 def _ending_on_interrupt(process: bool) -> None:
     """After a Ctrl-C that ends the console script's process: further ones (a key held, pressed again)
-    are ignored, or one arriving in the clean-up at exit made it die by the signal, not exit 130, with
-    an "Exception ignored in atexit callback" traceback. An in-process caller (a notebook) keeps its
-    Ctrl-C."""
+    are ignored, as one arriving in the clean-up at exit would end the process by the signal, not with
+    exit 130, and with an "Exception ignored in atexit callback" traceback. An in-process caller (a
+    notebook) keeps its Ctrl-C."""
     if process and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 

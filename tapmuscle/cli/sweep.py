@@ -241,7 +241,7 @@ UNFINISHED = ("did not finish: the check ended before this run's result (an FMU 
               "a kill, a time limit); run it alone with tapmuscle run, or the check with --workers N")
 RUNNING = ("did not finish: the check ended while it ran this case, the one running in its process (an FMU "
            "that crashed the process, a kill, a time limit); run it alone with tapmuscle run, or the check "
-           "with --workers N, where a crash fails its own run only")
+           "with --workers N, where a crash ends a worker, not the check")
 NOT_STARTED = "did not finish: not started, the check ended in an earlier case (the one still running, above)"
 
 

@@ -432,9 +432,10 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
         return
     check_workers_can_start(f"workers={workers}")  # the nannies spawn the worker processes
     # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms);
-    # one task at a time on each single-threaded worker (Dask queues 2 there by default): a worker that
-    # a run's FMU crashes takes down no other run with it, as the task queued behind it was, counted a
-    # suspect of the crash, and failed as KilledWorker once the crashing run had spent Dask's retries
+    # one task at a time on each single-threaded worker (Dask's default sends 2 there): a task waiting
+    # on a worker that a run's FMU crashes counts as a suspect of the crash and fails as KilledWorker once
+    # the crashing run has spent Dask's retries. Dask holds tasks back only in a sweep of more runs than
+    # twice the workers; a smaller one is sent out at once
     with dask.config.set({"distributed.worker.profile.enabled": False,
                           "distributed.scheduler.worker-saturation": 1.0}):
         try:

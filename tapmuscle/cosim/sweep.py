@@ -67,7 +67,7 @@ __all__ = ["SweepRun", "Sweep", "load_sweep", "parse_sweep", "is_sweep_data", "r
 #: Most Monte-Carlo samples of a sweep (per grid point and base): 10^5 runs is days of computing.
 MAX_MONTE_CARLO = 100_000
 #: Most runs of a sweep in all (bases x grid points x samples), refused before they are made: making
-#: 10^6 runs' scenarios took minutes without a word.
+#: 10^6 runs' scenarios alone takes minutes before the first line.
 MAX_SWEEP_RUNS = 100_000
 
 _TOP = {"name", "description", "base", "grid", "monte_carlo", "expect"}

@@ -61,11 +61,20 @@ def _target(path: Path) -> tuple[Path, int]:
 _NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
+def _no_room(exc: OSError, written: Path) -> OSError:
+    """A full disk's (or quota's) ``exc`` again, naming ``written`` (an ``OSError`` where its own class
+    takes other arguments)."""
+    try:
+        return type(exc)(exc.errno, exc.strerror, str(written))
+    except TypeError:
+        return OSError(exc.errno, exc.strerror, str(written))
+
+
 def _named(exc: OSError, written: Path) -> OSError:
     """``exc`` naming ``written`` where it is a full disk's (or quota's) error that names no file."""
     if exc.filename is not None or exc.errno not in _NO_ROOM:
         return exc
-    return type(exc)(exc.errno, exc.strerror, str(written))
+    return _no_room(exc, written)
 
 
 @contextmanager
@@ -162,9 +171,14 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
         except OSError as exc:  # a file of the run's written into the staging folder: named in ``out``
             if exc.errno not in _NO_ROOM:
                 raise
-            written = Path(exc.filename) if exc.filename is not None else None
-            shown = out / written.relative_to(tmp) if written is not None and written.is_relative_to(tmp) else out
-            raise type(exc)(exc.errno, exc.strerror, str(shown)) from exc
+            if exc.filename is None:
+                shown = out
+            else:  # a file elsewhere (another disk) keeps its own name
+                written, staging = Path(os.path.abspath(exc.filename)), Path(os.path.abspath(tmp))
+                if not written.is_relative_to(staging):
+                    raise
+                shown = out / written.relative_to(staging)
+            raise _no_room(exc, shown) from exc
         if owned is None:
             os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0700: the mode mkdir would give the folder
             if out.exists():
