@@ -383,6 +383,15 @@ def test_a_run_that_kills_its_worker_fails_no_other_run(built_fmus, tmp_path):
     assert next(r for r in rows if r["status"] == "failed")["error"].startswith("KilledWorker")
 
 
+def test_the_commands_local_cluster_sends_each_worker_one_run_at_a_time():
+    """The setting behind the test above, read off the scheduler (that test catches Dask's default,
+    two tasks per single-threaded worker, in about half of its runs, as the crash's timing decides)."""
+    from tapmuscle.cosim.distributed_sweep import dask_client
+
+    with dask_client(2) as client:
+        assert client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.WORKER_SATURATION) == 1.0
+
+
 def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_path):
     """tm.sweep(client=...): the runs go to the user's cluster (its workers checked first), the same
     numbers as in this process, and the client and its other work are left as they were."""
