@@ -457,7 +457,7 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
             check_workers(client)
             execute = DaskExecutor(client)
         elif workers:
-            execute = DaskExecutor(stack.enter_context(dask_client(workers)))
+            execute = DaskExecutor(stack.enter_context(dask_client(workers)), one_run_per_thread=True)
         else:
             execute = run_serial
         return run_sweep(sw, out, given, execute, plots=plots, progress=progress)

@@ -264,8 +264,8 @@ def test_a_result_that_came_back_is_kept_whatever_its_futures_status_became(monk
         def __init__(self, *args, **kwargs):
             self.batches = [back]
 
-        def is_empty(self):
-            return not self.batches
+        def update(self, futures):
+            pass
 
         def next_batch(self, block=False):
             return self.batches.pop()
@@ -390,6 +390,62 @@ def test_the_commands_local_cluster_sends_each_worker_one_run_at_a_time():
 
     with dask_client(2) as client:
         assert client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.WORKER_SATURATION) == 1.0
+
+
+def _count_runs_on_the_cluster(dask_scheduler):
+    """On the scheduler: count the sweep's run tasks on workers (processing) at once, keep the most."""
+    from distributed.diagnostics.plugin import SchedulerPlugin
+
+    class Count(SchedulerPlugin):
+        name = "tapmuscle-test-count"
+        now = most = 0
+
+        def transition(self, key, start, finish, *args, **kwargs):
+            if str(key).startswith("tapmuscle-run-"):
+                self.now += (finish == "processing") - (start == "processing")
+                self.most = max(self.most, self.now)
+
+    dask_scheduler.add_plugin(Count())
+
+
+def _most_runs_on_the_cluster(dask_scheduler):
+    return dask_scheduler.plugins["tapmuscle-test-count"].most
+
+
+def test_the_commands_local_cluster_gets_one_run_per_worker_at_a_time_and_a_clients_own_all(built_fmus, tmp_path,
+                                                                                         monkeypatch):
+    """On the local cluster of 2 workers, a sweep of 4 runs (Dask holds back none of so few tasks,
+    whatever the scheduler's worker-saturation: the executor submits one per worker thread, the next as
+    one finishes; a run waiting on a worker whose FMU crashes fails with it, 2 of 16 such sweeps before)
+    and one of 6 (the scheduler's queue holds them back) have at most 2 runs on the workers. On a client
+    of one's own every run is submitted at once: an adaptive cluster grows on the backlog."""
+    import tapmuscle as tm
+    from contextlib import contextmanager
+
+    from tapmuscle.cosim import distributed_sweep
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(SWEEP)
+    folder = built_fmus["MusclePlant"].parent
+    fmus = {name: folder / f"{name}.fmu" for name in ("MusclePlant", "AMPCController")}
+    real, most = distributed_sweep.dask_client, []
+
+    @contextmanager
+    def counted(*args, **kwargs):
+        with real(*args, **kwargs) as client:
+            client.run_on_scheduler(_count_runs_on_the_cluster)
+            yield client
+            most.append(client.run_on_scheduler(_most_runs_on_the_cluster))
+
+    monkeypatch.setattr(distributed_sweep, "dask_client", counted)
+    local = tm.sweep(sweep, tmp_path / "local", fmus=fmus, workers=2, plots=False)
+    larger = tmp_path / "larger.toml"
+    larger.write_text(SWEEP.replace('"load.initial_n" = [44.0, 68.0]', '"load.initial_n" = [44.0, 56.0, 68.0]'))
+    queued = tm.sweep(larger, tmp_path / "larger", fmus=fmus, workers=2, plots=False)
+    with counted(2) as client:
+        own = tm.sweep(sweep, tmp_path / "own", fmus=fmus, client=client, plots=False)
+    assert [(r.ran, r.failed) for r in (local, queued, own)] == [(4, 0), (6, 0), (4, 0)]
+    assert most == [2, 2, 4]
 
 
 def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_path):

@@ -88,7 +88,9 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     if not args.quiet:
         workers = len(client.scheduler_info().get("workers", {}))
         print(f"Dask: {workers} workers at {client.scheduler.address}", file=sys.stderr)
-    return DaskExecutor(client, no_worker_s=args.timeout)
+    # the command's own cluster: one run per worker thread at a time; a scheduler of one's own gets them
+    # all (its adaptive scaling sees the backlog)
+    return DaskExecutor(client, no_worker_s=args.timeout, one_run_per_thread=not args.scheduler)
 
 
 # ------------------------------------------------------------------------------------------ sweep

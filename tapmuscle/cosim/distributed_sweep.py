@@ -213,16 +213,33 @@ class DaskExecutor:
     """Runs tasks on a ``distributed.Client``'s cluster, yielding results as they finish.
 
     The FMU files go to the cluster once, as the input of a task the runs depend on (module
-    docstring); one Dask task per run (``client.map``). A task whose worker died (``KilledWorker``
-    after Dask's retries) or that was cancelled is a ``failed`` result. A cluster lost mid-sweep is
-    not a run's failure: the scheduler's connection lost, or no worker connected for ``no_worker_s``
-    seconds (every worker stopped, none restarted), raises :class:`ClusterError`, after the results
-    yielded so far. Leaving the iteration early cancels the tasks not yet finished.
+    docstring); one Dask task per run. A task whose worker died (``KilledWorker`` after Dask's
+    retries) or that was cancelled is a ``failed`` result. A cluster lost mid-sweep is not a run's
+    failure: the scheduler's connection lost, or no worker connected for ``no_worker_s`` seconds
+    (every worker stopped, none restarted), raises :class:`ClusterError`, after the results yielded
+    so far. Leaving the iteration early cancels the tasks not yet finished.
+
+    Parameters
+    ----------
+    client : distributed.Client
+        The cluster's client.
+    no_worker_s : float
+        How long [s] the cluster may be without a worker before the sweep stops (above).
+    one_run_per_thread : bool
+        The command's own local cluster, whose scheduler holds back what it would queue on a worker
+        (:func:`dask_client`: ``worker-saturation`` 1.0): a task waiting on a worker whose run's FMU
+        ends the process counts as a suspect of the crash and fails as ``KilledWorker`` once the
+        crashing run has spent Dask's retries. Dask holds tasks back only in a sweep of more than
+        twice as many runs as worker threads; a smaller one is submitted one run per thread, the next
+        as one finishes (a round trip through this client per run, which the scheduler's own queue
+        saves a larger sweep). False (a cluster of one's own): every run at once, so that an adaptive
+        cluster sees the backlog and grows.
     """
 
-    def __init__(self, client: Any, *, no_worker_s: float = 60.0) -> None:
+    def __init__(self, client: Any, *, no_worker_s: float = 60.0, one_run_per_thread: bool = False) -> None:
         self.client = client
         self.no_worker_s = no_worker_s
+        self.one_run_per_thread = one_run_per_thread
 
     def ship(self, files: FmuFiles, tag: str) -> Any:
         """The future of ``files`` on the cluster, what :func:`_worker_run` takes (module docstring)."""
@@ -230,26 +247,56 @@ class DaskExecutor:
         return self.client.submit(dict, {"data": dict(files.data), "names": dict(files.names)}, pure=False,
                                   key=f"tapmuscle-fmus-{tag}")
 
+    def _threads(self) -> int:
+        """The connected workers' threads (0 where the connection went while asking: the cluster
+        watch says so)."""
+        try:
+            return sum(self.client.nthreads().values())
+        except Exception:  # noqa: BLE001
+            return 0
+
     def __call__(self, tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]:
-        from distributed import as_completed
+        from distributed import as_completed, wait
 
         if not tasks:
             return
         tag = uuid.uuid4().hex[:8]
         shipped = self.ship(files, tag)
-        submitted = self.client.map(_worker_run, tasks, [shipped] * len(tasks), pure=False,
-                                    key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in tasks])
-        futures = dict(zip(submitted, tasks))
+        waiting = list(tasks)  # not submitted yet
+        futures: dict[Any, RunTask] = {}
+        pending = as_completed([], with_results=True, raise_errors=False)
+        # Dask's own queue (root-ish tasks: a group of more than twice the cluster's threads) or ours
+        windowed = self.one_run_per_thread and len(tasks) <= 2 * self._threads()
+
+        def submit() -> None:
+            batch = waiting[:max(self._threads() - len(futures), 0)] if windowed else waiting[:]
+            if batch:
+                del waiting[:len(batch)]
+                submitted = self.client.map(_worker_run, batch, [shipped] * len(batch), pure=False,
+                                            key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in batch])
+                futures.update(zip(submitted, batch))
+                pending.update(submitted)
+
         watch = _ClusterWatch(self.client, self.no_worker_s, len(tasks))
         try:
+            submit()
+            submitted_at = time.monotonic()
             # results gathered in batches by the event loop; errors returned, not raised
-            pending = as_completed(submitted, with_results=True, raise_errors=False)
-            while not pending.is_empty():
-                batch = pending.next_batch(block=False)
+            while futures or waiting:
+                batch = pending.next_batch(block=False) if futures else []
                 if not batch:
-                    watch.check(len(futures))  # nothing finished: is there still a cluster to finish it?
-                    time.sleep(0.05)
-                    continue
+                    watch.check(len(futures) + len(waiting))  # nothing finished: still a cluster to finish it?
+                    if waiting and time.monotonic() - submitted_at >= 1.0:  # a worker (re)started
+                        submit()
+                        submitted_at = time.monotonic()
+                    if not (futures and waiting):
+                        time.sleep(0.05)
+                        continue
+                    try:  # woken by the first to finish, not a poll's sleep: a worker waits for the next
+                        wait(list(futures), timeout=0.25, return_when="FIRST_COMPLETED")
+                    except TimeoutError:
+                        continue
+                    batch = pending.next_batch(block=True)
                 for future, value in batch:
                     task = futures.pop(future)
                     # by what came back, not the future's status: a worker that dies after a run
@@ -257,10 +304,13 @@ class DaskExecutor:
                     if isinstance(value, RunResult):
                         result = value
                     else:  # worker died (KilledWorker), cancelled: recorded as failed
-                        watch.check(len(futures) + 1, at_once=True)  # unless the scheduler is gone
+                        watch.check(len(futures) + len(waiting) + 1, at_once=True)  # unless the scheduler is gone
                         result = RunResult(task.run_id, "failed", error=_error_text(value))
                     future.release()
                     yield result
+                if waiting:
+                    submit()
+                    submitted_at = time.monotonic()
         finally:
             self.client.cancel(list(futures))
             shipped.release()
@@ -434,8 +484,8 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
     # no dashboard, so no use for the workers' statistical profiler (a thread sampling every 10 ms);
     # one task at a time on each single-threaded worker (Dask's default sends 2 there): a task waiting
     # on a worker that a run's FMU crashes counts as a suspect of the crash and fails as KilledWorker once
-    # the crashing run has spent Dask's retries. Dask holds tasks back only in a sweep of more runs than
-    # twice the workers; a smaller one is sent out at once
+    # the crashing run has spent Dask's retries (DaskExecutor's one_run_per_thread also for small sweeps,
+    # which Dask sends out at once)
     with dask.config.set({"distributed.worker.profile.enabled": False,
                           "distributed.scheduler.worker-saturation": 1.0}):
         try:
