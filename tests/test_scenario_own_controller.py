@@ -185,6 +185,62 @@ def test_what_it_warns_of_from_its_instantiation_on_reaches_the_user(built_fmus,
     assert "warning: controller FMU: late: a warning (11 times)" in err and err.count("late: a warning") == 1
 
 
+_RAISING_RUNS = """
+import gc, sys
+from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario
+from tapmuscle.cosim.master import InstancePool
+scenario, fmus = load_scenario(sys.argv[1]), {"MusclePlant": sys.argv[2]}
+pool = InstancePool()
+for _ in range(3):
+    try:
+        co_simulate(scenario, fmus, record="minimal", pool=pool)
+    except ScenarioError as exc:
+        assert "status FATAL" in str(exc) and "bug in my law" in str(exc), exc
+    else:
+        raise AssertionError("the run did not fail")
+    gc.collect()
+pool.close()
+print("survived")
+"""
+
+
+def test_an_exception_in_its_python_law_fails_the_run_and_nothing_else(built_fmus, tmp_path):
+    """A pythonfmu controller whose law raises: the export returns fmi2Fatal, having released its
+    slave's Python objects, so the master calls nothing on that instance any more (FMI 2.0: no call
+    after fmi2Fatal); an fmi2Terminate and fmi2FreeInstance after it released them again, and the
+    host's next garbage collection crashed the process (SIGSEGV in 2 of 3 command-line runs)."""
+    import subprocess
+    import sys
+
+    fmu = build_pi_variant(tmp_path, "raising_pi", from_s=2.0, do='raise RuntimeError("bug in my law")')
+    (tmp_path / "s.toml").write_text(f"duration_s = 4.0\n[controller]\nfmu = '{fmu}'\n"
+                                     "interface = { measurement = 'y', reference = 'r', command = 'u' }\n")
+    for _ in range(2):
+        proc = subprocess.run([sys.executable, "-c", _RAISING_RUNS, str(tmp_path / "s.toml"),
+                               str(built_fmus["MusclePlant"])], capture_output=True, text=True, timeout=300)
+        assert (proc.returncode, proc.stdout.strip()) == (0, "survived"), proc.stderr[-2000:]
+
+
+@pytest.mark.parametrize("status, calls", [(0, ["terminate", "freeInstance"]), (2, ["terminate", "freeInstance"]),
+                                           (3, ["freeInstance"]), (4, [])])
+def test_an_instance_is_freed_as_its_last_status_allows(status, calls):
+    """FMI 2.0 (2.1.3): after fmi2Error only fmi2FreeInstance (and reset, state calls), after fmi2Fatal
+    no call at all; a discard ends as a normal run."""
+    from tapmuscle.cosim.master import FmuInstance
+
+    made: list[str] = []
+
+    class Recorder:
+        def __getattr__(self, name):
+            return lambda *args: made.append(name)
+
+    inst = object.__new__(FmuInstance)
+    inst.fmu, inst._name, inst.failed_status = Recorder(), "recorder", 0
+    inst.failed(status)
+    inst.free()
+    assert made == calls
+
+
 def test_the_command_a_controller_of_ones_own_sends_is_what_the_plant_takes(built_fmus, pi_fmu):
     """The plant FMU takes a command within -1..11 V as its valve does (saturated at 0..10 V: 10.5 V
     moves the muscle as 10 V does, and the recorded command is what the controller sent); a command

@@ -369,6 +369,7 @@ class FmuInstance:
                                 f"{'model-exchange' if model_exchange else 'co-simulation'} interface")
         self.fmu = kind(guid=md.guid, unzipDirectory=self.unpacked.folder,
                         modelIdentifier=interface.modelIdentifier, instanceName=instance_name)
+        self.failed_status = 0  # the worst fmi2Status a failed call returned (3: fmi2Error, 4: fmi2Fatal)
         # an FMU on pythonfmu's own binary would otherwise corrupt this process's heap as it exits
         release_at_exit(self.unpacked.folder, interface.modelIdentifier)
         callbacks = _callbacks(formatted=not _sends_plain_text(self.unpacked))
@@ -395,7 +396,13 @@ class FmuInstance:
         try:
             return fn()
         except Exception as exc:  # noqa: BLE001 - fmpy raises FMICallException (and others on NULL)
+            self.failed(getattr(exc, "status", 3))
             raise self.error(what, exc, t_s) from None
+
+    def failed(self, status: int) -> None:
+        """Note that a call returned ``status`` (fmi2Error or worse): what :meth:`free` may still call."""
+        if isinstance(status, int) and status > self.failed_status:
+            self.failed_status = status
 
     def set_parameters(self, values: Mapping[str, Any], *, where: str) -> None:
         """Set parameters by FMU variable name; ``where`` (e.g. ``file: key 'plant.parameters.'``)
@@ -431,11 +438,25 @@ class FmuInstance:
         self.fmu.enterInitializationMode()
 
     def free(self) -> None:
+        """End the instance as FMI 2.0 (2.1.3, 4.2.4) allows after its last status: fmi2Terminate and
+        fmi2FreeInstance; after an fmi2Error only fmi2FreeInstance; after an fmi2Fatal nothing at all,
+        the instance (a few kB) is kept unfreed for the process's life. A pythonfmu export has
+        released its slave's Python objects when it returns fmi2Fatal for an exception in the slave,
+        and a later fmi2Terminate or fmi2FreeInstance released them again: the host's next garbage
+        collection crashed the process."""
+        if self.failed_status >= 4:
+            _ABANDONED.append(self)
+            return
         try:
-            self.fmu.terminate()
+            if self.failed_status < 3:
+                self.fmu.terminate()
         finally:
             self.fmu.freeInstance()
             _LOG_SINKS.pop(self._name, None)
+
+
+#: Instances that returned fmi2Fatal: no FMI call may reach them again, and their library stays loaded.
+_ABANDONED: list[FmuInstance] = []
 
 
 def _interface_key(interface: Mapping[str, str] | None) -> tuple[tuple[str, str], ...] | None:
@@ -688,6 +709,7 @@ class _RealPort:
     def check(self, status: int, what: str, t_s: float) -> None:
         """Raise ScenarioError if ``status`` (of the call ``what`` at ``t_s``) is worse than fmi2Warning."""
         if status > 1:
+            self.inst.failed(status)
             raise self.inst.error(what, f"status {_STATUS[status] if status < len(_STATUS) else status}", t_s)
 
 
