@@ -29,12 +29,16 @@ from fmu_controller.loop_watch import (REF_STEP_MM_PER_S, SLAM_JUMPS, SLAM_WINDO
 from fmu_controller.servo_settings import TABLE5_SERVO
 from tapmuscle.io.sampling import TS_RANGE_S
 
-__all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "as_law", "law_period", "law_preview_samples",
+__all__ = ["ControlLaw", "ValveWatch", "LAW_PREVIEW_SAMPLES", "MAX_LAW_PREVIEW_SAMPLES", "as_law", "law_period", "law_preview_samples",
            "law_command", "reset_law"]
 
 #: Future reference samples a law of one's own sees by default, ``[r(k), ..., r(k+5)]``: Table 5's
 #: servo horizon ``Hp``, what the paper's default law looks ahead.
 LAW_PREVIEW_SAMPLES = int(TABLE5_SERVO["hp"])
+#: The longest preview a law of one's own may ask for [samples]: 1000 s at the paper's Ts = 0.1 s,
+#: far beyond any receding horizon. The reference builds the preview anew every sample, so a typo
+#: (10**9) would fill the memory instead of running.
+MAX_LAW_PREVIEW_SAMPLES = 10_000
 
 
 @runtime_checkable
@@ -143,13 +147,14 @@ def law_period(law: Any, ts_s: float | None) -> float:
 
 def law_preview_samples(law: Any, preview_samples: int | None) -> int:
     """The ``n`` of the preview ``r(k..k+n)`` the law gets: ``preview_samples`` when given, else the
-    law's ``preview_samples``, else :data:`LAW_PREVIEW_SAMPLES`; an integer >= 0 or a ValueError."""
+    law's ``preview_samples``, else :data:`LAW_PREVIEW_SAMPLES`; an integer in 0 ..
+    :data:`MAX_LAW_PREVIEW_SAMPLES` or a ValueError."""
     n = _attribute(law, "preview_samples", preview_samples)
     if n is None:
         return LAW_PREVIEW_SAMPLES
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 0:
-        raise ValueError(f"preview_samples must be an integer >= 0 (the future reference samples the law sees), "
-                         f"got {n!r}")
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or not 0 <= n <= MAX_LAW_PREVIEW_SAMPLES:
+        raise ValueError(f"preview_samples must be an integer in 0..{MAX_LAW_PREVIEW_SAMPLES} (the future reference "
+                         f"samples the law sees), got {n!r}")
     return int(n)
 
 

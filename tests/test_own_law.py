@@ -185,8 +185,16 @@ def test_the_preview_length_is_the_laws_or_the_calls():
     law.preview_samples = 12
     tm.run_closed_loop(tm.Plant(), law, None, duration_s=1.0)
     assert {len(p) for p in law.previews} == {13}
-    with pytest.raises(ValueError, match="preview_samples must be an integer >= 0"):
+    with pytest.raises(ValueError, match=r"preview_samples must be an integer in 0\.\.10000 .*got 1\.5"):
         tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, preview_samples=1.5)
+    # a typo's billion samples, built anew every sample, filled the memory instead
+    law = PI()
+    law.preview_samples = 10**9
+    with pytest.raises(ValueError, match=r"must be an integer in 0\.\.10000 .*got 1000000000"):
+        tm.simulate_closed_loop(law, None, duration_s=1.0)
+    law = PI()
+    tm.run_closed_loop(tm.Plant(), law, None, duration_s=0.2, preview_samples=10_000)
+    assert {len(p) for p in law.previews} == {10_001}
     law = PI()
     tm.simulate_closed_loop(law, None, duration_s=1.0, preview_samples=2)
     assert {len(p) for p in law.previews} == {3}
