@@ -470,6 +470,9 @@ def test_a_controller_fmu_of_ones_own_is_told_what_a_scenario_needs(tmp_path):
     ("servo.Hp", 5.5, "must be an integer, got 5.5"),
     ("servo.Hp", 0, "0 is outside its declared range 1..50"),
     ("servo.Rr", 1.0, "not a parameter of AMPCController (did you mean 'servo.R'"),
+    ("SERVO.hp", 4, "not a parameter of AMPCController (did you mean 'servo.Hp'"),
+    ("r", 30.0, "is an input of AMPCController, which the scenario's [reference] sets every sample, not a "
+                "parameter: remove it (the value goes in the scenario's [reference])"),
 ])
 def test_parameters_are_checked_against_the_model_description_before_a_run(built_fmus, key, value, message):
     """What a sweep checks for every run before any runs: name, type and declared range, naming the
@@ -482,6 +485,21 @@ def test_parameters_are_checked_against_the_model_description_before_a_run(built
     with pytest.raises(ScenarioError) as err:
         check_parameters(s, built_fmus)
     assert str(err.value).startswith(f"s.toml: key 'controller.parameters.{key}': ") and message in str(err.value)
+
+
+@pytest.mark.parametrize("name, by", [("u", "the controller's command"), ("load_force", "the scenario's [load]"),
+                                      ("supply_pressure", "the scenario's [supply]")])
+def test_a_plant_input_set_as_a_parameter_is_refused(built_fmus, name, by):
+    """The master sets the plant's inputs every sample: one set as a parameter was overwritten at the
+    first step, and summary.json recorded a run at 68 N that ran at 44 N."""
+    from tapmuscle.cosim.master import check_parameters
+
+    s = parse_scenario({"duration_s": 2.0, "plant": {"parameters": {name: 0.2}}}, source="s.toml")
+    message = (f"s.toml: key 'plant.parameters.{name}': is an input of MusclePlant, which {by} sets every sample, "
+               "not a parameter: remove it")
+    for call in (check_parameters, co_simulate):
+        with pytest.raises(ScenarioError, match=re.escape(message)):
+            call(s, built_fmus)
 
 
 def test_what_the_fmus_warn_of_during_a_run_reaches_the_user(built_fmus, tmp_path, capsys):

@@ -192,15 +192,28 @@ def unpack(path: str | Path) -> Unpacked:
     return _UNPACKED[path]
 
 
-def _settable(unpacked: Unpacked, name: str, where: str) -> Any:
-    """The parameter or input ``name`` of the FMU; ScenarioError (prefixed by ``where``) if it has none,
-    with the closest names it has."""
+#: What sets each input of the closed loop's FMUs every sample, named where a scenario sets one as a parameter.
+_SET_EVERY_SAMPLE = {"u": "the controller's command", "load_force": "the scenario's [load]",
+                     "supply_pressure": "the scenario's [supply]", "l": "the plant's displacement",
+                     "r": "the scenario's [reference]"}
+
+
+def _settable(unpacked: Unpacked, name: str, where: str, *, inputs: bool = False) -> Any:
+    """The parameter (or, with ``inputs``, input) ``name`` of the FMU; ScenarioError (prefixed by
+    ``where``) if it has none, with the closest names it has, or if it names an input, which the
+    master sets every sample (a value set once would be overwritten at the first step, and the run
+    recorded with a setting it never had)."""
     var = unpacked.variables.get(name)
+    model = unpacked.model_description.modelName
+    if var is not None and var.causality == "input" and not inputs:
+        by = _SET_EVERY_SAMPLE.get(name, "the master") if model in ("MusclePlant", "AMPCController") else "the master"
+        there = f" (the value goes in {by})" if by.startswith("the scenario's") else ""
+        raise ScenarioError(f"{where}{name}': is an input of {model}, which {by} sets every sample, not a "
+                            f"parameter: remove it{there}")
     if var is None or var.causality not in ("parameter", "input"):
-        known = sorted(n for n, v in unpacked.variables.items() if v.causality in ("parameter", "input"))
-        close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+        known = sorted(n for n, v in unpacked.variables.items() if v.causality == "parameter")
+        close = [n for n in known if n.lower() == name.lower()] or difflib.get_close_matches(name, known, n=3, cutoff=0.6)
         hint = f"did you mean {' or '.join(repr(c) for c in close)}? " if close else ""
-        model = unpacked.model_description.modelName
         listed = "docs/fmu.md lists all" if model in ("MusclePlant", "AMPCController") else "its modelDescription.xml lists all"
         raise ScenarioError(f"{where}{name}': not a parameter of {model} "
                             f"({hint}known: {', '.join(known[:8])}, ...; {listed})")
@@ -366,7 +379,10 @@ class FmuInstance:
         kind, interface = (FMU2Model, md.modelExchange) if model_exchange else (FMU2Slave, md.coSimulation)
         if interface is None:
             raise ScenarioError(f"{self.unpacked.path}: {md.modelName} has no "
-                                f"{'model-exchange' if model_exchange else 'co-simulation'} interface")
+                                f"{'model-exchange' if model_exchange else 'co-simulation'} interface"
+                                + ("" if model_exchange else " (a model-exchange FMU): scenarios, sweeps and check "
+                                   "step co-simulation FMUs, so export it for co-simulation (tapmuscle diagnose "
+                                   "--plant takes a model-exchange plant)"))
         self.fmu = kind(guid=md.guid, unzipDirectory=self.unpacked.folder,
                         modelIdentifier=interface.modelIdentifier, instanceName=instance_name)
         self.failed_status = 0  # the worst fmi2Status a failed call returned (3: fmi2Error, 4: fmi2Fatal)
@@ -404,11 +420,11 @@ class FmuInstance:
         if isinstance(status, int) and status > self.failed_status:
             self.failed_status = status
 
-    def set_parameters(self, values: Mapping[str, Any], *, where: str) -> None:
-        """Set parameters by FMU variable name; ``where`` (e.g. ``file: key 'plant.parameters.'``)
-        prefixes the name in errors."""
+    def set_parameters(self, values: Mapping[str, Any], *, where: str, inputs: bool = False) -> None:
+        """Set parameters (with ``inputs``, inputs too) by FMU variable name; ``where`` (e.g. ``file: key
+        'plant.parameters.'``) prefixes the name in errors."""
         for name, value in values.items():
-            var = _settable(self.unpacked, name, where)
+            var = _settable(self.unpacked, name, where, inputs=inputs)
             number = _declared_value(var, name, value, where)
             if var.type == "Real":
                 self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [number]))
@@ -579,7 +595,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             low, high = split_seed(scenario.seed)  # FMI Integers are 32-bit: the seed travels as two
             plant.set_parameters({"seed": low, "seed_high": high}, where=f"{src}: key '")
             plant.set_parameters({"load_force": scenario.load.at(0.0), "supply_pressure": scenario.supply.at(0.0)},
-                                 where=f"{src}: key '[load]/[supply] ")
+                                 where=f"{src}: key '[load]/[supply] ", inputs=True)
             if own is not None:  # its own law and parameters; the master feeds it r(k), no preview
                 ctrl_params: dict[str, Any] = {**scenario.controller.parameters, **(controller_parameters or {})}
                 ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")

@@ -72,7 +72,8 @@ def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.nd
             # the FMU's inputs set the load and the supply pressure (its parameters of the same names are unused)
             inputs = {"load_force": float(load_n[0]) if load_n is not None else values.get("load.load_n"),
                       "supply_pressure": values.get("supply.supply_pressure_mpa")}
-            inst.set_parameters({k: float(v) for k, v in inputs.items() if v is not None}, where=f"{path}: input '")
+            inst.set_parameters({k: float(v) for k, v in inputs.items() if v is not None}, where=f"{path}: input '",
+                               inputs=True)
             inst.start()
             fmu = inst.fmu
             vr_u, vr_l, vr_w = inst.vr("u"), inst.vr("l"), inst.vr("load_force")
