@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -81,6 +82,21 @@ CASES = [(_truncated, r"binaries/linux64/MusclePlant.so is truncated: \d+ bytes,
 def test_a_broken_fmu_is_named_without_loading_it(built_fmus, tmp_path, make, pattern):
     bad = make(built_fmus["MusclePlant"], tmp_path / "MusclePlant.fmu")
     with pytest.raises(ScenarioError, match=r"MusclePlant.fmu: is not a loadable FMU: " + pattern):
+        check_fmu_file(bad)
+
+
+@pytest.mark.parametrize("version", ["3.0", "1.0"])
+def test_an_fmu_of_another_fmi_version_is_named_so(built_fmus, tmp_path, version):
+    """An FMI 3.0 (or 1.0) FMU was "not a loadable FMU: it has no binaries/linux64/... for this platform"
+    (3.0 keeps its binaries under another folder name), or fmpy's schema errors."""
+    def edit(name: str, data: bytes) -> bytes:
+        return data.replace(b'fmiVersion="2.0"', f'fmiVersion="{version}"'.encode(), 1) \
+            if name == "modelDescription.xml" else data
+
+    bad = _rewrite(built_fmus["MusclePlant"], tmp_path / "MusclePlant.fmu", edit)
+    with pytest.raises(ScenarioError, match=re.escape(f"MusclePlant.fmu: is an FMI {version} FMU (its "
+                                                      "modelDescription.xml's fmiVersion): tapmuscle's master runs "
+                                                      "FMI 2.0 FMUs; export it as FMI 2.0 co-simulation")):
         check_fmu_file(bad)
 
 

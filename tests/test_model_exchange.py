@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import re
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from fmpy.validation import validate_fmu
 from scipy.integrate import solve_ivp
 
 from tapmuscle.cosim.master import FmuInstance
+from tapmuscle.cosim.spec import ScenarioError
 from tapmuscle.cosim.model_exchange import DEFAULT_RELATIVE_TOLERANCE, ModelExchangeError, ModelExchangeStepper
 from tapmuscle.diagnosis.foreign_demo import ForeignCase, record_foreign_case
 from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
@@ -108,6 +110,14 @@ def test_model_exchange_calls_on_a_co_simulation_instance_are_refused(builds):
     assert status == 3  # fmi2Error
     assert any("fmi2GetDerivatives: this instance was created for co-simulation" in m for m in inst.messages)
     inst.free()
+
+
+def test_a_model_exchange_only_fmu_as_a_co_simulation_instance_is_told_what_to_do(builds):
+    with pytest.raises(ScenarioError, match=re.escape(
+            "has no co-simulation interface (a model-exchange FMU): scenarios, sweeps and check step "
+            "co-simulation FMUs, so export it for co-simulation (tapmuscle diagnose --plant takes a "
+            "model-exchange plant)")):
+        FmuInstance(builds["me"], "cs_test", role="foreign plant")
 
 
 @pytest.mark.slow

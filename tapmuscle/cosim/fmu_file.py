@@ -139,6 +139,11 @@ def check_fmu_file(path: str | Path) -> None:
             names = set(z.namelist())
             if "modelDescription.xml" not in names:
                 raise ScenarioError(f"{where} it has no modelDescription.xml")
+            version = re.search(rb'fmiVersion\s*=\s*["\']([^"\']*)["\']', z.read("modelDescription.xml"))
+            if version is not None and not version.group(1).startswith(b"2."):
+                shown = version.group(1).decode("utf-8", "replace")[:20]
+                raise ScenarioError(f"{path}: is an FMI {shown} FMU (its modelDescription.xml's fmiVersion): "
+                                    "tapmuscle's master runs FMI 2.0 FMUs; export it as FMI 2.0 co-simulation")
             from fmpy import read_model_description
 
             try:
