@@ -95,9 +95,11 @@ def eq21_error_mm(r_mm: np.ndarray | Mapping[str, np.ndarray], l_mm: np.ndarray 
     if not 0 <= k0 <= k1:
         raise ValueError(f"window must be (k0, k1) with 0 <= k0 <= k1, got {tuple(window)}")
     if len(r) <= k1:
+        shorter = (f"; or the window this run has, window=({k0}, {len(r) - 1}) (what a scenario's default "
+                   "window is cut to)" if k0 < len(r) - 1 else "")
         raise ValueError(f"Eq. (21) needs samples k = 0..{k1} ({k1 + 1} samples), the run has {len(r)}"
                          + ("; a run at another period than 0.1 s: give ts_s, or the run itself "
-                            "(eq21_error_mm(run))" if window is None and ts_s is None else ""))
+                            "(eq21_error_mm(run))" if window is None and ts_s is None else "") + shorter)
     for name, x in (("r_mm", r), ("l_mm", l)):
         bad = np.flatnonzero(~np.isfinite(x[k0:k1 + 1]))
         if bad.size:

@@ -37,6 +37,10 @@ def test_too_short_a_run_is_refused_naming_the_window():
         command_tv_excess(np.zeros(300), 0.1)
     with pytest.raises(ValueError, match="Eq. \\(21\\)"):
         eq21_error_mm(np.zeros(300), np.zeros(300))
+    # a 40.0-s run: the window it has is offered, the one a scenario's default is cut to
+    with pytest.raises(ValueError, match=r"the run has 401; .*window=\(101, 400\)"):
+        eq21_error_mm(np.zeros(401), np.zeros(401))
+    assert eq21_error_mm(np.zeros(401), np.ones(401), (101, 400)) == 1.0
 
 
 def test_eq21_refuses_shapes_and_windows_that_gave_a_wrong_number():

@@ -24,6 +24,13 @@ def test_the_wrong_file_where_a_plant_file_is_expected_is_named(tmp_path):
     with pytest.raises(PlantFileError, match=r"--params .*diagnosis\.json: a diagnosis report, not a plant parameter "
                                              r"file \(the calibrated plant is .*diag/calibrated_plant\.json\)"):
         read_plant_file(report, "--params")
+    # what diagnose --plant writes for a plant FMU of one's own (its keys as in foreign_diagnose)
+    foreign = tmp_path / "calibrated_parameters.json"
+    foreign.write_text(json.dumps({"fmu": "MyMuscle.fmu", "recording": "rig.csv", "parameters": {"K": 13.9},
+                                   "boundary_effects": {}, "note": "set 'parameters' on the FMU"}))
+    with pytest.raises(PlantFileError, match=r"calibrated_parameters\.json: the calibration of a plant FMU of one's "
+                                             r"own \(MyMuscle\.fmu\), not a MusclePlant parameter file"):
+        read_plant_file(foreign, "--params")
     with pytest.raises(PlantSourceError, match=r"--plant .*diag: a folder, not a MusclePlant \.fmu or a plant \.json"):
         load_plant(report.parent)
     with pytest.raises(PlantSourceError, match="no such file"):

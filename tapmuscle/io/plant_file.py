@@ -58,6 +58,12 @@ def read_plant_file(path: str | os.PathLike, option: str | None = None) -> Plant
         diagnosed = f"; the plant it diagnosed is {data['plant']}" if isinstance(data.get("plant"), str) else ""
         raise PlantFileError(f"{where}: a diagnosis report, not a plant parameter file (the calibrated plant "
                              f"is {Path(path).with_name('calibrated_plant.json')}{diagnosed})")
+    if isinstance(data, dict) and isinstance(data.get("fmu"), str) and isinstance(data.get("parameters"), dict) \
+            and not isinstance(data.get("plant"), dict):
+        # what diagnose writes for a plant FMU of one's own: that FMU's parameters, not MusclePlant's
+        raise PlantFileError(f"{where}: the calibration of a plant FMU of one's own ({data['fmu']}), not a "
+                             "MusclePlant parameter file: set its 'parameters' on that FMU where you run it (its "
+                             "'note' says how)")
     try:
         params = PlantParams.from_dict(data.get("plant", data) if isinstance(data, dict) else data)
     except ValueError as exc:
