@@ -234,9 +234,10 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
                                progress=reporter(progress, "simulate_closed_loop"), watch=watch,
                                preview_samples=preview_samples)
     if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
-                         "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
-                         "f(l_mm, preview_mm)")
+        kind = ValueError if isinstance(method, str) else TypeError  # a value of the wrong kind (python-api.md)
+        raise kind(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
+                   "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
+                   "f(l_mm, preview_mm)")
     if ts_s is None:
         ts_s = (settings.ts_s if isinstance(settings, ControllerSettings)
                 else theta0.ts_s if isinstance(theta0, IdentifiedModel) else PAPER_TS_S)

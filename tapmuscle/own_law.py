@@ -270,8 +270,8 @@ class ValveWatch:
                                            HELD_WARN_S, self.ts_s)
             if sat_s is not None:
                 said.append(held_message(t_s, lo if r_mm > l_mm else hi, sat_s, r_mm, l_mm,
-                                         "the law acts with the wrong sign (on this rig more command contracts the "
-                                         "muscle further: l grows with u)"))
+                                         "the law acts with the wrong sign, or not on the error at all (on this "
+                                         "rig more command contracts the muscle further: l grows with u)"))
         if self._jump_ks is not None and k > 0 and full_range_jump(u_v, u_prev_v, lo, hi):
             self._jump_ks = [j for j in self._jump_ks if j > k - self._window] + [k]
             if len(self._jump_ks) >= SLAM_JUMPS:

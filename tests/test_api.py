@@ -265,6 +265,8 @@ def _RANDOM_RUN():
      r"client must be a running distributed.Client, got 'tcp://127.0.0.1:1' \(for a scheduler's address"),
     (lambda: tm.sweep(SWEEP_FILE, SWEEP_FILE), ValueError, r"out must be a folder to write into, .* \(an existing file\)"),
     (lambda: tm.sweep(123, "o"), TypeError, r"sweep must be a sweep file's path or a Sweep, got a int"),
+    (lambda: tm.simulate_closed_loop(42, None, duration_s=1.0), TypeError, r"unknown method 42; expected one of"),
+    (lambda: tm.simulate_closed_loop("ampc", None, duration_s=1.0), ValueError, r"unknown method 'ampc'; expected"),
     (lambda: tm.simulate("const:value=5", duration_s=2.0, load_n="68"), TypeError, r"load_n must be a number of newtons"),
     (lambda: tm.identify(np.ones(50), np.ones(50), ts_s="0.1"), TypeError, r"ts_s must be a number of seconds, got str"),
     # a plant file is read by its reader, as a recording or an identification is

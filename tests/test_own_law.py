@@ -216,7 +216,7 @@ def test_the_paper_controllers_refuse_a_preview_or_another_period():
 def test_a_law_takes_no_theta0_or_settings_and_an_object_without_step_is_refused():
     with pytest.raises(ValueError, match="takes neither"):
         tm.simulate_closed_loop(PI(), None, theta0=tm.THETA0_44N)
-    with pytest.raises(ValueError, match="or a law of your own with a step"):
+    with pytest.raises(TypeError, match="or a law of your own with a step"):  # as run_closed_loop's
         tm.simulate_closed_loop(object(), None)
     with pytest.raises(TypeError, match="or a law of your own: an object with a step"):
         tm.run_closed_loop(tm.Plant(), object(), None, duration_s=1.0)
