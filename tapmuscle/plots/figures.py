@@ -60,17 +60,24 @@ _GLYPH = re.compile(r"Glyph (\d+) .*missing from (?:current )?font")
 
 
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:
-    """Save ``fig`` as PNG to ``path`` atomically; a figure that pyplot made is closed there too.
+    """Save ``fig`` to ``path`` atomically, in the format its suffix names (``.pdf``, ``.svg``, ...;
+    PNG for ``.png`` or no suffix; ``ValueError`` for one matplotlib does not write); a figure that
+    pyplot made is closed there too.
 
     Characters of its text that the font lacks (a scenario named in Chinese or Japanese, with no CJK
     font installed) are said once, as one :class:`MissingGlyphWarning` naming them, instead of
     matplotlib's warning per character and drawing pass."""
     path = Path(path)
     try:
+        fmt = path.suffix[1:].lower() or "png"
+        supported = fig.canvas.get_supported_filetypes()
+        if fmt not in supported:
+            raise ValueError(f"{path}: matplotlib writes no {path.suffix!r} figure; give a path ending in "
+                             f"{', '.join('.' + f for f in sorted(supported))}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            with atomic_path(path, suffix=".png") as tmp:
-                fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
+            with atomic_path(path, suffix=f".{fmt}") as tmp:
+                fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=fmt)
         missing = []
         for w in caught:
             glyph = _GLYPH.match(str(w.message))
@@ -310,7 +317,8 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
         Label (a method's name takes its colour) -> a run with ``t_s``, ``r_mm``, ``l_mm``, ``u_v``;
         runs may differ in length and period. The first run's reference is drawn.
     path : path
-        The PNG to write (atomically).
+        The figure to write (atomically), in the format its suffix names (:func:`save_figure`: PNG,
+        PDF, SVG, ...).
     title : str
         The figure's title.
     window_s : (float, float), optional
