@@ -307,7 +307,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                     result = controller.step(meas.l_mm, preview)
                 except Exception as exc:
                     exc.add_note(f"in the law's step at sample k = {k} (t = {t:g} s, l = {meas.l_mm:g} mm, "
-                                 f"r = {float(preview[0]):g} mm)")
+                                 f"r = {float(preview[0]):g} mm; preview_mm of {len(preview)} samples, "
+                                 f"r(k..k+{hp}): preview_samples = {hp})")
                     raise
                 u = law_command(result, k, t, meas.l_mm, float(preview[0]))
                 if valve_watch is not None:

@@ -161,17 +161,25 @@ def law_preview_samples(law: Any, preview_samples: int | None) -> int:
 def reset_law(law: Any, l_mm: float) -> None:
     """Call the law's ``reset`` before a run, with the plant's reading [mm] if it takes an argument."""
     reset = getattr(law, "reset", None)
-    if not callable(reset):
+    if reset is None:
         return
+    if not callable(reset):
+        raise TypeError(f"the law's reset is {reset!r}, not a method: define reset(self, l_mm) or reset(self), "
+                        "or leave it out")
     try:
         takes_reading = any(p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
                             for p in inspect.signature(reset).parameters.values())
     except (TypeError, ValueError):  # a builtin without a signature: given the reading
         takes_reading = True
-    if takes_reading:
-        reset(l_mm)
-    else:
-        reset()
+    try:
+        if takes_reading:
+            reset(l_mm)
+        else:
+            reset()
+    except Exception as exc:
+        given = f"the reading {l_mm:g} mm" if takes_reading else "nothing"
+        exc.add_note(f"in the law's reset before the run (given {given})")
+        raise
 
 
 def law_command(result: Any, k: int, t_s: float, l_mm: float = math.nan, r_mm: float = math.nan) -> float:

@@ -330,6 +330,29 @@ def test_a_reset_with_keyword_options_only_is_called_without_the_reading():
     assert len(law.resets) == 1
 
 
+def test_a_reset_that_fails_or_is_no_method_and_a_preview_too_short_are_named():
+    """A reset raising a TypeError (two arguments) said nothing of reset; a reset that is no method was
+    skipped without a word; an IndexError into the preview did not say how long the preview was."""
+    class TwoArgs(PI):
+        def reset(self, a, b) -> None:  # type: ignore[override]
+            pass
+
+    with pytest.raises(TypeError) as err:
+        tm.simulate_closed_loop(TwoArgs(), None, duration_s=1.0)
+    assert err.value.__notes__ == ["in the law's reset before the run (given the reading 0 mm)"]
+    law = PI()
+    law.reset = 5
+    with pytest.raises(TypeError, match="the law's reset is 5, not a method: define reset"):
+        tm.simulate_closed_loop(law, None, duration_s=1.0)
+
+    def far_ahead(l_mm, preview_mm):
+        return 5.0 + 0.01 * (preview_mm[3] - l_mm)
+
+    with pytest.raises(IndexError) as err:
+        tm.simulate_closed_loop(far_ahead, None, duration_s=1.0, preview_samples=2)
+    assert err.value.__notes__[0].endswith("preview_mm of 3 samples, r(k..k+2): preview_samples = 2)")
+
+
 @pytest.mark.parametrize("args", [(0.0, 0.0, 10.0), (math.nan, 0.0, 10.0), (0.1, 10.0, 0.0), (0.1, 0.0, math.inf)])
 def test_the_valve_watch_refuses_a_period_or_range_that_is_none(args):
     with pytest.raises(ValueError, match="ts_s must be|the valve's range"):
