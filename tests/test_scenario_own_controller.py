@@ -185,6 +185,17 @@ def test_what_it_warns_of_from_its_instantiation_on_reaches_the_user(built_fmus,
     assert "warning: controller FMU: late: a warning (11 times)" in err and err.count("late: a warning") == 1
 
 
+def test_an_error_it_logs_while_its_step_succeeds_is_passed_on_as_an_error(built_fmus, tmp_path):
+    """Its message at error level, with the step's status OK: passed on with the run's warnings, said
+    to be an error (it read as a warning)."""
+    fmu = build_pi_variant(tmp_path, "logging_pi", from_s=2.0 - 1e-9,
+                           do='self.log("sensor out of range", status=Fmi2Status.error)')
+    said: list[str] = []
+    cols = co_simulate(_scenario(fmu, load_steps=()), built_fmus, fmu_warnings=said, record="minimal")
+    assert len(cols["u_v"]) == 301
+    assert said == ["controller FMU: sensor out of range (logged as an error; its call did not fail)"] * 281
+
+
 _RAISING_RUNS = """
 import gc, sys
 from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario

@@ -621,7 +621,9 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             for inst, n0 in zip((plant, ctrl), logged):
                 for m in inst.messages[n0:]:
                     if m.startswith(("[WARNING]", "[ERROR]")):
-                        text = f"{inst.role} FMU: {_reason(m)}"
+                        # an error the FMU logged while its call still returned OK or Warning: said as one
+                        level = " (logged as an error; its call did not fail)" if m.startswith("[ERROR]") else ""
+                        text = f"{inst.role} FMU: {_reason(m)}{level}"
                         if fmu_warnings is None:
                             warn_at_caller(FmuLogWarning(text), FmuLogWarning)
                         else:
