@@ -112,6 +112,20 @@ def test_regime_ranges_read_as_numbers():
                                                                  "high (38-60 mm)"]
 
 
+def test_a_pressure_column_in_another_unit_is_not_labelled_mpa():
+    """A supply logged in kPa (250 where 0.25 MPa) read "high (254.1-300.000 MPa)"; recording_checks
+    notes the unit, the regimes keep the numbers as logged."""
+    from tapmuscle.diagnosis.residual_analysis import regime_summary
+
+    t = np.arange(600) * 0.1
+    l_mm = 20.0 + 10.0 * np.sin(0.5 * t)
+    for scale, unit in ((1.0, "MPa"), (1000.0, "as logged, not MPa")):
+        p = scale * (0.2 + 0.1 * np.sin(0.3 * t))
+        names = list(regime_summary(np.ones(600), l_mm, 0.1, p)[1]["pressure"])
+        assert all(name.endswith(f" {unit})") for name in names), names
+    assert names[2] == "high (254.1-300 as logged, not MPa)"
+
+
 def test_mean_test_is_the_one_sample_t_test():
     """Two-sided, as its docstring says: scipy's one-sample t test."""
     from tapmuscle.diagnosis.residual_analysis import mean_test

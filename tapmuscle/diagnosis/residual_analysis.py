@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from tapmuscle.diagnosis.recording_checks import PRESSURE_PLAUSIBLE_MPA
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, norm, sse
 
 __all__ = ["STRUCTURE_ALPHA", "STRUCTURE_MATERIALITY",
@@ -327,7 +328,11 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
     axes["speed"] = terciles(np.abs(v), f"{unit or '1'}/s", "{:.1f}" if output is None else "{:.3g}")
     axes["displacement"] = terciles(np.asarray(l_mm, float), unit or "-", "{:.0f}" if output is None else "{:.3g}")
     if p_mpa is not None:
-        axes["pressure"] = terciles(np.asarray(p_mpa, float), "MPa", "{:.3f}")
+        p = np.asarray(p_mpa, float)
+        # a column far above any tap's pressure is in another unit (recording_checks notes it): its
+        # terciles are labelled as logged, not in MPa
+        in_mpa = float(np.max(p)) <= PRESSURE_PLAUSIBLE_MPA
+        axes["pressure"] = terciles(p, "MPa" if in_mpa else "as logged, not MPa", "{:.3f}" if in_mpa else "{:.4g}")
     table: dict = {}
     notes = []
     for axis, regimes in axes.items():
