@@ -2,10 +2,8 @@
 
 The runs: the four controllers x 16 Monte-Carlo operating points (load U(30, 90) N, supply
 U(0.20, 0.30) MPa, own noise seed), 45 s of the 0.1 Hz sine each, through the FMUs, as
-``tapmuscle sweep`` runs them (:class:`tapmuscle.cosim.distributed_sweep.DaskExecutor`, one task per run,
-one run per worker at a time, the next submitted as one finishes), and on 2 workers also every run
-submitted at once (what a client of one's own gets: ``tm.sweep(client=...)``, ``--scheduler``).
-Timed: from submitting the 64 tasks to the last result (best of ``--repeat``, the set-ups
+``tapmuscle sweep`` runs them (:class:`tapmuscle.cosim.distributed_sweep.DaskExecutor`, one task per run).
+Timed: from submitting the 64 tasks to the last result (best of ``--repeat``, the three set-ups
 interleaved, a new cluster each time); the cluster's start and a warm-up run of each controller method
 on every worker (imports, FMU extraction) are not timed. Also the same runs in this process, without Dask. Goal: speed-up
 2 workers / 1 worker >= 1.8 on the 2-core development machine.
@@ -53,11 +51,11 @@ def _warm_up(client, tasks, files) -> None:
                    for worker in client.scheduler_info()["workers"] for task in first.values()])
 
 
-def _on_cluster(workers: int, tasks, files, one_run_per_thread: bool = True) -> tuple[float, int]:
+def _on_cluster(workers: int, tasks, files) -> tuple[float, int]:
     """One timed sweep on a fresh local cluster of ``workers`` (started and warmed up untimed)."""
     with dask_client(workers) as client:  # the local cluster of `tapmuscle sweep --workers N`
         _warm_up(client, tasks, files)
-        return _timed(DaskExecutor(client, one_run_per_thread=one_run_per_thread), tasks, files)
+        return _timed(DaskExecutor(client, one_run_per_thread=True), tasks, files)  # as the command's
 
 
 def _report(label: str, best: float, n: int, ok: int | None = None) -> None:
@@ -78,19 +76,16 @@ def main() -> None:
     # set-up ran in a quiet spell.
     rounds = []
     for i in range(args.repeat):
-        rounds.append((_timed(run_serial, tasks, files), _on_cluster(1, tasks, files), _on_cluster(2, tasks, files),
-                       _on_cluster(2, tasks, files, one_run_per_thread=False)))
+        rounds.append((_timed(run_serial, tasks, files), _on_cluster(1, tasks, files), _on_cluster(2, tasks, files)))
         print(f"  round {i + 1}: in-process {rounds[-1][0][0]:.2f} s, 1 worker {rounds[-1][1][0]:.2f} s, "
-              f"2 workers {rounds[-1][2][0]:.2f} s (all at once {rounds[-1][3][0]:.2f} s)", flush=True)
-    serial, one, two, at_once = (min(r[i] for r in rounds) for i in range(4))
+              f"2 workers {rounds[-1][2][0]:.2f} s", flush=True)
+    serial, one, two = (min(r[i] for r in rounds) for i in range(3))
     _report("in-process", serial[0], len(tasks))
     _report("1 worker", one[0], len(tasks), one[1])
     _report("2 workers", two[0], len(tasks), two[1])
-    _report("all at once", at_once[0], len(tasks), at_once[1])
     per_round = ", ".join(f"{r[1][0] / r[2][0]:.2f}" for r in rounds)
     print(f"speed-up 2 workers / 1 worker: {one[0] / two[0]:.2f}x (goal >= 1.8; per round {per_round}); "
-          f"2 workers / in-process: {serial[0] / two[0]:.2f}x; all submitted at once / one per worker: "
-          f"{at_once[0] / two[0]:.2f}")
+          f"2 workers / in-process: {serial[0] / two[0]:.2f}x")
 
 
 if __name__ == "__main__":
