@@ -110,6 +110,31 @@ def test_a_staged_folder_appears_whole_or_not_at_all(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging folder left
 
 
+def test_a_ctrl_c_in_the_staging_folders_removal_leaves_no_folder(tmp_path, monkeypatch):
+    """A Ctrl-C held down: the first interrupt stops the run, the next lands in the removal of the
+    staging folder (here sent from inside it), which is finished; the first is what the caller gets."""
+    import shutil
+    import signal
+
+    from tapmuscle.io import atomic
+
+    real = shutil.rmtree
+
+    def interrupted(path, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # Python runs the handler before the next line
+        real(path, *args, **kwargs)
+
+    monkeypatch.setattr(atomic.shutil, "rmtree", interrupted)
+    out = tmp_path / "out"
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        with staged_folder(out, owned=("*.json",)) as tmp:
+            (tmp / "a.json").write_text("1")
+            raise KeyboardInterrupt("the run's")
+    assert str(stopped.value) == "the run's" and list(tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGINT) is handler
+
+
 def test_a_staged_folder_removes_what_the_earlier_run_owned_and_keeps_the_rest(tmp_path):
     out = tmp_path / "out"
     _run_into(out, {"a.json": "1", "b.png": "x", "exp_2.csv": "e"}, owned=("*.json", "*.png", "exp*.csv"))
