@@ -122,3 +122,23 @@ def test_an_interrupt_while_the_command_line_is_read_is_said_in_one_line(monkeyp
     assert cli.main(["record", "--input", "const:value=5", "--duration", "2", "--out", "never.csv"]) == 130
     err = capsys.readouterr().err
     assert err.strip() == "tapmuscle: interrupted before anything ran; nothing is written"
+
+
+def test_a_simulating_command_says_when_the_compiled_sub_step_is_missing(monkeypatch, tmp_path, capsys):
+    """Installed where no C compiler was, the commands ran several times slower without a word
+    (tapmuscle --version was the only place that said so)."""
+    import fmu_plant.rosenbrock as rosenbrock
+
+    args = ["record", "--input", "const:value=5", "--duration", "1", "--out", str(tmp_path / "r.csv")]
+    monkeypatch.delenv("TAPMUSCLE_PURE_PYTHON", raising=False)
+    monkeypatch.setattr(rosenbrock, "COMPILED", False)
+    monkeypatch.setattr(rosenbrock, "COMPILED_FOR_ANOTHER_PYTHON", None)
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert err.count("note: the plant's compiled integrator sub-step is not installed (no C compiler") == 1
+    assert "a plant step about 8 times slower" in err
+    for quiet, compiled, pure in ((True, False, "0"), (False, True, "0"), (False, False, "1")):
+        monkeypatch.setattr(rosenbrock, "COMPILED", compiled)
+        monkeypatch.setenv("TAPMUSCLE_PURE_PYTHON", pure)
+        assert main(args + (["--quiet"] if quiet else [])) == 0
+        assert "compiled integrator sub-step" not in capsys.readouterr().err

@@ -603,6 +603,26 @@ def _ending_on_interrupt(process: bool) -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+#: Commands whose time is mostly the plant's integration, in this process or in the FMUs they build.
+_SIMULATING = frozenset({"diagnose", "demo-mismatch", "record", "paper", "run", "build", "sweep", "check"})
+
+
+def _note_python_substep(command: str, quiet: bool) -> None:
+    """Say on stderr, before a simulating ``command``, that the plant's compiled sub-step is missing
+    (installed where no C compiler was): the results are the same, the time is not, and nothing
+    else tells (unless ``TAPMUSCLE_PURE_PYTHON=1`` asked for the Python sub-step)."""
+    from fmu_plant.rosenbrock import COMPILED, COMPILED_FOR_ANOTHER_PYTHON
+
+    if quiet or command not in _SIMULATING or COMPILED or os.environ.get("TAPMUSCLE_PURE_PYTHON") == "1":
+        return
+    why = (f"{COMPILED_FOR_ANOTHER_PYTHON} is another Python's" if COMPILED_FOR_ANOTHER_PYTHON else
+           "no C compiler was found when tapmuscle was installed")
+    print(f"tapmuscle {command}: note: the plant's compiled integrator sub-step is not installed ({why}): its "
+          "Python sub-step gives the same results, a plant step about 8 times slower and a diagnosis's "
+          "re-simulation 20-26 times (docs/plant.md, \"The compiled sub-step\"); install gcc and reinstall "
+          "tapmuscle to have it", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tapmuscle`` console script."""
     process = argv is None  # the console script: the process ends with the command
@@ -616,6 +636,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     args.argv = argv
     try:
+        _note_python_substep(args.command, bool(getattr(args, "quiet", False)))
         with warnings.catch_warnings():  # restores Python's own display for an in-process caller
             warnings.showwarning = _one_line_warning
             code = int(args.func(args) or 0)
