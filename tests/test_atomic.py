@@ -258,3 +258,11 @@ def test_an_output_folder_that_cannot_be_written_is_named_before_the_work(unwrit
     with pytest.raises(PermissionError, match="locked/out: the outputs cannot be written there"):
         report.diagnose_files("rec.csv", "plant.json", unwritable_folder / "out")
     assert [p.name for p in unwritable_folder.iterdir()] == ["out"] and not any((unwritable_folder / "out").iterdir())
+
+
+def test_a_name_the_file_system_encoding_could_not_decode_is_written_as_its_bytes(tmp_path):
+    """Under an ASCII locale with PYTHONUTF8=0 a folder "rig ü" reads as "rig \\udcc3\\udcbc": a
+    recording's header naming it failed with "surrogates not allowed" after the whole run."""
+    name = b"rig \xc3\xbc".decode("ascii", "surrogateescape")
+    atomic_write_text(tmp_path / "r.csv", f"# source: {name}/s.toml\n")
+    assert (tmp_path / "r.csv").read_bytes() == "# source: rig ü/s.toml\n".encode()

@@ -100,6 +100,25 @@ def test_an_fmu_of_another_fmi_version_is_named_so(built_fmus, tmp_path, version
         check_fmu_file(bad)
 
 
+def test_a_path_the_file_system_encoding_cannot_carry_is_not_called_a_broken_fmu(built_fmus, tmp_path, monkeypatch):
+    """lxml names the model description by the working folder's path: under an ASCII locale with
+    PYTHONUTF8=0 a folder "rig ü" failed as "is not a loadable FMU: 'utf-8' codec can't encode ..."."""
+    import fmpy
+
+    def unreadable(*args, **kwargs):
+        raise UnicodeEncodeError("utf-8", "/tmp/rig \udcc3\udcbc", 9, 11, "surrogates not allowed")
+
+    monkeypatch.setattr(fmpy, "read_model_description", unreadable)
+    copy = tmp_path / "MusclePlant.fmu"
+    copy.write_bytes(built_fmus["MusclePlant"].read_bytes())
+    with zipfile.ZipFile(copy, "a") as z:
+        z.writestr("documentation/note.txt", "another digest: not one this process has checked")
+    with pytest.raises(ScenarioError, match=r"MusclePlant.fmu: its modelDescription.xml cannot be read here: .* "
+                                            r"file-system encoding, .*: run in a UTF-8 locale") as err:
+        check_fmu_file(copy)
+    assert "not a loadable FMU" not in str(err.value)
+
+
 def test_the_good_fmus_pass(built_fmus):
     for path in built_fmus.values():
         check_fmu_file(path)

@@ -20,6 +20,7 @@ rest of the process, so a sweep of many runs checks each FMU once.
 from __future__ import annotations
 
 import hashlib
+import os
 import platform
 import re
 import signal
@@ -148,7 +149,13 @@ def check_fmu_file(path: str | Path) -> None:
 
             try:
                 md = read_model_description(str(path))
-            except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU
+            except UnicodeEncodeError as exc:  # lxml names the member by the working folder's path
+                raise ScenarioError(
+                    f"{path}: its modelDescription.xml cannot be read here: {exc} (a path, the working folder "
+                    f"{os.getcwd()!r} or the file's, is not valid in this process's file-system encoding, "
+                    f"{sys.getfilesystemencoding()}): run in a UTF-8 locale (LC_ALL=C.UTF-8, or without "
+                    "PYTHONUTF8=0), or from a folder with an ASCII name") from None
+            except Exception as exc:  # noqa: BLE001 - any other reader failure is a bad FMU
                 raise ScenarioError(f"{where} {_reader_failure(exc)}") from None
             interface = md.coSimulation or md.modelExchange
             if interface is None:

@@ -317,9 +317,12 @@ def _read_columns(path: str | os.PathLike, required: tuple[str, ...], time_colum
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` atomically with the user's umask (:func:`tapmuscle.io.atomic.atomic_path`)."""
+    """Write ``text`` to ``path`` atomically with the user's umask (:func:`tapmuscle.io.atomic.atomic_path`).
+
+    UTF-8; a file name that the file-system encoding could not decode (a non-ASCII folder under an
+    ASCII locale with ``PYTHONUTF8=0``) is written as its original bytes, not refused."""
     with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+        with open(tmp, "w", encoding="utf-8", errors="surrogateescape", newline="") as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
