@@ -235,6 +235,25 @@ def test_demo_cases_are_seeded_and_cover_both_fmus():
 
 
 @pytest.mark.slow
+def test_the_recordings_units_name_what_the_fmu_leaves_without_one(fmus):
+    """An FMU that declares no units (a hand-written pythonfmu plant): the candidates' parameters took
+    "(unit)" although the signal map gave the recording's units."""
+    from dataclasses import replace
+
+    from tapmuscle.diagnosis.boundary_candidates import boundary_candidates
+
+    iface = read_interface(fmus["DcMotor"])
+    bare = replace(iface, inputs=tuple(replace(v, unit=None) for v in iface.inputs),
+                   outputs=tuple(replace(v, unit=None) for v in iface.outputs))
+    t = np.arange(100) * 0.05
+    sim = ForeignSimulator(bare, t, 0.05, {"V": np.ones(100)}, "omega", {"V": (0.0, 2.0)}, units={"V": "V", "omega": "rad/s"})
+    specs = {spec.key: spec.unit for c in boundary_candidates(sim) for spec in c.parameters}
+    assert specs["V:backlash"] == "V" and specs["omega:offset"] == "rad/s" and specs["omega:drift_per_min"] == "rad/s/min"
+    assert "(unit)" not in specs.values()
+    sim = replace(sim, units={})
+    assert {spec.unit for c in boundary_candidates(sim) for spec in c.parameters} >= {"(unit)"}
+
+
 def test_every_mapped_output_diagnosed_with_a_summary(fmus, tmp_path):
     """Speed and current both measured, a delay on the voltage: an input effect, so it is named on
     both outputs, and the summary says so; a bad --output names the mapped ones."""

@@ -322,7 +322,7 @@ def boundary_candidates(sim: ForeignSimulator) -> list[Candidate]:
     out: list[Candidate] = []
     iface = sim.interface
     for v in iface.inputs:
-        unit = v.unit or "(unit)"
+        unit = v.unit or sim.units.get(v.name) or "(unit)"  # the FMU's, else the recording's
         if v.name in sim.inputs:
             lo, hi = sim.input_ranges[v.name]
             out += [
@@ -354,7 +354,7 @@ def boundary_candidates(sim: ForeignSimulator) -> list[Candidate]:
                 partial(_fit_secondary, var=v.name), partial(_explain_secondary, var=v.name, unit=unit),
                 edges=partial(_secondary_edges, var=v.name)))
     y = sim.output
-    unit = iface.variable(y).unit or "(unit)"
+    unit = iface.variable(y).unit or sim.units.get(y) or "(unit)"
     out += [
         Candidate(f"output_drift[{y}]", f"The sensor of {y} is offset and drifts: the reading is the value plus a "
                   "slowly changing offset, whatever the plant does.",

@@ -103,7 +103,8 @@ class ForeignSetup:
             ranges[s.variable] = (lo, hi)
         self.map, self.interface, self.output = smap, iface, out_sig
         self.t, self.u, self.y, self.ts = t, u, y, ts
-        self.sim = ForeignSimulator(iface, t, ts, inputs, out_sig.variable, ranges, dict(smap.parameters))
+        units = {sig.variable: sig.unit for sig in (*smap.inputs, *smap.outputs) if sig.unit}
+        self.sim = ForeignSimulator(iface, t, ts, inputs, out_sig.variable, ranges, dict(smap.parameters), units)
         self.space = BoundarySpace(self.sim)
         self.nominal = nominal_values(self.sim, self.space)
         self.candidates = boundary_candidates(self.sim)

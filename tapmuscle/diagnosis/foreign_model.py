@@ -163,6 +163,9 @@ class ForeignSimulator:
         Each recorded input's range, the domain of its input map.
     fixed : dict of str to float
         Parameters set on every run but not part of the parameter sets (the map's fixed values).
+    units : dict of str to str
+        The recording's unit of each mapped variable (the signal map's), for the report's words where
+        the FMU declares none.
     """
 
     interface: FmuInterface
@@ -172,6 +175,7 @@ class ForeignSimulator:
     output: str
     input_ranges: dict[str, tuple[float, float]]
     fixed: dict[str, float] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
     runs: int = 0
     executor: Any = field(default=None, repr=False, compare=False)
     _instance: FmuInstance | None = field(default=None, repr=False, compare=False)
