@@ -457,9 +457,9 @@ class FmuInstance:
         """End the instance as FMI 2.0 (2.1.3, 4.2.4) allows after its last status: fmi2Terminate and
         fmi2FreeInstance; after an fmi2Error only fmi2FreeInstance; after an fmi2Fatal nothing at all,
         the instance (a few kB) is kept unfreed for the process's life. A pythonfmu export has
-        released its slave's Python objects when it returns fmi2Fatal for an exception in the slave,
-        and a later fmi2Terminate or fmi2FreeInstance released them again: the host's next garbage
-        collection crashed the process."""
+        released its slave's Python objects when it returns fmi2Fatal for an exception in the slave;
+        a later fmi2Terminate or fmi2FreeInstance releases them again, and the host's next garbage
+        collection crashes the process."""
         if self.failed_status >= 4:
             _ABANDONED.append(self)
             return

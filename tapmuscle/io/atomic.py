@@ -214,8 +214,8 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
 
 def _remove_uninterrupted(folder: Path) -> None:
     """Remove the staging ``folder``, with Ctrl-C ignored meanwhile in the main thread: a Ctrl-C held
-    down also lands in this clean-up, and interrupted it left the hidden folder next to the output
-    (1 in 8 runs). An interrupt that stopped the run is raised after it, as before."""
+    down also lands in this clean-up, and an interrupted removal leaves the hidden folder next to the
+    output. An interrupt that stopped the run is raised after it."""
     if threading.current_thread() is not threading.main_thread():
         shutil.rmtree(folder, ignore_errors=True)
         return
