@@ -25,6 +25,7 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, FASTE
                                                  ControlStep, DisplacementController, full_range_jump, held_against_cause,
                                                  held_against_error, limit_side, pinned_side, stuck_reading_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
+from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.prediction import N_INITIAL, RUNAWAY_RANGE_MM, held_command_runaway
 from fmu_controller.preliminary_model import REFINE_IN_CLOSED_LOOP, THETA0_44N
 from fmu_controller.servo_settings import TABLE5_SERVO, ServoMPCSettings
@@ -364,8 +365,22 @@ class LoopWatch:
         s = self.controller.settings
         if any(n in s.box_lower or n in s.box_upper for n in ("a1", "a2", "b1")):
             return ""
-        return ("; the estimate has no box C to hold it: at Ts = 0.1 s keep Table 2's (AMPC-servo tracked with it on rigs "
-                "of 150-600 mm, 0.15-0.4 MPa, 20-100 N; docs/control.md, \"A theta0 for another rig\")")
+        if abs(s.ts_s - PAPER_TS_S) <= 1e-3 * PAPER_TS_S:
+            return ("; the estimate has no box C to hold it: at Ts = 0.1 s keep Table 2's (AMPC-servo tracked with it on "
+                    "rigs of 150-600 mm, 0.15-0.4 MPa, 20-100 N; docs/control.md, \"A theta0 for another rig\")")
+        return (f"; the estimate has no box C to hold it: Table 2's holds at Ts = 0.1 s only; at Ts = {s.ts_s:g} s give "
+                "one of your rig's spread (docs/identification.md, \"A box at another sampling period\")")
+
+    def _short_horizon(self) -> str:
+        """What to say of a servo law whose horizon spans less time than Table 5's 5 samples at Ts = 0.1 s:
+        on a rig whose valve lags besides its delay, the paper's seconds tracked where 5 samples swung."""
+        s = self.controller.settings
+        paper_s = TABLE5_SERVO["hp"] * PAPER_TS_S
+        if not s.servo_mechanism or s.servo.hp * s.ts_s >= paper_s * (1.0 - 1e-9):
+            return ""
+        return (f"; or the servo horizon is short: servo.Hp = {s.servo.hp} samples spans {s.servo.hp * s.ts_s:g} s "
+                f"here, Table 5's spans {paper_s:g} s at Ts = {PAPER_TS_S:g} s (servo.Hp = {round(paper_s / s.ts_s)} "
+                "keeps its seconds; docs/control.md, \"A short Ts\")")
 
     def _check_theta0(self, said: list[str], t_s: float) -> None:
         """Tell at the first sample when ``theta0``'s model runs away (:meth:`runaway`): an identification
@@ -434,11 +449,12 @@ class LoopWatch:
         self._block[0] = -1
         if s.adaptive:
             why = ("the adaptive estimate is poor here: theta0 or the box C far from this rig (docs/control.md, \"A theta0 "
-                   "for another rig\"), or a delay the law does not compensate" + self._no_box())
+                   "for another rig\"), or a delay the law does not compensate" + self._no_box() + self._short_horizon())
         else:
             why = ("the fixed predictor theta0 is poor for this rig or for this range of r: refine it in closed loop over "
                    "the range the loop runs in (tapmuscle.paper.preliminary_theta with refine_offset_mm and "
-                   "refine_amplitude_mm; docs/control.md, \"A theta0 for another rig\"), or use an adaptive method")
+                   "refine_amplitude_mm; docs/control.md, \"A theta0 for another rig\"), or use an adaptive method"
+                   + self._short_horizon())
         said.append(f"t = {t_s:g} s: the loop does not track: over the last {block[0] * s.ts_s:g} s the reading l was "
                     f"{mean:.3g} mm from the reference on average (r over {r_lo:.4g}..{r_hi:.4g} mm; more than "
                     f"{limit:.3g} mm, the larger of {TRACKING_MM:g} mm and {100 * TRACKING_SHARE:g} % of that range): {why}")
