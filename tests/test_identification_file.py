@@ -295,8 +295,13 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
 @pytest.mark.parametrize("scaling, said", [({"l_scale": 0.001, "u_scale": 1.0}, r"largest displacement is under 1\.9 "
                                             r"\(scaling\.l_scale = 0\.001: metres\?\)"),
                                            ({"l_scale": 1000.0, "u_scale": 1.0}, r"over 1900 .*micrometres\?"),
-                                           ({"l_scale": 1.0, "u_scale": 1000.0}, r"largest command is over 1900 .*millivolts\?"),
-                                           ({"l_scale": 0.1, "u_scale": 0.1}, None), ({"l_scale": 10.0}, None)])
+                                           ({"l_scale": 1.0, "u_scale": 1000.0}, r"largest command is 190 or more .*millivolts\?"),
+                                           ({"l_scale": 1.0, "u_scale": 0.01}, r"largest command is under 0\.19 .*0\.\.1"),
+                                           # a command logged in % of opening or V x 10: 22 mm of AMPC-servo error
+                                           ({"l_scale": 1.0, "u_scale": 10.0}, r"largest command is 19 or more \(scaling"
+                                            r"\.u_scale = 10: % of the valve's opening, or volts x 10\? The valve takes"),
+                                           ({"l_scale": 0.1, "u_scale": 0.1}, None), ({"l_scale": 10.0}, None),
+                                           ({"l_scale": 1.0, "u_scale": 1.0}, None)])
 def test_a_model_identified_off_mm_and_v_is_read_with_a_warning_naming_the_file(tmp_path, scaling, said):
     """identify normalises any unit and writes its powers of ten as ``scaling``; the controllers need
     mm and V. A file whose scaling says metres, micrometres or millivolts is read with a warning that

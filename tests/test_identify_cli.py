@@ -103,6 +103,30 @@ def test_units_do_not_matter(records):
     assert um.theta[2] == pytest.approx(1000.0 * mm.theta[2], rel=1e-6)  # b1 in um/V
 
 
+def test_a_command_logged_in_percent_or_volts_x_10_is_noted(records, tmp_path, capsys):
+    """identify normalises any unit, but the controllers take volts: a command column of 0..90 (% of
+    the valve's opening, volts x 10) went through identify and into a controller at 22 mm of error
+    without a word. identify notes it, and the file's reader warns."""
+    import warnings
+
+    from tapmuscle.io.identification_file import read_identification
+
+    _, paths = records
+    rec = read_recording(paths["train", 44])
+    tenfold = tmp_path / "tenfold.csv"
+    write_recording(tenfold, Recording({**rec.columns, "u_v": 10.0 * rec.u_v}, dict(rec.metadata)))
+    capsys.readouterr()
+    assert main(["identify", str(tenfold), "--json", str(tmp_path / "m.json")]) == 0
+    said = "largest command is 19 or more (scaling.u_scale = 10: % of the valve's opening, or volts x 10?"
+    assert f"note: identified on a recording whose {said}" in capsys.readouterr().err
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read_identification(tmp_path / "m.json")
+    assert [said in str(w.message) for w in caught] == [True]
+    assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "v.json")]) == 0
+    assert "volts x 10" not in capsys.readouterr().err
+
+
 def test_other_sampling_period_and_no_box_note(records):
     _, paths = records
     rec = read_recording(paths["train", 44])

@@ -168,9 +168,11 @@ def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[
     validation record at another load, and with ``--input-delay-samples auto`` what the delays' fits
     leave open (printed and in the JSON)."""
     from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT
+    from tapmuscle.io.identification_file import units_note
 
     jitter = rec.sampling.note()
-    notes = list(report.notes) + ([jitter] if jitter else [])
+    unit = units_note({"l_scale": report.l_scale, "u_scale": report.u_scale})
+    notes = list(report.notes) + ([jitter] if jitter else []) + ([f"identified on {unit}"] if unit else [])
     if val is not None:
         loads = [r.metadata.get("load_n") for r in (rec, val)]
         if None not in loads and loads[0] != loads[1]:

@@ -9,7 +9,8 @@ than the controller's: one at 0.05 s used at 0.2 s gave 9 mm of Eq. (21) error i
 a word. (Its ``scaling`` is how the identification normalised the data internally, by magnitude: a
 recording with a small stroke in mm has ``l_scale`` 0.1, so it tells the unit only at the extremes,
 where :func:`read_identification` warns: a largest displacement under 1.9 or over 1900, a command
-under 0.19 or over 190, as in metres, micrometres or millivolts.)
+under 0.19 or of 19 or more, as in metres, micrometres, millivolts, or a command in % of the valve's
+opening or volts x 10, which the 0..10-V valve never takes.)
 """
 
 from __future__ import annotations
@@ -186,26 +187,51 @@ def read_identification(path: str | Path) -> IdentifiedModel:
                            delay)
 
 
+def _beyond(key: str, scale: float) -> str | None:
+    """What a scale beyond the mm and V of the controllers says, else None: a displacement's of 100 or
+    more is one over 1900 mm; the valve takes 0..10 V, so a command's of 10 (a largest command of 19
+    or more) is not in volts."""
+    if scale <= 0.01:
+        return (f"under 1.9 (scaling.{key} = {scale:g}: metres?)" if key == "l_scale" else
+                f"under 0.19 (scaling.{key} = {scale:g}: a normalised 0..1 command?)")
+    if key == "l_scale" and scale >= 100.0:
+        return f"over 1900 (scaling.{key} = {scale:g}: micrometres?)"
+    if key == "u_scale" and scale >= 100.0:
+        return f"190 or more (scaling.{key} = {scale:g}: millivolts?)"
+    if key == "u_scale" and scale >= 10.0:
+        return (f"19 or more (scaling.{key} = {scale:g}: % of the valve's opening, or volts x 10? The valve "
+                "takes 0..10 V)")
+    return None
+
+
 def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
     """Warn when the file's ``scaling`` (the powers of ten that brought the recording's largest
     displacement near 60 and command near 6, :func:`~fmu_controller.identification.decade_scale`) says
-    the recording was not in mm and V as the controllers need: a largest displacement under 1.9 or over
-    1900, a largest command under 0.19 or over 190. A model identified on displacements in metres ran
-    the MPC-servo loop at 22 mm of Eq. (21) error against 0.11 mm in mm, its warnings blaming the readings."""
+    the recording was not in mm and V as the controllers need (:func:`_beyond`). A model identified on
+    displacements in metres ran the MPC-servo loop at 22 mm of Eq. (21) error against 0.11 mm in mm,
+    one on a command in volts x 10 AMPC-servo at 22 mm, their warnings blaming the readings or theta0."""
+    said = units_note(scaling)
+    if said is not None:
+        warn_at_caller(f"{where}: identified on {said}", UserWarning)
+
+
+def units_note(scaling: object) -> str | None:
+    """``"a recording whose largest ... ; the controllers need ..."`` where an identification's
+    ``scaling`` (``{"l_scale": ..., "u_scale": ...}``) is beyond the mm and V of the controllers
+    (:func:`_beyond`), else None."""
     if not isinstance(scaling, dict):
-        return
+        return None
     odd = []
-    for key, unit, what in (("l_scale", "mm", "displacement"), ("u_scale", "V", "command")):
+    for key, what in (("l_scale", "displacement"), ("u_scale", "command")):
         scale = scaling.get(key)
-        if isinstance(scale, (int, float)) and not isinstance(scale, bool) and not 0.01 < scale < 100.0:
-            guess = ("metres?" if unit == "mm" else "a normalised 0..1 command?") if scale <= 0.01 else (
-                "micrometres?" if unit == "mm" else "millivolts?")
-            odd.append(f"largest {what} is {'under' if scale <= 0.01 else 'over'} {1.9 if scale <= 0.01 else 1900:g} "
-                       f"(scaling.{key} = {scale:g}: {guess})")
-    if odd:
-        warn_at_caller(f"{where}: identified on a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in "
-                       "mm and V, as their readings l and command u are: identify on the recording in mm and V",
-                       UserWarning)
+        if isinstance(scale, (int, float)) and not isinstance(scale, bool):
+            said = _beyond(key, float(scale))
+            if said is not None:
+                odd.append(f"largest {what} is {said}")
+    if not odd:
+        return None
+    return (f"a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in mm and V, as their "
+            "readings l and command u are: identify on the recording in mm and V")
 
 
 def checked_box(lower: Mapping[str, float], upper: Mapping[str, float], *, what: str
