@@ -75,7 +75,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.loop_watch import samples_in_words as _samples
-from fmu_controller.preliminary_model import THETA0_44N
+from fmu_controller.preliminary_model import THETA0_44N, THETA0_LIMIT
 from fmu_controller.probing import MLS_LENGTH
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
@@ -105,10 +105,6 @@ _UCP_NAMES = {"hp": "ucp.Hp", "u_min_v": "u_min", "u_max_v": "u_max"}
 _SETTINGS_NAMES = {"ControllerSettings.ts_s": "Ts", "ControllerSettings.p0": "P0.*",
                    "ControllerSettings.input_delay_samples": "input_delay_samples", "servo.r": "servo.R",
                    **{f"ControllerSettings.{n}": n for n in ("startup_s", "probing_v", "probing_phase", "delay_move_weight")}}
-#: Largest |theta0.*|: Eq. (1)'s coefficients multiply displacements [mm] and commands [V]; a
-#: preliminary identification's are below 2 (THETA0_44N), and beyond this the predictions over the
-#: horizon overflow floating point instead of failing a check that names the parameter.
-THETA0_LIMIT = 1e6
 #: Parameters that only some methods use: (names or group prefixes, the methods that use them).
 _METHOD_ONLY = (
     (("ucp.",), "the unique-coincidence-point methods 1, 3", lambda s: not s.servo_mechanism),

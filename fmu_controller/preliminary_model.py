@@ -12,7 +12,7 @@ estimate does; the plant then changed, and this table is regenerated with::
 
 from __future__ import annotations
 
-__all__ = ["THETA0_44N", "REFINE_IN_CLOSED_LOOP"]
+__all__ = ["THETA0_44N", "THETA0_LIMIT", "REFINE_IN_CLOSED_LOOP"]
 
 #: How a fixed predictor is made for a rig, in the words the controllers' messages use.
 REFINE_IN_CLOSED_LOOP = "refine a fixed model in closed loop (docs/python-api.md, tapmuscle.paper.preliminary_theta)"
@@ -25,3 +25,9 @@ THETA0_44N: tuple[float, ...] = (
     0.16793763657309427, -0.09626804784864249, 0.009891619048288652, -0.007771726607492789,
     -0.00012439677162588104, 0.00010686574930884236,
 )
+
+#: Largest |theta0.*|: Eq. (1)'s coefficients multiply displacements [mm] and commands [V]; a
+#: preliminary identification's are below 2 (THETA0_44N), and beyond this the predictions over the
+#: horizon overflow floating point instead of failing a check that names the parameter (the
+#: controller FMU's declared range of ``theta0.*``; an identification file's ``theta`` is held to it).
+THETA0_LIMIT = 1e6

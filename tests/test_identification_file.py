@@ -88,6 +88,9 @@ def test_a_small_stroke_in_mm_is_read(id_files, tmp_path):
     (lambda d: {k: v for k, v in d.items() if k != "ts_s"}, r"key 'ts_s' missing: not a `tapmuscle identify --json` file"),
     (lambda d: d | {"theta": {k: v for k, v in d["theta"].items() if k != "xi32"}}, "missing: xi32"),
     (lambda d: d | {"theta": d["theta"] | {"b1": "0.6"}}, r"theta.b1' must be a finite number, got '0.6'"),
+    # the controller FMU's range: a scenario named its own key for it, not the file
+    (lambda d: d | {"theta": d["theta"] | {"a1": 1e7}}, r"theta.a1' = 10000000.0 is outside -1e\+06..1e\+06, the "
+                                                       r"controllers' range of theta0"),
     (lambda d: d | {"ts_s": -0.1}, "'ts_s' must be a positive number of seconds"),
     (lambda d: {"verdict": "mismatch"}, "keys 'model', 'theta', 'ts_s' missing: not a `tapmuscle identify --json` file"),
 ])

@@ -27,6 +27,7 @@ from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.rls import TABLE2_LOWER
 from fmu_controller.prediction import checked_input_delay
+from fmu_controller.preliminary_model import THETA0_LIMIT
 from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
@@ -160,6 +161,10 @@ def read_identification(path: str | Path) -> IdentifiedModel:
         v = theta[name]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise IdentificationFileError(f"{where}: key 'theta.{name}' must be a finite number, got {v!r}")
+        if abs(v) > THETA0_LIMIT:
+            raise IdentificationFileError(f"{where}: key 'theta.{name}' = {v!r} is outside -{THETA0_LIMIT:g}.."
+                                          f"{THETA0_LIMIT:g}, the controllers' range of theta0 (an identification's "
+                                          "coefficients are below 2 in mm and V: a hand edit, or another unit?)")
     box = data.get("constraint") or {}
     bounds = []
     for side, unbounded in (("lower", "-inf"), ("upper", "inf")):
