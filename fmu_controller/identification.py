@@ -333,14 +333,19 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     theta = rescale_theta(result.theta, structure, l_scale, u_scale)
     outside = [f"{n} = {theta[idx[n]]:.4g} not in [{lower.get(n, -math.inf):g}, {upper.get(n, math.inf):g}]"
                for n in structure.names if not lower.get(n, -math.inf) <= theta[idx[n]] <= upper.get(n, math.inf)]
+    duration = (len(l) - 1) * float(ts_s)
     if outside:
         # the controllers refuse a theta0 outside its region C: said here, where it can be mended
-        duration = (len(l) - 1) * float(ts_s)
         why = (f"the record ({duration:g} s) ends before the constraint starts ({constraint_start_s:g} s): give "
                f"--constraint-start (constraint_start_s) below {duration:g} s"
                if duration < constraint_start_s else "the projection of Algorithm 1 did not bring it inside")
         notes.append(f"the final estimate lies outside the constraint region ({'; '.join(outside)}): {why}; a "
                      "controller refuses it as theta0 with this box")
+    elif (lower or upper) and duration < constraint_start_s:
+        # the file records the box, which an adaptive controller then applies from its start
+        notes.append(f"the constraint region was never applied: the record ({duration:g} s) ends before the constraint "
+                     f"starts ({constraint_start_s:g} s); the final estimate lies inside it unprojected (give "
+                     f"--constraint-start (constraint_start_s) below {duration:g} s for Algorithm 1 to act)")
     elif table2:
         # the paper's rig's box, taken for any record in mm and V at 0.1 s: said, with what it held
         # at a bound: within a thousandth of the box's span, or 2e-4 (an update after the last projection

@@ -501,3 +501,16 @@ def test_auto_reports_each_delay_it_identifies_under(tmp_path, capsys):
     assert [line.split(")  ", 1)[1] for line in lines[1:-1]] == [
         f"identified under delays 0..{d} of 0..5" for d in range(6)]
     assert lines[-1].startswith("identify: 100% (7/7, ") and lines[-1].endswith(f"wrote {out}")
+
+
+def test_a_box_the_record_ends_before_is_said_never_applied(records):
+    """--constraint-start beyond the record's end: no projection happened, the file records the box as
+    given, and nothing said so where the estimate ended inside it."""
+    _, paths = records
+    rec = read_recording(paths["train", 44])
+    never = identify_record(rec.u_v, rec.l_mm, ts_s=0.1, box={"a1": (0.5, 1.5)}, constraint_start_s=1000.0)
+    assert never.n_projections == 0 and never.notes == (
+        "the constraint region was never applied: the record (240 s) ends before the constraint starts (1000 s); "
+        "the final estimate lies inside it unprojected (give --constraint-start (constraint_start_s) below 240 s "
+        "for Algorithm 1 to act)",)
+    assert identify_record(rec.u_v, rec.l_mm, ts_s=0.1, box={"a1": (0.5, 1.5)}, constraint_start_s=10.0).notes == ()
