@@ -514,3 +514,16 @@ def test_a_box_the_record_ends_before_is_said_never_applied(records):
         "the final estimate lies inside it unprojected (give --constraint-start (constraint_start_s) below 240 s "
         "for Algorithm 1 to act)",)
     assert identify_record(rec.u_v, rec.l_mm, ts_s=0.1, box={"a1": (0.5, 1.5)}, constraint_start_s=10.0).notes == ()
+
+
+def test_samples_filled_in_by_import_are_noted(records, tmp_path, capsys):
+    _, paths = records
+    rec = read_recording(paths["train", 44])
+    filled = np.zeros(len(rec.t_s))
+    filled[500:533] = 1.0
+    path = tmp_path / "gap.csv"
+    write_recording(path, Recording({**rec.columns, "filled": filled}, dict(rec.metadata)))
+    assert "filled" in read_recording(path).columns
+    capsys.readouterr()
+    assert main(["identify", str(path), "--json", str(tmp_path / "g.json")]) == 0
+    assert "note: 33 samples of the record were filled in by interpolation" in capsys.readouterr().err

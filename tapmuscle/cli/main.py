@@ -173,6 +173,11 @@ def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[
     jitter = rec.sampling.note()
     unit = units_note({"l_scale": report.l_scale, "u_scale": report.u_scale})
     notes = list(report.notes) + ([jitter] if jitter else []) + ([f"identified on {unit}"] if unit else [])
+    filled = int((rec.columns["filled"] != 0).sum()) if "filled" in rec.columns else 0
+    if filled:  # tapmuscle import --fill-gaps: the diagnosis leaves them out, RLS needs every sample
+        notes.append(f"{filled} samples of the record were filled in by interpolation (its column filled, tapmuscle "
+                     "import --fill-gaps) and are fitted as if measured; over a long gap the fits and the model "
+                     "lean on the straight line drawn there")
     if val is not None:
         loads = [r.metadata.get("load_n") for r in (rec, val)]
         if None not in loads and loads[0] != loads[1]:
