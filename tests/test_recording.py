@@ -45,6 +45,10 @@ def test_the_lines_of_a_recording_are_one_per_sample():
     ("t_s,u_v,l_mm\n0,1,2\n0.1,1\n", r"line 3: 2 fields, header has 3"),
     # a row with a field too many is refused too, not cut to the header's length
     ("t_s,u_v,l_mm\n0,1,2,9\n", r"line 2: 4 fields, header has 3"),
+    # a logger's decimal commas in a comma-separated file
+    ("t_s,u_v,l_mm\n0,1,68519,0\n0,05,1,68519,0,01\n", r"line 2: 4 fields, header has 3 \(decimal commas in a "
+                                                       r"comma-separated file\? tapmuscle import reads"),
+    ("t_s,u_v,l_mm\n0.1,1.5,2.5,9.5\n", r"line 2: 4 fields, header has 3$"),
     ("# meta: x\nt_s,u_v,l_mm\n0,1,2\n0,1,2\n", r"line 4, column 't_s': time 0.0 does not increase"),
     ("t_s,u_v,l_mm,l_mm\n0,1,2,3\n", r"column 'l_mm' appears twice"),
     ("# only comments\n", r"no header row"),

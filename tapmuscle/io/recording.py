@@ -291,7 +291,12 @@ def _read_columns(path: str | os.PathLike, required: tuple[str, ...], time_colum
         if not row or (len(row) == 1 and not row[0].strip()):
             continue
         if len(row) != len(header):
-            raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, header has {len(header)}")
+            # "0,05" split at its comma: a logger's decimal comma in a comma-separated file
+            commas = len(row) > len(header) and any(c.strip().isdigit() for c in row[1:]) and re.fullmatch(
+                r"\s*-?\d+", row[0]) is not None
+            hint = (" (decimal commas in a comma-separated file? tapmuscle import reads a log's decimal mark and "
+                    "separator)" if commas else "")
+            raise RecordingError(f"{path}, line {lineno}: {len(row)} fields, header has {len(header)}{hint}")
         values = []
         for col, cell in zip(header, row):
             try:
