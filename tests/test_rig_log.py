@@ -628,3 +628,11 @@ def test_a_load_logged_as_a_mass_in_kg_is_read_as_its_weight(tmp_path):
     log.write_text("t,u,l,mass\n" + "".join(f"{0.1 * k:.1f},5,{0.01 * k:.2f},4.4868\n" for k in range(50)))
     rec = read_rig_log(log, time="t", u="u", l="l", load="mass:kg")
     assert np.allclose(rec.load_n, 4.4868 * 9.80665) and abs(rec.load_n[0] - 44.0) < 0.01
+
+
+def test_a_column_named_with_its_unit_is_not_shown_with_it_twice(tmp_path):
+    """"Weg [mm]" read as mm was said as "l_mm <- Weg [mm] [mm]"."""
+    log = tmp_path / "log.csv"
+    log.write_text("Zeit [s];Ventil [V];Weg [mm]\n" + "".join(f"{0.1 * k:.1f};{5 + k % 3};{10 + k % 5}\n" for k in range(50)))
+    rec = tm.read_rig_log(log, time="Zeit [s]", u="Ventil [V]", l="Weg [mm]", load_n=44.0, checks=False)
+    assert rec.metadata["source"].endswith("t_s <- Zeit [s], u_v <- Ventil [V], l_mm <- Weg [mm]")

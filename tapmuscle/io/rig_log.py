@@ -945,11 +945,14 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
                                fill_gaps_s, local, True)
     if found:
         raise _refusal(found)
+    def read_as(col: LogColumn) -> str:  # a column named "Weg [mm]" already shows its unit
+        return col.column if col.column.rstrip().endswith(f"[{col.unit}]") else f"{col.column} [{col.unit}]"
+
     if "t_s" in mapping:
-        used = ", ".join(f"{target} <- {col.column} [{col.unit}]" if not (target == "t_s" and counter) else
+        used = ", ".join(f"{target} <- {read_as(col)}" if not (target == "t_s" and counter) else
                          f"t_s <- {col.column} (sample number) x {ts_s:g} s" for target, col in mapping.items())
     else:
-        used = ", ".join([f"t_s <- row number x {ts_s:g} s"] + [f"{target} <- {col.column} [{col.unit}]"
+        used = ", ".join([f"t_s <- row number x {ts_s:g} s"] + [f"{target} <- {read_as(col)}"
                                                                   for target, col in mapping.items()])
     metadata = {"source": f"tapmuscle import {path.name}: {used}"}
     if start:
