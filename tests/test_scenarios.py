@@ -598,3 +598,20 @@ def test_the_parameter_figure_names_the_estimator_the_run_had(tmp_path):
                              (no_box, "RLS, Eq. (4)")):
         path.write_text(f"duration_s = 2.0\n[controller]\nparameters = {{ {parameters} }}\n")
         assert estimator_name(load_scenario(path)) == name
+
+
+def test_an_input_of_ones_own_controller_outside_its_interface_is_set_once():
+    """Only the inputs the master drives are refused as parameters: a controller of one's own may have
+    an input it leaves outside its interface (a feed-forward gain), which a scenario sets as a constant."""
+    from types import SimpleNamespace
+
+    from tapmuscle.cosim.master import Unpacked, _driven_inputs, _settable
+
+    variables = {n: SimpleNamespace(causality="input") for n in ("y", "r", "ff")}
+    mine = Unpacked(Path("MyPI.fmu"), SimpleNamespace(modelName="MyPI"), ".", variables)
+    driven = _driven_inputs("controller", {"measurement": "y", "reference": "r", "command": "u"})
+    assert driven == {"y", "r"} and _settable(mine, "ff", "s: '", driven=driven) is variables["ff"]
+    with pytest.raises(ScenarioError, match=r"s: 'y': is an input of MyPI, which the master sets every sample"):
+        _settable(mine, "y", "s: '", driven=driven)
+    assert _driven_inputs("plant", None) == {"u", "load_force", "supply_pressure"}
+    assert _driven_inputs("foreign plant", None) == frozenset()

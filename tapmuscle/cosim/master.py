@@ -198,14 +198,23 @@ _SET_EVERY_SAMPLE = {"u": "the controller's command", "load_force": "the scenari
                      "r": "the scenario's [reference]"}
 
 
-def _settable(unpacked: Unpacked, name: str, where: str, *, inputs: bool = False) -> Any:
-    """The parameter (or, with ``inputs``, input) ``name`` of the FMU; ScenarioError (prefixed by
-    ``where``) if it has none, with the closest names it has, or if it names an input, which the
-    master sets every sample (a value set once would be overwritten at the first step, and the run
-    recorded with a setting it never had)."""
+def _driven_inputs(role: str, interface: Mapping[str, str] | None) -> frozenset[str]:
+    """The inputs the closed loop's master sets every sample on an FMU in ``role`` (a controller of
+    one's own: the measurement and the reference its ``interface`` names); none outside the loop."""
+    if interface is not None:
+        return frozenset((interface["measurement"], interface["reference"]))
+    return frozenset(ROLE_INTERFACE[role][0]) if role in ROLE_INTERFACE else frozenset()
+
+
+def _settable(unpacked: Unpacked, name: str, where: str, *, driven: frozenset[str] = frozenset()) -> Any:
+    """The parameter or input ``name`` of the FMU; ScenarioError (prefixed by ``where``) if it has none,
+    with the closest names it has, or if it names one of the inputs ``driven``, which the master sets
+    every sample (a value set once would be overwritten at the first step, and the run recorded with a
+    setting it never had). Another input (one a controller of one's own leaves outside its interface)
+    is set once, as a constant."""
     var = unpacked.variables.get(name)
     model = unpacked.model_description.modelName
-    if var is not None and var.causality == "input" and not inputs:
+    if var is not None and var.causality == "input" and name in driven:
         by = _SET_EVERY_SAMPLE.get(name, "the master") if model in ("MusclePlant", "AMPCController") else "the master"
         there = f" (the value goes in {by})" if by.startswith("the scenario's") else ""
         raise ScenarioError(f"{where}{name}': is an input of {model}, which {by} sets every sample, not a "
@@ -269,9 +278,10 @@ def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None
         unpacked = unpack(spec.path or fmus[name])
         check_role(unpacked, role, spec.interface, source=scenario.source)
         where = f"{scenario.source}: key '{role}.parameters."
+        driven = _driven_inputs(role, spec.interface)
         for key, value in spec.parameters.items():
             try:
-                _declared_value(_settable(unpacked, key, where), key, value, where)
+                _declared_value(_settable(unpacked, key, where, driven=driven), key, value, where)
             except ScenarioError as exc:
                 problems.append(str(exc))
     if problems:
@@ -390,8 +400,12 @@ class FmuInstance:
         release_at_exit(self.unpacked.folder, interface.modelIdentifier)
         callbacks = _callbacks(formatted=not _sends_plain_text(self.unpacked))
         self._call("instantiate", lambda: self.fmu.instantiate(callbacks=callbacks, loggingOn=True))
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
+        try:
+            self._call("fmi2SetupExperiment", lambda: self.fmu.setupExperiment(startTime=0.0))
+            self._call("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
+        except BaseException:
+            self.free()  # as its last status allows
+            raise
 
     # ------------------------------------------------------------------ helpers
     def vr(self, name: str) -> int:
@@ -421,10 +435,12 @@ class FmuInstance:
             self.failed_status = status
 
     def set_parameters(self, values: Mapping[str, Any], *, where: str, inputs: bool = False) -> None:
-        """Set parameters (with ``inputs``, inputs too) by FMU variable name; ``where`` (e.g. ``file: key
-        'plant.parameters.'``) prefixes the name in errors."""
+        """Set parameters by FMU variable name, and inputs the master does not drive (with ``inputs``,
+        those too: the master's own start values); ``where`` (e.g. ``file: key 'plant.parameters.'``)
+        prefixes the name in errors."""
+        driven = frozenset() if inputs else _driven_inputs(self.role, self.interface)
         for name, value in values.items():
-            var = _settable(self.unpacked, name, where, inputs=inputs)
+            var = _settable(self.unpacked, name, where, driven=driven)
             number = _declared_value(var, name, value, where)
             if var.type == "Real":
                 self._call(f"setting {name}", lambda: self.fmu.setReal([var.valueReference], [number]))
@@ -450,8 +466,12 @@ class FmuInstance:
         self._call("fmi2Terminate", self.fmu.terminate)
         self._call("fmi2Reset", self.fmu.reset)
         self.messages.clear()
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
+        self._call("fmi2SetupExperiment", lambda: self.fmu.setupExperiment(startTime=0.0))
+        self._call("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
+
+    def get_integer(self, name: str) -> int:
+        """The Integer variable ``name`` (its status recorded as every call's is)."""
+        return int(self._call(f"getting {name}", lambda: self.fmu.getInteger([self.vr(name)]))[0])
 
     def free(self) -> None:
         """End the instance as FMI 2.0 (2.1.3, 4.2.4) allows after its last status: fmi2Terminate and
@@ -616,7 +636,7 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
             ctrl.start()
             cols = _loop(scenario, plant, ctrl, hp, record, progress, held)
             if "input_delay" in ctrl.unpacked.variables and own is None:  # an FMU built before the output existed has none
-                cols["input_delay"] = np.asarray(ctrl.fmu.getInteger([ctrl.vr("input_delay")])[0])
+                cols["input_delay"] = np.asarray(ctrl.get_integer("input_delay"))
             # what the FMUs warned of during the run reaches the caller (a failed run's error names it)
             for inst, n0 in zip((plant, ctrl), logged):
                 for m in inst.messages[n0:]:
@@ -670,9 +690,9 @@ def _set_up_project_controller(ctrl: FmuInstance, scenario: Scenario,
     ctrl_params.update(controller_parameters or {})
     ctrl.set_parameters(ctrl_params, where=f"{src}: key 'controller.parameters.")
     hp_name = "servo.Hp" if scenario.method.endswith("servo") else "ucp.Hp"
-    hp = ctrl.fmu.getInteger([ctrl.vr(hp_name)])[0]
+    hp = ctrl.get_integer(hp_name)
     if "input_delay_samples" in ctrl.unpacked.variables:  # an FMU built before the parameter existed has none
-        hp += advanced_lead(ctrl.fmu.getInteger([ctrl.vr("input_delay_samples")])[0])
+        hp += advanced_lead(ctrl.get_integer("input_delay_samples"))
     return hp
 
 

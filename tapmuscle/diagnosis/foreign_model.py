@@ -286,6 +286,7 @@ class ForeignSimulator:
                 y[k + 1] = got[0]
         except Exception as exc:  # noqa: BLE001 - FMICallException, ModelExchangeError; the instance is re-made
             logged = [m for m in inst.said(2) if str(exc) not in m]
+            inst.failed(getattr(exc, "status", 3))  # freed as its last status allows
             self.close()
             said = f" (the FMU logged: {'; '.join(logged)})" if logged else ""
             raise SimulationError(f"{self.interface.model_name} with {_short(values)}: {exc}{said}") from None

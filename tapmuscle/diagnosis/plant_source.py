@@ -89,5 +89,8 @@ def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.nd
                 if held.pending:
                     held.raise_if_pending()
             return out
+        except BaseException as exc:
+            inst.failed(getattr(exc, "status", 0))  # an FMI call's failure: freed as its status allows
+            raise
         finally:
             inst.free()
