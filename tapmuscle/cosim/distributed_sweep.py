@@ -256,7 +256,7 @@ class DaskExecutor:
             return 0
 
     def __call__(self, tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]:
-        from distributed import as_completed, wait
+        from distributed import as_completed
 
         if not tasks:
             return
@@ -289,14 +289,9 @@ class DaskExecutor:
                     if waiting and time.monotonic() - submitted_at >= 1.0:  # a worker (re)started
                         submit()
                         submitted_at = time.monotonic()
-                    if not (futures and waiting):
-                        time.sleep(0.05)
-                        continue
-                    try:  # woken by the first to finish, not a poll's sleep: a worker waits for the next
-                        wait(list(futures), timeout=0.25, return_when="FIRST_COMPLETED")
-                    except TimeoutError:
-                        continue
-                    batch = pending.next_batch(block=True)
+                    # a worker waits for the next run in a windowed sweep: looked for often
+                    time.sleep(0.005 if futures and waiting else 0.05)
+                    continue
                 for future, value in batch:
                     task = futures.pop(future)
                     # by what came back, not the future's status: a worker that dies after a run
