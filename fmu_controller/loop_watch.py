@@ -379,8 +379,8 @@ class LoopWatch:
         if not s.servo_mechanism or s.servo.hp * s.ts_s >= paper_s * (1.0 - 1e-9):
             return ""
         return (f"; or the servo horizon is short: servo.Hp = {s.servo.hp} samples spans {s.servo.hp * s.ts_s:g} s "
-                f"here, Table 5's spans {paper_s:g} s at Ts = {PAPER_TS_S:g} s (servo.Hp = {round(paper_s / s.ts_s)} "
-                "keeps its seconds; docs/control.md, \"A short Ts\")")
+                f"here, Table 5's spans {paper_s:g} s at Ts = {PAPER_TS_S:g} s (servo.Hp = "
+                f"{math.ceil(paper_s / s.ts_s - 1e-9)} spans them; docs/control.md, \"A short Ts\")")
 
     def _check_theta0(self, said: list[str], t_s: float) -> None:
         """Tell at the first sample when ``theta0``'s model runs away (:meth:`runaway`): an identification

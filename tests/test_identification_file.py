@@ -295,13 +295,13 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     assert not (tmp_path / "bad.json").exists()
 
 
-@pytest.mark.parametrize("scaling, said", [({"l_scale": 0.001, "u_scale": 1.0}, r"largest displacement is under 1\.9 "
+@pytest.mark.parametrize("scaling, said", [({"l_scale": 0.001, "u_scale": 1.0}, r"largest displacement is under about 1\.9 "
                                             r"\(scaling\.l_scale = 0\.001: metres\?\)"),
-                                           ({"l_scale": 1000.0, "u_scale": 1.0}, r"over 1900 .*micrometres\?"),
-                                           ({"l_scale": 1.0, "u_scale": 1000.0}, r"largest command is 190 or more .*millivolts\?"),
-                                           ({"l_scale": 1.0, "u_scale": 0.01}, r"largest command is under 0\.19 .*0\.\.1"),
+                                           ({"l_scale": 1000.0, "u_scale": 1.0}, r"over about 1900 .*micrometres\?"),
+                                           ({"l_scale": 1.0, "u_scale": 1000.0}, r"largest command is about 190 or more .*millivolts\?"),
+                                           ({"l_scale": 1.0, "u_scale": 0.01}, r"largest command is under about 0\.19 .*0\.\.1"),
                                            # a command logged in % of opening or V x 10: 22 mm of AMPC-servo error
-                                           ({"l_scale": 1.0, "u_scale": 10.0}, r"largest command is 19 or more \(scaling"
+                                           ({"l_scale": 1.0, "u_scale": 10.0}, r"largest command is about 19 or more \(scaling"
                                             r"\.u_scale = 10: % of the valve's opening, or volts x 10\? The valve takes"),
                                            ({"l_scale": 0.1, "u_scale": 0.1}, None), ({"l_scale": 10.0}, None),
                                            ({"l_scale": 1.0, "u_scale": 1.0}, None)])

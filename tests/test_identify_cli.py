@@ -117,7 +117,7 @@ def test_a_command_logged_in_percent_or_volts_x_10_is_noted(records, tmp_path, c
     write_recording(tenfold, Recording({**rec.columns, "u_v": 10.0 * rec.u_v}, dict(rec.metadata)))
     capsys.readouterr()
     assert main(["identify", str(tenfold), "--json", str(tmp_path / "m.json")]) == 0
-    said = "largest command is 19 or more (scaling.u_scale = 10: % of the valve's opening, or volts x 10?"
+    said = "largest command is about 19 or more (scaling.u_scale = 10: % of the valve's opening, or volts x 10?"
     assert f"note: identified on a recording whose {said}" in capsys.readouterr().err
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -407,13 +407,14 @@ def test_the_tracking_warning_at_another_period_names_the_horizon_and_no_paper_b
     def said(ts_s, hp, method="ampc_servo", box=None):
         box = {} if box is None else box
         settings = tm.ControllerSettings(method=method, ts_s=ts_s, box_lower=box, box_upper=box,
-                                         servo=tm.ServoMPCSettings(hp=hp))
+                                         servo=tm.ServoMPCSettings(hp=hp, hu=min(hp, 5)))
         watch = LoopWatch(tm.DisplacementController(settings, tm.THETA0_44N))
         return watch._no_box() + watch._short_horizon()
 
     short = said(0.05, 5)
     assert "Table 2's holds at Ts = 0.1 s only; at Ts = 0.05 s give one of your rig's spread" in short
-    assert "servo.Hp = 5 samples spans 0.25 s here, Table 5's spans 0.5 s at Ts = 0.1 s (servo.Hp = 10 keeps" in short
+    assert "servo.Hp = 5 samples spans 0.25 s here, Table 5's spans 0.5 s at Ts = 0.1 s (servo.Hp = 10 spans" in short
+    assert "(servo.Hp = 5 spans them" in said(0.12, 4)  # rounded up: 4 would be the Hp in use
     assert "servo horizon" not in said(0.05, 10) and "servo horizon" not in said(0.1, 5)
     assert "at Ts = 0.1 s keep Table 2's" in said(0.1, 5)
     assert said(0.05, 5, "ampc_ucp").endswith("A box at another sampling period\")")  # no servo horizon

@@ -216,7 +216,8 @@ def _remove_uninterrupted(folder: Path) -> None:
     """Remove the staging ``folder``, with Ctrl-C ignored meanwhile in the main thread: a Ctrl-C held
     down also lands in this clean-up, and an interrupted removal leaves the hidden folder next to the
     output. An interrupt that stopped the run is raised after it."""
-    if threading.current_thread() is not threading.main_thread():
+    # a handler not installed from Python (an embedding host's) cannot be put back: left as it is
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
         shutil.rmtree(folder, ignore_errors=True)
         return
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -194,17 +194,17 @@ def read_identification(path: str | Path) -> IdentifiedModel:
 
 def _beyond(key: str, scale: float) -> str | None:
     """What a scale beyond the mm and V of the controllers says, else None: a displacement's of 100 or
-    more is one over 1900 mm; the valve takes 0..10 V, so a command's of 10 (a largest command of 19
-    or more) is not in volts."""
+    more is one over 60 x 10^1.5 = 1897 mm; the valve takes 0..10 V, so a command's of 10 (a largest
+    command of 6 x 10^0.5 = 18.97 or more) is not in volts."""
     if scale <= 0.01:
-        return (f"under 1.9 (scaling.{key} = {scale:g}: metres?)" if key == "l_scale" else
-                f"under 0.19 (scaling.{key} = {scale:g}: a normalised 0..1 command?)")
+        return (f"under about 1.9 (scaling.{key} = {scale:g}: metres?)" if key == "l_scale" else
+                f"under about 0.19 (scaling.{key} = {scale:g}: a normalised 0..1 command?)")
     if key == "l_scale" and scale >= 100.0:
-        return f"over 1900 (scaling.{key} = {scale:g}: micrometres?)"
+        return f"over about 1900 (scaling.{key} = {scale:g}: micrometres?)"
     if key == "u_scale" and scale >= 100.0:
-        return f"190 or more (scaling.{key} = {scale:g}: millivolts?)"
+        return f"about 190 or more (scaling.{key} = {scale:g}: millivolts?)"
     if key == "u_scale" and scale >= 10.0:
-        return (f"19 or more (scaling.{key} = {scale:g}: % of the valve's opening, or volts x 10? The valve "
+        return (f"about 19 or more (scaling.{key} = {scale:g}: % of the valve's opening, or volts x 10? The valve "
                 "takes 0..10 V)")
     return None
 

@@ -61,7 +61,7 @@ _GLYPH = re.compile(r"Glyph (\d+) .*missing from (?:current )?font")
 
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:
     """Save ``fig`` to ``path`` atomically, in the format its suffix names (``.pdf``, ``.svg``, ...;
-    PNG for ``.png`` or no suffix; ``ValueError`` for one matplotlib does not write); a figure that
+    PNG for ``.png``, no suffix, or one that is no figure format: ``tracking_0.1Hz``); a figure that
     pyplot made is closed there too.
 
     Characters of its text that the font lacks (a scenario named in Chinese or Japanese, with no CJK
@@ -69,11 +69,8 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
     matplotlib's warning per character and drawing pass."""
     path = Path(path)
     try:
-        fmt = path.suffix[1:].lower() or "png"
-        supported = fig.canvas.get_supported_filetypes()
-        if fmt not in supported:
-            raise ValueError(f"{path}: matplotlib writes no {path.suffix!r} figure; give a path ending in "
-                             f"{', '.join('.' + f for f in sorted(supported))}")
+        fmt = path.suffix[1:].lower()
+        fmt = fmt if fmt in fig.canvas.get_supported_filetypes() else "png"
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             with atomic_path(path, suffix=f".{fmt}") as tmp:
@@ -317,8 +314,8 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
         Label (a method's name takes its colour) -> a run with ``t_s``, ``r_mm``, ``l_mm``, ``u_v``;
         runs may differ in length and period. The first run's reference is drawn.
     path : path
-        The figure to write (atomically), in the format its suffix names (:func:`save_figure`: PNG,
-        PDF, SVG, ...).
+        The figure to write (atomically), in the format its suffix names (:func:`save_figure`: PDF,
+        SVG, ...; otherwise PNG).
     title : str
         The figure's title.
     window_s : (float, float), optional
