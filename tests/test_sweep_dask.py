@@ -610,3 +610,31 @@ def test_a_scheduler_without_workers_is_said_in_the_commands_words(built_fmus, t
     err = capsys.readouterr().err
     assert f"the cluster has no worker after 2 s: start one (dask worker {address} --nthreads 1)" in err, err
     assert "Only 0/1" not in err and not (tmp_path / "o").exists()
+
+
+def test_a_cancelled_run_of_a_windowed_sweep_is_a_failed_run(monkeypatch):
+    """One run of four cancelled on the cluster while a small sweep is submitted one run per thread:
+    it is a failed run and the others finish (waiting with distributed.wait raised at the cancel)."""
+    import threading
+    import time as clock
+
+    from distributed import Client, Future, LocalCluster
+
+    from tapmuscle.cosim import distributed_sweep as ds
+
+    def slow(task, files):
+        clock.sleep(1.5)
+        return ds.RunResult(task.run_id, "ok")
+
+    monkeypatch.setattr(ds, "_worker_run", slow)  # a thread cluster: the workers see the patch
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        def cancel_the_first():
+            clock.sleep(0.5)
+            client.cancel([Future(k, client) for k in list(client.futures) if str(k).startswith("tapmuscle-run-r0-")])
+
+        threading.Thread(target=cancel_the_first, daemon=True).start()
+        tasks = [ds.RunTask(f"r{i}", None, ()) for i in range(4)]
+        got = {r.run_id: r for r in ds.DaskExecutor(client, one_run_per_thread=True)(tasks, ds.FmuFiles({}, {}))}
+    assert {k: r.status for k, r in got.items()} == {"r0": "failed", "r1": "ok", "r2": "ok", "r3": "ok"}
+    assert "Cancelled" in got["r0"].error
