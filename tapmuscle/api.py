@@ -382,6 +382,13 @@ def _fmus_argument(fmus: Any, scenarios: list) -> dict[str, Path]:
     given = {name: Path(path) for name, path in fmus.items()} if fmus is not None else cached_fmus()
     needed = {name for sc in scenarios for name, own in (("MusclePlant", sc.plant.path),
                                                           ("AMPCController", sc.controller.path)) if not own}
+    unknown = sorted(set(given) - {"MusclePlant", "AMPCController"})
+    if unknown:  # a misspelt role would otherwise read as the right one missing
+        import difflib
+
+        close = {k: difflib.get_close_matches(k, ["MusclePlant", "AMPCController"], n=1, cutoff=0.6) for k in unknown}
+        raise ValueError("fmus takes the keys 'MusclePlant' and 'AMPCController' (the FMUs' roles), got "
+                         + ", ".join(f"{k!r}" + (f" (did you mean {close[k][0]!r}?)" if close[k] else "") for k in unknown))
     missing = sorted(needed - set(given))
     if missing:
         raise ValueError(f"fmus has no {' and no '.join(repr(m) for m in missing)} (and the scenario names no "

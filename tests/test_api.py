@@ -256,6 +256,9 @@ def _RANDOM_RUN():
      r"fmus must be a mapping .* got a list"),
     (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlant": "MusclePlant.fmu"}), ValueError,
      r"fmus has no 'AMPCController' .*given: 'MusclePlant'"),
+    (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlantt": "a.fmu", "AMPCController": "b.fmu"}), ValueError,
+     r"fmus takes the keys 'MusclePlant' and 'AMPCController' \(the FMUs' roles\), got 'MusclePlantt' \(did you "
+     r"mean 'MusclePlant'\?\)"),
     (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlant": "nope.fmu", "AMPCController": "no.fmu"}), ValueError,
      r"fmus names no FMU file for AMPCController: no.fmu; MusclePlant: nope.fmu"),
     (lambda: tm.sweep(SWEEP_FILE, "o", fmus=["MusclePlant.fmu", "AMPCController.fmu"]), TypeError,
