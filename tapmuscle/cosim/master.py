@@ -404,7 +404,10 @@ class FmuInstance:
             self._call("fmi2SetupExperiment", lambda: self.fmu.setupExperiment(startTime=0.0))
             self._call("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
         except BaseException:
-            self.free()  # as its last status allows
+            try:
+                self.free()  # as its last status allows
+            except Exception:  # noqa: BLE001 - the failure that stopped it is the one to report
+                pass
             raise
 
     # ------------------------------------------------------------------ helpers
