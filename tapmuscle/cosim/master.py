@@ -656,10 +656,14 @@ def co_simulate(scenario: Scenario, fmus: Mapping[str, str | Path], *, record: s
         finally:
             for inst in (ctrl, plant):
                 if inst is not None:
-                    if done and pool is not None:
-                        pool.release(inst)
-                    else:
-                        inst.free()
+                    try:
+                        if done and pool is not None:
+                            pool.release(inst)
+                        else:
+                            inst.free()
+                    except Exception:  # noqa: BLE001 - after a failed run, its failure is the one reported
+                        if done:       # and the other instance is freed still
+                            raise
 
 
 def _default_step(inst: FmuInstance) -> float | None:
