@@ -374,7 +374,7 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
 def _fmus_argument(fmus: Any, scenarios: list) -> dict[str, Path]:
     """The ``fmus`` argument of :func:`cosimulate` and :func:`sweep` checked: a mapping (default the FMUs
     built from this installation) with an existing FMU file for each role a scenario names no file for."""
-    from build_scripts.build_fmus import cached_fmus
+    from build_scripts.build_fmus import FMUS, cached_fmus
 
     if fmus is not None and not isinstance(fmus, Mapping):
         raise TypeError(f"fmus must be a mapping {{'MusclePlant': path, 'AMPCController': path}}, got a "
@@ -382,12 +382,12 @@ def _fmus_argument(fmus: Any, scenarios: list) -> dict[str, Path]:
     given = {name: Path(path) for name, path in fmus.items()} if fmus is not None else cached_fmus()
     needed = {name for sc in scenarios for name, own in (("MusclePlant", sc.plant.path),
                                                           ("AMPCController", sc.controller.path)) if not own}
-    unknown = sorted(set(given) - {"MusclePlant", "AMPCController"})
+    unknown = sorted(set(given) - set(FMUS))
     if unknown:  # a misspelt role would otherwise read as the right one missing
         import difflib
 
-        close = {k: difflib.get_close_matches(k, ["MusclePlant", "AMPCController"], n=1, cutoff=0.6) for k in unknown}
-        raise ValueError("fmus takes the keys 'MusclePlant' and 'AMPCController' (the FMUs' roles), got "
+        close = {k: difflib.get_close_matches(k, list(FMUS), n=1, cutoff=0.6) for k in unknown}
+        raise ValueError(f"fmus takes the keys {' and '.join(map(repr, FMUS))} (the FMUs' roles), got "
                          + ", ".join(f"{k!r}" + (f" (did you mean {close[k][0]!r}?)" if close[k] else "") for k in unknown))
     missing = sorted(needed - set(given))
     if missing:
