@@ -128,7 +128,7 @@ class AMPCController(SafeSlave):
     description = ("Displacement controller of a tap-water McKibben muscle: MPC/AMPC with unique coincidence "
                    "point or servo mechanism, constrained RLS (Algorithm 1), hysteresis cancellation (Eq. 5)")
     #: Tells hosts the communication step (the controller's Ts = 0.1 s) and a run that holds the paper's
-    #: Eq. (21) window (10-40 s; the paper gives no run length) with room to spare; no tolerance: a
+    #: Eq. (21) window (10.1-40.1 s; the paper gives no run length) with room to spare; no tolerance: a
     #: sampled controller integrates nothing.
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=60.0, step_size=0.1)
 

@@ -358,8 +358,11 @@ class ControllerSettings:
     the error ``r(k) - l(k)`` pushes it further into for :data:`HOLD_AFTER_SAMPLES` samples in a row
     (conditional integration). A reference out of the muscle's reach otherwise winds ``x_s`` up by
     thousands of mm and the loop lags for 6-12 s once the reference is back in reach (docs/control.md,
-    "Integrator wind-up"). Shorter stays at a limit are integrated: the paper's runs keep their bits.
-    False: Eq. (18) as the paper writes it."""
+    "Integrator wind-up"). Shorter stays at a limit are integrated: with the start-up mode on (the
+    default) the paper's runs keep their bits; with the paper's start (``startup_s = 0``) the hold
+    moves some of them (AMPC-servo, 68 N, 0.1 Hz: 0.124 -> 0.134 mm of Eq. (21)), so the paper's
+    controllers exactly need False here too (``tapmuscle paper --paper-start``). False: Eq. (18) as
+    the paper writes it."""
     delay_move_weight: float = DEFAULT_DELAY_MOVE_WEIGHT
     """Servo methods: the factor on Eq. (15)'s move weight R (``servo.r``) while the law compensates a
     delay of 2 samples or more (``input_delay_samples`` 2 or more, or -1 once it decided for one: a rig's

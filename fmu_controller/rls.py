@@ -390,8 +390,8 @@ class ConstrainedRLS:
 
     @property
     def P(self) -> np.ndarray:
-        """Current covariance ``P(k-1)`` (copy): after the update of sample ``k-1``, the one the next
-        update's gain takes (Eq. (4); Algorithm 1 names the start ``P(-1)``, Tables 5 and 8 ``P(0)``)."""
+        """Current covariance ``P(k-1)`` (copy): after the update of the latest sample ``k``, the one the
+        next update's gain takes (Eq. (4); Algorithm 1 names the start ``P(-1)``, Tables 5 and 8 ``P(0)``)."""
         self._check_ready()
         return self._P.copy()
 

@@ -71,7 +71,7 @@ class MusclePlant(SafeSlave):
     author = "tapmuscle"
     description = "Tap-water-driven McKibben muscle rig: proportional valves, 0.25 MPa supply, 400 mm muscle, load, encoder"
     #: Tells hosts the communication step (the controller's Ts = 0.1 s) and a run that holds the paper's
-    #: Eq. (21) window (10-40 s; the paper gives no run length) with room to spare; no tolerance: the
+    #: Eq. (21) window (10.1-40.1 s; the paper gives no run length) with room to spare; no tolerance: the
     #: adaptive sub-steps keep their own (parameters ``solver.*``).
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=60.0, step_size=0.1)
 
