@@ -80,3 +80,15 @@ def test_ctrl_c_on_a_diagnosis_with_workers_ends_it_without_tracebacks_or_output
     assert proc.returncode == 130, err
     assert "interrupted; nothing is half-written" in err and "Traceback" not in err, err
     assert not out.exists()
+
+
+def test_a_failed_simulation_names_every_value_that_differs_from_the_defaults():
+    """The plant a failed simulation was run with is named by all its values off the defaults: with
+    a limit of eight, the ninth, the one of a candidate of one's own that broke it, was 'and 1 more'."""
+    from tapmuscle.diagnosis.simulation import _changed
+
+    defaults = PlantParams().dotted()
+    keys = [k for k, v in defaults.items() if isinstance(v, float) and v > 0][:9]
+    changed = _changed(PlantParams().with_values(**{k: defaults[k] * 0.99 for k in keys}))
+    assert all(f"{k}=" in changed for k in keys) and "more" not in changed, changed
+    assert _changed(PlantParams()) == "its defaults"

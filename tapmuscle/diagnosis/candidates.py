@@ -57,8 +57,15 @@ from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
 from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
 from tapmuscle.diagnosis.residual_analysis import held_command, located_windows
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, snap_relative, sse
+from tapmuscle.errors import TapmuscleError
 
-__all__ = ["ParameterSpec", "Candidate", "Problem", "FitResult", "CANDIDATES", "candidate"]
+__all__ = ["ParameterSpec", "Candidate", "CandidateError", "Problem", "FitResult", "CANDIDATES", "candidate"]
+
+
+class CandidateError(TapmuscleError):
+    """A candidate of one's own that the diagnosis cannot carry, or whose fit broke its contract (a
+    value outside its bounds, a prediction of another length or not finite); the message names the
+    candidate."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +112,14 @@ class Candidate:
     fitted (a sag's fall and recovery). The held-out blocks they touch are left out of the tests of
     the other effects (docs/diagnosis.md, step 5): where an edge lies inside a held-out block, the
     training blocks do not place it, and the prediction error there is the edge's."""
+    joint: tuple[tuple[str, float], ...] = ()
+    """A candidate of one's own: its parameters re-fitted jointly with the calibrated constants, each
+    ``(key, scale)`` with the scale of its coordinate (a typical change of the value, in its unit; the
+    built-in candidates' are :data:`~tapmuscle.diagnosis.model_space.JOINT_PARAMETERS`). For a
+    parameter the prediction is smooth in and that the constants can partly take up (a gain, an
+    offset, a rate): fitted on the calibrated constants alone, such a parameter comes out a fraction
+    of the rig's, and another effect re-fitted jointly is named instead. The others keep the values
+    its own search finds (which a joint round runs again)."""
 
     def __repr__(self) -> str:
         # its functions and paragraphs of physics are the module's: a list of candidates stays readable

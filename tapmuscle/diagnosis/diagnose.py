@@ -87,6 +87,7 @@ up to 28 mm apart; diagnosed, the same two effects with the load at 10.7 N inste
 from __future__ import annotations
 
 import math
+import types
 import numbers
 import pickle
 import time
@@ -101,9 +102,9 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          FD_STEP, calibration_rows, effective_sigma, fit_covariance, fit_parameters,
+                          FD_STEP, calibration_rows, effective_sigma, field_bounds, fit_covariance, fit_parameters,
                           fitted_intervals, nominal_coords)
-from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
+from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, CandidateError, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.progress import reporter
 from tapmuscle.diagnosis.search_progress import JOINT_REFITS, OWN_FITS, TESTS, SearchProgress
@@ -358,7 +359,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
                     calibration=calibration, progress=tracker, started=started,
-                    space=MuscleSpace(model), use_pressure=use_pressure, left_out=left_out)
+                    space=MuscleSpace(model, own_joint=_own_joint(candidates)), use_pressure=use_pressure, left_out=left_out)
     tracker.finish()
     d.notes[:0] = notes
     if load is not None:
@@ -409,43 +410,95 @@ def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str
                 raise ValueError(f"{what}: unknown {kind} {item!r}; known: {', '.join(table)}{hint}")
             out.append(table[item])
         else:
-            raise TypeError(f"{what}: {item!r:.60} must be a {cls.__name__} or the name of one")
+            shown = repr(item) if len(repr(item)) <= 60 else repr(item)[:57] + "..."
+            hint = (f" (a module: pass the {cls.__name__} objects it holds)"
+                    if isinstance(item, types.ModuleType) else "")
+            raise TypeError(f"{what}: {type(item).__name__} {shown} must be a {cls.__name__} or the name of one{hint}")
     return out
+
+
+def _own_joint(candidates: Sequence[Candidate]) -> dict[str, tuple[tuple[str, float], ...]]:
+    """The joint parameters of the candidates of one's own that have them (:attr:`Candidate.joint`)."""
+    return {c.name: tuple((str(k), float(v)) for k, v in c.joint) for c in candidates
+            if c.joint and _BUILTIN.get(c.name) is not c}
+
+
+#: Names a candidate of one's own may not take: the report's finding for what no effect explains.
+RESERVED_NAMES = ("unexplained",)
 
 
 def check_own_candidates(candidates: Sequence[Candidate], model: PlantParams) -> None:
     """Refuse candidates the search could not carry: the diagnosis re-simulates an accepted effect
     through the plant parameters its fit sets (each :class:`~tapmuscle.diagnosis.candidates.ParameterSpec`'s
     ``key``), so a candidate of one's own must set some of ``model``'s parameters (an effect the plant
-    has: ``fmu_plant/effect_library.py``), and must not take a built-in candidate's name, by which the
-    joint re-fits and the report know the built-ins (docs/diagnosis.md, "A candidate of your own").
+    has: ``fmu_plant/effect_library.py``), within the plant's bounds and with no other candidate
+    setting them, and must not take a built-in candidate's name, by which the joint re-fits and the
+    report know the built-ins, nor :data:`RESERVED_NAMES` (docs/diagnosis.md, "A candidate of your own").
 
     Raises
     ------
-    ValueError
+    CandidateError
         Naming the candidate and what it lacks.
     """
     builtin = {c.name: c for c in CANDIDATES}
     keys = model.dotted()
     seen: set[str] = set()
+    set_by: dict[str, str] = {}
     for c in candidates:
+        own = builtin.get(c.name) is not c
+        if own and c.name in builtin:
+            raise CandidateError(f"candidates: a candidate of your own is named {c.name!r}, a built-in candidate's name, "
+                                 "by which the joint re-fits and the report would take it for the built-in: name it "
+                                 "otherwise")
+        if own and c.name in RESERVED_NAMES:
+            raise CandidateError(f"candidates: a candidate of your own is named {c.name!r}, the report's name for "
+                                 "what no effect explains: name it otherwise")
         if c.name in seen:
-            raise ValueError(f"candidates: {c.name!r} is given twice")
+            raise CandidateError(f"candidates: {c.name!r} is given twice")
         seen.add(c.name)
-        if builtin.get(c.name) is c:
-            continue
-        if c.name in builtin:
-            raise ValueError(f"candidates: a candidate of your own is named {c.name!r}, a built-in candidate's name, "
-                             "by which the joint re-fits and the report would take it for the built-in: name it otherwise")
-        if not c.parameters:
-            raise ValueError(f"candidates: {c.name!r} sets no plant parameter: the diagnosis re-simulates an accepted "
+        for spec in c.parameters:
+            if spec.key in set_by:
+                raise CandidateError(f"candidates: {c.name!r} and {set_by[spec.key]!r} both set {spec.key!r}: the "
+                                     "search could not tell which of them a fitted value belongs to; give one of them")
+            set_by[spec.key] = c.name
+        if own:
+            _check_own_parameters(c, keys)
+
+
+def _check_own_parameters(c: Candidate, keys: dict[str, float]) -> None:
+    """:func:`check_own_candidates` for one candidate of one's own: its parameters and joint ones."""
+    where = "(docs/diagnosis.md, \"A candidate of your own\")"
+    if not c.parameters:
+        raise CandidateError(f"candidates: {c.name!r} sets no plant parameter: the diagnosis re-simulates an accepted "
                              "effect through the plant parameters its fit sets, so an effect the plant does not have "
-                             "is dropped from every model it is in (docs/diagnosis.md, \"A candidate of your own\")")
-        unknown = [spec.key for spec in c.parameters if spec.key not in keys]
-        if unknown:
-            raise ValueError(f"candidates: {c.name!r} sets {unknown[0]!r}, which is not a plant parameter ('group.field' "
-                             "of PlantParams; the plant's own effects are in fmu_plant/effect_library.py, docs/diagnosis.md, "
-                             "\"A candidate of your own\")")
+                             f"is dropped from every model it is in {where}")
+    for spec in c.parameters:
+        if spec.key not in keys:
+            raise CandidateError(f"candidates: {c.name!r} sets {spec.key!r}, which is not a plant parameter "
+                                 "('group.field' of PlantParams; the plant's own effects are in "
+                                 f"fmu_plant/effect_library.py) {where}")
+        lo, hi = spec.lo, spec.hi
+        if not (isinstance(lo, (int, float)) and isinstance(hi, (int, float)) and lo < hi):
+            raise CandidateError(f"candidates: {c.name!r}: its bounds of {spec.key} are {lo!r} .. {hi!r}: give the "
+                                 "lower bound first, below the upper one (ParameterSpec(key, unit, lo, hi))")
+        plant_lo, plant_hi = field_bounds(spec.key)
+        if lo < plant_lo or hi > plant_hi:
+            raise CandidateError(f"candidates: {c.name!r}: its bounds of {spec.key} are {lo:g} .. {hi:g}, beyond the "
+                                 f"plant's {plant_lo:g} .. {plant_hi:g}: the plant refuses a value outside them")
+    specs = {spec.key for spec in c.parameters}
+    if not isinstance(c.joint, (tuple, list)):
+        raise CandidateError(f"candidates: {c.name!r}: its joint must be a tuple of (key, scale) pairs, got "
+                             f"{type(c.joint).__name__}")
+    for pair in c.joint:
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+            raise CandidateError(f"candidates: {c.name!r}: its joint holds {pair!r:.60}, not a (key, scale) pair")
+        key, scale = pair
+        if key not in specs:
+            raise CandidateError(f"candidates: {c.name!r}: its joint names {key!r}, not one of its parameters "
+                                 f"({', '.join(sorted(specs))})")
+        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+            raise CandidateError(f"candidates: {c.name!r}: its joint scale of {key} is {scale!r}: give a typical change "
+                                 "of the value (a positive number, in its unit)")
 
 
 def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:
@@ -605,31 +658,63 @@ _BUILTIN = {c.name: c for c in CANDIDATES}
 
 def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Candidate | str) -> FitResult | None:
     """A candidate's own fit on ``base`` (a built-in one by name: candidates hold lambdas, which do not
-    pickle)."""
+    pickle); a candidate of one's own's result is checked against its contract (:class:`CandidateError`)."""
     if isinstance(cand, str):
         return _BUILTIN[cand].fit(problem, base, y_base)
-    result = cand.fit(problem, base, y_base)
-    if result is not None and _BUILTIN.get(cand.name) is not cand:  # one's own: its values are what is re-simulated
-        specs = {spec.key: spec for spec in cand.parameters}
-        for key, value in result.values.items():
-            spec = specs.get(key)
-            if spec is None:
-                raise ValueError(f"candidate {cand.name!r}: its fit set {key!r}, not one of its parameters "
-                                 f"({', '.join(specs)})")
-            if not spec.lo <= value <= spec.hi:
-                raise ValueError(f"candidate {cand.name!r}: its fit set {key} = {value!r}, outside its bounds "
-                                 f"{spec.lo:g} .. {spec.hi:g}")
+    result = _call(cand, "fit", cand.fit, problem, base, y_base)
+    if result is not None and _BUILTIN.get(cand.name) is not cand:
+        _check_own_values(cand, "fit", result.values)
+        y_hat = np.asarray(result.y_hat, dtype=float)
+        if y_hat.shape != np.shape(y_base):
+            raise CandidateError(f"candidate {cand.name!r}: its fit's prediction y_hat has shape {y_hat.shape}, not the "
+                                 f"recording's {np.shape(y_base)} (full_prediction(problem, base, values) gives it)")
+        bad = np.flatnonzero(~np.isfinite(y_hat))
+        if bad.size:
+            raise CandidateError(f"candidate {cand.name!r}: its fit's prediction y_hat is {float(y_hat[bad[0]])!r} at sample "
+                                 f"{bad[0]} ({bad.size} samples not finite): return None where the fit fails")
     return result
+
+
+def _call(cand: Candidate, what: str, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(*args)``, one of ``cand``'s functions (``what``: its field's name); an exception from a
+    candidate of one's own becomes a :class:`CandidateError` naming it (its cause the original)."""
+    if _BUILTIN.get(cand.name) is cand:
+        return fn(*args)
+    try:
+        return fn(*args)
+    except (SimulationError, CandidateError):
+        raise
+    except Exception as exc:  # the user's code: say whose (the traceback is the cause's)
+        raise CandidateError(f"candidate {cand.name!r}: its {what} raised {type(exc).__name__}: {exc}") from exc
+
+
+def _check_own_values(cand: Candidate, what: str, values: dict[str, float]) -> None:
+    """The values a candidate of one's own's ``what`` (fit, refine) set: its parameters, within its
+    bounds (they are what is re-simulated)."""
+    specs = {spec.key: spec for spec in cand.parameters}
+    for key, value in values.items():
+        spec = specs.get(key)
+        if spec is None:
+            raise CandidateError(f"candidate {cand.name!r}: its {what} set {key!r}, not one of its parameters "
+                                 f"({', '.join(specs)})")
+        if not spec.lo <= value <= spec.hi:
+            raise CandidateError(f"candidate {cand.name!r}: its {what} set {key} = {value!r}, outside its bounds "
+                                 f"{spec.lo:g} .. {spec.hi:g}")
 
 
 def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
                 y_base: np.ndarray, each_done: Callable[[], None] | None = None
                 ) -> list[Callable[[], tuple[Any, int, float]]]:
-    """Each candidate's own fit on ``base`` (whose run left the checkpoints) by :func:`_on_copies`;
-    in worker processes for the built-in candidates only."""
-    builtin = all(_BUILTIN.get(c.name) is c for c in cands)
-    return _on_copies(problem, _own_fit, (base, y_base), [(c.name if builtin else c,) for c in cands],
-                      parallel=builtin, each_done=each_done)
+    """Each candidate's own fit on ``base`` (whose run left the checkpoints) by :func:`_on_copies`,
+    one handle per candidate in order: the built-in ones in worker processes (by name), those of one's
+    own here meanwhile (they need not pickle)."""
+    own = [i for i, c in enumerate(cands) if _BUILTIN.get(c.name) is not c]
+    builtin = [i for i in range(len(cands)) if i not in own]
+    jobs = dict(zip(builtin, _on_copies(problem, _own_fit, (base, y_base), [(cands[i].name,) for i in builtin],
+                                        each_done=each_done)))
+    jobs |= dict(zip(own, _on_copies(problem, _own_fit, (base, y_base), [(cands[i],) for i in own], parallel=False,
+                                     each_done=each_done)))
+    return [jobs[i] for i in range(len(cands))]
 
 
 def _effect_coords(space: ModelSpace, effects: Sequence[str]) -> list[FittedParameter]:
@@ -1452,9 +1537,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         values = dict(current.values)
         for name in (e for e in current.effects if by_name[e].refine is not None):
             runs0 = sim.runs
-            moved = by_name[name].refine(problem, p)
+            cand = by_name[name]
+            moved = _call(cand, "refine", cand.refine, problem, p)
             kept = False
             if moved is not None:
+                if _BUILTIN.get(name) is not cand:
+                    _check_own_values(cand, "refine", moved)
                 p_j, f_j = joint(p.with_values(**moved), current.effects, cal_jac, final=True)
                 y_j, q_j = sim.run(p_j)
                 # as well as before is enough: an edge moved within the training blocks' plateau

@@ -189,6 +189,9 @@ class MuscleSpace(ModelSpace):
         :data:`OFF_AT_NOMINAL` (the supply pressure [MPa], the friction's rate gain [-]) are their
         effects' "off" values, and the supply offset's joint starts are taken around its supply
         pressure. Default: the default plant's.
+    own_joint : mapping of str to tuple of (str, float), optional
+        Candidates of one's own whose parameters are re-fitted jointly with the constants (their
+        :attr:`~tapmuscle.diagnosis.candidates.Candidate.joint`), beside :data:`JOINT_PARAMETERS`.
     """
 
     joint_parameters = JOINT_PARAMETERS
@@ -196,8 +199,11 @@ class MuscleSpace(ModelSpace):
     starts_from_nominal = STARTS_FROM_NOMINAL
     exclusive = EXCLUSIVE
 
-    def __init__(self, nominal: PlantParams | None = None) -> None:
+    def __init__(self, nominal: PlantParams | None = None, *,
+                 own_joint: Mapping[str, tuple[tuple[str, float], ...]] | None = None) -> None:
         self.nominal = nominal
+        if own_joint:
+            self.joint_parameters = {**JOINT_PARAMETERS, **own_joint}
         ps = (PlantParams() if nominal is None else nominal).supply.supply_pressure_mpa
         self.joint_starts = JOINT_STARTS | {
             "supply_pressure_offset": tuple({"supply.supply_pressure_mpa": ps * k} for k in SUPPLY_STARTS)}

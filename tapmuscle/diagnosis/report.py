@@ -230,8 +230,9 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
         elif c["fitted"]:
             lines.append(f"| {c['round']} | `{c['effect']}` | {c['fit_gain_points']:.3f} | "
                          f"{100 * c['held_out_sse_reduction']:.1f} % | {c['p_value']:.2g} |")
-        else:
-            lines.append(f"| {c['round']} | `{c['effect']}` | not fitted (not applicable) | | |")
+        else:  # a simulation that failed says why; otherwise its fit found nothing to gain
+            why = c.get("rejected", "not applicable").replace("|", "\\|")
+            lines.append(f"| {c['round']} | `{c['effect']}` | not fitted ({why}) | | |")
     lines += ["", "Columns: the held-out gain is the candidate's own fit on the model of that round, in points of "
               "held-out fit over all held-out blocks; the SSE reduction (negative: the error grew) and p are over "
               "the held-out blocks its test uses (those no accepted effect's edge touches), so the two can differ "
@@ -467,13 +468,14 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
         told the phase.
     effects : sequence of str, optional
         Limit the candidates to these names (e.g. the alternatives of an ambiguous verdict,
-        re-diagnosed on the recording of the discriminating experiment).
+        re-diagnosed on the recording of the discriminating experiment). Given with ``candidates``
+        (in ``options``), the candidates are these names and those.
     workers : int
         Processes for the independent simulations of the diagnosis and of the discriminating
         experiments (:func:`tapmuscle.diagnosis.simulation.worker_pool`); the outputs are the same.
     **options
         Passed to :func:`tapmuscle.diagnosis.diagnose` (``block_s``, ``fit_segment_s``,
-        ``calibration``, ...).
+        ``calibration``, ``candidates`` with candidates of one's own, ...).
 
     Returns
     -------
@@ -494,8 +496,8 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
     probe_output_folder(out)  # before the work, not after it
-    if effects is not None:
-        options["candidates"] = effects  # names, checked by diagnose
+    if effects is not None:  # names, checked by diagnose; beside them the candidates of one's own given
+        options["candidates"] = [*([effects] if isinstance(effects, str) else effects), *options.get("candidates", ())]
     cols = rec.columns
     try:  # (read_recording has checked the sampling and a '# ts_s:' header)
         load = rec.load_n  # the column, else the '# load_n:' header
