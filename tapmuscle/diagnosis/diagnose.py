@@ -102,9 +102,9 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          FD_STEP, calibration_rows, effective_sigma, field_bounds, fit_covariance, fit_parameters,
+                          FD_STEP, calibration_rows, effective_sigma, fit_covariance, fit_parameters,
                           fitted_intervals, nominal_coords)
-from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, CandidateError, FitResult, Problem, material_value
+from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
 from tapmuscle.progress import reporter
 from tapmuscle.diagnosis.search_progress import JOINT_REFITS, OWN_FITS, TESTS, SearchProgress
@@ -116,6 +116,7 @@ from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation,
 from tapmuscle.diagnosis.score_test import score_gain
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, ModelSpace, MuscleSpace, sensor_noise_mm
+from tapmuscle.diagnosis.own_candidates import check_own_candidates, held_to_contract, own_joint
 from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
 from tapmuscle.diagnosis.recording_checks import (check_displacement_scale, check_muscle_recording,
                                                   displacement_scale_note, muscle_recording_notes)
@@ -338,6 +339,8 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         raise ValueError(f"max_effects must be an integer >= 0, got {max_effects!r}")
     candidates = by_name(candidates, CANDIDATES, "candidates", "effect")
     check_own_candidates(candidates, model)
+    own = [c for c in candidates if _BUILTIN.get(c.name) is not c]
+    candidates = [held_to_contract(c) if c in own else c for c in candidates]
     if calibration is not None:
         calibration = by_name(calibration, NOMINAL_PARAMETERS, "calibration", "nominal parameter",
                               hint="; calibration=None: no calibration")
@@ -359,7 +362,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         d = _search(sim, t, u, y, ts, load, p_mpa, model, block_s=block_s, fit_segment_s=fit_segment_s,
                     candidates=candidates, max_effects=max_effects, alpha=alpha, min_reduction=min_reduction,
                     calibration=calibration, progress=tracker, started=started,
-                    space=MuscleSpace(model, own_joint=_own_joint(candidates)), use_pressure=use_pressure, left_out=left_out)
+                    space=MuscleSpace(model, own_joint=own_joint(own)), use_pressure=use_pressure, left_out=left_out)
     tracker.finish()
     d.notes[:0] = notes
     if load is not None:
@@ -411,94 +414,10 @@ def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str
             out.append(table[item])
         else:
             shown = repr(item) if len(repr(item)) <= 60 else repr(item)[:57] + "..."
-            hint = (f" (a module: pass the {cls.__name__} objects it holds)"
-                    if isinstance(item, types.ModuleType) else "")
-            raise TypeError(f"{what}: {type(item).__name__} {shown} must be a {cls.__name__} or the name of one{hint}")
+            module = (f" (a module: pass the {cls.__name__} objects it holds)"
+                      if isinstance(item, types.ModuleType) else "")
+            raise TypeError(f"{what}: {type(item).__name__} {shown} must be a {cls.__name__} or the name of one{module}")
     return out
-
-
-def _own_joint(candidates: Sequence[Candidate]) -> dict[str, tuple[tuple[str, float], ...]]:
-    """The joint parameters of the candidates of one's own that have them (:attr:`Candidate.joint`)."""
-    return {c.name: tuple((str(k), float(v)) for k, v in c.joint) for c in candidates
-            if c.joint and _BUILTIN.get(c.name) is not c}
-
-
-#: Names a candidate of one's own may not take: the report's finding for what no effect explains.
-RESERVED_NAMES = ("unexplained",)
-
-
-def check_own_candidates(candidates: Sequence[Candidate], model: PlantParams) -> None:
-    """Refuse candidates the search could not carry: the diagnosis re-simulates an accepted effect
-    through the plant parameters its fit sets (each :class:`~tapmuscle.diagnosis.candidates.ParameterSpec`'s
-    ``key``), so a candidate of one's own must set some of ``model``'s parameters (an effect the plant
-    has: ``fmu_plant/effect_library.py``), within the plant's bounds and with no other candidate
-    setting them, and must not take a built-in candidate's name, by which the joint re-fits and the
-    report know the built-ins, nor :data:`RESERVED_NAMES` (docs/diagnosis.md, "A candidate of your own").
-
-    Raises
-    ------
-    CandidateError
-        Naming the candidate and what it lacks.
-    """
-    builtin = {c.name: c for c in CANDIDATES}
-    keys = model.dotted()
-    seen: set[str] = set()
-    set_by: dict[str, str] = {}
-    for c in candidates:
-        own = builtin.get(c.name) is not c
-        if own and c.name in builtin:
-            raise CandidateError(f"candidates: a candidate of your own is named {c.name!r}, a built-in candidate's name, "
-                                 "by which the joint re-fits and the report would take it for the built-in: name it "
-                                 "otherwise")
-        if own and c.name in RESERVED_NAMES:
-            raise CandidateError(f"candidates: a candidate of your own is named {c.name!r}, the report's name for "
-                                 "what no effect explains: name it otherwise")
-        if c.name in seen:
-            raise CandidateError(f"candidates: {c.name!r} is given twice")
-        seen.add(c.name)
-        for spec in c.parameters:
-            if spec.key in set_by:
-                raise CandidateError(f"candidates: {c.name!r} and {set_by[spec.key]!r} both set {spec.key!r}: the "
-                                     "search could not tell which of them a fitted value belongs to; give one of them")
-            set_by[spec.key] = c.name
-        if own:
-            _check_own_parameters(c, keys)
-
-
-def _check_own_parameters(c: Candidate, keys: dict[str, float]) -> None:
-    """:func:`check_own_candidates` for one candidate of one's own: its parameters and joint ones."""
-    where = "(docs/diagnosis.md, \"A candidate of your own\")"
-    if not c.parameters:
-        raise CandidateError(f"candidates: {c.name!r} sets no plant parameter: the diagnosis re-simulates an accepted "
-                             "effect through the plant parameters its fit sets, so an effect the plant does not have "
-                             f"is dropped from every model it is in {where}")
-    for spec in c.parameters:
-        if spec.key not in keys:
-            raise CandidateError(f"candidates: {c.name!r} sets {spec.key!r}, which is not a plant parameter "
-                                 "('group.field' of PlantParams; the plant's own effects are in "
-                                 f"fmu_plant/effect_library.py) {where}")
-        lo, hi = spec.lo, spec.hi
-        if not (isinstance(lo, (int, float)) and isinstance(hi, (int, float)) and lo < hi):
-            raise CandidateError(f"candidates: {c.name!r}: its bounds of {spec.key} are {lo!r} .. {hi!r}: give the "
-                                 "lower bound first, below the upper one (ParameterSpec(key, unit, lo, hi))")
-        plant_lo, plant_hi = field_bounds(spec.key)
-        if lo < plant_lo or hi > plant_hi:
-            raise CandidateError(f"candidates: {c.name!r}: its bounds of {spec.key} are {lo:g} .. {hi:g}, beyond the "
-                                 f"plant's {plant_lo:g} .. {plant_hi:g}: the plant refuses a value outside them")
-    specs = {spec.key for spec in c.parameters}
-    if not isinstance(c.joint, (tuple, list)):
-        raise CandidateError(f"candidates: {c.name!r}: its joint must be a tuple of (key, scale) pairs, got "
-                             f"{type(c.joint).__name__}")
-    for pair in c.joint:
-        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
-            raise CandidateError(f"candidates: {c.name!r}: its joint holds {pair!r:.60}, not a (key, scale) pair")
-        key, scale = pair
-        if key not in specs:
-            raise CandidateError(f"candidates: {c.name!r}: its joint names {key!r}, not one of its parameters "
-                                 f"({', '.join(sorted(specs))})")
-        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-            raise CandidateError(f"candidates: {c.name!r}: its joint scale of {key} is {scale!r}: give a typical change "
-                                 "of the value (a positive number, in its unit)")
 
 
 def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:
@@ -658,48 +577,10 @@ _BUILTIN = {c.name: c for c in CANDIDATES}
 
 def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Candidate | str) -> FitResult | None:
     """A candidate's own fit on ``base`` (a built-in one by name: candidates hold lambdas, which do not
-    pickle); a candidate of one's own's result is checked against its contract (:class:`CandidateError`)."""
+    pickle)."""
     if isinstance(cand, str):
         return _BUILTIN[cand].fit(problem, base, y_base)
-    result = _call(cand, "fit", cand.fit, problem, base, y_base)
-    if result is not None and _BUILTIN.get(cand.name) is not cand:
-        _check_own_values(cand, "fit", result.values)
-        y_hat = np.asarray(result.y_hat, dtype=float)
-        if y_hat.shape != np.shape(y_base):
-            raise CandidateError(f"candidate {cand.name!r}: its fit's prediction y_hat has shape {y_hat.shape}, not the "
-                                 f"recording's {np.shape(y_base)} (full_prediction(problem, base, values) gives it)")
-        bad = np.flatnonzero(~np.isfinite(y_hat))
-        if bad.size:
-            raise CandidateError(f"candidate {cand.name!r}: its fit's prediction y_hat is {float(y_hat[bad[0]])!r} at sample "
-                                 f"{bad[0]} ({bad.size} samples not finite): return None where the fit fails")
-    return result
-
-
-def _call(cand: Candidate, what: str, fn: Callable[..., Any], *args: Any) -> Any:
-    """``fn(*args)``, one of ``cand``'s functions (``what``: its field's name); an exception from a
-    candidate of one's own becomes a :class:`CandidateError` naming it (its cause the original)."""
-    if _BUILTIN.get(cand.name) is cand:
-        return fn(*args)
-    try:
-        return fn(*args)
-    except (SimulationError, CandidateError):
-        raise
-    except Exception as exc:  # the user's code: say whose (the traceback is the cause's)
-        raise CandidateError(f"candidate {cand.name!r}: its {what} raised {type(exc).__name__}: {exc}") from exc
-
-
-def _check_own_values(cand: Candidate, what: str, values: dict[str, float]) -> None:
-    """The values a candidate of one's own's ``what`` (fit, refine) set: its parameters, within its
-    bounds (they are what is re-simulated)."""
-    specs = {spec.key: spec for spec in cand.parameters}
-    for key, value in values.items():
-        spec = specs.get(key)
-        if spec is None:
-            raise CandidateError(f"candidate {cand.name!r}: its {what} set {key!r}, not one of its parameters "
-                                 f"({', '.join(specs)})")
-        if not spec.lo <= value <= spec.hi:
-            raise CandidateError(f"candidate {cand.name!r}: its {what} set {key} = {value!r}, outside its bounds "
-                                 f"{spec.lo:g} .. {spec.hi:g}")
+    return cand.fit(problem, base, y_base)
 
 
 def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
@@ -1537,12 +1418,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         values = dict(current.values)
         for name in (e for e in current.effects if by_name[e].refine is not None):
             runs0 = sim.runs
-            cand = by_name[name]
-            moved = _call(cand, "refine", cand.refine, problem, p)
+            moved = by_name[name].refine(problem, p)
             kept = False
             if moved is not None:
-                if _BUILTIN.get(name) is not cand:
-                    _check_own_values(cand, "refine", moved)
                 p_j, f_j = joint(p.with_values(**moved), current.effects, cal_jac, final=True)
                 y_j, q_j = sim.run(p_j)
                 # as well as before is enough: an edge moved within the training blocks' plateau

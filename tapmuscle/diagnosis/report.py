@@ -20,6 +20,7 @@ from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text, read_recording
 
+from tapmuscle.diagnosis.candidates import Candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE, MuscleSpace
@@ -445,6 +446,11 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     return {"file": name, "plant": plant_name, "record": record, "rediagnose": command} | exp.to_json()
 
 
+def _one_or_many(items: Any) -> list[Any]:
+    """A name or candidate as a list of one, as :func:`~tapmuscle.diagnosis.diagnose.diagnose` takes them."""
+    return [items] if isinstance(items, (str, Candidate)) else list(items)
+
+
 def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *, plots: bool = True,
                    progress: Callable[[int, int], None] | None = None, effects: Sequence[str] | None = None,
                    workers: int = 1, **options: Any) -> tuple[Diagnosis, dict]:
@@ -496,8 +502,8 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
     rec: Recording = read_recording(recording)
     model, kind = load_plant(plant)
     probe_output_folder(out)  # before the work, not after it
-    if effects is not None:  # names, checked by diagnose; beside them the candidates of one's own given
-        options["candidates"] = [*([effects] if isinstance(effects, str) else effects), *options.get("candidates", ())]
+    if effects is not None:  # names, checked by diagnose; beside them the candidates (of one's own) given
+        options["candidates"] = [*_one_or_many(effects), *_one_or_many(options.get("candidates", ()))]
     cols = rec.columns
     try:  # (read_recording has checked the sampling and a '# ts_s:' header)
         load = rec.load_n  # the column, else the '# load_n:' header
