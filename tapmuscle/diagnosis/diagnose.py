@@ -1524,9 +1524,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # 3 of 6 recordings, the calibration bending the braid angle and radius in the others
         notes.insert(0, f"The recording's white noise ({white:.3g} mm) is {white / sensor_mm:.0f} times the sensor "
                         f"noise the plant states ({sensor_mm:.3g} mm: sensor.encoder_noise_std_mm and "
-                        "encoder_resolution_mm), a noisier sensor than the model's (a potentiometer or an ADC?). A "
-                        "remainder is called material against the smaller of the two, so that a real mismatch is not "
-                        "hidden in the noise; and at this noise level an effect not much larger than the noise may be "
+                        "encoder_resolution_mm), a noisier sensor than the model's (a potentiometer or an ADC?)"
+                        + (", or a mismatch that jumps from sample to sample in what the model leaves (the residual "
+                           "after it is structured: a plant file's effect the rig did not have, at other times or of "
+                           "another size, reads as noise too)" if tests1["structured"] else "")
+                        + ". A remainder is called material against the smaller of the two, so that a real mismatch is "
+                        "not hidden in the noise; and at this noise level an effect not much larger than the noise may be "
                         "taken up by the calibrated constants rather than named")
     excess1 = max(tests1["rms_mm"] ** 2 - floor ** 2, 0.0)
     # an alternative that a later round accepted as well is part of the model, not an alternative;

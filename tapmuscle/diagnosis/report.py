@@ -14,13 +14,15 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from fmu_plant import PlantParams
+
 from tapmuscle.plots.figures import new_figure, save_figure
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.plant_file import plant_file_text
 from tapmuscle.io.recording import Recording, RecordingError, atomic_write_text, read_recording
 
-from tapmuscle.diagnosis.candidates import Candidate
+from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate
 from tapmuscle.diagnosis.diagnose import MATERIAL_EFFECT_FACTOR, MATERIAL_FACTOR, Diagnosis, diagnose
 from tapmuscle.diagnosis.experiment_design import U_MIN_V, U_MAX_V, design_input, write_experiment
 from tapmuscle.diagnosis.model_space import MUSCLE, MuscleSpace
@@ -427,23 +429,41 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     duration = float(min(max(60.0, 0.5 * (d.t_s[-1] - d.t_s[0])), 180.0))
     # within the commands the recording covered, where the alternatives were fitted (design_input)
     span = (float(np.clip(np.min(d.u_v), U_MIN_V, U_MAX_V)), float(np.clip(np.max(d.u_v), U_MIN_V, U_MAX_V)))
-    exp = design_input({a.effect: a.params for a in group}, ts_s=d.ts_s, duration_s=duration,
+    effects = [a.effect for a in group]
+    space = MUSCLE if d.nominal is None else MuscleSpace(d.nominal)
+    passing = _passing_effects(d.calibrated, space, effects)
+    exp = design_input({a.effect: _without(a.params, space, passing) for a in group}, ts_s=d.ts_s, duration_s=duration,
                        noise_mm=max(d.tests_before["white_noise_mm"], 1e-6), load_n=load, u_span_v=span,
                        executor=executor)
-    effects = [a.effect for a in group]
     where = Path("") if shown is None else Path(shown)
     record = write_experiment(exp, out / name, alternatives=effects, ts_s=d.ts_s, load_n=load, shown=str(where / name))
     # The re-diagnosis starts from the constants this recording identified: the experiment's recording
     # was designed to separate the alternatives, not to pin the constants, and recalibrated from the
     # nominal plant on it they would take up again what the alternatives differ in.
     # the effects off at the nominal model's operating conditions (the plant file's supply pressure)
-    space = MUSCLE if d.nominal is None else MuscleSpace(d.nominal)
-    base = d.calibrated.with_values(**space.off_values([k for a in group for k in a.parameters]))
+    base = _without(d.calibrated.with_values(**space.off_values([k for a in group for k in a.parameters])), space,
+                    passing)
+    left = f" and {', '.join(passing)} (the recording's, at its times)" if passing else ""
     atomic_write_text(out / plant_name, plant_file_text(
-        base, f"the calibrated plant without {', '.join(effects)}: re-diagnose the recording of {name} with it"))
+        base, f"the calibrated plant without {', '.join(effects)}{left}: re-diagnose the recording of {name} with it"))
     command = (f"tapmuscle diagnose --recording NEW.csv --plant {shlex.quote(str(where / plant_name))} "
                f"--effects {','.join(effects)} --out NEW_DIAGNOSIS")
     return {"file": name, "plant": plant_name, "record": record, "rediagnose": command} | exp.to_json()
+
+
+def _passing_effects(params: PlantParams, space: MuscleSpace, keep: Sequence[str]) -> list[str]:
+    """The effects on in ``params`` that act only for a while at the recording's times (a supply sag:
+    :attr:`~tapmuscle.diagnosis.candidates.Candidate.edges`), other than those in ``keep``. An
+    experiment recorded later has its own clock: such an effect is not in it."""
+    return [c.name for c in CANDIDATES if c.edges is not None and c.name not in keep
+            and any(params.value(spec.key) != off for spec, off in
+                    zip(c.parameters, space.off_values([spec.key for spec in c.parameters]).values()))]
+
+
+def _without(params: PlantParams, space: MuscleSpace, effects: Sequence[str]) -> PlantParams:
+    """``params`` with the built-in ``effects`` off."""
+    keys = [spec.key for c in CANDIDATES if c.name in effects for spec in c.parameters]
+    return params.with_values(**space.off_values(keys)) if keys else params
 
 
 def _one_or_many(items: Any) -> list[Any]:
