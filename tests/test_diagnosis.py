@@ -1883,3 +1883,29 @@ def test_a_sag_of_the_recording_is_left_out_of_the_discriminating_experiments_pl
     off = _without(rig, MUSCLE, ["supply_pressure_variation"])
     assert off.supply_variation == PlantParams().supply_variation and off.delay.delay_s == 0.15
     assert _without(rig, MUSCLE, []) is rig
+
+
+def test_a_named_transport_delay_says_what_the_controller_needs():
+    """A diagnosis that names a 0.15-s delay said nothing of control, and a user who set what it found
+    through the plant file alone ran the loop uncompensated: the summary and report.md say the
+    controller's input_delay_samples (the longer of two samples for a delay between them, as the
+    controller's own decision), and where to set it."""
+    from fmu_plant import PlantParams
+    from tapmuscle.diagnosis.report import delay_advice, summary_lines
+
+    import tapmuscle as tm
+
+    assert "input_delay_samples = 1 at Ts = 0.1 s, with a theta0" in delay_advice(0.11, 0.1)
+    assert "input_delay_samples = 2 at Ts = 0.1 s (1.50 samples: the longer of 1 and 2," in delay_advice(0.15, 0.1)
+    assert "input_delay_samples = 8 at Ts = 0.02 s (7.50 samples" in delay_advice(0.15, 0.02)
+    assert "under a quarter of a sample: the controller needs no input_delay_samples" in delay_advice(0.02, 0.1)
+    assert "more than the controller compensates (input_delay_samples up to 25)" in delay_advice(2.6, 0.1)
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=60.0,
+                      params=PlantParams().with_values(**{"delay.delay_s": 0.15}))
+    d = diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], PlantParams(), candidates=["transport_delay"], calibration=None)
+    assert d.named == ["transport_delay"] and abs(d.calibrated.delay.delay_s - 0.15) < 0.01
+    said = [line for line in summary_lines(d) if "for control:" in line]
+    assert len(said) == 1 and "input_delay_samples = 2 at Ts = 0.1 s" in said[0], summary_lines(d)
+    clean = diagnose(rec["t_s"], rec["u_v"], rec["l_mm"], PlantParams().with_values(**{"delay.delay_s": 0.15}),
+                     calibration=None)
+    assert not [line for line in summary_lines(clean) if "for control:" in line]

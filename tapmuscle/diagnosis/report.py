@@ -6,6 +6,7 @@ and :func:`diagnose_files`, the recording-file-in, report-out entry point ``tapm
 from __future__ import annotations
 
 import json
+import math
 import os
 import shlex
 from concurrent.futures import Executor
@@ -14,6 +15,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from fmu_controller.displacement_control import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import PlantParams
 
 from tapmuscle.plots.figures import new_figure, save_figure
@@ -74,8 +76,13 @@ def summary_lines(d: Diagnosis) -> list[str]:
         # the constants are the final model's (re-fitted with the effects found); the fit is the first
         # calibration's, before any effect: said so, as the two can differ much
         final = " (in the final model, re-fitted with the effects)" if d.named or d.ambiguous else ""
+        # a fit that falls: the training blocks' constants do not carry to the held-out ones without
+        # the effects (the first calibration stretches them to take up what an effect does)
+        worse = (" (lower: the constants fitted to the training blocks without the effects below do not carry to "
+                 "the held-out ones)" if d.fit_calibrated_percent is not None
+                 and d.fit_calibrated_percent < d.fit_before_percent else "")
         out.append(f"calibration: held-out fit {d.fit_before_percent:.2f} % -> {d.fit_calibrated_percent:.2f} % "
-                   f"without any effect; constants{final}: {changed or 'none changed'}; not identifiable: "
+                   f"without any effect{worse}; constants{final}: {changed or 'none changed'}; not identifiable: "
                    f"{', '.join(r.parameter for r in d.calibration.rows if not r.identifiable) or 'none'}")
     immaterial = _immaterial_remainder(d)
     remainder = [] if immaterial is None else [f"  {immaterial}"]
@@ -100,7 +107,36 @@ def summary_lines(d: Diagnosis) -> list[str]:
         # its significance test uses, was clear
         gain = f" ({f.fit_gain_points:+.2f} points)" if f.effect != "unexplained" else ""
         out.append(f"  {i}. {f.effect}{gain}: {f.explanation}; located {where}; {f.regime}")
-    return out + remainder
+    delay = _named_delay_s(d)
+    return out + ([f"  {delay_advice(delay, d.ts_s)}"] if delay else []) + remainder
+
+
+def _named_delay_s(d: Diagnosis) -> float | None:
+    """The transport delay [s] the findings name, if any."""
+    return next((f.parameters.get("delay.delay_s") for f in d.findings if f.effect == "transport_delay"), None)
+
+
+def delay_advice(delay_s: float, ts_s: float) -> str:
+    """What the displacement controller needs for a transport delay of ``delay_s`` [s] at the
+    sampling period ``ts_s`` [s]: its ``input_delay_samples``, in whole samples (a delay between two,
+    the longer, which the servo methods track better with and the controller's own decision takes:
+    docs/control.md, "Transport delay"), and where to set it; beyond
+    :data:`~fmu_controller.displacement_control.MAX_INPUT_DELAY_SAMPLES`, that it cannot."""
+    n = delay_s / ts_s
+    whole = abs(n - round(n)) <= 0.25  # within a quarter of a sample of a whole number: that number
+    k = round(n) if whole else math.ceil(n)
+    if k == 0:
+        return (f"for control: the delay is {n:.2f} samples at Ts = {ts_s:g} s, under a quarter of a sample: the "
+                "controller needs no input_delay_samples for it")
+    if k > MAX_INPUT_DELAY_SAMPLES:
+        return (f"for control: the delay is {n:.1f} samples at Ts = {ts_s:g} s, more than the controller compensates "
+                f"(input_delay_samples up to {MAX_INPUT_DELAY_SAMPLES}); shorten it on the rig (docs/control.md, "
+                "\"Transport delay\")")
+    between = "" if whole else (f" ({n:.2f} samples: the longer of {k - 1} and {k}, which the servo methods track "
+                                "better with and input_delay_samples = -1 decides)")
+    return (f"for control: set the controller's input_delay_samples = {k} at Ts = {ts_s:g} s{between}, with a theta0 "
+            f"identified under it (tapmuscle identify --input-delay-samples {k}, whose file gives a scenario both); "
+            "tapmuscle run with a plant file alone leaves it at 0 (docs/control.md, \"Transport delay\")")
 
 
 def _windows_text(located: Sequence[tuple[float, float]]) -> str:
@@ -195,6 +231,10 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
                     f"`{k}` = {v:.6g}" + (f" (95 %: {_interval_text(*f.ci95[k])})" if k in f.ci95 else "")
                     for k, v in f.parameters.items()))
         lines.append("")
+        delay = _named_delay_s(d)
+        if delay:
+            advice = delay_advice(delay, d.ts_s)
+            lines += [advice[0].upper() + advice[1:] + ".", ""]
         if any(k not in f.ci95 for f in d.findings for k in f.parameters):
             lines += ["A parameter without an interval is one only its effect's own search fits (a band's edges, a "
                       "sag's window, a map's knot inputs: the fit is piecewise constant in them).", ""]
@@ -541,7 +581,8 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
             raise ValueError(f"{recording}: {exc}") from exc
         if load is None:
             d.notes.append(f"The recording gives no load (no load_n column, no '# load_n:' line): the plant's "
-                           f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch)")
+                           f"{model.load.load_n:g} N is assumed (a rig at another load shows as load_mismatch, or, where the "
+                           "recalibrated constants take it up, in them: give the rig's load to tell)")
         if filled.size:
             d.notes.append(f"{filled.size} samples were put back by interpolation (column filled, from t = "
                            f"{float(cols['t_s'][filled[0]] - cols['t_s'][0]):g} s): left out of the fits and the held-out "
