@@ -20,6 +20,17 @@ Algorithm 1's box matters for the choice: where the record ends before the box w
 sample short in 4 of 20 nominal cases; the choice therefore applies the box from half the record then
 (and says so), and only the identification it returns is the one asked for.
 
+A delay between two samples (0.15 s at Ts = 0.1 s) fits nearly as well under the longer of the two
+as under the better (one-step errors 1.15-1.17 times the best's, where a whole number of samples
+leaves its neighbours 2.0-2.8 times, and 1.4 samples 1.6 times), and the adaptive controllers track
+better with the longer: on the nominal rig, identified and run under each (AMPC-servo and AMPC-UCP,
+60 s of the paper's sine, two seeds) 0.32 against 0.56 mm and 0.75 against 0.80 at 0.15 s, 0.62
+against 1.22 and 1.16 against 3.03 at 0.25 s (at 1.4 samples the shorter stays: AMPC-UCP 0.58
+against 1.11). The choice therefore takes the longer of two neighbours whose errors lie within
+:data:`BETWEEN_SAMPLES_RATIO` (the longer erring less than the delay a sample below the best), where
+the pair stands out from the delay beyond it (:data:`BETWEEN_SAMPLES_STANDOUT`), as the controller's ``input_delay_samples = -1`` does for the
+servo methods (docs/control.md, "Transport delay").
+
 A command of one or two sines cannot tell a delay: at a few frequencies a delay is a phase lag, which
 Eq. (1)'s dynamics take up as well (a 0.1-Hz sine's fit keeps rising past the rig's delay to 3-5
 samples; two sines chose one sample short or 2-4 long). :func:`choose_input_delay` refuses such a
@@ -41,7 +52,8 @@ from .identification import IdentificationReport, check_record, identify_record
 from .prediction import MAX_INPUT_DELAY_SAMPLES
 
 __all__ = ["InputDelayChoice", "ToneCommandError", "choose_input_delay", "fits_by_delay", "tone_frequencies_hz",
-           "search_samples", "TONE_SHARE", "THIN_MARGIN_PERCENT", "SEARCH_S", "MIN_SEARCH_SAMPLES"]
+           "search_samples", "TONE_SHARE", "THIN_MARGIN_PERCENT", "SEARCH_S", "MIN_SEARCH_SAMPLES",
+           "BETWEEN_SAMPLES_RATIO", "BETWEEN_SAMPLES_STANDOUT"]
 
 #: Share of a command's variance that one or two fitted sinusoids must explain for the command to be
 #: taken as tones. Measured on 120-s commands: a sine 1.000 (any number of periods), two sines 0.997-1.000,
@@ -56,6 +68,16 @@ _DEFAULT_CONSTRAINT_START_S = inspect.signature(identify_record).parameters["con
 #: simulated rigs of benchmarks/input_delay_choice.py right choices led by 0.0005-1.0 %; choices gone
 #: wrong (short records, long holds, other conditions) led by a median of 0.06 %.
 THIN_MARGIN_PERCENT = 0.1
+
+#: The longer of two neighbouring delays is taken where its one-step error (100 % less its fit) is at
+#: most this many times the best's ... (module docstring; half a sample gives 1.15-1.17, a whole
+#: number of samples 2.0-2.8 for its neighbours)
+BETWEEN_SAMPLES_RATIO = 1.2
+#: ... where it errs less than the shorter neighbour does, and the delay beyond it (where tried) errs
+#: at least this many times the best: a chirp's fits lie within a few hundredths of a point over
+#: every delay (errors 1.03-1.24 times the best's), a run of flat fits and no pair; there the best
+#: fit alone is kept.
+BETWEEN_SAMPLES_STANDOUT = 1.3
 
 #: :func:`choose_input_delay` tries the delays up to this long [s] (the field rigs' transport delays
 #: reach 0.35 s) ...
@@ -145,7 +167,8 @@ class InputDelayChoice:
     """Result of :func:`choose_input_delay`."""
 
     input_delay_samples: int
-    """The delay ``D`` [samples] whose model fits best one step ahead."""
+    """The delay ``D`` [samples] whose model fits best one step ahead, or the next longer one where the
+    two fit nearly alike (:attr:`between_samples`)."""
     fits_percent: tuple[float, ...]
     """The 1-step fit [%] on the record of the model identified under each ``D = 0, 1, ...``."""
     constraint_start_s: float
@@ -153,18 +176,36 @@ class InputDelayChoice:
     for, or half the record where that lies beyond its end."""
     report: IdentificationReport
     """The identification under the chosen delay, with the options asked for."""
+    between_samples: bool = False
+    """The rig's delay lies between ``input_delay_samples - 1`` and ``input_delay_samples`` samples:
+    the shorter fits best, the chosen longer within :data:`BETWEEN_SAMPLES_RATIO` of it."""
 
     @property
     def margin_percent(self) -> float:
         """How much better [% of fit] the chosen delay fits than the next best (inf with one delay
-        tried); below :data:`THIN_MARGIN_PERCENT` the record hardly tells the two apart."""
-        rest = [f for d, f in enumerate(self.fits_percent) if d != self.input_delay_samples and math.isfinite(f)]
-        return self.fits_percent[self.input_delay_samples] - max(rest) if rest else math.inf
+        tried), the two of a delay between samples counted as one; below :data:`THIN_MARGIN_PERCENT`
+        the record hardly tells the two apart."""
+        chosen = {self.input_delay_samples} | ({self.input_delay_samples - 1} if self.between_samples else set())
+        rest = [f for d, f in enumerate(self.fits_percent) if d not in chosen and math.isfinite(f)]
+        return max(self.fits_percent[d] for d in chosen) - max(rest) if rest else math.inf
 
     @property
     def at_largest(self) -> bool:
         """The best fit is at the largest delay tried: the rig's delay may be larger still."""
-        return self.input_delay_samples == len(self.fits_percent) - 1
+        return self.input_delay_samples == len(self.fits_percent) - 1 and not self.between_samples
+
+
+def _between_samples(fits: list[float], best: int) -> bool:
+    """Whether the rig's delay lies between ``best`` and ``best + 1`` samples, by the 1-step fits [%]
+    under each delay: the longer errs within :data:`BETWEEN_SAMPLES_RATIO` of the best and less than
+    the shorter neighbour, and the delay beyond the pair at least :data:`BETWEEN_SAMPLES_STANDOUT`
+    times the best."""
+    err = [100.0 - f if math.isfinite(f) else math.inf for f in fits]
+    if best + 1 >= len(err) or not err[best + 1] <= BETWEEN_SAMPLES_RATIO * err[best]:
+        return False
+    if best >= 1 and not err[best + 1] < err[best - 1]:
+        return False
+    return best + 2 >= len(err) or err[best + 2] >= BETWEEN_SAMPLES_STANDOUT * err[best]
 
 
 def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples: int | None = None,
@@ -239,6 +280,8 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
                                   **(identify | {"constraint_start_s": start}))
     # a fit that is not a number (a diverged prediction) is the worst, not the best (argmax takes NaN)
     best = int(np.argmax([f if math.isfinite(f) else -math.inf for f in fits]))
+    between = _between_samples(fits, best)
+    best += between
     report = reports[best] if start == asked else identify_record(u_v, l_mm, ts_s=ts_s, input_delay_samples=best,
                                                                    **identify)
     tried = len(fits) - 1
@@ -250,4 +293,4 @@ def choose_input_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float,
                 f"may reach: merge the record to Ts = {SEARCH_S / MAX_INPUT_DELAY_SAMPLES:g} s or more to search that far "
                 "(tapmuscle import --decimate N, tm.decimated)")
         report = replace(report, notes=report.notes + (note,))
-    return InputDelayChoice(best, tuple(fits), start, report)
+    return InputDelayChoice(best, tuple(fits), start, report, between_samples=between)

@@ -527,3 +527,19 @@ def test_samples_filled_in_by_import_are_noted(records, tmp_path, capsys):
     capsys.readouterr()
     assert main(["identify", str(path), "--json", str(tmp_path / "g.json")]) == 0
     assert "note: 33 samples of the record were filled in by interpolation" in capsys.readouterr().err
+
+
+def test_auto_takes_the_longer_of_two_samples_for_a_delay_between_them_and_says_so(tmp_path, capsys):
+    """A rig whose valve acts 0.15 s late, 1.5 samples: the fits under 1 and 2 lie close, 1 the
+    better; 2 is written (the controllers track better with it), with a note giving both fits."""
+    assert main(["record", "--input", "random:lo=2,hi=8,hold_min=0.3,hold_max=2", "--duration", "240", "--set",
+                 "delay.delay_s=0.15", "--out", str(tmp_path / "rec.csv"), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(tmp_path / "rec.csv"), "--input-delay-samples", "auto", "--json",
+                 str(tmp_path / "id.json")]) == 0
+    err = capsys.readouterr().err
+    r = json.loads((tmp_path / "id.json").read_text())
+    fits = r["input_delay_choice"]["fit_percent_1_step"]
+    assert int(np.argmax(fits)) == 1 and r["input_delay_samples"] == 2, fits
+    assert (f"the rig's delay lies between 1 and 2 samples (1-step fits {fits[1]:.2f} and {fits[2]:.2f} %): 2 is "
+            "taken, the longer") in err, err

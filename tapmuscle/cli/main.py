@@ -190,6 +190,11 @@ def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[
         notes.append(f"the delays were compared with Algorithm 1's box from {choice.constraint_start_s:g} s (half the "
                      f"record): --constraint-start {args.constraint_start:g} lies beyond its end, and unconstrained "
                      "estimates tell delays apart less well")
+    if choice.between_samples:
+        d, fits = choice.input_delay_samples, choice.fits_percent
+        notes.append(f"the rig's delay lies between {d - 1} and {d} samples (1-step fits {fits[d - 1]:.2f} and "
+                     f"{fits[d]:.2f} %): {d} is taken, the longer, which the controllers track better with "
+                     "(docs/identification.md, \"Transport delay\")")
     if choice.margin_percent < THIN_MARGIN_PERCENT:
         notes.append(f"the best fit leads the next by {choice.margin_percent:.3f} % only: this record hardly tells "
                      "those delays apart; check the choice on another record (--validate), or record a longer random "
