@@ -704,9 +704,15 @@ class DisplacementController:
             for name, lo, hi in zip(ASYMMETRIC.names, *settings.constraint_region()):
                 v, lo, hi = float(theta0[ASYMMETRIC.index(name)]), float(lo), float(hi)
                 if not lo - 1e-9 * max(1.0, abs(lo)) <= v <= hi + 1e-9 * max(1.0, abs(hi)):
+                    # Table 2's box holds at Ts = 0.1 s: a theta0 of another period falls outside it
+                    table2 = dict(settings.box_lower) == TABLE2_LOWER and dict(settings.box_upper) == TABLE2_UPPER
+                    period = ("" if not table2 else
+                              f"; or theta0 was identified at another sampling period than this controller's Ts = "
+                              f"{settings.ts_s:g} s (an identification file carries its Ts and box: give the file, "
+                              "not its theta alone)")
                     raise ValueError(f"theta0's {name} = {v!r} lies outside the constraint region C, {lo!r}..{hi!r} "
                                      "(Table 2 unless box_lower/box_upper say otherwise): start the adaptive "
-                                     "controller inside it, or widen the box")
+                                     f"controller inside it, or widen the box{period}")
         self.settings = settings
         self.theta0 = _read_only(theta0.copy())
         self._rls: ConstrainedRLS | None = None

@@ -1026,8 +1026,13 @@ def test_an_adaptive_controller_starts_inside_its_constraint_region(theta0):
     """Algorithm 1 keeps the estimate in C: a theta0 outside it would stay in the law, outside C,
     through the start-up mode; a fixed-predictor MPC has no C."""
     outside = dict(zip(ASYMMETRIC.names, theta0)) | {"a1": 1.10, "b1": 0.30}
-    with pytest.raises(ValueError, match=r"theta0's a1 = 1.1 lies outside the constraint region C, 1.208..1.26"):
+    with pytest.raises(ValueError, match=r"theta0's a1 = 1.1 lies outside the constraint region C, 1.208..1.26") as e:
         DisplacementController(ControllerSettings(method="ampc_servo"), outside)
+    # Table 2's box, which holds at Ts = 0.1 s: a theta0 of another period is named as a cause (a
+    # 0.05-s identification's theta passed alone was told only of the box)
+    assert str(e.value).endswith("; or theta0 was identified at another sampling period than this controller's "
+                                 "Ts = 0.1 s (an identification file carries its Ts and box: give the file, not its "
+                                 "theta alone)")
     DisplacementController(ControllerSettings(method="mpc_servo"), outside)
     wide = ControllerSettings(method="ampc_ucp", box_lower={"a1": 1.0, "a2": -0.4, "b1": 0.2})
     assert DisplacementController(wide, outside).theta0[0] == 1.10
@@ -1042,8 +1047,9 @@ def test_the_constraint_region_is_checked_when_the_settings_are_made(theta0):
     assert lo[ASYMMETRIC.index("b1")] == 0.01 and np.isinf(hi).all() and np.isneginf(np.delete(lo, 2)).all()
     far = dict(zip(ASYMMETRIC.names, theta0)) | {"b1": 5.0}
     assert DisplacementController(lower_only, far).theta0[2] == 5.0
-    with pytest.raises(ValueError, match=r"theta0's b1 = 0.005 lies outside the constraint region C, 0.01..inf"):
+    with pytest.raises(ValueError, match=r"theta0's b1 = 0.005 lies outside the constraint region C, 0.01..inf") as e:
         DisplacementController(lower_only, far | {"b1": 0.005})
+    assert "another sampling period" not in str(e.value)  # a box of one's own: its period is one's own
     for lower, upper, message in (({"b1": 1.0}, {"b1": 0.1}, r"box_lower\['b1'\]=1.0 > box_upper\['b1'\]=0.1"),
                                   ({"b2": 1.0}, {}, "box_lower names unknown parameter 'b2'"),
                                   ({"b1": math.nan}, {}, r"box_lower\['b1'\] must not be NaN"),
