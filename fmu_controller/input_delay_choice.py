@@ -28,8 +28,9 @@ better with the longer: on the nominal rig, identified and run under each (AMPC-
 against 1.22 and 1.16 against 3.03 at 0.25 s (at 1.4 samples the shorter stays: AMPC-UCP 0.58
 against 1.11). The choice therefore takes the longer of two neighbours whose errors lie within
 :data:`BETWEEN_SAMPLES_RATIO` (the longer erring less than the delay a sample below the best), where
-the pair stands out from the delay beyond it (:data:`BETWEEN_SAMPLES_STANDOUT`), as the controller's ``input_delay_samples = -1`` does for the
-servo methods (docs/control.md, "Transport delay").
+the pair stands out from the delay beyond it (:data:`BETWEEN_SAMPLES_STANDOUT`), as the
+controller's ``input_delay_samples = -1`` does for the servo methods (docs/control.md, "Transport
+delay").
 
 A command of one or two sines cannot tell a delay: at a few frequencies a delay is a phase lag, which
 Eq. (1)'s dynamics take up as well (a 0.1-Hz sine's fit keeps rising past the rig's delay to 3-5
