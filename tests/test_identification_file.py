@@ -324,3 +324,30 @@ def test_a_model_identified_off_mm_and_v_is_read_with_a_warning_naming_the_file(
     else:
         assert len(texts) == 1 and texts[0].startswith(f"{path}: identified on a recording whose "), texts
         assert re.search(said, texts[0]) and "the controllers need Eq. (1) in mm and V" in texts[0]
+
+
+def test_a_theta_written_at_the_papers_period_carries_table_2_unless_it_lies_outside(tmp_path):
+    """A theta refined in closed loop and written without a box ran AMPC-servo unconstrained (0.295
+    against 0.243 mm on a user's rig): at Ts = 0.1 s the file carries Table 2's box, as identify
+    writes it there; none at another Ts, none with a warning naming the parameter where theta lies
+    outside Table 2, and none where asked (None) or one side given."""
+    from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
+    from tapmuscle.io.identification_file import write_identification
+
+    def box(name, **kw):
+        write_identification(tmp_path / name, tm.THETA0_44N if "theta" not in kw else kw.pop("theta"), **kw)
+        model = read_identification(tmp_path / name)
+        return model.box_lower, model.box_upper
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert box("paper.json", ts_s=0.1) == (TABLE2_LOWER, TABLE2_UPPER)
+        assert box("fast.json", ts_s=0.05) == ({}, {})
+        assert box("none.json", ts_s=0.1, box_lower=None, box_upper=None) == ({}, {})
+        assert box("one.json", ts_s=0.1, box_lower={"b1": 0.01}) == ({"b1": 0.01}, {})
+    outside = dict(zip(tm.ASYMMETRIC.names, tm.THETA0_44N)) | {"a1": 1.1}
+    with pytest.warns(UserWarning, match=r"outside\.json: no constraint box written: theta's a1 = 1\.1 \(Table 2: "
+                                         r"1\.208 \.\. 1\.26\) lies outside Table 2's box"):
+        assert box("outside.json", ts_s=0.1, theta=outside) == ({}, {})
+    with pytest.raises(IdentificationFileError, match=r"box_lower must be a mapping, None or 'auto', got 'table2'"):
+        write_identification(tmp_path / "bad.json", tm.THETA0_44N, ts_s=0.1, box_lower="table2")

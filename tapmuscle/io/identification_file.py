@@ -25,7 +25,8 @@ from fmu_controller.argument_checks import sampling_period
 from fmu_controller.box_projection import named_box
 from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.rls import TABLE2_LOWER
+from fmu_controller.identification import PAPER_TS_S
+from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.prediction import checked_input_delay
 from fmu_controller.preliminary_model import THETA0_LIMIT
 from fmu_plant.user_warning import warn_at_caller
@@ -246,8 +247,29 @@ def checked_box(lower: Mapping[str, float], upper: Mapping[str, float], *, what:
     return named_box(lower, upper, names=ASYMMETRIC.names, what=what)
 
 
+def _auto_box(path: str | Path, theta: Sequence[float], ts_s: float, box_lower: object, box_upper: object
+              ) -> tuple[object, object]:
+    """:func:`write_identification`'s ``"auto"`` box: Table 2's at Ts = 0.1 s for a ``theta`` within it."""
+    for name, side in (("box_lower", box_lower), ("box_upper", box_upper)):
+        if isinstance(side, str) and side != "auto":
+            raise ValueError(f"{name} must be a mapping, None or 'auto', got {side!r}")
+    if not (box_lower == "auto" and box_upper == "auto"):  # one side given: the other "auto" is none
+        return (None if box_lower == "auto" else box_lower), (None if box_upper == "auto" else box_upper)
+    if abs(ts_s - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
+        return None, None
+    outside = [f"{n} = {theta[ASYMMETRIC.index(n)]:.6g} (Table 2: {TABLE2_LOWER[n]:g} .. {TABLE2_UPPER[n]:g})"
+               for n in TABLE2_LOWER if not TABLE2_LOWER[n] <= theta[ASYMMETRIC.index(n)] <= TABLE2_UPPER[n]]
+    if outside:
+        warn_at_caller(f"{path}: no constraint box written: theta's {outside[0]} lies outside Table 2's box, so an "
+                       "adaptive controller started from this file runs Algorithm 1 without one; give "
+                       "box_lower/box_upper (a box of this rig's spread: docs/identification.md)", UserWarning)
+        return None, None
+    return dict(TABLE2_LOWER), dict(TABLE2_UPPER)
+
+
 def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence[float], *, ts_s: float,
-                         box_lower: Mapping[str, float] | None = None, box_upper: Mapping[str, float] | None = None,
+                         box_lower: Mapping[str, float] | None | str = "auto",
+                         box_upper: Mapping[str, float] | None | str = "auto",
                          note: str = "", input_delay_samples: int = 0) -> None:
     """Write a model as ``tapmuscle identify --json`` does, for :func:`read_identification` and a
     scenario's ``[controller] identification``: a ``theta`` refined in closed loop
@@ -262,8 +284,13 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
         [mm, V].
     ts_s : float
         The sampling period [s] it holds for.
-    box_lower, box_upper : mapping, optional
-        The constraint region C for an adaptive controller started from it (default: none).
+    box_lower, box_upper : mapping, None or "auto"
+        The constraint region C for an adaptive controller started from it (None: none). "auto"
+        (both left at it, the default): Table 2's at the paper's Ts = 0.1 s where ``theta`` lies
+        within it, as ``tapmuscle identify`` writes at that period (a theta refined in closed loop and
+        written without it ran AMPC-servo unconstrained: 0.295 against 0.243 mm of Eq. (21) on a
+        user's rig); none at another Ts, and none, with a ``UserWarning`` naming the parameter, where
+        ``theta`` lies outside Table 2's.
     note : str
         Where it comes from (the file's ``notes``).
     input_delay_samples : int
@@ -283,6 +310,8 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
         raise IdentificationFileError(f"{path}: {exc}") from None
     try:
         ts_s = sampling_period(ts_s)
+        if isinstance(box_lower, str) or isinstance(box_upper, str):
+            box_lower, box_upper = _auto_box(path, values, ts_s, box_lower, box_upper)
         lower, upper = checked_box(box_lower or {}, box_upper or {}, what="box_lower, box_upper")
         delay = checked_input_delay(input_delay_samples)
     except (TypeError, ValueError) as exc:
