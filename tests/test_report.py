@@ -170,11 +170,14 @@ def test_the_summary_lists_the_first_located_windows_and_counts_the_rest():
     def finding_line(n_windows):
         located = [(30.0 * k, 30.0 * k + 5.0) for k in range(n_windows)]
         finding = SimpleNamespace(effect="transport_delay", fit_gain_points=9.11, located=located,
-                                  explanation="the valve acts 300 ms after the command", regime="while contracting")
+                                  explanation="the valve acts 300 ms after the command", regime="while contracting",
+                                  parameters={"delay.delay_s": 0.3})
         d = SimpleNamespace(verdict="mismatch", calibration=None, named=["transport_delay"], ambiguous=[],
                             fit_before_percent=84.15, fit_after_percent=99.94, unexplained=None, unit="mm",
-                            findings=[finding])
-        return summary_lines(d)[-1]
+                            findings=[finding], ts_s=0.1)
+        lines = summary_lines(d)
+        assert lines[-1].startswith("  for control: set the controller's input_delay_samples = 3 at Ts = 0.1 s")
+        return lines[-2]
 
     assert SUMMARY_WINDOWS == 10
     long = finding_line(399)
