@@ -5,6 +5,7 @@ the constants where they name joint parameters, and taken through diagnose_files
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 
 import numpy as np
@@ -256,3 +257,59 @@ def test_numpy_numbers_are_bounds_and_scales_and_one_name_or_candidate_goes_to_d
                                 effects=["transport_delay"], calibration=None, candidates=candidates)[1]
         tried = {c["effect"] for c in doc["candidates_tried"]}
         assert tried == {"transport_delay", "backlash" if i == 0 else "speed_friction"}, tried
+
+
+CANDIDATE_FILE = '''
+import numpy as np
+from scipy import optimize
+from tapmuscle.diagnosis.candidates import Candidate, FitResult, ParameterSpec, full_prediction
+
+KEY = "friction.rate_gain"
+
+
+def fit(problem, base, y_base):
+    def cost(x):
+        y = problem.sim.run(base.with_values(**{KEY: float(x)}), stop=problem.n_fit)[0]
+        return float(np.sum(problem.train_residual(y) ** 2))
+    x = float(optimize.minimize_scalar(cost, bounds=(0.0, 3.0), method="bounded").x)
+    if cost(x) >= cost(base.value(KEY)):
+        return None
+    return FitResult({KEY: x}, full_prediction(problem, base, {KEY: x}))
+
+
+candidates = [Candidate("speed_friction", "friction growing with speed", (ParameterSpec(KEY, "-", 0.0, 3.0),),
+                        "a scalar search", fit, lambda v: f"rate gain {v[KEY]:.2f}")]
+'''
+
+
+def test_the_command_line_takes_candidates_of_ones_own_from_a_file(tmp_path, capsys):
+    """``tapmuscle diagnose --candidates FILE.py`` (the command line took built-in names only): the
+    file's ``candidates`` tried beside the built-ins or those ``--effects`` names, its own included; a
+    file that is missing, fails at a line, or defines no list is refused naming it, nothing written."""
+    from fmu_plant import PlantParams
+    from tapmuscle.cli.main import main
+
+    import tapmuscle as tm
+
+    rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=60.0,
+                      params=PlantParams().with_values(**{"friction.rate_gain": 2.5}))
+    tm.write_recording(tmp_path / "rec.csv", rec)
+    tm.write_plant_file(tmp_path / "plant.json", PlantParams())
+    (tmp_path / "mine.py").write_text(CANDIDATE_FILE)
+    base = ["diagnose", "--recording", str(tmp_path / "rec.csv"), "--plant", str(tmp_path / "plant.json"),
+            "--no-calibration", "--no-plots", "--quiet", "--workers", "1"]
+    assert main(base + ["--candidates", str(tmp_path / "mine.py"), "--effects", "transport_delay,speed_friction",
+                        "--out", str(tmp_path / "out")]) == 0
+    doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert {c["effect"] for c in doc["candidates_tried"]} == {"transport_delay", "speed_friction"}
+    assert [f["effect"] for f in doc["findings"]] == ["speed_friction"]
+    assert "speed_friction" in capsys.readouterr().out
+    (tmp_path / "broken.py").write_text("import numpy\n\ncandidates = [1 / 0]\n")
+    (tmp_path / "empty.py").write_text("mine = []\n")
+    for file, said in (("nowhere.py", "no such file"), ("broken.py", "broken.py, line 3: ZeroDivisionError: division by zero"),
+                       ("empty.py", "it defines no 'candidates'")):
+        assert main(base + ["--candidates", str(tmp_path / file), "--out", str(tmp_path / "refused")]) == 2
+        assert f"--candidates {tmp_path / file}" in (err := capsys.readouterr().err) and said in err, err
+    assert main(base + ["--effects", "speed_friction", "--out", str(tmp_path / "refused")]) == 2
+    assert "unknown effect 'speed_friction'" in (err := capsys.readouterr().err) and "--candidates FILE.py" in err
+    assert not (tmp_path / "refused").exists()

@@ -30,20 +30,26 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.candidates import CANDIDATES
 
     if _is_foreign(args.plant):  # its candidates depend on the FMU and the map: checked there
+        if args.candidates is not None:
+            raise UsageError(f"--candidates is for tapmuscle's plant, whose parameters a candidate sets; the foreign "
+                             f"FMU {args.plant} has candidates of its own inputs")
         if args.use_pressure:
             raise UsageError(f"--use-pressure is for tapmuscle's plant; the foreign FMU {args.plant} predicts "
                              "no muscle pressure")
         return _diagnose_foreign(args)
     out = Path(args.out)
-    effects = None
+    own = _own_candidates(args.candidates) if args.candidates is not None else []
+    table = {c.name: c for c in CANDIDATES} | {c.name: c for c in own}
+    candidates = list(table.values())
     if args.effects is not None:
         effects = _effect_list(args.effects)
-        known = [c.name for c in CANDIDATES]
-        unknown = [e for e in effects if e not in known]
+        unknown = [e for e in effects if e not in table]
         if unknown or not effects:
             raise UsageError(f"--effects {args.effects!r}: "
                              + (f"unknown effect {unknown[0]!r}" if unknown else "names no effect")
-                             + f"; known: {', '.join(known)}")
+                             + f"; known: {', '.join(table)}"
+                             + ("" if own else " (a candidate of your own: --candidates FILE.py)"))
+        candidates = [table[e] for e in effects]
     if args.map is not None or args.output is not None:
         raise UsageError(f"--map and --output are for a foreign plant FMU; {args.plant} is tapmuscle's plant")
     options = ({"calibration": None} if args.no_calibration else {}) | {"use_pressure": args.use_pressure}
@@ -52,7 +58,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                               progress=Progress("diagnose", enabled=not args.quiet, min_total=1, counts=False),
                               block_s=args.block,
                               fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
-                              effects=effects,
+                              candidates=candidates,
                               workers=args.workers or os.cpu_count() or 1, **options)
     except ValueError as exc:  # each names the recording or plant file at fault
         raise UsageError(str(exc)) from None
@@ -67,6 +73,40 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
           + (", discriminating_input.csv, discriminate_plant.json" if d.ambiguous else "")
           + ("" if args.no_plots else " and *.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
     return 0
+
+
+def _own_candidates(path: str) -> list:
+    """The candidates of one's own that the Python file ``path`` defines as ``candidates`` (a list of
+    :class:`~tapmuscle.diagnosis.candidates.Candidate`), or a :class:`UsageError` naming the file and
+    what is wrong: missing, failing to run (its exception and line), no such list."""
+    import importlib.util
+    import traceback
+
+    from tapmuscle.diagnosis.candidates import Candidate
+
+    file = Path(path)
+    if not file.is_file():
+        raise UsageError(f"--candidates {path}: no such file (a Python file defining candidates = [Candidate(...), "
+                         "...]: docs/diagnosis.md, \"A candidate of your own\")")
+    spec = importlib.util.spec_from_file_location(f"tapmuscle_own_candidates_{file.stem}", file)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:  # the user's code: where it failed in it
+        lines = [f.lineno for f in traceback.extract_tb(exc.__traceback__) if Path(f.filename).resolve() == file.resolve()]
+        if isinstance(exc, SyntaxError) and exc.lineno is not None:
+            lines.append(exc.lineno)
+        where = f", line {lines[-1]}" if lines else ""
+        raise UsageError(f"--candidates {path}{where}: {type(exc).__name__}: {exc}") from exc
+    found = getattr(module, "candidates", None)
+    if found is None:
+        raise UsageError(f"--candidates {path}: it defines no 'candidates' (a list of tapmuscle.diagnosis.Candidate "
+                         "objects: docs/diagnosis.md, \"A candidate of your own\")")
+    items = [found] if isinstance(found, Candidate) else list(found) if isinstance(found, (list, tuple)) else None
+    if items is None or not items or not all(isinstance(c, Candidate) for c in items):
+        raise UsageError(f"--candidates {path}: its 'candidates' is {type(found).__name__} {found!r:.60}, not a "
+                         "non-empty list of tapmuscle.diagnosis.Candidate objects")
+    return items
 
 
 def _is_foreign(plant: str) -> bool:
@@ -207,6 +247,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     dia.add_argument("--effects", default=None,
                      help="comma-separated candidate effects to consider (default all), e.g. the alternatives of an "
                           "ambiguous verdict when diagnosing the discriminating experiment's recording")
+    dia.add_argument("--candidates", default=None, metavar="FILE.py",
+                     help="a Python file defining candidates = [Candidate(...), ...], effects of your own tried "
+                          "beside the built-in ones (--effects may name them) (docs/diagnosis.md, \"A candidate "
+                          "of your own\")")
     dia.add_argument("--no-calibration", action="store_true",
                      help="take the plant's nominal constants as exact (skip the calibration step)")
     dia.add_argument("--workers", type=integer_at_least("--workers", 1), default=None,
