@@ -9,7 +9,9 @@ With a constant level this is rate independent (the loop depends on the path, no
 the Bouc-Wen model. Three physical dependences make it like the real muscle:
 
 * load/pressure: the normal force between braid and bladder grows with pressure and with the
-  contact area, so at a heavier load (higher pressure for the same contraction) the loop is wider;
+  contact area, so at a higher pressure for the same contraction the level is higher; in the rig
+  the valve sets the pressure at a command whatever the load, so a heavier load mostly shifts the
+  loop and widens it by a few % (docs/plant.md, "Hysteresis");
 * asymmetry: the level differs between contraction (``s = +1``) and extension (``s = -1``);
 * rate: the level grows with sliding speed (lubricated contact), so faster motion widens the loop;
   the paper's section 4.4 finds this frequency dependence at 0.2 Hz. ``rate_gain = 0`` removes it.

@@ -97,7 +97,7 @@ class ValveParams(_Validated):
     spool_time_constant_s: float = _f(0.03, "First-order spool response time constant [s]; calibration (typical of proportional valves).", lo=0.0, lo_open=True, hi=10.0)
     characteristic_exponent: float = _f(0.5, "Flow characteristic: flow coefficient proportional to opening^n (1 linear, 0.5 quick-opening) [-]; calibration: 0.5 makes the bleed circuit's steady pressure proportional to the command.", lo=0.1, hi=3.0)
     leak_fraction: float = _f(0.01, "Opening of a closed valve as a fraction of full opening (spool underlap/leak) [-]; calibration.", lo=0.0, hi=1.0)
-    laminar_dp_mpa: float = _f(0.002, "Pressure drop below which orifice flow is regularised to laminar [MPa]; numerical.", lo=0.0, lo_open=True, hi=0.1)
+    laminar_dp_mpa: float = _f(0.002, "Pressure drop below which orifice flow is regularised to laminar [MPa]; numerical at its default (it keeps the flow's slope finite near equal pressures), physical when raised: at 0.1 MPa the steady displacement moves by up to 12 mm (a low command's leak balance).", lo=0.0, lo_open=True, hi=0.1)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -112,6 +112,15 @@ class SupplyParams(_Validated):
     supply_pressure_mpa: float = _f(0.25, "Gauge pressure of the tap-water supply [MPa(G)]; paper (Table 1, average).", lo=0.0, hi=1.0)
     drain_pressure_mpa: float = _f(0.0, "Gauge pressure of the drain (atmosphere) [MPa(G)]; paper.", lo=0.0, hi=1.0)
     compliance_m3_per_mpa: float = _f(1.0e-5, "Hydraulic compliance of hose, fittings and bladder dV/dp [m^3/MPa]; calibration (water itself is nearly incompressible).", lo=0.0, lo_open=True, hi=1e-2)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        # the drain is where the water leaves to: above the supply, the valve's supply side would drain
+        # the muscle and its drain side fill it
+        if self.drain_pressure_mpa > self.supply_pressure_mpa:
+            raise ValueError(f"{type(self).__name__}.drain_pressure_mpa ({self.drain_pressure_mpa!r}) must not exceed "
+                             f"supply_pressure_mpa ({self.supply_pressure_mpa!r}): the drain is the atmosphere the "
+                             "muscle empties into")
 
 
 @dataclass(frozen=True, kw_only=True)

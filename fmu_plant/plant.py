@@ -26,7 +26,7 @@ The fully extended braid is a rigid stop at ``l = 0``.
 
 Integration: the command is held over a communication step (zero-order hold), so the spool follows
 its exact exponential solution. The other four states are stiff (the hose/bladder compliance makes the
-pressure and the load a ~50 Hz hydraulic spring-mass pair, and the valve conductance near a
+pressure and the load a ~40-45 Hz hydraulic spring-mass pair, and the valve conductance near a
 saturated command relaxes the pressure at ~900 1/s), so they are integrated with the linearly
 implicit Rosenbrock-W method ROS34PW2 (3rd order, L-stable) over adaptive sub-steps: each sub-step
 solves four 4x4 linear systems with the analytic Jacobian of the stiff couplings, its embedded
@@ -142,11 +142,15 @@ def _hold_checks(effects: Sequence[Effect]) -> tuple[Callable[[float, float], bo
     return tuple(checks)
 
 
-def _breakdown(failed_at_s: float, state: Sequence[float]) -> FloatingPointError:
-    """The error of an integration whose numbers broke down at ``failed_at_s`` from ``state``."""
+def _breakdown(failed_at_s: float, state: Sequence[float], params: PlantParams) -> FloatingPointError:
+    """The error of an integration whose numbers broke down at ``failed_at_s`` from ``state``, naming
+    the parameters off their defaults (one of them drove it there)."""
+    defaults = PlantParams().dotted()
+    off = [f"{k}={v:.6g}" for k, v in params.dotted().items() if v != defaults.get(k)]
     return FloatingPointError(f"plant integration failed at t = {failed_at_s:.6g} s: the state "
                               f"({', '.join(f'{v:.6g}' for v in state)}) went non-finite at "
-                              f"the shortest sub-step (extreme parameters?)")
+                              f"the shortest sub-step (extreme parameters? off their defaults: "
+                              f"{', '.join(off) or 'none'})")
 
 
 def _finite(name: str, value: Any) -> float:
@@ -420,7 +424,7 @@ class Plant:
         if done:
             self.measurement = Measurement(self.t_s, float(l_mm[done - 1]), float(p_mpa[done - 1]))
         if failure is not None:
-            raise failure[1] if failure[0] == "raised" else _breakdown(failure[1], failure[2])
+            raise failure[1] if failure[0] == "raised" else _breakdown(failure[1], failure[2], self.params)
         return l_mm, p_mpa
 
     def _integrate(self, u_v: float, dt_s: float) -> None:
@@ -678,7 +682,7 @@ class Plant:
         x, p, l, v, z, xs, self._kink_scale, self._last_supply_mpa, failed_at = self._advance_substeps(
             x, p, l, v, z, self._xs_last, self._kink_scale, self._last_supply_mpa, u, ps, w, t0, dt, ports)
         if failed_at == failed_at:  # not NaN: the numbers broke down at the shortest sub-step
-            raise _breakdown(failed_at, self.state)
+            raise _breakdown(failed_at, self.state, self.params)
         self.state = [x, p, l, v, z]
         self._xs_last = xs
 

@@ -204,8 +204,11 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
                 h, last = 0.5 * left, False
             else:
                 h, last = h_try, False
-            new = attempt(x, p, l, v, z, xs, ps, w, h)
-            err = new[5]
+            try:
+                new = attempt(x, p, l, v, z, xs, ps, w, h)
+                err = new[5]
+            except OverflowError:  # a float power beyond range, where the compiled sub-step's pow gives inf
+                err = inf
             if err <= 1.0 or h <= h_min:
                 if not err < inf:  # NaN or inf at the shortest step: the numbers broke down
                     return x0, p0, l0, v0, z0, xs_last, kink_scale, last_ps, t0 + done

@@ -351,3 +351,21 @@ def test_the_valve_flows_balance_the_pressure_at_rest(u_v):
         p.step(u_v, 0.1)                                 # settled: dp/dt = 0, dl/dt = 0
     q_in, q_out = p.flows_l_min()
     assert q_in > 0 and q_in == pytest.approx(q_out, rel=1e-3)
+
+
+def test_a_breakdown_names_the_parameters_off_their_defaults_and_a_drain_above_the_supply_is_refused():
+    """A plant whose numbers break down said 'extreme parameters?' and left the user to guess which:
+    the message names those off their defaults. A drain above the supply (the drain is the
+    atmosphere) was accepted and ran (1 MPa drain: 132 mm, 0.99 MPa at 0 V)."""
+    from fmu_plant import Plant, PlantParams
+
+    plant = Plant(PlantParams().with_values(**{"friction.rate_ref_mm_s": 1e-300, "friction.rate_exponent": 2.0}))
+    with pytest.raises(FloatingPointError, match=r"went non-finite at the shortest sub-step \(extreme parameters\? off "
+                                                 r"their defaults: friction\.rate_ref_mm_s=1e-300, "
+                                                 r"friction\.rate_exponent=2\)"):
+        plant.step(10.0, 0.1)
+    assert plant.t_s == 0.0
+    with pytest.raises(ValueError, match=r"supply\.drain_pressure_mpa \(0\.5\) must not exceed supply_pressure_mpa "
+                                         r"\(0\.2\): the drain is the atmosphere"):
+        PlantParams().with_values(**{"supply.drain_pressure_mpa": 0.5, "supply.supply_pressure_mpa": 0.2})
+    PlantParams().with_values(**{"supply.drain_pressure_mpa": 0.25})  # equal to the supply: allowed

@@ -145,3 +145,15 @@ def test_a_sub_step_built_for_another_python_is_named_and_the_plant_fmu_says_so(
     (msg,) = [m for m in slave.log_queue if foreign in m.msg]
     assert msg.status == Fmi2Status.ok and "the same results, about 2.5 times slower" in msg.msg
     assert f"CPython {sys.version_info.major}.{sys.version_info.minor}" in msg.msg
+
+
+def test_a_power_beyond_floats_range_breaks_down_in_python_as_in_the_compiled_sub_step():
+    """A speed reference of 1e-300 mm/s under an exponent of 2: Python's float power raised a bare
+    OverflowError out of the Python sub-step where the compiled one's pow gives inf and the step
+    breaks down; both now return the step's start and the same failure time."""
+    prm = PlantParams().with_values(**{"friction.rate_ref_mm_s": 1e-300, "friction.rate_exponent": 2.0})
+    _, _, _, _, advance_c = build_model(prm, compiled=True)
+    _, _, _, _, advance_py = build_model(prm, compiled=False)
+    state = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.004, 0.25, 10.0, 0.25, 44.0, 0.0, 0.1, None)
+    got, expected = advance_c(*state), advance_py(*state)
+    assert _same(got, expected) and got[-1] == got[-1] and 0.0 < got[-1] < 0.1, (got, expected)
