@@ -313,3 +313,18 @@ def test_the_command_line_takes_candidates_of_ones_own_from_a_file(tmp_path, cap
     assert main(base + ["--effects", "speed_friction", "--out", str(tmp_path / "refused")]) == 2
     assert "unknown effect 'speed_friction'" in (err := capsys.readouterr().err) and "--candidates FILE.py" in err
     assert not (tmp_path / "refused").exists()
+
+
+def test_the_rediagnosis_command_of_an_experiment_asks_for_the_candidates_file_where_one_is_yours():
+    """The printed re-diagnosis of a discriminating experiment named the effects only, which the
+    command line refuses for a candidate of one's own without its file."""
+    from pathlib import Path
+
+    from tapmuscle.diagnosis.report import _rediagnose_command
+
+    plant = Path("out") / "discriminate_plant.json"
+    assert _rediagnose_command(plant, ["transport_delay", "sensor_drift"]) == (
+        "tapmuscle diagnose --recording NEW.csv --plant out/discriminate_plant.json --effects "
+        "transport_delay,sensor_drift --out NEW_DIAGNOSIS")
+    assert _rediagnose_command(plant, ["transport_delay", "speed_friction"]).endswith(
+        "--effects transport_delay,speed_friction --candidates YOUR_CANDIDATES.py --out NEW_DIAGNOSIS")

@@ -486,9 +486,16 @@ def _write_experiment(d: Diagnosis, group: list, out: Path, index: int,
     left = f" and {', '.join(passing)} (the recording's, at its times)" if passing else ""
     atomic_write_text(out / plant_name, plant_file_text(
         base, f"the calibrated plant without {', '.join(effects)}{left}: re-diagnose the recording of {name} with it"))
-    command = (f"tapmuscle diagnose --recording NEW.csv --plant {shlex.quote(str(where / plant_name))} "
-               f"--effects {','.join(effects)} --out NEW_DIAGNOSIS")
+    command = _rediagnose_command(where / plant_name, effects)
     return {"file": name, "plant": plant_name, "record": record, "rediagnose": command} | exp.to_json()
+
+
+def _rediagnose_command(plant: Path, effects: Sequence[str]) -> str:
+    """The command that re-diagnoses the experiment's recording among ``effects`` with ``plant``; a
+    candidate of one's own among them needs its file again."""
+    own = [e for e in effects if e not in {c.name for c in CANDIDATES}]
+    return (f"tapmuscle diagnose --recording NEW.csv --plant {shlex.quote(str(plant))} --effects {','.join(effects)}"
+            + (" --candidates YOUR_CANDIDATES.py" if own else "") + " --out NEW_DIAGNOSIS")
 
 
 def _passing_effects(params: PlantParams, space: MuscleSpace, keep: Sequence[str]) -> list[str]:
