@@ -87,10 +87,10 @@ up to 28 mm apart; diagnosed, the same two effects with the load at 10.7 N inste
 from __future__ import annotations
 
 import math
-import types
 import numbers
 import pickle
 import time
+import types
 from concurrent.futures import Executor, Future
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
