@@ -2,8 +2,8 @@
 
 What ships inside the FMUs (``fmu_plant``, ``fmu_controller``, ``fmi_slave``) and the FMU build
 (``build_scripts``) never import :mod:`tapmuscle`. Inside :mod:`tapmuscle` the layers are, bottom
-to top: ``errors``, ``progress``, ``io``, ``plots``, ``own_law``, ``closed_loop``, ``soak``, ``cosim``, ``diagnosis``, ``paper``,
-``cli``, and the package root (the Python API face). A module may import its own layer and the
+to top: ``errors``, ``interrupts``, ``progress``, ``io``, ``plots``, ``own_law``, ``closed_loop``, ``soak``,
+``cosim``, ``diagnosis``, ``paper``, ``cli``, and the package root (the Python API face). A module may import its own layer and the
 layers below it, never one above: the test reads every import statement, including those inside
 functions.
 """
@@ -21,7 +21,7 @@ import pytest
 from fmpy_helpers import host_lines
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ["tapmuscle.errors", "tapmuscle.progress", "tapmuscle.io", "tapmuscle.plots", "tapmuscle.own_law",
+LAYERS = ["tapmuscle.errors", "tapmuscle.interrupts", "tapmuscle.progress", "tapmuscle.io", "tapmuscle.plots", "tapmuscle.own_law",
           "tapmuscle.closed_loop", "tapmuscle.soak",
           "tapmuscle.cosim",
           "tapmuscle.diagnosis", "tapmuscle.paper", "tapmuscle.cli", "tapmuscle"]

@@ -610,9 +610,24 @@ def _ending_on_interrupt(process: bool) -> None:
     """After a Ctrl-C that ends the console script's process: further ones (a key held, pressed again)
     are ignored, as one arriving in the clean-up at exit would end the process by the signal, not with
     exit 130, and with an "Exception ignored in atexit callback" traceback. An in-process caller (a
-    notebook) keeps its Ctrl-C."""
+    notebook) keeps its Ctrl-C. (Under :func:`_interrupting_once` they are ignored already: this
+    covers an interrupt raised by other means.)"""
     if process and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _interrupting_once(process: bool) -> Any:
+    """In the console script's process, Python's SIGINT handler replaced by one that ignores every
+    later SIGINT from the moment it raises (:func:`tapmuscle.interrupts.interrupt_once`): a key held
+    down otherwise lands a second interrupt in the first one's unwinding, even in the ``except`` that
+    reports it, and the process ends by the signal (exit -2, a traceback) instead of exit 130.
+    Returns the handler to put back at the end (None: nothing replaced)."""
+    if not process or threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return None  # in-process callers, and a SIGINT ignored or handled by someone else, keep theirs
+    from tapmuscle.interrupts import interrupt_once
+
+    return signal.signal(signal.SIGINT, interrupt_once)
 
 
 #: Commands whose time is mostly the plant's integration, in this process or in the FMUs they build.
@@ -639,6 +654,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tapmuscle`` console script."""
     process = argv is None  # the console script: the process ends with the command
     argv = list(sys.argv[1:] if argv is None else argv)
+    previous = _interrupting_once(process)
+    try:
+        return _main(argv, process)
+    finally:
+        if previous is not None and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+            signal.signal(signal.SIGINT, previous)  # not interrupted: the caller's handler back
+
+
+def _main(argv: list[str], process: bool) -> int:
     try:
         parser = build_parser()  # most of a second: its subcommands' modules are imported
         args = parser.parse_args(argv)

@@ -30,7 +30,7 @@ sample of delay in the controller's path; docs/fmu.md explains how to avoid it i
 The last row (``k = N-1``) reads the plant and runs the controller but does not step the plant, as the
 direct loop. Any FMI call that fails raises :class:`~tapmuscle.cosim.spec.ScenarioError` with the FMU's
 logged message. A Ctrl-C is held while FMI calls run and raised between samples
-(:mod:`tapmuscle.cosim.held_interrupt`), so the FMUs are freed normally.
+(:mod:`tapmuscle.interrupts`), so the FMUs are freed normally.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ from fmu_plant.seed import split_seed
 from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
-from tapmuscle.cosim.held_interrupt import held_interrupts
+from tapmuscle.interrupts import held_interrupts
 from tapmuscle.cosim.pythonfmu_exit import release_at_exit
 from tapmuscle.errors import FmuLogWarning
 from tapmuscle.cosim.spec import Scenario, ScenarioError

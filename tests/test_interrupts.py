@@ -5,6 +5,8 @@ segfault (exit 139) or a fatal FMU error (exit 2) in two of three tries, and a s
 interrupted run as failed and went on.
 """
 
+import argparse
+import importlib
 import os
 import signal
 import subprocess
@@ -16,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from tapmuscle.cosim import PAPER_SCENARIOS
-from tapmuscle.cosim.held_interrupt import HELD, held_interrupts
+from tapmuscle.interrupts import HELD, held_interrupts, interrupt_once
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="SIGINT sent to a child process (POSIX)")
 
@@ -87,6 +89,71 @@ def test_nested_blocks_hold_once_and_other_threads_and_handlers_are_left_alone()
         assert seen[-1] == "own handler"
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+
+@pytest.fixture
+def interrupting_once():
+    """The console script's handler (``interrupt_once``) installed for the test, the default put back."""
+    signal.signal(signal.SIGINT, interrupt_once)
+    yield
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def test_interrupt_once_raises_and_ignores_every_later_sigint(interrupting_once):
+    with pytest.raises(KeyboardInterrupt):
+        signal.raise_signal(signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    signal.raise_signal(signal.SIGINT)  # a key still held: nothing raised, in an except clause or anywhere
+
+
+def test_under_interrupt_once_a_held_interrupt_that_ends_the_block_leaves_sigint_ignored(interrupting_once):
+    """Whether raised in the block (the master's ``raise_if_pending``) or still held at its end, the
+    interrupt that ends the block ignores the later ones as ``interrupt_once``'s own does; a block that
+    ends without one puts ``interrupt_once`` back."""
+    with held_interrupts():
+        assert signal.getsignal(signal.SIGINT) is not interrupt_once  # held
+    assert signal.getsignal(signal.SIGINT) is interrupt_once
+
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts() as held:
+            signal.raise_signal(signal.SIGINT)
+            held.raise_if_pending()
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
+    signal.signal(signal.SIGINT, interrupt_once)
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts():
+            signal.raise_signal(signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN and not HELD.pending
+
+
+def test_the_console_script_interrupts_once_and_puts_the_callers_handler_back(monkeypatch, tmp_path):
+    """``main()`` as the console script calls it (no argv) runs its command under ``interrupt_once``
+    and, not interrupted, ends with the handler it found; ``main(argv)`` (an in-process caller) keeps
+    Python's own throughout."""
+    cli = importlib.import_module("tapmuscle.cli.main")
+
+    seen = []
+
+    def command(args):
+        seen.append(signal.getsignal(signal.SIGINT))
+        return 0
+
+    real = cli.build_parser
+
+    def parser_with_probe():
+        parser = real()
+        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        commands.choices["build"].set_defaults(func=command)  # the command replaced: nothing is built
+        return parser
+
+    monkeypatch.setattr(cli, "build_parser", parser_with_probe)
+    monkeypatch.setattr(sys, "argv", ["tapmuscle", "build", "--out", str(tmp_path)])
+    assert cli.main() == 0
+    assert cli.main(["build", "--out", str(tmp_path)]) == 0
+    assert seen == [interrupt_once, signal.default_int_handler]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 _INTERRUPTED_STEP = r"""

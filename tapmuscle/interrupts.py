@@ -1,4 +1,5 @@
-"""Ctrl-C during a co-simulation, held until the master is between FMI calls.
+"""Ctrl-C: during a co-simulation held until the master is between FMI calls; in the console
+script, the first one its last.
 
 SIGINT raises ``KeyboardInterrupt`` in whatever Python code is running, and during a co-simulation
 that is most often a Python FMU's slave, inside ``fmi2DoStep``. The FMU cannot pass an exception
@@ -9,8 +10,16 @@ one of three tries). Within :func:`held_interrupts` the signal only sets a flag;
 between FMI calls (:data:`HELD`) and raises ``KeyboardInterrupt`` there, so the FMUs are freed
 normally and the command ends with its interrupted message (exit status 130).
 
-Only Python's own SIGINT handler is replaced, and only in the main thread (the one that receives
-signals): a handler someone else installed (a GUI, a test runner) is left alone.
+Only Python's own SIGINT handler (or :func:`interrupt_once`) is replaced, and only in the main
+thread (the one that receives signals): a handler someone else installed (a GUI, a test runner) is
+left alone.
+
+A process that ends with its first Ctrl-C (the console script) installs :func:`interrupt_once`: a key
+held down sends SIGINT every few milliseconds, and one arriving while the first interrupt unwinds,
+even inside the ``except KeyboardInterrupt`` that reports it, would end the process by the signal
+(exit -2, with a traceback) instead of exit 130. The handler ignores SIGINT from the moment it raises,
+and a held interrupt raised at the end of :func:`held_interrupts` does the same under it, so no
+Python line is left between the first interrupt and the ignoring.
 """
 
 from __future__ import annotations
@@ -20,7 +29,7 @@ import threading
 from contextlib import contextmanager
 from typing import Iterator
 
-__all__ = ["HELD", "held_interrupts"]
+__all__ = ["HELD", "held_interrupts", "interrupt_once"]
 
 
 class _Held:
@@ -46,6 +55,14 @@ def _hold(signum: int, frame: object) -> None:
     HELD.pending = True
 
 
+def interrupt_once(signum: int, frame: object) -> None:
+    """A SIGINT handler: ``KeyboardInterrupt`` as Python's own, with every later SIGINT ignored (set
+    before raising, so that no Python line runs between the two); for a process that ends with its
+    first interrupt (module docstring)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
 @contextmanager
 def held_interrupts() -> Iterator[_Held]:
     """Hold SIGINT for the block (module docstring); a signal still held at its end is raised there.
@@ -53,14 +70,26 @@ def held_interrupts() -> Iterator[_Held]:
     Nested blocks share the outer block's holding. Yields :data:`HELD`, whose
     :meth:`~_Held.raise_if_pending` the block calls where an interrupt may safely end it.
     """
+    previous = signal.getsignal(signal.SIGINT)
     if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            previous not in (signal.default_int_handler, interrupt_once):
         yield HELD  # held already (a nested block), or the signal is someone else's
         return
     HELD.pending = False
     signal.signal(signal.SIGINT, _hold)
+    interrupted = False
     try:
         yield HELD
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        if previous is interrupt_once:
+            # the interrupt that ends the block leaves SIGINT ignored, as interrupt_once's own does:
+            # ignored first, so that no signal falls between reading the flag and the handler's change
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            if not (interrupted or HELD.pending):
+                signal.signal(signal.SIGINT, previous)
+        else:
+            signal.signal(signal.SIGINT, previous)
     HELD.raise_if_pending()
