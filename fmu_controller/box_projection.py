@@ -23,7 +23,6 @@ import numbers
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
 __all__ = ["BoxProjector", "project_onto_box", "named_box", "box_from_pairs", "MAX_ENUMERATED"]
 
@@ -396,6 +395,10 @@ class BoxProjector:
             L = np.linalg.cholesky(S)
             Linv = np.linalg.solve(L, np.eye(S.shape[0]))   # |L^{-1} d|^2 = d^T S^{-1} d
             lo, hi = self.lower_c[r], self.upper_c[r]
+            # imported here: scipy.optimize is a third of the controller FMU's start-up, and the
+            # Table 2 box (3 coordinates) never comes this way
+            from scipy.optimize import lsq_linear
+
             best = None
             for method in ("bvls", "trf"):  # trf where BVLS stops off the optimum (its tolerance on the cost)
                 xr = np.clip(lsq_linear(Linv, Linv @ centre, bounds=(lo, hi), method=method, tol=1e-14).x, lo, hi)

@@ -62,10 +62,10 @@ from fmu_plant.seed import split_seed
 from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.cosim.extraction_folder import claimed_folder
 from tapmuscle.cosim.fmu_file import check_fmu_file
-from tapmuscle.interrupts import held_interrupts
 from tapmuscle.cosim.pythonfmu_exit import release_at_exit
-from tapmuscle.errors import FmuLogWarning
 from tapmuscle.cosim.spec import Scenario, ScenarioError
+from tapmuscle.errors import FmuLogWarning
+from tapmuscle.interrupts import held_interrupts
 
 __all__ = ["FmuInstance", "InstancePool", "Unpacked", "unpack", "check_parameters", "co_simulate",
            "formats_fmu_messages"]

@@ -24,7 +24,6 @@ import numpy as np
 
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
-from tapmuscle.plots.figures import plot_parameter_convergence, plot_prediction_errors, plot_tracking
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
@@ -102,6 +101,10 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
         write_recording(tmp / "result.csv", Recording(table, meta))
         atomic_write_text(tmp / "summary.json", json_text(summary, indent=2))
         if plots:
+            # imported here: matplotlib is a third of importing tapmuscle.cosim, which a run
+            # without plots (a sweep's worker, a test, a host's clean-up) does not need
+            from tapmuscle.plots.figures import plot_parameter_convergence, plot_prediction_errors, plot_tracking
+
             k0, k1 = scenario.evaluation_samples
             window = (k0 * scenario.step_s, k1 * scenario.step_s)
             title = f"{scenario.name}: {scenario.method}, Eq. (21) error {summary['mae_mm']:.3f} mm"

@@ -62,8 +62,8 @@ def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.nd
                        load_n: np.ndarray | None = None) -> np.ndarray:
     """Run a MusclePlant FMU with parameters ``values`` and the command ``u_v`` held over each ``ts_s``;
     the encoder output per sample [mm] (row ``k`` before the step that applies ``u(k)``)."""
-    from tapmuscle.interrupts import held_interrupts
     from tapmuscle.cosim.master import FmuInstance
+    from tapmuscle.interrupts import held_interrupts
 
     with held_interrupts() as held:  # Ctrl-C between FMI calls, not inside the FMU's step
         inst = FmuInstance(path, "diagnose.plant", role="plant")
