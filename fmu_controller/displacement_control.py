@@ -706,10 +706,18 @@ class DisplacementController:
                 if not lo - 1e-9 * max(1.0, abs(lo)) <= v <= hi + 1e-9 * max(1.0, abs(hi)):
                     # Table 2's box holds at Ts = 0.1 s: a theta0 of another period falls outside it
                     table2 = dict(settings.box_lower) == TABLE2_LOWER and dict(settings.box_upper) == TABLE2_UPPER
-                    period = ("" if not table2 else
-                              f"; or theta0 was identified at another sampling period than this controller's Ts = "
-                              f"{settings.ts_s:g} s (an identification file carries its Ts and box: give the file, "
-                              "not its theta alone)")
+                    if not table2:
+                        period = ""
+                    elif abs(settings.ts_s - 0.1) > 1e-9:
+                        # the box, not theta0, is of another period: Table 2's defaults stay at any Ts
+                        period = (f"; the box is Table 2's, which holds at Ts = 0.1 s, and this controller samples at "
+                                  f"Ts = {settings.ts_s:g} s: give your identification's box (box_lower/box_upper, "
+                                  "empty for none; an identification file carries its Ts and box: give the file, "
+                                  "not its theta alone)")
+                    else:
+                        period = (f"; or theta0 was identified at another sampling period than this controller's Ts = "
+                                  f"{settings.ts_s:g} s (an identification file carries its Ts and box: give the file, "
+                                  "not its theta alone)")
                     raise ValueError(f"theta0's {name} = {v!r} lies outside the constraint region C, {lo!r}..{hi!r} "
                                      "(Table 2 unless box_lower/box_upper say otherwise): start the adaptive "
                                      f"controller inside it, or widen the box{period}")

@@ -19,7 +19,7 @@ import numpy as np
 from fmu_controller.argument_checks import sampling_period
 from fmu_controller.displacement_control import METHODS, ControllerSettings, DisplacementController
 from fmu_controller.preliminary_model import THETA0_44N
-from fmu_controller.identification import PAPER_TS_S
+from fmu_controller.identification import PAPER_TS_S, IdentificationReport
 from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES
 from fmu_plant import Effect, Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
@@ -173,12 +173,14 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
     params : PlantParams, optional
         The simulated rig (default: the calibrated rig of docs/plant.md); a plant parameter file is
         read by :func:`~tapmuscle.io.plant_file.read_plant_file`.
-    theta0 : sequence of 15 floats, mapping or IdentifiedModel, optional
+    theta0 : sequence of 15 floats, mapping, IdentifiedModel or IdentificationReport, optional
         The predictor's initial (for MPC: fixed) Eq. (1) parameters, in the asymmetric model's order
-        (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``), or what
-        :func:`~tapmuscle.io.identification_file.read_identification` read (its period checked against
-        ``ts_s``, its box and a transport delay it was identified under the default settings', the
-        delay with ``loop_delay_samples`` added; given ``settings``, theirs apply); default the 44 N
+        (``tm.identify(...).theta``) or all 15 by name (its ``theta_dict``); or, better, what
+        :func:`~tapmuscle.io.identification_file.read_identification` read or ``tm.identify``
+        returned (its period checked against ``ts_s`` and taken where ``ts_s`` is not given, its box
+        and a transport delay it was identified under the default settings', the delay with
+        ``loop_delay_samples`` added; given ``settings``, theirs apply: a bare ``theta`` carries no
+        period, and runs at 0.1 s unless ``ts_s`` says otherwise); default the 44 N
         preliminary identification :data:`~fmu_controller.preliminary_model.THETA0_44N` (section 4.2),
         identified at Ts = 0.1 s: another ``ts_s`` needs a ``theta0`` identified at it; for another
         ``params`` it is the paper's rig's still, which fixed MPC-UCP on rigs of other reach tracks with
@@ -238,6 +240,10 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         raise kind(f"unknown method {method!r}; expected one of {', '.join(METHODS)}, or a law of your own "
                    "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
                    "f(l_mm, preview_mm)")
+    if isinstance(theta0, IdentificationReport):  # tm.identify's result: its period, box and delay go with it
+        theta0 = IdentifiedModel(theta=theta0.theta_dict, ts_s=theta0.ts_s, box_lower=dict(theta0.box_lower),
+                                 box_upper=dict(theta0.box_upper), path="theta0 (tm.identify's result)",
+                                 input_delay_samples=theta0.input_delay_samples)
     if ts_s is None:
         ts_s = (settings.ts_s if isinstance(settings, ControllerSettings)
                 else theta0.ts_s if isinstance(theta0, IdentifiedModel) else PAPER_TS_S)

@@ -386,6 +386,22 @@ def test_theta0_is_taken_in_both_forms_an_identification_gives():
         tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, theta0="THETA0_44N")
 
 
+def test_tm_identifys_result_is_a_theta0_with_its_period_box_and_delay():
+    """The report ``tm.identify`` returns, given as ``theta0``, brings its period (a 0.05-s model's bare
+    ``theta`` ran at the default 0.1 s, silently: MPC-servo 2.43 mm against 0.052), its box and its
+    delay, as an identification file read does; a period that disagrees is refused naming both."""
+    rec = tm.simulate("random:lo=2,hi=8,hold_min=0.5,hold_max=3,seed=1", duration_s=60.0, ts_s=0.05)
+    fit = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.05, input_delay_samples=1)
+    run = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=fit, watch=False)
+    assert run["t_s"][1] == pytest.approx(0.05)
+    settings = tm.ControllerSettings(method="ampc_servo", ts_s=0.05, box_lower=fit.box_lower, box_upper=fit.box_upper,
+                                     input_delay_samples=1)
+    same = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=fit.theta, settings=settings, watch=False)
+    assert np.array_equal(run["u_v"], same["u_v"])
+    with pytest.raises(ValueError, match=r"theta0 \(tm.identify's result\): identified at ts_s = 0.05 s, the "
+                                         r"controller samples at 0.1 s"):
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=2.0, ts_s=0.1, theta0=fit)
+
 def test_another_sampling_period_needs_its_own_predictor():
     """THETA0_44N is a 0.1-s model: at 0.2 s it gives 13 mm of error, so the default is refused there;
     a theta0 given is the caller's (identified at that period, say)."""

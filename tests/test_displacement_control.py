@@ -1033,6 +1033,12 @@ def test_an_adaptive_controller_starts_inside_its_constraint_region(theta0):
     assert str(e.value).endswith("; or theta0 was identified at another sampling period than this controller's "
                                  "Ts = 0.1 s (an identification file carries its Ts and box: give the file, not its "
                                  "theta alone)")
+    # at another Ts it is the box that is of another period, Table 2's default kept: said so, with the fix
+    with pytest.raises(ValueError, match=r"; the box is Table 2's, which holds at Ts = 0.1 s, and this controller "
+                                         r"samples at Ts = 0.05 s: give your identification's box \(box_lower/box_upper"):
+        DisplacementController(ControllerSettings(method="ampc_servo", ts_s=0.05), outside)
+    assert DisplacementController(ControllerSettings(method="ampc_servo", ts_s=0.05, box_lower={}, box_upper={}),
+                                  outside).theta0[0] == 1.10
     DisplacementController(ControllerSettings(method="mpc_servo"), outside)
     wide = ControllerSettings(method="ampc_ucp", box_lower={"a1": 1.0, "a2": -0.4, "b1": 0.2})
     assert DisplacementController(wide, outside).theta0[0] == 1.10
