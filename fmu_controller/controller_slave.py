@@ -385,7 +385,8 @@ class AMPCController(SafeSlave):
         stale = []
         if theta0 == [float(v) for v in THETA0_44N]:
             stale.append("theta0.* are THETA0_44N, identified at Ts = 0.1 s (set them to a model identified at "
-                         f"Ts = {settings.ts_s:g} s: tapmuscle identify)")
+                         f"Ts = {settings.ts_s:g} s: tapmuscle identify on random levels, not a sine, whose model "
+                         "is a poor fixed law there; docs/identification.md)")
         p = self._par
         if settings.adaptive and all(p[f"box_lower.{n}"] == TABLE2_LOWER[n] and p[f"box_upper.{n}"] == TABLE2_UPPER[n]
                                      for n in TABLE2_LOWER):

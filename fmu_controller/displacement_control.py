@@ -1083,13 +1083,20 @@ class DisplacementController:
         ``(d, ratio)`` when another delay ``d`` explains the measurements :data:`DELAY_RATIO` times better
         or more (``ratio``: the set delay's mean squared one-step error over ``d``'s), else None (also
         before, and with -1)."""
-        if self._auto or self._compared < self._check_n:
+        if not self.delay_checked:
             return None
         ms, lag = self._ms, self._lag
         best = min(range(len(ms)), key=ms.__getitem__)
         if best != lag and DELAY_RATIO * ms[best] < ms[lag]:
             return best, ms[lag] / ms[best] if ms[best] > 0.0 else math.inf
         return None
+
+    @property
+    def delay_checked(self) -> bool:
+        """With ``input_delay_samples`` set: whether the first :attr:`delay_check_samples` samples have
+        been scored, so that :attr:`delay_evidence` None means that no other delay explained them
+        better (False before, and with -1)."""
+        return not self._auto and self._compared >= self._check_n
 
     def _decide_delay(self, d: int) -> None:
         """``input_delay_samples = -1`` decided for the delay ``d`` other than the delayed law's 1 it ran

@@ -34,14 +34,15 @@ import numpy as np
 
 from .argument_checks import sampling_period
 from .box_projection import box_from_pairs
-from .hysteresis_model import ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations
+from .hysteresis_model import (ASYMMETRIC, STANDARD, ModelStructure, identifiable_combinations, regressor,
+                               virtual_hysteresis_sequence)
 from .prediction import (IdentificationResult, delayed_input, fit_percent, predict_ahead, rescale_theta, run_rls,
                          simulate, theta_scale_factors)
 from .preliminary_model import REFINE_IN_CLOSED_LOOP
 from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
 
 __all__ = ["MODELS", "FitReport", "IdentificationReport", "identify_record", "check_record", "score_model",
-           "decade_scale", "PAPER_TS_S", "MIN_SAMPLES", "SHORT_TS_S"]
+           "decade_scale", "cancellation_swing", "PAPER_TS_S", "MIN_SAMPLES", "SHORT_TS_S", "CANCELLATION_SWING_V"]
 
 #: Model variants by name (Eq. (1) with and without ``g(l)``).
 MODELS: dict[str, ModelStructure] = {"asymmetric": ASYMMETRIC, "standard": STANDARD}
@@ -69,6 +70,14 @@ def decade_scale(x: np.ndarray, typical: float) -> float:
 #: 81.9 %, and at 0.01 s the free run diverged (b1 = 0.005); 0.02 s is the shortest the controllers
 #: were run at (docs/control.md, "A short Ts").
 SHORT_TS_S = 0.02
+
+#: The hysteresis cancellation of Eq. (5), ``H(k)/b1``, swinging by more than this over the record
+#: (its standard deviation [V], in a record in V) marks a model whose hysteresis terms have taken up the
+#: linear dynamics (section "Identifiability" of docs/identification.md): half the valve's 0..10 V.
+#: Open-loop identifications of the simulated rig at Ts = 0.05, 0.1 (no box) and 0.2 s under sines,
+#: chirps, random levels and steps: 7.0-33 V wherever fixed MPC-servo on the model swung the valve
+#: limit to limit for good (10-37 mm of Eq. (21) error), 0.6-3.05 V elsewhere.
+CANCELLATION_SWING_V = 5.0
 
 
 @dataclass(frozen=True)
@@ -245,6 +254,18 @@ def check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
         raise ValueError(f"the output l_mm is constant ({float(l[0]):g}): the record shows no motion to identify")
 
 
+def cancellation_swing(theta: np.ndarray, structure: ModelStructure, u: np.ndarray, l: np.ndarray) -> float:
+    """The standard deviation over a record of the hysteresis cancellation ``H(k)/b1`` of Eq. (5) that a
+    controller on ``theta`` would add to its command (in the record's units of ``u``): ``H(k)`` is
+    Eq. (1)'s hysteresis term (:func:`~fmu_controller.hysteresis_model.hysteresis_term`) on the
+    recorded ``l`` and ``u``, ``v`` the linear part's residual with ``theta``."""
+    theta = np.asarray(theta, dtype=float)
+    v = virtual_hysteresis_sequence(theta, l, u)
+    k = np.arange(2, len(l))
+    phi = regressor(l[k], l[k - 1], l[k - 2], u[k], v[k - 1], v[k - 2], structure)
+    return float(np.std(phi[:, 3:] @ theta[3:] / theta[2]))
+
+
 def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: str = "asymmetric",
                     box: str | Mapping[str, tuple[float, float]] | None = "auto",
                     constraint_start_s: float = 120.0, p0: float = 1e3, forgetting: float = 1.0,
@@ -314,7 +335,9 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
             # the scales are chosen by magnitude: a stroke of a few mm is scaled like one in cm
             hint = ("if it is in mm and V (a small stroke or command), pass Table 2 itself: --box "
                     + ",".join(f"{n}={TABLE2_LOWER[n]:g}:{TABLE2_UPPER[n]:g}" for n in TABLE2_LOWER)
-                    if paper_ts else "pass a box explicitly (docs/identification.md, 'A box at another sampling period')")
+                    if paper_ts else "the estimate is unconstrained, and so is an adaptive controller started from this file "
+                    "unless you pass a box of your rig's (--box; docs/identification.md, 'A box at another sampling "
+                    "period': none is derived for you)")
             notes.append(f"no constraint region: Table 2's box is for mm, V and Ts = 0.1 s, this record has "
                          f"Ts = {ts_s:.6g} s and magnitudes normalised by l/{l_scale:g}, u/{u_scale:g}; {hint}")
     elif box is None:
@@ -363,6 +386,15 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
     if fit.free_run_diverged:
         notes.append(_diverged_note(structure, u / u_scale, l / l_scale, settings, l_scale, u_scale, u, l,
                                     bool(lower or upper)))
+    swing = cancellation_swing(theta, structure, u, l)
+    if swing > CANCELLATION_SWING_V * u_scale:
+        b1 = theta[structure.index("b1")]
+        notes.append(f"the hysteresis cancellation of Eq. (5) on this model, H(k)/b1, swings by {swing:.3g} V (standard "
+                     f"deviation over this record; b1 = {b1:.3g}), more than half the valve's range: the hysteresis "
+                     "terms have taken up the linear dynamics (docs/identification.md, \"Identifiability\"), and a "
+                     "fixed law on it (MPC-UCP, MPC-servo) slams the valve; the adaptive methods recover from it. "
+                     "Identify on random levels held 0.5-3 s (random:lo=2,hi=8,hold_min=0.5,hold_max=3) rather than a "
+                     f"sine or a chirp, or {REFINE_IN_CLOSED_LOOP}")
     if ts_s < SHORT_TS_S:
         # the muscle moves a few hundredths of a mm a sample: any model predicts the next sample from
         # the last, and the dynamics Eq. (1) is meant to hold are in its last digits

@@ -111,6 +111,41 @@ def test_a_limit_cycle_after_minus_one_decided_does_not_send_the_user_back_to_mi
     assert "-1 decided 2 for good" in msg and "try 3 or 1 set" in msg and "-1 decides it" not in msg
 
 
+
+def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
+    """On a rig without a delay, MPC-servo at Ts = 0.05 s on a theta0 identified open loop on a sine
+    swung limit to limit (10.7 mm): the warning put an unseen transport delay first (its -1 made it
+    13.3 mm), called the user's theta0 THETA0_44N, and blamed servo.Hp = 10, which the short-Ts note
+    had suggested. Now: the user's own theta0 is named as such with the closed-loop refinement; a delay
+    that the set delay's 30-s check did not see comes after it, saying so; a horizon is long in
+    seconds, beyond Table 5's 0.5 s."""
+    own = np.array(tm.THETA0_44N) * 0.98
+    settings = tm.ControllerSettings(method="mpc_servo", ts_s=0.05, input_delay_samples=0, box_lower={}, box_upper={},
+                                     servo=tm.ServoMPCSettings(hp=10, hu=10))
+    ctrl = tm.DisplacementController(settings, own)
+    early = LoopWatch(ctrl).limit_cycle_causes(42.0)
+    assert early[0].startswith("more delay in the loop than the 0 samples set (a rig's transport delay, or a "
+                               "parallel master?): set input_delay_samples")  # nothing checked yet
+
+    class Checked(tm.DisplacementController):  # the 30-s check done, no other delay better
+        delay_checked = True
+        delay_evidence = None
+
+    ctrl = Checked(settings, own)
+    fixed, delay = LoopWatch(ctrl).limit_cycle_causes(42.0)
+    assert fixed.startswith("the fixed predictor theta0 poor where the loop runs now (l = 42 mm; a model identified "
+                            "open loop is often a poor fixed law, one from a sine most of all): an adaptive method "
+                            "(3, 4), or refine a fixed model in closed loop")
+    assert "THETA0_44N" not in fixed
+    assert delay.startswith("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
+                            "master?), which the first 30 s did not show: set input_delay_samples")
+    longer = tm.DisplacementController(tm.ControllerSettings(method="mpc_servo", ts_s=0.05, box_lower={}, box_upper={},
+                                                             servo=tm.ServoMPCSettings(hp=11, hu=11)), tm.THETA0_44N)
+    causes = LoopWatch(longer).limit_cycle_causes(42.0)
+    assert any(c.startswith("a long prediction horizon servo.Hp = 11 (0.55 s) on an imperfect model (Table 5: 5, "
+                            "0.5 s at Ts = 0.1 s") for c in causes), causes
+    assert any("the default THETA0_44N was identified on the paper's 5..65 mm sine" in c for c in causes), causes
+
 def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
     """A reading frozen at 20 s as the reference steps from 40 to 60 mm: the command sits at 10 V for good (one
     limit: reading_stuck, which needs both, cannot tell it); the pinned-valve warning then adds a stuck
