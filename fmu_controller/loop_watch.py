@@ -648,9 +648,11 @@ class LoopWatch:
                       f"under a wrong delay can be a sample off)" if d <= AUTO_INPUT_DELAY_SAMPLES
                       else f"set input_delay_samples = {d}")
         if ratio < DELAY_SURE_RATIO:
-            # a theta0 off for the rig shifts the scores too
-            what += (", or a theta0 whose dynamics are slower than this rig's, which looks alike at this ratio; "
-                     "confirm it on a recording first (tapmuscle identify --input-delay-samples auto)")
+            # a theta0 off for the rig shifts the scores too: set on this evidence alone, the delay made
+            # loops that tracked worse (a refined theta0 at Ts = 0.2 s told 1 at 1.31-1.74: AMPC-UCP 0.65 -> 8.7 mm)
+            what += ", or a theta0 whose dynamics are slower than this rig's, which looks alike at this ratio"
+            advice = (f"confirm it on a recording before changing anything (tapmuscle identify --input-delay-samples "
+                      f"auto); where that finds it too, {advice}")
         said.append(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
                     f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
                     f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")")
