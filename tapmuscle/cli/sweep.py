@@ -74,11 +74,13 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
                          "--workers 0)") from None
     where = f"--scheduler {args.scheduler}" if args.scheduler else f"local cluster of {args.workers} workers"
     if args.scheduler:
-        # a lost connection is said in one line (ClusterError), not as the client's log of tracebacks,
+        # a lost connection is said in one line (ClusterError), not as the client's log of tracebacks nor
+        # the comms' information, which logs one too ("distributed.batched - INFO - Batched Comm Closed"),
         # also while the client closes (restored after it: the stack unwinds in reverse)
-        client_log = logging.getLogger("distributed.client")
-        stack.callback(client_log.setLevel, client_log.level)
-        client_log.setLevel(logging.CRITICAL)
+        for name, level in (("distributed.client", logging.CRITICAL), ("distributed", logging.WARNING)):
+            log = logging.getLogger(name)
+            stack.callback(log.setLevel, log.level)
+            log.setLevel(level)
     try:
         client = stack.enter_context(dask_client(args.workers, args.scheduler, wait_s=args.timeout))
     except ClusterError as exc:  # what is wrong, said
