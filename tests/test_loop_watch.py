@@ -145,6 +145,9 @@ def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
     assert any(c.startswith("a long prediction horizon servo.Hp = 11 (0.55 s) on an imperfect model (Table 5: 5, "
                             "0.5 s at Ts = 0.1 s") for c in causes), causes
     assert any("the default THETA0_44N was identified on the paper's 5..65 mm sine" in c for c in causes), causes
+    table5_at_02 = tm.DisplacementController(tm.ControllerSettings(method="mpc_servo", ts_s=0.2, box_lower={},
+                                                                   box_upper={}), tm.THETA0_44N)
+    assert not any("servo.Hp" in c for c in LoopWatch(table5_at_02).limit_cycle_causes(42.0))  # 1 s, but Table 5's
 
 def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
     """A reading frozen at 20 s as the reference steps from 40 to 60 mm: the command sits at 10 V for good (one
