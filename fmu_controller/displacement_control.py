@@ -50,6 +50,7 @@ import numpy as np
 from .argument_checks import real_number, whole_number
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
+from .identification import PAPER_TS_S
 from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import MLS_LENGTH, probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
@@ -708,12 +709,13 @@ class DisplacementController:
                     table2 = dict(settings.box_lower) == TABLE2_LOWER and dict(settings.box_upper) == TABLE2_UPPER
                     if not table2:
                         period = ""
-                    elif abs(settings.ts_s - 0.1) > 1e-9:
+                    elif abs(settings.ts_s - PAPER_TS_S) > 1e-3 * PAPER_TS_S:
                         # the box, not theta0, is of another period: Table 2's defaults stay at any Ts
-                        period = (f"; the box is Table 2's, which holds at Ts = 0.1 s, and this controller samples at "
-                                  f"Ts = {settings.ts_s:g} s: give your identification's box (box_lower/box_upper, "
-                                  "empty for none; an identification file carries its Ts and box: give the file, "
-                                  "not its theta alone)")
+                        period = (f"; the box is Table 2's, which holds at Ts = {PAPER_TS_S:g} s, and this controller "
+                                  f"samples at Ts = {settings.ts_s:.6g} s: give your identification's box "
+                                  "(box_lower/box_upper, empty for none, in the controller FMU box_lower.*/box_upper.* "
+                                  "= -inf/inf; an identification file carries its Ts and box: give the file, not its "
+                                  "theta alone)")
                     else:
                         period = (f"; or theta0 was identified at another sampling period than this controller's Ts = "
                                   f"{settings.ts_s:g} s (an identification file carries its Ts and box: give the file, "

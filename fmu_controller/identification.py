@@ -73,7 +73,7 @@ SHORT_TS_S = 0.02
 
 #: The hysteresis cancellation of Eq. (5), ``H(k)/b1``, swinging by more than this over the record
 #: (its standard deviation [V], in a record in V) marks a model whose hysteresis terms have taken up the
-#: linear dynamics (section "Identifiability" of docs/identification.md): half the valve's 0..10 V.
+#: linear dynamics (docs/identification.md, "A model that is a poor fixed law"): half the valve's 0..10 V.
 #: Open-loop identifications of the simulated rig at Ts = 0.05, 0.1 (no box) and 0.2 s under sines,
 #: chirps, random levels and steps: 7.0-33 V wherever fixed MPC-servo on the model swung the valve
 #: limit to limit for good (10-37 mm of Eq. (21) error), 0.6-3.05 V elsewhere.
@@ -258,12 +258,17 @@ def cancellation_swing(theta: np.ndarray, structure: ModelStructure, u: np.ndarr
     """The standard deviation over a record of the hysteresis cancellation ``H(k)/b1`` of Eq. (5) that a
     controller on ``theta`` would add to its command (in the record's units of ``u``): ``H(k)`` is
     Eq. (1)'s hysteresis term (:func:`~fmu_controller.hysteresis_model.hysteresis_term`) on the
-    recorded ``l`` and ``u``, ``v`` the linear part's residual with ``theta``."""
+    recorded ``l`` and the command ``u`` the model was identified on (``u(k - d)`` under an input
+    delay ``d``), ``v`` the linear part's residual with ``theta``. Infinite where ``b1`` is 0 and the
+    term is not (no command cancels it)."""
     theta = np.asarray(theta, dtype=float)
     v = virtual_hysteresis_sequence(theta, l, u)
     k = np.arange(2, len(l))
     phi = regressor(l[k], l[k - 1], l[k - 2], u[k], v[k - 1], v[k - 2], structure)
-    return float(np.std(phi[:, 3:] @ theta[3:] / theta[2]))
+    h = phi[:, 3:] @ theta[3:]
+    b1 = theta[structure.index("b1")]
+    spread = float(np.std(h))
+    return spread / abs(b1) if b1 != 0.0 else (math.inf if spread > 0.0 else 0.0)
 
 
 def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: str = "asymmetric",
@@ -387,11 +392,13 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
         notes.append(_diverged_note(structure, u / u_scale, l / l_scale, settings, l_scale, u_scale, u, l,
                                     bool(lower or upper)))
     swing = cancellation_swing(theta, structure, u, l)
-    if swing > CANCELLATION_SWING_V * u_scale:
+    if not swing <= CANCELLATION_SWING_V * u_scale:  # a NaN too
         b1 = theta[structure.index("b1")]
-        notes.append(f"the hysteresis cancellation of Eq. (5) on this model, H(k)/b1, swings by {swing:.3g} V (standard "
+        size = f"{swing:.3g} V" if u_scale == 1.0 else f"{swing:.3g} (the record's units of u)"
+        notes.append(f"the hysteresis cancellation of Eq. (5) on this model, H(k)/b1, swings by {size} (standard "
                      f"deviation over this record; b1 = {b1:.3g}), more than half the valve's range: the hysteresis "
-                     "terms have taken up the linear dynamics (docs/identification.md, \"Identifiability\"), and a "
+                     "terms have taken up the linear dynamics (docs/identification.md, \"A model that is a poor "
+                     "fixed law\"), and a "
                      "fixed law on it (MPC-UCP, MPC-servo) slams the valve; the adaptive methods recover from it. "
                      "Identify on random levels held 0.5-3 s (random:lo=2,hi=8,hold_min=0.5,hold_max=3) rather than a "
                      f"sine or a chirp, or {REFINE_IN_CLOSED_LOOP}")

@@ -113,7 +113,6 @@ REACH_SHARE = 0.075
 REACH_STILL_MM_PER_S = 3.0
 
 
-
 def in_a_row(count: int, now: bool, long_s: float, ts_s: float) -> tuple[int, float | None]:
     """The samples in a row a condition held, ``count`` before this one, and, once they span ``long_s``
     seconds at the sampling period ``ts_s`` [s], that span [s] (the count then -1: said). The span runs
@@ -635,11 +634,12 @@ class LoopWatch:
                    "OMSimulator, SSP tools: every FMU stepped on the previous outputs)"}.get(
             d, f"a rig's transport delay of about {d} Ts")
         set_ = c.settings.input_delay_samples
+        doubt = ratio < DELAY_SURE_RATIO
         if d == c.largest_scored_delay:  # the longest scored: the rig's may be longer
             shown = f"{samples_in_words(d)} or more (the longest scored)"
+            finds = "" if doubt else "; tapmuscle identify --input-delay-samples auto finds it from a recording"
             advice = (f"set input_delay_samples to the rig's delay over Ts, rounded ({d} or more, up to "
-                      f"{MAX_INPUT_DELAY_SAMPLES}; tapmuscle identify --input-delay-samples auto finds it from a "
-                      "recording)")
+                      f"{MAX_INPUT_DELAY_SAMPLES}{finds})")
         else:
             shown = samples_in_words(d)
             # -1 first: it decides from the start-up's probe, where a loop run under a wrong delay scores
@@ -647,7 +647,7 @@ class LoopWatch:
             advice = (f"set input_delay_samples = -1 to decide it from the start, or {d} (scores from a loop run "
                       f"under a wrong delay can be a sample off)" if d <= AUTO_INPUT_DELAY_SAMPLES
                       else f"set input_delay_samples = {d}")
-        if ratio < DELAY_SURE_RATIO:
+        if doubt:
             # a theta0 off for the rig shifts the scores too: set on this evidence alone, the delay made
             # loops that tracked worse (a refined theta0 at Ts = 0.2 s told 1 at 1.31-1.74: AMPC-UCP 0.65 -> 8.7 mm)
             what += ", or a theta0 whose dynamics are slower than this rig's, which looks alike at this ratio"
@@ -672,20 +672,25 @@ class LoopWatch:
         delay = None
         if s.input_delay_samples == 0:  # -1 deciding 0 saw none: no delay to suggest
             # the set delay's check over the first 30 s: where it found no other delay, one is less likely
-            # than the model (a rig without a delay, a fixed predictor from an open-loop sine: MPC-servo
-            # 10.7 mm, and 13.3 with the -1 this cause suggested)
+            # than the model, and set on a guess it makes the loop worse (a rig without a delay, a fixed
+            # predictor from an open-loop sine: MPC-servo 10.7 mm, 13.3 with -1)
             none_seen = c.delay_checked and c.delay_evidence is None
+            remedy = (f"set input_delay_samples to it in samples (up to {MAX_INPUT_DELAY_SAMPLES}), or -1 to decide it "
+                      f"(up to {samples_in_words(AUTO_INPUT_DELAY_SAMPLES)}; docs/control.md, \"Transport delay\")")
+            if none_seen:
+                remedy = ("confirm it on a recording before changing anything (tapmuscle identify "
+                          f"--input-delay-samples auto); where that finds one, {remedy}")
             seen = f", which the first {c.delay_check_samples * s.ts_s:g} s did not show" if none_seen else ""
             delay = ("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
-                     f"master?){seen}: set input_delay_samples to it in samples (up to {MAX_INPUT_DELAY_SAMPLES}), or -1 to decide it "
-                     f"(up to {samples_in_words(AUTO_INPUT_DELAY_SAMPLES)}; docs/control.md, \"Transport delay\")")
+                     f"master?){seen}: {remedy}")
             if not none_seen:
                 causes.append(delay)
                 delay = None
         if not s.adaptive:
             default = list(c.theta0) == list(THETA0_44N)
             made = ("the default THETA0_44N was identified on the paper's 5..65 mm sine" if default else
-                    "a model identified open loop is often a poor fixed law, one from a sine most of all")
+                    "if it was identified open loop: such a model is often a poor fixed law, one from a sine "
+                    "most of all")
             causes.append(f"the fixed predictor theta0 poor where the loop runs now (l = {l_mm:.4g} mm; {made}): an "
                           f"adaptive method (3, 4), or {REFINE_IN_CLOSED_LOOP if not default else 'theta0 identified over this range'}")
         if delay is not None:

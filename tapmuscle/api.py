@@ -26,7 +26,7 @@ from fmu_plant.open_loop import run_open_loop
 from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.own_law import ControlLaw, as_law, law_name, law_period
 from tapmuscle.progress import reporter
-from tapmuscle.io.identification_file import IdentifiedModel
+from tapmuscle.io.identification_file import IdentifiedModel, identified_model
 from tapmuscle.io.recording import Recording, RecordingError
 from tapmuscle.io.signals import Replay, parse_input_spec
 
@@ -241,9 +241,7 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
                    "with a step(l_mm, preview_mm) method (tapmuscle.own_law.ControlLaw) or a function u = "
                    "f(l_mm, preview_mm)")
     if isinstance(theta0, IdentificationReport):  # tm.identify's result: its period, box and delay go with it
-        theta0 = IdentifiedModel(theta=theta0.theta_dict, ts_s=theta0.ts_s, box_lower=dict(theta0.box_lower),
-                                 box_upper=dict(theta0.box_upper), path="theta0 (tm.identify's result)",
-                                 input_delay_samples=theta0.input_delay_samples)
+        theta0 = identified_model(theta0.to_dict(), "theta0 (tm.identify's result)")  # checked as a file is
     if ts_s is None:
         ts_s = (settings.ts_s if isinstance(settings, ControllerSettings)
                 else theta0.ts_s if isinstance(theta0, IdentifiedModel) else PAPER_TS_S)

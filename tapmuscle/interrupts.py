@@ -68,7 +68,9 @@ def held_interrupts() -> Iterator[_Held]:
     """Hold SIGINT for the block (module docstring); a signal still held at its end is raised there.
 
     Nested blocks share the outer block's holding. Yields :data:`HELD`, whose
-    :meth:`~_Held.raise_if_pending` the block calls where an interrupt may safely end it.
+    :meth:`~_Held.raise_if_pending` the block calls where an interrupt may safely end it. A block that
+    fails with an exception while a signal is held ends with ``KeyboardInterrupt`` raised from that
+    exception: the user asked to stop, and the failure is kept as its cause.
     """
     previous = signal.getsignal(signal.SIGINT)
     if threading.current_thread() is not threading.main_thread() or \
@@ -83,6 +85,11 @@ def held_interrupts() -> Iterator[_Held]:
     except KeyboardInterrupt:
         interrupted = True
         raise
+    except Exception as exc:
+        if not HELD.pending:
+            raise
+        HELD.pending, interrupted = False, True
+        raise KeyboardInterrupt from exc
     finally:
         if previous is interrupt_once:
             # the interrupt that ends the block leaves SIGINT ignored, as interrupt_once's own does:

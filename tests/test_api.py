@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import tapmuscle as tm
+from fmu_controller.rls import TABLE2_LOWER
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -387,9 +388,9 @@ def test_theta0_is_taken_in_both_forms_an_identification_gives():
 
 
 def test_tm_identifys_result_is_a_theta0_with_its_period_box_and_delay():
-    """The report ``tm.identify`` returns, given as ``theta0``, brings its period (a 0.05-s model's bare
-    ``theta`` ran at the default 0.1 s, silently: MPC-servo 2.43 mm against 0.052), its box and its
-    delay, as an identification file read does; a period that disagrees is refused naming both."""
+    """The report ``tm.identify`` returns, given as ``theta0``, brings its period (a bare ``theta`` has
+    none and runs at the default 0.1 s), its box and its delay, checked as an identification file is:
+    a period that disagrees, the standard model, a recording not in mm are said as for a file."""
     rec = tm.simulate("random:lo=2,hi=8,hold_min=0.5,hold_max=3,seed=1", duration_s=60.0, ts_s=0.05)
     fit = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.05, input_delay_samples=1)
     run = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=fit, watch=False)
@@ -401,6 +402,28 @@ def test_tm_identifys_result_is_a_theta0_with_its_period_box_and_delay():
     with pytest.raises(ValueError, match=r"theta0 \(tm.identify's result\): identified at ts_s = 0.05 s, the "
                                          r"controller samples at 0.1 s"):
         tm.simulate_closed_loop("mpc_servo", None, duration_s=2.0, ts_s=0.1, theta0=fit)
+    # at 0.1 s the report's box is Table 2's, taken along: the same run as with that box set
+    rec = tm.simulate("random:lo=2,hi=8,hold_min=0.5,hold_max=3,seed=1", duration_s=150.0)
+    fit = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1)
+    assert fit.box_lower == dict(TABLE2_LOWER)
+    wide = {"a1": -5.0, "a2": -5.0, "b1": 0.01}
+    boxed = tm.simulate_closed_loop("ampc_servo", None, duration_s=12.0, theta0=fit, watch=False,
+                                    settings=tm.ControllerSettings(method="ampc_servo", box_lower=fit.box_lower,
+                                                                   box_upper=fit.box_upper))
+    assert np.array_equal(tm.simulate_closed_loop("ampc_servo", None, duration_s=12.0, theta0=fit, watch=False)["u_v"],
+                          boxed["u_v"])
+    other = tm.simulate_closed_loop("ampc_servo", None, duration_s=12.0, theta0=fit.theta, watch=False,
+                                    settings=tm.ControllerSettings(method="ampc_servo", box_lower=wide, box_upper={}))
+    assert not np.array_equal(other["u_v"], boxed["u_v"])  # the box matters to this run
+    standard = tm.identify(rec["u_v"], rec["l_mm"], ts_s=0.1, model="standard")
+    with pytest.raises(ValueError, match=r"theta0 \(tm.identify's result\): key 'model' is 'standard'; the "
+                                         r"controllers use the asymmetric model"):
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=2.0, theta0=standard)
+    metres = tm.identify(rec["u_v"], rec["l_mm"] / 1000.0, ts_s=0.1)
+    with pytest.warns(UserWarning, match=r"theta0 \(tm.identify's result\): identified on a recording whose "
+                                         r"largest displacement is under about 1.9"):
+        tm.simulate_closed_loop("mpc_servo", None, duration_s=2.0, theta0=metres, watch=False)
+
 
 def test_another_sampling_period_needs_its_own_predictor():
     """THETA0_44N is a 0.1-s model: at 0.2 s it gives 13 mm of error, so the default is refused there;

@@ -25,7 +25,6 @@ from tapmuscle.closed_loop import command_tv_excess, eq21_error_mm, run_closed_l
 from tapmuscle.paper.reproduce import preliminary_theta
 
 
-
 @pytest.fixture(scope="module")
 def theta0():
     """Section 4.2's fixed predictor, identified on the simulated rig."""
@@ -1042,6 +1041,28 @@ def test_an_adaptive_controller_starts_inside_its_constraint_region(theta0):
     DisplacementController(ControllerSettings(method="mpc_servo"), outside)
     wide = ControllerSettings(method="ampc_ucp", box_lower={"a1": 1.0, "a2": -0.4, "b1": 0.2})
     assert DisplacementController(wide, outside).theta0[0] == 1.10
+
+
+def test_a_set_delay_is_checked_once_its_samples_are_scored(theta0):
+    """``delay_checked`` turns true once the first ``delay_check_samples`` samples are scored under each
+    delay, and only then may ``delay_evidence`` speak; with -1 (which decides) never."""
+    from fmu_plant import Plant
+
+    for delay in (0, -1):
+        ctrl = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=delay), theta0)
+        plant, ref = Plant(seed=0), SineReference()
+        ctrl.reset(plant.measurement.l_mm)
+        checked = []
+        for k in range(ctrl.delay_check_samples + 5):
+            checked.append(ctrl.delay_checked)
+            plant.step(ctrl.step(plant.measurement.l_mm, ref.preview(k, ctrl.settings.preview_samples)).u_v, 0.1)
+        checked.append(ctrl.delay_checked)
+        if delay == -1:
+            assert not any(checked)
+        else:
+            first = checked.index(True)
+            assert ctrl.delay_check_samples <= first <= ctrl.delay_check_samples + 5 and all(checked[first:])
+            assert ctrl.delay_evidence is None  # the nominal rig in a sequential loop: 0 is right
 
 
 def test_the_constraint_region_is_checked_when_the_settings_are_made(theta0):

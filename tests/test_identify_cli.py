@@ -427,7 +427,7 @@ def test_a_record_shorter_than_the_constraint_start_says_its_estimate_lies_outsi
     on_bound = [n for n in TABLE2_LOWER if not TABLE2_LOWER[n] + near[n] < r["theta"][n] < TABLE2_UPPER[n] - near[n]]
     assert all(f"{n} = {r['theta'][n]:.5g} at its" in r["notes"][0] for n in on_bound)
     assert main(["identify", str(rec), "--box", "none", "--json", str(tmp_path / "c.json")]) == 0
-    # without a box nothing about one is said; the unconstrained sine's model is a poor fixed law, which is
+    # without a box nothing about one is said; the unconstrained sine's model is a poor fixed law, noted
     (unboxed,) = json.loads((tmp_path / "c.json").read_text())["notes"]
     assert unboxed.startswith("the hysteresis cancellation of Eq. (5) on this model")
 
@@ -456,7 +456,6 @@ def test_an_estimate_an_update_moved_just_off_its_bound_is_said_to_be_on_it(tmp_
     b1 = r["theta"]["b1"]
     assert TABLE2_LOWER["b1"] < b1 < TABLE2_LOWER["b1"] + 1e-3 * (TABLE2_UPPER["b1"] - TABLE2_LOWER["b1"]), b1
     assert f"b1 = {b1:.5g} at its lower bound" in r["notes"][0], r["notes"]
-
 
 
 def test_identify_reports_its_steps_on_stderr_as_each_starts_and_quiet_silences_it(records, tmp_path, capsys,

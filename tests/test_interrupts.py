@@ -91,7 +91,6 @@ def test_nested_blocks_hold_once_and_other_threads_and_handlers_are_left_alone()
         signal.signal(signal.SIGINT, previous)
 
 
-
 @pytest.fixture
 def interrupting_once():
     """The console script's handler (``interrupt_once``) installed for the test, the default put back."""
@@ -126,6 +125,30 @@ def test_under_interrupt_once_a_held_interrupt_that_ends_the_block_leaves_sigint
         with held_interrupts():
             signal.raise_signal(signal.SIGINT)
     assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN and not HELD.pending
+
+
+@pytest.mark.parametrize("once", [False, True])
+def test_a_block_that_fails_with_a_signal_held_ends_interrupted_with_the_failure_as_its_cause(once):
+    """A Ctrl-C held while the block fails otherwise (an FMU's error in a run being stopped): the stop
+    wins, ``KeyboardInterrupt`` from the failure, nothing left pending; under ``interrupt_once`` SIGINT
+    stays ignored, as after any interrupt that ends the process, else Python's handler is back."""
+    if once:
+        signal.signal(signal.SIGINT, interrupt_once)
+    try:
+        with pytest.raises(KeyboardInterrupt) as stopped:
+            with held_interrupts():
+                signal.raise_signal(signal.SIGINT)
+                raise RuntimeError("the FMU failed")
+        assert isinstance(stopped.value.__cause__, RuntimeError) and not HELD.pending
+        assert signal.getsignal(signal.SIGINT) is (signal.SIG_IGN if once else signal.default_int_handler)
+        if once:
+            signal.signal(signal.SIGINT, interrupt_once)
+        with pytest.raises(RuntimeError):  # without a signal held, the failure is the failure
+            with held_interrupts():
+                raise RuntimeError("the FMU failed")
+        assert signal.getsignal(signal.SIGINT) is (interrupt_once if once else signal.default_int_handler)
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def test_the_console_script_interrupts_once_and_puts_the_callers_handler_back(monkeypatch, tmp_path):

@@ -111,14 +111,13 @@ def test_a_limit_cycle_after_minus_one_decided_does_not_send_the_user_back_to_mi
     assert "-1 decided 2 for good" in msg and "try 3 or 1 set" in msg and "-1 decides it" not in msg
 
 
-
 def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
-    """On a rig without a delay, MPC-servo at Ts = 0.05 s on a theta0 identified open loop on a sine
-    swung limit to limit (10.7 mm): the warning put an unseen transport delay first (its -1 made it
-    13.3 mm), called the user's theta0 THETA0_44N, and blamed servo.Hp = 10, which the short-Ts note
-    had suggested. Now: the user's own theta0 is named as such with the closed-loop refinement; a delay
-    that the set delay's 30-s check did not see comes after it, saying so; a horizon is long in
-    seconds, beyond Table 5's 0.5 s."""
+    """The causes a limit cycle names, in the order of their likelihood on the run's evidence: on a rig
+    without a delay (MPC-servo at Ts = 0.05 s on a theta0 identified open loop on a sine: 10.7 mm, 13.3
+    with -1) a delay the set delay's 30-s check did not show comes after the fixed predictor and asks
+    for a recording's confirmation first; a theta0 of one's own is not called THETA0_44N and gets the
+    closed-loop refinement; a servo horizon is long only beyond Table 5's in samples and in seconds (the
+    short-Ts note suggests servo.Hp = 10 at 0.05 s)."""
     own = np.array(tm.THETA0_44N) * 0.98
     settings = tm.ControllerSettings(method="mpc_servo", ts_s=0.05, input_delay_samples=0, box_lower={}, box_upper={},
                                      servo=tm.ServoMPCSettings(hp=10, hu=10))
@@ -133,12 +132,14 @@ def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
 
     ctrl = Checked(settings, own)
     fixed, delay = LoopWatch(ctrl).limit_cycle_causes(42.0)
-    assert fixed.startswith("the fixed predictor theta0 poor where the loop runs now (l = 42 mm; a model identified "
-                            "open loop is often a poor fixed law, one from a sine most of all): an adaptive method "
-                            "(3, 4), or refine a fixed model in closed loop")
+    assert fixed.startswith("the fixed predictor theta0 poor where the loop runs now (l = 42 mm; if it was identified "
+                            "open loop: such a model is often a poor fixed law, one from a sine most of all): an "
+                            "adaptive method (3, 4), or refine a fixed model in closed loop")
     assert "THETA0_44N" not in fixed
     assert delay.startswith("more delay in the loop than the 0 samples set (a rig's transport delay, or a parallel "
-                            "master?), which the first 30 s did not show: set input_delay_samples")
+                            "master?), which the first 30 s did not show: confirm it on a recording before changing "
+                            "anything (tapmuscle identify --input-delay-samples auto); where that finds one, set "
+                            "input_delay_samples")
     longer = tm.DisplacementController(tm.ControllerSettings(method="mpc_servo", ts_s=0.05, box_lower={}, box_upper={},
                                                              servo=tm.ServoMPCSettings(hp=11, hu=11)), tm.THETA0_44N)
     causes = LoopWatch(longer).limit_cycle_causes(42.0)
@@ -148,6 +149,7 @@ def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
     table5_at_02 = tm.DisplacementController(tm.ControllerSettings(method="mpc_servo", ts_s=0.2, box_lower={},
                                                                    box_upper={}), tm.THETA0_44N)
     assert not any("servo.Hp" in c for c in LoopWatch(table5_at_02).limit_cycle_causes(42.0))  # 1 s, but Table 5's
+
 
 def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
     """A reading frozen at 20 s as the reference steps from 40 to 60 mm: the command sits at 10 V for good (one

@@ -34,7 +34,7 @@ from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
 
-__all__ = ["IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification", "checked_box"]
+__all__ = ["identified_model", "IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification", "checked_box"]
 
 #: Relative difference of two sampling periods taken as the same (a period read back from times).
 _SAME_PERIOD = 1e-6
@@ -137,6 +137,13 @@ def read_identification(path: str | Path) -> IdentifiedModel:
     """
     where = str(path)
     data = read_json(path, IdentificationFileError, where=where, missing=f"{where}: no such identification file")
+    return identified_model(data, where)
+
+
+def identified_model(data: object, where: str) -> IdentifiedModel:
+    """The :class:`IdentifiedModel` of an identification's ``to_dict()`` (what ``tapmuscle identify
+    --json`` writes), checked as :func:`read_identification` checks a file; ``where`` names it in the
+    errors and warnings (the file, or ``theta0 (tm.identify's result)``)."""
     if not isinstance(data, dict) or not {"model", "ts_s", "theta"} <= set(data):
         missing = sorted({"model", "ts_s", "theta"} - set(data)) if isinstance(data, dict) else ["model", "ts_s", "theta"]
         raise IdentificationFileError(f"{where}: key{'s' if len(missing) > 1 else ''} {', '.join(repr(k) for k in missing)} "
