@@ -36,6 +36,21 @@ def test_jitter_within_a_quarter_period_is_the_grid_it_scatters_about(seed, star
     assert s.jittered and 0.5 * amp < s.jitter_s <= amp * (1.0 + 8.0 / np.sqrt(N))
 
 
+@pytest.mark.parametrize("ppm, nominal", [(0.0, True), (0.42, True), (-0.6, True), (3.0, False)])
+def test_a_jittered_logs_period_is_its_nominal_one_within_a_ppm(ppm, nominal):
+    """A 20-Hz logger's jittered stamps (+-2 ms) fit a slope of 0.0499999999 or 0.100000042 s, which a
+    model identified on them carried as its Ts: the period is the logger's nominal 0.05 s where the slope
+    lies within 1 ppm of it, and the slope itself beyond (a clock 3 ppm fast is the log's own)."""
+    rng = np.random.default_rng(7)
+    t = 1.7e9 + np.arange(4801) * 0.05 * (1.0 + ppm * 1e-6) + rng.uniform(-0.002, 0.002, 4801)
+    s = uniform_sampling(t)
+    assert s.jittered
+    if nominal:
+        assert s.ts_s == 0.05
+    else:
+        # the slope's own error is 2 x 2 ms / sqrt(3) / 4801^1.5 = 7e-9 s, its rounding up to 1 ppm
+        assert s.ts_s != 0.05 and s.ts_s == pytest.approx(0.05 * (1.0 + 3e-6), rel=1.5e-6)
+
 @pytest.mark.parametrize("seed", range(10))
 @pytest.mark.parametrize("where", [1, 7, 1200, N - 3])
 def test_a_dropped_sample_is_named_wherever_it_lies_even_under_jitter(seed, where):

@@ -12,6 +12,7 @@ lies (it moves the later samples a whole period off the grid fitted through all 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -22,13 +23,22 @@ from tapmuscle.errors import TapmuscleError
 
 __all__ = ["Sampling", "SamplingError", "uniform_sampling", "JITTER_TOLERANCE", "STRICT_TOLERANCE", "TS_RANGE_S",
            "GAP_PERIODS", "check_sampling_period", "step_kind", "DECIMATED_TS_S", "decimation_factor", "merge_advice",
-           "MAX_DECIMATION", "period_change", "PERIOD_CHANGE_MIN_STEPS", "PERIOD_CHANGE_STRAY"]
+           "MAX_DECIMATION", "period_change", "PERIOD_CHANGE_MIN_STEPS", "PERIOD_CHANGE_STRAY", "nominal_period",
+           "NOMINAL_PERIOD_TOLERANCE"]
 
 #: Largest distance of a sample's time from its slot on the uniform grid, as a fraction of the period.
 JITTER_TOLERANCE = 0.25
 #: Steps within this fraction of the median step count as exactly uniform (a recording written with
 #: rounded times): the period is then the median step, as written.
 STRICT_TOLERANCE = 1e-3
+
+#: A jittered log's period (the slope through its times) within this relative distance, plus three of
+#: the slope's standard errors, of a value of at most 6 significant digits is taken as that value: a
+#: logger's nominal period (0.05 s), which the jitter and a clock's drift below 1 ppm (0.09 s a day)
+#: move in the last digits (0.0499999999, 0.100000042 s). Carried on, such a period made a model's loop
+#: run at another Ts than a scenario's 0.05 s, and the two differ in their last bits, which a loop near
+#: a limit cycle amplifies (2.36 against 1.49 mm).
+NOMINAL_PERIOD_TOLERANCE = 1e-6
 #: Sampling periods [s] a muscle recording may have (those of ``tapmuscle record --ts``).
 TS_RANGE_S = MUSCLE_TS_RANGE_S
 
@@ -114,7 +124,8 @@ class Sampling:
     ----------
     ts_s : float
         Sampling period [s]: the median step when every step is within 0.1 % of it, else the slope of
-        the least-squares line through the times (the jitter averages out over the run).
+        the least-squares line through the times (the jitter averages out over the run), rounded to
+        the fewest digits that move it by at most 1 ppm and the slope's uncertainty (:func:`nominal_period`).
     jitter_s : float
         Largest distance of a time from its slot on that line [s]; 0 when the steps are uniform.
     """
@@ -271,4 +282,19 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s", where: Callable[[int]
             f"column {column}, sample {k}: t = {float(t[k])!r} s lies {float(t[k] - slot[k]):+.6g} s off the uniform "
             f"grid of {slope:.6g} s through all samples, more than a quarter period (logger jitter may be up to "
             f"that): the logger's clock drifts or samples are late; resample the recording onto a uniform grid first", k)
-    return Sampling(float(slope), float(np.max(dev)))
+    n = len(t)
+    # the slope's standard error: the stamps' scatter about the line over sqrt(sum (k - mean k)^2)
+    error = float(np.std(t - slot, ddof=2)) * math.sqrt(12.0 / (n * (n * n - 1.0))) if n > 2 else 0.0
+    return Sampling(nominal_period(float(slope), error), float(np.max(dev)))
+
+
+def nominal_period(ts_s: float, standard_error_s: float = 0.0) -> float:
+    """``ts_s`` [s] to the fewest significant digits (up to 6) that move it by at most
+    :data:`NOMINAL_PERIOD_TOLERANCE` of itself plus three times ``standard_error_s`` [s], the estimate's
+    own (a logger's nominal period: 0.05 for 0.0499999999), else ``ts_s`` as it is."""
+    allowed = NOMINAL_PERIOD_TOLERANCE * ts_s + 3.0 * standard_error_s
+    for digits in range(1, 7):
+        rounded = float(f"{ts_s:.{digits}g}")
+        if abs(rounded - ts_s) <= allowed:
+            return rounded
+    return ts_s
