@@ -33,7 +33,8 @@ from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["LoopWatch", "PinnedStretch", "ReachWatch", "samples_in_words", "in_a_row", "pinned_message", "held_message",
            "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
-           "PINNED_S", "HEAVY_MOVE_WEIGHT", "RUNAWAY_COMMANDS", "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
+           "PINNED_S", "HEAVY_MOVE_WEIGHT", "HORIZON_PAST_DELAY_S", "horizon_past_delay", "RUNAWAY_COMMANDS",
+           "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
            "TRACKING_MM", "TRACKING_SHARE"]
 
 #: A one-step prediction outside ten times the readings' range [mm], or a QP input u_c beyond this [V]
@@ -54,6 +55,14 @@ SWINGS = 6
 #: step: the swings of the transient in the :data:`REF_STEP_SETTLE_S` after it (25 mm at 0.1 s: six
 #: swings in AMPC-UCP) are not counted; those before and after it are.
 REF_STEP_MM_PER_S = FASTEST_MUSCLE_MM_PER_S
+#: A servo horizon that looks less than this [s] past the input delay, where it spans less than Table 5's
+#: 0.5 s, is told at the start: on the nominal rig at 44 and 68 N, Ts = 0.05 s, with delays of 4 and 5
+#: samples set and theta0 made under them, servo.Hp = 10 against 5 tracked better in 7 of 8 cells (mean
+#: |r - l| over 40-90 s, MPC-servo 0.68 -> 0.45, 0.72 -> 0.57, 0.83 -> 0.49, 1.72 -> 0.64 mm; AMPC-servo
+#: 0.75 -> 0.32, 0.58 -> 0.49, 2.21 -> 0.36, 0.68 -> 0.68), with 2 and 3 samples (0.1 and 0.15 s past
+#: the delay) alike or worse (0.17-0.31 against 0.15-0.36); at Ts = 0.1 s, where 5 samples span 0.5 s,
+#: 10 did not help with 2-5 samples.
+HORIZON_PAST_DELAY_S = 0.1
 #: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
 #: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
 #: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
@@ -266,6 +275,18 @@ def samples_in_words(n: int) -> str:
     return f"{n} sample" if n == 1 else f"{n} samples"
 
 
+def horizon_past_delay(hp: int, ts_s: float, d: int) -> str:
+    """What to say of a servo horizon of ``hp`` samples at ``ts_s`` [s] that looks less than
+    :data:`HORIZON_PAST_DELAY_S` past an input delay of ``d`` samples while it spans less than Table 5's
+    0.5 s (a short Ts), else ``""``."""
+    paper_s = TABLE5_SERVO["hp"] * PAPER_TS_S
+    if d < 1 or hp * ts_s >= paper_s * (1.0 - 1e-9) or (hp - d) * ts_s >= HORIZON_PAST_DELAY_S * (1.0 - 1e-9):
+        return ""
+    return (f"servo.Hp = {hp} samples spans {hp * ts_s:g} s at Ts = {ts_s:g} s and looks {max(hp - d, 0) * ts_s:g} s "
+            f"past the input delay of {samples_in_words(d)}: on delayed rigs at Ts = 0.05 s servo.Hp = "
+            f"{math.ceil(paper_s / ts_s - 1e-9)} (Table 5's {paper_s:g} s) tracked better (docs/control.md, \"A short Ts\")")
+
+
 class LoopWatch:
     """The supervision of one controller's closed loop: :meth:`observe` after each
     :meth:`DisplacementController.step <fmu_controller.displacement_control.DisplacementController.step>`
@@ -310,6 +331,9 @@ class LoopWatch:
         u_v = step.u_v
         if k == 0:
             self._check_theta0(said, t_s)
+            horizon = self.horizon_past_delay(self.controller.settings.input_delay_samples)
+            if horizon:
+                said.append(f"t = {t_s:g} s: {horizon}")
         self._watch_diverged(said, t_s, l_mm, step.uc_v, step.predicted_next_mm)
         if self.controller.startup_guarded_at == k:
             said.append(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up "
@@ -592,6 +616,11 @@ class LoopWatch:
         said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
                     f"{SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}")
 
+    def horizon_past_delay(self, d: int) -> str:
+        """:func:`horizon_past_delay` for this controller's servo horizon and Ts (``""`` for a UCP method)."""
+        s = self.controller.settings
+        return horizon_past_delay(s.servo.hp, s.ts_s, d) if s.servo_mechanism else ""
+
     def decision_message(self, t_s: float, d: int) -> str:
         """What to tell when ``input_delay_samples = -1`` has decided for a delay ``d`` of 2 samples or
         more at ``t_s`` [s]: a transport delay, which the law compensates from now on a ``theta0``
@@ -600,6 +629,10 @@ class LoopWatch:
         under it (docs/control.md, "Transport delay"); on rigs whose constants are off, scores that
         ``theta0`` fits poorly can show a delay the rig does not have (24 of 864 delay-free runs, the
         fixed-predictor methods and AMPC-UCP)."""
+        horizon = self.horizon_past_delay(d)
+        return self._decision_text(t_s, d) + (f"; {horizon}" if horizon else "")
+
+    def _decision_text(self, t_s: float, d: int) -> str:
         ts = self.controller.settings.ts_s
         head = f"t = {t_s:g} s: input_delay_samples = -1 decided for {samples_in_words(d)} ({d * ts:g} s)"
         if d >= AUTO_INPUT_DELAY_SAMPLES:  # the longest -1 scores: the rig's delay may be longer

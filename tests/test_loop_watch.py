@@ -151,6 +151,28 @@ def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
     assert not any("servo.Hp" in c for c in LoopWatch(table5_at_02).limit_cycle_causes(42.0))  # 1 s, but Table 5's
 
 
+@pytest.mark.parametrize("hp, ts, d, advised", [(5, 0.05, 4, 10), (5, 0.05, 5, 10), (5, 0.05, 3, None),
+                                                (5, 0.1, 5, None), (10, 0.05, 8, None), (5, 0.02, 8, 25),
+                                                (12, 0.02, 8, 25), (20, 0.02, 8, None), (5, 0.05, 0, None)])
+def test_a_short_servo_horizon_that_barely_looks_past_the_delay_is_told_at_the_start(hp, ts, d, advised):
+    """At Ts = 0.05 s with 4 or 5 samples of delay set, Table 5's 5-sample horizon (0.25 s) looks at most
+    0.05 s past the delay, and servo.Hp = 10 tracked better in 7 of 8 cells; at 0.1 s (0.5 s spanned),
+    or 0.1 s and more past the delay, it did not: told at the first sample then, for the servo methods."""
+    from fmu_controller.loop_watch import horizon_past_delay
+
+    said = horizon_past_delay(hp, ts, d)
+    assert (f"servo.Hp = {advised} (Table 5's 0.5 s) tracked better" in said) if advised else said == ""
+    settings = tm.ControllerSettings(method="ampc_servo", ts_s=ts, input_delay_samples=d, box_lower={}, box_upper={},
+                                     servo=tm.ServoMPCSettings(hp=hp, hu=min(hp, 5)))
+    ctrl = tm.DisplacementController(settings, tm.THETA0_44N)
+    ctrl.reset(0.0)
+    step = ctrl.step(0.0, [10.0] * (settings.preview_samples + 1))
+    told = LoopWatch(ctrl).observe(0, 0.0, 0.0, 10.0, step, 0.0)
+    assert [m for m in told if "servo.Hp" in m] == ([f"t = 0 s: {said}"] if advised else [])
+    ucp = tm.DisplacementController(tm.ControllerSettings(method="ampc_ucp", ts_s=ts, input_delay_samples=d,
+                                                          box_lower={}, box_upper={}), tm.THETA0_44N)
+    assert LoopWatch(ucp).horizon_past_delay(d) == ""
+
 def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
     """A reading frozen at 20 s as the reference steps from 40 to 60 mm: the command sits at 10 V for good (one
     limit: reading_stuck, which needs both, cannot tell it); the pinned-valve warning then adds a stuck

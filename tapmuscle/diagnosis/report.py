@@ -16,6 +16,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from fmu_controller.displacement_control import MAX_INPUT_DELAY_SAMPLES
+from fmu_controller.loop_watch import horizon_past_delay
+from fmu_controller.servo_settings import TABLE5_SERVO
 from fmu_plant import PlantParams
 
 from tapmuscle.plots.figures import new_figure, save_figure
@@ -134,9 +136,11 @@ def delay_advice(delay_s: float, ts_s: float) -> str:
                 "\"Transport delay\")")
     between = "" if whole else (f" ({n:.2f} samples: the longer of {k - 1} and {k}, which the servo methods track "
                                 "better with and input_delay_samples = -1 decides)")
+    horizon = horizon_past_delay(TABLE5_SERVO["hp"], ts_s, k)  # the servo methods' default horizon
     return (f"for control: set the controller's input_delay_samples = {k} at Ts = {ts_s:g} s{between}, with a theta0 "
             f"identified under it (tapmuscle identify --input-delay-samples {k}, whose file gives a scenario both); "
-            "tapmuscle run with a plant file alone leaves it at 0 (docs/control.md, \"Transport delay\")")
+            "tapmuscle run with a plant file alone leaves it at 0 (docs/control.md, \"Transport delay\")"
+            + (f"; for the servo methods, Table 5's {horizon}" if horizon else ""))
 
 
 def _windows_text(located: Sequence[tuple[float, float]]) -> str:
