@@ -270,14 +270,16 @@ def test_jittered_timestamps_are_identified_as_the_grid_with_a_note(records, tmp
 
 
 def test_a_jittered_log_validates_a_model_identified_on_another(records, tmp_path):
-    """Two PC loggers' files: each period is its own least-squares grid (0.1 s give or take 1e-7), which
-    a validation compared to 1e-9 and refused; they agree within the reader's 0.1 %, and a 0.2-s
-    file is still refused."""
+    """Two PC loggers' files, one clock 50 ppm off: each period is its own least-squares grid, which a
+    validation compared to 1e-9 would refuse; they agree within the reader's 0.1 %, and a 0.2-s file
+    is still refused."""
     _, paths = records
     files = []
-    for kind, seed in (("train", 3), ("val", 4)):
+    # the second logger's clock 50 ppm fast: a period of its own (one within 1 ppm and the jitter's
+    # uncertainty of its nominal one is that)
+    for kind, seed, clock in (("train", 3, 1.0), ("val", 4, 1.0 + 5e-5)):
         rec = read_recording(paths[kind, 44])
-        jittered = rec.t_s + np.random.default_rng(seed).uniform(-0.004, 0.004, len(rec.t_s))
+        jittered = rec.t_s * clock + np.random.default_rng(seed).uniform(-0.004, 0.004, len(rec.t_s))
         files.append(tmp_path / f"{kind}.csv")
         write_recording(files[-1], Recording(dict(rec.columns) | {"t_s": jittered}, {}))
     assert read_recording(files[0]).ts_s != read_recording(files[1]).ts_s
