@@ -159,7 +159,8 @@ class ToneCommandError(ValueError):
                 f"two sines ({frequencies_hz[0]:.2g} and {frequencies_hz[1]:.2g} Hz)")
         super().__init__(f"the record's command is {what}: at a few frequencies a transport delay is a phase lag "
                          "that Eq. (1)'s dynamics take up too, so its fits cannot tell the delay; record a random, "
-                         "step or chirp command, or give the delay yourself")
+                         "step or chirp command, or give the delay yourself (tapmuscle identify "
+                         "--input-delay-samples D; tm.identify(..., input_delay_samples=D))")
         self.frequencies_hz = frequencies_hz
 
 

@@ -121,6 +121,8 @@ def test_a_sine_is_refused(command, match):
     with pytest.raises(ToneCommandError, match=match) as e:
         choose_input_delay(rec["u_v"], rec["l_mm"], ts_s=TS)
     assert "its fits cannot tell the delay" in str(e.value) and len(e.value.frequencies_hz) == 1
+    assert str(e.value).endswith("or give the delay yourself (tapmuscle identify --input-delay-samples D; "
+                                 "tm.identify(..., input_delay_samples=D))")
 
 
 @pytest.mark.parametrize("kwargs, match", [
