@@ -589,6 +589,33 @@ def PlantParams_default_with(values):
     return PlantParams().with_values(**values)
 
 
+@pytest.mark.slow
+def test_a_search_restricted_by_effects_that_leaves_a_structured_residual_says_to_search_them_all(tmp_path, capsys):
+    """A discriminating experiment's re-diagnosis searches among its alternatives (``--effects``): on a
+    rig whose 0.3-s delay the first diagnosis did not name, what remains is unexplained, and the
+    command says to diagnose again without ``--effects``; with the delay among them, nothing is said."""
+    from fmu_plant import PlantParams
+    from tapmuscle.cli.main import main
+    from tapmuscle.io.plant_file import write_plant_file
+
+    rec, plant = tmp_path / "rec.csv", tmp_path / "nominal.json"
+    write_plant_file(plant, PlantParams())
+    assert main(["record", "--input", "random:lo=2,hi=8,hold_min=0.5,hold_max=3,seed=1", "--duration", "60",
+                 "--set", "delay.delay_s=0.3", "--out", str(rec), "--quiet"]) == 0
+    said = {}
+    for effects in ("valve_dead_zone", "transport_delay,valve_dead_zone"):
+        capsys.readouterr()
+        assert main(["diagnose", "--recording", str(rec), "--plant", str(plant), "--effects", effects,
+                     "--no-calibration", "--no-plots", "--quiet", "--out", str(tmp_path / effects)]) == 0
+        out, err = capsys.readouterr()
+        said[effects] = (out, err)
+    out, err = said["valve_dead_zone"]
+    assert "unexplained" in out and ("note: the search was restricted to --effects valve_dead_zone, and a structured "
+                                     "residual remains (unexplained, below): diagnose this recording again without "
+                                     "--effects to search every candidate") in err
+    out, err = said["transport_delay,valve_dead_zone"]
+    assert "transport_delay" in out and "the search was restricted" not in err
+
 def test_diagnose_cli_names_the_line_and_column_of_a_malformed_recording(tmp_path, capsys):
     plant = tmp_path / "plant.json"
     plant.write_text(json.dumps({"plant": DEMO_MODEL.to_dict()}))

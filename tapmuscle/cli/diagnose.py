@@ -65,7 +65,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if args.use_pressure and d.pressure_noise_mpa is None:
         print("--use-pressure: the recording has no usable p_mpa column (missing, constant, short or not "
               "finite); judged on the displacement alone")
-    for note in d.notes:
+    notes = list(d.notes)
+    if args.effects is not None and any(f.effect == "unexplained" for f in d.findings):
+        # a discriminating experiment's re-diagnosis searches among its alternatives: what else the rig
+        # has (a delay the first diagnosis did not name) is left, and said where a residual remains
+        notes.append(f"the search was restricted to --effects {','.join(c.name for c in candidates)}, and a structured "
+                     "residual remains (unexplained, below): diagnose this recording again without --effects to search "
+                     "every candidate")
+    for note in notes:
         print(f"note: {note}", file=sys.stderr)
     for line in summary_lines(d):
         print(line)
