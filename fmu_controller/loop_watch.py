@@ -33,7 +33,8 @@ from fmu_controller.ucp_mpc import UCPSettings
 
 __all__ = ["LoopWatch", "PinnedStretch", "ReachWatch", "samples_in_words", "in_a_row", "pinned_message", "held_message",
            "DIVERGED_MM", "DIVERGED_V", "SLAM_JUMPS", "SLAM_WINDOW_S", "SWINGS",
-           "PINNED_S", "HEAVY_MOVE_WEIGHT", "HORIZON_PAST_DELAY_S", "horizon_past_delay", "RUNAWAY_COMMANDS",
+           "PINNED_S", "HEAVY_MOVE_WEIGHT", "HORIZON_PAST_DELAY_S", "horizon_past_delay", "TABLE5_HORIZON_S",
+           "table5_horizon_samples", "RUNAWAY_COMMANDS",
            "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
            "TRACKING_MM", "TRACKING_SHARE"]
 
@@ -63,6 +64,8 @@ REF_STEP_MM_PER_S = FASTEST_MUSCLE_MM_PER_S
 #: the delay) alike or worse (0.17-0.31 against 0.15-0.36); at Ts = 0.1 s, where 5 samples span 0.5 s,
 #: 10 did not help with 2-5 samples.
 HORIZON_PAST_DELAY_S = 0.1
+#: The time Table 5's servo horizon spans at the paper's Ts [s]: 5 samples of 0.1 s.
+TABLE5_HORIZON_S = TABLE5_SERVO["hp"] * PAPER_TS_S
 #: A servo move weight R above this (Table 5: 15) is named among a limit cycle's causes: with Table 5's
 #: horizon and Q, Qs, MPC-servo at 44 N tracked to 0.51 mm at R = 1000, overshot by 26 mm at 3000 (1.4
 #: mm of Eq. (21) error) and swung the valve limit to limit at 10^4 (17 mm).
@@ -279,12 +282,16 @@ def horizon_past_delay(hp: int, ts_s: float, d: int) -> str:
     """What to say of a servo horizon of ``hp`` samples at ``ts_s`` [s] that looks less than
     :data:`HORIZON_PAST_DELAY_S` past an input delay of ``d`` samples while it spans less than Table 5's
     0.5 s (a short Ts), else ``""``."""
-    paper_s = TABLE5_SERVO["hp"] * PAPER_TS_S
-    if d < 1 or hp * ts_s >= paper_s * (1.0 - 1e-9) or (hp - d) * ts_s >= HORIZON_PAST_DELAY_S * (1.0 - 1e-9):
+    if d < 1 or hp * ts_s >= TABLE5_HORIZON_S * (1.0 - 1e-9) or (hp - d) * ts_s >= HORIZON_PAST_DELAY_S * (1.0 - 1e-9):
         return ""
     return (f"servo.Hp = {hp} samples spans {hp * ts_s:g} s at Ts = {ts_s:g} s and looks {max(hp - d, 0) * ts_s:g} s "
             f"past the input delay of {samples_in_words(d)}: on delayed rigs at Ts = 0.05 s servo.Hp = "
-            f"{math.ceil(paper_s / ts_s - 1e-9)} (Table 5's {paper_s:g} s) tracked better (docs/control.md, \"A short Ts\")")
+            f"{table5_horizon_samples(ts_s)} (Table 5's {TABLE5_HORIZON_S:g} s) tracked better (docs/control.md, \"A short Ts\")")
+
+
+def table5_horizon_samples(ts_s: float) -> int:
+    """The servo horizon [samples] that spans Table 5's :data:`TABLE5_HORIZON_S` at ``ts_s`` [s]."""
+    return math.ceil(TABLE5_HORIZON_S / ts_s - 1e-9)
 
 
 class LoopWatch:
@@ -398,12 +405,11 @@ class LoopWatch:
         """What to say of a servo law whose horizon spans less time than Table 5's 5 samples at Ts = 0.1 s:
         on a rig whose valve lags besides its delay, the paper's seconds tracked where 5 samples swung."""
         s = self.controller.settings
-        paper_s = TABLE5_SERVO["hp"] * PAPER_TS_S
-        if not s.servo_mechanism or s.servo.hp * s.ts_s >= paper_s * (1.0 - 1e-9):
+        if not s.servo_mechanism or s.servo.hp * s.ts_s >= TABLE5_HORIZON_S * (1.0 - 1e-9):
             return ""
         return (f"; or the servo horizon is short: servo.Hp = {s.servo.hp} samples spans {s.servo.hp * s.ts_s:g} s "
-                f"here, Table 5's spans {paper_s:g} s at Ts = {PAPER_TS_S:g} s (servo.Hp = "
-                f"{math.ceil(paper_s / s.ts_s - 1e-9)} spans them; docs/control.md, \"A short Ts\")")
+                f"here, Table 5's spans {TABLE5_HORIZON_S:g} s at Ts = {PAPER_TS_S:g} s (servo.Hp = "
+                f"{table5_horizon_samples(s.ts_s)} spans them; docs/control.md, \"A short Ts\")")
 
     def _check_theta0(self, said: list[str], t_s: float) -> None:
         """Tell at the first sample when ``theta0``'s model runs away (:meth:`runaway`): an identification
@@ -728,12 +734,11 @@ class LoopWatch:
                           f"adaptive method (3, 4), or {REFINE_IN_CLOSED_LOOP if not default else 'theta0 identified over this range'}")
         if delay is not None:
             causes.append(delay)
-        paper_s = TABLE5_SERVO["hp"] * PAPER_TS_S
-        if s.servo_mechanism and s.servo.hp > TABLE5_SERVO["hp"] and s.servo.hp * s.ts_s > paper_s * (1.0 + 1e-9):
+        if s.servo_mechanism and s.servo.hp > TABLE5_SERVO["hp"] and s.servo.hp * s.ts_s > TABLE5_HORIZON_S * (1.0 + 1e-9):
             # longer than Table 5's in samples and in seconds: at a short Ts its 5 samples span less than the
             # paper's 0.5 s (what the short-horizon note suggests), at a long one Table 5's own is no cause
             causes.append(f"a long prediction horizon servo.Hp = {s.servo.hp} ({s.servo.hp * s.ts_s:g} s) on an "
-                          f"imperfect model (Table 5: {TABLE5_SERVO['hp']}, {paper_s:g} s at Ts = {PAPER_TS_S:g} s; "
+                          f"imperfect model (Table 5: {TABLE5_SERVO['hp']}, {TABLE5_HORIZON_S:g} s at Ts = {PAPER_TS_S:g} s; "
                           "3 s and more swung the valve in measured runs)")
         r = max(s.servo.r) if isinstance(s.servo.r, tuple) else s.servo.r
         if s.servo_mechanism and r > HEAVY_MOVE_WEIGHT:
