@@ -22,6 +22,7 @@ from tapmuscle.diagnosis.demo import DEMO_MODEL, Case, run_case, record
 from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, unstructured_reason, fit_percent, interleaved_split, iou,
                                          located_windows)
 from tapmuscle.cli.main import main
+from tapmuscle.provenance import software
 
 
 # ------------------------------------------------------------------------------ residual analysis
@@ -403,6 +404,7 @@ def test_a_report_with_nothing_named_says_what_to_do_next(tmp_path):
     assert d.named == [] and [f.effect for f in d.findings] == ["unexplained"]
     write_outputs(d, tmp_path / "a", recording="rec.csv", plant="plant.json", plots=False)
     assert "Next: nothing in the vocabulary explains what is left." in (tmp_path / "a" / "report.md").read_text()
+    assert json.loads((tmp_path / "a" / "diagnosis.json").read_text())["software"] == software()
     named = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL, candidates=[candidate("load_mismatch")],
                      calibration=None)
     assert named.named == ["load_mismatch"]

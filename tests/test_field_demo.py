@@ -21,6 +21,7 @@ from fmu_plant import PlantParams
 from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
 from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split
 from tapmuscle.diagnosis.simulation import Simulator
+from tapmuscle.provenance import software
 
 
 @pytest.fixture(scope="module")
@@ -373,6 +374,7 @@ def test_a_tiny_run_writes_its_files(tmp_path):
         assert (tmp_path / name).is_file()
     doc = json.loads((tmp_path / "scores.json").read_text())
     assert len(doc["cases"]) == 2 and {c["category"] for c in doc["cases"]} == {"none", "single"}
+    assert doc["software"] == software()
     for c in doc["cases"]:
         assert c["fit_truth_percent"] > 99.0 and "verdict" in c
         folder = tmp_path / "cases" / c["case"]

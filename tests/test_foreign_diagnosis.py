@@ -22,6 +22,7 @@ from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign, diagnose_fore
 from tapmuscle.diagnosis.foreign_model import ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.signal_map import SignalMapError, read_signal_map
 from tapmuscle.io.recording import read_columns
+from tapmuscle.provenance import software
 
 pytestmark = [pytest.mark.c_host, pytest.mark.foreign]
 
@@ -217,6 +218,7 @@ def test_cli_runs_a_foreign_fmu_and_reports_bad_map_without_traceback(fmus, tmp_
     assert "output_drift[omega]" in r.stdout and "one simulation of the 3601-sample recording" in r.stdout
     doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert doc["split"]["block_s"] == 10.0  # the default blocks
+    assert doc["software"] == software()
     drift = next(f for f in doc["findings"] if f["effect"] == "output_drift[omega]")["parameters"]
     assert math.isclose(drift["omega:drift_per_min"], 0.6, abs_tol=0.1)
     m.write_text(m.read_text().replace('column = "meas"', 'column = "nope"'))

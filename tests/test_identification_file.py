@@ -22,6 +22,7 @@ from tapmuscle.closed_loop import run_closed_loop
 from tapmuscle.cosim import ScenarioError, co_simulate, load_scenario
 from tapmuscle.cosim.run import run_scenario
 from tapmuscle.io.identification_file import IdentificationFileError, read_identification
+from tapmuscle.provenance import software
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +43,7 @@ def test_the_file_gives_theta_period_and_box(id_files):
     m = read_identification(id_files[0.1])
     doc = json.loads(id_files[0.1].read_text())
     assert m.ts_s == 0.1 and m.theta == doc["theta"] and list(m.theta) == list(ASYMMETRIC.names)
+    assert doc["software"] == software()  # what identified it, for a result that differs elsewhere
     assert m.box_lower == doc["constraint"]["lower"] and m.box_lower["b1"] == 0.607 and m.box_upper["b1"] == 1.184
     m05 = tm.read_identification(id_files[0.05])
     assert m05.ts_s == 0.05 and m05.box_lower == {} and m05.box_upper == {}
@@ -201,6 +203,7 @@ def test_a_model_refined_in_closed_loop_is_written_for_the_controller(tmp_path):
     assert np.array_equal(np.array(list(model.theta.values())), theta) and model.ts_s == 0.05
     assert model.box_lower == {"b1": 0.01} and model.box_upper == {}
     assert json.loads(path.read_text())["notes"] == ["refined in closed loop"]
+    assert json.loads(path.read_text())["software"] == software()
     for bad_theta, ts, message in ((theta[:14], 0.1, "must be 15 values"), (theta, 0.0, "ts_s must be a positive"),
                                    (theta, 100, r"ts_s = 100 s is outside the 0.001..10 s .* a period in milliseconds")):
         with pytest.raises(IdentificationFileError, match=message):

@@ -21,7 +21,8 @@ import pytest
 from fmpy_helpers import host_lines
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ["tapmuscle.errors", "tapmuscle.interrupts", "tapmuscle.progress", "tapmuscle.io", "tapmuscle.plots", "tapmuscle.own_law",
+LAYERS = ["tapmuscle.errors", "tapmuscle.provenance", "tapmuscle.interrupts", "tapmuscle.progress", "tapmuscle.io",
+          "tapmuscle.plots", "tapmuscle.own_law",
           "tapmuscle.closed_loop", "tapmuscle.soak",
           "tapmuscle.cosim",
           "tapmuscle.diagnosis", "tapmuscle.paper", "tapmuscle.cli", "tapmuscle"]

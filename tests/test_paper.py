@@ -19,6 +19,7 @@ from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.paper.reproduce import PAPER_RUNS, paper_findings, paper_tables, preliminary_theta
 from tapmuscle.io.recording import read_recording
 from tapmuscle.io.signals import parse_input_spec
+from tapmuscle.provenance import software
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +40,7 @@ def test_outputs(paper):
     assert set(doc["table7"]["68"]) == {"ampc_servo", "ampc_ucp"}
     assert set(doc["table9"]["44"]) == {"ampc_servo", "mpc_servo"}
     assert len(list(out.glob("fig*_tracking_*.png"))) == 6 and len(list(out.glob("fig*_prediction_error_*.png"))) == 6
+    assert doc["software"] == software()
 
 
 @pytest.mark.slow

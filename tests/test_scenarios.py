@@ -17,6 +17,7 @@ from tapmuscle.cli.main import main
 from tapmuscle.closed_loop import eq21_error_mm, run_closed_loop
 from tapmuscle.paper.reproduce import PAPER_RUNS
 from tapmuscle.io.recording import read_recording
+from tapmuscle.provenance import software
 
 
 def _scenario(method, *, seed=3, duration=25.0, load_steps=(), plant_params=None, freq=0.1):
@@ -213,6 +214,7 @@ def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
     assert summary["mae_mm"] == pytest.approx(eq21_error_mm(rec.columns["r_mm"], rec.columns["l_mm"], (20, 120)), rel=1e-6)  # CSV rounding
     assert 0.0 < summary["mae_mm"] < 2.0
     assert summary["fmus"]["AMPCController"]["guid"] and summary["real_time_factor"] > 1
+    assert summary["software"] == software()
     assert set(summary["scenario_spec"]["reference"]) == {"kind", "offset_mm", "amplitude_mm", "frequency_hz"}
     assert rec.columns["load_n"][59] == 68.0 and rec.columns["load_n"][60] == 44.0
     for png in ("tracking.png", "prediction_error.png", "parameters.png"):

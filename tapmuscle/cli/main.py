@@ -24,6 +24,7 @@ from tapmuscle.cli.diagnose import register as _register_diagnose
 from tapmuscle.cli.rig_import import register as _register_import
 from tapmuscle.cli.sweep import register as _register_sweep
 from tapmuscle.errors import UsageError
+from tapmuscle.provenance import software
 
 __all__ = ["main", "build_parser", "MAX_SAMPLES"]
 
@@ -270,7 +271,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     except ValueError:  # free text in the header: kept as written
         pass
     out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
-                              "load_n": load}
+                              "load_n": load, "software": software()}
     notes = _identify_notes(args, rec, val, report, choice)
     out["notes"] = notes
     if choice is not None:
@@ -470,18 +471,10 @@ class _Version(argparse.Action):
         super().__init__(option_strings, dest, nargs=0, help="print the versions and exit")
 
     def __call__(self, parser: argparse.ArgumentParser, *args: Any) -> None:
-        import platform
-        from importlib import metadata
+        from tapmuscle.provenance import NUMERICS_PACKAGES
 
-        from fmu_plant.rosenbrock import COMPILED
-
-        def version(name: str) -> str:
-            try:
-                return metadata.version(name)
-            except metadata.PackageNotFoundError:
-                return "not installed"
-
-        packages = ", ".join(f"{name} {version(name)}" for name in ("numpy", "scipy", "osqp", "pythonfmu", "fmpy"))
+        found = software()
+        packages = ", ".join(f"{name} {found[name]}" for name in NUMERICS_PACKAGES)
         libpython = ""
         if sys.platform.startswith("linux"):  # whether the FMUs built here can start a Python in a C host
             from build_scripts.native_host import build_environment
@@ -490,8 +483,8 @@ class _Version(argparse.Action):
                                           else "static: FMUs for Python hosts only")
         from tapmuscle.cosim.master import formats_fmu_messages
 
-        print(f"tapmuscle {version('tapmuscle')} (Python {platform.python_version()}; {packages}; compiled sub-step "
-              f"{'yes' if COMPILED else 'no'}; C FMU messages formatted {'yes' if formats_fmu_messages() else 'no'}"
+        print(f"tapmuscle {found['tapmuscle']} (Python {found['python']}; {packages}; compiled sub-step "
+              f"{found['compiled_substep']}; C FMU messages formatted {'yes' if formats_fmu_messages() else 'no'}"
               f"{libpython})")
         parser.exit(0)
 

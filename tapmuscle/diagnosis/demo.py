@@ -32,6 +32,7 @@ from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, iou, interleaved_split
 from tapmuscle.diagnosis.simulation import Simulator, process_pool
 from tapmuscle.diagnosis.reproducible import sse
+from tapmuscle.provenance import software
 
 __all__ = ["DEMO_MODEL", "EXCITATIONS", "MAGNITUDES", "Case", "concealed_cases", "record", "run_case",
            "run_demo", "calibrate_without_rate"]
@@ -270,7 +271,8 @@ def run_demo(out: str | Path, *, seeds: int = 3, clean_seeds: int = 20, jobs: in
     concealed, clean_results = rest[:len(cases)], rest[len(cases):]
     scores = _scores(concealed, clean_results, showcase)
     atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "cases": results,
-                                                       "fig20_model": fig20_model.friction.__dict__}, indent=2,
+                                                       "fig20_model": fig20_model.friction.__dict__,
+                                                       "software": software()}, indent=2,
                                                       default=str) + "\n")
     atomic_write_text(out / "scores.md", scores_markdown(scores))
     return scores

@@ -33,6 +33,7 @@ from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
+from tapmuscle.provenance import software
 
 __all__ = ["identified_model", "IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification", "checked_box"]
 
@@ -280,7 +281,8 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
                          note: str = "", input_delay_samples: int = 0) -> None:
     """Write a model as ``tapmuscle identify --json`` does, for :func:`read_identification` and a
     scenario's ``[controller] identification``: a ``theta`` refined in closed loop
-    (:func:`tapmuscle.paper.preliminary_theta`, or a controller FMU's final ``theta.*``), say.
+    (:func:`tapmuscle.paper.preliminary_theta`, or a controller FMU's final ``theta.*``), say. The
+    file also records the releases that wrote it (``software``, :func:`tapmuscle.provenance.software`).
 
     Parameters
     ----------
@@ -325,5 +327,5 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
         raise IdentificationFileError(f"{path}: {exc}") from None
     doc = {"model": "asymmetric", "ts_s": ts_s, "theta": dict(zip(ASYMMETRIC.names, values.tolist())),
            "constraint": {"lower": lower, "upper": upper},
-           "input_delay_samples": delay, "notes": [note] if note else []}
+           "input_delay_samples": delay, "notes": [note] if note else [], "software": software()}
     atomic_write_text(Path(path), json.dumps(doc, indent=2) + "\n")

@@ -39,6 +39,7 @@ from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.io.signals import parse_input_spec
+from tapmuscle.provenance import software
 
 __all__ = ["PaperRun", "PAPER_FILES", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables", "preliminary_theta",
            "run_paper"]
@@ -245,7 +246,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
                     "theta0": ASYMMETRIC.to_dict(theta0),
                     "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default",
                     "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
-                    "eq21_window_s": list(EQ21_WINDOW_S)}
+                    "eq21_window_s": list(EQ21_WINDOW_S), "software": software()}
         atomic_write_text(tmp / "paper.json", json_text(document, indent=2))
     print_tables(tables, stream)
     return document
