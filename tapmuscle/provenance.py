@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import platform
 from importlib import metadata
+from typing import Sequence
 
-__all__ = ["NUMERICS_PACKAGES", "package_version", "software"]
+__all__ = ["NUMERICS_PACKAGES", "package_version", "software", "software_text"]
 
 #: The packages whose release can change a result's last bits (the FMUs run in pythonfmu, the
 #: co-simulation in fmpy).
@@ -44,3 +45,12 @@ def software() -> dict[str, str]:
     return {"tapmuscle": package_version("tapmuscle"), "python": platform.python_version(),
             **{name: package_version(name) for name in NUMERICS_PACKAGES},
             "machine": f"{platform.system()} {platform.machine()}", "compiled_substep": "yes" if COMPILED else "no"}
+
+
+def software_text(found: dict[str, str] | None = None, more: Sequence[str] = ()) -> str:
+    """:func:`software` (or ``found``, such a dict read from a document) in one line, as ``tapmuscle
+    --version`` (with ``more``, further facts in the parentheses) and a sweep's ``summary.md`` say it."""
+    found = software() if found is None else found
+    facts = [f"Python {found['python']}", ", ".join(f"{name} {found[name]}" for name in NUMERICS_PACKAGES),
+             found["machine"], f"compiled sub-step {found['compiled_substep']}", *more]
+    return f"tapmuscle {found['tapmuscle']} ({'; '.join(facts)})"

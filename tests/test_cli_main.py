@@ -24,7 +24,7 @@ def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
     out, err = capsys.readouterr()
     assert err == ""
     found = re.fullmatch(r"tapmuscle (\S+) \(Python (\S+); numpy (\S+), scipy (\S+), osqp \S+, pythonfmu \S+, "
-                         r"fmpy \S+; compiled sub-step (yes|no); C FMU messages formatted (yes|no)"
+                         r"fmpy \S+; (\S+ \S+); compiled sub-step (yes|no); C FMU messages formatted (yes|no)"
                          r"(; libpython shared|; libpython static: FMUs for "
                          r"Python hosts only)?\)\n", out)
     assert found, out
@@ -32,6 +32,7 @@ def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
     libpython = None if not sys.platform.startswith("linux") else \
         "; libpython shared" if shared else "; libpython static: FMUs for Python hosts only"
     assert found.groups() == (tapmuscle.__version__, platform.python_version(), np.__version__, scipy.__version__,
+                              f"{platform.system()} {platform.machine()}",
                               "yes" if COMPILED else "no", "yes" if formats_fmu_messages() else "no", libpython)
 
 

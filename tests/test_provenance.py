@@ -27,3 +27,13 @@ def test_software_names_the_releases_that_run_here():
 def test_a_package_that_is_not_installed_is_said_so():
     assert package_version("tapmuscle-no-such-distribution") == "not installed"
 
+
+
+def test_the_one_line_form_names_every_release_and_takes_a_documents():
+    from tapmuscle.provenance import software_text
+
+    found = software() | {"numpy": "1.26.0", "osqp": "1.1.2"}  # as read back from an older document
+    line = software_text(found, more=["libpython shared"])
+    assert line.startswith(f"tapmuscle {found['tapmuscle']} (Python {found['python']}; numpy 1.26.0, scipy ")
+    assert ", osqp 1.1.2, pythonfmu " in line and line.endswith(f"; {found['machine']}; compiled sub-step "
+                                                                f"{found['compiled_substep']}; libpython shared)")

@@ -15,6 +15,7 @@ from tapmuscle.cosim.master import InstancePool
 from tapmuscle.cosim.sweep import load_sweep, parse_sweep
 from tapmuscle.cosim.sweep_run import ResultsLog, result_columns, run_sweep, summary_markdown
 from tapmuscle.cli.main import main
+from tapmuscle.provenance import software_text
 
 SHORT = {"duration_s": 12.0, "evaluation_samples": [20, 120], "controller": {"method": "ampc_servo"}}
 
@@ -434,6 +435,8 @@ def test_summary_groups_grid_cells():
                                                                  ("68.0", 0, "0.5"), ("68.0", 1, "0.9")])]
     text = summary_markdown(sweep, rows)
     assert "| ampc_servo | 4 | 0 | 0 | 0.450 | 0.400 | 0.900 |" in text
+    # the FMUs run the host's numerics, which a resumed run's FMU hash does not cover
+    assert f"Summarised with {software_text()}; a run kept from an earlier `results.csv`" in text
     assert "| ampc_servo | 44.0 | 2 | 0 | 0.200 | 0.200 | 0.300 |" in text
     assert "| ampc_servo | 68.0 | 2 | 0 | 0.700 | 0.700 | 0.900 |" in text
 

@@ -471,21 +471,17 @@ class _Version(argparse.Action):
         super().__init__(option_strings, dest, nargs=0, help="print the versions and exit")
 
     def __call__(self, parser: argparse.ArgumentParser, *args: Any) -> None:
-        from tapmuscle.provenance import NUMERICS_PACKAGES
+        from tapmuscle.provenance import software_text
 
-        found = software()
-        packages = ", ".join(f"{name} {found[name]}" for name in NUMERICS_PACKAGES)
-        libpython = ""
+        more = []
         if sys.platform.startswith("linux"):  # whether the FMUs built here can start a Python in a C host
             from build_scripts.native_host import build_environment
 
-            libpython = "; libpython " + ("shared" if build_environment()["libpython_soname"]
-                                          else "static: FMUs for Python hosts only")
+            more.append("libpython " + ("shared" if build_environment()["libpython_soname"]
+                                        else "static: FMUs for Python hosts only"))
         from tapmuscle.cosim.master import formats_fmu_messages
 
-        print(f"tapmuscle {found['tapmuscle']} (Python {found['python']}; {packages}; compiled sub-step "
-              f"{found['compiled_substep']}; C FMU messages formatted {'yes' if formats_fmu_messages() else 'no'}"
-              f"{libpython})")
+        print(software_text(more=[f"C FMU messages formatted {'yes' if formats_fmu_messages() else 'no'}", *more]))
         parser.exit(0)
 
 

@@ -12,7 +12,8 @@ Outputs in ``DIR``:
   sweep no longer has are kept after them (``summary.md`` and the command's last lines say how many).
 * ``summary.md``: per method, runs, failures, expectation violations and the Eq. (21) error's mean,
   median and maximum; per grid cell where the sweep varies a few discrete values; the failed runs; what
-  the FMUs warned of in the runs made this time.
+  the FMUs warned of in the runs made this time; the releases that summarised it
+  (:func:`tapmuscle.provenance.software_text`).
 * ``mae_by_method.png`` and, when load, reference frequency, supply or another numeric field varies,
   ``mae_map.png`` (:mod:`tapmuscle.plots.sweep_figures`).
 
@@ -44,6 +45,7 @@ from tapmuscle.cosim.distributed_sweep import FmuFiles, RunResult, RunTask, make
 from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 from tapmuscle.cosim.sweep import Sweep, SweepRun
+from tapmuscle.provenance import software_text
 
 __all__ = ["DESCRIPTIVE", "SUMMARY_FILES", "SweepReport", "ResultsLog", "result_columns", "run_sweep", "summary_markdown",
            "describe_scenario"]
@@ -385,7 +387,11 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
         lines += [sweep.description, ""]
     n_failed = sum(row["status"] != "ok" for row in rows)
     lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm] "
-              "over the runs that finished.", ""]
+              "over the runs that finished.", "",
+              # the FMUs run the host's numpy, scipy and osqp: a resumed run is skipped by its FMU
+              # files alone, and a release of those moves a chaotic loop's last digits
+              f"Summarised with {software_text()}; a run kept from an earlier `results.csv` was made with the "
+              "software of its time, a run on a Dask worker with the worker's.", ""]
     if other_rows:
         lines += [f"`results.csv` also keeps, after this sweep's rows, {other_rows} rows of runs the sweep no longer "
                   "has (an earlier version of its file); they are not summarised here.", ""]
