@@ -682,6 +682,15 @@ def _valid_still(still: Any) -> bool:
         return False
 
 
+def _restored_controller(settings: ControllerSettings, theta0: Sequence[float],
+                         state: Mapping[str, Any]) -> DisplacementController:
+    """A :class:`DisplacementController` built from ``settings`` and ``theta0``, at ``state`` (copying,
+    unpickling)."""
+    controller = DisplacementController(settings, theta0)
+    controller.set_state(state)
+    return controller
+
+
 class DisplacementController:
     """One of the paper's four controllers (see module docstring).
 
@@ -772,6 +781,12 @@ class DisplacementController:
         self._stuck_n = max(1, int(math.ceil(STUCK_AT_LIMIT_S / settings.ts_s - 1e-9)))
         self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # The QP solver (osqp) and the estimator's read-only box cannot be pickled, and a copy sharing
+        # them would step both controllers at once: a copy or an unpickled controller is built anew
+        # from its settings and theta0 and continues from get_state, bit for bit (copy.copy as well).
+        return (_restored_controller, (self.settings, self.theta0.tolist(), self.get_state()))
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, l0_mm: float) -> None:

@@ -12,9 +12,9 @@ the Table 2 box applies as is.  If the data are rescaled, rescale the box too
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from types import MappingProxyType
-from typing import Literal, Mapping, Sequence
+from typing import Any, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -107,6 +107,10 @@ def _freeze_bound(name: str, value) -> Mapping[str, float] | tuple[float, ...]:
         return MappingProxyType(out)
     return _freeze_vector(name, value, allow_inf=True)
 
+
+def _rls_settings(values: Mapping[str, Any]) -> RLSSettings:
+    """:class:`RLSSettings` from its fields (unpickling, copying)."""
+    return RLSSettings(**values)
 
 #: Where ``covariance_ceiling`` puts the eigenvalues of ``P(-1)^-1/2 P P(-1)^-1/2`` that crossed 1: a
 #: little below the ceiling, so that the clip is needed about once per ``ln(1/0.9)/ln(1/lambda)`` samples.
@@ -244,6 +248,11 @@ class RLSSettings:
         return hash((self.p0, self.theta0, self.forgetting, key(self.box_lower),
                      key(self.box_upper), self.constraint_start_s, self.ts_s,
                      self.on_covariance_loss, self.covariance_ceiling))
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # the bounds are read-only views, which pickle and deepcopy cannot take: rebuilt from plain dicts
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        return (_rls_settings, ({k: dict(v) if isinstance(v, Mapping) else v for k, v in values.items()},))
 
     @property
     def constraint_start_index(self) -> float:

@@ -44,6 +44,7 @@ bit-for-bit reproducible.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from typing import Any, Callable, Iterable, NamedTuple, Sequence
@@ -192,6 +193,13 @@ def _finite_array(name: str, values: Any, takes: str = "a sequence of numbers") 
     return a
 
 
+def _restored_plant(params: PlantParams, seed: int, effects: Sequence[Effect], state: dict[str, Any]) -> Plant:
+    """A :class:`Plant` built from its parameters, seed and own effects, at ``state`` (copying, unpickling)."""
+    plant = Plant(params, seed=seed, effects=effects)
+    plant.set_state(state)
+    return plant
+
+
 class Plant:
     """Continuous-time model of the tap-water McKibben muscle rig.
 
@@ -228,7 +236,8 @@ class Plant:
             effects = (effects,)
         elif not isinstance(effects, Iterable):
             raise TypeError(f"effects must be a sequence of Effect instances, got {type(effects).__name__}")
-        self.effects: tuple[Effect, ...] = tuple(effects_from_params(self.params)) + tuple(effects)
+        self._own_effects = tuple(effects)
+        self.effects: tuple[Effect, ...] = tuple(effects_from_params(self.params)) + self._own_effects
         for e in self.effects:
             if not isinstance(e, Effect):
                 raise TypeError(f"effects must be Effect instances (subclasses of fmu_plant.Effect), got "
@@ -258,6 +267,15 @@ class Plant:
                      if _compiled.runnable(self.effects, self.params.sensor) else None)
         self._run_replaces = self._advance_substeps
         self.reset(seed=check_seed(seed))  # None is no seed here: there is no previous one to keep
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # The sub-step's closures (build_model) hold the valve gate and cannot be shared or pickled: a
+        # copy or an unpickled plant is built anew and continues from get_state, bit for bit.
+        return (_restored_plant, (self.params, self._seed, self._own_effects, self.get_state()))
+
+    def __copy__(self) -> Plant:
+        # a copy sharing the state would step both plants at once: copy.copy is copy.deepcopy
+        return copy.deepcopy(self)
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, *, seed: int | None = None, load_n: float | None = None,

@@ -47,7 +47,8 @@ class Progress:
         Where to write (default ``sys.stderr``): a bar where it is a terminal, a line every 10 % and a
         "still running" line after :data:`HEARTBEAT_LOG_S` without one elsewhere (a log, a notebook).
     min_total : int
-        Runs of fewer units than this report nothing.
+        Runs of fewer units than this report nothing (default 1: every run; the command line's
+        ``record`` and ``run`` stay quiet under 500 samples, a few seconds).
     counts : bool
         Show ``done/total`` in a log's lines (``sweep:  40% (4/10, 12.3 s)``); False: the percentage,
         the time and the detail only (``diagnose:  24% (61.2 s)  round 1 of at most 3: own fits 9/18``),
@@ -55,7 +56,7 @@ class Progress:
     """
 
     def __init__(self, label: str, *, enabled: bool = True, stream: TextIO | None = None,
-                 min_total: int = 500, counts: bool = True) -> None:
+                 min_total: int = 1, counts: bool = True) -> None:
         self.label, self.enabled, self.min_total, self.counts = label, enabled, min_total, counts
         self.stream = stream if stream is not None else sys.stderr
         self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
@@ -65,6 +66,7 @@ class Progress:
         self._state: tuple[int, int, str] | None = None
         self._last_write = self._t0
         self._heart: threading.Thread | None = None
+        self._ended = threading.Event()  # wakes the heartbeat at the end of its run
         self._owner: tuple[int, int, object] | None = None  # (thread, frame id, code) of the reporting call
 
     @property
@@ -91,9 +93,15 @@ class Progress:
         if done < total and not beating:
             # the thread holds only a weak reference: when the command is over and its Progress is
             # gone, the heartbeat stops too (a run that ends early never reaches done == total)
-            self._heart = threading.Thread(target=_beat, args=(weakref.ref(self),), name=f"progress-{self.label}",
-                                           daemon=True)
+            self._ended = threading.Event()
+            self._heart = threading.Thread(target=_beat, args=(weakref.ref(self), self._ended),
+                                           name=f"progress-{self.label}", daemon=True)
             self._heart.start()
+        elif done >= total and beating:
+            # gone when the call returns: a fork right after it (multiprocessing's on Linux) warns of
+            # a running thread from Python 3.12
+            self._ended.set()
+            self._heart.join(timeout=1.0)
 
     def _render(self, done: int, total: int, detail: str, *, heartbeat: bool) -> None:
         frac = done / total if total else 1.0
@@ -137,7 +145,7 @@ def reporter(progress: Any, label: str, *, counts: bool = True) -> Any:
     if progress is None or progress is False:
         return None
     if progress is True:
-        return Progress(label, min_total=1, counts=counts)
+        return Progress(label, counts=counts)
     if callable(progress):
         return progress
     raise TypeError(f"progress must be True, False, None or a callable progress(done, total), got {progress!r}")
@@ -168,7 +176,7 @@ def _running(owner: tuple[int, int, object] | None) -> bool:
     return False
 
 
-def _beat(ref: "weakref.ReferenceType[Progress]") -> None:
+def _beat(ref: "weakref.ReferenceType[Progress]", ended: threading.Event) -> None:
     while True:
         progress = ref()
         if progress is None:
@@ -177,4 +185,5 @@ def _beat(ref: "weakref.ReferenceType[Progress]") -> None:
         if not progress._beat_once():
             return
         del progress
-        time.sleep(pause)
+        if ended.wait(pause):
+            return

@@ -144,3 +144,30 @@ def test_a_log_line_without_counts_shows_the_percentage_the_time_and_the_detail(
     first, last = out.getvalue().splitlines()
     assert first.startswith("diagnose:  24% (") and first.endswith(" s)  round 1 of at most 3: own fits 9/18")
     assert "240/1000" not in first and last.startswith("diagnose: 100% (") and last.endswith(" s)  done")
+
+
+def test_a_reporter_made_by_hand_reports_a_short_run_and_a_minimum_silences_one():
+    """``progress=tm.Progress("run A")`` labels a run of 301 samples (a 30-s loop): it reports from the
+    first sample; ``min_total`` (the command line's 500 for ``record`` and ``run``) silences it."""
+    out = io.StringIO()
+    p = Progress("run A", stream=out)
+    for k in range(1, 302):
+        p(k, 301)
+    lines = out.getvalue().splitlines()
+    assert lines[0].startswith("run A:") and lines[-1].startswith("run A: 100% (301/301")
+    quiet = io.StringIO()
+    q = Progress("run B", stream=quiet, min_total=500)
+    for k in range(1, 302):
+        q(k, 301)
+    assert quiet.getvalue() == ""
+
+
+def test_the_heartbeat_is_gone_when_the_last_unit_is_reported():
+    """No thread of the reporter outlives its run's end (a fork right after the call would warn of
+    it from Python 3.12)."""
+    p = Progress("ends", stream=io.StringIO())
+    p(1, 3)
+    assert p._heart is not None and p._heart.is_alive()
+    p(3, 3)
+    assert not p._heart.is_alive()
+    assert not [t for t in threading.enumerate() if t.name == "progress-ends"]

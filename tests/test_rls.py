@@ -1,6 +1,8 @@
 """Tests for fmu_controller.rls (Eq. (4), Algorithm 1, Remark 1)."""
 
+import copy
 import math
+import pickle
 import warnings
 
 import numpy as np
@@ -561,6 +563,18 @@ def test_settings_validation_names_offending_value():
     s = RLSSettings()
     assert dict(s.box_lower) == dict(TABLE2_LOWER) and dict(s.box_upper) == dict(TABLE2_UPPER)
     assert hash(s) == hash(RLSSettings()) and s == RLSSettings()
+
+
+@pytest.mark.parametrize("settings", [RLSSettings(), RLSSettings(p0=[2.0] * 3, theta0=[0.1, 0.2, 0.3], forgetting=0.99,
+                                                                 box_lower=[-1.0, -math.inf, 0.0],
+                                                                 box_upper=[1.0, 2.0, math.inf])])
+def test_settings_copy_and_pickle_as_equal_settings_with_read_only_bounds(settings):
+    """A worker process or a deepcopy takes the settings (their bounds are read-only views, which
+    pickle cannot take as they are); what comes back is equal and as read-only."""
+    for back in (copy.copy(settings), copy.deepcopy(settings), pickle.loads(pickle.dumps(settings))):
+        assert back == settings and hash(back) == hash(settings)
+        with pytest.raises(TypeError):  # a mapping proxy or a tuple, as the settings made it
+            back.box_lower[0 if isinstance(back.box_lower, tuple) else "a1"] = 0.0  # type: ignore[index]
 
 
 def test_setup_validation_against_structure():

@@ -112,7 +112,7 @@ def _cmd_record(args: argparse.Namespace) -> int:
     plant = Plant(params, seed=args.seed)
     try:
         data = run_open_loop(plant, signal, duration_s=args.duration, ts_s=args.ts,
-                             progress=Progress("record", enabled=not args.quiet))
+                             progress=Progress("record", enabled=not args.quiet, min_total=500))
     except (ValueError, FloatingPointError) as exc:
         raise UsageError(str(exc)) from None
     meta = {"ts_s": f"{args.ts:g}", "load_n": f"{load_n:g}", "seed": str(args.seed),
@@ -411,7 +411,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         fmus = cached_fmus()
     out = Path(args.out)
     try:
-        summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet))
+        summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet,
+                                                                      min_total=500))
     except ScenarioError as exc:
         # the outputs are staged and moved in only after a complete run: say what the folder holds
         earlier = [name for name in RUN_FILES if (out / name).exists()]

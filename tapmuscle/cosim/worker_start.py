@@ -26,7 +26,8 @@ def check_workers_can_start(what: str) -> None:
     Raises
     ------
     tapmuscle.errors.UsageError
-        The main module names a file that does not exist (stdin).
+        The main module names a file that does not exist (stdin), or this process is a daemonic
+        worker (a ``multiprocessing.Pool``'s), which may not have children.
     SystemExit
         This process is itself a worker importing the main script again (the call is not under the
         ``__main__`` guard): it ends with the message, and the parent's start of its workers fails.
@@ -37,6 +38,12 @@ def check_workers_can_start(what: str) -> None:
         raise SystemExit(f"tapmuscle: {what} starts worker processes, and each imports {script} again: the call runs "
                          "at the script's top level, so every worker would start its own; put it under "
                          "if __name__ == \"__main__\": (as for any multiprocessing use)")
+    if multiprocessing.current_process().daemon:
+        # multiprocessing's own refusal is a bare AssertionError from deep inside the pool
+        raise UsageError(f"{what} starts worker processes, and this process is a daemonic one (a multiprocessing.Pool's "
+                         "worker, or a Dask worker's), which may not start its own: give 1 worker inside it and let the "
+                         "outer pool run the calls side by side (concurrent.futures.ProcessPoolExecutor's workers "
+                         "are not daemonic and can)")
     path = getattr(sys.modules.get("__main__"), "__file__", None)
     if path is not None and not os.path.exists(path):
         raise UsageError(f"{what} starts worker processes, which re-import the main script {path!r}, and that is "
