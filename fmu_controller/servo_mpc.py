@@ -110,6 +110,13 @@ _OSQP_INFTY = osqp.constant("OSQP_INFTY")
 # ---------------------------------------------------------------------------
 # Controller
 # ---------------------------------------------------------------------------
+def _restored_servo(settings: ServoMPCSettings, state: Mapping[str, Any]) -> ServoMPC:
+    """A :class:`ServoMPC` set up with ``settings`` at ``state`` (copying, unpickling)."""
+    servo = ServoMPC(settings, a1=state["a1"], a2=state["a2"], b1=state["b1"])
+    servo.set_state(state)
+    return servo
+
+
 class ServoMPC:
     """MPC with servo mechanism (section 3.2) on a condensed QP (closed form / OSQP).
 
@@ -599,6 +606,10 @@ class ServoMPC:
         res = self.solve(l_mm=l_mm, l_prev_mm=l_prev_mm, uc_prev_v=uc_prev_v, xs=xs,
                          r_future_mm=np.array(r_future), offset_v=offset_v)
         return res.uc_v, float(res.predicted_l_mm[0]), res.constrained
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # the OSQP solver can be neither pickled nor shared by two copies: set up anew, then the state
+        return (_restored_servo, (self.settings, self.get_state()))
 
     # -- state -----------------------------------------------------------
     def get_state(self) -> dict[str, Any]:

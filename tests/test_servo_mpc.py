@@ -5,9 +5,11 @@ state space Eq. (17) and the integrator Eq. (18) forward; they do not use the
 controller's condensed matrices.
 """
 
+import copy
 import dataclasses
 import json
 import math
+import pickle
 import re
 
 import numpy as np
@@ -397,6 +399,17 @@ def test_get_set_state_bit_identical(refine, always_osqp):
     a.update_model(*steps[20][0])
     assert numbers(a.solve(**steps[20][1])) == out[20]
     assert a.get_state() == snaps[21]
+    # a copy (or a pickled one) solves on as the original, with a solver of its own
+    a.set_state(snaps[20])
+    for twin in (copy.copy(a), copy.deepcopy(a), pickle.loads(pickle.dumps(a))):
+        twin.update_model(*steps[25][0])  # the copy moves first: the original must not follow
+        twin.solve(**steps[25][1])
+        twin.set_state(snaps[20])
+        for i in range(20, 24):
+            a.update_model(*steps[i][0])
+            twin.update_model(*steps[i][0])
+            assert numbers(a.solve(**steps[i][1])) == numbers(twin.solve(**steps[i][1])) == out[i]
+        a.set_state(snaps[20])
 
 
 def test_osqp_prints_nothing(capfd):
