@@ -162,6 +162,32 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
         assert legend.y0 >= ax.get_window_extent(renderer).y1 - 1  # above the plotting area
     assert len(colours) == 4 and all(len(c) == 1 for c in colours.values()), colours
     assert len({next(iter(c)) for c in colours.values()}) == 4  # four colours for four methods
+    # printed in grey, each pair differs in line style (red beside orange, solid both, did not)
+    for fig in saved[::2]:  # the tracking figures
+        first, second = [line for line in fig.axes[0].get_lines() if line.get_label().startswith(("MPC", "AMPC"))]
+        assert first.get_linestyle() != second.get_linestyle(), (first.get_label(), second.get_label())
+        (reference,) = [line for line in fig.axes[0].get_lines() if line.get_label() == "reference r"]
+        assert reference.get_linestyle() not in {first.get_linestyle(), second.get_linestyle()}
+
+
+@pytest.mark.parametrize("signal", ["sine", "steps"])
+def test_a_loop_is_a_line_under_a_sine_and_points_under_jumping_levels(monkeypatch, tmp_path, signal):
+    """(u, l) of steps or random levels joined by lines drew rectangles titled a hysteresis loop; a
+    jumping input's samples are points, and the title says so."""
+    from tapmuscle.plots.figures import input_jumps, plot_loop_comparison
+
+    saved = _drawn(monkeypatch)
+    t = np.arange(1200) * 0.1
+    u = 5 + 3 * np.sin(0.2 * np.pi * t) if signal == "sine" else np.repeat([2.0, 7.0, 4.0, 9.0], 300)
+    l = 10 * u + np.sin(t)
+    assert input_jumps(u) == (signal == "steps")
+    plot_loop_comparison(u, l, {"model": l + 0.1}, tmp_path / "loop.png")
+    ax = saved[0].axes[0]
+    styles = {(line.get_linestyle(), line.get_marker()) for line in ax.get_lines()}
+    if signal == "steps":
+        assert styles == {("None", ".")} and "points, not a loop" in ax.get_title()
+    else:
+        assert {ls for ls, _ in styles} == {"-", "--"} and "cf. paper Fig. 5" in ax.get_title()
 
 
 def test_a_run_of_ones_own_takes_no_methods_colour(monkeypatch, tmp_path):

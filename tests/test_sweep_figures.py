@@ -82,7 +82,8 @@ def test_a_monte_carlo_sample_with_a_third_field_says_so(drawn, tmp_path):
     sweep_figures.plot_mae_map(rows, ["load_n", "supply_mpa", "plant.parameters.friction.rate_gain"],
                                tmp_path / "map.png", title="mc")
     (fig,) = drawn
-    assert fig._suptitle.get_text() == "mc (points at all values of plant friction.rate_gain)"
+    assert fig._suptitle.get_text() == ("mc (points at all values of plant friction.rate_gain)\n"
+                                        "(each panel its own colour scale)")
     (panel,) = [ax for ax in fig.axes if ax.get_title()]
     assert len(panel.collections[0].get_offsets()) == 40  # every run is a point
 
@@ -102,8 +103,12 @@ def test_a_monte_carlo_sample_has_a_colour_scale_per_method_and_readable_log_tic
         points = ax.collections[0]
         values = [float(r["mae_mm"]) for r in rows if r["method"] == ax.get_title()]
         assert (points.norm.vmin, points.norm.vmax) == (min(values), max(values))
+    # the same colour is another error in each panel: every bar says so, and the title
+    bars = [ax for ax in fig.axes if not ax.get_title()]
+    assert len(bars) == 2 and all(b.get_ylabel() == "Eq. (21) error [mm], this panel's scale" for b in bars)
+    assert fig._suptitle.get_text().endswith("(each panel its own colour scale)")
     (ax,) = box.axes
-    assert ax.get_yscale() == "log"
+    assert ax.get_yscale() == "log" and ax.get_ylabel() == "Eq. (21) error [mm], log scale"
     labels = {t.get_text() for t in ax.get_yticklabels()}
     assert {"0.1", "0.2", "0.5", "1", "2"} <= labels, labels
     assert ax.get_title() == "t\n(each box pools every load [N], supply pressure [MPa])"

@@ -216,7 +216,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
     from tapmuscle.progress import Progress
 
-    from tapmuscle.plots.figures import (plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
+    from tapmuscle.plots.figures import (input_jumps, plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
                                          plot_parameter_convergence)
     from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.json_file import json_text
@@ -308,10 +308,12 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                          f"record {Path(shown_path).name}"
                                          + (f", {shown_load} N" if shown_load else "") + " (cf. Fig. 4)")
             skip = int(len(shown.t_s) // 4)
+            jumps = input_jumps(shown.u_v[skip:])
             plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
-                                 skip=skip, title=f"hysteresis loop of {Path(shown_path).name}"
-                                 + (f", {shown_load} N" if shown_load else "")
-                                 + f" (t >= {shown.t_s[skip]:g} s; cf. Fig. 5)")
+                                 skip=skip, title=("(u, l) samples" if jumps else "hysteresis loop")
+                                 + f" of {Path(shown_path).name}" + (f", {shown_load} N" if shown_load else "")
+                                 + f" (t >= {shown.t_s[skip]:g} s; "
+                                 + ("the input jumps: points, not a loop)" if jumps else "cf. Fig. 5)"))
             if choice is not None:
                 plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
                                       folder / "input_delay_fits.png",

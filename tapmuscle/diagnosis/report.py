@@ -20,7 +20,7 @@ from fmu_controller.loop_watch import horizon_past_delay
 from fmu_controller.servo_settings import TABLE5_SERVO
 from fmu_plant import PlantParams
 
-from tapmuscle.plots.figures import new_figure, save_figure
+from tapmuscle.plots.figures import input_jumps, loop_line, new_figure, save_figure
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.plant_file import plant_file_text
@@ -52,7 +52,10 @@ OWNED_FILES = OUTPUT_FILES + ("discriminating_input*.csv", "discriminate_plant*.
 #: Located windows of a finding the console summary lists, at most (the rest are in ``diagnosis.json``).
 SUMMARY_WINDOWS = 10
 
-_COLOURS = ("tab:red", "tab:green", "tab:purple", "tab:orange", "tab:brown")
+#: The located windows' shades, none a residual line's colour (grey, green, blue), and a hatch each
+#: after the first: windows of two findings that overlap show both (a blend of two tints named neither).
+_COLOURS = ("tab:red", "tab:purple", "tab:orange", "tab:brown", "tab:olive")
+_HATCHES = ("", "//", "\\\\", "..", "xx")
 
 
 def summary_lines(d: Diagnosis) -> list[str]:
@@ -311,10 +314,13 @@ def _report_md(d: Diagnosis, recording: str, plant: str, fmu_check: dict[str, An
 
 
 def _shade(ax, d: Diagnosis) -> None:
+    from matplotlib.colors import to_rgba
+
     for i, f in enumerate(d.findings):
         for j, (a, b) in enumerate(f.located):
-            ax.axvspan(a, b, color=_COLOURS[i % len(_COLOURS)], alpha=0.12, lw=0,
-                       label=f"located: {f.effect}" if j == 0 else None)
+            colour = _COLOURS[i % len(_COLOURS)]
+            ax.axvspan(a, b, facecolor=to_rgba(colour, 0.12), edgecolor=to_rgba(colour, 0.5), lw=0,
+                       hatch=_HATCHES[i % len(_HATCHES)], label=f"located: {f.effect}" if j == 0 else None)
 
 
 def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title: str, model: str = "model") -> None:
@@ -348,11 +354,12 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
     # below the residuals before, the final one on its own scale: a remainder of a few hundredths of a
     # millimetre (what "unexplained" reports) cannot be seen beside a residual of millimetres
     fig, (ax, zoom) = new_figure(2, 1, figsize=(10, 6.2), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    # three line styles: the residuals are told apart printed in grey too
     ax.plot(t, e0, lw=0.8, color="0.3", label="before")
     if d.y_calibrated_mm is not None:
-        ax.plot(t, d.y_mm - d.y_calibrated_mm, lw=0.8, color="tab:green", label="after calibration")
+        ax.plot(t, d.y_mm - d.y_calibrated_mm, lw=0.9, color="tab:green", ls="--", label="after calibration")
     if d.named or d.ambiguous:
-        ax.plot(t, e1, lw=0.8, color="tab:blue", label="after calibration and effects")
+        ax.plot(t, e1, lw=0.9, color="tab:blue", ls="-.", label="after calibration and effects")
     _shade(ax, d)
     ax.set(ylabel="residual l_meas - l_sim [mm]", title=f"{title}: residual, located windows shaded")
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.08), ncol=3, fontsize=8, frameon=False)
@@ -365,7 +372,7 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
         zoom.axhspan(-2.0 * noise, 2.0 * noise, color="0.85", lw=0, label=f"+-2 x the noise level ({noise:.3g} mm)")
         zoom.legend(loc="upper right", fontsize=8)
     _shade(zoom, d)
-    zoom.set(xlabel="time [s]", ylabel=f"{final} [mm]")
+    zoom.set(xlabel="time [s]", ylabel=f"residual {final}\n(own scale) [mm]")
     zoom.grid(alpha=0.3)
     save_figure(fig, out / "residual.png")
 
@@ -373,12 +380,16 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
                    title=f"{title}: before / after (held-out fit in brackets)")
 
     fig, ax = new_figure(figsize=(6, 5))
+    jumps = input_jumps(d.u_v)
     # the recording on top: a model after that fits it drew over it and hid it
-    ax.plot(d.u_v, d.y_before_mm, color="0.5", lw=0.8, ls="--", label="model before", zorder=2)
-    ax.plot(d.u_v, d.y_after_mm, color="tab:blue", lw=1.6, alpha=0.6, label="model after", zorder=2)
-    ax.plot(d.u_v, d.y_mm, color="k", lw=0.6, label="recording", zorder=3)
-    ax.set(xlabel="valve input u [V]", ylabel="displacement l [mm]", title=f"{title}: hysteresis loops")
-    ax.legend(fontsize=8)
+    ax.plot(d.u_v, d.y_before_mm, **loop_line(jumps, color="0.5", lw=0.8, ls="--", label="model before", zorder=2))
+    ax.plot(d.u_v, d.y_after_mm, **loop_line(jumps, color="tab:blue", lw=1.6, alpha=0.6, label="model after",
+                                              zorder=2))
+    ax.plot(d.u_v, d.y_mm, **loop_line(jumps, color="k", lw=0.6, label="recording", zorder=3))
+    ax.set(xlabel="valve input u(k) [V]", ylabel="displacement l(k) [mm]",
+           title=f"{title}: " + ("(u, l) samples\n(the input jumps: points, not a loop)" if jumps else
+                                 "hysteresis loops"))
+    ax.legend(fontsize=8, markerscale=4)
     ax.grid(alpha=0.3)
     save_figure(fig, out / "hysteresis.png")
 

@@ -27,7 +27,7 @@ from tapmuscle.io.atomic import atomic_path
 
 __all__ = ["MissingGlyphWarning", "new_figure", "save_figure", "plot_recording", "plot_parameter_convergence",
            "plot_input_delay_fits", "plot_model_vs_measured",
-           "plot_loop_comparison", "plot_tracking", "plot_prediction_errors"]
+           "plot_loop_comparison", "plot_tracking", "plot_prediction_errors", "input_jumps", "loop_line", "JUMP_SHARE"]
 
 
 def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **subplots: Any) -> tuple[Figure, Any]:
@@ -232,46 +232,75 @@ def plot_input_delay_fits(fits_percent: list[float] | tuple[float, ...], chosen:
     return save_figure(fig, path)
 
 
+#: A command that moves by more than this share of its range in one sample jumps (steps, random
+#: levels): its (u, l) samples joined by lines draw rectangles, not a loop, so they are drawn as points.
+JUMP_SHARE = 0.1
+
+
+def input_jumps(u_v: np.ndarray) -> bool:
+    """Whether the command ``u_v`` [V] jumps (:data:`JUMP_SHARE`): its (u, l) plane is drawn as points."""
+    u = np.asarray(u_v, dtype=float)
+    u = u[np.isfinite(u)]
+    span = float(np.ptp(u)) if u.size > 1 else 0.0
+    return span > 0 and float(np.max(np.abs(np.diff(u)))) > JUMP_SHARE * span
+
+
+def loop_line(jumps: bool, **style: Any) -> dict[str, Any]:
+    """Matplotlib keywords for one curve of a (u, l) plane: ``style`` as a line, or, where the input
+    :func:`input_jumps`, as small points of its colour (``lw``/``ls`` dropped)."""
+    if not jumps:
+        return style
+    points = {k: v for k, v in style.items() if k not in ("lw", "ls", "linewidth", "linestyle")}
+    return {**points, "ls": "none", "marker": ".", "ms": 2.5}
+
+
 def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
                          path: str | os.PathLike, *, skip: int = 0, title: str = "") -> Path:
-    """Hysteresis loops (u, l) of the measurement and of models (paper Fig. 5)."""
+    """Hysteresis loops (u, l) of the measurement and of models (paper Fig. 5); points where the input
+    jumps (:func:`input_jumps`: steps or random levels draw no loop)."""
     fig, ax = new_figure(figsize=(7, 6))
     u = np.asarray(u_v)[skip:-1]
-    ax.plot(u, np.asarray(l_mm)[skip + 1:], color="black", lw=1.2, label="measured")
+    jumps = input_jumps(u)
+    ax.plot(u, np.asarray(l_mm)[skip + 1:], **loop_line(jumps, color="black", lw=1.2, label="measured"))
     lo, hi = float(np.min(l_mm[skip:])), float(np.max(l_mm[skip:]))
     pad = 0.25 * (hi - lo) + 1e-9
     for (label, y), color in zip(models.items(), ("tab:red", "tab:blue", "tab:green")):
         y, gone = _until_divergence(np.asarray(y)[skip + 1:], lo - pad, hi + pad)
         if gone is not None:
             label = f"{label} (leaves the chart)"
-        ax.plot(u, y, color=color, lw=1, ls="--", label=label)
+        ax.plot(u, y, **loop_line(jumps, color=color, lw=1, ls="--", label=label, alpha=0.6 if jumps else 1.0))
     ax.set_ylim(lo - pad, hi + pad)
     ax.set_xlabel("valve input u(k) [V]")
     ax.set_ylabel("displacement l(k+1) [mm]")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(title or "hysteresis loop: model against measurement (cf. paper Fig. 5)", fontsize=10)
+    ax.legend(fontsize=8, markerscale=4)
+    default = ("(u, l) samples: model against measurement\n(the input jumps: points, not a loop; a sine draws "
+               "Fig. 5's)" if jumps else
+               "hysteresis loop: model against measurement (cf. paper Fig. 5)")
+    ax.set_title(title or default, fontsize=10)
     return save_figure(fig, path)
 
 
-#: One colour per method in every figure (a reader flipping from Fig. 10 to Fig. 18 reads a colour as
-#: the same controller): the unique coincidence point in blues, the servo mechanism in reds, the
-#: adaptive version the darker.
-_METHOD_STYLE = {"mpc_ucp": ("tab:blue", "MPC, unique coincidence point"),
-                 "ampc_ucp": ("navy", "AMPC, unique coincidence point"),
-                 "mpc_servo": ("tab:orange", "MPC with servo mechanism"),
-                 "ampc_servo": ("tab:red", "AMPC with servo mechanism")}
+#: One colour and line per method in every figure (a reader flipping from Fig. 10 to Fig. 18 reads a
+#: colour as the same controller): the unique coincidence point in blues, the servo mechanism in reds,
+#: the adaptive version the darker and solid, the fixed ones dash-dotted (UCP) and dashed (servo), so
+#: that each of the paper's pairs (Figs. 8-19) differs in its lines, also printed in grey (red beside
+#: orange did not); the reference is dotted.
+_METHOD_STYLE = {"mpc_ucp": ("tab:blue", "MPC, unique coincidence point", "-."),
+                 "ampc_ucp": ("navy", "AMPC, unique coincidence point", "-"),
+                 "mpc_servo": ("tab:orange", "MPC with servo mechanism", "--"),
+                 "ampc_servo": ("tab:red", "AMPC with servo mechanism", "-")}
 
 
 #: Colours of runs that are not one of the four methods (a law of the user's own), none of theirs.
 _OTHER_COLORS = ("tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
 
 
-def _styles(names: Iterable[str]) -> list[tuple[str, str]]:
-    """Each run's colour and label: a method's own, else the next of :data:`_OTHER_COLORS` (matplotlib's
-    C0, C1, ... are MPC-UCP's and MPC-servo's colours)."""
+def _styles(names: Iterable[str]) -> list[tuple[str, str, str]]:
+    """Each run's colour, label and line style: a method's own, else the next of :data:`_OTHER_COLORS`,
+    solid (matplotlib's C0, C1, ... are MPC-UCP's and MPC-servo's colours)."""
     others = itertools.cycle(_OTHER_COLORS)
-    return [_METHOD_STYLE.get(name) or (next(others), name) for name in names]
+    return [_METHOD_STYLE.get(name) or (next(others), name, "-") for name in names]
 
 
 def _legend_above(ax: Any, ncol: int) -> None:
@@ -328,11 +357,12 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
     fig, (ax, ax_e, ax_u) = new_figure(3, 1, figsize=(11, 8), sharex=True,
                                        gridspec_kw={"height_ratios": (2.2, 1, 1)})
     first = next(iter(runs.values()))
-    ax.plot(first["t_s"], first["r_mm"], color="black", lw=1.2, ls="--", label="reference r")
-    for (color, label), cols in zip(_styles(runs), runs.values()):
-        ax.plot(cols["t_s"], cols["l_mm"], color=color, lw=1, label=label)
-        ax_e.plot(cols["t_s"], cols["r_mm"] - cols["l_mm"], color=color, lw=0.9, label=label)
-        ax_u.plot(cols["t_s"], cols["u_v"], color=color, lw=0.9, label=label)
+    # dotted: the fixed methods' lines are dashed
+    ax.plot(first["t_s"], first["r_mm"], color="black", lw=1.4, ls=":", label="reference r")
+    for (color, label, ls), cols in zip(_styles(runs), runs.values()):
+        ax.plot(cols["t_s"], cols["l_mm"], color=color, lw=1, ls=ls, label=label)
+        ax_e.plot(cols["t_s"], cols["r_mm"] - cols["l_mm"], color=color, lw=0.9, ls=ls, label=label)
+        ax_u.plot(cols["t_s"], cols["u_v"], color=color, lw=0.9, ls=ls, label=label)
     for a in (ax, ax_e, ax_u):
         a.axvspan(*window_s, color="grey", alpha=0.07)
         a.grid(alpha=0.3)
@@ -365,12 +395,12 @@ def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | o
     """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over ``window_s`` [s]
     (Eq. (21)'s 10.1-40.1 s in Figs. 9-19)."""
     fig, ax = new_figure(figsize=(11, 4))
-    for (color, label), cols in zip(_styles(runs), runs.values()):
+    for (color, label, ls), cols in zip(_styles(runs), runs.values()):
         keep = (cols["t_s"] >= window_s[0]) & (cols["t_s"] <= window_s[1])
         err = cols["pred_error_mm"][keep]
-        ax.plot(cols["t_s"][keep], err, color=color, lw=0.9,
+        ax.plot(cols["t_s"][keep], err, color=color, lw=0.9, ls=ls,
                 label=f"{label} (mean |e| {np.mean(np.abs(err)):.3f} mm)")
-    ax.set_xlabel("time t [s]")
+    ax.set_xlabel(f"time t [s] (the window {window_s[0]:g}-{window_s[1]:g} s)")
     ax.set_ylabel("prediction error l(k) - l(k|k-1) [mm]")
     ax.grid(alpha=0.3)
     _legend_above(ax, len(runs))

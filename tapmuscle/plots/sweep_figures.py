@@ -73,10 +73,11 @@ def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLik
         ax.scatter(i + rng.uniform(-0.15, 0.15, len(values)), values, s=10, alpha=0.6, color="tab:blue", zorder=3)
     ax.set_xticks(range(1, len(methods) + 1), [f"{m}\n(n={len(v)})" for m, v in zip(methods, data)])
     every = np.concatenate(data)
-    if every.min() > 0 and every.max() / every.min() > 20:
+    log = every.min() > 0 and every.max() / every.min() > 20
+    if log:
         ax.set_yscale("log")
         _log_ticks(ax.yaxis)
-    ax.set_ylabel("Eq. (21) error [mm]")
+    ax.set_ylabel("Eq. (21) error [mm]" + (", log scale" if log else ""))
     ax.grid(True, axis="y", alpha=0.3)
     ax.set_title(title)
     return save_figure(fig, path)
@@ -160,7 +161,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
             else:
                 own = _norm(mae[sel]) if sel.any() else norm
                 points = ax.scatter(x[sel], y[sel], c=mae[sel], cmap="viridis", norm=own, s=18)
-                bar = fig.colorbar(points, ax=ax, label="Eq. (21) error [mm]" if ax is row[-1] else None)
+                # every panel's bar labelled: the same colour is another error in each
+                bar = fig.colorbar(points, ax=ax, label="Eq. (21) error [mm], this panel's scale")
                 if isinstance(own, LogNorm):
                     _log_ticks(bar.ax.yaxis)
             ax.set_title(f"{m}\n{label}" if label else m, fontsize=9 if label else None)
@@ -168,6 +170,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
                 ax.set_xlabel(_label(xname))
             if y is not None and ax is row[0]:
                 ax.set_ylabel(_label(yname))
+    if own_scale:
+        title = f"{title}\n(each panel its own colour scale)".strip()
     if image is not None and not own_scale:
         bar = fig.colorbar(image, ax=panels.ravel().tolist(), label="Eq. (21) error [mm]" + (" (mean)" if grid else ""))
         if isinstance(norm, LogNorm):
