@@ -289,3 +289,29 @@ def test_a_figure_is_written_in_the_format_its_suffix_names(tmp_path):
         ax.plot([0, 1], [0, 1])
         path = save_figure(fig, tmp_path / name)
         assert path.read_bytes().startswith(magic), name
+
+
+def test_a_scenarios_load_and_supply_steps_are_marked_where_they_explain_the_error(monkeypatch, tmp_path):
+    """``tapmuscle run``'s figures of scenarios/examples/load_step.toml showed error spikes at 20 and
+    30 s with nothing saying why; the steps are lines in every panel, named at the top."""
+    from pathlib import Path
+
+    from tapmuscle.cosim import load_scenario
+    from tapmuscle.cosim.run import scenario_events
+    from tapmuscle.plots.figures import plot_prediction_errors
+
+    scenario = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "examples" / "load_step.toml")
+    events = scenario_events(scenario)
+    assert events == [(20.0, "load 44 -> 68 N"), (30.0, "supply 0.25 -> 0.22 MPa")]
+    saved = _drawn(monkeypatch)
+    t = np.arange(451) * 0.1
+    run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 29 * np.sin(t), "u_v": 5 + np.sin(t),
+           "pred_error_mm": 0.1 * np.sin(3 * t)}
+    plot_tracking({"ampc_servo": run}, tmp_path / "t.png", events=events)
+    plot_prediction_errors({"ampc_servo": run}, tmp_path / "p.png", window_s=(25.0, 40.0), events=events)
+    tracking, prediction = saved
+    for ax in tracking.axes:
+        marked = sorted(line.get_xdata()[0] for line in ax.get_lines() if line.get_label().startswith("_child"))
+        assert marked == [20.0, 30.0]
+    assert [a.get_text() for a in tracking.axes[0].texts] == ["load 44 -> 68 N", "supply 0.25 -> 0.22 MPa"]
+    assert [a.get_text() for a in prediction.axes[0].texts] == ["supply 0.25 -> 0.22 MPa"]  # the window's only

@@ -70,6 +70,18 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
     }
 
 
+def scenario_events(scenario: Scenario) -> list[tuple[float, str]]:
+    """The scenario's load and supply steps as ``(t_s, text)`` for the figures (a load step explains
+    the error that follows it)."""
+    events = []
+    for profile, what, unit in ((scenario.load, "load", "N"), (scenario.supply, "supply", "MPa")):
+        before = profile.initial
+        for t, value in profile.steps:
+            events.append((t, f"{what} {before:g} -> {value:g} {unit}"))
+            before = value
+    return sorted(events)
+
+
 def estimator_name(scenario: Scenario) -> str:
     """What the adaptive controller's estimator is in ``scenario``: Algorithm 1's constrained RLS, or
     Eq. (4)'s RLS where every bound of the box is infinite (a bound not set is Table 2's)."""
@@ -110,13 +122,16 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
             k0, k1 = scenario.evaluation_samples
             window = (k0 * scenario.step_s, k1 * scenario.step_s)
             title = f"{scenario.name}: {scenario.method}, Eq. (21) error {summary['mae_mm']:.3f} mm"
-            plot_tracking({scenario.method: table}, tmp / "tracking.png", title=title, window_s=window)
+            events = scenario_events(scenario)
+            plot_tracking({scenario.method: table}, tmp / "tracking.png", title=title, window_s=window, events=events)
             if "pred_error_mm" in table:  # a controller FMU of one's own has no prediction to show
                 plot_prediction_errors({scenario.method: table}, tmp / "prediction_error.png",
-                                       title=f"{scenario.name}: one-step prediction error", window_s=window)
+                                       title=f"{scenario.name}: one-step prediction error", window_s=window,
+                                       events=events)
             if scenario.method.startswith("ampc") and "theta_a1" in table:
                 history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
                 plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / "parameters.png",
-                                           title=f"{scenario.name}: theta-hat ({estimator_name(scenario)})")
+                                           title=f"{scenario.name}: theta-hat ({estimator_name(scenario)})",
+                                           events=events)
     summary["cols"] = cols
     return summary

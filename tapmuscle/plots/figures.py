@@ -144,8 +144,9 @@ def plot_recording(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, path: str
 
 def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tuple[str, ...],
                                path: str | os.PathLike, *, constraint_start_s: float | None = None,
-                               title: str = "") -> Path:
-    """Estimated parameters over time, one panel each (parameter convergence, section 2.4)."""
+                               title: str = "", events: Sequence[tuple[float, str]] = ()) -> Path:
+    """Estimated parameters over time, one panel each (parameter convergence, section 2.4); ``events``
+    (times [s] and their text, :func:`plot_tracking`) as lines in every panel, named in the title."""
     n = len(names)
     cols = 5 if n > 12 else 4
     rows = -(-n // cols)
@@ -173,12 +174,15 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
         ax.tick_params(labelsize=7)
         if constraint_start_s is not None and constraint_start_s < t_s[-1]:
             ax.axvline(constraint_start_s, color="grey", ls="--", lw=0.8)
+        for t, _ in events:
+            ax.axvline(t, color="0.45", lw=0.8, zorder=1)
         if i >= n - cols:
             ax.set_xlabel("t [s]", fontsize=8)
             ax.tick_params(labelbottom=True)  # the last panel of its column: shared x, its own tick labels
     dashed = (" (dashed: the constraint starts)" if constraint_start_s is not None and constraint_start_s < t_s[-1]
               else "")
-    fig.suptitle((title or "parameter convergence") + dashed)
+    marked = ("; grey lines: " + ", ".join(f"{text} at {t:g} s" for t, text in events)) if events else ""
+    fig.suptitle((title or "parameter convergence") + dashed + marked)
     fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     return save_figure(fig, path)
 
@@ -333,8 +337,18 @@ def _run_columns(name: str, cols: Mapping[str, Any], keys: Sequence[str]) -> dic
     return out
 
 
+def _mark_events(axes: Sequence[Any], events: Sequence[tuple[float, str]], labelled: Any) -> None:
+    """A thin grey line at each event's time [s] in every one of ``axes``, its text at the top of
+    ``labelled``: a load step or a supply sag that explains the error after it."""
+    for t, text in events:
+        for ax in axes:
+            ax.axvline(t, color="0.45", lw=0.8, zorder=1)
+        labelled.annotate(text, xy=(t, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
+                          textcoords="offset points", ha="left", va="top", fontsize=7, color="0.25")
+
+
 def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
-                  window_s: tuple[float, float] | None = None) -> Path:
+                  window_s: tuple[float, float] | None = None, events: Sequence[tuple[float, str]] = ()) -> Path:
     """Reference and displacement of several runs, their tracking errors and commands (Figs. 8-18).
 
     Parameters
@@ -349,6 +363,8 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
         The figure's title.
     window_s : (float, float), optional
         The window shaded and the error axis scaled to [s]; default Eq. (21)'s 10.1..40.1 s.
+    events : sequence of (float, str)
+        Times [s] marked with a line in every panel and their text (``(20.0, "load 44 -> 68 N")``).
     """
     if not runs:
         raise ValueError("plot_tracking needs at least one run")
@@ -381,6 +397,7 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
         ax_u.set_ylim(-1.0, 11.0)
         ax_u.text(0.99, 0.02, "commands beyond -1..11 V cut off in view", transform=ax_u.transAxes, ha="right",
                   va="bottom", fontsize=7, color="grey")
+    _mark_events((ax, ax_e, ax_u), events, ax)
     ax.set_ylabel("displacement l [mm]")
     ax_e.set_ylabel("error r - l [mm]\n(scaled to the window)")
     ax_u.set_ylabel("valve input u [V]")
@@ -391,10 +408,12 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
 
 
 def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *,
-                           title: str = "", window_s: tuple[float, float]) -> Path:
+                           title: str = "", window_s: tuple[float, float],
+                           events: Sequence[tuple[float, str]] = ()) -> Path:
     """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over ``window_s`` [s]
-    (Eq. (21)'s 10.1-40.1 s in Figs. 9-19)."""
+    (Eq. (21)'s 10.1-40.1 s in Figs. 9-19), with ``events`` inside it marked as in :func:`plot_tracking`."""
     fig, ax = new_figure(figsize=(11, 4))
+    _mark_events([ax], [(t, text) for t, text in events if window_s[0] <= t <= window_s[1]], ax)
     for (color, label, ls), cols in zip(_styles(runs), runs.values()):
         keep = (cols["t_s"] >= window_s[0]) & (cols["t_s"] <= window_s[1])
         err = cols["pred_error_mm"][keep]
