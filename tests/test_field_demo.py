@@ -213,11 +213,20 @@ def test_scores_count_each_target_the_confusion_and_the_misses():
     assert "| none | 5 | 3 |" in md and "Misses (8)" in md and "RuntimeError: boom" in md
 
 
-def test_confusion_figure_is_a_png(tmp_path):
+def test_confusion_figure_is_a_png(tmp_path, monkeypatch):
+    """Rows and columns named alike (words, not snake_case), and the colour bar says what a share is."""
+    import tapmuscle.plots.figures as figures
+
+    saved = []
+    real = figures.save_figure
+    monkeypatch.setattr(figures, "save_figure", lambda fig, path, **kw: (saved.append(fig), real(fig, path, **kw))[1])
     s = score_results([_r("none"), _r("single", ["backlash"], ["backlash"]),
                        _r("oov", oov="vibration", findings=["unexplained"])])
     path = fd.confusion_figure(s, tmp_path / "confusion.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ax, bar = saved[0].axes
+    assert all("_" not in t.get_text() for t in ax.get_yticklabels() + ax.get_xticklabels())
+    assert bar.get_ylabel() == "share of the row's cases claiming it"
 
 
 # ------------------------------------------------------------------------------------ running

@@ -703,7 +703,7 @@ def confusion_figure(s: dict[str, Any], path: str | Path) -> Path:
                 ax.text(j, i, str(k), ha="center", va="center", fontsize=8,
                         color="white" if share[i, j] > 0.6 else "black")
     ax.set_xticks(range(len(cols)), [c.replace("_", " ") for c in cols], rotation=40, ha="right", fontsize=8)
-    ax.set_yticks(range(len(rows)), [f"{r} ({conf['cases'][r]})" for r in rows], fontsize=8)
+    ax.set_yticks(range(len(rows)), [f"{r.replace('_', ' ')} ({conf['cases'][r]})" for r in rows], fontsize=8)
     # the correct column of each row, outlined: what a perfect diagnosis would fill
     for i, r in enumerate(rows):
         want = ("nothing" if r == "none" else r.split(": ", 1)[1] if r.startswith("single: ")
@@ -718,5 +718,6 @@ def confusion_figure(s: dict[str, Any], path: str | Path) -> Path:
                  f"alone {_pct(t['single_named_alone']['rate_percent'])}, pairs {_pct(t['pair_both_found']['rate_percent'])}, "
                  f"none {_pct(t['none_no_effect_claimed']['rate_percent'])}, oov {_pct(t['oov_unexplained']['rate_percent'])}",
                  fontsize=9)
-    fig.colorbar(im, ax=ax, fraction=0.03, pad=0.02, label="share of the row's cases")
+    # a case may claim several effects: a row's shares can add up to more than 1
+    fig.colorbar(im, ax=ax, fraction=0.03, pad=0.02, label="share of the row's cases claiming it")
     return save_figure(fig, path)
