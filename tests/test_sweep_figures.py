@@ -74,6 +74,18 @@ def test_two_fields_draw_one_row(drawn, tmp_path):
     assert panels[0].get_xlabel() == "load [N]" and panels[0].get_ylabel() == "reference frequency [Hz]"
 
 
+def test_a_cell_without_a_run_says_so(drawn, tmp_path):
+    """The paper's grid runs the UCP methods at 0.1 Hz only: their 0.2-Hz cells were blank, which
+    reads as a colour; they say "no run"."""
+    rows = [r for r in _rows() if r["controller.parameters.box_lower.a2"] == "1.0"
+            and not (r["method"] == "mpc_ucp" and r["frequency_hz"] == "0.2")]
+    sweep_figures.plot_mae_map(rows, ["load_n", "frequency_hz"], tmp_path / "map.png")
+    (fig,) = drawn
+    ucp, ampc = [ax for ax in fig.axes if ax.get_title()]
+    assert [t.get_text() for t in ucp.texts].count("no run") == 2 and len(ucp.texts) == 4
+    assert "no run" not in [t.get_text() for t in ampc.texts]
+
+
 def test_a_monte_carlo_sample_with_a_third_field_says_so(drawn, tmp_path):
     rng = np.random.default_rng(1)
     rows = [{"method": "ampc_servo", "status": "ok", "mae_mm": repr(float(rng.uniform(0.1, 0.3))),

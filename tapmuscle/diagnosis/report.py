@@ -398,11 +398,15 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
         ac, xc = d.correlations[f"autocorrelation_{key}"], d.correlations[f"cross_correlation_{key}"]
         a1.stem(ac.lags + (0.15 if key == "after" else 0), ac.values, linefmt=colour, markerfmt=" ", basefmt=" ", label=label)
         a2.stem(xc.lags + (0.15 if key == "after" else 0), xc.values, linefmt=colour, markerfmt=" ", basefmt=" ", label=label)
-    for ax, c, name in ((a1, d.correlations["autocorrelation_before"], "autocorrelation of the residual"),
-                        (a2, d.correlations["cross_correlation_before"], "cross-correlation input u -> residual")):
+    lag = f"lag [samples of {d.ts_s:g} s]" if d.ts_s > 0 else "lag [samples]"
+    for ax, c, name, xlabel in (
+            (a1, d.correlations["autocorrelation_before"], "autocorrelation of the residual", lag),
+            (a2, d.correlations["cross_correlation_before"], "cross-correlation input u -> residual",
+             f"{lag}; positive: the residual after the input")):
         ax.axhspan(-c.band, c.band, color="tab:orange", alpha=0.2, label="99 % band (white)")
-        ax.set(title=name, ylabel="normalised", xlabel="lag [samples]")
-        ax.legend(fontsize=8)
+        ax.set(title=name, ylabel="normalised", xlabel=xlabel)
+        # beside the axes: inside, it covered the first lags' stems, the ones a reader looks at
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
         ax.grid(alpha=0.3)
     fig.suptitle(f"{title}: residual tests, before (the plant given) and after (the final model)", fontsize=10)
     fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings

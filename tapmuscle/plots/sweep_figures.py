@@ -155,6 +155,8 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
                             cell[i, j] = float(np.mean(mae[hit]))
                             ax.text(j, i, f"{cell[i, j]:.2f}", ha="center", va="center", fontsize=8,
                                     color="white" if norm(cell[i, j]) < 0.5 else "black")
+                        else:  # a blank cell is no run there (or none that finished), not a small error
+                            ax.text(j, i, "no run", ha="center", va="center", fontsize=7, color="0.4")
                 image = ax.imshow(cell, origin="lower", aspect="auto", cmap="viridis", norm=norm)
                 ax.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])
                 ax.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
