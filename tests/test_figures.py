@@ -315,3 +315,23 @@ def test_a_scenarios_load_and_supply_steps_are_marked_where_they_explain_the_err
         assert marked == [20.0, 30.0]
     assert [a.get_text() for a in tracking.axes[0].texts] == ["load 44 -> 68 N", "supply 0.25 -> 0.22 MPa"]
     assert [a.get_text() for a in prediction.axes[0].texts] == ["supply 0.25 -> 0.22 MPa"]  # the window's only
+
+
+def test_the_box_bounds_an_estimate_sits_on_are_dotted_in_its_panel(monkeypatch, tmp_path):
+    """b1 pinned on Table 2's lower bound looked like a converged value; the bounds in view are dotted
+    (one far from the estimate is left out: it would squash the panel's scale)."""
+    from tapmuscle.plots.figures import plot_parameter_convergence
+
+    saved = _drawn(monkeypatch)
+    t = np.arange(400) * 0.1
+    history = np.column_stack([np.full(400, 0.607) + np.where(t < 20, 0.3 * np.exp(-t / 5), 0.0),
+                               np.linspace(-0.33, -0.30, 400)])
+    plot_parameter_convergence(t, history, ("b1", "a2"), tmp_path / "c.png",
+                               bounds={"b1": (0.607, 1.184), "a2": (-0.334, -0.278 + 5.0)})
+    b1, a2 = saved[0].axes[:2]
+
+    def dotted(ax):
+        return sorted(round(line.get_ydata()[0], 6) for line in ax.get_lines() if line.get_linestyle() == ":")
+
+    assert dotted(b1) == [0.607] and dotted(a2) == [-0.334]
+    assert saved[0]._suptitle.get_text().endswith("dotted: the box's bounds")

@@ -296,6 +296,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             t = rec.t_s
             plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / "convergence.png",
                                        constraint_start_s=report.constraint_start_s if report.box_lower else None,
+                                       bounds={n: (report.box_lower.get(n, -math.inf), report.box_upper.get(n, math.inf))
+                                               for n in report.structure.names},
                                        title=f"{report.model} model: parameter convergence "
                                              f"({Path(args.recording).name})")
             shown, fit = (val, val_fit) if val is not None else (rec, report.fit)

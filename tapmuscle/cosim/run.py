@@ -82,13 +82,19 @@ def scenario_events(scenario: Scenario) -> list[tuple[float, str]]:
     return sorted(events)
 
 
+def scenario_box(scenario: Scenario) -> dict[str, tuple[float, float]]:
+    """The adaptive controller's constraint region C in ``scenario``: ``(lower, upper)`` by parameter,
+    Table 2's where the scenario sets no bound (``box_lower.a1 = -inf`` lifts one)."""
+    params = scenario.controller.parameters
+    return {n: (float(params.get(f"box_lower.{n}", TABLE2_LOWER[n])), float(params.get(f"box_upper.{n}", TABLE2_UPPER[n])))
+            for n in TABLE2_LOWER}
+
+
 def estimator_name(scenario: Scenario) -> str:
     """What the adaptive controller's estimator is in ``scenario``: Algorithm 1's constrained RLS, or
     Eq. (4)'s RLS where every bound of the box is infinite (a bound not set is Table 2's)."""
-    bounds = {**{f"box_lower.{n}": v for n, v in TABLE2_LOWER.items()},
-              **{f"box_upper.{n}": v for n, v in TABLE2_UPPER.items()}}
-    bounds.update((k, v) for k, v in scenario.controller.parameters.items() if k in bounds)
-    return "RLS, Eq. (4)" if all(math.isinf(v) for v in bounds.values()) else "constrained RLS, Algorithm 1"
+    unbounded = all(math.isinf(v) for pair in scenario_box(scenario).values() for v in pair)
+    return "RLS, Eq. (4)" if unbounded else "constrained RLS, Algorithm 1"
 
 
 def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | Path], *,
@@ -132,6 +138,6 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
                 history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
                 plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / "parameters.png",
                                            title=f"{scenario.name}: theta-hat ({estimator_name(scenario)})",
-                                           events=events)
+                                           events=events, bounds=scenario_box(scenario))
     summary["cols"] = cols
     return summary

@@ -13,6 +13,7 @@ leaves a truncated PNG behind.
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import re
 import warnings
@@ -144,9 +145,12 @@ def plot_recording(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, path: str
 
 def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tuple[str, ...],
                                path: str | os.PathLike, *, constraint_start_s: float | None = None,
-                               title: str = "", events: Sequence[tuple[float, str]] = ()) -> Path:
+                               title: str = "", events: Sequence[tuple[float, str]] = (),
+                               bounds: Mapping[str, tuple[float, float]] | None = None) -> Path:
     """Estimated parameters over time, one panel each (parameter convergence, section 2.4); ``events``
-    (times [s] and their text, :func:`plot_tracking`) as lines in every panel, named in the title."""
+    (times [s] and their text, :func:`plot_tracking`) as lines in every panel, named in the title;
+    ``bounds``: the constraint region C of Algorithm 1 by name (lower, upper), each finite bound
+    dotted in its panel (an estimate pinned on one shows it)."""
     n = len(names)
     cols = 5 if n > 12 else 4
     rows = -(-n // cols)
@@ -168,6 +172,9 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
         lo, hi = lo * scale, hi * scale
         pad = 0.15 * (hi - lo) + 1e-12 + 0.02 * max(abs(lo), abs(hi))
         ax.set_ylim(lo - pad, hi + pad)
+        for bound in (bounds or {}).get(names[i], ()):
+            if math.isfinite(bound) and lo - pad <= bound * scale <= hi + pad:  # one far off would squash the rest
+                ax.axhline(bound * scale, color="0.3", ls=":", lw=0.9)
         ax.ticklabel_format(axis="y", useOffset=False)
         ax.set_title(names[i] if power == 0 else f"{names[i]} [x 1e{power}]", fontsize=9)
         ax.grid(alpha=0.3)
@@ -182,7 +189,9 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
     dashed = (" (dashed: the constraint starts)" if constraint_start_s is not None and constraint_start_s < t_s[-1]
               else "")
     marked = ("; grey lines: " + ", ".join(f"{text} at {t:g} s" for t, text in events)) if events else ""
-    fig.suptitle((title or "parameter convergence") + dashed + marked)
+    dotted = "; dotted: the box's bounds" if any(math.isfinite(b) for pair in (bounds or {}).values()
+                                                   for b in pair) else ""
+    fig.suptitle((title or "parameter convergence") + dashed + dotted + marked)
     fig.set_layout_engine("tight")  # laid out as it is drawn: inside save_figure, with its warnings
     return save_figure(fig, path)
 
