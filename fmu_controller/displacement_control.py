@@ -682,11 +682,11 @@ def _valid_still(still: Any) -> bool:
         return False
 
 
-def _restored_controller(settings: ControllerSettings, theta0: Sequence[float],
+def _restored_controller(cls: type[DisplacementController], settings: ControllerSettings, theta0: Sequence[float],
                          state: Mapping[str, Any]) -> DisplacementController:
-    """A :class:`DisplacementController` built from ``settings`` and ``theta0``, at ``state`` (copying,
-    unpickling)."""
-    controller = DisplacementController(settings, theta0)
+    """A :class:`DisplacementController` (of class ``cls``, a subclass taking the same arguments) built
+    from ``settings`` and ``theta0``, at ``state`` (copying, unpickling)."""
+    controller = cls(settings, theta0)
     controller.set_state(state)
     return controller
 
@@ -786,7 +786,7 @@ class DisplacementController:
         # The QP solver (osqp) and the estimator's read-only box cannot be pickled, and a copy sharing
         # them would step both controllers at once: a copy or an unpickled controller is built anew
         # from its settings and theta0 and continues from get_state, bit for bit (copy.copy as well).
-        return (_restored_controller, (self.settings, self.theta0.tolist(), self.get_state()))
+        return (_restored_controller, (type(self), self.settings, self.theta0.tolist(), self.get_state()))
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, l0_mm: float) -> None:

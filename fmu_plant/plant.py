@@ -193,9 +193,11 @@ def _finite_array(name: str, values: Any, takes: str = "a sequence of numbers") 
     return a
 
 
-def _restored_plant(params: PlantParams, seed: int, effects: Sequence[Effect], state: dict[str, Any]) -> Plant:
-    """A :class:`Plant` built from its parameters, seed and own effects, at ``state`` (copying, unpickling)."""
-    plant = Plant(params, seed=seed, effects=effects)
+def _restored_plant(cls: type[Plant], params: PlantParams, seed: int, effects: Sequence[Effect],
+                    state: dict[str, Any]) -> Plant:
+    """A :class:`Plant` (of class ``cls``, a subclass taking the same arguments) built from its
+    parameters, seed and own effects, at ``state`` (copying, unpickling)."""
+    plant = cls(params, seed=seed, effects=effects)
     plant.set_state(state)
     return plant
 
@@ -271,7 +273,7 @@ class Plant:
     def __reduce__(self) -> tuple[Any, ...]:
         # The sub-step's closures (build_model) hold the valve gate and cannot be shared or pickled: a
         # copy or an unpickled plant is built anew and continues from get_state, bit for bit.
-        return (_restored_plant, (self.params, self._seed, self._own_effects, self.get_state()))
+        return (_restored_plant, (type(self), self.params, self._seed, self._own_effects, self.get_state()))
 
     def __copy__(self) -> Plant:
         # a copy sharing the state would step both plants at once: copy.copy is copy.deepcopy

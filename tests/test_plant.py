@@ -123,6 +123,11 @@ def test_a_copied_or_unpickled_plant_steps_on_alone_bit_for_bit(how):
         got_q.append(q.step(v, 0.1).l_mm)
     assert got_p == run(alone_a, a) and got_q == run(alone_b, b)
     assert max(abs(x - y) for x, y in zip(got_p, got_q)) > 1.0  # the branches did differ
+    assert type(how(_OwnPlant(seed=2))) is _OwnPlant  # a subclass stays one
+
+
+class _OwnPlant(Plant):
+    """A user's subclass, with the plant's arguments."""
 
 
 class _Ramp(Effect):
