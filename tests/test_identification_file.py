@@ -49,6 +49,8 @@ def test_the_file_gives_theta_period_and_box(id_files):
     assert m05.ts_s == 0.05 and m05.box_lower == {} and m05.box_upper == {}
     m05.check_period(0.05)
     m05.check_period(0.05 * (1 + 1e-9))
+    with pytest.raises(IdentificationFileError, match="identified at ts_s = 0.05 s"):
+        m05.check_period(0.05 * (1 + 1e-4))  # 5 us a sample: a clock's drift, not the same period
     with pytest.raises(IdentificationFileError, match=r"identified at ts_s = 0.05 s, the controller samples at 0.2 s"):
         m05.check_period(0.2)
     # simulate_closed_loop without ts_s runs at the file's period (it said "the controller samples at 0.1 s")
@@ -93,7 +95,11 @@ def test_a_small_stroke_in_mm_is_read(id_files, tmp_path):
     # the controller FMU's range: a scenario named its own key for it, not the file
     (lambda d: d | {"theta": d["theta"] | {"a1": 1e7}}, r"theta.a1' = 10000000.0 is outside -1e\+06..1e\+06, the "
                                                        r"controllers' range of theta0"),
+    (lambda d: d | {"theta": d["theta"] | {"theta_a1": 1.2}}, r"missing: none; extra: theta_a1"),  # a prefix
+    (lambda d: d | {"theta": d["theta"] | {"b1": True}}, r"theta.b1' must be a finite number, got True"),
+    (lambda d: d | {"theta": d["theta"] | {"xi31": -1e7}}, r"theta.xi31' = -10000000.0 is outside -1e\+06"),
     (lambda d: d | {"ts_s": -0.1}, "'ts_s' must be a positive number of seconds"),
+    (lambda d: d | {"ts_s": 0}, "'ts_s' must be a positive number of seconds"),
     (lambda d: {"verdict": "mismatch"}, "keys 'model', 'theta', 'ts_s' missing: not a `tapmuscle identify --json` file"),
 ])
 def test_a_file_that_cannot_be_a_theta0_is_refused_naming_the_key(id_files, tmp_path, change, message):

@@ -153,7 +153,8 @@ def test_a_limit_cycles_causes_follow_what_the_run_has_shown():
 
 @pytest.mark.parametrize("hp, ts, d, advised", [(5, 0.05, 4, 10), (5, 0.05, 5, 10), (5, 0.05, 3, None),
                                                 (5, 0.1, 5, None), (10, 0.05, 8, None), (5, 0.02, 8, 25),
-                                                (12, 0.02, 8, 25), (20, 0.02, 8, None), (5, 0.05, 0, None)])
+                                                (12, 0.02, 8, 25), (20, 0.02, 8, None), (5, 0.05, 0, None),
+                                                (2, 0.05, 1, 10), (1, 0.05, 0, None), (5, 0.05, 6, 10)])
 def test_a_short_servo_horizon_that_barely_looks_past_the_delay_is_told_at_the_start(hp, ts, d, advised):
     """At Ts = 0.05 s with 4 or 5 samples of delay set, Table 5's 5-sample horizon (0.25 s) looks at most
     0.05 s past the delay, and servo.Hp = 10 tracked better in 7 of 8 cells; at 0.1 s (0.5 s spanned),
@@ -172,6 +173,24 @@ def test_a_short_servo_horizon_that_barely_looks_past_the_delay_is_told_at_the_s
     ucp = tm.DisplacementController(tm.ControllerSettings(method="ampc_ucp", ts_s=ts, input_delay_samples=d,
                                                           box_lower={}, box_upper={}), tm.THETA0_44N)
     assert LoopWatch(ucp).horizon_past_delay(d) == ""
+    if advised:  # how far past the delay, never negative (a delay longer than the horizon looks 0 s past it)
+        assert f"looks {max(hp - d, 0) * ts:g} s past the input delay of {d} sample" in said
+
+
+def test_a_decision_for_a_delay_near_a_short_horizon_adds_the_horizon_advice():
+    """-1's decision message at Ts = 0.05 s for 4 samples carries the horizon advice; at Ts = 0.1 s, or
+    for a UCP method, it does not."""
+    def message(method, ts, d):
+        ctrl = tm.DisplacementController(tm.ControllerSettings(method=method, ts_s=ts, input_delay_samples=-1,
+                                                               box_lower={}, box_upper={}), tm.THETA0_44N)
+        return LoopWatch(ctrl).decision_message(5.0, d)
+
+    short = message("ampc_servo", 0.05, 4)
+    assert short.startswith("t = 5 s: input_delay_samples = -1 decided for 4 samples (0.2 s)")
+    assert short.endswith("; servo.Hp = 5 samples spans 0.25 s at Ts = 0.05 s and looks 0.05 s past the input delay "
+                          "of 4 samples: on delayed rigs at Ts = 0.05 s servo.Hp = 10 (Table 5's 0.5 s) tracked "
+                          "better (docs/control.md, \"A short Ts\")")
+    assert "servo.Hp" not in message("ampc_servo", 0.1, 4) and "servo.Hp" not in message("ampc_ucp", 0.05, 4)
 
 def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
     """A reading frozen at 20 s as the reference steps from 40 to 60 mm: the command sits at 10 V for good (one
