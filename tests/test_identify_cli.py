@@ -1,6 +1,7 @@
 """On the simulated rig, `tapmuscle identify` reaches the Table-4-like targets; bad data is refused."""
 
 import json
+import math
 from pathlib import Path
 import re
 import sys
@@ -575,3 +576,24 @@ def test_a_model_whose_hysteresis_cancellation_swings_past_the_valves_range_is_n
     paper = read_recording(records[1]["train", 44])
     report = identify_record(paper.columns["u_v"], paper.columns["l_mm"], ts_s=0.1)
     assert report.box_lower == TABLE2_LOWER and not any("hysteresis cancellation" in n for n in report.notes)
+
+
+def test_the_cancellation_swing_is_eq5s_term_over_b1_sample_by_sample():
+    """cancellation_swing against H(k) of Eq. (5) evaluated one sample at a time on the model's own
+    state (hysteresis_term), for a b1 of either sign (its size divides) and none (infinite)."""
+    import tapmuscle as tm
+    from fmu_controller.hysteresis_model import ModelState, hysteresis_term, virtual_hysteresis_sequence
+    from fmu_controller.identification import cancellation_swing
+
+    rec = tm.simulate(SINE, duration_s=30.0)
+    u, l = rec["u_v"], rec["l_mm"]
+    for b1 in (0.8, -0.8):
+        theta = np.array(tm.THETA0_44N, dtype=float)
+        theta[ASYMMETRIC.index("b1")] = b1
+        v = virtual_hysteresis_sequence(theta, l, u)
+        h = [hysteresis_term(theta, ModelState(l_init=(l[k - 2], l[k - 1], l[k]), v_init=(v[k - 2], v[k - 1], v[k])))
+             for k in range(2, len(l))]
+        swing = cancellation_swing(theta, ASYMMETRIC, u, l)
+        assert swing == pytest.approx(float(np.std(h)) / 0.8, rel=1e-9) and swing > 0.1
+    theta[ASYMMETRIC.index("b1")] = 0.0
+    assert cancellation_swing(theta, ASYMMETRIC, u, l) == math.inf
