@@ -178,3 +178,16 @@ def test_a_step_half_a_period_off_is_the_boundary_of_a_dropped_sample(late, drop
     with pytest.raises(SamplingError) as err:
         uniform_sampling(t)
     assert ("dropped or doubled" in str(err.value)) == dropped, str(err.value)
+
+
+@pytest.mark.parametrize("ts, error, nominal", [
+    (0.1 * (1 + 8e-7), 0.0, 0.1),               # a clock 0.8 ppm fast: the logger's 0.1 s
+    (0.1 * (1 + 3e-6), 0.0, 0.1 * (1 + 3e-6)),  # 3 ppm: its own
+    (0.1 * (1 + 3e-6), 1e-7, 0.1),              # unless the estimate's own error covers it
+    (0.1234561, 0.0, 0.123456),                 # six significant digits are a nominal period
+    (0.12345671, 0.0, 0.12345671),              # seven are not: kept as estimated
+])
+def test_a_period_is_its_nominal_value_within_a_ppm_and_three_standard_errors(ts, error, nominal):
+    from tapmuscle.io.sampling import nominal_period
+
+    assert nominal_period(ts, error) == nominal
