@@ -64,6 +64,19 @@ def test_a_signal_still_held_at_the_end_of_the_block_is_raised_there():
     assert done == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def test_a_held_interrupt_left_by_a_block_that_ended_interrupted_otherwise_does_not_end_the_next():
+    """A block that a held SIGINT had reached, ending by a KeyboardInterrupt of its own (a nested
+    call's), leaves the flag up; the next block starts afresh and runs to its end."""
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts():
+            signal.raise_signal(signal.SIGINT)
+            raise KeyboardInterrupt
+    done = []
+    with held_interrupts():
+        done.append(True)
+    assert done == [True] and not HELD.pending
+
+
 def test_nested_blocks_hold_once_and_other_threads_and_handlers_are_left_alone():
     with held_interrupts():
         ours = signal.getsignal(signal.SIGINT)
