@@ -181,8 +181,7 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
         ax.tick_params(labelsize=7)
         if constraint_start_s is not None and constraint_start_s < t_s[-1]:
             ax.axvline(constraint_start_s, color="grey", ls="--", lw=0.8)
-        for t, _ in events:
-            ax.axvline(t, color="0.45", lw=0.8, zorder=1)
+        _mark_events([ax], events, None)  # named in the title: 15 panels have no room for the text
         if i >= n - cols:
             ax.set_xlabel("t [s]", fontsize=8)
             ax.tick_params(labelbottom=True)  # the last panel of its column: shared x, its own tick labels
@@ -346,14 +345,15 @@ def _run_columns(name: str, cols: Mapping[str, Any], keys: Sequence[str]) -> dic
     return out
 
 
-def _mark_events(axes: Sequence[Any], events: Sequence[tuple[float, str]], labelled: Any) -> None:
+def _mark_events(axes: Sequence[Any], events: Sequence[tuple[float, str]], labelled: Any | None) -> None:
     """A thin grey line at each event's time [s] in every one of ``axes``, its text at the top of
-    ``labelled``: a load step or a supply sag that explains the error after it."""
+    ``labelled`` (None: no text): a load step or a supply sag that explains the error after it."""
     for t, text in events:
         for ax in axes:
             ax.axvline(t, color="0.45", lw=0.8, zorder=1)
-        labelled.annotate(text, xy=(t, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
-                          textcoords="offset points", ha="left", va="top", fontsize=7, color="0.25")
+        if labelled is not None:
+            labelled.annotate(text, xy=(t, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -3),
+                              textcoords="offset points", ha="left", va="top", fontsize=7, color="0.25")
 
 
 def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLike, *, title: str = "",
