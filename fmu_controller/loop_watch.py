@@ -285,8 +285,9 @@ def horizon_past_delay(hp: int, ts_s: float, d: int) -> str:
     if d < 1 or hp * ts_s >= TABLE5_HORIZON_S * (1.0 - 1e-9) or (hp - d) * ts_s >= HORIZON_PAST_DELAY_S * (1.0 - 1e-9):
         return ""
     return (f"servo.Hp = {hp} samples spans {hp * ts_s:g} s at Ts = {ts_s:g} s and looks {max(hp - d, 0) * ts_s:g} s "
-            f"past the input delay of {samples_in_words(d)}: on delayed rigs at Ts = 0.05 s servo.Hp = "
-            f"{table5_horizon_samples(ts_s)} (Table 5's {TABLE5_HORIZON_S:g} s) tracked better (docs/control.md, \"A short Ts\")")
+            f"past the input delay of {samples_in_words(d)}: servo.Hp = {table5_horizon_samples(ts_s)}, Table 5's "
+            f"{TABLE5_HORIZON_S:g} s at this Ts, is advised (on delayed rigs at Ts = 0.05 s, 10 samples tracked better "
+            "than 5: docs/control.md, \"A short Ts\")")
 
 
 def table5_horizon_samples(ts_s: float) -> int:

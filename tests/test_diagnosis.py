@@ -1931,9 +1931,9 @@ def test_a_named_transport_delay_says_what_the_controller_needs():
     assert "more than the controller compensates (input_delay_samples up to 25)" in delay_advice(2.6, 0.1)
     # at a short Ts Table 5's 5-sample servo horizon barely looks past a delay of 4: the horizon is said
     assert delay_advice(0.2, 0.05).endswith("for the servo methods, Table 5's servo.Hp = 5 samples spans 0.25 s at Ts = "
-                                            "0.05 s and looks 0.05 s past the input delay of 4 samples: on delayed rigs "
-                                            "at Ts = 0.05 s servo.Hp = 10 (Table 5's 0.5 s) tracked better "
-                                            "(docs/control.md, \"A short Ts\")")
+                                            "0.05 s and looks 0.05 s past the input delay of 4 samples: servo.Hp = 10, "
+                                            "Table 5's 0.5 s at this Ts, is advised (on delayed rigs at Ts = 0.05 s, 10 "
+                                            "samples tracked better than 5: docs/control.md, \"A short Ts\")")
     assert "servo.Hp" not in delay_advice(0.15, 0.05) and "servo.Hp" not in delay_advice(0.4, 0.1)
     rec = tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=60.0,
                       params=PlantParams().with_values(**{"delay.delay_s": 0.15}))

@@ -597,3 +597,13 @@ def test_the_cancellation_swing_is_eq5s_term_over_b1_sample_by_sample():
         assert swing == pytest.approx(float(np.std(h)) / 0.8, rel=1e-9) and swing > 0.1
     theta[ASYMMETRIC.index("b1")] = 0.0
     assert cancellation_swing(theta, ASYMMETRIC, u, l) == math.inf
+
+
+def test_the_cancellation_swing_is_judged_in_the_records_own_units_of_u():
+    """A record whose command is logged in tenths of a volt (u x 10): the swing comes out ten times as
+    large in those units and is judged against half the valve's range in them (no note, as in volts)."""
+    import tapmuscle as tm
+
+    levels = tm.simulate("random:lo=2,hi=8,hold_min=0.5,hold_max=3,seed=1", duration_s=240.0, ts_s=0.05)
+    report = identify_record(10.0 * levels["u_v"], levels["l_mm"], ts_s=0.05)
+    assert not any("hysteresis cancellation" in n for n in report.notes), report.notes

@@ -162,7 +162,7 @@ def test_a_short_servo_horizon_that_barely_looks_past_the_delay_is_told_at_the_s
     from fmu_controller.loop_watch import horizon_past_delay
 
     said = horizon_past_delay(hp, ts, d)
-    assert (f"servo.Hp = {advised} (Table 5's 0.5 s) tracked better" in said) if advised else said == ""
+    assert (f"servo.Hp = {advised}, Table 5's 0.5 s at this Ts, is advised" in said) if advised else said == ""
     settings = tm.ControllerSettings(method="ampc_servo", ts_s=ts, input_delay_samples=d, box_lower={}, box_upper={},
                                      servo=tm.ServoMPCSettings(hp=hp, hu=min(hp, 5)))
     ctrl = tm.DisplacementController(settings, tm.THETA0_44N)
@@ -188,8 +188,8 @@ def test_a_decision_for_a_delay_near_a_short_horizon_adds_the_horizon_advice():
     short = message("ampc_servo", 0.05, 4)
     assert short.startswith("t = 5 s: input_delay_samples = -1 decided for 4 samples (0.2 s)")
     assert short.endswith("; servo.Hp = 5 samples spans 0.25 s at Ts = 0.05 s and looks 0.05 s past the input delay "
-                          "of 4 samples: on delayed rigs at Ts = 0.05 s servo.Hp = 10 (Table 5's 0.5 s) tracked "
-                          "better (docs/control.md, \"A short Ts\")")
+                          "of 4 samples: servo.Hp = 10, Table 5's 0.5 s at this Ts, is advised (on delayed rigs at "
+                          "Ts = 0.05 s, 10 samples tracked better than 5: docs/control.md, \"A short Ts\")")
     assert "servo.Hp" not in message("ampc_servo", 0.1, 4) and "servo.Hp" not in message("ampc_ucp", 0.05, 4)
 
 def test_a_valve_pinned_at_one_limit_under_a_reading_that_never_changes_names_a_stuck_sensor():
@@ -501,3 +501,54 @@ def test_the_tracking_warning_at_another_period_names_the_horizon_and_no_paper_b
     assert "servo horizon" not in said(0.05, 10) and "servo horizon" not in said(0.1, 5)
     assert "at Ts = 0.1 s keep Table 2's" in said(0.1, 5)
     assert said(0.05, 5, "ampc_ucp").endswith("A box at another sampling period\")")  # no servo horizon
+
+
+@pytest.mark.parametrize("decided", [1, 2, 5])
+def test_what_a_decision_and_a_limit_cycle_after_it_say_depends_on_the_delay_decided(decided):
+    """A decision of 1 (a parallel master's step) is no transport delay to announce; from 2 on it is.
+    The limit cycle after it names delay_move_weight from 2 samples on (servo.R below), asks for a
+    longer servo.Hp only where Hp is shorter than the delay, and at -1's longest delay (5) says -1
+    cannot decide a longer one."""
+    import dataclasses
+
+    from fmu_controller.displacement_control import AUTO_INPUT_DELAY_SAMPLES
+
+    assert AUTO_INPUT_DELAY_SAMPLES == 5
+
+    class Decided(tm.DisplacementController):
+        input_delay_decision = decided
+        in_startup = False
+        samples_since_start = 10_000
+
+    ctrl = Decided(tm.ControllerSettings(method="ampc_servo", input_delay_samples=-1), tm.THETA0_44N)
+    ctrl.reset(30.0)
+    step = ctrl.step(30.0, tm.SineReference().preview(0, ctrl.settings.preview_samples))
+    watch = LoopWatch(ctrl)
+    told = []
+    for k in range(1, 40):
+        u = (0.0, 5.0, 10.0, 5.0)[k % 4]
+        told += watch.observe(k, k * 0.1, 30.0, 35.0, dataclasses.replace(step, u_v=u), 5.0)
+    announced = [m for m in told if "-1 decided for" in m]
+    assert len(announced) == (0 if decided == 1 else 1)
+    (cycle,) = [m for m in told if "a limit cycle" in m]
+    assert ("raise delay_move_weight" in cycle) == (decided >= 2) and ("raise servo.R" in cycle) == (decided == 1)
+    assert "raise servo.Hp" not in cycle  # Table 5's 5 samples reach every delay here
+    assert ("-1 decides delays up to 5 samples: a longer one is set" in cycle) == (decided == 5)
+
+
+@pytest.mark.parametrize("method", ["ampc_servo", "ampc_ucp", "mpc_servo", "mpc_ucp"])
+def test_only_mpc_ucp_blames_a_delay_minus_one_did_not_see(method):
+    """MPC-UCP has no probing signal, so a noisy sensor blurs -1's scores; the other methods' decisions
+    are not blamed on it."""
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method=method, input_delay_samples=-1), tm.THETA0_44N)
+    blamed = any("a delay -1 did not see" in c for c in LoopWatch(ctrl).limit_cycle_causes(42.0))
+    assert blamed == (method == "mpc_ucp")
+
+
+@pytest.mark.parametrize("r, named", [(1000.0, False), (1001.0, True), ((15.0, 15.0, 15.0, 15.0, 5000.0), True)])
+def test_a_heavy_move_weight_is_named_above_a_thousand(r, named):
+    """At R = 1000 MPC-servo tracked to 0.51 mm; above it the weight is named, also as a per-move tuple's
+    largest entry."""
+    settings = tm.ControllerSettings(method="mpc_servo", servo=tm.ServoMPCSettings(r=r))
+    causes = LoopWatch(tm.DisplacementController(settings, tm.THETA0_44N)).limit_cycle_causes(42.0)
+    assert any(c.startswith("a heavy move weight servo.R") for c in causes) == named

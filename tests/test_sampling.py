@@ -191,3 +191,20 @@ def test_a_period_is_its_nominal_value_within_a_ppm_and_three_standard_errors(ts
     from tapmuscle.io.sampling import nominal_period
 
     assert nominal_period(ts, error) == nominal
+
+
+def test_a_stamp_more_than_a_quarter_period_off_the_grid_is_named_and_a_slow_drift_is_not_uniform():
+    """0.027 s off a 0.1-s grid (a quarter is 0.025) is refused at that sample; a clock whose steps
+    wander by 0.9 % (each within 1 %, none within the 0.1 % of exactly uniform) ends 0.34 s off the
+    grid through all samples and is refused, not taken as uniform."""
+    from tapmuscle.io.sampling import SamplingError, uniform_sampling
+
+    t = np.arange(2401) * 0.1
+    t[1200] += 0.027
+    with pytest.raises(SamplingError) as late:
+        uniform_sampling(t)
+    assert late.value.sample == 1200
+    k = np.arange(2400)
+    drifting = np.concatenate([[0.0], np.cumsum(0.1 * (1 + 0.009 * np.sin(2 * np.pi * k / 2400)))])
+    with pytest.raises(SamplingError, match="off the uniform grid"):
+        uniform_sampling(drifting)
