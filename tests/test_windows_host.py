@@ -72,6 +72,11 @@ def windows(built_fmus) -> dict:
     return {"wine": wine, "python": exe, "env": env}
 
 
+def _wine_stub_abort(stderr: str) -> bool:
+    """Whether Wine ended the program at a call to an import it left unbound (its stub's message)."""
+    return "wine: Unimplemented function python3" in stderr or "to unimplemented function python3" in stderr
+
+
 def _run_windows(windows: dict, *args: str, env_extra: dict | None = None,
                  timeout: float = 600) -> subprocess.CompletedProcess:
     env = {**windows["env"], **(env_extra or {})}
@@ -79,8 +84,11 @@ def _run_windows(windows: dict, *args: str, env_extra: dict | None = None,
         for _ in range(2):
             proc = subprocess.run([windows["wine"], *args], env=env, capture_output=True, text=True, timeout=timeout)
             # Wine under load once ended a run at exit code 1 without a word from it or the program (the
-            # hosts and scripts here always say why they fail): the emulator's, so once more
-            if proc.returncode == 0 or proc.stdout or proc.stderr:
+            # hosts and scripts here always say why they fail), and once aborted a run at a stub Wine had
+            # put in for an import of python3.dll it did not bind ("unimplemented function
+            # python3.dll.Py_IsInitialized"; on Windows an import that does not bind fails LoadLibrary,
+            # which the shim reports): the emulator's, so once more
+            if proc.returncode == 0 or (proc.stdout or proc.stderr) and not _wine_stub_abort(proc.stderr):
                 break
         return proc
     except subprocess.TimeoutExpired:
