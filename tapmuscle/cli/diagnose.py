@@ -55,7 +55,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     options = ({"calibration": None} if args.no_calibration else {}) | {"use_pressure": args.use_pressure}
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
-                              progress=Progress("diagnose", enabled=not args.quiet, min_total=1, counts=False),
+                              progress=Progress("diagnose", enabled=not args.quiet, counts=False),
                               block_s=args.block,
                               fit_segment_s=120.0 if args.fit_segment is None else args.fit_segment,
                               candidates=candidates,
@@ -140,7 +140,7 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
     options = dict(map_path=args.map, block_s=args.block,
                    fit_segment_s=args.fit_segment, effects=effects,
                    calibrate=not args.no_calibration, plots=not args.no_plots,
-                   progress=Progress("diagnose", enabled=not args.quiet, min_total=1, counts=False))
+                   progress=Progress("diagnose", enabled=not args.quiet, counts=False))
     try:
         if args.output == "all":
             results = diagnose_foreign_outputs(args.recording, args.plant, args.out, **options)
@@ -178,7 +178,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
                         ("--keep-files", args.keep_files)):
         if args.suite == "foreign" and value:
             raise UsageError(f"{flag} belongs to --suite field, not --suite foreign")
-    progress = Progress("demo-mismatch", enabled=not args.quiet, min_total=1)
+    progress = Progress("demo-mismatch", enabled=not args.quiet)
     if args.suite == "foreign":
         from tapmuscle.diagnosis.foreign_demo import foreign_scores_markdown, run_foreign_demo
 

@@ -242,7 +242,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     # the work's steps, reported as each starts (the inputs checked first: a refusal comes alone); an
     # identification of a long record, and the delays of auto, take minutes, through which the
     # report's heartbeat says the command is still running
-    progress = Progress("identify", enabled=not args.quiet, min_total=1)
+    progress = Progress("identify", enabled=not args.quiet)
     steps = ["identify"] + (["validate"] if val is not None else []) + (["plot"] if args.plot else [])
     # auto's identifications each a unit of the identify step, so that its report moves with them, and
     # one more for the choice (a re-identification where the box's start moved) and the writing
@@ -357,7 +357,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         raise UsageError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
     if not seeds or min(seeds) < 0 or max(seeds) > _SEED_MAX:
         raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
-    run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet, min_total=1),
+    run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet),
               faithful_eq5=args.paper_eq5, faithful_start=args.paper_start)
     print(f"\nwrote {Path(out) / 'paper.json'}, {Path(out) / 'runs' / '*.csv'} and {Path(out) / 'fig*.png'}")
     return 0

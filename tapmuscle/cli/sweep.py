@@ -119,7 +119,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             ResultsLog(out / "results.csv", result_columns(sweep)).latest()  # another sweep's file: refuse early
             execute = _executor(args, stack)
             report = run_sweep(sweep, out, fmus, execute, plots=not args.no_plots,
-                               progress=Progress("sweep", enabled=not args.quiet, min_total=1))
+                               progress=Progress("sweep", enabled=not args.quiet))
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
         except ClusterError as exc:
@@ -171,7 +171,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     fmus = _fmus(args.fmu_dir)
     print(f"tapmuscle check: {len(cases)} scenarios with expectations"
           + (f" ({len(skipped)} files without [expect] skipped)" if skipped else ""))
-    progress = Progress("check", enabled=not args.quiet, min_total=1)
+    progress = Progress("check", enabled=not args.quiet)
     with ExitStack() as stack:
         try:
             files = FmuFiles.for_scenarios((c.scenario for c in cases), fmus)
