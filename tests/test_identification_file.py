@@ -307,6 +307,10 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
 @pytest.mark.parametrize("scaling, said", [({"l_scale": 0.001, "u_scale": 1.0}, r"largest displacement is under about 1\.9 "
                                             r"\(scaling\.l_scale = 0\.001: metres\?\)"),
                                            ({"l_scale": 1000.0, "u_scale": 1.0}, r"over about 1900 .*micrometres\?"),
+                                           # the decades at the edges (decade_scale writes exact powers of ten)
+                                           ({"l_scale": 100.0, "u_scale": 1.0}, r"over about 1900 .*l_scale = 100: micro"),
+                                           ({"l_scale": 0.01, "u_scale": 1.0}, r"under about 1\.9 .*l_scale = 0\.01: metres"),
+                                           ({"l_scale": 1.0, "u_scale": 100.0}, r"about 190 or more .*u_scale = 100: milli"),
                                            ({"l_scale": 1.0, "u_scale": 1000.0}, r"largest command is about 190 or more .*millivolts\?"),
                                            ({"l_scale": 1.0, "u_scale": 0.01}, r"largest command is under about 0\.19 .*0\.\.1"),
                                            # a command logged in % of opening or V x 10: 22 mm of AMPC-servo error
