@@ -12,6 +12,13 @@ the SSV files are checked against the SSP 1.0 schemas that fmpy ships before the
 SSP tools (libcosim, Ecos, OMSimulator) step the components in parallel, which applies the
 controller's command one step late, hence ``input_delay_samples = 1`` (docs/fmu.md, "Parallel
 masters"); in a sequential master unbind it (or set it to 0).
+
+A rig's plant file (``tapmuscle build --ssp --params FILE``: a digital twin of that rig) adds
+``rig.ssv``, every parameter of the file, bound to the plant in the 44-N set's place, and a set of
+the same name for the controller, ``rig_controller.ssv``, whose ``input_delay_samples`` is the
+parallel master's sample plus the file's transport delay in samples (bound to the controller in the
+parallel-master set's place): libcosim applies every bound set, Ecos the sets of the name its
+``init(parameter_set=...)`` gives, so ``"rig"`` gives both components theirs.
 """
 
 from __future__ import annotations
@@ -23,11 +30,15 @@ import zipfile
 from pathlib import Path
 from typing import Mapping
 
-__all__ = ["SSP_NAME", "LOADS_N", "ssd_text", "ssv_files", "write_ssp"]
+__all__ = ["SSP_NAME", "LOADS_N", "RIG_SET", "ssd_text", "ssv_files", "write_ssp"]
 
 SSP_NAME = "TapMuscleLoop.ssp"
 #: The parameter sets written: hanging load [N] (paper, Table 1).
 LOADS_N = (44.0, 68.0)
+#: The name of the parameter sets of a rig's plant file (module docstring).
+RIG_SET = "rig"
+#: The sample a parallel master adds to the loop (docs/fmu.md, "Parallel masters").
+PARALLEL_MASTER_SAMPLES = 1
 
 _NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
        "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
@@ -67,22 +78,34 @@ def _parameter_set(name: str, values: Mapping[str, float | int]) -> str:
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
 
-def ssv_files() -> dict[str, str]:
-    """``resources/<file>.ssv`` -> text: the plant's load sets and the controller's parallel-master set."""
+def ssv_files(rig: Mapping[str, float] | None = None, rig_delay_samples: int = 0) -> dict[str, str]:
+    """``resources/<file>.ssv`` -> text: the plant's load sets and the controller's parallel-master
+    set; with ``rig`` (MusclePlant parameter name -> value, a plant file's), the rig's two sets too,
+    the controller's compensating ``rig_delay_samples`` (the rig's transport delay in samples of the
+    controller's Ts) beside the parallel master's sample."""
     files = {f"resources/load_{load:g}N.ssv": _parameter_set(f"load_{load:g}N", {"load_force": float(load)})
              for load in LOADS_N}
     # SSP tools step the components in parallel: the controller compensates that sample of delay
-    files["resources/parallel_master.ssv"] = _parameter_set("parallel_master", {"input_delay_samples": 1})
+    files["resources/parallel_master.ssv"] = _parameter_set("parallel_master",
+                                                            {"input_delay_samples": PARALLEL_MASTER_SAMPLES})
+    if rig is not None:
+        # every plant parameter is a Real (an int from a JSON file would be written as an Integer)
+        files[f"resources/{RIG_SET}.ssv"] = _parameter_set(RIG_SET, {k: float(v) for k, v in rig.items()})
+        files[f"resources/{RIG_SET}_controller.ssv"] = _parameter_set(
+            RIG_SET, {"input_delay_samples": PARALLEL_MASTER_SAMPLES + int(rig_delay_samples)})
     return files
 
 
-#: Which parameter set each component binds (component-level bindings, as libcosim reads them).
-_BINDINGS = {"plant": f"resources/load_{LOADS_N[0]:g}N.ssv", "controller": "resources/parallel_master.ssv"}
+def _bindings(rig: bool) -> dict[str, str]:
+    """Which parameter set each component binds (component-level bindings, as libcosim reads them)."""
+    if rig:
+        return {"plant": f"resources/{RIG_SET}.ssv", "controller": f"resources/{RIG_SET}_controller.ssv"}
+    return {"plant": f"resources/load_{LOADS_N[0]:g}N.ssv", "controller": "resources/parallel_master.ssv"}
 
 
-def ssd_text(stop_time_s: float = 60.0) -> str:
-    """The system structure: both components with their parameter sets bound, the two connections,
-    the default experiment."""
+def ssd_text(stop_time_s: float = 60.0, *, rig: bool = False) -> str:
+    """The system structure: both components with their parameter sets bound (the rig's with
+    ``rig``), the two connections, the default experiment."""
     root = ET.Element(_q("ssd", "SystemStructureDescription"), {"version": "1.0", "name": "TapMuscleLoop"})
     system = ET.SubElement(root, _q("ssd", "System"), {
         "name": "TapMuscleLoop",
@@ -97,7 +120,7 @@ def ssd_text(stop_time_s: float = 60.0) -> str:
             ET.SubElement(c, _q("ssc", "Integer" if cname in _INTEGERS else "Real"))
         bindings = ET.SubElement(comp, _q("ssd", "ParameterBindings"))
         ET.SubElement(bindings, _q("ssd", "ParameterBinding"),
-                      {"type": "application/x-ssp-parameter-set", "source": _BINDINGS[name]})
+                      {"type": "application/x-ssp-parameter-set", "source": _bindings(rig)[name]})
     conns = ET.SubElement(system, _q("ssd", "Connections"))
     for a, ca, b, cb in _CONNECTIONS:
         ET.SubElement(conns, _q("ssd", "Connection"),
@@ -118,13 +141,29 @@ def _validate(text: str, schema_file: str, what: str) -> None:
         raise ValueError(f"{what} does not validate against {schema_file}: {schema.error_log.last_error}")
 
 
-def write_ssp(fmus: Mapping[str, str | Path], out: str | Path) -> Path:
+def write_ssp(fmus: Mapping[str, str | Path], out: str | Path, *, rig: Mapping[str, float] | None = None,
+              rig_delay_samples: int = 0) -> Path:
     """Write ``out/TapMuscleLoop.ssp`` from the built FMUs ``{"MusclePlant": path, "AMPCController": path}``
-    (atomically: a temporary file renamed into place)."""
+    (atomically: a temporary file renamed into place).
+
+    Parameters
+    ----------
+    fmus : mapping
+        The two FMUs' files.
+    out : path
+        The folder.
+    rig : mapping, optional
+        A rig's plant parameters (MusclePlant parameter name -> value, ``PlantParams.dotted()``),
+        written as the ``rig`` sets and bound in place of the 44-N and parallel-master sets (module
+        docstring).
+    rig_delay_samples : int
+        The rig's transport delay in samples of the controller's Ts, which the controller's ``rig``
+        set compensates beside the parallel master's sample.
+    """
     out = Path(out)
-    ssd = ssd_text()
+    ssd = ssd_text(rig=rig is not None)
     _validate(ssd, "SystemStructureDescription.xsd", "SystemStructure.ssd")
-    ssvs = ssv_files()
+    ssvs = ssv_files(rig, rig_delay_samples)
     for name, text in ssvs.items():
         _validate(text, "SystemStructureParameterValues.xsd", name)
     target = out / SSP_NAME

@@ -37,6 +37,7 @@ __all__ = [
     "N_INITIAL",
     "MAX_INPUT_DELAY_SAMPLES",
     "checked_input_delay",
+    "delay_samples_for",
     "delayed_input",
     "guard_bounds",
     "PredictionResult",
@@ -75,6 +76,26 @@ def checked_input_delay(delay_samples: int) -> int:
     if isinstance(d, (bool, np.bool_)) or not isinstance(d, numbers.Integral) or not 0 <= d <= MAX_INPUT_DELAY_SAMPLES:
         raise ValueError(f"input_delay_samples must be a number of samples 0 .. {MAX_INPUT_DELAY_SAMPLES}, got {d!r}")
     return int(d)
+
+
+def delay_samples_for(delay_s: float, ts_s: float) -> int:
+    """The ``input_delay_samples`` for a transport delay of ``delay_s`` [s] at the sampling period
+    ``ts_s`` [s]: the whole number of samples within a quarter of a sample of ``delay_s / ts_s``, else
+    the longer of the two around it, which the servo methods track better with and
+    ``input_delay_samples = -1`` decides (docs/control.md, "Transport delay"). Not capped at
+    :data:`MAX_INPUT_DELAY_SAMPLES`: the caller says what a longer delay means for it.
+
+    Raises
+    ------
+    ValueError
+        ``delay_s`` negative or not finite, ``ts_s`` not positive and finite.
+    """
+    if not (math.isfinite(delay_s) and delay_s >= 0.0):
+        raise ValueError(f"delay_s must be a delay >= 0 s, got {delay_s!r}")
+    if not (math.isfinite(ts_s) and ts_s > 0.0):
+        raise ValueError(f"ts_s must be a sampling period > 0 s, got {ts_s!r}")
+    n = delay_s / ts_s
+    return round(n) if abs(n - round(n)) <= 0.25 else math.ceil(n)
 
 
 def delayed_input(u: np.ndarray, delay_samples: int) -> np.ndarray:

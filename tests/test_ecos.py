@@ -147,3 +147,28 @@ def test_ecos_runs_the_ssp_and_tracks(ecos, built_fmus, tmp_path, parameter_set,
     err = tracking_error_mm(t, a[:, 0])
     assert a[:, 1].min() >= 0.0 and a[:, 1].max() <= 10.0
     assert err < limit_mm, err
+
+
+def test_ecos_applies_both_rig_sets_of_a_twin_ssp_by_their_one_name(ecos, built_fmus, tmp_path):
+    """Ecos applies only the sets of the name ``init(parameter_set=...)`` gives: a rig's plant file in
+    the SSP (``tapmuscle build --ssp --params``) gives the plant and the controller sets of one name,
+    ``rig``, so that name sets both (the file's constants and transport delay, the controller's
+    compensation of it and of the parallel step); with no name, neither."""
+    from build_scripts.ssp import RIG_SET, write_ssp
+    from fmu_plant import PlantParams
+
+    EcosSimulation, _ = ecos
+    rig = PlantParams().with_values(**{"valve.cv_max": 1.3, "delay.delay_s": 0.2})
+    path = write_ssp(built_fmus, tmp_path, rig=rig.dotted(), rig_delay_samples=2)
+    seen = {}
+    for name in (RIG_SET, None):
+        sim = EcosSimulation(step_size=TS_S, ssp_path=str(path))
+        try:
+            sim.init(parameter_set=name) if name else sim.init()
+            sim.step()
+            seen[name] = (sim.get_real("plant::valve.cv_max"), sim.get_real("plant::delay.delay_s"),
+                          sim.get_integer("controller::input_delay_samples"))
+            sim.terminate()
+        finally:
+            sim.free()
+    assert seen == {RIG_SET: (1.3, 0.2, 3), None: (1.5, 0.0, -1)}

@@ -1,5 +1,6 @@
 """Tests for fmu_controller.prediction (simulation, k-step prediction, fit, identification)."""
 
+import math
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from fmu_controller.hysteresis_model import (
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.prediction import (
     N_INITIAL,
+    delay_samples_for,
     held_command_runaway,
     fit_percent,
     run_rls,
@@ -275,3 +277,18 @@ def test_identify_on_scaled_and_raw_data_agree(record):
     p_raw = predict_ahead(raw.theta, ASYMMETRIC, u, l, 1).l_hat
     p_back = predict_ahead(theta_back, ASYMMETRIC, u, l, 1).l_hat
     assert np.max(np.abs(p_raw - p_back)) < 1e-6  # mm
+
+
+@pytest.mark.parametrize("delay_s, ts_s, samples", [(0.0, 0.1, 0), (0.02, 0.1, 0), (0.025, 0.1, 0), (0.03, 0.1, 1),
+                                                    (0.11, 0.1, 1), (0.15, 0.1, 2), (0.2, 0.1, 2), (0.275, 0.1, 3),
+                                                    (0.15, 0.02, 8), (2.0, 0.1, 20), (0.3, 0.1, 3)])
+def test_a_delay_in_samples_is_the_whole_number_near_it_or_else_the_longer_of_two(delay_s, ts_s, samples):
+    # within a quarter of a sample of a whole number: that number; between: the longer
+    assert delay_samples_for(delay_s, ts_s) == samples
+
+
+@pytest.mark.parametrize("delay_s, ts_s, named", [(-0.1, 0.1, "delay_s"), (math.nan, 0.1, "delay_s"),
+                                                  (0.1, 0.0, "ts_s"), (0.1, math.inf, "ts_s")])
+def test_a_delay_in_samples_refuses_what_is_no_delay_or_period(delay_s, ts_s, named):
+    with pytest.raises(ValueError, match=f"^{named} must be"):
+        delay_samples_for(delay_s, ts_s)

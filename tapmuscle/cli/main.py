@@ -384,13 +384,28 @@ def _linux64_note(fmu: Path) -> str:
 def _cmd_build(args: argparse.Namespace) -> int:
     from build_scripts.build_fmus import FMUS, build_fmus
 
+    if args.params and not args.ssp:
+        raise UsageError("--params puts a rig's plant file into TapMuscleLoop.ssp: give --ssp with it (the FMUs "
+                         "take the file's values as parameters in any host: docs/fmu.md, \"Your rig's plant file\")")
+    rig = _load_plant_params(args.params, ()) if args.params else None
     paths = build_fmus(args.out)
     for path in paths:
         print(f"wrote {path}{_linux64_note(path)}")
     if args.ssp:
-        from build_scripts.ssp import write_ssp
+        from build_scripts.ssp import RIG_SET, write_ssp
+        from fmu_controller.identification import PAPER_TS_S
+        from fmu_controller.prediction import delay_samples_for
 
-        print(f"wrote {write_ssp(dict(zip(FMUS, paths)), args.out)} (both FMUs as one closed loop for SSP tools)")
+        if rig is None:
+            print(f"wrote {write_ssp(dict(zip(FMUS, paths)), args.out)} (both FMUs as one closed loop for SSP tools)")
+            return 0
+        # the controller FMU's default Ts, at which SSP tools step the loop
+        delay = delay_samples_for(rig.delay.delay_s, PAPER_TS_S)
+        path = write_ssp(dict(zip(FMUS, paths)), args.out, rig=rig.dotted(), rig_delay_samples=delay)
+        print(f"wrote {path} (both FMUs as one closed loop for SSP tools; the plant and the controller bind the "
+              f"parameter sets {RIG_SET!r} of {args.params}, the controller's input_delay_samples = {delay + 1}: "
+              f"{delay} for the rig's transport delay of {rig.delay.delay_s:g} s at Ts = {PAPER_TS_S:g} s and 1 for "
+              "the parallel master)")
     return 0
 
 
@@ -587,6 +602,10 @@ def build_parser() -> argparse.ArgumentParser:
     bld.add_argument("--ssp", action="store_true",
                      help="also write TapMuscleLoop.ssp: both FMUs connected, parameter sets for 44 N and 68 N, "
                           "for SSP tools (libcosim, Ecos, OMSimulator)")
+    bld.add_argument("--params", metavar="FILE",
+                     help="with --ssp: a rig's plant file (calibrated_plant.json from `tapmuscle diagnose`) bound in "
+                          "TapMuscleLoop.ssp as the parameter sets 'rig' of the plant and of the controller (its "
+                          "input_delay_samples for the file's transport delay), a digital twin of that rig")
     bld.set_defaults(func=_cmd_build)
     _register_sweep(sub)
     _register_diagnose(sub)

@@ -6,7 +6,6 @@ and :func:`diagnose_files`, the recording-file-in, report-out entry point ``tapm
 from __future__ import annotations
 
 import json
-import math
 import os
 import shlex
 from concurrent.futures import Executor
@@ -17,6 +16,7 @@ import numpy as np
 
 from fmu_controller.displacement_control import MAX_INPUT_DELAY_SAMPLES
 from fmu_controller.loop_watch import horizon_past_delay
+from fmu_controller.prediction import delay_samples_for
 from fmu_controller.servo_settings import TABLE5_SERVO
 from fmu_plant import PlantParams
 
@@ -129,8 +129,8 @@ def delay_advice(delay_s: float, ts_s: float) -> str:
     docs/control.md, "Transport delay"), and where to set it; beyond
     :data:`~fmu_controller.displacement_control.MAX_INPUT_DELAY_SAMPLES`, that it cannot."""
     n = delay_s / ts_s
-    whole = abs(n - round(n)) <= 0.25  # within a quarter of a sample of a whole number: that number
-    k = round(n) if whole else math.ceil(n)
+    k = delay_samples_for(delay_s, ts_s)
+    whole = abs(n - round(n)) <= 0.25  # a whole number of samples, not the longer of two
     if k == 0:
         return (f"for control: the delay is {n:.2f} samples at Ts = {ts_s:g} s, under a quarter of a sample: the "
                 "controller needs no input_delay_samples for it")
