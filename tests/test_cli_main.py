@@ -13,6 +13,7 @@ import scipy
 import tapmuscle
 from fmu_plant.rosenbrock import COMPILED
 from tapmuscle.cli.main import main
+from conftest import UTF8_PATHS
 
 
 def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
@@ -61,6 +62,22 @@ def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):
     proc.stderr.close()
     assert proc.wait(timeout=120) == 141, stderr
     assert stderr == "" and out.is_file()
+
+
+@pytest.mark.skipif(not UTF8_PATHS, reason="a folder named in Greek and Japanese needs UTF-8 file names")
+def test_an_output_named_beyond_the_consoles_encoding_is_printed_escaped_not_an_error(tmp_path):
+    """A Windows console, or its output redirected, is cp1252: a folder named "Δp" or "日本" cannot be
+    printed in it, and the command ended with "error: 'charmap' codec can't encode" and status 2 after
+    writing every file. It prints such characters as escapes, as Python's stderr does."""
+    import os
+
+    out = tmp_path / "Δp 日本" / "rec.csv"
+    env = {**os.environ, "PYTHONIOENCODING": "cp1252"}
+    done = subprocess.run([sys.executable, "-m", "tapmuscle", "record", "--input", "const:value=5", "--duration", "2",
+                           "--out", str(out), "--quiet"], capture_output=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr.decode("cp1252")
+    assert f"wrote {tmp_path}{os.sep}\\u0394p \\u65e5\\u672c{os.sep}rec.csv (".encode("cp1252") in done.stdout
+    assert out.is_file()
 
 
 def test_a_recording_without_a_plot_does_not_load_matplotlib(tmp_path):

@@ -8,6 +8,7 @@ having written nothing.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import os
@@ -667,12 +668,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``tapmuscle`` console script."""
     process = argv is None  # the console script: the process ends with the command
     argv = list(sys.argv[1:] if argv is None else argv)
+    if process:
+        _printable_anywhere()
     previous = _interrupting_once(process)
     try:
         return _main(argv, process)
     finally:
         if previous is not None and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
             signal.signal(signal.SIGINT, previous)  # not interrupted: the caller's handler back
+
+
+def _printable_anywhere() -> None:
+    """Print what the output's encoding lacks as escapes (``\u0394``), as Python's stderr does,
+    rather than fail: a Windows console or a redirected output in cp1252 cannot show a folder named
+    "Δp" or "日本", and a command that has written every file must not end in an encoding error then."""
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper) and stream.errors == "strict":
+            stream.reconfigure(errors="backslashreplace")
 
 
 def _main(argv: list[str], process: bool) -> int:
