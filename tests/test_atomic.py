@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import os
 import stat
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 import pytest
@@ -160,6 +161,84 @@ def test_without_owned_patterns_the_folder_is_replaced_whole(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["a.json"]
     with pytest.raises(NotADirectoryError, match="is a file"):
         _run_into(out / "a.json", {"x": "1"})
+
+
+def _held_open(monkeypatch, *held: Path, staged: str | None = None) -> None:
+    """Renames as Windows does them while another program (a spreadsheet, an image viewer) holds the
+    files ``held`` open: such a file can be neither moved nor replaced, nor a folder holding it
+    (``_target`` cannot see it: the file is writable). ``staged``: a staged file of that name cannot
+    be moved either."""
+    from tapmuscle.io import atomic
+
+    real_replace, real_rename = os.replace, os.rename
+    inodes = {os.stat(p).st_ino for p in held}
+
+    def is_held(path) -> bool:
+        return os.path.lexists(path) and os.stat(path).st_ino in inodes
+
+    def replace(src, dst, **kw):
+        if is_held(src) or is_held(dst) or (staged is not None and os.path.basename(src) == staged
+                                            and os.path.basename(os.path.dirname(src)).startswith(".out.")):
+            raise PermissionError(errno.EACCES, "Access is denied", os.fspath(src), None, os.fspath(dst))
+        return real_replace(src, dst, **kw)
+
+    def rename(src, dst, **kw):
+        if os.path.isdir(src) and any(is_held(os.path.join(src, name)) for name in os.listdir(src)):
+            raise PermissionError(errno.EACCES, "Access is denied", os.fspath(src), None, os.fspath(dst))
+        return real_rename(src, dst, **kw)
+
+    monkeypatch.setattr(atomic.os, "replace", replace)
+    monkeypatch.setattr(atomic.os, "rename", rename)
+
+
+OWNED = ("*.json", "*.png", "exp*.csv")
+
+
+@pytest.mark.parametrize("held", ["b.png", "exp_2.csv", "a.json"])
+def test_a_file_held_open_leaves_the_earlier_run_whole_and_is_named(tmp_path, monkeypatch, held):
+    """On Windows a file another program holds open can be neither replaced nor moved, and nothing
+    tells before the rename: the files moved until then go back, so the folder holds the earlier
+    run whole (a figure of each run, a summary of the other, before), not a mix of two."""
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1", "b.png": "x", "exp_2.csv": "e"}, owned=OWNED)
+    (out / "notes.txt").write_text("mine")
+    _held_open(monkeypatch, out / held)
+    with pytest.raises(PermissionError, match=rf"{out / held} could not be replaced \(Access is denied; on Windows a "
+                                              rf"file that another program holds open.*close it and run again; {out} "
+                                              "is left as it was"):
+        _run_into(out, {"a.json": "2", "b.png": "y", "c.png": "new"}, owned=OWNED)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"a.json": "1", "b.png": "x", "exp_2.csv": "e",
+                                                               "notes.txt": "mine"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging or set-aside folder left
+
+
+def test_a_new_file_failing_half_way_puts_back_the_files_already_replaced(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1", "b.png": "x"}, owned=OWNED)
+    _held_open(monkeypatch, staged="c.png")  # the files are renamed in name order: a, b, then c fails
+    with pytest.raises(PermissionError, match="c.png could not be replaced"):
+        _run_into(out, {"a.json": "2", "b.png": "y", "c.png": "new"}, owned=OWNED)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"a.json": "1", "b.png": "x"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_folder_replaced_whole_while_a_file_in_it_is_held_open_is_kept(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1"})
+    _held_open(monkeypatch, out / "a.json")
+    with pytest.raises(PermissionError, match=f"{out} could not be replaced .*close it and run again"):
+        _run_into(out, {"a.json": "2"})
+    assert (out / "a.json").read_text() == "1" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_single_file_held_open_is_named_and_kept(tmp_path, monkeypatch):
+    held = tmp_path / "rec.csv"
+    held.write_text("old")
+    _held_open(monkeypatch, held)
+    with pytest.raises(PermissionError, match=rf"{held} could not be replaced \(Access is denied; on Windows .*"
+                                              rf"close it and run again; {held} is left as it was"):
+        atomic_write_text(held, "new")
+    assert held.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["rec.csv"]
 
 
 def _not_writable(monkeypatch, *paths) -> None:

@@ -2,7 +2,8 @@
 
 A set of files that belong together (a diagnosis's report, JSON and figures) is written into a
 staging folder first (:func:`staged_folder`) and put in place only once every file is written, so
-an output folder never holds half of a run or a mix of two runs.
+an output folder never holds half of a run or a mix of two runs; a rename that fails on the way (on
+Windows, a file that another program holds open cannot be replaced) puts back what had moved.
 
 Every file tapmuscle writes goes through :func:`atomic_path`: the content is written to a temporary
 file in the target's folder, which is renamed over the target only once complete (a crash or an
@@ -105,7 +106,10 @@ def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Pa
     try:
         yield Path(tmp)
         os.chmod(tmp, mode)
-        os.replace(tmp, target)
+        try:
+            os.replace(tmp, target)
+        except PermissionError as exc:  # a file this process may write: held open by another program
+            raise _not_replaced(exc, path, path) from exc
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)
         named = _named(exc, path)
@@ -162,7 +166,9 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
     ------
     OSError
         ``out`` is a file, or a staged file's place in ``out`` is a directory or a file this process
-        may not write (checked before anything in ``out`` changes).
+        may not write (checked before anything in ``out`` changes); or a file in ``out`` could not be
+        replaced or moved (on Windows, one that another program holds open), named, after the files
+        moved until then were put back.
     """
     out = Path(os.path.realpath(out)) if Path(out).is_symlink() else Path(out)
     probe_output_folder(out)
@@ -186,8 +192,15 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
             if out.exists():
                 old = out.with_name(f".{out.name}.old")
                 shutil.rmtree(old, ignore_errors=True)
-                out.rename(old)
-                tmp.rename(out)
+                try:
+                    out.rename(old)
+                except OSError as exc:
+                    raise _not_replaced(exc, out, out) from None
+                try:
+                    tmp.rename(out)
+                except BaseException:
+                    old.rename(out)
+                    raise
                 shutil.rmtree(old, ignore_errors=True)
             else:
                 tmp.rename(out)
@@ -196,20 +209,64 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
         # before any rename: one failing half-way would leave two runs mixed
         targets = {rel: _target(out / rel) for rel in new}
         out.mkdir(exist_ok=True)
-        for rel, (target, mode) in targets.items():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            if target == out / rel:
-                os.chmod(tmp / rel, mode)
-                os.replace(tmp / rel, target)
-            else:  # a link's target, maybe on another file system: written beside it, then renamed
-                with atomic_path(target) as t:
-                    shutil.copyfile(tmp / rel, t)
-        for pattern in owned:
-            for p in out.glob(pattern):
-                if p.is_file() and p.relative_to(out) not in new:
-                    p.unlink()
+        stale = sorted({p for pattern in owned for p in out.glob(pattern)
+                        if p.is_file() and p.relative_to(out) not in targets})
+        _replace_together(tmp, out, targets, stale)
     finally:
         _remove_uninterrupted(tmp)
+
+
+def _not_replaced(exc: OSError, path: Path, kept: Path) -> OSError:
+    """Why ``path`` could not be replaced or moved, and that ``kept`` (the file, or the output folder
+    it is in) holds the earlier outputs whole."""
+    return type(exc)(exc.errno, f"{path} could not be replaced ({exc.strerror or exc}; on Windows a file that another "
+                                f"program holds open, a spreadsheet or an image viewer, cannot be): close it and "
+                                f"run again; {kept} is left as it was")
+
+
+def _replace_together(staged: Path, out: Path, targets: dict[Path, tuple[Path, int]], stale: Sequence[Path]) -> None:
+    """Put the ``staged`` files in place of their ``targets`` (relative path -> file replaced and its
+    mode) and remove the ``stale`` ones, all or none. Each file replaced or removed is first moved
+    aside (a link's target elsewhere copied aside), so that a rename failing half-way (on Windows, a
+    file another program holds open cannot be replaced or moved, which ``_target`` cannot see)
+    puts back what had moved: ``out`` then holds the earlier run whole, not a mix of two."""
+    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.replaced.", dir=out.parent))
+    moved: list[tuple[Path, Path]] = []  # (file, where it was moved or copied)
+    placed: list[Path] = []  # new files where none was
+    current = out
+    try:
+        for i, current in enumerate([t for t, _ in targets.values() if t.exists()] + list(stale)):
+            keep = aside / str(i)
+            if current.is_relative_to(out):
+                os.replace(current, keep)
+            else:  # a link's target, maybe on another file system
+                shutil.copyfile(current, keep)
+            moved.append((current, keep))
+        for rel, (current, mode) in targets.items():
+            current.parent.mkdir(parents=True, exist_ok=True)
+            existed = any(current == m for m, _ in moved)
+            if current == out / rel:
+                os.chmod(staged / rel, mode)
+                os.replace(staged / rel, current)
+            else:  # a link's target, maybe on another file system: written beside it, then renamed
+                with atomic_path(current) as t:
+                    shutil.copyfile(staged / rel, t)
+            if not existed:
+                placed.append(current)
+    except BaseException as exc:
+        for path in placed:
+            path.unlink(missing_ok=True)
+        for path, keep in reversed(moved):
+            if path.is_relative_to(out):
+                os.replace(keep, path)
+            else:
+                with atomic_path(path) as t:
+                    shutil.copyfile(keep, t)
+        shutil.rmtree(aside, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise _not_replaced(exc, current, out) from exc
+        raise
+    shutil.rmtree(aside, ignore_errors=True)
 
 
 def _remove_uninterrupted(folder: Path) -> None:
