@@ -3,6 +3,7 @@
 import csv
 import json
 import math
+import os
 import tomllib
 
 import numpy as np
@@ -685,6 +686,47 @@ def test_a_full_disk_while_appending_a_row_names_the_results_file(tmp_path, monk
     monkeypatch.undo()
     log.append({"run_id": "c", "status": "ok"})
     assert [r["run_id"] for r in log.rows()] == ["a", "c"]
+
+
+def _held_open(monkeypatch, path) -> None:
+    """``path`` as Windows treats a file a spreadsheet holds open: it cannot be opened for appending."""
+    import errno
+
+    import tapmuscle.cosim.sweep_run as sweep_run
+
+    def refusing(file, mode="r", **kw):
+        if mode == "a" and os.path.samefile(file, path):
+            raise PermissionError(errno.EACCES, "Permission denied", str(file))
+        return open(file, mode, **kw)
+
+    monkeypatch.setattr(sweep_run, "open", refusing, raising=False)
+
+
+def test_a_results_file_held_open_is_named_with_what_to_do(tmp_path, monkeypatch):
+    log = ResultsLog(tmp_path / "results.csv", ["run_id", "status"])
+    log.append({"run_id": "a", "status": "ok"})
+    _held_open(monkeypatch, log.path)
+    with pytest.raises(PermissionError, match=rf"{log.path}: rows cannot be appended \(Permission denied; on Windows a "
+                                              r"file that another program holds open, a spreadsheet, cannot take them\): "
+                                              r"close it and rerun the same command to go on \(no run has started\)"):
+        log.check_appendable()
+    with pytest.raises(PermissionError, match=r"close it and rerun the same command to go on \(that run is not kept\)"):
+        log.append({"run_id": "b", "status": "ok"})
+    monkeypatch.undo()
+    assert [r["run_id"] for r in log.rows()] == ["a"]
+
+
+def test_a_sweep_into_a_folder_whose_results_file_is_held_open_runs_nothing(built_fmus, tmp_path, monkeypatch):
+    """A finished run whose row cannot be appended is lost: the file is tried before the first run."""
+    out = tmp_path / "out"
+    out.mkdir()
+    sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
+    ResultsLog(out / "results.csv", result_columns(sweep)).append({"run_id": "x", "status": "failed"})
+    _held_open(monkeypatch, out / "results.csv")
+    ran = []
+    with pytest.raises(PermissionError, match="no run has started"):
+        run_sweep(sweep, out, built_fmus, lambda tasks, files: ran.extend(tasks) or run_serial(tasks, files))
+    assert ran == []
 
 
 def test_lines_of_results_csv_that_are_not_whole_rows_are_said(built_fmus, tmp_path):

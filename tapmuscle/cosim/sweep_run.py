@@ -127,6 +127,27 @@ class ResultsLog:
         """``row`` as :meth:`rows` reads it back: every column, as its text."""
         return {c: _cell(row.get(c)) for c in self.columns}
 
+    def check_appendable(self) -> None:
+        """Open the file for appending and close it again, so that a file that cannot take a row is
+        named before the first run.
+
+        Raises
+        ------
+        PermissionError
+            Naming the file and what to do (:meth:`append`).
+        """
+        if not self.path.is_file():
+            return
+        try:
+            open(self.path, "a", encoding="utf-8").close()
+        except PermissionError as exc:
+            raise self._held(exc, "no run has started") from None
+
+    def _held(self, exc: PermissionError, lost: str) -> PermissionError:
+        return PermissionError(exc.errno, f"{self.path}: rows cannot be appended ({exc.strerror}; on Windows a file that "
+                                          f"another program holds open, a spreadsheet, cannot take them): close it and "
+                                          f"rerun the same command to go on ({lost})")
+
     def append(self, row: Mapping[str, Any]) -> None:
         """Append one row (the header first if the file is new), flushed to disk."""
         try:
@@ -141,6 +162,8 @@ class ResultsLog:
                 writer.writerow(self.cells(row).values())
                 fh.flush()
                 os.fsync(fh.fileno())
+        except PermissionError as exc:
+            raise self._held(exc, "that run is not kept") from None
         except OSError as exc:  # a full disk says only "No space left on device": the file is named
             if exc.filename is not None:
                 raise
@@ -254,6 +277,7 @@ def _run_sweep(sweep: Sweep, out: Path, fmus: Mapping[str, str | Path], execute:
     tasks = {run.run_id: make_task(run.run_id, run.scenario, fmus, files) for run in sweep.runs}
     lock.acquire()
     latest = log.latest()  # again: a sweep into the folder may have ended since
+    log.check_appendable()  # a file held open elsewhere: named before a run is lost to it
     if log.malformed:
         lines = ", ".join(map(str, log.malformed[:5])) + (" ..." if len(log.malformed) > 5 else "")
         warn_at_caller(f"{log.path}: {len(log.malformed)} line{'s' if len(log.malformed) > 1 else ''} ({lines}) not a "
