@@ -274,6 +274,10 @@ def test_external_step_reference_is_tracked(built_fmus):
     ("duration_s = 10.0\n[plant.parameters]\n'supply.supply_pressure_mpa' = 0.2\n",
      "plant.parameters.supply.supply_pressure_mpa", "set [supply] initial_mpa"),
     ("duration_s = 10.0\n[plant]\nparameters_file = '.'\n", "plant.parameters_file", "is a folder, not a file"),
+    # a Windows path in double quotes whose escapes TOML takes: \n a newline, \f a form feed
+    ('duration_s = 10.0\n[plant]\nparameters_file = "Z:\\tmp\\new\\file.json"\n', "plant.parameters_file",
+     "'Z:\\tmp\\new\\x0cile.json' holds the control character '\\t': a Windows path in a double-quoted TOML string "
+     "reads its backslashes as escapes"),
 ])
 def test_bad_scenarios_name_file_and_key(tmp_path, text, key, message):
     path = tmp_path / "bad.toml"
@@ -281,6 +285,16 @@ def test_bad_scenarios_name_file_and_key(tmp_path, text, key, message):
     with pytest.raises(ScenarioError) as err:
         load_scenario(path)
     assert str(path) in str(err.value) and f"key '{key}'" in str(err.value) and message in str(err.value)
+
+
+@pytest.mark.parametrize("path_text", ["Z:\\tmp\\rig\\id 1.json", "C:\\Users\\j\u00fcrgen\\id.json"])
+def test_a_windows_path_that_is_no_toml_string_says_how_to_write_it(tmp_path, path_text):
+    path = tmp_path / "bad.toml"
+    path.write_text(f'duration_s = 10.0\n[controller]\nidentification = "{path_text}"\n', encoding="utf-8")
+    with pytest.raises(ScenarioError, match=r"not valid TOML: .* \(at line 3, column \d+\); a Windows path in a "
+                                            r"double-quoted TOML string .*: write it in single quotes, 'C:\\Users"
+                                            r"\\me\\rig.json', or with forward slashes"):
+        load_scenario(path)
 
 
 def test_unknown_fmu_parameter_and_bad_toml_are_named(built_fmus, tmp_path, capsys):

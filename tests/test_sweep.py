@@ -131,6 +131,8 @@ def test_run_ids_change_with_the_scenario_not_with_expectations(tmp_path):
 @pytest.mark.parametrize("text, key, message", [
     ("base = 'nowhere.toml'\n", "base", "does not exist"),
     ("base = 'nothing*.toml'\n", "base", "matches no file"),
+    ('base = "C:\\runs\\base.toml"\n', "base", "'C:\\runs\\x08ase.toml' holds the control character '\\r': a Windows "
+     "path in a double-quoted TOML string reads its backslashes as escapes"),
     ("base = { duration_s = 10.0 }\nsteps = 3\n", "steps", "unknown key"),
     ("base = { duration_s = 10.0 }\n[grid]\nseed = 3\n", "grid.seed", "non-empty array"),
     ("base = { duration_s = 10.0 }\n[monte_carlo]\nn = 3\nseed = 4\n", "monte_carlo.seed", "sample_seed"),

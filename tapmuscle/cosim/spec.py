@@ -313,7 +313,11 @@ class _Reader:
     def path(self, key: str, base: Path | None) -> Path | None:
         if key not in self.table:
             return None
-        p = Path(self.string(key))
+        text = self.string(key)
+        control = next((c for c in text if c < " "), None)
+        if control is not None:  # "C:\new\file.json" reads as a newline and a form feed
+            raise self.error(key, f"{text!r} holds the control character {control!r}: {WINDOWS_PATH_HINT}")
+        p = Path(text)
         p = p if p.is_absolute() or base is None else base / p
         if p.is_dir():
             raise self.error(key, f"{str(p)!r} is a folder, not a file")
@@ -535,6 +539,12 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
                     description=top.string("description", ""), expect=expect)
 
 
+#: What a path in a TOML file that its backslashes broke needs.
+WINDOWS_PATH_HINT = ("a Windows path in a double-quoted TOML string reads its backslashes as escapes (\\n, \\t, \\f, "
+                     "\\u...): write it in single quotes, 'C:\\Users\\me\\rig.json', or with forward slashes, "
+                     "\"C:/Users/me/rig.json\"")
+
+
 def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
     """The parsed TOML file ``path``; a missing, unreadable or invalid file raises ScenarioError."""
     path = Path(path)
@@ -547,7 +557,8 @@ def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+        escape = any(m in str(exc) for m in ("Unescaped '\\'", "Invalid hex value"))
+        raise ScenarioError(f"{path}: not valid TOML: {exc}" + (f"; {WINDOWS_PATH_HINT}" if escape else "")) from None
 
 
 def _shipped_hint(path: Path) -> str:
