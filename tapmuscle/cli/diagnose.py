@@ -76,7 +76,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     for line in summary_lines(d):
         print(line)
-    print(f"wrote {out}/diagnosis.json, calibrated_plant.json, report.md"
+    print(f"wrote {Path(out) / 'diagnosis.json'}, calibrated_plant.json, report.md"
           + (", discriminating_input.csv, discriminate_plant.json" if d.ambiguous else "")
           + ("" if args.no_plots else " and *.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
     return 0
@@ -153,11 +153,11 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
         raise UsageError(str(exc) if named else f"{args.recording}: {exc}") from None
     if args.output == "all":
         print((Path(args.out) / "summary.md").read_text(encoding="utf-8"), end="")
-        print(f"wrote {args.out}/summary.md, summary.json and {', '.join(f'{v}/' for v in results)}")
+        print(f"wrote {Path(args.out) / 'summary.md'}, summary.json and {', '.join(os.path.join(v, '') for v in results)}")
         return 0
     for line in summary_lines(d):
         print(line)
-    print(f"wrote {args.out}/diagnosis.json, calibrated_parameters.json, report.md"
+    print(f"wrote {Path(args.out) / 'diagnosis.json'}, calibrated_parameters.json, report.md"
           + ("" if args.no_plots else ", overlay.png") + f" ({d.simulations} simulations, {d.elapsed_s:.1f} s)")
     return 0
 
@@ -185,7 +185,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         scores = run_foreign_demo(args.out, n=40 if args.recordings is None else args.recordings,
                                   seed=0 if args.seed is None else args.seed, jobs=args.jobs, progress=progress)
         print(foreign_scores_markdown(scores))
-        print(f"wrote {args.out}/scores.md, scores.json and cases/*/ (recording.csv, map.toml, diagnosis/)")
+        print(f"wrote {Path(args.out) / 'scores.md'}, scores.json and cases/*/ (recording.csv, map.toml, diagnosis/)")
         return 0
     if args.suite == "field":
         from tapmuscle.diagnosis.field_demo import run_field_demo, scores_markdown as field_markdown
@@ -195,7 +195,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
                                 resume=args.resume, progress=progress, use_pressure=args.use_pressure,
                                 keep=args.keep_files)
         print(field_markdown(scores))
-        print(f"wrote {args.out}/scores.md, scores.json (every case's truth and result), confusion.png and "
+        print(f"wrote {Path(args.out) / 'scores.md'}, scores.json (every case's truth and result), confusion.png and "
               f"cases/*/diagnosis.json, report.md" + (" and the recordings, plants and experiments" if args.keep_files else ""))
         return 0
 
@@ -219,7 +219,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
                       clean_seeds=20 if args.clean_seeds is None else args.clean_seeds, jobs=args.jobs,
                       effects=effects, excitations=excitations, progress=progress)
     print(scores_markdown(scores))
-    print(f"wrote {args.out}/scores.json, scores.md, showcase/ (the sag-window and Fig. 20 cases with their "
+    print(f"wrote {Path(args.out) / 'scores.json'}, scores.md, showcase/ (the sag-window and Fig. 20 cases with their "
           f"reports) and cases/*/diagnosis.json")
     return 0
 

@@ -351,7 +351,7 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     from tapmuscle.progress import Progress
 
     out = Path(args.out)
-    print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {out}/")
+    print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {os.path.join(out, '')}")
     try:
         seeds = tuple(int(x) for x in args.seeds.split(","))
     except ValueError:

@@ -113,7 +113,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     fmus = _fmus(args.fmu_dir)
     out = Path(args.out)
     if not args.quiet:
-        print(f"tapmuscle sweep: {sweep.name}, {len(sweep.runs)} runs -> {out}/")
+        print(f"tapmuscle sweep: {sweep.name}, {len(sweep.runs)} runs -> {os.path.join(out, '')}")
     with ExitStack() as stack:
         try:
             ResultsLog(out / "results.csv", result_columns(sweep)).latest()  # another sweep's file: refuse early
@@ -126,8 +126,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             print(f"tapmuscle sweep: the cluster was lost: {exc}", file=sys.stderr)
             return CLUSTER_LOST
         except KeyboardInterrupt:
-            done = (out / "results.csv").is_file()
-            print(f"\ninterrupted: {f'finished runs are in {out}/results.csv' if done else 'no run had finished'}; "
+            results = out / "results.csv"
+            print(f"\ninterrupted: {f'finished runs are in {results}' if results.is_file() else 'no run had finished'}; "
                   "rerun the same command to go on", file=sys.stderr)
             return 130
     text = summary_markdown(sweep, report.rows)
