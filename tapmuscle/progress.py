@@ -15,6 +15,7 @@ notebook still holds the ``Progress``.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -29,6 +30,11 @@ __all__ = ["Progress", "reporter", "HEARTBEAT_TTY_S", "HEARTBEAT_LOG_S"]
 HEARTBEAT_TTY_S = 5.0
 #: Longest silence in a log (not a terminal) [s]; updates there also come every 10 %.
 HEARTBEAT_LOG_S = 5.0
+
+#: What ends a redrawn bar on a terminal beyond the spaces that cover a longer line before it: the
+#: erase-to-end-of-line sequence, which covers wide characters too, but not on Windows, whose
+#: console shows it as "<-[K" unless a program switches its VT processing on.
+_ERASE_REST = "" if os.name == "nt" else "\033[K"
 
 
 class Progress:
@@ -65,6 +71,7 @@ class Progress:
         self._lock = threading.Lock()
         self._state: tuple[int, int, str] | None = None
         self._last_write = self._t0
+        self._shown = 0  # characters of the bar's line on the terminal now
         self._heart: threading.Thread | None = None
         self._ended = threading.Event()  # wakes the heartbeat at the end of its run
         self._owner: tuple[int, int, object] | None = None  # (thread, frame id, code) of the reporting call
@@ -109,9 +116,12 @@ class Progress:
         elapsed = time.monotonic() - self._t0
         if self._tty:
             bar = "#" * int(30 * frac)
-            self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% {elapsed:6.1f} s{extra}\033[K")
+            line = f"{self.label} [{bar:<30}] {100 * frac:5.1f}% {elapsed:6.1f} s{extra}"
+            self.stream.write(f"\r{line:<{self._shown}}{_ERASE_REST}")
+            self._shown = len(line)
             if done >= total:
                 self.stream.write("\n")
+                self._shown = 0
         else:
             decile = int(10 * frac)
             if decile > self._last_decile or heartbeat:

@@ -171,3 +171,20 @@ def test_the_heartbeat_is_gone_when_the_last_unit_is_reported():
     p(3, 3)
     assert not p._heart.is_alive()
     assert not [t for t in threading.enumerate() if t.name == "progress-ends"]
+
+
+def test_a_shorter_bar_line_covers_the_longer_one_before_it_without_an_escape_on_windows(monkeypatch):
+    """The bar is redrawn over itself with a carriage return: what a longer line before it left is
+    covered with spaces, and on Windows without the erase-to-end-of-line sequence, which its console
+    prints as "<-[K" unless VT processing is on."""
+    monkeypatch.setattr(progress_module, "_ERASE_REST", "")
+    out = _Tty()
+    p = Progress("job", stream=out)
+    p(1, 10, "a long detail of the first unit")
+    p(2, 10, "short")
+    first, second = out.getvalue().split("\r")[1:]
+    assert "\033" not in out.getvalue()
+    assert len(second) == len(first) and second.rstrip().endswith("short") and second.endswith(" " * 20)
+    p(10, 10)
+    p(1, 10, "x")  # another run after the finished one, on a fresh line: nothing to cover
+    assert out.getvalue().split("\n")[1] == out.getvalue().split("\n")[1].rstrip()
