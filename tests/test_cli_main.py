@@ -154,7 +154,15 @@ def test_a_simulating_command_says_when_the_compiled_sub_step_is_missing(monkeyp
     assert main(args) == 0
     err = capsys.readouterr().err
     assert err.count("note: the plant's compiled integrator sub-step is not installed (no C compiler") == 1
-    assert "a plant step about 8 times slower" in err
+    assert "a plant step about 8 times slower" in err and "; install gcc and reinstall tapmuscle to have it" in err
+    # the compiler a user of another system installs
+    from tapmuscle.cli.main import _c_compiler
+
+    for platform_name, compiler in (("win32", "Microsoft's C++ Build Tools"), ("darwin", "Xcode's command line tools")):
+        monkeypatch.setattr(sys, "platform", platform_name)
+        assert _c_compiler().startswith(compiler)
+    monkeypatch.undo()
+    monkeypatch.delenv("TAPMUSCLE_PURE_PYTHON", raising=False)
     for quiet, compiled, pure in ((True, False, "0"), (False, True, "0"), (False, False, "1")):
         monkeypatch.setattr(rosenbrock, "COMPILED", compiled)
         monkeypatch.setenv("TAPMUSCLE_PURE_PYTHON", pure)

@@ -660,8 +660,17 @@ def _note_python_substep(command: str, quiet: bool) -> None:
            "no C compiler was found when tapmuscle was installed")
     print(f"tapmuscle {command}: note: the plant's compiled integrator sub-step is not installed ({why}): its "
           "Python sub-step gives the same results, a plant step about 8 times slower and a diagnosis's "
-          "re-simulation 20-26 times (docs/plant.md, \"The compiled sub-step\"); install gcc and reinstall "
-          "tapmuscle to have it", file=sys.stderr)
+          f"re-simulation 20-26 times (docs/plant.md, \"The compiled sub-step\"); install {_c_compiler()} and "
+          "reinstall tapmuscle to have it", file=sys.stderr)
+
+
+def _c_compiler() -> str:
+    """The C compiler that builds Python extensions on this system, as a user installs it."""
+    if sys.platform == "win32":
+        return "Microsoft's C++ Build Tools (the compiler Python's extensions are built with on Windows)"
+    if sys.platform == "darwin":
+        return "Xcode's command line tools (xcode-select --install)"
+    return "gcc"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
