@@ -386,8 +386,10 @@ def _prepare_win64(tree: Path, model_id: str) -> None:
     bindir, fmu_lib, real_name = found
     cc, missing = _win64_compiler()
     if not cc:
-        return _skip(f"no MinGW-w64 cross compiler{missing} (install x86_64-w64-mingw32-gcc, e.g. Debian's gcc-mingw-w64-x86-64, "
-                     "or set CC_WIN64)", "win64 binary left as pythonfmu made it (in Windows hosts an FMU folder "
+        where = ("MSYS2's mingw-w64-x86_64-gcc, with its bin folder on PATH" if _building_os() == "win32" else
+                 "e.g. Debian's gcc-mingw-w64-x86-64")
+        return _skip(f"no MinGW-w64 cross compiler{missing} (install x86_64-w64-mingw32-gcc, {where}, or set "
+                     "CC_WIN64)", "win64 binary left as pythonfmu made it (in Windows hosts an FMU folder "
                      "with a non-ASCII character then crashes the host, and a failed instantiation comes without "
                      "its reason)")
     with tempfile.TemporaryDirectory() as tmp:

@@ -167,9 +167,13 @@ def test_without_a_mingw_compiler_the_win64_binary_is_left_as_pythonfmu_made_it(
     raw = _as_pythonfmu_made_it(tree, tmp_path, "win64")
     before = _digest(raw)
     monkeypatch.setattr(build_native_host, "_win64_compiler", lambda: ([], ""))
-    with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64"):
+    with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64.*Debian's "):
         prepare_for_native_hosts(raw)
     assert _digest(raw) == before
+    # a build on Windows is told of the compiler one installs there
+    monkeypatch.setattr(build_native_host, "_building_os", lambda: "win32")
+    with pytest.warns(NativeHostWarning, match="install x86_64-w64-mingw32-gcc, MSYS2's mingw-w64-x86_64-gcc"):
+        prepare_for_native_hosts(raw)
     monkeypatch.undo()
     monkeypatch.setenv("CC_WIN64", str(tmp_path / "nonexistent-mingw-gcc"))
     with pytest.warns(NativeHostWarning, match="win64 binary left as pythonfmu made it.*MinGW-w64 cross compiler: "
