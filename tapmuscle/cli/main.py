@@ -8,6 +8,7 @@ having written nothing.
 from __future__ import annotations
 
 import argparse
+import codecs
 import io
 import json
 import math
@@ -692,7 +693,9 @@ def _printable_anywhere() -> None:
     rather than fail: a Windows console or a redirected output in cp1252 cannot show a folder named
     "Δp" or "日本", and a command that has written every file must not end in an encoding error then."""
     for stream in (sys.stdout, sys.stderr):
-        if isinstance(stream, io.TextIOWrapper) and stream.errors == "strict":
+        # a UTF encoding shows everything: its surrogateescape (a file name's undecodable bytes) kept
+        if isinstance(stream, io.TextIOWrapper) and stream.errors in ("strict", "surrogateescape") \
+                and not codecs.lookup(stream.encoding).name.startswith("utf"):
             stream.reconfigure(errors="backslashreplace")
 
 
