@@ -31,17 +31,25 @@ def test_the_archive_validates_and_fmpy_reads_it(ssp):
     assert 'value="68.0"' in zipfile.ZipFile(ssp).read("resources/load_68N.ssv").decode()
 
 
-def test_libcosim_runs_the_ssp_and_tracks(ssp):
-    """libcosim's SSP loader (a parallel master): the bound sets apply (load 44 N, the controller's
-    one-sample delay compensation), and the loop tracks the built-in sine as in docs/fmu.md."""
+def _open_in_libcosim(path) -> tuple:
+    """libcosim's SSP loader on ``path`` (a parallel master) with a last-value observer: the execution,
+    the observer, each component's slave index and its value references by name."""
     libcosim = pytest.importorskip("libcosimpy.CosimExecution")
     from libcosimpy.CosimObserver import CosimObserver
 
-    ex = libcosim.CosimExecution.from_ssp_file(ssp_path=str(ssp), step_size=100_000_000)
+    ex = libcosim.CosimExecution.from_ssp_file(ssp_path=str(path), step_size=100_000_000)
     obs = CosimObserver.create_last_value()
     ex.add_observer(obs)
     idx = {s.name.decode(): s.index for s in ex.slave_infos()}
-    pv = {v.name.decode(): v.reference for v in ex.slave_variables(idx["plant"])}
+    refs = {name: {v.name.decode(): v.reference for v in ex.slave_variables(i)} for name, i in idx.items()}
+    return ex, obs, idx, refs
+
+
+def test_libcosim_runs_the_ssp_and_tracks(ssp):
+    """libcosim's SSP loader (a parallel master): the bound sets apply (load 44 N, the controller's
+    one-sample delay compensation), and the loop tracks the built-in sine as in docs/fmu.md."""
+    ex, obs, idx, refs = _open_in_libcosim(ssp)
+    pv = refs["plant"]
     rows = []
     for _ in range(300):
         assert ex.step(1)
@@ -56,9 +64,6 @@ def test_libcosim_runs_the_ssp_and_tracks(ssp):
 def test_a_load_set_bound_in_the_ssd_reaches_the_plant_which_declares_no_load_connector(ssp, tmp_path):
     """docs/fmu.md: for 68 N, bind ``load_68N.ssv`` to the plant in the SSD instead; libcosim applies
     a set's values by variable name, so the plant's ``load_force`` needs no connector."""
-    libcosim = pytest.importorskip("libcosimpy.CosimExecution")
-    from libcosimpy.CosimObserver import CosimObserver
-
     edited = tmp_path / "TapMuscleLoop_68N.ssp"
     with zipfile.ZipFile(ssp) as src, zipfile.ZipFile(edited, "w") as dst:
         for name in src.namelist():
@@ -67,11 +72,8 @@ def test_a_load_set_bound_in_the_ssd_reaches_the_plant_which_declares_no_load_co
                 assert data.count(b"resources/load_44N.ssv") == 1
                 data = data.replace(b"resources/load_44N.ssv", b"resources/load_68N.ssv")
             dst.writestr(name, data)
-    ex = libcosim.CosimExecution.from_ssp_file(ssp_path=str(edited), step_size=100_000_000)
-    obs = CosimObserver.create_last_value()
-    ex.add_observer(obs)
-    idx = {s.name.decode(): s.index for s in ex.slave_infos()}
-    pv = {v.name.decode(): v.reference for v in ex.slave_variables(idx["plant"])}
+    ex, obs, idx, refs = _open_in_libcosim(edited)
+    pv = refs["plant"]
     assert ex.step(3)
     assert obs.last_real_values(idx["plant"], [pv["load_force"]]) == [68.0]
 
@@ -121,15 +123,8 @@ RIG = {"valve.cv_max": 1.3, "muscle.rubber_stiffness_n_per_mm": 1.38, "friction.
 def _run_libcosim(path, seconds: float = 60.0) -> tuple[np.ndarray, dict[str, float], int]:
     """libcosim's SSP loader on ``path``: l [mm] each step, the plant's parameters read back by name,
     the controller's input_delay_samples."""
-    libcosim = pytest.importorskip("libcosimpy.CosimExecution")
-    from libcosimpy.CosimObserver import CosimObserver
-
-    ex = libcosim.CosimExecution.from_ssp_file(ssp_path=str(path), step_size=100_000_000)
-    obs = CosimObserver.create_last_value()
-    ex.add_observer(obs)
-    idx = {s.name.decode(): s.index for s in ex.slave_infos()}
-    pv = {v.name.decode(): v.reference for v in ex.slave_variables(idx["plant"])}
-    cv = {v.name.decode(): v.reference for v in ex.slave_variables(idx["controller"])}
+    ex, obs, idx, refs = _open_in_libcosim(path)
+    pv, cv = refs["plant"], refs["controller"]
     ls = []
     for _ in range(round(seconds / 0.1)):
         assert ex.step(1)
