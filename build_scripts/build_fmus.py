@@ -288,15 +288,18 @@ def _source_digest() -> str:
 
 
 def user_cache_root() -> Path:
-    """``$XDG_CACHE_HOME/tapmuscle``, else ``~/.cache/tapmuscle``: this user's tapmuscle cache.
+    """``$XDG_CACHE_HOME/tapmuscle``, else (on Windows) ``%LOCALAPPDATA%\\tapmuscle``, else
+    ``~/.cache/tapmuscle``: this user's tapmuscle cache.
 
     Raises
     ------
     OSError
-        Neither is set nor can be found (HOME unset and a user id without a passwd entry: a container
+        None is set nor can be found (HOME unset and a user id without a passwd entry: a container
         run as an arbitrary user); the message says what to set.
     """
     cache = os.environ.get("XDG_CACHE_HOME")
+    if not cache and sys.platform == "win32":  # where Windows programs keep a user's caches
+        cache = os.environ.get("LOCALAPPDATA")
     if not cache:
         try:
             cache = Path.home() / ".cache"
@@ -310,7 +313,7 @@ def user_cache_root() -> Path:
 def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     """Both FMUs built from this checkout, reused while the sources are unchanged.
 
-    The cache lives in ``cache_root`` (default ``$XDG_CACHE_HOME/tapmuscle`` or ``~/.cache/tapmuscle``)
+    The cache lives in ``cache_root`` (default :func:`user_cache_root`)
     under a folder named by a digest of the sources and the interpreter. ``OSError`` naming the
     folder and the remedies when it cannot be written (a read-only home in a container).
 

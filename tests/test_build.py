@@ -323,6 +323,23 @@ def test_no_home_folder_is_named_with_its_remedy(tmp_path, monkeypatch):
     assert user_cache_root() == tmp_path / "tapmuscle"
 
 
+def test_on_windows_the_fmu_cache_is_in_local_app_data_unless_xdg_cache_home_says_otherwise(tmp_path, monkeypatch):
+    import sys
+
+    from build_scripts.build_fmus import user_cache_root
+
+    monkeypatch.setattr(sys, "platform", "win32")
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    monkeypatch.setenv("LOCALAPPDATA", str(tmp_path / "Local"))
+    assert user_cache_root() == tmp_path / "Local" / "tapmuscle"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert user_cache_root() == tmp_path / "xdg" / "tapmuscle"
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert user_cache_root() == tmp_path / "home" / ".cache" / "tapmuscle"  # LOCALAPPDATA is Windows'
+
+
 def test_the_fmu_cache_keeps_the_recently_used_builds(tmp_path):
     """Each source state of a checkout gets a build in the cache: beyond CACHE_KEEP the least recently
     used ones go, but never the one just built nor one used within the hour (another process)."""
