@@ -231,6 +231,71 @@ def test_a_folder_replaced_whole_while_a_file_in_it_is_held_open_is_kept(tmp_pat
     assert (out / "a.json").read_text() == "1" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
+@pytest.mark.parametrize("owned", [OWNED, None])
+def test_a_ctrl_c_while_the_files_are_put_in_place_is_raised_once_they_are(tmp_path, monkeypatch, owned):
+    """An interrupt between moving a file aside and recording it would lose the file: Ctrl-C is held
+    until the run's files are in place (or the earlier ones back), then raised."""
+    import signal
+
+    from tapmuscle.io import atomic
+
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1", "b.png": "x"}, owned=owned)
+    real_replace, real_rename = os.replace, os.rename
+
+    def replace(src, dst, **kw):
+        real_replace(src, dst, **kw)
+        if Path(src) == out / "a.json":  # moved aside
+            os.kill(os.getpid(), signal.SIGINT)
+
+    def rename(src, dst, **kw):
+        real_rename(src, dst, **kw)
+        if Path(src) == out:  # the whole folder moved aside
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(atomic.os, "replace", replace)
+    monkeypatch.setattr(atomic.os, "rename", rename)
+    with pytest.raises(KeyboardInterrupt):
+        _run_into(out, {"a.json": "2", "b.png": "y"}, owned=owned)
+    monkeypatch.undo()
+    assert {p.name: p.read_text() for p in out.iterdir()} == {"a.json": "2", "b.png": "y"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # nothing set aside or staged is left
+
+
+def test_an_earlier_file_that_cannot_be_put_back_is_kept_and_named(tmp_path, monkeypatch):
+    from tapmuscle.io import atomic
+
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1", "b.png": "x"}, owned=OWNED)
+    real = os.replace
+
+    def replace(src, dst, **kw):  # the run's b.png refused, then a.json's earlier version too
+        if Path(dst) == out / "b.png" and ".replaced." not in str(src) \
+                or Path(dst) == out / "a.json" and ".replaced." in str(src):
+            raise PermissionError(errno.EACCES, "Access is denied")
+        return real(src, dst, **kw)
+
+    monkeypatch.setattr(atomic.os, "replace", replace)
+    with pytest.raises(OSError, match=rf"{out / 'b.png'} could not be replaced \(.*\), and putting back the "
+                                      rf"earlier outputs failed: {out / 'a.json'} is the new run's or missing "
+                                      r"\(Access is denied\); its earlier version is .*\.out\.replaced\.\w+/0$") as err:
+        _run_into(out, {"a.json": "2", "b.png": "y"}, owned=OWNED)
+    monkeypatch.undo()
+    kept = Path(str(err.value).rsplit(" ", 1)[1])
+    assert kept.read_text() == "1" and (out / "b.png").read_text() == "x" and (out / "a.json").read_text() == "2"
+
+
+def test_a_link_to_a_file_the_run_no_longer_writes_keeps_its_target(tmp_path):
+    """``x.png`` a link to ``b.png``, which this run does not write: the run's x.png goes into b.png,
+    which therefore is not removed as stale (that left the link dangling)."""
+    out = tmp_path / "out"
+    _run_into(out, {"a.json": "1", "b.png": "old"}, owned=OWNED)
+    (out / "x.png").symlink_to("b.png")
+    _run_into(out, {"x.png": "new"}, owned=OWNED)
+    assert (out / "x.png").is_symlink() and (out / "x.png").read_text() == "new"
+    assert sorted(p.name for p in out.iterdir()) == ["b.png", "x.png"]
+
+
 def test_a_single_file_held_open_is_named_and_kept(tmp_path, monkeypatch):
     held = tmp_path / "rec.csv"
     held.write_text("old")

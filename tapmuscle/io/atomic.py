@@ -25,6 +25,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Sequence
 
+from tapmuscle.interrupts import held_interrupts
+
 __all__ = ["atomic_path", "default_file_mode", "probe_output_folder", "staged_folder"]
 
 
@@ -189,21 +191,22 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
             raise _no_room(exc, shown) from exc
         if owned is None:
             os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0700: the mode mkdir would give the folder
-            if out.exists():
-                old = out.with_name(f".{out.name}.old")
-                shutil.rmtree(old, ignore_errors=True)
+            if not out.exists():
+                tmp.rename(out)
+                return
+            old = out.with_name(f".{out.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            with held_interrupts():  # no Ctrl-C between the two renames: out would be missing
                 try:
                     out.rename(old)
                 except OSError as exc:
                     raise _not_replaced(exc, out, out) from None
                 try:
                     tmp.rename(out)
-                except BaseException:
+                except OSError as exc:
                     old.rename(out)
-                    raise
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                tmp.rename(out)
+                    raise _not_replaced(exc, out, out) from None
+                shutil.rmtree(old, ignore_errors=True)  # before a held Ctrl-C is raised
             return
         new = sorted(p.relative_to(tmp) for p in tmp.rglob("*") if p.is_file())
         # before any rename: one failing half-way would leave two runs mixed
@@ -218,10 +221,15 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
 
 def _not_replaced(exc: OSError, path: Path, kept: Path) -> OSError:
     """Why ``path`` could not be replaced or moved, and that ``kept`` (the file, or the output folder
-    it is in) holds the earlier outputs whole."""
-    return type(exc)(exc.errno, f"{path} could not be replaced ({exc.strerror or exc}; on Windows a file that another "
-                                f"program holds open, a spreadsheet or an image viewer, cannot be): close it and "
-                                f"run again; {kept} is left as it was")
+    it is in) holds the earlier outputs whole; ``exc`` itself where it says so already."""
+    if getattr(exc, "tapmuscle_named", False):
+        return exc
+    why = exc.strerror or str(exc)
+    held = ("; on Windows a file that another program holds open, a spreadsheet or an image viewer, cannot "
+            "be): close it and run again" if isinstance(exc, PermissionError) else ")")
+    named = type(exc)(exc.errno, f"{path} could not be replaced ({why}{held}; {kept} is left as it was")
+    named.tapmuscle_named = True
+    return named
 
 
 def _replace_together(staged: Path, out: Path, targets: dict[Path, tuple[Path, int]], stale: Sequence[Path]) -> None:
@@ -229,44 +237,87 @@ def _replace_together(staged: Path, out: Path, targets: dict[Path, tuple[Path, i
     mode) and remove the ``stale`` ones, all or none. Each file replaced or removed is first moved
     aside (a link's target elsewhere copied aside), so that a rename failing half-way (on Windows, a
     file another program holds open cannot be replaced or moved, which ``_target`` cannot see)
-    puts back what had moved: ``out`` then holds the earlier run whole, not a mix of two."""
+    puts back what had moved: ``out`` then holds the earlier run whole, not a mix of two. Ctrl-C is
+    held meanwhile (an interrupt between a move and its record would lose the file) and raised after.
+    Should putting back fail too, the error names each file left and where its earlier version is."""
+    root = Path(os.path.realpath(out))
     aside = Path(tempfile.mkdtemp(prefix=f".{out.name}.replaced.", dir=out.parent))
-    moved: list[tuple[Path, Path]] = []  # (file, where it was moved or copied)
+    moved: list[tuple[Path, Path, bool]] = []  # (file, its copy aside, moved rather than copied)
     placed: list[Path] = []  # new files where none was
+    written: set[Path] = set()  # files outside out written in place (a link's target)
+    made: list[Path] = []  # folders made for new files
     current = out
-    try:
-        for i, current in enumerate([t for t, _ in targets.values() if t.exists()] + list(stale)):
-            keep = aside / str(i)
-            if current.is_relative_to(out):
-                os.replace(current, keep)
-            else:  # a link's target, maybe on another file system
-                shutil.copyfile(current, keep)
-            moved.append((current, keep))
-        for rel, (current, mode) in targets.items():
-            current.parent.mkdir(parents=True, exist_ok=True)
-            existed = any(current == m for m, _ in moved)
-            if current == out / rel:
-                os.chmod(staged / rel, mode)
-                os.replace(staged / rel, current)
-            else:  # a link's target, maybe on another file system: written beside it, then renamed
-                with atomic_path(current) as t:
-                    shutil.copyfile(staged / rel, t)
-            if not existed:
-                placed.append(current)
-    except BaseException as exc:
-        for path in placed:
+    with held_interrupts():
+        try:
+            # the files replaced (a link's target: the link stays), once each (a link to another
+            # file of the run), then the stale ones themselves (a link: the link goes)
+            existed = {t for t, _ in targets.values() if t.exists()}
+            replaced = {os.path.realpath(t): t for t in existed}
+            reals = {os.path.realpath(t) for t, _ in targets.values()}
+            for current, inside in [(t, Path(real).is_relative_to(root)) for real, t in replaced.items()] \
+                    + [(p, True) for p in stale if os.path.realpath(p) not in reals]:  # not a file the run writes
+                keep = aside / str(len(moved))
+                moved.append((current, keep, inside))  # first: no file is ever aside unrecorded
+                if inside:
+                    os.replace(current, keep)
+                else:  # a link's target, maybe on another file system: a copy
+                    shutil.copyfile(current, keep)
+            for rel, (current, mode) in targets.items():
+                for parent in reversed(current.parents):
+                    if not parent.exists():
+                        parent.mkdir()
+                        made.append(parent)
+                if current == out / rel:
+                    os.chmod(staged / rel, mode)
+                    os.replace(staged / rel, current)
+                else:  # a link's target, maybe on another file system: written beside it, then renamed
+                    with atomic_path(current) as t:
+                        shutil.copyfile(staged / rel, t)
+                    written.add(current)
+                if current not in existed:
+                    placed.append(current)
+        except BaseException as exc:
+            left = _put_back(moved, placed, written, made)
+            if not any(aside.iterdir()):
+                shutil.rmtree(aside, ignore_errors=True)
+            if left:
+                raise OSError(errno.EIO, f"{current} could not be replaced ({exc}), and putting back the earlier "
+                                         f"outputs failed: {'; '.join(left)}") from exc
+            shutil.rmtree(aside, ignore_errors=True)
+            if isinstance(exc, OSError):
+                raise _not_replaced(exc, current, out) from exc
+            raise
+        shutil.rmtree(aside, ignore_errors=True)  # before a held Ctrl-C is raised
+
+
+def _put_back(moved: Sequence[tuple[Path, Path, bool]], placed: Sequence[Path], written: set[Path],
+              made: Sequence[Path]) -> list[str]:
+    """Undo :func:`_replace_together`'s moves as far as it got, every one tried; what could not be
+    undone, in words."""
+    left = []
+    for path in placed:
+        try:
             path.unlink(missing_ok=True)
-        for path, keep in reversed(moved):
-            if path.is_relative_to(out):
+        except OSError as exc:
+            left.append(f"{path} is the new run's ({exc.strerror or exc})")
+    for path, keep, inside in reversed(moved):
+        if not os.path.lexists(keep):
+            continue  # the move or copy itself failed: the file never left
+        try:
+            if inside:
                 os.replace(keep, path)
-            else:
+            elif path in written:  # a link's target the run wrote
                 with atomic_path(path) as t:
                     shutil.copyfile(keep, t)
-        shutil.rmtree(aside, ignore_errors=True)
-        if isinstance(exc, OSError):
-            raise _not_replaced(exc, current, out) from exc
-        raise
-    shutil.rmtree(aside, ignore_errors=True)
+            keep.unlink(missing_ok=True)  # a copy, put back or never needed
+        except OSError as exc:
+            left.append(f"{path} is the new run's or missing ({exc.strerror or exc}); its earlier version is {keep}")
+    for folder in reversed(made):
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+    return left
 
 
 def _remove_uninterrupted(folder: Path) -> None:
