@@ -81,6 +81,15 @@ def test_an_output_named_beyond_the_consoles_encoding_is_printed_escaped_not_an_
     assert out.is_file()
 
 
+def test_a_file_names_undecodable_bytes_are_still_written_as_those_bytes():
+    """Where the output had surrogateescape (a POSIX locale that is not UTF-8), a file name's bytes
+    that the locale cannot decode are written back as they were; what the encoding lacks is escaped."""
+    import importlib
+
+    escaping = importlib.import_module("tapmuscle.cli.main")._ESCAPING
+    assert "run\udcff Δp".encode("latin-1", errors=escaping) == b"run\xff \\u0394p"
+
+
 def test_a_recording_without_a_plot_does_not_load_matplotlib(tmp_path):
     """Where HOME is not writable (a distribution's build, a CI box), importing matplotlib writes
     'mkdir -p failed ... created a temporary cache directory' to stderr: `tapmuscle record` without

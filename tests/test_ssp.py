@@ -160,6 +160,23 @@ def test_a_rigs_plant_file_binds_its_values_and_its_delay_in_the_ssp(built_fmus,
     assert err < 2.5 and err < 0.5 * err_late, (err, err_late)
 
 
+def test_build_cli_refuses_a_rigs_delay_beyond_the_controllers_reach_before_building(tmp_path, capsys, monkeypatch):
+    """The plant's delay (at most 2 s, 20 samples at Ts = 0.1 s) and the parallel master's sample fit
+    the controller's 25 today; a change of either bound is refused rather than written as an SSP
+    whose controller refuses its parameter."""
+    import fmu_controller.prediction as prediction
+    import tapmuscle as tm
+    from fmu_plant import PlantParams
+
+    plant_file = tmp_path / "calibrated_plant.json"
+    tm.write_plant_file(plant_file, PlantParams().with_values(**RIG))
+    monkeypatch.setattr(prediction, "MAX_INPUT_DELAY_SAMPLES", 2)
+    assert main(["build", "--out", str(tmp_path / "out"), "--ssp", "--params", str(plant_file)]) == 2
+    assert (f"--params {plant_file}: a transport delay of 0.2 s is 2 samples at Ts = 0.1 s, and with the parallel "
+            "master's one more than the controller compensates (input_delay_samples up to 2)") in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.slow
 def test_build_cli_binds_a_rigs_plant_file_and_refuses_it_without_ssp(tmp_path, capsys):
     import tapmuscle as tm

@@ -385,29 +385,33 @@ def _linux64_note(fmu: Path) -> str:
 
 def _cmd_build(args: argparse.Namespace) -> int:
     from build_scripts.build_fmus import FMUS, build_fmus
+    from build_scripts.ssp import RIG_SET, write_ssp
+    from fmu_controller.identification import PAPER_TS_S
+    from fmu_controller.prediction import MAX_INPUT_DELAY_SAMPLES, delay_samples_for
 
     if args.params and not args.ssp:
         raise UsageError("--params puts a rig's plant file into TapMuscleLoop.ssp: give --ssp with it (the FMUs "
                          "take the file's values as parameters in any host: docs/fmu.md, \"Your rig's plant file\")")
     rig = _load_plant_params(args.params, ()) if args.params else None
+    # the rig's transport delay in samples of the controller FMU's default Ts, at which SSP tools step
+    delay = delay_samples_for(rig.delay.delay_s, PAPER_TS_S) if rig is not None else 0
+    if delay + 1 > MAX_INPUT_DELAY_SAMPLES:
+        raise UsageError(f"--params {args.params}: a transport delay of {rig.delay.delay_s:g} s is {delay} samples at "
+                         f"Ts = {PAPER_TS_S:g} s, and with the parallel master's one more than the controller "
+                         f"compensates (input_delay_samples up to {MAX_INPUT_DELAY_SAMPLES})")
     paths = build_fmus(args.out)
     for path in paths:
         print(f"wrote {path}{_linux64_note(path)}")
-    if args.ssp:
-        from build_scripts.ssp import RIG_SET, write_ssp
-        from fmu_controller.identification import PAPER_TS_S
-        from fmu_controller.prediction import delay_samples_for
-
-        if rig is None:
-            print(f"wrote {write_ssp(dict(zip(FMUS, paths)), args.out)} (both FMUs as one closed loop for SSP tools)")
-            return 0
-        # the controller FMU's default Ts, at which SSP tools step the loop
-        delay = delay_samples_for(rig.delay.delay_s, PAPER_TS_S)
-        path = write_ssp(dict(zip(FMUS, paths)), args.out, rig=rig.dotted(), rig_delay_samples=delay)
-        print(f"wrote {path} (both FMUs as one closed loop for SSP tools; the plant and the controller bind the "
-              f"parameter sets {RIG_SET!r} of {args.params}, the controller's input_delay_samples = {delay + 1}: "
-              f"{delay} for the rig's transport delay of {rig.delay.delay_s:g} s at Ts = {PAPER_TS_S:g} s and 1 for "
-              "the parallel master)")
+    if not args.ssp:
+        return 0
+    if rig is None:
+        print(f"wrote {write_ssp(dict(zip(FMUS, paths)), args.out)} (both FMUs as one closed loop for SSP tools)")
+        return 0
+    path = write_ssp(dict(zip(FMUS, paths)), args.out, rig=rig.dotted(), rig_delay_samples=delay)
+    print(f"wrote {path} (both FMUs as one closed loop for SSP tools; the plant and the controller bind the "
+          f"parameter sets {RIG_SET!r} of {args.params}, the controller's input_delay_samples = {delay + 1}: "
+          f"{delay} for the rig's transport delay of {rig.delay.delay_s:g} s at Ts = {PAPER_TS_S:g} s and 1 for "
+          "the parallel master)")
     return 0
 
 
@@ -696,7 +700,21 @@ def _printable_anywhere() -> None:
         # a UTF encoding shows everything: its surrogateescape (a file name's undecodable bytes) kept
         if isinstance(stream, io.TextIOWrapper) and stream.errors in ("strict", "surrogateescape") \
                 and not codecs.lookup(stream.encoding).name.startswith("utf"):
-            stream.reconfigure(errors="backslashreplace")
+            stream.reconfigure(errors=_ESCAPING if stream.errors == "surrogateescape" else "backslashreplace")
+
+
+def _escape_keeping_bytes(error: UnicodeEncodeError) -> tuple[str | bytes, int]:
+    """An encoding error handler: a file name's undecodable bytes (lone surrogates) written back as
+    those bytes, as ``surrogateescape`` does on a POSIX locale that is not UTF-8; anything else the
+    encoding lacks as an escape (``backslashreplace``)."""
+    chunk = error.object[error.start:error.end]
+    if all("\udc80" <= c <= "\udcff" for c in chunk):
+        return codecs.lookup_error("surrogateescape")(error)
+    return codecs.lookup_error("backslashreplace")(error)
+
+
+_ESCAPING = "tapmuscle.escape_keeping_bytes"
+codecs.register_error(_ESCAPING, _escape_keeping_bytes)
 
 
 def _main(argv: list[str], process: bool) -> int:
