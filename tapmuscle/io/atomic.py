@@ -252,7 +252,7 @@ def _replace_together(staged: Path, out: Path, targets: dict[Path, tuple[Path, i
             # the files replaced (a link's target: the link stays), once each (a link to another
             # file of the run), then the stale ones themselves (a link: the link goes)
             existed = {t for t, _ in targets.values() if t.exists()}
-            replaced = {os.path.realpath(t): t for t in existed}
+            replaced = {os.path.realpath(t): t for t, _ in targets.values() if t in existed}  # in the run's order
             reals = {os.path.realpath(t) for t, _ in targets.values()}
             for current, inside in [(t, Path(real).is_relative_to(root)) for real, t in replaced.items()] \
                     + [(p, True) for p in stale if os.path.realpath(p) not in reals]:  # not a file the run writes
