@@ -314,9 +314,9 @@ class _Reader:
         if key not in self.table:
             return None
         text = self.string(key)
-        control = next((c for c in text if c < " "), None)
-        if control is not None:  # "C:\new\file.json" reads as a newline and a form feed
-            raise self.error(key, f"{text!r} holds the control character {control!r}: {WINDOWS_PATH_HINT}")
+        broken = broken_path(text)
+        if broken:
+            raise self.error(key, broken)
         p = Path(text)
         p = p if p.is_absolute() or base is None else base / p
         if p.is_dir():
@@ -543,6 +543,13 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
 WINDOWS_PATH_HINT = ("a Windows path in a double-quoted TOML string reads its backslashes as escapes (\\n, \\t, \\f, "
                      "\\u...): write it in single quotes, 'C:\\Users\\me\\rig.json', or with forward slashes, "
                      "\"C:/Users/me/rig.json\"")
+
+
+def broken_path(text: str) -> str:
+    """Why the path ``text`` from a TOML file cannot be a file's name, else empty: a control character,
+    as a Windows path in double quotes gets ("C:\\new\\file.json" reads as a newline and a form feed)."""
+    control = next((c for c in text if c < " "), None)
+    return "" if control is None else f"{text!r} holds the control character {control!r}: {WINDOWS_PATH_HINT}"
 
 
 def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:

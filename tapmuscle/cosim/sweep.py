@@ -60,7 +60,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from tapmuscle.cosim.expect import Expectations, parse_expectations
-from tapmuscle.cosim.spec import SWEEP_KEYS, WINDOWS_PATH_HINT, Scenario, ScenarioError, parse_scenario, read_toml
+from tapmuscle.cosim.spec import SWEEP_KEYS, Scenario, ScenarioError, broken_path, parse_scenario, read_toml
 
 __all__ = ["SweepRun", "Sweep", "load_sweep", "parse_sweep", "is_sweep_data", "run_id_of", "set_field"]
 
@@ -185,9 +185,8 @@ def _bases(data: Mapping[str, Any], source: str, folder: Path | None,
                                      f"got {raw!r}")
     bases = []
     for item in items:
-        control = next((c for c in item if c < " "), None)
-        if control is not None:
-            raise _error(source, "base", f"{item!r} holds the control character {control!r}: {WINDOWS_PATH_HINT}")
+        if broken_path(item):
+            raise _error(source, "base", broken_path(item))
         pattern = item if Path(item).is_absolute() or folder is None else str(folder / item)
         if any(c in item for c in "*?[") and not Path(pattern).is_file():  # a file named "run [v2].toml" is itself
             paths = sorted(Path(p) for p in glob.glob(pattern))
