@@ -49,7 +49,8 @@ docs/control.md "Transport delay") takes ``input_delay_samples = 2 .. 25``, the 
 rounded: the prediction is carried on through the commands in flight; -1 tells those up to 5 apart
 as well, and warns when it decides 5, beyond which it cannot see.
 
-The output ``r_k`` is the ``r(k)`` the controller used, for evaluation (Eq. 21) in any mode.
+The output ``r_k`` is the reference ``r(k)`` at the sample, for evaluation (Eq. 21) in any mode: the
+reference itself, also in the start-up mode's first ``startup_s/4``, where the law sees it led in.
 """
 
 from __future__ import annotations
@@ -149,7 +150,7 @@ class AMPCController(SafeSlave):
         self.add_output("H", 0.0, "mm", "hysteresis term cancelled by Eq. (5) [mm]: H(k), or with the hysteresis notch its "
                         "5-point mean about k (0 for UCP)", nominal=1.0)
         self.add_output("xs", 0.0, "mm", "servo integrator state x_s(k+1), Eq. (18) [mm] (0 for UCP)", nominal=10.0)
-        self.add_output("r_k", 0.0, "mm", "reference r(k) used at the last sample [mm]", nominal=35.0)
+        self.add_output("r_k", 0.0, "mm", "reference r(k) at the last sample, the one Eq. (21) scores (the start-up mode's law sees it led in over its first quarter) [mm]", nominal=35.0)
         self.add_output("saturated", False, "", "an input limit (0-10 V or Eq. 19) was active at the last sample",
                         kind=Boolean, variability=Fmi2Variability.discrete)
         # counters and what the run decided: computed at initialisation (0, -1), not start values a host sets
