@@ -91,9 +91,12 @@ def test_a_diagnosis_replaces_the_files_of_the_one_before_in_its_folder(tmp_path
     out = tmp_path / "out"
     diagnose_files(rec, plant, out, plots=True)
     (out / "discriminating_input_2.csv").write_text("an earlier diagnosis's experiment\n")
+    (out / "discriminate_plant_12.json").write_text("an earlier diagnosis's plant\n")
+    # the user's, beside them: a note, and a name a diagnosis never writes (the experiment's recording)
     (out / "notes.txt").write_text("the user's\n")
+    (out / "discriminating_input_run.csv").write_text("the user's recording of the experiment\n")
     diagnose_files(rec, plant, out, plots=False)
-    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES[:3] + ("notes.txt",))
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES[:3] + ("notes.txt", "discriminating_input_run.csv"))
     assert ".png" not in (out / "report.md").read_text()
     (out / "report.md").unlink()
     (out / "report.md").mkdir()  # a file that cannot be written: nothing of this diagnosis appears

@@ -47,7 +47,11 @@ EXPERIMENT_FILE = "discriminating_input.csv"
 #: With it: the plant to re-diagnose the experiment's recording with (the calibrated plant, the group's effects off).
 EXPERIMENT_PLANT_FILE = "discriminate_plant.json"
 #: The files of an output folder that a diagnosis owns: written anew or removed by each diagnosis into it.
-OWNED_FILES = OUTPUT_FILES + ("discriminating_input*.csv", "discriminate_plant*.json")
+#: Only the names a diagnosis writes (the experiments numbered 2-99): a file of one's own beside them,
+#: such as the experiment's recording saved as ``discriminating_input_run.csv``, is kept.
+OWNED_FILES = OUTPUT_FILES + tuple(f"{stem}{number}.{suffix}" for stem, suffix in
+                                   (("discriminating_input", "csv"), ("discriminate_plant", "json"))
+                                   for number in ("", "_[2-9]", "_[1-9][0-9]"))
 
 #: Located windows of a finding the console summary lists, at most (the rest are in ``diagnosis.json``).
 SUMMARY_WINDOWS = 10
