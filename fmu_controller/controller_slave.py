@@ -150,7 +150,8 @@ class AMPCController(SafeSlave):
         self.add_output("H", 0.0, "mm", "hysteresis term cancelled by Eq. (5) [mm]: H(k), or with the hysteresis notch its "
                         "5-point mean about k (0 for UCP)", nominal=1.0)
         self.add_output("xs", 0.0, "mm", "servo integrator state x_s(k+1), Eq. (18) [mm] (0 for UCP)", nominal=10.0)
-        self.add_output("r_k", 0.0, "mm", "reference r(k) at the last sample, the one Eq. (21) scores (the start-up mode's law sees it led in over its first quarter) [mm]", nominal=35.0)
+        self.add_output("r_k", 0.0, "mm", "reference r(k) at the last sample, the one Eq. (21) scores (the start-up "
+                        "mode's law sees it led in over its first quarter) [mm]", nominal=35.0)
         self.add_output("saturated", False, "", "an input limit (0-10 V or Eq. 19) was active at the last sample",
                         kind=Boolean, variability=Fmi2Variability.discrete)
         # counters and what the run decided: computed at initialisation (0, -1), not start values a host sets

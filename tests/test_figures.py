@@ -145,7 +145,8 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
     t = np.arange(451) * 0.1
     run = {"t_s": t, "r_mm": 35 + 30 * np.sin(t), "l_mm": 35 + 29 * np.sin(t), "u_v": 5 + np.sin(t),
            "pred_error_mm": 0.1 * np.sin(3 * t)}
-    pairs = (("mpc_servo", "mpc_ucp"), ("ampc_servo", "mpc_servo"), ("ampc_ucp", "mpc_ucp"))
+    # Tables 6, 9 and 7's pairs (Figs. 8-11, 16-19, 12-15), and the two UCP methods
+    pairs = (("mpc_servo", "mpc_ucp"), ("ampc_servo", "mpc_servo"), ("ampc_servo", "ampc_ucp"), ("ampc_ucp", "mpc_ucp"))
     colours: dict[str, set] = {}
     for i, pair in enumerate(pairs):
         plot_tracking({m: run for m in pair}, tmp_path / f"t{i}.png", window_s=(10.1, 40.1))
@@ -162,12 +163,20 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
         assert legend.y0 >= ax.get_window_extent(renderer).y1 - 1  # above the plotting area
     assert len(colours) == 4 and all(len(c) == 1 for c in colours.values()), colours
     assert len({next(iter(c)) for c in colours.values()}) == 4  # four colours for four methods
-    # printed in grey, each pair differs in line style (red beside orange, solid both, did not)
+    # printed in grey or seen by a red-green colour-blind reader, each pair differs in its dashes (red
+    # beside orange, solid both, did not; nor dark red beside navy in Figs. 12-15), and every method has
+    # its own; matplotlib names any dash pattern "--", so the patterns themselves are compared
+    def dashes(line):
+        return line._unscaled_dash_pattern
+
+    patterns = {}
     for fig in saved[::2]:  # the tracking figures
         first, second = [line for line in fig.axes[0].get_lines() if line.get_label().startswith(("MPC", "AMPC"))]
-        assert first.get_linestyle() != second.get_linestyle(), (first.get_label(), second.get_label())
+        assert dashes(first) != dashes(second), (first.get_label(), second.get_label())
         (reference,) = [line for line in fig.axes[0].get_lines() if line.get_label() == "reference r"]
-        assert reference.get_linestyle() not in {first.get_linestyle(), second.get_linestyle()}
+        assert dashes(reference) not in {dashes(first), dashes(second)}
+        patterns.update({line.get_label(): dashes(line) for line in (first, second)})
+    assert len(patterns) == 4 and len(set(patterns.values())) == 4, patterns
 
 
 @pytest.mark.parametrize("signal", ["sine", "steps"])
@@ -287,8 +296,15 @@ def test_a_figure_is_written_in_the_format_its_suffix_names(tmp_path):
                         ("tracking_0.1Hz", b"\x89PNG")):
         fig, ax = new_figure(figsize=(3, 2))
         ax.plot([0, 1], [0, 1])
+        ax.set_xlabel("time t [s]")
         path = save_figure(fig, tmp_path / name)
         assert path.read_bytes().startswith(magic), name
+        if name == "f.pdf":  # fonts embedded as TrueType (Type 42): publishers' checks refuse Type 3
+            data = path.read_bytes()
+            assert b"/FontFile2" in data and b"/Type3" not in data
+        if name == "f.svg":  # the text is text, not glyphs drawn as paths: an editor can change it
+            text = path.read_text()
+            assert ">time t [s]</text>" in text and "<use xlink:href=\"#DejaVuSans" not in text
 
 
 def test_a_scenarios_load_and_supply_steps_are_marked_where_they_explain_the_error(monkeypatch, tmp_path):

@@ -32,10 +32,36 @@ def paper(tmp_path_factory):
 @pytest.mark.slow
 def test_outputs(paper):
     out, doc = paper
+    frequency = {"table6": 0.1, "table7": 0.1, "table9": 0.2}
+    per_seed = {(m, float(load), frequency[t]): errs for t, by_load in doc["per_seed"].items()
+                for load, cells in by_load.items() for m, errs in cells.items()}
     for run in PAPER_RUNS:
-        rec = read_recording(out / "runs" / f"{run.name}.csv")
-        assert {"t_s", "r_mm", "l_mm", "u_v", "l_pred_mm", "theta_b1"} <= set(rec.columns)
-        assert rec.u_v.min() >= 0.0 and rec.u_v.max() <= 10.0
+        # every seed's run, each with its own Eq. (21) error; the table's cell is their mean
+        errors = []
+        for seed, name in zip((0, 1, 2), (f"{run.name}.csv", f"{run.name}_seed1.csv", f"{run.name}_seed2.csv")):
+            rec = read_recording(out / "runs" / name)
+            assert {"t_s", "r_mm", "l_mm", "u_v", "l_pred_mm", "theta_b1"} <= set(rec.columns)
+            assert rec.u_v.min() >= 0.0 and rec.u_v.max() <= 10.0
+            assert rec.metadata["seed"] == str(seed) and rec.metadata["eq21_window_s"] == "10.1-40.1"
+            assert float(rec.metadata["eq21_error_mm"]) == pytest.approx(
+                eq21_error_mm(rec.columns["r_mm"], rec.columns["l_mm"], (101, 401)), abs=5e-5)
+            errors.append(float(rec.metadata["eq21_error_mm"]))
+        assert errors == pytest.approx(per_seed[run.method, run.load_n, run.frequency_hz], abs=5e-5)
+    # tables.csv: one row per cell, the mean of paper.json's and the seeds' spread, beside the paper's
+    import csv
+
+    from tapmuscle.paper.reproduce import PAPER_TABLES, TABLE_COLUMNS
+
+    with open(out / "tables.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == TABLE_COLUMNS and len(rows) == 12
+    for row in rows:
+        seeds = doc["per_seed"][row["table"]][row["load_n"]][row["method"]]
+        assert float(row["eq21_error_mm"]) == pytest.approx(doc[row["table"]][row["load_n"]][row["method"]], abs=5e-5)
+        assert float(row["sd_mm"]) == pytest.approx(np.std(seeds, ddof=1), abs=5e-5) and row["seeds"] == "3"
+        assert float(row["min_mm"]) <= float(row["eq21_error_mm"]) <= float(row["max_mm"])
+        assert float(row["paper_eq21_error_mm"]) == PAPER_TABLES[row["table"]][row["load_n"]][row["method"]]
+        assert (row["window_from_s"], row["window_to_s"]) == ("10.1", "40.1")
     assert set(doc["table6"]["44"]) == {"mpc_servo", "mpc_ucp"}
     assert set(doc["table7"]["68"]) == {"ampc_servo", "ampc_ucp"}
     assert set(doc["table9"]["44"]) == {"ampc_servo", "mpc_servo"}
@@ -65,6 +91,33 @@ def test_an_interrupted_rerun_leaves_the_earlier_outputs_whole(paper, tmp_path):
     after = {p.relative_to(out): hashlib.sha256(p.read_bytes()).hexdigest() for p in out.rglob("*") if p.is_file()}
     assert after == before and len(before) >= 25
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.txt", "paper"]
+
+
+@pytest.mark.slow
+def test_a_rerun_keeps_files_of_ones_own_and_replaces_every_earlier_output(paper, tmp_path):
+    """Into a folder of an earlier run with three seeds and PNGs, with files of one's own in it (a run
+    CSV of another controller in runs/, a figure named like the paper's): one seed, SVG. The earlier
+    seeds' CSVs and the PNGs go, the user's files stay as they were."""
+    import shutil
+
+    from tapmuscle.paper.reproduce import run_paper
+
+    out = tmp_path / "paper"
+    shutil.copytree(paper[0], out)
+    mine = {out / "runs" / "my_pi_controller.csv": "t_s,u_v,l_mm\n0,1,2\n", out / "fig08_tracking_mine.png": "mine",
+            out / "runs" / "ampc_servo_44N_0.1Hz_with_delay.csv": "mine", out / "notes.txt": "mine"}
+    for path, text in mine.items():
+        path.write_text(text)
+    with open(tmp_path / "log.txt", "w") as log:
+        run_paper(out, seeds=(4,), figure_format="svg", stream=log)
+    assert {p: p.read_text() for p in mine} == mine
+    left = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()} - {
+        p.relative_to(out).as_posix() for p in mine}
+    expected = ({"paper.json", "tables.csv"} | {f"runs/{r.name}.csv" for r in PAPER_RUNS}
+                | {p.with_suffix(".svg").name for p in paper[0].glob("fig*.png")})
+    assert left == expected and len(expected) == 2 + 12 + 12
+    assert read_recording(out / "runs" / "mpc_ucp_44N_0.1Hz.csv").metadata["seed"] == "4"
+    assert json.loads((out / "paper.json").read_text())["seeds"] == [4]
 
 
 @pytest.mark.parametrize("load", ["44", "68"])
@@ -187,7 +240,18 @@ def test_adaptive_servo_error_targets(paper, load):
 
 def test_bad_seeds(tmp_path, capsys):
     assert main(["paper", "--out", str(tmp_path / "p"), "--seeds", "a,b"]) == 2
-    assert "--seeds" in capsys.readouterr().err
+    said = capsys.readouterr()
+    assert "--seeds" in said.err and said.out == ""  # refused before the banner
+    # a repeated seed would weigh one noise realisation twice in a cell's mean
+    assert main(["paper", "--out", str(tmp_path / "p"), "--seeds", "0,1,0"]) == 2
+    said = capsys.readouterr()
+    assert "--seeds must differ" in said.err and "0 more than once in '0,1,0'" in said.err and said.out == ""
+    from tapmuscle.paper.reproduce import run_paper
+
+    with pytest.raises(ValueError, match="seeds must differ, got 3 more than once"):
+        run_paper(tmp_path / "p", seeds=(3, 3))
+    with pytest.raises(ValueError, match="figure_format must be one of png, pdf, svg, got 'eps'"):
+        run_paper(tmp_path / "p", seeds=(3,), figure_format="eps")
     with pytest.raises(SystemExit) as exit_:  # refused by argparse, before anything runs
         main(["paper", "--out", str(tmp_path / "p"), "--id-seed", "-1"])
     assert exit_.value.code == 2 and "--id-seed must be within 0..18446744073709551615" in capsys.readouterr().err

@@ -26,6 +26,7 @@ from tapmuscle.cli.diagnose import register as _register_diagnose
 from tapmuscle.cli.rig_import import register as _register_import
 from tapmuscle.cli.sweep import register as _register_sweep
 from tapmuscle.errors import UsageError
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS
 from tapmuscle.provenance import software
 
 __all__ = ["main", "build_parser", "MAX_SAMPLES"]
@@ -352,16 +353,21 @@ def _cmd_paper(args: argparse.Namespace) -> int:
     from tapmuscle.progress import Progress
 
     out = Path(args.out)
-    print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {os.path.join(out, '')}")
     try:
         seeds = tuple(int(x) for x in args.seeds.split(","))
     except ValueError:
-        raise UsageError(f"--seeds must be comma-separated integers, got {args.seeds!r}") from None
+        raise UsageError(f"--seeds must be comma-separated integers (0,1,2), got {args.seeds!r}") from None
     if not seeds or min(seeds) < 0 or max(seeds) > _SEED_MAX:
         raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        raise UsageError(f"--seeds must differ (a repeat would count that noise realisation twice in the mean), "
+                         f"got {', '.join(map(str, repeated))} more than once in {args.seeds!r}")
+    print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {os.path.join(out, '')}")
     run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet),
-              faithful_eq5=args.paper_eq5, faithful_start=args.paper_start)
-    print(f"\nwrote {Path(out) / 'paper.json'}, {Path(out) / 'runs' / '*.csv'} and {Path(out) / 'fig*.png'}")
+              faithful_eq5=args.paper_eq5, faithful_start=args.paper_start, figure_format=args.figure_format)
+    print(f"\nwrote {out / 'paper.json'}, {out / 'tables.csv'}, {out / 'runs' / '*.csv'} and "
+          f"{out / ('fig*.' + args.figure_format)}")
     return 0
 
 
@@ -576,7 +582,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "68 N (0.1 Hz) and the servo controllers at 0.2 Hz; write paper.json, run CSVs "
                                      "and Figs. 8-19, and print Tables 6, 7 and 9 beside the paper's.")
     pap.add_argument("--out", type=output_path("--out", "folder"), default="out/paper", help="output folder (default out/paper)")
-    pap.add_argument("--seeds", default="0,1,2", help="noise seeds; each table cell is the mean over them (default 0,1,2)")
+    pap.add_argument("--seeds", default="0,1,2",
+                     help="noise seeds, each once; each table cell is the mean over them, tables.csv has their spread, "
+                          "runs/ a CSV per run and seed (NAME.csv the first seed's, shown in the figures; "
+                          "NAME_seedS.csv the others'), each with its own Eq. (21) error (default 0,1,2)")
     pap.add_argument("--id-seed", type=integer_at_least("--id-seed", 0, _SEED_MAX), default=None,
                      help="noise seed of the preliminary identification that gives the fixed predictor "
                           "(default: the first of --seeds)")
@@ -588,6 +597,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "sample (overshoot and valve slamming in the first seconds), and the servo integrator Eq. (18) "
                           "without the anti-windup hold; default: the controller FMU's start-up mode and hold "
                           "(docs/control.md, Start-up, Integrator wind-up). With --paper-eq5: the paper's controllers exactly")
+    pap.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+                     help="format of Figs. 8-19: png (default), or pdf or svg for a publication (vector; the text "
+                          "as text); the data of each is in runs/, the cells in tables.csv")
     pap.add_argument("--quiet", action="store_true", help="no progress bar")
     pap.set_defaults(func=_cmd_paper)
 

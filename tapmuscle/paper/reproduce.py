@@ -9,18 +9,22 @@
    at 44 N and 68 N with f = 0.1 Hz (Tables 6, 7), and MPC/AMPC with servo mechanism at f = 0.2 Hz
    (Table 9, with Table 8's P(0)); each cell the mean over three noise seeds. The FMU loop gives the
    direct Python loop's numbers bit for bit (tests/test_scenarios.py).
-3. Outputs: ``paper.json`` (Tables 6, 7, 9), one CSV per run in ``runs/``, tracking and
-   prediction-error PNGs like Figs. 8-19 (:data:`PAPER_FILES`, put in place together once all are
-   written), and the tables printed beside the paper's.
+3. Outputs: ``paper.json`` (Tables 6, 7, 9), ``tables.csv`` (the same cells, one row each, with
+   their spread over the seeds and the paper's value), one CSV per run and seed in ``runs/``
+   (``NAME.csv`` the first seed's, the one the figures show, ``NAME_seedS.csv`` each other's),
+   tracking and prediction-error figures like Figs. 8-19 (PNG, PDF or SVG), all put in place together
+   once all are written (:data:`PAPER_FILES`), and the tables printed beside the paper's.
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import io
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, TextIO, TypeVar
+from typing import Callable, Mapping, Sequence, TextIO, TypeVar
 
 import numpy as np
 
@@ -34,6 +38,7 @@ from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 
 from tapmuscle.closed_loop import EQ21_WINDOW_S, eq21_error_mm, run_closed_loop
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS
 from tapmuscle.plots.figures import plot_prediction_errors, plot_tracking
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
@@ -41,11 +46,9 @@ from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.io.signals import parse_input_spec
 from tapmuscle.provenance import software
 
-__all__ = ["PaperRun", "PAPER_FILES", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables", "preliminary_theta",
-           "run_paper"]
+__all__ = ["PaperRun", "PAPER_FILES", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables",
+           "preliminary_theta", "run_paper", "tables_csv_text", "TABLE_COLUMNS"]
 
-#: What ``tapmuscle paper`` writes into its folder; other files there are left alone.
-PAPER_FILES = ("paper.json", "runs/*.csv", "fig*_tracking_*.png", "fig*_prediction_error_*.png")
 
 #: The paper's measured Eq. (21) errors [mm]: table -> load -> method.
 PAPER_TABLES = {
@@ -80,6 +83,25 @@ PAPER_RUNS: tuple[PaperRun, ...] = tuple(
 _TABLES = (("table6", 0.1, ("mpc_servo", "mpc_ucp"), {44: (8, 9), 68: (10, 11)}),
            ("table7", 0.1, ("ampc_servo", "ampc_ucp"), {44: (12, 13), 68: (14, 15)}),
            ("table9", 0.2, ("ampc_servo", "mpc_servo"), {44: (16, 17), 68: (18, 19)}))
+
+
+def _figure_names(fmt: str) -> list[tuple[int, str, str]]:
+    """``(load, tracking figure, prediction-error figure)`` file names of each table's figures."""
+    return [(load, f"fig{figs[load][0]:02d}_tracking_{load}N_{freq:g}Hz.{fmt}",
+             f"fig{figs[load][1]:02d}_prediction_error_{load}N_{freq:g}Hz.{fmt}")
+            for _, freq, _, figs in _TABLES for load in (44, 68)]
+
+
+def _run_file(run: PaperRun, seed: int, first: bool) -> str:
+    """A run's CSV in the output folder: the first seed's (the figures') ``runs/NAME.csv``."""
+    return f"runs/{run.name}.csv" if first else f"runs/{run.name}_seed{seed}.csv"
+
+
+#: What ``tapmuscle paper`` writes into its folder, by name (a run's CSV of any seed, a figure in any
+#: format): an earlier run's files of these names are replaced or removed; other files are left alone.
+PAPER_FILES = (("paper.json", "tables.csv")
+               + tuple(name for r in PAPER_RUNS for name in (f"runs/{r.name}.csv", f"runs/{r.name}_seed[0-9]*.csv"))
+               + tuple(name for fmt in FIGURE_FORMATS for _, *names in _figure_names(fmt) for name in names))
 
 
 def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantParams | None = None,
@@ -159,23 +181,55 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
 def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | None = None,
               refine_hz: float = 0.05, fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
               progress: Callable[[int, int], None] | None = None, faithful_eq5: bool = False,
-              faithful_start: bool = False) -> dict:
+              faithful_start: bool = False, figure_format: str = "png") -> dict:
     """Run every experiment of section 4 and write the outputs into ``out`` (see module docstring).
 
     Each table cell is the mean Eq. (21) error over the noise ``seeds`` (the per-seed values are in
-    ``paper.json``): single runs of the unique-coincidence-point controllers differ by up to 0.3 mm
-    between noise realisations, more than some of the differences the paper reports. The fixed
-    predictor is identified once, with the noise seed ``id_seed`` (default: the first of ``seeds``),
-    and given to the controller FMU as its ``theta0.*`` parameters. Another ``id_seed`` is another
-    preliminary identification experiment, which shows how much the tables owe to that one experiment
-    (docs/control.md). CSVs and figures show the first seed's runs. ``fmus`` defaults to the FMUs
-    built from this checkout (:func:`build_scripts.build_fmus.cached_fmus`). ``faithful_eq5`` cancels
-    ``H(k)`` in both servo methods, MPC- and AMPC-servo, as the paper's Eq. (5) does (the controller
-    FMU's ``hysteresis_notch = 0``); by default the FMU's own setting applies, which removes MPC-servo's valve chatter
-    (docs/control.md, "Chatter"). ``faithful_start`` starts every controller as the paper does (the
-    FMU's ``startup_s = 0``: the full reference and the raw estimate from the first sample), with the
-    integrator of Eq. (18) as written (``anti_windup = 0``); by default the FMU's start-up mode applies (docs/control.md,
-    "Start-up"). Both together run the paper's controllers exactly.
+    ``paper.json`` and ``tables.csv``): single runs of the unique-coincidence-point controllers differ
+    by up to 0.3 mm between noise realisations, more than some of the differences the paper reports.
+    The fixed predictor is identified once and given to the controller FMU as its ``theta0.*``
+    parameters.
+
+    Parameters
+    ----------
+    out : path
+        The output folder; files of other names in it are left alone.
+    seeds : tuple of int
+        The noise seeds, each once; a run's CSV is written for each, the figures show the first's.
+    id_seed : int, optional
+        Noise seed of the preliminary identification (default: the first of ``seeds``). Another one
+        is another identification experiment, which shows how much the tables owe to that one
+        experiment (docs/control.md).
+    refine_hz : float
+        Frequency [Hz] of the identification's closed-loop stage (:func:`preliminary_theta`).
+    fmus : mapping, optional
+        ``{"MusclePlant": path, "AMPCController": path}``; default the FMUs built from this checkout
+        (:func:`build_scripts.build_fmus.cached_fmus`).
+    stream : text stream
+        Where the runs' lines and the tables are printed.
+    progress : callable, optional
+        ``progress(done, total)`` after each run.
+    faithful_eq5 : bool
+        Cancel ``H(k)`` in both servo methods as the paper's Eq. (5) does (the controller FMU's
+        ``hysteresis_notch = 0``); by default the FMU's own setting applies, which removes MPC-servo's
+        valve chatter (docs/control.md, "Chatter").
+    faithful_start : bool
+        Start every controller as the paper does (the FMU's ``startup_s = 0``: the full reference and
+        the raw estimate from the first sample), with the integrator of Eq. (18) as written
+        (``anti_windup = 0``); by default the FMU's start-up mode applies (docs/control.md,
+        "Start-up"). Both flags together run the paper's controllers exactly.
+    figure_format : {"png", "pdf", "svg"}
+        The figures' format (:data:`FIGURE_FORMATS`).
+
+    Returns
+    -------
+    dict
+        The document written as ``paper.json``.
+
+    Raises
+    ------
+    ValueError
+        No seed, a seed given twice, or a figure format not in :data:`FIGURE_FORMATS`.
     """
     from build_scripts.build_fmus import cached_fmus
     from tapmuscle.cosim import PAPER_SCENARIOS, co_simulate, load_scenario
@@ -183,6 +237,11 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
 
     if not seeds:
         raise ValueError("seeds must name at least one noise seed")
+    repeated = sorted({s for s in seeds if list(seeds).count(s) > 1})
+    if repeated:  # a repeat would weigh that realisation twice in the mean
+        raise ValueError(f"seeds must differ, got {', '.join(map(str, repeated))} more than once in {tuple(seeds)}")
+    if figure_format not in FIGURE_FORMATS:
+        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
     out = Path(out)
     total, done = len(PAPER_RUNS) * len(seeds), 0
     if progress is not None:
@@ -203,7 +262,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
         for run in PAPER_RUNS:
             scenario = load_scenario(PAPER_SCENARIOS / f"{run.name}.toml")
             errors, first = [], None
-            for seed in seeds:
+            for i, seed in enumerate(seeds):
                 # the notch and the anti-windup are the servo law's: not set on the UCP methods, which
                 # would warn of parameters they do not use
                 given = {k: v for k, v in theta_params.items()
@@ -213,11 +272,13 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
                 errors.append(eq21_error_mm(cols["r_mm"], cols["l_mm"], scenario.evaluation_samples))
                 if first is None:
                     first = cols
-                    meta = {"ts_s": "0.1", "load_n": f"{run.load_n:g}", "seed": str(seed), "method": run.method,
-                            "reference": f"35 + 30 sin(2 pi {run.frequency_hz:g} t) mm",
-                            "eq21_error_mm": f"{errors[0]:.4f}",
-                            "source": f"tapmuscle paper (simulated rig, FMU co-simulation of scenarios/paper/{run.name}.toml)"}
-                    write_recording(tmp / "runs" / f"{run.name}.csv", Recording(cols, meta))
+                # this run's own error: the table's cell is the mean over the seeds
+                meta = {"ts_s": "0.1", "load_n": f"{run.load_n:g}", "seed": str(seed), "method": run.method,
+                        "reference": f"35 + 30 sin(2 pi {run.frequency_hz:g} t) mm",
+                        "eq21_error_mm": f"{errors[-1]:.4f}",
+                        "eq21_window_s": f"{EQ21_WINDOW_S[0]:g}-{EQ21_WINDOW_S[1]:g}",
+                        "source": f"tapmuscle paper (simulated rig, FMU co-simulation of scenarios/paper/{run.name}.toml)"}
+                write_recording(tmp / _run_file(run, seed, i == 0), Recording(cols, meta))
                 done += 1
                 if progress is not None:
                     progress(done, total)
@@ -232,15 +293,14 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
         # the figures of the two modes differ: each says its own
         mode = ", ".join([("the paper's start" if faithful_start else "start-up mode"),
                           ("Eq. (5) as printed" if faithful_eq5 else "notch")])
-        for table, freq, _, figs in _TABLES:
-            for load in (44, 68):
-                runs = cols_by_table[table][str(load)]
-                fig_t, fig_p = figs[load]
-                plot_tracking(runs, tmp / f"fig{fig_t:02d}_tracking_{load}N_{freq:g}Hz.png", window_s=EQ21_WINDOW_S,
-                              title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]}; {mode})")
-                plot_prediction_errors(runs, tmp / f"fig{fig_p:02d}_prediction_error_{load}N_{freq:g}Hz.png",
-                                       window_s=EQ21_WINDOW_S, title=f"Fig. {fig_p}: prediction error, {load} N, "
-                                                                     f"{freq:g} Hz (seed {seeds[0]}; {mode})")
+        for (table, freq, _, figs), (load, tracking, prediction) in zip(
+                [t for t in _TABLES for _ in (44, 68)], _figure_names(figure_format)):
+            runs = cols_by_table[table][str(load)]
+            fig_t, fig_p = figs[load]
+            plot_tracking(runs, tmp / tracking, window_s=EQ21_WINDOW_S,
+                          title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]}; {mode})")
+            plot_prediction_errors(runs, tmp / prediction, window_s=EQ21_WINDOW_S,
+                                   title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]}; {mode})")
         document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
                     "findings": paper_findings(tables), "paper": PAPER_TABLES,
                     "theta0": ASYMMETRIC.to_dict(theta0),
@@ -248,6 +308,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
                     "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
                     "eq21_window_s": list(EQ21_WINDOW_S), "software": software()}
         atomic_write_text(tmp / "paper.json", json_text(document, indent=2))
+        atomic_write_text(tmp / "tables.csv", tables_csv_text(per_seed))
     print_tables(tables, stream)
     return document
 
@@ -287,6 +348,42 @@ def paper_findings(tables: Mapping[str, Mapping[str, Mapping[str, float]]]) -> d
         out[f"AMPC-servo <= 0.70 mm at 0.2 Hz, {load} N"] = t9[load]["ampc_servo"] <= 0.70
     out["fixed UCP degrades with load"] = t6["68"]["mpc_ucp"] > t6["44"]["mpc_ucp"] + 0.2
     return out
+
+
+#: The columns of ``tables.csv`` (:func:`tables_csv_text`).
+TABLE_COLUMNS = ("table", "load_n", "frequency_hz", "method", "eq21_error_mm", "sd_mm", "min_mm", "max_mm", "seeds",
+                 "paper_eq21_error_mm", "window_from_s", "window_to_s")
+
+
+def tables_csv_text(per_seed: Mapping[str, Mapping[str, Mapping[str, Sequence[float]]]]) -> str:
+    """Tables 6, 7 and 9 as CSV text, one row per cell (``tables.csv``).
+
+    Parameters
+    ----------
+    per_seed : mapping
+        ``table -> load ("44", "68") -> method -> [Eq. (21) error of each seed, mm]`` (``paper.json``'s
+        ``per_seed``).
+
+    Returns
+    -------
+    str
+        A header of :data:`TABLE_COLUMNS`, then per cell: the mean error over the seeds (the table's
+        number), the seeds' sample standard deviation (empty with one seed), least and largest, how
+        many seeds, the paper's value, and the window Eq. (21) averages |r - l| over [s]. Errors
+        [mm] to 4 decimals: the simulation's noise floor is far above 1e-4 mm.
+    """
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(TABLE_COLUMNS)
+    for table, freq, methods, _ in _TABLES:
+        for load in ("44", "68"):
+            for m in methods:
+                e = np.asarray(per_seed[table][load][m], dtype=float)
+                sd = f"{np.std(e, ddof=1):.4f}" if e.size > 1 else ""
+                writer.writerow([table, load, f"{freq:g}", m, f"{np.mean(e):.4f}", sd, f"{e.min():.4f}",
+                                 f"{e.max():.4f}", e.size, f"{PAPER_TABLES[table][load][m]:g}",
+                                 f"{EQ21_WINDOW_S[0]:g}", f"{EQ21_WINDOW_S[1]:g}"])
+    return text.getvalue()
 
 
 def print_tables(tables: dict, stream: TextIO = sys.stdout) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
+from matplotlib import rc_context
 from matplotlib.figure import Figure
 
 from fmu_plant.user_warning import warn_at_caller
@@ -63,7 +64,8 @@ _GLYPH = re.compile(r"Glyph (\d+) .*missing from (?:current )?font")
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:
     """Save ``fig`` to ``path`` atomically, in the format its suffix names (``.pdf``, ``.svg``, ...;
     PNG for ``.png``, no suffix, or one that is no figure format: ``tracking_0.1Hz``); a figure that
-    pyplot made is closed there too.
+    pyplot made is closed there too. A PDF's (and PostScript's) fonts are embedded as TrueType, an
+    SVG's text stays text (its font named, not drawn as paths).
 
     Characters of its text that the font lacks (a scenario named in Chinese or Japanese, with no CJK
     font installed) are said once, as one :class:`MissingGlyphWarning` naming them, instead of
@@ -74,7 +76,10 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
         fmt = fmt if fmt in fig.canvas.get_supported_filetypes() else "png"
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            with atomic_path(path, suffix=f".{fmt}") as tmp:
+            # TrueType fonts in a PDF (matplotlib's Type 3 default is refused by IEEE's and other
+            # publishers' checks) and text kept as text in an SVG (editable, searchable)
+            with atomic_path(path, suffix=f".{fmt}") as tmp, \
+                    rc_context({"pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none"}):
                 fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=fmt)
         missing = []
         for w in caught:
@@ -295,20 +300,22 @@ def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np
 
 #: One colour and line per method in every figure (a reader flipping from Fig. 10 to Fig. 18 reads a
 #: colour as the same controller): the unique coincidence point in blues, the servo mechanism in reds,
-#: the adaptive version the darker and solid, the fixed ones dash-dotted (UCP) and dashed (servo), so
-#: that each of the paper's pairs (Figs. 8-19) differs in its lines, also printed in grey (red beside
-#: orange did not); the reference is dotted.
+#: the adaptive version the darker. Every method has its own dashes, so that each of the paper's
+#: pairs (Figs. 8-19) also differs in its line where colour does not tell (printed in grey, where
+#: navy and dark red are both dark; to a red-green colour-blind reader, who tells the reds apart only
+#: by lightness): AMPC-servo solid, MPC-servo dashed, MPC-UCP dash-dotted, AMPC-UCP dash-dot-dotted.
+#: The reference is dotted.
 _METHOD_STYLE = {"mpc_ucp": ("tab:blue", "MPC, unique coincidence point", "-."),
-                 "ampc_ucp": ("navy", "AMPC, unique coincidence point", "-"),
+                 "ampc_ucp": ("navy", "AMPC, unique coincidence point", (0, (6, 1.5, 1, 1.5, 1, 1.5))),
                  "mpc_servo": ("tab:orange", "MPC with servo mechanism", "--"),
-                 "ampc_servo": ("tab:red", "AMPC with servo mechanism", "-")}
+                 "ampc_servo": ("darkred", "AMPC with servo mechanism", "-")}
 
 
 #: Colours of runs that are not one of the four methods (a law of the user's own), none of theirs.
 _OTHER_COLORS = ("tab:green", "tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
 
 
-def _styles(names: Iterable[str]) -> list[tuple[str, str, str]]:
+def _styles(names: Iterable[str]) -> list[tuple[str, str, Any]]:
     """Each run's colour, label and line style: a method's own, else the next of :data:`_OTHER_COLORS`,
     solid (matplotlib's C0, C1, ... are MPC-UCP's and MPC-servo's colours)."""
     others = itertools.cycle(_OTHER_COLORS)
