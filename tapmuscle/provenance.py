@@ -5,16 +5,25 @@ another CPU's SIMD kernels, changes the last bits of a step and, through the loo
 its second or third digit (docs/control.md). ``summary.json``, ``paper.json``, ``diagnosis.json``, an
 identification file and a demonstration's ``scores.json`` therefore carry a ``"software"`` object
 (:func:`software`), so that two results can be told apart by what made them before their numbers are.
-``tapmuscle --version`` prints the same.
+``tapmuscle --version`` prints the same. Run from a git checkout (an editable install), it also
+names the commit and whether the checkout had changes; a command of the console script is written
+beside it as ``"command"`` (:func:`produced_by`, :func:`invoked_as`).
 """
 
 from __future__ import annotations
 
+import contextvars
 import platform
+import shlex
+import shutil
+import subprocess
+from contextlib import contextmanager
 from importlib import metadata
-from typing import Sequence
+from pathlib import Path
+from typing import Iterator, Sequence
 
-__all__ = ["NUMERICS_PACKAGES", "package_version", "software", "software_text"]
+__all__ = ["NUMERICS_PACKAGES", "package_version", "software", "software_text", "cpu_features", "source_revision",
+           "produced_by", "invoked_as"]
 
 #: The packages whose release can change a result's last bits (the FMUs run in pythonfmu, the
 #: co-simulation in fmpy).
@@ -29,28 +38,99 @@ def package_version(name: str) -> str:
         return "not installed"
 
 
+def cpu_features() -> str:
+    """The SIMD levels numpy dispatches to on this CPU (``"X86_V3"``: AVX2; ``"X86_V3 X86_V4 ..."``:
+    AVX-512; with ``NPY_DISABLE_CPU_FEATURES`` those left on): the floating-point path that changes
+    a chaotic closed loop's last bits (docs/control.md); ``"baseline"`` when none beyond numpy's
+    baseline, ``"unknown"`` where numpy does not say."""
+    try:
+        try:
+            from numpy._core import _multiarray_umath as umath
+        except ImportError:  # numpy 1.x
+            from numpy.core import _multiarray_umath as umath  # type: ignore[no-redef]
+        enabled = [name for name in umath.__cpu_dispatch__ if umath.__cpu_features__.get(name)]
+    except (ImportError, AttributeError):
+        return "unknown"
+    return " ".join(enabled) or "baseline"
+
+
+def source_revision() -> str | None:
+    """The git commit tapmuscle runs from, ``"<12 hex digits>"`` or ``"<...> with changes"`` (files
+    tracked by git modified; untracked ones do not count), where the package is imported from a git
+    checkout (an editable install); None where it is not (an installed wheel), and a reason where git
+    cannot tell (git not installed, a checkout another user owns)."""
+    root = Path(__file__).resolve().parent.parent
+    if not (root / ".git").exists():
+        return None
+    git = shutil.which("git")
+    if git is None:
+        return "a git checkout (git not found to name its commit)"
+    try:
+        head = subprocess.run([git, "-C", str(root), "rev-parse", "--short=12", "HEAD"], capture_output=True,
+                              text=True, timeout=10)
+        status = subprocess.run([git, "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                                capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"a git checkout (git failed: {exc})"
+    if head.returncode or status.returncode:
+        why = (head.stderr or status.stderr).strip().splitlines()
+        return f"a git checkout (git: {why[0] if why else 'failed'})"
+    return head.stdout.strip() + (" with changes" if status.stdout.strip() else "")
+
+
 def software() -> dict[str, str]:
     """The versions that produce a result here.
 
     Returns
     -------
     dict
-        ``tapmuscle`` and each of :data:`NUMERICS_PACKAGES` (the installed releases), ``python``,
-        ``machine`` (operating system and processor architecture, as ``Linux x86_64``) and
-        ``compiled_substep`` (``"yes"`` where the plant's Rosenbrock sub-step runs compiled, ``"no"``
-        where in Python: the same bits, only slower, docs/plant.md).
+        ``tapmuscle`` and each of :data:`NUMERICS_PACKAGES` (the installed releases), ``matplotlib``
+        (the figures'), ``python``, ``machine`` (operating system and processor architecture, as
+        ``Linux x86_64``), ``cpu_features`` (:func:`cpu_features`), ``compiled_substep`` (``"yes"``
+        where the plant's Rosenbrock sub-step runs compiled, ``"no"`` where in Python: the same bits,
+        only slower, docs/plant.md) and, run from a git checkout, ``source``
+        (:func:`source_revision`).
     """
     from fmu_plant.rosenbrock import COMPILED
 
-    return {"tapmuscle": package_version("tapmuscle"), "python": platform.python_version(),
-            **{name: package_version(name) for name in NUMERICS_PACKAGES},
-            "machine": f"{platform.system()} {platform.machine()}", "compiled_substep": "yes" if COMPILED else "no"}
+    found = {"tapmuscle": package_version("tapmuscle"), "python": platform.python_version(),
+             **{name: package_version(name) for name in NUMERICS_PACKAGES}, "matplotlib": package_version("matplotlib"),
+             "machine": f"{platform.system()} {platform.machine()}", "cpu_features": cpu_features(),
+             "compiled_substep": "yes" if COMPILED else "no"}
+    revision = source_revision()
+    return found if revision is None else found | {"source": revision}
+
+
+#: The command line of the console script running now (:func:`invoked_as`); None in a program's or a
+#: notebook's call of the API.
+_COMMAND: contextvars.ContextVar[str | None] = contextvars.ContextVar("tapmuscle_command", default=None)
+
+
+@contextmanager
+def invoked_as(argv: Sequence[str]) -> Iterator[None]:
+    """Within the block, :func:`produced_by` names the command ``tapmuscle ARGV...`` (the console
+    script's arguments), quoted so that it can be pasted into a shell."""
+    token = _COMMAND.set(shlex.join(["tapmuscle", *argv]))
+    try:
+        yield
+    finally:
+        _COMMAND.reset(token)
+
+
+def produced_by() -> dict[str, object]:
+    """What a JSON document records of what made it: ``{"software": software()}``, with
+    ``"command"``, the command line, when the console script made it (:func:`invoked_as`)."""
+    command = _COMMAND.get()
+    return {"software": software()} | ({} if command is None else {"command": command})
 
 
 def software_text(found: dict[str, str] | None = None, more: Sequence[str] = ()) -> str:
     """:func:`software` (or ``found``, such a dict read from a document) in one line, as ``tapmuscle
     --version`` (with ``more``, further facts in the parentheses) and a sweep's ``summary.md`` say it."""
     found = software() if found is None else found
+    # a document of an earlier release has no CPU features or source
     facts = [f"Python {found['python']}", ", ".join(f"{name} {found[name]}" for name in NUMERICS_PACKAGES),
-             found["machine"], f"compiled sub-step {found['compiled_substep']}", *more]
-    return f"tapmuscle {found['tapmuscle']} ({'; '.join(facts)})"
+             found["machine"] + (f" ({found['cpu_features']})" if "cpu_features" in found else ""),
+             f"compiled sub-step {found['compiled_substep']}", *more]
+    source = f" from {found['source']}" if "source" in found else ""
+    return f"tapmuscle {found['tapmuscle']}{source} ({'; '.join(facts)})"

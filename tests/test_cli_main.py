@@ -24,22 +24,29 @@ def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
     assert ended.value.code == 0
     out, err = capsys.readouterr()
     assert err == ""
-    found = re.fullmatch(r"tapmuscle (\S+) \(Python (\S+); numpy (\S+), scipy (\S+), osqp \S+, pythonfmu \S+, "
-                         r"fmpy \S+; (\S+ \S+); compiled sub-step (yes|no); C FMU messages formatted (yes|no)"
+    found = re.fullmatch(r"tapmuscle (\S+)( from [0-9a-f]{12}(?: with changes)?)? \(Python (\S+); numpy (\S+), "
+                         r"scipy (\S+), osqp \S+, pythonfmu \S+, "
+                         r"fmpy \S+; (\S+ \S+) \(([A-Z0-9_ ]+|baseline)\); compiled sub-step (yes|no); "
+                         r"C FMU messages formatted (yes|no)"
                          r"(; libpython shared|; libpython static: FMUs for "
                          r"Python hosts only)?\)\n", out)
     assert found, out
     shared = bool(sysconfig.get_config_var("Py_ENABLE_SHARED"))
     libpython = None if not sys.platform.startswith("linux") else \
         "; libpython shared" if shared else "; libpython static: FMUs for Python hosts only"
-    assert found.groups() == (tapmuscle.__version__, platform.python_version(), np.__version__, scipy.__version__,
-                              f"{platform.system()} {platform.machine()}",
+    from tapmuscle.provenance import cpu_features, source_revision
+
+    source = source_revision()
+    assert found.groups() == (tapmuscle.__version__, None if source is None else f" from {source}",
+                              platform.python_version(), np.__version__, scipy.__version__,
+                              f"{platform.system()} {platform.machine()}", cpu_features(),
                               "yes" if COMPILED else "no", "yes" if formats_fmu_messages() else "no", libpython)
 
 
 def test_version_from_the_installed_command_needs_no_subcommand():
     done = subprocess.run([sys.executable, "-m", "tapmuscle", "--version"], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0 and done.stdout.startswith(f"tapmuscle {tapmuscle.__version__} (Python "), done
+    assert done.returncode == 0 and re.match(rf"tapmuscle {re.escape(tapmuscle.__version__)}( from [^(]+)? \(Python ",
+                                             done.stdout), done
 
 
 def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):

@@ -122,13 +122,11 @@ print(json.dumps({"named": d.named, "verdict": d.verdict, "simulations": d.simul
 def _other_floating_point_path(env: dict[str, str]) -> dict[str, str]:
     """``env`` with OpenBLAS's most basic x86-64 kernel (Prescott, SSE3) on one thread, and numpy
     without the kernels it dispatches to for this CPU (as ``.ci/run``'s second pass)."""
-    try:  # numpy's own record of the CPU (numpy.core before numpy 2)
-        from numpy._core import _multiarray_umath as mu  # noqa: PLC0415
-    except ImportError:
-        from numpy.core import _multiarray_umath as mu  # noqa: PLC0415
+    from tapmuscle.provenance import cpu_features  # noqa: PLC0415
+
     other = dict(env, OPENBLAS_CORETYPE="Prescott", OPENBLAS_NUM_THREADS="1")
-    features = " ".join(f for f in mu.__cpu_dispatch__ if mu.__cpu_features__.get(f))
-    if features:
+    features = cpu_features()
+    if features not in ("baseline", "unknown"):
         other["NPY_DISABLE_CPU_FEATURES"] = features
     return other
 

@@ -27,7 +27,7 @@ from tapmuscle.cli.rig_import import register as _register_import
 from tapmuscle.cli.sweep import register as _register_sweep
 from tapmuscle.errors import UsageError
 from tapmuscle.plots.figure_formats import FIGURE_FORMATS
-from tapmuscle.provenance import software
+from tapmuscle.provenance import invoked_as, produced_by
 
 __all__ = ["main", "build_parser", "MAX_SAMPLES"]
 
@@ -274,7 +274,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     except ValueError:  # free text in the header: kept as written
         pass
     out = report.to_dict() | {"recording": str(args.recording), "recording_path": str(Path(args.recording).resolve()),
-                              "load_n": load, "software": software()}
+                              "load_n": load, **produced_by()}
     notes = _identify_notes(args, rec, val, report, choice)
     out["notes"] = notes
     if choice is not None:
@@ -740,7 +740,7 @@ def _main(argv: list[str], process: bool) -> int:
     args.argv = argv
     try:
         _note_python_substep(args.command, bool(getattr(args, "quiet", False)))
-        with warnings.catch_warnings():  # restores Python's own display for an in-process caller
+        with warnings.catch_warnings(), invoked_as(argv):  # restores Python's own display for an in-process caller
             warnings.showwarning = _one_line_warning
             code = int(args.func(args) or 0)
         if code == 130:  # a command that said what its interrupt kept (sweep, check)

@@ -31,7 +31,7 @@ from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.cosim.master import co_simulate, sample_columns, unpack
 from tapmuscle.cosim.spec import Scenario
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["RUN_FILES", "run_scenario", "summarise"]
 
@@ -62,7 +62,7 @@ def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[
         # by model name: a controller FMU of one's own is named as what it is
         "fmus": {unpack(p).model_description.modelName: {"path": str(p), "guid": unpack(p).model_description.guid}
                  for p in fmus.values()},
-        "software": software(),
+        **produced_by(),
         **({"controller_interface": dict(scenario.controller.interface)} if scenario.controller.own else {}),
         "scenario_spec": _spec(scenario),
         # the delay the controller's law ran for at the end (what input_delay_samples = -1 decided)

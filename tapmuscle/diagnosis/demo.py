@@ -32,7 +32,7 @@ from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, iou, interleaved_split
 from tapmuscle.diagnosis.simulation import Simulator, process_pool
 from tapmuscle.diagnosis.reproducible import sse
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["DEMO_MODEL", "EXCITATIONS", "MAGNITUDES", "Case", "concealed_cases", "record", "run_case",
            "run_demo", "calibrate_without_rate"]
@@ -272,7 +272,7 @@ def run_demo(out: str | Path, *, seeds: int = 3, clean_seeds: int = 20, jobs: in
     scores = _scores(concealed, clean_results, showcase)
     atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "cases": results,
                                                        "fig20_model": fig20_model.friction.__dict__,
-                                                       "software": software()}, indent=2,
+                                                       **produced_by()}, indent=2,
                                                       default=str) + "\n")
     atomic_write_text(out / "scores.md", scores_markdown(scores))
     return scores

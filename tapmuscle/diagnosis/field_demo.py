@@ -47,7 +47,7 @@ from tapmuscle.diagnosis.field_cases import (CATEGORIES, CATEGORY_MIX, DURATION_
                                              FieldCase, compatible_pairs, effect_costs, field_cases,
                                              parameter_value, record_case, vocabulary)
 from tapmuscle.diagnosis.simulation import process_pool
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["FIELD_ERROR_PARAMETERS", "CATEGORY_MIX", "CATEGORIES", "EXCITATIONS", "OOV_KINDS", "LOADS_N",
            "EFFECT_RANGES", "INCOMPATIBLE_PAIRS", "TARGETS", "FIT_AFTER_PERCENT", "VISIBLE_POINTS",
@@ -363,7 +363,7 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
                 "resumed_cases": len(cases) - len(todo),
                 "vocabulary": list(vocabulary()), "wall_s": time.monotonic() - t0}
     scores["settings"] = settings
-    atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "cases": ordered, "software": software()}, indent=2,
+    atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "cases": ordered, **produced_by()}, indent=2,
                                                       default=_json_default) + "\n")
     atomic_write_text(out / "scores.md", scores_markdown(scores))
     confusion_figure(scores, out / "confusion.png")

@@ -44,7 +44,7 @@ from tapmuscle.diagnosis.foreign_diagnose import diagnose_foreign
 from tapmuscle.diagnosis.foreign_fmus import build_dc_motor_fmu, build_thermal_fmu
 from tapmuscle.diagnosis.foreign_model import ForeignSimulator, read_interface
 from tapmuscle.diagnosis.simulation import process_pool
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["ForeignCase", "foreign_cases", "record_foreign_case", "run_foreign_demo", "score_foreign",
            "foreign_scores_markdown", "CONCEALED", "FIT_AFTER_PERCENT", "TARGETS", "build_demo_fmus"]
@@ -300,7 +300,7 @@ def run_foreign_demo(out: str | Path, *, n: int = 40, seed: int = 0, jobs: int |
                 if progress is not None:
                     progress(len(results), len(tasks))
     scores = score_foreign(results)
-    atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "results": results, "software": software()}, indent=2,
+    atomic_write_text(out / "scores.json", json.dumps({"scores": scores, "results": results, **produced_by()}, indent=2,
                                                       default=float) + "\n")
     atomic_write_text(out / "scores.md", foreign_scores_markdown(scores))
     return scores

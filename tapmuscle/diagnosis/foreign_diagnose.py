@@ -32,7 +32,7 @@ from tapmuscle.diagnosis.fit_problem import SimulationError
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignFmuError, ForeignSimulator, read_interface
 from tapmuscle.diagnosis.report import json_text, overlay_figure, summary_lines
 from tapmuscle.diagnosis.signal_map import SignalMap, SignalMapError, match_by_name, read_signal_map
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["diagnose_foreign", "diagnose_foreign_outputs", "ForeignSetup", "FOREIGN_OUTPUT_FILES",
            "FIT_SEGMENT_SAMPLES"]
@@ -237,7 +237,7 @@ def _write(d: Diagnosis, setup: ForeignSetup, out: Path, plots: bool) -> dict[st
         "recording": setup.recording, "plant": setup.plant, "model": setup.interface.model_name,
         "fmi_interface": setup.interface.kind,
         "output": {"variable": setup.output.variable, "column": setup.output.column, "unit": setup.output.unit},
-        "mapping": setup.map.to_json(), "simulation_s": round(setup.simulation_s, 4), "software": software()} | {
+        "mapping": setup.map.to_json(), "simulation_s": round(setup.simulation_s, 4), **produced_by()} | {
         k: v for k, v in doc.items() if k not in ("verdict", "fit_before_percent", "fit_after_percent", "findings")}
     with staged_folder(out) as tmp:
         atomic_write_text(tmp / "diagnosis.json", json_text(doc))

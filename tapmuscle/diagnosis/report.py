@@ -34,7 +34,7 @@ from tapmuscle.diagnosis.residual_analysis import STRUCTURE_ALPHA, STRUCTURE_MAT
 from tapmuscle.io.atomic import probe_output_folder
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
 from tapmuscle.diagnosis.simulation import noise_free, worker_pool
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["diagnose_files", "write_outputs", "finite_json", "json_text", "summary_lines", "overlay_figure", "OUTPUT_FILES",
            "EXPERIMENT_FILE", "EXPERIMENT_PLANT_FILE", "OWNED_FILES"]
@@ -449,7 +449,7 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
     out = Path(out)
     doc = d.to_json()
     doc = {**{k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")},
-           "recording": recording, "plant": plant, "software": software(), **{k: v for k, v in doc.items() if k not in
+           "recording": recording, "plant": plant, **produced_by(), **{k: v for k, v in doc.items() if k not in
                                                        ("verdict", "fit_before_percent", "fit_after_percent", "findings")}}
     if fmu_check is not None:
         doc["fmu_check"] = fmu_check

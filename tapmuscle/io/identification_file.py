@@ -33,7 +33,7 @@ from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.recording import atomic_write_text
 from tapmuscle.io.json_file import read_json
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["identified_model", "IdentificationFileError", "IdentifiedModel", "read_identification", "write_identification", "checked_box"]
 
@@ -327,5 +327,5 @@ def write_identification(path: str | Path, theta: Mapping[str, float] | Sequence
         raise IdentificationFileError(f"{path}: {exc}") from None
     doc = {"model": "asymmetric", "ts_s": ts_s, "theta": dict(zip(ASYMMETRIC.names, values.tolist())),
            "constraint": {"lower": lower, "upper": upper},
-           "input_delay_samples": delay, "notes": [note] if note else [], "software": software()}
+           "input_delay_samples": delay, "notes": [note] if note else [], **produced_by()}
     atomic_write_text(Path(path), json.dumps(doc, indent=2) + "\n")

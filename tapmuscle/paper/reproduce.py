@@ -44,7 +44,7 @@ from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
 from tapmuscle.io.signals import parse_input_spec
-from tapmuscle.provenance import software
+from tapmuscle.provenance import produced_by
 
 __all__ = ["PaperRun", "PAPER_FILES", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables",
            "preliminary_theta", "run_paper", "tables_csv_text", "TABLE_COLUMNS"]
@@ -306,7 +306,7 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
                     "theta0": ASYMMETRIC.to_dict(theta0),
                     "hysteresis_notch": "off (the paper's Eq. (5))" if faithful_eq5 else "the FMU's default",
                     "start": "the paper's (startup_s = 0)" if faithful_start else "the FMU's start-up mode (its default startup_s)",
-                    "eq21_window_s": list(EQ21_WINDOW_S), "software": software()}
+                    "eq21_window_s": list(EQ21_WINDOW_S), **produced_by()}
         atomic_write_text(tmp / "paper.json", json_text(document, indent=2))
         atomic_write_text(tmp / "tables.csv", tables_csv_text(per_seed))
     print_tables(tables, stream)
