@@ -40,3 +40,15 @@ def test_the_sdist_holds_every_tracked_file_but_the_ci_scripts(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "lists of files in version control and sdist match" in proc.stdout, proc.stdout
+
+
+def test_the_citation_file_names_the_packages_version():
+    """CITATION.cff's version is the release's: a citation of another version points a reader at
+    other code (the file is YAML; its one ``version:`` line is read without a YAML parser)."""
+    import re
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    version = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
+    cited = re.findall(r'^version:\s*"?([^"\n]+)"?\s*$', (root / "CITATION.cff").read_text(), flags=re.M)
+    assert cited == [version]
