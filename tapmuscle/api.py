@@ -29,6 +29,7 @@ from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel, identified_model
 from tapmuscle.io.recording import Recording, RecordingError
 from tapmuscle.io.signals import Replay, parse_input_spec
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus", "read_rig_log"]
 
@@ -476,7 +477,7 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
 
 
 def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, out: str | Path | None = None,
-               plots: bool = True) -> dict[str, Any]:
+               plots: bool = True, figure_format: str = "png") -> dict[str, Any]:
     """Co-simulate a scenario through the two FMUs in fmpy (what ``tapmuscle run`` does).
 
     Parameters
@@ -488,9 +489,11 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
         ``{"MusclePlant": path, "AMPCController": path}``; default the FMUs built from this
         installation (cached while the sources are unchanged).
     out : path, optional
-        If given, also write ``result.csv``, ``summary.json`` and the PNGs there, as ``tapmuscle run``.
+        If given, also write ``result.csv``, ``summary.json`` and the figures there, as ``tapmuscle run``.
     plots : bool
-        With ``out``: write the PNGs.
+        With ``out``: write the figures.
+    figure_format : {"png", "pdf", "svg"}
+        With ``out``: the figures' format (PDF and SVG, vector, for a publication).
 
     Returns
     -------
@@ -508,10 +511,12 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
     if not isinstance(scenario, (Scenario, str, os.PathLike)):
         raise TypeError(f"scenario must be a scenario TOML file's path or a Scenario (tm.load_scenario(path)), got "
                         f"{type(scenario).__name__} {scenario!r:.60}")
+    if figure_format not in FIGURE_FORMATS:
+        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     given = _fmus_argument(fmus, [sc])
     if out is not None:
-        summary = run_scenario(sc, out, given, plots=plots)
+        summary = run_scenario(sc, out, given, plots=plots, figure_format=figure_format)
         cols = summary.pop("cols")
     else:
         # the scenario's own FMU paths win, as in tapmuscle run

@@ -253,6 +253,8 @@ def _RANDOM_RUN():
     (lambda: tm.simulate(np.array([5.0])), ValueError, r"command has 1 sample; give at least 2 samples, or duration_s"),
     (lambda: tm.diagnose(np.arange(10.0), np.ones(10), np.ones(10), "MusclePlant.fmu"), TypeError,
      r"model must be a PlantParams .* got str 'MusclePlant.fmu'"),
+    (lambda: tm.cosimulate(_PAPER_SCENARIO, out="x", figure_format="jpg"), ValueError,
+     r"figure_format must be one of png, pdf, svg, got 'jpg'"),
     (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus=["MusclePlant.fmu", "AMPCController.fmu"]), TypeError,
      r"fmus must be a mapping .* got a list"),
     (lambda: tm.cosimulate(_PAPER_SCENARIO, fmus={"MusclePlant": "MusclePlant.fmu"}), ValueError,

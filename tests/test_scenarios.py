@@ -219,6 +219,14 @@ def test_run_writes_result_summary_and_figures(built_fmus, tmp_path):
     assert rec.columns["load_n"][59] == 68.0 and rec.columns["load_n"][60] == 44.0
     for png in ("tracking.png", "prediction_error.png", "parameters.png"):
         assert (out / png).stat().st_size > 10_000
+    assert summary["command"].startswith(f"tapmuscle run {scenario} --out {out} ")
+    # again as SVG into the same folder: the PNGs go, a file of one's own stays
+    (out / "tracking_mine.png").write_text("mine")
+    assert main(["run", str(scenario), "--out", str(out), "--fmu-dir", str(fmu_dir), "--quiet",
+                 "--figure-format", "svg"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["parameters.svg", "prediction_error.svg", "result.csv",
+                                                     "summary.json", "tracking.svg", "tracking_mine.png"]
+    assert "Eq. (21) error" in (out / "tracking.svg").read_text()  # the title, as text
 
 
 @pytest.mark.filterwarnings("ignore::tapmuscle.errors.FmuLogWarning")  # whether the guard fires: CPU-dependent

@@ -443,7 +443,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     try:
         summary = run_scenario(scenario, out, fmus, progress=Progress(scenario.name, enabled=not args.quiet,
-                                                                      min_total=500))
+                                                                      min_total=500), figure_format=args.figure_format)
     except ScenarioError as exc:
         # the outputs are staged and moved in only after a complete run: say what the folder holds
         earlier = [name for name in RUN_FILES if (out / name).exists()]
@@ -463,7 +463,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # each warning once, with how often it came (an FMU of one's own may warn every sample)
     for text, times in Counter(summary["fmu_warnings"]).items():
         print(f"warning: {text}" + (f" ({times} times)" if times > 1 else ""), file=sys.stderr)
-    print(f"wrote {Path(out) / 'result.csv'}, {Path(out) / 'summary.json'} and {Path(out) / '*.png'}")
+    print(f"wrote {out / 'result.csv'}, {out / 'summary.json'} and {out / ('*.' + args.figure_format)}")
     return 0
 
 
@@ -611,6 +611,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=output_path("--out", "folder"), required=True, help="output folder")
     run.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
                                        "(default: built from the sources, cached)")
+    run.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+                     help="format of the figures: png (default), or pdf or svg for a publication (vector; the text as "
+                          "text); their data is result.csv")
     run.add_argument("--quiet", action="store_true", help="no progress output")
     run.set_defaults(func=_cmd_run)
 

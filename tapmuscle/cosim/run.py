@@ -27,17 +27,23 @@ from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS
 
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.cosim.master import co_simulate, sample_columns, unpack
 from tapmuscle.cosim.spec import Scenario
 from tapmuscle.provenance import produced_by
 
-__all__ = ["RUN_FILES", "run_scenario", "summarise"]
+__all__ = ["RUN_FILES", "RUN_FIGURES", "run_scenario", "summarise"]
 
-#: What :func:`run_scenario` writes into its folder (figures only with ``plots=True``, the parameter
-#: figure only for the adaptive methods); other files in the folder are left alone.
-RUN_FILES = ("result.csv", "summary.json", "tracking.png", "prediction_error.png", "parameters.png")
+#: The figures :func:`run_scenario` draws (the parameters' only for the adaptive methods), without
+#: their format's suffix.
+RUN_FIGURES = ("tracking", "prediction_error", "parameters")
+
+#: What :func:`run_scenario` writes into its folder (figures only with ``plots=True``, in any of
+#: :data:`~tapmuscle.plots.figure_formats.FIGURE_FORMATS`): a rerun replaces or removes these, and
+#: leaves other files in the folder alone.
+RUN_FILES = ("result.csv", "summary.json") + tuple(f"{name}.{fmt}" for fmt in FIGURE_FORMATS for name in RUN_FIGURES)
 
 
 def _spec(scenario: Scenario) -> dict[str, Any]:
@@ -99,11 +105,33 @@ def estimator_name(scenario: Scenario) -> str:
 
 def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | Path], *,
                  controller_parameters: Mapping[str, Any] | None = None, plots: bool = True,
-                 progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+                 progress: Callable[[int, int], None] | None = None, figure_format: str = "png") -> dict[str, Any]:
     """Co-simulate ``scenario`` (:func:`tapmuscle.cosim.master.co_simulate`) and write the outputs into ``out``.
 
-    Returns the summary (also written as ``summary.json``) with the columns under ``"cols"``.
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+    out : path
+        The output folder (:data:`RUN_FILES`, put in place together once all are written).
+    fmus : mapping
+        ``{"MusclePlant": path, "AMPCController": path}``; the scenario's own FMU paths win.
+    controller_parameters : mapping, optional
+        Controller FMU parameters set on top of the scenario's.
+    plots : bool
+        Draw the figures (:data:`RUN_FIGURES`).
+    progress : callable, optional
+        ``progress(done, total)`` as the co-simulation goes.
+    figure_format : {"png", "pdf", "svg"}
+        The figures' format (:data:`~tapmuscle.plots.figure_formats.FIGURE_FORMATS`).
+
+    Returns
+    -------
+    dict
+        The summary (also written as ``summary.json``) with the columns under ``"cols"``.
     """
+    if figure_format not in FIGURE_FORMATS:
+        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
     out = Path(out)
     used = {"MusclePlant": Path(scenario.plant.path or fmus["MusclePlant"]),
             "AMPCController": Path(scenario.controller.path or fmus["AMPCController"])}
@@ -129,14 +157,14 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
             window = (k0 * scenario.step_s, k1 * scenario.step_s)
             title = f"{scenario.name}: {scenario.method}, Eq. (21) error {summary['mae_mm']:.3f} mm"
             events = scenario_events(scenario)
-            plot_tracking({scenario.method: table}, tmp / "tracking.png", title=title, window_s=window, events=events)
+            plot_tracking({scenario.method: table}, tmp / f"tracking.{figure_format}", title=title, window_s=window, events=events)
             if "pred_error_mm" in table:  # a controller FMU of one's own has no prediction to show
-                plot_prediction_errors({scenario.method: table}, tmp / "prediction_error.png",
+                plot_prediction_errors({scenario.method: table}, tmp / f"prediction_error.{figure_format}",
                                        title=f"{scenario.name}: one-step prediction error", window_s=window,
                                        events=events)
             if scenario.method.startswith("ampc") and "theta_a1" in table:
                 history = np.column_stack([table[f"theta_{n}"] for n in ASYMMETRIC.names])
-                plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / "parameters.png",
+                plot_parameter_convergence(table["t_s"], history, ASYMMETRIC.names, tmp / f"parameters.{figure_format}",
                                            title=f"{scenario.name}: theta-hat ({estimator_name(scenario)})",
                                            events=events, bounds=scenario_box(scenario))
     summary["cols"] = cols
