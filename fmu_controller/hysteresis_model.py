@@ -78,6 +78,7 @@ __all__ = [
     "PARAMETER_NAMES_ASYMMETRIC",
     "PARAMETER_NAMES_STANDARD",
     "LINEAR_NAMES",
+    "THETA_UNITS",
     "ModelStructure",
     "ASYMMETRIC",
     "STANDARD",
@@ -102,6 +103,13 @@ PARAMETER_NAMES_ASYMMETRIC: tuple[str, ...] = (
 PARAMETER_NAMES_STANDARD: tuple[str, ...] = PARAMETER_NAMES_ASYMMETRIC[:11]
 #: Parameters of the linear part of Eq. (1) / the linearised plant Eq. (2).
 LINEAR_NAMES: tuple[str, ...] = ("a1", "a2", "b1")
+#: Each parameter's unit, from its regressor (module docstring) with ``l``, ``dl`` and ``v`` in mm and
+#: ``u`` in V: ``theta_i phi_i`` is a displacement [mm]. "1" is dimensionless.
+THETA_UNITS: dict[str, str] = {
+    "a1": "1", "a2": "1", "b1": "mm/V", "A1": "1", "A2": "1",
+    "beta1": "1/mm", "beta2": "1/mm", "gamma1": "1/mm", "gamma2": "1/mm", "c1": "1", "c2": "1",
+    "xi21": "1/mm", "xi22": "1/mm", "xi31": "1/mm^2", "xi32": "1/mm^2",
+}
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -90,6 +90,24 @@ def test_plots_are_written(records, tmp_path):
                  "--plot", str(tmp_path / "png")]) == 0
     for name in ("convergence", "model_vs_measured", "hysteresis_loop"):
         assert (tmp_path / "png" / f"{name}.png").stat().st_size > 20_000
+    # the figures' data: the record, the model's free run and the estimate after each sample
+    doc = json.loads((tmp_path / "r.json").read_text())
+    data = read_recording(tmp_path / "png" / "identification.csv")
+    rec = read_recording(paths["train", 44])
+    assert np.array_equal(data.t_s, rec.t_s) and np.allclose(data.l_mm, rec.l_mm, atol=5e-5)
+    assert [data.columns[f"theta_{n}"][-1] for n in doc["theta"]] == pytest.approx(list(doc["theta"].values()),
+                                                                                 rel=1e-5, abs=1e-9)
+    free_run = 100.0 * (1.0 - np.linalg.norm(data.l_mm - data.columns["l_model_mm"])
+                        / np.linalg.norm(data.l_mm - data.l_mm.mean()))
+    assert free_run == pytest.approx(doc["fit_percent"]["sim"], abs=0.05)
+    assert "b1 mm/V" in data.metadata["theta_units"] and "xi31 1/mm^2" in data.metadata["theta_units"]
+    # as PDF, with the validation record's data beside
+    assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "r.json"), "--quiet",
+                 "--validate", str(paths["val", 44]), "--plot", str(tmp_path / "pdf"), "--figure-format", "pdf"]) == 0
+    assert sorted(p.name for p in (tmp_path / "pdf").iterdir()) == [
+        "convergence.pdf", "hysteresis_loop.pdf", "identification.csv", "model_vs_measured.pdf", "validation.csv"]
+    assert read_recording(tmp_path / "pdf" / "validation.csv").columns["l_model_mm"].size == len(
+        read_recording(paths["val", 44]).t_s)
 
 
 def test_units_do_not_matter(records):

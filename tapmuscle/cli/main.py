@@ -223,7 +223,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                                          plot_parameter_convergence)
     from tapmuscle.io.atomic import atomic_path
     from tapmuscle.io.json_file import json_text
-    from tapmuscle.io.recording import atomic_write_text, read_recording
+    from fmu_controller.hysteresis_model import THETA_UNITS
+    from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
     from tapmuscle.io.sampling import STRICT_TOLERANCE, check_sampling_period
 
     rec = read_recording(args.recording)
@@ -296,8 +297,22 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             step("plot", f"plotting into {args.plot}")
             folder = Path(args.plot)
             folder.mkdir(parents=True, exist_ok=True)
+            fmt = args.figure_format
             t = rec.t_s
-            plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / "convergence.png",
+            # the figures' data, to redraw them in one's own style
+            units = ", ".join(f"{n} {THETA_UNITS[n]}" for n in report.structure.names)
+            base = {"source": f"tapmuscle identify {args.recording}", "model": report.model, "ts_s": f"{report.ts_s:g}"}
+            write_recording(folder / "identification.csv", Recording(
+                {"t_s": t, "u_v": rec.u_v, "l_mm": rec.l_mm, "l_model_mm": report.fit.simulated_mm}
+                | {f"theta_{n}": report.theta_history[:, i] for i, n in enumerate(report.structure.names)},
+                base | {"l_model_mm": f"the identified model's free run ({report.fit.percent['sim']:.2f} % fit)",
+                        "theta_units": units, "theta": "the estimate after each sample (convergence figure)"}))
+            if val is not None:
+                write_recording(folder / "validation.csv", Recording(
+                    {"t_s": val.t_s, "u_v": val.u_v, "l_mm": val.l_mm, "l_model_mm": val_fit.simulated_mm},
+                    base | {"validation_recording": str(args.validate),
+                            "l_model_mm": f"the identified model's free run ({val_fit.percent['sim']:.2f} % fit)"}))
+            plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / f"convergence.{fmt}",
                                        constraint_start_s=report.constraint_start_s if report.box_lower else None,
                                        bounds={n: (report.box_lower.get(n, -math.inf), report.box_upper.get(n, math.inf))
                                                for n in report.structure.names},
@@ -308,20 +323,20 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             shown_path = args.validate if val is not None else args.recording
             shown_load = shown.metadata.get("load_n")
             plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
-                                   folder / "model_vs_measured.png",
+                                   folder / f"model_vs_measured.{fmt}",
                                    title=f"free run against {'validation' if val is not None else 'identification'} "
                                          f"record {Path(shown_path).name}"
                                          + (f", {shown_load} N" if shown_load else "") + " (cf. Fig. 4)")
             skip = int(len(shown.t_s) // 4)
             jumps = input_jumps(shown.u_v[skip:])
-            plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / "hysteresis_loop.png",
+            plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / f"hysteresis_loop.{fmt}",
                                  skip=skip, title=("(u, l) samples" if jumps else "hysteresis loop")
                                  + f" of {Path(shown_path).name}" + (f", {shown_load} N" if shown_load else "")
                                  + f" (t >= {shown.t_s[skip]:g} s; "
                                  + ("the input jumps: points, not a loop)" if jumps else "cf. Fig. 5)"))
             if choice is not None:
                 plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
-                                      folder / "input_delay_fits.png",
+                                      folder / f"input_delay_fits.{fmt}",
                                       title=f"1-step fit under each input delay ({Path(args.recording).name})")
     progress(len(steps) * per_step, len(steps) * per_step, f"wrote {args.json}")
     if choice is not None:
@@ -342,8 +357,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         print(f"validation  {v['1']:7.1f} {v['3']:7.1f} {v['5']:7.1f} {v['sim']:9.1f}"
               + ("  (diverged)" if val_fit.free_run_diverged else ""))
     if args.plot:
-        print(f"wrote {Path(args.plot) / 'convergence.png'}, model_vs_measured.png, hysteresis_loop.png"
-              + (", input_delay_fits.png" if choice is not None else ""))
+        fmt = args.figure_format
+        print(f"wrote {Path(args.plot) / ('convergence.' + fmt)}, model_vs_measured.{fmt}, hysteresis_loop.{fmt}"
+              + (f", input_delay_fits.{fmt}" if choice is not None else "")
+              + ", identification.csv" + (", validation.csv" if val is not None else "") + " (the figures' data)")
     return 0
 
 
@@ -559,7 +576,11 @@ def build_parser() -> argparse.ArgumentParser:
     idf.add_argument("--validate", help="a second recording to score the identified model on")
     idf.add_argument("--json", type=output_path("--json", "file"), required=True, help="output JSON path")
     idf.add_argument("--plot", type=output_path("--plot", "folder"), metavar="DIR",
-                     help="write convergence, model-vs-measured and loop PNGs into DIR")
+                     help="write the convergence, model-vs-measured and loop figures into DIR, with their data: "
+                          "identification.csv (the record, the model's free run, the estimate after each sample) "
+                          "and, with --validate, validation.csv")
+    idf.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+                     help="with --plot: the figures' format, png (default), or pdf or svg for a publication")
     idf.add_argument("--box", default="auto",
                      help="constraint region: auto (Table 2 for mm, V, Ts 0.1 s), none, or name=lo:hi,... "
                           "in the recording's units")

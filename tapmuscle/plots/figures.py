@@ -24,6 +24,7 @@ import numpy as np
 from matplotlib import rc_context
 from matplotlib.figure import Figure
 
+from fmu_controller.hysteresis_model import THETA_UNITS
 from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.io.atomic import atomic_path
 
@@ -152,10 +153,11 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
                                path: str | os.PathLike, *, constraint_start_s: float | None = None,
                                title: str = "", events: Sequence[tuple[float, str]] = (),
                                bounds: Mapping[str, tuple[float, float]] | None = None) -> Path:
-    """Estimated parameters over time, one panel each (parameter convergence, section 2.4); ``events``
-    (times [s] and their text, :func:`plot_tracking`) as lines in every panel, named in the title;
-    ``bounds``: the constraint region C of Algorithm 1 by name (lower, upper), each finite bound
-    dotted in its panel (an estimate pinned on one shows it)."""
+    """Estimated parameters over time, one panel each (parameter convergence, section 2.4), each
+    titled with its unit where it is one of Eq. (1)'s (:data:`~fmu_controller.hysteresis_model.THETA_UNITS`);
+    ``events`` (times [s] and their text, :func:`plot_tracking`) as lines in every panel, named in the
+    title; ``bounds``: the constraint region C of Algorithm 1 by name (lower, upper), each finite
+    bound dotted in its panel (an estimate pinned on one shows it)."""
     n = len(names)
     cols = 5 if n > 12 else 4
     rows = -(-n // cols)
@@ -181,7 +183,9 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
             if math.isfinite(bound) and lo - pad <= bound * scale <= hi + pad:  # one far off would squash the rest
                 ax.axhline(bound * scale, color="0.3", ls=":", lw=0.9)
         ax.ticklabel_format(axis="y", useOffset=False)
-        ax.set_title(names[i] if power == 0 else f"{names[i]} [x 1e{power}]", fontsize=9)
+        unit = THETA_UNITS.get(names[i], "1").replace("^2", "\u00b2")
+        shown = [f"x 1e{power}"] * (power != 0) + [unit] * (unit != "1")
+        ax.set_title(f"{names[i]} [{' '.join(shown)}]" if shown else names[i], fontsize=9)
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=7)
         if constraint_start_s is not None and constraint_start_s < t_s[-1]:
