@@ -438,6 +438,12 @@ def test_summary_groups_grid_cells():
                                                                  ("68.0", 0, "0.5"), ("68.0", 1, "0.9")])]
     text = summary_markdown(sweep, rows)
     assert "| ampc_servo | 4 | 0 | 0 | 0.450 | 0.400 | 0.900 |" in text
+    # what mae_mm averages, and which controller settings a scenario leaves to the FMU
+    k0, k1 = sweep.runs[0].scenario.evaluation_samples
+    assert f"the mean |r - l| over samples {k0}..{k1} ({k0 * 0.1:g}-{k1 * 0.1:g} s) of each run" in text
+    assert "the start-up mode, the hysteresis notch and the stored `theta0`" in text
+    other = parse_sweep({"base": dict(SHORT), "grid": {"evaluation_samples": [[10, 50], [20, 60]]}}, source="s")
+    assert "each scenario's evaluation window (2 different" in summary_markdown(other, rows)
     # the FMUs run the host's numerics, which a resumed run's FMU hash does not cover
     assert f"Summarised with {software_text()}; a run kept from an earlier `results.csv`" in text
     assert "| ampc_servo | 44.0 | 2 | 0 | 0.200 | 0.200 | 0.300 |" in text

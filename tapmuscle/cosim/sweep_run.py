@@ -410,8 +410,14 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
     if sweep.description:
         lines += [sweep.description, ""]
     n_failed = sum(row["status"] != "ok" for row in rows)
-    lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm] "
-              "over the runs that finished.", "",
+    windows = sorted({(r.scenario.evaluation_samples, r.scenario.step_s) for r in sweep.runs})
+    window = (f"samples {windows[0][0][0]}..{windows[0][0][1]} ({windows[0][0][0] * windows[0][1]:.6g}-"
+              f"{windows[0][0][1] * windows[0][1]:.6g} s) of each run" if len(windows) == 1
+              else f"each scenario's evaluation window ({len(windows)} different: `evaluation_samples` of the files)")
+    lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm], "
+              f"the mean |r - l| over {window}, over the runs that finished. What a scenario does not set runs at "
+              "the controller FMU's defaults: the start-up mode, the hysteresis notch and the stored `theta0` "
+              "(`tapmuscle paper` identifies its own; docs/fmu.md).", "",
               # the FMUs run the host's numpy, scipy and osqp: a resumed run is skipped by its FMU
               # files alone, and a release of those moves a chaotic loop's last digits
               f"Summarised with {software_text()}; a run kept from an earlier `results.csv` was made with the "
