@@ -28,6 +28,7 @@ import math
 import os
 import signal
 import socket
+import stat
 import tempfile
 import threading
 import time
@@ -124,7 +125,7 @@ class FmuFiles:
         written once into this machine's cache folder ``$TMPDIR/tapmuscle-fmus-USER/<digest>/``."""
         if use_local and digest in self.local and Path(self.local[digest]).is_file():
             return Path(self.local[digest])
-        target = _cache_root() / digest / self.names[digest]
+        target = _private_folder(_private_folder(_cache_root()) / digest) / self.names[digest]
         if _WRITTEN.get(digest) == target and target.is_file():
             return target  # checked by this process already
         if not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
@@ -141,6 +142,33 @@ _WRITTEN: dict[str, Path] = {}
 
 def _cache_root() -> Path:
     return Path(tempfile.gettempdir()) / f"tapmuscle-fmus-{getpass.getuser()}"
+
+
+def _private_folder(folder: Path) -> Path:
+    """``folder``, made (mode 0700) if missing, once it is a folder of this user's that no other user
+    may write into. Its name in a shared temporary folder is predictable: another user who made it,
+    or a link in its place, or who could write into it, could swap a checked FMU for one whose code
+    then runs as this user. Windows' temporary folder is each user's own.
+
+    Raises
+    ------
+    PermissionError
+        ``folder`` is a link, not a folder, another user's, or writable by others; named, with what to do.
+    """
+    try:
+        folder.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    if os.name == "nt":
+        return folder
+    st = os.lstat(folder)
+    why = ("is a link" if stat.S_ISLNK(st.st_mode) else "is not a folder" if not stat.S_ISDIR(st.st_mode)
+           else f"belongs to another user (uid {st.st_uid})" if st.st_uid != os.getuid()
+           else "may be written by other users" if st.st_mode & 0o022 else None)
+    if why is not None:
+        raise PermissionError(f"the sweep's FMU folder {folder} {why}: another user could replace an FMU there with "
+                              "code that runs as you. Remove it, or set TMPDIR to a folder of your own, and run again")
+    return folder
 
 
 def make_task(run_id: str, scenario: Scenario, fmus: Mapping[str, str | Path], files: FmuFiles) -> RunTask:
