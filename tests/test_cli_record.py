@@ -251,3 +251,28 @@ def test_a_replay_is_not_resampled_silently(recorded, tmp_path, capsys, extra, p
     assert main(["record", "--input", f"csv:{d / 'shifted.csv'}", "--duration", "30", "--no-noise", "--out", str(out),
                  "--quiet"]) == 0
     assert len(read_recording(out)) == 301
+
+
+def test_an_output_under_a_folder_one_may_not_enter_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """A folder on the way that this user may not enter (another user's home, mode 0700): Python
+    3.11's Path.exists and is_dir raise PermissionError on it, which went out as a traceback with exit 1.
+    Emulated (root enters every folder): every stat below ``closed`` is refused."""
+    import errno
+    import os
+    import pathlib
+
+    closed = tmp_path / "closed"
+    real_stat = pathlib.Path.stat
+
+    def stat(self, *args, **kwargs):
+        if str(self).startswith(str(closed) + os.sep):
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(self))
+        return real_stat(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "stat", stat)
+    with pytest.raises(SystemExit) as exc:
+        main(["record", "--load", "44", "--input", "const:value=5", "--duration", "1", "--out",
+              str(closed / "x.csv")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"--out {closed / 'x.csv'}: {closed / 'x.csv'} cannot be reached (Permission denied; no permission" in err

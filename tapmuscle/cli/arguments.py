@@ -52,6 +52,14 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
     def parse(text: str) -> str:
         if not text.strip():
             raise argparse.ArgumentTypeError(f"{name} must name a file or folder, got an empty string")
+        try:
+            return checked(text)
+        except OSError as exc:  # a folder on the way this user may not enter (Python 3.11's Path.exists raises)
+            where = os.fsdecode(exc.filename) if exc.filename is not None else text
+            raise argparse.ArgumentTypeError(f"{name} {text}: {where} cannot be reached ({exc.strerror or exc}; no "
+                                             "permission to enter a folder on the way?)") from None
+
+    def checked(text: str) -> str:
         path = Path(text)
         if kind == "file" and path.is_dir():
             raise argparse.ArgumentTypeError(f"{name} {text}: a folder, not a file to write")
