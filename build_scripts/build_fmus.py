@@ -328,15 +328,21 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     paths = {name: folder / f"{name}.fmu" for name in FMUS}
     missing = tuple(name for name, p in paths.items() if not p.is_file())
     if missing:
+        def unwritable(exc: OSError) -> OSError:
+            return OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
+                           f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
+                           f"tapmuscle build --out DIR)")
+
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
-                          f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
-                          f"tapmuscle build --out DIR)") from None
+            raise unwritable(exc) from None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NativeHostWarning)
-            build_fmus(folder, missing)
+            try:
+                build_fmus(folder, missing)
+            except PermissionError as exc:  # a cache folder another user made (a shared XDG_CACHE_HOME)
+                raise unwritable(exc) from None
         _prune_cache(Path(cache_root), folder)
     else:
         try:

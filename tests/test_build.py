@@ -301,6 +301,22 @@ def test_an_unwritable_cache_is_named_with_its_remedy(tmp_path, monkeypatch):
     assert not (tmp_path / "tapmuscle").exists()
 
 
+def test_a_cache_folder_of_another_users_is_named_with_its_remedy(tmp_path, monkeypatch):
+    """A shared XDG_CACHE_HOME whose FMU folder another user made (umask 022): the folder is there, the
+    build's first file in it is refused. Said as the unwritable cache is, not a bare Permission denied
+    naming a hidden partial file (emulated: root may write anywhere)."""
+    import errno
+
+    import build_scripts.build_fmus as build
+
+    def refused(folder, names):
+        raise PermissionError(errno.EACCES, "Permission denied", str(folder / ".AMPCController.fmu.partial-1"))
+
+    monkeypatch.setattr(build, "build_fmus", refused)
+    with pytest.raises(OSError, match=r"cannot write the FMU cache .*/fmu-\w+ \(Permission denied\): set XDG_CACHE_HOME"):
+        build.cached_fmus(tmp_path)
+
+
 def test_no_home_folder_is_named_with_its_remedy(tmp_path, monkeypatch):
     """HOME unset and a user id without a passwd entry (a container run as an arbitrary user):
     `tapmuscle run` and `paper` ended in pathlib's RuntimeError traceback; now the CLI's error names what

@@ -305,6 +305,17 @@ def test_the_example_scenario_file_reads_without_its_fmu_only_as_a_missing_file(
                                             r"it from pi_controller.py beside it first \(pythonfmu build -f "
                                             r"pi_controller.py, in .*examples\)"):
         load_scenario(EXAMPLES / "own_controller.toml")
+    # installed from a wheel, the examples' folder is read-only for a user: built in a copy instead
+    # (emulated: root may write anywhere)
+    import tapmuscle.cosim.spec as spec
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(spec.os, "access", lambda path, mode: False)
+        with pytest.raises(ScenarioError, match=r"build it from pi_controller.py beside it first; .*examples cannot be "
+                                                r"written \(an installed package's\?\), so copy the folder and run "
+                                                r"there: cp -r .*examples my_copy && cd my_copy && pythonfmu build -f "
+                                                r"pi_controller.py, then the scenario file in my_copy"):
+            load_scenario(EXAMPLES / "own_controller.toml")
     # a missing FMU without a pythonfmu source beside it is only missing
     (tmp_path / "s.toml").write_text((EXAMPLES / "own_controller.toml").read_text())
     with pytest.raises(ScenarioError, match=r"PIController.fmu' does not exist$"):

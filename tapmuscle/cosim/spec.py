@@ -58,6 +58,8 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
 from __future__ import annotations
 
 import math
+import os
+import shlex
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -245,8 +247,13 @@ def _pythonfmu_source_hint(fmu: Path) -> str:
         except (OSError, UnicodeDecodeError):
             continue
         if f"class {fmu.stem}(" in text and "pythonfmu" in text:
-            return (f": build it from {source.name} beside it first (pythonfmu build -f {source.name}, in "
-                    f"{fmu.parent})")
+            if os.access(fmu.parent, os.W_OK | os.X_OK):
+                return (f": build it from {source.name} beside it first (pythonfmu build -f {source.name}, in "
+                        f"{fmu.parent})")
+            # an installed package's examples: read-only for a user
+            return (f": build it from {source.name} beside it first; {fmu.parent} cannot be written (an installed "
+                    f"package's?), so copy the folder and run there: cp -r {shlex.quote(str(fmu.parent))} my_copy && cd my_copy "
+                    f"&& pythonfmu build -f {source.name}, then the scenario file in my_copy")
     return ""
 
 
