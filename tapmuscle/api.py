@@ -29,7 +29,7 @@ from tapmuscle.progress import reporter
 from tapmuscle.io.identification_file import IdentifiedModel, identified_model
 from tapmuscle.io.recording import Recording, RecordingError
 from tapmuscle.io.signals import Replay, parse_input_spec
-from tapmuscle.plots.figure_formats import FIGURE_FORMATS
+from tapmuscle.plots.figure_formats import checked_figure_format
 
 __all__ = ["simulate", "simulate_closed_loop", "cosimulate", "sweep", "build_fmus", "read_rig_log"]
 
@@ -511,8 +511,7 @@ def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, o
     if not isinstance(scenario, (Scenario, str, os.PathLike)):
         raise TypeError(f"scenario must be a scenario TOML file's path or a Scenario (tm.load_scenario(path)), got "
                         f"{type(scenario).__name__} {scenario!r:.60}")
-    if figure_format not in FIGURE_FORMATS:
-        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
+    checked_figure_format(figure_format)
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     given = _fmus_argument(fmus, [sc])
     if out is not None:

@@ -366,7 +366,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------- paper
 def _cmd_paper(args: argparse.Namespace) -> int:
-    from tapmuscle.paper.reproduce import PAPER_RUNS, run_paper
+    from tapmuscle.paper.reproduce import PAPER_RUNS, checked_seeds, run_paper
     from tapmuscle.progress import Progress
 
     out = Path(args.out)
@@ -376,10 +376,10 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         raise UsageError(f"--seeds must be comma-separated integers (0,1,2), got {args.seeds!r}") from None
     if not seeds or min(seeds) < 0 or max(seeds) > _SEED_MAX:
         raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
-    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
-    if repeated:
-        raise UsageError(f"--seeds must differ (a repeat would count that noise realisation twice in the mean), "
-                         f"got {', '.join(map(str, repeated))} more than once in {args.seeds!r}")
+    try:
+        checked_seeds(seeds)
+    except ValueError as exc:
+        raise UsageError(f"--{exc} (--seeds {args.seeds})") from None
     print(f"tapmuscle paper: section 4's {len(PAPER_RUNS)} closed-loop experiments on the simulated rig -> {os.path.join(out, '')}")
     run_paper(out, seeds=seeds, id_seed=args.id_seed, progress=Progress("paper", enabled=not args.quiet),
               faithful_eq5=args.paper_eq5, faithful_start=args.paper_start, figure_format=args.figure_format)

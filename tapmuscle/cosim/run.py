@@ -27,7 +27,7 @@ from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
 from tapmuscle.io.recording import Recording, atomic_write_text, write_recording
-from tapmuscle.plots.figure_formats import FIGURE_FORMATS
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS, checked_figure_format
 
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.cosim.master import co_simulate, sample_columns, unpack
@@ -130,8 +130,7 @@ def run_scenario(scenario: Scenario, out: str | Path, fmus: Mapping[str, str | P
     dict
         The summary (also written as ``summary.json``) with the columns under ``"cols"``.
     """
-    if figure_format not in FIGURE_FORMATS:
-        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
+    checked_figure_format(figure_format)
     out = Path(out)
     used = {"MusclePlant": Path(scenario.plant.path or fmus["MusclePlant"]),
             "AMPCController": Path(scenario.controller.path or fmus["AMPCController"])}

@@ -38,7 +38,7 @@ from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
 
 from tapmuscle.closed_loop import EQ21_WINDOW_S, eq21_error_mm, run_closed_loop
-from tapmuscle.plots.figure_formats import FIGURE_FORMATS
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS, checked_figure_format
 from tapmuscle.plots.figures import plot_prediction_errors, plot_tracking
 from tapmuscle.io.atomic import staged_folder
 from tapmuscle.io.json_file import json_text
@@ -47,7 +47,7 @@ from tapmuscle.io.signals import parse_input_spec
 from tapmuscle.provenance import produced_by
 
 __all__ = ["PaperRun", "PAPER_FILES", "PAPER_RUNS", "PAPER_TABLES", "paper_findings", "paper_tables",
-           "preliminary_theta", "run_paper", "tables_csv_text", "TABLE_COLUMNS"]
+           "preliminary_theta", "run_paper", "tables_csv_text", "TABLE_COLUMNS", "checked_seeds"]
 
 
 #: The paper's measured Eq. (21) errors [mm]: table -> load -> method.
@@ -178,6 +178,24 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
     return np.array([cols[f"theta_{n}"][-1] for n in ASYMMETRIC.names])
 
 
+def checked_seeds(seeds: tuple[int, ...]) -> tuple[int, ...]:
+    """``seeds``, once they name at least one noise seed and none twice (a repeat would weigh that noise
+    realisation twice in a cell's mean).
+
+    Raises
+    ------
+    ValueError
+        No seed, or one given more than once (named).
+    """
+    if not seeds:
+        raise ValueError("seeds must name at least one noise seed")
+    repeated = sorted({s for s in seeds if list(seeds).count(s) > 1})
+    if repeated:
+        raise ValueError(f"seeds must differ (a repeat would count that noise realisation twice in the mean), got "
+                         f"{', '.join(map(str, repeated))} more than once in {tuple(seeds)}")
+    return seeds
+
+
 def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | None = None,
               refine_hz: float = 0.05, fmus: Mapping[str, Path] | None = None, stream: TextIO = sys.stdout,
               progress: Callable[[int, int], None] | None = None, faithful_eq5: bool = False,
@@ -235,13 +253,8 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
     from tapmuscle.cosim import PAPER_SCENARIOS, co_simulate, load_scenario
     from tapmuscle.cosim.master import sample_columns
 
-    if not seeds:
-        raise ValueError("seeds must name at least one noise seed")
-    repeated = sorted({s for s in seeds if list(seeds).count(s) > 1})
-    if repeated:  # a repeat would weigh that realisation twice in the mean
-        raise ValueError(f"seeds must differ, got {', '.join(map(str, repeated))} more than once in {tuple(seeds)}")
-    if figure_format not in FIGURE_FORMATS:
-        raise ValueError(f"figure_format must be one of {', '.join(FIGURE_FORMATS)}, got {figure_format!r}")
+    checked_seeds(seeds)
+    checked_figure_format(figure_format)
     out = Path(out)
     total, done = len(PAPER_RUNS) * len(seeds), 0
     if progress is not None:
