@@ -13,6 +13,7 @@ beside it as ``"command"`` (:func:`produced_by`, :func:`invoked_as`).
 from __future__ import annotations
 
 import contextvars
+import os
 import platform
 import shlex
 import shutil
@@ -57,25 +58,37 @@ def cpu_features() -> str:
 def source_revision() -> str | None:
     """The git commit tapmuscle runs from, ``"<12 hex digits>"`` or ``"<...> with changes"`` (files
     tracked by git modified; untracked ones do not count), where the package is imported from a git
-    checkout (an editable install); None where it is not (an installed wheel), and a reason where git
-    cannot tell (git not installed, a checkout another user owns)."""
+    checkout of its own (an editable install); None where it is not (an installed wheel, or a
+    ``tapmuscle`` folder some other repository holds without tracking it), and a reason where git
+    cannot tell (``"a git checkout, git not found"``; git refusing a checkout another user owns)."""
     root = Path(__file__).resolve().parent.parent
     if not (root / ".git").exists():
         return None
     git = shutil.which("git")
     if git is None:
-        return "a git checkout (git not found to name its commit)"
+        return "a git checkout, git not found to name its commit"
+    # this checkout's git, whatever a git hook running tapmuscle exported (GIT_DIR names another
+    # repository); no optional locks: a commit the user makes meanwhile must not find the index taken
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}
+
+    def git_says(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([git, "--no-optional-locks", "-C", str(root), *args], capture_output=True, text=True,
+                              timeout=10, env=env)
+
     try:
-        head = subprocess.run([git, "-C", str(root), "rev-parse", "--short=12", "HEAD"], capture_output=True,
-                              text=True, timeout=10)
-        status = subprocess.run([git, "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                                capture_output=True, text=True, timeout=10)
+        head = git_says("rev-parse", "--show-toplevel", "HEAD")
+        tracked = git_says("ls-files", "--error-unmatch", "--", "tapmuscle/provenance.py")
+        status = git_says("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.TimeoutExpired) as exc:
-        return f"a git checkout (git failed: {exc})"
+        return f"a git checkout, git failed: {exc}"
     if head.returncode or status.returncode:
         why = (head.stderr or status.stderr).strip().splitlines()
-        return f"a git checkout (git: {why[0] if why else 'failed'})"
-    return head.stdout.strip() + (" with changes" if status.stdout.strip() else "")
+        # without parentheses: tapmuscle --version puts its facts in parentheses after it
+        return f"a git checkout, git says: {why[0] if why else 'failed'}".replace("(", "").replace(")", "")
+    top, commit = head.stdout.split()[:2]
+    if Path(top).resolve() != root or tracked.returncode:  # another repository's folder holds it
+        return None
+    return commit[:12] + (" with changes" if status.stdout.strip() else "")
 
 
 def software() -> dict[str, str]:
@@ -129,7 +142,8 @@ def software_text(found: dict[str, str] | None = None, more: Sequence[str] = ())
     --version`` (with ``more``, further facts in the parentheses) and a sweep's ``summary.md`` say it."""
     found = software() if found is None else found
     # a document of an earlier release has no CPU features or source
-    facts = [f"Python {found['python']}", ", ".join(f"{name} {found[name]}" for name in NUMERICS_PACKAGES),
+    packages = [*NUMERICS_PACKAGES, *(["matplotlib"] if "matplotlib" in found else [])]
+    facts = [f"Python {found['python']}", ", ".join(f"{name} {found[name]}" for name in packages),
              found["machine"] + (f" ({found['cpu_features']})" if "cpu_features" in found else ""),
              f"compiled sub-step {found['compiled_substep']}", *more]
     source = f" from {found['source']}" if "source" in found else ""

@@ -24,9 +24,9 @@ def test_version_names_tapmuscle_python_the_numerics_and_the_sub_step(capsys):
     assert ended.value.code == 0
     out, err = capsys.readouterr()
     assert err == ""
-    found = re.fullmatch(r"tapmuscle (\S+)( from [0-9a-f]{12}(?: with changes)?)? \(Python (\S+); numpy (\S+), "
+    found = re.fullmatch(r"tapmuscle (\S+)( from [^()]+)? \(Python (\S+); numpy (\S+), "
                          r"scipy (\S+), osqp \S+, pythonfmu \S+, "
-                         r"fmpy \S+; (\S+ \S+) \(([A-Z0-9_ ]+|baseline)\); compiled sub-step (yes|no); "
+                         r"fmpy \S+, matplotlib \S+; (\S+ \S+) \(([A-Z0-9_ ]+|baseline)\); compiled sub-step (yes|no); "
                          r"C FMU messages formatted (yes|no)"
                          r"(; libpython shared|; libpython static: FMUs for "
                          r"Python hosts only)?\)\n", out)

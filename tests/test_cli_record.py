@@ -255,8 +255,8 @@ def test_a_replay_is_not_resampled_silently(recorded, tmp_path, capsys, extra, p
 
 def test_an_output_under_a_folder_one_may_not_enter_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
     """A folder on the way that this user may not enter (another user's home, mode 0700): Python
-    3.11's Path.exists and is_dir raise PermissionError on it, which went out as a traceback with exit 1.
-    Emulated (root enters every folder): every stat below ``closed`` is refused."""
+    3.11's Path.exists and is_dir raise PermissionError on it; the command refuses the path in one
+    line. Emulated (root enters every folder): every stat below ``closed`` is refused."""
     import errno
     import os
     import pathlib
@@ -276,3 +276,9 @@ def test_an_output_under_a_folder_one_may_not_enter_is_refused_in_one_line(tmp_p
     err = capsys.readouterr().err
     assert exc.value.code == 2 and len(err.strip().splitlines()) == 1, err
     assert f"--out {closed / 'x.csv'}: {closed / 'x.csv'} cannot be reached (Permission denied; no permission" in err
+    # another reason (a name too long for the file system) is said without the hint
+    long = tmp_path / ("a" * 300) / "x.csv"
+    with pytest.raises(SystemExit):
+        main(["record", "--load", "44", "--input", "const:value=5", "--duration", "1", "--out", str(long)])
+    err = capsys.readouterr().err
+    assert "cannot be reached (File name too long)" in err and "permission" not in err

@@ -36,27 +36,23 @@ def test_the_files_go_into_a_folder_only_this_user_may_enter(files):
     for folder in (root, root / DIGEST):
         st = os.lstat(folder)
         assert stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and st.st_mode & 0o077 == 0, oct(st.st_mode)
-    # an earlier release's folder (mode 0755 from the umask): nobody else can write into it
-    os.chmod(root, 0o755)
+    # an earlier release's folders, made with the umask's mode (0775 under a umask of 002): closed to others
+    for folder in (root, root / DIGEST):
+        os.chmod(folder, 0o775)
     distributed_sweep._WRITTEN.clear()
     assert shipped.path(DIGEST, use_local=False).read_bytes() == CONTENT
+    assert [os.lstat(folder).st_mode & 0o777 for folder in (root, root / DIGEST)] == [0o700, 0o700]
 
 
-def test_a_folder_another_user_could_write_into_or_redirect_is_refused(files, tmp_path):
-    """Another local user who made the folder open to all, or put a link in its place or in place of
-    an FMU's own folder, could swap the checked FMU for one whose code runs as this user: refused,
-    naming the folder, and nothing is written there."""
+def test_a_folder_another_user_could_redirect_is_refused(files, tmp_path):
+    """Another local user who put a link in the folder's place, or in place of an FMU's own folder,
+    could swap the checked FMU for one whose code runs as this user: refused, naming the folder and
+    what to do, and nothing is written where the link points."""
     shipped, root = files
-    root.mkdir(mode=0o777)
-    os.chmod(root, 0o777)
-    with pytest.raises(PermissionError, match=rf"FMU folder {root} may be written by other users: .* TMPDIR"):
-        shipped.path(DIGEST, use_local=False)
-    assert list(root.iterdir()) == []
-    root.rmdir()
     elsewhere = tmp_path / "theirs"
     elsewhere.mkdir()
     root.symlink_to(elsewhere)
-    with pytest.raises(PermissionError, match=rf"{root} is a link"):
+    with pytest.raises(PermissionError, match=rf"FMU folder {root} is a link: .* set TMPDIR to a folder of your own"):
         shipped.path(DIGEST, use_local=False)
     root.unlink()
     root.mkdir(mode=0o700)
@@ -73,3 +69,16 @@ def test_a_folder_of_another_users_is_refused(files):
     os.chown(root, 65534, -1)  # nobody's
     with pytest.raises(PermissionError, match=rf"{root} belongs to another user \(uid 65534\)"):
         shipped.path(DIGEST, use_local=False)
+
+
+@pytest.mark.skipif(not hasattr(os, "getuid") or os.getuid() != 0, reason="giving a file to another user needs root")
+def test_an_fmu_file_another_user_left_is_replaced_by_ones_own(files):
+    """The right bytes, but another user's file (left while the folder was open to others): replaced,
+    so that no one else can write to the file that runs."""
+    shipped, root = files
+    (root / DIGEST).mkdir(parents=True, mode=0o700)
+    theirs = root / DIGEST / "MusclePlant.fmu"
+    theirs.write_bytes(CONTENT)
+    os.chown(theirs, 65534, -1)
+    path = shipped.path(DIGEST, use_local=False)
+    assert path == theirs and path.read_bytes() == CONTENT and path.stat().st_uid == os.getuid()

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 import textwrap
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -136,9 +137,9 @@ def _drawn(monkeypatch):
 
 
 def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_path):
-    """MPC-servo was red beside MPC-UCP (Figs. 8-11) and blue beside AMPC-servo (Figs. 16-19); each method
-    now has one colour in every figure, and the legends sit above the axes, where they hid the peaks
-    and troughs a reader compares."""
+    """Each method has one colour in every figure (a reader compares Figs. 8-11 with Figs. 16-19 by it)
+    and its own dashes, and the legends sit above the axes, where they hide none of the peaks and
+    troughs a reader compares."""
     from tapmuscle.plots.figures import plot_prediction_errors
 
     saved = _drawn(monkeypatch)
@@ -163,9 +164,9 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
         assert legend.y0 >= ax.get_window_extent(renderer).y1 - 1  # above the plotting area
     assert len(colours) == 4 and all(len(c) == 1 for c in colours.values()), colours
     assert len({next(iter(c)) for c in colours.values()}) == 4  # four colours for four methods
-    # printed in grey or seen by a red-green colour-blind reader, each pair differs in its dashes (red
-    # beside orange, solid both, did not; nor dark red beside navy in Figs. 12-15), and every method has
-    # its own; matplotlib names any dash pattern "--", so the patterns themselves are compared
+    # each pair differs in its dashes, and every method has its own: colours alone do not tell them
+    # apart in grey print (dark red, navy) or to a red-green colour-blind reader (red, orange);
+    # matplotlib names any dash pattern "--", so the patterns themselves are compared
     def dashes(line):
         return line._unscaled_dash_pattern
 
@@ -305,6 +306,19 @@ def test_a_figure_is_written_in_the_format_its_suffix_names(tmp_path):
         if name == "f.svg":  # the text is text, not glyphs drawn as paths: an editor can change it
             text = path.read_text()
             assert ">time t [s]</text>" in text and "<use xlink:href=\"#DejaVuSans" not in text
+        if name in ("f.pdf", "f.svg"):  # the same figure gives the same bytes (no date, fixed ids)
+            again, ax = new_figure(figsize=(3, 2))
+            ax.plot([0, 1], [0, 1])
+            ax.set_xlabel("time t [s]")
+            assert save_figure(again, tmp_path / f"again_{name}").read_bytes() == path.read_bytes()
+    # text the default TrueType font lacks: drawn by fonts (a CJK collection of CFF outlines) that
+    # break a Type 42 PDF, so that figure keeps matplotlib's Type 3
+    fig, ax = new_figure(figsize=(3, 2))
+    ax.set_title("\u65e5\u672c")
+    with warnings.catch_warnings():  # without a CJK font installed, the missing glyphs are said
+        warnings.simplefilter("ignore")
+        data = save_figure(fig, tmp_path / "cjk.pdf").read_bytes()
+    assert b"/Type3" in data and b"/FontFile2" not in data
 
 
 def test_a_scenarios_load_and_supply_steps_are_marked_where_they_explain_the_error(monkeypatch, tmp_path):

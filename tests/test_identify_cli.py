@@ -101,13 +101,20 @@ def test_plots_are_written(records, tmp_path):
                         / np.linalg.norm(data.l_mm - data.l_mm.mean()))
     assert free_run == pytest.approx(doc["fit_percent"]["sim"], abs=0.05)
     assert "b1 mm/V" in data.metadata["theta_units"] and "xi31 1/mm^2" in data.metadata["theta_units"]
-    # as PDF, with the validation record's data beside
+    # again as PDF into the same folder, with the validation record's data beside: the PNGs go, a
+    # file of one's own stays
+    (tmp_path / "png" / "notes.txt").write_text("mine")
     assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "r.json"), "--quiet",
-                 "--validate", str(paths["val", 44]), "--plot", str(tmp_path / "pdf"), "--figure-format", "pdf"]) == 0
-    assert sorted(p.name for p in (tmp_path / "pdf").iterdir()) == [
-        "convergence.pdf", "hysteresis_loop.pdf", "identification.csv", "model_vs_measured.pdf", "validation.csv"]
-    assert read_recording(tmp_path / "pdf" / "validation.csv").columns["l_model_mm"].size == len(
+                 "--validate", str(paths["val", 44]), "--plot", str(tmp_path / "png"), "--figure-format", "pdf"]) == 0
+    assert sorted(p.name for p in (tmp_path / "png").iterdir()) == [
+        "convergence.pdf", "hysteresis_loop.pdf", "identification.csv", "model_vs_measured.pdf", "notes.txt",
+        "validation.csv"]
+    assert read_recording(tmp_path / "png" / "validation.csv").columns["l_model_mm"].size == len(
         read_recording(paths["val", 44]).t_s)
+    # and without a validation: its data, which the new figures no longer show, goes too
+    assert main(["identify", str(paths["train", 44]), "--json", str(tmp_path / "r.json"), "--quiet",
+                 "--plot", str(tmp_path / "png"), "--figure-format", "pdf"]) == 0
+    assert not (tmp_path / "png" / "validation.csv").exists() and (tmp_path / "png" / "notes.txt").exists()
 
 
 def test_units_do_not_matter(records):

@@ -106,6 +106,8 @@ def test_a_rerun_keeps_files_of_ones_own_and_replaces_every_earlier_output(paper
     shutil.copytree(paper[0], out)
     mine = {out / "runs" / "my_pi_controller.csv": "t_s,u_v,l_mm\n0,1,2\n", out / "fig08_tracking_mine.png": "mine",
             out / "runs" / "ampc_servo_44N_0.1Hz_with_delay.csv": "mine", out / "notes.txt": "mine"}
+    # named like an earlier seed's run, but not one: notes, a file manager's copy, a backup
+    mine |= {out / "runs" / f"mpc_ucp_44N_0.1Hz_seed{tail}.csv": "mine" for tail in ("1_notes", "2 copy", "0.bak", "01")}
     for path, text in mine.items():
         path.write_text(text)
     with open(tmp_path / "log.txt", "w") as log:
@@ -249,8 +251,14 @@ def test_bad_seeds(tmp_path, capsys):
     assert said.out == ""
     from tapmuscle.paper.reproduce import run_paper
 
-    with pytest.raises(ValueError, match=r"seeds must differ \(a repeat would count that noise realisation twice in the mean\), got 3 more than once"):
+    with pytest.raises(ValueError, match=r"seeds must differ \(a repeat would count that noise realisation twice in "
+                                         r"the mean\), got 3 more than once"):
         run_paper(tmp_path / "p", seeds=(3, 3))
+    with pytest.raises(ValueError, match=r"seeds must be integers in 0 .. 2\*\*64 - 1 = 18446744073709551615, got -1 "
+                                         r"in \(0, -1\)"):
+        run_paper(tmp_path / "p", seeds=(0, -1))
+    assert main(["paper", "--out", str(tmp_path / "p"), "--seeds", "0,18446744073709551616"]) == 2
+    assert "--seeds must be integers in 0 .. 2**64 - 1" in capsys.readouterr().err
     with pytest.raises(ValueError, match="figure_format must be one of png, pdf, svg, got 'eps'"):
         run_paper(tmp_path / "p", seeds=(3,), figure_format="eps")
     with pytest.raises(SystemExit) as exit_:  # refused by argparse, before anything runs

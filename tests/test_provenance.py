@@ -81,7 +81,7 @@ def test_a_checkouts_commit_and_its_changes_are_named(tmp_path, monkeypatch):
     shutil.copy(provenance.__file__, pkg / "provenance.py")
     monkeypatch.setattr(provenance, "__file__", str(pkg / "provenance.py"))
     assert source_revision() is None
-    git = ["git", "-C", str(tmp_path / "repo"), "-c", "user.name=t", "-c", "user.email=t@t"]
+    git = ["git", "-C", str(tmp_path / "repo"), "-c", "user.name=t", "-c", "user.email=t@t", "-c", "commit.gpgsign=false"]
     subprocess.run(git + ["init", "-q"], check=True)
     subprocess.run(git + ["add", "."], check=True)
     subprocess.run(git + ["commit", "-q", "-m", "c"], check=True)
@@ -91,6 +91,30 @@ def test_a_checkouts_commit_and_its_changes_are_named(tmp_path, monkeypatch):
     (pkg / "provenance.py").write_text("changed\n")
     assert source_revision() == f"{head} with changes"
     assert software()["source"] == f"{head} with changes"
+    # a git hook that runs tapmuscle exports another repository's GIT_DIR: this checkout is still named
+    other = tmp_path / "other"
+    subprocess.run(["git", "init", "-q", str(other)], check=True)
+    monkeypatch.setenv("GIT_DIR", str(other / ".git"))
+    assert source_revision() == f"{head} with changes"
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="git is not installed")
+def test_a_package_folder_that_another_repository_does_not_track_names_no_commit(tmp_path, monkeypatch):
+    """``pip install --target`` into a project of one's own, or a copied folder: the project's repository
+    holds the folder without tracking it, and its commit is not tapmuscle's."""
+    import tapmuscle.provenance as provenance
+
+    pkg = tmp_path / "project" / "tapmuscle"
+    pkg.mkdir(parents=True)
+    shutil.copy(provenance.__file__, pkg / "provenance.py")
+    monkeypatch.setattr(provenance, "__file__", str(pkg / "provenance.py"))
+    git = ["git", "-C", str(tmp_path / "project"), "-c", "user.name=t", "-c", "user.email=t@t", "-c",
+           "commit.gpgsign=false"]
+    subprocess.run(git + ["init", "-q"], check=True)
+    (tmp_path / "project" / "mine.txt").write_text("the project's own\n")
+    subprocess.run(git + ["add", "mine.txt"], check=True)
+    subprocess.run(git + ["commit", "-q", "-m", "c"], check=True)
+    assert source_revision() is None
 
 
 def test_a_document_written_by_a_command_names_the_command(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import os
 from pathlib import Path
@@ -56,8 +57,9 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
             return checked(text)
         except OSError as exc:  # a folder on the way this user may not enter (Python 3.11's Path.exists raises)
             where = os.fsdecode(exc.filename) if exc.filename is not None else text
-            raise argparse.ArgumentTypeError(f"{name} {text}: {where} cannot be reached ({exc.strerror or exc}; no "
-                                             "permission to enter a folder on the way?)") from None
+            hint = "; no permission to enter a folder on the way?" if exc.errno in (errno.EACCES, errno.EPERM) else ""
+            raise argparse.ArgumentTypeError(f"{name} {text}: {where} cannot be reached ({exc.strerror or exc}{hint})"
+                                             ) from None
 
     def checked(text: str) -> str:
         path = Path(text)

@@ -221,7 +221,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
     from tapmuscle.plots.figures import (input_jumps, plot_input_delay_fits, plot_loop_comparison, plot_model_vs_measured,
                                          plot_parameter_convergence)
-    from tapmuscle.io.atomic import atomic_path
+    from tapmuscle.io.atomic import atomic_path, staged_folder
     from tapmuscle.io.json_file import json_text
     from fmu_controller.hysteresis_model import THETA_UNITS
     from tapmuscle.io.recording import Recording, atomic_write_text, read_recording, write_recording
@@ -295,49 +295,50 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         atomic_write_text(tmp_json, json_text(out, indent=2))
         if args.plot:
             step("plot", f"plotting into {args.plot}")
-            folder = Path(args.plot)
-            folder.mkdir(parents=True, exist_ok=True)
-            fmt = args.figure_format
-            t = rec.t_s
-            # the figures' data, to redraw them in one's own style
-            units = ", ".join(f"{n} {THETA_UNITS[n]}" for n in report.structure.names)
-            base = {"source": f"tapmuscle identify {args.recording}", "model": report.model, "ts_s": f"{report.ts_s:g}"}
-            write_recording(folder / "identification.csv", Recording(
-                {"t_s": t, "u_v": rec.u_v, "l_mm": rec.l_mm, "l_model_mm": report.fit.simulated_mm}
-                | {f"theta_{n}": report.theta_history[:, i] for i, n in enumerate(report.structure.names)},
-                base | {"l_model_mm": f"the identified model's free run ({report.fit.percent['sim']:.2f} % fit)",
-                        "theta_units": units, "theta": "the estimate after each sample (convergence figure)"}))
-            if val is not None:
-                write_recording(folder / "validation.csv", Recording(
-                    {"t_s": val.t_s, "u_v": val.u_v, "l_mm": val.l_mm, "l_model_mm": val_fit.simulated_mm},
-                    base | {"validation_recording": str(args.validate),
-                            "l_model_mm": f"the identified model's free run ({val_fit.percent['sim']:.2f} % fit)"}))
-            plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / f"convergence.{fmt}",
-                                       constraint_start_s=report.constraint_start_s if report.box_lower else None,
-                                       bounds={n: (report.box_lower.get(n, -math.inf), report.box_upper.get(n, math.inf))
-                                               for n in report.structure.names},
-                                       title=f"{report.model} model: parameter convergence "
-                                             f"({Path(args.recording).name})")
-            shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
-            label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
-            shown_path = args.validate if val is not None else args.recording
-            shown_load = shown.metadata.get("load_n")
-            plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
-                                   folder / f"model_vs_measured.{fmt}",
-                                   title=f"free run against {'validation' if val is not None else 'identification'} "
-                                         f"record {Path(shown_path).name}"
-                                         + (f", {shown_load} N" if shown_load else "") + " (cf. Fig. 4)")
-            skip = int(len(shown.t_s) // 4)
-            jumps = input_jumps(shown.u_v[skip:])
-            plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / f"hysteresis_loop.{fmt}",
-                                 skip=skip, title=("(u, l) samples" if jumps else "hysteresis loop")
-                                 + f" of {Path(shown_path).name}" + (f", {shown_load} N" if shown_load else "")
-                                 + f" (t >= {shown.t_s[skip]:g} s; "
-                                 + ("the input jumps: points, not a loop)" if jumps else "cf. Fig. 5)"))
-            if choice is not None:
-                plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
-                                      folder / f"input_delay_fits.{fmt}",
-                                      title=f"1-step fit under each input delay ({Path(args.recording).name})")
+            # every file at once, and an earlier run's of these names replaced or removed (its figures
+            # in another format, a validation it had): files of other names in the folder stay
+            with staged_folder(Path(args.plot), owned=IDENTIFY_PLOT_FILES) as folder:
+                fmt = args.figure_format
+                t = rec.t_s
+                # the figures' data, to redraw them in one's own style
+                units = ", ".join(f"{n} {THETA_UNITS[n]}" for n in report.structure.names)
+                base = {"source": f"tapmuscle identify {args.recording}", "model": report.model, "ts_s": f"{report.ts_s:g}"}
+                write_recording(folder / "identification.csv", Recording(
+                    {"t_s": t, "u_v": rec.u_v, "l_mm": rec.l_mm, "l_model_mm": report.fit.simulated_mm}
+                    | {f"theta_{n}": report.theta_history[:, i] for i, n in enumerate(report.structure.names)},
+                    base | {"l_model_mm": f"the identified model's free run ({report.fit.percent['sim']:.2f} % fit)",
+                            "theta_units": units, "theta": "the estimate after each sample (convergence figure)"}))
+                if val is not None:
+                    write_recording(folder / "validation.csv", Recording(
+                        {"t_s": val.t_s, "u_v": val.u_v, "l_mm": val.l_mm, "l_model_mm": val_fit.simulated_mm},
+                        base | {"validation_recording": str(args.validate),
+                                "l_model_mm": f"the identified model's free run ({val_fit.percent['sim']:.2f} % fit)"}))
+                plot_parameter_convergence(t, report.theta_history, report.structure.names, folder / f"convergence.{fmt}",
+                                           constraint_start_s=report.constraint_start_s if report.box_lower else None,
+                                           bounds={n: (report.box_lower.get(n, -math.inf), report.box_upper.get(n, math.inf))
+                                                   for n in report.structure.names},
+                                           title=f"{report.model} model: parameter convergence "
+                                                 f"({Path(args.recording).name})")
+                shown, fit = (val, val_fit) if val is not None else (rec, report.fit)
+                label = f"{report.model} model, free run ({fit.percent['sim']:.1f} %)"
+                shown_path = args.validate if val is not None else args.recording
+                shown_load = shown.metadata.get("load_n")
+                plot_model_vs_measured(shown.t_s, shown.u_v, shown.l_mm, {label: fit.simulated_mm},
+                                       folder / f"model_vs_measured.{fmt}",
+                                       title=f"free run against {'validation' if val is not None else 'identification'} "
+                                             f"record {Path(shown_path).name}"
+                                             + (f", {shown_load} N" if shown_load else "") + " (cf. Fig. 4)")
+                skip = int(len(shown.t_s) // 4)
+                jumps = input_jumps(shown.u_v[skip:])
+                plot_loop_comparison(shown.u_v, shown.l_mm, {label: fit.simulated_mm}, folder / f"hysteresis_loop.{fmt}",
+                                     skip=skip, title=("(u, l) samples" if jumps else "hysteresis loop")
+                                     + f" of {Path(shown_path).name}" + (f", {shown_load} N" if shown_load else "")
+                                     + f" (t >= {shown.t_s[skip]:g} s; "
+                                     + ("the input jumps: points, not a loop)" if jumps else "cf. Fig. 5)"))
+                if choice is not None:
+                    plot_input_delay_fits(choice.fits_percent, choice.input_delay_samples, rec.ts_s,
+                                          folder / f"input_delay_fits.{fmt}",
+                                          title=f"1-step fit under each input delay ({Path(args.recording).name})")
     progress(len(steps) * per_step, len(steps) * per_step, f"wrote {args.json}")
     if choice is not None:
         print(f"{'input delay D [samples]':32s}" + "".join(f"{d:7d}" for d in range(len(choice.fits_percent))))
@@ -364,6 +365,13 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+#: What ``identify --plot DIR`` writes into DIR (figures in any of the formats, the validation's data
+#: only with --validate); other files there are left alone.
+IDENTIFY_PLOT_FILES = ("identification.csv", "validation.csv") + tuple(
+    f"{name}.{fmt}" for fmt in FIGURE_FORMATS
+    for name in ("convergence", "model_vs_measured", "hysteresis_loop", "input_delay_fits"))
+
+
 # --------------------------------------------------------------------------------------- paper
 def _cmd_paper(args: argparse.Namespace) -> int:
     from tapmuscle.paper.reproduce import PAPER_RUNS, checked_seeds, run_paper
@@ -374,8 +382,6 @@ def _cmd_paper(args: argparse.Namespace) -> int:
         seeds = tuple(int(x) for x in args.seeds.split(","))
     except ValueError:
         raise UsageError(f"--seeds must be comma-separated integers (0,1,2), got {args.seeds!r}") from None
-    if not seeds or min(seeds) < 0 or max(seeds) > _SEED_MAX:
-        raise UsageError(f"--seeds must be integers in 0 .. 2**64 - 1 = {_SEED_MAX}, got {args.seeds!r}")
     try:
         checked_seeds(seeds)
     except ValueError as exc:

@@ -28,7 +28,6 @@ import math
 import os
 import signal
 import socket
-import stat
 import tempfile
 import threading
 import time
@@ -128,7 +127,9 @@ class FmuFiles:
         target = _private_folder(_private_folder(_cache_root()) / digest) / self.names[digest]
         if _WRITTEN.get(digest) == target and target.is_file():
             return target  # checked by this process already
-        if not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
+        # a file another user left there (while the folder was open to them) is replaced by one of ours
+        theirs = target.is_file() and os.name != "nt" and target.stat().st_uid != os.getuid()
+        if theirs or not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
             # atomic: other worker processes see the whole file or none
             with atomic_path(target) as tmp:
                 tmp.write_bytes(self.data[digest])
@@ -146,14 +147,15 @@ def _cache_root() -> Path:
 
 def _private_folder(folder: Path) -> Path:
     """``folder``, made (mode 0700) if missing, once it is a folder of this user's that no other user
-    may write into. Its name in a shared temporary folder is predictable: another user who made it,
-    or a link in its place, or who could write into it, could swap a checked FMU for one whose code
-    then runs as this user. Windows' temporary folder is each user's own.
+    may write into: one of this user's that others may write into (an earlier release made it with
+    the umask's mode, 0775 under a umask of 002) is closed to them first. Its name in a shared
+    temporary folder is predictable: another user who made it, or a link in its place, could swap a
+    checked FMU for one whose code then runs as this user. Windows' temporary folder is each user's own.
 
     Raises
     ------
     PermissionError
-        ``folder`` is a link, not a folder, another user's, or writable by others; named, with what to do.
+        ``folder`` is a link, not a folder, or another user's; named, with what to do.
     """
     try:
         folder.mkdir(mode=0o700)
@@ -161,14 +163,25 @@ def _private_folder(folder: Path) -> Path:
         pass
     if os.name == "nt":
         return folder
-    st = os.lstat(folder)
-    why = ("is a link" if stat.S_ISLNK(st.st_mode) else "is not a folder" if not stat.S_ISDIR(st.st_mode)
-           else f"belongs to another user (uid {st.st_uid})" if st.st_uid != os.getuid()
-           else "may be written by other users" if st.st_mode & 0o022 else None)
-    if why is not None:
-        raise PermissionError(f"the sweep's FMU folder {folder} {why}: another user could replace an FMU there with "
-                              "code that runs as you. Remove it, or set TMPDIR to a folder of your own, and run again")
+    try:  # opened, not looked up by name again: what is checked and closed is what the name holds
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    except OSError as exc:
+        why = "is a link" if os.path.islink(folder) else f"is not a folder ({exc.strerror or exc})"
+        raise PermissionError(_taken(folder, why)) from None
+    try:
+        st = os.fstat(fd)
+        if st.st_uid != os.getuid():
+            raise PermissionError(_taken(folder, f"belongs to another user (uid {st.st_uid})"))
+        if st.st_mode & 0o077:
+            os.fchmod(fd, 0o700)
+    finally:
+        os.close(fd)
     return folder
+
+
+def _taken(folder: Path, why: str) -> str:
+    return (f"the sweep's FMU folder {folder} {why}: another user could replace an FMU there with code that runs "
+            "as you. Remove it, or set TMPDIR to a folder of your own, and run again")
 
 
 def make_task(run_id: str, scenario: Scenario, fmus: Mapping[str, str | Path], files: FmuFiles) -> RunTask:

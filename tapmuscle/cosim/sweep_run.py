@@ -413,7 +413,8 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
     windows = sorted({(r.scenario.evaluation_samples, r.scenario.step_s) for r in sweep.runs})
     window = (f"samples {windows[0][0][0]}..{windows[0][0][1]} ({windows[0][0][0] * windows[0][1]:.6g}-"
               f"{windows[0][0][1] * windows[0][1]:.6g} s) of each run" if len(windows) == 1
-              else f"each scenario's evaluation window ({len(windows)} different: `evaluation_samples` of the files)")
+              else f"each scenario's evaluation window ({len(windows)} different: their `evaluation_samples` and "
+                   "`step_s`)")
     lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm], "
               f"the mean |r - l| over {window}, over the runs that finished. What a scenario does not set runs at "
               "the controller FMU's defaults: the start-up mode, the hysteresis notch and the stored `theta0` "

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import shutil
 import signal
 import tempfile
@@ -149,7 +150,7 @@ def probe_output_folder(out: str | os.PathLike) -> None:
 
 
 @contextmanager
-def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None) -> Iterator[Path]:
+def staged_folder(out: str | os.PathLike, *, owned: Sequence[str | re.Pattern[str]] | None = None) -> Iterator[Path]:
     """A temporary folder next to ``out`` to write a run's outputs into, put in place when the block
     ends without error; on error ``out`` is left as it was (or not created) and the temporary folder
     removed.
@@ -158,11 +159,13 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
     ----------
     out : path
         The output folder.
-    owned : sequence of str, optional
-        Glob patterns (relative to ``out``) of the files a run of this kind writes. Given, the staged
-        files replace their namesakes in ``out`` (created if missing), and the files of ``out`` that
-        match a pattern but this run did not write (an earlier run's figures or experiment files)
-        are removed; other files in ``out`` are kept. None: ``out`` is replaced as a whole.
+    owned : sequence of str or re.Pattern, optional
+        The files a run of this kind writes, relative to ``out``: glob patterns (exact names, mostly),
+        or regular expressions that a file's path (``/``-separated) must match whole, where a glob
+        cannot say it (``runs/NAME_seed(0|[1-9][0-9]*)\\.csv``: digits only). Given, the staged files
+        replace their namesakes in ``out`` (created if missing), and the files of ``out`` that match
+        but this run did not write (an earlier run's figures or experiment files) are removed; other
+        files in ``out`` are kept. None: ``out`` is replaced as a whole.
 
     Raises
     ------
@@ -212,8 +215,12 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str] | None = None)
         # before any rename: one failing half-way would leave two runs mixed
         targets = {rel: _target(out / rel) for rel in new}
         out.mkdir(exist_ok=True)
-        stale = sorted({p for pattern in owned for p in out.glob(pattern)
-                        if p.is_file() and p.relative_to(out) not in targets})
+        globs = [pattern for pattern in owned if isinstance(pattern, str)]
+        expressions = [pattern for pattern in owned if not isinstance(pattern, str)]
+        matched = {p for pattern in globs for p in out.glob(pattern)}
+        if expressions:
+            matched |= {p for p in out.rglob("*") if any(e.fullmatch(p.relative_to(out).as_posix()) for e in expressions)}
+        stale = sorted(p for p in matched if p.is_file() and p.relative_to(out) not in targets)
         _replace_together(tmp, out, targets, stale)
     finally:
         _remove_uninterrupted(tmp)

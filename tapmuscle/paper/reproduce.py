@@ -21,6 +21,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,7 @@ from fmu_controller.prediction import checked_input_delay
 from fmu_controller.reference import SineReference
 from fmu_plant import Plant, PlantParams
 from fmu_plant.open_loop import run_open_loop
+from fmu_plant.seed import SEED_MAX
 
 from tapmuscle.closed_loop import EQ21_WINDOW_S, eq21_error_mm, run_closed_loop
 from tapmuscle.plots.figure_formats import FIGURE_FORMATS, checked_figure_format
@@ -85,11 +87,11 @@ _TABLES = (("table6", 0.1, ("mpc_servo", "mpc_ucp"), {44: (8, 9), 68: (10, 11)})
            ("table9", 0.2, ("ampc_servo", "mpc_servo"), {44: (16, 17), 68: (18, 19)}))
 
 
-def _figure_names(fmt: str) -> list[tuple[int, str, str]]:
-    """``(load, tracking figure, prediction-error figure)`` file names of each table's figures."""
-    return [(load, f"fig{figs[load][0]:02d}_tracking_{load}N_{freq:g}Hz.{fmt}",
+def _figure_names(fmt: str) -> list[tuple[str, int, str, str]]:
+    """``(table, load, tracking figure, prediction-error figure)``: the file names of each table's figures."""
+    return [(table, load, f"fig{figs[load][0]:02d}_tracking_{load}N_{freq:g}Hz.{fmt}",
              f"fig{figs[load][1]:02d}_prediction_error_{load}N_{freq:g}Hz.{fmt}")
-            for _, freq, _, figs in _TABLES for load in (44, 68)]
+            for table, freq, _, figs in _TABLES for load in (44, 68)]
 
 
 def _run_file(run: PaperRun, seed: int, first: bool) -> str:
@@ -99,9 +101,11 @@ def _run_file(run: PaperRun, seed: int, first: bool) -> str:
 
 #: What ``tapmuscle paper`` writes into its folder, by name (a run's CSV of any seed, a figure in any
 #: format): an earlier run's files of these names are replaced or removed; other files are left alone.
-PAPER_FILES = (("paper.json", "tables.csv")
-               + tuple(name for r in PAPER_RUNS for name in (f"runs/{r.name}.csv", f"runs/{r.name}_seed[0-9]*.csv"))
-               + tuple(name for fmt in FIGURE_FORMATS for _, *names in _figure_names(fmt) for name in names))
+PAPER_FILES: tuple[str | re.Pattern[str], ...] = (
+    ("paper.json", "tables.csv")
+    + tuple(name for r in PAPER_RUNS for name in (f"runs/{r.name}.csv",
+                                                  re.compile(rf"runs/{re.escape(r.name)}_seed(0|[1-9][0-9]*)\.csv")))
+    + tuple(name for fmt in FIGURE_FORMATS for _, _, *names in _figure_names(fmt) for name in names))
 
 
 def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantParams | None = None,
@@ -179,16 +183,19 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
 
 
 def checked_seeds(seeds: tuple[int, ...]) -> tuple[int, ...]:
-    """``seeds``, once they name at least one noise seed and none twice (a repeat would weigh that noise
-    realisation twice in a cell's mean).
+    """``seeds``, once they name at least one noise seed, each an integer in 0 .. 2**64 - 1 (the plant's
+    seeds) and none twice (a repeat would weigh that noise realisation twice in a cell's mean).
 
     Raises
     ------
     ValueError
-        No seed, or one given more than once (named).
+        No seed, one out of range or not an integer, or one given more than once (named).
     """
     if not seeds:
         raise ValueError("seeds must name at least one noise seed")
+    bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or not 0 <= s <= SEED_MAX]
+    if bad:  # before the identification and the first runs, not at that seed's first run
+        raise ValueError(f"seeds must be integers in 0 .. 2**64 - 1 = {SEED_MAX}, got {bad[0]!r} in {tuple(seeds)}")
     repeated = sorted({s for s in seeds if list(seeds).count(s) > 1})
     if repeated:
         raise ValueError(f"seeds must differ (a repeat would count that noise realisation twice in the mean), got "
@@ -306,14 +313,15 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
         # the figures of the two modes differ: each says its own
         mode = ", ".join([("the paper's start" if faithful_start else "start-up mode"),
                           ("Eq. (5) as printed" if faithful_eq5 else "notch")])
-        for (table, freq, _, figs), (load, tracking, prediction) in zip(
-                [t for t in _TABLES for _ in (44, 68)], _figure_names(figure_format)):
+        frequency = {table: freq for table, freq, _, _ in _TABLES}
+        numbers = {table: figs for table, _, _, figs in _TABLES}
+        for table, load, tracking, prediction in _figure_names(figure_format):
             runs = cols_by_table[table][str(load)]
-            fig_t, fig_p = figs[load]
-            plot_tracking(runs, tmp / tracking, window_s=EQ21_WINDOW_S,
-                          title=f"Fig. {fig_t}: tracking, {load} N, {freq:g} Hz (seed {seeds[0]}; {mode})")
+            fig_t, fig_p = numbers[table][load]
+            where = f"{load} N, {frequency[table]:g} Hz (seed {seeds[0]}; {mode})"
+            plot_tracking(runs, tmp / tracking, window_s=EQ21_WINDOW_S, title=f"Fig. {fig_t}: tracking, {where}")
             plot_prediction_errors(runs, tmp / prediction, window_s=EQ21_WINDOW_S,
-                                   title=f"Fig. {fig_p}: prediction error, {load} N, {freq:g} Hz (seed {seeds[0]}; {mode})")
+                                   title=f"Fig. {fig_p}: prediction error, {where}")
         document = {**tables, "per_seed": per_seed, "seeds": list(seeds), "id_seed": id_seed,
                     "findings": paper_findings(tables), "paper": PAPER_TABLES,
                     "theta0": ASYMMETRIC.to_dict(theta0),

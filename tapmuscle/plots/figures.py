@@ -54,6 +54,20 @@ def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], 
     return fig, fig.subplots(nrows, ncols, **subplots)
 
 
+def _pdf_fonttype(fig: Figure) -> int:
+    """42 (TrueType) where every character of the figure's text is in the default font, DejaVu Sans, a
+    TrueType font; else 3, matplotlib's default: the fonts that draw the rest (a CJK font such as Noto
+    CJK, a TrueType collection of CFF outlines) break a Type 42 PDF (matplotlib issue 20870)."""
+    from matplotlib import font_manager
+    from matplotlib.text import Text
+
+    text = "".join(t.get_text() for t in fig.findobj(Text))
+    if text.isascii():
+        return 42
+    charmap = font_manager.get_font(font_manager.findfont("DejaVu Sans")).get_charmap()
+    return 42 if all(ord(c) in charmap for c in set(text) if not c.isspace()) else 3
+
+
 class MissingGlyphWarning(UserWarning):
     """A figure's text has characters that no font matplotlib uses draws (they show as boxes)."""
 
@@ -78,10 +92,14 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             # TrueType fonts in a PDF (matplotlib's Type 3 default is refused by IEEE's and other
-            # publishers' checks) and text kept as text in an SVG (editable, searchable)
-            with atomic_path(path, suffix=f".{fmt}") as tmp, \
-                    rc_context({"pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "none"}):
-                fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=fmt)
+            # publishers' checks) and text kept as text in an SVG (editable, searchable); the same
+            # bytes for the same figure (no date, fixed ids), as the PNGs are
+            fonttype = _pdf_fonttype(fig)
+            settings = {"pdf.fonttype": fonttype, "ps.fonttype": fonttype, "svg.fonttype": "none",
+                        "svg.hashsalt": "tapmuscle"}
+            metadata = {"pdf": {"CreationDate": None}, "svg": {"Date": None}}.get(fmt)
+            with atomic_path(path, suffix=f".{fmt}") as tmp, rc_context(settings):
+                fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=fmt, metadata=metadata)
         missing = []
         for w in caught:
             glyph = _GLYPH.match(str(w.message))
@@ -90,7 +108,9 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
             elif chr(int(glyph.group(1))) not in missing:
                 missing.append(chr(int(glyph.group(1))))
         if missing:
-            warn_at_caller(f"{path.name}: no installed font draws {''.join(missing)!r}, shown as boxes (install a font "
+            shown = ("kept as text, which a viewer without a font that has them shows as boxes" if fmt == "svg"
+                     else "shown as boxes")
+            warn_at_caller(f"{path.name}: no installed font draws {''.join(missing)!r}, {shown} (install a font "
                            "that has them, e.g. Debian's fonts-noto-cjk)", MissingGlyphWarning)
     finally:
         if getattr(fig.canvas, "manager", None) is not None:
