@@ -285,7 +285,28 @@ def test_check_on_a_local_cluster(built_fmus, tmp_path, capsys):
     fmu_dir = str(built_fmus["MusclePlant"].parent)
     assert main(["check", str(case), "--workers", "1", "--fmu-dir", fmu_dir]) == 0
     captured = capsys.readouterr()
-    assert "Dask: 1 workers at tcp://127.0.0.1:" in captured.err and "PASS    case" in captured.out
+    assert "Dask: 1 workers at tls://127.0.0.1:" in captured.err and "PASS    case" in captured.out
+
+
+@pytest.mark.slow
+def test_another_client_cannot_use_the_commands_local_cluster():
+    """The command's own cluster listens on local ports that every user of the machine reaches; a
+    client without its temporary TLS credentials (another user's code, which would run as the
+    sweep's user) is refused, with or without TLS of its own."""
+    from distributed import Client
+    from distributed.security import Security
+
+    from tapmuscle.cosim.distributed_sweep import dask_client
+
+    with dask_client(1) as client:
+        address = client.scheduler.address
+        assert address.startswith("tls://127.0.0.1:")
+        assert client.submit(int, "7").result() == 7  # its own client gets in
+        for security in (None, Security.temporary()):  # none, and another cluster's credentials
+            with pytest.raises(Exception) as refused:
+                Client(address.replace("tls://", "tcp://") if security is None else address, security=security,
+                       timeout="3s")
+            assert not isinstance(refused.value, AssertionError)
 
 
 def _sweep_in_a_terminal(sweep, out, built_fmus, *, workers: int) -> subprocess.Popen:

@@ -501,6 +501,7 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
     """
     import dask
     from distributed import Client, LocalCluster
+    from distributed.security import Security
 
     if scheduler:
         probe_scheduler(scheduler, wait_s)
@@ -524,9 +525,18 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
     # which Dask sends out at once)
     with dask.config.set({"distributed.worker.profile.enabled": False,
                           "distributed.scheduler.worker-saturation": 1.0}):
+        # Its scheduler and workers listen on local TCP ports, which any user of the machine can reach:
+        # with Dask's temporary TLS credentials (mutual TLS, a certificate made for this cluster) only
+        # this process's client and workers get in, not another user's code that would run as yours.
+        # Its scheduler's HTTP server (health, metrics) is on a free port of this machine only.
+        try:
+            security = Security.temporary()
+        except ImportError as exc:  # the credentials are made with the cryptography package
+            raise ClusterError(f"the local cluster's TLS credentials need the cryptography package ({exc}): pip "
+                               "install \"tapmuscle[dist]\" (or cryptography), or run with --workers 0") from None
         try:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                                   scheduler_kwargs={"dashboard_address": ":0"},  # no fixed port 8787
+                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"}, security=security,
                                    silence_logs=logging.ERROR)
         except RuntimeError as exc:  # "Nanny failed to start": the processes said why, on stderr
             raise ClusterError(f"the local cluster's {workers} worker processes did not start ({exc}); their "
