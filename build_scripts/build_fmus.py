@@ -254,9 +254,16 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
             md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree)), version=version),
                           encoding="utf-8")
             target = out / f"{name}.fmu"
-            staged = out / f".{name}.fmu.partial-{os.getpid()}"
+            # a new file of a name no one can foresee: in a folder others may write, a foreseen name
+            # could be a link they made to a file of this user's, which the zip would overwrite
+            fd, partial = tempfile.mkstemp(prefix=f".{name}.fmu.partial-", dir=out)
+            os.close(fd)
+            staged = Path(partial)
             try:
                 _zip(tree, staged)
+                mask = os.umask(0o022)
+                os.umask(mask)
+                os.chmod(staged, 0o666 & ~mask)  # the mode a new file gets, not mkstemp's 0600
                 os.replace(staged, target)  # atomic: readers see the old or the new FMU, never half
             finally:
                 staged.unlink(missing_ok=True)

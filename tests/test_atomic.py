@@ -410,3 +410,55 @@ def test_a_name_the_file_system_encoding_could_not_decode_is_written_as_its_byte
     name = b"rig \xc3\xbc".decode("ascii", "surrogateescape")
     atomic_write_text(tmp_path / "r.csv", f"# source: {name}/s.toml\n")
     assert (tmp_path / "r.csv").read_bytes() == "# source: rig ü/s.toml\n".encode()
+
+
+needs_root = pytest.mark.skipif(not hasattr(os, "getuid") or os.getuid() != 0,
+                                reason="a link of another user's is made with lchown, as root")
+
+
+def _their_link(link, target):
+    """A link to ``target`` that another user (nobody, uid 65534) made, in a folder others may write."""
+    os.symlink(target, link)
+    os.lchown(link, 65534, 65534)
+    return link
+
+
+@needs_root
+def test_an_output_is_not_written_through_a_link_another_user_made(tmp_path):
+    """In a shared folder another user links the output's name to this user's file, or the output
+    folder's name to this user's folder, or a folder on the way: nothing is written or replaced
+    there; the link is named with its owner. A link of this user's own is still followed."""
+    from tapmuscle.io.atomic import atomic_path, staged_folder
+
+    mine = tmp_path / "home"
+    mine.mkdir()
+    (mine / "precious.txt").write_text("mine")
+    (mine / "thesis").mkdir()
+    (mine / "thesis" / "thesis.tex").write_text("mine")
+    shared = tmp_path / "shared"
+    shared.mkdir(mode=0o777)
+    _their_link(shared / "rec.csv", mine / "precious.txt")
+    with pytest.raises(PermissionError, match=r"rec.csv is a link that another user \(uid 65534\) made"):
+        with atomic_path(shared / "rec.csv") as tmp:
+            tmp.write_text("output")
+    _their_link(shared / "diag", mine / "thesis")
+    for owned in (None, ("report.md",)):
+        with pytest.raises(PermissionError, match=r"diag is a link that another user \(uid 65534\) made"):
+            with staged_folder(shared / "diag", owned=owned) as tmp:
+                (tmp / "report.md").write_text("output")
+    (shared / "run").mkdir()
+    _their_link(shared / "run" / "summary.json", mine / "precious.txt")
+    with pytest.raises(PermissionError, match=r"summary.json is a link that another user \(uid 65534\) made"):
+        with staged_folder(shared / "run", owned=("summary.json",)) as tmp:
+            (tmp / "summary.json").write_text("output")
+    _their_link(shared / "via", mine)  # a folder on the way
+    with pytest.raises(PermissionError, match=r"via is a link that another user \(uid 65534\) made"):
+        with atomic_path(shared / "via" / "new.csv") as tmp:
+            tmp.write_text("output")
+    assert (mine / "precious.txt").read_text() == "mine" and not (mine / "new.csv").exists()
+    assert sorted(p.name for p in (mine / "thesis").iterdir()) == ["thesis.tex"]
+    # this user's own link is theirs to follow
+    os.symlink(mine / "precious.txt", shared / "own.csv")
+    with atomic_path(shared / "own.csv") as tmp:
+        tmp.write_text("output")
+    assert (mine / "precious.txt").read_text() == "output" and (shared / "own.csv").is_symlink()

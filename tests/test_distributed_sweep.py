@@ -82,3 +82,15 @@ def test_an_fmu_file_another_user_left_is_replaced_by_ones_own(files):
     os.chown(theirs, 65534, -1)
     path = shipped.path(DIGEST, use_local=False)
     assert path == theirs and path.read_bytes() == CONTENT and path.stat().st_uid == os.getuid()
+
+
+def test_a_link_left_in_place_of_an_fmu_is_removed_not_written_through(files, tmp_path):
+    """A link in the FMU's place (to a file of this user's), left while the folder was open to
+    others: the link goes, the FMU is written as a file, the linked file is untouched."""
+    shipped, root = files
+    (root / DIGEST).mkdir(parents=True, mode=0o700)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    (root / DIGEST / "MusclePlant.fmu").symlink_to(notes)
+    path = shipped.path(DIGEST, use_local=False)
+    assert not path.is_symlink() and path.read_bytes() == CONTENT and notes.read_text() == "mine"

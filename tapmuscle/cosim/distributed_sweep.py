@@ -26,8 +26,10 @@ import hashlib
 import logging
 import math
 import os
+import shutil
 import signal
 import socket
+import stat
 import tempfile
 import threading
 import time
@@ -127,9 +129,16 @@ class FmuFiles:
         target = _private_folder(_private_folder(_cache_root()) / digest) / self.names[digest]
         if _WRITTEN.get(digest) == target and target.is_file():
             return target  # checked by this process already
-        # a file another user left there (while the folder was open to them) is replaced by one of ours
-        theirs = target.is_file() and os.name != "nt" and target.stat().st_uid != os.getuid()
-        if theirs or not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
+        # what another user left there while the folder was open to them (a link to a file of this
+        # user's, a file of theirs) is removed, not written through, and the FMU written anew
+        try:
+            st = os.lstat(target)
+        except FileNotFoundError:
+            st = None
+        if st is not None and (not stat.S_ISREG(st.st_mode) or (os.name != "nt" and st.st_uid != os.getuid())):
+            shutil.rmtree(target) if stat.S_ISDIR(st.st_mode) else target.unlink()
+            st = None
+        if st is None or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
             # atomic: other worker processes see the whole file or none
             with atomic_path(target) as tmp:
                 tmp.write_bytes(self.data[digest])

@@ -20,6 +20,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import tempfile
 import threading
 from contextlib import contextmanager
@@ -28,7 +29,7 @@ from typing import Iterator, Sequence
 
 from tapmuscle.interrupts import held_interrupts
 
-__all__ = ["atomic_path", "default_file_mode", "probe_output_folder", "staged_folder"]
+__all__ = ["atomic_path", "default_file_mode", "followed", "probe_output_folder", "staged_folder"]
 
 
 def _umask() -> int:
@@ -42,6 +43,44 @@ def default_file_mode() -> int:
     return 0o666 & ~_umask()
 
 
+def followed(path: str | os.PathLike) -> Path:
+    """``path`` with its symbolic links resolved (``os.path.realpath``), once each link on the way is
+    this user's or the system's (root's). A link another user made, in a folder others may write
+    into, would have the output written, or a folder replaced, where they chose: into this user's
+    own files (links are followed by the process, so the kernel's ``protected_symlinks`` of a sticky
+    ``/tmp`` does not stop it). Windows: resolved as it is.
+
+    Raises
+    ------
+    PermissionError
+        A link on the way belongs to another user; named, with its owner.
+    """
+    if os.name == "nt" or not hasattr(os, "getuid"):
+        return Path(os.path.realpath(path))
+    trusted = (os.getuid(), 0)
+    pending = list(Path(os.path.abspath(path)).parts)
+    resolved = Path(pending.pop(0))
+    for _ in range(256):  # resolving through links, as the kernel does, with a limit on their depth
+        if not pending:
+            return resolved
+        nxt = resolved / pending.pop(0)
+        try:
+            st = os.lstat(nxt)
+        except OSError:  # missing (made by the write) or not reachable: resolved as the write would
+            return Path(os.path.realpath(nxt.joinpath(*pending)))
+        if not stat.S_ISLNK(st.st_mode):
+            resolved = nxt
+            continue
+        if st.st_uid not in trusted:
+            raise PermissionError(f"{nxt} is a link that another user (uid {st.st_uid}) made: an output written "
+                                  f"through it would go where they chose ({os.readlink(nxt)}); not followed. Remove it "
+                                  "or write elsewhere")
+        target = Path(os.readlink(nxt))
+        pending = list((target if target.is_absolute() else resolved / target).parts) + pending
+        resolved = Path(pending.pop(0))
+    raise OSError(errno.ELOOP, os.strerror(errno.ELOOP), str(path))
+
+
 def _target(path: Path) -> tuple[Path, int]:
     """The file a write of ``path`` replaces (a symbolic link's target) and the mode it gets, as
     ``open(path, "w")`` would leave them (module docstring).
@@ -53,7 +92,8 @@ def _target(path: Path) -> tuple[Path, int]:
     PermissionError
         ``path`` is a file this process may not write.
     """
-    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    target = followed(path) if path.is_symlink() else path
+    followed(target.parent)  # a link on the way, as well as the file's own
     if target.is_dir():
         raise IsADirectoryError(f"{path} is a directory, not a file to write")
     if not target.exists():
@@ -134,7 +174,8 @@ def probe_output_folder(out: str | os.PathLike) -> None:
     OSError
         ``NotADirectoryError`` or ``PermissionError`` naming ``out`` and why.
     """
-    out = Path(os.path.realpath(out)) if Path(out).is_symlink() else Path(out)
+    out = followed(out) if Path(out).is_symlink() else Path(out)
+    followed(out)  # a link on the way
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out} is a file, not a folder for the outputs")
     try:
@@ -175,7 +216,7 @@ def staged_folder(out: str | os.PathLike, *, owned: Sequence[str | re.Pattern[st
         replaced or moved (on Windows, one that another program holds open), named, after the files
         moved until then were put back.
     """
-    out = Path(os.path.realpath(out)) if Path(out).is_symlink() else Path(out)
+    out = followed(out) if Path(out).is_symlink() else Path(out)
     probe_output_folder(out)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
