@@ -241,3 +241,13 @@ def test_a_check_that_an_fmu_crashes_leaves_a_report_naming_the_case(built_fmus,
     assert good.find("failure") is None and good.find("error") is None
     assert "did not finish: the check ended while it ran this case" in crashed.find("error").text
     assert "did not finish: not started, the check ended in an earlier case" in after.find("error").text
+
+
+@pytest.mark.parametrize("name, folder", [("..", "case"), (".", "case"), ("...", "case"), ("../../etc", ".._.._etc"),
+                                          ("a/../b", "a_.._b"), ("Rig A, 44 N", "Rig_A_44_N"), ("", "case")])
+def test_a_kept_runs_folder_stays_under_out_whatever_the_cases_name(name, folder):
+    """A case (or a file ``...toml``) named so that its folder would be ``..`` would have its kept run
+    replace what is above ``--out``: each name is one folder name under it."""
+    from tapmuscle.cli.sweep import _component
+
+    assert _component(name, "case") == folder

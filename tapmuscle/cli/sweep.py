@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 from contextlib import ExitStack
 from pathlib import Path
@@ -267,8 +268,6 @@ def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> 
     """``check --out``: each case that did not pass run again here, its files written into
     ``out/<file>/<case>/`` as ``tapmuscle run`` writes them (on one machine the run is the same bit
     for bit, wherever the check ran it)."""
-    import re
-
     from tapmuscle.cosim import ScenarioError, run_scenario
 
     used: set[Path] = set()
@@ -276,7 +275,7 @@ def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> 
         if result.status == "pass":
             continue
         case = result.case
-        folder = out / Path(case.file).stem / (re.sub(r"[^A-Za-z0-9._=+-]+", "_", case.name).strip("_") or "case")
+        folder = out / _component(Path(case.file).stem, "file") / _component(case.name, "case")
         n = 1
         while folder in used:  # two cases of one name
             n += 1
@@ -290,6 +289,14 @@ def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> 
                 if empty != out and empty.is_dir() and not any(empty.iterdir()):
                     empty.rmdir()
             print(f"{folder}: the run failed again, nothing written: {exc}", file=sys.stderr)
+
+
+def _component(name: str, fallback: str) -> str:
+    """``name`` as one folder name under ``--out``: other characters than letters, digits and
+    ``._=+-`` as ``_``, and never ``.`` or ``..`` (a case named so, or a file ``...toml``, would put its
+    outputs above ``--out``, replacing what is there)."""
+    safe = re.sub(r"[^A-Za-z0-9._=+-]+", "_", name).strip("_")
+    return fallback if safe.strip(".") == "" else safe
 
 
 # ------------------------------------------------------------------------------------------ parser
