@@ -38,6 +38,7 @@ from typing import Any, Iterator, Sequence
 
 from .model_description import content_guid, finish_model_description
 from .native_host import EXPORT_VARIABLE, NativeHostWarning
+from .own_folder import UntrustedFolderError, own_folder
 
 __all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
            "slave_metadata", "user_cache_root"]
@@ -333,17 +334,35 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
         cache_root = user_cache_root()
     folder = Path(cache_root) / f"fmu-{_source_digest()}"
     paths = {name: folder / f"{name}.fmu" for name in FMUS}
-    missing = tuple(name for name, p in paths.items() if not p.is_file())
-    if missing:
-        def unwritable(exc: OSError) -> OSError:
-            return OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
-                           f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
-                           f"tapmuscle build --out DIR)")
 
+    def unwritable(exc: OSError) -> OSError:
+        return OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
+                       f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
+                       f"tapmuscle build --out DIR)")
+
+    # The FMUs are code run as this user: taken only from folders of this user's (or root's) that no
+    # one else may write into, and only files of this user's (or root's); another's is built anew
+    remedy = ("Set XDG_CACHE_HOME to a folder of your own (or give run, sweep and check --fmu-dir DIR with the FMUs "
+              "of tapmuscle build --out DIR)")
+    for level in (Path(cache_root), folder):
         try:
-            folder.mkdir(parents=True, exist_ok=True)
+            own_folder(level, closed=0o022, what="the FMU cache", remedy=remedy)
+        except UntrustedFolderError:
+            raise
         except OSError as exc:
             raise unwritable(exc) from None
+    for p in paths.values():
+        try:
+            st = os.lstat(p)
+        except FileNotFoundError:
+            continue
+        if not stat.S_ISREG(st.st_mode) or (hasattr(os, "getuid") and st.st_uid not in (os.getuid(), 0)):
+            try:
+                p.unlink()
+            except OSError as exc:
+                raise unwritable(exc) from None
+    missing = tuple(name for name, p in paths.items() if not p.is_file())
+    if missing:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NativeHostWarning)
             try:

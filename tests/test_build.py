@@ -435,3 +435,37 @@ def test_an_interrupt_in_the_build_folders_removal_leaves_nothing_behind(monkeyp
                 (folder / name).mkdir()
                 (folder / name / "f.bin").write_bytes(b"x" * 1000)
     assert len(calls) == 2 and not folder.exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "getuid") or os.getuid() != 0, reason="another user's folder is made with chown, as root")
+def test_fmus_another_user_could_have_put_in_the_cache_are_not_run(tmp_path, monkeypatch):
+    """The cached FMUs are code run as this user. A cache folder of another user's (a shared
+    XDG_CACHE_HOME) is refused, naming the remedy; one of this user's that others may write into is
+    closed to them; an FMU file of another user's in it is built anew (the build is emulated)."""
+    import build_scripts.build_fmus as build
+    from build_scripts.own_folder import UntrustedFolderError
+
+    built = []
+
+    def fake_build(folder, names):
+        for name in names:
+            (folder / f"{name}.fmu").write_bytes(b"ours")
+        built.extend(names)
+
+    monkeypatch.setattr(build, "build_fmus", fake_build)
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    os.chown(theirs, 65534, 65534)
+    with pytest.raises(UntrustedFolderError, match=rf"the FMU cache {theirs} belongs to another user \(uid 65534\): "
+                                                   r"another user could put an FMU there .* Set XDG_CACHE_HOME"):
+        build.cached_fmus(theirs)
+    mine = tmp_path / "mine"
+    paths = build.cached_fmus(mine)
+    assert sorted(built) == sorted(build.FMUS) and (mine.stat().st_mode & 0o777) == 0o755
+    os.chmod(mine, 0o777)
+    os.chmod(paths["MusclePlant"].parent, 0o775)
+    os.chown(paths["MusclePlant"], 65534, 65534)  # left there while the folder was open to others
+    built.clear()
+    assert build.cached_fmus(mine) == paths
+    assert built == ["MusclePlant"] and paths["MusclePlant"].stat().st_uid == 0
+    assert [p.stat().st_mode & 0o777 for p in (mine, paths["MusclePlant"].parent)] == [0o755, 0o755]

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
+from build_scripts.own_folder import own_folder
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.io.atomic import atomic_path
 from tapmuscle.cosim.master import InstancePool, check_parameters, co_simulate
@@ -155,42 +156,11 @@ def _cache_root() -> Path:
 
 
 def _private_folder(folder: Path) -> Path:
-    """``folder``, made (mode 0700) if missing, once it is a folder of this user's that no other user
-    may write into: one of this user's that others may write into (an earlier release made it with
-    the umask's mode, 0775 under a umask of 002) is closed to them first. Its name in a shared
-    temporary folder is predictable: another user who made it, or a link in its place, could swap a
-    checked FMU for one whose code then runs as this user. Windows' temporary folder is each user's own.
-
-    Raises
-    ------
-    PermissionError
-        ``folder`` is a link, not a folder, or another user's; named, with what to do.
-    """
-    try:
-        folder.mkdir(mode=0o700)
-    except FileExistsError:
-        pass
-    if os.name == "nt":
-        return folder
-    try:  # opened, not looked up by name again: what is checked and closed is what the name holds
-        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
-    except OSError as exc:
-        why = "is a link" if os.path.islink(folder) else f"is not a folder ({exc.strerror or exc})"
-        raise PermissionError(_taken(folder, why)) from None
-    try:
-        st = os.fstat(fd)
-        if st.st_uid != os.getuid():
-            raise PermissionError(_taken(folder, f"belongs to another user (uid {st.st_uid})"))
-        if st.st_mode & 0o077:
-            os.fchmod(fd, 0o700)
-    finally:
-        os.close(fd)
-    return folder
-
-
-def _taken(folder: Path, why: str) -> str:
-    return (f"the sweep's FMU folder {folder} {why}: another user could replace an FMU there with code that runs "
-            "as you. Remove it, or set TMPDIR to a folder of your own, and run again")
+    """``folder``, this user's alone (:func:`build_scripts.own_folder.own_folder`): its name in a shared
+    temporary folder is predictable, and another user who made it, or a link in its place, could
+    swap a checked FMU for one whose code then runs as this user."""
+    return own_folder(folder, closed=0o077, what="the sweep's FMU folder",
+                      remedy="Remove it, or set TMPDIR to a folder of your own, and run again")
 
 
 def make_task(run_id: str, scenario: Scenario, fmus: Mapping[str, str | Path], files: FmuFiles) -> RunTask:

@@ -1,0 +1,74 @@
+"""A folder whose contents the process trusts: its own, or the system's, and closed to other users.
+
+An FMU is code: one taken from a folder another user can write into (a shared cache, a folder of a
+predictable name in the temporary directory) runs what they put there as this user. The FMU cache
+(:func:`build_scripts.build_fmus.cached_fmus`) and the sweep workers' FMU folder
+(:mod:`tapmuscle.cosim.distributed_sweep`) are taken through :func:`own_folder`. Windows keeps each
+user's cache and temporary folder apart already; there the folder is taken as it is.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+__all__ = ["own_folder", "UntrustedFolderError"]
+
+
+class UntrustedFolderError(PermissionError):
+    """A folder whose FMUs another user could have put there (:func:`own_folder`)."""
+
+
+def own_folder(folder: Path, *, closed: int, what: str, remedy: str) -> Path:
+    """``folder``, made if missing (mode ``0o777 & ~closed``), once it is this user's or root's and
+    a link to neither: one of this user's that others may write into (made under a umask of 002,
+    say) has the ``closed`` mode bits taken away first.
+
+    Parameters
+    ----------
+    folder : Path
+        The folder.
+    closed : int
+        The mode bits others must not have: ``0o077`` (this user's alone) or ``0o022`` (not
+        writable by others).
+    what : str
+        What the folder is, for the message (``"the FMU cache"``).
+    remedy : str
+        What to do instead, for the message (``"set XDG_CACHE_HOME to a folder of your own"``).
+
+    Raises
+    ------
+    UntrustedFolderError
+        ``folder`` is a link, not a folder, another user's, or root's and open to others; named,
+        with why an FMU there cannot be trusted and the remedy.
+    OSError
+        ``folder`` cannot be made.
+    """
+    try:
+        folder.mkdir(mode=0o777 & ~closed, parents=True, exist_ok=True)
+    except FileExistsError:  # a file of that name: what a write into it would meet
+        raise NotADirectoryError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(folder)) from None
+    if os.name == "nt" or not hasattr(os, "getuid"):
+        return folder
+
+    def refused(why: str) -> UntrustedFolderError:
+        return UntrustedFolderError(f"{what} {folder} {why}: another user could put an FMU there whose code runs as "
+                               f"you. {remedy}")
+
+    try:  # opened, not looked up by name again: what is checked and closed is what the name holds
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    except OSError as exc:
+        raise refused("is a link" if os.path.islink(folder) else f"is not a folder ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if st.st_uid not in (os.getuid(), 0):
+            raise refused(f"belongs to another user (uid {st.st_uid})")
+        if st.st_uid != os.getuid():  # root's (a system-wide folder): trusted unless others may write it
+            if st.st_mode & 0o022:
+                raise refused("is open to other users")
+        elif st.st_mode & closed:
+            os.fchmod(fd, st.st_mode & 0o7777 & ~closed)
+    finally:
+        os.close(fd)
+    return folder
