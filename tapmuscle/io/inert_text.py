@@ -33,12 +33,13 @@ def inert_csv_text(text: str) -> str:
     return ",".join([first, *(inert_cell(piece) for piece in rest)])
 
 
-_MARKDOWN_SPECIAL = re.compile(r"([\\`*_\[\]|])")
+_MARKDOWN_SPECIAL = re.compile(r"([\\`\[\]|])")
 
 
 def markdown_text(text: str) -> str:
     """``text`` as literal Markdown on one line: HTML's ``& < >`` as entities, the characters that
-    make links, code, emphasis and table cells (``\\ ` * _ [ ] |``) escaped, line breaks as spaces."""
+    make links, code spans and table cells (``\\ ` [ ] |``) escaped, line breaks as spaces (emphasis,
+    harmless, is left: ``ampc_servo`` stays readable in the file)."""
     text = " ".join(text.splitlines())
     text = text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
     return _MARKDOWN_SPECIAL.sub(r"\\\1", text)
