@@ -256,8 +256,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "ambiguous verdict when diagnosing the discriminating experiment's recording")
     dia.add_argument("--candidates", default=None, metavar="FILE.py",
                      help="a Python file defining candidates = [Candidate(...), ...], effects of your own tried "
-                          "beside the built-in ones (--effects may name them) (docs/diagnosis.md, \"A candidate "
-                          "of your own\")")
+                          "beside the built-in ones (--effects may name them); it is run as Python code, so give "
+                          "only a file you trust (docs/diagnosis.md, \"A candidate of your own\")")
     dia.add_argument("--no-calibration", action="store_true",
                      help="take the plant's nominal constants as exact (skip the calibration step)")
     dia.add_argument("--workers", type=integer_at_least("--workers", 1), default=None,

@@ -269,8 +269,9 @@ def _declared_value(var: Any, name: str, value: Any, where: str) -> int | float 
 def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None:
     """Raise ScenarioError (naming file and key) if ``scenario`` sets a parameter its FMUs do not have, or
     a value of the wrong type or outside the range their model descriptions declare, every such
-    parameter in one message (a user mends them in one go); reads only the model descriptions (no
-    instance), to check a whole sweep before it runs. (Rules between parameters, such as
+    parameter in one message (a user mends them in one go); makes no instance, to check a whole sweep
+    before it runs (opening an FMU checks it, :mod:`tapmuscle.cosim.fmu_file`, which loads its binary
+    once in a child process: an FMU's code runs before any of its runs). (Rules between parameters, such as
     ``servo.Hu <= servo.Hp``, are the FMU's, checked when a run starts.)"""
     problems = []
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
