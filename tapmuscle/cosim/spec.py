@@ -573,6 +573,8 @@ def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         escape = any(m in str(exc) for m in ("Unescaped '\\'", "Invalid hex value"))
         raise ScenarioError(f"{path}: not valid TOML: {exc}" + (f"; {WINDOWS_PATH_HINT}" if escape else "")) from None
+    except RecursionError:  # tomllib's parser recurses once per level of arrays or tables nested in one another
+        raise ScenarioError(f"{path}: not a {what} file: its arrays or tables are nested too deep to read") from None
 
 
 def _shipped_hint(path: Path) -> str:

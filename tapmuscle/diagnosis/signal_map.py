@@ -135,6 +135,8 @@ def read_signal_map(path: str | Path, iface: FmuInterface, columns: Sequence[str
         raise SignalMapError(f"--map {path}: no such file") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise SignalMapError(f"--map {path}: not a readable TOML file: {exc}") from None
+    except RecursionError:  # tomllib's parser recurses once per level of nesting
+        raise SignalMapError(f"--map {path}: not a readable TOML file: its arrays or tables are nested too deep") from None
     unknown = set(doc) - {"time", "ts_s", "inputs", "outputs", "parameters", "calibrate"}
     if unknown:
         raise SignalMapError(f"{path}: unknown key {sorted(unknown)[0]!r} (known: time, ts_s, inputs, outputs, "
