@@ -214,3 +214,27 @@ def test_a_host_that_loads_an_fmu_with_a_truncated_inner_library_is_told_and_sur
     out = proc.stdout + proc.stderr
     assert "refused:" in out and "ended" in out, out[-2000:]
     assert "MusclePlant_pythonfmu.so is truncated: 20000 bytes, its ELF header says at least" in out, out[-2000:]
+
+
+def test_an_fmu_that_would_unpack_outside_its_folder_or_beyond_any_fmus_size_is_named(built_fmus, tmp_path,
+                                                                                    monkeypatch):
+    """An entry with an absolute path (fmpy refuses it with a bare Exception, which went out as a
+    traceback), and a zip that would unpack to more than any FMU needs (a small "zip bomb"): named,
+    and nothing unpacked."""
+    import tapmuscle.cosim.master as master
+
+    absolute = tmp_path / "abs" / "MusclePlant.fmu"
+    absolute.parent.mkdir()
+    _rewrite(built_fmus["MusclePlant"], absolute, lambda name, data: data)
+    with zipfile.ZipFile(absolute, "a") as z:
+        z.writestr(str(tmp_path / "outside.txt"), "planted")
+    with pytest.raises(ScenarioError, match=r"MusclePlant.fmu: not an FMU that can be unpacked: Illegal path .*"
+                                            r"outside.txt"):
+        master.unpack(absolute)
+    assert not (tmp_path / "outside.txt").exists()
+    size = sum(m.file_size for m in zipfile.ZipFile(built_fmus["MusclePlant"]).infolist())
+    monkeypatch.setattr(master, "MAX_UNPACKED_BYTES", size - 1)
+    big = _rewrite(built_fmus["MusclePlant"], tmp_path / "MusclePlant.fmu", lambda name, data: data)
+    with pytest.raises(ScenarioError, match=r"MusclePlant.fmu: would unpack to 0.0 GiB in \d+ files, more than .* any "
+                                            r"FMU needs: not unpacked"):
+        master.unpack(big)

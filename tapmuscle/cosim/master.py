@@ -182,14 +182,41 @@ def unpack(path: str | Path) -> Unpacked:
     if path not in _UNPACKED:
         if not path.is_file():
             raise ScenarioError(f"{path}: FMU file does not exist")
+        _check_unpacked_size(path)  # before its members are read
         check_fmu_file(path)  # a broken binary is named here, not by a signal in this process
         try:
             md = read_model_description(str(path))
         except Exception as exc:  # noqa: BLE001 - any reader failure is a bad FMU file
             raise ScenarioError(f"{path}: not a readable FMU: {exc}") from None
-        folder = extract(str(path), claimed_folder(f"tapmuscle_{md.modelName}_"))
+        try:
+            folder = extract(str(path), claimed_folder(f"tapmuscle_{md.modelName}_"))
+        except Exception as exc:  # noqa: BLE001 - fmpy refuses an absolute or drive path with a bare Exception
+            raise ScenarioError(f"{path}: not an FMU that can be unpacked: {exc}") from None
         _UNPACKED[path] = Unpacked(path, md, folder, {v.name: v for v in md.modelVariables})
     return _UNPACKED[path]
+
+
+#: The most an FMU may unpack to [bytes], and its most files: far beyond any FMU's (the project's
+#: unpack to a few MB), short of a small zip that unpacks to fill the disk (a "zip bomb").
+MAX_UNPACKED_BYTES = 2 * 1024 ** 3
+MAX_UNPACKED_FILES = 100_000
+
+
+def _check_unpacked_size(path: Path) -> None:
+    """Refuse an FMU that would unpack to more than :data:`MAX_UNPACKED_BYTES` or
+    :data:`MAX_UNPACKED_FILES`, before anything is unpacked (the zip's own directory says)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            members = z.infolist()
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ScenarioError(f"{path}: not a readable FMU: {exc}") from None
+    size = sum(m.file_size for m in members)
+    if size > MAX_UNPACKED_BYTES or len(members) > MAX_UNPACKED_FILES:
+        raise ScenarioError(f"{path}: would unpack to {size / 1024 ** 3:.1f} GiB in {len(members)} files, more than "
+                            f"{MAX_UNPACKED_BYTES / 1024 ** 3:g} GiB or {MAX_UNPACKED_FILES} files any FMU needs: not "
+                            "unpacked")
 
 
 #: What sets each input of the closed loop's FMUs every sample, named where a scenario sets one as a parameter.
