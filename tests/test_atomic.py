@@ -457,6 +457,15 @@ def test_an_output_is_not_written_through_a_link_another_user_made(tmp_path):
             tmp.write_text("output")
     assert (mine / "precious.txt").read_text() == "mine" and not (mine / "new.csv").exists()
     assert sorted(p.name for p in (mine / "thesis").iterdir()) == ["thesis.tex"]
+    # a colleague's link in a folder of theirs no one else may write (a volume of the host user's
+    # mounted in a container run as root) is theirs to make: followed
+    colleague = tmp_path / "colleague"
+    colleague.mkdir(mode=0o755)
+    os.chown(colleague, 65534, 65534)
+    _their_link(colleague / "results", mine / "thesis")
+    with atomic_path(colleague / "results" / "new.csv") as tmp:
+        tmp.write_text("output")
+    assert (mine / "thesis" / "new.csv").read_text() == "output"
     # this user's own link is theirs to follow
     os.symlink(mine / "precious.txt", shared / "own.csv")
     with atomic_path(shared / "own.csv") as tmp:

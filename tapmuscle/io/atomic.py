@@ -44,16 +44,18 @@ def default_file_mode() -> int:
 
 
 def followed(path: str | os.PathLike) -> Path:
-    """``path`` with its symbolic links resolved (``os.path.realpath``), once each link on the way is
-    this user's or the system's (root's). A link another user made, in a folder others may write
-    into, would have the output written, or a folder replaced, where they chose: into this user's
-    own files (links are followed by the process, so the kernel's ``protected_symlinks`` of a sticky
-    ``/tmp`` does not stop it). Windows: resolved as it is.
+    """``path`` with its symbolic links resolved (``os.path.realpath``), once no link on the way could
+    have been planted: each is this user's or root's, or stands in a folder of its own owner's that
+    no one else may write into (a folder of a colleague's, a volume of the host user's mounted in a
+    container run as root). A link another user made in a shared folder (``/tmp``, a group's folder)
+    would have the output written, or a folder replaced, where they chose: into this user's own
+    files (links are followed by the process, so the kernel's ``protected_symlinks``, a rule of this
+    kind for sticky folders, does not stop it). Windows: resolved as it is.
 
     Raises
     ------
     PermissionError
-        A link on the way belongs to another user; named, with its owner.
+        Such a link on the way; named, with its owner.
     """
     if os.name == "nt" or not hasattr(os, "getuid"):
         return Path(os.path.realpath(path))
@@ -71,7 +73,9 @@ def followed(path: str | os.PathLike) -> Path:
         if not stat.S_ISLNK(st.st_mode):
             resolved = nxt
             continue
-        if st.st_uid not in trusted:
+        folder = os.stat(resolved)
+        planted = folder.st_uid != st.st_uid or folder.st_mode & 0o022  # in a folder others write into
+        if st.st_uid not in trusted and planted:
             raise PermissionError(f"{nxt} is a link that another user (uid {st.st_uid}) made: an output written "
                                   f"through it would go where they chose ({os.readlink(nxt)}); not followed. Remove it "
                                   "or write elsewhere")
