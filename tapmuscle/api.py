@@ -405,7 +405,8 @@ def _fmus_argument(fmus: Any, scenarios: list) -> dict[str, Path]:
 
 
 def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None = None, client: Any = None,
-          workers: int = 0, plots: bool = True, progress: bool | Callable[[int, int, str], None] | None = None) -> Any:
+          workers: int = 0, plots: bool = True, progress: bool | Callable[[int, int, str], None] | None = None,
+          figure_format: str = "png") -> Any:
     """Run a sweep's runs not yet finished in ``out`` and write its summary (what ``tapmuscle sweep`` does).
 
     Parameters
@@ -425,10 +426,12 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
         Without ``client``: 0 runs every run in this process; N > 0 on a local cluster of N worker
         processes, closed at the end.
     plots : bool
-        Write the PNGs.
+        Draw the figures.
     progress : bool or callable, optional
         ``progress(done, total, detail)`` after each run; True: a report on stderr
         (:class:`tapmuscle.progress.Progress`).
+    figure_format : {"png", "pdf", "svg"}
+        The figures' format (PDF and SVG, vector, for a publication).
 
     Returns
     -------
@@ -473,7 +476,7 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
             execute = DaskExecutor(stack.enter_context(dask_client(workers)), one_run_per_thread=True)
         else:
             execute = run_serial
-        return run_sweep(sw, out, given, execute, plots=plots, progress=progress)
+        return run_sweep(sw, out, given, execute, plots=plots, progress=progress, figure_format=figure_format)
 
 
 def cosimulate(scenario: Any, *, fmus: Mapping[str, str | Path] | None = None, out: str | Path | None = None,

@@ -14,6 +14,7 @@ from typing import Any
 
 from tapmuscle.cli.arguments import integer_at_least, number_within, output_path
 from tapmuscle.errors import UsageError
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS
 
 __all__ = ["register"]
 
@@ -120,7 +121,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             ResultsLog(out / "results.csv", result_columns(sweep)).latest()  # another sweep's file: refuse early
             execute = _executor(args, stack)
             report = run_sweep(sweep, out, fmus, execute, plots=not args.no_plots,
-                               progress=Progress("sweep", enabled=not args.quiet))
+                               progress=Progress("sweep", enabled=not args.quiet), figure_format=args.figure_format)
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
         except ClusterError as exc:
@@ -145,7 +146,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
               f"'FMU warnings'); the first, run {report.fmu_warnings[0][0]}: {report.fmu_warnings[0][1]}",
               file=sys.stderr)
     print(f"wrote {Path(out) / 'results.csv'}, {Path(out) / 'summary.md'}"
-          + ("" if args.no_plots else f" and {Path(out) / '*.png'}"))
+          + ("" if args.no_plots else f" and {Path(out) / ('*.' + args.figure_format)}"))
     return 1 if report.failed or report.violated else 0
 
 
@@ -327,7 +328,10 @@ def register(sub: Any) -> None:
     sw.add_argument("--out", type=output_path("--out", "folder"), required=True,
                     help="output folder (rerun into the same folder to resume)")
     _common(sw, "cpus")
-    sw.add_argument("--no-plots", action="store_true", help="no PNGs")
+    sw.add_argument("--no-plots", action="store_true", help="no figures")
+    sw.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+                    help="format of the figures: png (default), or pdf or svg for a publication; their data is "
+                         "results.csv")
     sw.set_defaults(func=_cmd_sweep)
 
     ck = sub.add_parser("check", help="run the scenarios that carry [expect] bounds and report pass/fail (CI)",

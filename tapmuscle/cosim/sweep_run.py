@@ -15,7 +15,7 @@ Outputs in ``DIR``:
   the FMUs warned of in the runs made this time; the releases that summarised it
   (:func:`tapmuscle.provenance.software_text`).
 * ``mae_by_method.png`` and, when load, reference frequency, supply or another numeric field varies,
-  ``mae_map.png`` (:mod:`tapmuscle.plots.sweep_figures`).
+  ``mae_map.png`` (:mod:`tapmuscle.plots.sweep_figures`; PDF or SVG with ``figure_format``).
 
 **Resume.** A rerun of the same sweep into the same ``DIR`` skips every run whose last row is ``ok``
 and was made with the same FMU files; failed runs are run again (their new row replaces the old one at
@@ -46,10 +46,11 @@ from tapmuscle.cosim.expect import METRICS, Expectations, check_expectations
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 from tapmuscle.cosim.sweep import Sweep, SweepRun
 from tapmuscle.io.inert_text import inert_cell, markdown_text
+from tapmuscle.plots.figure_formats import FIGURE_FORMATS, checked_figure_format
 from tapmuscle.provenance import software_text
 
-__all__ = ["DESCRIPTIVE", "SUMMARY_FILES", "SweepReport", "ResultsLog", "result_columns", "run_sweep", "summary_markdown",
-           "describe_scenario"]
+__all__ = ["DESCRIPTIVE", "SUMMARY_FIGURES", "SUMMARY_FILES", "SweepReport", "ResultsLog", "result_columns",
+           "run_sweep", "summary_markdown", "describe_scenario"]
 
 #: Columns that describe every run, whether swept or not.
 DESCRIPTIVE = ("scenario", "method", "load_n", "supply_mpa", "frequency_hz", "seed")
@@ -239,7 +240,8 @@ def _metrics_of(row: Mapping[str, str]) -> dict[str, float]:
 
 
 def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], execute: Executor, *,
-              progress: Callable[..., None] | None = None, plots: bool = True) -> SweepReport:
+              progress: Callable[..., None] | None = None, plots: bool = True,
+              figure_format: str = "png") -> SweepReport:
     """Run the runs of ``sweep`` not yet finished in ``out/results.csv``, then write the summary.
 
     Parameters
@@ -255,23 +257,28 @@ def run_sweep(sweep: Sweep, out: str | Path, fmus: Mapping[str, str | Path], exe
     progress : callable, optional
         Called as ``progress(done, total, detail)`` after each run (``detail``: failed and remaining).
     plots : bool
-        Write the PNGs.
+        Draw the figures (:data:`SUMMARY_FIGURES`).
+    figure_format : {"png", "pdf", "svg"}
+        Their format (:data:`~tapmuscle.plots.figure_formats.FIGURE_FORMATS`).
 
     Raises
     ------
     ScenarioError
         ``results.csv`` holds another sweep's results, or another sweep writes into ``out`` now.
+    ValueError
+        A figure format not in :data:`~tapmuscle.plots.figure_formats.FIGURE_FORMATS`.
     """
+    checked_figure_format(figure_format)
     out = Path(out)
     lock = _FolderLock(out)
     try:
-        return _run_sweep(sweep, out, fmus, execute, progress, plots, lock)
+        return _run_sweep(sweep, out, fmus, execute, progress, (figure_format if plots else None), lock)
     finally:
         lock.release()
 
 
 def _run_sweep(sweep: Sweep, out: Path, fmus: Mapping[str, str | Path], execute: Executor,
-               progress: Callable[..., None] | None, plots: bool, lock: "_FolderLock") -> SweepReport:
+               progress: Callable[..., None] | None, plots: str | None, lock: "_FolderLock") -> SweepReport:
     """:func:`run_sweep`'s work: everything checked, then the output folder made and locked."""
     log = ResultsLog(out / "results.csv", result_columns(sweep))
     log.latest()  # refuses another sweep's file before anything runs
@@ -480,13 +487,17 @@ def _sort_key(text: str) -> tuple[int, float, str]:
     return (1, math.inf, text) if isinstance(value, str) else (0, value, text)
 
 
+#: The figures :func:`run_sweep` draws, without their format's suffix.
+SUMMARY_FIGURES = ("mae_by_method", "mae_map")
+
 #: What :func:`run_sweep` writes at the end beside ``results.csv`` (together: a figure an earlier sweep
-#: into the folder drew and this one does not is removed).
-SUMMARY_FILES = ("summary.md", "mae_by_method.png", "mae_map.png")
+#: into the folder drew and this one does not, or drew in another format, is removed).
+SUMMARY_FILES = ("summary.md",) + tuple(f"{name}.{fmt}" for fmt in FIGURE_FORMATS for name in SUMMARY_FIGURES)
 
 
-def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: bool, other_rows: int,
+def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], plots: str | None, other_rows: int,
                    fmu_warnings: Sequence[tuple[str, str]] = ()) -> None:
+    """``summary.md`` and, in the format ``plots`` (None: none), the figures."""
     from tapmuscle.io.atomic import staged_folder
     from tapmuscle.io.recording import atomic_write_text
 
@@ -496,7 +507,7 @@ def _write_summary(sweep: Sweep, out: Path, rows: Sequence[Mapping[str, str]], p
             from tapmuscle.plots.sweep_figures import plot_mae_by_method, plot_mae_map
 
             numeric = _distinct(rows, ["load_n", "frequency_hz", "supply_mpa"] + _swept_fields(sweep))
-            plot_mae_by_method(rows, tmp / "mae_by_method.png", title=f"{sweep.name}: Eq. (21) error per method",
+            plot_mae_by_method(rows, tmp / f"mae_by_method.{plots}", title=f"{sweep.name}: Eq. (21) error per method",
                                pooled=numeric)
-            plot_mae_map(rows, numeric, tmp / "mae_map.png", title=f"{sweep.name}: Eq. (21) error")
+            plot_mae_map(rows, numeric, tmp / f"mae_map.{plots}", title=f"{sweep.name}: Eq. (21) error")
 
