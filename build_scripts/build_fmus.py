@@ -264,7 +264,10 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
                 _zip(tree, staged)
                 mask = os.umask(0o022)
                 os.umask(mask)
-                os.chmod(staged, 0o666 & ~mask)  # the mode a new file gets, not mkstemp's 0600
+                try:
+                    os.chmod(staged, 0o666 & ~mask)  # the mode a new file gets, not mkstemp's 0600
+                except PermissionError:  # a file system without modes (vfat)
+                    pass
                 os.replace(staged, target)  # atomic: readers see the old or the new FMU, never half
             finally:
                 staged.unlink(missing_ok=True)
@@ -335,8 +338,8 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
     folder = Path(cache_root) / f"fmu-{_source_digest()}"
     paths = {name: folder / f"{name}.fmu" for name in FMUS}
 
-    def unwritable(exc: OSError) -> OSError:
-        return OSError(f"cannot write the FMU cache {folder} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
+    def unwritable(exc: OSError, where: Path = folder) -> OSError:
+        return OSError(f"cannot write the FMU cache {where} ({exc.strerror or exc}): set XDG_CACHE_HOME to a "
                        f"writable folder (or give run, sweep and check --fmu-dir DIR with the FMUs of "
                        f"tapmuscle build --out DIR)")
 
@@ -350,7 +353,7 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
         except UntrustedFolderError:
             raise
         except OSError as exc:
-            raise unwritable(exc) from None
+            raise unwritable(exc, level) from None
     for p in paths.values():
         try:
             st = os.lstat(p)

@@ -56,10 +56,16 @@ def own_folder(folder: Path, *, closed: int, what: str, remedy: str) -> Path:
         return UntrustedFolderError(f"{what} {folder} {why}: another user could put an FMU there whose code runs as "
                                f"you. {remedy}")
 
+    opened = folder
+    if os.path.islink(folder):  # one's own link to a folder elsewhere (a cache on a larger disk): its target
+        owner = os.lstat(folder).st_uid
+        if owner not in (os.getuid(), 0):
+            raise refused(f"is a link another user (uid {owner}) made")
+        opened = Path(os.path.realpath(folder))
     try:  # opened, not looked up by name again: what is checked and closed is what the name holds
-        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+        fd = os.open(opened, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
     except OSError as exc:
-        raise refused("is a link" if os.path.islink(folder) else f"is not a folder ({exc.strerror or exc})") from None
+        raise refused("is a link" if os.path.islink(opened) else f"is not a folder ({exc.strerror or exc})") from None
     try:
         st = os.fstat(fd)
         if st.st_uid not in (os.getuid(), 0):
@@ -68,7 +74,13 @@ def own_folder(folder: Path, *, closed: int, what: str, remedy: str) -> Path:
             if st.st_mode & 0o022:
                 raise refused("is open to other users")
         elif st.st_mode & closed:
-            os.fchmod(fd, st.st_mode & 0o7777 & ~closed)
+            try:
+                os.fchmod(fd, st.st_mode & 0o7777 & ~closed)
+            except OSError as exc:
+                # a read-only mount: no one writes there; a file system without modes (vfat): anyone may
+                if not os.fstatvfs(fd).f_flag & os.ST_RDONLY:
+                    raise refused(f"cannot be closed to other users ({exc.strerror or exc}: a file system "
+                                  "without permissions?)") from None
     finally:
         os.close(fd)
     return folder

@@ -466,8 +466,61 @@ def test_an_output_is_not_written_through_a_link_another_user_made(tmp_path):
     with atomic_path(colleague / "results" / "new.csv") as tmp:
         tmp.write_text("output")
     assert (mine / "thesis" / "new.csv").read_text() == "output"
+    # nor in one of theirs that their group may write (every folder of a user's under a umask of 002)
+    os.chmod(colleague, 0o775)
+    with atomic_path(colleague / "results" / "group.csv") as tmp:
+        tmp.write_text("output")
+    assert (mine / "thesis" / "group.csv").is_file()
     # this user's own link is theirs to follow
     os.symlink(mine / "precious.txt", shared / "own.csv")
     with atomic_path(shared / "own.csv") as tmp:
         tmp.write_text("output")
     assert (mine / "precious.txt").read_text() == "output" and (shared / "own.csv").is_symlink()
+
+
+def test_the_path_followed_is_the_one_the_kernel_resolves(tmp_path):
+    """On trees of this user's own links (absolute, relative, chains, targets with ``..``, dangling) and
+    paths with ``..`` after a link, :func:`followed` is ``os.path.realpath``: the path checked is the
+    path written. Seeded; also deep paths with no link (no limit on a path's parts, only on links)."""
+    import errno
+    import random
+
+    from tapmuscle.io.atomic import followed
+
+    rng = random.Random(3)
+    root = tmp_path / "tree"
+    folders = [root]
+    root.mkdir()
+    for i in range(12):
+        folder = rng.choice(folders) / f"d{i}"
+        folder.mkdir()
+        folders.append(folder)
+    links = []
+    for i in range(25):
+        where = rng.choice(folders)
+        target = rng.choice(folders + links + [root / "missing"]) if links else rng.choice(folders)
+        text = os.path.relpath(target, where) if rng.random() < 0.5 else str(target)
+        if rng.random() < 0.2:
+            text = os.path.join(text, "..")
+        link = where / f"l{i}"
+        os.symlink(text, link)
+        links.append(link)
+    queries = []
+    for _ in range(300):
+        parts = [str(rng.choice(folders + links))]
+        for _ in range(rng.randint(0, 3)):
+            parts.append(rng.choice(["..", ".", "x.csv", f"l{rng.randrange(25)}", f"d{rng.randrange(12)}"]))
+        queries.append(os.path.join(*parts))
+    for query in queries:
+        try:
+            expected = os.path.realpath(query, strict=False)
+        except OSError:
+            continue
+        try:
+            got = followed(query)
+        except OSError as exc:  # a loop of links: the kernel refuses it too
+            assert exc.errno == errno.ELOOP, (query, exc)
+            continue
+        assert str(got) == expected, query
+    deep = tmp_path.joinpath(*["a"] * 300, "x.csv")
+    assert followed(deep) == deep

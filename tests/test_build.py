@@ -290,13 +290,13 @@ def test_an_unwritable_cache_is_named_with_its_remedy(tmp_path, monkeypatch):
     from build_scripts.build_fmus import cached_fmus
 
     (tmp_path / "file").write_text("")
-    with pytest.raises(OSError, match=r"cannot write the FMU cache .*file/fmu-\w+ \(Not a directory\): set "
+    with pytest.raises(OSError, match=r"cannot write the FMU cache .*/file \(Not a directory\): set "
                                       r"XDG_CACHE_HOME to a writable folder \(or give run, sweep and check --fmu-dir"):
         cached_fmus(tmp_path / "file")
     monkeypatch.setenv("XDG_CACHE_HOME", "")
     monkeypatch.setenv("HOME", str(tmp_path / "file"))
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(OSError, match=r"cannot write the FMU cache .*file/\.cache/tapmuscle/fmu-"):
+    with pytest.raises(OSError, match=r"cannot write the FMU cache .*file/\.cache/tapmuscle \(Not a directory\)"):
         cached_fmus()
     assert not (tmp_path / "tapmuscle").exists()
 
@@ -469,3 +469,40 @@ def test_fmus_another_user_could_have_put_in_the_cache_are_not_run(tmp_path, mon
     assert build.cached_fmus(mine) == paths
     assert built == ["MusclePlant"] and paths["MusclePlant"].stat().st_uid == 0
     assert [p.stat().st_mode & 0o777 for p in (mine, paths["MusclePlant"].parent)] == [0o755, 0o755]
+
+
+def test_a_cache_through_ones_own_link_or_on_a_read_only_mount_is_used(tmp_path, monkeypatch):
+    """``~/.cache/tapmuscle`` linked by its user to a larger disk is followed; a cache folder open to
+    others that cannot be closed is used where its mount is read-only (no one writes there) and
+    refused where it is not (a file system without modes, where anyone may)."""
+    import errno
+    import types
+
+    import build_scripts.build_fmus as build
+    import build_scripts.own_folder as own
+    from build_scripts.own_folder import UntrustedFolderError
+
+    def fake_build(folder, names):
+        for name in names:
+            (folder / f"{name}.fmu").write_bytes(b"ours")
+
+    monkeypatch.setattr(build, "build_fmus", fake_build)
+    (tmp_path / "bigdisk").mkdir()
+    (tmp_path / "cache").symlink_to(tmp_path / "bigdisk")
+    paths = build.cached_fmus(tmp_path / "cache")
+    assert all(p.read_bytes() == b"ours" for p in paths.values()) and any((tmp_path / "bigdisk").iterdir())
+    os.chmod(tmp_path / "bigdisk", 0o777)
+
+    def refused(fd, mode):
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(own.os, "fchmod", refused)
+    for read_only, works in ((True, True), (False, False)):
+        flags = types.SimpleNamespace(f_flag=os.ST_RDONLY if read_only else 0)
+        monkeypatch.setattr(own.os, "fstatvfs", lambda fd, flags=flags: flags)
+        if works:
+            assert build.cached_fmus(tmp_path / "cache") == paths
+        else:
+            with pytest.raises(UntrustedFolderError, match=r"cannot be closed to other users \(Operation not permitted: "
+                                                           r"a file system without permissions\?\)"):
+                build.cached_fmus(tmp_path / "cache")

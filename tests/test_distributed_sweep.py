@@ -44,22 +44,29 @@ def test_the_files_go_into_a_folder_only_this_user_may_enter(files):
     assert [os.lstat(folder).st_mode & 0o777 for folder in (root, root / DIGEST)] == [0o700, 0o700]
 
 
+@pytest.mark.skipif(not hasattr(os, "getuid") or os.getuid() != 0, reason="another user's link is made with lchown, as root")
 def test_a_folder_another_user_could_redirect_is_refused(files, tmp_path):
     """Another local user who put a link in the folder's place, or in place of an FMU's own folder,
     could swap the checked FMU for one whose code runs as this user: refused, naming the folder and
-    what to do, and nothing is written where the link points."""
+    what to do, and nothing is written where the link points. A link of this user's own is followed."""
     shipped, root = files
     elsewhere = tmp_path / "theirs"
     elsewhere.mkdir()
     root.symlink_to(elsewhere)
-    with pytest.raises(PermissionError, match=rf"FMU folder {root} is a link: .* set TMPDIR to a folder of your own"):
+    os.lchown(root, 65534, 65534)
+    with pytest.raises(PermissionError, match=rf"FMU folder {root} is a link another user \(uid 65534\) made: .* "
+                                              r"set TMPDIR to a folder of your own"):
         shipped.path(DIGEST, use_local=False)
     root.unlink()
     root.mkdir(mode=0o700)
     (root / DIGEST).symlink_to(elsewhere)
-    with pytest.raises(PermissionError, match=rf"{root / DIGEST} is a link"):
+    os.lchown(root / DIGEST, 65534, 65534)
+    with pytest.raises(PermissionError, match=rf"{root / DIGEST} is a link another user"):
         shipped.path(DIGEST, use_local=False)
     assert list(elsewhere.iterdir()) == []
+    (root / DIGEST).unlink()
+    (root / DIGEST).symlink_to(elsewhere)  # this user's own
+    assert shipped.path(DIGEST, use_local=False).read_bytes() == CONTENT and (elsewhere / "MusclePlant.fmu").is_file()
 
 
 @pytest.mark.skipif(not hasattr(os, "getuid") or os.getuid() != 0, reason="giving a folder to another user needs root")

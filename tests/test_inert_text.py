@@ -14,7 +14,8 @@ from tapmuscle.io.inert_text import inert_cell, inert_csv_text, markdown_text
     ("=HYPERLINK(\"http://x/?\"&A1)", "'=HYPERLINK(\"http://x/?\"&A1)"), ("+1+2", "'+1+2"), ("@SUM(A1)", "'@SUM(A1)"),
     ("-cmd", "'-cmd"), ("  =1", "  '=1"), ("\t=1", "'\t=1"),
     # numbers and plain text as they are
-    ("-1.5", "-1.5"), ("-.5", "-.5"), ("0.083", "0.083"), ("ampc_servo_44N_0.1Hz", "ampc_servo_44N_0.1Hz"), ("", ""),
+    ("-1.5", "-1.5"), ("-.5", "-.5"), ("0.083", "0.083"), ("-inf", "-inf"), ("+1e3", "+1e3"),
+    ("ampc_servo_44N_0.1Hz", "ampc_servo_44N_0.1Hz"), ("", ""),
 ])
 def test_a_cell_a_spreadsheet_would_evaluate_is_made_text(text, cell):
     assert inert_cell(text) == cell

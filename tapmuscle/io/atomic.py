@@ -45,8 +45,8 @@ def default_file_mode() -> int:
 
 def followed(path: str | os.PathLike) -> Path:
     """``path`` with its symbolic links resolved (``os.path.realpath``), once no link on the way could
-    have been planted: each is this user's or root's, or stands in a folder of its own owner's that
-    no one else may write into (a folder of a colleague's, a volume of the host user's mounted in a
+    have been planted: each is this user's or root's, or stands in a folder of its owner's that not
+    everyone may write into (a folder of a colleague's, a volume of the host user's mounted in a
     container run as root). A link another user made in a shared folder (``/tmp``, a group's folder)
     would have the output written, or a folder replaced, where they chose: into this user's own
     files (links are followed by the process, so the kernel's ``protected_symlinks``, a rule of this
@@ -60,12 +60,17 @@ def followed(path: str | os.PathLike) -> Path:
     if os.name == "nt" or not hasattr(os, "getuid"):
         return Path(os.path.realpath(path))
     trusted = (os.getuid(), 0)
-    pending = list(Path(os.path.abspath(path)).parts)
+    given = Path(path)
+    # the path's own parts, "..", as the kernel takes them: after the link before it, not collapsed first
+    pending = list((given if given.is_absolute() else Path(os.getcwd()) / given).parts)
     resolved = Path(pending.pop(0))
-    for _ in range(256):  # resolving through links, as the kernel does, with a limit on their depth
-        if not pending:
-            return resolved
-        nxt = resolved / pending.pop(0)
+    links = 0
+    while pending:
+        part = pending.pop(0)
+        if part == "..":
+            resolved = resolved.parent  # resolved holds no link: its parent is the real one
+            continue
+        nxt = resolved / part
         try:
             st = os.lstat(nxt)
         except OSError:  # missing (made by the write) or not reachable: resolved as the write would
@@ -73,16 +78,22 @@ def followed(path: str | os.PathLike) -> Path:
         if not stat.S_ISLNK(st.st_mode):
             resolved = nxt
             continue
+        links += 1
+        if links > 40:  # the kernel's limit
+            raise OSError(errno.ELOOP, os.strerror(errno.ELOOP), str(path))
         folder = os.stat(resolved)
-        planted = folder.st_uid != st.st_uid or folder.st_mode & 0o022  # in a folder others write into
-        if st.st_uid not in trusted and planted:
-            raise PermissionError(f"{nxt} is a link that another user (uid {st.st_uid}) made: an output written "
-                                  f"through it would go where they chose ({os.readlink(nxt)}); not followed. Remove it "
-                                  "or write elsewhere")
+        # planted: in a folder of someone else's, or one anyone may write into (a group-writable folder
+        # of the link's owner's is theirs: under a umask of 002 every folder of a user's is)
+        if st.st_uid not in trusted and (folder.st_uid != st.st_uid or folder.st_mode & 0o002):
+            raise PermissionError(f"{nxt} is a link that another user (uid {st.st_uid}) made in a folder others may "
+                                  f"write into: an output written through it would go where they chose "
+                                  f"({os.readlink(nxt)}); not followed. Remove it or write elsewhere")
         target = Path(os.readlink(nxt))
-        pending = list((target if target.is_absolute() else resolved / target).parts) + pending
-        resolved = Path(pending.pop(0))
-    raise OSError(errno.ELOOP, os.strerror(errno.ELOOP), str(path))
+        if target.is_absolute():
+            resolved, pending = Path(target.anchor), list(target.parts[1:]) + pending
+        else:
+            pending = list(target.parts) + pending
+    return resolved
 
 
 def _target(path: Path) -> tuple[Path, int]:
@@ -152,7 +163,10 @@ def atomic_path(path: str | os.PathLike, *, suffix: str = ".tmp") -> Iterator[Pa
     os.close(fd)
     try:
         yield Path(tmp)
-        os.chmod(tmp, mode)
+        try:
+            os.chmod(tmp, mode)
+        except PermissionError:  # a file system without modes (vfat): the file as it is
+            pass
         try:
             os.replace(tmp, target)
         except PermissionError as exc:  # a file this process may write: held open by another program

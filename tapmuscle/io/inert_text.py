@@ -21,6 +21,11 @@ def inert_cell(text: str) -> str:
     """``text`` as a CSV cell no spreadsheet evaluates: with a ``'`` before it where it would start a
     formula (after any spaces); a number, or any other text, unchanged."""
     stripped = text.lstrip(" ")
+    try:
+        float(text)  # a number, also one a regular expression would not call one (-inf, +1e3)
+        return text
+    except ValueError:
+        pass
     if stripped and _FORMULA_START.match(stripped):
         return text[:len(text) - len(stripped)] + "'" + stripped
     return text
