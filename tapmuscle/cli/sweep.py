@@ -276,7 +276,8 @@ def _keep_what_did_not_pass(results: list, out: Path, fmus: dict[str, Path]) -> 
         if result.status == "pass":
             continue
         case = result.case
-        folder = out / _component(Path(case.file).stem, "file") / _component(case.name, "case")
+        stem = Path(case.file).stem  # a file's name is one folder name already, unless it is all dots
+        folder = out / (stem if stem.strip(".") else "file") / _component(case.name, "case")
         n = 1
         while folder in used:  # two cases of one name
             n += 1
