@@ -57,7 +57,8 @@ def new_figure(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], 
 def _pdf_fonttype(fig: Figure) -> int:
     """42 (TrueType) where every character of the figure's text is in the default font, DejaVu Sans, a
     TrueType font; else 3, matplotlib's default: the fonts that draw the rest (a CJK font such as Noto
-    CJK, a TrueType collection of CFF outlines) break a Type 42 PDF (matplotlib issue 20870)."""
+    CJK, a TrueType collection of CFF outlines) break a Type 42 PDF: matplotlib crashes on them or
+    writes a PDF viewers cannot read."""
     from matplotlib import font_manager
     from matplotlib.text import Text
 
