@@ -38,7 +38,7 @@ from typing import Any, Iterator, Sequence
 
 from .model_description import content_guid, finish_model_description
 from .native_host import EXPORT_VARIABLE, NativeHostWarning
-from .own_folder import UntrustedFolderError, own_folder
+from .own_folder import UntrustedFolderError, own_folder, remove_foreign
 
 __all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
            "slave_metadata", "user_cache_root"]
@@ -356,14 +356,9 @@ def cached_fmus(cache_root: str | Path | None = None) -> dict[str, Path]:
             raise unwritable(exc, level) from None
     for p in paths.values():
         try:
-            st = os.lstat(p)
-        except FileNotFoundError:
-            continue
-        if not stat.S_ISREG(st.st_mode) or (hasattr(os, "getuid") and st.st_uid not in (os.getuid(), 0)):
-            try:
-                p.unlink()
-            except OSError as exc:
-                raise unwritable(exc) from None
+            remove_foreign(p)
+        except OSError as exc:
+            raise unwritable(exc) from None
     missing = tuple(name for name, p in paths.items() if not p.is_file())
     if missing:
         with warnings.catch_warnings():

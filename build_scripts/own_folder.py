@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
+import stat
 from pathlib import Path
 
-__all__ = ["own_folder", "UntrustedFolderError"]
+__all__ = ["own_folder", "remove_foreign", "UntrustedFolderError"]
 
 
 class UntrustedFolderError(PermissionError):
@@ -84,3 +86,21 @@ def own_folder(folder: Path, *, closed: int, what: str, remedy: str) -> Path:
     finally:
         os.close(fd)
     return folder
+
+
+def remove_foreign(path: Path) -> bool:
+    """Remove what stands at ``path`` in an own folder unless it is a file of this user's or root's:
+    a link (to a file of this user's, which a write would go through) or another user's file, left
+    while the folder was open to others. True where something was removed (the file is to be written
+    anew), False where ``path`` is missing or such a file. Windows: no owners to tell, nothing removed.
+    """
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    if os.name == "nt" or not hasattr(os, "getuid"):
+        return False
+    if stat.S_ISREG(st.st_mode) and st.st_uid in (os.getuid(), 0):
+        return False
+    shutil.rmtree(path) if stat.S_ISDIR(st.st_mode) else path.unlink()
+    return True

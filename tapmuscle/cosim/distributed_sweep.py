@@ -26,10 +26,8 @@ import hashlib
 import logging
 import math
 import os
-import shutil
 import signal
 import socket
-import stat
 import tempfile
 import threading
 import time
@@ -39,7 +37,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
-from build_scripts.own_folder import own_folder
+from build_scripts.own_folder import own_folder, remove_foreign
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.io.atomic import atomic_path
 from tapmuscle.cosim.master import InstancePool, check_parameters, co_simulate
@@ -127,19 +125,13 @@ class FmuFiles:
         written once into this machine's cache folder ``$TMPDIR/tapmuscle-fmus-USER/<digest>/``."""
         if use_local and digest in self.local and Path(self.local[digest]).is_file():
             return Path(self.local[digest])
-        target = _private_folder(_private_folder(_cache_root()) / digest) / self.names[digest]
+        target = _cache_root() / digest / self.names[digest]
         if _WRITTEN.get(digest) == target and target.is_file():
-            return target  # checked by this process already
+            return target  # checked by this process already: every run after the first takes this way
+        _private_folder(_private_folder(_cache_root()) / digest)
         # what another user left there while the folder was open to them (a link to a file of this
         # user's, a file of theirs) is removed, not written through, and the FMU written anew
-        try:
-            st = os.lstat(target)
-        except FileNotFoundError:
-            st = None
-        if st is not None and (not stat.S_ISREG(st.st_mode) or (os.name != "nt" and st.st_uid != os.getuid())):
-            shutil.rmtree(target) if stat.S_ISDIR(st.st_mode) else target.unlink()
-            st = None
-        if st is None or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
+        if remove_foreign(target) or not target.is_file() or hashlib.sha256(target.read_bytes()).hexdigest() != digest:
             # atomic: other worker processes see the whole file or none
             with atomic_path(target) as tmp:
                 tmp.write_bytes(self.data[digest])

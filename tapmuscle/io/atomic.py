@@ -107,8 +107,8 @@ def _target(path: Path) -> tuple[Path, int]:
     PermissionError
         ``path`` is a file this process may not write.
     """
-    target = followed(path) if path.is_symlink() else path
-    followed(target.parent)  # a link on the way, as well as the file's own
+    real = followed(path)  # every link on the way checked, the file's own too
+    target = real if path.is_symlink() else path
     if target.is_dir():
         raise IsADirectoryError(f"{path} is a directory, not a file to write")
     if not target.exists():
@@ -192,8 +192,8 @@ def probe_output_folder(out: str | os.PathLike) -> None:
     OSError
         ``NotADirectoryError`` or ``PermissionError`` naming ``out`` and why.
     """
-    out = followed(out) if Path(out).is_symlink() else Path(out)
-    followed(out)  # a link on the way
+    real = followed(out)  # every link on the way checked, the folder's own too
+    out = real if Path(out).is_symlink() else Path(out)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out} is a file, not a folder for the outputs")
     try:
