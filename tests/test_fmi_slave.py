@@ -131,3 +131,25 @@ def test_outputs_computed_at_initialisation_cannot_be_set_and_take_their_paramet
     assert abs(in_init[0] - 5.0) < 0.05  # the offset, within the encoder's noise
     plant.exit_initialization_mode()
     assert plant.get_real([vr["l"], vr["p"]]) == in_init  # what the run starts from, bit for bit
+
+
+@pytest.mark.parametrize("h", [0.1, 0.02, 0.05, 0.001, 0.25, 1.0])
+@pytest.mark.parametrize("start", [0.0, 3.7])
+def test_a_step_computed_as_a_difference_of_times_is_integrated_as_the_step_meant(h, start):
+    """fmpy's simulate_fmu steps ``(start + (n+1) h) - (start + n h)``: over an hour of such steps every
+    one is integrated as ``h`` itself."""
+    from fmi_slave.base import intended_step
+
+    n = int(3600 / h) if h >= 0.02 else 20000
+    times = [start + k * h for k in range(n + 1)]
+    steps = [b - a for a, b in zip(times, times[1:])]
+    assert any(s != h for s in steps) or h in (0.25, 1.0)  # binary fractions subtract exactly
+    assert all(intended_step(a, s) == h for a, s in zip(times, steps))
+
+
+@pytest.mark.parametrize("t, h", [(0.0, 0.1 / 3), (5.0, 0.1 / 3), (1.0, 1e-9 + 2e-13), (7.2, 3e-12),
+                                  (0.0, 0.1 + 1e-15), (1e7, 0.1 + 2e-9)])
+def test_a_step_off_a_whole_nanosecond_by_more_than_rounding_is_integrated_as_given(t, h):
+    from fmi_slave.base import intended_step
+
+    assert intended_step(t, h) == h
