@@ -7,7 +7,7 @@ and the command line are thin shells around :class:`Plant`.
 from .effects import Effect
 from .parameters import (FrictionParams, LoadParams, MuscleParams, PlantParams, SensorParams,
                          SolverParams, SupplyParams, ValveParams)
-from .plant import Measurement, Plant
+from .plant import LightLoadWarning, Measurement, Plant
 
-__all__ = ["Plant", "Measurement", "Effect", "PlantParams", "ValveParams", "SupplyParams",
+__all__ = ["Plant", "Measurement", "LightLoadWarning", "Effect", "PlantParams", "ValveParams", "SupplyParams",
            "MuscleParams", "LoadParams", "FrictionParams", "SensorParams", "SolverParams"]

@@ -407,6 +407,52 @@ class PlantParams:
         except ValueError as exc:  # a group's check names its class: said with the dotted name given
             raise ValueError(dotted_names(str(exc))) from None
 
+    def noise_free(self) -> "PlantParams":
+        """A copy whose encoder and pressure sensor read the state exactly: their noise and quantisation
+        (``sensor.*_noise_std_*``, ``sensor.*_resolution_*``) at 0.
+
+        What a model fitted to a recording is simulated with: the recording's noise is not the model's,
+        and the 0.01-mm encoder step makes a cost piecewise constant in every parameter, so a
+        finite-difference gradient of it is 0 or a jump (docs/python-api.md, "Estimating the rig's
+        constants with an optimiser of your own").
+        """
+        return self.with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0,
+                                   "sensor.pressure_noise_std_mpa": 0.0, "sensor.pressure_resolution_mpa": 0.0})
+
+    @classmethod
+    def _field(cls, key: str) -> Any:
+        group, _, name = key.partition(".")
+        groups = {f.name: f for f in fields(cls)}
+        if not name or group not in groups:
+            raise ValueError(f"unknown plant parameter {key!r} (expected 'group.field', groups: {', '.join(groups)})")
+        sub = groups[group].default_factory()  # type: ignore[misc]
+        for f in fields(sub):
+            if f.name == name:
+                return f
+        raise ValueError(f"unknown plant parameter {key!r}; {group} has: {', '.join(f.name for f in fields(sub))}")
+
+    @classmethod
+    def bounds(cls, key: str) -> tuple[float, float]:
+        """The range ``(lo, hi)`` a parameter may take, by dotted name, as an optimiser's bounds: an open
+        lower bound (``valve.cv_max > 0``) is moved just inside it, an unbounded side is ``-inf`` or
+        ``inf``. The FMU declares the same range as the parameter's min and max.
+
+        Raises ``ValueError`` naming an unknown parameter.
+        """
+        f = cls._field(key)
+        lo = float(f.metadata.get("lo", -math.inf))
+        hi = float(f.metadata.get("hi", math.inf))
+        if f.metadata.get("lo_open") and math.isfinite(lo):
+            lo = lo + max(1e-12, 1e-9 * abs(lo))
+        return lo, hi
+
+    @classmethod
+    def unit(cls, key: str) -> str:
+        """A parameter's unit by dotted name (``"MPa"``, ``"-"`` for a ratio), as the FMU declares it;
+        ``ValueError`` naming an unknown parameter."""
+        doc = cls._field(key).metadata.get("doc", "")
+        return doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
+
     def value(self, key: str) -> float:
         """The value of one parameter by dotted name (``"group.field"``); ``AttributeError`` if unknown."""
         group, _, name = key.partition(".")

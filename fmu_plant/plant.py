@@ -62,7 +62,14 @@ from .sensors import quantise
 from .user_warning import warn_at_caller
 from .valve import flow_coefficient, orifice_flow, valve_opening
 
-__all__ = ["Plant", "Measurement", "STATE_NAMES", "MAX_STEP_S"]
+__all__ = ["Plant", "Measurement", "LightLoadWarning", "STATE_NAMES", "MAX_STEP_S"]
+
+
+class LightLoadWarning(RuntimeWarning):
+    """A run whose hanging load was below the braid lock (``muscle.braid_lock_force_n``), where the
+    model's unpowered muscle contracts by itself. Its message names the load, so a loop over loads
+    shows one per load; ``warnings.simplefilter("ignore", tm.LightLoadWarning)`` silences it where
+    light loads are meant (a parameter estimation, a sweep)."""
 
 #: Names of the continuous state, in the order of :attr:`Plant.state`.
 STATE_NAMES = ("x", "p_mpa", "l_mm", "v_mm_s", "z_n")
@@ -502,17 +509,21 @@ class Plant:
         lock = self.params.muscle.braid_lock_force_n
         if not load_n < lock:
             return None
-        return (f"{name} = {load_n:g} N is below the braid lock's {lock:g} N (muscle.braid_lock_force_n): the model's "
-                "muscle contracts without pressure then (9.6 mm at 0 N, 2.1 mm at 20 N, from rest at 0 V), as no rig "
-                "at rest does; the lock was calibrated for the paper's 44 and 68 N: for a lighter load set "
+        # a mass in kilograms whose weight would be a load the rig takes is the likely slip
+        mass = (f"; if {load_n:g} is a mass in kg, its weight is {9.80665 * load_n:.3g} N: the load is a force in N"
+                if lock <= 9.80665 * load_n and load_n < 10.0 else "")
+        return (f"{name} = {load_n:g} N is below the braid lock's {lock:g} N (muscle.braid_lock_force_n){mass}: the "
+                "model's muscle contracts without pressure then (9.6 mm at 0 N, 2.1 mm at 20 N, from rest at 0 V), as "
+                "no rig at rest does; the lock was calibrated for the paper's 44 and 68 N: for a lighter load set "
                 "muscle.braid_lock_force_n below it (docs/plant.md)")
 
     def warn_run_notes(self, lightest_load_n: float) -> None:
         """After a run whose lightest load was ``lightest_load_n`` [N]: :meth:`accuracy_note` and
-        :meth:`light_load_note` as ``RuntimeWarning``, at the user's line."""
-        for note in (self.accuracy_note(), self.light_load_note(lightest_load_n)):
+        :meth:`light_load_note` as ``RuntimeWarning`` (:class:`LightLoadWarning`), at the user's line."""
+        for note, category in ((self.accuracy_note(), RuntimeWarning),
+                               (self.light_load_note(lightest_load_n), LightLoadWarning)):
             if note:
-                warn_at_caller(note, RuntimeWarning)
+                warn_at_caller(note, category)
 
     # ------------------------------------------------------------------ outputs
     #: The latest sensor readings (from :meth:`reset` or :meth:`step`).

@@ -57,7 +57,7 @@ def parameter_table() -> list[tuple[str, float, str, str, float | None, float | 
                 inp = SET_BY_INPUT[f"{group.name}.{f.name}"]
                 doc = (f"{doc.rstrip('. ')}; in the FMU its input {inp} sets it: this value is used in its place "
                        f"while {inp} is left at its start value (a plant file's)")
-            unit = doc[doc.find("[") + 1:doc.find("]")] if "[" in doc else ""
+            unit = PlantParams.unit(f"{group.name}.{f.name}")
             if f.metadata.get("lo_open"):  # FMI's min cannot be open: the description says the limit is refused
                 doc = f"{doc.rstrip('. ')}; must be > {f.metadata['lo']:g} (the declared min itself is refused)"
             rows.append((f"{group.name}.{f.name}", float(getattr(sub, f.name)), unit, doc,

@@ -26,6 +26,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     # the simulated rig (section 2.4, Table 1)
     "Plant": ("fmu_plant", "Plant"),
     "PlantParams": ("fmu_plant", "PlantParams"),
+    "LightLoadWarning": ("fmu_plant", "LightLoadWarning"),
     "read_plant_file": ("tapmuscle.io.plant_file", "read_plant_file"),
     "write_plant_file": ("tapmuscle.io.plant_file", "write_plant_file"),
     "simulate": ("tapmuscle.api", "simulate"),

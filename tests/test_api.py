@@ -190,6 +190,26 @@ def test_a_warning_points_at_the_callers_line():
     assert w.filename == __file__ and str(w.message).startswith("load_n = 30 N is below the braid lock's")
 
 
+def test_a_light_load_warning_has_its_own_category_and_suspects_kilograms():
+    """A loop over light loads (a parameter estimation) warns once per load: its category silences it
+    alone. 4.5 "N" is the paper's 44 N given as a mass: the note says so; 30 N is not suspected."""
+    import warnings
+
+    with pytest.warns(tm.LightLoadWarning) as caught:
+        tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, load_n=4.5)
+    (w,) = caught
+    assert issubclass(w.category, RuntimeWarning)
+    assert "if 4.5 is a mass in kg, its weight is 44.1 N: the load is a force in N" in str(w.message)
+    with pytest.warns(tm.LightLoadWarning) as caught:
+        tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, load_n=30.0)
+    assert "kg" not in str(caught[0].message)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.simplefilter("ignore", tm.LightLoadWarning)
+        for load in (36.0, 38.0, 39.9):
+            tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, load_n=load)
+
+
 def test_a_scenario_shortened_in_code_is_refused_before_its_run():
     """dataclasses.replace(scenario, duration_s=20.0) ran the whole co-simulation and then failed on
     Eq. (21)'s window: the replaced scenario is refused at once, naming evaluation_samples."""

@@ -528,7 +528,6 @@ def test_a_command_dead_band_is_named_an_input_map():
 @pytest.mark.slow
 def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built_fmus, capsys):
     from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
-    from tapmuscle.diagnosis.simulation import noise_free
     from tapmuscle.io.recording import Recording, read_recording, write_recording
 
     rig = PlantParams_default_with({"load_mismatch.extra_n": 6.0, "friction.rate_gain": 0.8})
@@ -552,7 +551,7 @@ def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built
     # re-simulating the FMU with the calibrated file's parameters gives the improved fit
     calibrated, _ = load_plant(out / "calibrated_plant.json")
     rec_back = read_recording(rec)
-    y = simulate_plant_fmu(built_fmus["MusclePlant"], noise_free(calibrated).dotted(), rec_back.u_v, 0.1)
+    y = simulate_plant_fmu(built_fmus["MusclePlant"], calibrated.noise_free().dotted(), rec_back.u_v, 0.1)
     _, test = interleaved_split(len(y), 0.1, 10.0)
     assert fit_percent(rec_back.l_mm, y, test) == pytest.approx(doc["fit_after_percent"], abs=0.01)
 
@@ -583,6 +582,35 @@ def test_the_reported_constants_are_the_calibrated_plant_files(tmp_path):
     # the final model is the rig's, to well within the noise: its constants are the nominal ones
     assert plant.value("valve.cv_max") == pytest.approx(1.5, rel=0.02)
     assert plant.value("friction.base_n") == pytest.approx(8.0, rel=0.05)
+
+
+def test_diagnose_cli_recalibrates_the_constants_calibrate_names(tmp_path, capsys):
+    """``--calibrate`` names the constants (``default`` the twelve): a rig whose supply pressure is 10 %
+    low and friction 10 % high is recalibrated to within 1 % by those two; with ``--no-calibration``, an
+    effect's parameter, a name twice or an unknown one, it is refused before anything runs, naming what
+    is wrong."""
+    rec, out = tmp_path / "rig.csv", tmp_path / "diag"
+    assert main(["record", "--load", "44", "--input", "random:lo=2,hi=8,hold_min=2,hold_max=6,seed=3",
+                 "--duration", "180", "--seed", "7", "--set", "supply.supply_pressure_mpa=0.225",
+                 "--set", "friction.base_n=8.8", "--out", str(rec), "--quiet"]) == 0
+    plant = tmp_path / "plant.json"
+    plant.write_text('{"plant": {}}')
+    base = ["diagnose", "--recording", str(rec), "--plant", str(plant), "--quiet", "--no-plots", "--workers", "1"]
+    for extra, message in [(["--calibrate", "load.load_n", "--no-calibration"], "exclude each other"),
+                           (["--calibrate", "default,dead_zone.width_v"], "'dead_zone.width_v' is a parameter of an effect"),
+                           (["--calibrate", "load.load_n,load.load_n"], "'load.load_n' is given twice"),
+                           (["--calibrate", "load.lod_n"], "unknown nominal parameter 'load.lod_n' .*load has: load_n")]:
+        capsys.readouterr()
+        assert main(base + ["--out", str(tmp_path / "refused")] + extra) == 2
+        assert re.search(message, capsys.readouterr().err), extra
+        assert not (tmp_path / "refused").exists()
+    assert main(base + ["--out", str(out), "--calibrate", "friction.base_n,supply.supply_pressure_mpa",
+                        "--effects", "transport_delay"]) == 0
+    doc = json.loads((out / "diagnosis.json").read_text())
+    rows = {row["parameter"]: row["estimate"] for row in doc["calibration"]["parameters"]}
+    assert set(rows) == {"friction.base_n", "supply.supply_pressure_mpa"}
+    assert rows["friction.base_n"] == pytest.approx(8.8, rel=0.01)
+    assert rows["supply.supply_pressure_mpa"] == pytest.approx(0.225, rel=0.01)
 
 
 def PlantParams_default_with(values):
@@ -1098,9 +1126,12 @@ def test_effects_and_constants_are_chosen_by_name_or_object():
     args = (cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)
     with pytest.raises(ValueError, match=r"candidates: unknown effect 'delay'; known: rate_dependent_hysteresis, "):
         diagnose(*args, candidates=["delay"])
-    with pytest.raises(ValueError, match=r"calibration: unknown nominal parameter 'none'; known: valve.cv_max, .*"
+    with pytest.raises(ValueError, match=r"calibration: unknown nominal parameter 'none' \(unknown plant parameter 'none' "
+                                         r"\(expected 'group.field', .*the default ones: valve.cv_max, .*"
                                          r"calibration=None: no calibration"):
         diagnose(*args, calibration="none")
+    with pytest.raises(ValueError, match=r"calibration: 'delay.delay_s' is a parameter of an effect \(delay\)"):
+        diagnose(*args, calibration=["valve.cv_max", "delay.delay_s"])
     with pytest.raises(TypeError, match=r"candidates: int 3 must be a Candidate or the name of one"):
         diagnose(*args, candidates=[delay, 3])
 
@@ -1115,9 +1146,8 @@ def test_a_constant_displacement_is_named_before_any_fit():
 def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes():
     """Held commands 2 V apart: four consecutive levels span 6 V, beyond the 5-V bound of
     ``dead_zone.width_v``. Such bands are skipped (the search once raised the plant's ValueError)."""
-    from fmu_plant import Plant
+    from fmu_plant import Plant, PlantParams
     from fmu_plant.open_loop import run_open_loop
-    from tapmuscle.diagnosis.calibration import field_bounds
     from tapmuscle.diagnosis.candidates import Problem
     from tapmuscle.diagnosis.residual_analysis import white_noise_level_mm
     from tapmuscle.diagnosis.simulation import Simulator
@@ -1133,7 +1163,7 @@ def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes()
     assert len(np.unique(cols["u_v"])) == 5
     res = candidate("valve_dead_zone").fit(problem, DEMO_MODEL, y0)
     assert res is not None
-    assert 0.0 < res.values["dead_zone.width_v"] <= field_bounds("dead_zone.width_v")[1]
+    assert 0.0 < res.values["dead_zone.width_v"] <= PlantParams.bounds("dead_zone.width_v")[1]
     # the band holds the 6.5-V level and no other, as the rig's does
     lo = res.values["dead_zone.center_v"] - res.values["dead_zone.width_v"] / 2
     hi = res.values["dead_zone.center_v"] + res.values["dead_zone.width_v"] / 2

@@ -2,6 +2,7 @@
 
 import copy
 import math
+import re
 import pickle
 
 import numpy as np
@@ -422,3 +423,27 @@ def test_a_breakdown_names_the_parameters_off_their_defaults_and_a_drain_above_t
                                          r"\(0\.2\): the drain is the atmosphere"):
         PlantParams().with_values(**{"supply.drain_pressure_mpa": 0.5, "supply.supply_pressure_mpa": 0.2})
     PlantParams().with_values(**{"supply.drain_pressure_mpa": 0.25})  # equal to the supply: allowed
+
+
+def test_every_parameters_bounds_hold_its_default_and_refuse_what_lies_beyond():
+    """PlantParams.bounds is what the dataclasses enforce: the default inside, a value just past a
+    finite bound refused by with_values, naming the parameter."""
+    p = PlantParams()
+    for key, value in p.dotted().items():
+        lo, hi = PlantParams.bounds(key)
+        assert lo <= value <= hi, key
+        for beyond in (hi + max(1e-9, 1e-6 * abs(hi)), lo - max(1e-9, 1e-6 * abs(lo))):
+            if math.isfinite(beyond):
+                with pytest.raises(ValueError, match=re.escape(key)):
+                    p.with_values(**{key: beyond})
+        assert PlantParams.unit(key), key
+    with pytest.raises(ValueError, match=r"unknown plant parameter 'valve.cvmax'; valve has: cv_max"):
+        PlantParams.bounds("valve.cvmax")
+
+
+def test_noise_free_changes_the_sensors_noise_and_resolution_alone():
+    p = PlantParams().with_values(**{"load.load_n": 68.0})
+    changed = {k for k, v in p.noise_free().dotted().items() if v != p.dotted()[k]}
+    assert changed == {"sensor.encoder_noise_std_mm", "sensor.encoder_resolution_mm",
+                       "sensor.pressure_noise_std_mpa", "sensor.pressure_resolution_mpa"}
+    assert all(p.noise_free().value(k) == 0.0 for k in changed)

@@ -66,9 +66,7 @@ def test_fmpy_simulate_fmu_gives_the_direct_plant_bits_with_noise_free_sensors(f
 
     rng = np.random.default_rng(3)
     u = np.repeat(rng.uniform(2.0, 8.0, 30), 20)  # held commands, 20 samples each
-    quiet = {"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0,
-             "sensor.pressure_noise_std_mpa": 0.0, "sensor.pressure_resolution_mpa": 0.0}
-    params = PlantParams().with_values(**quiet)
+    params = PlantParams().noise_free()
     t = np.arange(len(u)) * ts
     rows = np.array(list(zip(np.repeat(t, 2)[1:], np.repeat(u, 2)[:-1])), dtype=[("time", float), ("u", float)])
     steps = np.diff(np.arange(len(u)) * ts)

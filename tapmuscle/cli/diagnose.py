@@ -13,13 +13,33 @@ from tapmuscle.errors import UsageError
 __all__ = ["register"]
 
 
-def _effect_list(text: str) -> list[str]:
-    """The names of ``--effects`` (comma-separated); a name given twice is refused."""
+def _effect_list(text: str, option: str = "--effects") -> list[str]:
+    """The names of ``--effects`` (or another ``option``; comma-separated); a name given twice is refused."""
     names = [e.strip() for e in text.split(",") if e.strip()]
     twice = sorted({e for e in names if names.count(e) > 1})
     if twice:
-        raise UsageError(f"--effects {text!r}: {twice[0]!r} is given twice")
+        raise UsageError(f"{option} {text!r}: {twice[0]!r} is given twice")
     return names
+
+
+def _calibration(args: argparse.Namespace) -> dict:
+    """The ``calibration`` option of :func:`diagnose` from ``--no-calibration`` / ``--calibrate``."""
+    from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS, nominal_parameter
+
+    if args.calibrate is None:
+        return {"calibration": None} if args.no_calibration else {}
+    if args.no_calibration:
+        raise UsageError("--calibrate and --no-calibration exclude each other")
+    keys = _effect_list(args.calibrate, "--calibrate")
+    if not keys:
+        raise UsageError(f"--calibrate {args.calibrate!r} names no constant (--no-calibration: none)")
+    chosen = []
+    for key in keys:
+        try:
+            chosen += list(NOMINAL_PARAMETERS) if key == "default" else [nominal_parameter(key)]
+        except ValueError as exc:
+            raise UsageError(f"--calibrate {args.calibrate!r}: {exc}") from None
+    return {"calibration": list(dict.fromkeys(chosen))}
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
@@ -52,7 +72,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         candidates = [table[e] for e in effects]
     if args.map is not None or args.output is not None:
         raise UsageError(f"--map and --output are for a foreign plant FMU; {args.plant} is tapmuscle's plant")
-    options = ({"calibration": None} if args.no_calibration else {}) | {"use_pressure": args.use_pressure}
+    options = _calibration(args) | {"use_pressure": args.use_pressure}
     try:
         d, _ = diagnose_files(args.recording, args.plant, out, plots=not args.no_plots,
                               progress=Progress("diagnose", enabled=not args.quiet, counts=False),
@@ -136,6 +156,10 @@ def _diagnose_foreign(args: argparse.Namespace) -> int:
     from tapmuscle.diagnosis.signal_map import SignalMapError
     from tapmuscle.io.recording import RecordingError
 
+    if args.calibrate is not None:
+        raise UsageError(f"--calibrate names tapmuscle's plant constants; {args.plant} is another model: its map "
+                         "file's [calibrate] table lists the parameters to recalibrate (docs/diagnosis.md, \"Foreign "
+                         "plant FMUs\")")
     effects = None if args.effects is None else _effect_list(args.effects)
     options = dict(map_path=args.map, block_s=args.block,
                    fit_segment_s=args.fit_segment, effects=effects,
@@ -260,6 +284,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "only a file you trust (docs/diagnosis.md, \"A candidate of your own\")")
     dia.add_argument("--no-calibration", action="store_true",
                      help="take the plant's nominal constants as exact (skip the calibration step)")
+    dia.add_argument("--calibrate", default=None, metavar="KEY,...",
+                     help="the plant's constants to recalibrate, comma-separated (default: the twelve of "
+                          "docs/diagnosis.md, step 4; 'default' names them, e.g. default,load.load_n): any "
+                          "constant of the rig but an effect's, sensor's or solver's parameter")
     dia.add_argument("--workers", type=integer_at_least("--workers", 1), default=None,
                      help="processes for the independent simulations (default: all cores; 1: this process "
                           "only); the diagnosis is the same")

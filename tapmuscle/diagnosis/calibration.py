@@ -52,20 +52,21 @@ Elsevier, section 6.3 (consider covariance).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import optimize
 
 from fmu_plant import PlantParams
+from fmu_plant.parameters import EFFECT_GROUPS
 
 from tapmuscle.diagnosis.catalogue import Catalogue
 from tapmuscle.diagnosis.reproducible import broyden_update, dot, snap, snap_relative, sse
 
 
-__all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "FittedParameter", "Fit", "CalibrationRow",
-           "Calibration", "fit_parameters", "calibrate", "calibration_rows", "nominal_coords", "field_bounds",
+__all__ = ["NominalParameter", "NOMINAL_PARAMETERS", "nominal_parameter", "FittedParameter", "Fit", "CalibrationRow",
+           "Calibration", "fit_parameters", "calibrate", "calibration_rows", "nominal_coords",
            "effective_sigma", "fit_covariance", "fitted_intervals", "PRIOR_BOUND_SDS", "AT_BOUND_SDS"]
 
 #: The solver keeps a nominal constant within this many prior sds of its nominal value (80 % of it at a
@@ -114,18 +115,36 @@ NOMINAL_PARAMETERS: tuple[NominalParameter, ...] = Catalogue("NOMINAL_PARAMETERS
 ))
 
 
-def field_bounds(key: str) -> tuple[float, float]:
-    """Bounds ``(lo, hi)`` of a plant parameter from its field metadata (open bounds nudged inside)."""
-    group, _, name = key.partition(".")
-    sub = getattr(PlantParams(), group)
-    for f in fields(sub):
-        if f.name == name:
-            lo = f.metadata.get("lo", -math.inf)
-            hi = f.metadata.get("hi", math.inf)
-            if f.metadata.get("lo_open") and math.isfinite(lo):
-                lo = lo + max(1e-12, 1e-9 * abs(lo))
-            return float(lo), float(hi)
-    raise ValueError(f"unknown plant parameter {key!r}")
+def nominal_parameter(key: str) -> NominalParameter:
+    """The constant ``key`` (``"group.field"``) as calibration re-estimates it: the entry of
+    :data:`NOMINAL_PARAMETERS`, or for any other constant of the rig (``"load.load_n"``,
+    ``"supply.supply_pressure_mpa"``) one with its unit and the same 20 % prior.
+
+    Raises
+    ------
+    ValueError
+        An unknown parameter (the group's fields listed); a parameter of an effect (an effect is a
+        candidate, found by the search, not a constant); a sensor's (the diagnosis simulates the model
+        without sensor noise and quantisation, so they change nothing) or the solver's (numerical
+        settings, not the rig's).
+    """
+    for known in NOMINAL_PARAMETERS:
+        if known.key == key:
+            return known
+    try:
+        unit = PlantParams.unit(key)
+    except ValueError as exc:
+        raise ValueError(f"calibration: unknown nominal parameter {key!r} ({exc}); the default ones: "
+                         f"{', '.join(k.key for k in NOMINAL_PARAMETERS)}") from None
+    group = key.partition(".")[0]
+    if group in EFFECT_GROUPS:
+        raise ValueError(f"calibration: {key!r} is a parameter of an effect ({group}): effects are candidates of "
+                         "the search (candidates=), not constants to recalibrate")
+    if group in ("sensor", "solver"):
+        raise ValueError(f"calibration: {key!r} cannot be recalibrated: "
+                         + ("the diagnosis simulates the model without sensor noise and quantisation"
+                            if group == "sensor" else "the solver's settings are numerical, not the rig's"))
+    return NominalParameter(key, unit or "-")
 
 
 @dataclass(frozen=True)
@@ -399,7 +418,7 @@ class Calibration:
 
 
 def nominal_coords(nominal: PlantParams, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
-                   bounds: Callable[[str], tuple[float, float]] = field_bounds) -> list[FittedParameter]:
+                   bounds: Callable[[str], tuple[float, float]] = PlantParams.bounds) -> list[FittedParameter]:
     """Scaled coordinates of the nominal constants, centred on ``nominal``'s values (prior), within
     ``bounds(key)`` (default: the plant fields' bounds)."""
     out = []
@@ -422,7 +441,7 @@ def calibrate(residual: Callable[[PlantParams], np.ndarray], nominal: PlantParam
               sigma_mm: float, *, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
               max_iterations: int = 40, robust: bool = True,
               residual_many: Callable[[list[PlantParams]], list[np.ndarray]] | None = None,
-              bounds: Callable[[str], tuple[float, float]] = field_bounds, combinations: bool = False) -> Calibration:
+              bounds: Callable[[str], tuple[float, float]] = PlantParams.bounds, combinations: bool = False) -> Calibration:
     """Re-estimate the nominal constants that a recording can identify (module docstring).
 
     Parameters
@@ -516,7 +535,7 @@ def fit_covariance(jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float, 
 
 
 def fitted_intervals(coords: Sequence[FittedParameter], values: dict[str, float], cov: np.ndarray,
-                     bounds: Callable[[str], tuple[float, float]] = field_bounds) -> dict[str, tuple[float, float]]:
+                     bounds: Callable[[str], tuple[float, float]] = PlantParams.bounds) -> dict[str, tuple[float, float]]:
     """95 % intervals ``value +- 1.96 sd`` [the parameters' units] of the fitted ``coords`` (the
     columns of ``cov``, :func:`fit_covariance`, in order), clipped to each parameter's ``bounds``."""
     out = {}
@@ -531,7 +550,7 @@ def fitted_intervals(coords: Sequence[FittedParameter], values: dict[str, float]
 def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParams, params: PlantParams,
                      identifiable: Sequence[str], jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float,
                      sd_shrink: Sequence[float],
-                     bounds: Callable[[str], tuple[float, float]] = field_bounds,
+                     bounds: Callable[[str], tuple[float, float]] = PlantParams.bounds,
                      fitted: Sequence[str] | None = None, consider: np.ndarray | None = None) -> list[CalibrationRow]:
     """The report rows of a calibrated plant ``params``.
 

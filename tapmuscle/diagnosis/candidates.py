@@ -50,7 +50,6 @@ from scipy.interpolate import CubicSpline
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.boundary_effects import backlash
-from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.catalogue import Catalogue
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem, full_prediction
 from tapmuscle.diagnosis.input_map_fit import explain_input_map, fit_input_map
@@ -358,8 +357,8 @@ def _band_out_of_bounds(centre_v: float, width_v: float) -> bool:
     """Whether a band the plant cannot take: its centre outside ``dead_zone.center_v``'s bounds (the
     recorded commands, and the cuts 0.05 V beyond them, may lie below 0 or above 10 V) or wider than
     ``dead_zone.width_v``'s (four held levels can span more)."""
-    lo_c, hi_c = field_bounds("dead_zone.center_v")
-    return not lo_c <= centre_v <= hi_c or width_v > field_bounds("dead_zone.width_v")[1]
+    lo_c, hi_c = PlantParams.bounds("dead_zone.center_v")
+    return not lo_c <= centre_v <= hi_c or width_v > PlantParams.bounds("dead_zone.width_v")[1]
 
 
 def _command_cuts(u_v: np.ndarray) -> np.ndarray:
@@ -497,7 +496,7 @@ def _dead_zone_search(pr: Problem, base: PlantParams, y_base: np.ndarray, lin: L
     if hi_u - lo_u < 0.3:
         lo_u, hi_u = lo_u - 0.3, hi_u + 0.3
 
-    max_width = field_bounds("dead_zone.width_v")[1]
+    max_width = PlantParams.bounds("dead_zone.width_v")[1]
 
     def cost(x):
         c, w = float(x[0]), float(x[1])
@@ -780,7 +779,7 @@ def _fmt(v: float, unit: str, digits: int = 3) -> str:
 
 #: Where the supply offset's own fit searches the supply pressure [MPa]: the plant field's bounds,
 #: above a pressure too low to fill the muscle past its threshold (no building delivers that).
-SUPPLY_PRESSURE_MPA = (0.05, field_bounds("supply.supply_pressure_mpa")[1])
+SUPPLY_PRESSURE_MPA = (0.05, PlantParams.bounds("supply.supply_pressure_mpa")[1])
 
 #: A supply pressure within this fraction of the plant file's is not claimed as an offset: a
 #: building's supply wanders by a few per cent, and the valve's calibrated constants take up such a

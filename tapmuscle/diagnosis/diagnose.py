@@ -102,7 +102,7 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          FD_STEP, calibration_rows, effective_sigma, fit_covariance, fit_parameters,
+                          nominal_parameter, FD_STEP, calibration_rows, effective_sigma, fit_covariance, fit_parameters,
                           fitted_intervals, nominal_coords)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
 from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
@@ -288,8 +288,12 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         Significance level; least held-out SSE reduction of an accepted effect (module docstring).
     calibration : sequence of NominalParameter or str, or None
         Nominal constants to re-estimate before the search, as objects or by key (``"valve.cv_max"``;
-        default :data:`~tapmuscle.diagnosis.calibration.NOMINAL_PARAMETERS`); None or empty: no calibration
-        (the model is taken as exact apart from left-out effects).
+        default :data:`~tapmuscle.diagnosis.calibration.NOMINAL_PARAMETERS`, the twelve of docs/diagnosis.md
+        step 4). A key of any other constant of the rig (``"load.load_n"``,
+        ``"supply.supply_pressure_mpa"``) is re-estimated the same way, with a 20 % prior
+        (:func:`~tapmuscle.diagnosis.calibration.nominal_parameter`; not an effect's, sensor's or
+        solver's parameter). None or empty: no calibration (the model is taken as exact apart from
+        left-out effects).
     progress : bool or callable, optional
         ``progress(done, total)`` as the diagnosis goes, ``done`` thousandths of the whole, never
         decreasing, ``total`` at the end (:mod:`~tapmuscle.diagnosis.search_progress`); True: a report
@@ -342,6 +346,13 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
     own = [c for c in candidates if _BUILTIN.get(c.name) is not c]
     candidates = [held_to_contract(c) if c in own else c for c in candidates]
     if calibration is not None:
+        if isinstance(calibration, str):
+            calibration = (calibration,)
+        if isinstance(calibration, Sequence):  # a key of any of the rig's constants, beside the catalogue's
+            try:
+                calibration = [nominal_parameter(c) if isinstance(c, str) else c for c in calibration]
+            except ValueError as exc:
+                raise ValueError(f"{exc}; calibration=None: no calibration") from None
         calibration = by_name(calibration, NOMINAL_PARAMETERS, "calibration", "nominal parameter",
                               hint="; calibration=None: no calibration")
     t, u, y, ts = validated_recording(t_s, u_v, l_mm, block_s, load_n=load_n)

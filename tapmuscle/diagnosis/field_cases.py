@@ -23,7 +23,6 @@ from tapmuscle.diagnosis.candidates import CANDIDATES
 from tapmuscle.diagnosis.demo import DEMO_MODEL, MAGNITUDES
 from tapmuscle.diagnosis.diagnose import BLOCK_S
 from tapmuscle.diagnosis.residual_analysis import fit_percent, interleaved_split
-from tapmuscle.diagnosis.simulation import noise_free
 
 __all__ = ["FIELD_ERROR_PARAMETERS", "CATEGORY_MIX", "CATEGORIES", "EXCITATIONS", "OOV_KINDS", "LOADS_N",
            "EFFECT_RANGES", "INCOMPATIBLE_PAIRS", "NOT_DRAWN", "DURATION_S", "TS_S", "FieldCase", "vocabulary",
@@ -527,7 +526,7 @@ def record_case(case: FieldCase, *, signal: Callable[[float], float] | None = No
 
 def _replay(params: PlantParams, u_v: np.ndarray, ts_s: float, extra: Sequence[Effect] = ()) -> np.ndarray:
     """Noise-free displacement reading [mm] of ``params`` (and disturbances) driven by the recorded command."""
-    plant = Plant(noise_free(params), seed=0, effects=extra)
+    plant = Plant(params.noise_free(), seed=0, effects=extra)
     y = np.empty(len(u_v))
     y[0] = plant.measurement.l_mm
     for k in range(len(u_v) - 1):

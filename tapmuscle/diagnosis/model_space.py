@@ -24,7 +24,6 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from fmu_plant import PlantParams
-from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.recording_checks import AT_REST_MM, DRAINED_MPA
 
 __all__ = ["ModelSpace", "MuscleSpace", "MUSCLE", "JOINT_PARAMETERS", "PROFILED", "JOINT_STARTS", "OFF_AT_NOMINAL",
@@ -209,7 +208,7 @@ class MuscleSpace(ModelSpace):
             "supply_pressure_offset": tuple({"supply.supply_pressure_mpa": ps * k} for k in SUPPLY_STARTS)}
 
     def bounds(self, key: str) -> tuple[float, float]:
-        return field_bounds(key)
+        return PlantParams.bounds(key)
 
     def off_values(self, keys: Iterable[str]) -> dict[str, float]:
         defaults = PlantParams().dotted()

@@ -22,7 +22,6 @@ import numpy as np
 
 from fmu_plant import PlantParams
 
-from tapmuscle.diagnosis.calibration import field_bounds
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, CandidateError, FitResult, Problem
 from tapmuscle.diagnosis.fit_problem import SimulationError
 
@@ -97,7 +96,7 @@ def _check_parameters(c: Candidate, keys: dict[str, float]) -> None:
         if not lo < hi:
             raise CandidateError(f"candidates: {c.name!r}: its bounds of {spec.key} are {lo!r} .. {hi!r}: give the "
                                  "lower bound first, below the upper one (ParameterSpec(key, unit, lo, hi))")
-        plant_lo, plant_hi = field_bounds(spec.key)
+        plant_lo, plant_hi = PlantParams.bounds(spec.key)
         if lo < plant_lo or hi > plant_hi:
             raise CandidateError(f"candidates: {c.name!r}: its bounds of {spec.key} are {lo:g} .. {hi:g}, beyond the "
                                  f"plant's {plant_lo:g} .. {plant_hi:g}: the plant refuses a value outside them")

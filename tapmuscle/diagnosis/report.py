@@ -33,7 +33,7 @@ from tapmuscle.diagnosis.model_space import MUSCLE, MuscleSpace
 from tapmuscle.diagnosis.residual_analysis import STRUCTURE_ALPHA, STRUCTURE_MATERIALITY, unstructured_reason
 from tapmuscle.io.atomic import probe_output_folder
 from tapmuscle.diagnosis.plant_source import load_plant, simulate_plant_fmu
-from tapmuscle.diagnosis.simulation import noise_free, worker_pool
+from tapmuscle.diagnosis.simulation import worker_pool
 from tapmuscle.provenance import produced_by
 
 __all__ = ["diagnose_files", "write_outputs", "finite_json", "json_text", "summary_lines", "overlay_figure", "OUTPUT_FILES",
@@ -621,7 +621,7 @@ def diagnose_files(recording: str | Path, plant: str | Path, out: str | Path, *,
                            "unexplained window after it")
         fmu_check = None
         if kind == "fmu":
-            sim_fmu = simulate_plant_fmu(plant, noise_free(model).dotted(), cols["u_v"], d.ts_s, load)
+            sim_fmu = simulate_plant_fmu(plant, model.noise_free().dotted(), cols["u_v"], d.ts_s, load)
             fmu_check = {"max_abs_difference_mm": float(np.max(np.abs(sim_fmu - d.y_before_mm)))}
         doc = write_outputs(d, out, recording=str(recording), plant=str(plant), fmu_check=fmu_check, plots=plots,
                             executor=pool)

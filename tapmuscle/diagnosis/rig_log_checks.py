@@ -26,7 +26,7 @@ from tapmuscle.diagnosis.recording_checks import (AT_REST_MM, COMMAND_RANGE_V, D
                                                   check_muscle_recording, check_pressure_scale, check_sampling_period,
                                                   displacement_fault_notes, displacement_scale_note,
                                                   muscle_recording_notes)
-from tapmuscle.diagnosis.simulation import Simulator, noise_free
+from tapmuscle.diagnosis.simulation import Simulator
 from tapmuscle.io.decimation import decimated
 from tapmuscle.io.recording import Recording, RecordingError
 from tapmuscle.io.rig_log import (ABSOLUTE_UNITS, LINEAR_UNITS, MA_RANGE, NAME_SUFFIX, STANDARD_ATMOSPHERE_KPA, UNITS,
@@ -154,7 +154,7 @@ def checked_rig_log(options: LogOptions, run: int | None = None, spelling: Spell
     scale_note, problems, l_nominal = None, [], None
 
     def nominal():
-        return Simulator(rec.u_v, ts, load).run(noise_free(PlantParams()))[0]
+        return Simulator(rec.u_v, ts, load).run(PlantParams().noise_free())[0]
 
     try:
         try:

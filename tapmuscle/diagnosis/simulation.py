@@ -25,17 +25,11 @@ from fmu_plant import Plant, PlantParams
 from tapmuscle.cosim.worker_start import spawn_context
 from tapmuscle.errors import UsageError
 
-__all__ = ["Simulator", "SimulationError", "noise_free", "checkpoint_interval", "worker_pool", "process_pool"]
+__all__ = ["Simulator", "SimulationError", "checkpoint_interval", "worker_pool", "process_pool"]
 
 #: Recording time between the checkpoints a baseline run keeps [s]: a window fit continues from the
 #: last one before its window, so it simulates at most this much more than the window.
 CHECKPOINT_S = 10.0
-
-
-def noise_free(params: PlantParams) -> PlantParams:
-    """``params`` with the encoder's and pressure sensor's noise and quantisation switched off."""
-    return params.with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0,
-                                 "sensor.pressure_noise_std_mpa": 0.0, "sensor.pressure_resolution_mpa": 0.0})
 
 
 def checkpoint_interval(ts_s: float) -> int:
@@ -89,7 +83,7 @@ class Simulator:
             Keep the plant's state every this many samples (0: none), for later runs with ``start``.
         """
         n = len(self.u_v) if stop is None else stop
-        plant = Plant(noise_free(params), seed=0)
+        plant = Plant(params.noise_free(), seed=0)
         if start:
             plant.set_state(self._checkpoints[start])
         u = np.asarray(self.u_v, dtype=float)[start:n - 1]  # the commands held over the steps
