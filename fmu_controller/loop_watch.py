@@ -36,7 +36,7 @@ __all__ = ["LoopWatch", "PinnedStretch", "ReachWatch", "samples_in_words", "in_a
            "PINNED_S", "HEAVY_MOVE_WEIGHT", "HORIZON_PAST_DELAY_S", "horizon_past_delay", "TABLE5_HORIZON_S",
            "table5_horizon_samples", "RUNAWAY_COMMANDS",
            "RUNAWAY_S", "THETA0_44N_HOLDS_MM", "DELAY_SURE_RATIO", "TRACKING_BLOCK_S",
-           "TRACKING_MM", "TRACKING_SHARE"]
+           "TRACKING_MM", "TRACKING_SHARE", "SMALL_REFERENCE_MM", "REFERENCE_UNIT_S"]
 
 #: A one-step prediction outside ten times the readings' range [mm], or a QP input u_c beyond this [V]
 #: (a hundred times the valve's span), means the adaptive estimate diverges.
@@ -107,6 +107,13 @@ TRACKING_BLOCK_S = 20.0
 TRACKING_MM = 3.0
 TRACKING_SHARE = 0.1
 #: A tracking block at its start: samples, samples counted, sum |r - l| [mm], r's least and largest [mm].
+#: A reference whose largest |r| over the run's first :data:`REFERENCE_UNIT_S` [s] is above 0 and below
+#: this [mm] is told once: a muscle's stroke is tens of mm (the paper's 35 +- 30 mm), and such a
+#: reference is one in metres (0.035 for 35 mm), which the loop tracks to the encoder's resolution
+#: with an Eq. (21) error far below any real one, and nothing else would say so. r = 0 (the muscle
+#: held at rest) is not told.
+SMALL_REFERENCE_MM = 1.0
+REFERENCE_UNIT_S = 10.0
 _NEW_BLOCK = (0, 0, 0.0, math.inf, -math.inf)
 #: The reference is told out of the rig's reach at times when, in a tracking block, this share of its
 #: samples (1.5 s of 20) has the command at the valve limit the error pushes it into, the reading
@@ -329,6 +336,7 @@ class LoopWatch:
         self._block = list(_NEW_BLOCK)
         self._decision_seen: int | None = None  # -1's decision of the input delay, once told
         self._reach = ReachWatch()  # the reference out of reach at times
+        self._r_unit = [0, 0.0]  # samples watched and largest |r| [mm] of the run's start (samples -1: done)
 
     # ------------------------------------------------------------------ the sample
     def observe(self, k: int, t_s: float, l_mm: float, r_mm: float, step: ControlStep, u_prev_v: float) -> list[str]:
@@ -352,6 +360,7 @@ class LoopWatch:
         if self.controller.reading_stuck is not None:
             said.append(stuck_reading_message(t_s, *self.controller.reading_stuck))
         self._watch_beyond_theta0(said, t_s, r_mm)
+        self._watch_reference_unit(said, t_s, r_mm)
         self._watch_pinned(said, t_s, l_mm, r_mm, u_v)
         self._watch_held(said, t_s, l_mm, r_mm, u_v)
         self._watch_slamming(said, k, t_s, u_v, u_prev_v)
@@ -444,6 +453,23 @@ class LoopWatch:
                     "paper's rig a step to 75-90 mm limit-cycles for good; docs/control.md, \"MPC-servo outside its "
                     "predictor's range\"): identify theta0 over the range the loop runs in, or use an adaptive "
                     "method (ampc_servo)")
+
+    def _watch_reference_unit(self, said: list[str], t_s: float, r: float) -> None:
+        """Tell once, after :data:`REFERENCE_UNIT_S`, of a reference that stayed within
+        :data:`SMALL_REFERENCE_MM` of 0 (and was not 0 throughout): one in metres."""
+        watched = self._r_unit
+        if watched[0] < 0:
+            return
+        watched[0] += 1
+        watched[1] = max(watched[1], abs(r))
+        if watched[0] < math.ceil(REFERENCE_UNIT_S / self.controller.settings.ts_s - 1e-9):
+            return
+        watched[0] = -1
+        if 0.0 < watched[1] < SMALL_REFERENCE_MM:
+            said.append(f"t = {t_s:g} s: the reference r has stayed within {watched[1]:.3g} mm of 0 over the first "
+                        f"{REFERENCE_UNIT_S:g} s, where a muscle's stroke is tens of mm: is it in metres (35 mm is "
+                        "0.035 m)? r is in mm; the loop tracks so small a reference to the encoder's resolution, and "
+                        "its Eq. (21) error then says nothing of the law")
 
     def _watch_tracking(self, said: list[str], k: int, t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the mean |r - l| over a block of :data:`TRACKING_BLOCK_S` exceeds the larger of
@@ -759,12 +785,13 @@ class LoopWatch:
         return [self._diverged, p.n, None if self._jump_ks is None else list(self._jump_ks),
                 None if self._swing_ks is None else list(self._swing_ks), self._last_limit, self._held_n,
                 self._r_last, self._swings_from, p.l, p.moved, self._beyond_said, list(self._block), p.side,
-                self._decision_seen, self._reach.get_state()]
+                self._decision_seen, self._reach.get_state(), list(self._r_unit)]
 
     def set_state(self, said: list | tuple) -> None:
         """Restore :meth:`get_state`'s list; a shorter one of a build that watched less starts the
         missing watches anew (the held command, the reference steps, the pinned stretch's reading, the
-        reference beyond THETA0_44N's range, the tracking block)."""
+        reference beyond THETA0_44N's range, the tracking block) but the reference's unit, which is
+        watched at a run's start only."""
         diverged, pinned, jumps, swings, last_limit, held = (*said, 0)[:6] if len(said) >= 5 else \
             (False, 0, [], [], 0, 0)
         self._diverged, self._held_n = bool(diverged), int(held)
@@ -785,6 +812,12 @@ class LoopWatch:
         if len(said) >= 15:
             self._reach.set_state(said[14])
         self._beyond_said = bool(said[10]) if len(said) >= 11 else False
+        # a state without the reference's unit watch: taken as watched (a restored run is past its start)
+        unit = said[15] if len(said) >= 16 else [-1, 0.0]
+        if not (isinstance(unit, (list, tuple)) and len(unit) == 2 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in unit)):
+            raise ValueError(f"watch state's reference unit watch = {unit!r} must be [samples, largest |r| mm]")
+        self._r_unit = [int(unit[0]), float(unit[1])]
         block = said[11] if len(said) >= 12 else _NEW_BLOCK
         if not (isinstance(block, (list, tuple)) and len(block) == 5 and all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) for x in block)):

@@ -57,7 +57,8 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
     watch.set_state(saved[:5])
     assert watch.get_state()[5:] == [0, pytest.approx(np.nan, nan_ok=True), 0, pytest.approx(np.nan, nan_ok=True),
                                      True, False, [0, 0, 0.0, np.inf, -np.inf], 0, None,
-                                     [0, False, 0.0, 0.0, 0.0, 0.0, True, pytest.approx(np.nan, nan_ok=True), False]]
+                                     [0, False, 0.0, 0.0, 0.0, 0.0, True, pytest.approx(np.nan, nan_ok=True), False],
+                                     [-1, 0.0]]  # the reference's unit is watched at a run's start alone
 
 
 def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
@@ -552,3 +553,27 @@ def test_a_heavy_move_weight_is_named_above_a_thousand(r, named):
     settings = tm.ControllerSettings(method="mpc_servo", servo=tm.ServoMPCSettings(r=r))
     causes = LoopWatch(tm.DisplacementController(settings, tm.THETA0_44N)).limit_cycle_causes(42.0)
     assert any(c.startswith("a heavy move weight servo.R") for c in causes) == named
+
+
+def test_a_reference_in_metres_is_told_once_and_the_muscle_held_at_rest_is_not():
+    """0.035 + 0.03 sin(...) is the paper's reference in metres: tracked to the encoder's resolution, it
+    scored an Eq. (21) error 4 times below the paper's run, with no word. It is told once, after 10 s;
+    the paper's reference, one in cm (3.5 + 3 sin) and r = 0 are not; the state carries the watch."""
+    def told(reference, duration_s=25.0):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            tm.simulate_closed_loop("ampc_servo", reference, duration_s=duration_s)
+        return [str(w.message) for w in caught if "metres" in str(w.message)]
+
+    (message,) = told(tm.SineReference(offset_mm=0.035, amplitude_mm=0.03))
+    assert message.startswith("t = 9.9 s: the reference r has stayed within 0.065 mm of 0 over the first 10 s")
+    assert "is it in metres (35 mm is 0.035 m)?" in message
+    for reference in (None, tm.SineReference(offset_mm=3.5, amplitude_mm=3.0), np.zeros(300)):
+        assert told(reference) == []
+    watch = LoopWatch(tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N))
+    watch._r_unit = [37, 0.05]
+    again = LoopWatch(tm.DisplacementController(tm.ControllerSettings(), tm.THETA0_44N))
+    again.set_state(watch.get_state())
+    assert again._r_unit == [37, 0.05]
+    with pytest.raises(ValueError, match=r"reference unit watch = \['x'\]"):
+        again.set_state(watch.get_state()[:15] + [["x"]])
