@@ -272,6 +272,15 @@ def test_external_step_reference_is_tracked(built_fmus):
      "has 2 entries"),
     ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [20, 5000]\n", "reference.values_mm",
      "holds 5000, outside [-400, 400] mm"),
+    # a value in range in another unit says which
+    ("duration_s = 10.0\n[supply]\ninitial_mpa = 2.5\n", "supply.initial_mpa",
+     "2.5 is outside [0, 1]; in bar? 2.5 bar is 0.25 MPa"),
+    ("duration_s = 10.0\n[supply]\ninitial_mpa = 250\n", "supply.initial_mpa", "in kPa? 250 kPa is 0.25 MPa"),
+    ("duration_s = 10.0\n[load]\ninitial_n = 44000\n", "load.initial_n", "in mN? 44000 mN is 44 N"),
+    # a step the run never reaches, as a load step's
+    ("duration_s = 45.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 15000]\nvalues_mm = [20, 50]\n",
+     "reference.times_s", "15000 s comes after the run's end, duration_s = 45 s: the reference would never take that "
+                          "value; times in ms? 15 s falls within it"),
     # between two samples, it would act at the next one without a word
     ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5.05]\nvalues_mm = [20, 50]\n", "reference.times_s",
      "5.05 s is not a sample time of step_s = 0.1 s (nearest: 5 and 5.1 s)"),
@@ -293,6 +302,18 @@ def test_bad_scenarios_name_file_and_key(tmp_path, text, key, message):
     with pytest.raises(ScenarioError) as err:
         load_scenario(path)
     assert str(path) in str(err.value) and f"key '{key}'" in str(err.value) and message in str(err.value)
+
+
+@pytest.mark.parametrize("text, ending", [
+    ("duration_s = 10.0\n[load]\ninitial_n = 4.4e9\n", "4400000000.0 is outside [0, 500]"),
+    ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 12]\nvalues_mm = [20, 50]\n",
+     "12 s comes after the run's end, duration_s = 10 s: the reference would never take that value")])
+def test_a_value_no_other_unit_explains_gets_no_unit_hint(tmp_path, text, ending):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    assert str(err.value).endswith(ending)
 
 
 @pytest.mark.parametrize("path_text", ["Z:\\tmp\\rig\\id 1.json", "C:\\Users\\j\u00fcrgen\\id.json"])

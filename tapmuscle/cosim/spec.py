@@ -282,7 +282,7 @@ class _Reader:
             raise self.error(key, f"must be a number, got {type(v).__name__} {v!r}")
         v = float(v)
         if not math.isfinite(v) or v < lo or v > hi or (lo_open and v == lo):
-            raise self.error(key, f"{v!r} is outside {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+            raise self.error(key, f"{v!r} is outside {'(' if lo_open else '['}{lo:g}, {hi:g}]{_unit_hint(key, v, hi)}")
         return v
 
     def integer(self, key: str, default: int, *, lo: int = 0, hi: int | None = None) -> int:
@@ -356,6 +356,29 @@ class _Reader:
             steps.append((t, r.number(value_key, lo=lo, hi=hi)))
             last = t
         return Profile(initial, tuple(steps))
+
+
+#: A key's name suffix -> its unit, and the other units a value too large for it is likely in, with
+#: their factor to it.
+_OTHER_UNITS: dict[str, tuple[str, tuple[tuple[str, float], ...]]] = {
+    "_mpa": ("MPa", (("bar", 0.1), ("kPa", 1e-3), ("Pa", 1e-6))),
+    "_n": ("N", (("mN", 1e-3),)),
+    "_s": ("s", (("ms", 1e-3),)),
+    "_mm": ("mm", (("um", 1e-3),)),
+}
+
+
+def _unit_hint(key: str, value: float, hi: float) -> str:
+    """``"; in bar? 2.5 bar is 0.25 MPa"`` for a value above its key's range that is in range in another
+    likely unit (the first that fits), else ``""``."""
+    if not (math.isfinite(value) and value > hi):
+        return ""
+    for suffix, (unit, others) in _OTHER_UNITS.items():
+        if key.endswith(suffix):
+            for other, factor in others:
+                if value * factor <= hi:
+                    return f"; in {other}? {value:g} {other} is {value * factor:.4g} {unit}"
+    return ""
 
 
 def _parameters(r: _Reader, *, booleans: bool = False) -> dict[str, Any]:
@@ -505,6 +528,12 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
             raise ref_r.error("times_s", f"has {len(times)} entries, values_mm has {len(values)}")
         if times[0] != 0 or any(b <= a for a, b in zip(times, times[1:])):
             raise ref_r.error("times_s", f"must start at 0 and increase, got {times!r}")
+        late = [t for t in times if t > duration * (1.0 + 1e-12)]
+        if late:  # as a load step the run never reaches
+            ms = (f"; times in ms? {late[0] / 1000.0:g} s falls within it"
+                  if 10.0 * duration <= late[0] <= 1000.0 * duration else "")
+            raise ref_r.error("times_s", f"{late[0]:g} s comes after the run's end, duration_s = {duration:g} s: the "
+                                         f"reference would never take that value{ms}")
         # the controller samples r at k step_s: a step between two samples would act at the next one
         off_grid = [t for t in times if abs(round(t / step) * step - t) > 1e-6 * step]
         if off_grid:
