@@ -42,7 +42,7 @@ from .preliminary_model import REFINE_IN_CLOSED_LOOP
 from .rls import TABLE2_LOWER, TABLE2_UPPER, RLSSettings
 
 __all__ = ["MODELS", "FitReport", "IdentificationReport", "identify_record", "check_record", "score_model",
-           "decade_scale", "cancellation_swing", "PAPER_TS_S", "MIN_SAMPLES", "SHORT_TS_S", "CANCELLATION_SWING_V"]
+           "decade_scale", "units_note", "cancellation_swing", "PAPER_TS_S", "MIN_SAMPLES", "SHORT_TS_S", "CANCELLATION_SWING_V"]
 
 #: Model variants by name (Eq. (1) with and without ``g(l)``).
 MODELS: dict[str, ModelStructure] = {"asymmetric": ASYMMETRIC, "standard": STANDARD}
@@ -271,6 +271,42 @@ def cancellation_swing(theta: np.ndarray, structure: ModelStructure, u: np.ndarr
     return spread / abs(b1) if b1 != 0.0 else (math.inf if spread > 0.0 else 0.0)
 
 
+def _beyond(key: str, scale: float) -> str | None:
+    """What a scale beyond the mm and V of the controllers says, else None: a displacement's of 100 or
+    more is one over 60 x 10^1.5 = 1897 mm; the valve takes 0..10 V, so a command's of 10 (a largest
+    command of 6 x 10^0.5 = 18.97 or more) is not in volts."""
+    if scale <= 0.01:
+        return (f"under about 1.9 (scaling.{key} = {scale:g}: metres?)" if key == "l_scale" else
+                f"under about 0.19 (scaling.{key} = {scale:g}: a normalised 0..1 command?)")
+    if key == "l_scale" and scale >= 100.0:
+        return f"over about 1900 (scaling.{key} = {scale:g}: micrometres?)"
+    if key == "u_scale" and scale >= 100.0:
+        return f"about 190 or more (scaling.{key} = {scale:g}: millivolts?)"
+    if key == "u_scale" and scale >= 10.0:
+        return (f"about 19 or more (scaling.{key} = {scale:g}: % of the valve's opening, or volts x 10? The valve "
+                "takes 0..10 V)")
+    return None
+
+
+def units_note(scaling: object) -> str | None:
+    """``"a recording whose largest ... ; the controllers need ..."`` where an identification's
+    ``scaling`` (``{"l_scale": ..., "u_scale": ...}``) is beyond the mm and V of the controllers
+    (:func:`_beyond`), else None."""
+    if not isinstance(scaling, dict):
+        return None
+    odd = []
+    for key, what in (("l_scale", "displacement"), ("u_scale", "command")):
+        scale = scaling.get(key)
+        if isinstance(scale, (int, float)) and not isinstance(scale, bool):
+            said = _beyond(key, float(scale))
+            if said is not None:
+                odd.append(f"largest {what} is {said}")
+    if not odd:
+        return None
+    return (f"a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in mm and V, as their "
+            "readings l and command u are: identify on the recording in mm and V")
+
+
 def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: str = "asymmetric",
                     box: str | Mapping[str, tuple[float, float]] | None = "auto",
                     constraint_start_s: float = 120.0, p0: float = 1e3, forgetting: float = 1.0,
@@ -402,6 +438,9 @@ def identify_record(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, model: st
                      "fixed law on it (MPC-UCP, MPC-servo) slams the valve; the adaptive methods recover from it. "
                      "Identify on random levels held 0.5-3 s (random:lo=2,hi=8,hold_min=0.5,hold_max=3) rather than a "
                      f"sine or a chirp, or {REFINE_IN_CLOSED_LOOP}")
+    unit = units_note({"l_scale": l_scale, "u_scale": u_scale})
+    if unit is not None:
+        notes.append(f"identified on {unit}")
     if ts_s < SHORT_TS_S:
         # the muscle moves a few hundredths of a mm a sample: any model predicts the next sample from
         # the last, and the dynamics Eq. (1) is meant to hold are in its last digits

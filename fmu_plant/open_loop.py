@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from .plant import Plant
+from .plant import COMMAND_RANGE_V, Plant
 
 __all__ = ["run_open_loop"]
 
@@ -44,7 +44,7 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
     ------
     ValueError
         If the duration or period is not positive and finite, or the signal returns a non-finite
-        command (the message gives the time).
+        command or one outside :data:`~fmu_plant.plant.COMMAND_RANGE_V` (the message gives the time).
     """
     for name, value in (("duration_s", duration_s), ("ts_s", ts_s)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -71,6 +71,10 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
             raise ValueError(f"input signal u(t = {t:g} s) = {value!r:.60} is not a number [V]") from None
         if not math.isfinite(u):
             raise ValueError(f"input signal gave a non-finite command {u!r} at t = {t:g} s")
+        if not COMMAND_RANGE_V[0] <= u <= COMMAND_RANGE_V[1]:  # as the plant FMU's input u
+            raise ValueError(f"input signal u(t = {t:g} s) = {u:g} V is outside the {COMMAND_RANGE_V[0]:g}.."
+                             f"{COMMAND_RANGE_V[1]:g} V the plant takes (the valve's 0..10 V, clipped within a volt "
+                             "beyond): a command in mV or %?")
         out["t_s"][k], out["u_v"][k], out["l_mm"][k], out["p_mpa"][k] = t, u, l_now, p_now
         out["load_n"][k] = plant.load_n
         if k + 1 < n:

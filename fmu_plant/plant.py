@@ -62,7 +62,7 @@ from .sensors import quantise
 from .user_warning import warn_at_caller
 from .valve import flow_coefficient, orifice_flow, valve_opening
 
-__all__ = ["Plant", "Measurement", "LightLoadWarning", "STATE_NAMES", "MAX_STEP_S"]
+__all__ = ["Plant", "Measurement", "LightLoadWarning", "STATE_NAMES", "MAX_STEP_S", "COMMAND_RANGE_V"]
 
 
 class LightLoadWarning(RuntimeWarning):
@@ -76,6 +76,11 @@ STATE_NAMES = ("x", "p_mpa", "l_mm", "v_mm_s", "z_n")
 
 #: Longest communication step accepted by :meth:`Plant.step` [s].
 MAX_STEP_S = 3600.0
+
+#: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
+#: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
+#: outside: another unit (mV, %).
+COMMAND_RANGE_V = (-1.0, 11.0)
 
 #: Sensor noise is drawn from the plant's generator in blocks of this many normals.
 _NOISE_BLOCK = 64

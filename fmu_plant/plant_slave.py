@@ -29,6 +29,7 @@ from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 from fmu_plant import Plant, PlantParams
 from fmu_plant.parameters import dotted_names
+from fmu_plant.plant import COMMAND_RANGE_V
 from fmu_plant.rosenbrock import COMPILED, COMPILED_FOR_ANOTHER_PYTHON
 from fmu_plant.seed import join_seed
 
@@ -174,7 +175,7 @@ class MusclePlant(SafeSlave):
                      "Python (tapmuscle build) for the compiled one")
 
     def step_numerics(self, t_s: float, dt_s: float) -> None:
-        u = self.finite("u", self.u, -1.0, 11.0)
+        u = self.finite("u", self.u, *COMMAND_RANGE_V)
         load = self.finite("load_force", self.load_force, 0.0, 500.0)
         ps = self.finite("supply_pressure", self.supply_pressure, 0.0, 1.0)
         plant = self._plant

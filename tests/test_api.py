@@ -210,6 +210,16 @@ def test_a_light_load_warning_has_its_own_category_and_suspects_kilograms():
             tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, load_n=load)
 
 
+@pytest.mark.parametrize("command, at", [(np.full(50, 5000.0), "u(t = 0 s) = 5000 V"),  # mV
+                                         (lambda t: 50.0 if t >= 2.0 else 5.0, "u(t = 2 s) = 50 V")])  # %
+def test_a_command_outside_what_the_plant_takes_is_refused_naming_its_time(command, at):
+    """The plant FMU takes -1..11 V and ``tapmuscle record`` refuses what lies outside; tm.simulate ran
+    a command of 5000 (mV) saturated at 10 V without a word."""
+    with pytest.raises(ValueError, match=re.escape(at) + r" is outside the -1..11 V the plant takes .*mV or %\?"):
+        tm.simulate(command, duration_s=4.0)
+    assert tm.simulate(np.full(50, 10.5))["u_v"][0] == 10.5  # within a volt beyond: clipped by the amplifier
+
+
 def test_a_scenario_shortened_in_code_is_refused_before_its_run():
     """dataclasses.replace(scenario, duration_s=20.0) ran the whole co-simulation and then failed on
     Eq. (21)'s window: the replaced scenario is refused at once, naming evaluation_samples."""
@@ -442,6 +452,12 @@ def test_tm_identifys_result_is_a_theta0_with_its_period_box_and_delay():
                                          r"controllers use the asymmetric model"):
         tm.simulate_closed_loop("mpc_servo", None, duration_s=2.0, theta0=standard)
     metres = tm.identify(rec["u_v"], rec["l_mm"] / 1000.0, ts_s=0.1)
+    # the report says it itself, as the command line does
+    assert [n for n in metres.notes if "metres?" in n] == [
+        "identified on a recording whose largest displacement is under about 1.9 (scaling.l_scale = 0.001: metres?); "
+        "the controllers need Eq. (1) in mm and V, as their readings l and command u are: identify on the recording "
+        "in mm and V"]
+    assert not [n for n in fit.notes if "identified on a recording" in n]
     with pytest.warns(UserWarning, match=r"theta0 \(tm.identify's result\): identified on a recording whose "
                                          r"largest displacement is under about 1.9"):
         tm.simulate_closed_loop("mpc_servo", None, duration_s=2.0, theta0=metres, watch=False)

@@ -172,11 +172,9 @@ def _identify_notes(args: argparse.Namespace, rec, val, report, choice) -> list[
     validation record at another load, and with ``--input-delay-samples auto`` what the delays' fits
     leave open (printed and in the JSON)."""
     from fmu_controller.input_delay_choice import THIN_MARGIN_PERCENT
-    from tapmuscle.io.identification_file import units_note
 
     jitter = rec.sampling.note()
-    unit = units_note({"l_scale": report.l_scale, "u_scale": report.u_scale})
-    notes = list(report.notes) + ([jitter] if jitter else []) + ([f"identified on {unit}"] if unit else [])
+    notes = list(report.notes) + ([jitter] if jitter else [])
     filled = int((rec.columns["filled"] != 0).sum()) if "filled" in rec.columns else 0
     if filled:  # tapmuscle import --fill-gaps: the diagnosis leaves them out, RLS needs every sample
         notes.append(f"{filled} samples of the record were filled in by interpolation (its column filled, tapmuscle "

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fmu_plant.plant import COMMAND_RANGE_V
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.rig_log import STANDARD_GRAVITY
 from tapmuscle.io.sampling import TS_RANGE_S, check_sampling_period, uniform_sampling
@@ -27,10 +28,6 @@ __all__ = ["RecordingCheckError", "check_muscle_recording", "check_pressure_scal
            "displacement_scale_note",
            "SPAN_RATIO_NOTED", "SPAN_NOTED_MIN_MM", "JUMP_MM_PER_S", "HELD_S", "displacement_fault_notes"]
 
-#: Commands [V] the plant takes, as the MusclePlant FMU's input ``u`` declares: the valve's 0..10 V and
-#: 1 V either side, which saturates in the amplifier (an offset amplifier, a read-back's noise);
-#: outside: another unit.
-COMMAND_RANGE_V = (-1.0, 11.0)
 #: No reading of the 400-mm muscle's contraction lies further than this from 0 [mm]: its length and
 #: an encoder zeroed anywhere in its stroke (``sensor_drift.offset_mm``'s 100-mm bound); beyond: µm?
 DISPLACEMENT_PLAUSIBLE_MM = 500.0

@@ -25,7 +25,7 @@ from fmu_controller.argument_checks import sampling_period
 from fmu_controller.box_projection import named_box
 from fmu_controller.displacement_control import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
-from fmu_controller.identification import PAPER_TS_S
+from fmu_controller.identification import PAPER_TS_S, units_note
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER
 from fmu_controller.prediction import checked_input_delay
 from fmu_controller.preliminary_model import THETA0_LIMIT
@@ -201,51 +201,16 @@ def identified_model(data: object, where: str) -> IdentifiedModel:
                            delay)
 
 
-def _beyond(key: str, scale: float) -> str | None:
-    """What a scale beyond the mm and V of the controllers says, else None: a displacement's of 100 or
-    more is one over 60 x 10^1.5 = 1897 mm; the valve takes 0..10 V, so a command's of 10 (a largest
-    command of 6 x 10^0.5 = 18.97 or more) is not in volts."""
-    if scale <= 0.01:
-        return (f"under about 1.9 (scaling.{key} = {scale:g}: metres?)" if key == "l_scale" else
-                f"under about 0.19 (scaling.{key} = {scale:g}: a normalised 0..1 command?)")
-    if key == "l_scale" and scale >= 100.0:
-        return f"over about 1900 (scaling.{key} = {scale:g}: micrometres?)"
-    if key == "u_scale" and scale >= 100.0:
-        return f"about 190 or more (scaling.{key} = {scale:g}: millivolts?)"
-    if key == "u_scale" and scale >= 10.0:
-        return (f"about 19 or more (scaling.{key} = {scale:g}: % of the valve's opening, or volts x 10? The valve "
-                "takes 0..10 V)")
-    return None
-
-
 def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
     """Warn when the file's ``scaling`` (the powers of ten that brought the recording's largest
     displacement near 60 and command near 6, :func:`~fmu_controller.identification.decade_scale`) says
-    the recording was not in mm and V as the controllers need (:func:`_beyond`). A model identified on
+    the recording was not in mm and V as the controllers need
+    (:func:`~fmu_controller.identification.units_note`). A model identified on
     displacements in metres ran the MPC-servo loop at 22 mm of Eq. (21) error against 0.11 mm in mm,
     one on a command in volts x 10 AMPC-servo at 22 mm, their warnings blaming the readings or theta0."""
     said = units_note(scaling)
     if said is not None:
         warn_at_caller(f"{where}: identified on {said}", UserWarning)
-
-
-def units_note(scaling: object) -> str | None:
-    """``"a recording whose largest ... ; the controllers need ..."`` where an identification's
-    ``scaling`` (``{"l_scale": ..., "u_scale": ...}``) is beyond the mm and V of the controllers
-    (:func:`_beyond`), else None."""
-    if not isinstance(scaling, dict):
-        return None
-    odd = []
-    for key, what in (("l_scale", "displacement"), ("u_scale", "command")):
-        scale = scaling.get(key)
-        if isinstance(scale, (int, float)) and not isinstance(scale, bool):
-            said = _beyond(key, float(scale))
-            if said is not None:
-                odd.append(f"largest {what} is {said}")
-    if not odd:
-        return None
-    return (f"a recording whose {' and whose '.join(odd)}; the controllers need Eq. (1) in mm and V, as their "
-            "readings l and command u are: identify on the recording in mm and V")
 
 
 def checked_box(lower: Mapping[str, float], upper: Mapping[str, float], *, what: str
