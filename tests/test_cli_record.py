@@ -46,6 +46,20 @@ def test_the_load_is_given_once(tmp_path, capsys):
     assert main([*common, "--out", str(tmp_path / "same.csv"), "--load", "30", "--set", "load.load_n=30"]) == 0
 
 
+def test_no_load_is_recorded_as_the_plant_runs_it_with_the_braid_lock_note(tmp_path, capsys):
+    """0 N is a load the plant, its FMU, scenarios and the API take (with the braid lock's note);
+    ``record --load 0`` was refused as outside 1e-09..500."""
+    assert main(["record", "--input", "const:value=5", "--duration", "2", "--load", "0", "--quiet",
+                 "--out", str(tmp_path / "free.csv")]) == 0
+    assert read_recording(tmp_path / "free.csv").metadata["load_n"] == "0"
+    assert "load_n = 0 N is below the braid lock's 40 N" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        main(["record", "--input", "const:value=5", "--duration", "2", "--load", "-1", "--quiet",
+              "--out", str(tmp_path / "minus.csv")])
+    assert refused.value.code == 2
+    assert "--load must be within 0..500, got '-1'" in capsys.readouterr().err
+
+
 def test_parameter_overrides_change_the_rig(tmp_path):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     common = ["--input", "const:value=6", "--duration", "20", "--quiet", "--no-noise"]

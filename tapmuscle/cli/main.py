@@ -549,8 +549,8 @@ def build_parser() -> argparse.ArgumentParser:
     rec = sub.add_parser("record", help="run the simulated rig open-loop and write a recording CSV",
                          description="Run the simulated rig open-loop with a valve-command signal and "
                                      "write a recording (docs/recordings.md).")
-    rec.add_argument("--load", type=number_within("--load", 1e-9, 500.0), default=None,
-                     help="hanging load [N], 0 < load <= 500 (paper: 44, 68); default: the --params file's "
+    rec.add_argument("--load", type=number_within("--load", 0.0, 500.0), default=None,
+                     help="hanging load [N], 0..500 (paper: 44, 68); default: the --params file's "
                           "load.load_n, else 44")
     rec.add_argument("--input", required=True,
                      help="command spec, e.g. sine:bias=5,amp=3,freq=0.1 | step:initial=4,final=6,at=10 | "

@@ -136,7 +136,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "reading of the drained muscle (default: the standard atmosphere, 101.325 kPa)")
     imp.add_argument("--load", action=Once, type=_column("load_n", "--load"), default=None, metavar="COLUMN[:UNIT]",
                      help="load column (default: the log's unit for it, else N)")
-    imp.add_argument("--load-n", action=Once, type=number_within("--load-n", 1e-9, 500.0), default=None,
+    imp.add_argument("--load-n", action=Once, type=number_within("--load-n", 0.0, 500.0), default=None,
                      help="the hanging load [N] when it is not a column (written as the recording's load_n)")
     imp.add_argument("--delimiter", action=Once, default=None, help="field separator: one character, or 'tab' (default: the one "
                                                        "of ';', tab, ',' the header row holds most of)")
