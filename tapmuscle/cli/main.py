@@ -631,7 +631,9 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run a scenario file through the FMUs (fmpy co-simulation)",
                          description="Co-simulate MusclePlant and AMPCController (or a controller FMU of your "
                                      "own: [controller] interface) as a scenario file says (tapmuscle/cosim/spec.py, "
-                                     "docs/fmu.md); write result.csv, summary.json, PNGs.")
+                                     "docs/fmu.md); write result.csv, summary.json, PNGs (what they show: "
+                                     "docs/README.md). Every key names its unit: duration_s and step_s in s, "
+                                     "offset_mm in mm, initial_n (the load) in N, initial_mpa (the supply) in MPa.")
     run.add_argument("scenario", help="scenario TOML file (e.g. scenarios/paper/ampc_servo_44N_0.1Hz.toml)")
     run.add_argument("--out", type=output_path("--out", "folder"), required=True, help="output folder")
     run.add_argument("--fmu-dir", help="folder with MusclePlant.fmu and AMPCController.fmu "
