@@ -14,7 +14,26 @@ import numpy as np
 
 from .plant import COMMAND_RANGE_V, Plant
 
-__all__ = ["run_open_loop"]
+__all__ = ["run_open_loop", "run_samples"]
+
+
+def run_samples(duration_s: float, ts_s: float, *, names: tuple[str, str] = ("duration_s =", "ts_s =")) -> int:
+    """The samples of a run of ``duration_s`` [s] at period ``ts_s`` [s], its start and end included:
+    ``duration_s / ts_s + 1``.
+
+    Raises
+    ------
+    ValueError
+        A duration that is not a whole number of periods (to a relative 1e-9): the run would end on the
+        grid before or after it without a word (45.05 s at 0.1 s ran 45.0 s); the nearest two named, the
+        two values by ``names`` (a command line's options).
+    """
+    n = int(round(duration_s / ts_s)) + 1
+    if abs((n - 1) * ts_s - duration_s) > 1e-9 * max(duration_s, ts_s):
+        below = math.floor(duration_s / ts_s) * ts_s
+        raise ValueError(f"{names[0]} {duration_s:g} s is not a whole number of sampling periods {names[1]} {ts_s:g} s "
+                         f"({duration_s / ts_s:.6g}); the nearest: {below:.12g} and {below + ts_s:.12g} s")
+    return n
 
 
 def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s: float, ts_s: float,
@@ -43,13 +62,14 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
     Raises
     ------
     ValueError
-        If the duration or period is not positive and finite, or the signal returns a non-finite
+        If the duration or period is not positive and finite, the duration not a whole number of
+        periods (:func:`run_samples`), or the signal returns a non-finite
         command or one outside :data:`~fmu_plant.plant.COMMAND_RANGE_V` (the message gives the time).
     """
     for name, value in (("duration_s", duration_s), ("ts_s", ts_s)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    n = int(round(duration_s / ts_s)) + 1
+    n = run_samples(duration_s, ts_s)
     out = {k: np.empty(n) for k in ("t_s", "u_v", "l_mm", "p_mpa", "load_n")}
     load_fn = load_n if callable(load_n) else None
     if load_n is not None and not callable(load_n):

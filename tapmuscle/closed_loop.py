@@ -21,6 +21,7 @@ from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
 from fmu_plant import Plant
+from fmu_plant.open_loop import run_samples
 from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.own_law import ControlLaw, ValveWatch, as_law, law_command, law_period, law_preview_samples, reset_law
 from tapmuscle.progress import reporter
@@ -274,7 +275,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                          "a period in milliseconds? Give it in seconds")
     progress = reporter(progress, "run_closed_loop")
     reference = as_reference(reference, ts)
-    n = int(round(duration_s / ts)) + 1
+    n = run_samples(duration_s, ts)
     in_flight = 0.0
     names = ASYMMETRIC.names
     cols = {k: np.empty(n) for k in ("t_s", "r_mm", "l_mm", "l_true_mm", "u_v", "p_mpa", "load_n") + (

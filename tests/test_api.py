@@ -551,3 +551,12 @@ def test_an_effect_of_ones_own_runs_in_simulate_and_the_closed_loop():
     assert np.all(np.isfinite(loop["l_mm"]))
     with pytest.raises(TypeError, match=r"effects must be Effect instances \(subclasses of fmu_plant\.Effect\), got dict"):
         tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=2.0, effects=[{"supply": 0.5}])
+
+
+@pytest.mark.parametrize("run", [lambda: tm.simulate("const:value=5", duration_s=2.05),
+                                 lambda: tm.simulate_closed_loop("ampc_servo", None, duration_s=45.05)])
+def test_a_duration_between_two_samples_is_refused_naming_the_nearest(run):
+    """45.05 s at Ts = 0.1 s ran 45.0 s without a word (a scenario file refused it already)."""
+    with pytest.raises(ValueError, match=r"duration_s = \d+\.05 s is not a whole number of sampling periods ts_s = "
+                                         r"0.1 s \(\d+\.5\); the nearest: (2 and 2.1|45 and 45.1) s"):
+        run()

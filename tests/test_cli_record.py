@@ -78,6 +78,8 @@ def test_parameter_overrides_change_the_rig(tmp_path):
     (["--ts", "0"], "--ts must be within"),
     (["--ts", "50", "--duration", "10"], "--ts must be within"),
     (["--ts", "5", "--duration", "1"], "must not exceed --duration"),
+    (["--duration", "10.05"], "--duration 10.05 s is not a whole number of sampling periods --ts 0.1 s (100.5); the "
+                              "nearest: 10 and 10.1 s"),
     (["--input", "sine:amp=x"], "amp='x' is not a number"),
     (["--input", "triangle:amp=1"], "unknown kind 'triangle'"),
     (["--input", "csv:/nonexistent/u.csv"], "no such recording file"),

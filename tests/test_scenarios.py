@@ -272,6 +272,11 @@ def test_external_step_reference_is_tracked(built_fmus):
      "has 2 entries"),
     ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [20, 5000]\n", "reference.values_mm",
      "holds 5000, outside [-400, 400] mm"),
+    # a load or supply step between two communication points acted at the next one without a word
+    ("duration_s = 45.0\n[load]\nsteps = [ { t_s = 20.05, load_n = 68.0 } ]\n", "load.steps[0].t_s",
+     "20.05 s is not a sample time of step_s = 0.1 s (nearest: 20 and 20.1 s)"),
+    ("duration_s = 45.0\nstep_s = 0.5\n[supply]\nsteps = [ { t_s = 30.2, pressure_mpa = 0.2 } ]\n",
+     "supply.steps[0].t_s", "30.2 s is not a sample time of step_s = 0.5 s (nearest: 30 and 30.5 s)"),
     # a value in range in another unit says which
     ("duration_s = 10.0\n[supply]\ninitial_mpa = 2.5\n", "supply.initial_mpa",
      "2.5 is outside [0, 1]; in bar? 2.5 bar is 0.25 MPa"),

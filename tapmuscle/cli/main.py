@@ -73,7 +73,7 @@ def _load_plant_params(path: str | None, overrides: Sequence[str]):
 # --------------------------------------------------------------------------------------- record
 def _cmd_record(args: argparse.Namespace) -> int:
     from fmu_plant import Plant
-    from fmu_plant.open_loop import run_open_loop
+    from fmu_plant.open_loop import run_open_loop, run_samples
 
     from tapmuscle.progress import Progress
     import numpy as np
@@ -100,7 +100,10 @@ def _cmd_record(args: argparse.Namespace) -> int:
     params = params.with_values(**overrides)
     # the recorded u_v is the command the valve receives: a signal outside the valve's range is the
     # user's mistake (the amplifier would clip it), named before anything runs
-    n = int(round(args.duration / args.ts)) + 1
+    try:
+        n = run_samples(args.duration, args.ts, names=("--duration", "--ts"))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if n > MAX_SAMPLES:
         raise UsageError(f"--duration {args.duration:g} / --ts {args.ts:g} makes {n} samples; at most {MAX_SAMPLES} "
                          "in one recording")

@@ -38,13 +38,14 @@ noise seed. Every key is checked; a problem raises :class:`ScenarioError` naming
     offset_mm = 35.0
     amplitude_mm = 30.0
     frequency_hz = 0.1
-    # kind = "steps": values_mm = [20, 50], times_s = [0, 15] (on the step_s grid), preview = "advanced" | "held"
+    # kind = "steps": values_mm = [20, 50], times_s = [0, 15] (on the step_s grid, within the run),
+    # preview = "advanced" | "held"
     # (fed through the input r; "advanced" feeds r(t + Hp Ts), giving the exact preview; the values
     # within -400..400 mm, as the sine's offset and amplitude)
 
     [load]
     initial_n = 44.0                       # default: the parameters_file's load.load_n, else 44
-    steps = [ { t_s = 20.0, load_n = 68.0 } ]   # optional
+    steps = [ { t_s = 20.0, load_n = 68.0 } ]   # optional; times on the step_s grid, before the last step
 
     [supply]                               # optional
     initial_mpa = 0.25                     # default: the parameters_file's supply pressure, else 0.25
@@ -333,10 +334,10 @@ class _Reader:
         return p
 
     def profile(self, initial_key: str, value_key: str, default: float, lo: float, hi: float, *,
-                last_step_s: float) -> Profile:
-        """The initial value and the steps, each at a time a step of the run can act on: at or before
-        ``last_step_s`` [s], the start of the run's last step (a step acts from the first communication
-        point at or after its time)."""
+                last_step_s: float, step_s: float) -> Profile:
+        """The initial value and the steps, each at a time a step of the run acts on: a communication
+        point (a multiple of ``step_s`` [s]: between two, the step would act at the next one without a
+        word), at or before ``last_step_s`` [s], the start of the run's last step."""
         initial = self.number(initial_key, default, lo=lo, hi=hi)
         raw = self.table.get("steps", [])
         if not isinstance(raw, list):
@@ -353,9 +354,21 @@ class _Reader:
             if t > last_step_s + 1e-9:  # a step the file promises must act
                 raise r.error("t_s", f"{t!r} s comes after the start of the run's last step, {last_step_s:.12g} s "
                                      "(duration_s - step_s): it would never act")
+            off_grid = _off_grid(t, step_s)
+            if off_grid:
+                raise r.error("t_s", off_grid)
             steps.append((t, r.number(value_key, lo=lo, hi=hi)))
             last = t
         return Profile(initial, tuple(steps))
+
+
+def _off_grid(t_s: float, step_s: float) -> str:
+    """Why a step's time ``t_s`` [s] is not a communication point of ``step_s`` [s] (the nearest two
+    named), or ``""`` where it is one."""
+    if abs(round(t_s / step_s) * step_s - t_s) <= 1e-6 * step_s:
+        return ""
+    return (f"{t_s:g} s is not a sample time of step_s = {step_s:g} s (nearest: {math.floor(t_s / step_s) * step_s:.12g} "
+            f"and {math.ceil(t_s / step_s) * step_s:.12g} s)")
 
 
 #: A key's name suffix -> its unit, and the other units a value too large for it is likely in, with
@@ -535,11 +548,9 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
             raise ref_r.error("times_s", f"{late[0]:g} s comes after the run's end, duration_s = {duration:g} s: the "
                                          f"reference would never take that value{ms}")
         # the controller samples r at k step_s: a step between two samples would act at the next one
-        off_grid = [t for t in times if abs(round(t / step) * step - t) > 1e-6 * step]
+        off_grid = [_off_grid(t, step) for t in times if _off_grid(t, step)]
         if off_grid:
-            t = off_grid[0]
-            raise ref_r.error("times_s", f"{t:g} s is not a sample time of step_s = {step:g} s (nearest: "
-                                         f"{math.floor(t / step) * step:.12g} and {math.ceil(t / step) * step:.12g} s)")
+            raise ref_r.error("times_s", off_grid[0])
         profile = Profile(float(values[0]), tuple((float(t), float(v)) for t, v in zip(times[1:], values[1:])))
         preview = ref_r.string("preview", "held" if controller.own else "advanced", ("advanced", "held"))
         if controller.own and preview == "advanced":
@@ -553,11 +564,11 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
     load_r.check_keys({"initial_n", "steps"})
     # without a value of the scenario's own, the plant file's rig at its own load and supply pressure
     load = load_r.profile("initial_n", "load_n", file_inputs.get("load.load_n", 44.0), 0.0, 500.0,
-                          last_step_s=(n - 2) * step)
+                          last_step_s=(n - 2) * step, step_s=step)
     supply_r = top.sub("supply")
     supply_r.check_keys({"initial_mpa", "steps"})
     supply = supply_r.profile("initial_mpa", "pressure_mpa", file_inputs.get("supply.supply_pressure_mpa", 0.25),
-                              0.0, 1.0, last_step_s=(n - 2) * step)
+                              0.0, 1.0, last_step_s=(n - 2) * step, step_s=step)
     for key, profile, where in (("load.load_n", load, "[load] initial_n (and steps)"),
                                 ("supply.supply_pressure_mpa", supply, "[supply] initial_mpa (and steps)")):
         # the FMU's inputs load and supply_pressure set them (a parameters_file's are those inputs'
