@@ -273,7 +273,7 @@ SWEEP_FILE = ROOT / "scenarios" / "sweeps" / "paper_grid.toml"
 
 def _RANDOM_RUN():
     """A 60-s open-loop record's command [V] and displacement [mm] at 0.1 s (601 samples)."""
-    cols = tm.simulate("random:lo=2,hi=8,seed=3", duration_s=59.95)
+    cols = tm.simulate("random:lo=2,hi=8,seed=3", duration_s=60.0)
     return cols["u_v"], cols["l_mm"]
 
 
@@ -471,7 +471,7 @@ def test_another_sampling_period_needs_its_own_predictor():
         tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.2)
     run = tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.2, theta0=tm.THETA0_44N)
     assert len(run["t_s"]) == 16
-    assert len(tm.simulate_closed_loop("mpc_ucp", None, duration_s=3.0, ts_s=0.10000001)["t_s"]) == 31
+    assert len(tm.simulate_closed_loop("mpc_ucp", None, duration_s=30 * 0.10000001, ts_s=0.10000001)["t_s"]) == 31
     # off 0.1 s the default settings have no box (Table 2's is for 0.1 s, as tm.identify applies none
     # there): a theta0 identified at 0.2 s with b1 below Table 2's 0.607 starts an adaptive controller
     from fmu_controller.hysteresis_model import ASYMMETRIC

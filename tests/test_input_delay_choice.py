@@ -158,7 +158,7 @@ def test_a_short_sampling_period_is_noted_where_it_limits_the_search_and_the_fit
     at_limit = identify_record(fast["u_v"][::2], fast["l_mm"][::2], ts_s=SHORT_TS_S)
     assert not any("short for Eq. (1)" in n for n in at_limit.notes)
     # 0.07 s rounds the 0.5 s to 7 samples (0.49 s): the search is not cut short there
-    odd = tm.simulate("random:lo=2,hi=8,seed=1", duration_s=60.0, ts_s=0.07, seed=0)
+    odd = tm.simulate("random:lo=2,hi=8,seed=1", duration_s=857 * 0.07, ts_s=0.07, seed=0)  # 59.99 s
     assert not any("searched only" in n for n in choose_input_delay(odd["u_v"], odd["l_mm"], ts_s=0.07).report.notes)
 
 
