@@ -492,10 +492,28 @@ def test_a_plant_fmu_with_the_input_load_is_told_to_be_built_again(tmp_path):
     with pytest.raises(ScenarioError, match=r"it lacks input load_force; its input load is the plant's load_force as "
                                             r"an earlier tapmuscle named it: build the FMU again \(tapmuscle build\)"):
         check_role(fmu("u", "load", "supply_pressure"), "plant")
-    with pytest.raises(ScenarioError, match=r"it lacks input load_force; a scenario runs the project's MusclePlant "
-                                            r"interface, which it sets and reads: run a plant FMU of your own in fmpy "
-                                            r"or a master of your own \(docs/fmu.md\)$"):
+    with pytest.raises(ScenarioError, match=r"it lacks input load_force; it is the project's FMU as an earlier "
+                                            r"tapmuscle built it: build the FMUs again \(tapmuscle build"):
         check_role(fmu("u", "supply_pressure"), "plant")
+
+
+def test_an_earlier_builds_controller_fmu_is_told_to_be_built_again_with_or_without_an_interface(tmp_path):
+    """An AMPCController FMU without the output input_delay (built before it had one) was told to take an
+    interface, and with one to remove it: both now say to build it again."""
+    from types import SimpleNamespace
+
+    from tapmuscle.cosim.master import ROLE_INTERFACE, Unpacked, check_role
+
+    need_in, need_out, need_par = ROLE_INTERFACE["controller"]
+    variables = ({n: SimpleNamespace(causality="input") for n in need_in}
+                 | {n: SimpleNamespace(causality="output") for n in need_out - {"input_delay"}}
+                 | {n: SimpleNamespace(causality="parameter") for n in need_par})
+    old = Unpacked(tmp_path / "AMPCController.fmu", SimpleNamespace(modelName="AMPCController"), str(tmp_path), variables)
+    earlier = r"lacks output input_delay.* as an earlier tapmuscle built it: build the FMUs again \(tapmuscle build"
+    with pytest.raises(ScenarioError, match=earlier):
+        check_role(old, "controller")
+    with pytest.raises(ScenarioError, match=r"remove the interface; this one " + earlier):
+        check_role(old, "controller", {"measurement": "l", "reference": "r", "command": "u"})
 
 
 def test_a_controller_fmu_of_ones_own_is_told_what_a_scenario_needs(tmp_path):

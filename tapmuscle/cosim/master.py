@@ -339,8 +339,13 @@ def check_role(unpacked: Unpacked, role: str, interface: Mapping[str, str] | Non
     if interface is not None:
         if unpacked.model_description.modelName == "AMPCController":
             # its method, Ts and reference source are set by the scenario only without an interface
+            lacking = sorted(ROLE_INTERFACE["controller"][1] - {n for n, v in unpacked.variables.items()
+                                                                if v.causality == "output"})
+            earlier = (f"; this one lacks output {', '.join(lacking)}, as an earlier tapmuscle built it: build the FMUs "
+                       "again (tapmuscle build)" if lacking else "")
             raise ScenarioError(f"{unpacked.path}: the project's AMPCController runs without [controller] interface "
-                                "(the scenario sets its method, Ts and reference source then): remove the interface")
+                                f"(the scenario sets its method, Ts and reference source then): remove the interface"
+                                f"{earlier}")
         _check_interface(unpacked, interface, source)
         return
     if role not in ROLE_INTERFACE:
@@ -352,9 +357,12 @@ def check_role(unpacked: Unpacked, role: str, interface: Mapping[str, str] | Non
                + [f"output {n}" for n in sorted(need_out - has["output"])]
                + [f"parameter {n}" for n in sorted(need_par - has["parameter"])])
     if missing:
+        ours = unpacked.model_description.modelName == {"plant": "MusclePlant", "controller": "AMPCController"}.get(role)
         renamed = ("; its input load is the plant's load_force as an earlier tapmuscle named it: build the FMU "
                    "again (tapmuscle build)" if role == "plant" and "load" in has["input"]
-                   and "load_force" not in has["input"] else "")
+                   and "load_force" not in has["input"] else
+                   "; it is the project's FMU as an earlier tapmuscle built it: build the FMUs again (tapmuscle "
+                   "build, or leave the scenario's FMUs to be built from this version)" if ours else "")
         own = ("; a scenario runs the project's MusclePlant interface, which it sets and reads: run a plant FMU "
                "of your own in fmpy or a master of your own (docs/fmu.md)" if role == "plant" else
                "; a controller FMU of one's own runs with [controller] interface = { measurement = ..., "
