@@ -39,6 +39,7 @@ import functools
 import sys
 import json
 import math
+import os
 import traceback
 from operator import itemgetter
 from typing import Any, Callable, Iterable
@@ -165,6 +166,37 @@ def _drop_repeated_path(resources: str | None) -> None:
         del sys.path[i]
 
 
+#: The project's packages an FMU built by a tapmuscle of 2 December 2026 or earlier ships at the top of
+#: its resources folder and imports by these plain names (later builds keep them in a private package).
+PLAIN_PACKAGES = ("fmi_slave", "fmu_plant", "fmu_controller")
+
+
+def check_own_code(resources: str | None) -> None:
+    """Refuse to run an FMU on code other than its own.
+
+    An FMU built before its code was kept in a private package imports ``fmi_slave``, ``fmu_plant``
+    and ``fmu_controller`` by those names, and in a process that imported another tapmuscle (or
+    another such FMU) first it runs that one's modules: its parameters then land on other variables
+    (wrong numbers without a word), or it fails on a call the other code does not know.
+
+    Raises
+    ------
+    ValueError
+        A package the FMU ships in ``resources`` that this process loaded from elsewhere, naming both.
+    """
+    if not resources:
+        return
+    for name in PLAIN_PACKAGES:
+        own = os.path.join(resources, name, "__init__.py")
+        loaded = getattr(sys.modules.get(name), "__file__", None)
+        if loaded and os.path.isfile(own) and os.path.realpath(loaded) != os.path.realpath(own):
+            raise ValueError(f"this FMU's own {name} ({os.path.dirname(own)}) is not the one this process runs "
+                             f"({os.path.dirname(loaded)}, imported before the FMU): an FMU built by an earlier "
+                             "tapmuscle would run another version's code, whose variables differ from its "
+                             "modelDescription's; build it again with this tapmuscle (tapmuscle build), or run it in "
+                             "a process that has imported no other tapmuscle")
+
+
 class SafeSlave(Fmi2Slave):
     """Base of the project's FMU slaves (see module docstring)."""
 
@@ -178,6 +210,7 @@ class SafeSlave(Fmi2Slave):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         _drop_repeated_path(kwargs.get("resources"))
+        check_own_code(kwargs.get("resources"))
         #: pythonfmu's C++ layer drops references when an exception reaches it (:meth:`_keep_references`);
         #: the project's own export library (build_scripts/fmi2_python_export.c) keeps them
         self._export_keeps_references = kwargs.get("fmi_export") == "tapmuscle"

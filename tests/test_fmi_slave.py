@@ -153,3 +153,23 @@ def test_a_step_off_a_whole_nanosecond_by_more_than_rounding_is_integrated_as_gi
     from fmi_slave.base import intended_step
 
     assert intended_step(t, h) == h
+
+
+def test_an_fmu_whose_own_packages_this_process_loaded_from_elsewhere_is_refused(tmp_path):
+    """An FMU built before its code was kept in a private package ships fmu_plant (and fmi_slave, ...)
+    at the top of its resources and imports them by those names: in a process that imported this
+    tapmuscle first it would run this version's code against its own modelDescription's value
+    references. Its instantiation is refused naming both folders; a slave made without resources, or
+    with resources that ship no such package (a build of this version), is not."""
+    from fmi_slave.base import check_own_code
+
+    resources = tmp_path / "resources"
+    (resources / "fmu_plant").mkdir(parents=True)
+    (resources / "fmu_plant" / "__init__.py").write_text("")
+    with pytest.raises(ValueError, match=r"this FMU's own fmu_plant \(.*resources/fmu_plant\) is not the one this "
+                                         r"process runs \(.*fmu_plant, imported before the FMU\): an FMU built by an "
+                                         r"earlier tapmuscle .* build it again"):
+        MusclePlant(instance_name="old", resources=str(resources))
+    check_own_code(None)
+    check_own_code(str(tmp_path))  # no plain package there
+    MusclePlant(instance_name="direct")
