@@ -138,7 +138,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     print(f"{report.total} runs: {report.skipped} already done, {report.ran} run now; {report.failed} failed, "
           f"{report.violated} missed their expectations")
     if report.other_rows:
-        print(f"results.csv also keeps {report.other_rows} rows of runs this sweep no longer has (after its own; "
+        print(f"results.csv also keeps {report.other_rows} rows whose run ids this sweep does not have (an earlier "
+              "version of its file, or runs of an earlier tapmuscle, whose ids were made otherwise; after its own, "
               "not summarised)")
     if report.fmu_warnings:
         runs = len({rid for rid, _ in report.fmu_warnings})

@@ -436,8 +436,9 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
               f"Summarised with {software_text()}; a run kept from an earlier `results.csv` was made with the "
               "software of its time, a run on a Dask worker with the worker's.", ""]
     if other_rows:
-        lines += [f"`results.csv` also keeps, after this sweep's rows, {other_rows} rows of runs the sweep no longer "
-                  "has (an earlier version of its file); they are not summarised here.", ""]
+        lines += [f"`results.csv` also keeps, after this sweep's rows, {other_rows} rows whose run ids the sweep does "
+                  "not have (an earlier version of its file, or runs of an earlier tapmuscle, whose ids were made "
+                  "otherwise); they are not summarised here.", ""]
     lines += ["## Per method", "",
               "| method | runs | failed | expectations missed | mae mean | mae median | mae max |",
               "|---|---:|---:|---:|---:|---:|---:|"]
