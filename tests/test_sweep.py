@@ -303,7 +303,8 @@ def test_a_narrowed_sweep_keeps_the_other_rows_says_so_and_leaves_no_stale_figur
     report = run_sweep(narrowed, out, built_fmus, run_serial)
     assert (report.total, report.skipped, report.other_rows) == (2, 2, 2)
     assert [r["run_id"] for r in _rows(out)][:2] == [r.run_id for r in narrowed.runs] and len(_rows(out)) == 4
-    assert "also keeps, after this sweep's rows, 2 rows whose run ids the sweep does not have (an earlier version of its file" in (out / "summary.md").read_text()
+    assert ("also keeps, after this sweep's rows, 2 rows whose run ids the sweep does not have (an earlier version "
+            "of its file") in (out / "summary.md").read_text()
     assert {p.name for p in out.iterdir()} == {"results.csv", "summary.md", "mae_by_method.png"}
     # in another format: the PNGs go (no resumed run is run again)
     run_sweep(narrowed, out, built_fmus, run_serial, figure_format="svg")
