@@ -719,8 +719,8 @@ class SafeSlave(Fmi2Slave):
         # loader returns fmi2Error), not an exception (pythonfmu would answer fmi2Fatal).
         if not isinstance(state, dict) or not _STATE_KEYS <= set(state) <= _STATE_KEYS | _STATE_MODE_KEYS:
             reason = state.get(_BAD_STATE) if isinstance(state, dict) else None
-            self.log(f"not an FMU state of this FMU ({reason or 'unexpected content'}); nothing was changed",
-                     status=Fmi2Status.error)
+            why = reason or "unexpected content: another FMU, or another build of this one"
+            self.log(f"not an FMU state of this FMU ({why}); nothing was changed", status=Fmi2Status.error)
             return
         before = self._snapshot()
         if isinstance(state["variables"], dict) and set(state["variables"]) != set(before["variables"]):

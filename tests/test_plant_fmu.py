@@ -252,7 +252,8 @@ def _edited_state(field, value):
 
 @pytest.mark.parametrize("bad, message", [
     (lambda f: b"not json", "not an FMU state of this FMU"),
-    (lambda f: b'{"variables": {}}', "not an FMU state of this FMU"),
+    (lambda f: b'{"variables": {}}', "not an FMU state of this FMU (unexpected content: another FMU, or another build of "
+                                      "this one); nothing was changed"),
     (lambda f: b'{"variables": {}, "numerics": [1], "failed": false}', "not an FMU state of this FMU"),
     # a zero step scale once hung the next fmi2DoStep
     *[(_edited_state(k, v), f"state field {k}") for k, v in [
