@@ -251,9 +251,11 @@ def build_fmus(out: str | Path, names: str | Sequence[str] | None = None) -> lis
             _prepare_native_hosts(tree)
             md = tree / "modelDescription.xml"
             raw = md.read_text(encoding="utf-8")
-            md.write_text(finish_model_description(raw, meta, guid="{pending}", version=version), encoding="utf-8")
-            md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree)), version=version),
+            sources = private.rsplit("_", 1)[1]
+            md.write_text(finish_model_description(raw, meta, guid="{pending}", version=version, sources=sources),
                           encoding="utf-8")
+            md.write_text(finish_model_description(raw, meta, guid=content_guid(_digest(tree)), version=version,
+                                                   sources=sources), encoding="utf-8")
             target = out / f"{name}.fmu"
             # a new file of a name no one can foresee: in a folder others may write, a foreseen name
             # could be a link they made to a file of this user's, which the zip would overwrite

@@ -13,7 +13,8 @@ fixes all of that from the slave's :attr:`fmi_slave.SafeSlave.variable_meta`:
 * ``Outputs`` with explicit ``dependencies`` (ours: none) and ``InitialUnknowns`` for the outputs
   computed at initialisation, with the parameters they are computed from;
 * ``canGetAndSetFMUstate``/``canSerializeFMUstate`` true (the slaves keep all dynamic state);
-* the model ``version`` and ``generationTool`` name the tapmuscle release;
+* the model ``version`` and ``generationTool`` name the tapmuscle release (and ``generationTool`` the
+  digest of the code the FMU carries);
 * structured names that form a tree (:func:`refuse_parent_names`: no variable is another's parent);
 * no ``generationDateAndTime``, and a GUID derived from a hash of the FMU's content, so the same
   sources give the same FMU byte for byte.
@@ -85,7 +86,7 @@ def refuse_parent_names(names: Iterable[str]) -> None:
 
 
 def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]], *, guid: str,
-                             version: str | None = None) -> str:
+                             version: str | None = None, sources: str | None = None) -> str:
     """Return the completed modelDescription.xml (see module docstring).
 
     Parameters
@@ -100,12 +101,17 @@ def finish_model_description(xml_text: str, meta: Mapping[str, Mapping[str, Any]
         tapmuscle's version: the model's ``version`` attribute, and ``generationTool`` becomes
         ``tapmuscle <version> (PythonFMU <its version>)``, so a tool's FMU browser says which
         release built the FMU.
+    sources : str, optional
+        The digest of the code the FMU carries (its private package's): ``generationTool`` names it
+        too, ``tapmuscle <version>, sources <digest> (PythonFMU ...)``, which tells two builds of one
+        release apart (the version stays until a release).
     """
     root = ET.fromstring(xml_text)
     root.set("guid", guid)
     if version is not None:
         root.set("version", version)
-        root.set("generationTool", f"tapmuscle {version} ({root.get('generationTool', 'PythonFMU')})")
+        built = f", sources {sources}" if sources else ""
+        root.set("generationTool", f"tapmuscle {version}{built} ({root.get('generationTool', 'PythonFMU')})")
     root.attrib.pop("generationDateAndTime", None)
     cs = root.find("CoSimulation")
     cs.set("canGetAndSetFMUstate", "true")

@@ -79,13 +79,17 @@ def test_guid_follows_the_content(built_fmus):
 
 
 def test_the_model_descriptions_name_the_release_that_built_them(built_fmus):
-    """An FMI tool's FMU browser shows ``version`` and ``generationTool``: tapmuscle's release, and
-    the PythonFMU it runs on."""
+    """An FMI tool's FMU browser shows ``version`` and ``generationTool``: tapmuscle's release, the
+    digest of the code the FMU carries (two builds of one release told apart: it names the FMU's
+    private package), and the PythonFMU it runs on."""
     for name, path in built_fmus.items():
         with zipfile.ZipFile(path) as z:
             root = ET.fromstring(z.read("modelDescription.xml"))
+            private = {n.split("/")[1] for n in z.namelist() if n.startswith("resources/_tapmuscle_")}
         assert root.get("version") == tapmuscle.__version__, name
-        assert root.get("generationTool") == f"tapmuscle {tapmuscle.__version__} (PythonFMU {pythonfmu.__version__})"
+        (package,) = {p for p in private if not p.endswith(".py")}
+        assert root.get("generationTool") == (f"tapmuscle {tapmuscle.__version__}, sources {package.rsplit('_', 1)[1]} "
+                                              f"(PythonFMU {pythonfmu.__version__})")
 
 
 
