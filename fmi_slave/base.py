@@ -20,7 +20,8 @@ that call) and advances with every completed step. A step whose ``currentCommuni
 the FMU's time (a gap, or a step back, beyond :data:`TIME_TOLERANCE`) is refused with fmi2Error and a
 message naming both times: a slave's numerics (the plant's clock, the controller's sampling grid)
 would silently run on another time than the host's. Going back is what FMU states are for: the time
-is part of the state, so after ``fmi2SetFMUstate`` the FMU's time is the restored one.
+is part of the state, so after ``fmi2SetFMUstate`` the FMU's time is the restored one. A step a master
+computed as the difference of two times is integrated as the step it meant (:func:`intended_step`).
 
 Exceptions that must reach the host (a value reference of the wrong type in ``fmi2GetReal`` and the
 like, a foreign FMU state) go through :meth:`SafeSlave._keep_references`. pythonfmu 0.7's C++ layer answers
@@ -119,6 +120,7 @@ def intended_step(t_s: float, h_s: float) -> float:
     if ns > 0 and slack < 0.25e-9 and abs(h_s - meant) <= slack:
         return meant
     return h_s
+
 
 #: Per variable: ``unit`` (a key of fmi_slave.units.UNITS or ""), ``min``, ``max``, ``nominal`` (None =
 #: not declared), ``depends_on`` (outputs only: names of inputs with direct feedthrough; () = none).
