@@ -193,6 +193,9 @@ def test_expectations_are_checked_against_the_metrics(tmp_path):
      "no mae_mm can meet both"),
     ({"u_within": [0, 10], "u_max_v_min": 11}, "keys 'expect.u_max_v_min' = 11 and 'expect.u_within' = 10",
      "no u_max_v can meet both"),
+    # an upper bound below 0 on a metric that is never negative always fails
+    ({"mae_mm_max": -1}, "key 'expect.mae_mm_max'", "-1: no run can meet it (mae_mm is never negative)"),
+    ({"real_time_factor_max": -0.5}, "key 'expect.real_time_factor_max'", "(real_time_factor is never negative)"),
 ])
 def test_bad_expectations_name_file_and_key(table, named, message):
     with pytest.raises(ScenarioError) as err:

@@ -29,7 +29,7 @@ from tapmuscle.closed_loop import eq21_error_mm
 
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 
-__all__ = ["METRICS", "Bound", "Expectations", "Outcome", "parse_expectations", "scenario_metrics",
+__all__ = ["METRICS", "NEVER_NEGATIVE", "Bound", "Expectations", "Outcome", "parse_expectations", "scenario_metrics",
            "check_expectations"]
 
 #: Summary metrics of one run (name -> meaning, unit in the name).
@@ -42,6 +42,10 @@ METRICS: dict[str, str] = {
     "wall_time_s": "wall time of the co-simulation loop [s]",
     "real_time_factor": "simulated time / wall time [-]",
 }
+
+
+#: The metrics no run makes negative: an upper bound below 0 on one of them always fails.
+NEVER_NEGATIVE = frozenset({"mae_mm", "rms_error_mm", "max_abs_error_mm", "wall_time_s", "real_time_factor"})
 
 
 @dataclass(frozen=True)
@@ -129,6 +133,9 @@ def parse_expectations(table: Any, *, source: str) -> Expectations:
             raise ScenarioError(f"{source}: key 'expect.{key}': unknown expectation; allowed: u_within, or "
                                 f"<metric>_max / <metric>_min with metric one of {', '.join(METRICS)}")
         bound = _bound_value(source, key, value)
+        if side == "max" and bound < 0.0 and metric in NEVER_NEGATIVE:
+            raise ScenarioError(f"{source}: key 'expect.{key}': {bound:g}: no run can meet it ({metric} is never "
+                                "negative)")
         bounds.append(Bound(metric, lo=bound, key=key) if side == "min" else Bound(metric, hi=bound, key=key))
     # a lower bound above an upper one on the same metric (u_within's included) no run can meet
     for low in (b for b in bounds if b.lo is not None):
