@@ -2,10 +2,11 @@
 
 What ships inside the FMUs (``fmu_plant``, ``fmu_controller``, ``fmi_slave``) and the FMU build
 (``build_scripts``) never import :mod:`tapmuscle`. Inside :mod:`tapmuscle` the layers are, bottom
-to top: ``errors``, ``interrupts``, ``progress``, ``io``, ``plots``, ``own_law``, ``closed_loop``, ``soak``,
+to top: ``errors``, ``provenance``, ``interrupts``, ``progress``, ``io``, ``plots``, ``own_law``, ``closed_loop``, ``soak``,
 ``cosim``, ``diagnosis``, ``paper``, ``cli``, and the package root (the Python API face). A module may import its own layer and the
 layers below it, never one above: the test reads every import statement, including those inside
-functions.
+functions. The plant's and the controller's packages ship in different FMUs and import neither each
+other nor, outside their slave modules, anything of FMI.
 """
 
 from __future__ import annotations
@@ -86,6 +87,24 @@ def test_no_import_points_to_a_higher_layer(path):
 def test_fmu_contents_and_the_build_never_import_tapmuscle(path):
     bad = [f"line {line}: {mod}" for line, mod in _imports(path) if _layer(mod) is not None]
     assert not bad, f"{path.relative_to(ROOT)} imports tapmuscle: " + "; ".join(bad)
+
+
+#: The FMI shell of each FMU package: the only modules there that may know of FMI (pythonfmu, the
+#: project's slave base fmi_slave); the numerics beside them know nothing of FMUs.
+FMI_SHELLS = {"fmu_plant.plant_slave", "fmu_controller.controller_slave"}
+
+
+@pytest.mark.parametrize("path", _sources("fmu_plant", "fmu_controller"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_each_fmus_numerics_stand_alone_and_know_nothing_of_fmi(path):
+    """The plant's and the controller's packages ship in different FMUs: neither imports the other, and
+    outside their slave modules neither imports pythonfmu, fmi_slave, fmpy or the build."""
+    name = _module_name(path)
+    own, other = ("fmu_plant", "fmu_controller") if name.startswith("fmu_plant") else ("fmu_controller", "fmu_plant")
+    fmi = ("pythonfmu", "fmi_slave", "fmpy", "build_scripts")
+    bad = [f"line {line}: {mod}" for line, mod in _imports(path)
+           if mod == other or mod.startswith(other + ".")
+           or (name not in FMI_SHELLS and any(mod == f or mod.startswith(f + ".") for f in fmi))]
+    assert not bad, f"{path.relative_to(ROOT)} imports beyond its own numerics: " + "; ".join(bad)
 
 
 def test_the_checker_sees_upward_imports_in_every_form():
