@@ -56,7 +56,7 @@ from .probing import MLS_LENGTH, probe_v
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .servo_settings import MAX_WEIGHT
-from .ucp_mpc import UCPSettings, _held, ucp_move
+from .ucp_mpc import UCPSettings, held_input_run, ucp_move
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
@@ -1088,7 +1088,7 @@ class DisplacementController:
         for d, shadow in enumerate(self._shadows):
             u = outs[d][0]
             shadow.apply(u)
-            e = l - _held(shadow, th0, lin0, u, 1)[0]
+            e = l - held_input_run(shadow, th0, lin0, u, 1)[0]
             shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
             ms[d] += forget * (e * e - ms[d])
         self._compared += 1
@@ -1178,10 +1178,10 @@ class DisplacementController:
                            bounds: tuple[float, float] | None) -> tuple[float, float]:
         """``(H(k+1|k), H(k+2|k))`` [mm]: the Eq. (1) hysteresis term one and two samples ahead, on the
         predictions ``l(k+1|k), l(k+2|k)`` with the last command held (for ``hysteresis_notch``;
-        clamped into ``bounds``, if given, as :func:`_held` does); the state is left as it was but
+        clamped into ``bounds``, if given, as :func:`held_input_run` does); the state is left as it was but
         for its input, which the caller sets next."""
         state = self._state
-        l1, l2 = _held(state, theta, t[:3], u_prev, 2, bounds)
+        l1, l2 = held_input_run(state, theta, t[:3], u_prev, 2, bounds)
         saved = state.history
         state.apply(u_prev)
         state.observe_unchecked(l1, t[0], t[1], t[2])
@@ -1312,7 +1312,7 @@ class DisplacementController:
         """
         state = self._state
         u_now, uc_now = self._u_next, self._uc_next
-        l_next = _held(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
+        l_next = held_input_run(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         if self._delay_predictor is not None:
             corrected = self._delay_predictor.predict(l, u_now, l_next)
             if self._decided or (self._compared >= self._lead_n and self._ms[1] < self._ms[0]):
@@ -1364,7 +1364,7 @@ class DisplacementController:
                 limit_run = limit_run + 1 if pushed else 0
             if self._notch:
                 h_prev2, h_prev = h_prev, state.hysteresis_unchecked(t)
-            l_ahead = _held(state, theta, t[:3], u_i, 1, bounds)[0]
+            l_ahead = held_input_run(state, theta, t[:3], u_i, 1, bounds)[0]
             state.apply(u_i)
             state.observe_unchecked(l_ahead, t[0], t[1], t[2])
             u_prev, uc_prev = u_i, uc_i

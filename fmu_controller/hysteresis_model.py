@@ -83,6 +83,7 @@ __all__ = [
     "ASYMMETRIC",
     "STANDARD",
     "regressor",
+    "regressor_terms",
     "linear_residual",
     "virtual_hysteresis",
     "virtual_hysteresis_sequence",
@@ -251,11 +252,14 @@ def _as_theta(theta: Sequence[float] | np.ndarray, structure: ModelStructure) ->
     return arr
 
 
-def regressor_terms(l0, l1, l2, u0, v1, v2):
-    """The 15 entries of phi(k) as a list; works for floats and arrays alike.
+def regressor_terms(l0: float | np.ndarray, l1: float | np.ndarray, l2: float | np.ndarray, u0: float | np.ndarray,
+                    v1: float | np.ndarray, v2: float | np.ndarray) -> list[float | np.ndarray]:
+    """The 15 entries of the asymmetric model's ``phi(k)`` (section 2.3, Eq. (1)) as a list, in
+    :data:`PARAMETER_NAMES_ASYMMETRIC`'s order; for floats and arrays alike (:func:`regressor` stacks
+    and selects them).
 
-    ``l0 = l(k)``, ``l1 = l(k-1)``, ``l2 = l(k-2)``, ``u0 = u(k)``,
-    ``v1 = v(k-1)``, ``v2 = v(k-2)``.
+    ``l0 = l(k)``, ``l1 = l(k-1)``, ``l2 = l(k-2)`` [mm], ``u0 = u(k)`` [V], ``v1 = v(k-1)``,
+    ``v2 = v(k-2)`` [mm] (the virtual hysteresis variable).
     """
     d0 = l0 - l1
     d1 = l1 - l2

@@ -47,7 +47,7 @@ from .servo_settings import MAX_HORIZON
 _dot = np.dot
 _array = np.array
 
-__all__ = ["UCPSettings", "UCPResult", "predict_held_input", "ucp_move"]
+__all__ = ["UCPSettings", "UCPResult", "predict_held_input", "held_input_run", "ucp_move"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -106,11 +106,11 @@ def predict_held_input(state: ModelState, theta: np.ndarray, u_v: float, steps: 
     theta = np.asarray(theta, dtype=float)
     if theta.shape != (state.structure.n_params,):
         raise ValueError(f"theta must have shape ({state.structure.n_params},), got {theta.shape}")
-    return np.array(_held(state, theta, theta[:3].tolist(), float(u_v), steps))
+    return np.array(held_input_run(state, theta, theta[:3].tolist(), float(u_v), steps))
 
 
-def _held(state: ModelState, theta: np.ndarray, lin: list[float], u: float, steps: int,
-          bounds: tuple[float, float] | None = None) -> list[float]:
+def held_input_run(state: ModelState, theta: np.ndarray, lin: list[float], u: float, steps: int,
+                   bounds: tuple[float, float] | None = None) -> list[float]:
     """:func:`predict_held_input` as a list, for a float ``theta`` array of the right length and
     its linear part ``lin = [a1, a2, b1]`` as python floats.
 
@@ -180,8 +180,8 @@ def _move(settings: UCPSettings, state: ModelState, theta: np.ndarray, u_prev_v:
     """:func:`ucp_move` with the predictor ``theta``; ``ValueError`` if its prediction diverges."""
     hp = settings.hp
     lin = theta[:3].tolist()
-    free = _held(state, theta, lin, u_prev_v, hp)
-    stepped = _held(state, theta, lin, u_prev_v + 1.0, hp)
+    free = held_input_run(state, theta, lin, u_prev_v, hp)
+    stepped = held_input_run(state, theta, lin, u_prev_v + 1.0, hp)
     s = stepped[-1] - free[-1]
     if not math.isfinite(s) or abs(s) < settings.min_step_response_mm_per_v:
         # Linear part's unit step response at Hp: sum of its impulse response.
@@ -195,5 +195,5 @@ def _move(settings: UCPSettings, state: ModelState, theta: np.ndarray, u_prev_v:
     clipped = min(max(u, settings.u_min_v), settings.u_max_v)
     if not math.isfinite(clipped):
         clipped = u_prev_v if math.isfinite(u_prev_v) else settings.u_min_v
-    pred = np.array(_held(state, theta, lin, float(clipped), hp))
+    pred = np.array(held_input_run(state, theta, lin, float(clipped), hp))
     return UCPResult(clipped, free[-1], s, pred, clipped != u)

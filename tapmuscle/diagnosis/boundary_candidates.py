@@ -35,7 +35,7 @@ from scipy import optimize
 from tapmuscle.diagnosis.boundary_effects import (MAP_FIELDS, dead_band_map, identity_map, input_defaults,
                                                   map_knots, output_defaults, secondary_defaults)
 from tapmuscle.diagnosis.calibration import FittedParameter, NominalParameter, fit_parameters
-from tapmuscle.diagnosis.candidates import Candidate, ParameterSpec, _nelder_mead
+from tapmuscle.diagnosis.candidates import Candidate, ParameterSpec, bounded_nelder_mead
 from tapmuscle.diagnosis.fit_problem import FitResult, Problem
 from tapmuscle.diagnosis.foreign_model import FmuInterface, ForeignSimulator, ModelValues
 from tapmuscle.diagnosis.model_space import ModelSpace
@@ -249,7 +249,7 @@ def _fit_secondary(pr: Problem, base: ModelValues, y_base: np.ndarray, *, var: s
         return None
     _, c0, a0, b0 = best
     step = max(pr.block_s / 4.0, 3.0 * pr.ts_s)
-    x = _nelder_mead(cost, np.array([c0, a0, b0]), np.array([0.2 * c0, step, step]),
+    x = bounded_nelder_mead(cost, np.array([c0, a0, b0]), np.array([0.2 * c0, step, step]),
                      np.array([-math.inf, t0, t0]), np.array([math.inf, t1, t1]), max_evals=40)
     p = params(x)
     if p.value(kc) == 0.0 or p.value(kb) <= p.value(ka):

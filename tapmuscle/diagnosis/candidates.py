@@ -58,7 +58,8 @@ from tapmuscle.diagnosis.residual_analysis import held_command, located_windows
 from tapmuscle.diagnosis.reproducible import dot, moving_sum, snap_relative, sse
 from tapmuscle.errors import TapmuscleError
 
-__all__ = ["ParameterSpec", "Candidate", "CandidateError", "Problem", "FitResult", "CANDIDATES", "candidate"]
+__all__ = ["ParameterSpec", "Candidate", "CandidateError", "Problem", "FitResult", "CANDIDATES", "candidate",
+           "bounded_nelder_mead"]
 
 
 class CandidateError(TapmuscleError):
@@ -160,8 +161,8 @@ def _gauss_newton_1d(resid: Callable[[float], np.ndarray], x0: float, r0: np.nda
     return best[1]
 
 
-def _nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, step: np.ndarray, lo: np.ndarray,
-                 hi: np.ndarray, max_evals: int) -> np.ndarray:
+def bounded_nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, step: np.ndarray, lo: np.ndarray,
+                        hi: np.ndarray, max_evals: int) -> np.ndarray:
     """Bounded Nelder-Mead (scipy) from ``x0`` with an initial simplex of ``step``."""
     x0 = np.clip(x0, lo, hi)
     simplex = [x0] + [np.clip(x0 + np.eye(len(x0))[i] * step[i], lo, hi) for i in range(len(x0))]
@@ -648,7 +649,7 @@ def _placed_sag(pr: Problem, base: PlantParams, y_base: np.ndarray, x0: tuple[fl
     def cost(x, fall: float = ramp, recovery: float = ramp):
         return _sag_cost(pr, base, x, start, stop, fall, recovery)
     lo, hi = np.array([0.0, t_first, t_first]), np.array([0.2, t_last, t_last])
-    x = _nelder_mead(cost, np.array(x0), np.array([0.5 * x0[0], 3.0, 3.0]), lo, hi, max_evals=28)
+    x = bounded_nelder_mead(cost, np.array(x0), np.array([0.5 * x0[0], 3.0, 3.0]), lo, hi, max_evals=28)
     if final:
         # The simplex stops on the first stretch where the cost is flat: an edge it starts from in a
         # held-out block, with the edge's evidence in the training block next to it, stays there (field
@@ -657,7 +658,7 @@ def _placed_sag(pr: Problem, base: PlantParams, y_base: np.ndarray, x0: tuple[fl
         b = _scanned_edge(lambda v: cost((depth, a, v)), b, max(a + 0.5, b - block), min(t_last, b + block))
         a = _scanned_edge(lambda v: cost((depth, v, b)), a, max(t_first, a - block), min(b - 0.5, a + block))
         if (a, b) != (float(x[1]), float(x[2])):
-            x = _nelder_mead(cost, np.array([depth, a, b]), np.array([0.2 * depth, 1.0, 1.0]), lo, hi, max_evals=20)
+            x = bounded_nelder_mead(cost, np.array([depth, a, b]), np.array([0.2 * depth, 1.0, 1.0]), lo, hi, max_evals=20)
     # An edge that falls inside a held-out block is invisible to the training cost, which is flat
     # there (the 60-90 s sag's end, with 90-100 s held out: any end within 90-95 s fits alike), and
     # the simplex stops anywhere on the flat stretch. The stretch is at most about one held-out block
@@ -771,10 +772,6 @@ def _explain_supply(v: dict[str, float], nominal: PlantParams | None = None) -> 
     ps = v["supply.supply_pressure_mpa"]
     plant = "the plant file's value" if nominal is None else f"the plant's {nominal.supply.supply_pressure_mpa:.3f} MPa"
     return f"the supply delivers {ps:.3f} MPa, not {plant}, throughout the recording"
-
-
-def _fmt(v: float, unit: str, digits: int = 3) -> str:
-    return f"{v:.{digits}g} {unit}"
 
 
 #: Where the supply offset's own fit searches the supply pressure [MPa]: the plant field's bounds,

@@ -53,8 +53,8 @@ __all__ = ["ForeignCase", "foreign_cases", "record_foreign_case", "run_foreign_d
 FIT_AFTER_PERCENT = 95.0
 #: Target rates [%]: concealed effect named, clean recordings with nothing claimed.
 TARGETS = {"named": 90.0, "clean": 90.0, "fit": 100.0}
-#: Share of clean cases.
-CLEAN_SHARE = 0.25
+#: Every this many cases of each FMU, one is clean (a quarter).
+CLEAN_EVERY = 4
 
 #: Per FMU: sampling, duration, noise, the parameters that may be off, the concealed effects.
 PLANTS: dict[str, dict[str, Any]] = {
@@ -120,7 +120,7 @@ def foreign_cases(n: int, seed: int = 0) -> list[ForeignCase]:
         rng = np.random.default_rng([seed, i])
         plant = ("DcMotor", "ThermalTwoMass")[i % 2]
         spec = PLANTS[plant]
-        clean = (i // 2) % 4 == 0
+        clean = (i // 2) % CLEAN_EVERY == 0
         effect = None
         if not clean:
             effect = spec["effects"][cycle[plant] % len(spec["effects"])]
