@@ -75,10 +75,10 @@ def private_package(name: str, sources: Path) -> str:
     packages): ``_tapmuscle_<name>_<12 hex digits>``.
 
     Python caches modules by name, process-wide. Under their own names (``fmu_plant``, ``pythonfmu``)
-    the packages an FMU carries would meet those of its host: an FMU loaded in a process that had
-    imported ``fmu_plant`` (tapmuscle's own master, a notebook) ran the host's copy instead of its
-    own (another version's code, silently), and one loaded first left its copy, in a temporary
-    folder its host deletes, as the host's ``fmu_plant``. A name per build keeps each FMU's code its
+    the packages an FMU carries would meet those of its host: an FMU loaded in a process that has
+    imported ``fmu_plant`` (tapmuscle's own master, a notebook) would run the host's copy instead of
+    its own (another version's code, silently), and one loaded first would leave its copy, in a
+    temporary folder its host deletes, as the host's ``fmu_plant``. A name per build keeps each FMU's code its
     own, and two builds of one FMU apart in one process.
     """
     return f"_tapmuscle_{name.lower()}_{_digest(sources).hex()[:12]}"

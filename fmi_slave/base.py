@@ -64,8 +64,8 @@ def _saved_initialised(state: dict[str, Any]) -> bool:
     return bool(state.get("initialised", state["numerics"] is not None or state["failed"]))
 
 #: A Ctrl-C in a Python host lands in whatever Python code runs, most often a slave's step. It cannot
-#: pass through FMI as an exception, and reaching pythonfmu's C++ layer it became fmi2Fatal after
-#: which freeing the instance crashed the host: the slave answers fmi2Error with this instead.
+#: pass through FMI as an exception, and reaching pythonfmu's C++ layer it would become fmi2Fatal, after
+#: which freeing the instance crashes the host: the slave answers fmi2Error with this instead.
 _INTERRUPTED = ("interrupted {where} (KeyboardInterrupt: Ctrl-C in the host process); the state may be "
                 "half updated: restore an FMU state saved before, or instantiate again")
 

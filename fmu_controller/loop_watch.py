@@ -555,7 +555,7 @@ class LoopWatch:
     def _watch_held(self, said: list[str], t_s: float, l: float, r: float, u: float) -> None:
         """Tell once when the command has sat at a valve limit for ``HELD_WARN_S`` seconds in a row held
         against the error (:func:`~fmu_controller.displacement_control.held_against_error`: a negative
-        ``theta0.b1`` held the valve shut for a whole run without a word)."""
+        ``theta0.b1`` holds the valve shut for a whole run, which nothing else would tell)."""
         if self._held_n < 0:
             return
         s = self._law()

@@ -25,7 +25,7 @@ def run_samples(duration_s: float, ts_s: float, *, names: tuple[str, str] = ("du
     ------
     ValueError
         A duration that is not a whole number of periods (to a relative 1e-9): the run would end on the
-        grid before or after it without a word (45.05 s at 0.1 s ran 45.0 s); the nearest two named, the
+        grid before or after it without a word (45.05 s at 0.1 s would run 45.0 s); the nearest two named, the
         two values by ``names`` (a command line's options).
     """
     n = int(round(duration_s / ts_s)) + 1

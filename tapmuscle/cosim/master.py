@@ -91,7 +91,7 @@ _UNPACKED: dict[Path, Unpacked] = {}
 # One logger for every instance, alive for the whole process, routed by instance name. It is NOT passed
 # through fmpy's addLoggerProxy: that proxy keeps the Python logger in one process-wide C variable, so a
 # per-instance logger registered there is used by every later FMU, also those created with fmpy's
-# default callbacks, and crashed them once its instance was gone. pythonfmu's messages are plain text
+# default callbacks, and would crash them once its instance is gone. pythonfmu's messages are plain text
 # (no printf arguments); another FMU's are formatted by the project's own compiled logger, whose one
 # target is this module's router (_callbacks).
 _LOG_SINKS: dict[str, list[str]] = {}

@@ -32,7 +32,7 @@ def read_json(path: str | Path, error: type[Exception], *, where: str, missing: 
     error
         ``missing`` when there is no such file; ``where`` followed by the line and column of invalid
         JSON, by a key given twice in one object (JSON readers keep the last, and a plant file's group
-        written twice lost the first's values without a word), or by why the file cannot be read (a
+        written twice would lose the first's values without a word), or by why the file cannot be read (a
         folder, no permission, not UTF-8).
     """
     try:
