@@ -523,7 +523,34 @@ def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     ``checkpoints``, ``runs``, ``executor`` as :class:`~tapmuscle.diagnosis.simulation.Simulator`), its
     model and :class:`~tapmuscle.diagnosis.model_space.ModelSpace`, on a recording checked by
     :func:`validated_recording` (``u``: the input the residual is cross-correlated with; ``output``: the
-    measured output's ``(name, unit)``, in which the findings are worded)."""
+    measured output's ``(name, unit)``, in which the findings are worded).
+
+    Parameters
+    ----------
+    sim : Simulator-like
+        Re-simulates the recording's input under a model (``run(model) -> (y, q)``, ``run_many``,
+        ``checkpoints``, ``runs``, ``executor``).
+    t, u, y : ndarray
+        The recording's uniform times [s], input and measured output (in the output's unit), as
+        :func:`validated_recording` returns them.
+    ts : float
+        Sampling period [s].
+    model : model
+        The nominal model, as ``space`` reads and changes it (``value``, ``dotted``, ``with_values``).
+    space : ModelSpace
+        The model family's parameters, their bounds, its effects and sensors.
+    candidates : sequence of Candidate
+        The effects searched.
+    calibration : sequence of NominalParameter, or None
+        The nominal constants recalibrated first (None or empty: none).
+    block_s : float
+        Length of the interleaved training and held-out blocks [s] (:func:`split_length_s`).
+    fit_segment_s, max_effects, alpha, min_reduction, progress
+        As :func:`diagnose`'s.
+    output : (str, str), optional
+        The measured output's name and unit, for the findings' wording (default the displacement
+        ``l`` in mm).
+    """
     started = time.perf_counter()
     tracker = SearchProgress(progress, calibrating=bool(calibration))
     tracker.start()
