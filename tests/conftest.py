@@ -62,9 +62,9 @@ UTF8_PATHS = sys.getfilesystemencoding().lower().replace("-", "") == "utf8"
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_cmdline_main(config):
-    """``-n N`` hands out the tests by work stealing (a long test no longer holds back a worker's
+    """``-n N`` hands out the tests by work stealing (a long test does not hold back a worker's
     queue), unless ``--dist`` says otherwise. Set here rather than in addopts, where xdist's option
-    stopped pytest without xdist (``-p no:xdist``, a bare ``pip install pytest``)."""
+    would stop pytest without xdist (``-p no:xdist``, a bare ``pip install pytest``)."""
     if getattr(config.option, "numprocesses", None) and getattr(config.option, "dist", "no") == "no":
         config.option.dist = "worksteal"
 

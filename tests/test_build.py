@@ -50,7 +50,7 @@ def test_the_build_says_when_its_fmus_run_in_python_hosts_only(tmp_path):
 
 @pytest.mark.slow
 def test_warnings_made_errors_stop_no_run_for_a_tool_other_hosts_need(tmp_path):
-    """Under PYTHONWARNINGS=error a missing MinGW-w64 (most Linux machines) stopped tapmuscle run and
+    """Under PYTHONWARNINGS=error a missing MinGW-w64 (most Linux machines) must not stop tapmuscle run and
     paper with exit 1 while building their own FMUs, which fmpy (a Python host) runs whatever the win64
     binary; tapmuscle build, which writes FMUs to take to other hosts, still says what it left out."""
     env = {**os.environ, "PYTHONWARNINGS": "error", "XDG_CACHE_HOME": str(tmp_path / "cache"),
@@ -177,7 +177,7 @@ def test_unknown_fmu_name_and_unit_are_refused(tmp_path):
 def test_instantiating_again_and_again_defines_no_new_slave_class(built_fmus, name):
     """pythonfmu executes the entry script at every fmi2Instantiate (build_scripts.build_fmus): 60
     instantiate/free cycles in this process leave no new slave class behind (with the whole class in
-    the entry script each cycle left one, about 50 kB for the controller) and the entry module keeps
+    the entry script each cycle would leave one, about 50 kB for the controller) and the entry module keeps
     working (its dict would be freed by pythonfmu's extra release, and the 2nd instantiation fail)."""
     import gc
 
@@ -323,7 +323,7 @@ def test_a_cache_folder_of_another_users_is_named_with_its_remedy(tmp_path, monk
 
 def test_no_home_folder_is_named_with_its_remedy(tmp_path, monkeypatch):
     """HOME unset and a user id without a passwd entry (a container run as an arbitrary user):
-    `tapmuscle run` and `paper` ended in pathlib's RuntimeError traceback; now the CLI's error names what
+    `tapmuscle run` and `paper` must not end in pathlib's RuntimeError traceback; the CLI's error names what
     to set, and XDG_CACHE_HOME alone is enough."""
     import pwd
 
@@ -395,7 +395,7 @@ def test_one_fmu_named_alone_is_built_alone(tmp_path):
 
 def test_the_build_copies_a_read_only_checkout_writable(tmp_path):
     """A checkout or install without write bits (a Nix store, a read-only CI workspace, chmod a-w):
-    the build's copies kept its modes and rewriting their imports failed with PermissionError for any
+    were the build's copies to keep its modes, rewriting their imports would fail with PermissionError for any
     user but root (tapmuscle run: "[Errno 13] Permission denied: .../fmi_slave/__init__.py"). The
     copies are the owner's to write; what is not shipped stays out."""
     import stat
@@ -419,7 +419,7 @@ def test_the_build_copies_a_read_only_checkout_writable(tmp_path):
 
 
 def test_an_interrupt_in_the_build_folders_removal_leaves_nothing_behind(monkeypatch):
-    """Ctrl-C landing in the removal of a build's temporary folder left 2 MB in $TMPDIR (one of five
+    """Ctrl-C landing in the removal of a build's temporary folder must not leave 2 MB in $TMPDIR (one of five
     interrupts of tm.build_fmus in a notebook): the removal finishes, then the interrupt is raised."""
     import build_scripts.build_fmus as build
 

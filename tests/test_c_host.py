@@ -1,6 +1,6 @@
 """The FMUs in a non-Python FMI host: tests/c_host/fmi_host.c (gcc, dlopen RTLD_LOCAL, fmpy's FMI
 headers), run in a plain environment (no LD_PRELOAD, no PYTHONPATH, the venv's python not on PATH;
-Debian's /usr/bin/python3, where present, is on it, which is the case that used to start the wrong
+Debian's /usr/bin/python3, where present, is on it, which is the case where the FMU could start the wrong
 Python). Same numbers as fmpy to 1e-12, several instances, re-instantiation, clean process exit, and
 a missing dependency reported through the host's logger. See docs/fmu-native-hosts.md.
 """
@@ -183,7 +183,7 @@ def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_pat
     it is (file:// and UTF-8 bytes), fmpy percent-encodes it (file:///...M%C3%BCller%20Stra%C3%9Fe);
     both load and step the FMU and read the same displacement. Also where the host's environment has
     no encoding (no LANG: containers, services, CI runners; a locale that is not installed): the
-    FMU's Python runs in UTF-8 mode there (it failed with "UnicodeEncodeError('ascii', ...)")."""
+    FMU's Python runs in UTF-8 mode there (else it would fail with "UnicodeEncodeError('ascii', ...)")."""
     plant = Fmu(built_fmus["MusclePlant"], tmp_path / "Müller Straße" / "日本")
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l", p="p"), "steps=30", f"dt={TS}",
                     "sine=5,3,0.1", env_extra=locale)
@@ -200,7 +200,7 @@ def test_a_folder_with_non_ascii_characters_and_spaces(host, built_fmus, tmp_pat
 
 def test_a_folder_named_in_latin_1_fails_the_instance_naming_it(host, plant, built_fmus, tmp_path):
     """A folder whose name is not UTF-8 (M\xfcller: Latin-1 bytes from a Windows zip or an old home
-    folder) segfaulted the host in fmi2Instantiate (pythonfmu's error path); the instance now fails
+    folder) must not segfault the host in fmi2Instantiate (pythonfmu's error path); the instance fails
     with the folder named (its bytes escaped), the host ends at its first step."""
     folder = bytes(tmp_path) + b"/M\xfcller"
     with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
@@ -218,8 +218,8 @@ def test_a_folder_named_in_latin_1_fails_the_instance_naming_it(host, plant, bui
 
 
 def test_a_pythonhome_without_the_standard_library_fails_the_instance_naming_it(host, plant, tmp_path):
-    """PYTHONHOME=/nonexistent (left over from another tool) stopped Python's start with a fatal error
-    that exited the host inside dlopen, before any FMI call; the instance now fails naming it."""
+    """PYTHONHOME=/nonexistent (left over from another tool) must not stop Python's start with a fatal error
+    that exits the host inside dlopen, before any FMI call; the instance fails naming it."""
     version = "%d.%d" % sys.version_info[:2]
     proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5", check=False,
                     env_extra={"PYTHONHOME": str(tmp_path / "nonexistent")})
@@ -232,8 +232,8 @@ def test_a_pythonhome_without_the_standard_library_fails_the_instance_naming_it(
 
 @pytest.mark.parametrize("what", ["missing", "folder"])
 def test_a_tapmuscle_python_that_is_no_executable_fails_the_instance_naming_it(host, plant, tmp_path, what):
-    """TAPMUSCLE_PYTHON naming no executable file (a typo, a venv deleted since; a folder) was ignored
-    without a word, and Python searched its own (the first python3 on PATH); the instances now fail
+    """TAPMUSCLE_PYTHON naming no executable file (a typo, a venv deleted since; a folder) must not be ignored
+    without a word, leaving Python to search its own (the first python3 on PATH); the instances fail
     naming it, as on Windows, through the host's logger, and the host ends at its first step."""
     version = "%d.%d" % sys.version_info[:2]
     named = tmp_path / "deleted-venv" / "bin" / "python" if what == "missing" else tmp_path
@@ -305,7 +305,7 @@ def test_the_host_times_its_own_stepping_loop(host, plant, controller, tmp_path)
 
 @pytest.mark.slow
 def test_host_exit_is_clean_repeatedly(host, plant, tmp_path):
-    """pythonfmu 0.7.0 frees its interpreter holder twice at exit; unguarded that aborted every run
+    """pythonfmu 0.7.0 frees its interpreter holder twice at exit; unguarded that would abort every run
     of this host ("free(): corrupted unsorted chunks", exit status 134)."""
     for _ in range(3):
         proc = run_host(host, tmp_path, "open", *plant.args("P", u="u", l="l"), "steps=5")
@@ -315,7 +315,7 @@ def test_host_exit_is_clean_repeatedly(host, plant, tmp_path):
 
 def test_bad_value_reference_is_reported_and_the_host_survives_freeing(host, plant, tmp_path):
     """Unguarded, pythonfmu frees the slave twice after a Python exception (fmi_slave.base): this host
-    segfaulted within a few instantiate / bad call / free cycles."""
+    would segfault within a few instantiate / bad call / free cycles."""
     proc = run_host(host, tmp_path, "badvr", *plant.args("P", u="u", l="l"), "steps=15", "u_const=6")
     rows = list(csv.DictReader(io.StringIO(proc.stdout)))
     assert len(rows) == 15
@@ -419,7 +419,7 @@ def _libpythons_loaded(stderr: str) -> set[str]:
 def test_tapmuscle_python_of_a_copied_venv_or_a_shim_keeps_the_building_libpython(host, plant, tmp_path):
     """Only an interpreter's own libpython replaces the recorded one: a venv made with --copies (its
     pyvenv.cfg names its base) and a shim script (pyenv's shims/python, which `which python` gives)
-    keep the building installation's; taken from their folder they had loaded the system's libpython
+    keep the building installation's; taken from their folder they would load the system's libpython
     of the same version beside the other build's standard library (or run the system's Python)."""
     config = json.loads((plant.dir / "resources" / CONFIG_NAME).read_text())
     base = config["base_python"]
@@ -440,7 +440,7 @@ def test_tapmuscle_python_of_a_copied_venv_or_a_shim_keeps_the_building_libpytho
 def test_a_pythonhome_of_another_build_is_named_when_the_instance_fails(host, plant, tmp_path):
     """PYTHONHOME=/usr beside an FMU built by another CPython installation: the standard library is
     there (the loader's check passes) but of another build, and the import fails ("No module named
-    '_struct'") without a word about PYTHONHOME; the failure now names it. A prefix:exec_prefix whose
+    '_struct'"), which says nothing of PYTHONHOME; the failure names it. A prefix:exec_prefix whose
     second part has no compiled modules is refused before Python starts."""
     version = "%d.%d" % sys.version_info[:2]
     config = json.loads((plant.dir / "resources" / CONFIG_NAME).read_text())
@@ -634,7 +634,7 @@ def test_a_python_without_a_shared_libpython_builds_fmus_for_python_hosts_that_t
 
 def test_a_build_in_an_environment_in_uvs_cache_warns_that_it_is_temporary(built_fmus, tmp_path, monkeypatch):
     """`uvx --from tapmuscle tapmuscle build` records uv's cached environment for C hosts; after `uv
-    cache clean` they silently fell back to another Python. The build says so."""
+    cache clean` they would silently fall back to another Python, so the build says so."""
     monkeypatch.setattr(native_host, "uv_cache_environment", lambda: tmp_path / "uv")
     with pytest.warns(NativeHostWarning, match=r"lies in uv's cache \(.*/uv\): after `uv cache clean` such hosts "
                                                r"fall back to .*build them in an environment of your own"):
@@ -644,7 +644,7 @@ def test_a_build_in_an_environment_in_uvs_cache_warns_that_it_is_temporary(built
 def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_hosts_find_it_on_the_library_path(
         host, built_fmus, tmp_path, monkeypatch):
     """The FMU copied to another machine: its building Python's libpython is not at the recorded path.
-    A Python host never needs it (before, the loader was linked to it, and fmpy under a Python whose
+    A Python host never needs it (were the loader linked to it, fmpy under a Python whose
     executable has Python linked in could not load the FMU: measured with a static CPython 3.11.2 and
     both libpython3.11.so.1.0 of this machine hidden). A C host finds it by its soname on
     LD_LIBRARY_PATH, or is told what to set."""
@@ -672,7 +672,7 @@ def test_an_fmu_whose_recorded_libpython_is_gone_runs_in_python_hosts_and_c_host
 
 def test_the_value_references_of_the_docs_c_host_example_are_the_builds(built_fmus):
     """docs/fmu-native-hosts.md, "Running the C host by hand", sets the controller's method and delay by
-    value reference; a change of the variables' order left them naming other variables."""
+    value reference; a change of the variables' order would leave them naming other variables."""
     import re
 
     text = (Path(__file__).parents[1] / "docs" / "fmu-native-hosts.md").read_text(encoding="utf-8")

@@ -75,7 +75,7 @@ def test_a_closed_pipe_is_not_reported_as_bad_input(tmp_path):
 @pytest.mark.parametrize("encoding", ["cp1252", "cp1252:surrogateescape"])
 def test_an_output_named_beyond_the_consoles_encoding_is_printed_escaped_not_an_error(tmp_path, encoding):
     """A Windows console, or its output redirected, is cp1252: a folder named "Δp" or "日本" cannot be
-    printed in it, and the command ended with "error: 'charmap' codec can't encode" and status 2 after
+    printed in it, and the command must not end with "error: 'charmap' codec can't encode" and status 2 after
     writing every file. It prints such characters as escapes, as Python's stderr does."""
     import os
 
@@ -100,8 +100,7 @@ def test_a_file_names_undecodable_bytes_are_still_written_as_those_bytes():
 def test_a_recording_without_a_plot_does_not_load_matplotlib(tmp_path):
     """Where HOME is not writable (a distribution's build, a CI box), importing matplotlib writes
     'mkdir -p failed ... created a temporary cache directory' to stderr: `tapmuscle record` without
-    --plot imported it, so its stderr was not empty there (the test above failed alone): it no longer
-    imports it."""
+    --plot must not import it, or its stderr is not empty there (the test above fails alone)."""
     import os
     import subprocess
     import sys
@@ -145,7 +144,7 @@ def test_an_argument_before_the_command_is_tapmuscles_to_refuse(capsys, monkeypa
 
 def test_an_interrupt_while_the_command_line_is_read_is_said_in_one_line(monkeypatch, capsys):
     """Ctrl-C in the first second of a command (its subcommands' modules being imported to build the
-    parser) ended in a KeyboardInterrupt traceback; later it gave the 'interrupted' line and 130."""
+    parser) must not end in a KeyboardInterrupt traceback: it gives the 'interrupted' line and 130, as a later Ctrl-C does."""
     import importlib
 
     cli = importlib.import_module("tapmuscle.cli.main")  # the module (tapmuscle.cli.main is also its function)
@@ -160,8 +159,8 @@ def test_an_interrupt_while_the_command_line_is_read_is_said_in_one_line(monkeyp
 
 
 def test_a_simulating_command_says_when_the_compiled_sub_step_is_missing(monkeypatch, tmp_path, capsys):
-    """Installed where no C compiler was, the commands ran several times slower without a word
-    (tapmuscle --version was the only place that said so)."""
+    """Installed where no C compiler is, the commands run several times slower, which must not go without a word
+    (not with tapmuscle --version as the only place that says so)."""
     import fmu_plant.rosenbrock as rosenbrock
 
     args = ["record", "--input", "const:value=5", "--duration", "1", "--out", str(tmp_path / "r.csv")]

@@ -22,8 +22,8 @@ def test_record_writes_csv_and_png(tmp_path):
 
 
 def test_the_load_is_given_once(tmp_path, capsys):
-    """``--set load.load_n=68`` was silently replaced by --load's default 44 N (and a --params file's
-    load too): without --load the file's or --set's load is recorded; --load overrides the file;
+    """``--set load.load_n=68`` (and a --params file's load) must not be silently replaced by --load's
+    default 44 N: without --load the file's or --set's load is recorded; --load overrides the file;
     --load and a different --set load.load_n are refused."""
     from tapmuscle.io.plant_file import plant_file_text
     from fmu_plant import PlantParams
@@ -48,7 +48,7 @@ def test_the_load_is_given_once(tmp_path, capsys):
 
 def test_no_load_is_recorded_as_the_plant_runs_it_with_the_braid_lock_note(tmp_path, capsys):
     """0 N is a load the plant, its FMU, scenarios and the API take (with the braid lock's note);
-    ``record --load 0`` was refused as outside 1e-09..500."""
+    ``record --load 0`` must not be refused as outside 1e-09..500."""
     assert main(["record", "--input", "const:value=5", "--duration", "2", "--load", "0", "--quiet",
                  "--out", str(tmp_path / "free.csv")]) == 0
     assert read_recording(tmp_path / "free.csv").metadata["load_n"] == "0"
@@ -117,7 +117,7 @@ def test_existing_output_survives_a_failed_run(tmp_path):
 ])
 def test_commands_outside_the_valve_or_endless_are_refused_before_running(tmp_path, capsys, extra, pattern):
     """The recorded u_v is what the valve receives: out-of-range commands, endless random signals and
-    absurd lengths are named at once (they used to be written unclipped, or hang)."""
+    absurd lengths are named at once (rather than written unclipped, or left to hang)."""
     out = tmp_path / "rec.csv"
     args = ["record", "--load", "44", "--duration", "20", "--out", str(out), "--quiet"]
     assert main(args + extra) == 2  # a repeated --duration: the last one counts
@@ -153,7 +153,7 @@ def test_seeds_are_unsigned_64_bit_on_the_command_line(tmp_path, capsys):
     ("friction.rate_gain=1e308", r"rate_gain.*1e\+308"),
 ])
 def test_absurd_plant_parameters_are_refused_in_one_line(tmp_path, capsys, setting, pattern):
-    """Every plant parameter has bounds (physically generous): 1e308 used to end in a FloatingPointError
+    """Every plant parameter has bounds (physically generous): 1e308 must not end in a FloatingPointError
     and a 1.3 kB parameter dump."""
     out = tmp_path / "rec.csv"
     assert main(["record", "--load", "44", "--input", "const:value=5", "--duration", "2", "--out", str(out),
@@ -170,7 +170,7 @@ def test_absurd_plant_parameters_are_refused_in_one_line(tmp_path, capsys, setti
     ["sweep", "s.toml", "--out", ""],
 ])
 def test_an_empty_output_path_is_refused_in_one_line(capsys, argv):
-    """``--out ''`` meant the current folder and ended in 'Device or resource busy' naming a temp file."""
+    """``--out ''`` must not mean the current folder and end in 'Device or resource busy' naming a temp file."""
     with pytest.raises(SystemExit) as exc:
         main(argv)
     err = capsys.readouterr().err
@@ -236,8 +236,8 @@ def _replay(d, name):
 
 @pytest.mark.parametrize("name", ["shifted", "jittered"])
 def test_a_replay_runs_the_recorded_commands_sample_by_sample(recorded, name):
-    """Replaying a recording that starts at 1000 s ran one constant command; one with logger jitter
-    ran some commands a period late (l off by several mm): both now run as the recording itself."""
+    """Replaying a recording that starts at 1000 s must not run one constant command, nor one with logger
+    jitter run some commands a period late (l off by several mm): both run as the recording itself."""
     import numpy as np
 
     d, a = recorded
@@ -255,8 +255,8 @@ def test_a_replay_runs_the_recorded_commands_sample_by_sample(recorded, name):
                                            r"goes sample by sample; run it at 0\.1 s"),
 ])
 def test_a_replay_is_not_resampled_silently(recorded, tmp_path, capsys, extra, pattern):
-    """A run longer than the recording held its last command, and another --ts resampled it, with no
-    word: both are refused, naming both values, and nothing is written."""
+    """A run longer than the recording would hold its last command, and another --ts would resample it,
+    with no word: both are refused, naming both values, and nothing is written."""
     d, _ = recorded
     out = tmp_path / "refused.csv"
     assert main(["record", "--input", f"csv:{d / 'shifted.csv'}", "--out", str(out), "--quiet", *extra]) == 2

@@ -189,8 +189,8 @@ def test_the_compiled_loop_runs_only_what_it_inlines():
 
 
 def test_a_library_effect_changed_on_its_class_runs_the_python_loop(monkeypatch):
-    """A notebook's patch of ValveDeadZone.valve_gate on the class reached step but not the compiled
-    step_many, which still inlined the library's gate (13.7 mm apart): a library class whose functions
+    """A notebook's patch of ValveDeadZone.valve_gate on the class must reach the compiled
+    step_many as it reaches step, not be bypassed by an inlined copy of the library's gate (13.7 mm apart): a library class whose functions
     are not those it was imported with runs the Python loop, so both give the patched physics."""
     quiet = PlantParams().with_values(**NOISE_FREE, **{"dead_zone.center_v": 5.0, "dead_zone.width_v": 1.0})
     assert runnable(effects_from_params(quiet), quiet.sensor)

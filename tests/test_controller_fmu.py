@@ -178,7 +178,7 @@ def test_state_rewind_and_serialisation_are_bit_identical(fmu, ints):
 
 
 def test_a_state_of_an_instance_with_another_method_steps_with_it(fmu):
-    """A state of an MPC-UCP instance restored into an AMPC-servo one: refused before with a TypeError
+    """A state of an MPC-UCP instance restored into an AMPC-servo one: not refused with a TypeError
     about its content; the controller is built again from the state's parameters and runs as the
     instance it came from, bit for bit."""
     vr = fmu[3]
@@ -284,12 +284,12 @@ def test_bad_step_sizes_are_discarded(fmu, capfd, t0, h, message):
     ({"sine.amplitude": -1.0}, {}, "parameter sine.amplitude = -1.0 is outside its declared range 0..3000"),
     ({"theta0.a1": 1.1}, {"method": 4}, "theta0's a1 = 1.1 lies outside the constraint region C, 1.208..1.26"),
     ({"sine.frequency": 6.0}, {}, "sine.frequency = 6 Hz is above the Nyquist frequency 0.5/Ts = 5 Hz"),
-    # beyond the limit the predictions overflowed at the second step (an internal error with a traceback)
+    # beyond the limit the predictions would overflow at the second step (an internal error with a traceback)
     ({"theta0.A1": 1e50}, {}, "parameter theta0.A1 = 1e+50 is outside its declared range -1e+06..1e+06"),
     ({"theta0.a2": -2e6}, {"method": 2}, "parameter theta0.a2 = -2000000.0 is outside its declared range"),
     # the settings' errors name the FMU's parameters, not ControllerSettings' fields
     ({"startup_s": 1e4}, {}, "parameter startup_s = 10000.0 is outside its declared range"),
-    # R = 1e300 held the command at 0 V for the whole run without a word
+    # R = 1e300 would hold the command at 0 V for the whole run without a word
     ({"servo.R": 1e300}, {}, "parameter servo.R = 1e+300 is outside its declared range 0..1e+06"),
     # the law for a delay of 2 or more (-1 may decide one) runs with R x delay_move_weight: refused here,
     # not as an internal error at the decision
@@ -454,7 +454,7 @@ def test_the_startup_guard_parameter_reaches_the_controller_and_its_firing_is_lo
 def test_the_divergence_warning_names_its_figures_and_parameters(startup_s):
     """The warning's rule on a step whose prediction is far off (made so: deterministic on any CPU).
     In the start-up mode's warm-up the law runs on theta0, not on the estimate: the warning says so
-    (it blamed the estimate and the forgetting factor for a theta0 or readings in another unit)."""
+    (it must not blame the estimate and the forgetting factor for a theta0 or readings in another unit)."""
     import dataclasses
 
     from fmu_controller.controller_slave import AMPCController
@@ -486,7 +486,7 @@ def test_the_divergence_warning_names_its_figures_and_parameters(startup_s):
                                                   ("l_pred", math.inf, "it must be finite")])
 def test_an_outputs_start_value_is_finite_and_within_its_range(fmu, capfd, name, value, message):
     """FMI 2.0 lets a host set an output's start value before initialisation (initial = exact); a parallel
-    master passes it on at t = 0, so a NaN there stopped the run. Refused with an error naming it;
+    master passes it on at t = 0, so a NaN there would stop the run. Refused with an error naming it;
     a valid start value is taken."""
     from fmpy.fmi2 import FMU2Slave
 
@@ -505,7 +505,7 @@ def test_an_outputs_start_value_is_finite_and_within_its_range(fmu, capfd, name,
 
 def test_an_infinite_bound_on_its_own_side_is_no_bound():
     """box_lower.* = -inf and box_upper.* = inf leave C open (an unconstrained identification's theta0,
-    which the FMU could not take: it refused every infinity); an infinity on the wrong side is refused."""
+    which the FMU must take rather than refuse every infinity); an infinity on the wrong side is refused."""
     from fmu_controller.controller_slave import AMPCController
 
     slave = AMPCController(instance_name="open")
@@ -581,7 +581,7 @@ _USED_BY = {"ucp.Hp": {1, 3}, **dict.fromkeys(("servo.Hp", "servo.Hu", "servo.Q"
 
 @pytest.mark.parametrize("method", [1, 2, 3, 4])
 def test_a_parameter_the_method_does_not_use_is_named_and_changes_nothing(method):
-    """Tuning servo.Hp for an UCP method, or the estimator for a fixed one, did nothing without a word. At
+    """Tuning servo.Hp for an UCP method, or the estimator for a fixed one, does nothing, which must not pass without a word. At
     the first step a warning names each such parameter; setting it leaves every command bit for bit as
     it was (which proves the list), and a parameter the method uses is not named (some of those only act
     later, under forgetting or at the box's edge: the commands are compared for those that act at once)."""
@@ -621,7 +621,7 @@ def test_a_parameter_the_method_does_not_use_is_named_and_changes_nothing(method
 
 
 def test_the_paper_defaults_at_another_period_are_warned_of():
-    """THETA0_44N and Table 2's box hold for Ts = 0.1 s; at 0.2 s they ran without a word (2.7 mm of
+    """THETA0_44N and Table 2's box hold for Ts = 0.1 s; at 0.2 s they must not run without a word (2.7 mm of
     Eq. (21) error, the valve hitting both limits). A warning at the first step names both while they
     are the defaults (not at initialisation, where hosts take a warning for rejected parameters)."""
     from fmu_controller.controller_slave import AMPCController
@@ -648,7 +648,7 @@ def test_the_paper_defaults_at_another_period_are_warned_of():
 
 
 def test_a_command_pinned_at_a_valve_limit_is_logged_once():
-    """Readings in metres (0.03 for 30 mm) left the valve at 10 V for the whole run without a word;
+    """Readings in metres (0.03 for 30 mm) leave the valve at 10 V for the whole run, which must not pass without a word:
     after 10 s at a limit the error pushes into, a warning says so once, naming r, l and the unit."""
     from fmu_controller.controller_slave import AMPCController
 
@@ -677,7 +677,7 @@ def test_a_command_pinned_at_a_valve_limit_is_logged_once():
 @pytest.mark.parametrize("method", [1, 2, 3, 4])
 def test_a_command_held_at_a_limit_against_the_error_is_logged_once(method):
     """A negative theta0.b1 (a fixed method; an adaptive one without a box, whose b1 keeps theta0's sign)
-    held the valve at 0 V for a whole run while l stayed 35 mm below r, with no message: after 10 s at a
+    holds the valve at 0 V for a whole run while l stays 35 mm below r, which must not pass with no message: after 10 s at a
     limit the error pushes away from (from 5 s on for the adaptive ones, whose start-up probes), a
     warning names theta0.b1 once. The same loop with the default
     theta0 says nothing of it at either load."""
@@ -707,8 +707,8 @@ def test_a_command_held_at_a_limit_against_the_error_is_logged_once(method):
 
 
 def test_a_sampling_period_typed_in_milliseconds_is_logged_and_the_time_at_a_limit_is_true():
-    """Ts = 50 (meant: 50 ms) stepped by a host at 0.05 s sampled once and held its command for 50 s;
-    the only message claimed at t = 0 that the command had sat at 10 V for 10 s. The first step now
+    """Ts = 50 (meant: 50 ms) stepped by a host at 0.05 s samples once and holds its command for 50 s;
+    the only message must not claim at t = 0 that the command has sat at 10 V for 10 s. The first step
     says Ts is in seconds and asks about milliseconds; the time at a limit counts from the first sample
     there to the present one (50 s, said at t = 50 s). Ts = 0.1 s stepped at 1 ms (a fast FMU beside
     it in the host) and Ts = 2 s stepped at 0.5 s are said nothing of."""
@@ -736,9 +736,9 @@ def test_a_sampling_period_typed_in_milliseconds_is_logged_and_the_time_at_a_lim
 
 
 def test_a_law_that_slams_the_valve_is_logged_once():
-    """A fixed predictor from an open-loop identification made the MPCs slam the valve end to end for a
-    whole run at Ts != 0.1 s without a word; 20 full-range jumps within 10 s are logged once. A divergence
-    at forgetting = 1 no longer advises on forgetting factors."""
+    """A fixed predictor from an open-loop identification makes the MPCs slam the valve end to end for a
+    whole run at Ts != 0.1 s, which must not pass without a word: 20 full-range jumps within 10 s are logged once. A divergence
+    at forgetting = 1 does not advise on forgetting factors."""
     import dataclasses
 
     from fmu_controller.controller_slave import AMPCController
@@ -774,7 +774,7 @@ def test_a_law_that_slams_the_valve_is_logged_once():
 @pytest.mark.parametrize("set_delay, parallel, shown", [(0, False, None), (1, True, None), (0, True, 1), (1, False, 0)])
 def test_an_input_delay_set_wrong_for_the_master_is_warned_of(set_delay, parallel, shown):
     """input_delay_samples = 0 in a parallel master (AMPC-servo: Eq. (21) 1.95 mm against 0.15 with 1)
-    or 1 in a sequential one (0.74 against 0.08 mm) ran without a word. The first 30 s are scored
+    or 1 in a sequential one (0.74 against 0.08 mm) must not run without a word. The first 30 s are scored
     as -1 scores them, and a delay the measurements show DELAY_RATIO times better is named once."""
     from fmu_plant import Plant, PlantParams
 
@@ -887,7 +887,7 @@ def test_a_limit_cycles_causes_are_those_the_settings_leave_possible(ints, said,
 
 def test_a_heavy_move_weight_is_named_among_a_limit_cycles_causes():
     """MPC-servo with servo.R = 10^4 (Table 5: 15) swings the valve limit to limit (17 mm of Eq. (21)
-    error): the QP moves the valve only once the integrator's cost has grown. The warning named a delay
+    error): the QP moves the valve only once the integrator's cost has grown. The warning must not name a delay
     and the fixed predictor only; it names servo.R, which Table 5's R does not make it do."""
     from fmu_plant import Plant
 
@@ -924,8 +924,8 @@ def test_an_overflow_names_theta0_only_where_it_was_set():
 @pytest.mark.parametrize("delay", [0, -1])
 def test_a_fixed_predictors_limit_cycle_names_the_predictor_and_no_delay_the_data_ruled_out(delay):
     """MPC-servo on THETA0_44N after a step 35 -> 80 mm swings the valve limit to limit for good
-    (Eq. (21) 9.3 mm; AMPC-servo tracks it to 0.01 mm). The warning blamed an uncompensated delay and
-    advised -1, which decides 0 and changes nothing: it names the fixed predictor, and the delay only
+    (Eq. (21) 9.3 mm; AMPC-servo tracks it to 0.01 mm). The warning must not blame an uncompensated delay and
+    advise -1, which decides 0 and changes nothing: it names the fixed predictor, and the delay only
     where 0 was set rather than decided."""
     from fmu_plant import Plant, PlantParams
 
@@ -948,8 +948,8 @@ def test_a_fixed_predictors_limit_cycle_names_the_predictor_and_no_delay_the_dat
 
 @pytest.mark.parametrize("delay, said", [(0, 1), (2, 0), (-1, 0)])
 def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
-    """A rig whose valve acts 0.2 s late made the undelayed law swing the valve between its limits
-    17-19 times in 10 s (Eq. (21) 7.4 mm) without a word: after the start-up, 6 swings within 10 s
+    """A rig whose valve acts 0.2 s late makes the undelayed law swing the valve between its limits
+    17-19 times in 10 s (Eq. (21) 7.4 mm), which must not pass without a word: after the start-up, 6 swings within 10 s
     are logged once, naming input_delay_samples; with the delay set (2) or decided (-1) the loop
     tracks and nothing is said."""
     from fmu_controller.controller_slave import AMPCController
@@ -978,7 +978,7 @@ def test_a_limit_cycle_from_an_uncompensated_delay_is_logged_once(delay, said):
 def test_the_papers_start_is_not_taken_for_a_limit_cycle(method):
     """The paper's start (startup_s = 0) of the adaptive methods swings the valve between its limits 6
     times in its first 1-1.5 s on the rig without any delay: that transient is no limit cycle, and
-    nothing is said (it was, at t = 0.9-1.6 s, in every cell)."""
+    nothing is said (else it would be, at t = 0.9-1.6 s, in every cell)."""
     from fmu_controller.controller_slave import AMPCController
     from fmu_plant import Plant
 
@@ -1009,8 +1009,8 @@ def test_the_papers_start_is_not_taken_for_a_limit_cycle(method):
 def test_a_limit_cycle_with_the_delay_set_is_not_blamed_on_a_missing_compensation(method, delay, gentler):
     """With a delay set (or decided), swings between the limits mean that delay is off or the law too
     aggressive for it: the message says so, not to set the delay the user has set, and names what makes
-    this method's law gentler at this delay (delay_move_weight had been named for every method and delay,
-    where it does nothing for the unique coincidence point and for a delay of 1)."""
+    this method's law gentler at this delay (delay_move_weight is not named for every method and delay:
+    it does nothing for the unique coincidence point and for a delay of 1)."""
     import dataclasses
 
     from fmu_controller.controller_slave import AMPCController
@@ -1324,8 +1324,8 @@ def test_servo_max_iter_bounds_the_qp_and_reaches_the_law():
 
 
 def test_the_transient_of_a_reference_step_is_not_called_a_limit_cycle():
-    """A 25-mm step of r (35 -> 60 mm at 30 s): AMPC-UCP's transient swung the valve limit to limit six
-    times, and the log called it a limit cycle blaming the model; the swings of a reference step's
+    """A 25-mm step of r (35 -> 60 mm at 30 s): AMPC-UCP's transient swings the valve limit to limit six
+    times, which the log must not call a limit cycle blaming the model; the swings of a reference step's
     transient are not counted for 3 s after it. A loop that keeps swinging after that is still told
     (MPC-servo at 80 mm, where the fixed predictor is poor: 25 swings in 10 s, logged), also where the
     reference steps every 5 s (a rig's 0.2-s delay the law does not compensate)."""

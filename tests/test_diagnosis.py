@@ -101,7 +101,7 @@ def test_a_supply_sag_from_60_to_90_s_is_located(tmp_path):
     assert r["iou"] >= 0.5
     assert r["gain_points"] >= 3.0
     # 90-100 s is held out, so the training blocks allow any end from 90 to about 95 s: the fit's
-    # recovery is a ramp across that stretch (the simplex alone stopped anywhere in it), the start,
+    # recovery is a ramp across that stretch (the simplex alone would stop anywhere in it), the start,
     # in a training block, keeps about the model's 1-s fall
     fitted = r["fitted_parameters"]
     assert fitted["supply_variation.start_s"] == pytest.approx(60.0, abs=0.5)
@@ -392,7 +392,7 @@ def test_unexplained_when_no_candidate_fits():
 
 
 def test_a_report_with_nothing_named_says_what_to_do_next(tmp_path):
-    """A mismatch with only an unexplained residual left its reader without a next step: the report
+    """A mismatch with only an unexplained residual must not leave its reader without a next step: the report
     says what such a residual usually means and which recording separates the causes. A report that
     names an effect does not."""
     from tapmuscle.diagnosis.report import write_outputs
@@ -416,7 +416,7 @@ def test_a_report_with_nothing_named_says_what_to_do_next(tmp_path):
 def test_a_structured_remainder_is_reported_and_claimed_only_when_material(amplitude_mm, material, tmp_path):
     """The exact model and a slow ripple on the reading that no candidate describes: reported as
     ``unexplained`` with its share however small, a finding only at >= MATERIAL_FACTOR x the noise; a
-    report with no finding says the remainder is there (it said "at the noise level ... < 1.5 x" of a
+    report with no finding says the remainder is there (not "at the noise level ... < 1.5 x" of a
     residual at 2 x)."""
     cols = record(DEMO_MODEL, "sine", 5)
     y = cols["l_mm"] + amplitude_mm * np.sin(2 * np.pi * 0.37 * cols["t_s"])
@@ -560,8 +560,8 @@ def test_diagnose_cli_with_the_plant_fmu_and_its_calibrated_file(tmp_path, built
 def test_the_reported_constants_are_the_calibrated_plant_files(tmp_path):
     """The report's calibration rows state the final model's constants, the ones written to
     calibrated_plant.json. A 0.3-s delay under random steps: the first calibration, with the delay
-    left out, bent the flow coefficient to 0.79 and the friction to 1.7 N; the delay's joint re-fit
-    took them back to the rig's 1.50 and 8 N, and the rows kept the first calibration's values."""
+    left out, bends the flow coefficient to 0.79 and the friction to 1.7 N; the delay's joint re-fit
+    takes them back to the rig's 1.50 and 8 N, and the rows must not keep the first calibration's values."""
     from fmu_plant import PlantParams
 
     out = tmp_path / "diag"
@@ -705,7 +705,7 @@ def test_parameter_errors_alone_are_calibrated_not_blamed_on_an_effect(tmp_path,
 @pytest.mark.parametrize("excitation,seed", [("sine", 22), ("steps", 23)])
 def test_an_encoder_offset_beside_a_delay_is_named_from_the_first_reading(excitation, seed):
     """An encoder zeroed 12.5 mm off on a rig with a 0.3-s delay. Left to the calibration, the offset
-    bent the constants (radius and braid angle) and the delay was then misread: an input map and a
+    would bend the constants (radius and braid angle) and the delay would then be misread: an input map and a
     backlash (sine), an ambiguous delay (steps). The first reading, drained at t = 0 where the model
     reads 0 whatever its constants, starts the search with the offset, and both effects are named with
     the constants left near nominal (the fit at the noise floor)."""
@@ -728,7 +728,7 @@ def test_an_encoder_offset_beside_a_delay_is_named_from_the_first_reading(excita
 @pytest.mark.slow
 def test_samples_a_logger_dropped_and_the_import_put_back_are_left_out_of_the_fits():
     """1.5 s of a delayed rig's recording interpolated (what ``tapmuscle import --fill-gaps`` writes):
-    fitted as if measured, they made a supply sag be claimed beside the delay (99.79 %); left out of
+    fitted as if measured, they would make a supply sag be claimed beside the delay (99.79 %); left out of
     the fits and tests, the delay alone is named, and the state the unlogged command left after the
     gap is the unexplained window there."""
     rig = DEMO_MODEL.with_values(**{"delay.delay_s": 0.3})
@@ -751,7 +751,7 @@ def test_samples_a_logger_dropped_and_the_import_put_back_are_left_out_of_the_fi
 
 @pytest.mark.slow
 def test_a_delay_on_a_rig_whose_constants_are_off_is_named_alone():
-    """Before calibration came first, this recording was blamed on a supply sag, then a delay."""
+    """Without calibration first, this recording would be blamed on a supply sag, then a delay."""
     cols = record(DEMO_MODEL.with_values(**OFF, **{"delay.delay_s": 0.3}), "steps", 3, duration_s=150.0)
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL,
                  candidates=[candidate(n) for n in ("transport_delay", "supply_pressure_variation", "sensor_drift")])
@@ -825,8 +825,8 @@ def test_worker_processes_from_a_script_without_its_main_guard(tmp_path):
 
 @pytest.mark.parametrize("how", ["stdin", "-c"])
 def test_worker_processes_from_a_script_without_a_file(how):
-    """Processes spawned from a script read from stdin could not re-import its ``<stdin>`` main and
-    died at start; that is refused up front, naming the setting. ``python -c`` (like a notebook) has
+    """Processes spawned from a script read from stdin cannot re-import its ``<stdin>`` main and
+    would die at start; that is refused up front, naming the setting. ``python -c`` (like a notebook) has
     no main file, and its processes run and give the in-process result bit for bit."""
     script = textwrap.dedent("""
         import numpy as np
@@ -993,8 +993,8 @@ def test_blocks_too_long_for_held_out_data_are_refused(tmp_path, capsys, block):
 
 def test_blocks_shorter_than_the_sampling_period_are_refused(tmp_path, capsys):
     """Blocks shorter than the period skip block numbers: at 1-s sampling and 0.5-s blocks every sample
-    fell in an even (training) block, nothing was held out, and every fit was NaN (a 100-s period with
-    the default 10-s blocks crashed the JSON so after a 10-min run). Refused, naming both; the
+    would fall in an even (training) block, nothing would be held out, and every fit would be NaN (a 100-s period
+    with the default 10-s blocks would crash the JSON so after a 10-min run). Refused, naming both; the
     default block is never shorter than the period."""
     from tapmuscle.cli.main import main
     from tapmuscle.diagnosis.diagnose import split_length_s, validated_recording
@@ -1021,7 +1021,7 @@ def test_blocks_shorter_than_the_sampling_period_are_refused(tmp_path, capsys):
 def test_a_quarter_of_the_recording_is_a_block_at_1_ms_too():
     """20 s recorded at 1 ms (``tapmuscle record --ts 0.001``, times written as text) reads back as a
     period of 0.99999999999989 ms, so its duration as 19.9999999999978 s: 5-s blocks, a quarter of
-    it, were refused as 'at most 5 s'. A block really too long still is."""
+    it, must not be refused as 'at most 5 s'. A block really too long is."""
     from tapmuscle.diagnosis.diagnose import validated_recording
 
     t = np.array([float(repr(k * 1e-3)) for k in range(20001)])
@@ -1073,8 +1073,8 @@ def test_a_short_recording_is_refused_with_the_duration_it_needs(n, ts_s, block_
 
 
 def test_a_short_recording_is_refused_naming_its_file_before_any_progress(tmp_path, capsys):
-    """``tapmuscle diagnose`` on a 30-s recording printed "diagnose: 0% (0/9, 0.0 s)" before the refusal;
-    tm.diagnose_files refused it without naming the file the command line names."""
+    """``tapmuscle diagnose`` on a 30-s recording must not print "diagnose: 0% (0/9, 0.0 s)" before the refusal,
+    nor tm.diagnose_files refuse it without naming the file the command line names."""
     from tapmuscle.diagnosis.report import diagnose_files
     from tapmuscle.io.plant_file import plant_file_text
     from tapmuscle.io.recording import Recording, write_recording
@@ -1103,7 +1103,7 @@ def test_a_short_recording_is_refused_naming_its_file_before_any_progress(tmp_pa
     ("--effects", "gravity", "unknown effect 'gravity'"),
 ])
 def test_demo_mismatch_refuses_an_empty_or_unknown_list(tmp_path, capsys, flag, value, pattern):
-    """An empty --effects used to run every effect: refused before any work, nothing written."""
+    """An empty --effects must not run every effect: refused before any work, nothing written."""
     from tapmuscle.cli.main import main
 
     out = tmp_path / "demo"
@@ -1137,7 +1137,7 @@ def test_effects_and_constants_are_chosen_by_name_or_object():
 
 
 def test_a_constant_displacement_is_named_before_any_fit():
-    """A disconnected encoder (l_mm constant) used to end in 'DeadZoneParams.width_v must be <= 5.0'."""
+    """A disconnected encoder (l_mm constant) must not end in 'DeadZoneParams.width_v must be <= 5.0'."""
     cols = record(DEMO_MODEL, "sine", 2)
     with pytest.raises(ValueError, match=r"column l_mm: the displacement is constant \(3 mm\)"):
         diagnose(cols["t_s"], cols["u_v"], np.full_like(cols["l_mm"], 3.0), DEMO_MODEL)
@@ -1145,7 +1145,7 @@ def test_a_constant_displacement_is_named_before_any_fit():
 
 def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes():
     """Held commands 2 V apart: four consecutive levels span 6 V, beyond the 5-V bound of
-    ``dead_zone.width_v``. Such bands are skipped (the search once raised the plant's ValueError)."""
+    ``dead_zone.width_v``. Such bands are skipped (tried, they would raise the plant's ValueError)."""
     from fmu_plant import Plant, PlantParams
     from fmu_plant.open_loop import run_open_loop
     from tapmuscle.diagnosis.candidates import Problem
@@ -1174,8 +1174,8 @@ def test_the_dead_zone_search_never_proposes_a_band_wider_than_the_plant_takes()
 def test_a_play_the_calibration_absorbed_is_found_by_the_joint_fit_the_score_test_ranks_in():
     """Field case 013 (seed 0): a 1.63-mm play on a rig with five constants off by 6-16 %. The
     calibration trades the play for friction (presliding 1.5 -> 0.3 mm), a play fitted on those
-    constants as they stand comes out near zero, and without the score test's ranking the play never got
-    a joint fit: nothing was named (98.6 % held-out fit). Judged by what the constants' linearised
+    constants as they stand comes out near zero, and without the score test's ranking the play would never get
+    a joint fit: nothing would be named (98.6 % held-out fit). Judged by what the constants' linearised
     re-fit leaves, the own search finds more of it, still well short of the rig's; the joint fit
     finds the rest."""
     from tapmuscle.diagnosis.field_cases import field_cases, record_case
@@ -1222,9 +1222,9 @@ def _stored_field_case(seed: int, index: int, tmp_path: Path):
 def test_a_play_in_the_closed_loop_is_named_before_a_map_can_mimic_it(tmp_path):
     """Field case 081 (seed 0): a 1.93-mm play in the closed loop, constants off, diagnosed as
     ``tapmuscle demo-mismatch`` does (the recording and the nominal plant through their files). With
-    the play's own search judged on the calibrated constants as they stand, an amplifier map was
+    the play's own search judged on the calibrated constants as they stand, an amplifier map would be
     accepted first (it mimics part of the play), the play in the second round, and the backward step
-    dropped the map. Judged by what the constants' linearised re-fit leaves, the play is accepted in
+    would drop the map. Judged by what the constants' linearised re-fit leaves, the play is accepted in
     the first round and named alone at the truth's own held-out fit; no map is ever accepted.
 
     The recording is the stored one (``tests/field_recordings/``): a closed loop's recording made on
@@ -1305,7 +1305,7 @@ def test_an_effect_accepted_at_the_inflated_noise_level_must_beat_the_constants_
     the inflated noise level (21 % of the held-out error, a delay its alternative). Calibrated afresh
     at the better model's level, more constants are identifiable, and against them the rate
     dependence removes only 7 % of the held-out error, under the 10-% minimum: it is dropped, and
-    the drift, which the rig has, is found after it (without this test the rate dependence stayed
+    the drift, which the rig has, is found after it (without this test the rate dependence would stay
     among the findings)."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
@@ -1327,7 +1327,7 @@ def test_an_effect_accepted_at_the_inflated_noise_level_must_beat_the_constants_
 def test_constants_that_explain_the_recording_at_their_own_noise_level_end_the_search(tmp_path):
     """Field case 049 (seed 0): no effect, five constants off, the closed loop. Calibrated at the
     nominal residual's level (0.195 mm) the constants leave a structured residual, and the search
-    then claimed an ambiguous load or input map. Calibrated again at the level the calibrated
+    would then claim an ambiguous load or input map. Calibrated again at the level the calibrated
     residual shows (0.016 mm) they explain the recording: ``calibration_only``."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
@@ -1348,7 +1348,7 @@ def test_constants_put_back_at_an_inflated_noise_level_do_not_hide_a_calibration
     """Field case 003 (seed 2): no effect, six constants off, the closed loop. At the nominal
     residual's level (0.58 mm) the MAP fit with every constant free explains the training blocks to
     the encoder's noise, but only the threshold pressure passes as identifiable; the others put back,
-    the calibrated plant fits 46 %, and a 0.75-s transport delay was claimed (89.7 %). Calibrated
+    the calibrated plant fits 46 %, and a 0.75-s transport delay would be claimed (89.7 %). Calibrated
     again at the level the free MAP fit shows (the encoder's 0.01 mm), from that fit, the constants
     leave a white residual: ``calibration_only`` at the truth's own held-out fit."""
     from tapmuscle.diagnosis.field_cases import field_cases
@@ -1486,7 +1486,7 @@ def test_a_valve_bands_width_is_profiled_with_the_constants_refitted(tmp_path):
 def test_a_band_is_searched_again_on_constants_calibrated_from_nominal(tmp_path):
     """Field case 027 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 1.24 V wide at
     6.28 V under a sine, constants off. The constants calibrated before the band was found took part
-    of its stall up, and the profile's re-fits start from them: the verdict was ``ambiguous`` between
+    of its stall up, and the profile's re-fits start from them: the verdict would be ``ambiguous`` between
     the band, an amplifier's map and a drift. The band's search alternated with the calibration from
     the nominal constants (``FROM_NOMINAL_ROUNDS``) leaves that valley, and the band is named alone."""
     from tapmuscle.diagnosis.field_cases import field_cases
@@ -1509,9 +1509,9 @@ def test_a_band_is_searched_again_on_constants_calibrated_from_nominal(tmp_path)
 def test_constants_implausible_under_their_prior_are_calibrated_again_from_nominal_with_the_effects(tmp_path):
     """Field case 087 (seed 3), as ``tapmuscle demo-mismatch`` runs it: a 0.23-s delay and a supply
     sag under a sine-sum, constants off. The constants calibrated before either effect was in the
-    model took the sag up far beyond their prior (prior cost 40 over 7 constants, where the
+    model take the sag up far beyond their prior (prior cost 40 over 7 constants, where the
     chi-square tail at ``alpha`` begins at 24); the delay's search on them, after the sag was
-    accepted, found nothing that passed, and the fit stayed at 86 %. Calibrated again from the
+    accepted, would find nothing that passed, and the fit would stay at 86 %. Calibrated again from the
     nominal constants with the sag on (the sag searched again on them), the model fits the training
     blocks better, is kept, and the delay is found in the next round."""
     from tapmuscle.diagnosis.field_cases import field_cases
@@ -1538,8 +1538,8 @@ def test_constants_implausible_under_their_prior_are_calibrated_again_from_nomin
 def test_a_band_the_calibrated_constants_took_up_is_found_by_what_their_re_fit_leaves(tmp_path):
     """Field case 079 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 0.91 V wide at
     5.62 V under a sine sum, constants off (braid angle +14 %). Judged on the calibrated constants as
-    they stand, the band's own search found 0.18 V at 3.25 V: the band was never accepted, an
-    amplifier's map was named instead and the held-out fit stayed at 90.5 %. Judged by what the
+    they stand, the band's own search finds 0.18 V at 3.25 V: the band would never be accepted, an
+    amplifier's map would be named instead and the held-out fit would stay at 90.5 %. Judged by what the
     constants' linearised re-fit leaves, the first round's search finds the band, and it is named."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
@@ -1556,7 +1556,7 @@ def test_a_band_the_calibrated_constants_took_up_is_found_by_what_their_re_fit_l
     upper = lower + truth["dead_zone.width_v"]
     found = own["parameters"]
     # the edges to 0.05 V: the sine sum sweeps the commands densely (cuts ~0.01 V apart near the band);
-    # the plain search's band was 2 V away
+    # the plain search's band would be 2 V away
     assert found["dead_zone.center_v"] - found["dead_zone.width_v"] / 2 == pytest.approx(lower, abs=0.05)
     assert found["dead_zone.center_v"] + found["dead_zone.width_v"] / 2 == pytest.approx(upper, abs=0.05)
     assert {"step": "add", "round": 1, "effect": "valve_dead_zone"}.items() <= next(
@@ -1568,7 +1568,7 @@ def test_a_band_the_calibrated_constants_took_up_is_found_by_what_their_re_fit_l
 @pytest.mark.slow
 def test_a_band_under_held_random_levels_is_found_whole(tmp_path):
     """Field case 046 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 1.04 V wide at
-    5.87 V under random held levels, constants off. The compass search on the band's edges stopped on
+    5.87 V under random held levels, constants off. The compass search on the band's edges alone stops on
     its top 0.49 V (a band holding part of the rig's stalls the muscle where the rig moves, and one
     more level costs before the rest pays back): held-out fit 85.8 %. With each edge also scanned over
     every recorded level, the band is found whole and named alone."""
@@ -1594,8 +1594,8 @@ def test_a_band_edge_among_held_out_levels_is_set_midway(tmp_path):
     """Field case 041 (seed 1), as ``tapmuscle demo-mismatch`` runs it: a valve band 0.85 V wide at
     4.52 V and a sensor drift of -0.98 mm/min under random held levels, constants off. Between the
     training blocks' levels 4.012 and 4.151 V around the band's lower edge (4.097 V) lie two held-out
-    ones, 4.044 and 4.108 V. The band's search stopped at 4.028 V, the 4.044-V level's stall cost the
-    band its held-out test, and nothing was named (83.7 %). Set midway between the training levels,
+    ones, 4.044 and 4.108 V. The band's search stops at 4.028 V, where the 4.044-V level's stall would cost the
+    band its held-out test, and nothing would be named (83.7 %). Set midway between the training levels,
     the edge puts both held-out levels on the rig's side; band and drift are named, nothing else."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
@@ -1628,7 +1628,7 @@ def test_a_band_is_searched_again_when_the_constants_are_calibrated_afresh(tmp_p
     drops (0.075 -> 0.015 mm) and the constants are calibrated afresh at it, with the band as fitted
     at the higher level; the band's search alternated with the calibration from the nominal
     constants then fits the training blocks better and is kept. Both effects are named, and nothing
-    else (a spurious map stood beside them before the band's search was judged by the constants'
+    else (a spurious map would stand beside them were the band's search not judged by the constants'
     linearised step)."""
     from tapmuscle.diagnosis.field_cases import field_cases
     from tapmuscle.diagnosis.field_demo import run_field_case
@@ -1668,8 +1668,8 @@ def test_the_report_lists_a_joint_re_fit_that_failed_with_its_reason(tmp_path):
 
 
 def test_diagnose_names_bad_arguments_before_any_work():
-    """A pressure column of another length crashed after the calibration with a numpy IndexError; a
-    fit segment of 0 s named a wrong effect silently; alpha and max_effects were not checked."""
+    """A pressure column of another length must not crash after the calibration with a numpy IndexError, nor
+    a fit segment of 0 s name a wrong effect silently; alpha and max_effects are checked too."""
     from fmu_plant import PlantParams
 
     t = np.arange(600) * 0.1
@@ -1690,7 +1690,7 @@ def test_diagnose_names_bad_arguments_before_any_work():
 def test_the_final_model_leaves_the_valley_the_search_left_it_in(tmp_path):
     """A rig with six constants 10-17 % off, a 0.25-s delay and a drift (noise seed 5), diagnosed with
     the vocabulary restricted to those two effects (as for a discriminating experiment's
-    re-diagnosis): both named, but the constants stayed in the valley of the first calibration, the
+    re-diagnosis): both named, but the constants would stay in the valley of the first calibration, the
     final simulation's squared error 2.83 mm^2 against the true rig's 0.26. A final model whose
     residual is still structured is calibrated afresh from the nominal constants with the effects on
     (kept as it fits the training blocks better): 0.27 mm^2."""
@@ -1750,7 +1750,7 @@ def test_a_supply_at_another_constant_pressure_is_named_with_its_pressure_not_as
     """A building's supply at another constant pressure than the plant file's, on a rig whose constants
     are off too: named as the supply offset (alone, or with the alternatives the held-out data cannot
     tell from it) at the rig's pressure, not as a load the muscle does not carry with the flow
-    coefficient recalibrated to take up the rest (0.22 MPa was "3.4 N less", cv_max 1.5 -> 1.05)."""
+    coefficient recalibrated to take up the rest (0.22 MPa would be "3.4 N less", cv_max 1.5 -> 1.05)."""
     rig = DEMO_MODEL.with_values(**OFF, **{"supply.supply_pressure_mpa": supply_mpa})
     cols = record(rig, "steps", 5, duration_s=150.0)
     d = diagnose(cols["t_s"], cols["u_v"], cols["l_mm"], DEMO_MODEL)
@@ -1790,9 +1790,9 @@ def test_a_plant_file_at_0_3_mpa_is_the_supply_offsets_reference(tmp_path):
 @pytest.mark.slow
 def test_an_effect_acting_all_along_is_located_all_along():
     """A rate-dependent friction at 0.2 Hz checked against a plant without it: the effect acts in every
-    cycle, but only the start-up transient (0-3.3 s) was shaded, the floor of the location being the
-    noise level taken before the effect was in (0.34 mm there: the mismatch's own sample-to-sample
-    change, against 0.01 mm after). Now the whole record is located."""
+    cycle, and the whole record is located: with the floor of the location at the noise level taken before
+    the effect was in (0.34 mm there: the mismatch's own sample-to-sample change, against 0.01 mm
+    after), only the start-up transient (0-3.3 s) would be shaded."""
     import tapmuscle as tm
     from fmu_plant import PlantParams
 
@@ -1804,10 +1804,10 @@ def test_an_effect_acting_all_along_is_located_all_along():
 
 
 def test_a_supply_within_a_few_per_cent_of_the_plant_files_is_not_claimed():
-    """Beside a delay or a drift, the field suite's rigs (whose supply was the plant file's) had a
+    """Beside a delay or a drift, the field suite's rigs (whose supply is the plant file's) must not have a
     supply offset of 4-5 % accepted with 0.03-0.06 mm of contribution. A supply within
-    6 % of the plant file's (SUPPLY_MATERIAL_FRACTION) is now a calibration matter; 8 % off (a user's rig at
-    0.23 MPa) and every other effect are claimed as before, against the plant file's own pressure."""
+    6 % of the plant file's (SUPPLY_MATERIAL_FRACTION) is a calibration matter; 8 % off (a user's rig at
+    0.23 MPa) and every other effect are claimed, against the plant file's own pressure."""
     from fmu_plant import PlantParams
     from tapmuscle.diagnosis.candidates import material_value
 
@@ -1820,8 +1820,8 @@ def test_a_supply_within_a_few_per_cent_of_the_plant_files_is_not_claimed():
 
 
 def test_an_input_maps_words_give_the_fitted_map_at_its_ends():
-    """A gain-and-offset map was said as the line through its knots alone ("0.98 x the command +0.09 V")
-    while the fitted map passed 0.0003 V at 0 V and 9.83 V at 10 V (its outer gains within the
+    """A gain-and-offset map must not be said as the line through its knots alone ("0.98 x the command +0.09 V")
+    while the fitted map passes 0.0003 V at 0 V and 9.83 V at 10 V (its outer gains within the
     tolerance of the middle one): the words give the map's own values at 0, 5 and 10 V."""
     from tapmuscle.diagnosis.input_map_fit import explain_input_map
 
@@ -1879,7 +1879,7 @@ def test_a_sensor_much_noisier_than_the_models_is_noted_and_still_no_mismatch():
 def test_a_noise_that_the_models_own_mismatch_makes_is_not_put_on_the_sensor_alone():
     """A plant file with a 30-kPa sag at 20-50 s that the rig (a 0.15-s delay) did not have, diagnosed
     among a delay and a drift: the residual after is structured and its white part 0.34 mm, 33 times
-    the encoder's. The note, which named a noisier sensor only, names the model's own mismatch too."""
+    the encoder's. The note names the model's own mismatch too, not a noisier sensor only."""
     from fmu_plant import PlantParams
 
     import tapmuscle as tm
@@ -1898,8 +1898,8 @@ def test_a_noise_that_the_models_own_mismatch_makes_is_not_put_on_the_sensor_alo
 @pytest.mark.slow
 def test_a_mismatch_that_jumps_between_samples_is_not_taken_for_a_noisy_sensor():
     """A 2-mm backlash and a 0.12-s delay under the 0.2-Hz sine: the nominal model's residual changes
-    from sample to sample by tenths of a mm (its white part, from first differences, 0.35 mm), and the
-    report called the rig's encoder a potentiometer; the final model leaves the encoder's 0.0105 mm."""
+    from sample to sample by tenths of a mm (its white part, from first differences, 0.35 mm), which
+    would make the report call the rig's encoder a potentiometer; the final model leaves the encoder's 0.0105 mm."""
     from fmu_plant import PlantParams
     from tapmuscle.api import simulate
 
@@ -1912,7 +1912,7 @@ def test_a_mismatch_that_jumps_between_samples_is_not_taken_for_a_noisy_sensor()
 
 
 def test_the_diagnosis_keeps_a_copy_of_the_recording():
-    """A notebook's later ``l -= 10`` on its own array changed the diagnosis's recording with it."""
+    """A notebook's later ``l -= 10`` on its own array must not change the diagnosis's recording with it."""
     cols = record(DEMO_MODEL, "sine", 3, duration_s=60.0)
     t, u, l = (np.array(cols[k]) for k in ("t_s", "u_v", "l_mm"))
     d = diagnose(t, u, l, DEMO_MODEL, calibration=None)
@@ -1927,7 +1927,7 @@ def test_the_diagnosis_keeps_a_copy_of_the_recording():
 def test_a_sag_of_the_recording_is_left_out_of_the_discriminating_experiments_plants():
     """A supply sag found beside an ambiguous group happened at the recording's times; the experiment,
     recorded later, has its own clock, so the plant to re-diagnose it with and the alternatives the
-    input is designed on leave it out (carried over, a 0.15-s delay against a drift was re-diagnosed
+    input is designed on leave it out (carried over, a 0.15-s delay against a drift would be re-diagnosed
     as a 0.212-s delay, a spurious drift and an unexplained window, 83.7 %; docs/diagnosis.md). An
     effect that lasts the whole run (a delay) stays, and a sag that is itself an alternative stays."""
     from fmu_plant import PlantParams
@@ -1945,8 +1945,8 @@ def test_a_sag_of_the_recording_is_left_out_of_the_discriminating_experiments_pl
 
 
 def test_a_named_transport_delay_says_what_the_controller_needs():
-    """A diagnosis that names a 0.15-s delay said nothing of control, and a user who set what it found
-    through the plant file alone ran the loop uncompensated: the summary and report.md say the
+    """A diagnosis that names a 0.15-s delay must say something of control, or a user who sets what it finds
+    through the plant file alone runs the loop uncompensated: the summary and report.md say the
     controller's input_delay_samples (the longer of two samples for a delay between them, as the
     controller's own decision), and where to set it."""
     from fmu_plant import PlantParams

@@ -406,7 +406,7 @@ def test_the_discriminating_experiment_picks_the_rate_dependence_over_a_map(tmp_
     """Seed 1 case 089 as the demo runs it: a backlash is named and a rate dependence is ambiguous with
     an input map. The experiment stays within the recording's commands, and its recording,
     re-diagnosed from the plant the diagnosis wrote (calibrated, the group off), names the rate
-    dependence alone and fits it (the same re-diagnosed from the nominal plant fitted 65.7 %)."""
+    dependence alone and fits it (the same re-diagnosed from the nominal plant would fit 65.7 %)."""
     case = field_cases(100, 1)[89]
     assert sorted(case.effects) == ["backlash", "rate_dependent_hysteresis"]
     r = run_field_case(case, tmp_path, keep=True)
@@ -552,7 +552,7 @@ def test_a_tidied_case_says_which_of_its_files_are_gone(tmp_path):
 @pytest.mark.slow
 def test_a_load_and_a_supply_offset_are_never_both_in_the_model(tmp_path):
     """Seed 2 case 069 (a load and an amplifier map under one sine): a load mismatch and a supply offset
-    were both accepted, trading along the constants' valley; the model now holds one of them at most,
+    must not both be accepted, trading along the constants' valley; the model holds one of them at most,
     the other staying its alternative where the data cannot tell them apart."""
     case = field_cases(100, seed=2)[69]
     assert case.name.startswith("069_pair_load_mismatch")

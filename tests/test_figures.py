@@ -83,7 +83,7 @@ def test_figures_drawn_in_threads_at_once_are_those_drawn_one_by_one(tmp_path):
 
 
 def test_characters_no_font_draws_are_said_once(tmp_path):
-    """A scenario named in Chinese with no CJK font installed: matplotlib warned per character and per
+    """A scenario named in Chinese with no CJK font installed: matplotlib warns per character and per
     drawing pass (four "Glyph ... missing from font(s) DejaVu Sans." for two characters, printed even
     under --quiet); save_figure says once which characters show as boxes. Other warnings pass through."""
     import warnings
@@ -104,7 +104,7 @@ def test_characters_no_font_draws_are_said_once(tmp_path):
         (MissingGlyphWarning, "a.png: no installed font draws '模型', shown as boxes (install a font that has them, "
                               "e.g. Debian's fonts-noto-cjk)")]
     assert (tmp_path / "a.png").stat().st_size > 1000
-    # also for a figure laid out tightly (which drew it, and warned, before save_figure)
+    # also for a figure laid out tightly (which draws it, and warns, before save_figure)
     from tapmuscle.plots.figures import plot_parameter_convergence
 
     with warnings.catch_warnings(record=True) as caught:
@@ -182,7 +182,7 @@ def test_a_method_has_one_colour_and_the_legend_covers_no_data(monkeypatch, tmp_
 
 @pytest.mark.parametrize("signal", ["sine", "steps"])
 def test_a_loop_is_a_line_under_a_sine_and_points_under_jumping_levels(monkeypatch, tmp_path, signal):
-    """(u, l) of steps or random levels joined by lines drew rectangles titled a hysteresis loop; a
+    """(u, l) of steps or random levels joined by lines would draw rectangles titled a hysteresis loop; a
     jumping input's samples are points, and the title says so."""
     from tapmuscle.plots.figures import input_jumps, plot_loop_comparison
 
@@ -243,7 +243,7 @@ def test_runs_of_other_lengths_and_periods_plot_beside_each_other(monkeypatch, t
 
 
 def test_a_run_of_lists_is_drawn_and_a_run_it_cannot_draw_is_named(monkeypatch, tmp_path):
-    """A notebook's run as lists met 'list - list' (TypeError), a column vector an IndexError of a
+    """A notebook's run as lists must not meet 'list - list' (TypeError), a column vector an IndexError of a
     mask, a missing column a KeyError; lists draw as arrays, the others are named by run and column,
     before a figure is made."""
     import matplotlib.pyplot as plt
@@ -264,7 +264,7 @@ def test_a_run_of_lists_is_drawn_and_a_run_it_cannot_draw_is_named(monkeypatch, 
 
 
 def test_the_model_error_panel_is_scaled_to_the_errors(monkeypatch, tmp_path):
-    """identify's free-run figure drew a 2-mm residual on a +-22-mm axis (flat); the error panel is now
+    """identify's free-run figure must not draw a 2-mm residual on a +-22-mm axis (flat); the error panel is
     scaled to the largest error, and never beyond the data's scale."""
     from tapmuscle.plots.figures import plot_model_vs_measured
 
@@ -322,8 +322,8 @@ def test_a_figure_is_written_in_the_format_its_suffix_names(tmp_path):
 
 
 def test_a_scenarios_load_and_supply_steps_are_marked_where_they_explain_the_error(monkeypatch, tmp_path):
-    """``tapmuscle run``'s figures of scenarios/examples/load_step.toml showed error spikes at 20 and
-    30 s with nothing saying why; the steps are lines in every panel, named at the top."""
+    """``tapmuscle run``'s figures of scenarios/examples/load_step.toml show error spikes at 20 and
+    30 s, which must not go without saying why: the steps are lines in every panel, named at the top."""
     from pathlib import Path
 
     from tapmuscle.cosim import load_scenario
@@ -348,7 +348,7 @@ def test_a_scenarios_load_and_supply_steps_are_marked_where_they_explain_the_err
 
 
 def test_the_box_bounds_an_estimate_sits_on_are_dotted_in_its_panel(monkeypatch, tmp_path):
-    """b1 pinned on Table 2's lower bound looked like a converged value; the bounds in view are dotted
+    """b1 pinned on Table 2's lower bound would look like a converged value; the bounds in view are dotted
     (one far from the estimate is left out: it would squash the panel's scale)."""
     from tapmuscle.plots.figures import plot_parameter_convergence
 

@@ -277,7 +277,7 @@ f.freeInstance()
     ("file:///nonexistent/resources", "no readable slavemodule.txt in it"),
 ])
 def test_a_resource_location_pythonfmu_cannot_use_fails_cleanly(built_fmus, tmp_path, location, reason):
-    """pythonfmu only strips "file://" and decodes %20; a location it cannot use made its failure path call
+    """pythonfmu only strips "file://" and decodes %20; a location it cannot use makes its failure path call
     a NULL class (a segfault in fmi2Instantiate). The shim refuses such a location with the reason, and
     the instance refuses to step."""
     with zipfile.ZipFile(built_fmus["MusclePlant"]) as z:
@@ -368,7 +368,7 @@ print(sum("the FMU state is NULL" in m for m in log), sum("not one this instance
 @pytest.mark.parametrize("name", ["MusclePlant", "AMPCController"])
 def test_a_null_freed_or_other_instances_state_is_refused_and_the_host_lives_on(built_fmus, tmp_path, name):
     """pythonfmu builds a Python object from whatever state pointer it gets: a NULL, freed or other
-    instance's state crashed the host a few calls later (segfault in the garbage collector). The shim
+    instance's state would crash the host a few calls later (segfault in the garbage collector). The shim
     refuses each with fmi2Error and a message; the states the instance holds keep working."""
     script = tmp_path / "states.py"
     script.write_text(STATES)
@@ -396,8 +396,8 @@ print(log[0]); print(log[-2])
 
 
 def test_an_instance_without_a_name_or_for_model_exchange_is_refused(built_fmus, tmp_path):
-    """A NULL instanceName aborted the host (C++ std::string from NULL); a model-exchange request got a
-    working co-simulation instance. Both now get the shim's refusing instance, with the reason."""
+    """A NULL instanceName must not abort the host (C++ std::string from NULL), nor a model-exchange request get a
+    working co-simulation instance. Both get the shim's refusing instance, with the reason."""
     script = tmp_path / "nameless.py"
     script.write_text(NAMELESS)
     run = subprocess.run([sys.executable, str(script), str(built_fmus["MusclePlant"])], capture_output=True,

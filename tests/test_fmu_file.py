@@ -87,7 +87,7 @@ def test_a_broken_fmu_is_named_without_loading_it(built_fmus, tmp_path, make, pa
 
 @pytest.mark.parametrize("version", ["3.0", "1.0"])
 def test_an_fmu_of_another_fmi_version_is_named_so(built_fmus, tmp_path, version):
-    """An FMI 3.0 (or 1.0) FMU was "not a loadable FMU: it has no binaries/linux64/... for this platform"
+    """An FMI 3.0 (or 1.0) FMU must not be "not a loadable FMU: it has no binaries/linux64/... for this platform"
     (3.0 keeps its binaries under another folder name), or fmpy's schema errors."""
     def edit(name: str, data: bytes) -> bytes:
         return data.replace(b'fmiVersion="2.0"', f'fmiVersion="{version}"'.encode(), 1) \
@@ -102,7 +102,7 @@ def test_an_fmu_of_another_fmi_version_is_named_so(built_fmus, tmp_path, version
 
 def test_a_path_the_file_system_encoding_cannot_carry_is_not_called_a_broken_fmu(built_fmus, tmp_path, monkeypatch):
     """lxml names the model description by the working folder's path: under an ASCII locale with
-    PYTHONUTF8=0 a folder "rig ü" failed as "is not a loadable FMU: 'utf-8' codec can't encode ..."."""
+    PYTHONUTF8=0 a folder "rig ü" must not fail as "is not a loadable FMU: 'utf-8' codec can't encode ..."."""
     import fmpy
 
     def unreadable(*args, **kwargs):
@@ -127,7 +127,7 @@ def test_the_good_fmus_pass(built_fmus):
 def test_the_loader_asks_for_no_glibc_newer_than_2_34(built_fmus):
     """The FMUs built here load on any Linux with glibc 2.34 or newer (Debian 12, Ubuntu 22.04): the
     project's loader library asks for no newer symbol version, whatever C library built it (a
-    strtol there became __isoc23_strtol@GLIBC_2.38 on Debian 13)."""
+    strtol there would become __isoc23_strtol@GLIBC_2.38 on Debian 13)."""
     import re
     import shutil
 
@@ -147,8 +147,8 @@ def test_the_loader_asks_for_no_glibc_newer_than_2_34(built_fmus):
 @pytest.mark.slow
 @pytest.mark.parametrize("command", ["run", "diagnose", "sweep"])
 def test_commands_survive_a_truncated_binary_and_leave_nothing(built_fmus, tmp_path, command):
-    """The truncated binary used to kill `run`, `diagnose --plant` and `sweep` with SIGBUS and leave tapmuscle_*
-    folders in the temporary directory. Now: exit 2, one line, nothing left."""
+    """The truncated binary must not kill `run`, `diagnose --plant` and `sweep` with SIGBUS and leave tapmuscle_*
+    folders in the temporary directory: exit 2, one line, nothing left."""
     fmu_dir = tmp_path / "fmus"
     fmu_dir.mkdir()
     _truncated(built_fmus["MusclePlant"], fmu_dir / "MusclePlant.fmu")
@@ -202,7 +202,7 @@ print("ended")
 def test_a_host_that_loads_an_fmu_with_a_truncated_inner_library_is_told_and_survives(built_fmus, tmp_path):
     """A third-party host checks nothing before it loads the FMU's binary: the loader finds its
     pythonfmu library shorter than its ELF header says and fails the instantiation with that reason
-    (the dynamic loader mapping it killed the host with SIGBUS)."""
+    (the dynamic loader mapping it would kill the host with SIGBUS)."""
     folder = Path(extract(str(built_fmus["MusclePlant"]), unzipdir=str(tmp_path / "x")))
     inner = folder / "binaries" / "linux64" / "MusclePlant_pythonfmu.so"
     inner.write_bytes(inner.read_bytes()[:20000])
@@ -218,7 +218,7 @@ def test_a_host_that_loads_an_fmu_with_a_truncated_inner_library_is_told_and_sur
 
 def test_an_fmu_that_would_unpack_outside_its_folder_or_beyond_any_fmus_size_is_named(built_fmus, tmp_path,
                                                                                     monkeypatch):
-    """An entry with an absolute path (fmpy refuses it with a bare Exception, which went out as a
+    """An entry with an absolute path (fmpy refuses it with a bare Exception, which would go out as a
     traceback), and a zip that would unpack to more than any FMU needs (a small "zip bomb"): named,
     and nothing unpacked."""
     import tapmuscle.cosim.master as master

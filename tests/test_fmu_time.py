@@ -92,8 +92,8 @@ def test_without_a_time_based_effect_a_later_start_is_the_same_run_bit_for_bit(f
 
 
 def test_a_supply_sag_happens_at_its_host_time_whatever_the_start_time(fmus):
-    """start_s = 6, end_s = 8: with start time 5 the supply sags at host times 6..8 s (it used to sag at
-    11..13 s, on a plant clock that started at 0), and the run is the start-time-0 run with the sag at
+    """start_s = 6, end_s = 8: with start time 5 the supply sags at host times 6..8 s (not at
+    11..13 s, as it would on a plant clock that started at 0), and the run is the start-time-0 run with the sag at
     1..3 s, 5 s later, to one sensor quantum (module docstring)."""
     plant = fmus["MusclePlant"]
     quiet = {"sensor.pressure_noise_std_mpa": 0.0}
@@ -113,7 +113,7 @@ def test_a_supply_sag_happens_at_its_host_time_whatever_the_start_time(fmus):
 @pytest.mark.parametrize("t0", [5.0, -3.0])
 def test_a_transport_delay_starts_its_memory_at_the_start_time(fmus, t0):
     """The delay line starts at the start time with the initial command: a plant started at a negative
-    time used to ignore every command change (the line thought they were older than its start)."""
+    time must not ignore every command change (as a line that takes them for older than its start would)."""
     plant = fmus["MusclePlant"]
     delayed = {"delay.delay_s": 0.25, "sensor.pressure_noise_std_mpa": 0.0}
     late, early = _plant_run(plant, t0, delayed), _plant_run(plant, 0.0, delayed)
@@ -143,8 +143,8 @@ def _closed_loop(fmus, t0, n=300):
 
 
 def test_the_closed_loop_started_at_5_s_tracks_as_started_at_0(fmus):
-    """AMPC-servo with its start-up mode, 30 s: the controller used to refuse its first step at 5 s
-    ("skips the sample time 0 s"); now the loop is the start-time-0 loop, bit for bit."""
+    """AMPC-servo with its start-up mode, 30 s: the controller must not refuse its first step at 5 s
+    ("skips the sample time 0 s"); the loop is the start-time-0 loop, bit for bit."""
     late, early = _closed_loop(fmus, 5.0), _closed_loop(fmus, 0.0)
     assert np.array_equal(late, early)
     tail = late[200:]  # 20..30 s after the start

@@ -15,10 +15,10 @@ from tapmuscle.diagnosis import diagnose
 
 
 def test_a_candidate_of_ones_own_is_refused_where_the_search_could_not_carry_it():
-    """A researcher's candidate that simulated its own physics (no plant parameter) was fitted, scored
-    +54 points, then silently dropped from every joint model (named nothing, or a wrong effect); one
-    with a key of its own failed late with 'unknown plant parameter'; one named 'transport_delay' took
-    the built-in's joint re-fit; a fitted value outside its own bounds was used. Each is refused,
+    """A researcher's candidate that simulates its own physics (no plant parameter) would be fitted, score
+    +54 points, then be silently dropped from every joint model (named nothing, or a wrong effect); one
+    with a key of its own would fail late with 'unknown plant parameter'; one named 'transport_delay' would take
+    the built-in's joint re-fit; a fitted value outside its own bounds would be used. Each is refused,
     naming the candidate (the first three before any simulation)."""
     from fmu_plant import PlantParams
     from tapmuscle.diagnosis.candidates import Candidate, CandidateError, FitResult, ParameterSpec, full_prediction
@@ -85,13 +85,13 @@ def _own_candidate(name, key, lo, hi, fit_value=None, *, joint=(), y_hat=None, r
 
 
 def test_a_candidate_of_ones_own_is_checked_before_the_search_and_its_fits_contract_after():
-    """Mistakes a researcher made with a candidate of her own, each refused naming the candidate (a
+    """Mistakes a researcher may make with a candidate of her own, each refused naming the candidate (a
     CandidateError, which diagnose_files does not blame on the recording): a built-in's name beside
-    the built-ins (was "given twice"), the report's 'unexplained' (was accepted and reported as an
-    unexplained finding), bounds reversed or beyond the plant's (were scipy's or the plant's words
+    the built-ins (else "given twice"), the report's 'unexplained' (else accepted and reported as an
+    unexplained finding), bounds reversed or beyond the plant's (else scipy's or the plant's words
     after the search), a plant parameter another candidate sets, a joint entry that is not one of
-    its parameters; a fit whose prediction is NaN (was a silent loss and 'nan %' in the report) or
-    of another length (numpy's broadcast error), and a fit that raises (was raw, nameless)."""
+    its parameters; a fit whose prediction is NaN (else a silent loss and 'nan %' in the report) or
+    of another length (numpy's broadcast error), and a fit that raises (else raw, nameless)."""
     from fmu_plant import PlantParams
     from tapmuscle.diagnosis.candidates import CANDIDATES, CandidateError, ParameterSpec
 
@@ -139,8 +139,8 @@ def test_a_candidate_of_ones_own_is_checked_before_the_search_and_its_fits_contr
 
 
 def test_diagnose_files_takes_candidates_of_ones_own_beside_named_effects(tmp_path):
-    """``tm.diagnose_files(..., effects=[...], candidates=[mine])`` dropped the candidate silently (the
-    effects replaced it); the two are one list now, and a candidate's error is the candidate's, not
+    """``tm.diagnose_files(..., effects=[...], candidates=[mine])`` must not drop the candidate silently (the
+    effects replacing it); the two are one list, and a candidate's error is the candidate's, not
     put on the recording's name."""
     from fmu_plant import PlantParams
 
@@ -203,7 +203,7 @@ def test_a_candidate_of_ones_own_named_joint_is_refitted_with_the_constants():
 
 def test_a_refine_of_ones_own_is_held_to_its_contract_and_a_failed_simulation_in_it_keeps_the_values():
     """An own ``refine`` whose simulation fails leaves the values where they are (the diagnosis goes
-    on, as for a fit whose simulation fails), where it stopped the diagnosis with a RuntimeError; one
+    on, as for a fit whose simulation fails), not stopping the diagnosis with a RuntimeError; one
     that returns no dict, and a fit that returns no FitResult, are refused naming the candidate."""
     from fmu_plant import PlantParams
     from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS
@@ -236,7 +236,7 @@ def test_a_refine_of_ones_own_is_held_to_its_contract_and_a_failed_simulation_in
 
 def test_numpy_numbers_are_bounds_and_scales_and_one_name_or_candidate_goes_to_diagnose_files(tmp_path):
     """Bounds and a joint scale given as numpy numbers (np.int64, np.float32) are numbers; a single
-    name or a single candidate in diagnose_files' candidates is one candidate (a name was split
+    name or a single candidate in diagnose_files' candidates is one candidate (a name must not be split
     into letters: "unknown effect 'b'", blamed on the recording)."""
     from fmu_plant import PlantParams
     from tapmuscle.diagnosis.candidates import ParameterSpec
@@ -283,7 +283,7 @@ candidates = [Candidate("speed_friction", "friction growing with speed", (Parame
 
 
 def test_the_command_line_takes_candidates_of_ones_own_from_a_file(tmp_path, capsys):
-    """``tapmuscle diagnose --candidates FILE.py`` (the command line took built-in names only): the
+    """``tapmuscle diagnose --candidates FILE.py`` (not built-in names only): the
     file's ``candidates`` tried beside the built-ins or those ``--effects`` names, its own included; a
     file that is missing, fails at a line, or defines no list is refused naming it, nothing written."""
     from fmu_plant import PlantParams
@@ -316,7 +316,7 @@ def test_the_command_line_takes_candidates_of_ones_own_from_a_file(tmp_path, cap
 
 
 def test_the_rediagnosis_command_of_an_experiment_asks_for_the_candidates_file_where_one_is_yours():
-    """The printed re-diagnosis of a discriminating experiment named the effects only, which the
+    """The printed re-diagnosis of a discriminating experiment must not name the effects only, which the
     command line refuses for a candidate of one's own without its file."""
     from pathlib import Path
 

@@ -172,7 +172,7 @@ def test_the_period_comes_from_the_law_or_the_call_and_must_agree():
         tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, ts_s=0.05)
     with pytest.raises(ValueError, match=r"ts_s = 0.05 s disagrees"):
         tm.simulate_closed_loop(PI(), None, duration_s=1.0, ts_s=0.05)
-    for bad in (-0.1, 100.0, math.nan):  # 100 s gave a run of one sample without a word
+    for bad in (-0.1, 100.0, math.nan):  # 100 s would give a run of one sample without a word
         with pytest.raises(ValueError, match=r"must be a finite number within 0.001 .. 10 s"):
             tm.run_closed_loop(tm.Plant(), NoPeriod(), None, duration_s=1.0, ts_s=bad)
 
@@ -187,7 +187,7 @@ def test_the_preview_length_is_the_laws_or_the_calls():
     assert {len(p) for p in law.previews} == {13}
     with pytest.raises(ValueError, match=r"preview_samples must be an integer in 0\.\.10000 .*got 1\.5"):
         tm.run_closed_loop(tm.Plant(), PI(), None, duration_s=1.0, preview_samples=1.5)
-    # a typo's billion samples, built anew every sample, filled the memory instead
+    # a typo's billion samples, built anew every sample, would fill the memory instead
     law = PI()
     law.preview_samples = 10**9
     with pytest.raises(ValueError, match=r"must be an integer in 0\.\.10000 .*got 1000000000"):
@@ -331,8 +331,8 @@ def test_a_reset_with_keyword_options_only_is_called_without_the_reading():
 
 
 def test_a_reset_that_fails_or_is_no_method_and_a_preview_too_short_are_named():
-    """A reset raising a TypeError (two arguments) said nothing of reset; a reset that is no method was
-    skipped without a word; an IndexError into the preview did not say how long the preview was."""
+    """A reset raising a TypeError (two arguments) must name reset; a reset that is no method must not be
+    skipped without a word; an IndexError into the preview must say how long the preview is."""
     class TwoArgs(PI):
         def reset(self, a, b) -> None:  # type: ignore[override]
             pass

@@ -103,7 +103,7 @@ def test_get_set_state_replays_bit_identically():
 def test_a_copied_or_unpickled_plant_steps_on_alone_bit_for_bit(how):
     """A notebook branching an experiment: the copy and the original, stepped with different commands,
     each go on as it would alone (a dead band acts through the valve gate, which the sub-step's closure
-    holds: a shared closure moved both by millimetres), and an own effect is copied with its state."""
+    holds: a shared closure would move both by millimetres), and an own effect is copied with its state."""
     params = PlantParams().with_values(**{"dead_zone.width_v": 2.0})
     rng = np.random.default_rng(3)
     before, a, b = (rng.uniform(0.0, 10.0, 60) for _ in range(3))
@@ -360,7 +360,7 @@ def test_step_many_of_no_commands_changes_nothing():
 
 
 def test_with_values_takes_numpy_scalars_as_the_numbers_they_hold():
-    """``for load in np.arange(40, 70, 4): params.with_values(**{"load.load_n": load})`` was refused."""
+    """``for load in np.arange(40, 70, 4): params.with_values(**{"load.load_n": load})`` must not be refused."""
     import numpy as np
 
     from fmu_plant import PlantParams
@@ -373,8 +373,8 @@ def test_with_values_takes_numpy_scalars_as_the_numbers_they_hold():
 
 
 def test_a_load_below_the_braid_lock_is_warned_by_the_direct_runs_as_by_the_plant_fmu():
-    """The plant FMU said that a load under muscle.braid_lock_force_n makes the model's muscle contract
-    by itself; `tapmuscle record --load 25` and tm.simulate said nothing. Every direct run now warns once
+    """The plant FMU says that a load under muscle.braid_lock_force_n makes the model's muscle contract
+    by itself; `tapmuscle record --load 25` and tm.simulate must say so too. Every direct run warns once
     at its end, naming the lightest load, and not at the paper's loads or with a lock set below the load."""
     import warnings
 
@@ -408,9 +408,9 @@ def test_the_valve_flows_balance_the_pressure_at_rest(u_v):
 
 
 def test_a_breakdown_names_the_parameters_off_their_defaults_and_a_drain_above_the_supply_is_refused():
-    """A plant whose numbers break down said 'extreme parameters?' and left the user to guess which:
+    """A plant whose numbers break down must not say 'extreme parameters?' and leave the user to guess which:
     the message names those off their defaults. A drain above the supply (the drain is the
-    atmosphere) was accepted and ran (1 MPa drain: 132 mm, 0.99 MPa at 0 V)."""
+    atmosphere) must not be accepted and run (1 MPa drain: 132 mm, 0.99 MPa at 0 V)."""
     from fmu_plant import Plant, PlantParams
 
     plant = Plant(PlantParams().with_values(**{"friction.rate_ref_mm_s": 1e-300, "friction.rate_exponent": 2.0}))

@@ -81,7 +81,7 @@ def test_fmpy_simulate_fmu_gives_the_direct_plant_bits_with_noise_free_sensors(f
 def test_a_seed_is_unsigned_64_bit_in_the_fmu_as_directly(fmu):
     """Seeds ride as two FMI Integers (low and high 32 bits, bit patterns): the FMU's noise equals the
     direct plant's for seeds across the whole range, and different seeds give different noise (a
-    seed of 2**32 used to be cut to 0 and 2**31 refused)."""
+    seed of 2**32 must not be cut to 0, nor 2**31 refused)."""
     from fmu_plant.seed import SEED_MAX, split_seed
 
     vr = fmu[3]
@@ -134,7 +134,7 @@ def test_state_rewind_and_serialisation_are_bit_identical(fmu):
 
 def test_a_state_of_an_instance_with_other_parameters_steps_with_them(fmu):
     """Restored into an instance with the default rig, a state of a 300-mm muscle with more friction
-    reported the state's parameters but stepped the default rig (74.58 mm at 6 s against 57.29): the
+    must not report the state's parameters but step the default rig (74.58 mm at 6 s against 57.29): the
     plant is built again from the state's parameters, so both instances run alike, bit for bit."""
     vr = fmu[3]
     a = _instance(fmu, "a", reals={"muscle.rest_length_mm": 300.0, "friction.base_n": 20.0})
@@ -225,7 +225,7 @@ def test_real_access_to_a_non_real_variable_is_an_fmi_error(fmu):
     f.terminate()
     f.freeInstance()
     # a wrong reference is fmi2Error (the instance is fine), not pythonfmu's fmi2Fatal for an exception,
-    # which unguarded also freed the slave twice at fmi2FreeInstance (fmi_slave.base docstring)
+    # which unguarded would also free the slave twice at fmi2FreeInstance (fmi_slave.base docstring)
     before = _live_slaves()
     for i in range(12):
         f = _instance(fmu, f"bad{i}")
@@ -255,7 +255,7 @@ def _edited_state(field, value):
     (lambda f: b'{"variables": {}}', "not an FMU state of this FMU (unexpected content: another FMU, or another build of "
                                       "this one); nothing was changed"),
     (lambda f: b'{"variables": {}, "numerics": [1], "failed": false}', "not an FMU state of this FMU"),
-    # a zero step scale once hung the next fmi2DoStep
+    # a zero step scale would hang the next fmi2DoStep
     *[(_edited_state(k, v), f"state field {k}") for k, v in [
         ("kink_scale_s", float("nan")), ("kink_scale_s", 0.0), ("kink_scale_s", -1.0), ("t_s", float("inf")),
         ("state", [1.0]), ("gate", 2.0)]],
@@ -392,7 +392,7 @@ def test_initialisation_and_termination_out_of_fmi_order_are_refused(fmu, capfd)
 
 
 def test_a_message_with_a_percent_sign_reaches_the_host_intact(fmu, capfd):
-    """The loader passes pythonfmu's text on literally (formatting a '%' in it once crashed the host)."""
+    """The loader passes pythonfmu's text on literally (formatting a '%' in it would crash the host)."""
     g = _instance(fmu, reals={"valve.cv_max": -1.0}, rejected=True)
     out = capfd.readouterr().out
     assert "valve.cv_max = -1.0 is outside" in out and "%" in out, out
@@ -466,7 +466,7 @@ def test_a_load_or_supply_parameter_sets_its_input_left_at_its_start(fmu, capfd,
     """The inputs ``load_force`` and ``supply_pressure`` set these in the FMU (they change during a run).
     A plant file's value copied into a host's parameter dialog, with the input left at its start value
     (unconnected): the parameter takes the input's place, as the rig the file describes (an FMU
-    container made that a failure, Ecos ran at the start value without a word). Against an input set
+    container must not make that a failure, nor Ecos run at the start value without a word). Against an input set
     to another value, the input wins and a warning names it."""
     vr = fmu[3]
 
@@ -642,8 +642,8 @@ def test_an_open_lower_bound_is_said_in_the_description(fmu):
 @pytest.mark.parametrize("name, bound, outward", [("load_force", 500.0, 1.0), ("u", 11.0, 1.0), ("u", -1.0, -1.0),
                                                    ("supply_pressure", 0.0, -1.0)])
 def test_an_input_a_rounding_beyond_its_bound_is_the_bound(fmu, capfd, name, bound, outward):
-    """A host interpolating a signal held at a bound computes it an ulp or so beyond (fmpy gave
-    500.00000000000006 for 500 N and ended the run at the fmi2Discard): the step is taken at the bound,
+    """A host interpolating a signal held at a bound computes it an ulp or so beyond (fmpy gives
+    500.00000000000006 for 500 N, which must not end the run at an fmi2Discard): the step is taken at the bound,
     the same to the bit; a value a millionth beyond is still refused."""
     vr = fmu[3]
     runs = {}

@@ -55,8 +55,8 @@ def test_ros34pw2_is_third_order_l_stable_and_stiffly_accurate():
 
 def test_the_coefficients_sum_left_to_right_as_on_every_python_version():
     """The transformed coefficients come from plain left-to-right float sums: Python 3.12's built-in
-    ``sum`` compensates rounding (1e16 + 1 - 1e16 = 1), which moved every plant output by a last bit
-    against Python 3.11 and turned an extreme-parameter run that fails on one into one that ends."""
+    ``sum`` compensates rounding (1e16 + 1 - 1e16 = 1), which would move every plant output by a last bit
+    against Python 3.11 and turn an extreme-parameter run that fails on one into one that ends."""
     assert _sum([1e16, 1.0, -1e16]) == 0.0 and _sum([]) == 0.0 and math.copysign(1.0, _sum([-0.0])) == 1.0
     rng = np.random.default_rng(7)
     for _ in range(200):
@@ -132,7 +132,7 @@ def test_trajectory_matches_a_fine_rk4_reference_on_the_identification_sine(load
 
 def test_saturated_commands_stay_accurate():
     """At 10 V the pressure sits within the valve's laminar band below the supply pressure, where the
-    pressure relaxes at ~2500 1/s: the old explicit RK4 at 2 ms was unstable there (l 2-4 mm too high)."""
+    pressure relaxes at ~2500 1/s: an explicit RK4 at 2 ms is unstable there (l 2-4 mm too high)."""
     def command(t):
         return 10.0 if t < 4.0 else 0.0 if t < 8.0 else 6.0
     ref = _rk4_reference(QUIET, command, 44.0, 10.0)
@@ -200,9 +200,9 @@ def test_a_broken_down_integration_raises_instead_of_looping():
 
 
 # ------------------------------------------------------------------------- extreme parameters
-# In-range parameters the tolerances cannot be met with at min_substep_s. The step size used to settle
-# far below min_substep_s (1.3e-10 s with a presliding of 1e-9 mm) and a communication step never
-# ended, in the API, the CLI and an FMU host alike. Such runs are checked in a subprocess with a
+# In-range parameters the tolerances cannot be met with at min_substep_s. Unbounded, the step size would settle
+# far below min_substep_s (1.3e-10 s with a presliding of 1e-9 mm) and a communication step would never
+# end, in the API, the CLI and an FMU host alike. Such runs are checked in a subprocess with a
 # timeout, so that a regression fails the test instead of hanging the suite.
 EXTREME = {"presliding": {"friction.presliding_mm": 1e-9},
            "rest length": {"muscle.rest_length_mm": 1e-12},
@@ -287,7 +287,7 @@ def test_no_sub_step_is_shorter_than_min_substep_but_those_ending_a_communicatio
 
     plant._advance_substeps = adaptive_steps(counting, prm)
     short = []
-    for k in range(30):  # 3 s: before the fix the step size had long left min_substep_s by then
+    for k in range(30):  # 3 s: unbounded, the step size would long have left min_substep_s by then
         del attempts[:]
         plant.step(5.0 + 3.0 * math.sin(2 * math.pi * 0.2 * 0.1 * k), 0.1)
         short.append(sum(h < h_min for h in attempts))

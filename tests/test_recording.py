@@ -80,7 +80,7 @@ def test_non_finite_data_is_refused_and_the_old_file_survives(tmp_path):
 
 
 def test_a_byte_order_mark_is_not_part_of_the_first_column(tmp_path):
-    """Spreadsheet exports start with a UTF-8 BOM; it used to make the header's first name '\\ufefft_s'."""
+    """Spreadsheet exports start with a UTF-8 BOM; it must not make the header's first name '\\ufefft_s'."""
     path = tmp_path / "bom.csv"
     path.write_bytes("\ufefft_s,u_v,l_mm\n0,1,2\n0.1,1,2.5\n".encode("utf-8"))
     rec = read_recording(path)
@@ -156,7 +156,7 @@ def test_a_bad_load_header_is_named(text):
 
 
 def test_write_recording_takes_simulate_columns_and_refuses_what_readers_would(tmp_path):
-    """``write_recording(path, tm.simulate(...))`` is the obvious first try (it raised AttributeError);
+    """``write_recording(path, tm.simulate(...))`` is the obvious first try (it must not raise AttributeError);
     a file the tools would refuse later (one row, a column vector, a missing column) is refused
     before anything is written."""
     import tapmuscle as tm
@@ -189,7 +189,7 @@ def test_a_clock_that_changes_its_period_is_refused_on_reading_with_file_and_lin
 
 
 def test_a_header_value_from_elsewhere_makes_no_formula_in_a_spreadsheet(tmp_path):
-    """A scenario named 'Rig A,=HYPERLINK(...)' went into result.csv's header line, which a spreadsheet
+    """A scenario named 'Rig A,=HYPERLINK(...)' goes into result.csv's header line, which a spreadsheet
     splits at the comma into a formula cell: that cell is text, and the value reads back as written."""
     import numpy as np
 

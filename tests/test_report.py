@@ -115,7 +115,7 @@ def test_asking_for_the_pressure_without_a_pressure_column_is_said(tmp_path, cap
 
 
 def test_a_value_that_is_not_finite_goes_to_the_json_as_null_by_its_path():
-    """Strict JSON has no NaN: one left in a diagnosis used to end the run in a crash after the
+    """Strict JSON has no NaN: one left in a diagnosis must not end the run in a crash after the
     search (the files lost); it is written as null, and write_outputs names its path in the notes."""
     import json
     import math
@@ -253,7 +253,7 @@ def test_the_calibrated_plant_files_note_says_what_was_fitted(tmp_path, rig, cal
 
 def test_a_calibration_that_lowers_the_held_out_fit_is_said_to():
     """A first calibration that fits the held-out blocks worse than the nominal plant (65.7 -> 60.7 %
-    on a rig with a band and a drift, before the effects took it to 99.9 %) read as a calibration gone
+    on a rig with a band and a drift, before the effects took it to 99.9 %) would read as a calibration gone
     wrong: the line says why it can be lower; a higher one gets no such words."""
     import dataclasses
 

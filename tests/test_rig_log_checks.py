@@ -32,9 +32,9 @@ def _log(path, t, u, l, header=("time", "valve", "pos")):  # noqa: E741
 ])
 def test_a_log_in_another_unit_is_refused_in_python_as_on_the_command_line(rig, tmp_path, capsys, scale, spec,
                                                                            python_hint, cli_hint):
-    """tm.read_rig_log read a command in percent as 78 V, times in ms as a 100-s period and a position
-    in micrometres as 88 m without a word, where tapmuscle import refused them; both refuse the same
-    finding now, each naming the unit as its caller gives one."""
+    """tm.read_rig_log must not read a command in percent as 78 V, times in ms as a 100-s period and a position
+    in micrometres as 88 m without a word, where tapmuscle import refuses them; both refuse the same
+    finding, each naming the unit as its caller gives one."""
     log = _log(tmp_path / "log.csv", rig["t_s"] * scale[0], rig["u_v"] * scale[1], rig["l_mm"] * scale[2])
     columns = {"time": "time", "u": "valve", "l": "pos"} | spec
     with pytest.raises(RecordingError) as python:
@@ -85,9 +85,9 @@ def test_a_fast_log_is_merged_before_its_checks(rig, tmp_path):
 
 
 def test_spreadsheet_serial_dates_are_named_by_their_line_not_taken_for_a_fast_logger(tmp_path, capsys):
-    """A spreadsheet's serial dates (45356,4166: days since 1899-12-30) read as seconds looked like a
-    1-MHz logger, and the refusal advised merging 1000 samples; a log that does not move named a ratio
-    of 5e299."""
+    """A spreadsheet's serial dates (45356,4166: days since 1899-12-30) read as seconds look like a
+    1-MHz logger, and the refusal must not advise merging 1000 samples; a log that does not move must not name
+    a ratio of 5e299."""
     rows = [f"{45356.4166 + k * 0.1 / 86400:.9f};{5 + (k % 50) / 25:.3f};{(k % 50) * 0.3:.3f}".replace(".", ",")
             for k in range(600)]
     log = tmp_path / "serial.csv"

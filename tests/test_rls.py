@@ -180,7 +180,7 @@ def test_covariance_ceiling_must_be_boolean():
 @pytest.mark.parametrize("numpy_errors", ["default", "raise"])
 def test_covariance_loss_reset_and_raise(numpy_errors):
     """The documented rule, whatever numpy's error handling in the caller's thread (a notebook's
-    ``np.seterr(all="raise")`` made the overflow a numpy FloatingPointError), and without warnings
+    ``np.seterr(all="raise")`` would make the overflow a numpy FloatingPointError), and without warnings
     (it is handled: n_resets counts it)."""
     phi = np.full(15, 1e160)  # finite, but phi^T P phi overflows
     with warnings.catch_warnings(), np.errstate(**({"all": "raise"} if numpy_errors == "raise" else {})):
@@ -318,9 +318,9 @@ def test_projection_properties_random(n_boxed_max):
 
 @pytest.mark.parametrize("n_boxed", [4, 7])  # 7: the BVLS branch
 def test_projection_with_fixed_parameters_is_the_minimiser(n_boxed):
-    """A box with parameters fixed (lower == upper) beyond 4 boxed coordinates: BVLS got a one-ulp box
-    for each and stopped early in 14 of 200 cases, off the minimum (307.424 against 307.244); the fixed
-    ones are now taken out first. Property: within the box, no worse than L-BFGS-B, and the KKT
+    """A box with parameters fixed (lower == upper) beyond 4 boxed coordinates: BVLS would get a one-ulp box
+    for each and stop early in 14 of 200 cases, off the minimum (307.424 against 307.244), so the fixed
+    ones are taken out first. Property: within the box, no worse than L-BFGS-B, and the KKT
     conditions of the Eq. (6) metric hold."""
     rng = np.random.default_rng(7)
     for _ in range(150):
@@ -621,8 +621,8 @@ def test_update_projects_with_updated_covariance():
 
 def test_an_estimator_of_ones_own_regressors_is_told_about_the_default_box_and_the_set_up():
     """RLSSettings() bounds a1, a2, b1 by name (Table 2): with a model of other parameters the error
-    now says so and how to drop it; an estimator not set up answers lower/upper/n_projections with
-    the set-up's RuntimeError (a bare AttributeError before), as theta does."""
+    says so and how to drop it; an estimator not set up answers lower/upper/n_projections with
+    the set-up's RuntimeError (not a bare AttributeError), as theta does."""
     with pytest.raises(ValueError, match=r"box_lower names unknown parameter 'a1' for the regressor model \(its "
                                          r"parameters: x, y\) \(RLSSettings' default box is Table 2's .* pass "
                                          r"box_lower=\{\}, box_upper=\{\}\)"):

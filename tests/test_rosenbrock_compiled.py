@@ -114,7 +114,7 @@ def test_a_broken_down_step_returns_the_start_and_the_time_as_the_python_loop_do
 
 def test_a_sub_step_built_for_another_python_is_named_and_the_plant_fmu_says_so(tmp_path, monkeypatch):
     """An FMU built by CPython 3.11 in a 3.13 host: the shipped binary is not this interpreter's, the
-    Python sub-step runs (2.5 times slower, silently before). The package notices the foreign binary,
+    Python sub-step runs (2.5 times slower, which must not go unsaid). The package notices the foreign binary,
     and the plant FMU says so once at initialisation, as an information (the results are the same)."""
     import shutil
     import subprocess
@@ -148,9 +148,9 @@ def test_a_sub_step_built_for_another_python_is_named_and_the_plant_fmu_says_so(
 
 
 def test_a_power_beyond_floats_range_breaks_down_in_python_as_in_the_compiled_sub_step():
-    """A speed reference of 1e-300 mm/s under an exponent of 2: Python's float power raised a bare
-    OverflowError out of the Python sub-step where the compiled one's pow gives inf and the step
-    breaks down; both now return the step's start and the same failure time."""
+    """A speed reference of 1e-300 mm/s under an exponent of 2: Python's float power raises a bare
+    OverflowError, which must not leave the Python sub-step where the compiled one's pow gives inf and the step
+    breaks down; both return the step's start and the same failure time."""
     prm = PlantParams().with_values(**{"friction.rate_ref_mm_s": 1e-300, "friction.rate_exponent": 2.0})
     _, _, _, _, advance_c = build_model(prm, compiled=True)
     _, _, _, _, advance_py = build_model(prm, compiled=False)

@@ -272,7 +272,7 @@ def test_external_step_reference_is_tracked(built_fmus):
      "has 2 entries"),
     ("duration_s = 10.0\n[reference]\nkind = 'steps'\ntimes_s = [0, 5]\nvalues_mm = [20, 5000]\n", "reference.values_mm",
      "holds 5000, outside [-400, 400] mm"),
-    # a load or supply step between two communication points acted at the next one without a word
+    # a load or supply step between two communication points would act at the next one without a word
     ("duration_s = 45.0\n[load]\nsteps = [ { t_s = 20.05, load_n = 68.0 } ]\n", "load.steps[0].t_s",
      "20.05 s is not a sample time of step_s = 0.1 s (nearest: 20 and 20.1 s)"),
     ("duration_s = 45.0\nstep_s = 0.5\n[supply]\nsteps = [ { t_s = 30.2, pressure_mpa = 0.2 } ]\n",
@@ -363,7 +363,7 @@ def test_unknown_fmu_parameter_and_bad_toml_are_named(built_fmus, tmp_path, caps
 
 def test_a_shipped_scenario_named_outside_the_checkout_is_pointed_to(tmp_path, monkeypatch, capsys):
     """`tapmuscle run paper/ampc_servo_44N_0.1Hz.toml` (as the docs name it) from another folder after a
-    non-editable install said only "does not exist"; the shipped copy is named (with or without the
+    non-editable install must not say only "does not exist"; the shipped copy is named (with or without the
     checkout's scenarios/), and nothing is run from it unasked."""
     from tapmuscle.cosim import PAPER_SCENARIOS
 
@@ -379,7 +379,7 @@ def test_a_shipped_scenario_named_outside_the_checkout_is_pointed_to(tmp_path, m
 
 def test_a_sweep_file_given_to_run_is_named_as_one(tmp_path, capsys):
     """The mirror of `sweep` given a scenario: `run` given a sweep file says what it is and which command
-    runs it (it said "key 'base': unknown key"), and writes nothing."""
+    runs it (not "key 'base': unknown key"), and writes nothing."""
     sweep = tmp_path / "grid.toml"
     sweep.write_text('name = "g"\n[base]\nduration_s = 5.0\n[grid]\n"load.value_n" = [44.0, 68.0]\n')
     assert main(["run", str(sweep), "--out", str(tmp_path / "o"), "--quiet"]) == 2
@@ -444,7 +444,7 @@ def test_a_seed_beyond_64_bits_is_named():
 ])
 def test_runaway_or_meaningless_scenarios_are_named(doc, key, pattern):
     """A one-sample run, a day-long run at a millisecond step, a reference of 1e300 mm: refused with the
-    key and the allowed range (they used to run and report a 35 mm or 1e300 mm error with exit 0)."""
+    key and the allowed range (run, they would report a 35 mm or 1e300 mm error with exit 0)."""
     with pytest.raises(ScenarioError, match=f"key '{re.escape(key)}'.*{pattern}"):
         parse_scenario(doc, source="s.toml")
 
@@ -465,7 +465,7 @@ def test_a_runaway_horizon_is_refused_by_the_controller_fmus_declared_range(buil
 
 
 def test_a_controller_fmu_as_the_plant_is_named_as_such(built_fmus, tmp_path, capsys):
-    """It used to fail with "key 'seed': not a parameter of AMPCController"."""
+    """It must not fail with "key 'seed': not a parameter of AMPCController"."""
     path = tmp_path / "s.toml"
     path.write_text(f"duration_s = 2.0\nevaluation_samples = [0, 10]\n[plant]\nfmu = '{built_fmus['AMPCController']}'\n")
     assert main(["run", str(path), "--out", str(tmp_path / "o"), "--fmu-dir", str(built_fmus["MusclePlant"].parent),
@@ -498,8 +498,8 @@ def test_a_plant_fmu_with_the_input_load_is_told_to_be_built_again(tmp_path):
 
 
 def test_an_earlier_builds_controller_fmu_is_told_to_be_built_again_with_or_without_an_interface(tmp_path):
-    """An AMPCController FMU without the output input_delay (built before it had one) was told to take an
-    interface, and with one to remove it: both now say to build it again."""
+    """An AMPCController FMU without the output input_delay (built before it had one) is not told to take an
+    interface, nor with one to remove it: both say to build it again."""
     from types import SimpleNamespace
 
     from tapmuscle.cosim.master import ROLE_INTERFACE, Unpacked, check_role
@@ -558,8 +558,8 @@ def test_parameters_are_checked_against_the_model_description_before_a_run(built
 @pytest.mark.parametrize("name, by", [("u", "the controller's command"), ("load_force", "the scenario's [load]"),
                                       ("supply_pressure", "the scenario's [supply]")])
 def test_a_plant_input_set_as_a_parameter_is_refused(built_fmus, name, by):
-    """The master sets the plant's inputs every sample: one set as a parameter was overwritten at the
-    first step, and summary.json recorded a run at 68 N that ran at 44 N."""
+    """The master sets the plant's inputs every sample: one set as a parameter would be overwritten at the
+    first step, and summary.json would record a run at 68 N that ran at 44 N."""
     from tapmuscle.cosim.master import check_parameters
 
     s = parse_scenario({"duration_s": 2.0, "plant": {"parameters": {name: 0.2}}}, source="s.toml")
@@ -622,8 +622,8 @@ def test_the_input_delay_the_controller_decided_is_reported(built_fmus, tmp_path
 
 
 def test_python_warnings_during_a_command_are_one_line_like_the_fmus(built_fmus, tmp_path, capsys):
-    """A scenario named in Chinese on a machine without a CJK font: the figures' MissingGlyphWarning came
-    out with the library's file, line and source line ("return save_figure(fig, path)"); the CLI prints
+    """A scenario named in Chinese on a machine without a CJK font: the figures' MissingGlyphWarning must not
+    come out with the library's file, line and source line ("return save_figure(fig, path)"); the CLI prints
     it as it prints the FMUs' warnings, and Python's own display is back after the command."""
     import warnings
 

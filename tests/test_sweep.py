@@ -158,7 +158,7 @@ def test_bad_sweep_files_name_file_and_key(tmp_path, text, key, message):
 
 
 def test_a_sweep_of_too_many_runs_is_refused_before_any_is_made(tmp_path):
-    """Runs counted from the grid's and the sample's sizes first: a grid of 10^6 points spent minutes
+    """Runs counted from the grid's and the sample's sizes first: a grid of 10^6 points would otherwise spend minutes
     making its scenarios without a word before the sweep started."""
     grid = (f"seed = {list(range(1000))}\n'load.initial_n' = {[44.0 + i / 10 for i in range(1000)]}\n")
     with pytest.raises(ScenarioError, match=r"key 'grid': makes 1,000,000 runs \(1 base x 1000 seed x 1000 "
@@ -351,8 +351,8 @@ def test_interrupted_sweep_resumes_without_recomputing(built_fmus, tmp_path):
 
 
 def test_an_output_folder_removed_mid_sweep_is_written_again_whole(built_fmus, tmp_path):
-    """The folder removed while the runs went on (an over-eager clean-up): the sweep ended in a KeyError
-    traceback, status 1, no summary, the results of the runs before the removal lost. It now writes the
+    """The folder removed while the runs went on (an over-eager clean-up): the sweep must not end in a KeyError
+    traceback, status 1, no summary, the results of the runs before the removal lost. It writes the
     whole results.csv again from the rows it read and wrote, and the summary, as an undisturbed sweep."""
     import shutil
 
@@ -492,7 +492,7 @@ def test_sweep_cli_in_process_and_its_errors(built_fmus, tmp_path, capsys):
     assert str(bad) in err and "controller.parameters.servo.Rr" in err and "not a parameter" in err
     assert "did you mean 'servo.R'" in err
     assert not (tmp_path / "o2" / "results.csv").exists()
-    # a value outside the FMU's declared range stops the sweep before any run too (it used to run, and
+    # a value outside the FMU's declared range stops the sweep before any run too (rather than run, and
     # record that run as failed)
     bad = _write(tmp_path, "base = { duration_s = 10.0 }\n[grid]\n'controller.parameters.servo.R' = [10.0, -15.0]\n")
     assert main(["sweep", str(bad), "--out", str(tmp_path / "o3"), "--workers", "0", "--fmu-dir", fmu_dir]) == 2
@@ -520,7 +520,7 @@ def test_tasks_carry_fmu_digests_and_run_anywhere(built_fmus, tmp_path, monkeypa
 
 
 def test_a_monte_carlo_size_beyond_the_limit_is_refused_at_once(tmp_path):
-    """n = 1e8 used to draw for 45 s and then report duplicate values in the grid."""
+    """n = 1e8 must not draw for 45 s and then report duplicate values in the grid."""
     from tapmuscle.cosim.sweep import load_sweep
 
     path = _write(tmp_path, "base = { duration_s = 10.0 }\n[monte_carlo]\nn = 100000000\n"
@@ -550,7 +550,7 @@ def test_a_whole_number_is_the_same_run_however_it_is_written():
 
 
 def test_seeds_are_sampled_over_the_whole_unsigned_64_bit_range():
-    """Seeds are unsigned 64-bit: ``integers = [0, 2**64 - 1]`` gave numpy's bare 'high is out of
+    """Seeds are unsigned 64-bit: ``integers = [0, 2**64 - 1]`` must not give numpy's bare 'high is out of
     bounds for int64'; a range beyond 64 bits is named with its key."""
     mc = {"n": 20, "sample_seed": 1, "seed": {"integers": [0, 2**64 - 1]}}
     sweep = parse_sweep({"base": dict(SHORT), "monte_carlo": mc}, source="big")
@@ -561,7 +561,7 @@ def test_seeds_are_sampled_over_the_whole_unsigned_64_bit_range():
 
 
 def test_a_local_cluster_gets_no_more_workers_than_runs(capsys):
-    """``--workers 1000`` for two runs started a thousand processes (minutes of start-up, leaked
+    """``--workers 1000`` for two runs must not start a thousand processes (minutes of start-up, leaked
     semaphores): the local cluster gets one worker per run at most, and more than the CPUs is said."""
     import argparse
     import os
@@ -581,7 +581,7 @@ def test_a_local_cluster_gets_no_more_workers_than_runs(capsys):
 
 
 def test_a_base_file_whose_name_has_brackets_is_that_file(tmp_path):
-    """``base = "run [v2].toml"`` was read as a glob pattern (``[v2]`` a character class) and matched no
+    """``base = "run [v2].toml"`` must not be read as a glob pattern (``[v2]`` a character class) and match no
     file although the file exists: an existing file is taken as named."""
     folder = tmp_path / "rig [v2]"
     folder.mkdir()
@@ -660,7 +660,7 @@ def test_a_file_named_in_the_grid_is_relative_to_the_sweep_file(tmp_path, monkey
 
 @pytest.mark.parametrize("command", ["sweep", "check"])
 def test_cluster_options_that_exclude_each_other_are_refused(tmp_path, capsys, command):
-    """--workers N beside --scheduler, and --timeout without it, were silently ignored."""
+    """--workers N beside --scheduler, and --timeout without it, must not be silently ignored."""
     target = _write(tmp_path, SMALL_SWEEP) if command == "sweep" else tmp_path
     out = ["--out", str(tmp_path / "o")] if command == "sweep" else []
     for extra, said in ((["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"],
@@ -672,7 +672,7 @@ def test_cluster_options_that_exclude_each_other_are_refused(tmp_path, capsys, c
 
 
 def test_a_full_disk_while_appending_a_row_names_the_results_file(tmp_path, monkeypatch):
-    """A write refused for space said only "[Errno 28] No space left on device"; it now names
+    """A write refused for space must not say only "[Errno 28] No space left on device"; it names
     results.csv and what to do, and the row cut short is dropped at the next append (a rerun)."""
     import errno
 
@@ -748,8 +748,8 @@ def test_a_sweep_into_a_folder_whose_results_file_is_held_open_runs_nothing(buil
 
 
 def test_lines_of_results_csv_that_are_not_whole_rows_are_said(built_fmus, tmp_path):
-    """A results.csv line edited into fewer columns was dropped in silence and its run redone; the
-    sweep now warns once naming the file and the lines (a line a crash cut short is not said: the
+    """A results.csv line edited into fewer columns must not be dropped in silence and its run redone; the
+    sweep warns once naming the file and the lines (a line a crash cut short is not said: the
     sweep itself leaves those)."""
     sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
     out = tmp_path / "out"
@@ -764,7 +764,7 @@ def test_lines_of_results_csv_that_are_not_whole_rows_are_said(built_fmus, tmp_p
 
 
 def test_a_sweep_reports_repr_shows_the_counts_not_every_row():
-    """A notebook cell ending in tm.sweep(...) showed every row of the report (thousands); its repr is
+    """A notebook cell ending in tm.sweep(...) must not show every row of the report (thousands); its repr is
     the counts, the rows stay in .rows."""
     from tapmuscle.cosim.sweep_run import SweepReport
 
@@ -776,8 +776,8 @@ def test_a_sweep_reports_repr_shows_the_counts_not_every_row():
 
 
 def test_a_second_sweep_into_a_folder_in_use_is_refused(built_fmus, tmp_path):
-    """Two sweeps into one folder at once (two terminals, two CI jobs) each ran every run; the second is
-    now refused while the first writes, naming the folder, and runs once it has ended (its runs skipped)."""
+    """Two sweeps into one folder at once (two terminals, two CI jobs) must not each run every run; the second is
+    refused while the first writes, naming the folder, and runs once it has ended (its runs skipped)."""
     sweep = parse_sweep(tomllib.loads(SMALL_SWEEP), source="small.toml")
     out = tmp_path / "out"
     second = []

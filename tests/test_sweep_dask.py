@@ -153,7 +153,7 @@ def _server(reply: bytes | None):
 
 
 @pytest.mark.parametrize("reply, said", [
-    (None, "no Dask scheduler answered within 1.5 s"),  # the dashboard's port: distributed waited for ever
+    (None, "no Dask scheduler answered within 1.5 s"),  # the dashboard's port: distributed would wait for ever
     (b"HTTP/1.1 400 Bad Request\r\n\r\n", "an HTTP server answers there, not a Dask scheduler"),  # a proxy: 3 EiB
 ])
 def test_a_port_that_is_no_schedulers_is_named_within_the_timeout(tmp_path, capsys, reply, said):
@@ -347,7 +347,7 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
 @pytest.mark.slow
 def test_ctrl_c_ends_a_sweep_whose_fmu_hangs_in_a_step(built_fmus, tmp_path):
     """A controller FMU of one's own that never returns from a step, holding the GIL as a C FMU does:
-    its worker answers nothing, and closing the local cluster waited for it for ever; after Ctrl-C
+    its worker answers nothing, and closing the local cluster would wait for it for ever; after Ctrl-C
     the command kills the worker it cannot close and exits within seconds, with its one line."""
     import shutil
     import signal
@@ -437,7 +437,7 @@ def test_the_commands_local_cluster_gets_one_run_per_worker_at_a_time_and_a_clie
                                                                                          monkeypatch):
     """On the local cluster of 2 workers, a sweep of 4 runs (Dask holds back none of so few tasks,
     whatever the scheduler's worker-saturation: the executor submits one per worker thread, the next as
-    one finishes; a run waiting on a worker whose FMU crashes fails with it, 2 of 16 such sweeps before)
+    one finishes; a run waiting on a worker whose FMU crashes would fail with it, 2 of 16 such sweeps otherwise)
     and one of 6 (the scheduler's queue holds them back) have at most 2 runs on the workers. On a client
     of one's own every run is submitted at once: an adaptive cluster grows on the backlog."""
     import tapmuscle as tm
@@ -493,7 +493,7 @@ def test_a_notebooks_own_client_runs_the_sweep_and_stays_usable(built_fmus, tmp_
 
 
 def test_a_notebooks_cluster_without_workers_is_told_how_to_make_it_again(built_fmus, tmp_path):
-    """A LocalCluster whose workers an interrupt killed (it restarts none) was told to start one with
+    """A LocalCluster whose workers an interrupt killed (it restarts none) is not told to start one with
     `dask worker SCHEDULER_ADDRESS`: the message names the cluster's address and the remedy for a
     cluster made in the notebook, and nothing is written."""
     import tapmuscle as tm
@@ -533,8 +533,8 @@ def _cluster_processes(tmp, workers=1):
 
 @pytest.mark.parametrize("lost, command", [("scheduler", "sweep"), ("workers", "sweep"), ("workers", "check")])
 def test_a_cluster_lost_mid_sweep_stops_it_in_one_line_keeping_the_finished_runs(built_fmus, tmp_path, lost, command):
-    """The scheduler killed mid-sweep recorded every unfinished run as failed, with 40 lines of the
-    client's tracebacks; every worker killed left the sweep waiting for ever ("still running"). Both now
+    """The scheduler killed mid-sweep must not record every unfinished run as failed, with 40 lines of the
+    client's tracebacks, nor every worker killed leave the sweep waiting for ever ("still running"). Both
     end the command with one line and status 3 (CLUSTER_LOST), the runs finished before kept, none
     recorded as failed; a rerun on a cluster again runs only the others. `check`, which keeps no results
     between commands, says that its rerun runs every case again, and its report holds the finished runs."""
@@ -591,8 +591,8 @@ def test_a_cluster_lost_mid_sweep_stops_it_in_one_line_keeping_the_finished_runs
 
 def test_a_script_that_sweeps_on_workers_without_the_main_guard_is_told_so(built_fmus, tmp_path):
     """tm.sweep(workers=2) at a script's top level: each spawned worker imports the script again and
-    would start a cluster of its own; that printed about 500 lines of the nannies' tracebacks. Each
-    worker now ends with one line naming the script and the guard, and the script gets a ClusterError;
+    would start a cluster of its own, which would print about 500 lines of the nannies' tracebacks. Each
+    worker ends with one line naming the script and the guard, and the script gets a ClusterError;
     the same script under ``if __name__ == "__main__":`` runs."""
     (tmp_path / "s.toml").write_text('name = "s"\nbase = { duration_s = 5.0, evaluation_samples = [10, 50] }\n'
                                      'grid = { seed = [0, 1] }\n')

@@ -75,7 +75,7 @@ def test_two_fields_draw_one_row(drawn, tmp_path):
 
 
 def test_a_cell_without_a_run_says_so(drawn, tmp_path):
-    """The paper's grid runs the UCP methods at 0.1 Hz only: their 0.2-Hz cells were blank, which
+    """The paper's grid runs the UCP methods at 0.1 Hz only: their 0.2-Hz cells must not be blank, which
     reads as a colour; they say "no run"."""
     rows = [r for r in _rows() if r["controller.parameters.box_lower.a2"] == "1.0"
             and not (r["method"] == "mpc_ucp" and r["frequency_hz"] == "0.2")]
@@ -101,9 +101,9 @@ def test_a_monte_carlo_sample_with_a_third_field_says_so(drawn, tmp_path):
 
 
 def test_a_monte_carlo_sample_has_a_colour_scale_per_method_and_readable_log_ticks(drawn, tmp_path):
-    """One scale for all methods drew the servo methods (0.15-0.27 mm beside 0.7-3 mm) one hue each;
-    each method's points now span their own scale, and a log scale labels 1, 2 and 5 of each decade
-    (only 0.1 and 1 were)."""
+    """One scale for all methods would draw the servo methods (0.15-0.27 mm beside 0.7-3 mm) one hue each;
+    each method's points span their own scale, and a log scale labels 1, 2 and 5 of each decade
+    (not only 0.1 and 1)."""
     rng = np.random.default_rng(2)
     rows = [{"method": m, "status": "ok", "mae_mm": repr(float(rng.uniform(lo, hi))),
              "load_n": repr(float(rng.uniform(30, 90))), "supply_mpa": repr(float(rng.uniform(0.2, 0.3)))}

@@ -97,9 +97,9 @@ def test_libcosim_closed_loop_is_the_direct_loop_with_one_sample_of_delay(libcos
 
 def test_libcosim_on_a_rig_with_a_transport_delay_is_the_direct_loop(built_fmus):
     """A 0.2-s transport delay in the plant and the parallel master's sample: 3 samples, set. libcosim
-    counts time in nanoseconds, so t_change + 0.2 s fell 4e-17 s past its step's start (0.3 against
-    0.30000000000000004), the plant split off a sub-step that short, and the run left the direct
-    loop's at the sixth sample (8.8 mm apart later); such instants are one now, and the runs are one."""
+    counts time in nanoseconds, so t_change + 0.2 s falls 4e-17 s past its step's start (0.3 against
+    0.30000000000000004); a plant that split off a sub-step that short would leave the direct
+    loop's run at the sixth sample (8.8 mm apart later): such instants are one, and the runs are one."""
     run = _closed_loop(built_fmus, 3, duration_s=30.0, transport_delay_s=0.2)
     c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=3), THETA0_44N)
     rig = PlantParams().with_values(**{"delay.delay_s": 0.2})
@@ -144,7 +144,7 @@ def test_plant_alone_in_libcosim_equals_fmpy(built_fmus):
 @pytest.mark.utf8_paths
 def test_plant_in_libcosim_from_a_folder_with_non_ascii_characters(built_fmus, tmp_path):
     """A user's FMU folder and temporary folder named "Müller Straße": libcosim extracts the FMU there
-    and passes a percent-encoded resource URI, which pythonfmu alone does not decode (it segfaulted).
+    and passes a percent-encoded resource URI, which pythonfmu alone does not decode (it would segfault).
     In a fresh process, as libcosim reads TMPDIR once; l(10 s) at u = 5 V as fmpy's."""
     import os
     import shutil
