@@ -479,7 +479,7 @@ def test_another_sampling_period_needs_its_own_predictor():
     theta = dict(zip(ASYMMETRIC.names, tm.THETA0_44N))
     run = tm.simulate_closed_loop("ampc_servo", None, duration_s=3.0, ts_s=0.2, theta0=theta | {"b1": 0.3})
     assert len(run["t_s"]) == 16
-    # a period in milliseconds is refused as tapmuscle record --ts refuses it (it ran 2 samples)
+    # a period in milliseconds is refused as tapmuscle record --ts refuses it (else it would run 2 samples)
     for call in (lambda: tm.simulate_closed_loop("mpc_ucp", None, ts_s=50.0, theta0=tm.THETA0_44N),
                  lambda: tm.simulate("sine:bias=5,amp=3,freq=0.1", duration_s=100.0, ts_s=50.0)):
         with pytest.raises(ValueError, match=r"ts_s = 50.0 s is outside the 0.001..10 s .*milliseconds"):

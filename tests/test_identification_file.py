@@ -81,7 +81,7 @@ def test_a_one_sided_box_goes_from_identify_to_the_controller(id_files, tmp_path
 
 def test_a_small_stroke_in_mm_is_read(id_files, tmp_path):
     """identify normalises by magnitude: a stroke under about 19 mm gets l_scale 0.1, its theta still in
-    mm (it was refused as 'other units')."""
+    mm (not refused as 'other units')."""
     doc = json.loads(id_files[0.1].read_text()) | {"scaling": {"l_scale": 0.1, "u_scale": 1.0}}
     (tmp_path / "small.json").write_text(json.dumps(doc))
     assert read_identification(tmp_path / "small.json").theta == doc["theta"]
@@ -270,7 +270,7 @@ def test_a_model_identified_under_a_transport_delay_brings_it_to_the_controller(
     settings = ControllerSettings(method="ampc_servo", input_delay_samples=2, box_lower={}, box_upper={})
     same = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model.theta, settings=settings)
     assert np.array_equal(run["u_v"], same["u_v"])
-    # run as a parallel master does, the loop has a sample more: 3 (with 2 it ran at 8.3 mm on a 0.2-s rig)
+    # run as a parallel master does, the loop has a sample more: 3 (with 2 it would run at 8.3 mm on a 0.2-s rig)
     run = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model, loop_delay_samples=1)
     same = tm.simulate_closed_loop("ampc_servo", None, duration_s=2.0, theta0=model.theta, loop_delay_samples=1,
                                    settings=ControllerSettings(method="ampc_servo", input_delay_samples=3,

@@ -106,9 +106,10 @@ def test_a_path_given_to_the_plant_names_the_reader(tmp_path):
 
 
 def test_a_value_in_another_unit_is_named_by_its_key_and_unit(tmp_path):
-    """A file's out-of-range value was named by the Python class (SupplyParams.supply_pressure_mpa), and
-    lengths in metres (rest length 0.4, radius 0.01) or an encoder step in micrometres simulated
-    without a word: the key is the file's, and the small side is warned of with the likely unit."""
+    """A file's out-of-range value is named by the file's key, not the Python class
+    (SupplyParams.supply_pressure_mpa), and lengths in metres (rest length 0.4, radius 0.01) or an
+    encoder step in micrometres, which would simulate without a word, are warned of with the likely
+    unit."""
     path = tmp_path / "rig.json"
     path.write_text(json.dumps({"plant": {"supply": {"supply_pressure_mpa": 250}}}))
     with pytest.raises(PlantFileError, match=r"rig\.json: supply\.supply_pressure_mpa must be <= 1\.0, got 250"):

@@ -631,7 +631,7 @@ def test_a_load_logged_as_a_mass_in_kg_is_read_as_its_weight(tmp_path):
 
 
 def test_a_column_named_with_its_unit_is_not_shown_with_it_twice(tmp_path):
-    """"Weg [mm]" read as mm was said as "l_mm <- Weg [mm] [mm]"."""
+    """"Weg [mm]" read as mm is said as "l_mm <- Weg [mm]", not "l_mm <- Weg [mm] [mm]"."""
     log = tmp_path / "log.csv"
     log.write_text("Zeit [s];Ventil [V];Weg [mm]\n" + "".join(f"{0.1 * k:.1f};{5 + k % 3};{10 + k % 5}\n" for k in range(50)))
     rec = tm.read_rig_log(log, time="Zeit [s]", u="Ventil [V]", l="Weg [mm]", load_n=44.0, checks=False)
