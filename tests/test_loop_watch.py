@@ -63,28 +63,52 @@ def test_each_kind_is_told_once_and_a_restored_watch_tells_the_same():
 
 def test_the_real_time_loop_of_the_docs_runs_and_tells_a_stuck_sensor():
     """docs/control.md's loop of one's own ("In a real-time loop"), run on the simulated rig whose
-    encoder freezes at 20 s (no sleeping): the watch's message reaches the log it names, once."""
+    encoder reads NaN once at 5 s and freezes at 20 s, the sample at 10 s taking 350 ms (a clock
+    instead of sleeping): the bad reading, the late samples and the watch's message reach the log,
+    and the loop runs on through them."""
     text = (ROOT / "docs" / "control.md").read_text()
     block = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "tm.LoopWatch(ctrl)" in b)
     plant = tm.Plant(seed=0)
     frozen: list[float] = []
     logged: list[str] = []
+    clock, reads = [0.0], [0]
 
     def read_encoder_mm():
+        reads[0] += 1
+        if reads[0] == 52:  # sample 50 (the first read is the reset's)
+            return float("nan")
         if plant.t_s >= 20.0 - 1e-9:
             frozen[:] = frozen or [plant.measurement.l_mm]
             return frozen[0]
         return plant.measurement.l_mm
 
-    class NoSleep:
-        monotonic = staticmethod(lambda: 0.0)
-        sleep = staticmethod(lambda s: None)
+    def write_valve_v(u):
+        plant.step(u, 0.1)
+        clock[0] += 0.35 if reads[0] == 102 else 0.0  # sample 100 takes 350 ms
 
-    namespace = {"read_encoder_mm": read_encoder_mm, "write_valve_v": lambda u: plant.step(u, 0.1),
-                 "log_warning": logged.append}
-    code = block.replace("import time\n", "")
-    exec(compile(code, "docs/control.md", "exec"), {**namespace, "time": NoSleep})
-    assert len(logged) == 1 and "has not changed at all" in logged[0] and "the sensor is stuck" in logged[0]
+    class Clock:
+        monotonic = staticmethod(lambda: clock[0])
+
+        @staticmethod
+        def sleep(s):
+            clock[0] += s
+
+    class NoGc:
+        freeze = staticmethod(lambda: None)  # the test's own process is not frozen
+
+    namespace = {"read_encoder_mm": read_encoder_mm, "write_valve_v": write_valve_v, "log_warning": logged.append}
+    code = block.replace("import time\n", "").replace("import gc\n", "")
+    exec(compile(code, "docs/control.md", "exec"), {**namespace, "time": Clock, "gc": NoGc})
+    bad = [m for m in logged if "got nan" in m]
+    late = [m for m in logged if "overran" in m]
+    stuck = [m for m in logged if "has not changed at all" in m]
+    assert len(bad) == 1 and bad[0].startswith("t = 5 s: ") and "the valve keeps" in bad[0], logged
+    # 250 ms past its deadline, then the next two samples, stepped back to back, 150 and 50 ms
+    assert [m.split(" overran")[0] for m in late] == [f"t = {t} s: sample {k}" for t, k in
+                                                      (("10", 100), ("10.1", 101), ("10.2", 102))], logged
+    assert "by 250.0 ms" in late[0]
+    assert len(stuck) == 1 and "the sensor is stuck" in stuck[0], logged
+    assert len(logged) == 5 and reads[0] == 601
 
 
 def test_a_limit_cycle_after_minus_one_decided_does_not_send_the_user_back_to_minus_one():
@@ -577,3 +601,23 @@ def test_a_reference_in_metres_is_told_once_and_the_muscle_held_at_rest_is_not()
     assert again._r_unit == [37, 0.05]
     with pytest.raises(ValueError, match=r"reference unit watch = \['x'\]"):
         again.set_state(watch.get_state()[:15] + [["x"]])
+
+
+def test_theta0s_free_run_is_simulated_when_the_watch_is_made_not_at_the_first_sample(monkeypatch):
+    """The check simulates 30 s of Eq. (1) (1500 samples at Ts = 0.02 s): done at construction, before a
+    real-time loop starts, so that the first sample costs what the others do; its message still comes
+    at the first sample."""
+    import fmu_controller.loop_watch as lw
+
+    runaway_theta = np.array(tm.THETA0_44N, dtype=float)
+    runaway_theta[0] = 1.5  # a1 + a2 > 1: the free run diverges
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method="mpc_servo"), runaway_theta)
+    calls = []
+    real = lw.held_command_runaway
+    monkeypatch.setattr(lw, "held_command_runaway", lambda *a, **k: calls.append(1) or real(*a, **k))
+    watch = LoopWatch(ctrl)
+    assert len(calls) == 1
+    ctrl.reset(0.0)
+    step = ctrl.step(0.0, tm.SineReference().preview(0, ctrl.settings.preview_samples))
+    said = watch.observe(0, 0.0, 0.0, 35.0, step, 0.0)
+    assert len(calls) == 1 and any("theta0 runs away" in m for m in said), said
