@@ -425,11 +425,12 @@ class PlantParams:
         groups = {f.name: f for f in fields(cls)}
         if not name or group not in groups:
             raise ValueError(f"unknown plant parameter {key!r} (expected 'group.field', groups: {', '.join(groups)})")
-        sub = groups[group].default_factory()  # type: ignore[misc]
-        for f in fields(sub):
+        # the group's class (its default factory): its fields, without making an instance
+        group_fields = fields(groups[group].default_factory)  # type: ignore[arg-type]
+        for f in group_fields:
             if f.name == name:
                 return f
-        raise ValueError(f"unknown plant parameter {key!r}; {group} has: {', '.join(f.name for f in fields(sub))}")
+        raise ValueError(f"unknown plant parameter {key!r}; {group} has: {', '.join(f.name for f in group_fields)}")
 
     @classmethod
     def bounds(cls, key: str) -> tuple[float, float]:

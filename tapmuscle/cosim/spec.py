@@ -548,9 +548,9 @@ def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base:
             raise ref_r.error("times_s", f"{late[0]:g} s comes after the run's end, duration_s = {duration:g} s: the "
                                          f"reference would never take that value{ms}")
         # the controller samples r at k step_s: a step between two samples would act at the next one
-        off_grid = [_off_grid(t, step) for t in times if _off_grid(t, step)]
+        off_grid = next((why for why in (_off_grid(t, step) for t in times) if why), "")
         if off_grid:
-            raise ref_r.error("times_s", off_grid[0])
+            raise ref_r.error("times_s", off_grid)
         profile = Profile(float(values[0]), tuple((float(t), float(v)) for t, v in zip(times[1:], values[1:])))
         preview = ref_r.string("preview", "held" if controller.own else "advanced", ("advanced", "held"))
         if controller.own and preview == "advanced":
