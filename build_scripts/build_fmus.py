@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 from .model_description import content_guid, finish_model_description
-from .native_host import EXPORT_VARIABLE, NativeHostWarning
+from .native_host import EXPORT_VARIABLE, NativeHostWarning, building_python
 from .own_folder import UntrustedFolderError, own_folder, remove_foreign
 
 __all__ = ["FMUS", "build_fmus", "cached_fmus", "entry_script", "private_package", "project_version",
@@ -295,7 +295,7 @@ def _source_digest() -> str:
     files |= set((ROOT / "build_scripts").glob("*.py")) | set((ROOT / "build_scripts").glob("*.c"))
     for f in sorted(files):
         h.update(f.relative_to(ROOT).as_posix().encode() + b"\0" + f.read_bytes())
-    h.update(sys.executable.encode())  # the native-host preparation records this interpreter
+    h.update(building_python().encode())  # the native-host preparation records this interpreter
     h.update(b"\0" + os.environ.get(EXPORT_VARIABLE, "").strip().encode())  # and which library runs the slave
     return h.hexdigest()[:16]
 

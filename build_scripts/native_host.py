@@ -69,8 +69,8 @@ import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-__all__ = ["CONFIG_NAME", "EXPORT_VARIABLE", "NativeHostWarning", "build_environment", "elf_machine", "fmi_export",
-           "machine_name", "prepare_for_native_hosts", "python_machine"]
+__all__ = ["CONFIG_NAME", "EXPORT_VARIABLE", "NativeHostWarning", "build_environment", "building_python", "elf_machine",
+           "fmi_export", "machine_name", "prepare_for_native_hosts", "python_machine"]
 
 #: The file in ``resources/`` that :mod:`fmi_slave.native_host` reads inside the FMU.
 CONFIG_NAME = "tapmuscle_native.json"
@@ -111,9 +111,24 @@ def _c_string(text: str) -> str:
     return '"' + "".join(out) + '"'
 
 
-def _building_python() -> str:
-    """The building environment's interpreter as started (a venv's ``bin/python``, not resolved)."""
-    return os.path.abspath(sys.executable) if sys.executable else str(_base_python())
+def building_python() -> str:
+    """The building environment's interpreter as started (a venv's ``bin/python``, not resolved: the
+    venv is found beside it), named ``pythonX.Y`` where that name in the same folder is the same file.
+
+    ``python``, ``python3`` and ``python3.11`` of one folder are one interpreter: the console script
+    starts ``python3.11`` (its shebang), a terminal ``python``, and the FMUs built by either must be
+    the same bytes, or a sweep resumed from the other rebuilds them and runs every run again.
+    """
+    if not sys.executable:
+        return str(_base_python())
+    started = os.path.abspath(sys.executable)
+    versioned = os.path.join(os.path.dirname(started), f"python{sys.version_info.major}.{sys.version_info.minor}")
+    try:
+        if versioned != started and os.path.samefile(versioned, started):
+            return versioned
+    except OSError:  # no such name beside it
+        pass
+    return started
 
 
 def _base_python() -> Path:
@@ -149,7 +164,7 @@ def build_environment() -> dict:
     return {
         "format": 1,
         "platform": _building_os(),
-        "python": _building_python(),
+        "python": building_python(),
         "base_python": str(_base_python()),
         "python_version": ".".join(map(str, sys.version_info[:3])),
         "libpython": str(Path(libdir) / soname) if soname else "",

@@ -88,6 +88,29 @@ def test_recorded_environment_is_the_building_one(tree):
         assert any(Path(d).is_relative_to(Path(sys.prefix)) for d in config["site_packages"])
 
 
+def test_one_interpreters_names_record_one_python_and_key_one_fmu_cache(tmp_path):
+    """``python``, ``python3`` and ``pythonX.Y`` of one folder (the console script's shebang names the
+    last) are one interpreter: one recorded path, one FMU cache key; a lone ``python`` keeps its name."""
+    real = Path(sys.executable).resolve()
+    version = f"python{sys.version_info.major}.{sys.version_info.minor}"
+    both, alone = tmp_path / "both" / "bin", tmp_path / "alone" / "bin"
+    both.mkdir(parents=True)
+    alone.mkdir(parents=True)
+    (both / version).symlink_to(real)
+    for name in ("python", "python3"):
+        (both / name).symlink_to(version)
+    (alone / "python").symlink_to(real)
+    probe = ("from build_scripts.build_fmus import _source_digest; from build_scripts.native_host import "
+             "building_python; print(building_python(), _source_digest())")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    said = {p: subprocess.run([str(p), "-c", probe], capture_output=True, text=True, env=env, check=True).stdout.split()
+            for p in (both / "python", both / "python3", both / version, alone / "python")}
+    assert said[both / "python"] == said[both / "python3"] == said[both / version]
+    assert said[both / "python"][0] == str(both / version)
+    assert said[alone / "python"][0] == str(alone / "python")
+    assert said[alone / "python"][1] != said[both / version][1]  # another recorded interpreter, another build
+
+
 def _as_pythonfmu_made_it(tree: Path, tmp_path: Path, platform: str) -> Path:
     """A copy of the prepared FMU ``tree`` whose ``platform`` binary is back to the layout pythonfmu
     makes (its library under the model identifier's name; for linux64 also no recorded environment)."""
