@@ -13,6 +13,7 @@ beside it as ``"command"`` (:func:`produced_by`, :func:`invoked_as`).
 from __future__ import annotations
 
 import contextvars
+import hashlib
 import os
 import platform
 import shlex
@@ -23,12 +24,16 @@ from importlib import metadata
 from pathlib import Path
 from typing import Iterator, Sequence
 
-__all__ = ["NUMERICS_PACKAGES", "package_version", "software", "software_text", "cpu_features", "source_revision",
-           "produced_by", "invoked_as"]
+__all__ = ["NUMERICS_PACKAGES", "CODE_PACKAGES", "package_version", "software", "software_text", "cpu_features",
+           "source_revision", "code_digest", "produced_by", "invoked_as"]
 
 #: The packages whose release can change a result's last bits (the FMUs run in pythonfmu, the
 #: co-simulation in fmpy).
 NUMERICS_PACKAGES = ("numpy", "scipy", "osqp", "pythonfmu", "fmpy")
+
+
+#: The packages of tapmuscle's own code (the distribution's top-level packages).
+CODE_PACKAGES = ("tapmuscle", "fmu_plant", "fmu_controller", "fmi_slave", "build_scripts")
 
 
 def package_version(name: str) -> str:
@@ -89,6 +94,28 @@ def source_revision() -> str | None:
     if Path(top).resolve() != root or tracked.returncode:  # another repository's folder holds it
         return None
     return commit[:12] + (" with changes" if status.stdout.strip() else "")
+
+
+def code_digest() -> str:
+    """A digest (12 hex digits) of the Python sources of :data:`CODE_PACKAGES` as imported here: one
+    number for the code a process runs, whether installed from a wheel or from a checkout, which the
+    version does not give (every commit of a release has its version). Compiled extensions are left
+    out (each machine builds its own).
+
+    Raises
+    ------
+    ImportError
+        One of the packages cannot be imported.
+    """
+    import importlib
+
+    h = hashlib.sha256()
+    for name in CODE_PACKAGES:
+        folder = Path(importlib.import_module(name).__file__).parent
+        for f in sorted(folder.rglob("*.py"), key=lambda f: f.relative_to(folder).as_posix()):
+            if "__pycache__" not in f.parts:
+                h.update(f"{name}/{f.relative_to(folder).as_posix()}".encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
 
 
 def software() -> dict[str, str]:

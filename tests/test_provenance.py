@@ -134,3 +134,29 @@ def test_a_document_written_by_a_command_names_the_command(tmp_path):
     assert main(["identify", str(rec), "--json", str(out), "--quiet"]) == 0
     doc = json.loads(out.read_text())
     assert doc["command"] == f"tapmuscle identify '{rec}' --json {out} --quiet" and doc["software"] == software()
+
+
+def test_the_code_digest_follows_the_sources_not_the_folder_they_are_in(tmp_path):
+    """The same sources elsewhere (a wheel's site-packages, another checkout) give the same digest; one
+    changed character in one module gives another, though the version is the same."""
+    import os
+    import sys
+
+    from tapmuscle.provenance import CODE_PACKAGES, code_digest
+
+    root = Path(tapmuscle.__file__).resolve().parents[1]
+    copy = tmp_path / "site-packages"
+    for name in CODE_PACKAGES:
+        shutil.copytree(root / name, copy / name, ignore=shutil.ignore_patterns("__pycache__", "*.so"))
+    probe = ["-c", "import tapmuscle, tapmuscle.provenance as p; print(p.code_digest(), tapmuscle.__file__)"]
+
+    def digest_there() -> list[str]:
+        env = dict(os.environ, PYTHONPATH=str(copy), PYTHONDONTWRITEBYTECODE="1")
+        return subprocess.run([sys.executable, *probe], capture_output=True, text=True, env=env, check=True,
+                              cwd=tmp_path).stdout.split()
+
+    digest, where = digest_there()
+    assert Path(where).is_relative_to(copy) and digest == code_digest()
+    expect = copy / "tapmuscle" / "cosim" / "expect.py"
+    expect.write_text(expect.read_text() + "\n")
+    assert digest_there()[0] != digest

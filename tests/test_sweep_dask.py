@@ -85,7 +85,9 @@ def test_sweep_on_a_dask_cluster_equals_the_serial_run(dask_cluster, built_fmus,
     sweep.write_text(SWEEP)
     fmu_dir = str(built_fmus["MusclePlant"].parent)
     assert main(["sweep", str(sweep), "--scheduler", address, "--out", str(tmp_path / "dask"),
-                 "--fmu-dir", fmu_dir, "--quiet"]) == 0
+                 "--fmu-dir", fmu_dir]) == 0
+    told = capsys.readouterr().err.splitlines()
+    assert f"Dask: 2 workers at {address}" in told  # a scheduler started with --no-dashboard: no link
     assert main(["sweep", str(sweep), "--workers", "0", "--out", str(tmp_path / "serial"),
                  "--fmu-dir", fmu_dir, "--quiet", "--no-plots"]) == 0
     capsys.readouterr()
@@ -173,17 +175,27 @@ def test_a_port_that_is_no_schedulers_is_named_within_the_timeout(tmp_path, caps
 
 
 def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
-    """A worker without osqp (or with another tapmuscle) would fail each run it took: each is named,
-    with what it lacks, before any run."""
-    from tapmuscle.cosim.distributed_sweep import ClusterError, check_workers
+    """A worker without osqp, with another tapmuscle, or with the same version's other sources (another
+    commit, a local edit) would fail each run it took or compute other numbers: each is named, by
+    address and by the name its admin gave it, with what it lacks or where its code is, before any run."""
+    from tapmuscle.cosim.distributed_sweep import ClusterError, _code_and_home, check_workers
+
+    mine = _code_and_home()
 
     class Client:
-        def run(self, function, argument, on_error):
+        def run(self, function, *args, on_error):
             assert on_error == "return"
             if function is exec:
                 return {"tcp://a:1": None, "tcp://b:2": ModuleNotFoundError("No module named 'osqp'"),
-                        "tcp://c:3": None}
-            return {"tcp://a:1": function(argument), "tcp://b:2": function(argument), "tcp://c:3": "0.0.1"}
+                        "tcp://c:3": None, "tcp://d:4": None}
+            if function is _code_and_home:
+                return {"tcp://a:1": mine, "tcp://b:2": mine, "tcp://c:3": mine,
+                        "tcp://d:4": ("0123456789ab", "/scratch/old/tapmuscle")}
+            return {w: function(*args) for w in ("tcp://a:1", "tcp://b:2", "tcp://d:4")} | {"tcp://c:3": "0.0.1"}
+
+        def scheduler_info(self):
+            return {"workers": {"tcp://a:1": {"name": "tcp://a:1"}, "tcp://b:2": {"name": 0},
+                                "tcp://c:3": {"name": "gpu-node"}, "tcp://d:4": {"name": "w-old"}}}
 
     with pytest.raises(ClusterError) as err:
         check_workers(Client())
@@ -194,8 +206,10 @@ def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
             return {}
     with pytest.raises(ClusterError, match="the cluster has no worker"):
         check_workers(Empty())
-    assert "worker tcp://b:2 cannot import tapmuscle's run code: ModuleNotFoundError: No module named 'osqp'" in said
-    assert "worker tcp://c:3 has tapmuscle 0.0.1, the client tapmuscle " in said and "tcp://a:1" not in said
+    assert "worker tcp://b:2 (0) cannot import tapmuscle's run code: ModuleNotFoundError: No module named 'osqp'" in said
+    assert "worker tcp://c:3 (gpu-node) has tapmuscle 0.0.1, the client tapmuscle " in said and "tcp://a:1" not in said
+    assert (f"worker tcp://d:4 (w-old) runs other tapmuscle sources (digest 0123456789ab, from /scratch/old/tapmuscle) "
+            f"than the client (digest {mine[0]}, from {mine[1]})") in said
 
 
 def test_the_runs_outlive_the_loss_of_the_only_worker(built_fmus, tmp_path):
@@ -659,3 +673,32 @@ def test_a_cancelled_run_of_a_windowed_sweep_is_a_failed_run(monkeypatch):
         got = {r.run_id: r for r in ds.DaskExecutor(client, one_run_per_thread=True)(tasks, ds.FmuFiles({}, {}))}
     assert {k: r.status for k, r in got.items()} == {"r0": "failed", "r1": "ok", "r2": "ok", "r3": "ok"}
     assert "Cancelled" in got["r0"].error
+
+
+def test_the_dashboard_link_is_given_only_where_its_page_answers():
+    """A scheduler without bokeh (or started with --no-dashboard) still has a link, to a page that is
+    not there: only a link whose page answers is printed."""
+    import http.server
+    import threading
+    from types import SimpleNamespace
+
+    from tapmuscle.cli.sweep import _dashboard
+
+    class Page(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - http.server's name
+            self.send_response(200 if self.path == "/status" else 404)
+            self.end_headers()
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        base = f"http://127.0.0.1:{server.server_address[1]}"
+        assert _dashboard(SimpleNamespace(dashboard_link=f"{base}/status")) == f"{base}/status"
+        assert _dashboard(SimpleNamespace(dashboard_link=f"{base}/nothing")) is None
+        assert _dashboard(SimpleNamespace()) is None  # a client without the attribute
+    finally:
+        server.shutdown()
+        server.server_close()

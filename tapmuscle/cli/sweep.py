@@ -62,6 +62,19 @@ def _local_workers(args: argparse.Namespace, n_runs: int) -> None:
     args.workers = max(1, min(args.workers, n_runs))
 
 
+def _dashboard(client: Any) -> str | None:
+    """The link to the cluster's dashboard, where the runs can be watched, if it answers within 2 s
+    (a scheduler without bokeh, or started with ``--no-dashboard``, has the link but not the page)."""
+    import urllib.request
+
+    try:
+        link = client.dashboard_link
+        with urllib.request.urlopen(link, timeout=2.0) as page:  # noqa: S310 - the scheduler's own http link
+            return link if page.status == 200 else None
+    except Exception:  # noqa: BLE001 - a fact to print, never a reason to stop
+        return None
+
+
 def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     """In this process (``--workers 0`` without ``--scheduler``) or on Dask (a local cluster of
     ``--workers`` processes, or the cluster of ``--scheduler``)."""
@@ -91,7 +104,9 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
         raise UsageError(f"{where}: cannot start or connect: {exc}") from None
     if not args.quiet:
         workers = len(client.scheduler_info().get("workers", {}))
-        print(f"Dask: {workers} workers at {client.scheduler.address}", file=sys.stderr)
+        dashboard = _dashboard(client) if args.scheduler else None
+        print(f"Dask: {workers} workers at {client.scheduler.address}" + (f", dashboard {dashboard}" if dashboard else ""),
+              file=sys.stderr)
     # the command's own cluster: one run per worker thread at a time; a scheduler of one's own gets them
     # all (its adaptive scaling sees the backlog)
     return DaskExecutor(client, no_worker_s=args.timeout, one_run_per_thread=not args.scheduler)

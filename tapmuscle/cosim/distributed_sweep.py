@@ -425,15 +425,24 @@ def probe_scheduler(address: str, wait_s: float) -> None:
     raise ClusterError(f"{address}: the answer is not a Dask scheduler's ({greeting[:16]!r})")
 
 
+def _code_and_home() -> tuple[str, str]:
+    """This process's :func:`~tapmuscle.provenance.code_digest` and the folder its tapmuscle is from."""
+    from tapmuscle.provenance import code_digest
+
+    return code_digest(), str(Path(__file__).resolve().parents[1])
+
+
 def check_workers(client: Any) -> None:
-    """Check that every worker of ``client``'s cluster imports tapmuscle's run code, in the client's
-    version, before any run: a worker without osqp (say) would fail each run it took, and one of
-    another version could compute other numbers.
+    """Check that every worker of ``client``'s cluster imports tapmuscle's run code, the client's
+    code, before any run: a worker without osqp (say) would fail each run it took, and one of
+    another version, or of the same version with other sources (another commit, a local edit:
+    :func:`tapmuscle.provenance.code_digest`), could compute other numbers.
 
     Raises
     ------
     ClusterError
-        Each worker that cannot, with what it lacks or the version it has.
+        Each worker that cannot, by address and name, with what it lacks, the version it has, or
+        where its other code is.
     """
     import importlib.metadata
 
@@ -450,14 +459,24 @@ def check_workers(client: Any) -> None:
         mine = importlib.metadata.version("tapmuscle")
     except importlib.metadata.PackageNotFoundError:  # a checkout on sys.path, not installed: no version to hold
         mine = None
+    digests = client.run(_code_and_home, on_error="return")
+    my_digest, my_home = _code_and_home()
+    names = {address: info.get("name") for address, info in client.scheduler_info().get("workers", {}).items()}
     problems = []
     for worker in sorted(imported):
-        error, version = imported[worker], versions.get(worker)
+        error, version, code = imported[worker], versions.get(worker), digests.get(worker)
+        # a worker is named as its admin started it (dask worker --name) as well as by address
+        named = f"worker {worker}" + (f" ({names[worker]})" if names.get(worker) not in (None, worker) else "")
         if isinstance(error, BaseException):
-            problems.append(f"worker {worker} cannot import tapmuscle's run code: {type(error).__name__}: {error}")
+            problems.append(f"{named} cannot import tapmuscle's run code: {type(error).__name__}: {error}")
         elif mine is not None and (isinstance(version, BaseException) or version != mine):
             has = f"{type(version).__name__}: {version}" if isinstance(version, BaseException) else f"tapmuscle {version}"
-            problems.append(f"worker {worker} has {has}, the client tapmuscle {mine}")
+            problems.append(f"{named} has {has}, the client tapmuscle {mine}")
+        elif isinstance(code, BaseException) or code is None:
+            problems.append(f"{named} cannot tell its tapmuscle's sources: {type(code).__name__}: {code}")
+        elif code[0] != my_digest:
+            problems.append(f"{named} runs other tapmuscle sources (digest {code[0]}, from {code[1]}) than the client "
+                            f"(digest {my_digest}, from {my_home}): another commit or a local change")
     if problems:
         raise ClusterError("; ".join(problems) + " (every worker needs the client's tapmuscle and its dependencies: "
                            "docs/sweeps.md, 'Pointing a sweep at a real cluster')")
