@@ -365,3 +365,31 @@ def test_the_box_bounds_an_estimate_sits_on_are_dotted_in_its_panel(monkeypatch,
 
     assert dotted(b1) == [0.607] and dotted(a2) == [-0.334]
     assert saved[0]._suptitle.get_text().endswith("dotted: the box's bounds")
+
+
+def test_figures_saved_from_two_threads_leave_the_processs_warnings_and_settings_as_they_were(tmp_path):
+    """A service saving figures from a thread pool: each save catches warnings and changes the fonts'
+    settings for its figure only; saved at once, each would restore the other's state."""
+    import threading
+
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    from tapmuscle.plots.figures import save_figure
+
+    keys = ("pdf.fonttype", "ps.fonttype", "svg.fonttype", "svg.hashsalt")
+    before = ({k: matplotlib.rcParams[k] for k in keys}, warnings.showwarning, list(warnings.filters))
+
+    def save(name: str) -> None:
+        for i in range(8):
+            fig = Figure(figsize=(2, 1.5))
+            fig.add_subplot().plot(np.arange(200.0) ** 0.5)
+            save_figure(fig, tmp_path / f"{name}{i}.{('png', 'svg', 'pdf')[i % 3]}")
+
+    threads = [threading.Thread(target=save, args=(n,)) for n in "ab"]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert ({k: matplotlib.rcParams[k] for k in keys}, warnings.showwarning, list(warnings.filters)) == before
+    assert len(list(tmp_path.iterdir())) == 16

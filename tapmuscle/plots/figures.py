@@ -16,6 +16,7 @@ import itertools
 import math
 import os
 import re
+import threading
 import warnings
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -76,6 +77,11 @@ class MissingGlyphWarning(UserWarning):
 # matplotlib >= 3.9: "missing from font(s) DejaVu Sans."; 3.8: "missing from current font."
 _GLYPH = re.compile(r"Glyph (\d+) .*missing from (?:current )?font")
 
+#: One figure saved at a time in a process: the warnings caught and matplotlib's settings changed
+#: while one is saved are the process's, and two threads saving at once would each restore the
+#: other's (every later warning of the process lost, the fonts' settings left changed).
+_SAVING = threading.Lock()
+
 
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path:
     """Save ``fig`` to ``path`` atomically, in the format its suffix names (``.pdf``, ``.svg``, ...;
@@ -85,12 +91,13 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
 
     Characters of its text that the font lacks (a scenario named in Chinese or Japanese, with no CJK
     font installed) are said once, as one :class:`MissingGlyphWarning` naming them, instead of
-    matplotlib's warning per character and drawing pass."""
+    matplotlib's warning per character and drawing pass. Figures saved from several threads are
+    saved one at a time."""
     path = Path(path)
     try:
         fmt = path.suffix[1:].lower()
         fmt = fmt if fmt in fig.canvas.get_supported_filetypes() else "png"
-        with warnings.catch_warnings(record=True) as caught:
+        with _SAVING, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             # TrueType fonts in a PDF (matplotlib's Type 3 default is refused by IEEE's and other
             # publishers' checks) and text kept as text in an SVG (editable, searchable); the same
