@@ -67,14 +67,20 @@ def interrupt_once(signum: int, frame: object) -> None:
 def held_interrupts() -> Iterator[_Held]:
     """Hold SIGINT for the block (module docstring); a signal still held at its end is raised there.
 
-    Nested blocks share the outer block's holding. Yields :data:`HELD`, whose
+    Nested blocks share the outer block's holding. In the main thread yields :data:`HELD` (in
+    another thread a flag no signal sets: the signal interrupts the main thread only), whose
     :meth:`~_Held.raise_if_pending` the block calls where an interrupt may safely end it. A block that
     fails with an exception while a signal is held ends with ``KeyboardInterrupt`` raised from that
     exception: the user asked to stop, and the failure is kept as its cause.
     """
+    if threading.current_thread() is not threading.main_thread():
+        # Python raises KeyboardInterrupt in the main thread only: a block of another thread (a thread
+        # pool's run) has a flag of its own that no signal sets, so that the main thread's Ctrl-C ends
+        # the main thread's run, not another's that reads the flag first
+        yield _Held()
+        return
     previous = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or \
-            previous not in (signal.default_int_handler, interrupt_once):
+    if previous not in (signal.default_int_handler, interrupt_once):
         yield HELD  # held already (a nested block), or the signal is someone else's
         return
     HELD.pending = False

@@ -85,11 +85,33 @@ def test_nested_blocks_hold_once_and_other_threads_and_handlers_are_left_alone()
         assert signal.getsignal(signal.SIGINT) is ours  # the inner block did not restore the default
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
+    # a thread pool's run beside the main thread's: the main thread's Ctrl-C ends the main thread's
+    # run, whichever reads its flag first
     seen = []
-    thread = threading.Thread(target=lambda: seen.append(held_interrupts().__enter__() is HELD))
-    thread.start()
-    thread.join()
-    assert seen == [True] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    signalled, in_thread = threading.Event(), threading.Event()
+
+    def run_in_thread():
+        with held_interrupts() as held:
+            assert held is not HELD and signal.getsignal(signal.SIGINT) is ours
+            in_thread.set()
+            signalled.wait(10)
+            held.raise_if_pending()  # not this run's signal
+            seen.append("thread ran on")
+
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts() as held:
+            ours = signal.getsignal(signal.SIGINT)
+            thread = threading.Thread(target=run_in_thread)
+            thread.start()
+            in_thread.wait(10)
+            signal.raise_signal(signal.SIGINT)
+            signalled.set()
+            thread.join()
+            seen.append("main ran on")
+            held.raise_if_pending()
+    assert seen == ["thread ran on", "main ran on"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    seen.clear()
 
     def own(signum, frame):
         seen.append("own handler")
