@@ -683,3 +683,32 @@ def test_an_input_of_ones_own_controller_outside_its_interface_is_set_once():
         _settable(mine, "y", "s: '", driven=driven)
     assert _driven_inputs("plant", None) == {"u", "load_force", "supply_pressure"}
     assert _driven_inputs("foreign plant", None) == frozenset()
+
+
+def test_an_fmu_written_anew_at_its_path_is_read_anew(built_fmus, tmp_path):
+    """A service that rebuilds its FMUs in place: the file's new content is unpacked and checked (the
+    process's cache is kept while the file is unchanged), and no kept instance of the old one is reused."""
+    import os
+    import shutil
+
+    from tapmuscle.cosim import co_simulate
+    from tapmuscle.cosim.master import InstancePool, unpack
+
+    plant = tmp_path / "plant.fmu"
+    shutil.copy(built_fmus["MusclePlant"], plant)
+    first = unpack(plant)
+    assert unpack(plant) is first and first.model_description.modelName == "MusclePlant"
+    (tmp_path / "s.toml").write_text("duration_s = 2.0\n")
+    scenario = load_scenario(tmp_path / "s.toml")
+    fmus = {"MusclePlant": plant, "AMPCController": built_fmus["AMPCController"]}
+    pool = InstancePool()
+    try:
+        co_simulate(scenario, fmus, record="minimal", pool=pool)
+        staged = tmp_path / "staged.fmu"
+        shutil.copy(built_fmus["AMPCController"], staged)
+        os.replace(staged, plant)  # as a build writes its FMU: atomically, a new file at the old name
+        assert unpack(plant).model_description.modelName == "AMPCController"
+        with pytest.raises(ScenarioError, match="cannot be the plant"):
+            co_simulate(scenario, fmus, record="minimal", pool=pool)
+    finally:
+        pool.close()

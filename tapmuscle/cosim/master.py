@@ -78,12 +78,14 @@ _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
 
 @dataclass(frozen=True)
 class Unpacked:
-    """An FMU extracted once per process: its model description and folder."""
+    """An FMU extracted once per process: its model description and folder; ``stamp``, the file's
+    modification time [ns], size [bytes] and inode when it was read."""
 
     path: Path
     model_description: Any
     folder: str
     variables: Mapping[str, Any]
+    stamp: tuple[int, int, int] = (0, 0, 0)
 
 
 _UNPACKED: dict[Path, Unpacked] = {}
@@ -179,7 +181,13 @@ def unpack(path: str | Path) -> Unpacked:
     from fmpy import extract, read_model_description
 
     path = Path(path).resolve()
-    if path not in _UNPACKED:
+    try:
+        found = path.stat()
+    except OSError:
+        found = None
+    stamp = (found.st_mtime_ns, found.st_size, found.st_ino) if found is not None else None
+    # an FMU written anew at the same path (a service that rebuilds its FMUs) is read anew
+    if path not in _UNPACKED or _UNPACKED[path].stamp != stamp:
         if not path.is_file():
             raise ScenarioError(f"{path}: FMU file does not exist")
         _check_unpacked_size(path)  # before its members are read
@@ -192,7 +200,7 @@ def unpack(path: str | Path) -> Unpacked:
             folder = extract(str(path), claimed_folder(f"tapmuscle_{md.modelName}_"))
         except Exception as exc:  # noqa: BLE001 - fmpy refuses an absolute or drive path with a bare Exception
             raise ScenarioError(f"{path}: not an FMU that can be unpacked: {exc}") from None
-        _UNPACKED[path] = Unpacked(path, md, folder, {v.name: v for v in md.modelVariables})
+        _UNPACKED[path] = Unpacked(path, md, folder, {v.name: v for v in md.modelVariables}, stamp)
     return _UNPACKED[path]
 
 
@@ -551,14 +559,16 @@ class InstancePool:
     """
 
     def __init__(self) -> None:
-        self._idle: dict[tuple[Path, str, tuple[tuple[str, str], ...] | None], list[FmuInstance]] = {}
-        self._fresh_only: set[tuple[Path, str, tuple[tuple[str, str], ...] | None]] = set()
+        self._idle: dict[tuple[Path, tuple[int, int, int], str, tuple[tuple[str, str], ...] | None],
+                         list[FmuInstance]] = {}
+        self._fresh_only: set[tuple[Path, tuple[int, int, int], str, tuple[tuple[str, str], ...] | None]] = set()
         self._lock = threading.Lock()
 
     def acquire(self, path: str | Path, instance_name: str, *, role: str,
                 interface: Mapping[str, str] | None = None, source: str = "") -> FmuInstance:
         """An instance of ``path`` in initialization mode: a reset idle one, or a new one."""
-        key = (unpack(path).path, role, _interface_key(interface))
+        unpacked = unpack(path)
+        key = (unpacked.path, unpacked.stamp, role, _interface_key(interface))
         with self._lock:
             idle = self._idle.get(key)
             inst = idle.pop() if idle else None
@@ -586,7 +596,7 @@ class InstancePool:
         whose fmi2Reset builds the slave anew; another FMU's is freed (an export's fmi2Reset may keep
         state from the run before, which no call can tell)."""
         with self._lock:
-            key = (inst.unpacked.path, inst.role, _interface_key(inst.interface))
+            key = (inst.unpacked.path, inst.unpacked.stamp, inst.role, _interface_key(inst.interface))
             if key not in self._fresh_only and _made_by_pythonfmu(inst.unpacked):
                 self._idle.setdefault(key, []).append(inst)
                 return
