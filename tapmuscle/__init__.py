@@ -51,6 +51,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "simulate_closed_loop": ("tapmuscle.api", "simulate_closed_loop"),
     "run_closed_loop": ("tapmuscle.closed_loop", "run_closed_loop"),
     "eq21_error_mm": ("tapmuscle.closed_loop", "eq21_error_mm"),
+    "ClosedLoopWarning": ("tapmuscle.closed_loop", "ClosedLoopWarning"),
     "ControlLaw": ("tapmuscle.own_law", "ControlLaw"),
     "ValveWatch": ("tapmuscle.own_law", "ValveWatch"),
     # FMUs and co-simulation

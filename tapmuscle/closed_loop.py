@@ -26,7 +26,17 @@ from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.own_law import ControlLaw, ValveWatch, as_law, law_command, law_period, law_preview_samples, reset_law
 from tapmuscle.progress import reporter
 
-__all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S"]
+__all__ = ["run_closed_loop", "eq21_error_mm", "eq21_window", "command_tv_excess", "EQ21_WINDOW", "EQ21_WINDOW_S",
+           "ClosedLoopWarning"]
+
+
+class ClosedLoopWarning(RuntimeWarning):
+    """What the watch of a closed loop saw (:class:`fmu_controller.loop_watch.LoopWatch`, or
+    :class:`tapmuscle.own_law.ValveWatch` for a law of your own: a limit cycle, a valve pinned or
+    slammed, a diverging estimate, a stuck reading) and readings the glitch guard held, warned after
+    :func:`run_closed_loop`. Its text carries the run's times and values, so Python's default filter
+    shows it for every run: a loop over many runs silences it with
+    ``warnings.simplefilter("ignore", tm.ClosedLoopWarning)`` (or ``watch=False``)."""
 
 #: Samples of Eq. (21): k = 101..401, with the sample k at t = k Ts as in Eq. (1), so 10.1-40.1 s at
 #: Ts = 0.1 s. The paper's text says "from 10 to 40 s", the same 301 samples counted from 1 (MATLAB's
@@ -214,7 +224,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
         ``progress(done, total)`` about every 1 % of the run; True: a report on stderr
         (:class:`tapmuscle.progress.Progress`).
     watch : bool, default True
-        Warn (``RuntimeWarning``, after the run) of what the controller FMU logs of a loop
+        Warn (:class:`ClosedLoopWarning`, after the run) of what the controller FMU logs of a loop
         (:class:`fmu_controller.loop_watch.LoopWatch`: a limit cycle, a valve pinned at a limit or
         held against the error, a law slamming the valve, a diverging estimate, a set input delay the
         first 30 s contradict, a stuck reading), each with its time; False: not (a loop run to make
@@ -337,23 +347,23 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                 progress(k + 1, n)
     except Exception:
         for message in told:  # what the watch saw before the run broke off
-            warn_at_caller(message, RuntimeWarning)
+            warn_at_caller(message, ClosedLoopWarning)
         raise
     for i, name in enumerate(() if own else names):
         cols[f"theta_{name}"] = theta_hist[:, i]
     plant.warn_run_notes(float(np.min(cols["load_n"])))
     for message in told:
-        warn_at_caller(message, RuntimeWarning)
+        warn_at_caller(message, ClosedLoopWarning)
     if held_at:
         s = controller.settings
         warn_at_caller(f"{len(held_at)} readings (the first at t = {held_at[0]:g} s) were further from the last one used "
                        f"than the muscle moves in a sample (max_speed_mm_per_s x ts_s = {s.max_speed_mm_per_s:g} x "
                        f"{s.ts_s:g} mm) and were taken for sensor glitches: the controller used its prediction instead "
-                       "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", RuntimeWarning)
+                       "(ControllerSettings.max_speed_mm_per_s; 0 turns this off)", ClosedLoopWarning)
     if spiked_at:
         warn_at_caller(f"{len(spiked_at)} readings (the first at t = {spiked_at[0]:g} s) were further from the one-step "
                        f"prediction than the larger of {SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times its mean error, the two "
                        "readings before within half of that, and were taken for one-sample spikes of the sensor: the "
                        "controller used its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)",
-                       RuntimeWarning)
+                       ClosedLoopWarning)
     return cols

@@ -194,7 +194,7 @@ def test_a_law_holding_the_valve_against_the_error_is_warned_of_after_the_run():
 
     theta = list(tm.THETA0_44N)
     theta[2] = -0.8
-    with pytest.warns(RuntimeWarning, match=r"^t = 10 s: the command has sat at the valve's 0 V for 10 s while the "
+    with pytest.warns(tm.ClosedLoopWarning, match=r"^t = 10 s: the command has sat at the valve's 0 V for 10 s while the "
                                             r"reading l = -?[\d.]+ mm stays [\d.]+ mm below the reference r = [\d.]+ mm, "
                                             r"where the other way would close the gap: theta0\.b1 = -0\.8 < 0 inverts "
                                             r"the law") as caught:
