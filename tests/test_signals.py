@@ -1,5 +1,6 @@
 """Input specs for `tapmuscle record`."""
 
+import bisect
 import math
 
 import numpy as np
@@ -41,10 +42,8 @@ def _random_reference(lo, hi, hold_min, hold_max, seed, t_end):
         levels.append(float(rng.uniform(lo, hi)))
 
     def level(t):
-        k = 0
-        while k + 1 < len(times) and times[k + 1] <= t:
-            k += 1
-        return levels[k]
+        # the last of the sorted switching times at or before t (index 0 before 0 s)
+        return levels[max(bisect.bisect_right(times, t) - 1, 0)]
 
     return level, times
 
