@@ -22,6 +22,13 @@ def real_number(value: Any, *, what: str) -> float:
     Takes an int, a float or a numpy number of any width (``np.float32(0.1)``, ``np.int64(2)``, what a
     notebook's arrays give).
 
+    Parameters
+    ----------
+    value : int, float or numpy number
+        The value to check.
+    what : str
+        How the error message names the argument.
+
     Raises
     ------
     TypeError
@@ -43,7 +50,13 @@ def real_number(value: Any, *, what: str) -> float:
 def in_sampling_range(ts_s: float) -> int:
     """Where a period [s] lies against :data:`MUSCLE_TS_RANGE_S`: -1 below, 0 within, 1 above (NaN
     above). A relative 1e-9 either side is within: a period measured from times written as text
-    (1 ms logged as 0.001, 0.002, ...) comes out a hair short of 1 ms and is still 1 ms."""
+    (1 ms logged as 0.001, 0.002, ...) comes out a hair short of 1 ms and is still 1 ms.
+
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
+    """
     lo, hi = MUSCLE_TS_RANGE_S
     if ts_s < lo * (1.0 - 1e-9):
         return -1
@@ -53,7 +66,15 @@ def in_sampling_range(ts_s: float) -> int:
 def sampling_period(value: Any, *, what: str = "ts_s") -> float:
     """``value`` as a sampling period [s] within :data:`MUSCLE_TS_RANGE_S` (:func:`in_sampling_range`),
     or an error naming ``what``: a ``TypeError`` for a non-number, a ``ValueError`` for NaN, <= 0 or
-    a period outside the range (above: milliseconds meant? below: samples to merge)."""
+    a period outside the range (above: milliseconds meant? below: samples to merge).
+
+    Parameters
+    ----------
+    value : float
+        The sampling period to check [s].
+    what : str, optional
+        How the error message names the argument; default ``"ts_s"``.
+    """
     ts = real_number(value, what=what)
     lo, hi = MUSCLE_TS_RANGE_S
     if ts <= 0:
@@ -71,7 +92,15 @@ def sampling_period(value: Any, *, what: str = "ts_s") -> float:
 
 def whole_number(value: Any, *, what: str) -> int:
     """``value`` as a Python int (an int or a numpy integer), or a TypeError naming ``what`` (a
-    bool, a float such as 2.0, a string)."""
+    bool, a float such as 2.0, a string).
+
+    Parameters
+    ----------
+    value : int or numpy integer
+        The value to check.
+    what : str
+        How the error message names the argument.
+    """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise TypeError(f"{what} must be an integer, got {type(value).__name__} {value!r:.60}")
     return int(value)
@@ -79,6 +108,15 @@ def whole_number(value: Any, *, what: str) -> int:
 
 def number_array(values: Any, *, what: str, expected: str) -> np.ndarray:
     """``values`` as a float array, or an error naming ``what`` and what was ``expected``.
+
+    Parameters
+    ----------
+    values : array_like
+        The sequence to convert.
+    what : str
+        How the error message names the argument.
+    expected : str
+        What the error message says the argument must be (e.g. ``"a sequence of numbers"``).
 
     Raises
     ------

@@ -114,6 +114,12 @@ class BoxProjector:
       0]``; then ``d_c = P_cc w`` and cost ``= w . d``.
 
     Beyond ``m = 4`` BVLS (``scipy.optimize.lsq_linear``) is used instead.
+
+    Parameters
+    ----------
+    lower, upper : ndarray
+        Bounds of the box C of Algorithm 1, one entry per parameter (``-inf``/``+inf`` where
+        unbounded); the coordinates with a finite bound on either side are the boxed ones ``c``.
     """
 
     #: candidates tried by the active-set iterations before falling back
@@ -432,7 +438,18 @@ def named_box(lower: Mapping[str, Any], upper: Mapping[str, Any], *, names: Sequ
     or a ``ValueError`` naming ``what``: a side that is not a mapping, a name not in ``names``, a
     bound that is not a real number (any numpy width) or is NaN, an infinity on the side it bars
     every value from, a lower bound above its upper one. An infinity on its own side is no bound
-    and left out."""
+    and left out.
+
+    Parameters
+    ----------
+    lower, upper : mapping of str to float
+        Lower and upper bounds by parameter name; a parameter not named is unbounded on that
+        side.
+    names : sequence of str
+        The model's parameter names, in order.
+    what : str
+        How the error message names the box.
+    """
     out = []
     for side, given, unbounded in (("lower", lower, -math.inf), ("upper", upper, math.inf)):
         if not isinstance(given, Mapping):
@@ -462,7 +479,17 @@ def named_box(lower: Mapping[str, Any], upper: Mapping[str, Any], *, names: Sequ
 def box_from_pairs(box: Mapping[str, Any], *, names: Sequence[str], what: str = "box"
                    ) -> tuple[dict[str, float], dict[str, float]]:
     """:func:`named_box` of ``{name: (lower, upper)}`` (``tm.identify``'s ``box``; a pair may be a
-    tuple, a list or a numpy array of two numbers)."""
+    tuple, a list or a numpy array of two numbers).
+
+    Parameters
+    ----------
+    box : mapping of str to (float, float)
+        ``{name: (lower, upper)}``.
+    names : sequence of str
+        The model's parameter names, in order.
+    what : str, optional
+        How the error message names the box; default ``"box"``.
+    """
     if not isinstance(box, Mapping):
         raise ValueError(f"{what} must map parameter names to (lower, upper) pairs, got {type(box).__name__} {box!r:.60}")
     lower, upper = {}, {}

@@ -123,7 +123,14 @@ def _fmu_names(message: str, names: dict[str, str]) -> str:
 
 
 class AMPCController(SafeSlave):
-    """MPC / AMPC with unique coincidence point or servo mechanism (paper sections 3-4)."""
+    """MPC / AMPC with unique coincidence point or servo mechanism (paper sections 3-4).
+
+    Parameters
+    ----------
+    **kwargs
+        pythonfmu's ``Fmi2Slave`` arguments (``instance_name``, ``resources``, ...), which the
+        FMU's host passes on instantiation.
+    """
 
     author = "tapmuscle"
     description = ("Displacement controller of a tap-water McKibben muscle: MPC/AMPC with unique coincidence "

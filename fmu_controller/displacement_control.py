@@ -191,7 +191,13 @@ _NEW_SPIKE_GUARD = (math.nan, math.nan, 0, math.nan, math.nan)
 
 
 def settle_samples(ts_s: float) -> int:
-    """:data:`REF_STEP_SETTLE_S` in samples of ``ts_s`` [s]."""
+    """:data:`REF_STEP_SETTLE_S` in samples of ``ts_s`` [s].
+
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
+    """
     return int(round(REF_STEP_SETTLE_S / ts_s))
 
 
@@ -497,19 +503,49 @@ class ControllerSettings:
 
 def preview_lead(input_delay_samples: int) -> int:
     """The reference samples beyond ``Hp`` that a controller with ``input_delay_samples`` needs: the
-    delay, and :data:`AUTO_INPUT_DELAY_SAMPLES` for -1 (:attr:`ControllerSettings.preview_samples`)."""
+    delay, and :data:`AUTO_INPUT_DELAY_SAMPLES` for -1 (:attr:`ControllerSettings.preview_samples`).
+
+    Parameters
+    ----------
+    input_delay_samples : int
+        The controller's input delay [samples], or -1 (decided from the data).
+    """
     return AUTO_INPUT_DELAY_SAMPLES if input_delay_samples == -1 else input_delay_samples
 
 
 def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
     """Whether the command ``u_v`` [V] sits at a valve limit that the error ``r - l`` [mm] pushes it
-    further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it)."""
+    further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it).
+
+    Parameters
+    ----------
+    r_mm : float
+        Reference ``r`` [mm].
+    l_mm : float
+        Measured contraction ``l`` [mm].
+    u_v : float
+        Valve command [V].
+    u_min_v, u_max_v : float
+        The valve's command limits [V] (Eq. (19)).
+    """
     return pinned_side(r_mm, l_mm, u_v, u_min_v, u_max_v) != 0
 
 
 def pinned_side(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> int:
     """Which valve limit the command ``u_v`` [V] sits at (within 1 nV) with the error ``r - l`` [mm]
-    pushing it further in: 1 the upper (``r > l``), -1 the lower (``r < l``), 0 neither."""
+    pushing it further in: 1 the upper (``r > l``), -1 the lower (``r < l``), 0 neither.
+
+    Parameters
+    ----------
+    r_mm : float
+        Reference ``r`` [mm].
+    l_mm : float
+        Measured contraction ``l`` [mm].
+    u_v : float
+        Valve command [V].
+    u_min_v, u_max_v : float
+        The valve's command limits [V] (Eq. (19)).
+    """
     if r_mm > l_mm and u_v >= u_max_v - 1e-9:
         return 1
     if r_mm < l_mm and u_v <= u_min_v + 1e-9:
@@ -530,14 +566,34 @@ def held_against_error(r_mm: Any, l_mm: Any, u_v: Any, u_min_v: float, u_max_v: 
     """Whether the command ``u_v`` [V] sits at a valve limit while the error ``r - l`` [mm], by
     :data:`HELD_AGAINST_MM` or more, pushes it away from it: a law that opened (closed) the valve would
     move ``l`` towards ``r``, so the law's gain has the wrong sign for the rig. Floats or arrays
-    (element-wise)."""
+    (element-wise).
+
+    Parameters
+    ----------
+    r_mm : float or ndarray
+        Reference ``r`` [mm].
+    l_mm : float or ndarray
+        Measured contraction ``l`` [mm].
+    u_v : float or ndarray
+        Valve command [V].
+    u_min_v, u_max_v : float
+        The valve's command limits [V] (Eq. (19)).
+    """
     return (((r_mm - l_mm >= HELD_AGAINST_MM) & (u_v <= u_min_v + 1e-9))
             | ((l_mm - r_mm >= HELD_AGAINST_MM) & (u_v >= u_max_v - 1e-9)))
 
 
 def held_against_cause(theta0_b1: float, name: str = "theta0.b1") -> str:
     """Why a command is held against the error (:func:`held_against_error`), in words, for a law on a
-    ``theta0`` with this ``b1`` [mm/V] (``name``: how the caller names it)."""
+    ``theta0`` with this ``b1`` [mm/V] (``name``: how the caller names it).
+
+    Parameters
+    ----------
+    theta0_b1 : float
+        The law's ``b1`` of Eq. (1) [mm/V]; negative inverts the law.
+    name : str, optional
+        How the message names it; default ``"theta0.b1"``.
+    """
     if theta0_b1 < 0:
         return (f"{name} = {theta0_b1:g} < 0 inverts the law: more valve opening contracts the muscle, so b1 > 0 "
                 "(a model identified with u or l of the other sign?)")
@@ -566,7 +622,22 @@ def held_reading_message(settings: ControllerSettings, reading_mm: float, used_m
                          spike_mm: float | None) -> str:
     """What to tell of a reading :attr:`DisplacementController.reading_held` reports (without the time):
     the ``reading_mm`` [mm], the prediction ``used_mm`` instead, the last reading used ``last_mm``, and
-    ``spike_mm``, its :attr:`~DisplacementController.spike_limit_mm` (None: a jump beyond ``max_speed``)."""
+    ``spike_mm``, its :attr:`~DisplacementController.spike_limit_mm` (None: a jump beyond ``max_speed``).
+
+    Parameters
+    ----------
+    settings : ControllerSettings
+        The controller's settings (``max_speed_mm_per_s`` [mm/s] and ``ts_s`` [s] for a jump's
+        message).
+    reading_mm : float
+        The reading held [mm].
+    used_mm : float
+        The one-step prediction used instead [mm].
+    last_mm : float
+        The last reading used [mm].
+    spike_mm : float or None
+        The spike limit [mm] for a one-sample spike, or None for a jump beyond ``max_speed``.
+    """
     if spike_mm is not None:
         return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - used_mm):.3g} mm from the one-step prediction "
                 f"{used_mm:.4g} mm, more than the {spike_mm:.3g} mm it has lately come within (the larger of "
@@ -583,7 +654,17 @@ def held_reading_message(settings: ControllerSettings, reading_mm: float, used_m
 
 def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> str:
     """What to tell of a reading :attr:`DisplacementController.reading_stuck` reported at ``t_s`` [s]:
-    ``reading_mm`` [mm], unchanged for ``unchanged_s`` [s]."""
+    ``reading_mm`` [mm], unchanged for ``unchanged_s`` [s].
+
+    Parameters
+    ----------
+    t_s : float
+        Time of the report [s].
+    reading_mm : float
+        The stuck reading [mm].
+    unchanged_s : float
+        How long it has not changed [s].
+    """
     return (f"t = {t_s:g} s: the reading l = {reading_mm:g} mm has not changed at all for {unchanged_s:.4g} s while "
             f"the command sat at each of the valve's limits for {STUCK_AT_LIMIT_S:g} s or more, which moves a working "
             "muscle by millimetres: the sensor is stuck or disconnected (a DAQ holding its last value?), or the supply "
@@ -591,13 +672,31 @@ def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> 
 
 
 def limit_side(u_v: float, u_min_v: float, u_max_v: float) -> int:
-    """The valve limit the command ``u_v`` [V] sits at (within 1 nV): -1 the lower, 1 the upper, 0 neither."""
+    """The valve limit the command ``u_v`` [V] sits at (within 1 nV): -1 the lower, 1 the upper, 0 neither.
+
+    Parameters
+    ----------
+    u_v : float
+        Valve command [V].
+    u_min_v, u_max_v : float
+        The valve's command limits [V] (Eq. (19)).
+    """
     return -1 if u_v <= u_min_v + 1e-9 else 1 if u_v >= u_max_v - 1e-9 else 0
 
 
 def full_range_jump(u_v: float, u_prev_v: float, u_min_v: float, u_max_v: float) -> bool:
     """Whether the command moved across :data:`GUARD_JUMP_FRACTION` of the valve's range [V] in one
-    sample: the valve slammed end to end."""
+    sample: the valve slammed end to end.
+
+    Parameters
+    ----------
+    u_v : float
+        Valve command at this sample [V].
+    u_prev_v : float
+        Valve command at the previous sample [V].
+    u_min_v, u_max_v : float
+        The valve's command limits [V] (Eq. (19)).
+    """
     return abs(u_v - u_prev_v) >= GUARD_JUMP_FRACTION * (u_max_v - u_min_v)
 
 

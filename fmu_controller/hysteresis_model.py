@@ -260,6 +260,15 @@ def regressor_terms(l0: float | np.ndarray, l1: float | np.ndarray, l2: float | 
 
     ``l0 = l(k)``, ``l1 = l(k-1)``, ``l2 = l(k-2)`` [mm], ``u0 = u(k)`` [V], ``v1 = v(k-1)``,
     ``v2 = v(k-2)`` [mm] (the virtual hysteresis variable).
+
+    Parameters
+    ----------
+    l0, l1, l2 : float or ndarray
+        Contraction ``l(k)``, ``l(k-1)``, ``l(k-2)`` [mm].
+    u0 : float or ndarray
+        Command ``u(k)`` [V].
+    v1, v2 : float or ndarray
+        Virtual hysteresis variable ``v(k-1)``, ``v(k-2)`` [mm].
     """
     d0 = l0 - l1
     d1 = l1 - l2
@@ -402,6 +411,11 @@ def null_direction(structure: ModelStructure = ASYMMETRIC) -> np.ndarray:
     ``n = -e_a1 + e_a2 + e_A1`` because ``phi[3] = phi[0] - phi[1]``
     (``dl(k-1) = l(k-1) - l(k-2)``).  Moving ``theta`` along ``n`` does not
     change the one-step regression, so data alone cannot fix it.
+
+    Parameters
+    ----------
+    structure : ModelStructure, optional
+        Model variant (its parameter names and their number); default the asymmetric model.
     """
     n = np.zeros(structure.n_params)
     n[structure.index("a1")] = -1.0
@@ -419,6 +433,13 @@ def identifiable_combinations(
     two combinations that replace ``a1, a2, A1`` followed by all remaining
     parameters in regressor order.  Together they are invariant along
     :func:`null_direction`.
+
+    Parameters
+    ----------
+    theta : sequence of float or ndarray
+        Parameters of Eq. (1), in ``structure``'s order.
+    structure : ModelStructure, optional
+        Model variant; default the asymmetric model.
     """
     p = structure.to_dict(theta)
     out = {"a1+A1": p["a1"] + p["A1"], "a2-A1": p["a2"] - p["A1"]}

@@ -58,7 +58,15 @@ HORIZONS = (1, 3, 5)
 
 def decade_scale(x: np.ndarray, typical: float) -> float:
     """Power of ten that brings ``max |x|`` closest to ``typical`` on a log scale (1 when ``max |x|``
-    lies within a factor ``sqrt(10) = 3.16`` of ``typical``)."""
+    lies within a factor ``sqrt(10) = 3.16`` of ``typical``).
+
+    Parameters
+    ----------
+    x : ndarray
+        The data.
+    typical : float
+        The magnitude ``max |x|`` should come close to, in the unit of ``x``.
+    """
     peak = float(np.max(np.abs(x)))
     if peak == 0.0:
         return 1.0
@@ -235,7 +243,17 @@ def _diverged_note(structure: ModelStructure, u_scaled: np.ndarray, l_scaled: np
 def check_record(u: np.ndarray, l: np.ndarray, ts_s: float) -> None:
     """Refuse a record :func:`identify_record` cannot identify Eq. (1) on, naming what is wrong: ``u``
     and ``l`` [V, mm] not 1-D of one length, a period outside the muscle's (milliseconds meant), a
-    value that is not finite, too few samples, or a constant command or displacement."""
+    value that is not finite, too few samples, or a constant command or displacement.
+
+    Parameters
+    ----------
+    u : ndarray
+        Command of the record [V].
+    l : ndarray
+        Displacement of the record [mm].
+    ts_s : float
+        Sampling period [s].
+    """
     if u.shape != l.shape or u.ndim != 1:
         raise ValueError(f"u and l must be 1-D arrays of equal length, got shapes {u.shape} and {l.shape}")
     sampling_period(ts_s)
@@ -260,7 +278,20 @@ def cancellation_swing(theta: np.ndarray, structure: ModelStructure, u: np.ndarr
     Eq. (1)'s hysteresis term (:func:`~fmu_controller.hysteresis_model.hysteresis_term`) on the
     recorded ``l`` and the command ``u`` the model was identified on (``u(k - d)`` under an input
     delay ``d``), ``v`` the linear part's residual with ``theta``. Infinite where ``b1`` is 0 and the
-    term is not (no command cancels it)."""
+    term is not (no command cancels it).
+
+    Parameters
+    ----------
+    theta : ndarray
+        Parameters of Eq. (1), in ``structure``'s order.
+    structure : ModelStructure
+        Model variant of ``theta``.
+    u : ndarray
+        The command the model was identified on (``u(k - d)`` under an input delay ``d``), in the
+        record's unit.
+    l : ndarray
+        Recorded displacement, in the record's unit.
+    """
     theta = np.asarray(theta, dtype=float)
     v = virtual_hysteresis_sequence(theta, l, u)
     k = np.arange(2, len(l))
@@ -291,7 +322,14 @@ def _beyond(key: str, scale: float) -> str | None:
 def units_note(scaling: object) -> str | None:
     """``"a recording whose largest ... ; the controllers need ..."`` where an identification's
     ``scaling`` (``{"l_scale": ..., "u_scale": ...}``) is beyond the mm and V of the controllers
-    (:func:`_beyond`), else None."""
+    (:func:`_beyond`), else None.
+
+    Parameters
+    ----------
+    scaling : object
+        An identification's ``scaling``: a dict ``{"l_scale": ..., "u_scale": ...}``; anything
+        else gives None.
+    """
     if not isinstance(scaling, dict):
         return None
     odd = []

@@ -93,6 +93,11 @@ def search_samples(ts_s: float) -> int:
     ``ts_s`` [s]: :data:`SEARCH_S` rounded to samples, within :data:`MIN_SEARCH_SAMPLES` ..
     :data:`~fmu_controller.prediction.MAX_INPUT_DELAY_SAMPLES` (25 at 0.02 s, 5 at 0.1 s and above).
 
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
+
     Raises
     ------
     ValueError
@@ -215,7 +220,24 @@ def fits_by_delay(u_v: np.ndarray, l_mm: np.ndarray, *, ts_s: float, max_samples
                   **identify: Any) -> tuple[list[float], list[IdentificationReport]]:
     """The 1-step fits [%] on the record of Eq. (1) identified under each input delay
     ``D = 0 .. max_samples``, and those identifications; the arguments as :func:`choose_input_delay`'s,
-    whatever the command (its frequencies are not checked) and with the options as given."""
+    whatever the command (its frequencies are not checked) and with the options as given.
+
+    Parameters
+    ----------
+    u_v, l_mm : ndarray
+        Command [V] and displacement [mm] of the record, one sample per period.
+    ts_s : float
+        Sampling period [s].
+    max_samples : int, optional
+        The largest delay tried [samples], 0 .. ``MAX_INPUT_DELAY_SAMPLES``; by default
+        :func:`search_samples`.
+    on_delay : callable, optional
+        ``on_delay(done, total)`` after each delay's identification (``total`` = ``max_samples +
+        1``).
+    **identify
+        Keyword arguments of :func:`~fmu_controller.identification.identify_record`, the same
+        under each delay (not ``input_delay_samples``).
+    """
     if max_samples is None:
         max_samples = search_samples(ts_s)
     if isinstance(max_samples, bool) or not isinstance(max_samples, (int, np.integer)) \

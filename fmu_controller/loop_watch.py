@@ -135,7 +135,20 @@ REACH_STILL_MM_PER_S = 3.0
 def in_a_row(count: int, now: bool, long_s: float, ts_s: float) -> tuple[int, float | None]:
     """The samples in a row a condition held, ``count`` before this one, and, once they span ``long_s``
     seconds at the sampling period ``ts_s`` [s], that span [s] (the count then -1: said). The span runs
-    from the first sample of the stretch to this one: with a long Ts, a held command is no time sat yet."""
+    from the first sample of the stretch to this one: with a long Ts, a held command is no time sat yet.
+
+    Parameters
+    ----------
+    count : int
+        Samples in a row the condition held before this one, as the last call returned it (-1:
+        that stretch was said).
+    now : bool
+        Whether the condition holds at this sample.
+    long_s : float
+        The span that is worth saying [s].
+    ts_s : float
+        Sampling period [s].
+    """
     count = count + 1 if now else 0
     span_s = (count - 1) * ts_s
     return (-1, span_s) if span_s >= long_s - 1e-9 else (count, None)
@@ -144,7 +157,23 @@ def in_a_row(count: int, now: bool, long_s: float, ts_s: float) -> tuple[int, fl
 def pinned_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: float, moved: bool) -> str:
     """What to tell of a command that has sat at the valve limit ``limit_v`` [V] for ``sat_s`` [s] while
     the error ``r - l`` [mm] pushes it further (:func:`~fmu_controller.displacement_control.pushed_at_limit`);
-    ``moved``: whether any reading of that stretch differed from its first."""
+    ``moved``: whether any reading of that stretch differed from its first.
+
+    Parameters
+    ----------
+    t_s : float
+        Time of the report [s].
+    limit_v : float
+        The valve limit the command sits at [V].
+    sat_s : float
+        How long it has sat there [s].
+    r_mm : float
+        Reference ``r`` [mm].
+    l_mm : float
+        Reading ``l`` [mm].
+    moved : bool
+        Whether any reading of that stretch differed from its first.
+    """
     # a reading that stayed the same to the bit: at an end stop, or a sensor that froze while the command
     # stayed at one limit, which a stuck-reading check on both limits cannot tell
     stuck = "" if moved else ", or the sensor is stuck (l has not changed at all in that time)"
@@ -273,7 +302,24 @@ class ReachWatch:
 def held_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: float, why: str) -> str:
     """What to tell of a command that has sat at the valve limit ``limit_v`` [V] for ``sat_s`` [s]
     against the error ``r - l`` [mm] (:func:`~fmu_controller.displacement_control.held_against_error`),
-    with its likely cause ``why``."""
+    with its likely cause ``why``.
+
+    Parameters
+    ----------
+    t_s : float
+        Time of the report [s].
+    limit_v : float
+        The valve limit the command sits at [V].
+    sat_s : float
+        How long it has sat there [s].
+    r_mm : float
+        Reference ``r`` [mm].
+    l_mm : float
+        Reading ``l`` [mm].
+    why : str
+        The likely cause, in words
+        (:func:`~fmu_controller.displacement_control.held_against_cause`).
+    """
     away = "below" if r_mm > l_mm else "above"
     return (f"t = {t_s:g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the reading "
             f"l = {l_mm:g} mm stays {abs(r_mm - l_mm):.4g} mm {away} the reference r = {r_mm:g} mm, where the other "
@@ -281,14 +327,30 @@ def held_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: fl
 
 
 def samples_in_words(n: int) -> str:
-    """``n`` samples, in words a log reads (``1 sample``, ``2 samples``)."""
+    """``n`` samples, in words a log reads (``1 sample``, ``2 samples``).
+
+    Parameters
+    ----------
+    n : int
+        Number of samples.
+    """
     return f"{n} sample" if n == 1 else f"{n} samples"
 
 
 def horizon_past_delay(hp: int, ts_s: float, d: int) -> str:
     """What to say of a servo horizon of ``hp`` samples at ``ts_s`` [s] that looks less than
     :data:`HORIZON_PAST_DELAY_S` past an input delay of ``d`` samples while it spans less than Table 5's
-    0.5 s (a short Ts), else ``""``."""
+    0.5 s (a short Ts), else ``""``.
+
+    Parameters
+    ----------
+    hp : int
+        Servo prediction horizon ``Hp`` [samples] (Table 5).
+    ts_s : float
+        Sampling period [s].
+    d : int
+        Input delay [samples].
+    """
     if d < 1 or hp * ts_s >= TABLE5_HORIZON_S * (1.0 - 1e-9) or (hp - d) * ts_s >= HORIZON_PAST_DELAY_S * (1.0 - 1e-9):
         return ""
     return (f"servo.Hp = {hp} samples spans {hp * ts_s:g} s at Ts = {ts_s:g} s and looks {max(hp - d, 0) * ts_s:g} s "
@@ -298,7 +360,13 @@ def horizon_past_delay(hp: int, ts_s: float, d: int) -> str:
 
 
 def table5_horizon_samples(ts_s: float) -> int:
-    """The servo horizon [samples] that spans Table 5's :data:`TABLE5_HORIZON_S` at ``ts_s`` [s]."""
+    """The servo horizon [samples] that spans Table 5's :data:`TABLE5_HORIZON_S` at ``ts_s`` [s].
+
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
+    """
     return math.ceil(TABLE5_HORIZON_S / ts_s - 1e-9)
 
 

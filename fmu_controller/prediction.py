@@ -67,6 +67,11 @@ MAX_INPUT_DELAY_SAMPLES = 25
 def checked_input_delay(delay_samples: int) -> int:
     """``delay_samples`` if it is a whole number of samples 0 .. :data:`MAX_INPUT_DELAY_SAMPLES`.
 
+    Parameters
+    ----------
+    delay_samples : int
+        Input delay [samples].
+
     Raises
     ------
     ValueError
@@ -85,6 +90,13 @@ def delay_samples_for(delay_s: float, ts_s: float) -> int:
     ``input_delay_samples = -1`` decides (docs/control.md, "Transport delay"). Not capped at
     :data:`MAX_INPUT_DELAY_SAMPLES`: the caller says what a longer delay means for it.
 
+    Parameters
+    ----------
+    delay_s : float
+        Transport delay [s], >= 0.
+    ts_s : float
+        Sampling period [s], > 0.
+
     Raises
     ------
     ValueError
@@ -102,6 +114,13 @@ def delayed_input(u: np.ndarray, delay_samples: int) -> np.ndarray:
     """The command the valve had at each sample, ``u(k - d)`` [V], for a loop that applies each
     command ``d`` samples late (a rig's transport delay): Eq. (1)'s input on such a rig. The first
     ``d`` samples repeat ``u(0)`` (the record holds nothing earlier).
+
+    Parameters
+    ----------
+    u : ndarray
+        The commands computed, one per sample [V].
+    delay_samples : int
+        Input delay ``d`` [samples], 0 .. :data:`MAX_INPUT_DELAY_SAMPLES`.
 
     Raises
     ------
@@ -536,6 +555,15 @@ def theta_scale_factors(structure: ModelStructure, l_scale: float, u_scale: floa
     the output-error weight, which is in the units of ``l^2``.  With ``P(-1)``
     and the box transformed this way, RLS on scaled data is exactly
     equivalent to RLS on raw data (up to rounding).
+
+    Parameters
+    ----------
+    structure : ModelStructure
+        Model variant (which parameters, in order).
+    l_scale : float
+        Scale the displacement was divided by (finite, > 0).
+    u_scale : float
+        Scale the command was divided by (finite, > 0).
     """
     for name, s in (("l_scale", l_scale), ("u_scale", u_scale)):
         if not (math.isfinite(float(s)) and float(s) > 0):
@@ -562,6 +590,17 @@ def rescale_theta(
     """Convert ``theta`` identified on ``(l / l_scale, u / u_scale)`` to physical units.
 
     See :func:`theta_scale_factors`.
+
+    Parameters
+    ----------
+    theta : sequence of float or ndarray
+        Parameters identified on the scaled data, in ``structure``'s order.
+    structure : ModelStructure
+        Model variant of ``theta``.
+    l_scale : float
+        Scale the displacement was divided by (finite, > 0).
+    u_scale : float
+        Scale the command was divided by (finite, > 0).
     """
     theta = _theta(theta, structure)
     return theta * theta_scale_factors(structure, l_scale, u_scale)

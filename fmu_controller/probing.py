@@ -79,6 +79,15 @@ def probe_v(sample: int, amplitude_v: float, phase_bits: int = 0) -> float:
     probes of different phases are two shifts of one maximum-length sequence, whose correlation over
     the whole period is -1/127; over a warm-up of a few bits it may be large (:func:`probing_phases`
     picks phases that are not).
+
+    Parameters
+    ----------
+    sample : int
+        Sample index from the start of the warm-up.
+    amplitude_v : float
+        Amplitude of the probe [V].
+    phase_bits : int, optional
+        The bit of the sequence to start at; default 0.
     """
     return amplitude_v * _SIGNS[(sample // PROBING_HOLD_SAMPLES + phase_bits) % len(_SIGNS)]
 

@@ -31,7 +31,13 @@ REFERENCE_SOURCES: dict[int, str] = {1: "builtin_sine", 2: "external_held", 3: "
 def advanced_lead(input_delay_samples: int) -> int:
     """``external_advanced``: how many samples beyond ``Hp`` ahead the host feeds the reference, for the
     controller FMU's ``input_delay_samples``: the delay, and 1 for -1 (which starts with the delayed
-    law; should it decide for a longer delay, the samples beyond are the last one fed, held)."""
+    law; should it decide for a longer delay, the samples beyond are the last one fed, held).
+
+    Parameters
+    ----------
+    input_delay_samples : int
+        The controller FMU's ``input_delay_samples`` [samples], or -1.
+    """
     return 1 if input_delay_samples == -1 else input_delay_samples
 
 
@@ -80,10 +86,24 @@ class Reference(Protocol):
     ts_s: float
 
     def at(self, k: int) -> float:
-        """``r(k)`` [mm]."""
+        """``r(k)`` [mm].
+
+        Parameters
+        ----------
+        k : int
+            Sample index.
+        """
 
     def preview(self, k: int, n: int) -> np.ndarray:
-        """``[r(k), ..., r(k+n)]`` [mm]."""
+        """``[r(k), ..., r(k+n)]`` [mm].
+
+        Parameters
+        ----------
+        k : int
+            Sample index of the first value.
+        n : int
+            How many samples beyond ``k`` (``n + 1`` values).
+        """
 
 
 def _check_ts(owner: str, ts_s: float) -> float:

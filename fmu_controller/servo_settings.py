@@ -42,7 +42,15 @@ TABLE5_SERVO: Mapping[str, Any] = MappingProxyType({
 # Settings
 # ---------------------------------------------------------------------------
 def positive_int(name: str, value: Any) -> int:
-    """``value`` as an int >= 1 (an int or a numpy integer), naming ``name`` otherwise."""
+    """``value`` as an int >= 1 (an int or a numpy integer), naming ``name`` otherwise.
+
+    Parameters
+    ----------
+    name : str
+        How the error message names the value.
+    value : int or numpy integer
+        The value to check.
+    """
     n = whole_number(value, what=name)
     if n < 1:
         raise ValueError(f"{name} must be >= 1, got {value!r}")
@@ -234,5 +242,15 @@ class ServoMPCResult:
 
 
 def integrator_step(xs: float, r_mm: float, l_mm: float) -> float:
-    """Discrete integrator Eq. (18): ``x_s(k+1) = x_s(k) + r(k) - l(k)`` [mm]."""
+    """Discrete integrator Eq. (18): ``x_s(k+1) = x_s(k) + r(k) - l(k)`` [mm].
+
+    Parameters
+    ----------
+    xs : float
+        Integrator state ``x_s(k)`` [mm].
+    r_mm : float
+        Reference ``r(k)`` [mm].
+    l_mm : float
+        Measured contraction ``l(k)`` [mm].
+    """
     return float(xs) + float(r_mm) - float(l_mm)

@@ -102,6 +102,17 @@ def predict_held_input(state: ModelState, theta: np.ndarray, u_v: float, steps: 
     """Simulate the Eq. (1) model ``steps`` samples ahead from ``state`` with the input held at ``u_v``.
 
     ``state`` must hold ``l(k)`` observed (not yet ``u(k)``); it is not modified.
+
+    Parameters
+    ----------
+    state : ModelState
+        History of Eq. (1)'s regressor, with ``l(k)`` observed; not modified.
+    theta : ndarray
+        Parameters of Eq. (1), ``state.structure``'s length.
+    u_v : float
+        The command held over the prediction [V].
+    steps : int
+        Number of samples to predict.
     """
     theta = np.asarray(theta, dtype=float)
     if theta.shape != (state.structure.n_params,):
@@ -118,6 +129,22 @@ def held_input_run(state: ModelState, theta: np.ndarray, lin: list[float], u: fl
     ``apply`` (one BLAS dot per step, the rest in python floats), without building the copy.
     ``bounds`` ``(lo, hi)`` [mm]: each prediction clamped into them (the divergence guard of
     :func:`~fmu_controller.prediction.guard_bounds`) before it is carried on.
+
+    Parameters
+    ----------
+    state : ModelState
+        History of Eq. (1)'s regressor, with ``l(k)`` observed; not modified.
+    theta : ndarray
+        Parameters of Eq. (1) as a float array, ``state.structure``'s length.
+    lin : list of float
+        Its linear part ``[a1, a2, b1]`` as Python floats.
+    u : float
+        The command held over the prediction [V] (finite).
+    steps : int
+        Number of samples to predict.
+    bounds : (float, float), optional
+        ``(lo, hi)`` [mm]: each prediction clamped into them before it is carried on; None
+        (default): no clamp.
     """
     if not math.isfinite(u):
         raise ValueError(f"u must be finite, got {u}")

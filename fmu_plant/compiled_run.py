@@ -41,7 +41,17 @@ def _as_imported(cls: type) -> bool:
 
 
 def runnable(effects: Sequence[Effect], sensor: SensorParams) -> bool:
-    """Whether the compiled loop gives the Python loop's bits for a plant with ``effects`` and ``sensor``."""
+    """Whether the compiled loop gives the Python loop's bits for a plant with ``effects`` and ``sensor``.
+
+    Parameters
+    ----------
+    effects : sequence of Effect
+        The plant's effects, in the order it applies them; only classes of :data:`LIBRARY_ORDER`,
+        each once and in that order, with none of their methods overridden on the instance, can
+        run compiled.
+    sensor : SensorParams
+        The plant's sensors: any encoder or pressure noise (std > 0) rules the compiled loop out.
+    """
     if sensor.encoder_noise_std_mm > 0.0 or sensor.pressure_noise_std_mpa > 0.0:
         return False
     last = -1
@@ -57,7 +67,13 @@ def runnable(effects: Sequence[Effect], sensor: SensorParams) -> bool:
 
 def run_spec(effects: Sequence[Effect]) -> tuple[tuple[Any, ...], list[float] | None, list[float] | None]:
     """The ``spec`` (one entry per class of :data:`LIBRARY_ORDER`: its numbers, or None if absent) and the
-    delay's history ``(times, values)`` that ``Model.run`` takes, read from ``effects`` now."""
+    delay's history ``(times, values)`` that ``Model.run`` takes, read from ``effects`` now.
+
+    Parameters
+    ----------
+    effects : sequence of Effect
+        The plant's effects (library classes, as :func:`runnable` accepts them).
+    """
     spec: list[tuple[float, ...] | None] = [None] * len(LIBRARY_ORDER)
     times = values = None
     for e in effects:
@@ -83,7 +99,18 @@ def run_spec(effects: Sequence[Effect]) -> tuple[tuple[Any, ...], list[float] | 
 
 def write_back(effects: Sequence[Effect], times: list[float] | None, values: list[float] | None,
                slider_mm: float) -> None:
-    """Give ``effects`` the memory a run left: the delay's command history, the backlash's slider [mm]."""
+    """Give ``effects`` the memory a run left: the delay's command history, the backlash's slider [mm].
+
+    Parameters
+    ----------
+    effects : sequence of Effect
+        The plant's effects, given back their memory in place.
+    times, values : list of float or None
+        The transport delay's command history after the run: instants the command changed [s] and
+        the command from then on [V] (as :func:`run_spec` returned them, updated by the run).
+    slider_mm : float
+        The backlash slider's position after the run [mm].
+    """
     for e in effects:
         if isinstance(e, TransportDelay):
             e._times, e._values = times, values

@@ -45,6 +45,11 @@ class TransportDelay(Effect):
     The command is piecewise constant (zero-order hold), so the delayed command changes exactly at
     ``t_change + delay_s``; these instants are reported as :meth:`breakpoints` and the plant ends a
     sub-step on each, so a delay of a fraction of a sample is exact.
+
+    Parameters
+    ----------
+    p : DelayParams
+        The delay; ``p.delay_s`` [s] is read once, at construction.
     """
 
     name = "transport_delay"
@@ -143,6 +148,11 @@ class InputMap(Effect):
     amplifier, a saturation below full scale. Unlike the valve dead zone, which shuts both valves,
     the valve here keeps metering, at a shifted command. Memoryless: the held command maps to a held
     command, so it adds no breakpoints (after a transport delay it maps the delayed command).
+
+    Parameters
+    ----------
+    p : InputMapParams
+        The map's end points and knots [V].
     """
 
     name = "input_map"
@@ -163,6 +173,11 @@ class ValveDeadZone(Effect):
     The physical picture: an overlapped or worn spool that must travel through a band before it
     uncovers its ports, so the muscle is shut in and holds its pressure while the command crosses the
     band. Acts through the valve-gate port (the opening of both valves is multiplied by the gate).
+
+    Parameters
+    ----------
+    p : DeadZoneParams
+        The band's center and width [V].
     """
 
     name = "valve_dead_zone"
@@ -179,7 +194,13 @@ class ValveDeadZone(Effect):
 
 
 class SupplyPressureVariation(Effect):
-    """The tap-water supply sags between ``start_s`` and ``end_s`` and/or ripples (parameters' docstring)."""
+    """The tap-water supply sags between ``start_s`` and ``end_s`` and/or ripples (parameters' docstring).
+
+    Parameters
+    ----------
+    p : SupplyVariationParams
+        The sag's depth [MPa] and timing [s], and the ripple's amplitude [MPa] and period [s].
+    """
 
     name = "supply_pressure_variation"
 
@@ -227,7 +248,13 @@ class SupplyPressureVariation(Effect):
 
 
 class LoadMismatch(Effect):
-    """The muscle carries ``extra_n`` more than the nominal load."""
+    """The muscle carries ``extra_n`` more than the nominal load.
+
+    Parameters
+    ----------
+    p : LoadMismatchParams
+        The extra weight ``extra_n`` [N] (negative: a lighter load; the total is clipped at 0).
+    """
 
     name = "load_mismatch"
 
@@ -247,6 +274,11 @@ class Backlash(Effect):
 
     The slider stays put until the muscle end has moved half the play past it, then is dragged along
     at that distance. Applied to the positions at the sampling instants (the encoder's input).
+
+    Parameters
+    ----------
+    p : BacklashParams
+        The play ``slack_mm`` [mm]; the slider follows within half of it either side.
     """
 
     name = "backlash"
@@ -279,7 +311,13 @@ def backlash_operator(x: float, y: float, half_play: float) -> float:
 
 
 class SensorDrift(Effect):
-    """The encoder's zero drifts: ``l_seen = l + offset_mm + rate_mm_per_min t / 60``."""
+    """The encoder's zero drifts: ``l_seen = l + offset_mm + rate_mm_per_min t / 60``.
+
+    Parameters
+    ----------
+    p : SensorDriftParams
+        The zero's offset [mm] and drift rate [mm/min].
+    """
 
     name = "sensor_drift"
 
@@ -298,6 +336,12 @@ def effects_from_params(params: PlantParams) -> list[Effect]:
     one the dead zone sees), then the supply and the load, then the measurement chain (the slider's
     backlash, then the encoder's drifting zero). An identity input map is left out, so the default
     plant has no effects at all.
+
+    Parameters
+    ----------
+    params : PlantParams
+        The plant's parameters; an effect is switched on by its group (``delay``, ``input_map``,
+        ``dead_zone``, ``supply_variation``, ``load_mismatch``, ``backlash``, ``sensor_drift``).
     """
     out: list[Effect] = []
     if params.delay.delay_s > 0.0:

@@ -49,7 +49,20 @@ def friction_level_n(fp: FrictionParams, p_mpa: float, contact: float, speed_mm_
 
 def friction_rate_n_s(fp: FrictionParams, z_n: float, v_mm_s: float, p_mpa: float,
                       contact: float) -> float:
-    """Time derivative of the friction state ``dz/dt`` [N/s] (Dahl model, see module docstring)."""
+    """Time derivative of the friction state ``dz/dt`` [N/s] (Dahl model, see module docstring).
+
+    Parameters
+    ----------
+    fp : FrictionParams
+    z_n : float
+        Friction state ``z`` [N].
+    v_mm_s : float
+        Contraction speed [mm/s] (> 0 contracting); at 0 the state does not change.
+    p_mpa : float
+        Muscle gauge pressure [MPa].
+    contact : float
+        Braid-bladder contact area relative to rest [-] (``MuscleGeometry.contact_factor``).
+    """
     if v_mm_s == 0.0:
         return 0.0
     direction = 1.0 if v_mm_s > 0.0 else -1.0

@@ -26,7 +26,23 @@ LOCK_EXPONENT_MAX = 700.0
 
 @dataclass(frozen=True)
 class MuscleGeometry:
-    """Constants of the Tondu-Lopez model derived once from :class:`MuscleParams` (SI units)."""
+    """Constants of the Tondu-Lopez model derived once from :class:`MuscleParams` (SI units).
+
+    Parameters
+    ----------
+    rest_length_m : float
+        Active length ``L0`` at zero contraction [m].
+    area0_m2 : float
+        Bladder cross-section at rest ``A0 = pi r0^2`` [m^2].
+    a, b : float
+        Tondu-Lopez constants ``a = 3/tan^2(alpha0)``, ``b = 1/sin^2(alpha0)`` [-].
+    max_contraction_m : float
+        Maximal contraction ``L0 (1 - 1/(sqrt(3) cos(alpha0)))`` [m].
+    radius0_m : float
+        Bladder radius at rest ``r0`` [m].
+    cos_alpha0, sin_alpha0 : float
+        Cosine and sine of the initial braid angle ``alpha0`` [-].
+    """
 
     rest_length_m: float
     area0_m2: float
@@ -76,6 +92,15 @@ def effective_pressure_mpa(p_mpa: float, threshold_mpa: float, width_mpa: float)
     A softplus, ``w ln(1 + exp((p - p_th) / w))``: zero well below the threshold, ``p - p_th`` well
     above, smooth over ``width_mpa`` (a hard kink acts as a dead zone Eq. (1) cannot follow;
     docs/plant.md).
+
+    Parameters
+    ----------
+    p_mpa : float
+        Muscle gauge pressure ``p`` [MPa].
+    threshold_mpa : float
+        Bladder threshold ``p_th`` [MPa].
+    width_mpa : float
+        Width ``w`` of the smooth onset [MPa] (> 0).
     """
     arg = (p_mpa - threshold_mpa) / width_mpa
     return width_mpa * (arg + math.log1p(math.exp(-arg)) if arg > 0.0 else math.log1p(math.exp(arg)))

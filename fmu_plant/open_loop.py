@@ -21,6 +21,15 @@ def run_samples(duration_s: float, ts_s: float, *, names: tuple[str, str] = ("du
     """The samples of a run of ``duration_s`` [s] at period ``ts_s`` [s], its start and end included:
     ``duration_s / ts_s + 1``.
 
+    Parameters
+    ----------
+    duration_s : float
+        Length of the run [s].
+    ts_s : float
+        Sampling period [s].
+    names : tuple of str, optional
+        How the error message names ``duration_s`` and ``ts_s`` (a command line's options).
+
     Raises
     ------
     ValueError

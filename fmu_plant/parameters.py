@@ -487,6 +487,12 @@ class PlantParams:
 
 def dotted_names(message: str) -> str:
     """``message`` with ``ValveParams.cv_max`` written as the dotted name ``valve.cv_max`` (the plant
-    FMU's parameter, a plant file's key)."""
+    FMU's parameter, a plant file's key).
+
+    Parameters
+    ----------
+    message : str
+        A text naming parameters by their group's class (a validation error's message).
+    """
     groups = {type(getattr(PlantParams(), f.name)).__name__: f.name for f in fields(PlantParams)}
     return re.sub(r"\b(\w+Params)\.(\w+)", lambda m: f"{groups.get(m[1], m[1])}.{m[2]}", message)

@@ -67,7 +67,14 @@ def parameter_table() -> list[tuple[str, float, str, str, float | None, float | 
 
 
 class MusclePlant(SafeSlave):
-    """Tap-water McKibben muscle rig (paper section 2.4, Table 1)."""
+    """Tap-water McKibben muscle rig (paper section 2.4, Table 1).
+
+    Parameters
+    ----------
+    **kwargs
+        pythonfmu's ``Fmi2Slave`` arguments (``instance_name``, ``resources``, ...), which the
+        FMU's host passes on instantiation.
+    """
 
     author = "tapmuscle"
     description = "Tap-water-driven McKibben muscle rig: proportional valves, 0.25 MPa supply, 400 mm muscle, load, encoder"

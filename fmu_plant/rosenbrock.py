@@ -155,6 +155,16 @@ def adaptive_steps(attempt: Callable[..., tuple[float, ...]], prm: PlantParams) 
     of them a bounded number of rejections, each shrinking the step by 10 % or more); more than
     ``max(FORCED_MAX, dt / h_max)`` sub-steps accepted over their tolerances raise
     ``FloatingPointError``.
+
+    Parameters
+    ----------
+    attempt : callable
+        The sub-step, ``attempt(x, p, l, v, z, xs, ps, w, h) -> (x, p, l, v, z, err)``
+        (:func:`build_model`'s ``attempt``): ``err`` <= 1 accepts it; an ``OverflowError`` counts
+        as an infinite error.
+    prm : PlantParams
+        The plant's parameters: the valve's command range [V] and the solver's ``max_substep_s``
+        and ``min_substep_s`` [s].
     """
     c = _loop_constants(prm)
     u_min, u_span, h_max, h_min = c["u_min"], c["u_span"], c["h_max"], c["h_min"]
@@ -255,7 +265,13 @@ def forced_substeps(advance: Callable[..., tuple[float, ...]]) -> int:
     :func:`adaptive_steps`) has accepted over their error tolerances since it was built, over every
     call and the compiled step loop's: a run with any is not integrated to the solver's tolerances
     (stiff parameters; a smaller ``min_substep_s`` makes it accurate). 0 for an ``advance`` that keeps
-    no count (a benchmark's wrapper)."""
+    no count (a benchmark's wrapper).
+
+    Parameters
+    ----------
+    advance : callable
+        The ``advance`` of :func:`build_model` or :func:`adaptive_steps`.
+    """
     model = getattr(advance, "__self__", None)
     if _ros34pw2 is not None and isinstance(model, _ros34pw2.Model):
         return int(model.forced_substeps)
@@ -265,7 +281,13 @@ def forced_substeps(advance: Callable[..., tuple[float, ...]]) -> int:
 
 def compiled_step_loop(advance: Callable[..., tuple[float, ...]]) -> Callable[..., tuple[Any, ...]] | None:
     """The compiled step loop (``Model.run``, ``compiled_run.py``) of the model whose ``advance``
-    :func:`build_model` returned, or None for the Python sub-step's."""
+    :func:`build_model` returned, or None for the Python sub-step's.
+
+    Parameters
+    ----------
+    advance : callable
+        The ``advance`` :func:`build_model` returned.
+    """
     model = getattr(advance, "__self__", None)
     return model.run if _ros34pw2 is not None and isinstance(model, _ros34pw2.Model) else None
 

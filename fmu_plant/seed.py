@@ -17,7 +17,15 @@ SEED_MAX = 2 ** 64 - 1
 
 
 def check_seed(seed: Any, name: str = "seed") -> int:
-    """``seed`` as a Python int in ``0 .. 2**64 - 1``; ``ValueError`` naming ``name`` otherwise."""
+    """``seed`` as a Python int in ``0 .. 2**64 - 1``; ``ValueError`` naming ``name`` otherwise.
+
+    Parameters
+    ----------
+    seed : int
+        The seed to check (any integer type with ``__index__``, not a bool).
+    name : str, optional
+        Its name in the error message.
+    """
     if isinstance(seed, bool) or not hasattr(seed, "__index__"):
         raise ValueError(f"{name} = {seed!r} must be an integer in 0 .. 2**64 - 1")
     value = int(seed.__index__())
@@ -31,13 +39,27 @@ def _int32(bits: int) -> int:
 
 
 def split_seed(seed: int) -> tuple[int, int]:
-    """``(seed, seed_high)``: the FMI Integers (signed 32-bit bit patterns) that carry ``seed``."""
+    """``(seed, seed_high)``: the FMI Integers (signed 32-bit bit patterns) that carry ``seed``.
+
+    Parameters
+    ----------
+    seed : int
+        A seed in ``0 .. 2**64 - 1``.
+    """
     value = check_seed(seed)
     return _int32(value & 0xFFFFFFFF), _int32(value >> 32)
 
 
 def join_seed(low: int, high: int = 0) -> int:
-    """The seed two FMI Integers carry (:func:`split_seed`'s inverse)."""
+    """The seed two FMI Integers carry (:func:`split_seed`'s inverse).
+
+    Parameters
+    ----------
+    low : int
+        The FMU's ``seed``: the low 32 bits as a signed 32-bit FMI Integer.
+    high : int, optional
+        The FMU's ``seed_high``: the high 32 bits, likewise; default 0.
+    """
     for name, v in (("seed", low), ("seed_high", high)):
         if not -(1 << 31) <= v < 1 << 31:
             raise ValueError(f"{name} = {v} is not a 32-bit FMI Integer")

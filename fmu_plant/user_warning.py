@@ -19,7 +19,13 @@ PROJECT_PACKAGES = ("fmu_plant", "fmu_controller", "fmi_slave", "build_scripts",
 
 
 def in_project(frame: FrameType) -> bool:
-    """Whether ``frame`` runs code of :data:`PROJECT_PACKAGES`."""
+    """Whether ``frame`` runs code of :data:`PROJECT_PACKAGES`.
+
+    Parameters
+    ----------
+    frame : types.FrameType
+        A stack frame.
+    """
     return frame.f_globals.get("__name__", "").split(".", 1)[0] in PROJECT_PACKAGES
 
 
@@ -34,5 +40,13 @@ def _stacklevel() -> int:
 
 def warn_at_caller(message: str | Warning, category: type[Warning] = UserWarning) -> None:
     """``warnings.warn(message, category)`` located at the first line outside this project's packages
-    (the user's script or notebook cell)."""
+    (the user's script or notebook cell).
+
+    Parameters
+    ----------
+    message : str or Warning
+        The warning, as :func:`warnings.warn` takes it.
+    category : type of Warning, optional
+        Its category; default ``UserWarning``.
+    """
     warnings.warn(message, category, stacklevel=_stacklevel() + 1)

@@ -50,7 +50,13 @@ EQ21_WINDOW_S = (10.1, 40.1)
 def eq21_window(ts_s: float) -> tuple[int, int]:
     """The samples ``(k0, k1)`` (inclusive) of Eq. (21)'s 10.1..40.1 s at a sampling period ``ts_s``
     [s]: ``(101, 401)`` at the paper's 0.1 s, ``(202, 802)`` at 0.05 s; where those times fall between
-    two samples, the nearest (Python's ``round``, half to even: ``(50, 200)`` at 0.2 s, 10.0..40.0 s)."""
+    two samples, the nearest (Python's ``round``, half to even: ``(50, 200)`` at 0.2 s, 10.0..40.0 s).
+
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
+    """
     ts_s = sampling_period(ts_s)  # 100 (ms meant) would put the whole window on sample 0
     k0, k1 = (int(round(t / ts_s)) for t in EQ21_WINDOW_S)
     return k0, k1

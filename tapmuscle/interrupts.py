@@ -58,7 +58,15 @@ def _hold(signum: int, frame: object) -> None:
 def interrupt_once(signum: int, frame: object) -> None:
     """A SIGINT handler: ``KeyboardInterrupt`` as Python's own, with every later SIGINT ignored (set
     before raising, so that no Python line runs between the two); for a process that ends with its
-    first interrupt (module docstring)."""
+    first interrupt (module docstring).
+
+    Parameters
+    ----------
+    signum : int
+        The signal's number, as :mod:`signal` passes it to a handler.
+    frame : frame object
+        The interrupted frame (unused).
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise KeyboardInterrupt
 

@@ -99,6 +99,12 @@ def as_law(law: Any) -> ControlLaw:
     """``law`` as a :class:`ControlLaw`: an object with a ``step`` method as it is, a function
     ``u = f(l_mm, preview_mm)`` wrapped (its period then given as ``ts_s``).
 
+    Parameters
+    ----------
+    law : object
+        A control law: an object with a ``step`` method, or a function ``u = f(l_mm,
+        preview_mm)``.
+
     Raises
     ------
     TypeError
@@ -124,6 +130,13 @@ def _attribute(law: Any, name: str, given: Any) -> Any:
 def law_period(law: Any, ts_s: float | None) -> float:
     """The loop's sampling period [s] for ``law``: ``ts_s`` when given, else the law's ``ts_s``.
 
+    Parameters
+    ----------
+    law : object
+        The control law; its ``ts_s`` attribute [s], if any, is compared with ``ts_s``.
+    ts_s : float or None
+        The loop's sampling period as given [s]; None: the law's.
+
     Raises
     ------
     ValueError
@@ -148,7 +161,16 @@ def law_period(law: Any, ts_s: float | None) -> float:
 def law_preview_samples(law: Any, preview_samples: int | None) -> int:
     """The ``n`` of the preview ``r(k..k+n)`` the law gets: ``preview_samples`` when given, else the
     law's ``preview_samples``, else :data:`LAW_PREVIEW_SAMPLES`; an integer in 0 ..
-    :data:`MAX_LAW_PREVIEW_SAMPLES` or a ValueError."""
+    :data:`MAX_LAW_PREVIEW_SAMPLES` or a ValueError.
+
+    Parameters
+    ----------
+    law : object
+        The control law; its ``preview_samples`` attribute, if any, is used when
+        ``preview_samples`` is None.
+    preview_samples : int or None
+        The preview as given [samples]; None: the law's.
+    """
     n = _attribute(law, "preview_samples", preview_samples)
     if n is None:
         return LAW_PREVIEW_SAMPLES
@@ -159,7 +181,15 @@ def law_preview_samples(law: Any, preview_samples: int | None) -> int:
 
 
 def reset_law(law: Any, l_mm: float) -> None:
-    """Call the law's ``reset`` before a run, with the plant's reading [mm] if it takes an argument."""
+    """Call the law's ``reset`` before a run, with the plant's reading [mm] if it takes an argument.
+
+    Parameters
+    ----------
+    law : object
+        The control law; nothing happens when it has no ``reset``.
+    l_mm : float
+        The plant's reading before the run [mm], passed if ``reset`` takes an argument.
+    """
     reset = getattr(law, "reset", None)
     if reset is None:
         return
@@ -186,6 +216,19 @@ def law_command(result: Any, k: int, t_s: float, l_mm: float = math.nan, r_mm: f
     """The command [V] a law's ``step`` returned at sample ``k`` (``t_s`` [s], on the reading ``l_mm``
     and the reference ``r_mm`` [mm], named in the errors): a finite real number, or an object whose
     ``u_v`` is one.
+
+    Parameters
+    ----------
+    result : object
+        What the law's ``step`` returned: a number, or an object with ``u_v``.
+    k : int
+        Sample index, for the error message.
+    t_s : float
+        Time of the sample [s], for the error message.
+    l_mm : float, optional
+        The reading the law was given [mm], for the error message.
+    r_mm : float, optional
+        The reference at the sample [mm], for the error message.
 
     Raises
     ------

@@ -151,7 +151,17 @@ def reporter(progress: Any, label: str, *, counts: bool = True) -> Any:
     """What a ``progress=`` argument of the Python API stands for: ``True`` is a :class:`Progress`
     labelled ``label`` on stderr, reporting from the first unit (showing ``done/total`` if ``counts``);
     ``None`` or ``False`` none; a callable is called as it is (``progress(done, total)``). Anything else
-    is refused, naming it."""
+    is refused, naming it.
+
+    Parameters
+    ----------
+    progress : bool, callable or None
+        The ``progress=`` argument as given.
+    label : str
+        The label of a :class:`Progress` made for ``True``.
+    counts : bool, optional
+        Whether that :class:`Progress` shows ``done/total``; default True.
+    """
     if progress is None or progress is False:
         return None
     if progress is True:

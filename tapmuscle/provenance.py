@@ -37,7 +37,13 @@ CODE_PACKAGES = ("tapmuscle", "fmu_plant", "fmu_controller", "fmi_slave", "build
 
 
 def package_version(name: str) -> str:
-    """The installed release of distribution ``name``, or ``"not installed"``."""
+    """The installed release of distribution ``name``, or ``"not installed"``.
+
+    Parameters
+    ----------
+    name : str
+        A distribution's name (e.g. ``"numpy"``).
+    """
     try:
         return metadata.version(name)
     except metadata.PackageNotFoundError:
@@ -149,7 +155,13 @@ _COMMAND: contextvars.ContextVar[str | None] = contextvars.ContextVar("tapmuscle
 @contextmanager
 def invoked_as(argv: Sequence[str]) -> Iterator[None]:
     """Within the block, :func:`produced_by` names the command ``tapmuscle ARGV...`` (the console
-    script's arguments), quoted so that it can be pasted into a shell."""
+    script's arguments), quoted so that it can be pasted into a shell.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        The console script's arguments, without the program name.
+    """
     token = _COMMAND.set(shlex.join(["tapmuscle", *argv]))
     try:
         yield
@@ -166,7 +178,16 @@ def produced_by() -> dict[str, object]:
 
 def software_text(found: dict[str, str] | None = None, more: Sequence[str] = ()) -> str:
     """:func:`software` (or ``found``, such a dict read from a document) in one line, as ``tapmuscle
-    --version`` (with ``more``, further facts in the parentheses) and a sweep's ``summary.md`` say it."""
+    --version`` (with ``more``, further facts in the parentheses) and a sweep's ``summary.md`` say it.
+
+    Parameters
+    ----------
+    found : dict of str to str, optional
+        What :func:`software` returned, e.g. as read from a document; None (default):
+        :func:`software` now.
+    more : sequence of str, optional
+        Further facts, added inside the parentheses.
+    """
     found = software() if found is None else found
     # a document of an earlier release has no CPU features or source
     packages = [*NUMERICS_PACKAGES, *(["matplotlib"] if "matplotlib" in found else [])]

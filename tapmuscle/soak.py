@@ -113,6 +113,7 @@ class SoakSchedule:
     """The drawn conditions, one value per sample ``k`` (``t_k = k ts_s``)."""
 
     ts_s: float
+    """Sampling period [s]."""
     r_mm: np.ndarray = field(repr=False)
     """Reference [mm]."""
     load_n: np.ndarray = field(repr=False)
@@ -132,6 +133,11 @@ def covariance_spectrum(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     is decided by a Cholesky factorisation of the scaled form (exact in the sense that it succeeds
     only for a matrix that is positive definite to rounding), since an eigenvalue of ``P`` near
     ``eps * ||P||`` is below what ``eigvalsh`` resolves.
+
+    Parameters
+    ----------
+    P : ndarray
+        The RLS covariance matrix (symmetrised before use).
 
     Returns
     -------
@@ -154,7 +160,14 @@ def covariance_spectrum(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
 
 
 def soak_schedule(s: SoakSettings) -> SoakSchedule:
-    """Draw the reference, load and supply-pressure schedules of a soak run (module docstring)."""
+    """Draw the reference, load and supply-pressure schedules of a soak run (module docstring).
+
+    Parameters
+    ----------
+    s : SoakSettings
+        The soak run's settings (duration, sampling period, seed, and the ranges the schedules
+        are drawn from).
+    """
     rng = np.random.default_rng([s.seed, 0x50A4])
     ts = s.ts_s
     n = int(round(s.duration_s / ts)) + 1
@@ -197,6 +210,7 @@ class SoakResult:
     """Per-block figures of a soak run (the ``blocks`` rows) and the covariance samples."""
 
     settings: SoakSettings
+    """The settings of the soak run."""
     blocks: list[dict[str, Any]]
     """Per block: ``start_s``, ``eq21_mm`` (mean |r - l|), ``u_min_v``, ``u_max_v``, ``non_finite``,
     ``outside_box`` (samples with theta outside Table 2's box), ``p_min_eig``, ``p_max_eig``,
@@ -213,6 +227,7 @@ class SoakResult:
     covariance_resets: int
     """Covariance restarts of Algorithm 1 over the run."""
     elapsed_s: float
+    """Wall-clock time of the run [s]."""
 
     def figure_data(self) -> dict[str, np.ndarray]:
         """The arrays :func:`tapmuscle.plots.soak_figures.plot_soak` draws for this run."""

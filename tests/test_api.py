@@ -2,13 +2,16 @@
 
 Like python-control's docstring test: each public function's (and class constructor's) parameters
 must appear in its numpydoc ``Parameters`` section (or, for a dataclass field, in its attribute
-docstring or field metadata); an undocumented argument fails here.
+docstring or field metadata: ``description``, or ``doc`` as the plant's parameter groups keep it);
+an undocumented argument fails here. The same holds for every function and class that the
+``__all__`` of a module of tapmuscle/, fmu_plant/ and fmu_controller/ names.
 """
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import importlib
 import inspect
 import re
 import textwrap
@@ -70,7 +73,7 @@ def undocumented(obj) -> list[str]:
         if dataclasses.is_dataclass(obj):
             documented = _documented_names(obj.__doc__) | _attribute_docstrings(obj)
             return [f.name for f in dataclasses.fields(obj) if f.init and not f.name.startswith("_")
-                    and f.name not in documented and not f.metadata.get("description")]
+                    and f.name not in documented and not (f.metadata.get("description") or f.metadata.get("doc"))]
         sig = inspect.signature(obj.__init__)
         documented = _documented_names(obj.__doc__) | _documented_names(obj.__init__.__doc__)
     else:
@@ -124,6 +127,61 @@ def test_the_check_fails_on_an_undocumented_argument():
     assert undocumented(documented) == []
     assert undocumented(half) == ["b"]
     assert undocumented(Settings) == ["horizon"]
+
+
+#: Packages whose modules' ``__all__`` is checked (not fmi_slave/, build_scripts/, tests/).
+CHECKED_PACKAGES = ("tapmuscle", "fmu_plant", "fmu_controller")
+
+
+def _modules_with_all() -> list[str]:
+    """Modules of :data:`CHECKED_PACKAGES` whose source sets ``__all__`` (found in the source: a
+    ``__main__`` is not imported, it would run the command line)."""
+    names = []
+    for package in CHECKED_PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if path.name == "__main__.py":
+                continue
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            targets = [t for s in tree.body if isinstance(s, (ast.Assign, ast.AnnAssign))
+                       for t in (s.targets if isinstance(s, ast.Assign) else [s.target])]
+            if any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
+                parts = path.relative_to(ROOT).with_suffix("").parts
+                names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return names
+
+
+def exported_definitions() -> list[tuple[str, str]]:
+    """``(module, name)`` of each function and class that a module's ``__all__`` names and the module
+    defines. Left out: constants, re-exports (checked where they are defined), exceptions (they take
+    Exception's arguments; their docstring says when they are raised) and classes without a
+    constructor of their own (``__init__`` is object's, so ``undocumented`` would see its
+    ``*args, **kwargs``: a NamedTuple, a tuple subclass made by ``__new__``, an abstract base)."""
+    out = []
+    for module_name in _modules_with_all():
+        module = importlib.import_module(module_name)
+        for name in module.__all__:
+            obj = getattr(module, name)
+            if not (inspect.isfunction(obj) or inspect.isclass(obj)) or obj.__module__ != module_name:
+                continue
+            if inspect.isclass(obj) and (issubclass(obj, BaseException) or obj.__init__ is object.__init__):
+                continue
+            out.append((module_name, name))
+    return out
+
+
+EXPORTED = exported_definitions()
+
+
+def test_the_exported_definitions_are_collected():
+    assert len(EXPORTED) > 50, EXPORTED
+
+
+@pytest.mark.parametrize(("module_name", "name"), EXPORTED, ids=[f"{m}.{n}" for m, n in EXPORTED])
+def test_every_exported_parameter_of_every_module_is_documented(module_name, name):
+    obj = getattr(importlib.import_module(module_name), name)
+    assert obj.__doc__ and obj.__doc__.strip(), f"{module_name}.{name} has no docstring"
+    missing = undocumented(obj)
+    assert not missing, f"{module_name}.{name}: parameters not in its docstring: {missing}"
 
 
 def test_import_is_lazy_and_names_resolve():

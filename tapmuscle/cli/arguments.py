@@ -13,7 +13,15 @@ __all__ = ["number_within", "integer_at_least", "output_path", "Once"]
 
 
 def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
-    """Parser of a finite number within ``lo..hi`` for option ``name``."""
+    """Parser of a finite number within ``lo..hi`` for option ``name``.
+
+    Parameters
+    ----------
+    name : str
+        The option, as the error message names it (e.g. ``"--block"``).
+    lo, hi : float
+        The range a value must lie in, bounds included.
+    """
     def parse(text: str) -> float:
         try:
             v = float(text)
@@ -28,7 +36,19 @@ def number_within(name: str, lo: float, hi: float) -> Callable[[str], float]:
 def integer_at_least(name: str, lo: int, hi: int | None = None, *,
                      words: tuple[str, ...] = ()) -> Callable[[str], int | str]:
     """Parser of an integer >= ``lo`` (and <= ``hi`` if given) for option ``name``, or one of ``words``
-    (returned as given)."""
+    (returned as given).
+
+    Parameters
+    ----------
+    name : str
+        The option, as the error message names it.
+    lo : int
+        The smallest value taken.
+    hi : int, optional
+        The largest value taken; None (default): no upper bound.
+    words : tuple of str, optional
+        Words taken besides integers, returned as given.
+    """
     def parse(text: str) -> int | str:
         if text in words:
             return text
@@ -49,7 +69,15 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
     """Parser of an output path for option ``name``, a ``kind`` ``"file"`` or ``"folder"``: not empty (an
     empty path means the current folder, which a command would then try to replace), not a folder
     where a file goes or a file where a folder goes, and under folders (checked before any work, so
-    that a long run does not end in a path it cannot write)."""
+    that a long run does not end in a path it cannot write).
+
+    Parameters
+    ----------
+    name : str
+        The option, as the error message names it.
+    kind : str
+        ``"file"`` or ``"folder"``: what the path is to be.
+    """
     def parse(text: str) -> str:
         if not text.strip():
             raise argparse.ArgumentTypeError(f"{name} must name a file or folder, got an empty string")
@@ -84,7 +112,19 @@ def output_path(name: str, kind: str) -> Callable[[str], str]:
 class Once(argparse.Action):
     """Store an option given once; given again it is refused naming both values (argparse would take
     the last in silence: ``--u A --u B`` read B). ``type`` parses each value as written, as argparse's
-    own ``type`` does."""
+    own ``type`` does.
+
+    Parameters
+    ----------
+    option_strings : list of str
+        The option's flags, as argparse passes them.
+    dest : str
+        The attribute of the namespace the value is stored in.
+    type : callable, optional
+        Parser of the value as written (``type(text)``); None: the text itself.
+    **kwargs
+        Further ``argparse.Action`` arguments (``help``, ``default``, ``metavar``, ...).
+    """
 
     def __init__(self, option_strings: list[str], dest: str, type: Callable[[str], object] | None = None,
                  **kwargs: object) -> None:

@@ -249,7 +249,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``diagnose`` and ``demo-mismatch`` to the ``tapmuscle`` command line."""
+    """Add ``diagnose`` and ``demo-mismatch`` to the ``tapmuscle`` command line.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The subparsers of the ``tapmuscle`` parser.
+    """
     dia = sub.add_parser("diagnose", help="locate and explain where a simulation and a rig recording differ",
                          description="Re-simulate a recording's command with the plant, recalibrate the nominal "
                                      "constants the recording identifies, then fit the candidate left-out effects "

@@ -724,7 +724,14 @@ def _c_compiler() -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``tapmuscle`` console script."""
+    """Entry point of the ``tapmuscle`` console script.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        The command line's arguments without the program name; None (default): ``sys.argv[1:]``,
+        as the console script, whose process then ends with the command.
+    """
     process = argv is None  # the console script: the process ends with the command
     argv = list(sys.argv[1:] if argv is None else argv)
     if process:

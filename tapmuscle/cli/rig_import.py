@@ -100,7 +100,13 @@ def _cmd_import(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``import`` to the ``tapmuscle`` command line."""
+    """Add ``import`` to the ``tapmuscle`` command line.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The subparsers of the ``tapmuscle`` parser.
+    """
     imp = sub.add_parser("import", help="convert a rig's data-acquisition log into a recording CSV",
                          description="Read a rig's log (any column names; units, separator and decimal mark as "
                                      "given or detected; text columns ignored) and write it as a recording "

@@ -334,7 +334,13 @@ def _common(p: argparse.ArgumentParser, default_workers: str) -> None:
 
 
 def register(sub: Any) -> None:
-    """Add ``sweep`` and ``check`` to the subparsers ``sub`` of the ``tapmuscle`` parser."""
+    """Add ``sweep`` and ``check`` to the subparsers ``sub`` of the ``tapmuscle`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The subparsers of the ``tapmuscle`` parser.
+    """
     sw = sub.add_parser("sweep", help="run a grid / Monte-Carlo sweep of scenarios (locally or on Dask)",
                         description="Run every scenario of a sweep file (a base scenario with a grid and/or "
                                     "Monte-Carlo sample over its fields; tapmuscle/cosim/sweep.py, docs/sweeps.md) "

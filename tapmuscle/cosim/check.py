@@ -30,13 +30,24 @@ class CheckCase:
     file: str
     """The scenario or sweep file."""
     name: str
+    """The case's name: the scenario's, or for a sweep's run ``sweep/scenario [swept values]``."""
     scenario: Scenario
     """With its expectations (``scenario.expect``)."""
 
 
 @dataclass(frozen=True)
 class CheckResult:
-    """A case, its run and the comparison with its expectations (None if the run failed)."""
+    """A case, its run and the comparison with its expectations (None if the run failed).
+
+    Parameters
+    ----------
+    case : CheckCase
+        The case that was run.
+    run : RunResult
+        Its run.
+    outcome : Outcome or None
+        The comparison with the case's expectations; None if the run failed.
+    """
 
     case: CheckCase
     run: RunResult
@@ -63,6 +74,7 @@ class CollectionError:
     """A path whose cases could not be collected: a bad scenario or sweep file, a missing path."""
 
     file: str
+    """The path that could not be collected."""
     message: str
     """The :class:`ScenarioError`'s message, naming the file and the key."""
 
@@ -132,7 +144,15 @@ def _file_cases(file: Path) -> list[CheckCase]:
 
 
 def evaluate(case: CheckCase, run: RunResult) -> CheckResult:
-    """Compare a finished run with its case's expectations."""
+    """Compare a finished run with its case's expectations.
+
+    Parameters
+    ----------
+    case : CheckCase
+        The case, with its expectations.
+    run : RunResult
+        Its finished run.
+    """
     if run.status != "ok":
         return CheckResult(case, run, None)
     return CheckResult(case, run, check_expectations(case.scenario.expect, run.metrics))
@@ -140,7 +160,13 @@ def evaluate(case: CheckCase, run: RunResult) -> CheckResult:
 
 def result_table(results: Sequence[CheckResult]) -> str:
     """A plain-text pass/fail table, one line per case, and a count. A name that several files give
-    their cases is followed by the file, which tells them apart."""
+    their cases is followed by the file, which tells them apart.
+
+    Parameters
+    ----------
+    results : sequence of CheckResult
+        The cases' results, one line each, in this order.
+    """
     shared = {name for name in (r.case.name for r in results)
               if len({r.case.file for r in results if r.case.name == name}) > 1}
     names = [f"{r.case.name} ({r.case.file})" if r.case.name in shared else r.case.name for r in results]
@@ -184,7 +210,17 @@ def junit_xml(results: Sequence[CheckResult], *, name: str = "tapmuscle check",
     expectation is a ``failure``, a run that failed an ``error``; the checked bounds and the metrics
     are in ``system-out``, what the FMUs warned of during the run in ``system-err``. Each of
     ``errors`` (files that could not be collected) is a ``testsuite`` of its file with one
-    ``testcase`` whose ``error`` is the file's problem, as pytest reports a collection error."""
+    ``testcase`` whose ``error`` is the file's problem, as pytest reports a collection error.
+
+    Parameters
+    ----------
+    results : sequence of CheckResult
+        The cases' results.
+    name : str, optional
+        Name of the ``testsuites`` element; default ``"tapmuscle check"``.
+    errors : sequence of CollectionError, optional
+        Files whose cases could not be collected.
+    """
     root = ET.Element("testsuites", name=name)
     for error in errors:
         suite = ET.SubElement(root, "testsuite", name=error.file, tests="1", failures="0", errors="1",

@@ -55,7 +55,9 @@ class RunTask:
     """One run to do: the scenario without FMU paths, and which FMU files it uses."""
 
     run_id: str
+    """The run's id (the sweep run's ``run_id``)."""
     scenario: Scenario
+    """The scenario, its FMU paths removed (``fmus`` names the files)."""
     fmus: tuple[tuple[str, str], ...]
     """``(("MusclePlant", sha256), ("AMPCController", sha256))``: content digests of the FMU files."""
 
@@ -70,6 +72,7 @@ class RunResult:
     """What a run gives back."""
 
     run_id: str
+    """The id of the run (:attr:`RunTask.run_id`)."""
     status: str
     """``ok`` or ``failed``."""
     metrics: Mapping[str, float] = field(default_factory=dict)
@@ -160,6 +163,18 @@ def make_task(run_id: str, scenario: Scenario, fmus: Mapping[str, str | Path], f
 
     Raises ScenarioError if the scenario sets a parameter the FMU does not have, or a value outside its
     declared range (before anything runs).
+
+    Parameters
+    ----------
+    run_id : str
+        The run's id.
+    scenario : Scenario
+        The scenario to run.
+    fmus : mapping of str to path
+        The default FMU files by model name (``"MusclePlant"``, ``"AMPCController"``), for a
+        scenario that names none.
+    files : FmuFiles
+        The sweep's FMU files, which give each file's digest.
     """
     check_parameters(scenario, fmus)
     digests = []
@@ -177,7 +192,20 @@ def _where() -> str:
 
 def execute_run(task: RunTask, files: FmuFiles, pool: InstancePool | None = None, *,
                 use_local: bool = True) -> RunResult:
-    """Run one task; any exception becomes a ``failed`` result with its text."""
+    """Run one task; any exception becomes a ``failed`` result with its text.
+
+    Parameters
+    ----------
+    task : RunTask
+        The run to do.
+    files : FmuFiles
+        The FMU files, by digest.
+    pool : InstancePool, optional
+        Idle FMU instances to reuse; None (default): new instances.
+    use_local : bool, optional
+        Use the client's own FMU files where they exist (True, default), else copies in this
+        machine's cache folder.
+    """
     try:
         paths = {name: files.path(digest, use_local=use_local) for name, digest in task.fmus}
         said: list[str] = []
@@ -190,7 +218,15 @@ def execute_run(task: RunTask, files: FmuFiles, pool: InstancePool | None = None
 
 
 def run_serial(tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]:
-    """Run ``tasks`` one after the other in this process (FMU instances reused between runs)."""
+    """Run ``tasks`` one after the other in this process (FMU instances reused between runs).
+
+    Parameters
+    ----------
+    tasks : sequence of RunTask
+        The runs, in order.
+    files : FmuFiles
+        The FMU files, by digest.
+    """
     pool = InstancePool()
     try:
         for task in tasks:
@@ -382,6 +418,13 @@ def probe_scheduler(address: str, wait_s: float) -> None:
     ``distributed``'s client waits without its timeout or misreads the text as a frame length.
     Other schemes (``tls://``, ``inproc://``) are left to ``distributed``.
 
+    Parameters
+    ----------
+    address : str
+        The scheduler's address.
+    wait_s : float
+        How long to wait for the connection and the greeting together [s].
+
     Raises
     ------
     ClusterError
@@ -438,6 +481,11 @@ def check_workers(client: Any) -> None:
     another version, or of the same version with other sources (another commit, a local edit:
     :func:`tapmuscle.provenance.code_digest`), could compute other numbers.
 
+    Parameters
+    ----------
+    client : distributed.Client
+        A client connected to the cluster.
+
     Raises
     ------
     ClusterError
@@ -488,6 +536,16 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
     or connected to the running scheduler at ``scheduler`` (``tcp://host:port``), which must get at
     least one worker within ``wait_s`` seconds; its workers checked (:func:`check_workers`).
     Raises OSError/TimeoutError if it cannot connect (:class:`ClusterError` naming why).
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes of a new local cluster (unused with ``scheduler``).
+    scheduler : str, optional
+        Address of a running scheduler (``tcp://host:port``); None (default): a new local
+        cluster.
+    wait_s : float, optional
+        How long to wait for the scheduler and its first worker [s]; default 60.
     """
     import dask
     from distributed import Client, LocalCluster

@@ -53,8 +53,11 @@ class Bound:
     """One expectation: ``lo <= metric <= hi`` (either side may be open, None)."""
 
     metric: str
+    """The metric bounded (a key of :data:`METRICS`)."""
     lo: float | None = None
+    """Lower bound, in the metric's unit; None: open."""
     hi: float | None = None
+    """Upper bound, in the metric's unit; None: open."""
     key: str = ""
     """The ``[expect]`` key it came from (``mae_mm_max``, ``u_within``), for messages."""
 
@@ -80,6 +83,7 @@ class Expectations:
     """The bounds of one ``[expect]`` table, in file order."""
 
     bounds: tuple[Bound, ...]
+    """The bounds, in file order."""
     source: str = ""
     """The file they came from."""
 
@@ -92,6 +96,7 @@ class Outcome:
     """The result of checking one run against its expectations."""
 
     violations: tuple[str, ...]
+    """What each bound that was missed says of its value (empty: passed)."""
     checked: tuple[str, ...]
     """Each bound with the value it was checked on, e.g. ``mae_mm = 0.2843 <= 0.35``."""
 
@@ -173,7 +178,15 @@ def scenario_metrics(scenario: Scenario, cols: Mapping[str, np.ndarray]) -> dict
 
 
 def check_expectations(expect: Expectations, metrics: Mapping[str, float]) -> Outcome:
-    """Compare ``metrics`` (:func:`scenario_metrics`) with every bound of ``expect``."""
+    """Compare ``metrics`` (:func:`scenario_metrics`) with every bound of ``expect``.
+
+    Parameters
+    ----------
+    expect : Expectations
+        The bounds to check.
+    metrics : mapping of str to float
+        The run's metrics (:func:`scenario_metrics`), by name.
+    """
     violations, checked = [], []
     for bound in expect.bounds:
         value = float(metrics[bound.metric])

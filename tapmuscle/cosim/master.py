@@ -79,7 +79,21 @@ _STATUS = ["OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING"]
 @dataclass(frozen=True)
 class Unpacked:
     """An FMU extracted once per process: its model description and folder; ``stamp``, the file's
-    modification time [ns], size [bytes] and inode when it was read."""
+    modification time [ns], size [bytes] and inode when it was read.
+
+    Parameters
+    ----------
+    path : Path
+        The ``.fmu`` file (resolved).
+    model_description : fmpy.model_description.ModelDescription
+        Its model description, as fmpy reads it.
+    folder : str
+        The folder it is extracted into.
+    variables : mapping of str to fmpy ScalarVariable
+        Its model variables by name.
+    stamp : tuple of int, optional
+        ``(mtime_ns, size, inode)`` of the file when it was read.
+    """
 
     path: Path
     model_description: Any
@@ -177,7 +191,13 @@ def _sends_plain_text(unpacked: Unpacked) -> bool:
 
 def unpack(path: str | Path) -> Unpacked:
     """Extract ``path`` (cached per process; removed after the process, even a killed one:
-    :mod:`tapmuscle.cosim.extraction_folder`)."""
+    :mod:`tapmuscle.cosim.extraction_folder`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.fmu`` file.
+    """
     from fmpy import extract, read_model_description
 
     path = Path(path).resolve()
@@ -307,7 +327,16 @@ def check_parameters(scenario: Scenario, fmus: Mapping[str, str | Path]) -> None
     parameter in one message (a user mends them in one go); makes no instance, to check a whole sweep
     before it runs (opening an FMU checks it, :mod:`tapmuscle.cosim.fmu_file`, which loads its binary
     once in a child process: an FMU's code runs before any of its runs). (Rules between parameters, such as
-    ``servo.Hu <= servo.Hp``, are the FMU's, checked when a run starts.)"""
+    ``servo.Hu <= servo.Hp``, are the FMU's, checked when a run starts.)
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario whose ``plant.parameters`` and ``controller.parameters`` are checked.
+    fmus : mapping of str to path
+        The default FMU files by model name (``"MusclePlant"``, ``"AMPCController"``), for an FMU
+        the scenario does not name.
+    """
     problems = []
     for name, role, spec in (("MusclePlant", "plant", scenario.plant),
                              ("AMPCController", "controller", scenario.controller)):
@@ -415,6 +444,25 @@ class FmuInstance:
     parameters and initial inputs, :meth:`start` (exit initialization), then ``set``/``do_step``/
     ``get``; :meth:`free` at the end. A model-exchange instance is in event mode after :meth:`start`;
     :class:`tapmuscle.cosim.model_exchange.ModelExchangeStepper` steps it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.fmu`` file.
+    instance_name : str
+        The instance's name (made unique with a counter: messages are routed by it).
+    role : str
+        Its role in the loop (``"plant"``, ``"controller"``, or one outside the closed loop such
+        as ``"foreign plant"``), whose inputs, outputs and parameters are checked
+        (:func:`check_role`).
+    model_exchange : bool, optional
+        Instantiate the model-exchange interface (``FMU2Model``) instead of co-simulation;
+        default False.
+    interface : mapping of str to str, optional
+        A controller of one's own's variable names (:attr:`FmuSpec.interface`); None: the
+        project's.
+    source : str, optional
+        The scenario file, which leads an interface's messages.
     """
 
     def __init__(self, path: str | Path, instance_name: str, *, role: str, model_exchange: bool = False,

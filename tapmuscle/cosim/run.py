@@ -57,7 +57,17 @@ def _spec(scenario: Scenario) -> dict[str, Any]:
 
 
 def summarise(scenario: Scenario, cols: Mapping[str, np.ndarray], fmus: Mapping[str, Path]) -> dict[str, Any]:
-    """The ``summary.json`` document of a run."""
+    """The ``summary.json`` document of a run.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario run.
+    cols : mapping of str to ndarray
+        The run's recorded columns.
+    fmus : mapping of str to Path
+        The FMU files the run used.
+    """
     k0, k1 = scenario.evaluation_samples
     metrics = scenario_metrics(scenario, cols)
     return {

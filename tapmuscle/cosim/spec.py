@@ -89,6 +89,7 @@ class Profile:
     """A piecewise-constant signal: ``initial`` until the first step, then each step's value from its time."""
 
     initial: float
+    """The value before the first step (load [N], supply pressure [MPa])."""
     steps: tuple[tuple[float, float], ...] = ()
     """``(t_s, value)`` in increasing time."""
 
@@ -105,9 +106,13 @@ class Reference:
     """The reference ``r`` [mm]: ``kind = "sine"`` (built-in, exact preview) or ``"steps"`` (input r)."""
 
     kind: str = "sine"
+    """``"sine"`` or ``"steps"``."""
     offset_mm: float = 35.0
+    """For ``kind = "sine"``: the offset [mm]."""
     amplitude_mm: float = 30.0
+    """For ``kind = "sine"``: the amplitude [mm]."""
     frequency_hz: float = 0.1
+    """For ``kind = "sine"``: the frequency [Hz]."""
     steps: Profile | None = None
     """For ``kind = "steps"``: the profile."""
     preview: str = "advanced"
@@ -148,21 +153,32 @@ class Scenario:
     """A parsed, checked scenario file (module docstring)."""
 
     name: str
+    """The scenario's name (default: the file name)."""
     source: str
     """Where it came from (file path), for messages."""
     duration_s: float
+    """Length of the run [s], a whole number of steps."""
     step_s: float
+    """Macro (communication) step [s], the controller's Ts."""
     seed: int
+    """The plant's sensor-noise seed."""
     plant: FmuSpec
+    """The plant FMU and its parameters."""
     controller: FmuSpec
+    """The controller FMU and its parameters."""
     method: str
     """The project controller's method (:data:`~fmu_controller.displacement_control.METHODS`), or for a
     controller FMU of one's own ``own:<the FMU file's stem>`` (:data:`OWN_METHOD_PREFIX`)."""
     reference: Reference
+    """The reference ``r`` [mm]."""
     load: Profile
+    """The hanging load's profile [N]."""
     supply: Profile
+    """The supply pressure's profile [MPa]."""
     evaluation_samples: tuple[int, int] = (101, 401)
+    """The Eq. (21) window as sample numbers ``(k0, k1)``, inclusive."""
     description: str = ""
+    """Free text describing the scenario."""
     expect: "Expectations | None" = None
     """The ``[expect]`` table (:mod:`tapmuscle.cosim.expect`), None without one."""
 
@@ -480,7 +496,19 @@ def _plant_file_parameters(r: _Reader, base: Path | None) -> tuple[dict[str, Any
 
 def parse_scenario(data: Mapping[str, Any], *, source: str = "<scenario>", base: Path | None = None,
                    default_name: str = "scenario") -> Scenario:
-    """Check a scenario given as a mapping (the parsed TOML); ``base`` resolves relative FMU paths."""
+    """Check a scenario given as a mapping (the parsed TOML); ``base`` resolves relative FMU paths.
+
+    Parameters
+    ----------
+    data : mapping
+        The scenario, as parsed from TOML.
+    source : str, optional
+        Where it came from, for messages; default ``"<scenario>"``.
+    base : Path, optional
+        The folder relative FMU and parameter-file paths are resolved against.
+    default_name : str, optional
+        The scenario's name when ``data`` gives none; default ``"scenario"``.
+    """
     top = _Reader(source, data)
     top.check_keys(_TOP)
     duration = top.number("duration_s", lo=0.0, hi=1e6, lo_open=True)
@@ -600,7 +628,15 @@ def broken_path(text: str) -> str:
 
 
 def read_toml(path: str | Path, what: str = "scenario") -> dict[str, Any]:
-    """The parsed TOML file ``path``; a missing, unreadable or invalid file raises ScenarioError."""
+    """The parsed TOML file ``path``; a missing, unreadable or invalid file raises ScenarioError.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+    what : str, optional
+        What kind of file it is, for messages; default ``"scenario"``.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

@@ -105,6 +105,7 @@ class SweepRun:
     params: tuple[tuple[str, Any], ...]
     """The swept fields and this run's values, in the sweep's field order."""
     scenario: Scenario
+    """The run's scenario, with the swept values set."""
 
 
 @dataclass(frozen=True)
@@ -112,11 +113,15 @@ class Sweep:
     """A parsed, checked and expanded sweep file (module docstring)."""
 
     name: str
+    """The sweep's name (default: the file name)."""
     source: str
+    """Where it came from (file path), for messages."""
     fields: tuple[str, ...]
     """Swept fields: the grid's, then the Monte-Carlo sample's."""
     runs: tuple[SweepRun, ...]
+    """The runs of its expansion, in order."""
     description: str = ""
+    """Free text describing the sweep."""
     expect: Expectations | None = None
     """The sweep's own ``[expect]`` (each run's scenario carries the expectations that apply to it)."""
 
@@ -127,12 +132,28 @@ class Sweep:
 
 
 def is_sweep_data(data: Mapping[str, Any]) -> bool:
-    """Whether a parsed TOML file is a sweep (has ``base``, ``grid`` or ``monte_carlo``), not a scenario."""
+    """Whether a parsed TOML file is a sweep (has ``base``, ``grid`` or ``monte_carlo``), not a scenario.
+
+    Parameters
+    ----------
+    data : mapping
+        The parsed TOML file.
+    """
     return any(key in data for key in SWEEP_KEYS)
 
 
 def set_field(data: dict[str, Any], field: str, value: Any) -> None:
-    """Set the dotted scenario ``field`` (module docstring) in the raw scenario table ``data``, in place."""
+    """Set the dotted scenario ``field`` (module docstring) in the raw scenario table ``data``, in place.
+
+    Parameters
+    ----------
+    data : dict
+        The raw scenario table, changed in place.
+    field : str
+        The dotted field (e.g. ``plant.parameters.friction.rate_gain``).
+    value : object
+        The value to set.
+    """
     parts = field.split(".")
     if len(parts) >= 3 and parts[0] in _PARAMETER_TABLES and parts[1] == "parameters":
         path, leaf = parts[:2], ".".join(parts[2:])
@@ -161,7 +182,13 @@ def _canonical(value: Any) -> Any:
 
 def run_id_of(data: Mapping[str, Any]) -> str:
     """The run id of a raw scenario table: 12 hex digits of SHA-256 over its canonical JSON (whole
-    numbers written alike, :func:`_canonical`)."""
+    numbers written alike, :func:`_canonical`).
+
+    Parameters
+    ----------
+    data : mapping
+        The raw scenario table (its ``name``, ``description`` and ``expect`` do not count).
+    """
     core = {k: _canonical(v) for k, v in data.items() if k not in ("name", "description", "expect")}
     text = json.dumps(core, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:12]
@@ -351,7 +378,13 @@ def parse_sweep(data: Mapping[str, Any], *, source: str = "<sweep>", folder: Pat
 
 
 def load_sweep(path: str | Path) -> Sweep:
-    """Read, check and expand a sweep file (module docstring); errors name the file and key."""
+    """Read, check and expand a sweep file (module docstring); errors name the file and key.
+
+    Parameters
+    ----------
+    path : str or Path
+        The sweep file (TOML).
+    """
     path = Path(path)
     data = read_toml(path, "sweep")
     if not is_sweep_data(data):

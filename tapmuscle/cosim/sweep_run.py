@@ -60,14 +60,26 @@ Executor = Callable[[Sequence[RunTask], FmuFiles], Iterable[RunResult]]
 
 
 def describe_scenario(scenario: Scenario) -> dict[str, Any]:
-    """The :data:`DESCRIPTIVE` columns of a run (initial load and supply, built-in sine frequency)."""
+    """The :data:`DESCRIPTIVE` columns of a run (initial load and supply, built-in sine frequency).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The run's scenario.
+    """
     return {"method": scenario.method, "load_n": scenario.load.initial, "supply_mpa": scenario.supply.initial,
             "frequency_hz": scenario.reference.frequency_hz if scenario.reference.kind == "sine" else None,
             "seed": scenario.seed}
 
 
 def result_columns(sweep: Sweep) -> tuple[str, ...]:
-    """The header of ``results.csv`` for ``sweep``."""
+    """The header of ``results.csv`` for ``sweep``.
+
+    Parameters
+    ----------
+    sweep : Sweep
+        The sweep (its swept fields become columns).
+    """
     swept = tuple(f for f in sweep.fields if f not in DESCRIPTIVE)
     return ("run_id", "status") + DESCRIPTIVE + swept + tuple(METRICS) + _TAIL
 
@@ -84,7 +96,15 @@ def _cell(value: Any) -> str:
 
 
 class ResultsLog:
-    """``results.csv`` (module docstring): append rows, read the last row per run, rewrite compacted."""
+    """``results.csv`` (module docstring): append rows, read the last row per run, rewrite compacted.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``results.csv`` file.
+    columns : sequence of str
+        Its header (:func:`result_columns`).
+    """
 
     def __init__(self, path: str | Path, columns: Sequence[str]) -> None:
         self.path, self.columns = Path(path), tuple(columns)
@@ -202,9 +222,11 @@ class SweepReport:
     """What :func:`run_sweep` did."""
 
     total: int
+    """Runs in the sweep."""
     skipped: int
     """Runs already finished in ``results.csv`` (not run again)."""
     ran: int
+    """Runs this call ran."""
     failed: int
     """Runs of the sweep whose last row is ``failed``."""
     violated: int
@@ -413,7 +435,19 @@ def summary_markdown(sweep: Sweep, rows: Sequence[Mapping[str, str]], other_rows
                      fmu_warnings: Sequence[tuple[str, str]] = ()) -> str:
     """``summary.md``: tables per method (and per grid cell), failed runs (module docstring);
     ``other_rows``: rows of runs ``results.csv`` keeps that this sweep no longer has;
-    ``fmu_warnings``: ``(run_id, message)`` the FMUs logged in the runs made this time."""
+    ``fmu_warnings``: ``(run_id, message)`` the FMUs logged in the runs made this time.
+
+    Parameters
+    ----------
+    sweep : Sweep
+        The sweep.
+    rows : sequence of mapping of str to str
+        The last row of each of its runs in ``results.csv``.
+    other_rows : int, optional
+        Rows of runs ``results.csv`` keeps that this sweep no longer has; default 0.
+    fmu_warnings : sequence of (str, str), optional
+        ``(run_id, message)`` the FMUs logged as warnings in the runs made this time.
+    """
     methods = sorted({row["method"] for row in rows})
     # the sweep file's and the runs' own text (names, descriptions, errors) as literal text: a sweep
     # file from elsewhere must not put HTML or links into the summary a viewer renders

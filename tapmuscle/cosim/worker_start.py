@@ -23,6 +23,12 @@ def check_workers_can_start(what: str) -> None:
     """Refuse ``what`` (the setting that asks for worker processes, e.g. ``"workers=2"``) where its
     spawned processes cannot start (module docstring).
 
+    Parameters
+    ----------
+    what : str
+        The setting that asks for worker processes, as the messages name it (e.g.
+        ``"workers=2"``).
+
     Raises
     ------
     tapmuscle.errors.UsageError
@@ -51,6 +57,12 @@ def check_workers_can_start(what: str) -> None:
 
 
 def spawn_context(what: str) -> multiprocessing.context.SpawnContext:
-    """The ``spawn`` multiprocessing context, after :func:`check_workers_can_start` of ``what``."""
+    """The ``spawn`` multiprocessing context, after :func:`check_workers_can_start` of ``what``.
+
+    Parameters
+    ----------
+    what : str
+        The setting that asks for worker processes, as the messages name it.
+    """
     check_workers_can_start(what)
     return multiprocessing.get_context("spawn")

@@ -57,13 +57,25 @@ GAIN_BOUNDS = (0.2, 5.0)
 
 def map_bounds(lo: float, hi: float) -> tuple[tuple[float, float], ...]:
     """Bounds of the map's coordinates (``MAP_FIELDS`` order) on the input range ``[lo, hi]``: knots
-    within the range, outputs within a span beyond it, rises up to twice the span."""
+    within the range, outputs within a span beyond it, rises up to twice the span.
+
+    Parameters
+    ----------
+    lo, hi : float
+        The input's range, in its unit.
+    """
     span = hi - lo
     return ((lo, hi), (0.0, span), (lo - span, hi + span), (0.0, 2.0 * span), (0.0, 2.0 * span), (0.0, 2.0 * span))
 
 
 def effect_kind(name: str) -> tuple[str, str]:
-    """``("transport_delay", "V")`` of ``"transport_delay[V]"``."""
+    """``("transport_delay", "V")`` of ``"transport_delay[V]"``.
+
+    Parameters
+    ----------
+    name : str
+        An effect's name, ``"<kind>[<variable>]"``.
+    """
     kind, _, rest = name.partition("[")
     return kind, rest.rstrip("]")
 
@@ -75,6 +87,12 @@ class BoundarySpace(ModelSpace):
     A foreign FMU's parameters are whatever its author exposed, often redundant for one output (a
     motor's ``R, K, J, b`` reach its speed in three combinations): the calibration keeps every MAP
     estimate (``combinations``), so that the combinations the recording pins are calibrated.
+
+    Parameters
+    ----------
+    sim : ForeignSimulator
+        The recording's simulator: the FMU's interface, the recorded inputs and their ranges, the
+        output and the recording's times.
     """
 
     combinations = True
@@ -125,7 +143,15 @@ def _scale(start: float | None) -> float:
 
 
 def nominal_values(sim: ForeignSimulator, space: BoundarySpace) -> ModelValues:
-    """The nominal parameter set: the FMU's start values (except those the map fixes), no effect."""
+    """The nominal parameter set: the FMU's start values (except those the map fixes), no effect.
+
+    Parameters
+    ----------
+    sim : ForeignSimulator
+        The recording's simulator (the FMU's parameters and the map's fixed ones).
+    space : BoundarySpace
+        The model space, whose defaults switch every boundary effect off.
+    """
     own = {p.name: p.start for p in sim.interface.parameters if p.start is not None and p.name not in sim.fixed}
     return ModelValues(own | space.defaults())
 
@@ -133,7 +159,18 @@ def nominal_values(sim: ForeignSimulator, space: BoundarySpace) -> ModelValues:
 def calibration_parameters(iface: FmuInterface, fixed: Iterable[str] = (), only: Iterable[str] | None = None
                            ) -> list[NominalParameter]:
     """The FMU's Real parameters the calibration may re-estimate: finite, non-zero start values (a
-    relative prior needs a scale), not fixed by the map; ``only``: just these names."""
+    relative prior needs a scale), not fixed by the map; ``only``: just these names.
+
+    Parameters
+    ----------
+    iface : FmuInterface
+        The FMU.
+    fixed : iterable of str, optional
+        Parameters the map fixes (left out).
+    only : iterable of str, optional
+        Just these parameters (the map's ``[calibrate]``); None (default): every one that
+        qualifies.
+    """
     fixed = set(fixed)
     keep = None if only is None else set(only)
     return [NominalParameter(p.name, p.unit or "-") for p in iface.parameters
@@ -318,7 +355,14 @@ def _explain_gain(v: dict[str, float], *, var: str) -> str:
 
 
 def boundary_candidates(sim: ForeignSimulator) -> list[Candidate]:
-    """The candidates for ``sim``'s FMU and recording (module docstring), in a fixed order."""
+    """The candidates for ``sim``'s FMU and recording (module docstring), in a fixed order.
+
+    Parameters
+    ----------
+    sim : ForeignSimulator
+        The recording's simulator (the FMU's inputs and output, which inputs are recorded and
+        their ranges).
+    """
     out: list[Candidate] = []
     iface = sim.interface
     for v in iface.inputs:

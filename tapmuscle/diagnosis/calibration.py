@@ -94,6 +94,7 @@ class NominalParameter:
     key: str
     """Plant parameter (``group.field``), as the plant FMU names it."""
     unit: str
+    """Its unit (``"-"`` if it has none)."""
     prior_rel: float = 0.2
     """Prior standard deviation relative to the nominal value [-] (rigs differ by 10-20 %)."""
 
@@ -119,6 +120,11 @@ def nominal_parameter(key: str) -> NominalParameter:
     """The constant ``key`` (``"group.field"``) as calibration re-estimates it: the entry of
     :data:`NOMINAL_PARAMETERS`, or for any other constant of the rig (``"load.load_n"``,
     ``"supply.supply_pressure_mpa"``) one with its unit and the same 20 % prior.
+
+    Parameters
+    ----------
+    key : str
+        The plant parameter, ``"group.field"``.
 
     Raises
     ------
@@ -152,12 +158,19 @@ class FittedParameter:
     """One coordinate of a least-squares fit: ``theta = center + scale * x``."""
 
     key: str
+    """Plant parameter (``group.field``)."""
     center: float
+    """Value at ``x = 0``, in the parameter's unit (for a nominal constant its nominal value, the prior's
+    mean)."""
     scale: float
+    """Change of the value per unit of ``x``, in the parameter's unit (for a nominal constant the prior's
+    sd)."""
     prior: bool
     """Gaussian prior N(center, scale^2) (a nominal constant); False: flat within the bounds (an effect)."""
     lo: float
+    """Lower bound of the value, in the parameter's unit."""
     hi: float
+    """Upper bound of the value, in the parameter's unit."""
 
 
 @dataclass
@@ -165,17 +178,26 @@ class Fit:
     """Result of :func:`fit_parameters`."""
 
     values: dict[str, float]
+    """The estimate: plant parameter (``group.field``) -> value."""
     x: np.ndarray
+    """The estimate in the scaled coordinates."""
     jacobian: np.ndarray
     """Residual Jacobian at the estimate, in the scaled coordinates (rows: training samples) [mm]."""
     residual: np.ndarray
     """Training residual at the estimate [mm]."""
     simulations: int
+    """Simulations the fit ran."""
 
 
 def effective_sigma(r: np.ndarray) -> float:
     """Standard deviation of ``r`` inflated by the AR(1) variance factor of its lag-1 autocorrelation:
-    the noise level that makes ``J'J / sigma^2`` honest for a residual that is not white."""
+    the noise level that makes ``J'J / sigma^2`` honest for a residual that is not white.
+
+    Parameters
+    ----------
+    r : ndarray
+        A residual [mm].
+    """
     r = np.asarray(r, float)
     if r.size < 3:
         return float(np.std(r)) or 1e-12
@@ -338,11 +360,17 @@ class CalibrationRow:
     """One line of the report's ``calibration`` section."""
 
     parameter: str
+    """Plant parameter (``group.field``)."""
     unit: str
+    """Its unit."""
     nominal: float
+    """Nominal value, in its unit."""
     estimate: float
+    """Calibrated value, in its unit."""
     ci95: tuple[float, float]
+    """95 % interval, in its unit, clipped to the parameter's bounds."""
     identifiable: bool
+    """Whether the recording identifies it."""
     sd_shrink: float
     """Posterior sd / prior sd [-] (<= IDENTIFIABLE_SD_SHRINK: identifiable)."""
     at_bound: bool = False
@@ -381,8 +409,11 @@ class Calibration:
     """The calibrated plant and the report's ``calibration`` section."""
 
     params: PlantParams
+    """The calibrated plant."""
     rows: list[CalibrationRow]
+    """One row per constant considered."""
     simulations: int
+    """Simulations the calibration ran."""
     jacobian: np.ndarray = field(repr=False)
     """Training-residual Jacobian of the identifiable constants at the estimate (scaled coordinates)."""
     sigma_mm: float = 0.0
@@ -420,7 +451,17 @@ class Calibration:
 def nominal_coords(nominal: PlantParams, parameters: Sequence[NominalParameter] = NOMINAL_PARAMETERS,
                    bounds: Callable[[str], tuple[float, float]] = PlantParams.bounds) -> list[FittedParameter]:
     """Scaled coordinates of the nominal constants, centred on ``nominal``'s values (prior), within
-    ``bounds(key)`` (default: the plant fields' bounds)."""
+    ``bounds(key)`` (default: the plant fields' bounds).
+
+    Parameters
+    ----------
+    nominal : PlantParams
+        The nominal model.
+    parameters : sequence of NominalParameter, optional
+        The constants; default :data:`NOMINAL_PARAMETERS`.
+    bounds : callable, optional
+        ``bounds(key) -> (lo, hi)`` of a parameter; default the plant fields' bounds.
+    """
     out = []
     for np_ in parameters:
         c = nominal.value(np_.key)
@@ -523,6 +564,19 @@ def fit_covariance(jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float, 
     (at least ``sigma_mm``) and ``P`` the prior's information (one per scaled unit) on the leading
     ``prior_columns`` columns, plus the consider term ``A A'`` of the constants left nominal
     (``consider``: the residual's Jacobian in them, same rows as ``jacobian``, prior sd units).
+
+    Parameters
+    ----------
+    jacobian : ndarray
+        The residual's Jacobian at the estimate, in scaled coordinates [mm].
+    residual : ndarray
+        The residual at the estimate [mm].
+    sigma_mm : float
+        The smallest noise level taken [mm].
+    prior_columns : int, optional
+        Leading columns with a prior (one per scaled unit); default 0.
+    consider : ndarray, optional
+        The residual's Jacobian in the constants left nominal (same rows, prior sd units).
     """
     sig = max(effective_sigma(residual), sigma_mm)
     info = jacobian.T @ jacobian / sig ** 2
@@ -537,7 +591,19 @@ def fit_covariance(jacobian: np.ndarray, residual: np.ndarray, sigma_mm: float, 
 def fitted_intervals(coords: Sequence[FittedParameter], values: dict[str, float], cov: np.ndarray,
                      bounds: Callable[[str], tuple[float, float]] = PlantParams.bounds) -> dict[str, tuple[float, float]]:
     """95 % intervals ``value +- 1.96 sd`` [the parameters' units] of the fitted ``coords`` (the
-    columns of ``cov``, :func:`fit_covariance`, in order), clipped to each parameter's ``bounds``."""
+    columns of ``cov``, :func:`fit_covariance`, in order), clipped to each parameter's ``bounds``.
+
+    Parameters
+    ----------
+    coords : sequence of FittedParameter
+        The fitted coordinates, in ``cov``'s column order.
+    values : dict of str to float
+        Their estimates by key.
+    cov : ndarray
+        Covariance of the scaled coordinates (:func:`fit_covariance`).
+    bounds : callable, optional
+        ``bounds(key) -> (lo, hi)`` of a parameter; default the plant fields' bounds.
+    """
     out = {}
     for j, c in enumerate(coords):
         half = 1.96 * math.sqrt(max(float(cov[j, j]), 0.0)) * c.scale
@@ -564,6 +630,31 @@ def calibration_rows(parameters: Sequence[NominalParameter], nominal: PlantParam
     parameter's ``bounds``. When constants that are not
     identifiable are fitted too (``calibrate(combinations=True)``), the intervals of all fitted ones
     include the prior (the data alone leave some directions free).
+
+    Parameters
+    ----------
+    parameters : sequence of NominalParameter
+        The constants considered, in row order.
+    nominal : PlantParams
+        The nominal model (the priors' centres).
+    params : PlantParams
+        The calibrated plant.
+    identifiable : sequence of str
+        The constants the recording identifies.
+    jacobian : ndarray
+        The training residual's Jacobian at the estimate (scaled coordinates) [mm].
+    residual : ndarray
+        The training residual at the estimate [mm].
+    sigma_mm : float
+        The smallest noise level the covariance takes [mm].
+    sd_shrink : sequence of float
+        Posterior sd / prior sd of each constant of ``parameters`` [-].
+    bounds : callable, optional
+        ``bounds(key) -> (lo, hi)`` of a parameter; default the plant fields' bounds.
+    fitted : sequence of str, optional
+        The constants of ``jacobian``'s leading columns; default ``identifiable``.
+    consider : ndarray, optional
+        The residual's Jacobian in the constants left nominal (same rows, prior sd units).
     """
     coords = {c.key: c for c in nominal_coords(nominal, parameters, bounds)}
     fitted = list(identifiable if fitted is None else fitted)

@@ -75,8 +75,11 @@ class ParameterSpec:
     key: str
     """Plant parameter (``group.field``), as the plant FMU names it."""
     unit: str
+    """Its unit."""
     lo: float
+    """Lower bound of the search, in its unit."""
     hi: float
+    """Upper bound of the search, in its unit."""
 
 
 @dataclass(frozen=True)
@@ -88,9 +91,12 @@ class Candidate:
     physics: str
     """What it is, in plain words (docs/diagnosis.md)."""
     parameters: tuple[ParameterSpec, ...]
+    """The parameters it fits."""
     fitting: str
     """How it is fitted."""
     fit: Callable[[Problem, PlantParams, np.ndarray], FitResult | None]
+    """``(problem, base, y_base) ->`` its fit on top of the round's model ``base``, whose prediction is
+    ``y_base`` [mm]: a :class:`FitResult`, or None where it finds nothing (docs/diagnosis.md)."""
     explain: Callable[[dict[str, float]], str]
     """Plain-words explanation of a fitted value set."""
     refine: Callable[[Problem, PlantParams], dict[str, float] | None] | None = None
@@ -163,7 +169,21 @@ def _gauss_newton_1d(resid: Callable[[float], np.ndarray], x0: float, r0: np.nda
 
 def bounded_nelder_mead(cost: Callable[[np.ndarray], float], x0: np.ndarray, step: np.ndarray, lo: np.ndarray,
                         hi: np.ndarray, max_evals: int) -> np.ndarray:
-    """Bounded Nelder-Mead (scipy) from ``x0`` with an initial simplex of ``step``."""
+    """Bounded Nelder-Mead (scipy) from ``x0`` with an initial simplex of ``step``.
+
+    Parameters
+    ----------
+    cost : callable
+        ``cost(x) -> float``, minimised.
+    x0 : ndarray
+        The start (clipped into the bounds).
+    step : ndarray
+        The initial simplex's step along each coordinate.
+    lo, hi : ndarray
+        The bounds.
+    max_evals : int
+        Cost evaluations at most.
+    """
     x0 = np.clip(x0, lo, hi)
     simplex = [x0] + [np.clip(x0 + np.eye(len(x0))[i] * step[i], lo, hi) for i in range(len(x0))]
     res = optimize.minimize(cost, x0, method="Nelder-Mead", bounds=list(zip(lo, hi)),
@@ -904,7 +924,13 @@ CANDIDATES: tuple[Candidate, ...] = Catalogue("CANDIDATES", (
 
 
 def candidate(name: str) -> Candidate:
-    """The candidate called ``name`` (``ValueError`` listing the known names otherwise)."""
+    """The candidate called ``name`` (``ValueError`` listing the known names otherwise).
+
+    Parameters
+    ----------
+    name : str
+        The candidate's name.
+    """
     for c in CANDIDATES:
         if c.name == name:
             return c

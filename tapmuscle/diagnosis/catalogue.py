@@ -16,7 +16,15 @@ __all__ = ["Catalogue"]
 
 class Catalogue(tuple):
     """A tuple shown as its name and length (``CANDIDATES (9)``); equal to, and used as, the plain
-    tuple of its items."""
+    tuple of its items.
+
+    Parameters
+    ----------
+    name : str
+        The name it is shown as.
+    items : iterable
+        Its items.
+    """
 
     _name: str
 

@@ -70,8 +70,11 @@ class Case:
     effect: str
     """Concealed effect, or ``"none"`` for a clean recording."""
     level: int
+    """Magnitude level of the concealed effect, 0, 1 or 2 (:data:`MAGNITUDES`)."""
     excitation: str
+    """The recording's input, one of :data:`EXCITATIONS`."""
     seed: int
+    """Seed of the case: its magnitude draw, the random steps' input and the recording's sensor noise."""
     overrides: dict[str, float]
     """Plant parameters of the rig beyond the model (the concealed effect)."""
     true_window: tuple[float, float] | None = None
@@ -79,6 +82,7 @@ class Case:
     model: str = "demo"
     """``"demo"`` (DEMO_MODEL) or ``"fig20"`` (calibrated on 0.1 Hz without rate dependence)."""
     frequency_hz: float = 0.1
+    """Frequency of the sine input, or of the closed loop's sine reference [Hz]."""
 
     @property
     def name(self) -> str:
@@ -118,6 +122,17 @@ def concealed_cases(seeds: int = 3, *, effects: tuple[str, ...] | None = None,
     :data:`EXCITATIONS`), its level and its seed, so a run of some rows (``effects``, ``excitations``)
     draws the very cases, under the same names, that the whole suite does.
 
+    Parameters
+    ----------
+    seeds : int, optional
+        Seeds per effect, level and excitation; default 3.
+    effects : tuple of str, optional
+        The effects (keys of :data:`MAGNITUDES`); None (default): all.
+    excitations : tuple of str, optional
+        The excitations; default all of :data:`EXCITATIONS`.
+    levels : tuple of int, optional
+        The magnitude levels; default ``(0, 1, 2)``.
+
     Raises
     ------
     ValueError
@@ -143,7 +158,17 @@ def concealed_cases(seeds: int = 3, *, effects: tuple[str, ...] | None = None,
 def calibrate_without_rate(recording_u: np.ndarray, recording_l: np.ndarray, ts_s: float) -> PlantParams:
     """The Fig. 20 model: ``friction.rate_gain = 0``, friction level (``base_n``, ``per_mpa_n`` scaled
     together) fitted by least squares to a 0.1 Hz recording; what a careful calibration without rate
-    dependence yields."""
+    dependence yields.
+
+    Parameters
+    ----------
+    recording_u : ndarray
+        The recording's command [V].
+    recording_l : ndarray
+        The recording's displacement [mm].
+    ts_s : float
+        Sampling period [s].
+    """
     from scipy import optimize
 
     sim = Simulator(recording_u, ts_s)
@@ -163,7 +188,22 @@ def calibrate_without_rate(recording_u: np.ndarray, recording_l: np.ndarray, ts_
 def record(rig: PlantParams, excitation: str, seed: int, *, frequency_hz: float = 0.1,
            duration_s: float = DURATION_S) -> dict[str, np.ndarray]:
     """A recording of ``rig`` (sensor noise on, seed ``seed``): columns ``t_s, u_v, l_mm, p_mpa, load_n``
-    (plus ``r_mm`` for the closed loop)."""
+    (plus ``r_mm`` for the closed loop).
+
+    Parameters
+    ----------
+    rig : PlantParams
+        The rig recorded.
+    excitation : str
+        ``"sine"`` (5 +- 3 V open loop), ``"steps"`` (random levels 2..8 V) or ``"ampc"`` (the
+        AMPC servo tracking a sine reference).
+    seed : int
+        Seed of the sensor noise (the plant's seed is ``1000 + seed``) and of the random steps.
+    frequency_hz : float, optional
+        Frequency of the sine input or reference [Hz]; default 0.1.
+    duration_s : float, optional
+        Length of the recording [s]; default :data:`DURATION_S`.
+    """
     plant = Plant(rig, seed=1000 + seed)
     if excitation == "sine":
         return run_open_loop(plant, lambda t: 5.0 + 3.0 * math.sin(2 * math.pi * frequency_hz * t),
@@ -190,7 +230,22 @@ def record(rig: PlantParams, excitation: str, seed: int, *, frequency_hz: float 
 
 def run_case(case: Case, workdir: str | Path, *, plots: bool = False, fig20_model: PlantParams | None = None,
              keep: bool = False) -> dict[str, Any]:
-    """Make the recording of ``case``, write it as CSV, diagnose the CSV alone, score the result."""
+    """Make the recording of ``case``, write it as CSV, diagnose the CSV alone, score the result.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    workdir : str or Path
+        The case's files go into ``workdir / case.name``.
+    plots : bool, optional
+        Write the diagnosis's figures; default False.
+    fig20_model : PlantParams, optional
+        The model handed over for a case of ``model = "fig20"`` (:func:`calibrate_without_rate`).
+    keep : bool, optional
+        Keep every file of the case; default False: only ``diagnosis.json``, ``report.md`` and
+        the figures.
+    """
     from tapmuscle.diagnosis.report import diagnose_files
 
     workdir = Path(workdir)
@@ -242,7 +297,23 @@ def run_demo(out: str | Path, *, seeds: int = 3, clean_seeds: int = 20, jobs: in
              effects: tuple[str, ...] | None = None, excitations: tuple[str, ...] = EXCITATIONS,
              levels: tuple[int, ...] = (0, 1, 2),
              progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
-    """Run the whole proof (module docstring); returns the scores (also ``out/scores.json``, ``scores.md``)."""
+    """Run the whole proof (module docstring); returns the scores (also ``out/scores.json``, ``scores.md``).
+
+    Parameters
+    ----------
+    out : str or Path
+        Output folder.
+    seeds : int, optional
+        Seeds per effect, level and excitation; default 3.
+    clean_seeds : int, optional
+        Clean recordings (no effect); default 20.
+    jobs : int, optional
+        Worker processes; default all cores.
+    effects, excitations, levels : optional
+        The suite's rows, as :func:`concealed_cases` takes them.
+    progress : callable, optional
+        ``progress(done, total)`` as cases finish.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = concealed_cases(seeds, effects=effects, excitations=excitations, levels=levels)

@@ -224,6 +224,10 @@ def distinguishable(e_best: np.ndarray, e_other: np.ndarray, noise_mm: float, *,
         Held-out residuals [mm] of the best explanation and the other one.
     noise_mm : float
         White-noise level [mm].
+    alpha : float, optional
+        Level of the one-sided test; default 1e-3.
+    min_ratio : float, optional
+        Smallest ratio of the other's held-out SSE to the best's; default 1.1.
     residual_mm : ndarray, optional
         The residual whose level stands for what no explanation accounts for (default ``e_best``).
         The diagnosis passes the final model's held-out residual: the best's residual at the round
@@ -435,7 +439,17 @@ def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float
     """Length of the training / held-out blocks [s] for the command ``u_v``: ``block_s`` as given, or
     by default :data:`BLOCK_S` balanced for a continuous command locked to it
     (:func:`~tapmuscle.diagnosis.residual_analysis.balanced_block_s`, no longer than the quarter of
-    the recording that :func:`validated_recording` allows)."""
+    the recording that :func:`validated_recording` allows).
+
+    Parameters
+    ----------
+    u_v : ndarray
+        The command [V].
+    ts_s : float
+        Sampling period [s].
+    block_s : float or None
+        The block length given [s], or None for the default.
+    """
     if block_s is not None:
         return block_s
     # every block holds a sample (a recording sampled more slowly than BLOCK_S: one per block)
@@ -447,7 +461,26 @@ def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s
                         units: tuple[str, str] = ("V", "mm")) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """``(t, u, y, Ts)`` of a recording the diagnosis can use, or ``ValueError`` naming the column
     (``names``: the time, input and output columns' names; ``units``: the input's and output's) and
-    sample (:func:`diagnose`'s Raises). ``block_s`` None checks the default (:func:`split_length_s`)."""
+    sample (:func:`diagnose`'s Raises). ``block_s`` None checks the default (:func:`split_length_s`).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time [s].
+    u_v : ndarray
+        The input (the command [V]).
+    y : ndarray
+        The output (the displacement [mm]).
+    block_s : float or None
+        Length of the training / held-out blocks [s]; None: the default ones
+        (:func:`split_length_s`) are checked.
+    load_n : ndarray, optional
+        Load [N], checked for its length.
+    names : tuple of str, optional
+        The time, input and output columns' names, for messages.
+    units : tuple of str, optional
+        The input's and output's units, for messages.
+    """
     # copies: the diagnosis keeps them, and a notebook's later `l -= 10` must not change its recording
     t = np.array(t_s, float)
     u = np.array(u_v, float)

@@ -55,7 +55,9 @@ class Experiment:
     """A designed discriminating input and what each alternative predicts for it."""
 
     t_s: np.ndarray
+    """Time [s] of the input's samples."""
     u_v: np.ndarray
+    """The designed command [V]."""
     predictions: dict[str, np.ndarray] = field(repr=False)
     """Alternative name -> predicted noise-free displacement [mm]."""
     separation_sigma: float
@@ -65,6 +67,7 @@ class Experiment:
     description: str
     """What kind of input it is, in words."""
     evaluations: int
+    """Candidate inputs whose predictions the design simulated."""
 
     @property
     def duration_s(self) -> float:
@@ -88,7 +91,13 @@ class Experiment:
 
 
 def separation(predictions: Sequence[np.ndarray]) -> float:
-    """Smallest pairwise Euclidean distance between predictions [mm] (0 for fewer than two)."""
+    """Smallest pairwise Euclidean distance between predictions [mm] (0 for fewer than two).
+
+    Parameters
+    ----------
+    predictions : sequence of ndarray
+        Predicted displacements [mm], one per alternative.
+    """
     best = math.inf
     for i in range(len(predictions)):
         for j in range(i + 1, len(predictions)):
@@ -250,7 +259,23 @@ def write_experiment(exp: Experiment, path: str | Path, *, alternatives: Sequenc
                      load_n: float | None = None, shown: str | None = None) -> str:
     """Write ``exp`` as a ``tapmuscle record --input csv:`` file (atomically); ``load_n`` [N] is the
     load to run it at (the diagnosed recording's); ``shown``: the file as the command names it (default
-    its name). Returns the :func:`record_command` its note gives."""
+    its name). Returns the :func:`record_command` its note gives.
+
+    Parameters
+    ----------
+    exp : Experiment
+        The designed experiment.
+    path : str or Path
+        The file to write.
+    alternatives : sequence of str
+        The alternatives it separates, named in the file's metadata.
+    ts_s : float
+        Sampling period [s].
+    load_n : float, optional
+        Load to run it at [N].
+    shown : str, optional
+        The file as the command names it; default its name.
+    """
     from tapmuscle.io.recording import Recording, write_recording
 
     command = record_command(shown or Path(path).name, duration_s=exp.duration_s, ts_s=ts_s, load_n=load_n)

@@ -99,6 +99,7 @@ class FieldCase:
     """One field recording to make and diagnose (all draws made, :func:`field_cases`)."""
 
     index: int
+    """The case's number in the suite (0, 1, ...)."""
     seed: int
     """Seed of the suite the case belongs to."""
     category: str
@@ -112,13 +113,17 @@ class FieldCase:
     load_n: float
     """Nominal hanging load [N] (the recording's ``load_n`` column)."""
     excitation: str
+    """The recording's input, one of :data:`EXCITATIONS`."""
     excitation_params: tuple[tuple[str, float], ...]
+    """The input's drawn parameters (name, value), e.g. ``offset_v``, ``amplitude_v``, ``frequency_hz``."""
     noise_seed: int
     """Seed of the plant's sensor noise."""
     duration_s: float = DURATION_S
+    """Length of the recording [s]."""
     oov: str | None = None
     """Out-of-vocabulary disturbance (one of :data:`OOV_KINDS`), or None."""
     oov_params: tuple[tuple[str, float], ...] = ()
+    """The disturbance's drawn parameters (name, value); empty without one."""
 
     @property
     def name(self) -> str:
@@ -162,16 +167,41 @@ class FieldCase:
 
 def off_values(model: PlantParams, errors: Sequence[tuple[str, float]]) -> dict[str, float]:
     """The values (``group.field`` -> value) of ``model``'s constants with each ``(group.field, relative
-    error)`` of ``errors`` applied."""
+    error)`` of ``errors`` applied.
+
+    Parameters
+    ----------
+    model : PlantParams
+        The nominal model.
+    errors : sequence of (str, float)
+        ``(group.field, relative error)`` pairs [-].
+    """
     return {key: parameter_value(model, key) * (1.0 + rel) for key, rel in errors}
 
 
 def off_nominal(model: PlantParams, errors: Sequence[tuple[str, float]]) -> PlantParams:
-    """``model`` with each ``(group.field, relative error)`` of ``errors`` applied."""
+    """``model`` with each ``(group.field, relative error)`` of ``errors`` applied.
+
+    Parameters
+    ----------
+    model : PlantParams
+        The nominal model.
+    errors : sequence of (str, float)
+        ``(group.field, relative error)`` pairs [-].
+    """
     return model.with_values(**off_values(model, errors))
 
 
 def parameter_value(params: PlantParams, key: str) -> float:
+    """The value of the plant parameter ``key`` (``group.field``) in ``params``.
+
+    Parameters
+    ----------
+    params : PlantParams
+        The plant's parameters.
+    key : str
+        The parameter, ``"group.field"``.
+    """
     group, _, name = key.partition(".")
     return float(getattr(getattr(params, group), name))
 
@@ -197,7 +227,13 @@ def vocabulary() -> tuple[str, ...]:
 
 
 def compatible_pairs(vocab: Sequence[str] | None = None) -> list[tuple[str, str]]:
-    """Every unordered pair of different vocabulary effects that may act together."""
+    """Every unordered pair of different vocabulary effects that may act together.
+
+    Parameters
+    ----------
+    vocab : sequence of str, optional
+        The effects; None (default): :func:`vocabulary`.
+    """
     vocab = tuple(vocab if vocab is not None else vocabulary())
     return [(a, b) for i, a in enumerate(vocab) for b in vocab[i + 1:]
             if frozenset({a, b}) not in INCOMPATIBLE_PAIRS]
@@ -275,6 +311,13 @@ _DRAWERS: dict[str, Callable[[np.random.Generator, float], dict[str, float]]] = 
 def draw_parameter_errors(rng: np.random.Generator, model: PlantParams) -> tuple[tuple[str, float], ...]:
     """Draw a field rig's off constants: 3-6 of :data:`FIELD_ERROR_PARAMETERS`, each off by 5-20 %
     with a random sign, clipped to the parameter's bounds.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the draws.
+    model : PlantParams
+        The nominal model the errors are relative to.
 
     Returns
     -------
@@ -542,6 +585,17 @@ def effect_costs(case: FieldCase, cols: dict[str, np.ndarray], end_stop_mm: floa
     truth minus that of the truth without it [points]: how much there is to find. The held-out
     blocks are those of a split into ``block_s``-long blocks [s]: the diagnosis's own, so that its
     fit and the truth's are taken on the same samples.
+
+    Parameters
+    ----------
+    case : FieldCase
+        The case.
+    cols : dict of str to ndarray
+        Its recording's columns (``t_s``, ``u_v``, ``l_mm``).
+    end_stop_mm : float or None
+        Where an ``end_stop`` disturbance stops the muscle [mm]; None for other cases.
+    block_s : float, optional
+        Length of the training / held-out blocks [s]; default :data:`BLOCK_S`.
     """
     _, test = interleaved_split(len(cols["t_s"]), TS_S, block_s)
     u, y = cols["u_v"], cols["l_mm"]

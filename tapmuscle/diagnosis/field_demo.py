@@ -232,6 +232,8 @@ def run_field_case(case: FieldCase, workdir: str | Path, *, keep: bool = False,
         (and those of each ambiguous group's discriminating experiment in ``discriminate/``,
         ``discriminate_2/``, ...); the CSVs and the plant files are deleted unless ``keep``. A case
         that raises keeps them, for a look at what failed.
+    keep : bool, optional
+        Keep the recordings and plant files; default False.
     use_pressure : bool
         Diagnose with the recorded pressure beside the displacement (``diagnose(use_pressure=True)``).
 
@@ -324,6 +326,8 @@ def run_field_demo(out: str | Path, *, n: int = 120, seed: int = 0, jobs: int | 
         The caller vouches that the diagnosis code has not changed in between.
     progress : callable, optional
         ``progress(done, total, detail)``, called as cases finish and at least every ``heartbeat_s``.
+    heartbeat_s : float, optional
+        Longest time between two calls of ``progress`` while cases run [s]; default 5.
     use_pressure : bool
         Diagnose with the recorded pressure beside the displacement (``diagnose(use_pressure=True)``).
 
@@ -446,6 +450,11 @@ def score_results(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
     A failed case (``error``) counts as a miss in its category. Each rate is also given over the
     *visible* cases (every effect costs >= :data:`VISIBLE_POINTS` of the truth's held-out fit).
+
+    Parameters
+    ----------
+    results : sequence of dict
+        Per-case results of :func:`run_field_case` (a failed case's with an ``error``).
 
     Returns
     -------
@@ -608,7 +617,13 @@ def _num(x: Any, fmt: str = ".2f") -> str:
 
 
 def scores_markdown(s: dict[str, Any]) -> str:
-    """The scores as markdown (``scores.md``, and what ``tapmuscle demo-mismatch`` prints)."""
+    """The scores as markdown (``scores.md``, and what ``tapmuscle demo-mismatch`` prints).
+
+    Parameters
+    ----------
+    s : dict
+        The scores (:func:`score_results`).
+    """
     labels = {"none_no_effect_claimed": "no effect -> no effect claimed (calibration only)",
               "single_named": "one effect -> named (or an ambiguous alternative)",
               "single_named_alone": "one effect -> named alone",
@@ -685,7 +700,15 @@ def scores_markdown(s: dict[str, Any]) -> str:
 
 
 def confusion_figure(s: dict[str, Any], path: str | Path) -> Path:
-    """Heat map of the confusion table (share of each row's cases claiming each column), counts written in."""
+    """Heat map of the confusion table (share of each row's cases claiming each column), counts written in.
+
+    Parameters
+    ----------
+    s : dict
+        The scores (:func:`score_results`).
+    path : str or Path
+        The figure to write.
+    """
     from matplotlib.patches import Rectangle
 
     from tapmuscle.plots.figures import new_figure, save_figure

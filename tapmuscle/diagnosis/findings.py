@@ -28,6 +28,7 @@ class Finding:
     effect: str
     """Candidate name, or ``"unexplained"``."""
     explanation: str
+    """What was found, in plain words."""
     parameters: dict[str, float]
     """Fitted plant parameters (``group.field``: value, as the plant FMU names them)."""
     fit_gain_points: float
@@ -37,6 +38,8 @@ class Finding:
     located: list[tuple[float, float]]
     """Time windows [s] where it acts."""
     regime: str
+    """Where in the operating range its contribution concentrates, in words
+    (:func:`~tapmuscle.diagnosis.residual_analysis.regime_summary`)."""
     evidence: dict[str, Any] = field(default_factory=dict)
     """Numbers behind the acceptance (held-out SSE before/after, z-test p-value, ...)."""
     ci95: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -58,14 +61,21 @@ class Alternative:
     """One explanation of an ``ambiguous`` group: an effect re-fitted jointly with the calibration."""
 
     effect: str
+    """Candidate name."""
     explanation: str
+    """What it would be, in plain words."""
     parameters: dict[str, float]
+    """Fitted plant parameters (``group.field``: value)."""
     params: PlantParams = field(repr=False)
     """The whole alternative plant (calibrated constants, accepted effects, this effect)."""
     y_hat: np.ndarray = field(repr=False)
+    """Its noise-free prediction of the whole recording [mm]."""
     held_out_sse_mm2: float = 0.0
+    """Squared error of that prediction on the held-out samples [mm^2]."""
     fit_after_percent: float = 0.0
+    """Held-out fit of that prediction [%]."""
     evidence: dict[str, Any] = field(default_factory=dict)
+    """Numbers behind its acceptance (held-out tests against the model without it)."""
     q_hat: np.ndarray | None = field(default=None, repr=False)
     """Its pressure prediction [MPa] when the held-out evidence uses the pressure, else None."""
 
@@ -76,7 +86,13 @@ class Alternative:
 
 
 def output_unit(output: tuple[str, str] | None) -> str:
-    """The unit of the output ``(name, unit)`` a diagnosis is of (None: the muscle's displacement, mm)."""
+    """The unit of the output ``(name, unit)`` a diagnosis is of (None: the muscle's displacement, mm).
+
+    Parameters
+    ----------
+    output : (str, str) or None
+        ``(name, unit)`` of a foreign model's output; None: the muscle's displacement.
+    """
     return "mm" if output is None else output[1] or "-"
 
 

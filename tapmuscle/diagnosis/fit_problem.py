@@ -21,7 +21,13 @@ __all__ = ["Problem", "FitResult", "Rejected", "SimulationError", "full_predicti
 
 @dataclass(frozen=True)
 class Rejected:
-    """A candidate whose fit had to stop: a simulation failed (``reason``); the search goes on."""
+    """A candidate whose fit had to stop: a simulation failed (``reason``); the search goes on.
+
+    Parameters
+    ----------
+    reason : str
+        Why the fit stopped (the simulation's error).
+    """
 
     reason: str
 
@@ -38,13 +44,17 @@ class Problem:
     y_mm: np.ndarray
     """Measured displacement [mm]."""
     t_s: np.ndarray
+    """Time [s]."""
     u_v: np.ndarray
+    """Command [V]."""
     ts_s: float
+    """Sampling period [s]."""
     train: np.ndarray
     """Mask of the training samples (fits see only these)."""
     test: np.ndarray
     """Mask of the held-out samples (scores only)."""
     sim: Simulator
+    """Re-simulates the recording's command with a parameter set."""
     noise_mm: float
     """White-noise level of the residual [mm]."""
     fit_segment_s: float = 120.0
@@ -161,5 +171,15 @@ class FitResult:
 
 
 def full_prediction(problem: Problem, base: PlantParams, values: dict[str, float]) -> np.ndarray:
-    """Noise-free prediction of the whole recording [mm] by ``base`` with ``values`` set."""
+    """Noise-free prediction of the whole recording [mm] by ``base`` with ``values`` set.
+
+    Parameters
+    ----------
+    problem : Problem
+        The recording (its simulator).
+    base : PlantParams
+        The model.
+    values : dict of str to float
+        Plant parameters to set (``group.field`` -> value).
+    """
     return problem.sim.run(base.with_values(**values))[0]

@@ -75,15 +75,21 @@ class ForeignCase:
     """One recording of the proof: the FMU, its truth and its input."""
 
     name: str
+    """The case's name: its number, FMU and concealed effect (``clean`` without one)."""
     plant: str
+    """The FMU: ``"DcMotor"`` or ``"ThermalTwoMass"``."""
     effect: str | None
+    """The concealed boundary effect (``"<kind>[<variable>]"``), or None for a clean case."""
     truth: dict[str, float]
     """Boundary-effect values of the truth (``"<variable>:<name>"``)."""
     errors: dict[str, float]
     """Relative errors of the FMU's parameters in the truth."""
     excitation: str
+    """The input: ``"steps"`` or ``"sines"``."""
     record_p2: bool = True
+    """Whether the thermal model's heater power ``P2`` is recorded (a column mapped to the input)."""
     seed: list[int] = field(default_factory=list)
+    """Seed sequence of the case's draws, inputs and noise."""
 
 
 def _effect_values(effect: str, rng: np.random.Generator, plant: str) -> dict[str, float]:
@@ -113,7 +119,15 @@ def _effect_values(effect: str, rng: np.random.Generator, plant: str) -> dict[st
 
 def foreign_cases(n: int, seed: int = 0) -> list[ForeignCase]:
     """``n`` seeded cases, alternating the two FMUs; a quarter clean, the others cycling through each
-    FMU's concealed effects."""
+    FMU's concealed effects.
+
+    Parameters
+    ----------
+    n : int
+        Number of cases.
+    seed : int, optional
+        Seed of the suite; default 0.
+    """
     out = []
     cycle: dict[str, int] = {p: 0 for p in PLANTS}
     for i in range(n):
@@ -160,7 +174,19 @@ def _inputs(case: ForeignCase, t: np.ndarray, rng: np.random.Generator) -> dict[
 def record_foreign_case(case: ForeignCase, fmu: Path, folder: Path, *, duration_s: float | None = None
                         ) -> tuple[Path, Path]:
     """Simulate the truth of ``case`` through ``fmu`` with noise and write ``recording.csv`` and
-    ``map.toml`` into ``folder`` (``duration_s``: instead of the plant's default)."""
+    ``map.toml`` into ``folder`` (``duration_s``: instead of the plant's default).
+
+    Parameters
+    ----------
+    case : ForeignCase
+        The case.
+    fmu : Path
+        Its FMU file.
+    folder : Path
+        Where the two files are written.
+    duration_s : float, optional
+        Length of the recording [s]; default the plant's.
+    """
     spec = PLANTS[case.plant]
     rng = np.random.default_rng(case.seed + [1])
     ts = spec["ts_s"]
@@ -196,7 +222,13 @@ def record_foreign_case(case: ForeignCase, fmu: Path, folder: Path, *, duration_
 
 
 def build_demo_fmus(folder: str | Path) -> dict[str, Path]:
-    """Build both demo FMUs into ``folder`` (once: an existing file is reused)."""
+    """Build both demo FMUs into ``folder`` (once: an existing file is reused).
+
+    Parameters
+    ----------
+    folder : str or Path
+        Where the FMUs are (built).
+    """
     folder = Path(folder)
     out = {}
     for name, build in (("DcMotor", build_dc_motor_fmu), ("ThermalTwoMass", build_thermal_fmu)):
@@ -224,7 +256,13 @@ def _run_case(args: tuple[ForeignCase, str, str]) -> dict[str, Any]:
 
 
 def score_foreign(results: list[dict[str, Any]]) -> dict[str, Any]:
-    """The proof's scores (module docstring) and each case's verdict."""
+    """The proof's scores (module docstring) and each case's verdict.
+
+    Parameters
+    ----------
+    results : list of dict
+        Per-case results (the case, the verdict, what was named, the fits, or an error).
+    """
     named = alone = clean = fit = 0
     n_eff = n_clean = 0
     rows = []
@@ -255,7 +293,13 @@ def score_foreign(results: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def foreign_scores_markdown(s: dict[str, Any]) -> str:
-    """The scores as a markdown table, with every miss."""
+    """The scores as a markdown table, with every miss.
+
+    Parameters
+    ----------
+    s : dict
+        The scores (:func:`score_foreign`).
+    """
     lines = ["| target | passed | rate | goal | met |", "|---|---|---|---|---|"]
     for key, label in (("named", "concealed effect named"), ("clean", "clean -> nothing claimed"),
                        ("fit", f"held-out fit after >= {FIT_AFTER_PERCENT:g} %")):
@@ -278,7 +322,21 @@ def foreign_scores_markdown(s: dict[str, Any]) -> str:
 def run_foreign_demo(out: str | Path, *, n: int = 40, seed: int = 0, jobs: int | None = None,
                      progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Build the FMUs, record and diagnose ``n`` cases (``jobs`` processes), write ``scores.json`` and
-    ``scores.md`` into ``out``; returns the scores."""
+    ``scores.md`` into ``out``; returns the scores.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output folder (the FMUs in ``out/fmus``, the cases in ``out/cases``).
+    n : int, optional
+        Number of cases; default 40.
+    seed : int, optional
+        Seed of the suite; default 0.
+    jobs : int, optional
+        Worker processes; default all cores.
+    progress : callable, optional
+        ``progress(done, total)`` as cases finish.
+    """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     fmus = build_demo_fmus(out / "fmus")

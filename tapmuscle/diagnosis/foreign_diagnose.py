@@ -58,7 +58,25 @@ def _mapping(recording: str | Path, plant: str | Path, map_path: str | Path | No
 
 class ForeignSetup:
     """A recording and a foreign FMU made ready for the search: the mapping, the simulator, the
-    model space, the nominal parameters, the candidates and the calibration list."""
+    model space, the nominal parameters, the candidates and the calibration list.
+
+    Parameters
+    ----------
+    recording : str or Path
+        The recording CSV.
+    plant : str or Path
+        The foreign FMU.
+    map_path : str or Path, optional
+        The ``MAP.toml`` mapping columns to the FMU's variables; None (default): columns named as
+        the variables (the mapping is echoed).
+    output : str, optional
+        The mapped output to diagnose; None (default): the first.
+    block_s : float, optional
+        Length of the training / held-out blocks [s]; None (default): balanced on the first
+        input.
+    echo : callable, optional
+        Where the set-up's messages go; default :func:`print`.
+    """
 
     def __init__(self, recording: str | Path, plant: str | Path, *, map_path: str | Path | None = None,
                  output: str | None = None, block_s: float | None = None, echo: Callable[[str], None] = print) -> None:

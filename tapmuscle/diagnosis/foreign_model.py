@@ -46,7 +46,23 @@ class ForeignFmuError(TapmuscleError):
 
 @dataclass(frozen=True)
 class FmuVariable:
-    """A Real variable of the FMU."""
+    """A Real variable of the FMU.
+
+    Parameters
+    ----------
+    name : str
+        The variable's name.
+    value_reference : int
+        Its value reference.
+    start : float or None
+        Its start value, if declared.
+    unit : str or None
+        Its unit (its own or its declared type's), if any.
+    lo, hi : float
+        Its declared min and max (``-inf``/``inf`` if none).
+    variability : str
+        Its variability (``"fixed"``, ``"tunable"``, ``"continuous"``, ...).
+    """
 
     name: str
     value_reference: int
@@ -60,7 +76,23 @@ class FmuVariable:
 @dataclass(frozen=True)
 class FmuInterface:
     """What the model description declares: Real inputs, outputs and parameters, and whether the
-    FMU is run through model exchange (it offers no co-simulation)."""
+    FMU is run through model exchange (it offers no co-simulation).
+
+    Parameters
+    ----------
+    path : Path
+        The FMU file.
+    model_name : str
+        Its model name.
+    inputs, outputs : tuple of FmuVariable
+        Its Real inputs and outputs.
+    parameters : tuple of FmuVariable
+        Its fixed or tunable Real parameters.
+    default_step_s : float or None
+        The default experiment's step size [s], if declared.
+    model_exchange : bool, optional
+        Run through model exchange (it offers no co-simulation); default False.
+    """
 
     path: Path
     model_name: str
@@ -84,7 +116,13 @@ class FmuInterface:
 
 def read_interface(path: str | Path) -> FmuInterface:
     """The :class:`FmuInterface` of the FMU file ``path`` (co-simulation when offered, else model
-    exchange); :class:`ForeignFmuError` naming the file if it cannot be read or offers neither."""
+    exchange); :class:`ForeignFmuError` naming the file if it cannot be read or offers neither.
+
+    Parameters
+    ----------
+    path : str or Path
+        The FMU file.
+    """
     path = Path(path)
     if not path.is_file():
         raise ForeignFmuError(f"--plant {path}: no such FMU file")
@@ -117,7 +155,14 @@ def read_interface(path: str | Path) -> FmuInterface:
 
 @dataclass(frozen=True)
 class ModelValues:
-    """One parameter set of a foreign plant (module docstring): immutable, every key known."""
+    """One parameter set of a foreign plant (module docstring): immutable, every key known.
+
+    Parameters
+    ----------
+    values : mapping of str to float
+        Every value of the set: the FMU's parameters and the boundary effects'
+        (``"<variable>:<name>"``).
+    """
 
     values: Mapping[str, float]
 
@@ -166,6 +211,11 @@ class ForeignSimulator:
     units : dict of str to str
         The recording's unit of each mapped variable (the signal map's), for the report's words where
         the FMU declares none.
+    runs : int, optional
+        Simulations run so far (counted on).
+    executor : concurrent.futures.Executor, optional
+        Worker processes the search submits independent tasks to (None: in this process); not
+        pickled.
     """
 
     interface: FmuInterface

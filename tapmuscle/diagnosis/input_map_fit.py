@@ -79,6 +79,15 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
     """Fit the six ``input_map.*`` parameters on the fit segment's training samples, on top of ``base``.
 
     Returns None when ``base`` already has an input map or no map lowers the training cost.
+
+    Parameters
+    ----------
+    pr : Problem
+        The recording to explain.
+    base : PlantParams
+        The model the map is fitted on top of.
+    y_base : ndarray
+        Its prediction of the whole recording [mm].
     """
     if not base.input_map.is_identity():
         return None  # already in the base model
@@ -180,7 +189,13 @@ def fit_input_map(pr: Problem, base: PlantParams, y_base: np.ndarray) -> FitResu
 
 def explain_input_map(v: dict[str, float]) -> str:
     """Plain words for a fitted input map: a dead band, a gain and offset error, a saturation, or its
-    three gains."""
+    three gains.
+
+    Parameters
+    ----------
+    v : dict of str to float
+        The fitted ``input_map.*`` parameters [V].
+    """
     o0, o10 = v["input_map.out_at_0_v"], v["input_map.out_at_10_v"]
     k1, v1 = v["input_map.knot1_in_v"], v["input_map.knot1_out_v"]
     k2, v2 = v["input_map.knot2_in_v"], v["input_map.knot2_out_v"]

@@ -120,7 +120,13 @@ EXCLUSIVE: tuple[frozenset[str], ...] = (frozenset({"load_mismatch", "supply_pre
 
 
 def sensor_noise_mm(model: PlantParams) -> float:
-    """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12)."""
+    """The encoder noise the model states [mm]: white noise and 0.01 mm quantisation, sqrt(s^2 + q^2/12).
+
+    Parameters
+    ----------
+    model : PlantParams
+        The model (its encoder's noise std and resolution [mm]).
+    """
     sp = model.sensor
     return math.sqrt(sp.encoder_noise_std_mm ** 2 + sp.encoder_resolution_mm ** 2 / 12.0)
 

@@ -119,13 +119,25 @@ def _check_parameters(c: Candidate, keys: dict[str, float]) -> None:
 def own_joint(candidates: Sequence[Candidate]) -> dict[str, tuple[tuple[str, float], ...]]:
     """The joint parameters of those of ``candidates`` (one's own) that name some
     (:attr:`~tapmuscle.diagnosis.candidates.Candidate.joint`), for
-    :class:`~tapmuscle.diagnosis.model_space.MuscleSpace`'s ``own_joint``."""
+    :class:`~tapmuscle.diagnosis.model_space.MuscleSpace`'s ``own_joint``.
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+        Candidates of one's own.
+    """
     return {c.name: tuple((str(k), float(v)) for k, v in c.joint) for c in candidates if c.joint}
 
 
 def held_to_contract(cand: Candidate) -> Candidate:
     """``cand`` (one's own, checked by :func:`check_own_candidates`) with its fit and refine checked
-    as they run (module docstring); the search runs these in the calling process."""
+    as they run (module docstring); the search runs these in the calling process.
+
+    Parameters
+    ----------
+    cand : Candidate
+        A candidate of one's own.
+    """
     contract = _Contract(cand)
     return dataclasses.replace(cand, fit=contract.fit, refine=None if cand.refine is None else contract.refine)
 

@@ -25,7 +25,13 @@ class PlantSourceError(PlantFileError):
 
 
 def load_plant(path: str | Path) -> tuple[PlantParams, str]:
-    """``(parameters, kind)`` of a plant file (``kind`` is ``"fmu"`` or ``"json"``)."""
+    """``(parameters, kind)`` of a plant file (``kind`` is ``"fmu"`` or ``"json"``).
+
+    Parameters
+    ----------
+    path : str or Path
+        A MusclePlant ``.fmu`` or a plant parameter ``.json``.
+    """
     path = Path(path)
     if path.is_dir():
         raise PlantSourceError(f"--plant {path}: a folder, not a MusclePlant .fmu or a plant .json")
@@ -61,7 +67,23 @@ def load_plant(path: str | Path) -> tuple[PlantParams, str]:
 def simulate_plant_fmu(path: str | Path, values: Mapping[str, float], u_v: np.ndarray, ts_s: float,
                        load_n: np.ndarray | None = None) -> np.ndarray:
     """Run a MusclePlant FMU with parameters ``values`` and the command ``u_v`` held over each ``ts_s``;
-    the encoder output per sample [mm] (row ``k`` before the step that applies ``u(k)``)."""
+    the encoder output per sample [mm] (row ``k`` before the step that applies ``u(k)``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The MusclePlant FMU.
+    values : mapping of str to float
+        Its parameters (``group.field`` -> value); ``supply.supply_pressure_mpa`` also sets its
+        input ``supply_pressure``, and ``load.load_n`` its input ``load_force`` when ``load_n``
+        is not given.
+    u_v : ndarray
+        The command [V], one value per sample.
+    ts_s : float
+        Sampling period [s].
+    load_n : ndarray, optional
+        The load [N] per sample, set as the FMU's input ``load_force`` before each step.
+    """
     from tapmuscle.cosim.master import FmuInstance
     from tapmuscle.interrupts import held_interrupts
 

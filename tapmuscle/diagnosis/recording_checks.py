@@ -108,6 +108,17 @@ def check_muscle_recording(u_v: np.ndarray, ts_s: float, l_mm: np.ndarray | None
     displacement ``l_mm`` beyond :data:`DISPLACEMENT_PLAUSIBLE_MM`, or a pressure that the fits weigh
     (``p_fitted_mpa``: ``diagnose(use_pressure=True)``) above :data:`PRESSURE_PLAUSIBLE_MPA`.
 
+    Parameters
+    ----------
+    u_v : ndarray
+        Command [V].
+    ts_s : float
+        Sampling period [s].
+    l_mm : ndarray, optional
+        Displacement [mm].
+    p_fitted_mpa : ndarray, optional
+        Pressure [MPa(G)], when the fits weigh it.
+
     Raises
     ------
     RecordingCheckError
@@ -146,6 +157,11 @@ def check_pressure_scale(p_mpa: np.ndarray) -> None:
     """Refuse a pressure [MPa(G)] above :data:`PRESSURE_PLAUSIBLE_MPA`, which no tap-water rig has: a
     column in another unit (kPa declared as MPa).
 
+    Parameters
+    ----------
+    p_mpa : ndarray
+        Pressure [MPa(G)].
+
     Raises
     ------
     RecordingCheckError
@@ -174,6 +190,17 @@ def muscle_recording_notes(t_s: np.ndarray, l_mm: np.ndarray, p_mpa: np.ndarray 
     * a load ``load_n`` [N] that is not zero but never reaches :data:`LOAD_PLAUSIBLE_N` (kN?), or
       stays below :data:`LOAD_KG_NOTED_N` where its value in kg would weigh a load the muscle lifts
       (:data:`LOAD_RANGE_N`; a mass in kg?).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time [s].
+    l_mm : ndarray
+        Displacement [mm].
+    p_mpa : ndarray or None
+        Pressure [MPa(G)], if recorded.
+    load_n : ndarray or float, optional
+        Load [N], if known.
     """
     notes = []
     l0 = float(l_mm[0])
@@ -227,6 +254,17 @@ def displacement_scale_note(l_mm: np.ndarray, l_model_mm: np.ndarray, *, column:
     usual cause of a span twenty times the model's is a command in another unit (volts imported as
     percent are a tenth), and of one a few times off a length in another unit (centimetres as
     millimetres), named as the unit of the log's ``column`` (given in ``unit``) that matches.
+
+    Parameters
+    ----------
+    l_mm : ndarray
+        Recorded displacement [mm].
+    l_model_mm : ndarray
+        The nominal model's displacement for the same command [mm].
+    column : str, optional
+        How the note names the column; default ``"l_mm"``.
+    unit : str, optional
+        The unit the column was given in; default ``"mm"``.
     """
     span, model_span = float(np.ptp(l_mm)), float(np.ptp(l_model_mm))
     # a recording that moves where the model does not (a command read as a tenth of itself); a still
@@ -262,6 +300,17 @@ def displacement_fault_notes(l_mm: np.ndarray, ts_s: float, *, column: str = "l_
       largest reading, the sensor's range clipping it (or a hard stop); elsewhere, a stuck sensor.
 
     ``where(k)`` names sample ``k`` (default ``"sample k"``; an importer names the log's line).
+
+    Parameters
+    ----------
+    l_mm : ndarray
+        Displacement [mm].
+    ts_s : float
+        Sampling period [s].
+    column : str, optional
+        How the notes name the column; default ``"l_mm"``.
+    where : callable, optional
+        ``where(k) -> str`` naming sample ``k``.
     """
     where = where or (lambda k: f"sample {k}")
     l = np.asarray(l_mm, dtype=float)  # noqa: E741
@@ -319,6 +368,13 @@ def check_displacement_scale(l_mm: np.ndarray, l_model_mm: np.ndarray) -> None:
     displacement is in another unit (metres: a thousandth), the encoder is stuck, or the supply was
     closed. Compared as millimetres, any candidate effect that shrinks the motion would be named with
     confidence, which is worse than no diagnosis.
+
+    Parameters
+    ----------
+    l_mm : ndarray
+        Recorded displacement [mm].
+    l_model_mm : ndarray
+        The nominal model's displacement for the same command [mm].
 
     Raises
     ------

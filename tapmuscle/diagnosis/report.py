@@ -63,7 +63,13 @@ _HATCHES = ("", "//", "\\\\", "..", "xx")
 
 
 def summary_lines(d: Diagnosis) -> list[str]:
-    """The short human summary ``tapmuscle diagnose`` prints."""
+    """The short human summary ``tapmuscle diagnose`` prints.
+
+    Parameters
+    ----------
+    d : Diagnosis
+        The diagnosis.
+    """
     if d.verdict == "no_significant_mismatch":
         t = d.tests_before
         if t["structured"]:
@@ -329,7 +335,23 @@ def _shade(ax, d: Diagnosis) -> None:
 
 def overlay_figure(d: Diagnosis, path: Path, *, quantity: str, unit: str, title: str, model: str = "model") -> None:
     """The recording against the model before, calibrated and after (held-out fits in the legend), and
-    the held-out residuals before and after: ``overlay.png``."""
+    the held-out residuals before and after: ``overlay.png``.
+
+    Parameters
+    ----------
+    d : Diagnosis
+        The diagnosis.
+    path : Path
+        The figure to write.
+    quantity : str
+        The output's name, for the axis label.
+    unit : str
+        Its unit.
+    title : str
+        The figure's title.
+    model : str, optional
+        How the legend names the model; default ``"model"``.
+    """
     t = d.t_s
     fig, (a1, a2) = new_figure(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     a1.plot(t, d.y_mm, color="k", lw=1.0, label="recording")
@@ -419,7 +441,15 @@ def _figures(d: Diagnosis, out: Path, title: str) -> None:
 
 def finite_json(doc: Any, path: str = "") -> tuple[Any, list[str]]:
     """``doc`` with every float that is not finite replaced by None (strict JSON has no NaN), and the
-    paths of those replaced (``.findings[0].fit_gain_points``)."""
+    paths of those replaced (``.findings[0].fit_gain_points``).
+
+    Parameters
+    ----------
+    doc : object
+        A JSON-like document (dicts, lists, tuples, floats, ...).
+    path : str, optional
+        The document's path within the whole, for the paths returned.
+    """
     if isinstance(doc, float):
         return (doc, []) if np.isfinite(doc) else (None, [path or "."])
     if isinstance(doc, dict):
@@ -433,7 +463,13 @@ def finite_json(doc: Any, path: str = "") -> tuple[Any, list[str]]:
 
 def json_text(doc: dict[str, Any]) -> str:
     """``doc`` as strict JSON text (indented, a final newline). A value that is not a number is
-    written as null and named in the document's ``notes``: a crash there would lose the run."""
+    written as null and named in the document's ``notes``: a crash there would lose the run.
+
+    Parameters
+    ----------
+    doc : dict
+        The document.
+    """
     doc, nonfinite = finite_json(doc)
     if nonfinite:
         doc.setdefault("notes", []).append(f"not a finite number, written as null: {', '.join(nonfinite[:10])}"
@@ -445,7 +481,28 @@ def write_outputs(d: Diagnosis, out: str | Path, *, recording: str, plant: str, 
                   fmu_check: dict[str, Any] | None = None, plots: bool = True,
                   executor: Executor | None = None) -> dict[str, Any]:
     """Write the diagnosis files into ``out``; returns the ``diagnosis.json`` document (``executor``:
-    worker processes for the discriminating experiments' designs)."""
+    worker processes for the discriminating experiments' designs).
+
+    Parameters
+    ----------
+    d : Diagnosis
+        The diagnosis.
+    out : str or Path
+        The output folder (written all or nothing).
+    recording : str
+        The recording, as the files name it.
+    plant : str
+        The plant, as the files name it.
+    model_note : str, optional
+        Added to the note of ``calibrated_plant.json``.
+    fmu_check : dict, optional
+        The plant FMU's re-simulation against the in-process model (``max_abs_difference_mm``),
+        if made.
+    plots : bool, optional
+        Write the figures; default True.
+    executor : concurrent.futures.Executor, optional
+        Worker processes for the discriminating experiments' designs.
+    """
     out = Path(out)
     doc = d.to_json()
     doc = {**{k: doc[k] for k in ("verdict", "fit_before_percent", "fit_after_percent", "findings")},

@@ -46,13 +46,25 @@ GRID_BITS = 24
 
 
 def sse(r: np.ndarray) -> float:
-    """The sum of squares of ``r``, correctly rounded (the same on every CPU)."""
+    """The sum of squares of ``r``, correctly rounded (the same on every CPU).
+
+    Parameters
+    ----------
+    r : ndarray
+        The values.
+    """
     r = np.asarray(r, float).ravel()
     return math.fsum((r * r).tolist())
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> float:
-    """The inner product of two vectors of equal length, correctly rounded (the same on every CPU)."""
+    """The inner product of two vectors of equal length, correctly rounded (the same on every CPU).
+
+    Parameters
+    ----------
+    a, b : ndarray
+        The vectors.
+    """
     a, b = np.asarray(a, float).ravel(), np.asarray(b, float).ravel()
     if a.shape != b.shape:
         raise ValueError(f"dot of vectors of lengths {a.size} and {b.size}")
@@ -60,7 +72,13 @@ def dot(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def norm(r: np.ndarray) -> float:
-    """The Euclidean norm of ``r`` from :func:`sse`."""
+    """The Euclidean norm of ``r`` from :func:`sse`.
+
+    Parameters
+    ----------
+    r : ndarray
+        The values.
+    """
     return math.sqrt(sse(r))
 
 
@@ -118,12 +136,28 @@ def moving_sum(x: np.ndarray, k: int, *, centred: bool = False) -> np.ndarray:
 
 def snap(x: np.ndarray, bits: int = GRID_BITS) -> np.ndarray:
     """``x`` rounded to the nearest multiple of ``2**-bits`` (exactly: scaling by a power of two and
-    rounding to an integer are exact in binary floating point)."""
+    rounding to an integer are exact in binary floating point).
+
+    Parameters
+    ----------
+    x : ndarray
+        The values.
+    bits : int, optional
+        The grid is ``2**-bits``; default :data:`GRID_BITS`.
+    """
     return np.ldexp(np.round(np.ldexp(np.asarray(x, float), bits)), -bits)
 
 
 def snap_relative(v: float, bits: int = GRID_BITS) -> float:
-    """``v`` rounded to ``bits`` significant bits (0, inf and nan unchanged)."""
+    """``v`` rounded to ``bits`` significant bits (0, inf and nan unchanged).
+
+    Parameters
+    ----------
+    v : float
+        The value.
+    bits : int, optional
+        Significant bits kept; default :data:`GRID_BITS`.
+    """
     if v == 0.0 or not math.isfinite(v):
         return float(v)
     m, e = math.frexp(v)

@@ -27,7 +27,17 @@ CONFIDENCE = 0.99
 
 
 def fit_percent(y: np.ndarray, y_hat: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Normalised-RMSE fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` [%] (MATLAB ``compare``)."""
+    """Normalised-RMSE fit ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` [%] (MATLAB ``compare``).
+
+    Parameters
+    ----------
+    y : ndarray
+        Measured output.
+    y_hat : ndarray
+        Predicted output, same unit.
+    mask : ndarray of bool, optional
+        The samples scored; None (default): all.
+    """
     if mask is not None:
         y, y_hat = y[mask], y_hat[mask]
     den = norm(y - np.mean(y))
@@ -40,6 +50,11 @@ def white_noise_level_mm(e: np.ndarray) -> float:
     A smooth mismatch barely changes from one sample to the next, white noise doubles its variance
     in a difference, so ``MAD(diff e) / (0.6745 sqrt 2)`` estimates the noise level whatever the
     mismatch (robust to the few samples where a mismatch jumps).
+
+    Parameters
+    ----------
+    e : ndarray
+        The residual [mm].
     """
     d = np.diff(e)
     mad = float(np.median(np.abs(d - np.median(d))))
@@ -54,7 +69,9 @@ class Correlation:
     """A normalised correlation function with its confidence band (MATLAB ``resid``)."""
 
     lags: np.ndarray
+    """The lags [samples]."""
     values: np.ndarray
+    """The normalised correlation at each lag [-]."""
     band: float
     """Half-width of the band that white (independent) residuals stay within with CONFIDENCE."""
     p_value: float
@@ -67,7 +84,15 @@ class Correlation:
 
 
 def autocorrelation_test(e: np.ndarray, max_lag: int = MAX_LAG) -> Correlation:
-    """Whiteness test: autocorrelation of ``e`` at lags 1..max_lag, band ``z / sqrt(N)``, Ljung-Box p."""
+    """Whiteness test: autocorrelation of ``e`` at lags 1..max_lag, band ``z / sqrt(N)``, Ljung-Box p.
+
+    Parameters
+    ----------
+    e : ndarray
+        The residual.
+    max_lag : int, optional
+        The largest lag [samples]; default :data:`MAX_LAG`.
+    """
     x = np.asarray(e, float) - np.mean(e)
     n = len(x)
     den = sse(x)
@@ -80,7 +105,17 @@ def autocorrelation_test(e: np.ndarray, max_lag: int = MAX_LAG) -> Correlation:
 
 def cross_correlation_test(u: np.ndarray, e: np.ndarray, max_lag: int = MAX_LAG) -> Correlation:
     """Cross-correlation of input ``u`` and residual ``e`` at lags -max_lag..max_lag (``e`` after ``u``
-    for positive lags); band ``z / sqrt(N)`` as for independent signals, Box-Pierce p-value."""
+    for positive lags); band ``z / sqrt(N)`` as for independent signals, Box-Pierce p-value.
+
+    Parameters
+    ----------
+    u : ndarray
+        The input.
+    e : ndarray
+        The residual.
+    max_lag : int, optional
+        The largest lag [samples]; default :data:`MAX_LAG`.
+    """
     a = np.asarray(u, float) - np.mean(u)
     b = np.asarray(e, float) - np.mean(e)
     n = len(a)
@@ -114,6 +149,18 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
       second; either alone would hide a real mismatch).
 
     Returns the decision and the numbers behind it.
+
+    Parameters
+    ----------
+    e : ndarray
+        The residual [mm].
+    sensor_noise_mm : float, optional
+        The sensor noise the model states [mm]; None (or <= 0): the residual's own white-noise
+        level alone.
+    alpha : float, optional
+        Level of the whiteness and mean tests; default :data:`STRUCTURE_ALPHA`.
+    materiality : float, optional
+        Factor on the noise level the RMS must exceed; default :data:`STRUCTURE_MATERIALITY`.
     """
     ac = autocorrelation_test(e)
     sigma = white_noise_level_mm(e)
@@ -129,7 +176,15 @@ def is_structured(e: np.ndarray, *, sensor_noise_mm: float | None = None, alpha:
 def unstructured_reason(numbers: dict, unit: str = "mm") -> str:
     """Why :func:`is_structured` (at its default levels) found no structure, in words, from the numbers
     it returned: a white, zero-mean residual, or one that is not but lies within
-    :data:`STRUCTURE_MATERIALITY` times the noise level (a structure too small to matter)."""
+    :data:`STRUCTURE_MATERIALITY` times the noise level (a structure too small to matter).
+
+    Parameters
+    ----------
+    numbers : dict
+        What :func:`is_structured` returned beside its decision.
+    unit : str, optional
+        The residual's unit; default ``"mm"``.
+    """
     if numbers["ljung_box_p"] >= STRUCTURE_ALPHA and numbers["mean_p"] >= STRUCTURE_ALPHA:
         return "residual white"
     return (f"residual at the noise level: RMS {numbers['rms_mm']:.4f} {unit} against "
@@ -141,6 +196,11 @@ def mean_test(e: np.ndarray) -> float:
 
     As ``scipy.stats.ttest_1samp``, but on correctly rounded sums: the verdict it gates must not
     depend on the CPU's summation order (:mod:`tapmuscle.diagnosis.reproducible`).
+
+    Parameters
+    ----------
+    e : ndarray
+        The residual.
     """
     x = np.asarray(e, float)
     n = len(x)
@@ -154,7 +214,17 @@ def mean_test(e: np.ndarray) -> float:
 
 
 def block_index(n: int, ts_s: float, block_s: float) -> np.ndarray:
-    """The block of ``block_s`` seconds each of ``n`` samples at ``ts_s`` lies in (0, 1, ...; float)."""
+    """The block of ``block_s`` seconds each of ``n`` samples at ``ts_s`` lies in (0, 1, ...; float).
+
+    Parameters
+    ----------
+    n : int
+        Number of samples.
+    ts_s : float
+        Sampling period [s].
+    block_s : float
+        Block length [s].
+    """
     return np.arange(n) * ts_s // block_s
 
 
@@ -164,6 +234,15 @@ def interleaved_split(n: int, ts_s: float, block_s: float) -> tuple[np.ndarray, 
 
     Interleaving keeps both parts spread over the whole run, so an effect that is present only for a
     while is seen by both (a first-half/second-half split could hide it from one of them).
+
+    Parameters
+    ----------
+    n : int
+        Number of samples.
+    ts_s : float
+        Sampling period [s].
+    block_s : float
+        Block length [s].
     """
     block = block_index(n, ts_s, block_s)
     train = (block % 2) == 0
@@ -245,6 +324,25 @@ def located_windows(signal: np.ndarray, ts_s: float, *, noise_mm: float, window_
     The moving RMS over ``window_s`` must exceed both ``floor`` times the noise level and ``relative``
     times its own maximum; runs closer than ``merge_gap_s`` merge, runs shorter than ``min_length_s``
     are dropped.
+
+    Parameters
+    ----------
+    signal : ndarray
+        The residual or contribution, one value per sample [mm].
+    ts_s : float
+        Sampling period [s].
+    noise_mm : float
+        The noise level [mm].
+    window_s : float, optional
+        Length of the moving RMS [s]; default 5.
+    min_length_s : float, optional
+        Shortest window kept [s]; default 3.
+    merge_gap_s : float, optional
+        Runs this close merge [s]; default 5.
+    floor : float, optional
+        Factor on the noise level the moving RMS must exceed; default 3.
+    relative : float, optional
+        Fraction of its own maximum the moving RMS must exceed; default 0.3.
     """
     if len(signal) == 0:
         return []
@@ -271,7 +369,13 @@ def located_windows(signal: np.ndarray, ts_s: float, *, noise_mm: float, window_
 
 
 def iou(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> float:
-    """Intersection over union of two sets of disjoint time windows."""
+    """Intersection over union of two sets of disjoint time windows.
+
+    Parameters
+    ----------
+    a, b : list of (float, float)
+        Disjoint time windows ``(start, end)`` [s].
+    """
     def total(ws):
         return sum(max(0.0, y - x) for x, y in ws)
     inter = sum(max(0.0, min(y1, y2) - max(x1, x2)) for x1, y1 in a for x2, y2 in b)
@@ -292,6 +396,24 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
     ``output``: ``(name, unit)`` of another model's measured output in place of the muscle's
     displacement ``l_mm``; the regimes are then its direction (rising / falling / steady), rate of
     change and level, in its unit.
+
+    Parameters
+    ----------
+    energy : ndarray
+        Per-sample squared residual or contribution.
+    l_mm : ndarray
+        Recorded displacement [mm] (or the other model's output, with ``output``).
+    ts_s : float
+        Sampling period [s].
+    p_mpa : ndarray, optional
+        Recorded pressure [MPa], for the pressure terciles.
+    signal : ndarray, optional
+        The signed residual or contribution, for its dominant frequency.
+    min_ratio : float, optional
+        Smallest ratio of a regime's energy share to its time share that is reported; default
+        1.3.
+    output : (str, str), optional
+        ``(name, unit)`` of another model's measured output.
 
     Returns
     -------
@@ -358,7 +480,15 @@ def regime_summary(energy: np.ndarray, l_mm: np.ndarray, ts_s: float, p_mpa: np.
 
 
 def dominant_frequency_hz(e: np.ndarray, ts_s: float) -> float:
-    """Frequency [Hz] of the largest peak of the residual's periodogram (mean removed; 0 if flat)."""
+    """Frequency [Hz] of the largest peak of the residual's periodogram (mean removed; 0 if flat).
+
+    Parameters
+    ----------
+    e : ndarray
+        The residual.
+    ts_s : float
+        Sampling period [s].
+    """
     x = np.asarray(e, float) - np.mean(e)
     if len(x) < 8 or not np.any(x):
         return 0.0

@@ -42,7 +42,13 @@ _KEYWORDS = {"t_s": "time", "u_v": "u", "l_mm": "l", "p_mpa": "p", "load_n": "lo
 @dataclass(frozen=True)
 class Spelling:
     """How a message names the reader's options: ``tapmuscle import``'s flags (``python`` False) or
-    ``tm.read_rig_log``'s keywords."""
+    ``tm.read_rig_log``'s keywords.
+
+    Parameters
+    ----------
+    python : bool
+        True: ``tm.read_rig_log``'s keywords; False: ``tapmuscle import``'s flags.
+    """
 
     python: bool
 
@@ -78,7 +84,18 @@ PYTHON = Spelling(python=True)
 class LogOptions:
     """The reader's arguments (:func:`tapmuscle.io.rig_log.read_rig_log`'s), and what the checks do:
     ``decimate`` samples merged into one (:func:`tapmuscle.io.decimation.decimated`) before the
-    checks; ``checks`` False takes a refused log with a note instead."""
+    checks; ``checks`` False takes a refused log with a note instead.
+
+    Parameters
+    ----------
+    path, time, u, l, p, load, load_n, delimiter, decimal, fill_gaps_s, skip_lines, encoding, ambient_kpa, ts_s
+        As :func:`tapmuscle.io.rig_log.read_rig_log`'s.
+    decimate : int, optional
+        Samples merged into one before the checks; default 1 (none).
+    checks : bool, optional
+        Refuse a log that holds values no muscle recording has (True, default); False: take it
+        with a note.
+    """
 
     path: str
     time: LogColumn | str | None = None
@@ -102,7 +119,19 @@ class LogOptions:
 class CheckedLog:
     """A log read and checked: the ``recording``, its ``sampling``, and the ``notes`` to print, in
     order; ``findings`` are those of them that say something may be wrong (the rest repeat what the
-    reader did: units, columns, missing values)."""
+    reader did: units, columns, missing values).
+
+    Parameters
+    ----------
+    recording : Recording
+        The log as a recording.
+    sampling : Sampling
+        Its sampling grid.
+    notes : list of str, optional
+        The notes to print, in order.
+    findings : list of str, optional
+        Those of ``notes`` that say something may be wrong.
+    """
 
     recording: Recording
     sampling: Sampling
@@ -119,6 +148,15 @@ _NOTED = {"units": "Units: {}", "units_unknown": "A unit the log writes is none 
 def checked_rig_log(options: LogOptions, run: int | None = None, spelling: Spelling = PYTHON) -> CheckedLog:
     """Run ``run`` of the log read by ``options`` and checked as the diagnosis would (module
     docstring).
+
+    Parameters
+    ----------
+    options : LogOptions
+        The reader's arguments and what the checks do.
+    run : int, optional
+        Which run of the log to read (1 = the first); None (default): a log of one run.
+    spelling : Spelling, optional
+        How messages name the options; default ``tm.read_rig_log``'s keywords.
 
     Raises
     ------

@@ -42,7 +42,17 @@ class SignalMapError(TapmuscleError):
 
 @dataclass(frozen=True)
 class Signal:
-    """One FMU variable and the recording column that holds it."""
+    """One FMU variable and the recording column that holds it.
+
+    Parameters
+    ----------
+    variable : str
+        The FMU variable.
+    column : str
+        The recording column.
+    unit : str or None, optional
+        The column's unit, if given.
+    """
 
     variable: str
     column: str
@@ -51,7 +61,25 @@ class Signal:
 
 @dataclass(frozen=True)
 class SignalMap:
-    """The mapping between a recording and an FMU (module docstring)."""
+    """The mapping between a recording and an FMU (module docstring).
+
+    Parameters
+    ----------
+    inputs : tuple of Signal
+        The FMU inputs and their columns.
+    outputs : tuple of Signal
+        The FMU outputs and their columns.
+    time_column : str, optional
+        The time column [s]; default ``"t_s"``.
+    ts_s : float, optional
+        The sampling period the map states [s], checked against the recording's.
+    parameters : dict of str to float, optional
+        FMU parameters fixed at these values.
+    calibrate : tuple of str, optional
+        Just these parameters are calibrated; None (default): every one that qualifies.
+    source : str, optional
+        Where the map came from (its file), for messages; default ``"matched by name"``.
+    """
 
     inputs: tuple[Signal, ...]
     outputs: tuple[Signal, ...]
@@ -77,7 +105,17 @@ class SignalMap:
 
 def match_by_name(iface: FmuInterface, columns: Sequence[str], time_column: str = "t_s") -> SignalMap:
     """The mapping of columns named as the FMU's inputs and outputs; ``SignalMapError`` if no input or
-    no output matches."""
+    no output matches.
+
+    Parameters
+    ----------
+    iface : FmuInterface
+        The FMU.
+    columns : sequence of str
+        The recording's columns.
+    time_column : str, optional
+        The time column; default ``"t_s"``.
+    """
     cols = set(columns)
     ins = tuple(Signal(v.name, v.name, v.unit) for v in iface.inputs if v.name in cols)
     outs = tuple(Signal(v.name, v.name, v.unit) for v in iface.outputs if v.name in cols)
@@ -120,6 +158,15 @@ def _signal(path: Path, table: str, var: str, spec: Any, iface: FmuInterface, co
 
 def read_signal_map(path: str | Path, iface: FmuInterface, columns: Sequence[str]) -> SignalMap:
     """Read and check ``MAP.toml`` against the FMU and the recording's ``columns``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``MAP.toml`` file.
+    iface : FmuInterface
+        The FMU.
+    columns : sequence of str
+        The recording's columns.
 
     Raises
     ------

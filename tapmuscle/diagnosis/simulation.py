@@ -33,7 +33,13 @@ CHECKPOINT_S = 10.0
 
 
 def checkpoint_interval(ts_s: float) -> int:
-    """Samples between checkpoints (:data:`CHECKPOINT_S`) at sampling period ``ts_s`` [s]."""
+    """Samples between checkpoints (:data:`CHECKPOINT_S`) at sampling period ``ts_s`` [s].
+
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
+    """
     return max(1, int(round(CHECKPOINT_S / ts_s)))
 
 
@@ -140,6 +146,11 @@ def worker_pool(workers: int) -> Iterator[Executor | None]:
 
     The processes are spawned (safe under threads, notebooks and Dask workers); as with any
     ``multiprocessing`` use, a script that starts them needs an ``if __name__ == "__main__":`` guard.
+
+    Parameters
+    ----------
+    workers : int
+        Number of processes (>= 1).
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")

@@ -52,6 +52,11 @@ def followed(path: str | os.PathLike) -> Path:
     files (links are followed by the process, so the kernel's ``protected_symlinks``, a rule of this
     kind for sticky folders, does not stop it). Windows: resolved as it is.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The path to resolve.
+
     Raises
     ------
     PermissionError
@@ -186,6 +191,11 @@ def probe_output_folder(out: str | os.PathLike) -> None:
     """Fail now, naming ``out``, where :func:`staged_folder` would fail once the work is done: ``out``
     a file, or ``out`` or the folder it is in not writable (an immutable or read-only mount; as root,
     permission bits do not stop a write, so the folder is tried, not its mode read).
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The output folder (it may not exist yet).
 
     Raises
     ------

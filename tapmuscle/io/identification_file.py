@@ -144,7 +144,15 @@ def read_identification(path: str | Path) -> IdentifiedModel:
 def identified_model(data: object, where: str) -> IdentifiedModel:
     """The :class:`IdentifiedModel` of an identification's ``to_dict()`` (what ``tapmuscle identify
     --json`` writes), checked as :func:`read_identification` checks a file; ``where`` names it in the
-    errors and warnings (the file, or ``theta0 (tm.identify's result)``)."""
+    errors and warnings (the file, or ``theta0 (tm.identify's result)``).
+
+    Parameters
+    ----------
+    data : object
+        The identification's ``to_dict()``, or a file's parsed JSON.
+    where : str
+        How the errors and warnings name it.
+    """
     if not isinstance(data, dict) or not {"model", "ts_s", "theta"} <= set(data):
         missing = sorted({"model", "ts_s", "theta"} - set(data)) if isinstance(data, dict) else ["model", "ts_s", "theta"]
         raise IdentificationFileError(f"{where}: key{'s' if len(missing) > 1 else ''} {', '.join(repr(k) for k in missing)} "
@@ -216,7 +224,15 @@ def _warn_if_not_mm_and_v(scaling: object, where: str) -> None:
 def checked_box(lower: Mapping[str, float], upper: Mapping[str, float], *, what: str
                 ) -> tuple[dict[str, float], dict[str, float]]:
     """The constraint region C of Algorithm 1 on Eq. (1)'s parameters, checked as the controller
-    checks it (:func:`fmu_controller.box_projection.named_box`; ``ValueError`` naming ``what``)."""
+    checks it (:func:`fmu_controller.box_projection.named_box`; ``ValueError`` naming ``what``).
+
+    Parameters
+    ----------
+    lower, upper : mapping of str to float
+        Lower and upper bounds by parameter name of Eq. (1).
+    what : str
+        How the error message names the box.
+    """
     return named_box(lower, upper, names=ASYMMETRIC.names, what=what)
 
 

@@ -19,7 +19,13 @@ _FORMULA_START = re.compile(r"[=+@\t\r]|-(?![0-9.])")
 
 def inert_cell(text: str) -> str:
     """``text`` as a CSV cell no spreadsheet evaluates: with a ``'`` before it where it would start a
-    formula (after any spaces); a number, or any other text, unchanged."""
+    formula (after any spaces); a number, or any other text, unchanged.
+
+    Parameters
+    ----------
+    text : str
+        The cell's text.
+    """
     stripped = text.lstrip(" ")
     try:
         float(text)  # a number, also one a regular expression would not call one (-inf, +1e3)
@@ -33,7 +39,13 @@ def inert_cell(text: str) -> str:
 
 def inert_csv_text(text: str) -> str:
     """``text`` that a CSV line holds unquoted (a ``# key: value`` header line of a recording), each
-    of the cells a spreadsheet splits it into at its commas made inert (:func:`inert_cell`)."""
+    of the cells a spreadsheet splits it into at its commas made inert (:func:`inert_cell`).
+
+    Parameters
+    ----------
+    text : str
+        The line's text.
+    """
     first, *rest = text.split(",")
     return ",".join([first, *(inert_cell(piece) for piece in rest)])
 
@@ -44,7 +56,13 @@ _MARKDOWN_SPECIAL = re.compile(r"([\\`\[\]|])")
 def markdown_text(text: str) -> str:
     """``text`` as literal Markdown on one line: HTML's ``& < >`` as entities, the characters that
     make links, code spans and table cells (``\\ ` [ ] |``) escaped, line breaks as spaces (emphasis,
-    harmless, is left: ``ampc_servo`` stays readable in the file)."""
+    harmless, is left: ``ampc_servo`` stays readable in the file).
+
+    Parameters
+    ----------
+    text : str
+        The text to show literally.
+    """
     text = " ".join(text.splitlines())
     text = text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
     return _MARKDOWN_SPECIAL.sub(r"\\\1", text)

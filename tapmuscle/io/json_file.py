@@ -27,6 +27,17 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 def read_json(path: str | Path, error: type[Exception], *, where: str, missing: str) -> Any:
     """The JSON document in ``path``.
 
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file.
+    error : type of Exception
+        The exception raised on any problem.
+    where : str
+        How the messages name the file.
+    missing : str
+        The whole message when the file does not exist.
+
     Raises
     ------
     error
@@ -67,5 +78,13 @@ def json_text(document: Any, **options: Any) -> str:
     :func:`~tapmuscle.io.identification_file.read_identification` takes a box's ``"-inf"`` / ``"inf"`` as
     no bound. (The diagnosis reports, whose numbers are measured values, write null and a note instead:
     :func:`tapmuscle.diagnosis.report.json_text`.)
+
+    Parameters
+    ----------
+    document : object
+        The JSON-serialisable document.
+    **options
+        Keyword arguments of :func:`json.dumps` (``indent``, ``sort_keys``, ...; not
+        ``allow_nan``).
     """
     return json.dumps(_finite_or_named(document), allow_nan=False, **options) + "\n"

@@ -94,7 +94,15 @@ def _warn_if_another_unit(params: PlantParams, where: str) -> None:
 
 
 def plant_file_text(params: PlantParams, note: str) -> str:
-    """The JSON text of a plant parameter file for ``params``."""
+    """The JSON text of a plant parameter file for ``params``.
+
+    Parameters
+    ----------
+    params : PlantParams
+        The plant's parameters.
+    note : str
+        The file's ``note``.
+    """
     return json.dumps({"note": note, "plant": params.to_dict()}, indent=2) + "\n"
 
 

@@ -247,6 +247,15 @@ def read_columns(path: str | os.PathLike, required: tuple[str, ...] = (), time_c
     names; ``required`` must be there, ``time_column``, if present, must increase).
 
     Raises :class:`RecordingError` as :func:`read_recording` does.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file.
+    required : tuple of str, optional
+        Columns that must be there.
+    time_column : str, optional
+        The column that, if present, must increase; default ``"t_s"``.
     """
     return _read_columns(path, required, time_column, {})
 
@@ -326,7 +335,15 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` to ``path`` atomically with the user's umask (:func:`tapmuscle.io.atomic.atomic_path`).
 
     UTF-8; a file name that the file-system encoding could not decode (a non-ASCII folder under an
-    ASCII locale with ``PYTHONUTF8=0``) is written as its original bytes, not refused."""
+    ASCII locale with ``PYTHONUTF8=0``) is written as its original bytes, not refused.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    text : str
+        Its content.
+    """
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="utf-8", errors="surrogateescape", newline="") as fh:
             fh.write(text)

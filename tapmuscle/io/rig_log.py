@@ -113,14 +113,28 @@ _DOTTED_DATE = re.compile(r"^(\d{1,2})\.(\d{1,2})\.(\d{4})[ T]+(\d{1,2}):(\d{2})
 
 
 def unit_key(unit: str) -> str:
-    """``unit`` as :data:`UNITS` spells it: a leading micro sign or Greek mu (:data:`MICRO_SIGNS`) as ``u``."""
+    """``unit`` as :data:`UNITS` spells it: a leading micro sign or Greek mu (:data:`MICRO_SIGNS`) as ``u``.
+
+    Parameters
+    ----------
+    unit : str
+        A unit as written.
+    """
     return "u" + unit[1:] if unit[:1] in MICRO_SIGNS else unit
 
 
 def unit_from_text(text: str, target: str) -> str | None:
     """The unit of :data:`UNITS` (or :data:`LINEAR_UNITS`) for ``target`` that ``text`` names as a
     logger writes it (``[mm]``, ``µm``, ``KPA``, ``sec``, ``pct``: :data:`UNIT_ALIASES`); None if
-    none."""
+    none.
+
+    Parameters
+    ----------
+    text : str
+        The unit as the log writes it (brackets and parentheses around it are ignored).
+    target : str
+        The recording column it is for (a key of :data:`UNITS`).
+    """
     text = text.strip().strip("[]()").strip()
     known = {**UNITS[target], **LINEAR_UNITS.get(target, {})}
     key = unit_key(text)
@@ -158,7 +172,22 @@ def likely_pressure_unit(written: float, given: str, *, near_mpa: float, within_
     """The pressure unit of :data:`UNITS` that reads the value ``written`` (as the log holds it, in the
     unit ``given``) nearest ``near_mpa`` [MPa(G)] (a rig's supply) within ``0 < p <= within_mpa``, and
     that reading [MPa(G)]; units of the same kind only (gauge, or absolute less the ambient
-    ``ambient_mpa``, default the standard atmosphere). None if no unit reads it so."""
+    ``ambient_mpa``, default the standard atmosphere). None if no unit reads it so.
+
+    Parameters
+    ----------
+    written : float
+        The value as the log holds it.
+    given : str
+        The unit it was given in.
+    near_mpa : float
+        The reading to come nearest to [MPa(G)] (a rig's supply).
+    within_mpa : float
+        The largest reading taken [MPa(G)].
+    ambient_mpa : float, optional
+        The ambient pressure [MPa] subtracted from an absolute unit's reading; None (default):
+        the standard atmosphere.
+    """
     units, absolute = UNITS["p_mpa"], unit_key(given) in ABSOLUTE_UNITS
     ambient = (1e-3 * STANDARD_ATMOSPHERE_KPA if ambient_mpa is None else ambient_mpa) if absolute else 0.0
     readings = {u: written * f - ambient for u, f in units.items()
@@ -173,7 +202,13 @@ def likely_pressure_unit(written: float, given: str, *, near_mpa: float, within_
 def parse_time_text(cell: str) -> datetime:
     """A time stamp written as text: ISO 8601 (``2024-03-05T10:00:00.5``, as
     :meth:`datetime.fromisoformat` reads it) or a day-first dotted date (``05.03.2024 10:00:00,5``,
-    the German locale's, with a decimal point or comma in the seconds). ``ValueError`` otherwise."""
+    the German locale's, with a decimal point or comma in the seconds). ``ValueError`` otherwise.
+
+    Parameters
+    ----------
+    cell : str
+        The cell's text.
+    """
     m = _DOTTED_DATE.match(cell)
     if m is None:
         return datetime.fromisoformat(cell)
@@ -246,7 +281,16 @@ def parse_column_spec(text: str, target: str) -> LogColumn:
     A colon followed by something that is not a unit of ``target`` is refused, naming the known
     units (a column whose name itself holds a colon can only be given with its unit). Without a
     unit, the column's unit is the default (:data:`DEFAULT_UNITS`, ``declared`` False), which a unit
-    the log gives replaces."""
+    the log gives replaces.
+
+    Parameters
+    ----------
+    text : str
+        ``"NAME"`` or ``"NAME:UNIT"``.
+    target : str
+        The recording column it is read into (``"t_s"``, ``"u_v"``, ``"l_mm"``, ``"p_mpa"``,
+        ``"load_n"``).
+    """
     name, sep, unit = text.rpartition(":")
     declared = bool(sep)
     if not sep:
@@ -787,7 +831,13 @@ def read_rig_log_columns(path: str | os.PathLike, *, time: LogColumn | str | Non
                          run: int | None = None, ambient_kpa: float | None = None,
                          ts_s: float | None = None) -> tuple[Recording, dict[str, LogColumn]]:
     """:func:`read_rig_log`, and the log's columns as read: per recording column, the log's name of
-    it and the unit it was read in (the one given, else the log's own, else the default)."""
+    it and the unit it was read in (the one given, else the log's own, else the default).
+
+    Parameters
+    ----------
+    path, time, u, l, p, load, load_n, delimiter, decimal, fill_gaps_s, skip_lines, encoding, run, ambient_kpa, ts_s
+        As :func:`read_rig_log`'s.
+    """
     path = Path(path)
     if load_n is not None and not (isinstance(load_n, (int, float)) and math.isfinite(load_n) and load_n > 0):
         raise RecordingError(f"{path}: load_n = {load_n!r} is not a positive number of newtons")

@@ -57,14 +57,28 @@ MAX_DECIMATION = 1000
 
 def decimation_factor(ts_s: float, target_s: float = DECIMATED_TS_S) -> int:
     """Samples to merge into one so that a log sampled every ``ts_s`` [s] has a period of about
-    ``target_s`` [s]: 1 .. :data:`MAX_DECIMATION`."""
+    ``target_s`` [s]: 1 .. :data:`MAX_DECIMATION`.
+
+    Parameters
+    ----------
+    ts_s : float
+        The log's sampling period [s].
+    target_s : float, optional
+        The period to come near [s]; default :data:`DECIMATED_TS_S`.
+    """
     return min(max(1, round(target_s / ts_s)), MAX_DECIMATION)
 
 
 def merge_advice(ts_s: float) -> str:
     """How to merge a log sampled every ``ts_s`` [s] (shorter than :data:`TS_RANGE_S` allows) to about
     :data:`DECIMATED_TS_S`, in words: the option, the period it gives, and where even the largest
-    merge is not enough."""
+    merge is not enough.
+
+    Parameters
+    ----------
+    ts_s : float
+        The log's sampling period [s].
+    """
     n = decimation_factor(ts_s)
     advice = (f"merge every {n} samples into one (tapmuscle import --decimate {n}, tm.read_rig_log(..., decimate={n}), "
               f"tm.decimated: Ts = {n * ts_s:g} s")
@@ -76,6 +90,11 @@ def merge_advice(ts_s: float) -> str:
 def check_sampling_period(ts_s: float) -> None:
     """Refuse a sampling period [s] outside :data:`TS_RANGE_S`: a shorter one is a log taken faster
     than the tools sample (decimate it), a longer one times in another unit (milliseconds?).
+
+    Parameters
+    ----------
+    ts_s : float
+        Sampling period [s].
 
     Raises
     ------
@@ -147,7 +166,15 @@ class Sampling:
 
 
 def step_kind(step_s: float, ts_s: float) -> str:
-    """What a step of ``step_s`` [s] in times sampled every ``ts_s`` [s] likely is."""
+    """What a step of ``step_s`` [s] in times sampled every ``ts_s`` [s] likely is.
+
+    Parameters
+    ----------
+    step_s : float
+        The step between two time stamps [s].
+    ts_s : float
+        Sampling period [s].
+    """
     if step_s > 0.0 and step_s >= GAP_PERIODS * ts_s:
         return (f"a gap of {step_s:.6g} s, about {round(step_s / ts_s) - 1} samples missing (a paused logger, or a "
                 "clock that jumped)")
@@ -177,6 +204,11 @@ def period_change(t_s: np.ndarray) -> tuple[int, float, float] | None:
     and each side's steps lie within half of their own median of it, as jittered stamps do: a logger
     set to another rate part way, or two recordings appended. Samples dropped or doubled here and
     there, or one long gap, are not one.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time stamps [s].
     """
     t = np.asarray(t_s, dtype=float)
     dt = np.diff(t)
@@ -291,7 +323,15 @@ def uniform_sampling(t_s: np.ndarray, column: str = "t_s", where: Callable[[int]
 def nominal_period(ts_s: float, standard_error_s: float = 0.0) -> float:
     """``ts_s`` [s] to the fewest significant digits (up to 6) that move it by at most
     :data:`NOMINAL_PERIOD_TOLERANCE` of itself plus three times ``standard_error_s`` [s], the estimate's
-    own (a logger's nominal period: 0.05 for 0.0499999999), else ``ts_s`` as it is."""
+    own (a logger's nominal period: 0.05 for 0.0499999999), else ``ts_s`` as it is.
+
+    Parameters
+    ----------
+    ts_s : float
+        The estimated sampling period [s].
+    standard_error_s : float, optional
+        The estimate's standard error [s]; default 0.
+    """
     allowed = NOMINAL_PERIOD_TOLERANCE * ts_s + 3.0 * standard_error_s
     for digits in range(1, 7):
         rounded = float(f"{ts_s:.{digits}g}")

@@ -66,7 +66,17 @@ T = TypeVar("T")
 
 @dataclass(frozen=True)
 class PaperRun:
-    """One closed-loop experiment of section 4."""
+    """One closed-loop experiment of section 4.
+
+    Parameters
+    ----------
+    method : str
+        The controller's method (``mpc_ucp``, ``mpc_servo``, ``ampc_ucp``, ``ampc_servo``).
+    load_n : float
+        The hanging load [N] (section 4.1: 44 or 68).
+    frequency_hz : float
+        The sine reference's frequency [Hz] (0.1 or 0.2).
+    """
 
     method: str
     load_n: float
@@ -185,6 +195,11 @@ def preliminary_theta(seed: int = 0, refine_hz: float = 0.05, *, params: PlantPa
 def checked_seeds(seeds: tuple[int, ...]) -> tuple[int, ...]:
     """``seeds``, once they name at least one noise seed, each an integer in 0 .. 2**64 - 1 (the plant's
     seeds) and none twice (a repeat would weigh that noise realisation twice in a cell's mean).
+
+    Parameters
+    ----------
+    seeds : tuple of int
+        The plant's noise seeds.
 
     Raises
     ------
@@ -336,7 +351,13 @@ def run_paper(out: Path, *, seeds: tuple[int, ...] = (0, 1, 2), id_seed: int | N
 
 def paper_tables(values: Mapping[str, T]) -> dict[str, dict[str, dict[str, T]]]:
     """Per-run ``values`` (keyed by :attr:`PaperRun.name`) arranged as Tables 6, 7 and 9:
-    ``table -> load ("44", "68") -> method``, the shape of ``paper.json``."""
+    ``table -> load ("44", "68") -> method``, the shape of ``paper.json``.
+
+    Parameters
+    ----------
+    values : mapping of str to object
+        A value per run, keyed by :attr:`PaperRun.name`.
+    """
     return {table: {str(load): {m: values[PaperRun(m, float(load), freq).name] for m in methods} for load in (44, 68)}
             for table, freq, methods, _ in _TABLES}
 
@@ -356,6 +377,12 @@ def paper_findings(tables: Mapping[str, Mapping[str, Mapping[str, float]]]) -> d
     1.92 at 68 N; Table 7's AMPC-servo against Table 6's MPC-servo 0.05 at 44 N, 0.04 at 68 N); the
     Conclusion's "more than 0.84" matches no gap of the tables, and its "0.05" only the 44-N one.
     Only the findings' directions are checked.
+
+    Parameters
+    ----------
+    tables : mapping
+        Eq. (21) errors [mm] as ``table -> load -> method`` (:func:`paper_tables`' shape) for
+        ``table6``, ``table7`` and ``table9``.
     """
     t6, t7, t9 = tables["table6"], tables["table7"], tables["table9"]
     out: dict[str, bool] = {}

@@ -97,7 +97,9 @@ class LoopFigures:
     swing_mm: float
     """Peak-to-peak displacement after settling [mm]."""
     min_mm: float
+    """Smallest displacement after settling [mm]."""
     max_mm: float
+    """Largest displacement after settling [mm]."""
     max_width_mm: float
     """Widest |rising - falling| at equal command [mm]."""
     width_at_mm: dict[float, float]
@@ -105,12 +107,24 @@ class LoopFigures:
     mean_at_mm: dict[float, float]
     """Mean of both branches at selected commands [mm]."""
     monotonic: bool
+    """Each branch is monotonic in the command (:attr:`LoopBranches.monotonic`)."""
     worst_reversal_mm: float
+    """Largest decrease of displacement with increasing command on either branch [mm]."""
 
 
 def loop_figures(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, *, settle_s: float = 30.0,
                  at_v: tuple[float, ...] = (3.5, 5.0, 6.5)) -> LoopFigures:
-    """Swing, widths and branch means of a hysteresis-loop recording (see :func:`loop_branches`)."""
+    """Swing, widths and branch means of a hysteresis-loop recording (see :func:`loop_branches`).
+
+    Parameters
+    ----------
+    t_s, u_v, l_mm : ndarray
+        Time [s], command [V], displacement [mm].
+    settle_s : float, optional
+        Samples before this time are left out [s]; default 30.
+    at_v : tuple of float, optional
+        The commands at which widths and branch means are taken [V].
+    """
     br = loop_branches(t_s, u_v, l_mm, settle_s=settle_s)
     keep = np.asarray(t_s) >= settle_s
     l = np.asarray(l_mm)[keep]
@@ -127,6 +141,19 @@ def settling_time_s(t_s: np.ndarray, l_mm: np.ndarray, *, t_step_s: float, band:
 
     The final value is the mean over the last ``final_window_s`` seconds of the record, the
     initial value the mean over the second before the step.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time [s].
+    l_mm : ndarray
+        Displacement [mm].
+    t_step_s : float
+        Time of the step [s].
+    band : float, optional
+        The band as a fraction of the step size [-]; default 0.02.
+    final_window_s : float, optional
+        The last seconds of the record that give the final value [s]; default 10.
     """
     t_s, l_mm = np.asarray(t_s, dtype=float), np.asarray(l_mm, dtype=float)
     before = l_mm[(t_s >= t_step_s - 1.0) & (t_s < t_step_s)]
@@ -157,7 +184,19 @@ TARGET_RECORDINGS: dict[str, tuple[float, str, float]] = {
 
 @dataclass(frozen=True)
 class TargetCheck:
-    """One calibration target: its measured value against its bound."""
+    """One calibration target: its measured value against its bound.
+
+    Parameters
+    ----------
+    name : str
+        The target, with its unit.
+    value : float
+        The measured value.
+    bound : str
+        The bound, in words (``">= 60"``, ``"reported"``).
+    ok : bool
+        Whether the value meets it.
+    """
 
     name: str
     value: float
@@ -168,7 +207,15 @@ class TargetCheck:
 def check_targets(recordings: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
                   settle_s: float = 30.0) -> list[TargetCheck]:
     """Measure the calibration targets on ``{name: (t_s, u_v, l_mm)}`` for
-    :data:`TARGET_RECORDINGS` and compare them with their bounds."""
+    :data:`TARGET_RECORDINGS` and compare them with their bounds.
+
+    Parameters
+    ----------
+    recordings : dict of str to (ndarray, ndarray, ndarray)
+        ``{name: (t_s, u_v, l_mm)}`` [s, V, mm] for each of :data:`TARGET_RECORDINGS`.
+    settle_s : float, optional
+        Samples before this time are left out [s]; default 30.
+    """
     out: list[TargetCheck] = []
 
     def add(name: str, value: float, bound: str, ok: bool) -> None:

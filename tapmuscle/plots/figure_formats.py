@@ -14,6 +14,11 @@ FIGURE_FORMATS = ("png", "pdf", "svg")
 def checked_figure_format(figure_format: str) -> str:
     """``figure_format``, once it is one of :data:`FIGURE_FORMATS`.
 
+    Parameters
+    ----------
+    figure_format : str
+        The format asked for.
+
     Raises
     ------
     ValueError

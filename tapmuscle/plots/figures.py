@@ -92,7 +92,17 @@ def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 120) -> Path
     Characters of its text that the font lacks (a scenario named in Chinese or Japanese, with no CJK
     font installed) are said once, as one :class:`MissingGlyphWarning` naming them, instead of
     matplotlib's warning per character and drawing pass. Figures saved from several threads are
-    saved one at a time."""
+    saved one at a time.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure.
+    path : str or os.PathLike
+        The file to write.
+    dpi : int, optional
+        Resolution of a raster format [dots per inch]; default 120.
+    """
     path = Path(path)
     try:
         fmt = path.suffix[1:].lower()
@@ -145,6 +155,23 @@ def plot_recording(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, path: str
 
     Left: paper Fig. 3 (valve input voltage and muscle displacement over time). Right: Fig. 5
     (displacement against command, the hysteresis loop), drawn for ``t >= settle_s``.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time [s].
+    u_v : ndarray
+        Valve command [V].
+    l_mm : ndarray
+        Displacement [mm].
+    path : str or os.PathLike
+        The figure to write (:func:`save_figure`).
+    p_mpa : ndarray, optional
+        Muscle pressure [MPa], drawn in a third panel when given.
+    title : str, optional
+        The figure's title.
+    settle_s : float, optional
+        Start of the loop drawn on the right [s]; default 0.
     """
     fig = Figure(figsize=(12, 6))
     gs = fig.add_gridspec(3 if p_mpa is not None else 2, 2, width_ratios=(1.6, 1))
@@ -185,7 +212,27 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
     titled with its unit where it is one of Eq. (1)'s (:data:`~fmu_controller.hysteresis_model.THETA_UNITS`);
     ``events`` (times [s] and their text, :func:`plot_tracking`) as lines in every panel, named in the
     title; ``bounds``: the constraint region C of Algorithm 1 by name (lower, upper), each finite
-    bound dotted in its panel (an estimate pinned on one shows it)."""
+    bound dotted in its panel (an estimate pinned on one shows it).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time [s].
+    history : ndarray
+        The estimates at each time, one column per parameter (``len(t_s) x len(names)``).
+    names : tuple of str
+        The parameters' names, in column order.
+    path : str or os.PathLike
+        The figure to write (:func:`save_figure`).
+    constraint_start_s : float, optional
+        When the constraint starts [s], dashed in every panel; None: not drawn.
+    title : str, optional
+        The figure's title; default ``"parameter convergence"``.
+    events : sequence of (float, str), optional
+        Times [s] and their text, drawn as lines.
+    bounds : mapping of str to (float, float), optional
+        The constraint region C of Algorithm 1 by name, ``(lower, upper)``.
+    """
     n = len(names)
     cols = 5 if n > 12 else 4
     rows = -(-n // cols)
@@ -234,7 +281,23 @@ def plot_parameter_convergence(t_s: np.ndarray, history: np.ndarray, names: tupl
 
 def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
                            path: str | os.PathLike, *, title: str = "") -> Path:
-    """Measured displacement against free-run model outputs (paper Fig. 4) and their errors."""
+    """Measured displacement against free-run model outputs (paper Fig. 4) and their errors.
+
+    Parameters
+    ----------
+    t_s : ndarray
+        Time [s].
+    u_v : ndarray
+        Valve command [V] (not drawn).
+    l_mm : ndarray
+        Measured displacement [mm].
+    models : dict of str to ndarray
+        Label -> free-run model output [mm], on the same samples (up to three are drawn).
+    path : str or os.PathLike
+        The figure to write (:func:`save_figure`).
+    title : str, optional
+        The figure's title.
+    """
     fig, (ax, ax_e) = new_figure(2, 1, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": (2, 1)})
     ax.plot(t_s, l_mm, color="black", lw=1.2, label="measured")
     lo, hi = float(np.min(l_mm)), float(np.max(l_mm))
@@ -266,7 +329,21 @@ def plot_model_vs_measured(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, m
 def plot_input_delay_fits(fits_percent: list[float] | tuple[float, ...], chosen: int, ts_s: float,
                           path: str | os.PathLike, *, title: str = "") -> Path:
     """The 1-step fit [%] of Eq. (1) identified under each input delay ``D`` [samples], the chosen one
-    marked (``tapmuscle identify --input-delay-samples auto``)."""
+    marked (``tapmuscle identify --input-delay-samples auto``).
+
+    Parameters
+    ----------
+    fits_percent : sequence of float
+        The 1-step fit [%] under each input delay ``D = 0, 1, ...`` [samples].
+    chosen : int
+        The chosen delay [samples].
+    ts_s : float
+        Sampling period [s], to label the delays in seconds.
+    path : str or os.PathLike
+        The figure to write (:func:`save_figure`).
+    title : str, optional
+        The figure's title.
+    """
     fig, ax = new_figure(figsize=(7, 4.5))
     d = np.arange(len(fits_percent))
     ax.plot(d, fits_percent, "o-", color="tab:blue", lw=1.2)
@@ -287,7 +364,13 @@ JUMP_SHARE = 0.1
 
 
 def input_jumps(u_v: np.ndarray) -> bool:
-    """Whether the command ``u_v`` [V] jumps (:data:`JUMP_SHARE`): its (u, l) plane is drawn as points."""
+    """Whether the command ``u_v`` [V] jumps (:data:`JUMP_SHARE`): its (u, l) plane is drawn as points.
+
+    Parameters
+    ----------
+    u_v : ndarray
+        Valve command [V].
+    """
     u = np.asarray(u_v, dtype=float)
     u = u[np.isfinite(u)]
     span = float(np.ptp(u)) if u.size > 1 else 0.0
@@ -296,7 +379,15 @@ def input_jumps(u_v: np.ndarray) -> bool:
 
 def loop_line(jumps: bool, **style: Any) -> dict[str, Any]:
     """Matplotlib keywords for one curve of a (u, l) plane: ``style`` as a line, or, where the input
-    :func:`input_jumps`, as small points of its colour (``lw``/``ls`` dropped)."""
+    :func:`input_jumps`, as small points of its colour (``lw``/``ls`` dropped).
+
+    Parameters
+    ----------
+    jumps : bool
+        Whether the input jumps (:func:`input_jumps`).
+    **style
+        Matplotlib line keywords (``color``, ``lw``, ``ls``, ``label``, ...).
+    """
     if not jumps:
         return style
     points = {k: v for k, v in style.items() if k not in ("lw", "ls", "linewidth", "linestyle")}
@@ -306,7 +397,23 @@ def loop_line(jumps: bool, **style: Any) -> dict[str, Any]:
 def plot_loop_comparison(u_v: np.ndarray, l_mm: np.ndarray, models: dict[str, np.ndarray],
                          path: str | os.PathLike, *, skip: int = 0, title: str = "") -> Path:
     """Hysteresis loops (u, l) of the measurement and of models (paper Fig. 5); points where the input
-    jumps (:func:`input_jumps`: steps or random levels draw no loop)."""
+    jumps (:func:`input_jumps`: steps or random levels draw no loop).
+
+    Parameters
+    ----------
+    u_v : ndarray
+        Valve command [V].
+    l_mm : ndarray
+        Measured displacement [mm].
+    models : dict of str to ndarray
+        Label -> model output [mm], on the same samples (up to three are drawn).
+    path : str or os.PathLike
+        The figure to write (:func:`save_figure`).
+    skip : int, optional
+        Samples left out at the start; default 0.
+    title : str, optional
+        The figure's title.
+    """
     fig, ax = new_figure(figsize=(7, 6))
     u = np.asarray(u_v)[skip:-1]
     jumps = input_jumps(u)
@@ -459,7 +566,21 @@ def plot_prediction_errors(runs: dict[str, dict[str, np.ndarray]], path: str | o
                            title: str = "", window_s: tuple[float, float],
                            events: Sequence[tuple[float, str]] = ()) -> Path:
     """One-step prediction error ``l(k) - l(k|k-1)`` of each run's predictor over ``window_s`` [s]
-    (Eq. (21)'s 10.1-40.1 s in Figs. 9-19), with ``events`` inside it marked as in :func:`plot_tracking`."""
+    (Eq. (21)'s 10.1-40.1 s in Figs. 9-19), with ``events`` inside it marked as in :func:`plot_tracking`.
+
+    Parameters
+    ----------
+    runs : dict of str to dict of str to ndarray
+        Label -> a run's columns, with ``t_s`` [s] and ``pred_error_mm`` [mm].
+    path : str or os.PathLike
+        The figure to write (:func:`save_figure`).
+    title : str, optional
+        The figure's title.
+    window_s : (float, float)
+        The window drawn [s].
+    events : sequence of (float, str), optional
+        Times [s] and their text, marked as in :func:`plot_tracking`.
+    """
     fig, ax = new_figure(figsize=(11, 4))
     _mark_events([ax], [(t, text) for t, text in events if window_s[0] <= t <= window_s[1]], ax)
     for (color, label, ls), cols in zip(_styles(runs), runs.values()):

@@ -57,7 +57,19 @@ def plot_mae_by_method(rows: Sequence[Mapping[str, str]], path: str | os.PathLik
                        pooled: Sequence[str] = ()) -> Path | None:
     """Box plot and points of ``mae_mm`` per method (runs that finished); None if there are none.
     ``pooled``: the columns that vary among the runs of a box, named in the title (a box of two
-    loads has a median no run has)."""
+    loads has a median no run has).
+
+    Parameters
+    ----------
+    rows : sequence of mapping of str to str
+        The sweep's ``results.csv`` rows.
+    path : str or os.PathLike
+        The figure to write.
+    title : str, optional
+        The figure's title.
+    pooled : sequence of str, optional
+        The columns whose varying values a box pools, named in the title.
+    """
     ok = _ok(rows)
     if not ok:
         return None
@@ -110,6 +122,17 @@ def plot_mae_map(rows: Sequence[Mapping[str, str]], candidates: Sequence[str], p
     panels per combination of their values (at most ``_MAX_FACET_ROWS``), so no cell averages over
     them; beyond that, or off a grid, the title names the fields the cells average over (the points
     do not tell apart). None (nothing written) if no candidate varies.
+
+    Parameters
+    ----------
+    rows : sequence of mapping of str to str
+        The sweep's ``results.csv`` rows.
+    candidates : sequence of str
+        Columns the error may be drawn over: the first two that are numeric and vary are used.
+    path : str or os.PathLike
+        The figure to write.
+    title : str, optional
+        The figure's title.
     """
     from matplotlib.colors import LogNorm
 

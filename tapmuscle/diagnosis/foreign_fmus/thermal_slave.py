@@ -120,7 +120,14 @@ def _phi1(x: float) -> float:
 
 
 class ThermalTwoMass(Fmi2Slave):
-    """Two lumped thermal masses, coupled to each other and to ambient, each with a heater."""
+    """Two lumped thermal masses, coupled to each other and to ambient, each with a heater.
+
+    Parameters
+    ----------
+    **kwargs
+        pythonfmu's ``Fmi2Slave`` arguments (``instance_name``, ``resources``, ...), which the
+        FMU's host passes on instantiation.
+    """
 
     author = "tapmuscle"
     description = ("Two lumped thermal masses (C1, C2) coupled by G12 and to ambient by G1a, G2a; heater powers "
