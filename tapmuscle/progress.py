@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 import weakref
-from typing import Any, TextIO
+from typing import Any, Callable, TextIO
 
 from fmu_plant.user_warning import in_project
 
@@ -59,6 +59,13 @@ class Progress:
         Show ``done/total`` in a log's lines (``sweep:  40% (4/10, 12.3 s)``); False: the percentage,
         the time and the detail only (``diagnose:  24% (61.2 s)  round 1 of at most 3: own fits 9/18``),
         for units that mean nothing to the reader (a diagnosis's thousandths of its work).
+
+    Attributes
+    ----------
+    why_waiting : callable or None
+        ``why_waiting()`` is asked at each heartbeat for what the run waits on (``"no worker
+        connected for 12 s"``), said in the heartbeat instead of "still running"; None (default),
+        or a None it returns: "still running".
     """
 
     def __init__(self, label: str, *, enabled: bool = True, stream: TextIO | None = None,
@@ -75,6 +82,7 @@ class Progress:
         self._heart: threading.Thread | None = None
         self._ended = threading.Event()  # wakes the heartbeat at the end of its run
         self._owner: tuple[int, int, object] | None = None  # (thread, frame id, code) of the reporting call
+        self.why_waiting: Callable[[], str | None] | None = None
 
     @property
     def heartbeat_s(self) -> float:
@@ -114,6 +122,9 @@ class Progress:
         frac = done / total if total else 1.0
         extra = f"  {detail}" if detail else ""
         elapsed = time.monotonic() - self._t0
+        why = self._why() if heartbeat else None
+        if why:
+            extra += f"  ({why})"
         if self._tty:
             bar = "#" * int(30 * frac)
             line = f"{self.label} [{bar:<30}] {100 * frac:5.1f}% {elapsed:6.1f} s{extra}"
@@ -126,13 +137,22 @@ class Progress:
             decile = int(10 * frac)
             if decile > self._last_decile or heartbeat:
                 self._last_decile = max(decile, self._last_decile)
-                still = "  (still running)" if heartbeat else ""
+                still = "  (still running)" if heartbeat and not why else ""
                 count = f"{done}/{total}, " if self.counts else ""
                 self.stream.write(f"{self.label}: {100 * frac:3.0f}% ({count}{elapsed:.1f} s){extra}{still}\n")
             else:
                 return
         self.stream.flush()
         self._last_write = time.monotonic()
+
+    def _why(self) -> str | None:
+        """What :attr:`why_waiting` says, None where it is not set or fails (a report never stops a run)."""
+        if self.why_waiting is None:
+            return None
+        try:
+            return self.why_waiting()
+        except Exception:  # noqa: BLE001 - a heartbeat's words are not worth a failed run
+            return None
 
     def _beat_once(self) -> bool:
         """Re-report if silent too long; False once the run is complete."""

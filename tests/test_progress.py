@@ -188,3 +188,27 @@ def test_a_shorter_bar_line_covers_the_longer_one_before_it_without_an_escape_on
     p(10, 10)
     p(1, 10, "x")  # another run after the finished one, on a fresh line: nothing to cover
     assert out.getvalue().split("\n")[1] == out.getvalue().split("\n")[1].rstrip()
+
+
+def test_a_heartbeat_says_what_the_run_waits_on_where_it_is_told(monkeypatch):
+    """A sweep on a cluster left without workers: its heartbeat says so instead of "still running",
+    and a reason that fails or is None leaves the plain heartbeat."""
+    monkeypatch.setattr(progress_module, "HEARTBEAT_LOG_S", 0.05)
+    reasons = iter(["no worker connected to the scheduler for 3 s; the sweep stops at 60 s", None])
+
+    def why():
+        try:
+            return next(reasons)
+        except StopIteration:
+            raise RuntimeError("the watch is gone") from None
+
+    out = io.StringIO()
+    p = Progress("sweep", stream=out)
+    p.why_waiting = why
+    p(2, 8)
+    time.sleep(0.4)
+    p(8, 8)
+    lines = out.getvalue().splitlines()
+    assert lines[1] == ("sweep:  25% (2/8, " + lines[1].split("(2/8, ")[1].split(" s)")[0]
+                        + " s)  (no worker connected to the scheduler for 3 s; the sweep stops at 60 s)")
+    assert lines[2].endswith("(still running)") and lines[3].endswith("(still running)")

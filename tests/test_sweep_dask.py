@@ -702,3 +702,17 @@ def test_the_dashboard_link_is_given_only_where_its_page_answers():
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_a_sweep_without_a_worker_says_so_for_its_progress_report():
+    """What the sweep's heartbeat says while the cluster has no worker (and nothing while it has)."""
+    import time as clock
+
+    from tapmuscle.cosim.distributed_sweep import DaskExecutor, _ClusterWatch
+
+    executor = DaskExecutor(object(), no_worker_s=60.0)
+    assert executor.waiting() is None  # no sweep running
+    executor._watch = _ClusterWatch(object(), 60.0, 4)
+    assert executor.waiting() is None  # a worker seen (or not asked yet)
+    executor._watch._alone_since = clock.monotonic() - 12.2
+    assert executor.waiting() == "no worker connected to the scheduler for 12 s; the sweep stops at 60 s"

@@ -135,8 +135,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         try:
             ResultsLog(out / "results.csv", result_columns(sweep)).latest()  # another sweep's file: refuse early
             execute = _executor(args, stack)
-            report = run_sweep(sweep, out, fmus, execute, plots=not args.no_plots,
-                               progress=Progress("sweep", enabled=not args.quiet), figure_format=args.figure_format)
+            progress = Progress("sweep", enabled=not args.quiet)
+            progress.why_waiting = getattr(execute, "waiting", None)  # a cluster left without workers
+            report = run_sweep(sweep, out, fmus, execute, plots=not args.no_plots, progress=progress,
+                               figure_format=args.figure_format)
         except ScenarioError as exc:
             raise UsageError(str(exc)) from None
         except ClusterError as exc:
@@ -212,6 +214,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
                           "set FMU parameters wrongly")
         _local_workers(args, len(tasks))
         execute = _executor(args, stack)
+        progress.why_waiting = getattr(execute, "waiting", None)  # a cluster left without workers
         runs, said = {}, {"pass": 0, "fail": 0, "error": 0}
 
         serial = execute is run_serial  # the cases one after the other, in their order

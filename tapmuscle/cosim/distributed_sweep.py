@@ -288,6 +288,16 @@ class DaskExecutor:
         self.client = client
         self.no_worker_s = no_worker_s
         self.one_run_per_thread = one_run_per_thread
+        self._watch: _ClusterWatch | None = None
+
+    def waiting(self) -> str | None:
+        """What the sweep waits on where it is a cluster without a worker (``"no worker connected to
+        the scheduler for 12 s; the sweep stops at 60 s"``), for a progress report; None otherwise."""
+        watch = self._watch
+        alone = watch.alone_s() if watch is not None else None
+        if alone is None:
+            return None
+        return f"no worker connected to the scheduler for {alone:.0f} s; the sweep stops at {self.no_worker_s:g} s"
 
     def ship(self, files: FmuFiles, tag: str) -> Any:
         """The future of ``files`` on the cluster, what :func:`_worker_run` takes (module docstring)."""
@@ -325,7 +335,7 @@ class DaskExecutor:
                 futures.update(zip(submitted, batch))
                 pending.update(submitted)
 
-        watch = _ClusterWatch(self.client, self.no_worker_s, len(tasks))
+        watch = self._watch = _ClusterWatch(self.client, self.no_worker_s, len(tasks))
         try:
             submit()
             submitted_at = time.monotonic()
@@ -355,6 +365,7 @@ class DaskExecutor:
                     submit()
                     submitted_at = time.monotonic()
         finally:
+            self._watch = None
             self.client.cancel(list(futures))
             shipped.release()
 
@@ -366,6 +377,11 @@ class _ClusterWatch:
     def __init__(self, client: Any, no_worker_s: float, n_tasks: int) -> None:
         self.client, self.no_worker_s, self.n_tasks = client, no_worker_s, n_tasks
         self._asked, self._alone_since = -math.inf, None
+
+    def alone_s(self) -> float | None:
+        """How long [s] the cluster has been seen without a worker; None while it has one."""
+        since = self._alone_since
+        return None if since is None else time.monotonic() - since
 
     def check(self, unfinished: int, *, at_once: bool = False) -> None:
         """Raise :class:`ClusterError` if the cluster is gone (``unfinished``: runs without a result)."""
