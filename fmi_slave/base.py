@@ -17,7 +17,7 @@ get/set/serialize FMU state restores everything, not just the registered variabl
 
 Time: the FMU's clock starts at the start time of ``fmi2SetupExperiment`` (``tStart``; 0 without
 that call) and advances with every completed step. A step whose ``currentCommunicationPoint`` is not
-the FMU's time (a gap, or a step back, beyond :data:`TIME_TOLERANCE`) is refused with fmi2Error and a
+the FMU's time (a gap, or a step back, beyond :func:`time_tolerance`) is refused with fmi2Error and a
 message naming both times: a slave's numerics (the plant's clock, the controller's sampling grid)
 would silently run on another time than the host's. Going back is what FMU states are for: the time
 is part of the state, so after ``fmi2SetFMUstate`` the FMU's time is the restored one. A step a master
@@ -81,11 +81,32 @@ MIN_STEP_S = 1e-9
 BOUND_ROUNDING = 1e-9
 
 #: A step's ``currentCommunicationPoint`` may differ from the FMU's time (the start time, or the end of
-#: the last step) by ``TIME_TOLERANCE * max(step size, |time|)`` or by :data:`MIN_STEP_S`, whichever is
-#: larger: a master that computes its time as ``tStart + n h`` rather than by summing the steps differs
-#: by a few units in the last place, and an interval shorter than a step that integrates nothing is no
-#: gap. The same relative tolerance as the controller's sampling grid.
+#: the last step) by :func:`time_tolerance`: a master that computes its time as ``tStart + n h`` rather
+#: than by summing the steps differs by a few units in the last place, and an interval shorter than a
+#: step that integrates nothing is no gap. The same tolerance as the controller's sampling grid.
 TIME_TOLERANCE = 1e-9
+
+#: The most :func:`time_tolerance` allows, as a fraction of the step (or the sampling period): at a
+#: start time of 1e9 s (a Unix time) ``TIME_TOLERANCE * |time|`` alone would be a whole second, and a
+#: gap of several samples, or a half step taken for a sample time, would pass.
+TIME_TOLERANCE_OF_STEP = 0.25
+
+
+def time_tolerance(time_s: float, step_s: float) -> float:
+    """How far [s] a master's time may be from the FMU's before it is a gap or a step back.
+
+    ``TIME_TOLERANCE * max(step_s, |time_s|)``, at most ``TIME_TOLERANCE_OF_STEP * step_s``, at least
+    :data:`MIN_STEP_S` and 16 units in the last place of ``time_s`` (the rounding of a time as large).
+
+    Parameters
+    ----------
+    time_s : float
+        The FMU's time [s].
+    step_s : float
+        The communication step, or the controller's sampling period [s], > 0.
+    """
+    relative = min(TIME_TOLERANCE * max(step_s, abs(time_s)), TIME_TOLERANCE_OF_STEP * step_s)
+    return max(MIN_STEP_S, 16.0 * math.ulp(time_s), relative)
 
 
 def intended_step(t_s: float, h_s: float) -> float:
@@ -676,7 +697,7 @@ class SafeSlave(Fmi2Slave):
             if h == 0.0:
                 raise SlaveInputError(f"step size = {step_size!r} must be > 0")
             t = float(current_time)
-            if not abs(t - self._time_s) <= max(MIN_STEP_S, TIME_TOLERANCE * max(h, abs(self._time_s))):
+            if not abs(t - self._time_s) <= time_tolerance(self._time_s, h):
                 return self.fail(self._time_mismatch(t), Fmi2Status.error)
             if h >= MIN_STEP_S:
                 self.step_numerics(t, intended_step(t, h))

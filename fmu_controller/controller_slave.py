@@ -60,7 +60,7 @@ import re
 
 import fmi_slave  # noqa: F401 - first: prepares the embedded interpreter in non-Python hosts
 from fmi_slave import SafeSlave
-from fmi_slave.base import MIN_STEP_S, SlaveInputError
+from fmi_slave.base import SlaveInputError, time_tolerance
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
@@ -429,7 +429,7 @@ class AMPCController(SafeSlave):
         ts = self._controller.settings.ts_s
         # within a step too short to integrate (MIN_STEP_S, accepted as a no-op) of a sample time is at it:
         # a master's rounding remainder there must not make the next step skip the sample
-        tol = max(MIN_STEP_S, 1e-9 * max(1.0, abs(t_s) / ts) * ts)
+        tol = time_tolerance(t_s, ts)
         # twelve digits: a step refused for a rounding's worth (h = 0.10000001 s at Ts = 0.1 s) shows why
         if dt_s > ts + tol:
             raise SlaveInputError(f"step size {dt_s:.12g} s exceeds the sampling period Ts = {ts:.12g} s; the "

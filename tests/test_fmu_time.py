@@ -177,6 +177,43 @@ def test_a_step_that_does_not_start_at_the_fmus_time_is_an_error_naming_both(fmu
     _free(f)
 
 
+@pytest.mark.parametrize("t0", [1e9, 1.8e9])
+@pytest.mark.parametrize("name, step_input", [("MusclePlant", ("u", 6.0)), ("AMPCController", ("l", 20.0))])
+def test_at_a_unix_time_start_a_gap_is_still_a_gap(fmus, capfd, t0, name, step_input):
+    """A HIL master starting at a Unix time: the tolerance for a master's rounding stays a fraction of
+    the step (1e-9 of |t| alone was 1-2 s there, and a 0.5-s gap passed), while its own rounding of
+    t0 + n h passes."""
+    fmu = fmus[name]
+    f = _start(fmu, t0)
+    f.setReal([fmu[3][step_input[0]]], [step_input[1]])
+    for n in range(3):
+        f.doStep(t0 + n * H, H)  # t0 + n h rounds at 2.4e-7 s here
+    capfd.readouterr()
+    with pytest.raises(FMICallException, match="error"):
+        f.doStep(t0 + 3 * H + 0.5, H)
+    assert "a gap of 0.5 s" in capfd.readouterr().out
+    f.doStep(t0 + 3 * H, H)
+    _free(f)
+
+
+def test_at_a_unix_time_start_half_steps_sample_every_other_step(fmus):
+    """The controller stepped at Ts/2 from t0 = 1e9 s: one sample per two steps, on the grid t0 + k Ts
+    (a tolerance of 1 s took every half step for a sample time and ran ahead of the host's clock)."""
+    vr = fmus["AMPCController"][3]
+    runs = {}
+    for t0 in (0.0, 1e9):
+        f = _start(fmus["AMPCController"], t0)
+        f.setReal([vr["l"]], [20.0])
+        seen = []
+        for n in range(120):
+            f.doStep(t0 + n * H / 2, H / 2)
+            seen.append((f.getInteger([vr["samples"]])[0], *f.getReal([vr["r_k"], vr["u"]])))
+        runs[t0] = seen
+        _free(f)
+    assert [s[0] for s in runs[1e9]] == [n // 2 + 1 for n in range(120)]
+    assert runs[1e9] == runs[0.0]  # the same samples, the built-in sine at the same phase
+
+
 @pytest.mark.parametrize("name, step_input", [("MusclePlant", ("u", 6.0)), ("AMPCController", ("l", 20.0))])
 def test_after_restoring_a_state_the_fmus_time_is_the_restored_one(fmus, capfd, name, step_input):
     fmu = fmus[name]
