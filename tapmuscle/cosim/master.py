@@ -42,6 +42,7 @@ import math
 import numbers
 import os
 import re
+import stat
 import threading
 import time
 from dataclasses import dataclass
@@ -205,11 +206,11 @@ def unpack(path: str | Path) -> Unpacked:
         found = path.stat()
     except OSError:
         found = None
-    stamp = (found.st_mtime_ns, found.st_size, found.st_ino) if found is not None else None
+    if found is None or not stat.S_ISREG(found.st_mode):
+        raise ScenarioError(f"{path}: FMU file does not exist")
+    stamp = (found.st_mtime_ns, found.st_size, found.st_ino)
     # an FMU written anew at the same path (a service that rebuilds its FMUs) is read anew
     if path not in _UNPACKED or _UNPACKED[path].stamp != stamp:
-        if not path.is_file():
-            raise ScenarioError(f"{path}: FMU file does not exist")
         _check_unpacked_size(path)  # before its members are read
         check_fmu_file(path)  # a broken binary is named here, not by a signal in this process
         try:
