@@ -341,7 +341,8 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
     import signal
 
     sweep = tmp_path / "long.toml"
-    sweep.write_text('name = "long"\nbase = { duration_s = 2000.0 }\ngrid = { seed = [0, 1, 2, 3, 4, 5, 6, 7] }\n')
+    # runs of 1-2 s each, more than the command reaches before the Ctrl-C that follows the first
+    sweep.write_text(f'name = "long"\nbase = {{ duration_s = 600.0 }}\ngrid = {{ seed = {list(range(16))} }}\n')
     out = tmp_path / "o"
     proc = _sweep_in_a_terminal(sweep, out, built_fmus, workers=2)
     try:
@@ -368,16 +369,21 @@ def test_ctrl_c_ends_a_sweep_whose_fmu_hangs_in_a_step(built_fmus, tmp_path):
 
     from own_controller_fmus import EXAMPLES, build_pi_variant
 
-    # a C call that keeps the GIL and never returns
-    build_pi_variant(tmp_path, "hanging_pi", do="import ctypes\nctypes.PyDLL(None).sleep(3600)")
+    # a C call that keeps the GIL and never returns, after leaving a file that says the step is in it
+    inside = tmp_path / "inside_the_step"
+    build_pi_variant(tmp_path, "hanging_pi", do=f"open({str(inside)!r}, 'w').close()\nimport ctypes\n"
+                                                 f"ctypes.PyDLL(None).sleep(3600)")
     shutil.copy(EXAMPLES / "own_controller.toml", tmp_path / "base.toml")
     sweep = tmp_path / "hang.toml"
     sweep.write_text('name = "hang"\nbase = "base.toml"\ngrid = { seed = [0, 1] }\n')
     out = tmp_path / "o"
     proc = _sweep_in_a_terminal(sweep, out, built_fmus, workers=1)
     try:
-        time.sleep(20)  # the cluster up and its run inside the step that hangs
-        assert proc.poll() is None, proc.communicate()
+        deadline = time.monotonic() + 120
+        while not inside.is_file():  # the cluster up and its run inside the step that hangs
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        time.sleep(0.5)  # into the C call that follows the file's writing
         os.killpg(proc.pid, signal.SIGINT)
         started = time.monotonic()
         _, err = proc.communicate(timeout=90)
