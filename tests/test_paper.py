@@ -1,9 +1,11 @@
 """`tapmuscle paper` reproduces the paper's findings (Tables 6, 7, 9)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from computed_once import computed_once
 
 from fmu_controller.displacement_control import P0_TABLE5, ControllerSettings, DisplacementController
 from fmu_controller.hysteresis_model import ASYMMETRIC
@@ -24,8 +26,13 @@ from tapmuscle.provenance import software
 
 @pytest.fixture(scope="module")
 def paper(tmp_path_factory):
-    out = tmp_path_factory.mktemp("paper")
-    assert main(["paper", "--out", str(out), "--quiet"]) == 0
+    """`tapmuscle paper`'s folder (the tests copy what they change) and its paper.json."""
+
+    def make(out: Path) -> str:
+        assert main(["paper", "--out", str(out), "--quiet"]) == 0
+        return str(out)
+
+    out = Path(computed_once(tmp_path_factory, "paper", make))
     return out, json.loads((out / "paper.json").read_text())
 
 

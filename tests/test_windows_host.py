@@ -28,6 +28,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from computed_once import computed_once
 
 HERE = Path(__file__).resolve().parent / "windows_host"
 sys.path.insert(0, str(HERE))
@@ -99,8 +100,15 @@ def _run_windows(windows: dict, *args: str, env_extra: dict | None = None,
 
 
 @pytest.fixture(scope="module")
-def answers(windows, built_fmus, tmp_path_factory) -> dict:
-    out = tmp_path_factory.mktemp("windows")
+def answers(request, tmp_path_factory) -> dict:
+    """What tests/windows_host/fmu_checks.py answered in the Windows Python (three runs) and in this
+    Linux Python: computed once per test run (computed_once.py)."""
+    return computed_once(tmp_path_factory, "windows-answers",
+                         lambda out: _answers(request.getfixturevalue("windows"), request.getfixturevalue("built_fmus"),
+                                              out))
+
+
+def _answers(windows: dict, built_fmus: dict, out: Path) -> dict:
     # both FMUs and the loop as an FMU container (made here, on Linux; it carries its win64 binary too)
     fmu_dir = out / "fmus"
     fmu_dir.mkdir()
@@ -227,11 +235,20 @@ def _host_args(fmus: dict, windows_paths: bool, roles: dict[str, dict[str, str]]
 
 
 @pytest.fixture(scope="module")
-def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
+def c_host_runs(request, tmp_path_factory) -> dict:
     """tests/c_host/fmi_host.c built for Linux (gcc) and for Windows (MinGW-w64), each run on the plant
     alone (`open`) and on the closed loop (`closed`) with the same arguments; the Windows one under Wine
-    with the Windows Python's folder on its PATH (python3.dll, which pythonfmu's DLL imports)."""
-    hosts = _compile_c_host("fmi_host.c", tmp_path_factory.mktemp("windows-c-host"), "c99", linux_libs=["-ldl", "-lm"])
+    with the Windows Python's folder on its PATH (python3.dll, which pythonfmu's DLL imports). Computed
+    once per test run (computed_once.py)."""
+    return computed_once(tmp_path_factory, "windows-c-host-runs",
+                         lambda folder: _c_host_runs(request.getfixturevalue("windows"),
+                                                     request.getfixturevalue("extracted"), folder))
+
+
+def _c_host_runs(windows: dict, extracted: dict, folder: Path) -> dict:
+    """:func:`c_host_runs`'s runs, with the hosts and the Pythons they need made in ``folder``."""
+    (folder / "hosts").mkdir()
+    hosts = _compile_c_host("fmi_host.c", folder / "hosts", "c99", linux_libs=["-ldl", "-lm"])
 
     def args(windows_paths: bool, mode: str) -> list[str]:
         roles = {"P": {"u": "u", "l": "l", "p": "p"}, **({"C": {"l": "l", "u": "u"}} if mode == "closed" else {})}
@@ -254,7 +271,7 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
     bare = _run_windows(windows, str(hosts["windows"]), *args(True, "open"))
     runs["no_python"] = (bare.returncode, bare.stdout, bare.stderr[-3000:])
     # or a Python without osqp: a copy of the interpreter whose site folder links all but osqp
-    lacking = tmp_path_factory.mktemp("windows-python-without-osqp")
+    lacking = folder / "windows-python-without-osqp"
     shutil.copytree(windows["python"].parent, lacking / "python")
     (lacking / "site").mkdir()
     for entry in (windows["python"].parent.parent / "site").iterdir():
@@ -275,10 +292,11 @@ def c_host_runs(windows, extracted, tmp_path_factory) -> dict:
     # PYTHONHOME, which a Python without a ._pth file takes (an installation's; the embeddable
     # distribution's ._pth makes it ignore PYTHONHOME): a folder without a standard library, for this
     # Python without its ._pth and with it; and one with a standard library that does not fit
-    unpinned = tmp_path_factory.mktemp("windows-python-without-pth") / "python"
+    unpinned = folder / "windows-python-without-pth" / "python"
     shutil.copytree(windows["python"].parent, unpinned, ignore=shutil.ignore_patterns("*._pth"))
     nowhere = _windows_path(lacking / "nothing")
-    zip_only = tmp_path_factory.mktemp("windows-home-zip-only")
+    zip_only = folder / "windows-home-zip-only"
+    zip_only.mkdir()
     for archive in windows["python"].parent.glob("python3*.zip"):
         shutil.copy(archive, zip_only)
     for key, python, home in (("bad_home", unpinned, nowhere), ("bad_home_pinned", windows["python"].parent, nowhere),
