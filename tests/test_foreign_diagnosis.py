@@ -110,7 +110,9 @@ def test_a_sine_locked_to_the_split_gets_balanced_blocks_as_for_the_muscle(fmus,
 @pytest.mark.slow
 def test_delay_on_the_c_motor_is_named_and_fitted(fmus, tmp_path):
     case = _case("DcMotor", "transport_delay[V]", {"V:delay_s": 0.15}, {"K": 0.1, "Tc": -0.15})
-    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
+    # 90 s of voltage steps (half the demo's): the delay to a few milliseconds, calibration included,
+    # in a quarter of the time
+    rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec", duration_s=90.0)
     d, doc = diagnose_foreign(rec, fmus["DcMotor"], tmp_path / "out", map_path=m, echo=lambda s: None)
     assert d.named == ["transport_delay[V]"]
     delay = d.findings[0].parameters["V:delay_s"]
