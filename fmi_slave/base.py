@@ -577,7 +577,7 @@ class SafeSlave(Fmi2Slave):
                      "nothing was done (fmi2FreeInstance ends it)", status=Fmi2Status.warning)
             return
         if self._initialised and not self._failed and not self._terminated:
-            self._summary_event(f"fmi2Terminate at t = {self._time_s:g} s", self.run_summary)
+            self._summary_event(f"fmi2Terminate at t = {self._time_s:.12g} s", self.run_summary)
         self._terminated = True
         Fmi2Slave.terminate(self)
 
@@ -606,7 +606,7 @@ class SafeSlave(Fmi2Slave):
 
     def run_summary(self) -> str:
         """What the run did, logged as an event at fmi2Terminate (after an initialisation that succeeded)."""
-        return f"{self._time_s - self._start_s:g} s from t = {self._start_s:g} s"
+        return f"{self._time_s - self._start_s:.12g} s from t = {self._start_s:.12g} s"
 
     def _keep_references(self) -> None:
         """Add the references pythonfmu's C++ layer drops once too often when an exception reaches it
@@ -682,7 +682,7 @@ class SafeSlave(Fmi2Slave):
             self._failed = True
             self.log(_INTERRUPTED.format(where="during initialisation"), status=Fmi2Status.error)
         else:
-            self._summary_event(f"initialised at t = {self._start_s:g} s", self.setup_summary)
+            self._summary_event(f"initialised at t = {self._start_s:.12g} s", self.setup_summary)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         try:
@@ -704,18 +704,18 @@ class SafeSlave(Fmi2Slave):
             self._time_s = t + h
             return True
         except SlaveInputError as exc:
-            return self.fail(f"t = {current_time:g} s: {exc}; outputs keep their last values")
+            return self.fail(f"t = {current_time:.12g} s: {exc}; outputs keep their last values")
         except FloatingPointError as exc:  # a documented breakdown of the numerics (extreme parameters): no bug
-            return self.fail(f"t = {current_time:g} s: {exc}; the state and outputs are those of the step's start",
+            return self.fail(f"t = {current_time:.12g} s: {exc}; the state and outputs are those of the step's start",
                              Fmi2Status.error)
         except OverflowError as exc:  # Python float arithmetic past 1.8e308: parameters far out, not a bug
-            return self.fail(f"t = {current_time:g} s: numerical overflow ({exc}): {self.overflow_hint()}; the "
+            return self.fail(f"t = {current_time:.12g} s: numerical overflow ({exc}): {self.overflow_hint()}; the "
                              "outputs keep their last values; restore an FMU state or reset", Fmi2Status.error)
         except Exception as exc:  # noqa: BLE001
-            return self.fail(f"t = {current_time:g} s: internal error {type(exc).__name__}: {exc}\n"
+            return self.fail(f"t = {current_time:.12g} s: internal error {type(exc).__name__}: {exc}\n"
                              f"{traceback.format_exc(limit=3)}", Fmi2Status.error)
         except KeyboardInterrupt:
-            return self.fail(_INTERRUPTED.format(where=f"in the step from t = {current_time:g} s"), Fmi2Status.error)
+            return self.fail(_INTERRUPTED.format(where=f"in the step from t = {current_time:.12g} s"), Fmi2Status.error)
 
     def _time_mismatch(self, t: float) -> str:
         """The message for a step at ``t`` that does not start at the FMU's time."""

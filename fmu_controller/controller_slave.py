@@ -455,7 +455,7 @@ class AMPCController(SafeSlave):
             self._warn_unused(self._controller.settings)
             ts_set = self._controller.settings.ts_s
             if ts_set >= _SLOW_TS_S and dt_s <= ts_set / 10.0:
-                self.log(f"t = {t_s:g} s: Ts = {ts_set:g} s, and the host steps at {dt_s:g} s: the controller samples l "
+                self.log(f"t = {t_s:.12g} s: Ts = {ts_set:g} s, and the host steps at {dt_s:g} s: the controller samples l "
                          f"once every {ts_set:g} s and holds its command in between ({ts_set / dt_s:.0f} steps a sample); Ts is "
                          f"in seconds (the paper's 0.1 s): is it {ts_set / 1000:g} s typed in milliseconds?",
                          status=Fmi2Status.warning)
@@ -504,7 +504,7 @@ class AMPCController(SafeSlave):
             return
         more = ("; further ones are counted in the run summary, not logged" if tally.held == _HELD_READINGS_LOGGED
                 else "")
-        self.log(f"t = {t_s:g} s: "
+        self.log(f"t = {t_s:.12g} s: "
                  + held_reading_message(self._controller.settings, reading, used, last, spike_mm) + more,
                  status=Fmi2Status.warning)
 
@@ -523,15 +523,15 @@ class AMPCController(SafeSlave):
                        + (", with the start-up mode's warm-up" if ctrl.settings.startup_s > 0 else "")
                        if d != 1 and ctrl.settings.adaptive else "")
             if d in what:  # a longer delay is the watch's warning, with what to set (logged once, not twice)
-                self.event(f"t = {t_s:g} s: input_delay_samples = -1 decided for {_samples(d)}: {what[d]}{restart}")
+                self.event(f"t = {t_s:.12g} s: input_delay_samples = -1 decided for {_samples(d)}: {what[d]}{restart}")
         if (on_theta0 and not ctrl.law_on_theta0 and ctrl.settings.adaptive and ctrl.startup_guarded_at is None
                 and ctrl.settings.startup_s > 0):
-            self.event(f"t = {t_s:g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "
+            self.event(f"t = {t_s:.12g} s: the start-up mode's law on theta0 is over: the adaptive estimate is "
                        "blended in from the next sample")
         # without a start-up mode or a delay to decide there is no start-up to end
         if not ctrl.in_startup and (ctrl.settings.startup_s > 0 or ctrl.settings.input_delay_samples == -1):
             law = "the adaptive estimate" if ctrl.settings.adaptive else "theta0 (a fixed predictor)"
-            self.event(f"t = {t_s:g} s: the start-up is over: the law runs on {law}, tracking r itself")
+            self.event(f"t = {t_s:.12g} s: the start-up is over: the law runs on {law}, tracking r itself")
 
     def setup_summary(self) -> str:
         settings = self._controller.settings

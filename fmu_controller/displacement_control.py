@@ -665,7 +665,7 @@ def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> 
     unchanged_s : float
         How long it has not changed [s].
     """
-    return (f"t = {t_s:g} s: the reading l = {reading_mm:g} mm has not changed at all for {unchanged_s:.4g} s while "
+    return (f"t = {t_s:.12g} s: the reading l = {reading_mm:g} mm has not changed at all for {unchanged_s:.4g} s while "
             f"the command sat at each of the valve's limits for {STUCK_AT_LIMIT_S:g} s or more, which moves a working "
             "muscle by millimetres: the sensor is stuck or disconnected (a DAQ holding its last value?), or the supply "
             "is shut with the muscle at rest. The controller goes on with the reading")

@@ -177,7 +177,7 @@ def pinned_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: 
     # a reading that stayed the same to the bit: at an end stop, or a sensor that froze while the command
     # stayed at one limit, which a stuck-reading check on both limits cannot tell
     stuck = "" if moved else ", or the sensor is stuck (l has not changed at all in that time)"
-    return (f"t = {t_s:g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the error "
+    return (f"t = {t_s:.12g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the error "
             f"r - l = {r_mm - l_mm:.4g} mm pushes it further: the reference (r = {r_mm:g} mm) is out of the rig's "
             f"reach, or the readings l (now {l_mm:g} mm) are in another unit than mm (metres?){stuck}")
 
@@ -279,7 +279,7 @@ class ReachWatch:
         else:
             what = (f"the reading stayed at {l:.4g} mm where r asked {r:.4g} mm: the rig does not come back that far "
                     "(a load or friction holding it, the muscle's rest)")
-        return (f"t = {t_s:g} s: the reference is out of the rig's reach at times: over the last {samples * ts_s:g} s "
+        return (f"t = {t_s:.12g} s: the reference is out of the rig's reach at times: over the last {samples * ts_s:g} s "
                 f"the command sat at the valve's {self.limit_v:g} V for {short * ts_s:.3g} s with the reading "
                 f"still, up to {gap:.3g} mm short: {what}; keep the reference within what the rig reaches "
                 f"({reference})")
@@ -321,7 +321,7 @@ def held_message(t_s: float, limit_v: float, sat_s: float, r_mm: float, l_mm: fl
         (:func:`~fmu_controller.displacement_control.held_against_cause`).
     """
     away = "below" if r_mm > l_mm else "above"
-    return (f"t = {t_s:g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the reading "
+    return (f"t = {t_s:.12g} s: the command has sat at the valve's {limit_v:g} V for {sat_s:.6g} s while the reading "
             f"l = {l_mm:g} mm stays {abs(r_mm - l_mm):.4g} mm {away} the reference r = {r_mm:g} mm, where the other "
             f"way would close the gap: {why}")
 
@@ -420,10 +420,10 @@ class LoopWatch:
             self._check_theta0(said, t_s)
             horizon = self.horizon_past_delay(self.controller.settings.input_delay_samples)
             if horizon:
-                said.append(f"t = {t_s:g} s: {horizon}")
+                said.append(f"t = {t_s:.12g} s: {horizon}")
         self._watch_diverged(said, t_s, l_mm, step.uc_v, step.predicted_next_mm)
         if self.controller.startup_guarded_at == k:
-            said.append(f"t = {t_s:g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up "
+            said.append(f"t = {t_s:.12g} s: the valve command jumped across its range {GUARD_JUMPS} times in the start-up "
                         "mode, whose law runs on theta0: theta0 is a poor fixed law on this rig (an open-loop "
                         "identification's, or another rig's?), or a large reference step came during the start-up. The "
                         "law takes the adaptive estimate from the next sample, as with startup_s = 0 (startup_guard = "
@@ -506,7 +506,7 @@ class LoopWatch:
                                                                       else ""))
         else:
             uses = f"the fixed law predicts with it throughout and will hold the valve at a limit or swing it; {REFINE_IN_CLOSED_LOOP}"
-        said.append(f"t = {t_s:g} s: theta0 runs away: {how} (an unstable model, which can fit one step ahead well: "
+        said.append(f"t = {t_s:.12g} s: theta0 runs away: {how} (an unstable model, which can fit one step ahead well: "
                     f"tapmuscle identify notes a free run that diverged on its record); {uses}")
 
     def _watch_beyond_theta0(self, said: list[str], t_s: float, r: float) -> None:
@@ -518,7 +518,7 @@ class LoopWatch:
         self._beyond_said = True
         if list(c.theta0) != list(THETA0_44N):
             return
-        said.append(f"t = {t_s:g} s: the reference r = {r:.4g} mm is above the {THETA0_44N_HOLDS_MM:g} mm up to which "
+        said.append(f"t = {t_s:.12g} s: the reference r = {r:.4g} mm is above the {THETA0_44N_HOLDS_MM:g} mm up to which "
                     "the fixed predictor THETA0_44N holds (identified on the paper's 5..65 mm sine): beyond, its "
                     "g(l) feeds the motion back with the other sign, and MPC-servo overshoots or swings (on the "
                     "paper's rig a step to 75-90 mm limit-cycles for good; docs/control.md, \"MPC-servo outside its "
@@ -537,7 +537,7 @@ class LoopWatch:
             return
         watched[0] = -1
         if 0.0 < watched[1] < SMALL_REFERENCE_MM:
-            said.append(f"t = {t_s:g} s: the reference r has stayed within {watched[1]:.3g} mm of 0 over the first "
+            said.append(f"t = {t_s:.12g} s: the reference r has stayed within {watched[1]:.3g} mm of 0 over the first "
                         f"{REFERENCE_UNIT_S:g} s, where a muscle's stroke is tens of mm: is it in metres (35 mm is "
                         "0.035 m)? r is in mm; the loop tracks so small a reference to the encoder's resolution, and "
                         "its Eq. (21) error then says nothing of the law")
@@ -582,7 +582,7 @@ class LoopWatch:
                    "the range the loop runs in (tapmuscle.paper.preliminary_theta with refine_offset_mm and "
                    "refine_amplitude_mm; docs/control.md, \"A theta0 for another rig\"), or use an adaptive method"
                    + self._short_horizon())
-        said.append(f"t = {t_s:g} s: the loop does not track: over the last {block[0] * s.ts_s:g} s the reading l was "
+        said.append(f"t = {t_s:.12g} s: the loop does not track: over the last {block[0] * s.ts_s:g} s the reading l was "
                     f"{mean:.3g} mm from the reference on average (r over {r_lo:.4g}..{r_hi:.4g} mm; more than "
                     f"{limit:.3g} mm, the larger of {TRACKING_MM:g} mm and {100 * TRACKING_SHARE:g} % of that range): {why}")
 
@@ -609,7 +609,7 @@ class LoopWatch:
             why = (f"the fixed model {asks}: the reference is out of the rig's reach from the readings l (now {l:g} mm: "
                    "an encoder offset or drift?), the readings are far from the model's, or theta0 is a poor fixed law "
                    "for this rig")
-        said.append(f"t = {t_s:g} s: {why}. The command stays within u_min..u_max.")
+        said.append(f"t = {t_s:.12g} s: {why}. The command stays within u_min..u_max.")
 
     def _in_a_row(self, count: int, now: bool, long_s: float) -> tuple[int, float | None]:
         """:func:`in_a_row` on the controller's sampling period."""
@@ -659,7 +659,7 @@ class LoopWatch:
                 law = ("the fixed predictor theta0 (an open-loop identification's? refine it in closed loop: "
                        "docs/python-api.md, tapmuscle.paper.preliminary_theta)" if not settings.adaptive
                        else "the adaptive law (theta0 or the box C poor for this rig?)")
-                said.append(f"t = {t_s:g} s: the command has jumped across the valve's range {SLAM_JUMPS} times in "
+                said.append(f"t = {t_s:.12g} s: the command has jumped across the valve's range {SLAM_JUMPS} times in "
                             f"{SLAM_WINDOW_S:g} s: {law} slams the valve end to end")
 
     def _watch_swings(self, said: list[str], k: int, t_s: float, u: float, l: float, r: float) -> None:
@@ -717,7 +717,7 @@ class LoopWatch:
                    f"it: check the delay ({check}), raise {gentler}{more} (docs/control.md, \"Transport delay\")")
         else:
             why = "; ".join(self.limit_cycle_causes(l))
-        said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
+        said.append(f"t = {t_s:.12g} s: the valve command has swung from one limit to the other {SWINGS} times in "
                     f"{SLAM_WINDOW_S:g} s, a limit cycle ({runs}): {why}")
 
     def horizon_past_delay(self, d: int) -> str:
@@ -738,7 +738,7 @@ class LoopWatch:
 
     def _decision_text(self, t_s: float, d: int) -> str:
         ts = self.controller.settings.ts_s
-        head = f"t = {t_s:g} s: input_delay_samples = -1 decided for {samples_in_words(d)} ({d * ts:g} s)"
+        head = f"t = {t_s:.12g} s: input_delay_samples = -1 decided for {samples_in_words(d)} ({d * ts:g} s)"
         if d >= AUTO_INPUT_DELAY_SAMPLES:  # the longest -1 scores: the rig's delay may be longer
             return (f"{head}, the longest it decides: the valve may act later still. Set input_delay_samples to the "
                     f"rig's delay over Ts = {ts:g} s, rounded (up to {MAX_INPUT_DELAY_SAMPLES}, "
@@ -790,7 +790,7 @@ class LoopWatch:
             what += ", or a theta0 whose dynamics are slower than this rig's, which looks alike at this ratio"
             advice = (f"confirm it on a recording before changing anything (tapmuscle identify --input-delay-samples "
                       f"auto); where that finds it too, {advice}")
-        said.append(f"t = {t_s:g} s: the measurements show an input delay of {shown}, not the {set_} set "
+        said.append(f"t = {t_s:.12g} s: the measurements show an input delay of {shown}, not the {set_} set "
                     f"(input_delay_samples): theta0's one-step prediction errors are {ratio:.3g} times smaller in "
                     f"mean square under it ({what}); {advice} (docs/control.md, \"Transport delay\")")
 

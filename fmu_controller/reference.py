@@ -175,14 +175,14 @@ class FunctionReference:
         t = k * self.ts_s
         value = self.function(t)
         if np.ndim(value) != 0:
-            raise ValueError(f"reference r(t = {t:g} s) returned an array of shape {np.shape(value)}, not one "
+            raise ValueError(f"reference r(t = {t:.12g} s) returned an array of shape {np.shape(value)}, not one "
                              f"number [mm]")
         try:
             r = float(value)
         except (TypeError, ValueError):
-            raise ValueError(f"reference r(t = {t:g} s) = {value!r} is not a number [mm]") from None
+            raise ValueError(f"reference r(t = {t:.12g} s) = {value!r} is not a number [mm]") from None
         if not math.isfinite(r):
-            raise ValueError(f"reference r(t = {t:g} s) = {r!r} is not finite")
+            raise ValueError(f"reference r(t = {t:.12g} s) = {r!r} is not finite")
         return r
 
     def preview(self, k: int, n: int) -> np.ndarray:

@@ -92,16 +92,16 @@ def run_open_loop(plant: Plant, signal: Callable[[float], float], *, duration_s:
             plant.update(load_n=load_fn(t))
         value = signal(t)
         if np.ndim(value) != 0:
-            raise ValueError(f"input signal u(t = {t:g} s) returned an array of shape {np.shape(value)}, not one "
+            raise ValueError(f"input signal u(t = {t:.12g} s) returned an array of shape {np.shape(value)}, not one "
                              f"command [V]")
         try:
             u = float(value)
         except (TypeError, ValueError):
-            raise ValueError(f"input signal u(t = {t:g} s) = {value!r:.60} is not a number [V]") from None
+            raise ValueError(f"input signal u(t = {t:.12g} s) = {value!r:.60} is not a number [V]") from None
         if not math.isfinite(u):
-            raise ValueError(f"input signal gave a non-finite command {u!r} at t = {t:g} s")
+            raise ValueError(f"input signal gave a non-finite command {u!r} at t = {t:.12g} s")
         if not COMMAND_RANGE_V[0] <= u <= COMMAND_RANGE_V[1]:  # as the plant FMU's input u
-            raise ValueError(f"input signal u(t = {t:g} s) = {u:g} V is outside the {COMMAND_RANGE_V[0]:g}.."
+            raise ValueError(f"input signal u(t = {t:.12g} s) = {u:g} V is outside the {COMMAND_RANGE_V[0]:g}.."
                              f"{COMMAND_RANGE_V[1]:g} V the plant takes (the valve's 0..10 V, clipped within a volt "
                              "beyond): a command in mV or %?")
         out["t_s"][k], out["u_v"][k], out["l_mm"][k], out["p_mpa"][k] = t, u, l_now, p_now

@@ -192,7 +192,7 @@ class MusclePlant(SafeSlave):
         self.l, self.p = m.l_mm, m.p_mpa
         if load < self._lock_n and not self._light_said:  # once: the unpowered muscle then contracts by itself
             self._light_said = True
-            self.log(f"t = {t_s:g} s: {plant.light_load_note(load, 'load_force')}", status=Fmi2Status.warning)
+            self.log(f"t = {t_s:.12g} s: {plant.light_load_note(load, 'load_force')}", status=Fmi2Status.warning)
         if not self._inaccurate_said and plant.forced_substeps:  # once: outputs that look fine may be far off
             self._inaccurate_said = True
             self.log(f"t = {t_s + dt_s:g} s: {plant.accuracy_note()}", status=Fmi2Status.warning)

@@ -175,12 +175,12 @@ def _update_load(plant: Plant, load_fn: Callable[[float], float], t_s: float) ->
     if isinstance(value, np.ndarray) and value.size == 1:  # np.where(t > 1, 68.0, 44.0) gives a 0-d array
         value = value.reshape(())[()]
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"load_n(t) returned {value!r} at t = {t_s:g} s: expected the hanging load [N], a number (a "
+        raise TypeError(f"load_n(t) returned {value!r} at t = {t_s:.12g} s: expected the hanging load [N], a number (a "
                         "function that reaches no return gives None)")
     try:
         plant.update(load_n=value)
     except ValueError as exc:
-        exc.add_note(f"load_n(t) at t = {t_s:g} s")
+        exc.add_note(f"load_n(t) at t = {t_s:.12g} s")
         raise
 
 
@@ -324,7 +324,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                 try:
                     result = controller.step(meas.l_mm, preview)
                 except Exception as exc:
-                    exc.add_note(f"in the law's step at sample k = {k} (t = {t:g} s, l = {meas.l_mm:g} mm, "
+                    exc.add_note(f"in the law's step at sample k = {k} (t = {t:.12g} s, l = {meas.l_mm:g} mm, "
                                  f"r = {float(preview[0]):g} mm; preview_mm of {len(preview)} samples, "
                                  f"r(k..k+{hp}): preview_samples = {hp})")
                     raise

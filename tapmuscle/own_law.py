@@ -240,7 +240,7 @@ def law_command(result: Any, k: int, t_s: float, l_mm: float = math.nan, r_mm: f
     u = getattr(result, "u_v", result)
     if isinstance(u, np.ndarray) and u.size == 1:
         u = u.reshape(())[()]
-    where = f"at sample k = {k} (t = {t_s:g} s, l = {l_mm:g} mm, r = {r_mm:g} mm)"
+    where = f"at sample k = {k} (t = {t_s:.12g} s, l = {l_mm:g} mm, r = {r_mm:g} mm)"
     if isinstance(u, bool) or not isinstance(u, numbers.Real):
         what = f"u_v = {u!r}" if u is not result else repr(result)
         hint = " (a list or tuple of one: return its element)" if isinstance(u, (list, tuple)) and len(u) == 1 else ""
@@ -327,7 +327,7 @@ class ValveWatch:
             self._jump_ks = [j for j in self._jump_ks if j > k - self._window] + [k]
             if len(self._jump_ks) >= SLAM_JUMPS:
                 self._jump_ks = None
-                said.append(f"t = {t_s:g} s: the command has jumped across the valve's range {SLAM_JUMPS} times in "
+                said.append(f"t = {t_s:.12g} s: the command has jumped across the valve's range {SLAM_JUMPS} times in "
                             f"{SLAM_WINDOW_S:g} s: the law slams the valve end to end (a gain too high for the rig?)")
         if abs(r_mm - self._r_last) > REF_STEP_MM_PER_S * self.ts_s:
             self._swings_from = max(self._swings_from, k + settle_samples(self.ts_s))
@@ -349,7 +349,7 @@ class ValveWatch:
         self._swing_ks = [j for j in self._swing_ks if j > k - self._window] + [k]
         if len(self._swing_ks) >= SWINGS:
             self._swing_ks = None
-            said.append(f"t = {t_s:g} s: the valve command has swung from one limit to the other {SWINGS} times in "
+            said.append(f"t = {t_s:.12g} s: the valve command has swung from one limit to the other {SWINGS} times in "
                         f"{SLAM_WINDOW_S:g} s, a limit cycle: the loop has more delay than the law tolerates (a "
                         "transport delay on the rig, or loop_delay_samples = 1, a parallel master's sample), or its "
                         "gain is too high for the rig (docs/control.md, \"A PID baseline\"); or the reference moves "

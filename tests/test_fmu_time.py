@@ -267,3 +267,18 @@ def test_the_start_time_must_be_finite_and_takes_effect_at_initialisation():
         assert [m.category for m in after_reset.log_queue] == ["logEvents"]  # its set-up, status OK
         after_reset.log_queue.clear()
         assert after_reset.do_step(7.0, H) and not after_reset.log_queue
+
+
+def test_messages_at_a_unix_time_start_name_the_time_to_the_sample(fmus, capfd):
+    """From t0 = 1e9 s the FMUs' messages give the time to the sample (twelve significant digits), not
+    to six, which wrote "t = 1e+09 s" in every message of a run."""
+    vr = fmus["AMPCController"][3]
+    f = _start(fmus["AMPCController"], 1e9)
+    f.setReal([vr["l"]], [20.0])
+    for n in range(100):
+        f.doStep(1e9 + n * H, H)
+    _free(f)
+    out = capfd.readouterr().out
+    assert "t = 1000000006 s: the start-up mode's law on theta0 is over" in out, out
+    assert "t = 1000000010 s: 10 s from t = 1000000000 s: 100 samples" in out, out
+    assert "e+09" not in out

@@ -509,7 +509,7 @@ class FmuInstance:
 
     def error(self, what: str, detail: Any, t_s: float | None = None) -> ScenarioError:
         """A ScenarioError for a failed FMI call, with the FMU's last logged messages."""
-        at = "" if t_s is None else f" at t = {t_s:g} s"
+        at = "" if t_s is None else f" at t = {t_s:.12g} s"
         log = "; ".join(self.said(3)) or "no message logged"
         detail = str(detail).rstrip(".")  # fmpy's "... with status 3 (error)." leads the FMU's own text
         return ScenarioError(f"{self.role} FMU ({self.unpacked.path.name}) {what}{at} failed: {detail}: {log}")
@@ -911,7 +911,7 @@ def _loop(scenario: Scenario, plant: FmuInstance, ctrl: FmuInstance, hp: int, re
             ctrl_io.check(status, "fmi2GetReal", t)
         if own is not None and not u_lo <= c_out[0] <= u_hi:  # also NaN
             raise ScenarioError(f"controller FMU ({ctrl.unpacked.path.name}) output {own['command']} = {float(c_out[0])!r} "
-                                f"at t = {t:g} s is not a command the plant's valve takes ({u_var.min}..{u_var.max} V, "
+                                f"at t = {t:.12g} s is not a command the plant's valve takes ({u_var.min}..{u_var.max} V, "
                                 "saturated at 0..10 V)")
         if k + 1 < n:
             p_in[0], p_in[1], p_in[2] = c_out[0], load_k[k], supply_k[k]

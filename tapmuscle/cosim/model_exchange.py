@@ -99,7 +99,7 @@ def _solver_class() -> type:
 
         def _fail(self, name: str, t: float) -> int:
             if self._stepper.failure is None:
-                self._stepper.failure = f"{name} failed at t = {t:g} s"
+                self._stepper.failure = f"{name} failed at t = {t:.12g} s"
             return -1
 
     return Solver
@@ -159,7 +159,7 @@ class ModelExchangeStepper:
         try:
             return fn(*args)
         except Exception as exc:  # noqa: BLE001 - fmpy raises FMICallException
-            raise ModelExchangeError(f"{name} at t = {self.time:g} s failed: {exc}") from None
+            raise ModelExchangeError(f"{name} at t = {self.time:.12g} s failed: {exc}") from None
 
     def _guarded(self, fn: Any, name: str, nan_fill: bool = False) -> Any:
         """``fn`` for use inside CVode's callbacks: a failure is kept (and, for an output array,
@@ -178,7 +178,7 @@ class ModelExchangeStepper:
     def _raise_failure(self) -> None:
         if self.failure is not None:
             message, self.failure = self.failure, None
-            raise ModelExchangeError(f"{message} (near t = {self.time:g} s)")
+            raise ModelExchangeError(f"{message} (near t = {self.time:.12g} s)")
 
     def _event_iteration(self) -> None:
         """fmi2NewDiscreteStates until the FMU needs no more (event mode on entry and on return)."""
@@ -186,11 +186,11 @@ class ModelExchangeStepper:
             needed, terminate, _nom, _val, defined, next_time = self._call("fmi2NewDiscreteStates",
                                                                           self.fmu.newDiscreteStates)
             if terminate:
-                raise ModelExchangeError(f"the FMU asked to terminate at t = {self.time:g} s")
+                raise ModelExchangeError(f"the FMU asked to terminate at t = {self.time:.12g} s")
             if not needed:
                 self.next_event = float(next_time) if defined else math.inf
                 return
-        raise ModelExchangeError(f"fmi2NewDiscreteStates did not converge in 1000 iterations at t = {self.time:g} s")
+        raise ModelExchangeError(f"fmi2NewDiscreteStates did not converge in 1000 iterations at t = {self.time:.12g} s")
 
     def _event(self) -> None:
         """Event mode at the current time, the event iteration, back to continuous time, CVode restarted."""
@@ -211,7 +211,7 @@ class ModelExchangeStepper:
             CVode's message).
         """
         if not (h_s > 0.0 and math.isfinite(h_s)):
-            raise ModelExchangeError(f"communication step {h_s!r} s from t = {t_s:g} s: must be finite and > 0")
+            raise ModelExchangeError(f"communication step {h_s!r} s from t = {t_s:.12g} s: must be finite and > 0")
         self.time = float(t_s)
         self._call("fmi2SetTime", self.fmu.setTime, self.time)
         self._event()
@@ -222,7 +222,7 @@ class ModelExchangeStepper:
                 state_event, _roots, reached = self.solver.step(self.time, target)
             except RuntimeError as exc:
                 self._raise_failure()
-                raise ModelExchangeError(f"integration from t = {self.time:g} s failed: {exc}") from None
+                raise ModelExchangeError(f"integration from t = {self.time:.12g} s failed: {exc}") from None
             self._raise_failure()
             self.time = float(reached)
             self._call("fmi2SetTime", self.fmu.setTime, self.time)
@@ -230,7 +230,7 @@ class ModelExchangeStepper:
             if self._needs_step_call:
                 step_event, terminate = self._call("fmi2CompletedIntegratorStep", self.fmu.completedIntegratorStep)
                 if terminate:
-                    raise ModelExchangeError(f"the FMU asked to terminate at t = {self.time:g} s")
+                    raise ModelExchangeError(f"the FMU asked to terminate at t = {self.time:.12g} s")
             time_event = math.isclose(self.time, self.next_event, rel_tol=0.0, abs_tol=1e-12 * max(1.0, abs(end)))
             if state_event or step_event or time_event:
                 self._event()

@@ -233,7 +233,7 @@ class Replay:
         k = math.floor(t / self.ts_s + 1e-6)  # a time on the grid, to rounding, is its sample's
         if not 0 <= k < len(self.u_v):
             raise ValueError(f"{self.source} holds {len(self.u_v)} commands every {self.ts_s:g} s, from 0 to "
-                             f"{self.duration_s:g} s (time from its first sample): none at t = {t:g} s")
+                             f"{self.duration_s:g} s (time from its first sample): none at t = {t:.12g} s")
         return float(self.u_v[k])
 
 

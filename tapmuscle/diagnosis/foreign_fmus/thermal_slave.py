@@ -224,15 +224,15 @@ class ThermalTwoMass(Fmi2Slave):
             return self._refuse(f"not initialised: bad parameter: {self._error}", Fmi2Status.error)
         h = step_size
         if not (math.isfinite(h) and h > 0.0):
-            return self._refuse(f"t = {current_time:g} s: step size {h!r} must be finite and > 0")
+            return self._refuse(f"t = {current_time:.12g} s: step size {h!r} must be finite and > 0")
         P1, P2 = self.P1, self.P2
         for name, value in (("P1", P1), ("P2", P2)):
             if not math.isfinite(value):
-                return self._refuse(f"t = {current_time:g} s: input {name} = {value!r} W is not finite; "
+                return self._refuse(f"t = {current_time:.12g} s: input {name} = {value!r} W is not finite; "
                                     "the state is unchanged")
         T1, T2 = self._advance(float(P1), float(P2), float(h))
         if not (math.isfinite(T1) and math.isfinite(T2)):
-            return self._refuse(f"t = {current_time:g} s: temperatures overflow (P1 = {P1!r} W, P2 = {P2!r} W); "
+            return self._refuse(f"t = {current_time:.12g} s: temperatures overflow (P1 = {P1!r} W, P2 = {P2!r} W); "
                                 "the state is unchanged")
         self.T1, self.T2 = T1, T2
         return True
