@@ -9,12 +9,16 @@ it under a lock in the run's shared base directory and the others read what it w
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import shutil
 from pathlib import Path
 from typing import Any, Callable
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks of this kind; each process computes its own
+    fcntl = None  # type: ignore[assignment]
 
 __all__ = ["computed_once"]
 
@@ -37,8 +41,11 @@ def computed_once(tmp_path_factory: Any, name: str, make: Callable[[Path], Any])
     Returns
     -------
     object
-        What ``make`` returned, as JSON read it back (the same in every process of the run).
+        What ``make`` returned, as JSON read it back (the same in every process of the run; where the
+        system has no ``fcntl`` locks, Windows, each process computes its own).
     """
+    if fcntl is None:
+        return json.loads(json.dumps(make(tmp_path_factory.mktemp(name))))
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # the workers' base directories are popen-gw0, popen-gw1, ... of the run's
