@@ -2,7 +2,7 @@
 
 A module-scoped fixture is computed again in every worker that runs one of its tests, and again in
 the same worker when work stealing hands it the module's tests after another module's: the paper's
-whole grid (13 s) was computed three times in one run, the Windows C hosts' runs (50 s) twice. What
+whole grid (13 s) can be computed three times in one run, the Windows C hosts' runs (50 s) twice. What
 such a fixture computes depends on nothing but the checkout, so the first worker to need it computes
 it under a lock in the run's shared base directory and the others read what it wrote.
 """

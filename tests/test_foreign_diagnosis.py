@@ -213,7 +213,7 @@ def test_parameters_the_fmu_cannot_run_raise_simulation_error_and_the_instance_r
 def test_cli_runs_a_foreign_fmu_and_reports_bad_map_without_traceback(fmus, tmp_path):
     """The command line on the C motor. The FMU's constants are the recording's (calibration with an
     effect on a foreign FMU is the delay test's, above), so the command runs without its calibration
-    step: the whole search over every boundary effect in a few seconds instead of 1-2 minutes."""
+    step: the whole search over every boundary effect takes seconds (with calibration, 1-2 minutes)."""
     case = _case("DcMotor", "output_drift[omega]", {"omega:offset": 1.0, "omega:drift_per_min": 0.6}, {})
     rec, m = record_foreign_case(case, fmus["DcMotor"], tmp_path / "rec")
     r = subprocess.run([sys.executable, "-m", "tapmuscle.cli", "diagnose", "--recording", str(rec), "--plant",
