@@ -33,6 +33,28 @@ def _temporary_directory_of_the_run(tmp_path_factory):
     tempfile.tempdir = before[1]
 
 
+@pytest.fixture(autouse=True)
+def _sigint_handler_left_as_found(request):
+    """The process's SIGINT handler as each test found it: one a test leaves changed is put back, with
+    a warning naming the test. The next tests of its worker would otherwise run with Ctrl-C ignored,
+    and those that raise a signal and expect KeyboardInterrupt would fail for a neighbour's reason (a
+    library call that did so in a notebook would leave its user without Ctrl-C)."""
+    import signal
+    import threading
+    import warnings
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.getsignal(signal.SIGINT)
+    yield
+    after = signal.getsignal(signal.SIGINT)
+    if after is not before and before is not None:
+        signal.signal(signal.SIGINT, before)
+        warnings.warn(f"{request.node.nodeid} left SIGINT's handler {after!r} (it was {before!r}); put back",
+                      RuntimeWarning, stacklevel=1)
+
+
 @pytest.fixture(scope="session")
 def built_fmus(tmp_path_factory):
     """``{"MusclePlant": path, "AMPCController": path}`` built from this checkout (what a tool missing
