@@ -9,6 +9,7 @@ import sys
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import replace
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -323,6 +324,14 @@ def test_another_client_cannot_use_the_commands_local_cluster():
             assert not isinstance(refused.value, AssertionError)
 
 
+def _wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 120.0) -> None:
+    """Until ``path`` exists; fails with the command's output if it ends or ``timeout_s`` passes first."""
+    deadline = time.monotonic() + timeout_s
+    while not path.is_file():
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.2)
+
+
 def _sweep_in_a_terminal(sweep, out, built_fmus, *, workers: int) -> subprocess.Popen:
     """``tapmuscle sweep`` on its own local cluster in a process group of its own, with a terminal's
     SIGINT disposition (a test run started in the background ignores SIGINT, and its children
@@ -346,10 +355,7 @@ def test_ctrl_c_stops_a_local_cluster_sweep_with_one_message(built_fmus, tmp_pat
     out = tmp_path / "o"
     proc = _sweep_in_a_terminal(sweep, out, built_fmus, workers=2)
     try:
-        deadline = time.monotonic() + 120
-        while not (out / "results.csv").is_file():  # a run finished: the cluster is up and running
-            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-            time.sleep(0.2)
+        _wait_for(out / "results.csv", proc)  # a run finished: the cluster is up and running
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=120)
     finally:
@@ -379,10 +385,7 @@ def test_ctrl_c_ends_a_sweep_whose_fmu_hangs_in_a_step(built_fmus, tmp_path):
     out = tmp_path / "o"
     proc = _sweep_in_a_terminal(sweep, out, built_fmus, workers=1)
     try:
-        deadline = time.monotonic() + 120
-        while not inside.is_file():  # the cluster up and its run inside the step that hangs
-            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
-            time.sleep(0.2)
+        _wait_for(inside, proc)  # the cluster up and its run inside the step that hangs
         time.sleep(0.5)  # into the C call that follows the file's writing
         os.killpg(proc.pid, signal.SIGINT)
         started = time.monotonic()
