@@ -8,10 +8,14 @@ slow"`` is the quick run (about 1-2 min on two cores). The other markers
 """
 
 import os
+import signal
 import sys
 import tempfile
 
 import pytest
+
+#: the SIGINT handler the test process started with (Python's; None: not installed from Python)
+_SIGINT_AT_START = signal.getsignal(signal.SIGINT)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -35,23 +39,28 @@ def _temporary_directory_of_the_run(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def _sigint_handler_left_as_found(request):
-    """The process's SIGINT handler as each test found it: one a test leaves changed is put back, with
-    a warning naming the test. The next tests of its worker would otherwise run with Ctrl-C ignored,
-    and those that raise a signal and expect KeyboardInterrupt would fail for a neighbour's reason (a
-    library call that did so in a notebook would leave its user without Ctrl-C)."""
+    """Every test starts with the SIGINT handler this process started with, and a test that leaves it
+    changed (or a fixture or thread that changed it before the test) is named in a warning. The
+    next tests of the worker would otherwise run with Ctrl-C ignored, and those that raise a signal
+    and expect KeyboardInterrupt would fail for a neighbour's reason (a library call that did so in a
+    notebook would leave its user without Ctrl-C)."""
     import signal
     import threading
     import warnings
 
-    if threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread() or _SIGINT_AT_START is None:
         yield
         return
-    before = signal.getsignal(signal.SIGINT)
+    found = signal.getsignal(signal.SIGINT)
+    if found is not _SIGINT_AT_START:
+        signal.signal(signal.SIGINT, _SIGINT_AT_START)
+        warnings.warn(f"SIGINT's handler was {found!r} when {request.node.nodeid} began (its fixtures set up, "
+                      f"or an earlier test's leftovers): {_SIGINT_AT_START!r} put back", RuntimeWarning, stacklevel=1)
     yield
     after = signal.getsignal(signal.SIGINT)
-    if after is not before and before is not None:
-        signal.signal(signal.SIGINT, before)
-        warnings.warn(f"{request.node.nodeid} left SIGINT's handler {after!r} (it was {before!r}); put back",
+    if after is not _SIGINT_AT_START:
+        signal.signal(signal.SIGINT, _SIGINT_AT_START)
+        warnings.warn(f"{request.node.nodeid} left SIGINT's handler {after!r}; {_SIGINT_AT_START!r} put back",
                       RuntimeWarning, stacklevel=1)
 
 
