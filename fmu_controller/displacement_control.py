@@ -53,6 +53,7 @@ from .hysteresis_model import ASYMMETRIC, ModelState
 from .identification import PAPER_TS_S
 from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import MLS_LENGTH, probe_v
+from .read_only_fields import read_only, settings_hash, settings_reduce
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
 from .servo_settings import MAX_WEIGHT
@@ -465,10 +466,17 @@ class ControllerSettings:
             lower, upper = self.constraint_region()
         except ValueError as exc:
             raise ValueError(f"ControllerSettings: {exc}") from None
-        object.__setattr__(self, "box_lower", {n: float(lower[i]) for i, n in enumerate(ASYMMETRIC.names)
-                                               if n in self.box_lower})
-        object.__setattr__(self, "box_upper", {n: float(upper[i]) for i, n in enumerate(ASYMMETRIC.names)
-                                               if n in self.box_upper})
+        # read-only: a frozen setting's bound cannot be changed in place either
+        object.__setattr__(self, "box_lower", read_only({n: float(lower[i]) for i, n in enumerate(ASYMMETRIC.names)
+                                                         if n in self.box_lower}))
+        object.__setattr__(self, "box_upper", read_only({n: float(upper[i]) for i, n in enumerate(ASYMMETRIC.names)
+                                                         if n in self.box_upper}))
+
+    def __hash__(self) -> int:
+        return settings_hash(self)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return settings_reduce(self)
 
     def constraint_region(self) -> tuple[np.ndarray, np.ndarray]:
         """The box C of Algorithm 1 as lower and upper bounds on Eq. (1)'s parameters, in

@@ -12,7 +12,7 @@ the Table 2 box applies as is.  If the data are rescaled, rescale the box too
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal, Mapping, Sequence
 
@@ -20,6 +20,7 @@ import numpy as np
 
 from .box_projection import BoxProjector, project_onto_box
 from .hysteresis_model import ModelStructure
+from .read_only_fields import read_only, settings_hash, settings_reduce
 
 __all__ = [
     "Regressors",
@@ -104,13 +105,9 @@ def _freeze_bound(name: str, value) -> Mapping[str, float] | tuple[float, ...]:
             if math.isnan(x):
                 raise ValueError(f"{name}[{key!r}] must not be NaN")
             out[key] = x
-        return MappingProxyType(out)
+        return read_only(out)
     return _freeze_vector(name, value, allow_inf=True)
 
-
-def _rls_settings(values: Mapping[str, Any]) -> RLSSettings:
-    """:class:`RLSSettings` from its fields (unpickling, copying)."""
-    return RLSSettings(**values)
 
 #: Where ``covariance_ceiling`` puts the eigenvalues of ``P(-1)^-1/2 P P(-1)^-1/2`` that crossed 1: a
 #: little below the ceiling, so that the clip is needed about once per ``ln(1/0.9)/ln(1/lambda)`` samples.
@@ -242,17 +239,10 @@ class RLSSettings:
             raise ValueError(f"inconsistent vector lengths in settings: {lengths}")
 
     def __hash__(self) -> int:
-        # mapping-valued bounds are unhashable as stored; hash their items
-        def key(b):
-            return tuple(sorted(b.items())) if isinstance(b, Mapping) else b
-        return hash((self.p0, self.theta0, self.forgetting, key(self.box_lower),
-                     key(self.box_upper), self.constraint_start_s, self.ts_s,
-                     self.on_covariance_loss, self.covariance_ceiling))
+        return settings_hash(self)
 
     def __reduce__(self) -> tuple[Any, ...]:
-        # the bounds are read-only views, which pickle and deepcopy cannot take: rebuilt from plain dicts
-        values = {f.name: getattr(self, f.name) for f in fields(self)}
-        return (_rls_settings, ({k: dict(v) if isinstance(v, Mapping) else v for k, v in values.items()},))
+        return settings_reduce(self)
 
     @property
     def constraint_start_index(self) -> float:
