@@ -64,6 +64,19 @@ def _sigint_handler_left_as_found(request):
                       RuntimeWarning, stacklevel=1)
 
 
+@pytest.fixture
+def python_sigint_handler():
+    """Python's own SIGINT handler (KeyboardInterrupt) for the test, the inherited disposition put
+    back after: a test about what Ctrl-C does needs it, and a test run started with SIGINT ignored
+    (nohup, a shell's background job, some CI runners) starts without it."""
+    inherited = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+
+
 @pytest.fixture(scope="session")
 def built_fmus(tmp_path_factory):
     """``{"MusclePlant": path, "AMPCController": path}`` built from this checkout (what a tool missing

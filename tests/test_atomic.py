@@ -111,7 +111,7 @@ def test_a_staged_folder_appears_whole_or_not_at_all(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging folder left
 
 
-def test_a_ctrl_c_in_the_staging_folders_removal_leaves_no_folder(tmp_path, monkeypatch):
+def test_a_ctrl_c_in_the_staging_folders_removal_leaves_no_folder(tmp_path, monkeypatch, python_sigint_handler):
     """A Ctrl-C held down: the first interrupt stops the run, the next lands in the removal of the
     staging folder (here sent from inside it), which is finished; the first is what the caller gets."""
     import shutil
@@ -232,7 +232,8 @@ def test_a_folder_replaced_whole_while_a_file_in_it_is_held_open_is_kept(tmp_pat
 
 
 @pytest.mark.parametrize("owned", [OWNED, None])
-def test_a_ctrl_c_while_the_files_are_put_in_place_is_raised_once_they_are(tmp_path, monkeypatch, owned):
+def test_a_ctrl_c_while_the_files_are_put_in_place_is_raised_once_they_are(tmp_path, monkeypatch, owned,
+                                                                          python_sigint_handler):
     """An interrupt between moving a file aside and recording it would lose the file: Ctrl-C is held
     until the run's files are in place (or the earlier ones back), then raised."""
     import signal

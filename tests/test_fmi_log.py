@@ -78,7 +78,7 @@ def test_a_format_that_would_write_through_an_argument_is_shown_not_formatted():
     assert sink == ["[WARNING] wrote %n bytes, %5.2lln more"]
 
 
-def test_a_ctrl_c_taken_inside_the_logger_is_raised_once_the_fmi_call_returns():
+def test_a_ctrl_c_taken_inside_the_logger_is_raised_once_the_fmi_call_returns(python_sigint_handler):
     """Python may run its SIGINT handler while the logger's target runs, inside an FMI call; the
     KeyboardInterrupt is not lost there (printed as unraisable): it is raised after the call."""
     def interrupted(*_args):
@@ -86,10 +86,6 @@ def test_a_ctrl_c_taken_inside_the_logger_is_raised_once_the_fmi_call_returns():
 
     from tapmuscle.cosim import _fmi_log
 
-    import signal
-
-    # Python's own handler, as in a terminal (a test run in the background ignores SIGINT)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     call = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
                             ctypes.c_char_p)(_fmi_log.address())
     _fmi_log.set_target(interrupted)
@@ -100,4 +96,3 @@ def test_a_ctrl_c_taken_inside_the_logger_is_raised_once_the_fmi_call_returns():
                 pass
     finally:
         _fmi_log.set_target(master._log_formatted)
-        signal.signal(signal.SIGINT, previous)

@@ -20,25 +20,15 @@ import pytest
 from tapmuscle.cosim import PAPER_SCENARIOS
 from tapmuscle.interrupts import HELD, held_interrupts, interrupt_once
 
-pytestmark = pytest.mark.skipif(os.name != "posix", reason="SIGINT sent to a child process (POSIX)")
+# about Python's own SIGINT handler, which a test run started with SIGINT ignored has not; children start
+# with the default disposition (_default_sigint)
+pytestmark = [pytest.mark.skipif(os.name != "posix", reason="SIGINT sent to a child process (POSIX)"),
+              pytest.mark.usefixtures("python_sigint_handler")]
 
 
 def _default_sigint() -> None:
     """SIGINT's default disposition, in a child process (Python then installs its own handler)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-@pytest.fixture(autouse=True)
-def python_sigint_handler():
-    """These tests are about Python's own SIGINT handler; a test run started with SIGINT ignored
-    (nohup, a shell's background job, some CI runners) has none. Installed for each test and the
-    inherited disposition restored after, and children start with the default (``_default_sigint``)."""
-    inherited = signal.getsignal(signal.SIGINT)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, inherited)
 
 
 def test_a_sigint_in_the_block_is_held_then_raised_where_asked_and_the_handler_restored():
