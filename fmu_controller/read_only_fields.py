@@ -18,7 +18,13 @@ __all__ = ["read_only", "settings_hash", "settings_reduce"]
 
 
 def read_only(mapping: Mapping[str, float]) -> Mapping[str, float]:
-    """A read-only view of a copy of ``mapping`` (the caller's own dict stays the caller's)."""
+    """A read-only view of a copy of ``mapping`` (the caller's own dict stays the caller's).
+
+    Parameters
+    ----------
+    mapping : mapping of str to float
+        The values, by name (a bound by parameter name).
+    """
     return MappingProxyType(dict(mapping))
 
 
@@ -27,7 +33,13 @@ def _hashable(value: Any) -> Any:
 
 
 def settings_hash(settings: Any) -> int:
-    """The hash of a frozen dataclass's field values, mappings by their items."""
+    """The hash of a frozen dataclass's field values, mappings by their items.
+
+    Parameters
+    ----------
+    settings : frozen dataclass instance
+        The settings to hash (their ``__hash__``).
+    """
     return hash((type(settings).__name__,) + tuple(_hashable(getattr(settings, f.name)) for f in fields(settings)))
 
 
@@ -37,6 +49,12 @@ def _rebuilt(cls: type, values: Mapping[str, Any]) -> Any:
 
 
 def settings_reduce(settings: Any) -> tuple[Any, ...]:
-    """``__reduce__`` of a frozen dataclass with read-only mapping fields: rebuilt from plain dicts."""
+    """``__reduce__`` of a frozen dataclass with read-only mapping fields: rebuilt from plain dicts.
+
+    Parameters
+    ----------
+    settings : frozen dataclass instance
+        The settings to pickle or copy (their ``__reduce__``).
+    """
     values = {f.name: getattr(settings, f.name) for f in fields(settings) if f.init}
     return (_rebuilt, (type(settings), {k: dict(v) if isinstance(v, Mapping) else v for k, v in values.items()}))
