@@ -725,3 +725,49 @@ def test_a_sweep_without_a_worker_says_so_for_its_progress_report():
     assert executor.waiting() is None  # a worker seen (or not asked yet)
     executor._watch._alone_since = clock.monotonic() - 12.2
     assert executor.waiting() == "no worker connected to the scheduler for 12 s; the sweep stops at 60 s"
+
+
+def test_a_worker_with_other_sources_that_joins_after_the_check_runs_none_of_the_runs(built_fmus, tmp_path):
+    """The workers are checked before the first run; one that joins later and runs other tapmuscle
+    sources (here: a worker whose code digest a preload script sets to another commit's) would
+    compute other numbers into the same results. It refuses each run it is given; the run goes to
+    a worker with the client's sources, no run is lost or failed, and the worker is named once."""
+    import warnings
+
+    from distributed import Client, LocalCluster
+
+    from tapmuscle.cosim import load_scenario
+    from tapmuscle.cosim.distributed_sweep import ClusterWarning, DaskExecutor, FmuFiles, check_workers, make_task
+
+    (tmp_path / "case.toml").write_text("duration_s = 60.0\n")
+    scenario = load_scenario(tmp_path / "case.toml")
+    folder = built_fmus["MusclePlant"].parent
+    fmus = {name: folder / f"{name}.fmu" for name in ("MusclePlant", "AMPCController")}
+    files = FmuFiles.for_scenarios([scenario], fmus)
+    tasks = [make_task(str(seed), replace(scenario, seed=seed), fmus, files) for seed in range(8)]
+    preload = tmp_path / "other_commit.py"
+    preload.write_text("import tapmuscle.cosim.distributed_sweep as ds\n"
+                       "ds._CODE_HERE[:] = [('0123456789ab', '/scratch/old/tapmuscle')]\n")
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        check_workers(client)  # the worker at the start has the client's sources
+        late = subprocess.Popen([sys.executable, "-m", "dask", "worker", cluster.scheduler_address, "--nthreads", "1",
+                                 "--no-nanny", "--no-dashboard", "--preload", str(preload), "--name", "w-old",
+                                 "--local-directory", str(tmp_path / "late")],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            client.wait_for_workers(2, timeout=60)
+            executor = DaskExecutor(client)
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always", ClusterWarning)
+                results = list(executor(tasks, files))
+        finally:
+            _stop(late)
+    assert sorted(r.run_id for r in results) == sorted(t.run_id for t in tasks)
+    assert [r.status for r in results] == ["ok"] * len(tasks), [r.error for r in results]
+    assert late.pid not in {int(r.worker.rsplit(":", 1)[1]) for r in results}
+    (address, why), = executor.refused.items()
+    assert why.startswith(f"worker {address} runs other tapmuscle sources (digest 0123456789ab, from "
+                          "/scratch/old/tapmuscle) than the client")
+    warned = [str(w.message) for w in said if issubclass(w.category, ClusterWarning)]
+    assert len(warned) == 1 and warned[0].startswith(why) and "joined after the sweep's check" in warned[0], warned

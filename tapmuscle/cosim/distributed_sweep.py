@@ -13,7 +13,9 @@ the files' transfer), and each worker process writes each file once into its own
 cache folder, named by the file's SHA-256 (:meth:`FmuFiles.path`), and extracts it once
 (:func:`tapmuscle.cosim.master.unpack` caches per process). A worker process keeps its FMU instances in an
 :class:`~tapmuscle.cosim.master.InstancePool` and resets them (fmi2Reset) between runs instead of
-instantiating anew. Workers must run the same tapmuscle version as the client (docs/sweeps.md).
+instantiating anew. Workers must run the client's tapmuscle sources: checked before the first run
+(:func:`check_workers`) and, by a worker that joins later, before each run it is given (a run refused
+goes to another worker: :class:`DaskExecutor`; docs/sweeps.md).
 
 Executors (:func:`run_serial`, :class:`DaskExecutor`) take the tasks and the FMU files and yield
 results in the order they finish.
@@ -32,6 +34,7 @@ import tempfile
 import threading
 import time
 import uuid
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -45,7 +48,7 @@ from tapmuscle.cosim.spec import FmuSpec, Scenario
 from tapmuscle.cosim.worker_start import check_workers_can_start
 
 __all__ = ["RunTask", "RunResult", "FmuFiles", "make_task", "execute_run", "run_serial", "DaskExecutor",
-           "ClusterError", "check_workers", "dask_client", "probe_scheduler"]
+           "ClusterError", "ClusterWarning", "check_workers", "dask_client", "probe_scheduler"]
 
 _ROLES = (("MusclePlant", "plant"), ("AMPCController", "controller"))
 
@@ -239,12 +242,30 @@ def run_serial(tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]
 _WORKER_POOL: list[InstancePool] = []
 
 
+#: :attr:`RunResult.status` of a run a worker would not do, its sources not the client's: never a
+#: sweep's result (:class:`DaskExecutor` sends the run to another worker).
+REFUSED = "refused"
+
+_CODE_HERE: list[tuple[str, str]] = []
+
+
 def _worker_run(task: RunTask, files: Mapping[str, Any]) -> RunResult:
     """The Dask task: runs on a worker, with that worker process's instance pool; ``files`` is an
-    :class:`FmuFiles`' ``data`` and ``names`` as a plain dict."""
+    :class:`FmuFiles`' ``data`` and ``names`` as a plain dict, and ``client_code``, the client's
+    :func:`_code_and_home`. A worker whose sources are not the client's (one that joined after
+    :func:`check_workers`) runs nothing: a :data:`REFUSED` result whose ``worker`` is its address."""
+    if not _CODE_HERE:
+        _CODE_HERE.append(_code_and_home())
+    client_code = files.get("client_code")
+    if client_code is not None and _CODE_HERE[0][0] != client_code[0]:
+        from distributed import get_worker
+
+        address = get_worker().address
+        return RunResult(task.run_id, REFUSED, error=_other_sources(f"worker {address}", _CODE_HERE[0], client_code),
+                         worker=address)
     if not _WORKER_POOL:
         _WORKER_POOL.append(InstancePool())
-    return execute_run(task, FmuFiles(**files), _WORKER_POOL[0], use_local=False)
+    return execute_run(task, FmuFiles(data=files["data"], names=files["names"]), _WORKER_POOL[0], use_local=False)
 
 
 def _error_text(value: Any) -> str:
@@ -265,7 +286,10 @@ class DaskExecutor:
     retries) or that was cancelled is a ``failed`` result. A cluster lost mid-sweep is not a run's
     failure: the scheduler's connection lost, or no worker connected for ``no_worker_s`` seconds
     (every worker stopped, none restarted), raises :class:`ClusterError`, after the results yielded
-    so far. Leaving the iteration early cancels the tasks not yet finished.
+    so far. Leaving the iteration early cancels the tasks not yet finished. A worker whose tapmuscle
+    sources are not the client's (one that joined after :func:`check_workers`) refuses each run; the
+    run is sent again, to the workers that have not refused one (:attr:`refused`), with a
+    :class:`ClusterWarning` naming the worker once.
 
     Parameters
     ----------
@@ -288,6 +312,9 @@ class DaskExecutor:
         self.client = client
         self.no_worker_s = no_worker_s
         self.one_run_per_thread = one_run_per_thread
+        self.refused: dict[str, str] = {}
+        """Workers that refused a run, their sources not the client's, by address: why (a worker that
+        joined after :func:`check_workers`); no run is sent to them."""
         self._watch: _ClusterWatch | None = None
 
     def waiting(self) -> str | None:
@@ -297,21 +324,26 @@ class DaskExecutor:
         alone = watch.alone_s() if watch is not None else None
         if alone is None:
             return None
-        return f"no worker connected to the scheduler for {alone:.0f} s; the sweep stops at {self.no_worker_s:g} s"
+        who = "no worker with the client's tapmuscle sources" if self.refused else "no worker"
+        return f"{who} connected to the scheduler for {alone:.0f} s; the sweep stops at {self.no_worker_s:g} s"
 
     def ship(self, files: FmuFiles, tag: str) -> Any:
         """The future of ``files`` on the cluster, what :func:`_worker_run` takes (module docstring)."""
         # dict, a builtin: the files' task runs on any worker, whatever it can import (no client paths)
-        return self.client.submit(dict, {"data": dict(files.data), "names": dict(files.names)}, pure=False,
-                                  key=f"tapmuscle-fmus-{tag}")
+        return self.client.submit(dict, {"data": dict(files.data), "names": dict(files.names),
+                                         "client_code": _code_and_home()}, pure=False, key=f"tapmuscle-fmus-{tag}")
+
+    def _usable(self) -> dict[str, int]:
+        """The connected workers that have not refused a run, by address, with their threads (none
+        where the connection went while asking: the cluster watch says so)."""
+        try:
+            return {w: n for w, n in self.client.nthreads().items() if w not in self.refused}
+        except Exception:  # noqa: BLE001
+            return {}
 
     def _threads(self) -> int:
-        """The connected workers' threads (0 where the connection went while asking: the cluster
-        watch says so)."""
-        try:
-            return sum(self.client.nthreads().values())
-        except Exception:  # noqa: BLE001
-            return 0
+        """The usable workers' threads."""
+        return sum(self._usable().values())
 
     def __call__(self, tasks: Sequence[RunTask], files: FmuFiles) -> Iterator[RunResult]:
         from distributed import as_completed
@@ -322,20 +354,30 @@ class DaskExecutor:
         shipped = self.ship(files, tag)
         waiting = list(tasks)  # not submitted yet
         futures: dict[Any, RunTask] = {}
+        refusals: dict[str, int] = {}  # run id -> times a worker refused it
         pending = as_completed([], with_results=True, raise_errors=False)
         # Dask's own queue (root-ish tasks: a group of more than twice the cluster's threads) or ours
         windowed = self.one_run_per_thread and len(tasks) <= 2 * self._threads()
 
         def submit() -> None:
-            batch = waiting[:max(self._threads() - len(futures), 0)] if windowed else waiting[:]
+            usable = self._usable() if self.refused or windowed else {}
+            if self.refused and not usable:
+                return  # every worker has other sources: the runs wait for one that has the client's
+            batch = waiting[:max(sum(usable.values()) - len(futures), 0)] if windowed else waiting[:]
             if batch:
                 del waiting[:len(batch)]
-                submitted = self.client.map(_worker_run, batch, [shipped] * len(batch), pure=False,
-                                            key=[f"tapmuscle-run-{task.run_id}-{tag}" for task in batch])
+                # once a worker refused: the others only, as Dask would send it run after run (it
+                # finishes them at once); loose, so that a run whose every listed worker left goes to
+                # one that joined since (and comes back here if that one refuses it too)
+                where = {"workers": sorted(usable), "allow_other_workers": True} if self.refused else {}
+                # a run sent again is a new task: a key of its own
+                submitted = self.client.map(_worker_run, batch, [shipped] * len(batch), pure=False, **where,
+                                            key=[f"tapmuscle-run-{task.run_id}-{tag}" + (f"-{refusals[task.run_id]}" if
+                                                 refusals.get(task.run_id) else "") for task in batch])
                 futures.update(zip(submitted, batch))
                 pending.update(submitted)
 
-        watch = self._watch = _ClusterWatch(self.client, self.no_worker_s, len(tasks))
+        watch = self._watch = _ClusterWatch(self.client, self.no_worker_s, len(tasks), self.refused)
         try:
             submit()
             submitted_at = time.monotonic()
@@ -352,6 +394,12 @@ class DaskExecutor:
                     continue
                 for future, value in batch:
                     task = futures.pop(future)
+                    if isinstance(value, RunResult) and value.status == REFUSED:
+                        self._refuse(value)
+                        future.release()
+                        refusals[task.run_id] = refusals.get(task.run_id, 0) + 1
+                        waiting.insert(0, task)  # to a worker with the client's sources
+                        continue
                     # by what came back, not the future's status: a worker that dies after a run
                     # finished (another run crashed it) changes the status of a result already here
                     if isinstance(value, RunResult):
@@ -369,13 +417,27 @@ class DaskExecutor:
             self.client.cancel(list(futures))
             shipped.release()
 
+    def _refuse(self, refusal: RunResult) -> None:
+        """Send no more runs to the worker that refused one, and say so once (a warning)."""
+        if refusal.worker not in self.refused:
+            self.refused[refusal.worker] = refusal.error
+            warnings.warn(f"{refusal.error}; it joined after the sweep's check of the workers: its runs go to the "
+                          "others (docs/sweeps.md, 'Pointing a sweep at a real cluster')", ClusterWarning, stacklevel=2)
+
+
+class ClusterWarning(UserWarning):
+    """A worker that joined a sweep's cluster after its check and runs other tapmuscle sources than the
+    client: no run is sent to it (:class:`DaskExecutor`)."""
+
 
 class _ClusterWatch:
     """Whether a client still has a cluster to run on: its scheduler connected and, within
-    ``no_worker_s`` seconds of the last one leaving, a worker (asked at most once a second)."""
+    ``no_worker_s`` seconds of the last one leaving, a worker that has not refused a run (``refused``,
+    by address; asked at most once a second)."""
 
-    def __init__(self, client: Any, no_worker_s: float, n_tasks: int) -> None:
+    def __init__(self, client: Any, no_worker_s: float, n_tasks: int, refused: Mapping[str, str] | None = None) -> None:
         self.client, self.no_worker_s, self.n_tasks = client, no_worker_s, n_tasks
+        self.refused = refused if refused is not None else {}
         self._asked, self._alone_since = -math.inf, None
 
     def alone_s(self) -> float | None:
@@ -402,7 +464,7 @@ class _ClusterWatch:
             return
         self._asked = now
         try:
-            workers = len(self.client.scheduler_info().get("workers", {}))
+            workers = set(self.client.scheduler_info().get("workers", {})) - set(self.refused)
         except Exception:  # noqa: BLE001 - the connection went while asking: said at the next check
             return
         if workers:
@@ -410,8 +472,13 @@ class _ClusterWatch:
             return
         self._alone_since = self._alone_since or now
         if now - self._alone_since >= self.no_worker_s:
-            raise lost(f"no worker has been connected to the scheduler {self.client.scheduler.address} for "
-                       f"{self.no_worker_s:g} s", f"start workers (dask worker {self.client.scheduler.address})")
+            address = self.client.scheduler.address
+            if self.refused:
+                raise lost(f"no worker with the client's tapmuscle sources has been connected to the scheduler "
+                           f"{address} for {self.no_worker_s:g} s ({'; '.join(self.refused.values())})",
+                           f"give the workers the client's tapmuscle (or start ones that have it: dask worker {address})")
+            raise lost(f"no worker has been connected to the scheduler {address} for "
+                       f"{self.no_worker_s:g} s", f"start workers (dask worker {address})")
 
 
 class ClusterError(OSError):
@@ -539,11 +606,16 @@ def check_workers(client: Any) -> None:
         elif isinstance(code, BaseException) or code is None:
             problems.append(f"{named} cannot tell its tapmuscle's sources: {type(code).__name__}: {code}")
         elif code[0] != my_digest:
-            problems.append(f"{named} runs other tapmuscle sources (digest {code[0]}, from {code[1]}) than the client "
-                            f"(digest {my_digest}, from {my_home}): another commit or a local change")
+            problems.append(_other_sources(named, code, (my_digest, my_home)))
     if problems:
         raise ClusterError("; ".join(problems) + " (every worker needs the client's tapmuscle and its dependencies: "
                            "docs/sweeps.md, 'Pointing a sweep at a real cluster')")
+
+
+def _other_sources(named: str, code: Sequence[str], client_code: Sequence[str]) -> str:
+    """What is said of a worker whose ``(digest, folder)`` of its tapmuscle is not the client's."""
+    return (f"{named} runs other tapmuscle sources (digest {code[0]}, from {code[1]}) than the client "
+            f"(digest {client_code[0]}, from {client_code[1]}): another commit or a local change")
 
 
 @contextmanager
