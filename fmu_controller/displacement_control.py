@@ -51,6 +51,7 @@ from .argument_checks import real_number, whole_number
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .identification import PAPER_TS_S
+from .methods import METHOD_CODES, METHODS
 from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import MLS_LENGTH, probe_v
 from .read_only_fields import read_only, settings_hash, settings_reduce
@@ -70,9 +71,6 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController"]
 
-METHODS = ("mpc_ucp", "mpc_servo", "ampc_ucp", "ampc_servo")
-#: The controller FMU's ``method`` parameter (an Integer) -> method name.
-METHOD_CODES: dict[int, str] = {i + 1: m for i, m in enumerate(METHODS)}
 
 #: ``input_delay_samples = -1``: the largest delay [samples] it scores and may decide, and the
 #: reference samples beyond ``Hp`` it takes (:func:`preview_lead`): 0.5 s at the paper's Ts = 0.1 s. At a

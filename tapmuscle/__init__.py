@@ -50,7 +50,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "FunctionReference": ("fmu_controller.reference", "FunctionReference"),
     "simulate_closed_loop": ("tapmuscle.api", "simulate_closed_loop"),
     "run_closed_loop": ("tapmuscle.closed_loop", "run_closed_loop"),
-    "eq21_error_mm": ("tapmuscle.closed_loop", "eq21_error_mm"),
+    "eq21_error_mm": ("tapmuscle.tracking_metrics", "eq21_error_mm"),
     "ClosedLoopWarning": ("tapmuscle.closed_loop", "ClosedLoopWarning"),
     "ControlLaw": ("tapmuscle.own_law", "ControlLaw"),
     "ValveWatch": ("tapmuscle.own_law", "ValveWatch"),

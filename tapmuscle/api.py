@@ -215,7 +215,7 @@ def simulate_closed_loop(method: str | ControlLaw = "ampc_servo", reference: Any
         ``t_s, r_mm, l_mm, u_v, p_mpa, load_n, l_pred_mm, pred_error_mm, uc_v, h_mm, xs_mm`` and
         ``theta_<name>`` for Eq. (1)'s 15 parameters; one row per sample (a law of your own's: ``t_s,
         r_mm, l_mm, l_true_mm, u_v, p_mpa, load_n``). Score with
-        :func:`tapmuscle.closed_loop.eq21_error_mm` (Eq. (21)).
+        :func:`tapmuscle.tracking_metrics.eq21_error_mm` (Eq. (21)).
 
     Examples
     --------

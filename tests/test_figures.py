@@ -218,7 +218,7 @@ def test_runs_of_other_lengths_and_periods_plot_beside_each_other(monkeypatch, t
     """A 0.05-s run and a 60-s run beside a 45-s one: each run's own samples scale the error axis (one
     run's time mask on another's samples is an IndexError); the window defaults to Eq. (21)'s; a law's
     commands of hundreds of volts leave the valve's range in view."""
-    from tapmuscle.closed_loop import EQ21_WINDOW_S
+    from tapmuscle.tracking_metrics import EQ21_WINDOW_S
 
     saved = _drawn(monkeypatch)
 
@@ -234,9 +234,6 @@ def test_runs_of_other_lengths_and_periods_plot_beside_each_other(monkeypatch, t
     assert ax_u.get_ylim() == (-1.0, 11.0)
     shaded = [p for p in ax_e.patches]
     assert shaded and shaded[0].get_x() == pytest.approx(EQ21_WINDOW_S[0])
-    from tapmuscle.plots.figures import _EQ21_WINDOW_S
-
-    assert _EQ21_WINDOW_S == EQ21_WINDOW_S  # the plots' copy of the window (a layer below closed_loop)
     with pytest.raises(ValueError, match="at least one run"):
         plot_tracking({}, tmp_path / "none.png")
     assert not (tmp_path / "none.png").exists()

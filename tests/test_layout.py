@@ -22,7 +22,8 @@ import pytest
 from fmpy_helpers import host_lines
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ["tapmuscle.errors", "tapmuscle.provenance", "tapmuscle.interrupts", "tapmuscle.progress", "tapmuscle.io",
+LAYERS = ["tapmuscle.errors", "tapmuscle.provenance", "tapmuscle.interrupts", "tapmuscle.progress", "tapmuscle.tracking_metrics",
+          "tapmuscle.io",
           "tapmuscle.plots", "tapmuscle.own_law",
           "tapmuscle.closed_loop", "tapmuscle.soak",
           "tapmuscle.cosim",
@@ -105,6 +106,19 @@ def test_each_fmus_numerics_stand_alone_and_know_nothing_of_fmi(path):
            if mod == other or mod.startswith(other + ".")
            or (name not in FMI_SHELLS and any(mod == f or mod.startswith(f + ".") for f in fmi))]
     assert not bad, f"{path.relative_to(ROOT)} imports beyond its own numerics: " + "; ".join(bad)
+
+
+@pytest.mark.parametrize("module", ["tapmuscle.cosim.master", "tapmuscle.cosim.spec", "tapmuscle.cosim.expect"])
+def test_running_fmus_loads_none_of_the_controllers_numerics(module):
+    """The co-simulation master, a scenario's reading and its metrics drive and score FMUs: a process
+    that only does that (a foreign FMU's master, a Dask worker, a host under valgrind) loads neither the
+    controllers (osqp, scipy.sparse) nor the direct closed loop, which the FMU carries in its own copy."""
+    code = (f"import sys, {module}\n"
+            "print(sorted(m for m in ('osqp', 'scipy', 'fmu_controller.displacement_control', 'tapmuscle.closed_loop')"
+            " if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "[]", f"import {module} loaded {done.stdout.strip()}"
 
 
 def test_the_checker_sees_upward_imports_in_every_form():

@@ -25,7 +25,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from tapmuscle.closed_loop import eq21_error_mm
+from tapmuscle.tracking_metrics import eq21_error_mm
 
 from tapmuscle.cosim.spec import Scenario, ScenarioError
 

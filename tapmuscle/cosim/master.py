@@ -55,7 +55,7 @@ import numpy as np
 import pythonfmu  # noqa: F401
 
 from fmi_slave.base import BOUND_ROUNDING
-from fmu_controller.displacement_control import METHOD_CODES
+from fmu_controller.methods import METHOD_CODES
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.reference import REFERENCE_SOURCES, SineReference, advanced_lead
 

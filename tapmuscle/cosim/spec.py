@@ -66,9 +66,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-from fmu_controller.displacement_control import METHODS
+from fmu_controller.methods import METHODS
 from fmu_plant.seed import SEED_MAX
-from tapmuscle.closed_loop import eq21_window
+from tapmuscle.tracking_metrics import eq21_window
 from tapmuscle.errors import TapmuscleError
 from tapmuscle.io.identification_file import IdentificationFileError, read_identification
 from tapmuscle.io.plant_file import PlantFileError, read_plant_file

@@ -23,7 +23,7 @@ from typing import Mapping, Sequence
 
 from fmu_controller.argument_checks import sampling_period
 from fmu_controller.box_projection import named_box
-from fmu_controller.displacement_control import METHODS
+from fmu_controller.methods import METHODS
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S, units_note
 from fmu_controller.rls import TABLE2_LOWER, TABLE2_UPPER

@@ -28,6 +28,7 @@ from matplotlib.figure import Figure
 from fmu_controller.hysteresis_model import THETA_UNITS
 from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.io.atomic import atomic_path
+from tapmuscle.tracking_metrics import EQ21_WINDOW_S
 
 __all__ = ["MissingGlyphWarning", "new_figure", "save_figure", "plot_recording", "plot_parameter_convergence",
            "plot_input_delay_fits", "plot_model_vs_measured",
@@ -468,10 +469,6 @@ def _legend_above(ax: Any, ncol: int) -> None:
               borderaxespad=0.0)
 
 
-#: Eq. (21)'s window [s], 10.1..40.1 s (``tapmuscle.closed_loop.EQ21_WINDOW_S``, a layer above): shaded.
-_EQ21_WINDOW_S = (10.1, 40.1)
-
-
 def _run_columns(name: str, cols: Mapping[str, Any], keys: Sequence[str]) -> dict[str, np.ndarray]:
     """A run's ``keys`` as 1-D float arrays of one length (lists, a notebook's columns), or a
     ValueError naming the run and the column; other columns as given."""
@@ -524,7 +521,7 @@ def plot_tracking(runs: dict[str, dict[str, np.ndarray]], path: str | os.PathLik
     if not runs:
         raise ValueError("plot_tracking needs at least one run")
     runs = {name: _run_columns(name, cols, ("t_s", "r_mm", "l_mm", "u_v")) for name, cols in runs.items()}
-    window_s = _EQ21_WINDOW_S if window_s is None else window_s
+    window_s = EQ21_WINDOW_S if window_s is None else window_s  # shaded
     fig, (ax, ax_e, ax_u) = new_figure(3, 1, figsize=(11, 8), sharex=True,
                                        gridspec_kw={"height_ratios": (2.2, 1, 1)})
     first = next(iter(runs.values()))

@@ -9,7 +9,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from fmu_controller.displacement_control import METHODS
+from fmu_controller.methods import METHODS
 
 from tapmuscle.plots.figures import new_figure, save_figure
 
