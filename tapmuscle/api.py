@@ -443,7 +443,8 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
     ScenarioError
         A bad sweep file or parameter (named), or ``out`` holding another sweep's results.
     ClusterError
-        ``client``'s workers cannot run tapmuscle (each named, with what it lacks), a local cluster's
+        None of ``client``'s workers can run tapmuscle (each named, with what it lacks; one that cannot
+        beside others that can gets no run, warned of as a ``ClusterWarning``), a local cluster's
         processes did not start (a script calling this outside ``if __name__ == "__main__":``), or the
         cluster was lost mid-sweep (its scheduler, or every worker for a minute): the finished runs
         are kept in ``results.csv``, and calling again goes on.
@@ -470,8 +471,7 @@ def sweep(sweep: Any, out: str | Path, *, fmus: Mapping[str, str | Path] | None 
     given = _fmus_argument(fmus, [run.scenario for run in sw.runs])
     with ExitStack() as stack:
         if client is not None:
-            check_workers(client)
-            execute = DaskExecutor(client)
+            execute = DaskExecutor(client, refused=check_workers(client))
         elif workers:
             execute = DaskExecutor(stack.enter_context(dask_client(workers)), one_run_per_thread=True)
         else:

@@ -178,8 +178,11 @@ def test_a_port_that_is_no_schedulers_is_named_within_the_timeout(tmp_path, caps
 def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
     """A worker without osqp, with another tapmuscle, or with the same version's other sources (another
     commit, a local edit) would fail each run it took or compute other numbers: each is named, by
-    address and by the name its admin gave it, with what it lacks or where its code is, before any run."""
-    from tapmuscle.cosim.distributed_sweep import ClusterError, _code_and_home, check_workers
+    address and by the name its admin gave it, with what it lacks or where its code is, before any run;
+    the sweep runs on the others, and a cluster none of whose workers can is refused."""
+    import warnings
+
+    from tapmuscle.cosim.distributed_sweep import ClusterError, ClusterWarning, DaskExecutor, _code_and_home, _code_here, check_workers
 
     mine = _code_and_home()
 
@@ -189,7 +192,7 @@ def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
             if function is exec:
                 return {"tcp://a:1": None, "tcp://b:2": ModuleNotFoundError("No module named 'osqp'"),
                         "tcp://c:3": None, "tcp://d:4": None}
-            if function is _code_and_home:
+            if function is _code_here:
                 return {"tcp://a:1": mine, "tcp://b:2": mine, "tcp://c:3": mine,
                         "tcp://d:4": ("0123456789ab", "/scratch/old/tapmuscle")}
             return {w: function(*args) for w in ("tcp://a:1", "tcp://b:2", "tcp://d:4")} | {"tcp://c:3": "0.0.1"}
@@ -198,9 +201,24 @@ def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
             return {"workers": {"tcp://a:1": {"name": "tcp://a:1"}, "tcp://b:2": {"name": 0},
                                 "tcp://c:3": {"name": "gpu-node"}, "tcp://d:4": {"name": "w-old"}}}
 
+    problems = check_workers(Client())
+    assert sorted(problems) == ["tcp://b:2", "tcp://c:3", "tcp://d:4"]  # tcp://a:1 can: the sweep runs there
+    with warnings.catch_warnings(record=True) as warned:
+        warnings.simplefilter("always", ClusterWarning)
+        executor = DaskExecutor(Client(), refused=problems)
+    assert executor.refused == problems and len(warned) == 3
+    assert all(str(w.message).startswith(problems[a]) and "no run is sent to it" in str(w.message)
+               for w, a in zip(warned, sorted(problems)))
+    said = "; ".join(problems.values())
+
+    class NoneCan(Client):
+        def run(self, function, *args, on_error):
+            got = super().run(function, *args, on_error=on_error)
+            return {w: v for w, v in got.items() if w != "tcp://a:1"}
+
     with pytest.raises(ClusterError) as err:
-        check_workers(Client())
-    said = str(err.value)
+        check_workers(NoneCan())
+    assert str(err.value).startswith(said) and "every worker needs the client's tapmuscle" in str(err.value)
 
     class Empty:
         def run(self, *args, **kwargs):
@@ -727,11 +745,12 @@ def test_a_sweep_without_a_worker_says_so_for_its_progress_report():
     assert executor.waiting() == "no worker connected to the scheduler for 12 s; the sweep stops at 60 s"
 
 
-def test_a_worker_with_other_sources_that_joins_after_the_check_runs_none_of_the_runs(built_fmus, tmp_path):
-    """The workers are checked before the first run; one that joins later and runs other tapmuscle
-    sources (here: a worker whose code digest a preload script sets to another commit's) would
-    compute other numbers into the same results. It refuses each run it is given; the run goes to
-    a worker with the client's sources, no run is lost or failed, and the worker is named once."""
+def test_a_worker_with_other_sources_runs_none_of_the_runs(built_fmus, tmp_path, capsys):
+    """A worker that runs other tapmuscle sources (here: one whose code digest a preload script sets to
+    another commit's) would compute other numbers into the same results. One that joins after the
+    check refuses each run it is given: the run goes to a worker with the client's sources, no run is
+    lost or failed, and the worker is named once. One there at the check (the command's next sweep)
+    is named and given no run; the others run the sweep."""
     import warnings
 
     from distributed import Client, LocalCluster
@@ -761,8 +780,19 @@ def test_a_worker_with_other_sources_that_joins_after_the_check_runs_none_of_the
             with warnings.catch_warnings(record=True) as said:
                 warnings.simplefilter("always", ClusterWarning)
                 results = list(executor(tasks, files))
+            sweep = tmp_path / "sweep.toml"
+            sweep.write_text(SWEEP)
+            capsys.readouterr()
+            assert main(["sweep", str(sweep), "--scheduler", cluster.scheduler_address, "--out", str(tmp_path / "o"),
+                         "--fmu-dir", str(folder), "--no-plots"]) == 0
+            told = capsys.readouterr().err
         finally:
             _stop(late)
+    rows = _rows(tmp_path / "o" / "results.csv")
+    assert len(rows) == 4 and all(r["status"] == "ok" for r in rows.values()), rows
+    assert late.pid not in {int(r["worker"].rsplit(":", 1)[1]) for r in rows.values()}
+    assert re.search(r"warning: worker tcp://\S+ \(w-old\) runs other tapmuscle sources \(digest 0123456789ab, "
+                     r"from /scratch/old/tapmuscle\) than the client .*: no run is sent to it", told), told
     assert sorted(r.run_id for r in results) == sorted(t.run_id for t in tasks)
     assert [r.status for r in results] == ["ok"] * len(tasks), [r.error for r in results]
     assert late.pid not in {int(r.worker.rsplit(":", 1)[1]) for r in results}

@@ -78,7 +78,7 @@ def _dashboard(client: Any) -> str | None:
 def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     """In this process (``--workers 0`` without ``--scheduler``) or on Dask (a local cluster of
     ``--workers`` processes, or the cluster of ``--scheduler``)."""
-    from tapmuscle.cosim.distributed_sweep import ClusterError, DaskExecutor, dask_client, run_serial
+    from tapmuscle.cosim.distributed_sweep import ClusterError, DaskExecutor, check_workers, dask_client, run_serial
 
     if not args.scheduler and args.workers == 0:
         return run_serial
@@ -98,6 +98,8 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
             log.setLevel(level)
     try:
         client = stack.enter_context(dask_client(args.workers, args.scheduler, wait_s=args.timeout))
+        # the workers of a cluster of one's own may run other code; the command's own run this process's
+        refused = check_workers(client) if args.scheduler else {}
     except ClusterError as exc:  # what is wrong, said
         raise UsageError(f"{where}: {exc}") from None
     except OSError as exc:  # includes TimeoutError
@@ -109,7 +111,7 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
               file=sys.stderr)
     # the command's own cluster: one run per worker thread at a time; a scheduler of one's own gets them
     # all (its adaptive scaling sees the backlog)
-    return DaskExecutor(client, no_worker_s=args.timeout, one_run_per_thread=not args.scheduler)
+    return DaskExecutor(client, no_worker_s=args.timeout, one_run_per_thread=not args.scheduler, refused=refused)
 
 
 # ------------------------------------------------------------------------------------------ sweep

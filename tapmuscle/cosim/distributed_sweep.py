@@ -249,19 +249,24 @@ REFUSED = "refused"
 _CODE_HERE: list[tuple[str, str]] = []
 
 
+def _code_here() -> tuple[str, str]:
+    """:func:`_code_and_home` of this process, taken once: what a worker is checked by and runs with."""
+    if not _CODE_HERE:
+        _CODE_HERE.append(_code_and_home())
+    return _CODE_HERE[0]
+
+
 def _worker_run(task: RunTask, files: Mapping[str, Any]) -> RunResult:
     """The Dask task: runs on a worker, with that worker process's instance pool; ``files`` is an
     :class:`FmuFiles`' ``data`` and ``names`` as a plain dict, and ``client_code``, the client's
     :func:`_code_and_home`. A worker whose sources are not the client's (one that joined after
     :func:`check_workers`) runs nothing: a :data:`REFUSED` result whose ``worker`` is its address."""
-    if not _CODE_HERE:
-        _CODE_HERE.append(_code_and_home())
     client_code = files.get("client_code")
-    if client_code is not None and _CODE_HERE[0][0] != client_code[0]:
+    if client_code is not None and _code_here()[0] != client_code[0]:
         from distributed import get_worker
 
         address = get_worker().address
-        return RunResult(task.run_id, REFUSED, error=_other_sources(f"worker {address}", _CODE_HERE[0], client_code),
+        return RunResult(task.run_id, REFUSED, error=_other_sources(f"worker {address}", _code_here(), client_code),
                          worker=address)
     if not _WORKER_POOL:
         _WORKER_POOL.append(InstancePool())
@@ -286,10 +291,11 @@ class DaskExecutor:
     retries) or that was cancelled is a ``failed`` result. A cluster lost mid-sweep is not a run's
     failure: the scheduler's connection lost, or no worker connected for ``no_worker_s`` seconds
     (every worker stopped, none restarted), raises :class:`ClusterError`, after the results yielded
-    so far. Leaving the iteration early cancels the tasks not yet finished. A worker whose tapmuscle
-    sources are not the client's (one that joined after :func:`check_workers`) refuses each run; the
-    run is sent again, to the workers that have not refused one (:attr:`refused`), with a
-    :class:`ClusterWarning` naming the worker once.
+    so far. Leaving the iteration early cancels the tasks not yet finished. No run is sent to the
+    workers of ``refused`` (what :func:`check_workers` found); a worker whose tapmuscle sources are
+    not the client's and that joined later refuses each run, which is sent again, to the workers
+    that have not refused one (:attr:`refused`). Each such worker is named once in a
+    :class:`ClusterWarning`.
 
     Parameters
     ----------
@@ -306,15 +312,21 @@ class DaskExecutor:
         as one finishes (a round trip through this client per run, which the scheduler's own queue
         saves a larger sweep). False (a cluster of one's own): every run at once, so that an adaptive
         cluster sees the backlog and grows.
+    refused : mapping of str to str, optional
+        Workers to send no run to, by address: why (what :func:`check_workers` returns), each warned
+        of (:class:`ClusterWarning`).
     """
 
-    def __init__(self, client: Any, *, no_worker_s: float = 60.0, one_run_per_thread: bool = False) -> None:
+    def __init__(self, client: Any, *, no_worker_s: float = 60.0, one_run_per_thread: bool = False,
+                 refused: Mapping[str, str] | None = None) -> None:
         self.client = client
         self.no_worker_s = no_worker_s
         self.one_run_per_thread = one_run_per_thread
         self.refused: dict[str, str] = {}
-        """Workers that refused a run, their sources not the client's, by address: why (a worker that
-        joined after :func:`check_workers`); no run is sent to them."""
+        """Workers no run is sent to, by address: why (what :func:`check_workers` found, or a worker
+        that joined after it and refused a run, its sources not the client's)."""
+        for address, why in (refused or {}).items():
+            self._refuse(RunResult("", REFUSED, error=why, worker=address), joined_later=False)
         self._watch: _ClusterWatch | None = None
 
     def waiting(self) -> str | None:
@@ -417,17 +429,18 @@ class DaskExecutor:
             self.client.cancel(list(futures))
             shipped.release()
 
-    def _refuse(self, refusal: RunResult) -> None:
-        """Send no more runs to the worker that refused one, and say so once (a warning)."""
+    def _refuse(self, refusal: RunResult, joined_later: bool = True) -> None:
+        """Send no more runs to the worker of ``refusal``, and say so once (a warning)."""
         if refusal.worker not in self.refused:
             self.refused[refusal.worker] = refusal.error
-            warnings.warn(f"{refusal.error}; it joined after the sweep's check of the workers: its runs go to the "
-                          "others (docs/sweeps.md, 'Pointing a sweep at a real cluster')", ClusterWarning, stacklevel=2)
+            when = "; it joined after the sweep's check of the workers" if joined_later else ""
+            warnings.warn(f"{refusal.error}{when}: no run is sent to it, the others run them (docs/sweeps.md, "
+                          "'Pointing a sweep at a real cluster')", ClusterWarning, stacklevel=3)
 
 
 class ClusterWarning(UserWarning):
-    """A worker that joined a sweep's cluster after its check and runs other tapmuscle sources than the
-    client: no run is sent to it (:class:`DaskExecutor`)."""
+    """A worker of a sweep's cluster that cannot run the client's tapmuscle (:func:`check_workers`), or
+    that joined after that check and runs other sources: no run is sent to it (:class:`DaskExecutor`)."""
 
 
 class _ClusterWatch:
@@ -558,22 +571,29 @@ def _code_and_home() -> tuple[str, str]:
     return code_digest(), str(Path(__file__).resolve().parents[1])
 
 
-def check_workers(client: Any) -> None:
-    """Check that every worker of ``client``'s cluster imports tapmuscle's run code, the client's
+def check_workers(client: Any) -> dict[str, str]:
+    """Check that the workers of ``client``'s cluster import tapmuscle's run code, the client's
     code, before any run: a worker without osqp (say) would fail each run it took, and one of
     another version, or of the same version with other sources (another commit, a local edit:
-    :func:`tapmuscle.provenance.code_digest`), could compute other numbers.
+    :func:`tapmuscle.provenance.code_digest`), could compute other numbers. The sweep runs on the
+    workers that can (give what this returns to :class:`DaskExecutor`'s ``refused``); a cluster
+    none of whose workers can is refused.
 
     Parameters
     ----------
     client : distributed.Client
         A client connected to the cluster.
 
+    Returns
+    -------
+    dict
+        The workers that cannot, by address: what is said of each (its address and name, with what
+        it lacks, the version it has, or where its other code is); empty where every one can.
+
     Raises
     ------
     ClusterError
-        Each worker that cannot, by address and name, with what it lacks, the version it has, or
-        where its other code is.
+        No worker, or none that can: each named as above.
     """
     import importlib.metadata
 
@@ -590,26 +610,27 @@ def check_workers(client: Any) -> None:
         mine = importlib.metadata.version("tapmuscle")
     except importlib.metadata.PackageNotFoundError:  # a checkout on sys.path, not installed: no version to hold
         mine = None
-    digests = client.run(_code_and_home, on_error="return")
+    digests = client.run(_code_here, on_error="return")
     my_digest, my_home = _code_and_home()
     names = {address: info.get("name") for address, info in client.scheduler_info().get("workers", {}).items()}
-    problems = []
+    problems: dict[str, str] = {}
     for worker in sorted(imported):
         error, version, code = imported[worker], versions.get(worker), digests.get(worker)
         # a worker is named as its admin started it (dask worker --name) as well as by address
         named = f"worker {worker}" + (f" ({names[worker]})" if names.get(worker) not in (None, worker) else "")
         if isinstance(error, BaseException):
-            problems.append(f"{named} cannot import tapmuscle's run code: {type(error).__name__}: {error}")
+            problems[worker] = f"{named} cannot import tapmuscle's run code: {type(error).__name__}: {error}"
         elif mine is not None and (isinstance(version, BaseException) or version != mine):
             has = f"{type(version).__name__}: {version}" if isinstance(version, BaseException) else f"tapmuscle {version}"
-            problems.append(f"{named} has {has}, the client tapmuscle {mine}")
+            problems[worker] = f"{named} has {has}, the client tapmuscle {mine}"
         elif isinstance(code, BaseException) or code is None:
-            problems.append(f"{named} cannot tell its tapmuscle's sources: {type(code).__name__}: {code}")
+            problems[worker] = f"{named} cannot tell its tapmuscle's sources: {type(code).__name__}: {code}"
         elif code[0] != my_digest:
-            problems.append(_other_sources(named, code, (my_digest, my_home)))
-    if problems:
-        raise ClusterError("; ".join(problems) + " (every worker needs the client's tapmuscle and its dependencies: "
-                           "docs/sweeps.md, 'Pointing a sweep at a real cluster')")
+            problems[worker] = _other_sources(named, code, (my_digest, my_home))
+    if len(problems) == len(imported):
+        raise ClusterError("; ".join(problems.values()) + " (every worker needs the client's tapmuscle and its "
+                           "dependencies: docs/sweeps.md, 'Pointing a sweep at a real cluster')")
+    return problems
 
 
 def _other_sources(named: str, code: Sequence[str], client_code: Sequence[str]) -> str:
@@ -622,7 +643,7 @@ def _other_sources(named: str, code: Sequence[str], client_code: Sequence[str]) 
 def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 60.0) -> Iterator[Any]:
     """A ``distributed.Client``: on a new local cluster of ``workers`` single-threaded worker processes,
     or connected to the running scheduler at ``scheduler`` (``tcp://host:port``), which must get at
-    least one worker within ``wait_s`` seconds; its workers checked (:func:`check_workers`).
+    least one worker within ``wait_s`` seconds (whose workers the caller checks: :func:`check_workers`).
     Raises OSError/TimeoutError if it cannot connect (:class:`ClusterError` naming why).
 
     Parameters
@@ -648,7 +669,6 @@ def dask_client(workers: int, scheduler: str | None = None, *, wait_s: float = 6
             except TimeoutError:  # Dask's "Only 0/1 workers arrived after 60": said as check_workers does
                 raise ClusterError(f"the cluster has no worker after {wait_s:g} s: start one (dask worker "
                                    f"{scheduler} --nthreads 1), or wait longer (--timeout)") from None
-            check_workers(client)
             yield client
         finally:
             client.close()
