@@ -64,7 +64,8 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "pinned_side", "limit_side",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
-           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REF_STEP_SETTLE_S", "settle_samples",
+           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
+           "REF_STEP_SETTLE_S", "settle_samples",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
            "HELD_WARN_S", "held_against_error", "held_against_cause", "held_reading_message",
@@ -177,6 +178,17 @@ SPIKE_MM = 5.0
 SPIKE_SPREAD = 10.0
 SPIKE_FORGET = 0.02
 SPIKE_AFTER_S = 5.0
+#: A reading equal to the last one, to the bit, where the one-step prediction has the muscle move by
+#: more than the larger of :data:`REPEAT_MOVE_MM` and :data:`REPEAT_SPREAD` times the running mean
+#: |prediction error| (the spike guard's), is taken for a stale sample (a data acquisition that
+#: delivered the last value again): the prediction is used instead, for the first repeat only (a
+#: muscle that stopped, at an end stop or on a shut supply, reads the same again, and that reading is
+#: used). An encoder read with noise never repeats to the bit while the muscle moves a millimetre in a
+#: sample; without the guard one repeat at the fastest point of the paper's sine (1.9 mm a sample)
+#: made the law push the valve for a move that had happened (docs/control.md, "Stale readings"). The
+#: same gates as the spike guard's (from :data:`SPIKE_AFTER_S` after the start-up).
+REPEAT_MOVE_MM = 0.5
+REPEAT_SPREAD = 3.0
 #: The first seconds after a reference step are its transient: the spike guard waits them out, and the
 #: loop's watch does not count their swings.
 REF_STEP_SETTLE_S = 3.0
@@ -387,7 +399,9 @@ class ControllerSettings:
     Without it one reading 50 mm off sent AMPC-servo's valve to 10 V for four samples and the adaptive
     estimate learnt from it (docs/control.md, "Sensor glitches"). From :data:`SPIKE_AFTER_S` after the
     start-up, a one-sample spike within that bound is held too (:data:`SPIKE_MM`,
-    :attr:`DisplacementController.spike_limit_mm`). 0: both off (every reading used)."""
+    :attr:`DisplacementController.spike_limit_mm`), and a reading that repeats the last one to the
+    bit where the prediction has the muscle move (a stale sample: :data:`REPEAT_MOVE_MM`). 0: all
+    three off (every reading used)."""
     delay_correction: bool = True
     """With an input delay (``input_delay_samples`` 1 or more, or -1 once a delay hypothesis leads): predict
     ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
@@ -628,7 +642,8 @@ def held_reading_message(settings: ControllerSettings, reading_mm: float, used_m
                          spike_mm: float | None) -> str:
     """What to tell of a reading :attr:`DisplacementController.reading_held` reports (without the time):
     the ``reading_mm`` [mm], the prediction ``used_mm`` instead, the last reading used ``last_mm``, and
-    ``spike_mm``, its :attr:`~DisplacementController.spike_limit_mm` (None: a jump beyond ``max_speed``).
+    ``spike_mm``, its :attr:`~DisplacementController.spike_limit_mm` (None: a jump beyond ``max_speed``,
+    or, where the reading is ``last_mm`` itself, a stale repeat: :data:`REPEAT_MOVE_MM`).
 
     Parameters
     ----------
@@ -642,8 +657,15 @@ def held_reading_message(settings: ControllerSettings, reading_mm: float, used_m
     last_mm : float
         The last reading used [mm].
     spike_mm : float or None
-        The spike limit [mm] for a one-sample spike, or None for a jump beyond ``max_speed``.
+        The spike limit [mm] for a one-sample spike, or None for a jump beyond ``max_speed`` or a
+        stale repeat.
     """
+    if spike_mm is None and reading_mm == last_mm:
+        return (f"the reading l = {reading_mm:g} mm repeats the last one to the bit while the one-step prediction has "
+                f"the muscle move {abs(used_mm - last_mm):.3g} mm (more than {REPEAT_MOVE_MM:g} mm and "
+                f"{REPEAT_SPREAD:g} times the mean error): taken for a stale sample of the data acquisition, the law "
+                f"and the estimator used the prediction {used_mm:.4g} mm instead (a second repeat is used, as a "
+                "muscle that stopped; max_speed = 0 turns this off)")
     if spike_mm is not None:
         return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - used_mm):.3g} mm from the one-step prediction "
                 f"{used_mm:.4g} mm, more than the {spike_mm:.3g} mm it has lately come within (the larger of "
@@ -919,8 +941,9 @@ class DisplacementController:
         self._predicted = math.nan
         self._held_in_a_row = 0  # readings the glitch guard held in a row
         self.reading_held: tuple[float, float, float] | None = None
-        """The last step's reading taken for a glitch, the value used instead and the last one used
-        before [mm]; None where the reading was used."""
+        """The last step's reading taken for a glitch, a spike or a stale repeat (then equal to the last
+        one used), the value used instead and the last one used before [mm]; None where the reading
+        was used."""
         self.spike_limit_mm: float | None = None
         """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
         :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
@@ -964,6 +987,22 @@ class DisplacementController:
         mean = self._spike[0]
         return max(SPIKE_MM, SPIKE_SPREAD * mean) if mean == mean else math.inf
 
+    def _guarded(self) -> bool:
+        """Whether the spike and repeat guards act at this sample: a prediction to use, past the
+        start-up and :data:`SPIKE_AFTER_S` after it (an estimate still learning predicts badly)."""
+        return (math.isfinite(self._predicted) and not self.in_startup
+                and self.samples_since_start > int(round(SPIKE_AFTER_S / self.settings.ts_s)) + self._blend_n)
+
+    def _stale(self, l: float) -> bool:
+        """Whether ``l`` [mm], a reading equal to the last one used, is a stale sample: the prediction
+        has the muscle move further than :data:`REPEAT_MOVE_MM` and :data:`REPEAT_SPREAD` times the
+        running mean prediction error."""
+        mean = self._spike[0]
+        # not in a reference step's transient either, where a muscle held by its friction stops short of
+        # a prediction that misses by a millimetre (the spike guard's wait, spike[2])
+        return (self._guarded() and mean == mean and self._k >= self._spike[2]
+                and abs(self._predicted - l) > max(REPEAT_MOVE_MM, REPEAT_SPREAD * mean))
+
     def _spike_guard(self, l: float, r: float) -> float:
         """The reading ``l`` [mm] to use: the one-step prediction where ``l`` is a one-sample spike
         (:data:`SPIKE_MM`; ``r``: the preview's last sample [mm], whose steps pause the guard from when
@@ -982,8 +1021,7 @@ class DisplacementController:
         # a reading after two ordinary ones (within half the limit); not in the start-up, whose estimate is
         # still learning (an open-loop theta0 at 0.3 MPa missed by 60 mm there), nor in the seconds after
         # it; and the prediction used instead must itself be a reading the muscle could give
-        if (error > limit and before <= 0.5 * limit and spike[4] <= 0.5 * limit and self._k >= spike[2] and not self.in_startup
-                and self.samples_since_start > int(round(SPIKE_AFTER_S / ts)) + self._blend_n
+        if (error > limit and before <= 0.5 * limit and spike[4] <= 0.5 * limit and self._k >= spike[2] and self._guarded()
                 and abs(predicted - self._state.last_l) <= self._max_jump):
             spike[1], spike[4] = error, before
             self.spike_limit_mm = limit
@@ -1053,7 +1091,11 @@ class DisplacementController:
             last = state.last_l
             if abs(l - last) <= self._max_jump:
                 self._held_in_a_row = 0
-                l = self._spike_guard(l, rl[-1])
+                if still[1] == 1 and l == last and self._stale(l):
+                    self.reading_held = (l, self._predicted, last)
+                    l = self._predicted
+                else:
+                    l = self._spike_guard(l, rl[-1])
             elif self._held_in_a_row >= HELD_READINGS_MAX or (
                     not self._held_in_a_row and abs(l - state.l_prev_mm) <= self._max_jump
                     and self._spike[1] > self._spike_limit()):

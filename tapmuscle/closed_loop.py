@@ -15,7 +15,8 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_controller.displacement_control import SPIKE_MM, SPIKE_SPREAD, DisplacementController
+from fmu_controller.displacement_control import (REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_MM, SPIKE_SPREAD,
+                                                 DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
@@ -181,7 +182,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
     u_prev = 0.0
     pred_prev = meas.l_mm
     held_at: list[float] = []  # sample times of the readings the glitch guard held: jumps beyond max_speed ...
-    spiked_at: list[float] = []  # ... and one-sample spikes from the prediction
+    spiked_at: list[float] = []  # ... one-sample spikes from the prediction ...
+    repeated_at: list[float] = []  # ... and stale repeats of the last reading
     every = max(1, n // 100)
     try:
         for k in range(n):
@@ -208,8 +210,10 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                 cols["l_pred_mm"][k], cols["pred_error_mm"][k] = pred_prev, meas.l_mm - pred_prev
                 cols["uc_v"][k], cols["h_mm"][k], cols["xs_mm"][k] = step.uc_v, step.hysteresis_mm, step.xs_mm
                 theta_hist[k] = step.theta
-                if controller.reading_held is not None:
-                    (spiked_at if controller.spike_limit_mm is not None else held_at).append(t)
+                held = controller.reading_held
+                if held is not None:
+                    (spiked_at if controller.spike_limit_mm is not None else repeated_at if held[0] == held[2]
+                     else held_at).append(t)
                 pred_prev = step.predicted_next_mm
             u_prev = u
             if loop_delay_samples:
@@ -241,4 +245,10 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                        "readings before within half of that, and were taken for one-sample spikes of the sensor: the "
                        "controller used its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)",
                        ClosedLoopWarning)
+    if repeated_at:
+        warn_at_caller(f"{len(repeated_at)} readings (the first at t = {repeated_at[0]:.12g} s) repeated the last one to the "
+                       f"bit where the one-step prediction had the muscle move more than the larger of {REPEAT_MOVE_MM:g} "
+                       f"mm and {REPEAT_SPREAD:g} times its mean error, and were taken for stale samples of the data "
+                       "acquisition: the controller used its prediction instead (ControllerSettings.max_speed_mm_per_s "
+                       "= 0 turns this off)", ClosedLoopWarning)
     return cols

@@ -224,6 +224,30 @@ def test_a_glitch_in_the_readings_is_warned_of_after_the_run():
         tm.run_closed_loop(GlitchingPlant(seed=0), ctrl, tm.SineReference(), duration_s=30.0)
 
 
+def test_stale_repeats_of_the_reading_are_warned_of_after_the_run():
+    """A data acquisition that delivers its last sample again at the sine's fastest points (t = 30.0 s
+    and 35.0 s, the muscle moving 1.9 mm a sample): run_closed_loop says how many readings were taken
+    for stale samples, and when the first was."""
+    import pytest
+
+    import tapmuscle as tm
+
+    class RepeatingPlant(tm.Plant):
+        last = None
+
+        def step(self, u_v, dt_s):
+            m = super().step(u_v, dt_s)
+            k = round(m.t_s / dt_s)
+            fed = m._replace(l_mm=self.last) if k in (300, 350) else m
+            self.last = fed.l_mm
+            return fed
+
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method="ampc_servo"), tm.THETA0_44N)
+    with pytest.warns(RuntimeWarning, match=r"^2 readings \(the first at t = 30 s\) repeated the last one to the bit .*"
+                                            r"stale samples of the data acquisition"):
+        tm.run_closed_loop(RepeatingPlant(seed=0), ctrl, tm.SineReference(), duration_s=40.0)
+
+
 def test_a_stuck_reading_is_warned_of_after_the_run():
     """run_closed_loop says after the run where the readings stopped changing while the valve went end
     to end (the encoder frozen from t = 20 s), with the reading and how long it had not changed."""

@@ -1256,6 +1256,27 @@ def test_a_reading_taken_for_a_sensor_glitch_is_logged_and_counted():
     assert said == [] and "sensor glitches" not in off.run_summary()
 
 
+def test_a_stale_repeat_of_the_reading_is_logged_and_counted():
+    """The reading of t = 30 s, the sine's fastest point, delivered again at the next sample: the FMU
+    logs it as a stale sample with the prediction used, and the run summary counts it."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    slave = AMPCController(instance_name="stale")
+    slave.enter_initialization_mode()
+    slave.exit_initialization_mode()
+    plant, fed, stale = Plant(seed=0), None, None
+    for k in range(400):
+        fed = fed if k == 301 else plant.measurement.l_mm
+        stale = fed if k == 301 else stale
+        slave.l = fed
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    (msg,) = [m for m in slave.log_queue if "stale sample" in m.msg]
+    assert msg.status == Fmi2Status.warning and msg.msg.startswith(f"t = 30.1 s: the reading l = {stale:g} mm repeats the last")
+    assert "1 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()
+
+
 def test_a_spike_under_the_speed_bound_is_logged_as_a_spike_and_counted():
     """A reading 25 mm off for one sample, within the 40 mm the muscle could move: the FMU holds it as a
     one-sample spike, logs the reading, the prediction used and the limit it exceeded, and counts it."""

@@ -13,7 +13,7 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, B1_KE
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HELD_READINGS_MAX,
                                                  HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
                                                  DEFAULT_DELAY_MOVE_WEIGHT, STUCK_AT_LIMIT_S, ControllerSettings,
-                                                 DisplacementController)
+                                                 DisplacementController, held_reading_message)
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
@@ -1544,6 +1544,68 @@ def test_the_spike_guard_holds_nothing_in_the_papers_runs_and_its_state_restores
     for bad in ([-1.0, 0.0, 0, 0.0, 0.0], [0.1, 0.1, 0, math.inf, 0.0], [0.1, 0.1, 1.5, 0.0, 0.0], [0.1, 0.1, 0, 0.0]):
         with pytest.raises(ValueError, match="state field spike"):
             c2.set_state({**saved, "spike": bad})
+
+
+def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, reference=None):
+    """A loop on the simulated rig in which the readings of the samples ``stale`` repeat the reading fed
+    before (a data acquisition that delivered its last value again): the real displacement, the
+    samples whose reading was held, and the controller."""
+    plant = Plant(params or PlantParams(), seed=0)
+    s = ControllerSettings(method=method, max_speed_mm_per_s=DEFAULT_MAX_SPEED_MM_PER_S if guard else 0.0)
+    c = DisplacementController(s, theta0)
+    preview = reference or SineReference().preview
+    l = plant.measurement.l_mm
+    c.reset(l)
+    ls, held, fed = [], [], None
+    for k in range(n):
+        fed = fed if k in stale and fed is not None else l
+        step = c.step(fed, preview(k, s.preview_samples))
+        if c.reading_held is not None:
+            held.append(k)
+        ls.append(l)
+        plant.step(step.u_v, s.ts_s)
+        l = plant.measurement.l_mm
+    return np.array(ls), held, c
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_reading_repeated_by_a_stale_acquisition_where_the_muscle_moves_is_replaced_by_the_prediction(theta0, method):
+    """One repeat at the sine's fastest point (1.9 mm a sample): the law would push the valve for a move
+    that happened, and the muscle ends 1.8-2.5 mm off its undisturbed path; the repeat is taken for a
+    stale sample and the prediction used (0.03-0.46 mm measured). Repeats in a row: the first only
+    (a muscle that stopped reads the same again), and the message says what was seen."""
+    base, held0, _ = _stale_run(theta0, method)
+    ls, held, c = _stale_run(theta0, method, {300})
+    unguarded, held_x, _ = _stale_run(theta0, method, {300}, guard=False)
+    assert held0 == [] and held == [300] and held_x == []
+    assert np.max(np.abs(ls - base)) < 0.6 and np.max(np.abs(unguarded - base)) > 1.5
+    _, held, _ = _stale_run(theta0, method, set(range(300, 305)), n=305)
+    assert held == [300]
+    _, _, c = _stale_run(theta0, method, {300}, n=301)
+    reading, used, last = c.reading_held
+    assert reading == last and abs(used - reading) > 1.0
+    told = held_reading_message(c.settings, reading, used, last, None)
+    assert told.startswith(f"the reading l = {reading:g} mm repeats the last one to the bit while the one-step "
+                           f"prediction has the muscle move {abs(used - last):.3g} mm") and "stale sample" in told
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_the_repeat_guard_holds_no_reading_of_a_muscle_that_really_stops(theta0, method):
+    """Readings that repeat because the muscle stands still: at its end stop under a reference out of its
+    reach, at rest under 0 mm, read without encoder noise, or by a 0.1-mm encoder; and a rig whose
+    constants are 10-18 % off on a staircase (a muscle held by friction after a step stops short of
+    the prediction). None is held."""
+    exact = PlantParams().with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0})
+    coarse = PlantParams().with_values(**{"sensor.encoder_resolution_mm": 0.1})
+    off = PlantParams().with_values(**{"muscle.rubber_stiffness_n_per_mm": 0.87 * PlantParams().muscle.rubber_stiffness_n_per_mm,
+                                       "muscle.radius_mm": 0.86 * PlantParams().muscle.radius_mm,
+                                       "friction.base_n": 1.11 * PlantParams().friction.base_n})
+    far = lambda k, n: np.full(n + 1, 200.0)  # noqa: E731
+    rest = lambda k, n: np.zeros(n + 1)  # noqa: E731
+    stair = lambda k, n: np.array([30.0 + 20.0 * (((k + i) // 50) % 2) for i in range(n + 1)])  # noqa: E731
+    for params, reference in ((None, far), (None, rest), (exact, None), (exact, far), (coarse, None), (off, stair)):
+        _, held, _ = _stale_run(theta0, method, params=params, reference=reference)
+        assert held == [], (params, reference)
 
 
 @pytest.mark.parametrize("method", ["mpc_servo", "ampc_servo"])
