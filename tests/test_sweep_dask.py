@@ -182,9 +182,9 @@ def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
     the sweep runs on the others, and a cluster none of whose workers can is refused."""
     import warnings
 
-    from tapmuscle.cosim.distributed_sweep import ClusterError, ClusterWarning, DaskExecutor, _code_and_home, _code_here, check_workers
+    from tapmuscle.cosim.distributed_sweep import ClusterError, ClusterWarning, DaskExecutor, _code_here, check_workers
 
-    mine = _code_and_home()
+    mine = _code_here()
 
     class Client:
         def run(self, function, *args, on_error):

@@ -259,7 +259,7 @@ def _code_here() -> tuple[str, str]:
 def _worker_run(task: RunTask, files: Mapping[str, Any]) -> RunResult:
     """The Dask task: runs on a worker, with that worker process's instance pool; ``files`` is an
     :class:`FmuFiles`' ``data`` and ``names`` as a plain dict, and ``client_code``, the client's
-    :func:`_code_and_home`. A worker whose sources are not the client's (one that joined after
+    :func:`_code_here`. A worker whose sources are not the client's (one that joined after
     :func:`check_workers`) runs nothing: a :data:`REFUSED` result whose ``worker`` is its address."""
     client_code = files.get("client_code")
     if client_code is not None and _code_here()[0] != client_code[0]:
@@ -343,7 +343,7 @@ class DaskExecutor:
         """The future of ``files`` on the cluster, what :func:`_worker_run` takes (module docstring)."""
         # dict, a builtin: the files' task runs on any worker, whatever it can import (no client paths)
         return self.client.submit(dict, {"data": dict(files.data), "names": dict(files.names),
-                                         "client_code": _code_and_home()}, pure=False, key=f"tapmuscle-fmus-{tag}")
+                                         "client_code": _code_here()}, pure=False, key=f"tapmuscle-fmus-{tag}")
 
     def _usable(self) -> dict[str, int]:
         """The connected workers that have not refused a run, by address, with their threads (none
@@ -611,7 +611,7 @@ def check_workers(client: Any) -> dict[str, str]:
     except importlib.metadata.PackageNotFoundError:  # a checkout on sys.path, not installed: no version to hold
         mine = None
     digests = client.run(_code_here, on_error="return")
-    my_digest, my_home = _code_and_home()
+    my_digest, my_home = _code_here()
     names = {address: info.get("name") for address, info in client.scheduler_info().get("workers", {}).items()}
     problems: dict[str, str] = {}
     for worker in sorted(imported):
