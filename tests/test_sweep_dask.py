@@ -791,6 +791,7 @@ def test_a_worker_with_other_sources_runs_none_of_the_runs(built_fmus, tmp_path,
     rows = _rows(tmp_path / "o" / "results.csv")
     assert len(rows) == 4 and all(r["status"] == "ok" for r in rows.values()), rows
     assert late.pid not in {int(r["worker"].rsplit(":", 1)[1]) for r in rows.values()}
+    assert re.search(r"^Dask: 2 workers at tcp://\S+; 1 of them given no run \(below\)$", told, re.M), told
     assert re.search(r"warning: worker tcp://\S+ \(w-old\) runs other tapmuscle sources \(digest 0123456789ab, "
                      r"from /scratch/old/tapmuscle\) than the client .*: no run is sent to it", told), told
     assert sorted(r.run_id for r in results) == sorted(t.run_id for t in tasks)

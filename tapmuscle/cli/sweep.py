@@ -107,8 +107,8 @@ def _executor(args: argparse.Namespace, stack: ExitStack) -> Any:
     if not args.quiet:
         workers = len(client.scheduler_info().get("workers", {}))
         dashboard = _dashboard(client) if args.scheduler else None
-        print(f"Dask: {workers} workers at {client.scheduler.address}" + (f", dashboard {dashboard}" if dashboard else ""),
-              file=sys.stderr)
+        print(f"Dask: {workers} workers at {client.scheduler.address}" + (f", dashboard {dashboard}" if dashboard else "")
+              + (f"; {len(refused)} of them given no run (below)" if refused else ""), file=sys.stderr)
     # the command's own cluster: one run per worker thread at a time; a scheduler of one's own gets them
     # all (its adaptive scaling sees the backlog)
     return DaskExecutor(client, no_worker_s=args.timeout, one_run_per_thread=not args.scheduler, refused=refused)
