@@ -82,6 +82,7 @@ _EXPORTS: dict[str, tuple[str, str]] = {
     "TapmuscleError": ("tapmuscle.errors", "TapmuscleError"),
     "UsageError": ("tapmuscle.errors", "UsageError"),
     "ClusterError": ("tapmuscle.cosim.distributed_sweep", "ClusterError"),
+    "ClusterWarning": ("tapmuscle.cosim.distributed_sweep", "ClusterWarning"),
 }
 
 __all__ = sorted(_EXPORTS)
