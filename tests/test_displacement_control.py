@@ -1546,10 +1546,11 @@ def test_the_spike_guard_holds_nothing_in_the_papers_runs_and_its_state_restores
             c2.set_state({**saved, "spike": bad})
 
 
-def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, reference=None):
+def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, reference=None, record=None):
     """A loop on the simulated rig in which the readings of the samples ``stale`` repeat the reading fed
     before (a data acquisition that delivered its last value again): the real displacement, the
-    samples whose reading was held, and the controller."""
+    samples whose reading was held, and the controller (``record``: a dict given the readings fed,
+    the commands and the controller's state before each sample)."""
     plant = Plant(params or PlantParams(), seed=0)
     s = ControllerSettings(method=method, max_speed_mm_per_s=DEFAULT_MAX_SPEED_MM_PER_S if guard else 0.0)
     c = DisplacementController(s, theta0)
@@ -1559,7 +1560,12 @@ def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, refe
     ls, held, fed = [], [], None
     for k in range(n):
         fed = fed if k in stale and fed is not None else l
+        if record is not None:
+            record.setdefault("states", []).append(c.get_state())
         step = c.step(fed, preview(k, s.preview_samples))
+        if record is not None:
+            record.setdefault("fed", []).append(fed)
+            record.setdefault("u", []).append(step.u_v)
         if c.reading_held is not None:
             held.append(k)
         ls.append(l)
@@ -1587,6 +1593,24 @@ def test_a_reading_repeated_by_a_stale_acquisition_where_the_muscle_moves_is_rep
     told = held_reading_message(c.settings, reading, used, last, None)
     assert told.startswith(f"the reading l = {reading:g} mm repeats the last one to the bit while the one-step "
                            f"prediction has the muscle move {abs(used - last):.3g} mm") and "stale sample" in told
+
+
+def test_a_controller_restored_before_a_stale_repeat_holds_it_and_commands_as_the_first_bit_for_bit(theta0):
+    """The repeat guard keeps no state of its own beyond the controller's (the last reading, the spike
+    guard's mean error and wait): restored at 29.5 s, fed the same readings, it holds the same repeat
+    and gives the same commands to the bit."""
+    record = {}
+    _, held, c = _stale_run(theta0, "ampc_servo", {300}, n=320, record=record)
+    assert held == [300]
+    c2 = DisplacementController(c.settings, theta0)
+    c2.reset(0.0)
+    c2.set_state(record["states"][295])
+    again, held2, ref = [], [], SineReference()
+    for k in range(295, 320):
+        again.append(c2.step(record["fed"][k], ref.preview(k, c.settings.preview_samples)).u_v)
+        if c2.reading_held is not None:
+            held2.append(k)
+    assert held2 == [300] and again == record["u"][295:320]
 
 
 @pytest.mark.parametrize("method", METHODS)
