@@ -207,6 +207,7 @@ def test_workers_that_cannot_run_tapmuscle_are_named_before_any_run():
         warnings.simplefilter("always", ClusterWarning)
         executor = DaskExecutor(Client(), refused=problems)
     assert executor.refused == problems and len(warned) == 3
+    assert all(w.filename == __file__ for w in warned)  # at the caller's line (a notebook cell), not the library's
     assert all(str(w.message).startswith(problems[a]) and "no run is sent to it" in str(w.message)
                for w, a in zip(warned, sorted(problems)))
     said = "; ".join(problems.values())

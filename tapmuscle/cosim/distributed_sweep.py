@@ -34,13 +34,13 @@ import tempfile
 import threading
 import time
 import uuid
-import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 from build_scripts.own_folder import own_folder, remove_foreign
+from fmu_plant.user_warning import warn_at_caller
 from tapmuscle.cosim.expect import scenario_metrics
 from tapmuscle.io.atomic import atomic_path
 from tapmuscle.cosim.master import InstancePool, check_parameters, co_simulate
@@ -434,8 +434,8 @@ class DaskExecutor:
         if refusal.worker not in self.refused:
             self.refused[refusal.worker] = refusal.error
             when = "; it joined after the sweep's check of the workers" if joined_later else ""
-            warnings.warn(f"{refusal.error}{when}: no run is sent to it, the others run them (docs/sweeps.md, "
-                          "'Pointing a sweep at a real cluster')", ClusterWarning, stacklevel=3)
+            warn_at_caller(f"{refusal.error}{when}: no run is sent to it, the others run them (docs/sweeps.md, "
+                           "'Pointing a sweep at a real cluster')", ClusterWarning)
 
 
 class ClusterWarning(UserWarning):
