@@ -249,8 +249,9 @@ class AMPCController(SafeSlave):
             ("max_speed", DEFAULT_MAX_SPEED_MM_PER_S, "mm/s", "glitch guard: a reading l further from the last one "
              "used than max_speed x Ts (the muscle cannot move that far in a sample) is taken for a sensor glitch and "
              f"the one-step prediction used instead, at most {HELD_READINGS_MAX} in a row (logged); from 5 s after the "
-             "start-up, so is a one-sample spike far beyond the prediction's usual error; 0 = both off "
-             "(docs/control.md, Sensor glitches)", 0.0, None),
+             "start-up, so is a one-sample spike far beyond the prediction's usual error, and a reading repeated to "
+             "the bit while the muscle is predicted to move (a stale sample); 0 = all three off (docs/control.md, "
+             "Sensor glitches, Stale readings)", 0.0, None),
             ("sine.offset", 35.0, "mm", "built-in reference offset [mm] (paper: 35); offset +- amplitude within "
              f"{_L_RANGE_MM[0]:g}..{_L_RANGE_MM[1]:g}", *_L_RANGE_MM),
             ("sine.amplitude", 30.0, "mm", "built-in reference amplitude [mm] (paper: 30)", 0.0,
