@@ -186,9 +186,10 @@ SPIKE_AFTER_S = 5.0
 #: used). An encoder read with noise never repeats to the bit while the muscle moves a millimetre in a
 #: sample; without the guard one repeat at the fastest point of the paper's sine (1.9 mm a sample)
 #: made the law push the valve for a move that had happened (docs/control.md, "Stale readings"). The
-#: same gates as the spike guard's (from :data:`SPIKE_AFTER_S` after the start-up). Between the misses
-#: measured at a stale repeat (4.3-5.4 times the fixed predictors' mean error) and those of a muscle
-#: that really stopped short (backlash, a swinging loop, a poor predictor: 3.4-3.9 times).
+#: same gates as the spike guard's (from :data:`SPIKE_AFTER_S` after the start-up). The threshold sits
+#: between the misses measured at a stale repeat (4.3-5.4 times the fixed predictors' mean error) and
+#: those of a muscle that really stopped short (backlash, a swinging loop, a poor predictor: 3.4-3.9
+#: times).
 REPEAT_MOVE_MM = 1.0
 REPEAT_SPREAD = 4.0
 #: The first seconds after a reference step are its transient: the spike guard waits them out, and the
