@@ -42,23 +42,33 @@ sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .argument_checks import real_number, whole_number
+from .controller_settings import (DEFAULT_DELAY_MOVE_WEIGHT, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
+                                  MAX_DELAY_MOVE_WEIGHT, MAX_PROBING_V, MAX_STARTUP_S, MIN_FORGETTING, P0_TABLE5,
+                                  P0_TABLE8, ControllerSettings, preview_lead)
 from .delay_predictor import DelayPredictor
 from .hysteresis_model import ASYMMETRIC, ModelState
 from .identification import PAPER_TS_S
+from .input_delay_scores import (AUTO_INPUT_DELAY_SAMPLES, DELAY_CHECK_SAMPLES, DELAY_CLEAR_RATIO,
+                                 DELAY_DECIDE_BY_SAMPLES, DELAY_FORGET, DELAY_LEAD_SAMPLES, DELAY_MIN_SAMPLES,
+                                 DELAY_RATIO, DELAY_SCORES_TS_S, DELAY_TIE_RATIO, DelayScores)
 from .methods import METHOD_CODES, METHODS
 from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
-from .probing import MLS_LENGTH, probe_v
-from .read_only_fields import read_only, settings_hash, settings_reduce
+from .probing import probe_v
+from .reading_guards import (DEFAULT_MAX_SPEED_MM_PER_S, FASTEST_MUSCLE_MM_PER_S, HELD_READINGS_MAX, L_RANGE_MM,
+                             REF_STEP_SETTLE_S, REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_AFTER_S, SPIKE_FORGET,
+                             SPIKE_MM, SPIKE_SPREAD, STUCK_AT_LIMIT_S, held_reading_message, settle_samples,
+                             stuck_reading_message)
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
-from .servo_mpc import ServoMPC, ServoMPCSettings, integrator_step
-from .servo_settings import MAX_WEIGHT
-from .ucp_mpc import UCPSettings, held_input_run, ucp_move
+from .servo_mpc import ServoMPC, integrator_step
+from .ucp_mpc import held_input_run, ucp_move
+from .valve_limits import (GUARD_JUMP_FRACTION, GUARD_JUMPS, HELD_AGAINST_MM, HELD_WARN_S, VALVE_MAX_V,
+                           VALVE_MIN_V, full_range_jump, held_against_cause, held_against_error, limit_side,
+                           pinned_side, pushed_at_limit)
 
 __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", "MAX_INPUT_DELAY_SAMPLES",
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
@@ -70,63 +80,9 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
            "HELD_WARN_S", "held_against_error", "held_against_cause", "held_reading_message",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
-           "DisplacementController"]
+           "DisplacementController", "DEFAULT_STARTUP_S", "DEFAULT_PROBING_V", "MAX_PROBING_V", "DELAY_CLEAR_RATIO",
+           "DELAY_DECIDE_BY_SAMPLES", "DELAY_CHECK_SAMPLES", "DELAY_LEAD_SAMPLES", "DELAY_SCORES_TS_S"]
 
-
-#: ``input_delay_samples = -1``: the largest delay [samples] it scores and may decide, and the
-#: reference samples beyond ``Hp`` it takes (:func:`preview_lead`): 0.5 s at the paper's Ts = 0.1 s. At a
-#: shorter Ts a longer delay is set (up to :data:`MAX_INPUT_DELAY_SAMPLES`): -1's decision rule below was
-#: measured over these six hypotheses, and each costs a model state and a prediction a sample until it
-#: decides.
-AUTO_INPUT_DELAY_SAMPLES = 5
-
-#: ``input_delay_samples = -1``: weight of the newest squared one-step error in the running means
-#: (a memory of about 50 samples, 5 s at Ts = 0.1 s: over one second the two hypotheses' errors
-#: overlap, the sequential/parallel ratio reaching 1.53 in a sequential loop and only 2.15 in a
-#: parallel one; over five seconds at most 1.03 and at least 1.43, measured over every method,
-#: 44/68 N, 0.1/0.2 Hz, two seeds) ...
-DELAY_FORGET = 0.02
-#: ... one hypothesis must explain the data this many times better (in mean square) to be decided,
-#: between those two figures (measured with the undelayed law running; with the delayed law the
-#: decision came at the minimum in every case of tests/test_displacement_control.py) ...
-DELAY_RATIO = 1.25
-#: ... after at least this many samples compared.
-DELAY_MIN_SAMPLES = 50
-#: Servo methods: a delay of 1 or more decided, and the next longer one within this factor of its mean
-#: square: the rig's delay lies between the two samples (0.15 s at Ts = 0.1 s scored 1 and 2 within
-#: 0.4-4 %, where a whole number of samples leaves the next one 1.09-1.96 times worse), and the longer
-#: one is decided: the servo law tracked better so (mean |r - l| over 40-90 s, 0.15 s: AMPC-servo 0.36
-#: against 0.68 mm, MPC-servo 0.53 against 2.3-2.5, swinging; 0.35 s: AMPC-servo 0.98 against 3.55;
-#: MPC-servo's fixed predictor is poor either way there, 9.2 against 4.3-5.9). The coincidence point
-#: tracked a little worse with the longer one and keeps the better scored (AMPC-UCP at 0.15 s: 2, 0.64-0.70
-#: mm; 1 set, 0.63).
-DELAY_TIE_RATIO = 1.05
-#: A delay of 2 samples or more that the scores do not fall towards from 0 (outside
-#: ``DisplacementController._valley_beyond_one``) is still decided where it explains the data this many
-#: times better than both 0 and 1: a rig's 0.4-s delay under MPC-UCP at 68 N, 0.2 Hz scored 5.31, 3.67,
-#: 4.77, 2.86, 1, 3.0 times the best for 0..5 (a bump at 2), where 1 tracked to 11 mm and 4 to 3.8; a
-#: loop chattering with a period of a few samples, which scores that period like 0, reached 1.68
-#: (h = Ts/4 in a parallel master) and 1.31 (a fixed predictor on an off-nominal rig).
-DELAY_CLEAR_RATIO = 2.0
-#: ``input_delay_samples = -1``: if neither hypothesis has won by :data:`DELAY_RATIO` after this many
-#: samples (a delay of a fraction of a sample: a rig's transport delay), the one that predicts better
-#: is taken.
-DELAY_DECIDE_BY_SAMPLES = 300
-#: ``input_delay_samples`` set: the first this many samples are scored as -1 scores them (the delays
-#: 0 .. max(:data:`AUTO_INPUT_DELAY_SAMPLES`, the delay set)), to tell a set delay the measurements
-#: contradict (:attr:`DisplacementController.delay_evidence`): as long as -1 may take to decide,
-#: since the start-up mode hides a wrong delay for its first seconds (100 samples do not tell
-#: AMPC-servo's 0 in a parallel master); the scores cost about 20 us a sample (the direct loop of
-#: benchmarks/fmu_cosim.py: 77 and 93 us a sample over 40 s without and with).
-DELAY_CHECK_SAMPLES = DELAY_DECIDE_BY_SAMPLES
-
-#: ``input_delay_samples = -1``, undecided: the delayed law uses the corrected one-step prediction
-#: (:class:`~fmu_controller.delay_predictor.DelayPredictor`) once this many samples are compared and
-#: the parallel hypothesis leads.
-DELAY_LEAD_SAMPLES = 20
-#: The sampling period [s] at which the delay scores' memory and sample counts above were measured:
-#: at another ``Ts`` they span the same seconds (:meth:`DisplacementController.delay_check_samples`).
-DELAY_SCORES_TS_S = 0.1
 
 #: ``ControllerSettings.anti_windup``: the integrator of Eq. (18) is held once the command has sat at
 #: a valve limit that the error pushes it into for this many samples in a row (0.5 s at Ts = 0.1 s).
@@ -140,120 +96,11 @@ HOLD_AFTER_SAMPLES = 5
 #: paper's C this bound never acts.
 B1_KEPT_FRACTION = 0.25
 
-#: Largest ``ControllerSettings.delay_move_weight``.
-MAX_DELAY_MOVE_WEIGHT = 1000.0
-
-#: Longest start-up mode ``ControllerSettings.startup_s`` [s].
-MAX_STARTUP_S = 600.0
-#: Default start-up mode ``ControllerSettings.startup_s`` [s] (docs/control.md, "Start-up").
-DEFAULT_STARTUP_S = 12.0
-
-#: Every contraction [mm] the plant FMU's parameter ranges allow (rest lengths up to 5000 mm, an
-#: encoder offset of +-100 mm, stretch under the load): a reading ``l`` outside is refused (by the
-#: controller FMU and :meth:`DisplacementController.step` alike), and its ``r`` inputs and built-in
-#: sine stay within it.
-L_RANGE_MM = (-1000.0, 5000.0)
-
-#: The simulated rig's fastest move [mm/s]: from rest to 10 V and back at 0.25 MPa and 10-100 N.
-FASTEST_MUSCLE_MM_PER_S = 200.0
-#: Fastest the muscle moves [mm/s] as far as the glitch guard is concerned
-#: (``ControllerSettings.max_speed_mm_per_s``): twice the simulated rig's fastest, room for a faster rig.
-DEFAULT_MAX_SPEED_MM_PER_S = 2.0 * FASTEST_MUSCLE_MM_PER_S
-#: Readings held in a row, at most, before one that stays as far from the last used is taken as the new
-#: level (an encoder re-zeroed, a real step): a glitch lasts a sample or two.
-HELD_READINGS_MAX = 3
-#: From :data:`SPIKE_AFTER_S` after the start-up on, a reading further from the one-step prediction
-#: than the larger of :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running mean |prediction
-#: error| (weight :data:`SPIKE_FORGET` a sample: about 50 samples, 5 s at Ts = 0.1 s) is taken for a
-#: one-sample spike of the sensor (a potentiometer's wiper lifting, an ADC's bad conversion) where the
-#: two readings before came within half that (a loop whose errors swing already is not told from a
-#: spike): the prediction is used instead, once. Without it a spike
-#: under the max_speed bound (40 mm) is used as a reading, and one 30 mm low moves the muscle by 36-40
-#: mm. The guard waits :data:`REF_STEP_SETTLE_S` after the preview moves by more than
-#: :data:`SPIKE_MM` in a sample (a step: the fixed predictors miss by 7.5 mm in its transient, which
-#: starts as the step enters the preview), and as long after a reading as far off follows a held one
-#: (a model that predicts badly just then). On 68 runs without spikes (the paper's cells, load steps,
-#: staircases, delayed rigs, 0.5-mm sensor noise, rigs with constants off) it holds none.
-SPIKE_MM = 5.0
-SPIKE_SPREAD = 10.0
-SPIKE_FORGET = 0.02
-SPIKE_AFTER_S = 5.0
-#: A reading equal to the last one, to the bit, where the one-step prediction has the muscle move by
-#: more than the larger of :data:`REPEAT_MOVE_MM` and :data:`REPEAT_SPREAD` times the running mean
-#: |prediction error| (the spike guard's), is taken for a stale sample (a data acquisition that
-#: delivered the last value again): the prediction is used instead, for the first repeat only (a
-#: muscle that stopped, at an end stop or on a shut supply, reads the same again, and that reading is
-#: used). An encoder read with noise never repeats to the bit while the muscle moves a millimetre in a
-#: sample; without the guard one repeat at the fastest point of the paper's sine (1.9 mm a sample)
-#: made the law push the valve for a move that had happened (docs/control.md, "Stale readings"). The
-#: same gates as the spike guard's (from :data:`SPIKE_AFTER_S` after the start-up). The threshold sits
-#: between the misses measured at a stale repeat (4.3-5.4 times the fixed predictors' mean error) and
-#: those of a muscle that really stopped short (backlash, a swinging loop, a poor predictor: 3.4-3.9
-#: times).
-REPEAT_MOVE_MM = 1.0
-REPEAT_SPREAD = 4.0
-#: The first seconds after a reference step are its transient: the spike guard waits them out, and the
-#: loop's watch does not count their swings.
-REF_STEP_SETTLE_S = 3.0
-
-
 #: The spike guard's state at the start: the running mean |one-step prediction error| [mm], the last
 #: reading's |error| [mm] (NaN: none yet), the sample the guard acts from (after a reference step's
 #: transient), the preview's last sample at the last step [mm], the |error| of the reading before the
 #: last [mm].
 _NEW_SPIKE_GUARD = (math.nan, math.nan, 0, math.nan, math.nan)
-
-
-def settle_samples(ts_s: float) -> int:
-    """:data:`REF_STEP_SETTLE_S` in samples of ``ts_s`` [s].
-
-    Parameters
-    ----------
-    ts_s : float
-        Sampling period [s].
-    """
-    return int(round(REF_STEP_SETTLE_S / ts_s))
-
-
-#: Seconds the command sits at each of the valve's limits, within one stretch of readings that have not
-#: changed at all, that tell a stuck sensor: the valve held open, then shut (or the other way round),
-#: moves a working muscle by millimetres within a second, whatever its transport delay (at most 0.5 s
-#: here) or end stop; the encoder resolves 0.01 mm (:attr:`DisplacementController.reading_stuck`).
-STUCK_AT_LIMIT_S = 2.0
-
-#: Default ``ControllerSettings.delay_move_weight``: 16 tracked better than 4 and 32 in most cells of
-#: benchmarks/transport_delay.py (every servo cell better than 4; 10 of 16 off-nominal delayed rigs
-#: within 2 mm against 8 with 4 and 9 with 32), and 4 left AMPC-servo limit-cycling at 0.35 s.
-DEFAULT_DELAY_MOVE_WEIGHT = 16.0
-
-#: Default amplitude [V] of the start-up mode's probing signal (``ControllerSettings.probing_v``).
-DEFAULT_PROBING_V = 0.5
-#: Largest ``ControllerSettings.probing_v`` [V]: a quarter of the valve's 0-10 V range.
-MAX_PROBING_V = 2.5
-
-#: The proportional valve's command range [V] (Table 1, "Range of input voltage"; Eq. (19)): the servo's and UCP's ``u_min_v`` and
-#: ``u_max_v`` lie within it. A bound beyond it is a command the valve clips, and the adaptive
-#: estimator, which sees the command, would learn from inputs the valve never received.
-VALVE_MIN_V, VALVE_MAX_V = 0.0, 10.0
-
-#: Smallest ``ControllerSettings.forgetting``: below it Algorithm 1 forgets half its information
-#: every sample and its estimate follows the measurement noise (0.3: ``u_c`` at thousands of V,
-#: 9 mm of Eq. (21) error).
-MIN_FORGETTING = 0.5
-
-#: ``ControllerSettings.startup_guard``: the start-up mode leaves ``theta0`` for the estimate once the
-#: command has jumped across this fraction of the valve's range in one sample ...
-GUARD_JUMP_FRACTION = 0.9
-#: ... this many times since the estimator started: a law that slams the valve end to end. (Two
-#: happen in a sound start: the delayed law that ``input_delay_samples = -1`` starts with, one sample
-#: early in a sequential master, can jump twice before the delay is decided.)
-GUARD_JUMPS = 3
-
-#: ``P(0)`` of the AMPC for the 0.1 Hz experiments (Table 5).
-P0_TABLE5 = (200.0, 200.0, 200.0) + (50.0,) * 8 + (20.0,) * 4
-#: ``P(0)`` of the AMPC for the 0.2 Hz experiments (Table 8).
-P0_TABLE8 = (1000.0, 1000.0, 1000.0) + (250.0,) * 8 + (150.0,) * 4
-
 
 #: ``hysteresis_notch``: the predicted H(k+1|k), H(k+2|k) stay within one and two times
 #: ``NOTCH_RATE_FACTOR x`` (the larger of H's last two changes) ``+ NOTCH_FLOOR_MM`` of H(k) [mm].
@@ -263,370 +110,6 @@ P0_TABLE8 = (1000.0, 1000.0, 1000.0) + (250.0,) * 8 + (150.0,) * 4
 #: for a sample.
 NOTCH_RATE_FACTOR = 2.0
 NOTCH_FLOOR_MM = 1.0
-
-
-@dataclass(frozen=True, kw_only=True)
-class ControllerSettings:
-    """Settings of a :class:`DisplacementController`."""
-
-    method: str = "ampc_servo"
-    """One of ``mpc_ucp``, ``mpc_servo``, ``ampc_ucp``, ``ampc_servo``."""
-    ts_s: float = 0.1
-    """Sampling period [s] (paper: 0.1)."""
-    ucp: UCPSettings = field(default_factory=UCPSettings)
-    """Unique-coincidence-point settings (Table 5: Hp = 2)."""
-    servo: ServoMPCSettings = field(default_factory=ServoMPCSettings)
-    """Servo-MPC settings (Table 5: Hp = Hu = 5, Q = 5, Qs = 2, R = 15)."""
-    p0: tuple[float, ...] = P0_TABLE5
-    """Diagonal of the AMPC's initial covariance ``P(0)`` (Table 5; Table 8 for 0.2 Hz), which
-    Algorithm 1 calls ``P(-1)`` (:class:`fmu_controller.rls.RLSSettings`' ``p0``)."""
-    box_lower: Mapping[str, float] = field(default_factory=lambda: dict(TABLE2_LOWER))
-    """Lower bounds of the constraint region C by parameter name (Table 2)."""
-    box_upper: Mapping[str, float] = field(default_factory=lambda: dict(TABLE2_UPPER))
-    """Upper bounds of C (Table 2)."""
-    forgetting: float = 1.0
-    """RLS forgetting factor (1 = off, as the paper)."""
-    covariance_ceiling: bool = False
-    """Keep the RLS covariance at or below ``P(0)`` (:class:`~fmu_controller.rls.RLSSettings`), which
-    stops covariance wind-up under forgetting. Off in the paper; with ``forgetting = 0.999`` it is
-    what keeps the adaptive loop as good after 24 h as after 10 min (docs/control.md, "24 hours")."""
-    hysteresis_notch: bool | None = None
-    """Servo methods: cancel the centred mean ``(H(k-2) + 3 H(k-1) + 4 H(k) + 3 H(k+1|k) + H(k+2|k))/12``
-    in Eq. (5) instead of ``H(k)`` (``H(k+i|k)``: Eq. (1)'s hysteresis term on the predictions with the
-    last command held). ``H(k)`` responds to the latest measured increments ``l(k) - l(k-1)`` (its
-    Bouc-Wen terms), so the cancellation is a feedback path from the measurement to the valve that the
-    QP's linear model (Eq. 2) does not know. Where the plant's local gain exceeds the model's (the
-    bottom of the cycle, the valve nearly closed; the first cycles of a young adaptive estimate) that
-    loop oscillates with a period of two or three samples: the MPC-servo chatter. The mean is the
-    product of ``(1, 2, 1)/4`` and ``(1, 1, 1)/3``: a double zero at the Nyquist frequency and a zero
-    at a period of three samples, no lag, and a gain of 0.98 at 0.3 Hz, so the cancellation still
-    acts on the hysteresis loop of the reference (docs/control.md, "Chatter"). None (default): on for
-    ``mpc_servo``; for ``ampc_servo`` on with the start-up mode (``startup_s > 0``), and off with the
-    paper's start, whose violent first seconds excite the estimator so that the adapted model
-    follows the local gain. False: the paper's Eq. (5)."""
-    startup_s: float = DEFAULT_STARTUP_S
-    """Length ``T`` [s] of the start-up mode (docs/control.md, "Start-up"); 0: the paper's start, the
-    law on the full reference and the raw estimate from the first sample. With ``T > 0``:
-
-    * the reference is led in from the displacement ``l0`` measured at the first sample: over
-      ``t < T/4`` the law sees ``l0 + s(4t/T) (r(t) - l0)`` (its preview too), with the smoothstep
-      ``s(x) = 3x^2 - 2x^3``;
-    * the adaptive controllers run Algorithm 1 from the first sample, but their law uses
-      ``theta0`` for ``t < T/2`` (the estimator's warm-up) and ``theta0 + s(2t/T - 1) (theta_hat -
-      theta0)`` over ``T/2 <= t < T``: the first estimates, taken while ``l`` is near 0 and the cubic
-      terms of Eq. (1) take most of ``P(0)``'s gain, and those of the first full-amplitude cycle, do
-      not reach the valve at full weight. The hysteresis state ``v(k)`` of Eq. (1) (section 2.3's
-      ``y_hy``) is computed with the law's parameters, and Algorithm 1's regressor takes it from
-      there: until ``T`` it is not the raw estimate's, as section 2.3 has it, whose errors would
-      enter the regressor that estimates them (docs/control.md, "What the gentle start costs").
-
-    The default 12 s starts every method from rest within 3 mm of the reference's envelope and
-    without repeated 0 <-> 10 V reversals, at 44 and 68 N, 0.1 and 0.2 Hz (benchmarks/startup.py);
-    it also makes AMPC-UCP beat MPC-UCP at both loads."""
-    probing_v: float = DEFAULT_PROBING_V
-    """Adaptive methods with the start-up mode: amplitude [V] of the probing signal added to the valve
-    command during the estimator's warm-up (``t < startup_s/2``): a 127-bit maximum-length sequence,
-    each bit held 4 samples (:mod:`fmu_controller.probing`). The servo law does not see it (its ``u_c``
-    and the integrator are its own); the coincidence-point law does, through ``u(k-1)`` of Eq. (14),
-    the applied command; the estimator does, through the applied command. Without
-    it the gentle start leaves the closed-loop estimate unexcited and ``b1`` drifts to C's lower
-    bound, where the servo law ripples at the cycle's turning points (docs/control.md, "Start-up").
-    0 turns it off; at most 2.5 V (a quarter of the valve's range)."""
-    probing_phase: int = 0
-    """The bit of the probing signal's 127-bit sequence it starts at, 0 .. 126. Controllers started
-    together on one rig (several muscles in one master, an antagonistic pair) probe in phase at the
-    same setting, a common-mode excitation; give each its own from
-    :func:`fmu_controller.probing.probing_phases` (a pair at the default warm-up: 0 and 109), shifts of
-    one sequence least alike over the warm-up (not any two: 0 and 96 correlate at 0.66 over its 60
-    samples). Tracking moves with the phase as with the seed (docs/fmu.md, "Several muscles in one
-    master")."""
-    startup_guard: bool = True
-    """Adaptive methods with the start-up mode: end the warm-up and the blend early once the valve
-    command has jumped across :data:`GUARD_JUMP_FRACTION` of its range in one sample
-    :data:`GUARD_JUMPS` times since the estimator started. ``theta0`` is then a poor fixed law on this
-    rig: typically one identified open loop on another rig, whose hysteresis cancellation (Eq. 5)
-    feeds the measured increments back to the valve with a gain above 1, so that the valve slams end
-    to end and the cancellation grows to thousands of mm (a 0.3-MPa rig at 30 N: Eq. (21) 6.65 mm
-    instead of 0.29). From the next sample the law takes the estimate as the paper's start does, and
-    the probing stops. It does not fire on the paper's runs, whose ``theta0`` comes from a closed loop
-    (their bits are kept); a large reference step inside the start-up can fire it too (docs/control.md,
-    "Start-up"). False: the warm-up runs its course whatever the valve does."""
-    input_delay_samples: int = 0
-    """Samples between computing a command and the valve receiving it: 0 (the paper: ``u(k)``
-    drives the valve from ``t_k``) or 1 (the computational delay of a parallel co-simulation
-    master, which applies the controller's output one macro step late, or of a controller whose
-    computation takes a whole sample). With 1 the controller computes ``u(k+1)`` at sample ``k``
-    from ``l(k)`` and its own Eq. (1) prediction ``l(k+1|k)`` under the command already on its way
-    (the classic one-sample delay compensation), so it needs ``r(k..k+1+Hp)``. -1 (the controller
-    FMU's default): decide from the data. The controller starts with the delayed law (one sample early
-    in a sequential master, which costs tracking; the undelayed law in a parallel master oscillates)
-    and compares, at every sample, how well Eq. (1) with ``theta0`` predicts the measured ``l(k)``
-    under its output of the last sample (a sequential master) and under the output before it (a
-    parallel one); once one explains the data :data:`DELAY_RATIO` times better (mean squares over
-    about 5 s, after at least :data:`DELAY_MIN_SAMPLES` samples; the better one after
-    :data:`DELAY_DECIDE_BY_SAMPLES`) it is decided for good: parallel keeps the delayed law, sequential
-    switches to that of 0 and restarts the adaptive estimator (docs/fmu.md, "Parallel masters").
-    2 .. :data:`MAX_INPUT_DELAY_SAMPLES` (25): a rig whose valve acts on the command later still (a
-    transport delay, docs/control.md "Transport delay"; in a parallel master one sample more), the delay
-    over ``Ts``, rounded: the controller computes ``u(k+d)`` at sample ``k``, carrying Eq. (1)'s
-    prediction on to ``l(k+d|k)`` through the commands in flight, and needs ``r(k..k+d+Hp)``. -1
-    compares the delays 2 .. :data:`AUTO_INPUT_DELAY_SAMPLES` (5) too and switches to one of them
-    (restarting the estimator) once it explains the data :data:`DELAY_RATIO` times better than both 0
-    and 1; it takes ``r(k..k+5+Hp)``, for any. A longer delay (0.15 s at Ts = 0.02 s: 8 samples) is
-    set, not decided."""
-    anti_windup: bool = True
-    """Servo methods: hold the integrator of Eq. (18) once the command has sat at a valve limit that
-    the error ``r(k) - l(k)`` pushes it further into for :data:`HOLD_AFTER_SAMPLES` samples in a row
-    (conditional integration). A reference out of the muscle's reach otherwise winds ``x_s`` up by
-    thousands of mm and the loop lags for 6-12 s once the reference is back in reach (docs/control.md,
-    "Integrator wind-up"). Shorter stays at a limit are integrated: with the start-up mode on (the
-    default) the paper's runs keep their bits; with the paper's start (``startup_s = 0``) the hold
-    moves some of them (AMPC-servo, 68 N, 0.1 Hz: 0.124 -> 0.134 mm of Eq. (21)), so the paper's
-    controllers exactly need False here too (``tapmuscle paper --paper-start``). False: Eq. (18) as
-    the paper writes it."""
-    delay_move_weight: float = DEFAULT_DELAY_MOVE_WEIGHT
-    """Servo methods: the factor on Eq. (15)'s move weight R (``servo.r``) while the law compensates a
-    delay of 2 samples or more (``input_delay_samples`` 2 or more, or -1 once it decided for one: a rig's
-    transport delay). The law's prediction through the commands in flight is only as good as Eq. (1),
-    and a larger R lowers the gain with which its errors come back to the valve (Eq. (21) with the delay
-    set, 16 against Table 5's 15 alone: AMPC-servo 0.65 / 1.56 / 2.60 mm at 0.2 / 0.3 / 0.4 s against
-    1.16 / 2.37 / 3.62, MPC-servo 1.20 / 3.87 / 7.26 against 3.9 / 11.2 / 13.6; docs/control.md,
-    "Transport delay"). 1 keeps ``servo.r``; delays of 0 and 1 always do (the paper's runs and the
-    parallel master keep their bits)."""
-    max_speed_mm_per_s: float = DEFAULT_MAX_SPEED_MM_PER_S
-    """Glitch guard: a reading ``l(k)`` further from the last one used than the muscle can move in one
-    sample (``max_speed_mm_per_s * ts_s``; 40 mm at the default 400 mm/s and 0.1 s) is taken for a
-    sensor glitch: the law and the estimator use the one-step prediction ``l(k|k-1)`` instead (the
-    estimator then learns nothing from it), and :attr:`DisplacementController.reading_held` says so.
-    After :data:`HELD_READINGS_MAX` such readings in a row the next one is used as the new level.
-    Without it one reading 50 mm off sent AMPC-servo's valve to 10 V for four samples and the adaptive
-    estimate learnt from it (docs/control.md, "Sensor glitches"). From :data:`SPIKE_AFTER_S` after the
-    start-up, a one-sample spike within that bound is held too (:data:`SPIKE_MM`,
-    :attr:`DisplacementController.spike_limit_mm`), and a reading that repeats the last one to the
-    bit where the prediction has the muscle move (a stale sample: :data:`REPEAT_MOVE_MM`). 0: all
-    three off (every reading used)."""
-    delay_correction: bool = True
-    """With an input delay (``input_delay_samples`` 1 or more, or -1 once a delay hypothesis leads): predict
-    ``l(k+1|k)`` with Eq. (1) plus a residual correction fitted online
-    (:class:`~fmu_controller.delay_predictor.DelayPredictor`), which halves the delayed loop's
-    tracking error; False: Eq. (1) alone. No effect on the undelayed law."""
-
-    def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"ControllerSettings.method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        for name in ("ts_s", "startup_s", "probing_v", "forgetting", "max_speed_mm_per_s"):  # numpy numbers as Python floats
-            object.__setattr__(self, name, real_number(getattr(self, name), what=f"ControllerSettings.{name}"))
-        if not self.ts_s > 0:
-            raise ValueError(f"ControllerSettings.ts_s must be a positive finite number, got {self.ts_s!r}")
-        if len(self.p0) != ASYMMETRIC.n_params or not all(math.isfinite(p) and p > 0 for p in self.p0):
-            raise ValueError(f"ControllerSettings.p0 must be {ASYMMETRIC.n_params} positive finite numbers, "
-                             f"got {self.p0!r}")
-        object.__setattr__(self, "input_delay_samples",
-                           whole_number(self.input_delay_samples, what="ControllerSettings.input_delay_samples"))
-        if not -1 <= self.input_delay_samples <= MAX_INPUT_DELAY_SAMPLES:
-            raise ValueError(f"ControllerSettings.input_delay_samples must be -1 (detect) or a number of samples "
-                             f"0 .. {MAX_INPUT_DELAY_SAMPLES}, got {self.input_delay_samples!r}")
-        if not MIN_FORGETTING <= self.forgetting <= 1.0:
-            raise ValueError(f"ControllerSettings.forgetting must be within {MIN_FORGETTING:g} .. 1 (1: none, as the "
-                             f"paper), got {self.forgetting!r}")
-        for part in ("servo", "ucp"):
-            bounds = getattr(self, part)
-            for name, value in (("u_min_v", bounds.u_min_v), ("u_max_v", bounds.u_max_v)):
-                if not VALVE_MIN_V <= value <= VALVE_MAX_V:
-                    raise ValueError(f"ControllerSettings.{part}.{name} must be within the valve's range "
-                                     f"{VALVE_MIN_V:g} .. {VALVE_MAX_V:g} V, got {value!r}")
-        if not 0.0 <= self.startup_s <= MAX_STARTUP_S:
-            raise ValueError(f"ControllerSettings.startup_s must be within 0 .. {MAX_STARTUP_S:g} s, got {self.startup_s!r}")
-        if not 0.0 <= self.max_speed_mm_per_s < math.inf:
-            raise ValueError(f"ControllerSettings.max_speed_mm_per_s must be a finite number >= 0 [mm/s] (0: no glitch "
-                             f"guard), got {self.max_speed_mm_per_s!r}")
-        if not 0.0 <= self.probing_v <= MAX_PROBING_V:
-            raise ValueError(f"ControllerSettings.probing_v must be within 0 .. {MAX_PROBING_V:g} V, got {self.probing_v!r}")
-        object.__setattr__(self, "probing_phase", whole_number(self.probing_phase, what="ControllerSettings.probing_phase"))
-        if not 0 <= self.probing_phase < MLS_LENGTH:
-            raise ValueError(f"ControllerSettings.probing_phase must be a bit of the probe's sequence, 0 .. {MLS_LENGTH - 1}, "
-                             f"got {self.probing_phase!r}")
-        if not isinstance(self.startup_guard, bool):
-            raise ValueError(f"ControllerSettings.startup_guard must be True or False, got {self.startup_guard!r}")
-        if not isinstance(self.anti_windup, bool):
-            raise ValueError(f"ControllerSettings.anti_windup must be True or False, got {self.anti_windup!r}")
-        object.__setattr__(self, "delay_move_weight", real_number(self.delay_move_weight,
-                                                                  what="ControllerSettings.delay_move_weight"))
-        if not 0.0 < self.delay_move_weight <= MAX_DELAY_MOVE_WEIGHT:
-            raise ValueError(f"ControllerSettings.delay_move_weight must be within 0 .. {MAX_DELAY_MOVE_WEIGHT:g} "
-                             f"(0 excluded; 1: servo.r as it is), got {self.delay_move_weight!r}")
-        if self.servo_mechanism and self.input_delay_samples not in (0, 1):
-            # the law may run with R times the factor (servo_for_delay): valid servo settings too
-            try:
-                self.servo_for_delay(2)
-            except ValueError as exc:
-                r = max(self.servo.r) if isinstance(self.servo.r, tuple) else self.servo.r
-                w = self.delay_move_weight
-                # the bound the user sets is servo.r's, not the product's
-                most = (f" (with this delay_move_weight, servo.r may be at most {_shown_down(MAX_WEIGHT / w)})"
-                        if r * w > MAX_WEIGHT else "")
-                raise ValueError(f"servo.r x ControllerSettings.delay_move_weight = {r:g} x {w:g}, "
-                                 f"the move weight of the law for a delay of 2 samples or more, is not one: {exc}{most}"
-                                 ) from None
-        if not isinstance(self.delay_correction, bool):
-            raise ValueError(f"ControllerSettings.delay_correction must be True or False, got {self.delay_correction!r}")
-        if self.hysteresis_notch is not None and not isinstance(self.hysteresis_notch, bool):
-            raise ValueError(f"ControllerSettings.hysteresis_notch must be None, True or False, "
-                             f"got {self.hysteresis_notch!r}")
-        if not (isinstance(self.box_lower, Mapping) and isinstance(self.box_upper, Mapping)):
-            raise ValueError("ControllerSettings.box_lower and box_upper must be mappings of parameter name to bound "
-                             f"(e.g. {{'b1': 0.6}}; a name left out is unbounded), got {type(self.box_lower).__name__} "
-                             f"and {type(self.box_upper).__name__}")
-        try:  # the estimator's own checks: names of Eq. (1), no NaN, lower <= upper
-            lower, upper = self.constraint_region()
-        except ValueError as exc:
-            raise ValueError(f"ControllerSettings: {exc}") from None
-        # read-only: a frozen setting's bound cannot be changed in place either
-        object.__setattr__(self, "box_lower", read_only({n: float(lower[i]) for i, n in enumerate(ASYMMETRIC.names)
-                                                         if n in self.box_lower}))
-        object.__setattr__(self, "box_upper", read_only({n: float(upper[i]) for i, n in enumerate(ASYMMETRIC.names)
-                                                         if n in self.box_upper}))
-
-    def __hash__(self) -> int:
-        return settings_hash(self)
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return settings_reduce(self)
-
-    def constraint_region(self) -> tuple[np.ndarray, np.ndarray]:
-        """The box C of Algorithm 1 as lower and upper bounds on Eq. (1)'s parameters, in
-        :data:`~fmu_controller.hysteresis_model.ASYMMETRIC`'s order (-inf / +inf: unbounded)."""
-        _, _, lower, upper = RLSSettings(p0=self.p0, box_lower=self.box_lower,
-                                         box_upper=self.box_upper).resolve(ASYMMETRIC)
-        return lower, upper
-
-    def servo_for_delay(self, delay_samples: int) -> ServoMPCSettings:
-        """The servo settings the law runs with for a delay of ``delay_samples`` samples: ``servo``, its
-        move weight R times :attr:`delay_move_weight` from 2 samples on."""
-        f = self.delay_move_weight
-        if delay_samples < 2 or f == 1.0:
-            return self.servo
-        r = self.servo.r
-        return replace(self.servo, r=tuple(x * f for x in r) if isinstance(r, tuple) else r * f)
-
-    @property
-    def adaptive(self) -> bool:
-        return self.method.startswith("ampc")
-
-    @property
-    def servo_mechanism(self) -> bool:
-        return self.method.endswith("servo")
-
-    @property
-    def preview_samples(self) -> int:
-        """How many future reference samples the method needs: ``Hp``, plus the input delay
-        (:data:`AUTO_INPUT_DELAY_SAMPLES` for -1, which may decide for any up to it)."""
-        return (self.servo.hp if self.servo_mechanism else self.ucp.hp) + preview_lead(self.input_delay_samples)
-
-
-def preview_lead(input_delay_samples: int) -> int:
-    """The reference samples beyond ``Hp`` that a controller with ``input_delay_samples`` needs: the
-    delay, and :data:`AUTO_INPUT_DELAY_SAMPLES` for -1 (:attr:`ControllerSettings.preview_samples`).
-
-    Parameters
-    ----------
-    input_delay_samples : int
-        The controller's input delay [samples], or -1 (decided from the data).
-    """
-    return AUTO_INPUT_DELAY_SAMPLES if input_delay_samples == -1 else input_delay_samples
-
-
-def pushed_at_limit(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> bool:
-    """Whether the command ``u_v`` [V] sits at a valve limit that the error ``r - l`` [mm] pushes it
-    further into (within 1 nV: the QP's bound on u_c leaves u = u_c - H/b1 a rounding error off it).
-
-    Parameters
-    ----------
-    r_mm : float
-        Reference ``r`` [mm].
-    l_mm : float
-        Measured contraction ``l`` [mm].
-    u_v : float
-        Valve command [V].
-    u_min_v, u_max_v : float
-        The valve's command limits [V] (Eq. (19)).
-    """
-    return pinned_side(r_mm, l_mm, u_v, u_min_v, u_max_v) != 0
-
-
-def pinned_side(r_mm: float, l_mm: float, u_v: float, u_min_v: float, u_max_v: float) -> int:
-    """Which valve limit the command ``u_v`` [V] sits at (within 1 nV) with the error ``r - l`` [mm]
-    pushing it further in: 1 the upper (``r > l``), -1 the lower (``r < l``), 0 neither.
-
-    Parameters
-    ----------
-    r_mm : float
-        Reference ``r`` [mm].
-    l_mm : float
-        Measured contraction ``l`` [mm].
-    u_v : float
-        Valve command [V].
-    u_min_v, u_max_v : float
-        The valve's command limits [V] (Eq. (19)).
-    """
-    if r_mm > l_mm and u_v >= u_max_v - 1e-9:
-        return 1
-    if r_mm < l_mm and u_v <= u_min_v + 1e-9:
-        return -1
-    return 0
-
-
-#: A command held at a valve limit while the error ``r - l`` pushes it away from that limit by at least
-#: this much [mm] (the encoder's noise and a resting muscle's sag are hundredths) is held against the
-#: error (:func:`held_against_error`).
-HELD_AGAINST_MM = 2.0
-#: A command held against the error this long [s] in a row is reported (the controller FMU's log, a
-#: closed loop's warning).
-HELD_WARN_S = 10.0
-
-
-def held_against_error(r_mm: Any, l_mm: Any, u_v: Any, u_min_v: float, u_max_v: float) -> Any:
-    """Whether the command ``u_v`` [V] sits at a valve limit while the error ``r - l`` [mm], by
-    :data:`HELD_AGAINST_MM` or more, pushes it away from it: a law that opened (closed) the valve would
-    move ``l`` towards ``r``, so the law's gain has the wrong sign for the rig. Floats or arrays
-    (element-wise).
-
-    Parameters
-    ----------
-    r_mm : float or ndarray
-        Reference ``r`` [mm].
-    l_mm : float or ndarray
-        Measured contraction ``l`` [mm].
-    u_v : float or ndarray
-        Valve command [V].
-    u_min_v, u_max_v : float
-        The valve's command limits [V] (Eq. (19)).
-    """
-    return (((r_mm - l_mm >= HELD_AGAINST_MM) & (u_v <= u_min_v + 1e-9))
-            | ((l_mm - r_mm >= HELD_AGAINST_MM) & (u_v >= u_max_v - 1e-9)))
-
-
-def held_against_cause(theta0_b1: float, name: str = "theta0.b1") -> str:
-    """Why a command is held against the error (:func:`held_against_error`), in words, for a law on a
-    ``theta0`` with this ``b1`` [mm/V] (``name``: how the caller names it).
-
-    Parameters
-    ----------
-    theta0_b1 : float
-        The law's ``b1`` of Eq. (1) [mm/V]; negative inverts the law.
-    name : str, optional
-        How the message names it; default ``"theta0.b1"``.
-    """
-    if theta0_b1 < 0:
-        return (f"{name} = {theta0_b1:g} < 0 inverts the law: more valve opening contracts the muscle, so b1 > 0 "
-                "(a model identified with u or l of the other sign?)")
-    return "the law's model (theta0, the box C) has the valve's effect the wrong way round for this rig"
-
-
-def _shown_down(x: float) -> str:
-    """``x`` > 0 to six significant digits, rounded down: a largest allowed value that is itself allowed."""
-    scale = 10.0 ** (5 - math.floor(math.log10(x)))
-    return f"{math.floor(x * scale) / scale:g}"
 
 
 def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, float], dict[str, float]]:
@@ -639,96 +122,6 @@ def _keep_gain_sign(settings: ControllerSettings, b1: float) -> tuple[dict[str, 
     else:
         upper["b1"] = min(upper.get("b1", math.inf), kept)
     return lower, upper
-
-
-def held_reading_message(settings: ControllerSettings, reading_mm: float, used_mm: float, last_mm: float,
-                         spike_mm: float | None) -> str:
-    """What to tell of a reading :attr:`DisplacementController.reading_held` reports (without the time):
-    the ``reading_mm`` [mm], the prediction ``used_mm`` instead, the last reading used ``last_mm``, and
-    ``spike_mm``, its :attr:`~DisplacementController.spike_limit_mm` (None: a jump beyond ``max_speed``,
-    or, where the reading is ``last_mm`` itself, a stale repeat: :data:`REPEAT_MOVE_MM`).
-
-    Parameters
-    ----------
-    settings : ControllerSettings
-        The controller's settings (``max_speed_mm_per_s`` [mm/s] and ``ts_s`` [s] for a jump's
-        message).
-    reading_mm : float
-        The reading held [mm].
-    used_mm : float
-        The one-step prediction used instead [mm].
-    last_mm : float
-        The last reading used [mm].
-    spike_mm : float or None
-        The spike limit [mm] for a one-sample spike, or None for a jump beyond ``max_speed`` or a
-        stale repeat.
-    """
-    if spike_mm is None and reading_mm == last_mm:
-        return (f"the reading l = {reading_mm:g} mm repeats the last one to the bit while the one-step prediction has "
-                f"the muscle move {abs(used_mm - last_mm):.3g} mm (more than {REPEAT_MOVE_MM:g} mm and "
-                f"{REPEAT_SPREAD:g} times the mean error): taken for a stale sample of the data acquisition, the law "
-                f"and the estimator used the prediction {used_mm:.4g} mm instead (a second repeat is used, as a "
-                "muscle that stopped; max_speed = 0 turns this off)")
-    if spike_mm is not None:
-        return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - used_mm):.3g} mm from the one-step prediction "
-                f"{used_mm:.4g} mm, more than the {spike_mm:.3g} mm it has lately come within (the larger of "
-                f"{SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times the mean error): taken for a one-sample spike of the sensor, "
-                "the law and the estimator used the prediction instead (the next reading is not held as a spike; "
-                "max_speed = 0 turns this off)")
-    s = settings
-    return (f"the reading l = {reading_mm:g} mm is {abs(reading_mm - last_mm):.3g} mm from the last one used, more than "
-            f"the muscle moves in a sample (max_speed x Ts = {s.max_speed_mm_per_s:g} x {s.ts_s:g} = "
-            f"{s.max_speed_mm_per_s * s.ts_s:g} mm): taken for a sensor glitch, the law and the estimator used the "
-            f"prediction {used_mm:.4g} mm instead (after {HELD_READINGS_MAX} in a row the reading is taken as the new "
-            "level; max_speed = 0 turns this off)")
-
-
-def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> str:
-    """What to tell of a reading :attr:`DisplacementController.reading_stuck` reported at ``t_s`` [s]:
-    ``reading_mm`` [mm], unchanged for ``unchanged_s`` [s].
-
-    Parameters
-    ----------
-    t_s : float
-        Time of the report [s].
-    reading_mm : float
-        The stuck reading [mm].
-    unchanged_s : float
-        How long it has not changed [s].
-    """
-    return (f"t = {t_s:.12g} s: the reading l = {reading_mm:g} mm has not changed at all for {unchanged_s:.4g} s while "
-            f"the command sat at each of the valve's limits for {STUCK_AT_LIMIT_S:g} s or more, which moves a working "
-            "muscle by millimetres: the sensor is stuck or disconnected (a DAQ holding its last value?), or the supply "
-            "is shut with the muscle at rest. The controller goes on with the reading")
-
-
-def limit_side(u_v: float, u_min_v: float, u_max_v: float) -> int:
-    """The valve limit the command ``u_v`` [V] sits at (within 1 nV): -1 the lower, 1 the upper, 0 neither.
-
-    Parameters
-    ----------
-    u_v : float
-        Valve command [V].
-    u_min_v, u_max_v : float
-        The valve's command limits [V] (Eq. (19)).
-    """
-    return -1 if u_v <= u_min_v + 1e-9 else 1 if u_v >= u_max_v - 1e-9 else 0
-
-
-def full_range_jump(u_v: float, u_prev_v: float, u_min_v: float, u_max_v: float) -> bool:
-    """Whether the command moved across :data:`GUARD_JUMP_FRACTION` of the valve's range [V] in one
-    sample: the valve slammed end to end.
-
-    Parameters
-    ----------
-    u_v : float
-        Valve command at this sample [V].
-    u_prev_v : float
-        Valve command at the previous sample [V].
-    u_min_v, u_max_v : float
-        The valve's command limits [V] (Eq. (19)).
-    """
-    return abs(u_v - u_prev_v) >= GUARD_JUMP_FRACTION * (u_max_v - u_min_v)
 
 
 def _smoothstep(x: float) -> float:
@@ -767,7 +160,6 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     """``a``, made read-only (it is handed out with every :class:`ControlStep`)."""
     a.flags.writeable = False
     return a
-
 
 _new_object = object.__new__
 _set_attribute = object.__setattr__
@@ -888,14 +280,7 @@ class DisplacementController:
         # is scored too, so that delay_evidence can weigh it against the others
         self._scored = AUTO_INPUT_DELAY_SAMPLES if self._auto else max(AUTO_INPUT_DELAY_SAMPLES,
                                                                         settings.input_delay_samples)
-        # the scores' memory and windows span the seconds they were measured over at DELAY_SCORES_TS_S:
-        # at Ts = 0.02 s 300 samples are 6 s, inside the start-up mode, where a set delay that was right
-        # was scored wrong (exactly the constants at 0.1 s: the scale is 1.0)
-        scale = settings.ts_s / DELAY_SCORES_TS_S
-        self._forget = DELAY_FORGET * scale if scale < 1.0 / DELAY_FORGET else 1.0
-        self._min_n, self._decide_n, self._check_n, self._lead_n = (
-            max(1, round(n / scale)) for n in (DELAY_MIN_SAMPLES, DELAY_DECIDE_BY_SAMPLES, DELAY_CHECK_SAMPLES,
-                                               DELAY_LEAD_SAMPLES))
+        self._scores = DelayScores(self.theta0, self._scored, settings.ts_s)
         notch = settings.hysteresis_notch
         if notch is None:
             notch = not settings.adaptive or settings.startup_s > 0
@@ -973,14 +358,7 @@ class DisplacementController:
         self._later = [(0.0, 0.0)] * max(self._lag - 1, 0)
         # the outputs (u, u_c) of the last samples, newest first: y(k-1), y(k-2), ...
         self._outs = [(0.0, 0.0)] * (self._scored + 1)
-        # the mean squared one-step errors of Eq. (1) under each delay 0 .. _scored (0: a sequential
-        # master, 1: a parallel one, more: a transport delay too), each with its own model state;
-        # samples compared so far
-        self._ms = [0.0] * (self._scored + 1)
-        self._compared = 0
-        self._lin0 = self.theta0[:3].tolist()
-        self._shadows = [ModelState(ASYMMETRIC, l_init=(l0, l0, l0), u_init=0.0)
-                         for _ in range(self._scored + 1)]
+        self._scores.reset(l0)
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
 
@@ -1119,14 +497,13 @@ class DisplacementController:
             rl = self._lead_in(rl, l)
 
         # -1 scores the delays until it decides; a set delay over DELAY_CHECK_SAMPLES (delay_evidence)
-        if (not self._decided) if self._auto else self._compared < self._check_n:
-            if k == 0:  # the shadow models start from the first measurement
-                for shadow in self._shadows:
-                    shadow.observe_unchecked(l, self._lin0[0], self._lin0[1], self._lin0[2])
+        if (not self._decided) if self._auto else not self._scores.checked:
+            if k == 0:  # the hypotheses' models start from the first measurement
+                self._scores.start(l)
             elif self._auto:
                 self._detect_delay(l)
             else:  # a delay set: scored over the first samples as -1 would, to tell a wrong one (delay_evidence)
-                self._score_delays(l)
+                self._scores.score(l, self._outs)
 
         if self._rls is not None and k > 0:
             phi = state.phi_list()
@@ -1171,77 +548,17 @@ class DisplacementController:
         return _control_step(u, predicted, error, uc, h, xs_next, theta, saturated)
 
     def _detect_delay(self, l: float) -> None:
-        """``input_delay_samples = -1``: score the fixed prior model ``theta0``'s prediction of ``l(k)``
-        (Eq. (1)) under each delay ``d = 0 .. AUTO_INPUT_DELAY_SAMPLES``: the valve had the output
-        ``y(k-1-d)`` over ``[t_k-1, t_k)`` (0: a sequential master, 1: a parallel one, more: a rig's
-        transport delay as well), each hypothesis with its own model state. The controller starts with
-        the delayed law (``d = 1``). Once the best delay of 2 or more that the scores fall towards from 1
-        (:meth:`_valley_beyond_one`) is :data:`DELAY_RATIO` times better than both 0 and 1, the law switches
-        to it; else once the parallel hypothesis is that much
-        better than the sequential one it keeps the delayed law (or switches to a longer delay that
-        scores better still), once the sequential one is, it switches to the undelayed law; after
-        :data:`DELAY_DECIDE_BY_SAMPLES` samples the best is taken. A servo method takes the longer of
-        two neighbouring delays that score within :data:`DELAY_TIE_RATIO` (a rig's delay between
-        them). A switch corrects the model's input over ``[t_k-1, t_k)`` to the command the valve had
-        under the delay decided. (The prior, not the adaptive estimate: in the first seconds the
-        estimate can be far off.)"""
-        self._score_delays(l)
-        ms = self._ms
-        if self._compared < self._min_n:
-            return
-        ms_seq, ms_par = ms[0], ms[1]
-        late = self._compared >= self._decide_n
-        # the valley's delays, and any other that explains the data DELAY_CLEAR_RATIO times better than 0 and 1
-        clear = [d for d in range(2, len(ms)) if DELAY_CLEAR_RATIO * ms[d] < min(ms_seq, ms_par)]
-        far = min((*self._valley_beyond_one(), *clear), key=ms.__getitem__, default=None)
-        if far is not None and (DELAY_RATIO * ms[far] < min(ms_seq, ms_par) or (late and ms[far] < min(ms_seq, ms_par))):
-            self._decide_delay(self._longer_if_tied(far))  # a rig's transport delay: each command far samples on
-        elif DELAY_RATIO * ms_par < ms_seq or (late and ms_par <= ms_seq):
-            # a parallel master (or a rig's delay of about a sample): the delayed law stays, unless a longer
-            # delay scores better still (a rig's delay between 1 and 2 samples)
-            d = self._longer_if_tied(far if far is not None and ms[far] < ms_par else 1)
-            if d == 1:
-                self._decided = True
-            else:
-                self._decide_delay(d)
-        elif DELAY_RATIO * ms_seq < ms_par or late:
-            # a sequential master: the valve had the last output over [t_k-1, t_k), not the one
-            # before; the law runs undelayed from now on
-            self._decide_delay(0)
-
-    def _valley_beyond_one(self) -> range:
-        """The delays of 2 samples or more that a rig's transport delay can be on the scores: those reached
-        from 0, through 1, while each next one scores no worse than :data:`DELAY_TIE_RATIO` times the one
-        before. A transport delay's scores fall towards it from the shorter delays. A loop that chatters
-        with a period of a few samples (the delayed law on a rig whose command acts within a fraction of a
-        sample: a parallel master sub-stepping at Ts/4; the delayed law of a fixed predictor on a rig whose
-        constants are off) repeats its command every period, so the delay of one period scores as well as
-        0 whatever lies between (0.025 s at 68 N, 0.2 Hz: 1.68, 3.68, 6.98, 1 times the best for 0 .. 3
-        samples; deciding 3 tracks MPC-servo to 2.0 mm, 0 to 0.42; MPC-UCP on an off-nominal rig without a
-        delay: 1.31, 1.86, 1.0, deciding 2 tracked to 1.60 mm, 0 to 1.18)."""
-        ms, d = self._ms, 0
-        while d + 1 < len(ms) and ms[d + 1] <= DELAY_TIE_RATIO * ms[d]:
-            d += 1
-        return range(2, d + 1)
-
-    def _longer_if_tied(self, d: int) -> int:
-        """``d``, or for a servo method ``d + 1`` where that one scores within :data:`DELAY_TIE_RATIO` of
-        it (a delay between the two samples: the longer one is compensated)."""
-        ms = self._ms
-        longer = self.settings.servo_mechanism and d + 1 < len(ms) and ms[d + 1] <= DELAY_TIE_RATIO * ms[d]
-        return d + 1 if longer else d
-
-    def _score_delays(self, l: float) -> None:
-        """One sample of :meth:`_detect_delay`'s scores: ``theta0``'s one-step prediction error of ``l(k)``
-        [mm] under each delay, into the running mean squares."""
-        th0, lin0, outs, ms, forget = self.theta0, self._lin0, self._outs, self._ms, self._forget
-        for d, shadow in enumerate(self._shadows):
-            u = outs[d][0]
-            shadow.apply(u)
-            e = l - held_input_run(shadow, th0, lin0, u, 1)[0]
-            shadow.observe_unchecked(l, lin0[0], lin0[1], lin0[2])
-            ms[d] += forget * (e * e - ms[d])
-        self._compared += 1
+        """``input_delay_samples = -1``: score ``l(k)`` [mm] under each delay ``d = 0 ..
+        AUTO_INPUT_DELAY_SAMPLES`` and act on the scores' verdict (:meth:`DelayScores.verdict
+        <fmu_controller.input_delay_scores.DelayScores.verdict>`). The controller starts with the
+        delayed law (``d = 1``): a verdict of 1 keeps it, any other switches the law to that delay
+        (:meth:`_decide_delay`), for good."""
+        self._scores.score(l, self._outs)
+        d = self._scores.verdict(self.settings.servo_mechanism)
+        if d == 1:
+            self._decided = True
+        elif d is not None:
+            self._decide_delay(d)
 
     @property
     def delay_evidence(self) -> tuple[int, float] | None:
@@ -1250,20 +567,14 @@ class DisplacementController:
         ``(d, ratio)`` when another delay ``d`` explains the measurements :data:`DELAY_RATIO` times better
         or more (``ratio``: the set delay's mean squared one-step error over ``d``'s), else None (also
         before, and with -1)."""
-        if not self.delay_checked:
-            return None
-        ms, lag = self._ms, self._lag
-        best = min(range(len(ms)), key=ms.__getitem__)
-        if best != lag and DELAY_RATIO * ms[best] < ms[lag]:
-            return best, ms[lag] / ms[best] if ms[best] > 0.0 else math.inf
-        return None
+        return self._scores.evidence(self._lag) if self.delay_checked else None
 
     @property
     def delay_checked(self) -> bool:
         """With ``input_delay_samples`` set: whether the first :attr:`delay_check_samples` samples have
         been scored, so that :attr:`delay_evidence` None means that no other delay explained them
         better (False before, and with -1)."""
-        return not self._auto and self._compared >= self._check_n
+        return not self._auto and self._scores.checked
 
     def _decide_delay(self, d: int) -> None:
         """``input_delay_samples = -1`` decided for the delay ``d`` other than the delayed law's 1 it ran
@@ -1300,7 +611,7 @@ class DisplacementController:
     def delay_check_samples(self) -> int:
         """How many samples a set delay is scored over before :attr:`delay_evidence` speaks:
         :data:`DELAY_CHECK_SAMPLES` at Ts = :data:`DELAY_SCORES_TS_S`, the same seconds at another Ts."""
-        return self._check_n
+        return self._scores.check_n
 
     @property
     def largest_scored_delay(self) -> int:
@@ -1465,7 +776,7 @@ class DisplacementController:
         l_next = held_input_run(state, theta, t[:3], u_now, 1)[0]  # l(k+1|k), Eq. (1)
         if self._delay_predictor is not None:
             corrected = self._delay_predictor.predict(l, u_now, l_next)
-            if self._decided or (self._compared >= self._lead_n and self._ms[1] < self._ms[0]):
+            if self._decided or self._scores.parallel_leads():
                 # while -1 is undecided, only where the parallel hypothesis leads: in a sequential
                 # master the command in flight is not the one the valve has, and a correction fitted
                 # to that wrong record destabilises the loop (an overshoot of 19 mm on an off-nominal
@@ -1576,10 +887,8 @@ class DisplacementController:
             "delayed": self._lag != 0, "decided": self._decided, "lag": self._lag,
             "in_flight": [list(pair) for pair in self._later],
             "u_out": [u for u, _ in self._outs], "uc_out": [uc for _, uc in self._outs],
-            "delay_scores": list(self._ms),
-            "compared": self._compared, "est_from": self._est_from,
+            **self._scores.get_state(), "est_from": self._est_from,
             "guard": [self._jumps, self._guarded_at],
-            "delay_models": [shadow.get_state() for shadow in self._shadows],
             "delay_predictor": None if self._delay_predictor is None else self._delay_predictor.get_state(),
             "rls": rls,
             "servo": None if self._servo is None else self._servo.get_state(),
@@ -1666,17 +975,11 @@ class DisplacementController:
             self._lag = lag
             self._fit_servo_to_lag()
             self._decided = bool(decided)
-            self._outs, self._later, self._ms = outs, later, scores
-            self._compared = int(state["compared"])
+            self._outs, self._later = outs, later
             self._est_from = int(state.get("est_from", 0))
             if not 0 <= self._est_from <= self._k:
                 raise ValueError(f"state field est_from = {state['est_from']!r} must be within 0 .. k = {self._k}")
-            models = state.get("delay_models")
-            if models is not None:
-                if len(models) != n:
-                    raise ValueError(f"state field delay_models must hold {n} model states, got {len(models)}")
-                for shadow, model in zip(self._shadows, models):
-                    shadow.set_state(model)
+            self._scores.set_state(scores, state["compared"], state.get("delay_models"))
         jumps, guarded_at = state.get("guard", (0, None))  # a state without it (an older FMU's): not fired
         if (isinstance(jumps, bool) or int(jumps) != jumps or jumps < 0
                 or (guarded_at is not None and not (int(guarded_at) == guarded_at and 0 <= guarded_at <= self._k))):

@@ -518,7 +518,7 @@ def test_a_loop_chattering_with_a_period_of_samples_is_not_taken_for_a_transport
         return c, float(np.mean(np.abs(out["r_mm"] - out["l_mm"])[out["t_s"] >= 20.0]))
 
     auto, mae_auto = run(0.025, -1)
-    ms = np.array(auto._ms)
+    ms = np.array(auto._scores.ms)
     assert ms[3] < ms[0] < ms[1] < ms[2]  # the chatter's aliased delay scores best
     assert auto.input_delay_decision == 0
     assert mae_auto < 2.0 * run(0.025, 0)[1]  # deciding 3: 4.8 (MPC-servo) and 6 (AMPC-servo) times
@@ -1254,16 +1254,16 @@ def test_the_delay_evidence_of_a_set_delay():
     c = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=0), THETA0_44N)
     c.reset(0.0)
     assert c.delay_evidence is None
-    c._compared = DELAY_CHECK_SAMPLES
-    c._ms = [1.0, 0.5, 2.0, 2.0, 2.0, 2.0]
+    c._scores.compared = DELAY_CHECK_SAMPLES
+    c._scores.ms = [1.0, 0.5, 2.0, 2.0, 2.0, 2.0]
     assert c.delay_evidence == (1, 2.0)
-    c._ms = [1.0, 1.0 / DELAY_RATIO, 2.0, 2.0, 2.0, 2.0]  # not better by the ratio
+    c._scores.ms = [1.0, 1.0 / DELAY_RATIO, 2.0, 2.0, 2.0, 2.0]  # not better by the ratio
     assert c.delay_evidence is None
-    c._ms = [1.0, 0.0, 2.0, 2.0, 2.0, 2.0]
+    c._scores.ms = [1.0, 0.0, 2.0, 2.0, 2.0, 2.0]
     assert c.delay_evidence == (1, math.inf)
     auto = DisplacementController(ControllerSettings(method="ampc_servo", input_delay_samples=-1), THETA0_44N)
     auto.reset(0.0)
-    auto._compared = DELAY_CHECK_SAMPLES
+    auto._scores.compared = DELAY_CHECK_SAMPLES
     assert auto.delay_evidence is None
 
 
@@ -1696,10 +1696,10 @@ def test_minus_one_takes_a_delay_of_two_or_more_only_where_the_scores_fall_to_it
     study, 2026-12-06); on 256 nominal runs (4 methods, 44/68 N, 0.1/0.2 Hz, delays 0-0.35 s, sequential
     and parallel) no decision moved."""
     c = DisplacementController(ControllerSettings(method="mpc_ucp", input_delay_samples=-1), theta0)
-    c._ms = [1.31, 1.86, 1.0, 1.39, 1.24, 1.42]
-    assert list(c._valley_beyond_one()) == []
-    c._ms = [1.54, 1.21, 1.0, 1.36, 2.04, 2.69]  # a rig's 0.21-s delay
-    assert list(c._valley_beyond_one()) == [2]
+    c._scores.ms = [1.31, 1.86, 1.0, 1.39, 1.24, 1.42]
+    assert list(c._scores.valley_beyond_one()) == []
+    c._scores.ms = [1.54, 1.21, 1.0, 1.36, 2.04, 2.69]  # a rig's 0.21-s delay
+    assert list(c._scores.valley_beyond_one()) == [2]
     rig = PlantParams().with_values(**{
         "friction.asymmetry": 0.369248, "valve.cv_max": 1.281181, "load.moving_mass_kg": 0.338404,
         "muscle.braid_angle_deg": 19.752245, "valve.spool_time_constant_s": 0.027425,
