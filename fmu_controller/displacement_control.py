@@ -37,6 +37,11 @@ and 68 N, 0.1 and 0.2 Hz give the same commands bit for bit with ``max_speed_mm_
 
 Lifecycle as osqp's: construct (setup), :meth:`reset` with the first measurement, :meth:`step` every
 sample; :meth:`get_state`/:meth:`set_state` for exact rewind (FMU state).
+
+Its parts in their own modules: the settings (:mod:`fmu_controller.controller_settings`), the guards on
+the reading (:mod:`fmu_controller.reading_guards`), the input-delay hypotheses' scores
+(:mod:`fmu_controller.input_delay_scores`), the valve-limit tests (:mod:`fmu_controller.valve_limits`);
+their names import from here too.
 """
 
 from __future__ import annotations
@@ -61,8 +66,8 @@ from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import probe_v
 from .reading_guards import (DEFAULT_MAX_SPEED_MM_PER_S, FASTEST_MUSCLE_MM_PER_S, HELD_READINGS_MAX, L_RANGE_MM,
                              REF_STEP_SETTLE_S, REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_AFTER_S, SPIKE_FORGET,
-                             SPIKE_MM, SPIKE_SPREAD, STUCK_AT_LIMIT_S, held_reading_message, settle_samples,
-                             stuck_reading_message)
+                             SPIKE_MM, SPIKE_SPREAD, STUCK_AT_LIMIT_S, ReadingGuard, held_reading_message,
+                             settle_samples, stuck_reading_message)
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, integrator_step
 from .ucp_mpc import held_input_run, ucp_move
@@ -95,12 +100,6 @@ HOLD_AFTER_SAMPLES = 5
 #: valve at 10 V from 2.5 s on). Table 2's lower bound is 0.75 of THETA0_44N's b1, so under the
 #: paper's C this bound never acts.
 B1_KEPT_FRACTION = 0.25
-
-#: The spike guard's state at the start: the running mean |one-step prediction error| [mm], the last
-#: reading's |error| [mm] (NaN: none yet), the sample the guard acts from (after a reference step's
-#: transient), the preview's last sample at the last step [mm], the |error| of the reading before the
-#: last [mm].
-_NEW_SPIKE_GUARD = (math.nan, math.nan, 0, math.nan, math.nan)
 
 #: ``hysteresis_notch``: the predicted H(k+1|k), H(k+2|k) stay within one and two times
 #: ``NOTCH_RATE_FACTOR x`` (the larger of H's last two changes) ``+ NOTCH_FLOOR_MM`` of H(k) [mm].
@@ -173,35 +172,6 @@ def _control_step(u_v, predicted_next_mm, prediction_error_mm, uc_v, hysteresis_
         "u_v": u_v, "predicted_next_mm": predicted_next_mm, "prediction_error_mm": prediction_error_mm,
         "uc_v": uc_v, "hysteresis_mm": hysteresis_mm, "xs_mm": xs_mm, "theta": theta, "saturated": saturated})
     return step
-
-
-def _valid_spike_guard(spike: Any) -> bool:
-    """Whether ``spike`` is a spike guard's state (``_NEW_SPIKE_GUARD``'s fields) a controller could save."""
-    if not isinstance(spike, (list, tuple)) or len(spike) != 5:
-        return False
-    try:
-        mean, last, acts_from, r, earlier = (float(spike[0]), float(spike[1]), spike[2], float(spike[3]),
-                                             float(spike[4]))
-    except (TypeError, ValueError):
-        return False
-    errors_ok = all(x != x or 0.0 <= x < math.inf for x in (mean, last, earlier))
-    whole = not isinstance(acts_from, bool) and isinstance(acts_from, (int, float)) and int(acts_from) == acts_from >= 0
-    return errors_ok and whole and (r != r or math.isfinite(r))
-
-
-def _valid_still(still: Any) -> bool:
-    """Whether ``still`` is a stretch of identical readings that :meth:`DisplacementController.get_state`
-    could have saved: ``[reading or NaN, samples, samples after the lower limit, after the upper, said]``."""
-    try:
-        if not isinstance(still, (list, tuple)) or len(still) != 5 or still[4] not in (True, False):
-            return False
-        reading, counts = float(still[0]), still[1:4]
-        if any(isinstance(n, bool) or int(n) != n or int(n) < 0 for n in counts):
-            return False
-        return ((math.isnan(reading) or L_RANGE_MM[0] <= reading <= L_RANGE_MM[1])
-                and int(counts[1]) + int(counts[2]) <= int(counts[0]))
-    except (TypeError, ValueError, OverflowError):
-        return False
 
 
 def _restored_controller(cls: type[DisplacementController], settings: ControllerSettings, theta0: Sequence[float],
@@ -292,8 +262,8 @@ class DisplacementController:
         self._probing_v = settings.probing_v if settings.adaptive and self._warm_n > 0 else 0.0
         self._probing_phase = settings.probing_phase
         self._guard = settings.startup_guard and settings.adaptive and self._blend_n > 0
-        self._max_jump = settings.max_speed_mm_per_s * settings.ts_s  # 0: no glitch guard
-        self._stuck_n = max(1, int(math.ceil(STUCK_AT_LIMIT_S / settings.ts_s - 1e-9)))
+        self._readings = ReadingGuard(settings.max_speed_mm_per_s * settings.ts_s, settings.ts_s, self._need,
+                                      *self._law_bounds)
         self._delay_predictor = DelayPredictor() if settings.delay_correction and settings.input_delay_samples else None
         self.reset(0.0)
 
@@ -327,25 +297,7 @@ class DisplacementController:
         self._limit_run = 0  # samples in a row at a valve limit the error pushes into (_integrate)
         self._h_prev = self._h_prev2 = math.nan  # H(k-1), H(k-2) for hysteresis_notch (NaN: none yet)
         self._predicted = math.nan
-        self._held_in_a_row = 0  # readings the glitch guard held in a row
-        self.reading_held: tuple[float, float, float] | None = None
-        """The last step's reading taken for a glitch, a spike or a stale repeat (then equal to the last
-        one used), the value used instead and the last one used before [mm]; None where the reading
-        was used."""
-        self.spike_limit_mm: float | None = None
-        """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
-        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
-        None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
-        self._spike = list(_NEW_SPIKE_GUARD)
-        # the stretch of identical readings: its reading (NaN before the first), its samples, the
-        # samples of it that followed a command at the lower and at the upper valve limit, and whether
-        # reading_stuck has said it
-        self._still = [math.nan, 0, 0, 0, False]
-        self.reading_stuck: tuple[float, float] | None = None
-        """On the step that tells it, once a stretch: the reading [mm] that has not changed at all
-        while the command sat at each of the valve's limits for :data:`STUCK_AT_LIMIT_S` or more, and
-        how long it has not changed [s] (a stuck or disconnected sensor, a DAQ holding its last value,
-        or the supply shut with the muscle at rest); None otherwise. The law goes on with the reading."""
+        self._readings.reset()
         # -1 starts with the delayed law: it is safe in both kinds of master while undecided (one
         # sample early in a sequential one), the undelayed law is not (it oscillates in a parallel one)
         self._lag = 1 if self._auto else self.settings.input_delay_samples  # the delay the law runs for
@@ -362,61 +314,34 @@ class DisplacementController:
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
 
-    def _spike_limit(self) -> float:
-        """How far [mm] a reading may lie from its one-step prediction before it is a spike: the larger of
-        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running mean error (inf before one)."""
-        mean = self._spike[0]
-        return max(SPIKE_MM, SPIKE_SPREAD * mean) if mean == mean else math.inf
+    @property
+    def reading_held(self) -> tuple[float, float, float] | None:
+        """The last step's reading taken for a glitch, a spike or a stale repeat (then equal to the last
+        one used), the value used instead and the last one used before [mm]; None where the reading
+        was used (:class:`~fmu_controller.reading_guards.ReadingGuard`)."""
+        return self._readings.reading_held
+
+    @property
+    def spike_limit_mm(self) -> float | None:
+        """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
+        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
+        None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
+        return self._readings.spike_limit_mm
+
+    @property
+    def reading_stuck(self) -> tuple[float, float] | None:
+        """On the step that tells it, once a stretch: the reading [mm] that has not changed at all
+        while the command sat at each of the valve's limits for :data:`STUCK_AT_LIMIT_S` or more, and
+        how long it has not changed [s] (a stuck or disconnected sensor, a DAQ holding its last value,
+        or the supply shut with the muscle at rest); None otherwise. The law goes on with the reading."""
+        return self._readings.reading_stuck
 
     def _guarded(self) -> bool:
         """Whether the spike and repeat guards act at this sample: a prediction to use, past the
         start-up and :data:`SPIKE_AFTER_S` after it (an estimate still learning predicts badly)."""
-        return (math.isfinite(self._predicted) and not self.in_startup
-                and self.samples_since_start > int(round(SPIKE_AFTER_S / self.settings.ts_s)) + self._blend_n)
-
-    def _stale(self, l: float) -> bool:
-        """Whether ``l`` [mm], a reading equal to the last one used, is a stale sample: the prediction
-        has the muscle move further than :data:`REPEAT_MOVE_MM` and :data:`REPEAT_SPREAD` times the
-        running mean prediction error."""
-        mean = self._spike[0]
-        # not in a reference step's transient either, where a muscle held by its friction stops short of
-        # a prediction that misses by a millimetre (the spike guard's wait, spike[2])
-        return (self._guarded() and mean == mean and self._k >= self._spike[2]
-                and abs(self._predicted - l) > max(REPEAT_MOVE_MM, REPEAT_SPREAD * mean))
-
-    def _spike_guard(self, l: float, r: float) -> float:
-        """The reading ``l`` [mm] to use: the one-step prediction where ``l`` is a one-sample spike
-        (:data:`SPIKE_MM`; ``r``: the preview's last sample [mm], whose steps pause the guard from when
-        the law first sees them), else ``l``, the running mean of the prediction errors updated with it."""
-        spike = self._spike
-        ts = self.settings.ts_s
-        if abs(r - spike[3]) > SPIKE_MM:  # a step at the preview's end: the law acts on it now
-            spike[2] = self._k + self._need + settle_samples(ts)
-        spike[3] = r
-        predicted = self._predicted
-        if not math.isfinite(predicted):
-            return l
-        error = abs(l - predicted)
-        limit = self._spike_limit()
-        before = spike[1]
-        # a reading after two ordinary ones (within half the limit); not in the start-up, whose estimate is
-        # still learning (an open-loop theta0 at 0.3 MPa missed by 60 mm there), nor in the seconds after
-        # it; and the prediction used instead must itself be a reading the muscle could give
-        if (error > limit and before <= 0.5 * limit and spike[4] <= 0.5 * limit and self._k >= spike[2] and self._guarded()
-                and abs(predicted - self._state.last_l) <= self._max_jump):
-            spike[1], spike[4] = error, before
-            self.spike_limit_mm = limit
-            self.reading_held = (l, predicted, self._state.last_l)
-            return predicted
-        if before > limit and error > limit:
-            # a reading as far off after a held (or far-off) one: no spike but a model that predicts this
-            # badly now; the guard waits a transient out and takes the error in whole
-            spike[2] = self._k + settle_samples(ts)
-            limit = error
-        spike[1], spike[4] = error, before
-        # an error beyond the limit counts as the limit: a transient does not blunt the guard
-        spike[0] = error if spike[0] != spike[0] else spike[0] + SPIKE_FORGET * (min(error, limit) - spike[0])
-        return l
+        # past the start-up: -1 decided, and more than the blend's samples since the estimator's start
+        return (self._decided and self._k - self._est_from > self._readings.after_samples + self._blend_n
+                and math.isfinite(self._predicted))
 
     def step(self, l_mm: float, r_preview_mm: Sequence[float]) -> ControlStep:
         """One control sample: measured ``l(k)`` [mm] and the preview ``r(k), ..., r(k+n)`` [mm] ->
@@ -460,38 +385,8 @@ class DisplacementController:
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
         state = self._state
         k = self._k
-        self.reading_held = None
-        self.reading_stuck = None
-        still = self._still
-        if l == still[0]:
-            self._watch_still(still)
-        else:
-            still[:] = [l, 0, 0, 0, False]
-        self.spike_limit_mm = None
-        if self._max_jump and k > 0:
-            last = state.last_l
-            if abs(l - last) <= self._max_jump:
-                self._held_in_a_row = 0
-                if still[1] == 1 and l == last and self._stale(l):
-                    self.reading_held = (l, self._predicted, last)
-                    l = self._predicted
-                else:
-                    l = self._spike_guard(l, rl[-1])
-            elif self._held_in_a_row >= HELD_READINGS_MAX or (
-                    not self._held_in_a_row and abs(l - state.l_prev_mm) <= self._max_jump
-                    and self._spike[1] > self._spike_limit()):
-                # the new level; or, after a used reading that was far from its prediction, within reach of
-                # the reading before it: that one was a spike under the bound, and the readings after it
-                # are the muscle's. The model's state has jumped: its predictions are no guide for a while
-                self._held_in_a_row = 0
-                spike = self._spike
-                spike[1], spike[4] = abs(l - self._predicted) if math.isfinite(self._predicted) else math.nan, spike[1]
-                spike[2], spike[3] = k + settle_samples(self.settings.ts_s), rl[-1]
-            else:  # further than the muscle moves in a sample: a glitch, the prediction used instead
-                self._held_in_a_row += 1
-                used = self._predicted if math.isfinite(self._predicted) else last
-                self.reading_held = (l, used, last)
-                l = used
+        l = self._readings.check(l, k, self._predicted, state.last_l, state.l_prev_mm, rl[-1], self._outs[0][0],
+                                 self._guarded())
         error = 0.0 if math.isnan(self._predicted) else l - self._predicted
         if k < self._ramp_n:
             rl = self._lead_in(rl, l)
@@ -855,20 +750,6 @@ class DisplacementController:
         rls = self._rls
         return (0, 0, 0) if rls is None else (rls.n_projections, rls.n_resets, rls.n_ceilings)
 
-    def _watch_still(self, still: list) -> None:
-        """Count a reading equal to the last one: after a command at a valve limit, towards that
-        limit's time; set :attr:`reading_stuck` when both reach :data:`STUCK_AT_LIMIT_S`."""
-        still[1] += 1
-        u = self._outs[0][0]  # the command that followed the last reading
-        u_min, u_max = self._law_bounds
-        if u <= u_min + 1e-9:
-            still[2] += 1
-        elif u >= u_max - 1e-9:
-            still[3] += 1
-        if not still[4] and still[2] >= self._stuck_n and still[3] >= self._stuck_n:
-            still[4] = True
-            self.reading_stuck = (still[0], still[1] * self.settings.ts_s)
-
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, Any]:
         """Everything needed to continue bit-identically, as plain data (JSON-serialisable:
@@ -880,8 +761,7 @@ class DisplacementController:
         return {
             "theta": self.theta.tolist(), "model": self._state.get_state(), "k": self._k,
             "u_prev": self._u_prev, "uc_prev": self._uc_prev, "xs": self._xs, "limit_run": self._limit_run,
-            "predicted": self._predicted, "held_in_a_row": self._held_in_a_row, "still": list(self._still),
-            "spike": list(self._spike),
+            "predicted": self._predicted, **self._readings.get_state(),
             "u_next": self._u_next, "uc_next": self._uc_next, "h_prev": self._h_prev,
             "h_prev2": self._h_prev2, "l_start": self._l_start,
             "delayed": self._lag != 0, "decided": self._decided, "lag": self._lag,
@@ -921,22 +801,7 @@ class DisplacementController:
         self._u_prev, self._uc_prev, self._xs = float(state["u_prev"]), float(state["uc_prev"]), float(state["xs"])
         self._limit_run = int(state.get("limit_run", 0))
         self._predicted = float(state["predicted"])
-        held = state.get("held_in_a_row", 0)  # a state saved without the guard: none held
-        if isinstance(held, bool) or int(held) != held or not 0 <= held <= HELD_READINGS_MAX:
-            raise ValueError(f"state field held_in_a_row = {held!r} must be a count 0 .. {HELD_READINGS_MAX}")
-        self._held_in_a_row = int(held)
-        still = state.get("still", [math.nan, 0, 0, 0, False])  # a state saved without the watch: a new stretch
-        if not _valid_still(still):
-            raise ValueError(f"state field still = {still!r} must be [reading within {L_RANGE_MM[0]:g}..{L_RANGE_MM[1]:g} "
-                             "mm or NaN, samples >= 0, samples after the lower limit and after the upper one (together "
-                             "at most the samples), said true/false]")
-        self._still = [float(still[0]), int(still[1]), int(still[2]), int(still[3]), bool(still[4])]
-        spike = state.get("spike", _NEW_SPIKE_GUARD)  # saved without the spike guard: a new one
-        if not _valid_spike_guard(spike):
-            raise ValueError(f"state field spike = {spike!r} must be [mean |prediction error| >= 0 mm or NaN, the last "
-                             "reading's |error| >= 0 mm or NaN, the sample the guard acts from >= 0, the preview's last "
-                             "sample (finite) or NaN, the |error| before >= 0 mm or NaN]")
-        self._spike = [float(spike[0]), float(spike[1]), int(spike[2]), float(spike[3]), float(spike[4])]
+        self._readings.set_state(state)  # a state saved without a guard's fields: that guard anew
         self._u_next, self._uc_next = float(state.get("u_next", 0.0)), float(state.get("uc_next", 0.0))
         for name in ("h_prev", "h_prev2"):
             if math.isinf(float(state.get(name, math.nan))):

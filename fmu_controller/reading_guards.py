@@ -12,7 +12,8 @@ loop warns with.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, Any, Mapping
 
 if TYPE_CHECKING:
     from .controller_settings import ControllerSettings
@@ -20,7 +21,7 @@ if TYPE_CHECKING:
 __all__ = ["L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
            "REF_STEP_SETTLE_S", "settle_samples", "STUCK_AT_LIMIT_S", "held_reading_message",
-           "stuck_reading_message"]
+           "stuck_reading_message", "ReadingGuard"]
 
 
 #: Every contraction [mm] the plant FMU's parameter ranges allow (rest lengths up to 5000 mm, an
@@ -149,3 +150,240 @@ def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> 
             f"the command sat at each of the valve's limits for {STUCK_AT_LIMIT_S:g} s or more, which moves a working "
             "muscle by millimetres: the sensor is stuck or disconnected (a DAQ holding its last value?), or the supply "
             "is shut with the muscle at rest. The controller goes on with the reading")
+
+
+#: The spike guard's state at the start: the running mean |one-step prediction error| [mm], the last
+#: reading's |error| [mm] (NaN: none yet), the sample the guard acts from (after a reference step's
+#: transient), the preview's last sample at the last step [mm], the |error| of the reading before the
+#: last [mm].
+_NEW_SPIKE_GUARD = (math.nan, math.nan, 0, math.nan, math.nan)
+
+
+def _valid_spike_guard(spike: Any) -> bool:
+    """Whether ``spike`` is a spike guard's state (``_NEW_SPIKE_GUARD``'s fields) a controller could save."""
+    if not isinstance(spike, (list, tuple)) or len(spike) != 5:
+        return False
+    try:
+        mean, last, acts_from, r, earlier = (float(spike[0]), float(spike[1]), spike[2], float(spike[3]),
+                                             float(spike[4]))
+    except (TypeError, ValueError):
+        return False
+    errors_ok = all(x != x or 0.0 <= x < math.inf for x in (mean, last, earlier))
+    whole = not isinstance(acts_from, bool) and isinstance(acts_from, (int, float)) and int(acts_from) == acts_from >= 0
+    return errors_ok and whole and (r != r or math.isfinite(r))
+
+
+def _valid_still(still: Any) -> bool:
+    """Whether ``still`` is a stretch of identical readings that :meth:`DisplacementController.get_state`
+    could have saved: ``[reading or NaN, samples, samples after the lower limit, after the upper, said]``."""
+    try:
+        if not isinstance(still, (list, tuple)) or len(still) != 5 or still[4] not in (True, False):
+            return False
+        reading, counts = float(still[0]), still[1:4]
+        if any(isinstance(n, bool) or int(n) != n or int(n) < 0 for n in counts):
+            return False
+        return ((math.isnan(reading) or L_RANGE_MM[0] <= reading <= L_RANGE_MM[1])
+                and int(counts[1]) + int(counts[2]) <= int(counts[0]))
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+class ReadingGuard:
+    """The guards on one controller's readings ``l(k)`` [mm]: a glitch (a jump beyond what the muscle
+    moves in a sample), a one-sample spike (:data:`SPIKE_MM`), a stale repeat (:data:`REPEAT_MOVE_MM`),
+    each replaced by the one-step prediction; and the watch for a stuck sensor
+    (:data:`STUCK_AT_LIMIT_S`), which only reports. After :meth:`check`, :attr:`reading_held`,
+    :attr:`spike_limit_mm` and :attr:`reading_stuck` say what it found at that sample.
+
+    Parameters
+    ----------
+    max_jump_mm : float
+        The most the muscle moves in a sample [mm], ``max_speed_mm_per_s * ts_s``; 0: every reading used
+        (the stuck-sensor watch stays).
+    ts_s : float
+        Sampling period [s].
+    preview_samples : int
+        The reference samples the law takes, ``r(k..k+n-1)``: a step that enters the preview's last one
+        is acted on from then, and the spike guard waits its transient out from there.
+    u_min_v, u_max_v : float
+        The law's valve limits [V] (Eq. (19)), for the stuck-sensor watch.
+    """
+
+    def __init__(self, max_jump_mm: float, ts_s: float, preview_samples: int, u_min_v: float, u_max_v: float) -> None:
+        self._max_jump = max_jump_mm
+        self._ts = ts_s
+        self._need = preview_samples
+        self._u_min, self._u_max = u_min_v, u_max_v
+        self._stuck_n = max(1, int(math.ceil(STUCK_AT_LIMIT_S / ts_s - 1e-9)))
+        #: The samples after the guards' start (the estimator's, plus the start-up) they wait
+        #: (:data:`SPIKE_AFTER_S`).
+        self.after_samples = int(round(SPIKE_AFTER_S / ts_s))
+        self.reset()
+
+    def reset(self) -> None:
+        """Start over: no reading seen."""
+        self._held_in_a_row = 0  # readings the glitch guard held in a row
+        self._spike = list(_NEW_SPIKE_GUARD)
+        # the stretch of identical readings: its reading (NaN before the first), its samples, the
+        # samples of it that followed a command at the lower and at the upper valve limit, and whether
+        # reading_stuck has said it
+        self._still = [math.nan, 0, 0, 0, False]
+        self.reading_held: tuple[float, float, float] | None = None
+        """The last step's reading taken for a glitch, a spike or a stale repeat (then equal to the last
+        one used), the value used instead and the last one used before [mm]; None where the reading
+        was used."""
+        self.spike_limit_mm: float | None = None
+        """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
+        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
+        None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
+        self.reading_stuck: tuple[float, float] | None = None
+        """On the step that tells it, once a stretch: the reading [mm] that has not changed at all
+        while the command sat at each of the valve's limits for :data:`STUCK_AT_LIMIT_S` or more, and
+        how long it has not changed [s] (a stuck or disconnected sensor, a DAQ holding its last value,
+        or the supply shut with the muscle at rest); None otherwise. The law goes on with the reading."""
+
+    def check(self, l: float, k: int, predicted: float, last_l: float, l_prev: float, r_last: float, u_last: float,
+              guarded: bool) -> float:
+        """The reading to use at sample ``k`` for the measured ``l`` [mm].
+
+        Parameters
+        ----------
+        l : float
+            The reading ``l(k)`` [mm].
+        k : int
+            The sample.
+        predicted : float
+            The one-step prediction ``l(k|k-1)`` [mm] (NaN before the first).
+        last_l, l_prev : float
+            The last two readings used, ``l(k-1)`` and ``l(k-2)`` [mm].
+        r_last : float
+            The preview's last sample [mm] (a step entering it pauses the spike guard).
+        u_last : float
+            The command that followed the last reading [V].
+        guarded : bool
+            Whether the spike and repeat guards act at this sample (a prediction to use, the start-up
+            and :attr:`after_samples` after it over).
+        """
+        self.reading_held = None
+        self.reading_stuck = None
+        still = self._still
+        if l == still[0]:
+            self._watch_still(u_last)
+        else:
+            still[:] = [l, 0, 0, 0, False]
+        self.spike_limit_mm = None
+        if not (self._max_jump and k > 0):
+            return l
+        if abs(l - last_l) <= self._max_jump:
+            self._held_in_a_row = 0
+            if still[1] == 1 and l == last_l and self._stale(l, k, predicted, guarded):
+                self.reading_held = (l, predicted, last_l)
+                return predicted
+            return self._spike_guard(l, k, predicted, last_l, r_last, guarded)
+        spike = self._spike
+        if self._held_in_a_row >= HELD_READINGS_MAX or (
+                not self._held_in_a_row and abs(l - l_prev) <= self._max_jump and spike[1] > self._spike_limit()):
+            # the new level; or, after a used reading that was far from its prediction, within reach of
+            # the reading before it: that one was a spike under the bound, and the readings after it
+            # are the muscle's. The model's state has jumped: its predictions are no guide for a while
+            self._held_in_a_row = 0
+            spike[1], spike[4] = abs(l - predicted) if math.isfinite(predicted) else math.nan, spike[1]
+            spike[2], spike[3] = k + settle_samples(self._ts), r_last
+            return l
+        # further than the muscle moves in a sample: a glitch, the prediction used instead
+        self._held_in_a_row += 1
+        used = predicted if math.isfinite(predicted) else last_l
+        self.reading_held = (l, used, last_l)
+        return used
+
+    def _spike_limit(self) -> float:
+        """How far [mm] a reading may lie from its one-step prediction before it is a spike: the larger of
+        :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the running mean error (inf before one)."""
+        mean = self._spike[0]
+        return max(SPIKE_MM, SPIKE_SPREAD * mean) if mean == mean else math.inf
+
+    def _stale(self, l: float, k: int, predicted: float, guarded: bool) -> bool:
+        """Whether ``l`` [mm], a reading equal to the last one used, is a stale sample: the prediction
+        has the muscle move further than :data:`REPEAT_MOVE_MM` and :data:`REPEAT_SPREAD` times the
+        running mean prediction error."""
+        mean = self._spike[0]
+        # not in a reference step's transient either, where a muscle held by its friction stops short of
+        # a prediction that misses by a millimetre (the spike guard's wait, spike[2])
+        return (guarded and mean == mean and k >= self._spike[2]
+                and abs(predicted - l) > max(REPEAT_MOVE_MM, REPEAT_SPREAD * mean))
+
+    def _spike_guard(self, l: float, k: int, predicted: float, last_l: float, r: float, guarded: bool) -> float:
+        """The reading ``l`` [mm] to use: the one-step prediction where ``l`` is a one-sample spike
+        (:data:`SPIKE_MM`; ``r``: the preview's last sample [mm], whose steps pause the guard from when
+        the law first sees them), else ``l``, the running mean of the prediction errors updated with it."""
+        spike = self._spike
+        ts = self._ts
+        if abs(r - spike[3]) > SPIKE_MM:  # a step at the preview's end: the law acts on it now
+            spike[2] = k + self._need + settle_samples(ts)
+        spike[3] = r
+        if not math.isfinite(predicted):
+            return l
+        error = abs(l - predicted)
+        limit = self._spike_limit()
+        before = spike[1]
+        # a reading after two ordinary ones (within half the limit); not in the start-up, whose estimate is
+        # still learning (an open-loop theta0 at 0.3 MPa missed by 60 mm there), nor in the seconds after
+        # it; and the prediction used instead must itself be a reading the muscle could give
+        if (error > limit and before <= 0.5 * limit and spike[4] <= 0.5 * limit and k >= spike[2] and guarded
+                and abs(predicted - last_l) <= self._max_jump):
+            spike[1], spike[4] = error, before
+            self.spike_limit_mm = limit
+            self.reading_held = (l, predicted, last_l)
+            return predicted
+        if before > limit and error > limit:
+            # a reading as far off after a held (or far-off) one: no spike but a model that predicts this
+            # badly now; the guard waits a transient out and takes the error in whole
+            spike[2] = k + settle_samples(ts)
+            limit = error
+        spike[1], spike[4] = error, before
+        # an error beyond the limit counts as the limit: a transient does not blunt the guard
+        spike[0] = error if spike[0] != spike[0] else spike[0] + SPIKE_FORGET * (min(error, limit) - spike[0])
+        return l
+
+    def _watch_still(self, u_last: float) -> None:
+        """Count a reading equal to the last one: after a command ``u_last`` [V] at a valve limit, towards
+        that limit's time; set :attr:`reading_stuck` when both reach :data:`STUCK_AT_LIMIT_S`."""
+        still = self._still
+        still[1] += 1
+        if u_last <= self._u_min + 1e-9:
+            still[2] += 1
+        elif u_last >= self._u_max - 1e-9:
+            still[3] += 1
+        if not still[4] and still[2] >= self._stuck_n and still[3] >= self._stuck_n:
+            still[4] = True
+            self.reading_stuck = (still[0], still[1] * self._ts)
+
+    def get_state(self) -> dict[str, Any]:
+        """The guards' state as plain data: ``held_in_a_row``, ``still``, ``spike``."""
+        return {"held_in_a_row": self._held_in_a_row, "still": list(self._still), "spike": list(self._spike)}
+
+    def set_state(self, state: Mapping[str, Any]) -> None:
+        """Restore what :meth:`get_state` returned; a field left out starts anew (a state saved
+        without that guard).
+
+        Raises
+        ------
+        ValueError
+            A field no guard could have saved, named; nothing is changed then.
+        """
+        held = state.get("held_in_a_row", 0)
+        if isinstance(held, bool) or int(held) != held or not 0 <= held <= HELD_READINGS_MAX:
+            raise ValueError(f"state field held_in_a_row = {held!r} must be a count 0 .. {HELD_READINGS_MAX}")
+        still = state.get("still", [math.nan, 0, 0, 0, False])
+        if not _valid_still(still):
+            raise ValueError(f"state field still = {still!r} must be [reading within {L_RANGE_MM[0]:g}..{L_RANGE_MM[1]:g} "
+                             "mm or NaN, samples >= 0, samples after the lower limit and after the upper one (together "
+                             "at most the samples), said true/false]")
+        spike = state.get("spike", _NEW_SPIKE_GUARD)
+        if not _valid_spike_guard(spike):
+            raise ValueError(f"state field spike = {spike!r} must be [mean |prediction error| >= 0 mm or NaN, the last "
+                             "reading's |error| >= 0 mm or NaN, the sample the guard acts from >= 0, the preview's last "
+                             "sample (finite) or NaN, the |error| before >= 0 mm or NaN]")
+        self._held_in_a_row = int(held)
+        self._still = [float(still[0]), int(still[1]), int(still[2]), int(still[3]), bool(still[4])]
+        self._spike = [float(spike[0]), float(spike[1]), int(spike[2]), float(spike[3]), float(spike[4])]
