@@ -1116,7 +1116,7 @@ def test_demo_mismatch_refuses_an_empty_or_unknown_list(tmp_path, capsys, flag, 
 def test_effects_and_constants_are_chosen_by_name_or_object():
     """A name, a list of names or of objects: the same selection; a single name is one name, not its
     letters; what is neither is named before any fit."""
-    from tapmuscle.diagnosis.diagnose import by_name
+    from tapmuscle.diagnosis.catalogue import by_name
 
     delay, play = candidate("transport_delay"), candidate("backlash")
     assert by_name("transport_delay", CANDIDATES, "candidates", "effect") == [delay]
@@ -1836,10 +1836,10 @@ def test_an_input_maps_words_give_the_fitted_map_at_its_ends():
 def test_significance_z_is_standard_normal_when_the_held_out_residual_is_noise():
     """The held-out test's z is on the scale of a standard normal under the null (its level alpha
     means what it says): over 400 noise draws, mean within 0.2 of 0 and sd within 10 % of 1."""
-    from tapmuscle.diagnosis.diagnose import _significance
+    from tapmuscle.diagnosis.significance import significance_test
     rng = np.random.default_rng(2)
     d = 0.02 * np.sin(np.arange(900) / 9.0)
-    z = [_significance(e0, e0 - d, 0.01, 1e-3)["z"] for e0 in (0.01 * rng.standard_normal(900) for _ in range(400))]
+    z = [significance_test(e0, e0 - d, 0.01, 1e-3)["z"] for e0 in (0.01 * rng.standard_normal(900) for _ in range(400))]
     assert abs(np.mean(z)) < 0.2 and 0.9 < np.std(z) < 1.1, (np.mean(z), np.std(z))
 
 

@@ -9,9 +9,10 @@ the tuple of them, shown by its name and size.
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+import types
+from typing import Any, Iterable, Sequence
 
-__all__ = ["Catalogue"]
+__all__ = ["Catalogue", "by_name"]
 
 
 class Catalogue(tuple):
@@ -39,3 +40,51 @@ class Catalogue(tuple):
     def __reduce__(self) -> tuple[Any, ...]:
         # worker processes get the same catalogue
         return (Catalogue, (self._name, tuple(self)))
+
+
+def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str = "") -> list[Any]:
+    """``items`` as objects of the type of ``known``'s: each one as given, or its name (``name``, or
+    ``key`` for a nominal parameter) looked up in ``known``; a single name or object counts as one.
+
+    Raises
+    ------
+    ValueError
+        An unknown name (the known ones listed).
+    TypeError
+        An item that is neither a name nor an object of ``known``'s type.
+
+    Parameters
+    ----------
+    items : sequence, str or object
+        Names or objects (one alone counts as one).
+    known : sequence
+        The known objects, looked up by their ``name`` (``key``).
+    what : str
+        The argument's name, for messages.
+    kind : str
+        What the items are, in words, for messages.
+    hint : str, optional
+        Appended to an unknown name's message.
+    """
+    cls = type(known[0])
+    attr = "key" if hasattr(known[0], "key") else "name"
+    if isinstance(items, (str, cls)):
+        items = (items,)
+    elif not isinstance(items, Sequence):
+        raise TypeError(f"{what} must be a sequence of {kind} names or {cls.__name__} objects, got "
+                        f"{type(items).__name__} {items!r:.60}")
+    table = {getattr(k, attr): k for k in known}
+    out = []
+    for item in items:
+        if isinstance(item, cls):
+            out.append(item)
+        elif isinstance(item, str):
+            if item not in table:
+                raise ValueError(f"{what}: unknown {kind} {item!r}; known: {', '.join(table)}{hint}")
+            out.append(table[item])
+        else:
+            shown = repr(item) if len(repr(item)) <= 60 else repr(item)[:57] + "..."
+            module = (f" (a module: pass the {cls.__name__} objects it holds)"
+                      if isinstance(item, types.ModuleType) else "")
+            raise TypeError(f"{what}: {type(item).__name__} {shown} must be a {cls.__name__} or the name of one{module}")
+    return out

@@ -50,7 +50,7 @@ Procedure
    accepted effect with a
    parameter its own search fits on constants that absorbed part of it (a valve band's width:
    ``ModelSpace.profiled``) has that parameter profiled at once, the constants re-fitted jointly at
-   each value (:func:`_profiled_refit`); then its own search alternates with the calibration from the
+   each value (:func:`profiled_refit`); then its own search alternates with the calibration from the
    nominal constants (:data:`FROM_NOMINAL_ROUNDS`), kept if that fits the training blocks better, and
    again whenever the constants are calibrated afresh at a new noise level. Whenever the calibrated
    constants lie in their prior's chi-square tail at ``alpha`` (stretched by an effect they took up),
@@ -88,12 +88,10 @@ from __future__ import annotations
 
 import math
 import numbers
-import pickle
 import time
-import types
-from concurrent.futures import Executor, Future
+from concurrent.futures import Executor
 from contextlib import ExitStack
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -102,34 +100,35 @@ from scipy import stats
 from fmu_plant import PlantParams
 
 from tapmuscle.diagnosis.calibration import (NOMINAL_PARAMETERS, Calibration, FittedParameter, NominalParameter, calibrate,
-                          nominal_parameter, FD_STEP, calibration_rows, effective_sigma, fit_covariance, fit_parameters,
-                          fitted_intervals, nominal_coords)
+                                             calibration_rows, fit_covariance, fitted_intervals, nominal_coords,
+                                             nominal_parameter)
 from tapmuscle.diagnosis.candidates import CANDIDATES, Candidate, FitResult, Problem, material_value
-from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
-from tapmuscle.progress import reporter
-from tapmuscle.diagnosis.search_progress import JOINT_REFITS, OWN_FITS, TESTS, SearchProgress
-from tapmuscle.diagnosis.held_out import HeldOut
-from tapmuscle.diagnosis.linearised_constants import LinearisedConstants
-from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, Correlation, balanced_block_s, block_index, autocorrelation_test,
-                                cross_correlation_test, fit_percent, interleaved_split, is_structured, located_windows, regime_summary,
-                                unstructured_reason, white_noise_level_mm)
-from tapmuscle.diagnosis.score_test import score_gain
+from tapmuscle.diagnosis.catalogue import by_name
 from tapmuscle.diagnosis.findings import VERDICTS, Alternative, Diagnosis, Finding, output_unit
+from tapmuscle.diagnosis.fit_problem import Rejected, SimulationError
+from tapmuscle.diagnosis.held_out import HeldOut
+from tapmuscle.diagnosis.joint_fits import (BUILTIN, SelectedModel, effect_coords, effect_intervals, joint_prediction,
+                                            joint_refit, linearise_constants, own_fit, own_parameters, profiled_refit,
+                                            score_gains, searched_afresh, start_fits)
 from tapmuscle.diagnosis.model_space import JOINT_PARAMETERS, ModelSpace, MuscleSpace, sensor_noise_mm
 from tapmuscle.diagnosis.own_candidates import check_own_candidates, held_to_contract, own_joint
-from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
+from tapmuscle.diagnosis.parallel_tasks import on_copies, timed
 from tapmuscle.diagnosis.recording_checks import (check_displacement_scale, check_muscle_recording,
                                                   displacement_scale_note, muscle_recording_notes)
-from tapmuscle.io.sampling import uniform_sampling
-from tapmuscle.diagnosis.reproducible import dot, norm, sse
+from tapmuscle.diagnosis.reproducible import sse
+from tapmuscle.diagnosis.residual_analysis import (STRUCTURE_ALPHA, block_index, fit_percent, interleaved_split,
+                                                   is_structured, located_windows, regime_summary, unstructured_reason,
+                                                   white_noise_level_mm)
+from tapmuscle.diagnosis.search_progress import JOINT_REFITS, OWN_FITS, TESTS, SearchProgress
+from tapmuscle.diagnosis.significance import distinguishable, residual_tests, significance_test
+from tapmuscle.diagnosis.simulation import Simulator, checkpoint_interval, worker_pool
+from tapmuscle.diagnosis.usable_recording import BLOCK_S, MIN_SAMPLES, split_length_s, validated_recording
+from tapmuscle.progress import reporter
 
 __all__ = ["Finding", "Alternative", "Diagnosis", "diagnose", "diagnose_with", "validated_recording",
            "distinguishable", "sensor_noise_mm",
            "MIN_SAMPLES", "VERDICTS", "JOINT_PARAMETERS", "MATERIAL_FACTOR", "BLOCK_S", "REMOVE_LEVEL_FACTOR",
            "split_length_s"]
-
-#: Fewest samples a recording must have (the tests need ~10x their 25 lags per part).
-MIN_SAMPLES = 300
 
 #: Effects without joint coordinates fitted afresh on the re-fitted constants per round, at most (the best
 #: on the training blocks).
@@ -155,13 +154,6 @@ MATERIAL_EFFECT_FACTOR = 1.5
 #: seeds 0 and 1 were both true effects (a rate dependence, an amplifier map).
 REMOVE_LEVEL_FACTOR = 10.0
 
-#: Default length of the interleaved training / held-out blocks [s]. An edge of a localised effect (a
-#: supply sag's start or end) inside a held-out block leaves the training cost flat across the block,
-#: so shorter blocks would place it closer; but a block of half an input's period makes every training
-#: block see the same half of every cycle (5-s blocks and the paper's 0.1-Hz sine: a valve band in the
-#: other half is never trained on). docs/diagnosis.md, step 2, has both measurements.
-BLOCK_S = 10.0
-
 #: From the second round on, the noise level in use is replaced by the current model's residual's
 #: white-noise level when that is lower by more than this factor (and the constants are calibrated
 #: afresh at it): module docstring, step 3.
@@ -180,80 +172,6 @@ def _share_percent(share: float) -> str:
     """A share [fraction] in percent with a digit that is not 0: a material remainder read "0.0 %" of the
     nominal model's excess where the calibration took up nearly all of it."""
     return f"{100.0 * share:.1f}" if share >= 0.01 else f"{100.0 * share:.2g}"
-
-
-def _residual_tests(u: np.ndarray, e: np.ndarray, sensor_mm: float) -> tuple[dict[str, Any], Correlation, Correlation]:
-    structured, numbers = is_structured(e, sensor_noise_mm=sensor_mm)
-    ac = autocorrelation_test(e)
-    xc = cross_correlation_test(u, e)
-    numbers.update({"structured": structured, "whiteness_p": ac.p_value, "autocorrelation_lags_outside": ac.outside,
-                    "cross_correlation_p": xc.p_value, "cross_correlation_lags_outside": xc.outside,
-                    "band_99": ac.band})
-    return numbers, ac, xc
-
-
-def _significance(e0: np.ndarray, e1: np.ndarray, noise_mm: float, alpha: float) -> dict[str, float]:
-    """Is the held-out improvement ``e0 -> e1`` more than noise could give?
-
-    With the effect's contribution ``d = e0 - e1`` (fitted on other samples), ``e0 . d / (sigma |d|)``
-    is the residual's projection on the contribution in units of the white-noise level ``sigma``: a
-    standard normal if the held-out residual were only noise. One-sided p-value.
-    """
-    sse0, sse1 = sse(e0), sse(e1)
-    d = e0 - e1
-    nd = norm(d)
-    z = dot(e0, d) / (noise_mm * nd) if nd > 0 and noise_mm > 0 else (math.inf if nd > 0 else 0.0)
-    return {"sse_before_mm2": sse0, "sse_after_mm2": sse1, "reduction": 1.0 - sse1 / sse0 if sse0 > 0 else 0.0,
-            "z": z, "p_value": float(stats.norm.sf(z)), "significant_at": alpha}
-
-
-def distinguishable(e_best: np.ndarray, e_other: np.ndarray, noise_mm: float, *, alpha: float = 1e-3,
-                    min_ratio: float = 1.1, residual_mm: np.ndarray | None = None) -> tuple[bool, dict[str, float]]:
-    """Can the held-out data tell the best explanation from another one?
-
-    Both must hold: the other's held-out squared error exceeds the best's by at least
-    ``min_ratio``, and the difference is more than noise could give. The statistic is
-    ``z = (SSE_other - SSE_best) / (2 sigma |y_best - y_other|)``, the SSE difference in units of its
-    sampling spread when the best leaves noise of level ``sigma``; ``sigma`` is the white-noise level,
-    or the best's own residual level inflated for its autocorrelation where that is larger (a
-    residual that is not white spreads an SSE difference more). One-sided, level ``alpha``.
-
-    Parameters
-    ----------
-    e_best, e_other : ndarray
-        Held-out residuals [mm] of the best explanation and the other one.
-    noise_mm : float
-        White-noise level [mm].
-    alpha : float, optional
-        Level of the one-sided test; default 1e-3.
-    min_ratio : float, optional
-        Smallest ratio of the other's held-out SSE to the best's; default 1.1.
-    residual_mm : ndarray, optional
-        The residual whose level stands for what no explanation accounts for (default ``e_best``).
-        The diagnosis passes the final model's held-out residual: the best's residual at the round
-        the alternatives were fitted still holds the effects that later rounds explained, and those
-        are not noise.
-    """
-    s_best, s_other = sse(e_best), sse(e_other)
-    delta = norm(e_best - e_other)
-    sigma = max(noise_mm, effective_sigma(e_best if residual_mm is None else residual_mm))
-    z = (s_other - s_best) / (2.0 * sigma * delta) if delta > 0 and sigma > 0 else 0.0
-    ratio = s_other / s_best if s_best > 0 else math.inf
-    p = float(stats.norm.sf(z))
-    return ratio >= min_ratio and p < alpha, {"sse_ratio": ratio, "z": z, "p_value": p, "sigma_mm": sigma}
-
-
-@dataclass
-class _Model:
-    """A model in the selection: calibrated constants plus effects, and its whole-run prediction."""
-
-    params: PlantParams
-    effects: tuple[str, ...]
-    y: np.ndarray
-    values: dict[str, dict[str, float]]
-    """Per effect, its fitted parameters."""
-    q: np.ndarray | None = None
-    """Its whole-run pressure prediction [MPa] (None: the model predicts none)."""
 
 
 def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantParams, *,
@@ -347,7 +265,7 @@ def diagnose(t_s: np.ndarray, u_v: np.ndarray, l_mm: np.ndarray, model: PlantPar
         raise ValueError(f"max_effects must be an integer >= 0, got {max_effects!r}")
     candidates = by_name(candidates, CANDIDATES, "candidates", "effect")
     check_own_candidates(candidates, model)
-    own = [c for c in candidates if _BUILTIN.get(c.name) is not c]
+    own = [c for c in candidates if BUILTIN.get(c.name) is not c]
     candidates = [held_to_contract(c) if c in own else c for c in candidates]
     if calibration is not None:
         if isinstance(calibration, str):
@@ -400,152 +318,6 @@ def _recorded_load(d: Diagnosis, load: np.ndarray, plant_load_n: float) -> list[
             "which re-simulates another run than the recording's"]
 
 
-def by_name(items: Any, known: Sequence[Any], what: str, kind: str, *, hint: str = "") -> list[Any]:
-    """``items`` as objects of the type of ``known``'s: each one as given, or its name (``name``, or
-    ``key`` for a nominal parameter) looked up in ``known``; a single name or object counts as one.
-
-    Raises
-    ------
-    ValueError
-        An unknown name (the known ones listed).
-    TypeError
-        An item that is neither a name nor an object of ``known``'s type.
-    """
-    cls = type(known[0])
-    attr = "key" if hasattr(known[0], "key") else "name"
-    if isinstance(items, (str, cls)):
-        items = (items,)
-    elif not isinstance(items, Sequence):
-        raise TypeError(f"{what} must be a sequence of {kind} names or {cls.__name__} objects, got "
-                        f"{type(items).__name__} {items!r:.60}")
-    table = {getattr(k, attr): k for k in known}
-    out = []
-    for item in items:
-        if isinstance(item, cls):
-            out.append(item)
-        elif isinstance(item, str):
-            if item not in table:
-                raise ValueError(f"{what}: unknown {kind} {item!r}; known: {', '.join(table)}{hint}")
-            out.append(table[item])
-        else:
-            shown = repr(item) if len(repr(item)) <= 60 else repr(item)[:57] + "..."
-            module = (f" (a module: pass the {cls.__name__} objects it holds)"
-                      if isinstance(item, types.ModuleType) else "")
-            raise TypeError(f"{what}: {type(item).__name__} {shown} must be a {cls.__name__} or the name of one{module}")
-    return out
-
-
-def split_length_s(u_v: np.ndarray, ts_s: float, block_s: float | None) -> float:
-    """Length of the training / held-out blocks [s] for the command ``u_v``: ``block_s`` as given, or
-    by default :data:`BLOCK_S` balanced for a continuous command locked to it
-    (:func:`~tapmuscle.diagnosis.residual_analysis.balanced_block_s`, no longer than the quarter of
-    the recording that :func:`validated_recording` allows).
-
-    Parameters
-    ----------
-    u_v : ndarray
-        The command [V].
-    ts_s : float
-        Sampling period [s].
-    block_s : float or None
-        The block length given [s], or None for the default.
-    """
-    if block_s is not None:
-        return block_s
-    # every block holds a sample (a recording sampled more slowly than BLOCK_S: one per block)
-    return max(balanced_block_s(u_v, ts_s, BLOCK_S, longest_s=(len(u_v) - 1) * ts_s / 4.0), ts_s)
-
-
-def validated_recording(t_s: np.ndarray, u_v: np.ndarray, y: np.ndarray, block_s: float | None, *,
-                        load_n: np.ndarray | None = None, names: tuple[str, str, str] = ("t_s", "u_v", "l_mm"),
-                        units: tuple[str, str] = ("V", "mm")) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """``(t, u, y, Ts)`` of a recording the diagnosis can use, or ``ValueError`` naming the column
-    (``names``: the time, input and output columns' names; ``units``: the input's and output's) and
-    sample (:func:`diagnose`'s Raises). ``block_s`` None checks the default (:func:`split_length_s`).
-
-    Parameters
-    ----------
-    t_s : ndarray
-        Time [s].
-    u_v : ndarray
-        The input (the command [V]).
-    y : ndarray
-        The output (the displacement [mm]).
-    block_s : float or None
-        Length of the training / held-out blocks [s]; None: the default ones
-        (:func:`split_length_s`) are checked.
-    load_n : ndarray, optional
-        Load [N], checked for its length.
-    names : tuple of str, optional
-        The time, input and output columns' names, for messages.
-    units : tuple of str, optional
-        The input's and output's units, for messages.
-    """
-    # copies: the diagnosis keeps them, and a notebook's later `l -= 10` must not change its recording
-    t = np.array(t_s, float)
-    u = np.array(u_v, float)
-    y = np.array(y, float)
-    tn, un, yn = names
-    for name, arr in ((tn, t), (un, u), (yn, y)):
-        if arr.ndim != 1:  # a column vector would broadcast into a matrix further on
-            raise ValueError(f"column {name} must be one-dimensional (one value per sample), got shape {arr.shape}")
-    for name, arr in ((un, u), (yn, y)) + ((("load_n", load_n),) if load_n is not None else ()):
-        if len(arr) != len(t):
-            raise ValueError(f"column {name} has {len(arr)} samples, {tn} has {len(t)}")
-    if len(t) < 2:  # no sampling period, so no duration to state
-        raise ValueError(f"the recording has {len(t)} sample(s); the diagnosis needs at least {MIN_SAMPLES}")
-    for name, arr in ((tn, t), (un, u), (yn, y)):
-        bad = np.nonzero(~np.isfinite(arr))[0]
-        if bad.size:
-            raise ValueError(f"column {name}, sample {int(bad[0])}: {float(arr[bad[0]])!r} is not finite")
-    ts = uniform_sampling(t, tn).ts_s
-    # the duration comes from the period read back from written times, a few ulps off: 20 s at 1 ms
-    # is 19.9999999999978 s, and 5-s blocks still fit four times
-    duration = (len(t) - 1) * ts
-    too_short = _too_short(len(t), ts, duration, block_s)
-    if too_short:
-        raise ValueError(too_short)
-    if float(np.ptp(u)) == 0.0:
-        raise ValueError(f"column {un}: the command is constant ({u[0]:g} {units[0]}); nothing excites the plant")
-    if float(np.ptp(y)) == 0.0:
-        what = "displacement" if yn == "l_mm" else "output"
-        raise ValueError(f"column {yn}: the {what} is constant ({y[0]:g} {units[1]}); the recording shows no "
-                         "response to compare with the model (a disconnected sensor?)")
-    if block_s is None:
-        return t, u, y, ts  # the default blocks fit: _too_short
-    if math.isfinite(block_s) and 0.0 < block_s < ts:
-        # shorter blocks skip block numbers, and with a period of two blocks or more every sample
-        # falls in a training block: no held-out sample, every fit NaN
-        raise ValueError(f"block_s (--block) = {block_s!r} s is shorter than the sampling period {ts:g} s: every "
-                         "training and held-out block must hold a sample")
-    if not (math.isfinite(block_s) and 0.0 < block_s <= duration / 4.0 * (1.0 + 1e-9)):
-        raise ValueError(f"block_s (--block) = {block_s!r} s: a {duration:g}-s recording needs blocks of more than 0 and at "
-                         f"most {duration / 4.0:g} s (two training and two held-out blocks at least)")
-    return t, u, y, ts
-
-
-def _too_short(n: int, ts: float, duration: float, block_s: float | None) -> str | None:
-    """Why a recording of ``n`` samples every ``ts`` [s], ``duration`` [s] long, is too short for the
-    diagnosis, as a duration (None: long enough). It needs :data:`MIN_SAMPLES` samples (the residual
-    tests) and, with the default blocks (``block_s`` None), four of them (two training, two held-out);
-    a ``block_s`` given is checked by :func:`validated_recording`, which names it."""
-    floor_s = (MIN_SAMPLES - 1) * ts
-    what = f"the recording lasts {duration:g} s ({n} samples at {ts:g} s)"
-    tests = f"{MIN_SAMPLES} samples, for the residual tests"
-    if block_s is not None or floor_s >= 4.0 * max(BLOCK_S, ts):  # the blocks do not set the minimum
-        if n >= MIN_SAMPLES:
-            return None
-        return f"{what}; the diagnosis needs at least {floor_s:g} s at this sampling period ({tests})"
-    block = max(BLOCK_S, ts)
-    if n >= MIN_SAMPLES and duration >= 4.0 * block * (1.0 - 1e-9):
-        return None
-    why = (f"{what}; the diagnosis needs at least {4.0 * block:g} s with its default {block:g}-s blocks (two training "
-           "and two held-out blocks at least); shorter blocks (block_s, --block) lower that to four times their length")
-    if n >= MIN_SAMPLES:
-        return f"{why}: this recording takes blocks of at most {duration / 4.0:g} s"
-    return f"{why}, but not below {floor_s:g} s at this sampling period ({tests})"
-
-
 def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, model: Any, *,
                   space: ModelSpace, candidates: Sequence[Candidate],
                   calibration: Sequence[NominalParameter] | None, block_s: float,
@@ -594,274 +366,6 @@ def diagnose_with(sim: Any, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     return d
 
 
-def _on_copies(problem: Problem, fn: Callable[..., Any], shared: tuple, tasks: Sequence[tuple], *,
-               parallel: bool = True, each_done: Callable[[], None] | None = None
-               ) -> list[Callable[[], tuple[Any, int, float]]]:
-    """``fn(problem, *shared, *task)`` for each of ``tasks``: one handle per task, in order, that
-    returns ``(result, simulations, seconds)``.
-
-    The tasks must be independent. With the simulator's worker processes (and ``parallel``) they are
-    submitted now, each on a copy of ``(problem, shared)`` taken now (a later baseline run changes the
-    checkpoints), so that tasks on two bases can run at once; otherwise they run here and now. The
-    results are the same either way (``fn`` must be a module-level function to go to a worker).
-    ``each_done`` is called as each task's result is had: here as it ends, from a worker as its
-    handle collects it (in both cases once per task, in order).
-    """
-    pool = problem.sim.executor
-    if pool is None or not parallel or len(tasks) < 2:
-        done = []
-        for task in tasks:
-            done.append(_timed(fn, problem, shared, task))
-            if each_done is not None:
-                each_done()
-        return [lambda out=out: out for out in done]
-    blob = pickle.dumps((problem, shared))
-    futures = [pool.submit(_timed_on_copy, fn, blob, task) for task in tasks]
-
-    def collect(fut: Future) -> tuple[Any, int, float]:
-        out = fut.result()
-        problem.sim.runs += out[1]  # the worker's copy counted them
-        if each_done is not None:
-            each_done()
-        return out
-    return [lambda fut=fut: collect(fut) for fut in futures]
-
-
-def _timed(fn: Callable[..., Any], problem: Problem, shared: tuple, task: tuple) -> tuple[Any, int, float]:
-    """``fn``'s result (:class:`Rejected` with the reason if a simulation failed), simulations, seconds."""
-    runs0, t0 = problem.sim.runs, time.perf_counter()
-    try:
-        result = fn(problem, *shared, *task)
-    except SimulationError as exc:
-        result = Rejected(str(exc))
-    return result, problem.sim.runs - runs0, time.perf_counter() - t0
-
-
-def _timed_on_copy(fn: Callable[..., Any], blob: bytes, task: tuple) -> tuple[Any, int, float]:
-    """A worker process's share of :func:`_on_copies`."""
-    problem, shared = pickle.loads(blob)
-    return _timed(fn, problem, shared, task)
-
-
-_BUILTIN = {c.name: c for c in CANDIDATES}
-
-
-def _own_fit(problem: Problem, base: PlantParams, y_base: np.ndarray, cand: Candidate | str) -> FitResult | None:
-    """A candidate's own fit on ``base`` (a built-in one by name: candidates hold lambdas, which do not
-    pickle)."""
-    if isinstance(cand, str):
-        return _BUILTIN[cand].fit(problem, base, y_base)
-    return cand.fit(problem, base, y_base)
-
-
-def _start_fits(cands: Sequence[Candidate], problem: Problem, base: PlantParams,
-                y_base: np.ndarray, each_done: Callable[[], None] | None = None
-                ) -> list[Callable[[], tuple[Any, int, float]]]:
-    """Each candidate's own fit on ``base`` (whose run left the checkpoints) by :func:`_on_copies`,
-    one handle per candidate in order: the built-in ones in worker processes (by name), those of one's
-    own here meanwhile (they need not pickle)."""
-    own = [i for i, c in enumerate(cands) if _BUILTIN.get(c.name) is not c]
-    builtin = [i for i in range(len(cands)) if i not in own]
-    jobs = dict(zip(builtin, _on_copies(problem, _own_fit, (base, y_base), [(cands[i].name,) for i in builtin],
-                                        each_done=each_done)))
-    jobs |= dict(zip(own, _on_copies(problem, _own_fit, (base, y_base), [(cands[i],) for i in own], parallel=False,
-                                     each_done=each_done)))
-    return [jobs[i] for i in range(len(cands))]
-
-
-def _effect_coords(space: ModelSpace, effects: Sequence[str]) -> list[FittedParameter]:
-    """The coordinates of the ``effects``' parameters re-fitted jointly with the constants (flat
-    within their bounds), in the order of the joint re-fit's columns after the constants'."""
-    return [FittedParameter(key, 0.0, scale, False, *space.bounds(key))
-            for e in effects for key, scale in space.joint_parameters.get(e, ())]
-
-
-def _effect_intervals(problem: Problem, space: ModelSpace, params: PlantParams, effects: Sequence[str],
-                      sigma: float) -> dict[str, tuple[float, float]]:
-    """95 % intervals of the ``effects``' joint parameters at ``params`` with the constants held: a
-    forward-difference Jacobian (one simulation of the training blocks per parameter, all at once)
-    and :func:`~tapmuscle.diagnosis.calibration.fit_covariance` (for a model without calibrated
-    constants; with them, the final joint re-fit's covariance holds both)."""
-    extra = _effect_coords(space, effects)
-    if not extra:
-        return {}
-    r = problem.sensor_residual(params)
-    steps = [_stepped(params, c.key, c.scale, c.hi) for c in extra]
-    cols = problem.sensor_residuals([p for _, p in steps])
-    jac = np.column_stack([(col - r) / h for (h, _), col in zip(steps, cols)])
-    return fitted_intervals(extra, params.dotted(), fit_covariance(jac, r, sigma), space.bounds)
-
-
-def _joint_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
-                 params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None,
-                 final: bool = False) -> tuple[PlantParams, Any]:
-    """Re-fit the calibrated constants ``coords`` jointly with the effects' smooth parameters (a short
-    warm start with secant updates during the search; the final model with fresh Jacobians)."""
-    joint_coords = list(coords) + _effect_coords(space, effects)
-    if not joint_coords:
-        return params, None
-    f = fit_parameters(problem.sensor_residual, params, joint_coords, sigma,
-                       max_iterations=30 if final else 12, jacobian0=start_jac,
-                       refresh_every=5 if final else None, residual_many=problem.sensor_residuals)
-    return params.with_values(**f.values), f
-
-
-def _own_parameters(space: ModelSpace, cand: Candidate) -> set[str]:
-    """The candidate's parameters that only its own search fits (not re-fitted jointly)."""
-    return {ps.key for ps in cand.parameters} - {key for key, _ in space.joint_parameters.get(cand.name, ())}
-
-
-def _stepped(params: PlantParams, key: str, scale: float, hi: float) -> tuple[float, PlantParams]:
-    """A forward-difference step of ``key`` (:data:`FD_STEP` in units of ``scale``; backwards where
-    the step would cross the upper bound ``hi``): the step and the stepped parameters."""
-    v = params.value(key)
-    h = FD_STEP if v + FD_STEP * scale <= hi else -FD_STEP
-    return h, params.with_values(**{key: v + h * scale})
-
-
-def _score_gains(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
-                 jac_c: np.ndarray, current: _Model, cands: Sequence[Candidate]) -> dict[str, float]:
-    """The score test (:func:`~tapmuscle.diagnosis.score_test.score_gain`) of each candidate whose every
-    parameter is a joint one, at the current model: the training error [mm^2] of the fit segment a
-    linearised joint step (constants and the effect's parameters) would remove beyond the constants'
-    own step. One simulation of the fit segment per parameter, all at once."""
-    keys = {c.name: space.joint_parameters.get(c.name, ()) for c in cands}
-    p = current.params
-
-    def linearisable(c: Candidate) -> bool:
-        # its own parameters (if any) at a joint start's values: the joint ones then describe it alone
-        own = _own_parameters(space, c)
-        return not own or any(all(p.value(k) == v for k, v in start.items() if k in own)
-                              for start in space.joint_starts.get(c.name, ()))
-    smooth = [c for c in cands if keys[c.name] and linearisable(c)]
-    if not smooth:
-        return {}
-    n_fit = problem.n_fit
-    r = problem.stacked_residual(current.y[:n_fit], None if current.q is None else current.q[:n_fit])
-    if jac_c.shape[0] != len(r):
-        raise ValueError(f"the constants' Jacobian has {jac_c.shape[0]} rows for a training residual of {len(r)}")
-    prior = np.array([c.prior for c in coords], bool)
-    x_c = np.array([(p.value(c.key) - c.center) / c.scale for c in coords])
-    A = np.vstack([jac_c, sigma * np.eye(len(coords))[prior]])
-    b = np.concatenate([r, sigma * x_c[prior]])
-    steps, runs = [], []
-    for c in smooth:
-        for key, scale in keys[c.name]:
-            lo, hi = space.bounds(key)
-            v = p.value(key)
-            h, stepped = _stepped(p, key, scale, hi)
-            steps.append((c.name, h, v <= lo, v >= hi))
-            runs.append(stepped)
-    cols = problem.sensor_residuals(runs)
-    out = {}
-    for c in smooth:
-        idx = [i for i, s_ in enumerate(steps) if s_[0] == c.name]
-        E = np.column_stack([np.concatenate([(cols[i] - r) / steps[i][1], np.zeros(int(prior.sum()))]) for i in idx])
-        out[c.name] = score_gain(b, A, E, [steps[i][2] for i in idx], [steps[i][3] for i in idx])
-    return out
-
-
-def _linearised_constants(problem: Problem, coords: Sequence[FittedParameter], sigma: float,
-                          params: PlantParams, y_hat: np.ndarray, reach: int) -> LinearisedConstants:
-    """The constants ``coords``' linearised MAP step at ``params`` (whose whole-run prediction is
-    ``y_hat``) on the first ``reach`` samples: one simulation that far per constant, all at once."""
-    steps, runs = zip(*(_stepped(params, c.key, c.scale, c.hi) for c in coords))
-    ys = problem.sim.run_many(runs, stop=reach)
-    jac = np.column_stack([(y_hat[:reach] - y_p) / h for y_p, h in zip(ys, steps)])
-    scaled = [((params.value(c.key) - c.center) / c.scale, (c.lo - c.center) / c.scale, (c.hi - c.center) / c.scale)
-              for c in coords]
-    x, lower, upper = (np.array(col, float) for col in zip(*scaled))
-    return LinearisedConstants(params, jac, x, np.array([c.prior for c in coords], bool), lower, upper, sigma)
-
-
-def _searched_afresh(problem: Problem, space: ModelSpace, cand: Candidate, params: PlantParams,
-                     values: dict[str, dict[str, float]], checkpoint_every: int) -> PlantParams:
-    """``params`` with ``cand``'s own search run again on its constants (the effect switched off
-    first); ``values[cand.name]`` is updated. Unchanged when the search finds nothing."""
-    off = params.with_values(**space.off_values(values[cand.name]))
-    res = cand.fit(problem, off, problem.sim.run(off, checkpoint_every=checkpoint_every)[0])
-    if res is None:
-        return params
-    values[cand.name] = dict(res.values)
-    return off.with_values(**res.values)
-
-
-def _profiled_refit(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], current: _Model,
-                    by_name: dict[str, Candidate], sigma: float, jac0: np.ndarray | None,
-                    checkpoint_every: int) -> tuple[PlantParams, dict[str, dict[str, float]], np.ndarray | None, int] | None:
-    """The accepted effects' profiled parameters (:attr:`ModelSpace.profiled`) re-chosen with the
-    constants re-fitted jointly at each value.
-
-    The constants were calibrated with the effects left out, and the own search of an effect whose
-    cost is piecewise constant (a valve band's edges) then ran on constants that had absorbed part of
-    it: a softer bladder and a smaller flow coefficient mimic part of the stall, and the band comes
-    out at about half its width. The joint re-fits cannot widen it (its edges are not joint
-    coordinates), and a search of the band alone on those constants finds the same narrow optimum. So
-    the parameter is profiled: at each multiple of its fitted value the constants and the smooth
-    effect parameters are re-fitted jointly (a short warm start), the best value on the training
-    blocks is kept, the effect's own search runs again on its constants, and all is re-fitted jointly.
-    Returns the parameters, the effects' values, the constants' Jacobian and the simulations used;
-    None when no accepted effect has a profiled parameter.
-    """
-    todo = [(name, *space.profiled[name]) for name in current.effects if name in space.profiled]
-    if not coords or not todo:
-        return None
-    sim = problem.sim
-    runs0 = sim.runs
-    values = dict(current.values)
-    p, jac = current.params, jac0
-    for name, key, factors in todo:
-        v0 = p.value(key)
-        lo, hi = space.bounds(key)
-        best = None
-        for k in (1.0, *factors):
-            q, f = _joint_refit(problem, space, coords, sigma, p.with_values(**{key: min(hi, max(lo, v0 * k))}),
-                                current.effects, jac, final=False)
-            e = sse(problem.sensor_residual(q))
-            if best is None or e < best[0]:
-                best = (e, q, f)
-        _, p, f = best
-        if f is not None:
-            jac = f.jacobian[:, :len(coords)]
-        p = _searched_afresh(problem, space, by_name[name], p, values, checkpoint_every)
-    p, f = _joint_refit(problem, space, coords, sigma, p, current.effects, jac, final=True)
-    return p, values, (jac if f is None else f.jacobian[:, :len(coords)]), sim.runs - runs0
-
-
-def _joint_prediction(problem: Problem, space: ModelSpace, coords: Sequence[FittedParameter], sigma: float,
-                      start_jac: np.ndarray | None, start: PlantParams,
-                      effects: tuple[str, ...]) -> tuple[PlantParams, np.ndarray, np.ndarray | None]:
-    """:func:`_joint_refit` from ``start`` and the re-fitted model's whole-recording prediction
-    (displacement [mm], pressure [MPa] or None). When the newest effect has joint starts
-    (:attr:`ModelSpace.joint_starts`), the re-fit also starts from ``start`` with each of them set
-    (and, for an effect of :attr:`ModelSpace.starts_from_nominal`, with the constants ``coords`` at
-    their prior's centre as well), and the one that fits the training blocks best is kept (the first
-    on a tie)."""
-    p1, _ = _joint_refit(problem, space, coords, sigma, start, effects, start_jac)
-    best = (p1, *problem.sim.run(p1))
-    if not coords or not effects:
-        return best
-    best_sse = sse(problem.stacked_residual(best[1], best[2]))
-    further = space.joint_starts.get(effects[-1], ())
-    starts = [(start.with_values(**values), start_jac) for values in further]
-    if effects[-1] in space.starts_from_nominal:
-        # the constants at their prior's centre, with a Jacobian taken there (the calibrated one is
-        # another point's): the calibrated constants took the effect up along a valley that a short
-        # re-fit from them does not leave
-        centre = {c.key: c.center for c in coords}
-        starts += [(start.with_values(**centre, **values), None) for values in further]
-    for st, jac in starts:
-        try:
-            p2, _ = _joint_refit(problem, space, coords, sigma, st, effects, jac)
-            out = (p2, *problem.sim.run(p2))
-        except SimulationError:  # a start the model cannot run from: the others still count
-            continue
-        out_sse = sse(problem.stacked_residual(out[1], out[2]))
-        if out_sse < best_sse:
-            best, best_sse = out, out_sse
-    return best
-
-
 def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: float, load: np.ndarray | None,
             p_mpa: np.ndarray | None, model: PlantParams, *, block_s: float, fit_segment_s: float,
             candidates: Sequence[Candidate], max_effects: int, alpha: float, min_reduction: float,
@@ -903,7 +407,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         """Training SSE of every sensor the fits weigh [mm^2] (the pressure's rescaled, when used)."""
         return sse(evidence.stacked(y_hat, q_hat, train))
     sensor_mm = space.sensor_noise(model)
-    tests0, ac0, xc0 = _residual_tests(u, e0, sensor_mm)
+    tests0, ac0, xc0 = residual_tests(u, e0, sensor_mm)
     floor = tests0["noise_reference_mm"]
     fit_before = fit_percent(y, y0, test)
     excess0 = max(tests0["rms_mm"] ** 2 - floor ** 2, 1e-30)
@@ -918,19 +422,19 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     cal: Calibration | None = None
     y_cal = None
     fit_cal = None
-    current = _Model(model, (), y0, {}, q0)
+    current = SelectedModel(model, (), y0, {}, q0)
     by_name = {c.name: c for c in candidates}
     do_calibrate = bool(calibration) and tests0["structured"]
     coords: list[FittedParameter] = []
     converged: PlantParams | None = None  # the current model's parameters once re-fitted to convergence
     # the alternation from nominal constants that was not kept: a further start for the next round
-    nominal_start: _Model | None = None
+    nominal_start: SelectedModel | None = None
 
     def joint(params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
-        return _joint_refit(problem, space, coords, sigma, params, effects, start_jac, final)
+        return joint_refit(problem, space, coords, sigma, params, effects, start_jac, final)
 
-    def refitted(start: PlantParams) -> _Model | None:
+    def refitted(start: PlantParams) -> SelectedModel | None:
         """The current model's effects re-fitted jointly from ``start`` to convergence, when that fits
         the training blocks better than the current model (None otherwise)."""
         p, _ = joint(start, current.effects, cal_jac, final=True)
@@ -938,7 +442,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             return None
         y_p, q_p = sim.run(p)
         if sensors_sse(y_p, q_p) < sensors_sse(current.y, current.q):
-            return _Model(p, current.effects, y_p, current.values, _used(q_p))
+            return SelectedModel(p, current.effects, y_p, current.values, _used(q_p))
         return None
 
     def prior_cost(p: PlantParams) -> float:
@@ -958,7 +462,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
     def own_searched() -> list[str]:
         """The accepted effects with parameters only their own search fits (a band's edges, a map's
         knots, a sag's window)."""
-        return [e for e in current.effects if _own_parameters(space, by_name[e])]
+        return [e for e in current.effects if own_parameters(space, by_name[e])]
 
     def restate(p: PlantParams) -> None:
         """The findings' values, and the words that state them, become ``p``'s (the model kept)."""
@@ -974,15 +478,15 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         reach = max((c.linearised_reach(problem, y_hat) for c in cands if c.linearised_reach), default=0)
         if coords and reach:
             try:
-                problem.constants = _linearised_constants(problem, coords, sigma, params, y_hat, reach)
+                problem.constants = linearise_constants(problem, coords, sigma, params, y_hat, reach)
             except SimulationError:  # a constant's step the plant cannot take: the plain searches only
                 pass
 
     def profile(round_no: int) -> None:
-        """:func:`_profiled_refit` of the current model, kept if it fits the training blocks better;
+        """:func:`profiled_refit` of the current model, kept if it fits the training blocks better;
         then :func:`from_nominal`."""
         nonlocal current, cal_jac
-        out = _profiled_refit(problem, space, coords, current, by_name, sigma, cal_jac, checkpoint_every)
+        out = profiled_refit(problem, space, coords, current, by_name, sigma, cal_jac, checkpoint_every)
         if out is None:
             return
         p_re, values_re, jac_re, sims = out
@@ -991,12 +495,12 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         selection.append({"step": "profile with the constants re-fitted", "round": round_no,
                           "simulations": sims, "kept": improved})
         if improved:
-            current = _Model(p_re, current.effects, y_re, values_re, _used(q_re))
+            current = SelectedModel(p_re, current.effects, y_re, values_re, _used(q_re))
             cal_jac = jac_re
             restate(p_re)
         from_nominal(round_no)
 
-    def from_nominal(round_no: int | str, names: Sequence[str] | None = None) -> _Model | None:
+    def from_nominal(round_no: int | str, names: Sequence[str] | None = None) -> SelectedModel | None:
         """The own searches of ``names`` (default: the profiled effects) alternated with the
         calibration from the nominal constants (:data:`FROM_NOMINAL_ROUNDS` times; the calibration
         once for ``round_no = "final"`` without a search), the result
@@ -1021,9 +525,9 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             c = calibrated(model.with_values(**{k: p.value(k) for vals in values.values() for k in vals}))
             p = c.params
             for name in names:
-                p = _searched_afresh(problem, space, by_name[name], p, values, checkpoint_every)
+                p = searched_afresh(problem, space, by_name[name], p, values, checkpoint_every)
         coords_c = fitted_coords(c)
-        p, f = _joint_refit(problem, space, coords_c, sigma, p, current.effects, None, final=True)
+        p, f = joint_refit(problem, space, coords_c, sigma, p, current.effects, None, final=True)
         y_c, q_c = sim.run(p)
         kept = sensors_sse(y_c, q_c) < sensors_sse(current.y, current.q)
         selection.append({"step": "search and calibrate from the nominal constants", "round": round_no,
@@ -1031,10 +535,10 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         if kept:
             cal, coords = c, coords_c
             cal_jac = None if f is None else f.jacobian[:, :len(coords_c)]
-            current = _Model(p, current.effects, y_c, values, _used(q_c))
+            current = SelectedModel(p, current.effects, y_c, values, _used(q_c))
             restate(p)
             return None
-        return _Model(p, current.effects, y_c, values, _used(q_c))
+        return SelectedModel(p, current.effects, y_c, values, _used(q_c))
 
     def calibrated(base: PlantParams, level_mm: float | None = None) -> Calibration:
         """The nominal constants calibrated from ``base`` (its effects on) at ``level_mm`` (default: the
@@ -1066,7 +570,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         coords = fitted_coords(cal)
         y_cal, q_cal = sim.run(cal.params)
         fit_cal = fit_percent(y, y_cal, test)
-        current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
+        current = SelectedModel(cal.params, (), y_cal, {}, _used(q_cal))
         selection.append({"step": "calibrate", "identifiable": cal.identifiable, "prior_cost": round(prior_cost(cal.params), 3),
                           "fit_after_percent": round(fit_cal, 3), "noise_mm": round(noise, 6)})
         level, start_t, y_lev, q_lev = white_noise_level_mm(y - y_cal), cal.params, y_cal, q_cal
@@ -1085,7 +589,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             trial = calibrated(start_t, level)
             coords_t = fitted_coords(trial)
             # converged, as every model a verdict rests on (the search's reference is re-fitted too)
-            p_t, _ = _joint_refit(problem, space, coords_t, max(level, 1e-6), trial.params, (),
+            p_t, _ = joint_refit(problem, space, coords_t, max(level, 1e-6), trial.params, (),
                                   trial.jacobian[:, :len(coords_t)], final=True)
             y_t, q_t = sim.run(p_t)
             white = not is_structured(y - y_t, sensor_noise_mm=sensor_mm)[0]
@@ -1098,7 +602,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 cal, coords = replace(trial, params=p_t), coords_t
                 y_cal, q_cal = y_t, q_t
                 fit_cal = fit_percent(y, y_cal, test)
-                current = _Model(cal.params, (), y_cal, {}, _used(q_cal))
+                current = SelectedModel(cal.params, (), y_cal, {}, _used(q_cal))
     cal_jac = None if cal is None else cal.jacobian[:, :len(coords)]
 
     def judged(effect: str | None = None) -> HeldOut:
@@ -1128,7 +632,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         is the displacement's)."""
         on = evidence if on is None else on
         both = q_base is not None and q_new is not None
-        sig = _significance(on.residual(base, q_base) if both else (y - base)[on.test],
+        sig = significance_test(on.residual(base, q_base) if both else (y - base)[on.test],
                             on.residual(new, q_new) if both else (y - new)[on.test], noise, alpha)
         if both:
             e0, e1 = (y - base)[on.test], (y - new)[on.test]
@@ -1166,7 +670,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 selection.append({"step": "drop", "round": round_no, "effect": name,
                                   "excluded_by": [e for e in current.effects if e in group and e != name]})
                 findings = [f for f in findings if f.effect != name]
-                current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
+                current = SelectedModel(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
                 converged = current.params
         for name in list(current.effects):
             if len(current.effects) == 1 and not last_too:
@@ -1194,7 +698,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                   "held_out_sse_reduction_it_gave": round(sig["reduction"], 4),
                                   "p_value": sig["p_value"]} | left_out(on_wo))
                 findings = [f for f in findings if f.effect != name]
-                current = _Model(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
+                current = SelectedModel(p_wo, rest, y_wo, {k: v for k, v in current.values.items() if k != name}, q_wo)
                 converged = current.params
 
     # the first reading (step 3): an effect no calibration can explain is calibrated with from the start
@@ -1207,7 +711,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         converged = current.params
         c1 = calibrated(model.with_values(**start))
         coords1 = fitted_coords(c1)
-        p1, f1 = _joint_refit(problem, space, coords1, sigma, c1.params, (name,), c1.jacobian[:, :len(coords1)], True)
+        p1, f1 = joint_refit(problem, space, coords1, sigma, c1.params, (name,), c1.jacobian[:, :len(coords1)], True)
         y1, q1 = sim.run(p1)
         q1 = _used(q1)
         keys = [spec.key for spec in by_name[name].parameters]
@@ -1232,7 +736,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                                     located_windows(contribution, ts, noise_mm=noise), regime, dict(sig)))
             cal, coords = c1, coords1
             cal_jac = (c1.jacobian if f1 is None else f1.jacobian)[:, :len(coords1)]
-            current = _Model(p1, (name,), y1, {name: values}, q1)
+            current = SelectedModel(p1, (name,), y1, {name: values}, q1)
             converged = p1
             first_values = values
     gate_structured, gate = is_structured(y - current.y, sensor_noise_mm=sensor_mm)
@@ -1269,7 +773,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                     coords = fitted_coords(cal)
                     cal_jac = cal.jacobian[:, :len(coords)]
                     current = (refitted(cal.params)
-                               or _Model(cal.params, current.effects, y_re, current.values, _used(q_re)))
+                               or SelectedModel(cal.params, current.effects, y_re, current.values, _used(q_re)))
                     better = current
                     restate(current.params)
                     # a band accepted on other constants (the nominal ones, when the inflated level
@@ -1306,18 +810,18 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             # (with the first reading's effect, when kept, at its values)
             start_n = model.with_values(**first_values) if first_values else model
             y_n = sim.run(start_n, checkpoint_every=checkpoint_every)[0]  # window fits continue from checkpoints of their base
-            nominal_jobs = _start_fits(pool, problem, start_n, y_n if first_values else y0, fit_done)
+            nominal_jobs = start_fits(pool, problem, start_n, y_n if first_values else y0, fit_done)
         elif nominal_start is not None and nominal_start.effects == current.effects:
             # (a start made before the backward step dropped an effect would switch it on again)
             start_n = nominal_start.params
             sim.run(start_n, checkpoint_every=checkpoint_every)
-            nominal_jobs = _start_fits(pool, problem, start_n, nominal_start.y, fit_done)
+            nominal_jobs = start_fits(pool, problem, start_n, nominal_start.y, fit_done)
         else:
             nominal_jobs = []
         nominal_start = None
         linearise(current.params, current.y, pool)
         sim.run(current.params, checkpoint_every=checkpoint_every)
-        jobs = _start_fits(pool, problem, current.params, current.y, fit_done)
+        jobs = start_fits(pool, problem, current.params, current.y, fit_done)
         for cand, job in zip(pool, nominal_jobs):
             res_n = job()[0]
             if isinstance(res_n, FitResult):
@@ -1365,7 +869,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         # the score test's prediction too: a candidate whose own fit found nothing because the constants
         # absorbed it may still be what a joint step finds (the lower of the two predictions ranks)
         if cal_jac is not None:
-            gains = _score_gains(problem, space, coords, sigma, cal_jac, current, [c for c, *_ in starts])
+            gains = score_gains(problem, space, coords, sigma, cal_jac, current, [c for c, *_ in starts])
             for entry in tried:
                 if entry["round"] == round_no and not entry.get("joint") and entry["effect"] in gains:
                     entry["score_test_gain_mm2"] = round(gains[entry["effect"]], 4)
@@ -1379,7 +883,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         ref_y, ref_q = current.y, current.q
         alts: list[Alternative] = []
         tasks = [(start.with_values(**res.values), current.effects + (cand.name,)) for cand, res, start, _ in promising]
-        jobs = _on_copies(problem, _joint_prediction, (space, list(coords), sigma, cal_jac), tasks,
+        jobs = on_copies(problem, joint_prediction, (space, list(coords), sigma, cal_jac), tasks,
                           each_done=progress.counter(round_no, JOINT_REFITS, len(tasks)))
         joints = []
         for (cand, res, _, _), job in zip(promising, jobs):
@@ -1395,14 +899,14 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         progress.round(round_no, TESTS)
         ref_train = sensors_sse(ref_y, ref_q)
         joint_sse = [sensors_sse(j[3], j[4]) for j in joints]  # [cand, res, params, y, q, simulations, seconds]
-        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and _own_parameters(space, joints[i][0])]
+        order = [i for i in np.argsort(joint_sse) if joint_sse[i] < ref_train and own_parameters(space, joints[i][0])]
         for i in order[:ALTERNATE_PER_ROUND]:
             cand, res, p1, y1, q1, sims_used, secs = joints[i]
             runs0, t_fit = sim.runs, time.perf_counter()
             off = p1.with_values(**space.off_values(res.values))
             y_off = sim.run(off, checkpoint_every=checkpoint_every)[0]
             linearise(off, y_off, [cand])
-            res2 = _timed(_own_fit, problem, (off, y_off), (cand,))[0]
+            res2 = timed(own_fit, problem, (off, y_off), (cand,))[0]
             if isinstance(res2, FitResult):
                 p2, _ = joint(off.with_values(**res2.values), current.effects + (cand.name,), cal_jac)
                 y2, q2 = sim.run(p2)
@@ -1457,7 +961,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
         selection.append({"step": "add", "round": round_no, "effect": best.effect,
                           "held_out_sse_reduction": round(best.evidence["reduction"], 4),
                           "alternatives": [a.effect for a in group[1:]]} | left_out(on))
-        current = _Model(best.params, current.effects + (best.effect,), best.y_hat,
+        current = SelectedModel(best.params, current.effects + (best.effect,), best.y_hat,
                          current.values | {best.effect: best.parameters}, best.q_hat)
         # a profiled parameter is re-chosen before the next round searches the residual it leaves
         if best.effect in space.profiled and coords:
@@ -1518,7 +1022,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                 y_re, q_re = sim.run(p_re)
                 selection.append({"step": "recalibrate with the accepted effects", "simulations": recal.simulations})
                 if sensors_sse(y_re, q_re) < sensors_sse(current.y, current.q):
-                    current = _Model(p_re, current.effects, y_re, current.values, _used(q_re))
+                    current = SelectedModel(p_re, current.effects, y_re, current.values, _used(q_re))
                     cal_jac = recal.jacobian
             if is_structured(y - current.y, sensor_noise_mm=sensor_mm)[0]:
                 # still structured: the constants may sit in the first calibration's valley, which the
@@ -1532,7 +1036,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
             p_final, f_final, y_final, q_final, values_final = polished(p_final, f_final, y_final, q_final)
         if f_final is not None and sensors_sse(y_final, q_final) <= sensors_sse(current.y, current.q):
             restate(p_final)
-            current = _Model(p_final, current.effects, y_final, values_final, _used(q_final))
+            current = SelectedModel(p_final, current.effects, y_final, values_final, _used(q_final))
             if not current.effects:  # the calibration alone, converged further
                 y_cal, fit_cal = y_final, fit_percent(y, y_final, test)
         if f_final is not None:
@@ -1548,7 +1052,7 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                               cal.simulations, cal.jacobian, cal.sigma_mm, cal.shrink, cal.kept, cal.consider_jacobian)
             # the effects' intervals from the same covariance: a constant that trades with an effect
             # widens the effect's interval as much as the effect widens the constant's
-            extra = _effect_coords(space, current.effects)
+            extra = effect_coords(space, current.effects)
             if extra and f_final.jacobian.shape[1] == len(coords) + len(extra):
                 cov = fit_covariance(f_final.jacobian, f_final.residual, sigma,
                                      len(coords) if set(cal.changed) != set(cal.identifiable) else 0,
@@ -1574,17 +1078,17 @@ def _search(sim: Simulator, t: np.ndarray, u: np.ndarray, y: np.ndarray, ts: flo
                      "nominal plant is kept and no effect is claimed")
         selection.append({"step": "calibration not kept", "fit_calibrated_percent": round(fit_kept, 3),
                           "fit_nominal_percent": round(fit_before, 3), "effects_dropped": list(current.effects)})
-        current = _Model(model, (), y0, {}, q0)
+        current = SelectedModel(model, (), y0, {}, q0)
         findings = []
         cal, y_cal, fit_cal = None, None, None
     base, y_base = current.params, current.y
     if current.effects and effect_ci is None:
-        effect_ci = _effect_intervals(problem, space, base, current.effects, sigma)
+        effect_ci = effect_intervals(problem, space, base, current.effects, sigma)
     for f in findings:
         f.ci95 = {k: effect_ci[k] for k in f.parameters if effect_ci and k in effect_ci}
 
     e_after = y - y_base
-    tests1, ac1, xc1 = _residual_tests(u, e_after, sensor_mm)
+    tests1, ac1, xc1 = residual_tests(u, e_after, sensor_mm)
     # the white part of the residual, the smaller of the nominal and the final model's: a mismatch that
     # jumps from sample to sample (a backlash, a delay under steps, a sag's edge) inflates the nominal
     # model's, and the note then blamed a sensor that was the model's own
