@@ -787,11 +787,27 @@ class _Search:
                 break
 
     def _round(self) -> bool:
-        """One round of the forward selection (step 4): the reference re-fitted, the noise level taken
-        again (and the constants calibrated afresh at it), every candidate's own fit, the promising ones
-        re-fitted jointly with the constants, the held-out test, ambiguity, the acceptance and the
-        backward step (step 5). False where the search stops."""
+        """One round of the forward selection (step 4): the reference re-fitted (:meth:`_reference`),
+        every candidate's own fit (:meth:`_own_fits`), the promising ones (:meth:`_promising`) re-fitted
+        jointly with the constants (:meth:`_joint_fits`), the held-out test, ambiguity, the acceptance and
+        the backward step (:meth:`_accept`). False where the search stops."""
         self.progress.begin_round(self.round_no)
+        if not self._reference():
+            return False
+        fitted, nominal_fits, start_n = self._own_fits()
+        promising = self._promising(fitted, nominal_fits, start_n)
+        if not promising:
+            return False
+        # the reference of the joint re-fits' tests: the current model re-fitted alone (so recalibration
+        # gets the same chance as the effect)
+        ref_y, ref_q = self.current.y, self.current.q
+        joints = self._joint_fits(promising, ref_y, ref_q)
+        return self._accept(joints, ref_y, ref_q)
+
+    def _reference(self) -> bool:
+        """The round's reference: the current model re-fitted to convergence, and after a removal the
+        noise level taken again (the constants calibrated afresh at it, the backward step repeated).
+        False where the recalibrated model leaves a white residual: the search stops."""
         # the reference: the current model re-fitted to convergence, so that a candidate's extra freedom
         # is not mistaken for evidence (and the search stops if recalibration alone whitens the residual)
         better = self.refitted(self.current.params) if self.current.params is not self.converged else None
@@ -841,6 +857,14 @@ class _Search:
                 self.selection.append({"step": "stop", "round": self.round_no, "reason": "the recalibrated model "
                                        "leaves a white residual"})
                 return False
+        return True
+
+    def _own_fits(self) -> tuple[list[tuple[Candidate, FitResult, dict[str, float]]], dict[str, FitResult],
+                                 PlantParams | None]:
+        """Every candidate's own fit on the current model (and, in the first round or from a further
+        start, on the nominal constants too), recorded in ``tried``: the fits with their held-out test,
+        the nominal start's fits by effect, and that start's parameters (None: none)."""
+        start_n = None  # the nominal start's parameters, where the candidates start from it too
         fitted: list[tuple[Candidate, FitResult, dict[str, float]]] = []
         fit_base = fit_percent(self.y, self.current.y, self.test)
         nominal_fits: dict[str, FitResult] = {}
@@ -886,6 +910,12 @@ class _Search:
                                "p_value": sig["p_value"], "parameters": res.values} | cost
                               | ({} if res.joint_gain_mm2 is None else {"linearised_gain_mm2": round(res.joint_gain_mm2, 4)}))
             fitted.append((cand, res, sig))
+        return fitted, nominal_fits, start_n
+
+    def _promising(self, fitted: Sequence[tuple[Candidate, FitResult, dict[str, float]]],
+                   nominal_fits: dict[str, FitResult], start_n: PlantParams | None) -> list[tuple]:
+        """The candidates to re-fit jointly (at most :data:`JOINT_PER_ROUND`), each from its better start,
+        ranked on the training blocks: ``(candidate, own fit, start parameters, predicted training SSE)``."""
         # each candidate's start: on top of the current model, or (first round) from the nominal model,
         # whichever fits the training blocks better; the best few on the training blocks are re-fitted
         # jointly with the constants (ranked on training data: the held-out blocks only judge). With the
@@ -922,12 +952,14 @@ class _Search:
             current_train = train_sse(self.current.y)
             starts = [(c, r_, st, min(sc, current_train - gains.get(c.name, 0.0))) for c, r_, st, sc in starts]
         promising = sorted(starts, key=lambda r: r[3])[:JOINT_PER_ROUND]
-        if not promising:
-            return False
+        return promising
+
+    def _joint_fits(self, promising: Sequence[tuple], ref_y: np.ndarray, ref_q: np.ndarray | None) -> list[list]:
+        """Each promising effect re-fitted jointly with the calibrated constants (in the worker
+        processes), and the best that has parameters of its own search fitted afresh on the re-fitted
+        constants: ``[candidate, own fit, parameters, y, q, simulations, seconds]`` each."""
         # joint re-fits: each promising effect together with the calibration; the reference is the
         # current model re-fitted alone (so recalibration gets the same chance as the effect)
-        ref_y, ref_q = self.current.y, self.current.q
-        alts: list[Alternative] = []
         tasks = [(start.with_values(**res.values), self.current.effects + (cand.name,)) for cand, res, start, _ in promising]
         jobs = on_copies(self.problem, joint_prediction, (self.space, list(self.coords), self.sigma, self.cal_jac), tasks,
                          each_done=self.progress.counter(self.round_no, JOINT_REFITS, len(tasks)))
@@ -960,7 +992,15 @@ class _Search:
                     joints[i][1:5] = [res2, p2, y2, q2]
             joints[i][5] += self.sim.runs - runs0
             joints[i][6] += time.perf_counter() - t_fit
+        return joints
+
+    def _accept(self, joints: Sequence[list], ref_y: np.ndarray, ref_q: np.ndarray | None) -> bool:
+        """The joint fits' held-out tests against the reference ``ref_y``, ``ref_q``: the best that passes
+        is accepted (with the alternatives the held-out data cannot tell from it), its parameter
+        profiled or the constants calibrated from nominal where they are implausible, then the
+        backward step. False where no candidate passes: the search stops."""
         on = self.judged()
+        alts: list[Alternative] = []
         for cand, res, p1, y1, q1, sims_used, secs in joints:
             q1 = self._used(q1)
             cost = {"simulations": sims_used, "seconds": round(secs, 2)}
