@@ -16,7 +16,7 @@ from scipy import stats
 
 from tapmuscle.diagnosis import CANDIDATES, diagnose
 from tapmuscle.diagnosis.calibration import NOMINAL_PARAMETERS
-from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR, distinguishable
+from tapmuscle.diagnosis.diagnose import MATERIAL_FACTOR
 from tapmuscle.diagnosis.candidates import _command_cuts, _edge_scan, _edge_search, _midway_edges, _tightest, candidate
 from tapmuscle.diagnosis.demo import DEMO_MODEL, Case, run_case, record
 from tapmuscle.diagnosis.residual_analysis import (autocorrelation_test, unstructured_reason, fit_percent, interleaved_split, iou,
@@ -852,20 +852,6 @@ def test_worker_processes_from_a_script_without_a_file(how):
         assert out.stdout.split() == ["same"]
 
 
-def test_distinguishable_separates_a_real_difference_from_noise():
-    rng = np.random.default_rng(3)
-    n = 900
-    noise = 0.01 * rng.standard_normal(n)
-    wiggle = 0.002 * np.sin(np.arange(n) / 7.0)  # well within the noise
-    ok, ev = distinguishable(noise, noise + wiggle, 0.01)
-    assert not ok and ev["sse_ratio"] < 1.1
-    ok, ev = distinguishable(noise, noise + 0.05 * np.sin(np.arange(n) / 7.0), 0.01)
-    assert ok and ev["p_value"] < 1e-3
-    # a localised difference (an effect present in a tenth of the held-out samples) counts as well
-    local = np.where((np.arange(n) > 300) & (np.arange(n) < 390), 0.05, 0.0)
-    assert distinguishable(noise, noise + local, 0.01)[0]
-
-
 @pytest.mark.slow
 def test_an_ambiguous_group_gets_a_discriminating_input(tmp_path, monkeypatch):
     """The report designs and writes the experiment for every ambiguous group (the alternatives here
@@ -1018,58 +1004,9 @@ def test_blocks_shorter_than_the_sampling_period_are_refused(tmp_path, capsys):
     assert split_length_s(u, 20.0, None) == 20.0 and split_length_s(slow["u_v"], 1.0, None) == 10.0
 
 
-def test_a_quarter_of_the_recording_is_a_block_at_1_ms_too():
-    """20 s recorded at 1 ms (``tapmuscle record --ts 0.001``, times written as text) reads back as a
-    period of 0.99999999999989 ms, so its duration as 19.9999999999978 s: 5-s blocks, a quarter of
-    it, must not be refused as 'at most 5 s'. A block really too long is."""
-    from tapmuscle.diagnosis.diagnose import validated_recording
-
-    t = np.array([float(repr(k * 1e-3)) for k in range(20001)])
-    u = 5.0 + 3.0 * np.sin(0.6 * t)
-    validated_recording(t, u, u, 5.0)
-    with pytest.raises(ValueError, match=r"--block\) = 5.01 s: a 20-s recording needs blocks of .* at most 5 s"):
-        validated_recording(t, u, u, 5.01)
-
-
 def _sine_recording(n, ts_s):
     t = np.arange(n) * ts_s
     return t, 5.0 + 3.0 * np.sin(2 * np.pi * 0.1 * t)
-
-
-@pytest.mark.parametrize("n, ts_s, block_s, words", [
-    # 20 s at 0.1 s: too few samples whatever the blocks, and too short for the default ones
-    (201, 0.1, None, "the recording lasts 20 s (201 samples at 0.1 s); the diagnosis needs at least 40 s with its "
-                     "default 10-s blocks (two training and two held-out blocks at least); shorter blocks (block_s, "
-                     "--block) lower that to four times their length, but not below 29.9 s at this sampling period "
-                     "(300 samples, for the residual tests)"),
-    # 30 s at 0.1 s: samples enough; the default blocks, which the user did not choose, are named as such
-    (301, 0.1, None, "the recording lasts 30 s (301 samples at 0.1 s); the diagnosis needs at least 40 s with its "
-                     "default 10-s blocks (two training and two held-out blocks at least); shorter blocks (block_s, "
-                     "--block) lower that to four times their length: this recording takes blocks of at most 7.5 s"),
-    # 1 s at 1 kHz is 1001 samples, far from 40 s: the sample count is not the limit
-    (1001, 0.001, None, "the recording lasts 1 s (1001 samples at 0.001 s); the diagnosis needs at least 40 s"),
-    # blocks given: only the samples' floor, as a duration at this period
-    (201, 0.1, 5.0, "the recording lasts 20 s (201 samples at 0.1 s); the diagnosis needs at least 29.9 s at this "
-                    "sampling period (300 samples, for the residual tests)"),
-    # a period of 1 s: 300 samples are longer than four default blocks, and the blocks are not mentioned
-    (299, 1.0, None, "the recording lasts 298 s (299 samples at 1 s); the diagnosis needs at least 299 s at this "
-                     "sampling period (300 samples, for the residual tests)"),
-])
-def test_a_short_recording_is_refused_with_the_duration_it_needs(n, ts_s, block_s, words):
-    """The minimum is a duration (four blocks, 300 samples), not a sample count, and it is said as one."""
-    from tapmuscle.diagnosis.diagnose import validated_recording
-
-    t, u = _sine_recording(n, ts_s)
-    with pytest.raises(ValueError) as refused:
-        validated_recording(t, u, u, block_s)
-    assert str(refused.value).startswith(words)
-    # at the limits it states, the recording is taken
-    if n == 301:
-        validated_recording(t, u, u, 7.5)
-    if n == 1001:
-        validated_recording(t, u, u, 0.25)
-    validated_recording(*_sine_recording(401, 0.1), _sine_recording(401, 0.1)[1], None)
-    validated_recording(*_sine_recording(300, 0.1), _sine_recording(300, 0.1)[1], 7.475)
 
 
 def test_a_short_recording_is_refused_naming_its_file_before_any_progress(tmp_path, capsys):
@@ -1831,28 +1768,6 @@ def test_an_input_maps_words_give_the_fitted_map_at_its_ends():
     said = explain_input_map(fitted)
     assert said.startswith("the valve sees 0.98 x the command +0.09 V (amplifier gain and offset error; ")
     assert said.endswith("commands of 0, 5 and 10 V act as 0.00, 4.99 and 9.83 V)"), said
-
-
-def test_significance_z_is_standard_normal_when_the_held_out_residual_is_noise():
-    """The held-out test's z is on the scale of a standard normal under the null (its level alpha
-    means what it says): over 400 noise draws, mean within 0.2 of 0 and sd within 10 % of 1."""
-    from tapmuscle.diagnosis.significance import significance_test
-    rng = np.random.default_rng(2)
-    d = 0.02 * np.sin(np.arange(900) / 9.0)
-    z = [significance_test(e0, e0 - d, 0.01, 1e-3)["z"] for e0 in (0.01 * rng.standard_normal(900) for _ in range(400))]
-    assert abs(np.mean(z)) < 0.2 and 0.9 < np.std(z) < 1.1, (np.mean(z), np.std(z))
-
-
-def test_distinguishable_z_is_shifted_standard_normal():
-    """Two explanations that differ by delta: z less its expectation |delta| / (2 sigma) has the sd of
-    a standard normal over noise draws (within 15 %)."""
-    from tapmuscle.diagnosis.diagnose import distinguishable
-    rng = np.random.default_rng(3)
-    delta = 0.004 * np.sin(np.arange(900) / 9.0)
-    shift = np.linalg.norm(delta) / (2 * 0.01)
-    z = [distinguishable(e, e + delta, 0.01, min_ratio=0.0)[1]["z"] - shift
-         for e in (0.01 * rng.standard_normal(900) for _ in range(400))]
-    assert abs(np.mean(z)) < 0.2 and 0.85 < np.std(z) < 1.15
 
 
 def test_a_sensor_much_noisier_than_the_models_is_noted_and_still_no_mismatch():
