@@ -1211,40 +1211,6 @@ def test_the_step_that_fires_the_guard_ran_on_theta0(open_loop_theta_03mpa, unbo
     assert ctrl.startup_guarded_at is not None and not ctrl.law_on_theta0
 
 
-def test_a_move_weight_the_delayed_law_would_scale_past_the_qp_range_is_refused_up_front():
-    """servo_for_delay runs a delay of 2 or more with R x delay_move_weight: an R within its own range
-    (3e5 <= MAX_WEIGHT) times the default 16 failed the decision of -1 mid-run; it is refused when the
-    settings are made, where a delay of 2 or more is possible and the method is a servo one."""
-    from fmu_controller.servo_settings import MAX_WEIGHT
-
-    servo = ServoMPCSettings(r=3e5)
-    for delay in (-1, 2, 5):
-        with pytest.raises(ValueError, match=r"servo.r x ControllerSettings.delay_move_weight = 300000 x 16, the move "
-                                             r"weight of the law for a delay of 2 samples or more, is not one: r must be "
-                                             r"<= 1e\+06, got 4800000.0 \(with this delay_move_weight, servo.r may be at "
-                                             r"most 62500\)"):
-            ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=delay)
-    # the largest servo.r named is itself allowed (rounded down, not to the nearest)
-    for w in (1.5, 6.0, 7.0):
-        with pytest.raises(ValueError, match="servo.r may be at most") as refused:
-            ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=MAX_WEIGHT), delay_move_weight=w,
-                               input_delay_samples=-1)
-        most = float(str(refused.value).rsplit("at most ", 1)[1].rstrip(")"))
-        ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=most), delay_move_weight=w, input_delay_samples=-1)
-    # a product that rounds to 0 is not a move weight either (R > 0), nor is a per-step one too large
-    with pytest.raises(ValueError, match=r"= 1e-300 x 1e-30, .* is not one: r must be > 0"):
-        ControllerSettings(method="ampc_servo", servo=ServoMPCSettings(r=1e-300), delay_move_weight=1e-30,
-                           input_delay_samples=-1)
-    with pytest.raises(ValueError, match=r"= 400000 x 16, .* is not one: r must be <= 1e\+06 elementwise"):
-        ControllerSettings(method="mpc_servo", servo=ServoMPCSettings(hu=2, r=(1.0, 4e5)), input_delay_samples=2)
-    # no delay of 2 or more (0, 1), no servo law (UCP), or a product within the range: accepted
-    for settings in (dict(method="ampc_servo", input_delay_samples=0), dict(method="mpc_servo", input_delay_samples=1),
-                     dict(method="ampc_ucp", input_delay_samples=-1)):
-        ControllerSettings(servo=servo, **settings)
-    s = ControllerSettings(method="ampc_servo", servo=servo, input_delay_samples=-1, delay_move_weight=3.0)
-    assert s.servo_for_delay(2).r == 9e5 <= MAX_WEIGHT
-
-
 def test_the_delay_evidence_of_a_set_delay():
     """With input_delay_samples set, delay_evidence is None before DELAY_CHECK_SAMPLES samples are scored
     and with -1; then the delay DELAY_RATIO times better than the set one and the ratio of their mean
