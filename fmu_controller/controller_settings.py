@@ -65,7 +65,13 @@ P0_TABLE8 = (1000.0, 1000.0, 1000.0) + (250.0,) * 8 + (150.0,) * 4
 
 @dataclass(frozen=True, kw_only=True)
 class ControllerSettings:
-    """Settings of a :class:`DisplacementController`."""
+    """Settings of a :class:`~fmu_controller.displacement_control.DisplacementController`.
+
+    The constants the fields name live with what they tune: the delay decision's (``DELAY_*``,
+    ``AUTO_INPUT_DELAY_SAMPLES``) in :mod:`fmu_controller.input_delay_scores`, the reading guards'
+    (``SPIKE_*``, ``REPEAT_MOVE_MM``, ``HELD_READINGS_MAX``) in :mod:`fmu_controller.reading_guards`,
+    the valve's (``GUARD_JUMP*``) in :mod:`fmu_controller.valve_limits`, ``HOLD_AFTER_SAMPLES`` in
+    :mod:`fmu_controller.displacement_control`, which re-exports them all."""
 
     method: str = "ampc_servo"
     """One of ``mpc_ucp``, ``mpc_servo``, ``ampc_ucp``, ``ampc_servo``."""
