@@ -448,6 +448,7 @@ class _Search:
         self.nominal_start: SelectedModel | None = None
 
     def _used(self, q: np.ndarray | None) -> np.ndarray | None:
+        """A pressure prediction ``q`` [MPa] where the evidence weighs the pressure, else None."""
         return q if self.evidence.uses_pressure else None
 
     def sensors_sse(self, y_hat: np.ndarray, q_hat: np.ndarray | None) -> float:
@@ -456,6 +457,8 @@ class _Search:
 
     def joint(self, params: PlantParams, effects: Sequence[str], start_jac: np.ndarray | None = None, *,
               final: bool = False) -> tuple[PlantParams, Any]:
+        """:func:`~tapmuscle.diagnosis.joint_fits.joint_refit` of the calibrated constants in use and the
+        ``effects`` from ``params``."""
         return joint_refit(self.problem, self.space, self.coords, self.sigma, params, effects, start_jac, final)
 
     def refitted(self, start: PlantParams) -> SelectedModel | None:
@@ -733,7 +736,6 @@ class _Search:
         """Step 3, the first reading: an effect that no calibration can explain (a first reading away from
         the model's) is calibrated with from the start, and kept as the first finding if it passes
         the held-out test against the calibration without it."""
-        # the first reading (step 3): an effect no calibration can explain is calibrated with from the start
         first = self.space.first_reading(self.y, self.y0, self.p_mpa) if self.cal is not None else None
         self.first_values: dict[str, float] = {}
         if first is not None and first[0] in self.by_name:
@@ -1101,8 +1103,6 @@ class _Search:
         calibration rows and the effects' intervals from this joint fit."""
         self.progress.final()
         self.effect_ci: dict[str, tuple[float, float]] | None = None
-        # the final model: the calibrated constants re-fitted jointly with the accepted effects; the
-        # report's calibration rows are those of this joint fit
         if self.do_calibrate and self.cal is not None:
             if self.current.effects and is_structured(self.y - self.current.y, sensor_noise_mm=self.sensor_mm)[0]:
                 # the constants were first calibrated with the effects left out, and the joint re-fits only
@@ -1204,6 +1204,8 @@ class _Search:
                          "not hidden in the noise; and at this noise level an effect not much larger than the noise may be "
                          "taken up by the calibrated constants rather than named")
         excess1 = max(tests1["rms_mm"] ** 2 - self.floor ** 2, 0.0)
+        # an alternative that a later round accepted as well is part of the model, not an alternative;
+        # and the others are judged again against what the final model leaves unexplained
         self.ambiguous = [g for g in ([a for i, a in enumerate(g) if i == 0 or (a.effect not in self.current.effects
                                                                                 and self.still_tied(g[0], a))]
                                       for g in self.ambiguous) if len(g) > 1 and g[0].effect in self.current.effects]
@@ -1261,10 +1263,9 @@ class _Search:
                          notes=notes, start_left_out_s=self.start_left_out_s, left_out_samples=self.left_out_samples,
                          **({"calibration_skipped": skipped} if skipped else {}))
 
-    # an alternative that a later round accepted as well is part of the model, not an alternative;
-    # and the others are judged again against what the final model leaves unexplained
-
     def still_tied(self, best: Alternative, other: Alternative) -> bool:
+        """Whether the held-out data still cannot tell ``other`` from ``best``, judged against what the
+        final model leaves unexplained (``other``'s evidence records the test)."""
         on = self.judged(best.effect)
         ok, ev = distinguishable(on.residual(best.y_hat, best.q_hat), on.residual(other.y_hat, other.q_hat),
                                  self.noise, alpha=self.alpha, residual_mm=on.residual(self.y_base, self.current.q))
