@@ -385,6 +385,7 @@ class DisplacementController:
             raise ValueError(f"reference preview must be finite, got {r[:need]}")
         state = self._state
         k = self._k
+        # a glitch, a one-sample spike or a stale repeat is replaced by the one-step prediction (ReadingGuard)
         l = self._readings.check(l, k, self._predicted, state.last_l, state.l_prev_mm, rl[-1], self._outs[0][0],
                                  self._guarded())
         error = 0.0 if math.isnan(self._predicted) else l - self._predicted
