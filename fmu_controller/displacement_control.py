@@ -248,9 +248,8 @@ class DisplacementController:
         self._auto = settings.input_delay_samples == -1
         # the largest delay scored (-1's hypotheses, a set delay's check): a set delay beyond -1's reach
         # is scored too, so that delay_evidence can weigh it against the others
-        self._scored = AUTO_INPUT_DELAY_SAMPLES if self._auto else max(AUTO_INPUT_DELAY_SAMPLES,
-                                                                        settings.input_delay_samples)
-        self._scores = DelayScores(self.theta0, self._scored, settings.ts_s)
+        self._scores = DelayScores(self.theta0, AUTO_INPUT_DELAY_SAMPLES if self._auto else
+                                   max(AUTO_INPUT_DELAY_SAMPLES, settings.input_delay_samples), settings.ts_s)
         notch = settings.hysteresis_notch
         if notch is None:
             notch = not settings.adaptive or settings.startup_s > 0
@@ -309,7 +308,7 @@ class DisplacementController:
         self._uc_next = 0.0
         self._later = [(0.0, 0.0)] * max(self._lag - 1, 0)
         # the outputs (u, u_c) of the last samples, newest first: y(k-1), y(k-2), ...
-        self._outs = [(0.0, 0.0)] * (self._scored + 1)
+        self._outs = [(0.0, 0.0)] * (self._scores.largest + 1)
         self._scores.reset(l0)
         if self._delay_predictor is not None:
             self._delay_predictor.reset(l0, 0.0)
@@ -514,7 +513,7 @@ class DisplacementController:
         """The largest delay [samples] the controller scores: :data:`AUTO_INPUT_DELAY_SAMPLES` for -1
         (the longest it may decide), else the larger of that and the delay set. Evidence for it may mean a
         longer delay still."""
-        return self._scored
+        return self._scores.largest
 
     @property
     def input_delay_decision(self) -> int | None:
@@ -815,12 +814,12 @@ class DisplacementController:
                     or (state["delayed"] is True and d == 0):
                 raise ValueError(f"state field delayed = {state['delayed']!r} contradicts input_delay_samples = {d}")
             lag = state.get("lag", 1 if state["delayed"] else 0)
-            if (isinstance(lag, bool) or int(lag) != lag or not 0 <= lag <= self._scored
+            if (isinstance(lag, bool) or int(lag) != lag or not 0 <= lag <= self._scores.largest
                     or (lag != 0) != state["delayed"] or (d != -1 and lag != d)):
                 raise ValueError(f"state field lag = {lag!r} contradicts input_delay_samples = {d} with delayed = "
                                  f"{state['delayed']!r}")
             lag = int(lag)
-            n = self._scored + 1
+            n = self._scores.largest + 1
             try:
                 outs = [(float(u), float(uc)) for u, uc in zip(state["u_out"], state["uc_out"], strict=True)]
                 later = [(float(u), float(uc)) for u, uc in state.get("in_flight", [])]

@@ -430,8 +430,6 @@ class _Search:
         self.excess0 = max(self.tests0["rms_mm"] ** 2 - self.floor ** 2, 1e-30)
         self.sigma = max(self.noise, 1e-6)
 
-        self.train_residual, self.train_residuals = self.problem.sensor_residual, self.problem.sensor_residuals
-
         self.findings: list[Finding] = []
         self.tried: list[dict[str, Any]] = []
         self.selection: list[dict[str, Any]] = []
@@ -569,9 +567,10 @@ class _Search:
     def calibrated(self, base: PlantParams, level_mm: float | None = None) -> Calibration:
         """The nominal constants calibrated from ``base`` (its effects on) at ``level_mm`` (default: the
         noise level in use)."""
-        return calibrate(self.train_residual, self.model, base, self.sigma if level_mm is None else max(level_mm, 1e-6),
-                         parameters=list(self.calibration),
-                         residual_many=self.train_residuals, bounds=self.space.bounds, combinations=self.space.combinations)
+        level = self.sigma if level_mm is None else max(level_mm, 1e-6)
+        return calibrate(self.problem.sensor_residual, self.model, base, level, parameters=list(self.calibration),
+                         residual_many=self.problem.sensor_residuals, bounds=self.space.bounds,
+                         combinations=self.space.combinations)
 
     def fitted_coords(self, c: Calibration) -> list[FittedParameter]:
         """The coordinates of the constants ``c`` calibrated (the joint re-fits move these)."""
