@@ -12,6 +12,7 @@ naming the field and the value.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, field, fields, replace
@@ -58,15 +59,25 @@ def _check(name: str, value: float, *, lo: float | None = None, hi: float | None
         raise ValueError(f"{name} must be <= {hi}, got {value!r}")
 
 
+#: Per class, what :class:`_Validated` checks: (message name, field, lo, hi, lo_open) of each bounded
+#: field. Read from the fields once: a diagnosis builds tens of thousands of parameter sets.
+_BOUNDED: dict[type, tuple[tuple[str, str, float | None, float | None, bool], ...]] = {}
+
+
 class _Validated:
     """Mixin: check every numeric field is finite and within the bounds in its metadata."""
 
     def __post_init__(self) -> None:
-        for f in fields(self):  # type: ignore[arg-type]
-            if "lo" in f.metadata or "hi" in f.metadata:
-                _check(f"{type(self).__name__}.{f.name}", getattr(self, f.name),
-                       lo=f.metadata.get("lo"), hi=f.metadata.get("hi"),
-                       lo_open=f.metadata.get("lo_open", False))
+        cls = type(self)
+        checks = _BOUNDED.get(cls)
+        if checks is None:
+            checks = _BOUNDED[cls] = tuple(
+                (f"{cls.__name__}.{f.name}", f.name, f.metadata.get("lo"), f.metadata.get("hi"),
+                 f.metadata.get("lo_open", False))
+                for f in fields(self)  # type: ignore[arg-type]
+                if "lo" in f.metadata or "hi" in f.metadata)
+        for name, attr, lo, hi, lo_open in checks:
+            _check(name, getattr(self, attr), lo=lo, hi=hi, lo_open=lo_open)
 
 
 def _f(default: float, doc: str, lo: float | None = None, hi: float | None = None,
@@ -390,15 +401,14 @@ class PlantParams:
         Raises ``ValueError`` naming an unknown group or field.
         """
         groups: dict[str, dict[str, float]] = {}
+        names = _group_fields()
         for key, value in dotted.items():
             group, _, name = key.partition(".")
-            if not name or group not in {f.name for f in fields(self)}:
+            if not name or group not in names:
                 raise ValueError(f"unknown plant parameter {key!r} (expected 'group.field', groups: "
-                                 f"{', '.join(f.name for f in fields(self))})")
-            sub = getattr(self, group)
-            if name not in {f.name for f in fields(sub)}:
-                raise ValueError(f"unknown plant parameter {key!r}; {group} has: "
-                                 f"{', '.join(f.name for f in fields(sub))}")
+                                 f"{', '.join(names)})")
+            if name not in names[group]:
+                raise ValueError(f"unknown plant parameter {key!r}; {group} has: {', '.join(names[group])}")
             if getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
                 value = value.item()  # a numpy scalar (np.int64 from np.arange, np.float32) as Python's number
             groups.setdefault(group, {})[name] = value
@@ -416,6 +426,10 @@ class PlantParams:
         finite-difference gradient of it is 0 or a jump (docs/python-api.md, "Estimating the rig's
         constants with an optimiser of your own").
         """
+        s = self.sensor
+        exact = (s.encoder_noise_std_mm, s.encoder_resolution_mm, s.pressure_noise_std_mpa, s.pressure_resolution_mpa)
+        if all(type(v) is float and v == 0.0 and math.copysign(1.0, v) > 0.0 for v in exact):
+            return self  # frozen, and equal to the copy it would make (the simulator asks this of every run)
         return self.with_values(**{"sensor.encoder_noise_std_mm": 0.0, "sensor.encoder_resolution_mm": 0.0,
                                    "sensor.pressure_noise_std_mpa": 0.0, "sensor.pressure_resolution_mpa": 0.0})
 
@@ -483,6 +497,13 @@ class PlantParams:
             for name, value in values.items():
                 flat[f"{group}.{name}"] = value
         return cls().with_values(**flat)
+
+
+@functools.cache
+def _group_fields() -> dict[str, tuple[str, ...]]:
+    """:class:`PlantParams`' groups, in order, each with its fields' names in order."""
+    return {f.name: tuple(g.name for g in fields(f.default_factory))  # type: ignore[arg-type]
+            for f in fields(PlantParams)}
 
 
 def dotted_names(message: str) -> str:

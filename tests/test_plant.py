@@ -447,3 +447,17 @@ def test_noise_free_changes_the_sensors_noise_and_resolution_alone():
     assert changed == {"sensor.encoder_noise_std_mm", "sensor.encoder_resolution_mm",
                        "sensor.pressure_noise_std_mpa", "sensor.pressure_resolution_mpa"}
     assert all(p.noise_free().value(k) == 0.0 for k in changed)
+
+
+@pytest.mark.parametrize("exact", [0.0, -0.0, 0])
+def test_noise_free_of_sensors_already_exact_is_the_same_parameters_with_float_zeros(exact):
+    """A set already noise-free comes back as it is (the simulator asks every run for it); one whose
+    zeros are written otherwise (an int 0 read from a file, -0.0) comes back with +0.0 floats."""
+    keys = ("sensor.encoder_noise_std_mm", "sensor.encoder_resolution_mm", "sensor.pressure_noise_std_mpa",
+            "sensor.pressure_resolution_mpa")
+    p = PlantParams().with_values(**{"load.load_n": 68.0, **{k: exact for k in keys}})
+    q = p.noise_free()
+    assert q == p and q.noise_free() is q
+    zeros = [getattr(q.sensor, k.split(".")[1]) for k in keys]
+    assert all(type(z) is float and z == 0.0 and math.copysign(1.0, z) == 1.0 for z in zeros)
+    assert (q is p) == (type(exact) is float and math.copysign(1.0, exact) == 1.0)
