@@ -65,13 +65,12 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
 from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, DEFAULT_DELAY_MOVE_WEIGHT,
-                                                 DEFAULT_MAX_SPEED_MM_PER_S,
-                                                 DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
-                                                 GUARD_JUMPS, HELD_READINGS_MAX, L_RANGE_MM, held_reading_message, MAX_DELAY_MOVE_WEIGHT,
-                                                 MAX_INPUT_DELAY_SAMPLES,
-                                                 MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES, MIN_FORGETTING, P0_TABLE5,
-                                                 VALVE_MAX_V, VALVE_MIN_V, ControllerSettings, ControlStep,
-                                                 DisplacementController, preview_lead)
+                                                 DEFAULT_MAX_SPEED_MM_PER_S, DEFAULT_PROBING_V, DEFAULT_STARTUP_S,
+                                                 GUARD_JUMPS, HELD_READINGS_MAX, L_RANGE_MM, MAX_DELAY_MOVE_WEIGHT,
+                                                 MAX_INPUT_DELAY_SAMPLES, MAX_PROBING_V, MAX_STARTUP_S, METHOD_CODES,
+                                                 MIN_FORGETTING, P0_TABLE5, VALVE_MAX_V, VALVE_MIN_V, ControllerSettings,
+                                                 ControlStep, DisplacementController, held_reading_message, preview_lead,
+                                                 real_move_message)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.identification import PAPER_TS_S
 from fmu_controller.loop_watch import LoopWatch
@@ -478,6 +477,10 @@ class AMPCController(SafeSlave):
             tally.saturated += 1
         if ctrl.reading_held is not None:
             self._say_held_reading(t_s, *ctrl.reading_held, ctrl.spike_limit_mm)
+        if ctrl.held_reading_real is not None:
+            tally.real += 1
+            if tally.real <= _HELD_READINGS_LOGGED:
+                self.log(f"t = {t_s:.12g} s: " + real_move_message(*ctrl.held_reading_real), status=Fmi2Status.warning)
         if ctrl.reading_stuck is not None:
             tally.stuck += 1  # logged by the watch
         if self._k:
@@ -591,19 +594,20 @@ class _Tally:
     """What the controller's run summary says: samples, samples at an input limit, prediction errors
     (counted in :meth:`AMPCController.step_numerics`)."""
 
-    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial", "held", "stuck")
+    __slots__ = ("samples", "saturated", "errors", "sum_squares_mm2", "largest_mm", "partial", "held", "stuck", "real")
 
     def __init__(self, samples: int = 0, saturated: int = 0, errors: int = 0, sum_squares_mm2: float = 0.0,
-                 largest_mm: float = 0.0, partial: bool = False, held: int = 0, stuck: int = 0) -> None:
+                 largest_mm: float = 0.0, partial: bool = False, held: int = 0, stuck: int = 0, real: int = 0) -> None:
         self.samples, self.saturated, self.errors = int(samples), int(saturated), int(errors)
         self.sum_squares_mm2, self.largest_mm = float(sum_squares_mm2), float(largest_mm)
         self.partial = bool(partial)  # counted from a restored state that carried no tally
         self.held = int(held)  # readings the glitch guard held (a state saved without it: none)
         self.stuck = int(stuck)  # stretches of a stuck reading told (reading_stuck; a state saved without it: none)
+        self.real = int(real)  # held readings found the muscle's own (held_reading_real; saved without it: none)
 
     def as_list(self) -> list:
         return [self.samples, self.saturated, self.errors, self.sum_squares_mm2, self.largest_mm, self.partial,
-                self.held, self.stuck]
+                self.held, self.stuck, self.real]
 
     def __str__(self) -> str:
         if not self.samples:
@@ -615,5 +619,6 @@ class _Tally:
                 f"them; one-step prediction error l(k) - l(k|k-1): RMS "
                 f"{rms:.3g} mm, largest {self.largest_mm:.3g} mm"
                 + (f"; {self.held} readings taken for sensor glitches and held (max_speed)" if self.held else "")
+                + (f", {self.real} of them found the muscle's own move by the reading after" if self.real else "")
                 + (f"; the reading stuck {self.stuck} time{'s' if self.stuck > 1 else ''} (unchanged while the valve "
                    "went end to end)" if self.stuck else ""))

@@ -67,7 +67,7 @@ from .probing import probe_v
 from .reading_guards import (DEFAULT_MAX_SPEED_MM_PER_S, FASTEST_MUSCLE_MM_PER_S, HELD_READINGS_MAX, L_RANGE_MM,
                              REF_STEP_SETTLE_S, REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_AFTER_S, SPIKE_FORGET,
                              SPIKE_MM, SPIKE_SPREAD, STUCK_AT_LIMIT_S, ReadingGuard, held_reading_message,
-                             settle_samples, stuck_reading_message)
+                             real_move_message, settle_samples, stuck_reading_message)
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, integrator_step
 from .ucp_mpc import held_input_run, ucp_move
@@ -83,7 +83,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "REF_STEP_SETTLE_S", "settle_samples",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
-           "HELD_WARN_S", "held_against_error", "held_against_cause", "held_reading_message",
+           "HELD_WARN_S", "held_against_error", "held_against_cause", "held_reading_message", "real_move_message",
            "P0_TABLE5", "P0_TABLE8", "ControllerSettings", "ControlStep",
            "DisplacementController", "DEFAULT_STARTUP_S", "DEFAULT_PROBING_V", "MAX_PROBING_V", "DELAY_CLEAR_RATIO",
            "DELAY_DECIDE_BY_SAMPLES", "DELAY_CHECK_SAMPLES", "DELAY_LEAD_SAMPLES", "DELAY_SCORES_TS_S"]
@@ -326,6 +326,15 @@ class DisplacementController:
         :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
         None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
         return self._readings.spike_limit_mm
+
+    @property
+    def held_reading_real(self) -> tuple[str, float, float, float] | None:
+        """On the step after a reading was held as a one-sample spike or a stale repeat, where this
+        reading lies nearer the held one than its own one-step prediction, so that the held one was the
+        muscle's own (a supply lost or back, a load dropped, a stop reached): what it was held as
+        (``"spike"``, ``"repeat"``), the held reading, this reading and the prediction [mm]; None
+        otherwise. The spike and repeat guards then hold no reading for :data:`REF_STEP_SETTLE_S`."""
+        return self._readings.held_reading_real
 
     @property
     def reading_stuck(self) -> tuple[float, float] | None:

@@ -5,7 +5,9 @@ jump beyond what the muscle moves in a sample (a sensor glitch), a one-sample sp
 one-step prediction, a stale repeat of the last sample while the prediction has the muscle move.
 The one-step prediction is used instead (``ControllerSettings.max_speed_mm_per_s``;
 docs/control.md, "Sensor glitches", "Stale readings"). A reading that does not change at all while
-the valve is driven to both limits is reported as a stuck sensor, and used. This module holds the
+the valve is driven to both limits is reported as a stuck sensor, and used. The reading after a held
+spike or repeat tells whether that one was the muscle's own (a supply lost, a load dropped): then it
+is reported so, and the two guards wait a transient out. This module holds the
 guards' thresholds, each with what it was measured on, and the messages the FMU logs and a closed
 loop warns with.
 """
@@ -21,7 +23,7 @@ if TYPE_CHECKING:
 __all__ = ["L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
            "REF_STEP_SETTLE_S", "settle_samples", "STUCK_AT_LIMIT_S", "held_reading_message",
-           "stuck_reading_message", "ReadingGuard"]
+           "real_move_message", "stuck_reading_message", "ReadingGuard"]
 
 
 #: Every contraction [mm] the plant FMU's parameter ranges allow (rest lengths up to 5000 mm, an
@@ -133,6 +135,29 @@ def held_reading_message(settings: ControllerSettings, reading_mm: float, used_m
             "level; max_speed = 0 turns this off)")
 
 
+def real_move_message(kind: str, held_mm: float, reading_mm: float, predicted_mm: float) -> str:
+    """What to tell of a held reading that :attr:`DisplacementController.held_reading_real` found the
+    muscle's own (without the times).
+
+    Parameters
+    ----------
+    kind : {"spike", "repeat"}
+        What the reading was held as: a one-sample spike, a stale repeat.
+    held_mm : float
+        The reading held one sample before [mm].
+    reading_mm : float
+        This sample's reading [mm].
+    predicted_mm : float
+        This sample's one-step prediction [mm] (from the value used instead of the held one).
+    """
+    what = "a one-sample spike of the sensor" if kind == "spike" else "a stale sample of the data acquisition"
+    return (f"the reading held one sample before as {what}, l = {held_mm:g} mm, was the muscle's own: this one, "
+            f"{reading_mm:g} mm, lies {abs(reading_mm - held_mm):.3g} mm from it and {abs(reading_mm - predicted_mm):.3g} "
+            f"mm from the one-step prediction {predicted_mm:.4g} mm. The muscle moved or stopped as its model does not "
+            "have it (a supply lost or back, a load dropped, a stop reached?); the spike and repeat guards hold no "
+            f"reading for {REF_STEP_SETTLE_S:g} s")
+
+
 def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> str:
     """What to tell of a reading :attr:`DisplacementController.reading_stuck` reported at ``t_s`` [s]:
     ``reading_mm`` [mm], unchanged for ``unchanged_s`` [s].
@@ -188,12 +213,26 @@ def _valid_still(still: Any) -> bool:
         return False
 
 
+def _valid_last_held(last: Any) -> bool:
+    """Whether ``last`` is a held spike or repeat :meth:`ReadingGuard.get_state` could have saved:
+    ``[kind, sample, reading]``."""
+    try:
+        if not isinstance(last, (list, tuple)) or len(last) != 3 or last[0] not in ("spike", "repeat"):
+            return False
+        k, reading = last[1], float(last[2])
+        return (not isinstance(k, bool) and int(k) == k and int(k) >= 0
+                and L_RANGE_MM[0] <= reading <= L_RANGE_MM[1])
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
 class ReadingGuard:
     """The guards on one controller's readings ``l(k)`` [mm]: a glitch (a jump beyond what the muscle
     moves in a sample), a one-sample spike (:data:`SPIKE_MM`), a stale repeat (:data:`REPEAT_MOVE_MM`),
     each replaced by the one-step prediction; and the watch for a stuck sensor
     (:data:`STUCK_AT_LIMIT_S`), which only reports. After :meth:`check`, :attr:`reading_held`,
-    :attr:`spike_limit_mm` and :attr:`reading_stuck` say what it found at that sample.
+    :attr:`spike_limit_mm`, :attr:`held_reading_real` and :attr:`reading_stuck` say what it found at
+    that sample.
 
     Parameters
     ----------
@@ -228,6 +267,7 @@ class ReadingGuard:
         # samples of it that followed a command at the lower and at the upper valve limit, and whether
         # reading_stuck has said it
         self._still = [math.nan, 0, 0, 0, False]
+        self._last_held: list[Any] | None = None  # the spike or repeat held: [kind, its sample, its reading]
         self.reading_held: tuple[float, float, float] | None = None
         """The last step's reading taken for a glitch, a spike or a stale repeat (then equal to the last
         one used), the value used instead and the last one used before [mm]; None where the reading
@@ -236,6 +276,12 @@ class ReadingGuard:
         """Where :attr:`reading_held` is a one-sample spike (further from the prediction than
         :data:`SPIKE_MM` and :data:`SPIKE_SPREAD` times the usual error), the distance it exceeded [mm];
         None where it is a jump beyond ``max_speed_mm_per_s`` or no reading was held."""
+        self.held_reading_real: tuple[str, float, float, float] | None = None
+        """On the step after a reading was held as a one-sample spike or a stale repeat, where this
+        reading lies nearer the held one than its own one-step prediction (the muscle itself moved or
+        stopped: a supply lost or back, a load dropped): what it was held as (``"spike"``,
+        ``"repeat"``), the held reading, this reading and the prediction [mm]. The spike and repeat
+        guards then hold no reading for :data:`REF_STEP_SETTLE_S`. None otherwise."""
         self.reading_stuck: tuple[float, float] | None = None
         """On the step that tells it, once a stretch: the reading [mm] that has not changed at all
         while the command sat at each of the valve's limits for :data:`STUCK_AT_LIMIT_S` or more, and
@@ -266,6 +312,7 @@ class ReadingGuard:
         """
         self.reading_held = None
         self.reading_stuck = None
+        self._judge_last_held(l, k, predicted)
         still = self._still
         if l == still[0]:
             self._watch_still(u_last)
@@ -278,6 +325,7 @@ class ReadingGuard:
             self._held_in_a_row = 0
             if still[1] == 1 and l == last_l and self._stale(l, k, predicted, guarded):
                 self.reading_held = (l, predicted, last_l)
+                self._last_held = ["repeat", k, l]
                 return predicted
             return self._spike_guard(l, k, predicted, last_l, r_last, guarded)
         spike = self._spike
@@ -295,6 +343,22 @@ class ReadingGuard:
         used = predicted if math.isfinite(predicted) else last_l
         self.reading_held = (l, used, last_l)
         return used
+
+    def _judge_last_held(self, l: float, k: int, predicted: float) -> None:
+        """Whether the spike or repeat held at sample ``k - 1`` was the muscle's own: the reading ``l``
+        [mm] lies nearer it than the prediction ``predicted`` [mm] made from the value used instead.
+        A sensor's spike or a stale sample leaves the muscle on the model's track, so the next reading
+        comes back to it; a supply lost, a load dropped or a stop reached moves the muscle off it."""
+        last, self._last_held = self._last_held, None
+        self.held_reading_real = None
+        if last is None or last[1] != k - 1 or not math.isfinite(predicted):
+            return
+        kind, _, held = last
+        if abs(l - held) < abs(l - predicted):
+            self.held_reading_real = (kind, held, l, predicted)
+            # the model misses what the muscle does now: its predictions are no measure of a spike or a
+            # stale sample until a transient is over
+            self._spike[2] = max(self._spike[2], k + settle_samples(self._ts))
 
     def _spike_limit(self) -> float:
         """How far [mm] a reading may lie from its one-step prediction before it is a spike: the larger of
@@ -334,6 +398,7 @@ class ReadingGuard:
             spike[1], spike[4] = error, before
             self.spike_limit_mm = limit
             self.reading_held = (l, predicted, last_l)
+            self._last_held = ["spike", k, l]
             return predicted
         if before > limit and error > limit:
             # a reading as far off after a held (or far-off) one: no spike but a model that predicts this
@@ -359,8 +424,9 @@ class ReadingGuard:
             self.reading_stuck = (still[0], still[1] * self._ts)
 
     def get_state(self) -> dict[str, Any]:
-        """The guards' state as plain data: ``held_in_a_row``, ``still``, ``spike``."""
-        return {"held_in_a_row": self._held_in_a_row, "still": list(self._still), "spike": list(self._spike)}
+        """The guards' state as plain data: ``held_in_a_row``, ``still``, ``spike``, ``last_held``."""
+        return {"held_in_a_row": self._held_in_a_row, "still": list(self._still), "spike": list(self._spike),
+                "last_held": None if self._last_held is None else list(self._last_held)}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
         """Restore what :meth:`get_state` returned; a field left out starts anew (a state saved
@@ -384,6 +450,11 @@ class ReadingGuard:
             raise ValueError(f"state field spike = {spike!r} must be [mean |prediction error| >= 0 mm or NaN, the last "
                              "reading's |error| >= 0 mm or NaN, the sample the guard acts from >= 0, the preview's last "
                              "sample (finite) or NaN, the |error| before >= 0 mm or NaN]")
+        last_held = state.get("last_held")
+        if last_held is not None and not _valid_last_held(last_held):
+            raise ValueError(f"state field last_held = {last_held!r} must be null or ['spike' or 'repeat', the sample "
+                             f"(>= 0), the reading held (within {L_RANGE_MM[0]:g}..{L_RANGE_MM[1]:g} mm)]")
         self._held_in_a_row = int(held)
+        self._last_held = None if last_held is None else [last_held[0], int(last_held[1]), float(last_held[2])]
         self._still = [float(still[0]), int(still[1]), int(still[2]), int(still[3]), bool(still[4])]
         self._spike = [float(spike[0]), float(spike[1]), int(spike[2]), float(spike[3]), float(spike[4])]

@@ -15,8 +15,8 @@ from typing import Callable
 
 import numpy as np
 
-from fmu_controller.displacement_control import (REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_MM, SPIKE_SPREAD,
-                                                 DisplacementController)
+from fmu_controller.displacement_control import (REF_STEP_SETTLE_S, REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_MM,
+                                                 SPIKE_SPREAD, DisplacementController)
 from fmu_controller.hysteresis_model import ASYMMETRIC
 from fmu_controller.loop_watch import LoopWatch
 from fmu_controller.reference import Reference, as_reference
@@ -52,6 +52,16 @@ def _update_load(plant: Plant, load_fn: Callable[[float], float], t_s: float) ->
     except ValueError as exc:
         exc.add_note(f"load_n(t) at t = {t_s:.12g} s")
         raise
+
+
+def _found_real(times_s: list[float]) -> str:
+    """What the readings after held ones told (``times_s``: the held ones found the muscle's own [s])."""
+    if not times_s:
+        return ""
+    shown = ", ".join(f"{t:.12g}" for t in times_s[:5]) + (", ..." if len(times_s) > 5 else "")
+    return (f"; the reading after showed {len(times_s)} of them (t = {shown} s) the muscle's own: it lay nearer the "
+            "held one than the prediction (a supply lost or back, a load dropped, a stop reached?), and the guards "
+            f"held no reading for {REF_STEP_SETTLE_S:g} s after each")
 
 
 def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLaw,
@@ -184,6 +194,7 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
     held_at: list[float] = []  # sample times of the readings the glitch guard held: jumps beyond max_speed ...
     spiked_at: list[float] = []  # ... one-sample spikes from the prediction ...
     repeated_at: list[float] = []  # ... and stale repeats of the last reading
+    real: dict[str, list[float]] = {"spike": [], "repeat": []}  # held ones the reading after found the muscle's own
     every = max(1, n // 100)
     try:
         for k in range(n):
@@ -214,6 +225,8 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
                 if held is not None:
                     (spiked_at if controller.spike_limit_mm is not None else repeated_at if held[0] == held[2]
                      else held_at).append(t)
+                if controller.held_reading_real is not None:
+                    real[controller.held_reading_real[0]].append(float(cols["t_s"][k - 1]))  # the held one's
                 pred_prev = step.predicted_next_mm
             u_prev = u
             if loop_delay_samples:
@@ -243,12 +256,12 @@ def run_closed_loop(plant: Plant, controller: DisplacementController | ControlLa
         warn_at_caller(f"{len(spiked_at)} readings (the first at t = {spiked_at[0]:g} s) were further from the one-step "
                        f"prediction than the larger of {SPIKE_MM:g} mm and {SPIKE_SPREAD:g} times its mean error, the two "
                        "readings before within half of that, and were taken for one-sample spikes of the sensor: the "
-                       "controller used its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)",
-                       ClosedLoopWarning)
+                       "controller used its prediction instead (ControllerSettings.max_speed_mm_per_s = 0 turns this off)"
+                       + _found_real(real["spike"]), ClosedLoopWarning)
     if repeated_at:
         warn_at_caller(f"{len(repeated_at)} readings (the first at t = {repeated_at[0]:.12g} s) repeated the last one to the "
                        f"bit where the one-step prediction had the muscle move more than the larger of {REPEAT_MOVE_MM:g} "
                        f"mm and {REPEAT_SPREAD:g} times its mean error, and were taken for stale samples of the data "
                        "acquisition: the controller used its prediction instead (ControllerSettings.max_speed_mm_per_s "
-                       "= 0 turns this off)", ClosedLoopWarning)
+                       "= 0 turns this off)" + _found_real(real["repeat"]), ClosedLoopWarning)
     return cols

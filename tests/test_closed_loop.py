@@ -244,8 +244,26 @@ def test_stale_repeats_of_the_reading_are_warned_of_after_the_run():
 
     ctrl = tm.DisplacementController(tm.ControllerSettings(method="ampc_servo"), tm.THETA0_44N)
     with pytest.warns(RuntimeWarning, match=r"^2 readings \(the first at t = 30 s\) repeated the last one to the bit .*"
-                                            r"stale samples of the data acquisition"):
+                                            r"stale samples of the data acquisition") as said:
         tm.run_closed_loop(RepeatingPlant(seed=0), ctrl, tm.SineReference(), duration_s=40.0)
+    assert not [w for w in said if "muscle's own" in str(w.message)]  # the reading after each back on the track
+
+
+def test_readings_held_that_the_reading_after_found_the_muscles_own_are_said_so_after_the_run():
+    """The supply falling by 0.2 MPa at once at t = 24 s and back at 40 s (a sag without ramps): the
+    muscle leaves its model's track by 15 mm within a sample, the spike guard holds those readings, and
+    the warning after the run says which the reading after found the muscle's own."""
+    import pytest
+
+    import tapmuscle as tm
+
+    rig = tm.PlantParams().with_values(**{"supply_variation.sag_mpa": 0.2, "supply_variation.start_s": 24.0,
+                                          "supply_variation.ramp_s": 0.0, "supply_variation.end_s": 40.0})
+    ctrl = tm.DisplacementController(tm.ControllerSettings(method="ampc_servo"), tm.THETA0_44N)
+    with pytest.warns(RuntimeWarning, match=r"^2 readings \(the first at t = 24\.1 s\) were further from the one-step "
+                                            r"prediction .*; the reading after showed 2 of them \(t = 24\.1, 40\.1 s\) "
+                                            r"the muscle's own"):
+        tm.run_closed_loop(tm.Plant(rig, seed=0), ctrl, tm.SineReference(), duration_s=60.0)
 
 
 def test_a_stuck_reading_is_warned_of_after_the_run():

@@ -1296,6 +1296,34 @@ def test_a_spike_under_the_speed_bound_is_logged_as_a_spike_and_counted():
                     r"the 5 mm it has lately come within \(the larger of 5 mm and 10 times the mean error\): taken for a "
                     r"one-sample spike of the sensor", msg), msg
     assert "1 readings taken for sensor glitches and held (max_speed)" in slave.run_summary()
+    assert "muscle's own" not in slave.run_summary() and not [m for m in slave.log_queue if "muscle's own" in m.msg]
+
+
+def test_a_held_reading_the_next_one_finds_the_muscles_own_is_logged_so_and_counted():
+    """The tap shut at t = 30 s: the muscle drains and its reading at 30.1 s is 15 mm off the prediction,
+    held as a spike (one sample cannot tell); the reading at 30.2 s stays by it, and the FMU logs that
+    the held one was the muscle's own move, the run summary counts it among the held ones."""
+    from fmu_controller.controller_slave import AMPCController
+    from fmu_plant import Plant
+
+    slave = AMPCController(instance_name="tap")
+    slave.enter_initialization_mode()
+    slave.exit_initialization_mode()
+    plant = Plant(seed=0)
+    for k in range(400):
+        if k == 300:
+            plant.update(supply_pressure_mpa=0.0)
+        slave.l = plant.measurement.l_mm
+        assert slave.do_step(k * 0.1, 0.1)
+        plant.step(slave.u, 0.1)
+    (held,) = [m for m in slave.log_queue if "taken for a one-sample spike" in m.msg]
+    (own,) = [m for m in slave.log_queue if "was the muscle's own" in m.msg]
+    assert held.msg.startswith("t = 30.1 s: the reading l = ") and own.status == Fmi2Status.warning
+    reading = re.match(r"t = 30.1 s: the reading l = ([\d.]+) mm", held.msg)[1]
+    assert own.msg.startswith(f"t = 30.2 s: the reading held one sample before as a one-sample spike of the sensor, "
+                              f"l = {reading} mm, was the muscle's own")
+    assert ("1 readings taken for sensor glitches and held (max_speed), 1 of them found the muscle's own move by the "
+            "reading after") in slave.run_summary()
 
 
 def test_a_stuck_reading_is_logged_once_and_counted():

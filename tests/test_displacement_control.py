@@ -1234,9 +1234,11 @@ def test_the_delay_evidence_of_a_set_delay():
 
 
 # ------------------------------------------------------------------ glitch guard
-def _spiked_run(theta0, method, spike_mm, *, guard=True, k_spike=300, width=1, n=601, seed=0, save_at=None):
+def _spiked_run(theta0, method, spike_mm, *, guard=True, k_spike=300, width=1, n=601, seed=0, save_at=None,
+                real=None):
     """A loop on the simulated rig whose readings are ``spike_mm`` off for ``width`` samples from
-    ``k_spike``: the real displacement, the commands and the samples the guard held."""
+    ``k_spike``: the real displacement, the commands and the samples the guard held (``real``: a list
+    given the samples that found the one held before the muscle's own)."""
     plant = Plant(seed=seed)
     s = ControllerSettings(method=method, max_speed_mm_per_s=DEFAULT_MAX_SPEED_MM_PER_S if guard else 0.0)
     c = DisplacementController(s, theta0)
@@ -1250,6 +1252,8 @@ def _spiked_run(theta0, method, spike_mm, *, guard=True, k_spike=300, width=1, n
         step = c.step(l + (spike_mm if k_spike <= k < k_spike + width else 0.0), ref.preview(k, s.preview_samples))
         if c.reading_held is not None:
             held.append(k)
+        if real is not None and c.held_reading_real is not None:
+            real.append(k)
         ls.append(l)
         us.append(step.u_v)
         plant.step(step.u_v, s.ts_s)
@@ -1464,8 +1468,10 @@ def test_a_spike_under_the_speed_bound_is_held_as_a_spike(theta0, method, spike_
     from fmu_controller.displacement_control import SPIKE_MM
 
     ls0, us0, _, _, _ = _spiked_run(theta0, method, 0.0)
-    ls, us, held, _, c = _spiked_run(theta0, method, spike_mm)
+    real = []
+    ls, us, held, _, c = _spiked_run(theta0, method, spike_mm, real=real)
     assert held == [300] and abs(spike_mm) > SPIKE_MM  # a spike the max_speed bound lets through
+    assert real == []  # the next reading back on the model's track: the sensor's spike
     assert np.max(np.abs(ls - ls0)) < 0.5
     # in the start-up and the 5 s after it (the estimate still learning) a spike is used; a 39-mm one at
     # 2.4 s, the muscle rising, leaves the next reading more than 40 mm from it: that reading, within
@@ -1512,11 +1518,12 @@ def test_the_spike_guard_holds_nothing_in_the_papers_runs_and_its_state_restores
             c2.set_state({**saved, "spike": bad})
 
 
-def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, reference=None, record=None):
+def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, reference=None, record=None, real=None):
     """A loop on the simulated rig in which the readings of the samples ``stale`` repeat the reading fed
     before (a data acquisition that delivered its last value again): the real displacement, the
     samples whose reading was held, and the controller (``record``: a dict given the readings fed,
-    the commands and the controller's state before each sample)."""
+    the commands and the controller's state before each sample; ``real``: a list given the samples
+    that found the one held before the muscle's own)."""
     plant = Plant(params or PlantParams(), seed=0)
     s = ControllerSettings(method=method, max_speed_mm_per_s=DEFAULT_MAX_SPEED_MM_PER_S if guard else 0.0)
     c = DisplacementController(s, theta0)
@@ -1534,6 +1541,8 @@ def _stale_run(theta0, method, stale=(), *, guard=True, n=601, params=None, refe
             record.setdefault("u", []).append(step.u_v)
         if c.reading_held is not None:
             held.append(k)
+        if real is not None and c.held_reading_real is not None:
+            real.append(k)
         ls.append(l)
         plant.step(step.u_v, s.ts_s)
         l = plant.measurement.l_mm
@@ -1547,9 +1556,10 @@ def test_a_reading_repeated_by_a_stale_acquisition_where_the_muscle_moves_is_rep
     stale sample and the prediction used (0.03-0.46 mm measured). Repeats in a row: the first only
     (a muscle that stopped reads the same again), and the message says what was seen."""
     base, held0, _ = _stale_run(theta0, method)
-    ls, held, c = _stale_run(theta0, method, {300})
+    real = []
+    ls, held, c = _stale_run(theta0, method, {300}, real=real)
     unguarded, held_x, _ = _stale_run(theta0, method, {300}, guard=False)
-    assert held0 == [] and held == [300] and held_x == []
+    assert held0 == [] and held == [300] and held_x == [] and real == []
     assert np.max(np.abs(ls - base)) < 0.6 and np.max(np.abs(unguarded - base)) > 1.5
     _, held, _ = _stale_run(theta0, method, set(range(300, 305)), n=305)
     assert held == [300]
@@ -1608,6 +1618,32 @@ def test_the_repeat_guard_holds_no_reading_of_a_muscle_that_really_stops(theta0,
     for params, reference in ((None, far), (None, rest), (exact, None), (exact, far), (coarse, None), (off, stair)):
         _, held, _ = _stale_run(theta0, method, params=params, reference=reference)
         assert held == [], (params, reference)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_supply_lost_and_back_is_told_the_muscles_own_move_by_the_reading_after(theta0, method):
+    """The tap shut at 30 s (0.25 -> 0 MPa) and opened again at 40 s: the muscle drains, or fills, and
+    leaves its model's track by 15 mm within a sample. One sample cannot tell that from a sensor's
+    spike, and the guard holds it; the reading after stays by the held one, far from the prediction,
+    and tells it the muscle's own, for every hold; after it the guards wait, so that the drained
+    muscle's standstill is not held as stale samples."""
+    plant = Plant(seed=0)
+    c = DisplacementController(ControllerSettings(method=method), theta0)
+    ref = SineReference()
+    c.reset(plant.measurement.l_mm)
+    held, real = [], []
+    for k in range(600):
+        if k in (300, 400):
+            plant.update(supply_pressure_mpa=0.0 if k == 300 else 0.25)
+        step = c.step(plant.measurement.l_mm, ref.preview(k, c.settings.preview_samples))
+        if c.reading_held is not None:
+            held.append(k)
+        if c.held_reading_real is not None:
+            kind, held_mm, reading, predicted = c.held_reading_real
+            assert abs(reading - held_mm) < abs(reading - predicted) and abs(reading - predicted) > 1.0
+            real.append(k)
+        plant.step(step.u_v, 0.1)
+    assert 301 in held and held and [k + 1 for k in held] == real
 
 
 @pytest.mark.parametrize("method", ["mpc_servo", "ampc_servo"])

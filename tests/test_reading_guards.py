@@ -7,7 +7,7 @@ import math
 import pytest
 
 from fmu_controller.reading_guards import (HELD_READINGS_MAX, REPEAT_MOVE_MM, SPIKE_MM, STUCK_AT_LIMIT_S,
-                                           ReadingGuard)
+                                           ReadingGuard, real_move_message, settle_samples)
 
 TS = 0.1
 MAX_JUMP = 40.0  # 400 mm/s at 0.1 s
@@ -76,7 +76,8 @@ def test_a_stuck_reading_is_told_once_after_both_limits_and_is_used():
 
 
 @pytest.mark.parametrize("field, value", [("held_in_a_row", HELD_READINGS_MAX + 1), ("still", [1.0, 2, 3, 4, False]),
-                                          ("spike", [-1.0, 0.0, 0, 0.0, 0.0])])
+                                          ("spike", [-1.0, 0.0, 0, 0.0, 0.0]), ("last_held", ["glitch", 3, 1.0]),
+                                          ("last_held", ["spike", -1, 1.0]), ("last_held", ["repeat", 3, math.nan])])
 def test_a_state_no_guard_could_have_saved_is_refused_naming_the_field_and_changes_nothing(field, value):
     g = _guard()
     _settled(g, n=30)
@@ -84,3 +85,77 @@ def test_a_state_no_guard_could_have_saved_is_refused_naming_the_field_and_chang
     with pytest.raises(ValueError, match=f"state field {field} ="):
         g.set_state({**saved, field: value})
     assert g.get_state() == saved
+
+
+def _held(kind):
+    """A guard that has just held a spike (``kind`` "spike": 2 SPIKE_MM above its prediction) or a stale
+    repeat ("repeat": the prediction 2 REPEAT_MOVE_MM on), after a settled run of 1 mm a sample; the held
+    reading, the prediction used instead, and the next sample."""
+    g = _guard()
+    l, k = _settled(g)
+    predicted = l + (1.0 if kind == "spike" else 2 * REPEAT_MOVE_MM)
+    held = predicted + 2 * SPIKE_MM if kind == "spike" else l
+    assert g.check(held, k, predicted, l, l - 1.0, 35.0, 5.0, True) == predicted
+    assert g.reading_held == (held, predicted, l) and g.held_reading_real is None
+    return g, held, predicted, k + 1
+
+
+@pytest.mark.parametrize("kind", ["spike", "repeat"])
+def test_a_held_reading_the_next_one_stays_by_is_told_the_muscles_own_and_the_guards_wait(kind):
+    """A supply lost moves the muscle off its model's track within a sample (the reading after a spike
+    stays by it) or stops it (the reading after a repeat repeats it): the hold was the muscle's own."""
+    g, held, used, k = _held(kind)
+    nxt = held - 0.01 if kind == "spike" else held  # a muscle that went there (the encoder's noise), or stopped
+    predicted = used + 1.0  # the model's track, from the value used
+    assert g.check(nxt, k, predicted, used, held, 35.0, 5.0, True) == nxt
+    assert g.held_reading_real == (kind, held, nxt, predicted)
+    message = real_move_message(*g.held_reading_real)
+    assert f"l = {held:g} mm, was the muscle's own" in message and f"{abs(nxt - predicted):.3g} mm from" in message
+    assert ("as a one-sample spike" in message) == (kind == "spike")
+    assert ("as a stale sample" in message) == (kind == "repeat")
+    # the guards wait a reference step's transient: a spike and a stale repeat within it are used, a
+    # spike after it is held
+    wait = settle_samples(TS)
+    l = nxt
+    for i in range(1, wait + 4):
+        if i in (5, 10):  # a spike, a repeat
+            reading, predicted = (l + 1.0 + 2 * SPIKE_MM, l + 1.0) if i == 5 else (l, l + 2 * REPEAT_MOVE_MM)
+        elif i == wait + 3:
+            reading, predicted = l + 1.0 + 2 * SPIKE_MM, l + 1.0
+        else:
+            reading, predicted = l + 1.0, l + 0.9
+        got = g.check(reading, k + i, predicted, l, l - 1.0, 35.0, 5.0, True)
+        assert (got == reading) == (i < wait + 3) and g.held_reading_real is None
+        l = got if i not in (5, 10) else predicted  # the far ones off the track: the next ordinary from it
+
+
+@pytest.mark.parametrize("kind", ["spike", "repeat"])
+def test_a_held_reading_the_next_one_leaves_for_the_models_track_stays_the_sensors(kind):
+    g, held, used, k = _held(kind)
+    predicted = used + 1.0
+    nxt = predicted + 0.3  # back on the track: the sensor's spike, the DAQ's stale sample
+    assert g.check(nxt, k, predicted, used, held, 35.0, 5.0, True) == nxt
+    assert g.held_reading_real is None
+    # and only the sample after it is judged
+    g, held, used, k = _held(kind)
+    state = g.get_state()
+    g.set_state({**state, "last_held": [kind, k - 2, held]})
+    assert g.check(held, k, used + 1.0, used, held, 35.0, 5.0, True) is not None and g.held_reading_real is None
+
+
+@pytest.mark.parametrize("kind", ["spike", "repeat"])
+def test_a_state_saved_between_a_hold_and_its_verdict_gives_the_same_verdict(kind):
+    g, held, used, k = _held(kind)
+    saved = g.get_state()
+    assert saved["last_held"] == [kind, k - 1, held]
+    again = _guard()
+    again.set_state(saved)
+    for guard in (g, again):
+        guard.check(held, k, used + 1.0, used, held, 35.0, 5.0, True)
+    assert g.held_reading_real == again.held_reading_real == (kind, held, held, used + 1.0)
+    assert g.get_state() == again.get_state()
+    # a state saved without the field (an earlier build's): no verdict pending
+    old = {key: value for key, value in saved.items() if key != "last_held"}
+    again.set_state(old)
+    again.check(held, k, used + 1.0, used, held, 35.0, 5.0, True)
+    assert again.held_reading_real is None
