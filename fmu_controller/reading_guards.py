@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from .controller_settings import ControllerSettings
 
 __all__ = ["L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
-           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
+           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_MEAN_CAP", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
            "REF_STEP_SETTLE_S", "settle_samples", "STUCK_AT_LIMIT_S", "held_reading_message",
            "real_move_message", "stuck_reading_message", "ReadingGuard"]
 
@@ -54,6 +54,12 @@ HELD_READINGS_MAX = 3
 #: staircases, delayed rigs, 0.5-mm sensor noise, rigs with constants off) it holds none.
 SPIKE_MM = 5.0
 SPIKE_SPREAD = 10.0
+#: An error counts in the spike guard's running mean as at most this many times the mean (or half
+#: :data:`SPIKE_MM`, where that is more), so that the mean stays the ordinary error's: a spike of 30 mm
+#: every 2 s, counted whole, had raised it to 4-5 mm and the limit to 40-55 mm, and no spike was
+#: held. A lasting rise of the error is followed within seconds (the mean can grow by 8 % a sample),
+#: and the ordinary errors, a few percent of which exceed 5 times their mean, keep theirs.
+SPIKE_MEAN_CAP = 5.0
 SPIKE_FORGET = 0.02
 SPIKE_AFTER_S = 5.0
 #: A reading equal to the last one, to the bit, where the one-step prediction has the muscle move by
@@ -330,10 +336,12 @@ class ReadingGuard:
             return self._spike_guard(l, k, predicted, last_l, r_last, guarded)
         spike = self._spike
         if self._held_in_a_row >= HELD_READINGS_MAX or (
-                not self._held_in_a_row and abs(l - l_prev) <= self._max_jump and spike[1] > self._spike_limit()):
-            # the new level; or, after a used reading that was far from its prediction, within reach of
-            # the reading before it: that one was a spike under the bound, and the readings after it
-            # are the muscle's. The model's state has jumped: its predictions are no guide for a while
+                not self._held_in_a_row and abs(l - l_prev) <= self._max_jump
+                and spike[1] > min(self._spike_limit(), max(SPIKE_MM, abs(l - l_prev)))):
+            # the new level; or, after a used reading that was far from its prediction (beyond the spike
+            # limit, or further than this reading lies from the one before it), within reach of the
+            # reading before it: that one was a spike under the bound, and the readings after it are the
+            # muscle's. The model's state has jumped: its predictions are no guide for a while
             self._held_in_a_row = 0
             spike[1], spike[4] = abs(l - predicted) if math.isfinite(predicted) else math.nan, spike[1]
             spike[2], spike[3] = k + settle_samples(self._ts), r_last
@@ -406,8 +414,11 @@ class ReadingGuard:
             spike[2] = k + settle_samples(ts)
             limit = error
         spike[1], spike[4] = error, before
-        # an error beyond the limit counts as the limit: a transient does not blunt the guard
-        spike[0] = error if spike[0] != spike[0] else spike[0] + SPIKE_FORGET * (min(error, limit) - spike[0])
+        # an error counts as at most SPIKE_MEAN_CAP times the mean (or half SPIKE_MM): spikes, even every
+        # few seconds, and a transient do not blunt the guard
+        mean = spike[0]
+        spike[0] = error if mean != mean else mean + SPIKE_FORGET * (
+            min(error, limit, max(0.5 * SPIKE_MM, SPIKE_MEAN_CAP * mean)) - mean)
         return l
 
     def _watch_still(self, u_last: float) -> None:

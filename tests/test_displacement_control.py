@@ -1621,6 +1621,35 @@ def test_the_repeat_guard_holds_no_reading_of_a_muscle_that_really_stops(theta0,
 
 
 @pytest.mark.parametrize("method", METHODS)
+def test_a_sensor_spiking_every_two_seconds_is_guarded_no_worse_than_unguarded(theta0, method):
+    """30-mm spikes every 2 s from 6 s on (benchmarks/frequent_spikes.py): counted whole in the guard's
+    mean error they raised its limit beyond 30 mm (AMPC-servo held none: 2.7 mm mean |r - l|), and the
+    real readings after a spike used were held as glitches (the fixed predictors did worse guarded than
+    unguarded, 3.1 against 1.7 mm and 5.4 against 4.3). Guarded, every method tracks at least as well as
+    unguarded, and the servo laws and AMPC-UCP, which hold the spikes, at least a third better."""
+    def run(guard):
+        s = ControllerSettings(method=method, max_speed_mm_per_s=DEFAULT_MAX_SPEED_MM_PER_S if guard else 0.0)
+        c, plant, ref = DisplacementController(s, theta0), Plant(seed=0), SineReference()
+        c.reset(plant.measurement.l_mm)
+        errors, held = [], 0
+        for k in range(901):
+            l = plant.measurement.l_mm
+            if k > 60 and k % 20 == 0:
+                l = l - 30.0 if l > 32.0 else l + 30.0
+            step = c.step(l, ref.preview(k, s.preview_samples))
+            held += c.reading_held is not None
+            if k >= 300:
+                errors.append(abs(ref.at(k) - plant.l_mm))
+            plant.step(step.u_v, s.ts_s)
+        return float(np.mean(errors)), held
+
+    (guarded, held), (unguarded, _) = run(True), run(False)
+    assert guarded <= unguarded + 0.05
+    if method != "mpc_ucp":  # its law answers each spike used in the start-up so hard that the guard keeps waiting
+        assert held >= 20 and guarded < 0.67 * unguarded
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_a_supply_lost_and_back_is_told_the_muscles_own_move_by_the_reading_after(theta0, method):
     """The tap shut at 30 s (0.25 -> 0 MPa) and opened again at 40 s: the muscle drains, or fills, and
     leaves its model's track by 15 mm within a sample. One sample cannot tell that from a sensor's

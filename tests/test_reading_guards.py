@@ -159,3 +159,41 @@ def test_a_state_saved_between_a_hold_and_its_verdict_gives_the_same_verdict(kin
     again.set_state(old)
     again.check(held, k, used + 1.0, used, held, 35.0, 5.0, True)
     assert again.held_reading_real is None
+
+
+def test_a_reading_out_of_reach_of_a_used_spike_but_within_reach_of_the_one_before_is_used():
+    """A 30-mm spike used (the guard waiting, or its limit above 30 mm); the law answers it, and the next
+    reading is more than a sample's reach (40 mm) from the spike but 12 mm from the reading before it:
+    the spike missed its prediction by more than that, so it was the odd one out, and the reading is
+    the muscle's (holding it, and the two after, as glitches sent the valve to a limit for 0.3 s and the
+    muscle 45 mm past the reference)."""
+    g = _guard()
+    l, k = _settled(g)
+    state = g.get_state()
+    g.set_state({**state, "spike": [3.5, *state["spike"][1:]]})  # a loop whose errors ran high: limit 35 mm
+    spike = l - 30.0
+    assert g.check(spike, k, l + 1.0, l, l - 1.0, 35.0, 5.0, True) == spike  # under the limit: used
+    nxt = l + 12.0
+    assert abs(nxt - spike) > MAX_JUMP and abs(nxt - l) < MAX_JUMP
+    assert g.check(nxt, k + 1, spike - 1.0, spike, l, 35.0, 10.0, True) == nxt and g.reading_held is None
+    # a reading beyond reach of both is a glitch still
+    g = _guard()
+    l, k = _settled(g)
+    assert g.check(spike, k, l + 1.0, l, l - 1.0, 35.0, 5.0, False) == spike
+    assert g.check(l + 45.0, k + 1, spike - 1.0, spike, l, 35.0, 10.0, True) == spike - 1.0
+
+
+def test_spikes_every_few_samples_do_not_raise_the_spike_limit_out_of_their_reach():
+    """30-mm spikes every 20 samples of a settled run (errors 0.1 mm), none held while the guard is
+    off: counted whole they raised the running mean to several millimetres and the limit (10 times it)
+    above 30 mm; counted as at most SPIKE_MEAN_CAP times the mean, the limit stays near SPIKE_MM."""
+    from fmu_controller.reading_guards import SPIKE_MEAN_CAP, SPIKE_SPREAD
+
+    g = _guard()
+    l, k = _settled(g, n=50)
+    for i in range(400):
+        l += 1.0
+        reading = l - 30.0 if i % 20 == 0 else l
+        g.check(reading, k + i, l - 0.1, l - 1.0, l - 2.0, 35.0, 5.0, False)
+    mean = g.get_state()["spike"][0]
+    assert SPIKE_MEAN_CAP == 5.0 and mean < 0.5 and max(SPIKE_MM, SPIKE_SPREAD * mean) < 30.0
