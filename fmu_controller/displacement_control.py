@@ -66,7 +66,7 @@ from .prediction import MAX_INPUT_DELAY_SAMPLES, guard_bounds
 from .probing import probe_v
 from .reading_guards import (DEFAULT_MAX_SPEED_MM_PER_S, FASTEST_MUSCLE_MM_PER_S, HELD_READINGS_MAX, L_RANGE_MM,
                              REF_STEP_SETTLE_S, REPEAT_MOVE_MM, REPEAT_SPREAD, SPIKE_AFTER_S, SPIKE_FORGET,
-                             SPIKE_MM, SPIKE_SPREAD, STUCK_AT_LIMIT_S, ReadingGuard, held_reading_message,
+                             SPIKE_MEAN_CAP, SPIKE_MM, SPIKE_SPREAD, STUCK_AT_LIMIT_S, ReadingGuard, held_reading_message,
                              real_move_message, settle_samples, stuck_reading_message)
 from .rls import TABLE2_LOWER, TABLE2_UPPER, ConstrainedRLS, RLSSettings
 from .servo_mpc import ServoMPC, integrator_step
@@ -79,7 +79,7 @@ __all__ = ["METHODS", "METHOD_CODES", "MAX_STARTUP_S", "MAX_DELAY_MOVE_WEIGHT", 
            "AUTO_INPUT_DELAY_SAMPLES", "DELAY_FORGET", "DELAY_RATIO", "DELAY_MIN_SAMPLES", "DELAY_TIE_RATIO",
            "HOLD_AFTER_SAMPLES", "B1_KEPT_FRACTION", "GUARD_JUMP_FRACTION", "GUARD_JUMPS", "pushed_at_limit", "pinned_side", "limit_side",
            "full_range_jump", "preview_lead", "VALVE_MIN_V", "VALVE_MAX_V", "MIN_FORGETTING", "HELD_AGAINST_MM",
-           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
+           "SPIKE_MM", "SPIKE_SPREAD", "SPIKE_MEAN_CAP", "SPIKE_FORGET", "SPIKE_AFTER_S", "REPEAT_MOVE_MM", "REPEAT_SPREAD",
            "REF_STEP_SETTLE_S", "settle_samples",
            "L_RANGE_MM", "FASTEST_MUSCLE_MM_PER_S", "DEFAULT_MAX_SPEED_MM_PER_S", "HELD_READINGS_MAX",
            "STUCK_AT_LIMIT_S", "stuck_reading_message", "DEFAULT_DELAY_MOVE_WEIGHT",
