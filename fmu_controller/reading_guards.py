@@ -162,8 +162,8 @@ def real_move_message(kind: str, held_mm: float, reading_mm: float, predicted_mm
     return (f"the reading held one sample before as {what}, l = {held_mm:g} mm, was the muscle's own: this one, "
             f"{reading_mm:g} mm, lies {abs(reading_mm - held_mm):.3g} mm from it and {abs(reading_mm - predicted_mm):.3g} "
             f"mm from the one-step prediction {predicted_mm:.4g} mm. The muscle moved or stopped as its model does not "
-            "have it (a supply lost or back, a load dropped, a stop reached?); the spike and repeat guards hold no "
-            f"reading for {REF_STEP_SETTLE_S:g} s")
+            "have it (a supply lost or back, a load dropped, a stop reached?), or the sensor's fault lasts (a spike or "
+            f"repeat of two samples or more); the spike and repeat guards hold no reading for {REF_STEP_SETTLE_S:g} s")
 
 
 def stuck_reading_message(t_s: float, reading_mm: float, unchanged_s: float) -> str:

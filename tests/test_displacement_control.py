@@ -13,7 +13,8 @@ from fmu_controller.displacement_control import (AUTO_INPUT_DELAY_SAMPLES, B1_KE
                                                  DEFAULT_PROBING_V, DEFAULT_STARTUP_S, HELD_READINGS_MAX,
                                                  HOLD_AFTER_SAMPLES, MAX_INPUT_DELAY_SAMPLES, METHODS, P0_TABLE5, P0_TABLE8,
                                                  DEFAULT_DELAY_MOVE_WEIGHT, STUCK_AT_LIMIT_S, ControllerSettings,
-                                                 DisplacementController, held_reading_message)
+                                                 DisplacementController, held_reading_message,
+                                                 real_move_message)
 from fmu_controller.preliminary_model import THETA0_44N
 from fmu_controller.probing import probe_v
 from fmu_controller.hysteresis_model import ASYMMETRIC, ModelState
@@ -1472,6 +1473,11 @@ def test_a_spike_under_the_speed_bound_is_held_as_a_spike(theta0, method, spike_
     ls, us, held, _, c = _spiked_run(theta0, method, spike_mm, real=real)
     assert held == [300] and abs(spike_mm) > SPIKE_MM  # a spike the max_speed bound lets through
     assert real == []  # the next reading back on the model's track: the sensor's spike
+    # one of two samples: its second lies by the first and passes, and the verdict says the fault lasted
+    real = []
+    _, _, held, _, c = _spiked_run(theta0, method, spike_mm, width=2, n=302, real=real)
+    assert held == [300] and real == [301] and c.held_reading_real[0] == "spike"
+    assert "or the sensor's fault lasts (a spike or repeat of two samples or more)" in real_move_message(*c.held_reading_real)
     assert np.max(np.abs(ls - ls0)) < 0.5
     # in the start-up and the 5 s after it (the estimate still learning) a spike is used; a 39-mm one at
     # 2.4 s, the muscle rising, leaves the next reading more than 40 mm from it: that reading, within
