@@ -60,7 +60,8 @@ def _found_real(times_s: list[float]) -> str:
         return ""
     shown = ", ".join(f"{t:.12g}" for t in times_s[:5]) + (", ..." if len(times_s) > 5 else "")
     return (f"; the reading after showed {len(times_s)} of them (t = {shown} s) the muscle's own: it lay nearer the "
-            "held one than the prediction (a supply lost or back, a load dropped, a stop reached?), and the guards "
+            "held one than the prediction (a supply lost or back, a load dropped, a stop reached? or a sensor fault "
+            "of two samples or more), and the guards "
             f"held no reading for {REF_STEP_SETTLE_S:g} s after each")
 
 
